@@ -1,0 +1,1 @@
+"""The classical half: sliding-window and batch calibration, drift detection, Cramer-Rao bound."""

@@ -1,0 +1,1 @@
+"""Data layer: nuScenes-format files and tables -> synchronised radar-camera frames."""

@@ -1,0 +1,139 @@
+"""Radar PCD (nuScenes / Continental ARS 408-21, binary PCD v0.7, 18 fields) and LiDAR .pcd.bin I/O.
+
+Every reader error is a ``DataError`` naming the file and what is wrong.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from hybrid_calib.errors import DataError
+
+# The 18 fields of a nuScenes radar PCD, in file order, with their numpy types.
+RADAR_FIELDS: tuple[tuple[str, str], ...] = (
+    ("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
+    ("dyn_prop", "i1"), ("id", "<i2"), ("rcs", "<f4"),
+    ("vx", "<f4"), ("vy", "<f4"), ("vx_comp", "<f4"), ("vy_comp", "<f4"),
+    ("is_quality_valid", "i1"), ("ambig_state", "i1"), ("x_rms", "i1"), ("y_rms", "i1"),
+    ("invalid_state", "i1"), ("pdh0", "i1"), ("vx_rms", "i1"), ("vy_rms", "i1"),
+)
+RADAR_DTYPE = np.dtype(list(RADAR_FIELDS))
+_TYPE_CHAR = {"f": "F", "i": "I", "u": "U"}
+
+
+def _header_text(n_points: int) -> bytes:
+    names = " ".join(n for n, _ in RADAR_FIELDS)
+    sizes = " ".join(str(np.dtype(t).itemsize) for _, t in RADAR_FIELDS)
+    types = " ".join(_TYPE_CHAR[np.dtype(t).kind] for _, t in RADAR_FIELDS)
+    counts = " ".join("1" for _ in RADAR_FIELDS)
+    return (
+        "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\n"
+        f"FIELDS {names}\nSIZE {sizes}\nTYPE {types}\nCOUNT {counts}\n"
+        f"WIDTH {n_points}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n_points}\nDATA binary\n"
+    ).encode("ascii")
+
+
+def write_radar_pcd(path: str | Path, points: np.ndarray) -> Path:
+    """Write a structured array of dtype ``RADAR_DTYPE`` (N,) as a nuScenes radar PCD, atomically."""
+    path = Path(path)
+    points = np.asarray(points)
+    if points.dtype != RADAR_DTYPE:
+        raise ValueError(f"radar points must have dtype RADAR_DTYPE, got {points.dtype}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "wb") as f:
+        f.write(_header_text(len(points)))
+        f.write(points.tobytes())
+    tmp.replace(path)
+    return path
+
+
+def empty_radar_points(n: int) -> np.ndarray:
+    """(n,) structured array of ``RADAR_DTYPE`` filled with zeros."""
+    return np.zeros(n, dtype=RADAR_DTYPE)
+
+
+def read_radar_pcd(path: str | Path) -> np.ndarray:
+    """Read a binary radar PCD -> structured array (N,) with the fields named in its header.
+
+    Raises ``DataError`` for a missing file, a malformed header, an unsupported DATA mode or a
+    truncated body.
+    """
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise DataError("radar file not found; check the dataset root and version", path=str(path)) from None
+    except OSError as e:
+        raise DataError(f"cannot read radar file: {e}", path=str(path)) from None
+    header: dict[str, list[str]] = {}
+    pos = 0
+    while True:
+        end = raw.find(b"\n", pos)
+        if end < 0:
+            raise DataError("truncated PCD header (no DATA line); the file is corrupt, re-download it",
+                            path=str(path))
+        line = raw[pos:end].decode("ascii", errors="replace").strip()
+        pos = end + 1
+        if not line or line.startswith("#"):
+            continue
+        key, *vals = line.split()
+        header[key.upper()] = vals
+        if key.upper() == "DATA":
+            break
+        if len(header) > 20:
+            raise DataError("not a PCD file (no DATA line in the header)", path=str(path))
+    for key in ("FIELDS", "SIZE", "TYPE", "POINTS"):
+        if key not in header:
+            raise DataError(f"PCD header lacks {key}; the file is corrupt", path=str(path))
+    if header["DATA"] != ["binary"]:
+        raise DataError(f"unsupported PCD DATA mode {header['DATA']}; only 'binary' radar PCDs are supported",
+                        path=str(path))
+    names, sizes, types = header["FIELDS"], header["SIZE"], header["TYPE"]
+    counts = header.get("COUNT", ["1"] * len(names))
+    if not (len(names) == len(sizes) == len(types) == len(counts)):
+        raise DataError("PCD header FIELDS/SIZE/TYPE/COUNT lengths differ; the file is corrupt", path=str(path))
+    try:
+        dtype = np.dtype([
+            (n, f"<{ {'F': 'f', 'I': 'i', 'U': 'u'}[t] }{s}") if int(c) == 1
+            else (n, f"<{ {'F': 'f', 'I': 'i', 'U': 'u'}[t] }{s}", (int(c),))
+            for n, s, t, c in zip(names, sizes, types, counts)
+        ])
+        n_points = int(header["POINTS"][0])
+    except (KeyError, ValueError, TypeError) as e:
+        raise DataError(f"PCD header has an invalid field description ({e})", path=str(path)) from None
+    body = raw[pos:]
+    need = n_points * dtype.itemsize
+    if len(body) < need:
+        raise DataError(
+            f"truncated PCD: header says {n_points} points ({need} bytes) but the body has {len(body)} bytes; "
+            "the file is corrupt or partially copied", path=str(path))
+    return np.frombuffer(body[:need], dtype=dtype).copy()
+
+
+def read_lidar_bin(path: str | Path, n_fields: int = 5) -> np.ndarray:
+    """nuScenes LIDAR_TOP ``.pcd.bin`` (float32 x 5: x, y, z, intensity, ring) -> (N, 5) float32."""
+    path = Path(path)
+    try:
+        raw = np.fromfile(path, dtype=np.float32)
+    except FileNotFoundError:
+        raise DataError("LiDAR file not found", path=str(path)) from None
+    if raw.size % n_fields:
+        raise DataError(f"LiDAR file size is not a multiple of {n_fields} float32 values; the file is corrupt",
+                        path=str(path))
+    return raw.reshape(-1, n_fields)
+
+
+def write_lidar_bin(path: str | Path, points: np.ndarray) -> Path:
+    """(N, 5) float -> nuScenes ``.pcd.bin`` (float32), atomically."""
+    path = Path(path)
+    points = np.asarray(points, dtype=np.float32)
+    if points.ndim != 2 or points.shape[1] != 5:
+        raise ValueError(f"LiDAR points must be (N, 5) [x, y, z, intensity, ring], got {points.shape}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    points.tofile(tmp)
+    tmp.replace(path)
+    return path

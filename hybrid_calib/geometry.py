@@ -1,0 +1,176 @@
+"""SE(3) / SO(3) helpers in numpy, matching GTSAM's conventions exactly.
+
+Conventions (see docs/conventions.md):
+- A transform ``T_a_b`` is a (4, 4) float64 homogeneous matrix that maps points expressed in
+  frame ``b`` into frame ``a``: ``p_a = T_a_b @ [p_b, 1]``.
+- Tangent vectors are ``xi = [omega, v]`` (rotation first, radians then metres), exactly as
+  ``gtsam.Pose3.Expmap``.
+- Perturbations are on the right: ``retract(T, xi) = T @ exp(xi)`` and
+  ``local(T1, T2) = log(T1^-1 @ T2)``, as ``gtsam.Pose3.retract`` / ``localCoordinates``.
+- Quaternions in files follow nuScenes: ``[w, x, y, z]``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+_EPS = 1e-10
+
+
+def skew(w: np.ndarray) -> np.ndarray:
+    """(3,) -> (3, 3) cross-product matrix, ``skew(a) @ b == cross(a, b)``."""
+    w = np.asarray(w, dtype=np.float64)
+    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+
+
+def so3_exp(omega: np.ndarray) -> np.ndarray:
+    """Rotation vector (3,) radians -> rotation matrix (3, 3)."""
+    return Rotation.from_rotvec(np.asarray(omega, dtype=np.float64)).as_matrix()
+
+
+def so3_log(R: np.ndarray) -> np.ndarray:
+    """Rotation matrix (3, 3) -> rotation vector (3,) radians."""
+    return Rotation.from_matrix(np.asarray(R, dtype=np.float64)).as_rotvec()
+
+
+def _left_jacobian(omega: np.ndarray) -> np.ndarray:
+    """SO(3) left Jacobian V(omega), (3, 3): translation part of the SE(3) exponential."""
+    theta = float(np.linalg.norm(omega))
+    W = skew(omega)
+    if theta < 1e-6:
+        return np.eye(3) + 0.5 * W + W @ W / 6.0
+    return (
+        np.eye(3)
+        + (1.0 - np.cos(theta)) / theta**2 * W
+        + (theta - np.sin(theta)) / theta**3 * (W @ W)
+    )
+
+
+def make_T(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Rotation (3, 3) and translation (3,) metres -> (4, 4) transform."""
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = np.asarray(t, dtype=np.float64).reshape(3)
+    return T
+
+
+def se3_exp(xi: np.ndarray) -> np.ndarray:
+    """Tangent ``[omega, v]`` (6,) -> (4, 4), identical to ``gtsam.Pose3.Expmap``."""
+    xi = np.asarray(xi, dtype=np.float64).reshape(6)
+    omega, v = xi[:3], xi[3:]
+    return make_T(so3_exp(omega), _left_jacobian(omega) @ v)
+
+
+def se3_log(T: np.ndarray) -> np.ndarray:
+    """(4, 4) -> tangent ``[omega, v]`` (6,), identical to ``gtsam.Pose3.Logmap``."""
+    T = np.asarray(T, dtype=np.float64)
+    omega = so3_log(T[:3, :3])
+    v = np.linalg.solve(_left_jacobian(omega), T[:3, 3])
+    return np.concatenate([omega, v])
+
+
+def se3_inverse(T: np.ndarray) -> np.ndarray:
+    """Inverse of a (4, 4) rigid transform."""
+    R, t = T[:3, :3], T[:3, 3]
+    return make_T(R.T, -R.T @ t)
+
+
+def retract(T: np.ndarray, xi: np.ndarray) -> np.ndarray:
+    """Right perturbation ``T @ exp(xi)`` (GTSAM ``Pose3.retract`` with the full Expmap)."""
+    return np.asarray(T, dtype=np.float64) @ se3_exp(xi)
+
+
+def local(T1: np.ndarray, T2: np.ndarray) -> np.ndarray:
+    """``log(T1^-1 @ T2)`` (6,): the right-tangent from T1 to T2."""
+    return se3_log(se3_inverse(T1) @ T2)
+
+
+def adjoint(T: np.ndarray) -> np.ndarray:
+    """(6, 6) adjoint for ``[omega, v]`` ordering: ``T exp(xi) = exp(Ad_T xi) T``.
+
+    Maps a right (body-frame) perturbation of ``T_a_b`` into the equivalent left perturbation,
+    expressed in frame ``a``. Covariances transform as ``Ad @ C @ Ad.T``.
+    """
+    R, t = T[:3, :3], T[:3, 3]
+    Ad = np.zeros((6, 6))
+    Ad[:3, :3] = R
+    Ad[3:, 3:] = R
+    Ad[3:, :3] = skew(t) @ R
+    return Ad
+
+
+def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Apply (4, 4) ``T_a_b`` to points (N, 3) in frame b -> (N, 3) in frame a."""
+    points = np.asarray(points, dtype=np.float64)
+    return points @ T[:3, :3].T + T[:3, 3]
+
+
+def quat_wxyz_to_matrix(q: np.ndarray) -> np.ndarray:
+    """nuScenes quaternion ``[w, x, y, z]`` -> rotation matrix (3, 3). Normalises the input."""
+    q = np.asarray(q, dtype=np.float64).reshape(4)
+    n = np.linalg.norm(q)
+    if not np.isfinite(n) or n < _EPS:
+        raise ValueError(f"invalid quaternion {q.tolist()}: norm {n}")
+    w, x, y, z = q / n
+    return Rotation.from_quat([x, y, z, w]).as_matrix()
+
+
+def matrix_to_quat_wxyz(R: np.ndarray) -> np.ndarray:
+    """Rotation matrix (3, 3) -> quaternion ``[w, x, y, z]`` with w >= 0."""
+    x, y, z, w = Rotation.from_matrix(np.asarray(R, dtype=np.float64)).as_quat()
+    q = np.array([w, x, y, z])
+    return q if w >= 0 else -q
+
+
+def pose_from_nuscenes(rotation_wxyz, translation) -> np.ndarray:
+    """A nuScenes record's ``rotation`` and ``translation`` -> (4, 4) (child -> parent)."""
+    return make_T(quat_wxyz_to_matrix(rotation_wxyz), np.asarray(translation, dtype=np.float64))
+
+
+def pose_to_nuscenes(T: np.ndarray) -> tuple[list[float], list[float]]:
+    """(4, 4) -> (``rotation`` [w, x, y, z], ``translation`` [x, y, z]) lists for a JSON record."""
+    return matrix_to_quat_wxyz(T[:3, :3]).tolist(), T[:3, 3].astype(float).tolist()
+
+
+def to_gtsam(T: np.ndarray):
+    """(4, 4) -> ``gtsam.Pose3``."""
+    import gtsam
+
+    return gtsam.Pose3(np.asarray(T, dtype=np.float64))
+
+
+def from_gtsam(pose) -> np.ndarray:
+    """``gtsam.Pose3`` -> (4, 4)."""
+    return np.asarray(pose.matrix(), dtype=np.float64)
+
+
+# Nominal axis permutation from a radar frame (x forward, y left, z up) into a camera frame
+# (x right, y down, z forward). ``R_cam_radar = R_delta @ R_AXES`` defines the reported angles.
+R_AXES_CAM_FROM_RADAR = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+
+
+def camera_euler_from_rotation(R_delta: np.ndarray) -> np.ndarray:
+    """Rotation (3, 3) expressed in camera axes -> ``[roll, pitch, yaw]`` radians.
+
+    ``R_delta = Ry(yaw) @ Rx(pitch) @ Rz(roll)`` (intrinsic Y-X-Z): roll turns about the optical
+    axis (camera z), pitch about camera x (right), yaw about camera y (down).
+    """
+    yaw, pitch, roll = Rotation.from_matrix(np.asarray(R_delta, dtype=np.float64)).as_euler("YXZ")
+    return np.array([roll, pitch, yaw])
+
+
+def rotation_from_camera_euler(rpy: np.ndarray) -> np.ndarray:
+    """``[roll, pitch, yaw]`` radians -> ``Ry(yaw) @ Rx(pitch) @ Rz(roll)`` (3, 3)."""
+    roll, pitch, yaw = np.asarray(rpy, dtype=np.float64).reshape(3)
+    return Rotation.from_euler("YXZ", [yaw, pitch, roll]).as_matrix()
+
+
+def perturb_camera_frame(T_cam_radar: np.ndarray, rpy: np.ndarray, dt: np.ndarray) -> np.ndarray:
+    """Mis-calibrate an extrinsic: rotate by ``[roll, pitch, yaw]`` (rad, camera axes) on the left
+    and add ``dt`` (3,) metres to the translation. Used to sample R1/R2 starts."""
+    T = np.array(T_cam_radar, dtype=np.float64)
+    out = np.eye(4)
+    out[:3, :3] = rotation_from_camera_euler(rpy) @ T[:3, :3]
+    out[:3, 3] = T[:3, 3] + np.asarray(dt, dtype=np.float64)
+    return out

@@ -1,0 +1,90 @@
+"""Extrinsic error metrics (the paper's table plus geodesic angle and translation norm).
+
+Definitions (docs/conventions.md, "Error metrics"):
+- Rotation error ``dR = R_est @ R_gt.T`` (a left error, in camera axes). Its camera Euler angles
+  ``[roll, pitch, yaw]`` (see ``geometry.camera_euler_from_rotation``) are reported as absolute
+  values in degrees; "Mean" is the mean of the three per-axis absolute errors. The geodesic angle
+  is ``|log(dR)|``.
+- Translation error ``dt = t_est - t_gt`` (translation of ``T_cam_radar``, camera axes) reported as
+  absolute values in centimetres; "Mean" is the mean of |dx|, |dy|, |dz|; "norm" is ``|dt|``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from hybrid_calib.geometry import camera_euler_from_rotation, so3_log
+
+
+@dataclass(frozen=True)
+class ExtrinsicError:
+    """Errors of one estimate. Angles in degrees, translations in centimetres, all >= 0."""
+
+    roll_deg: float
+    pitch_deg: float
+    yaw_deg: float
+    rot_mean_deg: float
+    geodesic_deg: float
+    x_cm: float
+    y_cm: float
+    z_cm: float
+    trans_mean_cm: float
+    trans_norm_cm: float
+
+    def as_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+
+METRIC_KEYS = tuple(ExtrinsicError.__dataclass_fields__)
+
+
+def signed_errors(T_est: np.ndarray, T_gt: np.ndarray) -> np.ndarray:
+    """Signed ``[roll, pitch, yaw]`` (rad) and ``[dx, dy, dz]`` (m) errors, (6,)."""
+    dR = T_est[:3, :3] @ T_gt[:3, :3].T
+    return np.concatenate([camera_euler_from_rotation(dR), T_est[:3, 3] - T_gt[:3, 3]])
+
+
+def extrinsic_error(T_est: np.ndarray, T_gt: np.ndarray) -> ExtrinsicError:
+    """Error of a (4, 4) ``T_cam_radar`` estimate against the (4, 4) ground truth."""
+    s = signed_errors(np.asarray(T_est, float), np.asarray(T_gt, float))
+    rpy = np.degrees(np.abs(s[:3]))
+    dt = np.abs(s[3:]) * 100.0
+    geo = np.degrees(np.linalg.norm(so3_log(T_est[:3, :3] @ T_gt[:3, :3].T)))
+    return ExtrinsicError(
+        roll_deg=float(rpy[0]),
+        pitch_deg=float(rpy[1]),
+        yaw_deg=float(rpy[2]),
+        rot_mean_deg=float(rpy.mean()),
+        geodesic_deg=float(geo),
+        x_cm=float(dt[0]),
+        y_cm=float(dt[1]),
+        z_cm=float(dt[2]),
+        trans_mean_cm=float(dt.mean()),
+        trans_norm_cm=float(np.linalg.norm(s[3:]) * 100.0),
+    )
+
+
+def summarize(errors: list[ExtrinsicError]) -> dict[str, float]:
+    """Mean of every metric over many estimates (the paper's table rows)."""
+    if not errors:
+        raise ValueError("summarize() needs at least one ExtrinsicError")
+    return {k: float(np.mean([getattr(e, k) for e in errors])) for k in METRIC_KEYS}
+
+
+def format_table(rows: dict[str, dict[str, float]]) -> str:
+    """Plain-text table in the paper's layout: one row per method."""
+    head = (
+        f"{'method':<22}{'R.Mean':>8}{'Roll':>8}{'Pitch':>8}{'Yaw':>8}{'Geo':>8}"
+        f"{'T.Mean':>9}{'X':>8}{'Y':>8}{'Z':>8}{'Norm':>8}"
+    )
+    lines = [head, "-" * len(head)]
+    for name, m in rows.items():
+        lines.append(
+            f"{name:<22}{m['rot_mean_deg']:8.3f}{m['roll_deg']:8.3f}{m['pitch_deg']:8.3f}"
+            f"{m['yaw_deg']:8.3f}{m['geodesic_deg']:8.3f}{m['trans_mean_cm']:9.2f}{m['x_cm']:8.2f}"
+            f"{m['y_cm']:8.2f}{m['z_cm']:8.2f}{m['trans_norm_cm']:8.2f}"
+        )
+    lines.append("(rotation in degrees, translation in cm)")
+    return "\n".join(lines)

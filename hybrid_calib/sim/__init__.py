@@ -1,0 +1,1 @@
+"""Synthetic driving world with exact ground truth, written in the nuScenes format."""

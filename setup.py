@@ -1,0 +1,28 @@
+"""hybrid-calib: target-free radar-camera extrinsic calibration (learned + factor graph)."""
+
+from setuptools import find_packages, setup
+
+setup(
+    name="hybrid-calib",
+    version="0.1.0",
+    description="Target-free radar-camera extrinsic calibration: RC-AutoCalib + robust factor graphs",
+    python_requires=">=3.10",
+    packages=find_packages(include=["hybrid_calib*", "factors*", "learned*"]),
+    package_data={"learned": ["checkpoints/*.safetensors", "checkpoints/*.json"]},
+    install_requires=[
+        # torch must be installed first as exactly torch==2.13.0 (local CPU build); see Makefile.
+        "torch==2.13.0",
+        "gtsam==4.3.0",  # pulls pytest>=9
+        "pyceres==2.6",
+        "numpy>=2,<2.5",
+        "scipy>=1.13,<2",
+        "opencv-python-headless>=4.10,<5",
+        "tqdm>=4.66,<5",
+        "safetensors>=0.4,<1",
+        "matplotlib>=3.8,<4",
+    ],
+    extras_require={
+        "dev": ["pytest>=9", "ruff==0.17.6", "hypothesis>=6.100"],
+    },
+    entry_points={"console_scripts": ["hybrid-calib=hybrid_calib.cli:main"]},
+)

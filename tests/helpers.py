@@ -1,0 +1,33 @@
+"""Shared test helpers: seeded generators and dtype-aware tolerances."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hybrid_calib.geometry import make_T, so3_exp
+
+TOL = {np.dtype(np.float64): dict(rtol=1e-7, atol=1e-9), np.dtype(np.float32): dict(rtol=1e-4, atol=1e-5)}
+
+
+def rng(seed: int = 0) -> np.random.Generator:
+    """A seeded generator; every test uses its own seed so failures reproduce."""
+    return np.random.default_rng(seed)
+
+
+def assert_close(a, b, dtype=np.float64, scale: float = 1.0, err_msg: str = ""):
+    """``np.testing.assert_allclose`` with tolerances chosen by dtype (multiplied by ``scale``)."""
+    t = TOL[np.dtype(dtype)]
+    np.testing.assert_allclose(a, b, rtol=t["rtol"] * scale, atol=t["atol"] * scale, err_msg=err_msg)
+
+
+def random_pose(g: np.random.Generator, rot_scale: float = 1.0, trans_scale: float = 2.0) -> np.ndarray:
+    """A random (4, 4) rigid transform."""
+    return make_T(so3_exp(g.normal(size=3) * rot_scale), g.normal(size=3) * trans_scale)
+
+
+# A nuScenes-like nominal extrinsic: RADAR_FRONT at the bumper, CAM_FRONT behind the windscreen.
+def nominal_T_cam_radar() -> np.ndarray:
+    from hybrid_calib.geometry import R_AXES_CAM_FROM_RADAR
+
+    # radar 1.7 m ahead of and 1.0 m below the camera, centred: in camera axes (x right, y down, z fwd).
+    return make_T(R_AXES_CAM_FROM_RADAR, np.array([0.0, 1.0, 1.7]))

@@ -1,0 +1,81 @@
+import gtsam
+import numpy as np
+import pytest
+
+from hybrid_calib import geometry as G
+from hybrid_calib.metrics import extrinsic_error, signed_errors
+from tests.helpers import assert_close, nominal_T_cam_radar, random_pose, rng
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_se3_exp_log_match_gtsam(seed):
+    g = rng(seed)
+    xi = g.normal(size=6) * [0.8, 0.8, 0.8, 2, 2, 2]
+    assert_close(G.se3_exp(xi), gtsam.Pose3.Expmap(xi).matrix())
+    T = random_pose(g)
+    assert_close(G.se3_log(T), gtsam.Pose3.Logmap(gtsam.Pose3(T)), scale=100)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_retract_local_match_gtsam(seed):
+    g = rng(seed)
+    T1, T2 = random_pose(g), random_pose(g)
+    xi = g.normal(size=6) * 0.3
+    assert_close(G.retract(T1, xi), gtsam.Pose3(T1).retract(xi).matrix(), scale=100)
+    assert_close(G.local(T1, T2), gtsam.Pose3(T1).localCoordinates(gtsam.Pose3(T2)), scale=1000)
+
+
+def test_adjoint_matches_gtsam_and_definition():
+    g = rng(7)
+    T = random_pose(g)
+    xi = g.normal(size=6) * 0.1
+    assert_close(G.adjoint(T), gtsam.Pose3(T).AdjointMap(), scale=10)
+    assert_close(T @ G.se3_exp(xi), G.se3_exp(G.adjoint(T) @ xi) @ T, scale=100)
+
+
+def test_quaternion_roundtrip_nuscenes_order():
+    # 90 deg about z: w = cos(45), z = sin(45)
+    q = np.array([np.cos(np.pi / 4), 0, 0, np.sin(np.pi / 4)])
+    R = G.quat_wxyz_to_matrix(q)
+    assert_close(R @ [1, 0, 0], [0, 1, 0], scale=10)
+    assert_close(G.matrix_to_quat_wxyz(R), q, scale=10)
+    with pytest.raises(ValueError, match="invalid quaternion"):
+        G.quat_wxyz_to_matrix([0, 0, 0, 0])
+
+
+def test_axis_permutation_maps_radar_forward_to_camera_forward():
+    R = G.R_AXES_CAM_FROM_RADAR
+    assert_close(R @ [1, 0, 0], [0, 0, 1])  # forward
+    assert_close(R @ [0, 1, 0], [-1, 0, 0])  # left -> -x (camera x is right)
+    assert_close(R @ [0, 0, 1], [0, -1, 0])  # up -> -y (camera y is down)
+    assert np.isclose(np.linalg.det(R), 1.0)
+
+
+def test_camera_euler_axes():
+    # A pure rotation about the optical axis (camera z) is roll.
+    rpy = G.camera_euler_from_rotation(G.so3_exp([0, 0, 0.1]))
+    assert_close(rpy, [0.1, 0, 0], scale=1e3)
+    rpy = G.camera_euler_from_rotation(G.so3_exp([0.1, 0, 0]))
+    assert_close(rpy, [0, 0.1, 0], scale=1e3)
+    rpy = G.camera_euler_from_rotation(G.so3_exp([0, 0.1, 0]))
+    assert_close(rpy, [0, 0, 0.1], scale=1e3)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_perturbation_reads_back_through_metrics(seed):
+    g = rng(seed)
+    T = nominal_T_cam_radar()
+    rpy = g.uniform(-1, 1, 3) * np.radians(20)
+    dt = g.uniform(-1.5, 1.5, 3)
+    Tp = G.perturb_camera_frame(T, rpy, dt)
+    assert_close(signed_errors(Tp, T), np.concatenate([rpy, dt]), scale=1e3)
+    e = extrinsic_error(Tp, T)
+    assert np.isclose(e.rot_mean_deg, np.degrees(np.abs(rpy)).mean())
+    assert np.isclose(e.trans_mean_cm, np.abs(dt).mean() * 100)
+    assert np.isclose(e.trans_norm_cm, np.linalg.norm(dt) * 100)
+
+
+def test_metrics_zero_at_truth():
+    T = nominal_T_cam_radar()
+    e = extrinsic_error(T, T)
+    assert max(e.as_dict().values()) < 1e-9
