@@ -13,6 +13,9 @@ COMMANDS: dict[str, str] = {
     "simulate": "simulate",
     "demo": "demo",
     "inspect": "inspect",
+    "train": "train",
+    "evaluate": "evaluate",
+    "calibrate": "calibrate",
 }
 
 

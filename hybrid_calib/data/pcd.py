@@ -21,6 +21,7 @@ RADAR_FIELDS: tuple[tuple[str, str], ...] = (
 )
 RADAR_DTYPE = np.dtype(list(RADAR_FIELDS))
 _TYPE_CHAR = {"f": "F", "i": "I", "u": "U"}
+_TRAILING_PAD = 16  # bytes of zero padding after the body (see write_radar_pcd)
 
 
 def _header_text(n_points: int) -> bytes:
@@ -46,6 +47,9 @@ def write_radar_pcd(path: str | Path, points: np.ndarray) -> Path:
     with open(tmp, "wb") as f:
         f.write(_header_text(len(points)))
         f.write(points.tobytes())
+        # Real nuScenes radar files carry trailing padding, and nuscenes-devkit's reader asserts
+        # at least one byte after the last point: keep that layout.
+        f.write(b"\0" * _TRAILING_PAD)
     tmp.replace(path)
     return path
 
@@ -102,6 +106,8 @@ def read_radar_pcd(path: str | Path) -> np.ndarray:
             for n, s, t, c in zip(names, sizes, types, counts)
         ])
         n_points = int(header["POINTS"][0])
+        if n_points < 0 or any(int(c) < 1 for c in counts):
+            raise ValueError("POINTS must be >= 0 and every COUNT >= 1")
     except (KeyError, ValueError, TypeError) as e:
         raise DataError(f"PCD header has an invalid field description ({e})", path=str(path)) from None
     body = raw[pos:]

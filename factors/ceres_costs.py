@@ -1,0 +1,312 @@
+"""The radar-pixel residuals as Ceres cost functions (pyceres 2.6), and a batch solve with covariance.
+
+Parametrisation (Ceres has no SE(3) manifold): a rotation block ``q`` (4,) in Eigen's storage order
+``[x, y, z, w]`` with ``pyceres.EigenQuaternionManifold`` and a translation block ``t`` (3,),
+metres, camera frame, Euclidean; ``T_cam_radar = [R(q), t]``. One residual block (2 rows) per
+correspondence, each with its own loss function, so the robust weighting is per correspondence
+(plus, for the anisotropic model, one loss-free log-determinant block per correspondence).
+
+Covariance conversion. Ceres's quaternion plus is ``q <- [cos|d|, sin|d| d/|d|] * q``: a LEFT
+perturbation by the rotation vector ``2 d`` (half-angle units), ``R <- Exp(2 d) R``; the
+translation plus is ``t <- t + dt``. Our right perturbation ``T Exp([omega, v])`` gives, to first
+order, ``R Exp(omega) = Exp(R omega) R`` and ``t + R v``. Hence ``[d, dt] = A [omega, v]`` with
+``A = blockdiag(R/2, R)`` and ``C_ours = B C_ceres B^T``, ``B = A^-1 = blockdiag(2 R^T, R^T)``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import pyceres
+
+from factors.config import RadarPixelFactorConfig
+from factors.correspondences import Correspondences
+from factors.projection import RowModel, row_model, whitened_residuals, whitened_rows
+from factors.robust import weight
+from hybrid_calib.geometry import make_T
+
+
+@dataclass
+class CeresResult:
+    """T: (4, 4) estimate. cov: (6, 6) in OUR convention (right tangent [rot rad, trans m]) or None.
+    status: "ok", "poorly_observed: <directions>" (cov given, large in the named camera-axis
+    directions), "no_covariance: <directions>" (rank-deficient) or "failed: <Ceres message>"."""
+
+    T: np.ndarray
+    cov: np.ndarray | None
+    status: str
+    summary: str
+    iterations: int
+    final_cost: float
+
+
+def quat_xyzw_from_R(R: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation -> (4,) Eigen-order quaternion [x, y, z, w], w >= 0."""
+    from scipy.spatial.transform import Rotation
+
+    q = Rotation.from_matrix(R).as_quat()
+    return q if q[3] >= 0 else -q
+
+
+def R_from_quat_xyzw(q: np.ndarray) -> np.ndarray:
+    """(4,) [x, y, z, w] (normalised here) -> (3, 3) rotation."""
+    x, y, z, w = np.asarray(q, np.float64) / np.linalg.norm(q)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def ambient_to_right_tangent(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """d xi / d q (6, 4) and d xi / d t (6, 3) at a unit quaternion q = [x, y, z, w].
+
+    A change dq of q rotates by the left rotation vector ``2 (w dv - dw v + v x dv)``
+    (``v = [x, y, z]``; a radial dq does nothing because R(q) normalises q); our right rotation is
+    ``R^T`` of it; a change dt is the right translation ``R^T dt``.
+    """
+    q = np.asarray(q, np.float64) / np.linalg.norm(q)
+    v, w = q[:3], q[3]
+    R = R_from_quat_xyzw(q)
+    S = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    dleft = np.zeros((3, 4))
+    dleft[:, :3] = 2 * (w * np.eye(3) + S)
+    dleft[:, 3] = -2 * v
+    Jq = np.zeros((6, 4))
+    Jq[:3] = R.T @ dleft
+    Jt = np.zeros((6, 3))
+    Jt[3:] = R.T
+    return Jq, Jt
+
+
+def ceres_cov_to_ours(C_ceres: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """(6, 6) covariance of Ceres's tangent [d (half-angle, left), dt] -> our right tangent."""
+    B = np.zeros((6, 6))
+    B[:3, :3], B[3:, 3:] = 2 * R.T, R.T
+    return B @ C_ceres @ B.T
+
+
+class RadarPixelCost(pyceres.CostFunction):
+    """Whitened residual (2,) of ONE correspondence (before the loss) on blocks [q (4,), t (3,)]."""
+
+    def __init__(self, rows: RowModel):
+        super().__init__()
+        if len(rows) != 1:
+            raise ValueError("RadarPixelCost takes exactly one correspondence row")
+        self.rows = rows
+        self.set_num_residuals(2)
+        self.set_parameter_block_sizes([4, 3])
+
+    def evaluate_numpy(self, q: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Residual (2,), d/dq (2, 4), d/dt (2, 3) in numpy (also used by the tests)."""
+        R = R_from_quat_xyzw(q)
+        e, J, _ = whitened_residuals(make_T(R, t), self.rows)
+        Jq, Jt = ambient_to_right_tangent(q)
+        return e[0], J[0] @ Jq, J[0] @ Jt
+
+    def Evaluate(self, parameters, residuals, jacobians):  # noqa: N802 (Ceres API name)
+        e, Jq, Jt = self.evaluate_numpy(parameters[0], parameters[1])
+        residuals[:] = e
+        if jacobians is not None:
+            if jacobians[0] is not None:
+                jacobians[0][:] = Jq.reshape(-1)
+            if jacobians[1] is not None:
+                jacobians[1][:] = Jt.reshape(-1)
+        return True
+
+
+class LogDetCost(pyceres.CostFunction):
+    """The anisotropic model's log-determinant row ``sqrt(log(1 + |q|^2))`` (1,) of ONE
+    correspondence on blocks [q, t]; added without a loss (it is not a residual to robustify)."""
+
+    def __init__(self, rows: RowModel):
+        super().__init__()
+        if len(rows) != 1:
+            raise ValueError("LogDetCost takes exactly one correspondence row")
+        self.rows = rows
+        self.set_num_residuals(1)
+        self.set_parameter_block_sizes([4, 3])
+
+    def evaluate_numpy(self, q: np.ndarray, t: np.ndarray):
+        _, _, _, ld, Jld = whitened_rows(make_T(R_from_quat_xyzw(q), t), self.rows)
+        Jq, Jt = ambient_to_right_tangent(q)
+        return ld[:1], Jld[:1] @ Jq, Jld[:1] @ Jt
+
+    def Evaluate(self, parameters, residuals, jacobians):  # noqa: N802 (Ceres API name)
+        e, Jq, Jt = self.evaluate_numpy(parameters[0], parameters[1])
+        residuals[:] = e
+        if jacobians is not None:
+            if jacobians[0] is not None:
+                jacobians[0][:] = Jq.reshape(-1)
+            if jacobians[1] is not None:
+                jacobians[1][:] = Jt.reshape(-1)
+        return True
+
+
+class _PythonLoss(pyceres.LossFunction):
+    """Ceres loss for kernels pyceres does not expose. Ceres's convention: ``rho(s2)`` of the
+    squared norm with cost ``rho/2``; so ``rho = 2 rho_ours(sqrt(s2))``, ``rho' = w``, ``rho'' = dw/ds2``."""
+
+    def __init__(self, kernel: str, scale: float):
+        super().__init__()
+        self.kernel, self.c = kernel, float(scale)
+
+    def Evaluate(self, s2, rho):  # noqa: N802 (Ceres API name)
+        from factors.robust import rho as rho_fn
+
+        s = np.sqrt(max(s2, 0.0))
+        c2 = self.c * self.c
+        rho[0] = 2.0 * float(rho_fn(self.kernel, np.array(s), self.c))
+        rho[1] = float(weight(self.kernel, np.array(s), self.c))
+        if self.kernel == "tukey":
+            rho[2] = -2.0 * (1.0 - s2 / c2) / c2 if s2 <= c2 else 0.0
+        else:  # geman_mcclure
+            rho[2] = -2.0 * c2 * c2 / (c2 + s2) ** 3
+
+
+def ceres_loss(kernel: str, scale: float):
+    """The Ceres loss matching ``factors.robust`` (same cost ``rho``), or None for ``none``."""
+    if kernel == "none":
+        return None
+    if kernel == "huber":
+        return pyceres.HuberLoss(scale)
+    if kernel == "cauchy":
+        return pyceres.CauchyLoss(scale)
+    if kernel in ("tukey", "geman_mcclure"):
+        return _PythonLoss(kernel, scale)
+    raise ValueError(f"unknown kernel {kernel!r}")
+
+
+class _PriorCost(pyceres.CostFunction):
+    """Prior ``L^T Log(T_prior^-1 T)`` (6,), L L^T = cov^-1; Jacobian via the right Jacobian inverse."""
+
+    def __init__(self, T_prior: np.ndarray, cov: np.ndarray):
+        super().__init__()
+        self.T_prior = np.asarray(T_prior, np.float64)
+        self.sqrt_info = np.linalg.cholesky(np.linalg.inv(cov)).T
+        self.set_num_residuals(6)
+        self.set_parameter_block_sizes([4, 3])
+
+    def evaluate_numpy(self, q, t):
+        import gtsam
+
+        T = make_T(R_from_quat_xyzw(q), t)
+        P0, P = gtsam.Pose3(self.T_prior), gtsam.Pose3(T)
+        H = np.zeros((6, 6), order="F")
+        err = P0.localCoordinates(P)
+        # d Log(T0^-1 T) / d xi  (xi: right tangent of T) = Jr^-1(err)
+        Jr_inv = np.linalg.inv(gtsam.Pose3.ExpmapDerivative(err)) if np.linalg.norm(err) > 0 else np.eye(6)
+        del H
+        Jq, Jt = ambient_to_right_tangent(q)
+        r = self.sqrt_info @ err
+        return r, self.sqrt_info @ Jr_inv @ Jq, self.sqrt_info @ Jr_inv @ Jt
+
+    def Evaluate(self, parameters, residuals, jacobians):  # noqa: N802
+        r, Jq, Jt = self.evaluate_numpy(parameters[0], parameters[1])
+        residuals[:] = r
+        if jacobians is not None:
+            if jacobians[0] is not None:
+                jacobians[0][:] = Jq.reshape(-1)
+            if jacobians[1] is not None:
+                jacobians[1][:] = Jt.reshape(-1)
+        return True
+
+
+def _weak_directions(frames, T, conf, prior) -> list[str]:
+    """Names of the poorly observed directions of the IRLS information at ``T`` (factors.solve)."""
+    from factors.gtsam_factors import frame_residuals
+    from factors.solve import weak_directions
+
+    info = np.zeros((6, 6))
+    for corr in frames:
+        if len(corr):
+            _, J, w = frame_residuals(T, corr, conf)
+            info += J.T @ (np.repeat(w, 2)[:, None] * J)
+    if prior is not None:
+        info += np.linalg.inv(prior[1])
+    return list(weak_directions(info, T))
+
+
+def build_problem(frames: list[Correspondences], q: np.ndarray, t: np.ndarray, conf: RadarPixelFactorConfig,
+                  prior: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[pyceres.Problem, list]:
+    """A Ceres problem over the blocks q, t (modified in place by a solve). Returns (problem, keep-alive)."""
+    problem = pyceres.Problem()
+    keep = []
+    for corr in frames:
+        rows = row_model(corr, conf)
+        for i in range(len(rows)):
+            row = rows.rows(slice(i, i + 1))
+            cost = RadarPixelCost(row)
+            loss = ceres_loss(conf.kernel, conf.kernel_scale)
+            keep += [cost, loss]
+            problem.add_residual_block(cost, loss, [q, t])
+            if row.kappa[0] > 0:
+                ld = LogDetCost(row)
+                keep.append(ld)
+                problem.add_residual_block(ld, None, [q, t])
+    if prior is not None:
+        cost = _PriorCost(prior[0], prior[1])
+        keep.append(cost)
+        problem.add_residual_block(cost, None, [q, t])
+    problem.set_manifold(q, pyceres.EigenQuaternionManifold())
+    return problem, keep
+
+
+def solve_ceres(frames: list[Correspondences], T_init: np.ndarray, conf: RadarPixelFactorConfig = None,
+                prior: tuple[np.ndarray, np.ndarray] | None = None, max_iterations: int = 100,
+                two_stage: bool = True) -> CeresResult:
+    """Batch solve of a static ``T_cam_radar`` with Ceres; covariance from ``pyceres.Covariance``.
+
+    With ``two_stage`` a Huber solve runs first (the convex start, as ``factors.solve.solve_gnc``).
+    Never raises for a singular problem: the status says so and ``cov`` is None.
+    """
+    conf = conf or RadarPixelFactorConfig()
+    T_init = np.asarray(T_init, np.float64)
+    q = quat_xyzw_from_R(T_init[:3, :3]).copy()
+    t = T_init[:3, 3].copy()
+    if not frames or sum(len(f) for f in frames) == 0:
+        return CeresResult(T_init, None, "failed: no correspondences", "", 0, float("nan"))
+    t0 = time.perf_counter()
+    stages = [conf]
+    if two_stage and conf.kernel != "huber":
+        import dataclasses
+
+        stages = [dataclasses.replace(conf, kernel="huber", kernel_scale=1.345), conf]
+    iterations, summary = 0, None
+    for stage in stages:
+        problem, keep = build_problem(frames, q, t, stage, prior)
+        options = pyceres.SolverOptions()
+        options.max_num_iterations = max_iterations
+        options.function_tolerance = 1e-12
+        options.gradient_tolerance = 1e-12
+        options.parameter_tolerance = 1e-12
+        options.linear_solver_type = pyceres.LinearSolverType.DENSE_QR
+        summary = pyceres.SolverSummary()
+        pyceres.solve(options, problem, summary)
+        iterations += summary.num_successful_steps + summary.num_unsuccessful_steps
+        if not summary.IsSolutionUsable():
+            return CeresResult(make_T(R_from_quat_xyzw(q), t), None, f"failed: {summary.message}",
+                               summary.BriefReport(), iterations, float(summary.final_cost))
+    T = make_T(R_from_quat_xyzw(q), t)
+    copts = pyceres.CovarianceOptions()
+    copts.algorithm_type = pyceres.CovarianceAlgorithmType.SPARSE_QR  # fails on rank deficiency (no pseudo-inverse)
+    cov_engine = pyceres.Covariance(copts)
+    cov, status = None, "ok"
+    if cov_engine.compute([(q, q), (q, t), (t, t)], problem):
+        Cqq = np.asarray(cov_engine.get_covariance_block_tangent_space(q, q, problem))
+        Cqt = np.asarray(cov_engine.get_covariance_block_tangent_space(q, t, problem))
+        Ctt = np.asarray(cov_engine.get_covariance_block_tangent_space(t, t, problem))
+        C = np.block([[Cqq, Cqt], [Cqt.T, Ctt]])
+        cov = ceres_cov_to_ours(C, T[:3, :3])
+        weak = _weak_directions(frames, T, conf, prior)
+        if np.linalg.eigvalsh(0.5 * (cov + cov.T)).min() <= 0:
+            cov, status = None, "no_covariance: " + ", ".join(weak)
+        elif weak:
+            status = "poorly_observed: " + ", ".join(weak)
+    else:
+        status = "no_covariance: " + ", ".join(_weak_directions(frames, T, conf, prior))
+    del keep
+    summary_txt = summary.BriefReport() + f" ({time.perf_counter() - t0:.3f} s)"
+    return CeresResult(T, cov, status, summary_txt, iterations, float(summary.final_cost))

@@ -1,0 +1,54 @@
+"""Configuration of the radar-to-pixel factor (shared by the GTSAM and Ceres back ends)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+ELEVATION_MODELS = ("zero", "mean_arc", "anisotropic")
+KERNELS = ("none", "huber", "cauchy", "tukey", "geman_mcclure")
+
+
+@dataclass(frozen=True)
+class RadarPixelFactorConfig:
+    """How a radar point (recorded with z = 0) is compared with its pixel.
+
+    Elevation models (see docs/benchmarks.md, "Elevation model study"):
+    - ``zero``: the recorded point itself (elevation 0), isotropic pixel noise (the naive baseline).
+    - ``mean_arc``: the mean of the reflector's elevation arc (cos-foreshortened), isotropic noise.
+    - ``anisotropic``: a nuisance elevation per correspondence with a Gaussian prior matching the
+      beam, eliminated in closed form after linearising the arc: the mean-arc point with pixel
+      covariance ``sigma_px^2 I + sigma_elev^2 j j^T`` (``j``: image of the arc's tangent).
+    """
+
+    kernel: str = "cauchy"  # none | huber | cauchy | tukey | geman_mcclure (per correspondence row)
+    kernel_scale: float = 2.5  # kernel threshold in whitened units (multiples of the row's sigma)
+    elevation_model: str = "anisotropic"  # zero | mean_arc | anisotropic (chosen by the elevation study)
+    elevation_beam_deg: float = 7.0  # half-width of the vertical beam (ARS 408-like far range: +-7 deg)
+    elevation_mean_deg: float = 0.0  # centre of the elevation distribution of reflectors, degrees
+    min_depth_m: float = 0.1  # points closer than this to the camera plane get a large constant residual
+
+    def __post_init__(self):
+        if self.kernel not in KERNELS:
+            raise ValueError(f"RadarPixelFactorConfig.kernel={self.kernel!r}; valid: {KERNELS}")
+        if self.elevation_model not in ELEVATION_MODELS:
+            raise ValueError(
+                f"RadarPixelFactorConfig.elevation_model={self.elevation_model!r}; valid: {ELEVATION_MODELS}")
+        if not self.kernel_scale > 0:
+            raise ValueError(f"RadarPixelFactorConfig.kernel_scale must be > 0, got {self.kernel_scale}")
+        if not 0 <= self.elevation_beam_deg < 45:
+            raise ValueError(
+                f"RadarPixelFactorConfig.elevation_beam_deg must be in [0, 45), got {self.elevation_beam_deg}")
+
+
+@dataclass(frozen=True)
+class SolverConfig:
+    """Levenberg-Marquardt settings and the graduated robust schedule (``factors.solve``)."""
+
+    max_iterations: int = 100  # LM iterations per stage
+    relative_error_tol: float = 1e-10  # LM stops when the relative cost decrease is below this
+    absolute_error_tol: float = 1e-10  # LM stops when the absolute cost decrease is below this
+    convex_kernel: str = "huber"  # stage-1 kernel of the two-stage schedule (convex: unique basin)
+    convex_scale: float = 1.345  # stage-1 kernel threshold, whitened units
+    min_eigen_ratio: float = 1e-8  # information eigenvalue / largest below this -> direction indeterminant
+    max_std_deg: float = 5.0  # a rotation direction with a larger standard deviation is poorly observed
+    max_std_m: float = 0.5  # a translation direction with a larger standard deviation is poorly observed

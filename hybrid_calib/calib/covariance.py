@@ -1,0 +1,225 @@
+"""Covariance of the extrinsic you can trust: marginals, reported std, and degeneracy status.
+
+Conventions (docs/conventions.md): a 6x6 covariance ``C`` of ``T_cam_radar`` is in the RIGHT
+tangent ``[omega, v]`` (radar frame), rad^2 and m^2. Reports rotate it into camera axes with
+``B = blockdiag(R, R)``: ``C_report = B C B^T`` (rotation error in camera axes, and the translation
+vector ``t_cam_radar`` itself); std in degrees and centimetres.
+
+Degeneracy is decided from the 6x6 information matrix (the inverse covariance before any
+regularisation), analysed in a *physical* basis: each direction is scaled by the tolerance a user
+cares about (``rot_tol_deg`` and ``trans_tol_cm``), so "how well is this direction observed" is
+comparable between rotation and translation. A direction whose std exceeds ``weak_factor`` times
+its tolerance is named as poorly observed; one whose information is numerically zero is
+unobservable and gets its covariance from a weak regularising prior, the status saying so.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+AXES = ("x", "y", "z")
+
+
+@dataclass(frozen=True)
+class CovarianceConfig:
+    rot_tol_deg: float = 0.1  # rotation accuracy a user needs (deg); sets the physical scale of rotation
+    trans_tol_cm: float = 1.0  # translation accuracy a user needs (cm); sets the physical scale of translation
+    weak_factor: float = 10.0  # a direction with std > weak_factor * tolerance is "poorly observed"
+    unobservable_rel_eig: float = 1e-9  # scaled-information eigenvalue / largest below this: unobservable
+    regularise_rot_deg: float = 30.0  # std of the weak prior that replaces an unobservable rotation (deg)
+    regularise_trans_m: float = 5.0  # std of the weak prior that replaces an unobservable translation (m)
+
+
+@dataclass(frozen=True)
+class CovarianceReport:
+    """Covariance and its reading.
+
+    cov: (6, 6) right-tangent radar-frame covariance [rot rad, trans m]; never over-confident: an
+        unobservable direction carries the regularising prior's variance.
+    std_report: (6,) [roll-ish rot x, rot y, rot z in deg, t x, t y, t z in cm], camera axes
+        (``C_report = B C B^T``; rotation components are about camera x, y, z).
+    status: "ok", "weak: ...", "degenerate: ..." (see ``analyse_information``).
+    regularised: True when the covariance needed the weak prior (pseudo-inverse fallback).
+    weak_directions: human-readable names of the poorly observed directions.
+    """
+
+    cov: np.ndarray
+    std_report: np.ndarray
+    status: str
+    regularised: bool
+    weak_directions: tuple[str, ...]
+    condition: float  # condition number of the scaled information matrix
+
+    def to_dict(self) -> dict:
+        return {
+            "cov_right_radar": self.cov.tolist(),
+            "std_camera": {
+                "rot_x_deg": float(self.std_report[0]), "rot_y_deg": float(self.std_report[1]),
+                "rot_z_deg": float(self.std_report[2]), "t_x_cm": float(self.std_report[3]),
+                "t_y_cm": float(self.std_report[4]), "t_z_cm": float(self.std_report[5]),
+            },
+            "status": self.status,
+            "regularised": bool(self.regularised),
+            "weak_directions": list(self.weak_directions),
+            "condition_scaled": float(self.condition),
+        }
+
+
+def report_basis(T_cam_radar: np.ndarray) -> np.ndarray:
+    """``B = blockdiag(R, R)`` (6, 6) with R = rotation of ``T_cam_radar`` (radar -> camera axes)."""
+    R = np.asarray(T_cam_radar, dtype=np.float64)[:3, :3]
+    B = np.zeros((6, 6))
+    B[:3, :3] = R
+    B[3:, 3:] = R
+    return B
+
+
+def report_cov(T_cam_radar: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """``C_report = B C B^T`` (6, 6): rotation error in camera axes (rad^2) and t_cam_radar (m^2)."""
+    B = report_basis(T_cam_radar)
+    return B @ _check_cov(cov) @ B.T
+
+
+def report_std(T_cam_radar: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """Per-axis std in the camera frame, (6,): rotation about camera x, y, z in degrees, then
+    translation along camera x, y, z in centimetres (docs/conventions.md)."""
+    d = np.sqrt(np.clip(np.diag(report_cov(T_cam_radar, cov)), 0.0, None))
+    return np.concatenate([np.degrees(d[:3]), d[3:] * 100.0])
+
+
+def _check_cov(cov: np.ndarray) -> np.ndarray:
+    cov = np.asarray(cov, dtype=np.float64)
+    if cov.shape != (6, 6):
+        raise ValueError(f"covariance must be (6, 6), got {cov.shape}")
+    if not np.all(np.isfinite(cov)):
+        raise ValueError("covariance has NaN/inf entries")
+    return cov
+
+
+def _scale(conf: CovarianceConfig) -> np.ndarray:
+    """(6,) physical unit of each report axis: tolerance in rad and in m."""
+    return np.array([np.radians(conf.rot_tol_deg)] * 3 + [conf.trans_tol_cm / 100.0] * 3)
+
+
+def _name_direction(vec_report: np.ndarray) -> str:
+    """A unit direction (6,) in the scaled report basis -> "translation along camera z" etc."""
+    v = vec_report / np.linalg.norm(vec_report)
+    rot, tr = v[:3], v[3:]
+    parts = []
+    for label, block in (("rotation about", rot), ("translation along", tr)):
+        w = block**2
+        if w.sum() < 0.15:
+            continue
+        order = np.argsort(-w)
+        axes = [AXES[i] for i in order if w[i] > 0.25 * w.sum()]
+        parts.append(f"{label} camera {'/'.join(axes)}")
+    return " coupled with ".join(parts) if parts else "mixed direction"
+
+
+def _fmt_std(std_scaled: float, vec_report: np.ndarray, conf: CovarianceConfig) -> str:
+    """Std of a scaled direction in the unit of its dominant block."""
+    v = vec_report / np.linalg.norm(vec_report)
+    if np.sum(v[:3] ** 2) >= np.sum(v[3:] ** 2):
+        deg = std_scaled * conf.rot_tol_deg
+        return f"std {deg:.3g} deg"
+    cm = std_scaled * conf.trans_tol_cm
+    return f"std {cm / 100:.3g} m" if cm >= 100 else f"std {cm:.3g} cm"
+
+
+def analyse_information(
+    T_cam_radar: np.ndarray, info: np.ndarray, conf: CovarianceConfig | None = None,
+    cov_hint: np.ndarray | None = None,
+) -> CovarianceReport:
+    """Information (6, 6) in the right/radar tangent -> trustworthy covariance and status.
+
+    info: Gauss-Newton information of the whole problem at the estimate (J^T W J summed, plus
+        priors), right tangent, [rad, m] units.
+    cov_hint: optional covariance computed elsewhere (e.g. ``gtsam.Marginals``); used when the
+        information is well conditioned, so the two agree by construction.
+
+    The analysis is done in the scaled report basis ``S^-1 B`` (B = blockdiag(R, R), S = the
+    tolerances): eigenvectors of the scaled covariance name the poorly observed directions.
+    """
+    from hybrid_calib.config import merge
+
+    conf = merge(CovarianceConfig, conf)
+    info = np.asarray(info, dtype=np.float64)
+    if info.shape != (6, 6) or not np.all(np.isfinite(info)):
+        raise ValueError(f"information must be a finite (6, 6) matrix, got shape {info.shape}")
+    info = 0.5 * (info + info.T)
+    B = report_basis(T_cam_radar)
+    s = _scale(conf)
+    # xi_report = B xi ; scaled z = xi_report / s -> xi = B^T diag(s) z ; info_z = D B info B^T D
+    M = np.diag(s) @ B @ info @ B.T @ np.diag(s)
+    evals, evecs = np.linalg.eigh(M)
+    lam_max = max(float(evals[-1]), 1e-300)
+    unobs = evals < conf.unobservable_rel_eig * lam_max
+    if not np.any(evals > 0):
+        unobs[:] = True
+    condition = float(lam_max / max(float(evals[0]), 1e-300))
+    regularised = bool(np.any(unobs))
+    if regularised:
+        # weak prior in the report basis: replaces the unobservable part, leaves the rest unchanged
+        prior_std = np.array([np.radians(conf.regularise_rot_deg)] * 3 + [conf.regularise_trans_m] * 3)
+        prior_info_report = np.diag(1.0 / prior_std**2)
+        info_reg = info + B.T @ prior_info_report @ B
+        cov = np.linalg.inv(0.5 * (info_reg + info_reg.T))
+    elif cov_hint is not None:
+        cov = _check_cov(cov_hint)
+    else:
+        cov = np.linalg.inv(info)
+    cov = 0.5 * (cov + cov.T)
+    # directions of large std: eigen-decomposition of the scaled covariance
+    Cz = np.diag(1 / s) @ B @ cov @ B.T @ np.diag(1 / s)
+    cevals, cevecs = np.linalg.eigh(0.5 * (Cz + Cz.T))
+    names, details = [], []
+    for k in range(5, -1, -1):
+        std_scaled = float(np.sqrt(max(cevals[k], 0.0)))
+        if std_scaled <= conf.weak_factor:
+            break
+        vec = cevecs[:, k]
+        name = _name_direction(vec)
+        # is this direction (mostly) in the unobservable subspace?
+        in_null = regularised and float(np.sum((evecs[:, unobs].T @ vec) ** 2)) > 0.5
+        names.append(name)
+        how = "unobservable" if in_null else "poorly observed"
+        details.append(f"{name} is {how} ({_fmt_std(std_scaled, vec, conf)})")
+    if regularised:
+        status = "degenerate: " + "; ".join(details or ["information matrix is singular"])
+        status += " [covariance regularised with a weak prior: those directions are not calibrated]"
+    elif details:
+        status = "weak: " + "; ".join(details)
+    else:
+        status = "ok"
+    return CovarianceReport(cov, report_std(T_cam_radar, cov), status, regularised, tuple(names), condition)
+
+
+def marginal_covariance(graph, values, key: int) -> tuple[np.ndarray | None, str]:
+    """``gtsam.Marginals`` covariance of ``key`` (6, 6), or (None, reason) when GTSAM refuses.
+
+    Catches GTSAM's ``IndeterminantLinearSystemException`` (a ``RuntimeError`` in Python) so a
+    degenerate problem never escapes as an unhandled exception.
+    """
+    import gtsam
+
+    try:
+        m = gtsam.Marginals(graph, values)
+        return np.asarray(m.marginalCovariance(key), dtype=np.float64), ""
+    except RuntimeError as e:  # gtsam::IndeterminantLinearSystemException and friends
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        return None, f"gtsam.Marginals failed ({first}); using the regularised pseudo-inverse"
+
+
+def information_from_graph(graph, values, key: int) -> np.ndarray:
+    """Gauss-Newton information (6, 6) of ``key`` from the linearised graph (single-key graphs),
+    without any Cholesky (so it works on singular problems)."""
+    import gtsam
+
+    lin = graph.linearize(values)
+    ordering = gtsam.Ordering()
+    ordering.push_back(key)
+    A, b = lin.jacobian(ordering)
+    A = np.asarray(A, dtype=np.float64)
+    return A.T @ A

@@ -1,0 +1,101 @@
+"""The physical limit: Cramer-Rao bound of ``T_cam_radar`` from the correspondence geometry.
+
+Model of one inlier correspondence i (docs/conventions.md frames):
+    pixel_i = pi(K (R p_i + t)) + n_i,   n_i ~ N(0, sigma_i^2 / c_i I_2)
+where ``p_i`` (3,) is the *true* reflector in the radar frame. A 2D radar does not measure the
+reflector's elevation e_i: it is a nuisance with a prior of std ``sigma_e`` (a uniform elevation
+within a beam of width ``beta`` has ``sigma_e = beta / sqrt(12)``). Linearising the arc at the truth,
+the elevation adds ``j_e sigma_e^2 j_e^T`` to the pixel covariance, with ``j_e`` (2,) the image of
+the arc tangent ``dp/de = rho (-sin e cos a, -sin e sin a, cos e)``. Eliminating the nuisance
+(Schur complement of the per-row Fisher information with the elevation prior) gives exactly
+    F = sum_i J_i^T (sigma_i^2 / c_i I + sigma_e^2 j_e j_e^T)^-1 J_i ,
+with ``J_i`` (2, 6) the Jacobian of the pixel with respect to the right tangent ``[omega, v]`` of
+``T_cam_radar`` at the truth. ``CRB = F^-1`` (6, 6), same convention as every covariance here. With
+``sigma_e = 0`` it is the known-elevation bound (a floor no 2D-radar method reaches).
+
+Outliers carry no information about the extrinsic: pass inliers only (the oracle knows them).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hybrid_calib.geometry import skew
+
+
+def pixel_jacobians(T_cam_radar: np.ndarray, points_radar: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel Jacobians at the given points.
+
+    Returns (J_pose (N, 2, 6) w.r.t. the right tangent [omega, v] of T_cam_radar,
+    J_point (N, 2, 3) w.r.t. the point in the radar frame). Points must be in front of the camera.
+    """
+    T = np.asarray(T_cam_radar, np.float64)
+    P = np.asarray(points_radar, np.float64).reshape(-1, 3)
+    R, t = T[:3, :3], T[:3, 3]
+    q = P @ R.T + t
+    if np.any(q[:, 2] <= 1e-6):
+        raise ValueError("crb: a point lies behind the camera; pass only points that project")
+    fx, fy = K[0, 0], K[1, 1]
+    z = q[:, 2]
+    Jpi = np.zeros((len(P), 2, 3))
+    Jpi[:, 0, 0] = fx / z
+    Jpi[:, 0, 2] = -fx * q[:, 0] / z**2
+    Jpi[:, 1, 1] = fy / z
+    Jpi[:, 1, 2] = -fy * q[:, 1] / z**2
+    J_point = Jpi @ R  # d pixel / d p
+    # T Exp([w, v]) p = R (p + w x p + v) + t  ->  dq/dw = -R [p]x, dq/dv = R
+    J_pose = np.zeros((len(P), 2, 6))
+    for i in range(len(P)):
+        J_pose[i, :, :3] = -J_point[i] @ skew(P[i])
+    J_pose[:, :, 3:] = J_point
+    return J_pose, J_point
+
+
+def arc_tangent(points_radar: np.ndarray) -> np.ndarray:
+    """d p / d elevation (N, 3), metres per radian, on the constant-range arc through each point."""
+    P = np.asarray(points_radar, np.float64).reshape(-1, 3)
+    rho = np.linalg.norm(P, axis=1)
+    a = np.arctan2(P[:, 1], P[:, 0])
+    e = np.arcsin(np.clip(P[:, 2] / np.maximum(rho, 1e-12), -1, 1))
+    return rho[:, None] * np.stack([-np.sin(e) * np.cos(a), -np.sin(e) * np.sin(a), np.cos(e)], axis=1)
+
+
+def fisher_information(
+    T_cam_radar: np.ndarray, points_true_radar: np.ndarray, K: np.ndarray, sigma_px,
+    elevation_sigma_rad: float = 0.0, confidence=None,
+) -> np.ndarray:
+    """Fisher information (6, 6) of one frame's inliers (right tangent, [rad, m] units).
+
+    points_true_radar: (N, 3) metres, radar frame, true reflector positions (with elevation).
+    sigma_px: scalar or (N,) pixel noise std. confidence: optional (N,) in (0, 1], multiplies the
+    information of each row (as the factors do). elevation_sigma_rad: prior std of the unknown
+    elevation (0 = elevation known).
+    """
+    P = np.asarray(points_true_radar, np.float64).reshape(-1, 3)
+    n = len(P)
+    if n == 0:
+        return np.zeros((6, 6))
+    sig = np.broadcast_to(np.asarray(sigma_px, np.float64), (n,))
+    conf = np.ones(n) if confidence is None else np.broadcast_to(np.asarray(confidence, np.float64), (n,))
+    J_pose, J_point = pixel_jacobians(T_cam_radar, P, np.asarray(K, np.float64))
+    cov = (sig**2 / np.maximum(conf, 1e-12))[:, None, None] * np.eye(2)[None]
+    if elevation_sigma_rad > 0:
+        je = np.einsum("nij,nj->ni", J_point, arc_tangent(P))  # (N, 2)
+        cov = cov + elevation_sigma_rad**2 * je[:, :, None] * je[:, None, :]
+    W = np.linalg.inv(cov)
+    return np.einsum("nai,nab,nbj->ij", J_pose, W, J_pose)
+
+
+def crb_covariance(information: np.ndarray) -> np.ndarray:
+    """CRB (6, 6) = inverse Fisher information (pseudo-inverse if singular: infinite directions
+    then show as huge variances rather than an exception)."""
+    F = 0.5 * (np.asarray(information, np.float64) + np.asarray(information, np.float64).T)
+    try:
+        return np.linalg.inv(F)
+    except np.linalg.LinAlgError:
+        return np.linalg.pinv(F, hermitian=True) + np.eye(6) * 1e12 * (np.linalg.matrix_rank(F) < 6)
+
+
+def beam_sigma(elevation_beam_deg: float) -> float:
+    """Std (rad) of an elevation uniform within +-beam/2: ``beam / sqrt(12)``."""
+    return float(np.radians(elevation_beam_deg) / np.sqrt(12.0))

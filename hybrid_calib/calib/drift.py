@@ -1,0 +1,162 @@
+"""Drift detection: has the extrinsic moved away from a reference, or stepped inside a drive?
+
+Two tests, both chi-square tests on a 6-DoF difference in the right tangent of ``T_cam_radar``
+(docs/conventions.md):
+
+1. Against a reference (the vehicle's calibration tables): ``d = local(T_ref, T_est)`` (6,),
+   ``s = d^T (C_est + C_ref)^-1 d`` ~ chi2(6) under "no change". The decision "drifted" needs the
+   p-value below ``alpha`` (statistically significant) AND the change larger than a practical
+   margin (``min_rot_deg`` or ``min_trans_cm``), because with hundreds of frames a sub-millimetre
+   change is significant but irrelevant. Both numbers are reported.
+2. Step change inside a drive (``StepDetector``): a windowed chi-square of the estimate from the
+   last ``m`` frames alone against the long-run estimate. Every frame the recent estimate is the
+   Gauss-Newton step of the recent frames' cached linearisations (free); every ``every`` frames and
+   whenever a frame's inlier fraction collapses it is re-solved from scratch with a convex start,
+   so that a step large enough to push every new correspondence outside the inlier gate (which a
+   warm-started redescending kernel would ignore: lock-on) is followed instead of rejected.
+   With the long-run information ``I_all`` and the recent
+   frames' information ``I_m`` (a subset of it), the difference of the two efficient estimates has
+   covariance ``I_m^-1 - I_all^-1`` (Hausman), so ``s = d^T (I_m^-1 - I_all^-1)^-1 d`` ~ chi2(6).
+   An alarm needs ``s`` above the chi2(6) quantile at ``p_alarm`` on ``consecutive`` frames.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import chi2
+
+from hybrid_calib.geometry import local
+
+
+@dataclass(frozen=True)
+class DriftConfig:
+    alpha: float = 0.01  # significance level of the reference test (p-value below -> significant)
+    min_rot_deg: float = 0.1  # practical margin: smaller rotation changes are not reported as drift (deg)
+    min_trans_cm: float = 1.0  # practical margin: smaller translation changes are not reported as drift (cm)
+    ref_rot_std_deg: float = 0.0  # uncertainty of the reference itself, per axis (deg), added to C_est
+    ref_trans_std_cm: float = 0.0  # uncertainty of the reference itself, per axis (cm), added to C_est
+
+
+@dataclass(frozen=True)
+class StepConfig:
+    recent_frames: int = 5  # m: frames in the recent estimate that is tested against the long-run one
+    min_history: int = 15  # the long-run estimate must hold at least this many frames before testing
+    p_alarm: float = 1e-4  # per-frame false-alarm probability of the windowed chi-square test
+    consecutive: int = 2  # tests in a row above the threshold before an alarm (the tails are heavier than chi2)
+    every: int = 10  # the convex-start test (one small solve) runs every this many frames ...
+    inlier_drop: float = 0.6  # ... and at once when a frame's inlier fraction falls below this x the running mean
+
+
+@dataclass(frozen=True)
+class DriftDecision:
+    """Result of the reference test. ``delta_report``: [rot x, y, z deg, t x, y, z cm] camera axes."""
+
+    statistic: float
+    dof: int
+    p_value: float
+    threshold: float
+    significant: bool
+    exceeds_margin: bool
+    drifted: bool
+    delta_report: np.ndarray
+    rot_change_deg: float
+    trans_change_cm: float
+
+    def to_dict(self) -> dict:
+        return {
+            "test": "chi-square on d = local(T_ref, T_est), s = d^T (C_est + C_ref)^-1 d, dof 6",
+            "statistic": float(self.statistic), "dof": self.dof, "p_value": float(self.p_value),
+            "threshold": float(self.threshold), "significant": bool(self.significant),
+            "exceeds_margin": bool(self.exceeds_margin), "drifted": bool(self.drifted),
+            "delta_camera": {k: float(v) for k, v in zip(
+                ("rot_x_deg", "rot_y_deg", "rot_z_deg", "t_x_cm", "t_y_cm", "t_z_cm"), self.delta_report)},
+            "rot_change_deg": float(self.rot_change_deg), "trans_change_cm": float(self.trans_change_cm),
+        }
+
+
+def chi2_quadratic(d: np.ndarray, cov: np.ndarray) -> float:
+    """``d^T cov^-1 d`` with a symmetric pseudo-inverse (never raises on a singular cov)."""
+    d = np.asarray(d, dtype=np.float64)
+    cov = 0.5 * (np.asarray(cov, dtype=np.float64) + np.asarray(cov, dtype=np.float64).T)
+    return float(d @ np.linalg.pinv(cov, hermitian=True) @ d)
+
+
+def reference_test(
+    T_est: np.ndarray, cov_est: np.ndarray, T_ref: np.ndarray, conf: DriftConfig | None = None,
+) -> DriftDecision:
+    """Chi-square test of the estimate (4, 4) with covariance (6, 6) against a reference (4, 4)."""
+    from hybrid_calib.config import merge
+
+    conf = merge(DriftConfig, conf)
+    d = local(np.asarray(T_ref, float), np.asarray(T_est, float))
+    C_ref = np.diag([np.radians(conf.ref_rot_std_deg) ** 2] * 3 + [(conf.ref_trans_std_cm / 100) ** 2] * 3)
+    # the reference's std is given in camera axes: rotate into the radar-frame tangent of T_est
+    R = np.asarray(T_est, float)[:3, :3]
+    Bt = np.zeros((6, 6))
+    Bt[:3, :3] = R.T
+    Bt[3:, 3:] = R.T
+    C = np.asarray(cov_est, float) + Bt @ C_ref @ Bt.T
+    s = chi2_quadratic(d, C)
+    p = float(chi2.sf(s, 6))
+    thr = float(chi2.isf(conf.alpha, 6))
+    delta_report = np.concatenate([np.degrees(R @ d[:3]), (np.asarray(T_est)[:3, 3] - np.asarray(T_ref)[:3, 3]) * 100])
+    rot = float(np.degrees(np.linalg.norm(d[:3])))
+    trans = float(np.linalg.norm(delta_report[3:]))
+    significant = p < conf.alpha
+    exceeds = rot > conf.min_rot_deg or trans > conf.min_trans_cm
+    return DriftDecision(s, 6, p, thr, significant, exceeds, bool(significant and exceeds), delta_report, rot, trans)
+
+
+@dataclass
+class StepTest:
+    """One evaluation of the windowed step test."""
+
+    statistic: float
+    threshold: float
+    above: bool
+    alarm: bool
+
+
+class StepDetector:
+    """Windowed chi-square of the recent-frames estimate against the long-run estimate.
+
+    The caller solves the recent frames (convex start) and passes both estimates with their
+    information matrices; the detector keeps the count of consecutive exceedances.
+    """
+
+    def __init__(self, conf: StepConfig | None = None):
+        from hybrid_calib.config import merge
+
+        self.conf = merge(StepConfig, conf)
+        self.threshold = float(chi2.isf(self.conf.p_alarm, 6))
+        self._run = 0
+
+    def reset(self) -> None:
+        self._run = 0
+
+    def statistic(self, T_long: np.ndarray, info_long: np.ndarray, T_recent: np.ndarray,
+                  info_recent: np.ndarray) -> float:
+        """Windowed chi-square (dof 6). T_*: (4, 4); info_*: (6, 6) right-tangent information. The
+        recent frames are a subset of the long-run estimate's frames."""
+        d = local(np.asarray(T_long, float), np.asarray(T_recent, float))
+        cov_recent = np.linalg.pinv(0.5 * (info_recent + info_recent.T), hermitian=True)
+        cov_long = np.linalg.pinv(0.5 * (info_long + info_long.T), hermitian=True)
+        cov_d = cov_recent - cov_long
+        # Hausman's difference is PSD only for efficient, same-weight estimates; fall back to the
+        # (conservative) recent covariance when it is not.
+        if np.min(np.linalg.eigvalsh(0.5 * (cov_d + cov_d.T))) <= 0:
+            cov_d = cov_recent
+        return chi2_quadratic(d, cov_d)
+
+    def observe(self, s: float) -> StepTest:
+        """Record one statistic; an alarm after ``consecutive`` exceedances in a row."""
+        above = s > self.threshold
+        self._run = self._run + 1 if above else 0
+        return StepTest(float(s), self.threshold, bool(above), self._run >= self.conf.consecutive)
+
+    def test(self, T_long: np.ndarray, info_long: np.ndarray, T_recent: np.ndarray,
+             info_recent: np.ndarray) -> StepTest:
+        """``statistic`` then ``observe``."""
+        return self.observe(self.statistic(T_long, info_long, T_recent, info_recent))

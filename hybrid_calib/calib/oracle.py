@@ -1,0 +1,216 @@
+"""Oracle correspondences: radar points matched to pixels by the ground truth, known noise model.
+
+Two sources:
+- ``synthetic_drive``: C's ``factors.synthetic.synthetic_correspondences`` (geometry only, no
+  simulator), frame after frame.
+- ``oracle_from_frame``: a simulated drive (``hybrid-calib simulate``). The simulator writes, per
+  radar PCD, ``sim_truth/RADAR_FRONT/<stem>.npz`` with ``true_xyz`` (N, 3) true reflector positions in
+  the radar frame (row-aligned with the PCD) and ``kind`` (0 real, 1 clutter, 2 ghost). The
+  reader gives ``extras["radar_rows"]`` (rows kept) and ``extras["radar_truth_path"]``.
+  The oracle projects the true reflectors of real detections with the frame's ground-truth
+  ``T_cam_radar`` (ego-motion compensated), adds isotropic Gaussian pixel noise (``sigma_px``),
+  replaces a fraction of the pixels by gross outliers (uniform over the image), and subsamples.
+  Radar side (``radar_points``): "truth" gives each reflector as a 2D radar without measurement
+  noise would record it (its true slant range and azimuth, z = 0), so the only unknowns are the
+  elevation and the pixel noise: a known noise model, as the Cramer-Rao bound assumes. "recorded"
+  uses the PCD's points, which carry the simulated radar's range/azimuth noise (up to ~1 deg of
+  azimuth: tens of pixels at 40 m), i.e. NOT the 2-pixel model.
+  Elevation (``elevation``): "world" keeps the simulated reflector heights. Their elevation is
+  structured (ground and object heights: mean -0.9 deg below 15 m, +0.7 deg beyond 30 m, measured
+  on the urban preset), which no fixed-distribution elevation model captures, so estimates are
+  biased (docs/benchmarks.md). "model" keeps each reflector's true range and azimuth (the drive's
+  geometry) and redraws its elevation uniform in ``elevation_mean_deg +- elevation_beam_deg``: the
+  factor's elevation model holds exactly, so accuracy can be compared with the Cramer-Rao bound.
+
+Ego motion between the radar and camera timestamps: the per-frame truth is
+``T_cam_radar(frame) = X N`` with ``X = T_cam_radar_static`` (the calibrated quantity) and
+``N = X^-1 T_cam_radar(frame)`` the radar's motion between the two timestamps. The oracle gives the
+recorded points moved by ``N`` (so the single extrinsic ``X`` explains every frame) and reports
+``X`` as the truth.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from factors.correspondences import Correspondences
+from hybrid_calib.errors import DataError
+from hybrid_calib.geometry import se3_inverse, transform_points
+
+
+@dataclass(frozen=True)
+class OracleConfig:
+    n_per_frame: int = 100  # correspondences per frame (fewer if the frame has fewer real reflectors)
+    sigma_px: float = 2.0  # isotropic pixel noise std, pixels
+    outlier_frac: float = 0.2  # fraction of correspondences replaced by gross outliers (uniform pixels)
+    min_depth_m: float = 1.0  # reflectors closer than this to the camera plane are not used
+    kinds: tuple[int, ...] = (0,)  # sim_truth kinds used as inliers (0 real; 1 clutter, 2 ghost have no pixel)
+    image_margin_px: float = 0.0  # keep projections at least this far inside the image
+    image_width: int = 1600  # pixels of the camera rescaled to this width (1600: nuScenes CAM_FRONT); 0 = as rendered
+    radar_points: str = "truth"  # "truth": true (range, azimuth) at z = 0; "recorded": the PCD's noisy points
+    elevation: str = "model"  # "model": redrawn uniform in mean +- beam (the factor's model); "world": the sim's
+    elevation_beam_deg: float = 7.0  # "model": half-width of the uniform elevation (match RadarPixelFactorConfig)
+    elevation_mean_deg: float = 0.0  # "model": centre of the uniform elevation, degrees
+
+
+@dataclass(frozen=True)
+class OracleTruth:
+    """Ground truth of one oracle frame.
+
+    T_cam_radar: (4, 4) the calibrated (static) extrinsic. inlier: (n,) bool (False = gross outlier).
+    points_true: (n, 3) metres, static radar frame, true reflector positions (with elevation).
+    """
+
+    T_cam_radar: np.ndarray
+    inlier: np.ndarray
+    points_true: np.ndarray
+
+
+def _project(K: np.ndarray, T: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    q = transform_points(T, P)
+    z = q[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv = (q[:, :2] / z[:, None]) * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]
+    return uv, z
+
+
+def oracle_from_frame(frame, conf: OracleConfig, rng: np.random.Generator) -> tuple[Correspondences, OracleTruth]:
+    """Oracle correspondences of one simulated ``RadarCameraFrame``.
+
+    Raises ``DataError`` (naming the frame's radar token and file) when the frame carries no
+    simulator truth or it does not match the PCD.
+    """
+    ex = frame.extras
+    path = ex.get("radar_truth_path")
+    if path is None or "radar_rows" not in ex:
+        raise DataError("frame has no simulator truth (extras radar_truth_path / radar_rows); oracle "
+                        "correspondences need a v1.0-sim root written by `hybrid-calib simulate` and nsweeps=1",
+                        token=frame.radar_token)
+    try:
+        with np.load(path) as z:
+            true_xyz = np.asarray(z["true_xyz"], np.float64)
+            kind = np.asarray(z["kind"]) if "kind" in z.files else np.zeros(len(true_xyz), np.int64)
+    except (OSError, KeyError, ValueError) as e:
+        raise DataError(f"simulator truth unreadable ({e}); re-run hybrid-calib simulate", path=str(path),
+                        token=frame.radar_token) from None
+    rows = np.asarray(ex["radar_rows"], np.int64)
+    if true_xyz.ndim != 2 or true_xyz.shape[1] != 3 or len(rows) != len(frame.radar_points) or \
+            (len(rows) and rows.max() >= len(true_xyz)):
+        raise DataError(f"simulator truth true_xyz {true_xyz.shape} does not match the PCD rows "
+                        f"({len(frame.radar_points)} points, max row {rows.max() if len(rows) else -1})",
+                        path=str(path), token=frame.radar_token)
+    X = np.asarray(ex.get("T_cam_radar_static", frame.T_cam_radar), np.float64)
+    T_frame = np.asarray(frame.T_cam_radar, np.float64)
+    N = se3_inverse(X) @ T_frame  # radar motion between radar and camera timestamps
+    true_pts = true_xyz[rows]
+    if conf.elevation == "model":
+        rho = np.linalg.norm(true_pts, axis=1)
+        az = np.arctan2(true_pts[:, 1], true_pts[:, 0])
+        phi = np.radians(conf.elevation_mean_deg + rng.uniform(-conf.elevation_beam_deg, conf.elevation_beam_deg,
+                                                                len(rho)))
+        true_pts = np.stack([rho * np.cos(phi) * np.cos(az), rho * np.cos(phi) * np.sin(az), rho * np.sin(phi)], 1)
+    elif conf.elevation != "world":
+        raise ValueError(f"OracleConfig.elevation={conf.elevation!r}; valid: model, world")
+    cam = frame.camera
+    if conf.image_width > 0 and cam.width != conf.image_width:
+        cam = cam.scaled(conf.image_width / cam.width)  # the oracle needs no image: full-res pixel units
+    K = cam.K
+    uv, depth = _project(K, T_frame, true_pts)
+    ok = np.isin(kind[rows], conf.kinds) & (depth > conf.min_depth_m) & \
+        cam.in_image(uv, conf.image_margin_px) & np.all(np.isfinite(true_pts), axis=1)
+    idx = np.flatnonzero(ok)
+    if len(idx) == 0:
+        raise DataError("no real radar reflector projects into the image; frame unusable for the oracle",
+                        path=str(path), token=frame.radar_token)
+    if len(idx) > conf.n_per_frame:
+        idx = np.sort(rng.choice(idx, conf.n_per_frame, replace=False))
+    if conf.radar_points == "truth":
+        P = true_pts[idx]
+        rho, az = np.linalg.norm(P, axis=1), np.arctan2(P[:, 1], P[:, 0])
+        measured = np.stack([rho * np.cos(az), rho * np.sin(az), np.zeros(len(P))], axis=1)
+    elif conf.radar_points == "recorded":
+        measured = frame.radar_points[idx]
+    else:
+        raise ValueError(f"OracleConfig.radar_points={conf.radar_points!r}; valid: truth, recorded")
+    recorded = transform_points(N, measured)
+    corr, inl = _noisy(recorded, uv[idx], K, cam.width, cam.height, conf, rng,
+                       str(frame.sample_token), int(frame.timestamp_camera_us))
+    return corr, OracleTruth(X, inl, transform_points(N, true_pts[idx]))
+
+
+def _noisy(points, uv_true, K, width, height, conf: OracleConfig, rng, frame_id: str, ts: int):
+    n = len(points)
+    pix = uv_true + rng.normal(scale=conf.sigma_px, size=(n, 2))
+    inl = np.ones(n, bool)
+    n_out = int(round(conf.outlier_frac * n))
+    if n_out:
+        out = rng.choice(n, n_out, replace=False)
+        pix[out] = rng.uniform([0, 0], [width - 1, height - 1], size=(n_out, 2))
+        inl[out] = False
+    corr = Correspondences(points, pix, np.full(n, float(conf.sigma_px)), np.ones(n), np.asarray(K, np.float64),
+                           frame_id, ts)
+    return corr, inl
+
+
+def elevation_stats(truths: list[OracleTruth]) -> tuple[float, float]:
+    """Mean and std (degrees) of the true reflectors' elevations over oracle frames (inliers).
+
+    A uniform elevation in ``mean +- beam`` has std ``beam / sqrt(3)``: set the factor's
+    ``elevation_mean_deg = mean`` and ``elevation_beam_deg = sqrt(3) std`` to give it the known model.
+    """
+    P = np.concatenate([t.points_true[t.inlier] for t in truths]) if truths else np.zeros((0, 3))
+    if len(P) == 0:
+        return 0.0, 0.0
+    e = np.degrees(np.arctan2(P[:, 2], np.linalg.norm(P[:, :2], axis=1)))
+    return float(e.mean()), float(e.std())
+
+
+def synthetic_drive(
+    T_cam_radar: np.ndarray, n_frames: int, rng: np.random.Generator, conf: OracleConfig | None = None,
+    step_at: int | None = None, T_after: np.ndarray | None = None, dt_us: int = 500_000, **kwargs,
+) -> tuple[list[Correspondences], list[OracleTruth]]:
+    """A drive of ``n_frames`` geometry-only oracle frames (``factors.synthetic.synthetic_correspondences``).
+
+    T_cam_radar: (4, 4) truth; with ``step_at`` and ``T_after`` the truth switches to ``T_after``
+    from frame ``step_at`` on (a mount knocked during the drive). ``kwargs`` go to
+    ``synthetic_correspondences`` (elevation_beam_deg, range_m, azimuth_deg, camera_or_K, ...).
+    """
+    from factors.synthetic import synthetic_correspondences
+    from hybrid_calib.config import merge
+
+    conf = merge(OracleConfig, conf)
+    frames, truths = [], []
+    for k in range(n_frames):
+        T = T_after if (step_at is not None and k >= step_at) else T_cam_radar
+        corr, tr = synthetic_correspondences(
+            np.asarray(T, np.float64), n=conf.n_per_frame, rng=rng, sigma_px=conf.sigma_px,
+            outlier_frac=conf.outlier_frac, frame_id=f"synthetic-{k:04d}", timestamp_us=k * dt_us, **kwargs)
+        frames.append(corr)
+        truths.append(OracleTruth(np.asarray(T, np.float64), np.asarray(tr["inlier"], bool),
+                                  np.asarray(tr["points_true"], np.float64)))
+    return frames, truths
+
+
+def load_correspondence_dir(directory) -> list[Correspondences]:
+    """Every ``*.npz`` (``Correspondences.to_npz_dict``) in a directory, sorted by timestamp then name.
+
+    A file that does not load raises ``DataError`` naming it.
+    """
+    from pathlib import Path
+
+    d = Path(directory)
+    files = sorted(d.glob("*.npz"))
+    if not files:
+        raise DataError("no *.npz correspondence files (Correspondences.to_npz_dict) in the directory", path=str(d))
+    out = []
+    for f in files:
+        try:
+            with np.load(f) as z:
+                out.append(Correspondences.from_npz_dict(z))
+        except (OSError, KeyError, ValueError) as e:
+            raise DataError(f"not a Correspondences npz ({e}); export with Correspondences.to_npz_dict",
+                            path=str(f)) from None
+    out.sort(key=lambda c: (c.timestamp_us, c.frame_id))
+    return out

@@ -1,0 +1,82 @@
+"""Plots of a calibration run: error and std over frames (+-2 sigma band), step statistic."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from hybrid_calib.calib.result import VehicleResult
+from hybrid_calib.metrics import signed_errors
+
+LABELS = ("roll (rot z) [deg]", "pitch (rot x) [deg]", "yaw (rot y) [deg]", "x [cm]", "y [cm]", "z [cm]")
+# camera-axis Euler order of metrics.signed_errors is [roll, pitch, yaw] = rotation about z, x, y;
+# report_std is ordered rotation about x, y, z: map each Euler angle to its std column.
+STD_COLUMN = (2, 0, 1, 3, 4, 5)
+
+
+def plot_vehicle(vr: VehicleResult, out_dir: Path) -> list[Path]:
+    """Write ``<vehicle>_trajectory.png`` (signed error with the +-2 sigma band, or the estimate
+    when there is no truth) and ``<vehicle>_drift.png`` (windowed chi-square vs threshold, inlier
+    fraction). Returns the paths written; nothing for batch results (no trajectory)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if not vr.trajectory:
+        return []
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    k = np.array([f.index for f in vr.trajectory])
+    std = np.array([f.estimate.std for f in vr.trajectory])
+    ref = vr.truth_T if vr.truth_T is not None else vr.trajectory[-1].T
+    err = np.array([signed_errors(f.T, ref) for f in vr.trajectory])
+    err[:, :3] = np.degrees(err[:, :3])
+    err[:, 3:] *= 100
+    fig, axes = plt.subplots(2, 3, figsize=(13, 6), sharex=True)
+    for j, ax in enumerate(axes.ravel()):
+        s = std[:, STD_COLUMN[j]]
+        ax.fill_between(k, -2 * s, 2 * s, color="tab:blue", alpha=0.2, label="+-2 sigma (reported)")
+        ax.plot(k, err[:, j], color="k", lw=1, label="error" if vr.truth_T is not None else "minus final")
+        ax.axhline(0, color="gray", lw=0.5)
+        ax.set_title(LABELS[j])
+        lim = max(4 * np.median(s), np.percentile(np.abs(err[:, j]), 90) * 1.5, 1e-6)
+        ax.set_ylim(-lim, lim)
+    axes[1, 0].set_xlabel("frame")
+    axes[0, 0].legend(fontsize=7)
+    fig.suptitle(f"{vr.vehicle}: estimate {'error vs truth' if vr.truth_T is not None else 'minus final estimate'}"
+                 f" (camera axes) with the reported +-2 sigma")
+    fig.tight_layout()
+    p1 = out_dir / f"{vr.vehicle}_trajectory.png"
+    _save(fig, p1)
+    plt.close(fig)
+
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(10, 5), sharex=True)
+    st = np.array([np.nan if f.step_statistic is None else f.step_statistic for f in vr.trajectory])
+    thr = next((f.step_threshold for f in vr.trajectory if f.step_threshold is not None), None)
+    a1.semilogy(k, np.maximum(st, 1e-3), ".-", lw=0.8, label="windowed chi-square (dof 6)")
+    if thr is not None:
+        a1.axhline(thr, color="r", ls="--", label=f"alarm threshold {thr:.1f}")
+    for f in vr.trajectory:
+        if f.step_alarm:
+            a1.axvline(f.index, color="orange", lw=2, alpha=0.6)
+    a1.legend(fontsize=7)
+    a1.set_ylabel("statistic")
+    a2.plot(k, [f.inlier_fraction for f in vr.trajectory], color="tab:green")
+    a2.set_ylabel("inlier fraction")
+    a2.set_xlabel("frame")
+    d = vr.drift or {}
+    fig.suptitle(f"{vr.vehicle}: step detector; vs reference: chi2 {d.get('statistic', float('nan')):.1f} "
+                 f"(p {d.get('p_value', float('nan')):.2g}) -> {'DRIFTED' if d.get('drifted') else 'no drift'}")
+    fig.tight_layout()
+    p2 = out_dir / f"{vr.vehicle}_drift.png"
+    _save(fig, p2)
+    plt.close(fig)
+    return [p1, p2]
+
+
+def _save(fig, path: Path) -> None:
+    tmp = path.with_name(path.stem + ".tmp.png")
+    fig.savefig(tmp, dpi=90)
+    tmp.replace(path)

@@ -1,0 +1,48 @@
+"""``hybrid-calib train``: train RC-AutoCalib on a nuScenes-format root (default: the simulator's).
+
+Writes the run folder described in ``learned.train`` (checkpoints with their configs, steps.csv,
+epochs.csv, train_config.json). Running the same command again resumes after the last checkpoint;
+raising ``--epochs`` continues a finished run.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from hybrid_calib.config import parse_overrides
+
+HELP = "train the RC-AutoCalib network (resumable; presets small / paper)"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--data", required=True, type=Path, help="nuScenes root (holds VERSION/ and samples/)")
+    parser.add_argument("--version", default="v1.0-sim", help="version folder (default v1.0-sim)")
+    parser.add_argument("--preset", default="small", choices=("small", "paper"),
+                        help="small: 2 CPU cores, well under two hours; paper: 400x192, 50 epochs, Adam 1e-4")
+    parser.add_argument("--out", required=True, type=Path, help="run folder (checkpoints, logs, configs)")
+    parser.add_argument("--range", dest="perturbation", default=None, choices=("R1", "R2"),
+                        help="perturbation range of the training starts (default R1)")
+    parser.add_argument("--epochs", type=int, default=None, help="number of epochs (overrides the preset)")
+    parser.add_argument("--depth", default=None,
+                        help="depth estimator: corrupted-truth (default) or depth-anything:/local/model/dir")
+    parser.add_argument("--nsweeps", type=int, default=1, help="radar sweeps accumulated per frame")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                        help="TrainConfig override, e.g. --set batch_size=4 --set model.feat_dim=32 (repeatable)")
+    parser.add_argument("--no-resume", action="store_true", help="fail instead of resuming an existing run")
+    parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+
+
+def run(args: argparse.Namespace) -> int:
+    from learned.dataset import open_frames
+    from learned.train import train, train_config
+
+    overrides = parse_overrides(args.overrides)
+    for key in ("perturbation", "epochs", "depth"):
+        if getattr(args, key) is not None:
+            overrides[key] = getattr(args, key)
+    conf = train_config(args.preset, overrides)
+    frames = open_frames(args.data, args.version, options={"nsweeps": args.nsweeps})
+    last = train(conf, frames, args.out, resume=not args.no_resume, progress=not args.no_progress)
+    print(f"last checkpoint: {last}")
+    return 0

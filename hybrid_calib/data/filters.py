@@ -1,0 +1,62 @@
+"""Radar point filters on the ARS 408 state fields, with the nuScenes devkit's defaults.
+
+The devkit (``RadarPointCloud``) keeps points whose ``invalid_state`` is 0 (valid), whose
+``dyn_prop`` is 0..6 (all dynamic properties except 7 = "stopped/unknown"), and whose
+``ambig_state`` is 3 (velocity unambiguous). ``RadarFilterConfig`` reproduces that and lets each
+test be widened or switched off (``None`` = do not filter on that field, ``enabled=False`` = keep
+every finite point).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+XYZ = ("x", "y", "z")
+
+
+@dataclass(frozen=True)
+class RadarFilterConfig:
+    enabled: bool = True  # False keeps every point with finite x, y, z (no state filtering)
+    invalid_states: tuple[int, ...] | None = (0,)  # kept invalid_state values; None = any
+    dynprop_states: tuple[int, ...] | None = (0, 1, 2, 3, 4, 5, 6)  # kept dyn_prop values; None = any
+    ambig_states: tuple[int, ...] | None = (3,)  # kept ambig_state values; None = any
+
+
+def finite_mask(points: np.ndarray) -> np.ndarray:
+    """(N,) structured radar array -> (N,) bool: x, y and z all finite."""
+    keep = np.ones(len(points), dtype=bool)
+    for name in XYZ:
+        keep &= np.isfinite(points[name])
+    return keep
+
+
+def state_mask(points: np.ndarray, conf: RadarFilterConfig) -> np.ndarray:
+    """(N,) structured radar array -> (N,) bool: passes the state filters of ``conf``.
+
+    A field the filter needs but the PCD lacks raises ``KeyError`` naming the field (callers turn
+    it into a ``DataError`` naming the file).
+    """
+    keep = np.ones(len(points), dtype=bool)
+    if not conf.enabled:
+        return keep
+    for field, allowed in (("invalid_state", conf.invalid_states), ("dyn_prop", conf.dynprop_states),
+                           ("ambig_state", conf.ambig_states)):
+        if allowed is None:
+            continue
+        if field not in (points.dtype.names or ()):
+            raise KeyError(field)
+        keep &= np.isin(points[field], np.asarray(allowed))
+    return keep
+
+
+def filter_radar(points: np.ndarray, conf: RadarFilterConfig) -> tuple[np.ndarray, int]:
+    """Rows of a structured radar array to keep.
+
+    Returns ``(rows, n_nonfinite)``: ``rows`` (K,) int64 indices into ``points`` of finite points
+    that pass ``conf``; ``n_nonfinite`` how many rows had NaN/inf coordinates (always dropped).
+    """
+    fin = finite_mask(points)
+    keep = fin & state_mask(points, conf)
+    return np.flatnonzero(keep).astype(np.int64), int((~fin).sum())

@@ -1,0 +1,96 @@
+"""Cheap image checks without decoding: JPEG/PNG signature, size from the header, end marker.
+
+The data layer checks every camera image eagerly with ``image_header`` (a few small reads, no
+decode): a missing file, a file that is not a JPEG/PNG, or one cut short (no end-of-image marker)
+becomes a skip naming the file before any consumer sees it. Full decoding stays lazy
+(``RadarCameraFrame.load_image``), which also raises ``DataError`` if the pixel data is corrupt.
+OpenCV decodes a truncated JPEG into a grey-filled image with only a warning, so the end-marker
+test here is what catches that case.
+"""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+from hybrid_calib.errors import DataError
+
+_PNG_SIG = b"\x89PNG\r\n\x1a\n"
+_JPEG_SOF = {0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF}
+_TAIL = 64  # bytes searched for the end marker (writers may pad a few bytes after it)
+
+
+def image_header(path: str | Path, token: str | None = None) -> tuple[int, int]:
+    """Check a JPEG or PNG file without decoding it and return its ``(width, height)`` in pixels.
+
+    Raises ``DataError`` naming the file (and ``token``) when the file is missing, empty, not a
+    JPEG/PNG, has no readable size, or lacks its end marker (truncated).
+    """
+    path = Path(path)
+    try:
+        size = path.stat().st_size
+        with open(path, "rb") as f:
+            head = f.read(8)
+            if head[:3] == b"\xff\xd8\xff":
+                wh = _jpeg_size(f)
+                end = b"\xff\xd9"
+            elif head == _PNG_SIG:
+                f.seek(8)
+                chunk = f.read(24)
+                if len(chunk) < 16 or chunk[4:8] != b"IHDR":
+                    wh = None
+                else:
+                    wh = struct.unpack(">II", chunk[8:16])
+                end = b"IEND"
+            else:
+                what = "empty" if size == 0 else f"starts with bytes {head[:4].hex()}"
+                raise DataError(f"camera image is not a JPEG or PNG ({what}); re-export or re-download it",
+                                path=str(path), token=token)
+            f.seek(max(0, size - _TAIL))
+            tail = f.read(_TAIL)
+    except FileNotFoundError:
+        raise DataError("camera image not found; check the dataset root (samples/ must sit next to the version "
+                        "folder)", path=str(path), token=token) from None
+    except OSError as e:
+        raise DataError(f"cannot read camera image: {e}", path=str(path), token=token) from None
+    if wh is None or wh[0] <= 0 or wh[1] <= 0:
+        raise DataError("camera image header has no valid size; the file is corrupt, re-export it",
+                        path=str(path), token=token)
+    if end not in tail:
+        raise DataError("camera image is truncated (no end-of-image marker); the file is corrupt or partially "
+                        "copied, re-download it", path=str(path), token=token)
+    return int(wh[0]), int(wh[1])
+
+
+def _jpeg_size(f) -> tuple[int, int] | None:
+    """Walk JPEG marker segments from just after SOI to the first SOF; ``(width, height)`` or None."""
+    f.seek(2)
+    while True:
+        b = f.read(1)
+        while b == b"\xff":  # fill bytes before a marker
+            b = f.read(1)
+        if not b:
+            return None
+        marker = b[0]
+        if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:  # stand-alone markers
+            continue
+        if marker in (0xD9, 0xDA):  # end of image / start of scan before any SOF
+            return None
+        raw = f.read(2)
+        if len(raw) < 2:
+            return None
+        length = struct.unpack(">H", raw)[0]
+        if length < 2:
+            return None
+        if marker in _JPEG_SOF:
+            seg = f.read(5)
+            if len(seg) < 5:
+                return None
+            h, w = struct.unpack(">HH", seg[1:5])
+            return w, h
+        f.seek(length - 2, 1)
+        # the next byte must start a marker
+        b = f.read(1)
+        if b != b"\xff":
+            return None
+        f.seek(-1, 1)

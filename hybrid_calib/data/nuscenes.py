@@ -1,0 +1,339 @@
+"""Synchronised radar-camera frames from any nuScenes-format root (real v1.0-* or simulated v1.0-sim).
+
+One frame per sample (keyframe) that has both channels: the camera keyframe image and the radar
+keyframe sweep of the same sample (plus, optionally, earlier radar sweeps and the LiDAR keyframe).
+The ground-truth extrinsic is ego-motion compensated (docs/conventions.md):
+``T_cam_radar = inv(T_ego_cam) inv(T_global_ego(t_cam)) T_global_ego(t_radar) T_ego_radar``.
+
+Bad input policy:
+- Root, version folder, tables, channel names and subsets are checked when the dataset is built;
+  problems raise ``DataError`` naming the file / token and what to do.
+- Per-frame problems (corrupt PCD, missing or non-image or truncated JPEG, unresolved token, a sweep
+  whose points are all NaN, an empty sweep after filtering) raise ``DataError`` from
+  ``dataset[i]``; iteration records a ``SkipRecord`` in ``dataset.skipped`` and goes on
+  (``on_error="skip"``) or re-raises (``on_error="raise"``).
+- Points with NaN/inf coordinates are dropped and counted (``extras["radar_nonfinite_dropped"]``);
+  a sweep in which every point is NaN is rejected.
+- Images are checked eagerly but cheaply (signature, size and end marker, no decode; see
+  ``image_header``); ``RadarCameraFrame.load_image`` decodes lazily.
+
+``frame.extras`` keys (all (4, 4) float64 transforms follow docs/conventions.md):
+  T_ego_cam, T_ego_radar: calibrated_sensor extrinsics; T_global_ego_cam, T_global_ego_radar: ego
+  poses at the two timestamps; T_cam_radar_static: inv(T_ego_cam) T_ego_radar (no ego motion);
+  reference_T_cam_radar: the reference a drift detector compares against (the simulated vehicle's
+  nominal mounting for v1.0-sim roots with sim_vehicle.json, else T_cam_radar_static);
+  radar_rows: (N,) int64 rows of the newest PCD kept after NaN removal and filtering (single sweep);
+  radar_truth_path: simulator per-point truth (.npz, rows aligned with the unfiltered PCD; single
+  sweep); radar_sweep_index (N,) int16 and radar_sweep_dt_s (N,) float32; radar_points_raw,
+  radar_nonfinite_dropped, radar_sweeps_used, radar_sweeps_missing: counts; lidar_token,
+  lidar_nonfinite_dropped when LiDAR is loaded.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hybrid_calib.config import merge
+from hybrid_calib.data.filters import RadarFilterConfig
+from hybrid_calib.data.frame import RadarCameraFrame
+from hybrid_calib.data.image_header import image_header
+from hybrid_calib.data.pcd import read_lidar_bin
+from hybrid_calib.data.sweeps import accumulate_radar
+from hybrid_calib.data.tables import NuScenesTables
+from hybrid_calib.errors import DataError
+from hybrid_calib.geometry import pose_from_nuscenes, se3_inverse
+from hybrid_calib.sensors.camera import PinholeCamera
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    radar_filter: RadarFilterConfig = RadarFilterConfig()  # point filters (devkit defaults)
+    nsweeps: int = 1  # radar sweeps per frame (1 = keyframe only; earlier sweeps need their files)
+    load_lidar: bool = False  # also load the LiDAR keyframe points and T_cam_lidar
+    lidar_channel: str = "LIDAR_TOP"  # LiDAR channel used when load_lidar is set
+    scenes: tuple[str, ...] | None = None  # scene names or tokens to keep; None = all
+    vehicles: tuple[str, ...] | None = None  # log vehicle names to keep; None = all
+    on_error: str = "skip"  # iteration: "skip" records bad frames in .skipped and goes on, "raise" stops
+    skip_empty_radar: bool = True  # a frame with zero radar points after filtering is an error (skipped)
+    check_images: bool = True  # eager image header check (signature, size, end marker; no decode)
+
+
+@dataclass(frozen=True)
+class SkipRecord:
+    """A frame (or, with index None, a table record found while indexing) that could not be used."""
+
+    index: int | None  # dataset index, None for problems found while building the index
+    token: str  # sample / sample_data / scene token concerned
+    path: str | None  # file concerned, if any
+    reason: str  # what is wrong and what to do
+
+
+@dataclass(frozen=True)
+class FrameRef:
+    """What the index knows about a frame before loading it."""
+
+    sample_token: str
+    scene_name: str
+    scene_token: str
+    log_token: str
+    vehicle: str
+    camera_sd: dict = field(repr=False)
+    radar_sd: dict = field(repr=False)
+
+
+class MissingSweepWarning(UserWarning):
+    """Earlier radar sweeps were requested but their files are absent (keyframe-only release)."""
+
+
+class NuScenesRadarCamera:
+    """Radar-camera frames of one nuScenes version folder.
+
+    Args:
+      root: the folder holding ``VERSION/*.json`` and ``samples/`` (and ``sweeps/`` if any).
+      version: a folder name under root, e.g. ``v1.0-mini``, ``v1.0-trainval``, ``v1.0-sim``.
+      radar_channel, camera_channel: sensor channels (``sensor.json``).
+      conf: ``DataConfig`` or a mapping of overrides (unknown keys raise).
+    """
+
+    def __init__(self, root: str | Path, version: str, radar_channel: str = "RADAR_FRONT",
+                 camera_channel: str = "CAM_FRONT", conf: DataConfig | dict | None = None):
+        self.conf = merge(DataConfig, conf)
+        if self.conf.on_error not in ("skip", "raise"):
+            raise ValueError(f"on_error must be 'skip' or 'raise', got {self.conf.on_error!r}")
+        if int(self.conf.nsweeps) < 1:
+            raise ValueError(f"nsweeps must be >= 1, got {self.conf.nsweeps}")
+        self.root = Path(root)
+        self.version = version
+        self.radar_channel = radar_channel
+        self.camera_channel = camera_channel
+        self.tables = NuScenesTables(root, version)
+        channels = self.tables.channels()
+        wanted = [radar_channel, camera_channel] + ([self.conf.lidar_channel] if self.conf.load_lidar else [])
+        for ch in wanted:
+            if ch not in channels:
+                raise DataError(f"channel {ch!r} is not in sensor.json; channels present: {channels}",
+                                path=str(self.tables.path("sensor")))
+        self.sim_vehicles: dict[str, dict] = _load_sim_vehicles(self.tables.vdir)
+        self._index_skips: list[SkipRecord] = [
+            SkipRecord(None, tok, str(self.tables.path("sample_data")), reason)
+            for tok, reason in self.tables.index_problems]
+        self._iter_skips: dict[int, SkipRecord] = {}
+        self._warned_missing_sweeps = False
+        self.frames: list[FrameRef] = self._build_index()
+
+    # ---------------------------------------------------------------- index
+    def _build_index(self) -> list[FrameRef]:
+        t = self.tables
+        scenes = t.records["scene"]
+        if self.conf.scenes is not None:
+            names = {s["name"] for s in scenes} | {s["token"] for s in scenes}
+            unknown = sorted(set(self.conf.scenes) - names)
+            if unknown:
+                raise DataError(f"scene(s) {unknown} not found; scenes present: {sorted(s['name'] for s in scenes)}",
+                                path=str(t.path("scene")))
+            scenes = [s for s in scenes if s["name"] in self.conf.scenes or s["token"] in self.conf.scenes]
+        if self.conf.vehicles is not None:
+            present = sorted({lg["vehicle"] for lg in t.records["log"]})
+            unknown = sorted(set(self.conf.vehicles) - set(present))
+            if unknown:
+                raise DataError(f"vehicle(s) {unknown} not found; vehicles present: {present}",
+                                path=str(t.path("log")))
+        frames: list[FrameRef] = []
+        for scene in scenes:
+            log = t.by_token["log"].get(scene["log_token"])
+            if log is None:
+                self._index_skips.append(SkipRecord(
+                    None, scene["token"], str(t.path("log")),
+                    f"scene {scene['name']} references log {scene['log_token']}, which is not in log.json; "
+                    "its samples are skipped"))
+                continue
+            if self.conf.vehicles is not None and log["vehicle"] not in self.conf.vehicles:
+                continue
+            for sample in t.scene_samples(scene):
+                cam = t.keyframe(sample["token"], self.camera_channel)
+                rad = t.keyframe(sample["token"], self.radar_channel)
+                if cam is None or rad is None:
+                    lacking = [ch for ch, sd in ((self.camera_channel, cam), (self.radar_channel, rad)) if sd is None]
+                    self._index_skips.append(SkipRecord(
+                        None, sample["token"], str(t.path("sample_data")),
+                        f"sample {sample['token']} has no keyframe for {lacking}; not a frame"))
+                    continue
+                frames.append(FrameRef(sample["token"], scene["name"], scene["token"], log["token"],
+                                       log["vehicle"], cam, rad))
+        return frames
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    @property
+    def skipped(self) -> list[SkipRecord]:
+        """Index-time problems followed by the frames skipped so far while iterating (by index)."""
+        return self._index_skips + [self._iter_skips[i] for i in sorted(self._iter_skips)]
+
+    def frames_by_vehicle(self) -> dict[str, list[int]]:
+        """Vehicle name -> dataset indices of its frames, in time order."""
+        out: dict[str, list[int]] = {}
+        for i, f in enumerate(self.frames):
+            out.setdefault(f.vehicle, []).append(i)
+        return out
+
+    def scenes(self) -> list[dict[str, Any]]:
+        """One dict per scene with frames: name, token, vehicle, log_token, indices."""
+        out: dict[str, dict[str, Any]] = {}
+        for i, f in enumerate(self.frames):
+            rec = out.setdefault(f.scene_token, dict(name=f.scene_name, token=f.scene_token, vehicle=f.vehicle,
+                                                     log_token=f.log_token, indices=[]))
+            rec["indices"].append(i)
+        return list(out.values())
+
+    # ---------------------------------------------------------------- frames
+    def __iter__(self) -> Iterator[RadarCameraFrame]:
+        """Every loadable frame in order; bad ones are recorded in ``skipped`` (or raise, see on_error)."""
+        for i in range(len(self)):
+            try:
+                frame = self[i]
+            except DataError as e:
+                if self.conf.on_error == "raise":
+                    raise
+                self._iter_skips[i] = SkipRecord(i, e.token or self.frames[i].sample_token, e.path, str(e))
+                continue
+            self._iter_skips.pop(i, None)
+            yield frame
+
+    def __getitem__(self, i: int) -> RadarCameraFrame:
+        """Load frame ``i``; ``DataError`` naming the file / token if anything is wrong."""
+        n = len(self)
+        if not -n <= i < n:
+            raise IndexError(f"frame index {i} out of range for {n} frames")
+        i = i % n
+        ref = self.frames[i]
+        t = self.tables
+        cam, rad = ref.camera_sd, ref.radar_sd
+        image_path = self.root / cam["filename"]
+        width, height = int(cam.get("width") or 0), int(cam.get("height") or 0)
+        if self.conf.check_images or not (width and height):
+            w_file, h_file = image_header(image_path, cam["token"])
+            if width and height and (w_file, h_file) != (width, height):
+                raise DataError(f"camera image is {w_file}x{h_file} but sample_data says {width}x{height}; the "
+                                "file does not belong to this record or was resized", path=str(image_path),
+                                token=cam["token"])
+            width, height = w_file, h_file
+        camera = PinholeCamera.from_K(t.camera_intrinsic(cam), width, height)
+
+        T_ego_cam, T_ego_radar = t.T_ego_sensor(cam), t.T_ego_sensor(rad)
+        T_ge_cam, T_ge_radar = t.T_global_ego(cam), t.T_global_ego(rad)
+        T_cam_global = se3_inverse(T_ego_cam) @ se3_inverse(T_ge_cam)
+        T_cam_radar = T_cam_global @ T_ge_radar @ T_ego_radar
+        T_cam_radar_static = se3_inverse(T_ego_cam) @ T_ego_radar
+
+        sweeps = accumulate_radar(t, rad, int(self.conf.nsweeps), self.conf.radar_filter)
+        if sweeps.missing_paths and not self._warned_missing_sweeps:
+            self._warned_missing_sweeps = True
+            warnings.warn(
+                f"{self.radar_channel}: earlier radar sweep files are absent (first: {sweeps.missing_paths[0]}); "
+                f"accumulating only the sweeps on disk (nsweeps={self.conf.nsweeps}). Keyframe-only releases have "
+                "no sweeps/ folder; set nsweeps=1 to silence this.", MissingSweepWarning, stacklevel=2)
+        pts = sweeps.points
+        if len(pts) == 0 and self.conf.skip_empty_radar:
+            raise DataError(f"radar sweep has 0 points after filtering ({sweeps.n_raw} read, "
+                            f"{sweeps.n_nonfinite} NaN); loosen radar_filter or set skip_empty_radar=false to keep "
+                            "empty frames", path=str(self.root / rad["filename"]), token=rad["token"])
+        radar_points = np.stack([pts["x"], pts["y"], pts["z"]], axis=1).astype(np.float64)
+        radar_fields = {name: pts[name].copy() for name in pts.dtype.names or ()}
+
+        extras: dict[str, Any] = dict(
+            T_ego_cam=T_ego_cam, T_ego_radar=T_ego_radar, T_global_ego_cam=T_ge_cam, T_global_ego_radar=T_ge_radar,
+            T_cam_radar_static=T_cam_radar_static,
+            reference_T_cam_radar=self._reference(ref, T_ego_cam, T_cam_radar_static),
+            radar_sweep_index=sweeps.sweep_index, radar_sweep_dt_s=sweeps.dt_s, radar_points_raw=sweeps.n_raw,
+            radar_nonfinite_dropped=sweeps.n_nonfinite, radar_sweeps_used=len(sweeps.sweep_tokens),
+            radar_sweeps_missing=len(sweeps.missing_paths), scene_token=ref.scene_token,
+        )
+        if sweeps.rows is not None:
+            extras["radar_rows"] = sweeps.rows
+            truth = self.root / "sim_truth" / self.radar_channel / (Path(rad["filename"]).stem + ".npz")
+            if truth.is_file():
+                extras["radar_truth_path"] = truth
+        depth = self.root / "sim_depth" / self.camera_channel / (Path(cam["filename"]).stem + ".png")
+
+        lidar_points = T_cam_lidar = None
+        if self.conf.load_lidar:
+            lidar_points, T_cam_lidar = self._lidar(ref, T_cam_global, extras)
+
+        return RadarCameraFrame(
+            index=i, sample_token=ref.sample_token, scene_name=ref.scene_name, vehicle=ref.vehicle,
+            log_token=ref.log_token, camera_channel=self.camera_channel, radar_channel=self.radar_channel,
+            camera_token=cam["token"], radar_token=rad["token"], timestamp_camera_us=int(cam["timestamp"]),
+            timestamp_radar_us=int(rad["timestamp"]), image_path=image_path, camera=camera,
+            radar_points=radar_points, radar_fields=radar_fields, T_cam_radar=T_cam_radar,
+            lidar_points=lidar_points, T_cam_lidar=T_cam_lidar, depth_path=depth if depth.is_file() else None,
+            extras=extras)
+
+    def _lidar(self, ref: FrameRef, T_cam_global: np.ndarray, extras: dict) -> tuple[np.ndarray, np.ndarray]:
+        t = self.tables
+        sd = t.keyframe(ref.sample_token, self.conf.lidar_channel)
+        if sd is None:
+            raise DataError(f"sample has no {self.conf.lidar_channel} keyframe but load_lidar is set; set "
+                            "load_lidar=false or pick another lidar_channel", path=str(t.path("sample_data")),
+                            token=ref.sample_token)
+        path = self.root / sd["filename"]
+        raw = read_lidar_bin(path)
+        pts = raw[:, :4]
+        finite = np.all(np.isfinite(pts[:, :3]), axis=1)
+        if len(pts) and not finite.any():
+            raise DataError(f"all {len(pts)} LiDAR points have NaN/inf coordinates; the file is corrupt",
+                            path=str(path), token=sd["token"])
+        extras["lidar_token"] = sd["token"]
+        extras["lidar_nonfinite_dropped"] = int((~finite).sum())
+        T_cam_lidar = T_cam_global @ t.T_global_ego(sd) @ t.T_ego_sensor(sd)
+        return np.ascontiguousarray(pts[finite], dtype=np.float32), T_cam_lidar
+
+    def _reference(self, ref: FrameRef, T_ego_cam: np.ndarray, T_cam_radar_static: np.ndarray) -> np.ndarray:
+        """The extrinsic a drift detector compares against: the simulated vehicle's nominal mounting
+        (``sim_vehicle.json``) when present, else the tables' own static extrinsic."""
+        T_ego_radar_nom = _sim_nominal_T_ego_radar(self.sim_vehicles.get(ref.log_token), self.radar_channel)
+        if T_ego_radar_nom is None:
+            return T_cam_radar_static
+        return se3_inverse(T_ego_cam) @ T_ego_radar_nom
+
+
+def _load_sim_vehicles(vdir: Path) -> dict[str, dict]:
+    """``VERSION/sim_vehicle.json`` (written by the simulator) -> log_token -> vehicle record; {} if absent."""
+    path = vdir / "sim_vehicle.json"
+    if not path.is_file():
+        return {}
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise DataError(f"sim_vehicle.json is not valid JSON ({e}); re-run hybrid-calib simulate",
+                        path=str(path)) from None
+    if isinstance(data, dict) and "vehicles" in data:
+        data = data["vehicles"]
+    if isinstance(data, list):
+        data = {rec.get("log_token"): rec for rec in data if isinstance(rec, dict)}
+    if not isinstance(data, dict) or not all(isinstance(v, dict) for v in data.values()):
+        raise DataError("sim_vehicle.json must map log tokens to vehicle records", path=str(path))
+    return data
+
+
+def _sim_nominal_T_ego_radar(rec: dict | None, radar_channel: str) -> np.ndarray | None:
+    """The nominal radar -> ego mounting of a simulated vehicle record, or None."""
+    if not rec:
+        return None
+    nominal = rec.get("nominal") or rec.get("nominal_extrinsics") or {}
+    node = nominal.get(radar_channel) if isinstance(nominal, dict) else None
+    if node is None:
+        node = rec.get("nominal_T_ego_radar")
+    if node is None:
+        return None
+    if isinstance(node, dict):
+        return pose_from_nuscenes(node["rotation"], node["translation"])
+    T = np.asarray(node, dtype=np.float64)
+    return T if T.shape == (4, 4) else None

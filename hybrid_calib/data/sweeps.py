@@ -1,0 +1,129 @@
+"""Radar sweep loading: one PCD with NaN handling and filters, or several accumulated into one frame.
+
+Multi-sweep accumulation follows the radar sample_data ``prev`` pointers and moves each older
+sweep into the newest sweep's radar frame through the ego poses (docs/conventions.md):
+``T_radar(t0)_radar(tk) = inv(T_ego_radar(t0)) inv(T_global_ego(t0)) T_global_ego(tk) T_ego_radar(tk)``.
+Sweep records whose files are absent (the nuScenes mini / keyframe-only releases) are reported
+back to the caller, which warns once; they are not errors.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from hybrid_calib.data.filters import RadarFilterConfig, filter_radar
+from hybrid_calib.data.pcd import read_radar_pcd
+from hybrid_calib.data.tables import NuScenesTables
+from hybrid_calib.errors import DataError
+from hybrid_calib.geometry import se3_inverse
+
+_VELOCITY_PAIRS = (("vx", "vy"), ("vx_comp", "vy_comp"))
+_FILTER_OPTION = {"invalid_state": "invalid_states", "dyn_prop": "dynprop_states", "ambig_state": "ambig_states"}
+
+
+@dataclass
+class RadarSweeps:
+    """Radar points of one frame (filtered, finite), in the newest sweep's radar frame.
+
+    points: (N,) structured array with every PCD field; x, y, z (metres) and the velocity fields
+      (m/s) of older sweeps are expressed in the newest radar frame.
+    rows: (N,) int64 row indices into the newest PCD (single sweep only, else None).
+    sweep_index: (N,) int16, 0 = newest sweep, k = k sweeps earlier.
+    dt_s: (N,) float32 seconds, newest timestamp minus the point's sweep timestamp (>= 0).
+    """
+
+    points: np.ndarray
+    rows: np.ndarray | None
+    sweep_index: np.ndarray
+    dt_s: np.ndarray
+    n_raw: int = 0  # points in the read files before filtering
+    n_nonfinite: int = 0  # points dropped because x, y or z was NaN/inf
+    sweep_tokens: list[str] = field(default_factory=list)  # sample_data tokens used, newest first
+    missing_paths: list[str] = field(default_factory=list)  # earlier sweep files absent on disk
+
+
+def load_filtered_sweep(path: Path, conf: RadarFilterConfig, token: str) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """One radar PCD -> (points kept (K,) structured, rows kept (K,) int64, n_raw, n_nonfinite).
+
+    ``DataError`` (naming the file and token) for an unreadable file, a PCD without x/y/z or the
+    fields a filter needs, or a sweep whose points are all NaN.
+    """
+    raw = read_radar_pcd(path)
+    names = raw.dtype.names or ()
+    missing = [n for n in ("x", "y", "z") if n not in names]
+    if missing:
+        raise DataError(f"radar PCD lacks field(s) {missing}; it is not a nuScenes radar file", path=str(path),
+                        token=token)
+    try:
+        rows, n_nonfinite = filter_radar(raw, conf)
+    except KeyError as e:
+        option = _FILTER_OPTION[e.args[0]]
+        raise DataError(f"radar PCD lacks field {e.args[0]!r} needed by the radar filter; disable that filter "
+                        f"(radar_filter.{option}=null)", path=str(path), token=token) from None
+    if len(raw) and n_nonfinite == len(raw):
+        raise DataError(f"all {len(raw)} radar points have NaN/inf coordinates; the file is corrupt, re-export it",
+                        path=str(path), token=token)
+    return raw[rows], rows, len(raw), n_nonfinite
+
+
+def accumulate_radar(tables: NuScenesTables, sd: dict, nsweeps: int, conf: RadarFilterConfig) -> RadarSweeps:
+    """The radar points of sample_data ``sd`` plus up to ``nsweeps - 1`` earlier sweeps.
+
+    The newest sweep's file must exist (``DataError`` otherwise); earlier sweeps whose files are
+    absent are listed in ``missing_paths`` and skipped.
+    """
+    if nsweeps < 1:
+        raise ValueError(f"nsweeps must be >= 1, got {nsweeps}")
+    path0 = tables.root / sd["filename"]
+    pts0, rows0, n_raw, n_nan = load_filtered_sweep(path0, conf, sd["token"])
+    out = RadarSweeps(points=pts0, rows=rows0, sweep_index=np.zeros(len(pts0), np.int16),
+                      dt_s=np.zeros(len(pts0), np.float32), n_raw=n_raw, n_nonfinite=n_nan,
+                      sweep_tokens=[sd["token"]])
+    if nsweeps == 1:
+        return out
+    T_radar0_global = se3_inverse(tables.T_global_ego(sd) @ tables.T_ego_sensor(sd))
+    parts, sweep_idx, dts = [pts0], [out.sweep_index], [out.dt_s]
+    prev_token = sd["prev"]
+    for k in range(1, nsweeps):
+        if not prev_token:
+            break
+        prev = tables.get("sample_data", prev_token, f"sample_data {sd['token']} (prev pointer)")
+        prev_token = prev["prev"]
+        path = tables.root / prev["filename"]
+        if not path.is_file():
+            out.missing_paths.append(str(path))
+            continue
+        pts, _, n_raw_k, n_nan_k = load_filtered_sweep(path, conf, prev["token"])
+        T = T_radar0_global @ tables.T_global_ego(prev) @ tables.T_ego_sensor(prev)
+        pts = _transform_structured(pts, T)
+        parts.append(pts)
+        sweep_idx.append(np.full(len(pts), k, np.int16))
+        dts.append(np.full(len(pts), (sd["timestamp"] - prev["timestamp"]) * 1e-6, np.float32))
+        out.n_raw += n_raw_k
+        out.n_nonfinite += n_nan_k
+        out.sweep_tokens.append(prev["token"])
+    if len(parts) > 1:
+        out.points = np.concatenate(parts)
+        out.rows = None
+        out.sweep_index = np.concatenate(sweep_idx)
+        out.dt_s = np.concatenate(dts)
+    return out
+
+
+def _transform_structured(points: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """Move a structured radar array's x, y, z (and velocity vectors, z velocity taken as 0) by T."""
+    out = points.copy()
+    xyz = np.stack([points["x"], points["y"], points["z"]], axis=1).astype(np.float64)
+    moved = xyz @ T[:3, :3].T + T[:3, 3]
+    for i, n in enumerate(("x", "y", "z")):
+        out[n] = moved[:, i]
+    names = points.dtype.names or ()
+    for vx, vy in _VELOCITY_PAIRS:
+        if vx in names and vy in names:
+            v = np.stack([points[vx], points[vy], np.zeros(len(points))], axis=1).astype(np.float64)
+            vr = v @ T[:3, :3].T
+            out[vx], out[vy] = vr[:, 0], vr[:, 1]
+    return out

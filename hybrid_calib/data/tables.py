@@ -1,0 +1,230 @@
+"""nuScenes JSON tables: loading, indexing and token resolution.
+
+Decision: hybrid-calib reads the JSON tables directly instead of using ``nuscenes-devkit``.
+
+- The devkit cannot share an environment with this package: ``nuscenes-devkit==1.2.0`` (the
+  current release, checked 2026-11) requires ``numpy<2.0.0`` while hybrid-calib pins
+  ``numpy>=2,<2.5`` (torch 2.13, gtsam 4.3). Older devkit releases required ``opencv-python``,
+  which installs the same ``cv2`` module as the ``opencv-python-headless`` build we pin (1.2.0
+  moved to the headless build, so that clash is gone, the numpy one is not).
+- It pulls dependencies we do not use (shapely, scikit-learn, pycocotools, descartes, fire) and
+  loads all 13 tables eagerly, including the largest (annotations), and asserts that every map
+  mask PNG exists, so partial copies without ``maps/`` (like the shared one-scene root) fail to
+  open at all.
+- We need seven tables (scene, sample, sample_data, calibrated_sensor, sensor, ego_pose, log),
+  the sample -> per-channel sample_data reverse index, and errors that name the table file or
+  the token that is wrong: a few hundred lines.
+
+Compatibility with the devkit is checked out of band by ``examples/check_with_devkit.py``.
+
+Formats follow the public nuScenes schema: every table is ``ROOT/VERSION/<name>.json``, a JSON
+list of records, each a dict with a unique ``token``.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+
+from hybrid_calib.errors import DataError
+from hybrid_calib.geometry import pose_from_nuscenes
+
+# The tables the data layer needs, with the fields it reads from each record.
+REQUIRED_TABLES: dict[str, tuple[str, ...]] = {
+    "scene": ("token", "log_token", "first_sample_token", "name"),
+    "sample": ("token", "timestamp", "scene_token"),
+    "sample_data": ("token", "sample_token", "ego_pose_token", "calibrated_sensor_token", "timestamp",
+                    "filename", "is_key_frame", "prev", "next"),
+    "calibrated_sensor": ("token", "sensor_token", "translation", "rotation", "camera_intrinsic"),
+    "sensor": ("token", "channel", "modality"),
+    "ego_pose": ("token", "timestamp", "rotation", "translation"),
+    "log": ("token", "vehicle"),
+}
+
+
+def available_versions(root: str | Path) -> list[str]:
+    """Names of the folders under ``root`` that hold a ``sample.json`` table (the nuScenes versions)."""
+    root = Path(root)
+    if not root.is_dir():
+        return []
+    return sorted(p.name for p in root.iterdir() if p.is_dir() and (p / "sample.json").is_file())
+
+
+def version_dir(root: str | Path, version: str) -> Path:
+    """``ROOT/VERSION`` after checking that it exists. ``DataError`` lists the versions that do."""
+    root = Path(root)
+    if not root.is_dir():
+        raise DataError("nuScenes root is not a directory; pass the folder that holds the version folder "
+                        "(e.g. v1.0-mini) and samples/", path=str(root))
+    vdir = root / version
+    if not vdir.is_dir():
+        found = available_versions(root)
+        hint = f"versions found there: {found}" if found else "no version folder (with sample.json) found there"
+        raise DataError(f"version folder {version!r} does not exist under the nuScenes root; {hint}; "
+                        "pass one of them with --version", path=str(vdir))
+    return vdir
+
+
+def load_table(vdir: Path, name: str, required_fields: Iterable[str] = ("token",)) -> list[dict]:
+    """``vdir/<name>.json`` -> list of records, checked for the fields the data layer reads.
+
+    Raises ``DataError`` naming the file when it is missing, not JSON, not a list of objects, or a
+    record lacks a required field.
+    """
+    path = Path(vdir) / f"{name}.json"
+    if not path.is_file():
+        raise DataError(f"table {name!r} is missing; a nuScenes version folder needs the tables "
+                        f"{sorted(REQUIRED_TABLES)}; re-extract the dataset's metadata archive", path=str(path))
+    try:
+        with open(path, encoding="utf-8") as f:
+            records = json.load(f)
+    except json.JSONDecodeError as e:
+        raise DataError(f"table {name!r} is not valid JSON ({e.msg} at line {e.lineno} column {e.colno}); "
+                        "the file is corrupt or truncated, re-extract it", path=str(path)) from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise DataError(f"cannot read table {name!r}: {e}", path=str(path)) from None
+    if not isinstance(records, list):
+        raise DataError(f"table {name!r} must be a JSON list of records, found {type(records).__name__}",
+                        path=str(path))
+    required = tuple(required_fields)
+    for i, rec in enumerate(records):
+        if not isinstance(rec, dict):
+            raise DataError(f"table {name!r} record {i} is {type(rec).__name__}, expected an object",
+                            path=str(path))
+        missing = [k for k in required if k not in rec]
+        if missing:
+            raise DataError(f"table {name!r} record {i} lacks field(s) {missing}; the table does not follow "
+                            "the nuScenes schema", path=str(path), token=rec.get("token"))
+    return records
+
+
+class NuScenesTables:
+    """The seven tables of one nuScenes version, indexed by token.
+
+    ``get(table, token)`` resolves a token or raises ``DataError`` naming the token, the table and
+    the record that referenced it. ``channel_of(sample_data)`` and ``keyframe(sample_token, channel)``
+    give the reverse index the devkit builds into ``sample['data']``.
+    """
+
+    def __init__(self, root: str | Path, version: str):
+        self.root = Path(root)
+        self.version = version
+        self.vdir = version_dir(self.root, version)
+        self.records: dict[str, list[dict]] = {}
+        self.by_token: dict[str, dict[str, dict]] = {}
+        for name, fields in REQUIRED_TABLES.items():
+            recs = load_table(self.vdir, name, fields)
+            self.records[name] = recs
+            self.by_token[name] = {r["token"]: r for r in recs}
+        # calibrated_sensor token -> sensor record (channel, modality); unresolved ones raise on use.
+        self._sensor_of_cs: dict[str, dict] = {}
+        for cs in self.records["calibrated_sensor"]:
+            sensor = self.by_token["sensor"].get(cs["sensor_token"])
+            if sensor is not None:
+                self._sensor_of_cs[cs["token"]] = sensor
+        self._samples_by_scene: dict[str, list[dict]] = {}
+        for s in self.records["sample"]:
+            self._samples_by_scene.setdefault(s["scene_token"], []).append(s)
+        # (sample_token, channel) -> keyframe sample_data record; problems found on the way.
+        self.keyframes: dict[tuple[str, str], dict] = {}
+        self.index_problems: list[tuple[str, str]] = []  # (token, reason)
+        for sd in self.records["sample_data"]:
+            if not sd["is_key_frame"]:
+                continue
+            sensor = self._sensor_of_cs.get(sd["calibrated_sensor_token"])
+            if sensor is None:
+                self.index_problems.append((sd["token"], self._unresolved_cs_reason(sd)))
+                continue
+            self.keyframes[(sd["sample_token"], sensor["channel"])] = sd
+
+    def _unresolved_cs_reason(self, sd: dict) -> str:
+        cs = self.by_token["calibrated_sensor"].get(sd["calibrated_sensor_token"])
+        if cs is None:
+            return (f"sample_data {sd['token']} references calibrated_sensor {sd['calibrated_sensor_token']}, "
+                    "which is not in calibrated_sensor.json; the tables are inconsistent")
+        return (f"calibrated_sensor {cs['token']} references sensor {cs['sensor_token']}, which is not in "
+                "sensor.json; the tables are inconsistent")
+
+    def path(self, name: str) -> Path:
+        """The file of table ``name``."""
+        return self.vdir / f"{name}.json"
+
+    def get(self, table: str, token: str, referenced_by: str = "") -> dict:
+        """The record of ``table`` with ``token``; ``DataError`` if it does not resolve."""
+        rec = self.by_token[table].get(token)
+        if rec is None:
+            by = f" (referenced by {referenced_by})" if referenced_by else ""
+            raise DataError(f"token does not resolve in table {table!r}{by}; the tables are inconsistent or "
+                            "from different versions: re-extract the metadata", path=str(self.path(table)),
+                            token=token)
+        return rec
+
+    def channels(self) -> list[str]:
+        """Every sensor channel present in sensor.json."""
+        return sorted({s["channel"] for s in self.records["sensor"]})
+
+    def channel_of(self, sd: dict) -> str:
+        """The sensor channel (e.g. ``RADAR_FRONT``) of a sample_data record."""
+        sensor = self._sensor_of_cs.get(sd["calibrated_sensor_token"])
+        if sensor is None:
+            raise DataError(self._unresolved_cs_reason(sd), path=str(self.path("sample_data")), token=sd["token"])
+        return sensor["channel"]
+
+    def keyframe(self, sample_token: str, channel: str) -> dict | None:
+        """The keyframe sample_data of ``channel`` in a sample, or None if the sample has none."""
+        return self.keyframes.get((sample_token, channel))
+
+    def scene_samples(self, scene: dict) -> list[dict]:
+        """The samples of a scene in time order (follows ``first_sample_token`` / ``next``).
+
+        Falls back to sorting the scene's samples by timestamp when the chain is broken, so one
+        bad ``next`` pointer does not drop the rest of the scene.
+        """
+        chain: list[dict] = []
+        token = scene["first_sample_token"]
+        seen: set[str] = set()
+        while token and token not in seen:
+            rec = self.by_token["sample"].get(token)
+            if rec is None or rec["scene_token"] != scene["token"]:
+                break
+            seen.add(token)
+            chain.append(rec)
+            token = rec.get("next", "")
+        all_in_scene = self._samples_by_scene.get(scene["token"], [])
+        if len(chain) == len(all_in_scene):
+            return chain
+        return sorted(all_in_scene, key=lambda s: s["timestamp"])
+
+    def T_ego_sensor(self, sd: dict) -> np.ndarray:
+        """(4, 4) sensor -> ego of a sample_data record (its calibrated_sensor)."""
+        cs = self.get("calibrated_sensor", sd["calibrated_sensor_token"], f"sample_data {sd['token']}")
+        return _pose(cs, self.path("calibrated_sensor"))
+
+    def T_global_ego(self, sd: dict) -> np.ndarray:
+        """(4, 4) ego -> global at a sample_data record's timestamp (its ego_pose)."""
+        ep = self.get("ego_pose", sd["ego_pose_token"], f"sample_data {sd['token']}")
+        return _pose(ep, self.path("ego_pose"))
+
+    def camera_intrinsic(self, sd: dict) -> np.ndarray:
+        """(3, 3) float64 camera matrix of a camera sample_data record."""
+        cs = self.get("calibrated_sensor", sd["calibrated_sensor_token"], f"sample_data {sd['token']}")
+        K = np.asarray(cs["camera_intrinsic"], dtype=np.float64)
+        if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
+            raise DataError(f"calibrated_sensor camera_intrinsic must be a finite 3x3 matrix with positive focal "
+                            f"lengths, got {cs['camera_intrinsic']!r}; is this a camera channel?",
+                            path=str(self.path("calibrated_sensor")), token=cs["token"])
+        return K
+
+
+def _pose(rec: dict, path: Path) -> np.ndarray:
+    try:
+        T = pose_from_nuscenes(rec["rotation"], rec["translation"])
+    except (ValueError, TypeError) as e:
+        raise DataError(f"invalid rotation/translation ({e}); expected a [w, x, y, z] unit quaternion and "
+                        "[x, y, z] metres", path=str(path), token=rec.get("token")) from None
+    if not np.all(np.isfinite(T)):
+        raise DataError("non-finite rotation/translation", path=str(path), token=rec.get("token"))
+    return T

@@ -1,0 +1,206 @@
+"""One vehicle's drive: its world, ego motion, true mounts, timestamps, and the per-frame simulation
+of camera (RGB + ground-truth depth), radar and LiDAR."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+
+from hybrid_calib.sensors.camera import PinholeCamera
+from hybrid_calib.sensors.lidar import LidarConfig, simulate_lidar_sweep
+from hybrid_calib.sensors.radar import RadarConfig, RadarSweep, simulate_radar_sweep
+from hybrid_calib.sim.extrinsics import ExtrinsicChange, MountPerturbation, VehicleMounts, sample_mounts
+from hybrid_calib.sim.raycast import cast_pinhole
+from hybrid_calib.sim.render import ShadingConfig, shade
+from hybrid_calib.sim.scenarios import ScenarioConfig, build_world, scenario
+from hybrid_calib.sim.trajectory import EGO_START_S, EgoMotion
+from hybrid_calib.sim.world import GROUND_LIDAR_REFLECTIVITY, World
+
+# nuScenes CAM_FRONT intrinsics at full resolution (1600 x 900).
+NUSCENES_CAM_FRONT_K = np.array([[1266.417203046554, 0.0, 816.2670197447984],
+                                 [0.0, 1266.417203046554, 491.50706579294757], [0.0, 0.0, 1.0]])
+BASE_TIMESTAMP_US = 1_600_000_000_000_000  # first camera timestamp of vehicle 0, microseconds
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """A simulated fleet: ``vehicles`` drives of ``frames`` keyframes each in one scenario."""
+
+    scenario: str = "urban"  # preset name (urban, highway, rain, straight)
+    vehicles: int = 1  # number of vehicles (one log and one scene each)
+    frames: int = 200  # keyframes per vehicle
+    seed: int = 0  # master seed; every vehicle / frame derives its own
+    frame_interval_s: float = 0.5  # time between keyframes (nuScenes keyframes: 2 Hz)
+    radar_offset_ms: tuple[float, float] = (30.0, 50.0)  # |t_radar - t_cam| range, ms (random sign)
+    radar_sweeps_per_frame: int = 0  # extra non-keyframe radar sweeps before each keyframe sweep (0..5)
+    radar_sweep_period_ms: float = 1000.0 / 13.0  # radar cycle time (ARS 408: ~13 Hz), ms
+    lidar_offset_ms: float = 5.0  # |t_lidar - t_cam| at most, ms
+    image_scale: float = 0.5  # camera = nuScenes CAM_FRONT (1600x900) scaled by this
+    jpeg_quality: int = 92  # JPEG quality of the camera images
+    camera_max_range_m: float = 500.0  # farthest rendered surface (depth 0 beyond), metres
+    extrinsic_change: ExtrinsicChange = ExtrinsicChange()  # radar mount movement during each drive
+    mounts: MountPerturbation = MountPerturbation()  # spread of the true mounts around the nominal
+    radar: RadarConfig = RadarConfig()  # radar model (the scenario sets its weather fields)
+    lidar: LidarConfig = LidarConfig()  # LiDAR model
+
+    def __post_init__(self):
+        scenario(self.scenario)  # validates the name
+        span_ms = self.radar_sweeps_per_frame * (self.radar_sweep_period_ms + 1.0) + 2 * self.radar_offset_ms[1]
+        if self.radar_sweeps_per_frame < 0 or span_ms >= 1000 * self.frame_interval_s:
+            raise ValueError(f"radar_sweeps_per_frame={self.radar_sweeps_per_frame} sweeps of "
+                             f"{self.radar_sweep_period_ms:.1f} ms do not fit between keyframes "
+                             f"{self.frame_interval_s} s apart; use fewer")
+        if self.vehicles < 1 or self.frames < 1:
+            raise ValueError(f"need at least one vehicle and one frame, got vehicles={self.vehicles} "
+                             f"frames={self.frames}")
+
+    @property
+    def scenario_config(self) -> ScenarioConfig:
+        return scenario(self.scenario)
+
+    @property
+    def effective_radar(self) -> RadarConfig:
+        """The radar config with the scenario's weather (extra loss, clutter, ghosts) applied."""
+        s = self.scenario_config
+        return dataclasses.replace(self.radar, extra_loss_db=self.radar.extra_loss_db + s.radar_extra_loss_db,
+                                   clutter_per_sweep=s.radar_clutter_per_sweep,
+                                   ghost_probability=s.radar_ghost_probability)
+
+    @property
+    def camera(self) -> PinholeCamera:
+        return PinholeCamera.from_K(NUSCENES_CAM_FRONT_K, 1600, 900).scaled(self.image_scale)
+
+
+def _rng(*keys: int) -> np.random.Generator:
+    return np.random.default_rng(np.random.SeedSequence([int(k) for k in keys]))
+
+
+@dataclass
+class FrameTimes:
+    """Timestamps of frame k, microseconds, and the same in seconds since the drive's start."""
+
+    camera_us: int
+    radar_us: int
+    lidar_us: int
+    radar_sweeps_us: tuple[int, ...] = ()  # earlier non-keyframe radar sweeps, oldest first
+
+    def seconds(self, base_us: int) -> tuple[float, float, float]:
+        return tuple((x - base_us) * 1e-6 for x in (self.camera_us, self.radar_us, self.lidar_us))
+
+
+@dataclass
+class FrameSim:
+    """Everything simulated for one keyframe (see ``VehicleDrive.simulate_frame``)."""
+
+    index: int
+    times: FrameTimes
+    image: np.ndarray  # (H, W, 3) uint8 RGB
+    depth: np.ndarray  # (H, W) float32 metres, camera z (0 = no surface)
+    radar: RadarSweep  # radar frame at t_radar
+    lidar: np.ndarray  # (N, 5) float32, LiDAR frame at t_lidar
+    T_global_ego_cam: np.ndarray  # ego pose at t_cam
+    T_global_ego_radar: np.ndarray  # ego pose at t_radar
+    T_global_ego_lidar: np.ndarray  # ego pose at t_lidar
+    T_ego_radar: np.ndarray  # the radar mount at this frame
+    radar_sweeps: list[tuple[int, RadarSweep, np.ndarray]] = field(default_factory=list)
+    # earlier non-keyframe sweeps: (timestamp us, sweep, T_global_ego at that time), oldest first
+
+
+@dataclass
+class VehicleDrive:
+    """Vehicle ``vehicle`` of a fleet simulation: deterministic for (conf.seed, vehicle)."""
+
+    conf: SimConfig
+    vehicle: int
+    world: World = field(init=False)
+    ego: EgoMotion = field(init=False)
+    mounts: VehicleMounts = field(init=False)
+
+    def __post_init__(self):
+        c, s = self.conf, self.conf.scenario_config
+        duration = c.frames * c.frame_interval_s + 1.0
+        drive_len = s.ego_speed * (1 + s.ego_speed_variation) * duration
+        self.world = build_world(s, int(_rng(c.seed, self.vehicle, 1).integers(2**31)), EGO_START_S + drive_len + 400.0)
+        lane = self.world.layout.lane_centre(self.world.layout.lanes_per_direction - 1)
+        self.ego = EgoMotion(self.world.path, lane, s.ego_speed, s.ego_speed_variation)
+        self.mounts = sample_mounts(_rng(c.seed, self.vehicle, 2), c.mounts)
+        self.base_us = BASE_TIMESTAMP_US + self.vehicle * 10_000_000_000
+
+    @cached_property
+    def name(self) -> str:
+        return f"sim-veh-{self.vehicle:03d}"
+
+    def times(self, k: int) -> FrameTimes:
+        c = self.conf
+        g = _rng(c.seed, self.vehicle, 3, k)
+        cam = self.base_us + int(round(k * c.frame_interval_s * 1e6))
+        radar = cam + int(round(g.choice([-1, 1]) * g.uniform(*c.radar_offset_ms) * 1e3))
+        lidar = cam + int(round(g.uniform(-c.lidar_offset_ms, c.lidar_offset_ms) * 1e3))
+        n = c.radar_sweeps_per_frame
+        period_us = c.radar_sweep_period_ms * 1e3
+        sweeps = tuple(radar - int(round(j * period_us + g.uniform(-1000, 1000))) for j in range(n, 0, -1))
+        return FrameTimes(cam, radar, lidar, sweeps)
+
+    def T_ego_radar(self, k: int) -> np.ndarray:
+        return self.mounts.radar_at(self.conf.extrinsic_change, k, self.conf.frames)
+
+    def shading(self) -> ShadingConfig:
+        s = self.conf.scenario_config
+        return ShadingConfig(contrast=s.image_contrast, fog_distance=s.fog_distance, rain=s.rain)
+
+    def simulate_frame(self, k: int, radar: RadarConfig | None = None) -> FrameSim:
+        """Render and simulate keyframe k (all sensors)."""
+        c = self.conf
+        g = _rng(c.seed, self.vehicle, 4, k)
+        times = self.times(k)
+        t_cam, t_radar, t_lidar = times.seconds(self.base_us)
+        Tge_cam, Tge_radar, Tge_lidar = (self.ego.T_global_ego(t) for t in (t_cam, t_radar, t_lidar))
+        image, depth = self.render_camera(Tge_cam @ self.mounts.T_ego_cam, t_cam, g)
+        T_ego_radar = self.T_ego_radar(k)
+        radar = radar or c.effective_radar
+        sweep = self.simulate_radar(Tge_radar, T_ego_radar, t_radar, radar, g)
+        lidar = self.simulate_lidar(Tge_lidar @ self.mounts.T_ego_lidar, t_lidar, g)
+        extra = []
+        for us in times.radar_sweeps_us:
+            t = (us - self.base_us) * 1e-6
+            Tge = self.ego.T_global_ego(t)
+            extra.append((us, self.simulate_radar(Tge, T_ego_radar, t, radar, g), Tge))
+        return FrameSim(k, times, image, depth, sweep, lidar, Tge_cam, Tge_radar, Tge_lidar, T_ego_radar, extra)
+
+    def simulate_radar(self, T_global_ego: np.ndarray, T_ego_radar: np.ndarray, t: float, radar: RadarConfig,
+                       g: np.random.Generator) -> RadarSweep:
+        """One radar sweep at time t with the ego at ``T_global_ego`` and the radar mounted at ``T_ego_radar``."""
+        v_radar = self.ego.point_velocity(t, T_ego_radar[:3, 3])
+        T_global_radar = T_global_ego @ T_ego_radar
+        prims = self.world.primitives_at(t, T_global_radar[:3, 3], radar.far_range_m)
+        return simulate_radar_sweep(prims, T_global_radar, v_radar, radar, g)
+
+    def render_camera(self, T_global_cam: np.ndarray, t: float,
+                      g: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """RGB (H, W, 3) uint8 and depth (H, W) float32 metres (camera z, 0 = none) at time t."""
+        cam = self.conf.camera
+        rays = _camera_rays(cam)
+        prims = self.world.primitives_at(t, T_global_cam[:3, 3], self.conf.camera_max_range_m)
+        buf, dirs = cast_pinhole(prims, T_global_cam, rays, cam.K, self.conf.camera_max_range_m)
+        image = shade(self.world, prims, buf, dirs, T_global_cam[:3, 3], self.shading(), g)
+        depth = np.where(np.isfinite(buf.t), buf.t * rays[..., 2], 0.0).astype(np.float32)
+        return image, depth
+
+    def simulate_lidar(self, T_global_lidar: np.ndarray, t: float, g: np.random.Generator) -> np.ndarray:
+        def ground_refl(xy):
+            return GROUND_LIDAR_REFLECTIVITY[self.world.ground_class(xy)[0]]
+
+        prims = self.world.primitives_at(t, T_global_lidar[:3, 3], self.conf.lidar.max_range_m)
+        return simulate_lidar_sweep(prims, T_global_lidar, self.conf.lidar, g, ground_refl)
+
+
+_RAYS: dict[PinholeCamera, np.ndarray] = {}
+
+
+def _camera_rays(cam: PinholeCamera) -> np.ndarray:
+    if cam not in _RAYS:
+        _RAYS[cam] = cam.rays()
+    return _RAYS[cam]

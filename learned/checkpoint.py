@@ -1,0 +1,144 @@
+"""Checkpoints: model weights (safetensors) + optimizer/scheduler state (``torch.save`` state dicts,
+read back with ``weights_only=True``) + a JSON file with the epoch, the configs and the metrics.
+
+Layout of one checkpoint with stem ``DIR/ckpt-0003``:
+  ckpt-0003.safetensors  model ``state_dict`` (float32 tensors; the JSON config in its metadata too)
+  ckpt-0003.optim.pt     ``{"optimizer": ..., "scheduler": ...}`` state dicts (training only)
+  ckpt-0003.json         ``{"epoch", "model_config", "train_config", "metrics", "files"}``
+Every file is written to a temp name and renamed; the JSON is written last, so a checkpoint exists
+(``latest_checkpoint`` finds it) only once all its files are complete.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+from safetensors.torch import load_file, save_file
+
+from hybrid_calib.config import save_json_atomic
+from hybrid_calib.errors import HybridCalibError
+
+_STEM = re.compile(r"^ckpt-(\d{4,})\.json$")
+
+
+@dataclass
+class Checkpoint:
+    """What ``load_checkpoint`` returns. ``path`` is the JSON file."""
+
+    path: Path
+    epoch: int
+    model_config: dict[str, Any]
+    train_config: dict[str, Any] = field(default_factory=dict)
+    metrics: dict[str, Any] = field(default_factory=dict)
+
+
+def checkpoint_stem(directory: str | Path, epoch: int) -> Path:
+    return Path(directory) / f"ckpt-{epoch:04d}"
+
+
+def _tmp(path: Path) -> Path:
+    return path.with_name(f".{path.name}.{os.getpid()}.tmp")
+
+
+def save_checkpoint(stem: str | Path, model: torch.nn.Module, *, epoch: int, model_config: dict,
+                    train_config: dict | None = None, metrics: dict | None = None,
+                    optimizer: torch.optim.Optimizer | None = None, scheduler: Any = None) -> Path:
+    """Write a checkpoint at ``stem`` (see module docstring); returns the JSON path."""
+    stem = Path(stem)
+    stem.parent.mkdir(parents=True, exist_ok=True)
+    weights = stem.with_suffix(".safetensors")
+    state = {k: v.detach().to("cpu").contiguous().clone() for k, v in model.state_dict().items()}
+    tmp = _tmp(weights)
+    save_file(state, str(tmp), metadata={"model_config": json.dumps(model_config), "epoch": str(epoch)})
+    tmp.replace(weights)
+    files = {"weights": weights.name}
+    if optimizer is not None:
+        optim = stem.with_suffix(".optim.pt")
+        tmp = _tmp(optim)
+        torch.save({"optimizer": optimizer.state_dict(),
+                    "scheduler": scheduler.state_dict() if scheduler is not None else None}, tmp)
+        tmp.replace(optim)
+        files["optimizer"] = optim.name
+    meta = {"epoch": int(epoch), "model_config": model_config, "train_config": train_config or {},
+            "metrics": metrics or {}, "files": files}
+    return save_json_atomic(stem.with_suffix(".json"), meta)
+
+
+def latest_checkpoint(directory: str | Path) -> Path | None:
+    """The JSON of the highest-epoch complete checkpoint in ``directory`` (None if there is none)."""
+    directory = Path(directory)
+    if not directory.is_dir():
+        return None
+    found = [(int(m.group(1)), p) for p in directory.iterdir() if (m := _STEM.match(p.name))]
+    return max(found)[1] if found else None
+
+
+def _resolve(path: str | Path) -> Path:
+    """A checkpoint given as its JSON, its .safetensors, its stem or a directory -> its JSON path."""
+    path = Path(path)
+    if path.is_dir():
+        latest = latest_checkpoint(path)
+        if latest is None:
+            latest = latest_checkpoint(path / "checkpoints")
+        if latest is None:
+            raise HybridCalibError(f"no checkpoint (ckpt-NNNN.json) in {path}; train one with `hybrid-calib train`")
+        return latest
+    if path.suffix == ".safetensors":
+        path = path.with_suffix(".json")
+    elif path.suffix != ".json":
+        path = path.with_name(path.name + ".json")
+    if not path.is_file():
+        raise HybridCalibError(f"checkpoint {path} not found (expected ckpt-NNNN.json with its .safetensors)")
+    return path
+
+
+def load_checkpoint(path: str | Path, model: torch.nn.Module | None = None,
+                    optimizer: torch.optim.Optimizer | None = None, scheduler: Any = None,
+                    map_location: str | torch.device = "cpu") -> Checkpoint:
+    """Read a checkpoint; load its weights into ``model`` (strict) and its state into ``optimizer``
+    / ``scheduler`` when given. Raises ``HybridCalibError`` naming the file on any mismatch."""
+    path = _resolve(path)
+    try:
+        meta = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        raise HybridCalibError(f"checkpoint metadata {path} is unreadable: {e}") from e
+    ckpt = Checkpoint(path, int(meta["epoch"]), meta["model_config"], meta.get("train_config", {}),
+                      meta.get("metrics", {}))
+    if model is not None:
+        weights = path.parent / meta["files"]["weights"]
+        state = load_file(str(weights), device=str(map_location))
+        try:
+            model.load_state_dict(state, strict=True)
+        except RuntimeError as e:
+            raise HybridCalibError(f"weights {weights} do not fit this model (was it built with the "
+                                   f"checkpoint's model_config?): {e}") from e
+    if optimizer is not None or scheduler is not None:
+        name = meta["files"].get("optimizer")
+        if name is None:
+            raise HybridCalibError(f"checkpoint {path} has no optimizer state; cannot resume training from it")
+        state = torch.load(path.parent / name, map_location=map_location, weights_only=True)
+        if optimizer is not None:
+            optimizer.load_state_dict(state["optimizer"])
+        if scheduler is not None and state.get("scheduler") is not None:
+            scheduler.load_state_dict(state["scheduler"])
+    return ckpt
+
+
+def load_model(path: str | Path, device: str | torch.device = "cpu", model_factory=None):
+    """Build the network (``model_factory``, default ``learned.model.RCAutoCalib``) from a
+    checkpoint's own model config and load its weights. Returns ``(model in eval mode, Checkpoint)``."""
+    from learned.config import model_config
+
+    if model_factory is None:
+        from learned.model import RCAutoCalib as model_factory
+    path = _resolve(path)
+    meta = json.loads(path.read_text())
+    model = model_factory(model_config(meta["model_config"]))
+    ckpt = load_checkpoint(path, model, map_location="cpu")
+    return model.to(device).eval(), ckpt

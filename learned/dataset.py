@@ -1,0 +1,277 @@
+"""Torch dataset over radar-camera frames: resized image, estimated depth, padded radar, LiDAR in
+the camera frame, and a per-sample mis-calibrated start ``T_init``.
+
+One sample (``CalibDataset[i]``), tensors float32 unless said otherwise:
+  image: (3, H, W) RGB in [0, 1], resized to the model input size (paper: W x H = 400 x 192).
+  depth: (1, H, W) metres, ESTIMATED camera depth at the model size (0 = unknown).
+  K: (3, 3) intrinsics of the resized image (``PinholeCamera.scaled``).
+  radar: (Nmax, 3) metres, radar frame (z = 0 as recorded); radar_mask: (Nmax,) bool.
+  T_init: (4, 4) the mis-calibrated T_cam_radar the model starts from.
+  T_gt: (4, 4) ground-truth T_cam_radar.
+  lidar_cam: (Mmax, 3) metres, LiDAR points moved into the CAMERA frame (in front of the camera and
+    inside the image); lidar_mask: (Mmax,) bool.
+  perturbation: (6,) float64, the sampled [roll, pitch, yaw] (rad, camera axes) and [dx, dy, dz] (m).
+  index: int (position in the dataset), token: str (camera sample_data token).
+``collate`` stacks a list of samples into the batch dict the model takes (dropping ``None``s, which
+``CalibDataset`` returns for frames whose files are bad; they are listed in ``dataset.bad``).
+
+Perturbations (docs/conventions.md): roll, pitch, yaw uniform in +-rot_deg and dx, dy, dz uniform
+in +-trans_m (R1: 10 deg, 0.25 m; R2: 20 deg, 1.5 m), applied with
+``geometry.perturb_camera_frame``. Training draws a new one per (seed, epoch, index); evaluation
+fixes one per (seed, index), whatever the epoch.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from hybrid_calib.config import merge
+from hybrid_calib.data.frame import RadarCameraFrame
+from hybrid_calib.errors import DataError, HybridCalibError
+from hybrid_calib.geometry import perturb_camera_frame, transform_points
+from learned.depth import DepthCache, DepthEstimator
+
+log = logging.getLogger(__name__)
+
+# Perturbation ranges of the paper: name -> (max |angle| degrees, max |offset| metres) per axis.
+RANGES: dict[str, tuple[float, float]] = {"R1": (10.0, 0.25), "R2": (20.0, 1.5)}
+
+
+@dataclass(frozen=True)
+class DatasetConfig:
+    height: int = 192  # model input height, pixels (paper 192)
+    width: int = 400  # model input width, pixels (paper 400)
+    max_radar_points: int = 512  # Nmax: radar points per sample (padded / subsampled)
+    max_lidar_points: int = 4096  # Mmax: LiDAR points per sample for the noise-resistant matcher
+    perturbation: str = "R1"  # R1 (+-10 deg, +-0.25 m) or R2 (+-20 deg, +-1.5 m)
+    seed: int = 0  # perturbation / subsampling seed
+    lidar_max_depth_m: float = 200.0  # LiDAR points farther than this (camera z) are dropped
+
+
+@dataclass(frozen=True)
+class SplitConfig:
+    by: str = "scene"  # group frames by "scene", "vehicle" or "log" so no group spans two splits
+    val_fraction: float = 0.1  # fraction of groups for validation
+    test_fraction: float = 0.2  # fraction of groups held out for testing
+    salt: str = "hybrid-calib"  # hashing salt; changing it reshuffles the split
+    test_groups: tuple[str, ...] = ()  # explicit test groups (overrides the hash assignment)
+    val_groups: tuple[str, ...] = ()  # explicit validation groups
+
+
+def perturbation_bounds(name: str) -> tuple[float, float]:
+    """``"R1"``/``"R2"`` -> (rot_deg, trans_m). Raises ``HybridCalibError`` for anything else."""
+    if name not in RANGES:
+        raise HybridCalibError(f"unknown perturbation range {name!r}; use one of {sorted(RANGES)}")
+    return RANGES[name]
+
+
+def sample_perturbation(g: np.random.Generator, name: str) -> np.ndarray:
+    """(6,) float64: roll, pitch, yaw (rad) and dx, dy, dz (m), uniform within the named range."""
+    rot_deg, trans_m = perturbation_bounds(name)
+    rpy = np.radians(g.uniform(-rot_deg, rot_deg, size=3))
+    dt = g.uniform(-trans_m, trans_m, size=3)
+    return np.concatenate([rpy, dt])
+
+
+def _rng(*keys: int | str) -> np.random.Generator:
+    digest = hashlib.sha1(":".join(str(k) for k in keys).encode()).digest()
+    return np.random.default_rng(int.from_bytes(digest[:8], "little"))
+
+
+# ---------------------------------------------------------------------------------------------
+# Splits
+
+
+def group_key(frame, by: str) -> str:
+    """The split group of a frame (or of a ``FrameRef``): its scene, vehicle or log."""
+    if by == "scene":
+        return frame.scene_name
+    if by == "vehicle":
+        return frame.vehicle
+    if by == "log":
+        return frame.log_token
+    raise HybridCalibError(f"split.by must be 'scene', 'vehicle' or 'log', got {by!r}")
+
+
+def assign_split(group: str, conf: SplitConfig) -> str:
+    """One group name -> "train" | "val" | "test" (explicit lists first, then a salted hash)."""
+    if group in conf.test_groups:
+        return "test"
+    if group in conf.val_groups:
+        return "val"
+    if conf.test_groups or conf.val_groups:
+        return "train"
+    u = int.from_bytes(hashlib.sha1(f"{conf.salt}:{group}".encode()).digest()[:8], "little") / 2.0**64
+    if u < conf.test_fraction:
+        return "test"
+    if u < conf.test_fraction + conf.val_fraction:
+        return "val"
+    return "train"
+
+
+def split_indices(frames: Sequence[RadarCameraFrame], split: str,
+                  conf: SplitConfig | dict | None = None) -> list[int]:
+    """Indices of ``frames`` in ``split`` ("train", "val", "test" or "all"). Whole groups (scenes /
+    vehicles / logs) go to one split, so the test split never shares a scene with training."""
+    conf = merge(SplitConfig, conf)
+    if split == "all":
+        return list(range(len(frames)))
+    if split not in ("train", "val", "test"):
+        raise HybridCalibError(f"split must be train, val, test or all, got {split!r}")
+    # NuScenesRadarCamera indexes scene / vehicle / log per frame without loading it (``.frames``)
+    refs = getattr(frames, "frames", None)
+    items = refs if refs is not None and len(refs) == len(frames) else frames
+    return [i for i in range(len(frames)) if assign_split(group_key(items[i], conf.by), conf) == split]
+
+
+def open_frames(data: str | Path, version: str = "v1.0-sim", *, lidar: bool = True,
+                options: dict | None = None) -> Sequence[RadarCameraFrame]:
+    """The radar-camera frames of a nuScenes root (``hybrid_calib.data.nuscenes``), with the LiDAR
+    keyframe when ``lidar`` and the root has one (the noise-resistant matcher needs it in training).
+    ``options``: ``DataConfig`` overrides (nsweeps, scenes, vehicles, ...)."""
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+    from hybrid_calib.data.tables import NuScenesTables
+
+    options = dict(options or {})
+    if lidar and "load_lidar" not in options:
+        channel = options.get("lidar_channel", "LIDAR_TOP")
+        options["load_lidar"] = channel in NuScenesTables(data, version).channels()
+    return NuScenesRadarCamera(data, version, conf=options)
+
+
+# ---------------------------------------------------------------------------------------------
+# Dataset
+
+
+class CalibDataset(torch.utils.data.Dataset):
+    """Samples for RC-AutoCalib (see the module docstring for the fields).
+
+    frames: any indexable sequence of ``RadarCameraFrame`` (``open_frames`` or a list).
+    indices: which frames to use (``split_indices``); all when None.
+    depth: a ``DepthEstimator`` (``CorruptedTruthDepth`` for the simulator); ``cache`` stores its
+      output per frame.
+    train: True draws a new perturbation every epoch (``set_epoch``); False fixes one per sample.
+    """
+
+    def __init__(self, frames: Sequence[RadarCameraFrame], conf: DatasetConfig | dict | None,
+                 depth: DepthEstimator, *, indices: Sequence[int] | None = None,
+                 cache: DepthCache | None = None, train: bool = True):
+        self.frames = frames
+        self.conf = merge(DatasetConfig, conf)
+        perturbation_bounds(self.conf.perturbation)
+        self.indices = list(range(len(frames))) if indices is None else list(indices)
+        self.depth = depth
+        self.cache = cache
+        self.train = train
+        self.epoch = 0
+        self.bad: dict[int, str] = {}  # frame index -> reason, for frames that could not be loaded
+
+    def __len__(self) -> int:
+        return len(self.indices)
+
+    def set_epoch(self, epoch: int) -> None:
+        """Training draws new perturbations per epoch; evaluation ignores this."""
+        self.epoch = int(epoch)
+
+    def perturbation(self, i: int) -> np.ndarray:
+        """The (6,) perturbation of sample ``i`` (deterministic given seed, epoch and index)."""
+        c = self.conf
+        g = _rng("train", c.seed, self.epoch, i) if self.train else _rng("eval", c.seed, i)
+        return sample_perturbation(g, c.perturbation)
+
+    def __getitem__(self, i: int) -> dict | None:
+        fi = self.indices[i]
+        try:
+            frame = self.frames[fi]
+            return self._sample(i, frame)
+        except DataError as e:
+            self.bad[fi] = str(e)
+            log.warning("skipping frame %d: %s", fi, e)
+            return None
+
+    def _sample(self, i: int, frame: RadarCameraFrame) -> dict:
+        import cv2
+
+        c = self.conf
+        H, W = c.height, c.width
+        image = frame.load_image()
+        h0, w0 = image.shape[:2]
+        if (w0, h0) != (frame.camera.width, frame.camera.height):
+            raise DataError(f"image is {w0}x{h0} but the calibration says "
+                            f"{frame.camera.width}x{frame.camera.height}", path=str(frame.image_path),
+                            token=frame.camera_token)
+        camera = frame.camera.scaled(W / w0, H / h0)
+        resized = cv2.resize(image, (W, H), interpolation=cv2.INTER_AREA)
+        if self.cache is not None:
+            depth = self.cache.get(self.depth, frame, (H, W), image)
+        else:
+            depth = self.depth.estimate(frame, (H, W), image)
+        if depth.shape != (H, W):
+            raise DataError(f"depth estimator returned {depth.shape}, expected {(H, W)}", token=frame.camera_token)
+
+        T_gt = np.asarray(frame.T_cam_radar, np.float64)
+        xi = self.perturbation(i)
+        T_init = perturb_camera_frame(T_gt, xi[:3], xi[3:])
+
+        radar = np.asarray(frame.radar_points, np.float64).reshape(-1, 3)
+        radar = radar[np.all(np.isfinite(radar), axis=1)]
+        g = _rng("subsample", c.seed, frame.camera_token)
+        radar_pad, radar_mask = _pad(radar, c.max_radar_points, g)
+
+        lidar_cam = np.zeros((0, 3))
+        if frame.lidar_points is not None and frame.T_cam_lidar is not None:
+            pts = transform_points(np.asarray(frame.T_cam_lidar, np.float64),
+                                   np.asarray(frame.lidar_points, np.float64)[:, :3])
+            uv, z = camera.project(pts)
+            keep = (z > 0.1) & (z < c.lidar_max_depth_m) & camera.in_image(uv)
+            lidar_cam = pts[keep]
+        lidar_pad, lidar_mask = _pad(lidar_cam, c.max_lidar_points, g)
+
+        return {
+            "image": torch.from_numpy(np.ascontiguousarray(resized.transpose(2, 0, 1))).float() / 255.0,
+            "depth": torch.from_numpy(depth[None].astype(np.float32)),
+            "K": torch.from_numpy(camera.K.astype(np.float32)),
+            "radar": torch.from_numpy(radar_pad.astype(np.float32)),
+            "radar_mask": torch.from_numpy(radar_mask),
+            "T_init": torch.from_numpy(T_init.astype(np.float32)),
+            "T_gt": torch.from_numpy(T_gt.astype(np.float32)),
+            "lidar_cam": torch.from_numpy(lidar_pad.astype(np.float32)),
+            "lidar_mask": torch.from_numpy(lidar_mask),
+            "perturbation": torch.from_numpy(xi),
+            "index": self.indices[i],
+            "token": frame.camera_token,
+        }
+
+
+def _pad(points: np.ndarray, n_max: int, g: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 3) -> (n_max, 3) zero-padded and an (n_max,) bool mask; a random subset when N > n_max."""
+    if len(points) > n_max:
+        points = points[np.sort(g.choice(len(points), n_max, replace=False))]
+    out = np.zeros((n_max, 3), np.float64)
+    mask = np.zeros(n_max, bool)
+    out[: len(points)] = points
+    mask[: len(points)] = True
+    return out, mask
+
+
+def collate(samples: list[dict | None]) -> dict | None:
+    """Stack samples into a batch; ``None`` (bad frames) are dropped; None if nothing is left."""
+    samples = [s for s in samples if s is not None]
+    if not samples:
+        return None
+    out = {}
+    for key, value in samples[0].items():
+        if isinstance(value, torch.Tensor):
+            out[key] = torch.stack([s[key] for s in samples])
+        elif isinstance(value, int):
+            out[key] = torch.tensor([s[key] for s in samples], dtype=torch.long)
+        else:
+            out[key] = [s[key] for s in samples]
+    return out

@@ -1,0 +1,283 @@
+"""Metric depth for the camera branch: pluggable estimators and a per-frame on-disk cache.
+
+The network's camera front-view map is a *metric* depth image estimated from the RGB image (the
+paper uses Depth Anything + ZoeDepth). Two estimators implement the same small interface:
+
+- ``DepthAnythingEstimator``: a ``transformers`` Depth Anything model with a metric head, loaded
+  only from a local directory the user gives (``local_files_only=True``; nothing is downloaded).
+- ``CorruptedTruthDepth``: for the synthetic world. It takes the simulator's ground-truth depth and
+  corrupts it the way monocular estimators err (global scale and shift error, smoothing across
+  depth edges, range-growing noise), deterministically per frame, so the network never trains on
+  perfect depth.
+
+Every estimator has ``name``, ``config_hash()`` and
+``estimate(frame, size_hw, image=None) -> (H, W) float32 metres`` (0 = unknown), where ``size_hw``
+is the output (model input) size and ``image`` the (H0, W0, 3) uint8 RGB image when the caller has
+already loaded it. ``DepthCache`` stores one ``.npy`` per (estimator, config hash, frame, size).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+from hybrid_calib.config import merge, save_json_atomic, to_dict
+from hybrid_calib.data.frame import RadarCameraFrame
+from hybrid_calib.errors import DataError, HybridCalibError
+
+
+class DepthEstimator(Protocol):
+    """What the dataset needs from a metric depth estimator."""
+
+    name: str
+
+    def config_hash(self) -> str: ...
+
+    def estimate(self, frame: RadarCameraFrame, size_hw: tuple[int, int],
+                 image: np.ndarray | None = None) -> np.ndarray: ...
+
+
+def _hash_config(name: str, conf) -> str:
+    blob = json.dumps({"name": name, "conf": to_dict(conf)}, sort_keys=True).encode()
+    return hashlib.sha1(blob).hexdigest()[:12]
+
+
+def _frame_seed(seed: int, token: str) -> np.random.Generator:
+    """A generator fixed by (seed, frame token): the same frame always gets the same corruption."""
+    digest = hashlib.sha1(f"{seed}:{token}".encode()).digest()
+    return np.random.default_rng(int.from_bytes(digest[:8], "little"))
+
+
+# ---------------------------------------------------------------------------------------------
+# Corrupted ground truth (synthetic world)
+
+
+@dataclass(frozen=True)
+class CorruptedTruthConfig:
+    seed: int = 0  # corruption seed; combined with the frame token so each frame is fixed
+    scale_mean: float = 1.0  # mean global scale factor (1.0 = unbiased; 1.1 = 10 % too far)
+    scale_std: float = 0.06  # std of the per-frame log scale error (monocular scale ambiguity)
+    shift_mean_m: float = 0.0  # mean global additive depth shift, metres
+    shift_std_m: float = 0.3  # std of the per-frame global shift, metres
+    edge_blur_px: float = 1.5  # Gaussian sigma (output pixels) smoothing depth across object edges
+    rel_noise_lowfreq: float = 0.04  # std of a smooth multiplicative error field (1 = 100 %)
+    lowfreq_cells: int = 6  # the smooth field is drawn on this many cells across the width
+    noise_rel: float = 0.01  # per-pixel noise std as a fraction of depth (grows linearly with range)
+    noise_quad_per_m: float = 0.0005  # extra per-pixel std per metre^2 / metre: sigma += k * d^2
+    min_depth_m: float = 0.5  # outputs are clipped to [min_depth_m, max_depth_m]
+    max_depth_m: float = 200.0  # paper: depth range 0..200 m
+
+
+class CorruptedTruthDepth:
+    """Ground-truth depth corrupted like a monocular metric estimator, deterministic per frame.
+
+    ``estimate`` reads ``frame.load_depth()`` ((H0, W0) float32 metres, 0 = no return), resizes it
+    to ``size_hw`` (nearest; no-return pixels stay 0 = unknown) and applies, in order:
+    1. smoothing across depth edges: a normalised Gaussian blur over valid pixels (mixes foreground
+       and background near boundaries, as dense estimators do),
+    2. a smooth multiplicative error field ``1 + e(u, v)`` (low frequency),
+    3. a global affine error ``s * d + b`` (per-frame scale ``s`` and shift ``b``),
+    4. per-pixel noise with std ``noise_rel * d + noise_quad_per_m * d^2`` (grows with range),
+    then clips to ``[min_depth_m, max_depth_m]``. Returns (H, W) float32 metres.
+    """
+
+    name = "corrupted-truth"
+
+    def __init__(self, conf: CorruptedTruthConfig | dict | None = None):
+        self.conf = merge(CorruptedTruthConfig, conf)
+
+    def config_hash(self) -> str:
+        return _hash_config(self.name, self.conf)
+
+    def estimate(self, frame: RadarCameraFrame, size_hw: tuple[int, int],
+                 image: np.ndarray | None = None) -> np.ndarray:
+        truth = frame.load_depth()
+        if truth is None:
+            raise DataError(
+                "CorruptedTruthDepth needs the simulator's ground-truth depth but this frame has none "
+                "(depth_path is None); use DepthAnythingEstimator for real data",
+                token=frame.camera_token)
+        return self.corrupt(truth, size_hw, frame.camera_token)
+
+    def corrupt(self, truth: np.ndarray, size_hw: tuple[int, int], token: str) -> np.ndarray:
+        """(H0, W0) metres (0 = unknown) -> corrupted (H, W) float32 metres, fixed by ``token``."""
+        import cv2
+
+        c = self.conf
+        H, W = int(size_hw[0]), int(size_hw[1])
+        d = cv2.resize(np.asarray(truth, np.float32), (W, H), interpolation=cv2.INTER_NEAREST)
+        valid = d > 0
+        g = _frame_seed(c.seed, token)
+        # 1. smoothing across edges (normalised convolution keeps unknown pixels out of the average)
+        if c.edge_blur_px > 0:
+            num = cv2.GaussianBlur(d * valid, (0, 0), c.edge_blur_px, borderType=cv2.BORDER_REFLECT)
+            den = cv2.GaussianBlur(valid.astype(np.float32), (0, 0), c.edge_blur_px,
+                                   borderType=cv2.BORDER_REFLECT)
+            d = np.where(valid, num / np.maximum(den, 1e-6), 0.0).astype(np.float32)
+        # 2. smooth multiplicative field
+        if c.rel_noise_lowfreq > 0:
+            gw = max(2, int(c.lowfreq_cells))
+            gh = max(2, int(round(gw * H / W)))
+            field = g.normal(0.0, c.rel_noise_lowfreq, size=(gh, gw)).astype(np.float32)
+            field = cv2.resize(field, (W, H), interpolation=cv2.INTER_CUBIC)
+            d = d * (1.0 + np.clip(field, -0.5, 0.5))
+        else:
+            g.normal(size=1)  # keep the stream aligned whatever the options
+        # 3. global scale and shift
+        s = c.scale_mean * float(np.exp(g.normal(0.0, c.scale_std)))
+        b = c.shift_mean_m + float(g.normal(0.0, c.shift_std_m))
+        d = s * d + b
+        # 4. range-growing per-pixel noise
+        sigma = c.noise_rel * d + c.noise_quad_per_m * d * d
+        d = d + g.standard_normal(d.shape).astype(np.float32) * sigma
+        out = np.where(valid, np.clip(d, c.min_depth_m, c.max_depth_m), 0.0)
+        return out.astype(np.float32)
+
+
+# ---------------------------------------------------------------------------------------------
+# Depth Anything (transformers), local directory only
+
+
+@dataclass(frozen=True)
+class DepthAnythingConfig:
+    device: str = "cpu"  # torch device the depth model runs on
+    max_depth_m: float = 200.0  # predictions are clipped to (0, max_depth_m]
+    dtype: str = "float32"  # float32 | float16 | bfloat16 (half precision on GPU only)
+
+
+class DepthAnythingEstimator:
+    """A ``transformers`` depth model with a metric head (Depth Anything V1/V2 metric, or any
+    ``AutoModelForDepthEstimation`` with ``depth_estimation_type == "metric"``), loaded ONLY from
+    ``local_dir`` (a directory written by ``save_pretrained``: ``config.json``, weights and
+    ``preprocessor_config.json``). Nothing is fetched from a hub.
+
+    ``estimate`` returns (H, W) float32 metres at ``size_hw`` (bicubic from the model's output).
+    """
+
+    def __init__(self, local_dir: str | Path, conf: DepthAnythingConfig | dict | None = None):
+        self.conf = merge(DepthAnythingConfig, conf)
+        self.local_dir = Path(local_dir)
+        if not (self.local_dir / "config.json").is_file():
+            raise HybridCalibError(
+                f"depth model directory {self.local_dir} has no config.json: give a local directory "
+                "written by save_pretrained() (config.json, model weights, preprocessor_config.json); "
+                "models are never downloaded")
+        try:
+            import transformers
+            from transformers import AutoImageProcessor, AutoModelForDepthEstimation
+        except ImportError as e:  # pragma: no cover - depends on the environment
+            raise HybridCalibError("DepthAnythingEstimator needs `pip install transformers`") from e
+        import torch
+
+        transformers.logging.set_verbosity_error()
+        try:
+            self.model = AutoModelForDepthEstimation.from_pretrained(self.local_dir, local_files_only=True)
+            self.processor = AutoImageProcessor.from_pretrained(self.local_dir, local_files_only=True)
+        except (OSError, ValueError) as e:
+            raise HybridCalibError(f"could not load a depth model from {self.local_dir}: {e}") from e
+        kind = getattr(self.model.config, "depth_estimation_type", "relative")
+        if kind != "metric":
+            raise HybridCalibError(
+                f"depth model in {self.local_dir} predicts {kind!r} depth; the network needs metric depth "
+                "(a checkpoint with depth_estimation_type='metric', e.g. a Depth Anything metric model)")
+        self.dtype = getattr(torch, self.conf.dtype)
+        self.model.to(self.conf.device, dtype=self.dtype).eval()
+        self.name = "depth-anything"
+        self._weights_id = _directory_fingerprint(self.local_dir)
+
+    def config_hash(self) -> str:
+        blob = json.dumps({"conf": to_dict(self.conf), "weights": self._weights_id}, sort_keys=True)
+        return hashlib.sha1(blob.encode()).hexdigest()[:12]
+
+    def estimate(self, frame: RadarCameraFrame | None, size_hw: tuple[int, int],
+                 image: np.ndarray | None = None) -> np.ndarray:
+        if image is None:
+            if frame is None:
+                raise ValueError("DepthAnythingEstimator.estimate needs a frame or an image")
+            image = frame.load_image()
+        return self.predict(image, size_hw)
+
+    def predict(self, image: np.ndarray, size_hw: tuple[int, int]) -> np.ndarray:
+        """(H0, W0, 3) uint8 RGB -> (H, W) float32 metres at ``size_hw``."""
+        import torch
+
+        image = np.asarray(image)
+        if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
+            raise ValueError(f"expected an (H, W, 3) uint8 RGB image, got {image.shape} {image.dtype}")
+        inputs = self.processor(images=image, return_tensors="pt")
+        pixel_values = inputs["pixel_values"].to(self.conf.device, dtype=self.dtype)
+        with torch.inference_mode():
+            pred = self.model(pixel_values=pixel_values).predicted_depth  # (1, h, w) metres
+        pred = torch.nn.functional.interpolate(pred[:, None].float(), size=tuple(int(s) for s in size_hw),
+                                               mode="bicubic", align_corners=False)[0, 0]
+        return pred.clamp(1e-3, self.conf.max_depth_m).cpu().numpy().astype(np.float32)
+
+
+def _directory_fingerprint(path: Path) -> str:
+    """Names, sizes and mtimes of the files in a model directory: changes when the weights do."""
+    items = sorted((p.name, p.stat().st_size, int(p.stat().st_mtime)) for p in path.iterdir() if p.is_file())
+    return hashlib.sha1(json.dumps(items).encode()).hexdigest()[:12]
+
+
+# ---------------------------------------------------------------------------------------------
+# Cache
+
+
+class DepthCache:
+    """Per-frame on-disk depth cache.
+
+    Layout: ``root/<estimator name>-<config hash>/<frame token>_<W>x<H>.npy`` ((H, W) float32
+    metres), with ``estimator.json`` (the estimator's name and hash) beside them. Files are written
+    atomically (temp + rename), so a killed run never leaves a half-written entry. A different
+    estimator config gets a different folder, so a changed config always misses.
+    """
+
+    def __init__(self, root: str | Path):
+        self.root = Path(root)
+        self.hits = 0
+        self.misses = 0
+
+    def path(self, estimator: DepthEstimator, token: str, size_hw: tuple[int, int]) -> Path:
+        safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in token)
+        return self.root / f"{estimator.name}-{estimator.config_hash()}" / f"{safe}_{size_hw[1]}x{size_hw[0]}.npy"
+
+    def get(self, estimator: DepthEstimator, frame: RadarCameraFrame, size_hw: tuple[int, int],
+            image: np.ndarray | None = None) -> np.ndarray:
+        """The cached depth of ``frame`` at ``size_hw``, computing and storing it on a miss."""
+        path = self.path(estimator, frame.camera_token, size_hw)
+        if path.is_file():
+            try:
+                depth = np.load(path, allow_pickle=False)
+                if depth.shape == tuple(size_hw) and depth.dtype == np.float32:
+                    self.hits += 1
+                    return depth
+            except (OSError, ValueError):
+                pass  # a corrupt entry is recomputed below
+        self.misses += 1
+        depth = np.asarray(estimator.estimate(frame, size_hw, image), dtype=np.float32)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        meta = path.parent / "estimator.json"
+        if not meta.is_file():
+            save_json_atomic(meta, {"name": estimator.name, "config_hash": estimator.config_hash()})
+        tmp = path.with_name(f"{path.stem}.{os.getpid()}.tmp.npy")
+        np.save(tmp, depth, allow_pickle=False)
+        tmp.replace(path)
+        return depth
+
+
+def build_depth_estimator(spec: str, overrides: dict | None = None) -> DepthEstimator:
+    """``"corrupted-truth"`` -> ``CorruptedTruthDepth``; ``"depth-anything:/path/to/dir"`` ->
+    ``DepthAnythingEstimator`` from that local directory. ``overrides`` go to the estimator config."""
+    if spec == CorruptedTruthDepth.name:
+        return CorruptedTruthDepth(overrides)
+    if spec.startswith("depth-anything:"):
+        return DepthAnythingEstimator(spec.split(":", 1)[1], overrides)
+    raise HybridCalibError(
+        f"unknown depth estimator {spec!r}: use 'corrupted-truth' (synthetic data with ground-truth "
+        "depth) or 'depth-anything:/local/model/dir'")

@@ -1,0 +1,304 @@
+"""Training of RC-AutoCalib: presets, a deterministic resumable loop, CSV (and TensorBoard) logs.
+
+``train(conf, frames, out)`` trains on the ``train`` split of ``frames`` (whole scenes / vehicles
+per split, ``learned.dataset.split_indices``), validates on ``val`` after every epoch, and writes:
+  out/train_config.json        the effective TrainConfig (+ the model config it resolves to)
+  out/checkpoints/ckpt-NNNN.*  one checkpoint per epoch (``learned.checkpoint``), with its configs
+  out/steps.csv                per step: epoch, step, lr, total, calib, matching, seconds
+  out/epochs.csv               per epoch: train means, val losses, val rotation / translation errors
+  out/depth-cache/             estimated depth per frame (``learned.depth.DepthCache``)
+Re-running with ``resume=True`` continues after the last complete checkpoint; the result is the
+same as an uninterrupted run (shuffling, perturbations and torch's RNG are seeded per epoch).
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+import logging
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from hybrid_calib.config import ConfigError, merge, save_json_atomic, to_dict
+from hybrid_calib.data.frame import RadarCameraFrame
+from hybrid_calib.errors import HybridCalibError
+from hybrid_calib.metrics import extrinsic_error
+from learned.checkpoint import checkpoint_stem, latest_checkpoint, load_checkpoint, save_checkpoint
+from learned.dataset import CalibDataset, DatasetConfig, SplitConfig, collate, split_indices
+from learned.depth import DepthCache, build_depth_estimator
+
+log = logging.getLogger(__name__)
+
+# Batch keys the model reads (the dataset adds bookkeeping keys: perturbation, index, token).
+MODEL_KEYS = ("image", "depth", "K", "radar", "radar_mask", "T_init", "T_gt", "lidar_cam", "lidar_mask")
+# Loss terms logged when the model returns them.
+LOSS_KEYS = ("total", "calib", "matching", "uncertainty")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    model_preset: str = "small"  # learned.config preset the model starts from ("small" | "paper")
+    model: dict = field(default_factory=dict)  # ModelConfig overrides on top of the preset
+    perturbation: str = "R1"  # R1 (+-10 deg, +-0.25 m) or R2 (+-20 deg, +-1.5 m), sampled per sample
+    epochs: int = 50  # paper: 50
+    batch_size: int = 16  # CalibDepth-like setups train with batches of ~16 at this input size
+    lr: float = 1e-4  # paper: Adam, 1e-4
+    lr_halve_every: int = 8  # paper: learning rate halved every 8 epochs
+    weight_decay: float = 0.0  # Adam weight decay (paper: none stated)
+    grad_clip: float = 5.0  # max gradient norm; guards the LSTM against early spikes (0 = off)
+    seed: int = 0  # model init, shuffling, perturbations
+    samples_per_epoch: int = 0  # train samples drawn per epoch (0 = the whole train split)
+    val_samples: int = 64  # validation samples per epoch (0 = the whole val split)
+    num_workers: int = 0  # DataLoader worker processes (0 = in the training process)
+    threads: int = 2  # torch CPU threads
+    device: str = "cpu"  # torch device ("cuda" on a GPU machine)
+    max_radar_points: int = 512  # Nmax radar points per sample
+    max_lidar_points: int = 4096  # Mmax LiDAR points per sample (noise-resistant matcher)
+    depth: str = "corrupted-truth"  # depth estimator: corrupted-truth | depth-anything:/local/dir
+    depth_options: dict = field(default_factory=dict)  # overrides of the depth estimator's config
+    depth_cache: str = ""  # depth cache folder ("" = OUT/depth-cache)
+    split: SplitConfig = field(default_factory=SplitConfig)  # train / val / test assignment of scenes
+    context_weights: str = ""  # local ResNet-18 ImageNet weights for the image context net ("" = from scratch)
+
+
+PRESETS: dict[str, dict[str, Any]] = {
+    # the paper: 400x192 input, Adam 1e-4 halved every 8 epochs, 50 epochs
+    "paper": dict(model_preset="paper", epochs=50, batch_size=16, lr=1e-4, lr_halve_every=8),
+    # 2 CPU cores, well under two hours: the small model (200x96), a faster schedule on fewer samples
+    # (2000 steps of batch 8, ~0.6 s each on 2 idle cores: ~30 min with data loading and validation)
+    "small": dict(model_preset="small", epochs=20, batch_size=8, lr=3e-4, lr_halve_every=6,
+                  samples_per_epoch=800, val_samples=64, max_lidar_points=2048),
+}
+
+
+def train_config(preset: str = "small", overrides: dict | None = None) -> TrainConfig:
+    """A ``TrainConfig`` from a preset plus (nested) overrides; unknown keys raise ``ConfigError``."""
+    if preset not in PRESETS:
+        raise ConfigError(f"unknown training preset {preset!r}; valid: {sorted(PRESETS)}")
+    base = dict(PRESETS[preset])
+    overrides = dict(overrides or {})
+    if "model" in overrides:  # merge model overrides instead of replacing the dict
+        base["model"] = {**base.get("model", {}), **overrides.pop("model")}
+    base.update(overrides)
+    return merge(TrainConfig, base)
+
+
+def resolve_model_config(conf: TrainConfig):
+    from learned.config import model_config
+
+    return model_config(conf.model_preset, conf.model)
+
+
+def dataset_config(conf: TrainConfig, model_conf) -> DatasetConfig:
+    H, W = (int(v) for v in model_conf.input_hw)
+    return DatasetConfig(height=H, width=W, max_radar_points=conf.max_radar_points,
+                         max_lidar_points=conf.max_lidar_points, perturbation=conf.perturbation, seed=conf.seed)
+
+
+def _seed(*keys) -> int:
+    return int.from_bytes(hashlib.sha1(":".join(map(str, keys)).encode()).digest()[:4], "little")
+
+
+def to_device(batch: dict, device: str | torch.device) -> dict:
+    return {k: (v.to(device) if isinstance(v, torch.Tensor) else v) for k, v in batch.items()}
+
+
+def model_inputs(batch: dict) -> dict:
+    return {k: batch[k] for k in MODEL_KEYS if k in batch}
+
+
+class _CsvLog:
+    """Append-only CSV; on resume, rows after the resumed epoch are dropped."""
+
+    def __init__(self, path: Path, columns: Sequence[str], keep_until_epoch: int):
+        self.path, self.columns = path, list(columns)
+        rows = []
+        if path.is_file():
+            with path.open(newline="") as f:
+                rows = [r for r in csv.DictReader(f) if int(r["epoch"]) <= keep_until_epoch]
+        with path.open("w", newline="") as f:
+            w = csv.DictWriter(f, self.columns)
+            w.writeheader()
+            w.writerows(rows)
+
+    def write(self, row: dict) -> None:
+        with self.path.open("a", newline="") as f:
+            csv.DictWriter(f, self.columns).writerow({k: row.get(k, "") for k in self.columns})
+
+
+def _tensorboard(out: Path):
+    try:
+        from torch.utils.tensorboard import SummaryWriter
+    except ImportError:
+        return None
+    try:
+        return SummaryWriter(str(out / "tensorboard"))
+    except Exception:  # noqa: BLE001 - tensorboard present but broken: CSV logs still work
+        return None
+
+
+def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str | Path, *, resume: bool = True,
+          progress: bool = True, model_factory: Callable[[Any], torch.nn.Module] | None = None) -> Path:
+    """Train RC-AutoCalib on the ``train`` split of ``frames``; returns the last checkpoint's JSON.
+
+    ``conf``: a ``TrainConfig`` (or overrides of the defaults). ``out``: the run folder (module
+    docstring). With ``resume`` an existing run continues after its last checkpoint; without it an
+    existing run folder with checkpoints is an error (pick a new ``out``). ``model_factory`` builds
+    the network from its ``ModelConfig`` (default ``learned.model.RCAutoCalib``)."""
+    from tqdm import tqdm
+
+    if model_factory is None:
+        from learned.model import RCAutoCalib as model_factory
+
+    conf = merge(TrainConfig, conf)
+    out = Path(out)
+    ckpt_dir = out / "checkpoints"
+    model_conf = resolve_model_config(conf)
+    model_conf_dict = to_dict(model_conf)
+    torch.set_num_threads(max(1, conf.threads))
+    device = torch.device(conf.device)
+
+    last = latest_checkpoint(ckpt_dir)
+    if last is not None and not resume:
+        raise HybridCalibError(f"{out} already holds checkpoints ({last.name}); resume, or choose another --out")
+    if last is not None and load_checkpoint(last).model_config != model_conf_dict:
+        raise HybridCalibError(f"{last} was trained with another model config; resume with the same "
+                               "preset and --set options, or choose another --out")
+    out.mkdir(parents=True, exist_ok=True)
+    save_json_atomic(out / "train_config.json", {"train": to_dict(conf), "model": model_conf_dict})
+
+    train_idx = split_indices(frames, "train", conf.split)
+    val_idx = split_indices(frames, "val", conf.split)
+    if not train_idx:
+        raise HybridCalibError(f"the train split is empty ({len(frames)} frames, split by {conf.split.by}); "
+                               "give more scenes or set split.test_fraction / split.val_fraction lower")
+    depth = build_depth_estimator(conf.depth, conf.depth_options)
+    cache = DepthCache(Path(conf.depth_cache) if conf.depth_cache else out / "depth-cache")
+    dconf = dataset_config(conf, model_conf)
+    train_set = CalibDataset(frames, dconf, depth, indices=train_idx, cache=cache, train=True)
+    val_set = CalibDataset(frames, dconf, depth, indices=val_idx, cache=cache, train=False)
+
+    torch.manual_seed(_seed("init", conf.seed))
+    model = model_factory(model_conf).to(device)
+    optimizer = torch.optim.Adam(model.parameters(), lr=conf.lr, weight_decay=conf.weight_decay)
+    scheduler = torch.optim.lr_scheduler.StepLR(optimizer, step_size=max(1, conf.lr_halve_every), gamma=0.5)
+    start = 1
+    if conf.context_weights and last is None:
+        loaded = model.load_context_weights(conf.context_weights)
+        log.info("image context network: %d tensors from %s", len(loaded), conf.context_weights)
+    if last is not None:
+        ckpt = load_checkpoint(last, model, optimizer, scheduler, map_location=device)
+        start = ckpt.epoch + 1
+        log.info("resuming %s after epoch %d", out, ckpt.epoch)
+    steps_log = _CsvLog(out / "steps.csv", ["epoch", "step", "lr", *LOSS_KEYS, "seconds"], start - 1)
+    epochs_log = _CsvLog(out / "epochs.csv", ["epoch", "lr", *(f"train_{k}" for k in LOSS_KEYS),
+                                              *(f"val_{k}" for k in LOSS_KEYS), "val_rot_geodesic_deg",
+                                              "val_trans_norm_cm", "val_rot_mean_deg", "val_trans_mean_cm",
+                                              "skipped_frames", "nonfinite_steps", "seconds"], start - 1)
+    tb = _tensorboard(out)
+    last_path = last
+    for epoch in range(start, conf.epochs + 1):
+        t0 = time.time()
+        torch.manual_seed(_seed("epoch", conf.seed, epoch))
+        train_set.set_epoch(epoch)
+        g = np.random.default_rng(_seed("shuffle", conf.seed, epoch))
+        order = g.permutation(len(train_set))
+        if conf.samples_per_epoch:
+            order = order[: conf.samples_per_epoch]
+        loader = torch.utils.data.DataLoader(train_set, batch_size=conf.batch_size, sampler=order.tolist(),
+                                             num_workers=conf.num_workers, collate_fn=collate)
+        model.train()
+        lr = optimizer.param_groups[0]["lr"]
+        sums: dict[str, float] = {}
+        n_steps = nonfinite = 0
+        bar = tqdm(loader, desc=f"epoch {epoch}/{conf.epochs}", disable=not progress, leave=False)
+        for step, batch in enumerate(bar):
+            if batch is None:
+                continue
+            ts = time.time()
+            batch = to_device(batch, device)
+            out_m = model(model_inputs(batch))
+            losses = model.loss(out_m, model_inputs(batch))
+            if not torch.isfinite(losses["total"]):  # a degenerate batch must not poison the weights
+                nonfinite += 1
+                log.warning("epoch %d step %d: non-finite loss %s; step skipped", epoch, step,
+                            {k: float(v.detach()) for k, v in losses.items()})
+                continue
+            optimizer.zero_grad(set_to_none=True)
+            losses["total"].backward()
+            if conf.grad_clip > 0:
+                torch.nn.utils.clip_grad_norm_(model.parameters(), conf.grad_clip)
+            optimizer.step()
+            vals = {k: float(v.detach()) for k, v in losses.items() if k in LOSS_KEYS}
+            for k, v in vals.items():
+                sums[k] = sums.get(k, 0.0) + v
+            n_steps += 1
+            steps_log.write({"epoch": epoch, "step": step, "lr": lr, **vals, "seconds": round(time.time() - ts, 3)})
+            bar.set_postfix(loss=f"{vals['total']:.4f}")
+            if tb is not None:
+                for k, v in vals.items():
+                    tb.add_scalar(f"train/{k}", v, (epoch - 1) * len(loader) + step)
+        scheduler.step()
+        train_means = {f"train_{k}": v / max(n_steps, 1) for k, v in sums.items()}
+        val = validate(model, val_set, conf, device) if len(val_set) else {}
+        metrics = {"epoch": epoch, "lr": lr, **train_means, **val,
+                   "skipped_frames": len(train_set.bad) + len(val_set.bad), "nonfinite_steps": nonfinite,
+                   "seconds": round(time.time() - t0, 1)}
+        epochs_log.write(metrics)
+        if tb is not None:
+            for k, v in metrics.items():
+                if k.startswith("val_"):
+                    tb.add_scalar(f"val/{k[4:]}", v, epoch)
+        last_path = save_checkpoint(checkpoint_stem(ckpt_dir, epoch), model, epoch=epoch,
+                                    model_config=model_conf_dict, train_config=to_dict(conf), metrics=metrics,
+                                    optimizer=optimizer, scheduler=scheduler)
+        if progress:
+            print(json.dumps({k: (round(v, 4) if isinstance(v, float) else v) for k, v in metrics.items()}))
+    if tb is not None:
+        tb.close()
+    if last_path is None:
+        raise HybridCalibError(f"no epoch was trained (epochs={conf.epochs})")
+    return last_path
+
+
+@torch.no_grad()
+def validate(model, dataset: CalibDataset, conf: TrainConfig, device) -> dict[str, float]:
+    """Mean losses and final-iteration errors over (up to ``conf.val_samples``) validation samples."""
+    model.eval()
+    n = len(dataset) if not conf.val_samples else min(conf.val_samples, len(dataset))
+    loader = torch.utils.data.DataLoader(dataset, batch_size=conf.batch_size, sampler=list(range(n)),
+                                         num_workers=conf.num_workers, collate_fn=collate)
+    sums: dict[str, float] = {}
+    errs = []
+    batches = 0
+    for batch in loader:
+        if batch is None:
+            continue
+        batch = to_device(batch, device)
+        out = model(model_inputs(batch))
+        losses = model.loss(out, model_inputs(batch))
+        for k in LOSS_KEYS:
+            if k in losses:
+                sums[k] = sums.get(k, 0.0) + float(losses[k])
+        batches += 1
+        T_final = out["T_iters"][-1].double().cpu().numpy()
+        T_gt = batch["T_gt"].double().cpu().numpy()
+        errs += [extrinsic_error(a, b) for a, b in zip(T_final, T_gt)]
+    model.train()
+    if not errs:
+        return {}
+    res = {f"val_{k}": v / batches for k, v in sums.items()}
+    res.update({
+        "val_rot_geodesic_deg": float(np.mean([e.geodesic_deg for e in errs])),
+        "val_trans_norm_cm": float(np.mean([e.trans_norm_cm for e in errs])),
+        "val_rot_mean_deg": float(np.mean([e.rot_mean_deg for e in errs])),
+        "val_trans_mean_cm": float(np.mean([e.trans_mean_cm for e in errs])),
+    })
+    return res

@@ -1,0 +1,85 @@
+"""``hybrid-calib calibrate`` smoke tests on a tiny simulated drive and on exported correspondences."""
+
+import argparse
+import json
+
+import numpy as np
+import pytest
+
+from hybrid_calib.calib.oracle import synthetic_drive
+from hybrid_calib.commands import calibrate
+from hybrid_calib.errors import DataError
+from tests.helpers import rng
+
+
+def _args(*argv):
+    p = argparse.ArgumentParser()
+    calibrate.add_arguments(p)
+    return p.parse_args(list(argv))
+
+
+@pytest.fixture(scope="module")
+def sim_root(tmp_path_factory):
+    sim = pytest.importorskip("hybrid_calib.sim.simulate")
+    from hybrid_calib.config import merge
+    from hybrid_calib.sim.drive import SimConfig
+
+    root = tmp_path_factory.mktemp("sim")
+    sim.simulate(merge(SimConfig, {"frames": 5, "image_scale": 0.125, "seed": 3}), root, overwrite=False, workers=1)
+    return root
+
+
+def test_calibrate_oracle_window_writes_result_schema_and_plots(sim_root, tmp_path):
+    out = tmp_path / "run"
+    assert calibrate.run(_args("--data", str(sim_root), "--out", str(out), "--window", "3")) == 0
+    doc = json.loads((out / "result.json").read_text())
+    assert doc["schema"] == "hybrid-calib/calibrate-result/v1" and doc["mode"] == "window"
+    (name, v), = doc["vehicles"].items()
+    assert v["n_frames"] == 5 and len(v["trajectory"]) == 5
+    fin = v["final"]
+    assert np.asarray(fin["T_cam_radar"]).shape == (4, 4) and np.asarray(fin["cov_right_radar"]).shape == (6, 6)
+    assert set(fin["std_camera"]) == {"rot_x_deg", "rot_y_deg", "rot_z_deg", "t_x_cm", "t_y_cm", "t_z_cm"}
+    assert fin["status"].split(":")[0] in ("ok", "weak", "degenerate")
+    assert v["drift"]["dof"] == 6 and 0 <= v["drift"]["p_value"] <= 1
+    assert v["error"]["rot_mean_deg"] < 1.0 and v["crb_std_camera"] is not None
+    assert (out / "config.json").is_file()
+    assert (out / "plots" / f"{name}_trajectory.png").is_file() and (out / "plots" / f"{name}_drift.png").is_file()
+    # idempotent: a second run without --overwrite leaves the result untouched
+    mtime = (out / "result.json").stat().st_mtime_ns
+    assert calibrate.run(_args("--data", str(sim_root), "--out", str(out))) == 0
+    assert (out / "result.json").stat().st_mtime_ns == mtime
+
+
+def test_calibrate_batch_from_exported_correspondence_dir(sim_root, tmp_path):
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+
+    ds = NuScenesRadarCamera(sim_root, "v1.0-sim", conf={"check_images": False})
+    T = ds[0].extras["T_cam_radar_static"]
+    frames, _ = synthetic_drive(T, 3, rng(0))
+    d = tmp_path / "corr"
+    d.mkdir()
+    for k, c in enumerate(frames):
+        np.savez(d / f"{k:03d}.npz", **c.to_npz_dict())
+    out = tmp_path / "run"
+    assert calibrate.run(_args("--data", str(sim_root), "--correspondences", str(d), "--mode", "batch",
+                               "--out", str(out), "--no-plots")) == 0
+    (v,) = json.loads((out / "result.json").read_text())["vehicles"].values()
+    assert v["error"]["rot_mean_deg"] < 0.3 and v["trajectory"] == []
+
+
+def test_bad_correspondence_file_is_named(tmp_path):
+    from hybrid_calib.calib.oracle import load_correspondence_dir
+
+    (tmp_path / "x.npz").write_bytes(b"not a zip")
+    with pytest.raises(DataError, match="x.npz"):
+        load_correspondence_dir(tmp_path)
+    with pytest.raises(DataError, match="no \\*.npz"):
+        load_correspondence_dir(tmp_path / "missing")
+
+
+def test_unknown_override_is_rejected(tmp_path):
+    from hybrid_calib.errors import HybridCalibError
+
+    with pytest.raises(HybridCalibError, match="unknown option"):
+        calibrate.run(_args("--data", str(tmp_path), "--out", str(tmp_path / "o"), "--set", "window.nope=1"))
+

@@ -1,0 +1,79 @@
+"""Drift: reference chi-square test; step detector (no alarm without change, alarm after a step,
+recovery after it, guarded against a redescending kernel locking onto the old value)."""
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from hybrid_calib.calib.drift import DriftConfig, StepDetector, reference_test
+from hybrid_calib.calib.oracle import synthetic_drive
+from hybrid_calib.calib.window import SlidingWindowCalibrator
+from hybrid_calib.geometry import perturb_camera_frame, retract
+from hybrid_calib.metrics import extrinsic_error
+from tests.helpers import nominal_T_cam_radar, rng
+
+
+def test_reference_test_is_calibrated_and_detects_change():
+    T = nominal_T_cam_radar()
+    C = np.diag([np.radians(0.05) ** 2] * 3 + [0.005**2] * 3)
+    L = np.linalg.cholesky(C)
+    g = rng(0)
+    stats = [reference_test(retract(T, L @ g.normal(size=6)), C, T, {"min_rot_deg": 0, "min_trans_cm": 0}).statistic
+             for _ in range(400)]
+    assert 5.3 < np.mean(stats) < 6.7  # chi2(6) mean
+    assert abs(np.mean(np.array(stats) > chi2.isf(0.01, 6)) - 0.01) < 0.02
+    moved = perturb_camera_frame(T, np.radians([0.0, 0.3, 0.0]), [0.0, 0.0, 0.0])
+    d = reference_test(moved, C, T)
+    assert d.drifted and d.p_value < 1e-4 and abs(d.rot_change_deg - 0.3) < 1e-6
+    # significant but below the practical margin: not reported as drift
+    tiny = perturb_camera_frame(T, np.radians([0.0, 0.02, 0.0]), [0.0, 0.0, 0.0])
+    d = reference_test(tiny, C / 1000, T, DriftConfig(min_rot_deg=0.1))
+    assert d.significant and not d.drifted
+
+
+def test_step_detector_threshold_and_consecutive():
+    det = StepDetector({"p_alarm": 1e-3, "consecutive": 2})
+    assert np.isclose(det.threshold, chi2.isf(1e-3, 6))
+    assert not det.observe(100.0).alarm and det.observe(100.0).alarm
+    assert not det.observe(1.0).alarm
+
+
+@pytest.mark.parametrize("seed", [21, 22])
+def test_no_alarm_without_change(seed):
+    T = nominal_T_cam_radar()
+    frames, _ = synthetic_drive(T, 40, rng(seed), {"n_per_frame": 60})
+    cal = SlidingWindowCalibrator(T, {"window": 8, "step": {"min_history": 10}})
+    outs = [cal.update(f) for f in frames]
+    assert not any(o.step_alarm for o in outs)
+    stats = [o.step_statistic for o in outs if o.step_statistic is not None]
+    assert len(stats) > 20 and 3.0 < np.mean(stats) < 10.0
+
+
+@pytest.mark.parametrize("rot_deg,trans_m", [(1.5, 0.05), (0.3, 0.0)])
+def test_alarm_after_step_and_recovery(rot_deg, trans_m):
+    """A large step pushes every new correspondence outside the inlier gate (a warm-started robust
+    solve would lock onto the old value); a small one stays inside. Both must raise an alarm within
+    a few frames and the estimate must then converge to the new extrinsic."""
+    T = nominal_T_cam_radar()
+    T2 = perturb_camera_frame(T, np.radians([0.0, rot_deg / 2, rot_deg]), [trans_m, 0.0, 0.0])
+    frames, _ = synthetic_drive(T, 38, rng(7), {"n_per_frame": 60}, step_at=20, T_after=T2)
+    cal = SlidingWindowCalibrator(T, {"window": 8, "step": {"min_history": 10}})
+    outs = [cal.update(f) for f in frames]
+    alarms = [o.index for o in outs if o.step_alarm]
+    assert alarms and 20 <= alarms[0] <= 25, alarms
+    assert "step change detected" in outs[alarms[0]].events[0]
+    e = extrinsic_error(outs[-1].T, T2)
+    std = outs[-1].estimate.std
+    assert e.rot_mean_deg < 4 * std[:3].max() + 0.02, (e, std)
+    assert e.trans_norm_cm < 4 * np.linalg.norm(std[3:]) + 0.5, (e, std)
+
+
+def test_without_detector_a_large_step_locks_on():
+    """The failure the detector guards against (documents why it exists)."""
+    T = nominal_T_cam_radar()
+    T2 = perturb_camera_frame(T, np.radians([0.0, 0.75, 1.5]), [0.05, 0.0, 0.0])
+    frames, _ = synthetic_drive(T, 30, rng(7), {"n_per_frame": 60}, step_at=15, T_after=T2)
+    cal = SlidingWindowCalibrator(T, {"window": 8, "detect_steps": False})
+    outs = [cal.update(f) for f in frames]
+    assert extrinsic_error(outs[-1].T, T2).rot_mean_deg > 0.5  # stuck near the old value
+    assert extrinsic_error(outs[-1].T, T).rot_mean_deg < 0.2

@@ -1,0 +1,99 @@
+"""Sliding window vs batch, recovery from R1/R2 starts, GTSAM vs Ceres, small consistency check."""
+
+import numpy as np
+import pytest
+
+from hybrid_calib.calib.batch import solve_batch
+from hybrid_calib.calib.covariance import report_std
+from hybrid_calib.calib.oracle import synthetic_drive
+from hybrid_calib.calib.schedule import GaussianPrior
+from hybrid_calib.calib.window import SlidingWindowCalibrator
+from hybrid_calib.geometry import local, perturb_camera_frame
+from hybrid_calib.metrics import extrinsic_error
+from tests.helpers import nominal_T_cam_radar, rng
+
+
+def _start(g, rot_deg, trans_m):
+    T = nominal_T_cam_radar()
+    return perturb_camera_frame(T, np.radians(g.uniform(-rot_deg, rot_deg, 3)), g.uniform(-trans_m, trans_m, 3))
+
+
+def test_window_matches_batch_on_small_drive():
+    T = nominal_T_cam_radar()
+    frames, _ = synthetic_drive(T, 12, rng(1))
+    T0 = _start(rng(2), 10, 0.25)
+    cal = SlidingWindowCalibrator(T0, {"window": 4, "detect_steps": False})
+    outs = [cal.update(f) for f in frames]
+    batch = solve_batch(frames, T0)
+    d = local(batch.estimate.T, outs[-1].T)
+    # agreement well inside the batch's own uncertainty (marginalisation is a linearisation)
+    z = d / np.sqrt(np.diag(batch.estimate.cov))
+    assert np.all(np.abs(z) < 0.3), z
+    np.testing.assert_allclose(np.diag(outs[-1].cov), np.diag(batch.estimate.cov), rtol=0.05)
+    assert outs[-1].n_total == 12 and outs[-1].n_window == 4
+    # the std grows tighter as frames arrive
+    assert outs[-1].estimate.std[0] < outs[0].estimate.std[0]
+
+
+@pytest.mark.parametrize("rot_deg,trans_m,seed", [(10, 0.25, 3), (20, 1.5, 4), (20, 1.5, 5)])
+def test_recovery_from_r1_r2_starts(rot_deg, trans_m, seed):
+    T = nominal_T_cam_radar()
+    frames, _ = synthetic_drive(T, 6, rng(seed))
+    T0 = _start(rng(seed + 100), rot_deg, trans_m)
+    assert extrinsic_error(T0, T).rot_mean_deg > 2.0
+    cal = SlidingWindowCalibrator(T0, {"window": 6, "detect_steps": False})
+    for f in frames:
+        out = cal.update(f)
+    e = extrinsic_error(out.T, T)
+    assert e.rot_mean_deg < 0.15 and e.trans_norm_cm < 15, e
+    b = solve_batch(frames, T0).estimate
+    eb = extrinsic_error(b.T, T)
+    assert eb.rot_mean_deg < 0.15 and eb.trans_norm_cm < 15, eb
+
+
+def test_gtsam_and_ceres_batch_agree():
+    T = nominal_T_cam_radar()
+    frames, _ = synthetic_drive(T, 2, rng(6), {"n_per_frame": 40})
+    T0 = _start(rng(7), 5, 0.2)
+    g = solve_batch(frames, T0, {"backend": "gtsam"}).estimate
+    c = solve_batch(frames, T0, {"backend": "ceres"}).estimate
+    sd = np.sqrt(np.diag(g.cov))
+    assert np.all(np.abs(local(g.T, c.T)) < 1e-3 * sd + 1e-9)
+    np.testing.assert_allclose(c.cov, g.cov, rtol=1e-3, atol=1e-3 * np.abs(g.cov).max())
+
+
+def test_prior_input_tightens_the_estimate():
+    T = nominal_T_cam_radar()
+    frames, _ = synthetic_drive(T, 1, rng(8))
+    prior = GaussianPrior(T, np.diag([np.radians(0.01) ** 2] * 3 + [0.001**2] * 3))
+    a = SlidingWindowCalibrator(T, {"detect_steps": False}).update(frames[0])
+    b = SlidingWindowCalibrator(T, {"detect_steps": False}).update(frames[0], prior=prior)
+    assert np.all(b.estimate.std < a.estimate.std)
+    assert np.all(b.estimate.std < report_std(T, prior.cov) * 1.001)
+
+
+def test_consistency_small_monte_carlo():
+    """30 runs x 3 frames, 20 % gross outliers: the final error inside the 95 % ellipsoid of the
+    reported covariance in a loose band around 95 %, mean NEES near 6."""
+    T = nominal_T_cam_radar()
+    nees = []
+    for r in range(30):
+        g = rng(1000 + r)
+        frames, _ = synthetic_drive(T, 3, g)
+        cal = SlidingWindowCalibrator(_start(g, 10, 0.25), {"window": 3, "detect_steps": False})
+        for f in frames:
+            out = cal.update(f)
+        e = local(T, out.T)
+        nees.append(float(e @ np.linalg.solve(out.cov, e)))
+    nees = np.array(nees)
+    inside = np.mean(nees < 12.592)  # chi2(6) 95 % quantile
+    assert 0.8 <= inside <= 1.0, (inside, nees)
+    assert 3.5 < nees.mean() < 9.0, nees.mean()
+
+
+def test_update_rejects_bad_input():
+    cal = SlidingWindowCalibrator(nominal_T_cam_radar())
+    with pytest.raises(TypeError, match="Correspondences"):
+        cal.update(np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="T_init"):
+        SlidingWindowCalibrator(np.eye(3))

@@ -1,0 +1,329 @@
+"""Bad input to the nuScenes data layer: every case names the file or token, says what is wrong,
+and iteration records a skip and goes on."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import warnings
+
+import cv2
+import numpy as np
+import pytest
+
+from hybrid_calib.commands import inspect as inspect_cmd
+from hybrid_calib.config import ConfigError
+from hybrid_calib.data.image_header import image_header
+from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+from hybrid_calib.data.pcd import read_radar_pcd, write_radar_pcd
+from hybrid_calib.errors import DataError
+from tests.tiny_nuscenes import VERSION, make_tiny_root
+
+
+@pytest.fixture
+def tiny(tmp_path):
+    return make_tiny_root(tmp_path / "root", n_samples=4)
+
+
+def _open(tiny, **conf):
+    return NuScenesRadarCamera(tiny.root, tiny.version, conf=conf)
+
+
+def _iterate_and_check_skip(tiny, index: int, *needles: str):
+    """Iterating skips exactly frame ``index`` with a reason containing every needle; the rest load."""
+    ds = _open(tiny)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a skip is recorded, not warned
+        frames = list(ds)
+    assert [f.index for f in frames] == [i for i in range(len(ds)) if i != index]
+    assert len(ds.skipped) == 1
+    rec = ds.skipped[0]
+    assert rec.index == index
+    for needle in needles:
+        assert needle in rec.reason, (needle, rec.reason)
+    with pytest.raises(DataError) as e:  # direct access raises the same error
+        ds[index]
+    assert str(e.value) == rec.reason
+    with pytest.raises(DataError):  # on_error="raise" stops iteration
+        list(_open(tiny, on_error="raise"))
+    return rec
+
+
+def test_clean_root_loads(tiny):
+    ds = _open(tiny)
+    frames = list(ds)
+    assert len(ds) == 4 and len(frames) == 4 and ds.skipped == []
+    f = frames[1]
+    assert f.vehicle == "tiny" and f.scene_name == "tiny-scene" and f.log_token == "log0"
+    assert f.radar_points.shape == (6, 3) and f.radar_points.dtype == np.float64
+    assert (f.camera.width, f.camera.height) == (160, 90)
+    assert f.image_path.is_file() and f.load_image().shape == (90, 160, 3)
+    assert f.depth_path is None and "radar_truth_path" not in f.extras
+    np.testing.assert_array_equal(f.extras["radar_rows"], np.arange(6))
+    assert ds.frames_by_vehicle() == {"tiny": [0, 1, 2, 3]}
+    assert ds.scenes()[0]["name"] == "tiny-scene"
+
+
+# ---------------------------------------------------------------- root, version and tables
+def test_version_missing_lists_versions(tiny):
+    with pytest.raises(DataError, match="does not exist") as e:
+        NuScenesRadarCamera(tiny.root, "v1.0-trainval")
+    assert VERSION in str(e.value) and "v1.0-trainval" in str(e.value)
+
+
+def test_root_not_a_directory(tmp_path):
+    with pytest.raises(DataError, match="not a directory") as e:
+        NuScenesRadarCamera(tmp_path / "nowhere", VERSION)
+    assert "nowhere" in str(e.value)
+
+
+def test_missing_table(tiny):
+    (tiny.vdir / "ego_pose.json").unlink()
+    with pytest.raises(DataError, match="missing") as e:
+        _open(tiny)
+    assert "ego_pose.json" in str(e.value)
+
+
+@pytest.mark.parametrize("content", ["{not json", '[{"token": "a"', ""])
+def test_malformed_table(tiny, content):
+    (tiny.vdir / "sample.json").write_text(content)
+    with pytest.raises(DataError, match="not valid JSON") as e:
+        _open(tiny)
+    assert "sample.json" in str(e.value)
+
+
+def test_table_not_a_list(tiny):
+    (tiny.vdir / "log.json").write_text(json.dumps({"token": "log0"}))
+    with pytest.raises(DataError, match="JSON list") as e:
+        _open(tiny)
+    assert "log.json" in str(e.value)
+
+
+def test_record_missing_field(tiny):
+    del tiny.tables["sample_data"][2]["filename"]
+    tiny.rewrite_table("sample_data")
+    with pytest.raises(DataError, match=r"lacks field\(s\) \['filename'\]") as e:
+        _open(tiny)
+    assert "sample_data.json" in str(e.value) and tiny.tables["sample_data"][2]["token"] in str(e.value)
+
+
+def test_unknown_channel_lists_channels(tiny):
+    with pytest.raises(DataError, match="RADAR_BACK_LEFT") as e:
+        NuScenesRadarCamera(tiny.root, VERSION, radar_channel="RADAR_BACK_LEFT")
+    assert "RADAR_FRONT" in str(e.value)
+
+
+def test_unknown_scene_and_vehicle(tiny):
+    with pytest.raises(DataError, match="tiny-scene"):
+        _open(tiny, scenes=["scene-0001"])
+    with pytest.raises(DataError, match="vehicles present"):
+        _open(tiny, vehicles=["n008"])
+    assert len(_open(tiny, scenes=["tiny-scene"], vehicles=["tiny"])) == 4
+
+
+def test_bad_config():
+    with pytest.raises(ConfigError, match="nsweep"):
+        NuScenesRadarCamera("/", VERSION, conf={"nsweep": 2})
+    with pytest.raises(ValueError, match="on_error"):
+        NuScenesRadarCamera("/", VERSION, conf={"on_error": "ignore"})
+
+
+# ---------------------------------------------------------------- tokens
+def test_unresolved_ego_pose_token_is_skipped(tiny):
+    tiny.radar_sd[2]["ego_pose_token"] = "deadbeef"
+    tiny.rewrite_table("sample_data")
+    rec = _iterate_and_check_skip(tiny, 2, "deadbeef", "does not resolve", "ego_pose")
+    assert rec.token == "deadbeef"
+
+
+def test_unresolved_calibrated_sensor_token_recorded_at_index(tiny):
+    tiny.radar_sd[1]["calibrated_sensor_token"] = "nosuchcs"
+    tiny.rewrite_table("sample_data")
+    ds = _open(tiny)
+    assert len(ds) == 3  # the sample lost its radar keyframe
+    reasons = " | ".join(r.reason for r in ds.skipped)
+    assert "nosuchcs" in reasons and "calibrated_sensor" in reasons
+    assert "sample1" in reasons  # and the sample is reported as not a frame
+    assert all(r.index is None for r in ds.skipped)
+    assert len(list(ds)) == 3
+
+
+def test_sample_without_radar_keyframe(tiny):
+    tiny.tables["sample_data"].remove(tiny.radar_sd[3])
+    tiny.rewrite_table("sample_data")
+    ds = _open(tiny)
+    assert len(ds) == 3
+    assert ds.skipped[0].token == "sample3" and "RADAR_FRONT" in ds.skipped[0].reason
+
+
+def test_broken_sample_chain_falls_back_to_time_order(tiny):
+    tiny.tables["sample"][1]["next"] = "nosuchsample"
+    tiny.rewrite_table("sample")
+    ds = _open(tiny)
+    assert [f.sample_token for f in ds.frames] == ["sample0", "sample1", "sample2", "sample3"]
+
+
+# ---------------------------------------------------------------- radar files
+def test_truncated_pcd_is_skipped(tiny):
+    path = tiny.path(tiny.radar_sd[1])
+    path.write_bytes(path.read_bytes()[:-30])
+    rec = _iterate_and_check_skip(tiny, 1, "truncated PCD", str(path))
+    assert rec.path == str(path)
+
+
+def test_garbage_pcd_is_skipped(tiny):
+    path = tiny.path(tiny.radar_sd[0])
+    path.write_bytes(np.random.default_rng(3).bytes(500))
+    _iterate_and_check_skip(tiny, 0, str(path))
+
+
+def test_missing_pcd_is_skipped(tiny):
+    path = tiny.path(tiny.radar_sd[3])
+    path.unlink()
+    _iterate_and_check_skip(tiny, 3, "not found", str(path))
+
+
+def test_nan_points_dropped_and_counted(tiny):
+    path = tiny.path(tiny.radar_sd[1])
+    pts = read_radar_pcd(path)
+    pts["x"][[0, 4]] = np.nan
+    pts["y"][2] = np.inf
+    write_radar_pcd(path, pts)
+    f = _open(tiny)[1]
+    assert f.extras["radar_nonfinite_dropped"] == 3 and f.extras["radar_points_raw"] == 6
+    np.testing.assert_array_equal(f.extras["radar_rows"], [1, 3, 5])
+    assert len(f.radar_points) == 3 and np.all(np.isfinite(f.radar_points))
+    for name, values in f.radar_fields.items():
+        np.testing.assert_array_equal(values, pts[name][[1, 3, 5]], err_msg=name)
+
+
+def test_all_nan_sweep_is_skipped(tiny):
+    path = tiny.path(tiny.radar_sd[2])
+    pts = read_radar_pcd(path)
+    pts["x"] = np.nan
+    write_radar_pcd(path, pts)
+    _iterate_and_check_skip(tiny, 2, "all 6 radar points have NaN", str(path))
+
+
+def test_empty_sweep_after_filtering(tiny):
+    path = tiny.path(tiny.radar_sd[1])
+    pts = read_radar_pcd(path)
+    pts["ambig_state"] = 0  # devkit default keeps ambig_state 3 only
+    write_radar_pcd(path, pts)
+    _iterate_and_check_skip(tiny, 1, "0 points after filtering", "skip_empty_radar", str(path))
+    kept = _open(tiny, skip_empty_radar=False)[1]
+    assert kept.radar_points.shape == (0, 3) and kept.extras["radar_rows"].shape == (0,)
+    assert len(_open(tiny, radar_filter={"ambig_states": None})[1].radar_points) == 6
+    assert len(_open(tiny, radar_filter={"enabled": False})[1].radar_points) == 6
+
+
+def test_zero_point_pcd_is_empty_sweep(tiny):
+    path = tiny.path(tiny.radar_sd[0])
+    write_radar_pcd(path, read_radar_pcd(path)[:0])
+    _iterate_and_check_skip(tiny, 0, "0 points after filtering")
+
+
+def test_filters_follow_devkit_defaults(tiny):
+    path = tiny.path(tiny.radar_sd[0])
+    pts = read_radar_pcd(path)
+    pts["invalid_state"][0] = 1  # invalid
+    pts["dyn_prop"][1] = 7  # dyn_prop 7 is not in range(7)
+    pts["ambig_state"][2] = 4  # ambiguous
+    write_radar_pcd(path, pts)
+    f = _open(tiny)[0]
+    np.testing.assert_array_equal(f.extras["radar_rows"], [3, 4, 5])
+    g = _open(tiny, radar_filter={"invalid_states": [0, 1], "dynprop_states": None})[0]
+    np.testing.assert_array_equal(g.extras["radar_rows"], [0, 1, 3, 4, 5])
+
+
+# ---------------------------------------------------------------- images
+def test_missing_image_is_skipped(tiny):
+    path = tiny.path(tiny.cam_sd[2])
+    path.unlink()
+    _iterate_and_check_skip(tiny, 2, "camera image not found", str(path))
+
+
+def test_not_an_image_is_skipped(tiny):
+    path = tiny.path(tiny.cam_sd[0])
+    path.write_bytes(b"GIF89a" + bytes(200))
+    _iterate_and_check_skip(tiny, 0, "not a JPEG or PNG", str(path))
+
+
+def test_truncated_jpeg_is_skipped(tiny):
+    path = tiny.path(tiny.cam_sd[1])
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    _iterate_and_check_skip(tiny, 1, "truncated", str(path))
+
+
+def test_jpeg_that_does_not_decode_fails_lazily(tiny):
+    # a JPEG whose header is sound (SOI, SOF with a size, EOI) but that has no image data: it passes the
+    # eager check, and load_image raises when it tries to decode it.
+    path = tiny.path(tiny.cam_sd[3])
+    sof = bytes.fromhex("ffc0000b08005a00a0010111 00".replace(" ", ""))
+    path.write_bytes(b"\xff\xd8" + sof + b"\xff\xd9")
+    assert image_header(path) == (160, 90)
+    ds = _open(tiny)
+    frame = ds[3]
+    with pytest.raises(DataError, match="does not decode") as e:
+        frame.load_image()
+    assert str(path) in str(e.value) and tiny.cam_sd[3]["token"] in str(e.value)
+
+
+def test_image_size_mismatch(tiny):
+    tiny.cam_sd[1]["width"] = 1600
+    tiny.cam_sd[1]["height"] = 900
+    tiny.rewrite_table("sample_data")
+    _iterate_and_check_skip(tiny, 1, "160x90", "1600x900")
+
+
+def test_bad_intrinsic(tiny):
+    tiny.tables["calibrated_sensor"][0]["camera_intrinsic"] = [[0, 0, 0]]
+    tiny.rewrite_table("calibrated_sensor")
+    with pytest.raises(DataError, match="camera_intrinsic") as e:
+        _open(tiny)[0]
+    assert "cs_CAM_FRONT" in str(e.value)
+
+
+def test_several_bad_frames_iteration_goes_on(tiny):
+    tiny.path(tiny.radar_sd[0]).write_bytes(b"garbage")
+    tiny.path(tiny.cam_sd[2]).write_bytes(b"")
+    ds = _open(tiny)
+    assert [f.index for f in ds] == [1, 3]
+    assert [r.index for r in ds.skipped] == [0, 2]
+    assert [f.index for f in ds] == [1, 3] and len(ds.skipped) == 2  # a second pass does not duplicate
+
+
+# ---------------------------------------------------------------- LiDAR
+def test_lidar_corrupt_and_missing_channel(tiny):
+    path = tiny.path(tiny.lidar_sd[1])
+    path.write_bytes(bytes(13))
+    ds = _open(tiny, load_lidar=True)
+    frames = list(ds)
+    assert [f.index for f in frames] == [0, 2, 3]
+    assert "multiple of 5" in ds.skipped[0].reason and str(path) in ds.skipped[0].reason
+    assert frames[0].lidar_points.shape == (6, 4) and frames[0].lidar_points.dtype == np.float32
+    with pytest.raises(DataError, match="LIDAR_TOP"):
+        NuScenesRadarCamera(tiny.root, VERSION, conf={"load_lidar": True, "lidar_channel": "LIDAR_LEFT"})
+
+
+# ---------------------------------------------------------------- the inspect command
+def test_inspect_command_reports_skips(tiny, tmp_path, capsys):
+    bad = tiny.path(tiny.radar_sd[2])
+    bad.write_bytes(bad.read_bytes()[:-40])
+    parser = argparse.ArgumentParser()
+    inspect_cmd.add_arguments(parser)
+    out = tmp_path / "out"
+    args = parser.parse_args(["--data", str(tiny.root), "--version", VERSION, "--out", str(out), "--no-progress",
+                              "--set", "radar_filter.ambig_states=null"])
+    assert inspect_cmd.run(args) == 0
+    text = capsys.readouterr().out
+    assert "3/4 frames loaded, 1 skipped" in text and str(bad) in text
+    summary = json.loads((out / "inspect_summary.json").read_text())
+    assert summary["n_frames"] == 4 and summary["n_loaded"] == 3 and summary["skipped"][0]["index"] == 2
+    group = summary["groups"][0]
+    assert group["vehicle"] == "tiny" and group["radar_points_per_sweep"] == {"mean": 6.0, "min": 6, "max": 6}
+    assert group["dt_radar_minus_camera_ms"]["mean"] == pytest.approx(45.0)
+    conf = json.loads((out / "inspect_config.json").read_text())
+    assert conf["conf"]["radar_filter"]["ambig_states"] is None
+    png = cv2.imread(str(out / "overlay.png"))
+    assert png is not None and png.shape[0] > 100

@@ -1,0 +1,182 @@
+"""Metric depth for the network: the corrupted-truth estimator, Depth Anything local loading, the cache."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hybrid_calib.data.frame import RadarCameraFrame, write_depth_png
+from hybrid_calib.errors import DataError, HybridCalibError
+from hybrid_calib.sensors.camera import PinholeCamera
+from learned.depth import CorruptedTruthDepth, DepthCache, build_depth_estimator
+
+H, W = 60, 120
+QUIET = dict(scale_std=0.0, shift_std_m=0.0, edge_blur_px=0.0, rel_noise_lowfreq=0.0, noise_rel=0.0,
+             noise_quad_per_m=0.0)  # every corruption off: the estimator must return the truth
+
+
+def ramp_depth() -> np.ndarray:
+    """(H, W) metres: a ground-plane-like ramp from 5 m (bottom) to 100 m (top), no unknown pixels."""
+    return np.repeat(np.linspace(100.0, 5.0, H, dtype=np.float32)[:, None], W, axis=1)
+
+
+def make_frame(tmp_path, depth: np.ndarray | None, token: str = "cam-0") -> RadarCameraFrame:
+    import cv2
+
+    img_path = tmp_path / f"{token}.jpg"
+    cv2.imwrite(str(img_path), np.full((H, W, 3), 128, np.uint8))
+    depth_path = write_depth_png(tmp_path / f"{token}_depth.png", depth) if depth is not None else None
+    return RadarCameraFrame(
+        index=0, sample_token="s", scene_name="scene", vehicle="v", log_token="l", camera_channel="CAM_FRONT",
+        radar_channel="RADAR_FRONT", camera_token=token, radar_token="r", timestamp_camera_us=0,
+        timestamp_radar_us=0, image_path=img_path, camera=PinholeCamera(100.0, 100.0, 59.5, 29.5, W, H),
+        radar_points=np.zeros((0, 3)), radar_fields={}, T_cam_radar=np.eye(4), depth_path=depth_path)
+
+
+def test_corrupted_truth_is_deterministic_per_frame_and_never_the_truth():
+    truth = ramp_depth()
+    est = CorruptedTruthDepth()
+    a = est.corrupt(truth, (H, W), "tok-a")
+    b = est.corrupt(truth, (H, W), "tok-a")
+    c = est.corrupt(truth, (H, W), "tok-b")
+    np.testing.assert_array_equal(a, b)
+    assert not np.allclose(a, c, atol=1e-3)
+    assert a.dtype == np.float32 and a.shape == (H, W)
+    rel = np.abs(a - truth) / truth
+    assert np.all(rel > 0) and rel.mean() > 0.005  # never the truth
+    assert np.median(rel) < 0.3  # but still a usable metric estimate
+    other_seed = CorruptedTruthDepth({"seed": 7}).corrupt(truth, (H, W), "tok-a")
+    assert not np.allclose(a, other_seed, atol=1e-3)
+
+
+def test_corrupted_truth_with_every_error_off_returns_the_truth():
+    truth = ramp_depth()
+    np.testing.assert_allclose(CorruptedTruthDepth(QUIET).corrupt(truth, (H, W), "t"), truth, rtol=1e-6)
+
+
+def test_global_scale_and_shift_bias_as_configured():
+    truth = ramp_depth()
+    exact = CorruptedTruthDepth({**QUIET, "scale_mean": 1.2, "shift_mean_m": 0.5}).corrupt(truth, (H, W), "t")
+    np.testing.assert_allclose(exact, 1.2 * truth + 0.5, rtol=1e-5)
+    # with the default noise on, the configured bias is still what a robust fit reads back
+    noisy = CorruptedTruthDepth({"scale_mean": 1.2}).corrupt(truth, (H, W), "t")
+    assert 1.1 < np.median(noisy / truth) < 1.3
+    unbiased = [np.median(CorruptedTruthDepth().corrupt(truth, (H, W), f"t{i}") / truth) for i in range(20)]
+    assert 0.95 < np.mean(unbiased) < 1.05 and np.std(unbiased) > 0.02  # per-frame scale error, no bias
+
+
+def test_noise_grows_with_range():
+    truth = ramp_depth()
+    est = CorruptedTruthDepth({**QUIET, "noise_rel": 0.01, "noise_quad_per_m": 0.0005})
+    res = est.corrupt(truth, (H, W), "t") - truth
+    near = res[-10:].std()  # bottom rows: 5..20 m
+    far = res[:10].std()  # top rows: 85..100 m
+    assert far > 5 * near
+    # the measured std matches the configured model sigma = 0.01 d + 0.0005 d^2 within 25 %
+    d_far = truth[:10]
+    assert far == pytest.approx(np.sqrt(np.mean((0.01 * d_far + 0.0005 * d_far**2) ** 2)), rel=0.25)
+
+
+def test_edges_are_smoothed_and_unknown_stays_unknown():
+    truth = np.full((H, W), 10.0, np.float32)
+    truth[:, W // 2:] = 40.0  # a vertical depth edge at column 60
+    truth[:5, :10] = 0.0  # no return (sky)
+    out = CorruptedTruthDepth({**QUIET, "edge_blur_px": 2.0}).corrupt(truth, (H, W), "t")
+    assert np.all(out[:5, :10] == 0.0)
+    row = out[30]
+    assert 11.0 < row[W // 2 - 1] < 39.0 and 11.0 < row[W // 2] < 39.0  # mixed across the edge
+    assert row[5] == pytest.approx(10.0, abs=1e-3) and row[-5] == pytest.approx(40.0, abs=1e-3)  # flat parts kept
+    assert np.abs(np.diff(row)).max() < 0.5 * 30.0  # the 30 m step is spread over several pixels
+
+
+def test_estimate_reads_the_frame_depth_and_resizes(tmp_path):
+    frame = make_frame(tmp_path, ramp_depth())
+    out = CorruptedTruthDepth().estimate(frame, (30, 60))
+    assert out.shape == (30, 60) and np.all(out > 0)
+    with pytest.raises(DataError, match="ground-truth depth"):
+        CorruptedTruthDepth().estimate(make_frame(tmp_path, None, "nodepth"), (30, 60))
+
+
+def test_cache_hit_is_identical_and_changed_config_misses(tmp_path):
+    frame = make_frame(tmp_path, ramp_depth())
+    cache = DepthCache(tmp_path / "cache")
+    est = CorruptedTruthDepth()
+    first = cache.get(est, frame, (30, 60))
+    second = cache.get(CorruptedTruthDepth(), frame, (30, 60))  # a new instance with the same config
+    np.testing.assert_array_equal(first, second)
+    assert (cache.hits, cache.misses) == (1, 1)
+    path = cache.path(est, frame.camera_token, (30, 60))
+    assert path.is_file() and (path.parent / "estimator.json").is_file()
+    assert not list(path.parent.glob("*.tmp*"))  # atomic: no temp files left
+    changed = CorruptedTruthDepth({"seed": 3})
+    third = cache.get(changed, frame, (30, 60))
+    assert cache.misses == 2 and cache.path(changed, frame.camera_token, (30, 60)) != path
+    assert not np.array_equal(first, third)
+    cache.get(est, frame, (15, 30))  # another size is another entry
+    assert cache.misses == 3
+    path.write_bytes(b"garbage")  # a corrupt entry is recomputed, not returned
+    np.testing.assert_array_equal(cache.get(est, frame, (30, 60)), first)
+
+
+def test_build_depth_estimator_rejects_unknown_names():
+    assert isinstance(build_depth_estimator("corrupted-truth", {"seed": 2}), CorruptedTruthDepth)
+    with pytest.raises(HybridCalibError, match="unknown depth estimator"):
+        build_depth_estimator("midas")
+
+
+def _tiny_depth_anything(directory, metric: bool = True):
+    """A randomly initialised, tiny Depth Anything (metric head) saved with save_pretrained."""
+    transformers = pytest.importorskip("transformers", reason="transformers is not installed in this venv")
+    import torch
+
+    backbone = transformers.Dinov2Config(
+        hidden_size=32, num_hidden_layers=4, num_attention_heads=2, intermediate_size=64, image_size=56,
+        patch_size=14, out_features=["stage1", "stage2", "stage3", "stage4"], reshape_hidden_states=False)
+    conf = transformers.DepthAnythingConfig(
+        backbone_config=backbone, reassemble_hidden_size=32, neck_hidden_sizes=[16, 16, 16, 16],
+        fusion_hidden_size=16, head_hidden_size=8, patch_size=14,
+        depth_estimation_type="metric" if metric else "relative", max_depth=80)
+    torch.manual_seed(0)
+    model = transformers.DepthAnythingForDepthEstimation(conf).eval()
+    model.save_pretrained(directory)
+    from transformers.models.dpt.image_processing_pil_dpt import DPTImageProcessorPil
+
+    DPTImageProcessorPil(size={"height": 56, "width": 56}, keep_aspect_ratio=True, ensure_multiple_of=14
+                         ).save_pretrained(directory)
+    return model
+
+
+def test_depth_anything_loads_from_a_local_directory_only(tmp_path, monkeypatch):
+    import torch
+
+    from learned.depth import DepthAnythingEstimator
+
+    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
+    reference = _tiny_depth_anything(tmp_path / "da")
+    est = build_depth_estimator(f"depth-anything:{tmp_path / 'da'}")
+    assert isinstance(est, DepthAnythingEstimator)
+    frame = make_frame(tmp_path, None)
+    image = frame.load_image()
+    depth = est.estimate(frame, (24, 48))
+    assert depth.shape == (24, 48) and depth.dtype == np.float32
+    assert np.all(np.isfinite(depth)) and np.all(depth > 0) and depth.max() <= 80.0 + 1e-3
+    # the reloaded weights are the saved ones: same output as the in-memory model
+    inputs = est.processor(images=image, return_tensors="pt")
+    with torch.no_grad():
+        ref = reference(pixel_values=inputs["pixel_values"]).predicted_depth
+    ref = torch.nn.functional.interpolate(ref[:, None], size=(24, 48), mode="bicubic", align_corners=False)[0, 0]
+    np.testing.assert_allclose(depth, ref.clamp(1e-3, 200.0).numpy(), rtol=1e-4, atol=1e-4)
+    # the cache keys it by the weights too
+    cache = DepthCache(tmp_path / "cache")
+    np.testing.assert_array_equal(cache.get(est, frame, (24, 48)), cache.get(est, frame, (24, 48)))
+    assert cache.hits == 1
+
+
+def test_depth_anything_errors_name_the_directory(tmp_path):
+    from learned.depth import DepthAnythingEstimator
+
+    with pytest.raises(HybridCalibError, match="no config.json"):
+        DepthAnythingEstimator(tmp_path / "missing")
+    _tiny_depth_anything(tmp_path / "rel", metric=False)
+    with pytest.raises(HybridCalibError, match="relative"):
+        DepthAnythingEstimator(tmp_path / "rel")

@@ -1,0 +1,385 @@
+"""Dataset, training, checkpoints and evaluation of the learned model on tiny generated frames."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from factors.correspondences import Correspondences
+from hybrid_calib.data.frame import RadarCameraFrame, write_depth_png
+from hybrid_calib.errors import HybridCalibError
+from hybrid_calib.geometry import make_T, transform_points
+from hybrid_calib.metrics import METRIC_KEYS, extrinsic_error
+from hybrid_calib.sensors.camera import PinholeCamera
+from learned.dataset import (
+    RANGES,
+    CalibDataset,
+    DatasetConfig,
+    SplitConfig,
+    collate,
+    group_key,
+    split_indices,
+)
+from learned.depth import CorruptedTruthDepth, DepthCache
+from tests.helpers import nominal_T_cam_radar
+
+W0, H0 = 160, 90  # full image size on disk
+# A tiny network (model input 96 x 48) so two epochs take seconds on 2 cores.
+TINY_MODEL = dict(input_hw=[48, 96], bev_hw=[32, 32], bev_res_m=2.5, feat_dim=16, radar_widths=[8, 8, 16],
+                  context_widths=[8, 8, 16], depth_branch_mid=8, phi_channels=8, phi_pool_fv=[2, 3],
+                  phi_pool_bev=[2, 2], view_dim=32, match_dim=16, lstm_hidden=32, sk_min_dim=8)
+R_CAM_LIDAR = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])  # lidar x right, y fwd, z up -> camera
+
+
+def _make_frames(root, n_scenes: int = 4, per_scene: int = 3) -> list[RadarCameraFrame]:
+    """Frames of a toy street: ground plane 1.5 m below the camera, a wall at 40 m, a box per frame."""
+    import cv2
+
+    g = np.random.default_rng(0)
+    cam = PinholeCamera(120.0, 120.0, 79.5, 44.5, W0, H0)
+    rays = cam.rays()
+    T_cam_radar = nominal_T_cam_radar()
+    T_cam_lidar = make_T(R_CAM_LIDAR, np.array([0.0, 0.3, -0.2]))
+    frames = []
+    for s in range(n_scenes):
+        for k in range(per_scene):
+            i = len(frames)
+            with np.errstate(divide="ignore"):
+                t_ground = np.where(rays[..., 1] > 1e-3, 1.5 / rays[..., 1], np.inf)
+            t_wall = 40.0 / rays[..., 2]
+            depth = np.minimum(t_ground, t_wall) * rays[..., 2]  # z-depth, metres
+            depth[:5] = 0.0  # sky rows: no return
+            box_u = 30 + 20 * k
+            depth[30:60, box_u:box_u + 25] = 12.0 + 2 * s
+            image = np.clip(255 * np.exp(-depth / 30.0)[..., None] * np.array([1.0, 0.8, 0.6]), 0, 255)
+            image = (image + g.integers(0, 20, size=image.shape)).clip(0, 255).astype(np.uint8)
+            img_path = root / f"img_{i}.png"
+            cv2.imwrite(str(img_path), image[:, :, ::-1])
+            depth_path = write_depth_png(root / f"depth_{i}.png", depth)
+            n_r = 40 + 10 * k
+            radar = np.stack([g.uniform(3, 45, n_r), g.uniform(-12, 12, n_r), np.zeros(n_r)], 1)
+            lidar = np.stack([g.uniform(-15, 15, 3000), g.uniform(1, 45, 3000), g.uniform(-1.8, 1.0, 3000),
+                              g.uniform(0, 1, 3000)], 1).astype(np.float32)
+            frames.append(RadarCameraFrame(
+                index=i, sample_token=f"sample-{i}", scene_name=f"scene-{s}", vehicle=f"veh-{s % 2}",
+                log_token=f"log-{s}", camera_channel="CAM_FRONT", radar_channel="RADAR_FRONT",
+                camera_token=f"cam-{i}", radar_token=f"rad-{i}", timestamp_camera_us=i * 500_000,
+                timestamp_radar_us=i * 500_000, image_path=img_path, camera=cam, radar_points=radar,
+                radar_fields={}, T_cam_radar=T_cam_radar, lidar_points=lidar, T_cam_lidar=T_cam_lidar,
+                depth_path=depth_path))
+    return frames
+
+
+@pytest.fixture(scope="module")
+def frames(tmp_path_factory):
+    return _make_frames(tmp_path_factory.mktemp("frames"))
+
+
+def _dataset(frames, tmp_path, **kw) -> CalibDataset:
+    conf = DatasetConfig(height=48, width=96, max_radar_points=64, max_lidar_points=256, **kw)
+    return CalibDataset(frames, conf, CorruptedTruthDepth(), cache=DepthCache(tmp_path / "cache"))
+
+
+# ------------------------------------------------------------------------------------ dataset
+
+
+def test_sample_shapes_and_collate(frames, tmp_path):
+    ds = _dataset(frames, tmp_path)
+    s = ds[0]
+    shapes = {k: tuple(v.shape) for k, v in s.items() if isinstance(v, torch.Tensor)}
+    assert shapes == {"image": (3, 48, 96), "depth": (1, 48, 96), "K": (3, 3), "radar": (64, 3), "radar_mask": (64,),
+                      "T_init": (4, 4), "T_gt": (4, 4), "lidar_cam": (256, 3), "lidar_mask": (256,),
+                      "perturbation": (6,)}
+    assert s["image"].dtype == torch.float32 and 0.0 <= s["image"].min() and s["image"].max() <= 1.0
+    assert s["radar_mask"].sum() == 40 and s["lidar_mask"].sum() == 256  # 40 radar points padded, LiDAR subsampled
+    assert torch.all(s["radar"][~s["radar_mask"]] == 0)
+    # LiDAR is in the camera frame: in front of the camera and inside the image
+    lid = s["lidar_cam"][s["lidar_mask"]].double().numpy()
+    uv, z = PinholeCamera.from_K(s["K"].double().numpy(), 96, 48).project(lid)
+    assert np.all(z > 0.1) and np.all((uv[:, 0] > -0.5) & (uv[:, 0] < 95.5) & (uv[:, 1] > -0.5) & (uv[:, 1] < 47.5))
+    batch = collate([ds[0], None, ds[1]])
+    assert batch["image"].shape == (2, 3, 48, 96) and batch["token"] == ["cam-0", "cam-1"]
+    assert batch["index"].tolist() == [0, 1]
+    assert collate([None]) is None
+
+
+def test_scaled_K_projects_where_the_full_size_projection_lands(frames, tmp_path):
+    ds = _dataset(frames, tmp_path)
+    s, f = ds[3], frames[3]
+    pts = transform_points(f.T_cam_radar, f.radar_points)
+    uv_full, z = f.camera.project(pts)
+    K = s["K"].double().numpy()
+    uv_small = (K @ (pts / pts[:, 2:]).T).T[:, :2]
+    sx, sy = 96 / W0, 48 / H0
+    expected = np.stack([(uv_full[:, 0] + 0.5) * sx - 0.5, (uv_full[:, 1] + 0.5) * sy - 0.5], 1)
+    np.testing.assert_allclose(uv_small[z > 0], expected[z > 0], atol=1e-4)  # float32 K
+    # depth map: the wall (40 m) and the box are where the full-size depth puts them, after corruption
+    d = s["depth"][0].numpy()
+    assert 25.0 < np.median(d[8:12][d[8:12] > 0]) < 60.0
+
+
+def test_perturbations_in_range_reproducible_and_read_back_by_the_metrics(frames, tmp_path):
+    for name, (rot_deg, trans_m) in RANGES.items():
+        ds = _dataset(frames, tmp_path, perturbation=name)
+        xi = np.array([ds.perturbation(i) for i in range(400)])
+        assert np.all(np.abs(np.degrees(xi[:, :3])) <= rot_deg) and np.all(np.abs(xi[:, 3:]) <= trans_m)
+        assert np.all(np.abs(np.degrees(xi[:, :3])).max(0) > 0.9 * rot_deg)  # the whole range is used
+        np.testing.assert_allclose(np.abs(xi[:, 3:]).mean(0), trans_m / 2, rtol=0.15)  # uniform: E|x| = a/2
+        np.testing.assert_array_equal(xi[7], ds.perturbation(7))
+        ds.set_epoch(1)
+        assert not np.allclose(xi[7], ds.perturbation(7))  # training: a new start every epoch
+    ev = CalibDataset(frames, DatasetConfig(height=48, width=96), CorruptedTruthDepth(), train=False)
+    first = ev.perturbation(2)
+    ev.set_epoch(5)
+    np.testing.assert_array_equal(first, ev.perturbation(2))  # evaluation: fixed per sample
+    s = ev[2]
+    e = extrinsic_error(s["T_init"].double().numpy(), s["T_gt"].double().numpy())
+    np.testing.assert_allclose([e.roll_deg, e.pitch_deg, e.yaw_deg], np.abs(np.degrees(first[:3])), atol=1e-3)
+    np.testing.assert_allclose([e.x_cm, e.y_cm, e.z_cm], np.abs(first[3:]) * 100, atol=1e-3)
+
+
+def test_splits_keep_scenes_apart(frames):
+    conf = SplitConfig(test_groups=("scene-3",), val_groups=("scene-2",))
+    parts = {s: split_indices(frames, s, conf) for s in ("train", "val", "test")}
+    assert sorted(sum(parts.values(), [])) == list(range(len(frames)))
+    assert {frames[i].scene_name for i in parts["test"]} == {"scene-3"}
+    assert {frames[i].scene_name for i in parts["train"]} == {"scene-0", "scene-1"}
+    hashed = {s: split_indices(frames, s, SplitConfig(by="vehicle", test_fraction=0.5, val_fraction=0.0))
+              for s in ("train", "test")}
+    for a, b in [("train", "test")]:
+        assert not {group_key(frames[i], "vehicle") for i in hashed[a]} & {group_key(frames[i], "vehicle")
+                                                                            for i in hashed[b]}
+    with pytest.raises(HybridCalibError, match="split must be"):
+        split_indices(frames, "dev")
+
+
+def test_bad_frame_is_recorded_and_skipped(frames, tmp_path):
+    import dataclasses
+
+    broken = dataclasses.replace(frames[0], image_path=tmp_path / "missing.png")
+    ds = _dataset([broken, frames[1]], tmp_path)
+    assert ds[0] is None and "not found" in ds.bad[0]
+    assert collate([ds[0], ds[1]])["image"].shape[0] == 1
+
+
+# ------------------------------------------------------------------------------------ training
+
+SPLIT = {"test_groups": ["scene-3"], "val_groups": ["scene-2"]}
+
+
+def _train_conf(tmp_path, epochs: int) -> dict:
+    return dict(model=TINY_MODEL, epochs=epochs, batch_size=3, samples_per_epoch=6, val_samples=3, lr=1e-3,
+                max_radar_points=64, max_lidar_points=256, split=SPLIT, depth_cache=str(tmp_path / "depth-cache"))
+
+
+def _weights(path) -> dict:
+    from safetensors.torch import load_file
+
+    return load_file(str(path))
+
+
+def test_train_checkpoints_logs_and_resumes(frames, tmp_path):
+    from learned.checkpoint import latest_checkpoint, load_model
+    from learned.train import train, train_config
+
+    run = tmp_path / "run"
+    last = train(train_config("small", _train_conf(tmp_path, 2)), frames, run, progress=False)
+    assert last.name == "ckpt-0002.json" and latest_checkpoint(run / "checkpoints") == last
+    meta = json.loads(last.read_text())
+    assert meta["epoch"] == 2 and meta["model_config"]["feat_dim"] == 16 and meta["train_config"]["epochs"] == 2
+    for epoch in (1, 2):
+        for suffix in (".safetensors", ".optim.pt", ".json"):
+            assert (run / "checkpoints" / f"ckpt-000{epoch}{suffix}").is_file()
+    with (run / "epochs.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert [int(r["epoch"]) for r in rows] == [1, 2]
+    assert all(np.isfinite(float(r["train_total"])) and float(r["val_rot_geodesic_deg"]) > 0 for r in rows)
+    with (run / "steps.csv").open() as f:
+        assert len(list(csv.DictReader(f))) == 4  # 2 epochs x 2 steps of 3 samples
+    assert json.loads((run / "train_config.json").read_text())["model"]["input_hw"] == [48, 96]
+    w2 = _weights(run / "checkpoints" / "ckpt-0002.safetensors")
+    mtime1 = (run / "checkpoints" / "ckpt-0001.safetensors").stat().st_mtime_ns
+
+    # resume: continues with epoch 3, keeps epochs 1-2 as they were
+    last = train(train_config("small", _train_conf(tmp_path, 3)), frames, run, progress=False)
+    assert last.name == "ckpt-0003.json"
+    assert (run / "checkpoints" / "ckpt-0001.safetensors").stat().st_mtime_ns == mtime1
+    with (run / "epochs.csv").open() as f:
+        assert [int(r["epoch"]) for r in csv.DictReader(f)] == [1, 2, 3]
+    with (run / "steps.csv").open() as f:
+        assert [int(r["epoch"]) for r in csv.DictReader(f)] == [1, 1, 2, 2, 3, 3]
+    w3 = _weights(run / "checkpoints" / "ckpt-0003.safetensors")
+    assert any(not torch.equal(w2[k], w3[k]) for k in w2)
+
+    # deterministic: an uninterrupted 3-epoch run gives the same weights as 2 + resume 1
+    fresh = train(train_config("small", _train_conf(tmp_path, 3)), frames, tmp_path / "fresh", progress=False)
+    wf = _weights(fresh.with_suffix(".safetensors"))
+    for k in w3:
+        torch.testing.assert_close(wf[k], w3[k], rtol=1e-5, atol=1e-6)
+
+    model, ckpt = load_model(run)
+    assert ckpt.epoch == 3 and not model.training
+    state = model.state_dict()
+    assert all(torch.equal(state[k], w3[k]) for k in w3)
+    with pytest.raises(HybridCalibError, match="already holds checkpoints"):
+        train(train_config("small", _train_conf(tmp_path, 3)), frames, run, resume=False, progress=False)
+    other = _train_conf(tmp_path, 4)
+    other["model"] = {**TINY_MODEL, "lstm_hidden": 16}
+    with pytest.raises(HybridCalibError, match="another model config"):
+        train(train_config("small", other), frames, run, progress=False)
+
+
+def test_checkpoint_round_trip_restores_model_and_optimizer(tmp_path):
+    from learned.checkpoint import load_checkpoint, save_checkpoint
+
+    torch.manual_seed(0)
+    model = torch.nn.Sequential(torch.nn.Linear(4, 8), torch.nn.BatchNorm1d(8), torch.nn.Linear(8, 2))
+    opt = torch.optim.Adam(model.parameters(), lr=1e-3)
+    sched = torch.optim.lr_scheduler.StepLR(opt, 2, 0.5)
+    model(torch.randn(5, 4)).sum().backward()
+    opt.step()
+    sched.step()
+    path = save_checkpoint(tmp_path / "ckpt-0007", model, epoch=7, model_config={"a": 1}, metrics={"x": 0.5},
+                           optimizer=opt, scheduler=sched)
+    model2 = torch.nn.Sequential(torch.nn.Linear(4, 8), torch.nn.BatchNorm1d(8), torch.nn.Linear(8, 2))
+    opt2 = torch.optim.Adam(model2.parameters(), lr=1.0)
+    sched2 = torch.optim.lr_scheduler.StepLR(opt2, 2, 0.5)
+    ckpt = load_checkpoint(tmp_path / "ckpt-0007.safetensors", model2, opt2, sched2)
+    assert (ckpt.epoch, ckpt.model_config, ckpt.metrics) == (7, {"a": 1}, {"x": 0.5}) and ckpt.path == path
+    for a, b in zip(model.state_dict().values(), model2.state_dict().values()):
+        assert torch.equal(a, b)
+    assert opt2.state_dict()["param_groups"][0]["lr"] == opt.state_dict()["param_groups"][0]["lr"]
+    assert torch.equal(opt2.state_dict()["state"][0]["exp_avg"], opt.state_dict()["state"][0]["exp_avg"])
+    assert sched2.last_epoch == 1
+    with pytest.raises(HybridCalibError, match="do not fit"):
+        load_checkpoint(path, torch.nn.Linear(4, 2))
+    with pytest.raises(HybridCalibError, match="not found"):
+        load_checkpoint(tmp_path / "ckpt-0099.json")
+
+
+# ------------------------------------------------------------------------------------ evaluation
+
+
+class OracleModel(torch.nn.Module):
+    """Stand-in network: walks from T_init to T_gt in three steps (final = T_gt exactly)."""
+
+    def __init__(self):
+        super().__init__()
+        from learned.config import model_config
+
+        self.cfg = model_config("small", TINY_MODEL)
+        self.dummy = torch.nn.Parameter(torch.zeros(()))
+
+    def forward(self, batch):
+        T0, T1 = batch["T_init"], batch["T_gt"]
+        mid = T0.clone()
+        mid[:, :3, 3] = 0.5 * (T0[:, :3, 3] + T1[:, :3, 3])
+        return {"T_iters": [T0, mid, T1]}
+
+
+def oracle_exporter(model, out, batch):
+    corr = []
+    for b in range(len(batch["T_gt"])):
+        m = batch["radar_mask"][b]
+        pts = batch["radar"][b][m].double().numpy()
+        pc = transform_points(batch["T_gt"][b].double().numpy(), pts)
+        uv, _ = PinholeCamera.from_K(batch["K"][b].double().numpy(), 96, 48).project(pc)
+        ok = np.all(np.isfinite(uv), axis=1)
+        corr.append(Correspondences(pts[ok], uv[ok], np.full(ok.sum(), 2.0), np.ones(ok.sum()),
+                                    batch["K"][b].double().numpy(), f"frame{b}"))
+    return corr, torch.full((len(corr), 6), 1e-4)
+
+
+def test_evaluate_table_columns_and_zero_error_for_an_oracle(frames, tmp_path):
+    from learned.evaluate import EvalConfig, evaluate, evaluate_predictions
+
+    conf = EvalConfig(perturbation="R2", split="test", split_options=SplitConfig(test_groups=("scene-3",)),
+                      max_radar_points=64, max_lidar_points=64, batch_size=2)
+    out = tmp_path / "eval"
+    res = evaluate(OracleModel(), frames, conf, out, exporter=oracle_exporter, progress=False)
+    assert res.n_frames == 3 and list(res.rows) == ["initial", "pure iter 1", "pure iter 2", "pure iter 3", "pure"]
+    for row in res.rows.values():
+        assert set(row) == set(METRIC_KEYS)
+    assert all(v < 1e-4 for v in res.rows["pure"].values())  # T_gt -> zero error
+    init = res.rows["initial"]
+    assert 0 < init["rot_mean_deg"] <= 20 and 0 < init["trans_mean_cm"] <= 150  # R2 starts
+    assert res.rows["pure iter 2"]["trans_mean_cm"] == pytest.approx(init["trans_mean_cm"] / 2, rel=1e-6)
+    saved = json.loads((out / "results.json").read_text())
+    assert saved["rows"]["pure"]["geodesic_deg"] < 1e-4 and saved["n_frames"] == 3
+    assert "| pure |" in (out / "results.md").read_text() and (out / "errors_cdf.png").stat().st_size > 1000
+    with np.load(next((out / "frames").glob("*.npz"))) as z:
+        assert z["T_iters"].shape == (3, 4, 4) and z["corr_pixels"].shape[1] == 2 and z["uncertainty"].shape == (6,)
+    # idempotent: a second run exports nothing new and reads the same table
+    mtimes = {p: p.stat().st_mtime_ns for p in (out / "frames").glob("*.npz")}
+    again = evaluate(OracleModel(), frames, conf, out, exporter=oracle_exporter, progress=False)
+    assert {p: p.stat().st_mtime_ns for p in (out / "frames").glob("*.npz")} == mtimes
+    assert again.rows == evaluate_predictions(out).rows
+    with pytest.raises(HybridCalibError, match="another config"):
+        evaluate(OracleModel(), frames, EvalConfig(perturbation="R1", split_options=conf.split_options), out,
+                 exporter=oracle_exporter, progress=False)
+
+
+# ------------------------------------------------------------------------------------ command line
+
+
+@pytest.fixture(scope="module")
+def sim_root(tmp_path_factory):
+    """A tiny simulated drive: 3 vehicles (one scene each) x 3 keyframes, 200 x 112 images."""
+    from hybrid_calib.sim.drive import SimConfig
+    from hybrid_calib.sim.simulate import simulate
+
+    return simulate(SimConfig(vehicles=3, frames=3, image_scale=0.125, seed=0),
+                    tmp_path_factory.mktemp("sim"), progress=False)
+
+
+def _run_command(name: str, argv: list[str]) -> int:
+    """``hybrid-calib NAME ARGV`` through the command module's own parser (as ``hybrid_calib.cli`` does)."""
+    import argparse
+    import importlib
+
+    mod = importlib.import_module(f"hybrid_calib.commands.{name}")
+    parser = argparse.ArgumentParser(prog=f"hybrid-calib {name}")
+    mod.add_arguments(parser)
+    return mod.run(parser.parse_args(argv))
+
+
+def test_cli_train_then_evaluate(sim_root, tmp_path, capsys):
+    model_sets = [f"model.{k}={json.dumps(v)}" for k, v in TINY_MODEL.items()]
+    sets = ["batch_size=3", "samples_per_epoch=3", "val_samples=3", "max_lidar_points=256",
+            'split.test_groups=["scene-sim-veh-002"]', 'split.val_groups=["scene-sim-veh-001"]', *model_sets]
+    run = tmp_path / "run"
+    argv = ["--data", str(sim_root), "--preset", "small", "--out", str(run), "--range", "R2", "--epochs", "1",
+            "--no-progress"] + [a for s in sets for a in ("--set", s)]
+    assert _run_command("train", argv) == 0
+    meta = json.loads((run / "checkpoints" / "ckpt-0001.json").read_text())
+    assert meta["train_config"]["perturbation"] == "R2" and meta["model_config"]["input_hw"] == [48, 96]
+    assert "last checkpoint" in capsys.readouterr().out
+
+    out = tmp_path / "eval"
+    assert _run_command("evaluate", ["--data", str(sim_root), "--range", "R1", "--method", "pure", "--checkpoint",
+                                     str(run), "--out", str(out), "--no-progress"]) == 0
+    printed = capsys.readouterr().out
+    assert "R.Mean" in printed and "pure" in printed
+    res = json.loads((out / "results.json").read_text())
+    assert res["n_frames"] == 3  # the held-out scene only (split taken from the checkpoint)
+    assert res["config"]["eval"]["split_options"]["test_groups"] == ["scene-sim-veh-002"]
+    assert set(res["rows"]["pure"]) == set(METRIC_KEYS) and (out / "results.md").is_file()
+    with pytest.raises(HybridCalibError, match="unknown method"):
+        _run_command("evaluate", ["--data", str(sim_root), "--method", "hybrid-typo", "--checkpoint", str(run),
+                                  "--out", str(tmp_path / "e2")])
+
+
+def test_evaluate_names_the_reason_when_every_frame_fails(frames, tmp_path):
+    import dataclasses
+
+    from learned.evaluate import EvalConfig, evaluate
+
+    no_depth = [dataclasses.replace(f, depth_path=None) for f in frames[:2]]  # real data without an estimator
+    with pytest.raises(HybridCalibError, match="ground-truth depth"):
+        evaluate(OracleModel(), no_depth, EvalConfig(split="all"), tmp_path / "e", exporter=oracle_exporter,
+                 progress=False)
+    assert len(json.loads((tmp_path / "e" / "skipped.json").read_text())) == 2

@@ -1,0 +1,139 @@
+"""Radar PCD and LiDAR .pcd.bin I/O: round trips, the real nuScenes files, corrupt files."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hybrid_calib.data.pcd import (
+    RADAR_DTYPE,
+    empty_radar_points,
+    read_lidar_bin,
+    read_radar_pcd,
+    write_lidar_bin,
+    write_radar_pcd,
+)
+from hybrid_calib.errors import DataError
+from tests.helpers import rng
+
+SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "nuscenes-scene-0916"
+needs_scene = pytest.mark.skipif(not SHARED.is_dir(), reason=f"real nuScenes scene not found at {SHARED}")
+
+
+def _random_radar(n: int, seed: int = 0) -> np.ndarray:
+    g = rng(seed)
+    pts = empty_radar_points(n)
+    pts["x"] = g.uniform(0, 100, n)
+    pts["y"] = g.uniform(-30, 30, n)
+    pts["rcs"] = g.normal(5, 5, n)
+    pts["vx_comp"] = g.normal(0, 3, n)
+    pts["dyn_prop"] = g.integers(0, 8, n)
+    pts["id"] = np.arange(n)
+    pts["ambig_state"] = 3
+    return pts
+
+
+def test_radar_round_trip(tmp_path):
+    pts = _random_radar(57)
+    path = write_radar_pcd(tmp_path / "a.pcd", pts)
+    back = read_radar_pcd(path)
+    assert back.dtype.names == RADAR_DTYPE.names
+    for name in RADAR_DTYPE.names:
+        np.testing.assert_array_equal(back[name], pts[name], err_msg=name)
+    assert not list(tmp_path.glob("*.tmp")), "atomic write left a temp file"
+
+
+def test_radar_round_trip_empty(tmp_path):
+    back = read_radar_pcd(write_radar_pcd(tmp_path / "e.pcd", empty_radar_points(0)))
+    assert len(back) == 0 and back.dtype.names == RADAR_DTYPE.names
+
+
+def test_write_rejects_wrong_dtype(tmp_path):
+    with pytest.raises(ValueError, match="RADAR_DTYPE"):
+        write_radar_pcd(tmp_path / "x.pcd", np.zeros((3, 3)))
+
+
+def test_lidar_round_trip(tmp_path):
+    pts = rng(1).normal(size=(100, 5)).astype(np.float32)
+    back = read_lidar_bin(write_lidar_bin(tmp_path / "l.pcd.bin", pts))
+    np.testing.assert_array_equal(back, pts)
+
+
+@needs_scene
+def test_real_radar_file_reads():
+    files = sorted((SHARED / "samples" / "RADAR_FRONT").glob("*.pcd"))
+    assert len(files) == 41
+    pts = read_radar_pcd(files[0])
+    assert pts.dtype.names == RADAR_DTYPE.names
+    assert 0 < len(pts) <= 125  # ARS 408 front radar: at most 125 clusters a sweep
+    np.testing.assert_array_equal(pts["z"], 0.0)  # 2D radar: no elevation
+    assert np.all(pts["x"] > -1) and np.all(np.abs(pts["y"]) < 260)
+    assert set(np.unique(pts["invalid_state"])) <= set(range(18))
+
+
+@needs_scene
+def test_real_lidar_file_reads():
+    path = sorted((SHARED / "samples" / "LIDAR_TOP").glob("*.pcd.bin"))[0]
+    pts = read_lidar_bin(path)
+    assert pts.shape[1] == 5 and len(pts) > 10000
+    assert set(np.unique(pts[:, 4])) <= set(range(32))  # 32-beam ring index
+
+
+def test_truncated_radar_names_file(tmp_path):
+    path = write_radar_pcd(tmp_path / "t.pcd", _random_radar(40))
+    raw = path.read_bytes()
+    path.write_bytes(raw[:-100])
+    with pytest.raises(DataError, match="truncated PCD") as e:
+        read_radar_pcd(path)
+    assert str(path) in str(e.value) and e.value.path == str(path)
+
+
+def test_header_only_truncation(tmp_path):
+    path = write_radar_pcd(tmp_path / "h.pcd", _random_radar(5))
+    path.write_bytes(path.read_bytes()[:150])  # cut inside the header
+    with pytest.raises(DataError, match="header") as e:
+        read_radar_pcd(path)
+    assert str(path) in str(e.value)
+
+
+@pytest.mark.parametrize("payload", [b"", b"\x00\x01garbage" * 50, b"hello\nworld\n" * 30])
+def test_garbage_radar_names_file(tmp_path, payload):
+    path = tmp_path / "g.pcd"
+    path.write_bytes(payload)
+    with pytest.raises(DataError) as e:
+        read_radar_pcd(path)
+    assert str(path) in str(e.value)
+
+
+def test_ascii_pcd_rejected(tmp_path):
+    path = write_radar_pcd(tmp_path / "a.pcd", _random_radar(3))
+    path.write_bytes(path.read_bytes().replace(b"DATA binary", b"DATA ascii"))
+    with pytest.raises(DataError, match="DATA mode"):
+        read_radar_pcd(path)
+
+
+def test_missing_files_name_path(tmp_path):
+    with pytest.raises(DataError, match="not found") as e:
+        read_radar_pcd(tmp_path / "none.pcd")
+    assert "none.pcd" in str(e.value)
+    with pytest.raises(DataError, match="not found"):
+        read_lidar_bin(tmp_path / "none.pcd.bin")
+
+
+def test_lidar_bad_size_names_file(tmp_path):
+    path = tmp_path / "bad.pcd.bin"
+    np.zeros(13, np.float32).tofile(path)
+    with pytest.raises(DataError, match="multiple of 5") as e:
+        read_lidar_bin(path)
+    assert str(path) in str(e.value)
+
+
+def test_trailing_bytes_after_body_are_ignored(tmp_path):
+    # Real nuScenes radar PCDs carry ~3.7 kB after the last point (and the devkit's reader needs at
+    # least one trailing byte); the reader must take exactly POINTS rows and ignore the rest.
+    pts = _random_radar(9, seed=4)
+    path = write_radar_pcd(tmp_path / "p.pcd", pts)
+    path.write_bytes(path.read_bytes() + bytes(3728))
+    np.testing.assert_array_equal(read_radar_pcd(path), pts)

@@ -1,0 +1,53 @@
+"""The projection overlay picture."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from hybrid_calib.viz import draw_projection
+
+
+def test_draw_projection_writes_a_png_with_the_points(tmp_path):
+    img = np.full((90, 160, 3), 128, np.uint8)
+    uv = np.array([[20.0, 30.0], [100.0, 60.0], [-5.0, 10.0], [np.nan, 3.0]])
+    depth = np.array([5.0, 40.0, 10.0, 10.0])
+    out = draw_projection(img, uv, depth, tmp_path / "a" / "proj.png", title="t",
+                          extra={"uv": uv + 3, "label": "estimate", "color": "r", "lines_to_first": True})
+    assert out.is_file() and not list(out.parent.glob("*.tmp.png"))
+    pic = cv2.imread(str(out))
+    assert pic.shape[1] == 160 and pic.shape[0] >= 90
+    plain = draw_projection(img, uv[:0], depth[:0], tmp_path / "plain.png")
+    # the points change the picture, the plain one stays grey
+    grey = cv2.imread(str(plain))
+    assert np.abs(grey.astype(int) - 128).max() <= 2
+    assert np.abs(pic[-90:].astype(int) - 128).max() > 50
+
+
+def test_draw_projection_checks_inputs(tmp_path):
+    with pytest.raises(ValueError, match="depth"):
+        draw_projection(np.zeros((4, 4, 3), np.uint8), np.zeros((2, 2)), np.zeros(3), tmp_path / "x.png")
+    with pytest.raises(ValueError, match="image_rgb"):
+        draw_projection(np.zeros((4, 4), np.uint8), np.zeros((2, 2)), np.zeros(2), tmp_path / "x.png")
+
+
+def test_draw_radar_on_frame(tmp_path):
+    from hybrid_calib.data.frame import RadarCameraFrame
+    from hybrid_calib.geometry import R_AXES_CAM_FROM_RADAR, make_T
+    from hybrid_calib.sensors.camera import PinholeCamera
+    from hybrid_calib.viz import draw_radar_on_frame
+
+    img_path = tmp_path / "img.jpg"
+    cv2.imwrite(str(img_path), np.full((90, 160, 3), 128, np.uint8))
+    cam = PinholeCamera(100.0, 100.0, 79.5, 44.5, 160, 90)
+    pts = np.array([[10.0, 0.0, 0.0], [20.0, 2.0, 0.0], [15.0, -3.0, 0.0]])
+    T = make_T(R_AXES_CAM_FROM_RADAR, np.array([0.0, 0.5, 0.0]))
+    frame = RadarCameraFrame(
+        index=0, sample_token="s", scene_name="scene", vehicle="veh", log_token="l", camera_channel="CAM_FRONT",
+        radar_channel="RADAR_FRONT", camera_token="c", radar_token="r", timestamp_camera_us=0, timestamp_radar_us=0,
+        image_path=img_path, camera=cam, radar_points=pts, radar_fields={}, T_cam_radar=T)
+    out = draw_radar_on_frame(frame, tmp_path / "o.png", compare_T_cam_radar=make_T(np.eye(3), np.zeros(3)) @ T)
+    pic = cv2.imread(str(out))
+    assert pic is not None and pic.shape[1] == 160
+    assert np.abs(pic[-90:].astype(int) - 128).max() > 50
