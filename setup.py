@@ -23,6 +23,8 @@ setup(
     ],
     extras_require={
         "dev": ["pytest>=9", "ruff==0.17.6", "hypothesis>=6.100"],
+        # benchmarks/bench_simulate.py compares our ray caster against trimesh + Embree
+        "bench": ["trimesh>=4,<6", "embreex==4.4.0.post1"],
     },
     entry_points={"console_scripts": ["hybrid-calib=hybrid_calib.cli:main"]},
 )

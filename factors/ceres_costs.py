@@ -23,7 +23,7 @@ import pyceres
 
 from factors.config import RadarPixelFactorConfig
 from factors.correspondences import Correspondences
-from factors.projection import RowModel, row_model, whitened_residuals, whitened_rows
+from factors.projection import RowModel, row_model, whitened_rows
 from factors.robust import weight
 from hybrid_calib.geometry import make_T
 
@@ -88,61 +88,79 @@ def ceres_cov_to_ours(C_ceres: np.ndarray, R: np.ndarray) -> np.ndarray:
     return B @ C_ceres @ B.T
 
 
-class RadarPixelCost(pyceres.CostFunction):
-    """Whitened residual (2,) of ONE correspondence (before the loss) on blocks [q (4,), t (3,)]."""
+class FrameEvaluator:
+    """Vectorised evaluation of all rows of a frame at one parameter value, cached, so the N
+    per-correspondence residual blocks of a frame cost one numpy pass per Ceres evaluation.
+
+    ``evaluate(q, t)`` returns ``e`` (N, 2), ``Jq`` (N, 2, 4), ``Jt`` (N, 2, 3), ``ld`` (N,),
+    ``Jldq`` (N, 4), ``Jldt`` (N, 3) for ``q = [x, y, z, w]`` (4,), ``t`` (3,) metres.
+    """
 
     def __init__(self, rows: RowModel):
-        super().__init__()
-        if len(rows) != 1:
-            raise ValueError("RadarPixelCost takes exactly one correspondence row")
         self.rows = rows
+        self._key: bytes | None = None
+        self._val = None
+
+    def evaluate(self, q: np.ndarray, t: np.ndarray):
+        key = np.concatenate([q, t]).tobytes()
+        if key != self._key:
+            e, J, _, ld, Jld = whitened_rows(make_T(R_from_quat_xyzw(q), t), self.rows)
+            Aq, At = ambient_to_right_tangent(q)
+            self._val = (e, J @ Aq, J @ At, ld, Jld @ Aq, Jld @ At)
+            self._key = key
+        return self._val
+
+
+def _write(residuals, jacobians, r, Jq, Jt) -> bool:
+    residuals[:] = r
+    if jacobians is not None:
+        if jacobians[0] is not None:
+            jacobians[0][:] = Jq.reshape(-1)
+        if jacobians[1] is not None:
+            jacobians[1][:] = Jt.reshape(-1)
+    return True
+
+
+class RadarPixelCost(pyceres.CostFunction):
+    """Whitened residual (2,) of ONE correspondence (before the loss) on blocks [q (4,), t (3,)].
+
+    ``RadarPixelCost(rows)`` for a single-row ``RowModel``, or ``RadarPixelCost(evaluator, i)`` for
+    row i of a shared ``FrameEvaluator``.
+    """
+
+    def __init__(self, rows: RowModel | FrameEvaluator, index: int = 0):
+        super().__init__()
+        if isinstance(rows, RowModel):
+            if len(rows) != 1:
+                raise ValueError("RadarPixelCost(RowModel) takes exactly one correspondence row")
+            rows = FrameEvaluator(rows)
+        self.ev, self.i = rows, int(index)
         self.set_num_residuals(2)
         self.set_parameter_block_sizes([4, 3])
 
-    def evaluate_numpy(self, q: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Residual (2,), d/dq (2, 4), d/dt (2, 3) in numpy (also used by the tests)."""
-        R = R_from_quat_xyzw(q)
-        e, J, _ = whitened_residuals(make_T(R, t), self.rows)
-        Jq, Jt = ambient_to_right_tangent(q)
-        return e[0], J[0] @ Jq, J[0] @ Jt
-
     def Evaluate(self, parameters, residuals, jacobians):  # noqa: N802 (Ceres API name)
-        e, Jq, Jt = self.evaluate_numpy(parameters[0], parameters[1])
-        residuals[:] = e
-        if jacobians is not None:
-            if jacobians[0] is not None:
-                jacobians[0][:] = Jq.reshape(-1)
-            if jacobians[1] is not None:
-                jacobians[1][:] = Jt.reshape(-1)
-        return True
+        e, Jq, Jt, _, _, _ = self.ev.evaluate(parameters[0], parameters[1])
+        return _write(residuals, jacobians, e[self.i], Jq[self.i], Jt[self.i])
 
 
 class LogDetCost(pyceres.CostFunction):
     """The anisotropic model's log-determinant row ``sqrt(log(1 + |q|^2))`` (1,) of ONE
-    correspondence on blocks [q, t]; added without a loss (it is not a residual to robustify)."""
+    correspondence on blocks [q, t]; added without a loss (it is not a residual to robustify).
+    Same constructor forms as ``RadarPixelCost``."""
 
-    def __init__(self, rows: RowModel):
+    def __init__(self, rows: RowModel | FrameEvaluator, index: int = 0):
         super().__init__()
-        if len(rows) != 1:
-            raise ValueError("LogDetCost takes exactly one correspondence row")
-        self.rows = rows
+        if isinstance(rows, RowModel):
+            if len(rows) != 1:
+                raise ValueError("LogDetCost(RowModel) takes exactly one correspondence row")
+            rows = FrameEvaluator(rows)
+        self.ev, self.i = rows, int(index)
         self.set_num_residuals(1)
         self.set_parameter_block_sizes([4, 3])
 
-    def evaluate_numpy(self, q: np.ndarray, t: np.ndarray):
-        _, _, _, ld, Jld = whitened_rows(make_T(R_from_quat_xyzw(q), t), self.rows)
-        Jq, Jt = ambient_to_right_tangent(q)
-        return ld[:1], Jld[:1] @ Jq, Jld[:1] @ Jt
-
     def Evaluate(self, parameters, residuals, jacobians):  # noqa: N802 (Ceres API name)
-        e, Jq, Jt = self.evaluate_numpy(parameters[0], parameters[1])
-        residuals[:] = e
-        if jacobians is not None:
-            if jacobians[0] is not None:
-                jacobians[0][:] = Jq.reshape(-1)
-            if jacobians[1] is not None:
-                jacobians[1][:] = Jt.reshape(-1)
-        return True
+        _, _, _, ld, Jq, Jt = self.ev.evaluate(parameters[0], parameters[1])
+        return _write(residuals, jacobians, ld[self.i : self.i + 1], Jq[self.i], Jt[self.i])
 
 
 class _PythonLoss(pyceres.LossFunction):
@@ -193,25 +211,15 @@ class _PriorCost(pyceres.CostFunction):
         import gtsam
 
         T = make_T(R_from_quat_xyzw(q), t)
-        P0, P = gtsam.Pose3(self.T_prior), gtsam.Pose3(T)
-        H = np.zeros((6, 6), order="F")
-        err = P0.localCoordinates(P)
+        err = gtsam.Pose3(self.T_prior).localCoordinates(gtsam.Pose3(T))
         # d Log(T0^-1 T) / d xi  (xi: right tangent of T) = Jr^-1(err)
         Jr_inv = np.linalg.inv(gtsam.Pose3.ExpmapDerivative(err)) if np.linalg.norm(err) > 0 else np.eye(6)
-        del H
         Jq, Jt = ambient_to_right_tangent(q)
         r = self.sqrt_info @ err
         return r, self.sqrt_info @ Jr_inv @ Jq, self.sqrt_info @ Jr_inv @ Jt
 
     def Evaluate(self, parameters, residuals, jacobians):  # noqa: N802
-        r, Jq, Jt = self.evaluate_numpy(parameters[0], parameters[1])
-        residuals[:] = r
-        if jacobians is not None:
-            if jacobians[0] is not None:
-                jacobians[0][:] = Jq.reshape(-1)
-            if jacobians[1] is not None:
-                jacobians[1][:] = Jt.reshape(-1)
-        return True
+        return _write(residuals, jacobians, *self.evaluate_numpy(parameters[0], parameters[1]))
 
 
 def _weak_directions(frames, T, conf, prior) -> list[str]:
@@ -236,14 +244,15 @@ def build_problem(frames: list[Correspondences], q: np.ndarray, t: np.ndarray, c
     keep = []
     for corr in frames:
         rows = row_model(corr, conf)
+        ev = FrameEvaluator(rows)
+        keep.append(ev)
         for i in range(len(rows)):
-            row = rows.rows(slice(i, i + 1))
-            cost = RadarPixelCost(row)
+            cost = RadarPixelCost(ev, i)
             loss = ceres_loss(conf.kernel, conf.kernel_scale)
             keep += [cost, loss]
             problem.add_residual_block(cost, loss, [q, t])
-            if row.kappa[0] > 0:
-                ld = LogDetCost(row)
+            if rows.kappa[i] > 0:
+                ld = LogDetCost(ev, i)
                 keep.append(ld)
                 problem.add_residual_block(ld, None, [q, t])
     if prior is not None:

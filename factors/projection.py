@@ -62,6 +62,11 @@ def elevation_moments(beam_deg: float, mean_deg: float) -> tuple[float, float, f
 
 def row_model(corr: Correspondences, conf: RadarPixelFactorConfig) -> RowModel:
     """Per-row constants for ``corr`` under ``conf.elevation_model``."""
+    if not isinstance(conf, RadarPixelFactorConfig):
+        raise TypeError(f"expected a RadarPixelFactorConfig (build it with hybrid_calib.config.merge), "
+                        f"got {type(conf)}")
+    if not isinstance(corr, Correspondences):
+        raise TypeError(f"expected factors.correspondences.Correspondences, got {type(corr)}")
     p = np.asarray(corr.points_radar, np.float64)
     n = len(p)
     w = np.sqrt(np.asarray(corr.confidence, np.float64)) / np.asarray(corr.sigma_px, np.float64)

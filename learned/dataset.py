@@ -8,6 +8,8 @@ One sample (``CalibDataset[i]``), tensors float32 unless said otherwise:
   radar: (Nmax, 3) metres, radar frame (z = 0 as recorded); radar_mask: (Nmax,) bool.
   T_init: (4, 4) the mis-calibrated T_cam_radar the model starts from.
   T_gt: (4, 4) ground-truth T_cam_radar.
+  (variant "lidar", the supplement's LiDAR-camera network: radar = LiDAR points in the LiDAR frame
+  that lie in front of the camera under T_init, and T_init / T_gt are T_cam_lidar.)
   lidar_cam: (Mmax, 3) metres, LiDAR points moved into the CAMERA frame (in front of the camera and
     inside the image); lidar_mask: (Mmax,) bool.
   perturbation: (6,) float64, the sampled [roll, pitch, yaw] (rad, camera axes) and [dx, dy, dz] (m).
@@ -17,8 +19,8 @@ One sample (``CalibDataset[i]``), tensors float32 unless said otherwise:
 
 Perturbations (docs/conventions.md): roll, pitch, yaw uniform in +-rot_deg and dx, dy, dz uniform
 in +-trans_m (R1: 10 deg, 0.25 m; R2: 20 deg, 1.5 m), applied with
-``geometry.perturb_camera_frame``. Training draws a new one per (seed, epoch, index); evaluation
-fixes one per (seed, index), whatever the epoch.
+``geometry.perturb_camera_frame``. Training draws a new one per (seed, epoch, frame index);
+evaluation fixes one per (seed, frame index), whatever the epoch.
 """
 
 from __future__ import annotations
@@ -53,6 +55,7 @@ class DatasetConfig:
     perturbation: str = "R1"  # R1 (+-10 deg, +-0.25 m) or R2 (+-20 deg, +-1.5 m)
     seed: int = 0  # perturbation / subsampling seed
     lidar_max_depth_m: float = 200.0  # LiDAR points farther than this (camera z) are dropped
+    variant: str = "radar"  # "radar": radar points / T_cam_radar; "lidar": LiDAR points / T_cam_lidar (supplement)
 
 
 @dataclass(frozen=True)
@@ -166,6 +169,8 @@ class CalibDataset(torch.utils.data.Dataset):
         self.frames = frames
         self.conf = merge(DatasetConfig, conf)
         perturbation_bounds(self.conf.perturbation)
+        if self.conf.variant not in ("radar", "lidar"):
+            raise HybridCalibError(f"DatasetConfig.variant must be 'radar' or 'lidar', got {self.conf.variant!r}")
         self.indices = list(range(len(frames))) if indices is None else list(indices)
         self.depth = depth
         self.cache = cache
@@ -181,9 +186,11 @@ class CalibDataset(torch.utils.data.Dataset):
         self.epoch = int(epoch)
 
     def perturbation(self, i: int) -> np.ndarray:
-        """The (6,) perturbation of sample ``i`` (deterministic given seed, epoch and index)."""
+        """The (6,) perturbation of sample ``i``: deterministic given the seed, the epoch (training
+        only) and the frame's index in ``frames`` (so a frame keeps its start whatever the split)."""
         c = self.conf
-        g = _rng("train", c.seed, self.epoch, i) if self.train else _rng("eval", c.seed, i)
+        fi = self.indices[i]
+        g = _rng("train", c.seed, self.epoch, fi) if self.train else _rng("eval", c.seed, fi)
         return sample_perturbation(g, c.perturbation)
 
     def __getitem__(self, i: int) -> dict | None:
@@ -216,12 +223,22 @@ class CalibDataset(torch.utils.data.Dataset):
         if depth.shape != (H, W):
             raise DataError(f"depth estimator returned {depth.shape}, expected {(H, W)}", token=frame.camera_token)
 
-        T_gt = np.asarray(frame.T_cam_radar, np.float64)
         xi = self.perturbation(i)
-        T_init = perturb_camera_frame(T_gt, xi[:3], xi[3:])
-
-        radar = np.asarray(frame.radar_points, np.float64).reshape(-1, 3)
-        radar = radar[np.all(np.isfinite(radar), axis=1)]
+        if c.variant == "lidar":  # the supplement's LiDAR-camera variant: calibrate T_cam_lidar
+            if frame.lidar_points is None or frame.T_cam_lidar is None:
+                raise DataError("the lidar variant needs the LiDAR sweep and T_cam_lidar; open the data with "
+                                "load_lidar", token=frame.camera_token)
+            T_gt = np.asarray(frame.T_cam_lidar, np.float64)
+            T_init = perturb_camera_frame(T_gt, xi[:3], xi[3:])
+            radar = np.asarray(frame.lidar_points, np.float64)[:, :3]
+            radar = radar[np.all(np.isfinite(radar), axis=1)]
+            # keep points in front of the camera under the (known) initial estimate, never the truth
+            radar = radar[transform_points(T_init, radar)[:, 2] > 0.1]
+        else:
+            T_gt = np.asarray(frame.T_cam_radar, np.float64)
+            T_init = perturb_camera_frame(T_gt, xi[:3], xi[3:])
+            radar = np.asarray(frame.radar_points, np.float64).reshape(-1, 3)
+            radar = radar[np.all(np.isfinite(radar), axis=1)]
         g = _rng("subsample", c.seed, frame.camera_token)
         radar_pad, radar_mask = _pad(radar, c.max_radar_points, g)
 

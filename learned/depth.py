@@ -72,6 +72,7 @@ class CorruptedTruthConfig:
     noise_quad_per_m: float = 0.0005  # extra per-pixel std per metre^2 / metre: sigma += k * d^2
     min_depth_m: float = 0.5  # outputs are clipped to [min_depth_m, max_depth_m]
     max_depth_m: float = 200.0  # paper: depth range 0..200 m
+    sky_depth_m: float = 0.0  # value written where the truth has no return (0 = unknown; a monocular model says ~max)
 
 
 class CorruptedTruthDepth:
@@ -84,7 +85,8 @@ class CorruptedTruthDepth:
     2. a smooth multiplicative error field ``1 + e(u, v)`` (low frequency),
     3. a global affine error ``s * d + b`` (per-frame scale ``s`` and shift ``b``),
     4. per-pixel noise with std ``noise_rel * d + noise_quad_per_m * d^2`` (grows with range),
-    then clips to ``[min_depth_m, max_depth_m]``. Returns (H, W) float32 metres.
+    then clips to ``[min_depth_m, max_depth_m]``; pixels without a return get ``sky_depth_m``.
+    Returns (H, W) float32 metres.
     """
 
     name = "corrupted-truth"
@@ -101,7 +103,8 @@ class CorruptedTruthDepth:
         if truth is None:
             raise DataError(
                 "CorruptedTruthDepth needs the simulator's ground-truth depth but this frame has none "
-                "(depth_path is None); use DepthAnythingEstimator for real data",
+                "(depth_path is None); for real data use a metric depth model: "
+                "--depth depth-anything:/local/model/dir (DepthAnythingEstimator)",
                 token=frame.camera_token)
         return self.corrupt(truth, size_hw, frame.camera_token)
 
@@ -136,7 +139,7 @@ class CorruptedTruthDepth:
         # 4. range-growing per-pixel noise
         sigma = c.noise_rel * d + c.noise_quad_per_m * d * d
         d = d + g.standard_normal(d.shape).astype(np.float32) * sigma
-        out = np.where(valid, np.clip(d, c.min_depth_m, c.max_depth_m), 0.0)
+        out = np.where(valid, np.clip(d, c.min_depth_m, c.max_depth_m), c.sky_depth_m)
         return out.astype(np.float32)
 
 
@@ -176,6 +179,7 @@ class DepthAnythingEstimator:
         import torch
 
         transformers.logging.set_verbosity_error()
+        transformers.logging.disable_progress_bar()
         try:
             self.model = AutoModelForDepthEstimation.from_pretrained(self.local_dir, local_files_only=True)
             self.processor = AutoImageProcessor.from_pretrained(self.local_dir, local_files_only=True)

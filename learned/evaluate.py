@@ -1,7 +1,8 @@
 """Evaluation, export-then-evaluate (as in glue-factory).
 
-1. ``export_predictions``: run a method over a FIXED list of (frame, T_init) — the test split with
-   one perturbation per sample fixed by (seed, index) — and store, per frame, ``OUT/frames/<token>.npz``:
+1. ``export_pure`` (method ``pure``; any method in ``METHODS``): run it over a FIXED list of
+   (frame, T_init) — the test split with one perturbation per sample fixed by (seed, index) — and
+   store, per frame, ``OUT/frames/<token>.npz``:
      T_init (4, 4), T_gt (4, 4), T_iters (N, 4, 4) the estimate after every iteration (float64),
      uncertainty (the model's per-frame SE(3) uncertainty, as ``export_correspondences`` gives it),
      perturbation (6,), index (), and the exported correspondences (``corr_*`` keys,
@@ -88,7 +89,8 @@ def export_pure(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig, out
     torch.set_num_threads(max(1, conf.threads))
     H, W = (int(v) for v in model.cfg.input_hw) if hasattr(model, "cfg") else (192, 400)
     dconf = DatasetConfig(height=H, width=W, max_radar_points=conf.max_radar_points,
-                          max_lidar_points=conf.max_lidar_points, perturbation=conf.perturbation, seed=conf.seed)
+                          max_lidar_points=conf.max_lidar_points, perturbation=conf.perturbation, seed=conf.seed,
+                          variant=getattr(getattr(model, "cfg", None), "variant", "radar"))
     depth = build_depth_estimator(conf.depth, conf.depth_options)
     cache = DepthCache(Path(conf.depth_cache) if conf.depth_cache else out / "depth-cache")
     indices = eval_indices(frames, conf)
@@ -214,7 +216,8 @@ def _plot_cdf(result: EvalResult, path: Path) -> None:
     for name, errs in result.per_frame.items():
         for ax, key in zip(axes, ("geodesic_deg", "trans_norm_cm")):
             v = np.sort([e[key] for e in errs])
-            ax.plot(v, np.arange(1, len(v) + 1) / len(v), label=name)
+            style = dict(color="k", ls="--", lw=1.2) if " iter " not in name and name != "initial" else {}
+            ax.plot(v, np.arange(1, len(v) + 1) / len(v), label=name, **style)
     axes[0].set_xlabel("rotation error, geodesic (deg)")
     axes[1].set_xlabel("translation error, norm (cm)")
     for ax in axes:

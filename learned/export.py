@@ -13,6 +13,13 @@ T_in to pixel q inside radar-map cell j:
 - confidence = min(1, sum_W P_ij) (P already holds sigma_I sigma_R);
 - sigma_px = sigma_scale * sqrt(var + stride^2 / 12) (the spread plus one cell's quantisation).
 
+Independence: the pixel is q (a projection by T_in) plus a learned cell displacement, so at the last
+iteration, where T_in is already close, a row largely restates the network's own estimate: it is
+correlated with the network's SE(3) prior; do not use both at full weight. ``iteration=0`` gives rows
+measured against T_init only (independent of the regression, less precise). On a toy world (64x128
+input, 8 px cells, tiny model trained 600 steps; radar points projected by T_init are 13.2 px off
+the truth at the median) the exported pixels were 3.9 px (iteration 0) and 2.0 px (last) off at the median.
+
 Rows with confidence < ``min_confidence`` are dropped. Pixels are in the model-input image (the
 batch ``K``, which the Correspondences carry); points are the raw input points (radar frame, metres).
 BEV matches are not exported (they live on the ground plane, not in the image).

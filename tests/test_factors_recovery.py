@@ -150,3 +150,19 @@ def test_factor_cost_is_robust_rows_plus_logdet():
         want = rho(conf.kernel, np.linalg.norm(e.reshape(-1, 2), axis=1), conf.kernel_scale).sum() + 0.5 * (ld**2).sum()
         np.testing.assert_allclose(radar_pixel_factor(0, corr, conf).error(v), want, rtol=1e-12)
         assert (model == "zero") == bool(np.all(ld == 0))
+
+
+def test_elevation_study_small_version():
+    """The elevation study in seconds: with elevations spread over +-7 deg the anisotropic model's
+    covariance is consistent (mean NEES near 6) while the z = 0 model is grossly over-confident."""
+    T = nominal_T_cam_radar()
+    nees = {"zero": [], "anisotropic": []}
+    for seed in range(6):
+        g = rng(300 + seed)
+        frames = [synthetic_correspondences(T, n=60, rng=g, outlier_frac=0.0)[0] for _ in range(3)]
+        for model in nees:
+            res = solve_frames(frames, T, RadarPixelFactorConfig(elevation_model=model))
+            xi = local(res.T, T)
+            nees[model].append(xi @ np.linalg.solve(res.cov, xi))
+    assert 1.5 < np.mean(nees["anisotropic"]) < 15, nees
+    assert np.mean(nees["zero"]) > 100, nees

@@ -87,6 +87,8 @@ def test_edges_are_smoothed_and_unknown_stays_unknown():
     assert 11.0 < row[W // 2 - 1] < 39.0 and 11.0 < row[W // 2] < 39.0  # mixed across the edge
     assert row[5] == pytest.approx(10.0, abs=1e-3) and row[-5] == pytest.approx(40.0, abs=1e-3)  # flat parts kept
     assert np.abs(np.diff(row)).max() < 0.5 * 30.0  # the 30 m step is spread over several pixels
+    sky = CorruptedTruthDepth({**QUIET, "sky_depth_m": 200.0}).corrupt(truth, (H, W), "t")
+    assert np.all(sky[:5, :10] == 200.0) and sky[30, 5] == pytest.approx(10.0)
 
 
 def test_estimate_reads_the_frame_depth_and_resizes(tmp_path):

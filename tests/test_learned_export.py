@@ -19,14 +19,6 @@ from learned.export import (
 from tests.test_learned_model import make_batch, tiny_model
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 def test_export_shapes_and_finite_values():
     model = tiny_model().eval()
     batch = make_batch(2, seed=4)

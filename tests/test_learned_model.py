@@ -19,13 +19,6 @@ TINY = {"input_hw": (H, W), "bev_hw": (64, 64), "bev_res_m": 0.75, "feat_dim": 3
 
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    """Tiny tensors: one thread is faster and immune to other processes on a shared 2-core machine."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
 
 
 def make_batch(B: int = 2, seed: int = 0, n_radar: int = 48, rot_deg: float = 5.0, trans_m: float = 0.2) -> dict:
@@ -215,3 +208,20 @@ def test_frame_without_points_is_finite():
     from learned.export import ExportConfig, export_correspondences
     corr, cov = export_correspondences(model, out, batch, ExportConfig(min_confidence=0.0))
     assert len(corr[1]) == 0 and len(corr[0]) > 0 and np.isfinite(cov).all()
+
+
+def test_paper_preset_runs_at_400x192():
+    torch.manual_seed(0)
+    model = RCAutoCalib("paper").eval()
+    b = make_batch(1, seed=10)
+    Hp, Wp = model.cfg.input_hw
+    assert (Hp, Wp) == (192, 400)
+    b["image"] = torch.nn.functional.interpolate(b["image"], size=(Hp, Wp))
+    b["depth"] = torch.nn.functional.interpolate(b["depth"], size=(Hp, Wp))
+    b["K"][:, 0] *= Wp / W
+    b["K"][:, 1] *= Hp / H
+    with torch.no_grad():
+        out = model(b, iterations=1)
+    assert out["match"][0]["fv"]["log_P"].shape == (1, 24 * 50, 24 * 50)
+    assert out["match"][0]["bev"]["log_P"].shape == (1, 32 * 32, 32 * 32)
+    assert out["T_iters"][0].shape == (1, 4, 4)

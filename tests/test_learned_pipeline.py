@@ -124,7 +124,7 @@ def test_scaled_K_projects_where_the_full_size_projection_lands(frames, tmp_path
 
 def test_perturbations_in_range_reproducible_and_read_back_by_the_metrics(frames, tmp_path):
     for name, (rot_deg, trans_m) in RANGES.items():
-        ds = _dataset(frames, tmp_path, perturbation=name)
+        ds = _dataset(frames * 34, tmp_path, perturbation=name)  # 408 samples; nothing is loaded
         xi = np.array([ds.perturbation(i) for i in range(400)])
         assert np.all(np.abs(np.degrees(xi[:, :3])) <= rot_deg) and np.all(np.abs(xi[:, 3:]) <= trans_m)
         assert np.all(np.abs(np.degrees(xi[:, :3])).max(0) > 0.9 * rot_deg)  # the whole range is used
@@ -136,10 +136,30 @@ def test_perturbations_in_range_reproducible_and_read_back_by_the_metrics(frames
     first = ev.perturbation(2)
     ev.set_epoch(5)
     np.testing.assert_array_equal(first, ev.perturbation(2))  # evaluation: fixed per sample
+    subset = CalibDataset(frames, DatasetConfig(height=48, width=96), CorruptedTruthDepth(), train=False,
+                          indices=[5, 2])
+    np.testing.assert_array_equal(first, subset.perturbation(1))  # ... whatever the split around it
     s = ev[2]
     e = extrinsic_error(s["T_init"].double().numpy(), s["T_gt"].double().numpy())
     np.testing.assert_allclose([e.roll_deg, e.pitch_deg, e.yaw_deg], np.abs(np.degrees(first[:3])), atol=1e-3)
     np.testing.assert_allclose([e.x_cm, e.y_cm, e.z_cm], np.abs(first[3:]) * 100, atol=1e-3)
+
+
+def test_lidar_variant_feeds_lidar_points_and_T_cam_lidar(frames, tmp_path):
+    import dataclasses
+
+    ds = _dataset(frames, tmp_path, variant="lidar")
+    s, f = ds[4], frames[4]
+    np.testing.assert_allclose(s["T_gt"].double().numpy(), f.T_cam_lidar, atol=1e-6)
+    pts = s["radar"][s["radar_mask"]].double().numpy()
+    assert len(pts) == 64  # 3000 LiDAR points, those in front under T_init subsampled to Nmax
+    assert np.all(transform_points(s["T_init"].double().numpy(), pts)[:, 2] > 0.1)
+    assert np.abs(pts[:, 2]).max() > 0.1  # real LiDAR heights, not a flat radar plane
+    xi = s["perturbation"].numpy()
+    e = extrinsic_error(s["T_init"].double().numpy(), f.T_cam_lidar)
+    np.testing.assert_allclose([e.x_cm, e.y_cm, e.z_cm], np.abs(xi[3:]) * 100, atol=1e-3)
+    no_lidar = _dataset([dataclasses.replace(f, lidar_points=None)], tmp_path, variant="lidar")
+    assert no_lidar[0] is None and "LiDAR" in no_lidar.bad[0]
 
 
 def test_splits_keep_scenes_apart(frames):
@@ -201,6 +221,7 @@ def test_train_checkpoints_logs_and_resumes(frames, tmp_path):
     with (run / "steps.csv").open() as f:
         assert len(list(csv.DictReader(f))) == 4  # 2 epochs x 2 steps of 3 samples
     assert json.loads((run / "train_config.json").read_text())["model"]["input_hw"] == [48, 96]
+    assert (run / "history.png").stat().st_size > 1000
     w2 = _weights(run / "checkpoints" / "ckpt-0002.safetensors")
     mtime1 = (run / "checkpoints" / "ckpt-0001.safetensors").stat().st_mtime_ns
 
@@ -337,14 +358,10 @@ def sim_root(tmp_path_factory):
 
 
 def _run_command(name: str, argv: list[str]) -> int:
-    """``hybrid-calib NAME ARGV`` through the command module's own parser (as ``hybrid_calib.cli`` does)."""
-    import argparse
-    import importlib
+    """``hybrid-calib NAME ARGV`` in-process."""
+    from hybrid_calib.cli import main
 
-    mod = importlib.import_module(f"hybrid_calib.commands.{name}")
-    parser = argparse.ArgumentParser(prog=f"hybrid-calib {name}")
-    mod.add_arguments(parser)
-    return mod.run(parser.parse_args(argv))
+    return main([name, *argv])
 
 
 def test_cli_train_then_evaluate(sim_root, tmp_path, capsys):
@@ -368,9 +385,9 @@ def test_cli_train_then_evaluate(sim_root, tmp_path, capsys):
     assert res["n_frames"] == 3  # the held-out scene only (split taken from the checkpoint)
     assert res["config"]["eval"]["split_options"]["test_groups"] == ["scene-sim-veh-002"]
     assert set(res["rows"]["pure"]) == set(METRIC_KEYS) and (out / "results.md").is_file()
-    with pytest.raises(HybridCalibError, match="unknown method"):
-        _run_command("evaluate", ["--data", str(sim_root), "--method", "hybrid-typo", "--checkpoint", str(run),
-                                  "--out", str(tmp_path / "e2")])
+    assert _run_command("evaluate", ["--data", str(sim_root), "--method", "hybrid-typo", "--checkpoint", str(run),
+                                     "--out", str(tmp_path / "e2")]) == 2
+    assert "unknown method 'hybrid-typo'" in capsys.readouterr().err
 
 
 def test_evaluate_names_the_reason_when_every_frame_fails(frames, tmp_path):

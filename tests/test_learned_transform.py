@@ -25,13 +25,6 @@ CFG = model_config("small", {"input_hw": (H, W), "bev_hw": (64, 64), "bev_res_m"
 
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    """Tiny tensors: one thread is faster and immune to other processes on a shared 2-core machine."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
 
 
 def _K(B=1):

@@ -199,3 +199,11 @@ def test_a_failing_frame_is_recorded_and_left_out(tmp_path, monkeypatch):
     failed = json.loads((root / "v1.0-sim" / "sim_vehicle.json").read_text())[0]["failed_frames"]
     assert [f["frame"] for f in failed] == [1] and "disk on fire" in failed[0]["error"]
     assert all((root / r["filename"]).is_file() for r in t["sample_data"])
+
+
+def test_refuses_a_foreign_non_empty_folder(tmp_path, monkeypatch, capsys):
+    (tmp_path / "samples" / "CAM_FRONT").mkdir(parents=True)
+    keep = tmp_path / "samples" / "CAM_FRONT" / "real.jpg"
+    keep.write_bytes(b"x")
+    assert run_cli(monkeypatch, "--frames", "1", "--out", str(tmp_path), "--overwrite") == 2
+    assert "no sim_config.json" in capsys.readouterr().err and keep.is_file()

@@ -158,3 +158,13 @@ def test_rain_lowers_image_contrast_and_depth_matches():
         # sky rows have no depth, the road below the horizon has
         assert (f.depth[:20] == 0).mean() > 0.5 and (f.depth[-20:] > 0).all()
     assert imgs["rain"].std() < 0.8 * imgs["urban"].std()
+
+
+def test_effective_radar_config():
+    from hybrid_calib.config import merge
+
+    rain = SimConfig(scenario="rain").effective_radar
+    assert rain.clutter_per_sweep == scenario("rain").radar_clutter_per_sweep
+    assert rain.extra_loss_db == scenario("rain").radar_extra_loss_db
+    own = merge(SimConfig, {"scenario": "rain", "radar": {"clutter_per_sweep": 2.0}}).effective_radar
+    assert own.clutter_per_sweep == 2.0

@@ -21,6 +21,9 @@ Two sources:
   biased (docs/benchmarks.md). "model" keeps each reflector's true range and azimuth (the drive's
   geometry) and redraws its elevation uniform in ``elevation_mean_deg +- elevation_beam_deg``: the
   factor's elevation model holds exactly, so accuracy can be compared with the Cramer-Rao bound.
+  With "model", a reflector is used only if its whole arc projects into the image
+  (``whole_arc_in_image``): selecting on the drawn elevation truncates the elevation distribution
+  of reflectors near the image border, a bias the estimator cannot know about.
 
 Ego motion between the radar and camera timestamps: the per-frame truth is
 ``T_cam_radar(frame) = X N`` with ``X = T_cam_radar_static`` (the calibrated quantity) and
@@ -48,6 +51,7 @@ class OracleConfig:
     min_depth_m: float = 1.0  # reflectors closer than this to the camera plane are not used
     kinds: tuple[int, ...] = (0,)  # sim_truth kinds used as inliers (0 real; 1 clutter, 2 ghost have no pixel)
     image_margin_px: float = 0.0  # keep projections at least this far inside the image
+    whole_arc_in_image: bool = True  # "model": use a reflector only if its whole elevation arc projects into the image
     image_width: int = 1600  # pixels of the camera rescaled to this width (1600: nuScenes CAM_FRONT); 0 = as rendered
     radar_points: str = "truth"  # "truth": true (range, azimuth) at z = 0; "recorded": the PCD's noisy points
     elevation: str = "model"  # "model": redrawn uniform in mean +- beam (the factor's model); "world": the sim's
@@ -120,6 +124,15 @@ def oracle_from_frame(frame, conf: OracleConfig, rng: np.random.Generator) -> tu
     uv, depth = _project(K, T_frame, true_pts)
     ok = np.isin(kind[rows], conf.kinds) & (depth > conf.min_depth_m) & \
         cam.in_image(uv, conf.image_margin_px) & np.all(np.isfinite(true_pts), axis=1)
+    if conf.elevation == "model" and conf.whole_arc_in_image:
+        # keeping a reflector because its (random) elevation put it inside the image truncates the
+        # elevation distribution near the image border: only use reflectors whose whole arc is inside
+        for lim in (-conf.elevation_beam_deg, conf.elevation_beam_deg):
+            phi = np.radians(conf.elevation_mean_deg + lim)
+            P_end = np.stack([rho * np.cos(phi) * np.cos(az), rho * np.cos(phi) * np.sin(az),
+                              rho * np.sin(phi) * np.ones_like(rho)], 1)
+            uv_end, d_end = _project(K, T_frame, P_end)
+            ok &= (d_end > conf.min_depth_m) & cam.in_image(uv_end, conf.image_margin_px)
     idx = np.flatnonzero(ok)
     if len(idx) == 0:
         raise DataError("no real radar reflector projects into the image; frame unusable for the oracle",

@@ -31,6 +31,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--split", default="test",
                         help="test (default; scenes held out in training), val, train, or all (a separate root)")
     parser.add_argument("--max-frames", type=int, default=0, help="evaluate at most this many frames (0 = all)")
+    parser.add_argument("--depth", default=None,
+                        help="depth estimator (default: the checkpoint's; real data: depth-anything:/local/model/dir)")
     parser.add_argument("--nsweeps", type=int, default=1, help="radar sweeps accumulated per frame")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                         help="EvalConfig override, e.g. --set batch_size=8 --set device=cuda (repeatable)")
@@ -50,8 +52,13 @@ def run(args: argparse.Namespace) -> int:
     for key, src in (("split_options", "split"), ("depth", "depth"), ("depth_options", "depth_options")):
         if src in trained:
             conf[key] = trained[src]
+    if args.depth is not None:
+        conf["depth"] = args.depth
+        if args.depth != trained.get("depth"):
+            conf["depth_options"] = {}  # the checkpoint's options belong to its own estimator
     conf.update(parse_overrides(args.overrides))
-    frames = open_frames(args.data, args.version, lidar=False, options={"nsweeps": args.nsweeps})
+    lidar = model.cfg.variant == "lidar"  # the LiDAR-camera variant calibrates T_cam_lidar from LiDAR points
+    frames = open_frames(args.data, args.version, lidar=lidar, options={"nsweeps": args.nsweeps})
     result = evaluate(model, frames, conf, args.out, checkpoint=ckpt.path, overwrite=args.overwrite,
                       progress=not args.no_progress)
     print(result.table())

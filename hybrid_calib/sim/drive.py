@@ -63,11 +63,17 @@ class SimConfig:
 
     @property
     def effective_radar(self) -> RadarConfig:
-        """The radar config with the scenario's weather (extra loss, clutter, ghosts) applied."""
-        s = self.scenario_config
+        """The radar config with the scenario's weather applied: its extra loss is added, and its clutter
+        rate and ghost probability are used unless ``radar`` sets them away from the defaults."""
+        s, default = self.scenario_config, RadarConfig()
+
+        def pick(name: str, scenario_value: float) -> float:
+            own = getattr(self.radar, name)
+            return own if own != getattr(default, name) else scenario_value
+
         return dataclasses.replace(self.radar, extra_loss_db=self.radar.extra_loss_db + s.radar_extra_loss_db,
-                                   clutter_per_sweep=s.radar_clutter_per_sweep,
-                                   ghost_probability=s.radar_ghost_probability)
+                                   clutter_per_sweep=pick("clutter_per_sweep", s.radar_clutter_per_sweep),
+                                   ghost_probability=pick("ghost_probability", s.radar_ghost_probability))
 
     @property
     def camera(self) -> PinholeCamera:

@@ -147,6 +147,10 @@ def simulate(conf: SimConfig, out: str | Path, overwrite: bool = False, workers:
     root = Path(out)
     conf_path = root / "sim_config.json"
     conf_dict = to_dict(conf)
+    if root.is_dir() and any(root.iterdir()) and not conf_path.exists():
+        raise HybridCalibError(
+            f"{root} is not empty and holds no hybrid-calib simulation (no sim_config.json); refusing to write "
+            "or delete anything there: choose an empty or new --out")
     if conf_path.exists() and not overwrite:
         import json
 
