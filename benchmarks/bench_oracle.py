@@ -44,6 +44,17 @@ def _load(root: str, vehicle_frames: dict) -> None:
 
 
 def run_one(job: dict) -> dict:
+    """One Monte Carlo run; an exception is recorded (``error``) and the benchmark goes on."""
+    import traceback
+
+    try:
+        return _run_one(job)
+    except Exception as e:  # noqa: BLE001 - a long benchmark records a failed run and continues
+        return {"range": job["range"], "seed": job["seed"], "vehicle": job["vehicle"],
+                "error": f"{type(e).__name__}: {e}", "traceback": traceback.format_exc()[-2000:]}
+
+
+def _run_one(job: dict) -> dict:
     from factors.projection import elevation_moments
     from hybrid_calib.calib.batch import solve_batch
     from hybrid_calib.calib.covariance import report_basis
@@ -172,7 +183,10 @@ def main(argv=None) -> int:
             results.append(r)
     wall = time.time() - t0
     results = [r for r in results if (r["range"], r["seed"]) in {(j["range"], j["seed"]) for j in jobs}]
+    failed = [r for r in results if "error" in r]
+    results = [r for r in results if "error" not in r]
     summary = {"args": {k: str(v) for k, v in vars(a).items()}, "wall_s_this_invocation": wall,
+               "failed_runs": [{k: r[k] for k in ("range", "seed", "vehicle", "error")} for r in failed],
                "mean_rows_per_frame": float(np.mean([r["n_rows"] for r in results]) / a.frames),
                "false_alarms_total": int(sum(r["false_alarms"] for r in results)),
                "window_ms_per_frame_mean": float(np.mean([r["window_ms_mean"] for r in results])),

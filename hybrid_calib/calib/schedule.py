@@ -81,7 +81,8 @@ def build_graph(frames: list[Correspondences], conf: RadarPixelFactorConfig, pri
         if len(c):
             g.add(radar_pixel_factor(X, c, conf))
     for p in priors:
-        g.add(extrinsic_prior_factor(X, np.asarray(p.T, np.float64), np.asarray(p.cov, np.float64)))
+        cov = np.asarray(p.cov, np.float64)
+        g.add(extrinsic_prior_factor(X, np.asarray(p.T, np.float64), 0.5 * (cov + cov.T)))
     return g
 
 
@@ -99,12 +100,22 @@ def lm_params(sched: ScheduleConfig):
 
 
 def _optimize(graph, T0: np.ndarray, sched: ScheduleConfig):
+    """LM from T0. If GTSAM raises IndeterminantLinearSystemException (a RuntimeError in Python),
+    retry with a weak prior at T0 (std 30 deg / 5 m) so the step stays defined; the degeneracy is
+    then reported by the covariance analysis (which never sees that prior)."""
     import gtsam
 
     values = gtsam.Values()
     values.insert(X, to_gtsam(T0))
-    opt = gtsam.LevenbergMarquardtOptimizer(graph, values, lm_params(sched))
-    result = opt.optimize()
+    try:
+        opt = gtsam.LevenbergMarquardtOptimizer(graph, values, lm_params(sched))
+        result = opt.optimize()
+    except RuntimeError:
+        weak = gtsam.NonlinearFactorGraph(graph)
+        sig = np.array([np.radians(30.0)] * 3 + [5.0] * 3)
+        weak.add(gtsam.PriorFactorPose3(X, to_gtsam(T0), gtsam.noiseModel.Diagonal.Sigmas(sig)))
+        opt = gtsam.LevenbergMarquardtOptimizer(weak, values, lm_params(sched))
+        result = opt.optimize()
     return result, int(opt.iterations()), float(graph.error(result))
 
 

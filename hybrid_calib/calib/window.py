@@ -77,6 +77,7 @@ class WindowConfig:
     default_dt_s: float = 0.5  # time step used when frames carry no timestamps (nuScenes keyframes: 2 Hz)
     relinearize_rot_deg: float = 0.1  # relinearise the window when the estimate moved more than this (deg) ...
     relinearize_trans_cm: float = 2.0  # ... or this (cm) from a frame's linearisation point
+    min_inlier_fraction: float = 0.25  # below this the solve has not converged: re-solve from T_init (convex)
 
 
 @dataclass
@@ -121,6 +122,7 @@ class SlidingWindowCalibrator:
         if T_init.shape != (4, 4) or not np.all(np.isfinite(T_init)):
             raise ValueError(f"T_init must be a finite (4, 4) transform, got shape {T_init.shape}")
         self.T = T_init.copy()
+        self.T_init = T_init.copy()
         self.frames: deque[_Frame] = deque()
         self.marg: tuple[np.ndarray, np.ndarray] | None = None  # (T_m (4, 4), information (6, 6))
         self.n_marg = 0
@@ -167,7 +169,8 @@ class SlidingWindowCalibrator:
             return None
         G, H = gh
         Hr = H + _WEAK_INFO * np.eye(6)
-        return GaussianPrior(retract(self.T, -np.linalg.solve(Hr, G)), np.linalg.inv(Hr))
+        cov = np.linalg.inv(Hr)
+        return GaussianPrior(retract(self.T, -np.linalg.solve(Hr, G)), 0.5 * (cov + cov.T))
 
     def _marginalise(self, fr: _Frame) -> None:
         """Fold a leaving frame into the marginal prior at the current estimate."""
@@ -271,7 +274,8 @@ class SlidingWindowCalibrator:
         self.last_ts = ts
         if self.marg is not None and (c.random_walk_rot_deg_per_sqrt_s > 0 or c.random_walk_trans_cm_per_sqrt_s > 0):
             Tm, Lm = self.marg
-            self.marg = (Tm, np.linalg.inv(np.linalg.inv(Lm + _WEAK_INFO * np.eye(6)) + self._q(dt)))
+            L = np.linalg.inv(np.linalg.inv(Lm + _WEAK_INFO * np.eye(6)) + self._q(dt))
+            self.marg = (Tm, 0.5 * (L + L.T))
         fr = _Frame(corr, prior)
         self.frames.append(fr)
         while len(self.frames) > c.window:
@@ -285,7 +289,23 @@ class SlidingWindowCalibrator:
             if self._needs_relinearisation():
                 res = self._solve_window(convex=False)
                 solved = _Solved(res.graph, res.values)
-        est, cov_ms = self._estimate(solved)
+        if fr.inliers < c.min_inlier_fraction and len(fr.corr):
+            # diverged (e.g. a far start solved from too few frames): retry the window from the initial
+            # extrinsic with the convex start and keep whichever explains more correspondences
+            T_prev, inl_prev, lin_prev = self.T, fr.inliers, [(f.T_lin, f.g, f.H, f.inliers) for f in self.frames]
+            self.T = self.T_init.copy()
+            res = self._solve_window(convex=True)
+            if fr.inliers > inl_prev:
+                solved = _Solved(res.graph, res.values)
+                events.append(f"not converged (inlier fraction {inl_prev:.2f}): re-solved the window from the "
+                              f"initial extrinsic with a convex start (inlier fraction {fr.inliers:.2f})")
+            else:
+                self.T = T_prev
+                for f, (a, b, h, i) in zip(self.frames, lin_prev):
+                    f.T_lin, f.g, f.H, f.inliers = a, b, h, i
+        est, cov_ms = self._estimate(solved, note="" if fr.inliers >= c.min_inlier_fraction else
+                                     f"NOT CONVERGED: only {100 * fr.inliers:.0f} % of the frame's "
+                                     "correspondences fit the estimate")
         stat = thr = None
         alarm = False
         n_total = len(self.frames) + self.n_marg
