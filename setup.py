@@ -23,6 +23,8 @@ setup(
     ],
     extras_require={
         "dev": ["pytest>=9", "ruff==0.17.6", "hypothesis>=6.100"],
+        # learned.depth.DepthAnythingEstimator (metric Depth Anything from a local directory)
+        "depth": ["transformers==5.23.0"],
         # benchmarks/bench_simulate.py compares our ray caster against trimesh + Embree
         "bench": ["trimesh>=4,<6", "embreex==4.4.0.post1"],
     },

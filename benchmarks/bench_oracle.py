@@ -14,6 +14,11 @@ error ``E[e^T F e] / 6`` (1 = efficient), covariance consistency (fraction of ru
 the chi2(6) 95 % quantile 12.59; mean NEES, ideal 6), false step alarms, and time per frame.
 
     PYTHONPATH=. .venv/bin/python benchmarks/bench_oracle.py --runs 100 --frames 200 --out outputs/bench_oracle
+
+Elevation models on the simulator's real reflector heights, paired runs (same seeds), one table:
+
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_oracle.py --elevation world --ranges R1 --runs 20 \
+        --elevation-models anisotropic height
 """
 
 from __future__ import annotations
@@ -54,21 +59,43 @@ def run_one(job: dict) -> dict:
                 "error": f"{type(e).__name__}: {e}", "traceback": traceback.format_exc()[-2000:]}
 
 
+def factor_config(model: str, elevation: str, height_mean_m: float | None = None,
+                  height_std_m: float | None = None) -> dict:
+    """Factor overrides of one benchmark variant. With ``--elevation model`` the oracle draws from the
+    factor's own model, so the mean height is known exactly: no height-offset inflation (0)."""
+    from factors.config import RadarPixelFactorConfig
+
+    d = RadarPixelFactorConfig()
+    out = {"elevation_model": model,
+           "reflector_height_mean_m": d.reflector_height_mean_m if height_mean_m is None else height_mean_m,
+           "reflector_height_std_m": d.reflector_height_std_m if height_std_m is None else height_std_m,
+           "reflector_height_mean_std_m": d.reflector_height_mean_std_m,
+           "reflector_tilt_std_deg": d.reflector_tilt_std_deg}
+    if elevation == "model":
+        out.update(reflector_height_mean_std_m=0.0, reflector_tilt_std_deg=0.0)
+    return out
+
+
 def _run_one(job: dict) -> dict:
-    from factors.projection import elevation_moments
+    from factors.config import RadarPixelFactorConfig
     from hybrid_calib.calib.batch import solve_batch
-    from hybrid_calib.calib.covariance import report_basis
-    from hybrid_calib.calib.crb import crb_covariance, fisher_information
+    from hybrid_calib.calib.covariance import prior_pinned_std, report_basis
+    from hybrid_calib.calib.crb import crb_covariance, elevation_sigma, fisher_information
     from hybrid_calib.calib.oracle import OracleConfig, oracle_from_frame
     from hybrid_calib.calib.window import SlidingWindowCalibrator
+    from hybrid_calib.config import merge
     from hybrid_calib.geometry import local, perturb_camera_frame
     from hybrid_calib.metrics import extrinsic_error
 
     _load(job["root"], job["vehicle_frames"])
     frames_in = _DATA[job["vehicle"]][: job["frames"]]
     g = np.random.default_rng(job["seed"])
+    fconf = merge(RadarPixelFactorConfig, job["factor"])
     oconf = OracleConfig(n_per_frame=job["per_frame"], sigma_px=job["sigma_px"], outlier_frac=job["outliers"],
-                         elevation=job["elevation"])
+                         elevation=job["elevation"], elevation_model=fconf.elevation_model,
+                         elevation_beam_deg=fconf.elevation_beam_deg, elevation_mean_deg=fconf.elevation_mean_deg,
+                         reflector_height_mean_m=fconf.reflector_height_mean_m,
+                         reflector_height_std_m=fconf.reflector_height_std_m)
     frames, truths = [], []
     for f in frames_in:
         c, t = oracle_from_frame(f, oconf, g)
@@ -77,15 +104,16 @@ def _run_one(job: dict) -> dict:
     T = truths[-1].T_cam_radar
     lim_r, lim_t = (10.0, 0.25) if job["range"] == "R1" else (20.0, 1.5)
     T0 = perturb_camera_frame(T, np.radians(g.uniform(-lim_r, lim_r, 3)), g.uniform(-lim_t, lim_t, 3))
-    sig_e = elevation_moments(oconf.elevation_beam_deg, oconf.elevation_mean_deg)[2]
-    F = sum(fisher_information(T, t.points_true[t.inlier], c.K, job["sigma_px"], sig_e)
+    F = sum(fisher_information(T, t.points_true[t.inlier], c.K, job["sigma_px"],
+                               elevation_sigma(t.points_true[t.inlier], fconf))
             for c, t in zip(frames, truths) if t.inlier.any())
-    crb = crb_covariance(F)
+    crb = crb_covariance(F, prior_pinned_std(fconf))  # + the prior-pinned height offset and tilt ("height")
+    F_crb = np.linalg.inv(crb)
     B = report_basis(T)
     crb_rep = B @ crb @ B.T
     out = {"vehicle": job["vehicle"], "range": job["range"], "seed": job["seed"],
            "n_rows": int(sum(len(c) for c in frames)), "crb_var_report": np.diag(crb_rep).tolist()}
-    wconf = {"window": job["window"], "schedule": {"final_gate": job["gate"]}}
+    wconf = {"window": job["window"], "schedule": {"final_gate": job["gate"]}, "factor": job["factor"]}
     cal = SlidingWindowCalibrator(T0, wconf)
     ms, alarms = [], 0
     for c in frames:
@@ -94,7 +122,7 @@ def _run_one(job: dict) -> dict:
         alarms += int(o.step_alarm)
     modes = {"window": (o.T, o.cov, o.status)}
     t0 = time.perf_counter()
-    b = solve_batch(frames, T0, {"schedule": {"final_gate": job["gate"]}})
+    b = solve_batch(frames, T0, {"schedule": {"final_gate": job["gate"]}, "factor": job["factor"]})
     batch_s = time.perf_counter() - t0
     modes["batch"] = (b.estimate.T, b.estimate.cov, b.estimate.status)
     for name, (Te, C, status) in modes.items():
@@ -104,8 +132,9 @@ def _run_one(job: dict) -> dict:
             "err_report": (B @ e).tolist(),  # camera axes, rad and m
             "metrics": err.as_dict(),
             "nees": float(e @ np.linalg.solve(C, e)),
-            "crb_norm": float(e @ F @ e),
+            "crb_norm": float(e @ F_crb @ e),
             "status": status,
+            "cov": np.asarray(C).tolist(),  # reported covariance: NEES under other inflations offline
         }
     out.update(window_ms_mean=float(np.mean(ms)), window_ms_median=float(np.median(ms)), false_alarms=alarms,
                batch_s=batch_s)
@@ -123,6 +152,10 @@ def summarise(results: list[dict], mode: str) -> dict:
         "runs": len(results),
         "metrics_mean": {k: float(np.mean([r[mode]["metrics"][k] for r in results])) for k in METRIC_KEYS},
         "rmse_over_crb": {a: float(np.sqrt(np.mean(E[:, i] ** 2) / np.mean(V[:, i]))) for i, a in enumerate(AXES)},
+        # signed mean error over the runs (deg / cm, camera axes) and that mean over the runs' std:
+        # |bias/std| >> 2 / sqrt(runs) means a systematic error
+        "mean_err": {a: float(np.mean(E[:, i]) * (np.degrees(1) if i < 3 else 100.0)) for i, a in enumerate(AXES)},
+        "bias_over_std": {a: float(np.mean(E[:, i]) / max(np.std(E[:, i]), 1e-300)) for i, a in enumerate(AXES)},
         "crb_efficiency_ratio": float(np.sqrt(np.mean(crbn) / 6.0)),
         "inside_95": float(np.mean(nees < CHI2_6_95)),
         "nees_mean": float(np.mean(nees)),
@@ -134,6 +167,8 @@ def summarise(results: list[dict], mode: str) -> dict:
 
 
 def main(argv=None) -> int:
+    from factors.config import ELEVATION_MODELS, RadarPixelFactorConfig
+
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--data", type=Path, default=Path("outputs/bench_oracle/sim"), help="v1.0-sim root (made if absent)")
     p.add_argument("--vehicles", type=int, default=4, help="vehicles (drives) to simulate when --data is absent")
@@ -146,6 +181,11 @@ def main(argv=None) -> int:
     p.add_argument("--window", type=int, default=20)
     p.add_argument("--gate", type=float, default=3.0, help="final inlier gate (0 = redescending kernel only)")
     p.add_argument("--elevation", default="model", choices=("model", "world"))
+    p.add_argument("--elevation-models", nargs="+", default=[RadarPixelFactorConfig().elevation_model],
+                   choices=[m for m in ELEVATION_MODELS if m != "zero"],
+                   help="factor elevation models to compare (same seeds: paired runs); one table per model")
+    p.add_argument("--height-mean", type=float, default=None, help="reflector_height_mean_m (default: the config's)")
+    p.add_argument("--height-std", type=float, default=None, help="reflector_height_std_m (default: the config's)")
     p.add_argument("--ranges", nargs="+", default=["R1", "R2"])
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--summary-only", action="store_true", help="summarise the runs already in the .jsonl, run nothing")
@@ -165,41 +205,80 @@ def main(argv=None) -> int:
     ds = NuScenesRadarCamera(a.data, "v1.0-sim", conf={"check_images": False})
     vf = {v: idx[: a.frames] for v, idx in sorted(ds.frames_by_vehicle().items())}
     vehicles = sorted(vf)
-    jobs = [dict(root=str(a.data), vehicle_frames=vf, vehicle=vehicles[k % len(vehicles)], range=rg,
-                 seed=10_000 * (1 + i) + k, frames=a.frames, per_frame=a.per_frame, sigma_px=a.sigma_px,
-                 outliers=a.outliers, window=a.window, gate=a.gate, elevation=a.elevation)
-            for k in range(a.runs) for i, rg in enumerate(a.ranges)]  # R1 and R2 interleaved: partial runs cover both
     a.out.mkdir(parents=True, exist_ok=True)
-    tag = f"{a.elevation}_gate{a.gate:g}_w{a.window}_f{a.frames}"
+    summaries = {}
+    for model in a.elevation_models:
+        fc = factor_config(model, a.elevation, a.height_mean, a.height_std)
+        jobs = [dict(root=str(a.data), vehicle_frames=vf, vehicle=vehicles[k % len(vehicles)], range=rg,
+                     seed=10_000 * (1 + i) + k, frames=a.frames, per_frame=a.per_frame, sigma_px=a.sigma_px,
+                     outliers=a.outliers, window=a.window, gate=a.gate, elevation=a.elevation, factor=fc)
+                for k in range(a.runs) for i, rg in enumerate(a.ranges)]  # R1 and R2 interleaved
+        # "anisotropic" keeps the tag of the runs measured before the height model existed
+        htag = "" if model == "anisotropic" else \
+            f"_{model}_h{fc['reflector_height_mean_m']:g}_s{fc['reflector_height_std_m']:g}" \
+            f"_m{fc['reflector_height_mean_std_m']:g}_t{fc['reflector_tilt_std_deg']:g}"
+        tag = f"{a.elevation}{htag}_gate{a.gate:g}_w{a.window}_f{a.frames}"
+        summaries[model] = summary = _run_variant(a, jobs, tag, tqdm, save_json_atomic)
+        summary["factor"] = fc
+        save_json_atomic(a.out / f"summary_{tag}.json", summary)
+        print(json.dumps(summary, indent=1))
+    print(comparison_table(summaries, a.ranges))
+    return 0
+
+
+def _run_variant(a, jobs: list[dict], tag: str, tqdm, save_json_atomic) -> dict:
     runs_path = a.out / f"runs_{tag}.jsonl"  # one line per finished run: the benchmark resumes
     results = [json.loads(line) for line in runs_path.read_text().splitlines()] if runs_path.is_file() else []
     done = {(r["range"], r["seed"]) for r in results}
     todo = [] if a.summary_only else [j for j in jobs if (j["range"], j["seed"]) not in done]
     t0 = time.time()
-    with mp.get_context("fork").Pool(a.workers) as pool, runs_path.open("a") as fh:
-        for r in tqdm(pool.imap_unordered(run_one, todo), total=len(todo), desc="oracle MC"):
-            fh.write(json.dumps(r) + "\n")
-            fh.flush()
-            results.append(r)
+    if todo:
+        with mp.get_context("fork").Pool(a.workers) as pool, runs_path.open("a") as fh:
+            for r in tqdm(pool.imap_unordered(run_one, todo), total=len(todo), desc=f"oracle MC {tag}"):
+                fh.write(json.dumps(r) + "\n")
+                fh.flush()
+                results.append(r)
     wall = time.time() - t0
     results = [r for r in results if (r["range"], r["seed"]) in {(j["range"], j["seed"]) for j in jobs}]
     failed = [r for r in results if "error" in r]
     results = [r for r in results if "error" not in r]
     summary = {"args": {k: str(v) for k, v in vars(a).items()}, "wall_s_this_invocation": wall,
-               "failed_runs": [{k: r[k] for k in ("range", "seed", "vehicle", "error")} for r in failed],
-               "mean_rows_per_frame": float(np.mean([r["n_rows"] for r in results]) / a.frames),
-               "false_alarms_total": int(sum(r["false_alarms"] for r in results)),
-               "window_ms_per_frame_mean": float(np.mean([r["window_ms_mean"] for r in results])),
-               "window_ms_per_frame_median": float(np.median([r["window_ms_median"] for r in results])),
-               "batch_s_mean": float(np.mean([r["batch_s"] for r in results]))}
+               "failed_runs": [{k: r[k] for k in ("range", "seed", "vehicle", "error")} for r in failed]}
+    if not results:
+        return summary
+    summary.update({"mean_rows_per_frame": float(np.mean([r["n_rows"] for r in results]) / a.frames),
+                    "false_alarms_total": int(sum(r["false_alarms"] for r in results)),
+                    "window_ms_per_frame_mean": float(np.mean([r["window_ms_mean"] for r in results])),
+                    "window_ms_per_frame_median": float(np.median([r["window_ms_median"] for r in results])),
+                    "batch_s_mean": float(np.mean([r["batch_s"] for r in results]))})
     for rg in a.ranges:
         sub = [r for r in results if r["range"] == rg]
         if sub:
             summary[rg] = {m: summarise(sub, m) for m in ("window", "batch")}
     summary["wall_s_per_run_x_workers"] = wall * a.workers / max(1, len(todo))
-    save_json_atomic(a.out / f"summary_{tag}.json", summary)
-    print(json.dumps(summary, indent=1))
-    return 0
+    return summary
+
+
+def comparison_table(summaries: dict, ranges) -> str:
+    """Markdown: per model, range and mode, signed mean error and bias/std per axis, RMSE/CRB, NEES."""
+    head = ("| model | start | mode | runs | mean err rot x,y,z (deg) | mean err t x,y,z (cm) | bias/std rot x,y,z | "
+            "bias/std t x,y,z | RMSE/CRB rot x,y,z | RMSE/CRB t x,y,z | sqrt(E[e'Fe]/6) | inside 95 % | mean NEES |")
+    lines = [head, "|" + "---|" * 13]
+    for model, summ in summaries.items():
+        for rg in ranges:
+            for mode in ("window", "batch"):
+                s = summ.get(rg, {}).get(mode)
+                if not s:
+                    continue
+                def f(d, keys, fmt):
+                    return ", ".join(fmt % d[k] for k in keys)
+                lines.append(
+                    f"| {model} | {rg} | {mode} | {s['runs']} | {f(s['mean_err'], AXES[:3], '%.3f')} | "
+                    f"{f(s['mean_err'], AXES[3:], '%.2f')} | {f(s['bias_over_std'], AXES[:3], '%.1f')} | "
+                    f"{f(s['bias_over_std'], AXES[3:], '%.1f')} | {f(s['rmse_over_crb'], AXES[:3], '%.2f')} | "
+                    f"{f(s['rmse_over_crb'], AXES[3:], '%.2f')} | {s['crb_efficiency_ratio']:.3f} | "
+                    f"{100 * s['inside_95']:.1f} % | {s['nees_mean']:.2f} |")
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

@@ -4,7 +4,11 @@ A 2D radar records a reflector at slant range ``r`` and azimuth ``a`` with z = 0
 lies on the vertical arc ``p(phi) = (x cos phi, y cos phi, r sin phi)`` (``(x, y)`` the recorded
 point) for an unknown elevation ``phi`` inside the beam. The elevation models of
 ``RadarPixelFactorConfig`` (see there) all reduce to: a 3D point ``p_bar`` per row and, for the
-anisotropic model, the arc tangent ``dp`` times the elevation standard deviation.
+anisotropic and height models, the arc tangent ``dp`` times the elevation standard deviation (per
+row for ``height``: its elevation prior depends on the range). ``p_bar`` is the expected point
+``E[p(phi)]`` (``height``: the point on the arc at the mean elevation lies ``r sigma^2 / 2``
+further out, centimetres at tens of metres: a measured forward bias), ``dp`` the arc tangent at
+the mean elevation.
 
 Jacobians are with respect to the RIGHT tangent ``xi = [omega, v]`` of ``T_cam_radar``
 (docs/conventions.md): ``T Exp(xi)``; ``d(R p + t) / d xi = [-R [p]x, R]``.
@@ -60,6 +64,55 @@ def elevation_moments(beam_deg: float, mean_deg: float) -> tuple[float, float, f
     return float(np.cos(m) * sinc), float(np.sin(m) * sinc), float(b / np.sqrt(3.0))
 
 
+def truncated_normal_moments(mu: float, sd: float, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and std of ``N(mu, sd^2)`` truncated to ``[lo, hi]`` (arrays of the same shape, lo < hi).
+
+    Where the window holds (numerically) none of the mass, the mean is ``mu`` clipped to the window
+    and the std that of a uniform over the window (at most ``sd``).
+    """
+    from scipy.special import ndtr
+
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    a, b = (lo - mu) / sd, (hi - mu) / sd
+    pdf_a, pdf_b = np.exp(-0.5 * a**2) / np.sqrt(2 * np.pi), np.exp(-0.5 * b**2) / np.sqrt(2 * np.pi)
+    Z = ndtr(b) - ndtr(a)
+    ok = Z > 1e-9
+    Zs = np.where(ok, Z, 1.0)
+    d = (pdf_a - pdf_b) / Zs
+    # a*pdf(a) with a = -inf etc. is 0; the arrays are finite here (finite windows)
+    var = sd**2 * (1.0 + (a * pdf_a - b * pdf_b) / Zs - d**2)
+    mean = np.where(ok, mu + sd * d, np.clip(mu, lo, hi))
+    std = np.where(ok, np.sqrt(np.clip(var, 0.0, None)), np.minimum(sd, (hi - lo) / np.sqrt(12.0)))
+    return mean, std
+
+
+def height_elevation_prior(r: np.ndarray, conf: RadarPixelFactorConfig, with_cos: bool = False):
+    """Per-row elevation prior of the ``height`` model, from the slant range.
+
+    r: (N,) float64, metres, recorded slant range of each row. The reflector's height above the
+    radar plane is ``h ~ N(reflector_height_mean_m, reflector_height_std_m^2)`` truncated to the
+    beam ``[r sin(mean - beam), r sin(mean + beam)]`` (``elevation_mean_deg``, ``elevation_beam_deg``):
+    the radar only sees what is inside its beam, so near reflectors are confined to a few
+    decimetres and far ones are not. Returns ``phi`` (N,) = ``asin(E[h] / r)`` (radians, the
+    point the arc is linearised at) and ``sigma`` (N,) = ``min(std(h) / (r cos phi), beam / sqrt(3))``;
+    with ``with_cos`` also ``E[cos phi]`` (N,) = ``E[sqrt(1 - h^2/r^2)] ~ 1 - E[h^2] / (2 r^2)`` (error
+    O((h/r)^4)), the radial foreshortening of the expected point (``r sigma^2 / 2``: centimetres at
+    tens of metres, a measured forward bias if ignored).
+    """
+    r = np.maximum(np.asarray(r, np.float64), 1e-6)
+    beam, centre = np.deg2rad(conf.elevation_beam_deg), np.deg2rad(conf.elevation_mean_deg)
+    lo, hi = r * np.sin(centre - beam), r * np.sin(centre + beam)
+    if beam <= 0:
+        mean_h, std_h = r * np.sin(centre), np.zeros(r.shape)
+    else:
+        mean_h, std_h = truncated_normal_moments(conf.reflector_height_mean_m, conf.reflector_height_std_m, lo, hi)
+    phi = np.arcsin(np.clip(mean_h / r, -1.0, 1.0))
+    sigma = np.minimum(std_h / (r * np.cos(phi)), beam / np.sqrt(3.0))
+    if not with_cos:
+        return phi, sigma
+    return phi, sigma, np.clip(1.0 - (mean_h**2 + std_h**2) / (2.0 * r**2), 0.0, 1.0)
+
+
 def row_model(corr: Correspondences, conf: RadarPixelFactorConfig) -> RowModel:
     """Per-row constants for ``corr`` under ``conf.elevation_model``."""
     if not isinstance(conf, RadarPixelFactorConfig):
@@ -73,6 +126,13 @@ def row_model(corr: Correspondences, conf: RadarPixelFactorConfig) -> RowModel:
     if conf.elevation_model == "zero":
         # The recorded point taken literally (also the model for known 3D points).
         p_bar, dp, kappa = p.copy(), np.zeros((n, 3)), np.zeros(n)
+    elif conf.elevation_model == "height":
+        r = np.linalg.norm(p[:, :2], axis=1)
+        phi, sigma_elev, c_mean = height_elevation_prior(r, conf, with_cos=True)
+        c, s = np.cos(phi), np.sin(phi)
+        p_bar = np.stack([p[:, 0] * c_mean, p[:, 1] * c_mean, r * s], axis=1)  # E[p]: E[h] = r sin(phi)
+        dp = np.stack([-p[:, 0] * s, -p[:, 1] * s, r * c], axis=1)
+        kappa = w * sigma_elev
     else:
         c_mean, s_mean, sigma_elev = elevation_moments(conf.elevation_beam_deg, conf.elevation_mean_deg)
         mu = np.deg2rad(conf.elevation_mean_deg)

@@ -17,6 +17,20 @@ from hybrid_calib.sensors.camera import PinholeCamera
 DEFAULT_CAMERA = PinholeCamera(1266.4, 1266.4, 816.3, 491.5, 1600, 900)
 
 
+def _height_elevations(r: np.ndarray, height_m: tuple[float, float], mean_deg: float, beam_deg: float,
+                        rng: np.random.Generator) -> np.ndarray:
+    """(m,) elevations (rad) of reflectors at slant ranges ``r`` whose heights are ``N(mu, std^2)``
+    truncated to the beam ``[r sin(mean - beam), r sin(mean + beam)]``."""
+    from scipy.stats import truncnorm
+
+    mu, sd = float(height_m[0]), float(height_m[1])
+    if not sd > 0:
+        raise ValueError(f"synthetic_correspondences: height_m std must be > 0, got {height_m}")
+    lo, hi = r * np.sin(np.deg2rad(mean_deg - beam_deg)), r * np.sin(np.deg2rad(mean_deg + beam_deg))
+    h = truncnorm.rvs((lo - mu) / sd, (hi - mu) / sd, loc=mu, scale=sd, size=len(r), random_state=rng)
+    return np.arcsin(np.clip(h / r, -1.0, 1.0))
+
+
 def synthetic_correspondences(
     T_cam_radar: np.ndarray,
     camera_or_K: PinholeCamera | np.ndarray = DEFAULT_CAMERA,
@@ -29,6 +43,7 @@ def synthetic_correspondences(
     range_m: tuple[float, float] = (5.0, 60.0),
     azimuth_deg: tuple[float, float] = (-35.0, 35.0),
     cell_px: float = 0.0,
+    height_m: tuple[float, float] | None = None,
     frame_id: str = "synthetic",
     timestamp_us: int = 0,
 ) -> tuple[Correspondences, dict]:
@@ -36,7 +51,9 @@ def synthetic_correspondences(
 
     camera_or_K: a ``PinholeCamera`` (distortion ignored) or a (3, 3) K (image size 2 cx + 1 by
     2 cy + 1). Elevations are uniform in ``elevation_mean_deg +- elevation_beam_deg``; ranges
-    uniform in ``range_m`` (metres); azimuths uniform in ``azimuth_deg``. ``cell_px > 0``
+    uniform in ``range_m`` (metres); azimuths uniform in ``azimuth_deg``. With ``height_m = (mu, std)``
+    (metres) the reflector HEIGHTS above the radar plane are ``N(mu, std^2)`` truncated to the beam
+    instead (the ``height`` elevation model of ``RadarPixelFactorConfig``). ``cell_px > 0``
     quantises every pixel to the centre of its cell (a network cell, e.g. 8) and sets
     ``sigma_px = sqrt(sigma^2 + cell^2/12)``. Confidence is 1 for every row.
 
@@ -63,7 +80,10 @@ def synthetic_correspondences(
         m = 4 * (n - got) + 16
         r = rng.uniform(*range_m, m)
         a = np.deg2rad(rng.uniform(*azimuth_deg, m))
-        phi = np.deg2rad(elevation_mean_deg + rng.uniform(-elevation_beam_deg, elevation_beam_deg, m))
+        if height_m is None:
+            phi = np.deg2rad(elevation_mean_deg + rng.uniform(-elevation_beam_deg, elevation_beam_deg, m))
+        else:
+            phi = _height_elevations(r, height_m, elevation_mean_deg, elevation_beam_deg, rng)
         p = np.stack([r * np.cos(phi) * np.cos(a), r * np.cos(phi) * np.sin(a), r * np.sin(phi)], axis=1)
         P = p @ T[:3, :3].T + T[:3, 3]
         ok = P[:, 2] > 1.0

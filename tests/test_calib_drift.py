@@ -57,7 +57,9 @@ def test_alarm_after_step_and_recovery(rot_deg, trans_m):
     T = nominal_T_cam_radar()
     T2 = perturb_camera_frame(T, np.radians([0.0, rot_deg / 2, rot_deg]), [trans_m, 0.0, 0.0])
     frames, _ = synthetic_drive(T, 38, rng(7), {"n_per_frame": 60}, step_at=20, T_after=T2)
-    cal = SlidingWindowCalibrator(T, {"window": 8, "step": {"min_history": 10}})
+    # the synthetic elevations are uniform in the beam: the factor uses that (anisotropic) model
+    cal = SlidingWindowCalibrator(T, {"window": 8, "step": {"min_history": 10},
+                                      "factor": {"elevation_model": "anisotropic"}})
     outs = [cal.update(f) for f in frames]
     alarms = [o.index for o in outs if o.step_alarm]
     assert alarms and 20 <= alarms[0] <= 25, alarms

@@ -150,8 +150,9 @@ def test_ceres_covariance_conversion_is_our_right_tangent():
     np.testing.assert_allclose(ceres_cov_to_ours(C, R), B @ C @ B.T, rtol=1e-6, atol=1e-9)
 
 
+@pytest.mark.parametrize("model", ["anisotropic", "height"])
 @pytest.mark.parametrize("kernel", ["none", "cauchy"])
-def test_gtsam_and_ceres_agree(kernel):
+def test_gtsam_and_ceres_agree(kernel, model):
     """Same optimum (within 1e-3 standard deviations per axis) and covariance: exactly (1e-6
     relative) without a kernel; within 25 % per standard deviation with Cauchy (GTSAM's factor uses
     the exact Gauss-Newton Hessian of the square-rooted robust rows, Ceres the IRLS one, sqrt(rho')
@@ -160,7 +161,7 @@ def test_gtsam_and_ceres_agree(kernel):
     g = rng(7)
     out_frac = 0.0 if kernel == "none" else 0.2
     frames = [synthetic_correspondences(T, n=40, rng=g, outlier_frac=out_frac)[0] for _ in range(2)]
-    conf = RadarPixelFactorConfig(kernel=kernel)
+    conf = RadarPixelFactorConfig(kernel=kernel, elevation_model=model)
     T0 = perturb_camera_frame(T, np.deg2rad([3.0, -3.0, 2.0]), [0.1, -0.1, 0.1])
     a = solve_frames(frames, T0, conf)
     b = solve_ceres(frames, T0, conf)

@@ -141,7 +141,7 @@ def test_factor_cost_is_robust_rows_plus_logdet():
     T = nominal_T_cam_radar()
     corr, _ = synthetic_correspondences(T, n=30, rng=rng(9))
     T0 = perturb_camera_frame(T, np.deg2rad([1.0, 0.5, -0.5]), [0.05, 0.02, -0.03])
-    for model in ("zero", "anisotropic"):
+    for model in ("zero", "anisotropic", "height"):
         conf = RadarPixelFactorConfig(elevation_model=model)
         e, _, _ = frame_residuals(T0, corr, conf)
         ld, _ = frame_logdet_rows(T0, corr, conf)

@@ -21,6 +21,7 @@ from hybrid_calib.calib.covariance import (
     analyse_information,
     information_from_graph,
     marginal_covariance,
+    prior_pinned_std,
 )
 from hybrid_calib.calib.result import Estimate
 from hybrid_calib.calib.schedule import GaussianPrior, ScheduleConfig, X, frame_information, gate_frames, robust_solve
@@ -75,15 +76,22 @@ def solve_batch(frames: list[Correspondences], T_init: np.ndarray, conf: BatchCo
         t0 = time.perf_counter()
         info = information_from_graph(res.graph, res.values, X)
         cov, why = marginal_covariance(res.graph, res.values, X)
-        rep = analyse_information(res.T, info, conf.covariance, cov_hint=cov)
+        rep = analyse_information(res.T, info, conf.covariance, cov_hint=cov,
+                                  pinned_std=prior_pinned_std(conf.factor), external_info=_prior_info(priors))
         T, iters, secs = res.T, res.iterations, res.seconds
         cov_s = time.perf_counter() - t0
     else:
         T, info, cov, why, iters, secs, cov_s = _solve_ceres(frames, T_init, conf, priors)
-        rep = analyse_information(T, info, conf.covariance, cov_hint=cov)
+        rep = analyse_information(T, info, conf.covariance, cov_hint=cov,
+                                  pinned_std=prior_pinned_std(conf.factor), external_info=_prior_info(priors))
     inl = float(np.mean([frame_information(T, f, conf.factor, conf.schedule.final_gate)[2] for f in frames if len(f)]))
     return BatchResult(Estimate.from_report(T, rep, info, why), conf.backend, iters, secs, cov_s, len(frames),
                        n_rows, inl)
+
+
+def _prior_info(priors: list[GaussianPrior] | None) -> np.ndarray:
+    """Summed information (6, 6) of the external priors on T_cam_radar."""
+    return sum((np.linalg.inv(p.cov) for p in priors or []), np.zeros((6, 6)))
 
 
 def _solve_ceres(frames, T_init, conf: BatchConfig, priors):

@@ -128,9 +128,82 @@ def _fmt_std(std_scaled: float, vec_report: np.ndarray, conf: CovarianceConfig) 
     return f"std {cm / 100:.3g} m" if cm >= 100 else f"std {cm:.3g} cm"
 
 
+RADAR_PITCH, RADAR_Z = 1, 5  # right-tangent [omega, v] indices: rotation about radar y, translation along radar z
+
+
+def prior_pinned_std(factor_conf) -> np.ndarray:
+    """(6,) std of the right-tangent directions that only the elevation prior pins (rad, m).
+
+    Under the ``height`` elevation model (``RadarPixelFactorConfig``) two properties of the world
+    are assumed, not measured, and the correspondences cannot see them:
+    - a common offset ``dh`` of every reflector height: ``p + dh e_z`` is EXACTLY
+      ``T Exp([0, dh e_z])`` applied to ``p``, a translation along radar z (index 5), std
+      ``reflector_height_mean_std_m``;
+    - a tilt ``beta`` of the plane the heights are measured from (the radar's pitch against the
+      road, and a height that grows with range because tall objects are only inside the beam far
+      away): ``p + beta x e_z`` is, to first order, ``T Exp([-beta e_y, 0])`` applied to ``p`` (the
+      remainder ``beta z`` along x is second order), a rotation about radar y (index 1), std
+      ``reflector_tilt_std_deg``.
+    They are nuisance parameters of the DATA: ``marginalise_prior_pinned`` removes them from the
+    correspondences' information (Woodbury), and external priors on ``T_cam_radar`` (e.g. the
+    network's) are added afterwards, so such a prior can still pin those directions. Without
+    external priors this equals adding their variances to the covariance. Zeros for the other
+    models (they fix the elevation distribution by assumption; the elevation study measures the
+    cost of that).
+    """
+    std = np.zeros(6)
+    if getattr(factor_conf, "elevation_model", None) == "height":
+        std[RADAR_PITCH] = np.radians(factor_conf.reflector_tilt_std_deg)
+        std[RADAR_Z] = factor_conf.reflector_height_mean_std_m
+    return std
+
+
+def inflate_prior_pinned(cov: np.ndarray, pinned_std=None) -> np.ndarray:
+    """``cov + diag(pinned_std^2)`` (6, 6): the prior-pinned directions of ``prior_pinned_std``."""
+    cov = np.array(cov, dtype=np.float64)
+    if pinned_std is None:
+        return cov
+    std = np.asarray(pinned_std, dtype=np.float64)
+    if std.shape != (6,) or np.any(std < 0) or not np.all(np.isfinite(std)):
+        raise ValueError(f"pinned_std must be a finite (6,) vector >= 0, got {std}")
+    return cov + np.diag(std**2)
+
+
+def marginalise_prior_pinned(info: np.ndarray, pinned_std=None, external_info: np.ndarray | None = None) -> np.ndarray:
+    """Information (6, 6) with the prior-pinned nuisance directions marginalised out of the data part.
+
+    info: total information (data + external priors), right tangent [rad, m].
+    pinned_std: (6,) std of the nuisance along each right-tangent axis (``prior_pinned_std``).
+    external_info: (6, 6) information of priors that do NOT come from the correspondences (the
+        network's SE(3), a reference); None = all of ``info`` is data.
+
+    With ``H_d = info - external_info`` and E the pinned axes, the data see ``T Exp(E d)`` with
+    ``d ~ N(0, S)``: ``H_d' = H_d - H_d E (S^-1 + E^T H_d E)^-1 E^T H_d`` (Woodbury; valid for a
+    singular ``H_d``), and the result is ``H_d' + external_info``. For ``external_info = 0`` its
+    inverse is exactly ``inv(info) + E S E^T``.
+    """
+    info = np.asarray(info, dtype=np.float64)
+    if pinned_std is None:
+        return info
+    std = np.asarray(pinned_std, dtype=np.float64)
+    if std.shape != (6,) or np.any(std < 0) or not np.all(np.isfinite(std)):
+        raise ValueError(f"pinned_std must be a finite (6,) vector >= 0, got {std}")
+    axes = np.flatnonzero(std > 0)
+    if len(axes) == 0:
+        return info
+    ext = np.zeros((6, 6)) if external_info is None else np.asarray(external_info, dtype=np.float64)
+    Hd = info - ext
+    HE = Hd[:, axes]
+    inner = np.diag(1.0 / std[axes] ** 2) + HE[axes, :]
+    Hd_marg = Hd - HE @ np.linalg.solve(inner, HE.T)
+    out = Hd_marg + ext
+    return 0.5 * (out + out.T)
+
+
 def analyse_information(
     T_cam_radar: np.ndarray, info: np.ndarray, conf: CovarianceConfig | None = None,
-    cov_hint: np.ndarray | None = None,
+    cov_hint: np.ndarray | None = None, pinned_std: np.ndarray | None = None,
+    external_info: np.ndarray | None = None,
 ) -> CovarianceReport:
     """Information (6, 6) in the right/radar tangent -> trustworthy covariance and status.
 
@@ -138,6 +211,12 @@ def analyse_information(
         priors), right tangent, [rad, m] units.
     cov_hint: optional covariance computed elsewhere (e.g. ``gtsam.Marginals``); used when the
         information is well conditioned, so the two agree by construction.
+
+    pinned_std: optional (6,) std (rad, m) of directions only the elevation prior pins
+        (``prior_pinned_std``); marginalised out of the data information
+        (``marginalise_prior_pinned``) before the directions are read, so a large value is named
+        as a poorly observed direction unless an external prior pins it.
+    external_info: optional (6, 6) information of the external priors included in ``info``.
 
     The analysis is done in the scaled report basis ``S^-1 B`` (B = blockdiag(R, R), S = the
     tolerances): eigenvectors of the scaled covariance name the poorly observed directions.
@@ -149,6 +228,10 @@ def analyse_information(
     if info.shape != (6, 6) or not np.all(np.isfinite(info)):
         raise ValueError(f"information must be a finite (6, 6) matrix, got shape {info.shape}")
     info = 0.5 * (info + info.T)
+    pinned = pinned_std is not None and np.any(np.asarray(pinned_std) > 0)
+    if pinned:
+        info = marginalise_prior_pinned(info, pinned_std, external_info)
+        cov_hint = None  # a solver's marginal does not know the nuisance: invert the marginalised information
     B = report_basis(T_cam_radar)
     s = _scale(conf)
     # xi_report = B xi ; scaled z = xi_report / s -> xi = B^T diag(s) z ; info_z = D B info B^T D

@@ -62,14 +62,15 @@ def arc_tangent(points_radar: np.ndarray) -> np.ndarray:
 
 def fisher_information(
     T_cam_radar: np.ndarray, points_true_radar: np.ndarray, K: np.ndarray, sigma_px,
-    elevation_sigma_rad: float = 0.0, confidence=None,
+    elevation_sigma_rad=0.0, confidence=None,
 ) -> np.ndarray:
     """Fisher information (6, 6) of one frame's inliers (right tangent, [rad, m] units).
 
     points_true_radar: (N, 3) metres, radar frame, true reflector positions (with elevation).
     sigma_px: scalar or (N,) pixel noise std. confidence: optional (N,) in (0, 1], multiplies the
-    information of each row (as the factors do). elevation_sigma_rad: prior std of the unknown
-    elevation (0 = elevation known).
+    information of each row (as the factors do). elevation_sigma_rad: scalar or (N,) prior std of
+    the unknown elevation (0 = elevation known; per row for the ``height`` model, see
+    ``elevation_sigma``).
     """
     P = np.asarray(points_true_radar, np.float64).reshape(-1, 3)
     n = len(P)
@@ -79,21 +80,50 @@ def fisher_information(
     conf = np.ones(n) if confidence is None else np.broadcast_to(np.asarray(confidence, np.float64), (n,))
     J_pose, J_point = pixel_jacobians(T_cam_radar, P, np.asarray(K, np.float64))
     cov = (sig**2 / np.maximum(conf, 1e-12))[:, None, None] * np.eye(2)[None]
-    if elevation_sigma_rad > 0:
+    sig_e = np.broadcast_to(np.asarray(elevation_sigma_rad, np.float64), (n,))
+    if np.any(sig_e < 0) or not np.all(np.isfinite(sig_e)):
+        raise ValueError("crb: elevation_sigma_rad must be finite and >= 0")
+    if np.any(sig_e > 0):
         je = np.einsum("nij,nj->ni", J_point, arc_tangent(P))  # (N, 2)
-        cov = cov + elevation_sigma_rad**2 * je[:, :, None] * je[:, None, :]
+        cov = cov + (sig_e**2)[:, None, None] * je[:, :, None] * je[:, None, :]
     W = np.linalg.inv(cov)
     return np.einsum("nai,nab,nbj->ij", J_pose, W, J_pose)
 
 
-def crb_covariance(information: np.ndarray) -> np.ndarray:
+def elevation_sigma(points_true_radar: np.ndarray, factor_conf) -> np.ndarray:
+    """(N,) elevation prior std (rad) that ``factor_conf`` (a ``RadarPixelFactorConfig``) assumes
+    for reflectors at these true positions: the beam's ``beam / sqrt(3)`` for ``anisotropic`` (and
+    ``mean_arc``, whose residual ignores it but whose data have it), the range-dependent
+    ``projection.height_elevation_prior`` for ``height``, 0 for ``zero``."""
+    from factors.projection import elevation_moments, height_elevation_prior
+
+    P = np.asarray(points_true_radar, np.float64).reshape(-1, 3)
+    if factor_conf.elevation_model == "zero":
+        return np.zeros(len(P))
+    if factor_conf.elevation_model == "height":
+        return height_elevation_prior(np.linalg.norm(P, axis=1), factor_conf)[1]
+    return np.full(len(P), elevation_moments(factor_conf.elevation_beam_deg, factor_conf.elevation_mean_deg)[2])
+
+
+def crb_covariance(information: np.ndarray, pinned_std: np.ndarray | None = None) -> np.ndarray:
     """CRB (6, 6) = inverse Fisher information (pseudo-inverse if singular: infinite directions
-    then show as huge variances rather than an exception)."""
+    then show as huge variances rather than an exception).
+
+    pinned_std: optional (6,) std (rad, m) of the directions only the elevation prior pins under
+    the ``height`` model (``covariance.prior_pinned_std``: a common reflector-height offset is
+    exactly a radar-z translation, a tilt of the height reference plane about a radar-y rotation).
+    The correspondences cannot see them, so the bound adds those variances
+    (``covariance.inflate_prior_pinned``): the physical limit of any method that does not know the
+    world's height distribution better.
+    """
+    from hybrid_calib.calib.covariance import inflate_prior_pinned
+
     F = 0.5 * (np.asarray(information, np.float64) + np.asarray(information, np.float64).T)
     try:
-        return np.linalg.inv(F)
+        C = np.linalg.inv(F)
     except np.linalg.LinAlgError:
-        return np.linalg.pinv(F, hermitian=True) + np.eye(6) * 1e12 * (np.linalg.matrix_rank(F) < 6)
+        C = np.linalg.pinv(F, hermitian=True) + np.eye(6) * 1e12 * (np.linalg.matrix_rank(F) < 6)
+    return inflate_prior_pinned(C, pinned_std)
 
 
 def beam_sigma(elevation_beam_deg: float) -> float:

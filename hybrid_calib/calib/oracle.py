@@ -19,8 +19,9 @@ Two sources:
   structured (ground and object heights: mean -0.9 deg below 15 m, +0.7 deg beyond 30 m, measured
   on the urban preset), which no fixed-distribution elevation model captures, so estimates are
   biased (docs/benchmarks.md). "model" keeps each reflector's true range and azimuth (the drive's
-  geometry) and redraws its elevation uniform in ``elevation_mean_deg +- elevation_beam_deg``: the
-  factor's elevation model holds exactly, so accuracy can be compared with the Cramer-Rao bound.
+  geometry) and redraws its elevation from the factor's model (``elevation_model``: uniform in
+  ``elevation_mean_deg +- elevation_beam_deg``, or a truncated-Gaussian height): that model holds
+  exactly, so accuracy can be compared with the Cramer-Rao bound.
   With "model", a reflector is used only if its whole arc projects into the image
   (``whole_arc_in_image``): selecting on the drawn elevation truncates the elevation distribution
   of reflectors near the image border, a bias the estimator cannot know about.
@@ -54,9 +55,12 @@ class OracleConfig:
     whole_arc_in_image: bool = True  # "model": use a reflector only if its whole elevation arc projects into the image
     image_width: int = 1600  # pixels of the camera rescaled to this width (1600: nuScenes CAM_FRONT); 0 = as rendered
     radar_points: str = "truth"  # "truth": true (range, azimuth) at z = 0; "recorded": the PCD's noisy points
-    elevation: str = "model"  # "model": redrawn uniform in mean +- beam (the factor's model); "world": the sim's
+    elevation: str = "world"  # "world": the sim's true reflector heights; "model": redrawn from the factor's model
     elevation_beam_deg: float = 7.0  # "model": half-width of the uniform elevation (match RadarPixelFactorConfig)
     elevation_mean_deg: float = 0.0  # "model": centre of the uniform elevation, degrees
+    elevation_model: str = "anisotropic"  # "model": draw as "anisotropic" (uniform elevation) or "height" assumes
+    reflector_height_mean_m: float = 0.0  # "model" + "height": mean height above the radar plane (match the factor)
+    reflector_height_std_m: float = 1.0  # "model" + "height": height std before truncation to the beam (match)
 
 
 @dataclass(frozen=True)
@@ -112,8 +116,7 @@ def oracle_from_frame(frame, conf: OracleConfig, rng: np.random.Generator) -> tu
     if conf.elevation == "model":
         rho = np.linalg.norm(true_pts, axis=1)
         az = np.arctan2(true_pts[:, 1], true_pts[:, 0])
-        phi = np.radians(conf.elevation_mean_deg + rng.uniform(-conf.elevation_beam_deg, conf.elevation_beam_deg,
-                                                                len(rho)))
+        phi = _draw_elevation(rho, conf, rng)
         true_pts = np.stack([rho * np.cos(phi) * np.cos(az), rho * np.cos(phi) * np.sin(az), rho * np.sin(phi)], 1)
     elif conf.elevation != "world":
         raise ValueError(f"OracleConfig.elevation={conf.elevation!r}; valid: model, world")
@@ -153,6 +156,26 @@ def oracle_from_frame(frame, conf: OracleConfig, rng: np.random.Generator) -> tu
     return corr, OracleTruth(X, inl, transform_points(N, true_pts[idx]))
 
 
+def _draw_elevation(rho: np.ndarray, conf: OracleConfig, rng: np.random.Generator) -> np.ndarray:
+    """(N,) elevations (rad) drawn from the factor's model for reflectors at slant ranges ``rho``.
+
+    "anisotropic": uniform in ``mean +- beam``. "height": height ``h ~ N(mu_h, sigma_h^2)`` truncated
+    to the beam ``[rho sin(mean - beam), rho sin(mean + beam)]``, elevation ``asin(h / rho)``.
+    """
+    lo_deg = conf.elevation_mean_deg - conf.elevation_beam_deg
+    hi_deg = conf.elevation_mean_deg + conf.elevation_beam_deg
+    if conf.elevation_model == "anisotropic":
+        return np.radians(rng.uniform(lo_deg, hi_deg, len(rho)))
+    if conf.elevation_model != "height":
+        raise ValueError(f"OracleConfig.elevation_model={conf.elevation_model!r}; valid: anisotropic, height")
+    from scipy.stats import truncnorm
+
+    mu, sd = conf.reflector_height_mean_m, conf.reflector_height_std_m
+    lo, hi = rho * np.sin(np.radians(lo_deg)), rho * np.sin(np.radians(hi_deg))
+    h = truncnorm.rvs((lo - mu) / sd, (hi - mu) / sd, loc=mu, scale=sd, size=len(rho), random_state=rng)
+    return np.arcsin(np.clip(h / np.maximum(rho, 1e-9), -1.0, 1.0))
+
+
 def _noisy(points, uv_true, K, width, height, conf: OracleConfig, rng, frame_id: str, ts: int):
     n = len(points)
     pix = uv_true + rng.normal(scale=conf.sigma_px, size=(n, 2))
@@ -178,6 +201,32 @@ def elevation_stats(truths: list[OracleTruth]) -> tuple[float, float]:
         return 0.0, 0.0
     e = np.degrees(np.arctan2(P[:, 2], np.linalg.norm(P[:, :2], axis=1)))
     return float(e.mean()), float(e.std())
+
+
+def height_stats(truths: list[OracleTruth], beam_deg: float = 7.0, mean_deg: float = 0.0) -> tuple[float, float]:
+    """Maximum-likelihood ``(mu_h, sigma_h)`` (metres) of the ``height`` elevation model from oracle
+    frames' true inlier reflectors: heights ``z`` above the radar plane, each ``N(mu_h, sigma_h^2)``
+    truncated to its beam window ``[rho sin(mean - beam), rho sin(mean + beam)]`` (``rho`` its slant
+    range). Reflectors outside their window (numerically) are clipped into it.
+    """
+    from scipy.optimize import minimize
+    from scipy.special import ndtr
+
+    P = np.concatenate([t.points_true[t.inlier] for t in truths]) if truths else np.zeros((0, 3))
+    if len(P) < 2:
+        raise ValueError("height_stats: need at least 2 inlier reflectors")
+    rho = np.linalg.norm(P, axis=1)
+    lo, hi = rho * np.sin(np.radians(mean_deg - beam_deg)), rho * np.sin(np.radians(mean_deg + beam_deg))
+    h = np.clip(P[:, 2], lo, hi)
+
+    def nll(x):
+        mu, sd = x[0], np.exp(x[1])
+        Z = np.maximum(ndtr((hi - mu) / sd) - ndtr((lo - mu) / sd), 1e-300)
+        return float(np.sum(0.5 * ((h - mu) / sd) ** 2 + np.log(sd) + np.log(Z)))
+
+    res = minimize(nll, [float(np.mean(h)), np.log(max(float(np.std(h)), 1e-3))], method="Nelder-Mead",
+                   options={"xatol": 1e-4, "fatol": 1e-6, "maxiter": 2000})
+    return float(res.x[0]), float(np.exp(res.x[1]))
 
 
 def synthetic_drive(

@@ -161,14 +161,15 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, rng, progress: bo
         e = local(T_true, final.T)
         res.error = {**extrinsic_error(final.T, T_true).as_dict(), "nees": float(e @ np.linalg.solve(final.cov, e))}
     if vi.oracle_truths:
-        from factors.projection import elevation_moments
+        from hybrid_calib.calib.covariance import prior_pinned_std
+        from hybrid_calib.calib.crb import elevation_sigma
 
         fc = conf.window.factor if conf.mode == "window" else conf.batch.factor
-        sig_e = elevation_moments(fc.elevation_beam_deg, fc.elevation_mean_deg)[2]
         T_true = vi.truth[-1]
-        F = sum(fisher_information(T_true, t.points_true[t.inlier], c.K, conf.oracle.sigma_px, sig_e)
+        F = sum(fisher_information(T_true, t.points_true[t.inlier], c.K, conf.oracle.sigma_px,
+                                   elevation_sigma(t.points_true[t.inlier], fc))
                 for c, t in zip(vi.frames, vi.oracle_truths) if t.inlier.any() and np.allclose(t.T_cam_radar, T_true))
-        res.crb_std = report_std(T_true, crb_covariance(F))
+        res.crb_std = report_std(T_true, crb_covariance(F, prior_pinned_std(fc)))
     return res
 
 

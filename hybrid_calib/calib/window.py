@@ -46,6 +46,7 @@ from hybrid_calib.calib.covariance import (
     analyse_information,
     information_from_graph,
     marginal_covariance,
+    prior_pinned_std,
 )
 from hybrid_calib.calib.drift import StepConfig, StepDetector
 from hybrid_calib.calib.result import Estimate, FrameEstimate
@@ -132,6 +133,9 @@ class SlidingWindowCalibrator:
         self.detector = StepDetector(self.conf.step)
         self.info = np.zeros((6, 6))
         self._inlier_mean: float | None = None
+        # information of external priors (e.g. the network's SE(3)) folded into the marginal prior;
+        # kept apart so the prior-pinned nuisance is removed from the data part only
+        self._marg_external_info = np.zeros((6, 6))
 
     # ------------------------------------------------------------------ linearisation
     def _gate(self) -> float:
@@ -180,6 +184,8 @@ class SlidingWindowCalibrator:
         G, H = gh
         self.marg = (retract(self.T, -np.linalg.pinv(H, hermitian=True) @ G), H)
         self.n_marg += 1
+        if fr.prior is not None:
+            self._marg_external_info = self._marg_external_info + np.linalg.inv(fr.prior.cov)
 
     def _q(self, dt_s: float) -> np.ndarray:
         c = self.conf
@@ -191,6 +197,7 @@ class SlidingWindowCalibrator:
         ``convex_frames`` updates use the convex start)."""
         self.marg = None
         self.n_marg = 0
+        self._marg_external_info = np.zeros((6, 6))
         while len(self.frames) > keep_last:
             self.frames.popleft()
         self.since_reset = 0
@@ -256,7 +263,10 @@ class SlidingWindowCalibrator:
         else:
             info = information_from_graph(solved.graph, solved.values, X)
             cov, why = marginal_covariance(solved.graph, solved.values, X)
-        rep = analyse_information(self.T, info, self.conf.covariance, cov_hint=cov)
+        ext = self._marg_external_info + sum(
+            (np.linalg.inv(fr.prior.cov) for fr in self.frames if fr.prior is not None), np.zeros((6, 6)))
+        rep = analyse_information(self.T, info, self.conf.covariance, cov_hint=cov,
+                                  pinned_std=prior_pinned_std(self.conf.factor), external_info=ext)
         self.info = info
         notes = [n for n in (why, note) if n]
         return Estimate.from_report(self.T, rep, info, "; ".join(notes)), (time.perf_counter() - t0) * 1e3

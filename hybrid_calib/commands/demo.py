@@ -33,6 +33,9 @@ def run(args: argparse.Namespace) -> int:
                   f"translation {e['trans_norm_cm']:.2f} cm (norm)")
         print(f"  1-sigma (camera):   rot {std['rot_x_deg']:.3f}/{std['rot_y_deg']:.3f}/{std['rot_z_deg']:.3f} deg, "
               f"t {std['t_x_cm']:.2f}/{std['t_y_cm']:.2f}/{std['t_z_cm']:.2f} cm")
+        if f["status"].startswith("weak"):
+            print("  note: a 2D radar records no elevation, so its height and pitch against the camera are pinned\n"
+                  "        only by the reflector-height prior; the 1-sigma above says so (docs/conventions.md)")
     print(f"calibration result:   {s['calibration_result']}")
     print(f"calibration plots:    {s['calibration_plots']}")
     return 0

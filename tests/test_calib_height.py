@@ -1,0 +1,109 @@
+"""Honest vertical translation under the ``height`` elevation model: the unobservable mean-height
+offset enters the calibrator's covariance (window and batch) and the Cramer-Rao bound; the oracle
+draws from the height model when asked."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from factors.config import RadarPixelFactorConfig
+from factors.projection import height_elevation_prior
+from hybrid_calib.calib.batch import solve_batch
+from hybrid_calib.calib.covariance import (
+    analyse_information,
+    inflate_prior_pinned,
+    prior_pinned_std,
+    report_std,
+)
+from hybrid_calib.calib.crb import crb_covariance, elevation_sigma, fisher_information
+from hybrid_calib.calib.oracle import OracleConfig, _draw_elevation, synthetic_drive
+from hybrid_calib.calib.window import SlidingWindowCalibrator
+from hybrid_calib.geometry import se3_exp, transform_points
+from tests.helpers import nominal_T_cam_radar, rng
+
+HEIGHT = {"elevation_model": "height", "reflector_height_mean_m": 0.5, "reflector_height_std_m": 0.8}
+
+
+def test_prior_pinned_std_only_for_height_model():
+    assert np.all(prior_pinned_std(RadarPixelFactorConfig(elevation_model="anisotropic")) == 0.0)
+    std = prior_pinned_std(RadarPixelFactorConfig(elevation_model="height", reflector_height_mean_std_m=0.3,
+                                                  reflector_tilt_std_deg=2.0))
+    np.testing.assert_allclose(std, [0, np.radians(2.0), 0, 0, 0, 0.3])
+    C = inflate_prior_pinned(np.eye(6) * 1e-6, [0, 0.01, 0, 0, 0, 0.2])
+    np.testing.assert_allclose(C - np.eye(6) * 1e-6, np.diag([0, 1e-4, 0, 0, 0, 0.04]), atol=1e-15)
+    with pytest.raises(ValueError):
+        inflate_prior_pinned(np.eye(6), [0, -1, 0, 0, 0, 0])
+
+
+def test_tilt_of_the_height_plane_is_a_radar_pitch_to_first_order():
+    """Heights tilted by beta about radar y (h += beta x) == T Exp([-beta e_y, 0]) p up to O(beta z)."""
+    T = nominal_T_cam_radar()
+    g = rng(4)
+    P = np.stack([g.uniform(5, 60, 50), g.uniform(-20, 20, 50), g.uniform(-1, 3, 50)], 1)
+    beta = np.radians(1.0)
+    tilted = P + np.stack([np.zeros(50), np.zeros(50), beta * P[:, 0]], 1)
+    rotated = transform_points(T @ se3_exp(np.array([0, -beta, 0, 0, 0, 0])), P)
+    d = rotated - transform_points(T, tilted)
+    assert np.abs(d).max() < 2 * beta * np.abs(P[:, 2]).max() + beta**2 * 60, np.abs(d).max()
+
+
+def test_analyse_information_inflates_radar_z_and_names_it():
+    T = nominal_T_cam_radar()
+    info = np.diag([1e8] * 3 + [1e6] * 3)  # everything observed to ~0.006 deg / 0.1 cm
+    ok = analyse_information(T, info)
+    inf = analyse_information(T, info, pinned_std=[0, 0, 0, 0, 0, 0.25])
+    assert ok.status == "ok"
+    np.testing.assert_allclose(inf.cov - ok.cov, np.diag([0, 0, 0, 0, 0, 0.0625]), atol=1e-15)
+    # radar z (up) is camera -y (down): 25 cm on camera y, and the status says so
+    assert abs(inf.std_report[4] - np.hypot(25.0, 0.1)) < 0.05
+    assert inf.status.startswith("weak: ") and "translation along camera y" in inf.status, inf.status
+    np.testing.assert_allclose(report_std(T, inf.cov), inf.std_report)
+
+
+def test_batch_and_window_covariance_include_the_offset():
+    T = nominal_T_cam_radar()
+    frames, _ = synthetic_drive(T, 3, rng(5), {"n_per_frame": 60, "outlier_frac": 0.0}, height_m=(0.5, 0.8))
+    covs = {}
+    for s in (0.0, 0.2):
+        fac = dict(HEIGHT, reflector_height_mean_std_m=s, reflector_tilt_std_deg=s * 5)
+        b = solve_batch(frames, T, {"factor": fac}).estimate
+        cal = SlidingWindowCalibrator(T, {"factor": fac, "window": 5})
+        for c in frames:
+            w = cal.update(c)
+        covs[s] = (b.cov, w.cov)
+    for k in range(2):
+        d = covs[0.2][k] - covs[0.0][k]
+        np.testing.assert_allclose([d[1, 1], d[5, 5]], [np.radians(1.0) ** 2, 0.04], rtol=1e-6)
+        d[1, 1] = d[5, 5] = 0.0
+        assert np.abs(d).max() < 1e-9 * 0.04 + 1e-12, d
+
+
+def test_crb_per_row_sigma_and_offset():
+    T = nominal_T_cam_radar()
+    g = rng(8)
+    P = np.stack([g.uniform(5, 50, 40), g.uniform(-10, 10, 40), g.uniform(-1, 2, 40)], 1)
+    K = np.array([[1266.4, 0, 816.3], [0, 1266.4, 491.5], [0, 0, 1]])
+    F1 = fisher_information(T, P, K, 2.0, 0.05)
+    np.testing.assert_allclose(fisher_information(T, P, K, 2.0, np.full(40, 0.05)), F1, rtol=1e-12)
+    conf = RadarPixelFactorConfig(**HEIGHT)
+    sig = elevation_sigma(P, conf)
+    np.testing.assert_allclose(sig, height_elevation_prior(np.linalg.norm(P, axis=1), conf)[1])
+    F = fisher_information(T, P, K, 2.0, sig)
+    # a tighter elevation prior never loses information
+    assert np.all(np.linalg.eigvalsh(F - fisher_information(T, P, K, 2.0, sig * 2)) > -1e-6 * np.abs(F).max())
+    pinned = prior_pinned_std(conf)
+    np.testing.assert_allclose(crb_covariance(F, pinned) - crb_covariance(F), np.diag(pinned**2), atol=1e-12)
+
+
+def test_oracle_height_draw_matches_the_model():
+    conf = OracleConfig(elevation_model="height", reflector_height_mean_m=0.5, reflector_height_std_m=1.5)
+    fconf = RadarPixelFactorConfig(elevation_model="height", reflector_height_mean_m=0.5, reflector_height_std_m=1.5)
+    g = rng(2)
+    for r in (8.0, 40.0):
+        rho = np.full(20000, r)
+        phi = _draw_elevation(rho, conf, g)
+        assert np.all(np.abs(phi) <= np.radians(conf.elevation_beam_deg) + 1e-12)
+        h = r * np.sin(phi)
+        mean_phi, _ = height_elevation_prior(np.array([r]), fconf)
+        assert abs(h.mean() - r * np.sin(mean_phi[0])) < 4 * h.std() / np.sqrt(len(h)) + 1e-3
