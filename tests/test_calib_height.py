@@ -107,3 +107,20 @@ def test_oracle_height_draw_matches_the_model():
         h = r * np.sin(phi)
         mean_phi, _ = height_elevation_prior(np.array([r]), fconf)
         assert abs(h.mean() - r * np.sin(mean_phi[0])) < 4 * h.std() / np.sqrt(len(h)) + 1e-3
+
+
+def test_marginalising_the_pinned_nuisance_from_data_only():
+    """Without external priors the marginalisation equals adding the nuisance variances to the
+    covariance; a tight external prior still pins the nuisance directions (it is not inflated)."""
+    from hybrid_calib.calib.covariance import marginalise_prior_pinned
+
+    g = np.random.default_rng(5)
+    A = g.normal(size=(40, 6))
+    H_data = A.T @ A * 1e4
+    std = np.array([0, 0.02, 0, 0, 0, 0.3])
+    H = marginalise_prior_pinned(H_data, std)
+    np.testing.assert_allclose(np.linalg.inv(H), np.linalg.inv(H_data) + np.diag(std**2), rtol=1e-8, atol=1e-12)
+    H_prior = np.eye(6) * 1e8  # e.g. a very confident external prior on T_cam_radar
+    H2 = marginalise_prior_pinned(H_data + H_prior, std, external_info=H_prior)
+    assert np.sqrt(np.linalg.inv(H2)[5, 5]) < 2e-4  # pinned by the prior, not 0.3 m
+    assert np.sqrt(np.linalg.inv(H2)[1, 1]) < 2e-4

@@ -163,10 +163,14 @@ def inflate_prior_pinned(cov: np.ndarray, pinned_std=None) -> np.ndarray:
     cov = np.array(cov, dtype=np.float64)
     if pinned_std is None:
         return cov
+    return cov + np.diag(_checked_pinned_std(pinned_std) ** 2)
+
+
+def _checked_pinned_std(pinned_std) -> np.ndarray:
     std = np.asarray(pinned_std, dtype=np.float64)
     if std.shape != (6,) or np.any(std < 0) or not np.all(np.isfinite(std)):
         raise ValueError(f"pinned_std must be a finite (6,) vector >= 0, got {std}")
-    return cov + np.diag(std**2)
+    return std
 
 
 def marginalise_prior_pinned(info: np.ndarray, pinned_std=None, external_info: np.ndarray | None = None) -> np.ndarray:
@@ -185,9 +189,7 @@ def marginalise_prior_pinned(info: np.ndarray, pinned_std=None, external_info: n
     info = np.asarray(info, dtype=np.float64)
     if pinned_std is None:
         return info
-    std = np.asarray(pinned_std, dtype=np.float64)
-    if std.shape != (6,) or np.any(std < 0) or not np.all(np.isfinite(std)):
-        raise ValueError(f"pinned_std must be a finite (6,) vector >= 0, got {std}")
+    std = _checked_pinned_std(pinned_std)
     axes = np.flatnonzero(std > 0)
     if len(axes) == 0:
         return info
