@@ -28,7 +28,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="run directory (default: outputs/calibrate)")
     p.add_argument("--overwrite", action="store_true", help="recompute even if RUN/result.json exists")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
-    p.add_argument("--set", nargs="*", metavar="KEY=VALUE", default=[],
+    p.add_argument("--set", action="extend", nargs="+", metavar="KEY=VALUE", default=[],
                    help="CalibrateConfig overrides, e.g. window.factor.kernel=tukey oracle.outlier_frac=0.3")
 
 

@@ -13,7 +13,7 @@ HELP = "simulate a small drive, draw radar points on the image, calibrate radar-
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=Path("outputs/demo"), help="output directory (default: outputs/demo)")
     p.add_argument("--overwrite", action="store_true", help="recompute every stage")
-    p.add_argument("--set", nargs="*", metavar="KEY=VALUE", default=[],
+    p.add_argument("--set", action="extend", nargs="+", metavar="KEY=VALUE", default=[],
                    help="DemoConfig overrides, e.g. frames=60 scenario=highway start=R2")
 
 

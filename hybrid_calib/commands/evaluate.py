@@ -34,7 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--depth", default=None,
                         help="depth estimator (default: the checkpoint's; real data: depth-anything:/local/model/dir)")
     parser.add_argument("--nsweeps", type=int, default=1, help="radar sweeps accumulated per frame")
-    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+    parser.add_argument("--set", dest="overrides", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
                         help="EvalConfig override, e.g. --set batch_size=8 --set device=cuda (repeatable)")
     parser.add_argument("--overwrite", action="store_true", help="recompute predictions already in --out")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")

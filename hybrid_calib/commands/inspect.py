@@ -25,7 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--nsweeps", type=int, default=1, help="radar sweeps accumulated per frame")
     parser.add_argument("--frame", type=int, default=None, help="frame index for the overlay (default: first loaded)")
     parser.add_argument("--out", type=Path, default=None, help="write the JSON summary, config and overlay PNG here")
-    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+    parser.add_argument("--set", dest="overrides", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
                         help="DataConfig override, e.g. --set radar_filter.enabled=false (repeatable)")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 

@@ -25,7 +25,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--change-frame", type=int, default=-1, help="frame of a step change (default: the middle)")
     p.add_argument("--workers", type=int, default=1, help="rendering processes (default: 1)")
     p.add_argument("--overwrite", action="store_true", help="re-render everything instead of resuming")
-    p.add_argument("--set", nargs="*", metavar="KEY=VALUE", default=[],
+    p.add_argument("--set", action="extend", nargs="+", metavar="KEY=VALUE", default=[],
                    help="SimConfig overrides, e.g. image_scale=0.25 radar.clutter_per_sweep=8 lidar.azimuth_steps=540")
 
 

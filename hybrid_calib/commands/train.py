@@ -27,7 +27,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--depth", default=None,
                         help="depth estimator: corrupted-truth (default) or depth-anything:/local/model/dir")
     parser.add_argument("--nsweeps", type=int, default=1, help="radar sweeps accumulated per frame")
-    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+    parser.add_argument("--set", dest="overrides", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
                         help="TrainConfig override, e.g. --set batch_size=4 --set model.feat_dim=32 (repeatable)")
     parser.add_argument("--no-resume", action="store_true", help="fail instead of resuming an existing run")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")

@@ -1,0 +1,29 @@
+"""The command line: every subcommand registers, and ``--set`` behaves the same everywhere."""
+
+import pytest
+
+from hybrid_calib.cli import COMMANDS, build_parser
+
+REQUIRED = {
+    "simulate": ["--out", "o"],
+    "demo": [],
+    "inspect": ["--data", "d", "--version", "v"],
+    "calibrate": ["--data", "d"],
+    "train": ["--data", "d", "--out", "o"],
+    "evaluate": ["--data", "d", "--checkpoint", "c", "--out", "o"],
+}
+
+
+def test_every_registered_command_has_a_parser():
+    parser = build_parser()
+    assert set(REQUIRED) == set(COMMANDS)
+    for name, req in REQUIRED.items():
+        assert parser.parse_args([name, *req]).command == name
+
+
+@pytest.mark.parametrize("name", sorted(REQUIRED))
+def test_set_accepts_several_values_and_repeats(name):
+    """``--set a=1 b=2 --set c=3`` keeps all three (a repeated --set must not drop earlier values)."""
+    args = build_parser().parse_args([name, *REQUIRED[name], "--set", "a=1", "b=2", "--set", "c=3"])
+    values = getattr(args, "set", None) or getattr(args, "overrides", None)
+    assert values == ["a=1", "b=2", "c=3"]
