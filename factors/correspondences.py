@@ -71,6 +71,12 @@ class Correspondences:
         }
 
     @classmethod
+    def empty(cls, K: np.ndarray, frame_id: str = "", timestamp_us: int = 0) -> Correspondences:
+        """A frame with no rows (a producer that found nothing to export)."""
+        return cls(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.asarray(K, np.float64),
+                   frame_id, timestamp_us)
+
+    @classmethod
     def from_npz_dict(cls, d) -> Correspondences:
         return cls(d["points_radar"], d["pixels"], d["sigma_px"], d["confidence"], d["K"],
                    str(d["frame_id"]), int(d["timestamp_us"]))

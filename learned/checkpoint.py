@@ -36,6 +36,7 @@ class Checkpoint:
     model_config: dict[str, Any]
     train_config: dict[str, Any] = field(default_factory=dict)
     metrics: dict[str, Any] = field(default_factory=dict)
+    export: dict[str, Any] = field(default_factory=dict)  # ExportConfig overrides fitted on held-out data
 
 
 def checkpoint_stem(directory: str | Path, epoch: int) -> Path:
@@ -109,7 +110,7 @@ def load_checkpoint(path: str | Path, model: torch.nn.Module | None = None,
     except (OSError, json.JSONDecodeError) as e:
         raise HybridCalibError(f"checkpoint metadata {path} is unreadable: {e}") from e
     ckpt = Checkpoint(path, int(meta["epoch"]), meta["model_config"], meta.get("train_config", {}),
-                      meta.get("metrics", {}))
+                      meta.get("metrics", {}), meta.get("export", {}))
     if model is not None:
         weights = path.parent / meta["files"]["weights"]
         state = load_file(str(weights), device=str(map_location))
@@ -128,6 +129,17 @@ def load_checkpoint(path: str | Path, model: torch.nn.Module | None = None,
         if scheduler is not None and state.get("scheduler") is not None:
             scheduler.load_state_dict(state["scheduler"])
     return ckpt
+
+
+def set_export_overrides(path: str | Path, overrides: dict[str, Any], note: str = "") -> Path:
+    """Store ``learned.export.ExportConfig`` overrides (e.g. a fitted ``cov_scale``) in a checkpoint's
+    JSON (``"export"``, merged into what is there; ``note`` says how they were fitted). Atomic."""
+    path = _resolve(path)
+    meta = json.loads(path.read_text())
+    meta["export"] = {**meta.get("export", {}), **overrides}
+    if note:
+        meta.setdefault("export_notes", {}).update({k: note for k in overrides})
+    return save_json_atomic(path, meta)
 
 
 def load_model(path: str | Path, device: str | torch.device = "cpu", model_factory=None):

@@ -149,6 +149,42 @@ def open_frames(data: str | Path, version: str = "v1.0-sim", *, lidar: bool = Tr
     return NuScenesRadarCamera(data, version, conf=options)
 
 
+class ConcatFrames(Sequence):
+    """Several frame sequences (e.g. nuScenes roots) read as one; keeps the per-frame ``.frames``
+    references that ``split_indices`` groups by, so scenes still go to one split each."""
+
+    def __init__(self, parts: Sequence[Sequence[RadarCameraFrame]]):
+        self.parts = list(parts)
+        self.offsets = np.cumsum([0] + [len(p) for p in self.parts])
+
+    def __len__(self) -> int:
+        return int(self.offsets[-1])
+
+    def __getitem__(self, i: int) -> RadarCameraFrame:
+        if not -len(self) <= i < len(self):
+            raise IndexError(f"frame {i} out of range ({len(self)} frames)")
+        i %= len(self)
+        k = int(np.searchsorted(self.offsets, i, side="right")) - 1
+        return self.parts[k][i - int(self.offsets[k])]
+
+    @property
+    def frames(self) -> list:
+        refs = []
+        for p in self.parts:
+            r = getattr(p, "frames", None)
+            refs.extend(r if r is not None and len(r) == len(p) else [p[j] for j in range(len(p))])
+        return refs
+
+
+def open_roots(roots: Sequence[str | Path], version: str = "v1.0-sim", *, lidar: bool = True,
+               options: dict | None = None) -> Sequence[RadarCameraFrame]:
+    """``open_frames`` over one or several roots (same version folder), concatenated in order."""
+    parts = [open_frames(r, version, lidar=lidar, options=options) for r in roots]
+    if not parts:
+        raise HybridCalibError("no data root given")
+    return parts[0] if len(parts) == 1 else ConcatFrames(parts)
+
+
 # ---------------------------------------------------------------------------------------------
 # Dataset
 

@@ -54,6 +54,7 @@ class EvalConfig:
     depth_options: dict = field(default_factory=dict)  # overrides of the depth estimator's config
     depth_cache: str = ""  # depth cache folder ("" = OUT/depth-cache)
     split_options: SplitConfig = field(default_factory=SplitConfig)  # must match training's to hold out scenes
+    export: dict = field(default_factory=dict)  # learned.export.ExportConfig overrides (e.g. a fitted cov_scale)
 
 
 def eval_indices(frames: Sequence[RadarCameraFrame], conf: EvalConfig) -> list[int]:
@@ -77,14 +78,17 @@ def export_pure(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig, out
                 overwrite: bool = False, progress: bool = True, exporter: Callable | None = None) -> list[Path]:
     """Run the network over the fixed evaluation list; write one ``frames/<token>.npz`` per frame.
 
-    ``exporter(model, out, batch) -> (list of Correspondences, (B, ...) uncertainty)``, default
-    ``learned.export.export_correspondences``."""
+    ``exporter(model, out, batch, export_conf) -> (list of Correspondences, (B, ...) uncertainty)``,
+    default ``learned.export.export_correspondences``; ``export_conf`` is ``ExportConfig`` merged
+    with ``conf.export``."""
     from tqdm import tqdm
 
+    from learned.export import ExportConfig
     from learned.train import model_inputs, to_device
 
     if exporter is None:
         from learned.export import export_correspondences as exporter
+    export_conf = merge(ExportConfig, conf.export)
 
     torch.set_num_threads(max(1, conf.threads))
     H, W = (int(v) for v in model.cfg.input_hw) if hasattr(model, "cfg") else (192, 400)
@@ -114,7 +118,7 @@ def export_pure(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig, out
             batch = to_device(batch, device)
             inputs = model_inputs(batch)
             out_m = model(inputs)
-            corr, unc = exporter(model, out_m, inputs)
+            corr, unc = exporter(model, out_m, inputs, export_conf)
             T_iters = torch.stack([T.double() for T in out_m["T_iters"]], dim=1).cpu().numpy()  # (B, N, 4, 4)
             unc_np = unc.detach().double().cpu().numpy() if isinstance(unc, torch.Tensor) else np.asarray(unc)
             for b, token in enumerate(batch["token"]):
@@ -151,6 +155,8 @@ class EvalResult:
     n_frames: int
     per_frame: dict[str, list[dict[str, float]]]  # row name -> per-frame errors (same order as tokens)
     tokens: list[str]
+    uncertainty: dict[str, Any] = field(default_factory=dict)  # consistency of the exported covariance
+
 
     def table(self) -> str:
         return format_table(self.rows)
@@ -164,7 +170,16 @@ class EvalResult:
                 f"| {name} | {m['rot_mean_deg']:.3f} | {m['roll_deg']:.3f} | {m['pitch_deg']:.3f} | "
                 f"{m['yaw_deg']:.3f} | {m['geodesic_deg']:.3f} | {m['trans_mean_cm']:.2f} | {m['x_cm']:.2f} | "
                 f"{m['y_cm']:.2f} | {m['z_cm']:.2f} | {m['trans_norm_cm']:.2f} |")
-        return "\n".join(lines) + f"\n\n{self.n_frames} frames; rotation in degrees, translation in cm.\n"
+        text = "\n".join(lines) + f"\n\n{self.n_frames} frames; rotation in degrees, translation in cm.\n"
+        u = self.uncertainty
+        if u:
+            text += (f"\nExported 6x6 covariance of the final estimate over {u['n_frames']} frames: mean NEES "
+                     f"{u['nees_mean']:.2f} (6 if honest), median {u['nees_median']:.2f}, "
+                     f"{100 * u['inside_95']:.1f} % inside the 95 % ellipsoid.\n\n"
+                     "| axis | RMSE | mean reported 1-sigma |\n|---|---|---|\n")
+            for name, rmse, sd in zip(u["axes"], u["rmse"], u["sigma_mean"]):
+                text += f"| {name} | {rmse:.3f} | {sd:.3f} |\n"
+        return text
 
 
 def evaluate_predictions(out: str | Path, method: str = "pure") -> EvalResult:
@@ -185,18 +200,58 @@ def evaluate_predictions(out: str | Path, method: str = "pure") -> EvalResult:
                 per.setdefault(f"{method} iter {k}", []).append(extrinsic_error(T, T_gt))
         per.setdefault(method, []).append(extrinsic_error(T_iters[-1], T_gt))
     rows = {name: summarize(errs) for name, errs in per.items()}
-    return EvalResult(rows, len(files), {n: [e.as_dict() for e in errs] for n, errs in per.items()}, tokens)
+    return EvalResult(rows, len(files), {n: [e.as_dict() for e in errs] for n, errs in per.items()}, tokens,
+                      uncertainty_consistency(out))
+
+
+UNC_AXES = ("rot_x_deg", "rot_y_deg", "rot_z_deg", "t_x_cm", "t_y_cm", "t_z_cm")  # right tangent, radar frame
+CHI2_6_95 = 12.591587243743977  # chi-square, 6 dof, 95 %
+
+
+def tangent_errors(out: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """(F, 6) right-tangent errors Log(T_final^-1 T_gt) and (F, 6, 6) exported covariances of the
+    frames under ``out/frames`` that have one (``calibrate_cov_scale`` takes both)."""
+    from hybrid_calib.geometry import local
+
+    xis, covs = [], []
+    for path in sorted((Path(out) / "frames").glob("*.npz")):
+        with np.load(path, allow_pickle=False) as z:
+            if "uncertainty" in z.files and z["uncertainty"].shape == (6, 6):
+                xis.append(local(z["T_iters"][-1], z["T_gt"]))
+                covs.append(z["uncertainty"])
+    return np.array(xis).reshape(-1, 6), np.array(covs).reshape(-1, 6, 6)
+
+
+def uncertainty_consistency(out: str | Path) -> dict[str, Any]:
+    """Is the exported per-frame covariance honest? Over the frames of ``out/frames`` with a (6, 6)
+    ``uncertainty`` of the final estimate: xi = Log(T_final^-1 T_gt) (right tangent, [rot rad, trans m])
+    and NEES = xi^T C^-1 xi. Returns {} when no frame has one, else n_frames, nees_mean (6 if honest),
+    nees_median, inside_95 (fraction with NEES below the chi-square 95 % bound; 0.95 if honest),
+    axes, rmse and sigma_mean per tangent axis (degrees / cm; the axes are the radar frame's)."""
+    xi, C = tangent_errors(out)
+    if not len(xi):
+        return {}
+    nees = np.einsum("fi,fij,fj->f", xi, np.linalg.inv(C), xi)
+    scale = np.array([np.degrees(1.0)] * 3 + [100.0] * 3)
+    return {
+        "n_frames": len(xi), "nees_mean": float(nees.mean()), "nees_median": float(np.median(nees)),
+        "inside_95": float(np.mean(nees < CHI2_6_95)), "axes": list(UNC_AXES),
+        "rmse": (np.sqrt((xi ** 2).mean(0)) * scale).tolist(),
+        "sigma_mean": (np.sqrt(np.diagonal(C, axis1=1, axis2=2)).mean(0) * scale).tolist(),
+    }
 
 
 def write_report(result: EvalResult, out: str | Path, config: dict | None = None, plot: bool = True) -> Path:
     """``results.json`` (schema below), ``results.md`` and ``errors_cdf.png`` in ``out``.
 
     results.json: {"n_frames": int, "metrics": list of metric names, "rows": {row: {metric: mean}},
-    "per_frame": {row: [{metric: value}, ...]}, "tokens": [...], "config": {...}}."""
+    "per_frame": {row: [{metric: value}, ...]}, "tokens": [...], "uncertainty": {...}
+    (``uncertainty_consistency``), "config": {...}}."""
     out = Path(out)
     path = save_json_atomic(out / "results.json", {
         "n_frames": result.n_frames, "metrics": list(METRIC_KEYS), "rows": result.rows,
-        "per_frame": result.per_frame, "tokens": result.tokens, "config": config or {}})
+        "per_frame": result.per_frame, "tokens": result.tokens, "uncertainty": result.uncertainty,
+        "config": config or {}})
     md = out / "results.md"
     tmp = md.with_name(md.name + ".tmp")
     tmp.write_text(result.markdown())

@@ -54,7 +54,7 @@ class ExportConfig:
     min_confidence: float = 0.1  # drop rows whose confidence is below this (LightGlue's match filter threshold)
     sigma_scale: float = 1.0  # multiplies sigma_px (calibratable)
     uncertainty: str = ""  # "learned" | "spread"; "" = the model config's choice
-    cov_scale: float = 1.0  # multiplies the 6x6 covariance (calibratable, see calibrate_cov_scale)
+    cov_scale: float | tuple = 1.0  # multiplies the 6x6 covariance: one factor or 6 per-axis (calibrate_cov_scale)
     cov_floor: tuple = (1e-3, 1e-2)  # "spread" floor: rad, m (no estimate is better than this)
 
 
@@ -94,8 +94,10 @@ def refine_matches(log_P: torch.Tensor, grid: tuple, cell_R: torch.Tensor, windo
     return dict(centre=centre, var=var, mass=mass, best=best)
 
 
-def frame_covariance(out: dict, kind: str, cov_scale: float = 1.0, floor: tuple = (1e-3, 1e-2)) -> np.ndarray:
-    """(B, 6, 6) float64 covariance of T_iters[-1] (right tangent, [rot rad, trans m])."""
+def frame_covariance(out: dict, kind: str, cov_scale: float | tuple = 1.0, floor: tuple = (1e-3, 1e-2)
+                     ) -> np.ndarray:
+    """(B, 6, 6) float64 covariance of T_iters[-1] (right tangent, [rot rad, trans m]); the diagonal
+    is multiplied by ``cov_scale`` (a scalar or 6 per-axis factors)."""
     if kind == "learned":
         var = out["log_var"][-1].detach().exp()
     elif kind == "spread":
@@ -104,21 +106,29 @@ def frame_covariance(out: dict, kind: str, cov_scale: float = 1.0, floor: tuple 
         var = xi * xi + fl * fl
     else:
         raise ValueError(f"uncertainty kind must be 'learned' or 'spread', got {kind!r}")
-    return np.stack([np.diag(v) for v in _np(var)]) * cov_scale
+    scale = np.broadcast_to(np.asarray(cov_scale, dtype=np.float64), (6,))
+    return np.stack([np.diag(v * scale) for v in _np(var)])
 
 
 def export_correspondences(model, out: dict, batch: Mapping, conf: ExportConfig | None = None
                            ) -> tuple[list[Correspondences], np.ndarray]:
     """Per sample: ``Correspondences`` (FV matches) and a (B, 6, 6) covariance of the final estimate.
 
-    model: the ``RCAutoCalib`` that produced ``out`` (needs use_ems and the FV view).
+    model: the ``RCAutoCalib`` that produced ``out``. Without the FV matching head (``use_ems=False``
+    or ``views='bev'``, ablations) every frame gets empty ``Correspondences`` and only the covariance.
     batch: the forward batch (``radar``, ``K``; optional ``frame_id`` (or ``token``) list of str and
     ``timestamp_us``).
     """
     conf = conf or ExportConfig()
     cfg = model.cfg
+    cov = frame_covariance(out, conf.uncertainty or cfg.uncertainty, conf.cov_scale, conf.cov_floor)
+    ids = batch.get("frame_id", batch.get("token"))
+    stamps = batch.get("timestamp_us")
+    K = _np(batch["K"])
     if not (cfg.use_ems and cfg.views in ("both", "fv")):
-        raise ValueError("export needs the FV matching head (use_ems=True and views 'both' or 'fv')")
+        # ablated models (no EMS, or BEV only) have no FV assignment: the SE(3) and covariance only
+        return [Correspondences.empty(K[b], str(ids[b]) if ids is not None else str(b),
+                                      int(stamps[b]) if stamps is not None else 0) for b in range(len(K))], cov
     n = conf.iteration
     match = out["match"][n]["fv"]
     render = out["render"][n]
@@ -132,9 +142,6 @@ def export_correspondences(model, out: dict, batch: Mapping, conf: ExportConfig 
     sigma = conf.sigma_scale * torch.sqrt(ref["var"] + STRIDE ** 2 / 12.0)
     confidence = ref["mass"].clamp(0.0, 1.0)
     keep = (cell_R >= 0) & (confidence >= conf.min_confidence) & torch.isfinite(pixels).all(-1)
-    ids = batch.get("frame_id", batch.get("token"))
-    stamps = batch.get("timestamp_us")
-    K = _np(batch["K"])
     pts, pix, sig, cf, kp = (_np(batch["radar"]), _np(pixels), _np(sigma), _np(confidence),
                              keep.detach().cpu().numpy())
     corr = []
@@ -145,7 +152,6 @@ def export_correspondences(model, out: dict, batch: Mapping, conf: ExportConfig 
             frame_id=str(ids[b]) if ids is not None else str(b),
             timestamp_us=int(stamps[b]) if stamps is not None else 0,
         ))
-    cov = frame_covariance(out, conf.uncertainty or cfg.uncertainty, conf.cov_scale, conf.cov_floor)
     return corr, cov
 
 
@@ -154,10 +160,16 @@ def extrinsics_per_iteration(out: dict) -> np.ndarray:
     return np.stack([_np(T) for T in out["T_iters"]], 1)
 
 
-def calibrate_cov_scale(errors: np.ndarray, covs: np.ndarray) -> float:
-    """Scalar s such that the mean NEES xi^T (s C)^-1 xi equals 6 on held-out frames.
+def calibrate_cov_scale(errors: np.ndarray, covs: np.ndarray, per_axis: bool = False) -> float | list[float]:
+    """Scale(s) that make the exported covariance honest on held-out frames.
 
-    errors: (F, 6) right-tangent errors Log(T_est^-1 T_gt); covs: (F, 6, 6).
+    errors: (F, 6) right-tangent errors Log(T_est^-1 T_gt); covs: (F, 6, 6) as exported.
+    ``per_axis=False``: scalar s with mean NEES xi^T (s C)^-1 xi = 6. ``per_axis=True``: 6 factors
+    s_k = mean(xi_k^2 / C_kk), so every axis's normalised squared error averages 1 (for the diagonal
+    covariances the network exports this also gives mean NEES 6).
     """
+    errors, covs = np.asarray(errors, np.float64), np.asarray(covs, np.float64)
+    if per_axis:
+        return [float(v) for v in np.mean(errors ** 2 / np.diagonal(covs, axis1=1, axis2=2), axis=0)]
     nees = np.einsum("fi,fij,fj->f", errors, np.linalg.inv(covs), errors)
     return float(np.mean(nees) / 6.0)

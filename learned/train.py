@@ -67,6 +67,7 @@ class TrainConfig:
     depth_cache: str = ""  # depth cache folder ("" = OUT/depth-cache)
     split: SplitConfig = field(default_factory=SplitConfig)  # train / val / test assignment of scenes
     context_weights: str = ""  # local ResNet-18 ImageNet weights for the image context net ("" = from scratch)
+    init_weights: str = ""  # checkpoint (.json) whose weights start a new run (fine-tuning, e.g. R2 from R1)
 
 
 PRESETS: dict[str, dict[str, Any]] = {
@@ -195,6 +196,15 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
     if conf.context_weights and last is None:
         loaded = model.load_context_weights(conf.context_weights)
         log.info("image context network: %d tensors from %s", len(loaded), conf.context_weights)
+    if conf.init_weights and last is None:
+        init = load_checkpoint(conf.init_weights)
+        if init.model_config != model_conf_dict:
+            diff = sorted(k for k in set(init.model_config) | set(model_conf_dict)
+                          if init.model_config.get(k) != model_conf_dict.get(k))
+            raise HybridCalibError(f"init_weights {conf.init_weights} has another model config (differs in "
+                                   f"{', '.join(diff)}); train with its preset and --set model.* options")
+        load_checkpoint(conf.init_weights, model, map_location=device)
+        log.info("weights initialised from %s (epoch %d)", conf.init_weights, init.epoch)
     if last is not None:
         ckpt = load_checkpoint(last, model, optimizer, scheduler, map_location=device)
         start = ckpt.epoch + 1

@@ -43,6 +43,21 @@ def test_export_shapes_and_finite_values():
     assert all(len(c) == 0 for c in corr_hi)
 
 
+@pytest.mark.parametrize("ablation", [{"use_ems": False}, {"views": "bev"}])
+def test_ablated_models_export_the_covariance_without_rows(ablation):
+    model = tiny_model(**ablation).eval()
+    batch = make_batch(2, seed=4)
+    batch["frame_id"] = ["tokA", "tokB"]
+    with torch.no_grad():
+        out = model(batch)
+    corr, cov = export_correspondences(model, out, batch)
+    assert [len(c) for c in corr] == [0, 0] and [c.frame_id for c in corr] == ["tokA", "tokB"]
+    assert cov.shape == (2, 6, 6) and np.all(np.linalg.eigvalsh(cov) > 0)
+    scaled = frame_covariance(out, "learned", cov_scale=(1, 2, 3, 4, 5, 6))
+    np.testing.assert_allclose(np.diagonal(scaled, axis1=1, axis2=2), np.diagonal(cov, axis1=1, axis2=2)
+                               * np.arange(1, 7), rtol=1e-12)
+
+
 def test_forced_true_assignment_exports_true_pixels():
     model = tiny_model().eval()
     batch = make_batch(2, seed=6, rot_deg=3.0, trans_m=0.2)
@@ -101,6 +116,17 @@ def test_learned_covariance_tracks_error_after_variance_training():
     np.testing.assert_allclose(lv.exp()[0].numpy(), (errs ** 2).mean(0).numpy(), rtol=0.05)
     covs = np.stack([np.diag(v) for v in lv.exp().repeat(3, 1).double().numpy()])
     assert calibrate_cov_scale(errs.double().numpy(), covs) == pytest.approx(1.0, rel=0.05)
+
+
+def test_per_axis_cov_scale_makes_each_axis_honest():
+    g = np.random.default_rng(3)
+    true_sd = np.array([0.01, 0.02, 0.005, 0.1, 0.05, 0.2])
+    errors = g.normal(size=(4000, 6)) * true_sd
+    reported = np.tile(np.diag((true_sd * np.array([0.5, 1, 2, 1, 1, 3])) ** 2), (4000, 1, 1))
+    s = calibrate_cov_scale(errors, reported, per_axis=True)
+    np.testing.assert_allclose(s, [4, 1, 0.25, 1, 1, 1 / 9], rtol=0.1)
+    fixed = reported * np.array(s)[None, :, None] * np.eye(6)
+    assert calibrate_cov_scale(errors, fixed) == pytest.approx(1.0, rel=0.02)
 
 
 def test_plot_frame_writes_png(tmp_path):

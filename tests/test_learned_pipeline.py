@@ -254,6 +254,35 @@ def test_train_checkpoints_logs_and_resumes(frames, tmp_path):
         train(train_config("small", other), frames, run, progress=False)
 
 
+def test_init_weights_starts_a_new_run_from_a_checkpoint(frames, tmp_path):
+    from learned.train import train, train_config
+
+    base = train(train_config("small", _train_conf(tmp_path, 1)), frames, tmp_path / "base", progress=False)
+    conf = _train_conf(tmp_path, 1) | {"init_weights": str(base), "lr": 0.0}  # lr 0: weights stay the start
+    tuned = train(train_config("small", conf), frames, tmp_path / "tuned", progress=False)
+    w0, w1 = _weights(base.with_suffix(".safetensors")), _weights(tuned.with_suffix(".safetensors"))
+    float_keys = [k for k in w0 if w0[k].is_floating_point() and "running" not in k]
+    assert all(torch.equal(w0[k], w1[k]) for k in float_keys)
+    scratch = train(train_config("small", _train_conf(tmp_path, 1) | {"lr": 0.0, "seed": 5}), frames,
+                    tmp_path / "scratch", progress=False)
+    ws = _weights(scratch.with_suffix(".safetensors"))
+    assert any(not torch.equal(w0[k], ws[k]) for k in float_keys)  # the check above can fail
+    other = _train_conf(tmp_path, 1) | {"init_weights": str(base), "model": {**TINY_MODEL, "lstm_hidden": 16}}
+    with pytest.raises(HybridCalibError, match="lstm_hidden"):
+        train(train_config("small", other), frames, tmp_path / "bad", progress=False)
+
+
+def test_concat_frames_keeps_scene_groups(frames):
+    from learned.dataset import ConcatFrames
+
+    both = ConcatFrames([frames[:6], frames[6:]])
+    assert len(both) == len(frames) and both[7] is frames[7] and both[-1] is frames[-1]
+    with pytest.raises(IndexError):
+        both[len(frames)]
+    for split in ("train", "val", "test"):
+        assert split_indices(both, split, SPLIT) == split_indices(frames, split, SPLIT)
+
+
 def test_checkpoint_round_trip_restores_model_and_optimizer(tmp_path):
     from learned.checkpoint import load_checkpoint, save_checkpoint
 
@@ -302,7 +331,7 @@ class OracleModel(torch.nn.Module):
         return {"T_iters": [T0, mid, T1]}
 
 
-def oracle_exporter(model, out, batch):
+def oracle_exporter(model, out, batch, export_conf=None):
     corr = []
     for b in range(len(batch["T_gt"])):
         m = batch["radar_mask"][b]
@@ -385,6 +414,28 @@ def test_cli_train_then_evaluate(sim_root, tmp_path, capsys):
     assert res["n_frames"] == 3  # the held-out scene only (split taken from the checkpoint)
     assert res["config"]["eval"]["split_options"]["test_groups"] == ["scene-sim-veh-002"]
     assert set(res["rows"]["pure"]) == set(METRIC_KEYS) and (out / "results.md").is_file()
+    assert res["uncertainty"]["n_frames"] == 3 and len(res["uncertainty"]["rmse"]) == 6
+
+    # fit the covariance scale on the val scene; it lands in the checkpoint and the next export uses it
+    ckpt_json = run / "checkpoints" / "ckpt-0001.json"
+    assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--split", "val",
+                                     "--fit-uncertainty", "--out", str(tmp_path / "fit"), "--no-progress"]) == 0
+    assert "fitted cov_scale" in capsys.readouterr().out
+    fitted = json.loads(ckpt_json.read_text())["export"]["cov_scale"]
+    assert len(fitted) == 6 and all(v > 0 for v in fitted)
+    from learned.evaluate import tangent_errors
+
+    xi, C = tangent_errors(tmp_path / "fit")
+    np.testing.assert_allclose(fitted, np.mean(xi ** 2 / np.diagonal(C, axis1=1, axis2=2), axis=0))
+    assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--out",
+                                     str(tmp_path / "scaled"), "--no-progress"]) == 0
+    capsys.readouterr()
+    raw = {p.name: np.load(p)["uncertainty"] for p in (out / "frames").glob("*.npz")}
+    for p in (tmp_path / "scaled" / "frames").glob("*.npz"):
+        np.testing.assert_allclose(np.diag(np.load(p)["uncertainty"]), np.diag(raw[p.name]) * fitted, rtol=1e-6)
+    assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--fit-uncertainty",
+                                     "--out", str(tmp_path / "e3")]) == 2
+    assert "nothing held out" in capsys.readouterr().err
     assert _run_command("evaluate", ["--data", str(sim_root), "--method", "hybrid-typo", "--checkpoint", str(run),
                                      "--out", str(tmp_path / "e2")]) == 2
     assert "unknown method 'hybrid-typo'" in capsys.readouterr().err

@@ -7,6 +7,12 @@ final estimate) is printed and written to ``OUT/results.json`` (schema in
 ``learned.evaluate.write_report``), ``OUT/results.md`` and ``OUT/errors_cdf.png``. The split and the
 depth estimator default to the checkpoint's training config, so ``--split test`` holds out the same
 scenes training did.
+
+The exported per-frame covariance of the network's SE(3) is multiplied by the checkpoint's fitted
+``export.cov_scale`` when it has one. ``--fit-uncertainty`` fits it: it exports the raw covariance,
+computes per-axis factors that make each axis's normalised squared error average 1 on these frames
+(``learned.export.calibrate_cov_scale``) and writes them into the checkpoint's JSON. Fit on the
+validation split (or a separate root), then check on the test split: the report's NEES should be ~6.
 """
 
 from __future__ import annotations
@@ -15,12 +21,14 @@ import argparse
 from pathlib import Path
 
 from hybrid_calib.config import parse_overrides
+from hybrid_calib.errors import HybridCalibError
 
 HELP = "evaluate a trained network on held-out frames (paper table: rotation deg, translation cm)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--data", required=True, type=Path, help="nuScenes root (holds VERSION/ and samples/)")
+    parser.add_argument("--data", required=True, type=Path, nargs="+",
+                        help="nuScenes root(s) (each holds VERSION/ and samples/); several are read as one")
     parser.add_argument("--version", default="v1.0-sim", help="version folder (default v1.0-sim)")
     parser.add_argument("--range", dest="perturbation", default="R1", choices=("R1", "R2"),
                         help="perturbation range of the starts (fixed per frame)")
@@ -36,13 +44,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--nsweeps", type=int, default=1, help="radar sweeps accumulated per frame")
     parser.add_argument("--set", dest="overrides", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
                         help="EvalConfig override, e.g. --set batch_size=8 --set device=cuda (repeatable)")
+    parser.add_argument("--fit-uncertainty", action="store_true",
+                        help="fit per-axis factors for the exported covariance on these frames and store them in "
+                             "the checkpoint (use --split val or a separate root; never the test split)")
     parser.add_argument("--overwrite", action="store_true", help="recompute predictions already in --out")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
 
 def run(args: argparse.Namespace) -> int:
     from learned.checkpoint import load_model
-    from learned.dataset import open_frames
+    from learned.dataset import open_roots
     from learned.evaluate import evaluate
 
     model, ckpt = load_model(args.checkpoint)
@@ -56,11 +67,35 @@ def run(args: argparse.Namespace) -> int:
         conf["depth"] = args.depth
         if args.depth != trained.get("depth"):
             conf["depth_options"] = {}  # the checkpoint's options belong to its own estimator
+    conf["export"] = dict(ckpt.export)
+    if args.fit_uncertainty:
+        if args.split == "test":
+            raise HybridCalibError("--fit-uncertainty on the test split would leave nothing held out to check it; "
+                                   "fit with --split val (or --split all on a separate root)")
+        conf["export"]["cov_scale"] = 1.0  # fit against the raw covariance
     conf.update(parse_overrides(args.overrides))
     lidar = model.cfg.variant == "lidar"  # the LiDAR-camera variant calibrates T_cam_lidar from LiDAR points
-    frames = open_frames(args.data, args.version, lidar=lidar, options={"nsweeps": args.nsweeps})
+    frames = open_roots(args.data, args.version, lidar=lidar, options={"nsweeps": args.nsweeps})
     result = evaluate(model, frames, conf, args.out, checkpoint=ckpt.path, overwrite=args.overwrite,
                       progress=not args.no_progress)
     print(result.table())
+    u = result.uncertainty
+    if u:
+        print(f"exported covariance: mean NEES {u['nees_mean']:.2f} (6 if honest), "
+              f"{100 * u['inside_95']:.1f} % inside the 95 % ellipsoid ({u['n_frames']} frames)")
     print(f"wrote {Path(args.out) / 'results.json'} and results.md")
+    if args.fit_uncertainty:
+        from learned.checkpoint import set_export_overrides
+        from learned.evaluate import tangent_errors
+        from learned.export import calibrate_cov_scale
+
+        errors, covs = tangent_errors(args.out)
+        if not len(errors):
+            raise HybridCalibError(f"no exported covariances in {args.out}; nothing to fit")
+        scale = calibrate_cov_scale(errors, covs, per_axis=True)
+        roots = " ".join(str(d) for d in args.data)
+        note = (f"per-axis fit on {len(errors)} frames of {roots} (split {args.split}, range "
+                f"{args.perturbation}) by hybrid-calib evaluate --fit-uncertainty")
+        set_export_overrides(ckpt.path, {"cov_scale": scale}, note)
+        print(f"fitted cov_scale {', '.join(f'{v:.3g}' for v in scale)} -> written to {ckpt.path}")
     return 0

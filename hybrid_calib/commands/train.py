@@ -16,7 +16,8 @@ HELP = "train the RC-AutoCalib network (resumable; presets small / paper)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--data", required=True, type=Path, help="nuScenes root (holds VERSION/ and samples/)")
+    parser.add_argument("--data", required=True, type=Path, nargs="+",
+                        help="nuScenes root(s) (each holds VERSION/ and samples/); several are trained on together")
     parser.add_argument("--version", default="v1.0-sim", help="version folder (default v1.0-sim)")
     parser.add_argument("--preset", default="small", choices=("small", "paper"),
                         help="small: 2 CPU cores, well under two hours; paper: 400x192, 50 epochs, Adam 1e-4")
@@ -26,6 +27,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--epochs", type=int, default=None, help="number of epochs (overrides the preset)")
     parser.add_argument("--depth", default=None,
                         help="depth estimator: corrupted-truth (default) or depth-anything:/local/model/dir")
+    parser.add_argument("--init", default=None, metavar="CKPT",
+                        help="start a new run from this checkpoint's weights (fine-tuning; same model config)")
     parser.add_argument("--nsweeps", type=int, default=1, help="radar sweeps accumulated per frame")
     parser.add_argument("--set", dest="overrides", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
                         help="TrainConfig override, e.g. --set batch_size=4 --set model.feat_dim=32 (repeatable)")
@@ -34,15 +37,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from learned.dataset import open_frames
+    from learned.dataset import open_roots
     from learned.train import train, train_config
 
     overrides = parse_overrides(args.overrides)
     for key in ("perturbation", "epochs", "depth"):
         if getattr(args, key) is not None:
             overrides[key] = getattr(args, key)
+    if args.init is not None:
+        overrides["init_weights"] = args.init
     conf = train_config(args.preset, overrides)
-    frames = open_frames(args.data, args.version, options={"nsweeps": args.nsweeps})
+    frames = open_roots(args.data, args.version, options={"nsweeps": args.nsweeps})
     last = train(conf, frames, args.out, resume=not args.no_resume, progress=not args.no_progress)
     print(f"last checkpoint: {last}")
     return 0
