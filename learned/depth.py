@@ -1,10 +1,12 @@
 """Metric depth for the camera branch: pluggable estimators and a per-frame on-disk cache.
 
 The network's camera front-view map is a *metric* depth image estimated from the RGB image (the
-paper uses Depth Anything + ZoeDepth). Two estimators implement the same small interface:
+paper uses Depth Anything + ZoeDepth). Three estimators implement the same small interface:
 
 - ``DepthAnythingEstimator``: a ``transformers`` Depth Anything model with a metric head, loaded
   only from a local directory the user gives (``local_files_only=True``; nothing is downloaded).
+- ``LidarDepth`` (``lidar-densified``): the frame's LiDAR sweep projected through the dataset's
+  LiDAR-camera extrinsic and hole-filled; for real roots when no local monocular model is at hand.
 - ``CorruptedTruthDepth``: for the synthetic world. It takes the simulator's ground-truth depth and
   corrupts it the way monocular estimators err (global scale and shift error, smoothing across
   depth edges, range-growing noise), deterministically per frame, so the network never trains on
@@ -144,6 +146,89 @@ class CorruptedTruthDepth:
 
 
 # ---------------------------------------------------------------------------------------------
+# LiDAR-densified depth (real nuScenes roots without a local monocular model)
+
+
+@dataclass(frozen=True)
+class LidarDepthConfig:
+    min_depth_m: float = 1.0  # LiDAR returns nearer than this (ego body) are dropped
+    max_depth_m: float = 200.0  # and farther than this
+    occlusion_kernel_px: int = 5  # a return with a much nearer one in this window is background seen through
+    occlusion_ratio: float = 0.8  # a gap between beams: it takes the nearer depth (nearer = < ratio x own)
+    fill_kernels_px: tuple = (3, 5, 9, 17)  # hole filling: nearest-depth fill with growing square windows
+    blur_px: float = 0.0  # optional smoothing (Gaussian sigma, output pixels) of the filled map
+
+
+class LidarDepth:
+    """Metric depth from the frame's LiDAR sweep, projected through the dataset's (known) LiDAR-camera
+    extrinsic and densified: for users without a local Depth Anything model, and for real nuScenes
+    roots, where the LiDAR is calibrated to the camera and only the radar is in question.
+
+    ``estimate``: points ``T_cam_lidar @ p`` in front of the camera are projected with K scaled to
+    ``size_hw``; each pixel keeps its nearest return; a return with a much nearer one within
+    ``occlusion_kernel_px`` is background seen between the beams of a foreground object and takes that
+    depth; empty pixels then take the nearest depth within growing windows (``fill_kernels_px``, a
+    min-filter over valid pixels), so foreground wins at edges.
+    Pixels still empty (above the LiDAR's top beam: sky, tall structures) stay 0 = unknown.
+    Returns (H, W) float32 metres. Needs ``frame.lidar_points`` and ``frame.T_cam_lidar``.
+    """
+
+    name = "lidar-densified"
+
+    def __init__(self, conf: LidarDepthConfig | dict | None = None):
+        self.conf = merge(LidarDepthConfig, conf)
+
+    def config_hash(self) -> str:
+        return _hash_config(self.name, self.conf)
+
+    def estimate(self, frame: RadarCameraFrame, size_hw: tuple[int, int],
+                 image: np.ndarray | None = None) -> np.ndarray:
+        if frame.lidar_points is None or frame.T_cam_lidar is None:
+            raise DataError("LidarDepth needs the frame's LiDAR sweep and T_cam_lidar but it has none; load the "
+                            "root with its LIDAR_TOP channel (load_lidar) or use another --depth",
+                            token=frame.camera_token)
+        cam = frame.camera.scaled(size_hw[1] / frame.camera.width, size_hw[0] / frame.camera.height)
+        K = cam.K  # the same resized intrinsics the dataset gives the network
+        pts = np.asarray(frame.lidar_points, np.float64)[:, :3]
+        T = np.asarray(frame.T_cam_lidar, np.float64)
+        return self.densify(pts @ T[:3, :3].T + T[:3, 3], K, size_hw)
+
+    def densify(self, points_cam: np.ndarray, K: np.ndarray, size_hw: tuple[int, int]) -> np.ndarray:
+        """(M, 3) camera-frame points (metres), K (3, 3) at ``size_hw`` -> (H, W) float32 metres (0 = unknown)."""
+        import cv2
+
+        c = self.conf
+        H, W = int(size_hw[0]), int(size_hw[1])
+        z = points_cam[:, 2]
+        keep = (z > c.min_depth_m) & (z < c.max_depth_m)
+        p, z = points_cam[keep], z[keep]
+        u = np.floor(K[0, 0] * p[:, 0] / z + K[0, 2] + 0.5).astype(np.int64)
+        v = np.floor(K[1, 1] * p[:, 1] / z + K[1, 2] + 0.5).astype(np.int64)
+        inside = (u >= 0) & (u < W) & (v >= 0) & (v < H)
+        depth = np.full(H * W, np.inf, np.float32)
+        np.minimum.at(depth, v[inside] * W + u[inside], z[inside].astype(np.float32))
+        depth = depth.reshape(H, W)
+        if c.occlusion_kernel_px > 1:
+            k = int(c.occlusion_kernel_px)
+            near = cv2.erode(depth, np.ones((k, k), np.uint8), borderType=cv2.BORDER_REPLICATE)
+            hidden = np.isfinite(depth) & (near < c.occlusion_ratio * depth)
+            depth = np.where(hidden, near, depth)
+        for k in c.fill_kernels_px:
+            empty = ~np.isfinite(depth)
+            if not empty.any():
+                break
+            near = cv2.erode(depth, np.ones((int(k), int(k)), np.uint8), borderType=cv2.BORDER_REPLICATE)
+            depth = np.where(empty, near, depth)
+        known = np.isfinite(depth)
+        depth = np.where(known, depth, 0.0).astype(np.float32)
+        if c.blur_px > 0 and known.any():
+            num = cv2.GaussianBlur(depth, (0, 0), c.blur_px)
+            den = cv2.GaussianBlur(known.astype(np.float32), (0, 0), c.blur_px)
+            depth = np.where(known, num / np.maximum(den, 1e-6), 0.0).astype(np.float32)
+        return depth
+
+
+# ---------------------------------------------------------------------------------------------
 # Depth Anything (transformers), local directory only
 
 
@@ -280,8 +365,11 @@ def build_depth_estimator(spec: str, overrides: dict | None = None) -> DepthEsti
     ``DepthAnythingEstimator`` from that local directory. ``overrides`` go to the estimator config."""
     if spec == CorruptedTruthDepth.name:
         return CorruptedTruthDepth(overrides)
+    if spec == LidarDepth.name:
+        return LidarDepth(overrides)
     if spec.startswith("depth-anything:"):
         return DepthAnythingEstimator(spec.split(":", 1)[1], overrides)
     raise HybridCalibError(
         f"unknown depth estimator {spec!r}: use 'corrupted-truth' (synthetic data with ground-truth "
-        "depth) or 'depth-anything:/local/model/dir'")
+        "depth), 'lidar-densified' (the frame's LiDAR through the known LiDAR-camera extrinsic) or "
+        "'depth-anything:/local/model/dir'")

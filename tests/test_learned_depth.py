@@ -8,7 +8,7 @@ import pytest
 from hybrid_calib.data.frame import RadarCameraFrame, write_depth_png
 from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.sensors.camera import PinholeCamera
-from learned.depth import CorruptedTruthDepth, DepthCache, build_depth_estimator
+from learned.depth import CorruptedTruthDepth, DepthCache, LidarDepth, build_depth_estimator
 
 H, W = 60, 120
 QUIET = dict(scale_std=0.0, shift_std_m=0.0, edge_blur_px=0.0, rel_noise_lowfreq=0.0, noise_rel=0.0,
@@ -124,6 +124,35 @@ def test_build_depth_estimator_rejects_unknown_names():
     assert isinstance(build_depth_estimator("corrupted-truth", {"seed": 2}), CorruptedTruthDepth)
     with pytest.raises(HybridCalibError, match="unknown depth estimator"):
         build_depth_estimator("midas")
+
+
+def test_lidar_depth_projects_fills_and_keeps_the_foreground(tmp_path):
+    import dataclasses
+
+    # LiDAR frame = camera frame rotated (x fwd, y left, z up); a dense wall at 30 m, a post at 8 m
+    R = np.array([[0.0, -1, 0], [0, 0, -1], [1, 0, 0]])  # camera <- lidar
+    T_cam_lidar = np.eye(4)
+    T_cam_lidar[:3, :3] = R
+    ys, zs = np.meshgrid(np.linspace(-12, 12, 90), np.linspace(-4, 2, 25))
+    wall = np.stack([np.full(ys.size, 30.0), ys.ravel(), zs.ravel()], 1)
+    py, pz = np.meshgrid(np.linspace(-0.1, 0.1, 3), np.linspace(-1.2, 0.4, 12))
+    post = np.stack([np.full(py.size, 8.0), py.ravel(), pz.ravel()], 1)
+    pts = np.concatenate([wall, post, [[0.3, 0.0, 0.0]]])  # and one return inside the ego body
+    lidar = np.c_[pts, np.zeros(len(pts))].astype(np.float32)
+    frame = dataclasses.replace(make_frame(tmp_path, None), lidar_points=lidar, T_cam_lidar=T_cam_lidar)
+    d = LidarDepth().estimate(frame, (H, W))
+    assert d.shape == (H, W) and d.dtype == np.float32
+    known = d > 0
+    assert 0.5 < known.mean() < 1.0 and not known[0].any()  # rows above the top beam stay unknown
+    np.testing.assert_allclose(d[known & (d > 20)], 30.0, atol=1e-4)  # z-depth of the wall
+    post_px = np.floor(100.0 * np.array([0.0, 0.5]) / 8.0 + np.array([59.5, 29.5]) + 0.5).astype(int)
+    assert d[post_px[1], post_px[0]] == pytest.approx(8.0)  # nearest return wins (the post, not the wall)
+    assert d.min() >= 0 and (d[known] >= 8.0 - 1e-5).all()  # the 0.3 m return was dropped
+    half = LidarDepth().estimate(frame, (H // 2, W // 2))
+    assert half.shape == (H // 2, W // 2) and np.isclose(half[half > 20], 30.0).all()
+    assert isinstance(build_depth_estimator("lidar-densified"), LidarDepth)
+    with pytest.raises(DataError, match="LiDAR sweep"):
+        LidarDepth().estimate(make_frame(tmp_path, None, "nolidar"), (H, W))
 
 
 def _tiny_depth_anything(directory, metric: bool = True):

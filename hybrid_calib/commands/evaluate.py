@@ -40,7 +40,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="test (default; scenes held out in training), val, train, or all (a separate root)")
     parser.add_argument("--max-frames", type=int, default=0, help="evaluate at most this many frames (0 = all)")
     parser.add_argument("--depth", default=None,
-                        help="depth estimator (default: the checkpoint's; real data: depth-anything:/local/model/dir)")
+                        help="depth estimator (default: the checkpoint's; real data: depth-anything:/local/model/dir "
+                             "or lidar-densified)")
     parser.add_argument("--nsweeps", type=int, default=1, help="radar sweeps accumulated per frame")
     parser.add_argument("--set", dest="overrides", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
                         help="EvalConfig override, e.g. --set batch_size=8 --set device=cuda (repeatable)")
@@ -74,7 +75,8 @@ def run(args: argparse.Namespace) -> int:
                                    "fit with --split val (or --split all on a separate root)")
         conf["export"]["cov_scale"] = 1.0  # fit against the raw covariance
     conf.update(parse_overrides(args.overrides))
-    lidar = model.cfg.variant == "lidar"  # the LiDAR-camera variant calibrates T_cam_lidar from LiDAR points
+    # the LiDAR-camera variant calibrates T_cam_lidar from LiDAR points; lidar-densified depth reads them too
+    lidar = model.cfg.variant == "lidar" or conf.get("depth") == "lidar-densified"
     frames = open_roots(args.data, args.version, lidar=lidar, options={"nsweeps": args.nsweeps})
     result = evaluate(model, frames, conf, args.out, checkpoint=ckpt.path, overwrite=args.overwrite,
                       progress=not args.no_progress)

@@ -26,7 +26,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="perturbation range of the training starts (default R1)")
     parser.add_argument("--epochs", type=int, default=None, help="number of epochs (overrides the preset)")
     parser.add_argument("--depth", default=None,
-                        help="depth estimator: corrupted-truth (default) or depth-anything:/local/model/dir")
+                        help="depth estimator: corrupted-truth (default), lidar-densified or "
+                             "depth-anything:/local/model/dir")
     parser.add_argument("--init", default=None, metavar="CKPT",
                         help="start a new run from this checkpoint's weights (fine-tuning; same model config)")
     parser.add_argument("--nsweeps", type=int, default=1, help="radar sweeps accumulated per frame")
