@@ -37,6 +37,10 @@ from learned.depth import DepthCache, build_depth_estimator
 
 log = logging.getLogger(__name__)
 
+# ModelConfig keys that shape only the training loss: a fine-tuning run (init_weights) may change them
+LOSS_ONLY_KEYS = ("beta", "lam", "iter_gamma", "calib_rot_weight", "calib_trans_weight", "calib_point_weight",
+                  "unc_weight", "use_nr", "nr_tau", "nr_delta_s_m", "nr_delta_m", "nr_chunk")
+
 # Batch keys the model reads (the dataset adds bookkeeping keys: perturbation, index, token).
 MODEL_KEYS = ("image", "depth", "K", "radar", "radar_mask", "T_init", "T_gt", "lidar_cam", "lidar_mask")
 # Loss terms logged when the model returns them.
@@ -198,11 +202,12 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
         log.info("image context network: %d tensors from %s", len(loaded), conf.context_weights)
     if conf.init_weights and last is None:
         init = load_checkpoint(conf.init_weights)
-        if init.model_config != model_conf_dict:
-            diff = sorted(k for k in set(init.model_config) | set(model_conf_dict)
-                          if init.model_config.get(k) != model_conf_dict.get(k))
+        diff = sorted(k for k in set(init.model_config) | set(model_conf_dict)
+                      if init.model_config.get(k) != model_conf_dict.get(k) and k not in LOSS_ONLY_KEYS)
+        if diff:
             raise HybridCalibError(f"init_weights {conf.init_weights} has another model config (differs in "
-                                   f"{', '.join(diff)}); train with its preset and --set model.* options")
+                                   f"{', '.join(diff)}); train with its preset and --set model.* options "
+                                   f"(only the loss settings {', '.join(LOSS_ONLY_KEYS)} may change)")
         load_checkpoint(conf.init_weights, model, map_location=device)
         log.info("weights initialised from %s (epoch %d)", conf.init_weights, init.epoch)
     if last is not None:

@@ -270,6 +270,9 @@ def test_init_weights_starts_a_new_run_from_a_checkpoint(frames, tmp_path):
     other = _train_conf(tmp_path, 1) | {"init_weights": str(base), "model": {**TINY_MODEL, "lstm_hidden": 16}}
     with pytest.raises(HybridCalibError, match="lstm_hidden"):
         train(train_config("small", other), frames, tmp_path / "bad", progress=False)
+    # loss-only settings may change when fine-tuning (e.g. a heavier translation term)
+    heavier = _train_conf(tmp_path, 1) | {"init_weights": str(base), "model": {**TINY_MODEL, "calib_trans_weight": 5.0}}
+    assert train(train_config("small", heavier), frames, tmp_path / "heavier", progress=False).is_file()
 
 
 def test_concat_frames_keeps_scene_groups(frames):
