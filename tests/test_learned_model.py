@@ -225,3 +225,24 @@ def test_paper_preset_runs_at_400x192():
     assert out["match"][0]["fv"]["log_P"].shape == (1, 24 * 50, 24 * 50)
     assert out["match"][0]["bev"]["log_P"].shape == (1, 32 * 32, 32 * 32)
     assert out["T_iters"][0].shape == (1, 4, 4)
+
+
+def test_cascade_chains_stages_and_exports_from_the_last():
+    from learned.cascade import Cascade
+    from learned.export import export_correspondences
+
+    a, b = tiny_model().eval(), tiny_model(lstm_hidden=32).eval()
+    batch = make_batch(2, seed=5)
+    cas = Cascade([a, b]).eval()
+    with torch.no_grad():
+        out = cas(batch)
+        alone = a(batch)
+        second = b({**batch, "T_init": alone["T_iters"][-1]})
+    assert len(out["T_iters"]) == 6 and cas.cfg is b.cfg and cas.stage_boundaries() == [0, 3]
+    torch.testing.assert_close(out["T_iters"][2], alone["T_iters"][-1])
+    torch.testing.assert_close(out["T_inputs"][3], alone["T_iters"][-1])
+    torch.testing.assert_close(out["T_iters"][-1], second["T_iters"][-1])
+    corr, cov = export_correspondences(cas, out, batch)
+    assert len(corr) == 2 and cov.shape == (2, 6, 6)
+    with pytest.raises(ValueError, match="input sizes"):
+        Cascade([a, tiny_model(input_hw=(32, 64))])

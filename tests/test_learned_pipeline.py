@@ -439,6 +439,15 @@ def test_cli_train_then_evaluate(sim_root, tmp_path, capsys):
     assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--fit-uncertainty",
                                      "--out", str(tmp_path / "e3")]) == 2
     assert "nothing held out" in capsys.readouterr().err
+    # a two-stage cascade (the same checkpoint twice): every stage's iterations are in the table
+    assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--refine", str(run),
+                                     "--out", str(tmp_path / "cascade"), "--no-progress"]) == 0
+    capsys.readouterr()
+    rows = json.loads((tmp_path / "cascade" / "results.json").read_text())["rows"]
+    assert [r for r in rows if "iter" in r] == [f"pure iter {k}" for k in range(1, 7)]
+    assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--refine", str(run),
+                                     "--split", "val", "--fit-uncertainty", "--out", str(tmp_path / "e4")]) == 2
+    assert "without --refine" in capsys.readouterr().err
     assert _run_command("evaluate", ["--data", str(sim_root), "--method", "hybrid-typo", "--checkpoint", str(run),
                                      "--out", str(tmp_path / "e2")]) == 2
     assert "unknown method 'hybrid-typo'" in capsys.readouterr().err

@@ -8,6 +8,9 @@ final estimate) is printed and written to ``OUT/results.json`` (schema in
 depth estimator default to the checkpoint's training config, so ``--split test`` holds out the same
 scenes training did.
 
+``--refine CKPT`` runs a coarse-to-fine cascade (``learned.cascade``): e.g. the R2 checkpoint from
+the start, then the R1 checkpoint from its estimate; the table then lists every stage's iterations.
+
 The exported per-frame covariance of the network's SE(3) is multiplied by the checkpoint's fitted
 ``export.cov_scale`` when it has one. ``--fit-uncertainty`` fits it: it exports the raw covariance,
 computes per-axis factors that make each axis's normalised squared error average 1 on these frames
@@ -35,6 +38,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--method", default="pure", help="pure = the network alone")
     parser.add_argument("--checkpoint", required=True, type=Path,
                         help="ckpt-NNNN.json / .safetensors, or a run folder (its last checkpoint)")
+    parser.add_argument("--refine", type=Path, action="append", default=[], metavar="CKPT",
+                        help="then refine with this checkpoint (a cascade, e.g. --checkpoint R2 --refine R1; "
+                             "repeatable); the export and covariance come from the last stage")
     parser.add_argument("--out", required=True, type=Path, help="output folder (predictions, results.json/.md)")
     parser.add_argument("--split", default="test",
                         help="test (default; scenes held out in training), val, train, or all (a separate root)")
@@ -53,12 +59,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from learned.checkpoint import load_model
+    from learned.checkpoint import load_checkpoint, load_model
     from learned.dataset import open_roots
     from learned.evaluate import evaluate
 
     model, ckpt = load_model(args.checkpoint)
     trained = ckpt.train_config or {}
+    last = ckpt
+    if args.refine:
+        from learned.cascade import Cascade
+
+        stages = [model]
+        for path in args.refine:
+            m, last = load_model(path)
+            stages.append(m)
+        try:
+            model = Cascade(stages).eval()
+        except ValueError as e:
+            raise HybridCalibError(f"--refine: {e}") from None
     conf = {"method": args.method, "perturbation": args.perturbation, "split": args.split,
             "max_frames": args.max_frames}
     for key, src in (("split_options", "split"), ("depth", "depth"), ("depth_options", "depth_options")):
@@ -68,8 +86,11 @@ def run(args: argparse.Namespace) -> int:
         conf["depth"] = args.depth
         if args.depth != trained.get("depth"):
             conf["depth_options"] = {}  # the checkpoint's options belong to its own estimator
-    conf["export"] = dict(ckpt.export)
+    conf["export"] = dict(last.export)
     if args.fit_uncertainty:
+        if args.refine:
+            raise HybridCalibError("--fit-uncertainty fits one checkpoint's covariance; run it on each checkpoint "
+                                   "alone, without --refine")
         if args.split == "test":
             raise HybridCalibError("--fit-uncertainty on the test split would leave nothing held out to check it; "
                                    "fit with --split val (or --split all on a separate root)")
@@ -78,7 +99,8 @@ def run(args: argparse.Namespace) -> int:
     # the LiDAR-camera variant calibrates T_cam_lidar from LiDAR points; lidar-densified depth reads them too
     lidar = model.cfg.variant == "lidar" or conf.get("depth") == "lidar-densified"
     frames = open_roots(args.data, args.version, lidar=lidar, options={"nsweeps": args.nsweeps})
-    result = evaluate(model, frames, conf, args.out, checkpoint=ckpt.path, overwrite=args.overwrite,
+    name = " -> ".join(str(p) for p in [ckpt.path, *(load_checkpoint(r).path for r in args.refine)])
+    result = evaluate(model, frames, conf, args.out, checkpoint=name, overwrite=args.overwrite,
                       progress=not args.no_progress)
     print(result.table())
     u = result.uncertainty
@@ -98,6 +120,6 @@ def run(args: argparse.Namespace) -> int:
         roots = " ".join(str(d) for d in args.data)
         note = (f"per-axis fit on {len(errors)} frames of {roots} (split {args.split}, range "
                 f"{args.perturbation}) by hybrid-calib evaluate --fit-uncertainty")
-        set_export_overrides(ckpt.path, {"cov_scale": scale}, note)
-        print(f"fitted cov_scale {', '.join(f'{v:.3g}' for v in scale)} -> written to {ckpt.path}")
+        set_export_overrides(last.path, {"cov_scale": scale}, note)
+        print(f"fitted cov_scale {', '.join(f'{v:.3g}' for v in scale)} -> written to {last.path}")
     return 0
