@@ -30,8 +30,12 @@ of the estimate ``T_iters[-1]``:
   a Gaussian NLL on the true error;
 - ``"spread"``: diag(xi_last^2 + floor^2), xi_last = Log(T_deltas[-1]), the size of the last correction
   (an iteration that still moves means the estimate is not settled).
-Both are multiplied by ``cov_scale`` (1 by default): calibrate it on held-out data so that the
-normalised error xi^T C^-1 xi averages 6 (``calibrate_cov_scale``).
+Both are multiplied by ``cov_scale`` (1 by default; a scalar or 6 per-axis factors): fit it on
+held-out data so that each axis's normalised squared error averages 1 and the NEES xi^T C^-1 xi
+averages 6 (``calibrate_cov_scale``; ``hybrid-calib evaluate --split val --fit-uncertainty`` stores
+it in the checkpoint's ``export`` block, which every later evaluation applies). ``sigma_scale`` can be
+fitted the same way on simulated validation scenes, where the true reflectors are known
+(``benchmarks/correspondence_quality.py --fit-into CKPT``).
 """
 
 from __future__ import annotations
