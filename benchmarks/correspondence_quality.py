@@ -34,17 +34,12 @@ CHI2_2_MEDIAN = 1.3862943611198906  # chi-square, 2 dof: median
 CHI2_2_95 = 5.991464547107979
 
 
-def _project(K: np.ndarray, T: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    q = P @ T[:3, :3].T + T[:3, 3]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return q[:, :2] / q[:, 2:3] * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]], q[:, 2]
-
-
 def collect(eval_dir: Path, roots: list[str], version: str) -> dict[str, np.ndarray]:
     """Per exported row: err_px, sigma_px, confidence, err_init_px, err_own_px, err_flat_px, real (bool)."""
     from scipy.spatial import cKDTree
     from tqdm import tqdm
 
+    from hybrid_calib.geometry import project_points
     from learned.dataset import open_roots
 
     frames = open_roots(roots, version, lidar=False)
@@ -71,12 +66,12 @@ def collect(eval_dir: Path, roots: list[str], version: str) -> dict[str, np.ndar
         if np.any(dist > 1e-3):
             raise SystemExit(f"{path.name}: exported points do not match the radar sweep of {token}")
         T_true = np.asarray(frame.T_cam_radar, np.float64)
-        true_uv, depth = _project(K, T_true, true_xyz[rows[j]])
+        true_uv, depth = project_points(K, T_true, true_xyz[rows[j]])
         real = (kind[rows[j]] == 0) & (depth > 0.5) & np.all(np.isfinite(true_uv), 1)
-        own_uv, _ = _project(K, z["T_iters"][-1], pts)
-        init_uv, _ = _project(K, z["T_init"], pts)
+        own_uv, _ = project_points(K, z["T_iters"][-1], pts)
+        init_uv, _ = project_points(K, z["T_init"], pts)
         cols["err_init_px"].append(np.linalg.norm(init_uv - true_uv, axis=1))
-        flat_uv, _ = _project(K, T_true, pts)
+        flat_uv, _ = project_points(K, T_true, pts)
         cols["err_px"].append(np.linalg.norm(pix - true_uv, axis=1))
         cols["err_own_px"].append(np.linalg.norm(own_uv - true_uv, axis=1))
         cols["err_flat_px"].append(np.linalg.norm(flat_uv - true_uv, axis=1))

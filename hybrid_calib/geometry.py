@@ -106,6 +106,17 @@ def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
     return points @ T[:3, :3].T + T[:3, 3]
 
 
+def project_points(K: np.ndarray, T: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pinhole projection (no distortion) of points (N, 3) in frame b through ``T_cam_b`` (4, 4) and
+    ``K`` (3, 3) -> pixels (N, 2) and camera depth z (N,). Points behind the camera are projected
+    as the formula gives them (mirrored); callers mask with ``z``."""
+    q = transform_points(T, points)
+    z = q[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv = (q[:, :2] / z[:, None]) * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]
+    return uv, z
+
+
 def quat_wxyz_to_matrix(q: np.ndarray) -> np.ndarray:
     """nuScenes quaternion ``[w, x, y, z]`` -> rotation matrix (3, 3). Normalises the input."""
     q = np.asarray(q, dtype=np.float64).reshape(4)

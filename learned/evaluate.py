@@ -189,11 +189,13 @@ def evaluate_predictions(out: str | Path, method: str = "pure") -> EvalResult:
     if not files:
         raise HybridCalibError(f"no exported predictions in {Path(out) / 'frames'}; run the export first")
     per: dict[str, list] = {}
-    tokens = []
+    tokens, unc = [], []
     for path in files:
         with np.load(path, allow_pickle=False) as z:
             T_gt, T_init, T_iters = z["T_gt"], z["T_init"], z["T_iters"]
             tokens.append(str(z["token"]))
+            if (pair := _tangent_error(z)) is not None:
+                unc.append(pair)
         per.setdefault("initial", []).append(extrinsic_error(T_init, T_gt))
         if len(T_iters) > 1:
             for k, T in enumerate(T_iters, start=1):
@@ -201,34 +203,42 @@ def evaluate_predictions(out: str | Path, method: str = "pure") -> EvalResult:
         per.setdefault(method, []).append(extrinsic_error(T_iters[-1], T_gt))
     rows = {name: summarize(errs) for name, errs in per.items()}
     return EvalResult(rows, len(files), {n: [e.as_dict() for e in errs] for n, errs in per.items()}, tokens,
-                      uncertainty_consistency(out))
+                      uncertainty_consistency(*_stack(unc)))
 
 
 UNC_AXES = ("rot_x_deg", "rot_y_deg", "rot_z_deg", "t_x_cm", "t_y_cm", "t_z_cm")  # right tangent, radar frame
 CHI2_6_95 = 12.591587243743977  # chi-square, 6 dof, 95 %
 
 
+def _tangent_error(z) -> tuple[np.ndarray, np.ndarray] | None:
+    """(xi (6,), C (6, 6)) of one exported frame (an open npz), or None when it has no (6, 6) covariance."""
+    from hybrid_calib.geometry import local
+
+    if "uncertainty" not in z.files or z["uncertainty"].shape != (6, 6):
+        return None
+    return local(z["T_iters"][-1], z["T_gt"]), z["uncertainty"]
+
+
+def _stack(pairs: list) -> tuple[np.ndarray, np.ndarray]:
+    return (np.array([p[0] for p in pairs]).reshape(-1, 6), np.array([p[1] for p in pairs]).reshape(-1, 6, 6))
+
+
 def tangent_errors(out: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """(F, 6) right-tangent errors Log(T_final^-1 T_gt) and (F, 6, 6) exported covariances of the
     frames under ``out/frames`` that have one (``calibrate_cov_scale`` takes both)."""
-    from hybrid_calib.geometry import local
-
-    xis, covs = [], []
+    pairs = []
     for path in sorted((Path(out) / "frames").glob("*.npz")):
         with np.load(path, allow_pickle=False) as z:
-            if "uncertainty" in z.files and z["uncertainty"].shape == (6, 6):
-                xis.append(local(z["T_iters"][-1], z["T_gt"]))
-                covs.append(z["uncertainty"])
-    return np.array(xis).reshape(-1, 6), np.array(covs).reshape(-1, 6, 6)
+            pairs.append(_tangent_error(z))
+    return _stack([p for p in pairs if p is not None])
 
 
-def uncertainty_consistency(out: str | Path) -> dict[str, Any]:
-    """Is the exported per-frame covariance honest? Over the frames of ``out/frames`` with a (6, 6)
-    ``uncertainty`` of the final estimate: xi = Log(T_final^-1 T_gt) (right tangent, [rot rad, trans m])
-    and NEES = xi^T C^-1 xi. Returns {} when no frame has one, else n_frames, nees_mean (6 if honest),
-    nees_median, inside_95 (fraction with NEES below the chi-square 95 % bound; 0.95 if honest),
-    axes, rmse and sigma_mean per tangent axis (degrees / cm; the axes are the radar frame's)."""
-    xi, C = tangent_errors(out)
+def uncertainty_consistency(xi: np.ndarray, C: np.ndarray) -> dict[str, Any]:
+    """Is the exported per-frame covariance honest? ``xi`` (F, 6) = Log(T_final^-1 T_gt) (right
+    tangent, [rot rad, trans m]) and ``C`` (F, 6, 6) as ``tangent_errors`` gives them; NEES =
+    xi^T C^-1 xi. Returns {} when F = 0, else n_frames, nees_mean (6 if honest), nees_median,
+    inside_95 (fraction with NEES below the chi-square 95 % bound; 0.95 if honest), axes, rmse and
+    sigma_mean per tangent axis (degrees / cm; the axes are the radar frame's)."""
     if not len(xi):
         return {}
     nees = np.einsum("fi,fij,fj->f", xi, np.linalg.inv(C), xi)

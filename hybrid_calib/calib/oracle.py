@@ -41,7 +41,7 @@ import numpy as np
 
 from factors.correspondences import Correspondences
 from hybrid_calib.errors import DataError
-from hybrid_calib.geometry import se3_inverse, transform_points
+from hybrid_calib.geometry import project_points, se3_inverse, transform_points
 
 
 @dataclass(frozen=True)
@@ -74,14 +74,6 @@ class OracleTruth:
     T_cam_radar: np.ndarray
     inlier: np.ndarray
     points_true: np.ndarray
-
-
-def _project(K: np.ndarray, T: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    q = transform_points(T, P)
-    z = q[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        uv = (q[:, :2] / z[:, None]) * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]
-    return uv, z
 
 
 def oracle_from_frame(frame, conf: OracleConfig, rng: np.random.Generator) -> tuple[Correspondences, OracleTruth]:
@@ -124,7 +116,7 @@ def oracle_from_frame(frame, conf: OracleConfig, rng: np.random.Generator) -> tu
     if conf.image_width > 0 and cam.width != conf.image_width:
         cam = cam.scaled(conf.image_width / cam.width)  # the oracle needs no image: full-res pixel units
     K = cam.K
-    uv, depth = _project(K, T_frame, true_pts)
+    uv, depth = project_points(K, T_frame, true_pts)
     ok = np.isin(kind[rows], conf.kinds) & (depth > conf.min_depth_m) & \
         cam.in_image(uv, conf.image_margin_px) & np.all(np.isfinite(true_pts), axis=1)
     if conf.elevation == "model" and conf.whole_arc_in_image:
@@ -134,7 +126,7 @@ def oracle_from_frame(frame, conf: OracleConfig, rng: np.random.Generator) -> tu
             phi = np.radians(conf.elevation_mean_deg + lim)
             P_end = np.stack([rho * np.cos(phi) * np.cos(az), rho * np.cos(phi) * np.sin(az),
                               rho * np.sin(phi) * np.ones_like(rho)], 1)
-            uv_end, d_end = _project(K, T_frame, P_end)
+            uv_end, d_end = project_points(K, T_frame, P_end)
             ok &= (d_end > conf.min_depth_m) & cam.in_image(uv_end, conf.image_margin_px)
     idx = np.flatnonzero(ok)
     if len(idx) == 0:

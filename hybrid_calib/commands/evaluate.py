@@ -59,13 +59,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from learned.checkpoint import load_checkpoint, load_model
+    from learned.checkpoint import load_model
     from learned.dataset import open_roots
     from learned.evaluate import evaluate
 
     model, ckpt = load_model(args.checkpoint)
     trained = ckpt.train_config or {}
     last = ckpt
+    stage_paths = [ckpt.path]
     if args.refine:
         from learned.cascade import Cascade
 
@@ -73,6 +74,7 @@ def run(args: argparse.Namespace) -> int:
         for path in args.refine:
             m, last = load_model(path)
             stages.append(m)
+            stage_paths.append(last.path)
         try:
             model = Cascade(stages).eval()
         except ValueError as e:
@@ -99,8 +101,8 @@ def run(args: argparse.Namespace) -> int:
     # the LiDAR-camera variant calibrates T_cam_lidar from LiDAR points; lidar-densified depth reads them too
     lidar = model.cfg.variant == "lidar" or conf.get("depth") == "lidar-densified"
     frames = open_roots(args.data, args.version, lidar=lidar, options={"nsweeps": args.nsweeps})
-    name = " -> ".join(str(p) for p in [ckpt.path, *(load_checkpoint(r).path for r in args.refine)])
-    result = evaluate(model, frames, conf, args.out, checkpoint=name, overwrite=args.overwrite,
+    result = evaluate(model, frames, conf, args.out, checkpoint=" -> ".join(map(str, stage_paths)),
+                      overwrite=args.overwrite,
                       progress=not args.no_progress)
     print(result.table())
     u = result.uncertainty
