@@ -365,7 +365,8 @@ def test_evaluate_table_columns_and_zero_error_for_an_oracle(frames, tmp_path):
     assert saved["rows"]["pure"]["geodesic_deg"] < 1e-4 and saved["n_frames"] == 3
     assert "| pure |" in (out / "results.md").read_text() and (out / "errors_cdf.png").stat().st_size > 1000
     with np.load(next((out / "frames").glob("*.npz"))) as z:
-        assert z["T_iters"].shape == (3, 4, 4) and z["corr_pixels"].shape[1] == 2 and z["uncertainty"].shape == (6,)
+        assert z["T_iters"].shape == (3, 4, 4) and z["pixels"].shape[1] == 2 and z["uncertainty"].shape == (6,)
+        assert "cov" not in z.files and z["schema_version"] == 1 and z["vehicle"] == "veh-1"
     # idempotent: a second run exports nothing new and reads the same table
     mtimes = {p: p.stat().st_mtime_ns for p in (out / "frames").glob("*.npz")}
     again = evaluate(OracleModel(), frames, conf, out, exporter=oracle_exporter, progress=False)
@@ -433,9 +434,9 @@ def test_cli_train_then_evaluate(sim_root, tmp_path, capsys):
     assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--out",
                                      str(tmp_path / "scaled"), "--no-progress"]) == 0
     capsys.readouterr()
-    raw = {p.name: np.load(p)["uncertainty"] for p in (out / "frames").glob("*.npz")}
+    raw = {p.name: np.load(p)["cov"] for p in (out / "frames").glob("*.npz")}
     for p in (tmp_path / "scaled" / "frames").glob("*.npz"):
-        np.testing.assert_allclose(np.diag(np.load(p)["uncertainty"]), np.diag(raw[p.name]) * fitted, rtol=1e-6)
+        np.testing.assert_allclose(np.diag(np.load(p)["cov"]), np.diag(raw[p.name]) * fitted, rtol=1e-6)
     assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--fit-uncertainty",
                                      "--out", str(tmp_path / "e3")]) == 2
     assert "nothing held out" in capsys.readouterr().err
