@@ -420,6 +420,21 @@ def test_cli_train_then_evaluate(sim_root, tmp_path, capsys):
     assert set(res["rows"]["pure"]) == set(METRIC_KEYS) and (out / "results.md").is_file()
     assert res["uncertainty"]["n_frames"] == 3 and len(res["uncertainty"]["rmse"]) == 6
 
+    # the evaluate output feeds calibrate directly (factors.io files; the network block is carried). The
+    # one-epoch model is confident about nothing: export every row, and a frame without rows is skipped
+    from hybrid_calib.calib.result import CalibrationRun
+
+    cal_argv = ["--data", str(sim_root), "--window", "3", "--no-plots", "--out"]
+    assert _run_command("calibrate", ["--correspondences", str(out), *cal_argv, str(tmp_path / "c0")]) == 2
+    assert "no usable frame" in capsys.readouterr().err
+    assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--out", str(tmp_path / "e0"),
+                                     "--set", "export.min_confidence=0", "--no-progress"]) == 0
+    assert _run_command("calibrate", ["--correspondences", str(tmp_path / "e0"), *cal_argv, str(tmp_path / "c1")]) == 0
+    assert "sim-veh-002" in capsys.readouterr().out
+    (veh,) = CalibrationRun.load(tmp_path / "c1" / "result.json").vehicles.values()
+    assert veh.vehicle == "sim-veh-002" and veh.n_frames == 3 and len(veh.trajectory) == 3
+    assert veh.network["n_frames"] == 3 and veh.network["std_cam"] is not None and veh.error is not None
+
     # fit the covariance scale on the val scene; it lands in the checkpoint and the next export uses it
     ckpt_json = run / "checkpoints" / "ckpt-0001.json"
     assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--split", "val",

@@ -161,18 +161,23 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, rng, progress: bo
     from hybrid_calib.geometry import local
     from hybrid_calib.metrics import extrinsic_error
 
-    if not vi.frames:
-        raise DataError(f"vehicle {vi.vehicle}: no usable frame ({len(vi.skipped)} skipped)")
+    # a frame without rows (a network that matched nothing confidently) carries no information
+    frames = [c for c in vi.frames if len(c)]
+    skipped = vi.skipped + [{"index": i, "token": c.frame_id, "reason": "no correspondence rows"}
+                            for i, c in enumerate(vi.frames) if not len(c)]
+    if not frames:
+        raise DataError(f"vehicle {vi.vehicle}: no usable frame ({len(skipped)} skipped; first: "
+                        f"{skipped[0]['reason'] if skipped else '-'})")
     T0 = _start(vi, conf, rng)
     traj = []
     if conf.mode == "window":
         cal = SlidingWindowCalibrator(T0, conf.window)
-        for c in tqdm(vi.frames, desc=f"calibrate {vi.vehicle}", disable=not progress):
+        for c in tqdm(frames, desc=f"calibrate {vi.vehicle}", disable=not progress):
             traj.append(cal.update(c))
         final = traj[-1].estimate
     else:
-        final = solve_batch(vi.frames, T0, conf.batch).estimate
-    res = VehicleResult(vi.vehicle, final, traj, skipped=vi.skipped, n_frames=len(vi.frames))
+        final = solve_batch(frames, T0, conf.batch).estimate
+    res = VehicleResult(vi.vehicle, final, traj, skipped=skipped, n_frames=len(frames))
     res.drift = reference_test(final.T, final.cov, vi.reference, conf.drift).to_dict()
     res.network = _network_summary(vi)
     if vi.truth:
