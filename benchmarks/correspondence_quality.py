@@ -1,7 +1,8 @@
 """How good, and how honestly scaled, are the correspondences the network exports for the hybrid?
 
 Reads an evaluation folder written by ``hybrid-calib evaluate`` on a simulated root (``frames/*.npz``
-with the ``corr_*`` rows of the last iteration) and the simulator's radar truth of the same root.
+measurement files, ``factors.io``, with the rows of the last iteration) and the simulator's radar
+truth of the same root.
 Every exported row is matched back to its radar point (same coordinates), and so to the true
 reflector that produced it; the reflector projected by the true extrinsic is the pixel the row
 should have found. Per row:
@@ -51,10 +52,10 @@ def collect(eval_dir: Path, roots: list[str], version: str) -> dict[str, np.ndar
         raise SystemExit(f"no exported frames in {eval_dir / 'frames'}: run hybrid-calib evaluate first")
     for path in tqdm(files, desc="rows"):
         z = np.load(path, allow_pickle=False)
-        token = str(z["token"])
+        token = str(z["frame_id"])
         if token not in by_token:
             raise SystemExit(f"{path.name}: camera token {token} is not in {roots}; pass the root it was evaluated on")
-        pts, pix, K = z["corr_points_radar"], z["corr_pixels"], z["corr_K"]
+        pts, pix, K = z["points_radar"], z["pixels"], z["K"]
         if not len(pts):
             continue
         frame = frames[by_token[token]]
@@ -69,14 +70,14 @@ def collect(eval_dir: Path, roots: list[str], version: str) -> dict[str, np.ndar
         true_uv, depth = project_points(K, T_true, true_xyz[rows[j]])
         real = (kind[rows[j]] == 0) & (depth > 0.5) & np.all(np.isfinite(true_uv), 1)
         own_uv, _ = project_points(K, z["T_iters"][-1], pts)
-        init_uv, _ = project_points(K, z["T_init"], pts)
+        init_uv, _ = project_points(K, z["T_start"], pts)
         cols["err_init_px"].append(np.linalg.norm(init_uv - true_uv, axis=1))
         flat_uv, _ = project_points(K, T_true, pts)
         cols["err_px"].append(np.linalg.norm(pix - true_uv, axis=1))
         cols["err_own_px"].append(np.linalg.norm(own_uv - true_uv, axis=1))
         cols["err_flat_px"].append(np.linalg.norm(flat_uv - true_uv, axis=1))
-        cols["sigma_px"].append(z["corr_sigma_px"])
-        cols["confidence"].append(z["corr_confidence"])
+        cols["sigma_px"].append(z["sigma_px"])
+        cols["confidence"].append(z["confidence"])
         cols["real"].append(real)
     return {k: np.concatenate(v) if v else np.zeros(0) for k, v in cols.items()}
 

@@ -60,15 +60,10 @@ class Correspondences:
         )
 
     def to_npz_dict(self) -> dict[str, np.ndarray]:
-        return {
-            "points_radar": np.asarray(self.points_radar, np.float64),
-            "pixels": np.asarray(self.pixels, np.float64),
-            "sigma_px": np.asarray(self.sigma_px, np.float64),
-            "confidence": np.asarray(self.confidence, np.float64),
-            "K": np.asarray(self.K, np.float64),
-            "frame_id": np.array(self.frame_id),
-            "timestamp_us": np.array(self.timestamp_us, np.int64),
-        }
+        """The arrays of a measurement file (``factors.io``) holding only these rows."""
+        from factors.io import FrameMeasurements, to_arrays
+
+        return to_arrays(FrameMeasurements(self))
 
     @classmethod
     def empty(cls, K: np.ndarray, frame_id: str = "", timestamp_us: int = 0) -> Correspondences:
@@ -78,5 +73,7 @@ class Correspondences:
 
     @classmethod
     def from_npz_dict(cls, d) -> Correspondences:
-        return cls(d["points_radar"], d["pixels"], d["sigma_px"], d["confidence"], d["K"],
-                   str(d["frame_id"]), int(d["timestamp_us"]))
+        """The rows of a measurement file's arrays (``factors.io.from_arrays``)."""
+        from factors.io import from_arrays
+
+        return from_arrays(d).corr

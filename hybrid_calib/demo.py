@@ -79,9 +79,9 @@ def run_demo(out: str | Path, conf: DemoConfig | dict | None = None, overwrite: 
 
     cal_conf = merge(CalibrateConfig, {"mode": "window", "start": conf.start, "seed": conf.seed,
                                        "window": {"window": conf.window}})
-    doc = calibrate(root, "v1.0-sim", "oracle", out / "calibration", cal_conf, overwrite=overwrite)
+    run = calibrate(root, "v1.0-sim", "oracle", out / "calibration", cal_conf, overwrite=overwrite)
     summary = {"sim_root": str(root), "projection_png": str(png),
                "calibration_result": str(out / "calibration" / "result.json"),
-               "calibration_plots": str(out / "calibration" / "plots"), "vehicles": doc["vehicles"]}
+               "calibration_plots": str(out / "calibration" / "plots"), "vehicles": run.to_dict()["vehicles"]}
     save_json_atomic(out / "summary.json", summary)
     return summary

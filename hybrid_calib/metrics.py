@@ -40,6 +40,35 @@ class ExtrinsicError:
 METRIC_KEYS = tuple(ExtrinsicError.__dataclass_fields__)
 
 
+# Per-axis standard deviations: ONE definition, and every key names its frame.
+# "cam": rotation about camera x, y, z (deg) and the components of t_cam_radar (cm), camera axes
+#   (``C_report = B C B^T``, docs/conventions.md "Reported per-axis standard deviations").
+# "radar": the right-tangent axes of T_cam_radar [omega, v] themselves (radar frame), deg and cm.
+STD_FRAMES = ("cam", "radar")
+
+
+def std_keys(frame: str) -> tuple[str, ...]:
+    """``(rot_x_<frame>_deg, rot_y_.., rot_z_.., t_x_<frame>_cm, t_y_.., t_z_..)`` for a frame in
+    ``STD_FRAMES``."""
+    if frame not in STD_FRAMES:
+        raise ValueError(f"std frame {frame!r}; valid: {STD_FRAMES}")
+    return tuple(f"rot_{a}_{frame}_deg" for a in "xyz") + tuple(f"t_{a}_{frame}_cm" for a in "xyz")
+
+
+STD_KEYS_CAM = std_keys("cam")
+STD_KEYS_RADAR = std_keys("radar")
+
+
+def std_dict(std: np.ndarray, frame: str) -> dict[str, float]:
+    """(6,) [deg x3, cm x3] -> {key: value} with the keys of ``std_keys(frame)``."""
+    return {k: float(v) for k, v in zip(std_keys(frame), np.asarray(std, np.float64).reshape(6))}
+
+
+def std_from_dict(d: dict, frame: str) -> np.ndarray:
+    """Inverse of ``std_dict``: (6,) float64; ``KeyError`` names a missing key."""
+    return np.array([float(d[k]) for k in std_keys(frame)])
+
+
 def signed_errors(T_est: np.ndarray, T_gt: np.ndarray) -> np.ndarray:
     """Signed ``[roll, pitch, yaw]`` (rad) and ``[dx, dy, dz]`` (m) errors, (6,)."""
     dR = T_est[:3, :3] @ T_gt[:3, :3].T

@@ -300,6 +300,9 @@ class CalibDataset(torch.utils.data.Dataset):
             "perturbation": torch.from_numpy(xi),
             "index": self.indices[i],
             "token": frame.camera_token,
+            "vehicle": frame.vehicle,
+            "timestamp_us": int(frame.timestamp_camera_us),
+            "timestamp_radar_us": int(frame.timestamp_radar_us),
         }
 
 

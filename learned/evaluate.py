@@ -2,11 +2,13 @@
 
 1. ``export_pure`` (method ``pure``; any method in ``METHODS``): run it over a FIXED list of
    (frame, T_init) — the test split with one perturbation per sample fixed by (seed, index) — and
-   store, per frame, ``OUT/frames/<token>.npz``:
-     T_init (4, 4), T_gt (4, 4), T_iters (N, 4, 4) the estimate after every iteration (float64),
-     uncertainty (the model's per-frame SE(3) uncertainty, as ``export_correspondences`` gives it),
-     perturbation (6,), index (), and the exported correspondences (``corr_*`` keys,
-     ``factors.Correspondences.to_npz_dict``).
+   store, per frame, ``OUT/frames/<token>.npz``: a measurement file (``factors.io``, the format
+   ``hybrid-calib calibrate --correspondences OUT`` reads) with the exported correspondence rows, the
+   frame's token, vehicle and timestamps, and the network block: ``T_cam_radar`` = the final estimate,
+   ``cov`` its (6, 6) covariance (when the exporter gives one of that shape), ``iteration`` the
+   iteration the rows came from, ``T_start`` the perturbed start; plus the evaluation's own keys:
+     T_gt (4, 4), T_iters (N, 4, 4) the estimate after every iteration (float64), perturbation (6,),
+     index (), and ``uncertainty`` when the exporter's per-frame uncertainty is not a (6, 6) covariance.
    ``OUT/export_config.json`` holds the evaluation config, the checkpoint and its model config.
    Frames already exported are skipped (``overwrite=False``); a frame whose files are bad is listed
    in ``OUT/skipped.json`` and the run goes on.
@@ -33,7 +35,7 @@ import torch
 from hybrid_calib.config import merge, save_json_atomic, to_dict
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.errors import HybridCalibError
-from hybrid_calib.metrics import METRIC_KEYS, extrinsic_error, format_table, summarize
+from hybrid_calib.metrics import METRIC_KEYS, STD_KEYS_RADAR, extrinsic_error, format_table, summarize
 from learned.dataset import CalibDataset, DatasetConfig, SplitConfig, collate, split_indices
 from learned.depth import DepthCache, build_depth_estimator
 
@@ -67,11 +69,26 @@ def _frame_file(out: Path, token: str) -> Path:
     return out / "frames" / f"{safe}.npz"
 
 
-def _save_npz_atomic(path: Path, arrays: dict[str, Any]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.stem + ".tmp.npz")
-    np.savez(tmp, **arrays)
-    tmp.replace(path)
+def _measurements(corr, batch: dict, b: int, T_iters: np.ndarray, unc: np.ndarray, iteration: int):
+    """(``factors.io.FrameMeasurements``, extra arrays) of sample ``b`` of an exported batch."""
+    import dataclasses
+
+    from factors.io import FrameMeasurements, NetworkEstimate
+
+    def item(key, default):
+        v = batch.get(key)
+        return default if v is None else v[b]
+
+    corr = dataclasses.replace(corr, frame_id=str(batch["token"][b]), timestamp_us=int(item("timestamp_us", 0)))
+    cov = unc if unc.shape == (6, 6) else None
+    T_start = batch["T_init"][b].double().cpu().numpy()
+    network = NetworkEstimate(T_iters[-1], cov, iteration % len(T_iters), T_start)
+    m = FrameMeasurements(corr, str(item("vehicle", "")), int(item("timestamp_radar_us", 0)), network)
+    extra = {"T_gt": batch["T_gt"][b].double().cpu().numpy(), "T_iters": T_iters,
+             "perturbation": batch["perturbation"][b].cpu().numpy(), "index": np.array(int(batch["index"][b]))}
+    if cov is None:
+        extra["uncertainty"] = unc
+    return m, extra
 
 
 def export_pure(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig, out: Path, *,
@@ -83,6 +100,7 @@ def export_pure(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig, out
     with ``conf.export``."""
     from tqdm import tqdm
 
+    from factors.io import save_measurements
     from learned.export import ExportConfig
     from learned.train import model_inputs, to_device
 
@@ -122,19 +140,8 @@ def export_pure(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig, out
             T_iters = torch.stack([T.double() for T in out_m["T_iters"]], dim=1).cpu().numpy()  # (B, N, 4, 4)
             unc_np = unc.detach().double().cpu().numpy() if isinstance(unc, torch.Tensor) else np.asarray(unc)
             for b, token in enumerate(batch["token"]):
-                arrays = {
-                    "T_init": batch["T_init"][b].double().cpu().numpy(),
-                    "T_gt": batch["T_gt"][b].double().cpu().numpy(),
-                    "T_iters": T_iters[b],
-                    "uncertainty": unc_np[b],
-                    "perturbation": batch["perturbation"][b].cpu().numpy(),
-                    "index": np.array(int(batch["index"][b])),
-                    "token": np.array(token),
-                }
-                arrays.update({f"corr_{k}": v for k, v in corr[b].to_npz_dict().items()})
-                path = _frame_file(out, token)
-                _save_npz_atomic(path, arrays)
-                written.append(path)
+                m, extra = _measurements(corr[b], batch, b, T_iters[b], unc_np[b], export_conf.iteration)
+                written.append(save_measurements(_frame_file(out, token), m, extra))
     if dataset.bad:
         save_json_atomic(out / "skipped.json", {str(k): v for k, v in dataset.bad.items()})
         if len(dataset.bad) == len(todo):
@@ -192,8 +199,8 @@ def evaluate_predictions(out: str | Path, method: str = "pure") -> EvalResult:
     tokens, unc = [], []
     for path in files:
         with np.load(path, allow_pickle=False) as z:
-            T_gt, T_init, T_iters = z["T_gt"], z["T_init"], z["T_iters"]
-            tokens.append(str(z["token"]))
+            T_gt, T_init, T_iters = z["T_gt"], z["T_start"], z["T_iters"]
+            tokens.append(str(z["frame_id"]))
             if (pair := _tangent_error(z)) is not None:
                 unc.append(pair)
         per.setdefault("initial", []).append(extrinsic_error(T_init, T_gt))
@@ -206,7 +213,6 @@ def evaluate_predictions(out: str | Path, method: str = "pure") -> EvalResult:
                       uncertainty_consistency(*_stack(unc)))
 
 
-UNC_AXES = ("rot_x_deg", "rot_y_deg", "rot_z_deg", "t_x_cm", "t_y_cm", "t_z_cm")  # right tangent, radar frame
 CHI2_6_95 = 12.591587243743977  # chi-square, 6 dof, 95 %
 
 
@@ -214,9 +220,9 @@ def _tangent_error(z) -> tuple[np.ndarray, np.ndarray] | None:
     """(xi (6,), C (6, 6)) of one exported frame (an open npz), or None when it has no (6, 6) covariance."""
     from hybrid_calib.geometry import local
 
-    if "uncertainty" not in z.files or z["uncertainty"].shape != (6, 6):
+    if "cov" not in z.files:
         return None
-    return local(z["T_iters"][-1], z["T_gt"]), z["uncertainty"]
+    return local(z["T_iters"][-1], z["T_gt"]), z["cov"]
 
 
 def _stack(pairs: list) -> tuple[np.ndarray, np.ndarray]:
@@ -238,14 +244,15 @@ def uncertainty_consistency(xi: np.ndarray, C: np.ndarray) -> dict[str, Any]:
     tangent, [rot rad, trans m]) and ``C`` (F, 6, 6) as ``tangent_errors`` gives them; NEES =
     xi^T C^-1 xi. Returns {} when F = 0, else n_frames, nees_mean (6 if honest), nees_median,
     inside_95 (fraction with NEES below the chi-square 95 % bound; 0.95 if honest), axes, rmse and
-    sigma_mean per tangent axis (degrees / cm; the axes are the radar frame's)."""
+    sigma_mean per tangent axis (degrees / cm; the axes are the radar frame's: ``axes`` are
+    ``hybrid_calib.metrics.std_keys("radar")``)."""
     if not len(xi):
         return {}
     nees = np.einsum("fi,fij,fj->f", xi, np.linalg.inv(C), xi)
     scale = np.array([np.degrees(1.0)] * 3 + [100.0] * 3)
     return {
         "n_frames": len(xi), "nees_mean": float(nees.mean()), "nees_median": float(np.median(nees)),
-        "inside_95": float(np.mean(nees < CHI2_6_95)), "axes": list(UNC_AXES),
+        "inside_95": float(np.mean(nees < CHI2_6_95)), "axes": list(STD_KEYS_RADAR),
         "rmse": (np.sqrt((xi ** 2).mean(0)) * scale).tolist(),
         "sigma_mean": (np.sqrt(np.diagonal(C, axis1=1, axis2=2)).mean(0) * scale).tolist(),
     }

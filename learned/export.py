@@ -20,6 +20,9 @@ measured against T_init only (independent of the regression, less precise). On a
 input, 8 px cells, tiny model trained 600 steps; radar points projected by T_init are 13.2 px off
 the truth at the median) the exported pixels were 3.9 px (iteration 0) and 2.0 px (last) off at the median.
 
+``learned.evaluate`` stores the rows, the final estimate and this covariance per frame as a
+measurement file (``factors.io``; what ``hybrid-calib calibrate --correspondences`` reads).
+
 Rows with confidence < ``min_confidence`` are dropped. Pixels are in the model-input image (the
 batch ``K``, which the Correspondences carry); points are the raw input points (radar frame, metres).
 BEV matches are not exported (they live on the ground plane, not in the image).

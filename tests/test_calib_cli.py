@@ -33,15 +33,16 @@ def test_calibrate_oracle_window_writes_result_schema_and_plots(sim_root, tmp_pa
     out = tmp_path / "run"
     assert calibrate.run(_args("--data", str(sim_root), "--out", str(out), "--window", "3")) == 0
     doc = json.loads((out / "result.json").read_text())
-    assert doc["schema"] == "hybrid-calib/calibrate-result/v1" and doc["mode"] == "window"
+    assert doc["schema_version"] == 2 and doc["mode"] == "window"
     (name, v), = doc["vehicles"].items()
     assert v["n_frames"] == 5 and len(v["trajectory"]) == 5
     fin = v["final"]
     assert np.asarray(fin["T_cam_radar"]).shape == (4, 4) and np.asarray(fin["cov_right_radar"]).shape == (6, 6)
-    assert set(fin["std_camera"]) == {"rot_x_deg", "rot_y_deg", "rot_z_deg", "t_x_cm", "t_y_cm", "t_z_cm"}
+    assert set(fin["std_cam"]) == {"rot_x_cam_deg", "rot_y_cam_deg", "rot_z_cam_deg", "t_x_cam_cm", "t_y_cam_cm",
+                                   "t_z_cam_cm"}
     assert fin["status"].split(":")[0] in ("ok", "weak", "degenerate")
     assert v["drift"]["dof"] == 6 and 0 <= v["drift"]["p_value"] <= 1
-    assert v["error"]["rot_mean_deg"] < 1.0 and v["crb_std_camera"] is not None
+    assert v["error"]["rot_mean_deg"] < 1.0 and v["crb_std_cam"] is not None
     assert (out / "config.json").is_file()
     assert (out / "plots" / f"{name}_trajectory.png").is_file() and (out / "plots" / f"{name}_drift.png").is_file()
     # idempotent: a second run without --overwrite leaves the result untouched
@@ -68,13 +69,16 @@ def test_calibrate_batch_from_exported_correspondence_dir(sim_root, tmp_path):
 
 
 def test_bad_correspondence_file_is_named(tmp_path):
-    from hybrid_calib.calib.oracle import load_correspondence_dir
+    from factors.io import load_correspondence_dir
 
     (tmp_path / "x.npz").write_bytes(b"not a zip")
     with pytest.raises(DataError, match="x.npz"):
         load_correspondence_dir(tmp_path)
-    with pytest.raises(DataError, match="no \\*.npz"):
+    with pytest.raises(DataError, match="not found"):
         load_correspondence_dir(tmp_path / "missing")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(DataError, match="no \\*.npz"):
+        load_correspondence_dir(tmp_path / "empty")
 
 
 def test_unknown_override_is_rejected(tmp_path):

@@ -365,7 +365,8 @@ def test_evaluate_table_columns_and_zero_error_for_an_oracle(frames, tmp_path):
     assert saved["rows"]["pure"]["geodesic_deg"] < 1e-4 and saved["n_frames"] == 3
     assert "| pure |" in (out / "results.md").read_text() and (out / "errors_cdf.png").stat().st_size > 1000
     with np.load(next((out / "frames").glob("*.npz"))) as z:
-        assert z["T_iters"].shape == (3, 4, 4) and z["corr_pixels"].shape[1] == 2 and z["uncertainty"].shape == (6,)
+        assert z["T_iters"].shape == (3, 4, 4) and z["pixels"].shape[1] == 2 and z["uncertainty"].shape == (6,)
+        assert "cov" not in z.files and z["schema_version"] == 1 and z["vehicle"] == "veh-1"
     # idempotent: a second run exports nothing new and reads the same table
     mtimes = {p: p.stat().st_mtime_ns for p in (out / "frames").glob("*.npz")}
     again = evaluate(OracleModel(), frames, conf, out, exporter=oracle_exporter, progress=False)
@@ -419,6 +420,21 @@ def test_cli_train_then_evaluate(sim_root, tmp_path, capsys):
     assert set(res["rows"]["pure"]) == set(METRIC_KEYS) and (out / "results.md").is_file()
     assert res["uncertainty"]["n_frames"] == 3 and len(res["uncertainty"]["rmse"]) == 6
 
+    # the evaluate output feeds calibrate directly (factors.io files; the network block is carried). The
+    # one-epoch model is confident about nothing: export every row, and a frame without rows is skipped
+    from hybrid_calib.calib.result import CalibrationRun
+
+    cal_argv = ["--data", str(sim_root), "--window", "3", "--no-plots", "--out"]
+    assert _run_command("calibrate", ["--correspondences", str(out), *cal_argv, str(tmp_path / "c0")]) == 2
+    assert "no usable frame" in capsys.readouterr().err
+    assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--out", str(tmp_path / "e0"),
+                                     "--set", "export.min_confidence=0", "--no-progress"]) == 0
+    assert _run_command("calibrate", ["--correspondences", str(tmp_path / "e0"), *cal_argv, str(tmp_path / "c1")]) == 0
+    assert "sim-veh-002" in capsys.readouterr().out
+    (veh,) = CalibrationRun.load(tmp_path / "c1" / "result.json").vehicles.values()
+    assert veh.vehicle == "sim-veh-002" and veh.n_frames == 3 and len(veh.trajectory) == 3
+    assert veh.network["n_frames"] == 3 and veh.network["std_cam"] is not None and veh.error is not None
+
     # fit the covariance scale on the val scene; it lands in the checkpoint and the next export uses it
     ckpt_json = run / "checkpoints" / "ckpt-0001.json"
     assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--split", "val",
@@ -433,9 +449,9 @@ def test_cli_train_then_evaluate(sim_root, tmp_path, capsys):
     assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--out",
                                      str(tmp_path / "scaled"), "--no-progress"]) == 0
     capsys.readouterr()
-    raw = {p.name: np.load(p)["uncertainty"] for p in (out / "frames").glob("*.npz")}
+    raw = {p.name: np.load(p)["cov"] for p in (out / "frames").glob("*.npz")}
     for p in (tmp_path / "scaled" / "frames").glob("*.npz"):
-        np.testing.assert_allclose(np.diag(np.load(p)["uncertainty"]), np.diag(raw[p.name]) * fitted, rtol=1e-6)
+        np.testing.assert_allclose(np.diag(np.load(p)["cov"]), np.diag(raw[p.name]) * fitted, rtol=1e-6)
     assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--fit-uncertainty",
                                      "--out", str(tmp_path / "e3")]) == 2
     assert "nothing held out" in capsys.readouterr().err

@@ -246,25 +246,3 @@ def synthetic_drive(
                                   np.asarray(tr["points_true"], np.float64)))
     return frames, truths
 
-
-def load_correspondence_dir(directory) -> list[Correspondences]:
-    """Every ``*.npz`` (``Correspondences.to_npz_dict``) in a directory, sorted by timestamp then name.
-
-    A file that does not load raises ``DataError`` naming it.
-    """
-    from pathlib import Path
-
-    d = Path(directory)
-    files = sorted(d.glob("*.npz"))
-    if not files:
-        raise DataError("no *.npz correspondence files (Correspondences.to_npz_dict) in the directory", path=str(d))
-    out = []
-    for f in files:
-        try:
-            with np.load(f) as z:
-                out.append(Correspondences.from_npz_dict(z))
-        except (OSError, KeyError, ValueError) as e:
-            raise DataError(f"not a Correspondences npz ({e}); export with Correspondences.to_npz_dict",
-                            path=str(f)) from None
-    out.sort(key=lambda c: (c.timestamp_us, c.frame_id))
-    return out

@@ -1,9 +1,11 @@
 """Calibrate every vehicle (log) of a dataset: the typed function behind ``hybrid-calib calibrate``.
 
 Input frames per vehicle come either from oracle correspondences on a simulated root
-(``correspondences="oracle"``) or from a directory of exported correspondences
-(``Correspondences.to_npz_dict`` files; a sub-directory per vehicle, or a flat directory when the
-dataset has a single vehicle), e.g. the learned network's output.
+(``correspondences="oracle"``) or from a directory of measurement files (``factors.io``: the output
+directory of ``hybrid-calib evaluate``, a flat directory, or one sub-directory per vehicle), grouped
+into vehicles by each file's ``vehicle`` field (a flat directory of files without one belongs to the
+dataset's single vehicle). A file's optional network block (the network's SE(3) and covariance) is
+carried in ``VehicleInput.network`` and summarised in the result (not fused yet).
 
 Per vehicle: the initial extrinsic is the vehicle's reference (its calibration tables;
 ``extras["reference_T_cam_radar"]``) unless ``start`` asks for a perturbed truth (R1/R2, for
@@ -19,10 +21,11 @@ from pathlib import Path
 
 import numpy as np
 
+from factors.io import load_measurement_dir
 from hybrid_calib.calib.batch import BatchConfig, solve_batch
 from hybrid_calib.calib.drift import DriftConfig, reference_test
-from hybrid_calib.calib.oracle import OracleConfig, load_correspondence_dir, oracle_from_frame
-from hybrid_calib.calib.result import SCHEMA, VehicleResult
+from hybrid_calib.calib.oracle import OracleConfig, oracle_from_frame
+from hybrid_calib.calib.result import CalibrationRun, VehicleResult
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import merge, save_json_atomic, to_dict
 from hybrid_calib.errors import DataError, HybridCalibError
@@ -59,6 +62,7 @@ class VehicleInput:
     reference: np.ndarray | None = None  # (4, 4) the tables' extrinsic
     truth: list = field(default_factory=list)  # per frame (4, 4) true static extrinsic (sim only)
     oracle_truths: list = field(default_factory=list)  # per frame OracleTruth (oracle only)
+    network: list = field(default_factory=list)  # per frame factors.io.NetworkEstimate | None (files only)
     skipped: list = field(default_factory=list)  # [{"index", "token", "reason"}]
 
 
@@ -90,12 +94,7 @@ def _load_oracle(data, version: str, conf: CalibrateConfig, rng) -> dict[str, Ve
 
 
 def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig) -> dict[str, VehicleInput]:
-    directory = Path(directory)
-    if not directory.is_dir():
-        raise DataError("correspondence directory not found (expected *.npz files or one sub-directory "
-                        "per vehicle)", path=str(directory))
-    subdirs = sorted(d for d in directory.iterdir() if d.is_dir() and any(d.glob("*.npz")))
-    groups = {d.name: d for d in subdirs} if subdirs else {None: directory}
+    groups = load_measurement_dir(directory)
     refs: dict[str, np.ndarray] = {}
     truths: dict[str, np.ndarray] = {}
     if data is not None and version:
@@ -107,19 +106,39 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig)
             refs[vehicle] = np.asarray(f.extras["reference_T_cam_radar"], np.float64)
             truths[vehicle] = np.asarray(f.extras.get("T_cam_radar_static", f.T_cam_radar), np.float64)
     out: dict[str, VehicleInput] = {}
-    for name, d in groups.items():
-        vehicle = name if name is not None else (next(iter(refs)) if len(refs) == 1 else "all")
+    for name, ms in groups.items():
+        vehicle = name or (next(iter(refs)) if len(refs) == 1 else "all")
         if conf.vehicles is not None and vehicle not in conf.vehicles:
             continue
-        frames = load_correspondence_dir(d)
-        frames = frames[: conf.max_frames] if conf.max_frames > 0 else frames
+        ms = ms[: conf.max_frames] if conf.max_frames > 0 else ms
         ref = refs.get(vehicle)
         if ref is None:
-            raise DataError(f"no reference extrinsic for vehicle {vehicle!r}: pass --data/--version of the dataset "
-                            f"the correspondences come from (vehicles there: {sorted(refs)})", path=str(d))
+            raise DataError(f"no reference extrinsic for vehicle {vehicle!r} of the measurement files: pass "
+                            f"--data/--version of the dataset they come from (vehicles there: {sorted(refs)})",
+                            path=str(directory))
         truth = truths.get(vehicle)
-        out[vehicle] = VehicleInput(vehicle, frames, ref, [truth] * len(frames) if truth is not None else [])
+        out[vehicle] = VehicleInput(vehicle, [m.corr for m in ms], ref, [truth] * len(ms) if truth is not None else [],
+                                    network=[m.network for m in ms])
     return out
+
+
+def _network_summary(vi: VehicleInput) -> dict | None:
+    """NETWORK of ``calib.result``: the producer's own SE(3) of the last frame that has one."""
+    from hybrid_calib.calib.covariance import report_std
+    from hybrid_calib.calib.result import STD_FRAME
+    from hybrid_calib.metrics import extrinsic_error, std_dict
+
+    last = [(c, n) for c, n in zip(vi.frames, vi.network) if n is not None]
+    if not last:
+        return None
+    c, n = last[-1]
+    return {
+        "n_frames": len(last), "frame_id": c.frame_id, "iteration": int(n.iteration),
+        "T_cam_radar": np.asarray(n.T_cam_radar).tolist(),
+        "cov_right_radar": None if n.cov is None else np.asarray(n.cov).tolist(),
+        "std_cam": None if n.cov is None else std_dict(report_std(n.T_cam_radar, n.cov), STD_FRAME),
+        "error": extrinsic_error(n.T_cam_radar, vi.truth[-1]).as_dict() if vi.truth else None,
+    }
 
 
 def _start(vi: VehicleInput, conf: CalibrateConfig, rng) -> np.ndarray:
@@ -142,19 +161,25 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, rng, progress: bo
     from hybrid_calib.geometry import local
     from hybrid_calib.metrics import extrinsic_error
 
-    if not vi.frames:
-        raise DataError(f"vehicle {vi.vehicle}: no usable frame ({len(vi.skipped)} skipped)")
+    # a frame without rows (a network that matched nothing confidently) carries no information
+    frames = [c for c in vi.frames if len(c)]
+    skipped = vi.skipped + [{"index": i, "token": c.frame_id, "reason": "no correspondence rows"}
+                            for i, c in enumerate(vi.frames) if not len(c)]
+    if not frames:
+        raise DataError(f"vehicle {vi.vehicle}: no usable frame ({len(skipped)} skipped; first: "
+                        f"{skipped[0]['reason'] if skipped else '-'})")
     T0 = _start(vi, conf, rng)
     traj = []
     if conf.mode == "window":
         cal = SlidingWindowCalibrator(T0, conf.window)
-        for c in tqdm(vi.frames, desc=f"calibrate {vi.vehicle}", disable=not progress):
+        for c in tqdm(frames, desc=f"calibrate {vi.vehicle}", disable=not progress):
             traj.append(cal.update(c))
         final = traj[-1].estimate
     else:
-        final = solve_batch(vi.frames, T0, conf.batch).estimate
-    res = VehicleResult(vi.vehicle, final, traj, skipped=vi.skipped, n_frames=len(vi.frames))
+        final = solve_batch(frames, T0, conf.batch).estimate
+    res = VehicleResult(vi.vehicle, final, traj, skipped=skipped, n_frames=len(frames))
     res.drift = reference_test(final.T, final.cov, vi.reference, conf.drift).to_dict()
+    res.network = _network_summary(vi)
     if vi.truth:
         T_true = vi.truth[-1]
         res.truth_T = T_true
@@ -174,17 +199,17 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, rng, progress: bo
 
 
 def calibrate(data, version: str, correspondences: str, out: Path, conf: CalibrateConfig | dict | None = None,
-              overwrite: bool = False, plots: bool = True) -> dict:
-    """Calibrate every vehicle and write ``out/result.json`` (schema in ``calib.result``), the effective
-    config ``out/config.json`` and plots ``out/plots/*.png``. With ``overwrite=False`` an existing
-    result is returned untouched (idempotent)."""
-    import json
-
+              overwrite: bool = False, plots: bool = True) -> CalibrationRun:
+    """Calibrate every vehicle and write ``out/result.json`` (``CalibrationRun``, schema in
+    ``calib.result``), the effective config ``out/config.json`` and plots ``out/plots/*.png``.
+    ``correspondences``: "oracle" or a measurement directory (``factors.io``; e.g. the ``--out`` of
+    ``hybrid-calib evaluate``). With ``overwrite=False`` an existing result is read and returned
+    untouched (idempotent)."""
     conf = merge(CalibrateConfig, conf)
     out = Path(out)
     result_path = out / "result.json"
     if result_path.is_file() and not overwrite:
-        return json.loads(result_path.read_text())
+        return CalibrationRun.load(result_path)
     rng = np.random.default_rng(conf.seed)
     if correspondences == "oracle":
         inputs = _load_oracle(data, version, conf, rng)
@@ -192,16 +217,14 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
         inputs = _load_dir(Path(correspondences), data, version, conf)
     if not inputs:
         raise DataError("no vehicle to calibrate (check --vehicles and the dataset)", path=str(data))
-    vehicles = {}
+    run = CalibrationRun(str(data), version, str(correspondences), conf.mode)
     for name, vi in inputs.items():
         vr = calibrate_vehicle(vi, conf, rng)
-        vehicles[name] = vr.to_dict()
+        run.vehicles[name] = vr
         if plots:
             from hybrid_calib.calib.plots import plot_vehicle
 
             plot_vehicle(vr, out / "plots")
-    doc = {"schema": SCHEMA, "data": str(data), "version": version, "correspondences": str(correspondences),
-           "mode": conf.mode, "vehicles": vehicles}
     save_json_atomic(out / "config.json", to_dict(conf))
-    save_json_atomic(result_path, doc)
-    return doc
+    run.save(result_path)
+    return run

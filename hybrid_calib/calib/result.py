@@ -1,41 +1,58 @@
-"""Result objects of the calibrator and the JSON schema of ``RUN/result.json``.
+"""The calibrator's result types and the JSON schema of ``RUN/result.json`` (read it with
+``CalibrationRun.load``; the compare, report and fleet commands read results only through it).
 
-``result.json`` (schema ``hybrid-calib/calibrate-result/v1``)::
+``result.json`` (``schema_version`` 2, ``schema`` "hybrid-calib/calibrate-result/v2")::
 
     {
-      "schema": "hybrid-calib/calibrate-result/v1",
+      "schema": "hybrid-calib/calibrate-result/v2", "schema_version": 2,
       "data": str, "version": str, "correspondences": "oracle" | DIR, "mode": "window" | "batch",
       "vehicles": {
         VEHICLE: {
-          "n_frames": int, "frames_skipped": [{"index", "token", "reason"}],
+          "vehicle": str, "n_frames": int, "frames_skipped": [{"index", "token", "reason"}],
           "final": EXTRINSIC,              # the estimate after the last frame (window) / of the batch
-          "truth": EXTRINSIC-lite | null,  # "T_cam_radar" + "report" when the data has ground truth
+          "truth": {"T_cam_radar", "report"} | null,  # when the data has ground truth
           "error": {metrics.ExtrinsicError fields..., "nees": float} | null,
-          "crb_std_camera": {rot_x_deg, ..., t_z_cm} | null,   # oracle data only (docs: crb.py)
-          "drift": DriftDecision.to_dict() | null,           # vs the vehicle's reference extrinsic
+          "crb_std_cam": STD | null,       # Cramer-Rao std, oracle data only (docs: crb.py)
+          "drift": DriftDecision.to_dict() | null,    # vs the vehicle's reference extrinsic
+          "network": NETWORK | null,       # the producer's own SE(3) (measurement files with a network block)
           "step_alarms": [frame index, ...],
-          "trajectory": [FrameEstimate.to_dict(), ...]      # window mode: one per frame
+          "trajectory": [FRAME, ...]      # window mode: one per frame
         }
       }
     }
 
 EXTRINSIC = {"T_cam_radar": 4x4 list, "report": {"roll_deg", "pitch_deg", "yaw_deg" (camera-axis Euler
 angles of R_delta with R = R_delta R_axes), "t_m": [x, y, z]}, "cov_right_radar": 6x6 (right tangent,
-radar frame, [rad, m]), "std_camera": {"rot_x_deg", "rot_y_deg", "rot_z_deg", "t_x_cm", "t_y_cm",
-"t_z_cm"} (C_report = B C B^T), "status": str, "regularised": bool, "weak_directions": [...]}.
+radar frame, [rad, m]), "std_cam": STD, "status": str, "regularised": bool, "weak_directions": [...]}.
+
+STD = {"rot_x_cam_deg", "rot_y_cam_deg", "rot_z_cam_deg", "t_x_cam_cm", "t_y_cam_cm", "t_z_cam_cm"}:
+per-axis 1-sigma in CAMERA axes (``C_report = B C B^T``, docs/conventions.md); the keys are defined
+once, in ``hybrid_calib.metrics.std_keys("cam")``.
+
+FRAME = {"index", "frame_id", "timestamp_us", EXTRINSIC without "report", "n_window", "n_total",
+"inlier_fraction", "step_statistic", "step_threshold", "step_alarm", "solve_ms", "cov_ms", "events"}.
+
+NETWORK = {"n_frames": frames with a network estimate, "frame_id": the last such frame, "iteration",
+"T_cam_radar", "cov_right_radar" (or null), "std_cam" (or null), "error" (or null, vs the truth)}.
 """
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from hybrid_calib.calib.covariance import CovarianceReport
+from hybrid_calib.config import save_json_atomic
+from hybrid_calib.errors import DataError
 from hybrid_calib.geometry import R_AXES_CAM_FROM_RADAR, camera_euler_from_rotation
+from hybrid_calib.metrics import std_dict, std_from_dict
 
-SCHEMA = "hybrid-calib/calibrate-result/v1"
-STD_KEYS = ("rot_x_deg", "rot_y_deg", "rot_z_deg", "t_x_cm", "t_y_cm", "t_z_cm")
+SCHEMA_VERSION = 2
+SCHEMA = f"hybrid-calib/calibrate-result/v{SCHEMA_VERSION}"
+STD_FRAME = "cam"  # result std blocks are in camera axes (metrics.std_keys)
 
 
 def extrinsic_report(T_cam_radar: np.ndarray) -> dict:
@@ -46,8 +63,8 @@ def extrinsic_report(T_cam_radar: np.ndarray) -> dict:
             "t_m": [float(x) for x in T[:3, 3]]}
 
 
-def std_dict(std: np.ndarray) -> dict[str, float]:
-    return {k: float(v) for k, v in zip(STD_KEYS, std)}
+def _array(x) -> np.ndarray | None:
+    return None if x is None else np.asarray(x, np.float64)
 
 
 @dataclass(frozen=True)
@@ -73,13 +90,21 @@ class Estimate:
         return cls(np.asarray(T, np.float64), rep.cov, rep.std_report, status, rep.regularised,
                    rep.weak_directions, info)
 
-    def to_dict(self) -> dict:
-        return {
-            "T_cam_radar": np.asarray(self.T).tolist(), "report": extrinsic_report(self.T),
-            "cov_right_radar": np.asarray(self.cov).tolist(), "std_camera": std_dict(self.std),
-            "status": self.status, "regularised": bool(self.regularised),
-            "weak_directions": list(self.weak_directions),
-        }
+    def to_dict(self, report: bool = True) -> dict:
+        """EXTRINSIC of the module docstring (without "report" when ``report=False``)."""
+        d = {"T_cam_radar": np.asarray(self.T).tolist()}
+        if report:
+            d["report"] = extrinsic_report(self.T)
+        d.update({"cov_right_radar": np.asarray(self.cov).tolist(), "std_cam": std_dict(self.std, STD_FRAME),
+                  "status": self.status, "regularised": bool(self.regularised),
+                  "weak_directions": list(self.weak_directions)})
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Estimate:
+        return cls(np.asarray(d["T_cam_radar"], np.float64), np.asarray(d["cov_right_radar"], np.float64),
+                   std_from_dict(d["std_cam"], STD_FRAME), d["status"], bool(d.get("regularised", False)),
+                   tuple(d.get("weak_directions", ())))
 
 
 @dataclass(frozen=True)
@@ -113,10 +138,10 @@ class FrameEstimate:
         return self.estimate.status
 
     def to_dict(self) -> dict:
+        """FRAME of the module docstring."""
         return {
             "index": self.index, "frame_id": self.frame_id, "timestamp_us": int(self.timestamp_us),
-            "T_cam_radar": np.asarray(self.T).tolist(), "std_camera": std_dict(self.estimate.std),
-            "status": self.status, "n_window": self.n_window, "n_total": self.n_total,
+            **self.estimate.to_dict(report=False), "n_window": self.n_window, "n_total": self.n_total,
             "inlier_fraction": float(self.inlier_fraction),
             "step_statistic": None if self.step_statistic is None else float(self.step_statistic),
             "step_threshold": None if self.step_threshold is None else float(self.step_threshold),
@@ -124,10 +149,21 @@ class FrameEstimate:
             "events": list(self.events),
         }
 
+    @classmethod
+    def from_dict(cls, d: dict) -> FrameEstimate:
+        return cls(
+            index=int(d["index"]), frame_id=d["frame_id"], timestamp_us=int(d["timestamp_us"]),
+            estimate=Estimate.from_dict(d), n_window=int(d["n_window"]), n_total=int(d["n_total"]),
+            inlier_fraction=float(d["inlier_fraction"]), step_statistic=d["step_statistic"],
+            step_threshold=d["step_threshold"], step_alarm=bool(d["step_alarm"]), solve_ms=float(d["solve_ms"]),
+            cov_ms=float(d["cov_ms"]), events=tuple(d.get("events", ())),
+        )
+
 
 @dataclass
 class VehicleResult:
-    """Everything ``calibrate`` produces for one vehicle (log)."""
+    """Everything ``calibrate`` produces for one vehicle (log). ``network``: NETWORK of the module
+    docstring (the producer's own SE(3) of the last frame that has one), or None."""
 
     vehicle: str
     final: Estimate
@@ -138,14 +174,87 @@ class VehicleResult:
     drift: dict | None = None
     skipped: list[dict] = field(default_factory=list)
     n_frames: int = 0
+    network: dict | None = None
 
     def to_dict(self) -> dict:
         return {
-            "n_frames": self.n_frames, "frames_skipped": self.skipped, "final": self.final.to_dict(),
+            "vehicle": self.vehicle, "n_frames": self.n_frames, "frames_skipped": self.skipped,
+            "final": self.final.to_dict(),
             "truth": None if self.truth_T is None else {
                 "T_cam_radar": np.asarray(self.truth_T).tolist(), "report": extrinsic_report(self.truth_T)},
-            "error": self.error, "crb_std_camera": None if self.crb_std is None else std_dict(self.crb_std),
-            "drift": self.drift,
+            "error": self.error,
+            "crb_std_cam": None if self.crb_std is None else std_dict(self.crb_std, STD_FRAME),
+            "drift": self.drift, "network": self.network,
             "step_alarms": [f.index for f in self.trajectory if f.step_alarm],
             "trajectory": [f.to_dict() for f in self.trajectory],
         }
+
+    @classmethod
+    def from_dict(cls, d: dict, vehicle: str | None = None) -> VehicleResult:
+        truth, crb = d.get("truth"), d.get("crb_std_cam")
+        return cls(
+            vehicle=d.get("vehicle", vehicle or ""), final=Estimate.from_dict(d["final"]),
+            trajectory=[FrameEstimate.from_dict(f) for f in d.get("trajectory", [])],
+            truth_T=None if truth is None else _array(truth["T_cam_radar"]), error=d.get("error"),
+            crb_std=None if crb is None else std_from_dict(crb, STD_FRAME), drift=d.get("drift"),
+            skipped=list(d.get("frames_skipped", [])), n_frames=int(d.get("n_frames", 0)),
+            network=d.get("network"),
+        )
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2)
+
+    @classmethod
+    def from_json(cls, text: str) -> VehicleResult:
+        return cls.from_dict(json.loads(text))
+
+
+@dataclass
+class CalibrationRun:
+    """One ``calibrate`` run: every vehicle's result and where the inputs came from (``result.json``)."""
+
+    data: str
+    version: str
+    correspondences: str  # "oracle" or the measurement directory
+    mode: str  # "window" | "batch"
+    vehicles: dict[str, VehicleResult] = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {"schema": SCHEMA, "schema_version": SCHEMA_VERSION, "data": self.data, "version": self.version,
+                "correspondences": self.correspondences, "mode": self.mode,
+                "vehicles": {name: v.to_dict() for name, v in self.vehicles.items()}}
+
+    @classmethod
+    def from_dict(cls, d: dict, source: str = "") -> CalibrationRun:
+        """Raises ``DataError`` (naming ``source``) for another schema version."""
+        version = d.get("schema_version") if isinstance(d, dict) else None
+        if version != SCHEMA_VERSION:
+            raise DataError(f"not a calibrate result of schema_version {SCHEMA_VERSION} (found "
+                            f"{version if version is not None else d.get('schema') if isinstance(d, dict) else d!r}); "
+                            "re-run hybrid-calib calibrate with --overwrite", path=source or None)
+        return cls(d["data"], d["version"], d["correspondences"], d["mode"],
+                   {name: VehicleResult.from_dict(v, name) for name, v in d["vehicles"].items()})
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2)
+
+    @classmethod
+    def from_json(cls, text: str, source: str = "") -> CalibrationRun:
+        return cls.from_dict(json.loads(text), source)
+
+    def save(self, path: str | Path) -> Path:
+        """Write ``path`` (``result.json``) atomically."""
+        return save_json_atomic(Path(path), self.to_dict())
+
+    @classmethod
+    def load(cls, path: str | Path) -> CalibrationRun:
+        """Read a ``result.json``; ``DataError`` naming it when it is missing, not JSON or another schema."""
+        path = Path(path)
+        try:
+            text = path.read_text()
+            return cls.from_json(text, str(path))
+        except (OSError, json.JSONDecodeError) as e:
+            raise DataError(f"calibrate result unreadable ({e})", path=str(path)) from None
+        except (KeyError, TypeError, ValueError) as e:
+            raise DataError(f"calibrate result incomplete ({type(e).__name__}: {e}); re-run hybrid-calib "
+                            "calibrate with --overwrite", path=str(path)) from None

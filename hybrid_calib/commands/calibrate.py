@@ -15,8 +15,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--data", type=Path, required=True, help="nuScenes root (e.g. written by hybrid-calib simulate)")
     p.add_argument("--version", default="v1.0-sim", help="version folder under --data (default: v1.0-sim)")
     p.add_argument("--correspondences", default="oracle",
-                   help="'oracle' (simulated roots: from the ground truth) or a directory of exported "
-                        "Correspondences *.npz (one sub-directory per vehicle, or flat for one vehicle)")
+                   help="'oracle' (simulated roots: from the ground truth) or a directory of measurement files "
+                        "(factors.io *.npz: the --out of hybrid-calib evaluate, flat, or one sub-directory per "
+                        "vehicle)")
     p.add_argument("--mode", default="window", choices=("window", "batch"), help="default: window")
     p.add_argument("--window", type=int, default=20, help="sliding-window length in frames (default: 20)")
     p.add_argument("--backend", default="gtsam", choices=("gtsam", "ceres"), help="batch back end (default: gtsam)")
@@ -34,7 +35,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from hybrid_calib.calib.pipeline import CalibrateConfig, calibrate
+    from hybrid_calib.calib.result import STD_FRAME
     from hybrid_calib.config import merge
+    from hybrid_calib.metrics import std_dict
 
     overrides = parse_overrides(args.set)
     overrides.update(mode=args.mode, start=args.start, seed=args.seed, max_frames=args.max_frames)
@@ -46,16 +49,16 @@ def run(args: argparse.Namespace) -> int:
         raise HybridCalibError(f"invalid calibration settings: {e}") from None
     if (args.out / "result.json").is_file() and not args.overwrite:
         print(f"{args.out / 'result.json'} exists; pass --overwrite to recompute")
-    doc = calibrate(args.data, args.version, args.correspondences, args.out, conf, overwrite=args.overwrite,
-                    plots=not args.no_plots)
-    for name, v in doc["vehicles"].items():
-        f, s = v["final"], v["final"]["std_camera"]
-        line = (f"{name}: {f['status']}; std rot {s['rot_x_deg']:.3f}/{s['rot_y_deg']:.3f}/{s['rot_z_deg']:.3f} deg, "
-                f"t {s['t_x_cm']:.2f}/{s['t_y_cm']:.2f}/{s['t_z_cm']:.2f} cm")
-        if v.get("error"):
-            line += f"; error {v['error']['rot_mean_deg']:.3f} deg, {v['error']['trans_norm_cm']:.2f} cm"
-        if v.get("drift"):
-            line += f"; drift vs reference: {'YES' if v['drift']['drifted'] else 'no'} (p {v['drift']['p_value']:.2g})"
+    result = calibrate(args.data, args.version, args.correspondences, args.out, conf, overwrite=args.overwrite,
+                       plots=not args.no_plots)
+    for name, v in result.vehicles.items():
+        s = std_dict(v.final.std, STD_FRAME)
+        line = (f"{name}: {v.final.status}; std (camera axes) rot {s['rot_x_cam_deg']:.3f}/{s['rot_y_cam_deg']:.3f}/"
+                f"{s['rot_z_cam_deg']:.3f} deg, t {s['t_x_cam_cm']:.2f}/{s['t_y_cam_cm']:.2f}/{s['t_z_cam_cm']:.2f} cm")
+        if v.error:
+            line += f"; error {v.error['rot_mean_deg']:.3f} deg, {v.error['trans_norm_cm']:.2f} cm"
+        if v.drift:
+            line += f"; drift vs reference: {'YES' if v.drift['drifted'] else 'no'} (p {v.drift['p_value']:.2g})"
         print(line)
     print(f"wrote {args.out / 'result.json'}")
     return 0

@@ -25,14 +25,15 @@ def run(args: argparse.Namespace) -> int:
     print(f"radar on camera:      {s['projection_png']}")
     for name, v in s["vehicles"].items():
         f = v["final"]
-        std = f["std_camera"]
+        std = f["std_cam"]
         print(f"calibration [{name}]: status {f['status']}")
         if v.get("error"):
             e = v["error"]
             print(f"  error vs truth:     rotation {e['rot_mean_deg']:.3f} deg (mean |roll,pitch,yaw|), "
                   f"translation {e['trans_norm_cm']:.2f} cm (norm)")
-        print(f"  1-sigma (camera):   rot {std['rot_x_deg']:.3f}/{std['rot_y_deg']:.3f}/{std['rot_z_deg']:.3f} deg, "
-              f"t {std['t_x_cm']:.2f}/{std['t_y_cm']:.2f}/{std['t_z_cm']:.2f} cm")
+        print(f"  1-sigma (camera):   rot {std['rot_x_cam_deg']:.3f}/{std['rot_y_cam_deg']:.3f}/"
+              f"{std['rot_z_cam_deg']:.3f} deg, t {std['t_x_cam_cm']:.2f}/{std['t_y_cam_cm']:.2f}/"
+              f"{std['t_z_cam_cm']:.2f} cm")
         if f["status"].startswith("weak"):
             print("  note: a 2D radar records no elevation, so its height and pitch against the camera are pinned\n"
                   "        only by the reflector-height prior; the 1-sigma above says so (docs/conventions.md)")

@@ -1,7 +1,8 @@
 """``hybrid-calib evaluate``: the paper's error table for a checkpoint on a held-out split.
 
 Export-then-evaluate (``learned.evaluate``): per-frame predictions go to ``OUT/frames/*.npz`` (rerun
-skips frames already there), then the table (rotation Mean/Roll/Pitch/Yaw in degrees, translation
+skips frames already there; measurement files, ``factors.io``, so ``hybrid-calib calibrate
+--correspondences OUT`` reads them), then the table (rotation Mean/Roll/Pitch/Yaw in degrees, translation
 Mean/X/Y/Z in cm, geodesic angle and translation norm; the initial error, every iteration and the
 final estimate) is printed and written to ``OUT/results.json`` (schema in
 ``learned.evaluate.write_report``), ``OUT/results.md`` and ``OUT/errors_cdf.png``. The split and the

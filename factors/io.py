@@ -1,0 +1,242 @@
+"""The measurement file: one ``.npz`` per frame, the only on-disk format of correspondences.
+
+Written by every exporter (``learned.evaluate``: ``OUT/frames/<token>.npz``; tests and tools through
+``save_measurements``), read by ``hybrid-calib calibrate --correspondences DIR`` (``load_measurement_dir``).
+Frames: docs/conventions.md ("Measurement file").
+
+Keys of schema version 1 (``SCHEMA_VERSION``); arrays are float64 unless said otherwise:
+
+=================== =========== ==========================================================================
+key                 shape       meaning
+=================== =========== ==========================================================================
+schema_version      () int64    1
+points_radar        (N, 3)      metres, radar frame, as recorded (z = 0 for a 2D radar)
+pixels              (N, 2)      pixels (u = column, v = row) of the image described by ``K``
+sigma_px            (N,)        pixels, isotropic 1-sigma noise of each row (> 0)
+confidence          (N,)        [0, 1], multiplies each row's information
+K                   (3, 3)      intrinsics of the image the pixels live in (e.g. the network's input)
+frame_id            () str      frame token (the camera sample_data token for nuScenes data)
+timestamp_us        () int64    camera timestamp, microseconds (0 = unknown)
+timestamp_radar_us  () int64    radar timestamp, microseconds (0 = unknown)
+vehicle             () str      vehicle (log) the frame belongs to ("" = unknown); groups frames
+=================== =========== ==========================================================================
+
+Optional network block (a learned producer's own per-frame estimate); present when ``T_cam_radar`` is:
+
+=================== =========== ==========================================================================
+T_cam_radar         (4, 4)      the network's estimate of the extrinsic (radar -> camera)
+cov                 (6, 6)      its covariance: right perturbation ``T Exp(xi)``, ``xi = [omega, v]``
+                                (radar frame; rad^2, m^2), symmetric
+iteration           () int64    0-based iteration whose assignment produced the rows (-1 = unknown); the
+                                rows of iteration k > 0 were measured against the estimate of k - 1,
+                                so they are correlated with ``T_cam_radar``
+T_start             (4, 4)      the start extrinsic the network was given
+=================== =========== ==========================================================================
+
+Other keys are allowed (a producer's extras, e.g. ``learned.evaluate``'s ``T_gt``, ``T_iters``) and
+ignored by the reader. A bad file raises ``DataError`` naming the file, the key and what is wrong.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from factors.correspondences import Correspondences
+from hybrid_calib.errors import DataError
+
+SCHEMA_VERSION = 1
+ROW_KEYS = ("points_radar", "pixels", "sigma_px", "confidence")
+FRAME_KEYS = ("schema_version", *ROW_KEYS, "K", "frame_id", "timestamp_us", "timestamp_radar_us", "vehicle")
+NETWORK_KEYS = ("T_cam_radar", "cov", "iteration", "T_start")
+KEYS = FRAME_KEYS + NETWORK_KEYS
+FRAMES_SUBDIR = "frames"  # ``hybrid-calib evaluate --out E`` writes E/frames/*.npz
+
+
+@dataclass(frozen=True)
+class NetworkEstimate:
+    """A producer's own per-frame estimate (see the module table).
+
+    T_cam_radar: (4, 4). cov: (6, 6) right tangent, radar frame, [rad, m] or None. iteration: int
+    (-1 unknown). T_start: (4, 4) or None.
+    """
+
+    T_cam_radar: np.ndarray
+    cov: np.ndarray | None = None
+    iteration: int = -1
+    T_start: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class FrameMeasurements:
+    """One frame of the measurement file: its correspondence rows plus frame metadata and,
+    optionally, the network's SE(3) estimate (``network``)."""
+
+    corr: Correspondences
+    vehicle: str = ""
+    timestamp_radar_us: int = 0
+    network: NetworkEstimate | None = None
+
+    @property
+    def frame_id(self) -> str:
+        return self.corr.frame_id
+
+    @property
+    def timestamp_us(self) -> int:
+        return self.corr.timestamp_us
+
+
+def to_arrays(m: FrameMeasurements) -> dict[str, np.ndarray]:
+    """The file's arrays (module table) of one frame."""
+    c = m.corr
+    d = {
+        "schema_version": np.array(SCHEMA_VERSION, np.int64),
+        **{k: np.asarray(getattr(c, k), np.float64) for k in ROW_KEYS},
+        "K": np.asarray(c.K, np.float64), "frame_id": np.array(str(c.frame_id)),
+        "timestamp_us": np.array(int(c.timestamp_us), np.int64),
+        "timestamp_radar_us": np.array(int(m.timestamp_radar_us), np.int64), "vehicle": np.array(str(m.vehicle)),
+    }
+    n = m.network
+    if n is not None:
+        d["T_cam_radar"] = np.asarray(n.T_cam_radar, np.float64)
+        d["iteration"] = np.array(int(n.iteration), np.int64)
+        if n.cov is not None:
+            d["cov"] = np.asarray(n.cov, np.float64)
+        if n.T_start is not None:
+            d["T_start"] = np.asarray(n.T_start, np.float64)
+    return d
+
+
+def _bad(source: str, msg: str) -> DataError:
+    return DataError(f"not a measurement file (factors.io schema {SCHEMA_VERSION}): {msg}; write it with "
+                     "factors.io.save_measurements (or re-run the export)", path=source or None)
+
+
+def _array(d: Mapping, key: str, shape: tuple, source: str) -> np.ndarray:
+    """``d[key]`` as float64 with ``shape`` (-1 = any length), finite."""
+    a = np.asarray(d[key])
+    if a.ndim != len(shape) or any(w not in (-1, g) for g, w in zip(a.shape, shape)):
+        want = "(" + ", ".join("N" if w == -1 else str(w) for w in shape) + (",)" if len(shape) == 1 else ")")
+        raise _bad(source, f"key {key!r} has shape {a.shape}, expected {want}")
+    try:
+        a = a.astype(np.float64)
+    except (TypeError, ValueError):
+        raise _bad(source, f"key {key!r} has dtype {a.dtype}, expected numbers") from None
+    if not np.all(np.isfinite(a)):
+        raise _bad(source, f"key {key!r} has NaN/inf values")
+    return a
+
+
+def _transform(d: Mapping, key: str, source: str) -> np.ndarray:
+    T = _array(d, key, (4, 4), source)
+    if not np.allclose(T[3], [0, 0, 0, 1]):
+        raise _bad(source, f"key {key!r} is not a rigid transform (last row {T[3].tolist()})")
+    return T
+
+
+def from_arrays(d: Mapping, source: str = "") -> FrameMeasurements:
+    """One frame from the file's arrays (an open ``np.load`` or a dict); ``source`` names the file in
+    errors. Raises ``DataError`` for a missing key, a wrong shape or version, NaN/inf."""
+    keys = set(d.keys())
+    if "schema_version" not in keys:
+        raise _bad(source, "no 'schema_version' key (a file from before the format, e.g. evaluate's old "
+                           "corr_* keys)")
+    version = int(np.asarray(d["schema_version"]))
+    if version != SCHEMA_VERSION:
+        raise _bad(source, f"schema_version {version}, this reader knows {SCHEMA_VERSION}")
+    missing = [k for k in FRAME_KEYS if k not in keys]
+    if missing:
+        raise _bad(source, f"missing key(s) {missing}")
+    pts = _array(d, "points_radar", (-1, 3), source)
+    n = len(pts)
+    rows = {"points_radar": pts}
+    for key, shape in (("pixels", (n, 2)), ("sigma_px", (n,)), ("confidence", (n,))):
+        rows[key] = _array(d, key, shape, source)
+    if np.any(rows["sigma_px"] <= 0):
+        raise _bad(source, "key 'sigma_px' has values <= 0")
+    try:
+        corr = Correspondences(rows["points_radar"], rows["pixels"], rows["sigma_px"], rows["confidence"],
+                               _array(d, "K", (3, 3), source), str(d["frame_id"]), int(d["timestamp_us"]))
+    except ValueError as e:
+        raise _bad(source, str(e)) from None
+    network = None
+    present = [k for k in NETWORK_KEYS if k in keys]
+    if present and "T_cam_radar" not in keys:
+        raise _bad(source, f"network key(s) {present} without 'T_cam_radar'")
+    if "T_cam_radar" in keys:
+        cov = _array(d, "cov", (6, 6), source) if "cov" in keys else None
+        if cov is not None and (not np.allclose(cov, cov.T, rtol=1e-6, atol=1e-12) or np.any(np.diag(cov) < 0)):
+            raise _bad(source, "key 'cov' is not symmetric with a non-negative diagonal")
+        network = NetworkEstimate(_transform(d, "T_cam_radar", source), cov,
+                                  int(d["iteration"]) if "iteration" in keys else -1,
+                                  _transform(d, "T_start", source) if "T_start" in keys else None)
+    return FrameMeasurements(corr, str(d["vehicle"]), int(d["timestamp_radar_us"]), network)
+
+
+def save_measurements(path: str | Path, m: FrameMeasurements, extra: Mapping[str, np.ndarray] | None = None) -> Path:
+    """Write one frame atomically (temp file + rename). ``extra``: a producer's own arrays, stored
+    beside the format's keys (their names must not be format keys)."""
+    path = Path(path)
+    extra = dict(extra or {})
+    clash = sorted(set(extra) & set(KEYS))
+    if clash:
+        raise ValueError(f"save_measurements: extra keys {clash} are format keys; pass them through the frame")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.stem + ".tmp.npz")
+    np.savez(tmp, **extra, **to_arrays(m))
+    tmp.replace(path)
+    return path
+
+
+def load_measurements(path: str | Path) -> FrameMeasurements:
+    """One frame file; ``DataError`` naming it when it is unreadable or not in the format."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return from_arrays(z, str(path))
+    except (OSError, ValueError, KeyError) as e:  # not a zip, truncated, pickled arrays
+        raise DataError(f"unreadable measurement file ({e}); re-run the export", path=str(path)) from None
+
+
+def measurement_files(directory: str | Path) -> dict[str, list[Path]]:
+    """The frame files of a directory, by sub-directory name ("" for files directly in it).
+
+    Layouts, tried in order: ``DIR/frames/*.npz`` (``hybrid-calib evaluate --out DIR``), ``DIR/*.npz``
+    (flat), ``DIR/<name>/*.npz`` (one sub-directory per vehicle)."""
+    d = Path(directory)
+    if not d.is_dir():
+        raise DataError("measurement directory not found (expected *.npz frame files, an evaluate output with "
+                        "frames/, or one sub-directory of *.npz per vehicle)", path=str(d))
+    if files := sorted((d / FRAMES_SUBDIR).glob("*.npz")):
+        return {"": files}
+    if files := sorted(d.glob("*.npz")):
+        return {"": files}
+    groups = {s.name: sorted(s.glob("*.npz")) for s in sorted(d.iterdir()) if s.is_dir()}
+    groups = {k: v for k, v in groups.items() if v}
+    if not groups:
+        raise DataError("no *.npz measurement files (factors.io) in the directory, its frames/ or its "
+                        "sub-directories", path=str(d))
+    return groups
+
+
+def load_measurement_dir(directory: str | Path) -> dict[str, list[FrameMeasurements]]:
+    """Every frame under ``directory`` (``measurement_files``), grouped by the file's ``vehicle``
+    (a file without one takes its sub-directory's name, "" when flat); each group sorted by camera
+    timestamp, then frame id."""
+    out: dict[str, list[FrameMeasurements]] = {}
+    for sub, files in measurement_files(directory).items():
+        for f in files:
+            m = load_measurements(f)
+            out.setdefault(m.vehicle or sub, []).append(m)
+    for frames in out.values():
+        frames.sort(key=lambda m: (m.timestamp_us, m.frame_id))
+    return dict(sorted(out.items()))
+
+
+def load_correspondence_dir(directory: str | Path) -> list[Correspondences]:
+    """The correspondences of every frame under ``directory``, all vehicles together, sorted by
+    camera timestamp then frame id."""
+    frames = [m for group in load_measurement_dir(directory).values() for m in group]
+    return [m.corr for m in sorted(frames, key=lambda m: (m.timestamp_us, m.frame_id))]

@@ -1,0 +1,79 @@
+"""The calibrate result type (``calib.result``): JSON round trip, schema version, std keys with their frame."""
+
+import json
+
+import numpy as np
+import pytest
+
+from hybrid_calib.calib.result import SCHEMA_VERSION, CalibrationRun, Estimate, FrameEstimate, VehicleResult
+from hybrid_calib.errors import DataError
+from hybrid_calib.metrics import STD_KEYS_CAM, STD_KEYS_RADAR, extrinsic_error, std_dict, std_keys
+from tests.helpers import nominal_T_cam_radar, random_pose, rng
+
+
+def _estimate(g, status="ok") -> Estimate:
+    A = g.normal(size=(6, 6))
+    return Estimate(random_pose(g), A @ A.T, g.uniform(0.1, 2, 6), status, bool(g.integers(2)), ("rot x",))
+
+
+def _run(g) -> CalibrationRun:
+    traj = [FrameEstimate(index=k, frame_id=f"f{k}", timestamp_us=k * 500_000, estimate=_estimate(g),
+                          n_window=min(k + 1, 3), n_total=k + 1, inlier_fraction=0.8,
+                          step_statistic=None if k == 0 else 3.5, step_threshold=None if k == 0 else 20.0,
+                          step_alarm=k == 2, solve_ms=1.5, cov_ms=0.25, events=("reset",) if k == 2 else ())
+            for k in range(3)]
+    T_true = nominal_T_cam_radar()
+    v1 = VehicleResult("veh-a", traj[-1].estimate, traj, truth_T=T_true,
+                       error={**extrinsic_error(traj[-1].T, T_true).as_dict(), "nees": 4.2}, crb_std=g.uniform(0, 1, 6),
+                       drift={"drifted": False, "p_value": 0.3, "dof": 6},
+                       skipped=[{"index": 7, "token": "t7", "reason": "no points"}], n_frames=3,
+                       network={"n_frames": 3, "frame_id": "f2", "iteration": 2, "T_cam_radar": T_true.tolist(),
+                                "cov_right_radar": None, "std_cam": None, "error": None})
+    v2 = VehicleResult("veh-b", _estimate(g, "weak: translation along camera y"), n_frames=5)  # batch, no truth
+    return CalibrationRun("/data/root", "v1.0-sim", "/exports/E", "window", {"veh-a": v1, "veh-b": v2})
+
+
+def test_run_round_trips_through_json(tmp_path):
+    run = _run(rng(0))
+    text = run.to_json()
+    back = CalibrationRun.from_json(text)
+    assert back.to_json() == text
+    a, b = run.vehicles["veh-a"], back.vehicles["veh-a"]
+    np.testing.assert_array_equal(a.final.cov, b.final.cov)
+    np.testing.assert_array_equal(a.trajectory[1].estimate.std, b.trajectory[1].estimate.std)
+    np.testing.assert_array_equal(a.crb_std, b.crb_std)
+    assert b.trajectory[2].step_alarm and b.trajectory[2].events == ("reset",)
+    assert b.trajectory[0].step_statistic is None
+    assert back.vehicles["veh-b"].truth_T is None and back.vehicles["veh-b"].trajectory == []
+    assert VehicleResult.from_json(a.to_json()).to_dict() == a.to_dict()
+    # the file: schema version, std keys that name their (camera) frame
+    path = run.save(tmp_path / "result.json")
+    doc = json.loads(path.read_text())
+    assert doc["schema_version"] == SCHEMA_VERSION and doc["vehicles"]["veh-a"]["step_alarms"] == [2]
+    assert tuple(doc["vehicles"]["veh-a"]["final"]["std_cam"]) == STD_KEYS_CAM
+    assert tuple(doc["vehicles"]["veh-a"]["trajectory"][0]["std_cam"]) == STD_KEYS_CAM
+    assert CalibrationRun.load(path).to_dict() == doc
+
+
+def test_other_schema_or_broken_file_is_named(tmp_path):
+    doc = _run(rng(1)).to_dict()
+    doc["schema_version"] = 1
+    (tmp_path / "old.json").write_text(json.dumps(doc))
+    with pytest.raises(DataError, match="schema_version 2.*old.json"):
+        CalibrationRun.load(tmp_path / "old.json")
+    (tmp_path / "cut.json").write_text('{"schema_version": 2')
+    with pytest.raises(DataError, match="unreadable.*cut.json"):
+        CalibrationRun.load(tmp_path / "cut.json")
+    del doc["vehicles"]
+    doc["schema_version"] = 2
+    (tmp_path / "part.json").write_text(json.dumps(doc))
+    with pytest.raises(DataError, match="incomplete.*vehicles"):
+        CalibrationRun.load(tmp_path / "part.json")
+
+
+def test_std_keys_name_their_frame():
+    assert STD_KEYS_CAM == ("rot_x_cam_deg", "rot_y_cam_deg", "rot_z_cam_deg", "t_x_cam_cm", "t_y_cam_cm", "t_z_cam_cm")
+    assert STD_KEYS_RADAR == std_keys("radar") and not set(STD_KEYS_CAM) & set(STD_KEYS_RADAR)
+    assert list(std_dict(np.arange(6.0), "radar").values()) == list(range(6))
+    with pytest.raises(ValueError, match="valid"):
+        std_keys("camera")

@@ -1,0 +1,99 @@
+"""The measurement file (``factors.io``): round trip, layouts, and errors that name the file and key."""
+
+import numpy as np
+import pytest
+
+from factors.correspondences import Correspondences
+from factors.io import (
+    SCHEMA_VERSION,
+    FrameMeasurements,
+    NetworkEstimate,
+    load_correspondence_dir,
+    load_measurement_dir,
+    load_measurements,
+    save_measurements,
+    to_arrays,
+)
+from hybrid_calib.errors import DataError
+from tests.helpers import nominal_T_cam_radar, rng
+
+
+def _frame(seed: int = 0, n: int = 7, vehicle: str = "veh-a", network: bool = True, ts: int = 1_000
+           ) -> FrameMeasurements:
+    g = rng(seed)
+    K = np.array([[800.0, 0, 640], [0, 800, 360], [0, 0, 1]])
+    corr = Correspondences(g.uniform(-20, 20, (n, 3)) * [1, 1, 0], g.uniform(0, 1280, (n, 2)), g.uniform(1, 4, n),
+                           g.uniform(0, 1, n), K, f"tok-{seed}", ts)
+    net = None
+    if network:
+        A = g.normal(size=(6, 6))
+        T = nominal_T_cam_radar()
+        net = NetworkEstimate(T, A @ A.T * 1e-4, 2, T @ np.diag([1.0, 1, 1, 1]))
+    return FrameMeasurements(corr, vehicle, ts - 20, net)
+
+
+def _assert_same(a: FrameMeasurements, b: FrameMeasurements):
+    da, db = to_arrays(a), to_arrays(b)
+    assert set(da) == set(db)
+    for k in da:
+        np.testing.assert_array_equal(da[k], db[k], err_msg=k)
+
+
+def test_round_trip_with_and_without_the_network_block(tmp_path):
+    for i, net in enumerate((True, False)):
+        m = _frame(i, network=net)
+        path = save_measurements(tmp_path / f"f{i}.npz", m, extra={"T_gt": np.eye(4)})
+        back = load_measurements(path)
+        _assert_same(m, back)
+        assert (back.network is not None) == net and back.vehicle == "veh-a" and back.timestamp_radar_us == 980
+        with np.load(path) as z:
+            assert int(z["schema_version"]) == SCHEMA_VERSION and "T_gt" in z.files  # extras kept, ignored
+    assert back.frame_id == "tok-1" and back.timestamp_us == 1_000
+    np.testing.assert_array_equal(load_measurements(tmp_path / "f0.npz").network.cov, _frame(0).network.cov)
+    # Correspondences.to_npz_dict / from_npz_dict are the same format (rows only)
+    c = _frame(3).corr
+    np.testing.assert_array_equal(Correspondences.from_npz_dict(c.to_npz_dict()).pixels, c.pixels)
+    with pytest.raises(ValueError, match="format keys"):
+        save_measurements(tmp_path / "x.npz", m, extra={"cov": np.eye(6)})
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda d: d.pop("pixels"), "missing key.*pixels"),
+    (lambda d: d.update(pixels=np.zeros((3, 2))), "'pixels' has shape \\(3, 2\\), expected \\(7, 2\\)"),
+    (lambda d: d["sigma_px"].__setitem__(2, np.nan), "'sigma_px' has NaN"),
+    (lambda d: d.update(schema_version=np.array(99)), "schema_version 99"),
+    (lambda d: d.pop("schema_version"), "no 'schema_version'"),
+    (lambda d: d.update(cov=np.triu(np.ones((6, 6)))), "'cov' is not symmetric"),
+    (lambda d: d.pop("T_cam_radar"), "without 'T_cam_radar'"),
+    (lambda d: d.update(T_start=np.ones((4, 4))), "'T_start' is not a rigid transform"),
+])
+def test_bad_file_names_file_and_key(tmp_path, change, message):
+    d = to_arrays(_frame(0))
+    change(d)
+    path = tmp_path / "bad-frame.npz"
+    np.savez(path, **d)
+    with pytest.raises(DataError, match=message) as e:
+        load_measurements(path)
+    assert "bad-frame.npz" in str(e.value)
+
+
+def test_old_evaluate_file_is_rejected_with_a_reason(tmp_path):
+    np.savez(tmp_path / "old.npz", **{f"corr_{k}": v for k, v in _frame(0).corr.to_npz_dict().items()})
+    with pytest.raises(DataError, match="no 'schema_version'") as e:
+        load_measurement_dir(tmp_path)
+    assert "old.npz" in str(e.value)
+
+
+def test_directory_layouts_group_by_vehicle(tmp_path):
+    # evaluate output: DIR/frames/*.npz, vehicles from the files, each sorted by camera timestamp
+    for i, (veh, ts) in enumerate([("veh-b", 30), ("veh-a", 20), ("veh-a", 10)]):
+        save_measurements(tmp_path / "E" / "frames" / f"{i}.npz", _frame(i, vehicle=veh, ts=ts))
+    groups = load_measurement_dir(tmp_path / "E")
+    assert list(groups) == ["veh-a", "veh-b"] and [m.timestamp_us for m in groups["veh-a"]] == [10, 20]
+    assert [c.timestamp_us for c in load_correspondence_dir(tmp_path / "E")] == [10, 20, 30]
+    # one sub-directory per vehicle with files that carry no vehicle; a flat directory
+    for i, veh in enumerate(["x", "x", "y"]):
+        save_measurements(tmp_path / "V" / veh / f"{i}.npz", _frame(i, vehicle="", network=False))
+    assert {k: len(v) for k, v in load_measurement_dir(tmp_path / "V").items()} == {"x": 2, "y": 1}
+    save_measurements(tmp_path / "F" / "0.npz", _frame(0, vehicle=""))
+    assert list(load_measurement_dir(tmp_path / "F")) == [""]
