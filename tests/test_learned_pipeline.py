@@ -14,9 +14,9 @@ from hybrid_calib.data.frame import RadarCameraFrame, write_depth_png
 from hybrid_calib.errors import HybridCalibError
 from hybrid_calib.geometry import make_T, transform_points
 from hybrid_calib.metrics import METRIC_KEYS, extrinsic_error
+from hybrid_calib.perturbation import RANGES
 from hybrid_calib.sensors.camera import PinholeCamera
 from learned.dataset import (
-    RANGES,
     CalibDataset,
     DatasetConfig,
     SplitConfig,

@@ -26,9 +26,10 @@ from hybrid_calib.calib.result import SCHEMA, VehicleResult
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import merge, save_json_atomic, to_dict
 from hybrid_calib.errors import DataError, HybridCalibError
+from hybrid_calib.perturbation import RANGES, perturbed_start
 
 MODES = ("window", "batch")
-STARTS = ("reference", "R1", "R2")
+STARTS = ("reference", *RANGES)
 
 
 @dataclass(frozen=True)
@@ -123,14 +124,11 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig)
 
 
 def _start(vi: VehicleInput, conf: CalibrateConfig, rng) -> np.ndarray:
-    from hybrid_calib.geometry import perturb_camera_frame
-
     if conf.start == "reference":
         return vi.reference
     if not vi.truth:
         raise HybridCalibError(f"start={conf.start} needs ground truth (a simulated root); use start=reference")
-    r, t = (10.0, 0.25) if conf.start == "R1" else (20.0, 1.5)
-    return perturb_camera_frame(vi.truth[0], np.radians(rng.uniform(-r, r, 3)), rng.uniform(-t, t, 3))
+    return perturbed_start(vi.truth[0], rng, conf.start)
 
 
 def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, rng, progress: bool = True) -> VehicleResult:

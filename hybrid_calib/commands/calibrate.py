@@ -7,6 +7,7 @@ from pathlib import Path
 
 from hybrid_calib.config import ConfigError, parse_overrides
 from hybrid_calib.errors import HybridCalibError
+from hybrid_calib.perturbation import RANGES
 
 HELP = "calibrate T_cam_radar per vehicle from oracle or exported correspondences (window or batch)"
 
@@ -20,7 +21,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mode", default="window", choices=("window", "batch"), help="default: window")
     p.add_argument("--window", type=int, default=20, help="sliding-window length in frames (default: 20)")
     p.add_argument("--backend", default="gtsam", choices=("gtsam", "ceres"), help="batch back end (default: gtsam)")
-    p.add_argument("--start", default="reference", choices=("reference", "R1", "R2"),
+    p.add_argument("--start", default="reference", choices=("reference", *RANGES),
                    help="initial extrinsic: the vehicle's tables, or a perturbed truth (default: reference)")
     p.add_argument("--max-frames", type=int, default=0, help="frames per vehicle, 0 = all (default: 0)")
     p.add_argument("--seed", type=int, default=0, help="oracle noise and start seed (default: 0)")

@@ -25,6 +25,7 @@ from pathlib import Path
 
 from hybrid_calib.config import parse_overrides
 from hybrid_calib.errors import HybridCalibError
+from hybrid_calib.perturbation import RANGES
 
 HELP = "evaluate a trained network on held-out frames (paper table: rotation deg, translation cm)"
 
@@ -33,7 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", required=True, type=Path, nargs="+",
                         help="nuScenes root(s) (each holds VERSION/ and samples/); several are read as one")
     parser.add_argument("--version", default="v1.0-sim", help="version folder (default v1.0-sim)")
-    parser.add_argument("--range", dest="perturbation", default="R1", choices=("R1", "R2"),
+    parser.add_argument("--range", dest="perturbation", default="R1", choices=tuple(RANGES),
                         help="perturbation range of the starts (fixed per frame)")
     parser.add_argument("--method", default="pure", help="pure = the network alone")
     parser.add_argument("--checkpoint", required=True, type=Path,

@@ -11,6 +11,7 @@ import argparse
 from pathlib import Path
 
 from hybrid_calib.config import parse_overrides
+from hybrid_calib.perturbation import RANGES
 
 HELP = "train the RC-AutoCalib network (resumable; presets small / paper)"
 
@@ -22,7 +23,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--preset", default="small", choices=("small", "paper"),
                         help="small: 2 CPU cores, well under two hours; paper: 400x192, 50 epochs, Adam 1e-4")
     parser.add_argument("--out", required=True, type=Path, help="run folder (checkpoints, logs, configs)")
-    parser.add_argument("--range", dest="perturbation", default=None, choices=("R1", "R2"),
+    parser.add_argument("--range", dest="perturbation", default=None, choices=tuple(RANGES),
                         help="perturbation range of the training starts (default R1)")
     parser.add_argument("--epochs", type=int, default=None, help="number of epochs (overrides the preset)")
     parser.add_argument("--depth", default=None,
