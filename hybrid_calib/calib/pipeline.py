@@ -14,6 +14,7 @@ roots) errors, NEES and, for oracle data, the Cramer-Rao std are added.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -172,10 +173,11 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, rng, progress: bo
 
 
 def calibrate(data, version: str, correspondences: str, out: Path, conf: CalibrateConfig | dict | None = None,
-              overwrite: bool = False, plots: bool = True) -> dict:
-    """Calibrate every vehicle and write ``out/result.json`` (schema in ``calib.result``), the effective
-    config ``out/config.json`` and plots ``out/plots/*.png``. With ``overwrite=False`` an existing
-    result is returned untouched (idempotent)."""
+              overwrite: bool = False, on_vehicle: Callable[[VehicleResult], object] | None = None) -> dict:
+    """Calibrate every vehicle and write ``out/result.json`` (schema in ``calib.result``) and the
+    effective config ``out/config.json``. ``on_vehicle`` is called with each vehicle's result as soon
+    as it is computed (``hybrid-calib calibrate`` draws its plots there). With ``overwrite=False`` an
+    existing result is returned untouched (idempotent; ``on_vehicle`` is not called)."""
     import json
 
     conf = merge(CalibrateConfig, conf)
@@ -194,10 +196,8 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
     for name, vi in inputs.items():
         vr = calibrate_vehicle(vi, conf, rng)
         vehicles[name] = vr.to_dict()
-        if plots:
-            from hybrid_calib.calib.plots import plot_vehicle
-
-            plot_vehicle(vr, out / "plots")
+        if on_vehicle is not None:
+            on_vehicle(vr)
     doc = {"schema": SCHEMA, "data": str(data), "version": version, "correspondences": str(correspondences),
            "mode": conf.mode, "vehicles": vehicles}
     save_json_atomic(out / "config.json", to_dict(conf))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from functools import partial
 from pathlib import Path
 
 from hybrid_calib.config import ConfigError, parse_overrides
@@ -36,6 +37,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from hybrid_calib.calib.pipeline import CalibrateConfig, calibrate
     from hybrid_calib.config import merge
+    from hybrid_calib.plots.calibration import plot_vehicle
 
     overrides = parse_overrides(args.set)
     overrides.update(mode=args.mode, start=args.start, seed=args.seed, max_frames=args.max_frames)
@@ -48,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
     if (args.out / "result.json").is_file() and not args.overwrite:
         print(f"{args.out / 'result.json'} exists; pass --overwrite to recompute")
     doc = calibrate(args.data, args.version, args.correspondences, args.out, conf, overwrite=args.overwrite,
-                    plots=not args.no_plots)
+                    on_vehicle=None if args.no_plots else partial(plot_vehicle, out_dir=args.out / "plots"))
     for name, v in doc["vehicles"].items():
         f, s = v["final"], v["final"]["std_camera"]
         line = (f"{name}: {f['status']}; std rot {s['rot_x_deg']:.3f}/{s['rot_y_deg']:.3f}/{s['rot_z_deg']:.3f} deg, "

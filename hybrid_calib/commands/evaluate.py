@@ -60,6 +60,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from hybrid_calib.plots.evaluation import plot_error_cdf
     from learned.checkpoint import load_model
     from learned.dataset import open_roots
     from learned.evaluate import evaluate
@@ -105,6 +106,7 @@ def run(args: argparse.Namespace) -> int:
     result = evaluate(model, frames, conf, args.out, checkpoint=" -> ".join(map(str, stage_paths)),
                       overwrite=args.overwrite,
                       progress=not args.no_progress)
+    plot_error_cdf(result, Path(args.out) / "errors_cdf.png")
     print(result.table())
     u = result.uncertainty
     if u:

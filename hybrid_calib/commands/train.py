@@ -1,8 +1,9 @@
 """``hybrid-calib train``: train RC-AutoCalib on a nuScenes-format root (default: the simulator's).
 
 Writes the run folder described in ``learned.train`` (checkpoints with their configs, steps.csv,
-epochs.csv, train_config.json). Running the same command again resumes after the last checkpoint;
-raising ``--epochs`` continues a finished run.
+epochs.csv, train_config.json) and draws ``history.png`` (``hybrid_calib.plots.training``). Running
+the same command again resumes after the last checkpoint; raising ``--epochs`` continues a finished
+run.
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from hybrid_calib.plots.training import plot_history
     from learned.dataset import open_roots
     from learned.train import train, train_config
 
@@ -51,5 +53,6 @@ def run(args: argparse.Namespace) -> int:
     conf = train_config(args.preset, overrides)
     frames = open_roots(args.data, args.version, options={"nsweeps": args.nsweeps})
     last = train(conf, frames, args.out, resume=not args.no_resume, progress=not args.no_progress)
+    plot_history(args.out / "epochs.csv", args.out / "history.png")
     print(f"last checkpoint: {last}")
     return 0

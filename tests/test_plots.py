@@ -1,4 +1,4 @@
-"""The projection overlay picture."""
+"""The projection pictures (``hybrid_calib.plots.projection``) and the shared atomic save."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from hybrid_calib.viz import draw_projection
+from hybrid_calib.plots.projection import draw_projection
 
 
 def test_draw_projection_writes_a_png_with_the_points(tmp_path):
@@ -35,8 +35,8 @@ def test_draw_projection_checks_inputs(tmp_path):
 def test_draw_radar_on_frame(tmp_path):
     from hybrid_calib.data.frame import RadarCameraFrame
     from hybrid_calib.geometry import R_AXES_CAM_FROM_RADAR, make_T
+    from hybrid_calib.plots.projection import draw_radar_on_frame
     from hybrid_calib.sensors.camera import PinholeCamera
-    from hybrid_calib.viz import draw_radar_on_frame
 
     img_path = tmp_path / "img.jpg"
     cv2.imwrite(str(img_path), np.full((90, 160, 3), 128, np.uint8))
