@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from hybrid_calib.plots.figure import pyplot, save_figure
-from learned.evaluate import EvalResult
+
+if TYPE_CHECKING:  # the figure reads only .per_frame and .n_frames; no torch import needed to draw it
+    from learned.evaluate import EvalResult
 
 
 def plot_error_cdf(result: EvalResult, path: str | Path) -> Path:
