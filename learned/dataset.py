@@ -17,9 +17,9 @@ One sample (``CalibDataset[i]``), tensors float32 unless said otherwise:
 ``collate`` stacks a list of samples into the batch dict the model takes (dropping ``None``s, which
 ``CalibDataset`` returns for frames whose files are bad; they are listed in ``dataset.bad``).
 
-Perturbations (docs/conventions.md): roll, pitch, yaw uniform in +-rot_deg and dx, dy, dz uniform
-in +-trans_m (R1: 10 deg, 0.25 m; R2: 20 deg, 1.5 m), applied with
-``geometry.perturb_camera_frame``. Training draws a new one per (seed, epoch, frame index);
+Perturbations (docs/conventions.md; the ranges: ``hybrid_calib.perturbation``): roll, pitch, yaw
+uniform in +-rot_deg and dx, dy, dz uniform in +-trans_m (R1: 10 deg, 0.25 m; R2: 20 deg, 1.5 m),
+applied with ``geometry.perturb_camera_frame``. Training draws a new one per (seed, epoch, frame index);
 evaluation fixes one per (seed, frame index), whatever the epoch.
 """
 
