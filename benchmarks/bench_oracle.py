@@ -84,8 +84,9 @@ def _run_one(job: dict) -> dict:
     from hybrid_calib.calib.oracle import OracleConfig, oracle_from_frame
     from hybrid_calib.calib.window import SlidingWindowCalibrator
     from hybrid_calib.config import merge
-    from hybrid_calib.geometry import local, perturb_camera_frame
+    from hybrid_calib.geometry import local
     from hybrid_calib.metrics import extrinsic_error
+    from hybrid_calib.perturbation import perturbed_start
 
     _load(job["root"], job["vehicle_frames"])
     frames_in = _DATA[job["vehicle"]][: job["frames"]]
@@ -102,8 +103,7 @@ def _run_one(job: dict) -> dict:
         frames.append(c)
         truths.append(t)
     T = truths[-1].T_cam_radar
-    lim_r, lim_t = (10.0, 0.25) if job["range"] == "R1" else (20.0, 1.5)
-    T0 = perturb_camera_frame(T, np.radians(g.uniform(-lim_r, lim_r, 3)), g.uniform(-lim_t, lim_t, 3))
+    T0 = perturbed_start(T, g, job["range"])
     F = sum(fisher_information(T, t.points_true[t.inlier], c.K, job["sigma_px"],
                                elevation_sigma(t.points_true[t.inlier], fconf))
             for c, t in zip(frames, truths) if t.inlier.any())

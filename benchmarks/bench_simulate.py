@@ -46,7 +46,7 @@ def stage_rates(drive: VehicleDrive, n: int) -> dict[str, float]:
         drive.simulate_lidar(drive.ego.T_global_ego(t) @ drive.mounts.T_ego_lidar, t, g)
 
     def radar(k):
-        from hybrid_calib.sensors.radar import simulate_radar_sweep
+        from hybrid_calib.sim.radar import simulate_radar_sweep
 
         t = poses[k][1]
         T = drive.ego.T_global_ego(t) @ drive.T_ego_radar(k)

@@ -17,9 +17,9 @@ One sample (``CalibDataset[i]``), tensors float32 unless said otherwise:
 ``collate`` stacks a list of samples into the batch dict the model takes (dropping ``None``s, which
 ``CalibDataset`` returns for frames whose files are bad; they are listed in ``dataset.bad``).
 
-Perturbations (docs/conventions.md): roll, pitch, yaw uniform in +-rot_deg and dx, dy, dz uniform
-in +-trans_m (R1: 10 deg, 0.25 m; R2: 20 deg, 1.5 m), applied with
-``geometry.perturb_camera_frame``. Training draws a new one per (seed, epoch, frame index);
+Perturbations (docs/conventions.md; the ranges: ``hybrid_calib.perturbation``): roll, pitch, yaw
+uniform in +-rot_deg and dx, dy, dz uniform in +-trans_m (R1: 10 deg, 0.25 m; R2: 20 deg, 1.5 m),
+applied with ``geometry.perturb_camera_frame``. Training draws a new one per (seed, epoch, frame index);
 evaluation fixes one per (seed, frame index), whatever the epoch.
 """
 
@@ -38,13 +38,10 @@ from hybrid_calib.config import merge
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.geometry import perturb_camera_frame, transform_points
+from hybrid_calib.perturbation import perturbation_bounds, sample_perturbation
 from learned.depth import DepthCache, DepthEstimator
 
 log = logging.getLogger(__name__)
-
-# Perturbation ranges of the paper: name -> (max |angle| degrees, max |offset| metres) per axis.
-RANGES: dict[str, tuple[float, float]] = {"R1": (10.0, 0.25), "R2": (20.0, 1.5)}
-
 
 @dataclass(frozen=True)
 class DatasetConfig:
@@ -66,21 +63,6 @@ class SplitConfig:
     salt: str = "hybrid-calib"  # hashing salt; changing it reshuffles the split
     test_groups: tuple[str, ...] = ()  # explicit test groups (overrides the hash assignment)
     val_groups: tuple[str, ...] = ()  # explicit validation groups
-
-
-def perturbation_bounds(name: str) -> tuple[float, float]:
-    """``"R1"``/``"R2"`` -> (rot_deg, trans_m). Raises ``HybridCalibError`` for anything else."""
-    if name not in RANGES:
-        raise HybridCalibError(f"unknown perturbation range {name!r}; use one of {sorted(RANGES)}")
-    return RANGES[name]
-
-
-def sample_perturbation(g: np.random.Generator, name: str) -> np.ndarray:
-    """(6,) float64: roll, pitch, yaw (rad) and dx, dy, dz (m), uniform within the named range."""
-    rot_deg, trans_m = perturbation_bounds(name)
-    rpy = np.radians(g.uniform(-rot_deg, rot_deg, size=3))
-    dt = g.uniform(-trans_m, trans_m, size=3)
-    return np.concatenate([rpy, dt])
 
 
 def _rng(*keys: int | str) -> np.random.Generator:

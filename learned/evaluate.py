@@ -15,7 +15,7 @@
 2. ``evaluate_predictions``: read those files and compute the paper's table with
    ``hybrid_calib.metrics`` (rotation Mean/Roll/Pitch/Yaw in degrees, translation Mean/X/Y/Z in cm,
    geodesic angle and translation norm) for the initial error, every iteration and the final
-   estimate. ``write_report`` saves it as ``results.json`` + ``results.md`` and an error-CDF plot.
+   estimate. ``write_report`` saves it as ``results.json`` + ``results.md``.
 
 Methods: ``pure`` = the network alone (``METHODS``); a ``hybrid`` method registers an exporter with
 the same signature that writes the same per-frame files (T_iters may hold one final estimate).
@@ -258,8 +258,9 @@ def uncertainty_consistency(xi: np.ndarray, C: np.ndarray) -> dict[str, Any]:
     }
 
 
-def write_report(result: EvalResult, out: str | Path, config: dict | None = None, plot: bool = True) -> Path:
-    """``results.json`` (schema below), ``results.md`` and ``errors_cdf.png`` in ``out``.
+def write_report(result: EvalResult, out: str | Path, config: dict | None = None) -> Path:
+    """``results.json`` (schema below) and ``results.md`` in ``out`` (``hybrid-calib evaluate`` adds
+    ``errors_cdf.png``: ``hybrid_calib.plots.evaluation.plot_error_cdf``).
 
     results.json: {"n_frames": int, "metrics": list of metric names, "rows": {row: {metric: mean}},
     "per_frame": {row: [{metric: value}, ...]}, "tokens": [...], "uncertainty": {...}
@@ -273,35 +274,7 @@ def write_report(result: EvalResult, out: str | Path, config: dict | None = None
     tmp = md.with_name(md.name + ".tmp")
     tmp.write_text(result.markdown())
     tmp.replace(md)
-    if plot:
-        _plot_cdf(result, out / "errors_cdf.png")
     return path
-
-
-def _plot_cdf(result: EvalResult, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
-    for name, errs in result.per_frame.items():
-        for ax, key in zip(axes, ("geodesic_deg", "trans_norm_cm")):
-            v = np.sort([e[key] for e in errs])
-            style = dict(color="k", ls="--", lw=1.2) if " iter " not in name and name != "initial" else {}
-            ax.plot(v, np.arange(1, len(v) + 1) / len(v), label=name, **style)
-    axes[0].set_xlabel("rotation error, geodesic (deg)")
-    axes[1].set_xlabel("translation error, norm (cm)")
-    for ax in axes:
-        ax.set_ylabel("fraction of frames")
-        ax.grid(alpha=0.3)
-    axes[1].legend(fontsize=8)
-    fig.suptitle(f"extrinsic error CDF ({result.n_frames} frames)")
-    fig.tight_layout()
-    tmp = path.with_name(path.stem + ".tmp.png")
-    fig.savefig(tmp, dpi=100)
-    plt.close(fig)
-    tmp.replace(path)
 
 
 def evaluate(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig | dict, out: str | Path, *,

@@ -6,7 +6,8 @@ per split, ``learned.dataset.split_indices``), validates on ``val`` after every 
   out/checkpoints/ckpt-NNNN.*  one checkpoint per epoch (``learned.checkpoint``), with its configs
   out/steps.csv                per step: epoch, step, lr, total, calib, matching, seconds
   out/epochs.csv               per epoch: train means, val losses, val rotation / translation errors
-  out/history.png              losses and validation errors per epoch (drawn when training ends)
+  out/history.png              losses and validation errors per epoch (drawn by ``hybrid-calib train``
+                               when training ends: ``hybrid_calib.plots.training.plot_history``)
   out/depth-cache/             estimated depth per frame (``learned.depth.DepthCache``)
 Re-running with ``resume=True`` continues after the last complete checkpoint; the result is the
 same as an uninterrupted run (shuffling, perturbations and torch's RNG are seeded per epoch).
@@ -280,7 +281,6 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
             print(json.dumps({k: (round(v, 4) if isinstance(v, float) else v) for k, v in metrics.items()}))
     if tb is not None:
         tb.close()
-    plot_history(out / "epochs.csv", out / "history.png")
     if last_path is None:
         raise HybridCalibError(f"no epoch was trained (epochs={conf.epochs})")
     return last_path
@@ -321,43 +321,3 @@ def validate(model, dataset: CalibDataset, conf: TrainConfig, device) -> dict[st
         "val_trans_mean_cm": float(np.mean([e.trans_mean_cm for e in errs])),
     })
     return res
-
-
-def plot_history(csv_path: Path, png_path: Path) -> Path | None:
-    """Losses (train / val) and validation errors per epoch from ``epochs.csv`` -> PNG."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    with Path(csv_path).open(newline="") as f:
-        rows = list(csv.DictReader(f))
-    if not rows:
-        return None
-
-    def col(name):
-        return [float(r[name]) if r.get(name) not in (None, "") else np.nan for r in rows]
-
-    epochs = col("epoch")
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
-    for k in ("total", "calib", "matching"):
-        axes[0].plot(epochs, col(f"train_{k}"), "-o", ms=3, label=f"train {k}")
-        axes[0].plot(epochs, col(f"val_{k}"), "--", label=f"val {k}")
-    axes[0].set_yscale("log")
-    axes[0].set_title("losses")
-    axes[1].plot(epochs, col("val_rot_mean_deg"), "-o", ms=3, label="rotation mean")
-    axes[1].plot(epochs, col("val_rot_geodesic_deg"), "-o", ms=3, label="geodesic")
-    axes[1].set_title("validation rotation error (deg)")
-    axes[2].plot(epochs, col("val_trans_mean_cm"), "-o", ms=3, label="translation mean")
-    axes[2].plot(epochs, col("val_trans_norm_cm"), "-o", ms=3, label="norm")
-    axes[2].set_title("validation translation error (cm)")
-    for ax in axes:
-        ax.set_xlabel("epoch")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
-    fig.tight_layout()
-    tmp = png_path.with_name(png_path.stem + ".tmp.png")
-    fig.savefig(tmp, dpi=90)
-    plt.close(fig)
-    tmp.replace(png_path)
-    return png_path

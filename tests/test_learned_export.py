@@ -130,7 +130,7 @@ def test_per_axis_cov_scale_makes_each_axis_honest():
 
 
 def test_plot_frame_writes_png(tmp_path):
-    from learned.plots import attention_numpy, plot_frame
+    from hybrid_calib.plots.network import attention_numpy, plot_frame
 
     model = tiny_model().eval()
     batch = make_batch(1, seed=8)

@@ -14,9 +14,9 @@ from hybrid_calib.data.frame import RadarCameraFrame, write_depth_png
 from hybrid_calib.errors import HybridCalibError
 from hybrid_calib.geometry import make_T, transform_points
 from hybrid_calib.metrics import METRIC_KEYS, extrinsic_error
+from hybrid_calib.perturbation import RANGES
 from hybrid_calib.sensors.camera import PinholeCamera
 from learned.dataset import (
-    RANGES,
     CalibDataset,
     DatasetConfig,
     SplitConfig,
@@ -203,6 +203,7 @@ def _weights(path) -> dict:
 
 
 def test_train_checkpoints_logs_and_resumes(frames, tmp_path):
+    from hybrid_calib.plots.training import plot_history
     from learned.checkpoint import latest_checkpoint, load_model
     from learned.train import train, train_config
 
@@ -221,7 +222,8 @@ def test_train_checkpoints_logs_and_resumes(frames, tmp_path):
     with (run / "steps.csv").open() as f:
         assert len(list(csv.DictReader(f))) == 4  # 2 epochs x 2 steps of 3 samples
     assert json.loads((run / "train_config.json").read_text())["model"]["input_hw"] == [48, 96]
-    assert (run / "history.png").stat().st_size > 1000
+    assert not (run / "history.png").exists()  # the command draws it (hybrid_calib.plots.training)
+    assert plot_history(run / "epochs.csv", run / "history.png").stat().st_size > 1000
     w2 = _weights(run / "checkpoints" / "ckpt-0002.safetensors")
     mtime1 = (run / "checkpoints" / "ckpt-0001.safetensors").stat().st_mtime_ns
 
@@ -348,6 +350,7 @@ def oracle_exporter(model, out, batch, export_conf=None):
 
 
 def test_evaluate_table_columns_and_zero_error_for_an_oracle(frames, tmp_path):
+    from hybrid_calib.plots.evaluation import plot_error_cdf
     from learned.evaluate import EvalConfig, evaluate, evaluate_predictions
 
     conf = EvalConfig(perturbation="R2", split="test", split_options=SplitConfig(test_groups=("scene-3",)),
@@ -363,7 +366,8 @@ def test_evaluate_table_columns_and_zero_error_for_an_oracle(frames, tmp_path):
     assert res.rows["pure iter 2"]["trans_mean_cm"] == pytest.approx(init["trans_mean_cm"] / 2, rel=1e-6)
     saved = json.loads((out / "results.json").read_text())
     assert saved["rows"]["pure"]["geodesic_deg"] < 1e-4 and saved["n_frames"] == 3
-    assert "| pure |" in (out / "results.md").read_text() and (out / "errors_cdf.png").stat().st_size > 1000
+    assert "| pure |" in (out / "results.md").read_text()
+    assert plot_error_cdf(res, out / "errors_cdf.png").stat().st_size > 1000  # as hybrid-calib evaluate does
     with np.load(next((out / "frames").glob("*.npz"))) as z:
         assert z["T_iters"].shape == (3, 4, 4) and z["pixels"].shape[1] == 2 and z["uncertainty"].shape == (6,)
         assert "cov" not in z.files and z["schema_version"] == 1 and z["vehicle"] == "veh-1"
@@ -407,7 +411,7 @@ def test_cli_train_then_evaluate(sim_root, tmp_path, capsys):
     assert _run_command("train", argv) == 0
     meta = json.loads((run / "checkpoints" / "ckpt-0001.json").read_text())
     assert meta["train_config"]["perturbation"] == "R2" and meta["model_config"]["input_hw"] == [48, 96]
-    assert "last checkpoint" in capsys.readouterr().out
+    assert "last checkpoint" in capsys.readouterr().out and (run / "history.png").stat().st_size > 1000
 
     out = tmp_path / "eval"
     assert _run_command("evaluate", ["--data", str(sim_root), "--range", "R1", "--method", "pure", "--checkpoint",
@@ -418,6 +422,7 @@ def test_cli_train_then_evaluate(sim_root, tmp_path, capsys):
     assert res["n_frames"] == 3  # the held-out scene only (split taken from the checkpoint)
     assert res["config"]["eval"]["split_options"]["test_groups"] == ["scene-sim-veh-002"]
     assert set(res["rows"]["pure"]) == set(METRIC_KEYS) and (out / "results.md").is_file()
+    assert (out / "errors_cdf.png").stat().st_size > 1000
     assert res["uncertainty"]["n_frames"] == 3 and len(res["uncertainty"]["rmse"]) == 6
 
     # the evaluate output feeds calibrate directly (factors.io files; the network block is carried). The

@@ -4,7 +4,8 @@ Modules: ``window`` (sliding-window calibrator), ``batch`` (whole drive, GTSAM o
 ``schedule`` (convex start -> redescending kernel -> gated least squares), ``covariance``
 (marginals, ``report_std``, degeneracy status), ``drift`` (reference chi-square test, step
 detector), ``crb`` (Cramer-Rao bound), ``oracle`` (oracle correspondences), ``result`` (result
-objects, JSON schema), ``pipeline`` (``hybrid-calib calibrate``), ``plots``.
+objects, JSON schema), ``pipeline`` (``hybrid-calib calibrate``). The figures of a run are drawn by
+``hybrid_calib.plots.calibration`` (a higher layer; nothing here imports it).
 """
 
 from hybrid_calib.calib.covariance import report_cov, report_std

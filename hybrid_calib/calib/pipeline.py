@@ -16,6 +16,7 @@ roots) errors, NEES and, for oracle data, the Cramer-Rao std are added.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -29,9 +30,10 @@ from hybrid_calib.calib.result import CalibrationRun, VehicleResult
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import merge, save_json_atomic, to_dict
 from hybrid_calib.errors import DataError, HybridCalibError
+from hybrid_calib.perturbation import RANGES, perturbed_start
 
 MODES = ("window", "batch")
-STARTS = ("reference", "R1", "R2")
+STARTS = ("reference", *RANGES)
 
 
 @dataclass(frozen=True)
@@ -142,14 +144,11 @@ def _network_summary(vi: VehicleInput) -> dict | None:
 
 
 def _start(vi: VehicleInput, conf: CalibrateConfig, rng) -> np.ndarray:
-    from hybrid_calib.geometry import perturb_camera_frame
-
     if conf.start == "reference":
         return vi.reference
     if not vi.truth:
         raise HybridCalibError(f"start={conf.start} needs ground truth (a simulated root); use start=reference")
-    r, t = (10.0, 0.25) if conf.start == "R1" else (20.0, 1.5)
-    return perturb_camera_frame(vi.truth[0], np.radians(rng.uniform(-r, r, 3)), rng.uniform(-t, t, 3))
+    return perturbed_start(vi.truth[0], rng, conf.start)
 
 
 def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, rng, progress: bool = True) -> VehicleResult:
@@ -199,12 +198,14 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, rng, progress: bo
 
 
 def calibrate(data, version: str, correspondences: str, out: Path, conf: CalibrateConfig | dict | None = None,
-              overwrite: bool = False, plots: bool = True) -> CalibrationRun:
+              overwrite: bool = False, on_vehicle: Callable[[VehicleResult], object] | None = None
+              ) -> CalibrationRun:
     """Calibrate every vehicle and write ``out/result.json`` (``CalibrationRun``, schema in
-    ``calib.result``), the effective config ``out/config.json`` and plots ``out/plots/*.png``.
-    ``correspondences``: "oracle" or a measurement directory (``factors.io``; e.g. the ``--out`` of
-    ``hybrid-calib evaluate``). With ``overwrite=False`` an existing result is read and returned
-    untouched (idempotent)."""
+    ``calib.result``) and the effective config ``out/config.json``. ``correspondences``: "oracle" or
+    a measurement directory (``factors.io``; e.g. the ``--out`` of ``hybrid-calib evaluate``).
+    ``on_vehicle`` is called with each vehicle's result as soon as it is computed (``hybrid-calib
+    calibrate`` draws its plots there). With ``overwrite=False`` an existing result is read and
+    returned untouched (idempotent; ``on_vehicle`` is not called)."""
     conf = merge(CalibrateConfig, conf)
     out = Path(out)
     result_path = out / "result.json"
@@ -221,10 +222,8 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
     for name, vi in inputs.items():
         vr = calibrate_vehicle(vi, conf, rng)
         run.vehicles[name] = vr
-        if plots:
-            from hybrid_calib.calib.plots import plot_vehicle
-
-            plot_vehicle(vr, out / "plots")
+        if on_vehicle is not None:
+            on_vehicle(vr)
     save_json_atomic(out / "config.json", to_dict(conf))
     run.save(result_path)
     return run

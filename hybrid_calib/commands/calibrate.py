@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import argparse
+from functools import partial
 from pathlib import Path
 
 from hybrid_calib.config import ConfigError, parse_overrides
 from hybrid_calib.errors import HybridCalibError
+from hybrid_calib.perturbation import RANGES
 
 HELP = "calibrate T_cam_radar per vehicle from oracle or exported correspondences (window or batch)"
 
@@ -21,7 +23,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mode", default="window", choices=("window", "batch"), help="default: window")
     p.add_argument("--window", type=int, default=20, help="sliding-window length in frames (default: 20)")
     p.add_argument("--backend", default="gtsam", choices=("gtsam", "ceres"), help="batch back end (default: gtsam)")
-    p.add_argument("--start", default="reference", choices=("reference", "R1", "R2"),
+    p.add_argument("--start", default="reference", choices=("reference", *RANGES),
                    help="initial extrinsic: the vehicle's tables, or a perturbed truth (default: reference)")
     p.add_argument("--max-frames", type=int, default=0, help="frames per vehicle, 0 = all (default: 0)")
     p.add_argument("--seed", type=int, default=0, help="oracle noise and start seed (default: 0)")
@@ -38,6 +40,7 @@ def run(args: argparse.Namespace) -> int:
     from hybrid_calib.calib.result import STD_FRAME
     from hybrid_calib.config import merge
     from hybrid_calib.metrics import std_dict
+    from hybrid_calib.plots.calibration import plot_vehicle
 
     overrides = parse_overrides(args.set)
     overrides.update(mode=args.mode, start=args.start, seed=args.seed, max_frames=args.max_frames)
@@ -50,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
     if (args.out / "result.json").is_file() and not args.overwrite:
         print(f"{args.out / 'result.json'} exists; pass --overwrite to recompute")
     result = calibrate(args.data, args.version, args.correspondences, args.out, conf, overwrite=args.overwrite,
-                       plots=not args.no_plots)
+                       on_vehicle=None if args.no_plots else partial(plot_vehicle, out_dir=args.out / "plots"))
     for name, v in result.vehicles.items():
         s = std_dict(v.final.std, STD_FRAME)
         line = (f"{name}: {v.final.status}; std (camera axes) rot {s['rot_x_cam_deg']:.3f}/{s['rot_y_cam_deg']:.3f}/"

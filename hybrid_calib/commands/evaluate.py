@@ -26,6 +26,7 @@ from pathlib import Path
 
 from hybrid_calib.config import parse_overrides
 from hybrid_calib.errors import HybridCalibError
+from hybrid_calib.perturbation import RANGES
 
 HELP = "evaluate a trained network on held-out frames (paper table: rotation deg, translation cm)"
 
@@ -34,7 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", required=True, type=Path, nargs="+",
                         help="nuScenes root(s) (each holds VERSION/ and samples/); several are read as one")
     parser.add_argument("--version", default="v1.0-sim", help="version folder (default v1.0-sim)")
-    parser.add_argument("--range", dest="perturbation", default="R1", choices=("R1", "R2"),
+    parser.add_argument("--range", dest="perturbation", default="R1", choices=tuple(RANGES),
                         help="perturbation range of the starts (fixed per frame)")
     parser.add_argument("--method", default="pure", help="pure = the network alone")
     parser.add_argument("--checkpoint", required=True, type=Path,
@@ -60,6 +61,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from hybrid_calib.plots.evaluation import plot_error_cdf
     from learned.checkpoint import load_model
     from learned.dataset import open_roots
     from learned.evaluate import evaluate
@@ -105,6 +107,7 @@ def run(args: argparse.Namespace) -> int:
     result = evaluate(model, frames, conf, args.out, checkpoint=" -> ".join(map(str, stage_paths)),
                       overwrite=args.overwrite,
                       progress=not args.no_progress)
+    plot_error_cdf(result, Path(args.out) / "errors_cdf.png")
     print(result.table())
     u = result.uncertainty
     if u:

@@ -32,7 +32,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from hybrid_calib.data.nuscenes import DataConfig, NuScenesRadarCamera
-    from hybrid_calib.data.summary import render_overlay, summarize_dataset
+    from hybrid_calib.data.summary import summarize_dataset
+    from hybrid_calib.plots.projection import render_overlay
 
     overrides = parse_overrides(args.overrides)
     overrides.setdefault("nsweeps", args.nsweeps)

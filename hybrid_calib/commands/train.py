@@ -1,8 +1,9 @@
 """``hybrid-calib train``: train RC-AutoCalib on a nuScenes-format root (default: the simulator's).
 
 Writes the run folder described in ``learned.train`` (checkpoints with their configs, steps.csv,
-epochs.csv, train_config.json). Running the same command again resumes after the last checkpoint;
-raising ``--epochs`` continues a finished run.
+epochs.csv, train_config.json) and draws ``history.png`` (``hybrid_calib.plots.training``). Running
+the same command again resumes after the last checkpoint; raising ``--epochs`` continues a finished
+run.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import argparse
 from pathlib import Path
 
 from hybrid_calib.config import parse_overrides
+from hybrid_calib.perturbation import RANGES
 
 HELP = "train the RC-AutoCalib network (resumable; presets small / paper)"
 
@@ -22,7 +24,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--preset", default="small", choices=("small", "paper"),
                         help="small: 2 CPU cores, well under two hours; paper: 400x192, 50 epochs, Adam 1e-4")
     parser.add_argument("--out", required=True, type=Path, help="run folder (checkpoints, logs, configs)")
-    parser.add_argument("--range", dest="perturbation", default=None, choices=("R1", "R2"),
+    parser.add_argument("--range", dest="perturbation", default=None, choices=tuple(RANGES),
                         help="perturbation range of the training starts (default R1)")
     parser.add_argument("--epochs", type=int, default=None, help="number of epochs (overrides the preset)")
     parser.add_argument("--depth", default=None,
@@ -38,6 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from hybrid_calib.plots.training import plot_history
     from learned.dataset import open_roots
     from learned.train import train, train_config
 
@@ -50,5 +53,6 @@ def run(args: argparse.Namespace) -> int:
     conf = train_config(args.preset, overrides)
     frames = open_roots(args.data, args.version, options={"nsweeps": args.nsweeps})
     last = train(conf, frames, args.out, resume=not args.no_resume, progress=not args.no_progress)
+    plot_history(args.out / "epochs.csv", args.out / "history.png")
     print(f"last checkpoint: {last}")
     return 0

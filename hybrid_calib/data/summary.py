@@ -1,4 +1,4 @@
-"""Per-scene / per-vehicle summary of a nuScenes-format root, and a radar + LiDAR overlay picture.
+"""Per-scene / per-vehicle summary of a nuScenes-format root.
 
 ``summarize_dataset`` walks every frame once (tqdm progress) and returns a ``DatasetSummary``;
 ``DatasetSummary.to_json()`` is the schema written by ``hybrid-calib inspect``::
@@ -16,14 +16,11 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.data.nuscenes import NuScenesRadarCamera
-from hybrid_calib.geometry import transform_points
 
 
 @dataclass
@@ -109,43 +106,3 @@ def summarize_dataset(ds: NuScenesRadarCamera, progress: bool = True) -> Dataset
         first = f.index if first is None else first
     return DatasetSummary(str(ds.root), ds.version, ds.radar_channel, ds.camera_channel, list(groups.values()),
                           [dataclasses.asdict(s) for s in ds.skipped], first)
-
-
-def render_overlay(frame: RadarCameraFrame, path: str | Path, max_lidar: int = 20000) -> Path:
-    """Save a PNG of the frame's image with its LiDAR points (small, coloured by depth) and radar
-    points (large, coloured by depth) projected with the ground-truth extrinsics. Atomic write."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    img = frame.load_image()
-    cam = frame.camera
-    fig, ax = plt.subplots(figsize=(12, 12 * cam.height / cam.width), dpi=100)
-    ax.imshow(img)
-    if frame.lidar_points is not None and frame.T_cam_lidar is not None:
-        pts = frame.lidar_points[:, :3]
-        if len(pts) > max_lidar:
-            pts = pts[np.linspace(0, len(pts) - 1, max_lidar).astype(int)]
-        uv, z = cam.project(transform_points(frame.T_cam_lidar, pts))
-        ok = (z > 0.5) & cam.in_image(uv)
-        ax.scatter(uv[ok, 0], uv[ok, 1], c=np.log(z[ok]), s=1.5, cmap="viridis", alpha=0.8, label="LiDAR")
-    uv, z = cam.project(transform_points(frame.T_cam_radar, frame.radar_points))
-    ok = (z > 0) & cam.in_image(uv)
-    ax.scatter(uv[ok, 0], uv[ok, 1], c=z[ok], s=40, cmap="autumn", edgecolors="k", linewidths=0.8,
-               label=f"radar ({ok.sum()}/{len(z)} in image)")
-    ax.set_xlim(-0.5, cam.width - 0.5)
-    ax.set_ylim(cam.height - 0.5, -0.5)
-    ax.set_axis_off()
-    ax.legend(loc="lower right", fontsize=9)
-    ax.set_title(f"{frame.scene_name} / {frame.vehicle} / frame {frame.index}: ground-truth projection "
-                 f"(dt radar-camera {(frame.timestamp_radar_us - frame.timestamp_camera_us) / 1000:.0f} ms)",
-                 fontsize=10)
-    fig.tight_layout()
-    tmp = path.with_name(path.stem + ".tmp.png")
-    fig.savefig(tmp)
-    plt.close(fig)
-    tmp.replace(path)
-    return path

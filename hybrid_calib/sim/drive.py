@@ -10,9 +10,9 @@ from functools import cached_property
 import numpy as np
 
 from hybrid_calib.sensors.camera import PinholeCamera
-from hybrid_calib.sensors.lidar import LidarConfig, simulate_lidar_sweep
-from hybrid_calib.sensors.radar import RadarConfig, RadarSweep, simulate_radar_sweep
 from hybrid_calib.sim.extrinsics import ExtrinsicChange, MountPerturbation, VehicleMounts, sample_mounts
+from hybrid_calib.sim.lidar import LidarConfig, simulate_lidar_sweep
+from hybrid_calib.sim.radar import RadarConfig, RadarSweep, simulate_radar_sweep
 from hybrid_calib.sim.raycast import cast_pinhole
 from hybrid_calib.sim.render import ShadingConfig, shade
 from hybrid_calib.sim.scenarios import ScenarioConfig, build_world, scenario

@@ -12,7 +12,8 @@ from hybrid_calib.data.frame import read_depth_png
 from hybrid_calib.data.pcd import RADAR_FIELDS, read_radar_pcd
 from hybrid_calib.geometry import pose_from_nuscenes, se3_inverse, transform_points
 from hybrid_calib.sensors.camera import PinholeCamera
-from hybrid_calib.sensors.radar import (
+from hybrid_calib.sim.drive import SimConfig, VehicleDrive
+from hybrid_calib.sim.radar import (
     CLUTTER,
     REAL,
     RadarConfig,
@@ -20,7 +21,6 @@ from hybrid_calib.sensors.radar import (
     in_field_of_view,
     snr_db,
 )
-from hybrid_calib.sim.drive import SimConfig, VehicleDrive
 from hybrid_calib.sim.simulate import radar_truth_file, simulate
 
 FRAMES = 5
@@ -180,7 +180,7 @@ def test_radar_equation_and_fields_of_view():
 
 
 def test_bad_inputs_are_named():
-    from hybrid_calib.sensors.radar import simulate_radar_sweep
+    from hybrid_calib.sim.radar import simulate_radar_sweep
     from hybrid_calib.sim.raycast import empty_primitives
 
     g = np.random.default_rng(0)

@@ -1,4 +1,4 @@
-"""The projection overlay picture."""
+"""The projection pictures (``hybrid_calib.plots.projection``) and the shared atomic save."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from hybrid_calib.viz import draw_projection
+from hybrid_calib.plots.projection import draw_projection
 
 
 def test_draw_projection_writes_a_png_with_the_points(tmp_path):
@@ -32,22 +32,41 @@ def test_draw_projection_checks_inputs(tmp_path):
         draw_projection(np.zeros((4, 4), np.uint8), np.zeros((2, 2)), np.zeros(2), tmp_path / "x.png")
 
 
-def test_draw_radar_on_frame(tmp_path):
+def _frame(tmp_path):
     from hybrid_calib.data.frame import RadarCameraFrame
     from hybrid_calib.geometry import R_AXES_CAM_FROM_RADAR, make_T
     from hybrid_calib.sensors.camera import PinholeCamera
-    from hybrid_calib.viz import draw_radar_on_frame
 
     img_path = tmp_path / "img.jpg"
     cv2.imwrite(str(img_path), np.full((90, 160, 3), 128, np.uint8))
     cam = PinholeCamera(100.0, 100.0, 79.5, 44.5, 160, 90)
     pts = np.array([[10.0, 0.0, 0.0], [20.0, 2.0, 0.0], [15.0, -3.0, 0.0]])
     T = make_T(R_AXES_CAM_FROM_RADAR, np.array([0.0, 0.5, 0.0]))
-    frame = RadarCameraFrame(
+    return RadarCameraFrame(
         index=0, sample_token="s", scene_name="scene", vehicle="veh", log_token="l", camera_channel="CAM_FRONT",
         radar_channel="RADAR_FRONT", camera_token="c", radar_token="r", timestamp_camera_us=0, timestamp_radar_us=0,
         image_path=img_path, camera=cam, radar_points=pts, radar_fields={}, T_cam_radar=T)
-    out = draw_radar_on_frame(frame, tmp_path / "o.png", compare_T_cam_radar=make_T(np.eye(3), np.zeros(3)) @ T)
+
+
+def test_draw_radar_on_frame(tmp_path):
+    from hybrid_calib.geometry import make_T
+    from hybrid_calib.plots.projection import draw_radar_on_frame
+
+    frame = _frame(tmp_path)
+    out = draw_radar_on_frame(frame, tmp_path / "o.png",
+                              compare_T_cam_radar=make_T(np.eye(3), np.zeros(3)) @ frame.T_cam_radar)
     pic = cv2.imread(str(out))
     assert pic is not None and pic.shape[1] == 160
     assert np.abs(pic[-90:].astype(int) - 128).max() > 50
+
+
+def test_draw_radar_truth_and_overlay(tmp_path):
+    from hybrid_calib.plots.projection import draw_radar_truth, render_overlay
+
+    frame = _frame(tmp_path)
+    with_truth = draw_radar_truth(frame, frame.radar_points + [0.0, 0.0, 1.0], tmp_path / "t.png")
+    without = draw_radar_truth(frame, None, tmp_path / "n.png")
+    a, b = cv2.imread(str(with_truth)), cv2.imread(str(without))
+    assert a.shape == b.shape and np.abs(a.astype(int) - b.astype(int)).max() > 50  # the cyan rings
+    assert cv2.imread(str(render_overlay(frame, tmp_path / "sub" / "overlay.png"))) is not None
+    assert not list(tmp_path.rglob("*.tmp.png"))

@@ -8,6 +8,7 @@ import numpy as np
 
 from hybrid_calib.calib.result import VehicleResult
 from hybrid_calib.metrics import signed_errors
+from hybrid_calib.plots.figure import pyplot, save_figure
 
 LABELS = ("roll (rot z) [deg]", "pitch (rot x) [deg]", "yaw (rot y) [deg]", "x [cm]", "y [cm]", "z [cm]")
 # camera-axis Euler order of metrics.signed_errors is [roll, pitch, yaw] = rotation about z, x, y;
@@ -19,15 +20,10 @@ def plot_vehicle(vr: VehicleResult, out_dir: Path) -> list[Path]:
     """Write ``<vehicle>_trajectory.png`` (signed error with the +-2 sigma band, or the estimate
     when there is no truth) and ``<vehicle>_drift.png`` (windowed chi-square vs threshold, inlier
     fraction). Returns the paths written; nothing for batch results (no trajectory)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     if not vr.trajectory:
         return []
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     k = np.array([f.index for f in vr.trajectory])
     std = np.array([f.estimate.std for f in vr.trajectory])
     ref = vr.truth_T if vr.truth_T is not None else vr.trajectory[-1].T
@@ -48,9 +44,7 @@ def plot_vehicle(vr: VehicleResult, out_dir: Path) -> list[Path]:
     fig.suptitle(f"{vr.vehicle}: estimate {'error vs truth' if vr.truth_T is not None else 'minus final estimate'}"
                  f" (camera axes) with the reported +-2 sigma")
     fig.tight_layout()
-    p1 = out_dir / f"{vr.vehicle}_trajectory.png"
-    _save(fig, p1)
-    plt.close(fig)
+    p1 = save_figure(fig, out_dir / f"{vr.vehicle}_trajectory.png", dpi=90)
 
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(10, 5), sharex=True)
     st = np.array([np.nan if f.step_statistic is None else f.step_statistic for f in vr.trajectory])
@@ -70,13 +64,5 @@ def plot_vehicle(vr: VehicleResult, out_dir: Path) -> list[Path]:
     fig.suptitle(f"{vr.vehicle}: step detector; vs reference: chi2 {d.get('statistic', float('nan')):.1f} "
                  f"(p {d.get('p_value', float('nan')):.2g}) -> {'DRIFTED' if d.get('drifted') else 'no drift'}")
     fig.tight_layout()
-    p2 = out_dir / f"{vr.vehicle}_drift.png"
-    _save(fig, p2)
-    plt.close(fig)
+    p2 = save_figure(fig, out_dir / f"{vr.vehicle}_drift.png", dpi=90)
     return [p1, p2]
-
-
-def _save(fig, path: Path) -> None:
-    tmp = path.with_name(path.stem + ".tmp.png")
-    fig.savefig(tmp, dpi=90)
-    tmp.replace(path)

@@ -1,4 +1,4 @@
-"""Figures of one frame (paper Fig. 4 and supplement Figs. 8-9): radar projections and attention maps.
+"""Figures of one frame of the network (paper Fig. 4 and supplement Figs. 8-9): radar projections and attention maps.
 
 ``plot_frame(out, batch, index, path)`` writes a PNG with
 - top: the RGB image with the points projected by T_init (red), by the final estimate (green) and, when
@@ -16,6 +16,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from hybrid_calib.plots.figure import pyplot, save_figure
+
 
 def _project(T: torch.Tensor, pts: np.ndarray, K: np.ndarray, hw: tuple) -> np.ndarray:
     T = T.detach().double().cpu().numpy()
@@ -28,11 +30,7 @@ def _project(T: torch.Tensor, pts: np.ndarray, K: np.ndarray, hw: tuple) -> np.n
 
 def plot_frame(out: dict, batch: Mapping, index: int, path: str | Path, iteration: int = -1) -> Path:
     """Save the figure of sample ``index`` of a forward pass to ``path`` (PNG, written atomically)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     H, W = out["image_hw"]
     img = batch["image"][index].detach().permute(1, 2, 0).cpu().numpy().clip(0, 1)
     mask = batch["radar_mask"][index].cpu().numpy().astype(bool)
@@ -78,13 +76,7 @@ def plot_frame(out: dict, batch: Mapping, index: int, path: str | Path, iteratio
         ax.set_xticks([])
         ax.set_yticks([])
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.stem + ".tmp.png")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    tmp.replace(path)
-    return path
+    return save_figure(fig, path, dpi=110)
 
 
 def attention_numpy(out: dict, view: str = "fv", iteration: int = -1) -> dict[str, np.ndarray]:

@@ -10,8 +10,8 @@ import pytest
 from hybrid_calib.data.frame import read_depth_png
 from hybrid_calib.data.pcd import read_lidar_bin
 from hybrid_calib.geometry import se3_inverse, transform_points
-from hybrid_calib.sensors.lidar import LidarConfig, beam_elevations, simulate_lidar_sweep
 from hybrid_calib.sim.drive import SimConfig, VehicleDrive
+from hybrid_calib.sim.lidar import LidarConfig, beam_elevations, simulate_lidar_sweep
 from hybrid_calib.sim.raycast import BOX, Primitives
 from hybrid_calib.sim.simulate import depth_file, frame_record, write_frame
 

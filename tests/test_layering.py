@@ -1,0 +1,150 @@
+"""The project's layering: imports run downward only.
+
+Every module under ``hybrid_calib/``, ``factors/`` and ``learned/`` (and ``hybrid/`` once it exists)
+is parsed with ``ast`` (imports at module level and inside functions alike) and mapped to its layer:
+
+ 1 hybrid_calib.{geometry, config, errors, metrics, perturbation}
+ 2 hybrid_calib.data, hybrid_calib.sensors (what real data needs: pinhole camera)
+ 3 hybrid_calib.sim (the synthetic world and its ray-cast radar / LiDAR)
+ 4 factors
+ 5 hybrid_calib.calib, learned (neither imports the other)
+ 6 hybrid (the closed loop; the one place that imports both calib and learned)
+ 7 hybrid_calib.plots (+ fleet, compare, report)
+ 8 hybrid_calib.commands (incl. the demo), hybrid_calib.cli
+
+A module may import its own layer or a lower one; only ``hybrid_calib.sim`` itself and the commands
+layer may import ``hybrid_calib.sim``.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("hybrid_calib", "factors", "learned", "hybrid")
+
+# longest prefix wins; every module of the packages must match one
+LAYERS: dict[str, int] = {
+    "hybrid_calib": 1,  # the package docstring and __version__
+    "hybrid_calib.geometry": 1,
+    "hybrid_calib.config": 1,
+    "hybrid_calib.errors": 1,
+    "hybrid_calib.metrics": 1,
+    "hybrid_calib.perturbation": 1,
+    "hybrid_calib.data": 2,
+    "hybrid_calib.sensors": 2,
+    "hybrid_calib.sim": 3,
+    "factors": 4,
+    "hybrid_calib.calib": 5,
+    "learned": 5,
+    "hybrid": 6,
+    "hybrid_calib.hybrid": 6,
+    "hybrid_calib.plots": 7,
+    "hybrid_calib.fleet": 7,
+    "hybrid_calib.compare": 7,
+    "hybrid_calib.report": 7,
+    "hybrid_calib.commands": 8,
+    "hybrid_calib.cli": 8,
+}
+# pairs of the same layer that must not import each other
+SIBLINGS_APART = (("hybrid_calib.calib", "learned"),)
+SIM = "hybrid_calib.sim"
+
+
+def _prefix(module: str) -> str | None:
+    best = None
+    for p in LAYERS:
+        inside = module == p or (module.startswith(p + ".") and p != "hybrid_calib")  # the package itself only
+        if inside and (best is None or len(p) > len(best)):
+            best = p
+    return best
+
+
+def _module_name(path: Path, root: Path) -> str:
+    parts = list(path.relative_to(root).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def _imports(path: Path, module: str) -> list[tuple[int, str]]:
+    """(line, imported module) for every import statement of the file, relative ones resolved.
+    ``from a import b`` yields ``a.b`` (b may be a submodule), which lands in a's layer either way."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found += [(node.lineno, a.name) for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.split(".")[: len(package.split(".")) - (node.level - 1)]
+                base = ".".join(anchor + ([base] if base else []))
+            found += [(node.lineno, f"{base}.{a.name}" if base else a.name) for a in node.names]
+    return found
+
+
+def _modules(root: Path) -> list[Path]:
+    return sorted({p for pkg in PACKAGES if (root / pkg).is_dir() for p in (root / pkg).rglob("*.py")})
+
+
+def layering_violations(root: Path = ROOT) -> list[str]:
+    """One line per import under ``root`` that runs against the layering:
+    ``file:line: module imports target (why)``."""
+    bad = []
+    for path in _modules(root):
+        module = _module_name(path, root)
+        own = _prefix(module)
+        if own is None:
+            bad.append(f"{path.relative_to(root)}: module {module} has no layer in tests/test_layering.py")
+            continue
+        seen = set()
+        for line, target in _imports(path, module):
+            other = _prefix(target)
+            if other is None or (line, other) in seen:  # numpy, torch, ...; one line per statement
+                continue
+            seen.add((line, other))
+            where = f"{path.relative_to(root)}:{line}: {module} imports {target}"
+            if LAYERS[other] > LAYERS[own]:
+                bad.append(f"{where} (layer {LAYERS[other]} from layer {LAYERS[own]})")
+            elif any({own, other} == {a, b} for a, b in SIBLINGS_APART):
+                bad.append(f"{where} ({own} and {other} must not import each other)")
+            elif (target == SIM or target.startswith(SIM + ".")) and own != SIM and LAYERS[own] < 8:
+                bad.append(f"{where} (only hybrid_calib.sim and the commands import the simulator)")
+    return bad
+
+
+def test_every_module_has_a_layer_and_imports_only_downward():
+    assert len(_modules(ROOT)) > 50
+    bad = layering_violations()
+    assert not bad, "imports against the layering (layers: tests/test_layering.py):\n" + "\n".join(bad)
+
+
+@pytest.mark.parametrize("source, reason", [
+    ("from hybrid_calib.calib.result import VehicleResult\n", "layer 5 from layer 4"),
+    ("def f():\n    from hybrid_calib.sim import world\n", "only hybrid_calib.sim and the commands"),
+])
+def test_the_check_names_file_and_import(tmp_path, source, reason):
+    (tmp_path / "factors").mkdir()
+    (tmp_path / "factors" / "bad.py").write_text(source)
+    (line,) = layering_violations(tmp_path)
+    assert line.startswith("factors/bad.py:") and "factors.bad imports hybrid_calib." in line and reason in line
+
+
+def test_the_check_catches_calib_learned_sim_and_unknown_modules(tmp_path):
+    (tmp_path / "learned").mkdir()
+    (tmp_path / "learned" / "a.py").write_text("from hybrid_calib.calib import report_std\n")
+    (tmp_path / "hybrid_calib" / "data").mkdir(parents=True)
+    (tmp_path / "hybrid_calib" / "data" / "b.py").write_text("from ..sim.world import World\n")
+    (tmp_path / "hybrid_calib" / "commands").mkdir()
+    (tmp_path / "hybrid_calib" / "commands" / "c.py").write_text("import hybrid_calib.sim.simulate\n")
+    (tmp_path / "hybrid_calib" / "viz.py").write_text("import numpy\n")
+    bad = layering_violations(tmp_path)
+    assert len(bad) == 3, bad
+    assert any("learned/a.py:1" in b and "must not import each other" in b for b in bad)
+    assert any("hybrid_calib/data/b.py:1" in b and "hybrid_calib.sim.world" in b for b in bad)
+    assert any("hybrid_calib/viz.py: module hybrid_calib.viz has no layer" in b for b in bad)

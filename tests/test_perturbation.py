@@ -1,0 +1,28 @@
+"""R1 / R2 starts: one definition, read back exactly by the error metrics."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hybrid_calib.errors import HybridCalibError
+from hybrid_calib.metrics import signed_errors
+from hybrid_calib.perturbation import RANGES, perturbation_bounds, perturbed_start, sample_perturbation
+from tests.helpers import nominal_T_cam_radar
+
+
+def test_ranges_of_the_paper_and_unknown_names():
+    assert RANGES == {"R1": (10.0, 0.25), "R2": (20.0, 1.5)}
+    assert perturbation_bounds("R2") == (20.0, 1.5)
+    with pytest.raises(HybridCalibError, match="R3"):
+        perturbation_bounds("R3")
+
+
+@pytest.mark.parametrize("name", sorted(RANGES))
+def test_start_is_the_sampled_perturbation(name):
+    T = nominal_T_cam_radar()
+    xi = sample_perturbation(np.random.default_rng(3), name)
+    T0 = perturbed_start(T, np.random.default_rng(3), name)  # the same draws
+    rot_deg, trans_m = RANGES[name]
+    assert np.all(np.abs(np.degrees(xi[:3])) <= rot_deg) and np.all(np.abs(xi[3:]) <= trans_m)
+    np.testing.assert_allclose(signed_errors(T0, T), xi, atol=1e-9)
