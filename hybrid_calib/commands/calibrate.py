@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from hybrid_calib.commands import nonnegative_int, positive_int
 from hybrid_calib.config import ConfigError, parse_overrides
 from hybrid_calib.errors import HybridCalibError
 
@@ -18,11 +19,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="'oracle' (simulated roots: from the ground truth) or a directory of exported "
                         "Correspondences *.npz (one sub-directory per vehicle, or flat for one vehicle)")
     p.add_argument("--mode", default="window", choices=("window", "batch"), help="default: window")
-    p.add_argument("--window", type=int, default=20, help="sliding-window length in frames (default: 20)")
+    p.add_argument("--window", type=positive_int, default=20, help="sliding-window length in frames (default: 20)")
     p.add_argument("--backend", default="gtsam", choices=("gtsam", "ceres"), help="batch back end (default: gtsam)")
     p.add_argument("--start", default="reference", choices=("reference", "R1", "R2"),
                    help="initial extrinsic: the vehicle's tables, or a perturbed truth (default: reference)")
-    p.add_argument("--max-frames", type=int, default=0, help="frames per vehicle, 0 = all (default: 0)")
+    p.add_argument("--max-frames", type=nonnegative_int, default=0, help="frames per vehicle, 0 = all (default: 0)")
     p.add_argument("--seed", type=int, default=0, help="oracle noise and start seed (default: 0)")
     p.add_argument("--out", type=Path, default=Path("outputs/calibrate"),
                    help="run directory (default: outputs/calibrate)")

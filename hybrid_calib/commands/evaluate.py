@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from hybrid_calib.commands import nonnegative_int, positive_int
 from hybrid_calib.config import parse_overrides
 from hybrid_calib.errors import HybridCalibError
 
@@ -44,11 +45,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, type=Path, help="output folder (predictions, results.json/.md)")
     parser.add_argument("--split", default="test",
                         help="test (default; scenes held out in training), val, train, or all (a separate root)")
-    parser.add_argument("--max-frames", type=int, default=0, help="evaluate at most this many frames (0 = all)")
+    parser.add_argument("--max-frames", type=nonnegative_int, default=0,
+                        help="evaluate at most this many frames (0 = all)")
     parser.add_argument("--depth", default=None,
                         help="depth estimator (default: the checkpoint's; real data: depth-anything:/local/model/dir "
                              "or lidar-densified)")
-    parser.add_argument("--nsweeps", type=int, default=1, help="radar sweeps accumulated per frame")
+    parser.add_argument("--nsweeps", type=positive_int, default=1, help="radar sweeps accumulated per frame")
     parser.add_argument("--set", dest="overrides", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
                         help="EvalConfig override, e.g. --set batch_size=8 --set device=cuda (repeatable)")
     parser.add_argument("--fit-uncertainty", action="store_true",

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from hybrid_calib.commands import nonnegative_int, positive_int
 from hybrid_calib.config import merge, parse_overrides, save_json_atomic, to_dict
 
 HELP = "summarise a nuScenes-format root (real or simulated): frames, radar points, skipped items, overlay"
@@ -22,8 +23,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--version", required=True, help="version folder, e.g. v1.0-mini, v1.0-trainval, v1.0-sim")
     parser.add_argument("--radar", default="RADAR_FRONT", help="radar channel (default RADAR_FRONT)")
     parser.add_argument("--camera", default="CAM_FRONT", help="camera channel (default CAM_FRONT)")
-    parser.add_argument("--nsweeps", type=int, default=1, help="radar sweeps accumulated per frame")
-    parser.add_argument("--frame", type=int, default=None, help="frame index for the overlay (default: first loaded)")
+    parser.add_argument("--nsweeps", type=positive_int, default=1, help="radar sweeps accumulated per frame")
+    parser.add_argument("--frame", type=nonnegative_int, default=None,
+                        help="frame index for the overlay (default: first loaded)")
     parser.add_argument("--out", type=Path, default=None, help="write the JSON summary, config and overlay PNG here")
     parser.add_argument("--set", dest="overrides", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
                         help="DataConfig override, e.g. --set radar_filter.enabled=false (repeatable)")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from hybrid_calib.commands import positive_int
 from hybrid_calib.config import ConfigError, merge, parse_overrides
 from hybrid_calib.errors import HybridCalibError
 from hybrid_calib.sim.drive import SimConfig
@@ -16,14 +17,14 @@ HELP = "simulate drives (camera, radar, LiDAR, ground truth) and write them as a
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", default="urban", choices=sorted(PRESETS), help="world preset (default: urban)")
-    p.add_argument("--vehicles", type=int, default=1, help="vehicles, one log and scene each (default: 1)")
-    p.add_argument("--frames", type=int, default=200, help="keyframes per vehicle (default: 200)")
+    p.add_argument("--vehicles", type=positive_int, default=1, help="vehicles, one log and scene each (default: 1)")
+    p.add_argument("--frames", type=positive_int, default=200, help="keyframes per vehicle (default: 200)")
     p.add_argument("--seed", type=int, default=0, help="master seed (default: 0)")
     p.add_argument("--out", type=Path, required=True, help="output nuScenes root directory")
     p.add_argument("--extrinsic-change", default="none", choices=EXTRINSIC_CHANGES,
                    help="radar mount movement during each drive (default: none)")
     p.add_argument("--change-frame", type=int, default=-1, help="frame of a step change (default: the middle)")
-    p.add_argument("--workers", type=int, default=1, help="rendering processes (default: 1)")
+    p.add_argument("--workers", type=positive_int, default=1, help="rendering processes (default: 1)")
     p.add_argument("--overwrite", action="store_true", help="re-render everything instead of resuming")
     p.add_argument("--set", action="extend", nargs="+", metavar="KEY=VALUE", default=[],
                    help="SimConfig overrides, e.g. image_scale=0.25 radar.clutter_per_sweep=8 lidar.azimuth_steps=540")

@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from hybrid_calib.config import merge
+from hybrid_calib.config import ConfigError, merge
 from hybrid_calib.data.filters import RadarFilterConfig
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.data.image_header import image_header
@@ -106,9 +106,9 @@ class NuScenesRadarCamera:
                  camera_channel: str = "CAM_FRONT", conf: DataConfig | dict | None = None):
         self.conf = merge(DataConfig, conf)
         if self.conf.on_error not in ("skip", "raise"):
-            raise ValueError(f"on_error must be 'skip' or 'raise', got {self.conf.on_error!r}")
+            raise ConfigError(f"DataConfig.on_error must be 'skip' or 'raise', got {self.conf.on_error!r}")
         if int(self.conf.nsweeps) < 1:
-            raise ValueError(f"nsweeps must be >= 1, got {self.conf.nsweeps}")
+            raise ConfigError(f"DataConfig.nsweeps (--nsweeps) must be >= 1, got {self.conf.nsweeps}")
         self.root = Path(root)
         self.version = version
         self.radar_channel = radar_channel
