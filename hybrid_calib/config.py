@@ -44,7 +44,7 @@ def merge(cls: type[C], overrides: Mapping[str, Any] | C | None = None, _path: s
     unknown = sorted(set(overrides) - set(fields))
     if unknown:
         raise ConfigError(
-            f"unknown option(s) {unknown} for {cls.__name__}{' at ' + _path if _path else ''}; "
+            f"unknown option(s) {unknown} for {cls.__name__}{' at ' + _path.rstrip('.') if _path else ''}; "
             f"valid options: {sorted(fields)}"
         )
     kwargs = {}

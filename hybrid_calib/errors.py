@@ -26,6 +26,10 @@ class DataError(HybridCalibError):
         self.token = token
 
 
+class CheckpointError(DataError):
+    """A checkpoint file that is missing, truncated, garbage, or not in the safe format (names the file)."""
+
+
 class OptionError(HybridCalibError):
     """A command-line option whose value cannot work (e.g. ``--out`` naming an existing file)."""
 

@@ -6,8 +6,7 @@ import argparse
 from pathlib import Path
 
 from hybrid_calib.commands import nonnegative_int, positive_int
-from hybrid_calib.config import ConfigError, parse_overrides
-from hybrid_calib.errors import HybridCalibError
+from hybrid_calib.config import parse_overrides
 
 HELP = "calibrate T_cam_radar per vehicle from oracle or exported correspondences (window or batch)"
 
@@ -41,10 +40,7 @@ def run(args: argparse.Namespace) -> int:
     overrides.update(mode=args.mode, start=args.start, seed=args.seed, max_frames=args.max_frames)
     overrides.setdefault("window", {})["window"] = args.window
     overrides.setdefault("batch", {})["backend"] = args.backend
-    try:
-        conf = merge(CalibrateConfig, overrides)
-    except (ConfigError, ValueError, TypeError) as e:
-        raise HybridCalibError(f"invalid calibration settings: {e}") from None
+    conf = merge(CalibrateConfig, overrides)  # ConfigError (unknown key, wrong type, bad value) names the option
     if (args.out / "result.json").is_file() and not args.overwrite:
         print(f"{args.out / 'result.json'} exists; pass --overwrite to recompute")
     doc = calibrate(args.data, args.version, args.correspondences, args.out, conf, overwrite=args.overwrite,

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from hybrid_calib.commands import nonnegative_int, positive_int
 from hybrid_calib.config import merge, parse_overrides, save_json_atomic, to_dict
+from hybrid_calib.errors import OptionError
 
 HELP = "summarise a nuScenes-format root (real or simulated): frames, radar points, skipped items, overlay"
 
@@ -50,6 +51,8 @@ def run(args: argparse.Namespace) -> int:
     save_json_atomic(out / "inspect_summary.json", summary.to_json())
     print(f"wrote {out / 'inspect_summary.json'}")
     index = args.frame if args.frame is not None else summary.first_loaded
+    if index is not None and index >= len(ds):
+        raise OptionError("--frame", f"frame {index} does not exist; this root has {len(ds)} frames (0..{len(ds) - 1})")
     if index is not None:
         lidar = conf.lidar_channel in ds.tables.channels()
         frame_ds = ds if (conf.load_lidar or not lidar) else NuScenesRadarCamera(

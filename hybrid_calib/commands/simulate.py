@@ -6,8 +6,8 @@ import argparse
 from pathlib import Path
 
 from hybrid_calib.commands import positive_int
-from hybrid_calib.config import ConfigError, merge, parse_overrides
-from hybrid_calib.errors import HybridCalibError
+from hybrid_calib.config import merge, parse_overrides
+from hybrid_calib.errors import OptionError
 from hybrid_calib.sim.drive import SimConfig
 from hybrid_calib.sim.extrinsics import EXTRINSIC_CHANGES
 from hybrid_calib.sim.scenarios import PRESETS
@@ -38,10 +38,11 @@ def run(args: argparse.Namespace) -> int:
     change = dict(overrides.get("extrinsic_change", {}))
     change.update(kind=args.extrinsic_change, frame=args.change_frame)
     overrides["extrinsic_change"] = change
-    try:
-        conf = merge(SimConfig, overrides)
-    except (ConfigError, ValueError, TypeError) as e:
-        raise HybridCalibError(f"invalid simulation settings: {e}") from None
+    conf = merge(SimConfig, overrides)  # ConfigError (unknown key, wrong type, bad value) names the option
+    step = conf.extrinsic_change
+    if step.kind == "step" and not -1 <= step.frame < conf.frames:
+        raise OptionError("--change-frame", f"frame {step.frame} is outside the drive's {conf.frames} frames; pass "
+                                            f"0..{conf.frames - 1} (or -1 for the middle)")
     root = simulate(conf, args.out, overwrite=args.overwrite, workers=args.workers)
     print(f"wrote nuScenes root {root} (version v1.0-sim): {conf.vehicles} vehicle(s) x {conf.frames} frames, "
           f"scenario {conf.scenario}")
