@@ -300,7 +300,7 @@ def test_lidar_corrupt_and_missing_channel(tiny):
     ds = _open(tiny, load_lidar=True)
     frames = list(ds)
     assert [f.index for f in frames] == [0, 2, 3]
-    assert "multiple of 5" in ds.skipped[0].reason and str(path) in ds.skipped[0].reason
+    assert "multiple of 20" in ds.skipped[0].reason and str(path) in ds.skipped[0].reason
     assert frames[0].lidar_points.shape == (6, 4) and frames[0].lidar_points.dtype == np.float32
     with pytest.raises(DataError, match="LIDAR_TOP"):
         NuScenesRadarCamera(tiny.root, VERSION, conf={"load_lidar": True, "lidar_channel": "LIDAR_LEFT"})

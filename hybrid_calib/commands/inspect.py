@@ -39,6 +39,7 @@ def run(args: argparse.Namespace) -> int:
 
     overrides = parse_overrides(args.overrides)
     overrides.setdefault("nsweeps", args.nsweeps)
+    overrides.setdefault("decode_images", True)  # inspect looks for everything that is wrong, pixel data included
     conf = merge(DataConfig, overrides)
     ds = NuScenesRadarCamera(args.data, args.version, args.radar, args.camera, conf)
     summary = summarize_dataset(ds, progress=not args.no_progress)
