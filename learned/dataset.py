@@ -213,6 +213,7 @@ class CalibDataset(torch.utils.data.Dataset):
         self.train = train
         self.epoch = 0
         self.bad: dict[int, str] = {}  # frame index -> reason, for frames that could not be loaded
+        self.bad_files: dict[int, str | None] = {}  # frame index -> the file that was wrong (None if unknown)
 
     def __len__(self) -> int:
         return len(self.indices)
@@ -236,6 +237,7 @@ class CalibDataset(torch.utils.data.Dataset):
             return self._sample(i, frame)
         except DataError as e:
             self.bad[fi] = str(e)
+            self.bad_files[fi] = e.path
             log.warning("skipping frame %d: %s", fi, e)
             return None
 

@@ -8,8 +8,9 @@
      perturbation (6,), index (), and the exported correspondences (``corr_*`` keys,
      ``factors.Correspondences.to_npz_dict``).
    ``OUT/export_config.json`` holds the evaluation config, the checkpoint and its model config.
-   Frames already exported are skipped (``overwrite=False``); a frame whose files are bad is listed
-   in ``OUT/skipped.json`` and the run goes on.
+   Frames already exported are skipped (``overwrite=False``); a frame whose files are bad (a corrupt
+   radar PCD or image, ...) is listed in ``OUT/skipped.json`` (``[{"index", "token", "file",
+   "reason"}]``, written on every run) and the run goes on.
 2. ``evaluate_predictions``: read those files and compute the paper's table with
    ``hybrid_calib.metrics`` (rotation Mean/Roll/Pitch/Yaw in degrees, translation Mean/X/Y/Z in cm,
    geodesic angle and translation norm) for the initial error, every iteration and the final
@@ -104,8 +105,7 @@ def export_pure(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig, out
     dataset = CalibDataset(frames, dconf, depth, indices=indices, cache=cache, train=False)
     todo = []
     for i, fi in enumerate(indices):
-        token = frames[fi].camera_token
-        if overwrite or not _frame_file(out, token).is_file():
+        if overwrite or not _frame_file(out, _camera_token(frames, fi)).is_file():
             todo.append(i)
     loader = torch.utils.data.DataLoader(dataset, batch_size=conf.batch_size, sampler=todo, collate_fn=collate)
     device = torch.device(conf.device)
@@ -135,12 +135,24 @@ def export_pure(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig, out
                 path = _frame_file(out, token)
                 _save_npz_atomic(path, arrays)
                 written.append(path)
-    if dataset.bad:
-        save_json_atomic(out / "skipped.json", {str(k): v for k, v in dataset.bad.items()})
-        if len(dataset.bad) == len(todo):
-            raise HybridCalibError(f"every frame to export failed ({len(todo)}; reasons in {out / 'skipped.json'}); "
-                                   f"first: {next(iter(dataset.bad.values()))}")
+    # every frame whose files were bad, listed and skipped (the rest of the run went on)
+    skipped = [{"index": int(fi), "token": _camera_token(frames, fi), "file": dataset.bad_files.get(fi),
+                "reason": reason} for fi, reason in sorted(dataset.bad.items())]
+    save_json_atomic(out / "skipped.json", skipped)
+    if skipped and len(skipped) == len(todo):
+        raise HybridCalibError(f"every frame to export failed ({len(todo)}; reasons in {out / 'skipped.json'}); "
+                               f"first: {skipped[0]['reason']}")
     return written
+
+
+def _camera_token(frames: Sequence[RadarCameraFrame], fi: int) -> str:
+    """The camera sample_data token of frame ``fi``, from the index when there is one (``.frames``
+    of ``NuScenesRadarCamera`` / ``ConcatFrames``), so a frame with a corrupt file is not loaded here."""
+    refs = getattr(frames, "frames", None)
+    if refs is not None and len(refs) == len(frames):
+        ref = refs[fi]
+        return ref.camera_sd["token"] if hasattr(ref, "camera_sd") else ref.camera_token
+    return frames[fi].camera_token
 
 
 # method name -> exporter(model, frames, conf, out, overwrite=, progress=) -> list of per-frame files

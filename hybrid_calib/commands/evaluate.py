@@ -21,6 +21,7 @@ validation split (or a separate root), then check on the test split: the report'
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 from hybrid_calib.commands import nonnegative_int, positive_int
@@ -107,6 +108,12 @@ def run(args: argparse.Namespace) -> int:
                       overwrite=args.overwrite,
                       progress=not args.no_progress)
     print(result.table())
+    skipped_path = Path(args.out) / "skipped.json"  # frames with bad files, skipped by the export
+    skipped = json.loads(skipped_path.read_text()) if skipped_path.is_file() else []
+    for rec in skipped:
+        print(f"skipped frame {rec['index']} ({rec['token']}): {rec['reason']}")
+    if skipped:
+        print(f"{len(skipped)} frame(s) skipped; listed in {skipped_path}")
     u = result.uncertainty
     if u:
         print(f"exported covariance: mean NEES {u['nees_mean']:.2f} (6 if honest), "
