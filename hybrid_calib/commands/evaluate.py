@@ -62,10 +62,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from hybrid_calib.config import merge
     from learned.checkpoint import load_model
     from learned.dataset import open_roots
-    from learned.evaluate import evaluate
+    from learned.evaluate import EvalConfig, evaluate
 
+    user = parse_overrides(args.overrides)
+    merge(EvalConfig, user)  # a bad --set fails here, before the checkpoint and the data are read
     model, ckpt = load_model(args.checkpoint)
     trained = ckpt.train_config or {}
     last = ckpt
@@ -100,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
             raise HybridCalibError("--fit-uncertainty on the test split would leave nothing held out to check it; "
                                    "fit with --split val (or --split all on a separate root)")
         conf["export"]["cov_scale"] = 1.0  # fit against the raw covariance
-    conf.update(parse_overrides(args.overrides))
+    conf.update(user)
     # the LiDAR-camera variant calibrates T_cam_lidar from LiDAR points; lidar-densified depth reads them too
     lidar = model.cfg.variant == "lidar" or conf.get("depth") == "lidar-densified"
     frames = open_roots(args.data, args.version, lidar=lidar, options={"nsweeps": args.nsweeps})
