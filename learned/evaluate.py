@@ -35,7 +35,7 @@ from hybrid_calib.config import merge, save_json_atomic, to_dict
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.errors import HybridCalibError
 from hybrid_calib.metrics import METRIC_KEYS, extrinsic_error, format_table, summarize
-from learned.dataset import CalibDataset, DatasetConfig, SplitConfig, collate, split_indices
+from learned.dataset import CalibDataset, DatasetConfig, SplitConfig, camera_token, collate, split_indices
 from learned.depth import DepthCache, build_depth_estimator
 
 
@@ -105,7 +105,7 @@ def export_pure(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig, out
     dataset = CalibDataset(frames, dconf, depth, indices=indices, cache=cache, train=False)
     todo = []
     for i, fi in enumerate(indices):
-        if overwrite or not _frame_file(out, _camera_token(frames, fi)).is_file():
+        if overwrite or not _frame_file(out, camera_token(frames, fi)).is_file():
             todo.append(i)
     loader = torch.utils.data.DataLoader(dataset, batch_size=conf.batch_size, sampler=todo, collate_fn=collate)
     device = torch.device(conf.device)
@@ -135,24 +135,12 @@ def export_pure(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig, out
                 path = _frame_file(out, token)
                 _save_npz_atomic(path, arrays)
                 written.append(path)
-    # every frame whose files were bad, listed and skipped (the rest of the run went on)
-    skipped = [{"index": int(fi), "token": _camera_token(frames, fi), "file": dataset.bad_files.get(fi),
-                "reason": reason} for fi, reason in sorted(dataset.bad.items())]
+    skipped = dataset.skip_records()  # every frame whose files were bad; the rest of the run went on
     save_json_atomic(out / "skipped.json", skipped)
     if skipped and len(skipped) == len(todo):
         raise HybridCalibError(f"every frame to export failed ({len(todo)}; reasons in {out / 'skipped.json'}); "
                                f"first: {skipped[0]['reason']}")
     return written
-
-
-def _camera_token(frames: Sequence[RadarCameraFrame], fi: int) -> str:
-    """The camera sample_data token of frame ``fi``, from the index when there is one (``.frames``
-    of ``NuScenesRadarCamera`` / ``ConcatFrames``), so a frame with a corrupt file is not loaded here."""
-    refs = getattr(frames, "frames", None)
-    if refs is not None and len(refs) == len(frames):
-        ref = refs[fi]
-        return ref.camera_sd["token"] if hasattr(ref, "camera_sd") else ref.camera_token
-    return frames[fi].camera_token
 
 
 # method name -> exporter(model, frames, conf, out, overwrite=, progress=) -> list of per-frame files

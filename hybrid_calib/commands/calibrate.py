@@ -53,6 +53,8 @@ def run(args: argparse.Namespace) -> int:
             line += f"; error {v['error']['rot_mean_deg']:.3f} deg, {v['error']['trans_norm_cm']:.2f} cm"
         if v.get("drift"):
             line += f"; drift vs reference: {'YES' if v['drift']['drifted'] else 'no'} (p {v['drift']['p_value']:.2g})"
+        if v.get("frames_skipped"):
+            line += f"; {len(v['frames_skipped'])} frame(s) skipped (bad files; listed in result.json)"
         print(line)
     print(f"wrote {args.out / 'result.json'}")
     return 0
