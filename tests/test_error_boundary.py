@@ -15,7 +15,7 @@ from hybrid_calib.cli import EXIT_BUG, EXIT_ERROR, main
 from hybrid_calib.config import ConfigError, check_type, merge
 from hybrid_calib.errors import CheckpointError, HybridCalibError, OptionError, check_out_dir
 from learned.checkpoint import load_checkpoint, save_checkpoint
-from tests.tiny_nuscenes import VERSION, make_tiny_root
+from tests.tiny_nuscenes import VERSION, corrupt_jpeg_scan, make_tiny_root
 
 
 @pytest.fixture(scope="module")
@@ -294,7 +294,7 @@ def test_evaluate_skips_frames_with_a_corrupt_pcd_or_image(tmp_path):
     pcd = root / ds.frames[1].radar_sd["filename"]
     pcd.write_bytes(pcd.read_bytes()[:300])
     jpg = root / ds.frames[2].camera_sd["filename"]
-    jpg.write_bytes(_corrupt_scan(jpg.read_bytes()))
+    jpg.write_bytes(corrupt_jpeg_scan(jpg.read_bytes()))
     out = tmp_path / "eval"
     result = evaluate(OracleModel(), ds, EvalConfig(split="all"), out, exporter=oracle_exporter, progress=False)
     assert result.n_frames == 2
@@ -303,11 +303,3 @@ def test_evaluate_skips_frames_with_a_corrupt_pcd_or_image(tmp_path):
     assert [s["token"] for s in skipped] == [ds.frames[1].camera_sd["token"], ds.frames[2].camera_sd["token"]]
     assert [s["file"] for s in skipped] == [str(pcd), str(jpg)]
     assert "truncated PCD" in skipped[0]["reason"] and "corrupt pixel data" in skipped[1]["reason"]
-
-
-def _corrupt_scan(jpeg: bytes) -> bytes:
-    """The same JPEG with its entropy-coded scan data overwritten (header and end marker intact)."""
-    b = bytearray(jpeg)
-    for i in range(b.find(b"\xff\xda") + 20, len(b) - 2, 3):
-        b[i] = 0xFF if i % 2 else 0xD0
-    return bytes(b)
