@@ -109,7 +109,7 @@ SET_CASES = [
     ("calibrate", "window.factor.kernel=nosuch", ["kernel='nosuch'", "tukey"]),
     ("train", "nosuchkey=1", ["nosuchkey", "TrainConfig"]),
     ("train", "lr=abc", ["lr='abc'", "number"]),
-    ("train", "model.use_mca=off", ["use_mca='off'", "bool"]),
+    ("train", "model.use_mca=off", ["model.use_mca='off'", "bool", "--set model.use_mca=true"]),
     ("evaluate", "nosuchkey=1", ["nosuchkey", "EvalConfig"]),
     ("evaluate", "batch_size=abc", ["batch_size='abc'", "integer"]),
 ]
