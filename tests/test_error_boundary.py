@@ -265,6 +265,8 @@ def test_check_type():
     assert check_type([1.0, 2], tuple[float, float]) and not check_type([1.0], tuple[float, float])
     assert check_type({"a": 1}, dict) and not check_type([1], dict[str, int])
     assert check_type(0.5, float | tuple) and check_type([1, 2], float | tuple)
+    assert check_type(np.int64(2), int) and check_type(np.float32(0.5), float) and check_type(np.bool_(True), bool)
+    assert not check_type(np.bool_(True), int)
     assert check_type(np.zeros(3), np.ndarray)  # classes it does not know are left alone
 
 
