@@ -41,7 +41,10 @@ def merge(cls: type[C], overrides: Mapping[str, Any] | C | None = None, _path: s
     if isinstance(overrides, cls):
         return overrides
     if not isinstance(overrides, Mapping):
-        raise ConfigError(f"config {_path or cls.__name__}: expected a mapping, got {type(overrides)}")
+        where = _path.rstrip(".") or cls.__name__
+        raise ConfigError(f"option {where}={overrides!r} sets a group of options ({cls.__name__}), not a value; "
+                          f"set its keys instead, e.g. --set {where}.KEY=VALUE (keys: "
+                          f"{sorted(f.name for f in dataclasses.fields(cls))})")
     fields = {f.name: f for f in dataclasses.fields(cls)}
     hints = typing.get_type_hints(cls)
     unknown = sorted(set(overrides) - set(fields))
@@ -126,7 +129,8 @@ def parse_overrides(items: list[str] | None) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for item in items or []:
         if "=" not in item:
-            raise ConfigError(f"override {item!r} must look like key=value")
+            raise ConfigError(f"--set {item!r}: an override must look like KEY=VALUE (nested: a.b=VALUE; "
+                              "VALUE is JSON when it parses, e.g. true, 3, [1, 2], else a string)")
         key, raw = item.split("=", 1)
         try:
             value = json.loads(raw)

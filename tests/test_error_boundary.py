@@ -104,6 +104,8 @@ SET_CASES = [
     ("inspect", "nsweeps=abc", ["nsweeps='abc'", "integer"]),
     ("inspect", "load_lidar=off", ["load_lidar='off'", "bool"]),
     ("inspect", "on_error=ignore", ["on_error", "'skip' or 'raise'"]),
+    ("inspect", "nsweeps", ["--set 'nsweeps'", "KEY=VALUE"]),
+    ("inspect", "radar_filter=5", ["radar_filter=5", "--set radar_filter.KEY=VALUE"]),
     ("calibrate", "nosuchkey=1", ["nosuchkey", "CalibrateConfig"]),
     ("calibrate", "oracle.outlier_frac=abc", ["oracle.outlier_frac='abc'", "number"]),
     ("calibrate", "window.factor.kernel=nosuch", ["kernel='nosuch'", "tukey"]),
