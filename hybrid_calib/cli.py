@@ -1,12 +1,20 @@
-"""``hybrid-calib``: one command with subcommands, a thin layer over typed functions."""
+"""``hybrid-calib``: one command with subcommands, a thin layer over typed functions.
+
+The error boundary is here, in one place: ``main`` turns every expected failure (a
+``HybridCalibError``: bad data, a bad option, a bad checkpoint; or an ``OSError`` naming a file) into
+one line ``hybrid-calib COMMAND: error: ...`` on stderr and exit status 2. Anything else is a bug:
+one line naming the exception and asking for a rerun with ``--debug`` (exit status 3). ``--debug``
+(or ``HYBRID_CALIB_DEBUG=1``) lets every exception through with its traceback.
+"""
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
-from hybrid_calib.errors import HybridCalibError
+from hybrid_calib.errors import HybridCalibError, check_out_dir
 
 # subcommand name -> module in hybrid_calib.commands (each has HELP, add_arguments, run).
 COMMANDS: dict[str, str] = {
@@ -18,6 +26,9 @@ COMMANDS: dict[str, str] = {
     "calibrate": "calibrate",
 }
 
+EXIT_ERROR = 2  # an expected failure, explained in one line (argparse uses 2 for usage errors too)
+EXIT_BUG = 3  # an unexpected exception: rerun with --debug and report it
+
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
@@ -27,17 +38,41 @@ def build_parser() -> argparse.ArgumentParser:
         mod = importlib.import_module(f"hybrid_calib.commands.{module}")
         p = sub.add_parser(name, help=mod.HELP, description=mod.HELP)
         mod.add_arguments(p)
+        p.add_argument("--debug", action="store_true", help="show the full traceback of any error")
         p.set_defaults(_run=mod.run)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    debug = args.debug or os.environ.get("HYBRID_CALIB_DEBUG", "") not in ("", "0")
     try:
+        check_out_dir(getattr(args, "out", None))
         return int(args._run(args) or 0)
-    except HybridCalibError as e:
-        print(f"hybrid-calib {args.command}: error: {e}", file=sys.stderr)
-        return 2
+    except KeyboardInterrupt:
+        if debug:
+            raise
+        print(f"hybrid-calib {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as e:
+        if debug:
+            raise
+        return report_error(args.command, e)
+
+
+def report_error(command: str, e: Exception) -> int:
+    """Print one line for ``e`` (no traceback) and return the exit status (``EXIT_ERROR`` or ``EXIT_BUG``)."""
+    if isinstance(e, HybridCalibError):
+        print(f"hybrid-calib {command}: error: {e}", file=sys.stderr)
+        return EXIT_ERROR
+    if isinstance(e, OSError) and e.filename:
+        print(f"hybrid-calib {command}: error: {e.strerror or e} [file {e.filename}]; check the path and its "
+              "permissions", file=sys.stderr)
+        return EXIT_ERROR
+    print(f"hybrid-calib {command}: internal error: {type(e).__name__}: {e}\n"
+          f"  this looks like a bug (or an input not checked yet); rerun with --debug for the traceback and "
+          "report it", file=sys.stderr)
+    return EXIT_BUG
 
 
 if __name__ == "__main__":

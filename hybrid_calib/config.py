@@ -1,44 +1,56 @@
 """Configs: frozen dataclasses with defaults, merged with user overrides, then frozen.
 
 Every configurable class has a ``@dataclass(frozen=True)`` config with a one-line comment per
-field. ``merge(Conf, overrides)`` builds one from a nested mapping and rejects unknown keys, so a
-typo fails at start instead of being ignored. ``to_dict`` gives the JSON saved beside outputs.
+field. ``merge(Conf, overrides)`` builds one from a nested mapping and rejects unknown keys and
+values of the wrong type (checked against the field annotations: ``"off"`` is not a bool, ``"abc"``
+not an int), so a typo fails at start instead of being ignored or crashing later. ``to_dict`` gives
+the JSON saved beside outputs.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
+import numbers
+import types
 import typing
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, TypeVar
 
+import numpy as np
+
+from hybrid_calib.errors import HybridCalibError
+
 C = TypeVar("C")
 
 
-class ConfigError(ValueError):
-    """An unknown or ill-typed configuration key."""
+class ConfigError(HybridCalibError, ValueError):
+    """An unknown or ill-typed configuration key (the message names the option and its valid values)."""
 
 
 def merge(cls: type[C], overrides: Mapping[str, Any] | C | None = None, _path: str = "") -> C:
     """Build ``cls`` (a frozen dataclass) from its defaults updated by ``overrides``.
 
     Nested dataclass fields accept nested mappings. Unknown keys raise ``ConfigError`` naming the
-    key and the valid ones.
+    key and the valid ones; a value whose type does not match the field's annotation raises
+    ``ConfigError`` naming the option, the value and the expected type (``check_type``).
     """
     if overrides is None:
         return cls()
     if isinstance(overrides, cls):
         return overrides
     if not isinstance(overrides, Mapping):
-        raise ConfigError(f"config {_path or cls.__name__}: expected a mapping, got {type(overrides)}")
+        where = _path.rstrip(".") or cls.__name__
+        raise ConfigError(f"option {where}={overrides!r} sets a group of options ({cls.__name__}), not a value; "
+                          f"set its keys instead, e.g. --set {where}.KEY=VALUE (keys: "
+                          f"{sorted(f.name for f in dataclasses.fields(cls))})")
     fields = {f.name: f for f in dataclasses.fields(cls)}
     hints = typing.get_type_hints(cls)
     unknown = sorted(set(overrides) - set(fields))
     if unknown:
         raise ConfigError(
-            f"unknown option(s) {unknown} for {cls.__name__}{' at ' + _path if _path else ''}; "
+            f"unknown option(s) {unknown} for {cls.__name__}{' at ' + _path.rstrip('.') if _path else ''}; "
             f"valid options: {sorted(fields)}"
         )
     kwargs = {}
@@ -46,11 +58,64 @@ def merge(cls: type[C], overrides: Mapping[str, Any] | C | None = None, _path: s
         hint = hints.get(key)
         if isinstance(hint, type) and dataclasses.is_dataclass(hint):
             kwargs[key] = merge(hint, value, f"{_path}{key}.")
-        elif isinstance(value, list):
-            kwargs[key] = tuple(value)
-        else:
-            kwargs[key] = value
-    return dataclasses.replace(cls(), **kwargs)
+            continue
+        if hint is not None and not check_type(value, hint):
+            raise ConfigError(f"option {_path}{key}={value!r} ({type(value).__name__}) is not a valid "
+                              f"{_type_name(hint)} for {cls.__name__}.{key}; e.g. --set {_path}{key}="
+                              f"{json.dumps(getattr(cls(), key), default=str)} (the default)")
+        kwargs[key] = tuple(value) if isinstance(value, list) else value
+    try:
+        return dataclasses.replace(cls(), **kwargs)
+    except ConfigError:
+        raise
+    except (ValueError, TypeError) as e:  # the dataclass's own checks (__post_init__)
+        raise ConfigError(f"invalid {cls.__name__}{' at ' + _path.rstrip('.') if _path else ''}: {e}") from None
+
+
+def check_type(value: Any, hint: Any) -> bool:
+    """Whether ``value`` (parsed JSON or Python) fits the annotation ``hint``.
+
+    Strict where a command-line typo would otherwise slip through: a bool field takes only
+    ``true``/``false`` (not ``"off"`` or ``1``), an int field only integers, a float field ints or
+    floats, a str field only strings; tuples/lists are checked element-wise. Annotations it does not
+    know (``Any``, arrays, classes) accept anything.
+    """
+    origin = typing.get_origin(hint)
+    args = typing.get_args(hint)
+    if hint is Any:
+        return True
+    if origin in (typing.Union, types.UnionType):
+        return any(check_type(value, a) for a in args)
+    if hint is type(None):
+        return value is None
+    if hint is bool:
+        return isinstance(value, (bool, np.bool_))
+    if hint is int:
+        return isinstance(value, numbers.Integral) and not isinstance(value, (bool, np.bool_))
+    if hint is float:
+        return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
+    if hint is str:
+        return isinstance(value, str)
+    if hint in (tuple, list) or origin in (tuple, list):
+        if not isinstance(value, (tuple, list)):
+            return False
+        if not args:
+            return True
+        if origin is tuple and not (len(args) == 2 and args[1] is Ellipsis):
+            return len(value) == len(args) and all(check_type(v, a) for v, a in zip(value, args))
+        return all(check_type(v, args[0]) for v in value)
+    if hint is dict or origin is dict:
+        return isinstance(value, Mapping)
+    if isinstance(hint, type) and dataclasses.is_dataclass(hint):
+        return isinstance(value, (hint, Mapping))
+    return True
+
+
+def _type_name(hint: Any) -> str:
+    if isinstance(hint, type) and typing.get_origin(hint) is None:
+        return {"bool": "bool (true/false)", "int": "integer", "float": "number", "str": "string"}.get(
+            hint.__name__, hint.__name__)
+    return str(hint).replace("typing.", "")
 
 
 def to_dict(conf: Any) -> dict[str, Any]:
@@ -64,7 +129,8 @@ def parse_overrides(items: list[str] | None) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for item in items or []:
         if "=" not in item:
-            raise ConfigError(f"override {item!r} must look like key=value")
+            raise ConfigError(f"--set {item!r}: an override must look like KEY=VALUE (nested: a.b=VALUE; "
+                              "VALUE is JSON when it parses, e.g. true, 3, [1, 2], else a string)")
         key, raw = item.split("=", 1)
         try:
             value = json.loads(raw)

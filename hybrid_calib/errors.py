@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 
 class HybridCalibError(Exception):
     """Base class of every error this package raises on purpose."""
@@ -22,3 +24,28 @@ class DataError(HybridCalibError):
         super().__init__(f"{message}" + (f" [{', '.join(where)}]" if where else ""))
         self.path = path
         self.token = token
+
+
+class CheckpointError(DataError):
+    """A checkpoint file that is missing, truncated, garbage, or not in the safe format (names the file)."""
+
+
+class OptionError(HybridCalibError):
+    """A command-line option whose value cannot work (e.g. ``--out`` naming an existing file)."""
+
+    def __init__(self, option: str, message: str):
+        super().__init__(f"{option}: {message}")
+        self.option = option
+
+
+def check_out_dir(path: str | Path | None, option: str = "--out") -> None:
+    """``OptionError`` when an output directory ``path`` exists and is not a directory (None passes)."""
+    if path is None:
+        return
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise OptionError(option, f"{path} is an existing file, but the outputs go into a directory; pass a "
+                                  "directory path (it is created if missing) or move the file away")
+    for parent in path.parents:
+        if parent.exists() and not parent.is_dir():
+            raise OptionError(option, f"{parent} (a parent of {path}) is a file, not a directory; pass another path")

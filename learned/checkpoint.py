@@ -7,6 +7,12 @@ Layout of one checkpoint with stem ``DIR/ckpt-0003``:
   ckpt-0003.json         ``{"epoch", "model_config", "train_config", "metrics", "files"}``
 Every file is written to a temp name and renamed; the JSON is written last, so a checkpoint exists
 (``latest_checkpoint`` finds it) only once all its files are complete.
+
+Reading is defensive: a missing, truncated or garbage JSON or ``.safetensors`` raises
+``CheckpointError`` naming the file, and weights are only ever read from ``.safetensors`` (a JSON
+whose ``files.weights`` names a pickle, e.g. ``.pt``/``.pth``/``.ckpt``, is rejected: unpickling can
+run code). The optimizer state is read with ``torch.load(weights_only=True)``, which refuses
+arbitrary objects.
 """
 
 from __future__ import annotations
@@ -22,9 +28,10 @@ import torch
 from safetensors.torch import load_file, save_file
 
 from hybrid_calib.config import save_json_atomic
-from hybrid_calib.errors import HybridCalibError
+from hybrid_calib.errors import CheckpointError, HybridCalibError
 
 _STEM = re.compile(r"^ckpt-(\d{4,})\.json$")
+_PICKLE_SUFFIXES = (".pt", ".pth", ".ckpt", ".pkl", ".pickle", ".bin")
 
 
 @dataclass
@@ -90,30 +97,76 @@ def _resolve(path: str | Path) -> Path:
         if latest is None:
             raise HybridCalibError(f"no checkpoint (ckpt-NNNN.json) in {path}; train one with `hybrid-calib train`")
         return latest
+    if path.suffix in _PICKLE_SUFFIXES:
+        raise CheckpointError("this is a pickled checkpoint; hybrid-calib never loads pickles (they can run code "
+                              "when loaded): pass a checkpoint JSON written by `hybrid-calib train`", path=str(path))
     if path.suffix == ".safetensors":
         path = path.with_suffix(".json")
     elif path.suffix != ".json":
         path = path.with_name(path.name + ".json")
     if not path.is_file():
-        raise HybridCalibError(f"checkpoint {path} not found (expected ckpt-NNNN.json with its .safetensors)")
+        raise CheckpointError("checkpoint not found (expected ckpt-NNNN.json with its .safetensors beside it, or "
+                              "a run folder)", path=str(path))
     return path
+
+
+def read_checkpoint_meta(path: str | Path) -> tuple[Path, dict[str, Any]]:
+    """Resolve a checkpoint (``_resolve``) and read its JSON -> ``(json path, meta dict)``.
+
+    ``CheckpointError`` naming the file when the JSON is unreadable, truncated, not an object, or
+    lacks ``epoch`` / ``model_config`` / ``files.weights``."""
+    path = _resolve(path)
+    try:
+        meta = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as e:
+        raise CheckpointError(f"checkpoint metadata is not valid JSON ({e.msg} at line {e.lineno} column "
+                              f"{e.colno}); the file is truncated or corrupt: copy it again or pick another "
+                              "checkpoint", path=str(path)) from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise CheckpointError(f"cannot read checkpoint metadata: {e}", path=str(path)) from None
+    files = meta.get("files") if isinstance(meta, dict) else None
+    if not isinstance(meta, dict) or not isinstance(files, dict) or "weights" not in files \
+            or not isinstance(meta.get("model_config"), dict) or not isinstance(meta.get("epoch"), int):
+        raise CheckpointError("checkpoint metadata lacks epoch, model_config or files.weights; it is not a "
+                              "hybrid-calib checkpoint (ckpt-NNNN.json written by `hybrid-calib train`)",
+                              path=str(path))
+    return path, meta
+
+
+def _weights_path(path: Path, meta: dict[str, Any]) -> Path:
+    """The ``.safetensors`` file a checkpoint JSON names, checked to be one (never a pickle) and present."""
+    name = str(meta["files"]["weights"])
+    weights = path.parent / Path(name).name
+    if weights.suffix != ".safetensors":
+        raise CheckpointError(f"checkpoint names weights {name!r}, which is not a .safetensors file; hybrid-calib "
+                              "never loads pickled weights (.pt/.pth/.ckpt can run code when loaded): convert "
+                              "them to safetensors", path=str(path))
+    if not weights.is_file():
+        raise CheckpointError(f"the weights file {weights.name} of this checkpoint is missing (it must sit next "
+                              "to the JSON); copy it along", path=str(path))
+    return weights
+
+
+def _load_weights(weights: Path, device: str) -> dict[str, torch.Tensor]:
+    try:
+        return load_file(str(weights), device=device)
+    except Exception as e:  # safetensors raises its own SafetensorError for a bad header or body
+        raise CheckpointError(f"weights file is not a valid safetensors file ({e}); it is truncated or corrupt: "
+                              "copy it again or pick another checkpoint", path=str(weights)) from None
 
 
 def load_checkpoint(path: str | Path, model: torch.nn.Module | None = None,
                     optimizer: torch.optim.Optimizer | None = None, scheduler: Any = None,
                     map_location: str | torch.device = "cpu") -> Checkpoint:
     """Read a checkpoint; load its weights into ``model`` (strict) and its state into ``optimizer``
-    / ``scheduler`` when given. Raises ``HybridCalibError`` naming the file on any mismatch."""
-    path = _resolve(path)
-    try:
-        meta = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as e:
-        raise HybridCalibError(f"checkpoint metadata {path} is unreadable: {e}") from e
+    / ``scheduler`` when given. Raises ``CheckpointError`` / ``HybridCalibError`` naming the file on
+    any problem (missing, truncated, garbage, a pickle, a mismatch)."""
+    path, meta = read_checkpoint_meta(path)
     ckpt = Checkpoint(path, int(meta["epoch"]), meta["model_config"], meta.get("train_config", {}),
                       meta.get("metrics", {}), meta.get("export", {}))
     if model is not None:
-        weights = path.parent / meta["files"]["weights"]
-        state = load_file(str(weights), device=str(map_location))
+        weights = _weights_path(path, meta)
+        state = _load_weights(weights, str(map_location))
         try:
             model.load_state_dict(state, strict=True)
         except RuntimeError as e:
@@ -123,19 +176,24 @@ def load_checkpoint(path: str | Path, model: torch.nn.Module | None = None,
         name = meta["files"].get("optimizer")
         if name is None:
             raise HybridCalibError(f"checkpoint {path} has no optimizer state; cannot resume training from it")
-        state = torch.load(path.parent / name, map_location=map_location, weights_only=True)
-        if optimizer is not None:
-            optimizer.load_state_dict(state["optimizer"])
-        if scheduler is not None and state.get("scheduler") is not None:
-            scheduler.load_state_dict(state["scheduler"])
+        optim = path.parent / Path(str(name)).name
+        try:
+            state = torch.load(optim, map_location=map_location, weights_only=True)
+            if optimizer is not None:
+                optimizer.load_state_dict(state["optimizer"])
+            if scheduler is not None and state.get("scheduler") is not None:
+                scheduler.load_state_dict(state["scheduler"])
+        except Exception as e:  # torch.load raises RuntimeError / UnpicklingError / EOFError / OSError
+            raise CheckpointError(f"optimizer state is missing, corrupt or not a plain state dict ({e}); start a "
+                                  "new run with --init on this checkpoint instead of resuming",
+                                  path=str(optim)) from None
     return ckpt
 
 
 def set_export_overrides(path: str | Path, overrides: dict[str, Any], note: str = "") -> Path:
     """Store ``learned.export.ExportConfig`` overrides (e.g. a fitted ``cov_scale``) in a checkpoint's
     JSON (``"export"``, merged into what is there; ``note`` says how they were fitted). Atomic."""
-    path = _resolve(path)
-    meta = json.loads(path.read_text())
+    path, meta = read_checkpoint_meta(path)
     meta["export"] = {**meta.get("export", {}), **overrides}
     if note:
         meta.setdefault("export_notes", {}).update({k: note for k in overrides})
@@ -149,8 +207,7 @@ def load_model(path: str | Path, device: str | torch.device = "cpu", model_facto
 
     if model_factory is None:
         from learned.model import RCAutoCalib as model_factory
-    path = _resolve(path)
-    meta = json.loads(path.read_text())
+    path, meta = read_checkpoint_meta(path)
     model = model_factory(model_config(meta["model_config"]))
     ckpt = load_checkpoint(path, model, map_location="cpu")
     return model.to(device).eval(), ckpt

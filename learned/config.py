@@ -129,7 +129,7 @@ def model_config(preset: str | ModelConfig | Mapping = "small", overrides: Mappi
             raise ConfigError(f"unknown model preset {preset!r}; valid: {sorted(PRESETS)}")
         base = dict(PRESETS[preset])
     base.update(overrides or {})
-    return merge(ModelConfig, base)
+    return merge(ModelConfig, base, "model.")  # errors name the option as --set model.KEY
 
 
 # The ablation rows of the paper's Table 3 / Table 4 as overrides (FV/BEV/SF/MCA/EMS/NR columns).

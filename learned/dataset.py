@@ -167,6 +167,16 @@ def open_roots(roots: Sequence[str | Path], version: str = "v1.0-sim", *, lidar:
     return parts[0] if len(parts) == 1 else ConcatFrames(parts)
 
 
+def camera_token(frames: Sequence[RadarCameraFrame], fi: int) -> str:
+    """The camera sample_data token of frame ``fi``, from the index when there is one (``.frames`` of
+    ``NuScenesRadarCamera`` / ``ConcatFrames``), so that a frame with a corrupt file is not loaded for it."""
+    refs = getattr(frames, "frames", None)
+    if refs is not None and len(refs) == len(frames):
+        ref = refs[fi]
+        return ref.camera_sd["token"] if hasattr(ref, "camera_sd") else ref.camera_token
+    return frames[fi].camera_token
+
+
 # ---------------------------------------------------------------------------------------------
 # Dataset
 
@@ -195,9 +205,16 @@ class CalibDataset(torch.utils.data.Dataset):
         self.train = train
         self.epoch = 0
         self.bad: dict[int, str] = {}  # frame index -> reason, for frames that could not be loaded
+        self.bad_files: dict[int, str | None] = {}  # frame index -> the file that was wrong (None if unknown)
 
     def __len__(self) -> int:
         return len(self.indices)
+
+    def skip_records(self) -> list[dict]:
+        """The frames that could not be loaded so far: ``[{"index", "token", "file", "reason"}]`` sorted by
+        frame index (``token``: the camera sample_data token; ``file``: the bad file, or None)."""
+        return [{"index": int(fi), "token": camera_token(self.frames, fi), "file": self.bad_files.get(fi),
+                 "reason": reason} for fi, reason in sorted(self.bad.items())]
 
     def set_epoch(self, epoch: int) -> None:
         """Training draws new perturbations per epoch; evaluation ignores this."""
@@ -218,6 +235,7 @@ class CalibDataset(torch.utils.data.Dataset):
             return self._sample(i, frame)
         except DataError as e:
             self.bad[fi] = str(e)
+            self.bad_files[fi] = e.path
             log.warning("skipping frame %d: %s", fi, e)
             return None
 

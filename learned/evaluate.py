@@ -10,8 +10,9 @@
      T_gt (4, 4), T_iters (N, 4, 4) the estimate after every iteration (float64), perturbation (6,),
      index (), and ``uncertainty`` when the exporter's per-frame uncertainty is not a (6, 6) covariance.
    ``OUT/export_config.json`` holds the evaluation config, the checkpoint and its model config.
-   Frames already exported are skipped (``overwrite=False``); a frame whose files are bad is listed
-   in ``OUT/skipped.json`` and the run goes on.
+   Frames already exported are skipped (``overwrite=False``); a frame whose files are bad (a corrupt
+   radar PCD or image, ...) is listed in ``OUT/skipped.json`` (``[{"index", "token", "file",
+   "reason"}]``, written on every run) and the run goes on.
 2. ``evaluate_predictions``: read those files and compute the paper's table with
    ``hybrid_calib.metrics`` (rotation Mean/Roll/Pitch/Yaw in degrees, translation Mean/X/Y/Z in cm,
    geodesic angle and translation norm) for the initial error, every iteration and the final
@@ -36,7 +37,7 @@ from hybrid_calib.config import merge, save_json_atomic, to_dict
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.errors import HybridCalibError
 from hybrid_calib.metrics import METRIC_KEYS, STD_KEYS_RADAR, extrinsic_error, format_table, summarize
-from learned.dataset import CalibDataset, DatasetConfig, SplitConfig, collate, split_indices
+from learned.dataset import CalibDataset, DatasetConfig, SplitConfig, camera_token, collate, split_indices
 from learned.depth import DepthCache, build_depth_estimator
 
 
@@ -122,8 +123,7 @@ def export_pure(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig, out
     dataset = CalibDataset(frames, dconf, depth, indices=indices, cache=cache, train=False)
     todo = []
     for i, fi in enumerate(indices):
-        token = frames[fi].camera_token
-        if overwrite or not _frame_file(out, token).is_file():
+        if overwrite or not _frame_file(out, camera_token(frames, fi)).is_file():
             todo.append(i)
     loader = torch.utils.data.DataLoader(dataset, batch_size=conf.batch_size, sampler=todo, collate_fn=collate)
     device = torch.device(conf.device)
@@ -142,11 +142,11 @@ def export_pure(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig, out
             for b, token in enumerate(batch["token"]):
                 m, extra = _measurements(corr[b], batch, b, T_iters[b], unc_np[b], export_conf.iteration)
                 written.append(save_measurements(_frame_file(out, token), m, extra))
-    if dataset.bad:
-        save_json_atomic(out / "skipped.json", {str(k): v for k, v in dataset.bad.items()})
-        if len(dataset.bad) == len(todo):
-            raise HybridCalibError(f"every frame to export failed ({len(todo)}; reasons in {out / 'skipped.json'}); "
-                                   f"first: {next(iter(dataset.bad.values()))}")
+    skipped = dataset.skip_records()  # every frame whose files were bad; the rest of the run went on
+    save_json_atomic(out / "skipped.json", skipped)
+    if skipped and len(skipped) == len(todo):
+        raise HybridCalibError(f"every frame to export failed ({len(todo)}; reasons in {out / 'skipped.json'}); "
+                               f"first: {skipped[0]['reason']}")
     return written
 
 

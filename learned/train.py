@@ -9,6 +9,7 @@ per split, ``learned.dataset.split_indices``), validates on ``val`` after every 
   out/history.png              losses and validation errors per epoch (drawn by ``hybrid-calib train``
                                when training ends: ``hybrid_calib.plots.training.plot_history``)
   out/depth-cache/             estimated depth per frame (``learned.depth.DepthCache``)
+  out/skipped.json             frames whose files are bad, skipped so far: [{"index", "token", "file", "reason"}]
 Re-running with ``resume=True`` continues after the last complete checkpoint; the result is the
 same as an uninterrupted run (shuffling, perturbations and torch's RNG are seeded per epoch).
 """
@@ -263,6 +264,11 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
             if tb is not None:
                 for k, v in vals.items():
                     tb.add_scalar(f"train/{k}", v, (epoch - 1) * len(loader) + step)
+        if n_steps == 0 and not nonfinite and train_set.bad:
+            save_json_atomic(out / "skipped.json", train_set.skip_records() + val_set.skip_records())
+            raise HybridCalibError(f"epoch {epoch}: no training step ran, every frame drawn failed to load "
+                                   f"({len(train_set.bad)} bad; listed in {out / 'skipped.json'}); first: "
+                                   f"{next(iter(train_set.bad.values()))}")
         scheduler.step()
         train_means = {f"train_{k}": v / max(n_steps, 1) for k, v in sums.items()}
         val = validate(model, val_set, conf, device) if len(val_set) else {}
@@ -270,6 +276,8 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
                    "skipped_frames": len(train_set.bad) + len(val_set.bad), "nonfinite_steps": nonfinite,
                    "seconds": round(time.time() - t0, 1)}
         epochs_log.write(metrics)
+        if train_set.bad or val_set.bad:  # which frames were skipped, and why (the count is in epochs.csv)
+            save_json_atomic(out / "skipped.json", train_set.skip_records() + val_set.skip_records())
         if tb is not None:
             for k, v in metrics.items():
                 if k.startswith("val_"):

@@ -17,7 +17,7 @@ from hybrid_calib.data.image_header import image_header
 from hybrid_calib.data.nuscenes import NuScenesRadarCamera
 from hybrid_calib.data.pcd import read_radar_pcd, write_radar_pcd
 from hybrid_calib.errors import DataError
-from tests.tiny_nuscenes import VERSION, make_tiny_root
+from tests.tiny_nuscenes import VERSION, corrupt_jpeg_scan, make_tiny_root
 
 
 @pytest.fixture
@@ -300,7 +300,7 @@ def test_lidar_corrupt_and_missing_channel(tiny):
     ds = _open(tiny, load_lidar=True)
     frames = list(ds)
     assert [f.index for f in frames] == [0, 2, 3]
-    assert "multiple of 5" in ds.skipped[0].reason and str(path) in ds.skipped[0].reason
+    assert "multiple of 20" in ds.skipped[0].reason and str(path) in ds.skipped[0].reason
     assert frames[0].lidar_points.shape == (6, 4) and frames[0].lidar_points.dtype == np.float32
     with pytest.raises(DataError, match="LIDAR_TOP"):
         NuScenesRadarCamera(tiny.root, VERSION, conf={"load_lidar": True, "lidar_channel": "LIDAR_LEFT"})
@@ -327,3 +327,66 @@ def test_inspect_command_reports_skips(tiny, tmp_path, capsys):
     assert conf["conf"]["radar_filter"]["ambig_states"] is None
     png = cv2.imread(str(out / "overlay.png"))
     assert png is not None and png.shape[0] > 100
+
+
+# ---------------------------------------------------------------- accepted silently before (issue 8)
+def test_duplicate_token_is_an_error(tiny):
+    tiny.tables["sample_data"].append(dict(tiny.radar_sd[1]))
+    tiny.rewrite_table("sample_data")
+    with pytest.raises(DataError, match="token appears twice") as e:
+        _open(tiny)
+    assert "sample_data.json" in str(e.value) and tiny.radar_sd[1]["token"] in str(e.value)
+
+
+def test_empty_sample_table_says_so(tiny):
+    tiny.tables["sample"] = []
+    tiny.rewrite_table("sample")
+    with pytest.raises(DataError, match="holds no samples") as e:
+        _open(tiny)
+    assert "sample.json" in str(e.value)
+
+
+@pytest.mark.parametrize("table", ["ego_pose", "calibrated_sensor"])
+def test_quaternion_renormalised_only_within_tolerance(tiny, table):
+    from hybrid_calib.data.tables import QUAT_NORM_TOL
+
+    rec = next(r for r in tiny.tables[table] if r["token"] in (tiny.radar_sd[2]["ego_pose_token"], "cs_RADAR_FRONT"))
+    exact = _open(tiny)[2].T_cam_radar
+    q = np.asarray(rec["rotation"])
+    rec["rotation"] = (q * (1 + 0.5 * QUAT_NORM_TOL)).tolist()  # rounding in the file: renormalised
+    tiny.rewrite_table(table)
+    np.testing.assert_allclose(_open(tiny)[2].T_cam_radar, exact, atol=1e-12)
+    rec["rotation"] = (q * 1.5).tolist()  # far from a rotation: the record is rejected
+    tiny.rewrite_table(table)
+    ds = _open(tiny)
+    frames = list(ds)
+    assert 2 not in [f.index for f in frames]
+    reason = next(r.reason for r in ds.skipped if r.index == 2)
+    assert "norm 1.5" in reason and f"{table}.json" in reason and rec["token"] in reason
+
+
+def test_jpeg_with_corrupt_scan_data(tiny):
+    path = tiny.path(tiny.cam_sd[1])
+    path.write_bytes(corrupt_jpeg_scan(path.read_bytes()))
+    assert image_header(path) == (160, 90)  # the header is sound: the cheap check passes
+    frame = _open(tiny)[1]
+    with pytest.raises(DataError, match="corrupt pixel data") as e:  # decoding checks what OpenCV reports
+        frame.load_image()
+    assert str(path) in str(e.value) and "OpenCV reports" in str(e.value)
+    ds = _open(tiny, decode_images=True)  # eager decode (inspect): a recorded skip
+    assert [f.index for f in ds] == [0, 2, 3]
+    assert "corrupt pixel data" in ds.skipped[0].reason and ds.skipped[0].path == str(path)
+    assert _open(tiny)[0].load_image().shape == (90, 160, 3)  # a sound image still decodes
+
+
+def test_lidar_nan_points_are_counted_in_the_summary(tiny):
+    from hybrid_calib.data.pcd import read_lidar_bin, write_lidar_bin
+    from hybrid_calib.data.summary import summarize_dataset
+
+    path = tiny.path(tiny.lidar_sd[0])
+    pts = read_lidar_bin(path)
+    pts[[1, 3], 0] = np.nan
+    write_lidar_bin(path, pts)
+    ds = _open(tiny, load_lidar=True)
+    assert ds[0].extras["lidar_nonfinite_dropped"] == 2 and len(ds[0].lidar_points) == 4
+    assert summarize_dataset(ds, progress=False).to_json()["groups"][0]["lidar_nonfinite_dropped"] == 2

@@ -122,12 +122,13 @@ def test_missing_files_name_path(tmp_path):
         read_lidar_bin(tmp_path / "none.pcd.bin")
 
 
-def test_lidar_bad_size_names_file(tmp_path):
+@pytest.mark.parametrize("n_bytes", [13 * 4, 20 * 3 + 2, 7])  # whole floats but not whole points; partial floats
+def test_lidar_bad_size_names_file(tmp_path, n_bytes):
     path = tmp_path / "bad.pcd.bin"
-    np.zeros(13, np.float32).tofile(path)
-    with pytest.raises(DataError, match="multiple of 5") as e:
+    path.write_bytes(bytes(n_bytes))
+    with pytest.raises(DataError, match="not a multiple of 20") as e:
         read_lidar_bin(path)
-    assert str(path) in str(e.value)
+    assert str(path) in str(e.value) and f"{n_bytes} bytes" in str(e.value)
 
 
 def test_trailing_bytes_after_body_are_ignored(tmp_path):

@@ -135,3 +135,12 @@ def make_tiny_root(root: Path, n_samples: int = 4, sweeps: int = 0, speed: float
     for name in tables:
         tiny.rewrite_table(name)
     return tiny
+
+
+def corrupt_jpeg_scan(jpeg: bytes) -> bytes:
+    """The same JPEG with its entropy-coded scan data overwritten (header and end marker intact): the
+    cheap header check passes, and the decoder complains (``image_header.decode_image``)."""
+    b = bytearray(jpeg)
+    for i in range(b.find(b"\xff\xda") + 20, len(b) - 2, 3):
+        b[i] = 0xFF if i % 2 else 0xD0
+    return bytes(b)

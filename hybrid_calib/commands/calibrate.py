@@ -6,8 +6,8 @@ import argparse
 from functools import partial
 from pathlib import Path
 
-from hybrid_calib.config import ConfigError, parse_overrides
-from hybrid_calib.errors import HybridCalibError
+from hybrid_calib.commands import nonnegative_int, positive_int
+from hybrid_calib.config import parse_overrides
 from hybrid_calib.perturbation import RANGES
 
 HELP = "calibrate T_cam_radar per vehicle from oracle or exported correspondences (window or batch)"
@@ -21,11 +21,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(factors.io *.npz: the --out of hybrid-calib evaluate, flat, or one sub-directory per "
                         "vehicle)")
     p.add_argument("--mode", default="window", choices=("window", "batch"), help="default: window")
-    p.add_argument("--window", type=int, default=20, help="sliding-window length in frames (default: 20)")
+    p.add_argument("--window", type=positive_int, default=20, help="sliding-window length in frames (default: 20)")
     p.add_argument("--backend", default="gtsam", choices=("gtsam", "ceres"), help="batch back end (default: gtsam)")
     p.add_argument("--start", default="reference", choices=("reference", *RANGES),
                    help="initial extrinsic: the vehicle's tables, or a perturbed truth (default: reference)")
-    p.add_argument("--max-frames", type=int, default=0, help="frames per vehicle, 0 = all (default: 0)")
+    p.add_argument("--max-frames", type=nonnegative_int, default=0, help="frames per vehicle, 0 = all (default: 0)")
     p.add_argument("--seed", type=int, default=0, help="oracle noise and start seed (default: 0)")
     p.add_argument("--out", type=Path, default=Path("outputs/calibrate"),
                    help="run directory (default: outputs/calibrate)")
@@ -46,10 +46,7 @@ def run(args: argparse.Namespace) -> int:
     overrides.update(mode=args.mode, start=args.start, seed=args.seed, max_frames=args.max_frames)
     overrides.setdefault("window", {})["window"] = args.window
     overrides.setdefault("batch", {})["backend"] = args.backend
-    try:
-        conf = merge(CalibrateConfig, overrides)
-    except (ConfigError, ValueError, TypeError) as e:
-        raise HybridCalibError(f"invalid calibration settings: {e}") from None
+    conf = merge(CalibrateConfig, overrides)  # ConfigError (unknown key, wrong type, bad value) names the option
     if (args.out / "result.json").is_file() and not args.overwrite:
         print(f"{args.out / 'result.json'} exists; pass --overwrite to recompute")
     result = calibrate(args.data, args.version, args.correspondences, args.out, conf, overwrite=args.overwrite,
@@ -62,6 +59,8 @@ def run(args: argparse.Namespace) -> int:
             line += f"; error {v.error['rot_mean_deg']:.3f} deg, {v.error['trans_norm_cm']:.2f} cm"
         if v.drift:
             line += f"; drift vs reference: {'YES' if v.drift['drifted'] else 'no'} (p {v.drift['p_value']:.2g})"
+        if v.skipped:
+            line += f"; {len(v.skipped)} frame(s) skipped (bad files; listed in result.json)"
         print(line)
     print(f"wrote {args.out / 'result.json'}")
     return 0

@@ -70,16 +70,17 @@ def run_demo(out: str | Path, conf: DemoConfig | dict | None = None, overwrite: 
 
     conf = merge(DemoConfig, conf)
     out = Path(out)
+    # both stage configs are built (and checked) before anything is written or simulated
+    sim_conf = merge(SimConfig, {"scenario": conf.scenario, "vehicles": 1, "frames": conf.frames,
+                                 "seed": conf.seed, "image_scale": conf.image_scale})
+    cal_conf = merge(CalibrateConfig, {"mode": "window", "start": conf.start, "seed": conf.seed,
+                                       "window": {"window": conf.window}})
     out.mkdir(parents=True, exist_ok=True)
     save_json_atomic(out / "demo_config.json", to_dict(conf))
 
-    sim_conf = merge(SimConfig, {"scenario": conf.scenario, "vehicles": 1, "frames": conf.frames,
-                                 "seed": conf.seed, "image_scale": conf.image_scale})
     root = simulate(sim_conf, out / "sim", overwrite=overwrite)
     png = _overlay(root, out / "projection.png")
 
-    cal_conf = merge(CalibrateConfig, {"mode": "window", "start": conf.start, "seed": conf.seed,
-                                       "window": {"window": conf.window}})
     run = calibrate(root, "v1.0-sim", "oracle", out / "calibration", cal_conf, overwrite=overwrite,
                     on_vehicle=partial(plot_vehicle, out_dir=out / "calibration" / "plots"))
     summary = {"sim_root": str(root), "projection_png": str(png),

@@ -22,8 +22,10 @@ validation split (or a separate root), then check on the test split: the report'
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
+from hybrid_calib.commands import nonnegative_int, positive_int
 from hybrid_calib.config import parse_overrides
 from hybrid_calib.errors import HybridCalibError
 from hybrid_calib.perturbation import RANGES
@@ -46,11 +48,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, type=Path, help="output folder (predictions, results.json/.md)")
     parser.add_argument("--split", default="test",
                         help="test (default; scenes held out in training), val, train, or all (a separate root)")
-    parser.add_argument("--max-frames", type=int, default=0, help="evaluate at most this many frames (0 = all)")
+    parser.add_argument("--max-frames", type=nonnegative_int, default=0,
+                        help="evaluate at most this many frames (0 = all)")
     parser.add_argument("--depth", default=None,
                         help="depth estimator (default: the checkpoint's; real data: depth-anything:/local/model/dir "
                              "or lidar-densified)")
-    parser.add_argument("--nsweeps", type=int, default=1, help="radar sweeps accumulated per frame")
+    parser.add_argument("--nsweeps", type=positive_int, default=1, help="radar sweeps accumulated per frame")
     parser.add_argument("--set", dest="overrides", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
                         help="EvalConfig override, e.g. --set batch_size=8 --set device=cuda (repeatable)")
     parser.add_argument("--fit-uncertainty", action="store_true",
@@ -61,11 +64,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from hybrid_calib.config import merge
     from hybrid_calib.plots.evaluation import plot_error_cdf
     from learned.checkpoint import load_model
     from learned.dataset import open_roots
-    from learned.evaluate import evaluate
+    from learned.evaluate import EvalConfig, evaluate
 
+    user = parse_overrides(args.overrides)
+    merge(EvalConfig, user)  # a bad --set fails here, before the checkpoint and the data are read
     model, ckpt = load_model(args.checkpoint)
     trained = ckpt.train_config or {}
     last = ckpt
@@ -100,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
             raise HybridCalibError("--fit-uncertainty on the test split would leave nothing held out to check it; "
                                    "fit with --split val (or --split all on a separate root)")
         conf["export"]["cov_scale"] = 1.0  # fit against the raw covariance
-    conf.update(parse_overrides(args.overrides))
+    conf.update(user)
     # the LiDAR-camera variant calibrates T_cam_lidar from LiDAR points; lidar-densified depth reads them too
     lidar = model.cfg.variant == "lidar" or conf.get("depth") == "lidar-densified"
     frames = open_roots(args.data, args.version, lidar=lidar, options={"nsweeps": args.nsweeps})
@@ -109,6 +115,12 @@ def run(args: argparse.Namespace) -> int:
                       progress=not args.no_progress)
     plot_error_cdf(result, Path(args.out) / "errors_cdf.png")
     print(result.table())
+    skipped_path = Path(args.out) / "skipped.json"  # frames with bad files, skipped by the export
+    skipped = json.loads(skipped_path.read_text()) if skipped_path.is_file() else []
+    for rec in skipped:
+        print(f"skipped frame {rec['index']} ({rec['token']}): {rec['reason']}")
+    if skipped:
+        print(f"{len(skipped)} frame(s) skipped; listed in {skipped_path}")
     u = result.uncertainty
     if u:
         print(f"exported covariance: mean NEES {u['nees_mean']:.2f} (6 if honest), "

@@ -12,7 +12,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from hybrid_calib.commands import nonnegative_int, positive_int
 from hybrid_calib.config import merge, parse_overrides, save_json_atomic, to_dict
+from hybrid_calib.errors import OptionError
 
 HELP = "summarise a nuScenes-format root (real or simulated): frames, radar points, skipped items, overlay"
 
@@ -22,8 +24,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--version", required=True, help="version folder, e.g. v1.0-mini, v1.0-trainval, v1.0-sim")
     parser.add_argument("--radar", default="RADAR_FRONT", help="radar channel (default RADAR_FRONT)")
     parser.add_argument("--camera", default="CAM_FRONT", help="camera channel (default CAM_FRONT)")
-    parser.add_argument("--nsweeps", type=int, default=1, help="radar sweeps accumulated per frame")
-    parser.add_argument("--frame", type=int, default=None, help="frame index for the overlay (default: first loaded)")
+    parser.add_argument("--nsweeps", type=positive_int, default=1, help="radar sweeps accumulated per frame")
+    parser.add_argument("--frame", type=nonnegative_int, default=None,
+                        help="frame index for the overlay (default: first loaded)")
     parser.add_argument("--out", type=Path, default=None, help="write the JSON summary, config and overlay PNG here")
     parser.add_argument("--set", dest="overrides", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
                         help="DataConfig override, e.g. --set radar_filter.enabled=false (repeatable)")
@@ -37,6 +40,7 @@ def run(args: argparse.Namespace) -> int:
 
     overrides = parse_overrides(args.overrides)
     overrides.setdefault("nsweeps", args.nsweeps)
+    overrides.setdefault("decode_images", True)  # inspect looks for everything that is wrong, pixel data included
     conf = merge(DataConfig, overrides)
     ds = NuScenesRadarCamera(args.data, args.version, args.radar, args.camera, conf)
     summary = summarize_dataset(ds, progress=not args.no_progress)
@@ -49,6 +53,8 @@ def run(args: argparse.Namespace) -> int:
     save_json_atomic(out / "inspect_summary.json", summary.to_json())
     print(f"wrote {out / 'inspect_summary.json'}")
     index = args.frame if args.frame is not None else summary.first_loaded
+    if index is not None and index >= len(ds):
+        raise OptionError("--frame", f"frame {index} does not exist; this root has {len(ds)} frames (0..{len(ds) - 1})")
     if index is not None:
         lidar = conf.lidar_channel in ds.tables.channels()
         frame_ds = ds if (conf.load_lidar or not lidar) else NuScenesRadarCamera(

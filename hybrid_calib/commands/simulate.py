@@ -5,8 +5,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from hybrid_calib.config import ConfigError, merge, parse_overrides
-from hybrid_calib.errors import HybridCalibError
+from hybrid_calib.commands import positive_int
+from hybrid_calib.config import merge, parse_overrides
+from hybrid_calib.errors import OptionError
 from hybrid_calib.sim.drive import SimConfig
 from hybrid_calib.sim.extrinsics import EXTRINSIC_CHANGES
 from hybrid_calib.sim.scenarios import PRESETS
@@ -16,14 +17,14 @@ HELP = "simulate drives (camera, radar, LiDAR, ground truth) and write them as a
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", default="urban", choices=sorted(PRESETS), help="world preset (default: urban)")
-    p.add_argument("--vehicles", type=int, default=1, help="vehicles, one log and scene each (default: 1)")
-    p.add_argument("--frames", type=int, default=200, help="keyframes per vehicle (default: 200)")
+    p.add_argument("--vehicles", type=positive_int, default=1, help="vehicles, one log and scene each (default: 1)")
+    p.add_argument("--frames", type=positive_int, default=200, help="keyframes per vehicle (default: 200)")
     p.add_argument("--seed", type=int, default=0, help="master seed (default: 0)")
     p.add_argument("--out", type=Path, required=True, help="output nuScenes root directory")
     p.add_argument("--extrinsic-change", default="none", choices=EXTRINSIC_CHANGES,
                    help="radar mount movement during each drive (default: none)")
     p.add_argument("--change-frame", type=int, default=-1, help="frame of a step change (default: the middle)")
-    p.add_argument("--workers", type=int, default=1, help="rendering processes (default: 1)")
+    p.add_argument("--workers", type=positive_int, default=1, help="rendering processes (default: 1)")
     p.add_argument("--overwrite", action="store_true", help="re-render everything instead of resuming")
     p.add_argument("--set", action="extend", nargs="+", metavar="KEY=VALUE", default=[],
                    help="SimConfig overrides, e.g. image_scale=0.25 radar.clutter_per_sweep=8 lidar.azimuth_steps=540")
@@ -37,10 +38,11 @@ def run(args: argparse.Namespace) -> int:
     change = dict(overrides.get("extrinsic_change", {}))
     change.update(kind=args.extrinsic_change, frame=args.change_frame)
     overrides["extrinsic_change"] = change
-    try:
-        conf = merge(SimConfig, overrides)
-    except (ConfigError, ValueError, TypeError) as e:
-        raise HybridCalibError(f"invalid simulation settings: {e}") from None
+    conf = merge(SimConfig, overrides)  # ConfigError (unknown key, wrong type, bad value) names the option
+    step = conf.extrinsic_change
+    if step.kind == "step" and not -1 <= step.frame < conf.frames:
+        raise OptionError("--change-frame", f"frame {step.frame} is outside the drive's {conf.frames} frames; pass "
+                                            f"0..{conf.frames - 1} (or -1 for the middle)")
     root = simulate(conf, args.out, overwrite=args.overwrite, workers=args.workers)
     print(f"wrote nuScenes root {root} (version v1.0-sim): {conf.vehicles} vehicle(s) x {conf.frames} frames, "
           f"scenario {conf.scenario}")

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from hybrid_calib.commands import positive_int
 from hybrid_calib.config import parse_overrides
 from hybrid_calib.perturbation import RANGES
 
@@ -26,13 +27,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, type=Path, help="run folder (checkpoints, logs, configs)")
     parser.add_argument("--range", dest="perturbation", default=None, choices=tuple(RANGES),
                         help="perturbation range of the training starts (default R1)")
-    parser.add_argument("--epochs", type=int, default=None, help="number of epochs (overrides the preset)")
+    parser.add_argument("--epochs", type=positive_int, default=None, help="number of epochs (overrides the preset)")
     parser.add_argument("--depth", default=None,
                         help="depth estimator: corrupted-truth (default), lidar-densified or "
                              "depth-anything:/local/model/dir")
     parser.add_argument("--init", default=None, metavar="CKPT",
                         help="start a new run from this checkpoint's weights (fine-tuning; same model config)")
-    parser.add_argument("--nsweeps", type=int, default=1, help="radar sweeps accumulated per frame")
+    parser.add_argument("--nsweeps", type=positive_int, default=1, help="radar sweeps accumulated per frame")
     parser.add_argument("--set", dest="overrides", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
                         help="TrainConfig override, e.g. --set batch_size=4 --set model.feat_dim=32 (repeatable)")
     parser.add_argument("--no-resume", action="store_true", help="fail instead of resuming an existing run")

@@ -52,16 +52,11 @@ class RadarCameraFrame:
         return self.camera.K
 
     def load_image(self) -> np.ndarray:
-        """The camera image as (H, W, 3) uint8 RGB. ``DataError`` if it is missing or undecodable."""
-        import cv2
+        """The camera image as (H, W, 3) uint8 RGB. ``DataError`` if it is missing, undecodable or
+        decodes with corrupt pixel data (``image_header.decode_image``)."""
+        from hybrid_calib.data.image_header import decode_image
 
-        if not Path(self.image_path).is_file():
-            raise DataError("camera image not found", path=str(self.image_path), token=self.camera_token)
-        bgr = cv2.imread(str(self.image_path), cv2.IMREAD_COLOR)
-        if bgr is None:
-            raise DataError("camera image does not decode (corrupt or not a JPEG/PNG); re-export it",
-                            path=str(self.image_path), token=self.camera_token)
-        return bgr[:, :, ::-1].copy()
+        return decode_image(self.image_path, self.camera_token)[:, :, ::-1].copy()
 
     def load_depth(self) -> np.ndarray | None:
         """Ground-truth depth (H, W) float32 metres (0 = no return), or None when the dataset has none."""

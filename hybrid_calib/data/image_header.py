@@ -10,7 +10,11 @@ test here is what catches that case.
 
 from __future__ import annotations
 
+import contextlib
+import os
 import struct
+import sys
+import tempfile
 from pathlib import Path
 
 from hybrid_calib.errors import DataError
@@ -94,3 +98,62 @@ def _jpeg_size(f) -> tuple[int, int] | None:
         if b != b"\xff":
             return None
         f.seek(-1, 1)
+
+
+# What libjpeg (inside OpenCV) prints when it decodes a JPEG whose scan data is damaged: OpenCV
+# still returns an image (grey-filled or garbled), so this text is the only sign.
+_DECODER_COMPLAINTS = ("corrupt jpeg data", "premature end", "invalid", "bogus", "unsupported marker",
+                       "huffman", "libpng error", "crc error")
+
+
+def decode_image(path: str | Path, token: str | None = None):
+    """Decode a JPEG/PNG with OpenCV -> (H, W, 3) uint8 BGR, and check what the decoder reports.
+
+    Raises ``DataError`` naming the file (and ``token``) when the file is missing, does not decode,
+    or decodes with a warning from the JPEG/PNG library (corrupt scan data behind a valid header).
+    The library writes those warnings to the process's stderr, so it is captured around the decode;
+    anything else it wrote is passed on.
+    """
+    import cv2
+
+    path = Path(path)
+    if not path.is_file():
+        raise DataError("camera image not found", path=str(path), token=token)
+    with _captured_stderr() as captured:
+        bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    report = captured.text.strip()
+    if bgr is None:
+        raise DataError(f"camera image does not decode (corrupt or not a JPEG/PNG{': ' + report if report else ''}); "
+                        "re-export it", path=str(path), token=token)
+    if any(c in report.lower() for c in _DECODER_COMPLAINTS):
+        raise DataError(f"camera image has corrupt pixel data (OpenCV reports: {report.splitlines()[0]}); the file is "
+                        "damaged, re-download or re-export it", path=str(path), token=token)
+    if report:
+        sys.stderr.write(report + "\n")
+    return bgr
+
+
+class _Captured:
+    text = ""
+
+
+@contextlib.contextmanager
+def _captured_stderr():
+    """Capture what native code writes to file descriptor 2 while the block runs (``.text`` after)."""
+    out = _Captured()
+    sys.stderr.flush()
+    try:
+        fd = sys.__stderr__.fileno() if sys.__stderr__ is not None else 2
+        saved = os.dup(fd)
+    except (OSError, ValueError, AttributeError):  # no real stderr (embedded interpreter): decode uncaptured
+        yield out
+        return
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), fd)
+        try:
+            yield out
+        finally:
+            os.dup2(saved, fd)
+            os.close(saved)
+            tmp.seek(0)
+            out.text = tmp.read().decode("utf-8", errors="replace")

@@ -15,7 +15,11 @@ Bad input policy:
 - Points with NaN/inf coordinates are dropped and counted (``extras["radar_nonfinite_dropped"]``);
   a sweep in which every point is NaN is rejected.
 - Images are checked eagerly but cheaply (signature, size and end marker, no decode; see
-  ``image_header``); ``RadarCameraFrame.load_image`` decodes lazily.
+  ``image_header``); ``RadarCameraFrame.load_image`` decodes lazily and rejects an image whose
+  decoder reports corrupt data (``decode_images=True`` does that in ``dataset[i]``, as ``inspect`` does).
+- Tables: a duplicate token, or an ego-pose / calibration quaternion whose norm is off 1 by more
+  than ``tables.QUAT_NORM_TOL`` (renormalised within it), is a ``DataError``; a ``sample`` table
+  without samples too.
 
 ``frame.extras`` keys (all (4, 4) float64 transforms follow docs/conventions.md):
   T_ego_cam, T_ego_radar: calibrated_sensor extrinsics; T_global_ego_cam, T_global_ego_radar: ego
@@ -40,10 +44,10 @@ from typing import Any
 
 import numpy as np
 
-from hybrid_calib.config import merge
+from hybrid_calib.config import ConfigError, merge
 from hybrid_calib.data.filters import RadarFilterConfig
 from hybrid_calib.data.frame import RadarCameraFrame
-from hybrid_calib.data.image_header import image_header
+from hybrid_calib.data.image_header import decode_image, image_header
 from hybrid_calib.data.pcd import read_lidar_bin
 from hybrid_calib.data.sweeps import accumulate_radar
 from hybrid_calib.data.tables import NuScenesTables
@@ -63,6 +67,7 @@ class DataConfig:
     on_error: str = "skip"  # iteration: "skip" records bad frames in .skipped and goes on, "raise" stops
     skip_empty_radar: bool = True  # a frame with zero radar points after filtering is an error (skipped)
     check_images: bool = True  # eager image header check (signature, size, end marker; no decode)
+    decode_images: bool = False  # also decode each image in dataset[i] and reject corrupt pixel data (slower)
 
 
 @dataclass(frozen=True)
@@ -106,9 +111,9 @@ class NuScenesRadarCamera:
                  camera_channel: str = "CAM_FRONT", conf: DataConfig | dict | None = None):
         self.conf = merge(DataConfig, conf)
         if self.conf.on_error not in ("skip", "raise"):
-            raise ValueError(f"on_error must be 'skip' or 'raise', got {self.conf.on_error!r}")
+            raise ConfigError(f"DataConfig.on_error must be 'skip' or 'raise', got {self.conf.on_error!r}")
         if int(self.conf.nsweeps) < 1:
-            raise ValueError(f"nsweeps must be >= 1, got {self.conf.nsweeps}")
+            raise ConfigError(f"DataConfig.nsweeps (--nsweeps) must be >= 1, got {self.conf.nsweeps}")
         self.root = Path(root)
         self.version = version
         self.radar_channel = radar_channel
@@ -225,6 +230,8 @@ class NuScenesRadarCamera:
                                 "file does not belong to this record or was resized", path=str(image_path),
                                 token=cam["token"])
             width, height = w_file, h_file
+        if self.conf.decode_images:
+            decode_image(image_path, cam["token"])
         camera = PinholeCamera.from_K(t.camera_intrinsic(cam), width, height)
 
         T_ego_cam, T_ego_radar = t.T_ego_sensor(cam), t.T_ego_sensor(rad)

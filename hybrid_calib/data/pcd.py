@@ -123,13 +123,16 @@ def read_lidar_bin(path: str | Path, n_fields: int = 5) -> np.ndarray:
     """nuScenes LIDAR_TOP ``.pcd.bin`` (float32 x 5: x, y, z, intensity, ring) -> (N, 5) float32."""
     path = Path(path)
     try:
-        raw = np.fromfile(path, dtype=np.float32)
+        data = path.read_bytes()
     except FileNotFoundError:
         raise DataError("LiDAR file not found", path=str(path)) from None
-    if raw.size % n_fields:
-        raise DataError(f"LiDAR file size is not a multiple of {n_fields} float32 values; the file is corrupt",
-                        path=str(path))
-    return raw.reshape(-1, n_fields)
+    except OSError as e:
+        raise DataError(f"cannot read LiDAR file: {e}", path=str(path)) from None
+    point_bytes = 4 * n_fields
+    if len(data) % point_bytes:
+        raise DataError(f"LiDAR file size {len(data)} bytes is not a multiple of {point_bytes} ({n_fields} float32 "
+                        "values per point); the file is truncated or corrupt, re-download it", path=str(path))
+    return np.frombuffer(data, dtype="<f4").reshape(-1, n_fields).copy()
 
 
 def write_lidar_bin(path: str | Path, points: np.ndarray) -> Path:

@@ -7,7 +7,7 @@
      "n_frames": int, "n_loaded": int, "n_skipped": int,
      "groups": [{"scene": str, "vehicle": str, "log_token": str, "frames": int, "loaded": int,
                  "radar_points_per_sweep": {"mean": float, "min": int, "max": int},
-                 "radar_points_raw_mean": float, "radar_nonfinite_dropped": int,
+                 "radar_points_raw_mean": float, "radar_nonfinite_dropped": int, "lidar_nonfinite_dropped": int,
                  "dt_radar_minus_camera_ms": {"mean": float, "min": float, "max": float}}],
      "skipped": [{"index": int | null, "token": str, "path": str | null, "reason": str}]}
 """
@@ -33,6 +33,7 @@ class GroupSummary:
     radar_points: list[int] = field(default_factory=list)  # per loaded frame, after filtering
     radar_raw: list[int] = field(default_factory=list)  # per loaded frame, before filtering
     nonfinite: int = 0  # NaN/inf radar points dropped
+    lidar_nonfinite: int = 0  # NaN/inf LiDAR points dropped (when LiDAR is loaded)
     dt_ms: list[float] = field(default_factory=list)  # radar minus camera timestamp, milliseconds
 
     def to_json(self) -> dict[str, Any]:
@@ -42,7 +43,7 @@ class GroupSummary:
                     loaded=self.loaded,
                     radar_points_per_sweep=dict(mean=float(pts.mean()), min=int(pts.min()), max=int(pts.max())),
                     radar_points_raw_mean=float(np.mean(self.radar_raw)) if self.radar_raw else 0.0,
-                    radar_nonfinite_dropped=self.nonfinite,
+                    radar_nonfinite_dropped=self.nonfinite, lidar_nonfinite_dropped=self.lidar_nonfinite,
                     dt_radar_minus_camera_ms=dict(mean=float(np.mean(dt)), min=float(np.min(dt)),
                                                   max=float(np.max(dt))))
 
@@ -82,6 +83,9 @@ class DatasetSummary:
             lines.append(f"{g.scene[:24]:24s} {g.vehicle[:12]:12s} {g.frames:6d} {g.loaded:6d} "
                          f"{p['mean']:7.1f} [{p['min']:3d},{p['max']:4d}] {j['radar_points_raw_mean']:6.1f} "
                          f"{g.nonfinite:5d} {j['dt_radar_minus_camera_ms']['mean']:7.1f}")
+        if not self.n_frames:
+            lines.append(f"no frames: no sample has both a {self.radar_channel} and a {self.camera_channel} keyframe "
+                         "(the skipped items below say why); check --radar/--camera and the tables")
         for s in self.skipped:
             lines.append(f"skipped frame {s['index'] if s['index'] is not None else '-'}: {s['reason']}")
         return "\n".join(lines)
@@ -102,6 +106,7 @@ def summarize_dataset(ds: NuScenesRadarCamera, progress: bool = True) -> Dataset
         g.radar_points.append(len(f.radar_points))
         g.radar_raw.append(int(f.extras["radar_points_raw"]))
         g.nonfinite += int(f.extras["radar_nonfinite_dropped"])
+        g.lidar_nonfinite += int(f.extras.get("lidar_nonfinite_dropped", 0))
         g.dt_ms.append((f.timestamp_radar_us - f.timestamp_camera_us) / 1000.0)
         first = f.index if first is None else first
     return DatasetSummary(str(ds.root), ds.version, ds.radar_channel, ds.camera_channel, list(groups.values()),

@@ -118,7 +118,11 @@ class NuScenesTables:
         for name, fields in REQUIRED_TABLES.items():
             recs = load_table(self.vdir, name, fields)
             self.records[name] = recs
-            self.by_token[name] = {r["token"]: r for r in recs}
+            self.by_token[name] = _index_by_token(recs, self.vdir / f"{name}.json")
+        if not self.records["sample"]:
+            raise DataError("table 'sample' holds no samples, so this version folder has no frames to read; "
+                            "point --data/--version at a dataset with samples (e.g. v1.0-mini)",
+                            path=str(self.path("sample")))
         # calibrated_sensor token -> sensor record (channel, modality); unresolved ones raise on use.
         self._sensor_of_cs: dict[str, dict] = {}
         for cs in self.records["calibrated_sensor"]:
@@ -219,9 +223,41 @@ class NuScenesTables:
         return K
 
 
+def _index_by_token(records: list[dict], path: Path) -> dict[str, dict]:
+    """token -> record; ``DataError`` naming the file and the token when a token appears twice."""
+    out: dict[str, dict] = {}
+    for i, rec in enumerate(records):
+        token = rec["token"]
+        if token in out:
+            raise DataError(f"token appears twice in table {path.stem!r} (records {records.index(out[token])} and "
+                            f"{i}); tokens must be unique, so the table is corrupt or two tables were merged: "
+                            "re-extract the metadata", path=str(path), token=token)
+        out[token] = rec
+    return out
+
+
+QUAT_NORM_TOL = 1e-3  # |norm(q) - 1| up to this is rounding in the file: renormalised; beyond it the record is rejected
+
+
+def _unit_quaternion(rec: dict, path: Path) -> np.ndarray:
+    """A record's ``rotation`` [w, x, y, z] as a unit quaternion; ``DataError`` when its norm is far from 1."""
+    try:
+        q = np.asarray(rec["rotation"], dtype=np.float64)
+    except (ValueError, TypeError):
+        q = np.full(0, np.nan)
+    if q.shape != (4,) or not np.all(np.isfinite(q)):
+        raise DataError(f"rotation {rec['rotation']!r} is not a finite [w, x, y, z] quaternion", path=str(path),
+                        token=rec.get("token"))
+    norm = float(np.linalg.norm(q))
+    if abs(norm - 1.0) > QUAT_NORM_TOL:
+        raise DataError(f"rotation quaternion has norm {norm:.6g}, not 1 (tolerance {QUAT_NORM_TOL:g}); the "
+                        "record is corrupt: fix or re-extract it", path=str(path), token=rec.get("token"))
+    return q / norm
+
+
 def _pose(rec: dict, path: Path) -> np.ndarray:
     try:
-        T = pose_from_nuscenes(rec["rotation"], rec["translation"])
+        T = pose_from_nuscenes(_unit_quaternion(rec, path), rec["translation"])
     except (ValueError, TypeError) as e:
         raise DataError(f"invalid rotation/translation ({e}); expected a [w, x, y, z] unit quaternion and "
                         "[x, y, z] metres", path=str(path), token=rec.get("token")) from None

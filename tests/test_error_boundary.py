@@ -1,0 +1,309 @@
+"""The command line's error boundary: bad input, tried as a new user would, ends in one clear message
+on stderr that names the file / option and what to do, a non-zero exit, and no traceback
+(``hybrid_calib.cli.main``). Commands run in-process on tiny data, so the whole file takes seconds."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+import torch
+
+from hybrid_calib.cli import EXIT_BUG, EXIT_ERROR, main
+from hybrid_calib.config import ConfigError, check_type, merge
+from hybrid_calib.errors import CheckpointError, HybridCalibError, OptionError, check_out_dir
+from learned.checkpoint import load_checkpoint, save_checkpoint
+from tests.tiny_nuscenes import VERSION, corrupt_jpeg_scan, make_tiny_root
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    """A clean tiny root shared by the cases that do not change it."""
+    return make_tiny_root(tmp_path_factory.mktemp("tiny") / "root", n_samples=3)
+
+
+@pytest.fixture
+def tiny_copy(tiny, tmp_path):
+    """A private copy of the tiny root, for cases that corrupt it."""
+    root = tmp_path / "copy"
+    shutil.copytree(tiny.root, root)
+    return root
+
+
+def _run(argv: list[str], capsys) -> tuple[int, str]:
+    """``hybrid-calib ARGV`` in-process -> (exit status, stderr); argparse errors exit via SystemExit."""
+    try:
+        rc = main([str(a) for a in argv])
+    except SystemExit as e:
+        rc = e.code
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    return rc, err
+
+
+def _expect_error(argv, capsys, *needles, rc=EXIT_ERROR) -> str:
+    got, err = _run(argv, capsys)
+    assert got == rc, err
+    for needle in needles:
+        assert str(needle) in err, (needle, err)
+    return err
+
+
+def _data_args(command: str, root, out) -> list:
+    return {
+        "inspect": ["inspect", "--data", root, "--version", VERSION, "--no-progress"],
+        "calibrate": ["calibrate", "--data", root, "--version", VERSION, "--out", out, "--no-plots"],
+        "train": ["train", "--data", root, "--version", VERSION, "--out", out, "--no-progress"],
+        "evaluate": ["evaluate", "--data", root, "--version", VERSION, "--out", out, "--no-progress",
+                     "--checkpoint", out / "none.json"],
+    }[command]
+
+
+DATA_COMMANDS = ("inspect", "calibrate", "train", "evaluate")
+
+
+# ---------------------------------------------------------------- roots, versions, tables
+@pytest.mark.parametrize("command", ("inspect", "calibrate", "train"))  # evaluate reads its checkpoint first
+def test_missing_root(command, tmp_path, capsys):
+    _expect_error(_data_args(command, tmp_path / "nowhere", tmp_path / "out"), capsys,
+                  "not a directory", tmp_path / "nowhere")
+
+
+@pytest.mark.parametrize("command", ("inspect", "calibrate", "train"))
+def test_wrong_version_lists_the_versions(command, tiny, tmp_path, capsys):
+    argv = [a if a != VERSION else "v1.0-trainval" for a in _data_args(command, tiny.root, tmp_path / "out")]
+    _expect_error(argv, capsys, "'v1.0-trainval' does not exist", VERSION, "--version")
+
+
+@pytest.mark.parametrize("command", ("inspect", "calibrate", "train"))
+@pytest.mark.parametrize("case", ["missing-table", "corrupt-table", "duplicate-token", "no-samples"])
+def test_bad_tables(command, case, tiny_copy, tmp_path, capsys):
+    vdir = tiny_copy / VERSION
+    if case == "missing-table":
+        (vdir / "log.json").unlink()
+        needles = ("table 'log' is missing", vdir / "log.json")
+    elif case == "corrupt-table":
+        (vdir / "sample_data.json").write_text((vdir / "sample_data.json").read_text()[:500])
+        needles = ("not valid JSON", vdir / "sample_data.json")
+    elif case == "duplicate-token":
+        recs = json.loads((vdir / "ego_pose.json").read_text())
+        (vdir / "ego_pose.json").write_text(json.dumps(recs + [dict(recs[2])]))
+        needles = ("token appears twice", recs[2]["token"], vdir / "ego_pose.json")
+    else:
+        (vdir / "sample.json").write_text("[]")
+        needles = ("holds no samples", vdir / "sample.json")
+    _expect_error(_data_args(command, tiny_copy, tmp_path / "out"), capsys, *needles)
+
+
+# ---------------------------------------------------------------- --set
+SET_CASES = [
+    # (command, override, words the message must hold)
+    ("inspect", "nosuchkey=1", ["nosuchkey", "valid options"]),
+    ("inspect", "nsweeps=abc", ["nsweeps='abc'", "integer"]),
+    ("inspect", "load_lidar=off", ["load_lidar='off'", "bool"]),
+    ("inspect", "on_error=ignore", ["on_error", "'skip' or 'raise'"]),
+    ("inspect", "nsweeps", ["--set 'nsweeps'", "KEY=VALUE"]),
+    ("inspect", "radar_filter=5", ["radar_filter=5", "--set radar_filter.KEY=VALUE"]),
+    ("calibrate", "nosuchkey=1", ["nosuchkey", "CalibrateConfig"]),
+    ("calibrate", "oracle.outlier_frac=abc", ["oracle.outlier_frac='abc'", "number"]),
+    ("calibrate", "window.factor.kernel=nosuch", ["kernel='nosuch'", "tukey"]),
+    ("train", "nosuchkey=1", ["nosuchkey", "TrainConfig"]),
+    ("train", "lr=abc", ["lr='abc'", "number"]),
+    ("train", "model.use_mca=off", ["model.use_mca='off'", "bool", "--set model.use_mca=true"]),
+    ("evaluate", "nosuchkey=1", ["nosuchkey", "EvalConfig"]),
+    ("evaluate", "batch_size=abc", ["batch_size='abc'", "integer"]),
+]
+
+
+@pytest.mark.parametrize("command,override,needles", SET_CASES, ids=[f"{c}-{o}" for c, o, _ in SET_CASES])
+def test_bad_set_is_a_clear_error(command, override, needles, tiny, tmp_path, capsys):
+    _expect_error(_data_args(command, tiny.root, tmp_path / "out") + ["--set", override], capsys, *needles)
+
+
+@pytest.mark.parametrize("argv,needles", [
+    (["simulate", "--set", "image_scale=abc"], ["image_scale='abc'", "number"]),
+    (["simulate", "--set", "radar.nosuch=1"], ["nosuch", "RadarConfig at radar;"]),
+    (["demo", "--set", "frames=abc"], ["frames='abc'", "integer"]),
+    (["demo", "--set", "start=R9"], ["'R9'", "R1"]),
+    (["demo", "--set", "frames=0"], ["frames=0"]),
+], ids=["sim-type", "sim-nested-unknown", "demo-type", "demo-enum", "demo-zero"])
+def test_bad_set_simulate_and_demo(argv, needles, tmp_path, capsys):
+    _expect_error(argv + ["--out", tmp_path / "out"], capsys, *needles)
+    assert not (tmp_path / "out").exists()  # checked before anything is written
+
+
+# ---------------------------------------------------------------- --out and counts
+@pytest.mark.parametrize("command", ["simulate", "demo", *DATA_COMMANDS])
+def test_out_that_is_a_file(command, tiny, tmp_path, capsys):
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    argv = _data_args(command, tiny.root, afile) if command in DATA_COMMANDS else [command, "--out", afile]
+    if command == "inspect":
+        argv += ["--out", afile]
+    _expect_error(argv, capsys, "--out", afile, "existing file")
+    assert afile.read_text() == "x"
+
+
+def test_out_below_a_file(tmp_path):
+    (tmp_path / "afile").write_text("x")
+    with pytest.raises(OptionError, match="is a file"):
+        check_out_dir(tmp_path / "afile" / "run")
+    check_out_dir(tmp_path / "new" / "run")  # a directory to create is fine
+
+
+@pytest.mark.parametrize("argv,option", [
+    (["simulate", "--frames", "0"], "--frames"),
+    (["simulate", "--vehicles", "-1"], "--vehicles"),
+    (["simulate", "--workers", "0"], "--workers"),
+    (["simulate", "--frames", "x"], "--frames"),
+    (["calibrate", "--data", "d", "--window", "0"], "--window"),
+    (["calibrate", "--data", "d", "--max-frames", "-1"], "--max-frames"),
+    (["train", "--data", "d", "--epochs", "0"], "--epochs"),
+    (["evaluate", "--data", "d", "--checkpoint", "c", "--max-frames", "-2"], "--max-frames"),
+    (["inspect", "--data", "d", "--version", "v", "--nsweeps", "0"], "--nsweeps"),
+], ids=lambda v: " ".join(v) if isinstance(v, list) else v)
+def test_bad_counts_are_usage_errors(argv, option, tmp_path, capsys):
+    _expect_error(argv + ["--out", tmp_path / "out"], capsys, f"argument {option}:")
+
+
+def test_change_frame_outside_the_drive(tmp_path, capsys):
+    _expect_error(["simulate", "--out", tmp_path / "s", "--frames", "4", "--extrinsic-change", "step",
+                   "--change-frame", "9"], capsys, "--change-frame", "0..3")
+
+
+def test_inspect_frame_out_of_range(tiny, tmp_path, capsys):
+    _expect_error(_data_args("inspect", tiny.root, tmp_path) + ["--out", tmp_path / "o", "--frame", "7"], capsys,
+                  "--frame", "3 frames")
+
+
+# ---------------------------------------------------------------- checkpoints
+@pytest.fixture
+def small_ckpt(tmp_path):
+    model = torch.nn.Linear(3, 2)
+    path = save_checkpoint(tmp_path / "ck" / "ckpt-0001", model, epoch=1, model_config={"k": 1},
+                           optimizer=torch.optim.SGD(model.parameters(), lr=0.1))
+    return path, model
+
+
+@pytest.mark.parametrize("case", ["missing-json", "truncated-json", "not-a-checkpoint", "missing-weights",
+                                  "truncated-weights", "garbage-weights", "json-names-a-pickle", "pickle-path",
+                                  "corrupt-optimizer"])
+def test_bad_checkpoint_names_the_file(case, small_ckpt, tmp_path):
+    path, model = small_ckpt
+    weights = path.with_suffix(".safetensors")
+    kwargs = {"model": torch.nn.Linear(3, 2)}
+    named = path
+    if case == "missing-json":
+        path.unlink()
+    elif case == "truncated-json":
+        path.write_text(path.read_text()[:40])
+    elif case == "not-a-checkpoint":
+        path.write_text(json.dumps({"epoch": 1}))
+    elif case == "missing-weights":
+        weights.unlink()
+    elif case in ("truncated-weights", "garbage-weights"):
+        weights.write_bytes(weights.read_bytes()[:30] if case == "truncated-weights" else bytes(range(256)) * 4)
+        named = weights
+    elif case == "json-names-a-pickle":
+        meta = json.loads(path.read_text())
+        meta["files"]["weights"] = "ckpt-0001.pt"
+        path.write_text(json.dumps(meta))
+        torch.save(model.state_dict(), path.with_suffix(".pt"))
+    elif case == "pickle-path":
+        torch.save(model.state_dict(), tmp_path / "model.pt")
+        path = named = tmp_path / "model.pt"
+    else:
+        path.with_suffix(".optim.pt").write_bytes(b"garbage")
+        kwargs["optimizer"] = torch.optim.SGD(kwargs["model"].parameters(), lr=0.1)
+        named = path.with_suffix(".optim.pt")
+    with pytest.raises(CheckpointError) as e:
+        load_checkpoint(path, **kwargs)
+    assert str(named) in str(e.value)
+    if "pickle" in case:
+        assert "never loads pickle" in str(e.value)
+
+
+@pytest.mark.parametrize("case", ["missing", "truncated-json", "pickle"])
+def test_evaluate_with_a_bad_checkpoint(case, tiny, small_ckpt, tmp_path, capsys):
+    path, model = small_ckpt
+    if case == "missing":
+        path = tmp_path / "none.json"
+    elif case == "truncated-json":
+        path.write_text(path.read_text()[:40])
+    else:
+        path = tmp_path / "model.pth"
+        torch.save(model.state_dict(), path)
+    argv = ["evaluate", "--data", tiny.root, "--version", VERSION, "--checkpoint", path, "--out", tmp_path / "e"]
+    _expect_error(argv, capsys, path)
+
+
+# ---------------------------------------------------------------- bugs and --debug
+def test_a_bug_is_one_line_with_a_debug_hint(monkeypatch, tmp_path, capsys):
+    import hybrid_calib.commands.simulate as simulate
+
+    def boom(args):
+        raise ZeroDivisionError("a bug")
+
+    monkeypatch.setattr(simulate, "run", boom)
+    monkeypatch.delenv("HYBRID_CALIB_DEBUG", raising=False)
+    err = _expect_error(["simulate", "--out", tmp_path / "s"], capsys, "internal error: ZeroDivisionError: a bug",
+                        "--debug", rc=EXIT_BUG)
+    assert len(err.strip().splitlines()) == 2
+    with pytest.raises(ZeroDivisionError):
+        main(["simulate", "--out", str(tmp_path / "s"), "--debug"])
+    with pytest.raises(HybridCalibError):  # --debug re-raises expected errors too
+        main(["inspect", "--data", str(tmp_path / "nowhere"), "--version", "v", "--debug"])
+
+
+# ---------------------------------------------------------------- the type-checked merge
+def test_check_type():
+    assert check_type(True, bool) and not check_type("off", bool) and not check_type(1, bool)
+    assert check_type(3, int) and not check_type(True, int) and not check_type(3.0, int)
+    assert check_type(3, float) and check_type(0.5, float) and not check_type("0.5", float)
+    assert check_type(None, tuple[int, ...] | None) and check_type([1, 2], tuple[int, ...] | None)
+    assert not check_type([1, "a"], tuple[int, ...]) and not check_type(5, tuple[int, ...])
+    assert check_type([1.0, 2], tuple[float, float]) and not check_type([1.0], tuple[float, float])
+    assert check_type({"a": 1}, dict) and not check_type([1], dict[str, int])
+    assert check_type(0.5, float | tuple) and check_type([1, 2], float | tuple)
+    assert check_type(np.int64(2), int) and check_type(np.float32(0.5), float) and check_type(np.bool_(True), bool)
+    assert not check_type(np.bool_(True), int)
+    assert check_type(np.zeros(3), np.ndarray)  # classes it does not know are left alone
+
+
+def test_merge_rejects_wrong_types_and_keeps_good_ones():
+    from hybrid_calib.data.nuscenes import DataConfig
+
+    conf = merge(DataConfig, {"nsweeps": 3, "scenes": ["a"], "radar_filter": {"ambig_states": None}})
+    assert conf.nsweeps == 3 and conf.scenes == ("a",) and conf.radar_filter.ambig_states is None
+    with pytest.raises(ConfigError, match=r"radar_filter\.enabled='no'"):
+        merge(DataConfig, {"radar_filter": {"enabled": "no"}})
+    assert issubclass(ConfigError, HybridCalibError) and issubclass(ConfigError, ValueError)
+
+
+# ---------------------------------------------------------------- evaluate goes on past bad frames
+def test_evaluate_skips_frames_with_a_corrupt_pcd_or_image(tmp_path):
+    """A truncated radar PCD and a JPEG with corrupt scan data: both frames are listed in skipped.json
+    (index, token, file, reason) and the other frames are evaluated."""
+    sim = pytest.importorskip("hybrid_calib.sim.simulate")
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+    from hybrid_calib.sim.drive import SimConfig
+    from learned.evaluate import EvalConfig, evaluate
+    from tests.test_learned_pipeline import OracleModel, oracle_exporter
+
+    root = sim.simulate(merge(SimConfig, {"frames": 4, "image_scale": 0.125, "seed": 5}), tmp_path / "sim",
+                        overwrite=False, workers=1)
+    ds = NuScenesRadarCamera(root, "v1.0-sim")
+    pcd = root / ds.frames[1].radar_sd["filename"]
+    pcd.write_bytes(pcd.read_bytes()[:300])
+    jpg = root / ds.frames[2].camera_sd["filename"]
+    jpg.write_bytes(corrupt_jpeg_scan(jpg.read_bytes()))
+    out = tmp_path / "eval"
+    result = evaluate(OracleModel(), ds, EvalConfig(split="all"), out, exporter=oracle_exporter, progress=False)
+    assert result.n_frames == 2
+    skipped = json.loads((out / "skipped.json").read_text())
+    assert [s["index"] for s in skipped] == [1, 2]
+    assert [s["token"] for s in skipped] == [ds.frames[1].camera_sd["token"], ds.frames[2].camera_sd["token"]]
+    assert [s["file"] for s in skipped] == [str(pcd), str(jpg)]
+    assert "truncated PCD" in skipped[0]["reason"] and "corrupt pixel data" in skipped[1]["reason"]
