@@ -19,8 +19,7 @@ from factors.correspondences import Correspondences
 from hybrid_calib.calib.covariance import (
     CovarianceConfig,
     analyse_information,
-    information_from_graph,
-    marginal_covariance,
+    graph_covariance,
     prior_pinned_std,
 )
 from hybrid_calib.calib.result import Estimate
@@ -82,16 +81,13 @@ def solve_batch(frames: list[Correspondences], T_init: np.ndarray, conf: BatchCo
     if conf.backend == "gtsam":
         res = robust_solve(frames, T_init, conf.factor, priors, conf.schedule, convex_start=True)
         t0 = time.perf_counter()
-        info = information_from_graph(res.graph, res.values, X)
-        cov, why = marginal_covariance(res.graph, res.values, X)
-        rep = analyse_information(res.T, info, conf.covariance, cov_hint=cov,
-                                  pinned_std=prior_pinned_std(conf.factor), external_info=_prior_info(priors))
+        info, cov, why = graph_covariance(res.graph, res.values, X)
         T, iters, secs = res.T, res.iterations, res.seconds
-        cov_s = time.perf_counter() - t0
     else:
-        T, info, cov, why, iters, secs, cov_s = _solve_ceres(frames, T_init, conf, priors)
-        rep = analyse_information(T, info, conf.covariance, cov_hint=cov,
-                                  pinned_std=prior_pinned_std(conf.factor), external_info=_prior_info(priors))
+        T, info, cov, why, iters, secs, t0 = _solve_ceres(frames, T_init, conf, priors)
+    rep = analyse_information(T, info, conf.covariance, cov_hint=cov, pinned_std=prior_pinned_std(conf.factor),
+                              external_info=_prior_info(priors))
+    cov_s = time.perf_counter() - t0
     fractions = [frame_information(T, f, conf.factor, conf.schedule.final_gate)[2] for f in frames if len(f)]
     inl = float(np.mean(fractions)) if fractions else 0.0
     return BatchResult(Estimate.from_report(T, rep, info, why), conf.backend, iters, secs, cov_s, len(frames),
@@ -106,7 +102,8 @@ def _prior_info(priors: list[GaussianPrior] | None) -> np.ndarray:
 def _solve_ceres(frames, T_init, conf: BatchConfig, priors):
     """The schedule (``run_schedule``, the same ``ScheduleConfig`` as GTSAM) with Ceres solving each
     stage; the covariance from Ceres at the last stage, the information for the status from the
-    same residuals (``frame_information``, gated least squares)."""
+    same residuals (``frame_information``, gated least squares). Returns (T, info, cov or None, why
+    cov is None, iterations, solve seconds, perf_counter at the start of the covariance)."""
     from factors.ceres_costs import ceres_covariance, solve_ceres_stage
 
     if priors and len(priors) > 1:
@@ -126,8 +123,7 @@ def _solve_ceres(frames, T_init, conf: BatchConfig, priors):
     cov = None if last.failure else ceres_covariance(last.state)
     T = last.T
     info = sum((frame_information(T, f, conf.factor, sched.final_gate)[1] for f in frames if len(f)), np.zeros((6, 6)))
-    if prior is not None:
-        info = info + np.linalg.inv(prior[1])
+    info = info + _prior_info(priors)
     why = "" if cov is not None else \
         f"ceres covariance unavailable ({last.failure or 'rank-deficient'}); using the regularised pseudo-inverse"
-    return T, np.asarray(info), cov, why, iters, secs, time.perf_counter() - t1
+    return T, np.asarray(info), cov, why, iters, secs, t1

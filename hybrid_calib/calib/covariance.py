@@ -312,3 +312,11 @@ def information_from_graph(graph, values, key: int) -> np.ndarray:
     A, b = lin.jacobian(ordering)
     A = np.asarray(A, dtype=np.float64)
     return A.T @ A
+
+
+def graph_covariance(graph, values, key: int) -> tuple[np.ndarray, np.ndarray | None, str]:
+    """What ``analyse_information`` reads from a solved GTSAM graph: the information (6, 6) of
+    ``key`` (``information_from_graph``), its ``gtsam.Marginals`` covariance (6, 6) or None, and
+    why that is None ("" otherwise; ``marginal_covariance``)."""
+    cov, why = marginal_covariance(graph, values, key)
+    return information_from_graph(graph, values, key), cov, why

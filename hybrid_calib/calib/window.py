@@ -44,8 +44,8 @@ from factors.correspondences import Correspondences
 from hybrid_calib.calib.covariance import (
     CovarianceConfig,
     analyse_information,
+    graph_covariance,
     information_from_graph,
-    marginal_covariance,
     prior_pinned_std,
 )
 from hybrid_calib.calib.drift import StepConfig, StepDetector, StepOutcome
@@ -327,8 +327,7 @@ class SlidingWindowCalibrator:
         if solved is None:
             info, cov, why = np.zeros((6, 6)), None, "no correspondences yet"
         else:
-            info = information_from_graph(solved.graph, solved.values, X)
-            cov, why = marginal_covariance(solved.graph, solved.values, X)
+            info, cov, why = graph_covariance(solved.graph, solved.values, X)
         ext = self._marg_external_info + sum(
             (np.linalg.inv(fr.prior.cov) for fr in self.frames if fr.prior is not None), np.zeros((6, 6)))
         rep = analyse_information(self.T, info, self.conf.covariance, cov_hint=cov,
