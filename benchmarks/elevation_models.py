@@ -77,8 +77,9 @@ def run_scenario(name: str, true_mean_deg: float, model_mean_deg: float, args, k
         for variant in variants:
             if kernel_study:
                 kernel, scale = KERNEL_VARIANTS[variant]
-                conf = RadarPixelFactorConfig(kernel=kernel, kernel_scale=scale, elevation_beam_deg=args.beam,
-                                              elevation_mean_deg=model_mean_deg, **KNOWN_HEIGHTS)
+                conf = RadarPixelFactorConfig(kernel=kernel, kernel_scale=scale, elevation_model="anisotropic",
+                                              elevation_beam_deg=args.beam, elevation_mean_deg=model_mean_deg,
+                                              **KNOWN_HEIGHTS)
             else:
                 conf = RadarPixelFactorConfig(kernel=args.kernel, elevation_model=variant, elevation_beam_deg=args.beam,
                                               elevation_mean_deg=model_mean_deg, **KNOWN_HEIGHTS)
