@@ -12,6 +12,8 @@ covariance honest: IRLS weights of a redescending kernel are < 1 even for inlier
 robust covariance conservative (measured, docs/benchmarks.md: 30 runs of 20 simulated frames,
 Cauchy only: mean NEES 5.3, RMSE/CRB 1.06; with the gated stage: NEES 6.2, RMSE/CRB 1.03). Skipping
 stage 1 (``convex_start=False``) is for a warm start that is already inside the basin.
+``run_schedule`` is this sequence for any back end (a function that solves one stage);
+``robust_solve`` runs it with GTSAM, ``calib.batch`` also with Ceres (``factors.ceres_costs``).
 
 The graph holds one ``gtsam.Pose3`` (``T_cam_radar``, key ``X``) with: one vectorised radar-pixel
 factor per frame (``factors.radar_pixel_factor``), an optional Gaussian prior (``extrinsic_prior_factor``;
@@ -37,6 +39,9 @@ X = 0  # the gtsam key of the extrinsic
 
 @dataclass(frozen=True)
 class ScheduleConfig:
+    """The one robust schedule (module doc) of every solve: the sliding window, the batch solve on
+    either back end (GTSAM ``robust_solve``, Ceres through ``run_schedule``), benchmarks and tests."""
+
     convex_kernel: str = "huber"  # stage-1 kernel (convex)
     convex_scale: float = 1.345  # stage-1 kernel threshold, whitened units (95 % Gaussian efficiency)
     max_iterations: int = 50  # Levenberg-Marquardt iterations per stage
