@@ -131,42 +131,38 @@ def _write(residuals, jacobians, r, Jq, Jt) -> bool:
     return True
 
 
-class RadarPixelCost(pyceres.CostFunction):
-    """Whitened residual (2,) of ONE correspondence (before the loss) on blocks [q (4,), t (3,)].
+class _RowCost(pyceres.CostFunction):
+    """A cost of ONE correspondence on blocks [q (4,), t (3,)]: ``Cost(rows)`` for a single-row
+    ``RowModel``, or ``Cost(evaluator, i)`` for row i of a shared ``FrameEvaluator``."""
 
-    ``RadarPixelCost(rows)`` for a single-row ``RowModel``, or ``RadarPixelCost(evaluator, i)`` for
-    row i of a shared ``FrameEvaluator``.
-    """
+    n_residuals = 0
 
     def __init__(self, rows: RowModel | FrameEvaluator, index: int = 0):
         super().__init__()
         if isinstance(rows, RowModel):
             if len(rows) != 1:
-                raise ValueError("RadarPixelCost(RowModel) takes exactly one correspondence row")
+                raise ValueError(f"{type(self).__name__}(RowModel) takes exactly one correspondence row")
             rows = FrameEvaluator(rows)
         self.ev, self.i = rows, int(index)
-        self.set_num_residuals(2)
+        self.set_num_residuals(self.n_residuals)
         self.set_parameter_block_sizes([4, 3])
+
+
+class RadarPixelCost(_RowCost):
+    """Whitened residual (2,) of ONE correspondence (before the loss) on blocks [q (4,), t (3,)]."""
+
+    n_residuals = 2
 
     def Evaluate(self, parameters, residuals, jacobians):  # noqa: N802 (Ceres API name)
         e, Jq, Jt, _, _, _ = self.ev.evaluate(parameters[0], parameters[1])
         return _write(residuals, jacobians, e[self.i], Jq[self.i], Jt[self.i])
 
 
-class LogDetCost(pyceres.CostFunction):
+class LogDetCost(_RowCost):
     """The anisotropic model's log-determinant row ``sqrt(log(1 + |q|^2))`` (1,) of ONE
-    correspondence on blocks [q, t]; added without a loss (it is not a residual to robustify).
-    Same constructor forms as ``RadarPixelCost``."""
+    correspondence on blocks [q, t]; added without a loss (it is not a residual to robustify)."""
 
-    def __init__(self, rows: RowModel | FrameEvaluator, index: int = 0):
-        super().__init__()
-        if isinstance(rows, RowModel):
-            if len(rows) != 1:
-                raise ValueError("LogDetCost(RowModel) takes exactly one correspondence row")
-            rows = FrameEvaluator(rows)
-        self.ev, self.i = rows, int(index)
-        self.set_num_residuals(1)
-        self.set_parameter_block_sizes([4, 3])
+    n_residuals = 1
 
     def Evaluate(self, parameters, residuals, jacobians):  # noqa: N802 (Ceres API name)
         _, _, _, ld, Jq, Jt = self.ev.evaluate(parameters[0], parameters[1])
