@@ -1,4 +1,8 @@
-"""The radar-pixel residuals as Ceres cost functions (pyceres 2.6), and a batch solve with covariance.
+"""The radar-pixel residuals as Ceres cost functions (pyceres 2.6): one Ceres solve and its covariance.
+
+Only residuals, losses and one solve live here; the robust schedule (convex start, redescending
+kernel, gated least squares) and the status of the covariance are ``hybrid_calib.calib``'s
+(``schedule.run_schedule``, ``covariance.analyse_information``), shared with the GTSAM back end.
 
 Parametrisation (Ceres has no SE(3) manifold): a rotation block ``q`` (4,) in Eigen's storage order
 ``[x, y, z, w]`` with ``pyceres.EigenQuaternionManifold`` and a translation block ``t`` (3,),
@@ -15,7 +19,6 @@ order, ``R Exp(omega) = Exp(R omega) R`` and ``t + R v``. Hence ``[d, dt] = A [o
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,17 +32,24 @@ from hybrid_calib.geometry import make_T
 
 
 @dataclass
-class CeresResult:
-    """T: (4, 4) estimate. cov: (6, 6) in OUR convention (right tangent [rot rad, trans m]) or None.
-    status: "ok", "poorly_observed: <directions>" (cov given, large in the named camera-axis
-    directions), "no_covariance: <directions>" (rank-deficient) or "failed: <Ceres message>"."""
+class CeresStage:
+    """One Ceres solve (``solve_ceres_stage``).
+
+    T: (4, 4) estimate of T_cam_radar. usable: Ceres's ``IsSolutionUsable``; message: Ceres's
+    message when it is not. summary: Ceres's brief report. The problem and its blocks (q (4,),
+    t (3,)) stay alive for ``ceres_covariance``.
+    """
 
     T: np.ndarray
-    cov: np.ndarray | None
-    status: str
-    summary: str
     iterations: int
     final_cost: float
+    usable: bool
+    message: str
+    summary: str
+    problem: pyceres.Problem | None  # None when there was nothing to solve
+    q: np.ndarray
+    t: np.ndarray
+    keep: list
 
 
 def quat_xyzw_from_R(R: np.ndarray) -> np.ndarray:
@@ -121,42 +131,38 @@ def _write(residuals, jacobians, r, Jq, Jt) -> bool:
     return True
 
 
-class RadarPixelCost(pyceres.CostFunction):
-    """Whitened residual (2,) of ONE correspondence (before the loss) on blocks [q (4,), t (3,)].
+class _RowCost(pyceres.CostFunction):
+    """A cost of ONE correspondence on blocks [q (4,), t (3,)]: ``Cost(rows)`` for a single-row
+    ``RowModel``, or ``Cost(evaluator, i)`` for row i of a shared ``FrameEvaluator``."""
 
-    ``RadarPixelCost(rows)`` for a single-row ``RowModel``, or ``RadarPixelCost(evaluator, i)`` for
-    row i of a shared ``FrameEvaluator``.
-    """
+    n_residuals = 0
 
     def __init__(self, rows: RowModel | FrameEvaluator, index: int = 0):
         super().__init__()
         if isinstance(rows, RowModel):
             if len(rows) != 1:
-                raise ValueError("RadarPixelCost(RowModel) takes exactly one correspondence row")
+                raise ValueError(f"{type(self).__name__}(RowModel) takes exactly one correspondence row")
             rows = FrameEvaluator(rows)
         self.ev, self.i = rows, int(index)
-        self.set_num_residuals(2)
+        self.set_num_residuals(self.n_residuals)
         self.set_parameter_block_sizes([4, 3])
+
+
+class RadarPixelCost(_RowCost):
+    """Whitened residual (2,) of ONE correspondence (before the loss) on blocks [q (4,), t (3,)]."""
+
+    n_residuals = 2
 
     def Evaluate(self, parameters, residuals, jacobians):  # noqa: N802 (Ceres API name)
         e, Jq, Jt, _, _, _ = self.ev.evaluate(parameters[0], parameters[1])
         return _write(residuals, jacobians, e[self.i], Jq[self.i], Jt[self.i])
 
 
-class LogDetCost(pyceres.CostFunction):
+class LogDetCost(_RowCost):
     """The anisotropic model's log-determinant row ``sqrt(log(1 + |q|^2))`` (1,) of ONE
-    correspondence on blocks [q, t]; added without a loss (it is not a residual to robustify).
-    Same constructor forms as ``RadarPixelCost``."""
+    correspondence on blocks [q, t]; added without a loss (it is not a residual to robustify)."""
 
-    def __init__(self, rows: RowModel | FrameEvaluator, index: int = 0):
-        super().__init__()
-        if isinstance(rows, RowModel):
-            if len(rows) != 1:
-                raise ValueError("LogDetCost(RowModel) takes exactly one correspondence row")
-            rows = FrameEvaluator(rows)
-        self.ev, self.i = rows, int(index)
-        self.set_num_residuals(1)
-        self.set_parameter_block_sizes([4, 3])
+    n_residuals = 1
 
     def Evaluate(self, parameters, residuals, jacobians):  # noqa: N802 (Ceres API name)
         _, _, _, ld, Jq, Jt = self.ev.evaluate(parameters[0], parameters[1])
@@ -222,21 +228,6 @@ class _PriorCost(pyceres.CostFunction):
         return _write(residuals, jacobians, *self.evaluate_numpy(parameters[0], parameters[1]))
 
 
-def _weak_directions(frames, T, conf, prior) -> list[str]:
-    """Names of the poorly observed directions of the IRLS information at ``T`` (factors.solve)."""
-    from factors.gtsam_factors import frame_residuals
-    from factors.solve import weak_directions
-
-    info = np.zeros((6, 6))
-    for corr in frames:
-        if len(corr):
-            _, J, w = frame_residuals(T, corr, conf)
-            info += J.T @ (np.repeat(w, 2)[:, None] * J)
-    if prior is not None:
-        info += np.linalg.inv(prior[1])
-    return list(weak_directions(info, T))
-
-
 def build_problem(frames: list[Correspondences], q: np.ndarray, t: np.ndarray, conf: RadarPixelFactorConfig,
                   prior: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[pyceres.Problem, list]:
     """A Ceres problem over the blocks q, t (modified in place by a solve). Returns (problem, keep-alive)."""
@@ -263,59 +254,49 @@ def build_problem(frames: list[Correspondences], q: np.ndarray, t: np.ndarray, c
     return problem, keep
 
 
-def solve_ceres(frames: list[Correspondences], T_init: np.ndarray, conf: RadarPixelFactorConfig = None,
-                prior: tuple[np.ndarray, np.ndarray] | None = None, max_iterations: int = 100,
-                two_stage: bool = True) -> CeresResult:
-    """Batch solve of a static ``T_cam_radar`` with Ceres; covariance from ``pyceres.Covariance``.
+def solve_ceres_stage(frames: list[Correspondences], T_init: np.ndarray, conf: RadarPixelFactorConfig,
+                      prior: tuple[np.ndarray, np.ndarray] | None = None, max_iterations: int = 50) -> CeresStage:
+    """One Ceres solve of ``frames`` with ``conf``'s kernel on every row, from ``T_init`` (4, 4).
 
-    With ``two_stage`` a Huber solve runs first (the convex start, as ``factors.solve.solve_gnc``).
-    Never raises for a singular problem: the status says so and ``cov`` is None.
+    prior: optional ``(T_prior (4, 4), cov (6, 6))`` in our right tangent. Dense QR, Ceres's
+    function / gradient / parameter tolerances 1e-12 (it stops on ``max_iterations`` or there).
+    Never raises for a singular problem: ``usable`` is False and ``message`` says why.
     """
-    conf = conf or RadarPixelFactorConfig()
     T_init = np.asarray(T_init, np.float64)
     q = quat_xyzw_from_R(T_init[:3, :3]).copy()
     t = T_init[:3, 3].copy()
-    if not frames or sum(len(f) for f in frames) == 0:
-        return CeresResult(T_init, None, "failed: no correspondences", "", 0, float("nan"))
-    t0 = time.perf_counter()
-    stages = [conf]
-    if two_stage and conf.kernel != "huber":
-        import dataclasses
+    if prior is None and sum(len(f) for f in frames) == 0:
+        return CeresStage(T_init, 0, float("nan"), False, "no correspondences", "", None, q, t, [])
+    problem, keep = build_problem(frames, q, t, conf, prior)
+    options = pyceres.SolverOptions()
+    options.max_num_iterations = int(max_iterations)
+    options.function_tolerance = 1e-12
+    options.gradient_tolerance = 1e-12
+    options.parameter_tolerance = 1e-12
+    options.linear_solver_type = pyceres.LinearSolverType.DENSE_QR
+    summary = pyceres.SolverSummary()
+    pyceres.solve(options, problem, summary)
+    usable = bool(summary.IsSolutionUsable())
+    return CeresStage(make_T(R_from_quat_xyzw(q), t), summary.num_successful_steps + summary.num_unsuccessful_steps,
+                      float(summary.final_cost), usable, "" if usable else str(summary.message),
+                      summary.BriefReport(), problem, q, t, keep)
 
-        stages = [dataclasses.replace(conf, kernel="huber", kernel_scale=1.345), conf]
-    iterations, summary = 0, None
-    for stage in stages:
-        problem, keep = build_problem(frames, q, t, stage, prior)
-        options = pyceres.SolverOptions()
-        options.max_num_iterations = max_iterations
-        options.function_tolerance = 1e-12
-        options.gradient_tolerance = 1e-12
-        options.parameter_tolerance = 1e-12
-        options.linear_solver_type = pyceres.LinearSolverType.DENSE_QR
-        summary = pyceres.SolverSummary()
-        pyceres.solve(options, problem, summary)
-        iterations += summary.num_successful_steps + summary.num_unsuccessful_steps
-        if not summary.IsSolutionUsable():
-            return CeresResult(make_T(R_from_quat_xyzw(q), t), None, f"failed: {summary.message}",
-                               summary.BriefReport(), iterations, float(summary.final_cost))
-    T = make_T(R_from_quat_xyzw(q), t)
+
+def ceres_covariance(stage: CeresStage) -> np.ndarray | None:
+    """(6, 6) covariance of a solved stage in OUR convention (right tangent [rot rad, trans m]), from
+    ``pyceres.Covariance`` (sparse QR: no pseudo-inverse), or None when Ceres cannot give a
+    positive definite one (rank-deficient problem); what that means is read from the information
+    (``hybrid_calib.calib.covariance``)."""
+    q, t, problem = stage.q, stage.t, stage.problem
     copts = pyceres.CovarianceOptions()
-    copts.algorithm_type = pyceres.CovarianceAlgorithmType.SPARSE_QR  # fails on rank deficiency (no pseudo-inverse)
-    cov_engine = pyceres.Covariance(copts)
-    cov, status = None, "ok"
-    if cov_engine.compute([(q, q), (q, t), (t, t)], problem):
-        Cqq = np.asarray(cov_engine.get_covariance_block_tangent_space(q, q, problem))
-        Cqt = np.asarray(cov_engine.get_covariance_block_tangent_space(q, t, problem))
-        Ctt = np.asarray(cov_engine.get_covariance_block_tangent_space(t, t, problem))
-        C = np.block([[Cqq, Cqt], [Cqt.T, Ctt]])
-        cov = ceres_cov_to_ours(C, T[:3, :3])
-        weak = _weak_directions(frames, T, conf, prior)
-        if np.linalg.eigvalsh(0.5 * (cov + cov.T)).min() <= 0:
-            cov, status = None, "no_covariance: " + ", ".join(weak)
-        elif weak:
-            status = "poorly_observed: " + ", ".join(weak)
-    else:
-        status = "no_covariance: " + ", ".join(_weak_directions(frames, T, conf, prior))
-    del keep
-    summary_txt = summary.BriefReport() + f" ({time.perf_counter() - t0:.3f} s)"
-    return CeresResult(T, cov, status, summary_txt, iterations, float(summary.final_cost))
+    copts.algorithm_type = pyceres.CovarianceAlgorithmType.SPARSE_QR  # fails on rank deficiency
+    engine = pyceres.Covariance(copts)
+    if not engine.compute([(q, q), (q, t), (t, t)], problem):
+        return None
+    Cqq = np.asarray(engine.get_covariance_block_tangent_space(q, q, problem))
+    Cqt = np.asarray(engine.get_covariance_block_tangent_space(q, t, problem))
+    Ctt = np.asarray(engine.get_covariance_block_tangent_space(t, t, problem))
+    cov = ceres_cov_to_ours(np.block([[Cqq, Cqt], [Cqt.T, Ctt]]), stage.T[:3, :3])
+    if np.linalg.eigvalsh(0.5 * (cov + cov.T)).min() <= 0:
+        return None
+    return cov

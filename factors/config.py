@@ -55,16 +55,3 @@ class RadarPixelFactorConfig:
             raise ValueError(
                 f"RadarPixelFactorConfig.elevation_beam_deg must be in [0, 45), got {self.elevation_beam_deg}")
 
-
-@dataclass(frozen=True)
-class SolverConfig:
-    """Levenberg-Marquardt settings and the graduated robust schedule (``factors.solve``)."""
-
-    max_iterations: int = 100  # LM iterations per stage
-    relative_error_tol: float = 1e-10  # LM stops when the relative cost decrease is below this
-    absolute_error_tol: float = 1e-10  # LM stops when the absolute cost decrease is below this
-    convex_kernel: str = "huber"  # stage-1 kernel of the two-stage schedule (convex: unique basin)
-    convex_scale: float = 1.345  # stage-1 kernel threshold, whitened units
-    min_eigen_ratio: float = 1e-8  # information eigenvalue / largest below this -> direction indeterminant
-    max_std_deg: float = 5.0  # a rotation direction with a larger standard deviation is poorly observed
-    max_std_m: float = 0.5  # a translation direction with a larger standard deviation is poorly observed

@@ -79,3 +79,51 @@ def test_without_detector_a_large_step_locks_on():
     outs = [cal.update(f) for f in frames]
     assert extrinsic_error(outs[-1].T, T2).rot_mean_deg > 0.5  # stuck near the old value
     assert extrinsic_error(outs[-1].T, T).rot_mean_deg < 0.2
+
+
+def test_step_detector_ready_collapse_and_resolve_schedule():
+    det = StepDetector({"recent_frames": 5, "min_history": 15, "every": 10, "inlier_drop": 0.6})
+    assert not det.ready(14, 8) and not det.ready(20, 4) and det.ready(15, 5)
+    assert StepDetector({"recent_frames": 10, "min_history": 5}).ready(19, 10) is False  # needs 2 m frames
+    assert not det.collapsed(0.0)  # no running mean yet
+    det.track_inliers(0.8, 0)
+    det.track_inliers(0.6, 1)
+    assert np.isclose(det.inlier_mean, 0.7)
+    assert det.collapsed(0.41) and not det.collapsed(0.43)
+    assert det.resolve_due(20, False) and not det.resolve_due(21, False) and det.resolve_due(21, True)
+    det.reset()
+    assert det.inlier_mean is None
+
+
+def test_step_detector_track_inliers_caps_the_memory():
+    det = StepDetector()
+    det.track_inliers(1.0, 0)
+    for n in range(1, 200):
+        det.track_inliers(0.0 if n < 100 else 1.0, n)
+    # weight of the past capped at 50 frames: 100 frames of 1.0 bring the mean most of the way back
+    assert det.inlier_mean > 0.8
+
+
+def test_step_detector_check_solves_the_recent_frames_only_when_needed():
+    T = nominal_T_cam_radar()
+    info = np.eye(6) * 1e6
+    H = np.eye(6) * 1e4
+    calls = []
+
+    def solve_recent(T_out=T):
+        calls.append(1)
+        return T_out, H
+
+    det = StepDetector({"consecutive": 1})
+    out = det.check(T, info, (np.zeros(6), H), solve_recent, resolve=False)  # linearised: no change
+    assert not calls and out.T_recent is None and out.test.statistic < 1e-9 and not out.test.alarm
+    out = det.check(T, info, (np.zeros(6), H), solve_recent, resolve=True)  # re-solve runs, agrees
+    assert calls == [1] and out.T_recent is T and not out.test.alarm
+    # the linearised step alone raises the alarm: the recent frames are solved for the restart
+    G = -H @ np.array([0.0, 0.0, 0.05, 0.1, 0.0, 0.0])
+    out = det.check(T, info, (G, H), solve_recent, resolve=False)
+    assert out.test.alarm and calls == [1, 1] and out.T_recent is T
+    # the convex re-solve sees a step the linearisation misses (a lock-on): the larger statistic counts
+    T_moved = retract(T, np.array([0.0, 0.0, 0.05, 0.1, 0.0, 0.0]))
+    out = StepDetector({"consecutive": 1}).check(T, info, (np.zeros(6), H), lambda: (T_moved, H), resolve=True)
+    assert out.test.alarm and out.T_recent is T_moved

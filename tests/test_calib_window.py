@@ -7,8 +7,13 @@ from hybrid_calib.calib.batch import solve_batch
 from hybrid_calib.calib.covariance import report_std
 from hybrid_calib.calib.oracle import synthetic_drive
 from hybrid_calib.calib.schedule import GaussianPrior
-from hybrid_calib.calib.window import SlidingWindowCalibrator
-from hybrid_calib.geometry import local, perturb_camera_frame
+from hybrid_calib.calib.window import (
+    SlidingWindowCalibrator,
+    convergence_note,
+    needs_relinearisation,
+    random_walk_information,
+)
+from hybrid_calib.geometry import local, perturb_camera_frame, retract
 from hybrid_calib.metrics import extrinsic_error
 from tests.helpers import nominal_T_cam_radar, rng
 
@@ -98,3 +103,61 @@ def test_update_rejects_bad_input():
         cal.update(np.zeros((3, 3)))
     with pytest.raises(ValueError, match="T_init"):
         SlidingWindowCalibrator(np.eye(3))
+
+
+def test_needs_relinearisation_thresholds_and_missing_points():
+    T = nominal_T_cam_radar()
+    near = retract(T, np.array([np.radians(0.05), 0, 0, 0.01, 0, 0]))
+    far_rot = retract(T, np.array([0, np.radians(0.2), 0, 0, 0, 0]))
+    far_trans = retract(T, np.array([0, 0, 0, 0, 0.03, 0]))
+    assert not needs_relinearisation([], T, 0.1, 2.0)
+    assert not needs_relinearisation([near, near], T, 0.1, 2.0)
+    assert needs_relinearisation([near, None], T, 0.1, 2.0)
+    assert needs_relinearisation([near, far_rot], T, 0.1, 2.0)
+    assert needs_relinearisation([far_trans], T, 0.1, 2.0) and not needs_relinearisation([far_trans], T, 0.1, 5.0)
+
+
+def test_random_walk_information_widens_the_covariance():
+    g = rng(12)
+    A = g.normal(size=(6, 6))
+    L = A @ A.T + np.eye(6)
+    Q = np.diag([1e-4] * 3 + [1e-3] * 3)
+    out = random_walk_information(L, Q)
+    np.testing.assert_allclose(np.linalg.inv(out), np.linalg.inv(L) + Q, rtol=1e-6)
+    np.testing.assert_allclose(random_walk_information(L, np.zeros((6, 6))), L, rtol=1e-6)
+    assert np.allclose(out, out.T)
+
+
+def test_convergence_note():
+    assert convergence_note(0.25, 0.25) == ""
+    assert convergence_note(0.1, 0.25).startswith("NOT CONVERGED: only 10 %")
+
+
+def test_window_solve_changes_nothing_until_adopted():
+    T = nominal_T_cam_radar()
+    frames, _ = synthetic_drive(T, 3, rng(13))
+    T0 = _start(rng(14), 5, 0.2)
+    cal = SlidingWindowCalibrator(T0, {"window": 3, "detect_steps": False})
+    for f in frames:
+        cal.update(f)
+    before_T, before_lin = cal.T.copy(), [fr.lin for fr in cal.frames]
+    res, lins = cal._solve_window(T0, convex=True)
+    assert np.array_equal(cal.T, before_T) and all(fr.lin is b for fr, b in zip(cal.frames, before_lin))
+    assert len(lins) == 3 and all(lin.T_lin is lins[0].T_lin for lin in lins)  # one shared linearisation point
+    cal._adopt(res, lins)
+    assert np.array_equal(cal.T, res.T) and [fr.lin for fr in cal.frames] == lins
+
+
+def test_far_start_is_rescued_from_the_initial_extrinsic():
+    """A 40 deg / 3 m start solved from one frame of 25 rows diverges (no row fits); at the next frame
+    the window is re-solved from the initial extrinsic with a convex start and kept because more rows fit."""
+    T = nominal_T_cam_radar()
+    frames, _ = synthetic_drive(T, 3, rng(7), {"n_per_frame": 25})
+    g = rng(602)
+    T0 = perturb_camera_frame(T, np.radians(g.uniform(-40, 40, 3)), g.uniform(-3, 3, 3))
+    cal = SlidingWindowCalibrator(T0, {"window": 5})
+    outs = [cal.update(f) for f in frames]
+    assert outs[0].inlier_fraction < 0.25 and "NOT CONVERGED" in outs[0].status
+    assert outs[1].events and outs[1].events[0].startswith("not converged (inlier fraction")
+    assert outs[1].inlier_fraction > 0.5 and "NOT CONVERGED" not in outs[1].status
+    assert extrinsic_error(outs[-1].T, T).rot_mean_deg < 0.5

@@ -2,13 +2,13 @@
 
 Same schedule as the window (``schedule.robust_solve``: convex start, redescending kernel, gated
 least squares), same covariance reading (``covariance.analyse_information``). Two back ends:
-``gtsam`` (one vectorised CustomFactor per frame) and ``ceres`` (``factors.ceres_costs.solve_ceres``,
-per-row cost blocks with a quaternion manifold; its covariance converted to our convention by C).
+``gtsam`` (one vectorised CustomFactor per frame) and ``ceres`` (``factors.ceres_costs.solve_ceres_stage``
+per stage of the same ``ScheduleConfig``: per-row cost blocks with a quaternion manifold; its covariance
+converted to our convention by ``ceres_covariance``).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from dataclasses import dataclass
 
@@ -19,12 +19,19 @@ from factors.correspondences import Correspondences
 from hybrid_calib.calib.covariance import (
     CovarianceConfig,
     analyse_information,
-    information_from_graph,
-    marginal_covariance,
+    graph_covariance,
     prior_pinned_std,
 )
 from hybrid_calib.calib.result import Estimate
-from hybrid_calib.calib.schedule import GaussianPrior, ScheduleConfig, X, frame_information, gate_frames, robust_solve
+from hybrid_calib.calib.schedule import (
+    GaussianPrior,
+    ScheduleConfig,
+    Stage,
+    X,
+    frame_information,
+    robust_solve,
+    run_schedule,
+)
 from hybrid_calib.config import merge
 
 BACKENDS = ("gtsam", "ceres")
@@ -74,17 +81,15 @@ def solve_batch(frames: list[Correspondences], T_init: np.ndarray, conf: BatchCo
     if conf.backend == "gtsam":
         res = robust_solve(frames, T_init, conf.factor, priors, conf.schedule, convex_start=True)
         t0 = time.perf_counter()
-        info = information_from_graph(res.graph, res.values, X)
-        cov, why = marginal_covariance(res.graph, res.values, X)
-        rep = analyse_information(res.T, info, conf.covariance, cov_hint=cov,
-                                  pinned_std=prior_pinned_std(conf.factor), external_info=_prior_info(priors))
+        info, cov, why = graph_covariance(res.graph, res.values, X)
         T, iters, secs = res.T, res.iterations, res.seconds
-        cov_s = time.perf_counter() - t0
     else:
-        T, info, cov, why, iters, secs, cov_s = _solve_ceres(frames, T_init, conf, priors)
-        rep = analyse_information(T, info, conf.covariance, cov_hint=cov,
-                                  pinned_std=prior_pinned_std(conf.factor), external_info=_prior_info(priors))
-    inl = float(np.mean([frame_information(T, f, conf.factor, conf.schedule.final_gate)[2] for f in frames if len(f)]))
+        T, info, cov, why, iters, secs, t0 = _solve_ceres(frames, T_init, conf, priors)
+    rep = analyse_information(T, info, conf.covariance, cov_hint=cov, pinned_std=prior_pinned_std(conf.factor),
+                              external_info=_prior_info(priors))
+    cov_s = time.perf_counter() - t0
+    fractions = [frame_information(T, f, conf.factor, conf.schedule.final_gate)[2] for f in frames if len(f)]
+    inl = float(np.mean(fractions)) if fractions else 0.0
     return BatchResult(Estimate.from_report(T, rep, info, why), conf.backend, iters, secs, cov_s, len(frames),
                        n_rows, inl)
 
@@ -95,27 +100,30 @@ def _prior_info(priors: list[GaussianPrior] | None) -> np.ndarray:
 
 
 def _solve_ceres(frames, T_init, conf: BatchConfig, priors):
-    from factors.ceres_costs import solve_ceres
+    """The schedule (``run_schedule``, the same ``ScheduleConfig`` as GTSAM) with Ceres solving each
+    stage; the covariance from Ceres at the last stage, the information for the status from the
+    same residuals (``frame_information``, gated least squares). Returns (T, info, cov or None, why
+    cov is None, iterations, solve seconds, perf_counter at the start of the covariance)."""
+    from factors.ceres_costs import ceres_covariance, solve_ceres_stage
 
     if priors and len(priors) > 1:
         raise ValueError("the ceres back end takes at most one prior")
     prior = (priors[0].T, priors[0].cov) if priors else None
+    sched = conf.schedule
     t0 = time.perf_counter()
-    r = solve_ceres(frames, T_init, conf.factor, prior, max_iterations=conf.schedule.max_iterations, two_stage=True)
-    iters = r.iterations
-    T, cov, status = r.T, r.cov, r.status
-    fconf = conf.factor
-    if conf.schedule.final_gate > 0 and conf.factor.kernel != "none" and not status.startswith("failed"):
-        gated = [c for c in gate_frames(T, frames, conf.factor, conf.schedule.final_gate) if len(c)]
-        fconf = dataclasses.replace(conf.factor, kernel="none")
-        r = solve_ceres(gated, T, fconf, prior, max_iterations=conf.schedule.max_iterations, two_stage=False)
-        iters += r.iterations
-        T, cov, status = r.T, r.cov, r.status
+
+    def solve_stage(stage_frames, stage_conf, T0):
+        r = solve_ceres_stage(stage_frames, T0, stage_conf, prior, max_iterations=sched.max_iterations)
+        failure = "" if r.usable else f"ceres failed: {r.message}"
+        return Stage(r.T, r.iterations, r.final_cost, r, failure)
+
+    last, iters = run_schedule(frames, T_init, conf.factor, sched, solve_stage, convex_start=True)
     secs = time.perf_counter() - t0
-    # information for the degeneracy analysis, from the same residuals (gated least squares)
     t1 = time.perf_counter()
-    info = sum(frame_information(T, f, conf.factor, conf.schedule.final_gate)[1] for f in frames if len(f))
-    if prior is not None:
-        info = info + np.linalg.inv(prior[1])
-    why = "" if cov is not None else f"ceres covariance unavailable ({status}); using the regularised pseudo-inverse"
-    return T, np.asarray(info), cov, why, iters, secs, time.perf_counter() - t1
+    cov = None if last.failure else ceres_covariance(last.state)
+    T = last.T
+    info = sum((frame_information(T, f, conf.factor, sched.final_gate)[1] for f in frames if len(f)), np.zeros((6, 6)))
+    info = info + _prior_info(priors)
+    why = "" if cov is not None else \
+        f"ceres covariance unavailable ({last.failure or 'rank-deficient'}); using the regularised pseudo-inverse"
+    return T, np.asarray(info), cov, why, iters, secs, t1

@@ -289,6 +289,8 @@ def marginal_covariance(graph, values, key: int) -> tuple[np.ndarray | None, str
     """
     import gtsam
 
+    if key not in graph.keys():
+        return None, "no factor on the extrinsic (no correspondences, no prior)"
     try:
         m = gtsam.Marginals(graph, values)
         return np.asarray(m.marginalCovariance(key), dtype=np.float64), ""
@@ -302,9 +304,19 @@ def information_from_graph(graph, values, key: int) -> np.ndarray:
     without any Cholesky (so it works on singular problems)."""
     import gtsam
 
+    if key not in graph.keys():  # no factor on the extrinsic (no correspondences, no prior): no information
+        return np.zeros((6, 6))
     lin = graph.linearize(values)
     ordering = gtsam.Ordering()
     ordering.push_back(key)
     A, b = lin.jacobian(ordering)
     A = np.asarray(A, dtype=np.float64)
     return A.T @ A
+
+
+def graph_covariance(graph, values, key: int) -> tuple[np.ndarray, np.ndarray | None, str]:
+    """What ``analyse_information`` reads from a solved GTSAM graph: the information (6, 6) of
+    ``key`` (``information_from_graph``), its ``gtsam.Marginals`` covariance (6, 6) or None, and
+    why that is None ("" otherwise; ``marginal_covariance``)."""
+    cov, why = marginal_covariance(graph, values, key)
+    return information_from_graph(graph, values, key), cov, why

@@ -22,12 +22,13 @@ Two tests, both chi-square tests on a 6-DoF difference in the right tangent of `
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.stats import chi2
 
-from hybrid_calib.geometry import local
+from hybrid_calib.geometry import local, retract
 
 
 @dataclass(frozen=True)
@@ -119,11 +120,28 @@ class StepTest:
     alarm: bool
 
 
+@dataclass(frozen=True)
+class StepOutcome:
+    """One windowed step test of the sliding window (``StepDetector.check``).
+
+    test: the statistic, threshold and alarm. T_recent: (4, 4) the convex-start estimate of the
+    recent frames when it was solved (always after an alarm: the window restarts from it), else None.
+    """
+
+    test: StepTest
+    T_recent: np.ndarray | None
+
+
+# () -> ((4, 4) estimate, (6, 6) information) of the recent frames alone, solved with a convex start
+RecentSolver = Callable[[], tuple[np.ndarray, np.ndarray]]
+
+
 class StepDetector:
     """Windowed chi-square of the recent-frames estimate against the long-run estimate.
 
-    The caller solves the recent frames (convex start) and passes both estimates with their
-    information matrices; the detector keeps the count of consecutive exceedances.
+    The caller passes both estimates with their information matrices (``test``), or the recent
+    frames' linearisation and a solver for them (``check``); the detector keeps the count of
+    consecutive exceedances and the running inlier fraction whose collapse triggers a re-solve.
     """
 
     def __init__(self, conf: StepConfig | None = None):
@@ -132,9 +150,52 @@ class StepDetector:
         self.conf = merge(StepConfig, conf)
         self.threshold = float(chi2.isf(self.conf.p_alarm, 6))
         self._run = 0
+        self.inlier_mean: float | None = None  # running mean of the frames' inlier fractions
 
     def reset(self) -> None:
         self._run = 0
+        self.inlier_mean = None
+
+    def ready(self, n_total: int, n_window: int) -> bool:
+        """Enough history to test: ``n_total`` frames in the long-run estimate, ``n_window`` in the window."""
+        m = self.conf.recent_frames
+        return n_total >= max(self.conf.min_history, 2 * m) and n_window >= m
+
+    def collapsed(self, inlier_fraction: float) -> bool:
+        """The frame's inlier fraction fell below ``inlier_drop`` x the running mean (a lock-on)."""
+        return self.inlier_mean is not None and inlier_fraction < self.conf.inlier_drop * self.inlier_mean
+
+    def resolve_due(self, index: int, collapsed: bool) -> bool:
+        """Re-solve the recent frames with a convex start at update ``index``: every ``every`` updates
+        and whenever the inlier fraction collapsed."""
+        return collapsed or index % max(1, self.conf.every) == 0
+
+    def track_inliers(self, inlier_fraction: float, n_seen: int) -> None:
+        """Fold a frame's inlier fraction into the running mean (``n_seen``: frames since the last
+        reset; the weight of the past is capped at 50 frames so the mean follows slow changes)."""
+        k = min(n_seen, 50)
+        m = self.inlier_mean
+        self.inlier_mean = inlier_fraction if m is None else (m * k + inlier_fraction) / (k + 1)
+
+    def check(self, T_long: np.ndarray, info_long: np.ndarray, recent: tuple[np.ndarray, np.ndarray],
+              solve_recent: RecentSolver, resolve: bool) -> StepOutcome:
+        """One test of the sliding window.
+
+        T_long (4, 4), info_long (6, 6): the long-run estimate and its information. recent:
+        (gradient (6,), information (6, 6)) at T_long of the recent frames' cached linearisations;
+        their Gauss-Newton step is the free recent estimate. With ``resolve`` the recent frames are
+        also solved from scratch (``solve_recent``, convex start) and the larger statistic counts.
+        """
+        G, H = recent
+        stat = self.statistic(T_long, info_long, retract(T_long, -np.linalg.pinv(H) @ G), H)
+        T_recent = None
+        if resolve:
+            T_recent, info_recent = solve_recent()
+            stat = max(stat, self.statistic(T_long, info_long, T_recent, info_recent))
+        test = self.observe(stat)
+        if test.alarm and T_recent is None:
+            T_recent, _ = solve_recent()
+        return StepOutcome(test, T_recent)
 
     def statistic(self, T_long: np.ndarray, info_long: np.ndarray, T_recent: np.ndarray,
                   info_recent: np.ndarray) -> float:

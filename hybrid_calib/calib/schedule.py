@@ -12,6 +12,8 @@ covariance honest: IRLS weights of a redescending kernel are < 1 even for inlier
 robust covariance conservative (measured, docs/benchmarks.md: 30 runs of 20 simulated frames,
 Cauchy only: mean NEES 5.3, RMSE/CRB 1.06; with the gated stage: NEES 6.2, RMSE/CRB 1.03). Skipping
 stage 1 (``convex_start=False``) is for a warm start that is already inside the basin.
+``run_schedule`` is this sequence for any back end (a function that solves one stage);
+``robust_solve`` runs it with GTSAM, ``calib.batch`` also with Ceres (``factors.ceres_costs``).
 
 The graph holds one ``gtsam.Pose3`` (``T_cam_radar``, key ``X``) with: one vectorised radar-pixel
 factor per frame (``factors.radar_pixel_factor``), an optional Gaussian prior (``extrinsic_prior_factor``;
@@ -23,6 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,6 +39,9 @@ X = 0  # the gtsam key of the extrinsic
 
 @dataclass(frozen=True)
 class ScheduleConfig:
+    """The one robust schedule (module doc) of every solve: the sliding window, the batch solve on
+    either back end (GTSAM ``robust_solve``, Ceres through ``run_schedule``), benchmarks and tests."""
+
     convex_kernel: str = "huber"  # stage-1 kernel (convex)
     convex_scale: float = 1.345  # stage-1 kernel threshold, whitened units (95 % Gaussian efficiency)
     max_iterations: int = 50  # Levenberg-Marquardt iterations per stage
@@ -119,11 +125,67 @@ def _optimize(graph, T0: np.ndarray, sched: ScheduleConfig):
     return result, int(opt.iterations()), float(graph.error(result))
 
 
+@dataclass(frozen=True)
+class Stage:
+    """One solve of the schedule, by a back end: T (4, 4) optimum, LM / Ceres iterations, cost at
+    the optimum, the back end's own state (for the covariance: GTSAM graph and values, or the Ceres
+    problem) and ``failure`` (empty, or why the back end gave up; the schedule then stops)."""
+
+    T: np.ndarray
+    iterations: int
+    error: float
+    state: object
+    failure: str = ""
+
+
+StageSolver = Callable[[list[Correspondences], RadarPixelFactorConfig, np.ndarray], Stage]
+
+
+def run_schedule(frames: list[Correspondences], T_init: np.ndarray, conf: RadarPixelFactorConfig,
+                 sched: ScheduleConfig, solve_stage: StageSolver, convex_start: bool = True) -> tuple[Stage, int]:
+    """The robust schedule of the module doc on any back end; returns (last stage, iterations of all stages).
+
+    solve_stage(frames, factor_conf, T0) minimises the cost of ``frames`` under ``factor_conf`` (its
+    kernel on every row) from T0 (4, 4); GTSAM (``robust_solve``) and Ceres (``batch``) pass theirs.
+    """
+    T = np.asarray(T_init, np.float64)
+    iters = 0
+    if convex_start and conf.kernel not in ("none", sched.convex_kernel):
+        convex = dataclasses.replace(conf, kernel=sched.convex_kernel, kernel_scale=sched.convex_scale)
+        stage = solve_stage(frames, convex, T)
+        iters += stage.iterations
+        if stage.failure:
+            return stage, iters
+        T = stage.T
+    stage = solve_stage(frames, conf, T)
+    iters += stage.iterations
+    if stage.failure or not (sched.final_gate > 0 and conf.kernel != "none"):
+        return stage, iters
+    # gate, solve, re-gate at the new optimum until the inlier sets stop changing: a gate decided
+    # once at a slightly biased point drops rows on one side and keeps the bias
+    least_squares = dataclasses.replace(conf, kernel="none")
+    masks = None
+    for _ in range(max(1, sched.gate_iterations)):
+        T = stage.T
+        new = [inlier_mask(T, c, conf, sched.final_gate) if len(c) else np.zeros(0, bool) for c in frames]
+        if masks is not None and all(np.array_equal(a, b) for a, b in zip(masks, new)):
+            break
+        masks = new
+        gated = [c.subset(m) for c, m in zip(frames, masks) if m.any()]
+        if sum(len(c) for c in gated) < 3:
+            break
+        stage = solve_stage(gated, least_squares, T)
+        iters += stage.iterations
+        if stage.failure:
+            break
+    return stage, iters
+
+
 def robust_solve(
     frames: list[Correspondences], T_init: np.ndarray, conf: RadarPixelFactorConfig,
     priors: list[GaussianPrior] | None = None, sched: ScheduleConfig | None = None, convex_start: bool = True,
 ) -> SolveResult:
-    """Minimise the robust cost over ``T_cam_radar`` (4, 4) from ``T_init`` (see module doc).
+    """Minimise the robust cost over ``T_cam_radar`` (4, 4) from ``T_init`` with GTSAM (see module doc).
 
     Never raises on a degenerate problem: LM is damped; the covariance is a separate step.
     """
@@ -132,33 +194,15 @@ def robust_solve(
     sched = merge(ScheduleConfig, sched)
     priors = list(priors or [])
     t0 = time.perf_counter()
-    T = np.asarray(T_init, np.float64)
-    iters = 0
-    if convex_start and conf.kernel not in ("none", sched.convex_kernel):
-        convex = dataclasses.replace(conf, kernel=sched.convex_kernel, kernel_scale=sched.convex_scale)
-        vals, it, _ = _optimize(build_graph(frames, convex, priors), T, sched)
-        T = from_gtsam(vals.atPose3(X))
-        iters += it
-    graph = build_graph(frames, conf, priors)
-    vals, it, err = _optimize(graph, T, sched)
-    iters += it
-    if sched.final_gate > 0 and conf.kernel != "none":
-        # gate, solve, re-gate at the new optimum until the inlier sets stop changing: a gate decided
-        # once at a slightly biased point drops rows on one side and keeps the bias
-        masks = None
-        for _ in range(max(1, sched.gate_iterations)):
-            T = from_gtsam(vals.atPose3(X))
-            new = [inlier_mask(T, c, conf, sched.final_gate) if len(c) else np.zeros(0, bool) for c in frames]
-            if masks is not None and all(np.array_equal(a, b) for a, b in zip(masks, new)):
-                break
-            masks = new
-            gated = [c.subset(m) for c, m in zip(frames, masks) if m.any()]
-            if sum(len(c) for c in gated) < 3:
-                break
-            graph = build_graph(gated, dataclasses.replace(conf, kernel="none"), priors)
-            vals, it, err = _optimize(graph, T, sched)
-            iters += it
-    return SolveResult(from_gtsam(vals.atPose3(X)), graph, vals, iters, err, time.perf_counter() - t0)
+
+    def solve_stage(stage_frames, stage_conf, T0):
+        graph = build_graph(stage_frames, stage_conf, priors)
+        vals, it, err = _optimize(graph, T0, sched)
+        return Stage(from_gtsam(vals.atPose3(X)), it, err, (graph, vals))
+
+    last, iters = run_schedule(frames, T_init, conf, sched, solve_stage, convex_start)
+    graph, vals = last.state
+    return SolveResult(last.T, graph, vals, iters, last.error, time.perf_counter() - t0)
 
 
 def inlier_mask(T: np.ndarray, corr: Correspondences, conf: RadarPixelFactorConfig, gate: float) -> np.ndarray:
@@ -168,12 +212,6 @@ def inlier_mask(T: np.ndarray, corr: Correspondences, conf: RadarPixelFactorConf
     e, _, w = frame_residuals(np.asarray(T, np.float64), corr, dataclasses.replace(conf, kernel="none"))
     s = np.linalg.norm(e.reshape(-1, 2), axis=1)
     return (s < gate) & (w > 0)
-
-
-def gate_frames(T: np.ndarray, frames: list[Correspondences], conf: RadarPixelFactorConfig,
-                gate: float) -> list[Correspondences]:
-    """Each frame restricted to its gated inliers at T (see ``inlier_mask``)."""
-    return [c.subset(inlier_mask(T, c, conf, gate)) if len(c) else c for c in frames]
 
 
 def frame_information(T: np.ndarray, corr: Correspondences, conf: RadarPixelFactorConfig,

@@ -44,15 +44,16 @@ from factors.correspondences import Correspondences
 from hybrid_calib.calib.covariance import (
     CovarianceConfig,
     analyse_information,
+    graph_covariance,
     information_from_graph,
-    marginal_covariance,
     prior_pinned_std,
 )
-from hybrid_calib.calib.drift import StepConfig, StepDetector
+from hybrid_calib.calib.drift import StepConfig, StepDetector, StepOutcome
 from hybrid_calib.calib.result import Estimate, FrameEstimate
 from hybrid_calib.calib.schedule import (
     GaussianPrior,
     ScheduleConfig,
+    SolveResult,
     X,
     build_graph,
     frame_information,
@@ -81,32 +82,75 @@ class WindowConfig:
     min_inlier_fraction: float = 0.25  # below this the solve has not converged: re-solve from T_init (convex)
 
 
+@dataclass(frozen=True)
+class Linearisation:
+    """A frame's cached Gauss-Newton quadratic (gated least squares, incl. the frame's own prior)."""
+
+    T_lin: np.ndarray  # (4, 4) linearisation point; frames linearised together share this object
+    g: np.ndarray  # (6,) gradient at T_lin, right tangent
+    H: np.ndarray  # (6, 6) information at T_lin
+    inliers: float  # fraction of gated inliers at T_lin
+
+
 @dataclass
 class _Frame:
     corr: Correspondences
     prior: GaussianPrior | None
-    T_lin: np.ndarray | None = None  # linearisation point (4, 4)
-    g: np.ndarray | None = None  # gradient (6,) at T_lin (gated least squares, incl. the frame's prior)
-    H: np.ndarray | None = None  # information (6, 6) at T_lin
-    inliers: float = 0.0  # fraction of gated inliers at T_lin
+    lin: Linearisation | None = None  # None until the frame was solved once
 
 
 _WEAK_INFO = 1e-8  # information added to a Gaussian before inverting it (std 1e4 rad / 1e4 m)
 
 
-def _transported(T: np.ndarray, frames) -> tuple[np.ndarray, np.ndarray]:
-    """Sum over linearised frames of (gradient at T, information), first-order transport of each
+def _transported(T: np.ndarray, lins: list[Linearisation]) -> tuple[np.ndarray, np.ndarray]:
+    """Sum over linearisations of (gradient at T, information), first-order transport of each
     quadratic ``g.xi + xi.H.xi/2`` stored at its T_lin. Frames linearised together share one T_lin
     object, so ``local`` runs once per linearisation point."""
     G, H = np.zeros(6), np.zeros((6, 6))
     offsets: dict[int, np.ndarray] = {}
-    for fr in frames:
-        d = offsets.get(id(fr.T_lin))
+    for lin in lins:
+        d = offsets.get(id(lin.T_lin))
         if d is None:
-            d = offsets[id(fr.T_lin)] = local(fr.T_lin, T)
-        G += fr.g + fr.H @ d
-        H += fr.H
+            d = offsets[id(lin.T_lin)] = local(lin.T_lin, T)
+        G += lin.g + lin.H @ d
+        H += lin.H
     return G, H
+
+
+def needs_relinearisation(points: list[np.ndarray | None], T: np.ndarray, rot_deg: float, trans_cm: float) -> bool:
+    """True when a linearisation point (4, 4) is missing (None) or lies more than ``rot_deg`` /
+    ``trans_cm`` from the estimate ``T`` (4, 4) (ISAM2's ``relinearizeThreshold``)."""
+    seen: set[int] = set()
+    for T_lin in points:
+        if T_lin is None:
+            return True
+        if id(T_lin) in seen:
+            continue
+        seen.add(id(T_lin))
+        d = local(T_lin, T)
+        if np.degrees(np.linalg.norm(d[:3])) > rot_deg or np.linalg.norm(d[3:]) * 100 > trans_cm:
+            return True
+    return False
+
+
+def random_walk_information(info: np.ndarray, Q: np.ndarray) -> np.ndarray:
+    """Information (6, 6) of a Gaussian with information ``info`` after a random walk of covariance
+    ``Q`` (6, 6): ``inv(inv(info) + Q)``, symmetrised (``info`` regularised by ``_WEAK_INFO``)."""
+    L = np.linalg.inv(np.linalg.inv(info + _WEAK_INFO * np.eye(6)) + Q)
+    return 0.5 * (L + L.T)
+
+
+def convergence_note(inlier_fraction: float, min_fraction: float) -> str:
+    """The status note of a frame whose correspondences mostly do not fit the estimate ("" if fine)."""
+    if inlier_fraction >= min_fraction:
+        return ""
+    return f"NOT CONVERGED: only {100 * inlier_fraction:.0f} % of the frame's correspondences fit the estimate"
+
+
+@dataclass
+class _Solved:
+    graph: object
+    values: object
 
 
 class SlidingWindowCalibrator:
@@ -132,7 +176,6 @@ class SlidingWindowCalibrator:
         self.last_ts: int | None = None
         self.detector = StepDetector(self.conf.step)
         self.info = np.zeros((6, 6))
-        self._inlier_mean: float | None = None
         # information of external priors (e.g. the network's SE(3)) folded into the marginal prior;
         # kept apart so the prior-pinned nuisance is removed from the data part only
         self._marg_external_info = np.zeros((6, 6))
@@ -141,23 +184,23 @@ class SlidingWindowCalibrator:
     def _gate(self) -> float:
         return self.conf.schedule.final_gate
 
-    def _linearise(self, fr: _Frame, T: np.ndarray) -> None:
-        """T: (4, 4), stored by reference (frames linearised together share it)."""
-        """Cache the frame's gradient and information at T (gated least squares, or IRLS weights of the
-        final kernel when the gate is off), including its own prior."""
+    def _linearisation(self, fr: _Frame, T: np.ndarray) -> Linearisation:
+        """The frame's gradient and information at T (4, 4, stored by reference: frames linearised
+        together share it): gated least squares, or IRLS weights of the final kernel when the gate
+        is off, including the frame's own prior."""
         g, H, inl = frame_information(T, fr.corr, self.conf.factor, self._gate())
         if fr.prior is not None:
             Lp = np.linalg.inv(fr.prior.cov)
             H = H + Lp
             g = g + Lp @ local(fr.prior.T, T)
-        fr.T_lin, fr.g, fr.H, fr.inliers = T, g, H, inl
+        return Linearisation(T, g, H, inl)
 
-    def _history_gaussian(self, frames) -> tuple[np.ndarray, np.ndarray] | None:
-        """(gradient, information) at self.T of the marginal prior plus the given linearised frames."""
-        G, H = _transported(self.T, frames)
+    def _history_gaussian(self, frames, T: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """(gradient, information) at T of the marginal prior plus the given linearised frames."""
+        G, H = _transported(T, [fr.lin for fr in frames])
         if self.marg is not None:
             Tm, Lm = self.marg
-            G += Lm @ local(Tm, self.T)
+            G += Lm @ local(Tm, T)
             H += Lm
         if not np.any(H):
             return None
@@ -165,20 +208,22 @@ class SlidingWindowCalibrator:
 
     def _history_gaussian_frames(self, frames) -> tuple[np.ndarray, np.ndarray]:
         """(gradient, information) at self.T of the given linearised frames only."""
-        G, H = _transported(self.T, frames)
+        G, H = _transported(self.T, [fr.lin for fr in frames])
         return G, 0.5 * (H + H.T)
 
-    def _as_prior(self, gh) -> GaussianPrior | None:
+    @staticmethod
+    def _as_prior(gh, T: np.ndarray) -> GaussianPrior | None:
+        """The Gaussian (gradient, information) at T as a prior: mean at its Gauss-Newton step."""
         if gh is None:
             return None
         G, H = gh
         Hr = H + _WEAK_INFO * np.eye(6)
         cov = np.linalg.inv(Hr)
-        return GaussianPrior(retract(self.T, -np.linalg.solve(Hr, G)), 0.5 * (cov + cov.T))
+        return GaussianPrior(retract(T, -np.linalg.solve(Hr, G)), 0.5 * (cov + cov.T))
 
     def _marginalise(self, fr: _Frame) -> None:
         """Fold a leaving frame into the marginal prior at the current estimate."""
-        gh = self._history_gaussian([fr])
+        gh = self._history_gaussian([fr], self.T)
         if gh is None:
             return
         G, H = gh
@@ -202,43 +247,37 @@ class SlidingWindowCalibrator:
             self.frames.popleft()
         self.since_reset = 0
         self.detector.reset()
-        self._inlier_mean = None
 
     # ------------------------------------------------------------------ solves
-    def _needs_relinearisation(self) -> bool:
+    def _relinearisation_due(self, frames) -> bool:
         c = self.conf
-        seen: set[int] = set()
-        for fr in self.frames:
-            if fr.T_lin is None:
-                return True
-            if id(fr.T_lin) in seen:
-                continue
-            seen.add(id(fr.T_lin))
-            d = local(fr.T_lin, self.T)
-            if np.degrees(np.linalg.norm(d[:3])) > c.relinearize_rot_deg or \
-                    np.linalg.norm(d[3:]) * 100 > c.relinearize_trans_cm:
-                return True
-        return False
+        return needs_relinearisation([None if fr.lin is None else fr.lin.T_lin for fr in frames], self.T,
+                                     c.relinearize_rot_deg, c.relinearize_trans_cm)
 
-    def _solve_window(self, convex: bool):
-        """Full nonlinear solve of the window (+ marginal prior + frame priors); relinearises every frame."""
+    def _solve_window(self, T_start: np.ndarray, convex: bool) -> tuple[SolveResult, list[Linearisation]]:
+        """Full nonlinear solve of the window (+ marginal prior + frame priors) from T_start (4, 4):
+        the result and every frame's linearisation at its optimum; nothing is changed (``_adopt``)."""
         c = self.conf
         priors = [fr.prior for fr in self.frames if fr.prior is not None]
-        marg = self._as_prior(self._history_gaussian([]))
-        res = robust_solve([f.corr for f in self.frames], self.T, c.factor, priors + ([marg] if marg else []),
+        marg = self._as_prior(self._history_gaussian([], T_start), T_start)
+        res = robust_solve([f.corr for f in self.frames], T_start, c.factor, priors + ([marg] if marg else []),
                            c.schedule, convex)
+        T_lin = res.T.copy()
+        return res, [self._linearisation(fr, T_lin) for fr in self.frames]
+
+    def _adopt(self, res: SolveResult, lins: list[Linearisation]) -> _Solved:
+        """Make a window solve (``_solve_window``) the current estimate."""
         self.T = res.T
-        T_lin = self.T.copy()
-        for fr in self.frames:
-            self._linearise(fr, T_lin)
-        return res
+        for fr, lin in zip(self.frames, lins, strict=True):
+            fr.lin = lin
+        return _Solved(res.graph, res.values)
 
     def _solve_incremental(self, fr: _Frame):
         """New frame nonlinear (gated at the warm start) + one prior holding history and window."""
         import gtsam
 
         c = self.conf
-        hist = self._as_prior(self._history_gaussian([f for f in self.frames if f is not fr]))
+        hist = self._as_prior(self._history_gaussian([f for f in self.frames if f is not fr], self.T), self.T)
         gate = self._gate()
         if gate > 0:
             conf = dataclasses.replace(c.factor, kernel="none")
@@ -253,16 +292,42 @@ class SlidingWindowCalibrator:
             return None
         values = gtsam.LevenbergMarquardtOptimizer(graph, values, lm_params(c.schedule)).optimize()
         self.T = values.atPose3(X).matrix()
-        self._linearise(fr, self.T.copy())
+        fr.lin = self._linearisation(fr, self.T.copy())
         return _Solved(graph, values)
+
+    def _solve_new_frame(self, fr: _Frame) -> _Solved | None:
+        """A full window solve in the first ``convex_frames`` updates after a (re)start (convex start)
+        or when the estimate has left the other frames' linearisation points; otherwise the new frame
+        alone against the window's Gaussian (then a full solve if that moved the estimate too far)."""
+        convex = self.since_reset < self.conf.convex_frames
+        if convex or self._relinearisation_due([f for f in self.frames if f is not fr]):
+            return self._adopt(*self._solve_window(self.T, convex=convex))
+        solved = self._solve_incremental(fr)
+        if self._relinearisation_due(self.frames):
+            solved = self._adopt(*self._solve_window(self.T, convex=False))
+        return solved
+
+    def _rescue_if_diverged(self, fr: _Frame, solved: _Solved | None, events: list[str]) -> _Solved | None:
+        """When too few of the new frame's rows fit (e.g. a far start solved from too few frames),
+        re-solve the window from the initial extrinsic with the convex start and keep whichever
+        explains more correspondences."""
+        before = fr.lin.inliers
+        if before >= self.conf.min_inlier_fraction or not len(fr.corr):
+            return solved
+        res, lins = self._solve_window(self.T_init.copy(), convex=True)
+        after = lins[-1].inliers  # the new frame is the window's last
+        if after <= before:
+            return solved
+        events.append(f"not converged (inlier fraction {before:.2f}): re-solved the window from the initial "
+                      f"extrinsic with a convex start (inlier fraction {after:.2f})")
+        return self._adopt(res, lins)
 
     def _estimate(self, solved, note: str = "") -> tuple[Estimate, float]:
         t0 = time.perf_counter()
         if solved is None:
             info, cov, why = np.zeros((6, 6)), None, "no correspondences yet"
         else:
-            info = information_from_graph(solved.graph, solved.values, X)
-            cov, why = marginal_covariance(solved.graph, solved.values, X)
+            info, cov, why = graph_covariance(solved.graph, solved.values, X)
         ext = self._marg_external_info + sum(
             (np.linalg.inv(fr.prior.cov) for fr in self.frames if fr.prior is not None), np.zeros((6, 6)))
         rep = analyse_information(self.T, info, self.conf.covariance, cov_hint=cov,
@@ -271,104 +336,84 @@ class SlidingWindowCalibrator:
         notes = [n for n in (why, note) if n]
         return Estimate.from_report(self.T, rep, info, "; ".join(notes)), (time.perf_counter() - t0) * 1e3
 
+    # ------------------------------------------------------------------ step change
+    def _test_step(self, inlier_fraction: float) -> StepOutcome | None:
+        """The windowed step test after this update (None while there is too little history)."""
+        det = self.detector
+        if not det.ready(len(self.frames) + self.n_marg, len(self.frames)):
+            return None
+        c = self.conf
+        recent = list(self.frames)[-det.conf.recent_frames:]
+
+        def solve_recent():
+            rr = robust_solve([f.corr for f in recent], self.T, c.factor, None, c.schedule, convex_start=True)
+            return rr.T, information_from_graph(rr.graph, rr.values, X)
+
+        resolve = det.resolve_due(self.n_updates, det.collapsed(inlier_fraction))
+        return det.check(self.T, self.info, self._history_gaussian_frames(recent), solve_recent, resolve)
+
+    def _restart_after_step(self, step: StepOutcome) -> tuple[Estimate, float]:
+        """Drop the history, keep the recent frames that agree with the post-step estimate and
+        re-solve them with a convex start from it."""
+        c = self.conf
+        self.reset(keep_last=self.detector.conf.recent_frames)
+        self.T = step.T_recent
+        inl = np.array([frame_information(self.T, f.corr, c.factor, self._gate())[2] for f in self.frames])
+        keep = inl >= 0.5 * inl.max() if inl.max() > 0 else np.ones(len(inl), bool)
+        self.frames = deque(f for f, k in zip(self.frames, keep) if k)
+        solved = self._adopt(*self._solve_window(self.T, convex=True))
+        return self._estimate(solved, note="recovering after a step change")
+
     # ------------------------------------------------------------------ public
+    def _advance_clock(self, ts: int) -> None:
+        """Time since the previous frame (``default_dt_s`` without timestamps) widens the marginal
+        prior by the random walk."""
+        c = self.conf
+        dt = (ts - self.last_ts) * 1e-6 if (self.last_ts is not None and ts > self.last_ts) else c.default_dt_s
+        self.last_ts = ts
+        if self.marg is not None and (c.random_walk_rot_deg_per_sqrt_s > 0 or c.random_walk_trans_cm_per_sqrt_s > 0):
+            Tm, Lm = self.marg
+            self.marg = (Tm, random_walk_information(Lm, self._q(dt)))
+
+    def _push(self, corr: Correspondences, prior: GaussianPrior | None) -> _Frame:
+        """Append the frame; frames beyond ``window`` leave into the marginal prior."""
+        fr = _Frame(corr, prior)
+        self.frames.append(fr)
+        while len(self.frames) > self.conf.window:
+            self._marginalise(self.frames.popleft())
+        return fr
+
     def update(self, corr: Correspondences, prior: GaussianPrior | None = None,
                timestamp_us: int | None = None) -> FrameEstimate:
         """Add one frame (its correspondences and optional prior on T_cam_radar) and re-estimate."""
         if not isinstance(corr, Correspondences):
             raise TypeError(f"update() needs a Correspondences, got {type(corr)}")
-        c = self.conf
         t0 = time.perf_counter()
         ts = int(corr.timestamp_us if timestamp_us is None else timestamp_us)
-        dt = (ts - self.last_ts) * 1e-6 if (self.last_ts is not None and ts > self.last_ts) else c.default_dt_s
-        self.last_ts = ts
-        if self.marg is not None and (c.random_walk_rot_deg_per_sqrt_s > 0 or c.random_walk_trans_cm_per_sqrt_s > 0):
-            Tm, Lm = self.marg
-            L = np.linalg.inv(np.linalg.inv(Lm + _WEAK_INFO * np.eye(6)) + self._q(dt))
-            self.marg = (Tm, 0.5 * (L + L.T))
-        fr = _Frame(corr, prior)
-        self.frames.append(fr)
-        while len(self.frames) > c.window:
-            self._marginalise(self.frames.popleft())
+        self._advance_clock(ts)
+        fr = self._push(corr, prior)
         events: list[str] = []
-        if self.since_reset < c.convex_frames or self._needs_relinearisation_except(fr):
-            res = self._solve_window(convex=self.since_reset < c.convex_frames)
-            solved = _Solved(res.graph, res.values)
-        else:
-            solved = self._solve_incremental(fr)
-            if self._needs_relinearisation():
-                res = self._solve_window(convex=False)
-                solved = _Solved(res.graph, res.values)
-        if fr.inliers < c.min_inlier_fraction and len(fr.corr):
-            # diverged (e.g. a far start solved from too few frames): retry the window from the initial
-            # extrinsic with the convex start and keep whichever explains more correspondences
-            T_prev, inl_prev, lin_prev = self.T, fr.inliers, [(f.T_lin, f.g, f.H, f.inliers) for f in self.frames]
-            self.T = self.T_init.copy()
-            res = self._solve_window(convex=True)
-            if fr.inliers > inl_prev:
-                solved = _Solved(res.graph, res.values)
-                events.append(f"not converged (inlier fraction {inl_prev:.2f}): re-solved the window from the "
-                              f"initial extrinsic with a convex start (inlier fraction {fr.inliers:.2f})")
-            else:
-                self.T = T_prev
-                for f, (a, b, h, i) in zip(self.frames, lin_prev):
-                    f.T_lin, f.g, f.H, f.inliers = a, b, h, i
-        est, cov_ms = self._estimate(solved, note="" if fr.inliers >= c.min_inlier_fraction else
-                                     f"NOT CONVERGED: only {100 * fr.inliers:.0f} % of the frame's "
-                                     "correspondences fit the estimate")
-        stat = thr = None
-        alarm = False
+        solved = self._rescue_if_diverged(fr, self._solve_new_frame(fr), events)
+        est, cov_ms = self._estimate(solved, note=convergence_note(fr.lin.inliers, self.conf.min_inlier_fraction))
         n_total = len(self.frames) + self.n_marg
-        m = c.step.recent_frames
-        inl = fr.inliers
-        collapse = self._inlier_mean is not None and inl < c.step.inlier_drop * self._inlier_mean
-        if c.detect_steps and n_total >= max(c.step.min_history, 2 * m) and len(self.frames) >= m:
-            recent = list(self.frames)[-m:]
-            gh = self._history_gaussian_frames(recent)
-            stat = self.detector.statistic(self.T, self.info, retract(self.T, -np.linalg.pinv(gh[1]) @ gh[0]), gh[1])
-            rr = None
-            if collapse or self.n_updates % max(1, c.step.every) == 0:
-                rr = robust_solve([f.corr for f in recent], self.T, c.factor, None, c.schedule, convex_start=True)
-                info_r = information_from_graph(rr.graph, rr.values, X)
-                stat = max(stat, self.detector.statistic(self.T, self.info, rr.T, info_r))
-            test = self.detector.observe(stat)
-            thr, alarm = test.threshold, test.alarm
-            if alarm:
-                events.append(f"step change detected (chi2 {test.statistic:.1f} > {test.threshold:.1f}, dof 6): "
-                              f"history dropped, window reset to the recent frames that fit the new estimate, "
-                              f"convex restart")
-                if rr is None:
-                    rr = robust_solve([f.corr for f in recent], self.T, c.factor, None, c.schedule, convex_start=True)
-                self.reset(keep_last=m)
-                self.T = rr.T
-                # keep only the recent frames that agree with the post-step estimate (drop pre-step ones)
-                inl = np.array([frame_information(rr.T, f.corr, c.factor, self._gate())[2] for f in self.frames])
-                keep = inl >= 0.5 * inl.max() if inl.max() > 0 else np.ones(len(inl), bool)
-                self.frames = deque(f for f, k in zip(self.frames, keep) if k)
-                res = self._solve_window(convex=True)
-                est, cov_ms = self._estimate(_Solved(res.graph, res.values), note="recovering after a step change")
-                n_total = len(self.frames)
-                inl = fr.inliers
-        if not alarm:
-            k = min(self.since_reset, 50)
-            self._inlier_mean = inl if self._inlier_mean is None else (self._inlier_mean * k + inl) / (k + 1)
+        inl = fr.lin.inliers
+        step = self._test_step(inl) if self.conf.detect_steps else None
+        alarm = step is not None and step.test.alarm
+        if alarm:
+            events.append(f"step change detected (chi2 {step.test.statistic:.1f} > {step.test.threshold:.1f}, dof 6): "
+                          f"history dropped, window reset to the recent frames that fit the new estimate, "
+                          f"convex restart")
+            est, cov_ms = self._restart_after_step(step)
+            n_total = len(self.frames)
+            inl = fr.lin.inliers
+        else:
+            self.detector.track_inliers(inl, self.since_reset)
         self.since_reset += 1
         self.n_updates += 1
         total_ms = (time.perf_counter() - t0) * 1e3
-        return FrameEstimate(self.n_updates - 1, corr.frame_id, ts, est, len(self.frames), n_total, inl, stat, thr,
-                             alarm, total_ms - cov_ms, cov_ms, tuple(events))
-
-    def _needs_relinearisation_except(self, new: _Frame) -> bool:
-        """Relinearisation test over the frames already linearised (the new one is not yet)."""
-        saved = new.T_lin
-        new.T_lin = self.T
-        try:
-            return self._needs_relinearisation()
-        finally:
-            new.T_lin = saved
-
-
-@dataclass
-class _Solved:
-    graph: object
-    values: object
+        return FrameEstimate(
+            index=self.n_updates - 1, frame_id=corr.frame_id, timestamp_us=ts, estimate=est,
+            n_window=len(self.frames), n_total=n_total, inlier_fraction=inl,
+            step_statistic=None if step is None else step.test.statistic,
+            step_threshold=None if step is None else step.test.threshold,
+            step_alarm=alarm, solve_ms=total_ms - cov_ms, cov_ms=cov_ms, events=tuple(events))
