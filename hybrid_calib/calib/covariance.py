@@ -52,19 +52,6 @@ class CovarianceReport:
     weak_directions: tuple[str, ...]
     condition: float  # condition number of the scaled information matrix
 
-    def to_dict(self) -> dict:
-        return {
-            "cov_right_radar": self.cov.tolist(),
-            "std_camera": {
-                "rot_x_deg": float(self.std_report[0]), "rot_y_deg": float(self.std_report[1]),
-                "rot_z_deg": float(self.std_report[2]), "t_x_cm": float(self.std_report[3]),
-                "t_y_cm": float(self.std_report[4]), "t_z_cm": float(self.std_report[5]),
-            },
-            "status": self.status,
-            "regularised": bool(self.regularised),
-            "weak_directions": list(self.weak_directions),
-            "condition_scaled": float(self.condition),
-        }
 
 
 def report_basis(T_cam_radar: np.ndarray) -> np.ndarray:
