@@ -46,6 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from factors.correspondences import Correspondences
+from hybrid_calib.atomic import atomic_path
 from hybrid_calib.errors import DataError
 
 SCHEMA_VERSION = 1
@@ -184,10 +185,8 @@ def save_measurements(path: str | Path, m: FrameMeasurements, extra: Mapping[str
     clash = sorted(set(extra) & set(KEYS))
     if clash:
         raise ValueError(f"save_measurements: extra keys {clash} are format keys; pass them through the frame")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.stem + ".tmp.npz")
-    np.savez(tmp, **extra, **to_arrays(m))
-    tmp.replace(path)
+    with atomic_path(path) as tmp:
+        np.savez(tmp, **extra, **to_arrays(m))
     return path
 
 

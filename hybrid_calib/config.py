@@ -146,12 +146,9 @@ def parse_overrides(items: list[str] | None) -> dict[str, Any]:
 
 def save_json_atomic(path: Path, obj: Any) -> Path:
     """Write JSON to ``path`` atomically (temp file + rename)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=2, default=_json_default))
-    tmp.replace(path)
-    return path
+    from hybrid_calib.atomic import write_bytes_atomic
+
+    return write_bytes_atomic(path, json.dumps(obj, indent=2, default=_json_default).encode())
 
 
 def _json_default(o: Any) -> Any:

@@ -22,13 +22,13 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
 
 import numpy as np
 
+from hybrid_calib.atomic import atomic_path
 from hybrid_calib.config import merge, save_json_atomic, to_dict
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.errors import DataError, HybridCalibError
@@ -354,9 +354,8 @@ class DepthCache:
         meta = path.parent / "estimator.json"
         if not meta.is_file():
             save_json_atomic(meta, {"name": estimator.name, "config_hash": estimator.config_hash()})
-        tmp = path.with_name(f"{path.stem}.{os.getpid()}.tmp.npy")
-        np.save(tmp, depth, allow_pickle=False)
-        tmp.replace(path)
+        with atomic_path(path) as tmp:
+            np.save(tmp, depth, allow_pickle=False)
         return depth
 
 

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hybrid_calib.atomic import atomic_path
 from hybrid_calib.errors import DataError
 from hybrid_calib.sensors.camera import PinholeCamera
 
@@ -86,8 +87,7 @@ def write_depth_png(path: str | Path, depth_m: np.ndarray) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     d = np.nan_to_num(np.asarray(depth_m, dtype=np.float64), nan=0.0, posinf=0.0)
     cm = np.clip(np.round(d / DEPTH_UNIT_M), 0, 65535).astype(np.uint16)
-    tmp = path.with_name(path.stem + ".tmp.png")
-    if not cv2.imwrite(str(tmp), cm):
-        raise OSError(f"could not write depth PNG {tmp}")
-    tmp.replace(path)
+    with atomic_path(path) as tmp:
+        if not cv2.imwrite(str(tmp), cm):
+            raise OSError(f"could not write depth PNG {path}")
     return path

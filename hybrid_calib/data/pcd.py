@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hybrid_calib.atomic import write_bytes_atomic
 from hybrid_calib.errors import DataError
 
 # The 18 fields of a nuScenes radar PCD, in file order, with their numpy types.
@@ -42,15 +43,9 @@ def write_radar_pcd(path: str | Path, points: np.ndarray) -> Path:
     points = np.asarray(points)
     if points.dtype != RADAR_DTYPE:
         raise ValueError(f"radar points must have dtype RADAR_DTYPE, got {points.dtype}")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        f.write(_header_text(len(points)))
-        f.write(points.tobytes())
-        # Real nuScenes radar files carry trailing padding, and nuscenes-devkit's reader asserts
-        # at least one byte after the last point: keep that layout.
-        f.write(b"\0" * _TRAILING_PAD)
-    tmp.replace(path)
+    # Real nuScenes radar files carry trailing padding, and nuscenes-devkit's reader asserts at
+    # least one byte after the last point: keep that layout.
+    write_bytes_atomic(path, _header_text(len(points)) + points.tobytes() + b"\0" * _TRAILING_PAD)
     return path
 
 
@@ -141,8 +136,5 @@ def write_lidar_bin(path: str | Path, points: np.ndarray) -> Path:
     points = np.asarray(points, dtype=np.float32)
     if points.ndim != 2 or points.shape[1] != 5:
         raise ValueError(f"LiDAR points must be (N, 5) [x, y, z, intensity, ring], got {points.shape}")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    points.tofile(tmp)
-    tmp.replace(path)
+    write_bytes_atomic(path, points.tobytes())
     return path

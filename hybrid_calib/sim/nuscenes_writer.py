@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hybrid_calib.atomic import atomic_path
 from hybrid_calib.config import save_json_atomic
 from hybrid_calib.geometry import pose_to_nuscenes
 
@@ -206,8 +207,6 @@ def write_map_png(root: Path, map_token: str, paths_xy: list[np.ndarray], resolu
         px[:, 1] = img.shape[0] - 1 - px[:, 1]
         cv2.polylines(img, [px.reshape(-1, 1, 2)], False, 255, thickness=max(int(14 / resolution), 1))
     path = Path(root) / "maps" / f"{map_token}.png"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.stem + ".tmp.png")
-    cv2.imwrite(str(tmp), img)
-    tmp.replace(path)
+    with atomic_path(path) as tmp:
+        cv2.imwrite(str(tmp), img)
     return path

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hybrid_calib.atomic import atomic_path, write_bytes_atomic
 from hybrid_calib.config import save_json_atomic, to_dict
 from hybrid_calib.data.frame import write_depth_png
 from hybrid_calib.data.pcd import write_lidar_bin, write_radar_pcd
@@ -98,22 +99,16 @@ def write_frame(root: Path, drive: VehicleDrive, rec: FrameRecord) -> None:
     ok, jpg = cv2.imencode(".jpg", f.image[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, drive.conf.jpeg_quality])
     if not ok:
         raise OSError(f"JPEG encoding failed for frame {rec.index}")
-    img = root / rec.camera_file
-    img.parent.mkdir(parents=True, exist_ok=True)
-    tmp = img.with_name(img.name + ".tmp")
-    tmp.write_bytes(jpg.tobytes())
-    tmp.replace(img)
+    write_bytes_atomic(root / rec.camera_file, jpg.tobytes())
 
 
 def write_radar(root: Path, radar_file: str, sweep) -> None:
     """A radar sweep's PCD and its truth NPZ (truth first: the PCD's presence marks the pair done)."""
     truth = radar_truth_file(root, radar_file)
-    truth.parent.mkdir(parents=True, exist_ok=True)
-    tmp = truth.with_name(truth.stem + ".tmp.npz")
-    np.savez(tmp, true_xyz=sweep.true_xyz.astype(np.float64), kind=sweep.kind.astype(np.int8),
-             object_id=sweep.object_id.astype(np.int32), elevation=sweep.elevation.astype(np.float64),
-             object_speed=sweep.object_speed.astype(np.float64), snr_db=sweep.snr_db.astype(np.float64))
-    tmp.replace(truth)
+    with atomic_path(truth) as tmp:
+        np.savez(tmp, true_xyz=sweep.true_xyz.astype(np.float64), kind=sweep.kind.astype(np.int8),
+                 object_id=sweep.object_id.astype(np.int32), elevation=sweep.elevation.astype(np.float64),
+                 object_speed=sweep.object_speed.astype(np.float64), snr_db=sweep.snr_db.astype(np.float64))
     write_radar_pcd(root / radar_file, sweep.points)
 
 

@@ -1,0 +1,40 @@
+"""Atomic file writes: the one way every output file reaches disk.
+
+A writer fills a temporary file beside the target (same folder, so the final rename is atomic on
+POSIX; same suffix, so writers that choose the format by extension (OpenCV, ``np.save``,
+``np.savez``, matplotlib) write the right one), and only a complete file is renamed over the target.
+A crash leaves either the old file or the new one, never a half-written one; a failed writer
+removes its temporary file. The temporary name carries the process id, so concurrent workers
+writing the same path do not share a temporary file.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+
+@contextmanager
+def atomic_path(path: str | Path) -> Iterator[Path]:
+    """Yield a temporary path for ``path`` (parent folder created); rename it over ``path`` when
+    the block exits normally and the writer produced it, delete it when the block raises."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f"{path.stem}.{os.getpid()}.tmp{path.suffix}")
+    try:
+        yield tmp
+        if not tmp.exists():
+            raise OSError(f"writing {path}: the writer produced no file")
+        tmp.replace(path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def write_bytes_atomic(path: str | Path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically; returns the path."""
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+    return Path(path)
