@@ -109,6 +109,7 @@ SET_CASES = [
     ("calibrate", "nosuchkey=1", ["nosuchkey", "CalibrateConfig"]),
     ("calibrate", "oracle.outlier_frac=abc", ["oracle.outlier_frac='abc'", "number"]),
     ("calibrate", "window.factor.kernel=nosuch", ["kernel='nosuch'", "tukey"]),
+    ("calibrate", "window.window=0", ["window", "must be >= 1, got 0"]),
     ("train", "nosuchkey=1", ["nosuchkey", "TrainConfig"]),
     ("train", "lr=abc", ["lr='abc'", "number"]),
     ("train", "model.use_mca=off", ["model.use_mca='off'", "bool", "--set model.use_mca=true"]),

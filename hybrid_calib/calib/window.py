@@ -81,6 +81,10 @@ class WindowConfig:
     relinearize_trans_cm: float = 2.0  # ... or this (cm) from a frame's linearisation point
     min_inlier_fraction: float = 0.25  # below this the solve has not converged: re-solve from T_init (convex)
 
+    def __post_init__(self):
+        if self.window < 1:
+            raise ValueError(f"WindowConfig.window must be >= 1, got {self.window}")
+
 
 @dataclass(frozen=True)
 class Linearisation:
@@ -161,8 +165,6 @@ class SlidingWindowCalibrator:
 
     def __init__(self, T_init: np.ndarray, conf: WindowConfig | dict | None = None):
         self.conf = merge(WindowConfig, conf)
-        if self.conf.window < 1:
-            raise ValueError(f"WindowConfig.window must be >= 1, got {self.conf.window}")
         T_init = np.asarray(T_init, np.float64)
         if T_init.shape != (4, 4) or not np.all(np.isfinite(T_init)):
             raise ValueError(f"T_init must be a finite (4, 4) transform, got shape {T_init.shape}")

@@ -21,8 +21,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(factors.io *.npz: the --out of hybrid-calib evaluate, flat, or one sub-directory per "
                         "vehicle)")
     p.add_argument("--mode", default="window", choices=("window", "batch"), help="default: window")
-    p.add_argument("--window", type=positive_int, default=20, help="sliding-window length in frames (default: 20)")
-    p.add_argument("--backend", default="gtsam", choices=("gtsam", "ceres"), help="batch back end (default: gtsam)")
+    p.add_argument("--window", type=positive_int, default=None,
+                   help="sliding-window length in frames (default: 20, or --set window.window=N)")
+    p.add_argument("--backend", default=None, choices=("gtsam", "ceres"),
+                   help="batch back end (default: gtsam, or --set batch.backend=...)")
     p.add_argument("--start", default="reference", choices=("reference", *RANGES),
                    help="initial extrinsic: the vehicle's tables, or a perturbed truth (default: reference)")
     p.add_argument("--max-frames", type=nonnegative_int, default=0, help="frames per vehicle, 0 = all (default: 0)")
@@ -44,8 +46,11 @@ def run(args: argparse.Namespace) -> int:
 
     overrides = parse_overrides(args.set)
     overrides.update(mode=args.mode, start=args.start, seed=args.seed, max_frames=args.max_frames)
-    overrides.setdefault("window", {})["window"] = args.window
-    overrides.setdefault("batch", {})["backend"] = args.backend
+    # an explicit flag wins over --set; an absent one leaves --set (or the default) in charge
+    if args.window is not None:
+        overrides.setdefault("window", {})["window"] = args.window
+    if args.backend is not None:
+        overrides.setdefault("batch", {})["backend"] = args.backend
     conf = merge(CalibrateConfig, overrides)  # ConfigError (unknown key, wrong type, bad value) names the option
     if (args.out / "result.json").is_file() and not args.overwrite:
         print(f"{args.out / 'result.json'} exists; pass --overwrite to recompute")
