@@ -144,14 +144,19 @@ def parse_overrides(items: list[str] | None) -> dict[str, Any]:
     return out
 
 
-def save_json_atomic(path: Path, obj: Any) -> Path:
-    """Write JSON to ``path`` atomically (temp file + rename)."""
+def save_text_atomic(path: Path, text: str) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` atomically (temp file + rename); the parent is created."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=2, default=_json_default))
+    tmp.write_text(text, encoding="utf-8")
     tmp.replace(path)
     return path
+
+
+def save_json_atomic(path: Path, obj: Any) -> Path:
+    """Write JSON to ``path`` atomically (temp file + rename)."""
+    return save_text_atomic(path, json.dumps(obj, indent=2, default=_json_default))
 
 
 def _json_default(o: Any) -> Any:
