@@ -54,8 +54,8 @@ def verdict_html(v: Verdict, vr: VehicleResult) -> str:
                 f"{d['statistic']:.1f}, p-value {d['p_value']:.2g}, change "
                 f"{d.get('rot_change_deg', float('nan')):.2f} deg / {d.get('trans_change_cm', float('nan')):.1f} cm; "
                 f"significant: {d.get('significant')}, flagged as drifted by the test: {d.get('drifted')} (the test "
-                "has no tolerance: a small but significant change, or one along a direction the data could not pin, "
-                "is flagged too; the verdict above weighs both).</div>")
+                "flags any significant change above a small practical margin, also along a direction the data could "
+                "not pin; the verdict above weighs the change and its 3-sigma against the tolerance).</div>")
     return (f'<div class="verdict {verdict_class(v.word)}" id="verdict"><div class="word">{esc(v.word)}</div>'
             f"<p>{esc(v.why)}</p><p><b>Tolerance:</b> {esc(v.tolerance)}. <span class=\"meta\">({esc(v.source)})"
             f"</span></p><p><b>Did the sensor move during the drive?</b> <span id=\"moved\">{esc(v.moved)}</span></p>"
