@@ -230,3 +230,15 @@ def test_pages_in_a_headless_browser(run_dir, tmp_path):
     blank = tmp_path / "blank.html"
     blank.write_text("<html><body></body></html>")
     assert _variance(render(blank, exe).screenshot_png) < 1
+
+
+def test_missing_browser_fails_under_ci_and_skips_otherwise(monkeypatch):
+    from tests import browser
+
+    monkeypatch.setattr(browser.shutil, "which", lambda name: None)
+    monkeypatch.setenv("CI", "1")
+    with pytest.raises(pytest.fail.Exception, match="CI is set"):
+        browser.chromium_or_skip()
+    monkeypatch.delenv("CI")
+    with pytest.raises(pytest.skip.Exception, match="apt-get install -y chromium"):
+        browser.chromium_or_skip()
