@@ -147,6 +147,9 @@ def _frames(ev: Evidence, root: Path, version: str, vehicle: str, vr, n: int, by
     from hybrid_calib.data.nuscenes import NuScenesRadarCamera
     from hybrid_calib.geometry import transform_points
 
+    if n <= 0:
+        ev.notes.append("no camera frames requested (--frames 0)")
+        return
     ds = NuScenesRadarCamera(root, version)
     idx = ds.frames_by_vehicle().get(vehicle)
     if not idx:

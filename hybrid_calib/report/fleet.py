@@ -42,7 +42,8 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
 
     results: ``result.json`` paths. design: (4, 4) design-mount ``T_cam_radar`` or None. flagged: names
     of vehicles the fleet engine flagged (named in the plot and the table; when empty, the vehicles whose
-    verdict is "recalibrate" or whose sensor stepped during the drive are flagged). reports: vehicle ->
+    sensor stepped during the drive are flagged; a mount that only differs from the design shows in its
+    verdict, "recalibrate"). reports: vehicle ->
     its report page, already written; when None, each vehicle's page is written next to its result
     (``report.html``, ``report-<vehicle>.html`` for a result with several vehicles) with ``data`` /
     ``version`` / ``conf``. Returns the path written."""
@@ -71,7 +72,7 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
                 pages[name] = write_report(p, page, name, data, version, conf)
     names = list(vehicles)
     verdicts = {n: verdict_of(vr, conf.tolerance) for n, (vr, _) in vehicles.items()}
-    flagged = list(flagged) or [n for n in names if verdicts[n].word == "recalibrate" or verdicts[n].moved_frames]
+    flagged = list(flagged) or [n for n in names if verdicts[n].moved_frames]
     offsets = {n: _offset(vr, design) for n, (vr, _) in vehicles.items()}
     reference = "design mount" if design is not None else "vehicle's own reference (calibration tables)"
 
