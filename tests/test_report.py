@@ -242,3 +242,19 @@ def test_missing_browser_fails_under_ci_and_skips_otherwise(monkeypatch):
     monkeypatch.delenv("CI")
     with pytest.raises(pytest.skip.Exception, match="apt-get install -y chromium"):
         browser.chromium_or_skip()
+
+
+def test_a_step_splits_the_drive_into_two_estimates():
+    from hybrid_calib.calib.result import FrameEstimate
+    from hybrid_calib.report.evidence import segment_estimates
+
+    vr = _vr((0,) * 6, (0.01,) * 6)
+    Ts = [nominal_T_cam_radar() + np.diag([0, 0, 0, 0]) for _ in range(6)]
+    for k, T in enumerate(Ts):
+        T[0, 3] = k  # each frame's estimate distinguishable
+    vr.trajectory = [FrameEstimate(k, f"f{k}", 0, Estimate(Ts[k], np.eye(6), np.ones(6), "ok"), 1, 1, 1.0,
+                                   None, None, k == 4, 0.0, 0.0) for k in range(6)]
+    seg = segment_estimates(vr)
+    assert [seg[f"f{k}"][0][0, 3] for k in range(6)] == [3, 3, 3, 3, vr.final.T[0, 3], vr.final.T[0, 3]]
+    assert seg["f0"][1] == "result of frames 0-3" and seg["f5"][1] == "result of frames 4-5"
+    assert [seg[f"f{k}"][2] for k in range(6)] == list(range(6))

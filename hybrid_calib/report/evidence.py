@@ -5,7 +5,11 @@ The rows are those the run used: ``calib.pipeline.replay_inputs`` rebuilds them 
 effective config (``RUN/config.json``, next to ``result.json``) with the run's own seed, so oracle
 rows and R1/R2 starts are identical to the run's; measurement files are read again.
 
-Residuals: per row, the whitened residual norm ``|e_i|`` of the factor at the final extrinsic
+The result a frame is drawn and scored with is its segment's estimate (``segment_estimates``): the
+final one, or, when the step detector restarted the window during the drive, the window's estimate
+just before the restart for the frames before it (a knocked sensor has two extrinsics).
+
+Residuals: per row, the whitened residual norm ``|e_i|`` of the factor at that extrinsic
 (``factors.gtsam_factors.frame_residuals``, no kernel) times the row's pixel sigma: the distance in
 pixels the solver sees once the unknown elevation of the 2D radar is discounted. A row is an inlier
 when ``|e_i|`` is below the schedule's final gate (as the covariance counts it).
@@ -41,6 +45,8 @@ class ShownFrame:
     """One camera frame of the drive with what the before / after figure draws (image pixels)."""
 
     index: int  # frame index in the dataset
+    drive_index: int | None  # the frame's index in the vehicle's trajectory (None: not matched)
+    result_label: str  # which estimate the result panel uses
     token: str
     image: np.ndarray  # (H, W, 3) uint8
     uv_start: np.ndarray  # (N, 2) the frame's radar points projected with the start
@@ -61,6 +67,23 @@ class Evidence:
     residuals: Residuals | None = None
     frames: list[ShownFrame] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+
+
+def segment_estimates(vr) -> dict[str, tuple[np.ndarray, str, int]]:
+    """frame_id -> ((4, 4) the estimate of the frame's segment, a label, the frame's trajectory index).
+    Segments end at the frame before each step alarm and at the last frame; empty for batch results."""
+    traj = vr.trajectory
+    out: dict[str, tuple[np.ndarray, str, int]] = {}
+    ends = [k - 1 for k, f in enumerate(traj) if f.step_alarm and k > 0] + [len(traj) - 1]
+    start = 0
+    for end in ends:
+        T = vr.final.T if end == len(traj) - 1 else traj[end].T
+        label = ("result" if end == len(traj) - 1 and start == 0 else
+                 f"result of frames {traj[start].index}-{traj[end].index}")
+        for k in range(start, end + 1):
+            out[traj[k].frame_id] = (T, label, traj[k].index)
+        start = end + 1
+    return out
 
 
 def run_config(result_path: Path) -> CalibrateConfig | None:
@@ -130,7 +153,9 @@ def gather(run: CalibrationRun, result_path: Path, vehicle: str, data: str | Pat
             ev.start_label = ("the vehicle's reference (its calibration tables)" if conf.start == "reference"
                               else f"the run's {conf.start} start (perturbed truth, seed {conf.seed})")
             factor_conf, gate = _factor_and_gate(conf, run.mode)
-            rows = [_rows_residuals(vr.final.T, c, factor_conf, gate) for c in vi.frames if len(c)]
+            seg = segment_estimates(vr)
+            rows = [_rows_residuals(seg.get(c.frame_id, (vr.final.T,))[0], c, factor_conf, gate)
+                    for c in vi.frames if len(c)]
             if rows:
                 sig = np.concatenate([np.asarray(c.sigma_px) for c in vi.frames if len(c)])
                 ev.residuals = Residuals(np.concatenate([r for r, _ in rows]), np.concatenate([i for _, i in rows]),
@@ -159,8 +184,10 @@ def _frames(ev: Evidence, root: Path, version: str, vehicle: str, vr, n: int, by
     if start is None:
         start = np.asarray(ds[idx[0]].extras.get("reference_T_cam_radar", ds[idx[0]].T_cam_radar), np.float64)
         ev.start_label = "the vehicle's reference (its calibration tables)"
+    seg = segment_estimates(vr)
     for i in sorted({idx[int(round(k))] for k in np.linspace(0, len(idx) - 1, n)}):
         f = ds[i]
+        T_res, label, k = seg.get(f.sample_token) or seg.get(f.camera_token) or (vr.final.T, "result", None)
         try:
             img = f.load_image()
         except DataError as e:
@@ -168,12 +195,12 @@ def _frames(ev: Evidence, root: Path, version: str, vehicle: str, vr, n: int, by
             continue
         pts = np.asarray(f.radar_points)
         uv0, z0 = f.camera.project(transform_points(start, pts))
-        uv1, z1 = f.camera.project(transform_points(vr.final.T, pts))
-        sf = ShownFrame(i, f.sample_token, img, uv0, uv1, z0, z1)
+        uv1, z1 = f.camera.project(transform_points(T_res, pts))
+        sf = ShownFrame(i, k, label, f.sample_token, img, uv0, uv1, z0, z1)
         corr = by_token.get(f.sample_token) or by_token.get(f.camera_token)
         if corr is not None and len(corr) and fg is not None:
             sf.pairs_start = _pairs(corr, start, f, *fg)
-            sf.pairs_result = _pairs(corr, vr.final.T, f, *fg)
+            sf.pairs_result = _pairs(corr, T_res, f, *fg)
         ev.frames.append(sf)
     if ev.frames and all(s.pairs_result is None for s in ev.frames):
         ev.notes.append("the correspondences are not drawn: the rows of the shown frames could not be matched")

@@ -117,13 +117,16 @@ def _figures(vr: VehicleResult, ev: Evidence, tmp: Path) -> str:
     out = "<h2>Radar on the camera: start and result</h2>"
     if ev.frames:
         out += (f"<p class=meta>Radar points (coloured by depth) projected with the start ({esc(ev.start_label)}) and "
-                "with the result; rings: the correspondences' observed pixels joined to their radar point "
-                "(green: inlier at that extrinsic, red: rejected).</p>")
+                "with the result (after a step in the drive: the estimate of the frame's part of the drive); rings: "
+                "the correspondences' observed pixels joined to their radar point (green: inlier at that extrinsic, "
+                "red: rejected).</p>")
         for sf in ev.frames:
             panels = [{"title": "start", "uv": sf.uv_start, "depth": sf.depth_start, "pairs": sf.pairs_start},
-                      {"title": "result", "uv": sf.uv_result, "depth": sf.depth_result, "pairs": sf.pairs_result}]
+                      {"title": sf.result_label, "uv": sf.uv_result, "depth": sf.depth_result,
+                       "pairs": sf.pairs_result}]
+            where = f"drive frame {sf.drive_index}" if sf.drive_index is not None else f"dataset frame {sf.index}"
             png = draw_before_after(sf.image, panels, tmp / f"frame{sf.index}.png",
-                                    title=f"{vr.vehicle} frame {sf.index} ({sf.token[:8]})")
+                                    title=f"{vr.vehicle} {where} (sample {sf.token[:8]})")
             out += img_tag(png, f"frame {sf.index} start and result")
     else:
         out += "<p class=note>No camera frames shown (see the notes below).</p>"
