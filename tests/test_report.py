@@ -258,3 +258,15 @@ def test_a_step_splits_the_drive_into_two_estimates():
     assert [seg[f"f{k}"][0][0, 3] for k in range(6)] == [3, 3, 3, 3, vr.final.T[0, 3], vr.final.T[0, 3]]
     assert seg["f0"][1] == "result of frames 0-3" and seg["f5"][1] == "result of frames 4-5"
     assert [seg[f"f{k}"][2] for k in range(6)] == list(range(6))
+
+
+def test_a_bad_run_config_leaves_a_note_not_a_crash(run_dir, tmp_path):
+    src = run_dir / "run"
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "result.json").write_text((src / "result.json").read_text())
+    (tmp_path / "run" / "config.json").write_text('{"no_such_option": 1}')
+    name = sorted(json.loads((src / "result.json").read_text())["vehicles"])[0]
+    out = write_report(tmp_path / "run" / "result.json", tmp_path / "r.html", vehicle=name, conf={"frames": 1})
+    notes = _parse(out).ids["notes"]
+    assert "config.json" in notes and "no correspondences or residuals" in notes
+    assert "Residuals unavailable" in out.read_text()

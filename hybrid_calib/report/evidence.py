@@ -94,7 +94,8 @@ def run_config(result_path: Path) -> CalibrateConfig | None:
     try:
         return merge(CalibrateConfig, json.loads(p.read_text()))
     except (ValueError, TypeError, json.JSONDecodeError) as e:
-        raise DataError(f"run config unreadable ({e}); the report needs it to rebuild the rows", path=str(p)) from None
+        raise DataError(f"run config unreadable ({e}); without it the report cannot rebuild the run's rows",
+                        path=str(p)) from None
 
 
 def _factor_and_gate(conf: CalibrateConfig, mode: str):
@@ -138,10 +139,15 @@ def gather(run: CalibrationRun, result_path: Path, vehicle: str, data: str | Pat
         ev.notes.append(f"no data root: {root / version} is not there (pass --data ROOT --version V), so no camera "
                         "frames, correspondences or residuals are shown")
         return ev
-    conf = run_config(result_path)
+    try:
+        conf = run_config(result_path)
+    except HybridCalibError as e:  # e.g. a config written by another version: the page goes on without rows
+        conf = None
+        ev.notes.append(str(e))
+    by_token: dict = {}
     if conf is None:
-        ev.notes.append(f"no run config ({Path(result_path).parent / 'config.json'}): the rows and the start cannot "
-                        "be rebuilt, so no correspondences or residuals are shown")
+        ev.notes.append(f"no usable run config ({Path(result_path).parent / 'config.json'}): the rows and the start "
+                        "cannot be rebuilt, so no correspondences or residuals are shown")
     else:
         try:
             inputs = replay_inputs(root, version, run.correspondences, conf)
@@ -161,9 +167,9 @@ def gather(run: CalibrationRun, result_path: Path, vehicle: str, data: str | Pat
                 ev.residuals = Residuals(np.concatenate([r for r, _ in rows]), np.concatenate([i for _, i in rows]),
                                          gate * float(np.median(sig)), len(rows))
             by_token = {c.frame_id: c for c in vi.frames}
-        else:
-            by_token = {}
-    _frames(ev, root, version, vehicle, vr, n_frames, by_token if conf is not None else {},
+        elif inputs:
+            ev.notes.append(f"the run's rows hold no vehicle {vehicle} (they hold {', '.join(sorted(inputs))})")
+    _frames(ev, root, version, vehicle, vr, n_frames, by_token,
             None if conf is None else _factor_and_gate(conf, run.mode))
     return ev
 
