@@ -47,6 +47,7 @@ class Rendered:
     requests: list[str] = field(default_factory=list)  # every URL the page asked for
     screenshot_png: bytes = b""
     title: str = ""
+    value: object = None  # what ``render(..., evaluate=JS)`` returned
 
     def outside(self, page: Path) -> list[str]:
         """The requests that leave the file: anything but the page itself and data: URIs."""
@@ -133,8 +134,10 @@ class _Pipe:
         shutil.rmtree(self.profile, ignore_errors=True)
 
 
-def render(path: str | Path, exe: str | None = None, width: int = 1200, settle_s: float = 0.5) -> Rendered:
-    """Load ``path`` in headless chromium; collect console errors, requests and a full-page screenshot."""
+def render(path: str | Path, exe: str | None = None, width: int = 1200, settle_s: float = 0.5,
+           evaluate: str | None = None) -> Rendered:
+    """Load ``path`` in headless chromium; collect console errors, requests and a full-page screenshot;
+    with ``evaluate``, run that JavaScript expression after the load (its value in ``Rendered.value``)."""
     exe = exe or chromium_or_skip()
     page = Path(path).resolve()
     p = _Pipe(exe, width, 900)
@@ -148,9 +151,13 @@ def render(path: str | Path, exe: str | None = None, width: int = 1200, settle_s
         time.sleep(settle_s)  # late console messages / requests
         title = p.send("Runtime.evaluate", {"expression": "document.title", "returnByValue": True},
                        session=s)["result"].get("value", "")
+        value = None
+        if evaluate:
+            value = p.send("Runtime.evaluate", {"expression": evaluate, "returnByValue": True},
+                           session=s)["result"].get("value")
         shot = p.send("Page.captureScreenshot", {"format": "png", "captureBeyondViewport": True}, session=s,
                       timeout=60)
-        out = Rendered(screenshot_png=base64.b64decode(shot["data"]), title=title)
+        out = Rendered(screenshot_png=base64.b64decode(shot["data"]), title=title, value=value)
         for m in p.events:
             meth, prm = m.get("method"), m.get("params", {})
             if meth == "Runtime.consoleAPICalled" and prm.get("type") in ("error", "assert"):
