@@ -140,6 +140,8 @@ def _vr(delta, std, status="ok", drift_extra=None, alarms=()):
      ("translation along camera y",)),
     ((0, 0, 0, 0, 0, 0), (0.05,) * 6, "degenerate: rotation about camera z is unobservable", "inconclusive",
      ("degenerate",)),
+    ((0, 9, 0, 0, 0, 0), (0.05,) * 6, "ok (NOT CONVERGED: only 3 % of the frame's correspondences fit the estimate)",
+     "inconclusive", ("did not converge",)),
 ])
 def test_verdict_rules(delta, std, status, word, names):
     v = verdict_of(_vr(delta, std, status), Tolerance(rot_deg=0.5, trans_cm=5.0))

@@ -12,7 +12,8 @@ deg, translation cm, ``ReportConfig``):
 - "within tolerance": every axis is within it beyond doubt, ``|delta| + 3 s <= tol``;
 - "inconclusive": neither; the axes whose 3-sigma interval straddles the tolerance are named (a
   direction the data could not pin, e.g. the radar height of a 2D radar, ends here), as does a
-  "degenerate" status or a result without drift block.
+  "degenerate" status, a last solve that did not converge ("NOT CONVERGED" in the status) or a
+  result without drift block.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ DELTA_KEYS = ("rot_x_deg", "rot_y_deg", "rot_z_deg", "t_x_cm", "t_y_cm", "t_z_cm
 AXIS_NAMES = ("rotation about camera x", "rotation about camera y", "rotation about camera z",
               "translation along camera x", "translation along camera y", "translation along camera z")
 VERDICTS = ("within tolerance", "recalibrate", "inconclusive")
+NOT_CONVERGED = "NOT CONVERGED"  # calib.window.convergence_note's mark in a status
 
 
 @dataclass(frozen=True)
@@ -63,6 +65,9 @@ def derive_verdict(vr: VehicleResult, tol: Tolerance) -> tuple[str, str]:
     """(word, why) from the drift block, the std and the status (module docstring)."""
     if vr.final.status.startswith("degenerate"):
         return "inconclusive", f"The data could not determine the extrinsic ({vr.final.status})."
+    if NOT_CONVERGED in vr.final.status:
+        return "inconclusive", (f"The last solve did not converge, so its estimate says nothing about the mount "
+                                f"({vr.final.status}).")
     d = vr.drift or {}
     if "delta_camera" not in d:
         return "inconclusive", "The result holds no comparison with a reference extrinsic (no drift block)."
