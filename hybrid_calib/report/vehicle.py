@@ -139,8 +139,8 @@ def _figures(vr: VehicleResult, ev: Evidence, tmp: Path) -> str:
     if ev.residuals is not None:
         r = ev.residuals
         out += (f"<p class=meta>{len(r.residual_px)} rows of {r.n_frames} frames at the result: whitened residual "
-                f"times the row's pixel sigma; inlier gate {r.gate_px:.1f} px; {100 * r.inlier.mean():.0f} % "
-                "inliers.</p>")
+                f"times the row's pixel sigma; {100 * r.inlier.mean():.0f} % inliers. Rows are gated on their whitened "
+                f"residual: the dashed gate ({r.gate_px:.1f} px) holds for a row of the median pixel sigma.</p>")
         out += img_tag(plot_residual_histograms(r.residual_px, r.inlier, r.gate_px, tmp / "residuals.png"),
                        "residual histograms")
     else:
