@@ -104,6 +104,8 @@ def verdict_of(vr: VehicleResult, tol: Tolerance | None = None) -> Verdict:
     """The vehicle's verdict: the drift block's own ``"verdict"`` when present, else ``derive_verdict``."""
     tol = tol or Tolerance()
     moved, frames = moved_during_drive(vr)
+    if frames and NOT_CONVERGED in vr.final.status:
+        moved += "; but the solve did not converge, so these alarms may only mark its failures"
     d = vr.drift or {}
     given = d.get("verdict")
     if given:
