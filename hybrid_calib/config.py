@@ -144,11 +144,16 @@ def parse_overrides(items: list[str] | None) -> dict[str, Any]:
     return out
 
 
-def save_json_atomic(path: Path, obj: Any) -> Path:
-    """Write JSON to ``path`` atomically (temp file + rename)."""
+def save_text_atomic(path: Path, text: str) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` atomically (``hybrid_calib.atomic``); the parent is created."""
     from hybrid_calib.atomic import write_bytes_atomic
 
-    return write_bytes_atomic(path, json.dumps(obj, indent=2, default=_json_default).encode())
+    return write_bytes_atomic(path, text.encode("utf-8"))
+
+
+def save_json_atomic(path: Path, obj: Any) -> Path:
+    """Write JSON to ``path`` atomically (temp file + rename)."""
+    return save_text_atomic(path, json.dumps(obj, indent=2, default=_json_default))
 
 
 def _json_default(o: Any) -> Any:

@@ -227,3 +227,18 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
     save_json_atomic(out / "config.json", to_dict(conf))
     run.save(result_path)
     return run
+
+
+def replay_inputs(data, version: str, correspondences: str, conf: CalibrateConfig | dict | None = None
+                  ) -> dict[str, tuple[VehicleInput, np.ndarray]]:
+    """The inputs a ``calibrate`` run saw, rebuilt from its data and effective config (``RUN/config.json``):
+    ``{vehicle: (VehicleInput, (4, 4) start extrinsic)}``. The seed and the order of the draws are
+    ``calibrate``'s own (every oracle row first, then each vehicle's start in name order), so oracle
+    rows and R1/R2 starts come out identical to the run's. Used by the report (residuals, before/after)."""
+    conf = merge(CalibrateConfig, conf)
+    rng = np.random.default_rng(conf.seed)
+    if correspondences == "oracle":
+        inputs = _load_oracle(data, version, conf, rng)
+    else:
+        inputs = _load_dir(Path(correspondences), data, version, conf)
+    return {name: (vi, _start(vi, conf, rng)) for name, vi in inputs.items()}

@@ -6,6 +6,8 @@ Modules, named for what they draw (each function writes one PNG atomically and r
 ``draw_radar_truth``, ``render_overlay``), ``calibration`` (``plot_vehicle``: error / std over
 frames and the step detector of a calibration run), ``network`` (``plot_frame``: one frame of the
 network with its attention maps), ``training`` (``plot_history``: losses and validation errors per
-epoch), ``evaluation`` (``plot_error_cdf``: error CDFs of an evaluation). ``figure`` holds the
+epoch), ``evaluation`` (``plot_error_cdf``: error CDFs of an evaluation), ``report`` (the uncertainty
+report's figures: ``draw_before_after``, ``plot_estimate_bands``, ``plot_residual_histograms``,
+``plot_fleet``). ``figure`` holds the
 shared matplotlib set-up and the atomic save.
 """

@@ -1,0 +1,36 @@
+"""``hybrid-calib report``: one self-contained HTML page of a calibration result (``hybrid_calib.report``)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from hybrid_calib.commands import nonnegative_int
+from hybrid_calib.config import parse_overrides
+
+HELP = "write a self-contained HTML report (verdict, extrinsic +- 1 sigma, pictures) of a calibration result"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("result", type=Path, help="a result.json written by hybrid-calib calibrate / demo")
+    p.add_argument("--vehicle", default=None, help="vehicle to report (needed when the result holds several)")
+    p.add_argument("--data", type=Path, default=None,
+                   help="nuScenes root for the camera frames (default: the run's own data root, when it is there)")
+    p.add_argument("--version", default=None, help="version folder under --data (default: the run's)")
+    p.add_argument("--checkpoint", default="", help="network checkpoint for the attention figure (default: the "
+                                                    "one the result names, if any)")
+    p.add_argument("--frames", type=nonnegative_int, default=3, help="camera frames shown before / after (default: 3)")
+    # dest out_html: --out is a file here, not the output directory the CLI checks for other commands
+    p.add_argument("--out", dest="out_html", type=Path, required=True, help="the HTML file to write, e.g. report.html")
+    p.add_argument("--set", action="extend", nargs="+", metavar="KEY=VALUE", default=[],
+                   help="ReportConfig overrides, e.g. tolerance.rot_deg=0.3 tolerance.trans_cm=3")
+
+
+def run(args: argparse.Namespace) -> int:
+    from hybrid_calib.report import write_report
+
+    overrides = parse_overrides(args.set)
+    overrides.update(frames=args.frames, checkpoint=args.checkpoint)
+    path = write_report(args.result, args.out_html, args.vehicle, args.data, args.version, overrides)
+    print(f"wrote {path}")
+    return 0

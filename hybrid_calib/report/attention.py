@@ -1,0 +1,61 @@
+"""The network's cross-attention on one frame of the drive (``plots.network.plot_frame``), when a
+checkpoint is named (``ReportConfig.checkpoint``, or ``network["checkpoint"]`` in the result) and the
+data root is there. The network runs once, on the middle shown frame, from the dataset's fixed R1
+evaluation start (the same start ``hybrid-calib evaluate`` uses), on the CPU: a second or two for
+the shipped small checkpoints."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from hybrid_calib.calib.result import VehicleResult
+from hybrid_calib.errors import HybridCalibError
+from hybrid_calib.report.evidence import Evidence
+from hybrid_calib.report.html import esc, img_tag
+
+
+def attention_figure(checkpoint: str | Path, data: str | Path, version: str, frame_index: int, path: Path) -> Path:
+    """Run the network of ``checkpoint`` on dataset frame ``frame_index`` and draw its attention maps
+    (``plots.network.plot_frame``) to ``path``. The depth input: the simulator's corrupted truth when the
+    root has depth maps, else the LiDAR."""
+    import torch
+
+    from hybrid_calib.plots.network import plot_frame
+    from learned.checkpoint import load_model
+    from learned.dataset import CalibDataset, DatasetConfig, collate, open_frames
+    from learned.depth import CorruptedTruthDepth, LidarDepth, build_depth_estimator
+    from learned.train import model_inputs
+
+    model, _ = load_model(checkpoint)
+    frames = open_frames(data, version)
+    H, W = (int(v) for v in model.cfg.input_hw)
+    dconf = DatasetConfig(height=H, width=W, max_lidar_points=0, seed=1000, variant=model.cfg.variant)
+    has_depth = frames[frame_index].depth_path is not None
+    depth = build_depth_estimator(CorruptedTruthDepth.name if has_depth else LidarDepth.name)
+    sample = CalibDataset(frames, dconf, depth, indices=[frame_index], train=False)[0]
+    if sample is None:
+        raise HybridCalibError(f"frame {frame_index} of {data} could not be loaded for the network")
+    batch = collate([sample])
+    with torch.no_grad():
+        out = model(model_inputs(batch))
+    return plot_frame(out, batch, 0, path)
+
+
+def attention_html(vr: VehicleResult, ev: Evidence, data, version: str, checkpoint: str, tmp: Path) -> str:
+    """The attention section: the figure, or one line saying why it is absent."""
+    ckpt = checkpoint or (vr.network or {}).get("checkpoint") or ""
+    head = "<h3>Cross-attention on one frame</h3>"
+    if not ckpt:
+        return head + ("<p class=note>Absent: the result names no network checkpoint (a run on oracle or plain "
+                       "correspondences) and none was given (--checkpoint).</p>")
+    if not ev.frames:
+        return head + f"<p class=note>Absent: checkpoint {esc(ckpt)} is named but no camera frame is available.</p>"
+    frame = ev.frames[len(ev.frames) // 2]
+    try:
+        png = attention_figure(ckpt, data, version, frame.index, tmp / "attention.png")
+    except (HybridCalibError, OSError) as e:
+        return head + f"<p class=note>Absent: the network could not run ({esc(e)}).</p>"
+    return (head + f"<p class=meta>Checkpoint {esc(ckpt)} on frame {frame.index}, from the fixed R1 evaluation start. "
+            "Top: points projected with the start (red) and the network's estimate (green; white: truth). Middle: "
+            "which image regions the radar points attend to and back. Bottom: the bird's-eye views.</p>"
+            + img_tag(png, "network cross-attention"))

@@ -1,0 +1,212 @@
+"""What the report shows beyond ``result.json``, rebuilt from the run's data: the correspondence rows
+and their residuals at the result, the start extrinsic, and a few camera frames across the drive.
+
+The rows are those the run used: ``calib.pipeline.replay_inputs`` rebuilds them from the run's
+effective config (``RUN/config.json``, next to ``result.json``) with the run's own seed, so oracle
+rows and R1/R2 starts are identical to the run's; measurement files are read again.
+
+The result a frame is drawn and scored with is its segment's estimate (``segment_estimates``): the
+final one, or, when the step detector restarted the window during the drive, the window's estimate
+just before the restart for the frames before it (a knocked sensor has two extrinsics).
+
+Residuals: per row, the whitened residual norm ``|e_i|`` of the factor at that extrinsic
+(``factors.gtsam_factors.frame_residuals``, no kernel) times the row's pixel sigma: the distance in
+pixels the solver sees once the unknown elevation of the 2D radar is discounted. A row is an inlier
+when ``|e_i|`` is below the schedule's final gate (as the covariance counts it).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from hybrid_calib.calib.pipeline import CalibrateConfig, replay_inputs
+from hybrid_calib.calib.result import CalibrationRun
+from hybrid_calib.config import merge
+from hybrid_calib.errors import DataError, HybridCalibError
+
+
+@dataclass
+class Residuals:
+    """residual_px: (N,) pixels over every row of the drive; inlier: (N,) bool; gate_px: the gate in
+    pixels at the median row sigma; n_frames: frames the rows come from."""
+
+    residual_px: np.ndarray
+    inlier: np.ndarray
+    gate_px: float
+    n_frames: int
+
+
+@dataclass
+class ShownFrame:
+    """One camera frame of the drive with what the before / after figure draws (image pixels)."""
+
+    index: int  # frame index in the dataset
+    drive_index: int | None  # the frame's index in the vehicle's trajectory (None: not matched)
+    result_label: str  # which estimate the result panel uses
+    token: str
+    image: np.ndarray  # (H, W, 3) uint8
+    uv_start: np.ndarray  # (N, 2) the frame's radar points projected with the start
+    uv_result: np.ndarray  # (N, 2) ... with the result
+    depth_start: np.ndarray  # (N,) metres
+    depth_result: np.ndarray
+    pairs_start: tuple | None = None  # (obs (M, 2), pred (M, 2), inlier (M,)) correspondences, start
+    pairs_result: tuple | None = None
+
+
+@dataclass
+class Evidence:
+    """Per vehicle: start (4, 4) or None, start_label (what the start was), residuals or None, the frames
+    shown, and notes (why something is absent)."""
+
+    start: np.ndarray | None = None
+    start_label: str = ""
+    residuals: Residuals | None = None
+    frames: list[ShownFrame] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+
+def segment_estimates(vr) -> dict[str, tuple[np.ndarray, str, int]]:
+    """frame_id -> ((4, 4) the estimate of the frame's segment, a label, the frame's trajectory index).
+    Segments end at the frame before each step alarm and at the last frame; empty for batch results."""
+    traj = vr.trajectory
+    out: dict[str, tuple[np.ndarray, str, int]] = {}
+    ends = [k - 1 for k, f in enumerate(traj) if f.step_alarm and k > 0] + [len(traj) - 1]
+    start = 0
+    for end in ends:
+        T = vr.final.T if end == len(traj) - 1 else traj[end].T
+        label = ("result" if end == len(traj) - 1 and start == 0 else
+                 f"result of frames {traj[start].index}-{traj[end].index}")
+        for k in range(start, end + 1):
+            out[traj[k].frame_id] = (T, label, traj[k].index)
+        start = end + 1
+    return out
+
+
+def run_config(result_path: Path) -> CalibrateConfig | None:
+    """The run's effective config (``config.json`` next to ``result.json``), or None when absent."""
+    p = Path(result_path).parent / "config.json"
+    if not p.is_file():
+        return None
+    try:
+        return merge(CalibrateConfig, json.loads(p.read_text()))
+    except (ValueError, TypeError, json.JSONDecodeError) as e:
+        raise DataError(f"run config unreadable ({e}); without it the report cannot rebuild the run's rows",
+                        path=str(p)) from None
+
+
+def _factor_and_gate(conf: CalibrateConfig, mode: str):
+    sub = conf.window if mode == "window" else conf.batch
+    return sub.factor, float(sub.schedule.final_gate)
+
+
+def _rows_residuals(T: np.ndarray, corr, factor_conf, gate: float) -> tuple[np.ndarray, np.ndarray]:
+    import dataclasses
+
+    from factors.gtsam_factors import frame_residuals
+
+    e, _, w = frame_residuals(np.asarray(T, np.float64), corr, dataclasses.replace(factor_conf, kernel="none"))
+    s = np.linalg.norm(e.reshape(-1, 2), axis=1)
+    return s * np.asarray(corr.sigma_px), (s < gate) & (w > 0)
+
+
+def _pairs(corr, T: np.ndarray, frame, factor_conf, gate: float) -> tuple:
+    """Observed pixels mapped into the frame's image, predicted pixels of the rows' radar points
+    (z as recorded) with T, and the inlier flags at T."""
+    from hybrid_calib.geometry import transform_points
+
+    K_img = frame.camera.K
+    H = K_img @ np.linalg.inv(np.asarray(corr.K, np.float64))  # corr's image -> the image on disk
+    obs = np.c_[np.asarray(corr.pixels), np.ones(len(corr))] @ H.T
+    obs = obs[:, :2] / obs[:, 2:3]
+    pred, _ = frame.camera.project(transform_points(T, np.asarray(corr.points_radar)))
+    _, inl = _rows_residuals(T, corr, factor_conf, gate)
+    return obs, pred, inl
+
+
+def gather(run: CalibrationRun, result_path: Path, vehicle: str, data: str | Path | None, version: str | None,
+           n_frames: int = 3) -> Evidence:
+    """The evidence of one vehicle (module docstring). Without ``data`` (and when the run's data root is
+    not there either) only notes saying what is missing."""
+    ev = Evidence()
+    vr = run.vehicles[vehicle]
+    root = Path(data) if data is not None else Path(run.data)
+    version = version or run.version
+    if not (root / version).is_dir():
+        ev.notes.append(f"no data root: {root / version} is not there (pass --data ROOT --version V), so no camera "
+                        "frames, correspondences or residuals are shown")
+        return ev
+    try:
+        conf = run_config(result_path)
+    except HybridCalibError as e:  # e.g. a config written by another version: the page goes on without rows
+        conf = None
+        ev.notes.append(str(e))
+    by_token: dict = {}
+    if conf is None:
+        ev.notes.append(f"no usable run config ({Path(result_path).parent / 'config.json'}): the rows and the start "
+                        "cannot be rebuilt, so no correspondences or residuals are shown")
+    else:
+        try:
+            inputs = replay_inputs(root, version, run.correspondences, conf)
+        except HybridCalibError as e:
+            inputs = {}
+            ev.notes.append(f"the run's rows could not be rebuilt ({e})")
+        if vehicle in inputs:
+            vi, ev.start = inputs[vehicle]
+            ev.start_label = ("the vehicle's reference (its calibration tables)" if conf.start == "reference"
+                              else f"the run's {conf.start} start (perturbed truth, seed {conf.seed})")
+            factor_conf, gate = _factor_and_gate(conf, run.mode)
+            seg = segment_estimates(vr)
+            rows = [_rows_residuals(seg.get(c.frame_id, (vr.final.T,))[0], c, factor_conf, gate)
+                    for c in vi.frames if len(c)]
+            if rows:
+                sig = np.concatenate([np.asarray(c.sigma_px) for c in vi.frames if len(c)])
+                ev.residuals = Residuals(np.concatenate([r for r, _ in rows]), np.concatenate([i for _, i in rows]),
+                                         gate * float(np.median(sig)), len(rows))
+            by_token = {c.frame_id: c for c in vi.frames}
+        elif inputs:
+            ev.notes.append(f"the run's rows hold no vehicle {vehicle} (they hold {', '.join(sorted(inputs))})")
+    _frames(ev, root, version, vehicle, vr, n_frames, by_token,
+            None if conf is None else _factor_and_gate(conf, run.mode))
+    return ev
+
+
+def _frames(ev: Evidence, root: Path, version: str, vehicle: str, vr, n: int, by_token: dict, fg) -> None:
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+    from hybrid_calib.geometry import transform_points
+
+    if n <= 0:
+        ev.notes.append("no camera frames requested (--frames 0)")
+        return
+    ds = NuScenesRadarCamera(root, version)
+    idx = ds.frames_by_vehicle().get(vehicle)
+    if not idx:
+        ev.notes.append(f"vehicle {vehicle} has no frame in {root / version}: no camera frames shown")
+        return
+    start = ev.start
+    if start is None:
+        start = np.asarray(ds[idx[0]].extras.get("reference_T_cam_radar", ds[idx[0]].T_cam_radar), np.float64)
+        ev.start_label = "the vehicle's reference (its calibration tables)"
+    seg = segment_estimates(vr)
+    for i in sorted({idx[int(round(k))] for k in np.linspace(0, len(idx) - 1, n)}):
+        f = ds[i]
+        T_res, label, k = seg.get(f.sample_token) or seg.get(f.camera_token) or (vr.final.T, "result", None)
+        try:
+            img = f.load_image()
+        except DataError as e:
+            ev.notes.append(f"frame {i} not shown: {e}")
+            continue
+        pts = np.asarray(f.radar_points)
+        uv0, z0 = f.camera.project(transform_points(start, pts))
+        uv1, z1 = f.camera.project(transform_points(T_res, pts))
+        sf = ShownFrame(i, k, label, f.sample_token, img, uv0, uv1, z0, z1)
+        corr = by_token.get(f.sample_token) or by_token.get(f.camera_token)
+        if corr is not None and len(corr) and fg is not None:
+            sf.pairs_start = _pairs(corr, start, f, *fg)
+            sf.pairs_result = _pairs(corr, T_res, f, *fg)
+        ev.frames.append(sf)
+    if ev.frames and all(s.pairs_result is None for s in ev.frames):
+        ev.notes.append("the correspondences are not drawn: the rows of the shown frames could not be matched")

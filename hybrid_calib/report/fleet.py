@@ -1,0 +1,121 @@
+"""The fleet page: the fleet plot (each vehicle's offset from the design mount with +-1 sigma, the
+outliers named), a sortable table of vehicles with verdict and status, links to per-vehicle pages.
+
+Inputs are plain (the fleet engine wires them): result files (``result.json``, one or more vehicles
+each), an optional design mount (4, 4) ``T_cam_radar``, optional names of flagged vehicles. Offsets
+are ``calib.drift.reference_test``'s camera-axis change of each final estimate against the design
+mount; without a design mount, against each vehicle's own reference (its drift block).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from hybrid_calib.calib.drift import reference_test
+from hybrid_calib.calib.result import CalibrationRun, VehicleResult
+from hybrid_calib.config import merge
+from hybrid_calib.errors import DataError
+from hybrid_calib.report.html import esc, img_tag, num, verdict_class, write_page
+from hybrid_calib.report.vehicle import ReportConfig, write_report
+from hybrid_calib.report.verdict import DELTA_KEYS, VERDICTS, verdict_of
+
+
+def _offset(vr: VehicleResult, design: np.ndarray | None) -> np.ndarray | None:
+    """(6,) camera-axis change [deg x3, cm x3] of the final estimate from the design mount (or the
+    vehicle's reference when ``design`` is None); None when neither is known."""
+    if design is not None:
+        return np.asarray(reference_test(vr.final.T, vr.final.cov, design).delta_report, float)
+    d = (vr.drift or {}).get("delta_camera")
+    return None if d is None else np.array([float(d[k]) for k in DELTA_KEYS])
+
+
+def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.ndarray | None = None,
+                     flagged: Sequence[str] = (), reports: Mapping[str, str | Path] | None = None,
+                     data: str | Path | None = None, version: str | None = None,
+                     conf: ReportConfig | dict | None = None) -> Path:
+    """Write the fleet page ``out`` (HTML) from per-vehicle result files.
+
+    results: ``result.json`` paths. design: (4, 4) design-mount ``T_cam_radar`` or None. flagged: names
+    of vehicles the fleet engine flagged (named in the plot and the table; when empty, the vehicles whose
+    sensor stepped during the drive are flagged; a mount that only differs from the design shows in its
+    verdict, "recalibrate"). reports: vehicle ->
+    its report page, already written; when None, each vehicle's page is written next to its result
+    (``report.html``, ``report-<vehicle>.html`` for a result with several vehicles) with ``data`` /
+    ``version`` / ``conf``. Returns the path written."""
+    from hybrid_calib.plots.report import plot_fleet
+
+    conf = merge(ReportConfig, conf)
+    out = Path(out)
+    if not results:
+        raise DataError("no result file given for the fleet page")
+    design = None if design is None else np.asarray(design, np.float64)
+    if design is not None and design.shape != (4, 4):
+        raise DataError(f"design mount must be a 4x4 T_cam_radar, got shape {design.shape}")
+    vehicles: dict[str, tuple[VehicleResult, Path]] = {}
+    pages: dict[str, Path] = {}
+    for p in map(Path, results):
+        run = CalibrationRun.load(p)
+        for name, vr in sorted(run.vehicles.items()):
+            if name in vehicles:
+                raise DataError(f"vehicle {name} appears in two result files ({vehicles[name][1]} and {p})",
+                                path=str(p))
+            vehicles[name] = (vr, p)
+            if reports is not None and name in reports:
+                pages[name] = Path(reports[name])
+            elif reports is None:
+                page = p.parent / ("report.html" if len(run.vehicles) == 1 else f"report-{name}.html")
+                pages[name] = write_report(p, page, name, data, version, conf)
+    names = list(vehicles)
+    verdicts = {n: verdict_of(vr, conf.tolerance) for n, (vr, _) in vehicles.items()}
+    flagged = list(flagged) or [n for n in names if verdicts[n].moved_frames]
+    offsets = {n: _offset(vr, design) for n, (vr, _) in vehicles.items()}
+    reference = "design mount" if design is not None else "vehicle's own reference (calibration tables)"
+
+    plotted = [n for n in names if offsets[n] is not None]
+    with tempfile.TemporaryDirectory(prefix="hc-fleet-") as tmp:
+        fig = ("<p class=note>No offsets to plot: no design mount given and no result holds a reference "
+               "comparison.</p>")
+        if plotted:
+            png = plot_fleet(plotted, np.array([offsets[n] for n in plotted]),
+                             np.array([vehicles[n][0].final.std for n in plotted]), flagged,
+                             Path(tmp) / "fleet.png", reference)
+            fig = img_tag(png, "fleet plot")
+
+    rows = ""
+    for n in names:
+        vr, p = vehicles[n]
+        v = verdicts[n]
+        link = esc(n)
+        if n in pages:
+            link = f'<a href="{esc(os.path.relpath(pages[n], out.parent))}">{esc(n)}</a>'
+        o = offsets[n]
+        rot = float(np.linalg.norm(o[:3])) if o is not None else float("nan")
+        tr = float(np.linalg.norm(o[3:])) if o is not None else float("nan")
+        moved = f"yes (frames {', '.join(map(str, v.moved_frames))})" if v.moved_frames else "no"
+        rows += (f'<tr data-vehicle="{esc(n)}"><td class=l>{link}</td>'
+                 f'<td class="l {verdict_class(v.word)}" data-key="verdict">{esc(v.word)}</td>'
+                 f'<td class=l>{"yes" if n in flagged else "no"}</td>'
+                 f'<td class=l data-key="status">{esc(vr.final.status)}</td><td class=l>{moved}</td>'
+                 f"{num(rot, '.2f', 'offset_rot_deg')}{num(tr, '.1f', 'offset_trans_cm')}"
+                 f"{num(max(vr.final.std[:3]), '.3f', 'max_rot_sigma_deg')}"
+                 f"{num(max(vr.final.std[3:]), '.2f', 'max_t_sigma_cm')}<td>{vr.n_frames}</td></tr>")
+    counts = {w: sum(v.word == w for v in verdicts.values()) for w in VERDICTS}
+    body = (f"<h1>Fleet calibration: {len(names)} vehicles</h1>"
+            f"<p id=\"fleet-summary\"><b>{counts['recalibrate']} to recalibrate, "
+            f"{counts['inconclusive']} inconclusive, {counts['within tolerance']} within tolerance.</b> Flagged: "
+            f"{esc(', '.join(flagged)) if flagged else 'none'}. Tolerance: "
+            f"{esc(next(iter(verdicts.values())).tolerance)}.</p>"
+            f"<h2>Offsets from the {esc(reference)}</h2>{fig}"
+            "<h2>Vehicles</h2><p class=meta>Click a column to sort. Offsets: rotation angle and translation norm "
+            "of the change, camera axes; sigma: the largest per-axis 1-sigma.</p>"
+            "<table class=sortable id=\"vehicles\"><thead><tr><th class=l>vehicle</th><th class=l>verdict</th>"
+            "<th class=l>flagged</th><th class=l>status</th><th class=l>moved in drive</th><th>offset rot (deg)</th>"
+            "<th>offset t (cm)</th><th>max rot sigma (deg)</th><th>max t sigma (cm)</th><th>frames</th></tr></thead>"
+            f"<tbody>{rows}</tbody></table>"
+            f"<p class=meta>Results: {esc(', '.join(str(p) for _, p in vehicles.values()))}</p>")
+    return write_page(out, f"fleet: {len(names)} vehicles", body)

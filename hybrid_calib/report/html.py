@@ -1,0 +1,71 @@
+"""The HTML of the report pages: one self-contained file (inline CSS, images as data URIs, a few
+lines of vanilla JavaScript to sort tables; nothing fetched from anywhere)."""
+
+from __future__ import annotations
+
+import base64
+import html
+from pathlib import Path
+
+from hybrid_calib.config import save_text_atomic
+
+CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;max-width:1100px;margin:1.5em auto;
+padding:0 1em;color:#222;line-height:1.4}
+h1{font-size:1.5em;margin-bottom:.2em}
+h2{font-size:1.15em;border-bottom:1px solid #ddd;padding-bottom:.2em;margin-top:1.6em}
+.meta{color:#666;font-size:.85em}
+.verdict{border-radius:8px;padding:.8em 1.1em;margin:1em 0;border:2px solid}
+.verdict .word{font-size:1.6em;font-weight:700;text-transform:uppercase;letter-spacing:.03em}
+.v-ok{background:#eaf7ea;border-color:#3a9a3a} .v-bad{background:#fdeaea;border-color:#c63b3b}
+.v-unk{background:#fff6e0;border-color:#d69a1a}
+table{border-collapse:collapse;margin:.4em 0;font-size:.92em}
+td,th{border:1px solid #ccc;padding:.25em .6em;text-align:right}
+th{background:#f3f3f3} td.l,th.l{text-align:left}
+table.sortable th{cursor:pointer} table.sortable th:after{content:" \\2195";color:#aaa}
+img{max-width:100%;border:1px solid #ddd;margin:.3em 0} .note{color:#8a5a00;background:#fff8e8;padding:.3em .6em}
+code{background:#f4f4f4;padding:0 .2em}
+"""
+
+SORT_JS = """
+document.querySelectorAll('table.sortable').forEach(function(t){
+  t.querySelectorAll('th').forEach(function(th,i){th.addEventListener('click',function(){
+    var body=t.tBodies[0],rows=Array.prototype.slice.call(body.rows),asc=th.dataset.asc!=='1';
+    th.dataset.asc=asc?'1':'0';
+    rows.sort(function(a,b){var x=a.cells[i].dataset.sort||a.cells[i].textContent,
+      y=b.cells[i].dataset.sort||b.cells[i].textContent,nx=parseFloat(x),ny=parseFloat(y);
+      var c=(!isNaN(nx)&&!isNaN(ny))?nx-ny:x.localeCompare(y);return asc?c:-c;});
+    rows.forEach(function(r){body.appendChild(r);});});});});
+"""
+
+
+def esc(x) -> str:
+    return html.escape(str(x), quote=True)
+
+
+def img_tag(png: Path, alt: str) -> str:
+    """An ``<img>`` with the PNG embedded as a data URI."""
+    data = base64.b64encode(Path(png).read_bytes()).decode("ascii")
+    return f'<img alt="{esc(alt)}" src="data:image/png;base64,{data}">'
+
+
+def num(value: float, fmt: str, key: str = "") -> str:
+    """A table cell with the shown number and the exact value in ``data-value`` (tests compare it)."""
+    k = f' data-key="{esc(key)}"' if key else ""
+    return f'<td{k} data-value="{float(value)!r}">{format(float(value), fmt)}</td>'
+
+
+def verdict_class(word: str) -> str:
+    return {"within tolerance": "v-ok", "recalibrate": "v-bad"}.get(word, "v-unk")
+
+
+def page(title: str, body: str) -> str:
+    return (f"<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
+            f"<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">"
+            f"<title>{esc(title)}</title><style>{CSS}</style></head>\n<body>\n{body}\n"
+            f"<script>{SORT_JS}</script>\n</body></html>\n")
+
+
+def write_page(path: Path, title: str, body: str) -> Path:
+    """Write the page atomically; returns its path."""
+    return save_text_atomic(Path(path), page(title, body))

@@ -1,0 +1,190 @@
+"""One vehicle's report page: verdict first, then the extrinsic with its 1-sigma, the directions the
+data could not pin, the pictures (before / after on frames across the drive, estimate with its
+3-sigma band, residual histograms, the network's attention) and where everything came from."""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from hybrid_calib.calib.result import CalibrationRun, VehicleResult, extrinsic_report
+from hybrid_calib.config import merge
+from hybrid_calib.errors import HybridCalibError
+from hybrid_calib.report.evidence import Evidence, gather
+from hybrid_calib.report.html import esc, img_tag, num, verdict_class, write_page
+from hybrid_calib.report.verdict import AXIS_NAMES, Tolerance, Verdict, verdict_of
+
+CONVENTIONS = Path(__file__).resolve().parents[2] / "docs" / "conventions.md"
+STD_KEYS = ("rot_x_cam_deg", "rot_y_cam_deg", "rot_z_cam_deg", "t_x_cam_cm", "t_y_cam_cm", "t_z_cam_cm")
+
+
+@dataclass(frozen=True)
+class ReportConfig:
+    tolerance: Tolerance = Tolerance()  # the verdict's tolerance (when the result has none)
+    frames: int = 3  # camera frames shown before / after, spread over the drive
+    checkpoint: str = ""  # network checkpoint for the attention figure ("" = the one the result names, if any)
+
+
+def pick_vehicle(run: CalibrationRun, vehicle: str | None, source: str) -> str:
+    """The vehicle to report: ``vehicle`` or the run's only one; ``HybridCalibError`` otherwise."""
+    names = sorted(run.vehicles)
+    if vehicle is None:
+        if len(names) != 1:
+            raise HybridCalibError(f"{source} holds {len(names)} vehicles ({', '.join(names)}): pass --vehicle NAME")
+        return names[0]
+    if vehicle not in run.vehicles:
+        raise HybridCalibError(f"vehicle {vehicle!r} is not in {source} (vehicles: {', '.join(names)})")
+    return vehicle
+
+
+def _conventions_link() -> str:
+    href = CONVENTIONS.as_uri() if CONVENTIONS.is_file() else "docs/conventions.md"
+    return f'<a href="{esc(href)}">docs/conventions.md</a>'
+
+
+def verdict_html(v: Verdict, vr: VehicleResult) -> str:
+    d = vr.drift or {}
+    test = ""
+    if "statistic" in d:
+        test = (f"<div class=\"meta\">Reference test (chi-square, dof {d.get('dof', 6)}): statistic "
+                f"{d['statistic']:.1f}, p-value {d['p_value']:.2g}, change "
+                f"{d.get('rot_change_deg', float('nan')):.2f} deg / {d.get('trans_change_cm', float('nan')):.1f} cm; "
+                f"significant: {d.get('significant')}, flagged as drifted by the test: {d.get('drifted')} (the test "
+                "flags any significant change above a small practical margin, also along a direction the data could "
+                "not pin; the verdict above weighs the change and its 3-sigma against the tolerance).</div>")
+    return (f'<div class="verdict {verdict_class(v.word)}" id="verdict"><div class="word">{esc(v.word)}</div>'
+            f"<p>{esc(v.why)}</p><p><b>Tolerance:</b> {esc(v.tolerance)}. <span class=\"meta\">({esc(v.source)})"
+            f"</span></p><p><b>Did the sensor move during the drive?</b> <span id=\"moved\">{esc(v.moved)}</span></p>"
+            f"{test}</div>")
+
+
+def extrinsic_html(vr: VehicleResult) -> str:
+    T = np.asarray(vr.final.T)
+    rep = vr.final.to_dict()["report"]
+    s = np.asarray(vr.final.std, float)
+    mat = "".join("<tr>" + "".join(num(T[i, j], ".5f", f"T{i}{j}") for j in range(4)) + "</tr>" for i in range(4))
+    rows = [("roll (about camera z)", rep["roll_deg"], "roll_deg", s[2], STD_KEYS[2], "deg", ".3f"),
+            ("pitch (about camera x)", rep["pitch_deg"], "pitch_deg", s[0], STD_KEYS[0], "deg", ".3f"),
+            ("yaw (about camera y)", rep["yaw_deg"], "yaw_deg", s[1], STD_KEYS[1], "deg", ".3f"),
+            ("t x (camera)", 100 * rep["t_m"][0], "t_x_cm", s[3], STD_KEYS[3], "cm", ".2f"),
+            ("t y (camera)", 100 * rep["t_m"][1], "t_y_cm", s[4], STD_KEYS[4], "cm", ".2f"),
+            ("t z (camera)", 100 * rep["t_m"][2], "t_z_cm", s[5], STD_KEYS[5], "cm", ".2f")]
+    truth = None if vr.truth_T is None else extrinsic_report(vr.truth_T)
+    head = "<tr><th class=l>axis</th><th>estimate</th><th>+- 1 sigma</th><th>unit</th>" + (
+        "<th>truth</th>" if truth else "") + "</tr>"
+    body = ""
+    for label, val, key, sd, skey, unit, fmt in rows:
+        tv = ""
+        if truth:
+            tv = num(truth[key] if key in truth else 100 * truth["t_m"]["xyz".index(key[2])], fmt)
+        body += f"<tr><td class=l>{label}</td>{num(val, fmt, key)}{num(sd, fmt, skey)}<td>{unit}</td>{tv}</tr>"
+    err = ""
+    if vr.error:
+        e = vr.error
+        err = (f"<p>Error against the ground truth: rotation {e['geodesic_deg']:.3f} deg (geodesic), translation "
+               f"{e['trans_norm_cm']:.2f} cm (norm); NEES {e.get('nees', float('nan')):.2f} (6 expected for an "
+               "honest covariance).</p>")
+    return (f"<h2>Extrinsic T_cam_radar</h2><p class=meta>Convention: <code>T_cam_radar</code> maps radar "
+            f"points to the camera frame; angles are camera-axis Euler angles of the rotation after the fixed "
+            f"radar-to-camera axis swap, and the 1-sigma are per camera axis (see {_conventions_link()}).</p>"
+            f"<table id=\"matrix\">{mat}</table><table id=\"estimate\">{head}{body}</table>{err}")
+
+
+def status_html(vr: VehicleResult) -> str:
+    f = vr.final
+    weak = f.weak_directions
+    if f.status == "ok" and not weak:
+        words = "None: the drive pinned every direction to within the covariance's tolerance."
+    else:
+        words = ("The data could not pin: " + ", ".join(weak) + "." if weak else "") + f" Status: {f.status}."
+        if f.regularised:
+            words += " Those directions carry a weak regularising prior: they are not calibrated."
+    crb = ""
+    if vr.crb_std is not None:
+        cells = "".join(num(x, ".3f" if j < 3 else ".2f") for j, x in enumerate(vr.crb_std))
+        crb = ("<p class=meta>Cramer-Rao bound of this drive (oracle rows), 1-sigma per camera axis (deg x3, cm x3):"
+               f"</p><table><tr>{''.join(f'<th>{esc(a)}</th>' for a in AXIS_NAMES)}</tr><tr>{cells}</tr></table>")
+    return f"<h2>What the data could not pin</h2><p id=\"status\">{esc(words.strip())}</p>{crb}"
+
+
+def _figures(vr: VehicleResult, ev: Evidence, tmp: Path) -> str:
+    from hybrid_calib.plots.report import draw_before_after, plot_estimate_bands, plot_residual_histograms
+
+    out = "<h2>Radar on the camera: start and result</h2>"
+    if ev.frames:
+        out += (f"<p class=meta>Radar points (coloured by depth) projected with the start ({esc(ev.start_label)}) and "
+                "with the result (after a step in the drive: the estimate of the frame's part of the drive); rings: "
+                "the correspondences' observed pixels joined to their radar point (green: inlier at that extrinsic, "
+                "red: rejected).</p>")
+        for sf in ev.frames:
+            panels = [{"title": "start", "uv": sf.uv_start, "depth": sf.depth_start, "pairs": sf.pairs_start},
+                      {"title": sf.result_label, "uv": sf.uv_result, "depth": sf.depth_result,
+                       "pairs": sf.pairs_result}]
+            where = f"drive frame {sf.drive_index}" if sf.drive_index is not None else f"dataset frame {sf.index}"
+            png = draw_before_after(sf.image, panels, tmp / f"frame{sf.index}.png",
+                                    title=f"{vr.vehicle} {where} (sample {sf.token[:8]})")
+            out += img_tag(png, f"frame {sf.index} start and result")
+    else:
+        out += "<p class=note>No camera frames shown (see the notes below).</p>"
+    out += "<h2>Estimate and 3-sigma band per axis</h2>"
+    if vr.trajectory:
+        out += img_tag(plot_estimate_bands(vr, tmp / "bands.png"), "estimate with 3-sigma band per axis")
+    else:
+        out += "<p class=note>A batch result has no per-frame trajectory: nothing to plot.</p>"
+    out += "<h2>Residuals</h2>"
+    if ev.residuals is not None:
+        r = ev.residuals
+        out += (f"<p class=meta>{len(r.residual_px)} rows of {r.n_frames} frames at the result: whitened residual "
+                f"times the row's pixel sigma; {100 * r.inlier.mean():.0f} % inliers. Rows are gated on their whitened "
+                f"residual: the dashed gate ({r.gate_px:.1f} px) holds for a row of the median pixel sigma.</p>")
+        out += img_tag(plot_residual_histograms(r.residual_px, r.inlier, r.gate_px, tmp / "residuals.png"),
+                       "residual histograms")
+    else:
+        out += "<p class=note>Residuals unavailable (see the notes below).</p>"
+    return out
+
+
+def network_html(vr: VehicleResult, ev: Evidence, attention: str) -> str:
+    n = vr.network
+    out = "<h2>The network</h2>"
+    if n:
+        out += (f"<p>The measurement files carried the network's own estimate on {n['n_frames']} frames (last: "
+                f"{esc(n['frame_id'])}, iteration {n['iteration']})")
+        if n.get("error"):
+            e = n["error"]
+            out += f"; its error against the truth: {e['geodesic_deg']:.3f} deg, {e['trans_norm_cm']:.2f} cm"
+        out += ".</p>"
+    return out + attention
+
+
+def write_report(result: str | Path, out: str | Path, vehicle: str | None = None, data: str | Path | None = None,
+                 version: str | None = None, conf: ReportConfig | dict | None = None) -> Path:
+    """Write one vehicle's self-contained HTML report of ``result`` (a ``result.json``) to ``out``.
+
+    data / version: the nuScenes root for the camera frames (default: the run's own, when it is there).
+    Returns the path written. ``HybridCalibError`` / ``DataError`` for a bad result or vehicle."""
+    from hybrid_calib.report.attention import attention_html
+
+    conf = merge(ReportConfig, conf)
+    t0 = time.perf_counter()
+    result = Path(result)
+    run = CalibrationRun.load(result)
+    name = pick_vehicle(run, vehicle, str(result))
+    vr = run.vehicles[name]
+    v = verdict_of(vr, conf.tolerance)
+    ev = gather(run, result, name, data, version, conf.frames)
+    with tempfile.TemporaryDirectory(prefix="hc-report-") as tmp:
+        figs = _figures(vr, ev, Path(tmp))
+        att = attention_html(vr, ev, data or run.data, version or run.version, conf.checkpoint, Path(tmp))
+    notes = "".join(f"<li>{esc(x)}</li>" for x in ev.notes)
+    body = (f"<h1>Radar-camera calibration: {esc(name)}</h1>"
+            f"<p class=meta>{vr.n_frames} frames, {esc(run.mode)} mode, correspondences: {esc(run.correspondences)}; "
+            f"data: {esc(run.data)} ({esc(run.version)}); result: {esc(result)}</p>"
+            f"{verdict_html(v, vr)}{extrinsic_html(vr)}{status_html(vr)}{figs}{network_html(vr, ev, att)}"
+            + (f"<h2>Notes</h2><ul id=\"notes\">{notes}</ul>" if notes else "")
+            + f"<p class=meta>Written by hybrid-calib report in {time.perf_counter() - t0:.1f} s.</p>")
+    return write_page(Path(out), f"{name}: {v.word}", body)

@@ -1,0 +1,123 @@
+"""The report's verdict in words: is the vehicle's extrinsic within tolerance of its reference, does
+it need recalibrating, or can the data not tell; and did the sensor move during the drive.
+
+The result's drift block (``VehicleResult.drift``: ``calib.drift.DriftDecision.to_dict``) compares
+the final estimate with the vehicle's reference (its calibration tables). When that block carries
+its own ``"verdict"`` (words and tolerance, written by the calibrator) it is used as is. Otherwise
+the verdict is derived here, per camera axis, from the change ``delta`` (``drift["delta_camera"]``)
+and the estimate's 1-sigma ``s`` (``final.std_cam``), against a tolerance ``tol`` per axis (rotation
+deg, translation cm, ``ReportConfig``):
+
+- "recalibrate": some axis changed by more than the tolerance beyond doubt, ``|delta| - 3 s > tol``;
+- "within tolerance": every axis is within it beyond doubt, ``|delta| + 3 s <= tol``;
+- "inconclusive": neither; the axes whose 3-sigma interval straddles the tolerance are named (a
+  direction the data could not pin, e.g. the radar height of a 2D radar, ends here), as does a
+  "degenerate" status, a last solve that did not converge ("NOT CONVERGED" in the status) or a
+  result without drift block.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from hybrid_calib.calib.result import VehicleResult
+
+DELTA_KEYS = ("rot_x_deg", "rot_y_deg", "rot_z_deg", "t_x_cm", "t_y_cm", "t_z_cm")
+AXIS_NAMES = ("rotation about camera x", "rotation about camera y", "rotation about camera z",
+              "translation along camera x", "translation along camera y", "translation along camera z")
+VERDICTS = ("within tolerance", "recalibrate", "inconclusive")
+NOT_CONVERGED = "NOT CONVERGED"  # calib.window.convergence_note's mark in a status
+
+
+@dataclass(frozen=True)
+class Tolerance:
+    rot_deg: float = 0.5  # per camera axis, degrees: a change below this needs no recalibration
+    trans_cm: float = 5.0  # per camera axis, centimetres
+
+    def per_axis(self) -> np.ndarray:
+        return np.array([self.rot_deg] * 3 + [self.trans_cm] * 3)
+
+    def describe(self) -> str:
+        return f"{self.rot_deg:g} deg per rotation axis, {self.trans_cm:g} cm per translation axis (camera axes)"
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """word: one of ``VERDICTS``; why: one or two sentences; tolerance: the tolerance in words;
+    source: where the verdict came from; moved: whether the sensor stepped during the drive, in words;
+    moved_frames: the frame indices of the step alarms."""
+
+    word: str
+    why: str
+    tolerance: str
+    source: str
+    moved: str
+    moved_frames: tuple[int, ...] = ()
+
+
+def _fmt(j: int, v: float) -> str:
+    return f"{v:.2f} deg" if j < 3 else f"{v:.1f} cm"
+
+
+def derive_verdict(vr: VehicleResult, tol: Tolerance) -> tuple[str, str]:
+    """(word, why) from the drift block, the std and the status (module docstring)."""
+    if vr.final.status.startswith("degenerate"):
+        return "inconclusive", f"The data could not determine the extrinsic ({vr.final.status})."
+    if NOT_CONVERGED in vr.final.status:
+        return "inconclusive", (f"The last solve did not converge, so its estimate says nothing about the mount "
+                                f"({vr.final.status}).")
+    d = vr.drift or {}
+    if "delta_camera" not in d:
+        return "inconclusive", "The result holds no comparison with a reference extrinsic (no drift block)."
+    delta = np.array([float(d["delta_camera"][k]) for k in DELTA_KEYS])
+    s, t = np.asarray(vr.final.std, float), tol.per_axis()
+    out = np.abs(delta) - 3 * s > t
+    inside = np.abs(delta) + 3 * s <= t
+    if out.any():
+        axes = "; ".join(f"{AXIS_NAMES[j]} changed by {_fmt(j, delta[j])} (+- {_fmt(j, 3 * s[j])} at 3 sigma)"
+                         for j in np.flatnonzero(out))
+        return "recalibrate", f"The extrinsic moved from its reference beyond the tolerance: {axes}."
+    if inside.all():
+        return "within tolerance", ("Every axis differs from the reference by less than the tolerance, with its "
+                                    "3-sigma interval inside it.")
+    axes = "; ".join(f"{AXIS_NAMES[j]}: {_fmt(j, delta[j])} +- {_fmt(j, 3 * s[j])} (3 sigma)"
+                     for j in np.flatnonzero(~inside))
+    return "inconclusive", (f"The data cannot tell whether these axes are within the tolerance of the reference "
+                            f"(their 3-sigma interval straddles it): {axes}.")
+
+
+def moved_during_drive(vr: VehicleResult) -> tuple[str, tuple[int, ...]]:
+    """Whether the window's step detector fired, in words, and the frames where it did."""
+    if not vr.trajectory:
+        return "not tested (batch result: the step detector runs in the sliding window only)", ()
+    alarms = tuple(f.index for f in vr.trajectory if f.step_alarm)
+    if not alarms:
+        return (f"no: the step detector raised no alarm over the {len(vr.trajectory)} frames of the drive "
+                "(windowed chi-square of the recent frames against the long-run estimate)"), ()
+    return (f"yes: the sensor stepped during the drive (step detected at frame{'s' if len(alarms) > 1 else ''} "
+            f"{', '.join(map(str, alarms))}; the window restarted there)"), alarms
+
+
+def verdict_of(vr: VehicleResult, tol: Tolerance | None = None) -> Verdict:
+    """The vehicle's verdict: the drift block's own ``"verdict"`` when present, else ``derive_verdict``."""
+    tol = tol or Tolerance()
+    moved, frames = moved_during_drive(vr)
+    if frames and NOT_CONVERGED in vr.final.status:
+        moved += "; but the solve did not converge, so these alarms may only mark its failures"
+    d = vr.drift or {}
+    given = d.get("verdict")
+    if given:
+        word = given.get("verdict", given.get("word", "")) if isinstance(given, dict) else str(given)
+        why = (given.get("why") or given.get("reason") or "") if isinstance(given, dict) else ""
+        why = why or d.get("why") or d.get("reason") or ""
+        tol_given = d.get("tolerance", given.get("tolerance") if isinstance(given, dict) else None)
+        if isinstance(tol_given, dict):
+            tol_given = ", ".join(f"{k} {v:g}" if isinstance(v, (int, float)) else f"{k} {v}"
+                                  for k, v in tol_given.items())
+        return Verdict(word, why, str(tol_given) if tol_given is not None else "not stated by the result",
+                       "the calibrator's verdict (result.json drift block)", moved, frames)
+    word, why = derive_verdict(vr, tol)
+    return Verdict(word, why, tol.describe(), "derived by the report from the change against the reference and "
+                   "its 1-sigma", moved, frames)

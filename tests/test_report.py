@@ -1,0 +1,279 @@
+"""The uncertainty report (``hybrid_calib.report``): numbers against ``result.json``, the verdict rules,
+the fleet page, the command, and the pages in a real headless browser (tests/browser.py)."""
+
+from __future__ import annotations
+
+import io
+import json
+from html.parser import HTMLParser
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hybrid_calib.calib.result import CalibrationRun, Estimate, VehicleResult
+from hybrid_calib.cli import main
+from hybrid_calib.report import Tolerance, verdict_of, write_fleet_page, write_report
+from hybrid_calib.report.verdict import VERDICTS
+from tests.helpers import nominal_T_cam_radar
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    """A tiny simulated drive (2 vehicles x 6 frames, 200x112 images) calibrated from an R1 start."""
+    sim = pytest.importorskip("hybrid_calib.sim.simulate")
+    from hybrid_calib.calib.pipeline import calibrate
+    from hybrid_calib.config import merge
+    from hybrid_calib.sim.drive import SimConfig
+
+    base = tmp_path_factory.mktemp("report")
+    root = sim.simulate(merge(SimConfig, {"frames": 6, "vehicles": 2, "image_scale": 0.125, "seed": 5}),
+                        base / "sim", overwrite=False, workers=1)
+    calibrate(root, "v1.0-sim", "oracle", base / "run", {"start": "R1", "window": {"window": 4}})
+    return base
+
+
+class _Cells(HTMLParser):
+    """Every element's data-key -> data-value, and the text of elements by id."""
+
+    def __init__(self):
+        super().__init__()
+        self.values: dict[str, float] = {}
+        self.ids: dict[str, str] = {}
+        self.imgs: list[str] = []
+        self.links: list[str] = []
+        self._open: list[str] = []
+
+    def handle_starttag(self, tag, attrs):
+        a = dict(attrs)
+        if "data-key" in a and "data-value" in a:
+            self.values[a["data-key"]] = float(a["data-value"])
+        if tag == "img":
+            self.imgs.append(a.get("src", ""))
+        if tag == "a":
+            self.links.append(a.get("href", ""))
+        self._open.append(a.get("id", ""))
+        if a.get("id"):
+            self.ids[a["id"]] = ""
+
+    def handle_endtag(self, tag):
+        if self._open:
+            self._open.pop()
+
+    def handle_data(self, data):
+        for i in self._open:
+            if i:
+                self.ids[i] += data
+
+
+def _parse(path: Path) -> _Cells:
+    c = _Cells()
+    c.feed(path.read_text())
+    return c
+
+
+def test_report_numbers_match_result_json(run_dir, tmp_path):
+    result = run_dir / "run" / "result.json"
+    doc = json.loads(result.read_text())
+    name = sorted(doc["vehicles"])[1]
+    out = write_report(result, tmp_path / "r.html", vehicle=name)
+    cells = _parse(out)
+    fin = doc["vehicles"][name]["final"]
+    T = np.asarray(fin["T_cam_radar"])
+    for i in range(4):
+        for j in range(4):
+            assert cells.values[f"T{i}{j}"] == T[i, j]
+    rep = fin["report"]
+    for k in ("roll_deg", "pitch_deg", "yaw_deg"):
+        assert cells.values[k] == rep[k]
+    for a, k in enumerate(("t_x_cm", "t_y_cm", "t_z_cm")):
+        assert cells.values[k] == pytest.approx(100 * rep["t_m"][a], rel=1e-12)
+    for k, v in fin["std_cam"].items():
+        assert cells.values[k] == v, k
+    # the verdict shown is the verdict of the result, and the status is spelled out
+    vr = CalibrationRun.load(result).vehicles[name]
+    word = cells.ids["verdict"].strip().split("\n")[0]
+    assert verdict_of(vr).word in VERDICTS and cells.ids["verdict"].startswith(verdict_of(vr).word)
+    assert word and fin["status"].split(":")[0] in cells.ids["status"]
+    # pictures: before / after on frames across the drive (start and result), bands, residuals
+    assert len(cells.imgs) >= 5 and all(s.startswith("data:image/png;base64,") for s in cells.imgs)
+    assert "no network checkpoint" in out.read_text()
+
+
+def test_report_rebuilds_the_runs_rows_and_start(run_dir):
+    """The residual histograms and the before/after picture use the run's own rows and start: replaying
+    the first frame from the rebuilt start gives the trajectory's first estimate."""
+    from hybrid_calib.calib.pipeline import CalibrateConfig, calibrate_vehicle, replay_inputs
+    from hybrid_calib.config import merge
+    from hybrid_calib.report.evidence import run_config
+
+    result = run_dir / "run" / "result.json"
+    run = CalibrationRun.load(result)
+    conf = run_config(result)
+    inputs = replay_inputs(run.data, run.version, run.correspondences, conf)
+    name = sorted(inputs)[0]
+    vi, T0 = inputs[name]
+    vi.frames = vi.frames[:1]
+    again = calibrate_vehicle(vi, merge(CalibrateConfig, conf), np.random.default_rng(0), progress=False)
+    np.testing.assert_allclose(again.trajectory[0].T, run.vehicles[name].trajectory[0].T, atol=1e-9)
+    assert not np.allclose(T0, run.vehicles[name].final.T, atol=1e-3)  # an R1 start, far from the result
+
+
+def _vr(delta, std, status="ok", drift_extra=None, alarms=()):
+    keys = ("rot_x_deg", "rot_y_deg", "rot_z_deg", "t_x_cm", "t_y_cm", "t_z_cm")
+    est = Estimate(nominal_T_cam_radar(), np.eye(6) * 1e-6, np.asarray(std, float), status)
+    drift = {"delta_camera": dict(zip(keys, delta)), "statistic": 1.0, "p_value": 0.5, "drifted": False}
+    drift.update(drift_extra or {})
+    vr = VehicleResult("v", est, drift=drift)
+    if alarms:
+        from hybrid_calib.calib.result import FrameEstimate
+
+        vr.trajectory = [FrameEstimate(k, str(k), 0, est, 1, 1, 1.0, None, None, k in alarms, 0.0, 0.0)
+                         for k in range(5)]
+    return vr
+
+
+@pytest.mark.parametrize("delta, std, status, word, names", [
+    ((0.1, 0, 0, 1, 0, 0), (0.05,) * 3 + (0.5,) * 3, "ok", "within tolerance", ()),
+    ((0, 1.2, 0, 0, 0, 0), (0.05,) * 3 + (0.5,) * 3, "ok", "recalibrate", ("rotation about camera y",)),
+    ((0, 0, 0, 0, 12, 0), (0.05,) * 3 + (0.5, 30, 0.5), "weak: translation along camera y", "inconclusive",
+     ("translation along camera y",)),
+    ((0, 0, 0, 0, 0, 0), (0.05,) * 6, "degenerate: rotation about camera z is unobservable", "inconclusive",
+     ("degenerate",)),
+    ((0, 9, 0, 0, 0, 0), (0.05,) * 6, "ok (NOT CONVERGED: only 3 % of the frame's correspondences fit the estimate)",
+     "inconclusive", ("did not converge",)),
+])
+def test_verdict_rules(delta, std, status, word, names):
+    v = verdict_of(_vr(delta, std, status), Tolerance(rot_deg=0.5, trans_cm=5.0))
+    assert v.word == word
+    assert all(n in v.why for n in names), v.why
+    assert "0.5 deg" in v.tolerance and "5 cm" in v.tolerance
+
+
+def test_verdict_from_the_result_and_steps():
+    v = verdict_of(_vr((0,) * 6, (0.01,) * 6, drift_extra={"verdict": "recalibrate", "why": "knocked",
+                                                           "tolerance": {"rot_deg": 0.3}}, alarms=(3,)))
+    assert (v.word, v.why) == ("recalibrate", "knocked") and "rot_deg 0.3" in v.tolerance
+    assert v.moved_frames == (3,) and v.moved.startswith("yes")
+    assert verdict_of(_vr((0,) * 6, (0.01,) * 6)).moved.startswith("not tested")
+
+
+def test_fleet_page_links_vehicle_reports_and_names_the_flagged(run_dir, tmp_path):
+    result = run_dir / "run" / "result.json"
+    run = CalibrationRun.load(result)
+    # one result file per vehicle, as the fleet engine writes them
+    paths = []
+    for name, vr in run.vehicles.items():
+        one = CalibrationRun(run.data, run.version, run.correspondences, run.mode, {name: vr})
+        d = tmp_path / "vehicles" / name
+        one.save(d / "result.json")
+        (d / "config.json").write_text((result.parent / "config.json").read_text())
+        paths.append(d / "result.json")
+    names = sorted(run.vehicles)
+    design = run.vehicles[names[0]].truth_T
+    page = write_fleet_page(paths, tmp_path / "fleet.html", design=design, flagged=[names[1]])
+    cells = _parse(page)
+    text = page.read_text()
+    assert f'data-vehicle="{names[1]}"' in text and "Flagged: " + names[1] in text
+    for n in names:
+        assert f"vehicles/{n}/report.html" in cells.links
+        assert (tmp_path / "vehicles" / n / "report.html").is_file()
+    assert 'class=sortable' in text and len(cells.imgs) == 1
+
+
+def test_report_command(run_dir, tmp_path, capsys):
+    result = run_dir / "run" / "result.json"
+    name = sorted(json.loads(result.read_text())["vehicles"])[0]
+    out = tmp_path / "x.html"
+    assert main(["report", str(result), "--vehicle", name, "--frames", "1", "--out", str(out)]) == 0
+    assert out.is_file() and str(out) in capsys.readouterr().out
+    assert main(["report", str(result), "--out", str(out)]) == 2  # two vehicles, none named
+    assert "pass --vehicle NAME" in capsys.readouterr().err
+    assert main(["report", str(result), "--vehicle", "nope", "--out", str(out)]) == 2
+    assert "'nope' is not in" in capsys.readouterr().err
+
+
+def test_report_without_data_says_so(run_dir, tmp_path):
+    result = run_dir / "run" / "result.json"
+    name = sorted(json.loads(result.read_text())["vehicles"])[0]
+    out = write_report(result, tmp_path / "r.html", vehicle=name, data=tmp_path / "missing")
+    notes = _parse(out).ids["notes"]
+    assert "no data root" in notes and "--data ROOT --version V" in notes
+    assert out.read_text().count("data:image/png") == 1  # only the 3-sigma bands (from result.json)
+
+
+def _variance(png: bytes) -> float:
+    from PIL import Image
+
+    return float(np.asarray(Image.open(io.BytesIO(png)).convert("L"), np.float64).var())
+
+
+def test_pages_in_a_headless_browser(run_dir, tmp_path):
+    """Both pages load in chromium with no console error, no request leaving the file, and are not blank;
+    the same check catches a page that breaks those rules."""
+    from tests.browser import chromium_or_skip, render
+
+    exe = chromium_or_skip()
+    result = run_dir / "run" / "result.json"
+    name = sorted(json.loads(result.read_text())["vehicles"])[0]
+    pages = [write_report(result, tmp_path / "v.html", vehicle=name),
+             write_fleet_page([result], tmp_path / "fleet.html", reports={})]
+    # the fleet table sorts when a header is clicked (twice on "vehicle": descending names)
+    sort = ("(function(){var th=document.querySelector('#vehicles th');th.click();th.click();"
+            "return Array.from(document.querySelectorAll('#vehicles tbody tr')).map(r=>r.dataset.vehicle);})()")
+    for page, js in zip(pages, (None, sort)):
+        r = render(page, exe, evaluate=js)
+        if js:
+            assert r.value == sorted(json.loads(result.read_text())["vehicles"], reverse=True)
+        assert r.console_errors == [], (page, r.console_errors)
+        assert r.outside(page) == [], (page, r.outside(page))
+        assert _variance(r.screenshot_png) > 100, page  # not blank
+        (tmp_path / (page.stem + ".png")).write_bytes(r.screenshot_png)
+    bad = tmp_path / "bad.html"
+    bad.write_text('<html><body><img src="http://example.invalid/a.png"><script>console.error("x")</script>'
+                   "</body></html>")
+    r = render(bad, exe)
+    assert r.outside(bad) == ["http://example.invalid/a.png"] and "x" in r.console_errors
+    blank = tmp_path / "blank.html"
+    blank.write_text("<html><body></body></html>")
+    assert _variance(render(blank, exe).screenshot_png) < 1
+
+
+def test_missing_browser_fails_under_ci_and_skips_otherwise(monkeypatch):
+    from tests import browser
+
+    monkeypatch.setattr(browser.shutil, "which", lambda name: None)
+    monkeypatch.setenv("CI", "1")
+    with pytest.raises(pytest.fail.Exception, match="CI is set"):
+        browser.chromium_or_skip()
+    monkeypatch.delenv("CI")
+    with pytest.raises(pytest.skip.Exception, match="apt-get install -y chromium"):
+        browser.chromium_or_skip()
+
+
+def test_a_step_splits_the_drive_into_two_estimates():
+    from hybrid_calib.calib.result import FrameEstimate
+    from hybrid_calib.report.evidence import segment_estimates
+
+    vr = _vr((0,) * 6, (0.01,) * 6)
+    Ts = [nominal_T_cam_radar() + np.diag([0, 0, 0, 0]) for _ in range(6)]
+    for k, T in enumerate(Ts):
+        T[0, 3] = k  # each frame's estimate distinguishable
+    vr.trajectory = [FrameEstimate(k, f"f{k}", 0, Estimate(Ts[k], np.eye(6), np.ones(6), "ok"), 1, 1, 1.0,
+                                   None, None, k == 4, 0.0, 0.0) for k in range(6)]
+    seg = segment_estimates(vr)
+    assert [seg[f"f{k}"][0][0, 3] for k in range(6)] == [3, 3, 3, 3, vr.final.T[0, 3], vr.final.T[0, 3]]
+    assert seg["f0"][1] == "result of frames 0-3" and seg["f5"][1] == "result of frames 4-5"
+    assert [seg[f"f{k}"][2] for k in range(6)] == list(range(6))
+
+
+def test_a_bad_run_config_leaves_a_note_not_a_crash(run_dir, tmp_path):
+    src = run_dir / "run"
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "result.json").write_text((src / "result.json").read_text())
+    (tmp_path / "run" / "config.json").write_text('{"no_such_option": 1}')
+    name = sorted(json.loads((src / "result.json").read_text())["vehicles"])[0]
+    out = write_report(tmp_path / "run" / "result.json", tmp_path / "r.html", vehicle=name, conf={"frames": 1})
+    notes = _parse(out).ids["notes"]
+    assert "config.json" in notes and "no correspondences or residuals" in notes
+    assert "Residuals unavailable" in out.read_text()
