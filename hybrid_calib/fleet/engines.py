@@ -128,16 +128,38 @@ def ray_temp_dir(temp_dir: str | Path) -> Path:
     return p
 
 
+def _local_ray_env(tmp: Path, token: bool = True) -> None:
+    """Keep a local Ray's files under ``tmp``: its temp files (``RAY_TMPDIR``, ``TMPDIR`` of the raylet
+    and workers) and its authentication token (``tmp/auth_token`` through ``RAY_AUTH_TOKEN_PATH``,
+    instead of ``~/.ray/auth_token``), unless the user set Ray's authentication variables or ``token``
+    is False (Ray already imported in this process: it has read its authentication mode)."""
+    import secrets
+
+    os.environ["RAY_TMPDIR"] = os.environ["TMPDIR"] = str(tmp)
+    if token and not any(v in os.environ for v in ("RAY_AUTH_MODE", "RAY_AUTH_TOKEN", "RAY_AUTH_TOKEN_PATH")):
+        token = tmp / "auth_token"
+        if not token.is_file():
+            token.write_text(secrets.token_hex(32))
+            token.chmod(0o600)
+        os.environ["RAY_AUTH_MODE"], os.environ["RAY_AUTH_TOKEN_PATH"] = "token", str(token)
+
+
 def start_ray(workers: int, address: str | None, temp_dir: str | Path | None, object_store_mb: int) -> bool:
     """Join the cluster at ``address``, or start a local one (module doc). Returns whether this call
     started Ray (then the caller shuts it down). A Ray already initialised in this process is reused."""
-    try:
-        import ray
-    except ImportError:
-        raise OptionError("--engine", "ray is not installed; pip install -e .[fleet] (or use --engine process)") \
-            from None
-    if ray.is_initialized():
+    import importlib.util
+    import sys
+
+    if importlib.util.find_spec("ray") is None:
+        raise OptionError("--engine", "ray is not installed; pip install -e .[fleet] (or use --engine process)")
+    if "ray" in sys.modules and sys.modules["ray"].is_initialized():
         return False
+    fresh = "ray" not in sys.modules  # Ray reads its authentication mode once, at import
+    if not address and temp_dir is not None:
+        tmp = ray_temp_dir(temp_dir)
+        _local_ray_env(tmp, token=fresh)
+    import ray
+
     # the workers import this checkout of hybrid_calib (not another installed copy)
     root = str(Path(__file__).resolve().parents[2])
     os.environ["PYTHONPATH"] = os.pathsep.join([root, *filter(None, [os.environ.get("PYTHONPATH")])])
@@ -146,17 +168,14 @@ def start_ray(workers: int, address: str | None, temp_dir: str | Path | None, ob
         return True
     if temp_dir is None:
         raise OptionError("--ray-temp", "a local Ray cluster needs a temp directory")
-    tmp = ray_temp_dir(temp_dir)
-    os.environ["RAY_TMPDIR"] = str(tmp)
     ray.init(num_cpus=workers, object_store_memory=int(object_store_mb) * 1024 * 1024, _temp_dir=str(tmp),
              include_dashboard=False, log_to_driver=False, runtime_env={"env_vars": {"TQDM_DISABLE": "1"}})
     return True
 
 
 def _run_ray(jobs, on_start, on_outcome, workers, address, temp_dir, retries, in_flight, object_store_mb):
-    import ray
-
     started = start_ray(workers, address, temp_dir, object_store_mb)
+    import ray  # after start_ray: it sets Ray's environment first
     try:
         task = ray.remote(num_cpus=1, max_retries=retries, retry_exceptions=[OSError])(run_job)
         queue = list(jobs)
