@@ -8,10 +8,11 @@ around a reference ``T_ref`` (the design mount; docs/conventions.md: ``xi = loca
     x_i = mu + b_i + e_i,   b_i ~ N(0, S) (the fleet's spread),   e_i ~ N(0, C_i) (its own noise),
 
 so ``x_i ~ N(mu, S + C_i)``. ``S`` is diagonal (six per-axis variances: a few dozen vehicles do not
-support 21 covariance entries). ``mu`` and ``S`` are the maximum-likelihood estimate by EM
-(``_em``: the E-step is each vehicle's posterior ``b_i``, the M-step the weighted mean and the
-per-axis mean of ``b_i^2`` + posterior variance), which handles unequal ``C_i``
-(a 10-frame vehicle with a weak direction weighs little in it), unlike a plain sample variance.
+support 21 covariance entries). ``mu`` and ``S`` are the maximum-likelihood estimate by EM,
+started at the per-axis DerSimonian-Laird estimate (``_em``: the E-step is each vehicle's
+posterior ``b_i``, the M-step the weighted mean and the per-axis mean of ``b_i^2`` + posterior
+variance), which handles unequal ``C_i`` (a 10-frame vehicle with a weak direction weighs little
+in it), unlike a plain sample variance.
 
 Robustness: each vehicle is tested against the fleet fitted WITHOUT it (leave-one-out):
 ``d_i^2 = (x_i - mu_-i)^T (S_-i + C_i + Cov(mu_-i))^-1 (x_i - mu_-i)`` ~ chi-square(6); a vehicle
@@ -51,11 +52,20 @@ def _sym(C: np.ndarray) -> np.ndarray:
     return C + np.eye(6) * 1e-12 * max(np.trace(C), 1e-12)
 
 
-def _em(x: np.ndarray, C: np.ndarray, iters: int = 500, tol: float = 1e-10) -> Fit:
-    """ML (mu, S) of ``x`` (n, 6) with per-item covariances ``C`` (n, 6, 6) (module doc)."""
+def _dersimonian_laird(x: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """(6,) per-axis DerSimonian-Laird moment estimate of the spread variance (EM's starting point:
+    EM alone creeps for many iterations from a spread far below the vehicles' own noise)."""
+    w = 1.0 / np.diagonal(C, axis1=1, axis2=2)  # (n, 6)
+    m = (w * x).sum(0) / w.sum(0)
+    Q = (w * (x - m) ** 2).sum(0)
+    return np.maximum(0.0, (Q - (len(x) - 1)) / (w.sum(0) - (w ** 2).sum(0) / w.sum(0)))
+
+
+def _em(x: np.ndarray, C: np.ndarray, iters: int = 300, tol: float = 1e-6, init: Fit | None = None) -> Fit:
+    """ML (mu, S) of ``x`` (n, 6) with per-item covariances ``C`` (n, 6, 6) (module doc); ``init``
+    warm-starts the spread (the leave-one-out fits start at the full fit)."""
     floor = np.asarray(VAR_FLOOR)
-    mu = np.median(x, axis=0)
-    s = np.maximum(np.var(x, axis=0) - np.mean(np.diagonal(C, axis1=1, axis2=2), axis=0), floor)
+    s = np.maximum(_dersimonian_laird(x, C), floor) if init is None else np.diag(init.S).copy()
     iterations = 0
     while iterations < iters:
         iterations += 1
@@ -160,7 +170,7 @@ def fit_fleet_prior(names: list[str], Ts: list[np.ndarray], covs: list[np.ndarra
     tests: dict[int, tuple[float, float]] = {}
     for _ in range(rounds):
         fit = _em(x[inl], C[inl])
-        loo = {i: _em(x[[j for j in inl if j != i]], C[[j for j in inl if j != i]]) for i in inl} \
+        loo = {i: _em(x[[j for j in inl if j != i]], C[[j for j in inl if j != i]], init=fit) for i in inl} \
             if len(inl) > MIN_VEHICLES else {}
         for i in range(len(names)):
             d2 = _d2(x[i], C[i], loo.get(i, fit))
