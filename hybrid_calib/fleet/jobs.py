@@ -190,7 +190,7 @@ def calibrate_job(job: Job) -> Path:
         np.asarray(job.prior["T_cam_radar"], np.float64), np.asarray(job.prior["cov_right_radar"], np.float64))}
     conf = {**job.calib, "vehicles": (job.vehicle,), "seed": job_seed(job.seed, job.vehicle)}
     out = Path(job.out)
-    calibrate(job.data, job.version, "oracle", out, conf, overwrite=True, priors=prior,
+    calibrate(job.data, job.version, "oracle", out, conf, overwrite=True, priors=prior, progress=False,
               on_vehicle=partial(plot_vehicle, out_dir=out / "plots"))
     return job.result_path
 
