@@ -173,6 +173,13 @@ def test_fleet_prior_recovers_mean_and_spread_and_names_the_outlier():
     assert fp.prior("knocked") is None and fp.priors()["knocked"] is None
     p = fp.prior("v00")  # leave-one-out: its own data is not in its prior
     assert np.shape(p["cov_right_radar"]) == (6, 6) and not np.allclose(p["T_cam_radar"], fp.T_mean)
+    # a common-mode error (the prior-pinned directions): every prior keeps it in full, the test ignores it
+    P = np.diag([0, np.radians(1.0) ** 2, 0, 0, 0, 0.3 ** 2])
+    shift = retract(np.eye(4), np.array([0, np.radians(0.8), 0, 0, 0, 0.25]))
+    fc = fit_fleet_prior(names, [T @ shift for T in Ts], [c + P for c in covs], T_ref, common_cov=P)
+    assert list(fc.outliers) == ["knocked"]
+    pc = np.asarray(fc.prior("v00")["cov_right_radar"])
+    assert pc[5, 5] >= P[5, 5] and pc[1, 1] >= P[1, 1] and pc[0, 0] < 1e-4
     # a fit that kept the outlier would be pulled: its rotation-x spread would blow up
     with_out = fit_fleet_prior(names, Ts, covs, T_ref, alpha=0.0)
     assert np.sqrt(with_out.fit.S[0, 0]) > 1.3 * np.sqrt(fp.fit.S[0, 0])

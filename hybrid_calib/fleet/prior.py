@@ -14,11 +14,22 @@ posterior ``b_i``, the M-step the weighted mean and the per-axis mean of ``b_i^2
 variance), which handles unequal ``C_i`` (a 10-frame vehicle with a weak direction weighs little
 in it), unlike a plain sample variance.
 
+Common-mode error: in the directions that only the elevation prior pins (``calib.covariance.
+prior_pinned_std``: radar pitch and radar z; camera pitch and vertical translation) every vehicle's
+estimate carries the SAME assumption about the world's reflector heights, so their errors are
+correlated across the fleet, not independent (measured, docs/benchmarks.md: 20 ten-frame vehicles
+all off by +32 cm in camera y, scatter 18 cm; a model without this term "learned" the fleet mean
+there to 7 cm and tightened every vehicle's vertical translation to a confident wrong value, NEES
+45). With ``common_cov`` = P (6, 6) the model is ``x_i = mu + c + b_i + e_i``, ``c ~ N(0, P)`` shared by
+all vehicles: the EM uses each vehicle's own part ``C_i - P``, the outlier test is unaffected by
+``c`` (it cancels in ``x_i - mu``), and every prior carries ``P`` in full (the fleet cannot pin what
+all its vehicles only assume).
+
 Robustness: each vehicle is tested against the fleet fitted WITHOUT it (leave-one-out):
 ``d_i^2 = (x_i - mu_-i)^T (S_-i + C_i + Cov(mu_-i))^-1 (x_i - mu_-i)`` ~ chi-square(6); a vehicle
 with p < ``alpha`` is an outlier (a knocked radar), named, and left out of the fit; repeated until
 the inlier set is stable. The prior for an inlier vehicle is its leave-one-out predictive
-distribution ``N(T_ref exp(mu_-i), S_-i + Cov(mu_-i))`` (its own data is not counted twice); for a new
+distribution ``N(T_ref exp(mu_-i), S_-i + Cov(mu_-i) + P)`` (its own data is not counted twice); for a new
 vehicle the full fit's; an outlier gets none (the crowd must not pull it back).
 """
 
@@ -59,6 +70,15 @@ def _dersimonian_laird(x: np.ndarray, C: np.ndarray) -> np.ndarray:
     m = (w * x).sum(0) / w.sum(0)
     Q = (w * (x - m) ** 2).sum(0)
     return np.maximum(0.0, (Q - (len(x) - 1)) / (w.sum(0) - (w ** 2).sum(0) / w.sum(0)))
+
+
+def _own(C: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """A vehicle's own covariance ``C - P`` (the common part removed), kept positive definite: its
+    eigenvalues are clipped at 1e-4 of C's own along each eigenvector."""
+    C = _sym(C)
+    w, V = np.linalg.eigh(C - P)
+    floor = 1e-4 * np.einsum("ij,ik,kj->j", V, C, V)
+    return _sym((V * np.maximum(w, floor)) @ V.T)
 
 
 def _em(x: np.ndarray, C: np.ndarray, iters: int = 300, tol: float = 1e-6, init: Fit | None = None) -> Fit:
@@ -106,6 +126,7 @@ class FleetPrior:
     tests: dict[str, dict] = field(default_factory=dict)  # name -> {"d2", "p_value"} for every vehicle
     loo: dict[str, Fit] = field(default_factory=dict)  # inlier name -> fit without it
     alpha: float = 1e-3
+    common_cov: np.ndarray = field(default_factory=lambda: np.zeros((6, 6)))  # P (module doc)
 
     @property
     def T_mean(self) -> np.ndarray:
@@ -119,7 +140,7 @@ class FleetPrior:
             return None
         f = self.loo.get(name, self.fit) if name is not None else self.fit
         T = retract(self.T_ref, f.mu)
-        return {"T_cam_radar": T.tolist(), "cov_right_radar": _sym(f.S + f.cov_mu).tolist()}
+        return {"T_cam_radar": T.tolist(), "cov_right_radar": _sym(f.S + f.cov_mu + self.common_cov).tolist()}
 
     def priors(self) -> dict[str, dict]:
         """Job id -> prior for every vehicle (None for an outlier: no prior), "*" (a new vehicle) -> the
@@ -144,7 +165,8 @@ class FleetPrior:
             "mu_right_radar": self.fit.mu.tolist(), "spread_cov_right_radar": self.fit.S.tolist(),
             "mean_cov_right_radar": self.fit.cov_mu.tolist(),
             "spread_std_cam": std_dict(self.spread_std_cam(), STD_FRAME),
-            "mean_std_cam": std_dict(report_std(self.T_mean, self.fit.cov_mu), STD_FRAME),
+            "mean_std_cam": std_dict(report_std(self.T_mean, self.fit.cov_mu + self.common_cov), STD_FRAME),
+            "common_cov_right_radar": self.common_cov.tolist(),
             "alpha": self.alpha, "iterations": self.fit.iterations,
             "vehicles": self.names, "inliers": self.inliers, "outliers": self.outliers, "tests": self.tests,
             "priors": self.priors(),
@@ -155,16 +177,18 @@ class FleetPrior:
 
 
 def fit_fleet_prior(names: list[str], Ts: list[np.ndarray], covs: list[np.ndarray], T_ref: np.ndarray,
-                    alpha: float = 1e-3, rounds: int = 10) -> FleetPrior:
+                    alpha: float = 1e-3, rounds: int = 10, common_cov: np.ndarray | None = None) -> FleetPrior:
     """Fit the fleet model (module doc) to vehicles ``names`` with estimates ``Ts`` (each (4, 4)) and
     covariances ``covs`` (each (6, 6), right tangent, radar frame, [rad, m]) around ``T_ref`` (4, 4).
+    ``common_cov`` (6, 6): the part of every ``covs[i]`` shared by all vehicles (P; default none).
     ``DataError`` with fewer than ``MIN_VEHICLES`` vehicles."""
     from scipy.stats import chi2
 
     if len(names) < MIN_VEHICLES:
         raise DataError(f"a fleet prior needs >= {MIN_VEHICLES} calibrated vehicles, got {len(names)}")
     x = np.array([local(T_ref, T) for T in Ts])
-    C = np.array([_sym(c) for c in covs])
+    P = np.zeros((6, 6)) if common_cov is None else _sym(common_cov)
+    C = np.array([_own(c, P) for c in covs])
     inl = list(range(len(names)))
     loo: dict[int, Fit] = {}
     tests: dict[int, tuple[float, float]] = {}
@@ -185,7 +209,7 @@ def fit_fleet_prior(names: list[str], Ts: list[np.ndarray], covs: list[np.ndarra
         np.asarray(T_ref, np.float64), list(names), fit, [names[i] for i in inl],
         {names[i]: {"d2": tests[i][0], "p_value": tests[i][1]} for i in range(len(names)) if i not in inl},
         {names[i]: {"d2": tests[i][0], "p_value": tests[i][1]} for i in range(len(names))},
-        {names[i]: f for i, f in loo.items()}, alpha)
+        {names[i]: f for i, f in loo.items()}, alpha, P)
 
 
 def load_priors(path: str | Path) -> dict[str, dict]:

@@ -61,6 +61,21 @@ def design_mount(jobs: list[dict]) -> tuple[np.ndarray, str]:
     return T, "recorded" if recorded else "mean of the tables"
 
 
+def common_cov(jobs: list[dict]) -> np.ndarray:
+    """(6, 6) the covariance every vehicle's estimate shares (fleet.prior module doc): the
+    prior-pinned variances (``calib.covariance.prior_pinned_std``) of the factor the jobs ran with
+    (the largest over the jobs' configs), radar right tangent [rad^2, m^2]."""
+    from hybrid_calib.calib.covariance import prior_pinned_std
+    from hybrid_calib.calib.pipeline import CalibrateConfig
+    from hybrid_calib.config import merge
+
+    std = np.zeros(6)
+    for j in jobs:
+        c = merge(CalibrateConfig, j.get("calib") or {})
+        std = np.maximum(std, prior_pinned_std(c.window.factor if c.mode == "window" else c.batch.factor))
+    return np.diag(std ** 2)
+
+
 def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
     """(summary dict of the module doc, FleetPrior or None) from the manifest and the result files."""
     from hybrid_calib.calib.result import STD_FRAME, CalibrationRun
@@ -103,7 +118,7 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
     if fit_prior and len(results) >= MIN_VEHICLES:
         names = sorted(results)
         prior = fit_fleet_prior(names, [results[n].final.T for n in names], [results[n].final.cov for n in names],
-                                T_ref, alpha)
+                                T_ref, alpha, common_cov=common_cov([m.jobs[n]["job"] for n in names]))
         for n in names:
             rows[n]["fleet_test"] = prior.tests[n]
             if n in prior.outliers:
