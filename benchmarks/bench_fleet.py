@@ -17,9 +17,10 @@ One command (everything under ``--out``; simulated roots are reused when present
 3. Fleet prior: ``fleet_prior.json`` of the reference run; second pass with ``--prior`` (each inlier's
    leave-one-out prior, none for a named outlier); per-axis RMS error, median reported std and
    NEES (chi2(6): mean 6, 95 % below 12.59) before and after, over the inlier vehicles with truth.
-4. Throughput: the urban root (``--fleet`` / 4 vehicles): local; process 1 and 2 workers;
+4. Throughput: the urban and highway roots (about ``--fleet`` / 2 vehicles): local; process 1 and 2 workers;
    ray 1 and 2 workers (Ray's start-up timed apart). Speed-up = wall(1) / wall(2); Ray's overhead per
-   vehicle = (ray wall - sum of the jobs' own wall times / workers) / vehicles.
+   vehicle = (ray wall - sum of the jobs' own wall times / workers) / vehicles. The 1-minute load
+   average before each run is recorded: on a shared machine it decides the figures.
 """
 
 from __future__ import annotations
@@ -143,7 +144,7 @@ def gain(before: dict, after: dict, outliers: list) -> dict:
     return out
 
 
-def throughput(root: Path, out: Path) -> dict:
+def throughput(roots: list[Path], out: Path) -> dict:
     from hybrid_calib.fleet.engines import start_ray
 
     rec = {}
@@ -157,7 +158,8 @@ def throughput(root: Path, out: Path) -> dict:
             t0 = time.perf_counter()
             start_ray(workers, None, out / f"rt{workers}", 200)
             init_s = time.perf_counter() - t0
-        s, wall = fleet([root], d, engine, workers)
+        load = os.getloadavg()[0]
+        s, wall = fleet(roots, d, engine, workers)
         if engine == "ray":
             ray.shutdown()
         m = json.loads((d / "manifest.json").read_text())
@@ -166,9 +168,10 @@ def throughput(root: Path, out: Path) -> dict:
         rec[f"{engine}{workers}"] = {"engine": engine, "workers": workers, "vehicles": n, "wall_s": wall,
                                      "ray_init_s": init_s, "sum_job_s": job_s,
                                      "overhead_per_vehicle_s": (wall - job_s / workers) / n,
-                                     "vehicles_per_min": 60 * n / wall, "done": s["counts"]["done"]}
+                                     "vehicles_per_min": 60 * n / wall, "done": s["counts"]["done"],
+                                     "load_avg_1min_before": load}
         print(f"throughput {engine} x{workers}: {wall:.1f} s for {n} vehicles (jobs {job_s:.1f} s)"
-              + (f", ray init {init_s:.1f} s" if init_s else ""), flush=True)
+              + (f", ray init {init_s:.1f} s" if init_s else "") + f"; load average before {load:.1f}", flush=True)
     for e in ("process", "ray"):
         rec[f"{e}_speedup_2"] = rec[f"{e}1"]["wall_s"] / rec[f"{e}2"]["wall_s"]
     return rec
@@ -205,7 +208,7 @@ def main() -> None:
                          "knocked_with_prior": {k: v["offset_from_design"] for k, v in s2["vehicles"].items()
                                                 if k.startswith("knocked")}}
     print(json.dumps(rec["prior_pass"], indent=1), flush=True)
-    rec["throughput"] = throughput(roots[0], a.out / "throughput")
+    rec["throughput"] = throughput(roots[:2], a.out / "throughput")
     print(json.dumps({k: v for k, v in rec["throughput"].items()}, indent=1), flush=True)
     (a.out / "bench_fleet.json").write_text(json.dumps(rec, indent=2))
     print(f"wrote {a.out / 'bench_fleet.json'}")
