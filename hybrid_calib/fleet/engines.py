@@ -14,7 +14,7 @@ handed out at once, so a fleet of thousands never queues thousands of tasks.
 - ``ray``: ``ray.init(address=...)`` joins a running cluster (every node needs this package
   installed); without an address a local cluster of ``workers`` CPUs starts with its object store
   capped (``object_store_mb``) and its temp files under ``temp_dir`` (``RAY_TMPDIR`` too). Tasks are
-  ``run_job`` with ``num_cpus=1``, ``max_retries=retries`` (a dead worker or node) and
+  ``run_job`` with ``num_cpus`` = the job's threads, ``max_retries=retries`` (a dead worker or node) and
   ``retry_exceptions=[OSError]`` (transient I/O); a ``DataError`` is an outcome, not retried.
 """
 
@@ -174,10 +174,10 @@ def start_ray(workers: int, address: str | None, temp_dir: str | Path | None, ob
 
 
 def _run_ray(jobs, on_start, on_outcome, workers, address, temp_dir, retries, in_flight, object_store_mb):
-    started = start_ray(workers, address, temp_dir, object_store_mb)
+    started = start_ray(workers * jobs[0].threads, address, temp_dir, object_store_mb)  # CPUs: workers x threads
     import ray  # after start_ray: it sets Ray's environment first
     try:
-        task = ray.remote(num_cpus=1, max_retries=retries, retry_exceptions=[OSError])(run_job)
+        task = ray.remote(num_cpus=jobs[0].threads, max_retries=retries, retry_exceptions=[OSError])(run_job)
         queue = list(jobs)
         running: dict = {}
         while queue or running:
