@@ -202,6 +202,7 @@ def main() -> None:
     print(json.dumps(kr, indent=1), flush=True)
     from hybrid_calib.fleet.prior import load_priors
 
+    shutil.rmtree(a.out / "with_prior", ignore_errors=True)
     s2, wall2 = fleet(roots, a.out / "with_prior", priors=load_priors(ref_out / "fleet_prior.json"))
     rec["prior_pass"] = {"wall_s": wall2, "counts": s2["counts"],
                          "gain": gain(s1, s2, list(s1["fleet_prior"]["outliers"])),
