@@ -20,7 +20,8 @@ One command (everything under ``--out``; simulated roots are reused when present
 4. Throughput: the urban and highway roots (about ``--fleet`` / 2 vehicles): local; process 1 and 2 workers;
    ray 1 and 2 workers (Ray's start-up timed apart). Speed-up = wall(1) / wall(2); Ray's overhead per
    vehicle = (ray wall - sum of the jobs' own wall times / workers) / vehicles. The 1-minute load
-   average before each run is recorded: on a shared machine it decides the figures.
+   average before each run and the jobs' own CPU seconds are recorded: on a shared machine they
+   decide the figures (cpu_share = job CPU seconds / (wall x workers): 1 = every worker had a core).
 """
 
 from __future__ import annotations
@@ -164,13 +165,15 @@ def throughput(roots: list[Path], out: Path) -> dict:
             ray.shutdown()
         m = json.loads((d / "manifest.json").read_text())
         job_s = sum(e["wall_s"] for e in m["jobs"].values())
+        cpu_s = sum(e.get("cpu_s") or 0 for e in m["jobs"].values())
         n = len(m["jobs"])
         rec[f"{engine}{workers}"] = {"engine": engine, "workers": workers, "vehicles": n, "wall_s": wall,
-                                     "ray_init_s": init_s, "sum_job_s": job_s,
+                                     "ray_init_s": init_s, "sum_job_s": job_s, "sum_job_cpu_s": cpu_s,
+                                     "cpu_share": cpu_s / (wall * workers),
                                      "overhead_per_vehicle_s": (wall - job_s / workers) / n,
                                      "vehicles_per_min": 60 * n / wall, "done": s["counts"]["done"],
                                      "load_avg_1min_before": load}
-        print(f"throughput {engine} x{workers}: {wall:.1f} s for {n} vehicles (jobs {job_s:.1f} s)"
+        print(f"throughput {engine} x{workers}: {wall:.1f} s for {n} vehicles (jobs {job_s:.1f} s, CPU {cpu_s:.1f} s)"
               + (f", ray init {init_s:.1f} s" if init_s else "") + f"; load average before {load:.1f}", flush=True)
     for e in ("process", "ray"):
         rec[f"{e}_speedup_2"] = rec[f"{e}1"]["wall_s"] / rec[f"{e}2"]["wall_s"]

@@ -6,7 +6,7 @@ Schema (``schema`` "hybrid-calib/fleet-manifest/v1")::
      "jobs": {JOB_ID: {"job": Job.to_dict(),
                        "state": "pending" | "running" | "done" | "failed",
                        "reason": str | null, "file": str | null,    # why it failed, and which file
-                       "attempts": int, "wall_s": float | null, "host": str | null,
+                       "attempts": int, "wall_s": float | null, "cpu_s": float | null, "host": str | null,
                        "result": "vehicles/<id>/result.json" | null}}}
 
 Resume rules (``Manifest.open``): a ``done`` job whose result file is missing or unreadable goes back
@@ -70,7 +70,7 @@ class Manifest:
             e = m.jobs.get(job.id)
             if e is None:
                 m.jobs[job.id] = {"job": job.to_dict(), "state": "pending", "reason": None, "file": None,
-                                  "attempts": 0, "wall_s": None, "host": None, "result": None}
+                                  "attempts": 0, "wall_s": None, "cpu_s": None, "host": None, "result": None}
                 continue
             e["job"] = job.to_dict()  # options such as --checkpoint may change between reruns
             done = result_complete(job.result_path)
@@ -99,7 +99,7 @@ class Manifest:
         """Store one job's outcome (``jobs.run_job`` or an engine's failure record); returns its entry."""
         e = self.jobs[outcome["id"]]
         e.update(state=outcome["state"], reason=outcome.get("reason"), file=outcome.get("file"),
-                 wall_s=outcome.get("wall_s"), host=outcome.get("host") or e.get("host"),
+                 wall_s=outcome.get("wall_s"), cpu_s=outcome.get("cpu_s"), host=outcome.get("host") or e.get("host"),
                  result=_rel(outcome["result"], self.path.parent) if outcome.get("result") else None)
         self.save()
         return e
