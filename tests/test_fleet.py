@@ -195,3 +195,18 @@ def test_a_fleet_prior_tightens_a_vehicle(fleet_root, local_run, tmp_path):
     before, after = s["vehicles"]["sim-veh-000"]["std_cam"], s2["vehicles"]["sim-veh-000"]["std_cam"]
     assert after["t_y_cam_cm"] < 0.5 * before["t_y_cam_cm"]
     assert s2["vehicles"]["sim-veh-001"]["std_cam"] == s["vehicles"]["sim-veh-001"]["std_cam"]  # no prior: as before
+
+
+def test_fleet_file_lists_roots_and_bad_files_name_themselves(tmp_path):
+    from hybrid_calib.errors import DataError
+    from hybrid_calib.fleet.jobs import read_fleet_file
+
+    f = tmp_path / "FLEET.json"
+    f.write_text(json.dumps({"version": "v1.0-mini", "roots": ["a", {"data": "/abs/b", "vehicles": ["x"]}]}))
+    assert read_fleet_file(f, "v1.0-sim") == [(str(tmp_path / "a"), "v1.0-mini", None), ("/abs/b", "v1.0-mini", ("x",))]
+    f.write_text(json.dumps({"roots": [3]}))
+    with pytest.raises(DataError, match=r"roots\[0\].*FLEET.json"):
+        read_fleet_file(f, "v1.0-sim")
+    f.write_text("{not json")
+    with pytest.raises(DataError, match="unreadable"):
+        read_fleet_file(f, "v1.0-sim")
