@@ -44,6 +44,8 @@ PRESETS = ("urban", "highway", "rain", "straight")
 MOUNTS = ["mounts.camera_rotation_deg=0.6", "mounts.camera_translation_m=0.017", "mounts.radar_rotation_deg=0.5",
           "mounts.radar_translation_m=0.01"]
 TIMING = ("solve_ms", "cov_ms")
+PARTS = ("reference", "kill", "prior", "throughput")
+KNOCKED = "knocked-urban-sim-veh-000"
 
 
 def cli(*args: str, **kw) -> subprocess.CompletedProcess:
@@ -187,35 +189,43 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=10, help="keyframes per vehicle (default: 10)")
     ap.add_argument("--knock-deg", type=float, default=3.0, help="knocked radar: deg about radar y and z (x: 1/3)")
     ap.add_argument("--kill-after", type=int, default=6, help="SIGKILL the driver after this many results")
+    ap.add_argument("--parts", nargs="+", default=list(PARTS), choices=PARTS,
+                    help="what to run (default: all; without 'reference' the reference run is resumed)")
     a = ap.parse_args()
+    a.parts = tuple(p for p in PARTS if p in a.parts)
     a.out.mkdir(parents=True, exist_ok=True)
     rec = {"machine": f"{platform.node()} {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs",
            "command": " ".join(sys.argv)}
     roots = simulate_fleet(a.out, a.fleet, a.frames, a.knock_deg)
     ref_out = a.out / "reference"
-    shutil.rmtree(ref_out, ignore_errors=True)
-    s1, wall = fleet(roots, ref_out, "ray", 2, ray_temp=str(a.out / "rt"))
+    if "reference" in a.parts:
+        shutil.rmtree(ref_out, ignore_errors=True)
+    s1, wall = fleet(roots, ref_out, "ray", 2, ray_temp=str(a.out / "rt"))  # else: resumed (summary rewritten)
     ref = results(ref_out)
     rec["reference"] = {"wall_s": wall, "counts": s1["counts"], "outliers": s1["fleet_prior"]["outliers"],
                         "failed": {k: v["reason"] for k, v in s1["vehicles"].items() if v["state"] == "failed"},
                         "flags": {k: v["flags"] for k, v in s1["vehicles"].items() if v["flags"]},
                         "spread_std_cam": s1["fleet_prior"]["spread_std_cam"]}
     print(json.dumps(rec["reference"], indent=1), flush=True)
-    rec["kill_and_resume"] = kr = kill_and_resume(roots, a.out / "killed", a.kill_after, ref)
-    print(json.dumps(kr, indent=1), flush=True)
-    from hybrid_calib.fleet.prior import load_priors
+    if "kill" in a.parts:
+        rec["kill_and_resume"] = kr = kill_and_resume(roots, a.out / "killed", a.kill_after, ref)
+        print(json.dumps(kr, indent=1), flush=True)
+    if "prior" in a.parts:
+        from hybrid_calib.fleet.prior import load_priors
 
-    shutil.rmtree(a.out / "with_prior", ignore_errors=True)
-    s2, wall2 = fleet(roots, a.out / "with_prior", priors=load_priors(ref_out / "fleet_prior.json"))
-    rec["prior_pass"] = {"wall_s": wall2, "counts": s2["counts"],
-                         "gain": gain(s1, s2, list(s1["fleet_prior"]["outliers"])),
-                         "knocked_with_prior": {k: v["offset_from_design"] for k, v in s2["vehicles"].items()
-                                                if k.startswith("knocked")}}
-    print(json.dumps(rec["prior_pass"], indent=1), flush=True)
-    rec["throughput"] = throughput(roots[:2], a.out / "throughput")
-    print(json.dumps({k: v for k, v in rec["throughput"].items()}, indent=1), flush=True)
-    (a.out / "bench_fleet.json").write_text(json.dumps(rec, indent=2))
-    print(f"wrote {a.out / 'bench_fleet.json'}")
+        shutil.rmtree(a.out / "with_prior", ignore_errors=True)
+        s2, wall2 = fleet(roots, a.out / "with_prior", priors=load_priors(ref_out / "fleet_prior.json"))
+        rec["prior_pass"] = {"wall_s": wall2, "counts": s2["counts"],
+                             "gain": gain(s1, s2, list(s1["fleet_prior"]["outliers"])),
+                             "knocked": {"before": s1["vehicles"][KNOCKED]["offset_from_design"],
+                                         "with_prior": s2["vehicles"][KNOCKED]["offset_from_design"]}}
+        print(json.dumps(rec["prior_pass"], indent=1), flush=True)
+    if "throughput" in a.parts:
+        rec["throughput"] = throughput(roots[:2], a.out / "throughput")
+        print(json.dumps({k: v for k, v in rec["throughput"].items()}, indent=1), flush=True)
+    name = "bench_fleet.json" if a.parts == PARTS else f"bench_fleet_{'_'.join(a.parts)}.json"
+    (a.out / name).write_text(json.dumps(rec, indent=2))
+    print(f"wrote {a.out / name}")
 
 
 if __name__ == "__main__":
