@@ -37,7 +37,7 @@ def plot_fleet(summary: dict, path: str | Path) -> Path:
         ax.axvline(0, color="k", lw=0.6)
         for i in range(len(done)):
             ax.errorbar(off[i, k], y[i], xerr=2 * std[i, k], fmt="o", ms=3, color=colour[i], lw=1)
-        lim = np.percentile(np.abs(off[:, k]), 90) * 2.5 + 1e-6 if len(done) else 1
+        lim = np.max(np.abs(off[:, k])) * 1.2 + 1e-6 if len(done) else 1  # every vehicle (outliers too) in view
         ax.set_xlim(-lim, lim)
         ax.set_title(AXES[k], fontsize=9)
     axes[0].set_yticks(y, [jid for jid, _ in done], fontsize=7)
