@@ -48,9 +48,11 @@ def run(args: argparse.Namespace) -> int:
     merge(CalibrateConfig, {**calib, "seed": args.seed})  # ConfigError names a bad option before any job runs
     options = FleetOptions(args.engine, args.workers, args.address, None if args.ray_temp is None else
                            str(args.ray_temp), threads=args.threads, retries=args.retries, plots=not args.no_plots)
-    bar = tqdm(desc="fleet", unit="vehicle")
+    bar = None  # made at the first finished vehicle (bad input fails before, without a bar)
 
     def progress(e: dict, counts: dict) -> None:
+        nonlocal bar
+        bar = bar or tqdm(desc="fleet", unit="vehicle")
         bar.total = sum(counts.values())
         bar.n = counts["done"] + counts["failed"]
         bar.set_postfix(done=counts["done"], failed=counts["failed"])
@@ -62,7 +64,8 @@ def run(args: argparse.Namespace) -> int:
                         None if args.manifest is None else str(args.manifest), args.version, args.method, args.out,
                         args.seed, None if args.checkpoint is None else str(args.checkpoint), calib,
                         None if args.prior is None else load_priors(args.prior), options, on_outcome=progress)
-    bar.close()
+    if bar is not None:
+        bar.close()
     c = summary["counts"]
     print(f"{c['vehicles']} vehicles: {c['done']} done, {c['failed']} failed; {c['out_of_tolerance']} out of "
           f"tolerance, {c['drifted_in_drive']} drifted inside the drive, {c['fleet_outliers']} fleet outlier(s)"
