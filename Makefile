@@ -12,7 +12,7 @@ $(VENV)/.installed: setup.py
 	$(PY) -m pip install -q --upgrade pip
 	# torch first, exactly this version: it resolves to the local CPU build.
 	$(PY) -m pip install -q torch==2.13.0
-	$(PY) -m pip install -q -e ".[dev,depth]"
+	$(PY) -m pip install -q -e ".[dev,depth,fleet]"
 	touch $@
 
 setup: $(VENV)/.installed

@@ -25,6 +25,8 @@ setup(
         "dev": ["pytest>=9", "ruff==0.17.6", "hypothesis>=6.100"],
         # learned.depth.DepthAnythingEstimator (metric Depth Anything from a local directory)
         "depth": ["transformers==5.23.0"],
+        # hybrid-calib fleet --engine ray (hybrid_calib.fleet.engines); make test installs it
+        "fleet": ["ray>=2.40,<3"],
         # benchmarks/bench_simulate.py compares our ray caster against trimesh + Embree
         "bench": ["trimesh>=4,<6", "embreex==4.4.0.post1"],
     },

@@ -25,6 +25,7 @@ COMMANDS: dict[str, str] = {
     "evaluate": "evaluate",
     "calibrate": "calibrate",
     "report": "report",
+    "fleet": "fleet",
 }
 
 EXIT_ERROR = 2  # an expected failure, explained in one line (argparse uses 2 for usage errors too)

@@ -16,3 +16,26 @@ def _torch_one_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(n)
+
+
+@pytest.fixture(scope="session")
+def ray_session(tmp_path_factory):
+    """ONE local Ray for every test that needs it: 2 CPUs, an 80 MB object store, its temp and token
+    files under the test's temp directory (``RAY_TMPDIR``, ``TMPDIR``, ``RAY_AUTH_TOKEN_PATH``); the
+    environment is restored afterwards. Skips when ray is not installed (``pip install -e .[fleet]``)."""
+    import importlib.util
+    import os
+
+    if importlib.util.find_spec("ray") is None:  # not importorskip: Ray must not be imported before start_ray
+        pytest.skip("ray is not installed (pip install -e .[fleet])")
+    from hybrid_calib.fleet.engines import start_ray
+
+    env = dict(os.environ)
+    started = start_ray(2, None, tmp_path_factory.mktemp("ray"), 80)
+    import ray
+
+    yield ray
+    if started:
+        ray.shutdown()
+    os.environ.clear()
+    os.environ.update(env)

@@ -12,6 +12,7 @@ REQUIRED = {
     "train": ["--data", "d", "--out", "o"],
     "evaluate": ["--data", "d", "--checkpoint", "c", "--out", "o"],
     "report": ["r.json", "--out", "o.html"],
+    "fleet": ["--data", "d", "--out", "o"],
 }
 
 

@@ -55,6 +55,7 @@ def _data_args(command: str, root, out) -> list:
     return {
         "inspect": ["inspect", "--data", root, "--version", VERSION, "--no-progress"],
         "calibrate": ["calibrate", "--data", root, "--version", VERSION, "--out", out, "--no-plots"],
+        "fleet": ["fleet", "--data", root, "--version", VERSION, "--out", out, "--no-plots"],
         "train": ["train", "--data", root, "--version", VERSION, "--out", out, "--no-progress"],
         "evaluate": ["evaluate", "--data", root, "--version", VERSION, "--out", out, "--no-progress",
                      "--checkpoint", out / "none.json"],
@@ -65,19 +66,19 @@ DATA_COMMANDS = ("inspect", "calibrate", "train", "evaluate")
 
 
 # ---------------------------------------------------------------- roots, versions, tables
-@pytest.mark.parametrize("command", ("inspect", "calibrate", "train"))  # evaluate reads its checkpoint first
+@pytest.mark.parametrize("command", ("inspect", "calibrate", "train", "fleet"))  # evaluate reads its checkpoint first
 def test_missing_root(command, tmp_path, capsys):
     _expect_error(_data_args(command, tmp_path / "nowhere", tmp_path / "out"), capsys,
                   "not a directory", tmp_path / "nowhere")
 
 
-@pytest.mark.parametrize("command", ("inspect", "calibrate", "train"))
+@pytest.mark.parametrize("command", ("inspect", "calibrate", "train", "fleet"))
 def test_wrong_version_lists_the_versions(command, tiny, tmp_path, capsys):
     argv = [a if a != VERSION else "v1.0-trainval" for a in _data_args(command, tiny.root, tmp_path / "out")]
     _expect_error(argv, capsys, "'v1.0-trainval' does not exist", VERSION, "--version")
 
 
-@pytest.mark.parametrize("command", ("inspect", "calibrate", "train"))
+@pytest.mark.parametrize("command", ("inspect", "calibrate", "train", "fleet"))
 @pytest.mark.parametrize("case", ["missing-table", "corrupt-table", "duplicate-token", "no-samples"])
 def test_bad_tables(command, case, tiny_copy, tmp_path, capsys):
     vdir = tiny_copy / VERSION

@@ -27,6 +27,7 @@ from hybrid_calib.calib.batch import BatchConfig, solve_batch
 from hybrid_calib.calib.drift import DriftConfig, reference_test
 from hybrid_calib.calib.oracle import OracleConfig, oracle_from_frame
 from hybrid_calib.calib.result import CalibrationRun, VehicleResult
+from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import merge, save_json_atomic, to_dict
 from hybrid_calib.errors import DataError, HybridCalibError
@@ -151,8 +152,11 @@ def _start(vi: VehicleInput, conf: CalibrateConfig, rng) -> np.ndarray:
     return perturbed_start(vi.truth[0], rng, conf.start)
 
 
-def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, rng, progress: bool = True) -> VehicleResult:
-    """Calibrate one vehicle's frames; returns the per-frame trajectory (window) and the final estimate."""
+def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, rng, progress: bool = True,
+                      prior: GaussianPrior | None = None) -> VehicleResult:
+    """Calibrate one vehicle's frames; returns the per-frame trajectory (window) and the final estimate.
+    ``prior``: an optional Gaussian prior on T_cam_radar (e.g. the fleet's, ``hybrid_calib.fleet.prior``),
+    given with the first frame (window; it then lives in the marginal prior) or to the batch solve."""
     from tqdm import tqdm
 
     from hybrid_calib.calib.covariance import report_std
@@ -171,11 +175,11 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, rng, progress: bo
     traj = []
     if conf.mode == "window":
         cal = SlidingWindowCalibrator(T0, conf.window)
-        for c in tqdm(frames, desc=f"calibrate {vi.vehicle}", disable=not progress):
-            traj.append(cal.update(c))
+        for k, c in enumerate(tqdm(frames, desc=f"calibrate {vi.vehicle}", disable=not progress)):
+            traj.append(cal.update(c, prior=prior if k == 0 else None))
         final = traj[-1].estimate
     else:
-        final = solve_batch(frames, T0, conf.batch).estimate
+        final = solve_batch(frames, T0, conf.batch, priors=None if prior is None else [prior]).estimate
     res = VehicleResult(vi.vehicle, final, traj, skipped=skipped, n_frames=len(frames))
     res.drift = reference_test(final.T, final.cov, vi.reference, conf.drift).to_dict()
     res.network = _network_summary(vi)
@@ -198,14 +202,15 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, rng, progress: bo
 
 
 def calibrate(data, version: str, correspondences: str, out: Path, conf: CalibrateConfig | dict | None = None,
-              overwrite: bool = False, on_vehicle: Callable[[VehicleResult], object] | None = None
-              ) -> CalibrationRun:
+              overwrite: bool = False, on_vehicle: Callable[[VehicleResult], object] | None = None,
+              priors: dict[str, GaussianPrior] | None = None, progress: bool = True) -> CalibrationRun:
     """Calibrate every vehicle and write ``out/result.json`` (``CalibrationRun``, schema in
     ``calib.result``) and the effective config ``out/config.json``. ``correspondences``: "oracle" or
     a measurement directory (``factors.io``; e.g. the ``--out`` of ``hybrid-calib evaluate``).
     ``on_vehicle`` is called with each vehicle's result as soon as it is computed (``hybrid-calib
     calibrate`` draws its plots there). With ``overwrite=False`` an existing result is read and
-    returned untouched (idempotent; ``on_vehicle`` is not called)."""
+    returned untouched (idempotent; ``on_vehicle`` is not called). ``priors``: vehicle -> Gaussian prior
+    on its T_cam_radar (``calibrate_vehicle``); ``progress`` False hides the per-vehicle bars."""
     conf = merge(CalibrateConfig, conf)
     out = Path(out)
     result_path = out / "result.json"
@@ -220,7 +225,7 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
         raise DataError("no vehicle to calibrate (check --vehicles and the dataset)", path=str(data))
     run = CalibrationRun(str(data), version, str(correspondences), conf.mode)
     for name, vi in inputs.items():
-        vr = calibrate_vehicle(vi, conf, rng)
+        vr = calibrate_vehicle(vi, conf, rng, progress, (priors or {}).get(name))
         run.vehicles[name] = vr
         if on_vehicle is not None:
             on_vehicle(vr)

@@ -1,0 +1,78 @@
+"""``hybrid-calib fleet``: calibrate every vehicle of a fleet (resumable; local, process pool or Ray)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from hybrid_calib.commands import nonnegative_int, positive_int
+from hybrid_calib.config import parse_overrides
+
+HELP = "calibrate every vehicle of one or more roots as resumable jobs (local | process | ray) + fleet view"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--data", type=Path, nargs="+", help="nuScenes root(s); one job per vehicle (log) of each")
+    src.add_argument("--manifest", type=Path, help='FLEET.json: {"roots": [ROOT | {"data", "version", "vehicles"}]}')
+    p.add_argument("--version", default="v1.0-sim", help="version folder under each root (default: v1.0-sim)")
+    p.add_argument("--method", default="oracle", choices=("hybrid", "pure", "pure-avg", "oracle"),
+                   help="per-vehicle method (default: oracle; the network methods come with the hybrid package)")
+    p.add_argument("--checkpoint", type=Path, help="network checkpoint (network methods)")
+    p.add_argument("--engine", default="local", choices=("local", "process", "ray"), help="default: local")
+    p.add_argument("--address", help="Ray cluster address to join (default: start a local Ray of --workers CPUs)")
+    p.add_argument("--workers", type=positive_int, default=1, help="parallel jobs (default: 1)")
+    p.add_argument("--threads", type=positive_int, default=1, help="torch / BLAS threads per worker (default: 1)")
+    p.add_argument("--ray-temp", type=Path, help="temp dir of a local Ray (default: OUT/ray; keep it short)")
+    p.add_argument("--retries", type=nonnegative_int, default=2, help="retries of a system failure (default: 2)")
+    p.add_argument("--prior", type=Path, help="fleet_prior.json of an earlier fleet run: each vehicle's prior "
+                                              "(leave-one-out; the fleet's for a new vehicle; none for an outlier)")
+    p.add_argument("--seed", type=int, default=0, help="fleet seed; each job seeds from (seed, vehicle) (default: 0)")
+    p.add_argument("--max-frames", type=nonnegative_int, default=0, help="frames per vehicle, 0 = all (default: 0)")
+    p.add_argument("--out", type=Path, required=True, help="fleet run directory (rerun the same command to resume)")
+    p.add_argument("--no-plots", action="store_true", help="skip the fleet plot")
+    p.add_argument("--set", action="extend", nargs="+", metavar="KEY=VALUE", default=[],
+                   help="CalibrateConfig overrides for every vehicle, e.g. window.window=10 mode=batch")
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from hybrid_calib.calib.pipeline import CalibrateConfig
+    from hybrid_calib.config import merge
+    from hybrid_calib.fleet.driver import FleetOptions, run_fleet
+    from hybrid_calib.fleet.prior import load_priors
+
+    calib = parse_overrides(args.set)
+    calib["max_frames"] = args.max_frames
+    merge(CalibrateConfig, {**calib, "seed": args.seed})  # ConfigError names a bad option before any job runs
+    options = FleetOptions(args.engine, args.workers, args.address, None if args.ray_temp is None else
+                           str(args.ray_temp), threads=args.threads, retries=args.retries, plots=not args.no_plots)
+    bar = None  # made at the first finished vehicle (bad input fails before, without a bar)
+
+    def progress(e: dict, counts: dict) -> None:
+        nonlocal bar
+        bar = bar or tqdm(desc="fleet", unit="vehicle")
+        bar.total = sum(counts.values())
+        bar.n = counts["done"] + counts["failed"]
+        bar.set_postfix(done=counts["done"], failed=counts["failed"])
+        bar.refresh()
+        what = e["reason"] if e["state"] == "failed" else e["result"]
+        bar.write(f"{e['id']}: {e['state']} in {e['wall_s'] or 0:.1f} s on {e['host']}: {what}")
+
+    summary = run_fleet(None if args.data is None else [str(d) for d in args.data],
+                        None if args.manifest is None else str(args.manifest), args.version, args.method, args.out,
+                        args.seed, None if args.checkpoint is None else str(args.checkpoint), calib,
+                        None if args.prior is None else load_priors(args.prior), options, on_outcome=progress)
+    if bar is not None:
+        bar.close()
+    c = summary["counts"]
+    print(f"{c['vehicles']} vehicles: {c['done']} done, {c['failed']} failed; {c['out_of_tolerance']} out of "
+          f"tolerance, {c['drifted_in_drive']} drifted inside the drive, {c['fleet_outliers']} fleet outlier(s)"
+          + (f" ({', '.join(summary['fleet_prior']['outliers'])})" if c["fleet_outliers"] else ""))
+    for jid, r in summary["vehicles"].items():
+        if r["state"] == "failed":
+            print(f"  failed {jid}: {r['reason']}")
+    print(f"wrote {args.out / 'summary.md'}, {args.out / 'summary.json'}, {args.out / 'manifest.json'}; "
+          f"per vehicle: {args.out / 'vehicles'}/<vehicle>/result.json")
+    return 0 if c["failed"] == 0 else 1

@@ -1,0 +1,58 @@
+"""``run_fleet``: discover the jobs, open the manifest, run what is left on an engine, write the fleet view.
+
+Resumable by construction (``manifest`` module doc): every job writes its result atomically, the
+manifest is rewritten atomically on every change, so a driver killed at any moment (SIGINT,
+SIGKILL) or a killed worker leaves a state the next run completes without losing or repeating a
+finished vehicle.
+"""
+
+from __future__ import annotations
+
+import socket
+from dataclasses import dataclass
+from pathlib import Path
+
+from hybrid_calib.fleet.engines import run_engine
+from hybrid_calib.fleet.jobs import discover_jobs, read_fleet_file
+from hybrid_calib.fleet.manifest import Manifest
+
+
+@dataclass(frozen=True)
+class FleetOptions:
+    """How ``run_fleet`` runs (the command's options)."""
+
+    engine: str = "local"  # local | process | ray
+    workers: int = 1  # parallel jobs (process pool size, local Ray CPUs)
+    address: str | None = None  # Ray cluster to join (None: start a local one)
+    ray_temp: str | None = None  # Ray temp dir for a local cluster (default OUT/ray)
+    object_store_mb: int = 200  # local Ray object store cap
+    retries: int = 2  # system-failure retries per job (a killed worker, an OSError)
+    threads: int = 1  # torch / BLAS threads per worker
+    plots: bool = True  # fleet.png
+    alpha: float = 1e-3  # fleet outlier test level
+
+
+def run_fleet(roots: list[str] | None, manifest: str | None, version: str, method: str, out: str | Path,
+              seed: int = 0, checkpoint: str | None = None, calib: dict | None = None, priors: dict | None = None,
+              options: FleetOptions = FleetOptions(), on_outcome=None) -> dict:
+    """Calibrate every vehicle of ``roots`` (or of the ``FLEET.json`` ``manifest``) into
+    ``out/vehicles/<id>/`` and write ``out/manifest.json`` and the fleet view (``summary``);
+    returns the summary dict. Done vehicles are skipped, failed ones retried. ``on_outcome(entry,
+    counts)`` is called in the driver after each job (the command's progress bar)."""
+    from hybrid_calib.fleet.summary import write_summary
+
+    out = Path(out)
+    sources = read_fleet_file(manifest, version) if manifest else [(str(r), version, None) for r in roots or []]
+    jobs = discover_jobs(sources, method, out, seed, checkpoint, calib, priors, options.threads)
+    m = Manifest.open(out / "manifest.json", jobs, method, seed)
+    todo = m.todo()
+    host = socket.gethostname()
+
+    def record(o: dict) -> None:
+        e = m.record(o)
+        if on_outcome is not None:
+            on_outcome({"id": o["id"], **e}, m.counts())
+
+    run_engine(options.engine, todo, lambda ids: m.mark_running(ids, host), record, options.workers,
+               options.address, options.ray_temp or out / "ray", options.retries, None, options.object_store_mb)
+    return write_summary(m, plot=options.plots, alpha=options.alpha)

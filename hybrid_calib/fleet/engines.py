@@ -1,0 +1,197 @@
+"""Engines: run fleet jobs locally, in a process pool or on Ray, through one interface.
+
+``run_engine(engine, jobs, on_start, on_outcome, ...)`` runs every ``Job`` (sent as its plain
+``to_dict``; ``jobs.run_job`` runs it in the worker) and calls ``on_start([ids])`` when jobs are
+handed to workers and ``on_outcome(outcome)`` (``jobs.run_job``'s dict) as each one ends, in the
+driver process. A job's own failure (``HybridCalibError``: corrupt data, ...) is an outcome, never
+retried here; a system failure (a worker killed, an ``OSError``) is retried up to ``retries`` times,
+then recorded as ``failed`` with its reason. At most ``in_flight`` jobs (default 2 x workers) are
+handed out at once, so a fleet of thousands never queues thousands of tasks.
+
+- ``local``: in this process, one after another (debugging; same code path in the job).
+- ``process``: ``concurrent.futures.ProcessPoolExecutor`` with the spawn context (no forked GTSAM /
+  torch state), torch / BLAS threads set in each worker; a pool broken by a killed worker is rebuilt.
+- ``ray``: ``ray.init(address=...)`` joins a running cluster (every node needs this package
+  installed); without an address a local cluster of ``workers`` CPUs starts with its object store
+  capped (``object_store_mb``) and its temp files under ``temp_dir`` (``RAY_TMPDIR`` too). Tasks are
+  ``run_job`` with ``num_cpus`` = the job's threads, ``max_retries=retries`` (a dead worker or node) and
+  ``retry_exceptions=[OSError]`` (transient I/O); a ``DataError`` is an outcome, not retried.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from hybrid_calib.errors import OptionError
+from hybrid_calib.fleet.jobs import Job, run_job, set_threads
+
+ENGINES = ("local", "process", "ray")
+MAX_SOCKET_DIR = 60  # Ray's unix sockets live under the temp dir; their paths must stay < 108 chars
+
+
+def _failure(job: Job, e: BaseException, wall_s: float | None = None) -> dict:
+    return {"id": job.id, "state": "failed", "reason": f"system failure after retries: {type(e).__name__}: {e}",
+            "file": getattr(e, "filename", None), "wall_s": wall_s, "host": socket.gethostname(), "result": None}
+
+
+def run_engine(engine: str, jobs: list[Job], on_start: Callable[[list[str]], object],
+               on_outcome: Callable[[dict], object], workers: int = 1, address: str | None = None,
+               temp_dir: str | Path | None = None, retries: int = 2, in_flight: int | None = None,
+               object_store_mb: int = 200) -> None:
+    """Run ``jobs`` on ``engine`` (module doc); returns when every job has an outcome."""
+    if engine not in ENGINES:
+        raise OptionError("--engine", f"{engine!r} is not an engine; valid: {ENGINES}")
+    if not jobs:
+        return
+    in_flight = max(1, in_flight or 2 * workers)
+    if engine == "local":
+        return _run_local(jobs, on_start, on_outcome, retries)
+    if engine == "process":
+        return _run_process(jobs, on_start, on_outcome, workers, retries, in_flight)
+    return _run_ray(jobs, on_start, on_outcome, workers, address, temp_dir, retries, in_flight, object_store_mb)
+
+
+def _run_local(jobs, on_start, on_outcome, retries):
+    for job in jobs:
+        on_start([job.id])
+        for _ in range(retries + 1):
+            t0 = time.perf_counter()
+            try:
+                out = run_job(job.to_dict())
+                break
+            except OSError as e:  # transient I/O: retried; anything else is a bug and propagates
+                out = _failure(job, e, time.perf_counter() - t0)
+        on_outcome(out)
+
+
+def _init_worker(threads: int) -> None:
+    os.environ["TQDM_DISABLE"] = "1"  # one progress bar: the driver's
+    set_threads(threads)
+
+
+def _run_process(jobs, on_start, on_outcome, workers, retries, in_flight):
+    import multiprocessing
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+    from concurrent.futures.process import BrokenProcessPool
+
+    queue = list(jobs)
+    tries: dict[str, int] = {}
+    ctx = multiprocessing.get_context("spawn")
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker,
+                               initargs=(jobs[0].threads,))
+    running: dict = {}
+    try:
+        while queue or running:
+            while queue and len(running) < in_flight:
+                job = queue.pop(0)
+                running[pool.submit(run_job, job.to_dict())] = (job, time.perf_counter())
+                on_start([job.id])
+            done, _ = wait(list(running), return_when=FIRST_COMPLETED)
+            broken = False
+            for fut in done:
+                job, t0 = running.pop(fut)
+                try:
+                    on_outcome(fut.result())
+                    continue
+                except BrokenProcessPool as e:  # a worker died (killed, out of memory): retry elsewhere
+                    broken, err = True, e
+                except OSError as e:
+                    err = e
+                tries[job.id] = tries.get(job.id, 0) + 1
+                if tries[job.id] > retries:
+                    on_outcome(_failure(job, err, time.perf_counter() - t0))
+                else:
+                    queue.insert(0, job)
+            if broken:  # every job still on the dead pool is lost with it: requeue them too
+                for fut, (job, _) in running.items():
+                    fut.cancel()
+                    queue.insert(0, job)
+                running.clear()
+                pool.shutdown(wait=False, cancel_futures=True)
+                pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker,
+                                           initargs=(jobs[0].threads,))
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def ray_temp_dir(temp_dir: str | Path) -> Path:
+    """``temp_dir`` created and checked short enough for Ray's socket paths (``OptionError`` if not)."""
+    p = Path(temp_dir).resolve()
+    if len(str(p)) > MAX_SOCKET_DIR:
+        raise OptionError("--ray-temp", f"{p} is {len(str(p))} characters; Ray's socket paths under it would "
+                                        f"pass the 107-character limit: pass a directory of <= {MAX_SOCKET_DIR}")
+    p.mkdir(parents=True, exist_ok=True)
+    return p
+
+
+def _local_ray_env(tmp: Path, token: bool = True) -> None:
+    """Keep a local Ray's files under ``tmp``: its temp files (``RAY_TMPDIR``, ``TMPDIR`` of the raylet
+    and workers) and its authentication token (``tmp/auth_token`` through ``RAY_AUTH_TOKEN_PATH``,
+    instead of ``~/.ray/auth_token``), unless the user set Ray's authentication variables or ``token``
+    is False (Ray already imported in this process: it has read its authentication mode)."""
+    import secrets
+
+    os.environ["RAY_TMPDIR"] = os.environ["TMPDIR"] = str(tmp)
+    if token and not any(v in os.environ for v in ("RAY_AUTH_MODE", "RAY_AUTH_TOKEN", "RAY_AUTH_TOKEN_PATH")):
+        token = tmp / "auth_token"
+        if not token.is_file():
+            token.write_text(secrets.token_hex(32))
+            token.chmod(0o600)
+        os.environ["RAY_AUTH_MODE"], os.environ["RAY_AUTH_TOKEN_PATH"] = "token", str(token)
+
+
+def start_ray(workers: int, address: str | None, temp_dir: str | Path | None, object_store_mb: int) -> bool:
+    """Join the cluster at ``address``, or start a local one (module doc). Returns whether this call
+    started Ray (then the caller shuts it down). A Ray already initialised in this process is reused."""
+    import importlib.util
+    import sys
+
+    if importlib.util.find_spec("ray") is None:
+        raise OptionError("--engine", "ray is not installed; pip install -e .[fleet] (or use --engine process)")
+    if "ray" in sys.modules and sys.modules["ray"].is_initialized():
+        return False
+    fresh = "ray" not in sys.modules  # Ray reads its authentication mode once, at import
+    if not address and temp_dir is not None:
+        tmp = ray_temp_dir(temp_dir)
+        _local_ray_env(tmp, token=fresh)
+    import ray
+
+    # the workers import this checkout of hybrid_calib (not another installed copy)
+    root = str(Path(__file__).resolve().parents[2])
+    os.environ["PYTHONPATH"] = os.pathsep.join([root, *filter(None, [os.environ.get("PYTHONPATH")])])
+    if address:
+        ray.init(address=address, log_to_driver=False, runtime_env={"env_vars": {"TQDM_DISABLE": "1"}})
+        return True
+    if temp_dir is None:
+        raise OptionError("--ray-temp", "a local Ray cluster needs a temp directory")
+    ray.init(num_cpus=workers, object_store_memory=int(object_store_mb) * 1024 * 1024, _temp_dir=str(tmp),
+             include_dashboard=False, log_to_driver=False, runtime_env={"env_vars": {"TQDM_DISABLE": "1"}})
+    return True
+
+
+def _run_ray(jobs, on_start, on_outcome, workers, address, temp_dir, retries, in_flight, object_store_mb):
+    started = start_ray(workers * jobs[0].threads, address, temp_dir, object_store_mb)  # CPUs: workers x threads
+    import ray  # after start_ray: it sets Ray's environment first
+    try:
+        task = ray.remote(num_cpus=jobs[0].threads, max_retries=retries, retry_exceptions=[OSError])(run_job)
+        queue = list(jobs)
+        running: dict = {}
+        while queue or running:
+            while queue and len(running) < in_flight:
+                job = queue.pop(0)
+                running[task.remote(job.to_dict())] = (job, time.perf_counter())
+                on_start([job.id])
+            ready, _ = ray.wait(list(running), num_returns=1)
+            for ref in ready:
+                job, t0 = running.pop(ref)
+                try:
+                    on_outcome(ray.get(ref))
+                except (ray.exceptions.RayError, OSError) as e:  # retries spent
+                    on_outcome(_failure(job, e, time.perf_counter() - t0))
+    finally:
+        if started:
+            ray.shutdown()

@@ -1,0 +1,214 @@
+"""Fleet jobs: one per vehicle (log), plain data, and the one call into the per-vehicle calibration.
+
+A ``Job`` holds only paths, names, numbers and nested lists (``to_dict`` / ``from_dict``), so it
+crosses a process pool or a Ray cluster unchanged; what comes back is an outcome dict (``run_job``)
+and the result file the job wrote: ``OUT/vehicles/<job id>/result.json`` (``calib.result``
+``CalibrationRun`` holding one vehicle) with its plots in ``OUT/vehicles/<job id>/plots/``.
+
+``FLEET.json`` (``--manifest``) lists the roots of a fleet::
+
+    {"version": "v1.0-sim",                       # optional, default the command's --version
+     "roots": [ROOT, ...] | [{"data": ROOT, "version": V, "vehicles": [NAME, ...]}, ...]}
+
+(a bare list is read as ``roots``; relative paths are relative to the file).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import time
+import zlib
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from hybrid_calib.errors import DataError, HybridCalibError
+
+METHODS = ("hybrid", "pure", "pure-avg", "oracle")  # issue 9's methods; "oracle" runs today
+RESULT = "result.json"
+
+
+@dataclass(frozen=True)
+class Job:
+    """One vehicle of one root. Plain data only (JSON-ready); ``out`` is the vehicle's directory."""
+
+    id: str  # unique in the fleet: the vehicle name (prefixed by its root's folder name on a clash)
+    vehicle: str  # the vehicle (log.json ``vehicle``) inside its root
+    data: str  # nuScenes root
+    version: str  # version folder under data
+    method: str  # hybrid | pure | pure-avg | oracle
+    out: str  # OUT/vehicles/<id>
+    seed: int = 0  # the fleet seed; the job's own seed is job_seed(seed, vehicle)
+    checkpoint: str | None = None  # network checkpoint (the learned methods)
+    calib: dict = field(default_factory=dict)  # CalibrateConfig overrides (mode, window, max_frames, ...)
+    prior: dict | None = None  # {"T_cam_radar": 4x4, "cov_right_radar": 6x6} (fleet.prior) or None
+    tables_T: list | None = None  # (4, 4) the tables' T_cam_radar (inv(T_ego_cam) T_ego_radar), first frame
+    design_T: list | None = None  # (4, 4) the recorded design (nominal) mount, when the root has one
+    threads: int = 1  # torch / BLAS threads inside the worker
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Job:
+        return cls(**d)
+
+    @property
+    def result_path(self) -> Path:
+        return Path(self.out) / RESULT
+
+
+def job_seed(seed: int, vehicle: str) -> int:
+    """The job's seed from the fleet seed and the vehicle name: independent of the engine, the
+    worker and the order of the jobs (results are identical across engines for a seed)."""
+    return int(zlib.crc32(f"{int(seed)}/{vehicle}".encode()))
+
+
+def read_fleet_file(path: str | Path, version: str) -> list[tuple[str, str, tuple[str, ...] | None]]:
+    """``FLEET.json`` (module doc) -> [(root, version, vehicles or None)]; ``DataError`` naming the file."""
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        raise DataError(f"fleet manifest unreadable ({e}); pass a JSON file as in hybrid_calib/fleet/jobs.py",
+                        path=str(path)) from None
+    if isinstance(doc, list):
+        doc = {"roots": doc}
+    if not isinstance(doc, dict) or not isinstance(doc.get("roots"), list) or not doc["roots"]:
+        raise DataError('fleet manifest needs a non-empty "roots" list (paths or {"data", "version", '
+                        '"vehicles"})', path=str(path))
+    version = str(doc.get("version", version))
+    out = []
+    for i, r in enumerate(doc["roots"]):
+        r = {"data": r} if isinstance(r, str) else r
+        if not isinstance(r, dict) or not isinstance(r.get("data"), str):
+            raise DataError(f"fleet manifest roots[{i}] is {r!r}; expected a path or {{\"data\": PATH, ...}}",
+                            path=str(path))
+        root = Path(r["data"])
+        root = root if root.is_absolute() else path.parent / root
+        vehicles = r.get("vehicles")
+        out.append((str(root), str(r.get("version", version)), tuple(vehicles) if vehicles else None))
+    return out
+
+
+def _root_vehicles(root: str, version: str) -> dict[str, dict]:
+    """vehicle -> {"tables_T", "design_T"} of one root, from its tables only (no sensor file is read,
+    so a vehicle with corrupt data files still becomes a job and fails alone)."""
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+    from hybrid_calib.geometry import se3_inverse
+
+    ds = NuScenesRadarCamera(root, version, conf={"check_images": False})
+    out = {}
+    for vehicle, idx in ds.frames_by_vehicle().items():
+        ref = ds.frames[idx[0]]
+        T_ego_cam, T_ego_radar = ds.tables.T_ego_sensor(ref.camera_sd), ds.tables.T_ego_sensor(ref.radar_sd)
+        design = _design_T(ds.sim_vehicles.get(ref.log_token))
+        out[vehicle] = {"tables_T": (se3_inverse(T_ego_cam) @ T_ego_radar).tolist(),
+                        "design_T": None if design is None else design.tolist()}
+    return out
+
+
+def _design_T(rec: dict | None) -> np.ndarray | None:
+    """The nominal (design) T_cam_radar of a simulated vehicle record (``sim_vehicle.json``), read
+    defensively: ``nominal_T_cam_radar`` (4x4) if recorded, else inv(nominal_T_ego_cam) nominal_T_ego_radar
+    from {"rotation" (w, x, y, z), "translation"}; None when absent or malformed."""
+    from hybrid_calib.geometry import pose_from_nuscenes, se3_inverse
+
+    if not isinstance(rec, dict):
+        return None
+    try:
+        if "nominal_T_cam_radar" in rec:
+            T = np.asarray(rec["nominal_T_cam_radar"], np.float64)
+            return T if T.shape == (4, 4) and np.all(np.isfinite(T)) else None
+        cam, rad = rec.get("nominal_T_ego_cam"), rec.get("nominal_T_ego_radar")
+        if cam is None or rad is None:
+            return None
+        Tc, Tr = (pose_from_nuscenes(p["rotation"], p["translation"]) for p in (cam, rad))
+        return se3_inverse(Tc) @ Tr
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
+def discover_jobs(roots: list[tuple[str, str, tuple[str, ...] | None]], method: str, out: str | Path,
+                  seed: int = 0, checkpoint: str | None = None, calib: dict | None = None,
+                  priors: dict | None = None, threads: int = 1) -> list[Job]:
+    """One job per vehicle of every root ([(root, version, vehicles or None)]), sorted by id. A vehicle
+    name found in two roots gets its root's folder name as a prefix (``<folder>-<vehicle>``).
+    ``priors``: ``fleet.prior.load_priors`` (job id -> prior dict or None; "*" for any other job)."""
+    if method not in METHODS:
+        raise HybridCalibError(f"--method {method!r}; valid: {METHODS}")
+    found = []
+    for root, version, wanted in roots:
+        vs = _root_vehicles(root, version)
+        missing = sorted(set(wanted or ()) - set(vs))
+        if missing:
+            raise DataError(f"vehicles {missing} not in this root (it has {sorted(vs)})", path=str(root))
+        found += [(root, version, v, info) for v, info in sorted(vs.items()) if wanted is None or v in wanted]
+    names = [v for _, _, v, _ in found]
+    jobs = []
+    for root, version, v, info in found:
+        jid = v if names.count(v) == 1 else f"{Path(root).name}-{v}"
+        priors = priors or {}
+        prior = priors[jid] if jid in priors else priors.get("*")  # an outlier's None stays None
+        jobs.append(Job(jid, v, str(root), version, method, str(Path(out) / "vehicles" / jid), seed, checkpoint,
+                        dict(calib or {}), prior, info["tables_T"], info["design_T"], threads))
+    ids = [j.id for j in jobs]
+    dup = sorted({i for i in ids if ids.count(i) > 1})
+    if dup:
+        raise DataError(f"job ids {dup} repeat (same root given twice?); pass each root once")
+    return sorted(jobs, key=lambda j: j.id)
+
+
+def set_threads(n: int) -> None:
+    """Torch / BLAS threads of this worker process (set before torch is imported where possible)."""
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        os.environ[var] = str(int(n))
+    import sys
+
+    if "torch" in sys.modules:
+        sys.modules["torch"].set_num_threads(int(n))
+
+
+def calibrate_job(job: Job) -> Path:
+    """THE per-vehicle calibration of the fleet (integration swaps only this function): calibrate
+    ``job.vehicle`` of ``job.data`` with ``job.method`` and write ``job.out/result.json`` (one
+    vehicle's ``CalibrationRun``, atomic) and its plots; returns the result path. ``DataError`` for a
+    vehicle whose data cannot be calibrated; ``HybridCalibError`` for a method not available yet."""
+    from functools import partial
+
+    from hybrid_calib.calib.pipeline import calibrate
+    from hybrid_calib.calib.schedule import GaussianPrior
+    from hybrid_calib.plots.calibration import plot_vehicle
+
+    if job.method != "oracle":
+        raise HybridCalibError(f"method {job.method} needs the per-vehicle entry point of hybrid_calib.hybrid "
+                               "(issue 9), not merged in this build; use --method oracle on simulated roots")
+    prior = None if job.prior is None else {job.vehicle: GaussianPrior(
+        np.asarray(job.prior["T_cam_radar"], np.float64), np.asarray(job.prior["cov_right_radar"], np.float64))}
+    conf = {**job.calib, "vehicles": (job.vehicle,), "seed": job_seed(job.seed, job.vehicle)}
+    out = Path(job.out)
+    calibrate(job.data, job.version, "oracle", out, conf, overwrite=True, priors=prior, progress=False,
+              on_vehicle=partial(plot_vehicle, out_dir=out / "plots"))
+    return job.result_path
+
+
+def run_job(job: dict) -> dict:
+    """Run one job (a ``Job.to_dict``) in whatever process this is; returns its outcome as plain data:
+    {"id", "state": "done" | "failed", "reason", "file", "wall_s", "cpu_s" (this process's CPU time),
+    "host", "pid", "result"}.
+    A ``HybridCalibError`` (corrupt data, a method not available) is the job's failure; anything else
+    (an ``OSError``, a bug) propagates, so the engine can retry system failures."""
+    j = Job.from_dict(job)
+    set_threads(j.threads)
+    t0, c0 = time.perf_counter(), time.process_time()
+    base = {"id": j.id, "host": socket.gethostname(), "pid": os.getpid()}
+    try:
+        path = calibrate_job(j)
+    except HybridCalibError as e:
+        return {**base, "state": "failed", "reason": f"{type(e).__name__}: {e}", "file": getattr(e, "path", None),
+                "wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0, "result": None}
+    return {**base, "state": "done", "reason": None, "file": None, "wall_s": time.perf_counter() - t0,
+            "cpu_s": time.process_time() - c0, "result": str(path)}

@@ -1,0 +1,116 @@
+"""``OUT/manifest.json``: the fleet's job list and each job's state, rewritten atomically on every change.
+
+Schema (``schema`` "hybrid-calib/fleet-manifest/v1")::
+
+    {"schema": "hybrid-calib/fleet-manifest/v1", "method": str, "seed": int,
+     "jobs": {JOB_ID: {"job": Job.to_dict(),
+                       "state": "pending" | "running" | "done" | "failed",
+                       "reason": str | null, "file": str | null,    # why it failed, and which file
+                       "attempts": int, "wall_s": float | null, "cpu_s": float | null, "host": str | null,
+                       "result": "vehicles/<id>/result.json" | null}}}
+
+Resume rules (``Manifest.open``): a ``done`` job whose result file is missing or unreadable goes back
+to ``pending``; a ``running`` job (its driver was killed) is ``done`` if its result file is complete
+(written atomically, so present means complete), else ``pending``; ``failed`` jobs are retried.
+Nothing done is recomputed, and a job id is never listed twice.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from hybrid_calib.config import save_json_atomic
+from hybrid_calib.errors import DataError
+from hybrid_calib.fleet.jobs import Job
+
+SCHEMA = "hybrid-calib/fleet-manifest/v1"
+STATES = ("pending", "running", "done", "failed")
+
+
+def result_complete(path: str | Path) -> bool:
+    """Whether ``path`` is a readable ``result.json`` (one vehicle's ``CalibrationRun``)."""
+    from hybrid_calib.calib.result import CalibrationRun
+
+    try:
+        return bool(CalibrationRun.load(path).vehicles)
+    except DataError:
+        return False
+
+
+@dataclass
+class Manifest:
+    path: Path
+    method: str
+    seed: int
+    jobs: dict[str, dict] = field(default_factory=dict)  # id -> entry (module doc)
+
+    @classmethod
+    def open(cls, path: str | Path, jobs: list[Job], method: str, seed: int) -> Manifest:
+        """The manifest at ``path`` merged with ``jobs`` (new jobs added as ``pending``; the
+        resume rules of the module doc applied), written back. ``DataError`` when it belongs to
+        another method or seed (its results would be mixed)."""
+        path = Path(path)
+        m = cls(path, method, seed)
+        if path.is_file():
+            try:
+                doc = json.loads(path.read_text())
+                old = doc["jobs"]
+                if doc.get("schema") != SCHEMA:
+                    raise ValueError(f"schema {doc.get('schema')!r}")
+            except (OSError, ValueError, KeyError, TypeError) as e:
+                raise DataError(f"fleet manifest unreadable ({e}); move it away to start over",
+                                path=str(path)) from None
+            if (doc.get("method"), doc.get("seed")) != (method, seed):
+                raise DataError(f"this OUT holds a fleet run of method {doc.get('method')!r}, seed {doc.get('seed')}; "
+                                f"pass the same --method/--seed or another --out", path=str(path))
+            m.jobs = dict(old)
+        for job in jobs:
+            e = m.jobs.get(job.id)
+            if e is None:
+                m.jobs[job.id] = {"job": job.to_dict(), "state": "pending", "reason": None, "file": None,
+                                  "attempts": 0, "wall_s": None, "cpu_s": None, "host": None, "result": None}
+                continue
+            e["job"] = job.to_dict()  # options such as --checkpoint may change between reruns
+            done = result_complete(job.result_path)
+            if e["state"] in ("done", "running") and done:
+                e.update(state="done", result=_rel(job.result_path, path.parent))
+            elif e["state"] != "failed":
+                e.update(state="pending", result=None)
+        m.save()
+        return m
+
+    def save(self) -> Path:
+        return save_json_atomic(self.path, {"schema": SCHEMA, "method": self.method, "seed": self.seed,
+                                            "jobs": dict(sorted(self.jobs.items()))})
+
+    def todo(self) -> list[Job]:
+        """Jobs to run now: pending and failed ones (failed ones are retried), in id order."""
+        return [Job.from_dict(e["job"]) for _, e in sorted(self.jobs.items()) if e["state"] in ("pending", "failed")]
+
+    def mark_running(self, ids: list[str], host: str | None = None) -> None:
+        for i in ids:
+            e = self.jobs[i]
+            e.update(state="running", attempts=int(e["attempts"]) + 1, host=host)
+        self.save()
+
+    def record(self, outcome: dict) -> dict:
+        """Store one job's outcome (``jobs.run_job`` or an engine's failure record); returns its entry."""
+        e = self.jobs[outcome["id"]]
+        e.update(state=outcome["state"], reason=outcome.get("reason"), file=outcome.get("file"),
+                 wall_s=outcome.get("wall_s"), cpu_s=outcome.get("cpu_s"), host=outcome.get("host") or e.get("host"),
+                 result=_rel(outcome["result"], self.path.parent) if outcome.get("result") else None)
+        self.save()
+        return e
+
+    def counts(self) -> dict[str, int]:
+        return {s: sum(e["state"] == s for e in self.jobs.values()) for s in STATES}
+
+
+def _rel(path: str | Path, base: Path) -> str:
+    p = Path(path)
+    try:
+        return str(p.resolve().relative_to(base.resolve()))
+    except ValueError:
+        return str(p)

@@ -1,0 +1,236 @@
+"""The fleet prior: a random-effects model of the vehicles' mounts, robust to outlier vehicles.
+
+Vehicles of one model share a design mount and scatter around it. On the right tangent space
+around a reference ``T_ref`` (the design mount; docs/conventions.md: ``xi = local(T_ref, T)``,
+[rotation rad, translation m], radar frame, the convention of every ``cov_right_radar``), vehicle
+``i``'s estimate ``x_i = local(T_ref, T_i)`` with covariance ``C_i`` (6, 6) is modelled as
+
+    x_i = mu + b_i + e_i,   b_i ~ N(0, S) (the fleet's spread),   e_i ~ N(0, C_i) (its own noise),
+
+so ``x_i ~ N(mu, S + C_i)``. ``S`` is diagonal (six per-axis variances: a few dozen vehicles do not
+support 21 covariance entries). ``mu`` and ``S`` are the maximum-likelihood estimate by EM,
+started at the per-axis DerSimonian-Laird estimate (``_em``: the E-step is each vehicle's
+posterior ``b_i``, the M-step the weighted mean and the per-axis mean of ``b_i^2`` + posterior
+variance), which handles unequal ``C_i`` (a 10-frame vehicle with a weak direction weighs little
+in it), unlike a plain sample variance.
+
+Common-mode error: in the directions that only the elevation prior pins (``calib.covariance.
+prior_pinned_std``: radar pitch and radar z; camera pitch and vertical translation) every vehicle's
+estimate carries the SAME assumption about the world's reflector heights, so their errors are
+correlated across the fleet, not independent (measured, docs/benchmarks.md: 20 ten-frame vehicles
+all off by +32 cm in camera y, scatter 18 cm; a model without this term "learned" the fleet mean
+there to 7 cm and tightened every vehicle's vertical translation to a confident wrong value, NEES
+45). With ``common_cov`` = P (6, 6) the model is ``x_i = mu + c + b_i + e_i``, ``c ~ N(0, P)`` shared by
+all vehicles: the EM uses each vehicle's own part ``C_i - P``, the outlier test is unaffected by
+``c`` (it cancels in ``x_i - mu``). The prior handed to a vehicle must not pin those directions at
+all: the vehicle's own covariance already holds ``c`` (``marginalise_prior_pinned``), and a window
+combines an external prior as independent information, so a prior holding ``P`` once still
+tightened them falsely (measured: camera-y std 31 -> 23 cm at an unchanged 36 cm RMS error).
+Priors therefore carry ``PINNED_INFLATION x P`` (10x the std: uninformative there).
+
+Robustness: each vehicle is tested against the fleet fitted WITHOUT it (leave-one-out):
+``d_i^2 = (x_i - mu_-i)^T (S_-i + C_i + Cov(mu_-i))^-1 (x_i - mu_-i)`` ~ chi-square(6); a vehicle
+with p < ``alpha`` is an outlier (a knocked radar), named, and left out of the fit; repeated until
+the inlier set is stable. The prior for an inlier vehicle is its leave-one-out predictive
+distribution ``N(T_ref exp(mu_-i), S_-i + Cov(mu_-i) + PINNED_INFLATION P)`` (its own data is not
+counted twice); for a new vehicle the full fit's; an outlier gets none (the crowd must not pull it
+back).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from hybrid_calib.config import save_json_atomic
+from hybrid_calib.errors import DataError
+from hybrid_calib.geometry import local, retract
+
+MIN_VEHICLES = 3  # fewer inliers say nothing about a spread
+PINNED_INFLATION = 100.0  # priors carry this x the common-mode covariance P (module doc): no pull there
+VAR_FLOOR = (np.radians(1e-3) ** 2,) * 3 + ((1e-5) ** 2,) * 3  # (6,) [rad^2, m^2]: keeps S positive
+
+
+@dataclass(frozen=True)
+class Fit:
+    """One EM fit: fleet mean offset ``mu`` (6,), spread ``S`` (6, 6) diagonal, ``cov_mu`` (6, 6)."""
+
+    mu: np.ndarray
+    S: np.ndarray
+    cov_mu: np.ndarray
+    iterations: int
+
+
+def _sym(C: np.ndarray) -> np.ndarray:
+    C = 0.5 * (np.asarray(C, np.float64) + np.asarray(C, np.float64).T)
+    return C + np.eye(6) * 1e-12 * max(np.trace(C), 1e-12)
+
+
+def _dersimonian_laird(x: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """(6,) per-axis DerSimonian-Laird moment estimate of the spread variance (EM's starting point:
+    EM alone creeps for many iterations from a spread far below the vehicles' own noise)."""
+    w = 1.0 / np.diagonal(C, axis1=1, axis2=2)  # (n, 6)
+    m = (w * x).sum(0) / w.sum(0)
+    Q = (w * (x - m) ** 2).sum(0)
+    return np.maximum(0.0, (Q - (len(x) - 1)) / (w.sum(0) - (w ** 2).sum(0) / w.sum(0)))
+
+
+def _own(C: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """A vehicle's own covariance ``C - P`` (the common part removed), kept positive definite: its
+    eigenvalues are clipped at 1e-4 of C's own along each eigenvector."""
+    C = _sym(C)
+    w, V = np.linalg.eigh(C - P)
+    floor = 1e-4 * np.einsum("ij,ik,kj->j", V, C, V)
+    return _sym((V * np.maximum(w, floor)) @ V.T)
+
+
+def _em(x: np.ndarray, C: np.ndarray, iters: int = 300, tol: float = 1e-6, init: Fit | None = None) -> Fit:
+    """ML (mu, S) of ``x`` (n, 6) with per-item covariances ``C`` (n, 6, 6) (module doc); ``init``
+    warm-starts the spread (the leave-one-out fits start at the full fit)."""
+    floor = np.asarray(VAR_FLOOR)
+    s = np.maximum(_dersimonian_laird(x, C), floor) if init is None else np.diag(init.S).copy()
+    iterations = 0
+    while iterations < iters:
+        iterations += 1
+        S = np.diag(s)
+        W = np.linalg.inv(S[None] + C)  # (n, 6, 6)
+        cov_mu = np.linalg.inv(W.sum(0))
+        mu = cov_mu @ np.einsum("nij,nj->i", W, x)
+        K = S[None] @ W  # (n, 6, 6): posterior gain of b_i
+        r = x - mu
+        b = np.einsum("nij,nj->ni", K, r)
+        P = S[None] - K @ S[None]
+        s_new = np.maximum(np.mean(b ** 2 + np.diagonal(P, axis1=1, axis2=2), axis=0), floor)
+        done = np.max(np.abs(s_new - s) / s) < tol
+        s = s_new
+        if done:
+            break
+    S = np.diag(s)
+    W = np.linalg.inv(S[None] + C)
+    cov_mu = np.linalg.inv(W.sum(0))
+    mu = cov_mu @ np.einsum("nij,nj->i", W, x)
+    return Fit(mu, S, cov_mu, iterations)
+
+
+def _d2(x: np.ndarray, C: np.ndarray, f: Fit) -> float:
+    r = x - f.mu
+    return float(r @ np.linalg.solve(f.S + C + f.cov_mu, r))
+
+
+@dataclass
+class FleetPrior:
+    """The fitted fleet model (module doc). Vectors are right-tangent offsets from ``T_ref``."""
+
+    T_ref: np.ndarray  # (4, 4) the reference (design mount)
+    names: list[str]  # every vehicle used (inliers + outliers)
+    fit: Fit  # on the inliers
+    inliers: list[str]
+    outliers: dict[str, dict] = field(default_factory=dict)  # name -> {"d2", "p_value"}
+    tests: dict[str, dict] = field(default_factory=dict)  # name -> {"d2", "p_value"} for every vehicle
+    loo: dict[str, Fit] = field(default_factory=dict)  # inlier name -> fit without it
+    alpha: float = 1e-3
+    common_cov: np.ndarray = field(default_factory=lambda: np.zeros((6, 6)))  # P (module doc)
+
+    @property
+    def T_mean(self) -> np.ndarray:
+        """(4, 4) the fleet's mean mount."""
+        return retract(self.T_ref, self.fit.mu)
+
+    def prior(self, name: str | None = None) -> dict | None:
+        """The prior for vehicle ``name`` (leave-one-out for an inlier, the full fit for a new
+        vehicle, None for an outlier) as plain data {"T_cam_radar", "cov_right_radar"}."""
+        if name in self.outliers:
+            return None
+        f = self.loo.get(name, self.fit) if name is not None else self.fit
+        T = retract(self.T_ref, f.mu)
+        cov = f.S + f.cov_mu + PINNED_INFLATION * self.common_cov
+        return {"T_cam_radar": T.tolist(), "cov_right_radar": _sym(cov).tolist()}
+
+    def priors(self) -> dict[str, dict]:
+        """Job id -> prior for every vehicle (None for an outlier: no prior), "*" (a new vehicle) -> the
+        full fit's."""
+        return {"*": self.prior(None), **{n: self.prior(n) for n in self.names}}
+
+    def spread_std_cam(self) -> np.ndarray:
+        """(6,) the fleet's 1-sigma spread in camera axes [deg x3, cm x3] (docs/conventions.md)."""
+        from hybrid_calib.calib.covariance import report_std
+
+        return report_std(self.T_mean, self.fit.S)
+
+    def to_dict(self) -> dict:
+        from hybrid_calib.calib.covariance import report_std
+        from hybrid_calib.calib.result import STD_FRAME, extrinsic_report
+        from hybrid_calib.metrics import std_dict
+
+        return {
+            "schema": "hybrid-calib/fleet-prior/v1",
+            "model": "x_i = local(T_ref, T_i) ~ N(mu, S + C_i), S diagonal; EM; leave-one-out chi2(6) outlier test",
+            "T_ref": self.T_ref.tolist(), "T_mean": self.T_mean.tolist(), "mean_report": extrinsic_report(self.T_mean),
+            "mu_right_radar": self.fit.mu.tolist(), "spread_cov_right_radar": self.fit.S.tolist(),
+            "mean_cov_right_radar": self.fit.cov_mu.tolist(),
+            "spread_std_cam": std_dict(self.spread_std_cam(), STD_FRAME),
+            "mean_std_cam": std_dict(report_std(self.T_mean, self.fit.cov_mu + self.common_cov), STD_FRAME),
+            "common_cov_right_radar": self.common_cov.tolist(),
+            "alpha": self.alpha, "iterations": self.fit.iterations,
+            "vehicles": self.names, "inliers": self.inliers, "outliers": self.outliers, "tests": self.tests,
+            "priors": self.priors(),
+        }
+
+    def save(self, path: str | Path) -> Path:
+        return save_json_atomic(Path(path), self.to_dict())
+
+
+def fit_fleet_prior(names: list[str], Ts: list[np.ndarray], covs: list[np.ndarray], T_ref: np.ndarray,
+                    alpha: float = 1e-3, rounds: int = 10, common_cov: np.ndarray | None = None) -> FleetPrior:
+    """Fit the fleet model (module doc) to vehicles ``names`` with estimates ``Ts`` (each (4, 4)) and
+    covariances ``covs`` (each (6, 6), right tangent, radar frame, [rad, m]) around ``T_ref`` (4, 4).
+    ``common_cov`` (6, 6): the part of every ``covs[i]`` shared by all vehicles (P; default none).
+    ``DataError`` with fewer than ``MIN_VEHICLES`` vehicles."""
+    from scipy.stats import chi2
+
+    if len(names) < MIN_VEHICLES:
+        raise DataError(f"a fleet prior needs >= {MIN_VEHICLES} calibrated vehicles, got {len(names)}")
+    x = np.array([local(T_ref, T) for T in Ts])
+    P = np.zeros((6, 6)) if common_cov is None else _sym(common_cov)
+    C = np.array([_own(c, P) for c in covs])
+    inl = list(range(len(names)))
+    loo: dict[int, Fit] = {}
+    tests: dict[int, tuple[float, float]] = {}
+    for _ in range(rounds):
+        fit = _em(x[inl], C[inl])
+        loo = {i: _em(x[[j for j in inl if j != i]], C[[j for j in inl if j != i]], init=fit) for i in inl} \
+            if len(inl) > MIN_VEHICLES else {}
+        for i in range(len(names)):
+            d2 = _d2(x[i], C[i], loo.get(i, fit))
+            tests[i] = (d2, float(chi2.sf(d2, 6)))
+        new = [i for i in range(len(names)) if tests[i][1] >= alpha]
+        if len(new) < MIN_VEHICLES:  # no crowd to speak of: keep the largest-p vehicles
+            new = sorted(sorted(range(len(names)), key=lambda i: -tests[i][1])[:MIN_VEHICLES])
+        if new == inl:
+            break
+        inl = new
+    return FleetPrior(
+        np.asarray(T_ref, np.float64), list(names), fit, [names[i] for i in inl],
+        {names[i]: {"d2": tests[i][0], "p_value": tests[i][1]} for i in range(len(names)) if i not in inl},
+        {names[i]: {"d2": tests[i][0], "p_value": tests[i][1]} for i in range(len(names))},
+        {names[i]: f for i, f in loo.items()}, alpha, P)
+
+
+def load_priors(path: str | Path) -> dict[str, dict]:
+    """``fleet_prior.json`` (``FleetPrior.save``) -> its "priors" (job id -> {"T_cam_radar",
+    "cov_right_radar"}, or None for a named outlier; "*" for a new vehicle); ``DataError`` naming the file."""
+    import json
+
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text())
+        priors = doc["priors"]
+        for k, p in priors.items():
+            if p is not None and (np.shape(p["T_cam_radar"]) != (4, 4) or np.shape(p["cov_right_radar"]) != (6, 6)):
+                raise ValueError(f"prior {k!r} needs T_cam_radar 4x4 and cov_right_radar 6x6")
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise DataError(f"fleet prior unreadable ({type(e).__name__}: {e}); pass the fleet_prior.json of a "
+                        "hybrid-calib fleet run", path=str(path)) from None
+    return dict(priors)

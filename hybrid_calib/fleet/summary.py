@@ -1,0 +1,189 @@
+"""The fleet view: ``OUT/summary.json``, ``OUT/summary.md``, ``OUT/fleet_prior.json`` and ``OUT/fleet.png``.
+
+``summary.json`` (``schema`` "hybrid-calib/fleet-summary/v1")::
+
+    {"schema": ..., "out": OUT, "method": str, "seed": int,
+     "counts": {"vehicles", "pending", "running", "done", "failed", "out_of_tolerance",
+                "drifted_in_drive", "fleet_outliers", "degenerate", "weak"},
+     "design_mount": {"T_cam_radar": 4x4, "source": "recorded" | "mean of the tables"},
+     "fleet_prior": {"T_mean", "spread_std_cam", "mean_std_cam", "inliers", "outliers"} | null,
+     "vehicles": {JOB_ID: VEHICLE}}
+
+    VEHICLE = {"vehicle", "data", "state", "reason", "file", "attempts", "wall_s", "host",
+               "result": "vehicles/<id>/result.json" | null,     # relative to OUT (calib.result schema)
+               "plots": ["vehicles/<id>/plots/<vehicle>_trajectory.png", ...],
+               # only when done:
+               "n_frames", "status", "offset_from_design": OFFSET, "offset_from_tables": OFFSET,
+               "std_cam": STD, "verdict": str, "drift": {"drifted", "p_value", "statistic"},
+               "step_alarms": [frame, ...], "error": {...} | null,
+               "fleet_test": {"d2", "p_value"} | null,
+               "flags": ["out_of_tolerance", "drifted_in_drive", "fleet_outlier", "degenerate"]}
+
+    OFFSET = {"rot_x_cam_deg", "rot_y_cam_deg", "rot_z_cam_deg", "t_x_cam_cm", "t_y_cam_cm", "t_z_cam_cm"}:
+    B local(T_ref, T_est) (the right-tangent offset mapped to camera axes exactly as the std blocks,
+    docs/conventions.md), so it reads against ``std_cam`` as offset +- sigma.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from hybrid_calib.config import save_json_atomic
+from hybrid_calib.errors import DataError
+from hybrid_calib.fleet.manifest import Manifest
+
+SCHEMA = "hybrid-calib/fleet-summary/v1"
+
+
+def camera_offset(T_ref: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """(6,) offset of ``T`` from ``T_ref`` in camera axes: rotation [deg x3], translation [cm x3]."""
+    from hybrid_calib.calib.covariance import report_basis
+    from hybrid_calib.geometry import local
+
+    d = report_basis(T_ref) @ local(T_ref, T)
+    return np.concatenate([np.degrees(d[:3]), d[3:] * 100.0])
+
+
+def design_mount(jobs: list[dict]) -> tuple[np.ndarray, str]:
+    """The fleet's design T_cam_radar (4, 4) and where it came from: the recorded design mounts
+    (their mean, when roots record one) or else the mean of the tables' extrinsics."""
+    from hybrid_calib.geometry import local, retract
+
+    recorded = [np.asarray(j["design_T"]) for j in jobs if j.get("design_T") is not None]
+    Ts = recorded or [np.asarray(j["tables_T"]) for j in jobs if j.get("tables_T") is not None]
+    if not Ts:
+        raise DataError("no vehicle has a tables extrinsic: cannot define the fleet's design mount")
+    T = Ts[0]
+    for _ in range(3):  # Karcher mean on SE(3) (right tangent)
+        T = retract(T, np.mean([local(T, Ti) for Ti in Ts], axis=0))
+    return T, "recorded" if recorded else "mean of the tables"
+
+
+def common_cov(jobs: list[dict]) -> np.ndarray:
+    """(6, 6) the covariance every vehicle's estimate shares (fleet.prior module doc): the
+    prior-pinned variances (``calib.covariance.prior_pinned_std``) of the factor the jobs ran with
+    (the largest over the jobs' configs), radar right tangent [rad^2, m^2]."""
+    from hybrid_calib.calib.covariance import prior_pinned_std
+    from hybrid_calib.calib.pipeline import CalibrateConfig
+    from hybrid_calib.config import merge
+
+    std = np.zeros(6)
+    for j in jobs:
+        c = merge(CalibrateConfig, j.get("calib") or {})
+        std = np.maximum(std, prior_pinned_std(c.window.factor if c.mode == "window" else c.batch.factor))
+    return np.diag(std ** 2)
+
+
+def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
+    """(summary dict of the module doc, FleetPrior or None) from the manifest and the result files."""
+    from hybrid_calib.calib.result import STD_FRAME, CalibrationRun
+    from hybrid_calib.fleet.prior import MIN_VEHICLES, fit_fleet_prior
+    from hybrid_calib.metrics import std_dict, std_keys
+
+    keys = std_keys(STD_FRAME)
+    base = m.path.parent
+    T_ref, source = design_mount([e["job"] for e in m.jobs.values()])
+    rows: dict[str, dict] = {}
+    results = {}
+    for jid, e in sorted(m.jobs.items()):
+        j = e["job"]
+        row = {"vehicle": j["vehicle"], "data": j["data"], **{k: e.get(k) for k in (
+            "state", "reason", "file", "attempts", "wall_s", "host", "result")}, "plots": [], "flags": []}
+        rows[jid] = row
+        if e["state"] != "done" or not e.get("result"):
+            continue
+        vr = next(iter(CalibrationRun.load(base / e["result"]).vehicles.values()))
+        results[jid] = vr
+        plots = Path(j["out"]) / "plots"
+        row["plots"] = sorted(str(p.relative_to(base)) if p.is_relative_to(base) else str(p)
+                              for p in plots.glob("*.png")) if plots.is_dir() else []
+        d = vr.drift or {}
+        row.update(n_frames=vr.n_frames, status=vr.final.status,
+                   offset_from_design=dict(zip(keys, camera_offset(T_ref, vr.final.T).tolist())),
+                   offset_from_tables=None if j.get("tables_T") is None else dict(zip(
+                       keys, camera_offset(np.asarray(j["tables_T"]), vr.final.T).tolist())),
+                   std_cam=std_dict(vr.final.std, STD_FRAME),
+                   drift={k: d.get(k) for k in ("drifted", "p_value", "statistic")},
+                   verdict=d.get("verdict") or ("out of tolerance" if d.get("drifted") else "within tolerance"),
+                   step_alarms=[f.index for f in vr.trajectory if f.step_alarm], error=vr.error, fleet_test=None)
+        if d.get("drifted"):
+            row["flags"].append("out_of_tolerance")
+        if row["step_alarms"]:
+            row["flags"].append("drifted_in_drive")
+        if vr.final.status.startswith("degenerate"):
+            row["flags"].append("degenerate")
+    prior = None
+    if fit_prior and len(results) >= MIN_VEHICLES:
+        names = sorted(results)
+        prior = fit_fleet_prior(names, [results[n].final.T for n in names], [results[n].final.cov for n in names],
+                                T_ref, alpha, common_cov=common_cov([m.jobs[n]["job"] for n in names]))
+        for n in names:
+            rows[n]["fleet_test"] = prior.tests[n]
+            if n in prior.outliers:
+                rows[n]["flags"].append("fleet_outlier")
+    counts = {**m.counts(), "vehicles": len(rows)}
+    for flag in ("out_of_tolerance", "drifted_in_drive", "fleet_outlier", "degenerate"):
+        counts[flag + ("s" if flag == "fleet_outlier" else "")] = sum(flag in r["flags"] for r in rows.values())
+    counts["weak"] = sum(str(r.get("status", "")).startswith("weak") for r in rows.values())
+    pd = None if prior is None else prior.to_dict()
+    summary = {
+        "schema": SCHEMA, "out": str(base), "method": m.method, "seed": m.seed, "counts": counts,
+        "design_mount": {"T_cam_radar": T_ref.tolist(), "source": source},
+        "fleet_prior": None if pd is None else {k: pd[k] for k in (
+            "T_mean", "spread_std_cam", "mean_std_cam", "inliers", "outliers")},
+        "vehicles": rows,
+    }
+    return summary, prior
+
+
+def write_summary(m: Manifest, plot: bool = True, alpha: float = 1e-3) -> dict:
+    """Write ``summary.json``, ``summary.md``, ``fleet_prior.json`` (with >= 3 done vehicles) and
+    ``fleet.png`` beside the manifest; returns the summary."""
+    summary, prior = build_summary(m, alpha=alpha)
+    base = m.path.parent
+    if prior is not None:
+        prior.save(base / "fleet_prior.json")
+    if plot and any(r["state"] == "done" for r in summary["vehicles"].values()):
+        from hybrid_calib.plots.fleet import plot_fleet
+
+        summary["plot"] = str(plot_fleet(summary, base / "fleet.png").relative_to(base))
+    save_json_atomic(base / "summary.json", summary)
+    tmp = base / "summary.md.tmp"
+    tmp.write_text(summary_markdown(summary))
+    tmp.replace(base / "summary.md")
+    return summary
+
+
+def summary_markdown(s: dict) -> str:
+    """The fleet view as a Markdown table (one row per vehicle) with counts and the fleet prior."""
+    c = s["counts"]
+    lines = [f"# Fleet calibration: {s['out']}", "",
+             f"method {s['method']}, seed {s['seed']}; design mount: {s['design_mount']['source']}", "",
+             f"**{c['vehicles']} vehicles**: {c['done']} done, {c['failed']} failed, {c['pending'] + c['running']} "
+             f"not finished; {c['out_of_tolerance']} out of tolerance, {c['drifted_in_drive']} drifted inside the "
+             f"drive, {c['fleet_outliers']} fleet outlier(s), {c['degenerate']} degenerate, {c['weak']} weak.", ""]
+    fp = s.get("fleet_prior")
+    if fp:
+        sp = fp["spread_std_cam"]
+        lines += [f"Fleet prior: {len(fp['inliers'])} inliers; spread (1 sigma, camera axes) rot "
+                  f"{sp['rot_x_cam_deg']:.3f}/{sp['rot_y_cam_deg']:.3f}/{sp['rot_z_cam_deg']:.3f} deg, t "
+                  f"{sp['t_x_cam_cm']:.2f}/{sp['t_y_cam_cm']:.2f}/{sp['t_z_cam_cm']:.2f} cm; outliers (named): "
+                  f"{', '.join(fp['outliers']) or 'none'}", ""]
+    lines += ["Offsets from the design mount, camera axes (rot x/y/z deg, t x/y/z cm), +- 1 sigma.", "",
+              "| vehicle | state | status | rot offset [deg] | t offset [cm] | verdict vs tables | flags | note |",
+              "|---|---|---|---|---|---|---|---|"]
+    for jid, r in s["vehicles"].items():
+        if r["state"] == "done":
+            o, sd = list(r["offset_from_design"].values()), list(r["std_cam"].values())
+            rot = " / ".join(f"{o[i]:+.2f}±{sd[i]:.2f}" for i in range(3))
+            tr = " / ".join(f"{o[i]:+.1f}±{sd[i]:.1f}" for i in range(3, 6))
+            status = r["status"].split(":")[0]
+            note = f"p {r['drift']['p_value']:.2g}" if r["drift"].get("p_value") is not None else ""
+            lines.append(f"| {jid} | done | {status} | {rot} | {tr} | {r['verdict']} | {', '.join(r['flags'])} "
+                         f"| {note} |")
+        else:
+            reason = (r.get("reason") or "").replace("|", "/").replace("\n", " ")
+            lines.append(f"| {jid} | {r['state']} | | | | | | {reason[:300]} |")
+    return "\n".join(lines) + "\n"

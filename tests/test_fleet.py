@@ -1,0 +1,212 @@
+"""``hybrid-calib fleet``: engines agree, corrupt vehicles fail alone, kill-and-resume, the fleet prior."""
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hybrid_calib.errors import HybridCalibError
+from hybrid_calib.fleet.driver import FleetOptions, run_fleet
+from hybrid_calib.fleet.jobs import Job, calibrate_job, job_seed
+from hybrid_calib.fleet.manifest import Manifest
+from hybrid_calib.fleet.prior import fit_fleet_prior
+from hybrid_calib.geometry import retract
+from tests.helpers import nominal_T_cam_radar, rng
+
+ROOT = Path(__file__).resolve().parents[1]
+BAD = "sim-veh-003"  # the corrupt vehicle
+TIMING = ("solve_ms", "cov_ms")
+
+
+@pytest.fixture(scope="module")
+def fleet_root(tmp_path_factory):
+    """4 vehicles x 3 frames (image_scale 0.125); every radar file of ``BAD`` overwritten with garbage."""
+    from hybrid_calib.config import merge
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+    from hybrid_calib.sim.drive import SimConfig
+    from hybrid_calib.sim.simulate import simulate
+
+    root = tmp_path_factory.mktemp("fleet_sim")
+    simulate(merge(SimConfig, {"vehicles": 4, "frames": 3, "image_scale": 0.125, "seed": 7}), root, workers=1)
+    ds = NuScenesRadarCamera(root, "v1.0-sim", conf={"check_images": False})
+    for i in ds.frames_by_vehicle()[BAD]:
+        (root / ds.frames[i].radar_sd["filename"]).write_bytes(b"not a pcd file\x00\x01")
+    return root
+
+
+def _results(out: Path) -> dict:
+    """vehicle dir -> its result.json without the wall-clock fields."""
+    def strip(x):
+        if isinstance(x, dict):
+            return {k: strip(v) for k, v in x.items() if k not in TIMING}
+        if isinstance(x, list):
+            return [strip(v) for v in x]
+        return x
+    return {p.parent.name: strip(json.loads(p.read_text())["vehicles"])
+            for p in sorted((out / "vehicles").glob("*/result.json"))}
+
+
+@pytest.fixture(scope="module")
+def local_run(fleet_root, tmp_path_factory):
+    out = tmp_path_factory.mktemp("fleet_local")
+    summary = run_fleet([str(fleet_root)], None, "v1.0-sim", "oracle", out, seed=1, calib={"window": {"window": 3}},
+                        options=FleetOptions(plots=False))
+    return out, summary
+
+
+def test_local_run_isolates_the_corrupt_vehicle_and_writes_the_fleet_view(local_run):
+    out, s = local_run
+    assert s["counts"]["vehicles"] == 4 and s["counts"]["done"] == 3 and s["counts"]["failed"] == 1
+    bad = s["vehicles"][BAD]
+    assert bad["state"] == "failed" and "DataError" in bad["reason"] and "no usable frame" in bad["reason"]
+    assert ".pcd" in bad["reason"]  # the reason names the file
+    m = json.loads((out / "manifest.json").read_text())
+    assert set(m["jobs"]) == {f"sim-veh-00{i}" for i in range(4)}
+    for jid, e in m["jobs"].items():
+        assert e["attempts"] == 1 and e["host"] and e["wall_s"] > 0
+        assert (e["state"] == "done") == (jid != BAD)
+    good = s["vehicles"]["sim-veh-000"]
+    assert good["result"] == "vehicles/sim-veh-000/result.json" and good["plots"]
+    assert set(good["offset_from_design"]) == set(good["std_cam"]) and good["verdict"]
+    assert s["design_mount"]["source"] == "recorded" and s["fleet_prior"] is not None
+    assert "| sim-veh-003 | failed |" in (out / "summary.md").read_text()
+    # a rerun retries the failed vehicle (once more) and leaves the done ones untouched
+    mtimes = {p: p.stat().st_mtime_ns for p in (out / "vehicles").glob("*/result.json")}
+    s2 = run_fleet([str(s["vehicles"]["sim-veh-000"]["data"])], None, "v1.0-sim", "oracle", out, seed=1,
+                   calib={"window": {"window": 3}}, options=FleetOptions(plots=False))
+    assert s2["counts"]["done"] == 3 and s2["vehicles"][BAD]["attempts"] == 2
+    assert mtimes == {p: p.stat().st_mtime_ns for p in (out / "vehicles").glob("*/result.json")}
+
+
+def test_process_and_ray_engines_give_the_local_results(local_run, fleet_root, tmp_path, ray_session):
+    ref = _results(local_run[0])
+    assert len(ref) == 3
+    for engine in ("process", "ray"):
+        out = tmp_path / engine
+        s = run_fleet([str(fleet_root)], None, "v1.0-sim", "oracle", out, seed=1, calib={"window": {"window": 3}},
+                      options=FleetOptions(engine=engine, workers=2, plots=False))
+        assert s["counts"]["done"] == 3 and s["vehicles"][BAD]["state"] == "failed", engine
+        assert _results(out) == ref, f"{engine} results differ from local"
+
+
+def test_kill_the_driver_then_rerun_gives_the_uninterrupted_results(local_run, fleet_root, tmp_path):
+    out = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "hybrid_calib.cli", "fleet", "--data", str(fleet_root), "--out", str(out),
+           "--seed", "1", "--set", "window.window=3", "--no-plots"]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 120
+    while time.time() < deadline and proc.poll() is None:
+        if len(list((out / "vehicles").glob("*/result.json"))) >= 1:
+            break
+        time.sleep(0.05)
+    assert proc.poll() is None, "the run ended before it could be killed"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    before = {p.parent.name: p.stat().st_mtime_ns for p in (out / "vehicles").glob("*/result.json")}
+    assert 1 <= len(before) < 3
+    s = run_fleet([str(fleet_root)], None, "v1.0-sim", "oracle", out, seed=1, calib={"window": {"window": 3}},
+                  options=FleetOptions(plots=False))
+    assert s["counts"]["done"] == 3 and s["counts"]["failed"] == 1 and s["counts"]["vehicles"] == 4
+    assert _results(out) == _results(local_run[0])  # nothing lost
+    after = {p.parent.name: p.stat().st_mtime_ns for p in (out / "vehicles").glob("*/result.json")}
+    assert all(after[k] == v for k, v in before.items())  # nothing computed twice
+    assert sorted(json.loads((out / "manifest.json").read_text())["jobs"]) == sorted(after) + [BAD]
+
+
+def test_manifest_resume_rules(local_run, tmp_path):
+    out, _ = local_run
+    doc = json.loads((out / "manifest.json").read_text())
+    jobs = [Job.from_dict(e["job"]) for e in doc["jobs"].values()]
+    doc["jobs"]["sim-veh-000"]["state"] = "running"  # the driver died after the job wrote its result
+    doc["jobs"]["sim-veh-001"]["state"] = "running"
+    doc["jobs"]["sim-veh-002"]["state"] = "done"
+    moved = tmp_path / "m"
+    moved.mkdir()
+    (moved / "manifest.json").write_text(json.dumps(doc))
+    jobs = [Job.from_dict({**j.to_dict(), "out": str(moved / "vehicles" / j.id)}) for j in jobs]
+    (moved / "vehicles" / "sim-veh-000").mkdir(parents=True)
+    (moved / "vehicles" / "sim-veh-000" / "result.json").write_bytes((out / "vehicles" / "sim-veh-000" /
+                                                                     "result.json").read_bytes())
+    m = Manifest.open(moved / "manifest.json", jobs, "oracle", 1)
+    states = {k: e["state"] for k, e in m.jobs.items()}
+    assert states == {"sim-veh-000": "done", "sim-veh-001": "pending", "sim-veh-002": "pending", BAD: "failed"}
+    assert [j.id for j in m.todo()] == ["sim-veh-001", "sim-veh-002", BAD]
+    with pytest.raises(HybridCalibError, match="seed 1"):
+        Manifest.open(moved / "manifest.json", jobs, "oracle", 2)
+
+
+def test_learned_methods_fail_clearly_until_the_hybrid_package_lands(tmp_path):
+    job = Job("v", "v", str(tmp_path), "v1.0-sim", "hybrid", str(tmp_path / "v"))
+    with pytest.raises(HybridCalibError, match="method hybrid needs"):
+        calibrate_job(job)
+    assert job_seed(0, "a") == job_seed(0, "a") != job_seed(1, "a") != job_seed(0, "b")
+
+
+def test_fleet_prior_recovers_mean_and_spread_and_names_the_outlier():
+    g = rng(2)
+    T_ref = nominal_T_cam_radar()
+    mu = np.array([0.004, -0.006, 0.002, 0.02, -0.01, 0.015])
+    spread = np.array([np.radians(0.3), np.radians(0.5), np.radians(0.2), 0.02, 0.01, 0.03])
+    n = 50
+    names, Ts, covs = [], [], []
+    for i in range(n):
+        noise = np.concatenate([np.radians(g.uniform(0.02, 0.15, 3)), g.uniform(0.002, 0.01, 3)])
+        C = np.diag(noise ** 2)
+        x = mu + spread * g.standard_normal(6) + noise * g.standard_normal(6)
+        names.append(f"v{i:02d}")
+        Ts.append(retract(T_ref, x))
+        covs.append(C)
+    knocked = mu + np.array([np.radians(3.0), 0, 0, 0, 0, 0])  # a knocked radar: 3 deg about radar x
+    names.append("knocked")
+    Ts.append(retract(T_ref, knocked))
+    covs.append(np.diag(np.concatenate([np.radians([0.1] * 3), [0.01] * 3]) ** 2))
+    fp = fit_fleet_prior(names, Ts, covs, T_ref)
+    assert list(fp.outliers) == ["knocked"] and "knocked" not in fp.inliers and len(fp.inliers) == n
+    se = np.sqrt(np.diag(fp.fit.cov_mu))
+    assert np.all(np.abs(fp.fit.mu - mu) < 4 * se), (fp.fit.mu - mu) / se
+    assert np.allclose(np.sqrt(np.diag(fp.fit.S)), spread, rtol=0.35), np.sqrt(np.diag(fp.fit.S)) / spread
+    assert fp.prior("knocked") is None and fp.priors()["knocked"] is None
+    p = fp.prior("v00")  # leave-one-out: its own data is not in its prior
+    assert np.shape(p["cov_right_radar"]) == (6, 6) and not np.allclose(p["T_cam_radar"], fp.T_mean)
+    # a common-mode error (the prior-pinned directions): every prior keeps it in full, the test ignores it
+    P = np.diag([0, np.radians(1.0) ** 2, 0, 0, 0, 0.3 ** 2])
+    shift = retract(np.eye(4), np.array([0, np.radians(0.8), 0, 0, 0, 0.25]))
+    fc = fit_fleet_prior(names, [T @ shift for T in Ts], [c + P for c in covs], T_ref, common_cov=P)
+    assert list(fc.outliers) == ["knocked"]
+    pc = np.asarray(fc.prior("v00")["cov_right_radar"])
+    assert pc[5, 5] >= P[5, 5] and pc[1, 1] >= P[1, 1] and pc[0, 0] < 1e-4
+    # a fit that kept the outlier would be pulled: its rotation-x spread would blow up
+    with_out = fit_fleet_prior(names, Ts, covs, T_ref, alpha=0.0)
+    assert np.sqrt(with_out.fit.S[0, 0]) > 1.3 * np.sqrt(fp.fit.S[0, 0])
+
+
+def test_a_fleet_prior_tightens_a_vehicle(fleet_root, local_run, tmp_path):
+    s = local_run[1]
+    T = np.asarray(json.loads((local_run[0] / "vehicles/sim-veh-000/result.json").read_text())["vehicles"][
+        "sim-veh-000"]["truth"]["T_cam_radar"])
+    prior = {"T_cam_radar": T.tolist(), "cov_right_radar": np.diag([1e-6] * 3 + [1e-4] * 3).tolist()}
+    s2 = run_fleet([str(fleet_root)], None, "v1.0-sim", "oracle", tmp_path, seed=1, calib={"window": {"window": 3}},
+                   priors={"sim-veh-000": prior, "*": None}, options=FleetOptions(plots=False))
+    before, after = s["vehicles"]["sim-veh-000"]["std_cam"], s2["vehicles"]["sim-veh-000"]["std_cam"]
+    assert after["t_y_cam_cm"] < 0.5 * before["t_y_cam_cm"]
+    assert s2["vehicles"]["sim-veh-001"]["std_cam"] == s["vehicles"]["sim-veh-001"]["std_cam"]  # no prior: as before
+
+
+def test_fleet_file_lists_roots_and_bad_files_name_themselves(tmp_path):
+    from hybrid_calib.errors import DataError
+    from hybrid_calib.fleet.jobs import read_fleet_file
+
+    f = tmp_path / "FLEET.json"
+    f.write_text(json.dumps({"version": "v1.0-mini", "roots": ["a", {"data": "/abs/b", "vehicles": ["x"]}]}))
+    assert read_fleet_file(f, "v1.0-sim") == [(str(tmp_path / "a"), "v1.0-mini", None), ("/abs/b", "v1.0-mini", ("x",))]
+    f.write_text(json.dumps({"roots": [3]}))
+    with pytest.raises(DataError, match=r"roots\[0\].*FLEET.json"):
+        read_fleet_file(f, "v1.0-sim")
+    f.write_text("{not json")
+    with pytest.raises(DataError, match="unreadable"):
+        read_fleet_file(f, "v1.0-sim")
