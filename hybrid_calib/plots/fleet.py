@@ -1,7 +1,12 @@
-"""The fleet figure: every vehicle's offset from the fleet's design mount with +-2 sigma bars."""
+"""The fleet figure: every vehicle's offset from a reference mount (the fleet's design mount, or
+each vehicle's own tables) per camera axis, with error bars, flagged vehicles coloured and named.
+
+One drawing (``draw_fleet``) serves the fleet command (``plot_fleet``, from ``summary.json``) and the
+report's fleet page (``hybrid_calib.report.fleet``, from result files)."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -9,42 +14,57 @@ import numpy as np
 from hybrid_calib.plots.figure import pyplot, save_figure
 
 AXES = ("rot x [deg]", "rot y [deg]", "rot z [deg]", "t x [cm]", "t y [cm]", "t z [cm]")
-COLOURS = {"fleet_outlier": "tab:red", "out_of_tolerance": "tab:orange", "drifted_in_drive": "tab:purple"}
+COLOURS = {"fleet_outlier": "tab:red", "out_of_tolerance": "tab:orange", "drifted_in_drive": "tab:purple",
+           "flagged": "tab:red"}
+LEGEND = "red: fleet outlier / flagged, orange: out of tolerance, purple: drifted in the drive"
+
+
+def draw_fleet(names: Sequence[str], offsets: np.ndarray, sigmas: np.ndarray, flags: Sequence[Sequence[str]],
+               path: str | Path, title: str, n_sigma: float = 2.0,
+               band: tuple[np.ndarray, np.ndarray] | None = None) -> Path:
+    """Write ``path`` (PNG): six panels (camera axes), one row per vehicle.
+
+    offsets, sigmas: (V, 6) [rot x, y, z deg, t x, y, z cm], camera axes; bars are +-``n_sigma``.
+    flags: per vehicle its flag names (keys of ``COLOURS``; the first known one colours it, and a
+    flagged vehicle's label says so). band: optional (mean (6,), spread (6,)) drawn as a grey band."""
+    plt = pyplot()
+    off = np.asarray(offsets, np.float64).reshape(-1, 6)
+    std = np.asarray(sigmas, np.float64).reshape(-1, 6)
+    colour = [next((COLOURS[f] for f in fl if f in COLOURS), "tab:blue") for fl in flags]
+    y = np.arange(len(names))
+    fig, axes = plt.subplots(1, 6, figsize=(16, 1.5 + 0.28 * max(len(names), 4)), sharey=True)
+    for k, ax in enumerate(axes):
+        if band is not None:
+            ax.axvspan(band[0][k] - band[1][k], band[0][k] + band[1][k], color="gray", alpha=0.2)
+        ax.axvline(0, color="k", lw=0.6)
+        for i in range(len(names)):
+            ax.errorbar(off[i, k], y[i], xerr=n_sigma * std[i, k], fmt="o", ms=3, color=colour[i], lw=1, capsize=2)
+        lim = np.max(np.abs(off[:, k])) * 1.2 + 1e-6 if len(names) else 1  # every vehicle (outliers too) in view
+        ax.set_xlim(-lim, lim)
+        ax.set_title(AXES[k], fontsize=9)
+    labels = [f"{n} (flagged)" if c != "tab:blue" else n for n, c in zip(names, colour)]
+    axes[0].set_yticks(y, labels, fontsize=7)
+    axes[0].invert_yaxis()
+    fig.suptitle(f"{title}; +-{n_sigma:g} sigma (camera axes); {LEGEND}", fontsize=9)
+    fig.tight_layout()
+    return save_figure(fig, path, dpi=90)
 
 
 def plot_fleet(summary: dict, path: str | Path) -> Path:
-    """Write ``path`` (PNG): six panels (camera axes), one row per done vehicle: its offset from the
-    design mount (``summary.json`` "offset_from_design") with +-2 sigma error bars ("std_cam"),
-    coloured by its first flag (outlier red, out of tolerance orange, drifted in the drive purple),
-    and the fleet mean +- 1 sigma spread when a fleet prior was fitted."""
-    plt = pyplot()
+    """The fleet command's figure from ``summary.json``: each done vehicle's "offset_from_design"
+    with +-2 sigma ("std_cam"), coloured by its flags, and the fleet mean +- 1 sigma spread (grey)
+    when a fleet prior was fitted."""
     done = [(jid, r) for jid, r in summary["vehicles"].items() if r["state"] == "done"]
     off = np.array([list(r["offset_from_design"].values()) for _, r in done]).reshape(-1, 6)
     std = np.array([list(r["std_cam"].values()) for _, r in done]).reshape(-1, 6)
-    colour = [next((COLOURS[f] for f in COLOURS if f in r["flags"]), "tab:blue") for _, r in done]
-    y = np.arange(len(done))
-    fig, axes = plt.subplots(1, 6, figsize=(16, 1.5 + 0.28 * max(len(done), 4)), sharey=True)
+    band = None
     fp = summary.get("fleet_prior")
-    mean = spread = None
     if fp:
         from hybrid_calib.fleet.summary import camera_offset
 
         mean = camera_offset(np.asarray(summary["design_mount"]["T_cam_radar"]), np.asarray(fp["T_mean"]))
-        spread = np.array(list(fp["spread_std_cam"].values()))
-    for k, ax in enumerate(axes):
-        if mean is not None:
-            ax.axvspan(mean[k] - spread[k], mean[k] + spread[k], color="gray", alpha=0.2, label="fleet mean +-1 sigma")
-        ax.axvline(0, color="k", lw=0.6)
-        for i in range(len(done)):
-            ax.errorbar(off[i, k], y[i], xerr=2 * std[i, k], fmt="o", ms=3, color=colour[i], lw=1)
-        lim = np.max(np.abs(off[:, k])) * 1.2 + 1e-6 if len(done) else 1  # every vehicle (outliers too) in view
-        ax.set_xlim(-lim, lim)
-        ax.set_title(AXES[k], fontsize=9)
-    axes[0].set_yticks(y, [jid for jid, _ in done], fontsize=7)
-    axes[0].invert_yaxis()
+        band = (mean, np.array(list(fp["spread_std_cam"].values())))
     c = summary["counts"]
-    fig.suptitle(f"offsets from the design mount ({summary['design_mount']['source']}), +-2 sigma; {c['done']} done, "
-                 f"{c['failed']} failed; red: fleet outlier, orange: out of tolerance, purple: drifted in the drive",
-                 fontsize=9)
-    fig.tight_layout()
-    return save_figure(fig, path, dpi=90)
+    title = (f"offsets from the design mount ({summary['design_mount']['source']}); {c['done']} done, "
+             f"{c['failed']} failed")
+    return draw_fleet([jid for jid, _ in done], off, std, [r["flags"] for _, r in done], path, title, band=band)

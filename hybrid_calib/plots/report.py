@@ -132,32 +132,3 @@ def draw_before_after(image_rgb: np.ndarray, panels: Sequence[dict], path: str |
         fig.suptitle(title, fontsize=9)
     fig.tight_layout()
     return save_figure(fig, path, dpi=80)
-
-
-def plot_fleet(names: Sequence[str], offsets: np.ndarray, sigmas: np.ndarray, flagged: Sequence[str],
-               path: str | Path, reference: str = "design mount") -> Path:
-    """The fleet plot: each vehicle's offset from the reference per axis with +-1 sigma error bars
-    (2 x 3 panels, camera axes), flagged vehicles in red and named.
-
-    offsets, sigmas: (V, 6) [rot x, y, z deg, t x, y, z cm], camera axes."""
-    plt = pyplot()
-    offsets, sigmas = np.asarray(offsets, float), np.asarray(sigmas, float)
-    y = np.arange(len(names))
-    bad = np.array([n in set(flagged) for n in names], bool)
-    fig, axes = plt.subplots(2, 3, figsize=(11, 1.2 + 0.32 * max(len(names), 4) * 2), sharey=True)
-    for ax, (label, unit, j) in zip(axes.ravel(), AXES):
-        for mask, color in ((~bad, "tab:blue"), (bad, "tab:red")):
-            if mask.any():
-                ax.errorbar(offsets[mask, j], y[mask], xerr=sigmas[mask, j], fmt="o", ms=4, color=color,
-                            capsize=2, lw=1)
-        ax.axvline(0, color="gray", lw=0.6)
-        ax.set_title(f"{label} [{unit}]", fontsize=8)
-        ax.tick_params(labelsize=7)
-    axes[0, 0].set_yticks(y)
-    axes[0, 0].set_yticklabels([f"{n} (flagged)" if b else n for n, b in zip(names, bad)], fontsize=7)
-    axes[1, 0].set_yticks(y)
-    axes[1, 0].set_yticklabels([f"{n} (flagged)" if b else n for n, b in zip(names, bad)], fontsize=7)
-    axes[0, 0].invert_yaxis()  # shared: first vehicle on top in every panel
-    fig.suptitle(f"offset from the {reference} per vehicle, +-1 sigma (camera axes); red: flagged", fontsize=9)
-    fig.tight_layout()
-    return save_figure(fig, path, dpi=80)

@@ -47,7 +47,7 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
     its report page, already written; when None, each vehicle's page is written next to its result
     (``report.html``, ``report-<vehicle>.html`` for a result with several vehicles) with ``data`` /
     ``version`` / ``conf``. Returns the path written."""
-    from hybrid_calib.plots.report import plot_fleet
+    from hybrid_calib.plots.fleet import draw_fleet
 
     conf = merge(ReportConfig, conf)
     out = Path(out)
@@ -81,9 +81,10 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
         fig = ("<p class=note>No offsets to plot: no design mount given and no result holds a reference "
                "comparison.</p>")
         if plotted:
-            png = plot_fleet(plotted, np.array([offsets[n] for n in plotted]),
-                             np.array([vehicles[n][0].final.std for n in plotted]), flagged,
-                             Path(tmp) / "fleet.png", reference)
+            png = draw_fleet(plotted, np.array([offsets[n] for n in plotted]),
+                             np.array([vehicles[n][0].final.std for n in plotted]),
+                             [("flagged",) if n in flagged else () for n in plotted], Path(tmp) / "fleet.png",
+                             f"offset from the {reference} per vehicle", n_sigma=1.0)
             fig = img_tag(png, "fleet plot")
 
     rows = ""
