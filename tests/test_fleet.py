@@ -210,3 +210,17 @@ def test_fleet_file_lists_roots_and_bad_files_name_themselves(tmp_path):
     f.write_text("{not json")
     with pytest.raises(DataError, match="unreadable"):
         read_fleet_file(f, "v1.0-sim")
+
+
+def test_fleet_command_pages_link_every_done_vehicle(local_run):
+    from hybrid_calib.commands.fleet import write_fleet_pages
+
+    out, _ = local_run
+    summary = json.loads((out / "summary.json").read_text())
+    page = write_fleet_pages(summary, out)
+    html = page.read_text()
+    done = [r for r in summary["vehicles"].values() if r["state"] == "done"]
+    for r in done:
+        report = (out / r["result"]).parent / "report.html"
+        assert report.is_file(), report
+        assert r["vehicle"] in html and f'href="{report.relative_to(out)}"' in html

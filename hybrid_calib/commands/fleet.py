@@ -31,6 +31,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-frames", type=nonnegative_int, default=0, help="frames per vehicle, 0 = all (default: 0)")
     p.add_argument("--out", type=Path, required=True, help="fleet run directory (rerun the same command to resume)")
     p.add_argument("--no-plots", action="store_true", help="skip the fleet plot")
+    p.add_argument("--no-report", action="store_true",
+                   help="skip the HTML pages (OUT/fleet.html and a report.html beside each vehicle's result)")
     p.add_argument("--set", action="extend", nargs="+", metavar="KEY=VALUE", default=[],
                    help="CalibrateConfig overrides for every vehicle, e.g. window.window=10 mode=batch")
 
@@ -75,4 +77,24 @@ def run(args: argparse.Namespace) -> int:
             print(f"  failed {jid}: {r['reason']}")
     print(f"wrote {args.out / 'summary.md'}, {args.out / 'summary.json'}, {args.out / 'manifest.json'}; "
           f"per vehicle: {args.out / 'vehicles'}/<vehicle>/result.json")
+    if not args.no_report:
+        page = write_fleet_pages(summary, args.out)
+        if page is not None:
+            print(f"fleet page: {page} (one report.html beside each vehicle's result.json)")
     return 0 if c["failed"] == 0 else 1
+
+
+def write_fleet_pages(summary: dict, out: Path) -> Path | None:
+    """The fleet page ``out/fleet.html`` and one report per done vehicle (beside its result.json),
+    with the fleet's design mount and the vehicles it flagged; None when no vehicle is done."""
+    import numpy as np
+
+    from hybrid_calib.report import write_fleet_page
+
+    done = [r for r in summary["vehicles"].values() if r["state"] == "done"]
+    if not done:
+        return None
+    design = (summary.get("design_mount") or {}).get("T_cam_radar")
+    return write_fleet_page([out / r["result"] for r in done], out / "fleet.html",
+                            design=None if design is None else np.asarray(design),
+                            flagged=[r["vehicle"] for r in done if r.get("flags")])
