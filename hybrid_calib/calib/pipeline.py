@@ -95,6 +95,11 @@ def _load_oracle(data, version: str, conf: CalibrateConfig, rng) -> dict[str, Ve
     return out
 
 
+def load_oracle(data, version: str, conf: CalibrateConfig | dict | None, rng) -> dict[str, VehicleInput]:
+    """Oracle inputs (simulated roots) of every vehicle in ``conf.vehicles`` (all when None)."""
+    return _load_oracle(data, version, merge(CalibrateConfig, conf), rng)
+
+
 def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig) -> dict[str, VehicleInput]:
     groups = load_measurement_dir(directory)
     refs: dict[str, np.ndarray] = {}
@@ -151,8 +156,10 @@ def _start(vi: VehicleInput, conf: CalibrateConfig, rng) -> np.ndarray:
     return perturbed_start(vi.truth[0], rng, conf.start)
 
 
-def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, rng, progress: bool = True) -> VehicleResult:
-    """Calibrate one vehicle's frames; returns the per-frame trajectory (window) and the final estimate."""
+def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, rng, progress: bool = True,
+                      T_start: np.ndarray | None = None) -> VehicleResult:
+    """Calibrate one vehicle's frames; returns the per-frame trajectory (window) and the final estimate.
+    ``T_start`` (4, 4): the start extrinsic (default: ``conf.start`` drawn from ``rng``)."""
     from tqdm import tqdm
 
     from hybrid_calib.calib.covariance import report_std
@@ -167,7 +174,7 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, rng, progress: bo
     if not frames:
         raise DataError(f"vehicle {vi.vehicle}: no usable frame ({len(skipped)} skipped; first: "
                         f"{skipped[0]['reason'] if skipped else '-'})")
-    T0 = _start(vi, conf, rng)
+    T0 = _start(vi, conf, rng) if T_start is None else np.asarray(T_start, np.float64)
     traj = []
     if conf.mode == "window":
         cal = SlidingWindowCalibrator(T0, conf.window)
