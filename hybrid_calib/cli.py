@@ -24,6 +24,7 @@ COMMANDS: dict[str, str] = {
     "train": "train",
     "evaluate": "evaluate",
     "calibrate": "calibrate",
+    "compare": "compare",
 }
 
 EXIT_ERROR = 2  # an expected failure, explained in one line (argparse uses 2 for usage errors too)

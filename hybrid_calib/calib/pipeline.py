@@ -30,7 +30,7 @@ from hybrid_calib.calib.result import CalibrationRun, VehicleResult
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import merge, save_json_atomic, to_dict
 from hybrid_calib.errors import DataError, HybridCalibError
-from hybrid_calib.perturbation import RANGES, perturbed_start
+from hybrid_calib.perturbation import RANGES, vehicle_start
 
 MODES = ("window", "batch")
 STARTS = ("reference", *RANGES)
@@ -153,7 +153,8 @@ def _start(vi: VehicleInput, conf: CalibrateConfig, rng) -> np.ndarray:
         return vi.reference
     if not vi.truth:
         raise HybridCalibError(f"start={conf.start} needs ground truth (a simulated root); use start=reference")
-    return perturbed_start(vi.truth[0], rng, conf.start)
+    # seeded by (seed, vehicle) alone: the same start as every other method (hybrid_calib.hybrid)
+    return vehicle_start(vi.truth[0], conf.start, conf.seed, vi.vehicle)
 
 
 def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, rng, progress: bool = True,
