@@ -11,6 +11,7 @@ REQUIRED = {
     "calibrate": ["--data", "d"],
     "train": ["--data", "d", "--out", "o"],
     "evaluate": ["--data", "d", "--checkpoint", "c", "--out", "o"],
+    "compare": ["--data", "d", "--out", "o"],
 }
 
 
