@@ -25,7 +25,7 @@ def main(argv=None) -> int:
     p.add_argument("--max-frames", type=int, default=40)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=1)
-    p.add_argument("--rows", nargs="+", default=["first", "last"])
+    p.add_argument("--rows", nargs="+", default=["first", "last", "none"])
     p.add_argument("--out", required=True, type=Path)
     p.add_argument("--fit-into", action="store_true", help="write the chosen values into the checkpoint")
     a = p.parse_args(argv)

@@ -50,19 +50,34 @@ def fit_sigma_scale(norms: np.ndarray) -> float:
     return float(np.median(norms) / RAYLEIGH_MEDIAN) if len(norms) else 1.0
 
 
+def in_range(passes, network_range: str) -> list:
+    """The passes whose start lies inside the network's training range around the truth (every
+    axis): the regime the network, and so this fit, is valid in."""
+    from hybrid_calib.perturbation import RANGES
+
+    rot, tr = RANGES[network_range]
+    keep = []
+    for out, T_true in passes:
+        xi = local(T_true, out.T_in)
+        if np.all(np.abs(np.degrees(xi[:3])) <= rot) and np.all(np.abs(xi[3:]) <= tr):
+            keep.append((out, T_true))
+    return keep
+
+
 def pass_statistics(passes, factor_conf, sched, rows: str, sigma_scale: float = 1.0) -> dict:
     """From ``passes`` = [(NetworkOutput, T_true (4, 4))]: whitened norms at the truth (with
-    ``sigma_scale``), per-frame rows-only errors and reported covariances, network errors."""
+    ``sigma_scale``), per-frame rows-only errors and reported covariances, network errors
+    (``rows="none"``: the network errors only)."""
     from hybrid_calib.hybrid.measurement import frame_inputs
 
     norms, xi_rows, cov_rows, xi_net, cov_net, start_err = [], [], [], [], [], []
-    mconf = MeasurementConfig(rows=rows, prior=False, sigma_scale=sigma_scale)
+    mconf = MeasurementConfig(rows="last" if rows == "last" else "first", prior=False, sigma_scale=sigma_scale)
     for out, T_true in passes:
         fi = frame_inputs(out, out.T_in, mconf, factor_conf, sched.final_gate, trusted=False)
         xi_net.append(local(T_true, out.T))
         cov_net.append(out.cov_raw)
         start_err.append(local(T_true, out.T_in))
-        if len(fi.corr) < 6:
+        if len(fi.corr) < 6 or rows == "none":
             continue
         norms.append(whitened_norms(T_true, fi.corr, factor_conf))
         res = robust_solve([fi.corr], out.T_in, factor_conf, None, sched, convex_start=True)
@@ -102,10 +117,20 @@ def fit_shared_std(xi: np.ndarray, covs: np.ndarray, trim: float = 95.0) -> np.n
     return np.where(std < floor, 0.0, std)
 
 
+def fit_drive_std(passes) -> list[float]:
+    """(6,) std of the network error common to a drive: per axis, the RMS over drives of the mean
+    network error of the drive's passes (drives told apart by their true extrinsic)."""
+    groups: dict[bytes, list] = {}
+    for out, T_true in passes:
+        groups.setdefault(np.round(T_true, 9).tobytes(), []).append(local(T_true, out.T))
+    means = np.array([np.mean(v, axis=0) for v in groups.values() if len(v) >= 3]).reshape(-1, 6)
+    return [float(v) for v in np.sqrt(np.mean(means ** 2, axis=0))] if len(means) else [0.0] * 6
+
+
 def fit_from_statistics(st: dict, rows: str, sigma_scale: float) -> dict:
     """The fitted MeasurementConfig values and a summary of the data they came from."""
     xr, cr = st["xi_rows"], st["cov_rows"]
-    excess = fit_shared_std(xr, cr) ** 2
+    excess = fit_shared_std(xr, cr) ** 2 if len(xr) > 6 else np.zeros(6)
     xn, cn = st["xi_net"], st["cov_net"]
     ratio = xn ** 2 / np.diagonal(cn, axis1=1, axis2=2)
     prior_scale = [max(1.0, _trimmed_mean(ratio[:, k])) for k in range(6)]
@@ -153,7 +178,8 @@ def drive_truths(roots, version: str) -> dict[str, np.ndarray]:
     return truths
 
 
-def fit_measurement(roots, version: str, checkpoint: str, out: str | Path, start: str, rows_options=("first", "last"),
+def fit_measurement(roots, version: str, checkpoint: str, out: str | Path, start: str,
+                    rows_options=("first", "last", "none"),
                     max_frames: int = 40, seed: int = 0, threads: int = 1, progress: bool = False) -> dict:
     """Fit the measurement model for each ``rows`` option in the loop's regime (module doc), rerun the
     loop with each fitted model on the same validation drives and keep the option whose fused
@@ -173,10 +199,15 @@ def fit_measurement(roots, version: str, checkpoint: str, out: str | Path, start
         # round 1: the loop with the unfitted model (its rows, no prior, no shared error) gives the regime
         for k, r in enumerate(roots):
             run_calibration(r, version, out / f"round1-{rows}-{k}", {**base, "measurement": {"rows": rows}})
-        passes = load_passes(out / "network-cache", truths)
+        from learned.checkpoint import read_checkpoint_meta
+
+        net_range = read_checkpoint_meta(checkpoint)[1].get("train_config", {}).get("perturbation", "R1")
+        passes = in_range(load_passes(out / "network-cache", truths), net_range)
         st = pass_statistics(passes, w.factor, w.schedule, rows)
         s = fit_sigma_scale(st["norms"])
         fitted = fit_from_statistics(pass_statistics(passes, w.factor, w.schedule, rows, s), rows, s)
+        fitted["summary"]["network_range"] = net_range
+        fitted["values"]["drive_std"] = fit_drive_std(passes)
         errs = []
         for k, r in enumerate(roots):  # round 2: the loop with the fitted model
             run = run_calibration(r, version, out / f"round2-{rows}-{k}", {**base, "measurement": fitted["values"]})

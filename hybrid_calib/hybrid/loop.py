@@ -170,6 +170,19 @@ def _passes(runner: NetworkRunner, drive: Drive, T0: np.ndarray, conf: HybridCon
     return outs
 
 
+def with_drive_error(traj: list[FrameEstimate], drive_std, conf: HybridConfig) -> list[FrameEstimate]:
+    """The trajectory with the drive-common network error ``diag(drive_std^2)`` added to every
+    reported covariance (``measurement`` module doc, item 4); unchanged when it is zero."""
+    D = np.diag(np.asarray(drive_std, np.float64) ** 2)
+    if not np.any(D):
+        return traj
+    out = []
+    for f in traj:
+        note = f.estimate.status.partition(" (")[2].rstrip(")")
+        out.append(dataclasses.replace(f, estimate=_estimate(f.T, f.cov + D, conf, note)))
+    return out
+
+
 def _pure(runner, drive, T0, conf, skipped, rows):
     traj = []
     for k, (_, out) in enumerate(_passes(runner, drive, T0, conf, skipped)):
@@ -194,7 +207,7 @@ def _pure_avg(runner, drive, T0, conf, skipped, rows):
         rows.append({"frame_id": out.rows_last.frame_id, "used": 0, "rejected": 0, "network_ms": out.seconds * 1e3})
     if passes:
         rows[-1]["weights"] = [float(x) for x in w]
-    return traj
+    return with_drive_error(traj, mconf.drive_std, conf)
 
 
 def _hybrid(runner, drive, T0, conf, skipped, rows):
@@ -222,7 +235,7 @@ def _hybrid(runner, drive, T0, conf, skipped, rows):
         rows.append({"frame_id": fi.corr.frame_id, "used": used, "rejected": len(fi.corr) - used,
                      "deflation": fi.deflation, "prior_used": fi.prior_used, "network_ms": out.seconds * 1e3,
                      **({"note": fi.note} if fi.note else {})})
-    return traj
+    return with_drive_error(traj, mconf.drive_std, conf)
 
 
 LEARNED = {"hybrid": _hybrid, "pure": _pure, "pure-avg": _pure_avg}

@@ -8,7 +8,8 @@ value lives in the checkpoint's ``export["hybrid"]`` block, ``hybrid.fit``):
 
 1. No double counting. ``rows="first"`` takes the iteration-0 rows and, when ``prior`` is on,
    the network's SE(3) as a Gaussian prior; ``rows="last"`` takes the last iteration's rows and
-   NEVER the prior (they restate it: ``frame_inputs`` drops it whatever ``prior`` says).
+   NEVER the prior (they restate it: ``frame_inputs`` drops it whatever ``prior`` says);
+   ``rows="none"`` takes the prior alone (a filter on the network's SE(3) from the fused estimate).
 2. Row noise: ``sigma_px`` times ``sigma_scale``, fitted in the loop's own regime (starts at the
    fused estimate) so the median whitened residual at the truth is the Gaussian's; the tails stay
    with the window's redescending kernel and gate (``WindowConfig.factor``).
@@ -20,7 +21,11 @@ value lives in the checkpoint's ``export["hybrid"]`` block, ``hybrid.fit``):
    covariance scaled by its inverse): the largest scalar with ``s H <= (H^-1 + S)^-1``, i.e. never
    more information than the shared-error model allows, in any direction. So N frames give at most
    ~N S^-1, not N K independent rows.
-4. The network covariance is trusted only where it was fitted: the prior is used when the start
+4. Error common to a drive: what the network gets wrong about a whole drive (the loop's fixed
+   point is the network's bias near the truth) no number of frames averages out; its covariance
+   ``diag(drive_std^2)`` (fitted across validation drives) is added to the fused covariance that
+   the hybrid and pure-avg report (``loop``).
+5. The network covariance is trusted only where it was fitted: the prior is used when the start
    lies inside the checkpoint's training range (``start_range`` vs the checkpoint's range) or the
    window's fused estimate is already tighter than ``trust_sigma_frac`` of that range; its
    covariance is multiplied by ``prior_cov_scale`` (per axis, fitted in the loop's regime).
@@ -38,24 +43,25 @@ from hybrid_calib.calib.schedule import GaussianPrior, frame_information
 from hybrid_calib.hybrid.network import NetworkOutput
 from hybrid_calib.perturbation import RANGES
 
-ROWS = ("first", "last")
+ROWS = ("first", "last", "none")
 
 
 @dataclass(frozen=True)
 class MeasurementConfig:
-    rows: str = "first"  # first (iteration 0, independent of the regression) | last (restates the SE(3))
+    rows: str = "first"  # first (iteration 0) | last (restates the SE(3): never with the prior) | none (prior only)
     prior: bool = True  # the network's SE(3) as a prior (only with rows=first; never with rows=last)
     sigma_scale: float = 1.0  # multiplies the exported sigma_px (fitted in the loop's regime)
     shared_std: tuple = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # per-frame shared error std [rad x3, m x3], radar tangent
     prior_cov_scale: tuple = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0)  # per-axis factors on the raw network covariance
+    drive_std: tuple = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # network error common to a whole drive [rad x3, m x3]
     trust_sigma_frac: float = 0.1  # prior trusted once the fused std is below this fraction of the range
     min_rows: int = 3  # a frame with fewer rows adds no rows (its prior may still enter)
 
     def __post_init__(self):
         if self.rows not in ROWS:
             raise ValueError(f"MeasurementConfig.rows={self.rows!r}; valid: {ROWS}")
-        if len(self.shared_std) != 6 or len(self.prior_cov_scale) != 6:
-            raise ValueError("MeasurementConfig.shared_std and prior_cov_scale need 6 values each")
+        if len(self.shared_std) != 6 or len(self.prior_cov_scale) != 6 or len(self.drive_std) != 6:
+            raise ValueError("MeasurementConfig.shared_std, drive_std and prior_cov_scale need 6 values each")
         if not self.sigma_scale > 0 or min(self.prior_cov_scale) <= 0 or min(self.shared_std) < 0:
             raise ValueError("MeasurementConfig: sigma_scale and prior_cov_scale must be > 0, shared_std >= 0")
 
@@ -100,11 +106,12 @@ def frame_inputs(out: NetworkOutput, T_ref: np.ndarray, conf: MeasurementConfig,
                  trusted: bool) -> FrameInput:
     """The window's inputs of one network pass (module doc). ``T_ref`` (4, 4): where the frame's
     information is evaluated for the shared-error deflation (the current fused estimate)."""
-    corr = out.rows_first if conf.rows == "first" else out.rows_last
+    corr = out.rows_last if conf.rows == "last" else out.rows_first
     corr = dataclasses.replace(corr, sigma_px=np.asarray(corr.sigma_px) * conf.sigma_scale)
-    if len(corr) < conf.min_rows:
+    if len(corr) < conf.min_rows or conf.rows == "none":
         corr = Correspondences.empty(corr.K, corr.frame_id, corr.timestamp_us)
-    use_prior = conf.rows == "first" and conf.prior and trusted
+    with_prior = conf.rows != "last" and conf.prior
+    use_prior = with_prior and trusted
     prior_cov = None
     H = frame_information(T_ref, corr, factor_conf, gate)[1] if len(corr) else np.zeros((6, 6))
     if use_prior:
@@ -115,5 +122,5 @@ def frame_inputs(out: NetworkOutput, T_ref: np.ndarray, conf: MeasurementConfig,
     if len(corr) and s < 1.0:
         corr = dataclasses.replace(corr, sigma_px=np.asarray(corr.sigma_px) / np.sqrt(s))
     prior = GaussianPrior(out.T, prior_cov / s) if use_prior else None
-    note = "" if use_prior or not (conf.rows == "first" and conf.prior) else "network prior outside its fitted range"
+    note = "network prior outside its fitted range" if with_prior and not trusted else ""
     return FrameInput(corr, prior, s, use_prior, note)
