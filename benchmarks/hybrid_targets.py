@@ -2,7 +2,7 @@
 for R1 and R2, and check every target.
 
     PYTHONPATH=. python benchmarks/hybrid_targets.py --out OUT [--vehicles 2] [--frames 200] \
-        [--trials 20] [--methods pure,pure-avg,hybrid] [--ranges R1 R2] [--threads 2]
+        [--max-frames 0] [--trials 20] [--methods pure,pure-avg,hybrid] [--ranges R1 R2] [--threads 2]
 
 Test drives: ``hybrid-calib simulate`` with seeds 9201 (urban), 9202 (highway), 9203 (rain),
 ``--vehicles`` each, ``--frames`` keyframes, image_scale 0.25 (as the shipped networks' training
@@ -66,6 +66,7 @@ def main(argv=None) -> int:
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--vehicles", type=int, default=2, help="vehicles (drives) per scenario")
     p.add_argument("--frames", type=int, default=200, help="keyframes per drive")
+    p.add_argument("--max-frames", type=int, default=0, help="frames used per drive (0 = --frames)")
     p.add_argument("--trials", type=int, default=20, help="trials per range")
     p.add_argument("--methods", default="pure,pure-avg,hybrid")
     p.add_argument("--ranges", nargs="+", default=["R1", "R2"])
@@ -79,7 +80,7 @@ def main(argv=None) -> int:
     report = {"command": "PYTHONPATH=. python benchmarks/hybrid_targets.py " + " ".join(sys.argv[1:]), "ranges": {}}
     for r in a.ranges:
         conf = {"range": r, "trials": a.trials, "methods": tuple(a.methods.split(",")),
-                "hybrid": {"threads": a.threads, "max_frames": a.frames}}
+                "hybrid": {"threads": a.threads, "max_frames": a.max_frames or a.frames}}
         s = compare(roots, "v1.0-sim", a.out / f"compare-{r}", conf, command=report["command"])
         report["ranges"][r] = {"targets": check(s), "compare_md": str(a.out / f"compare-{r}" / "compare.md")}
         print((a.out / f"compare-{r}" / "compare.md").read_text())
