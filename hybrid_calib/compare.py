@@ -8,7 +8,7 @@
 2. Export once, evaluate many. One ``NetworkRunner`` per root with one output cache
    (``OUT/network-cache``): ``pure`` and ``pure-avg`` read the very same passes, the hybrid's first
    frame too. Each (method, trial) writes ``OUT/trials/<method>/<k>.json`` (a ``VehicleResult``);
-   a rerun skips those already there (resumable).
+   a rerun skips those already there (resumable; a larger ``--trials`` extends a run).
 3. ``OUT/compare.json`` / ``compare.md``: per method the paper's table (rotation Mean/Roll/Pitch/Yaw
    deg, translation Mean/X/Y/Z cm, geodesic, norm), means and medians over trials; coverage of the
    95 % ellipsoid and mean NEES (all, and per root = scenario); fraction of trials whose status is
@@ -156,7 +156,11 @@ def compare(roots: list, version: str, out: str | Path, conf: CompareConfig | di
     out = Path(out)
     cfg_path = out / "compare_config.json"
     record = to_dict(conf)
-    if cfg_path.is_file() and json.loads(cfg_path.read_text()) != json.loads(json.dumps(record)):
+
+    def same(a: dict) -> dict:  # trial k does not depend on the trial count: more trials extend a run
+        return {k: v for k, v in json.loads(json.dumps(a)).items() if k != "trials"}
+
+    if cfg_path.is_file() and same(json.loads(cfg_path.read_text())) != same(record):
         raise HybridCalibError(f"{out} holds trials of another configuration ({cfg_path}); use another --out")
     save_json_atomic(cfg_path, record)
     run_trials([str(r) for r in roots], version, out, conf, progress)
