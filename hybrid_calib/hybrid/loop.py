@@ -178,8 +178,10 @@ def with_drive_error(traj: list[FrameEstimate], drive_std, conf: HybridConfig) -
         return traj
     out = []
     for f in traj:
-        note = f.estimate.status.partition(" (")[2].rstrip(")")
-        out.append(dataclasses.replace(f, estimate=_estimate(f.T, f.cov + D, conf, note)))
+        # keep the window's own notes (a solve that did not converge, a restart after a step)
+        notes = [f.estimate.status[i:].split(")")[0] for key in ("NOT CONVERGED", "recovering")
+                 if (i := f.estimate.status.find(key)) >= 0]
+        out.append(dataclasses.replace(f, estimate=_estimate(f.T, f.cov + D, conf, "; ".join(notes))))
     return out
 
 
