@@ -35,7 +35,7 @@ class DemoConfig:
     start: str = "R1"  # calibration start: R1 (+-10 deg, +-0.25 m) | R2 | reference
     window: int = 20  # sliding-window length, frames
     method: str = "hybrid"  # hybrid (shipped network + window) | pure | pure-avg | oracle (true reflectors)
-    threads: int = 2  # torch CPU threads
+    threads: int = 1  # torch CPU threads (1: on a busy 2-core machine 2 threads were 40x slower, measured)
 
 
 def _overlay(root: Path, out_png: Path) -> Path:

@@ -59,7 +59,7 @@ class HybridConfig:
     average: AverageConfig = AverageConfig()  # pure-avg
     oracle: OracleConfig = OracleConfig()  # oracle rows (simulated roots only)
     drift: DriftConfig = DriftConfig()  # reference chi-square test of the final estimate
-    threads: int = 2  # torch CPU threads
+    threads: int = 1  # torch CPU threads (1: on a busy 2-core machine 2 threads were 40x slower, measured)
     cache_dir: str = ""  # network-output cache ("" = none; run_calibration: OUT/network-cache)
     depth_cache: str = ""  # depth cache ("" = none; run_calibration: OUT/depth-cache)
     progress: bool = True  # tqdm per vehicle
