@@ -26,6 +26,7 @@ COMMANDS: dict[str, str] = {
     "calibrate": "calibrate",
     "report": "report",
     "fleet": "fleet",
+    "compare": "compare",
 }
 
 EXIT_ERROR = 2  # an expected failure, explained in one line (argparse uses 2 for usage errors too)

@@ -36,3 +36,22 @@ def perturbed_start(T_cam_radar: np.ndarray, g: np.random.Generator, name: str) 
     """(4, 4) a start drawn in the named range around ``T_cam_radar`` (``sample_perturbation``)."""
     xi = sample_perturbation(g, name)
     return perturb_camera_frame(T_cam_radar, xi[:3], xi[3:])
+
+
+def vehicle_rng(seed: int, vehicle: str, purpose: str = "start") -> np.random.Generator:
+    """A generator fixed by (seed, vehicle, purpose) alone: a vehicle's start does not depend on which
+    other vehicles a run holds, their order, or the method (every method sees the same start)."""
+    import hashlib
+
+    digest = hashlib.sha1(f"{purpose}:{int(seed)}:{vehicle}".encode()).digest()
+    return np.random.default_rng(int.from_bytes(digest[:8], "little"))
+
+
+def vehicle_start(base: np.ndarray, kind: str, seed: int, vehicle: str) -> np.ndarray:
+    """(4, 4) the start of one vehicle: ``base`` itself for ``kind="reference"``, else a draw in the
+    named range around ``base`` (the truth on simulated roots, the tables on real ones) from
+    ``vehicle_rng(seed, vehicle)``."""
+    base = np.asarray(base, np.float64)
+    if kind == "reference":
+        return base.copy()
+    return perturbed_start(base, vehicle_rng(seed, vehicle), kind)

@@ -44,7 +44,7 @@ fitted the same way on simulated validation scenes, where the true reflectors ar
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -63,6 +63,7 @@ class ExportConfig:
     uncertainty: str = ""  # "learned" | "spread"; "" = the model config's choice
     cov_scale: float | tuple = 1.0  # multiplies the 6x6 covariance: one factor or 6 per-axis (calibrate_cov_scale)
     cov_floor: tuple = (1e-3, 1e-2)  # "spread" floor: rad, m (no estimate is better than this)
+    hybrid: dict = field(default_factory=dict)  # the hybrid's measurement model (hybrid.measurement), not used here
 
 
 def _np(x: torch.Tensor) -> np.ndarray:

@@ -13,6 +13,7 @@ REQUIRED = {
     "evaluate": ["--data", "d", "--checkpoint", "c", "--out", "o"],
     "report": ["r.json", "--out", "o.html"],
     "fleet": ["--data", "d", "--out", "o"],
+    "compare": ["--data", "d", "--out", "o"],
 }
 
 

@@ -1,5 +1,6 @@
 """``hybrid-calib fleet``: engines agree, corrupt vehicles fail alone, kill-and-resume, the fleet prior."""
 
+import dataclasses
 import json
 import signal
 import subprocess
@@ -140,10 +141,22 @@ def test_manifest_resume_rules(local_run, tmp_path):
         Manifest.open(moved / "manifest.json", jobs, "oracle", 2)
 
 
-def test_learned_methods_fail_clearly_until_the_hybrid_package_lands(tmp_path):
-    job = Job("v", "v", str(tmp_path), "v1.0-sim", "hybrid", str(tmp_path / "v"))
-    with pytest.raises(HybridCalibError, match="method hybrid needs"):
-        calibrate_job(job)
+def test_network_method_job_matches_the_hybrid_entry_point(fleet_root, tmp_path):
+    """A fleet job with a network method is ``hybrid.run_calibration`` on that vehicle (same start,
+    same estimate); options the window-only methods cannot take are clear errors."""
+    from hybrid_calib.calib.result import CalibrationRun
+    from hybrid_calib.hybrid import run_calibration
+
+    calib = {"start": "R1", "window": {"detect_steps": False}}
+    job = Job("sim-veh-000", "sim-veh-000", str(fleet_root), "v1.0-sim", "pure-avg", str(tmp_path / "job"),
+              seed=3, calib=calib)
+    got = CalibrationRun.load(calibrate_job(job)).vehicles["sim-veh-000"]
+    ref = run_calibration(fleet_root, "v1.0-sim", tmp_path / "ref", {**calib, "method": "pure-avg", "seed": 3,
+                          "vehicles": ("sim-veh-000",), "progress": False}).vehicles["sim-veh-000"]
+    assert got.method == "pure-avg" and got.start == ref.start
+    assert np.allclose(got.final.T, ref.final.T, atol=1e-9)
+    with pytest.raises(HybridCalibError, match="sliding window only"):
+        calibrate_job(dataclasses.replace(job, calib={"mode": "batch"}, out=str(tmp_path / "b")))
     assert job_seed(0, "a") == job_seed(0, "a") != job_seed(1, "a") != job_seed(0, "b")
 
 

@@ -31,7 +31,7 @@ from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import merge, save_json_atomic, to_dict
 from hybrid_calib.errors import DataError, HybridCalibError
-from hybrid_calib.perturbation import RANGES, perturbed_start
+from hybrid_calib.perturbation import RANGES, vehicle_start
 
 MODES = ("window", "batch")
 STARTS = ("reference", *RANGES)
@@ -96,6 +96,11 @@ def _load_oracle(data, version: str, conf: CalibrateConfig, rng) -> dict[str, Ve
     return out
 
 
+def load_oracle(data, version: str, conf: CalibrateConfig | dict | None, rng) -> dict[str, VehicleInput]:
+    """Oracle inputs (simulated roots) of every vehicle in ``conf.vehicles`` (all when None)."""
+    return _load_oracle(data, version, merge(CalibrateConfig, conf), rng)
+
+
 def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig) -> dict[str, VehicleInput]:
     groups = load_measurement_dir(directory)
     refs: dict[str, np.ndarray] = {}
@@ -149,14 +154,16 @@ def _start(vi: VehicleInput, conf: CalibrateConfig, rng) -> np.ndarray:
         return vi.reference
     if not vi.truth:
         raise HybridCalibError(f"start={conf.start} needs ground truth (a simulated root); use start=reference")
-    return perturbed_start(vi.truth[0], rng, conf.start)
+    # seeded by (seed, vehicle) alone: the same start as every other method (hybrid_calib.hybrid)
+    return vehicle_start(vi.truth[0], conf.start, conf.seed, vi.vehicle)
 
 
 def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, rng, progress: bool = True,
-                      prior: GaussianPrior | None = None) -> VehicleResult:
+                      prior: GaussianPrior | None = None, T_start: np.ndarray | None = None) -> VehicleResult:
     """Calibrate one vehicle's frames; returns the per-frame trajectory (window) and the final estimate.
     ``prior``: an optional Gaussian prior on T_cam_radar (e.g. the fleet's, ``hybrid_calib.fleet.prior``),
-    given with the first frame (window; it then lives in the marginal prior) or to the batch solve."""
+    given with the first frame (window; it then lives in the marginal prior) or to the batch solve.
+    ``T_start`` (4, 4): the start extrinsic (default: ``conf.start`` drawn for the vehicle)."""
     from tqdm import tqdm
 
     from hybrid_calib.calib.covariance import report_std
@@ -171,7 +178,7 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, rng, progress: bo
     if not frames:
         raise DataError(f"vehicle {vi.vehicle}: no usable frame ({len(skipped)} skipped; first: "
                         f"{skipped[0]['reason'] if skipped else '-'})")
-    T0 = _start(vi, conf, rng)
+    T0 = _start(vi, conf, rng) if T_start is None else np.asarray(T_start, np.float64)
     traj = []
     if conf.mode == "window":
         cal = SlidingWindowCalibrator(T0, conf.window)

@@ -16,7 +16,11 @@
           "drift": DriftDecision.to_dict() | null,    # vs the vehicle's reference extrinsic
           "network": NETWORK | null,       # the producer's own SE(3) (measurement files with a network block)
           "step_alarms": [frame index, ...],
-          "trajectory": [FRAME, ...]      # window mode: one per frame
+          "trajectory": [FRAME, ...],     # window mode: one per frame (pure: the network's per frame)
+          "method": str, "checkpoint": str | null, "errors_against": "truth" | "tables" | null,
+          "start": {"kind", "seed", "T_cam_radar"} | null,   # the vehicle's start (same for every method)
+          "frame_rows": [{"frame_id", "used", "rejected", "deflation", "prior_used", "network_ms"}, ...],
+          "config": {...} | null          # the method's effective config (hybrid.HybridConfig)
         }
       }
     }
@@ -175,6 +179,12 @@ class VehicleResult:
     skipped: list[dict] = field(default_factory=list)
     n_frames: int = 0
     network: dict | None = None
+    method: str = ""  # oracle | hybrid | pure | pure-avg ("" = files / older results)
+    checkpoint: str | None = None  # the network checkpoint (learned methods)
+    start: dict | None = None  # {"kind": reference|R1|R2, "seed", "T_cam_radar"}: the vehicle's start
+    errors_against: str | None = None  # "truth" (simulated roots) | "tables" (real roots) | None
+    frame_rows: list[dict] = field(default_factory=list)  # per frame {"used", "rejected", ...} (learned methods)
+    config: dict | None = None  # the effective method config (learned methods)
 
     def to_dict(self) -> dict:
         return {
@@ -187,6 +197,8 @@ class VehicleResult:
             "drift": self.drift, "network": self.network,
             "step_alarms": [f.index for f in self.trajectory if f.step_alarm],
             "trajectory": [f.to_dict() for f in self.trajectory],
+            "method": self.method, "checkpoint": self.checkpoint, "start": self.start,
+            "errors_against": self.errors_against, "frame_rows": self.frame_rows, "config": self.config,
         }
 
     @classmethod
@@ -198,7 +210,9 @@ class VehicleResult:
             truth_T=None if truth is None else _array(truth["T_cam_radar"]), error=d.get("error"),
             crb_std=None if crb is None else std_from_dict(crb, STD_FRAME), drift=d.get("drift"),
             skipped=list(d.get("frames_skipped", [])), n_frames=int(d.get("n_frames", 0)),
-            network=d.get("network"),
+            network=d.get("network"), method=d.get("method", ""), checkpoint=d.get("checkpoint"),
+            start=d.get("start"), errors_against=d.get("errors_against"), frame_rows=list(d.get("frame_rows", [])),
+            config=d.get("config"),
         )
 
     def to_json(self) -> str:

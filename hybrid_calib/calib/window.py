@@ -396,7 +396,9 @@ class SlidingWindowCalibrator:
         fr = self._push(corr, prior)
         events: list[str] = []
         solved = self._rescue_if_diverged(fr, self._solve_new_frame(fr), events)
-        est, cov_ms = self._estimate(solved, note=convergence_note(fr.lin.inliers, self.conf.min_inlier_fraction))
+        # a frame without rows (e.g. only a network prior) says nothing about convergence
+        note = convergence_note(fr.lin.inliers, self.conf.min_inlier_fraction) if len(corr) else ""
+        est, cov_ms = self._estimate(solved, note=note)
         n_total = len(self.frames) + self.n_marg
         inl = fr.lin.inliers
         step = self._test_step(inl) if self.conf.detect_steps else None

@@ -10,12 +10,23 @@ from hybrid_calib.commands import nonnegative_int, positive_int
 from hybrid_calib.config import parse_overrides
 from hybrid_calib.perturbation import RANGES
 
-HELP = "calibrate T_cam_radar per vehicle from oracle or exported correspondences (window or batch)"
+HELP = "calibrate T_cam_radar per vehicle: hybrid (network + factor graph), pure, pure-avg or oracle"
+
+METHODS = ("oracle", "hybrid", "pure", "pure-avg")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--data", type=Path, required=True, help="nuScenes root (e.g. written by hybrid-calib simulate)")
     p.add_argument("--version", default="v1.0-sim", help="version folder under --data (default: v1.0-sim)")
+    p.add_argument("--method", default="oracle", choices=METHODS,
+                   help="oracle (default: the simulator's true reflectors, or --correspondences DIR), hybrid (the "
+                        "network in a closed loop with the sliding window), pure (the network alone, last frame), "
+                        "pure-avg (the network alone, robust SE(3) average over the drive)")
+    p.add_argument("--checkpoint", default="",
+                   help="learned methods: network checkpoint (default: the shipped small one of the start range)")
+    p.add_argument("--depth", default="",
+                   help="learned methods: depth estimator (default: the checkpoint's; a real root with LiDAR: "
+                        "lidar-densified)")
     p.add_argument("--correspondences", default="oracle",
                    help="'oracle' (simulated roots: from the ground truth) or a directory of measurement files "
                         "(factors.io *.npz: the --out of hybrid-calib evaluate, flat, or one sub-directory per "
@@ -34,16 +45,36 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--overwrite", action="store_true", help="recompute even if RUN/result.json exists")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--set", action="extend", nargs="+", metavar="KEY=VALUE", default=[],
-                   help="CalibrateConfig overrides, e.g. window.factor.kernel=tukey oracle.outlier_frac=0.3")
+                   help="CalibrateConfig overrides (oracle), e.g. window.factor.kernel=tukey oracle.outlier_frac=0.3; "
+                        "HybridConfig overrides (learned methods), e.g. measurement.rows=last threads=1")
+
+
+def _learned(args: argparse.Namespace, on_vehicle):
+    from hybrid_calib.config import merge
+    from hybrid_calib.errors import HybridCalibError
+    from hybrid_calib.hybrid import HybridConfig, run_calibration
+
+    if args.correspondences != "oracle":
+        raise HybridCalibError(f"--correspondences is for --method oracle (measurement files); --method "
+                               f"{args.method} runs the network itself")
+    overrides = parse_overrides(args.set)
+    overrides.update(method=args.method, start=args.start, seed=args.seed, max_frames=args.max_frames,
+                     checkpoint=args.checkpoint, depth=args.depth)
+    overrides.setdefault("window", {})["window"] = args.window
+    conf = merge(HybridConfig, overrides)
+    if (args.out / "result.json").is_file() and not args.overwrite:
+        print(f"{args.out / 'result.json'} exists; pass --overwrite to recompute")
+    return run_calibration(args.data, args.version, args.out, conf, overwrite=args.overwrite, on_vehicle=on_vehicle)
 
 
 def run(args: argparse.Namespace) -> int:
     from hybrid_calib.calib.pipeline import CalibrateConfig, calibrate
-    from hybrid_calib.calib.result import STD_FRAME
     from hybrid_calib.config import merge
-    from hybrid_calib.metrics import std_dict
     from hybrid_calib.plots.calibration import plot_vehicle
 
+    on_vehicle = None if args.no_plots else partial(plot_vehicle, out_dir=args.out / "plots")
+    if args.method != "oracle":
+        return _report(_learned(args, on_vehicle), args.out)
     overrides = parse_overrides(args.set)
     overrides.update(mode=args.mode, start=args.start, seed=args.seed, max_frames=args.max_frames)
     # an explicit flag wins over --set; an absent one leaves --set (or the default) in charge
@@ -55,17 +86,33 @@ def run(args: argparse.Namespace) -> int:
     if (args.out / "result.json").is_file() and not args.overwrite:
         print(f"{args.out / 'result.json'} exists; pass --overwrite to recompute")
     result = calibrate(args.data, args.version, args.correspondences, args.out, conf, overwrite=args.overwrite,
-                       on_vehicle=None if args.no_plots else partial(plot_vehicle, out_dir=args.out / "plots"))
+                       on_vehicle=on_vehicle)
+    return _report(result, args.out)
+
+
+def _report(result, out: Path) -> int:
+    from hybrid_calib.calib.result import STD_FRAME
+    from hybrid_calib.metrics import std_dict
+
     for name, v in result.vehicles.items():
         s = std_dict(v.final.std, STD_FRAME)
         line = (f"{name}: {v.final.status}; std (camera axes) rot {s['rot_x_cam_deg']:.3f}/{s['rot_y_cam_deg']:.3f}/"
                 f"{s['rot_z_cam_deg']:.3f} deg, t {s['t_x_cam_cm']:.2f}/{s['t_y_cam_cm']:.2f}/{s['t_z_cam_cm']:.2f} cm")
         if v.error:
-            line += f"; error {v.error['rot_mean_deg']:.3f} deg, {v.error['trans_norm_cm']:.2f} cm"
+            line += (f"; error{' vs the tables' if v.errors_against == 'tables' else ''} "
+                     f"{v.error['rot_mean_deg']:.3f} deg, {v.error['trans_norm_cm']:.2f} cm")
         if v.drift:
             line += f"; drift vs reference: {'YES' if v.drift['drifted'] else 'no'} (p {v.drift['p_value']:.2g})"
         if v.skipped:
             line += f"; {len(v.skipped)} frame(s) skipped (bad files; listed in result.json)"
         print(line)
-    print(f"wrote {args.out / 'result.json'}")
+        if v.config and v.config.get("depth_note"):
+            print(f"  note: {v.config['depth_note']}")
+        if v.frame_rows and "deflation" in v.frame_rows[0]:
+            used = sum(r["used"] for r in v.frame_rows)
+            rej = sum(r["rejected"] for r in v.frame_rows)
+            ms = sum(r["network_ms"] for r in v.frame_rows) / len(v.frame_rows)
+            print(f"  {v.method}: {len(v.frame_rows)} frames, rows used {used}, rejected {rej}; network "
+                  f"{ms:.0f} ms/frame; checkpoint {v.checkpoint}")
+    print(f"wrote {out / 'result.json'}")
     return 0

@@ -5,9 +5,10 @@
 1. ``sim/``: a small synthetic drive written as a nuScenes root (``hybrid-calib simulate``).
 2. ``projection.png``: one frame's radar points projected with the ground-truth extrinsic over the
    camera image: the recorded points (z = 0, elevation unknown) and the true reflectors they came from.
-3. ``calibration/``: the sliding-window calibrator on oracle correspondences (known noise, 20 %
-   gross outliers) from an R1 mis-calibrated start: ``result.json`` (extrinsic, covariance,
-   per-axis std, status, drift decision) and plots.
+3. ``calibration/``: the hybrid (``hybrid_calib.hybrid``): the shipped small network runs frame by
+   frame from the sliding window's fused estimate, its rows and SE(3) prior enter the window, from an
+   R1 mis-calibrated start: ``result.json`` (extrinsic, covariance, per-axis std, status, drift
+   decision) and plots. ``method=oracle`` uses the simulator's true reflectors instead.
 
 It chains the simulator, the calibrator and the plots, so it lives with the commands (the top layer).
 """
@@ -33,6 +34,8 @@ class DemoConfig:
     image_scale: float = 0.5  # camera = nuScenes CAM_FRONT scaled by this (800x450)
     start: str = "R1"  # calibration start: R1 (+-10 deg, +-0.25 m) | R2 | reference
     window: int = 20  # sliding-window length, frames
+    method: str = "hybrid"  # hybrid (shipped network + window) | pure | pure-avg | oracle (true reflectors)
+    threads: int = 1  # torch CPU threads (1: on a busy 2-core machine 2 threads were 40x slower, measured)
 
 
 def _overlay(root: Path, out_png: Path) -> Path:
@@ -63,7 +66,7 @@ def run_demo(out: str | Path, conf: DemoConfig | dict | None = None, overwrite: 
     """Run the demo into ``out``; returns a summary dict (also written to ``out/summary.json``)."""
     from functools import partial
 
-    from hybrid_calib.calib.pipeline import CalibrateConfig, calibrate
+    from hybrid_calib.hybrid import HybridConfig, run_calibration
     from hybrid_calib.plots.calibration import plot_vehicle
     from hybrid_calib.sim.drive import SimConfig
     from hybrid_calib.sim.simulate import simulate
@@ -73,16 +76,16 @@ def run_demo(out: str | Path, conf: DemoConfig | dict | None = None, overwrite: 
     # both stage configs are built (and checked) before anything is written or simulated
     sim_conf = merge(SimConfig, {"scenario": conf.scenario, "vehicles": 1, "frames": conf.frames,
                                  "seed": conf.seed, "image_scale": conf.image_scale})
-    cal_conf = merge(CalibrateConfig, {"mode": "window", "start": conf.start, "seed": conf.seed,
-                                       "window": {"window": conf.window}})
+    cal_conf = merge(HybridConfig, {"method": conf.method, "start": conf.start, "seed": conf.seed,
+                                    "threads": conf.threads, "window": {"window": conf.window}})
     out.mkdir(parents=True, exist_ok=True)
     save_json_atomic(out / "demo_config.json", to_dict(conf))
 
     root = simulate(sim_conf, out / "sim", overwrite=overwrite)
     png = _overlay(root, out / "projection.png")
 
-    run = calibrate(root, "v1.0-sim", "oracle", out / "calibration", cal_conf, overwrite=overwrite,
-                    on_vehicle=partial(plot_vehicle, out_dir=out / "calibration" / "plots"))
+    run = run_calibration(root, "v1.0-sim", out / "calibration", cal_conf, overwrite=overwrite,
+                          on_vehicle=partial(plot_vehicle, out_dir=out / "calibration" / "plots"))
     summary = {"sim_root": str(root), "projection_png": str(png),
                "calibration_result": str(out / "calibration" / "result.json"),
                "calibration_plots": str(out / "calibration" / "plots"), "vehicles": run.to_dict()["vehicles"]}
@@ -104,7 +107,8 @@ def run(args: argparse.Namespace) -> int:
     for name, v in s["vehicles"].items():
         f = v["final"]
         std = f["std_cam"]
-        print(f"calibration [{name}]: status {f['status']}")
+        print(f"calibration [{name}]: method {v['method']}"
+              + (f" (checkpoint {v['checkpoint']})" if v.get("checkpoint") else "") + f"; status {f['status']}")
         if v.get("error"):
             e = v["error"]
             print(f"  error vs truth:     rotation {e['rot_mean_deg']:.3f} deg (mean |roll,pitch,yaw|), "

@@ -173,25 +173,39 @@ def set_threads(n: int) -> None:
 
 
 def calibrate_job(job: Job) -> Path:
-    """THE per-vehicle calibration of the fleet (integration swaps only this function): calibrate
-    ``job.vehicle`` of ``job.data`` with ``job.method`` and write ``job.out/result.json`` (one
-    vehicle's ``CalibrationRun``, atomic) and its plots; returns the result path. ``DataError`` for a
-    vehicle whose data cannot be calibrated; ``HybridCalibError`` for a method not available yet."""
+    """THE per-vehicle calibration of the fleet: calibrate ``job.vehicle`` of ``job.data`` with
+    ``job.method`` and write ``job.out/result.json`` (one vehicle's ``CalibrationRun``, atomic),
+    its ``config.json`` and plots; returns the result path. ``oracle`` runs the factor graph on the
+    simulator's rows (``calib.pipeline``, seeded by ``job_seed``); the network methods (``hybrid``,
+    ``pure``, ``pure-avg``) run ``hybrid_calib.hybrid.run_calibration`` (its starts are seeded per
+    vehicle from the fleet seed). ``DataError`` for a vehicle whose data cannot be calibrated."""
     from functools import partial
 
-    from hybrid_calib.calib.pipeline import calibrate
-    from hybrid_calib.calib.schedule import GaussianPrior
     from hybrid_calib.plots.calibration import plot_vehicle
 
-    if job.method != "oracle":
-        raise HybridCalibError(f"method {job.method} needs the per-vehicle entry point of hybrid_calib.hybrid "
-                               "(issue 9), not merged in this build; use --method oracle on simulated roots")
-    prior = None if job.prior is None else {job.vehicle: GaussianPrior(
-        np.asarray(job.prior["T_cam_radar"], np.float64), np.asarray(job.prior["cov_right_radar"], np.float64))}
-    conf = {**job.calib, "vehicles": (job.vehicle,), "seed": job_seed(job.seed, job.vehicle)}
     out = Path(job.out)
-    calibrate(job.data, job.version, "oracle", out, conf, overwrite=True, priors=prior, progress=False,
-              on_vehicle=partial(plot_vehicle, out_dir=out / "plots"))
+    plots = partial(plot_vehicle, out_dir=out / "plots")
+    if job.method == "oracle":
+        from hybrid_calib.calib.pipeline import calibrate
+        from hybrid_calib.calib.schedule import GaussianPrior
+
+        prior = None if job.prior is None else {job.vehicle: GaussianPrior(
+            np.asarray(job.prior["T_cam_radar"], np.float64), np.asarray(job.prior["cov_right_radar"], np.float64))}
+        conf = {**job.calib, "vehicles": (job.vehicle,), "seed": job_seed(job.seed, job.vehicle)}
+        calibrate(job.data, job.version, "oracle", out, conf, overwrite=True, priors=prior, progress=False,
+                  on_vehicle=plots)
+        return job.result_path
+    from hybrid_calib.hybrid import run_calibration
+
+    if job.prior is not None:
+        raise HybridCalibError(f"--prior (the fleet prior) is applied by method oracle only; method {job.method} "
+                               "fuses the network's own prior: rerun without --prior")
+    unsupported = sorted(set(job.calib) & {"mode", "batch"})
+    if unsupported:
+        raise HybridCalibError(f"--set {', '.join(unsupported)}: method {job.method} runs the sliding window only")
+    conf = {**job.calib, "method": job.method, "checkpoint": job.checkpoint or "", "seed": job.seed,
+            "vehicles": (job.vehicle,), "threads": job.threads, "progress": False}
+    run_calibration(job.data, job.version, out, conf, overwrite=True, on_vehicle=plots)
     return job.result_path
 
 

@@ -1,0 +1,176 @@
+"""Pure vs hybrid: every method on the same starts and the same network outputs, then one table.
+
+``compare(roots, version, out, conf)``:
+
+1. Trials. The vehicles of the roots (sorted per root, roots in order) are taken in turn: trial k
+   is vehicle ``k mod V`` with start seed ``conf.seed + k // V`` (``perturbation.vehicle_start``:
+   the same start for every method).
+2. Export once, evaluate many. One ``NetworkRunner`` per root with one output cache
+   (``OUT/network-cache``): ``pure`` and ``pure-avg`` read the very same passes, the hybrid's first
+   frame too. Each (method, trial) writes ``OUT/trials/<method>/<k>.json`` (a ``VehicleResult``);
+   a rerun skips those already there (resumable; a larger ``--trials`` extends a run).
+3. ``OUT/compare.json`` / ``compare.md``: per method the paper's table (rotation Mean/Roll/Pitch/Yaw
+   deg, translation Mean/X/Y/Z cm, geodesic, norm), means and medians over trials; coverage of the
+   95 % ellipsoid and mean NEES (all, and per root = scenario); fraction of trials whose status is
+   not ``ok``; time per frame (network + solve). ``OUT/error_vs_frames.png``
+   (``plots.compare``): error against frames fused, per method and axis, with the reported 2-sigma.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from hybrid_calib.calib.result import VehicleResult
+from hybrid_calib.config import merge, save_json_atomic, to_dict
+from hybrid_calib.errors import HybridCalibError
+from hybrid_calib.hybrid.loop import METHODS, HybridConfig, _Session, vehicle_learned, vehicle_oracle
+from hybrid_calib.metrics import METRIC_KEYS
+
+CHI2_6_95 = 12.591587243743977  # chi-square, 6 dof, 95 %
+
+
+@dataclass(frozen=True)
+class CompareConfig:
+    range: str = "R1"  # start range of every trial: R1 | R2
+    trials: int = 20  # trials (vehicle, start seed), the same for every method
+    methods: tuple[str, ...] = ("pure", "pure-avg", "hybrid")  # any of hybrid_calib.hybrid.METHODS
+    seed: int = 0  # first start seed
+    hybrid: HybridConfig = HybridConfig()  # shared settings (checkpoint, max_frames, window, measurement, ...)
+
+    def __post_init__(self):
+        if bad := [m for m in self.methods if m not in METHODS]:
+            raise ValueError(f"CompareConfig.methods: unknown {bad}; valid: {METHODS}")
+        if self.range not in ("R1", "R2"):
+            raise ValueError(f"CompareConfig.range={self.range!r}; valid: R1, R2")
+        if self.trials < 1:
+            raise ValueError("CompareConfig.trials must be >= 1")
+
+
+def _trial_file(out: Path, method: str, k: int) -> Path:
+    return out / "trials" / method / f"{k:04d}.json"
+
+
+def run_trials(roots: list, version: str, out: Path, conf: CompareConfig, progress: bool = True) -> None:
+    """Step 1-2 of the module doc."""
+    from tqdm import tqdm
+
+    hconf = dataclasses.replace(conf.hybrid, start=conf.range, progress=False,
+                                cache_dir=conf.hybrid.cache_dir or str(out / "network-cache"),
+                                depth_cache=conf.hybrid.depth_cache or str(out / "depth-cache"))
+    learned = any(m != "oracle" for m in conf.methods)
+    sessions = [_Session(r, version, dataclasses.replace(hconf, method="hybrid" if learned else "oracle"))
+                for r in roots]
+    vehicles = [(s, name) for s in sessions for name in s.drives]
+    if not vehicles:
+        raise HybridCalibError(f"no vehicle in {roots}")
+    todo = [(k, m) for k in range(conf.trials) for m in conf.methods if not _trial_file(out, m, k).is_file()]
+    for k, method in tqdm(todo, desc="compare trials", disable=not progress):
+        s, name = vehicles[k % len(vehicles)]
+        c = dataclasses.replace(hconf, method=method, seed=conf.seed + k // len(vehicles))
+        drive = s.drives[name]
+        vr = (vehicle_oracle(s.data, version, drive, c) if method == "oracle"
+              else vehicle_learned(s.runner, drive, c, s.note))
+        vr.config = {**(vr.config or {}), "trial": k, "root": str(s.data)}
+        path = _trial_file(out, method, k)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        save_json_atomic(path, vr.to_dict())
+
+
+def load_trials(out: Path, method: str, trials: int) -> list[VehicleResult]:
+    return [VehicleResult.from_dict(json.loads(_trial_file(out, method, k).read_text()))
+            for k in range(trials) if _trial_file(out, method, k).is_file()]
+
+
+def _consistency(nees: np.ndarray) -> dict:
+    return {"n": int(len(nees)), "nees_mean": float(np.mean(nees)), "nees_median": float(np.median(nees)),
+            "coverage_95": float(np.mean(nees < CHI2_6_95))}
+
+
+def summarize_method(results: list[VehicleResult]) -> dict:
+    """The table row of one method over its trials (module doc, step 3)."""
+    errs = [r.error for r in results]
+    nees = np.array([e["nees"] for e in errs])
+    per_root: dict[str, list[float]] = {}
+    for r in results:
+        per_root.setdefault(Path((r.config or {}).get("root", "")).name, []).append(r.error["nees"])
+    ms = []
+    for r in results:
+        net = {row["frame_id"]: row.get("network_ms", 0.0) for row in r.frame_rows}
+        ms += [f.solve_ms + f.cov_ms + (net.get(f.frame_id, 0.0) if r.method == "hybrid" else 0.0)
+               for f in r.trajectory]
+    return {
+        "trials": len(results),
+        "mean": {k: float(np.mean([e[k] for e in errs])) for k in METRIC_KEYS},
+        "median": {k: float(np.median([e[k] for e in errs])) for k in METRIC_KEYS},
+        "consistency": _consistency(nees),
+        "consistency_per_root": {k: _consistency(np.array(v)) for k, v in sorted(per_root.items())},
+        "not_ok_fraction": float(np.mean([not r.final.status.startswith("ok") for r in results])),
+        "ms_per_frame": float(np.mean(ms)) if ms else None,
+        "frames_mean": float(np.mean([r.n_frames for r in results])),
+    }
+
+
+def _markdown(summary: dict, conf: CompareConfig, command: str) -> str:
+    lines = [f"# compare: range {conf.range}, {conf.trials} trials", "", f"Command: `{command}`", "",
+             "Errors against the truth (simulated) or the tables (real roots); rotation in degrees, translation "
+             "in cm. Time per frame: CPU wall time (hybrid: network + window; pure: the network pass is "
+             "listed under network ms).", ""]
+    for stat in ("mean", "median"):
+        lines += [f"## {stat} over trials", "",
+                  "| method | R.Mean | Roll | Pitch | Yaw | Geodesic | T.Mean | X | Y | Z | Norm |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|"]
+        for m, s in summary["methods"].items():
+            e = s[stat]
+            lines.append(f"| {m} | {e['rot_mean_deg']:.3f} | {e['roll_deg']:.3f} | {e['pitch_deg']:.3f} | "
+                         f"{e['yaw_deg']:.3f} | {e['geodesic_deg']:.3f} | {e['trans_mean_cm']:.2f} | {e['x_cm']:.2f} | "
+                         f"{e['y_cm']:.2f} | {e['z_cm']:.2f} | {e['trans_norm_cm']:.2f} |")
+        lines.append("")
+    lines += ["## covariance and status", "",
+              "| method | trials | mean NEES (6 if honest) | median NEES | coverage of the 95 % ellipsoid | not ok | "
+              "ms/frame | frames |", "|---|---|---|---|---|---|---|---|"]
+    for m, s in summary["methods"].items():
+        c = s["consistency"]
+        ms = "-" if s["ms_per_frame"] is None else f"{s['ms_per_frame']:.0f}"
+        lines.append(f"| {m} | {s['trials']} | {c['nees_mean']:.2f} | {c['nees_median']:.2f} | "
+                     f"{100 * c['coverage_95']:.0f} % | {100 * s['not_ok_fraction']:.0f} % | {ms} | "
+                     f"{s['frames_mean']:.0f} |")
+    lines += ["", "Per root (scenario): mean NEES / coverage", ""]
+    for m, s in summary["methods"].items():
+        parts = [f"{k}: {c['nees_mean']:.1f} / {100 * c['coverage_95']:.0f} %" for k, c in
+                 s["consistency_per_root"].items()]
+        lines.append(f"- {m}: " + "; ".join(parts))
+    return "\n".join(lines) + "\n"
+
+
+def compare(roots: list, version: str, out: str | Path, conf: CompareConfig | dict | None = None,
+            command: str = "", progress: bool = True) -> dict:
+    """Run (or resume) every trial, then write compare.json, compare.md and the plot; returns the summary."""
+    from hybrid_calib.plots.compare import plot_error_vs_frames
+
+    conf = merge(CompareConfig, conf)
+    out = Path(out)
+    cfg_path = out / "compare_config.json"
+    record = to_dict(conf)
+
+    def same(a: dict) -> dict:  # trial k does not depend on the trial count: more trials extend a run
+        return {k: v for k, v in json.loads(json.dumps(a)).items() if k != "trials"}
+
+    if cfg_path.is_file() and same(json.loads(cfg_path.read_text())) != same(record):
+        raise HybridCalibError(f"{out} holds trials of another configuration ({cfg_path}); use another --out")
+    save_json_atomic(cfg_path, record)
+    run_trials([str(r) for r in roots], version, out, conf, progress)
+    results = {m: load_trials(out, m, conf.trials) for m in conf.methods}
+    summary = {"range": conf.range, "trials": conf.trials, "roots": [str(r) for r in roots], "command": command,
+               "config": record, "methods": {m: summarize_method(rs) for m, rs in results.items() if rs}}
+    save_json_atomic(out / "compare.json", summary)
+    md = out / "compare.md"
+    tmp = md.with_name(md.name + ".tmp")
+    tmp.write_text(_markdown(summary, conf, command))
+    tmp.replace(md)
+    plot_error_vs_frames(results, out / "error_vs_frames.png")
+    return summary

@@ -1,0 +1,222 @@
+"""Fit the hybrid's measurement model (``hybrid.measurement.MeasurementConfig``) in the loop's own
+regime, on validation drives (never the test drives), and store it in the checkpoint.
+
+Procedure (``fit_measurement``): run the closed loop (``method="hybrid"``, the checkpoint's current
+model) on every validation drive; every network pass it made is in the output cache with its start
+``T_in``. From those passes, with the truth of each drive:
+
+- ``sigma_scale``: the factor on the exported ``sigma_px`` that makes the median whitened residual
+  norm of the chosen rows at the truth equal the 2-D Gaussian's (sqrt(2 ln 2) = 1.177); the heavier
+  tails are left to the window's kernel and gate, and reported (``inside_95``).
+- ``shared_std``: per frame, the rows alone are solved from ``T_in`` (the window's robust schedule);
+  per axis, the excess of the mean squared error over the mean reported variance (trimmed at the
+  95th percentile) is the variance of the per-frame shared error (``measurement`` module doc).
+- ``prior_cov_scale``: per axis, the mean of ``xi_k^2 / C_kk`` for the network's own estimate
+  (the raw covariance), trimmed the same way.
+
+``rounds`` > 1 reruns the loop with the fitted model (the regime depends on it) and refits.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from hybrid_calib.calib.schedule import frame_information, robust_solve
+from hybrid_calib.geometry import local
+from hybrid_calib.hybrid.measurement import MeasurementConfig
+
+UNITS = np.array([np.degrees(1.0)] * 3 + [100.0] * 3)  # tangent [rad, m] -> [deg, cm]
+RAYLEIGH_MEDIAN = float(np.sqrt(2 * np.log(2)))
+
+
+def _trimmed_mean(x: np.ndarray, q: float = 95.0) -> float:
+    x = np.asarray(x, np.float64)
+    return float(np.mean(x[x <= np.percentile(x, q)])) if len(x) else float("nan")
+
+
+def whitened_norms(T: np.ndarray, corr, factor_conf) -> np.ndarray:
+    """(N,) whitened residual norms of the rows at T (kernel off; elevation model of the factor)."""
+    from factors.gtsam_factors import frame_residuals
+
+    e, _, w = frame_residuals(np.asarray(T, np.float64), corr, dataclasses.replace(factor_conf, kernel="none"))
+    return np.linalg.norm(e.reshape(-1, 2), axis=1)[w > 0]
+
+
+def fit_sigma_scale(norms: np.ndarray) -> float:
+    """The factor on sigma_px that brings the median whitened norm to the 2-D Gaussian's."""
+    return float(np.median(norms) / RAYLEIGH_MEDIAN) if len(norms) else 1.0
+
+
+def in_range(passes, network_range: str) -> list:
+    """The passes whose start lies inside the network's training range around the truth (every
+    axis): the regime the network, and so this fit, is valid in."""
+    from hybrid_calib.perturbation import RANGES
+
+    rot, tr = RANGES[network_range]
+    keep = []
+    for out, T_true in passes:
+        xi = local(T_true, out.T_in)
+        if np.all(np.abs(np.degrees(xi[:3])) <= rot) and np.all(np.abs(xi[3:]) <= tr):
+            keep.append((out, T_true))
+    return keep
+
+
+def pass_statistics(passes, factor_conf, sched, rows: str, sigma_scale: float = 1.0) -> dict:
+    """From ``passes`` = [(NetworkOutput, T_true (4, 4))]: whitened norms at the truth (with
+    ``sigma_scale``), per-frame rows-only errors and reported covariances, network errors
+    (``rows="none"``: the network errors only)."""
+    from hybrid_calib.hybrid.measurement import frame_inputs
+
+    norms, xi_rows, cov_rows, xi_net, cov_net, start_err = [], [], [], [], [], []
+    mconf = MeasurementConfig(rows="last" if rows == "last" else "first", prior=False, sigma_scale=sigma_scale)
+    for out, T_true in passes:
+        fi = frame_inputs(out, out.T_in, mconf, factor_conf, sched.final_gate, trusted=False)
+        xi_net.append(local(T_true, out.T))
+        cov_net.append(out.cov_raw)
+        start_err.append(local(T_true, out.T_in))
+        if len(fi.corr) < 6 or rows == "none":
+            continue
+        norms.append(whitened_norms(T_true, fi.corr, factor_conf))
+        res = robust_solve([fi.corr], out.T_in, factor_conf, None, sched, convex_start=True)
+        _, H, _ = frame_information(res.T, fi.corr, factor_conf, sched.final_gate)
+        if np.linalg.cond(H) > 1e12:
+            continue
+        xi_rows.append(local(T_true, res.T))
+        cov_rows.append(np.linalg.inv(H))
+    return {"norms": np.concatenate(norms) if norms else np.zeros(0), "xi_rows": np.array(xi_rows).reshape(-1, 6),
+            "cov_rows": np.array(cov_rows).reshape(-1, 6, 6), "xi_net": np.array(xi_net).reshape(-1, 6),
+            "cov_net": np.array(cov_net).reshape(-1, 6, 6), "start_err": np.array(start_err).reshape(-1, 6)}
+
+
+def fit_shared_std(xi: np.ndarray, covs: np.ndarray, trim: float = 95.0) -> np.ndarray:
+    """(6,) std of the per-frame shared error: maximum likelihood of ``xi_f ~ N(0, C_f + S)``,
+    ``S = diag(std^2)``, over frames (xi (F, 6), covs (F, 6, 6)); the frames whose NEES under the
+    fitted model is above the ``trim`` percentile are dropped once and the fit repeated (heavy
+    tails are the kernel's job). Ill-conditioned frames weigh little by construction."""
+    from scipy.optimize import minimize
+
+    floor = np.array([1e-5] * 3 + [1e-4] * 3)
+
+    def nll(p, x, C):
+        S = np.diag(np.exp(2 * p))
+        M = C + S
+        sign, logdet = np.linalg.slogdet(M)
+        return float(np.sum(logdet) + np.einsum("fi,fi->", x, np.linalg.solve(M, x[..., None])[..., 0]))
+
+    x, C = np.asarray(xi, np.float64), np.asarray(covs, np.float64)
+    p0 = np.log(np.maximum(np.std(x, axis=0), floor))
+    p = minimize(nll, p0, args=(x, C), method="Nelder-Mead", options={"maxiter": 4000, "xatol": 1e-4}).x
+    M = C + np.diag(np.exp(2 * p))
+    nees = np.einsum("fi,fi->f", x, np.linalg.solve(M, x[..., None])[..., 0])
+    keep = nees <= np.percentile(nees, trim)
+    p = minimize(nll, p, args=(x[keep], C[keep]), method="Nelder-Mead", options={"maxiter": 4000, "xatol": 1e-4}).x
+    std = np.exp(p)
+    return np.where(std < floor, 0.0, std)
+
+
+def fit_drive_std(passes) -> list[float]:
+    """(6,) std of the network error common to a drive: per axis, the RMS over drives of the mean
+    network error of the drive's passes (drives told apart by their true extrinsic)."""
+    groups: dict[bytes, list] = {}
+    for out, T_true in passes:
+        groups.setdefault(np.round(T_true, 9).tobytes(), []).append(local(T_true, out.T))
+    means = np.array([np.mean(v, axis=0) for v in groups.values() if len(v) >= 3]).reshape(-1, 6)
+    return [float(v) for v in np.sqrt(np.mean(means ** 2, axis=0))] if len(means) else [0.0] * 6
+
+
+def fit_from_statistics(st: dict, rows: str, sigma_scale: float) -> dict:
+    """The fitted MeasurementConfig values and a summary of the data they came from."""
+    xr, cr = st["xi_rows"], st["cov_rows"]
+    excess = fit_shared_std(xr, cr) ** 2 if len(xr) > 6 else np.zeros(6)
+    xn, cn = st["xi_net"], st["cov_net"]
+    ratio = xn ** 2 / np.diagonal(cn, axis1=1, axis2=2)
+    prior_scale = [max(1.0, _trimmed_mean(ratio[:, k])) for k in range(6)]
+    norms = st["norms"]
+    return {
+        "values": {"rows": rows, "sigma_scale": sigma_scale, "shared_std": [float(np.sqrt(v)) for v in excess],
+                   "prior_cov_scale": prior_scale},
+        "summary": {
+            "passes": int(len(xn)), "frames_with_rows": int(len(xr)), "rows": int(len(norms)),
+            "whitened_median_after": float(np.median(norms)) if len(norms) else None,
+            "inside_95_after": float(np.mean(norms < np.sqrt(-2 * np.log(0.05)))) if len(norms) else None,
+            "rows_only_rmse": (np.sqrt((xr ** 2).mean(0)) * UNITS).tolist() if len(xr) else None,
+            "start_err_median_deg_cm": [float(np.degrees(np.median(np.linalg.norm(st["start_err"][:, :3], axis=1)))),
+                                        float(100 * np.median(np.linalg.norm(st["start_err"][:, 3:], axis=1)))],
+        },
+    }
+
+
+def load_passes(cache_dir: Path, truths: dict[str, np.ndarray]) -> list:
+    """Every cached network pass of ``cache_dir`` whose frame token is in ``truths`` (token -> T_true)."""
+    from hybrid_calib.hybrid.network import NetworkOutput
+
+    out = []
+    for p in sorted(Path(cache_dir).glob("*.npz")):
+        token = p.stem.rsplit("-", 1)[0]
+        if token not in truths:
+            continue
+        with np.load(p, allow_pickle=False) as z:
+            out.append((NetworkOutput.from_arrays(z), truths[token]))
+    return out
+
+
+def drive_truths(roots, version: str) -> dict[str, np.ndarray]:
+    """camera token -> the drive's true static extrinsic (4, 4), over simulated roots."""
+    from hybrid_calib.hybrid.loop import HybridConfig, open_drives
+    from learned.dataset import camera_token
+
+    truths = {}
+    for r in roots:
+        frames, drives = open_drives(r, version, HybridConfig(), lidar=False)
+        if drives and not next(iter(drives.values())).simulated:
+            raise ValueError(f"{r} is not a simulated root: the fit needs the truth")
+        for d in drives.values():
+            truths.update({camera_token(frames, i): d.base for i in d.indices})
+    return truths
+
+
+def fit_measurement(roots, version: str, checkpoint: str, out: str | Path, start: str,
+                    rows_options=("first", "last", "none"),
+                    max_frames: int = 40, seed: int = 0, threads: int = 1, progress: bool = False) -> dict:
+    """Fit the measurement model for each ``rows`` option in the loop's regime (module doc), rerun the
+    loop with each fitted model on the same validation drives and keep the option whose fused
+    estimates are closer to the truth (sum of normalised rotation and translation errors). Returns
+    {"chosen": values, "candidates": {rows: {"values", "summary", "validation"}}}."""
+    from hybrid_calib.calib.window import WindowConfig
+    from hybrid_calib.hybrid.loop import run_calibration
+
+    out = Path(out)
+    w = WindowConfig()
+    truths = drive_truths(roots, version)
+    base = {"method": "hybrid", "checkpoint": str(checkpoint), "start": start, "seed": seed,
+            "max_frames": max_frames, "threads": threads, "progress": progress,
+            "cache_dir": str(out / "network-cache"), "depth_cache": str(out / "depth-cache")}
+    cands = {}
+    for rows in rows_options:
+        # round 1: the loop with the unfitted model (its rows, no prior, no shared error) gives the regime
+        for k, r in enumerate(roots):
+            run_calibration(r, version, out / f"round1-{rows}-{k}", {**base, "measurement": {"rows": rows}})
+        from learned.checkpoint import read_checkpoint_meta
+
+        net_range = read_checkpoint_meta(checkpoint)[1].get("train_config", {}).get("perturbation", "R1")
+        passes = in_range(load_passes(out / "network-cache", truths), net_range)
+        st = pass_statistics(passes, w.factor, w.schedule, rows)
+        s = fit_sigma_scale(st["norms"])
+        fitted = fit_from_statistics(pass_statistics(passes, w.factor, w.schedule, rows, s), rows, s)
+        fitted["summary"]["network_range"] = net_range
+        fitted["values"]["drive_std"] = fit_drive_std(passes)
+        errs = []
+        for k, r in enumerate(roots):  # round 2: the loop with the fitted model
+            run = run_calibration(r, version, out / f"round2-{rows}-{k}", {**base, "measurement": fitted["values"]})
+            errs += [v.error for v in run.vehicles.values()]
+        fitted["validation"] = {
+            "rot_mean_deg": float(np.mean([e["rot_mean_deg"] for e in errs])),
+            "trans_mean_cm": float(np.mean([e["trans_mean_cm"] for e in errs])),
+            "nees_mean": float(np.mean([e["nees"] for e in errs])), "vehicles": len(errs)}
+        cands[rows] = fitted
+    v = {r: c["validation"] for r, c in cands.items()}
+    chosen = min(v, key=lambda r: v[r]["rot_mean_deg"] / 0.1 + v[r]["trans_mean_cm"] / 1.0)
+    return {"chosen": cands[chosen]["values"], "candidates": cands}

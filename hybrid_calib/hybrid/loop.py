@@ -1,0 +1,346 @@
+"""One vehicle with each method, and a whole run: the typed entry points of ``hybrid-calib
+calibrate --method`` and of the fleet engine.
+
+- ``hybrid``: frame by frame the network runs from the current fused estimate; its rows and SE(3)
+  prior (``hybrid.measurement``: no double counting, per-frame shared error, trusted range) enter
+  the sliding window (``calib.window``); the window's estimate is the next frame's start.
+- ``pure``: the network alone on every frame from the vehicle's start; the result is the last
+  frame's estimate and covariance, the trajectory the per-frame series.
+- ``pure-avg``: the same per-frame outputs (cached: the same network passes as ``pure``) combined
+  by a robust covariance-weighted SE(3) average (``hybrid.average``); the trajectory is the running
+  average.
+- ``oracle``: the factor graph on the simulator's true reflectors (``calib.pipeline``).
+
+Every method starts a vehicle from ``perturbation.vehicle_start(base, start, seed, vehicle)``: the
+same start for every method and whatever else the run holds. ``base`` is the truth on simulated
+roots and the tables' extrinsic on real roots, and errors are against it (``errors_against``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from hybrid_calib.calib.covariance import analyse_information
+from hybrid_calib.calib.drift import DriftConfig, reference_test
+from hybrid_calib.calib.oracle import OracleConfig
+from hybrid_calib.calib.result import CalibrationRun, Estimate, FrameEstimate, VehicleResult
+from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
+from hybrid_calib.config import merge, save_json_atomic, to_dict
+from hybrid_calib.errors import DataError, HybridCalibError
+from hybrid_calib.geometry import local
+from hybrid_calib.hybrid.average import AverageConfig, robust_average
+from hybrid_calib.hybrid.measurement import MeasurementConfig, frame_inputs, prior_trusted
+from hybrid_calib.hybrid.network import NetworkRunner, shipped_checkpoint
+from hybrid_calib.metrics import extrinsic_error
+from hybrid_calib.perturbation import RANGES, vehicle_start
+
+METHODS = ("hybrid", "pure", "pure-avg", "oracle")
+STARTS = ("reference", *RANGES)
+LIDAR_DEPTH = "lidar-densified"
+
+
+@dataclass(frozen=True)
+class HybridConfig:
+    method: str = "hybrid"  # hybrid | pure | pure-avg | oracle
+    checkpoint: str = ""  # "" = the shipped small checkpoint of the start range (R2 for R2, else R1)
+    depth: str = ""  # "" = the checkpoint's; a real root with LiDAR: lidar-densified
+    start: str = "reference"  # reference (tables / nominal) | R1 | R2 (perturbed truth, or tables on real roots)
+    seed: int = 0  # start seed (per vehicle: perturbation.vehicle_rng(seed, vehicle))
+    max_frames: int = 0  # frames per vehicle (0 = all)
+    vehicles: tuple[str, ...] | None = None  # vehicles to calibrate (None = all)
+    window: WindowConfig = WindowConfig()  # the sliding window (hybrid, oracle)
+    measurement: dict = field(default_factory=dict)  # MeasurementConfig overrides over the checkpoint's export.hybrid
+    average: AverageConfig = AverageConfig()  # pure-avg
+    oracle: OracleConfig = OracleConfig()  # oracle rows (simulated roots only)
+    drift: DriftConfig = DriftConfig()  # reference chi-square test of the final estimate
+    threads: int = 1  # torch CPU threads (1: on a busy 2-core machine 2 threads were 40x slower, measured)
+    cache_dir: str = ""  # network-output cache ("" = none; run_calibration: OUT/network-cache)
+    depth_cache: str = ""  # depth cache ("" = none; run_calibration: OUT/depth-cache)
+    progress: bool = True  # tqdm per vehicle
+
+    def __post_init__(self):
+        if self.method not in METHODS:
+            raise ValueError(f"HybridConfig.method={self.method!r}; valid: {METHODS}")
+        if self.start not in STARTS:
+            raise ValueError(f"HybridConfig.start={self.start!r}; valid: {STARTS}")
+
+
+@dataclass
+class Drive:
+    """One vehicle of a root: its frame indices (time order), the start base and what errors are against."""
+
+    vehicle: str
+    indices: list[int]
+    base: np.ndarray  # (4, 4) truth (simulated) or tables (real)
+    reference: np.ndarray  # (4, 4) the reference the drift test uses
+    simulated: bool
+
+    @property
+    def errors_against(self) -> str:
+        return "truth" if self.simulated else "tables"
+
+
+def resolve_depth(data, version: str, conf: HybridConfig) -> tuple[str, str]:
+    """(depth spec, note): ``conf.depth``, or lidar-densified on a real root with LiDAR, or "" (the
+    checkpoint's)."""
+    from hybrid_calib.data.tables import NuScenesTables
+
+    if conf.depth:
+        return conf.depth, ""
+    tables = NuScenesTables(data, version)
+    simulated = (tables.vdir / "sim_vehicle.json").is_file()
+    if not simulated and "LIDAR_TOP" in tables.channels():
+        return LIDAR_DEPTH, "real root without --depth: using lidar-densified depth (the LiDAR through the tables)"
+    return "", ""
+
+
+def open_drives(data, version: str, conf: HybridConfig, lidar: bool):
+    """(frames, {vehicle: Drive}) of a root, restricted to ``conf.vehicles`` and ``conf.max_frames``."""
+    from learned.dataset import open_frames
+
+    frames = open_frames(data, version, lidar=lidar)
+    simulated = bool(getattr(frames, "sim_vehicles", {}))
+    drives = {}
+    for vehicle, idx in sorted(frames.frames_by_vehicle().items()):
+        if conf.vehicles is not None and vehicle not in conf.vehicles:
+            continue
+        idx = idx[: conf.max_frames] if conf.max_frames > 0 else idx
+        f = None
+        for i in idx:  # the first readable frame gives the extrinsics
+            try:
+                f = frames[i]
+                break
+            except DataError:
+                continue
+        if f is None:
+            raise DataError(f"vehicle {vehicle}: no readable frame", path=str(data))
+        static = np.asarray(f.extras.get("T_cam_radar_static", f.T_cam_radar), np.float64)
+        ref = np.asarray(f.extras.get("reference_T_cam_radar", static), np.float64)
+        drives[vehicle] = Drive(vehicle, list(idx), static, ref, simulated)
+    if conf.vehicles is not None and (missing := sorted(set(conf.vehicles) - set(drives))):
+        raise DataError(f"vehicle(s) {missing} not in the data (vehicles: {sorted(frames.frames_by_vehicle())})",
+                        path=str(data))
+    return frames, drives
+
+
+def start_of(drive: Drive, conf: HybridConfig) -> np.ndarray:
+    return vehicle_start(drive.reference if conf.start == "reference" else drive.base, conf.start, conf.seed,
+                         drive.vehicle)
+
+
+def measurement_config(runner: NetworkRunner, conf: HybridConfig) -> MeasurementConfig:
+    """The checkpoint's fitted ``export["hybrid"]`` block with ``conf.measurement`` over it."""
+    return merge(MeasurementConfig, {**runner.ckpt.export.get("hybrid", {}), **conf.measurement})
+
+
+def _estimate(T: np.ndarray, cov: np.ndarray, conf: HybridConfig, note: str = "") -> Estimate:
+    cov = 0.5 * (cov + cov.T)
+    rep = analyse_information(T, np.linalg.inv(cov), conf.window.covariance, cov_hint=cov)
+    return Estimate.from_report(T, rep, None, note)
+
+
+def _frame(k: int, fid: str, ts: int, est: Estimate, n: int, ms: float) -> FrameEstimate:
+    return FrameEstimate(k, fid, ts, est, n_window=n, n_total=n, inlier_fraction=float("nan"), step_statistic=None,
+                         step_threshold=None, step_alarm=False, solve_ms=ms, cov_ms=0.0)
+
+
+def _network_cov(runner: NetworkRunner, out) -> np.ndarray:
+    """The network's own covariance with the checkpoint's evaluate-fitted ``cov_scale`` (pure methods)."""
+    s = np.broadcast_to(np.asarray(runner.ckpt.export.get("cov_scale", 1.0), np.float64), (6,))
+    return (np.sqrt(s)[:, None] * out.cov_raw) * np.sqrt(s)[None, :]
+
+
+def _passes(runner: NetworkRunner, drive: Drive, T0: np.ndarray, conf: HybridConfig, skipped: list):
+    """The network from the vehicle's start on every frame (cached): [(index, NetworkOutput)]."""
+    from tqdm import tqdm
+
+    outs = []
+    for i in tqdm(drive.indices, desc=f"network {drive.vehicle}", disable=not conf.progress, leave=False):
+        out = runner.run(i, T0)
+        if out is None:
+            skipped.append({"index": int(i), "token": runner.token(i), "reason": runner.bad_reason(i)})
+        else:
+            outs.append((i, out))
+    return outs
+
+
+def with_drive_error(traj: list[FrameEstimate], drive_std, conf: HybridConfig) -> list[FrameEstimate]:
+    """The trajectory with the drive-common network error ``diag(drive_std^2)`` added to every
+    reported covariance (``measurement`` module doc, item 4); unchanged when it is zero."""
+    D = np.diag(np.asarray(drive_std, np.float64) ** 2)
+    if not np.any(D):
+        return traj
+    out = []
+    for f in traj:
+        # keep the window's own notes (a solve that did not converge, a restart after a step)
+        notes = [f.estimate.status[i:].split(")")[0] for key in ("NOT CONVERGED", "recovering")
+                 if (i := f.estimate.status.find(key)) >= 0]
+        out.append(dataclasses.replace(f, estimate=_estimate(f.T, f.cov + D, conf, "; ".join(notes))))
+    return out
+
+
+def _pure(runner, drive, T0, conf, skipped, rows):
+    traj = []
+    for k, (_, out) in enumerate(_passes(runner, drive, T0, conf, skipped)):
+        traj.append(_frame(k, out.rows_last.frame_id, out.rows_last.timestamp_us,
+                           _estimate(out.T, _network_cov(runner, out), conf), 1, out.seconds * 1e3))
+        rows.append({"frame_id": out.rows_last.frame_id, "used": 0, "rejected": 0, "network_ms": out.seconds * 1e3})
+    return traj
+
+
+def _pure_avg(runner, drive, T0, conf, skipped, rows):
+    mconf = measurement_config(runner, conf)
+    S = np.diag(np.asarray(mconf.shared_std, np.float64) ** 2)
+    passes = _passes(runner, drive, T0, conf, skipped)
+    Ts = np.stack([o.T for _, o in passes]) if passes else np.zeros((0, 4, 4))
+    covs = np.stack([_network_cov(runner, o) + S for _, o in passes]) if passes else np.zeros((0, 6, 6))
+    traj, M = [], None
+    for k, (_, out) in enumerate(passes):
+        t0 = time.perf_counter()
+        M, cov, w = robust_average(Ts[: k + 1], covs[: k + 1], conf.average, M)
+        traj.append(_frame(k, out.rows_last.frame_id, out.rows_last.timestamp_us, _estimate(M, cov, conf), k + 1,
+                           out.seconds * 1e3 + (time.perf_counter() - t0) * 1e3))
+        rows.append({"frame_id": out.rows_last.frame_id, "used": 0, "rejected": 0, "network_ms": out.seconds * 1e3})
+    if passes:
+        rows[-1]["weights"] = [float(x) for x in w]
+    return with_drive_error(traj, mconf.drive_std, conf)
+
+
+def _hybrid(runner, drive, T0, conf, skipped, rows):
+    """The closed loop (module doc)."""
+    from tqdm import tqdm
+
+    mconf = measurement_config(runner, conf)
+    cal = SlidingWindowCalibrator(T0, conf.window)
+    gate = conf.window.schedule.final_gate
+    T, fused_cov, traj = T0.copy(), None, []
+    for i in tqdm(drive.indices, desc=f"hybrid {drive.vehicle}", disable=not conf.progress, leave=False):
+        out = runner.run(i, T)
+        if out is None:
+            skipped.append({"index": int(i), "token": runner.token(i), "reason": runner.bad_reason(i)})
+            continue
+        trusted = prior_trusted(conf.start, runner.range, fused_cov, mconf.trust_sigma_frac)
+        fi = frame_inputs(out, T, mconf, conf.window.factor, gate, trusted)
+        if not len(fi.corr) and fi.prior is None:
+            skipped.append({"index": int(i), "token": out.rows_first.frame_id, "reason": "no correspondence rows"})
+            continue
+        fe = cal.update(fi.corr, fi.prior)
+        traj.append(fe)
+        T, fused_cov = fe.T, fe.cov
+        used = int(round(fe.inlier_fraction * len(fi.corr)))
+        rows.append({"frame_id": fi.corr.frame_id, "used": used, "rejected": len(fi.corr) - used,
+                     "deflation": fi.deflation, "prior_used": fi.prior_used, "network_ms": out.seconds * 1e3,
+                     **({"note": fi.note} if fi.note else {})})
+    return with_drive_error(traj, mconf.drive_std, conf)
+
+
+LEARNED = {"hybrid": _hybrid, "pure": _pure, "pure-avg": _pure_avg}
+
+
+def _finish(res: VehicleResult, drive: Drive, T0: np.ndarray, conf: HybridConfig) -> VehicleResult:
+    final = res.final
+    res.drift = reference_test(final.T, final.cov, drive.reference, conf.drift).to_dict()
+    e = local(drive.base, final.T)
+    res.truth_T = drive.base
+    res.error = {**extrinsic_error(final.T, drive.base).as_dict(), "nees": float(e @ np.linalg.solve(final.cov, e))}
+    res.method = conf.method
+    res.start = {"kind": conf.start, "seed": conf.seed, "T_cam_radar": T0.tolist()}
+    res.errors_against = drive.errors_against
+    return res
+
+
+def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, note: str = "") -> VehicleResult:
+    """A learned method (hybrid | pure | pure-avg) on one drive with a loaded network."""
+    T0 = start_of(drive, conf)
+    skipped, rows = [], []
+    traj = LEARNED[conf.method](runner, drive, T0, conf, skipped, rows)
+    if not traj:
+        raise DataError(f"vehicle {drive.vehicle}: no usable frame ({len(skipped)} skipped; first: "
+                        f"{skipped[0]['reason'] if skipped else '-'})")
+    res = VehicleResult(drive.vehicle, traj[-1].estimate, traj, skipped=skipped, n_frames=len(traj))
+    res.checkpoint = runner.checkpoint
+    res.frame_rows = rows
+    res.config = {**to_dict(conf), "measurement_effective": to_dict(measurement_config(runner, conf)),
+                  "depth_effective": runner.depth_name, **({"depth_note": note} if note else {})}
+    return _finish(res, drive, T0, conf)
+
+
+def vehicle_oracle(data, version: str, drive: Drive, conf: HybridConfig) -> VehicleResult:
+    """The factor graph on oracle rows (simulated roots), from the vehicle's start."""
+    from hybrid_calib.calib.pipeline import CalibrateConfig, calibrate_vehicle, load_oracle
+    from hybrid_calib.perturbation import vehicle_rng
+
+    if not drive.simulated:
+        raise HybridCalibError("method oracle needs a simulated root (the true reflectors); use hybrid, pure or "
+                               "pure-avg on real data")
+    cconf = CalibrateConfig(window=conf.window, oracle=conf.oracle, drift=conf.drift, start=conf.start,
+                            seed=conf.seed, max_frames=conf.max_frames, vehicles=(drive.vehicle,))
+    rng = vehicle_rng(conf.seed, drive.vehicle, "oracle")
+    vi = load_oracle(data, version, cconf, rng)[drive.vehicle]
+    T0 = start_of(drive, conf)
+    res = calibrate_vehicle(vi, cconf, rng, progress=conf.progress, T_start=T0)
+    res.config = to_dict(conf)
+    return _finish(res, drive, T0, conf)
+
+
+class _Session:
+    """What run_vehicle / run_calibration share: the frames, the drives and (learned methods) the network."""
+
+    def __init__(self, data, version: str, conf: HybridConfig):
+        self.data, self.version, self.conf = data, version, conf
+        self.runner, self.note = None, ""
+        if conf.method == "oracle":
+            self.frames, self.drives = open_drives(data, version, conf, lidar=False)
+            return
+        depth, self.note = resolve_depth(data, version, conf)
+        self.frames, self.drives = open_drives(data, version, conf, lidar=depth == LIDAR_DEPTH)
+        ckpt = conf.checkpoint or shipped_checkpoint(conf.start)
+        self.runner = NetworkRunner(ckpt, self.frames, depth, conf.cache_dir, conf.depth_cache, conf.threads)
+
+    def vehicle(self, name: str) -> VehicleResult:
+        drive = self.drives[name]
+        if self.conf.method == "oracle":
+            return vehicle_oracle(self.data, self.version, drive, self.conf)
+        return vehicle_learned(self.runner, drive, self.conf, self.note)
+
+
+def run_vehicle(data: str | Path, version: str, vehicle: str, conf: HybridConfig | dict | None = None
+                ) -> VehicleResult:
+    """Calibrate ONE vehicle of a nuScenes root with ``conf.method`` (plain data in: paths, names, a
+    frozen config; the one result type out). The fleet engine's per-job entry point."""
+    conf = merge(HybridConfig, conf)
+    conf = dataclasses.replace(conf, vehicles=(vehicle,))
+    return _Session(data, version, conf).vehicle(vehicle)
+
+
+def run_calibration(data: str | Path, version: str, out: str | Path, conf: HybridConfig | dict | None = None,
+                    overwrite: bool = False, on_vehicle: Callable[[VehicleResult], object] | None = None
+                    ) -> CalibrationRun:
+    """Every vehicle with ``conf.method``; writes ``out/result.json`` (``CalibrationRun``) and
+    ``out/config.json``. Network outputs and depth are cached under ``out`` unless the config names
+    folders. With ``overwrite=False`` an existing result is returned untouched."""
+    conf = merge(HybridConfig, conf)
+    out = Path(out)
+    if (out / "result.json").is_file() and not overwrite:
+        return CalibrationRun.load(out / "result.json")
+    conf = dataclasses.replace(conf, cache_dir=conf.cache_dir or str(out / "network-cache"),
+                               depth_cache=conf.depth_cache or str(out / "depth-cache"))
+    session = _Session(data, version, conf)
+    if not session.drives:
+        raise DataError("no vehicle to calibrate (check --set vehicles=... and the dataset)", path=str(data))
+    mode = {"hybrid": "window", "oracle": "window", "pure": "network", "pure-avg": "average"}[conf.method]
+    run = CalibrationRun(str(data), version, conf.method, mode)
+    for name in session.drives:
+        vr = session.vehicle(name)
+        run.vehicles[name] = vr
+        if on_vehicle is not None:
+            on_vehicle(vr)
+    save_json_atomic(out / "config.json", to_dict(conf))
+    run.save(out / "result.json")
+    return run

@@ -1,0 +1,195 @@
+"""The network on one frame from a given start, and the on-disk cache of its outputs.
+
+``NetworkRunner`` loads a checkpoint once, prepares each frame's inputs once (resized image,
+estimated depth, padded radar: ``learned.dataset.CalibDataset``; the depth is cached on disk) and
+runs the network from any start ``T_in`` (the closed loop's fused estimate, or a vehicle's start).
+Its output (``NetworkOutput``) holds both row sets the measurement model chooses from (iteration 0:
+measured against ``T_in`` only; the last iteration: correlated with the network's own SE(3)), the
+estimate after every iteration and the RAW covariance (no ``cov_scale``, ``sigma_scale`` 1: the
+hybrid's measurement model applies its own fitted scales, ``hybrid.measurement``).
+
+``OutputCache`` stores one ``.npz`` per (checkpoint, frame, start): every method that runs the
+network from the same start on the same frame (pure, pure-avg, the hybrid's first frame; the fit
+on validation scenes) reads the same outputs ("export once, evaluate many").
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from factors.correspondences import Correspondences
+from hybrid_calib.errors import HybridCalibError
+
+SHIPPED = Path(__file__).resolve().parents[2] / "learned" / "checkpoints"
+
+
+def shipped_checkpoint(start_range: str) -> Path:
+    """The shipped small checkpoint trained for ``start_range`` ("R1" or "R2"; "reference" -> R1)."""
+    name = {"R2": "small-sim-r2.json"}.get(start_range, "small-sim-r1.json")
+    path = SHIPPED / name
+    if not path.is_file():
+        raise HybridCalibError(f"the shipped checkpoint {path} is missing; pass --checkpoint")
+    return path
+
+
+@dataclass(frozen=True)
+class NetworkOutput:
+    """One pass of the network on one frame.
+
+    T_in: (4, 4) the start it was given. T_iters: (N, 4, 4) the estimate after each iteration.
+    cov_raw: (6, 6) covariance of ``T_iters[-1]`` (right tangent, radar frame, [rad, m]) without
+    the checkpoint's ``cov_scale``. rows_first / rows_last: the exported rows of iteration 0 / the
+    last iteration, ``sigma_px`` unscaled (pixels of the model-input image, ``K`` of that image).
+    seconds: wall time of the pass (forward + export), CPU.
+    """
+
+    T_in: np.ndarray
+    T_iters: np.ndarray
+    cov_raw: np.ndarray
+    rows_first: Correspondences
+    rows_last: Correspondences
+    seconds: float
+
+    @property
+    def T(self) -> np.ndarray:
+        return self.T_iters[-1]
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        d = {"T_in": self.T_in, "T_iters": self.T_iters, "cov_raw": self.cov_raw,
+             "seconds": np.array(self.seconds)}
+        for prefix, c in (("first_", self.rows_first), ("last_", self.rows_last)):
+            d.update({prefix + k: v for k, v in c.to_npz_dict().items()})
+        return d
+
+    @classmethod
+    def from_arrays(cls, z) -> NetworkOutput:
+        rows = [Correspondences.from_npz_dict({k[len(p):]: z[k] for k in z.files if k.startswith(p)})
+                for p in ("first_", "last_")]
+        return cls(z["T_in"], z["T_iters"], z["cov_raw"], rows[0], rows[1], float(z["seconds"]))
+
+
+def _start_key(T: np.ndarray) -> str:
+    return hashlib.sha1(np.round(np.asarray(T, np.float64), 9).tobytes()).hexdigest()[:16]
+
+
+class OutputCache:
+    """``root/<token>-<hash of T_in>.npz`` per network pass (atomic writes; a corrupt entry is a miss)."""
+
+    def __init__(self, root: str | Path):
+        self.root = Path(root)
+
+    def path(self, token: str, T_in: np.ndarray) -> Path:
+        safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in token)
+        return self.root / f"{safe}-{_start_key(T_in)}.npz"
+
+    def get(self, token: str, T_in: np.ndarray) -> NetworkOutput | None:
+        p = self.path(token, T_in)
+        if not p.is_file():
+            return None
+        try:
+            with np.load(p, allow_pickle=False) as z:
+                return NetworkOutput.from_arrays(z)
+        except (OSError, ValueError, KeyError):
+            return None
+
+    def put(self, token: str, out: NetworkOutput) -> None:
+        p = self.path(token, out.T_in)
+        p.parent.mkdir(parents=True, exist_ok=True)
+        tmp = p.with_name(f".{p.stem}.{os.getpid()}.tmp.npz")
+        np.savez(tmp, **out.to_arrays())
+        tmp.replace(p)
+
+
+class NetworkRunner:
+    """The network of a checkpoint over the frames of one dataset (see the module doc).
+
+    frames: the indexable frames (``learned.dataset.open_frames``); depth: estimator spec ("" = the
+    checkpoint's training depth); cache_dir: network-output cache ("" = none); depth_cache: folder.
+    """
+
+    def __init__(self, checkpoint: str | Path, frames, depth: str = "", cache_dir: str | Path = "",
+                 depth_cache: str | Path = "", threads: int = 2, min_confidence: float = 0.1,
+                 model_factory=None):
+        import torch
+
+        from learned.checkpoint import load_model
+        from learned.dataset import CalibDataset, DatasetConfig
+        from learned.depth import DepthCache, build_depth_estimator
+
+        torch.set_num_threads(max(1, threads))
+        self.model, self.ckpt = load_model(checkpoint, model_factory=model_factory)
+        trained = self.ckpt.train_config or {}
+        self.depth_name = depth or trained.get("depth", "corrupted-truth")
+        depth_opts = trained.get("depth_options", {}) if self.depth_name == trained.get("depth") else {}
+        H, W = (int(v) for v in self.model.cfg.input_hw)
+        self.range = str(trained.get("perturbation", "R1"))
+        dconf = DatasetConfig(height=H, width=W, max_radar_points=512, max_lidar_points=0,
+                              perturbation=self.range, seed=0, variant=self.model.cfg.variant)
+        self.dataset = CalibDataset(frames, dconf, build_depth_estimator(self.depth_name, depth_opts),
+                                    cache=DepthCache(depth_cache) if depth_cache else None, train=False)
+        self.cache = OutputCache(cache_dir) if cache_dir else None
+        self.min_confidence = float(min_confidence)
+        self._samples: dict[int, dict | None] = {}
+
+    @property
+    def checkpoint(self) -> str:
+        return str(self.ckpt.path)
+
+    def sample(self, index: int) -> dict | None:
+        """The prepared inputs of frame ``index`` (None when its files are bad: ``bad_reason``)."""
+        if index not in self._samples:
+            self.dataset.indices = [index]
+            self._samples = {index: self.dataset[0]}  # keep one: a drive is visited once per frame
+        return self._samples[index]
+
+    def bad_reason(self, index: int) -> str:
+        return self.dataset.bad.get(index, "")
+
+    def token(self, index: int) -> str:
+        from learned.dataset import camera_token
+
+        return camera_token(self.dataset.frames, index)
+
+    def run(self, index: int, T_in: np.ndarray) -> NetworkOutput | None:
+        """The network on frame ``index`` from ``T_in`` (4, 4); cached; None for a bad frame."""
+        token = self.token(index)
+        if self.cache is not None and (hit := self.cache.get(token, T_in)) is not None:
+            return hit
+        s = self.sample(index)
+        if s is None:
+            return None
+        out = self._forward(s, T_in)
+        if self.cache is not None:
+            self.cache.put(token, out)
+        return out
+
+    def _forward(self, s: dict, T_in: np.ndarray) -> NetworkOutput:
+        import dataclasses
+
+        import torch
+
+        from learned.dataset import collate
+        from learned.export import ExportConfig, export_correspondences
+        from learned.train import model_inputs
+
+        t0 = time.perf_counter()
+        batch = collate([{**s, "T_init": torch.from_numpy(np.asarray(T_in, np.float32))}])
+        inputs = model_inputs(batch)
+        inputs["token"] = batch["token"]
+        inputs["timestamp_us"] = batch["timestamp_us"]
+        with torch.no_grad():
+            out = self.model(inputs)
+            rows = []
+            for it in (0, -1):
+                conf = ExportConfig(iteration=it, sigma_scale=1.0, cov_scale=1.0, min_confidence=self.min_confidence)
+                corr, cov = export_correspondences(self.model, out, inputs, conf)
+                rows.append(dataclasses.replace(corr[0], frame_id=str(batch["token"][0])))
+        T_iters = torch.stack([T[0].double() for T in out["T_iters"]]).numpy()
+        return NetworkOutput(np.asarray(T_in, np.float64), T_iters, np.asarray(cov[0], np.float64), rows[0], rows[1],
+                             time.perf_counter() - t0)

@@ -1,0 +1,190 @@
+"""The hybrid: measurement model (no double counting, shared per-frame error), the closed loop on a
+tiny simulated drive with the shipped small network, identical starts across methods, compare."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from factors.config import RadarPixelFactorConfig
+from factors.correspondences import Correspondences
+from hybrid_calib.geometry import project_points, retract, se3_exp
+from hybrid_calib.hybrid.measurement import MeasurementConfig, frame_inputs, prior_trusted, shared_deflation
+from hybrid_calib.hybrid.network import NetworkOutput
+
+K = np.array([[100.0, 0, 48], [0, 100.0, 24], [0, 0, 1]])
+T_TRUE = np.array([[0.0, -1, 0, 0.1], [0, 0, -1, -0.3], [1, 0, 0, -0.5], [0, 0, 0, 1]])  # radar x fwd -> cam z
+
+
+def _rows(T: np.ndarray, g: np.random.Generator, n: int = 40, noise: float = 1.0) -> Correspondences:
+    p = np.column_stack([g.uniform(8, 40, n), g.uniform(-10, 10, n), np.zeros(n)])
+    uv, _ = project_points(K, T, p)
+    return Correspondences(p, uv + noise * g.standard_normal((n, 2)), np.full(n, 2.0), np.ones(n), K, "f0", 0)
+
+
+def _output(g: np.random.Generator) -> NetworkOutput:
+    T_net = retract(T_TRUE, np.r_[0.004, -0.003, 0.002, 0.03, -0.02, 0.01])
+    cov = np.diag([1e-4, 1e-4, 1e-4, 4e-3, 4e-3, 4e-3])
+    # iteration 0: measured against the truth with noise; last: a restatement of the network's own SE(3)
+    return NetworkOutput(T_TRUE, np.stack([T_net] * 3), cov, _rows(T_TRUE, g), _rows(T_net, g, noise=0.0), 0.01)
+
+
+FACTOR = RadarPixelFactorConfig(elevation_model="zero")
+
+
+def test_last_iteration_rows_never_come_with_the_prior():
+    out = _output(np.random.default_rng(0))
+    fi = frame_inputs(out, T_TRUE, MeasurementConfig(rows="last", prior=True), FACTOR, 3.0, trusted=True)
+    assert fi.prior is None and not fi.prior_used and len(fi.corr) == 40
+    fi = frame_inputs(out, T_TRUE, MeasurementConfig(rows="first", prior=True), FACTOR, 3.0, trusted=True)
+    assert fi.prior is not None and fi.prior_used
+    fi = frame_inputs(out, T_TRUE, MeasurementConfig(rows="first", prior=True), FACTOR, 3.0, trusted=False)
+    assert fi.prior is None and "outside its fitted range" in fi.note
+
+
+def test_shared_deflation_never_exceeds_the_shared_error_model():
+    g = np.random.default_rng(1)
+    for _ in range(20):
+        A = g.standard_normal((6, 6))
+        H = A @ A.T * 10 ** g.uniform(-1, 4)
+        std = 10 ** g.uniform(-3, -1, 6)
+        s = shared_deflation(H, std)
+        cap = np.linalg.inv(np.linalg.inv(H) + np.diag(std ** 2))
+        eig = np.linalg.eigvalsh(cap - s * H)
+        assert eig.min() > -1e-6 * np.abs(eig).max()  # s H <= (H^-1 + S)^-1
+        assert eig.min() < 1e-6 * np.abs(eig).max()  # ... and touches it: the largest such s
+    assert shared_deflation(np.eye(6), np.zeros(6)) == 1.0
+
+
+def test_one_frame_enters_the_window_once():
+    """The window's information after one frame is exactly the deflated rows plus the deflated prior:
+    if the prior (or the rows) entered twice, or undeflated, this fails."""
+    from hybrid_calib.calib.schedule import frame_information
+    from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
+
+    out = _output(np.random.default_rng(2))
+    conf = MeasurementConfig(rows="first", prior=True, shared_std=(0.002, 0.002, 0.002, 0.02, 0.02, 0.02))
+    fi = frame_inputs(out, T_TRUE, conf, FACTOR, 3.0, trusted=True)
+    assert 0 < fi.deflation < 1
+    wconf = WindowConfig(factor=FACTOR, detect_steps=False)
+    cal = SlidingWindowCalibrator(T_TRUE, wconf)
+    fe = cal.update(fi.corr, fi.prior)
+    _, H_rows, _ = frame_information(fe.T, fi.corr, FACTOR, wconf.schedule.final_gate)
+    expected = H_rows + np.linalg.inv(fi.prior.cov)
+    d = 1 / np.sqrt(np.diag(expected))  # compare in whitened units (GTSAM's prior Jacobian differs at 1e-4)
+    assert np.abs(d[:, None] * (cal.info - expected) * d[None, :]).max() < 2e-3
+    prior_alone = d[:, None] * np.linalg.inv(fi.prior.cov) * d[None, :]
+    assert np.abs(prior_alone).max() > 0.05  # a second copy of the prior would be far outside the tolerance
+    # and that is no more than the shared-error model allows for the undeflated frame
+    H0 = frame_information(T_TRUE, out.rows_first, FACTOR, 3.0)[1] + np.linalg.inv(out.cov_raw)
+    cap = np.linalg.inv(np.linalg.inv(H0) + np.diag(np.square(conf.shared_std)))
+    assert np.linalg.eigvalsh(cap - expected).min() > -1e-3 * np.abs(cap).max()
+
+
+def test_prior_trusted_only_inside_the_fitted_range():
+    assert prior_trusted("R1", "R1", None, 0.1) and prior_trusted("reference", "R1", None, 0.1)
+    assert not prior_trusted("R2", "R1", None, 0.1)
+    assert prior_trusted("R2", "R1", np.diag(np.square([np.radians(0.5)] * 3 + [0.01] * 3)), 0.1)
+    assert not prior_trusted("R2", "R1", np.diag(np.square([np.radians(5.0)] * 3 + [0.01] * 3)), 0.1)
+
+
+def test_robust_average_rejects_an_outlier_and_weights_by_covariance():
+    from hybrid_calib.hybrid.average import robust_average
+
+    g = np.random.default_rng(3)
+    Ts = [retract(T_TRUE, np.r_[1e-3 * g.standard_normal(3), 1e-2 * g.standard_normal(3)]) for _ in range(30)]
+    Ts.append(T_TRUE @ se3_exp(np.r_[0.3, 0, 0, 1.0, 0, 0]))  # a gross outlier
+    covs = np.stack([np.diag([1e-6] * 3 + [1e-4] * 3)] * len(Ts))
+    M, cov, w = robust_average(np.stack(Ts), covs)
+    from hybrid_calib.metrics import extrinsic_error
+
+    e = extrinsic_error(M, T_TRUE)
+    assert e.geodesic_deg < 0.05 and e.trans_norm_cm < 1.0 and w[-1] < 0.01
+    assert np.allclose(np.diag(cov), np.diag(covs[0]) / w.sum(), rtol=1e-6)
+
+
+# ---------------------------------------------------------------------------------- on a simulated drive
+
+
+@pytest.fixture(scope="module")
+def sim_root(tmp_path_factory):
+    """2 vehicles x 3 keyframes, 200 x 112 images."""
+    from hybrid_calib.sim.drive import SimConfig
+    from hybrid_calib.sim.simulate import simulate
+
+    return simulate(SimConfig(vehicles=2, frames=3, image_scale=0.125, seed=5), tmp_path_factory.mktemp("sim"),
+                    progress=False)
+
+
+BASE = {"start": "R1", "seed": 4, "threads": 1, "progress": False, "window": {"detect_steps": False}}
+
+
+def test_closed_loop_runs_the_network_from_the_fused_estimate(sim_root, tmp_path):
+    from hybrid_calib.calib.result import CalibrationRun
+    from hybrid_calib.hybrid import run_calibration
+    from hybrid_calib.hybrid.network import OutputCache
+
+    run = run_calibration(sim_root, "v1.0-sim", tmp_path / "h", {**BASE, "method": "hybrid",
+                                                                  "vehicles": ("sim-veh-000",)})
+    (v,) = run.vehicles.values()
+    assert v.method == "hybrid" and v.errors_against == "truth" and v.checkpoint.endswith("small-sim-r1.json")
+    assert len(v.trajectory) == len(v.frame_rows) == 3 and v.error["nees"] > 0
+    cache = OutputCache(tmp_path / "h" / "network-cache")
+    starts = [np.asarray(v.start["T_cam_radar"])] + [f.T for f in v.trajectory[:-1]]
+    for f, T_in in zip(v.trajectory, starts):  # frame k ran from the window's estimate after frame k-1
+        assert cache.get(f.frame_id, T_in) is not None
+    assert not np.allclose(starts[1], starts[0])
+    back = CalibrationRun.load(tmp_path / "h" / "result.json").vehicles["sim-veh-000"]
+    assert back.method == "hybrid" and back.frame_rows == v.frame_rows and back.start == v.start
+
+
+def test_every_method_starts_a_vehicle_from_the_same_extrinsic(sim_root, tmp_path):
+    from hybrid_calib.calib.pipeline import CalibrateConfig, calibrate
+    from hybrid_calib.hybrid import run_vehicle
+
+    starts = {}
+    for m in ("hybrid", "pure", "pure-avg", "oracle"):
+        v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-001", {**BASE, "method": m, "max_frames": 2,
+                                                              "cache_dir": str(tmp_path / "cache")})
+        starts[m] = np.asarray(v.start["T_cam_radar"])
+        assert v.method == m and v.vehicle == "sim-veh-001"
+    for m, T in starts.items():
+        np.testing.assert_array_equal(T, starts["hybrid"], err_msg=m)
+    # the oracle pipeline of `calibrate` (all vehicles, one rng) draws the same start for this vehicle
+    run = calibrate(sim_root, "v1.0-sim", "oracle", tmp_path / "o", CalibrateConfig(start="R1", seed=4, max_frames=1))
+    first = run.vehicles["sim-veh-001"].trajectory[0]
+    assert first.frame_id  # ran; the start it used:
+    from hybrid_calib.perturbation import vehicle_start
+
+    np.testing.assert_array_equal(vehicle_start(run.vehicles["sim-veh-001"].truth_T, "R1", 4, "sim-veh-001"),
+                                  starts["oracle"])
+    # another seed, another start
+    v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-001", {**BASE, "seed": 5, "method": "pure", "max_frames": 1,
+                                                          "cache_dir": str(tmp_path / "cache")})
+    assert not np.allclose(v.start["T_cam_radar"], starts["pure"])
+
+
+def test_compare_smoke_resumes_and_writes_the_table(sim_root, tmp_path):
+    from hybrid_calib.cli import main
+
+    out = tmp_path / "cmp"
+    argv = ["compare", "--data", str(sim_root), "--range", "R1", "--trials", "2", "--methods", "pure,pure-avg,hybrid",
+            "--max-frames", "2", "--out", str(out), "--set", "threads=1", "window.detect_steps=false",
+            "--no-progress"]
+    assert main(argv) == 0
+    s = json.loads((out / "compare.json").read_text())
+    assert set(s["methods"]) == {"pure", "pure-avg", "hybrid"}
+    for m in s["methods"].values():
+        assert m["trials"] == 2 and 0 <= m["consistency"]["coverage_95"] <= 1 and "rot_mean_deg" in m["median"]
+    md = (out / "compare.md").read_text()
+    assert "| hybrid |" in md and "coverage" in md and (out / "error_vs_frames.png").stat().st_size > 1000
+    trials = {m: [json.loads((out / "trials" / m / f"{k:04d}.json").read_text()) for k in range(2)]
+              for m in ("pure", "pure-avg", "hybrid")}
+    for k in range(2):
+        assert trials["pure"][k]["start"] == trials["hybrid"][k]["start"] == trials["pure-avg"][k]["start"]
+    mtime = (out / "trials" / "hybrid" / "0000.json").stat().st_mtime_ns
+    assert main(argv) == 0  # resumed: nothing recomputed
+    assert (out / "trials" / "hybrid" / "0000.json").stat().st_mtime_ns == mtime
+    assert main([*argv[:-1], "--seed", "3", "--no-progress"]) == 2  # another config in the same folder
