@@ -105,7 +105,8 @@ def elevation_sigma(points_true_radar: np.ndarray, factor_conf) -> np.ndarray:
     return np.full(len(P), elevation_moments(factor_conf.elevation_beam_deg, factor_conf.elevation_mean_deg)[2])
 
 
-def crb_covariance(information: np.ndarray, pinned_std: np.ndarray | None = None) -> np.ndarray:
+def crb_covariance(information: np.ndarray, pinned_std: np.ndarray | None = None,
+                   scene_cross: np.ndarray | None = None, scene_std: np.ndarray | None = None) -> np.ndarray:
     """CRB (6, 6) = inverse Fisher information (pseudo-inverse if singular: infinite directions
     then show as huge variances rather than an exception).
 
@@ -115,10 +116,18 @@ def crb_covariance(information: np.ndarray, pinned_std: np.ndarray | None = None
     The correspondences cannot see them, so the bound adds those variances
     (``covariance.inflate_prior_pinned``): the physical limit of any method that does not know the
     world's height distribution better.
+
+    scene_cross: optional (6, K) cross information of the rows at the truth with the per-drive scene
+    nuisance (``calib.schedule.frame_scene_cross``) and scene_std (K,) its prior std
+    (``factors.scene.scene_prior_std``): the bound of an estimator that holds the scene nuisance at
+    its prior mean (as the factor does) adds ``A P A^T``, ``A = F^-1 cross``
+    (``covariance.marginalise_scene_nuisance``).
     """
-    from hybrid_calib.calib.covariance import inflate_prior_pinned
+    from hybrid_calib.calib.covariance import inflate_prior_pinned, marginalise_scene_nuisance
 
     F = 0.5 * (np.asarray(information, np.float64) + np.asarray(information, np.float64).T)
+    if scene_cross is not None and scene_std is not None and np.any(np.asarray(scene_std) > 0):
+        return np.linalg.inv(marginalise_scene_nuisance(F, scene_cross, scene_std, pinned_std))
     try:
         C = np.linalg.inv(F)
     except np.linalg.LinAlgError:
