@@ -33,6 +33,7 @@ import numpy as np
 
 CHI2_6_95 = 12.591587243743977
 CHI2_4_95 = 9.487729036781154
+MODES = ("window", "batch", "window_noscene", "batch_noscene")  # *_noscene: same solve, no scene nuisance
 OBS = [0, 2, 3, 4]  # right-tangent axes the data observe: rotation about radar x and z, translation along x and y
 AXES = ("rot_x", "rot_y", "rot_z", "t_x", "t_y", "t_z")
 
@@ -90,7 +91,7 @@ def _run_one(job: dict) -> dict:
     from factors.config import RadarPixelFactorConfig
     from factors.scene import scene_prior_std
     from hybrid_calib.calib.batch import solve_batch
-    from hybrid_calib.calib.covariance import prior_pinned_std, report_basis
+    from hybrid_calib.calib.covariance import analyse_drive_information, prior_pinned_std, report_basis
     from hybrid_calib.calib.crb import crb_covariance, elevation_sigma, fisher_information
     from hybrid_calib.calib.oracle import OracleConfig, oracle_from_frame
     from hybrid_calib.calib.schedule import frame_scene_cross
@@ -124,11 +125,14 @@ def _run_one(job: dict) -> dict:
     cross = sum((frame_scene_cross(T, c.subset(t.inlier), inl_fconf) for c, t in zip(frames, truths) if t.inlier.any()),
                 np.zeros((6, len(scene_prior_std(fconf)))))
     crb = crb_covariance(F, prior_pinned_std(fconf), cross, scene_prior_std(fconf))
-    F_crb = np.linalg.inv(crb)
+    crb_base = crb_covariance(F, prior_pinned_std(fconf))  # the same without the scene nuisance
+    F_crb, F_crb_base = np.linalg.inv(crb), np.linalg.inv(crb_base)
     B = report_basis(T)
-    crb_rep = B @ crb @ B.T
     out = {"vehicle": job["vehicle"], "range": job["range"], "seed": job["seed"],
-           "n_rows": int(sum(len(c) for c in frames)), "crb_var_report": np.diag(crb_rep).tolist()}
+           "n_rows": int(sum(len(c) for c in frames)), "crb_var_report": np.diag(B @ crb @ B.T).tolist(),
+           "crb_var_report_noscene": np.diag(B @ crb_base @ B.T).tolist()}
+    scene_on = len(scene_prior_std(fconf)) > 0
+    fconf_base = dataclasses.replace(fconf, **{k: 0.0 for k in SCENE_KEYS})
     wconf = {"window": job["window"], "schedule": {"final_gate": job["gate"]}, "factor": job["factor"]}
     cal = SlidingWindowCalibrator(T0, wconf)
     ms, alarms = [], 0
@@ -136,12 +140,16 @@ def _run_one(job: dict) -> dict:
         o = cal.update(c)
         ms.append(o.solve_ms + o.cov_ms)
         alarms += int(o.step_alarm)
-    modes = {"window": (o.T, o.cov, o.status)}
+    modes = {"window": (o.T, o.cov, o.status, F_crb)}
     t0 = time.perf_counter()
     b = solve_batch(frames, T0, {"schedule": {"final_gate": job["gate"]}, "factor": job["factor"]})
     batch_s = time.perf_counter() - t0
-    modes["batch"] = (b.estimate.T, b.estimate.cov, b.estimate.status)
-    for name, (Te, C, status) in modes.items():
+    modes["batch"] = (b.estimate.T, b.estimate.cov, b.estimate.status, F_crb)
+    if scene_on:  # paired: the same estimates read without the scene nuisance (today's covariance)
+        for name, est in (("window", o.estimate), ("batch", b.estimate)):
+            rep = analyse_drive_information(est.T, est.info, None, fconf_base)
+            modes[f"{name}_noscene"] = (est.T, rep.cov, rep.status, F_crb_base)
+    for name, (Te, C, status, F_crb) in modes.items():
         e = local(T, Te)
         err = extrinsic_error(Te, T)
         out[name] = {
@@ -162,7 +170,7 @@ def summarise(results: list[dict], mode: str) -> dict:
     from hybrid_calib.metrics import METRIC_KEYS
 
     E = np.array([r[mode]["err_report"] for r in results])
-    V = np.array([r["crb_var_report"] for r in results])
+    V = np.array([r["crb_var_report_noscene" if mode.endswith("_noscene") else "crb_var_report"] for r in results])
     nees = np.array([r[mode]["nees"] for r in results])
     crbn = np.array([r[mode]["crb_norm"] for r in results])
     nobs = np.array([r[mode].get("nees_obs", np.nan) for r in results])  # nan: a run stored before it existed
@@ -282,7 +290,7 @@ def _run_variant(a, jobs: list[dict], tag: str, tqdm, save_json_atomic) -> dict:
     for rg in a.ranges:
         sub = [r for r in results if r["range"] == rg]
         if sub:
-            summary[rg] = {m: summarise(sub, m) for m in ("window", "batch")}
+            summary[rg] = {m: summarise(sub, m) for m in MODES if all(m in r for r in sub)}
     summary["wall_s_per_run_x_workers"] = wall * a.workers / max(1, len(todo))
     return summary
 
@@ -295,7 +303,7 @@ def comparison_table(summaries: dict, ranges) -> str:
     lines = [head, "|" + "---|" * 15]
     for model, summ in summaries.items():
         for rg in ranges:
-            for mode in ("window", "batch"):
+            for mode in MODES:
                 s = summ.get(rg, {}).get(mode)
                 if not s:
                     continue

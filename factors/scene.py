@@ -59,6 +59,15 @@ def scene_prior_std(conf: RadarPixelFactorConfig) -> np.ndarray:
     return np.concatenate(parts) if parts else np.zeros(0)
 
 
+def _directions(rows: RowModel, p: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 3) point shift per metre of height (along the elevation arc, ``dp / |dp_z|``; 0 without an
+    arc) and per metre of horizontal range (along the recorded azimuth)."""
+    dz = np.abs(rows.dp[:, 2])
+    along_arc = np.where((dz > 1e-9)[:, None], rows.dp / np.maximum(dz, 1e-9)[:, None], 0.0)
+    radial = np.stack([p[:, 0] / r, p[:, 1] / r, np.zeros(len(p))], axis=1)
+    return along_arc, radial
+
+
 def scene_jacobian(T_cam_radar: np.ndarray, rows: RowModel, points_radar: np.ndarray,
                    conf: RadarPixelFactorConfig) -> np.ndarray:
     """d e / d c (N, 2, K) of the whitened residuals (``projection.whitened_residuals``) w.r.t. the
@@ -72,16 +81,36 @@ def scene_jacobian(T_cam_radar: np.ndarray, rows: RowModel, points_radar: np.nda
     r = np.maximum(np.linalg.norm(p[:, :2], axis=1), 1e-6)
     B = range_hats(r, conf.scene_knots_m)
     cols = []
+    along_arc, radial = _directions(rows, p, r)
     if conf.scene_height_std_m > 0 or conf.scene_lateral_slope_std > 0:
-        dz = np.abs(rows.dp[:, 2])
-        along_arc = np.where((dz > 1e-9)[:, None], rows.dp / np.maximum(dz, 1e-9)[:, None], 0.0)
         g_h = point_shift_jacobian(T_cam_radar, rows, along_arc)  # (N, 2) per metre of height
         if conf.scene_height_std_m > 0:
             cols.append(g_h[:, :, None] * B[:, None, :])
         if conf.scene_lateral_slope_std > 0:
             cols.append((g_h * p[:, 1:2])[:, :, None])
     if conf.scene_height_sq_std_m2 > 0:
-        radial = np.stack([p[:, 0] / r, p[:, 1] / r, np.zeros(n)], axis=1)
         g_r = point_shift_jacobian(T_cam_radar, rows, radial)  # (N, 2) per metre of range
         cols.append(g_r[:, :, None] * (-B / (2.0 * r[:, None]))[:, None, :])
     return np.concatenate(cols, axis=2) if cols else np.zeros((n, 2, 0))
+
+
+def scene_shift(rows: RowModel, points_radar: np.ndarray, conf: RadarPixelFactorConfig, c: np.ndarray) -> np.ndarray:
+    """(N, 3) metres, radar frame: how the rows' modelled points move for the scene nuisance ``c`` (K,)
+    (module doc; linear in ``c``, so ``scene_jacobian`` at ``p_bar + scene_shift`` is the exact
+    derivative there). The factor itself uses ``c = 0``; this is the model the nuisance stands for."""
+    p = np.asarray(points_radar, np.float64)
+    c = np.asarray(c, np.float64).reshape(-1)
+    n, k = len(p), len(conf.scene_knots_m)
+    if len(c) != len(scene_prior_std(conf)):
+        raise ValueError(f"scene_shift: expected {len(scene_prior_std(conf))} nuisance values, got {len(c)}")
+    r = np.maximum(np.linalg.norm(p[:, :2], axis=1), 1e-6)
+    B = range_hats(r, conf.scene_knots_m)
+    dh, drho, i = np.zeros(n), np.zeros(n), 0
+    if conf.scene_height_std_m > 0:
+        dh, i = dh + B @ c[i:i + k], i + k
+    if conf.scene_lateral_slope_std > 0:
+        dh, i = dh + c[i] * p[:, 1], i + 1
+    if conf.scene_height_sq_std_m2 > 0:
+        drho = -(B @ c[i:i + k]) / (2.0 * r)
+    along_arc, radial = _directions(rows, p, r)
+    return along_arc * dh[:, None] + radial * drho[:, None]

@@ -124,3 +124,31 @@ def test_marginalising_the_pinned_nuisance_from_data_only():
     H2 = marginalise_prior_pinned(H_data + H_prior, std, external_info=H_prior)
     assert np.sqrt(np.linalg.inv(H2)[5, 5]) < 2e-4  # pinned by the prior, not 0.3 m
     assert np.sqrt(np.linalg.inv(H2)[1, 1]) < 2e-4
+
+
+def test_scene_nuisance_is_a_consider_covariance():
+    """marginalise_scene_nuisance: covariance = inv(info) + E S E^T (pinned) + A P A^T, A = info^-1 cross;
+    a singular information stays singular there (no NaN), and an external prior shrinks the term."""
+    from hybrid_calib.calib.covariance import marginalise_scene_nuisance
+
+    g = rng(8)
+    M = g.normal(size=(40, 6))
+    info = M.T @ M * 1e4
+    cross = g.normal(size=(6, 3)) * 50.0
+    std = np.array([0.5, 0.0, 2.0])  # a 0 std is off
+    pinned = np.array([0, 0.01, 0, 0, 0, 0.3])
+    A = np.linalg.solve(info, cross)
+    expect = np.linalg.inv(info) + np.diag(pinned**2) + A @ np.diag(std**2) @ A.T
+    got = np.linalg.inv(marginalise_scene_nuisance(info, cross, std, pinned))
+    np.testing.assert_allclose(got, expect, rtol=1e-6, atol=1e-14)
+    np.testing.assert_allclose(marginalise_scene_nuisance(info, None, None, pinned),
+                               np.linalg.inv(np.linalg.inv(info) + np.diag(pinned**2)), rtol=1e-6)
+    sing = info.copy()
+    sing[:, 2] = sing[2, :] = 0.0
+    out = marginalise_scene_nuisance(sing, cross, std)
+    assert np.all(np.isfinite(out)) and abs(out[2, 2]) < 1e-9
+    ext = np.eye(6) * 1e8
+    with_ext = np.linalg.inv(marginalise_scene_nuisance(info + ext, cross, std, external_info=ext))
+    assert np.all(np.diag(with_ext) < np.diag(np.linalg.inv(marginalise_scene_nuisance(info, cross, std))))
+    with pytest.raises(ValueError, match="scene nuisance"):
+        marginalise_scene_nuisance(info, cross[:, :2], std)
