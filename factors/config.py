@@ -47,9 +47,9 @@ class RadarPixelFactorConfig:
     reflector_height_mean_std_m: float = 0.3  # "height": uncertainty of the mean height = radar-z translation std, m
     reflector_tilt_std_deg: float = 1.0  # "height": tilt of the height reference plane ~ radar pitch std, degrees
     scene_knots_m: tuple[float, ...] = (0.0, 10.0, 20.0, 35.0, 60.0, 100.0)  # range knots of the scene profiles, m
-    scene_height_std_m: float = 0.0  # per-knot std of the drive's mean-height offset, m (0 = off)
-    scene_height_sq_std_m2: float = 0.0  # per-knot std of the drive's mean-squared-height offset, m^2 (0 = off)
-    scene_lateral_slope_std: float = 0.0  # std of the drive's left/right height slope dh/dy, m per m (0 = off)
+    scene_height_std_m: float = 0.25  # per-knot std of the drive's mean-height offset, m (0 = off)
+    scene_height_sq_std_m2: float = 0.35  # per-knot std of the drive's mean-squared-height offset, m^2 (0 = off)
+    scene_lateral_slope_std: float = 0.005  # std of the drive's left/right height slope dh/dy, m per m (0 = off)
     min_depth_m: float = 0.1  # points closer than this to the camera plane get a large constant residual
 
     def __post_init__(self):
