@@ -91,10 +91,9 @@ def _run_one(job: dict) -> dict:
     from factors.config import RadarPixelFactorConfig
     from factors.scene import scene_prior_std
     from hybrid_calib.calib.batch import solve_batch
-    from hybrid_calib.calib.covariance import analyse_drive_information, prior_pinned_std, report_basis
-    from hybrid_calib.calib.crb import crb_covariance, elevation_sigma, fisher_information
+    from hybrid_calib.calib.covariance import analyse_drive_information, report_basis
+    from hybrid_calib.calib.crb import oracle_crb
     from hybrid_calib.calib.oracle import OracleConfig, oracle_from_frame
-    from hybrid_calib.calib.schedule import frame_scene_cross
     from hybrid_calib.calib.window import SlidingWindowCalibrator
     from hybrid_calib.config import merge
     from hybrid_calib.geometry import local
@@ -117,22 +116,16 @@ def _run_one(job: dict) -> dict:
         truths.append(t)
     T = truths[-1].T_cam_radar
     T0 = perturbed_start(T, g, job["range"])
-    F = sum(fisher_information(T, t.points_true[t.inlier], c.K, job["sigma_px"],
-                               elevation_sigma(t.points_true[t.inlier], fconf))
-            for c, t in zip(frames, truths) if t.inlier.any())
     # + the prior-pinned height offset and tilt ("height") and the per-drive scene nuisance (factors.scene)
-    inl_fconf = dataclasses.replace(fconf, kernel="none")
-    cross = sum((frame_scene_cross(T, c.subset(t.inlier), inl_fconf) for c, t in zip(frames, truths) if t.inlier.any()),
-                np.zeros((6, len(scene_prior_std(fconf)))))
-    crb = crb_covariance(F, prior_pinned_std(fconf), cross, scene_prior_std(fconf))
-    crb_base = crb_covariance(F, prior_pinned_std(fconf))  # the same without the scene nuisance
+    fconf_base = dataclasses.replace(fconf, **{k: 0.0 for k in SCENE_KEYS})
+    crb = oracle_crb(T, frames, truths, job["sigma_px"], fconf)
+    crb_base = oracle_crb(T, frames, truths, job["sigma_px"], fconf_base)  # the same without the scene nuisance
     F_crb, F_crb_base = np.linalg.inv(crb), np.linalg.inv(crb_base)
     B = report_basis(T)
     out = {"vehicle": job["vehicle"], "range": job["range"], "seed": job["seed"],
            "n_rows": int(sum(len(c) for c in frames)), "crb_var_report": np.diag(B @ crb @ B.T).tolist(),
            "crb_var_report_noscene": np.diag(B @ crb_base @ B.T).tolist()}
     scene_on = len(scene_prior_std(fconf)) > 0
-    fconf_base = dataclasses.replace(fconf, **{k: 0.0 for k in SCENE_KEYS})
     wconf = {"window": job["window"], "schedule": {"final_gate": job["gate"]}, "factor": job["factor"]}
     cal = SlidingWindowCalibrator(T0, wconf)
     ms, alarms = [], 0

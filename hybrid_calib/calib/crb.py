@@ -138,3 +138,29 @@ def crb_covariance(information: np.ndarray, pinned_std: np.ndarray | None = None
 def beam_sigma(elevation_beam_deg: float) -> float:
     """Std (rad) of an elevation uniform within +-beam/2: ``beam / sqrt(12)``."""
     return float(np.radians(elevation_beam_deg) / np.sqrt(12.0))
+
+
+def oracle_crb(T_cam_radar: np.ndarray, frames, truths, sigma_px, factor_conf) -> np.ndarray:
+    """CRB (6, 6) of the model ``factor_conf`` uses, for oracle frames with known inliers.
+
+    frames: list of ``Correspondences``; truths: matching ``calib.oracle.OracleTruth`` (true reflector
+    points and inlier masks); frames whose truth has no inlier or another ``T_cam_radar`` are skipped.
+    Fisher information of the true points with the model's per-row elevation prior
+    (``elevation_sigma``), plus the prior-pinned directions (``covariance.prior_pinned_std``) and the
+    per-drive scene nuisance at the truth (``calib.schedule.frame_scene_cross`` of the inlier rows).
+    """
+    import dataclasses
+
+    from factors.scene import scene_prior_std
+    from hybrid_calib.calib.covariance import prior_pinned_std
+    from hybrid_calib.calib.schedule import frame_scene_cross
+
+    T = np.asarray(T_cam_radar, np.float64)
+    used = [(c, t) for c, t in zip(frames, truths) if t.inlier.any() and np.allclose(t.T_cam_radar, T)]
+    F = sum((fisher_information(T, t.points_true[t.inlier], c.K, sigma_px,
+                                elevation_sigma(t.points_true[t.inlier], factor_conf)) for c, t in used),
+            np.zeros((6, 6)))
+    std = scene_prior_std(factor_conf)
+    plain = dataclasses.replace(factor_conf, kernel="none")
+    cross = sum((frame_scene_cross(T, c.subset(t.inlier), plain) for c, t in used), np.zeros((6, len(std))))
+    return crb_covariance(F, prior_pinned_std(factor_conf), cross, std)
