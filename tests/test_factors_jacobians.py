@@ -15,7 +15,7 @@ from factors.projection import row_model
 from factors.robust import rho, weight
 from factors.synthetic import synthetic_correspondences
 from hybrid_calib.geometry import perturb_camera_frame, retract
-from tests.helpers import nominal_T_cam_radar, random_pose, rng
+from tests.helpers import NO_SCENE, nominal_T_cam_radar, random_pose, rng
 from tests.jacobians import check_ceres_cost_jacobians, check_factor_jacobians, quaternion_plus_xyzw
 
 
@@ -173,7 +173,8 @@ def test_scene_nuisance_off_and_zero_model():
 
     T = nominal_T_cam_radar()
     corr, _ = synthetic_correspondences(T, n=10, rng=rng(5), outlier_frac=0.0)
-    assert scene_prior_std(RadarPixelFactorConfig()).size == 0
+    assert scene_prior_std(RadarPixelFactorConfig(**NO_SCENE)).size == 0
+    assert len(scene_prior_std(RadarPixelFactorConfig())) == 2 * len(RadarPixelFactorConfig().scene_knots_m) + 1
     conf = RadarPixelFactorConfig(elevation_model="zero", scene_height_std_m=0.5)
     G = scene_jacobian(T, row_model(corr, conf), corr.points_radar, conf)
     assert G.shape == (10, 2, len(conf.scene_knots_m)) and not np.any(G)  # no elevation arc: no height
