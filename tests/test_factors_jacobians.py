@@ -175,7 +175,7 @@ def test_scene_nuisance_off_and_zero_model():
     corr, _ = synthetic_correspondences(T, n=10, rng=rng(5), outlier_frac=0.0)
     assert scene_prior_std(RadarPixelFactorConfig(**NO_SCENE)).size == 0
     assert len(scene_prior_std(RadarPixelFactorConfig())) == 2 * len(RadarPixelFactorConfig().scene_knots_m) + 1
-    conf = RadarPixelFactorConfig(elevation_model="zero", scene_height_std_m=0.5)
+    conf = RadarPixelFactorConfig(elevation_model="zero", **{**NO_SCENE, "scene_height_std_m": 0.5})
     G = scene_jacobian(T, row_model(corr, conf), corr.points_radar, conf)
     assert G.shape == (10, 2, len(conf.scene_knots_m)) and not np.any(G)  # no elevation arc: no height
     B = range_hats(np.array([0.0, 5.0, 10.0, 250.0]), (0.0, 10.0, 20.0))
