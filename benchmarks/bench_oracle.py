@@ -15,6 +15,12 @@ the chi2(6) 95 % quantile 12.59; mean NEES, ideal 6), false step alarms, and tim
 
     PYTHONPATH=. .venv/bin/python benchmarks/bench_oracle.py --runs 100 --frames 200 --out outputs/bench_oracle
 
+With the per-drive scene nuisance on (``RadarPixelFactorConfig.scene_*``, the default; ``--scene-*``
+override it) every run is also read WITHOUT it (modes ``window_noscene`` / ``batch_noscene``: the
+same estimates, today's covariance and bound), and the NEES of the four directions the data observe
+(rotation about radar x and z, translation along radar x and y) is reported next to the six-direction
+one. A frame with no real reflector in view is skipped (``skipped_frames``).
+
 Elevation models on the simulator's real reflector heights, paired runs (same seeds), one table:
 
     PYTHONPATH=. .venv/bin/python benchmarks/bench_oracle.py --elevation world --ranges R1 --runs 20 \
