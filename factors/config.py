@@ -25,6 +25,16 @@ class RadarPixelFactorConfig:
       they are measured from (about) a rotation about radar y; the data cannot see either, so the
       calibrator adds ``reflector_height_mean_std_m`` and ``reflector_tilt_std_deg`` to those
       directions' covariance (``hybrid_calib.calib.covariance.prior_pinned_std``).
+
+    Scene nuisance (``factors.scene``, issue 10): the heights of one drive's reflectors are not the
+    fixed distribution above (ground near, kerbs, vehicles, facades far, more on one side of the
+    road). Three per-drive deviations, each a Gaussian nuisance with the std below (0 = off), held at
+    their prior mean (0) by the estimate and added to its covariance ("consider" covariance,
+    ``hybrid_calib.calib.covariance.marginalise_scene_nuisance``): a height-profile offset per range
+    knot ``scene_height_std_m``; a left/right height slope ``scene_lateral_slope_std``; and an offset
+    of the mean squared height per range knot ``scene_height_sq_std_m2``, which moves the expected
+    point radially by ``-delta / (2 r)`` (the foreshortening ``r - sqrt(r^2 - h^2)`` of tall or low
+    reflectors, centimetres at 10 m: it looks like a forward translation).
     """
 
     kernel: str = "cauchy"  # none | huber | cauchy | tukey | geman_mcclure (per correspondence row)
@@ -36,6 +46,10 @@ class RadarPixelFactorConfig:
     reflector_height_std_m: float = 2.0  # "height": reflector height std before truncation to the beam, m (sim ML fit)
     reflector_height_mean_std_m: float = 0.3  # "height": uncertainty of the mean height = radar-z translation std, m
     reflector_tilt_std_deg: float = 1.0  # "height": tilt of the height reference plane ~ radar pitch std, degrees
+    scene_knots_m: tuple[float, ...] = (0.0, 10.0, 20.0, 35.0, 60.0, 100.0)  # range knots of the scene profiles, m
+    scene_height_std_m: float = 0.25  # per-knot std of the drive's mean-height offset, m (0 = off)
+    scene_height_sq_std_m2: float = 0.35  # per-knot std of the drive's mean-squared-height offset, m^2 (0 = off)
+    scene_lateral_slope_std: float = 0.005  # std of the drive's left/right height slope dh/dy, m per m (0 = off)
     min_depth_m: float = 0.1  # points closer than this to the camera plane get a large constant residual
 
     def __post_init__(self):
@@ -51,6 +65,13 @@ class RadarPixelFactorConfig:
             raise ValueError(f"RadarPixelFactorConfig: reflector_height_std_m must be > 0, reflector_height_mean_std_m "
                              f"and reflector_tilt_std_deg >= 0; got {self.reflector_height_std_m}, "
                              f"{self.reflector_height_mean_std_m}, {self.reflector_tilt_std_deg}")
+        knots = self.scene_knots_m
+        if len(knots) < 2 or any(not b > a for a, b in zip(knots, knots[1:])) or knots[0] < 0:
+            raise ValueError(f"RadarPixelFactorConfig.scene_knots_m must be >= 2 increasing ranges >= 0 (m), "
+                             f"got {knots}")
+        if min(self.scene_height_std_m, self.scene_height_sq_std_m2, self.scene_lateral_slope_std) < 0:
+            raise ValueError("RadarPixelFactorConfig: scene_height_std_m, scene_height_sq_std_m2 and "
+                             "scene_lateral_slope_std must be >= 0 (0 = off)")
         if not 0 <= self.elevation_beam_deg < 45:
             raise ValueError(
                 f"RadarPixelFactorConfig.elevation_beam_deg must be in [0, 45), got {self.elevation_beam_deg}")

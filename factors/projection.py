@@ -219,17 +219,45 @@ def whitened_rows(T_cam_radar: np.ndarray, rows: RowModel):
     e0 = rows.w[:, None] * (uv - rows.pixels)
     J0 = rows.w[:, None, None] * (Jp @ dP)
     if np.any(rows.kappa > 0):
-        return _anisotropic(R, rows, P, Jp, dP, e0, J0, valid)
+        dc = np.zeros((n, 3, 6))
+        dc[:, :, :3] = -R[None] @ _skew_rows(rows.dp)
+        return _anisotropic(R, rows, P, Jp, dP, e0, J0, valid, dc)
     return e0, J0, valid, np.zeros(n), np.zeros((n, 6))
 
 
-def _anisotropic(R, rows, P, Jp, dP, e0, J0, valid):
-    """``e = e0 + beta(m) (q.e0) q`` with ``beta(m) = ((1+m)^-1/2 - 1)/m``, ``m = |q|^2``; exact Jacobian."""
+def point_shift_jacobian(T_cam_radar: np.ndarray, rows: RowModel, shift: np.ndarray) -> np.ndarray:
+    """d e / d s (N, 2): whitened residuals (``whitened_residuals``) when every row's modelled point
+    moves by ``p_bar + s * shift`` (the elevation spread ``kappa``, ``dp`` unchanged).
+
+    shift: (N, 3) metres per unit of ``s``, radar frame. Exact derivative of ``whitened_residuals``
+    (anisotropic rows included); a point behind the camera gets no depth derivative (as there).
+    Used for the per-drive scene nuisance (``factors.scene``).
+    """
+    T = np.asarray(T_cam_radar, np.float64)
+    R, t = T[:3, :3], T[:3, 3]
+    n = len(rows)
+    P = rows.p_bar @ R.T + t
+    valid = P[:, 2] > rows.min_depth
+    P[:, 2] = np.maximum(P[:, 2], rows.min_depth)
+    uv, Jp = _project(rows.K, P)
+    dP = (np.asarray(shift, np.float64) @ R.T)[:, :, None]  # (N, 3, 1)
+    dP[~valid, 2, :] = 0.0
+    g = rows.w[:, None, None] * (Jp @ dP)  # (N, 2, 1)
+    if np.any(rows.kappa > 0):
+        e0 = rows.w[:, None] * (uv - rows.pixels)
+        g = _anisotropic(R, rows, P, Jp, dP, e0, g, valid, np.zeros((n, 3, 1)))[1]
+    return g[:, :, 0]
+
+
+def _anisotropic(R, rows, P, Jp, dP, e0, J0, valid, dc):
+    """``e = e0 + beta(m) (q.e0) q`` with ``beta(m) = ((1+m)^-1/2 - 1)/m``, ``m = |q|^2``; exact Jacobian.
+
+    dP (N, 3, m), J0 (N, 2, m) and dc (N, 3, m): derivatives of the camera point, of the isotropic
+    residual and of the camera-frame arc tangent with respect to the m differentiated parameters.
+    """
     c = rows.dp @ R.T  # (N, 3) arc tangent in the camera frame
     kap = rows.kappa
     q = kap[:, None] * np.einsum("nij,nj->ni", Jp, c)  # (N, 2)
-    dc = np.zeros((len(c), 3, 6))
-    dc[:, :, :3] = -R[None] @ _skew_rows(rows.dp)
     dq = kap[:, None, None] * (_dproj_dir(rows.K, P, c) @ dP + Jp @ dc)  # (N, 2, 6)
     m = np.einsum("ni,ni->n", q, q)
     s = np.sqrt(1.0 + m)

@@ -31,3 +31,8 @@ def nominal_T_cam_radar() -> np.ndarray:
 
     # radar 1.7 m ahead of and 1.0 m below the camera, centred: in camera axes (x right, y down, z fwd).
     return make_T(R_AXES_CAM_FROM_RADAR, np.array([0.0, 1.0, 1.7]))
+
+
+# factor overrides for data drawn from the factor's own fixed elevation model (no per-drive scene
+# structure): the scene nuisance (factors.scene) off, so covariances can be compared with the bound
+NO_SCENE = {"scene_height_std_m": 0.0, "scene_lateral_slope_std": 0.0, "scene_height_sq_std_m2": 0.0}

@@ -10,7 +10,7 @@ from hybrid_calib.calib.crb import crb_covariance, fisher_information, pixel_jac
 from hybrid_calib.calib.oracle import synthetic_drive
 from hybrid_calib.calib.window import SlidingWindowCalibrator
 from hybrid_calib.geometry import local, retract, se3_exp
-from tests.helpers import nominal_T_cam_radar, random_pose, rng
+from tests.helpers import NO_SCENE, nominal_T_cam_radar, random_pose, rng
 
 
 def test_report_std_rotates_into_camera_axes():
@@ -95,7 +95,7 @@ def test_crb_matches_monte_carlo_for_gaussian_data(beam):
         g = rng(200 + r)
         frames, truth = synthetic_drive(T, 2, g, {"outlier_frac": 0.0}, elevation_beam_deg=beam)
         # the data's elevations are uniform in the beam: the factor uses that (anisotropic) model
-        est = solve_batch(frames, T, {"factor": {"elevation_model": "anisotropic",
+        est = solve_batch(frames, T, {"factor": {"elevation_model": "anisotropic", **NO_SCENE,
                                                  "elevation_beam_deg": max(beam, 1e-9)}}).estimate
         F = sum(fisher_information(T, tr.points_true[tr.inlier], frames[0].K, 2.0, sig_e) for tr in truth)
         e = local(T, est.T)

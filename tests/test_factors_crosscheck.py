@@ -4,6 +4,7 @@ factor per correspondence, and GTSAM against Ceres (the batch solve of the one s
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import gtsam
@@ -19,7 +20,7 @@ from hybrid_calib.calib.batch import BatchConfig, solve_batch
 from hybrid_calib.calib.covariance import marginal_covariance
 from hybrid_calib.calib.schedule import GaussianPrior, ScheduleConfig, X, build_graph, lm_params
 from hybrid_calib.geometry import adjoint, local, perturb_camera_frame, retract, se3_inverse
-from tests.helpers import nominal_T_cam_radar, rng
+from tests.helpers import NO_SCENE, nominal_T_cam_radar, rng
 from tests.jacobians import quaternion_plus_xyzw
 
 SIGMA = 2.0
@@ -172,7 +173,7 @@ def test_gtsam_and_ceres_agree(kernel, model):
     out_frac = 0.0 if kernel == "none" else 0.2
     frames = [synthetic_correspondences(T, n=40, rng=g, outlier_frac=out_frac)[0] for _ in range(2)]
     conf = RadarPixelFactorConfig(kernel=kernel, elevation_model=model, reflector_height_mean_std_m=0.0,
-                                  reflector_tilt_std_deg=0.0)
+                                  reflector_tilt_std_deg=0.0, **NO_SCENE)
     T0 = perturb_camera_frame(T, np.deg2rad([3.0, -3.0, 2.0]), [0.1, -0.1, 0.1])
     sched = ScheduleConfig(max_iterations=100, relative_error_tol=1e-10, final_gate=0.0)
     a, b = (solve_batch(frames, T0, BatchConfig(backend=be, factor=conf, schedule=sched)) for be in ("gtsam", "ceres"))
@@ -182,6 +183,13 @@ def test_gtsam_and_ceres_agree(kernel, model):
     assert np.all(np.abs(local(a.T, b.T)) < 1e-3 * np.sqrt(np.diag(a.cov)))
     if kernel == "none":
         np.testing.assert_allclose(b.cov, a.cov, rtol=1e-6, atol=1e-14)
+        # the scene nuisance (factors.scene, the default) reads the same rows on both back ends
+        scene = dataclasses.replace(conf, **{k: v for k, v in RadarPixelFactorConfig().__dict__.items()
+                                             if k in NO_SCENE})
+        a2, b2 = (solve_batch(frames, T0, BatchConfig(backend=be, factor=scene, schedule=sched)).estimate
+                  for be in ("gtsam", "ceres"))
+        assert np.all(np.linalg.eigvalsh(a2.cov - a.cov) > -1e-12 * np.abs(a.cov).max())  # it only adds
+        np.testing.assert_allclose(b2.cov, a2.cov, rtol=1e-4, atol=1e-6 * np.abs(a2.cov).max())
     else:
         ratio = np.sqrt(np.diag(b.cov) / np.diag(a.cov))
         assert np.all(np.abs(ratio - 1) < 0.25), ratio

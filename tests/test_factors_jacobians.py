@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import gtsam
 import numpy as np
 import pytest
@@ -13,7 +15,7 @@ from factors.projection import row_model
 from factors.robust import rho, weight
 from factors.synthetic import synthetic_correspondences
 from hybrid_calib.geometry import perturb_camera_frame, retract
-from tests.helpers import nominal_T_cam_radar, random_pose, rng
+from tests.helpers import NO_SCENE, nominal_T_cam_radar, random_pose, rng
 from tests.jacobians import check_ceres_cost_jacobians, check_factor_jacobians, quaternion_plus_xyzw
 
 
@@ -128,3 +130,57 @@ def test_kernel_weight_is_rho_derivative_over_s(kernel):
     d = (rho(kernel, s + h, 2.0) - rho(kernel, s - h, 2.0)) / (2 * h)
     np.testing.assert_allclose(weight(kernel, s, 2.0), d / s, rtol=1e-5, atol=1e-7)
     assert np.all(np.diff(rho(kernel, s, 2.0)) >= 0)
+
+
+SCENE_ALL = {"scene_height_std_m": 0.5, "scene_lateral_slope_std": 0.01, "scene_height_sq_std_m2": 1.0}
+
+
+@pytest.mark.parametrize("model", ["height", "anisotropic", "mean_arc"])
+def test_scene_nuisance_jacobians(model):
+    """The per-drive scene nuisance (factors.scene) as a gtsam Vector variable next to the extrinsic:
+    residuals with the rows' points moved by ``scene_shift(c)``, Jacobians ``[J, scene_jacobian]``."""
+    from factors.projection import row_model, whitened_residuals
+    from factors.scene import scene_jacobian, scene_prior_std, scene_shift
+
+    T = nominal_T_cam_radar()
+    g = rng(21)
+    corr, _ = synthetic_correspondences(T, n=25, rng=g, outlier_frac=0.0)
+    conf = RadarPixelFactorConfig(kernel="none", elevation_model=model, **SCENE_ALL)
+    rows = row_model(corr, conf)
+    k = len(scene_prior_std(conf))
+    assert k == 2 * len(conf.scene_knots_m) + 1
+
+    def error(this, values, H):
+        Tv = values.atPose3(this.keys()[0]).matrix()
+        c = values.atVector(this.keys()[1])
+        moved = dataclasses.replace(rows, p_bar=rows.p_bar + scene_shift(rows, corr.points_radar, conf, c))
+        e, J, _ = whitened_residuals(Tv, moved)
+        if H is not None:
+            H[0] = J.reshape(-1, 6)
+            H[1] = scene_jacobian(Tv, moved, corr.points_radar, conf).reshape(-1, k)
+        return e.reshape(-1)
+
+    f = gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(2 * len(corr)), [0, 1], error)
+    for _ in range(3):
+        v = _values(k0=perturb_camera_frame(T, np.deg2rad(g.uniform(-3, 3, 3)), g.uniform(-0.1, 0.1, 3)))
+        v.insert(1, g.normal(size=k) * scene_prior_std(conf))
+        check_factor_jacobians(f, v, eps=1e-6, rtol=1e-6)
+
+
+def test_scene_nuisance_off_and_zero_model():
+    from factors.projection import row_model
+    from factors.scene import range_hats, scene_jacobian, scene_prior_std
+
+    T = nominal_T_cam_radar()
+    corr, _ = synthetic_correspondences(T, n=10, rng=rng(5), outlier_frac=0.0)
+    assert scene_prior_std(RadarPixelFactorConfig(**NO_SCENE)).size == 0
+    assert len(scene_prior_std(RadarPixelFactorConfig())) == 2 * len(RadarPixelFactorConfig().scene_knots_m) + 1
+    conf = RadarPixelFactorConfig(elevation_model="zero", **{**NO_SCENE, "scene_height_std_m": 0.5})
+    G = scene_jacobian(T, row_model(corr, conf), corr.points_radar, conf)
+    assert G.shape == (10, 2, len(conf.scene_knots_m)) and not np.any(G)  # no elevation arc: no height
+    B = range_hats(np.array([0.0, 5.0, 10.0, 250.0]), (0.0, 10.0, 20.0))
+    np.testing.assert_allclose(B, [[1, 0, 0], [0.5, 0.5, 0], [0, 1, 0], [0, 0, 1]])
+    with pytest.raises(ValueError, match="scene_knots_m"):
+        RadarPixelFactorConfig(scene_knots_m=(0.0, 10.0, 5.0))
+    with pytest.raises(ValueError, match="scene_height_std_m"):
+        RadarPixelFactorConfig(scene_height_sq_std_m2=-1.0)

@@ -1,7 +1,7 @@
 """Batch calibration: every frame of a drive in one solve (the reference for the sliding window).
 
 Same schedule as the window (``schedule.robust_solve``: convex start, redescending kernel, gated
-least squares), same covariance reading (``covariance.analyse_information``). Two back ends:
+least squares), same covariance reading (``covariance.analyse_drive_information``). Two back ends:
 ``gtsam`` (one vectorised CustomFactor per frame) and ``ceres`` (``factors.ceres_costs.solve_ceres_stage``
 per stage of the same ``ScheduleConfig``: per-row cost blocks with a quaternion manifold; its covariance
 converted to our convention by ``ceres_covariance``).
@@ -16,11 +16,11 @@ import numpy as np
 
 from factors.config import RadarPixelFactorConfig
 from factors.correspondences import Correspondences
+from factors.scene import scene_prior_std
 from hybrid_calib.calib.covariance import (
     CovarianceConfig,
-    analyse_information,
+    analyse_drive_information,
     graph_covariance,
-    prior_pinned_std,
 )
 from hybrid_calib.calib.result import Estimate
 from hybrid_calib.calib.schedule import (
@@ -29,6 +29,7 @@ from hybrid_calib.calib.schedule import (
     Stage,
     X,
     frame_information,
+    frame_scene_cross,
     robust_solve,
     run_schedule,
 )
@@ -85,8 +86,10 @@ def solve_batch(frames: list[Correspondences], T_init: np.ndarray, conf: BatchCo
         T, iters, secs = res.T, res.iterations, res.seconds
     else:
         T, info, cov, why, iters, secs, t0 = _solve_ceres(frames, T_init, conf, priors)
-    rep = analyse_information(T, info, conf.covariance, cov_hint=cov, pinned_std=prior_pinned_std(conf.factor),
-                              external_info=_prior_info(priors))
+    cross = sum((frame_scene_cross(T, f, conf.factor, conf.schedule.final_gate) for f in frames),
+                np.zeros((6, len(scene_prior_std(conf.factor)))))
+    rep = analyse_drive_information(T, info, conf.covariance, conf.factor, cov_hint=cov,
+                                    external_info=_prior_info(priors), scene_cross=cross)
     cov_s = time.perf_counter() - t0
     fractions = [frame_information(T, f, conf.factor, conf.schedule.final_gate)[2] for f in frames if len(f)]
     inl = float(np.mean(fractions)) if fractions else 0.0

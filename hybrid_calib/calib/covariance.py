@@ -189,6 +189,59 @@ def marginalise_prior_pinned(info: np.ndarray, pinned_std=None, external_info: n
     return 0.5 * (out + out.T)
 
 
+def marginalise_scene_nuisance(info: np.ndarray, cross: np.ndarray | None = None, prior_std=None,
+                               pinned_std=None, external_info: np.ndarray | None = None) -> np.ndarray:
+    """Information (6, 6) whose inverse is the covariance of an estimate that held the per-drive scene
+    nuisance (``factors.scene``) at its prior mean, after ``marginalise_prior_pinned``.
+
+    info: total information (data + external priors), right tangent [rad, m].
+    cross: (6, K) ``J^T W G`` summed over the data rows (``calib.schedule.frame_scene_cross``).
+    prior_std: (K,) nuisance std (``factors.scene.scene_prior_std``); None / empty = no scene nuisance.
+    pinned_std, external_info: as ``marginalise_prior_pinned``.
+
+    Linearised, the estimate's error is ``info^-1 (J^T W n + cross c)`` with ``c ~ N(0, P)``,
+    ``P = diag(prior_std^2)``: the covariance is ``C_pinned + A P A^T`` with ``A = info^-1 cross``
+    (Schmidt "consider" covariance; ``info^-1`` the pseudo-inverse on a singular problem, so an
+    unobservable direction stays unobservable and is named by ``analyse_information``). Returned in
+    information form by Woodbury: ``H - H A (P^-1 + A^T H A)^-1 A^T H``, ``H`` the pinned-marginalised
+    information (valid for a singular ``H``). Pass the result to ``analyse_information`` without
+    ``pinned_std``.
+    """
+    H = marginalise_prior_pinned(info, pinned_std, external_info)
+    std = np.zeros(0) if prior_std is None else np.asarray(prior_std, dtype=np.float64).reshape(-1)
+    if cross is None or not np.any(std > 0):
+        return H
+    cross = np.asarray(cross, dtype=np.float64)
+    if cross.shape != (6, len(std)) or not np.all(np.isfinite(cross)) or np.any(std < 0):
+        raise ValueError(f"scene nuisance: cross must be a finite (6, {len(std)}) matrix and prior_std >= 0, "
+                         f"got {cross.shape}")
+    keep = std > 0
+    A = np.linalg.pinv(0.5 * (info + info.T), rcond=1e-12, hermitian=True) @ cross[:, keep]
+    HA = H @ A
+    inner = np.diag(1.0 / std[keep] ** 2) + A.T @ HA
+    out = H - HA @ np.linalg.solve(0.5 * (inner + inner.T), HA.T)
+    return 0.5 * (out + out.T)
+
+
+def analyse_drive_information(
+    T_cam_radar: np.ndarray, info: np.ndarray, conf, factor_conf, cov_hint: np.ndarray | None = None,
+    external_info: np.ndarray | None = None, scene_cross: np.ndarray | None = None,
+) -> CovarianceReport:
+    """``analyse_information`` with the nuisance of the factor's elevation model removed from the data:
+    the prior-pinned directions (``prior_pinned_std(factor_conf)``) and, when enabled and
+    ``scene_cross`` (6, K) is given, the per-drive scene nuisance (``marginalise_scene_nuisance``).
+    The one entry point of the window and the batch solve."""
+    from factors.scene import scene_prior_std
+
+    pinned = prior_pinned_std(factor_conf)
+    std = scene_prior_std(factor_conf)
+    if scene_cross is None or not np.any(std > 0):
+        return analyse_information(T_cam_radar, info, conf, cov_hint=cov_hint, pinned_std=pinned,
+                                   external_info=external_info)
+    info_n = marginalise_scene_nuisance(info, scene_cross, std, pinned, external_info)
+    return analyse_information(T_cam_radar, info_n, conf)
+
+
 def analyse_information(
     T_cam_radar: np.ndarray, info: np.ndarray, conf: CovarianceConfig | None = None,
     cov_hint: np.ndarray | None = None, pinned_std: np.ndarray | None = None,

@@ -105,7 +105,8 @@ def elevation_sigma(points_true_radar: np.ndarray, factor_conf) -> np.ndarray:
     return np.full(len(P), elevation_moments(factor_conf.elevation_beam_deg, factor_conf.elevation_mean_deg)[2])
 
 
-def crb_covariance(information: np.ndarray, pinned_std: np.ndarray | None = None) -> np.ndarray:
+def crb_covariance(information: np.ndarray, pinned_std: np.ndarray | None = None,
+                   scene_cross: np.ndarray | None = None, scene_std: np.ndarray | None = None) -> np.ndarray:
     """CRB (6, 6) = inverse Fisher information (pseudo-inverse if singular: infinite directions
     then show as huge variances rather than an exception).
 
@@ -115,10 +116,18 @@ def crb_covariance(information: np.ndarray, pinned_std: np.ndarray | None = None
     The correspondences cannot see them, so the bound adds those variances
     (``covariance.inflate_prior_pinned``): the physical limit of any method that does not know the
     world's height distribution better.
+
+    scene_cross: optional (6, K) cross information of the rows at the truth with the per-drive scene
+    nuisance (``calib.schedule.frame_scene_cross``) and scene_std (K,) its prior std
+    (``factors.scene.scene_prior_std``): the bound of an estimator that holds the scene nuisance at
+    its prior mean (as the factor does) adds ``A P A^T``, ``A = F^-1 cross``
+    (``covariance.marginalise_scene_nuisance``).
     """
-    from hybrid_calib.calib.covariance import inflate_prior_pinned
+    from hybrid_calib.calib.covariance import inflate_prior_pinned, marginalise_scene_nuisance
 
     F = 0.5 * (np.asarray(information, np.float64) + np.asarray(information, np.float64).T)
+    if scene_cross is not None and scene_std is not None and np.any(np.asarray(scene_std) > 0):
+        return np.linalg.inv(marginalise_scene_nuisance(F, scene_cross, scene_std, pinned_std))
     try:
         C = np.linalg.inv(F)
     except np.linalg.LinAlgError:
@@ -129,3 +138,29 @@ def crb_covariance(information: np.ndarray, pinned_std: np.ndarray | None = None
 def beam_sigma(elevation_beam_deg: float) -> float:
     """Std (rad) of an elevation uniform within +-beam/2: ``beam / sqrt(12)``."""
     return float(np.radians(elevation_beam_deg) / np.sqrt(12.0))
+
+
+def oracle_crb(T_cam_radar: np.ndarray, frames, truths, sigma_px, factor_conf) -> np.ndarray:
+    """CRB (6, 6) of the model ``factor_conf`` uses, for oracle frames with known inliers.
+
+    frames: list of ``Correspondences``; truths: matching ``calib.oracle.OracleTruth`` (true reflector
+    points and inlier masks); frames whose truth has no inlier or another ``T_cam_radar`` are skipped.
+    Fisher information of the true points with the model's per-row elevation prior
+    (``elevation_sigma``), plus the prior-pinned directions (``covariance.prior_pinned_std``) and the
+    per-drive scene nuisance at the truth (``calib.schedule.frame_scene_cross`` of the inlier rows).
+    """
+    import dataclasses
+
+    from factors.scene import scene_prior_std
+    from hybrid_calib.calib.covariance import prior_pinned_std
+    from hybrid_calib.calib.schedule import frame_scene_cross
+
+    T = np.asarray(T_cam_radar, np.float64)
+    used = [(c, t) for c, t in zip(frames, truths) if t.inlier.any() and np.allclose(t.T_cam_radar, T)]
+    F = sum((fisher_information(T, t.points_true[t.inlier], c.K, sigma_px,
+                                elevation_sigma(t.points_true[t.inlier], factor_conf)) for c, t in used),
+            np.zeros((6, 6)))
+    std = scene_prior_std(factor_conf)
+    plain = dataclasses.replace(factor_conf, kernel="none")
+    cross = sum((frame_scene_cross(T, c.subset(t.inlier), plain) for c, t in used), np.zeros((6, len(std))))
+    return crb_covariance(F, prior_pinned_std(factor_conf), cross, std)

@@ -167,7 +167,6 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, rng, progress: bo
     from tqdm import tqdm
 
     from hybrid_calib.calib.covariance import report_std
-    from hybrid_calib.calib.crb import crb_covariance, fisher_information
     from hybrid_calib.geometry import local
     from hybrid_calib.metrics import extrinsic_error
 
@@ -196,15 +195,11 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, rng, progress: bo
         e = local(T_true, final.T)
         res.error = {**extrinsic_error(final.T, T_true).as_dict(), "nees": float(e @ np.linalg.solve(final.cov, e))}
     if vi.oracle_truths:
-        from hybrid_calib.calib.covariance import prior_pinned_std
-        from hybrid_calib.calib.crb import elevation_sigma
+        from hybrid_calib.calib.crb import oracle_crb
 
         fc = conf.window.factor if conf.mode == "window" else conf.batch.factor
         T_true = vi.truth[-1]
-        F = sum(fisher_information(T_true, t.points_true[t.inlier], c.K, conf.oracle.sigma_px,
-                                   elevation_sigma(t.points_true[t.inlier], fc))
-                for c, t in zip(vi.frames, vi.oracle_truths) if t.inlier.any() and np.allclose(t.T_cam_radar, T_true))
-        res.crb_std = report_std(T_true, crb_covariance(F, prior_pinned_std(fc)))
+        res.crb_std = report_std(T_true, oracle_crb(T_true, vi.frames, vi.oracle_truths, conf.oracle.sigma_px, fc))
     return res
 
 

@@ -236,3 +236,24 @@ def frame_information(T: np.ndarray, corr: Correspondences, conf: RadarPixelFact
     w2 = np.repeat(np.asarray(w, np.float64), 2)
     JW = J.T * w2
     return JW @ e, JW @ J, float(np.mean(w > 0.5))
+
+
+def frame_scene_cross(T: np.ndarray, corr: Correspondences, conf: RadarPixelFactorConfig,
+                      gate: float = 0.0) -> np.ndarray:
+    """Cross information ``J^T W G`` (6, K) of one frame at T between the extrinsic (right tangent)
+    and the per-drive scene nuisance (``factors.scene``; K = ``len(scene_prior_std(conf))``), with the
+    row weights ``W`` of ``frame_information`` (gated least squares for ``gate > 0``, else IRLS).
+    (6, 0) when the scene nuisance is off."""
+    from factors.gtsam_factors import frame_residuals
+    from factors.projection import row_model
+    from factors.scene import scene_jacobian, scene_prior_std
+
+    k = len(scene_prior_std(conf))
+    if not len(corr) or k == 0:
+        return np.zeros((6, k))
+    plain = dataclasses.replace(conf, kernel="none") if gate > 0 else conf
+    e, J, w = frame_residuals(np.asarray(T, np.float64), corr, plain)
+    if gate > 0:
+        w = ((np.linalg.norm(e.reshape(-1, 2), axis=1) < gate) & (w > 0)).astype(np.float64)
+    G = scene_jacobian(np.asarray(T, np.float64), row_model(corr, conf), corr.points_radar, conf).reshape(-1, k)
+    return (J.T * np.repeat(np.asarray(w, np.float64), 2)) @ G

@@ -21,7 +21,7 @@ Design (one extrinsic state; a fixed-lag window with lazy relinearisation):
   smoother's frozen marginal factors. With Q = 0 (default) the estimate after the last frame
   matches the batch solution (tested).
 - Covariance: ``gtsam.Marginals`` of the update graph (IndeterminantLinearSystemException caught),
-  read by ``covariance.analyse_information`` (status naming weak/unobservable directions).
+  read by ``covariance.analyse_drive_information`` (status naming weak/unobservable directions).
 - Step change: ``drift.StepDetector`` compares the estimate of the last ``recent_frames`` frames,
   solved WITH a convex start (a redescending kernel warm-started at the old value rejects every
   post-step correspondence and locks on), against the long-run estimate. It runs every
@@ -41,12 +41,12 @@ import numpy as np
 
 from factors.config import RadarPixelFactorConfig
 from factors.correspondences import Correspondences
+from factors.scene import scene_prior_std
 from hybrid_calib.calib.covariance import (
     CovarianceConfig,
-    analyse_information,
+    analyse_drive_information,
     graph_covariance,
     information_from_graph,
-    prior_pinned_std,
 )
 from hybrid_calib.calib.drift import StepConfig, StepDetector, StepOutcome
 from hybrid_calib.calib.result import Estimate, FrameEstimate
@@ -57,6 +57,7 @@ from hybrid_calib.calib.schedule import (
     X,
     build_graph,
     frame_information,
+    frame_scene_cross,
     inlier_mask,
     lm_params,
     robust_solve,
@@ -94,6 +95,7 @@ class Linearisation:
     g: np.ndarray  # (6,) gradient at T_lin, right tangent
     H: np.ndarray  # (6, 6) information at T_lin
     inliers: float  # fraction of gated inliers at T_lin
+    scene_cross: np.ndarray | None = None  # (6, K) J^T W G with the scene nuisance (factors.scene); None = off
 
 
 @dataclass
@@ -181,6 +183,9 @@ class SlidingWindowCalibrator:
         # information of external priors (e.g. the network's SE(3)) folded into the marginal prior;
         # kept apart so the prior-pinned nuisance is removed from the data part only
         self._marg_external_info = np.zeros((6, 6))
+        # per-drive scene nuisance (factors.scene): its cross information with the marginalised frames
+        self._scene = len(scene_prior_std(self.conf.factor)) > 0
+        self._marg_scene_cross = np.zeros((6, len(scene_prior_std(self.conf.factor))))
 
     # ------------------------------------------------------------------ linearisation
     def _gate(self) -> float:
@@ -195,7 +200,8 @@ class SlidingWindowCalibrator:
             Lp = np.linalg.inv(fr.prior.cov)
             H = H + Lp
             g = g + Lp @ local(fr.prior.T, T)
-        return Linearisation(T, g, H, inl)
+        cross = frame_scene_cross(T, fr.corr, self.conf.factor, self._gate()) if self._scene else None
+        return Linearisation(T, g, H, inl, cross)
 
     def _history_gaussian(self, frames, T: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """(gradient, information) at T of the marginal prior plus the given linearised frames."""
@@ -233,6 +239,8 @@ class SlidingWindowCalibrator:
         self.n_marg += 1
         if fr.prior is not None:
             self._marg_external_info = self._marg_external_info + np.linalg.inv(fr.prior.cov)
+        if fr.lin is not None and fr.lin.scene_cross is not None:
+            self._marg_scene_cross = self._marg_scene_cross + fr.lin.scene_cross
 
     def _q(self, dt_s: float) -> np.ndarray:
         c = self.conf
@@ -245,6 +253,7 @@ class SlidingWindowCalibrator:
         self.marg = None
         self.n_marg = 0
         self._marg_external_info = np.zeros((6, 6))
+        self._marg_scene_cross = np.zeros_like(self._marg_scene_cross)
         while len(self.frames) > keep_last:
             self.frames.popleft()
         self.since_reset = 0
@@ -332,8 +341,13 @@ class SlidingWindowCalibrator:
             info, cov, why = graph_covariance(solved.graph, solved.values, X)
         ext = self._marg_external_info + sum(
             (np.linalg.inv(fr.prior.cov) for fr in self.frames if fr.prior is not None), np.zeros((6, 6)))
-        rep = analyse_information(self.T, info, self.conf.covariance, cov_hint=cov,
-                                  pinned_std=prior_pinned_std(self.conf.factor), external_info=ext)
+        cross = None
+        if self._scene:
+            cross = self._marg_scene_cross + sum(
+                (fr.lin.scene_cross for fr in self.frames if fr.lin is not None and fr.lin.scene_cross is not None),
+                np.zeros_like(self._marg_scene_cross))
+        rep = analyse_drive_information(self.T, info, self.conf.covariance, self.conf.factor, cov_hint=cov,
+                                        external_info=ext, scene_cross=cross)
         self.info = info
         notes = [n for n in (why, note) if n]
         return Estimate.from_report(self.T, rep, info, "; ".join(notes)), (time.perf_counter() - t0) * 1e3
