@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from hybrid_calib.calib.drift import DriftConfig, StepDetector, reference_test
+from hybrid_calib.calib.covariance import RADAR_PITCH, RADAR_Z
+from hybrid_calib.calib.drift import DriftConfig, StepDetector, drift_verdict, reference_test
 from hybrid_calib.calib.oracle import synthetic_drive
 from hybrid_calib.calib.window import SlidingWindowCalibrator
 from hybrid_calib.geometry import perturb_camera_frame, retract
@@ -18,17 +19,58 @@ def test_reference_test_is_calibrated_and_detects_change():
     C = np.diag([np.radians(0.05) ** 2] * 3 + [0.005**2] * 3)
     L = np.linalg.cholesky(C)
     g = rng(0)
-    stats = [reference_test(retract(T, L @ g.normal(size=6)), C, T, {"min_rot_deg": 0, "min_trans_cm": 0}).statistic
+    stats = [reference_test(retract(T, L @ g.normal(size=6)), C, T).statistic
              for _ in range(400)]
     assert 5.3 < np.mean(stats) < 6.7  # chi2(6) mean
     assert abs(np.mean(np.array(stats) > chi2.isf(0.01, 6)) - 0.01) < 0.02
-    moved = perturb_camera_frame(T, np.radians([0.0, 0.3, 0.0]), [0.0, 0.0, 0.0])
+    moved = perturb_camera_frame(T, np.radians([0.0, 0.0, 0.9]), [0.0, 0.0, 0.0])  # [roll, pitch, yaw]
     d = reference_test(moved, C, T)
-    assert d.drifted and d.p_value < 1e-4 and abs(d.rot_change_deg - 0.3) < 1e-6
-    # significant but below the practical margin: not reported as drift
-    tiny = perturb_camera_frame(T, np.radians([0.0, 0.02, 0.0]), [0.0, 0.0, 0.0])
-    d = reference_test(tiny, C / 1000, T, DriftConfig(min_rot_deg=0.1))
-    assert d.significant and not d.drifted
+    assert d.drifted and d.p_value < 1e-4 and abs(d.rot_change_deg - 0.9) < 1e-6
+    assert d.verdict_kind == "recalibrate" and d.verdict.startswith("differs by 0.90 deg in yaw"), d.verdict
+    assert d.verdict.endswith(": recalibrate")
+    # significant but inside the tolerance: no reason to recalibrate
+    tiny = perturb_camera_frame(T, np.radians([0.0, 0.0, 0.3]), [0.0, 0.0, 0.0])
+    d = reference_test(tiny, C / 1000, T, DriftConfig(tolerance_rot_deg=0.5))
+    assert d.significant and not d.drifted and d.verdict == "within tolerance"
+    # the same change against a tighter tolerance (a documented option) must be recalibrated
+    d = reference_test(tiny, C / 1000, T, DriftConfig(tolerance_rot_deg=0.2))
+    assert d.verdict_kind == "recalibrate" and "0.30 deg in yaw" in d.verdict
+
+
+def _pinned_cov():
+    """Covariance of the default height model: data pin 4 axes to 0.05 deg / 0.5 cm, the elevation
+    prior pins radar pitch to 1 deg and radar z to 30 cm (right tangent, radar frame)."""
+    pinned = np.zeros(6)
+    pinned[RADAR_PITCH], pinned[RADAR_Z] = np.radians(1.0), 0.30
+    C = np.diag([np.radians(0.05) ** 2] * 3 + [0.005**2] * 3) + np.diag(pinned**2)
+    return C, pinned
+
+
+def test_verdict_words_for_prior_pinned_axes():
+    T = nominal_T_cam_radar()
+    C, pinned = _pinned_cov()
+    # no change: the observed axes are within tolerance, pitch and height are said to be unchecked
+    d = reference_test(T, C, T, pinned_std=pinned)
+    assert d.verdict_kind == "within tolerance" and not d.drifted
+    assert d.verdict.startswith("within tolerance; pitch and vertical offset not checked: prior-pinned"), d.verdict
+    # a pitch change the data cannot see: cannot tell, and why
+    pitched = perturb_camera_frame(T, np.radians([0.0, 0.9, 0.0]), [0.0, 0.0, 0.0])
+    d = reference_test(pitched, C, T, pinned_std=pinned)
+    assert d.verdict_kind == "cannot tell" and d.verdict.startswith("cannot tell: pitch is prior-pinned"), d.verdict
+    # without the pinned information the same covariance reads as "too close to decide"
+    d = reference_test(pitched, C, T)
+    assert d.verdict_kind == "cannot tell" and "pitch differs by 0.90 deg" in d.verdict and "too close" in d.verdict
+    # a lateral shift of 5 cm is observed: recalibrate in words of centimetres
+    shifted = perturb_camera_frame(T, np.zeros(3), [0.05, 0.0, 0.0])
+    d = reference_test(shifted, C, T, pinned_std=pinned)
+    assert d.verdict_kind == "recalibrate" and d.verdict.startswith("differs by 5.00 cm in lateral offset"), d.verdict
+    stored = d.to_dict()
+    assert stored["verdict"] == d.verdict and stored["axes"]["lateral offset"]["decision"] == "differs"
+    assert stored["axes"]["pitch"]["prior_pinned"] and not stored["axes"]["yaw"]["prior_pinned"]
+    assert drift_verdict(stored) == d.verdict
+    # result files written before verdicts existed still read
+    assert drift_verdict({"drifted": True, "p_value": 0.0}) == "drifted (no verdict stored)"
+    assert drift_verdict(None) == ""
 
 
 def test_step_detector_threshold_and_consecutive():

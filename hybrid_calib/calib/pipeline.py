@@ -24,6 +24,7 @@ import numpy as np
 
 from factors.io import load_measurement_dir
 from hybrid_calib.calib.batch import BatchConfig, solve_batch
+from hybrid_calib.calib.covariance import prior_pinned_std
 from hybrid_calib.calib.drift import DriftConfig, reference_test
 from hybrid_calib.calib.oracle import OracleConfig, oracle_from_frame
 from hybrid_calib.calib.result import CalibrationRun, VehicleResult
@@ -177,7 +178,8 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, rng, progress: bo
     else:
         final = solve_batch(frames, T0, conf.batch).estimate
     res = VehicleResult(vi.vehicle, final, traj, skipped=skipped, n_frames=len(frames))
-    res.drift = reference_test(final.T, final.cov, vi.reference, conf.drift).to_dict()
+    fc = conf.window.factor if conf.mode == "window" else conf.batch.factor
+    res.drift = reference_test(final.T, final.cov, vi.reference, conf.drift, prior_pinned_std(fc)).to_dict()
     res.network = _network_summary(vi)
     if vi.truth:
         T_true = vi.truth[-1]
@@ -185,10 +187,8 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, rng, progress: bo
         e = local(T_true, final.T)
         res.error = {**extrinsic_error(final.T, T_true).as_dict(), "nees": float(e @ np.linalg.solve(final.cov, e))}
     if vi.oracle_truths:
-        from hybrid_calib.calib.covariance import prior_pinned_std
         from hybrid_calib.calib.crb import elevation_sigma
 
-        fc = conf.window.factor if conf.mode == "window" else conf.batch.factor
         T_true = vi.truth[-1]
         F = sum(fisher_information(T_true, t.points_true[t.inlier], c.K, conf.oracle.sigma_px,
                                    elevation_sigma(t.points_true[t.inlier], fc))
