@@ -22,6 +22,7 @@ from hybrid_calib.calib.covariance import (
     graph_covariance,
     prior_pinned_std,
 )
+from hybrid_calib.calib.degeneracy import RowGeometry
 from hybrid_calib.calib.result import Estimate
 from hybrid_calib.calib.schedule import (
     GaussianPrior,
@@ -86,7 +87,7 @@ def solve_batch(frames: list[Correspondences], T_init: np.ndarray, conf: BatchCo
     else:
         T, info, cov, why, iters, secs, t0 = _solve_ceres(frames, T_init, conf, priors)
     rep = analyse_information(T, info, conf.covariance, cov_hint=cov, pinned_std=prior_pinned_std(conf.factor),
-                              external_info=_prior_info(priors))
+                              external_info=_prior_info(priors), geometry=RowGeometry.from_frames(frames))
     cov_s = time.perf_counter() - t0
     fractions = [frame_information(T, f, conf.factor, conf.schedule.final_gate)[2] for f in frames if len(f)]
     inl = float(np.mean(fractions)) if fractions else 0.0

@@ -19,7 +19,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hybrid_calib.calib.degeneracy import DegeneracyConfig, RowGeometry, explain
+
 AXES = ("x", "y", "z")
+# fleet words of the camera axes (docs/conventions.md): rotation about x, y, z; translation along x, y, z
+ROT_WORDS = {"x": "pitch", "y": "yaw", "z": "roll"}
+TRANS_WORDS = {"x": "lateral", "y": "vertical", "z": "longitudinal"}
 
 
 @dataclass(frozen=True)
@@ -30,6 +35,7 @@ class CovarianceConfig:
     unobservable_rel_eig: float = 1e-9  # scaled-information eigenvalue / largest below this: unobservable
     regularise_rot_deg: float = 30.0  # std of the weak prior that replaces an unobservable rotation (deg)
     regularise_trans_m: float = 5.0  # std of the weak prior that replaces an unobservable translation (m)
+    degeneracy: DegeneracyConfig = DegeneracyConfig()  # thresholds of the trade-off / geometry words
 
 
 @dataclass(frozen=True)
@@ -101,7 +107,9 @@ def _name_direction(vec_report: np.ndarray) -> str:
             continue
         order = np.argsort(-w)
         axes = [AXES[i] for i in order if w[i] > 0.25 * w.sum()]
-        parts.append(f"{label} camera {'/'.join(axes)}")
+        words = "/".join((ROT_WORDS if label == "rotation about" else TRANS_WORDS)[a] for a in axes)
+        words += "" if label == "rotation about" else " offset"
+        parts.append(f"{words} ({label} camera {'/'.join(axes)})")
     return " coupled with ".join(parts) if parts else "mixed direction"
 
 
@@ -192,7 +200,7 @@ def marginalise_prior_pinned(info: np.ndarray, pinned_std=None, external_info: n
 def analyse_information(
     T_cam_radar: np.ndarray, info: np.ndarray, conf: CovarianceConfig | None = None,
     cov_hint: np.ndarray | None = None, pinned_std: np.ndarray | None = None,
-    external_info: np.ndarray | None = None,
+    external_info: np.ndarray | None = None, geometry: RowGeometry | None = None,
 ) -> CovarianceReport:
     """Information (6, 6) in the right/radar tangent -> trustworthy covariance and status.
 
@@ -206,6 +214,10 @@ def analyse_information(
         (``marginalise_prior_pinned``) before the directions are read, so a large value is named
         as a poorly observed direction unless an external prior pins it.
     external_info: optional (6, 6) information of the external priors included in ``info``.
+    geometry: optional ``degeneracy.RowGeometry`` of the rows behind ``info``; its causes (a single
+        frame, few rows, one range, one direction, along the road) make the status at least "weak"
+        and, with the trade-off pairs of the covariance, are the words after the colon
+        (``degeneracy.explain``; thresholds in ``conf.degeneracy``).
 
     The analysis is done in the scaled report basis ``S^-1 B`` (B = blockdiag(R, R), S = the
     tolerances): eigenvectors of the scaled covariance name the poorly observed directions.
@@ -258,14 +270,30 @@ def analyse_information(
         names.append(name)
         how = "unobservable" if in_null else "poorly observed"
         details.append(f"{name} is {how} ({_fmt_std(std_scaled, vec, conf)})")
+    cov_t, observed = _without_pinned(cov, B, pinned_std if pinned else None)
+    why, weak = explain(B @ cov_t @ B.T, geometry, conf.degeneracy, regularised or bool(details), observed)
     if regularised:
-        status = "degenerate: " + "; ".join(details or ["information matrix is singular"])
+        status = "degenerate: " + "; ".join(why + (details or ["information matrix is singular"]))
         status += " [covariance regularised with a weak prior: those directions are not calibrated]"
-    elif details:
-        status = "weak: " + "; ".join(details)
+    elif weak:
+        status = "weak: " + "; ".join(why + details)
     else:
         status = "ok"
     return CovarianceReport(cov, report_std(T_cam_radar, cov), status, regularised, tuple(names), condition)
+
+
+def _without_pinned(cov: np.ndarray, B: np.ndarray, pinned_std) -> tuple[np.ndarray, np.ndarray]:
+    """The covariance (6, 6, radar tangent) conditioned on the prior-pinned directions, and the (6,)
+    mask of camera axes that are not mostly prior-pinned: the trade-offs worth naming are between
+    the observed axes, not the prior's leakage into them through the mount rotation."""
+    if pinned_std is None:
+        return cov, np.ones(6, bool)
+    std = np.asarray(pinned_std, np.float64)
+    E = np.flatnonzero(std > 0)
+    cond = cov - cov[:, E] @ np.linalg.pinv(cov[np.ix_(E, E)], hermitian=True) @ cov[E, :]
+    observed = np.ones(6, bool)
+    observed[[int(np.argmax(np.abs(B[:, k]))) for k in E]] = False  # the camera axis each pinned direction maps to
+    return 0.5 * (cond + cond.T), observed
 
 
 def marginal_covariance(graph, values, key: int) -> tuple[np.ndarray | None, str]:
