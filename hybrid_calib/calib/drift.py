@@ -26,11 +26,21 @@ Two tests, both chi-square tests on a 6-DoF difference in the right tangent of `
    With the long-run information ``I_all`` and the recent
    frames' information ``I_m`` (a subset of it), the difference of the two efficient estimates has
    covariance ``I_m^-1 - I_all^-1`` (Hausman), so ``s = d^T (I_m^-1 - I_all^-1)^-1 d`` ~ chi2(6).
-   An alarm needs ``s`` above the chi2(6) quantile at ``p_alarm`` on ``consecutive`` frames.
+   On realistic scenes the windowed statistic is over-dispersed (the reflector heights of a few
+   frames bias their estimate by more than the pixel noise says: median 8-9 instead of chi2(6)'s
+   5.35 on the straight preset), so the statistic is divided by a running scale, the median of the
+   last ``scale_window`` statistics over chi2(6)'s median (at least 1; from ``scale_min_tests`` on;
+   kept across restarts: it is a property of the scenes and the model, not of the extrinsic).
+   An alarm needs the scaled ``s`` above the chi2(6) quantile at ``p_alarm`` on ``consecutive``
+   tests. Hysteresis: after an alarm the detector is disarmed until the scaled statistic has been
+   below the re-arm level (the chi2(6) quantile at ``rearm_p``) on ``rearm_tests`` tests in a row,
+   so one step raises one alarm. False-alarm rate and detection delay: benchmarks/bench_steps.py,
+   docs/benchmarks.md.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -57,6 +67,10 @@ class StepConfig:
     consecutive: int = 2  # tests in a row above the threshold before an alarm (the tails are heavier than chi2)
     every: int = 10  # the convex-start test (one small solve) runs every this many frames ...
     inlier_drop: float = 0.6  # ... and at once when a frame's inlier fraction falls below this x the running mean
+    scale_window: int = 100  # tests in the running median that scales the statistic (over-dispersion)
+    scale_min_tests: int = 10  # the statistic is scaled from this many tests on
+    rearm_p: float = 0.1  # hysteresis: after an alarm, re-arm once the scaled statistic < chi2.isf(rearm_p, 6) ...
+    rearm_tests: int = 3  # ... on this many tests in a row
 
 
 # report axes in camera coordinates (docs/conventions.md): rotation about / translation along camera x, y, z
@@ -232,12 +246,16 @@ def reference_test(
 
 @dataclass
 class StepTest:
-    """One evaluation of the windowed step test."""
+    """One evaluation of the windowed step test. statistic: scaled (``raw / scale``); armed: the
+    detector could raise an alarm at this test (hysteresis)."""
 
     statistic: float
     threshold: float
     above: bool
     alarm: bool
+    raw: float = float("nan")
+    scale: float = 1.0
+    armed: bool = True
 
 
 @dataclass(frozen=True)
@@ -269,12 +287,25 @@ class StepDetector:
 
         self.conf = merge(StepConfig, conf)
         self.threshold = float(chi2.isf(self.conf.p_alarm, 6))
+        self.rearm_level = float(chi2.isf(self.conf.rearm_p, 6))
         self._run = 0
+        self._below = 0
+        self.armed = True
         self.inlier_mean: float | None = None  # running mean of the frames' inlier fractions
+        self._history: deque[float] = deque(maxlen=max(1, self.conf.scale_window))
 
     def reset(self) -> None:
+        """After a restart of the window: forget the run of exceedances and the inlier mean; keep
+        the statistic's scale and the hysteresis state (one step, one alarm)."""
         self._run = 0
         self.inlier_mean = None
+
+    @property
+    def scale(self) -> float:
+        """Over-dispersion of the statistic: median of the recent statistics / chi2(6) median, >= 1."""
+        if len(self._history) < max(1, self.conf.scale_min_tests):
+            return 1.0
+        return max(1.0, float(np.median(self._history)) / float(chi2.median(6)))
 
     def ready(self, n_total: int, n_window: int) -> bool:
         """Enough history to test: ``n_total`` frames in the long-run estimate, ``n_window`` in the window."""
@@ -332,10 +363,25 @@ class StepDetector:
         return chi2_quadratic(d, cov_d)
 
     def observe(self, s: float) -> StepTest:
-        """Record one statistic; an alarm after ``consecutive`` exceedances in a row."""
-        above = s > self.threshold
+        """Record one raw statistic; scaled by the running scale (before it joins the history), an
+        alarm after ``consecutive`` exceedances in a row while armed; disarmed after an alarm until
+        ``rearm_tests`` scaled statistics in a row are below ``rearm_level``."""
+        scale = self.scale
+        z = float(s) / scale
+        self._history.append(float(s))
+        above = z > self.threshold
+        armed = self.armed
+        if not armed:
+            self._below = self._below + 1 if z < self.rearm_level else 0
+            if self._below >= self.conf.rearm_tests:
+                self.armed, self._below = True, 0
+            self._run = 0
+            return StepTest(z, self.threshold, bool(above), False, float(s), scale, False)
         self._run = self._run + 1 if above else 0
-        return StepTest(float(s), self.threshold, bool(above), self._run >= self.conf.consecutive)
+        alarm = self._run >= self.conf.consecutive
+        if alarm:
+            self.armed, self._run, self._below = False, 0, 0
+        return StepTest(z, self.threshold, bool(above), bool(alarm), float(s), scale, True)
 
     def test(self, T_long: np.ndarray, info_long: np.ndarray, T_recent: np.ndarray,
              info_recent: np.ndarray) -> StepTest:
