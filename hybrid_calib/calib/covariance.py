@@ -259,6 +259,7 @@ def analyse_information(
     Cz = np.diag(1 / s) @ B @ cov @ B.T @ np.diag(1 / s)
     cevals, cevecs = np.linalg.eigh(0.5 * (Cz + Cz.T))
     names, details = [], []
+    pinned_axes = pinned_camera_axes(B, pinned_std) if pinned else np.zeros(6, bool)
     for k in range(5, -1, -1):
         std_scaled = float(np.sqrt(max(cevals[k], 0.0)))
         if std_scaled <= conf.weak_factor:
@@ -268,7 +269,8 @@ def analyse_information(
         # is this direction (mostly) in the unobservable subspace?
         in_null = regularised and float(np.sum((evecs[:, unobs].T @ vec) ** 2)) > 0.5
         names.append(name)
-        how = "unobservable" if in_null else "poorly observed"
+        on_pinned = float(np.sum(vec[pinned_axes] ** 2)) > 0.5
+        how = "unobservable" if in_null else "prior-pinned, not measured" if on_pinned else "poorly observed"
         details.append(f"{name} is {how} ({_fmt_std(std_scaled, vec, conf)})")
     cov_t, observed = _without_pinned(cov, B, pinned_std if pinned else None)
     why, weak = explain(B @ cov_t @ B.T, geometry, conf.degeneracy, regularised or bool(details), observed)
@@ -291,9 +293,19 @@ def _without_pinned(cov: np.ndarray, B: np.ndarray, pinned_std) -> tuple[np.ndar
     std = np.asarray(pinned_std, np.float64)
     E = np.flatnonzero(std > 0)
     cond = cov - cov[:, E] @ np.linalg.pinv(cov[np.ix_(E, E)], hermitian=True) @ cov[E, :]
-    observed = np.ones(6, bool)
-    observed[[int(np.argmax(np.abs(B[:, k]))) for k in E]] = False  # the camera axis each pinned direction maps to
-    return 0.5 * (cond + cond.T), observed
+    return 0.5 * (cond + cond.T), ~pinned_camera_axes(B, std)
+
+
+def pinned_camera_axes(B: np.ndarray, pinned_std) -> np.ndarray:
+    """(6,) bool: the camera report axes (pitch, yaw, roll, lateral, vertical, longitudinal) that a
+    prior-pinned right-tangent direction maps to (``report_basis`` B; per pinned direction the axis
+    of its largest component: pitch and vertical offset for a forward-looking radar)."""
+    out = np.zeros(6, bool)
+    if pinned_std is None:
+        return out
+    for k in np.flatnonzero(_checked_pinned_std(pinned_std) > 0):
+        out[int(np.argmax(np.abs(B[:, k])))] = True
+    return out
 
 
 def marginal_covariance(graph, values, key: int) -> tuple[np.ndarray | None, str]:

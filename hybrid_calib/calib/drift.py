@@ -207,12 +207,13 @@ def reference_test(
     tangent, radar frame) against a reference (4, 4).
 
     pinned_std: optional (6,) right-tangent std (rad, m) of the directions only the elevation
-    prior pins (``covariance.prior_pinned_std``), already contained in ``cov_est``; a camera axis
-    whose variance is mostly this is named "prior-pinned" in the verdict.
+    prior pins (``covariance.prior_pinned_std``), already contained in ``cov_est``; the camera axes
+    they map to (``covariance.pinned_camera_axes``: pitch, vertical offset) are named
+    "prior-pinned" in the verdict.
     """
     from scipy.stats import norm
 
-    from hybrid_calib.calib.covariance import report_basis
+    from hybrid_calib.calib.covariance import pinned_camera_axes, report_basis
     from hybrid_calib.config import merge
 
     conf = merge(DriftConfig, conf)
@@ -230,10 +231,7 @@ def reference_test(
     units = np.array([np.degrees(1.0)] * 3 + [100.0] * 3)
     var_rep = np.clip(np.diag(B @ C @ B.T), 0.0, None)
     std_report = np.sqrt(var_rep) * units
-    pinned = np.zeros(6, bool)
-    if pinned_std is not None:
-        pv = np.diag(B @ np.diag(np.asarray(pinned_std, float) ** 2) @ B.T)
-        pinned = pv > 0.5 * np.maximum(var_rep, 1e-300)
+    pinned = pinned_camera_axes(B, pinned_std)
     z = float(norm.isf(conf.alpha / 12))
     axes = _check_axes(delta_report, std_report, pinned, conf, z)
     kind, sentence = _verdict(axes)
