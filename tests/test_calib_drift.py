@@ -57,9 +57,9 @@ def test_verdict_words_for_prior_pinned_axes():
     pitched = perturb_camera_frame(T, np.radians([0.0, 0.9, 0.0]), [0.0, 0.0, 0.0])
     d = reference_test(pitched, C, T, pinned_std=pinned)
     assert d.verdict_kind == "cannot tell" and d.verdict.startswith("cannot tell: pitch is prior-pinned"), d.verdict
-    # without the pinned information the same covariance reads as "too close to decide"
+    # without the pinned information the same covariance reads as "not precise enough"
     d = reference_test(pitched, C, T)
-    assert d.verdict_kind == "cannot tell" and "pitch differs by 0.90 deg" in d.verdict and "too close" in d.verdict
+    assert d.verdict_kind == "cannot tell" and "pitch differs by 0.90 deg" in d.verdict and "not precise enough" in d.verdict
     # a lateral shift of 5 cm is observed: recalibrate in words of centimetres
     shifted = perturb_camera_frame(T, np.zeros(3), [0.05, 0.0, 0.0])
     d = reference_test(shifted, C, T, pinned_std=pinned)

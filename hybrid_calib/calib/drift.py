@@ -7,12 +7,14 @@ Two tests, both chi-square tests on a 6-DoF difference in the right tangent of `
    ``d = local(T_ref, T_est)`` (6,), ``s = d^T (C_est + C_ref)^-1 d`` ~ chi2(6) under "no change"
    (statistic and p-value reported), and a VERDICT in words from a per-axis tolerance test in
    camera axes (pitch, yaw, roll about camera x, y, z; lateral, vertical, longitudinal offset along
-   camera x, y, z): with ``z = Phi^-1(1 - alpha / 12)`` (two-sided, Bonferroni over 6 axes), an
-   axis whose difference ``|delta| - z sigma`` exceeds the tolerance (``tolerance_rot_deg``,
-   ``tolerance_trans_cm``) DIFFERS ("differs by 0.9 deg in yaw: recalibrate"); an axis with
-   ``|delta| + z sigma`` inside it is within tolerance; anything else cannot be told apart ("cannot
-   tell: ..."), naming why: the axis is prior-pinned (a 2D radar does not observe pitch and
-   height: most of its variance is the elevation prior's, ``pinned_std``) or its std is too large.
+   camera x, y, z): an axis whose ``|delta| - z_out sigma`` exceeds the tolerance
+   (``tolerance_rot_deg``, ``tolerance_trans_cm``) DIFFERS ("differs by 0.9 deg in yaw:
+   recalibrate"; ``z_out = Phi^-1(1 - alpha / 6)``, one-sided, Bonferroni over the 6 axes: a
+   false "recalibrate" has probability <= alpha); an axis with ``|delta| + z_in sigma`` inside it
+   is within tolerance (``z_in = Phi^-1(1 - alpha)``: "all axes within" is an intersection-union
+   test, level alpha without a correction); anything else cannot be told apart ("cannot tell:
+   ..."), naming why: the axis is prior-pinned (a 2D radar does not observe pitch and height:
+   ``pinned_std``, ``covariance.pinned_camera_axes``) or its std is too large.
    Prior-pinned axes whose difference is not itself beyond the tolerance are listed as "not
    checked" and do not block "within tolerance" of the observed axes. A significant but
    sub-tolerance change is not a reason to recalibrate: with hundreds of frames a sub-millimetre
@@ -132,7 +134,8 @@ class DriftDecision:
             "delta_camera": {k: float(v) for k, v in zip(AXIS_KEYS, self.delta_report)},
             "rot_change_deg": float(self.rot_change_deg), "trans_change_cm": float(self.trans_change_cm),
             "verdict_kind": self.verdict_kind, "verdict": self.verdict,
-            "verdict_test": f"per camera axis |delta| -/+ z sigma against the tolerance, z = {self.z:.2f}",
+            "verdict_test": f"per camera axis: differs if |delta| - {self.z:.2f} sigma > tolerance, within if "
+                            "|delta| + z_in sigma <= tolerance (z_in = Phi^-1(1 - alpha))",
             "axes": {a.name: a.to_dict() for a in self.axes},
         }
 
@@ -162,11 +165,12 @@ def _and(names: list[str]) -> str:
     return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
 
 
-def _check_axes(delta: np.ndarray, std: np.ndarray, pinned: np.ndarray, conf: DriftConfig, z: float) -> list[AxisCheck]:
+def _check_axes(delta: np.ndarray, std: np.ndarray, pinned: np.ndarray, conf: DriftConfig, z_out: float,
+                z_in: float) -> list[AxisCheck]:
     out = []
     for i, name in enumerate(AXIS_WORDS):
         tol = conf.tolerance_rot_deg if i < 3 else conf.tolerance_trans_cm
-        lo, hi = abs(delta[i]) - z * std[i], abs(delta[i]) + z * std[i]
+        lo, hi = abs(delta[i]) - z_out * std[i], abs(delta[i]) + z_in * std[i]
         decision = "differs" if lo > tol else "within" if hi <= tol else "undecided"
         out.append(AxisCheck(name, float(delta[i]), float(std[i]), tol, decision, bool(pinned[i])))
     return out
@@ -185,7 +189,8 @@ def _verdict(axes: list[AxisCheck]) -> tuple[str, str]:
     note = ""
     if unchecked:
         note = (f"; {_and([a.name for a in unchecked])} not checked: prior-pinned "
-                f"(std {', '.join(_fmt(a.std, a.unit) for a in unchecked)}; a 2D radar does not observe them)")
+                f"(std {', '.join(_fmt(a.std, a.unit) for a in unchecked)}; a 2D radar does not observe "
+                f"{'it' if len(unchecked) == 1 else 'them'})")
     if not blocking:
         return "within tolerance", "within tolerance" + note
     why = []
@@ -194,8 +199,8 @@ def _verdict(axes: list[AxisCheck]) -> tuple[str, str]:
             why.append(f"{a.name} is prior-pinned (differs by {_fmt(abs(a.delta), a.unit)} +- {_fmt(a.std, a.unit)}, "
                        f"tolerance {_fmt(a.tolerance, a.unit)}; the data do not observe it)")
         else:
-            why.append(f"{a.name} differs by {_fmt(abs(a.delta), a.unit)} +- {_fmt(a.std, a.unit)}, too close to "
-                       f"the {_fmt(a.tolerance, a.unit)} tolerance to decide (more frames narrow it)")
+            why.append(f"{a.name} differs by {_fmt(abs(a.delta), a.unit)} +- {_fmt(a.std, a.unit)}, not precise "
+                       f"enough to decide against the {_fmt(a.tolerance, a.unit)} tolerance (more frames narrow it)")
     return "cannot tell", "cannot tell: " + "; ".join(why) + note
 
 
@@ -232,8 +237,8 @@ def reference_test(
     var_rep = np.clip(np.diag(B @ C @ B.T), 0.0, None)
     std_report = np.sqrt(var_rep) * units
     pinned = pinned_camera_axes(B, pinned_std)
-    z = float(norm.isf(conf.alpha / 12))
-    axes = _check_axes(delta_report, std_report, pinned, conf, z)
+    z = float(norm.isf(conf.alpha / 6))
+    axes = _check_axes(delta_report, std_report, pinned, conf, z, float(norm.isf(conf.alpha)))
     kind, sentence = _verdict(axes)
     rot = float(np.degrees(np.linalg.norm(d[:3])))
     trans = float(np.linalg.norm(delta_report[3:]))
