@@ -59,7 +59,7 @@ def test_singular_information_uses_regularised_prior():
     info = np.diag([1e6, 1e6, 1e6, 1e6, 1e6, 0.0])  # radar z translation unobservable
     rep = analyse_information(T, info)
     assert rep.regularised and rep.status.startswith("degenerate:")
-    assert "translation along camera y is unobservable" in rep.status  # radar z = camera -y
+    assert "vertical offset (translation along camera y) is unobservable" in rep.status  # radar z = camera -y
     assert rep.std_report[4] > 100  # cm: the weak prior's 5 m, not a silent tiny number
     ok = analyse_information(T, np.eye(6) * 1e10)
     assert ok.status == "ok" and not ok.regularised
@@ -132,4 +132,5 @@ def test_straight_scenario_names_the_weak_direction(tmp_path):
     est = solve_batch(frames, ds[0].extras["reference_T_cam_radar"]).estimate
     assert est.status.startswith(("weak:", "degenerate:")), est.status
     assert "camera" in est.status and "std" in est.status
+    assert "all reflectors lie along the road" in est.status, est.status  # straight-specific words
     assert est.std[:3].max() > 1.0 or est.std[3:].max() > 10.0  # deg / cm: large where it says so

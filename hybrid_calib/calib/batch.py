@@ -22,6 +22,7 @@ from hybrid_calib.calib.covariance import (
     analyse_drive_information,
     graph_covariance,
 )
+from hybrid_calib.calib.degeneracy import RowGeometry
 from hybrid_calib.calib.result import Estimate
 from hybrid_calib.calib.schedule import (
     GaussianPrior,
@@ -89,7 +90,8 @@ def solve_batch(frames: list[Correspondences], T_init: np.ndarray, conf: BatchCo
     cross = sum((frame_scene_cross(T, f, conf.factor, conf.schedule.final_gate) for f in frames),
                 np.zeros((6, len(scene_prior_std(conf.factor)))))
     rep = analyse_drive_information(T, info, conf.covariance, conf.factor, cov_hint=cov,
-                                    external_info=_prior_info(priors), scene_cross=cross)
+                                    external_info=_prior_info(priors), scene_cross=cross,
+                                    geometry=RowGeometry.from_frames(frames))
     cov_s = time.perf_counter() - t0
     fractions = [frame_information(T, f, conf.factor, conf.schedule.final_gate)[2] for f in frames if len(f)]
     inl = float(np.mean(fractions)) if fractions else 0.0

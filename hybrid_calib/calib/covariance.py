@@ -19,7 +19,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hybrid_calib.calib.degeneracy import DegeneracyConfig, RowGeometry, explain
+
 AXES = ("x", "y", "z")
+# fleet words of the camera axes (docs/conventions.md): rotation about x, y, z; translation along x, y, z
+ROT_WORDS = {"x": "pitch", "y": "yaw", "z": "roll"}
+TRANS_WORDS = {"x": "lateral", "y": "vertical", "z": "longitudinal"}
 
 
 @dataclass(frozen=True)
@@ -30,6 +35,7 @@ class CovarianceConfig:
     unobservable_rel_eig: float = 1e-9  # scaled-information eigenvalue / largest below this: unobservable
     regularise_rot_deg: float = 30.0  # std of the weak prior that replaces an unobservable rotation (deg)
     regularise_trans_m: float = 5.0  # std of the weak prior that replaces an unobservable translation (m)
+    degeneracy: DegeneracyConfig = DegeneracyConfig()  # thresholds of the trade-off / geometry words
 
 
 @dataclass(frozen=True)
@@ -101,7 +107,9 @@ def _name_direction(vec_report: np.ndarray) -> str:
             continue
         order = np.argsort(-w)
         axes = [AXES[i] for i in order if w[i] > 0.25 * w.sum()]
-        parts.append(f"{label} camera {'/'.join(axes)}")
+        words = "/".join((ROT_WORDS if label == "rotation about" else TRANS_WORDS)[a] for a in axes)
+        words += "" if label == "rotation about" else " offset"
+        parts.append(f"{words} ({label} camera {'/'.join(axes)})")
     return " coupled with ".join(parts) if parts else "mixed direction"
 
 
@@ -226,26 +234,30 @@ def marginalise_scene_nuisance(info: np.ndarray, cross: np.ndarray | None = None
 def analyse_drive_information(
     T_cam_radar: np.ndarray, info: np.ndarray, conf, factor_conf, cov_hint: np.ndarray | None = None,
     external_info: np.ndarray | None = None, scene_cross: np.ndarray | None = None,
+    geometry: RowGeometry | None = None,
 ) -> CovarianceReport:
     """``analyse_information`` with the nuisance of the factor's elevation model removed from the data:
     the prior-pinned directions (``prior_pinned_std(factor_conf)``) and, when enabled and
     ``scene_cross`` (6, K) is given, the per-drive scene nuisance (``marginalise_scene_nuisance``).
-    The one entry point of the window and the batch solve."""
+    ``geometry``: the rows' ``degeneracy.RowGeometry`` for the status words. The one entry point of
+    the window and the batch solve."""
     from factors.scene import scene_prior_std
 
     pinned = prior_pinned_std(factor_conf)
     std = scene_prior_std(factor_conf)
     if scene_cross is None or not np.any(std > 0):
         return analyse_information(T_cam_radar, info, conf, cov_hint=cov_hint, pinned_std=pinned,
-                                   external_info=external_info)
+                                   external_info=external_info, geometry=geometry)
     info_n = marginalise_scene_nuisance(info, scene_cross, std, pinned, external_info)
-    return analyse_information(T_cam_radar, info_n, conf)
+    return analyse_information(T_cam_radar, info_n, conf, pinned_std=pinned, geometry=geometry,
+                               pinned_marginalised=True)
 
 
 def analyse_information(
     T_cam_radar: np.ndarray, info: np.ndarray, conf: CovarianceConfig | None = None,
     cov_hint: np.ndarray | None = None, pinned_std: np.ndarray | None = None,
-    external_info: np.ndarray | None = None,
+    external_info: np.ndarray | None = None, geometry: RowGeometry | None = None,
+    pinned_marginalised: bool = False,
 ) -> CovarianceReport:
     """Information (6, 6) in the right/radar tangent -> trustworthy covariance and status.
 
@@ -259,6 +271,13 @@ def analyse_information(
         (``marginalise_prior_pinned``) before the directions are read, so a large value is named
         as a poorly observed direction unless an external prior pins it.
     external_info: optional (6, 6) information of the external priors included in ``info``.
+    pinned_marginalised: ``info`` already has the ``pinned_std`` nuisance marginalised (e.g. with
+        the scene nuisance, ``marginalise_scene_nuisance``); ``pinned_std`` then only names the
+        prior-pinned directions in the status.
+    geometry: optional ``degeneracy.RowGeometry`` of the rows behind ``info``; its causes (a single
+        frame, few rows, one range, one direction, along the road) make the status at least "weak"
+        and, with the trade-off pairs of the covariance, are the words after the colon
+        (``degeneracy.explain``; thresholds in ``conf.degeneracy``).
 
     The analysis is done in the scaled report basis ``S^-1 B`` (B = blockdiag(R, R), S = the
     tolerances): eigenvectors of the scaled covariance name the poorly observed directions.
@@ -271,8 +290,9 @@ def analyse_information(
         raise ValueError(f"information must be a finite (6, 6) matrix, got shape {info.shape}")
     info = 0.5 * (info + info.T)
     pinned = pinned_std is not None and np.any(np.asarray(pinned_std) > 0)
-    if pinned:
+    if pinned and not pinned_marginalised:
         info = marginalise_prior_pinned(info, pinned_std, external_info)
+    if pinned:
         cov_hint = None  # a solver's marginal does not know the nuisance: invert the marginalised information
     B = report_basis(T_cam_radar)
     s = _scale(conf)
@@ -300,6 +320,7 @@ def analyse_information(
     Cz = np.diag(1 / s) @ B @ cov @ B.T @ np.diag(1 / s)
     cevals, cevecs = np.linalg.eigh(0.5 * (Cz + Cz.T))
     names, details = [], []
+    pinned_axes = pinned_camera_axes(B, pinned_std) if pinned else np.zeros(6, bool)
     for k in range(5, -1, -1):
         std_scaled = float(np.sqrt(max(cevals[k], 0.0)))
         if std_scaled <= conf.weak_factor:
@@ -309,16 +330,43 @@ def analyse_information(
         # is this direction (mostly) in the unobservable subspace?
         in_null = regularised and float(np.sum((evecs[:, unobs].T @ vec) ** 2)) > 0.5
         names.append(name)
-        how = "unobservable" if in_null else "poorly observed"
+        on_pinned = float(np.sum(vec[pinned_axes] ** 2)) > 0.5
+        how = "unobservable" if in_null else "prior-pinned, not measured" if on_pinned else "poorly observed"
         details.append(f"{name} is {how} ({_fmt_std(std_scaled, vec, conf)})")
+    cov_t, observed = _without_pinned(cov, B, pinned_std if pinned else None)
+    why, weak = explain(B @ cov_t @ B.T, geometry, conf.degeneracy, regularised or bool(details), observed)
     if regularised:
-        status = "degenerate: " + "; ".join(details or ["information matrix is singular"])
+        status = "degenerate: " + "; ".join(why + (details or ["information matrix is singular"]))
         status += " [covariance regularised with a weak prior: those directions are not calibrated]"
-    elif details:
-        status = "weak: " + "; ".join(details)
+    elif weak:
+        status = "weak: " + "; ".join(why + details)
     else:
         status = "ok"
     return CovarianceReport(cov, report_std(T_cam_radar, cov), status, regularised, tuple(names), condition)
+
+
+def _without_pinned(cov: np.ndarray, B: np.ndarray, pinned_std) -> tuple[np.ndarray, np.ndarray]:
+    """The covariance (6, 6, radar tangent) conditioned on the prior-pinned directions, and the (6,)
+    mask of camera axes that are not mostly prior-pinned: the trade-offs worth naming are between
+    the observed axes, not the prior's leakage into them through the mount rotation."""
+    if pinned_std is None:
+        return cov, np.ones(6, bool)
+    std = np.asarray(pinned_std, np.float64)
+    E = np.flatnonzero(std > 0)
+    cond = cov - cov[:, E] @ np.linalg.pinv(cov[np.ix_(E, E)], hermitian=True) @ cov[E, :]
+    return 0.5 * (cond + cond.T), ~pinned_camera_axes(B, std)
+
+
+def pinned_camera_axes(B: np.ndarray, pinned_std) -> np.ndarray:
+    """(6,) bool: the camera report axes (pitch, yaw, roll, lateral, vertical, longitudinal) that a
+    prior-pinned right-tangent direction maps to (``report_basis`` B; per pinned direction the axis
+    of its largest component: pitch and vertical offset for a forward-looking radar)."""
+    out = np.zeros(6, bool)
+    if pinned_std is None:
+        return out
+    for k in np.flatnonzero(_checked_pinned_std(pinned_std) > 0):
+        out[int(np.argmax(np.abs(B[:, k])))] = True
+    return out
 
 
 def marginal_covariance(graph, values, key: int) -> tuple[np.ndarray | None, str]:

@@ -24,6 +24,7 @@ import numpy as np
 
 from factors.io import load_measurement_dir
 from hybrid_calib.calib.batch import BatchConfig, solve_batch
+from hybrid_calib.calib.covariance import prior_pinned_std
 from hybrid_calib.calib.drift import DriftConfig, reference_test
 from hybrid_calib.calib.oracle import OracleConfig, oracle_from_frame
 from hybrid_calib.calib.result import CalibrationRun, VehicleResult
@@ -187,7 +188,8 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, rng, progress: bo
     else:
         final = solve_batch(frames, T0, conf.batch, priors=None if prior is None else [prior]).estimate
     res = VehicleResult(vi.vehicle, final, traj, skipped=skipped, n_frames=len(frames))
-    res.drift = reference_test(final.T, final.cov, vi.reference, conf.drift).to_dict()
+    fc = conf.window.factor if conf.mode == "window" else conf.batch.factor
+    res.drift = reference_test(final.T, final.cov, vi.reference, conf.drift, prior_pinned_std(fc)).to_dict()
     res.network = _network_summary(vi)
     if vi.truth:
         T_true = vi.truth[-1]
@@ -197,7 +199,6 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, rng, progress: bo
     if vi.oracle_truths:
         from hybrid_calib.calib.crb import oracle_crb
 
-        fc = conf.window.factor if conf.mode == "window" else conf.batch.factor
         T_true = vi.truth[-1]
         res.crb_std = report_std(T_true, oracle_crb(T_true, vi.frames, vi.oracle_truths, conf.oracle.sigma_px, fc))
     return res

@@ -48,6 +48,7 @@ from hybrid_calib.calib.covariance import (
     graph_covariance,
     information_from_graph,
 )
+from hybrid_calib.calib.degeneracy import RowGeometry
 from hybrid_calib.calib.drift import StepConfig, StepDetector, StepOutcome
 from hybrid_calib.calib.result import Estimate, FrameEstimate
 from hybrid_calib.calib.schedule import (
@@ -180,6 +181,7 @@ class SlidingWindowCalibrator:
         self.last_ts: int | None = None
         self.detector = StepDetector(self.conf.step)
         self.info = np.zeros((6, 6))
+        self.geometry = RowGeometry()  # where the rows since the last reset lie (status words)
         # information of external priors (e.g. the network's SE(3)) folded into the marginal prior;
         # kept apart so the prior-pinned nuisance is removed from the data part only
         self._marg_external_info = np.zeros((6, 6))
@@ -256,6 +258,7 @@ class SlidingWindowCalibrator:
         self._marg_scene_cross = np.zeros_like(self._marg_scene_cross)
         while len(self.frames) > keep_last:
             self.frames.popleft()
+        self.geometry = RowGeometry.from_frames([f.corr for f in self.frames])
         self.since_reset = 0
         self.detector.reset()
 
@@ -347,7 +350,7 @@ class SlidingWindowCalibrator:
                 (fr.lin.scene_cross for fr in self.frames if fr.lin is not None and fr.lin.scene_cross is not None),
                 np.zeros_like(self._marg_scene_cross))
         rep = analyse_drive_information(self.T, info, self.conf.covariance, self.conf.factor, cov_hint=cov,
-                                        external_info=ext, scene_cross=cross)
+                                        external_info=ext, scene_cross=cross, geometry=self.geometry)
         self.info = info
         notes = [n for n in (why, note) if n]
         return Estimate.from_report(self.T, rep, info, "; ".join(notes)), (time.perf_counter() - t0) * 1e3
@@ -395,6 +398,7 @@ class SlidingWindowCalibrator:
         """Append the frame; frames beyond ``window`` leave into the marginal prior."""
         fr = _Frame(corr, prior)
         self.frames.append(fr)
+        self.geometry.add(corr.points_radar)
         while len(self.frames) > self.conf.window:
             self._marginalise(self.frames.popleft())
         return fr

@@ -91,6 +91,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _report(result, out: Path) -> int:
+    from hybrid_calib.calib.drift import drift_verdict
     from hybrid_calib.calib.result import STD_FRAME
     from hybrid_calib.metrics import std_dict
 
@@ -102,7 +103,7 @@ def _report(result, out: Path) -> int:
             line += (f"; error{' vs the tables' if v.errors_against == 'tables' else ''} "
                      f"{v.error['rot_mean_deg']:.3f} deg, {v.error['trans_norm_cm']:.2f} cm")
         if v.drift:
-            line += f"; drift vs reference: {'YES' if v.drift['drifted'] else 'no'} (p {v.drift['p_value']:.2g})"
+            line += f"; vs reference (tables): {drift_verdict(v.drift)} (chi2 p {v.drift['p_value']:.2g})"
         if v.skipped:
             line += f"; {len(v.skipped)} frame(s) skipped (bad files; listed in result.json)"
         print(line)

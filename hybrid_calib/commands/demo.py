@@ -101,6 +101,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from hybrid_calib.calib.drift import drift_verdict
+
     s = run_demo(args.out, parse_overrides(args.set), overwrite=args.overwrite)
     print(f"simulated drive:      {s['sim_root']}")
     print(f"radar on camera:      {s['projection_png']}")
@@ -119,6 +121,9 @@ def run(args: argparse.Namespace) -> int:
         if f["status"].startswith("weak"):
             print("  note: a 2D radar records no elevation, so its height and pitch against the camera are pinned\n"
                   "        only by the reflector-height prior; the 1-sigma above says so (docs/conventions.md)")
+        if v.get("drift"):
+            print(f"  vs reference:       {drift_verdict(v['drift'])} (chi2 p {v['drift']['p_value']:.2g}; the "
+                  "reference is the vehicle's calibration tables)")
     print(f"calibration result:   {s['calibration_result']}")
     print(f"calibration plots:    {s['calibration_plots']}")
     return 0

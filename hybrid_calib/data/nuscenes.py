@@ -25,7 +25,7 @@ Bad input policy:
   T_ego_cam, T_ego_radar: calibrated_sensor extrinsics; T_global_ego_cam, T_global_ego_radar: ego
   poses at the two timestamps; T_cam_radar_static: inv(T_ego_cam) T_ego_radar (no ego motion);
   reference_T_cam_radar: the reference a drift detector compares against (the simulated vehicle's
-  nominal mounting for v1.0-sim roots with sim_vehicle.json, else T_cam_radar_static);
+  factory calibration for v1.0-sim roots with sim_vehicle.json, else T_cam_radar_static);
   radar_rows: (N,) int64 rows of the newest PCD kept after NaN removal and filtering (single sweep);
   radar_truth_path: simulator per-point truth (.npz, rows aligned with the unfiltered PCD; single
   sweep); radar_sweep_index (N,) int16 and radar_sweep_dt_s (N,) float32; radar_points_raw,
@@ -303,9 +303,17 @@ class NuScenesRadarCamera:
         return np.ascontiguousarray(pts[finite], dtype=np.float32), T_cam_lidar
 
     def _reference(self, ref: FrameRef, T_ego_cam: np.ndarray, T_cam_radar_static: np.ndarray) -> np.ndarray:
-        """The extrinsic a drift detector compares against: the simulated vehicle's nominal mounting
-        (``sim_vehicle.json``) when present, else the tables' own static extrinsic."""
-        T_ego_radar_nom = _sim_nominal_T_ego_radar(self.sim_vehicles.get(ref.log_token), self.radar_channel)
+        """The extrinsic a drift detector compares against: the vehicle's calibration tables. In a
+        v1.0-sim root ``calibrated_sensor`` carries the simulator's ground truth, so the tables a
+        real vehicle would have are ``sim_vehicle.json``'s factory calibration (truth + calibration
+        error); roots simulated before it existed fall back to the nominal (fleet design) mount, real
+        roots to the tables' own static extrinsic."""
+        rec = self.sim_vehicles.get(ref.log_token)
+        factory_radar = _sim_pose(rec, "factory_T_ego_radar")
+        factory_cam = _sim_pose(rec, "factory_T_ego_cam")
+        if factory_radar is not None and factory_cam is not None:
+            return se3_inverse(factory_cam) @ factory_radar
+        T_ego_radar_nom = _sim_nominal_T_ego_radar(rec, self.radar_channel)
         if T_ego_radar_nom is None:
             return T_cam_radar_static
         return se3_inverse(T_ego_cam) @ T_ego_radar_nom
@@ -336,8 +344,13 @@ def _sim_nominal_T_ego_radar(rec: dict | None, radar_channel: str) -> np.ndarray
         return None
     nominal = rec.get("nominal") or rec.get("nominal_extrinsics") or {}
     node = nominal.get(radar_channel) if isinstance(nominal, dict) else None
-    if node is None:
-        node = rec.get("nominal_T_ego_radar")
+    return _sim_pose({"node": node}, "node") if node is not None else _sim_pose(rec, "nominal_T_ego_radar")
+
+
+def _sim_pose(rec: dict | None, key: str) -> np.ndarray | None:
+    """A (4, 4) pose stored under ``key`` of a simulated vehicle record ({rotation, translation} or a
+    4x4 list), or None when absent."""
+    node = rec.get(key) if rec else None
     if node is None:
         return None
     if isinstance(node, dict):

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 
 import numpy as np
 
+from hybrid_calib.calib.drift import drift_verdict
 from hybrid_calib.calib.result import VehicleResult
 from hybrid_calib.metrics import signed_errors
 from hybrid_calib.plots.figure import pyplot, save_figure
@@ -49,7 +51,7 @@ def plot_vehicle(vr: VehicleResult, out_dir: Path) -> list[Path]:
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(10, 5), sharex=True)
     st = np.array([np.nan if f.step_statistic is None else f.step_statistic for f in vr.trajectory])
     thr = next((f.step_threshold for f in vr.trajectory if f.step_threshold is not None), None)
-    a1.semilogy(k, np.maximum(st, 1e-3), ".-", lw=0.8, label="windowed chi-square (dof 6)")
+    a1.semilogy(k, np.maximum(st, 1e-3), ".-", lw=0.8, label="windowed chi-square (dof 6) / its running scale")
     if thr is not None:
         a1.axhline(thr, color="r", ls="--", label=f"alarm threshold {thr:.1f}")
     for f in vr.trajectory:
@@ -61,8 +63,9 @@ def plot_vehicle(vr: VehicleResult, out_dir: Path) -> list[Path]:
     a2.set_ylabel("inlier fraction")
     a2.set_xlabel("frame")
     d = vr.drift or {}
-    fig.suptitle(f"{vr.vehicle}: step detector; vs reference: chi2 {d.get('statistic', float('nan')):.1f} "
-                 f"(p {d.get('p_value', float('nan')):.2g}) -> {'DRIFTED' if d.get('drifted') else 'no drift'}")
+    verdict = textwrap.fill(f"vs reference (tables): {drift_verdict(d) or 'no reference test'}", 120)
+    fig.suptitle(f"{vr.vehicle}: step detector; chi2 vs reference {d.get('statistic', float('nan')):.1f} "
+                 f"(p {d.get('p_value', float('nan')):.2g})\n{verdict}", fontsize=9)
     fig.tight_layout()
     p2 = save_figure(fig, out_dir / f"{vr.vehicle}_drift.png", dpi=90)
     return [p1, p2]

@@ -108,6 +108,13 @@ def verdict_of(vr: VehicleResult, tol: Tolerance | None = None) -> Verdict:
         moved += "; but the solve did not converge, so these alarms may only mark its failures"
     d = vr.drift or {}
     given = d.get("verdict")
+    kind = d.get("verdict_kind")
+    if kind:  # the calibrator's reference test (calib.drift): kind, sentence and per-axis tolerances
+        word = {"cannot tell": "inconclusive"}.get(kind, kind)
+        tols = {a.get("unit"): a.get("tolerance") for a in (d.get("axes") or {}).values()}
+        tol_text = ", ".join(f"{v:g} {u} per camera axis" for u, v in tols.items() if v is not None)
+        return Verdict(word, str(given or kind), tol_text or "not stated by the result",
+                       "the calibrator's reference test (result.json drift block)", moved, frames)
     if given:
         word = given.get("verdict", given.get("word", "")) if isinstance(given, dict) else str(given)
         why = (given.get("why") or given.get("reason") or "") if isinstance(given, dict) else ""

@@ -132,7 +132,7 @@ class VehicleDrive:
         self.world = build_world(s, int(_rng(c.seed, self.vehicle, 1).integers(2**31)), EGO_START_S + drive_len + 400.0)
         lane = self.world.layout.lane_centre(self.world.layout.lanes_per_direction - 1)
         self.ego = EgoMotion(self.world.path, lane, s.ego_speed, s.ego_speed_variation)
-        self.mounts = sample_mounts(_rng(c.seed, self.vehicle, 2), c.mounts)
+        self.mounts = sample_mounts(_rng(c.seed, self.vehicle, 2), c.mounts, _rng(c.seed, self.vehicle, 5))
         self.base_us = BASE_TIMESTAMP_US + self.vehicle * 10_000_000_000
 
     @cached_property

@@ -1,4 +1,4 @@
-"""Sensor mountings: the nominal (factory) nuScenes-like mounts, each vehicle's true perturbed mounts,
+"""Sensor mountings: the nominal (fleet design) nuScenes mounts, each vehicle's true perturbed mounts,
 and the radar mount moving during a drive (a step at one frame, or a slow drift).
 
 All transforms are ``T_ego_sensor`` (sensor -> ego), (4, 4) float64; see docs/conventions.md.
@@ -56,23 +56,34 @@ class ExtrinsicChange:
 
 @dataclass(frozen=True)
 class MountPerturbation:
-    """Spread of each vehicle's true mounts around the nominal ones (uniform in +- the value)."""
+    """Spread of each vehicle's true mounts around the nominal (fleet design) ones (uniform in +- the
+    value), and the error of each vehicle's factory calibration (Gaussian, std per axis).
 
-    radar_rotation_deg: float = 2.0  # per-axis radar rotation error, degrees
-    radar_translation_m: float = 0.05  # per-axis radar translation error, metres
-    camera_rotation_deg: float = 1.0  # per-axis camera rotation error, degrees
-    camera_translation_m: float = 0.03  # per-axis camera translation error, metres
-    lidar_rotation_deg: float = 0.2  # per-axis LiDAR rotation error, degrees
-    lidar_translation_m: float = 0.01  # per-axis LiDAR translation error, metres
+    Chosen from the real nuScenes mounts (850 trainval scenes, docs/conventions.md "Fleet mounts"):
+    RADAR_FRONT sits at one position with one of four yaws (-0.85 .. +0.20 deg); CAM_FRONT has three
+    mounts 5 cm apart along x with rotations up to 0.8 deg from the design axes.
+    """
+
+    radar_rotation_deg: float = 1.0  # per-axis radar rotation spread, degrees (nuScenes yaws: -0.85 .. +0.20)
+    radar_translation_m: float = 0.02  # per-axis radar translation spread, metres (nuScenes: one position)
+    camera_rotation_deg: float = 1.0  # per-axis camera rotation spread, degrees (nuScenes: up to 0.8 deg)
+    camera_translation_m: float = 0.03  # per-axis camera translation spread, metres (nuScenes: x 1.671 .. 1.722 m)
+    lidar_rotation_deg: float = 0.2  # per-axis LiDAR rotation spread, degrees
+    lidar_translation_m: float = 0.01  # per-axis LiDAR translation spread, metres
+    factory_rotation_std_deg: float = 0.1  # factory (end-of-line) calibration error per axis and sensor, degrees
+    factory_translation_std_m: float = 0.005  # factory calibration error per axis and sensor, metres
 
 
 @dataclass(frozen=True)
 class VehicleMounts:
-    """One vehicle's true mounts at the start of the drive (T_ego_sensor)."""
+    """One vehicle's true mounts at the start of the drive (T_ego_sensor), and its factory calibration
+    of them (what its calibration tables hold: the truth plus a small calibration error)."""
 
     T_ego_cam: np.ndarray
     T_ego_radar: np.ndarray
     T_ego_lidar: np.ndarray
+    factory_T_ego_cam: np.ndarray
+    factory_T_ego_radar: np.ndarray
 
     def radar_at(self, change: ExtrinsicChange, k: int, frames: int) -> np.ndarray:
         """T_ego_radar at frame k under ``change``."""
@@ -85,10 +96,19 @@ def _perturbed(T: np.ndarray, g: np.random.Generator, rot_deg: float, trans_m: f
     return T @ se3_exp(xi)
 
 
-def sample_mounts(g: np.random.Generator, spread: MountPerturbation) -> VehicleMounts:
-    """A vehicle's true mounts: the nominal ones perturbed on the right (sensor frame)."""
-    return VehicleMounts(
-        T_ego_cam=_perturbed(NOMINAL_T_EGO_CAM, g, spread.camera_rotation_deg, spread.camera_translation_m),
-        T_ego_radar=_perturbed(NOMINAL_T_EGO_RADAR, g, spread.radar_rotation_deg, spread.radar_translation_m),
-        T_ego_lidar=_perturbed(NOMINAL_T_EGO_LIDAR, g, spread.lidar_rotation_deg, spread.lidar_translation_m),
-    )
+def _factory(T: np.ndarray, g: np.random.Generator, spread: MountPerturbation) -> np.ndarray:
+    xi = np.concatenate([np.deg2rad(g.normal(0.0, spread.factory_rotation_std_deg, 3)),
+                         g.normal(0.0, spread.factory_translation_std_m, 3)])
+    return T @ se3_exp(xi)
+
+
+def sample_mounts(g: np.random.Generator, spread: MountPerturbation, g_factory: np.random.Generator) -> VehicleMounts:
+    """A vehicle's true mounts: the nominal ones perturbed on the right (sensor frame, ``g``); its
+    factory calibration: the true ones perturbed again by the calibration error (``g_factory``, a
+    stream of its own so the true mounts do not depend on the calibration error's size)."""
+    cam = _perturbed(NOMINAL_T_EGO_CAM, g, spread.camera_rotation_deg, spread.camera_translation_m)
+    radar = _perturbed(NOMINAL_T_EGO_RADAR, g, spread.radar_rotation_deg, spread.radar_translation_m)
+    lidar = _perturbed(NOMINAL_T_EGO_LIDAR, g, spread.lidar_rotation_deg, spread.lidar_translation_m)
+    return VehicleMounts(T_ego_cam=cam, T_ego_radar=radar, T_ego_lidar=lidar,
+                         factory_T_ego_cam=_factory(cam, g_factory, spread),
+                         factory_T_ego_radar=_factory(radar, g_factory, spread))

@@ -237,6 +237,11 @@ def _vehicle_truth(d: VehicleDrive, vr: VehicleRecord, failed: list[dict]) -> di
         "nominal_T_ego_cam": _pose(NOMINAL_T_EGO_CAM),
         "true_T_ego_radar_start": _pose(d.mounts.T_ego_radar),
         "true_T_ego_cam": _pose(d.mounts.T_ego_cam),
+        # the vehicle's calibration tables: what a real vehicle's calibrated_sensor would hold (the
+        # truth + the factory calibration error, MountPerturbation.factory_*); the reference of the
+        # drift test. The nominal_* above are the fleet design values.
+        "factory_T_ego_radar": _pose(d.mounts.factory_T_ego_radar),
+        "factory_T_ego_cam": _pose(d.mounts.factory_T_ego_cam),
         "extrinsic_change": {"kind": ch.kind, "frame": ch.step_frame(c.frames) if ch.kind == "step" else None,
                              "rotation_deg": list(ch.rotation_deg), "translation_m": list(ch.translation_m),
                              "xi_radar": ch.xi.tolist()},

@@ -1,0 +1,93 @@
+"""Degeneracy words: each degenerate geometry gets its own words after "weak:" / "degenerate:",
+the batch and the window say the same, and nothing raises."""
+
+import numpy as np
+import pytest
+
+from hybrid_calib.calib.batch import solve_batch
+from hybrid_calib.calib.covariance import analyse_information, report_basis
+from hybrid_calib.calib.degeneracy import DegeneracyConfig, RowGeometry, geometry_causes, trade_offs
+from hybrid_calib.calib.oracle import synthetic_drive
+from hybrid_calib.calib.window import SlidingWindowCalibrator
+from tests.helpers import nominal_T_cam_radar, rng
+
+CASES = {  # name: (frames, oracle overrides, synthetic_correspondences kwargs, the words)
+    "single_frame": (1, {}, {}, "a single frame"),
+    "few_points": (3, {"n_per_frame": 4}, {}, "only 12 correspondences"),
+    "one_range": (3, {}, {"range_m": (20.0, 20.0)}, "all points at one range (20-20 m)"),
+    "one_direction": (3, {}, {"azimuth_deg": (0.0, 0.0)}, "all reflectors in one direction"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_each_degenerate_geometry_gets_its_words(case):
+    n, oconf, kw, words = CASES[case]
+    T = nominal_T_cam_radar()
+    frames, _ = synthetic_drive(T, n, rng(11), {"outlier_frac": 0.0, **oconf}, **kw)
+    est = solve_batch(frames, T).estimate  # never raises
+    assert est.status.startswith(("weak: ", "degenerate: ")) and words in est.status, est.status
+    cal = SlidingWindowCalibrator(T)
+    outs = [cal.update(f) for f in frames]
+    assert words in outs[-1].status, outs[-1].status
+    others = [w for c, (_, _, _, w) in CASES.items() if c != case and c != "single_frame"]
+    assert not any(w.split(" (")[0] in est.status for w in others if not (case == "few_points" and "single" in w))
+
+
+def test_a_normal_drive_has_no_geometry_words():
+    T = nominal_T_cam_radar()
+    frames, _ = synthetic_drive(T, 4, rng(12), {"n_per_frame": 60})
+    geo = RowGeometry.from_frames(frames)
+    assert geometry_causes(geo, DegeneracyConfig()) == []
+    assert geo.n_frames == 4 and geo.n_rows == 240 and geo.along_road_fraction(1.0) < 0.5
+
+
+def _road_points(g, n, lateral=(-6.0, 5.0)):
+    """Reflectors on two lines along the road (kerbs, poles at fixed lateral offsets), radar frame."""
+    x = g.uniform(8.0, 80.0, n)
+    y = np.where(g.random(n) < 0.5, lateral[0], lateral[1]) + g.normal(0, 0.2, n)
+    return np.column_stack([x, y, np.zeros(n)])
+
+
+def test_straight_road_geometry_and_words():
+    g = rng(13)
+    geo = RowGeometry()
+    for _ in range(10):
+        geo.add(_road_points(g, 80))
+    assert geo.along_road_fraction(1.0) > 0.95
+    causes = geometry_causes(geo, DegeneracyConfig())
+    assert len(causes) == 1 and causes[0].startswith("all reflectors lie along the road"), causes
+    # a single frame on a straight road is "a single frame", not yet "along the road"
+    one = RowGeometry()
+    one.add(_road_points(g, 80))
+    assert [c.split(" (")[0] for c in geometry_causes(one, DegeneracyConfig())] == ["a single frame"]
+    # the status names the trade-offs of the observed axes with the cause
+    T = nominal_T_cam_radar()
+    B = report_basis(T)
+    C_rep = np.diag([0.05, 0.05, 0.05, 0.01, 0.01, 0.01]) ** 2
+    C_rep[1, 3] = C_rep[3, 1] = -0.8 * 0.05 * 0.01  # yaw and lateral offset correlated -0.8
+    info = np.linalg.inv(B.T @ C_rep @ B)
+    rep = analyse_information(T, info, {"rot_tol_deg": 10.0, "trans_tol_cm": 10.0}, geometry=geo)
+    assert rep.status.startswith("weak: yaw and lateral offset trade off (correlation -0.80): all reflectors lie "
+                                 "along the road"), rep.status
+    ok = analyse_information(T, info, {"rot_tol_deg": 10.0, "trans_tol_cm": 10.0})
+    assert ok.status == "ok"  # without the geometric cause a -0.8 correlation alone is not named
+
+
+def test_trade_offs_threshold_and_axes():
+    C = np.eye(6)
+    C[0, 1] = C[1, 0] = 0.95
+    C[3, 5] = C[5, 3] = -0.7
+    assert trade_offs(C, 0.9) == ["pitch and yaw trade off (correlation +0.95)"]
+    assert trade_offs(C, 0.6)[1] == "lateral offset and longitudinal offset trade off (correlation -0.70)"
+    assert trade_offs(C, 0.6, np.array([False, True, True, True, True, True])) == [
+        "lateral offset and longitudinal offset trade off (correlation -0.70)"]
+
+
+def test_empty_and_nonfinite_rows_never_raise():
+    geo = RowGeometry()
+    geo.add(np.full((3, 3), np.nan))
+    assert geo.n_rows == 0 and np.isnan(geo.percentile("range", 0.5))
+    causes = geometry_causes(geo, DegeneracyConfig())
+    assert any(c.startswith("only 0 correspondences") for c in causes)
+    rep = analyse_information(nominal_T_cam_radar(), np.zeros((6, 6)), geometry=geo)
+    assert rep.status.startswith("degenerate: a single frame") and "only 0 correspondences" in rep.status
