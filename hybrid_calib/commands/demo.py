@@ -88,7 +88,8 @@ def vehicle_verdict(row: dict) -> str:
         why.append("degenerate drive")
     if why:
         return "FLAGGED: " + "; ".join(why)
-    return f"ok: no step alarm, not a fleet outlier; vs its tables: {row['verdict'].split(':')[0]}"
+    fleet = "not a fleet outlier" if row.get("fleet_test") else "no fleet test (fewer than 3 vehicles done)"
+    return f"ok: no step alarm, {fleet}; vs its tables: {row['verdict'].split(':')[0]}"
 
 
 def _overlay(root: Path, out_png: Path) -> Path:
