@@ -87,3 +87,14 @@ def test_unknown_override_is_rejected(tmp_path):
     with pytest.raises(HybridCalibError, match="unknown option"):
         calibrate.run(_args("--data", str(tmp_path), "--out", str(tmp_path / "o"), "--set", "window.nope=1"))
 
+
+
+def test_network_method_without_window_flag_keeps_the_default(sim_root, tmp_path, capsys):
+    """``calibrate --method hybrid`` with no ``--window`` uses the default window (it failed on None)."""
+    from hybrid_calib.calib.result import CalibrationRun
+    from hybrid_calib.cli import main
+
+    assert main(["calibrate", "--data", str(sim_root), "--method", "hybrid", "--start", "R1", "--max-frames", "2",
+                 "--no-plots", "--out", str(tmp_path / "h")]) == 0, capsys.readouterr().err
+    run = CalibrationRun.load(tmp_path / "h" / "result.json")
+    assert run.vehicles and all(v.method == "hybrid" for v in run.vehicles.values())

@@ -60,7 +60,8 @@ def _learned(args: argparse.Namespace, on_vehicle):
     overrides = parse_overrides(args.set)
     overrides.update(method=args.method, start=args.start, seed=args.seed, max_frames=args.max_frames,
                      checkpoint=args.checkpoint, depth=args.depth)
-    overrides.setdefault("window", {})["window"] = args.window
+    if args.window is not None:  # an absent flag leaves --set (or the default) in charge
+        overrides.setdefault("window", {})["window"] = args.window
     conf = merge(HybridConfig, overrides)
     if (args.out / "result.json").is_file() and not args.overwrite:
         print(f"{args.out / 'result.json'} exists; pass --overwrite to recompute")

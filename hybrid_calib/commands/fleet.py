@@ -91,10 +91,10 @@ def write_fleet_pages(summary: dict, out: Path) -> Path | None:
 
     from hybrid_calib.report import write_fleet_page
 
-    done = [r for r in summary["vehicles"].values() if r["state"] == "done"]
+    done = {jid: r for jid, r in summary["vehicles"].items() if r["state"] == "done"}
     if not done:
         return None
     design = (summary.get("design_mount") or {}).get("T_cam_radar")
-    return write_fleet_page([out / r["result"] for r in done], out / "fleet.html",
+    return write_fleet_page([out / r["result"] for r in done.values()], out / "fleet.html",
                             design=None if design is None else np.asarray(design),
-                            flagged=[r["vehicle"] for r in done if r.get("flags")])
+                            flagged=[jid for jid, r in done.items() if r.get("flags")], labels=list(done))

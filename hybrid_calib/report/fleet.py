@@ -37,7 +37,7 @@ def _offset(vr: VehicleResult, design: np.ndarray | None) -> np.ndarray | None:
 def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.ndarray | None = None,
                      flagged: Sequence[str] = (), reports: Mapping[str, str | Path] | None = None,
                      data: str | Path | None = None, version: str | None = None,
-                     conf: ReportConfig | dict | None = None) -> Path:
+                     conf: ReportConfig | dict | None = None, labels: Sequence[str] | None = None) -> Path:
     """Write the fleet page ``out`` (HTML) from per-vehicle result files.
 
     results: ``result.json`` paths. design: (4, 4) design-mount ``T_cam_radar`` or None. flagged: names
@@ -46,7 +46,9 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
     verdict, "recalibrate"). reports: vehicle ->
     its report page, already written; when None, each vehicle's page is written next to its result
     (``report.html``, ``report-<vehicle>.html`` for a result with several vehicles) with ``data`` /
-    ``version`` / ``conf``. Returns the path written."""
+    ``version`` / ``conf``. labels: one name per result file (a fleet's job ids), shown instead of the
+    vehicle name of a single-vehicle result (two roots may both hold ``sim-veh-000``); ``flagged`` and
+    ``reports`` then use the labels. Returns the path written."""
     from hybrid_calib.plots.fleet import draw_fleet
 
     conf = merge(ReportConfig, conf)
@@ -58,9 +60,12 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
         raise DataError(f"design mount must be a 4x4 T_cam_radar, got shape {design.shape}")
     vehicles: dict[str, tuple[VehicleResult, Path]] = {}
     pages: dict[str, Path] = {}
-    for p in map(Path, results):
+    if labels is not None and len(labels) != len(results):
+        raise DataError(f"{len(labels)} labels for {len(results)} result files")
+    for i, p in enumerate(map(Path, results)):
         run = CalibrationRun.load(p)
-        for name, vr in sorted(run.vehicles.items()):
+        for vname, vr in sorted(run.vehicles.items()):
+            name = vname if labels is None or len(run.vehicles) > 1 else labels[i]
             if name in vehicles:
                 raise DataError(f"vehicle {name} appears in two result files ({vehicles[name][1]} and {p})",
                                 path=str(p))
@@ -69,7 +74,7 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
                 pages[name] = Path(reports[name])
             elif reports is None:
                 page = p.parent / ("report.html" if len(run.vehicles) == 1 else f"report-{name}.html")
-                pages[name] = write_report(p, page, name, data, version, conf)
+                pages[name] = write_report(p, page, vname, data, version, conf)
     names = list(vehicles)
     verdicts = {n: verdict_of(vr, conf.tolerance) for n, (vr, _) in vehicles.items()}
     flagged = list(flagged) or [n for n in names if verdicts[n].moved_frames]

@@ -1,0 +1,23 @@
+"""``hybrid-calib demo`` end to end on tiny drives: the single-vehicle calibration, then the fleet
+with one verdict line and one report per vehicle, and the fleet page."""
+
+import json
+
+from hybrid_calib.cli import main
+
+
+def test_demo_prints_a_verdict_per_fleet_vehicle(tmp_path, capsys):
+    out = tmp_path / "demo"
+    rc = main(["demo", "--out", str(out), "--set", "frames=3", "fleet_frames=16", "image_scale=0.125",
+               "engine=local", "workers=1"])
+    text = capsys.readouterr().out
+    assert rc == 0, text
+    assert "calibration [sim-veh-000]: method hybrid" in text
+    lines = {v: next(ln for ln in text.splitlines() if ln.startswith(f"  {v}-sim-veh-000: "))
+             for v in ("urban", "knocked", "straight")}
+    assert lines["knocked"].startswith("  knocked-sim-veh-000: FLAGGED"), text
+    assert "step alarm at frame" in lines["knocked"]
+    summary = json.loads((out / "summary.json").read_text())
+    assert (out / "fleet" / "fleet.html").is_file() and summary["fleet_page"] == str(out / "fleet" / "fleet.html")
+    for v in summary["fleet"].values():
+        assert v["report"] and (out / "fleet" / v["report"]).is_file()
