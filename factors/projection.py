@@ -198,6 +198,19 @@ def whitened_residuals(T_cam_radar: np.ndarray, rows: RowModel) -> tuple[np.ndar
     return e, J, valid
 
 
+def _camera_points(T_cam_radar: np.ndarray, rows: RowModel):
+    """The rows' modelled points in the camera: R (3, 3), P (N, 3) metres (depth clamped at
+    ``min_depth``), valid (N,) in front of the camera, projected pixels uv (N, 2) and d uv / d P
+    (N, 2, 3)."""
+    T = np.asarray(T_cam_radar, np.float64)
+    R, t = T[:3, :3], T[:3, 3]
+    P = rows.p_bar @ R.T + t
+    valid = P[:, 2] > rows.min_depth
+    P[:, 2] = np.maximum(P[:, 2], rows.min_depth)
+    uv, Jp = _project(rows.K, P)
+    return R, P, valid, uv, Jp
+
+
 def whitened_rows(T_cam_radar: np.ndarray, rows: RowModel):
     """``whitened_residuals`` plus the log-determinant rows of the anisotropic model.
 
@@ -207,13 +220,8 @@ def whitened_rows(T_cam_radar: np.ndarray, rows: RowModel):
     extrinsic; without this term the estimate drifts towards poses that lengthen the arcs' images
     (a measured bias in the vertical translation). Zeros for the isotropic models.
     """
-    T = np.asarray(T_cam_radar, np.float64)
-    R, t = T[:3, :3], T[:3, 3]
+    R, P, valid, uv, Jp = _camera_points(T_cam_radar, rows)
     n = len(rows)
-    P = rows.p_bar @ R.T + t
-    valid = P[:, 2] > rows.min_depth
-    P[:, 2] = np.maximum(P[:, 2], rows.min_depth)
-    uv, Jp = _project(rows.K, P)
     dP = np.concatenate([-R[None] @ _skew_rows(rows.p_bar), np.broadcast_to(R, (n, 3, 3))], axis=2)  # (N,3,6)
     dP[~valid, 2, :] = 0.0
     e0 = rows.w[:, None] * (uv - rows.pixels)
@@ -233,13 +241,8 @@ def point_shift_jacobian(T_cam_radar: np.ndarray, rows: RowModel, shift: np.ndar
     (anisotropic rows included); a point behind the camera gets no depth derivative (as there).
     Used for the per-drive scene nuisance (``factors.scene``).
     """
-    T = np.asarray(T_cam_radar, np.float64)
-    R, t = T[:3, :3], T[:3, 3]
+    R, P, valid, uv, Jp = _camera_points(T_cam_radar, rows)
     n = len(rows)
-    P = rows.p_bar @ R.T + t
-    valid = P[:, 2] > rows.min_depth
-    P[:, 2] = np.maximum(P[:, 2], rows.min_depth)
-    uv, Jp = _project(rows.K, P)
     dP = (np.asarray(shift, np.float64) @ R.T)[:, :, None]  # (N, 3, 1)
     dP[~valid, 2, :] = 0.0
     g = rows.w[:, None, None] * (Jp @ dP)  # (N, 2, 1)
