@@ -1,7 +1,10 @@
 """Fit the hybrid's measurement model on validation drives and store it in a checkpoint.
 
     PYTHONPATH=. python benchmarks/hybrid_fit.py --data VAL1 VAL2 ... --checkpoint CKPT --start R1 \
-        --max-frames 40 --out FITDIR [--fit-into]
+        --max-frames 40 --out FITDIR [--refine CKPT_R0] [--fit-into]
+
+With ``--refine`` the loop runs the cascade (``hybrid.network.CascadeRunner``) and the fitted block
+is written into the REFINING checkpoint (the one whose covariance the measurement model scales).
 
 Runs ``hybrid_calib.hybrid.fit.fit_measurement`` (module doc there), prints the candidates and, with
 ``--fit-into``, writes the chosen values into the checkpoint's ``export["hybrid"]`` block with the
@@ -21,6 +24,7 @@ def main(argv=None) -> int:
     p.add_argument("--data", nargs="+", required=True, type=Path, help="simulated VALIDATION roots")
     p.add_argument("--version", default="v1.0-sim")
     p.add_argument("--checkpoint", required=True)
+    p.add_argument("--refine", default="", help="refining checkpoint (cascade); the fit is stored in it")
     p.add_argument("--start", default="R1", choices=("R1", "R2"))
     p.add_argument("--max-frames", type=int, default=40)
     p.add_argument("--seed", type=int, default=0)
@@ -35,15 +39,16 @@ def main(argv=None) -> int:
     from learned.checkpoint import set_export_overrides
 
     res = fit_measurement([str(d) for d in a.data], a.version, a.checkpoint, a.out, a.start, tuple(a.rows),
-                          a.max_frames, a.seed, a.threads)
+                          a.max_frames, a.seed, a.threads, refine=a.refine)
     save_json_atomic(a.out / "fit.json", res)
     print(json.dumps(res, indent=1))
     if a.fit_into:
         cmd = "PYTHONPATH=. python benchmarks/hybrid_fit.py " + " ".join(sys.argv[1:] if argv is None else argv)
         note = (f"{cmd}; validation roots {[str(d) for d in a.data]} (simulated, never the test drives), start "
                 f"{a.start}, {a.max_frames} frames each; candidates {json.dumps(res['candidates'])}")
-        set_export_overrides(a.checkpoint, {"hybrid": res["chosen"]}, note)
-        print(f"wrote export.hybrid into {a.checkpoint}")
+        target = a.refine or a.checkpoint
+        set_export_overrides(target, {"hybrid": res["chosen"]}, note)
+        print(f"wrote export.hybrid into {target}")
     return 0
 
 

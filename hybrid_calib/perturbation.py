@@ -1,5 +1,8 @@
-"""The perturbed starts of the paper, R1 and R2: the one definition the calibrator, the network's
-dataset and the commands share (docs/conventions.md, "Perturbed starts").
+"""The perturbed starts of the paper, R1 and R2, and our near-truth range R0: the one definition the
+calibrator, the network's dataset and the commands share (docs/conventions.md, "Perturbed starts").
+
+R0 is not the paper's: it is the regime of the closed loop once the fused estimate is close (the
+refining network of the hybrid's cascade is trained on it, ``hybrid.network.CascadeRunner``).
 
 A start samples roll, pitch, yaw (camera axes) uniformly in +-rot_deg and dx, dy, dz uniformly in
 +-trans_m, independently, and applies them with ``geometry.perturb_camera_frame``.
@@ -13,11 +16,11 @@ from hybrid_calib.errors import HybridCalibError
 from hybrid_calib.geometry import perturb_camera_frame
 
 # name -> (max |angle| degrees, max |offset| metres) per axis
-RANGES: dict[str, tuple[float, float]] = {"R1": (10.0, 0.25), "R2": (20.0, 1.5)}
+RANGES: dict[str, tuple[float, float]] = {"R0": (2.0, 0.10), "R1": (10.0, 0.25), "R2": (20.0, 1.5)}
 
 
 def perturbation_bounds(name: str) -> tuple[float, float]:
-    """``"R1"``/``"R2"`` -> (rot_deg, trans_m). Raises ``HybridCalibError`` for anything else."""
+    """``"R0"``/``"R1"``/``"R2"`` -> (rot_deg, trans_m). Raises ``HybridCalibError`` for anything else."""
     if name not in RANGES:
         raise HybridCalibError(f"unknown perturbation range {name!r}; use one of {sorted(RANGES)}")
     return RANGES[name]

@@ -188,3 +188,27 @@ def test_compare_smoke_resumes_and_writes_the_table(sim_root, tmp_path):
     assert main(argv) == 0  # resumed: nothing recomputed
     assert (out / "trials" / "hybrid" / "0000.json").stat().st_mtime_ns == mtime
     assert main([*argv[:-1], "--seed", "3", "--no-progress"]) == 2  # another config in the same folder
+
+
+def test_cascade_runs_the_refining_network_from_the_coarse_estimate(sim_root, tmp_path):
+    from hybrid_calib.hybrid import run_vehicle
+    from hybrid_calib.hybrid.network import CascadeRunner, OutputCache, build_runner, shipped_checkpoint
+    from learned.dataset import open_frames
+
+    frames = open_frames(sim_root, "v1.0-sim")
+    r1 = shipped_checkpoint("R1")
+    runner = build_runner(r1, r1, frames, cache_dir=tmp_path / "c", threads=1)
+    assert isinstance(runner, CascadeRunner) and runner.range == "R1"
+    T0 = frames[0].T_cam_radar @ np.array([[1, 0, 0, 0.05], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]])
+    out = runner.run(0, T0)
+    coarse = OutputCache(tmp_path / "c" / "coarse").get(runner.token(0), T0)
+    fine = OutputCache(tmp_path / "c" / "refine").get(runner.token(0), coarse.T)
+    assert coarse is not None and fine is not None  # the refining pass started where the coarse one ended
+    assert len(out.T_iters) == len(coarse.T_iters) + len(fine.T_iters)
+    np.testing.assert_array_equal(out.T, fine.T)
+    np.testing.assert_array_equal(out.cov_raw, fine.cov_raw)
+    np.testing.assert_array_equal(out.rows_first.pixels, coarse.rows_first.pixels)  # measured against T0 only
+    np.testing.assert_array_equal(out.T_in, T0)
+    v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", {**BASE, "method": "hybrid", "max_frames": 2,
+                                                          "refine": str(r1)})
+    assert "->" in v.checkpoint and len(v.trajectory) == 2

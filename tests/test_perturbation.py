@@ -12,7 +12,7 @@ from tests.helpers import nominal_T_cam_radar
 
 
 def test_ranges_of_the_paper_and_unknown_names():
-    assert RANGES == {"R1": (10.0, 0.25), "R2": (20.0, 1.5)}
+    assert RANGES == {"R0": (2.0, 0.10), "R1": (10.0, 0.25), "R2": (20.0, 1.5)}
     assert perturbation_bounds("R2") == (20.0, 1.5)
     with pytest.raises(HybridCalibError, match="R3"):
         perturbation_bounds("R3")

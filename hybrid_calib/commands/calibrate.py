@@ -24,6 +24,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "pure-avg (the network alone, robust SE(3) average over the drive)")
     p.add_argument("--checkpoint", default="",
                    help="learned methods: network checkpoint (default: the shipped small one of the start range)")
+    p.add_argument("--refine", default="",
+                   help="learned methods: a refining network run after --checkpoint on every pass (a cascade): "
+                        "'shipped' (the shipped near-truth R0 checkpoint) or a checkpoint path (default: none)")
     p.add_argument("--depth", default="",
                    help="learned methods: depth estimator (default: the checkpoint's; a real root with LiDAR: "
                         "lidar-densified)")
@@ -60,6 +63,8 @@ def _learned(args: argparse.Namespace, on_vehicle):
     overrides = parse_overrides(args.set)
     overrides.update(method=args.method, start=args.start, seed=args.seed, max_frames=args.max_frames,
                      checkpoint=args.checkpoint, depth=args.depth)
+    if args.refine:
+        overrides["refine"] = args.refine
     if args.window is not None:  # an absent flag leaves --set (or the default) in charge
         overrides.setdefault("window", {})["window"] = args.window
     conf = merge(HybridConfig, overrides)

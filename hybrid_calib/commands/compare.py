@@ -21,6 +21,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--methods", default="pure,pure-avg,hybrid",
                    help="comma-separated: pure, pure-avg, hybrid, oracle (default: pure,pure-avg,hybrid)")
     p.add_argument("--checkpoint", default="", help="network checkpoint (default: the shipped one of --range)")
+    p.add_argument("--refine", default="", help="refining network after --checkpoint (a cascade): 'shipped' (the "
+                   "shipped R0 checkpoint) or a checkpoint path (default: none)")
     p.add_argument("--max-frames", type=nonnegative_int, default=0, help="frames per drive, 0 = all (default: 0)")
     p.add_argument("--seed", type=int, default=0, help="first start seed (default: 0)")
     p.add_argument("--out", type=Path, required=True, help="output folder (resumable: finished trials are kept)")
@@ -34,6 +36,8 @@ def run(args: argparse.Namespace) -> int:
 
     hybrid = parse_overrides(args.set)
     hybrid.update(checkpoint=args.checkpoint, max_frames=args.max_frames)
+    if args.refine:
+        hybrid["refine"] = args.refine
     conf = {"range": args.range, "trials": args.trials, "seed": args.seed, "hybrid": hybrid,
             "methods": tuple(m.strip() for m in args.methods.split(",") if m.strip())}
     command = "hybrid-calib " + " ".join(sys.argv[1:])

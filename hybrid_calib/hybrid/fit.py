@@ -180,7 +180,8 @@ def drive_truths(roots, version: str) -> dict[str, np.ndarray]:
 
 def fit_measurement(roots, version: str, checkpoint: str, out: str | Path, start: str,
                     rows_options=("first", "last", "none"),
-                    max_frames: int = 40, seed: int = 0, threads: int = 1, progress: bool = False) -> dict:
+                    max_frames: int = 40, seed: int = 0, threads: int = 1, progress: bool = False,
+                    refine: str = "") -> dict:
     """Fit the measurement model for each ``rows`` option in the loop's regime (module doc), rerun the
     loop with each fitted model on the same validation drives and keep the option whose fused
     estimates are closer to the truth (sum of normalised rotation and translation errors). Returns
@@ -192,7 +193,7 @@ def fit_measurement(roots, version: str, checkpoint: str, out: str | Path, start
     w = WindowConfig()
     truths = drive_truths(roots, version)
     base = {"method": "hybrid", "checkpoint": str(checkpoint), "start": start, "seed": seed,
-            "max_frames": max_frames, "threads": threads, "progress": progress,
+            "max_frames": max_frames, "threads": threads, "progress": progress, "refine": refine,
             "cache_dir": str(out / "network-cache"), "depth_cache": str(out / "depth-cache")}
     cands = {}
     for rows in rows_options:

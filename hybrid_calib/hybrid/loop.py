@@ -36,7 +36,7 @@ from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.geometry import local
 from hybrid_calib.hybrid.average import AverageConfig, robust_average
 from hybrid_calib.hybrid.measurement import MeasurementConfig, frame_inputs, prior_trusted
-from hybrid_calib.hybrid.network import NetworkRunner, shipped_checkpoint
+from hybrid_calib.hybrid.network import NetworkRunner, build_runner, refine_checkpoint, shipped_checkpoint
 from hybrid_calib.metrics import extrinsic_error
 from hybrid_calib.perturbation import RANGES, vehicle_start
 
@@ -49,6 +49,7 @@ LIDAR_DEPTH = "lidar-densified"
 class HybridConfig:
     method: str = "hybrid"  # hybrid | pure | pure-avg | oracle
     checkpoint: str = ""  # "" = the shipped small checkpoint of the start range (R2 for R2, else R1)
+    refine: str = ""  # refining network after it (a cascade): "" / "none" = none, "shipped" = the shipped R0, or a path
     depth: str = ""  # "" = the checkpoint's; a real root with LiDAR: lidar-densified
     start: str = "reference"  # reference (tables / nominal) | R1 | R2 (perturbed truth, or tables on real roots)
     seed: int = 0  # start seed (per vehicle: perturbation.vehicle_rng(seed, vehicle))
@@ -301,7 +302,8 @@ class _Session:
         depth, self.note = resolve_depth(data, version, conf)
         self.frames, self.drives = open_drives(data, version, conf, lidar=depth == LIDAR_DEPTH)
         ckpt = conf.checkpoint or shipped_checkpoint(conf.start)
-        self.runner = NetworkRunner(ckpt, self.frames, depth, conf.cache_dir, conf.depth_cache, conf.threads)
+        self.runner = build_runner(ckpt, refine_checkpoint(conf.refine), self.frames, depth, conf.cache_dir,
+                                   conf.depth_cache, conf.threads)
 
     def vehicle(self, name: str) -> VehicleResult:
         drive = self.drives[name]

@@ -8,6 +8,10 @@ measured against ``T_in`` only; the last iteration: correlated with the network'
 estimate after every iteration and the RAW covariance (no ``cov_scale``, ``sigma_scale`` 1: the
 hybrid's measurement model applies its own fitted scales, ``hybrid.measurement``).
 
+``CascadeRunner`` chains two runners (a coarse network of the start range, then a refining network
+trained on near-truth starts, range R0) into one runner with the same interface: the closed loop,
+pure and pure-avg run the cascade as one network.
+
 ``OutputCache`` stores one ``.npz`` per (checkpoint, frame, start): every method that runs the
 network from the same start on the same frame (pure, pure-avg, the hybrid's first frame; the fit
 on validation scenes) reads the same outputs ("export once, evaluate many").
@@ -30,12 +34,20 @@ SHIPPED = Path(__file__).resolve().parents[2] / "learned" / "checkpoints"
 
 
 def shipped_checkpoint(start_range: str) -> Path:
-    """The shipped small checkpoint trained for ``start_range`` ("R1" or "R2"; "reference" -> R1)."""
-    name = {"R2": "small-sim-r2.json"}.get(start_range, "small-sim-r1.json")
+    """The shipped small checkpoint trained for ``start_range`` ("R0", "R1" or "R2"; "reference" -> R1)."""
+    name = {"R2": "small-sim-r2.json", "R0": "small-sim-r0.json"}.get(start_range, "small-sim-r1.json")
     path = SHIPPED / name
     if not path.is_file():
         raise HybridCalibError(f"the shipped checkpoint {path} is missing; pass --checkpoint")
     return path
+
+
+def refine_checkpoint(spec: str) -> Path | None:
+    """The refining network of the cascade: ``""``/``"none"`` -> None, ``"shipped"`` -> the shipped R0
+    checkpoint, anything else a checkpoint path."""
+    if spec in ("", "none"):
+        return None
+    return shipped_checkpoint("R0") if spec == "shipped" else Path(spec)
 
 
 @dataclass(frozen=True)
@@ -193,3 +205,60 @@ class NetworkRunner:
         T_iters = torch.stack([T[0].double() for T in out["T_iters"]]).numpy()
         return NetworkOutput(np.asarray(T_in, np.float64), T_iters, np.asarray(cov[0], np.float64), rows[0], rows[1],
                              time.perf_counter() - t0)
+
+
+class CascadeRunner:
+    """Two runners as one (module doc): the coarse network from ``T_in``, then the refining network
+    from the coarse estimate. Its ``NetworkOutput``: ``T_in`` the loop's start, ``T_iters`` every
+    iteration of both stages, ``cov_raw`` and ``rows_last`` the refining network's, ``rows_first``
+    the coarse network's iteration 0 (measured against ``T_in`` only), ``seconds`` both passes.
+    ``ckpt`` (whose export block the measurement model reads) is the refining network's; ``range``
+    (the starts the cascade accepts) the coarse one's. Composite outputs are cached in ``cache_dir``,
+    each stage's in ``cache_dir/coarse`` and ``cache_dir/refine``."""
+
+    def __init__(self, coarse: NetworkRunner, refine: NetworkRunner, cache_dir: str | Path = ""):
+        self.coarse, self.refine = coarse, refine
+        self.cache = OutputCache(cache_dir) if cache_dir else None
+        self.ckpt, self.range = refine.ckpt, coarse.range
+        self.depth_name = coarse.depth_name
+
+    @property
+    def checkpoint(self) -> str:
+        return f"{self.coarse.checkpoint} -> {self.refine.checkpoint}"
+
+    def bad_reason(self, index: int) -> str:
+        return self.coarse.bad_reason(index) or self.refine.bad_reason(index)
+
+    def token(self, index: int) -> str:
+        return self.coarse.token(index)
+
+    def run(self, index: int, T_in: np.ndarray) -> NetworkOutput | None:
+        token = self.token(index)
+        if self.cache is not None and (hit := self.cache.get(token, T_in)) is not None:
+            return hit
+        first = self.coarse.run(index, T_in)
+        if first is None:
+            return None
+        second = self.refine.run(index, first.T)
+        if second is None:
+            return None
+        out = NetworkOutput(np.asarray(T_in, np.float64), np.concatenate([first.T_iters, second.T_iters]),
+                            second.cov_raw, first.rows_first, second.rows_last, first.seconds + second.seconds)
+        if self.cache is not None:
+            self.cache.put(token, out)
+        return out
+
+
+def build_runner(checkpoint: str | Path, refine: str | Path | None, frames, depth: str = "",
+                 cache_dir: str | Path = "", depth_cache: str | Path = "", threads: int = 1):
+    """A ``NetworkRunner`` of ``checkpoint``, or, with ``refine``, the ``CascadeRunner`` of the two (the
+    refining network uses the coarse one's depth estimator and the same depth cache)."""
+    sub = (lambda name: str(Path(cache_dir) / name)) if (cache_dir and refine) else (lambda name: cache_dir)
+    coarse = NetworkRunner(checkpoint, frames, depth, sub("coarse"), depth_cache, threads)
+    if not refine:
+        return coarse
+    fine = NetworkRunner(refine, frames, coarse.depth_name, sub("refine"), depth_cache, threads)
+    if tuple(fine.model.cfg.input_hw) != tuple(coarse.model.cfg.input_hw):
+        raise HybridCalibError(f"the refining checkpoint {refine} takes {tuple(fine.model.cfg.input_hw)} inputs, the "
+                               f"coarse one {checkpoint} {tuple(coarse.model.cfg.input_hw)}: use a pair of one preset")
+    return CascadeRunner(coarse, fine, cache_dir)

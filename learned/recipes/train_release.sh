@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The release recipe of the shipped checkpoints trained on a GPU machine (one call, ~9 minutes on
-# one H100/H200 with 16 CPU cores): simulate mixed training drives, train the small R1 / R2 and the
-# paper R1 networks on them with the depth path real data use (lidar-densified), fit their
+# one H100/H200 with 16 CPU cores): simulate mixed training drives, train the small R1 / R2, the
+# small near-truth R0 (the hybrid's refining network) and the paper R1 networks on them with the
+# depth path real data use (lidar-densified), fit their
 # exported covariance on validation drives, evaluate on held-out drives, and pack the results.
 #
 #   OUT=/path/to/results bash learned/recipes/train_release.sh
@@ -9,7 +10,7 @@
 # Environment (defaults are the release run):
 #   DEVICE=cuda|cpu  VEHICLES=14 FRAMES=60 (per preset; training)  TRAIN_S=300 (wall budget of the
 #   training stage, seconds; each run keeps its last finished epoch)  SIM_WORKERS=4 (per preset)
-#   LOADER_WORKERS=4  RANDOMISE="..." (extra `simulate --set` overrides: the domain randomisation)
+#   LOADER_WORKERS=3  RANDOMISE="..." (extra `simulate --set` overrides: the domain randomisation)
 #   PAPER=1 (also train the paper preset)  PY=python3
 # Seeds: training drives 7001-7004, validation 7101-7103, test 9201-9203 (the test seeds of
 # docs/benchmarks.md; never trained or fitted on).
@@ -21,7 +22,7 @@ VEHICLES=${VEHICLES:-14}
 FRAMES=${FRAMES:-60}
 TRAIN_S=${TRAIN_S:-300}
 SIM_WORKERS=${SIM_WORKERS:-4}
-LOADER_WORKERS=${LOADER_WORKERS:-4}
+LOADER_WORKERS=${LOADER_WORKERS:-3}
 RANDOMISE=${RANDOMISE:-}
 PAPER=${PAPER:-1}
 EPOCHS=${EPOCHS:-60}
@@ -65,13 +66,16 @@ timeout "$TRAIN_S" $hc train --data $train_data --preset small --range R1 --init
 timeout "$TRAIN_S" $hc train --data $train_data --preset small --range R2 --init learned/checkpoints/small-sim-r2.json \
   --epochs "$EPOCHS" $common batch_size=16 lr=2e-4 lr_halve_every=15 samples_per_epoch="$SAMPLES" val_samples=128 \
   --out "$W/small-r2" --no-progress > "$W/train-small-r2.log" 2>&1 &
+timeout "$TRAIN_S" $hc train --data $train_data --preset small --range R0 --init learned/checkpoints/small-sim-r1.json \
+  --epochs "$EPOCHS" $common batch_size=16 lr=2e-4 lr_halve_every=15 samples_per_epoch="$SAMPLES" val_samples=128 \
+  --out "$W/small-r0" --no-progress > "$W/train-small-r0.log" 2>&1 &
 if [ "$PAPER" = 1 ]; then
   timeout "$TRAIN_S" $hc train --data $train_data --preset paper --range R1 --epochs "$EPOCHS" $common \
     batch_size=16 lr=3e-4 lr_halve_every=15 samples_per_epoch="$SAMPLES" val_samples=128 \
     --out "$W/paper-r1" --no-progress > "$W/train-paper-r1.log" 2>&1 &
 fi
 wait
-for r in small-r1 small-r2 paper-r1; do [ -f "$W/$r/epochs.csv" ] && { echo "== $r"; tail -n 3 "$W/$r/epochs.csv"; }; done
+for r in small-r0 small-r1 small-r2 paper-r1; do [ -f "$W/$r/epochs.csv" ] && { echo "== $r"; tail -n 3 "$W/$r/epochs.csv"; }; done
 stamp "trained"
 
 val_data="$W/val-urban $W/val-highway $W/val-rain"
@@ -101,12 +105,13 @@ PYEOF
 stamp "fit and evaluate"
 pack small-r1 R1 small-sim-r1 &
 pack small-r2 R2 small-sim-r2 &
+pack small-r0 R0 small-sim-r0 &
 [ "$PAPER" = 1 ] && pack paper-r1 R1 paper-sim-r1 &
 wait
 stamp "evaluated"
 
 # pack: small weights as they are; the paper weights in float16 (<= 25 MB) split in two (<= 16 MB a file)
-cd "$W/ship" && cp small-sim-r1.safetensors small-sim-r2.safetensors "$OUT/" 2>/dev/null
+cd "$W/ship" && cp small-sim-r0.safetensors small-sim-r1.safetensors small-sim-r2.safetensors "$OUT/" 2>/dev/null
 if [ -f paper-sim-r1.safetensors ]; then
   $PY -c "
 from safetensors.torch import load_file, save_file
