@@ -27,7 +27,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=positive_int, default=1, help="rendering processes (default: 1)")
     p.add_argument("--overwrite", action="store_true", help="re-render everything instead of resuming")
     p.add_argument("--set", action="extend", nargs="+", metavar="KEY=VALUE", default=[],
-                   help="SimConfig overrides, e.g. image_scale=0.25 radar.clutter_per_sweep=8 lidar.azimuth_steps=540")
+                   help="SimConfig overrides, e.g. image_scale=0.25 radar.clutter_per_sweep=8 lidar.azimuth_steps=540; "
+                        "randomise.enabled=true turns on domain randomisation (appearance, weather, radar noise "
+                        "and rates, real nuScenes mounts and intrinsics; docs/sim_vs_real.md)")
 
 
 def run(args: argparse.Namespace) -> int:

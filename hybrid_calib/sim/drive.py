@@ -13,6 +13,14 @@ from hybrid_calib.sensors.camera import PinholeCamera
 from hybrid_calib.sim.extrinsics import ExtrinsicChange, MountPerturbation, VehicleMounts, sample_mounts
 from hybrid_calib.sim.lidar import LidarConfig, simulate_lidar_sweep
 from hybrid_calib.sim.radar import RadarConfig, RadarSweep, simulate_radar_sweep
+from hybrid_calib.sim.randomise import (
+    Randomisation,
+    VehicleDraw,
+    draw_vehicle,
+    frame_appearance,
+    randomised_radar,
+    randomised_shading,
+)
 from hybrid_calib.sim.raycast import cast_pinhole
 from hybrid_calib.sim.render import ShadingConfig, shade
 from hybrid_calib.sim.scenarios import ScenarioConfig, build_world, scenario
@@ -45,6 +53,7 @@ class SimConfig:
     mounts: MountPerturbation = MountPerturbation()  # spread of the true mounts around the nominal
     radar: RadarConfig = RadarConfig()  # radar model (the scenario sets its weather fields)
     lidar: LidarConfig = LidarConfig()  # LiDAR model
+    randomise: Randomisation = Randomisation()  # domain randomisation (off unless randomise.enabled=true)
 
     def __post_init__(self):
         scenario(self.scenario)  # validates the name
@@ -132,7 +141,14 @@ class VehicleDrive:
         self.world = build_world(s, int(_rng(c.seed, self.vehicle, 1).integers(2**31)), EGO_START_S + drive_len + 400.0)
         lane = self.world.layout.lane_centre(self.world.layout.lanes_per_direction - 1)
         self.ego = EgoMotion(self.world.path, lane, s.ego_speed, s.ego_speed_variation)
-        self.mounts = sample_mounts(_rng(c.seed, self.vehicle, 2), c.mounts, _rng(c.seed, self.vehicle, 5))
+        # domain randomisation: its own streams (7: per vehicle, 8: per frame), so turning it off leaves
+        # every other draw as it was
+        self.draw: VehicleDraw | None = (draw_vehicle(c.randomise, c.effective_radar, _rng(c.seed, self.vehicle, 7))
+                                         if c.randomise.enabled else None)
+        self.base_mounts = (self.draw.base_T_ego_cam, self.draw.base_T_ego_radar, self.draw.base_T_ego_lidar) if (
+            self.draw is not None and self.draw.base_T_ego_cam is not None) else None  # None: the nominal ones
+        self.mounts = sample_mounts(_rng(c.seed, self.vehicle, 2), c.mounts, _rng(c.seed, self.vehicle, 5),
+                                    self.base_mounts)
         self.base_us = BASE_TIMESTAMP_US + self.vehicle * 10_000_000_000
 
     @cached_property
@@ -153,9 +169,37 @@ class VehicleDrive:
     def T_ego_radar(self, k: int) -> np.ndarray:
         return self.mounts.radar_at(self.conf.extrinsic_change, k, self.conf.frames)
 
-    def shading(self) -> ShadingConfig:
+    @cached_property
+    def camera(self) -> PinholeCamera:
+        """This vehicle's camera: ``SimConfig.camera``, or with randomised real mounts the drawn CAM_FRONT
+        intrinsics (1600 x 900 scaled by ``image_scale``)."""
+        if self.draw is None or self.draw.camera_K_full is None:
+            return self.conf.camera
+        fx, fy, cx, cy = self.draw.camera_K_full
+        K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+        return PinholeCamera.from_K(K, 1600, 900).scaled(self.conf.image_scale)
+
+    @cached_property
+    def radar_config(self) -> RadarConfig:
+        """This vehicle's radar: the scenario's effective radar, randomised when enabled."""
+        r = self.conf.effective_radar
+        return r if self.draw is None else randomised_radar(r, self.draw)
+
+    def appearance(self, k: int) -> dict | None:
+        """Frame k's randomised appearance (``randomise.APPEARANCE_KEYS``), None when randomisation is off."""
+        if self.draw is None:
+            return None
+        return frame_appearance(self.conf.randomise, self.draw, _rng(self.conf.seed, self.vehicle, 8, k))
+
+    def jpeg_quality(self, k: int) -> int:
+        a = self.appearance(k)
+        return self.conf.jpeg_quality if a is None else a["jpeg_quality"]
+
+    def shading(self, k: int = 0) -> ShadingConfig:
         s = self.conf.scenario_config
-        return ShadingConfig(contrast=s.image_contrast, fog_distance=s.fog_distance, rain=s.rain)
+        base = ShadingConfig(contrast=s.image_contrast, fog_distance=s.fog_distance, rain=s.rain)
+        a = self.appearance(k)
+        return base if a is None else randomised_shading(base, self.conf.randomise, self.draw, a)
 
     def simulate_frame(self, k: int, radar: RadarConfig | None = None) -> FrameSim:
         """Render and simulate keyframe k (all sensors)."""
@@ -164,9 +208,9 @@ class VehicleDrive:
         times = self.times(k)
         t_cam, t_radar, t_lidar = times.seconds(self.base_us)
         Tge_cam, Tge_radar, Tge_lidar = (self.ego.T_global_ego(t) for t in (t_cam, t_radar, t_lidar))
-        image, depth = self.render_camera(Tge_cam @ self.mounts.T_ego_cam, t_cam, g)
+        image, depth = self.render_camera(Tge_cam @ self.mounts.T_ego_cam, t_cam, g, self.shading(k))
         T_ego_radar = self.T_ego_radar(k)
-        radar = radar or c.effective_radar
+        radar = radar or self.radar_config
         sweep = self.simulate_radar(Tge_radar, T_ego_radar, t_radar, radar, g)
         lidar = self.simulate_lidar(Tge_lidar @ self.mounts.T_ego_lidar, t_lidar, g)
         extra = []
@@ -184,14 +228,15 @@ class VehicleDrive:
         prims = self.world.primitives_at(t, T_global_radar[:3, 3], radar.far_range_m)
         return simulate_radar_sweep(prims, T_global_radar, v_radar, radar, g)
 
-    def render_camera(self, T_global_cam: np.ndarray, t: float,
-                      g: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-        """RGB (H, W, 3) uint8 and depth (H, W) float32 metres (camera z, 0 = none) at time t."""
-        cam = self.conf.camera
+    def render_camera(self, T_global_cam: np.ndarray, t: float, g: np.random.Generator,
+                      shading: ShadingConfig | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """RGB (H, W, 3) uint8 and depth (H, W) float32 metres (camera z, 0 = none) at time t
+        (``shading``: default ``self.shading()``)."""
+        cam = self.camera
         rays = _camera_rays(cam)
         prims = self.world.primitives_at(t, T_global_cam[:3, 3], self.conf.camera_max_range_m)
         buf, dirs = cast_pinhole(prims, T_global_cam, rays, cam.K, self.conf.camera_max_range_m)
-        image = shade(self.world, prims, buf, dirs, T_global_cam[:3, 3], self.shading(), g)
+        image = shade(self.world, prims, buf, dirs, T_global_cam[:3, 3], shading or self.shading(), g)
         depth = np.where(np.isfinite(buf.t), buf.t * rays[..., 2], 0.0).astype(np.float32)
         return image, depth
 

@@ -102,13 +102,18 @@ def _factory(T: np.ndarray, g: np.random.Generator, spread: MountPerturbation) -
     return T @ se3_exp(xi)
 
 
-def sample_mounts(g: np.random.Generator, spread: MountPerturbation, g_factory: np.random.Generator) -> VehicleMounts:
-    """A vehicle's true mounts: the nominal ones perturbed on the right (sensor frame, ``g``); its
-    factory calibration: the true ones perturbed again by the calibration error (``g_factory``, a
-    stream of its own so the true mounts do not depend on the calibration error's size)."""
-    cam = _perturbed(NOMINAL_T_EGO_CAM, g, spread.camera_rotation_deg, spread.camera_translation_m)
-    radar = _perturbed(NOMINAL_T_EGO_RADAR, g, spread.radar_rotation_deg, spread.radar_translation_m)
-    lidar = _perturbed(NOMINAL_T_EGO_LIDAR, g, spread.lidar_rotation_deg, spread.lidar_translation_m)
+def sample_mounts(g: np.random.Generator, spread: MountPerturbation, g_factory: np.random.Generator,
+                  base: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> VehicleMounts:
+    """A vehicle's true mounts: the base ones (default: the nominal design mounts; the domain
+    randomisation passes a real nuScenes fleet mount) as (T_ego_cam, T_ego_radar, T_ego_lidar),
+    perturbed on the right (sensor frame, ``g``); its factory calibration: the true ones perturbed
+    again by the calibration error (``g_factory``, a stream of its own so the true mounts do not
+    depend on the calibration error's size)."""
+    nominal = (NOMINAL_T_EGO_CAM, NOMINAL_T_EGO_RADAR, NOMINAL_T_EGO_LIDAR)
+    b_cam, b_radar, b_lidar = base if base is not None else nominal
+    cam = _perturbed(b_cam, g, spread.camera_rotation_deg, spread.camera_translation_m)
+    radar = _perturbed(b_radar, g, spread.radar_rotation_deg, spread.radar_translation_m)
+    lidar = _perturbed(b_lidar, g, spread.lidar_rotation_deg, spread.lidar_translation_m)
     return VehicleMounts(T_ego_cam=cam, T_ego_radar=radar, T_ego_lidar=lidar,
                          factory_T_ego_cam=_factory(cam, g_factory, spread),
                          factory_T_ego_radar=_factory(radar, g_factory, spread))

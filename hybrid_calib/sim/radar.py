@@ -12,7 +12,8 @@ Swerling-1 speckle). Hits are pooled into resolution cells per object (range x a
 is one candidate detection at the position of its strongest ray (that is the true reflector). Its
 SNR follows the radar equation (RCS - 40 log10 r), a sigmoid gives the detection probability, the
 near / far fields of view and range limits apply, each object keeps its strongest few cells, then
-clutter and multipath ghosts are added and the sweep is capped at ``max_points``.
+clutter and multipath ghosts are added, an optional soft RCS floor (``rcs_floor_db``: the real ARS 408
+cluster lists hold almost nothing under -5 dBsm) thins weak points, and the sweep is capped at ``max_points``.
 """
 
 from __future__ import annotations
@@ -62,6 +63,9 @@ class RadarConfig:
     ghost_probability: float = 0.05  # chance a return above ghost_min_rcs_db spawns a double-bounce ghost
     ghost_min_rcs_db: float = 5.0  # minimum RCS of a return that can spawn a ghost, dBsm
     ghost_loss_db: float = 12.0  # a ghost is this much weaker than its parent, dB
+    rcs_floor_db: float | None = None  # None: no floor; else points whose RCS is below it are rarely reported
+    # (the ARS 408 cluster list of nuScenes holds almost nothing under -5 dBsm), dBsm
+    rcs_floor_width_db: float = 1.0  # width of the soft RCS floor's sigmoid, dB
 
 
 @dataclass
@@ -159,6 +163,10 @@ def simulate_radar_sweep(prims: Primitives, T_global_radar: np.ndarray, radar_ve
     for k, v in clutter.items():
         cols[k].append(v)
     c = {k: np.concatenate(v) for k, v in cols.items()}
+    if conf.rcs_floor_db is not None and len(c["r"]):
+        p_keep = 1 / (1 + np.exp(-(c["rcs"] - conf.rcs_floor_db) / max(conf.rcs_floor_width_db, 1e-6)))
+        keep = rng.random(len(c["r"])) < p_keep
+        c = {k: v[keep] for k, v in c.items()}
     if len(c["r"]) > conf.max_points:
         keep = np.argsort(-c["snr"], kind="stable")[: conf.max_points]
         c = {k: v[keep] for k, v in c.items()}

@@ -34,6 +34,14 @@ class ShadingConfig:
     fog_distance: float = 400.0  # haze reaches 63 % at this distance, metres
     rain: bool = False  # wet road, grey sky
     noise_std: float = 0.012  # per-pixel Gaussian noise (fraction of full scale)
+    exposure: float = 1.0  # brightness gain (applied after haze and contrast)
+    gamma: float = 1.0  # output gamma: image ** gamma (> 1 darkens the mid-tones)
+    saturation: float = 1.0  # colour saturation multiplier (0 = grey)
+    white_balance: tuple[float, float, float] = (1.0, 1.0, 1.0)  # per-channel gains (R, G, B)
+    blur_sigma_px: float = 0.0  # Gaussian blur (optics / motion), pixels of the rendered image
+    object_tint: float = 0.0  # per-object, per-channel albedo gain spread (uniform +- this, hashed from the id)
+    ground_tint: float = 0.0  # per ground class and channel albedo gain spread (uniform +- this)
+    tint_seed: int = 0  # seed of the object and ground tints
 
 
 def hash_noise(ix: np.ndarray, iy: np.ndarray, seed: int = 0) -> np.ndarray:
@@ -107,7 +115,12 @@ def shade(world: World, prims: Primitives, buf: HitBuffer, dirs: np.ndarray, ori
     if hit_g.any():
         P = origin + t[hit_g][:, None] * dirs[hit_g]
         cls, s, l = world.ground_class(P[:, :2])
-        col = GROUND_COLOURS[cls].copy()
+        palette = GROUND_COLOURS
+        if conf.ground_tint:
+            idx = np.arange(len(GROUND_COLOURS))[:, None]
+            gain = 2 * hash_noise(idx + np.zeros((1, 3), int), np.arange(3)[None, :] + 7, conf.tint_seed) - 1
+            palette = np.clip(GROUND_COLOURS * (1 + conf.ground_tint * gain), 0, 1).astype(np.float32)
+        col = palette[cls].copy()
         fine = hash_noise(np.floor(P[:, 0] * 8), np.floor(P[:, 1] * 8), 1)
         coarse = hash_noise(np.floor(P[:, 0] * 0.5), np.floor(P[:, 1] * 0.5), 2)
         col *= (0.85 + 0.2 * fine + 0.1 * coarse)[:, None]
@@ -123,6 +136,10 @@ def shade(world: World, prims: Primitives, buf: HitBuffer, dirs: np.ndarray, ori
         j = buf.prim[hit_o]
         P = origin + t[hit_o][:, None] * dirs[hit_o]
         col = prims.colour[j].copy()
+        if conf.object_tint:
+            oid = prims.object_id[j][:, None] + np.zeros((1, 3), np.int64)
+            gain = 2 * hash_noise(oid, np.arange(3)[None, :], conf.tint_seed) - 1
+            col = np.clip(col * (1 + conf.object_tint * gain), 0, 1).astype(np.float32)
         mat = prims.material[j]
         local = P - prims.center[j]
         cy, sy = np.cos(prims.yaw[j]), np.sin(prims.yaw[j])
@@ -163,5 +180,23 @@ def shade(world: World, prims: Primitives, buf: HitBuffer, dirs: np.ndarray, ori
     if conf.contrast != 1.0:
         mean = img.reshape(-1, 3).mean(0)
         img = mean + (img - mean) * conf.contrast
+    img = _camera_response(img, conf)
     img += rng.normal(0, conf.noise_std, img.shape).astype(np.float32)
     return (np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8)
+
+
+def _camera_response(img: np.ndarray, conf: ShadingConfig) -> np.ndarray:
+    """Exposure, white balance, saturation, gamma and blur of a (H, W, 3) float image in [0, 1]-ish;
+    the identity at the defaults (and then the image is returned untouched)."""
+    if conf.exposure != 1.0 or tuple(conf.white_balance) != (1.0, 1.0, 1.0):
+        img = img * (conf.exposure * np.asarray(conf.white_balance, np.float32))
+    if conf.saturation != 1.0:
+        grey = img @ np.asarray([0.299, 0.587, 0.114], np.float32)
+        img = grey[..., None] + (img - grey[..., None]) * conf.saturation
+    if conf.gamma != 1.0:
+        img = np.clip(img, 0, 1) ** conf.gamma
+    if conf.blur_sigma_px > 0.05:
+        import cv2
+
+        img = cv2.GaussianBlur(np.ascontiguousarray(img, np.float32), (0, 0), conf.blur_sigma_px)
+    return img.astype(np.float32)

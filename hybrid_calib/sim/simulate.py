@@ -96,7 +96,7 @@ def write_frame(root: Path, drive: VehicleDrive, rec: FrameRecord) -> None:
         write_radar(root, name, sweep)
     write_radar(root, rec.radar_file, f.radar)
     write_lidar_bin(root / rec.lidar_file, f.lidar)
-    ok, jpg = cv2.imencode(".jpg", f.image[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, drive.conf.jpeg_quality])
+    ok, jpg = cv2.imencode(".jpg", f.image[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, drive.jpeg_quality(rec.index)])
     if not ok:
         raise OSError(f"JPEG encoding failed for frame {rec.index}")
     write_bytes_atomic(root / rec.camera_file, jpg.tobytes())
@@ -211,7 +211,7 @@ def _record(failed: dict, v: int, k: int, err: str | None) -> None:
 
 def _vehicle_record(d: VehicleDrive) -> VehicleRecord:
     c = d.conf
-    cam = c.camera
+    cam = d.camera
     ch = c.extrinsic_change
     desc = (f"simulated {c.scenario} drive, vehicle {d.vehicle}, seed {c.seed}, radar mount change: {ch.kind}"
             + (f" at frame {ch.step_frame(c.frames)}" if ch.kind == "step" else ""))
@@ -228,13 +228,15 @@ def _pose(T: np.ndarray) -> dict:
 def _vehicle_truth(d: VehicleDrive, vr: VehicleRecord, failed: list[dict]) -> dict:
     c = d.conf
     ch = c.extrinsic_change
+    base = d.base_mounts
     return {
         "log_token": token("log", log_name(vr)),
         "vehicle": d.name,
         "scenario": c.scenario,
         "seed": c.seed,
-        "nominal_T_ego_radar": _pose(NOMINAL_T_EGO_RADAR),
-        "nominal_T_ego_cam": _pose(NOMINAL_T_EGO_CAM),
+        # the design mounts: the fleet's nominal ones, or with randomised real mounts the drawn nuScenes mount
+        "nominal_T_ego_radar": _pose(NOMINAL_T_EGO_RADAR if base is None else base[1]),
+        "nominal_T_ego_cam": _pose(NOMINAL_T_EGO_CAM if base is None else base[0]),
         "true_T_ego_radar_start": _pose(d.mounts.T_ego_radar),
         "true_T_ego_cam": _pose(d.mounts.T_ego_cam),
         # the vehicle's calibration tables: what a real vehicle's calibrated_sensor would hold (the
@@ -245,7 +247,9 @@ def _vehicle_truth(d: VehicleDrive, vr: VehicleRecord, failed: list[dict]) -> di
         "extrinsic_change": {"kind": ch.kind, "frame": ch.step_frame(c.frames) if ch.kind == "step" else None,
                              "rotation_deg": list(ch.rotation_deg), "translation_m": list(ch.translation_m),
                              "xi_radar": ch.xi.tolist()},
-        "radar_config": to_dict(c.effective_radar),
+        "radar_config": to_dict(d.radar_config),
+        # domain randomisation draws of this vehicle (SimConfig.randomise), null when off
+        "randomisation": d.draw.to_json() if d.draw is not None else None,
         "sim_config": to_dict(c),
         "failed_frames": failed,
     }
