@@ -13,14 +13,16 @@ from hybrid_calib.sim.drive import SimConfig
 from hybrid_calib.sim.simulate import simulate
 from learned.checkpoint import load_model
 from learned.dataset import CalibDataset, DatasetConfig, collate
-from learned.depth import CorruptedTruthDepth
+from learned.depth import CorruptedTruthDepth, LidarDepth
 
 CHECKPOINTS = Path(__file__).resolve().parents[1] / "learned" / "checkpoints"
-SHIPPED = {"R1": CHECKPOINTS / "small-sim-r1.json", "R2": CHECKPOINTS / "small-sim-r2.json"}
+SHIPPED = {"R0": CHECKPOINTS / "small-sim-r0.json", "R1": CHECKPOINTS / "small-sim-r1.json",
+           "R2": CHECKPOINTS / "small-sim-r2.json"}
+PAPER = CHECKPOINTS / "paper-sim-r1.json"
 
 
-def test_both_ranges_are_shipped_with_provenance():
-    for rng, path in SHIPPED.items():
+def test_every_range_and_the_paper_preset_are_shipped_with_provenance():
+    for rng, path in [*SHIPPED.items(), ("R1", PAPER)]:
         assert path.is_file(), f"no shipped {rng} checkpoint at {path}"
         meta = json.loads(path.read_text())
         assert meta["train_config"]["perturbation"] == rng
@@ -29,7 +31,7 @@ def test_both_ranges_are_shipped_with_provenance():
         assert path.with_suffix(".safetensors").stat().st_size < 25e6
 
 
-@pytest.mark.parametrize("rng", ["R1", "R2"])
+@pytest.mark.parametrize("rng", ["R0", "R1", "R2"])
 def test_shipped_checkpoint_reduces_rotation_error_on_unseen_frames(tmp_path, rng):
     if not SHIPPED[rng].is_file():
         pytest.fail(f"no shipped {rng} checkpoint at {SHIPPED[rng]}")
@@ -38,9 +40,10 @@ def test_shipped_checkpoint_reduces_rotation_error_on_unseen_frames(tmp_path, rn
     # a drive from a seed and scene the checkpoint never saw (it was trained on seed 0)
     root = simulate(SimConfig(scenario="urban", vehicles=1, frames=6, seed=12345, image_scale=0.25), tmp_path / "sim",
                     progress=False)
-    frames = list(NuScenesRadarCamera(root, "v1.0-sim", conf={"load_lidar": False}))
-    ds = CalibDataset(frames, DatasetConfig(height=H, width=W, perturbation=rng, seed=3), CorruptedTruthDepth(),
-                      train=False)
+    lidar = ckpt.train_config.get("depth") == LidarDepth.name  # the depth path it was trained with
+    frames = list(NuScenesRadarCamera(root, "v1.0-sim", conf={"load_lidar": lidar}))
+    depth = LidarDepth() if lidar else CorruptedTruthDepth()
+    ds = CalibDataset(frames, DatasetConfig(height=H, width=W, perturbation=rng, seed=3), depth, train=False)
     batch = collate([ds[i] for i in range(len(ds))])
     with torch.no_grad():
         out = model(batch)
@@ -48,5 +51,6 @@ def test_shipped_checkpoint_reduces_rotation_error_on_unseen_frames(tmp_path, rn
     init = [extrinsic_error(T0, Tg).rot_mean_deg for T0, Tg in zip(batch["T_init"].double().numpy(), T_gt)]
     final = [extrinsic_error(T, Tg).rot_mean_deg for T, Tg in zip(out["T_iters"][-1].double().numpy(), T_gt)]
     assert all(np.isfinite(final))
-    # measured on 120 held-out frames: R1 and R2 rotation errors drop by 5x or more (docs/benchmarks.md)
-    assert np.mean(final) < 0.5 * np.mean(init), (np.mean(init), np.mean(final))
+    # measured on 239 held-out frames (docs/benchmarks.md): R1 / R2 rotation errors drop ~4-6x, R0 (starts
+    # within 2 deg) by a third
+    assert np.mean(final) < (0.8 if rng == "R0" else 0.5) * np.mean(init), (np.mean(init), np.mean(final))

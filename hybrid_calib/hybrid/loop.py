@@ -101,6 +101,13 @@ def resolve_depth(data, version: str, conf: HybridConfig) -> tuple[str, str]:
     return "", ""
 
 
+def trained_depth(checkpoint) -> str:
+    """The depth estimator a checkpoint was trained with (its train_config; corrupted-truth if unsaid)."""
+    from learned.checkpoint import read_checkpoint_meta
+
+    return str(read_checkpoint_meta(checkpoint)[1].get("train_config", {}).get("depth", "corrupted-truth"))
+
+
 def open_drives(data, version: str, conf: HybridConfig, lidar: bool):
     """(frames, {vehicle: Drive}) of a root, restricted to ``conf.vehicles`` and ``conf.max_frames``."""
     from learned.dataset import open_frames
@@ -300,8 +307,9 @@ class _Session:
             self.frames, self.drives = open_drives(data, version, conf, lidar=False)
             return
         depth, self.note = resolve_depth(data, version, conf)
-        self.frames, self.drives = open_drives(data, version, conf, lidar=depth == LIDAR_DEPTH)
         ckpt = conf.checkpoint or shipped_checkpoint(conf.start)
+        effective = depth or trained_depth(ckpt)  # "" = the checkpoint's own (lidar-densified needs the LiDAR)
+        self.frames, self.drives = open_drives(data, version, conf, lidar=effective == LIDAR_DEPTH)
         self.runner = build_runner(ckpt, refine_checkpoint(conf.refine), self.frames, depth, conf.cache_dir,
                                    conf.depth_cache, conf.threads)
 
