@@ -58,13 +58,13 @@ class Randomisation:
     # appearance
     exposure: tuple[float, float] = (0.7, 1.1)  # image brightness gain
     gamma: tuple[float, float] = (0.8, 1.25)  # output gamma (image ** gamma: > 1 darkens the mid-tones)
-    contrast: tuple[float, float] = (0.75, 1.1)  # contrast multiplier on top of the scenario's
-    saturation: tuple[float, float] = (0.5, 1.1)  # colour saturation multiplier
+    contrast: tuple[float, float] = (0.65, 1.05)  # contrast multiplier on top of the scenario's
+    saturation: tuple[float, float] = (0.3, 1.0)  # colour saturation multiplier
     white_balance: float = 0.08  # per-channel gain spread (uniform +- this)
     object_tint: float = 0.25  # per-object, per-channel albedo gain spread (uniform +- this)
     ground_tint: float = 0.15  # per-vehicle, per ground class and channel albedo gain spread (+- this)
     haze: tuple[float, float] = (0.35, 1.5)  # multiplier of the scenario's fog distance (lower = hazier)
-    blur_sigma_px: tuple[float, float] = (0.0, 0.9)  # Gaussian blur of the written image, pixels
+    blur_sigma_px: tuple[float, float] = (0.0, 0.6)  # Gaussian blur of the written image, pixels
     noise_std: tuple[float, float] = (0.004, 0.03)  # pixel noise std, fraction of full scale
     jpeg_quality: tuple[int, int] = (55, 95)  # JPEG quality of the written image
     # radar (per vehicle)
@@ -77,7 +77,7 @@ class Randomisation:
     azimuth_noise_deg: tuple[float, float] = (0.15, 0.6)  # RadarConfig.azimuth_noise_deg, degrees
     rcs_noise_db: tuple[float, float] = (0.5, 2.5)  # RadarConfig.rcs_noise_db, dB
     velocity_noise_mps: tuple[float, float] = (0.05, 0.25)  # RadarConfig.velocity_noise_mps, m/s
-    clutter_scale: tuple[float, float] = (0.5, 2.5)  # multiplier of the scenario's clutter rate
+    clutter_scale: tuple[float, float] = (0.5, 2.0)  # multiplier of the scenario's clutter rate
     clutter_rcs_mean_db: tuple[float, float] = (-4.0, 2.0)  # clutter RCS mean (std stays), dBsm
     ghost_scale: tuple[float, float] = (0.4, 2.0)  # multiplier of the scenario's ghost probability
     # mounts and intrinsics (per vehicle)
