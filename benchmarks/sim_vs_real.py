@@ -41,7 +41,7 @@ from hybrid_calib.data.fleet_mounts import fleet_mounts
 from hybrid_calib.data.nuscenes import NuScenesRadarCamera
 from hybrid_calib.geometry import pose_from_nuscenes
 from hybrid_calib.plots.domain import plot_depth, plot_examples, plot_image, plot_mounts, plot_radar
-from hybrid_calib.sim.drive import SimConfig
+from hybrid_calib.sim.drive import SimConfig, vehicle_camera, vehicle_mounts
 from hybrid_calib.sim.scenarios import PRESETS
 from hybrid_calib.sim.simulate import simulate
 from learned.depth import LidarDepth
@@ -51,14 +51,16 @@ DEPTH_HW = (192, 400)  # the network input size (learned.config input_hw)
 HOLDOUT = 0.2  # share of LiDAR points kept out of the depth map to measure its error
 
 
-def simulate_roots(out: Path, vehicles: int, frames: int, seed: int, workers: int) -> dict[str, Path]:
+def simulate_roots(out: Path, vehicles: int, frames: int, seed: int, workers: int,
+                   overwrite: bool = False) -> dict[str, Path]:
     roots = {}
     for name in PRESETS:
         for dr in (False, True):
             label = f"{name}{' +DR' if dr else ''}"
             conf = merge(SimConfig, {"scenario": name, "vehicles": vehicles, "frames": frames, "seed": seed,
                                      "image_scale": 0.25, "randomise": {"enabled": dr}})
-            roots[label] = simulate(conf, out / label.replace(" +", "_"), workers=workers, progress=False)
+            roots[label] = simulate(conf, out / label.replace(" +", "_"), workers=workers, overwrite=overwrite,
+                                    progress=False)
     return roots
 
 
@@ -109,6 +111,17 @@ def collect(root: Path, version: str, max_frames: int | None = None) -> dict:
     return acc
 
 
+def sim_mounts(vehicles: int, seed: int, randomise: bool) -> dict[str, np.ndarray]:
+    """Mount angles and intrinsics of ``vehicles`` simulated vehicles (no rendering)."""
+    conf = merge(SimConfig, {"seed": seed, "image_scale": 0.25, "randomise": {"enabled": randomise}})
+    rows = []
+    for v in range(vehicles):
+        draw, _, m = vehicle_mounts(conf, v)
+        cam = vehicle_camera(conf, draw)
+        rows.append({**mount_angles(m.T_ego_cam, m.T_ego_radar), **intrinsics_full_res(cam.K, cam.width, cam.height)})
+    return {k: np.asarray([r[k] for r in rows]) for k in rows[0]}
+
+
 def _pct(v, q):
     v = np.asarray(v, float)
     v = v[np.isfinite(v)]
@@ -136,9 +149,30 @@ def summarise(a: dict) -> dict:
         "luminance": _mean(a["luminance"]), "contrast": _mean(a["contrast"]), "saturation": _mean(a["saturation"]),
         "sharpness": _mean(a["sharpness"]), "colour_cast_r_b": _mean(np.asarray(a["mean_r"]) - np.asarray(a["mean_b"])),
         "fx_full": _mean(a["fx"]), "cx_full": _mean(a["cx"]), "cy_full": _mean(a["cy"]),
-        "fx_full_std": float(np.std(a["mounts"]["fx"])), "cam_yaw_std": float(np.std(a["mounts"]["cam_yaw_deg"])),
-        "radar_yaw_std": float(np.std(a["mounts"]["radar_yaw_deg"])),
     }
+
+
+MOUNT_KEYS = ("cam_yaw_deg", "cam_pitch_deg", "cam_roll_deg", "cam_x_m", "cam_z_m", "radar_yaw_deg", "radar_pitch_deg",
+              "fx", "cx", "cy")
+
+
+def mount_table(groups: dict[str, dict]) -> tuple[str, dict]:
+    """Markdown of the (scene-weighted where ``weight`` is given) mean / std of each mount quantity."""
+    stats = {}
+    lines = ["| vehicles | " + " | ".join(MOUNT_KEYS) + " |", "|" + "---|" * (len(MOUNT_KEYS) + 1)]
+    for label, g in groups.items():
+        w = np.asarray(g.get("weight", np.ones(len(g["fx"]))), float)
+        row = {}
+        for k in MOUNT_KEYS:
+            v = np.asarray(g[k], float)
+            m = float(np.average(v, weights=w))
+            row[k] = (m, float(np.sqrt(np.average((v - m) ** 2, weights=w))))
+        stats[label] = row
+        fmt = {k: "{:.1f}" if k in ("fx", "cx", "cy") else "{:.3f}" if k.endswith("_m") else "{:.2f}"
+               for k in MOUNT_KEYS}
+        lines.append(f"| {label} | " + " | ".join(f"{fmt[k].format(row[k][0])} +- {fmt[k].format(row[k][1])}"
+                                                for k in MOUNT_KEYS) + " |")
+    return "\n".join(lines), stats
 
 
 COLUMNS = (("frames", "frames", "{:.0f}"), ("pts/sweep", "pts_mean", "{:.1f}"), ("raw pts", "raw_mean", "{:.0f}"),
@@ -150,7 +184,7 @@ COLUMNS = (("frames", "frames", "{:.0f}"), ("pts/sweep", "pts_mean", "{:.1f}"), 
            ("depth AbsRel vs truth", "depth_abs_rel_truth", "{:.3f}"), ("luminance", "luminance", "{:.3f}"),
            ("contrast", "contrast", "{:.3f}"), ("saturation", "saturation", "{:.3f}"),
            ("sharpness", "sharpness", "{:.3f}"),
-           ("fx @1600", "fx_full", "{:.0f}"), ("cam yaw std deg", "cam_yaw_std", "{:.2f}"))
+           ("fx @1600", "fx_full", "{:.0f}"))
 
 
 def markdown_table(rows: dict[str, dict]) -> str:
@@ -182,12 +216,14 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=500,
                    help="simulation seed (not one the randomisation ranges were set on)")
     p.add_argument("--workers", type=int, default=1)
+    p.add_argument("--overwrite", action="store_true", help="re-simulate the roots under --out (else resume them)")
+    p.add_argument("--mount-vehicles", type=int, default=200, help="simulated vehicles for the mount statistics")
     p.add_argument("--figures", type=Path, default=REPO / "docs" / "figures")
     args = p.parse_args(argv)
     warnings.filterwarnings("ignore", message=".*sweep files are absent.*")
     t0 = time.perf_counter()
     real_root, real_version = args.real.rsplit(":", 1)
-    roots = simulate_roots(args.out, args.vehicles, args.frames, args.seed, args.workers)
+    roots = simulate_roots(args.out, args.vehicles, args.frames, args.seed, args.workers, args.overwrite)
     t_sim = time.perf_counter() - t0
     colls = {"real 0916": collect(Path(real_root), real_version)}
     for label, root in roots.items():
@@ -203,7 +239,6 @@ def main(argv=None) -> int:
                            **intrinsics_full_res(K, 1600, 900), "weight": m.scenes})
     fleet_group = {k: np.asarray([r[k] for r in fleet_rows]) for k in fleet_rows[0]}
 
-    sim_off = [c for label, c in colls.items() if label != "real 0916" and "+DR" not in label]
     sim_on = [c for label, c in colls.items() if "+DR" in label]
     keys = ("n", "range_m", "azimuth_deg", "rcs_dbsm", "luminance", "contrast", "saturation", "sharpness", "mean_r",
             "mean_g", "mean_b", "density", "lidar_abs_rel", "truth_abs_rel")
@@ -212,20 +247,25 @@ def main(argv=None) -> int:
     fig = args.figures
     figures = [plot_radar(groups, fig / "sim_vs_real_radar.png"), plot_image(groups, fig / "sim_vs_real_image.png"),
                plot_depth(groups, fig / "sim_vs_real_depth.png")]
-    mkeys = tuple(colls["real 0916"]["mounts"])
-    mount_groups = {"trainval fleet (size: scenes)": fleet_group, "real 0916": colls["real 0916"]["mounts"],
-                    "sim vehicles": _pool([c["mounts"] for c in sim_off], mkeys),
-                    "sim +DR vehicles": _pool([c["mounts"] for c in sim_on], mkeys)}
+    mount_groups = {"trainval fleet (size: scenes)": fleet_group, "real 0916": colls["real 0916"]["mounts"]}
+    for dr in (False, True):
+        label = f"sim{' +DR' if dr else ''}, {args.mount_vehicles} vehicles"
+        mount_groups[label] = sim_mounts(args.mount_vehicles, args.seed, dr)
+
     figures.append(plot_mounts(mount_groups, fig / "sim_vs_real_mounts.png"))
     figures.append(plot_examples({label: colls[label]["example"] for label in ("real 0916", "urban", "urban +DR",
                                                                                "rain +DR")},
                                  fig / "sim_vs_real_examples.png"))
+    mounts_md, mount_stats = mount_table(mount_groups)
     result = {"command": "benchmarks/sim_vs_real.py " + " ".join(argv or []), "machine": platform.node(),
               "seconds_total": time.perf_counter() - t0, "seconds_simulate": t_sim, "rows": rows,
+              "mounts": mount_stats,
               "fleet_mounts": fleet_rows, "figures": [str(f) for f in figures]}
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "sim_vs_real.json").write_text(json.dumps(result, indent=1, default=float))
     print(markdown_table(rows))
+    print()
+    print(mounts_md)
     for f in figures:
         print(f"{f}: {f.stat().st_size / 1024:.0f} KB")
     print(f"total {result['seconds_total']:.0f} s (simulation {t_sim:.0f} s)")

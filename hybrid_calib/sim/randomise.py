@@ -5,7 +5,7 @@ data exactly, so that a network trained on simulated drives has seen the real da
 (``--set randomise.enabled=true``), and then deterministic by (seed, vehicle[, frame]):
 
 - appearance: exposure, gamma, contrast, saturation, white balance, per-object albedo tint, ground
-  tint, haze (weather), blur, pixel noise, JPEG quality;
+  tint, haze and an overcast sky (weather), blur, pixel noise, JPEG quality;
 - radar: the RCS floor of the ARS 408 cluster list, sensitivity, detection threshold, returns per
   object, range / azimuth / RCS / velocity noise, clutter and ghost rates, clutter RCS;
 - mounts: the camera, radar and LiDAR base mounts and the CAM_FRONT intrinsics drawn from the real
@@ -64,6 +64,7 @@ class Randomisation:
     object_tint: float = 0.25  # per-object, per-channel albedo gain spread (uniform +- this)
     ground_tint: float = 0.15  # per-vehicle, per ground class and channel albedo gain spread (+- this)
     haze: tuple[float, float] = (0.35, 1.5)  # multiplier of the scenario's fog distance (lower = hazier)
+    overcast_probability: float = 0.4  # chance that a vehicle drives under a grey sky without sun shadows
     blur_sigma_px: tuple[float, float] = (0.0, 0.6)  # Gaussian blur of the written image, pixels
     noise_std: tuple[float, float] = (0.004, 0.03)  # pixel noise std, fraction of full scale
     jpeg_quality: tuple[int, int] = (55, 95)  # JPEG quality of the written image
@@ -102,6 +103,7 @@ class VehicleDraw:
     appearance: dict  # APPEARANCE_KEYS -> value (per-frame keys: redrawn each frame)
     white_balance: tuple[float, float, float]  # per-channel gains
     tint_seed: int  # seed of the per-object and ground tints
+    overcast: bool  # grey sky, no sun shadows
     radar: dict  # RadarConfig field -> value, applied over the scenario's effective radar
     fleet_mount: int  # row of NUSCENES_FLEET_MOUNTS, -1 = the nominal design mounts
     camera_K_full: tuple[float, float, float, float] | None  # (fx, fy, cx, cy) at 1600 x 900, or None = nominal
@@ -111,6 +113,7 @@ class VehicleDraw:
 
     def to_json(self) -> dict:
         return {"appearance": self.appearance, "white_balance": list(self.white_balance), "tint_seed": self.tint_seed,
+                "overcast": self.overcast,
                 "radar": self.radar, "fleet_mount": self.fleet_mount,
                 "camera_K_full": list(self.camera_K_full) if self.camera_K_full is not None else None}
 
@@ -133,6 +136,7 @@ def draw_vehicle(conf: Randomisation, scenario_radar: RadarConfig, g: np.random.
     appearance = _appearance(conf, g)
     wb = tuple(float(x) for x in 1 + g.uniform(-conf.white_balance, conf.white_balance, 3))
     tint_seed = int(g.integers(1, 2**31))
+    overcast = bool(g.random() < conf.overcast_probability)
     lo, hi = conf.max_returns_per_object
     radar = {
         "rcs_floor_db": _u(g, conf.rcs_floor_db), "snr_ref_db": _u(g, conf.snr_ref_db),
@@ -145,14 +149,14 @@ def draw_vehicle(conf: Randomisation, scenario_radar: RadarConfig, g: np.random.
         "ghost_probability": min(1.0, scenario_radar.ghost_probability * _u(g, conf.ghost_scale)),
     }
     if not conf.real_mounts:
-        return VehicleDraw(appearance, wb, tint_seed, radar, -1, None)
+        return VehicleDraw(appearance, wb, tint_seed, overcast, radar, -1, None)
     w = np.array([row[0] for row in NUSCENES_FLEET_MOUNTS], float)
     i = int(g.choice(len(w), p=w / w.sum()))
     _, ct, cr, (fx, fy, cx, cy), rt, rr, lt, lr = NUSCENES_FLEET_MOUNTS[i]
     f = 1 + g.uniform(-conf.focal_jitter, conf.focal_jitter)
     dc = g.uniform(-conf.principal_jitter_px, conf.principal_jitter_px, 2)
     K = (fx * f, fy * f, cx + dc[0], cy + dc[1])
-    return VehicleDraw(appearance, wb, tint_seed, radar, i, tuple(float(x) for x in K),
+    return VehicleDraw(appearance, wb, tint_seed, overcast, radar, i, tuple(float(x) for x in K),
                        pose_from_nuscenes(cr, ct), pose_from_nuscenes(rr, rt), pose_from_nuscenes(lr, lt))
 
 
@@ -175,4 +179,4 @@ def randomised_shading(base: ShadingConfig, conf: Randomisation, draw: VehicleDr
         base, contrast=base.contrast * a["contrast"], fog_distance=base.fog_distance * a["haze"],
         noise_std=a["noise_std"], exposure=a["exposure"], gamma=a["gamma"], saturation=a["saturation"],
         white_balance=draw.white_balance, blur_sigma_px=a["blur_sigma_px"], object_tint=conf.object_tint,
-        ground_tint=conf.ground_tint, tint_seed=draw.tint_seed)
+        ground_tint=conf.ground_tint, tint_seed=draw.tint_seed, overcast=base.overcast or draw.overcast)
