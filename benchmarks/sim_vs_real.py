@@ -4,7 +4,7 @@ drives of every preset, with and without domain randomisation (``SimConfig.rando
 Run (about 3-5 minutes on the 2-core dev box):
   PYTHONPATH=. .venv/bin/python benchmarks/sim_vs_real.py --out /tmp/sim_vs_real \
       [--real ../shared/data/nuscenes-scene-0916:v1.0-mini] [--tables ../shared/data/nuscenes-trainval-tables]
-      [--vehicles 2 --frames 8 --seed 500] [--figures docs/figures]
+      [--vehicles 4 --frames 6 --seed 500] [--figures docs/figures]
 
 It simulates (or resumes) one root per preset and randomisation setting under ``--out``
 (image_scale 0.25, as the networks train), loads every root with the devkit radar filters and the
@@ -211,8 +211,8 @@ def main(argv=None) -> int:
                    help="real nuScenes root:version")
     p.add_argument("--tables", type=Path, default=REPO.parent / "shared/data/nuscenes-trainval-tables/v1.0-trainval",
                    help="v1.0-trainval folder with calibrated_sensor.json (the real mount distribution)")
-    p.add_argument("--vehicles", type=int, default=2)
-    p.add_argument("--frames", type=int, default=8)
+    p.add_argument("--vehicles", type=int, default=4)
+    p.add_argument("--frames", type=int, default=6)
     p.add_argument("--seed", type=int, default=500,
                    help="simulation seed (not one the randomisation ranges were set on)")
     p.add_argument("--workers", type=int, default=1)

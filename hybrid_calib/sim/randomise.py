@@ -4,7 +4,7 @@ data exactly, so that a network trained on simulated drives has seen the real da
 ``Randomisation`` (``SimConfig.randomise``) holds the ranges; everything is off unless ``enabled``
 (``--set randomise.enabled=true``), and then deterministic by (seed, vehicle[, frame]):
 
-- appearance: exposure, gamma, contrast, saturation, white balance, per-object albedo tint, ground
+- appearance: exposure, gamma, contrast, saturation, white balance and warmth, per-object albedo tint, ground
   tint, haze and an overcast sky (weather), blur, pixel noise, JPEG quality;
 - radar: the RCS floor of the ARS 408 cluster list, sensitivity, detection threshold, returns per
   object, range / azimuth / RCS / velocity noise, clutter and ghost rates, clutter RCS;
@@ -61,6 +61,7 @@ class Randomisation:
     contrast: tuple[float, float] = (0.65, 1.05)  # contrast multiplier on top of the scenario's
     saturation: tuple[float, float] = (0.3, 1.0)  # colour saturation multiplier
     white_balance: float = 0.08  # per-channel gain spread (uniform +- this)
+    warmth: tuple[float, float] = (-0.02, 0.08)  # colour temperature: red gain x(1 + w), blue gain x(1 - w)
     object_tint: float = 0.25  # per-object, per-channel albedo gain spread (uniform +- this)
     ground_tint: float = 0.15  # per-vehicle, per ground class and channel albedo gain spread (+- this)
     haze: tuple[float, float] = (0.35, 1.5)  # multiplier of the scenario's fog distance (lower = hazier)
@@ -70,9 +71,9 @@ class Randomisation:
     jpeg_quality: tuple[int, int] = (55, 95)  # JPEG quality of the written image
     # radar (per vehicle)
     rcs_floor_db: tuple[float, float] = (-7.0, -3.0)  # RadarConfig.rcs_floor_db, dBsm
-    snr_ref_db: tuple[float, float] = (95.0, 100.0)  # RadarConfig.snr_ref_db (sensitivity), dB
+    snr_ref_db: tuple[float, float] = (96.0, 101.0)  # RadarConfig.snr_ref_db (sensitivity), dB
     detection_threshold_db: tuple[float, float] = (11.0, 15.0)  # RadarConfig.detection_threshold_db, dB
-    max_returns_per_object: tuple[int, int] = (4, 7)  # RadarConfig.max_returns_per_object (inclusive)
+    max_returns_per_object: tuple[int, int] = (5, 8)  # RadarConfig.max_returns_per_object (inclusive)
     azimuth_loss_db: tuple[float, float] = (1.5, 6.0)  # RadarConfig.azimuth_loss_db (edge of the near field), dB
     range_noise_m: tuple[float, float] = (0.08, 0.25)  # RadarConfig.range_noise_m, metres
     azimuth_noise_deg: tuple[float, float] = (0.15, 0.6)  # RadarConfig.azimuth_noise_deg, degrees
@@ -134,7 +135,8 @@ def draw_vehicle(conf: Randomisation, scenario_radar: RadarConfig, g: np.random.
     """The per-vehicle draws from the generator ``g`` (one stream per vehicle). ``scenario_radar``: the
     scenario's effective radar (its clutter / ghost rates are scaled)."""
     appearance = _appearance(conf, g)
-    wb = tuple(float(x) for x in 1 + g.uniform(-conf.white_balance, conf.white_balance, 3))
+    w = _u(g, conf.warmth)
+    wb = tuple(float(x) for x in (1 + g.uniform(-conf.white_balance, conf.white_balance, 3)) * (1 + w, 1.0, 1 - w))
     tint_seed = int(g.integers(1, 2**31))
     overcast = bool(g.random() < conf.overcast_probability)
     lo, hi = conf.max_returns_per_object
