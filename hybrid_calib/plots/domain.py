@@ -47,7 +47,7 @@ def plot_image(groups: dict, path: str | Path) -> Path:
     """Per-frame image statistics: luminance against contrast, saturation against sharpness."""
     plt = pyplot()
     fig, ax = plt.subplots(1, 3, figsize=(12, 3.3))
-    for (label, g), c in zip(groups.items(), COLOURS):
+    for (label, g), c in reversed(list(zip(groups.items(), COLOURS))):  # the first group on top
         kw = dict(s=14 if c == "black" else 7, color=c, alpha=0.9 if c == "black" else 0.5, label=label)
         ax[0].scatter(g["luminance"], g["contrast"], **kw)
         ax[1].scatter(g["saturation"], g["sharpness"], **kw)
@@ -86,7 +86,7 @@ def plot_mounts(groups: dict, path: str | Path) -> Path:
     per real fleet mount."""
     plt = pyplot()
     fig, ax = plt.subplots(1, 4, figsize=(13, 3.2))
-    for (label, g), c in zip(groups.items(), COLOURS):
+    for (label, g), c in reversed(list(zip(groups.items(), COLOURS))):  # the first group on top
         w = np.asarray(g.get("weight", np.ones(len(g["cam_yaw_deg"]))), float)
         s = 8 + 60 * w / max(w.max(), 1e-9) if "weight" in g else 10
         kw = dict(s=s, color=c, alpha=0.8 if c == "black" else 0.5, label=label)

@@ -56,7 +56,7 @@ class Randomisation:
     per_frame: tuple[str, ...] = ("blur_sigma_px", "noise_std", "jpeg_quality")  # appearance keys drawn per frame
     # (the others once per vehicle); any of APPEARANCE_KEYS
     # appearance
-    exposure: tuple[float, float] = (0.7, 1.1)  # image brightness gain
+    exposure: tuple[float, float] = (0.6, 1.1)  # image brightness gain
     gamma: tuple[float, float] = (0.8, 1.25)  # output gamma (image ** gamma: > 1 darkens the mid-tones)
     contrast: tuple[float, float] = (0.65, 1.05)  # contrast multiplier on top of the scenario's
     saturation: tuple[float, float] = (0.3, 1.0)  # colour saturation multiplier
