@@ -67,8 +67,10 @@ def test_draws_change_the_named_quantities_deterministically():
     fx, fy, cx, cy = a0.draw.camera_K_full
     assert abs(fx / row[3][0] - 1) <= r.focal_jitter and abs(cx - row[3][2]) <= r.principal_jitter_px
     assert a0.camera.fx == pytest.approx(fx * 0.125) and a0.camera.width == 200
-    picks = [draw_vehicle(Randomisation(enabled=True), base, np.random.default_rng(i)).fleet_mount for i in range(300)]
+    draws = [draw_vehicle(Randomisation(enabled=True), base, np.random.default_rng(i)) for i in range(300)]
+    picks = [d.fleet_mount for d in draws]
     assert set(picks) == set(range(len(NUSCENES_FLEET_MOUNTS))) and picks.count(0) > 5 * picks.count(3)
+    assert 0.3 < np.mean([d.overcast for d in draws]) < 0.5  # overcast_probability 0.4
 
 
 def test_rendered_frame_is_randomised_and_reproducible():

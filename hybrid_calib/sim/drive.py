@@ -93,6 +93,30 @@ def _rng(*keys: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence([int(k) for k in keys]))
 
 
+def vehicle_mounts(conf: SimConfig, vehicle: int) -> tuple[VehicleDraw | None, tuple | None, VehicleMounts]:
+    """Vehicle ``vehicle``'s randomisation draws (None when off), base mounts (T_ego_cam, T_ego_radar,
+    T_ego_lidar) drawn from the real fleet (None: the nominal ones) and true + factory mounts; cheap
+    (no world is built), so mount statistics of many vehicles need no rendering.
+
+    The randomisation has its own streams (7: per vehicle, 8: per frame), so turning it off leaves every
+    other draw as it was."""
+    c = conf
+    draw = draw_vehicle(c.randomise, c.effective_radar, _rng(c.seed, vehicle, 7)) if c.randomise.enabled else None
+    base = (draw.base_T_ego_cam, draw.base_T_ego_radar, draw.base_T_ego_lidar) if (
+        draw is not None and draw.base_T_ego_cam is not None) else None
+    return draw, base, sample_mounts(_rng(c.seed, vehicle, 2), c.mounts, _rng(c.seed, vehicle, 5), base)
+
+
+def vehicle_camera(conf: SimConfig, draw: VehicleDraw | None) -> PinholeCamera:
+    """A vehicle's camera: ``SimConfig.camera``, or with randomised real mounts the drawn CAM_FRONT
+    intrinsics (1600 x 900 scaled by ``image_scale``)."""
+    if draw is None or draw.camera_K_full is None:
+        return conf.camera
+    fx, fy, cx, cy = draw.camera_K_full
+    K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    return PinholeCamera.from_K(K, 1600, 900).scaled(conf.image_scale)
+
+
 @dataclass
 class FrameTimes:
     """Timestamps of frame k, microseconds, and the same in seconds since the drive's start."""
@@ -141,14 +165,7 @@ class VehicleDrive:
         self.world = build_world(s, int(_rng(c.seed, self.vehicle, 1).integers(2**31)), EGO_START_S + drive_len + 400.0)
         lane = self.world.layout.lane_centre(self.world.layout.lanes_per_direction - 1)
         self.ego = EgoMotion(self.world.path, lane, s.ego_speed, s.ego_speed_variation)
-        # domain randomisation: its own streams (7: per vehicle, 8: per frame), so turning it off leaves
-        # every other draw as it was
-        self.draw: VehicleDraw | None = (draw_vehicle(c.randomise, c.effective_radar, _rng(c.seed, self.vehicle, 7))
-                                         if c.randomise.enabled else None)
-        self.base_mounts = (self.draw.base_T_ego_cam, self.draw.base_T_ego_radar, self.draw.base_T_ego_lidar) if (
-            self.draw is not None and self.draw.base_T_ego_cam is not None) else None  # None: the nominal ones
-        self.mounts = sample_mounts(_rng(c.seed, self.vehicle, 2), c.mounts, _rng(c.seed, self.vehicle, 5),
-                                    self.base_mounts)
+        self.draw, self.base_mounts, self.mounts = vehicle_mounts(c, self.vehicle)
         self.base_us = BASE_TIMESTAMP_US + self.vehicle * 10_000_000_000
 
     @cached_property
@@ -171,13 +188,8 @@ class VehicleDrive:
 
     @cached_property
     def camera(self) -> PinholeCamera:
-        """This vehicle's camera: ``SimConfig.camera``, or with randomised real mounts the drawn CAM_FRONT
-        intrinsics (1600 x 900 scaled by ``image_scale``)."""
-        if self.draw is None or self.draw.camera_K_full is None:
-            return self.conf.camera
-        fx, fy, cx, cy = self.draw.camera_K_full
-        K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
-        return PinholeCamera.from_K(K, 1600, 900).scaled(self.conf.image_scale)
+        """This vehicle's camera (``vehicle_camera``)."""
+        return vehicle_camera(self.conf, self.draw)
 
     @cached_property
     def radar_config(self) -> RadarConfig:

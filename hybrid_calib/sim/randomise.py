@@ -4,8 +4,8 @@ data exactly, so that a network trained on simulated drives has seen the real da
 ``Randomisation`` (``SimConfig.randomise``) holds the ranges; everything is off unless ``enabled``
 (``--set randomise.enabled=true``), and then deterministic by (seed, vehicle[, frame]):
 
-- appearance: exposure, gamma, contrast, saturation, white balance, per-object albedo tint, ground
-  tint, haze (weather), blur, pixel noise, JPEG quality;
+- appearance: exposure, gamma, contrast, saturation, white balance and warmth, per-object albedo tint, ground
+  tint, haze and an overcast sky (weather), blur, pixel noise, JPEG quality;
 - radar: the RCS floor of the ARS 408 cluster list, sensitivity, detection threshold, returns per
   object, range / azimuth / RCS / velocity noise, clutter and ghost rates, clutter RCS;
 - mounts: the camera, radar and LiDAR base mounts and the CAM_FRONT intrinsics drawn from the real
@@ -56,28 +56,30 @@ class Randomisation:
     per_frame: tuple[str, ...] = ("blur_sigma_px", "noise_std", "jpeg_quality")  # appearance keys drawn per frame
     # (the others once per vehicle); any of APPEARANCE_KEYS
     # appearance
-    exposure: tuple[float, float] = (0.7, 1.1)  # image brightness gain
+    exposure: tuple[float, float] = (0.6, 1.1)  # image brightness gain
     gamma: tuple[float, float] = (0.8, 1.25)  # output gamma (image ** gamma: > 1 darkens the mid-tones)
-    contrast: tuple[float, float] = (0.75, 1.1)  # contrast multiplier on top of the scenario's
-    saturation: tuple[float, float] = (0.5, 1.1)  # colour saturation multiplier
+    contrast: tuple[float, float] = (0.65, 1.05)  # contrast multiplier on top of the scenario's
+    saturation: tuple[float, float] = (0.3, 1.0)  # colour saturation multiplier
     white_balance: float = 0.08  # per-channel gain spread (uniform +- this)
+    warmth: tuple[float, float] = (-0.02, 0.08)  # colour temperature: red gain x(1 + w), blue gain x(1 - w)
     object_tint: float = 0.25  # per-object, per-channel albedo gain spread (uniform +- this)
     ground_tint: float = 0.15  # per-vehicle, per ground class and channel albedo gain spread (+- this)
     haze: tuple[float, float] = (0.35, 1.5)  # multiplier of the scenario's fog distance (lower = hazier)
-    blur_sigma_px: tuple[float, float] = (0.0, 0.9)  # Gaussian blur of the written image, pixels
+    overcast_probability: float = 0.4  # chance that a vehicle drives under a grey sky without sun shadows
+    blur_sigma_px: tuple[float, float] = (0.0, 0.6)  # Gaussian blur of the written image, pixels
     noise_std: tuple[float, float] = (0.004, 0.03)  # pixel noise std, fraction of full scale
     jpeg_quality: tuple[int, int] = (55, 95)  # JPEG quality of the written image
     # radar (per vehicle)
     rcs_floor_db: tuple[float, float] = (-7.0, -3.0)  # RadarConfig.rcs_floor_db, dBsm
-    snr_ref_db: tuple[float, float] = (95.0, 100.0)  # RadarConfig.snr_ref_db (sensitivity), dB
+    snr_ref_db: tuple[float, float] = (96.0, 101.0)  # RadarConfig.snr_ref_db (sensitivity), dB
     detection_threshold_db: tuple[float, float] = (11.0, 15.0)  # RadarConfig.detection_threshold_db, dB
-    max_returns_per_object: tuple[int, int] = (4, 7)  # RadarConfig.max_returns_per_object (inclusive)
+    max_returns_per_object: tuple[int, int] = (5, 8)  # RadarConfig.max_returns_per_object (inclusive)
     azimuth_loss_db: tuple[float, float] = (1.5, 6.0)  # RadarConfig.azimuth_loss_db (edge of the near field), dB
     range_noise_m: tuple[float, float] = (0.08, 0.25)  # RadarConfig.range_noise_m, metres
     azimuth_noise_deg: tuple[float, float] = (0.15, 0.6)  # RadarConfig.azimuth_noise_deg, degrees
     rcs_noise_db: tuple[float, float] = (0.5, 2.5)  # RadarConfig.rcs_noise_db, dB
     velocity_noise_mps: tuple[float, float] = (0.05, 0.25)  # RadarConfig.velocity_noise_mps, m/s
-    clutter_scale: tuple[float, float] = (0.5, 2.5)  # multiplier of the scenario's clutter rate
+    clutter_scale: tuple[float, float] = (0.5, 2.0)  # multiplier of the scenario's clutter rate
     clutter_rcs_mean_db: tuple[float, float] = (-4.0, 2.0)  # clutter RCS mean (std stays), dBsm
     ghost_scale: tuple[float, float] = (0.4, 2.0)  # multiplier of the scenario's ghost probability
     # mounts and intrinsics (per vehicle)
@@ -102,6 +104,7 @@ class VehicleDraw:
     appearance: dict  # APPEARANCE_KEYS -> value (per-frame keys: redrawn each frame)
     white_balance: tuple[float, float, float]  # per-channel gains
     tint_seed: int  # seed of the per-object and ground tints
+    overcast: bool  # grey sky, no sun shadows
     radar: dict  # RadarConfig field -> value, applied over the scenario's effective radar
     fleet_mount: int  # row of NUSCENES_FLEET_MOUNTS, -1 = the nominal design mounts
     camera_K_full: tuple[float, float, float, float] | None  # (fx, fy, cx, cy) at 1600 x 900, or None = nominal
@@ -111,6 +114,7 @@ class VehicleDraw:
 
     def to_json(self) -> dict:
         return {"appearance": self.appearance, "white_balance": list(self.white_balance), "tint_seed": self.tint_seed,
+                "overcast": self.overcast,
                 "radar": self.radar, "fleet_mount": self.fleet_mount,
                 "camera_K_full": list(self.camera_K_full) if self.camera_K_full is not None else None}
 
@@ -131,8 +135,10 @@ def draw_vehicle(conf: Randomisation, scenario_radar: RadarConfig, g: np.random.
     """The per-vehicle draws from the generator ``g`` (one stream per vehicle). ``scenario_radar``: the
     scenario's effective radar (its clutter / ghost rates are scaled)."""
     appearance = _appearance(conf, g)
-    wb = tuple(float(x) for x in 1 + g.uniform(-conf.white_balance, conf.white_balance, 3))
+    w = _u(g, conf.warmth)
+    wb = tuple(float(x) for x in (1 + g.uniform(-conf.white_balance, conf.white_balance, 3)) * (1 + w, 1.0, 1 - w))
     tint_seed = int(g.integers(1, 2**31))
+    overcast = bool(g.random() < conf.overcast_probability)
     lo, hi = conf.max_returns_per_object
     radar = {
         "rcs_floor_db": _u(g, conf.rcs_floor_db), "snr_ref_db": _u(g, conf.snr_ref_db),
@@ -145,14 +151,14 @@ def draw_vehicle(conf: Randomisation, scenario_radar: RadarConfig, g: np.random.
         "ghost_probability": min(1.0, scenario_radar.ghost_probability * _u(g, conf.ghost_scale)),
     }
     if not conf.real_mounts:
-        return VehicleDraw(appearance, wb, tint_seed, radar, -1, None)
+        return VehicleDraw(appearance, wb, tint_seed, overcast, radar, -1, None)
     w = np.array([row[0] for row in NUSCENES_FLEET_MOUNTS], float)
     i = int(g.choice(len(w), p=w / w.sum()))
     _, ct, cr, (fx, fy, cx, cy), rt, rr, lt, lr = NUSCENES_FLEET_MOUNTS[i]
     f = 1 + g.uniform(-conf.focal_jitter, conf.focal_jitter)
     dc = g.uniform(-conf.principal_jitter_px, conf.principal_jitter_px, 2)
     K = (fx * f, fy * f, cx + dc[0], cy + dc[1])
-    return VehicleDraw(appearance, wb, tint_seed, radar, i, tuple(float(x) for x in K),
+    return VehicleDraw(appearance, wb, tint_seed, overcast, radar, i, tuple(float(x) for x in K),
                        pose_from_nuscenes(cr, ct), pose_from_nuscenes(rr, rt), pose_from_nuscenes(lr, lt))
 
 
@@ -175,4 +181,4 @@ def randomised_shading(base: ShadingConfig, conf: Randomisation, draw: VehicleDr
         base, contrast=base.contrast * a["contrast"], fog_distance=base.fog_distance * a["haze"],
         noise_std=a["noise_std"], exposure=a["exposure"], gamma=a["gamma"], saturation=a["saturation"],
         white_balance=draw.white_balance, blur_sigma_px=a["blur_sigma_px"], object_tint=conf.object_tint,
-        ground_tint=conf.ground_tint, tint_seed=draw.tint_seed)
+        ground_tint=conf.ground_tint, tint_seed=draw.tint_seed, overcast=base.overcast or draw.overcast)

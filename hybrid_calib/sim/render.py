@@ -33,6 +33,7 @@ class ShadingConfig:
     contrast: float = 1.0  # global contrast (rain < 1)
     fog_distance: float = 400.0  # haze reaches 63 % at this distance, metres
     rain: bool = False  # wet road, grey sky
+    overcast: bool = False  # grey sky and haze, no sun shadows (dry road); implied by rain
     noise_std: float = 0.012  # per-pixel Gaussian noise (fraction of full scale)
     exposure: float = 1.0  # brightness gain (applied after haze and contrast)
     gamma: float = 1.0  # output gamma: image ** gamma (> 1 darkens the mid-tones)
@@ -109,7 +110,8 @@ def shade(world: World, prims: Primitives, buf: HitBuffer, dirs: np.ndarray, ori
     sky = ~(hit_g | hit_o)
     # sky: a vertical gradient
     e = np.clip(dirs[..., 2][sky] * 4.0, 0, 1)[:, None]
-    horizon, zenith = ((0.7, 0.72, 0.74), (0.55, 0.58, 0.62)) if conf.rain else ((0.8, 0.86, 0.92), (0.36, 0.55, 0.85))
+    grey = conf.rain or conf.overcast
+    horizon, zenith = ((0.7, 0.72, 0.74), (0.55, 0.58, 0.62)) if grey else ((0.8, 0.86, 0.92), (0.36, 0.55, 0.85))
     img[sky] = np.asarray(horizon, np.float32) * (1 - e) + np.asarray(zenith, np.float32) * e
     # ground
     if hit_g.any():
@@ -129,7 +131,7 @@ def shade(world: World, prims: Primitives, buf: HitBuffer, dirs: np.ndarray, ori
         col[joints] *= 0.75
         if conf.rain:
             col[cls == 0] *= 0.7
-        lit = np.ones(len(P), np.float32) if conf.rain else sunlit(prims, P, origin)  # overcast: no shadows
+        lit = np.ones(len(P), np.float32) if grey else sunlit(prims, P, origin)  # overcast: no shadows
         img[hit_g] = col * (conf.ambient + conf.diffuse * SUN[2] * lit)[:, None]
     # objects
     if hit_o.any():
@@ -173,7 +175,7 @@ def shade(world: World, prims: Primitives, buf: HitBuffer, dirs: np.ndarray, ori
         lam = np.clip(n @ SUN, 0, 1)
         img[hit_o] = col * (conf.ambient + conf.diffuse * lam)[:, None]
     # haze with distance
-    haze = np.asarray((0.72, 0.74, 0.76) if conf.rain else (0.78, 0.83, 0.88), np.float32)
+    haze = np.asarray((0.72, 0.74, 0.76) if grey else (0.78, 0.83, 0.88), np.float32)
     d = np.where(np.isfinite(t), t, np.inf)
     f = (1 - np.exp(-d / conf.fog_distance)).astype(np.float32)[..., None]
     img = img * (1 - f) + haze * f
