@@ -28,10 +28,11 @@ SPLITS = ("all", "train", "val", "test")
 SPLIT_BY = ("scene", "vehicle", "log", "time")
 
 
-def add_split_arguments(p: argparse.ArgumentParser, default: str, what: str) -> None:
-    """``--split`` and the split options (``learned.dataset.SplitConfig``: docs/conventions.md, "Splits")."""
-    p.add_argument("--split", default=default, choices=SPLITS,
-                   help=f"frames used: {what} (default: {default})")
+def add_split_arguments(p: argparse.ArgumentParser, default: str | None, what: str = "") -> None:
+    """``--split`` (unless ``default`` is None) and the split options (``learned.dataset.SplitConfig``:
+    docs/conventions.md, "Splits")."""
+    if default is not None:
+        p.add_argument("--split", default=default, choices=SPLITS, help=f"frames used: {what} (default: {default})")
     p.add_argument("--split-by", default=None, choices=SPLIT_BY,
                    help="how --split assigns frames: whole scenes / vehicles / logs, or time (within each scene: "
                         "first frames train, then a gap, then val, a gap, and the last frames test)")
