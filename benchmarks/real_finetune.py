@@ -13,7 +13,8 @@ exported covariance on the validation part: the recipe of issue 11's "use the re
    the range. Run folder ``OUT/run`` (resumable, as ``train``).
 2. The exported covariance of the last checkpoint: per-axis ``cov_scale``
    (``learned.export.calibrate_cov_scale``) fitted on the VAL part (keyframes 26-29 with the
-   defaults) from ``--fit-seeds`` starts per frame, written into the checkpoint with a note. The
+   defaults) from ``--fit-seeds`` starts per frame, floored at 1 (four frames cannot justify
+   claiming more than the network does), written into the checkpoint with a note. The
    hybrid's measurement block (``export.hybrid``) is carried over from the init checkpoint with a
    note saying so: it was fitted on simulated validation drives for the init network and is not refit
    here (too few real frames).
@@ -54,7 +55,8 @@ def fit_cov_scale(ckpt: Path, data: Path, version: str, rng: str, split_options:
         xi.append(e)
         covs.append(c)
     xi, covs = np.concatenate(xi), np.concatenate(covs)
-    scale = calibrate_cov_scale(xi, covs, per_axis=True)
+    # a few frames only: the fit may inflate an axis, never shrink one below the network's own covariance
+    scale = [max(1.0, v) for v in calibrate_cov_scale(xi, covs, per_axis=True)]
 
     def nees(C):
         return float(np.mean(np.einsum("fi,fij,fj->f", xi, np.linalg.inv(C), xi)))
@@ -98,7 +100,7 @@ def main(argv=None) -> int:
     scale, n, before, after = fit_cov_scale(last, a.data, a.version, a.range, split_options, a.fit_seeds, a.out)
     command = "PYTHONPATH=. python benchmarks/real_finetune.py " + " ".join(sys.argv[1:] if argv is None else argv)
     set_export_overrides(last, {"cov_scale": scale},
-                         f"per-axis fit on {n} starts ({a.fit_seeds} per frame) of the val part of {a.data} "
+                         f"per-axis fit (floored at 1) on {n} starts ({a.fit_seeds} per frame) of the val part of {a.data} "
                          f"(split {split_options}), range {a.range}, by {command}")
     hybrid = load_checkpoint(init).export.get("hybrid")
     if hybrid:
