@@ -100,8 +100,8 @@ def main(argv=None) -> int:
     scale, n, before, after = fit_cov_scale(last, a.data, a.version, a.range, split_options, a.fit_seeds, a.out)
     command = "PYTHONPATH=. python benchmarks/real_finetune.py " + " ".join(sys.argv[1:] if argv is None else argv)
     set_export_overrides(last, {"cov_scale": scale},
-                         f"per-axis fit (floored at 1) on {n} starts ({a.fit_seeds} per frame) of the val part of {a.data} "
-                         f"(split {split_options}), range {a.range}, by {command}")
+                         f"per-axis fit (floored at 1) on {n} starts ({a.fit_seeds} per frame) of the val part of "
+                         f"{a.data} (split {split_options}), range {a.range}, by {command}")
     hybrid = load_checkpoint(init).export.get("hybrid")
     if hybrid:
         set_export_overrides(last, {"hybrid": hybrid},

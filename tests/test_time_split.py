@@ -59,3 +59,53 @@ def test_learned_drives_keep_only_the_held_out_frames(tmp_path):
     assert train["tiny"].indices == [0, 1, 2, 3, 4]
     _, every = open_drives(tiny.root, VERSION, HybridConfig(method="pure"), lidar=False)
     assert every["tiny"].indices == list(range(10))
+
+
+def test_split_flags_on_oracle_are_a_clear_error(tmp_path, capsys):
+    from hybrid_calib.cli import EXIT_ERROR, main
+
+    tiny = make_tiny_root(tmp_path / "root", n_samples=4)
+    rc = main(["calibrate", "--data", str(tiny.root), "--version", VERSION, "--method", "oracle", "--split", "test",
+               "--split-by", "time", "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert rc == EXIT_ERROR and "--split" in err and "oracle" in err and "Traceback" not in err
+    rc = main(["compare", "--data", str(tiny.root), "--version", VERSION, "--methods", "pure,oracle", "--split",
+               "test", "--out", str(tmp_path / "cmp")])
+    err = capsys.readouterr().err
+    assert rc == EXIT_ERROR and "oracle" in err and "split" in err and "Traceback" not in err
+
+
+def test_real_scene_benchmark_flags_an_ok_answer_outside_its_3_sigma():
+    """``benchmarks/real_scene.py``: an ``ok`` status whose error leaves its 3-sigma is flagged; a ``weak``
+    one is listed, not flagged; the targets read the pooled tables."""
+    import importlib.util
+    from pathlib import Path
+
+    from hybrid_calib.geometry import make_T, so3_exp
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "real_scene.py"
+    spec = importlib.util.spec_from_file_location("real_scene", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    truth = np.eye(4)
+    est = make_T(so3_exp([0.0, 0.0, np.radians(2.0)]), [0.0, 0.0, 0.0])  # 2 deg about radar z
+
+    def vr(status, sd_deg):
+        cov = np.diag([np.radians(sd_deg) ** 2] * 3 + [0.01 ** 2] * 3)
+        return SimpleNamespace(truth_T=truth, final=SimpleNamespace(T=est, cov=cov, status=status),
+                               start={"seed": 3}, n_frames=8,
+                               error={"rot_mean_deg": 0.67, "trans_norm_cm": 0.0, "nees": 0.0})
+
+    bad = bench._trial_row(vr("ok", 0.5))
+    assert bad["flag_ok_outside_3sigma"] and bad["outside_3sigma"] == ["rot z"] and bad["seed"] == 3
+    assert not bench._trial_row(vr("ok", 1.0))["flag_ok_outside_3sigma"]
+    weak = bench._trial_row(vr("weak: yaw poorly observed", 0.5))
+    assert weak["outside_3sigma"] == ["rot z"] and not weak["flag_ok_outside_3sigma"]
+    tab = {k: 1.0 for k in ("rot_mean_deg", "roll_deg", "pitch_deg", "yaw_deg", "trans_mean_cm", "x_cm", "y_cm",
+                            "z_cm")}
+    pure = {"R1": {"start": tab, "after": {**tab, "rot_mean_deg": 0.8, "yaw_deg": 1.2}, "nees_mean": 6.0,
+                   "inside_95": 0.9}}
+    t = bench.targets(pure, {"hybrid": {"mean": {"rot_mean_deg": 0.9}, "not_ok_fraction": 0.2, "flagged": 1}})
+    assert t["R1 rotation mean <= 1.0 deg"][1] and not t["R1 yaw <= 1.0 deg"][1]
+    assert not t["hybrid: no ok status with the error outside 3-sigma"][1]
+    assert not t["hybrid rotation mean <= 0.3 deg (or no trial ok: every status weak / degenerate)"][1]
