@@ -49,6 +49,9 @@ class CompareConfig:
             raise ValueError(f"CompareConfig.range={self.range!r}; valid: R1, R2")
         if self.trials < 1:
             raise ValueError("CompareConfig.trials must be >= 1")
+        if "oracle" in self.methods and self.hybrid.split != "all":
+            raise ValueError(f"CompareConfig: method oracle uses every frame; split={self.hybrid.split!r} is for the "
+                             "learned methods (drop oracle or the split)")
 
 
 def _trial_file(out: Path, method: str, k: int) -> Path:

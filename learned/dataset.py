@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from hybrid_calib.config import merge
+from hybrid_calib.config import ConfigError, merge
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.geometry import perturb_camera_frame, transform_points
@@ -55,14 +55,38 @@ class DatasetConfig:
     variant: str = "radar"  # "radar": radar points / T_cam_radar; "lidar": LiDAR points / T_cam_lidar (supplement)
 
 
+SPLIT_BY = ("scene", "vehicle", "log", "time")
+
+
 @dataclass(frozen=True)
 class SplitConfig:
-    by: str = "scene"  # group frames by "scene", "vehicle" or "log" so no group spans two splits
-    val_fraction: float = 0.1  # fraction of groups for validation
-    test_fraction: float = 0.2  # fraction of groups held out for testing
+    """How frames are assigned to train / val / test (``split_indices``).
+
+    by "scene" | "vehicle" | "log": whole groups go to one split (a salted hash of the group's name,
+    or the explicit lists), fractions are of groups. by "time": WITHIN each scene, frames in time order
+    (camera timestamp): the first ones train, then ``gap_frames`` dropped, then the val part, then
+    ``gap_frames`` dropped, then the last ``round(test_fraction * n)`` frames test (val likewise
+    ``round(val_fraction * n)``; no val part and no second gap when that is 0). Consecutive keyframes
+    overlap in content, so the gap keeps the held-out part from being a near-copy of a trained frame;
+    it is still the same scene, weather and sensors (docs/conventions.md, "Splits")."""
+
+    by: str = "scene"  # "scene", "vehicle", "log" (whole groups per split) or "time" (within each scene)
+    val_fraction: float = 0.1  # fraction of groups (by=time: of each scene's frames) for validation
+    test_fraction: float = 0.2  # fraction of groups (by=time: of each scene's frames) held out for testing
     salt: str = "hybrid-calib"  # hashing salt; changing it reshuffles the split
     test_groups: tuple[str, ...] = ()  # explicit test groups (overrides the hash assignment)
     val_groups: tuple[str, ...] = ()  # explicit validation groups
+    gap_frames: int = 3  # by=time: frames dropped between train and val and between val and test
+
+    def __post_init__(self):
+        if self.by not in SPLIT_BY:
+            raise ConfigError(f"split.by must be one of {SPLIT_BY}, got {self.by!r}")
+        if not (0 <= self.val_fraction < 1 and 0 <= self.test_fraction < 1
+                and self.val_fraction + self.test_fraction < 1):
+            raise ConfigError(f"split.val_fraction={self.val_fraction} and split.test_fraction={self.test_fraction} "
+                              "must be in [0, 1) with a sum below 1")
+        if self.gap_frames < 0:
+            raise ConfigError(f"split.gap_frames must be >= 0, got {self.gap_frames}")
 
 
 def _rng(*keys: int | str) -> np.random.Generator:
@@ -82,7 +106,7 @@ def group_key(frame, by: str) -> str:
         return frame.vehicle
     if by == "log":
         return frame.log_token
-    raise HybridCalibError(f"split.by must be 'scene', 'vehicle' or 'log', got {by!r}")
+    raise HybridCalibError(f"split.by must be 'scene', 'vehicle' or 'log' for a group key, got {by!r}")
 
 
 def assign_split(group: str, conf: SplitConfig) -> str:
@@ -113,7 +137,44 @@ def split_indices(frames: Sequence[RadarCameraFrame], split: str,
     # NuScenesRadarCamera indexes scene / vehicle / log per frame without loading it (``.frames``)
     refs = getattr(frames, "frames", None)
     items = refs if refs is not None and len(refs) == len(frames) else frames
+    if conf.by == "time":
+        return [i for i, s in enumerate(time_split(items, conf)) if s == split]
     return [i for i in range(len(frames)) if assign_split(group_key(items[i], conf.by), conf) == split]
+
+
+def _timestamp_us(item) -> int:
+    """Camera timestamp of a ``FrameRef`` (its sample_data record) or a loaded frame."""
+    sd = getattr(item, "camera_sd", None)
+    return int(sd["timestamp"]) if sd is not None else int(item.timestamp_camera_us)
+
+
+def time_split(items: Sequence, conf: SplitConfig) -> list[str]:
+    """Per frame (``FrameRef`` or frame) "train" | "val" | "test" | "gap" for ``conf.by == "time"``
+    (``SplitConfig`` docstring): within each scene, in camera-time order. A scene too short to hold
+    every part with its gaps is an error naming it."""
+    scenes: dict[str, list[int]] = {}
+    for i, it in enumerate(items):
+        scenes.setdefault(it.scene_name, []).append(i)
+    out = ["gap"] * len(items)
+    g = conf.gap_frames
+    for name, idx in scenes.items():
+        idx = sorted(idx, key=lambda i: (_timestamp_us(items[i]), i))
+        n = len(idx)
+        n_test = int(round(conf.test_fraction * n))
+        n_val = int(round(conf.val_fraction * n))
+        n_train = n - n_test - n_val - g * ((n_test > 0) + (n_val > 0))
+        if n_train < 1 or (conf.test_fraction > 0 and n_test < 1):
+            raise HybridCalibError(
+                f"split.by=time: scene {name} has {n} frames, too few for test {conf.test_fraction}, val "
+                f"{conf.val_fraction} and gaps of {g} frames; lower split.gap_frames or the fractions")
+        parts = ["train"] * n_train
+        if n_val:
+            parts += ["gap"] * g + ["val"] * n_val
+        if n_test:
+            parts += ["gap"] * g + ["test"] * n_test
+        for i, part in zip(idx, parts):
+            out[i] = part
+    return out
 
 
 def open_frames(data: str | Path, version: str = "v1.0-sim", *, lidar: bool = True,

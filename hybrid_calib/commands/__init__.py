@@ -22,3 +22,28 @@ def _int_at_least(text: str, low: int) -> int:
     if value < low:
         raise argparse.ArgumentTypeError(f"must be >= {low}, got {value}")
     return value
+
+
+SPLITS = ("all", "train", "val", "test")
+SPLIT_BY = ("scene", "vehicle", "log", "time")
+
+
+def add_split_arguments(p: argparse.ArgumentParser, default: str | None, what: str = "") -> None:
+    """``--split`` (unless ``default`` is None) and the split options (``learned.dataset.SplitConfig``:
+    docs/conventions.md, "Splits")."""
+    if default is not None:
+        p.add_argument("--split", default=default, choices=SPLITS, help=f"frames used: {what} (default: {default})")
+    p.add_argument("--split-by", default=None, choices=SPLIT_BY,
+                   help="how --split assigns frames: whole scenes / vehicles / logs, or time (within each scene: "
+                        "first frames train, then a gap, then val, a gap, and the last frames test)")
+    p.add_argument("--test-fraction", type=float, default=None, help="split.test_fraction (default 0.2)")
+    p.add_argument("--val-fraction", type=float, default=None, help="split.val_fraction (default 0.1)")
+    p.add_argument("--gap-frames", type=nonnegative_int, default=None,
+                   help="split.gap_frames, by=time: frames dropped between the parts (default 3)")
+
+
+def split_overrides(args: argparse.Namespace) -> dict:
+    """The ``SplitConfig`` overrides the split flags give (only those passed)."""
+    keys = {"split_by": "by", "test_fraction": "test_fraction", "val_fraction": "val_fraction",
+            "gap_frames": "gap_frames"}
+    return {k: getattr(args, a) for a, k in keys.items() if getattr(args, a, None) is not None}

@@ -6,7 +6,7 @@ import argparse
 from functools import partial
 from pathlib import Path
 
-from hybrid_calib.commands import nonnegative_int, positive_int
+from hybrid_calib.commands import add_split_arguments, nonnegative_int, positive_int, split_overrides
 from hybrid_calib.config import parse_overrides
 from hybrid_calib.perturbation import RANGES
 
@@ -43,6 +43,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="initial extrinsic: the vehicle's tables, or a perturbed truth (default: reference)")
     p.add_argument("--max-frames", type=nonnegative_int, default=0, help="frames per vehicle, 0 = all (default: 0)")
     p.add_argument("--seed", type=int, default=0, help="oracle noise and start seed (default: 0)")
+    add_split_arguments(p, "all", "learned methods: all, or the train / val / test part of the split flags below "
+                                  "(e.g. --split test --split-by time: the held-out end of each scene)")
     p.add_argument("--out", type=Path, default=Path("outputs/calibrate"),
                    help="run directory (default: outputs/calibrate)")
     p.add_argument("--overwrite", action="store_true", help="recompute even if RUN/result.json exists")
@@ -62,9 +64,11 @@ def _learned(args: argparse.Namespace, on_vehicle):
                                f"{args.method} runs the network itself")
     overrides = parse_overrides(args.set)
     overrides.update(method=args.method, start=args.start, seed=args.seed, max_frames=args.max_frames,
-                     checkpoint=args.checkpoint, depth=args.depth)
+                     checkpoint=args.checkpoint, depth=args.depth, split=args.split)
     if args.refine:
         overrides["refine"] = args.refine
+    if flags := split_overrides(args):
+        overrides["split_options"] = {**overrides.get("split_options", {}), **flags}
     if args.window is not None:  # an absent flag leaves --set (or the default) in charge
         overrides.setdefault("window", {})["window"] = args.window
     conf = merge(HybridConfig, overrides)
@@ -81,6 +85,11 @@ def run(args: argparse.Namespace) -> int:
     on_vehicle = None if args.no_plots else partial(plot_vehicle, out_dir=args.out / "plots")
     if args.method != "oracle":
         return _report(_learned(args, on_vehicle), args.out)
+    if args.split != "all" or split_overrides(args):
+        from hybrid_calib.errors import HybridCalibError
+
+        raise HybridCalibError("--split and the split flags select frames for the learned methods (hybrid, pure, "
+                               "pure-avg); --method oracle uses every frame (limit it with --max-frames)")
     overrides = parse_overrides(args.set)
     overrides.update(mode=args.mode, start=args.start, seed=args.seed, max_frames=args.max_frames)
     # an explicit flag wins over --set; an absent one leaves --set (or the default) in charge

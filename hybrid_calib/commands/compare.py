@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from hybrid_calib.commands import nonnegative_int, positive_int
+from hybrid_calib.commands import add_split_arguments, nonnegative_int, positive_int, split_overrides
 from hybrid_calib.config import parse_overrides
 
 HELP = "compare calibration methods on the same starts (tables, NEES, coverage, time per frame)"
@@ -25,6 +25,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "shipped R0 checkpoint) or a checkpoint path (default: none)")
     p.add_argument("--max-frames", type=nonnegative_int, default=0, help="frames per drive, 0 = all (default: 0)")
     p.add_argument("--seed", type=int, default=0, help="first start seed (default: 0)")
+    add_split_arguments(p, "all", "all, or the train / val / test part of the split flags below (e.g. --split test "
+                                  "--split-by time: the held-out end of each scene; learned methods only)")
     p.add_argument("--out", type=Path, required=True, help="output folder (resumable: finished trials are kept)")
     p.add_argument("--set", action="extend", nargs="+", metavar="KEY=VALUE", default=[],
                    help="HybridConfig overrides for every method, e.g. threads=1 measurement.rows=last")
@@ -35,9 +37,11 @@ def run(args: argparse.Namespace) -> int:
     from hybrid_calib.compare import compare
 
     hybrid = parse_overrides(args.set)
-    hybrid.update(checkpoint=args.checkpoint, max_frames=args.max_frames)
+    hybrid.update(checkpoint=args.checkpoint, max_frames=args.max_frames, split=args.split)
     if args.refine:
         hybrid["refine"] = args.refine
+    if flags := split_overrides(args):
+        hybrid["split_options"] = {**hybrid.get("split_options", {}), **flags}
     conf = {"range": args.range, "trials": args.trials, "seed": args.seed, "hybrid": hybrid,
             "methods": tuple(m.strip() for m in args.methods.split(",") if m.strip())}
     command = "hybrid-calib " + " ".join(sys.argv[1:])

@@ -25,7 +25,7 @@ import argparse
 import json
 from pathlib import Path
 
-from hybrid_calib.commands import nonnegative_int, positive_int
+from hybrid_calib.commands import add_split_arguments, nonnegative_int, positive_int, split_overrides
 from hybrid_calib.config import parse_overrides
 from hybrid_calib.errors import HybridCalibError
 from hybrid_calib.perturbation import RANGES
@@ -46,8 +46,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="then refine with this checkpoint (a cascade, e.g. --checkpoint R2 --refine R1; "
                              "repeatable); the export and covariance come from the last stage")
     parser.add_argument("--out", required=True, type=Path, help="output folder (predictions, results.json/.md)")
-    parser.add_argument("--split", default="test",
-                        help="test (default; scenes held out in training), val, train, or all (a separate root)")
+    add_split_arguments(parser, "test", "test (scenes, or by time the end of each scene, held out in training; the "
+                                        "checkpoint's split unless the flags below change it), val, train, or all "
+                                        "(a separate root)")
     parser.add_argument("--max-frames", type=nonnegative_int, default=0,
                         help="evaluate at most this many frames (0 = all)")
     parser.add_argument("--depth", default=None,
@@ -93,6 +94,8 @@ def run(args: argparse.Namespace) -> int:
     for key, src in (("split_options", "split"), ("depth", "depth"), ("depth_options", "depth_options")):
         if src in trained:
             conf[key] = trained[src]
+    if flags := split_overrides(args):  # the split flags change the checkpoint's split (or the default)
+        conf["split_options"] = {**conf.get("split_options", {}), **flags}
     if args.depth is not None:
         conf["depth"] = args.depth
         if args.depth != trained.get("depth"):

@@ -4,6 +4,11 @@ Writes the run folder described in ``learned.train`` (checkpoints with their con
 epochs.csv, train_config.json) and draws ``history.png`` (``hybrid_calib.plots.training``). Running
 the same command again resumes after the last checkpoint; raising ``--epochs`` continues a finished
 run.
+
+Splits (docs/conventions.md, "Splits"): whole scenes by default; ``--set split.by=time`` trains on the
+first keyframes of each scene and keeps a val and a test part at its end behind a guard gap (one real
+scene: ``benchmarks/real_finetune.py`` is the fine-tuning recipe), and ``evaluate --split test`` then
+holds out the same frames.
 """
 
 from __future__ import annotations

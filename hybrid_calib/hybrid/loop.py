@@ -55,6 +55,8 @@ class HybridConfig:
     seed: int = 0  # start seed (per vehicle: perturbation.vehicle_rng(seed, vehicle))
     max_frames: int = 0  # frames per vehicle (0 = all)
     vehicles: tuple[str, ...] | None = None  # vehicles to calibrate (None = all)
+    split: str = "all"  # frames used: "all", or "train" | "val" | "test" of split_options (learned.dataset)
+    split_options: dict = field(default_factory=dict)  # learned.dataset.SplitConfig overrides, e.g. {"by": "time"}
     window: WindowConfig = WindowConfig()  # the sliding window (hybrid, oracle)
     measurement: dict = field(default_factory=dict)  # MeasurementConfig overrides over the checkpoint's export.hybrid
     average: AverageConfig = AverageConfig()  # pure-avg
@@ -70,6 +72,8 @@ class HybridConfig:
             raise ValueError(f"HybridConfig.method={self.method!r}; valid: {METHODS}")
         if self.start not in STARTS:
             raise ValueError(f"HybridConfig.start={self.start!r}; valid: {STARTS}")
+        if self.split not in ("all", "train", "val", "test"):
+            raise ValueError(f"HybridConfig.split={self.split!r}; valid: all, train, val, test")
 
 
 @dataclass
@@ -109,15 +113,21 @@ def trained_depth(checkpoint) -> str:
 
 
 def open_drives(data, version: str, conf: HybridConfig, lidar: bool):
-    """(frames, {vehicle: Drive}) of a root, restricted to ``conf.vehicles`` and ``conf.max_frames``."""
-    from learned.dataset import open_frames
+    """(frames, {vehicle: Drive}) of a root, restricted to ``conf.vehicles``, the frames of
+    ``conf.split`` (``learned.dataset.split_indices`` with ``conf.split_options``) and ``conf.max_frames``."""
+    from learned.dataset import open_frames, split_indices
 
     frames = open_frames(data, version, lidar=lidar)
     simulated = bool(getattr(frames, "sim_vehicles", {}))
+    keep = None if conf.split == "all" else set(split_indices(frames, conf.split, conf.split_options))
     drives = {}
     for vehicle, idx in sorted(frames.frames_by_vehicle().items()):
         if conf.vehicles is not None and vehicle not in conf.vehicles:
             continue
+        if keep is not None:
+            idx = [i for i in idx if i in keep]
+            if not idx:
+                continue
         idx = idx[: conf.max_frames] if conf.max_frames > 0 else idx
         f = None
         for i in idx:  # the first readable frame gives the extrinsics
