@@ -16,8 +16,9 @@
    and the NEES / 95 % coverage of the frames kept and flagged.
 3. Candidates are (feature set, threshold quantile) pairs (``--quantiles``). The one kept flags the
    largest mean fraction of corrupted frames among those whose held-out false-alarm rate is <=
-   ``--max-false-alarm`` (the real root is measured, never used to choose). With ``--fit-into`` it is written into the checkpoint's ``export["ood"]`` with this command,
-   the roots and the frame counts (``learned.checkpoint.set_export_overrides``).
+   ``--max-false-alarm`` (the real root is measured, never used to choose). With ``--fit-into`` it is
+   written into the checkpoint's ``export["ood"]`` with this command, the roots and the frame counts
+   (``learned.checkpoint.set_export_overrides``).
 
 Writes ``OUT/ood.json`` (every number) and prints a summary table.
 """
@@ -25,7 +26,6 @@ Writes ``OUT/ood.json`` (every number) and prints a summary table.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 

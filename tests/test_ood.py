@@ -93,13 +93,13 @@ def fitted(sim_root, tmp_path_factory):
     ck = save_checkpoint(d / "ckpt-0001", model, epoch=1, model_config=to_dict(model.cfg),
                          train_config={"perturbation": "R1", "depth": "corrupted-truth"})
     frames, drives = open_drives(sim_root, "v1.0-sim", HybridConfig(), lidar=False)
-    runner = NetworkRunner(ck, frames, cache_dir=d / "cache")
+    runner = NetworkRunner(ck, frames, cache_dir=d / "cache", threads=1)
     assert runner.ood is None and "unavailable" in runner.ood_note
     recs = [r for v in drives.values() for s in range(4) for r in ood_passes(runner, v.indices, v.base, "R1", s,
                                                                              v.vehicle)]
     feats = {k: np.stack([r[k] for r in recs]) for k in ("descriptor", "signals")}
     set_export_overrides(ck, {"ood": fit_ood(feats, "all", k=8, quantile=1.0).to_dict()}, "fitted by the test")
-    return ck, NetworkRunner(ck, frames, cache_dir=d / "cache"), drives
+    return ck, NetworkRunner(ck, frames, cache_dir=d / "cache", threads=1), drives
 
 
 def test_score_flags_a_pure_noise_frame_and_passes_a_clean_simulated_frame(fitted):

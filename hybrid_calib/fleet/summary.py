@@ -168,8 +168,8 @@ def summary_markdown(s: dict) -> str:
              f"method {s['method']}, seed {s['seed']}; design mount: {s['design_mount']['source']}", "",
              f"**{c['vehicles']} vehicles**: {c['done']} done, {c['failed']} failed, {c['pending'] + c['running']} "
              f"not finished; {c['out_of_tolerance']} out of tolerance, {c['drifted_in_drive']} drifted inside the "
-             f"drive, {c['fleet_outliers']} fleet outlier(s), {c['degenerate']} degenerate, {c.get('inconclusive', 0)} inconclusive (out of the network's domain), "
-             f"{c['weak']} weak.", ""]
+             f"drive, {c['fleet_outliers']} fleet outlier(s), {c['degenerate']} degenerate, "
+             f"{c.get('inconclusive', 0)} inconclusive (out of the network's domain), {c['weak']} weak.", ""]
     fp = s.get("fleet_prior")
     if fp:
         sp = fp["spread_std_cam"]

@@ -31,7 +31,7 @@ CORRUPTIONS = ("noise-image", "shuffled-radar", "blank-depth")
 class OODPolicy:
     enabled: bool = True  # use the checkpoint's export.ood (when it has one)
     threshold: float = 1.0  # score above this: the frame is out of domain (dropped)
-    min_in_domain_fraction: float = 0.5  # fewer in-domain frames than this fraction: inconclusive
+    min_in_domain_fraction: float = 0.8  # fewer in-domain frames than this fraction: inconclusive
     min_in_domain_frames: int = 3  # fewer in-domain frames than this: inconclusive
 
 
