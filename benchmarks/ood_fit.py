@@ -26,6 +26,7 @@ Writes ``OUT/ood.json`` (every number) and prints a summary table.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -56,7 +57,8 @@ def _group(recs: list[dict], scores: np.ndarray) -> dict:
     nees = np.array([r["nees"] for r in recs])
     rot = np.array([r["rot_deg"] for r in recs])
     flag = scores > 1.0
-    out = {"frames": len(recs), "flagged": int(flag.sum()), "flagged_fraction": float(flag.mean()) if len(recs) else 0,
+    out = {"frames": len(recs), "n_flagged": int(flag.sum()),
+           "flagged_fraction": float(flag.mean()) if len(recs) else 0.0,
            "score_median": float(np.median(scores)) if len(recs) else float("nan"),
            "spearman_score_rot": spearman(scores, rot), "spearman_score_nees": spearman(scores, nees)}
     for name, m in (("all", np.ones_like(flag)), ("kept", ~flag), ("flagged", flag)):
@@ -64,6 +66,16 @@ def _group(recs: list[dict], scores: np.ndarray) -> dict:
                      "nees_mean": float(nees[m].mean()) if m.any() else None,
                      "inside_95": float(np.mean(nees[m] <= CHI2_6_95)) if m.any() else None}
     return out
+
+
+def _describe(root: Path) -> dict:
+    """A root as provenance: its path and, for a simulated one, what made it (``sim_config.json``)."""
+    d = {"path": str(root)}
+    cfg = Path(root) / "sim_config.json"
+    if cfg.is_file():
+        c = json.loads(cfg.read_text())
+        d.update({k: c.get(k) for k in ("scenario", "seed", "vehicles", "frames", "image_scale")})
+    return d
 
 
 def _records(runner_of, roots, version, seeds, corruption="", lidar=False):
@@ -124,7 +136,7 @@ def main(argv=None) -> int:
         held["real"] = _records(runner_of(a.real_depth), [a.real], a.real_version, a.real_seeds, lidar=True)
 
     cmd = "PYTHONPATH=. python benchmarks/ood_fit.py " + " ".join(sys.argv[1:] if argv is None else argv)
-    prov = {"command": cmd, "roots": [str(d) for d in a.data], "version": a.version, "fit_seeds": a.fit_seeds,
+    prov = {"command": cmd, "roots": [_describe(d) for d in a.data], "version": a.version, "fit_seeds": a.fit_seeds,
             "frames": len(fit), "tokens": sorted({r["token"] for r in fit})}
     candidates = {}
     for fs, q in [(f, q) for f in ([a.features] if a.features != "auto" else FEATURE_SETS) for q in a.quantiles]:
