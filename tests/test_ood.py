@@ -146,7 +146,8 @@ def test_out_of_domain_frames_are_dropped_with_the_reason(fitted, sim_root, tmp_
     v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-001", conf)
     scores = v.ood["scores"]
     thr = float(np.median(scores))  # half the frames above it: one dropped, two kept (in domain)
-    v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-001", {**conf, "ood": {"threshold": thr, "min_in_domain_frames": 1}})
+    policy = {"threshold": thr, "min_in_domain_frames": 1, "min_in_domain_fraction": 0.5}
+    v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-001", {**conf, "ood": policy})
     dropped = [s for s in v.skipped if "ood_score" in s]
     assert len(dropped) == v.ood["dropped"] == sum(s > thr for s in scores) >= 1
     assert all("out of domain" in s["reason"] for s in dropped) and len(v.trajectory) == 3 - len(dropped)
