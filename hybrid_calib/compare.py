@@ -113,6 +113,7 @@ def summarize_method(results: list[VehicleResult]) -> dict:
         "consistency": _consistency(nees),
         "consistency_per_root": {k: _consistency(np.array(v)) for k, v in sorted(per_root.items())},
         "not_ok_fraction": float(np.mean([not r.final.status.startswith("ok") for r in results])),
+        "inconclusive_fraction": float(np.mean([r.final.status.startswith("inconclusive") for r in results])),
         "ms_per_frame": float(np.mean(ms)) if ms else None,
         "frames_mean": float(np.mean([r.n_frames for r in results])),
     }

@@ -22,6 +22,7 @@ Output of ``forward`` (lists have one entry per iteration n = 0..N-1):
     attention: N x {"fv": {"attn_I_from_R", "attn_R_from_I"}, ...} (use_mca only)
     render:    N x {"fv_pix" (B, N, 2), "fv_valid" (B, N), "bev_pix", "bev_valid", "fv" map, "bev" map}
     fusion_weights: N x (B, 2, D) selective-fusion weights (or None)
+    fused:     N x (B, D') the fused global descriptor the regression head reads (``learned.ood``)
     image_hw:  (H, W); pseudo_bev: (B, 1, H', W') metres
 """
 
@@ -134,7 +135,7 @@ class RCAutoCalib(nn.Module):
         T = batch["T_init"]
         state = None
         out = {k: [] for k in ("T_iters", "T_deltas", "T_inputs", "log_var", "match", "attention", "render",
-                               "fusion_weights")}
+                               "fusion_weights", "fused")}
         for _ in range(iterations or cfg.iterations):
             T_in = T.detach()
             r = transform.render_radar_maps(T_in, points, mask, K, cfg, (H, W))
@@ -157,6 +158,7 @@ class RCAutoCalib(nn.Module):
             out["attention"].append({k: v for k, v in attn.items() if v is not None})
             out["render"].append({k: r[k] for k in ("fv", "bev", "fv_pix", "fv_valid", "bev_pix", "bev_valid")})
             out["fusion_weights"].append(weights)
+            out["fused"].append(fused.detach())
         out["image_hw"] = (H, W)
         out["pseudo_bev"] = pbev
         return out

@@ -28,6 +28,11 @@ def test_every_range_and_the_paper_preset_are_shipped_with_provenance():
         assert meta["train_config"]["perturbation"] == rng
         assert {"data", "train", "evaluate"} <= set(meta["provenance"])
         assert len(meta["export"]["cov_scale"]) == 6  # the covariance scale fitted on validation frames
+        from learned.ood import OODModel
+
+        ood = OODModel.from_dict(meta["export"]["ood"])  # the out-of-domain model, fitted on validation drives
+        assert "ood_fit.py" in ood.fitted["command"] and ood.fitted["frames"] >= 100
+        assert not any(r.get("seed") in (9201, 9202, 9203) for r in ood.fitted["roots"])  # never the test drives
         assert path.with_suffix(".safetensors").stat().st_size < 25e6
 
 

@@ -150,6 +150,15 @@ def test_verdict_rules(delta, std, status, word, names):
     assert "0.5 deg" in v.tolerance and "5 cm" in v.tolerance
 
 
+def test_out_of_domain_status_makes_the_verdict_inconclusive_whatever_the_drift_block_says():
+    from hybrid_calib.calib.covariance import inconclusive_status
+
+    status = inconclusive_status("only 2 of 41 frames are inside the network's training domain", "ok")
+    for extra in ({}, {"verdict_kind": "within tolerance", "verdict": "within tolerance"}):
+        v = verdict_of(_vr((0.01,) * 6, (0.01,) * 6, status, drift_extra=extra))
+        assert v.word == "inconclusive" and "only 2 of 41 frames" in v.why and "status" in v.source
+
+
 def test_verdict_from_the_result_and_steps():
     v = verdict_of(_vr((0,) * 6, (0.01,) * 6, drift_extra={"verdict": "recalibrate", "why": "knocked",
                                                            "tolerance": {"rot_deg": 0.3}}, alarms=(3,)))

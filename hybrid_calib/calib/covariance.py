@@ -11,6 +11,11 @@ cares about (``rot_tol_deg`` and ``trans_tol_cm``), so "how well is this directi
 comparable between rotation and translation. A direction whose std exceeds ``weak_factor`` times
 its tolerance is named as poorly observed; one whose information is numerically zero is
 unobservable and gets its covariance from a weak regularising prior, the status saying so.
+
+The status vocabulary (one home, docs/conventions.md): ``ok`` | ``weak: <why>`` | ``degenerate: <why>``
+from the information here, and ``inconclusive: <why>`` (``inconclusive_status``) when the input itself
+cannot be trusted: too few of a vehicle's frames are inside the learned network's training domain
+(``hybrid.ood``). An inconclusive result is never reported as ``ok``, whatever its information.
 """
 
 from __future__ import annotations
@@ -46,7 +51,8 @@ class CovarianceReport:
         unobservable direction carries the regularising prior's variance.
     std_report: (6,) [roll-ish rot x, rot y, rot z in deg, t x, t y, t z in cm], camera axes
         (``C_report = B C B^T``; rotation components are about camera x, y, z).
-    status: "ok", "weak: ...", "degenerate: ..." (see ``analyse_information``).
+    status: "ok", "weak: ...", "degenerate: ..." (see ``analyse_information``; ``inconclusive_status`` is
+        the fourth word, set by the learned methods, never here).
     regularised: True when the covariance needed the weak prior (pseudo-inverse fallback).
     weak_directions: human-readable names of the poorly observed directions.
     """
@@ -58,6 +64,14 @@ class CovarianceReport:
     weak_directions: tuple[str, ...]
     condition: float  # condition number of the scaled information matrix
 
+
+
+STATUS_WORDS = ("ok", "weak", "degenerate", "inconclusive")
+
+
+def inconclusive_status(reason: str, estimate_status: str = "") -> str:
+    """``"inconclusive: <reason>"`` with the estimate's own status after it (kept for the record)."""
+    return f"inconclusive: {reason}" + (f" [the estimate's own status: {estimate_status}]" if estimate_status else "")
 
 
 def report_basis(T_cam_radar: np.ndarray) -> np.ndarray:

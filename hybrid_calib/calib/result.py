@@ -76,7 +76,8 @@ class Estimate:
     """An extrinsic with its trustworthy covariance.
 
     T: (4, 4) T_cam_radar. cov: (6, 6) right tangent, radar frame [rad, m]. std: (6,) camera axes
-    [deg x3, cm x3]. status: "ok" | "weak: ..." | "degenerate: ..." (+ notes).
+    [deg x3, cm x3]. status: "ok" | "weak: ..." | "degenerate: ..." | "inconclusive: ..." (+ notes;
+    ``calib.covariance``).
     """
 
     T: np.ndarray
@@ -185,6 +186,7 @@ class VehicleResult:
     errors_against: str | None = None  # "truth" (simulated roots) | "tables" (real roots) | None
     frame_rows: list[dict] = field(default_factory=list)  # per frame {"used", "rejected", ...} (learned methods)
     config: dict | None = None  # the effective method config (learned methods)
+    ood: dict | None = None  # out-of-domain scores and decision (learned methods; hybrid.ood.decide)
 
     def to_dict(self) -> dict:
         return {
@@ -199,6 +201,7 @@ class VehicleResult:
             "trajectory": [f.to_dict() for f in self.trajectory],
             "method": self.method, "checkpoint": self.checkpoint, "start": self.start,
             "errors_against": self.errors_against, "frame_rows": self.frame_rows, "config": self.config,
+            "ood": self.ood,
         }
 
     @classmethod
@@ -212,7 +215,7 @@ class VehicleResult:
             skipped=list(d.get("frames_skipped", [])), n_frames=int(d.get("n_frames", 0)),
             network=d.get("network"), method=d.get("method", ""), checkpoint=d.get("checkpoint"),
             start=d.get("start"), errors_against=d.get("errors_against"), frame_rows=list(d.get("frame_rows", [])),
-            config=d.get("config"),
+            config=d.get("config"), ood=d.get("ood"),
         )
 
     def to_json(self) -> str:

@@ -86,6 +86,8 @@ def vehicle_verdict(row: dict) -> str:
         why.append("an outlier of the fleet")
     if "degenerate" in row["flags"]:
         why.append("degenerate drive")
+    if "inconclusive" in row["flags"]:
+        why.append("inconclusive: too few frames inside the network's training domain")
     if why:
         return "FLAGGED: " + "; ".join(why)
     fleet = "not a fleet outlier" if row.get("fleet_test") else "no fleet test (fewer than 3 vehicles done)"

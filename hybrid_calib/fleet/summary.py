@@ -4,7 +4,7 @@
 
     {"schema": ..., "out": OUT, "method": str, "seed": int,
      "counts": {"vehicles", "pending", "running", "done", "failed", "out_of_tolerance",
-                "drifted_in_drive", "fleet_outliers", "degenerate", "weak"},
+                "drifted_in_drive", "fleet_outliers", "degenerate", "inconclusive", "weak"},
      "design_mount": {"T_cam_radar": 4x4, "source": "recorded" | "mean of the tables"},
      "fleet_prior": {"T_mean", "spread_std_cam", "mean_std_cam", "inliers", "outliers"} | null,
      "vehicles": {JOB_ID: VEHICLE}}
@@ -17,7 +17,9 @@
                "std_cam": STD, "verdict": str, "drift": {"drifted", "p_value", "statistic"},
                "step_alarms": [frame, ...], "error": {...} | null,
                "fleet_test": {"d2", "p_value"} | null,
-               "flags": ["out_of_tolerance", "drifted_in_drive", "fleet_outlier", "degenerate"]}
+               "flags": ["out_of_tolerance", "drifted_in_drive", "fleet_outlier", "degenerate", "inconclusive"]}
+               # "inconclusive": the status is "inconclusive: ..." (input out of the network's domain,
+               # hybrid.ood); its verdict is "inconclusive" whatever the drift block says
 
     OFFSET = {"rot_x_cam_deg", "rot_y_cam_deg", "rot_z_cam_deg", "t_x_cam_cm", "t_y_cam_cm", "t_z_cam_cm"}:
     B local(T_ref, T_est) (the right-tangent offset mapped to camera axes exactly as the std blocks,
@@ -106,7 +108,8 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
                        keys, camera_offset(np.asarray(j["tables_T"]), vr.final.T).tolist())),
                    std_cam=std_dict(vr.final.std, STD_FRAME),
                    drift={k: d.get(k) for k in ("drifted", "p_value", "statistic")},
-                   verdict=d.get("verdict") or ("out of tolerance" if d.get("drifted") else "within tolerance"),
+                   verdict="inconclusive" if vr.final.status.startswith("inconclusive") else (
+                       d.get("verdict") or ("out of tolerance" if d.get("drifted") else "within tolerance")),
                    step_alarms=[f.index for f in vr.trajectory if f.step_alarm], error=vr.error, fleet_test=None)
         if d.get("drifted"):
             row["flags"].append("out_of_tolerance")
@@ -114,6 +117,8 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
             row["flags"].append("drifted_in_drive")
         if vr.final.status.startswith("degenerate"):
             row["flags"].append("degenerate")
+        if vr.final.status.startswith("inconclusive"):
+            row["flags"].append("inconclusive")
     prior = None
     if fit_prior and len(results) >= MIN_VEHICLES:
         names = sorted(results)
@@ -124,7 +129,7 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
             if n in prior.outliers:
                 rows[n]["flags"].append("fleet_outlier")
     counts = {**m.counts(), "vehicles": len(rows)}
-    for flag in ("out_of_tolerance", "drifted_in_drive", "fleet_outlier", "degenerate"):
+    for flag in ("out_of_tolerance", "drifted_in_drive", "fleet_outlier", "degenerate", "inconclusive"):
         counts[flag + ("s" if flag == "fleet_outlier" else "")] = sum(flag in r["flags"] for r in rows.values())
     counts["weak"] = sum(str(r.get("status", "")).startswith("weak") for r in rows.values())
     pd = None if prior is None else prior.to_dict()
@@ -163,7 +168,8 @@ def summary_markdown(s: dict) -> str:
              f"method {s['method']}, seed {s['seed']}; design mount: {s['design_mount']['source']}", "",
              f"**{c['vehicles']} vehicles**: {c['done']} done, {c['failed']} failed, {c['pending'] + c['running']} "
              f"not finished; {c['out_of_tolerance']} out of tolerance, {c['drifted_in_drive']} drifted inside the "
-             f"drive, {c['fleet_outliers']} fleet outlier(s), {c['degenerate']} degenerate, {c['weak']} weak.", ""]
+             f"drive, {c['fleet_outliers']} fleet outlier(s), {c['degenerate']} degenerate, "
+             f"{c.get('inconclusive', 0)} inconclusive (out of the network's domain), {c['weak']} weak.", ""]
     fp = s.get("fleet_prior")
     if fp:
         sp = fp["spread_std_cam"]

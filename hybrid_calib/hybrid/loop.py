@@ -11,6 +11,9 @@ calibrate --method`` and of the fleet engine.
   average.
 - ``oracle``: the factor graph on the simulator's true reflectors (``calib.pipeline``).
 
+The learned methods drop the frames the network's out-of-domain score flags, and a vehicle with too
+few frames in domain is ``inconclusive`` (``hybrid.ood``: the rule, and the result's ``ood`` block).
+
 Every method starts a vehicle from ``perturbation.vehicle_start(base, start, seed, vehicle)``: the
 same start for every method and whatever else the run holds. ``base`` is the truth on simulated
 roots and the tables' extrinsic on real roots, and errors are against it (``errors_against``).
@@ -26,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hybrid_calib.calib.covariance import analyse_information
+from hybrid_calib.calib.covariance import analyse_information, inconclusive_status
 from hybrid_calib.calib.drift import DriftConfig, reference_test
 from hybrid_calib.calib.oracle import OracleConfig
 from hybrid_calib.calib.result import CalibrationRun, Estimate, FrameEstimate, VehicleResult
@@ -37,6 +40,7 @@ from hybrid_calib.geometry import local
 from hybrid_calib.hybrid.average import AverageConfig, robust_average
 from hybrid_calib.hybrid.measurement import MeasurementConfig, frame_inputs, prior_trusted
 from hybrid_calib.hybrid.network import NetworkRunner, build_runner, refine_checkpoint, shipped_checkpoint
+from hybrid_calib.hybrid.ood import OODPolicy, decide, json_score, out_of_domain, skip_record
 from hybrid_calib.metrics import extrinsic_error
 from hybrid_calib.perturbation import RANGES, vehicle_start
 
@@ -62,6 +66,7 @@ class HybridConfig:
     average: AverageConfig = AverageConfig()  # pure-avg
     oracle: OracleConfig = OracleConfig()  # oracle rows (simulated roots only)
     drift: DriftConfig = DriftConfig()  # reference chi-square test of the final estimate
+    ood: OODPolicy = OODPolicy()  # out-of-domain frames and the inconclusive status (learned methods, hybrid.ood)
     threads: int = 1  # torch CPU threads (1: on a busy 2-core machine 2 threads were 40x slower, measured)
     cache_dir: str = ""  # network-output cache ("" = none; run_calibration: OUT/network-cache)
     depth_cache: str = ""  # depth cache ("" = none; run_calibration: OUT/depth-cache)
@@ -168,22 +173,37 @@ def _frame(k: int, fid: str, ts: int, est: Estimate, n: int, ms: float) -> Frame
                          step_threshold=None, step_alarm=False, solve_ms=ms, cov_ms=0.0)
 
 
-def _network_cov(runner: NetworkRunner, out) -> np.ndarray:
-    """The network's own covariance with the checkpoint's evaluate-fitted ``cov_scale`` (pure methods)."""
-    s = np.broadcast_to(np.asarray(runner.ckpt.export.get("cov_scale", 1.0), np.float64), (6,))
-    return (np.sqrt(s)[:, None] * out.cov_raw) * np.sqrt(s)[None, :]
+@dataclass
+class _Trace:
+    """What a learned method records besides its trajectory: skipped frames, per-frame rows, the
+    out-of-domain score of every pass, and whether out-of-domain frames are dropped."""
+
+    drop: bool = True
+    skipped: list = field(default_factory=list)
+    rows: list = field(default_factory=list)
+    scores: list = field(default_factory=list)
+
+    def keep(self, runner: NetworkRunner, i: int, out, conf: HybridConfig) -> bool:
+        """Score the pass; False (and recorded) when it is out of domain and dropped."""
+        score = runner.ood_score(out) if conf.ood.enabled else float("nan")
+        self.scores.append(score)
+        if self.drop and out_of_domain(score, conf.ood):
+            self.skipped.append(skip_record(i, runner.token(i), score, conf.ood))
+            return False
+        return True
 
 
-def _passes(runner: NetworkRunner, drive: Drive, T0: np.ndarray, conf: HybridConfig, skipped: list):
-    """The network from the vehicle's start on every frame (cached): [(index, NetworkOutput)]."""
+def _passes(runner: NetworkRunner, drive: Drive, T0: np.ndarray, conf: HybridConfig, tr: _Trace):
+    """The network from the vehicle's start on every frame (cached), out-of-domain frames dropped:
+    [(index, NetworkOutput)]."""
     from tqdm import tqdm
 
     outs = []
     for i in tqdm(drive.indices, desc=f"network {drive.vehicle}", disable=not conf.progress, leave=False):
         out = runner.run(i, T0)
         if out is None:
-            skipped.append({"index": int(i), "token": runner.token(i), "reason": runner.bad_reason(i)})
-        else:
+            tr.skipped.append({"index": int(i), "token": runner.token(i), "reason": runner.bad_reason(i)})
+        elif tr.keep(runner, i, out, conf):
             outs.append((i, out))
     return outs
 
@@ -203,37 +223,40 @@ def with_drive_error(traj: list[FrameEstimate], drive_std, conf: HybridConfig) -
     return out
 
 
-def _pure(runner, drive, T0, conf, skipped, rows):
-    traj = []
-    for k, (_, out) in enumerate(_passes(runner, drive, T0, conf, skipped)):
+def _pure(runner, drive, T0, conf, tr):
+    traj, rows = [], tr.rows
+    for k, (_, out) in enumerate(_passes(runner, drive, T0, conf, tr)):
         traj.append(_frame(k, out.rows_last.frame_id, out.rows_last.timestamp_us,
-                           _estimate(out.T, _network_cov(runner, out), conf), 1, out.seconds * 1e3))
-        rows.append({"frame_id": out.rows_last.frame_id, "used": 0, "rejected": 0, "network_ms": out.seconds * 1e3})
+                           _estimate(out.T, runner.network_cov(out), conf), 1, out.seconds * 1e3))
+        rows.append({"frame_id": out.rows_last.frame_id, "used": 0, "rejected": 0, "network_ms": out.seconds * 1e3,
+                     "ood_score": json_score(runner.ood_score(out))})
     return traj
 
 
-def _pure_avg(runner, drive, T0, conf, skipped, rows):
+def _pure_avg(runner, drive, T0, conf, tr):
     mconf = measurement_config(runner, conf)
     S = np.diag(np.asarray(mconf.shared_std, np.float64) ** 2)
-    passes = _passes(runner, drive, T0, conf, skipped)
+    passes, rows = _passes(runner, drive, T0, conf, tr), tr.rows
     Ts = np.stack([o.T for _, o in passes]) if passes else np.zeros((0, 4, 4))
-    covs = np.stack([_network_cov(runner, o) + S for _, o in passes]) if passes else np.zeros((0, 6, 6))
+    covs = np.stack([runner.network_cov(o) + S for _, o in passes]) if passes else np.zeros((0, 6, 6))
     traj, M = [], None
     for k, (_, out) in enumerate(passes):
         t0 = time.perf_counter()
         M, cov, w = robust_average(Ts[: k + 1], covs[: k + 1], conf.average, M)
         traj.append(_frame(k, out.rows_last.frame_id, out.rows_last.timestamp_us, _estimate(M, cov, conf), k + 1,
                            out.seconds * 1e3 + (time.perf_counter() - t0) * 1e3))
-        rows.append({"frame_id": out.rows_last.frame_id, "used": 0, "rejected": 0, "network_ms": out.seconds * 1e3})
+        rows.append({"frame_id": out.rows_last.frame_id, "used": 0, "rejected": 0, "network_ms": out.seconds * 1e3,
+                     "ood_score": json_score(runner.ood_score(out))})
     if passes:
         rows[-1]["weights"] = [float(x) for x in w]
     return with_drive_error(traj, mconf.drive_std, conf)
 
 
-def _hybrid(runner, drive, T0, conf, skipped, rows):
+def _hybrid(runner, drive, T0, conf, tr):
     """The closed loop (module doc)."""
     from tqdm import tqdm
 
+    skipped, rows = tr.skipped, tr.rows
     mconf = measurement_config(runner, conf)
     cal = SlidingWindowCalibrator(T0, conf.window)
     gate = conf.window.schedule.final_gate
@@ -242,6 +265,8 @@ def _hybrid(runner, drive, T0, conf, skipped, rows):
         out = runner.run(i, T)
         if out is None:
             skipped.append({"index": int(i), "token": runner.token(i), "reason": runner.bad_reason(i)})
+            continue
+        if not tr.keep(runner, i, out, conf):
             continue
         trusted = prior_trusted(conf.start, runner.range, fused_cov, mconf.trust_sigma_frac)
         fi = frame_inputs(out, T, mconf, conf.window.factor, gate, trusted)
@@ -254,6 +279,7 @@ def _hybrid(runner, drive, T0, conf, skipped, rows):
         used = int(round(fe.inlier_fraction * len(fi.corr)))
         rows.append({"frame_id": fi.corr.frame_id, "used": used, "rejected": len(fi.corr) - used,
                      "deflation": fi.deflation, "prior_used": fi.prior_used, "network_ms": out.seconds * 1e3,
+                     "ood_score": json_score(runner.ood_score(out)),
                      **({"note": fi.note} if fi.note else {})})
     return with_drive_error(traj, mconf.drive_std, conf)
 
@@ -276,17 +302,30 @@ def _finish(res: VehicleResult, drive: Drive, T0: np.ndarray, conf: HybridConfig
 def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, note: str = "") -> VehicleResult:
     """A learned method (hybrid | pure | pure-avg) on one drive with a loaded network."""
     T0 = start_of(drive, conf)
-    skipped, rows = [], []
-    traj = LEARNED[conf.method](runner, drive, T0, conf, skipped, rows)
+    tr = _Trace(drop=True)
+    traj = LEARNED[conf.method](runner, drive, T0, conf, tr)
+    ood = decide(tr.scores, conf.ood, runner.ood_note)
+    ood["dropped"] = sum("ood_score" in s for s in tr.skipped)
+    if ood["inconclusive"]:  # too few frames in domain: every frame, nothing dropped, and say so (hybrid.ood)
+        tr = _Trace(drop=False)
+        traj = LEARNED[conf.method](runner, drive, T0, conf, tr)
+        ood.update(dropped=0, note="too few frames in domain: the estimate uses every frame and is not trusted")
     if not traj:
-        raise DataError(f"vehicle {drive.vehicle}: no usable frame ({len(skipped)} skipped; first: "
-                        f"{skipped[0]['reason'] if skipped else '-'})")
-    res = VehicleResult(drive.vehicle, traj[-1].estimate, traj, skipped=skipped, n_frames=len(traj))
+        raise DataError(f"vehicle {drive.vehicle}: no usable frame ({len(tr.skipped)} skipped; first: "
+                        f"{tr.skipped[0]['reason'] if tr.skipped else '-'})")
+    res = VehicleResult(drive.vehicle, traj[-1].estimate, traj, skipped=tr.skipped, n_frames=len(traj))
     res.checkpoint = runner.checkpoint
-    res.frame_rows = rows
+    res.frame_rows = tr.rows
+    res.ood = ood
     res.config = {**to_dict(conf), "measurement_effective": to_dict(measurement_config(runner, conf)),
                   "depth_effective": runner.depth_name, **({"depth_note": note} if note else {})}
-    return _finish(res, drive, T0, conf)
+    res = _finish(res, drive, T0, conf)
+    if ood["inconclusive"]:
+        final = dataclasses.replace(res.final, status=inconclusive_status(ood["inconclusive"], res.final.status))
+        res.final = final
+        res.trajectory[-1] = dataclasses.replace(res.trajectory[-1], estimate=final)
+    return res
+
 
 
 def vehicle_oracle(data, version: str, drive: Drive, conf: HybridConfig) -> VehicleResult:

@@ -22,7 +22,7 @@ from __future__ import annotations
 import hashlib
 import os
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -59,6 +59,8 @@ class NetworkOutput:
     the checkpoint's ``cov_scale``. rows_first / rows_last: the exported rows of iteration 0 / the
     last iteration, ``sigma_px`` unscaled (pixels of the model-input image, ``K`` of that image).
     seconds: wall time of the pass (forward + export), CPU.
+    ood_descriptor / ood_signals: the out-of-domain features of the pass (``learned.ood.frame_features``;
+    empty for outputs made without them); ``NetworkRunner.ood_score`` reads them.
     """
 
     T_in: np.ndarray
@@ -67,6 +69,8 @@ class NetworkOutput:
     rows_first: Correspondences
     rows_last: Correspondences
     seconds: float
+    ood_descriptor: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    ood_signals: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def T(self) -> np.ndarray:
@@ -74,7 +78,7 @@ class NetworkOutput:
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         d = {"T_in": self.T_in, "T_iters": self.T_iters, "cov_raw": self.cov_raw,
-             "seconds": np.array(self.seconds)}
+             "seconds": np.array(self.seconds), "ood_descriptor": self.ood_descriptor, "ood_signals": self.ood_signals}
         for prefix, c in (("first_", self.rows_first), ("last_", self.rows_last)):
             d.update({prefix + k: v for k, v in c.to_npz_dict().items()})
         return d
@@ -83,7 +87,8 @@ class NetworkOutput:
     def from_arrays(cls, z) -> NetworkOutput:
         rows = [Correspondences.from_npz_dict({k[len(p):]: z[k] for k in z.files if k.startswith(p)})
                 for p in ("first_", "last_")]
-        return cls(z["T_in"], z["T_iters"], z["cov_raw"], rows[0], rows[1], float(z["seconds"]))
+        return cls(z["T_in"], z["T_iters"], z["cov_raw"], rows[0], rows[1], float(z["seconds"]),
+                   z["ood_descriptor"], z["ood_signals"])  # an entry without them (older cache) is a miss
 
 
 def _start_key(T: np.ndarray) -> str:
@@ -133,9 +138,11 @@ class NetworkRunner:
         from learned.checkpoint import load_model
         from learned.dataset import CalibDataset, DatasetConfig
         from learned.depth import DepthCache, build_depth_estimator
+        from learned.ood import ood_model_of
 
         torch.set_num_threads(max(1, threads))
         self.model, self.ckpt = load_model(checkpoint, model_factory=model_factory)
+        self.ood, self.ood_note = ood_model_of(self.ckpt.export, str(self.ckpt.path))
         trained = self.ckpt.train_config or {}
         self.depth_name = depth or trained.get("depth", "corrupted-truth")
         depth_opts = trained.get("depth_options", {}) if self.depth_name == trained.get("depth") else {}
@@ -176,18 +183,33 @@ class NetworkRunner:
         s = self.sample(index)
         if s is None:
             return None
-        out = self._forward(s, T_in)
+        out = self.forward(s, T_in)
         if self.cache is not None:
             self.cache.put(token, out)
         return out
 
-    def _forward(self, s: dict, T_in: np.ndarray) -> NetworkOutput:
+    def network_cov(self, out: NetworkOutput) -> np.ndarray:
+        """(6, 6) the network's own covariance of ``out.T`` with the checkpoint's evaluate-fitted
+        ``cov_scale`` (what the pure methods report)."""
+        s = np.broadcast_to(np.asarray(self.ckpt.export.get("cov_scale", 1.0), np.float64), (6,))
+        return (np.sqrt(s)[:, None] * out.cov_raw) * np.sqrt(s)[None, :]
+
+    def ood_score(self, out: NetworkOutput) -> float:
+        """The pass's out-of-domain score (``learned.ood``: > 1 out of domain); NaN when the checkpoint
+        has no ``export.ood`` (``ood_note`` says so) or the output carries no features."""
+        if self.ood is None or not out.ood_descriptor.size:
+            return float("nan")
+        return float(self.ood.score({"descriptor": out.ood_descriptor, "signals": out.ood_signals})[0])
+
+    def forward(self, s: dict, T_in: np.ndarray) -> NetworkOutput:
+        """The network on a prepared sample ``s`` (``sample``, possibly altered) from ``T_in``; not cached."""
         import dataclasses
 
         import torch
 
         from learned.dataset import collate
         from learned.export import ExportConfig, export_correspondences
+        from learned.ood import frame_features
         from learned.train import model_inputs
 
         t0 = time.perf_counter()
@@ -202,16 +224,18 @@ class NetworkRunner:
                 conf = ExportConfig(iteration=it, sigma_scale=1.0, cov_scale=1.0, min_confidence=self.min_confidence)
                 corr, cov = export_correspondences(self.model, out, inputs, conf)
                 rows.append(dataclasses.replace(corr[0], frame_id=str(batch["token"][0])))
+            feats = frame_features(out)
         T_iters = torch.stack([T[0].double() for T in out["T_iters"]]).numpy()
         return NetworkOutput(np.asarray(T_in, np.float64), T_iters, np.asarray(cov[0], np.float64), rows[0], rows[1],
-                             time.perf_counter() - t0)
+                             time.perf_counter() - t0, feats["descriptor"][0], feats["signals"][0])
 
 
 class CascadeRunner:
     """Two runners as one (module doc): the coarse network from ``T_in``, then the refining network
     from the coarse estimate. Its ``NetworkOutput``: ``T_in`` the loop's start, ``T_iters`` every
-    iteration of both stages, ``cov_raw`` and ``rows_last`` the refining network's, ``rows_first``
-    the coarse network's iteration 0 (measured against ``T_in`` only), ``seconds`` both passes.
+    iteration of both stages, ``cov_raw``, ``rows_last`` and the out-of-domain features the refining
+    network's, ``rows_first`` the coarse network's iteration 0 (measured against ``T_in`` only),
+    ``seconds`` both passes.
     ``ckpt`` (whose export block the measurement model reads) is the refining network's; ``range``
     (the starts the cascade accepts) the coarse one's. Composite outputs are cached in ``cache_dir``,
     each stage's in ``cache_dir/coarse`` and ``cache_dir/refine``."""
@@ -243,7 +267,8 @@ class CascadeRunner:
         if second is None:
             return None
         out = NetworkOutput(np.asarray(T_in, np.float64), np.concatenate([first.T_iters, second.T_iters]),
-                            second.cov_raw, first.rows_first, second.rows_last, first.seconds + second.seconds)
+                            second.cov_raw, first.rows_first, second.rows_last, first.seconds + second.seconds,
+                            second.ood_descriptor, second.ood_signals)
         if self.cache is not None:
             self.cache.put(token, out)
         return out

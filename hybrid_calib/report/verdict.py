@@ -14,6 +14,10 @@ deg, translation cm, ``ReportConfig``):
   direction the data could not pin, e.g. the radar height of a 2D radar, ends here), as does a
   "degenerate" status, a last solve that did not converge ("NOT CONVERGED" in the status) or a
   result without drift block.
+
+An ``inconclusive: ...`` status (the learned network's input was out of its domain: ``hybrid.ood``)
+makes the verdict "inconclusive" with that reason before anything else, the drift block's own
+verdict included: the estimate it tested cannot be trusted.
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ AXIS_NAMES = ("rotation about camera x", "rotation about camera y", "rotation ab
               "translation along camera x", "translation along camera y", "translation along camera z")
 VERDICTS = ("within tolerance", "recalibrate", "inconclusive")
 NOT_CONVERGED = "NOT CONVERGED"  # calib.window.convergence_note's mark in a status
+INCONCLUSIVE = "inconclusive"  # calib.covariance.inconclusive_status: the input is out of the network's domain
 
 
 @dataclass(frozen=True)
@@ -63,6 +68,8 @@ def _fmt(j: int, v: float) -> str:
 
 def derive_verdict(vr: VehicleResult, tol: Tolerance) -> tuple[str, str]:
     """(word, why) from the drift block, the std and the status (module docstring)."""
+    if vr.final.status.startswith(INCONCLUSIVE):
+        return "inconclusive", _out_of_domain_why(vr.final.status)
     if vr.final.status.startswith("degenerate"):
         return "inconclusive", f"The data could not determine the extrinsic ({vr.final.status})."
     if NOT_CONVERGED in vr.final.status:
@@ -88,6 +95,11 @@ def derive_verdict(vr: VehicleResult, tol: Tolerance) -> tuple[str, str]:
                             f"(their 3-sigma interval straddles it): {axes}.")
 
 
+def _out_of_domain_why(status: str) -> str:
+    reason = status[len(INCONCLUSIVE):].lstrip(": ")
+    return f"The result cannot be trusted, so it says nothing about the mount: {reason}."
+
+
 def moved_during_drive(vr: VehicleResult) -> tuple[str, tuple[int, ...]]:
     """Whether the window's step detector fired, in words, and the frames where it did."""
     if not vr.trajectory:
@@ -106,6 +118,9 @@ def verdict_of(vr: VehicleResult, tol: Tolerance | None = None) -> Verdict:
     moved, frames = moved_during_drive(vr)
     if frames and NOT_CONVERGED in vr.final.status:
         moved += "; but the solve did not converge, so these alarms may only mark its failures"
+    if vr.final.status.startswith(INCONCLUSIVE):
+        return Verdict("inconclusive", _out_of_domain_why(vr.final.status), tol.describe(),
+                       "the result's status (out-of-domain input)", moved, frames)
     d = vr.drift or {}
     given = d.get("verdict")
     kind = d.get("verdict_kind")

@@ -1,0 +1,198 @@
+"""The network's out-of-domain score: is this frame like the frames it learned from?
+
+Per frame, from what the network produces (``frame_features``; B samples):
+
+- ``descriptor`` (B, 2 D'): the fused global descriptor the regression head reads (``out["fused"]``)
+  at iteration 0 and at the last iteration, concatenated;
+- ``signals`` (B, 6): named in ``SIGNALS``:
+  ``match_mass``: mean over the valid radar points of the FV assignment mass ``sum_i P_ij`` of the
+  point's radar cell at iteration 0 (how much the network finds anything to match);
+  ``match_entropy``: mean entropy of the column ``P_:j`` normalised over image cells, divided by
+  ``log m_I`` (0: one sharp match, 1: uniform);
+  ``last_step_rot`` / ``last_step_trans``: size of the last cascade correction ``Log(T_deltas[-1])``
+  (rad, m): an estimate that still moves at the last iteration has not settled;
+  ``log_var_mean``: mean of the last iteration's predicted log-variances (the network's own doubt);
+  ``fusion_fv``: mean selective-fusion weight of the FV view (0.5 without selective fusion).
+
+The score (``OODModel``) is a Gaussian density model of one feature set (``FEATURE_SETS``) fitted on
+in-domain frames (simulated validation drives; ``benchmarks/ood_fit.py``): each feature standardised
+by its fit mean and std, projected on the top ``k`` principal directions (variance ``lam_k``) with the
+remaining squared norm ``r`` as one more term:
+
+    d2 = sum_k p_k^2 / lam_k + r / r_mean            (expected value k + 1 on in-domain frames)
+    score = d2 / threshold
+
+``threshold`` is the ``quantile`` (default 0.99) of ``d2`` over calibration frames that were NOT used to
+fit the mean, std and directions (the fit frames are split in two), so ``score > 1`` marks a frame less
+typical than 99 % of held-out in-domain frames. The model lives in the checkpoint's export block
+(``export["ood"]``, ``OODModel.to_dict``) with the command and frames that fitted it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from hybrid_calib.errors import HybridCalibError
+from learned import lie
+from learned.transform import cell_index
+
+SIGNALS = ("match_mass", "match_entropy", "last_step_rot", "last_step_trans", "log_var_mean", "fusion_fv")
+FEATURE_SETS = ("descriptor", "signals", "all")
+FIT_HINT = ("fit it with: PYTHONPATH=. python benchmarks/ood_fit.py --checkpoint CKPT --data SIM_ROOT ... "
+            "(docs/benchmarks.md, 'Out-of-domain score')")
+
+
+class OODError(HybridCalibError):
+    """A malformed ``export["ood"]`` block (the message names what is wrong)."""
+
+
+@torch.no_grad()
+def frame_features(out: dict) -> dict[str, np.ndarray]:
+    """``{"descriptor": (B, 2 D') , "signals": (B, len(SIGNALS))}`` float64 from a forward output."""
+    fused = out["fused"]
+    B = fused[0].shape[0]
+    desc = torch.cat([fused[0], fused[-1]], 1).double()
+    mass = torch.full((B,), float("nan"), dtype=torch.float64)
+    ent = mass.clone()
+    fv = out["match"][0].get("fv")
+    if fv is not None:
+        log_P = fv["log_P"].double()  # (B, m_I, m_R)
+        r = out["render"][0]
+        cell = cell_index(r["fv_pix"], r["fv_valid"], out["image_hw"])  # (B, N)
+        col_mass = torch.logsumexp(log_P, 1)  # (B, m_R) log sum_i P_ij
+        p = (log_P - col_mass[:, None, :]).exp()
+        col_ent = -(p * p.clamp_min(1e-30).log()).sum(1) / np.log(log_P.shape[1])  # (B, m_R)
+        valid = cell >= 0
+        idx = cell.clamp_min(0)
+        n = valid.sum(1).clamp_min(1).double()
+        mass = (col_mass.exp().gather(1, idx) * valid).sum(1) / n
+        ent = (col_ent.gather(1, idx) * valid).sum(1) / n
+        none = ~valid.any(1)
+        mass[none] = 0.0
+        ent[none] = 1.0
+    xi = lie.se3_log(out["T_deltas"][-1].detach().double())
+    w = out["fusion_weights"][-1]
+    fusion = w[:, 0].double().mean(-1) if w is not None else torch.full((B,), 0.5, dtype=torch.float64)
+    sig = torch.stack([mass, ent, xi[:, :3].norm(dim=1), xi[:, 3:].norm(dim=1),
+                       out["log_var"][-1].double().mean(1), fusion], 1)
+    sig = torch.nan_to_num(sig, nan=0.0)  # no FV matching head (ablations): constant signals
+    return {"descriptor": desc.cpu().numpy(), "signals": sig.cpu().numpy()}
+
+
+def select(feats: Mapping[str, np.ndarray], features: str) -> np.ndarray:
+    """(F, D) rows of one feature set from ``{"descriptor": (F, Dd), "signals": (F, Ds)}``."""
+    if features == "all":
+        return np.concatenate([np.atleast_2d(feats["descriptor"]), np.atleast_2d(feats["signals"])], 1)
+    if features not in FEATURE_SETS:
+        raise OODError(f"unknown feature set {features!r}; valid: {FEATURE_SETS}")
+    return np.atleast_2d(np.asarray(feats[features], np.float64))
+
+
+@dataclass(frozen=True)
+class OODModel:
+    """Gaussian (PCA + residual) density of in-domain features; see the module docstring.
+
+    features: one of ``FEATURE_SETS``. mean, std: (D,). components: (k, D) orthonormal rows.
+    variances: (k,) lam. residual_mean: mean residual squared norm on the fit half. threshold: d2 at
+    ``quantile`` of the calibration half. fitted: provenance (command, roots, frames, counts).
+    """
+
+    features: str
+    mean: np.ndarray
+    std: np.ndarray
+    components: np.ndarray
+    variances: np.ndarray
+    residual_mean: float
+    threshold: float
+    quantile: float = 0.99
+    fitted: dict = field(default_factory=dict)
+
+    def distance(self, X: np.ndarray) -> np.ndarray:
+        """(F, D) features of ``self.features`` -> (F,) d2."""
+        X = np.atleast_2d(np.asarray(X, np.float64))
+        if X.shape[1] != len(self.mean):
+            raise OODError(f"features have {X.shape[1]} dimensions, the fitted model {len(self.mean)}: the "
+                           f"export.ood block belongs to another network; {FIT_HINT}")
+        z = (X - self.mean) / self.std
+        p = z @ self.components.T
+        r = np.maximum((z * z).sum(1) - (p * p).sum(1), 0.0)
+        return (p * p / self.variances).sum(1) + r / max(self.residual_mean, 1e-12)
+
+    def score(self, feats: Mapping[str, np.ndarray]) -> np.ndarray:
+        """(F,) score = d2 / threshold (> 1: out of domain) of ``frame_features``-like rows."""
+        return self.distance(select(feats, self.features)) / self.threshold
+
+    def to_dict(self) -> dict:
+        return {"features": self.features, "mean": self.mean.tolist(), "std": self.std.tolist(),
+                "components": self.components.tolist(), "variances": self.variances.tolist(),
+                "residual_mean": float(self.residual_mean), "threshold": float(self.threshold),
+                "quantile": float(self.quantile), "fitted": self.fitted}
+
+    @classmethod
+    def from_dict(cls, d) -> OODModel:
+        """``OODError`` saying what is wrong with a malformed block."""
+        if not isinstance(d, Mapping):
+            raise OODError(f"export.ood is a {type(d).__name__}, not an object; {FIT_HINT}")
+        missing = [k for k in ("features", "mean", "std", "components", "variances", "residual_mean", "threshold")
+                   if k not in d]
+        if missing:
+            raise OODError(f"export.ood lacks {missing}; {FIT_HINT}")
+        try:
+            mean, std = np.asarray(d["mean"], np.float64), np.asarray(d["std"], np.float64)
+            comp, var = np.atleast_2d(np.asarray(d["components"], np.float64)), np.asarray(d["variances"], np.float64)
+            res, thr = float(d["residual_mean"]), float(d["threshold"])
+        except (TypeError, ValueError) as e:
+            raise OODError(f"export.ood holds a non-numeric value ({e}); {FIT_HINT}") from None
+        D = len(mean)
+        if mean.ndim != 1 or std.shape != (D,) or comp.shape[1:] != (D,) or var.shape != (len(comp),):
+            raise OODError(f"export.ood arrays disagree in shape (mean {mean.shape}, std {std.shape}, components "
+                           f"{comp.shape}, variances {var.shape}); {FIT_HINT}")
+        arrays_ok = all(np.all(np.isfinite(a)) for a in (mean, std, comp, var))
+        if not arrays_ok or np.any(std <= 0) or np.any(var <= 0) or not (thr > 0 and np.isfinite(thr)) or res < 0:
+            raise OODError(f"export.ood holds non-finite or non-positive statistics; {FIT_HINT}")
+        features = str(d["features"])
+        if features not in FEATURE_SETS:
+            raise OODError(f"export.ood features {features!r} unknown; valid: {FEATURE_SETS}; {FIT_HINT}")
+        return cls(features, mean, std, comp, var, res, thr, float(d.get("quantile", 0.99)), dict(d.get("fitted", {})))
+
+
+def fit_ood(feats: Mapping[str, np.ndarray], features: str = "all", k: int = 16, quantile: float = 0.99,
+            seed: int = 0, fitted: dict | None = None) -> OODModel:
+    """Fit on in-domain rows (``{"descriptor": (F, .), "signals": (F, .)}``, F >= 4): a random half fits
+    the mean, std and directions, the other half the threshold (module docstring)."""
+    X = select(feats, features)
+    F = len(X)
+    if F < 4:
+        raise OODError(f"fitting the out-of-domain model needs at least 4 in-domain frames, got {F}")
+    perm = np.random.default_rng(seed).permutation(F)
+    A, C = X[perm[: F // 2]], X[perm[F // 2:]]
+    mean = A.mean(0)
+    std = A.std(0)
+    std = np.where(std > 1e-8 * max(float(std.max()), 1e-30), std, max(float(std.max()), 1.0))  # constant features
+    Z = (A - mean) / std
+    k = int(max(1, min(k, len(A) - 1, X.shape[1] - 1)))
+    _, s, Vt = np.linalg.svd(Z, full_matrices=False)
+    comps = Vt[:k]
+    var = np.maximum(s[:k] ** 2 / max(len(A) - 1, 1), 1e-12)
+    p = Z @ comps.T
+    res = float(np.mean(np.maximum((Z * Z).sum(1) - (p * p).sum(1), 0.0)))
+    model = OODModel(features, mean, std, comps, var, max(res, 1e-12), 1.0, quantile, dict(fitted or {}))
+    thr = float(np.quantile(model.distance(C), quantile))
+    return OODModel(features, mean, std, comps, var, max(res, 1e-12), thr, quantile,
+                    {**(fitted or {}), "fit_frames": int(len(A)), "threshold_frames": int(len(C)), "k": k})
+
+
+def ood_model_of(export: Mapping, source: str = "") -> tuple[OODModel | None, str]:
+    """(model, note) from a checkpoint's export block: (None, why the score is unavailable) without
+    ``export["ood"]``; ``OODError`` naming ``source`` for a malformed one."""
+    block = export.get("ood") if isinstance(export, Mapping) else None
+    if block is None:
+        return None, f"out-of-domain score unavailable: checkpoint {source or '?'} has no export.ood; {FIT_HINT}"
+    try:
+        return OODModel.from_dict(block), ""
+    except OODError as e:
+        raise OODError(f"checkpoint {source}: {e}") from None

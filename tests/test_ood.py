@@ -1,0 +1,186 @@
+"""The network's out-of-domain score (learned.ood) and what the learned methods do with it
+(hybrid.ood): a pure-noise frame is flagged and a clean simulated frame passes; too few in-domain
+frames make a vehicle ``inconclusive`` end to end; a missing or malformed ``export.ood`` is handled."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from hybrid_calib.calib.covariance import inconclusive_status
+from learned.ood import OODError, OODModel, fit_ood, frame_features, ood_model_of
+from tests.test_learned_model import TINY, make_batch, tiny_model
+
+
+def _features(model, batch) -> dict:
+    with torch.no_grad():
+        return frame_features(model(batch))
+
+
+def test_density_model_flags_noise_and_passes_clean_synthetic_frames():
+    model = tiny_model().eval()
+    clean = [_features(model, make_batch(4, seed=s)) for s in range(8)]
+    feats = {k: np.concatenate([f[k] for f in clean]) for k in ("descriptor", "signals")}
+    assert feats["descriptor"].shape == (32, 2 * TINY["view_dim"]) and feats["signals"].shape == (32, 6)
+    m = fit_ood(feats, "all", k=8, quantile=0.99)
+    held = _features(model, make_batch(4, seed=100))
+    noise = make_batch(4, seed=100)
+    noise["image"] = torch.rand_like(noise["image"], generator=torch.Generator().manual_seed(0))
+    assert np.all(m.score(held) < 1.0)
+    assert np.all(m.score(_features(model, noise)) > 1.0)
+    back = OODModel.from_dict(m.to_dict())  # the checkpoint's JSON round trip
+    np.testing.assert_allclose(back.score(held), m.score(held))
+
+
+@pytest.mark.parametrize("block, words", [
+    ({"features": "all"}, "lacks"),
+    ("garbage", "not an object"),
+    ({"features": "all", "mean": [0.0], "std": [0.0], "components": [[1.0]], "variances": [1.0],
+      "residual_mean": 1.0, "threshold": 1.0}, "non-positive"),
+    ({"features": "pixels", "mean": [0.0], "std": [1.0], "components": [[1.0]], "variances": [1.0],
+      "residual_mean": 1.0, "threshold": 1.0}, "unknown"),
+])
+def test_malformed_ood_block_is_a_clear_error(block, words):
+    with pytest.raises(OODError, match=words) as e:
+        ood_model_of({"ood": block}, "ck.json")
+    assert "ck.json" in str(e.value) and "ood_fit.py" in str(e.value)
+
+
+def test_missing_ood_block_says_the_score_is_unavailable():
+    m, note = ood_model_of({"cov_scale": 1.0}, "old.json")
+    assert m is None and "unavailable" in note and "old.json" in note
+
+
+def test_decision_counts_in_domain_frames():
+    from hybrid_calib.hybrid.ood import OODPolicy, decide
+
+    pol = OODPolicy(threshold=1.0, min_in_domain_fraction=0.5, min_in_domain_frames=3)
+    assert decide([0.2, 0.5, 0.9, 3.0], pol)["inconclusive"] == ""
+    d = decide([0.2, 5.0, 4.0, 3.0], pol)
+    assert d["in_domain"] == 1 and "only 1 of 4 frames" in d["inconclusive"]
+    assert decide([0.1, 0.2], pol)["inconclusive"]  # fewer than 3 frames in all
+    d = decide([float("nan")] * 3, pol, "no export.ood")
+    assert not d["available"] and d["inconclusive"] == "" and d["note"] == "no export.ood"
+    assert inconclusive_status("why", "ok").startswith("inconclusive: why")
+
+
+# ---------------------------------------------------------------------------------- on a simulated drive
+
+
+@pytest.fixture(scope="module")
+def sim_root(tmp_path_factory):
+    """2 vehicles x 3 keyframes, 200 x 112 images."""
+    from hybrid_calib.sim.drive import SimConfig
+    from hybrid_calib.sim.simulate import simulate
+
+    return simulate(SimConfig(vehicles=2, frames=3, image_scale=0.125, seed=5), tmp_path_factory.mktemp("sim"),
+                    progress=False)
+
+
+@pytest.fixture(scope="module")
+def fitted(sim_root, tmp_path_factory):
+    """A tiny untrained network as a checkpoint, its OOD model fitted on the clean frames of the drive
+    (several starts per frame) and stored in its export block; returns (checkpoint, runner, drives)."""
+    from hybrid_calib.config import to_dict
+    from hybrid_calib.hybrid.loop import HybridConfig, open_drives
+    from hybrid_calib.hybrid.network import NetworkRunner
+    from hybrid_calib.hybrid.ood import ood_passes
+    from learned.checkpoint import save_checkpoint, set_export_overrides
+
+    model = tiny_model()
+    d = tmp_path_factory.mktemp("ck")
+    ck = save_checkpoint(d / "ckpt-0001", model, epoch=1, model_config=to_dict(model.cfg),
+                         train_config={"perturbation": "R1", "depth": "corrupted-truth"})
+    frames, drives = open_drives(sim_root, "v1.0-sim", HybridConfig(), lidar=False)
+    runner = NetworkRunner(ck, frames, cache_dir=d / "cache", threads=1)
+    assert runner.ood is None and "unavailable" in runner.ood_note
+    recs = [r for v in drives.values() for s in range(4) for r in ood_passes(runner, v.indices, v.base, "R1", s,
+                                                                             v.vehicle)]
+    feats = {k: np.stack([r[k] for r in recs]) for k in ("descriptor", "signals")}
+    set_export_overrides(ck, {"ood": fit_ood(feats, "all", k=8, quantile=1.0).to_dict()}, "fitted by the test")
+    return ck, NetworkRunner(ck, frames, cache_dir=d / "cache", threads=1), drives
+
+
+def test_score_flags_a_pure_noise_frame_and_passes_a_clean_simulated_frame(fitted):
+    from hybrid_calib.hybrid.ood import ood_passes
+
+    _, runner, drives = fitted
+    v = drives["sim-veh-000"]
+    clean = ood_passes(runner, v.indices, v.base, "R1", 50, v.vehicle)  # new starts on the drive's frames
+    noise = ood_passes(runner, v.indices, v.base, "R1", 50, v.vehicle, corruption="noise-image")
+    assert max(r["score"] for r in clean) < 1.0
+    assert min(r["score"] for r in noise) > 1.0
+
+
+BASE = {"start": "R1", "seed": 4, "threads": 1, "progress": False, "window": {"detect_steps": False}}
+
+
+@pytest.mark.parametrize("method", ["pure", "pure-avg", "hybrid"])
+def test_too_few_in_domain_frames_make_the_vehicle_inconclusive(fitted, sim_root, tmp_path, method):
+    from hybrid_calib.calib.result import CalibrationRun
+    from hybrid_calib.hybrid import run_calibration
+    from hybrid_calib.report.verdict import verdict_of
+
+    ck = fitted[0]
+    conf = {**BASE, "method": method, "checkpoint": str(ck), "vehicles": ("sim-veh-000",)}
+    ok = run_calibration(sim_root, "v1.0-sim", tmp_path / "in", {**conf, "ood": {"min_in_domain_frames": 2}})
+    v = ok.vehicles["sim-veh-000"]
+    assert v.ood["available"] and v.ood["in_domain"] == 3 and not v.final.status.startswith("inconclusive")
+    assert all(r["ood_score"] < 1.0 for r in v.frame_rows)
+    # the same drive judged against a threshold no frame meets: every frame is out of domain
+    run = run_calibration(sim_root, "v1.0-sim", tmp_path / "out", {**conf, "ood": {"threshold": 1e-6}})
+    v = CalibrationRun.load(tmp_path / "out" / "result.json").vehicles["sim-veh-000"]
+    assert v.final.status.startswith("inconclusive: only 0 of 3 frames")
+    assert v.ood["in_domain"] == 0 and v.ood["dropped"] == 0 and len(v.trajectory) == 3  # every frame, none dropped
+    assert v.trajectory[-1].estimate.status == v.final.status == run.vehicles["sim-veh-000"].final.status
+    verdict = verdict_of(v)
+    assert verdict.word == "inconclusive" and "only 0 of 3 frames" in verdict.why
+
+
+def test_out_of_domain_frames_are_dropped_with_the_reason(fitted, sim_root, tmp_path):
+    from hybrid_calib.hybrid import run_vehicle
+
+    ck, runner, _ = fitted
+    conf = {**BASE, "method": "pure", "checkpoint": str(ck), "cache_dir": str(tmp_path / "c")}
+    v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-001", conf)
+    scores = v.ood["scores"]
+    thr = float(np.median(scores))  # half the frames above it: one dropped, two kept (in domain)
+    policy = {"threshold": thr, "min_in_domain_frames": 1, "min_in_domain_fraction": 0.5}
+    v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-001", {**conf, "ood": policy})
+    dropped = [s for s in v.skipped if "ood_score" in s]
+    assert len(dropped) == v.ood["dropped"] == sum(s > thr for s in scores) >= 1
+    assert all("out of domain" in s["reason"] for s in dropped) and len(v.trajectory) == 3 - len(dropped)
+    assert not v.final.status.startswith("inconclusive")
+
+
+def test_checkpoint_without_ood_block_keeps_working_and_says_so(sim_root, tmp_path):
+    from hybrid_calib.config import to_dict
+    from hybrid_calib.hybrid import run_vehicle
+    from learned.checkpoint import save_checkpoint
+
+    model = tiny_model()
+    ck = save_checkpoint(tmp_path / "ckpt-0001", model, epoch=1, model_config=to_dict(model.cfg),
+                         train_config={"perturbation": "R1", "depth": "corrupted-truth"})
+    v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", {**BASE, "method": "pure", "max_frames": 2,
+                                                          "checkpoint": str(ck)})
+    assert not v.ood["available"] and "unavailable" in v.ood["note"] and "no export.ood" in v.ood["note"]
+    assert v.ood["dropped"] == 0 and len(v.trajectory) == 2 and not v.final.status.startswith("inconclusive")
+    assert all(r["ood_score"] is None for r in v.frame_rows)
+
+
+def test_malformed_ood_block_in_a_checkpoint_stops_with_the_file_named(fitted, sim_root, tmp_path, capsys):
+    import shutil
+
+    from hybrid_calib.cli import main
+    from learned.checkpoint import set_export_overrides
+
+    ck = fitted[0]
+    bad = tmp_path / "ckpt-0001.json"
+    shutil.copy(ck, bad)
+    shutil.copy(ck.with_suffix(".safetensors"), tmp_path / "ckpt-0001.safetensors")
+    set_export_overrides(bad, {"ood": {"features": "all", "mean": "x"}})
+    rc = main(["calibrate", "--data", str(sim_root), "--version", "v1.0-sim", "--method", "pure", "--checkpoint",
+               str(bad), "--start", "R1", "--out", str(tmp_path / "o"), "--set", "threads=1", "max_frames=1"])
+    err = capsys.readouterr().err
+    assert rc != 0 and str(bad) in err and "export.ood" in err and "Traceback" not in err
