@@ -212,3 +212,22 @@ def test_cascade_runs_the_refining_network_from_the_coarse_estimate(sim_root, tm
     v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", {**BASE, "method": "hybrid", "max_frames": 2,
                                                           "refine": str(r1)})
     assert "->" in v.checkpoint and len(v.trajectory) == 2
+
+
+def test_a_checkpoint_without_its_fitted_models_is_never_trusted(sim_root, tmp_path):
+    import json
+    import shutil
+
+    from hybrid_calib.hybrid import run_vehicle
+    from hybrid_calib.hybrid.network import shipped_checkpoint
+
+    src = shipped_checkpoint("R1")
+    meta = json.loads(src.read_text())
+    meta["export"].pop("hybrid")  # e.g. a fine-tuned network whose measurement model was never refitted
+    (tmp_path / src.name).write_text(json.dumps(meta))
+    shutil.copy(src.with_suffix(".safetensors"), tmp_path / src.with_suffix(".safetensors").name)
+    conf = {**BASE, "max_frames": 2, "checkpoint": str(tmp_path / src.name)}
+    v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", {**conf, "method": "pure-avg"})
+    assert v.final.status.startswith("inconclusive:") and "export.hybrid" in v.final.status
+    v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", {**conf, "method": "pure"})  # needs cov_scale only
+    assert not v.final.status.startswith("inconclusive"), v.final.status

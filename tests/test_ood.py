@@ -98,7 +98,10 @@ def fitted(sim_root, tmp_path_factory):
     recs = [r for v in drives.values() for s in range(4) for r in ood_passes(runner, v.indices, v.base, "R1", s,
                                                                              v.vehicle)]
     feats = {k: np.stack([r[k] for r in recs]) for k in ("descriptor", "signals")}
-    set_export_overrides(ck, {"ood": fit_ood(feats, "all", k=8, quantile=1.0).to_dict()}, "fitted by the test")
+    set_export_overrides(ck, {"ood": fit_ood(feats, "all", k=8, quantile=1.0).to_dict(),
+                              # stand-ins for the fitted covariance and measurement models (without them a
+                              # learned result is inconclusive for that reason: test_hybrid)
+                              "cov_scale": [1.0] * 6, "hybrid": {"rows": "none"}}, "fitted by the test")
     return ck, NetworkRunner(ck, frames, cache_dir=d / "cache", threads=1), drives
 
 
@@ -157,11 +160,12 @@ def test_out_of_domain_frames_are_dropped_with_the_reason(fitted, sim_root, tmp_
 def test_checkpoint_without_ood_block_keeps_working_and_says_so(sim_root, tmp_path):
     from hybrid_calib.config import to_dict
     from hybrid_calib.hybrid import run_vehicle
-    from learned.checkpoint import save_checkpoint
+    from learned.checkpoint import save_checkpoint, set_export_overrides
 
     model = tiny_model()
     ck = save_checkpoint(tmp_path / "ckpt-0001", model, epoch=1, model_config=to_dict(model.cfg),
                          train_config={"perturbation": "R1", "depth": "corrupted-truth"})
+    set_export_overrides(ck, {"cov_scale": [1.0] * 6}, "a stand-in for the fitted covariance scale")
     v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", {**BASE, "method": "pure", "max_frames": 2,
                                                           "checkpoint": str(ck)})
     assert not v.ood["available"] and "unavailable" in v.ood["note"] and "no export.ood" in v.ood["note"]

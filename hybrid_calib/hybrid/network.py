@@ -245,6 +245,10 @@ class CascadeRunner:
         self.cache = OutputCache(cache_dir) if cache_dir else None
         self.ckpt, self.range = refine.ckpt, coarse.range
         self.depth_name = coarse.depth_name
+        self.ood, self.ood_note = refine.ood, refine.ood_note  # the features are the refining pass's
+
+    def ood_score(self, out: NetworkOutput) -> float:
+        return self.refine.ood_score(out)
 
     @property
     def checkpoint(self) -> str:
