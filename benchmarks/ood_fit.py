@@ -127,11 +127,16 @@ def main(argv=None) -> int:
             return NetworkRunner(a.checkpoint, frames, depth, a.out / "cache" / tag, a.out / "depth" / tag, a.threads)
         return make
 
-    fit = _records(runner_of(""), a.data, a.version, a.fit_seeds)
+    from hybrid_calib.hybrid.loop import LIDAR_DEPTH, trained_depth
+
+    lidar = trained_depth(a.checkpoint) == LIDAR_DEPTH  # its own depth path reads the LiDAR
+    fit = _records(runner_of(""), a.data, a.version, a.fit_seeds, lidar=lidar)
+    if not fit:
+        raise SystemExit(f"no usable frame in {a.data} for {a.checkpoint}: see the skipped frames above")
     feats = {k: np.stack([r[k] for r in fit]) for k in ("descriptor", "signals")}
-    held = {"clean": _records(runner_of(""), a.heldout, a.version, [100])}
+    held = {"clean": _records(runner_of(""), a.heldout, a.version, [100], lidar=lidar)}
     for c in CORRUPTIONS:
-        held[c] = _records(runner_of(""), a.heldout, a.version, [100], corruption=c)
+        held[c] = _records(runner_of(""), a.heldout, a.version, [100], corruption=c, lidar=lidar)
     if a.real is not None:
         held["real"] = _records(runner_of(a.real_depth), [a.real], a.real_version, a.real_seeds, lidar=True)
 
