@@ -2,6 +2,7 @@
 
 import dataclasses
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -95,19 +96,27 @@ def test_process_and_ray_engines_give_the_local_results(local_run, fleet_root, t
         assert _results(out) == ref, f"{engine} results differ from local"
 
 
-def test_kill_the_driver_then_rerun_gives_the_uninterrupted_results(local_run, fleet_root, tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT], ids=["SIGKILL", "SIGINT"])
+def test_kill_the_driver_then_rerun_gives_the_uninterrupted_results(local_run, fleet_root, tmp_path, sig):
+    """The CLI killed (SIGKILL) or interrupted (SIGINT: exit 130, "interrupted") after its first result;
+    the rerun loses nothing, recomputes nothing and gives the uninterrupted results."""
     out = tmp_path / "killed"
     cmd = [sys.executable, "-m", "hybrid_calib.cli", "fleet", "--data", str(fleet_root), "--out", str(out),
-           "--seed", "1", "--set", "window.window=3", "--no-plots"]
-    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    deadline = time.time() + 120
-    while time.time() < deadline and proc.poll() is None:
-        if len(list((out / "vehicles").glob("*/result.json"))) >= 1:
-            break
-        time.sleep(0.05)
-    assert proc.poll() is None, "the run ended before it could be killed"
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
+           "--seed", "1", "--set", "window.window=3", "--no-plots", "--no-report"]
+    with open(tmp_path / "stderr", "w") as err:
+        proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=err)
+        deadline = time.time() + 120
+        while time.time() < deadline and proc.poll() is None:
+            if len(list((out / "vehicles").glob("*/result.json"))) >= 1:
+                break
+            time.sleep(0.05)
+        assert proc.poll() is None, "the run ended before it could be killed"
+        proc.send_signal(sig)
+        rc = proc.wait(timeout=60)
+    if sig == signal.SIGINT:
+        assert rc == 130 and "hybrid-calib fleet: interrupted" in (tmp_path / "stderr").read_text()
+    else:
+        assert rc == -signal.SIGKILL
     before = {p.parent.name: p.stat().st_mtime_ns for p in (out / "vehicles").glob("*/result.json")}
     assert 1 <= len(before) < 3
     s = run_fleet([str(fleet_root)], None, "v1.0-sim", "oracle", out, seed=1, calib={"window": {"window": 3}},
@@ -117,6 +126,88 @@ def test_kill_the_driver_then_rerun_gives_the_uninterrupted_results(local_run, f
     after = {p.parent.name: p.stat().st_mtime_ns for p in (out / "vehicles").glob("*/result.json")}
     assert all(after[k] == v for k, v in before.items())  # nothing computed twice
     assert sorted(json.loads((out / "manifest.json").read_text())["jobs"]) == sorted(after) + [BAD]
+
+
+def test_a_killed_pool_worker_is_replaced_and_its_jobs_rerun(local_run, fleet_root, tmp_path):
+    """``process``: one pool worker SIGKILLed at the first outcome (the other jobs are still in
+    flight): the pool is rebuilt, the lost jobs are handed out again (``attempts`` 2), same results."""
+    import multiprocessing
+
+    killed = []
+
+    def kill_a_worker(entry, counts):
+        if not killed:
+            workers = multiprocessing.active_children()  # the pool's spawned workers
+            assert workers, "no pool worker to kill"
+            killed.append(workers[0].pid)
+            os.kill(workers[0].pid, signal.SIGKILL)
+
+    s = run_fleet([str(fleet_root)], None, "v1.0-sim", "oracle", tmp_path, seed=1, calib={"window": {"window": 3}},
+                  options=FleetOptions(engine="process", workers=2, plots=False), on_outcome=kill_a_worker)
+    assert killed and s["counts"]["done"] == 3 and s["counts"]["failed"] == 1
+    attempts = {k: e["attempts"] for k, e in json.loads((tmp_path / "manifest.json").read_text())["jobs"].items()}
+    assert sorted(attempts.values())[0] == 1 and max(attempts.values()) == 2, attempts  # the lost jobs: 2
+    assert s["vehicles"][BAD]["reason"].startswith("DataError")  # still its own failure, not a system one
+    assert _results(tmp_path) == _results(local_run[0])
+
+
+def _ray_workers_busy(psutil) -> list:
+    """This process's Ray workers running a fleet job (Ray titles a busy worker ``ray::<task>``)."""
+    busy = []
+    for p in psutil.Process().children(recursive=True):
+        try:
+            if " ".join(p.cmdline()).startswith("ray::_remote_job"):
+                busy.append(p)
+        except psutil.Error:
+            pass
+    return busy
+
+
+def test_a_killed_ray_worker_is_retried_by_ray(local_run, fleet_root, tmp_path, ray_session):
+    """``ray``: the first worker seen running a job is SIGKILLed; Ray reruns the task (``max_retries``,
+    a system failure) and the fleet ends with the uninterrupted results; the corrupt vehicle's
+    ``DataError`` is its outcome (no retry)."""
+    import threading
+
+    import psutil
+
+    killed, stop = [], threading.Event()
+
+    def killer():
+        while not stop.is_set() and not killed:
+            for p in _ray_workers_busy(psutil)[:1]:
+                p.kill()
+                killed.append(p.pid)
+            time.sleep(0.02)
+
+    t = threading.Thread(target=killer, daemon=True)
+    t.start()
+    try:
+        s = run_fleet([str(fleet_root)], None, "v1.0-sim", "oracle", tmp_path, seed=1,
+                      calib={"window": {"window": 3}}, options=FleetOptions(engine="ray", workers=2, plots=False))
+    finally:
+        stop.set()
+        t.join()
+    assert killed, "no Ray worker was seen running a job"
+    assert s["counts"]["done"] == 3 and s["counts"]["failed"] == 1
+    assert s["vehicles"][BAD]["reason"].startswith("DataError")
+    assert _results(tmp_path) == _results(local_run[0])
+
+
+def test_ray_engine_joins_a_running_cluster(local_run, fleet_root, tmp_path, ray_session):
+    """``--engine ray --address ADDR``: the CLI, in its own process, joins the running cluster (the
+    tests' Ray session, a head node of 2 CPUs), starts no Ray of its own and gives the local results."""
+    address = ray_session.get_runtime_context().gcs_address
+    out = tmp_path / "joined"
+    r = subprocess.run([sys.executable, "-m", "hybrid_calib.cli", "fleet", "--data", str(fleet_root), "--out",
+                        str(out), "--seed", "1", "--set", "window.window=3", "--no-plots", "--no-report",
+                        "--engine", "ray", "--address", address, "--workers", "2"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 1, r.stderr[-2000:]  # 1: the corrupt vehicle failed
+    assert "3 done, 1 failed" in r.stdout and f"failed {BAD}: DataError" in r.stdout
+    assert not (out / "ray").exists()  # no local cluster was started
+    assert _results(out) == _results(local_run[0])
+    assert ray_session.is_initialized()  # the driver that left did not stop the cluster
 
 
 def test_manifest_resume_rules(local_run, tmp_path):
