@@ -215,19 +215,26 @@ def test_manifest_resume_rules(local_run, tmp_path):
     doc = json.loads((out / "manifest.json").read_text())
     jobs = [Job.from_dict(e["job"]) for e in doc["jobs"].values()]
     doc["jobs"]["sim-veh-000"]["state"] = "running"  # the driver died after the job wrote its result
-    doc["jobs"]["sim-veh-001"]["state"] = "running"
-    doc["jobs"]["sim-veh-002"]["state"] = "done"
+    doc["jobs"]["sim-veh-001"]["state"] = "done"  # ... but its result file is gone
+    doc["jobs"]["sim-veh-002"]["state"] = "pending"  # the manifest was not saved after the result
     moved = tmp_path / "m"
     moved.mkdir()
     (moved / "manifest.json").write_text(json.dumps(doc))
     jobs = [Job.from_dict({**j.to_dict(), "out": str(moved / "vehicles" / j.id)}) for j in jobs]
-    (moved / "vehicles" / "sim-veh-000").mkdir(parents=True)
-    (moved / "vehicles" / "sim-veh-000" / "result.json").write_bytes((out / "vehicles" / "sim-veh-000" /
-                                                                     "result.json").read_bytes())
+    for v in ("sim-veh-000", "sim-veh-002"):
+        (moved / "vehicles" / v).mkdir(parents=True)
+        (moved / "vehicles" / v / "result.json").write_bytes((out / "vehicles" / v / "result.json").read_bytes())
     m = Manifest.open(moved / "manifest.json", jobs, "oracle", 1)
     states = {k: e["state"] for k, e in m.jobs.items()}
-    assert states == {"sim-veh-000": "done", "sim-veh-001": "pending", "sim-veh-002": "pending", BAD: "failed"}
-    assert [j.id for j in m.todo()] == ["sim-veh-001", "sim-veh-002", BAD]
+    assert states == {"sim-veh-000": "done", "sim-veh-001": "pending", "sim-veh-002": "done", BAD: "failed"}
+    assert [j.id for j in m.todo()] == ["sim-veh-001", BAD]
+    assert json.loads((moved / "manifest.json").read_text())["jobs"] == m.jobs  # one job per line, valid JSON
+    # bookkeeping is saved at most every save_every_s; flush writes the rest
+    m.save_every_s = 3600.0
+    m.mark_running(["sim-veh-001"], "h")
+    assert json.loads((moved / "manifest.json").read_text())["jobs"]["sim-veh-001"]["state"] == "pending"
+    m.flush()
+    assert json.loads((moved / "manifest.json").read_text())["jobs"]["sim-veh-001"]["state"] == "running"
     with pytest.raises(HybridCalibError, match="seed 1"):
         Manifest.open(moved / "manifest.json", jobs, "oracle", 2)
 

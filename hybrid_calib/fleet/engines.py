@@ -5,8 +5,9 @@
 handed to workers and ``on_outcome(outcome)`` (``jobs.run_job``'s dict) as each one ends, in the
 driver process. A job's own failure (``HybridCalibError``: corrupt data, ...) is an outcome, never
 retried here; a system failure (a worker killed, an ``OSError``) is retried up to ``retries`` times,
-then recorded as ``failed`` with its reason. At most ``in_flight`` jobs (default 2 x workers) are
-handed out at once, so a fleet of thousands never queues thousands of tasks.
+then recorded as ``failed`` with its reason. At most ``in_flight`` jobs (default 2 x workers; on a
+joined Ray cluster at least 2 x its CPUs / threads) are handed out at once, so a fleet of thousands
+never queues thousands of tasks, and a worker that finishes finds its next job already queued.
 
 - ``local``: in this process, one after another (debugging; same code path in the job).
 - ``process``: ``concurrent.futures.ProcessPoolExecutor`` with the spawn context (no forked GTSAM /
@@ -221,6 +222,8 @@ def _run_ray(jobs, on_start, on_outcome, workers, address, temp_dir, retries, in
     with _worker_env(jobs[0].threads):  # a local Ray's raylet and workers inherit it
         started = start_ray(workers * jobs[0].threads, address, temp_dir, object_store_mb)  # CPUs: workers x threads
     import ray  # after start_ray: it sets Ray's environment first
+    if address:  # a joined cluster is sized by its nodes, not by --workers: keep every CPU fed
+        in_flight = max(in_flight, 2 * int(ray.cluster_resources().get("CPU", 0)) // jobs[0].threads)
     try:
         task = ray.remote(num_cpus=jobs[0].threads, max_retries=retries, retry_exceptions=[OSError])(_remote_job)
         queue = list(jobs)
