@@ -204,8 +204,8 @@ def throughput(roots: list[Path], out: Path, repeat: int = 1, max_workers: int =
         for e in ("process", "ray"):
             for w in ws[1:]:
                 rnd[f"{e}_speedup_{w}"] = rnd[f"{e}1"]["wall_s"] / rnd[f"{e}{w}"]["wall_s"]
-        print(f"round {r + 1}: speed-up: " + ", ".join(f"{k[:-8]} x{k.split('_')[-1]} {v:.2f}" for k, v in rnd.items()
-                                                       if "_speedup_" in k), flush=True)
+        print(f"round {r + 1}: speed-up: " + ", ".join(f"{k.split('_')[0]} x{k.split('_')[-1]} {v:.2f}"
+                                                       for k, v in rnd.items() if "_speedup_" in k), flush=True)
         rec["rounds"].append(rnd)
     return rec
 

@@ -14,14 +14,16 @@ never queues thousands of tasks, and a worker that finishes finds its next job a
   torch state), torch / BLAS threads set in each worker; a pool broken by a killed worker is rebuilt
   and every job that was on it is handed out again (its ``attempts`` counts each hand-out).
 - ``ray``: ``ray.init(address=...)`` joins a running cluster (every node needs this package
-  installed); without an address a local cluster of ``workers`` CPUs starts with its object store
-  capped (``object_store_mb``) and its temp files under ``temp_dir`` (``RAY_TMPDIR`` too). Tasks are
+  installed, and the roots and ``OUT`` at the same paths, i.e. a shared file system: a job reads its
+  root and writes ``OUT/vehicles/<id>``, the driver reads the result files); without an address a
+  local cluster of ``workers`` CPUs starts with its object store capped (``object_store_mb``) and its
+  temp files under ``temp_dir`` (``RAY_TMPDIR`` too). Tasks are
   ``_remote_job`` (``run_job`` after ``_init_worker``) with ``num_cpus`` = the job's threads,
   ``max_retries=retries`` (Ray reruns a task whose worker or node died) and
   ``retry_exceptions=[OSError]`` (transient I/O); a ``DataError`` is an outcome, never an exception,
   so it is not retried. Ray reuses its worker processes, so a worker imports the calibration stack
   once, at its first job. No ``runtime_env``: one would make Ray start fresh workers for the job
-  instead of the ones it prestarted (measured: the first jobs started 3 s later, docs/benchmarks.md).
+  instead of the ones it prestarted (measured under load: the first jobs started 3.1 s later).
 
 Workers get their thread variables (``OMP_NUM_THREADS``, ``OPENBLAS_NUM_THREADS``, ...) and
 ``TQDM_DISABLE`` from the environment they are started with (``_worker_env``): numpy's OpenBLAS reads
