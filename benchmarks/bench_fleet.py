@@ -176,11 +176,10 @@ def throughput(roots: list[Path], out: Path, repeat: int = 1, max_workers: int =
             shutil.rmtree(d, ignore_errors=True)
             init_s = daemons = None
             if engine == "ray":
-                import ray
-
                 t0 = time.perf_counter()
-                start_ray(workers, None, out / f"rt{workers}", 200)
+                start_ray(workers, None, out / f"rt{workers}", 200)  # before importing ray: its token file
                 init_s = time.perf_counter() - t0
+                import ray
                 daemons = ray_daemon_cpu_s()
             load = os.getloadavg()[0]
             s, wall = fleet(roots, d, engine, workers)
