@@ -104,7 +104,8 @@ def test_kill_the_driver_then_rerun_gives_the_uninterrupted_results(local_run, f
     cmd = [sys.executable, "-m", "hybrid_calib.cli", "fleet", "--data", str(fleet_root), "--out", str(out),
            "--seed", "1", "--set", "window.window=3", "--no-plots", "--no-report"]
     with open(tmp_path / "stderr", "w") as err:
-        proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=err)
+        proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=err,  # SIGINT acted on even when
+                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # pytest ignores it
         deadline = time.time() + 120
         while time.time() < deadline and proc.poll() is None:
             if len(list((out / "vehicles").glob("*/result.json"))) >= 1:
@@ -205,6 +206,7 @@ def test_ray_engine_joins_a_running_cluster(local_run, fleet_root, tmp_path, ray
                        cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert r.returncode == 1, r.stderr[-2000:]  # 1: the corrupt vehicle failed
     assert "3 done, 1 failed" in r.stdout and f"failed {BAD}: DataError" in r.stdout
+    assert "sim-veh-000: done in" in r.stdout and f"{BAD}: failed in" in r.stdout  # a line per finished vehicle
     assert not (out / "ray").exists()  # no local cluster was started
     assert _results(out) == _results(local_run[0])
     assert ray_session.is_initialized()  # the driver that left did not stop the cluster
@@ -237,6 +239,27 @@ def test_manifest_resume_rules(local_run, tmp_path):
     assert json.loads((moved / "manifest.json").read_text())["jobs"]["sim-veh-001"]["state"] == "running"
     with pytest.raises(HybridCalibError, match="seed 1"):
         Manifest.open(moved / "manifest.json", jobs, "oracle", 2)
+
+
+def test_a_degenerate_drive_is_a_result_not_a_failure(local_run, fleet_root, tmp_path):
+    """A vehicle whose estimate came out ``degenerate`` (its status, as ``calib.covariance`` writes it) is
+    ``done`` with a ``degenerate`` flag and counted, not ``failed``; the rerun computes nothing again."""
+    import shutil
+
+    shutil.copytree(local_run[0] / "vehicles", tmp_path / "vehicles")
+    shutil.copy(local_run[0] / "manifest.json", tmp_path / "manifest.json")
+    f = tmp_path / "vehicles" / "sim-veh-000" / "result.json"
+    doc = json.loads(f.read_text())
+    doc["vehicles"]["sim-veh-000"]["final"]["status"] = "degenerate: information matrix is singular"
+    f.write_text(json.dumps(doc))
+    mtime = f.stat().st_mtime_ns
+    s = run_fleet([str(fleet_root)], None, "v1.0-sim", "oracle", tmp_path, seed=1, calib={"window": {"window": 3}},
+                  options=FleetOptions(plots=False))
+    r = s["vehicles"]["sim-veh-000"]
+    assert r["state"] == "done" and "degenerate" in r["flags"] and r["status"].startswith("degenerate")
+    assert s["counts"]["degenerate"] == 1 and s["counts"]["done"] == 3 and s["counts"]["failed"] == 1
+    assert f.stat().st_mtime_ns == mtime
+    assert "| sim-veh-000 | done | degenerate |" in (tmp_path / "summary.md").read_text()
 
 
 def test_network_method_job_matches_the_hybrid_entry_point(fleet_root, tmp_path):
