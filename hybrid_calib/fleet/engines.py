@@ -23,7 +23,7 @@ never queues thousands of tasks, and a worker that finishes finds its next job a
   ``retry_exceptions=[OSError]`` (transient I/O); a ``DataError`` is an outcome, never an exception,
   so it is not retried. Ray reuses its worker processes, so a worker imports the calibration stack
   once, at its first job. No ``runtime_env``: one would make Ray start fresh workers for the job
-  instead of the ones it prestarted (measured under load: the first jobs started 3.1 s later).
+  instead of the ones it prestarted (the first jobs started 3-5 s later: ``benchmarks/bench_ray_start.py``).
 
 Workers get their thread variables (``OMP_NUM_THREADS``, ``OPENBLAS_NUM_THREADS``, ...) and
 ``TQDM_DISABLE`` from the environment they are started with (``_worker_env``): numpy's OpenBLAS reads

@@ -95,9 +95,9 @@ class Manifest:
 
     def save(self) -> Path:
         """Write the file now (atomic; one job per line, module doc)."""
+        t0 = time.monotonic()
         head = json.dumps({"schema": SCHEMA, "method": self.method, "seed": self.seed})[:-1]
         rows = ",\n".join(f"{json.dumps(k)}: {json.dumps(e)}" for k, e in sorted(self.jobs.items()))
-        t0 = time.monotonic()
         save_text_atomic(self.path, f"{head}, \"jobs\": {{\n{rows}\n}}}}\n")
         self._next_save = time.monotonic() + max(self.save_every_s, 4 * (time.monotonic() - t0))
         self._dirty = False
