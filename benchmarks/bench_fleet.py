@@ -18,8 +18,9 @@ One command (everything under ``--out``; simulated roots are reused when present
    leave-one-out prior, none for a named outlier); per-axis RMS error, median reported std and
    NEES (chi2(6): mean 6, 95 % below 12.59) before and after, over the inlier vehicles with truth.
 4. Throughput: the urban and highway roots (about ``--fleet`` / 2 vehicles): local; process 1 and 2 workers;
-   ray 1 and 2 workers (Ray's start-up timed apart). Speed-up = wall(1) / wall(2); Ray's overhead per
-   vehicle = (ray wall - sum of the jobs' own wall times / workers) / vehicles. The 1-minute load
+   ray 1 and 2 workers (Ray's start-up timed apart), ``--repeat`` rounds. Speed-up = wall(1) / wall(2);
+   overhead per vehicle = (wall - sum of the jobs' own wall times / workers) / vehicles; Ray's daemons'
+   (raylet, GCS, agents) CPU seconds during the run are recorded apart. The 1-minute load
    average before each run and the jobs' own CPU seconds are recorded: on a shared machine they
    decide the figures (cpu_share = job CPU seconds / (wall x workers): 1 = every worker had a core).
 """
@@ -147,38 +148,64 @@ def gain(before: dict, after: dict, outliers: list) -> dict:
     return out
 
 
-def throughput(roots: list[Path], out: Path) -> dict:
+def ray_daemon_cpu_s() -> float:
+    """CPU seconds so far of this process's Ray daemons (raylet, GCS server, agents): its children
+    that are not workers (a worker's title starts ``ray::``)."""
+    import psutil
+
+    total = 0.0
+    for p in psutil.Process().children(recursive=True):
+        try:
+            if not " ".join(p.cmdline()).startswith("ray::"):
+                t = p.cpu_times()
+                total += t.user + t.system
+        except psutil.Error:
+            pass
+    return total
+
+
+def throughput(roots: list[Path], out: Path, repeat: int = 1, max_workers: int = 2) -> dict:
     from hybrid_calib.fleet.engines import start_ray
 
-    rec = {}
-    for engine, workers in (("local", 1), ("process", 1), ("process", 2), ("ray", 1), ("ray", 2)):
-        d = out / f"{engine}{workers}"
-        shutil.rmtree(d, ignore_errors=True)
-        init_s = None
-        if engine == "ray":
-            import ray
-
-            t0 = time.perf_counter()
-            start_ray(workers, None, out / f"rt{workers}", 200)
-            init_s = time.perf_counter() - t0
-        load = os.getloadavg()[0]
-        s, wall = fleet(roots, d, engine, workers)
-        if engine == "ray":
-            ray.shutdown()
-        m = json.loads((d / "manifest.json").read_text())
-        job_s = sum(e["wall_s"] for e in m["jobs"].values())
-        cpu_s = sum(e.get("cpu_s") or 0 for e in m["jobs"].values())
-        n = len(m["jobs"])
-        rec[f"{engine}{workers}"] = {"engine": engine, "workers": workers, "vehicles": n, "wall_s": wall,
-                                     "ray_init_s": init_s, "sum_job_s": job_s, "sum_job_cpu_s": cpu_s,
-                                     "cpu_share": cpu_s / (wall * workers),
-                                     "overhead_per_vehicle_s": (wall - job_s / workers) / n,
-                                     "vehicles_per_min": 60 * n / wall, "done": s["counts"]["done"],
-                                     "load_avg_1min_before": load}
-        print(f"throughput {engine} x{workers}: {wall:.1f} s for {n} vehicles (jobs {job_s:.1f} s, CPU {cpu_s:.1f} s)"
-              + (f", ray init {init_s:.1f} s" if init_s else "") + f"; load average before {load:.1f}", flush=True)
-    for e in ("process", "ray"):
-        rec[f"{e}_speedup_2"] = rec[f"{e}1"]["wall_s"] / rec[f"{e}2"]["wall_s"]
+    ws = [w for w in (1, 2, 4, 8, 16, 32) if w <= max_workers]
+    rec = {"rounds": []}
+    for r in range(repeat):
+        rnd = {}
+        for engine, workers in [("local", 1)] + [(e, w) for e in ("process", "ray") for w in ws]:
+            d = out / f"{engine}{workers}"
+            shutil.rmtree(d, ignore_errors=True)
+            init_s = daemons = None
+            if engine == "ray":
+                t0 = time.perf_counter()
+                start_ray(workers, None, out / f"rt{workers}", 200)  # before importing ray: its token file
+                init_s = time.perf_counter() - t0
+                import ray
+                daemons = ray_daemon_cpu_s()
+            load = os.getloadavg()[0]
+            s, wall = fleet(roots, d, engine, workers)
+            if engine == "ray":
+                daemons = ray_daemon_cpu_s() - daemons
+                ray.shutdown()
+            m = json.loads((d / "manifest.json").read_text())
+            job_s = sum(e["wall_s"] for e in m["jobs"].values())
+            cpu_s = sum(e.get("cpu_s") or 0 for e in m["jobs"].values())
+            n = len(m["jobs"])
+            rnd[f"{engine}{workers}"] = {"engine": engine, "workers": workers, "vehicles": n, "wall_s": wall,
+                                         "ray_init_s": init_s, "sum_job_s": job_s, "sum_job_cpu_s": cpu_s,
+                                         "cpu_share": cpu_s / (wall * workers),
+                                         "overhead_per_vehicle_s": (wall - job_s / workers) / n,
+                                         "ray_daemon_cpu_s": daemons, "vehicles_per_min": 60 * n / wall,
+                                         "done": s["counts"]["done"], "load_avg_1min_before": load,
+                                         "load_avg_1min_after": os.getloadavg()[0]}
+            print(f"round {r + 1}: {engine} x{workers}: {wall:.1f} s for {n} vehicles (jobs {job_s:.1f} s, CPU "
+                  f"{cpu_s:.1f} s)" + (f", ray init {init_s:.1f} s, Ray daemons {daemons:.2f} CPU s" if init_s else "")
+                  + f"; load average before {load:.1f}", flush=True)
+        for e in ("process", "ray"):
+            for w in ws[1:]:
+                rnd[f"{e}_speedup_{w}"] = rnd[f"{e}1"]["wall_s"] / rnd[f"{e}{w}"]["wall_s"]
+        print(f"round {r + 1}: speed-up: " + ", ".join(f"{k.split('_')[0]} x{k.split('_')[-1]} {v:.2f}"
+                                                       for k, v in rnd.items() if "_speedup_" in k), flush=True)
+        rec["rounds"].append(rnd)
     return rec
 
 
@@ -189,6 +216,9 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=10, help="keyframes per vehicle (default: 10)")
     ap.add_argument("--knock-deg", type=float, default=3.0, help="knocked radar: deg about radar y and z (x: 1/3)")
     ap.add_argument("--kill-after", type=int, default=6, help="SIGKILL the driver after this many results")
+    ap.add_argument("--repeat", type=int, default=1, help="rounds of the throughput part (default: 1)")
+    ap.add_argument("--max-workers", type=int, default=2,
+                    help="throughput: 1, 2, 4, ... workers up to this (default: 2)")
     ap.add_argument("--parts", nargs="+", default=list(PARTS), choices=PARTS,
                     help="what to run (default: all; without 'reference' the reference run is resumed)")
     a = ap.parse_args()
@@ -200,13 +230,14 @@ def main() -> None:
     ref_out = a.out / "reference"
     if "reference" in a.parts:
         shutil.rmtree(ref_out, ignore_errors=True)
-    s1, wall = fleet(roots, ref_out, "ray", 2, ray_temp=str(a.out / "rt"))  # else: resumed (summary rewritten)
-    ref = results(ref_out)
-    rec["reference"] = {"wall_s": wall, "counts": s1["counts"], "outliers": s1["fleet_prior"]["outliers"],
-                        "failed": {k: v["reason"] for k, v in s1["vehicles"].items() if v["state"] == "failed"},
-                        "flags": {k: v["flags"] for k, v in s1["vehicles"].items() if v["flags"]},
-                        "spread_std_cam": s1["fleet_prior"]["spread_std_cam"]}
-    print(json.dumps(rec["reference"], indent=1), flush=True)
+    if a.parts != ("throughput",):  # the other parts compare with the reference (resumed when present)
+        s1, wall = fleet(roots, ref_out, "ray", 2, ray_temp=str(a.out / "rt"))
+        ref = results(ref_out)
+        rec["reference"] = {"wall_s": wall, "counts": s1["counts"], "outliers": s1["fleet_prior"]["outliers"],
+                            "failed": {k: v["reason"] for k, v in s1["vehicles"].items() if v["state"] == "failed"},
+                            "flags": {k: v["flags"] for k, v in s1["vehicles"].items() if v["flags"]},
+                            "spread_std_cam": s1["fleet_prior"]["spread_std_cam"]}
+        print(json.dumps(rec["reference"], indent=1), flush=True)
     if "kill" in a.parts:
         rec["kill_and_resume"] = kr = kill_and_resume(roots, a.out / "killed", a.kill_after, ref)
         print(json.dumps(kr, indent=1), flush=True)
@@ -221,7 +252,7 @@ def main() -> None:
                                          "with_prior": s2["vehicles"][KNOCKED]["offset_from_design"]}}
         print(json.dumps(rec["prior_pass"], indent=1), flush=True)
     if "throughput" in a.parts:
-        rec["throughput"] = throughput(roots[:2], a.out / "throughput")
+        rec["throughput"] = throughput(roots[:2], a.out / "throughput", a.repeat, a.max_workers)
         print(json.dumps({k: v for k, v in rec["throughput"].items()}, indent=1), flush=True)
     name = "bench_fleet.json" if a.parts == PARTS else f"bench_fleet_{'_'.join(a.parts)}.json"
     (a.out / name).write_text(json.dumps(rec, indent=2))

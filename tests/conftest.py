@@ -22,7 +22,9 @@ def _torch_one_thread():
 def ray_session(tmp_path_factory):
     """ONE local Ray for every test that needs it: 2 CPUs, an 80 MB object store, its temp and token
     files under the test's temp directory (``RAY_TMPDIR``, ``TMPDIR``, ``RAY_AUTH_TOKEN_PATH``); the
-    environment is restored afterwards. Skips when ray is not installed (``pip install -e .[fleet]``)."""
+    environment is restored afterwards. Skips when ray is not installed (``pip install -e .[fleet]``).
+    It is a head node like any other: ``test_fleet`` joins it from a second process (``--address``)
+    and kills one of its workers (Ray starts another)."""
     import importlib.util
     import os
 

@@ -2,6 +2,7 @@
 
 import dataclasses
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -95,19 +96,28 @@ def test_process_and_ray_engines_give_the_local_results(local_run, fleet_root, t
         assert _results(out) == ref, f"{engine} results differ from local"
 
 
-def test_kill_the_driver_then_rerun_gives_the_uninterrupted_results(local_run, fleet_root, tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT], ids=["SIGKILL", "SIGINT"])
+def test_kill_the_driver_then_rerun_gives_the_uninterrupted_results(local_run, fleet_root, tmp_path, sig):
+    """The CLI killed (SIGKILL) or interrupted (SIGINT: exit 130, "interrupted") after its first result;
+    the rerun loses nothing, recomputes nothing and gives the uninterrupted results."""
     out = tmp_path / "killed"
     cmd = [sys.executable, "-m", "hybrid_calib.cli", "fleet", "--data", str(fleet_root), "--out", str(out),
-           "--seed", "1", "--set", "window.window=3", "--no-plots"]
-    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    deadline = time.time() + 120
-    while time.time() < deadline and proc.poll() is None:
-        if len(list((out / "vehicles").glob("*/result.json"))) >= 1:
-            break
-        time.sleep(0.05)
-    assert proc.poll() is None, "the run ended before it could be killed"
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
+           "--seed", "1", "--set", "window.window=3", "--no-plots", "--no-report"]
+    with open(tmp_path / "stderr", "w") as err:
+        proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=err,  # SIGINT acted on even when
+                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # pytest ignores it
+        deadline = time.time() + 120
+        while time.time() < deadline and proc.poll() is None:
+            if len(list((out / "vehicles").glob("*/result.json"))) >= 1:
+                break
+            time.sleep(0.05)
+        assert proc.poll() is None, "the run ended before it could be killed"
+        proc.send_signal(sig)
+        rc = proc.wait(timeout=60)
+    if sig == signal.SIGINT:
+        assert rc == 130 and "hybrid-calib fleet: interrupted" in (tmp_path / "stderr").read_text()
+    else:
+        assert rc == -signal.SIGKILL
     before = {p.parent.name: p.stat().st_mtime_ns for p in (out / "vehicles").glob("*/result.json")}
     assert 1 <= len(before) < 3
     s = run_fleet([str(fleet_root)], None, "v1.0-sim", "oracle", out, seed=1, calib={"window": {"window": 3}},
@@ -119,26 +129,137 @@ def test_kill_the_driver_then_rerun_gives_the_uninterrupted_results(local_run, f
     assert sorted(json.loads((out / "manifest.json").read_text())["jobs"]) == sorted(after) + [BAD]
 
 
+def test_a_killed_pool_worker_is_replaced_and_its_jobs_rerun(local_run, fleet_root, tmp_path):
+    """``process``: one pool worker SIGKILLed at the first outcome (the other jobs are still in
+    flight): the pool is rebuilt, the lost jobs are handed out again (``attempts`` 2), same results."""
+    import multiprocessing
+
+    killed = []
+
+    def kill_a_worker(entry, counts):
+        if not killed:
+            workers = multiprocessing.active_children()  # the pool's spawned workers
+            assert workers, "no pool worker to kill"
+            killed.append(workers[0].pid)
+            os.kill(workers[0].pid, signal.SIGKILL)
+
+    s = run_fleet([str(fleet_root)], None, "v1.0-sim", "oracle", tmp_path, seed=1, calib={"window": {"window": 3}},
+                  options=FleetOptions(engine="process", workers=2, plots=False), on_outcome=kill_a_worker)
+    assert killed and s["counts"]["done"] == 3 and s["counts"]["failed"] == 1
+    attempts = {k: e["attempts"] for k, e in json.loads((tmp_path / "manifest.json").read_text())["jobs"].items()}
+    assert sorted(attempts.values())[0] == 1 and max(attempts.values()) == 2, attempts  # the lost jobs: 2
+    assert s["vehicles"][BAD]["reason"].startswith("DataError")  # still its own failure, not a system one
+    assert _results(tmp_path) == _results(local_run[0])
+
+
+def _ray_workers_busy(psutil) -> list:
+    """This process's Ray workers running a fleet job (Ray titles a busy worker ``ray::<task>``)."""
+    busy = []
+    for p in psutil.Process().children(recursive=True):
+        try:
+            if " ".join(p.cmdline()).startswith("ray::_remote_job"):
+                busy.append(p)
+        except psutil.Error:
+            pass
+    return busy
+
+
+def test_a_killed_ray_worker_is_retried_by_ray(local_run, fleet_root, tmp_path, ray_session):
+    """``ray``: the first worker seen running a job is SIGKILLed; Ray reruns the task (``max_retries``,
+    a system failure) and the fleet ends with the uninterrupted results; the corrupt vehicle's
+    ``DataError`` is its outcome (no retry)."""
+    import threading
+
+    import psutil
+
+    killed, stop = [], threading.Event()
+
+    def killer():
+        while not stop.is_set() and not killed:
+            for p in _ray_workers_busy(psutil)[:1]:
+                p.kill()
+                killed.append(p.pid)
+            time.sleep(0.02)
+
+    t = threading.Thread(target=killer, daemon=True)
+    t.start()
+    try:
+        s = run_fleet([str(fleet_root)], None, "v1.0-sim", "oracle", tmp_path, seed=1,
+                      calib={"window": {"window": 3}}, options=FleetOptions(engine="ray", workers=2, plots=False))
+    finally:
+        stop.set()
+        t.join()
+    assert killed, "no Ray worker was seen running a job"
+    assert s["counts"]["done"] == 3 and s["counts"]["failed"] == 1
+    assert s["vehicles"][BAD]["reason"].startswith("DataError")
+    assert _results(tmp_path) == _results(local_run[0])
+
+
+def test_ray_engine_joins_a_running_cluster(local_run, fleet_root, tmp_path, ray_session):
+    """``--engine ray --address ADDR``: the CLI, in its own process, joins the running cluster (the
+    tests' Ray session, a head node of 2 CPUs), starts no Ray of its own and gives the local results."""
+    address = ray_session.get_runtime_context().gcs_address
+    out = tmp_path / "joined"
+    r = subprocess.run([sys.executable, "-m", "hybrid_calib.cli", "fleet", "--data", str(fleet_root), "--out",
+                        str(out), "--seed", "1", "--set", "window.window=3", "--no-plots", "--no-report",
+                        "--engine", "ray", "--address", address, "--workers", "2"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 1, r.stderr[-2000:]  # 1: the corrupt vehicle failed
+    assert "3 done, 1 failed" in r.stdout and f"failed {BAD}: DataError" in r.stdout
+    assert "sim-veh-000: done in" in r.stdout and f"{BAD}: failed in" in r.stdout  # a line per finished vehicle
+    assert not (out / "ray").exists()  # no local cluster was started
+    assert _results(out) == _results(local_run[0])
+    assert ray_session.is_initialized()  # the driver that left did not stop the cluster
+
+
 def test_manifest_resume_rules(local_run, tmp_path):
     out, _ = local_run
     doc = json.loads((out / "manifest.json").read_text())
     jobs = [Job.from_dict(e["job"]) for e in doc["jobs"].values()]
     doc["jobs"]["sim-veh-000"]["state"] = "running"  # the driver died after the job wrote its result
-    doc["jobs"]["sim-veh-001"]["state"] = "running"
-    doc["jobs"]["sim-veh-002"]["state"] = "done"
+    doc["jobs"]["sim-veh-001"]["state"] = "done"  # ... but its result file is gone
+    doc["jobs"]["sim-veh-002"]["state"] = "pending"  # the manifest was not saved after the result
     moved = tmp_path / "m"
     moved.mkdir()
     (moved / "manifest.json").write_text(json.dumps(doc))
     jobs = [Job.from_dict({**j.to_dict(), "out": str(moved / "vehicles" / j.id)}) for j in jobs]
-    (moved / "vehicles" / "sim-veh-000").mkdir(parents=True)
-    (moved / "vehicles" / "sim-veh-000" / "result.json").write_bytes((out / "vehicles" / "sim-veh-000" /
-                                                                     "result.json").read_bytes())
+    for v in ("sim-veh-000", "sim-veh-002"):
+        (moved / "vehicles" / v).mkdir(parents=True)
+        (moved / "vehicles" / v / "result.json").write_bytes((out / "vehicles" / v / "result.json").read_bytes())
     m = Manifest.open(moved / "manifest.json", jobs, "oracle", 1)
     states = {k: e["state"] for k, e in m.jobs.items()}
-    assert states == {"sim-veh-000": "done", "sim-veh-001": "pending", "sim-veh-002": "pending", BAD: "failed"}
-    assert [j.id for j in m.todo()] == ["sim-veh-001", "sim-veh-002", BAD]
+    assert states == {"sim-veh-000": "done", "sim-veh-001": "pending", "sim-veh-002": "done", BAD: "failed"}
+    assert [j.id for j in m.todo()] == ["sim-veh-001", BAD]
+    assert json.loads((moved / "manifest.json").read_text())["jobs"] == m.jobs  # one job per line, valid JSON
+    # bookkeeping is saved at most every save_every_s; flush writes the rest
+    m.save_every_s = 3600.0
+    m.mark_running(["sim-veh-001"], "h")
+    assert json.loads((moved / "manifest.json").read_text())["jobs"]["sim-veh-001"]["state"] == "pending"
+    m.flush()
+    assert json.loads((moved / "manifest.json").read_text())["jobs"]["sim-veh-001"]["state"] == "running"
     with pytest.raises(HybridCalibError, match="seed 1"):
         Manifest.open(moved / "manifest.json", jobs, "oracle", 2)
+
+
+def test_a_degenerate_drive_is_a_result_not_a_failure(local_run, fleet_root, tmp_path):
+    """A vehicle whose estimate came out ``degenerate`` (its status, as ``calib.covariance`` writes it) is
+    ``done`` with a ``degenerate`` flag and counted, not ``failed``; the rerun computes nothing again."""
+    import shutil
+
+    shutil.copytree(local_run[0] / "vehicles", tmp_path / "vehicles")
+    shutil.copy(local_run[0] / "manifest.json", tmp_path / "manifest.json")
+    f = tmp_path / "vehicles" / "sim-veh-000" / "result.json"
+    doc = json.loads(f.read_text())
+    doc["vehicles"]["sim-veh-000"]["final"]["status"] = "degenerate: information matrix is singular"
+    f.write_text(json.dumps(doc))
+    mtime = f.stat().st_mtime_ns
+    s = run_fleet([str(fleet_root)], None, "v1.0-sim", "oracle", tmp_path, seed=1, calib={"window": {"window": 3}},
+                  options=FleetOptions(plots=False))
+    r = s["vehicles"]["sim-veh-000"]
+    assert r["state"] == "done" and "degenerate" in r["flags"] and r["status"].startswith("degenerate")
+    assert s["counts"]["degenerate"] == 1 and s["counts"]["done"] == 3 and s["counts"]["failed"] == 1
+    assert f.stat().st_mtime_ns == mtime
+    assert "| sim-veh-000 | done | degenerate |" in (tmp_path / "summary.md").read_text()
 
 
 def test_network_method_job_matches_the_hybrid_entry_point(fleet_root, tmp_path):

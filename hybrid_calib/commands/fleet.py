@@ -20,8 +20,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="per-vehicle method (default: oracle; the network methods come with the hybrid package)")
     p.add_argument("--checkpoint", type=Path, help="network checkpoint (network methods)")
     p.add_argument("--engine", default="local", choices=("local", "process", "ray"), help="default: local")
-    p.add_argument("--address", help="Ray cluster address to join (default: start a local Ray of --workers CPUs)")
-    p.add_argument("--workers", type=positive_int, default=1, help="parallel jobs (default: 1)")
+    p.add_argument("--address", help="Ray cluster to join, e.g. HEAD:6379 (every node: this package, and the roots "
+                                     "and --out on a shared file system at the same paths; default: start a local "
+                                     "Ray of --workers CPUs)")
+    p.add_argument("--workers", type=positive_int, default=1,
+                   help="parallel jobs (default: 1; with --address: at least the cluster's CPUs / --threads)")
     p.add_argument("--threads", type=positive_int, default=1, help="torch / BLAS threads per worker (default: 1)")
     p.add_argument("--ray-temp", type=Path, help="temp dir of a local Ray (default: OUT/ray; keep it short)")
     p.add_argument("--retries", type=nonnegative_int, default=2, help="retries of a system failure (default: 2)")

@@ -53,6 +53,9 @@ def run_fleet(roots: list[str] | None, manifest: str | None, version: str, metho
         if on_outcome is not None:
             on_outcome({"id": o["id"], **e}, m.counts())
 
-    run_engine(options.engine, todo, lambda ids: m.mark_running(ids, host), record, options.workers,
-               options.address, options.ray_temp or out / "ray", options.retries, None, options.object_store_mb)
+    try:
+        run_engine(options.engine, todo, lambda ids: m.mark_running(ids, host), record, options.workers,
+                   options.address, options.ray_temp or out / "ray", options.retries, None, options.object_store_mb)
+    finally:  # also when interrupted: the bookkeeping of every finished job reaches the file
+        m.flush()
     return write_summary(m, plot=options.plots, alpha=options.alpha)

@@ -5,17 +5,29 @@
 handed to workers and ``on_outcome(outcome)`` (``jobs.run_job``'s dict) as each one ends, in the
 driver process. A job's own failure (``HybridCalibError``: corrupt data, ...) is an outcome, never
 retried here; a system failure (a worker killed, an ``OSError``) is retried up to ``retries`` times,
-then recorded as ``failed`` with its reason. At most ``in_flight`` jobs (default 2 x workers) are
-handed out at once, so a fleet of thousands never queues thousands of tasks.
+then recorded as ``failed`` with its reason. At most ``in_flight`` jobs (default 2 x workers; on a
+joined Ray cluster at least 2 x its CPUs / threads) are handed out at once, so a fleet of thousands
+never queues thousands of tasks, and a worker that finishes finds its next job already queued.
 
 - ``local``: in this process, one after another (debugging; same code path in the job).
 - ``process``: ``concurrent.futures.ProcessPoolExecutor`` with the spawn context (no forked GTSAM /
-  torch state), torch / BLAS threads set in each worker; a pool broken by a killed worker is rebuilt.
+  torch state), torch / BLAS threads set in each worker; a pool broken by a killed worker is rebuilt
+  and every job that was on it is handed out again (its ``attempts`` counts each hand-out).
 - ``ray``: ``ray.init(address=...)`` joins a running cluster (every node needs this package
-  installed); without an address a local cluster of ``workers`` CPUs starts with its object store
-  capped (``object_store_mb``) and its temp files under ``temp_dir`` (``RAY_TMPDIR`` too). Tasks are
-  ``run_job`` with ``num_cpus`` = the job's threads, ``max_retries=retries`` (a dead worker or node) and
-  ``retry_exceptions=[OSError]`` (transient I/O); a ``DataError`` is an outcome, not retried.
+  installed, and the roots and ``OUT`` at the same paths, i.e. a shared file system: a job reads its
+  root and writes ``OUT/vehicles/<id>``, the driver reads the result files); without an address a
+  local cluster of ``workers`` CPUs starts with its object store capped (``object_store_mb``) and its
+  temp files under ``temp_dir`` (``RAY_TMPDIR`` too). Tasks are
+  ``_remote_job`` (``run_job`` after ``_init_worker``) with ``num_cpus`` = the job's threads,
+  ``max_retries=retries`` (Ray reruns a task whose worker or node died) and
+  ``retry_exceptions=[OSError]`` (transient I/O); a ``DataError`` is an outcome, never an exception,
+  so it is not retried. Ray reuses its worker processes, so a worker imports the calibration stack
+  once, at its first job. No ``runtime_env``: one would make Ray start fresh workers for the job
+  instead of the ones it prestarted (the first jobs started 3-5 s later: ``benchmarks/bench_ray_start.py``).
+
+Workers get their thread variables (``OMP_NUM_THREADS``, ``OPENBLAS_NUM_THREADS``, ...) and
+``TQDM_DISABLE`` from the environment they are started with (``_worker_env``): numpy's OpenBLAS reads
+them at import, before any initializer could set them (it started a second thread per worker before).
 """
 
 from __future__ import annotations
@@ -23,7 +35,8 @@ from __future__ import annotations
 import os
 import socket
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from hybrid_calib.errors import OptionError
@@ -73,7 +86,40 @@ def _init_worker(threads: int) -> None:
     set_threads(threads)
 
 
+def _remote_job(job: dict) -> dict:
+    """``run_job`` in a Ray worker (a joined cluster's workers do not inherit ``_worker_env``)."""
+    _init_worker(job["threads"])
+    return run_job(job)
+
+
+THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+
+
+@contextmanager
+def _worker_env(threads: int) -> Iterator[None]:
+    """This process's environment with ``THREAD_VARS`` = ``threads`` and ``TQDM_DISABLE`` while
+    workers are started from it (they inherit it); restored afterwards. This process's own libraries
+    are already loaded: they keep their threads."""
+    keys = (*THREAD_VARS, "TQDM_DISABLE")
+    old = {k: os.environ.get(k) for k in keys}
+    os.environ.update({**dict.fromkeys(THREAD_VARS, str(int(threads))), "TQDM_DISABLE": "1"})
+    try:
+        yield
+    finally:
+        for k, v in old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
 def _run_process(jobs, on_start, on_outcome, workers, retries, in_flight):
+    threads = jobs[0].threads
+    with _worker_env(threads):  # workers are spawned at submit and when a broken pool is rebuilt
+        _process_loop(jobs, on_start, on_outcome, workers, retries, in_flight, threads)
+
+
+def _process_loop(jobs, on_start, on_outcome, workers, retries, in_flight, threads):
     import multiprocessing
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
     from concurrent.futures.process import BrokenProcessPool
@@ -81,8 +127,7 @@ def _run_process(jobs, on_start, on_outcome, workers, retries, in_flight):
     queue = list(jobs)
     tries: dict[str, int] = {}
     ctx = multiprocessing.get_context("spawn")
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker,
-                               initargs=(jobs[0].threads,))
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker, initargs=(threads,))
     running: dict = {}
     try:
         while queue or running:
@@ -95,12 +140,14 @@ def _run_process(jobs, on_start, on_outcome, workers, retries, in_flight):
             for fut in done:
                 job, t0 = running.pop(fut)
                 try:
-                    on_outcome(fut.result())
-                    continue
+                    out = fut.result()
                 except BrokenProcessPool as e:  # a worker died (killed, out of memory): retry elsewhere
                     broken, err = True, e
                 except OSError as e:
                     err = e
+                else:
+                    on_outcome(out)
+                    continue
                 tries[job.id] = tries.get(job.id, 0) + 1
                 if tries[job.id] > retries:
                     on_outcome(_failure(job, err, time.perf_counter() - t0))
@@ -113,7 +160,7 @@ def _run_process(jobs, on_start, on_outcome, workers, retries, in_flight):
                 running.clear()
                 pool.shutdown(wait=False, cancel_futures=True)
                 pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker,
-                                           initargs=(jobs[0].threads,))
+                                           initargs=(threads,))
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
 
@@ -164,20 +211,23 @@ def start_ray(workers: int, address: str | None, temp_dir: str | Path | None, ob
     root = str(Path(__file__).resolve().parents[2])
     os.environ["PYTHONPATH"] = os.pathsep.join([root, *filter(None, [os.environ.get("PYTHONPATH")])])
     if address:
-        ray.init(address=address, log_to_driver=False, runtime_env={"env_vars": {"TQDM_DISABLE": "1"}})
+        ray.init(address=address, log_to_driver=False)
         return True
     if temp_dir is None:
         raise OptionError("--ray-temp", "a local Ray cluster needs a temp directory")
     ray.init(num_cpus=workers, object_store_memory=int(object_store_mb) * 1024 * 1024, _temp_dir=str(tmp),
-             include_dashboard=False, log_to_driver=False, runtime_env={"env_vars": {"TQDM_DISABLE": "1"}})
+             include_dashboard=False, log_to_driver=False)
     return True
 
 
 def _run_ray(jobs, on_start, on_outcome, workers, address, temp_dir, retries, in_flight, object_store_mb):
-    started = start_ray(workers * jobs[0].threads, address, temp_dir, object_store_mb)  # CPUs: workers x threads
+    with _worker_env(jobs[0].threads):  # a local Ray's raylet and workers inherit it
+        started = start_ray(workers * jobs[0].threads, address, temp_dir, object_store_mb)  # CPUs: workers x threads
     import ray  # after start_ray: it sets Ray's environment first
+    if address:  # a joined cluster is sized by its nodes, not by --workers: keep every CPU fed
+        in_flight = max(in_flight, 2 * int(ray.cluster_resources().get("CPU", 0)) // jobs[0].threads)
     try:
-        task = ray.remote(num_cpus=jobs[0].threads, max_retries=retries, retry_exceptions=[OSError])(run_job)
+        task = ray.remote(num_cpus=jobs[0].threads, max_retries=retries, retry_exceptions=[OSError])(_remote_job)
         queue = list(jobs)
         running: dict = {}
         while queue or running:

@@ -9,19 +9,29 @@ Schema (``schema`` "hybrid-calib/fleet-manifest/v1")::
                        "attempts": int, "wall_s": float | null, "cpu_s": float | null, "host": str | null,
                        "result": "vehicles/<id>/result.json" | null}}}
 
-Resume rules (``Manifest.open``): a ``done`` job whose result file is missing or unreadable goes back
-to ``pending``; a ``running`` job (its driver was killed) is ``done`` if its result file is complete
-(written atomically, so present means complete), else ``pending``; ``failed`` jobs are retried.
-Nothing done is recomputed, and a job id is never listed twice.
+Resume rules (``Manifest.open``): a job whose result file is complete (written atomically, so
+present means complete) is ``done``, whatever state the manifest last recorded (a driver killed
+after the job wrote its result, before the manifest was saved); a job without one is ``pending``,
+or stays ``failed`` (with its reason) until it is retried. Nothing done is recomputed, and a job id
+is never listed twice.
+
+Saving: one job per line (``json.dumps`` per entry, the C encoder: a 1000-job manifest, 1.9 MB,
+took 0.67 s against 1.09 s indented, on the shared 2-core box at load 8), at most every
+``save_every_s`` seconds while jobs run (``mark_running`` / ``record``) and at most a fifth of the
+driver's time (a save that took t waits 4 t for the next): saving every change cost a 1000-vehicle
+fleet two saves per vehicle, O(N^2) in all. ``flush`` writes what is left. A driver killed between
+two saves loses only bookkeeping (``attempts``, ``wall_s``, ``host``, a failure's reason), never a
+result: the resume rules read the result files.
 """
 
 from __future__ import annotations
 
 import json
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from hybrid_calib.config import save_json_atomic
+from hybrid_calib.config import save_text_atomic
 from hybrid_calib.errors import DataError
 from hybrid_calib.fleet.jobs import Job
 
@@ -45,6 +55,9 @@ class Manifest:
     method: str
     seed: int
     jobs: dict[str, dict] = field(default_factory=dict)  # id -> entry (module doc)
+    save_every_s: float = 1.0  # the most often mark_running / record rewrite the file
+    _next_save: float = field(default=float("-inf"), repr=False)  # and at most 1/5 of the driver's time
+    _dirty: bool = field(default=False, repr=False)
 
     @classmethod
     def open(cls, path: str | Path, jobs: list[Job], method: str, seed: int) -> Manifest:
@@ -73,17 +86,32 @@ class Manifest:
                                   "attempts": 0, "wall_s": None, "cpu_s": None, "host": None, "result": None}
                 continue
             e["job"] = job.to_dict()  # options such as --checkpoint may change between reruns
-            done = result_complete(job.result_path)
-            if e["state"] in ("done", "running") and done:
-                e.update(state="done", result=_rel(job.result_path, path.parent))
+            if result_complete(job.result_path):
+                e.update(state="done", reason=None, file=None, result=_rel(job.result_path, path.parent))
             elif e["state"] != "failed":
                 e.update(state="pending", result=None)
         m.save()
         return m
 
     def save(self) -> Path:
-        return save_json_atomic(self.path, {"schema": SCHEMA, "method": self.method, "seed": self.seed,
-                                            "jobs": dict(sorted(self.jobs.items()))})
+        """Write the file now (atomic; one job per line, module doc)."""
+        t0 = time.monotonic()
+        head = json.dumps({"schema": SCHEMA, "method": self.method, "seed": self.seed})[:-1]
+        rows = ",\n".join(f"{json.dumps(k)}: {json.dumps(e)}" for k, e in sorted(self.jobs.items()))
+        save_text_atomic(self.path, f"{head}, \"jobs\": {{\n{rows}\n}}}}\n")
+        self._next_save = time.monotonic() + max(self.save_every_s, 4 * (time.monotonic() - t0))
+        self._dirty = False
+        return self.path
+
+    def flush(self) -> None:
+        """Write the changes not yet saved (``save_every_s``)."""
+        if self._dirty:
+            self.save()
+
+    def _changed(self) -> None:
+        self._dirty = True
+        if time.monotonic() >= self._next_save:
+            self.save()
 
     def todo(self) -> list[Job]:
         """Jobs to run now: pending and failed ones (failed ones are retried), in id order."""
@@ -93,7 +121,7 @@ class Manifest:
         for i in ids:
             e = self.jobs[i]
             e.update(state="running", attempts=int(e["attempts"]) + 1, host=host)
-        self.save()
+        self._changed()
 
     def record(self, outcome: dict) -> dict:
         """Store one job's outcome (``jobs.run_job`` or an engine's failure record); returns its entry."""
@@ -101,7 +129,7 @@ class Manifest:
         e.update(state=outcome["state"], reason=outcome.get("reason"), file=outcome.get("file"),
                  wall_s=outcome.get("wall_s"), cpu_s=outcome.get("cpu_s"), host=outcome.get("host") or e.get("host"),
                  result=_rel(outcome["result"], self.path.parent) if outcome.get("result") else None)
-        self.save()
+        self._changed()
         return e
 
     def counts(self) -> dict[str, int]:
