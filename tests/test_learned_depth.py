@@ -211,3 +211,29 @@ def test_depth_anything_errors_name_the_directory(tmp_path):
     _tiny_depth_anything(tmp_path / "rel", metric=False)
     with pytest.raises(HybridCalibError, match="relative"):
         DepthAnythingEstimator(tmp_path / "rel")
+
+
+def test_lidar_depth_on_simulated_frames_matches_the_rendered_truth(tmp_path):
+    """The depth path real roots use (the frame's LiDAR through T_cam_lidar), run on the simulator's
+    own LiDAR: dense enough and metrically right against the rendered depth of the same frame, which
+    is what lets the networks train on the depth they are tested with."""
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+    from hybrid_calib.sim.drive import SimConfig
+    from hybrid_calib.sim.simulate import simulate
+
+    root = simulate(SimConfig(scenario="urban", vehicles=1, frames=2, seed=31, image_scale=0.125), tmp_path / "sim",
+                    progress=False)
+    frames = list(NuScenesRadarCamera(root, "v1.0-sim", conf={"load_lidar": True}))
+    size = (48, 96)
+    for f in frames:
+        lidar = LidarDepth().estimate(f, size, None)
+        truth = CorruptedTruthDepth(QUIET).estimate(f, size, None)
+        both = (lidar > 0) & (truth > 0) & (truth < 60.0)
+        assert lidar.shape == size and lidar.dtype == np.float32
+        assert (lidar > 0).mean() > 0.4  # the densified map covers most of the image below the horizon
+        rel = np.abs(lidar[both] - truth[both]) / truth[both]
+        assert both.sum() > 500 and np.median(rel) < 0.05, (both.sum(), np.median(rel))
+    # a root read without its LiDAR says what to do instead of guessing a depth
+    bare = next(iter(NuScenesRadarCamera(root, "v1.0-sim", conf={"load_lidar": False})))
+    with pytest.raises(DataError, match="LIDAR_TOP"):
+        LidarDepth().estimate(bare, size, None)
