@@ -30,13 +30,21 @@ Two tests, both chi-square tests on a 6-DoF difference in the right tangent of `
    covariance ``I_m^-1 - I_all^-1`` (Hausman), so ``s = d^T (I_m^-1 - I_all^-1)^-1 d`` ~ chi2(6).
    On realistic scenes the windowed statistic is over-dispersed (the reflector heights of a few
    frames bias their estimate by more than the pixel noise says: median 8-9 instead of chi2(6)'s
-   5.35 on the straight preset), so the statistic is divided by a running scale, the median of the
-   last ``scale_window`` statistics over chi2(6)'s median (at least 1; from ``scale_min_tests`` on;
-   kept across restarts: it is a property of the scenes and the model, not of the extrinsic).
+   5.35 on the straight preset), and per direction: real heights inflate pitch and vertical offset
+   on one drive, yaw and lateral offset on a straight road. So each camera axis gets its own
+   running scale (``axis_scale``): the median of that axis' squared standardised difference over
+   chi2(1)'s median (at least 1), and the statistic is ``u^T (S C S)^-1 u`` with ``S =
+   diag(sqrt(scales))`` (u, C: the difference and its covariance in camera axes). With
+   ``axis_scale`` off, one scale: the median of the statistic over chi2(6)'s median. The scales
+   rest on the last ``scale_window`` tests that are at least ``scale_lag`` tests old (before
+   ``scale_min_tests`` such tests exist: on all tests; before ``scale_min_tests`` tests: 1), so the
+   statistics right after a step do not inflate the scale that should reveal it; they are kept
+   across restarts (a property of the scenes and the model, not of the extrinsic).
    Besides the last ``m`` frames, longer recent windows (``long_frames``, e.g. 10 and 20 frames)
    are tested the same way with the free Gauss-Newton step of their cached linearisations, each
    with its own running scale (a generalised likelihood ratio over the age of the step: a small
-   step in a weakly observed direction that 5 frames cannot resolve shows after 10 or 20). The
+   step in a weakly observed direction that 5 frames cannot resolve shows after 10 or 20); a
+   longer window joins the test once its scales rest on ``scale_min_tests`` lagged tests. The
    alarm statistic is the largest scaled statistic over the lengths and its threshold the chi2(6)
    quantile at ``p_alarm / number of lengths`` (Bonferroni: the per-test false-alarm probability
    stays <= ``p_alarm``). An alarm needs the scaled statistic above the threshold on ``consecutive``

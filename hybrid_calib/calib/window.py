@@ -26,8 +26,10 @@ Design (one extrinsic state; a fixed-lag window with lazy relinearisation):
   solved WITH a convex start (a redescending kernel warm-started at the old value rejects every
   post-step correspondence and locks on), against the long-run estimate. It runs every
   ``step.every`` frames and at once when a frame's inlier fraction collapses (the signature of a
-  lock-on). On an alarm the history is dropped, the window shrinks to the recent frames and is
-  re-solved with a convex start.
+  lock-on). The last ``step.long_frames`` frames (10 and 20) are tested alongside with the free
+  Gauss-Newton step of their cached linearisations (small steps in weakly observed directions).
+  On an alarm the history is dropped, the window shrinks to the recent frames and is re-solved
+  with a convex start.
 """
 
 from __future__ import annotations
