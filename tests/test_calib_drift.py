@@ -293,6 +293,9 @@ def test_step_detector_axis_scales_lag_and_longer_windows():
         t = det.observe({5: _axis_test(noisy), 10: _axis_test(quiet)})
         assert not t.alarm and t.length == 5  # the 10-frame window has no learnt scale yet: not tested
     assert np.allclose(det.axis_scales(5), [9, 1, 1, 1, 1, 1]) and not det.scale_established(10)
+    # the 10-frame window is at least as over-dispersed as the 5-frame one (long_scale_floor)
+    assert np.allclose(det.axis_scales(10), [9, 1, 1, 1, 1, 1])
+    assert np.isclose(det.scale_of(10), det.scale_of(5))
     t = det.observe({5: _axis_test(quiet), 10: _axis_test(quiet)})
     assert det.scale_established(10)  # 5 tests older than the lag of 4: the 10-frame window joins
     # a 6-sigma pitch difference is inside the learnt pitch scale (36 / 9 = 4), a 6-sigma yaw one is not
@@ -303,6 +306,11 @@ def test_step_detector_axis_scales_lag_and_longer_windows():
     big[1] = 6.0
     t = det.observe({5: _axis_test(quiet), 10: _axis_test(big)})
     assert t.alarm and t.length == 10 and np.isclose(t.statistic, 36.0) and 36.0 > det.threshold
+    # without the floor the 10-frame window keeps its own (quiet) scales
+    free = StepDetector({"consecutive": 1, "scale_min_tests": 5, "scale_lag": 4, "long_scale_floor": False})
+    for _ in range(9):
+        free.observe({5: _axis_test(noisy), 10: _axis_test(quiet)})
+    assert np.allclose(free.axis_scales(10), 1.0) and free.axis_scales(5)[0] > 8
     # the tests right after a step do not feed the scale for scale_lag tests
     before = det.axis_scales(5).copy()
     for _ in range(4):

@@ -42,7 +42,9 @@ Two tests, both chi-square tests on a 6-DoF difference in the right tangent of `
    across restarts (a property of the scenes and the model, not of the extrinsic).
    Besides the last ``m`` frames, longer recent windows (``long_frames``, e.g. 10 and 20 frames)
    are tested the same way with the free Gauss-Newton step of their cached linearisations, each
-   with its own running scale (a generalised likelihood ratio over the age of the step: a small
+   with its own running scales, never below the shortest window's (``long_scale_floor``: the
+   scene bias does not average out over more frames, and overlapping windows give few independent
+   tests to learn a scale from) (a generalised likelihood ratio over the age of the step: a small
    step in a weakly observed direction that 5 frames cannot resolve shows after 10 or 20); a
    longer window joins the test once its scales rest on ``scale_min_tests`` lagged tests. The
    alarm statistic is the largest scaled statistic over the lengths and its threshold the chi2(6)
@@ -95,6 +97,10 @@ class StepConfig:
     # one for the whole statistic: real heights inflate pitch and vertical on one drive, yaw and
     # lateral on a straight road; a single scale would blunt the well-behaved axes too
     axis_scale: bool = True
+    # a longer window's scales are at least the shortest window's: the scene bias that
+    # over-disperses 5 frames does not average out over 20, and 10-20-frame windows overlap so
+    # much that their own medians rest on few independent tests (too small a scale: false alarms)
+    long_scale_floor: bool = True
     rearm_p: float = 0.1  # hysteresis: after an alarm, re-arm once the scaled statistic < chi2.isf(rearm_p, 6) ...
     rearm_tests: int = 3  # ... on this many tests in a row
     # longer recent windows tested alongside ``recent_frames`` (a generalised likelihood ratio over
@@ -352,19 +358,23 @@ class StepDetector:
         return lagged if len(lagged) >= max(1, self.conf.scale_min_tests) else h
 
     def scale_of(self, m: int) -> float:
-        """Over-dispersion of the ``m``-frame statistic: median of its (lagged) values / chi2(6) median, >= 1."""
+        """Over-dispersion of the ``m``-frame statistic: median of its (lagged) values / chi2(6)
+        median, >= 1 (and >= the shortest window's with ``long_scale_floor``)."""
         h = self._scale_sample(m)
-        if len(h) < max(1, self.conf.scale_min_tests):
-            return 1.0
-        return max(1.0, float(np.median([x[0] for x in h])) / float(chi2.median(6)))
+        own = 1.0 if len(h) < max(1, self.conf.scale_min_tests) else \
+            max(1.0, float(np.median([x[0] for x in h])) / float(chi2.median(6)))
+        m0 = self.lengths[0]
+        return max(own, self.scale_of(m0)) if self.conf.long_scale_floor and m != m0 else own
 
     def axis_scales(self, m: int) -> np.ndarray:
         """(6,) per camera-axis variance scales of the ``m``-frame difference (``axis_scale``): median
-        of the lagged squared standardised differences / chi2(1) median, >= 1 (ones until learnt)."""
+        of the lagged squared standardised differences / chi2(1) median, >= 1 (ones until learnt),
+        and >= the shortest window's with ``long_scale_floor``."""
         h = [x[1] for x in self._scale_sample(m) if x[1] is not None]
-        if len(h) < max(1, self.conf.scale_min_tests):
-            return np.ones(6)
-        return np.maximum(1.0, np.median(np.asarray(h), axis=0) / float(chi2.median(1)))
+        own = np.ones(6) if len(h) < max(1, self.conf.scale_min_tests) else \
+            np.maximum(1.0, np.median(np.asarray(h), axis=0) / float(chi2.median(1)))
+        m0 = self.lengths[0]
+        return np.maximum(own, self.axis_scales(m0)) if self.conf.long_scale_floor and m != m0 else own
 
     def scale_established(self, m: int) -> bool:
         """The ``m``-frame scale rests on ``scale_min_tests`` lagged statistics (a longer window may join)."""
