@@ -52,7 +52,8 @@ def _load(root: str, vehicle_frames: dict) -> None:
 
     if _DATA:
         return
-    ds = NuScenesRadarCamera(root, "v1.0-sim", conf={"check_images": False})
+    # an empty radar sweep (a highway gap) is kept: the oracle finds no reflector in it and skips the frame
+    ds = NuScenesRadarCamera(root, "v1.0-sim", conf={"check_images": False, "skip_empty_radar": False})
     for v, idx in vehicle_frames.items():
         _DATA[v] = [ds[i] for i in idx]
 
@@ -97,8 +98,9 @@ def _run_one(job: dict) -> dict:
     from factors.config import RadarPixelFactorConfig
     from factors.scene import scene_prior_std
     from hybrid_calib.calib.batch import solve_batch
-    from hybrid_calib.calib.covariance import analyse_drive_information, report_basis
+    from hybrid_calib.calib.covariance import analyse_drive_information, report_basis, scene_config_for
     from hybrid_calib.calib.crb import oracle_crb
+    from hybrid_calib.calib.degeneracy import RowGeometry
     from hybrid_calib.calib.oracle import OracleConfig, oracle_from_frame
     from hybrid_calib.calib.window import SlidingWindowCalibrator
     from hybrid_calib.config import merge
@@ -131,7 +133,8 @@ def _run_one(job: dict) -> dict:
     T0 = perturbed_start(T, g, job["range"])
     # + the prior-pinned height offset and tilt ("height") and the per-drive scene nuisance (factors.scene)
     fconf_base = dataclasses.replace(fconf, **{k: 0.0 for k in SCENE_KEYS})
-    crb = oracle_crb(T, frames, truths, job["sigma_px"], fconf)
+    # the bound of the model used: with the scene prior the covariance takes for these rows (wider on a straight road)
+    crb = oracle_crb(T, frames, truths, job["sigma_px"], scene_config_for(fconf, RowGeometry.from_frames(frames)))
     crb_base = oracle_crb(T, frames, truths, job["sigma_px"], fconf_base)  # the same without the scene nuisance
     F_crb, F_crb_base = np.linalg.inv(crb), np.linalg.inv(crb_base)
     B = report_basis(T)

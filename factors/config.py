@@ -50,6 +50,10 @@ class RadarPixelFactorConfig:
     scene_height_std_m: float = 0.25  # per-knot std of the drive's mean-height offset, m (0 = off)
     scene_height_sq_std_m2: float = 0.35  # per-knot std of the drive's mean-squared-height offset, m^2 (0 = off)
     scene_lateral_slope_std: float = 0.005  # std of the drive's left/right height slope dh/dy, m per m (0 = off)
+    # the three scene stds x this when the rows lie along the road (calib.degeneracy.along_road): a
+    # straight road shows the same roadside all drive long, its height profile does not average out
+    # (chosen on 5 straight drives, validated on 5 others: docs/benchmarks.md)
+    scene_along_road_factor: float = 2.5
     min_depth_m: float = 0.1  # points closer than this to the camera plane get a large constant residual
 
     def __post_init__(self):
@@ -69,6 +73,9 @@ class RadarPixelFactorConfig:
         if len(knots) < 2 or any(not b > a for a, b in zip(knots, knots[1:])) or knots[0] < 0:
             raise ValueError(f"RadarPixelFactorConfig.scene_knots_m must be >= 2 increasing ranges >= 0 (m), "
                              f"got {knots}")
+        if not self.scene_along_road_factor >= 1:
+            raise ValueError(f"RadarPixelFactorConfig.scene_along_road_factor must be >= 1, got "
+                             f"{self.scene_along_road_factor}")
         if min(self.scene_height_std_m, self.scene_height_sq_std_m2, self.scene_lateral_slope_std) < 0:
             raise ValueError("RadarPixelFactorConfig: scene_height_std_m, scene_height_sq_std_m2 and "
                              "scene_lateral_slope_std must be >= 0 (0 = off)")

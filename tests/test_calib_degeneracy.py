@@ -91,3 +91,39 @@ def test_empty_and_nonfinite_rows_never_raise():
     assert any(c.startswith("only 0 correspondences") for c in causes)
     rep = analyse_information(nominal_T_cam_radar(), np.zeros((6, 6)), geometry=geo)
     assert rep.status.startswith("degenerate: a single frame") and "only 0 correspondences" in rep.status
+
+
+def test_scene_prior_widens_only_along_a_straight_road():
+    """``covariance.scene_config_for``: the scene stds x ``scene_along_road_factor`` when the rows lie
+    along the road (the cause the status names), the factor's own config otherwise; the covariance
+    grows accordingly (a consider covariance: linear in the prior variance)."""
+    import dataclasses
+
+    from factors.config import RadarPixelFactorConfig
+    from factors.scene import scene_prior_std
+    from hybrid_calib.calib.covariance import analyse_drive_information, scene_config_for
+
+    fc = RadarPixelFactorConfig()
+    g = rng(14)
+    road = RowGeometry()
+    for _ in range(10):
+        road.add(_road_points(g, 80))
+    normal = RowGeometry.from_frames(synthetic_drive(nominal_T_cam_radar(), 4, rng(12), {"n_per_frame": 60})[0])
+    assert scene_config_for(fc, normal) is fc and scene_config_for(fc, None) is fc
+    wide = scene_config_for(fc, road)
+    k = fc.scene_along_road_factor
+    assert k > 1 and np.allclose(scene_prior_std(wide), k * scene_prior_std(fc))
+    assert scene_config_for(dataclasses.replace(fc, scene_along_road_factor=1.0), road).scene_height_std_m == \
+        fc.scene_height_std_m
+    with pytest.raises(ValueError, match="scene_along_road_factor"):
+        RadarPixelFactorConfig(scene_along_road_factor=0.5)
+    # the reported covariance: cov0 + k^2 (cov1 - cov0)
+    T = nominal_T_cam_radar()
+    A = g.normal(size=(6, 6))
+    H = A @ A.T * 1e4 + np.eye(6) * 1e3
+    cross = g.normal(size=(6, len(scene_prior_std(fc)))) * 50
+    off = dataclasses.replace(fc, scene_height_std_m=0.0, scene_height_sq_std_m2=0.0, scene_lateral_slope_std=0.0)
+    c0 = analyse_drive_information(T, H, None, off, scene_cross=cross).cov
+    c1 = analyse_drive_information(T, H, None, fc, scene_cross=cross).cov
+    ck = analyse_drive_information(T, H, None, fc, scene_cross=cross, geometry=road).cov
+    assert np.allclose(ck, c0 + k * k * (c1 - c0), rtol=1e-8, atol=1e-14)

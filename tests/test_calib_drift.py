@@ -75,8 +75,11 @@ def test_verdict_words_for_prior_pinned_axes():
 
 
 def test_step_detector_threshold_and_consecutive():
-    det = StepDetector({"p_alarm": 1e-3, "consecutive": 2})
-    assert np.isclose(det.threshold, chi2.isf(1e-3, 6))
+    det = StepDetector({"p_alarm": 1e-3, "consecutive": 2, "long_frames": ()})  # one window length
+    assert det.lengths == (5,) and np.isclose(det.threshold, chi2.isf(1e-3, 6))
+    # 5, 10 and 20 frames: Bonferroni over the three lengths keeps the per-test probability <= p_alarm
+    assert StepDetector({"p_alarm": 1e-3}).lengths == (5, 10, 20)
+    assert np.isclose(StepDetector({"p_alarm": 1e-3}).threshold, chi2.isf(1e-3 / 3, 6))
     assert not det.observe(100.0).alarm and det.observe(100.0).alarm
     assert not det.observe(1.0).alarm
 
@@ -217,3 +220,99 @@ def test_step_detector_scale_and_hysteresis():
     assert not det.observe(1.0).alarm and not det.armed
     assert not det.observe(1.0).alarm and det.armed  # two tests below the re-arm level
     assert det.observe(1e6).alarm
+
+
+@pytest.fixture(scope="module")
+def real_urban_rows(tmp_path_factory):
+    """One simulated urban drive (26 frames, 1/8-scale images: ~10 s), its oracle rows with the
+    heights the world really has, with no change and with the radar mount knocked by 1.5 deg of
+    yaw (camera y) from frame 16 on (``oracle.moved_mount``), and the tables' reference."""
+    from hybrid_calib.calib.oracle import OracleConfig, moved_mount, oracle_from_frame
+    from hybrid_calib.config import merge
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+    from hybrid_calib.sim import simulate as sim
+    from hybrid_calib.sim.drive import SimConfig
+
+    root = tmp_path_factory.mktemp("real_urban")
+    sim.simulate(merge(SimConfig, {"scenario": "urban", "frames": 26, "image_scale": 0.125, "seed": 5}), root,
+                 overwrite=False, workers=1)
+    ds = NuScenesRadarCamera(root, "v1.0-sim", conf={"check_images": False})
+    frames = [ds[i] for i in range(len(ds))]
+    R = np.asarray(frames[0].T_cam_radar)[:3, :3]
+    xi = np.concatenate([R.T @ np.radians([0.0, 1.5, 0.0]), np.zeros(3)])  # camera-axis yaw, radar tangent
+    g = rng(3)
+    still = [oracle_from_frame(f, OracleConfig(elevation="world"), g) for f in frames]
+    knocked = [oracle_from_frame(moved_mount(f, xi) if k >= 16 else f, OracleConfig(elevation="world"), g)[0]
+               for k, f in enumerate(frames)]
+    return {"still": [c for c, _ in still], "truth": still[0][1].T_cam_radar, "knocked": knocked,
+            "reference": frames[0].extras["reference_T_cam_radar"]}
+
+
+def test_step_detector_on_real_simulated_rows(real_urban_rows):
+    """Real reflector heights, default detector: no alarm on a short drive with no change (the
+    false-alarm bound of docs/benchmarks.md), one alarm within 5 frames of a 1.5 deg knock."""
+    d = real_urban_rows
+    cal = SlidingWindowCalibrator(d["truth"])
+    outs = [cal.update(c) for c in d["still"]]
+    assert sum(o.step_statistic is not None for o in outs) >= 10  # the detector did test
+    assert not any(o.step_alarm for o in outs), [round(o.step_statistic or 0, 1) for o in outs]
+    cal = SlidingWindowCalibrator(d["truth"])
+    alarms = [o.index for o in (cal.update(c) for c in d["knocked"]) if o.step_alarm]
+    assert len(alarms) == 1 and 16 <= alarms[0] <= 21, alarms
+
+
+def test_verdict_words_on_real_simulated_rows(real_urban_rows):
+    """The tables hold the factory calibration: with no change the verdict never says
+    "recalibrate"; after the knock it names yaw and says "recalibrate"."""
+    from hybrid_calib.calib.batch import solve_batch
+    from hybrid_calib.calib.covariance import prior_pinned_std
+    from hybrid_calib.calib.window import WindowConfig
+
+    d = real_urban_rows
+    pinned = prior_pinned_std(WindowConfig().factor)
+    est = solve_batch(d["still"], d["truth"]).estimate
+    v = reference_test(est.T, est.cov, d["reference"], None, pinned)
+    assert v.verdict_kind in ("within tolerance", "cannot tell") and "recalibrate" not in v.verdict, v.verdict
+    est = solve_batch(d["knocked"][16:], d["truth"]).estimate
+    v = reference_test(est.T, est.cov, d["reference"], None, pinned)
+    assert v.verdict_kind == "recalibrate" and "in yaw" in v.verdict and v.verdict.endswith(": recalibrate"), v.verdict
+
+
+def _axis_test(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A camera-axis difference (u, C) with standardised components ``z`` (6,) and unit variances."""
+    return np.asarray(z, float), np.eye(6)
+
+
+def test_step_detector_axis_scales_lag_and_longer_windows():
+    det = StepDetector({"consecutive": 1, "scale_min_tests": 5, "scale_lag": 4})
+    assert det.lengths == (5, 10, 20)
+    quiet = np.full(6, np.sqrt(chi2.median(1)))  # every axis at chi2(1)'s median: scale 1
+    noisy = quiet.copy()
+    noisy[0] *= 3.0  # pitch over-dispersed 9x (real heights): its own scale, the others untouched
+    for _ in range(8):
+        t = det.observe({5: _axis_test(noisy), 10: _axis_test(quiet)})
+        assert not t.alarm and t.length == 5  # the 10-frame window has no learnt scale yet: not tested
+    assert np.allclose(det.axis_scales(5), [9, 1, 1, 1, 1, 1]) and not det.scale_established(10)
+    # the 10-frame window is at least as over-dispersed as the 5-frame one (long_scale_floor)
+    assert np.allclose(det.axis_scales(10), [9, 1, 1, 1, 1, 1])
+    assert np.isclose(det.scale_of(10), det.scale_of(5))
+    t = det.observe({5: _axis_test(quiet), 10: _axis_test(quiet)})
+    assert det.scale_established(10)  # 5 tests older than the lag of 4: the 10-frame window joins
+    # a 6-sigma pitch difference is inside the learnt pitch scale (36 / 9 = 4), a 6-sigma yaw one is not
+    big = np.zeros(6)
+    big[0] = 6.0
+    assert not det.observe({5: _axis_test(big)}).above
+    big = np.zeros(6)
+    big[1] = 6.0
+    t = det.observe({5: _axis_test(quiet), 10: _axis_test(big)})
+    assert t.alarm and t.length == 10 and np.isclose(t.statistic, 36.0) and 36.0 > det.threshold
+    # without the floor the 10-frame window keeps its own (quiet) scales
+    free = StepDetector({"consecutive": 1, "scale_min_tests": 5, "scale_lag": 4, "long_scale_floor": False})
+    for _ in range(9):
+        free.observe({5: _axis_test(noisy), 10: _axis_test(quiet)})
+    assert np.allclose(free.axis_scales(10), 1.0) and free.axis_scales(5)[0] > 8
+    # the tests right after a step do not feed the scale for scale_lag tests
+    before = det.axis_scales(5).copy()
+    for _ in range(4):
+        det.observe({5: _axis_test(np.full(6, 10.0))})
+    assert np.allclose(det.axis_scales(5), before)

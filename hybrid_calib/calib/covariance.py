@@ -245,6 +245,25 @@ def marginalise_scene_nuisance(info: np.ndarray, cross: np.ndarray | None = None
     return 0.5 * (out + out.T)
 
 
+def scene_config_for(factor_conf, geometry: RowGeometry | None, conf=None):
+    """The factor configuration whose scene nuisance (``factors.scene``) holds for these rows: the
+    three scene stds times ``scene_along_road_factor`` when the rows lie along the road
+    (``degeneracy.along_road`` with ``conf.degeneracy``; a straight road), else ``factor_conf``
+    itself. The covariance (``analyse_drive_information``) and the Cramer-Rao bound of the model
+    used (``crb.oracle_crb``) take the same one."""
+    import dataclasses
+
+    from hybrid_calib.calib.degeneracy import along_road
+    from hybrid_calib.config import merge
+
+    k = float(getattr(factor_conf, "scene_along_road_factor", 1.0))
+    if k == 1.0 or along_road(geometry, merge(CovarianceConfig, conf).degeneracy) is None:
+        return factor_conf
+    return dataclasses.replace(factor_conf, scene_height_std_m=k * factor_conf.scene_height_std_m,
+                               scene_height_sq_std_m2=k * factor_conf.scene_height_sq_std_m2,
+                               scene_lateral_slope_std=k * factor_conf.scene_lateral_slope_std)
+
+
 def analyse_drive_information(
     T_cam_radar: np.ndarray, info: np.ndarray, conf, factor_conf, cov_hint: np.ndarray | None = None,
     external_info: np.ndarray | None = None, scene_cross: np.ndarray | None = None,
@@ -253,12 +272,13 @@ def analyse_drive_information(
     """``analyse_information`` with the nuisance of the factor's elevation model removed from the data:
     the prior-pinned directions (``prior_pinned_std(factor_conf)``) and, when enabled and
     ``scene_cross`` (6, K) is given, the per-drive scene nuisance (``marginalise_scene_nuisance``).
-    ``geometry``: the rows' ``degeneracy.RowGeometry`` for the status words. The one entry point of
-    the window and the batch solve."""
+    ``geometry``: the rows' ``degeneracy.RowGeometry`` for the status words and the scene prior
+    (``scene_config_for``: wider along a straight road). The one entry point of the window and the
+    batch solve."""
     from factors.scene import scene_prior_std
 
     pinned = prior_pinned_std(factor_conf)
-    std = scene_prior_std(factor_conf)
+    std = scene_prior_std(scene_config_for(factor_conf, geometry, conf))
     if scene_cross is None or not np.any(std > 0):
         return analyse_information(T_cam_radar, info, conf, cov_hint=cov_hint, pinned_std=pinned,
                                    external_info=external_info, geometry=geometry)

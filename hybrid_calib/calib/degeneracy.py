@@ -113,6 +113,15 @@ class RowGeometry:
         return float(((left.max() if len(left) else 0.0) + (right.max() if len(right) else 0.0)) / self.n_rows)
 
 
+def along_road(geom: RowGeometry | None, conf: DegeneracyConfig) -> float | None:
+    """The fraction of the rows on two lines along the road when it reaches
+    ``conf.along_road_fraction`` over at least ``conf.min_frames`` frames (a straight road), else None."""
+    if geom is None or geom.n_rows == 0 or geom.n_frames < conf.min_frames:
+        return None
+    frac = geom.along_road_fraction(conf.along_road_lateral_m)
+    return frac if frac >= conf.along_road_fraction else None
+
+
 def geometry_causes(geom: RowGeometry | None, conf: DegeneracyConfig) -> list[str]:
     """The geometric reasons (module docstring) this drive's rows constrain the extrinsic poorly."""
     if geom is None:
@@ -131,8 +140,8 @@ def geometry_causes(geom: RowGeometry | None, conf: DegeneracyConfig) -> list[st
     a10, a90 = geom.percentile("azimuth", 0.1), geom.percentile("azimuth", 0.9)
     if a90 - a10 < conf.min_azimuth_spread_deg:
         causes.append(f"all reflectors in one direction (azimuth {a10:.0f} to {a90:.0f} deg)")
-    frac = geom.along_road_fraction(conf.along_road_lateral_m)
-    if frac >= conf.along_road_fraction and geom.n_frames >= conf.min_frames:
+    frac = along_road(geom, conf)
+    if frac is not None:
         causes.append(f"all reflectors lie along the road ({100 * frac:.0f} % on two lines parallel to the "
                       "travel direction: every frame sees the same geometry, so a bias from the reflector heights "
                       "does not average out)")

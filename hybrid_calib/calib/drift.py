@@ -30,10 +30,26 @@ Two tests, both chi-square tests on a 6-DoF difference in the right tangent of `
    covariance ``I_m^-1 - I_all^-1`` (Hausman), so ``s = d^T (I_m^-1 - I_all^-1)^-1 d`` ~ chi2(6).
    On realistic scenes the windowed statistic is over-dispersed (the reflector heights of a few
    frames bias their estimate by more than the pixel noise says: median 8-9 instead of chi2(6)'s
-   5.35 on the straight preset), so the statistic is divided by a running scale, the median of the
-   last ``scale_window`` statistics over chi2(6)'s median (at least 1; from ``scale_min_tests`` on;
-   kept across restarts: it is a property of the scenes and the model, not of the extrinsic).
-   An alarm needs the scaled ``s`` above the chi2(6) quantile at ``p_alarm`` on ``consecutive``
+   5.35 on the straight preset), and per direction: real heights inflate pitch and vertical offset
+   on one drive, yaw and lateral offset on a straight road. So each camera axis gets its own
+   running scale (``axis_scale``): the median of that axis' squared standardised difference over
+   chi2(1)'s median (at least 1), and the statistic is ``u^T (S C S)^-1 u`` with ``S =
+   diag(sqrt(scales))`` (u, C: the difference and its covariance in camera axes). With
+   ``axis_scale`` off, one scale: the median of the statistic over chi2(6)'s median. The scales
+   rest on the last ``scale_window`` tests that are at least ``scale_lag`` tests old (before
+   ``scale_min_tests`` such tests exist: on all tests; before ``scale_min_tests`` tests: 1), so the
+   statistics right after a step do not inflate the scale that should reveal it; they are kept
+   across restarts (a property of the scenes and the model, not of the extrinsic).
+   Besides the last ``m`` frames, longer recent windows (``long_frames``, e.g. 10 and 20 frames)
+   are tested the same way with the free Gauss-Newton step of their cached linearisations, each
+   with its own running scales, never below the shortest window's (``long_scale_floor``: the
+   scene bias does not average out over more frames, and overlapping windows give few independent
+   tests to learn a scale from) (a generalised likelihood ratio over the age of the step: a small
+   step in a weakly observed direction that 5 frames cannot resolve shows after 10 or 20); a
+   longer window joins the test once its scales rest on ``scale_min_tests`` lagged tests. The
+   alarm statistic is the largest scaled statistic over the lengths and its threshold the chi2(6)
+   quantile at ``p_alarm / number of lengths`` (Bonferroni: the per-test false-alarm probability
+   stays <= ``p_alarm``). An alarm needs the scaled statistic above the threshold on ``consecutive``
    tests. Hysteresis: after an alarm the detector is disarmed until the scaled statistic has been
    below the re-arm level (the chi2(6) quantile at ``rearm_p``) on ``rearm_tests`` tests in a row,
    so one step raises one alarm. False-alarm rate and detection delay: benchmarks/bench_steps.py,
@@ -71,8 +87,28 @@ class StepConfig:
     inlier_drop: float = 0.6  # ... and at once when a frame's inlier fraction falls below this x the running mean
     scale_window: int = 100  # tests in the running median that scales the statistic (over-dispersion)
     scale_min_tests: int = 10  # the statistic is scaled from this many tests on
+    # the scale is the median of tests at least this many tests old (once scale_min_tests of them
+    # exist; before, of all tests): the statistics right after a step do not inflate the scale that
+    # should reveal that step (20: the detection horizon). A longer window (long_frames) joins the
+    # test only once its own scale rests on scale_min_tests such lagged statistics.
+    scale_lag: int = 20
+    # one over-dispersion scale per camera axis (pitch, yaw, roll, lateral, vertical, longitudinal:
+    # median of that axis' squared standardised difference over chi2(1)'s median, >= 1) instead of
+    # one for the whole statistic: real heights inflate pitch and vertical on one drive, yaw and
+    # lateral on a straight road; a single scale would blunt the well-behaved axes too
+    axis_scale: bool = True
+    # a longer window's scales are at least the shortest window's: the scene bias that
+    # over-disperses 5 frames does not average out over 20, and 10-20-frame windows overlap so
+    # much that their own medians rest on few independent tests (too small a scale: false alarms)
+    long_scale_floor: bool = True
     rearm_p: float = 0.1  # hysteresis: after an alarm, re-arm once the scaled statistic < chi2.isf(rearm_p, 6) ...
     rearm_tests: int = 3  # ... on this many tests in a row
+    # longer recent windows tested alongside ``recent_frames`` (a generalised likelihood ratio over
+    # the step's age): the free Gauss-Newton step of the last m frames' cached linearisations for
+    # each m, each scaled by its own running scale; the alarm statistic is the largest scaled one and
+    # the threshold is Bonferroni-corrected over all lengths (chi2.isf(p_alarm / lengths, 6)).
+    # A small step in a weakly observed direction that 5 frames do not resolve shows in 10 or 20.
+    long_frames: tuple[int, ...] = (10, 20)
 
 
 # report axes in camera coordinates (docs/conventions.md): rotation about / translation along camera x, y, z
@@ -259,6 +295,7 @@ class StepTest:
     raw: float = float("nan")
     scale: float = 1.0
     armed: bool = True
+    length: int = 0  # frames in the recent window whose scaled statistic is the largest (0: not given)
 
 
 @dataclass(frozen=True)
@@ -289,13 +326,17 @@ class StepDetector:
         from hybrid_calib.config import merge
 
         self.conf = merge(StepConfig, conf)
-        self.threshold = float(chi2.isf(self.conf.p_alarm, 6))
+        m = self.conf.recent_frames
+        # recent-window lengths tested: the shortest (also re-solved with a convex start) first
+        self.lengths: tuple[int, ...] = (m,) + tuple(sorted({int(k) for k in self.conf.long_frames if k > m}))
+        self.threshold = float(chi2.isf(self.conf.p_alarm / len(self.lengths), 6))
         self.rearm_level = float(chi2.isf(self.conf.rearm_p, 6))
         self._run = 0
         self._below = 0
         self.armed = True
         self.inlier_mean: float | None = None  # running mean of the frames' inlier fractions
-        self._history: deque[float] = deque(maxlen=max(1, self.conf.scale_window))
+        self._histories: dict[int, deque[float]] = {
+            k: deque(maxlen=max(1, self.conf.scale_window) + max(0, self.conf.scale_lag)) for k in self.lengths}
 
     def reset(self) -> None:
         """After a restart of the window: forget the run of exceedances and the inlier mean; keep
@@ -305,15 +346,50 @@ class StepDetector:
 
     @property
     def scale(self) -> float:
-        """Over-dispersion of the statistic: median of the recent statistics / chi2(6) median, >= 1."""
-        if len(self._history) < max(1, self.conf.scale_min_tests):
-            return 1.0
-        return max(1.0, float(np.median(self._history)) / float(chi2.median(6)))
+        """Over-dispersion of the shortest window's statistic (``scale_of``)."""
+        return self.scale_of(self.lengths[0])
 
-    def ready(self, n_total: int, n_window: int) -> bool:
-        """Enough history to test: ``n_total`` frames in the long-run estimate, ``n_window`` in the window."""
-        m = self.conf.recent_frames
+    def _scale_sample(self, m: int) -> list:
+        """The tests the ``m``-frame scale rests on, each (raw statistic, (6,) squared standardised
+        camera-axis differences or None): those at least ``scale_lag`` tests old once there are
+        ``scale_min_tests`` of them, else all."""
+        h = list(self._histories[m])
+        lagged = h[: max(0, len(h) - self.conf.scale_lag)]
+        return lagged if len(lagged) >= max(1, self.conf.scale_min_tests) else h
+
+    def scale_of(self, m: int) -> float:
+        """Over-dispersion of the ``m``-frame statistic: median of its (lagged) values / chi2(6)
+        median, >= 1 (and >= the shortest window's with ``long_scale_floor``)."""
+        h = self._scale_sample(m)
+        own = 1.0 if len(h) < max(1, self.conf.scale_min_tests) else \
+            max(1.0, float(np.median([x[0] for x in h])) / float(chi2.median(6)))
+        m0 = self.lengths[0]
+        return max(own, self.scale_of(m0)) if self.conf.long_scale_floor and m != m0 else own
+
+    def axis_scales(self, m: int) -> np.ndarray:
+        """(6,) per camera-axis variance scales of the ``m``-frame difference (``axis_scale``): median
+        of the lagged squared standardised differences / chi2(1) median, >= 1 (ones until learnt),
+        and >= the shortest window's with ``long_scale_floor``."""
+        h = [x[1] for x in self._scale_sample(m) if x[1] is not None]
+        own = np.ones(6) if len(h) < max(1, self.conf.scale_min_tests) else \
+            np.maximum(1.0, np.median(np.asarray(h), axis=0) / float(chi2.median(1)))
+        m0 = self.lengths[0]
+        return np.maximum(own, self.axis_scales(m0)) if self.conf.long_scale_floor and m != m0 else own
+
+    def scale_established(self, m: int) -> bool:
+        """The ``m``-frame scale rests on ``scale_min_tests`` lagged statistics (a longer window may join)."""
+        return len(self._histories[m]) - self.conf.scale_lag >= max(1, self.conf.scale_min_tests)
+
+    def ready(self, n_total: int, n_window: int, m: int | None = None) -> bool:
+        """Enough history to test the ``m``-frame window (default: the shortest): ``n_total`` frames
+        in the long-run estimate, ``n_window`` in the sliding window."""
+        m = self.lengths[0] if m is None else m
         return n_total >= max(self.conf.min_history, 2 * m) and n_window >= m
+
+    def ready_lengths(self, n_total: int, n_window: int) -> tuple[int, ...]:
+        """The recent-window lengths testable with this much history (empty: no test yet)."""
+        return tuple(m for m in self.lengths if self.ready(n_total, n_window, m)) if self.ready(n_total, n_window) \
+            else ()
 
     def collapsed(self, inlier_fraction: float) -> bool:
         """The frame's inlier fraction fell below ``inlier_drop`` x the running mean (a lock-on)."""
@@ -331,22 +407,30 @@ class StepDetector:
         m = self.inlier_mean
         self.inlier_mean = inlier_fraction if m is None else (m * k + inlier_fraction) / (k + 1)
 
-    def check(self, T_long: np.ndarray, info_long: np.ndarray, recent: tuple[np.ndarray, np.ndarray],
+    def check(self, T_long: np.ndarray, info_long: np.ndarray,
+              recent: tuple[np.ndarray, np.ndarray] | dict[int, tuple[np.ndarray, np.ndarray]],
               solve_recent: RecentSolver, resolve: bool) -> StepOutcome:
         """One test of the sliding window.
 
         T_long (4, 4), info_long (6, 6): the long-run estimate and its information. recent:
-        (gradient (6,), information (6, 6)) at T_long of the recent frames' cached linearisations;
-        their Gauss-Newton step is the free recent estimate. With ``resolve`` the recent frames are
-        also solved from scratch (``solve_recent``, convex start) and the larger statistic counts.
+        (gradient (6,), information (6, 6)) at T_long of the shortest recent window's cached
+        linearisations, or a dict {frames m: (gradient, information)} over the lengths tested
+        (``ready_lengths``; the shortest must be in it); their Gauss-Newton steps are the free recent
+        estimates. With ``resolve`` the shortest window is also solved from scratch
+        (``solve_recent``, convex start) and the larger of its two statistics counts.
         """
-        G, H = recent
-        stat = self.statistic(T_long, info_long, retract(T_long, -np.linalg.pinv(H) @ G), H)
+        recents = recent if isinstance(recent, dict) else {self.lengths[0]: recent}
+        stats = {}
+        for m, (G, H) in recents.items():
+            stats[m] = self.difference(T_long, info_long, retract(T_long, -np.linalg.pinv(H) @ G), H)
         T_recent = None
         if resolve:
             T_recent, info_recent = solve_recent()
-            stat = max(stat, self.statistic(T_long, info_long, T_recent, info_recent))
-        test = self.observe(stat)
+            m0 = self.lengths[0]
+            solved = self.difference(T_long, info_long, T_recent, info_recent)
+            if chi2_quadratic(*solved) > chi2_quadratic(*stats[m0]):
+                stats[m0] = solved
+        test = self.observe(stats)
         if test.alarm and T_recent is None:
             T_recent, _ = solve_recent()
         return StepOutcome(test, T_recent)
@@ -355,6 +439,15 @@ class StepDetector:
                   info_recent: np.ndarray) -> float:
         """Windowed chi-square (dof 6). T_*: (4, 4); info_*: (6, 6) right-tangent information. The
         recent frames are a subset of the long-run estimate's frames."""
+        return chi2_quadratic(*self.difference(T_long, info_long, T_recent, info_recent))
+
+    def difference(self, T_long: np.ndarray, info_long: np.ndarray, T_recent: np.ndarray,
+                   info_recent: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(u (6,), C (6, 6)): the recent-minus-long-run difference in camera axes (rad, m; pitch,
+        yaw, roll, lateral, vertical, longitudinal) and its covariance under "no change"; the
+        statistic is ``u^T C^-1 u``."""
+        from hybrid_calib.calib.covariance import report_basis
+
         d = local(np.asarray(T_long, float), np.asarray(T_recent, float))
         cov_recent = np.linalg.pinv(0.5 * (info_recent + info_recent.T), hermitian=True)
         cov_long = np.linalg.pinv(0.5 * (info_long + info_long.T), hermitian=True)
@@ -363,15 +456,40 @@ class StepDetector:
         # (conservative) recent covariance when it is not.
         if np.min(np.linalg.eigvalsh(0.5 * (cov_d + cov_d.T))) <= 0:
             cov_d = cov_recent
-        return chi2_quadratic(d, cov_d)
+        B = report_basis(np.asarray(T_long, float))
+        return B @ d, B @ cov_d @ B.T
 
-    def observe(self, s: float) -> StepTest:
-        """Record one raw statistic; scaled by the running scale (before it joins the history), an
-        alarm after ``consecutive`` exceedances in a row while armed; disarmed after an alarm until
-        ``rearm_tests`` scaled statistics in a row are below ``rearm_level``."""
-        scale = self.scale
-        z = float(s) / scale
-        self._history.append(float(s))
+    def _scaled(self, m: int, x) -> tuple[float, float, tuple]:
+        """(scaled statistic, raw statistic, history entry) of one window length's test ``x``: a raw
+        statistic (float; the one scale) or a camera-axis difference (u, C) (``axis_scale``: one
+        scale per axis, ``u^T (S C S)^-1 u`` with ``S = diag(sqrt(axis_scales))``)."""
+        if isinstance(x, tuple):
+            u, C = np.asarray(x[0], float), np.asarray(x[1], float)
+            raw = chi2_quadratic(u, C)
+            z2 = u ** 2 / np.maximum(np.diag(C), 1e-300)
+            if self.conf.axis_scale:
+                sq = np.sqrt(self.axis_scales(m))
+                return chi2_quadratic(u, C * np.outer(sq, sq)), raw, (raw, z2)
+            return raw / self.scale_of(m), raw, (raw, z2)
+        return float(x) / self.scale_of(m), float(x), (float(x), None)
+
+    def observe(self, s) -> StepTest:
+        """Record one test: a raw statistic (float: the shortest window's), or per window length
+        ({frames: raw statistic or camera-axis difference (u, C) from ``difference``}); each is
+        scaled by its length's running scale(s) (before it joins that history) and the largest
+        scaled one is the test. An alarm after ``consecutive`` exceedances in a row while armed;
+        disarmed after an alarm until ``rearm_tests`` tests in a row are below ``rearm_level``."""
+        stats = s if isinstance(s, dict) else {self.lengths[0]: float(s)}
+        best = None
+        for m, x in stats.items():
+            z, raw, entry = self._scaled(m, x)
+            counts = m == self.lengths[0] or self.scale_established(m)  # a longer window joins once its scale is learnt
+            self._histories[m].append(entry)
+            if counts and (best is None or z > best[0]):
+                best = (z, raw, raw / max(z, 1e-300), int(m))
+        if best is None:  # only longer windows given, none established yet
+            return StepTest(0.0, self.threshold, False, False, float("nan"), 1.0, self.armed, 0)
+        z, raw, scale, length = best
         above = z > self.threshold
         armed = self.armed
         if not armed:
@@ -379,12 +497,12 @@ class StepDetector:
             if self._below >= self.conf.rearm_tests:
                 self.armed, self._below = True, 0
             self._run = 0
-            return StepTest(z, self.threshold, bool(above), False, float(s), scale, False)
+            return StepTest(z, self.threshold, bool(above), False, raw, scale, False, length)
         self._run = self._run + 1 if above else 0
         alarm = self._run >= self.conf.consecutive
         if alarm:
             self.armed, self._run, self._below = False, 0, 0
-        return StepTest(z, self.threshold, bool(above), bool(alarm), float(s), scale, True)
+        return StepTest(z, self.threshold, bool(above), bool(alarm), raw, scale, True, length)
 
     def test(self, T_long: np.ndarray, info_long: np.ndarray, T_recent: np.ndarray,
              info_recent: np.ndarray) -> StepTest:

@@ -148,6 +148,22 @@ def oracle_from_frame(frame, conf: OracleConfig, rng: np.random.Generator) -> tu
     return corr, OracleTruth(X, inl, transform_points(N, true_pts[idx]))
 
 
+def moved_mount(frame, xi: np.ndarray):
+    """The frame (a ``data.nuscenes`` sample) with the radar mount moved by ``Exp(xi)`` (right
+    tangent of ``T_cam_radar``, [rad, m], (6,)): the ground truth and its static part the oracle
+    projects with, i.e. exactly what a knocked radar mount does to the correspondences (the
+    simulator's ``--extrinsic-change step`` moves the mount the same way)."""
+    import dataclasses
+
+    from hybrid_calib.geometry import se3_exp
+
+    E = se3_exp(np.asarray(xi, np.float64))
+    ex = dict(frame.extras)
+    if "T_cam_radar_static" in ex:
+        ex["T_cam_radar_static"] = np.asarray(ex["T_cam_radar_static"]) @ E
+    return dataclasses.replace(frame, T_cam_radar=np.asarray(frame.T_cam_radar) @ E, extras=ex)
+
+
 def _draw_elevation(rho: np.ndarray, conf: OracleConfig, rng: np.random.Generator) -> np.ndarray:
     """(N,) elevations (rad) drawn from the factor's model for reflectors at slant ranges ``rho``.
 

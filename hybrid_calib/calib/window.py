@@ -26,8 +26,10 @@ Design (one extrinsic state; a fixed-lag window with lazy relinearisation):
   solved WITH a convex start (a redescending kernel warm-started at the old value rejects every
   post-step correspondence and locks on), against the long-run estimate. It runs every
   ``step.every`` frames and at once when a frame's inlier fraction collapses (the signature of a
-  lock-on). On an alarm the history is dropped, the window shrinks to the recent frames and is
-  re-solved with a convex start.
+  lock-on). The last ``step.long_frames`` frames (10 and 20) are tested alongside with the free
+  Gauss-Newton step of their cached linearisations (small steps in weakly observed directions).
+  On an alarm the history is dropped, the window shrinks to the recent frames and is re-solved
+  with a convex start.
 """
 
 from __future__ import annotations
@@ -359,17 +361,20 @@ class SlidingWindowCalibrator:
     def _test_step(self, inlier_fraction: float) -> StepOutcome | None:
         """The windowed step test after this update (None while there is too little history)."""
         det = self.detector
-        if not det.ready(len(self.frames) + self.n_marg, len(self.frames)):
+        lengths = det.ready_lengths(len(self.frames) + self.n_marg, len(self.frames))
+        if not lengths:
             return None
         c = self.conf
-        recent = list(self.frames)[-det.conf.recent_frames:]
+        frames = list(self.frames)
+        recent = frames[-lengths[0]:]
 
         def solve_recent():
             rr = robust_solve([f.corr for f in recent], self.T, c.factor, None, c.schedule, convex_start=True)
             return rr.T, information_from_graph(rr.graph, rr.values, X)
 
         resolve = det.resolve_due(self.n_updates, det.collapsed(inlier_fraction))
-        return det.check(self.T, self.info, self._history_gaussian_frames(recent), solve_recent, resolve)
+        recents = {m: self._history_gaussian_frames(frames[-m:]) for m in lengths}
+        return det.check(self.T, self.info, recents, solve_recent, resolve)
 
     def _restart_after_step(self, step: StepOutcome) -> tuple[Estimate, float]:
         """Drop the history, keep the recent frames that agree with the post-step estimate and
