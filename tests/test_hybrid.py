@@ -226,7 +226,7 @@ def test_a_checkpoint_without_its_fitted_models_is_never_trusted(sim_root, tmp_p
     meta["export"].pop("hybrid")  # e.g. a fine-tuned network whose measurement model was never refitted
     (tmp_path / src.name).write_text(json.dumps(meta))
     shutil.copy(src.with_suffix(".safetensors"), tmp_path / src.with_suffix(".safetensors").name)
-    conf = {**BASE, "max_frames": 2, "checkpoint": str(tmp_path / src.name)}
+    conf = {**BASE, "checkpoint": str(tmp_path / src.name)}  # all 3 frames: enough for the OOD rule
     v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", {**conf, "method": "pure-avg"})
     assert v.final.status.startswith("inconclusive:") and "export.hybrid" in v.final.status
     v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", {**conf, "method": "pure"})  # needs cov_scale only

@@ -336,7 +336,7 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     res.config = {**to_dict(conf), "measurement_effective": to_dict(measurement_config(runner, conf)),
                   "depth_effective": runner.depth_name, **({"depth_note": note} if note else {})}
     res = _finish(res, drive, T0, conf)
-    reason = ood["inconclusive"] or unfitted_reason(runner, conf.method)
+    reason = "; and ".join(r for r in (ood["inconclusive"], unfitted_reason(runner, conf.method)) if r)
     if reason:
         final = dataclasses.replace(res.final, status=inconclusive_status(reason, res.final.status))
         res.final = final
