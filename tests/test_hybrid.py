@@ -231,3 +231,20 @@ def test_a_checkpoint_without_its_fitted_models_is_never_trusted(sim_root, tmp_p
     assert v.final.status.startswith("inconclusive:") and "export.hybrid" in v.final.status
     v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", {**conf, "method": "pure"})  # needs cov_scale only
     assert not v.final.status.startswith("inconclusive"), v.final.status
+
+
+def test_drive_scale_brings_the_validation_nees_to_six_and_never_shrinks():
+    from hybrid_calib.hybrid.fit import fit_drive_scale
+
+    g = np.random.default_rng(3)
+    true_std = np.array([0.02, 0.02, 0.03, 0.2, 0.1, 0.2])  # the drive-common error really is this big
+    W = np.diag((0.1 * true_std) ** 2)  # the window's own covariance: small
+    errors = g.normal(0.0, 1.0, (400, 6)) * np.sqrt(true_std ** 2 + np.diag(W))
+    half = 0.5 * true_std  # fitted too small (few drives)
+    covs = np.broadcast_to(W + np.diag(half ** 2), (400, 6, 6))
+    k = fit_drive_scale(errors, covs, half)
+    assert 1.8 < k < 2.2  # recovers the missing factor of 2
+    D = np.diag((k * half) ** 2)
+    assert abs(np.mean([e @ np.linalg.solve(W + D, e) for e in errors]) - 6.0) < 1e-6
+    big = 3.0 * true_std  # already conservative: left alone
+    assert fit_drive_scale(errors, np.broadcast_to(W + np.diag(big ** 2), (400, 6, 6)), big) == 1.0
