@@ -262,6 +262,26 @@ def test_a_degenerate_drive_is_a_result_not_a_failure(local_run, fleet_root, tmp
     assert "| sim-veh-000 | done | degenerate |" in (tmp_path / "summary.md").read_text()
 
 
+def test_an_inconclusive_vehicle_is_flagged_counted_and_never_within_tolerance(local_run, fleet_root, tmp_path):
+    """A result whose status is ``inconclusive: ...`` (the network's input out of its domain, hybrid.ood,
+    or an unfitted checkpoint) is ``done`` with an ``inconclusive`` flag and verdict, and counted."""
+    import shutil
+
+    shutil.copytree(local_run[0] / "vehicles", tmp_path / "vehicles")
+    shutil.copy(local_run[0] / "manifest.json", tmp_path / "manifest.json")
+    f = tmp_path / "vehicles" / "sim-veh-001" / "result.json"
+    doc = json.loads(f.read_text())
+    doc["vehicles"]["sim-veh-001"]["final"]["status"] = ("inconclusive: only 2 of 10 frames are inside the network's "
+                                                         "training domain [the estimate's own status: ok]")
+    f.write_text(json.dumps(doc))
+    s = run_fleet([str(fleet_root)], None, "v1.0-sim", "oracle", tmp_path, seed=1, calib={"window": {"window": 3}},
+                  options=FleetOptions(plots=False))
+    r = s["vehicles"]["sim-veh-001"]
+    assert r["state"] == "done" and "inconclusive" in r["flags"] and r["verdict"] == "inconclusive"
+    assert s["counts"]["inconclusive"] == 1 and s["counts"]["failed"] == 1
+    assert "1 inconclusive" in (tmp_path / "summary.md").read_text()
+
+
 def test_network_method_job_matches_the_hybrid_entry_point(fleet_root, tmp_path):
     """A fleet job with a network method is ``hybrid.run_calibration`` on that vehicle (same start,
     same estimate); options the window-only methods cannot take are clear errors."""
