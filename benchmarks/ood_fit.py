@@ -127,9 +127,10 @@ def main(argv=None) -> int:
             return NetworkRunner(a.checkpoint, frames, depth, a.out / "cache" / tag, a.out / "depth" / tag, a.threads)
         return make
 
-    from hybrid_calib.hybrid.loop import LIDAR_DEPTH, trained_depth
+    from hybrid_calib.hybrid.loop import trained_depth
+    from learned.depth import needs_lidar
 
-    lidar = trained_depth(a.checkpoint) == LIDAR_DEPTH  # its own depth path reads the LiDAR
+    lidar = needs_lidar(trained_depth(a.checkpoint))  # its own depth path reads the LiDAR
     fit = _records(runner_of(""), a.data, a.version, a.fit_seeds, lidar=lidar)
     if not fit:
         raise SystemExit(f"no usable frame in {a.data} for {a.checkpoint}: see the skipped frames above")

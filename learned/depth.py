@@ -359,6 +359,17 @@ class DepthCache:
         return depth
 
 
+def trained_with(train_config: dict | None) -> str:
+    """The depth spec a checkpoint was trained with (its ``train_config["depth"]``; corrupted-truth, the
+    training default, when it does not say)."""
+    return str((train_config or {}).get("depth", CorruptedTruthDepth.name))
+
+
+def needs_lidar(spec: str) -> bool:
+    """Does this depth spec read the frame's LiDAR sweep (so the root must be opened with it)?"""
+    return spec == LidarDepth.name
+
+
 def build_depth_estimator(spec: str, overrides: dict | None = None) -> DepthEstimator:
     """``"corrupted-truth"`` -> ``CorruptedTruthDepth``; ``"depth-anything:/path/to/dir"`` ->
     ``DepthAnythingEstimator`` from that local directory. ``overrides`` go to the estimator config."""

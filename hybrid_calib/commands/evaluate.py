@@ -69,6 +69,7 @@ def run(args: argparse.Namespace) -> int:
     from hybrid_calib.plots.evaluation import plot_error_cdf
     from learned.checkpoint import load_model
     from learned.dataset import open_roots
+    from learned.depth import needs_lidar
     from learned.evaluate import EvalConfig, evaluate
 
     user = parse_overrides(args.overrides)
@@ -111,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
         conf["export"]["cov_scale"] = 1.0  # fit against the raw covariance
     conf.update(user)
     # the LiDAR-camera variant calibrates T_cam_lidar from LiDAR points; lidar-densified depth reads them too
-    lidar = model.cfg.variant == "lidar" or conf.get("depth") == "lidar-densified"
+    lidar = model.cfg.variant == "lidar" or needs_lidar(str(conf.get("depth", "")))
     frames = open_roots(args.data, args.version, lidar=lidar, options={"nsweeps": args.nsweeps})
     result = evaluate(model, frames, conf, args.out, checkpoint=" -> ".join(map(str, stage_paths)),
                       overwrite=args.overwrite,

@@ -237,12 +237,13 @@ def fit_measurement(roots, version: str, checkpoint: str, out: str | Path, start
             errs += [v.error for v in run.vehicles.values()]
             finals += [(local(v.truth_T, v.final.T), v.final.cov) for v in run.vehicles.values()]
         # the drive-common term calibrated on these drives' final NEES (the estimates do not depend on it)
-        scale = fit_drive_scale([e for e, _ in finals], [c for _, c in finals], fitted["values"]["drive_std"])
-        fitted["values"]["drive_std"] = [scale * v for v in fitted["values"]["drive_std"]]
+        old = np.asarray(fitted["values"]["drive_std"], np.float64)
+        scale = fit_drive_scale([e for e, _ in finals], [c for _, c in finals], old)
+        fitted["values"]["drive_std"] = [float(scale * v) for v in old]
         fitted["summary"]["drive_scale"] = scale
-        errs = [{**e, "nees": float(xi @ np.linalg.solve(np.asarray(c) + np.diag(
-            (np.asarray(fitted["values"]["drive_std"]) ** 2) * (1 - 1 / scale ** 2)), xi))}
-            for e, (xi, c) in zip(errs, finals)]
+        extra = np.diag((scale ** 2 - 1) * old ** 2)  # the reported covariances with the scaled term
+        errs = [{**e, "nees": float(xi @ np.linalg.solve(np.asarray(c) + extra, xi))}
+                for e, (xi, c) in zip(errs, finals)]
         fitted["validation"] = {
             "rot_mean_deg": float(np.mean([e["rot_mean_deg"] for e in errs])),
             "trans_mean_cm": float(np.mean([e["trans_mean_cm"] for e in errs])),

@@ -46,7 +46,6 @@ from hybrid_calib.perturbation import RANGES, vehicle_start
 
 METHODS = ("hybrid", "pure", "pure-avg", "oracle")
 STARTS = ("reference", *RANGES)
-LIDAR_DEPTH = "lidar-densified"
 
 
 @dataclass(frozen=True)
@@ -100,21 +99,23 @@ def resolve_depth(data, version: str, conf: HybridConfig) -> tuple[str, str]:
     """(depth spec, note): ``conf.depth``, or lidar-densified on a real root with LiDAR, or "" (the
     checkpoint's)."""
     from hybrid_calib.data.tables import NuScenesTables
+    from learned.depth import LidarDepth
 
     if conf.depth:
         return conf.depth, ""
     tables = NuScenesTables(data, version)
     simulated = (tables.vdir / "sim_vehicle.json").is_file()
     if not simulated and "LIDAR_TOP" in tables.channels():
-        return LIDAR_DEPTH, "real root without --depth: using lidar-densified depth (the LiDAR through the tables)"
+        return LidarDepth.name, "real root without --depth: using lidar-densified depth (the LiDAR through the tables)"
     return "", ""
 
 
 def trained_depth(checkpoint) -> str:
-    """The depth estimator a checkpoint was trained with (its train_config; corrupted-truth if unsaid)."""
+    """The depth spec a checkpoint (path) was trained with (``learned.depth.trained_with``)."""
     from learned.checkpoint import read_checkpoint_meta
+    from learned.depth import trained_with
 
-    return str(read_checkpoint_meta(checkpoint)[1].get("train_config", {}).get("depth", "corrupted-truth"))
+    return trained_with(read_checkpoint_meta(checkpoint)[1].get("train_config"))
 
 
 def open_drives(data, version: str, conf: HybridConfig, lidar: bool):
@@ -367,6 +368,8 @@ class _Session:
     """What run_vehicle / run_calibration share: the frames, the drives and (learned methods) the network."""
 
     def __init__(self, data, version: str, conf: HybridConfig):
+        from learned.depth import needs_lidar
+
         self.data, self.version, self.conf = data, version, conf
         self.runner, self.note = None, ""
         if conf.method == "oracle":
@@ -375,7 +378,7 @@ class _Session:
         depth, self.note = resolve_depth(data, version, conf)
         ckpt = conf.checkpoint or shipped_checkpoint(conf.start)
         effective = depth or trained_depth(ckpt)  # "" = the checkpoint's own (lidar-densified needs the LiDAR)
-        self.frames, self.drives = open_drives(data, version, conf, lidar=effective == LIDAR_DEPTH)
+        self.frames, self.drives = open_drives(data, version, conf, lidar=needs_lidar(effective))
         self.runner = build_runner(ckpt, refine_checkpoint(conf.refine), self.frames, depth, conf.cache_dir,
                                    conf.depth_cache, conf.threads)
 

@@ -137,14 +137,14 @@ class NetworkRunner:
 
         from learned.checkpoint import load_model
         from learned.dataset import CalibDataset, DatasetConfig
-        from learned.depth import DepthCache, build_depth_estimator
+        from learned.depth import DepthCache, build_depth_estimator, trained_with
         from learned.ood import ood_model_of
 
         torch.set_num_threads(max(1, threads))
         self.model, self.ckpt = load_model(checkpoint, model_factory=model_factory)
         self.ood, self.ood_note = ood_model_of(self.ckpt.export, str(self.ckpt.path))
         trained = self.ckpt.train_config or {}
-        self.depth_name = depth or trained.get("depth", "corrupted-truth")
+        self.depth_name = depth or trained_with(trained)
         depth_opts = trained.get("depth_options", {}) if self.depth_name == trained.get("depth") else {}
         H, W = (int(v) for v in self.model.cfg.input_hw)
         self.range = str(trained.get("perturbation", "R1"))
