@@ -77,7 +77,7 @@ def run_trials(roots: list, version: str, out: Path, conf: CompareConfig, progre
         c = dataclasses.replace(hconf, method=method, seed=conf.seed + k // len(vehicles))
         drive = s.drives[name]
         vr = (vehicle_oracle(s.data, version, drive, c) if method == "oracle"
-              else vehicle_learned(s.runner, drive, c, s.note))
+              else vehicle_learned(s.runner, drive, c, s.note, s.motion))
         vr.config = {**(vr.config or {}), "trial": k, "root": str(s.data)}
         path = _trial_file(out, method, k)
         path.parent.mkdir(parents=True, exist_ok=True)

@@ -115,3 +115,18 @@ def check_ceres_cost_jacobians(cost, params: list[np.ndarray], plus: list[Callab
 
             worst = max(worst, _assert_close(J[i] @ P, _numeric(f_tan, tdim, eps), rtol, atol, f"tangent block {i}"))
     return worst
+
+
+def check_se3_residual_jacobian(fn: Callable[[np.ndarray], tuple[float | np.ndarray, np.ndarray]], T: np.ndarray,
+                                eps: float = 1e-6, rtol: float = 1e-6, atol: float = 1e-8) -> float:
+    """Assert the analytic Jacobian of a numpy residual on ``T_cam_radar`` (4, 4) equals central
+    differences along the right perturbation ``T exp([phi, rho])`` (GTSAM order, docs/conventions.md).
+
+    ``fn(T) -> (r, J)`` with r scalar or (m,), J (6,) or (m, 6). Returns the worst relative difference.
+    """
+    from hybrid_calib.geometry import retract
+
+    r0, J = fn(T)
+    J = np.atleast_2d(np.asarray(J, np.float64))
+    N = _numeric(lambda d: np.atleast_1d(np.asarray(fn(retract(T, d))[0], np.float64)), 6, eps)
+    return _assert_close(J, N, rtol, atol, "se3 residual")

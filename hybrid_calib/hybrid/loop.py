@@ -39,6 +39,7 @@ from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.geometry import local
 from hybrid_calib.hybrid.average import AverageConfig, robust_average
 from hybrid_calib.hybrid.measurement import MeasurementConfig, frame_inputs, prior_trusted
+from hybrid_calib.hybrid.motion import MotionConfig, MotionSource, fold
 from hybrid_calib.hybrid.network import NetworkRunner, build_runner, refine_checkpoint, shipped_checkpoint
 from hybrid_calib.hybrid.ood import OODPolicy, decide, json_score, out_of_domain, skip_record
 from hybrid_calib.metrics import extrinsic_error
@@ -62,6 +63,7 @@ class HybridConfig:
     split_options: dict = field(default_factory=dict)  # learned.dataset.SplitConfig overrides, e.g. {"by": "time"}
     window: WindowConfig = WindowConfig()  # the sliding window (hybrid, oracle)
     measurement: dict = field(default_factory=dict)  # MeasurementConfig overrides over the checkpoint's export.hybrid
+    motion: MotionConfig = MotionConfig()  # the camera-VO / radar-Doppler motion constraint (hybrid; hybrid.motion)
     average: AverageConfig = AverageConfig()  # pure-avg
     oracle: OracleConfig = OracleConfig()  # oracle rows (simulated roots only)
     drift: DriftConfig = DriftConfig()  # reference chi-square test of the final estimate
@@ -253,8 +255,34 @@ def _pure_avg(runner, drive, T0, conf, tr):
     return with_drive_error(traj, mconf.drive_std, conf)
 
 
-def _hybrid(runner, drive, T0, conf, tr):
-    """The closed loop (module doc)."""
+def common_error_cov(C: np.ndarray, L_net: np.ndarray, g: np.ndarray, D: np.ndarray, motion_std_rad: float
+                     ) -> np.ndarray:
+    """``C + G D G^T + s^2 (C g)(C g)^T`` with ``G = C L_net`` (``with_common_errors``). (6, 6)."""
+    G, gm = C @ L_net, C @ g
+    return C + G @ D @ G.T + motion_std_rad ** 2 * np.outer(gm, gm)
+
+
+def with_common_errors(traj: list[FrameEstimate], net_info: list[np.ndarray], motion_gain: list[np.ndarray],
+                       drive_std, motion_std_rad: float, conf: HybridConfig) -> list[FrameEstimate]:
+    """The trajectory with the errors common to a drive added to every reported covariance, each
+    through its share of the estimate (a consider covariance): the network's ``diag(drive_std^2)``
+    through ``G = C L_net`` (``L_net`` (6, 6): the summed information of the network priors so far)
+    and a common motion heading bias of std ``motion_std_rad`` through ``g = C sum(w J)``
+    (``motion_gain`` (6,) per frame). Without motion measurements ``G = I`` would follow (the window
+    is then the network priors alone) and ``with_drive_error`` gives the same."""
+    D = np.diag(np.asarray(drive_std, np.float64) ** 2)
+    out = []
+    for f, L, g in zip(traj, net_info, motion_gain):
+        notes = [f.estimate.status[i:].split(")")[0] for key in ("NOT CONVERGED", "recovering")
+                 if (i := f.estimate.status.find(key)) >= 0]
+        cov = common_error_cov(f.cov, L, g, D, motion_std_rad)
+        out.append(dataclasses.replace(f, estimate=_estimate(f.T, cov, conf, "; ".join(notes))))
+    return out
+
+
+def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None):
+    """The closed loop (module doc), with the motion constraint folded into each frame's prior when
+    ``motion`` is given (``hybrid.motion``)."""
     from tqdm import tqdm
 
     skipped, rows = tr.skipped, tr.rows
@@ -262,7 +290,10 @@ def _hybrid(runner, drive, T0, conf, tr):
     cal = SlidingWindowCalibrator(T0, conf.window)
     gate = conf.window.schedule.final_gate
     T, fused_cov, traj = T0.copy(), None, []
+    L_net, g_mot, net_info, motion_gain = np.zeros((6, 6)), np.zeros(6), [], []
+    D, prev, reported_cov = np.diag(np.asarray(mconf.drive_std, np.float64) ** 2), None, None
     for i in tqdm(drive.indices, desc=f"hybrid {drive.vehicle}", disable=not conf.progress, leave=False):
+        pair, prev = prev, i
         out = runner.run(i, T)
         if out is None:
             skipped.append({"index": int(i), "token": runner.token(i), "reason": runner.bad_reason(i)})
@@ -274,15 +305,35 @@ def _hybrid(runner, drive, T0, conf, tr):
         if not len(fi.corr) and fi.prior is None:
             skipped.append({"index": int(i), "token": out.rows_first.frame_id, "reason": "no correspondence rows"})
             continue
-        fe = cal.update(fi.corr, fi.prior)
+        prior, mrec = fi.prior, {}
+        if fi.prior is not None:
+            L_net = L_net + np.linalg.inv(fi.prior.cov)
+        if motion is not None and fi.prior is not None:
+            m, why = motion.measurement(pair, i, T[:3, :3]) if pair is not None else (None, "first frame")
+            fo = fold(fi.prior, T, m, conf.motion, reported_cov) if m is not None else None
+            if fo is not None:
+                prior, g_mot = fo.prior, g_mot + fo.gain_motion
+                sig = np.hypot(m.sigma, np.radians(conf.motion.sigma_vo_deg))
+                mrec = {"motion": {"residual_deg": fo.residual_deg, "weight": fo.weight, "sigma_deg": float(np.degrees(sig)),
+                                   "speed_mps": m.speed, "vo_inliers": m.n_vo_inliers}}
+            else:
+                mrec = {"motion_skipped": why or "residual outside the innovation gate (MotionConfig.gate)"}
+        fe = cal.update(fi.corr, prior)
         traj.append(fe)
+        net_info.append(L_net.copy())
+        motion_gain.append(g_mot.copy())
         T, fused_cov = fe.T, fe.cov
+        if motion is not None:  # the estimate's uncertainty with the drive-common terms: the motion gate's
+            reported_cov = common_error_cov(fe.cov, L_net, g_mot, D, np.radians(conf.motion.drive_std_deg))
         used = int(round(fe.inlier_fraction * len(fi.corr)))
         rows.append({"frame_id": fi.corr.frame_id, "used": used, "rejected": len(fi.corr) - used,
                      "deflation": fi.deflation, "prior_used": fi.prior_used, "network_ms": out.seconds * 1e3,
-                     "ood_score": json_score(runner.ood_score(out)),
+                     "ood_score": json_score(runner.ood_score(out)), **mrec,
                      **({"note": fi.note} if fi.note else {})})
-    return with_drive_error(traj, mconf.drive_std, conf)
+    if motion is None:
+        return with_drive_error(traj, mconf.drive_std, conf)
+    return with_common_errors(traj, net_info, motion_gain, mconf.drive_std, np.radians(conf.motion.drive_std_deg),
+                              conf)
 
 
 LEARNED = {"hybrid": _hybrid, "pure": _pure, "pure-avg": _pure_avg}
@@ -316,16 +367,24 @@ def unfitted_reason(runner, method: str) -> str:
             f"covariance is not calibrated; fit {' and '.join(how[k] for k in missing)} on validation drives")
 
 
-def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, note: str = "") -> VehicleResult:
-    """A learned method (hybrid | pure | pure-avg) on one drive with a loaded network."""
+def _run_learned(runner, drive, T0, conf, tr, motion):
+    if conf.method == "hybrid":
+        return _hybrid(runner, drive, T0, conf, tr, motion)
+    return LEARNED[conf.method](runner, drive, T0, conf, tr)
+
+
+def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, note: str = "",
+                    motion: MotionSource | None = None) -> VehicleResult:
+    """A learned method (hybrid | pure | pure-avg) on one drive with a loaded network; ``motion``:
+    the frames' motion measurements (hybrid only; None = the network alone)."""
     T0 = start_of(drive, conf)
     tr = _Trace(drop=True)
-    traj = LEARNED[conf.method](runner, drive, T0, conf, tr)
+    traj = _run_learned(runner, drive, T0, conf, tr, motion)
     ood = decide(tr.scores, conf.ood, runner.ood_note)
     ood["dropped"] = sum("ood_score" in s for s in tr.skipped)
     if ood["inconclusive"]:  # too few frames in domain: every frame, nothing dropped, and say so (hybrid.ood)
         tr = _Trace(drop=False)
-        traj = LEARNED[conf.method](runner, drive, T0, conf, tr)
+        traj = _run_learned(runner, drive, T0, conf, tr, motion)
         ood.update(dropped=0, note="too few frames in domain: the estimate uses every frame and is not trusted")
     if not traj:
         raise DataError(f"vehicle {drive.vehicle}: no usable frame ({len(tr.skipped)} skipped; first: "
@@ -371,7 +430,7 @@ class _Session:
         from learned.depth import needs_lidar
 
         self.data, self.version, self.conf = data, version, conf
-        self.runner, self.note = None, ""
+        self.runner, self.note, self.motion = None, "", None
         if conf.method == "oracle":
             self.frames, self.drives = open_drives(data, version, conf, lidar=False)
             return
@@ -381,12 +440,14 @@ class _Session:
         self.frames, self.drives = open_drives(data, version, conf, lidar=needs_lidar(effective))
         self.runner = build_runner(ckpt, refine_checkpoint(conf.refine), self.frames, depth, conf.cache_dir,
                                    conf.depth_cache, conf.threads)
+        self.motion = (MotionSource(self.frames, conf.motion, conf.cache_dir)
+                       if conf.method == "hybrid" and conf.motion.enabled else None)
 
     def vehicle(self, name: str) -> VehicleResult:
         drive = self.drives[name]
         if self.conf.method == "oracle":
             return vehicle_oracle(self.data, self.version, drive, self.conf)
-        return vehicle_learned(self.runner, drive, self.conf, self.note)
+        return vehicle_learned(self.runner, drive, self.conf, self.note, self.motion)
 
 
 def run_vehicle(data: str | Path, version: str, vehicle: str, conf: HybridConfig | dict | None = None

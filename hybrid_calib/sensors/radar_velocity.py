@@ -1,0 +1,104 @@
+"""The radar's own velocity from the Doppler of one sweep (no ego pose, no tables).
+
+A 2D automotive radar measures, per detection, the radial (line-of-sight) velocity. For a
+stationary reflector at azimuth ``az`` (radar frame, x forward, y left) it is
+``v_r = -[cos az, sin az] . v`` with ``v`` (2,) the radar's own velocity in its x-y plane, m/s.
+nuScenes stores a velocity vector per point (``vx``, ``vy``, radar frame, relative to the sensor):
+on real sweeps the sensor's relative-velocity estimate (its projection on the line of sight is
+the Doppler), in the simulator the radial velocity resolved on x / y; the projection
+``v_r = vx cos az + vy sin az`` is the Doppler in both. The ``*_comp`` fields are NOT used: they
+are compensated with the ego poses and the tables' extrinsic, which calibration must not assume.
+
+Moving objects and clutter are outliers: RANSAC over pairs of detections, then least squares on
+the inliers; the covariance is the inliers' residual scale (MAD) times ``(A^T A)^-1``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class RadarVelocityConfig:
+    inlier_mps: float = 0.3  # RANSAC inlier band on the radial velocity, m/s (nuScenes quantises at 0.25)
+    inlier_frac: float = 0.02  # ... plus this fraction of |v_r| (speed-proportional Doppler error)
+    iterations: int = 200  # RANSAC pairs drawn (seeded: the same sweep gives the same answer)
+    min_inliers: int = 8  # fewer stationary detections: no velocity
+    min_inlier_fraction: float = 0.3  # of the sweep's detections
+    min_azimuth_spread_deg: float = 10.0  # inliers' azimuth std; below it the lateral velocity is unobservable
+    newest_sweep_only: bool = True  # accumulated older sweeps carry velocities of another instant
+
+
+@dataclass(frozen=True)
+class RadarVelocity:
+    """v: (2,) radar velocity in its own x-y plane, m/s. cov: (2, 2) m^2/s^2. n_inliers / n: the
+    stationary detections used / the detections offered. sigma_mps: the inliers' radial residual scale."""
+
+    v: np.ndarray
+    cov: np.ndarray
+    n_inliers: int
+    n: int
+    sigma_mps: float
+
+    @property
+    def speed(self) -> float:
+        return float(np.linalg.norm(self.v))
+
+
+def radial_velocity(points: np.ndarray, fields: dict) -> tuple[np.ndarray, np.ndarray]:
+    """(azimuth (N,) rad, radial velocity (N,) m/s) of the detections; ``KeyError`` without vx / vy."""
+    az = np.arctan2(points[:, 1], points[:, 0])
+    vr = np.asarray(fields["vx"], np.float64) * np.cos(az) + np.asarray(fields["vy"], np.float64) * np.sin(az)
+    return az, vr
+
+
+def estimate_velocity(points: np.ndarray, fields: dict, conf: RadarVelocityConfig = RadarVelocityConfig(),
+                      sweep_index: np.ndarray | None = None) -> tuple[RadarVelocity | None, str]:
+    """The radar's velocity from one frame's detections, or (None, why not).
+
+    points: (N, 3) radar frame, metres. fields: per-point PCD fields (needs ``vx``, ``vy``).
+    sweep_index: (N,) 0 = the newest sweep (others are dropped with ``newest_sweep_only``).
+    """
+    if "vx" not in fields or "vy" not in fields:
+        return None, "the radar points have no vx / vy velocity fields"
+    az, vr = radial_velocity(points, fields)
+    keep = np.isfinite(vr) & np.isfinite(az)
+    if conf.newest_sweep_only and sweep_index is not None and len(sweep_index) == len(az):
+        keep &= np.asarray(sweep_index) == 0
+    az, vr = az[keep], vr[keep]
+    n = len(az)
+    if n < conf.min_inliers:
+        return None, f"{n} radar detections with a velocity (need {conf.min_inliers})"
+    A = -np.stack([np.cos(az), np.sin(az)], 1)
+    band = conf.inlier_mps + conf.inlier_frac * np.abs(vr)
+    rng = np.random.default_rng(n)  # deterministic per sweep
+    best = None
+    for _ in range(conf.iterations):
+        i, j = rng.choice(n, 2, replace=False)
+        M = A[[i, j]]
+        if abs(np.linalg.det(M)) < 1e-3:
+            continue
+        v = np.linalg.solve(M, vr[[i, j]])
+        inl = np.abs(A @ v - vr) < band
+        if best is None or inl.sum() > best.sum():
+            best = inl
+    if best is None or best.sum() < conf.min_inliers or best.mean() < conf.min_inlier_fraction:
+        got = 0 if best is None else int(best.sum())
+        return None, f"{got} of {n} detections agree on one stationary-world velocity (need {conf.min_inliers} " \
+                     f"and {conf.min_inlier_fraction:.0%})"
+    for _ in range(2):  # refit on the inliers and re-select with the refitted velocity
+        v, *_ = np.linalg.lstsq(A[best], vr[best], rcond=None)
+        new = np.abs(A @ v - vr) < band
+        if new.sum() < conf.min_inliers:
+            break
+        best = new
+    v, *_ = np.linalg.lstsq(A[best], vr[best], rcond=None)
+    if np.degrees(np.std(az[best])) < conf.min_azimuth_spread_deg:
+        return None, f"the stationary detections span {np.degrees(np.std(az[best])):.1f} deg of azimuth " \
+                     f"(need {conf.min_azimuth_spread_deg:g}): the lateral velocity is not observed"
+    res = A[best] @ v - vr[best]
+    sigma = max(1.4826 * float(np.median(np.abs(res - np.median(res)))), 0.05)
+    cov = sigma ** 2 * np.linalg.inv(A[best].T @ A[best])
+    return RadarVelocity(v, cov, int(best.sum()), n, sigma), ""

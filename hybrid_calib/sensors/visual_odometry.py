@@ -1,0 +1,101 @@
+"""Two-view visual odometry: the camera's rotation and direction of travel between two images.
+
+SIFT features (OpenCV), Lowe's ratio test, the essential matrix by RANSAC and ``recoverPose``
+(cheirality). Returns the motion of camera b in the frame of camera a: rotation ``R_ab`` (3, 3)
+(``x_a = R_ab x_b + c``) and the unit direction ``c`` (3,) of camera b's centre in camera a's
+frame; the scale is not observable from two views. Images wider than ``max_width`` are
+downscaled first (the intrinsics with them). Lens distortion is undone on the matched points
+when the camera has one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from hybrid_calib.sensors.camera import PinholeCamera
+
+
+@dataclass(frozen=True)
+class VisualOdometryConfig:
+    max_width: int = 960  # images are downscaled to at most this width (pixels) before matching
+    features: int = 4000  # SIFT features per image
+    ratio: float = 0.8  # Lowe's ratio test
+    ransac_px: float = 1.0  # essential-matrix RANSAC threshold, pixels of the (downscaled) image
+    ransac_confidence: float = 0.9999
+    min_inliers: int = 15  # fewer inliers: no motion
+    min_parallax_px: float = 2.0  # median flow of the inliers after removing the rotation; below: no translation
+    # a homography explaining this fraction of the essential matrix's inliers means a planar scene or
+    # too little parallax: the motion is not unique (rotation and translation trade off), no motion
+    max_homography_ratio: float = 0.8
+
+
+@dataclass(frozen=True)
+class CameraMotion:
+    """R_ab: (3, 3) rotation of camera b in camera a. c: (3,) unit direction of b's centre in a's
+    frame. n_inliers: essential-matrix inliers. parallax_px: their median translational flow."""
+
+    R_ab: np.ndarray
+    c: np.ndarray
+    n_inliers: int
+    parallax_px: float
+
+
+def _gray(img: np.ndarray, scale: float) -> np.ndarray:
+    import cv2
+
+    g = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY) if img.ndim == 3 else img
+    if scale != 1.0:
+        g = cv2.resize(g, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+    return g
+
+
+def camera_motion(img_a: np.ndarray, img_b: np.ndarray, camera: PinholeCamera,
+                  conf: VisualOdometryConfig = VisualOdometryConfig()) -> tuple[CameraMotion | None, str]:
+    """(motion of camera b in camera a, "") or (None, why not). img_*: (H, W[, 3]) uint8 RGB."""
+    import cv2
+
+    if img_a.shape[:2] != img_b.shape[:2]:
+        return None, f"the two images differ in size ({img_a.shape[:2]} vs {img_b.shape[:2]})"
+    scale = min(1.0, conf.max_width / img_a.shape[1])
+    K = camera.K.copy()
+    K[:2] *= scale
+    sift = cv2.SIFT_create(conf.features)
+    ka, da = sift.detectAndCompute(_gray(img_a, scale), None)
+    kb, db = sift.detectAndCompute(_gray(img_b, scale), None)
+    if da is None or db is None or len(ka) < conf.min_inliers or len(kb) < conf.min_inliers:
+        return None, "too few image features (a blank, dark or blurred image?)"
+    pairs = cv2.BFMatcher(cv2.NORM_L2).knnMatch(da, db, k=2)
+    good = [m[0] for m in pairs if len(m) == 2 and m[0].distance < conf.ratio * m[1].distance]
+    if len(good) < conf.min_inliers:
+        return None, f"{len(good)} feature matches between the frames (need {conf.min_inliers})"
+    pa = np.float64([ka[m.queryIdx].pt for m in good])
+    pb = np.float64([kb[m.trainIdx].pt for m in good])
+    if any(camera.dist):
+        d = np.asarray(camera.dist, np.float64)
+        pa = cv2.undistortPoints(pa[:, None], K, d, P=K)[:, 0]
+        pb = cv2.undistortPoints(pb[:, None], K, d, P=K)[:, 0]
+    E, mask = cv2.findEssentialMat(pa, pb, K, cv2.RANSAC, conf.ransac_confidence, conf.ransac_px)
+    if E is None or E.shape != (3, 3):
+        return None, "no essential matrix (degenerate matches)"
+    n_e = int((mask.ravel() > 0).sum())
+    n, R, t, mask = cv2.recoverPose(E, pa, pb, K, mask=mask)
+    inl = mask.ravel() > 0
+    if n < conf.min_inliers:
+        return None, f"{n} matches agree on one camera motion (need {conf.min_inliers})"
+    H, hmask = cv2.findHomography(pa, pb, cv2.RANSAC, conf.ransac_px)
+    n_h = 0 if H is None else int(hmask.sum())
+    if n_h > conf.max_homography_ratio * n_e:
+        return None, (f"a homography explains {n_h} of the {n_e} matches: planar scene or pure rotation, the "
+                      "direction of travel is not determined")
+    # parallax: flow left after rotating a's rays into b (x_b = R x_a + t)
+    Kinv = np.linalg.inv(K)
+    ra = (Kinv @ np.c_[pa[inl], np.ones(inl.sum())].T)
+    rb = K @ (R @ ra)
+    flow = pb[inl] - (rb[:2] / rb[2]).T
+    parallax = float(np.median(np.linalg.norm(flow, axis=1)))
+    if parallax < conf.min_parallax_px:
+        return None, f"median parallax {parallax:.1f} px (need {conf.min_parallax_px:g}): the camera hardly moved"
+    c = (-R.T @ t).ravel()
+    return CameraMotion(R.T, c / np.linalg.norm(c), int(n), parallax), ""

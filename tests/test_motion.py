@@ -1,0 +1,142 @@
+"""The motion (hand-eye) constraint: radar Doppler velocity, two-view VO, the heading residual and its
+Jacobian, and how it enters the hybrid's frame prior (``hybrid.motion``)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from factors.motion import MotionMeasurement, chord_heading, chord_length, heading_residual, radar_yaw_change, wrap
+from hybrid_calib.calib.schedule import GaussianPrior
+from hybrid_calib.geometry import local, make_T, se3_inverse, so3_exp
+from hybrid_calib.hybrid.motion import MotionConfig, fold
+from hybrid_calib.sensors.radar_velocity import estimate_velocity
+from tests.helpers import nominal_T_cam_radar
+from tests.jacobians import check_se3_residual_jacobian
+
+
+def _measurement(X: np.ndarray, yaw_rate: float, speed: float = 8.0, dt: float = 0.5) -> MotionMeasurement:
+    """The exact measurement of a rigid body turning at ``yaw_rate`` (rad/s, about the radar's z)
+    with the radar's velocity along its x axis: camera motion from the radar's, through X."""
+    th = yaw_rate * dt
+    # radar moves on a circle of radius speed / yaw_rate in its plane (a straight line if 0)
+    if abs(yaw_rate) > 1e-9:
+        rad = speed / yaw_rate
+        p = np.array([rad * np.sin(th), rad * (1 - np.cos(th)), 0.0])
+    else:
+        p = np.array([speed * dt, 0.0, 0.0])
+    B = make_T(so3_exp([0.0, 0.0, th]), p)  # radar b in radar a
+    A = X @ B @ se3_inverse(X)  # camera b in camera a
+    v_a = np.array([speed, 0.0])
+    v_b = np.array([speed, 0.0])  # in radar frame b: still along its own x
+    psi, sig, sp = chord_heading(v_a, 1e-4 * np.eye(2), v_b, 1e-4 * np.eye(2), radar_yaw_change(A[:3, :3], X[:3, :3]))
+    c = A[:3, 3] / np.linalg.norm(A[:3, 3])
+    yaw = radar_yaw_change(A[:3, :3], X[:3, :3])
+    assert abs(chord_length(sp, dt, yaw) - np.linalg.norm(p)) < 1e-9
+    return MotionMeasurement(c, A[:3, :3], chord_length(sp, dt, yaw), psi, sig, sp)
+
+
+@pytest.mark.parametrize("yaw_rate", [0.0, 0.3, -0.6])
+def test_heading_residual_is_zero_for_a_rigid_motion_with_lever_arm(yaw_rate):
+    X = nominal_T_cam_radar()
+    m = _measurement(X, yaw_rate)
+    r, _ = heading_residual(X, m)
+    # exact but for the camera chord's length, taken as the radar's (the lever arm changes it by
+    # a second-order amount): 0.06 deg at 34 deg/s, far below the VO noise
+    assert abs(np.degrees(r)) < 0.1 * abs(yaw_rate) / 0.6 + 1e-9
+    # a wrong yaw of the extrinsic shows one for one
+    Xw = X @ make_T(so3_exp([0.0, 0.0, np.radians(1.0)]), np.zeros(3))
+    assert abs(np.degrees(heading_residual(Xw, m)[0]) + 1.0) < 0.1
+
+
+def test_heading_residual_jacobian_passes_the_harness():
+    g = np.random.default_rng(3)
+    for _ in range(5):
+        X = nominal_T_cam_radar() @ make_T(so3_exp(g.normal(0, 0.05, 3)), g.normal(0, 0.3, 3))
+        m = _measurement(X, g.uniform(-0.5, 0.5))
+        check_se3_residual_jacobian(lambda T, m=m: heading_residual(T, m), X, rtol=1e-5, atol=1e-7)
+
+
+def test_radar_velocity_from_doppler_ignores_moving_objects():
+    g = np.random.default_rng(0)
+    v = np.array([9.0, -0.8])
+    az = g.uniform(-0.8, 0.8, 60)
+    pts = np.stack([20 * np.cos(az), 20 * np.sin(az), np.zeros(60)], 1)
+    vr = -(np.cos(az) * v[0] + np.sin(az) * v[1]) + g.normal(0, 0.1, 60)
+    vr[:15] += g.uniform(3, 10, 15)  # moving traffic
+    fields = {"vx": vr * np.cos(az), "vy": vr * np.sin(az)}  # the simulator's convention (radial, resolved)
+    est, why = estimate_velocity(pts, fields)
+    assert why == "" and np.linalg.norm(est.v - v) < 0.1 and est.n_inliers >= 40
+    # real nuScenes gives the sensor's full relative velocity per point: the same velocity comes out
+    full = {"vx": np.full(60, -v[0]) + g.normal(0, 0.1, 60), "vy": np.full(60, -v[1]) + g.normal(0, 0.1, 60)}
+    est2, _ = estimate_velocity(pts, full)
+    assert np.linalg.norm(est2.v - v) < 0.1
+    # heading std from the covariance is small and honest in size
+    assert 0 < est.cov[1, 1] < 0.01
+
+
+@pytest.mark.parametrize("case", ["few", "no-fields", "one-direction"])
+def test_radar_velocity_says_why_not(case):
+    az = np.linspace(-0.5, 0.5, 30) if case != "one-direction" else np.full(30, 0.2)
+    n = 4 if case == "few" else 30
+    pts = np.stack([20 * np.cos(az), 20 * np.sin(az), np.zeros(30)], 1)[:n]
+    fields = {} if case == "no-fields" else {"vx": -8 * np.ones(n), "vy": np.zeros(n)}
+    est, why = estimate_velocity(pts, fields)
+    assert est is None and why
+
+
+def test_fold_adds_the_motion_information_once_and_gates_gross_errors():
+    X = nominal_T_cam_radar()
+    m = _measurement(X, 0.2)
+    prior = GaussianPrior(X @ make_T(so3_exp([0.0, 0.0, np.radians(2.0)]), np.zeros(3)),
+                          np.diag([np.radians(2.0) ** 2] * 3 + [0.1 ** 2] * 3))
+    conf = MotionConfig(sigma_vo_deg=0.3, drive_std_deg=0.0)
+    fo = fold(prior, prior.T, m, conf)
+    L = np.linalg.inv(fo.prior.cov)
+    np.testing.assert_allclose(L, np.linalg.inv(prior.cov) + fo.info_motion, rtol=1e-8, atol=1e-6)
+    assert np.linalg.matrix_rank(fo.info_motion) == 1  # one scalar measurement
+    # the folded prior is pulled from the 2 deg yaw error towards the truth
+    assert np.linalg.norm(local(X, fo.prior.T)[:3]) < np.linalg.norm(local(X, prior.T)[:3]) / 2
+    bad = MotionMeasurement(m.c, m.R_A, m.s, m.psi + np.radians(40.0), m.sigma, m.speed)
+    assert fold(prior, prior.T, bad, conf) is None
+
+
+def test_wrap():
+    assert abs(wrap(np.radians(350.0)) - np.radians(-10.0)) < 1e-12
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory):
+    from hybrid_calib.sim.drive import SimConfig
+    from hybrid_calib.sim.simulate import simulate
+    from learned.dataset import open_frames
+
+    root = simulate(SimConfig(vehicles=1, frames=5, image_scale=0.5, seed=0), tmp_path_factory.mktemp("sim"),
+                    progress=False)
+    return open_frames(root, "v1.0-sim", lidar=False)
+
+
+def test_visual_odometry_and_doppler_on_a_simulated_drive_agree_with_the_truth(drive):
+    from hybrid_calib.hybrid.motion import MotionSource
+
+    src = MotionSource(drive, MotionConfig())
+    prior_cov = np.diag([np.radians(2.0) ** 2] * 3 + [0.1 ** 2] * 3)  # an estimate good to ~2 deg
+    good, pairs = 0, 0
+    for a in range(len(drive) - 1):
+        fa, fb = drive[a], drive[a + 1]
+        ea, eb = fa.extras, fb.extras
+        A = se3_inverse(ea["T_global_ego_cam"] @ ea["T_ego_cam"]) @ (eb["T_global_ego_cam"] @ eb["T_ego_cam"])
+        T = np.asarray(ea["T_cam_radar_static"])
+        m, why = src.measurement(a, a + 1, T[:3, :3])
+        if m is None:
+            continue
+        pairs += 1
+        vo_err = np.degrees(np.arccos(np.clip(m.c @ A[:3, 3] / np.linalg.norm(A[:3, 3]), -1, 1)))
+        r = abs(np.degrees(heading_residual(T, m)[0]))
+        if vo_err < 5.0:
+            good += 1
+            assert r < 5.0
+        # two-view VO fails now and then (a sideways solution); the loop's innovation gate drops it
+        folded = fold(GaussianPrior(T, prior_cov), T, m, MotionConfig())
+        assert folded is not None or r > 3 * np.hypot(1.5, 2.0) - 1.0
+    assert pairs >= 2 and good >= pairs - 1
