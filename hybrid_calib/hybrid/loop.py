@@ -314,8 +314,9 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None):
             if fo is not None:
                 prior, g_mot = fo.prior, g_mot + fo.gain_motion
                 sig = np.hypot(m.sigma, np.radians(conf.motion.sigma_vo_deg))
-                mrec = {"motion": {"residual_deg": fo.residual_deg, "weight": fo.weight, "sigma_deg": float(np.degrees(sig)),
-                                   "speed_mps": m.speed, "vo_inliers": m.n_vo_inliers}}
+                mrec = {"motion": {"residual_deg": fo.residual_deg, "weight": fo.weight,
+                                   "sigma_deg": float(np.degrees(sig)), "speed_mps": m.speed,
+                                   "vo_inliers": m.n_vo_inliers}}
             else:
                 mrec = {"motion_skipped": why or "residual outside the innovation gate (MotionConfig.gate)"}
         fe = cal.update(fi.corr, prior)
