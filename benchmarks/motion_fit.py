@@ -9,7 +9,8 @@ of ``factors.motion`` at the true ``T_cam_radar_static``, the Doppler part of it
 inliers and the radar speed. The fit: ``sigma_vo_deg`` such that the median of the whitened
 residual ``|r| / sqrt(sigma_doppler^2 + sigma_vo^2)`` is the Gaussian's 0.674 (the tails are left
 to the Huber weight); ``drive_std_deg``: the spread of the per-drive mean residuals beyond what
-their within-drive scatter explains (method of moments, at least 0). Prints a table and writes
+their within-drive scatter explains: the second moment of the drive means about zero (a bias shared
+by all drives counts: its sign on a new drive is unknown) less their mean variance, at least 0. Prints a table and writes
 ``OUT/motion_fit.json`` (every residual, the fit, the command).
 """
 
@@ -73,13 +74,16 @@ def fit(rows: list[dict]) -> dict:
         keep = np.abs(rk - c) <= 3 * 1.4826 * np.median(np.abs(rk - c)) + 1e-9
         means.append(float(np.sum(wk[keep] * rk[keep]) / np.sum(wk[keep])))
         vars_.append(float(1.0 / np.sum(wk[keep])))
-    spread = float(np.var(means, ddof=1)) if len(means) > 1 else 0.0
-    drive_std = float(np.sqrt(max(0.0, spread - np.mean(vars_)))) if means else 0.0
+    # second moment about ZERO: a bias shared by every drive is unknown on a new drive, so it is part
+    # of the drive-common error, not subtracted
+    second = float(np.mean(np.square(means))) if means else 0.0
+    drive_std = float(np.sqrt(max(0.0, second - np.mean(vars_)))) if means else 0.0
     return {"pairs": len(rows), "used": len(ok), "skipped": len(rows) - len(ok),
             "median_abs_residual_deg": float(np.median(np.abs(r))), "mean_residual_deg": float(np.mean(r)),
             "mad_residual_deg": float(1.4826 * np.median(np.abs(r - np.median(r)))),
             "inside_95_whitened": float(np.mean(np.abs(r) / np.hypot(sd, sigma_vo) < 1.96)),
-            "sigma_vo_deg": float(sigma_vo), "drive_means_deg": means, "drive_std_deg": drive_std}
+            "sigma_vo_deg": float(sigma_vo), "drive_means_deg": means, "drive_std_deg": drive_std,
+            "median_drive_mean_deg": float(np.median(means)) if means else float("nan")}
 
 
 def main(argv=None) -> int:

@@ -33,6 +33,7 @@ from hybrid_calib.calib.covariance import analyse_information, inconclusive_stat
 from hybrid_calib.calib.drift import DriftConfig, reference_test
 from hybrid_calib.calib.oracle import OracleConfig
 from hybrid_calib.calib.result import CalibrationRun, Estimate, FrameEstimate, VehicleResult
+from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import merge, save_json_atomic, to_dict
 from hybrid_calib.errors import DataError, HybridCalibError
@@ -255,34 +256,40 @@ def _pure_avg(runner, drive, T0, conf, tr):
     return with_drive_error(traj, mconf.drive_std, conf)
 
 
-def common_error_cov(C: np.ndarray, L_net: np.ndarray, g: np.ndarray, D: np.ndarray, motion_std_rad: float
-                     ) -> np.ndarray:
-    """``C + G D G^T + s^2 (C g)(C g)^T`` with ``G = C L_net`` (``with_common_errors``). (6, 6)."""
-    G, gm = C @ L_net, C @ g
-    return C + G @ D @ G.T + motion_std_rad ** 2 * np.outer(gm, gm)
+def motion_bias_cov(C: np.ndarray, g: np.ndarray, motion_std_rad: float) -> np.ndarray:
+    """``C + s^2 (C g)(C g)^T``: the window's covariance ``C`` (6, 6) with a heading bias common to
+    the drive's motion measurements (std ``s`` rad) carried through their summed gain ``g = sum(w J)``
+    (6,) (a consider covariance)."""
+    gm = C @ g
+    return C + motion_std_rad ** 2 * np.outer(gm, gm)
 
 
-def with_common_errors(traj: list[FrameEstimate], net_info: list[np.ndarray], motion_gain: list[np.ndarray],
-                       drive_std, motion_std_rad: float, conf: HybridConfig) -> list[FrameEstimate]:
-    """The trajectory with the errors common to a drive added to every reported covariance, each
-    through its share of the estimate (a consider covariance): the network's ``diag(drive_std^2)``
-    through ``G = C L_net`` (``L_net`` (6, 6): the summed information of the network priors so far)
-    and a common motion heading bias of std ``motion_std_rad`` through ``g = C sum(w J)``
-    (``motion_gain`` (6,) per frame). Without motion measurements ``G = I`` would follow (the window
-    is then the network priors alone) and ``with_drive_error`` gives the same."""
-    D = np.diag(np.asarray(drive_std, np.float64) ** 2)
+def with_motion_bias(traj: list[FrameEstimate], motion_gain: list[np.ndarray], motion_std_rad: float,
+                     conf: HybridConfig) -> list[FrameEstimate]:
+    """The trajectory with ``motion_bias_cov`` in every reported covariance (``motion_gain``: per frame)."""
     out = []
-    for f, L, g in zip(traj, net_info, motion_gain):
+    for f, g in zip(traj, motion_gain):
         notes = [f.estimate.status[i:].split(")")[0] for key in ("NOT CONVERGED", "recovering")
                  if (i := f.estimate.status.find(key)) >= 0]
-        cov = common_error_cov(f.cov, L, g, D, motion_std_rad)
-        out.append(dataclasses.replace(f, estimate=_estimate(f.T, cov, conf, "; ".join(notes))))
+        out.append(dataclasses.replace(f, estimate=_estimate(f.T, motion_bias_cov(f.cov, g, motion_std_rad), conf,
+                                                             "; ".join(notes))))
     return out
 
 
 def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None):
     """The closed loop (module doc), with the motion constraint folded into each frame's prior when
-    ``motion`` is given (``hybrid.motion``)."""
+    ``motion`` is given (``hybrid.motion``).
+
+    The network's error common to a drive (``drive_std``, ``measurement`` item 4) enters in one of
+    two ways. Network priors alone: added to the reported covariance afterwards (``with_drive_error``;
+    the estimate is then their average, whatever their weights). With motion measurements the split
+    of the estimate between the two sources matters, so the common error enters the weights: each
+    frame's network prior covariance is inflated by ``N D`` (N: the drive's frames, D =
+    ``diag(drive_std^2)``). The N priors ``x + b + e_k`` with a common ``b ~ N(0, D)`` carry, by
+    generalised least squares, ``(C / N + D)^-1`` about x; N priors of covariance ``C + N D`` carry
+    exactly that after the last frame, and less before it (conservative). The motion then decides
+    what the network's bias cannot average out (the yaw), and the network the rest.
+    """
     from tqdm import tqdm
 
     skipped, rows = tr.skipped, tr.rows
@@ -290,8 +297,9 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None):
     cal = SlidingWindowCalibrator(T0, conf.window)
     gate = conf.window.schedule.final_gate
     T, fused_cov, traj = T0.copy(), None, []
-    L_net, g_mot, net_info, motion_gain = np.zeros((6, 6)), np.zeros(6), [], []
-    D, prev, reported_cov = np.diag(np.asarray(mconf.drive_std, np.float64) ** 2), None, None
+    g_mot, motion_gain, prev, reported_cov = np.zeros(6), [], None, None
+    inflate = len(drive.indices) * np.diag(np.asarray(mconf.drive_std, np.float64) ** 2)
+    s_mot = np.radians(conf.motion.drive_std_deg)
     for i in tqdm(drive.indices, desc=f"hybrid {drive.vehicle}", disable=not conf.progress, leave=False):
         pair, prev = prev, i
         out = runner.run(i, T)
@@ -306,11 +314,10 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None):
             skipped.append({"index": int(i), "token": out.rows_first.frame_id, "reason": "no correspondence rows"})
             continue
         prior, mrec = fi.prior, {}
-        if fi.prior is not None:
-            L_net = L_net + np.linalg.inv(fi.prior.cov)
         if motion is not None and fi.prior is not None:
+            prior = GaussianPrior(fi.prior.T, fi.prior.cov + inflate)
             m, why = motion.measurement(pair, i, T[:3, :3]) if pair is not None else (None, "first frame")
-            fo = fold(fi.prior, T, m, conf.motion, reported_cov) if m is not None else None
+            fo = fold(prior, T, m, conf.motion, reported_cov) if m is not None else None
             if fo is not None:
                 prior, g_mot = fo.prior, g_mot + fo.gain_motion
                 sig = np.hypot(m.sigma, np.radians(conf.motion.sigma_vo_deg))
@@ -321,11 +328,10 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None):
                 mrec = {"motion_skipped": why or "residual outside the innovation gate (MotionConfig.gate)"}
         fe = cal.update(fi.corr, prior)
         traj.append(fe)
-        net_info.append(L_net.copy())
         motion_gain.append(g_mot.copy())
         T, fused_cov = fe.T, fe.cov
-        if motion is not None:  # the estimate's uncertainty with the drive-common terms: the motion gate's
-            reported_cov = common_error_cov(fe.cov, L_net, g_mot, D, np.radians(conf.motion.drive_std_deg))
+        if motion is not None:  # the estimate's uncertainty with the motion's common bias: the gate's
+            reported_cov = motion_bias_cov(fe.cov, g_mot, s_mot)
         used = int(round(fe.inlier_fraction * len(fi.corr)))
         rows.append({"frame_id": fi.corr.frame_id, "used": used, "rejected": len(fi.corr) - used,
                      "deflation": fi.deflation, "prior_used": fi.prior_used, "network_ms": out.seconds * 1e3,
@@ -333,8 +339,7 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None):
                      **({"note": fi.note} if fi.note else {})})
     if motion is None:
         return with_drive_error(traj, mconf.drive_std, conf)
-    return with_common_errors(traj, net_info, motion_gain, mconf.drive_std, np.radians(conf.motion.drive_std_deg),
-                              conf)
+    return with_motion_bias(traj, motion_gain, s_mot, conf)
 
 
 LEARNED = {"hybrid": _hybrid, "pure": _pure, "pure-avg": _pure_avg}

@@ -15,7 +15,10 @@ the frame's start (VO fails on moving traffic, repetitive texture and turns); an
 a drive ``drive_std_deg`` (a radar azimuth misalignment inside the sensor, a VO bias of the
 scene), which the loop adds to the reported covariance through the motion's share of the estimate
 (``loop``). The pair is skipped (and why recorded) when the radar is slower than
-``min_speed_mps``, the frames are more than ``max_gap_s`` apart, or either sensor cannot tell.
+``min_speed_mps``, the frames are more than ``max_gap_s`` apart, either sensor cannot tell, or VO's
+rotation angle disagrees with the vehicle's (the ego poses' rotation angle between the two frames:
+the angle of a rigid rotation is the same in every frame on the vehicle, so no tables enter; it
+catches two-view VO trading rotation for a sideways travel in turns).
 
 How it enters the window: the window takes one Gaussian prior per frame. The network's SE(3) prior
 and the linearised motion residual (at the frame's start, the fused estimate) are combined in
@@ -36,7 +39,7 @@ from factors.motion import MotionMeasurement, chord_heading, chord_length, headi
 from hybrid_calib.atomic import write_bytes_atomic
 from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.errors import DataError
-from hybrid_calib.geometry import retract
+from hybrid_calib.geometry import retract, so3_log
 from hybrid_calib.sensors.radar_velocity import RadarVelocityConfig, estimate_velocity
 from hybrid_calib.sensors.visual_odometry import VisualOdometryConfig, camera_motion
 
@@ -44,12 +47,15 @@ from hybrid_calib.sensors.visual_odometry import VisualOdometryConfig, camera_mo
 @dataclass(frozen=True)
 class MotionConfig:
     enabled: bool = True  # the motion constraint in the hybrid (off: the network's SE(3) alone)
-    sigma_vo_deg: float = 1.5  # VO heading std, deg (fitted on validation drives: benchmarks/motion_fit.py, docs)
+    sigma_vo_deg: float = 1.16  # VO heading std, deg (fitted on validation drives: benchmarks/motion_fit.py, docs)
     huber: float = 2.0  # Huber threshold on the whitened residual at the frame's start
     gate: float = 3.0  # innovation gate: |r| > gate * sqrt(sigma^2 + J C J^T) (C: the estimate's covariance) -> dropped
-    drive_std_deg: float = 1.0  # error common to a drive's motion measurements, deg (added to the covariance)
+    drive_std_deg: float = 0.16  # error common to a drive's motion measurements, deg (added to the covariance)
     min_speed_mps: float = 2.0  # slower: the Doppler heading is too noisy, the pair is skipped
     max_gap_s: float = 1.5  # frames further apart are not a pair
+    # VO's rotation angle must match the vehicle's own (ego poses: odometry, mount-independent) within
+    # this, deg; two-view VO in turns and on repetitive texture trades rotation for a sideways travel
+    max_rotation_mismatch_deg: float = 1.0
     velocity: RadarVelocityConfig = RadarVelocityConfig()
     vo: VisualOdometryConfig = VisualOdometryConfig()
 
@@ -128,6 +134,11 @@ class MotionSource:
         if vo is None:
             return None, f"visual odometry: {why}"
         R_A = np.asarray(vo["R_ab"], np.float64)
+        ego = ego_rotation_deg(fa, fb)
+        vo_deg = float(np.degrees(np.linalg.norm(so3_log(R_A))))
+        if ego is not None and abs(vo_deg - ego) > self.conf.max_rotation_mismatch_deg:
+            return None, (f"visual odometry: its rotation {vo_deg:.1f} deg disagrees with the ego poses' {ego:.1f} deg "
+                          f"(more than {self.conf.max_rotation_mismatch_deg:g}): a wrong two-view solution")
         yaw_ab = radar_yaw_change(R_A, R_cam_radar)
         psi, sig, speed = chord_heading(va.v, va.cov, vb.v, vb.cov, yaw_ab)
         # the Doppler chord is centred on the radar's mid-time, the camera's on the camera's: carry
@@ -139,6 +150,17 @@ class MotionSource:
         return MotionMeasurement(np.asarray(vo["c"], np.float64), R_A, chord_length(speed, dt, yaw_ab), psi, sig, speed,
                                  fa.camera_token, fb.camera_token, int(vo["n_inliers"]),
                                  min(va.n_inliers, vb.n_inliers)), ""
+
+
+def ego_rotation_deg(fa, fb) -> float | None:
+    """The vehicle's rotation angle between the two camera timestamps (deg), from the ego poses
+    (``extras["T_global_ego_cam"]``), or None when the frames have none. The angle of a rotation is
+    the same in every frame attached to the vehicle, so no mount (no tables) enters."""
+    Ta, Tb = fa.extras.get("T_global_ego_cam"), fb.extras.get("T_global_ego_cam")
+    if Ta is None or Tb is None:
+        return None
+    R = np.asarray(Ta, np.float64)[:3, :3].T @ np.asarray(Tb, np.float64)[:3, :3]
+    return float(np.degrees(np.linalg.norm(so3_log(R))))
 
 
 @dataclass(frozen=True)
