@@ -140,3 +140,22 @@ def test_visual_odometry_and_doppler_on_a_simulated_drive_agree_with_the_truth(d
         folded = fold(GaussianPrior(T, prior_cov), T, m, MotionConfig())
         assert folded is not None or r > 3 * np.hypot(1.5, 2.0) - 1.0
     assert pairs >= 2 and good >= pairs - 1
+
+
+def test_direction_of_travel_from_matches_when_the_rotation_is_known():
+    from hybrid_calib.sensors.visual_odometry import travel_given_rotation
+
+    g = np.random.default_rng(4)
+    K = np.array([[600.0, 0, 400], [0, 600.0, 225], [0, 0, 1]])
+    P = np.c_[g.uniform(-15, 15, 200), g.uniform(-3, 2, 200), g.uniform(5, 80, 200)]  # camera a, metres
+    R_ab = so3_exp([0.0, np.radians(3.0), 0.0])  # camera b in a: a 3 deg turn
+    c_true = np.array([0.05, 0.0, 1.0]) * 4.0  # b's centre in a
+    Pb = (P - c_true) @ R_ab  # x_b = R_ab^T (x_a - c)
+    pa = (P @ K.T)[:, :2] / P[:, 2:]
+    pb = (Pb @ K.T)[:, :2] / Pb[:, 2:]
+    pa, pb = pa + g.normal(0, 0.3, pa.shape), pb + g.normal(0, 0.3, pb.shape)
+    pb[:40] = g.uniform([0, 0], [800, 450], (40, 2))  # wrong matches
+    cm, why = travel_given_rotation(pa, pb, K, R_ab)
+    assert cm is not None, why
+    err = np.degrees(np.arccos(np.clip(cm.c @ c_true / np.linalg.norm(c_true), -1, 1)))
+    assert err < 0.5 and cm.n_inliers >= 150

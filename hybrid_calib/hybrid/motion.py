@@ -39,27 +39,39 @@ from factors.motion import MotionMeasurement, chord_heading, chord_length, headi
 from hybrid_calib.atomic import write_bytes_atomic
 from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.errors import DataError
-from hybrid_calib.geometry import retract, so3_log
+from hybrid_calib.geometry import retract, so3_exp, so3_log
 from hybrid_calib.sensors.radar_velocity import RadarVelocityConfig, estimate_velocity
-from hybrid_calib.sensors.visual_odometry import VisualOdometryConfig, camera_motion
+from hybrid_calib.sensors.visual_odometry import (
+    CameraMotion,
+    VisualOdometryConfig,
+    match_features,
+    motion_from_matches,
+    travel_given_rotation,
+)
 
 
 @dataclass(frozen=True)
 class MotionConfig:
     enabled: bool = True  # the motion constraint in the hybrid (off: the network's SE(3) alone)
-    sigma_vo_deg: float = 1.16  # VO heading std, deg (fitted on validation drives: benchmarks/motion_fit.py, docs)
+    sigma_vo_deg: float = 1.12  # VO heading std, deg (fitted on validation drives: benchmarks/motion_fit.py, docs)
     huber: float = 2.0  # Huber threshold on the whitened residual at the frame's start
     gate: float = 3.0  # innovation gate: |r| > gate * sqrt(sigma^2 + J C J^T) (C: the estimate's covariance) -> dropped
-    drive_std_deg: float = 0.16  # error common to a drive's motion measurements, deg (added to the covariance)
+    drive_std_deg: float = 0.18  # error common to a drive's motion measurements, deg (added to the covariance)
     min_speed_mps: float = 2.0  # slower: the Doppler heading is too noisy, the pair is skipped
     max_gap_s: float = 1.5  # frames further apart are not a pair
     # VO's rotation angle must match the vehicle's own (ego poses: odometry, mount-independent) within
     # this, deg; two-view VO in turns and on repetitive texture trades rotation for a sideways travel
     max_rotation_mismatch_deg: float = 1.0
+    # the camera's rotation between frames: "ego" = the ego poses' turn about the radar's up axis
+    # (only the direction of travel is estimated from the images; falls back to "vo" without ego
+    # poses) | "vo" = the five-point essential matrix (checked against the ego poses' angle)
+    rotation: str = "ego"
     velocity: RadarVelocityConfig = RadarVelocityConfig()
     vo: VisualOdometryConfig = VisualOdometryConfig()
 
     def __post_init__(self):
+        if self.rotation not in ("ego", "vo"):
+            raise ValueError(f"MotionConfig.rotation={self.rotation!r}; valid: ego, vo")
         if self.sigma_vo_deg < 0 or self.drive_std_deg < 0 or self.huber <= 0 or self.min_speed_mps < 0:
             raise ValueError("MotionConfig: sigma_vo_deg, drive_std_deg, min_speed_mps must be >= 0 and huber > 0 "
                              f"(got {self.sigma_vo_deg}, {self.drive_std_deg}, {self.min_speed_mps}, {self.huber})")
@@ -93,28 +105,56 @@ class MotionSource:
         from hybrid_calib.config import to_dict
 
         key = hashlib.sha1(json.dumps(to_dict(self.conf.vo), sort_keys=True).encode()).hexdigest()[:10]
-        return Path(self.cache_dir) / "motion" / f"vo-{key}" / f"{fa.camera_token}__{fb.camera_token}.json"
+        return Path(self.cache_dir) / "motion" / f"matches-{key}" / f"{fa.camera_token}__{fb.camera_token}.npz"
 
-    def _vo(self, fa, fb) -> tuple[dict | None, str]:
-        """Camera motion a -> b as plain data (cached), or (None, why)."""
+    def _matches(self, fa, fb) -> tuple[tuple | None, str]:
+        """The image matches a -> b ((pa, pb, K) or None, why), cached as ``.npz``."""
+        import io
+
         path = self._cache(fa, fb)
         if path is not None and path.is_file():
             try:
-                d = json.loads(path.read_text())
-                return (d["motion"], d["reason"])
+                with np.load(path) as z:
+                    if "pa" in z:
+                        return (z["pa"], z["pb"], z["K"]), ""
+                    return None, str(z["reason"])
             except (OSError, ValueError, KeyError):
                 pass  # a damaged cache entry is recomputed
-        cm, why = camera_motion(fa.load_image(), fb.load_image(), fa.camera, self.conf.vo)
-        d = None if cm is None else {"R_ab": cm.R_ab.tolist(), "c": cm.c.tolist(), "n_inliers": cm.n_inliers,
-                                      "parallax_px": cm.parallax_px}
+        m, why = match_features(fa.load_image(), fb.load_image(), fa.camera, self.conf.vo)
         if path is not None:
-            write_bytes_atomic(path, json.dumps({"motion": d, "reason": why}).encode())
-        return d, why
+            buf = io.BytesIO()
+            if m is None:
+                np.savez(buf, reason=np.array(why))
+            else:
+                np.savez(buf, pa=m[0], pb=m[1], K=m[2])
+            write_bytes_atomic(path, buf.getvalue())
+        return m, why
+
+    def camera(self, fa, fb, R_cam_radar: np.ndarray) -> tuple[CameraMotion | None, str]:
+        """The camera's motion a -> b (module doc): with ego poses, the rotation is the vehicle's
+        rotation angle about the radar's up axis (the current estimate's; a 2D radar is mounted level)
+        and only the direction of travel is estimated (``travel_given_rotation``); without them the
+        five-point essential matrix."""
+        m, why = self._matches(fa, fb)
+        if m is None:
+            return None, why
+        omega = ego_rotation(fa, fb)
+        if omega is None or self.conf.rotation == "vo":
+            cm, why = motion_from_matches(*m, self.conf.vo)
+            if cm is not None and omega is not None:
+                vo_deg = float(np.degrees(np.linalg.norm(so3_log(cm.R_ab))))
+                ego = float(np.degrees(np.linalg.norm(omega)))
+                if abs(vo_deg - ego) > self.conf.max_rotation_mismatch_deg:
+                    return None, (f"its rotation {vo_deg:.1f} deg disagrees with the ego poses' {ego:.1f} deg "
+                                  f"(more than {self.conf.max_rotation_mismatch_deg:g}): a wrong two-view solution")
+            return cm, why
+        up = np.asarray(R_cam_radar, np.float64)[:, 2]
+        return travel_given_rotation(*m, so3_exp(omega[2] * up), self.conf.vo)
 
     def measurement(self, ia: int, ib: int, R_cam_radar: np.ndarray) -> tuple[MotionMeasurement | None, str]:
         """The motion constraint between frames ``ia`` and ``ib`` (indices into ``frames``), or (None,
-        why not). ``R_cam_radar`` (3, 3): the current estimate, used only to carry the radar velocity
-        at b into frame a (a second-order effect)."""
+        why not). ``R_cam_radar`` (3, 3): the current estimate; it gives the rotation axis (with ego
+        poses) and carries the radar velocity at b into frame a, both first-order insensitive to it."""
         try:
             fa, fb = self._frame(ia), self._frame(ib)
         except DataError as e:
@@ -128,17 +168,16 @@ class MotionSource:
         if min(va.speed, vb.speed) < self.conf.min_speed_mps:
             return None, f"radar speed {min(va.speed, vb.speed):.1f} m/s (need {self.conf.min_speed_mps:g})"
         try:
-            vo, why = self._vo(fa, fb)
+            cm, why = self.camera(fa, fb, R_cam_radar)
         except DataError as e:
             return None, f"image unreadable: {e}"
-        if vo is None:
+        if cm is None:
             return None, f"visual odometry: {why}"
-        R_A = np.asarray(vo["R_ab"], np.float64)
-        ego = ego_rotation_deg(fa, fb)
-        vo_deg = float(np.degrees(np.linalg.norm(so3_log(R_A))))
-        if ego is not None and abs(vo_deg - ego) > self.conf.max_rotation_mismatch_deg:
-            return None, (f"visual odometry: its rotation {vo_deg:.1f} deg disagrees with the ego poses' {ego:.1f} deg "
-                          f"(more than {self.conf.max_rotation_mismatch_deg:g}): a wrong two-view solution")
+        # the sign of two-view translation rests on cheirality, fragile with far points (a highway's):
+        # the radar says which way the vehicle moves; the current estimate carries it to the camera
+        ahead = np.asarray(R_cam_radar, np.float64) @ np.array([va.v[0], va.v[1], 0.0])
+        c = cm.c if cm.c @ ahead >= 0 else -cm.c
+        R_A = cm.R_ab
         yaw_ab = radar_yaw_change(R_A, R_cam_radar)
         psi, sig, speed = chord_heading(va.v, va.cov, vb.v, vb.cov, yaw_ab)
         # the Doppler chord is centred on the radar's mid-time, the camera's on the camera's: carry
@@ -147,20 +186,19 @@ class MotionSource:
         lag = 0.5 * (fa.timestamp_radar_us + fb.timestamp_radar_us - fa.timestamp_camera_us - fb.timestamp_camera_us)
         if dt_cam > 0:
             psi -= yaw_ab * lag * 1e-6 / dt_cam
-        return MotionMeasurement(np.asarray(vo["c"], np.float64), R_A, chord_length(speed, dt, yaw_ab), psi, sig, speed,
-                                 fa.camera_token, fb.camera_token, int(vo["n_inliers"]),
+        return MotionMeasurement(c, R_A, chord_length(speed, dt, yaw_ab), psi, sig, speed,
+                                 fa.camera_token, fb.camera_token, cm.n_inliers,
                                  min(va.n_inliers, vb.n_inliers)), ""
 
 
-def ego_rotation_deg(fa, fb) -> float | None:
-    """The vehicle's rotation angle between the two camera timestamps (deg), from the ego poses
-    (``extras["T_global_ego_cam"]``), or None when the frames have none. The angle of a rotation is
-    the same in every frame attached to the vehicle, so no mount (no tables) enters."""
+def ego_rotation(fa, fb) -> np.ndarray | None:
+    """The vehicle's rotation vector between the two camera timestamps (3,) rad, in the ego frame at
+    a (``extras["T_global_ego_cam"]``), or None when the frames have none. Its angle is the same in
+    every frame attached to the vehicle, and its z part is the turn, so no mount (no tables) enters."""
     Ta, Tb = fa.extras.get("T_global_ego_cam"), fb.extras.get("T_global_ego_cam")
     if Ta is None or Tb is None:
         return None
-    R = np.asarray(Ta, np.float64)[:3, :3].T @ np.asarray(Tb, np.float64)[:3, :3]
-    return float(np.degrees(np.linalg.norm(so3_log(R))))
+    return so3_log(np.asarray(Ta, np.float64)[:3, :3].T @ np.asarray(Tb, np.float64)[:3, :3])
 
 
 @dataclass(frozen=True)
