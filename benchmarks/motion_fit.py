@@ -10,7 +10,8 @@ inliers and the radar speed. The fit: ``sigma_vo_deg`` such that the median of t
 residual ``|r| / sqrt(sigma_doppler^2 + sigma_vo^2)`` is the Gaussian's 0.674 (the tails are left
 to the Huber weight); ``drive_std_deg``: the spread of the per-drive mean residuals beyond what
 their within-drive scatter explains: the second moment of the drive means about zero (a bias
-shared by all drives counts: its sign on a new drive is unknown) less their mean variance, >= 0. Prints a table and writes
+shared by all drives counts: its sign on a new drive is unknown) less their mean variance, >= 0.
+Prints a table and writes
 ``OUT/motion_fit.json`` (every residual, the fit, the command).
 """
 
