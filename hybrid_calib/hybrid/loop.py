@@ -40,7 +40,7 @@ from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.geometry import local
 from hybrid_calib.hybrid.average import AverageConfig, robust_average
 from hybrid_calib.hybrid.measurement import MeasurementConfig, frame_inputs, prior_trusted
-from hybrid_calib.hybrid.motion import MotionConfig, MotionSource, fold
+from hybrid_calib.hybrid.motion import MotionConfig, MotionSource, MotionStepDetector, fold, innovation
 from hybrid_calib.hybrid.network import NetworkRunner, build_runner, refine_checkpoint, shipped_checkpoint
 from hybrid_calib.hybrid.ood import OODPolicy, decide, json_score, out_of_domain, skip_record
 from hybrid_calib.metrics import extrinsic_error
@@ -297,7 +297,8 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None):
     cal = SlidingWindowCalibrator(T0, conf.window)
     gate = conf.window.schedule.final_gate
     T, fused_cov, traj = T0.copy(), None, []
-    g_mot, motion_gain, prev, reported_cov = np.zeros(6), [], None, None
+    g_frames, motion_gain, prev, reported_cov = [], [], None, None
+    steps = MotionStepDetector(conf.motion.step)
     inflate = len(drive.indices) * np.diag(np.asarray(mconf.drive_std, np.float64) ** 2)
     s_mot = np.radians(conf.motion.drive_std_deg)
     for i in tqdm(drive.indices, desc=f"hybrid {drive.vehicle}", disable=not conf.progress, leave=False):
@@ -313,22 +314,37 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None):
         if not len(fi.corr) and fi.prior is None:
             skipped.append({"index": int(i), "token": out.rows_first.frame_id, "reason": "no correspondence rows"})
             continue
-        prior, mrec = fi.prior, {}
+        prior, mrec, alarm, age = fi.prior, {}, False, 0
         if motion is not None and fi.prior is not None:
             prior = GaussianPrior(fi.prior.T, fi.prior.cov + inflate)
             m, why = motion.measurement(pair, i, T[:3, :3]) if pair is not None else (None, "first frame")
             fo = fold(prior, T, m, conf.motion, reported_cov) if m is not None else None
+            if m is not None:
+                r, s_in = innovation(T, m, conf.motion, prior.cov if reported_cov is None else reported_cov)
+                alarm, age = steps.update(r / s_in)
+            g_frames.append(fo.gain_motion if fo is not None else np.zeros(6))
             if fo is not None:
-                prior, g_mot = fo.prior, g_mot + fo.gain_motion
+                prior = fo.prior
                 sig = np.hypot(m.sigma, np.radians(conf.motion.sigma_vo_deg))
                 mrec = {"motion": {"residual_deg": fo.residual_deg, "weight": fo.weight,
                                    "sigma_deg": float(np.degrees(sig)), "speed_mps": m.speed,
                                    "vo_inliers": m.n_vo_inliers}}
             else:
                 mrec = {"motion_skipped": why or "residual outside the innovation gate (MotionConfig.gate)"}
+            if m is not None:
+                mrec.update(motion_z=float(r / s_in), motion_cusum=steps.statistic)
         fe = cal.update(fi.corr, prior)
+        if alarm:  # the radar turned: restart the window from the frames since the change point
+            keep = min(age, conf.window.window, len(g_frames))
+            cal.reset(keep_last=keep)
+            g_frames = g_frames[len(g_frames) - keep:]
+            fe = dataclasses.replace(fe, step_alarm=True, events=(*fe.events, (
+                f"motion step: the radar's heading in the camera's motion shifted (CUSUM > "
+                f"{conf.motion.step.threshold:g}, change about {age} frames ago); window restarted")))
+            alarm = False
         traj.append(fe)
-        motion_gain.append(g_mot.copy())
+        g_mot = np.sum(g_frames, axis=0) if g_frames else np.zeros(6)
+        motion_gain.append(g_mot)
         T, fused_cov = fe.T, fe.cov
         if motion is not None:  # the estimate's uncertainty with the motion's common bias: the gate's
             reported_cov = motion_bias_cov(fe.cov, g_mot, s_mot)
