@@ -17,7 +17,6 @@ alarms (before the knock, or anywhere on an unchanged drive) per 1000 frames tes
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
