@@ -223,10 +223,12 @@ class MotionStepDetector:
     whitened by its own and the estimate's uncertainty), each divided by the square root of a running
     scale (median of lagged ``z^2`` over chi2(1)'s 0.455, at least ``min_scale``: the fitted VO noise
     is an average over scenes and image sizes, this drive's may be smaller or larger) and clipped to
-    ``+-clip``; beyond ``+-gross`` it is a failed VO solution and skipped. A radar knocked by ``delta`` shifts the innovations by about ``delta / sigma`` until
-    the window follows, so the CUSUM rises by ``delta / sigma - drift`` per frame: with sigma ~0.7
-    deg (urban, 800x450 images) a 1 deg knock crosses ``threshold`` 6 in ~7 frames, while without a
-    change it drifts down by ``drift`` per frame. ``update`` returns the alarm and, with it, how many
+    ``+-clip``; beyond ``+-gross`` it is a failed VO solution and skipped. A radar knocked by
+    ``delta`` shifts the innovations by about ``delta / sigma`` until the window follows, so the
+    CUSUM rises by ``delta / sigma - drift`` per frame, while without a change it drifts down by
+    ``drift`` per frame. Measured (benchmarks/hybrid_steps.py, docs/benchmarks.md): the innovations
+    after a 1 deg knock are smaller than that (the window follows part of the way at once), and VO
+    noise varies with the scene, so a 1 deg knock is found within 20 frames on some drives only. ``update`` returns the alarm and, with it, how many
     measurements ago the CUSUM left zero (the change point estimate); the CUSUMs restart after an
     alarm (hysteresis: one step, one alarm)."""
 
