@@ -229,8 +229,8 @@ class MotionStepDetector:
     ``drift`` per frame. Measured (benchmarks/hybrid_steps.py, docs/benchmarks.md): the innovations
     after a 1 deg knock are smaller than that (the window follows part of the way at once), and VO
     noise varies with the scene, so a 1 deg knock is found within 20 frames on some drives only.
-    ``update`` returns the alarm and, with it, how many measurements ago the CUSUM left zero (the change point estimate); the CUSUMs restart after an
-    alarm (hysteresis: one step, one alarm)."""
+    ``update`` returns the alarm and, with it, how many measurements ago the CUSUM left zero (the
+    change point estimate); the CUSUMs restart after an alarm (hysteresis: one step, one alarm)."""
 
     def __init__(self, conf: MotionStepConfig):
         self.conf = conf
