@@ -216,7 +216,10 @@ def fit_measurement(roots, version: str, checkpoint: str, out: str | Path, start
     truths = drive_truths(roots, version)
     base = {"method": "hybrid", "checkpoint": str(checkpoint), "start": start, "seed": seed,
             "max_frames": max_frames, "threads": threads, "progress": progress, "refine": refine,
-            "cache_dir": str(out / "network-cache"), "depth_cache": str(out / "depth-cache")}
+            "cache_dir": str(out / "network-cache"), "depth_cache": str(out / "depth-cache"),
+            # the network's measurement model is a property of the network: fitted without the motion
+            # constraint (hybrid.motion), whose noise is fitted apart (benchmarks/motion_fit.py)
+            "motion": {"enabled": False}}
     cands = {}
     for rows in rows_options:
         # round 1: the loop with the unfitted model (its rows, no prior, no shared error) gives the regime
