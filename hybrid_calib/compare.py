@@ -43,6 +43,8 @@ class CompareConfig:
     hybrid: HybridConfig = HybridConfig()  # shared settings (checkpoint, max_frames, window, measurement, ...)
 
     def __post_init__(self):
+        if not self.methods:
+            raise ValueError(f"CompareConfig.methods is empty; valid: {METHODS}")
         if bad := [m for m in self.methods if m not in METHODS]:
             raise ValueError(f"CompareConfig.methods: unknown {bad}; valid: {METHODS}")
         if self.range not in ("R1", "R2"):

@@ -78,6 +78,10 @@ class HybridConfig:
             raise ValueError(f"HybridConfig.start={self.start!r}; valid: {STARTS}")
         if self.split not in ("all", "train", "val", "test"):
             raise ValueError(f"HybridConfig.split={self.split!r}; valid: all, train, val, test")
+        if self.max_frames < 0:
+            raise ValueError(f"HybridConfig.max_frames must be >= 0 (0 = all frames), got {self.max_frames}")
+        if self.threads < 1:
+            raise ValueError(f"HybridConfig.threads must be >= 1, got {self.threads}")
 
 
 @dataclass
@@ -118,9 +122,11 @@ def trained_depth(checkpoint) -> str:
     return trained_with(read_checkpoint_meta(checkpoint)[1].get("train_config"))
 
 
-def open_drives(data, version: str, conf: HybridConfig, lidar: bool):
+def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable: dict | None = None):
     """(frames, {vehicle: Drive}) of a root, restricted to ``conf.vehicles``, the frames of
-    ``conf.split`` (``learned.dataset.split_indices`` with ``conf.split_options``) and ``conf.max_frames``."""
+    ``conf.split`` (``learned.dataset.split_indices`` with ``conf.split_options``) and ``conf.max_frames``.
+    A vehicle none of whose frames reads is a ``DataError`` (naming the first bad file), or, when
+    ``unreadable`` is a dict, recorded there (vehicle -> reason) and left out."""
     from learned.dataset import open_frames, split_indices
 
     frames = open_frames(data, version, lidar=lidar)
@@ -135,15 +141,21 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool):
             if not idx:
                 continue
         idx = idx[: conf.max_frames] if conf.max_frames > 0 else idx
-        f = None
+        f, first_error = None, None
         for i in idx:  # the first readable frame gives the extrinsics
             try:
                 f = frames[i]
                 break
-            except DataError:
+            except DataError as e:
+                first_error = first_error or e
                 continue
         if f is None:
-            raise DataError(f"vehicle {vehicle}: no readable frame", path=str(data))
+            reason = (f"vehicle {vehicle}: no readable frame ({len(idx)} frame(s) tried; first: "
+                      f"{first_error if first_error is not None else '-'})")
+            if unreadable is None:
+                raise DataError(reason, path=str(data))
+            unreadable[vehicle] = reason
+            continue
         static = np.asarray(f.extras.get("T_cam_radar_static", f.T_cam_radar), np.float64)
         ref = np.asarray(f.extras.get("reference_T_cam_radar", static), np.float64)
         drives[vehicle] = Drive(vehicle, list(idx), static, ref, simulated)
@@ -372,15 +384,24 @@ class _Session:
 
         self.data, self.version, self.conf = data, version, conf
         self.runner, self.note = None, ""
+        self.unreadable: dict[str, str] = {}  # vehicle -> why none of its frames reads
         if conf.method == "oracle":
-            self.frames, self.drives = open_drives(data, version, conf, lidar=False)
+            self.frames, self.drives = open_drives(data, version, conf, lidar=False, unreadable=self.unreadable)
+            self._check_some_drive()
             return
         depth, self.note = resolve_depth(data, version, conf)
         ckpt = conf.checkpoint or shipped_checkpoint(conf.start)
         effective = depth or trained_depth(ckpt)  # "" = the checkpoint's own (lidar-densified needs the LiDAR)
-        self.frames, self.drives = open_drives(data, version, conf, lidar=needs_lidar(effective))
+        self.frames, self.drives = open_drives(data, version, conf, lidar=needs_lidar(effective),
+                                               unreadable=self.unreadable)
+        self._check_some_drive()
         self.runner = build_runner(ckpt, refine_checkpoint(conf.refine), self.frames, depth, conf.cache_dir,
                                    conf.depth_cache, conf.threads)
+
+    def _check_some_drive(self) -> None:
+        """``DataError`` when every vehicle is unreadable (one vehicle: the run_vehicle / fleet job case)."""
+        if self.unreadable and not self.drives:
+            raise DataError("; ".join(self.unreadable.values()), path=str(self.data))
 
     def vehicle(self, name: str) -> VehicleResult:
         drive = self.drives[name]
@@ -414,12 +435,17 @@ def run_calibration(data: str | Path, version: str, out: str | Path, conf: Hybri
     if not session.drives:
         raise DataError("no vehicle to calibrate (check --set vehicles=... and the dataset)", path=str(data))
     mode = {"hybrid": "window", "oracle": "window", "pure": "network", "pure-avg": "average"}[conf.method]
-    run = CalibrationRun(str(data), version, conf.method, mode)
+    run = CalibrationRun(str(data), version, conf.method, mode, vehicles_failed=dict(session.unreadable))
     for name in session.drives:
-        vr = session.vehicle(name)
+        try:
+            vr = session.vehicle(name)
+        except DataError as e:  # this vehicle's data: recorded, the other vehicles go on
+            run.vehicles_failed[name] = str(e)
+            continue
         run.vehicles[name] = vr
         if on_vehicle is not None:
             on_vehicle(vr)
+    run.raise_if_none_done()
     save_json_atomic(out / "config.json", to_dict(conf))
     run.save(out / "result.json")
     return run
