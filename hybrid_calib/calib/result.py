@@ -227,6 +227,13 @@ class VehicleResult:
         return cls.from_dict(json.loads(text))
 
 
+def failed_vehicles_message(failed: dict[str, str]) -> str:
+    """One paragraph for vehicles that all failed (vehicle -> reason): the first reason in full, the others by name."""
+    (first, reason), *rest = failed.items()
+    more = f"; {len(rest)} more vehicle(s) failed as well: {', '.join(v for v, _ in rest)}" if rest else ""
+    return f"{reason}{more}"
+
+
 @dataclass
 class CalibrationRun:
     """One ``calibrate`` run: every vehicle's result and where the inputs came from (``result.json``)."""
@@ -247,7 +254,7 @@ class CalibrationRun:
     def raise_if_none_done(self) -> None:
         """``DataError`` when every vehicle failed (the reasons, joined): nothing to write."""
         if self.vehicles_failed and not self.vehicles:
-            raise DataError("; ".join(self.vehicles_failed.values()), path=self.data)
+            raise DataError(failed_vehicles_message(self.vehicles_failed), path=self.data)
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "") -> CalibrationRun:

@@ -67,6 +67,9 @@ def read_radar_pcd(path: str | Path) -> np.ndarray:
         raise DataError("radar file not found; check the dataset root and version", path=str(path)) from None
     except OSError as e:
         raise DataError(f"cannot read radar file: {e}", path=str(path)) from None
+    if not raw:
+        raise DataError("radar file is empty (0 bytes); it was not copied or extracted completely, re-download it",
+                        path=str(path))
     header: dict[str, list[str]] = {}
     pos = 0
     while True:

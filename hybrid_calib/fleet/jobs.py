@@ -89,7 +89,13 @@ def read_fleet_file(path: str | Path, version: str) -> list[tuple[str, str, tupl
                             path=str(path))
         root = Path(r["data"])
         root = root if root.is_absolute() else path.parent / root
+        if not root.is_dir():
+            raise DataError(f"fleet manifest roots[{i}]: {root} is not a directory (a relative path is read from the "
+                            "manifest's folder); fix the path", path=str(path))
         vehicles = r.get("vehicles")
+        if vehicles is not None and not (isinstance(vehicles, list) and all(isinstance(v, str) for v in vehicles)):
+            raise DataError(f"fleet manifest roots[{i}].vehicles is {vehicles!r}; expected a list of vehicle names",
+                            path=str(path))
         out.append((str(root), str(r.get("version", version)), tuple(vehicles) if vehicles else None))
     return out
 

@@ -32,7 +32,8 @@ import numpy as np
 from hybrid_calib.calib.covariance import analyse_information, inconclusive_status
 from hybrid_calib.calib.drift import DriftConfig, reference_test
 from hybrid_calib.calib.oracle import OracleConfig
-from hybrid_calib.calib.result import CalibrationRun, Estimate, FrameEstimate, VehicleResult
+from hybrid_calib.calib.result import (CalibrationRun, Estimate, FrameEstimate, VehicleResult,
+                                       failed_vehicles_message)
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import merge, save_json_atomic, to_dict
 from hybrid_calib.errors import DataError, HybridCalibError
@@ -401,7 +402,7 @@ class _Session:
     def _check_some_drive(self) -> None:
         """``DataError`` when every vehicle is unreadable (one vehicle: the run_vehicle / fleet job case)."""
         if self.unreadable and not self.drives:
-            raise DataError("; ".join(self.unreadable.values()), path=str(self.data))
+            raise DataError(failed_vehicles_message(self.unreadable), path=str(self.data))
 
     def vehicle(self, name: str) -> VehicleResult:
         drive = self.drives[name]
