@@ -7,8 +7,14 @@ import sys
 from functools import partial
 from pathlib import Path
 
-from hybrid_calib.commands import (add_split_arguments, given_flags, nonnegative_int, positive_int, reject_set_keys,
-                                   split_overrides)
+from hybrid_calib.commands import (
+    add_split_arguments,
+    given_flags,
+    nonnegative_int,
+    positive_int,
+    reject_set_keys,
+    split_overrides,
+)
 from hybrid_calib.config import parse_overrides
 from hybrid_calib.perturbation import RANGES
 

@@ -6,8 +6,14 @@ import argparse
 import sys
 from pathlib import Path
 
-from hybrid_calib.commands import (add_split_arguments, given_flags, nonnegative_int, positive_int, reject_set_keys,
-                                   split_overrides)
+from hybrid_calib.commands import (
+    add_split_arguments,
+    given_flags,
+    nonnegative_int,
+    positive_int,
+    reject_set_keys,
+    split_overrides,
+)
 from hybrid_calib.config import parse_overrides
 from hybrid_calib.errors import OptionError
 

@@ -32,8 +32,7 @@ import numpy as np
 from hybrid_calib.calib.covariance import analyse_information, inconclusive_status
 from hybrid_calib.calib.drift import DriftConfig, reference_test
 from hybrid_calib.calib.oracle import OracleConfig
-from hybrid_calib.calib.result import (CalibrationRun, Estimate, FrameEstimate, VehicleResult,
-                                       failed_vehicles_message)
+from hybrid_calib.calib.result import CalibrationRun, Estimate, FrameEstimate, VehicleResult, failed_vehicles_message
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import merge, save_json_atomic, to_dict
 from hybrid_calib.errors import DataError, HybridCalibError
