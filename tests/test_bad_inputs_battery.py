@@ -543,3 +543,70 @@ def test_out_unwritable(sim, tmp_path, capsys):
     out = Path("/proc/hybrid-calib-battery/out")
     rc, err = run_cli(_calibrate(root, out, "--max-frames", "1"), capsys)
     assert rc == EXIT_ERROR and "/proc/hybrid-calib-battery" in err and "internal error" not in err, err
+
+
+# ---------------------------------------------------------------- evaluate (a long job) and the rest
+def test_evaluate_with_the_shipped_checkpoint_records_a_bad_frame_and_goes_on(sim_copy, tmp_path, capsys):
+    """Also the regression of the shipped checkpoints' export.ood block, which ExportConfig refused."""
+    root, frames = sim_copy
+    (_, bad_frames), _ = frames.items()
+    pcd = _radar_file(root, bad_frames[0])
+    pcd.write_bytes(pcd.read_bytes()[:200])
+    out = tmp_path / "eval"
+    rc, err = run_cli(["evaluate", "--data", root, "--version", SIM_VERSION, "--checkpoint",
+                       SHIPPED / "small-sim-r1.json", "--out", out, "--split", "all", "--max-frames", "3",
+                       "--no-progress", "--set", "batch_size=2"], capsys)
+    assert rc == 0, err
+    skipped = json.loads((out / "skipped.json").read_text())
+    assert [s["index"] for s in skipped] == [bad_frames[0].index] and str(pcd) in skipped[0]["file"]
+    assert json.loads((out / "results.json").read_text())["n_frames"] == 2
+
+
+@pytest.mark.parametrize("case", ["out-is-a-dir", "data-nowhere", "checkpoint-nowhere"])
+def test_report_options_that_cannot_work(case, sim, tmp_path, capsys):
+    root, frames = sim
+    run = tmp_path / "run"
+    rc, err = run_cli(_calibrate(root, run, "--max-frames", "1"), capsys)
+    assert rc == 0, err
+    argv = ["report", run / "result.json", "--vehicle", next(iter(frames))]
+    if case == "out-is-a-dir":
+        argv += ["--out", tmp_path]
+        needles = ["--out", tmp_path, "is a directory"]
+    else:
+        argv += ["--out", tmp_path / "r.html"]
+        flag = "--data" if case == "data-nowhere" else "--checkpoint"
+        argv += [flag, tmp_path / "nowhere"]
+        needles = [flag, tmp_path / "nowhere"]
+    expect_cli_error(argv, capsys, *needles)
+    assert not (tmp_path / "r.html").exists()
+
+
+@pytest.mark.parametrize("override,needle", [("epochs=0", "epochs must be >= 1"), ("lr=0", "lr must be > 0"),
+                                             ("batch_size=-1", "batch_size must be >= 1")])
+def test_train_bad_set_values_fail_before_training(override, needle, sim, tmp_path, capsys):
+    root, _ = sim
+    expect_cli_error(["train", "--data", root, "--version", SIM_VERSION, "--out", tmp_path / "t", "--no-progress",
+                      "--set", override], capsys, needle)
+    assert not (tmp_path / "t").exists()
+
+
+def test_fleet_checkpoint_checked_before_any_job(sim, tmp_path, capsys):
+    root, _ = sim
+    expect_cli_error(["fleet", "--data", root, "--out", tmp_path / "f", "--method", "pure", "--checkpoint",
+                      tmp_path / "none.json"], capsys, "checkpoint not found", tmp_path / "none.json")
+    assert not (tmp_path / "f" / "manifest.json").exists()
+
+
+def test_unreachable_ray_address_fails_at_once():
+    import time
+
+    from hybrid_calib.errors import OptionError
+    from hybrid_calib.fleet.engines import check_ray_address
+
+    t0 = time.perf_counter()
+    for address, needle in [("127.0.0.1:1", "cannot reach a Ray head at 127.0.0.1:1"), ("nohost", "HOST:PORT"),
+                            ("ray://127.0.0.1:1", "cannot reach")]:
+        with pytest.raises(OptionError, match=needle) as e:
+            check_ray_address(address, timeout_s=2.0)
+        assert e.value.option == "--address"
+    assert time.perf_counter() - t0 < 10

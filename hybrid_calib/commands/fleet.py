@@ -52,6 +52,10 @@ def run(args: argparse.Namespace) -> int:
     reject_set_keys(calib, {"seed": "--seed"})  # each job's seed comes from the fleet seed and its vehicle
     calib.update(given_flags(args, {"max_frames": "max_frames"}))  # --max-frames wins over --set max_frames
     merge(CalibrateConfig, {**calib, "seed": args.seed})  # ConfigError names a bad option before any job runs
+    if args.checkpoint is not None and args.method != "oracle":  # one bad checkpoint would fail every job alike
+        from learned.checkpoint import read_checkpoint_meta
+
+        read_checkpoint_meta(args.checkpoint)  # CheckpointError naming the file
     options = FleetOptions(args.engine, args.workers, args.address, None if args.ray_temp is None else
                            str(args.ray_temp), threads=args.threads, retries=args.retries, plots=not args.no_plots)
     bar = None  # made at the first finished vehicle (bad input fails before, without a bar)
