@@ -82,8 +82,8 @@ class TrainConfig:
         for name in ("samples_per_epoch", "val_samples", "num_workers", "lr_halve_every"):
             if getattr(self, name) < 0:
                 raise ValueError(f"TrainConfig.{name} must be >= 0, got {getattr(self, name)}")
-        if not self.lr > 0:
-            raise ValueError(f"TrainConfig.lr must be > 0, got {self.lr}")
+        if not self.lr >= 0:  # 0 is allowed: the weights stay where they start
+            raise ValueError(f"TrainConfig.lr must be >= 0, got {self.lr}")
 
 
 PRESETS: dict[str, dict[str, Any]] = {

@@ -581,7 +581,7 @@ def test_report_options_that_cannot_work(case, sim, tmp_path, capsys):
     assert not (tmp_path / "r.html").exists()
 
 
-@pytest.mark.parametrize("override,needle", [("epochs=0", "epochs must be >= 1"), ("lr=0", "lr must be > 0"),
+@pytest.mark.parametrize("override,needle", [("epochs=0", "epochs must be >= 1"), ("lr=-0.1", "lr must be >= 0"),
                                              ("batch_size=-1", "batch_size must be >= 1")])
 def test_train_bad_set_values_fail_before_training(override, needle, sim, tmp_path, capsys):
     root, _ = sim
