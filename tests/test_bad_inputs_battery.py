@@ -193,6 +193,7 @@ def test_one_bad_frame_is_recorded_and_the_drive_goes_on(case, sim_copy, tmp_pat
 
 
 IMAGE_CASES = {
+    "missing": (lambda p: p.unlink(), "not found"),
     "zero-bytes": (lambda p: p.write_bytes(b""), "empty"),
     "not-an-image": (lambda p: p.write_text("hello, not a JPEG"), "not a JPEG or PNG"),
     "truncated-jpeg": (lambda p: p.write_bytes(p.read_bytes()[:300]), ""),
@@ -386,8 +387,8 @@ def test_bad_checkpoint(case, command, sim, tmp_path, capsys):
 
 
 def test_checkpoint_of_another_range_is_named(sim, tmp_path, capsys):
-    """The R0 network (trained on near-truth starts) from an R2 start: the run says which range the
-    checkpoint was trained for, in the result's config."""
+    """The R0 network (trained on near-truth starts) from an R2 start runs (a legitimate experiment), and
+    the result and the console say that the start range is wider than the checkpoint's."""
     root, _ = sim
     out = tmp_path / "out"
     rc, err = run_cli(_calibrate(root, out, "--method", "pure", "--start", "R2", "--checkpoint",
@@ -395,6 +396,11 @@ def test_checkpoint_of_another_range_is_named(sim, tmp_path, capsys):
     assert rc == 0, err
     v = next(iter(json.loads((out / "result.json").read_text())["vehicles"].values()))
     assert "small-sim-r0" in v["checkpoint"]
+    note = v["config"]["range_note"]
+    assert "start range R2" in note and "R0 range" in note and "small-sim-r0" in note
+    from hybrid_calib.hybrid.loop import range_note
+
+    assert range_note("R1", "R2", "c") == "" and range_note("reference", "R0", "c") == ""
 
 
 # ---------------------------------------------------------------- --set: unknown key, wrong type, bad value

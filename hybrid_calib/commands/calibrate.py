@@ -133,8 +133,9 @@ def _report(result, out: Path) -> int:
         if v.skipped:
             line += f"; {len(v.skipped)} frame(s) skipped (bad files; listed in result.json)"
         print(line)
-        if v.config and v.config.get("depth_note"):
-            print(f"  note: {v.config['depth_note']}")
+        for key in ("depth_note", "range_note"):
+            if v.config and v.config.get(key):
+                print(f"  note: {v.config[key]}")
         if v.frame_rows and "deflation" in v.frame_rows[0]:
             used = sum(r["used"] for r in v.frame_rows)
             rej = sum(r["rejected"] for r in v.frame_rows)

@@ -328,6 +328,16 @@ def unfitted_reason(runner, method: str) -> str:
             f"covariance is not calibrated; fit {' and '.join(how[k] for k in missing)} on validation drives")
 
 
+def range_note(start: str, trained: str, checkpoint: str) -> str:
+    """A note when the start range is wider than the one the network was trained on ("" otherwise): its
+    estimates are then outside what it learned (e.g. the R0 network from an R2 start)."""
+    if start not in RANGES or trained not in RANGES or RANGES[start] <= RANGES[trained]:
+        return ""
+    return (f"the start range {start} (+-{RANGES[start][0]:g} deg, +-{RANGES[start][1]:g} m) is wider than the "
+            f"{trained} range the checkpoint {checkpoint} was trained on: expect poor estimates; use a checkpoint "
+            f"trained on {start} (or --refine it after one)")
+
+
 def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, note: str = "") -> VehicleResult:
     """A learned method (hybrid | pure | pure-avg) on one drive with a loaded network."""
     T0 = start_of(drive, conf)
@@ -348,6 +358,8 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     res.ood = ood
     res.config = {**to_dict(conf), "measurement_effective": to_dict(measurement_config(runner, conf)),
                   "depth_effective": runner.depth_name, **({"depth_note": note} if note else {})}
+    if wider := range_note(conf.start, runner.range, runner.checkpoint):
+        res.config["range_note"] = wider
     res = _finish(res, drive, T0, conf)
     reason = "; and ".join(r for r in (ood["inconclusive"], unfitted_reason(runner, conf.method)) if r)
     if reason:
