@@ -616,3 +616,22 @@ def test_unreachable_ray_address_fails_at_once():
             check_ray_address(address, timeout_s=2.0)
         assert e.value.option == "--address"
     assert time.perf_counter() - t0 < 10
+
+
+def test_compare_leaves_out_a_bad_vehicle_records_a_bad_frame_and_finishes(sim_copy, tmp_path, capsys):
+    root, frames = sim_copy
+    (bad_vehicle, bad_frames), (good_vehicle, good_frames) = frames.items()
+    _break_vehicle(root, bad_frames)
+    _radar_file(root, good_frames[2]).write_bytes(b"")
+    out = tmp_path / "cmp"
+    rc, err = run_cli(["compare", "--data", root, "--out", out, "--methods", "oracle", "--trials", "2",
+                       "--no-progress"], capsys)
+    assert rc == 1 and f"left out {bad_vehicle}" in err and "Traceback" not in err, err
+    summary = json.loads((out / "compare.json").read_text())
+    assert list(summary["vehicles_left_out"]) == [bad_vehicle] and summary["trials_failed"] == []
+    assert str(_radar_file(root, bad_frames[0])) in summary["vehicles_left_out"][bad_vehicle]
+    assert summary["methods"]["oracle"]["trials"] == 2
+    for k in range(2):
+        trial = json.loads((out / "trials" / "oracle" / f"{k:04d}.json").read_text())
+        assert trial["vehicle"] == good_vehicle
+        assert [s["index"] for s in trial["frames_skipped"]] == [good_frames[2].index]

@@ -65,5 +65,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"{m:>9}: rot mean {e['rot_mean_deg']:.3f} deg (median {d['rot_mean_deg']:.3f}), trans mean "
               f"{e['trans_mean_cm']:.2f} cm (median {d['trans_mean_cm']:.2f}); NEES {c['nees_mean']:.1f}, "
               f"coverage {100 * c['coverage_95']:.0f} %, not ok {100 * r['not_ok_fraction']:.0f} %")
+    for name, reason in s["vehicles_left_out"].items():
+        print(f"left out {name}: {reason}", file=sys.stderr)
+    for t in s["trials_failed"]:
+        print(f"trial {t['trial']} ({t['method']}, {t['vehicle']}) failed: {t['reason']}", file=sys.stderr)
     print(f"wrote {args.out / 'compare.md'}, compare.json and error_vs_frames.png")
-    return 0
+    return 1 if s["vehicles_left_out"] or s["trials_failed"] else 0
