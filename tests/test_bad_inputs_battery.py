@@ -326,17 +326,20 @@ def test_bad_calibrated_sensor(case, sim_copy, tmp_path, capsys):
 
 
 # ---------------------------------------------------------------- LiDAR-densified depth
-def test_corrupt_lidar_file_is_a_recorded_skip_when_lidar_depth_is_asked(sim_copy, tmp_path, capsys):
+@pytest.mark.parametrize("content,needle", [(bytes(13), "multiple of 20"), (b"", "empty")],
+                         ids=["truncated", "empty"])
+def test_corrupt_lidar_file_is_a_recorded_skip_when_lidar_depth_is_asked(content, needle, sim_copy, tmp_path,
+                                                                         capsys):
     root, frames = sim_copy
     (bad_vehicle, bad_frames), _ = frames.items()
     lidar = root / bad_frames[0].lidar_sd["filename"]
-    lidar.write_bytes(bytes(13))  # not a multiple of the 20-byte record
+    lidar.write_bytes(content)
     out = tmp_path / "out"
     rc, err = run_cli(_calibrate(root, out, "--method", "pure", "--depth", "lidar-densified", "--max-frames", "2",
                                  "--set", "threads=1"), capsys)
     assert rc == 0, err
     skipped = json.loads((out / "result.json").read_text())["vehicles"][bad_vehicle]["frames_skipped"]
-    assert len(skipped) == 1 and str(lidar) in skipped[0]["reason"], skipped
+    assert len(skipped) == 1 and str(lidar) in skipped[0]["reason"] and needle in skipped[0]["reason"], skipped
 
 
 # ---------------------------------------------------------------- checkpoints
