@@ -414,6 +414,7 @@ SET_CASES = [
     (["calibrate"], "start=R9", ["start='R9'", "R1"]),
     (["calibrate"], "seed=1.5", ["seed=1.5", "integer"]),
     (["calibrate"], "window.window=0", ["window", ">= 1, got 0"]),
+    (["calibrate"], "vehicles=[veh]", ["vehicles='[veh]'", "a list is JSON with quoted strings"]),
     (["calibrate", "--method", "pure"], "start=R9", ["start='R9'", "reference"]),
     (["calibrate", "--method", "pure"], "max_frames=-2", ["max_frames must be >= 0"]),
     (["calibrate", "--method", "pure"], "threads=0", ["threads must be >= 1"]),
