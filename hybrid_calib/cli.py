@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import re
 import sys
 
 from hybrid_calib.errors import HybridCalibError, check_out_dir
@@ -65,8 +66,9 @@ def main(argv: list[str] | None = None) -> int:
 
 def report_error(command: str, e: Exception) -> int:
     """Print one line for ``e`` (no traceback) and return the exit status (``EXIT_ERROR`` or ``EXIT_BUG``)."""
-    if isinstance(e, HybridCalibError):
-        print(f"hybrid-calib {command}: error: {e}", file=sys.stderr)
+    if isinstance(e, HybridCalibError):  # one paragraph: a message quoting a library's may span lines
+        message = re.sub(r"\s*\n\s*", " ", str(e))
+        print(f"hybrid-calib {command}: error: {message}", file=sys.stderr)
         return EXIT_ERROR
     if isinstance(e, OSError) and e.filename:
         print(f"hybrid-calib {command}: error: {e.strerror or e} [file {e.filename}]; check the path and its "

@@ -25,9 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from hybrid_calib.calib.result import VehicleResult
+from hybrid_calib.calib.result import VehicleResult, failed_vehicles_message
 from hybrid_calib.config import merge, save_json_atomic, to_dict
-from hybrid_calib.errors import HybridCalibError
+from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.hybrid.loop import METHODS, HybridConfig, _Session, vehicle_learned, vehicle_oracle
 from hybrid_calib.metrics import METRIC_KEYS
 
@@ -43,6 +43,8 @@ class CompareConfig:
     hybrid: HybridConfig = HybridConfig()  # shared settings (checkpoint, max_frames, window, measurement, ...)
 
     def __post_init__(self):
+        if not self.methods:
+            raise ValueError(f"CompareConfig.methods is empty; valid: {METHODS}")
         if bad := [m for m in self.methods if m not in METHODS]:
             raise ValueError(f"CompareConfig.methods: unknown {bad}; valid: {METHODS}")
         if self.range not in ("R1", "R2"):
@@ -58,8 +60,10 @@ def _trial_file(out: Path, method: str, k: int) -> Path:
     return out / "trials" / method / f"{k:04d}.json"
 
 
-def run_trials(roots: list, version: str, out: Path, conf: CompareConfig, progress: bool = True) -> None:
-    """Step 1-2 of the module doc."""
+def run_trials(roots: list, version: str, out: Path, conf: CompareConfig, progress: bool = True) -> dict:
+    """Step 1-2 of the module doc. Bad data does not stop the comparison: returns ``{"vehicles_left_out":
+    {vehicle: reason} (none of its frames reads), "trials_failed": [{"trial", "method", "vehicle",
+    "reason"}]}`` (a failed trial writes no file, so a rerun tries it again)."""
     from tqdm import tqdm
 
     hconf = dataclasses.replace(conf.hybrid, start=conf.range, progress=False,
@@ -69,19 +73,27 @@ def run_trials(roots: list, version: str, out: Path, conf: CompareConfig, progre
     sessions = [_Session(r, version, dataclasses.replace(hconf, method="hybrid" if learned else "oracle"))
                 for r in roots]
     vehicles = [(s, name) for s in sessions for name in s.drives]
+    left_out = {name: reason for s in sessions for name, reason in s.unreadable.items()}
     if not vehicles:
-        raise HybridCalibError(f"no vehicle in {roots}")
+        raise HybridCalibError(f"no vehicle in {roots}" + (f": {failed_vehicles_message(left_out)}" if left_out
+                                                          else ""))
+    failed = []
     todo = [(k, m) for k in range(conf.trials) for m in conf.methods if not _trial_file(out, m, k).is_file()]
     for k, method in tqdm(todo, desc="compare trials", disable=not progress):
         s, name = vehicles[k % len(vehicles)]
         c = dataclasses.replace(hconf, method=method, seed=conf.seed + k // len(vehicles))
         drive = s.drives[name]
-        vr = (vehicle_oracle(s.data, version, drive, c) if method == "oracle"
-              else vehicle_learned(s.runner, drive, c, s.note, s.motion))
+        try:
+            vr = (vehicle_oracle(s.data, version, drive, c) if method == "oracle"
+                  else vehicle_learned(s.runner, drive, c, s.note, s.motion))
+        except DataError as e:  # this drive's data: recorded, the other trials go on
+            failed.append({"trial": k, "method": method, "vehicle": name, "reason": str(e)})
+            continue
         vr.config = {**(vr.config or {}), "trial": k, "root": str(s.data)}
         path = _trial_file(out, method, k)
         path.parent.mkdir(parents=True, exist_ok=True)
         save_json_atomic(path, vr.to_dict())
+    return {"vehicles_left_out": left_out, "trials_failed": failed}
 
 
 def load_trials(out: Path, method: str, trials: int) -> list[VehicleResult]:
@@ -167,10 +179,15 @@ def compare(roots: list, version: str, out: str | Path, conf: CompareConfig | di
     if cfg_path.is_file() and same(json.loads(cfg_path.read_text())) != same(record):
         raise HybridCalibError(f"{out} holds trials of another configuration ({cfg_path}); use another --out")
     save_json_atomic(cfg_path, record)
-    run_trials([str(r) for r in roots], version, out, conf, progress)
+    problems = run_trials([str(r) for r in roots], version, out, conf, progress)
     results = {m: load_trials(out, m, conf.trials) for m in conf.methods}
+    if not any(results.values()):
+        first = problems["trials_failed"][0]["reason"] if problems["trials_failed"] else "-"
+        raise DataError(f"no trial finished ({len(problems['trials_failed'])} failed; first: {first})",
+                        path=str(roots[0]))
     summary = {"range": conf.range, "trials": conf.trials, "roots": [str(r) for r in roots], "command": command,
-               "config": record, "methods": {m: summarize_method(rs) for m, rs in results.items() if rs}}
+               "config": record, "methods": {m: summarize_method(rs) for m, rs in results.items() if rs},
+               **problems}
     save_json_atomic(out / "compare.json", summary)
     md = out / "compare.md"
     tmp = md.with_name(md.name + ".tmp")

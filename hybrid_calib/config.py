@@ -60,9 +60,12 @@ def merge(cls: type[C], overrides: Mapping[str, Any] | C | None = None, _path: s
             kwargs[key] = merge(hint, value, f"{_path}{key}.")
             continue
         if hint is not None and not check_type(value, hint):
+            listy = isinstance(value, str) and any(t in _type_name(hint) for t in ("tuple", "list"))
             raise ConfigError(f"option {_path}{key}={value!r} ({type(value).__name__}) is not a valid "
                               f"{_type_name(hint)} for {cls.__name__}.{key}; e.g. --set {_path}{key}="
-                              f"{json.dumps(getattr(cls(), key), default=str)} (the default)")
+                              f"{json.dumps(getattr(cls(), key), default=str)} (the default)"
+                              + (f"; a list is JSON with quoted strings: --set '{_path}{key}=[\"a\", \"b\"]'"
+                                 if listy else ""))
         kwargs[key] = tuple(value) if isinstance(value, list) else value
     try:
         return dataclasses.replace(cls(), **kwargs)

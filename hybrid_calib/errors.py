@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 
@@ -39,7 +40,8 @@ class OptionError(HybridCalibError):
 
 
 def check_out_dir(path: str | Path | None, option: str = "--out") -> None:
-    """``OptionError`` when an output directory ``path`` exists and is not a directory (None passes)."""
+    """``OptionError`` when an output directory ``path`` exists and is not a directory, lies below a file, or
+    cannot be written (its nearest existing folder is not writable); None passes. Nothing is created."""
     if path is None:
         return
     path = Path(path)
@@ -49,3 +51,8 @@ def check_out_dir(path: str | Path | None, option: str = "--out") -> None:
     for parent in path.parents:
         if parent.exists() and not parent.is_dir():
             raise OptionError(option, f"{parent} (a parent of {path}) is a file, not a directory; pass another path")
+    existing = next((p for p in (path, *path.parents) if p.exists()), None)
+    if existing is not None and not os.access(existing, os.W_OK | os.X_OK):
+        what = "is not writable" if existing == path else f"(the nearest existing folder of {path}) is not writable"
+        raise OptionError(option, f"{existing} {what}, so the outputs cannot be written there; pass a directory you "
+                                  "can write to")

@@ -155,6 +155,26 @@ def _load_weights(weights: Path, device: str) -> dict[str, torch.Tensor]:
                               "copy it again or pick another checkpoint", path=str(weights)) from None
 
 
+def state_mismatch(expected: dict, got: dict, show: int = 2) -> str:
+    """One line on how the state dict ``got`` differs from ``expected`` (name -> tensor): the tensors of
+    the wrong shape, missing and unexpected, with counts and the first ``show`` of each."""
+    def first(names: list[str], fmt=str) -> str:
+        return ", ".join(fmt(n) for n in names[:show]) + (", ..." if len(names) > show else "")
+
+    shape = [k for k in expected if k in got and tuple(got[k].shape) != tuple(expected[k].shape)]
+    missing = [k for k in expected if k not in got]
+    unexpected = [k for k in got if k not in expected]
+    parts = []
+    if shape:
+        parts.append(f"{len(shape)} of the wrong shape: " + first(
+            shape, lambda k: f"{k} {list(got[k].shape)} instead of {list(expected[k].shape)}"))
+    if missing:
+        parts.append(f"{len(missing)} missing: {first(missing)}")
+    if unexpected:
+        parts.append(f"{len(unexpected)} unexpected: {first(unexpected)}")
+    return "; ".join(parts) or "the tensors differ in dtype"
+
+
 def load_checkpoint(path: str | Path, model: torch.nn.Module | None = None,
                     optimizer: torch.optim.Optimizer | None = None, scheduler: Any = None,
                     map_location: str | torch.device = "cpu") -> Checkpoint:
@@ -169,9 +189,10 @@ def load_checkpoint(path: str | Path, model: torch.nn.Module | None = None,
         state = _load_weights(weights, str(map_location))
         try:
             model.load_state_dict(state, strict=True)
-        except RuntimeError as e:
-            raise HybridCalibError(f"weights {weights} do not fit this model (was it built with the "
-                                   f"checkpoint's model_config?): {e}") from e
+        except RuntimeError:
+            raise CheckpointError(f"weights do not fit this model ({state_mismatch(model.state_dict(), state)}); "
+                                  "the weights file does not belong to this checkpoint's model_config: copy the "
+                                  "matching .safetensors or pick another checkpoint", path=str(weights)) from None
     if optimizer is not None or scheduler is not None:
         name = meta["files"].get("optimizer")
         if name is None:

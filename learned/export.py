@@ -64,6 +64,7 @@ class ExportConfig:
     cov_scale: float | tuple = 1.0  # multiplies the 6x6 covariance: one factor or 6 per-axis (calibrate_cov_scale)
     cov_floor: tuple = (1e-3, 1e-2)  # "spread" floor: rad, m (no estimate is better than this)
     hybrid: dict = field(default_factory=dict)  # the hybrid's measurement model (hybrid.measurement), not used here
+    ood: dict = field(default_factory=dict)  # the out-of-domain density model (learned.ood), not used here
 
 
 def _np(x: torch.Tensor) -> np.ndarray:

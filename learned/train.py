@@ -75,6 +75,16 @@ class TrainConfig:
     context_weights: str = ""  # local ResNet-18 ImageNet weights for the image context net ("" = from scratch)
     init_weights: str = ""  # checkpoint (.json) whose weights start a new run (fine-tuning, e.g. R2 from R1)
 
+    def __post_init__(self):
+        for name in ("epochs", "batch_size", "threads"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"TrainConfig.{name} must be >= 1, got {getattr(self, name)}")
+        for name in ("samples_per_epoch", "val_samples", "num_workers", "lr_halve_every"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"TrainConfig.{name} must be >= 0, got {getattr(self, name)}")
+        if not self.lr >= 0:  # 0 is allowed: the weights stay where they start
+            raise ValueError(f"TrainConfig.lr must be >= 0, got {self.lr}")
+
 
 PRESETS: dict[str, dict[str, Any]] = {
     # the paper: 400x192 input, Adam 1e-4 halved every 8 epochs, 50 epochs

@@ -36,3 +36,26 @@ def nominal_T_cam_radar() -> np.ndarray:
 # factor overrides for data drawn from the factor's own fixed elevation model (no per-drive scene
 # structure): the scene nuisance (factors.scene) off, so covariances can be compared with the bound
 NO_SCENE = {"scene_height_std_m": 0.0, "scene_lateral_slope_std": 0.0, "scene_height_sq_std_m2": 0.0}
+
+
+def run_cli(argv: list, capsys) -> tuple[int, str]:
+    """``hybrid-calib ARGV`` in-process -> (exit status, stderr); argparse errors exit via SystemExit.
+    Asserts that no traceback reached stderr."""
+    from hybrid_calib.cli import main
+
+    try:
+        rc = main([str(a) for a in argv])
+    except SystemExit as e:
+        rc = e.code
+    err = capsys.readouterr().err
+    assert "Traceback" not in err, err
+    return rc, err
+
+
+def expect_cli_error(argv: list, capsys, *needles, rc: int = 2) -> str:
+    """Run ``argv`` (``run_cli``); assert the exit status ``rc`` and that stderr holds every needle."""
+    got, err = run_cli(argv, capsys)
+    assert got == rc, err
+    for needle in needles:
+        assert str(needle) in err, (needle, err)
+    return err

@@ -15,6 +15,7 @@ from hybrid_calib.cli import EXIT_BUG, EXIT_ERROR, main
 from hybrid_calib.config import ConfigError, check_type, merge
 from hybrid_calib.errors import CheckpointError, HybridCalibError, OptionError, check_out_dir
 from learned.checkpoint import load_checkpoint, save_checkpoint
+from tests.helpers import expect_cli_error
 from tests.tiny_nuscenes import VERSION, corrupt_jpeg_scan, make_tiny_root
 
 
@@ -32,23 +33,8 @@ def tiny_copy(tiny, tmp_path):
     return root
 
 
-def _run(argv: list[str], capsys) -> tuple[int, str]:
-    """``hybrid-calib ARGV`` in-process -> (exit status, stderr); argparse errors exit via SystemExit."""
-    try:
-        rc = main([str(a) for a in argv])
-    except SystemExit as e:
-        rc = e.code
-    err = capsys.readouterr().err
-    assert "Traceback" not in err
-    return rc, err
-
-
 def _expect_error(argv, capsys, *needles, rc=EXIT_ERROR) -> str:
-    got, err = _run(argv, capsys)
-    assert got == rc, err
-    for needle in needles:
-        assert str(needle) in err, (needle, err)
-    return err
+    return expect_cli_error(argv, capsys, *needles, rc=rc)
 
 
 def _data_args(command: str, root, out) -> list:

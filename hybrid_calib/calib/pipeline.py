@@ -55,6 +55,8 @@ class CalibrateConfig:
             raise ValueError(f"CalibrateConfig.mode={self.mode!r}; valid: {MODES}")
         if self.start not in STARTS:
             raise ValueError(f"CalibrateConfig.start={self.start!r}; valid: {STARTS}")
+        if self.max_frames < 0:
+            raise ValueError(f"CalibrateConfig.max_frames must be >= 0 (0 = all frames), got {self.max_frames}")
 
 
 @dataclass
@@ -228,10 +230,15 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
         raise DataError("no vehicle to calibrate (check --vehicles and the dataset)", path=str(data))
     run = CalibrationRun(str(data), version, str(correspondences), conf.mode)
     for name, vi in inputs.items():
-        vr = calibrate_vehicle(vi, conf, rng, progress, (priors or {}).get(name))
+        try:
+            vr = calibrate_vehicle(vi, conf, rng, progress, (priors or {}).get(name))
+        except DataError as e:  # this vehicle's data (e.g. no usable frame): recorded, the others go on
+            run.vehicles_failed[name] = str(e)
+            continue
         run.vehicles[name] = vr
         if on_vehicle is not None:
             on_vehicle(vr)
+    run.raise_if_none_done()
     save_json_atomic(out / "config.json", to_dict(conf))
     run.save(result_path)
     return run

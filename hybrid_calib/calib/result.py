@@ -22,8 +22,9 @@
           "frame_rows": [{"frame_id", "used", "rejected", "deflation", "prior_used", "network_ms"}, ...],
           "config": {...} | null          # the method's effective config (hybrid.HybridConfig)
         }
-      }
-    }
+      },
+      "vehicles_failed": {VEHICLE: reason}  # vehicles whose data could not be calibrated (e.g. no usable
+    }                                       # frame); absent in older results
 
 EXTRINSIC = {"T_cam_radar": 4x4 list, "report": {"roll_deg", "pitch_deg", "yaw_deg" (camera-axis Euler
 angles of R_delta with R = R_delta R_axes), "t_m": [x, y, z]}, "cov_right_radar": 6x6 (right tangent,
@@ -226,6 +227,13 @@ class VehicleResult:
         return cls.from_dict(json.loads(text))
 
 
+def failed_vehicles_message(failed: dict[str, str]) -> str:
+    """One paragraph for vehicles that all failed (vehicle -> reason): the first reason in full, the others by name."""
+    (first, reason), *rest = failed.items()
+    more = f"; {len(rest)} more vehicle(s) failed as well: {', '.join(v for v, _ in rest)}" if rest else ""
+    return f"{reason}{more}"
+
+
 @dataclass
 class CalibrationRun:
     """One ``calibrate`` run: every vehicle's result and where the inputs came from (``result.json``)."""
@@ -235,11 +243,18 @@ class CalibrationRun:
     correspondences: str  # "oracle" or the measurement directory
     mode: str  # "window" | "batch"
     vehicles: dict[str, VehicleResult] = field(default_factory=dict)
+    vehicles_failed: dict[str, str] = field(default_factory=dict)  # vehicle -> why it has no result (bad data)
 
     def to_dict(self) -> dict:
         return {"schema": SCHEMA, "schema_version": SCHEMA_VERSION, "data": self.data, "version": self.version,
                 "correspondences": self.correspondences, "mode": self.mode,
-                "vehicles": {name: v.to_dict() for name, v in self.vehicles.items()}}
+                "vehicles": {name: v.to_dict() for name, v in self.vehicles.items()},
+                "vehicles_failed": dict(self.vehicles_failed)}
+
+    def raise_if_none_done(self) -> None:
+        """``DataError`` when every vehicle failed (the reasons, joined): nothing to write."""
+        if self.vehicles_failed and not self.vehicles:
+            raise DataError(failed_vehicles_message(self.vehicles_failed), path=self.data)
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "") -> CalibrationRun:
@@ -250,7 +265,8 @@ class CalibrationRun:
                             f"{version if version is not None else d.get('schema') if isinstance(d, dict) else d!r}); "
                             "re-run hybrid-calib calibrate with --overwrite", path=source or None)
         return cls(d["data"], d["version"], d["correspondences"], d["mode"],
-                   {name: VehicleResult.from_dict(v, name) for name, v in d["vehicles"].items()})
+                   {name: VehicleResult.from_dict(v, name) for name, v in d["vehicles"].items()},
+                   {str(k): str(v) for k, v in (d.get("vehicles_failed") or {}).items()})
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=2)

@@ -44,6 +44,23 @@ def add_split_arguments(p: argparse.ArgumentParser, default: str | None, what: s
 
 def split_overrides(args: argparse.Namespace) -> dict:
     """The ``SplitConfig`` overrides the split flags give (only those passed)."""
-    keys = {"split_by": "by", "test_fraction": "test_fraction", "val_fraction": "val_fraction",
-            "gap_frames": "gap_frames"}
-    return {k: getattr(args, a) for a, k in keys.items() if getattr(args, a, None) is not None}
+    return given_flags(args, {"by": "split_by", "test_fraction": "test_fraction", "val_fraction": "val_fraction",
+                              "gap_frames": "gap_frames"})
+
+
+def given_flags(args: argparse.Namespace, keys: dict[str, str]) -> dict:
+    """Config key -> value of the flags passed on the command line (``keys``: config key -> ``args``
+    attribute; a flag whose argparse default is None and that was not passed is left out). A flag that
+    was passed wins over ``--set``; one that was not leaves ``--set`` (or the config's default) in charge."""
+    return {k: getattr(args, a) for k, a in keys.items() if getattr(args, a, None) is not None}
+
+
+def reject_set_keys(overrides: dict, keys: dict[str, str]) -> None:
+    """``OptionError`` when ``--set`` names a key that only its own flag sets (``keys``: config key -> flag),
+    instead of ignoring it silently."""
+    from hybrid_calib.errors import OptionError
+
+    for key, flag in keys.items():
+        if key in overrides:
+            raise OptionError("--set", f"{key}={overrides[key]!r} is chosen with {flag} for this command; pass "
+                                       f"{flag} instead (drop {key} from --set)")

@@ -3,16 +3,25 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from functools import partial
 from pathlib import Path
 
-from hybrid_calib.commands import add_split_arguments, nonnegative_int, positive_int, split_overrides
+from hybrid_calib.commands import (
+    add_split_arguments,
+    given_flags,
+    nonnegative_int,
+    positive_int,
+    reject_set_keys,
+    split_overrides,
+)
 from hybrid_calib.config import parse_overrides
 from hybrid_calib.perturbation import RANGES
 
 HELP = "calibrate T_cam_radar per vehicle: hybrid (network + factor graph), pure, pure-avg or oracle"
 
 METHODS = ("oracle", "hybrid", "pure", "pure-avg")
+FLAGS = {"start": "start", "seed": "seed", "max_frames": "max_frames"}  # config key -> flag (default None: not passed)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -34,15 +43,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="'oracle' (simulated roots: from the ground truth) or a directory of measurement files "
                         "(factors.io *.npz: the --out of hybrid-calib evaluate, flat, or one sub-directory per "
                         "vehicle)")
-    p.add_argument("--mode", default="window", choices=("window", "batch"), help="default: window")
+    p.add_argument("--mode", default=None, choices=("window", "batch"), help="default: window (or --set mode=...)")
     p.add_argument("--window", type=positive_int, default=None,
                    help="sliding-window length in frames (default: 20, or --set window.window=N)")
     p.add_argument("--backend", default=None, choices=("gtsam", "ceres"),
                    help="batch back end (default: gtsam, or --set batch.backend=...)")
-    p.add_argument("--start", default="reference", choices=("reference", *RANGES),
+    p.add_argument("--start", default=None, choices=("reference", *RANGES),
                    help="initial extrinsic: the vehicle's tables, or a perturbed truth (default: reference)")
-    p.add_argument("--max-frames", type=nonnegative_int, default=0, help="frames per vehicle, 0 = all (default: 0)")
-    p.add_argument("--seed", type=int, default=0, help="oracle noise and start seed (default: 0)")
+    p.add_argument("--max-frames", type=nonnegative_int, default=None, help="frames per vehicle, 0 = all (default: 0)")
+    p.add_argument("--seed", type=int, default=None, help="oracle noise and start seed (default: 0)")
     add_split_arguments(p, "all", "learned methods: all, or the train / val / test part of the split flags below "
                                   "(e.g. --split test --split-by time: the held-out end of each scene)")
     p.add_argument("--out", type=Path, default=Path("outputs/calibrate"),
@@ -63,10 +72,12 @@ def _learned(args: argparse.Namespace, on_vehicle):
         raise HybridCalibError(f"--correspondences is for --method oracle (measurement files); --method "
                                f"{args.method} runs the network itself")
     overrides = parse_overrides(args.set)
-    overrides.update(method=args.method, start=args.start, seed=args.seed, max_frames=args.max_frames,
-                     checkpoint=args.checkpoint, depth=args.depth, split=args.split)
-    if args.refine:
-        overrides["refine"] = args.refine
+    reject_set_keys(overrides, {"method": "--method", "split": "--split"})
+    # a flag that was passed wins over --set; an absent one leaves --set (or the default) in charge
+    overrides.update(method=args.method, split=args.split, **given_flags(args, FLAGS))
+    for key in ("checkpoint", "depth", "refine"):
+        if getattr(args, key):
+            overrides[key] = getattr(args, key)
     if flags := split_overrides(args):
         overrides["split_options"] = {**overrides.get("split_options", {}), **flags}
     if args.window is not None:  # an absent flag leaves --set (or the default) in charge
@@ -91,8 +102,8 @@ def run(args: argparse.Namespace) -> int:
         raise HybridCalibError("--split and the split flags select frames for the learned methods (hybrid, pure, "
                                "pure-avg); --method oracle uses every frame (limit it with --max-frames)")
     overrides = parse_overrides(args.set)
-    overrides.update(mode=args.mode, start=args.start, seed=args.seed, max_frames=args.max_frames)
     # an explicit flag wins over --set; an absent one leaves --set (or the default) in charge
+    overrides.update(given_flags(args, {**FLAGS, "mode": "mode"}))
     if args.window is not None:
         overrides.setdefault("window", {})["window"] = args.window
     if args.backend is not None:
@@ -122,13 +133,17 @@ def _report(result, out: Path) -> int:
         if v.skipped:
             line += f"; {len(v.skipped)} frame(s) skipped (bad files; listed in result.json)"
         print(line)
-        if v.config and v.config.get("depth_note"):
-            print(f"  note: {v.config['depth_note']}")
+        for key in ("depth_note", "range_note"):
+            if v.config and v.config.get(key):
+                print(f"  note: {v.config[key]}")
         if v.frame_rows and "deflation" in v.frame_rows[0]:
             used = sum(r["used"] for r in v.frame_rows)
             rej = sum(r["rejected"] for r in v.frame_rows)
             ms = sum(r["network_ms"] for r in v.frame_rows) / len(v.frame_rows)
             print(f"  {v.method}: {len(v.frame_rows)} frames, rows used {used}, rejected {rej}; network "
                   f"{ms:.0f} ms/frame; checkpoint {v.checkpoint}")
-    print(f"wrote {out / 'result.json'}")
-    return 0
+    for name, reason in result.vehicles_failed.items():
+        print(f"{name}: FAILED: {reason}", file=sys.stderr)
+    print(f"wrote {out / 'result.json'}" + (f" ({len(result.vehicles_failed)} vehicle(s) failed: listed there under "
+                                             "vehicles_failed)" if result.vehicles_failed else ""))
+    return 1 if result.vehicles_failed else 0

@@ -6,8 +6,16 @@ import argparse
 import sys
 from pathlib import Path
 
-from hybrid_calib.commands import add_split_arguments, nonnegative_int, positive_int, split_overrides
+from hybrid_calib.commands import (
+    add_split_arguments,
+    given_flags,
+    nonnegative_int,
+    positive_int,
+    reject_set_keys,
+    split_overrides,
+)
 from hybrid_calib.config import parse_overrides
+from hybrid_calib.errors import OptionError
 
 HELP = "compare calibration methods on the same starts (tables, NEES, coverage, time per frame)"
 
@@ -23,7 +31,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--checkpoint", default="", help="network checkpoint (default: the shipped one of --range)")
     p.add_argument("--refine", default="", help="refining network after --checkpoint (a cascade): 'shipped' (the "
                    "shipped R0 checkpoint) or a checkpoint path (default: none)")
-    p.add_argument("--max-frames", type=nonnegative_int, default=0, help="frames per drive, 0 = all (default: 0)")
+    p.add_argument("--max-frames", type=nonnegative_int, default=None, help="frames per drive, 0 = all (default: 0)")
     p.add_argument("--seed", type=int, default=0, help="first start seed (default: 0)")
     add_split_arguments(p, "all", "all, or the train / val / test part of the split flags below (e.g. --split test "
                                   "--split-by time: the held-out end of each scene; learned methods only)")
@@ -37,13 +45,19 @@ def run(args: argparse.Namespace) -> int:
     from hybrid_calib.compare import compare
 
     hybrid = parse_overrides(args.set)
-    hybrid.update(checkpoint=args.checkpoint, max_frames=args.max_frames, split=args.split)
-    if args.refine:
-        hybrid["refine"] = args.refine
+    # compare sets these per trial from its own flags
+    reject_set_keys(hybrid, {"method": "--methods", "start": "--range", "seed": "--seed", "split": "--split"})
+    hybrid.update(split=args.split, **given_flags(args, {"max_frames": "max_frames"}))
+    for key in ("checkpoint", "refine"):
+        if getattr(args, key):  # "" = not passed: --set (or the default) stays in charge
+            hybrid[key] = getattr(args, key)
     if flags := split_overrides(args):
         hybrid["split_options"] = {**hybrid.get("split_options", {}), **flags}
-    conf = {"range": args.range, "trials": args.trials, "seed": args.seed, "hybrid": hybrid,
-            "methods": tuple(m.strip() for m in args.methods.split(",") if m.strip())}
+    methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
+    if not methods:
+        raise OptionError("--methods", f"{args.methods!r} names no method; pass a comma-separated list of pure, "
+                                       "pure-avg, hybrid, oracle")
+    conf = {"range": args.range, "trials": args.trials, "seed": args.seed, "hybrid": hybrid, "methods": methods}
     command = "hybrid-calib " + " ".join(sys.argv[1:])
     s = compare(args.data, args.version, args.out, conf, command=command, progress=not args.no_progress)
     for m, r in s["methods"].items():
@@ -51,5 +65,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"{m:>9}: rot mean {e['rot_mean_deg']:.3f} deg (median {d['rot_mean_deg']:.3f}), trans mean "
               f"{e['trans_mean_cm']:.2f} cm (median {d['trans_mean_cm']:.2f}); NEES {c['nees_mean']:.1f}, "
               f"coverage {100 * c['coverage_95']:.0f} %, not ok {100 * r['not_ok_fraction']:.0f} %")
+    for name, reason in s["vehicles_left_out"].items():
+        print(f"left out {name}: {reason}", file=sys.stderr)
+    for t in s["trials_failed"]:
+        print(f"trial {t['trial']} ({t['method']}, {t['vehicle']}) failed: {t['reason']}", file=sys.stderr)
     print(f"wrote {args.out / 'compare.md'}, compare.json and error_vs_frames.png")
-    return 0
+    return 1 if s["vehicles_left_out"] or s["trials_failed"] else 0

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from hybrid_calib.commands import nonnegative_int, positive_int
+from hybrid_calib.commands import given_flags, nonnegative_int, positive_int, reject_set_keys
 from hybrid_calib.config import parse_overrides
 
 HELP = "calibrate every vehicle of one or more roots as resumable jobs (local | process | ray) + fleet view"
@@ -31,7 +31,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--prior", type=Path, help="fleet_prior.json of an earlier fleet run: each vehicle's prior "
                                               "(leave-one-out; the fleet's for a new vehicle; none for an outlier)")
     p.add_argument("--seed", type=int, default=0, help="fleet seed; each job seeds from (seed, vehicle) (default: 0)")
-    p.add_argument("--max-frames", type=nonnegative_int, default=0, help="frames per vehicle, 0 = all (default: 0)")
+    p.add_argument("--max-frames", type=nonnegative_int, default=None, help="frames per vehicle, 0 = all (default: 0)")
     p.add_argument("--out", type=Path, required=True, help="fleet run directory (rerun the same command to resume)")
     p.add_argument("--no-plots", action="store_true", help="skip the fleet plot")
     p.add_argument("--no-report", action="store_true",
@@ -49,8 +49,13 @@ def run(args: argparse.Namespace) -> int:
     from hybrid_calib.fleet.prior import load_priors
 
     calib = parse_overrides(args.set)
-    calib["max_frames"] = args.max_frames
+    reject_set_keys(calib, {"seed": "--seed"})  # each job's seed comes from the fleet seed and its vehicle
+    calib.update(given_flags(args, {"max_frames": "max_frames"}))  # --max-frames wins over --set max_frames
     merge(CalibrateConfig, {**calib, "seed": args.seed})  # ConfigError names a bad option before any job runs
+    if args.checkpoint is not None and args.method != "oracle":  # one bad checkpoint would fail every job alike
+        from learned.checkpoint import read_checkpoint_meta
+
+        read_checkpoint_meta(args.checkpoint)  # CheckpointError naming the file
     options = FleetOptions(args.engine, args.workers, args.address, None if args.ray_temp is None else
                            str(args.ray_temp), threads=args.threads, retries=args.retries, plots=not args.no_plots)
     bar = None  # made at the first finished vehicle (bad input fails before, without a bar)

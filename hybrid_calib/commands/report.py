@@ -7,6 +7,7 @@ from pathlib import Path
 
 from hybrid_calib.commands import nonnegative_int
 from hybrid_calib.config import parse_overrides
+from hybrid_calib.errors import OptionError, check_out_dir
 
 HELP = "write a self-contained HTML report (verdict, extrinsic +- 1 sigma, pictures) of a calibration result"
 
@@ -29,8 +30,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from hybrid_calib.report import write_report
 
+    check_arguments(args)
     overrides = parse_overrides(args.set)
     overrides.update(frames=args.frames, checkpoint=args.checkpoint)
     path = write_report(args.result, args.out_html, args.vehicle, args.data, args.version, overrides)
     print(f"wrote {path}")
     return 0
+
+
+def check_arguments(args: argparse.Namespace) -> None:
+    """``OptionError`` for paths given explicitly that cannot work (the defaults degrade to a note in the
+    page instead): ``--out`` a directory or below a file, ``--data`` / ``--checkpoint`` not there."""
+    out = args.out_html
+    if out.is_dir():
+        raise OptionError("--out", f"{out} is a directory; --out is the HTML file to write, e.g. {out / 'report.html'}")
+    check_out_dir(out.parent)
+    if args.data is not None and not args.data.is_dir():
+        raise OptionError("--data", f"{args.data} is not a directory; pass the nuScenes root of the run's frames, or "
+                                    "leave --data out to use the run's own root")
+    if args.checkpoint and not Path(args.checkpoint).exists():
+        raise OptionError("--checkpoint", f"{args.checkpoint} does not exist; pass a ckpt-NNNN.json, or leave "
+                                          "--checkpoint out to use the one the result names")

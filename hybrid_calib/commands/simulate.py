@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from hybrid_calib.commands import positive_int
+from hybrid_calib.commands import given_flags, positive_int
 from hybrid_calib.config import merge, parse_overrides
 from hybrid_calib.errors import OptionError
 from hybrid_calib.sim.drive import SimConfig
@@ -16,10 +16,10 @@ HELP = "simulate drives (camera, radar, LiDAR, ground truth) and write them as a
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--scenario", default="urban", choices=sorted(PRESETS), help="world preset (default: urban)")
-    p.add_argument("--vehicles", type=positive_int, default=1, help="vehicles, one log and scene each (default: 1)")
-    p.add_argument("--frames", type=positive_int, default=200, help="keyframes per vehicle (default: 200)")
-    p.add_argument("--seed", type=int, default=0, help="master seed (default: 0)")
+    p.add_argument("--scenario", default=None, choices=sorted(PRESETS), help="world preset (default: urban)")
+    p.add_argument("--vehicles", type=positive_int, default=None, help="vehicles, one log and scene each (default: 1)")
+    p.add_argument("--frames", type=positive_int, default=None, help="keyframes per vehicle (default: 200)")
+    p.add_argument("--seed", type=int, default=None, help="master seed (default: 0)")
     p.add_argument("--out", type=Path, required=True, help="output nuScenes root directory")
     p.add_argument("--extrinsic-change", default="none", choices=EXTRINSIC_CHANGES,
                    help="radar mount movement during each drive (default: none)")
@@ -36,7 +36,8 @@ def run(args: argparse.Namespace) -> int:
     from hybrid_calib.sim.simulate import simulate
 
     overrides = parse_overrides(args.set)
-    overrides.update(scenario=args.scenario, vehicles=args.vehicles, frames=args.frames, seed=args.seed)
+    # a flag that was passed wins over --set; an absent one leaves --set (or the default) in charge
+    overrides.update(given_flags(args, {k: k for k in ("scenario", "vehicles", "frames", "seed")}))
     change = dict(overrides.get("extrinsic_change", {}))
     change.update(kind=args.extrinsic_change, frame=args.change_frame)
     overrides["extrinsic_change"] = change

@@ -67,6 +67,9 @@ def read_radar_pcd(path: str | Path) -> np.ndarray:
         raise DataError("radar file not found; check the dataset root and version", path=str(path)) from None
     except OSError as e:
         raise DataError(f"cannot read radar file: {e}", path=str(path)) from None
+    if not raw:
+        raise DataError("radar file is empty (0 bytes); it was not copied or extracted completely, re-download it",
+                        path=str(path))
     header: dict[str, list[str]] = {}
     pos = 0
     while True:
@@ -123,6 +126,9 @@ def read_lidar_bin(path: str | Path, n_fields: int = 5) -> np.ndarray:
         raise DataError("LiDAR file not found", path=str(path)) from None
     except OSError as e:
         raise DataError(f"cannot read LiDAR file: {e}", path=str(path)) from None
+    if not data:  # a real sweep always has points (the ground, the car's own body): a failed copy
+        raise DataError("LiDAR file is empty (0 bytes); it was not copied or extracted completely, re-download it",
+                        path=str(path))
     point_bytes = 4 * n_fields
     if len(data) % point_bytes:
         raise DataError(f"LiDAR file size {len(data)} bytes is not a multiple of {point_bytes} ({n_fields} float32 "

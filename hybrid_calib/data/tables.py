@@ -98,7 +98,27 @@ def load_table(vdir: Path, name: str, required_fields: Iterable[str] = ("token",
         if missing:
             raise DataError(f"table {name!r} record {i} lacks field(s) {missing}; the table does not follow "
                             "the nuScenes schema", path=str(path), token=rec.get("token"))
+        for k in required:
+            kind = _field_kind(k)
+            if kind is not None and not _is_kind(rec[k], kind):
+                raise DataError(f"table {name!r} record {i} field {k!r} is {rec[k]!r} ({type(rec[k]).__name__}), "
+                                f"expected {kind.__name__}; the table does not follow the nuScenes schema: fix or "
+                                "re-extract it", path=str(path), token=rec.get("token") if k != "token" else None)
     return records
+
+
+_STR_FIELDS = ("prev", "next", "filename", "channel", "modality", "vehicle", "name")
+
+
+def _field_kind(field: str) -> type | None:
+    """The JSON type a required field must have (None: checked where it is used, e.g. rotations)."""
+    if field.endswith("token") or field in _STR_FIELDS:
+        return str
+    return {"timestamp": int, "is_key_frame": bool}.get(field)
+
+
+def _is_kind(value, kind: type) -> bool:
+    return isinstance(value, kind) and not (kind is int and isinstance(value, bool))
 
 
 class NuScenesTables:

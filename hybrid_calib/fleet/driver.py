@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from hybrid_calib.fleet.engines import run_engine
-from hybrid_calib.fleet.jobs import discover_jobs, read_fleet_file
+from hybrid_calib.fleet.jobs import check_fleet_roots, discover_jobs, read_fleet_file
 from hybrid_calib.fleet.manifest import Manifest
 
 
@@ -43,6 +43,8 @@ def run_fleet(roots: list[str] | None, manifest: str | None, version: str, metho
 
     out = Path(out)
     sources = read_fleet_file(manifest, version) if manifest else [(str(r), version, None) for r in roots or []]
+    if manifest:
+        check_fleet_roots(sources, manifest)
     jobs = discover_jobs(sources, method, out, seed, checkpoint, calib, priors, options.threads)
     m = Manifest.open(out / "manifest.json", jobs, method, seed)
     todo = m.todo()

@@ -191,6 +191,21 @@ def _local_ray_env(tmp: Path, token: bool = True) -> None:
         os.environ["RAY_AUTH_MODE"], os.environ["RAY_AUTH_TOKEN_PATH"] = "token", str(token)
 
 
+def check_ray_address(address: str, timeout_s: float = 5.0) -> None:
+    """``OptionError`` naming ``--address`` when a ``[ray://]HOST:PORT`` head cannot be reached (a TCP
+    connect within ``timeout_s``); ``auto`` is left to Ray."""
+    host, sep, port = address.removeprefix("ray://").rpartition(":")
+    if not sep or not host or not port.isdigit():
+        if address != "auto":
+            raise OptionError("--address", f"{address!r} is not HOST:PORT (e.g. 10.0.0.5:6379) or 'auto'")
+        return
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout_s).close()
+    except OSError as e:
+        raise OptionError("--address", f"cannot reach a Ray head at {address} ({e.strerror or e}); start one there "
+                                       "with `ray start --head --port PORT`, or check the host and port") from None
+
+
 def start_ray(workers: int, address: str | None, temp_dir: str | Path | None, object_store_mb: int) -> bool:
     """Join the cluster at ``address``, or start a local one (module doc). Returns whether this call
     started Ray (then the caller shuts it down). A Ray already initialised in this process is reused."""
@@ -201,6 +216,8 @@ def start_ray(workers: int, address: str | None, temp_dir: str | Path | None, ob
         raise OptionError("--engine", "ray is not installed; pip install -e .[fleet] (or use --engine process)")
     if "ray" in sys.modules and sys.modules["ray"].is_initialized():
         return False
+    if address:
+        check_ray_address(address)  # Ray itself retries an unreachable head for minutes
     fresh = "ray" not in sys.modules  # Ray reads its authentication mode once, at import
     if not address and temp_dir is not None:
         tmp = ray_temp_dir(temp_dir)

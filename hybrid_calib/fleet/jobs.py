@@ -90,6 +90,9 @@ def read_fleet_file(path: str | Path, version: str) -> list[tuple[str, str, tupl
         root = Path(r["data"])
         root = root if root.is_absolute() else path.parent / root
         vehicles = r.get("vehicles")
+        if vehicles is not None and not (isinstance(vehicles, list) and all(isinstance(v, str) for v in vehicles)):
+            raise DataError(f"fleet manifest roots[{i}].vehicles is {vehicles!r}; expected a list of vehicle names",
+                            path=str(path))
         out.append((str(root), str(r.get("version", version)), tuple(vehicles) if vehicles else None))
     return out
 
@@ -130,6 +133,15 @@ def _design_T(rec: dict | None) -> np.ndarray | None:
         return se3_inverse(Tc) @ Tr
     except (KeyError, TypeError, ValueError):
         return None
+
+
+def check_fleet_roots(sources: list[tuple[str, str, tuple[str, ...] | None]], manifest: str | Path) -> None:
+    """``DataError`` naming the manifest and the entry when a root it lists (``read_fleet_file``) is not a
+    directory on this machine."""
+    for i, (root, _, _) in enumerate(sources):
+        if not Path(root).is_dir():
+            raise DataError(f"fleet manifest roots[{i}]: {root} is not a directory (a relative path is read from the "
+                            "manifest's folder); fix the path", path=str(manifest))
 
 
 def discover_jobs(roots: list[tuple[str, str, tuple[str, ...] | None]], method: str, out: str | Path,

@@ -32,7 +32,7 @@ import numpy as np
 from hybrid_calib.calib.covariance import analyse_information, inconclusive_status
 from hybrid_calib.calib.drift import DriftConfig, reference_test
 from hybrid_calib.calib.oracle import OracleConfig
-from hybrid_calib.calib.result import CalibrationRun, Estimate, FrameEstimate, VehicleResult
+from hybrid_calib.calib.result import CalibrationRun, Estimate, FrameEstimate, VehicleResult, failed_vehicles_message
 from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import merge, save_json_atomic, to_dict
@@ -81,6 +81,10 @@ class HybridConfig:
             raise ValueError(f"HybridConfig.start={self.start!r}; valid: {STARTS}")
         if self.split not in ("all", "train", "val", "test"):
             raise ValueError(f"HybridConfig.split={self.split!r}; valid: all, train, val, test")
+        if self.max_frames < 0:
+            raise ValueError(f"HybridConfig.max_frames must be >= 0 (0 = all frames), got {self.max_frames}")
+        if self.threads < 1:
+            raise ValueError(f"HybridConfig.threads must be >= 1, got {self.threads}")
 
 
 @dataclass
@@ -121,9 +125,11 @@ def trained_depth(checkpoint) -> str:
     return trained_with(read_checkpoint_meta(checkpoint)[1].get("train_config"))
 
 
-def open_drives(data, version: str, conf: HybridConfig, lidar: bool):
+def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable: dict | None = None):
     """(frames, {vehicle: Drive}) of a root, restricted to ``conf.vehicles``, the frames of
-    ``conf.split`` (``learned.dataset.split_indices`` with ``conf.split_options``) and ``conf.max_frames``."""
+    ``conf.split`` (``learned.dataset.split_indices`` with ``conf.split_options``) and ``conf.max_frames``.
+    A vehicle none of whose frames reads is a ``DataError`` (naming the first bad file), or, when
+    ``unreadable`` is a dict, recorded there (vehicle -> reason) and left out."""
     from learned.dataset import open_frames, split_indices
 
     frames = open_frames(data, version, lidar=lidar)
@@ -138,15 +144,21 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool):
             if not idx:
                 continue
         idx = idx[: conf.max_frames] if conf.max_frames > 0 else idx
-        f = None
+        f, first_error = None, None
         for i in idx:  # the first readable frame gives the extrinsics
             try:
                 f = frames[i]
                 break
-            except DataError:
+            except DataError as e:
+                first_error = first_error or e
                 continue
         if f is None:
-            raise DataError(f"vehicle {vehicle}: no readable frame", path=str(data))
+            reason = (f"vehicle {vehicle}: no readable frame ({len(idx)} frame(s) tried; first: "
+                      f"{first_error if first_error is not None else '-'})")
+            if unreadable is None:
+                raise DataError(reason, path=str(data))
+            unreadable[vehicle] = reason
+            continue
         static = np.asarray(f.extras.get("T_cam_radar_static", f.T_cam_radar), np.float64)
         ref = np.asarray(f.extras.get("reference_T_cam_radar", static), np.float64)
         drives[vehicle] = Drive(vehicle, list(idx), static, ref, simulated)
@@ -389,6 +401,16 @@ def unfitted_reason(runner, method: str) -> str:
             f"covariance is not calibrated; fit {' and '.join(how[k] for k in missing)} on validation drives")
 
 
+def range_note(start: str, trained: str, checkpoint: str) -> str:
+    """A note when the start range is wider than the one the network was trained on ("" otherwise): its
+    estimates are then outside what it learned (e.g. the R0 network from an R2 start)."""
+    if start not in RANGES or trained not in RANGES or RANGES[start] <= RANGES[trained]:
+        return ""
+    return (f"the start range {start} (+-{RANGES[start][0]:g} deg, +-{RANGES[start][1]:g} m) is wider than the "
+            f"{trained} range the checkpoint {checkpoint} was trained on: expect poor estimates; use a checkpoint "
+            f"trained on {start} (or --refine it after one)")
+
+
 def _run_learned(runner, drive, T0, conf, tr, motion):
     if conf.method == "hybrid":
         return _hybrid(runner, drive, T0, conf, tr, motion)
@@ -417,6 +439,8 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     res.ood = ood
     res.config = {**to_dict(conf), "measurement_effective": to_dict(measurement_config(runner, conf)),
                   "depth_effective": runner.depth_name, **({"depth_note": note} if note else {})}
+    if wider := range_note(conf.start, runner.range, runner.checkpoint):
+        res.config["range_note"] = wider
     res = _finish(res, drive, T0, conf)
     reason = "; and ".join(r for r in (ood["inconclusive"], unfitted_reason(runner, conf.method)) if r)
     if reason:
@@ -453,17 +477,26 @@ class _Session:
 
         self.data, self.version, self.conf = data, version, conf
         self.runner, self.note, self.motion = None, "", None
+        self.unreadable: dict[str, str] = {}  # vehicle -> why none of its frames reads
         if conf.method == "oracle":
-            self.frames, self.drives = open_drives(data, version, conf, lidar=False)
+            self.frames, self.drives = open_drives(data, version, conf, lidar=False, unreadable=self.unreadable)
+            self._check_some_drive()
             return
         depth, self.note = resolve_depth(data, version, conf)
         ckpt = conf.checkpoint or shipped_checkpoint(conf.start)
         effective = depth or trained_depth(ckpt)  # "" = the checkpoint's own (lidar-densified needs the LiDAR)
-        self.frames, self.drives = open_drives(data, version, conf, lidar=needs_lidar(effective))
+        self.frames, self.drives = open_drives(data, version, conf, lidar=needs_lidar(effective),
+                                               unreadable=self.unreadable)
+        self._check_some_drive()
         self.runner = build_runner(ckpt, refine_checkpoint(conf.refine), self.frames, depth, conf.cache_dir,
                                    conf.depth_cache, conf.threads)
         self.motion = (MotionSource(self.frames, conf.motion, conf.cache_dir)
                        if conf.method == "hybrid" and conf.motion.enabled else None)
+
+    def _check_some_drive(self) -> None:
+        """``DataError`` when every vehicle is unreadable (one vehicle: the run_vehicle / fleet job case)."""
+        if self.unreadable and not self.drives:
+            raise DataError(failed_vehicles_message(self.unreadable), path=str(self.data))
 
     def vehicle(self, name: str) -> VehicleResult:
         drive = self.drives[name]
@@ -497,12 +530,17 @@ def run_calibration(data: str | Path, version: str, out: str | Path, conf: Hybri
     if not session.drives:
         raise DataError("no vehicle to calibrate (check --set vehicles=... and the dataset)", path=str(data))
     mode = {"hybrid": "window", "oracle": "window", "pure": "network", "pure-avg": "average"}[conf.method]
-    run = CalibrationRun(str(data), version, conf.method, mode)
+    run = CalibrationRun(str(data), version, conf.method, mode, vehicles_failed=dict(session.unreadable))
     for name in session.drives:
-        vr = session.vehicle(name)
+        try:
+            vr = session.vehicle(name)
+        except DataError as e:  # this vehicle's data: recorded, the other vehicles go on
+            run.vehicles_failed[name] = str(e)
+            continue
         run.vehicles[name] = vr
         if on_vehicle is not None:
             on_vehicle(vr)
+    run.raise_if_none_done()
     save_json_atomic(out / "config.json", to_dict(conf))
     run.save(out / "result.json")
     return run

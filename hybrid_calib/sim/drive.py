@@ -65,6 +65,13 @@ class SimConfig:
         if self.vehicles < 1 or self.frames < 1:
             raise ValueError(f"need at least one vehicle and one frame, got vehicles={self.vehicles} "
                              f"frames={self.frames}")
+        if not 0.01 <= self.image_scale <= 4.0:  # 0.01: a 16x9 image, the smallest that renders
+            raise ValueError(f"image_scale={self.image_scale} is outside 0.01..4 (the camera is nuScenes CAM_FRONT, "
+                             "1600x900, scaled by it; e.g. 0.125 for a quick test)")
+        if not 1 <= self.jpeg_quality <= 100:
+            raise ValueError(f"jpeg_quality={self.jpeg_quality}; valid: 1..100")
+        if not self.frame_interval_s > 0:
+            raise ValueError(f"frame_interval_s={self.frame_interval_s}; must be > 0")
 
     @property
     def scenario_config(self) -> ScenarioConfig:

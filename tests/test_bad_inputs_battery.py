@@ -1,0 +1,641 @@
+"""A battery of bad inputs through the whole command line (``hybrid_calib.cli.main``, in-process) on a
+tiny simulated root (2 vehicles x 3 frames, image_scale 0.125): every case ends either in one clear
+message on stderr that names the culprit (file, token, option) with a non-zero exit and no traceback,
+or, for one bad frame in a long job, in a finished run whose ``result.json`` lists the frame under
+``frames_skipped`` with its reason. The data layer's own cases are in test_data_errors.py and the
+first CLI cases (tables, --set, --out, checkpoints) in test_error_boundary.py; this file adds the rest."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from collections import namedtuple
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hybrid_calib.cli import EXIT_ERROR
+from tests.helpers import expect_cli_error, run_cli
+from tests.tiny_nuscenes import corrupt_jpeg_scan
+
+SIM_VERSION = "v1.0-sim"
+Frame = namedtuple("Frame", "index radar_sd camera_sd lidar_sd")  # a frame of the simulated root (dataset index)
+REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "nuscenes-scene-0916"
+SHIPPED = Path(__file__).resolve().parents[1] / "learned" / "checkpoints"
+
+
+@pytest.fixture(scope="module")
+def sim(tmp_path_factory):
+    """A clean simulated root: 2 vehicles x 3 frames; and its frame table (vehicle -> frames)."""
+    from hybrid_calib.config import merge
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+    from hybrid_calib.sim.drive import SimConfig
+    from hybrid_calib.sim.simulate import simulate
+
+    root = tmp_path_factory.mktemp("battery") / "sim"
+    simulate(merge(SimConfig, {"vehicles": 2, "frames": 3, "image_scale": 0.125, "seed": 7}), root, workers=1)
+    ds = NuScenesRadarCamera(root, SIM_VERSION, conf={"check_images": False})
+    lidar = {sd["sample_token"]: sd for sd in ds.tables.records["sample_data"]
+             if sd["is_key_frame"] and ds.tables.channel_of(sd) == "LIDAR_TOP"}
+    by_vehicle = {v: [Frame(i, ds.frames[i].radar_sd, ds.frames[i].camera_sd, lidar[ds.frames[i].sample_token])
+                      for i in idx] for v, idx in sorted(ds.frames_by_vehicle().items())}
+    return root, by_vehicle
+
+
+@pytest.fixture
+def sim_copy(sim, tmp_path):
+    """A private copy of the simulated root, for cases that corrupt it."""
+    root, by_vehicle = sim
+    copy = tmp_path / "copy"
+    shutil.copytree(root, copy)
+    return copy, by_vehicle
+
+
+def _table(root: Path, name: str) -> tuple[Path, list]:
+    path = root / SIM_VERSION / f"{name}.json"
+    return path, json.loads(path.read_text())
+
+
+def _one_paragraph(err: str) -> bool:
+    """The error is one line (progress bars of the work before it aside)."""
+    lines = [ln for ln in err.splitlines() if "it/s]" not in ln and ln.strip()]
+    return len(lines) == 1 and lines[0].startswith("hybrid-calib ")
+
+
+def _calibrate(root, out, *extra) -> list:
+    return ["calibrate", "--data", root, "--version", SIM_VERSION, "--out", out, "--no-plots", *extra]
+
+
+# ---------------------------------------------------------------- roots and tables
+def _no_version(root, frames):
+    shutil.rmtree(root / SIM_VERSION)
+    return ("no version folder", root / SIM_VERSION)
+
+
+def _timestamp_string(root, frames):
+    path, recs = _table(root, "sample_data")
+    recs[1]["timestamp"] = "x"
+    path.write_text(json.dumps(recs))
+    return ("field 'timestamp' is 'x'", "expected int", recs[1]["token"], path)
+
+
+def _token_not_a_string(root, frames):
+    path, recs = _table(root, "sample")
+    recs[0]["scene_token"] = 5
+    path.write_text(json.dumps(recs))
+    return ("field 'scene_token' is 5", "expected str", path)
+
+
+def _missing_key(root, frames):
+    path, recs = _table(root, "ego_pose")
+    del recs[0]["translation"]
+    path.write_text(json.dumps(recs))
+    return ("lacks field(s) ['translation']", path)
+
+
+def _not_json(root, frames):
+    path = root / SIM_VERSION / "scene.json"
+    path.write_bytes(b"\x00\x01 not json")
+    return ("not valid JSON", path)
+
+
+def _scene_log_missing(root, frames):
+    path, recs = _table(root, "scene")
+    for r in recs:
+        r["log_token"] = "nosuchlog"
+    path.write_text(json.dumps(recs))
+    return ("nosuchlog", "log")
+
+
+@pytest.mark.parametrize("corrupt", [_no_version, _timestamp_string, _token_not_a_string, _missing_key, _not_json,
+                                     _scene_log_missing], ids=lambda f: f.__name__.strip("_"))
+def test_bad_root_or_table_is_one_clear_error(corrupt, sim_copy, tmp_path, capsys):
+    root, frames = sim_copy
+    needles = corrupt(root, frames)
+    expect_cli_error(_calibrate(root, tmp_path / "out", "--max-frames", "2"), capsys, *needles)
+    assert not (tmp_path / "out" / "result.json").exists()
+
+
+# ---------------------------------------------------------------- one bad frame in a long job
+def _radar_file(root, frame) -> Path:
+    return root / frame.radar_sd["filename"]
+
+
+def _image_file(root, frame) -> Path:
+    return root / frame.camera_sd["filename"]
+
+
+def _pcd_points(path: Path, field: str, value) -> None:
+    from hybrid_calib.data.pcd import read_radar_pcd, write_radar_pcd
+
+    pts = read_radar_pcd(path)
+    pts[field] = value
+    write_radar_pcd(path, pts)
+
+
+def _pcd_header(path: Path, old: bytes, new: bytes) -> None:
+    data = path.read_bytes()
+    assert old in data
+    path.write_bytes(data.replace(old, new, 1))
+
+
+def _ego_pose(root: Path, frame, key: str, value) -> Path:
+    path, recs = _table(root, "ego_pose")
+    rec = next(r for r in recs if r["token"] == frame.radar_sd["ego_pose_token"])
+    rec[key] = value
+    path.write_text(json.dumps(recs).replace("NaN", "NaN"))
+    return path
+
+
+def _sd_token(root: Path, frame, key: str, value) -> Path:
+    path, recs = _table(root, "sample_data")
+    rec = next(r for r in recs if r["token"] == frame.radar_sd["token"])
+    rec[key] = value
+    path.write_text(json.dumps(recs))
+    return path
+
+
+# case -> (corrupt(root, frame) -> the needles the skip reason must hold); the radar cases run the oracle
+# (it reads radar files, not images), the image cases a network method (it reads the image)
+RADAR_FRAME_CASES = {
+    "pcd-empty": lambda r, f: (_radar_file(r, f).write_bytes(b""), ["empty", _radar_file(r, f)])[1],
+    "pcd-garbage": lambda r, f: (_radar_file(r, f).write_bytes(np.random.default_rng(1).bytes(700)),
+                                 [_radar_file(r, f)])[1],
+    "pcd-missing": lambda r, f: (_radar_file(r, f).unlink(), ["not found", _radar_file(r, f)])[1],
+    "pcd-nan-only": lambda r, f: (_pcd_points(_radar_file(r, f), "x", np.nan), ["NaN", _radar_file(r, f)])[1],
+    "pcd-wrong-fields": lambda r, f: (_pcd_header(_radar_file(r, f), b"FIELDS x y z", b"FIELDS a b c"),
+                                      [_radar_file(r, f)])[1],
+    "pcd-points-overstated": lambda r, f: (_pcd_header(_radar_file(r, f), b"\nPOINTS ", b"\nPOINTS 9"),
+                                           [_radar_file(r, f)])[1],
+    "ego-pose-non-unit-quaternion": lambda r, f: ["norm 2", _ego_pose(r, f, "rotation", [2.0, 0.0, 0.0, 0.0])],
+    "ego-pose-nan": lambda r, f: ["non-finite", _ego_pose(r, f, "translation", [float("nan"), 0.0, 0.0])],
+    "ego-pose-token-missing": lambda r, f: ["nosuchpose", "does not resolve", f.radar_sd["token"],
+                                            _sd_token(r, f, "ego_pose_token", "nosuchpose").with_name("ego_pose.json")],
+}
+
+
+@pytest.mark.parametrize("case", sorted(RADAR_FRAME_CASES))
+def test_one_bad_frame_is_recorded_and_the_drive_goes_on(case, sim_copy, tmp_path, capsys):
+    root, frames = sim_copy
+    (bad_vehicle, bad_frames), (good_vehicle, _) = frames.items()
+    needles = RADAR_FRAME_CASES[case](root, bad_frames[1])
+    out = tmp_path / "out"
+    rc, err = run_cli(_calibrate(root, out), capsys)
+    assert rc == 0, err
+    doc = json.loads((out / "result.json").read_text())
+    skipped = doc["vehicles"][bad_vehicle]["frames_skipped"]
+    assert [s["index"] for s in skipped] == [bad_frames[1].index], skipped
+    for needle in needles:
+        assert str(needle) in skipped[0]["reason"], (needle, skipped[0]["reason"])
+    assert doc["vehicles"][bad_vehicle]["n_frames"] == 2
+    assert doc["vehicles"][good_vehicle]["frames_skipped"] == [] and doc["vehicles"][good_vehicle]["n_frames"] == 3
+
+
+IMAGE_CASES = {
+    "missing": (lambda p: p.unlink(), "not found"),
+    "zero-bytes": (lambda p: p.write_bytes(b""), "empty"),
+    "not-an-image": (lambda p: p.write_text("hello, not a JPEG"), "not a JPEG or PNG"),
+    "truncated-jpeg": (lambda p: p.write_bytes(p.read_bytes()[:300]), ""),
+    "corrupt-scan": (lambda p: p.write_bytes(corrupt_jpeg_scan(p.read_bytes())), "corrupt pixel data"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(IMAGE_CASES))
+def test_one_bad_image_is_recorded_by_a_network_method(case, sim_copy, tmp_path, capsys):
+    root, frames = sim_copy
+    (bad_vehicle, bad_frames), (good_vehicle, _) = frames.items()
+    corrupt, needle = IMAGE_CASES[case]
+    path = _image_file(root, bad_frames[0])
+    corrupt(path)
+    out = tmp_path / "out"
+    rc, err = run_cli(_calibrate(root, out, "--method", "pure", "--max-frames", "2", "--set", "threads=1"), capsys)
+    assert rc == 0, err
+    doc = json.loads((out / "result.json").read_text())
+    skipped = doc["vehicles"][bad_vehicle]["frames_skipped"]
+    assert len(skipped) == 1 and str(path) in skipped[0]["reason"] and needle in skipped[0]["reason"], skipped
+    assert doc["vehicles"][good_vehicle]["frames_skipped"] == []
+
+
+# ---------------------------------------------------------------- whole vehicles bad
+def _break_vehicle(root: Path, frames) -> None:
+    for f in frames:
+        _radar_file(root, f).write_bytes(b"not a pcd file\x00\x01")
+
+
+@pytest.mark.parametrize("method", ["oracle", "hybrid-oracle"])
+def test_a_vehicle_with_every_frame_bad_is_recorded_failed_and_the_others_finish(method, sim_copy, tmp_path, capsys):
+    """calibrate (the oracle pipeline, and the hybrid session with method oracle): the bad vehicle is
+    listed under vehicles_failed with the file, the other one is calibrated, exit status 1."""
+    root, frames = sim_copy
+    (bad_vehicle, bad_frames), (good_vehicle, _) = frames.items()
+    _break_vehicle(root, bad_frames)
+    out = tmp_path / "out"
+    argv = _calibrate(root, out)
+    if method == "hybrid-oracle":  # the hybrid session, oracle rows (no network: fast)
+        argv = ["calibrate", "--data", root, "--version", SIM_VERSION, "--out", out, "--no-plots", "--method",
+                "pure", "--set", "method=oracle"]
+        rc, err = run_cli(argv, capsys)
+        assert rc == EXIT_ERROR and "--method" in err  # method is chosen with --method, not --set
+        from hybrid_calib.hybrid import run_calibration
+
+        run = run_calibration(root, SIM_VERSION, out, {"method": "oracle", "progress": False})
+        assert set(run.vehicles) == {good_vehicle} and bad_vehicle in run.vehicles_failed
+        doc = json.loads((out / "result.json").read_text())
+    else:
+        rc, err = run_cli(argv, capsys)
+        assert rc == 1 and f"{bad_vehicle}: FAILED" in err and "Traceback" not in err
+        doc = json.loads((out / "result.json").read_text())
+    assert set(doc["vehicles"]) == {good_vehicle}
+    reason = doc["vehicles_failed"][bad_vehicle]
+    assert str(_radar_file(root, bad_frames[0])) in reason or "no usable frame" in reason, reason
+    from hybrid_calib.calib.result import CalibrationRun
+
+    assert CalibrationRun.load(out / "result.json").vehicles_failed == doc["vehicles_failed"]  # reads back
+
+
+def test_every_vehicle_bad_is_one_clear_error(sim_copy, tmp_path, capsys):
+    root, frames = sim_copy
+    for fs in frames.values():
+        _break_vehicle(root, fs)
+    first, second = frames
+    err = expect_cli_error(_calibrate(root, tmp_path / "out"), capsys, "no usable frame", first,
+                           _radar_file(root, frames[first][0]), f"1 more vehicle(s) failed as well: {second}")
+    assert _one_paragraph(err)
+    assert not (tmp_path / "out" / "result.json").exists()
+
+
+def test_fleet_records_the_bad_vehicle_and_finishes_the_others(sim_copy, tmp_path, capsys):
+    root, frames = sim_copy
+    (bad_vehicle, bad_frames), (good_vehicle, _) = frames.items()
+    _break_vehicle(root, bad_frames)
+    out = tmp_path / "fleet"
+    rc, err = run_cli(["fleet", "--data", root, "--out", out, "--no-plots", "--no-report", "--max-frames", "2"],
+                      capsys)
+    assert rc == 1
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["vehicles"][bad_vehicle]["state"] == "failed"
+    assert str(_radar_file(root, bad_frames[0])) in summary["vehicles"][bad_vehicle]["reason"]
+    assert summary["vehicles"][good_vehicle]["state"] == "done"
+
+
+def test_a_scene_of_one_frame_calibrates(tmp_path, capsys):
+    from hybrid_calib.config import merge
+    from hybrid_calib.sim.drive import SimConfig
+    from hybrid_calib.sim.simulate import simulate
+
+    root = simulate(merge(SimConfig, {"frames": 1, "image_scale": 0.125, "seed": 3}), tmp_path / "one", workers=1)
+    for extra in ([], ["--method", "pure", "--set", "threads=1"]):
+        out = tmp_path / f"out{len(extra)}"
+        rc, err = run_cli(_calibrate(root, out, *extra), capsys)
+        assert rc == 0, err
+        (v,) = json.loads((out / "result.json").read_text())["vehicles"].values()
+        assert v["n_frames"] == 1
+
+
+# ---------------------------------------------------------------- calibrated_sensor and intrinsics
+def _cs(root: Path, modality: str, key: str, value) -> Path:
+    path, recs = _table(root, "calibrated_sensor")
+    _, sensors = _table(root, "sensor")
+    mod = {s["token"]: s["modality"] for s in sensors}
+    for r in recs:
+        if mod[r["sensor_token"]] == modality:
+            if value is KeyError:
+                del r[key]
+            else:
+                r[key] = value
+    path.write_text(json.dumps(recs))
+    return path
+
+
+CS_CASES = {  # every vehicle's mount is bad: nothing to calibrate, one message naming the file
+    "radar-non-unit-quaternion": (lambda r: _cs(r, "radar", "rotation", [0.5, 0.0, 0.0, 0.0]), "norm 0.5"),
+    "radar-nan-translation": (lambda r: _cs(r, "radar", "translation", [0.0, float("nan"), 0.0]), "non-finite"),
+    "intrinsic-missing": (lambda r: _cs(r, "camera", "camera_intrinsic", KeyError), "lacks field(s)"),
+    "intrinsic-singular": (lambda r: _cs(r, "camera", "camera_intrinsic", [[0, 0, 0], [0, 0, 0], [0, 0, 1]]),
+                           "camera_intrinsic"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CS_CASES))
+def test_bad_calibrated_sensor(case, sim_copy, tmp_path, capsys):
+    root, _ = sim_copy
+    corrupt, needle = CS_CASES[case]
+    path = corrupt(root)
+    expect_cli_error(_calibrate(root, tmp_path / "out", "--max-frames", "2"), capsys, needle, path)
+
+
+# ---------------------------------------------------------------- LiDAR-densified depth
+@pytest.mark.parametrize("content,needle", [(bytes(13), "multiple of 20"), (b"", "empty")],
+                         ids=["truncated", "empty"])
+def test_corrupt_lidar_file_is_a_recorded_skip_when_lidar_depth_is_asked(content, needle, sim_copy, tmp_path,
+                                                                         capsys):
+    root, frames = sim_copy
+    (bad_vehicle, bad_frames), _ = frames.items()
+    lidar = root / bad_frames[0].lidar_sd["filename"]
+    lidar.write_bytes(content)
+    out = tmp_path / "out"
+    rc, err = run_cli(_calibrate(root, out, "--method", "pure", "--depth", "lidar-densified", "--max-frames", "2",
+                                 "--set", "threads=1"), capsys)
+    assert rc == 0, err
+    skipped = json.loads((out / "result.json").read_text())["vehicles"][bad_vehicle]["frames_skipped"]
+    assert len(skipped) == 1 and str(lidar) in skipped[0]["reason"] and needle in skipped[0]["reason"], skipped
+
+
+# ---------------------------------------------------------------- checkpoints
+def _ckpt_copy(tmp_path: Path, name: str = "small-sim-r1") -> Path:
+    d = tmp_path / "ck"
+    d.mkdir(exist_ok=True)
+    for suffix in (".json", ".safetensors"):
+        shutil.copy(SHIPPED / f"{name}{suffix}", d / f"{name}{suffix}")
+    return d / f"{name}.json"
+
+
+def _wrong_shapes(path: Path) -> Path:
+    from safetensors.numpy import load_file, save_file
+
+    w = path.with_suffix(".safetensors")
+    tensors = load_file(str(w))
+    key = next(k for k, v in tensors.items() if v.ndim >= 2)
+    tensors[key] = np.zeros((3, 3), tensors[key].dtype)
+    save_file(tensors, str(w))
+    return w
+
+
+CKPT_CASES = {
+    "nonexistent": (lambda p: p.with_name("none.json"), ["checkpoint not found"]),
+    "json-without-safetensors": (lambda p: (p.with_suffix(".safetensors").unlink(), p)[1], ["weights file"]),
+    "truncated-safetensors": (lambda p: (p.with_suffix(".safetensors").write_bytes(
+        p.with_suffix(".safetensors").read_bytes()[:1000]), p.with_suffix(".safetensors"))[1], []),
+    "wrong-shapes": (_wrong_shapes, ["1 of the wrong shape", "[3, 3] instead of"]),
+    "not-json": (lambda p: (p.write_text("{{{"), p)[1], []),
+}
+
+
+@pytest.mark.parametrize("command", ["calibrate", "evaluate"])
+@pytest.mark.parametrize("case", sorted(CKPT_CASES))
+def test_bad_checkpoint(case, command, sim, tmp_path, capsys):
+    root, _ = sim
+    make, needles = CKPT_CASES[case]
+    ck = _ckpt_copy(tmp_path)
+    named = make(ck)
+    arg = named if named.suffix == ".json" else ck
+    if command == "calibrate":
+        argv = _calibrate(root, tmp_path / "out", "--method", "pure", "--checkpoint", arg, "--max-frames", "1")
+    else:
+        argv = ["evaluate", "--data", root, "--version", SIM_VERSION, "--checkpoint", arg, "--out", tmp_path / "out",
+                "--split", "all", "--max-frames", "1", "--no-progress"]
+    err = expect_cli_error(argv, capsys, named, *needles)
+    assert _one_paragraph(err)  # even when the message quotes torch's
+
+
+def test_checkpoint_of_another_range_is_named(sim, tmp_path, capsys):
+    """The R0 network (trained on near-truth starts) from an R2 start runs (a legitimate experiment), and
+    the result and the console say that the start range is wider than the checkpoint's."""
+    root, _ = sim
+    out = tmp_path / "out"
+    rc, err = run_cli(_calibrate(root, out, "--method", "pure", "--start", "R2", "--checkpoint",
+                                 SHIPPED / "small-sim-r0.json", "--max-frames", "1", "--set", "threads=1"), capsys)
+    assert rc == 0, err
+    v = next(iter(json.loads((out / "result.json").read_text())["vehicles"].values()))
+    assert "small-sim-r0" in v["checkpoint"]
+    note = v["config"]["range_note"]
+    assert "start range R2" in note and "R0 range" in note and "small-sim-r0" in note
+    from hybrid_calib.hybrid.loop import range_note
+
+    assert range_note("R1", "R2", "c") == "" and range_note("reference", "R0", "c") == ""
+
+
+# ---------------------------------------------------------------- --set: unknown key, wrong type, bad value
+SET_CASES = [
+    # (argv before --set, override, needles); the flag defaults no longer hide a --set value
+    (["calibrate"], "max_frames=-1", ["max_frames must be >= 0", "-1"]),
+    (["calibrate"], "mode=nosuch", ["mode='nosuch'", "window"]),
+    (["calibrate"], "start=R9", ["start='R9'", "R1"]),
+    (["calibrate"], "seed=1.5", ["seed=1.5", "integer"]),
+    (["calibrate"], "window.window=0", ["window", ">= 1, got 0"]),
+    (["calibrate"], "vehicles=[veh]", ["vehicles='[veh]'", "a list is JSON with quoted strings"]),
+    (["calibrate", "--method", "pure"], "start=R9", ["start='R9'", "reference"]),
+    (["calibrate", "--method", "pure"], "max_frames=-2", ["max_frames must be >= 0"]),
+    (["calibrate", "--method", "pure"], "threads=0", ["threads must be >= 1"]),
+    (["calibrate", "--method", "pure"], "method=nosuch", ["--set", "--method"]),
+    (["calibrate", "--method", "pure"], "split=nosuch", ["--set", "--split"]),
+    (["fleet"], "seed=3", ["--set", "--seed"]),
+    (["fleet"], "max_frames=-1", ["max_frames must be >= 0"]),
+    (["fleet"], "engine=ray", ["engine", "valid options"]),
+    (["compare"], "start=R9", ["--set", "--range"]),
+    (["compare"], "method=pure", ["--set", "--methods"]),
+    (["compare"], "max_frames=-1", ["max_frames must be >= 0"]),
+    (["simulate"], "frames=-3", ["frames=-3"]),
+    (["simulate"], "vehicles=0", ["vehicles=0"]),
+    (["simulate"], "scenario=nosuch", ["nosuch"]),
+    (["simulate"], "image_scale=0", ["image_scale=0", "0.01..4"]),
+    (["simulate"], "image_scale=-1", ["image_scale=-1"]),
+    (["demo"], "image_scale=0", ["image_scale=0"]),
+    (["demo"], "engine=nosuch", ["engine='nosuch'", "local"]),
+    (["demo"], "method=nosuch", ["method='nosuch'"]),
+]
+
+
+@pytest.mark.parametrize("argv,override,needles", SET_CASES,
+                         ids=[f"{' '.join(a)}-{o}" for a, o, _ in SET_CASES])
+def test_bad_set_value(argv, override, needles, sim, tmp_path, capsys):
+    root, _ = sim
+    out = tmp_path / "out"
+    command = argv[0]
+    full = [command, "--out", out]
+    if command in ("calibrate", "fleet", "compare"):
+        full += ["--data", root, "--version", SIM_VERSION]
+    if command == "compare":
+        full += ["--trials", "1", "--no-progress"]
+    if command in ("calibrate", "fleet"):
+        full += ["--no-plots"]
+    expect_cli_error(full + argv[1:] + ["--set", override], capsys, *needles)
+    assert not (out / "result.json").exists()
+
+
+def test_set_max_frames_is_honoured_now(sim, tmp_path, capsys):
+    """--set max_frames=1 used to be overwritten by the --max-frames default: it now limits the frames."""
+    root, _ = sim
+    out = tmp_path / "out"
+    rc, err = run_cli(_calibrate(root, out, "--set", "max_frames=1"), capsys)
+    assert rc == 0, err
+    assert {v["n_frames"] for v in json.loads((out / "result.json").read_text())["vehicles"].values()} == {1}
+
+
+@pytest.mark.parametrize("argv,needles", [
+    (["--start", "R9"], ["--start", "invalid choice", "R9"]),
+    (["--set", "start=R9"], ["start='R9'"]),
+    (["--method", "pure", "--set", "start=R9"], ["start='R9'"]),
+], ids=["flag", "set", "pure-set"])
+def test_real_scene_with_an_unknown_start(argv, needles, tmp_path, capsys):
+    if not (REAL / "v1.0-mini").is_dir():
+        pytest.skip(f"the real scene is not at {REAL}")
+    expect_cli_error(["calibrate", "--data", REAL, "--version", "v1.0-mini", "--out", tmp_path / "out"] + argv,
+                     capsys, *needles)
+
+
+# ---------------------------------------------------------------- compare, report, fleet manifest, --out
+@pytest.mark.parametrize("methods,needles", [("pure,foo", ["unknown ['foo']", "pure-avg"]),
+                                             (",", ["--methods", "names no method"])])
+def test_compare_with_bad_method_names(methods, needles, sim, tmp_path, capsys):
+    root, _ = sim
+    expect_cli_error(["compare", "--data", root, "--out", tmp_path / "cmp", "--methods", methods, "--trials", "1",
+                      "--no-progress"], capsys, *needles)
+
+
+def _report_input(tmp_path: Path, case: str) -> tuple[Path, list]:
+    path = tmp_path / "result.json"
+    if case == "missing":
+        return path, ["unreadable", path]
+    text = {"truncated": '{"schema_version": 2, "vehicles": {', "other-schema": json.dumps({"schema": "x"}),
+            "a-list": "[1, 2]", "incomplete": json.dumps({"schema_version": 2}),
+            "compare-json": json.dumps({"methods": {}, "schema_version": 1})}[case]
+    path.write_text(text)
+    return path, [path]
+
+
+@pytest.mark.parametrize("case", ["missing", "truncated", "other-schema", "a-list", "incomplete", "compare-json"])
+def test_report_on_a_bad_result(case, tmp_path, capsys):
+    path, needles = _report_input(tmp_path, case)
+    expect_cli_error(["report", path, "--out", tmp_path / "r.html"], capsys, *needles)
+    assert not (tmp_path / "r.html").exists()
+
+
+@pytest.mark.parametrize("content,needles", [
+    ("{bad", ["fleet manifest unreadable"]),
+    (json.dumps({"roots": 5}), ['"roots" list']),
+    (json.dumps({"roots": [{"version": "x"}]}), ["roots[0]"]),
+    (json.dumps([1, 2]), ["fleet manifest"]),
+    (json.dumps({"roots": [{"data": "/nowhere/at/all"}]}), ["/nowhere/at/all", "not a directory"]),
+    (json.dumps({"roots": [{"data": ".", "vehicles": "abc"}]}), ["roots[0].vehicles", "'abc'"]),
+    (None, ["fleet manifest unreadable", "No such file"]),
+], ids=["not-json", "roots-not-list", "entry-without-data", "a-list", "root-nowhere", "vehicles-not-list",
+        "missing"])
+def test_fleet_manifest_malformed(content, needles, tmp_path, capsys):
+    manifest = tmp_path / "FLEET.json"
+    if content is not None:
+        manifest.write_text(content)
+    expect_cli_error(["fleet", "--manifest", manifest, "--out", tmp_path / "fleet"], capsys, manifest, *needles)
+
+
+@pytest.mark.parametrize("command", ["calibrate", "fleet", "compare", "evaluate", "simulate"])
+def test_out_below_a_file(command, sim, tmp_path, capsys):
+    root, _ = sim
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    out = afile / "run"
+    argv = {"calibrate": _calibrate(root, out), "simulate": ["simulate", "--out", out],
+            "fleet": ["fleet", "--data", root, "--out", out],
+            "compare": ["compare", "--data", root, "--out", out],
+            "evaluate": ["evaluate", "--data", root, "--checkpoint", SHIPPED / "small-sim-r1.json", "--out", out]
+            }[command]
+    expect_cli_error(argv, capsys, "--out", afile, "is a file")
+    assert afile.read_text() == "x"
+
+
+def test_out_in_a_read_only_folder_is_refused_before_any_work(sim, tmp_path, monkeypatch, capsys):
+    """The check is os.access (these tests may run as root, for whom chmod does not bite: simulated)."""
+    import os
+
+    root, _ = sim
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    real_access = os.access
+    monkeypatch.setattr(os, "access", lambda p, mode: False if Path(p) == ro else real_access(p, mode))
+    expect_cli_error(_calibrate(root, ro / "run"), capsys, "--out", ro, "not writable")
+    assert not (ro / "run").exists()
+
+
+def test_out_unwritable(sim, tmp_path, capsys):
+    """An --out the process cannot create (a read-only place; /proc refuses even root)."""
+    root, _ = sim
+    out = Path("/proc/hybrid-calib-battery/out")
+    rc, err = run_cli(_calibrate(root, out, "--max-frames", "1"), capsys)
+    assert rc == EXIT_ERROR and "/proc/hybrid-calib-battery" in err and "internal error" not in err, err
+
+
+# ---------------------------------------------------------------- evaluate (a long job) and the rest
+def test_evaluate_with_the_shipped_checkpoint_records_a_bad_frame_and_goes_on(sim_copy, tmp_path, capsys):
+    """Also the regression of the shipped checkpoints' export.ood block, which ExportConfig refused."""
+    root, frames = sim_copy
+    (_, bad_frames), _ = frames.items()
+    pcd = _radar_file(root, bad_frames[0])
+    pcd.write_bytes(pcd.read_bytes()[:200])
+    out = tmp_path / "eval"
+    rc, err = run_cli(["evaluate", "--data", root, "--version", SIM_VERSION, "--checkpoint",
+                       SHIPPED / "small-sim-r1.json", "--out", out, "--split", "all", "--max-frames", "3",
+                       "--no-progress", "--set", "batch_size=2"], capsys)
+    assert rc == 0, err
+    skipped = json.loads((out / "skipped.json").read_text())
+    assert [s["index"] for s in skipped] == [bad_frames[0].index] and str(pcd) in skipped[0]["file"]
+    assert json.loads((out / "results.json").read_text())["n_frames"] == 2
+
+
+@pytest.mark.parametrize("case", ["out-is-a-dir", "data-nowhere", "checkpoint-nowhere"])
+def test_report_options_that_cannot_work(case, sim, tmp_path, capsys):
+    root, frames = sim
+    run = tmp_path / "run"
+    rc, err = run_cli(_calibrate(root, run, "--max-frames", "1"), capsys)
+    assert rc == 0, err
+    argv = ["report", run / "result.json", "--vehicle", next(iter(frames))]
+    if case == "out-is-a-dir":
+        argv += ["--out", tmp_path]
+        needles = ["--out", tmp_path, "is a directory"]
+    else:
+        argv += ["--out", tmp_path / "r.html"]
+        flag = "--data" if case == "data-nowhere" else "--checkpoint"
+        argv += [flag, tmp_path / "nowhere"]
+        needles = [flag, tmp_path / "nowhere"]
+    expect_cli_error(argv, capsys, *needles)
+    assert not (tmp_path / "r.html").exists()
+
+
+@pytest.mark.parametrize("override,needle", [("epochs=0", "epochs must be >= 1"), ("lr=-0.1", "lr must be >= 0"),
+                                             ("batch_size=-1", "batch_size must be >= 1")])
+def test_train_bad_set_values_fail_before_training(override, needle, sim, tmp_path, capsys):
+    root, _ = sim
+    expect_cli_error(["train", "--data", root, "--version", SIM_VERSION, "--out", tmp_path / "t", "--no-progress",
+                      "--set", override], capsys, needle)
+    assert not (tmp_path / "t").exists()
+
+
+def test_fleet_checkpoint_checked_before_any_job(sim, tmp_path, capsys):
+    root, _ = sim
+    expect_cli_error(["fleet", "--data", root, "--out", tmp_path / "f", "--method", "pure", "--checkpoint",
+                      tmp_path / "none.json"], capsys, "checkpoint not found", tmp_path / "none.json")
+    assert not (tmp_path / "f" / "manifest.json").exists()
+
+
+def test_unreachable_ray_address_fails_at_once():
+    import time
+
+    from hybrid_calib.errors import OptionError
+    from hybrid_calib.fleet.engines import check_ray_address
+
+    t0 = time.perf_counter()
+    for address, needle in [("127.0.0.1:1", "cannot reach a Ray head at 127.0.0.1:1"), ("nohost", "HOST:PORT"),
+                            ("ray://127.0.0.1:1", "cannot reach")]:
+        with pytest.raises(OptionError, match=needle) as e:
+            check_ray_address(address, timeout_s=2.0)
+        assert e.value.option == "--address"
+    assert time.perf_counter() - t0 < 10
+
+
+def test_compare_leaves_out_a_bad_vehicle_records_a_bad_frame_and_finishes(sim_copy, tmp_path, capsys):
+    root, frames = sim_copy
+    (bad_vehicle, bad_frames), (good_vehicle, good_frames) = frames.items()
+    _break_vehicle(root, bad_frames)
+    _radar_file(root, good_frames[2]).write_bytes(b"")
+    out = tmp_path / "cmp"
+    rc, err = run_cli(["compare", "--data", root, "--out", out, "--methods", "oracle", "--trials", "2",
+                       "--no-progress"], capsys)
+    assert rc == 1 and f"left out {bad_vehicle}" in err and "Traceback" not in err, err
+    summary = json.loads((out / "compare.json").read_text())
+    assert list(summary["vehicles_left_out"]) == [bad_vehicle] and summary["trials_failed"] == []
+    assert str(_radar_file(root, bad_frames[0])) in summary["vehicles_left_out"][bad_vehicle]
+    assert summary["methods"]["oracle"]["trials"] == 2
+    for k in range(2):
+        trial = json.loads((out / "trials" / "oracle" / f"{k:04d}.json").read_text())
+        assert trial["vehicle"] == good_vehicle
+        assert [s["index"] for s in trial["frames_skipped"]] == [good_frames[2].index]
