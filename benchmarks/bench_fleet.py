@@ -21,8 +21,11 @@ One command (everything under ``--out``; simulated roots are reused when present
    ray 1 and 2 workers (Ray's start-up timed apart), ``--repeat`` rounds. Speed-up = wall(1) / wall(2);
    overhead per vehicle = (wall - sum of the jobs' own wall times / workers) / vehicles; Ray's daemons'
    (raylet, GCS, agents) CPU seconds during the run are recorded apart. The 1-minute load
-   average before each run and the jobs' own CPU seconds are recorded: on a shared machine they
-   decide the figures (cpu_share = job CPU seconds / (wall x workers): 1 = every worker had a core).
+   average before each run, the jobs' own CPU seconds and the driver's are recorded: on a shared machine
+   they decide the figures (cpu_share = job CPU seconds / (wall x workers): 1 = every worker had a core).
+   ``--ray-variants ray-nice15`` adds a local Ray with its workers reniced +15 (Ray's default, the
+   engine's setting before issue 12's follow-up), interleaved in each round. The table is printed at
+   the end (``--parts throughput`` runs this part alone).
 """
 
 from __future__ import annotations
