@@ -21,8 +21,11 @@ One command (everything under ``--out``; simulated roots are reused when present
    ray 1 and 2 workers (Ray's start-up timed apart), ``--repeat`` rounds. Speed-up = wall(1) / wall(2);
    overhead per vehicle = (wall - sum of the jobs' own wall times / workers) / vehicles; Ray's daemons'
    (raylet, GCS, agents) CPU seconds during the run are recorded apart. The 1-minute load
-   average before each run and the jobs' own CPU seconds are recorded: on a shared machine they
-   decide the figures (cpu_share = job CPU seconds / (wall x workers): 1 = every worker had a core).
+   average before each run, the jobs' own CPU seconds and the driver's are recorded: on a shared machine
+   they decide the figures (cpu_share = job CPU seconds / (wall x workers): 1 = every worker had a core).
+   ``--ray-variants ray-nice15`` adds a local Ray with its workers reniced +15 (Ray's default, the
+   engine's setting before issue 12's follow-up), interleaved in each round. The table is printed at
+   the end (``--parts throughput`` runs this part alone).
 """
 
 from __future__ import annotations
@@ -148,15 +151,19 @@ def gain(before: dict, after: dict, outliers: list) -> dict:
     return out
 
 
+RAY_AGENTS = ("ray::DashboardAgent", "ray::RuntimeEnvAgent")
+
+
 def ray_daemon_cpu_s() -> float:
-    """CPU seconds so far of this process's Ray daemons (raylet, GCS server, agents): its children
-    that are not workers (a worker's title starts ``ray::``)."""
+    """CPU seconds so far of this process's Ray daemons (raylet, GCS server, monitors, agents): its
+    children that are not workers (a worker's title starts ``ray::``, an agent's is in ``RAY_AGENTS``)."""
     import psutil
 
     total = 0.0
     for p in psutil.Process().children(recursive=True):
         try:
-            if not " ".join(p.cmdline()).startswith("ray::"):
+            title = " ".join(p.cmdline())
+            if not title.startswith("ray::") or title.startswith(RAY_AGENTS):
                 t = p.cpu_times()
                 total += t.user + t.system
         except psutil.Error:
@@ -164,49 +171,82 @@ def ray_daemon_cpu_s() -> float:
     return total
 
 
-def throughput(roots: list[Path], out: Path, repeat: int = 1, max_workers: int = 2) -> dict:
-    from hybrid_calib.fleet.engines import start_ray
+# Variants of the ray engine for an A/B in the same invocation (``--ray-variants``): name -> the local
+# Ray's ``_system_config`` (``engines.LOCAL_RAY_CONFIG`` replaced while it runs); "ray" is the engine as shipped.
+RAY_VARIANTS = {"ray-nice15": {"worker_niceness": 15}}  # Ray's default before issue 12's follow-up
+
+
+def throughput(roots: list[Path], out: Path, repeat: int = 1, max_workers: int = 2,
+               variants: tuple[str, ...] = ()) -> dict:
+    from hybrid_calib.fleet import engines
 
     ws = [w for w in (1, 2, 4, 8, 16, 32) if w <= max_workers]
-    rec = {"rounds": []}
+    shipped = dict(engines.LOCAL_RAY_CONFIG)
+    rec = {"rounds": [], "ray_config": shipped, "variants": {v: RAY_VARIANTS[v] for v in variants}}
     for r in range(repeat):
         rnd = {}
-        for engine, workers in [("local", 1)] + [(e, w) for e in ("process", "ray") for w in ws]:
-            d = out / f"{engine}{workers}"
+        for name, workers in [("local", 1)] + [(e, w) for e in ("process", "ray", *variants) for w in ws]:
+            engine = "ray" if name.startswith("ray") else name
+            d = out / f"{name}{workers}"
             shutil.rmtree(d, ignore_errors=True)
             init_s = daemons = None
             if engine == "ray":
+                engines.LOCAL_RAY_CONFIG = {**shipped, **RAY_VARIANTS.get(name, {})}
                 t0 = time.perf_counter()
-                start_ray(workers, None, out / f"rt{workers}", 200)  # before importing ray: its token file
+                engines.start_ray(workers, None, out / f"rt{workers}", 200)  # before importing ray: its token file
                 init_s = time.perf_counter() - t0
                 import ray
                 daemons = ray_daemon_cpu_s()
             load = os.getloadavg()[0]
+            driver = time.process_time()
             s, wall = fleet(roots, d, engine, workers)
+            driver = time.process_time() - driver
             if engine == "ray":
                 daemons = ray_daemon_cpu_s() - daemons
                 ray.shutdown()
+                engines.LOCAL_RAY_CONFIG = shipped
             m = json.loads((d / "manifest.json").read_text())
             job_s = sum(e["wall_s"] for e in m["jobs"].values())
             cpu_s = sum(e.get("cpu_s") or 0 for e in m["jobs"].values())
             n = len(m["jobs"])
-            rnd[f"{engine}{workers}"] = {"engine": engine, "workers": workers, "vehicles": n, "wall_s": wall,
+            rnd[f"{name}{workers}"] = {"engine": name, "workers": workers, "vehicles": n, "wall_s": wall,
                                          "ray_init_s": init_s, "sum_job_s": job_s, "sum_job_cpu_s": cpu_s,
                                          "cpu_share": cpu_s / (wall * workers),
                                          "overhead_per_vehicle_s": (wall - job_s / workers) / n,
-                                         "ray_daemon_cpu_s": daemons, "vehicles_per_min": 60 * n / wall,
+                                         "ray_daemon_cpu_s": daemons, "driver_cpu_s": driver,
+                                         "vehicles_per_min": 60 * n / wall,
                                          "done": s["counts"]["done"], "load_avg_1min_before": load,
                                          "load_avg_1min_after": os.getloadavg()[0]}
-            print(f"round {r + 1}: {engine} x{workers}: {wall:.1f} s for {n} vehicles (jobs {job_s:.1f} s, CPU "
+            print(f"round {r + 1}: {name} x{workers}: {wall:.1f} s for {n} vehicles (jobs {job_s:.1f} s, CPU "
                   f"{cpu_s:.1f} s)" + (f", ray init {init_s:.1f} s, Ray daemons {daemons:.2f} CPU s" if init_s else "")
-                  + f"; load average before {load:.1f}", flush=True)
-        for e in ("process", "ray"):
+                  + f"; driver {driver:.2f} CPU s; load average before {load:.1f}", flush=True)
+        for e in ("process", "ray", *variants):
             for w in ws[1:]:
                 rnd[f"{e}_speedup_{w}"] = rnd[f"{e}1"]["wall_s"] / rnd[f"{e}{w}"]["wall_s"]
         print(f"round {r + 1}: speed-up: " + ", ".join(f"{k.split('_')[0]} x{k.split('_')[-1]} {v:.2f}"
                                                        for k, v in rnd.items() if "_speedup_" in k), flush=True)
         rec["rounds"].append(rnd)
     return rec
+
+
+def throughput_table(rec: dict) -> str:
+    """The throughput record as the markdown table of ``docs/benchmarks.md`` (one row per run, then the
+    speed-ups per round)."""
+    rows = ["| round | engine | workers | wall [s] | ray.init [s] | sum of job wall [s] | job CPU [s] | cpu_share "
+            "| overhead / vehicle [s] | driver CPU [s] | Ray daemons CPU [s] | load avg before |", "|" + "---|" * 12]
+    speed = []
+    for i, rnd in enumerate(rec["rounds"], 1):
+        for v in rnd.values():
+            if isinstance(v, dict):
+                f = {x: "" if v[x] is None else f"{v[x]:.2f}" for x in ("ray_init_s", "ray_daemon_cpu_s")}
+                rows.append(f"| {i} | {v['engine']} | {v['workers']} | {v['wall_s']:.1f} | {f['ray_init_s']} | "
+                            f"{v['sum_job_s']:.1f} | {v['sum_job_cpu_s']:.1f} | {v['cpu_share']:.2f} | "
+                            f"{v['overhead_per_vehicle_s']:.2f} | {v['driver_cpu_s']:.2f} | {f['ray_daemon_cpu_s']} | "
+                            f"{v['load_avg_1min_before']:.1f} |")
+        speed.append(f"round {i}: " + ", ".join(f"{k.split('_speedup_')[0]} x{k.split('_')[-1]} {v:.2f} "
+                                                f"({v / int(k.split('_')[-1]):.2f} x linear)"
+                                                for k, v in rnd.items() if "_speedup_" in k))
+    return "\n".join(rows + ["", "speed-up = wall(1 worker) / wall(W workers), ray.init timed apart:", *speed])
 
 
 def main() -> None:
@@ -219,6 +259,8 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=1, help="rounds of the throughput part (default: 1)")
     ap.add_argument("--max-workers", type=int, default=2,
                     help="throughput: 1, 2, 4, ... workers up to this (default: 2)")
+    ap.add_argument("--ray-variants", nargs="*", default=[], choices=sorted(RAY_VARIANTS),
+                    help="throughput: also run these settings of a local Ray, interleaved (A/B; see RAY_VARIANTS)")
     ap.add_argument("--parts", nargs="+", default=list(PARTS), choices=PARTS,
                     help="what to run (default: all; without 'reference' the reference run is resumed)")
     a = ap.parse_args()
@@ -252,8 +294,8 @@ def main() -> None:
                                          "with_prior": s2["vehicles"][KNOCKED]["offset_from_design"]}}
         print(json.dumps(rec["prior_pass"], indent=1), flush=True)
     if "throughput" in a.parts:
-        rec["throughput"] = throughput(roots[:2], a.out / "throughput", a.repeat, a.max_workers)
-        print(json.dumps({k: v for k, v in rec["throughput"].items()}, indent=1), flush=True)
+        rec["throughput"] = throughput(roots[:2], a.out / "throughput", a.repeat, a.max_workers, tuple(a.ray_variants))
+        print(throughput_table(rec["throughput"]), flush=True)
     name = "bench_fleet.json" if a.parts == PARTS else f"bench_fleet_{'_'.join(a.parts)}.json"
     (a.out / name).write_text(json.dumps(rec, indent=2))
     print(f"wrote {a.out / name}")

@@ -152,16 +152,17 @@ def test_a_killed_pool_worker_is_replaced_and_its_jobs_rerun(local_run, fleet_ro
     assert _results(tmp_path) == _results(local_run[0])
 
 
-def _ray_workers_busy(psutil) -> list:
-    """This process's Ray workers running a fleet job (Ray titles a busy worker ``ray::<task>``)."""
-    busy = []
+def _ray_workers(psutil, title: str) -> list:
+    """This process's Ray workers whose title starts with ``title`` (Ray titles a busy worker
+    ``ray::<task>``, e.g. ``ray::_remote_job`` running a fleet job, an idle one ``ray::IDLE``)."""
+    found = []
     for p in psutil.Process().children(recursive=True):
         try:
-            if " ".join(p.cmdline()).startswith("ray::_remote_job"):
-                busy.append(p)
+            if " ".join(p.cmdline()).startswith(title):
+                found.append(p)
         except psutil.Error:
             pass
-    return busy
+    return found
 
 
 def test_a_killed_ray_worker_is_retried_by_ray(local_run, fleet_root, tmp_path, ray_session):
@@ -176,7 +177,7 @@ def test_a_killed_ray_worker_is_retried_by_ray(local_run, fleet_root, tmp_path, 
 
     def killer():
         while not stop.is_set() and not killed:
-            for p in _ray_workers_busy(psutil)[:1]:
+            for p in _ray_workers(psutil, "ray::_remote_job")[:1]:
                 p.kill()
                 killed.append(p.pid)
             time.sleep(0.02)
@@ -193,6 +194,21 @@ def test_a_killed_ray_worker_is_retried_by_ray(local_run, fleet_root, tmp_path, 
     assert s["counts"]["done"] == 3 and s["counts"]["failed"] == 1
     assert s["vehicles"][BAD]["reason"].startswith("DataError")
     assert _results(tmp_path) == _results(local_run[0])
+
+
+def test_local_ray_workers_keep_the_drivers_niceness_and_thread_variables(ray_session):
+    """A local Ray's workers (``start_ray``) run at the driver's niceness, as the pool's do (Ray renices
+    them +15 by default), with the engine's thread variables (``_worker_env``)."""
+    import psutil
+
+    deadline = time.monotonic() + 30
+    while not (workers := _ray_workers(psutil, "ray::IDLE")) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert workers, "no idle Ray worker in 30 s (Ray prestarts one per CPU)"
+    for p in workers:
+        assert p.nice() == os.nice(0)
+        env = p.environ()
+        assert env.get("OPENBLAS_NUM_THREADS") == "1" and env.get("TQDM_DISABLE") == "1", env
 
 
 def test_ray_engine_joins_a_running_cluster(local_run, fleet_root, tmp_path, ray_session):

@@ -16,8 +16,9 @@ never queues thousands of tasks, and a worker that finishes finds its next job a
 - ``ray``: ``ray.init(address=...)`` joins a running cluster (every node needs this package
   installed, and the roots and ``OUT`` at the same paths, i.e. a shared file system: a job reads its
   root and writes ``OUT/vehicles/<id>``, the driver reads the result files); without an address a
-  local cluster of ``workers`` CPUs starts with its object store capped (``object_store_mb``) and its
-  temp files under ``temp_dir`` (``RAY_TMPDIR`` too). Tasks are
+  local cluster of ``workers`` CPUs starts with its object store capped (``object_store_mb``), its
+  temp files under ``temp_dir`` (``RAY_TMPDIR`` too) and its workers at the driver's niceness
+  (``LOCAL_RAY_CONFIG``; Ray's default renices them by +15). Tasks are
   ``_remote_job`` (``run_job`` after ``_init_worker``) with ``num_cpus`` = the job's threads,
   ``max_retries=retries`` (Ray reruns a task whose worker or node died) and
   ``retry_exceptions=[OSError]`` (transient I/O); a ``DataError`` is an outcome, never an exception,
@@ -26,8 +27,10 @@ never queues thousands of tasks, and a worker that finishes finds its next job a
   instead of the ones it prestarted (the first jobs started 3-5 s later: ``benchmarks/bench_ray_start.py``).
 
 Workers get their thread variables (``OMP_NUM_THREADS``, ``OPENBLAS_NUM_THREADS``, ...) and
-``TQDM_DISABLE`` from the environment they are started with (``_worker_env``): numpy's OpenBLAS reads
-them at import, before any initializer could set them (it started a second thread per worker before).
+``TQDM_DISABLE`` from the environment they are started with (``_worker_env``, also around a local
+``ray.init`` in ``start_ray``, so the tests and benchmarks that call it get the engine's workers):
+numpy's OpenBLAS reads them at import, before any initializer could set them (it started a second
+thread per worker before).
 """
 
 from __future__ import annotations
@@ -43,6 +46,12 @@ from hybrid_calib.errors import OptionError
 from hybrid_calib.fleet.jobs import Job, run_job, set_threads
 
 ENGINES = ("local", "process", "ray")
+# A local Ray's settings (not applied to a joined cluster: its own). ``worker_niceness`` 0: Ray renices
+# its workers by +15 by default (to keep its daemons responsive on a node it shares with a user's other
+# work); here the workers ARE the work, as in the process pool, whose workers keep the driver's
+# niceness. At +15 two busy workers on a 2-vCPU box lost their cores to every nice-0 process
+# (measured in docs/benchmarks.md, "Fleet calibration").
+LOCAL_RAY_CONFIG = {"worker_niceness": 0}
 MAX_SOCKET_DIR = 60  # Ray's unix sockets live under the temp dir; their paths must stay < 108 chars
 
 
@@ -96,13 +105,13 @@ THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
 
 
 @contextmanager
-def _worker_env(threads: int) -> Iterator[None]:
-    """This process's environment with ``THREAD_VARS`` = ``threads`` and ``TQDM_DISABLE`` while
-    workers are started from it (they inherit it); restored afterwards. This process's own libraries
-    are already loaded: they keep their threads."""
-    keys = (*THREAD_VARS, "TQDM_DISABLE")
-    old = {k: os.environ.get(k) for k in keys}
-    os.environ.update({**dict.fromkeys(THREAD_VARS, str(int(threads))), "TQDM_DISABLE": "1"})
+def _worker_env(threads: int, extra: dict[str, str] | None = None) -> Iterator[None]:
+    """This process's environment with ``THREAD_VARS`` = ``threads``, ``TQDM_DISABLE`` and ``extra``
+    while workers are started from it (they inherit it); restored afterwards. This process's own
+    libraries are already loaded: they keep their threads."""
+    new = {**dict.fromkeys(THREAD_VARS, str(int(threads))), "TQDM_DISABLE": "1", **(extra or {})}
+    old = {k: os.environ.get(k) for k in new}
+    os.environ.update(new)
     try:
         yield
     finally:
@@ -206,9 +215,11 @@ def check_ray_address(address: str, timeout_s: float = 5.0) -> None:
                                        "with `ray start --head --port PORT`, or check the host and port") from None
 
 
-def start_ray(workers: int, address: str | None, temp_dir: str | Path | None, object_store_mb: int) -> bool:
-    """Join the cluster at ``address``, or start a local one (module doc). Returns whether this call
-    started Ray (then the caller shuts it down). A Ray already initialised in this process is reused."""
+def start_ray(workers: int, address: str | None, temp_dir: str | Path | None, object_store_mb: int,
+              threads: int = 1) -> bool:
+    """Join the cluster at ``address``, or start a local one of ``workers`` CPUs (module doc) whose
+    raylet and workers inherit ``_worker_env(threads)``. Returns whether this call started Ray (then
+    the caller shuts it down). A Ray already initialised in this process is reused."""
     import importlib.util
     import sys
 
@@ -232,14 +243,17 @@ def start_ray(workers: int, address: str | None, temp_dir: str | Path | None, ob
         return True
     if temp_dir is None:
         raise OptionError("--ray-temp", "a local Ray cluster needs a temp directory")
-    ray.init(num_cpus=workers, object_store_memory=int(object_store_mb) * 1024 * 1024, _temp_dir=str(tmp),
-             include_dashboard=False, log_to_driver=False)
+    # Ray's settings: as variables (``RAY_<name>``, read by the raylet at its start; ``_system_config``
+    # alone left workers it started on demand at +15, measured) unless the user set them
+    config = {k: v for k, v in LOCAL_RAY_CONFIG.items() if f"RAY_{k}" not in os.environ}
+    with _worker_env(threads, {f"RAY_{k}": str(v) for k, v in config.items()}):
+        ray.init(num_cpus=workers, object_store_memory=int(object_store_mb) * 1024 * 1024, _temp_dir=str(tmp),
+                 include_dashboard=False, log_to_driver=False, _system_config=config)
     return True
 
 
 def _run_ray(jobs, on_start, on_outcome, workers, address, temp_dir, retries, in_flight, object_store_mb):
-    with _worker_env(jobs[0].threads):  # a local Ray's raylet and workers inherit it
-        started = start_ray(workers * jobs[0].threads, address, temp_dir, object_store_mb)  # CPUs: workers x threads
+    started = start_ray(workers * jobs[0].threads, address, temp_dir, object_store_mb, jobs[0].threads)
     import ray  # after start_ray: it sets Ray's environment first
     if address:  # a joined cluster is sized by its nodes, not by --workers: keep every CPU fed
         in_flight = max(in_flight, 2 * int(ray.cluster_resources().get("CPU", 0)) // jobs[0].threads)
