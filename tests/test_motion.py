@@ -9,7 +9,7 @@ import pytest
 from factors.motion import MotionMeasurement, chord_heading, chord_length, heading_residual, radar_yaw_change, wrap
 from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.geometry import local, make_T, se3_inverse, so3_exp
-from hybrid_calib.hybrid.motion import MotionConfig, fold
+from hybrid_calib.hybrid.motion import MotionConfig, fold, innovation
 from hybrid_calib.sensors.radar_velocity import estimate_velocity
 from tests.helpers import nominal_T_cam_radar
 from tests.jacobians import check_se3_residual_jacobian
@@ -91,14 +91,14 @@ def test_fold_adds_the_motion_information_once_and_gates_gross_errors():
     prior = GaussianPrior(X @ make_T(so3_exp([0.0, 0.0, np.radians(2.0)]), np.zeros(3)),
                           np.diag([np.radians(2.0) ** 2] * 3 + [0.1 ** 2] * 3))
     conf = MotionConfig(sigma_vo_deg=0.3, drive_std_deg=0.0)
-    fo = fold(prior, prior.T, m, conf)
+    fo = fold(prior, prior.T, innovation(prior.T, m, conf, prior.cov), conf)
     L = np.linalg.inv(fo.prior.cov)
     np.testing.assert_allclose(L, np.linalg.inv(prior.cov) + fo.info_motion, rtol=1e-8, atol=1e-6)
     assert np.linalg.matrix_rank(fo.info_motion) == 1  # one scalar measurement
     # the folded prior is pulled from the 2 deg yaw error towards the truth
     assert np.linalg.norm(local(X, fo.prior.T)[:3]) < np.linalg.norm(local(X, prior.T)[:3]) / 2
     bad = MotionMeasurement(m.c, m.R_A, m.s, m.psi + np.radians(40.0), m.sigma, m.speed)
-    assert fold(prior, prior.T, bad, conf) is None
+    assert fold(prior, prior.T, innovation(prior.T, bad, conf, prior.cov), conf) is None
 
 
 def test_wrap():
@@ -137,7 +137,7 @@ def test_visual_odometry_and_doppler_on_a_simulated_drive_agree_with_the_truth(d
             good += 1
             assert r < 5.0
         # two-view VO fails now and then (a sideways solution); the loop's innovation gate drops it
-        folded = fold(GaussianPrior(T, prior_cov), T, m, MotionConfig())
+        folded = fold(GaussianPrior(T, prior_cov), T, innovation(T, m, MotionConfig(), prior_cov), MotionConfig())
         assert folded is not None or r > 3 * np.hypot(1.5, 2.0) - 1.0
     assert pairs >= 2 and good >= pairs - 1
 

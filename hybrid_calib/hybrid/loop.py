@@ -230,13 +230,15 @@ def with_drive_error(traj: list[FrameEstimate], drive_std, conf: HybridConfig) -
     D = np.diag(np.asarray(drive_std, np.float64) ** 2)
     if not np.any(D):
         return traj
-    out = []
-    for f in traj:
-        # keep the window's own notes (a solve that did not converge, a restart after a step)
-        notes = [f.estimate.status[i:].split(")")[0] for key in ("NOT CONVERGED", "recovering")
-                 if (i := f.estimate.status.find(key)) >= 0]
-        out.append(dataclasses.replace(f, estimate=_estimate(f.T, f.cov + D, conf, "; ".join(notes))))
-    return out
+    return [with_cov(f, f.cov + D, conf) for f in traj]
+
+
+def with_cov(f: FrameEstimate, cov: np.ndarray, conf: HybridConfig) -> FrameEstimate:
+    """Frame ``f`` re-reported with covariance ``cov`` (6, 6), keeping the window's own notes (a
+    solve that did not converge, a restart after a step)."""
+    notes = [f.estimate.status[i:].split(")")[0] for key in ("NOT CONVERGED", "recovering")
+             if (i := f.estimate.status.find(key)) >= 0]
+    return dataclasses.replace(f, estimate=_estimate(f.T, cov, conf, "; ".join(notes)))
 
 
 def _pure(runner, drive, T0, conf, tr):
@@ -279,13 +281,7 @@ def motion_bias_cov(C: np.ndarray, g: np.ndarray, motion_std_rad: float) -> np.n
 def with_motion_bias(traj: list[FrameEstimate], motion_gain: list[np.ndarray], motion_std_rad: float,
                      conf: HybridConfig) -> list[FrameEstimate]:
     """The trajectory with ``motion_bias_cov`` in every reported covariance (``motion_gain``: per frame)."""
-    out = []
-    for f, g in zip(traj, motion_gain):
-        notes = [f.estimate.status[i:].split(")")[0] for key in ("NOT CONVERGED", "recovering")
-                 if (i := f.estimate.status.find(key)) >= 0]
-        out.append(dataclasses.replace(f, estimate=_estimate(f.T, motion_bias_cov(f.cov, g, motion_std_rad), conf,
-                                                             "; ".join(notes))))
-    return out
+    return [with_cov(f, motion_bias_cov(f.cov, g, motion_std_rad), conf) for f, g in zip(traj, motion_gain)]
 
 
 def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None):
@@ -330,21 +326,21 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None):
         if motion is not None and fi.prior is not None:
             prior = GaussianPrior(fi.prior.T, fi.prior.cov + inflate)
             m, why = motion.measurement(pair, i, T[:3, :3]) if pair is not None else (None, "first frame")
-            fo = fold(prior, T, m, conf.motion, reported_cov) if m is not None else None
-            if m is not None:
-                r, s_in = innovation(T, m, conf.motion, prior.cov if reported_cov is None else reported_cov)
-                alarm, age = steps.update(r / s_in)
+            inn = None if m is None else innovation(T, m, conf.motion,
+                                                    prior.cov if reported_cov is None else reported_cov)
+            fo = fold(prior, T, inn, conf.motion) if inn is not None else None
+            if inn is not None:
+                alarm, age = steps.update(inn.z)
             g_frames.append(fo.gain_motion if fo is not None else np.zeros(6))
             if fo is not None:
                 prior = fo.prior
-                sig = np.hypot(m.sigma, np.radians(conf.motion.sigma_vo_deg))
                 mrec = {"motion": {"residual_deg": fo.residual_deg, "weight": fo.weight,
-                                   "sigma_deg": float(np.degrees(sig)), "speed_mps": m.speed,
+                                   "sigma_deg": float(np.degrees(inn.sigma)), "speed_mps": m.speed,
                                    "vo_inliers": m.n_vo_inliers}}
             else:
                 mrec = {"motion_skipped": why or "residual outside the innovation gate (MotionConfig.gate)"}
-            if m is not None:
-                mrec.update(motion_z=float(r / s_in), motion_cusum=steps.statistic)
+            if inn is not None:
+                mrec.update(motion_z=float(inn.z), motion_cusum=steps.statistic)
         fe = cal.update(fi.corr, prior)
         if alarm:  # the radar turned: restart the window from the frames since the change point
             keep = min(age, conf.window.window, len(g_frames))

@@ -274,12 +274,28 @@ class MotionStepDetector:
         return max(self.pos, self.neg)
 
 
-def innovation(T: np.ndarray, m: MotionMeasurement, conf: MotionConfig, cov: np.ndarray) -> tuple[float, float]:
-    """(residual r rad at ``T``, its std ``sqrt(sigma^2 + J cov J^T)`` rad): what the gate and the step
-    test whiten by. cov: (6, 6) the uncertainty of T."""
+@dataclass(frozen=True)
+class Innovation:
+    """One motion measurement at the estimate ``T`` before its frame: residual ``r`` (rad), its
+    Jacobian ``J`` (6,), the measurement's own std ``sigma`` (rad: Doppler and VO) and the
+    innovation std ``std = sqrt(sigma^2 + J C J^T)`` (rad) with ``C`` the uncertainty of ``T``: what
+    the gate, the fold and the step test use."""
+
+    r: float
+    J: np.ndarray
+    sigma: float
+    std: float
+
+    @property
+    def z(self) -> float:
+        return self.r / self.std
+
+
+def innovation(T: np.ndarray, m: MotionMeasurement, conf: MotionConfig, cov: np.ndarray) -> Innovation:
+    """The ``Innovation`` of ``m`` at ``T`` (4, 4); cov: (6, 6) the uncertainty of T."""
     r, J = heading_residual(T, m)
     sigma = float(np.hypot(m.sigma, np.radians(conf.sigma_vo_deg)))
-    return r, float(np.sqrt(sigma ** 2 + float(J @ cov @ J)))
+    return Innovation(r, J, sigma, float(np.sqrt(sigma ** 2 + float(J @ cov @ J))))
 
 
 @dataclass(frozen=True)
@@ -296,21 +312,18 @@ class Folded:
     weight: float
 
 
-def fold(prior: GaussianPrior, T0: np.ndarray, m: MotionMeasurement, conf: MotionConfig,
-         cov_T0: np.ndarray | None = None) -> Folded | None:
-    """The network prior (``prior``) and the motion residual linearised at ``T0`` (4, 4) in one
-    Gaussian (module doc), or None when the residual fails the innovation gate against ``cov_T0``
-    (6, 6), the uncertainty of ``T0`` (default: the prior's). ``prior.cov``: (6, 6) right tangent,
-    radar frame [rad, m]."""
+def fold(prior: GaussianPrior, T0: np.ndarray, inn: Innovation, conf: MotionConfig) -> Folded | None:
+    """The network prior (``prior``) and the motion residual linearised at ``T0`` (4, 4) (``inn``,
+    ``innovation`` at T0) in one Gaussian (module doc), or None when it fails the innovation gate
+    ``|r| > gate * std``. ``prior.cov``: (6, 6) right tangent, radar frame [rad, m]."""
     from hybrid_calib.geometry import local
 
-    r, J = heading_residual(T0, m)
-    sigma = float(np.hypot(m.sigma, np.radians(conf.sigma_vo_deg)))
-    C = prior.cov if cov_T0 is None else cov_T0
-    if abs(r) > conf.gate * np.sqrt(sigma ** 2 + float(J @ C @ J)):
+    r, J, sigma = inn.r, inn.J, inn.sigma
+    if abs(r) > conf.gate * inn.std:
         return None
     z = abs(r) / max(sigma, 1e-12)
-    w = min(1.0, conf.huber / z) / sigma ** 2 if z > 0 else 1.0 / sigma ** 2
+    weight = min(1.0, conf.huber / z) if z > 0 else 1.0
+    w = weight / sigma ** 2
     L_p = np.linalg.inv(prior.cov)
     mu_p = local(T0, prior.T)
     L_m = w * np.outer(J, J)
@@ -318,5 +331,4 @@ def fold(prior: GaussianPrior, T0: np.ndarray, m: MotionMeasurement, conf: Motio
     L = 0.5 * (L + L.T)
     mu = np.linalg.solve(L, L_p @ mu_p - w * J * r)
     cov = np.linalg.inv(L)
-    return Folded(GaussianPrior(retract(T0, mu), 0.5 * (cov + cov.T)), L_m, w * J, float(np.degrees(r)),
-                  float(min(1.0, conf.huber / z)) if z > 0 else 1.0)
+    return Folded(GaussianPrior(retract(T0, mu), 0.5 * (cov + cov.T)), L_m, w * J, float(np.degrees(r)), weight)
