@@ -1,0 +1,248 @@
+"""Has the radar moved on the vehicle? A step test on the radar's heading against the vehicle's own motion.
+
+Per pair of consecutive frames the radar's Doppler gives the direction of its own travel in its
+own frame (``sensors.radar_velocity``, the chord of its velocities at the two sweeps), and the ego
+poses at the two radar timestamps give the same travel in the vehicle's frame (odometry: the
+vehicle's displacement ``D`` and rotation ``R_A`` between the sweeps, in ego frame a). With the
+radar's mount ``T_ego_radar`` the residual is the factor of ``factors.motion`` with the ego in the
+camera's place::
+
+    d = R^T (D + (R_A - I) t),    y = wrap(atan2(d_y, d_x) - psi)        (T_ego_radar = (R, t))
+
+``y`` is the radar's yaw on the vehicle minus the mount's (plus the Doppler's own bias): constant
+while the radar stays where it is, and it moves by the yaw of a knock at once. It needs no camera
+and no network, and it does not depend on the reference mount's rotation (only on its lever arm
+``t``, to centimetres): the test looks for a change of ``y``, not at its level. Its noise is the
+Doppler's, ~0.15-0.3 deg per pair in the simulator (a 1 deg knock is 3-6 sigma in one pair), against
+~1.1 deg for the camera's two-view odometry (``hybrid.motion``), whose errors also drift with the
+scene by about as much as a knock (measured, docs/benchmarks.md "The mount monitor").
+
+The test (``MountMonitor``): the level is the median of ``y`` since the last change (at least
+``min_frames`` pairs), the noise scale the median absolute successive difference of those pairs
+over sqrt(2) (a step inside them enters one difference only), at least ``floor_deg``; the
+standardised deviations ``z``, clipped to ``+-clip`` (skipped beyond ``+-gross``: a failed Doppler
+fit), feed a two-sided CUSUM with allowance ``drift``; above ``threshold`` it alarms, the change
+point is where that CUSUM last left zero, the step is the median after it minus the level before
+it, and the test restarts from the change point (hysteresis: one step, one alarm; the new level
+needs ``min_frames`` pairs before the next alarm).
+
+Skipped pairs (and why): slower than ``min_speed_mps`` (the Doppler heading is noise), turning
+faster than ``max_turn_dps`` (the chord model and the sweep's timing error grow with the turn
+rate: on the real nuScenes scene-0916 ``y`` moves by 1.5 deg in 20-30 deg/s turns, and by
+less than its noise up to 15 deg/s), further apart
+than ``max_gap_s``, no ego pose, an unreadable frame, no Doppler velocity.
+
+What it does not see: a radar tilt (roll, pitch: a 2D radar's Doppler lies in its own plane), a
+translation of the radar, and a camera that moves (the camera's heading is VO's, ``hybrid.motion``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from factors.motion import MotionMeasurement, chord_heading, heading_residual, radar_yaw_change
+from hybrid_calib.errors import DataError
+from hybrid_calib.geometry import so3_log
+from hybrid_calib.sensors.radar_velocity import RadarVelocityConfig, estimate_velocity
+
+MEDIAN_VAR = np.pi / 2  # variance of a Gaussian sample's median, in units of sigma^2 / n
+
+
+@dataclass(frozen=True)
+class MountMonitorConfig:
+    enabled: bool = True  # run the monitor (hybrid: a step alarm restarts the window from the change)
+    min_speed_mps: float = 2.0  # slower: the Doppler heading is too noisy, the pair is skipped
+    max_gap_s: float = 1.5  # radar sweeps further apart are not a pair
+    max_turn_dps: float = 15.0  # faster turns are skipped (module doc), deg/s
+    floor_deg: float = 0.15  # the smallest noise std the test assumes, deg (benchmarks/mount_steps.py)
+    drift: float = 1.0  # CUSUM allowance per pair, in noise sigmas (half the smallest step sought: 2 sigma)
+    threshold: float = 8.0  # CUSUM alarm level, in noise sigmas
+    clip: float = 3.0  # standardised deviations are clipped to +-this (heavy tails)
+    gross: float = 10.0  # ... and skipped beyond +-this (a failed Doppler fit, not a knock)
+    min_frames: int = 5  # pairs of a level before the test runs (after the start and after each change)
+    velocity: RadarVelocityConfig = RadarVelocityConfig()
+
+    def __post_init__(self):
+        if self.min_frames < 3 or self.floor_deg <= 0 or self.threshold <= 0 or self.clip <= self.drift:
+            raise ValueError(f"MountMonitorConfig: need min_frames >= 3, floor_deg > 0, threshold > 0 and clip > "
+                             f"drift (got {self.min_frames}, {self.floor_deg}, {self.threshold}, {self.clip}, "
+                             f"{self.drift})")
+
+
+@dataclass(frozen=True)
+class MountStep:
+    """An alarm: at drive position ``at`` the radar's yaw on the vehicle was found to have moved by
+    ``step_deg`` (+- ``std_deg``) from about position ``change`` (the first frame after the change)."""
+
+    at: int
+    change: int
+    step_deg: float
+    std_deg: float
+    statistic: float
+
+    def describe(self, threshold: float) -> str:
+        return (f"radar mount step: the radar's heading against the vehicle's own motion (Doppler vs ego poses) "
+                f"moved by {self.step_deg:+.2f} +- {self.std_deg:.2f} deg (yaw) from frame {self.change} "
+                f"(CUSUM {self.statistic:.1f} > {threshold:g})")
+
+
+@dataclass(frozen=True)
+class MountReading:
+    """One frame's reading: ``residual_deg`` (None when the pair was skipped, with ``skipped`` saying
+    why), its standardised deviation ``z`` from the level and the CUSUM ``statistic`` (None while the
+    level is still being learned), and the ``step`` when this frame raised an alarm."""
+
+    position: int
+    residual_deg: float | None = None
+    z: float | None = None
+    statistic: float | None = None
+    skipped: str = ""
+    step: MountStep | None = None
+
+    def record(self) -> dict:
+        """The reading as a frame row's ``mount`` entry (plain JSON)."""
+        if self.residual_deg is None:
+            return {"skipped": self.skipped}
+        return {"residual_deg": self.residual_deg, "z": self.z, "statistic": self.statistic}
+
+
+@dataclass
+class MountMonitor:
+    """The test of the module doc over one drive, fed frame by frame (``update``).
+
+    frames: indexable by dataset index -> frame (``RadarCameraFrame``: radar points and fields,
+    ``extras["T_global_ego_radar"]``). T_ego_radar: (4, 4) the radar's reference mount (its lever arm
+    matters, its rotation does not). velocity: optional ``index -> (RadarVelocity | None, why)`` (the
+    hybrid shares its motion source's cache); default: ``estimate_velocity`` of the frame."""
+
+    frames: object
+    T_ego_radar: np.ndarray
+    conf: MountMonitorConfig = MountMonitorConfig()
+    velocity: Callable[[int], tuple] | None = None
+    series: list[tuple[int, float]] = field(default_factory=list)  # (position, residual deg) of the level's pairs
+    steps: list[MountStep] = field(default_factory=list)
+    _prev: tuple | None = None
+    _start: int = 0  # first element of ``series`` in the current level
+    _pos: float = 0.0
+    _neg: float = 0.0
+    _pos_from: int | None = None  # where each CUSUM last left zero (None: at the level's first tested pair)
+    _neg_from: int | None = None
+
+    def _velocity(self, i: int, f) -> tuple:
+        if self.velocity is not None:
+            return self.velocity(i)
+        return estimate_velocity(f.radar_points, f.radar_fields, self.conf.velocity, f.extras.get("radar_sweep_index"))
+
+    def residual(self, ia: int, fa, va, ib: int, fb, vb) -> tuple[float | None, str]:
+        """(y deg, "") of the pair a -> b, or (None, why it was skipped)."""
+        c = self.conf
+        dt = (fb.timestamp_radar_us - fa.timestamp_radar_us) * 1e-6
+        if not 0 < dt <= c.max_gap_s:
+            return None, f"radar sweeps {dt:.2f} s apart (a pair needs 0 < dt <= {c.max_gap_s:g} s)"
+        if va is None or vb is None:
+            return None, "no Doppler velocity"
+        if min(va.speed, vb.speed) < c.min_speed_mps:
+            return None, f"radar speed {min(va.speed, vb.speed):.1f} m/s (need {c.min_speed_mps:g})"
+        Ta, Tb = fa.extras.get("T_global_ego_radar"), fb.extras.get("T_global_ego_radar")
+        if Ta is None or Tb is None:
+            return None, "no ego pose at the radar's timestamp"
+        Ta, Tb = np.asarray(Ta, np.float64), np.asarray(Tb, np.float64)
+        R_A = Ta[:3, :3].T @ Tb[:3, :3]
+        D = Ta[:3, :3].T @ (Tb[:3, 3] - Ta[:3, 3])
+        turn = float(np.degrees(np.linalg.norm(so3_log(R_A)))) / dt
+        if turn > c.max_turn_dps:
+            return None, f"turning at {turn:.0f} deg/s (at most {c.max_turn_dps:g})"
+        s = float(np.linalg.norm(D))
+        if s < c.min_speed_mps * dt * 0.5:
+            return None, f"the ego poses moved {s:.2f} m while the radar measured {va.speed:.1f} m/s"
+        R = self.T_ego_radar[:3, :3]
+        psi, sig, speed = chord_heading(va.v, va.cov, vb.v, vb.cov, radar_yaw_change(R_A, R))
+        m = MotionMeasurement(D / s, R_A, s, psi, sig, speed, fa.radar_token, fb.radar_token, 0,
+                              min(va.n_inliers, vb.n_inliers))
+        return float(np.degrees(heading_residual(self.T_ego_radar, m)[0])), ""
+
+    def update(self, position: int, index: int) -> MountReading:
+        """Feed the frame at drive ``position`` (dataset ``index``); its pair is (previous fed frame, it)."""
+        try:
+            f = self.frames[index]
+            v, why = self._velocity(index, f)
+        except DataError as e:
+            self._prev = None
+            return MountReading(position, skipped=f"frame unreadable: {e}")
+        prev, self._prev = self._prev, (index, f, v)
+        if prev is None:
+            return MountReading(position, skipped="first frame of a pair")
+        y, why = self.residual(prev[0], prev[1], prev[2], index, f, v)
+        if y is None:
+            return MountReading(position, skipped=why)
+        return self._test(position, y)
+
+    def scale(self, level: np.ndarray) -> float:
+        """The level's noise std, deg (module doc)."""
+        d = np.diff(level)
+        mad = 1.4826 * float(np.median(np.abs(d - np.median(d)))) if len(d) else 0.0
+        return max(self.conf.floor_deg, mad / np.sqrt(2.0))
+
+    def _test(self, position: int, y: float) -> MountReading:
+        c = self.conf
+        level = np.array([v for _, v in self.series[self._start:]])
+        if len(level) < c.min_frames:
+            self.series.append((position, y))
+            return MountReading(position, y)
+        base, s = float(np.median(level)), self.scale(level)
+        z = (y - base) / (s * np.sqrt(1.0 + MEDIAN_VAR / len(level)))
+        if abs(z) > c.gross:
+            return MountReading(position, y, float(z), max(self._pos, self._neg), skipped="")
+        self.series.append((position, y))
+        n = len(self.series) - 1
+        self._pos_from = n if self._pos_from is None else self._pos_from
+        self._neg_from = n if self._neg_from is None else self._neg_from
+        zc = float(np.clip(z, -c.clip, c.clip))
+        self._pos = max(0.0, self._pos + zc - c.drift)
+        self._neg = max(0.0, self._neg - zc - c.drift)
+        if self._pos == 0.0:
+            self._pos_from = n + 1
+        if self._neg == 0.0:
+            self._neg_from = n + 1
+        stat = max(self._pos, self._neg)
+        if stat <= c.threshold:
+            return MountReading(position, y, float(z), stat)
+        cp = min(n, self._pos_from if self._pos >= self._neg else self._neg_from)
+        before = np.array([v for _, v in self.series[self._start:cp]])
+        after = np.array([v for _, v in self.series[cp:]])
+        step = MountStep(position, self.series[cp][0], float(np.median(after) - np.median(before)),
+                         float(s * np.sqrt(MEDIAN_VAR / max(len(before), 1) + MEDIAN_VAR / len(after))), stat)
+        self.steps.append(step)
+        self._start, self._pos, self._neg = cp, 0.0, 0.0
+        self._pos_from = self._neg_from = None
+        return MountReading(position, y, float(z), stat, step=step)
+
+    def levels(self) -> list[dict]:
+        """The drive cut at its alarms: per piece the positions it spans, its level of ``y`` (deg:
+        the radar's yaw on the vehicle minus the reference mount's, plus the Doppler's bias), the
+        level's std and the pairs used."""
+        cuts = [0] + [next(k for k, (p, _) in enumerate(self.series) if p >= s.change) for s in self.steps]
+        out = []
+        for a, b in zip(cuts, cuts[1:] + [len(self.series)]):
+            v = np.array([y for _, y in self.series[a:b]])
+            if not len(v):
+                continue
+            s = self.scale(v) if len(v) > 2 else self.conf.floor_deg
+            out.append({"from": self.series[a][0], "to": self.series[b - 1][0], "level_deg": float(np.median(v)),
+                        "std_deg": float(s * np.sqrt(MEDIAN_VAR / len(v))), "pairs": int(len(v))})
+        return out
+
+    def summary(self) -> dict:
+        """The result's ``mount`` block: steps, levels and the config's test parameters."""
+        return {"steps": [vars(s) for s in self.steps], "levels": self.levels(),
+                "pairs_tested": len(self.series), "threshold": self.conf.threshold}
+
+
+def monitor_drive(frames, indices: list[int], T_ego_radar: np.ndarray, conf: MountMonitorConfig = MountMonitorConfig()
+                  ) -> tuple[MountMonitor, list[MountReading]]:
+    """The monitor over a whole drive (dataset ``indices`` in time order): (monitor, readings)."""
+    mon = MountMonitor(frames, np.asarray(T_ego_radar, np.float64), conf)
+    return mon, [mon.update(k, i) for k, i in enumerate(indices)]
