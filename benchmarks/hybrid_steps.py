@@ -2,7 +2,7 @@
 simulated drives: detection delay and false alarms per 1000 frames.
 
     PYTHONPATH=. .venv/bin/python benchmarks/hybrid_steps.py --out OUT [--seed 601] [--frames 40]
-        [--knock-deg 1.0] [--vehicles 3] [--set motion.step.threshold=6 ...]
+        [--knock-deg 1.0] [--vehicles 3] [--set mount.threshold=6 ...]
 
 Simulates (reused when present) ``knock-urban`` (``--vehicles`` urban drives whose radar turns by
 ``--knock-deg`` about its z axis at the middle frame), ``knock-highway`` (one), and unchanged

@@ -47,7 +47,8 @@ def monitor_root(root: Path, conf, step_at: int | None, kind: str, size: float, 
              "tested": tested if step_at is None else sum(r.statistic is not None and r.position < step_at
                                                           for r in readings),
              "pairs": len(mon.series), "frames": len(idx), "measured_steps_deg": [s.step_deg for s in mon.steps],
-             "levels": mon.levels(), "scale_deg": float(mon.scale(np.array([y for _, y in mon.series])))}
+             "levels": mon.levels(),  # the noise scale of the pairs before any change (all of them: unchanged drive)
+             "scale_deg": float(mon.scale(np.array([y for p, y in mon.series if step_at is None or p < step_at])))}
         if step_at is None:
             r["false_alarms"] = len(alarms)
         else:
@@ -102,10 +103,10 @@ def main(argv=None) -> int:
     for s, ps in per_scenario.items():
         print(f"\n{s}:\n{table(ps, a.within)}")
     scales = [r["scale_deg"] for r in rows]
-    print(f"\nnoise scale per drive: median {np.median(scales):.3f} deg, 10-90 % {np.percentile(scales, 10):.3f}-"
-          f"{np.percentile(scales, 90):.3f} deg; measured steps: " + ", ".join(
-              f"{s:g} deg -> median {np.median([m for r in rows if r['size'] == s for m in r['measured_steps_deg']]):.2f}"
-              for s in a.rot if any(r["size"] == s and r["measured_steps_deg"] for r in rows)))
+    measured = {s: [m for r in rows if r["size"] == s for m in r["measured_steps_deg"]] for s in a.rot}
+    print(f"\nnoise scale per drive (before the step): median {np.median(scales):.3f} deg, 10-90 % "
+          f"{np.percentile(scales, 10):.3f}-{np.percentile(scales, 90):.3f} deg; measured steps: "
+          + ", ".join(f"{s:g} deg -> median {np.median(m):.2f}" for s, m in measured.items() if m))
     print(f"wrote {a.out / 'summary.json'} and {a.out / 'mount_steps.png'}")
     return 0
 

@@ -85,7 +85,7 @@ def run_trials(roots: list, version: str, out: Path, conf: CompareConfig, progre
         drive = s.drives[name]
         try:
             vr = (vehicle_oracle(s.data, version, drive, c) if method == "oracle"
-                  else vehicle_learned(s.runner, drive, c, s.note, s.motion))
+                  else vehicle_learned(s.runner, drive, c, s.note, s.motion, s.frames))
         except DataError as e:  # this drive's data: recorded, the other trials go on
             failed.append({"trial": k, "method": method, "vehicle": name, "reason": str(e)})
             continue

@@ -159,17 +159,3 @@ def test_direction_of_travel_from_matches_when_the_rotation_is_known():
     assert cm is not None, why
     err = np.degrees(np.arccos(np.clip(cm.c @ c_true / np.linalg.norm(c_true), -1, 1)))
     assert err < 0.5 and cm.n_inliers >= 150
-
-
-def test_motion_step_detector_finds_a_shift_and_ignores_noise_and_gross_errors():
-    from hybrid_calib.hybrid.motion import MotionStepConfig, MotionStepDetector
-
-    g = np.random.default_rng(7)
-    det = MotionStepDetector(MotionStepConfig())
-    quiet = g.normal(0, 1, 2000)
-    quiet[::37] = 40.0  # failed VO solutions, all one way
-    assert sum(det.update(z)[0] for z in quiet) <= 2  # one-sided gross errors do not add up (Gaussian: ~0.3 per 1000)
-    det = MotionStepDetector(MotionStepConfig())
-    z = np.r_[g.normal(0, 1, 40), g.normal(1.5, 1, 40)]
-    hits = [(k, age) for k, x in enumerate(z) if (r := det.update(x))[0] for age in [r[1]]]
-    assert hits and 40 <= hits[0][0] <= 55 and abs((hits[0][0] - hits[0][1]) - 40) <= 6

@@ -18,13 +18,15 @@ Doppler's, ~0.15-0.3 deg per pair in the simulator (a 1 deg knock is 3-6 sigma i
 scene by about as much as a knock (measured, docs/benchmarks.md "The mount monitor").
 
 The test (``MountMonitor``): the level is the median of ``y`` since the last change (at least
-``min_frames`` pairs), the noise scale the median absolute successive difference of those pairs
-over sqrt(2) (a step inside them enters one difference only), at least ``floor_deg``; the
-standardised deviations ``z``, clipped to ``+-clip`` (skipped beyond ``+-gross``: a failed Doppler
-fit), feed a two-sided CUSUM with allowance ``drift``; above ``threshold`` it alarms, the change
-point is where that CUSUM last left zero, the step is the median after it minus the level before
-it, and the test restarts from the change point (hysteresis: one step, one alarm; the new level
-needs ``min_frames`` pairs before the next alarm).
+``min_frames`` pairs); the noise scale is the larger of the median absolute successive difference
+of those pairs over sqrt(2) (a step inside them enters one difference only) and their own median
+absolute deviation (the Doppler's bias wanders with the scene by a few tenths of a degree over tens
+of frames), and at least ``floor_deg``. The standardised deviations ``z``, clipped to ``+-clip``
+(heavy tails: one failed Doppler fit adds at most ``clip - drift``), feed a two-sided CUSUM with
+allowance ``drift``; above ``threshold`` it alarms, the change point is where that CUSUM last left
+zero, the step is the median after it minus the level before it, and the test restarts from the
+change point (hysteresis: one step, one alarm; the new level needs ``min_frames`` pairs before the
+next alarm).
 
 Skipped pairs (and why): slower than ``min_speed_mps`` (the Doppler heading is noise), turning
 faster than ``max_turn_dps`` (the chord model and the sweep's timing error grow with the turn
@@ -38,7 +40,6 @@ translation of the radar, and a camera that moves (the camera's heading is VO's,
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -61,8 +62,7 @@ class MountMonitorConfig:
     drift: float = 1.0  # CUSUM allowance per pair, in noise sigmas (half the smallest step sought: 2 sigma)
     threshold: float = 8.0  # CUSUM alarm level, in noise sigmas
     clip: float = 3.0  # standardised deviations are clipped to +-this (heavy tails)
-    gross: float = 10.0  # ... and skipped beyond +-this (a failed Doppler fit, not a knock)
-    min_frames: int = 5  # pairs of a level before the test runs (after the start and after each change)
+    min_frames: int = 8  # pairs of a level before the test runs (after the start and after each change)
     velocity: RadarVelocityConfig = RadarVelocityConfig()
 
     def __post_init__(self):
@@ -115,13 +115,11 @@ class MountMonitor:
 
     frames: indexable by dataset index -> frame (``RadarCameraFrame``: radar points and fields,
     ``extras["T_global_ego_radar"]``). T_ego_radar: (4, 4) the radar's reference mount (its lever arm
-    matters, its rotation does not). velocity: optional ``index -> (RadarVelocity | None, why)`` (the
-    hybrid shares its motion source's cache); default: ``estimate_velocity`` of the frame."""
+    matters, its rotation does not)."""
 
     frames: object
     T_ego_radar: np.ndarray
     conf: MountMonitorConfig = MountMonitorConfig()
-    velocity: Callable[[int], tuple] | None = None
     series: list[tuple[int, float]] = field(default_factory=list)  # (position, residual deg) of the level's pairs
     steps: list[MountStep] = field(default_factory=list)
     _prev: tuple | None = None
@@ -131,9 +129,7 @@ class MountMonitor:
     _pos_from: int | None = None  # where each CUSUM last left zero (None: at the level's first tested pair)
     _neg_from: int | None = None
 
-    def _velocity(self, i: int, f) -> tuple:
-        if self.velocity is not None:
-            return self.velocity(i)
+    def _velocity(self, f) -> tuple:
         return estimate_velocity(f.radar_points, f.radar_fields, self.conf.velocity, f.extras.get("radar_sweep_index"))
 
     def residual(self, ia: int, fa, va, ib: int, fb, vb) -> tuple[float | None, str]:
@@ -168,7 +164,7 @@ class MountMonitor:
         """Feed the frame at drive ``position`` (dataset ``index``); its pair is (previous fed frame, it)."""
         try:
             f = self.frames[index]
-            v, why = self._velocity(index, f)
+            v, _ = self._velocity(f)
         except DataError as e:
             self._prev = None
             return MountReading(position, skipped=f"frame unreadable: {e}")
@@ -178,15 +174,18 @@ class MountMonitor:
         y, why = self.residual(prev[0], prev[1], prev[2], index, f, v)
         if y is None:
             return MountReading(position, skipped=why)
-        return self._test(position, y)
+        return self.add_residual(position, y)
 
     def scale(self, level: np.ndarray) -> float:
-        """The level's noise std, deg (module doc)."""
-        d = np.diff(level)
-        mad = 1.4826 * float(np.median(np.abs(d - np.median(d)))) if len(d) else 0.0
-        return max(self.conf.floor_deg, mad / np.sqrt(2.0))
+        """The level's noise std, deg (module doc): the larger of its spread and its successive
+        differences' (over sqrt 2), robustly (MAD), and at least ``floor_deg``."""
+        def mad(x):
+            return 1.4826 * float(np.median(np.abs(x - np.median(x)))) if len(x) else 0.0
 
-    def _test(self, position: int, y: float) -> MountReading:
+        return max(self.conf.floor_deg, mad(level), mad(np.diff(level)) / np.sqrt(2.0))
+
+    def add_residual(self, position: int, y: float) -> MountReading:
+        """Test one pair's residual ``y`` (deg) at drive ``position`` (``update`` computes it from the frames)."""
         c = self.conf
         level = np.array([v for _, v in self.series[self._start:]])
         if len(level) < c.min_frames:
@@ -194,8 +193,6 @@ class MountMonitor:
             return MountReading(position, y)
         base, s = float(np.median(level)), self.scale(level)
         z = (y - base) / (s * np.sqrt(1.0 + MEDIAN_VAR / len(level)))
-        if abs(z) > c.gross:
-            return MountReading(position, y, float(z), max(self._pos, self._neg), skipped="")
         self.series.append((position, y))
         n = len(self.series) - 1
         self._pos_from = n if self._pos_from is None else self._pos_from

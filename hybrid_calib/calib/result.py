@@ -188,6 +188,7 @@ class VehicleResult:
     frame_rows: list[dict] = field(default_factory=list)  # per frame {"used", "rejected", ...} (learned methods)
     config: dict | None = None  # the effective method config (learned methods)
     ood: dict | None = None  # out-of-domain scores and decision (learned methods; hybrid.ood.decide)
+    mount: dict | None = None  # the radar mount monitor: steps and levels (hybrid; calib.mount_monitor.summary)
 
     def to_dict(self) -> dict:
         return {
@@ -202,7 +203,7 @@ class VehicleResult:
             "trajectory": [f.to_dict() for f in self.trajectory],
             "method": self.method, "checkpoint": self.checkpoint, "start": self.start,
             "errors_against": self.errors_against, "frame_rows": self.frame_rows, "config": self.config,
-            "ood": self.ood,
+            "ood": self.ood, "mount": self.mount,
         }
 
     @classmethod
@@ -216,7 +217,7 @@ class VehicleResult:
             skipped=list(d.get("frames_skipped", [])), n_frames=int(d.get("n_frames", 0)),
             network=d.get("network"), method=d.get("method", ""), checkpoint=d.get("checkpoint"),
             start=d.get("start"), errors_against=d.get("errors_against"), frame_rows=list(d.get("frame_rows", [])),
-            config=d.get("config"), ood=d.get("ood"),
+            config=d.get("config"), ood=d.get("ood"), mount=d.get("mount"),
         )
 
     def to_json(self) -> str:

@@ -251,9 +251,11 @@ class SlidingWindowCalibrator:
         return np.diag([np.radians(c.random_walk_rot_deg_per_sqrt_s) ** 2] * 3
                        + [(c.random_walk_trans_cm_per_sqrt_s / 100) ** 2] * 3) * dt_s
 
-    def reset(self, keep_last: int = 0) -> None:
+    def reset(self, keep_last: int = 0, T: np.ndarray | None = None) -> None:
         """Drop the marginalised history and all but the last ``keep_last`` frames (the next
-        ``convex_frames`` updates use the convex start)."""
+        ``convex_frames`` updates use the convex start); ``T`` (4, 4): the estimate to go on from."""
+        if T is not None:
+            self.T = np.asarray(T, np.float64).copy()
         self.marg = None
         self.n_marg = 0
         self._marg_external_info = np.zeros((6, 6))

@@ -31,16 +31,17 @@ import numpy as np
 
 from hybrid_calib.calib.covariance import analyse_information, inconclusive_status
 from hybrid_calib.calib.drift import DriftConfig, reference_test
+from hybrid_calib.calib.mount_monitor import MountMonitor, MountMonitorConfig
 from hybrid_calib.calib.oracle import OracleConfig
 from hybrid_calib.calib.result import CalibrationRun, Estimate, FrameEstimate, VehicleResult, failed_vehicles_message
 from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import merge, save_json_atomic, to_dict
 from hybrid_calib.errors import DataError, HybridCalibError
-from hybrid_calib.geometry import local
+from hybrid_calib.geometry import local, se3_exp
 from hybrid_calib.hybrid.average import AverageConfig, robust_average
 from hybrid_calib.hybrid.measurement import MeasurementConfig, frame_inputs, prior_trusted
-from hybrid_calib.hybrid.motion import MotionConfig, MotionSource, MotionStepDetector, fold, innovation
+from hybrid_calib.hybrid.motion import MotionConfig, MotionSource, fold, innovation
 from hybrid_calib.hybrid.network import NetworkRunner, build_runner, refine_checkpoint, shipped_checkpoint
 from hybrid_calib.hybrid.ood import OODPolicy, decide, json_score, out_of_domain, skip_record
 from hybrid_calib.metrics import extrinsic_error
@@ -65,6 +66,7 @@ class HybridConfig:
     window: WindowConfig = WindowConfig()  # the sliding window (hybrid, oracle)
     measurement: dict = field(default_factory=dict)  # MeasurementConfig overrides over the checkpoint's export.hybrid
     motion: MotionConfig = MotionConfig()  # the camera-VO / radar-Doppler motion constraint (hybrid; hybrid.motion)
+    mount: MountMonitorConfig = MountMonitorConfig()  # radar mount steps, Doppler vs ego poses (calib.mount_monitor)
     average: AverageConfig = AverageConfig()  # pure-avg
     oracle: OracleConfig = OracleConfig()  # oracle rows (simulated roots only)
     drift: DriftConfig = DriftConfig()  # reference chi-square test of the final estimate
@@ -96,6 +98,7 @@ class Drive:
     base: np.ndarray  # (4, 4) truth (simulated) or tables (real)
     reference: np.ndarray  # (4, 4) the reference the drift test uses
     simulated: bool
+    ego_radar: np.ndarray | None = None  # (4, 4) T_ego_radar of the first readable frame (mount monitor's lever arm)
 
     @property
     def errors_against(self) -> str:
@@ -161,7 +164,9 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
             continue
         static = np.asarray(f.extras.get("T_cam_radar_static", f.T_cam_radar), np.float64)
         ref = np.asarray(f.extras.get("reference_T_cam_radar", static), np.float64)
-        drives[vehicle] = Drive(vehicle, list(idx), static, ref, simulated)
+        ego_radar = f.extras.get("T_ego_radar")
+        drives[vehicle] = Drive(vehicle, list(idx), static, ref, simulated,
+                                None if ego_radar is None else np.asarray(ego_radar, np.float64))
     if conf.vehicles is not None and (missing := sorted(set(conf.vehicles) - set(drives))):
         raise DataError(f"vehicle(s) {missing} not in the data (vehicles: {sorted(frames.frames_by_vehicle())})",
                         path=str(data))
@@ -284,9 +289,11 @@ def with_motion_bias(traj: list[FrameEstimate], motion_gain: list[np.ndarray], m
     return [with_cov(f, motion_bias_cov(f.cov, g, motion_std_rad), conf) for f, g in zip(traj, motion_gain)]
 
 
-def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None):
+def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mount: MountMonitor | None = None):
     """The closed loop (module doc), with the motion constraint folded into each frame's prior when
-    ``motion`` is given (``hybrid.motion``).
+    ``motion`` is given (``hybrid.motion``), and the radar mount monitor (``calib.mount_monitor``)
+    run on every frame when ``mount`` is given: its alarm restarts the window from the change point,
+    turned by the yaw step it measured.
 
     The network's error common to a drive (``drive_std``, ``measurement`` item 4) enters in one of
     two ways. Network priors alone: added to the reported covariance afterwards (``with_drive_error``;
@@ -306,11 +313,15 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None):
     gate = conf.window.schedule.final_gate
     T, fused_cov, traj = T0.copy(), None, []
     g_frames, motion_gain, prev, reported_cov = [], [], None, None
-    steps = MotionStepDetector(conf.motion.step)
+    in_window, pending = [], None  # drive positions of the window's frames; a mount step not yet applied
     inflate = len(drive.indices) * np.diag(np.asarray(mconf.drive_std, np.float64) ** 2)
     s_mot = np.radians(conf.motion.drive_std_deg)
-    for i in tqdm(drive.indices, desc=f"hybrid {drive.vehicle}", disable=not conf.progress, leave=False):
+    for k, i in enumerate(tqdm(drive.indices, desc=f"hybrid {drive.vehicle}", disable=not conf.progress,
+                               leave=False)):
         pair, prev = prev, i
+        reading = mount.update(k, i) if mount is not None else None
+        if reading is not None and reading.step is not None:
+            pending = reading.step
         out = runner.run(i, T)
         if out is None:
             skipped.append({"index": int(i), "token": runner.token(i), "reason": runner.bad_reason(i)})
@@ -322,15 +333,13 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None):
         if not len(fi.corr) and fi.prior is None:
             skipped.append({"index": int(i), "token": out.rows_first.frame_id, "reason": "no correspondence rows"})
             continue
-        prior, mrec, alarm, age = fi.prior, {}, False, 0
+        prior, mrec = fi.prior, {}
         if motion is not None and fi.prior is not None:
             prior = GaussianPrior(fi.prior.T, fi.prior.cov + inflate)
             m, why = motion.measurement(pair, i, T[:3, :3]) if pair is not None else (None, "first frame")
             inn = None if m is None else innovation(T, m, conf.motion,
                                                     prior.cov if reported_cov is None else reported_cov)
             fo = fold(prior, T, inn, conf.motion) if inn is not None else None
-            if inn is not None:
-                alarm, age = steps.update(inn.z)
             g_frames.append(fo.gain_motion if fo is not None else np.zeros(6))
             if fo is not None:
                 prior = fo.prior
@@ -340,26 +349,29 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None):
             else:
                 mrec = {"motion_skipped": why or "residual outside the innovation gate (MotionConfig.gate)"}
             if inn is not None:
-                mrec.update(motion_z=float(inn.z), motion_cusum=steps.statistic)
-        fe = cal.update(fi.corr, prior)
-        if alarm:  # the radar turned: restart the window from the frames since the change point
-            keep = min(age, conf.window.window, len(g_frames))
-            cal.reset(keep_last=keep)
-            g_frames = g_frames[len(g_frames) - keep:]
-            fe = dataclasses.replace(fe, step_alarm=True, events=(*fe.events, (
-                f"motion step: the radar's heading in the camera's motion shifted (CUSUM > "
-                f"{conf.motion.step.threshold:g}, change about {age} frames ago); window restarted")))
-            alarm = False
+                mrec["motion_z"] = float(inn.z)
+        fe, turned = cal.update(fi.corr, prior), None
+        in_window.append(k)
+        if pending is not None:  # the radar turned: restart the window from the frames since the change
+            keep = min(sum(p >= pending.change for p in in_window), conf.window.window, len(g_frames) or 10 ** 9)
+            turned = fe.T @ se3_exp(np.array([0.0, 0.0, np.radians(pending.step_deg), 0.0, 0.0, 0.0]))
+            cal.reset(keep_last=keep, T=turned)
+            in_window = in_window[len(in_window) - keep:] if keep else []
+            g_frames = g_frames[len(g_frames) - keep:] if keep else []
+            fe = dataclasses.replace(fe, step_alarm=True, events=(
+                *fe.events, pending.describe(conf.mount.threshold) + f"; window restarted from frame {pending.change}"))
+            pending = None
         traj.append(fe)
         g_mot = np.sum(g_frames, axis=0) if g_frames else np.zeros(6)
         motion_gain.append(g_mot)
-        T, fused_cov = fe.T, fe.cov
+        T, fused_cov = fe.T if turned is None else turned, fe.cov
         if motion is not None:  # the estimate's uncertainty with the motion's common bias: the gate's
             reported_cov = motion_bias_cov(fe.cov, g_mot, s_mot)
         used = int(round(fe.inlier_fraction * len(fi.corr)))
         rows.append({"frame_id": fi.corr.frame_id, "used": used, "rejected": len(fi.corr) - used,
                      "deflation": fi.deflation, "prior_used": fi.prior_used, "network_ms": out.seconds * 1e3,
                      "ood_score": json_score(runner.ood_score(out)), **mrec,
+                     **({"mount": reading.record()} if reading is not None else {}),
                      **({"note": fi.note} if fi.note else {})})
     if motion is None:
         return with_drive_error(traj, mconf.drive_std, conf)
@@ -407,24 +419,35 @@ def range_note(start: str, trained: str, checkpoint: str) -> str:
             f"trained on {start} (or --refine it after one)")
 
 
-def _run_learned(runner, drive, T0, conf, tr, motion):
+def mount_monitor(frames, drive: Drive, conf: HybridConfig) -> MountMonitor | None:
+    """A fresh radar mount monitor for the hybrid on this drive, or None (another method, turned off,
+    no frames given, or no ``T_ego_radar`` in the data)."""
+    if conf.method != "hybrid" or not conf.mount.enabled or frames is None or drive.ego_radar is None:
+        return None
+    return MountMonitor(frames, drive.ego_radar, conf.mount)
+
+
+def _run_learned(runner, drive, T0, conf, tr, motion, frames):
+    """(trajectory, the mount monitor or None) of one pass over the drive."""
     if conf.method == "hybrid":
-        return _hybrid(runner, drive, T0, conf, tr, motion)
-    return LEARNED[conf.method](runner, drive, T0, conf, tr)
+        mon = mount_monitor(frames, drive, conf)
+        return _hybrid(runner, drive, T0, conf, tr, motion, mon), mon
+    return LEARNED[conf.method](runner, drive, T0, conf, tr), None
 
 
 def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, note: str = "",
-                    motion: MotionSource | None = None) -> VehicleResult:
+                    motion: MotionSource | None = None, frames=None) -> VehicleResult:
     """A learned method (hybrid | pure | pure-avg) on one drive with a loaded network; ``motion``:
-    the frames' motion measurements (hybrid only; None = the network alone)."""
+    the frames' motion measurements (hybrid only; None = the network alone); ``frames``: the root's
+    frames by dataset index, for the radar mount monitor (hybrid only; None = no monitor)."""
     T0 = start_of(drive, conf)
     tr = _Trace(drop=True)
-    traj = _run_learned(runner, drive, T0, conf, tr, motion)
+    traj, mon = _run_learned(runner, drive, T0, conf, tr, motion, frames)
     ood = decide(tr.scores, conf.ood, runner.ood_note)
     ood["dropped"] = sum("ood_score" in s for s in tr.skipped)
     if ood["inconclusive"]:  # too few frames in domain: every frame, nothing dropped, and say so (hybrid.ood)
         tr = _Trace(drop=False)
-        traj = _run_learned(runner, drive, T0, conf, tr, motion)
+        traj, mon = _run_learned(runner, drive, T0, conf, tr, motion, frames)
         ood.update(dropped=0, note="too few frames in domain: the estimate uses every frame and is not trusted")
     if not traj:
         raise DataError(f"vehicle {drive.vehicle}: no usable frame ({len(tr.skipped)} skipped; first: "
@@ -433,6 +456,7 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     res.checkpoint = runner.checkpoint
     res.frame_rows = tr.rows
     res.ood = ood
+    res.mount = None if mon is None else mon.summary()
     res.config = {**to_dict(conf), "measurement_effective": to_dict(measurement_config(runner, conf)),
                   "depth_effective": runner.depth_name, **({"depth_note": note} if note else {})}
     if wider := range_note(conf.start, runner.range, runner.checkpoint):
@@ -498,7 +522,7 @@ class _Session:
         drive = self.drives[name]
         if self.conf.method == "oracle":
             return vehicle_oracle(self.data, self.version, drive, self.conf)
-        return vehicle_learned(self.runner, drive, self.conf, self.note, self.motion)
+        return vehicle_learned(self.runner, drive, self.conf, self.note, self.motion, self.frames)
 
 
 def run_vehicle(data: str | Path, version: str, vehicle: str, conf: HybridConfig | dict | None = None

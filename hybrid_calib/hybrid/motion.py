@@ -51,21 +51,6 @@ from hybrid_calib.sensors.visual_odometry import (
 
 
 @dataclass(frozen=True)
-class MotionStepConfig:
-    """The motion step test (``MotionStepDetector``): a two-sided CUSUM on the whitened innovations."""
-
-    enabled: bool = True
-    drift: float = 0.5  # k: the CUSUM's allowance per frame, in innovation sigmas (half the smallest shift sought)
-    threshold: float = 7.0  # h: alarm when a CUSUM exceeds it (Gaussian z: 0.33 false alarms per 1000 frames)
-    clip: float = 2.0  # scaled innovations are clipped to +-this (heavy tails)
-    gross: float = 8.0  # ... and skipped beyond +-this (a failed VO solution, tens of degrees off, not a knock)
-    min_frames: int = 10  # motion measurements before the test starts (the estimate settles from its start)
-    scale_lag: int = 10  # the over-dispersion scale rests on innovations at least this many measurements old
-    scale_window: int = 50  # ... and at most this many (median of z^2 over chi2(1)'s median)
-    min_scale: float = 0.25  # the scale's floor (a drive whose motion is cleaner than the fitted noise tests sharper)
-
-
-@dataclass(frozen=True)
 class MotionConfig:
     enabled: bool = True  # the motion constraint in the hybrid (off: the network's SE(3) alone)
     sigma_vo_deg: float = 1.12  # VO heading std, deg (fitted on validation drives: benchmarks/motion_fit.py, docs)
@@ -81,7 +66,6 @@ class MotionConfig:
     # (only the direction of travel is estimated from the images; falls back to "vo" without ego
     # poses) | "vo" = the five-point essential matrix (checked against the ego poses' angle)
     rotation: str = "ego"
-    step: MotionStepConfig = MotionStepConfig()  # a step of the radar's yaw inside the drive (MotionStepDetector)
     velocity: RadarVelocityConfig = RadarVelocityConfig()
     vo: VisualOdometryConfig = VisualOdometryConfig()
 
@@ -217,69 +201,12 @@ def ego_rotation(fa, fb) -> np.ndarray | None:
     return so3_log(np.asarray(Ta, np.float64)[:3, :3].T @ np.asarray(Tb, np.float64)[:3, :3])
 
 
-class MotionStepDetector:
-    """Has the radar turned inside the drive? A two-sided CUSUM (Page) on the motion innovations
-    ``z = r / sqrt(sigma^2 + J C J^T)`` (the heading residual at the estimate before the frame,
-    whitened by its own and the estimate's uncertainty), each divided by the square root of a running
-    scale (median of lagged ``z^2`` over chi2(1)'s 0.455, at least ``min_scale``: the fitted VO noise
-    is an average over scenes and image sizes, this drive's may be smaller or larger) and clipped to
-    ``+-clip``; beyond ``+-gross`` it is a failed VO solution and skipped. A radar knocked by
-    ``delta`` shifts the innovations by about ``delta / sigma`` until the window follows, so the
-    CUSUM rises by ``delta / sigma - drift`` per frame, while without a change it drifts down by
-    ``drift`` per frame. Measured (benchmarks/hybrid_steps.py, docs/benchmarks.md): the innovations
-    after a 1 deg knock are smaller than that (the window follows part of the way at once), and VO
-    noise varies with the scene, so a 1 deg knock is found within 20 frames on some drives only.
-    ``update`` returns the alarm and, with it, how many measurements ago the CUSUM left zero (the
-    change point estimate); the CUSUMs restart after an alarm (hysteresis: one step, one alarm)."""
-
-    def __init__(self, conf: MotionStepConfig):
-        self.conf = conf
-        self.z: list[float] = []
-        self.pos = self.neg = 0.0
-        self.pos_start = self.neg_start = 0
-
-    def scale(self) -> float:
-        c = self.conf
-        past = self.z[max(0, len(self.z) - c.scale_lag - c.scale_window): max(0, len(self.z) - c.scale_lag)]
-        if len(past) < 10:
-            return 1.0
-        return max(c.min_scale, float(np.median(np.square(past))) / 0.4549)
-
-    def update(self, z: float) -> tuple[bool, int]:
-        """Add one whitened innovation; (alarm, measurements since the change point)."""
-        c = self.conf
-        zs = z / np.sqrt(self.scale())
-        self.z.append(float(z))
-        n = len(self.z)
-        if abs(zs) > c.gross:
-            return False, 0
-        zz = float(np.clip(zs, -c.clip, c.clip))
-        if not c.enabled or n <= c.min_frames:
-            return False, 0
-        self.pos = max(0.0, self.pos + zz - c.drift)
-        self.neg = max(0.0, self.neg - zz - c.drift)
-        if self.pos == 0.0:
-            self.pos_start = n
-        if self.neg == 0.0:
-            self.neg_start = n
-        if max(self.pos, self.neg) > c.threshold:
-            age = n - (self.pos_start if self.pos >= self.neg else self.neg_start)
-            self.pos = self.neg = 0.0
-            self.pos_start = self.neg_start = n
-            return True, age
-        return False, 0
-
-    @property
-    def statistic(self) -> float:
-        return max(self.pos, self.neg)
-
-
 @dataclass(frozen=True)
 class Innovation:
     """One motion measurement at the estimate ``T`` before its frame: residual ``r`` (rad), its
     Jacobian ``J`` (6,), the measurement's own std ``sigma`` (rad: Doppler and VO) and the
     innovation std ``std = sqrt(sigma^2 + J C J^T)`` (rad) with ``C`` the uncertainty of ``T``: what
-    the gate, the fold and the step test use."""
+    the gate and the fold use (and the frame's record, ``z``)."""
 
     r: float
     J: np.ndarray

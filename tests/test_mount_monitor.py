@@ -1,0 +1,130 @@
+"""The radar mount monitor (calib.mount_monitor): the step test on synthetic residuals, and the
+Doppler-vs-ego-pose residual on simulated drives with and without a knocked radar."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from hybrid_calib.calib.mount_monitor import MountMonitor, MountMonitorConfig, monitor_drive
+
+
+def _feed(ys) -> MountMonitor:
+    mon = MountMonitor(frames=None, T_ego_radar=np.eye(4))
+    for k, y in enumerate(ys):
+        mon.add_residual(k, float(y))
+    return mon
+
+
+def test_a_half_degree_step_is_found_and_measured():
+    g = np.random.default_rng(3)
+    mon = _feed(np.r_[g.normal(0.2, 0.15, 40), g.normal(0.7, 0.15, 40)])
+    (s,) = mon.steps
+    assert 40 <= s.at <= 48 and abs(s.change - 40) <= 3
+    lv = mon.levels()
+    assert len(lv) == 2 and abs(lv[1]["level_deg"] - lv[0]["level_deg"] - 0.5) < 0.1
+
+
+def test_a_large_step_is_a_step_not_a_run_of_outliers():
+    g = np.random.default_rng(4)
+    mon = _feed(np.r_[g.normal(0.0, 0.15, 30), g.normal(5.0, 0.15, 30)])
+    assert len(mon.steps) == 1 and 30 <= mon.steps[0].at <= 34 and abs(mon.steps[0].step_deg - 5.0) < 0.3
+
+
+def test_noise_and_isolated_gross_errors_raise_no_alarm():
+    g = np.random.default_rng(5)
+    y = g.normal(0.0, 0.15, 3000)
+    y[::29] += 20.0  # failed Doppler fits, all one way
+    assert len(_feed(y).steps) <= 1  # Gaussian noise: ~0 alarms in 3000 pairs with the default test
+
+
+def test_the_test_restarts_after_an_alarm_one_step_one_alarm():
+    g = np.random.default_rng(6)
+    mon = _feed(np.r_[g.normal(0.0, 0.15, 30), g.normal(1.0, 0.15, 60)])
+    assert len(mon.steps) == 1 and len(mon.levels()) == 2
+
+
+def test_config_is_checked():
+    with pytest.raises(ValueError, match="min_frames"):
+        MountMonitorConfig(min_frames=1)
+
+
+# ---------------------------------------------------------------------------------- on simulated drives
+
+
+@pytest.fixture(scope="module")
+def knocked_and_not(tmp_path_factory):
+    """The same 24-frame urban drive (80 x 45 images) without and with a 1 deg yaw knock at frame 12."""
+    from hybrid_calib.config import merge
+    from hybrid_calib.sim.drive import SimConfig
+    from hybrid_calib.sim.simulate import simulate
+
+    base = {"scenario": "urban", "vehicles": 1, "frames": 24, "seed": 11, "image_scale": 0.05}
+    knock = {"extrinsic_change": {"kind": "step", "rotation_deg": (0.0, 0.0, 1.0), "translation_m": (0.0, 0.0, 0.0),
+                                  "frame": 12}}
+    tmp = tmp_path_factory.mktemp("mount")
+    return (simulate(merge(SimConfig, base), tmp / "plain", progress=False),
+            simulate(merge(SimConfig, {**base, **knock}), tmp / "knocked", progress=False))
+
+
+def _drive(root):
+    from learned.dataset import open_frames
+
+    frames = open_frames(root, "v1.0-sim", lidar=False)
+    (idx,) = frames.frames_by_vehicle().values()
+    return frames, idx
+
+
+def test_a_knocked_radar_is_flagged_and_an_untouched_one_is_not(knocked_and_not):
+    plain, knocked = knocked_and_not
+    frames, idx = _drive(plain)
+    T_ego_radar = frames[idx[0]].extras["T_ego_radar"]
+    mon, readings = monitor_drive(frames, idx, T_ego_radar)
+    assert not mon.steps and len(mon.series) >= 18  # most pairs tested
+    assert readings[0].skipped.startswith("first frame")
+    frames, idx = _drive(knocked)
+    mon, _ = monitor_drive(frames, idx, T_ego_radar)
+    (s,) = mon.steps
+    assert 12 <= s.at <= 18 and abs(s.change - 12) <= 1
+    before, after = mon.levels()
+    assert abs(after["level_deg"] - before["level_deg"] - 1.0) < 0.2  # the knock's size, measured
+
+
+def test_the_reference_rotation_does_not_matter_but_missing_ego_poses_are_said(knocked_and_not):
+    from hybrid_calib.geometry import se3_exp
+
+    frames, idx = _drive(knocked_and_not[1])
+    T = frames[idx[0]].extras["T_ego_radar"] @ se3_exp(np.radians([0.5, -0.5, 2.0, 0, 0, 0]))
+    mon, _ = monitor_drive(frames, idx, T)
+    assert len(mon.steps) == 1 and abs(mon.steps[0].change - 12) <= 1
+
+    class NoPoses:
+        def __getitem__(self, i):
+            f = frames[i]
+            return dataclasses.replace(f, extras={k: v for k, v in f.extras.items() if k != "T_global_ego_radar"})
+
+    mon, readings = monitor_drive(NoPoses(), idx, T)
+    assert not mon.series and all("ego pose" in r.skipped for r in readings[1:])
+
+
+def test_the_hybrid_restarts_its_window_turned_by_the_measured_step(knocked_and_not, tmp_path):
+    from hybrid_calib.geometry import se3_exp
+    from hybrid_calib.hybrid import run_vehicle
+    from hybrid_calib.hybrid.network import OutputCache
+
+    conf = {"method": "hybrid", "start": "R1", "seed": 2, "threads": 1, "progress": False,
+            "cache_dir": str(tmp_path / "cache")}
+    vr = run_vehicle(knocked_and_not[1], "v1.0-sim", "sim-veh-000", conf)
+    alarms = [k for k, f in enumerate(vr.trajectory) if f.step_alarm]
+    assert len(alarms) == 1 and any("radar mount step" in e for e in vr.trajectory[alarms[0]].events)
+    (step,) = vr.mount["steps"]
+    assert abs(step["change"] - 12) <= 1 and 0.6 < step["step_deg"] < 1.4
+    assert all("mount" in r for r in vr.frame_rows)
+    k = alarms[0]
+    turned = vr.trajectory[k].T @ se3_exp(np.array([0, 0, np.radians(step["step_deg"]), 0, 0, 0]))
+    cache = OutputCache(tmp_path / "cache")  # the next frame's network ran from the turned estimate
+    assert cache.get(vr.trajectory[k + 1].frame_id, turned) is not None
+    off = run_vehicle(knocked_and_not[1], "v1.0-sim", "sim-veh-000", {**conf, "mount": {"enabled": False}})
+    assert off.mount is None and not any(f.step_alarm for f in off.trajectory)  # the alarm was the monitor's
