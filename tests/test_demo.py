@@ -8,7 +8,7 @@ from hybrid_calib.cli import main
 
 def test_demo_prints_a_verdict_per_fleet_vehicle(tmp_path, capsys):
     out = tmp_path / "demo"
-    rc = main(["demo", "--out", str(out), "--set", "frames=3", "fleet_frames=16", "image_scale=0.125",
+    rc = main(["demo", "--out", str(out), "--set", "frames=3", "fleet_frames=24", "image_scale=0.125",
                "engine=local", "workers=1"])
     text = capsys.readouterr().out
     assert rc == 0, text

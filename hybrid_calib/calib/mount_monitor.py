@@ -17,14 +17,14 @@ Doppler's, ~0.15-0.3 deg per pair in the simulator (a 1 deg knock is 3-6 sigma i
 ~1.1 deg for the camera's two-view odometry (``hybrid.motion``), whose errors also drift with the
 scene by about as much as a knock (measured, docs/benchmarks.md "The mount monitor").
 
-The test (``MountMonitor``): the level is the median of ``y`` since the last change (at least
-``min_frames`` pairs); the noise scale is the larger of the median absolute successive difference
+The test (``MountMonitor``): the level is the median of the last ``level_pairs`` values of ``y``
+since the last change (at least ``min_frames``) before a CUSUM's current excursion; the noise scale is the larger of the median absolute successive difference
 of those pairs over sqrt(2) (a step inside them enters one difference only) and their own median
 absolute deviation (the Doppler's bias wanders with the scene by a few tenths of a degree over tens
 of frames), and at least ``floor_deg``. The standardised deviations ``z``, clipped to ``+-clip``
 (heavy tails: one failed Doppler fit adds at most ``clip - drift``), feed a two-sided CUSUM with
-allowance ``drift``; above ``threshold`` it alarms, the change point is where that CUSUM last left
-zero, the step is the median after it minus the level before it, and the test restarts from the
+allowance ``drift``; above ``threshold`` it alarms, the change point is the split of the level's
+pairs with the largest two-sample mean difference (``change_point``), the step is the median after it minus the level before it, and the test restarts from the
 change point (hysteresis: one step, one alarm; the new level needs ``min_frames`` pairs before the
 next alarm).
 
@@ -58,10 +58,11 @@ class MountMonitorConfig:
     min_speed_mps: float = 2.0  # slower: the Doppler heading is too noisy, the pair is skipped
     max_gap_s: float = 1.5  # radar sweeps further apart are not a pair
     max_turn_dps: float = 15.0  # faster turns are skipped (module doc), deg/s
-    floor_deg: float = 0.15  # the smallest noise std the test assumes, deg (benchmarks/mount_steps.py)
+    floor_deg: float = 0.25  # the smallest noise std the test assumes, deg (chosen: benchmarks/mount_steps.py, docs)
     drift: float = 1.0  # CUSUM allowance per pair, in noise sigmas (half the smallest step sought: 2 sigma)
     threshold: float = 8.0  # CUSUM alarm level, in noise sigmas
     clip: float = 3.0  # standardised deviations are clipped to +-this (heavy tails)
+    level_pairs: int = 20  # the level is the median of at most this many pairs (it follows the Doppler's slow wander)
     min_frames: int = 8  # pairs of a level before the test runs (after the start and after each change)
     velocity: RadarVelocityConfig = RadarVelocityConfig()
 
@@ -187,10 +188,13 @@ class MountMonitor:
     def add_residual(self, position: int, y: float) -> MountReading:
         """Test one pair's residual ``y`` (deg) at drive ``position`` (``update`` computes it from the frames)."""
         c = self.conf
-        level = np.array([v for _, v in self.series[self._start:]])
-        if len(level) < c.min_frames:
+        if len(self.series) - self._start < c.min_frames:
             self.series.append((position, y))
             return MountReading(position, y)
+        # the level rests on the pairs before a CUSUM's current excursion (a step must not pull it along)
+        ends = [f for f, v in ((self._pos_from, self._pos), (self._neg_from, self._neg)) if v > 0 and f is not None]
+        end = max(min(ends, default=len(self.series)), self._start + c.min_frames)
+        level = np.array([v for _, v in self.series[max(self._start, end - c.level_pairs):end]])
         base, s = float(np.median(level)), self.scale(level)
         z = (y - base) / (s * np.sqrt(1.0 + MEDIAN_VAR / len(level)))
         self.series.append((position, y))
@@ -207,7 +211,7 @@ class MountMonitor:
         stat = max(self._pos, self._neg)
         if stat <= c.threshold:
             return MountReading(position, y, float(z), stat)
-        cp = min(n, self._pos_from if self._pos >= self._neg else self._neg_from)
+        cp = self.change_point(base, s)
         before = np.array([v for _, v in self.series[self._start:cp]])
         after = np.array([v for _, v in self.series[cp:]])
         step = MountStep(position, self.series[cp][0], float(np.median(after) - np.median(before)),
@@ -216,6 +220,17 @@ class MountMonitor:
         self._start, self._pos, self._neg = cp, 0.0, 0.0
         self._pos_from = self._neg_from = None
         return MountReading(position, y, float(z), stat, step=step)
+
+    def change_point(self, base: float, s: float) -> int:
+        """Index into ``series`` of the first pair after the change: the split of the current level's
+        pairs (clipped to ``base +- clip s``) that maximises the two-sample mean difference in units
+        of its std (the CUSUM's own start is late or early by a few pairs when the noise wanders)."""
+        v = np.clip([y for _, y in self.series[self._start:]], base - self.conf.clip * s, base + self.conf.clip * s)
+        n = len(v)
+        c = np.arange(1, n)
+        head = np.cumsum(v)[:-1]
+        t = np.abs(head / c - (v.sum() - head) / (n - c)) * np.sqrt(c * (n - c) / n)
+        return self._start + int(c[np.argmax(t)])
 
     def levels(self) -> list[dict]:
         """The drive cut at its alarms: per piece the positions it spans, its level of ``y`` (deg:

@@ -12,9 +12,9 @@
 4. ``fleet-sim/`` + ``fleet/``: a small fleet, one simulated root per vehicle (``urban``: a normal
    drive; ``knocked``: urban, its radar knocked by ``knock_deg`` in yaw at the middle of the drive
    (``ExtrinsicChange(kind="step")``); ``straight``: a straight road), calibrated as fleet jobs
-   (``fleet.driver.run_fleet``, engine ``process``) with ``fleet_method`` from the tables, then
-   ``fleet/fleet.html`` and a ``report.html`` per vehicle. The default ``fleet_method`` is ``oracle``
-   because the hybrid did not flag the knocked vehicle in 40 or 80 frames (measured; README).
+   (``fleet.driver.run_fleet``, engine ``process``) with ``fleet_method`` (default: the hybrid and
+   the shipped checkpoint; its radar mount monitor, ``calib.mount_monitor``, raises the knocked
+   vehicle's step alarm), then ``fleet/fleet.html`` and a ``report.html`` per vehicle.
 
 It chains the simulator, the calibrator and the plots, so it lives with the commands (the top layer).
 """
@@ -43,7 +43,7 @@ class DemoConfig:
     method: str = "hybrid"  # hybrid (shipped network + window) | pure | pure-avg | oracle (true reflectors)
     threads: int = 1  # torch CPU threads (1: on a busy 2-core machine 2 threads were 40x slower, measured)
     fleet_frames: int = 40  # keyframes per fleet vehicle
-    fleet_method: str = "oracle"  # method of the fleet step (hybrid did not flag the knock, measured)
+    fleet_method: str = "hybrid"  # method of the fleet step (hybrid | pure | pure-avg | oracle)
     knock_deg: float = 1.0  # the knocked vehicle's radar turns by this about its z axis (yaw) mid-drive
     engine: str = "process"  # fleet engine: local | process
     workers: int = 2  # fleet jobs in parallel
@@ -79,7 +79,9 @@ def vehicle_verdict(row: dict) -> str:
         return f"FAILED: {row.get('reason')}"
     why = []
     if row["step_alarms"]:
-        why.append(f"its mount stepped inside the drive (step alarm at frame {row['step_alarms'][0]})")
+        turned = "".join(f"; its radar turned by {s['step_deg']:+.2f} +- {s['std_deg']:.2f} deg in yaw from frame "
+                         f"{s['change']}" for s in row.get("mount_steps", [])[:1])
+        why.append(f"its mount stepped inside the drive (step alarm at frame {row['step_alarms'][0]}{turned})")
     if "out_of_tolerance" in row["flags"]:
         why.append(f"vs its tables: {row['verdict'].split(':')[0]}")
     if "fleet_outlier" in row["flags"]:

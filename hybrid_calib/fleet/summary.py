@@ -16,6 +16,7 @@
                "n_frames", "status", "offset_from_design": OFFSET, "offset_from_tables": OFFSET,
                "std_cam": STD, "verdict": str, "drift": {"drifted", "p_value", "statistic"},
                "step_alarms": [frame, ...], "error": {...} | null,
+               "mount_steps": [{"at", "change", "step_deg", "std_deg", "statistic"}, ...],  # hybrid: mount monitor
                "fleet_test": {"d2", "p_value"} | null,
                "flags": ["out_of_tolerance", "drifted_in_drive", "fleet_outlier", "degenerate", "inconclusive"]}
                # "inconclusive": the status is "inconclusive: ..." (input out of the network's domain,
@@ -110,7 +111,8 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
                    drift={k: d.get(k) for k in ("drifted", "p_value", "statistic")},
                    verdict="inconclusive" if vr.final.status.startswith("inconclusive") else (
                        d.get("verdict") or ("out of tolerance" if d.get("drifted") else "within tolerance")),
-                   step_alarms=[f.index for f in vr.trajectory if f.step_alarm], error=vr.error, fleet_test=None)
+                   step_alarms=[f.index for f in vr.trajectory if f.step_alarm], error=vr.error, fleet_test=None,
+                   mount_steps=(vr.mount or {}).get("steps", []))
         if d.get("drifted"):
             row["flags"].append("out_of_tolerance")
         if row["step_alarms"]:

@@ -101,15 +101,22 @@ def _out_of_domain_why(status: str) -> str:
 
 
 def moved_during_drive(vr: VehicleResult) -> tuple[str, tuple[int, ...]]:
-    """Whether the window's step detector fired, in words, and the frames where it did."""
+    """Whether a step test fired (the window's, and the hybrid's radar mount monitor), in words, and
+    the frames where it did."""
     if not vr.trajectory:
         return "not tested (batch result: the step detector runs in the sliding window only)", ()
     alarms = tuple(f.index for f in vr.trajectory if f.step_alarm)
+    mount = vr.mount or {}
+    tests = "windowed chi-square of the recent frames against the long-run estimate"
+    if mount:
+        tests = (f"the radar mount monitor over {mount.get('pairs_tested', 0)} frame pairs (the radar's Doppler "
+                 f"heading against the vehicle's ego poses), and the window's {tests}")
     if not alarms:
-        return (f"no: the step detector raised no alarm over the {len(vr.trajectory)} frames of the drive "
-                "(windowed chi-square of the recent frames against the long-run estimate)"), ()
+        return f"no: no step alarm over the {len(vr.trajectory)} frames of the drive ({tests})", ()
+    turned = "; ".join(f"the radar turned on the vehicle by {s['step_deg']:+.2f} +- {s['std_deg']:.2f} deg in yaw "
+                       f"from about frame {s['change']}" for s in mount.get("steps", []))
     return (f"yes: the sensor stepped during the drive (step detected at frame{'s' if len(alarms) > 1 else ''} "
-            f"{', '.join(map(str, alarms))}; the window restarted there)"), alarms
+            f"{', '.join(map(str, alarms))}; the window restarted there)" + (f": {turned}" if turned else "")), alarms
 
 
 def verdict_of(vr: VehicleResult, tol: Tolerance | None = None) -> Verdict:
