@@ -17,16 +17,16 @@ Doppler's, ~0.15-0.3 deg per pair in the simulator (a 1 deg knock is 3-6 sigma i
 ~1.1 deg for the camera's two-view odometry (``hybrid.motion``), whose errors also drift with the
 scene by about as much as a knock (measured, docs/benchmarks.md "The mount monitor").
 
-The test (``MountMonitor``): the level is the median of the last ``level_pairs`` values of ``y``
-since the last change (at least ``min_frames``) before a CUSUM's current excursion; the noise scale is the larger of the median absolute successive difference
-of those pairs over sqrt(2) (a step inside them enters one difference only) and their own median
-absolute deviation (the Doppler's bias wanders with the scene by a few tenths of a degree over tens
-of frames), and at least ``floor_deg``. The standardised deviations ``z``, clipped to ``+-clip``
-(heavy tails: one failed Doppler fit adds at most ``clip - drift``), feed a two-sided CUSUM with
-allowance ``drift``; above ``threshold`` it alarms, the change point is the split of the level's
-pairs with the largest two-sample mean difference (``change_point``), the step is the median after it minus the level before it, and the test restarts from the
-change point (hysteresis: one step, one alarm; the new level needs ``min_frames`` pairs before the
-next alarm).
+The test (``MountMonitor``). The level is the median of the last ``level_pairs`` values of ``y``
+since the last change (at least ``min_frames``) before a CUSUM's current excursion, so a step does
+not pull it along while the slow wander of the Doppler's bias (a few tenths of a degree over tens of
+frames, with the scene) is followed. The noise scale is the larger of those values' median absolute
+deviation and their successive differences' (over sqrt 2), at least ``floor_deg``. The standardised
+deviations ``z``, clipped to ``+-clip`` (one failed Doppler fit adds at most ``clip - drift``), feed
+a two-sided CUSUM with allowance ``drift``; above ``threshold`` it alarms. The change point is the
+split of the level's pairs with the largest two-sample mean difference (``change_point``), the step
+is the median after it minus the median before it, and the test restarts from the change point
+(hysteresis: one step, one alarm; the new level needs ``min_frames`` pairs before the next alarm).
 
 Skipped pairs (and why): slower than ``min_speed_mps`` (the Doppler heading is noise), turning
 faster than ``max_turn_dps`` (the chord model and the sweep's timing error grow with the turn
