@@ -16,7 +16,9 @@ few frames in domain is ``inconclusive`` (``hybrid.ood``: the rule, and the resu
 
 Every method starts a vehicle from ``perturbation.vehicle_start(base, start, seed, vehicle)``: the
 same start for every method and whatever else the run holds. ``base`` is the truth on simulated
-roots and the tables' extrinsic on real roots, and errors are against it (``errors_against``).
+roots and the tables' extrinsic on real roots, and errors are against it (``errors_against``); on a
+simulated drive whose mount moved (a knocked radar) against the truth at its last frame, which the
+final estimate describes.
 """
 
 from __future__ import annotations
@@ -99,6 +101,9 @@ class Drive:
     reference: np.ndarray  # (4, 4) the reference the drift test uses
     simulated: bool
     ego_radar: np.ndarray | None = None  # (4, 4) T_ego_radar of the first readable frame (mount monitor's lever arm)
+    # (4, 4) simulated roots: the truth at the drive's last frame (differs from base when the mount moved
+    # during the drive, e.g. a knocked radar); the final estimate's errors are against it
+    end: np.ndarray | None = None
 
     @property
     def errors_against(self) -> str:
@@ -166,11 +171,23 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
         ref = np.asarray(f.extras.get("reference_T_cam_radar", static), np.float64)
         ego_radar = f.extras.get("T_ego_radar")
         drives[vehicle] = Drive(vehicle, list(idx), static, ref, simulated,
-                                None if ego_radar is None else np.asarray(ego_radar, np.float64))
+                                None if ego_radar is None else np.asarray(ego_radar, np.float64),
+                                _end_truth(frames, idx, static) if simulated else None)
     if conf.vehicles is not None and (missing := sorted(set(conf.vehicles) - set(drives))):
         raise DataError(f"vehicle(s) {missing} not in the data (vehicles: {sorted(frames.frames_by_vehicle())})",
                         path=str(data))
     return frames, drives
+
+
+def _end_truth(frames, idx: list[int], static: np.ndarray) -> np.ndarray:
+    """The static truth at the last readable frame of a simulated drive (``static`` when none reads)."""
+    for i in reversed(idx):
+        try:
+            f = frames[i]
+        except DataError:
+            continue
+        return np.asarray(f.extras.get("T_cam_radar_static", f.T_cam_radar), np.float64)
+    return static
 
 
 def start_of(drive: Drive, conf: HybridConfig) -> np.ndarray:
@@ -384,9 +401,10 @@ LEARNED = {"hybrid": _hybrid, "pure": _pure, "pure-avg": _pure_avg}
 def _finish(res: VehicleResult, drive: Drive, T0: np.ndarray, conf: HybridConfig) -> VehicleResult:
     final = res.final
     res.drift = reference_test(final.T, final.cov, drive.reference, conf.drift).to_dict()
-    e = local(drive.base, final.T)
-    res.truth_T = drive.base
-    res.error = {**extrinsic_error(final.T, drive.base).as_dict(), "nees": float(e @ np.linalg.solve(final.cov, e))}
+    truth = drive.base if drive.end is None else drive.end  # the mount at the drive's end (a knock moved it)
+    e = local(truth, final.T)
+    res.truth_T = truth
+    res.error = {**extrinsic_error(final.T, truth).as_dict(), "nees": float(e @ np.linalg.solve(final.cov, e))}
     res.method = conf.method
     res.start = {"kind": conf.start, "seed": conf.seed, "T_cam_radar": T0.tolist()}
     res.errors_against = drive.errors_against
