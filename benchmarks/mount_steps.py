@@ -97,16 +97,16 @@ def main(argv=None) -> int:
                   f"({time.perf_counter() - t0:.0f} s)", flush=True)
     summary = summarise(rows, a.within)
     per_scenario = {s: summarise([r for r in rows if r["scenario"] == s], a.within) for s in a.scenarios}
-    summary.update(command=" ".join(sys.argv), config=to_dict(conf), per_scenario=per_scenario, runs=rows)
+    fa = sum(r["false_alarms"] + r.get("extra_alarms", 0) for r in rows)
+    tested = sum(r["tested_all"] for r in rows)
+    summary.update(command=" ".join(sys.argv), config=to_dict(conf), per_scenario=per_scenario, runs=rows,
+                   false_alarm_all={"alarms": fa, "frames_tested": tested, "per_1000_frames": 1000 * fa / max(tested, 1)})
     a.out.mkdir(parents=True, exist_ok=True)
     save_json_atomic(a.out / "summary.json", summary)
     plot_step_benchmark(summary, a.out / "mount_steps.png", a.within, a.frames - step_at - 1)
     print(table(summary, a.within))
     for s, ps in per_scenario.items():
         print(f"\n{s}:\n{table(ps, a.within)}")
-    fa = sum(r["false_alarms"] + r.get("extra_alarms", 0) for r in rows)
-    tested = sum(r["tested_all"] for r in rows)
-    summary["false_alarm_all"] = {"alarms": fa, "frames_tested": tested, "per_1000_frames": 1000 * fa / max(tested, 1)}
     print(f"\nevery alarm that is not a step's first (unchanged drives, before a step, and a second alarm after "
           f"one): {fa} in {tested} tested frames ({1000 * fa / max(tested, 1):.2f} per 1000)")
     scales = [r["scale_deg"] for r in rows]
