@@ -100,7 +100,8 @@ def main(argv=None) -> int:
     fa = sum(r["false_alarms"] + r.get("extra_alarms", 0) for r in rows)
     tested = sum(r["tested_all"] for r in rows)
     summary.update(command=" ".join(sys.argv), config=to_dict(conf), per_scenario=per_scenario, runs=rows,
-                   false_alarm_all={"alarms": fa, "frames_tested": tested, "per_1000_frames": 1000 * fa / max(tested, 1)})
+                   false_alarm_all={"alarms": fa, "frames_tested": tested,
+                                    "per_1000_frames": 1000 * fa / max(tested, 1)})
     a.out.mkdir(parents=True, exist_ok=True)
     save_json_atomic(a.out / "summary.json", summary)
     plot_step_benchmark(summary, a.out / "mount_steps.png", a.within, a.frames - step_at - 1)
