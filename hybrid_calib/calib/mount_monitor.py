@@ -248,9 +248,17 @@ class MountMonitor:
         return out
 
     def summary(self) -> dict:
-        """The result's ``mount`` block: steps, levels and the config's test parameters."""
-        return {"steps": [vars(s) for s in self.steps], "levels": self.levels(),
-                "pairs_tested": len(self.series), "threshold": self.conf.threshold}
+        """The result's ``mount`` block: steps, levels and the test's threshold. Each step's
+        ``step_deg`` / ``std_deg`` are re-measured from the whole levels on either side of it (the
+        figures at the alarm, from the few pairs after the change, are kept as ``*_at_alarm``)."""
+        levels, steps = self.levels(), []
+        for j, st in enumerate(self.steps):
+            d = {**vars(st), "step_deg_at_alarm": st.step_deg, "std_deg_at_alarm": st.std_deg}
+            if j + 1 < len(levels):
+                a, b = levels[j], levels[j + 1]
+                d.update(step_deg=b["level_deg"] - a["level_deg"], std_deg=float(np.hypot(a["std_deg"], b["std_deg"])))
+            steps.append(d)
+        return {"steps": steps, "levels": levels, "pairs_tested": len(self.series), "threshold": self.conf.threshold}
 
 
 def monitor_drive(frames, indices: list[int], T_ego_radar: np.ndarray, conf: MountMonitorConfig = MountMonitorConfig()

