@@ -123,7 +123,7 @@ def test_the_hybrid_restarts_its_window_turned_by_the_measured_step(knocked_and_
     assert abs(step["change"] - 12) <= 1 and 0.6 < step["step_deg"] < 1.4
     assert all("mount" in r for r in vr.frame_rows)
     k = alarms[0]
-    turned = vr.trajectory[k].T @ se3_exp(np.array([0, 0, np.radians(step["step_deg"]), 0, 0, 0]))
+    turned = vr.trajectory[k].T @ se3_exp(np.array([0, 0, np.radians(step["step_deg_at_alarm"]), 0, 0, 0]))
     cache = OutputCache(tmp_path / "cache")  # the next frame's network ran from the turned estimate
     assert cache.get(vr.trajectory[k + 1].frame_id, turned) is not None
     frames, idx = _drive(knocked_and_not[1])  # errors are against the mount at the drive's end, the knocked one
