@@ -129,5 +129,11 @@ def test_the_hybrid_restarts_its_window_turned_by_the_measured_step(knocked_and_
     frames, idx = _drive(knocked_and_not[1])  # errors are against the mount at the drive's end, the knocked one
     end, start = (frames[i].extras["T_cam_radar_static"] for i in (idx[-1], idx[0]))
     assert np.allclose(vr.truth_T, end) and not np.allclose(end, start)
+    from hybrid_calib.report.verdict import verdict_of
+
+    v = verdict_of(vr)  # the report: a knock beyond the tolerance is "recalibrate", whatever the tables test says
+    assert v.word == "recalibrate" and v.why.startswith("The radar turned on the vehicle") and "yes" in v.moved
+    small = dataclasses.replace(vr, mount={"steps": [{**step, "step_deg": 0.3, "std_deg": 0.05}]})
+    assert "radar turned" not in verdict_of(small).why  # below the 0.5 deg tolerance: the usual verdict
     off = run_vehicle(knocked_and_not[1], "v1.0-sim", "sim-veh-000", {**conf, "mount": {"enabled": False}})
     assert off.mount is None and not any(f.step_alarm for f in off.trajectory)  # the alarm was the monitor's

@@ -17,7 +17,10 @@ deg, translation cm, ``ReportConfig``):
 
 An ``inconclusive: ...`` status (the learned network's input was out of its domain: ``hybrid.ood``)
 makes the verdict "inconclusive" with that reason before anything else, the drift block's own
-verdict included: the estimate it tested cannot be trusted.
+verdict included: the estimate it tested cannot be trusted. One thing overrides every verdict: the
+hybrid's radar mount monitor (``calib.mount_monitor``, independent of the network and the window)
+measured the radar turning during the drive by more than the rotation tolerance beyond its 3 sigma:
+"recalibrate", with that sentence first.
 """
 
 from __future__ import annotations
@@ -119,9 +122,32 @@ def moved_during_drive(vr: VehicleResult) -> tuple[str, tuple[int, ...]]:
             f"{', '.join(map(str, alarms))}; the window restarted there)" + (f": {turned}" if turned else "")), alarms
 
 
+def mount_step_beyond(vr: VehicleResult, rot_tol_deg: float) -> str:
+    """A sentence when the radar mount monitor (``vr.mount``, hybrid) measured a step of the radar's
+    yaw during the drive beyond ``rot_tol_deg`` with its 3-sigma (``|step| - 3 std > tol``), else ""."""
+    big = [st for st in (vr.mount or {}).get("steps", []) if abs(st["step_deg"]) - 3 * st["std_deg"] > rot_tol_deg]
+    if not big:
+        return ""
+    turns = "; ".join(f"by {st['step_deg']:+.2f} +- {3 * st['std_deg']:.2f} deg (3 sigma) in yaw from about frame "
+                      f"{st['change']}" for st in big)
+    return (f"The radar turned on the vehicle during the drive {turns}, beyond the {rot_tol_deg:g} deg tolerance "
+            "(the radar mount monitor: its Doppler heading against the vehicle's ego poses).")
+
+
 def verdict_of(vr: VehicleResult, tol: Tolerance | None = None) -> Verdict:
-    """The vehicle's verdict: the drift block's own ``"verdict"`` when present, else ``derive_verdict``."""
+    """The vehicle's verdict: the drift block's own ``"verdict"`` when present, else ``derive_verdict``;
+    "recalibrate" whatever they say when the radar mount monitor measured a step beyond the rotation
+    tolerance during the drive (``mount_step_beyond``: it rests on neither the network nor the window)."""
     tol = tol or Tolerance()
+    v = _verdict_vs_reference(vr, tol)
+    turned = mount_step_beyond(vr, tol.rot_deg)
+    if not turned:
+        return v
+    return Verdict("recalibrate", f"{turned} Against the reference at the drive's end: {v.word}: {v.why}",
+                   v.tolerance, f"the radar mount monitor; {v.source}", v.moved, v.moved_frames)
+
+
+def _verdict_vs_reference(vr: VehicleResult, tol: Tolerance) -> Verdict:
     moved, frames = moved_during_drive(vr)
     if frames and NOT_CONVERGED in vr.final.status:
         moved += "; but the solve did not converge, so these alarms may only mark its failures"
