@@ -142,6 +142,10 @@ def _report(result, out: Path) -> int:
             ms = sum(r["network_ms"] for r in v.frame_rows) / len(v.frame_rows)
             print(f"  {v.method}: {len(v.frame_rows)} frames, rows used {used}, rejected {rej}; network "
                   f"{ms:.0f} ms/frame; checkpoint {v.checkpoint}")
+        if v.mount is not None:
+            steps = "; ".join(f"the radar turned by {st['step_deg']:+.2f} +- {st['std_deg']:.2f} deg in yaw from frame "
+                              f"{st['change']} (alarm at frame {st['at']})" for st in v.mount["steps"])
+            print(f"  radar mount monitor ({v.mount['pairs_tested']} frame pairs tested): {steps or 'no step'}")
     for name, reason in result.vehicles_failed.items():
         print(f"{name}: FAILED: {reason}", file=sys.stderr)
     print(f"wrote {out / 'result.json'}" + (f" ({len(result.vehicles_failed)} vehicle(s) failed: listed there under "
