@@ -104,7 +104,8 @@ def main(argv=None) -> int:
                                     "per_1000_frames": 1000 * fa / max(tested, 1)})
     a.out.mkdir(parents=True, exist_ok=True)
     save_json_atomic(a.out / "summary.json", summary)
-    plot_step_benchmark(summary, a.out / "mount_steps.png", a.within, a.frames - step_at - 1)
+    plot_step_benchmark(summary, a.out / "mount_steps.png", a.within, a.frames - step_at - 1,
+                        titles={"rot": "yaw steps of the radar (about its z axis)"}, detector="radar mount monitor")
     print(table(summary, a.within))
     for s, ps in per_scenario.items():
         print(f"\n{s}:\n{table(ps, a.within)}")
