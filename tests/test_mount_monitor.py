@@ -49,6 +49,8 @@ def test_the_test_restarts_after_an_alarm_one_step_one_alarm():
 def test_config_is_checked():
     with pytest.raises(ValueError, match="min_frames"):
         MountMonitorConfig(min_frames=1)
+    with pytest.raises(ValueError, match="level_pairs"):
+        MountMonitorConfig(level_pairs=4)
 
 
 # ---------------------------------------------------------------------------------- on simulated drives

@@ -71,6 +71,11 @@ class MountMonitorConfig:
             raise ValueError(f"MountMonitorConfig: need min_frames >= 3, floor_deg > 0, threshold > 0 and clip > "
                              f"drift (got {self.min_frames}, {self.floor_deg}, {self.threshold}, {self.clip}, "
                              f"{self.drift})")
+        if (self.level_pairs < self.min_frames or self.max_turn_dps <= 0 or self.min_speed_mps < 0
+                or self.max_gap_s <= 0):
+            raise ValueError(f"MountMonitorConfig: need level_pairs >= min_frames, max_turn_dps > 0, min_speed_mps "
+                             f">= 0 and max_gap_s > 0 (got {self.level_pairs}, {self.max_turn_dps}, "
+                             f"{self.min_speed_mps}, {self.max_gap_s})")
 
 
 @dataclass(frozen=True)
