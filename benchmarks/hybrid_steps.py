@@ -1,5 +1,5 @@
-"""Step alarms of the hybrid (the motion CUSUM and the window's own test) on knocked and unchanged
-simulated drives: detection delay and false alarms per 1000 frames.
+"""Step alarms of the hybrid (the radar mount monitor, calib.mount_monitor, and the window's own test) on
+knocked and unchanged simulated drives: detection delay and false alarms per 1000 frames.
 
     PYTHONPATH=. .venv/bin/python benchmarks/hybrid_steps.py --out OUT [--seed 601] [--frames 40]
         [--knock-deg 1.0] [--vehicles 3] [--set mount.threshold=6 ...]
@@ -9,7 +9,8 @@ Simulates (reused when present) ``knock-urban`` (``--vehicles`` urban drives who
 ``urban`` (``--vehicles``), ``highway`` and ``straight`` (one each), ``--frames`` keyframes at
 ``image_scale`` 0.5, seeds from ``--seed``; calibrates every vehicle with ``--method hybrid`` from
 an R1 start (``--set``: HybridConfig overrides), and prints per drive the alarm frames, the delay
-of the first alarm after the knock (frames; a miss when none within the drive), and the false
+of the first alarm after the knock (frames; a miss when none within the drive), the yaw error at the
+end (against the mount at the last frame: the knocked one), and the false
 alarms (before the knock, or anywhere on an unchanged drive) per 1000 frames tested.
 ``OUT/steps.json`` holds it all with the command.
 """
