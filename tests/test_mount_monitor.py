@@ -110,6 +110,18 @@ def test_the_reference_rotation_does_not_matter_but_missing_ego_poses_are_said(k
     mon, readings = monitor_drive(NoPoses(), idx, T)
     assert not mon.series and all("ego pose" in r.skipped for r in readings[1:])
 
+    class NoReturns:  # a sweep without returns has no Doppler velocity: said, and the monitor goes on
+        def __getitem__(self, i):
+            f = frames[i]
+            if i != idx[5]:
+                return f
+            return dataclasses.replace(f, radar_points=f.radar_points[:0],
+                                       radar_fields={k: v[:0] for k, v in f.radar_fields.items()})
+
+    mon, readings = monitor_drive(NoReturns(), idx, T)
+    assert readings[5].skipped.startswith("no Doppler velocity: ") and readings[6].skipped.startswith("no Doppler")
+    assert len(mon.steps) == 1
+
 
 def test_the_hybrid_restarts_its_window_turned_by_the_measured_step(knocked_and_not, tmp_path):
     from hybrid_calib.geometry import se3_exp

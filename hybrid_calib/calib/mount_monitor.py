@@ -170,13 +170,15 @@ class MountMonitor:
         """Feed the frame at drive ``position`` (dataset ``index``); its pair is (previous fed frame, it)."""
         try:
             f = self.frames[index]
-            v, _ = self._velocity(f)
+            v, why = self._velocity(f)
         except DataError as e:
             self._prev = None
             return MountReading(position, skipped=f"frame unreadable: {e}")
-        prev, self._prev = self._prev, (index, f, v)
+        prev, self._prev = self._prev, (index, f, v, why)
         if prev is None:
             return MountReading(position, skipped="first frame of a pair")
+        if prev[2] is None or v is None:
+            return MountReading(position, skipped=f"no Doppler velocity: {prev[3] if prev[2] is None else why}")
         y, why = self.residual(prev[0], prev[1], prev[2], index, f, v)
         if y is None:
             return MountReading(position, skipped=why)
