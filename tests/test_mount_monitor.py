@@ -118,6 +118,14 @@ def test_the_reference_rotation_does_not_matter_but_missing_ego_poses_are_said(k
             return dataclasses.replace(f, radar_points=f.radar_points[:0],
                                        radar_fields={k: v[:0] for k, v in f.radar_fields.items()})
 
+    class NaNPose:
+        def __getitem__(self, i):
+            f = frames[i]
+            bad = np.full((4, 4), np.nan)
+            return f if i != idx[3] else dataclasses.replace(f, extras={**f.extras, "T_global_ego_radar": bad})
+
+    _, readings = monitor_drive(NaNPose(), idx, T)
+    assert readings[3].skipped == readings[4].skipped == "an ego pose is not finite"
     mon, readings = monitor_drive(NoReturns(), idx, T)
     assert readings[5].skipped.startswith("no Doppler velocity: ") and readings[6].skipped.startswith("no Doppler")
     assert len(mon.steps) == 1

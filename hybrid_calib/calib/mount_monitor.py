@@ -152,6 +152,8 @@ class MountMonitor:
         if Ta is None or Tb is None:
             return None, "no ego pose at the radar's timestamp"
         Ta, Tb = np.asarray(Ta, np.float64), np.asarray(Tb, np.float64)
+        if not (np.isfinite(Ta).all() and np.isfinite(Tb).all()):
+            return None, "an ego pose is not finite"
         R_A = Ta[:3, :3].T @ Tb[:3, :3]
         D = Ta[:3, :3].T @ (Tb[:3, 3] - Ta[:3, 3])
         turn = float(np.degrees(np.linalg.norm(so3_log(R_A)))) / dt
@@ -164,7 +166,8 @@ class MountMonitor:
         psi, sig, speed = chord_heading(va.v, va.cov, vb.v, vb.cov, radar_yaw_change(R_A, R))
         m = MotionMeasurement(D / s, R_A, s, psi, sig, speed, fa.radar_token, fb.radar_token, 0,
                               min(va.n_inliers, vb.n_inliers))
-        return float(np.degrees(heading_residual(self.T_ego_radar, m)[0])), ""
+        y = float(np.degrees(heading_residual(self.T_ego_radar, m)[0]))
+        return (y, "") if np.isfinite(y) else (None, "the residual is not finite (a Doppler fit without a direction)")
 
     def update(self, position: int, index: int) -> MountReading:
         """Feed the frame at drive ``position`` (dataset ``index``); its pair is (previous fed frame, it)."""
