@@ -40,6 +40,7 @@ translation of the radar, and a camera that moves (the camera's heading is VO's,
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -64,7 +65,6 @@ class MountMonitorConfig:
     clip: float = 3.0  # standardised deviations are clipped to +-this (heavy tails)
     level_pairs: int = 20  # the level is the median of at most this many pairs (it follows the Doppler's slow wander)
     min_frames: int = 8  # pairs of a level before the test runs (after the start and after each change)
-    velocity: RadarVelocityConfig = RadarVelocityConfig()
 
     def __post_init__(self):
         if self.min_frames < 3 or self.floor_deg <= 0 or self.threshold <= 0 or self.clip <= self.drift:
@@ -121,11 +121,14 @@ class MountMonitor:
 
     frames: indexable by dataset index -> frame (``RadarCameraFrame``: radar points and fields,
     ``extras["T_global_ego_radar"]``). T_ego_radar: (4, 4) the radar's reference mount (its lever arm
-    matters, its rotation does not)."""
+    matters, its rotation does not). velocity: dataset index -> (``RadarVelocity`` | None, why); the
+    hybrid passes its motion source's (one cached Doppler fit per frame for both uses); default:
+    ``estimate_velocity`` of the frame with the default ``RadarVelocityConfig``."""
 
     frames: object
     T_ego_radar: np.ndarray
     conf: MountMonitorConfig = MountMonitorConfig()
+    velocity: Callable[[int], tuple] | None = None
     series: list[tuple[int, float]] = field(default_factory=list)  # (position, residual deg) of the level's pairs
     steps: list[MountStep] = field(default_factory=list)
     _prev: tuple | None = None
@@ -135,8 +138,11 @@ class MountMonitor:
     _pos_from: int | None = None  # where each CUSUM last left zero (None: at the level's first tested pair)
     _neg_from: int | None = None
 
-    def _velocity(self, f) -> tuple:
-        return estimate_velocity(f.radar_points, f.radar_fields, self.conf.velocity, f.extras.get("radar_sweep_index"))
+    def _velocity(self, index: int, f) -> tuple:
+        if self.velocity is not None:
+            return self.velocity(index)
+        return estimate_velocity(f.radar_points, f.radar_fields, RadarVelocityConfig(),
+                                 f.extras.get("radar_sweep_index"))
 
     def residual(self, ia: int, fa, va, ib: int, fb, vb) -> tuple[float | None, str]:
         """(y deg, "") of the pair a -> b, or (None, why it was skipped)."""
@@ -173,7 +179,7 @@ class MountMonitor:
         """Feed the frame at drive ``position`` (dataset ``index``); its pair is (previous fed frame, it)."""
         try:
             f = self.frames[index]
-            v, why = self._velocity(f)
+            v, why = self._velocity(index, f)
         except DataError as e:
             self._prev = None
             return MountReading(position, skipped=f"frame unreadable: {e}")

@@ -437,18 +437,19 @@ def range_note(start: str, trained: str, checkpoint: str) -> str:
             f"trained on {start} (or --refine it after one)")
 
 
-def mount_monitor(frames, drive: Drive, conf: HybridConfig) -> MountMonitor | None:
+def mount_monitor(frames, drive: Drive, conf: HybridConfig, motion: MotionSource | None) -> MountMonitor | None:
     """A fresh radar mount monitor for the hybrid on this drive, or None (another method, turned off,
-    no frames given, or no ``T_ego_radar`` in the data)."""
+    no frames given, or no ``T_ego_radar`` in the data). Its Doppler velocities are the motion
+    source's (``conf.motion.velocity``, each frame's fitted once for both)."""
     if conf.method != "hybrid" or not conf.mount.enabled or frames is None or drive.ego_radar is None:
         return None
-    return MountMonitor(frames, drive.ego_radar, conf.mount)
+    return MountMonitor(frames, drive.ego_radar, conf.mount, (motion or MotionSource(frames, conf.motion)).velocity)
 
 
 def _run_learned(runner, drive, T0, conf, tr, motion, frames):
     """(trajectory, the mount monitor or None) of one pass over the drive."""
     if conf.method == "hybrid":
-        mon = mount_monitor(frames, drive, conf)
+        mon = mount_monitor(frames, drive, conf, motion)
         return _hybrid(runner, drive, T0, conf, tr, motion, mon), mon
     return LEARNED[conf.method](runner, drive, T0, conf, tr), None
 
