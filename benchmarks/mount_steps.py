@@ -97,9 +97,22 @@ def main(argv=None) -> int:
                   f"({time.perf_counter() - t0:.0f} s)", flush=True)
     summary = summarise(rows, a.within)
     per_scenario = {s: summarise([r for r in rows if r["scenario"] == s], a.within) for s in a.scenarios}
+    # the reported step size (levels on either side of the first alarm after the step) against the knock
+    z = []
+    for r in rows:
+        lv = r["levels"]
+        j = next((k for k, x in enumerate(lv) if k and r.get("delay") is not None and x["from"] >= r["step_at"] - 3),
+                 None)
+        if j is not None:
+            z.append((lv[j]["level_deg"] - lv[j - 1]["level_deg"] - r["size"])
+                     / np.hypot(lv[j]["std_deg"], lv[j - 1]["std_deg"]))
+    z = np.array(z)
+    step_std = {"steps": len(z), "inside_1.96": float(np.mean(np.abs(z) < 1.96)) if len(z) else None,
+                "mean_z2": float(np.mean(z ** 2)) if len(z) else None}
     fa = sum(r["false_alarms"] + r.get("extra_alarms", 0) for r in rows)
     tested = sum(r["tested_all"] for r in rows)
     summary.update(command=" ".join(sys.argv), config=to_dict(conf), per_scenario=per_scenario, runs=rows,
+                   step_std=step_std,
                    false_alarm_all={"alarms": fa, "frames_tested": tested,
                                     "per_1000_frames": 1000 * fa / max(tested, 1)})
     a.out.mkdir(parents=True, exist_ok=True)
@@ -111,6 +124,9 @@ def main(argv=None) -> int:
         print(f"\n{s}:\n{table(ps, a.within)}")
     print(f"\nevery alarm that is not a step's first (unchanged drives, before a step, and a second alarm after "
           f"one): {fa} in {tested} tested frames ({1000 * fa / max(tested, 1):.2f} per 1000)")
+    if len(z):
+        print(f"reported step size against the knock: {100 * step_std['inside_1.96']:.0f} % of {len(z)} steps inside "
+              f"+-1.96 std, mean z^2 {step_std['mean_z2']:.2f} (1 if the std is honest)")
     scales = [r["scale_deg"] for r in rows]
     measured = {s: [m for r in rows if r["size"] == s for m in r["measured_steps_deg"]] for s in a.rot}
     print(f"\nnoise scale per drive (before the step): median {np.median(scales):.3f} deg, 10-90 % "
