@@ -30,6 +30,8 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--rows", nargs="+", default=["first", "last", "none"])
+    p.add_argument("--no-motion-scale", action="store_true",
+                   help="skip round 3 (the drive term recalibrated on the loop with the motion constraint on)")
     p.add_argument("--out", required=True, type=Path)
     p.add_argument("--fit-into", action="store_true", help="write the chosen values into the checkpoint")
     a = p.parse_args(argv)
@@ -39,7 +41,8 @@ def main(argv=None) -> int:
     from learned.checkpoint import set_export_overrides
 
     res = fit_measurement([str(d) for d in a.data], a.version, a.checkpoint, a.out, a.start, tuple(a.rows),
-                          a.max_frames, a.seed, a.threads, refine=a.refine)
+                          a.max_frames, a.seed, a.threads, refine=a.refine,
+                          motion_scale=not a.no_motion_scale)
     save_json_atomic(a.out / "fit.json", res)
     print(json.dumps(res, indent=1))
     if a.fit_into:

@@ -248,3 +248,23 @@ def test_drive_scale_brings_the_validation_nees_to_six_and_never_shrinks():
     assert abs(np.mean([e @ np.linalg.solve(W + D, e) for e in errors]) - 6.0) < 1e-6
     big = 3.0 * true_std  # already conservative: left alone
     assert fit_drive_scale(errors, np.broadcast_to(W + np.diag(big ** 2), (400, 6, 6)), big) == 1.0
+
+
+def test_fit_calibrates_the_drive_term_on_the_loop_as_it_ships(sim_root, tmp_path):
+    """Round 3 of the fit runs the chosen model with the motion constraint on (the product's loop) and
+    only ever widens the drive-common term it calibrated without it."""
+    from hybrid_calib.calib.result import CalibrationRun
+    from hybrid_calib.hybrid.fit import fit_measurement
+
+    res = fit_measurement([sim_root], "v1.0-sim", "learned/checkpoints/small-sim-r1.json", tmp_path, "R1",
+                          rows_options=("none",), max_frames=3, seed=4)
+    fitted = res["candidates"]["none"]
+    s = fitted["summary"]
+    assert s["drive_scale"] >= s["drive_scale_without_motion"] >= 1.0
+    assert fitted["validation_with_motion"]["vehicles"] == 2
+    assert fitted["validation_with_motion"]["nees_mean"] <= fitted["validation_with_motion"]["nees_mean_before"] + 1e-9
+    assert res["chosen"]["drive_std"] == fitted["values"]["drive_std"]
+    round2 = json.loads((tmp_path / "round2-none-0" / "config.json").read_text())
+    round3 = json.loads((tmp_path / "round3-none-0" / "config.json").read_text())
+    assert round2["motion"]["enabled"] is False and round3["motion"]["enabled"] is True
+    assert CalibrationRun.load(tmp_path / "round3-none-0" / "result.json").vehicles
