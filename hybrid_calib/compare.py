@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -78,7 +79,7 @@ def run_trials(roots: list, version: str, out: Path, conf: CompareConfig, progre
         raise HybridCalibError(f"no vehicle in {roots}" + (f": {failed_vehicles_message(left_out)}" if left_out
                                                           else ""))
     failed = []
-    todo = [(k, m) for k in range(conf.trials) for m in conf.methods if not _trial_file(out, m, k).is_file()]
+    todo = [(k, m) for k in range(conf.trials) for m in conf.methods if _read_trial(_trial_file(out, m, k)) is None]
     for k, method in tqdm(todo, desc="compare trials", disable=not progress):
         s, name = vehicles[k % len(vehicles)]
         c = dataclasses.replace(hconf, method=method, seed=conf.seed + k // len(vehicles))
@@ -97,8 +98,23 @@ def run_trials(roots: list, version: str, out: Path, conf: CompareConfig, progre
 
 
 def load_trials(out: Path, method: str, trials: int) -> list[VehicleResult]:
-    return [VehicleResult.from_dict(json.loads(_trial_file(out, method, k).read_text()))
-            for k in range(trials) if _trial_file(out, method, k).is_file()]
+    return [r for k in range(trials) if (r := _read_trial(_trial_file(out, method, k))) is not None]
+
+
+def _read_trial(path: Path) -> VehicleResult | None:
+    """The trial in ``path``, or None when there is none yet. A file that does not read back as a trial (cut
+    short by a crash, edited, another schema) is reported on stderr and counts as not done, so it is rerun."""
+    if not path.exists():
+        return None
+    try:
+        doc = json.loads(path.read_text())
+        if not isinstance(doc, dict):
+            raise TypeError(f"a JSON {type(doc).__name__}, not an object")
+        return VehicleResult.from_dict(doc)
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
+        print(f"compare: trial file {path} is unreadable ({type(e).__name__}: {e}); running that trial again",
+              file=sys.stderr)
+        return None
 
 
 def _consistency(nees: np.ndarray) -> dict:
@@ -176,7 +192,15 @@ def compare(roots: list, version: str, out: str | Path, conf: CompareConfig | di
     def same(a: dict) -> dict:  # trial k does not depend on the trial count: more trials extend a run
         return {k: v for k, v in json.loads(json.dumps(a)).items() if k != "trials"}
 
-    if cfg_path.is_file() and same(json.loads(cfg_path.read_text())) != same(record):
+    try:
+        previous = json.loads(cfg_path.read_text()) if cfg_path.is_file() else None
+        if previous is not None and not isinstance(previous, dict):
+            raise TypeError(f"a JSON {type(previous).__name__}, not an object")
+    except (OSError, ValueError, TypeError) as e:
+        raise DataError(f"the compare config of this --out is unreadable ({type(e).__name__}: {e}); it records the "
+                        f"configuration its trials were run with: delete {out} (or that file) to start over, or use "
+                        "another --out", path=str(cfg_path)) from None
+    if previous is not None and same(previous) != same(record):
         raise HybridCalibError(f"{out} holds trials of another configuration ({cfg_path}); use another --out")
     save_json_atomic(cfg_path, record)
     problems = run_trials([str(r) for r in roots], version, out, conf, progress)

@@ -86,8 +86,18 @@ class ModelConfig:
             hw = getattr(self, name)
             if len(hw) != 2 or any(int(v) % 8 or int(v) <= 0 for v in hw):
                 raise ConfigError(f"ModelConfig.{name}={hw}: need two positive multiples of 8 (features are at 1/8)")
+        for name in ("radar_widths", "context_widths"):
+            if len(getattr(self, name)) != 3:
+                raise ConfigError(f"ModelConfig.{name}={getattr(self, name)!r}: need three widths (ResNet stem, "
+                                  "layer1, layer2), e.g. [64, 64, 128]")
         if self.radar_widths[-1] <= 0 or self.iterations < 1:
             raise ConfigError("ModelConfig: widths and iterations must be positive")
+        sizes = {name: getattr(self, name) for name in (
+            "feat_dim", "radar_widths", "context_widths", "depth_branch_mid", "phi_channels", "phi_pool_fv",
+            "phi_pool_bev", "view_dim", "match_dim", "sk_reduction", "sk_min_dim", "lstm_hidden", "nr_chunk")}
+        for name, value in sizes.items():  # a layer width / pool size <= 0 fails deep inside torch otherwise
+            if any(int(v) < 1 for v in (value if isinstance(value, (tuple, list)) else (value,))):
+                raise ConfigError(f"ModelConfig.{name}={value!r}: layer sizes must be >= 1")
         if self.mca_heads < 1 or self.feat_dim % self.mca_heads:
             raise ConfigError(f"ModelConfig.mca_heads={self.mca_heads} must divide feat_dim={self.feat_dim}")
 

@@ -639,3 +639,181 @@ def test_compare_leaves_out_a_bad_vehicle_records_a_bad_frame_and_finishes(sim_c
         trial = json.loads((out / "trials" / "oracle" / f"{k:04d}.json").read_text())
         assert trial["vehicle"] == good_vehicle
         assert [s["index"] for s in trial["frames_skipped"]] == [good_frames[2].index]
+
+
+# ---------------------------------------------------------------- values that parse as JSON but not as what they name
+@pytest.fixture
+def tiny(tmp_path):
+    """The hand-written 3-sample root of tests/tiny_nuscenes.py (no simulator: milliseconds)."""
+    from tests.tiny_nuscenes import make_tiny_root
+
+    return make_tiny_root(tmp_path / "tiny", n_samples=3)
+
+
+def _skips_of(tiny) -> list:
+    """Every frame of the tiny root loaded in turn: the skip records (any other exception fails the test)."""
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+
+    ds = NuScenesRadarCamera(tiny.root, tiny.version)
+    list(ds)
+    return ds.skipped
+
+
+def _set_intrinsic(tiny, value):
+    next(cs for cs in tiny.tables["calibrated_sensor"] if cs["token"] == "cs_CAM_FRONT")["camera_intrinsic"] = value
+    tiny.rewrite_table("calibrated_sensor")
+
+
+def _set_width(tiny, value):
+    tiny.cam_sd[1]["width"] = value
+    tiny.rewrite_table("sample_data")
+
+
+def _pcd_header_of(tiny, old: bytes, new: bytes):
+    """Edit frame 1's PCD header; the body is padded as real nuScenes radar files are (zeros, ~70 % more), so a
+    header that describes more bytes per point still finds them."""
+    path = tiny.path(tiny.radar_sd[1])
+    _pcd_header(path, old, new)
+    path.write_bytes(path.read_bytes() + bytes(path.stat().st_size))
+
+
+TABLE_VALUE_CASES = {  # case -> (corrupt(tiny), the frames skipped, needles of the reason); each was a ValueError
+    "intrinsic-ragged-rows": (lambda t: _set_intrinsic(t, [[500, 0, 32], [0, 500], [0, 0, 1]]), [0, 1, 2],
+                              ["camera_intrinsic", "[[500, 0, 32], [0, 500], [0, 0, 1]]", "calibrated_sensor.json"]),
+    "intrinsic-strings": (lambda t: _set_intrinsic(t, [["fx", 0, 32], [0, 500, 24], [0, 0, 1]]), [0, 1, 2],
+                          ["camera_intrinsic", "'fx'", "cs_CAM_FRONT"]),
+    "image-width-a-string": (lambda t: _set_width(t, "640px"), [1],
+                             ["field 'width' is '640px'", "sample_data.json", "sd_CAM_FRONT_"]),
+    "pcd-points-without-a-number": (lambda t: _pcd_header_of(t, b"\nPOINTS ", b"\nPOINTS\n#"), [1],
+                                    ["POINTS needs one number", ".pcd"]),
+    "pcd-x-count-2": (lambda t: _pcd_header_of(t, b"COUNT 1", b"COUNT 2"), [1],
+                      ["field 'x' holds float32[2]", "COUNT 1", ".pcd"]),
+    "pcd-x-integer": (lambda t: _pcd_header_of(t, b"TYPE F", b"TYPE I"), [1], ["field 'x' holds int32", "TYPE F"]),
+}
+
+
+@pytest.mark.parametrize("case", sorted(TABLE_VALUE_CASES))
+def test_a_value_of_the_wrong_shape_is_a_skip_naming_it(case, tiny):
+    corrupt, skipped_frames, needles = TABLE_VALUE_CASES[case]
+    corrupt(tiny)
+    skipped = _skips_of(tiny)
+    assert [s.index for s in skipped] == skipped_frames, skipped
+    for needle in needles:
+        assert needle in skipped[0].reason, (needle, skipped[0].reason)
+
+
+def test_filter_field_of_count_2_is_named_when_the_filter_reads_it(tiny):
+    """A field the radar filter reads (invalid_state) with COUNT 2 was a numpy broadcast error."""
+    path = tiny.path(tiny.radar_sd[1])
+    data = path.read_bytes()
+    head, body = data.split(b"DATA binary\n", 1)
+    counts = head.split(b"\nCOUNT ")[1].split(b"\n")[0].split()
+    counts[14] = b"2"  # invalid_state (the 15th field)
+    head = head.replace(b"\nCOUNT " + b" ".join([b"1"] * 18), b"\nCOUNT " + b" ".join(counts))
+    path.write_bytes(head + b"DATA binary\n" + body * 2)
+    skipped = _skips_of(tiny)
+    assert [s.index for s in skipped] == [1] and "field 'invalid_state'" in skipped[0].reason, skipped
+
+
+def _inspect(tiny, *extra) -> list:
+    return ["inspect", "--data", tiny.root, "--version", tiny.version, "--no-progress", *extra]
+
+
+@pytest.mark.parametrize("argv,needles", [
+    (["--radar", "CAM_FRONT"], ["'CAM_FRONT' (--radar) is a camera", "radar channels present: ['RADAR_FRONT']"]),
+    (["--camera", "RADAR_FRONT"], ["'RADAR_FRONT' (--camera) is a radar", "camera channels present: ['CAM_FRONT']"]),
+    (["--set", "load_lidar=true", "lidar_channel=RADAR_FRONT"], ["'RADAR_FRONT' (lidar_channel) is a radar"]),
+], ids=["radar-is-a-camera", "camera-is-a-radar", "lidar-is-a-radar"])
+def test_a_channel_of_another_modality_is_one_clear_error(argv, needles, tiny, capsys):
+    """Swapping --radar and --camera used to skip every frame with "not a PCD file" / "not a JPEG"."""
+    err = expect_cli_error(_inspect(tiny, *argv), capsys, *needles, tiny.vdir / "sensor.json")
+    assert _one_paragraph(err)
+
+
+def test_an_empty_scene_table_says_so(tiny, capsys):
+    tiny.tables["scene"] = []
+    tiny.rewrite_table("scene")
+    expect_cli_error(_inspect(tiny), capsys, "table 'scene' holds no scenes", "3 samples", tiny.vdir / "scene.json")
+
+
+def test_samples_of_a_scene_not_in_the_scene_table_are_recorded(tiny, capsys):
+    tiny.tables["scene"][0]["token"] = "another-scene"
+    tiny.rewrite_table("scene")
+    expect_cli_error(_inspect(tiny), capsys, "3 sample(s) reference scene scene0, which is not in scene.json",
+                     tiny.vdir / "scene.json")
+
+
+def test_a_table_nested_too_deeply_is_named(tiny, capsys):
+    (tiny.vdir / "log.json").write_text("[" * 100_000 + "]" * 100_000)
+    expect_cli_error(_inspect(tiny), capsys, "table 'log' nests JSON too deeply", tiny.vdir / "log.json")
+
+
+# ---------------------------------------------------------------- simulate: --set extrinsic_change
+@pytest.fixture
+def captured_sim(monkeypatch):
+    """``simulate`` replaced by a recorder of its SimConfig (no rendering)."""
+    import hybrid_calib.sim.simulate as sim_module
+
+    seen = []
+    monkeypatch.setattr(sim_module, "simulate", lambda conf, out, **kw: (seen.append(conf), Path(out))[1])
+    return seen
+
+
+@pytest.mark.parametrize("argv,kind,frame", [
+    (["--set", "extrinsic_change.kind=step", "extrinsic_change.frame=2"], "step", 2),
+    (["--set", "extrinsic_change.kind=step", "--change-frame", "3"], "step", 3),
+    (["--set", "extrinsic_change.kind=step", "--extrinsic-change", "drift"], "drift", -1),
+    ([], "none", -1),
+], ids=["set-only", "set-and-frame-flag", "flag-wins", "defaults"])
+def test_simulate_honours_set_extrinsic_change(argv, kind, frame, captured_sim, tmp_path, capsys):
+    """The --extrinsic-change / --change-frame defaults used to overwrite --set extrinsic_change.* silently."""
+    rc, err = run_cli(["simulate", "--out", tmp_path / "s", "--frames", "6", *argv], capsys)
+    assert rc == 0, err
+    (conf,) = captured_sim
+    assert (conf.extrinsic_change.kind, conf.extrinsic_change.frame) == (kind, frame)
+
+
+def test_simulate_set_extrinsic_change_not_a_group(captured_sim, tmp_path, capsys):
+    for extra in ([], ["--extrinsic-change", "step"]):  # was: internal error (ValueError from dict())
+        expect_cli_error(["simulate", "--out", tmp_path / "s", "--set", "extrinsic_change={bad", *extra], capsys,
+                         "extrinsic_change='{bad'", "group of options", "extrinsic_change.KEY=VALUE")
+    assert captured_sim == []
+
+
+# ---------------------------------------------------------------- train: model sizes
+@pytest.mark.parametrize("override,needle", [
+    ("model.feat_dim=-1", "ModelConfig.feat_dim=-1: layer sizes must be >= 1"),
+    ("model.phi_pool_fv=[0,2]", "ModelConfig.phi_pool_fv=(0, 2)"),
+    ("model.lstm_hidden=0", "ModelConfig.lstm_hidden=0"),
+    ("model.radar_widths=[8]", "need three widths"),
+])
+def test_train_bad_model_sizes_fail_before_training(override, needle, tiny, tmp_path, capsys):
+    """Each used to be a RuntimeError / IndexError from inside torch (an internal error)."""
+    expect_cli_error(["train", "--data", tiny.root, "--version", tiny.version, "--out", tmp_path / "t",
+                      "--no-progress", "--set", override], capsys, needle)
+    assert not (tmp_path / "t").exists()
+
+
+# ---------------------------------------------------------------- compare: resuming over damaged files
+def test_compare_reruns_a_damaged_trial_and_names_a_damaged_config(sim, tmp_path, monkeypatch, capsys):
+    import hybrid_calib.plots.compare
+
+    monkeypatch.setattr(hybrid_calib.plots.compare, "plot_error_vs_frames", lambda *a, **k: None)  # 90 % of the time
+    root, _ = sim
+    out = tmp_path / "cmp"
+    argv = ["compare", "--data", root, "--out", out, "--methods", "oracle", "--trials", "1", "--max-frames", "1",
+            "--no-progress"]
+    rc, err = run_cli(argv, capsys)
+    assert rc == 0, err
+    trial = out / "trials" / "oracle" / "0000.json"
+    good = json.loads(trial.read_text())
+    for damaged in (trial.read_text()[:40], "[]"):  # each was an internal error (also '{"schema": "other"}')
+        trial.write_text(damaged)
+        rc, err = run_cli(argv, capsys)
+        assert rc == 0 and f"trial file {trial} is unreadable" in err and "running that trial again" in err, err
+        assert json.loads(trial.read_text())["final"] == good["final"]
+        assert json.loads((out / "compare.json").read_text())["methods"]["oracle"]["trials"] == 1
+    config = out / "compare_config.json"
+    config.write_text(config.read_text()[:30])
+    err = expect_cli_error(argv, capsys, "compare config of this --out is unreadable", config, "another --out")
+    assert _one_paragraph(err)

@@ -21,9 +21,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--frames", type=positive_int, default=None, help="keyframes per vehicle (default: 200)")
     p.add_argument("--seed", type=int, default=None, help="master seed (default: 0)")
     p.add_argument("--out", type=Path, required=True, help="output nuScenes root directory")
-    p.add_argument("--extrinsic-change", default="none", choices=EXTRINSIC_CHANGES,
-                   help="radar mount movement during each drive (default: none)")
-    p.add_argument("--change-frame", type=int, default=-1, help="frame of a step change (default: the middle)")
+    p.add_argument("--extrinsic-change", default=None, choices=EXTRINSIC_CHANGES,
+                   help="radar mount movement during each drive (default: none, or --set extrinsic_change.kind=...)")
+    p.add_argument("--change-frame", type=int, default=None,
+                   help="frame of a step change (default: -1, the middle; or --set extrinsic_change.frame=N)")
     p.add_argument("--workers", type=positive_int, default=1, help="rendering processes (default: 1)")
     p.add_argument("--overwrite", action="store_true", help="re-render everything instead of resuming")
     p.add_argument("--set", action="extend", nargs="+", metavar="KEY=VALUE", default=[],
@@ -38,9 +39,10 @@ def run(args: argparse.Namespace) -> int:
     overrides = parse_overrides(args.set)
     # a flag that was passed wins over --set; an absent one leaves --set (or the default) in charge
     overrides.update(given_flags(args, {k: k for k in ("scenario", "vehicles", "frames", "seed")}))
-    change = dict(overrides.get("extrinsic_change", {}))
-    change.update(kind=args.extrinsic_change, frame=args.change_frame)
-    overrides["extrinsic_change"] = change
+    flags = given_flags(args, {"kind": "extrinsic_change", "frame": "change_frame"})
+    change = overrides.get("extrinsic_change", {})
+    if flags and isinstance(change, dict):  # not a dict: merge names the bad --set value
+        overrides["extrinsic_change"] = {**change, **flags}
     conf = merge(SimConfig, overrides)  # ConfigError (unknown key, wrong type, bad value) names the option
     step = conf.extrinsic_change
     if step.kind == "step" and not -1 <= step.frame < conf.frames:

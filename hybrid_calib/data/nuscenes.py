@@ -125,6 +125,14 @@ class NuScenesRadarCamera:
             if ch not in channels:
                 raise DataError(f"channel {ch!r} is not in sensor.json; channels present: {channels}",
                                 path=str(self.tables.path("sensor")))
+        for ch, modality, option in ((radar_channel, "radar", "--radar"), (camera_channel, "camera", "--camera"),
+                                     (self.conf.lidar_channel, "lidar", "lidar_channel")):
+            found = self.tables.modality(ch)
+            if ch in wanted and found != modality:
+                same = [c for c in channels if self.tables.modality(c) == modality]
+                raise DataError(f"channel {ch!r} ({option}) is a {found or 'unknown'} sensor in sensor.json, not a "
+                                f"{modality}; {modality} channels present: {same}",
+                                path=str(self.tables.path("sensor")))
         self.sim_vehicles: dict[str, dict] = _load_sim_vehicles(self.tables.vdir)
         self._index_skips: list[SkipRecord] = [
             SkipRecord(None, tok, str(self.tables.path("sample_data")), reason)
@@ -156,6 +164,15 @@ class NuScenesRadarCamera:
                 raise DataError(f"vehicle(s) {unknown} not found; vehicles present: {present}",
                                 path=str(t.path("log")))
         frames: list[FrameRef] = []
+        orphans: dict[str, int] = {}  # scene token not in scene.json -> its samples (never indexed)
+        for sample in t.records["sample"]:
+            if sample["scene_token"] not in t.by_token["scene"]:
+                orphans[sample["scene_token"]] = orphans.get(sample["scene_token"], 0) + 1
+        for token, n in orphans.items():
+            self._index_skips.append(SkipRecord(
+                None, token, str(t.path("scene")),
+                f"{n} sample(s) reference scene {token}, which is not in scene.json; they are skipped (the tables "
+                "are inconsistent: re-extract the metadata)"))
         for scene in scenes:
             log = t.by_token["log"].get(scene["log_token"])
             if log is None:
@@ -227,7 +244,7 @@ class NuScenesRadarCamera:
         t = self.tables
         cam, rad = ref.camera_sd, ref.radar_sd
         image_path = self.root / cam["filename"]
-        width, height = int(cam.get("width") or 0), int(cam.get("height") or 0)
+        width, height = _image_size_field(cam, t.path("sample_data"))
         if self.conf.check_images or not (width and height):
             w_file, h_file = image_header(image_path, cam["token"])
             if width and height and (w_file, h_file) != (width, height):
@@ -362,3 +379,17 @@ def _sim_pose(rec: dict | None, key: str) -> np.ndarray | None:
         return pose_from_nuscenes(node["rotation"], node["translation"])
     T = np.asarray(node, dtype=np.float64)
     return T if T.shape == (4, 4) else None
+
+
+def _image_size_field(cam: dict, table: Path) -> tuple[int, int]:
+    """A camera sample_data record's optional ``width`` / ``height`` (0 when absent, null or 0, as in the
+    devkit's radar records); ``DataError`` naming the record when they are not numbers."""
+    size = []
+    for key in ("width", "height"):
+        value = cam.get(key) or 0
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+            raise DataError(f"sample_data field {key!r} is {value!r}, expected an integer number of pixels (or 0 / "
+                            "null when unknown); the table does not follow the nuScenes schema: fix or re-extract it",
+                            path=str(table), token=cam["token"])
+        size.append(int(value))
+    return size[0], size[1]

@@ -103,6 +103,8 @@ def read_radar_pcd(path: str | Path) -> np.ndarray:
             else (n, f"<{ {'F': 'f', 'I': 'i', 'U': 'u'}[t] }{s}", (int(c),))
             for n, s, t, c in zip(names, sizes, types, counts)
         ])
+        if len(header["POINTS"]) != 1:
+            raise ValueError(f"POINTS needs one number, got {header['POINTS']}")
         n_points = int(header["POINTS"][0])
         if n_points < 0 or any(int(c) < 1 for c in counts):
             raise ValueError("POINTS must be >= 0 and every COUNT >= 1")

@@ -57,6 +57,13 @@ def load_filtered_sweep(path: Path, conf: RadarFilterConfig, token: str) -> tupl
     if missing:
         raise DataError(f"radar PCD lacks field(s) {missing}; it is not a nuScenes radar file", path=str(path),
                         token=token)
+    for name in names:
+        kind = raw.dtype[name]
+        if (name in ("x", "y", "z") and kind.kind != "f") or (name in _FILTER_OPTION and kind.shape):
+            what = "float (TYPE F) values with COUNT 1" if name in ("x", "y", "z") else "one value (COUNT 1)"
+            raise DataError(f"radar PCD field {name!r} holds {kind.base}{list(kind.shape) or ''} per point, expected "
+                            f"{what}; the header does not describe a nuScenes radar file, re-export it",
+                            path=str(path), token=token)
     try:
         rows, n_nonfinite = filter_radar(raw, conf)
     except KeyError as e:

@@ -86,6 +86,9 @@ def load_table(vdir: Path, name: str, required_fields: Iterable[str] = ("token",
                         "the file is corrupt or truncated, re-extract it", path=str(path)) from None
     except (OSError, UnicodeDecodeError) as e:
         raise DataError(f"cannot read table {name!r}: {e}", path=str(path)) from None
+    except RecursionError:
+        raise DataError(f"table {name!r} nests JSON too deeply to read; it is not a nuScenes table, re-extract it",
+                        path=str(path)) from None
     if not isinstance(records, list):
         raise DataError(f"table {name!r} must be a JSON list of records, found {type(records).__name__}",
                         path=str(path))
@@ -143,6 +146,10 @@ class NuScenesTables:
             raise DataError("table 'sample' holds no samples, so this version folder has no frames to read; "
                             "point --data/--version at a dataset with samples (e.g. v1.0-mini)",
                             path=str(self.path("sample")))
+        if not self.records["scene"]:
+            raise DataError(f"table 'scene' holds no scenes, so none of the {len(self.records['sample'])} samples "
+                            "belongs to a scene and there are no frames to read; the table is truncated or from "
+                            "another copy: re-extract the metadata", path=str(self.path("scene")))
         # calibrated_sensor token -> sensor record (channel, modality); unresolved ones raise on use.
         self._sensor_of_cs: dict[str, dict] = {}
         for cs in self.records["calibrated_sensor"]:
@@ -190,6 +197,10 @@ class NuScenesTables:
         """Every sensor channel present in sensor.json."""
         return sorted({s["channel"] for s in self.records["sensor"]})
 
+    def modality(self, channel: str) -> str:
+        """The ``modality`` (camera / radar / lidar) sensor.json gives a channel ("" if it is not there)."""
+        return next((s["modality"] for s in self.records["sensor"] if s["channel"] == channel), "")
+
     def channel_of(self, sd: dict) -> str:
         """The sensor channel (e.g. ``RADAR_FRONT``) of a sample_data record."""
         sensor = self._sensor_of_cs.get(sd["calibrated_sensor_token"])
@@ -235,7 +246,10 @@ class NuScenesTables:
     def camera_intrinsic(self, sd: dict) -> np.ndarray:
         """(3, 3) float64 camera matrix of a camera sample_data record."""
         cs = self.get("calibrated_sensor", sd["calibrated_sensor_token"], f"sample_data {sd['token']}")
-        K = np.asarray(cs["camera_intrinsic"], dtype=np.float64)
+        try:
+            K = np.asarray(cs["camera_intrinsic"], dtype=np.float64)
+        except (ValueError, TypeError):  # ragged rows, strings, objects
+            K = np.full(0, np.nan)
         if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
             raise DataError(f"calibrated_sensor camera_intrinsic must be a finite 3x3 matrix with positive focal "
                             f"lengths, got {cs['camera_intrinsic']!r}; is this a camera channel?",
