@@ -205,6 +205,14 @@ def robust_solve(
     return SolveResult(last.T, graph, vals, iters, last.error, time.perf_counter() - t0)
 
 
+def convergence_note(inlier_fraction: float, min_fraction: float, what: str = "the frame's") -> str:
+    """The status note of a solve whose correspondences mostly do not fit its estimate ("" if fine):
+    ``NOT CONVERGED`` (the report's verdict reads that mark) with the fraction that fits."""
+    if inlier_fraction >= min_fraction:
+        return ""
+    return f"NOT CONVERGED: only {100 * inlier_fraction:.0f} % of {what} correspondences fit the estimate"
+
+
 def inlier_mask(T: np.ndarray, corr: Correspondences, conf: RadarPixelFactorConfig, gate: float) -> np.ndarray:
     """(N,) bool: rows whose whitened residual norm at T is below ``gate`` (and in front of the camera)."""
     from factors.gtsam_factors import frame_residuals

@@ -59,6 +59,7 @@ from hybrid_calib.calib.schedule import (
     SolveResult,
     X,
     build_graph,
+    convergence_note,
     frame_information,
     frame_scene_cross,
     inlier_mask,
@@ -147,13 +148,6 @@ def random_walk_information(info: np.ndarray, Q: np.ndarray) -> np.ndarray:
     ``Q`` (6, 6): ``inv(inv(info) + Q)``, symmetrised (``info`` regularised by ``_WEAK_INFO``)."""
     L = np.linalg.inv(np.linalg.inv(info + _WEAK_INFO * np.eye(6)) + Q)
     return 0.5 * (L + L.T)
-
-
-def convergence_note(inlier_fraction: float, min_fraction: float) -> str:
-    """The status note of a frame whose correspondences mostly do not fit the estimate ("" if fine)."""
-    if inlier_fraction >= min_fraction:
-        return ""
-    return f"NOT CONVERGED: only {100 * inlier_fraction:.0f} % of the frame's correspondences fit the estimate"
 
 
 @dataclass

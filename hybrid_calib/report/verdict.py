@@ -25,6 +25,7 @@ measured the radar turning during the drive by more than the rotation tolerance 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,7 +36,7 @@ DELTA_KEYS = ("rot_x_deg", "rot_y_deg", "rot_z_deg", "t_x_cm", "t_y_cm", "t_z_cm
 AXIS_NAMES = ("rotation about camera x", "rotation about camera y", "rotation about camera z",
               "translation along camera x", "translation along camera y", "translation along camera z")
 VERDICTS = ("within tolerance", "recalibrate", "inconclusive")
-NOT_CONVERGED = "NOT CONVERGED"  # calib.window.convergence_note's mark in a status
+NOT_CONVERGED = "NOT CONVERGED"  # calib.schedule.convergence_note's mark in a status
 INCONCLUSIVE = "inconclusive"  # calib.covariance.inconclusive_status: the input is out of the network's domain
 
 
@@ -43,6 +44,13 @@ INCONCLUSIVE = "inconclusive"  # calib.covariance.inconclusive_status: the input
 class Tolerance:
     rot_deg: float = 0.5  # per camera axis, degrees: a change below this needs no recalibration
     trans_cm: float = 5.0  # per camera axis, centimetres
+
+    def __post_init__(self):
+        for name, unit in (("rot_deg", "degrees per rotation axis"), ("trans_cm", "centimetres per translation axis")):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+                raise ValueError(f"{name} must be a finite number > 0 ({unit}), got {value!r}; e.g. --set "
+                                 f"tolerance.{name}={getattr(Tolerance, name):g} (the default)")
 
     def per_axis(self) -> np.ndarray:
         return np.array([self.rot_deg] * 3 + [self.trans_cm] * 3)
