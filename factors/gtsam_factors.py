@@ -21,8 +21,10 @@ from factors.robust import robustify
 
 def _check_cov(cov: np.ndarray, name: str) -> np.ndarray:
     cov = np.asarray(cov, np.float64)
-    if cov.shape != (6, 6) or not np.all(np.isfinite(cov)):
+    if cov.shape != (6, 6):
         raise ValueError(f"{name}: expected a finite (6, 6) covariance, got shape {cov.shape}")
+    if not np.all(np.isfinite(cov)):
+        raise ValueError(f"{name}: covariance holds non-finite values (NaN/inf)")
     if not np.allclose(cov, cov.T, rtol=1e-9, atol=1e-15 * max(1.0, np.abs(cov).max())):
         raise ValueError(f"{name}: covariance is not symmetric")
     if np.linalg.eigvalsh(cov).min() <= 0:
@@ -32,8 +34,10 @@ def _check_cov(cov: np.ndarray, name: str) -> np.ndarray:
 
 def _check_T(T: np.ndarray, name: str) -> np.ndarray:
     T = np.asarray(T, np.float64)
-    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+    if T.shape != (4, 4):
         raise ValueError(f"{name}: expected a finite (4, 4) transform, got shape {T.shape}")
+    if not np.all(np.isfinite(T)):
+        raise ValueError(f"{name}: transform holds non-finite values (NaN/inf)")
     R = T[:3, :3]
     if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
         raise ValueError(f"{name}: rotation block is not a proper rotation")

@@ -5,15 +5,20 @@ POSIX; same suffix, so writers that choose the format by extension (OpenCV, ``np
 ``np.savez``, matplotlib) write the right one), and only a complete file is renamed over the target.
 A crash leaves either the old file or the new one, never a half-written one; a failed writer
 removes its temporary file. The temporary name carries the process id, so concurrent workers
-writing the same path do not share a temporary file.
+writing the same path do not share a temporary file. An ``OSError`` of the write names the target,
+never the temporary file (a target that is a directory is refused before the writer runs).
 """
 
 from __future__ import annotations
 
+import errno
 import os
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+
+_IS_A_DIRECTORY = ("{path} is a directory, so the output file cannot be written there; move the directory away or "
+                   "write the outputs elsewhere")
 
 
 @contextmanager
@@ -22,12 +27,20 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     the block exits normally and the writer produced it, delete it when the block raises."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    if path.is_dir():
+        raise IsADirectoryError(errno.EISDIR, _IS_A_DIRECTORY.format(path=path), str(path))
     tmp = path.with_name(f"{path.stem}.{os.getpid()}.tmp{path.suffix}")
     try:
         yield tmp
         if not tmp.exists():
             raise OSError(f"writing {path}: the writer produced no file")
         tmp.replace(path)
+    except OSError as e:
+        if e.filename is None or str(e.filename) not in (str(tmp), str(path)):
+            raise  # about another path (a file the writer read, a parent folder): it names that one
+        what = (_IS_A_DIRECTORY.format(path=path) if path.is_dir() else
+                f"{path} cannot be written ({e.strerror or e})")
+        raise OSError(e.errno or errno.EIO, what, str(path)) from None  # the errno's subclass
     finally:
         if tmp.exists():
             tmp.unlink()

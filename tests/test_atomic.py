@@ -37,3 +37,19 @@ def test_writer_that_writes_nothing_is_an_error(tmp_path):
     with pytest.raises(OSError, match="produced no file"), atomic_path(tmp_path / "d.png"):
         pass
     assert not (tmp_path / "d.png").exists()
+
+
+def test_errors_name_the_target_not_the_temporary(tmp_path):
+    """A target that is a directory is refused before the writer runs; one that becomes a directory while the
+    writer works fails the rename: both errors name the target (they named result.NNNN.tmp.json)."""
+    target = tmp_path / "result.json"
+    target.mkdir()
+    with pytest.raises(IsADirectoryError, match="result.json is a directory") as e:
+        save_json_atomic(target, {"x": 1})
+    assert e.value.filename == str(target)
+    target.rmdir()
+    with pytest.raises(IsADirectoryError, match="result.json is a directory") as e, atomic_path(target) as tmp:
+        tmp.write_text("{}")
+        target.mkdir()
+    assert e.value.filename == str(target) and ".tmp" not in str(e.value)
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["result.json"] and target.is_dir()

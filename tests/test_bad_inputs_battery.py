@@ -591,6 +591,99 @@ def test_report_options_that_cannot_work(case, sim, tmp_path, capsys):
     assert not (tmp_path / "r.html").exists()
 
 
+@pytest.fixture(scope="module")
+def calibrated(sim, tmp_path_factory):
+    """One calibrate run of the simulated root (1 frame per vehicle): its folder (result.json, config.json)."""
+    from hybrid_calib.cli import main
+
+    root, _ = sim
+    run = tmp_path_factory.mktemp("calibrated") / "run"
+    assert main([str(a) for a in _calibrate(root, run, "--max-frames", "1")]) == 0
+    return run
+
+
+def _damaged_result(calibrated: Path, tmp_path: Path, damage) -> tuple[Path, str]:
+    """A copy of the run (result.json and config.json) whose result ``damage(doc, vehicle)`` edited; and the vehicle."""
+    run = tmp_path / "run"
+    shutil.copytree(calibrated, run)
+    path = run / "result.json"
+    doc = json.loads(path.read_text())
+    vehicle = sorted(doc["vehicles"])[0]
+    damage(doc, vehicle)
+    path.write_text(json.dumps(doc))
+    return path, vehicle
+
+
+def _nan_at(key: str, *index):
+    def damage(doc, v):
+        doc["vehicles"][v]["final"][key][index[0]][index[1]] = float("nan")
+    return damage
+
+
+DAMAGED_RESULTS = {  # case -> (damage(doc, vehicle), needles beyond the file); each was an internal error
+    "vehicles-a-list": (lambda doc, v: doc.__setitem__("vehicles", list(doc["vehicles"].values())),
+                        ['"vehicles" is a JSON array, not an object']),
+    "vehicle-a-list": (lambda doc, v: doc["vehicles"].__setitem__(v, [1, 2]), ["is a JSON array, not an object"]),
+    "vehicle-a-number": (lambda doc, v: doc["vehicles"].__setitem__(v, 5), ["is a JSON number, not an object"]),
+    "final-a-string": (lambda doc, v: doc["vehicles"][v].__setitem__("final", "x"), ["final is a JSON string"]),
+    "final-T-nan": (_nan_at("T_cam_radar", 0, 3), ["final.T_cam_radar holds non-finite values"]),
+    "final-cov-inf": (lambda doc, v: doc["vehicles"][v]["final"]["cov_right_radar"][2].__setitem__(2, float("inf")),
+                      ["final.cov_right_radar holds non-finite values"]),
+    "final-T-3x3": (lambda doc, v: doc["vehicles"][v]["final"].__setitem__("T_cam_radar", np.eye(3).tolist()),
+                    ["final.T_cam_radar is not a 4x4 matrix", "(3, 3)"]),
+    "frame-T-nan": (lambda doc, v: doc["vehicles"][v]["trajectory"][0]["T_cam_radar"][1].__setitem__(1, float("nan")),
+                    ["trajectory[0].T_cam_radar holds non-finite values"]),
+}
+
+
+@pytest.mark.parametrize("case", sorted(DAMAGED_RESULTS))
+def test_report_on_a_result_with_a_malformed_entry(case, calibrated, tmp_path, capsys):
+    damage, needles = DAMAGED_RESULTS[case]
+    path, vehicle = _damaged_result(calibrated, tmp_path, damage)
+    err = expect_cli_error(["report", path, "--vehicle", vehicle, "--out", tmp_path / "r.html"], capsys,
+                           "calibrate result incomplete or invalid", path, *needles)
+    assert _one_paragraph(err) and "internal error" not in err
+    assert not (tmp_path / "r.html").exists()
+
+
+def test_check_T_names_a_non_finite_transform():
+    """A NaN transform used to be reported as a shape error ("expected a finite (4, 4) transform, got shape (4, 4)")."""
+    from factors.gtsam_factors import _check_T
+
+    T = np.eye(4)
+    T[0, 3] = np.nan
+    with pytest.raises(ValueError, match=r"^x: transform holds non-finite values \(NaN/inf\)$"):
+        _check_T(T, "x")
+    with pytest.raises(ValueError, match=r"expected a finite \(4, 4\) transform, got shape \(3, 3\)"):
+        _check_T(np.eye(3), "x")
+    assert _check_T(np.eye(4).tolist(), "x").dtype == np.float64
+
+
+@pytest.mark.parametrize("override,needles", [
+    ("tolerance.rot_deg=-1", ["rot_deg must be a finite number > 0", "got -1", "tolerance.rot_deg=0.5"]),
+    ("tolerance.rot_deg=0", ["rot_deg must be a finite number > 0", "got 0"]),
+    ("tolerance.trans_cm=-2.5", ["trans_cm must be a finite number > 0", "got -2.5", "tolerance.trans_cm=5"]),
+    ("tolerance.trans_cm=NaN", ["trans_cm must be a finite number > 0", "got nan"]),
+], ids=["rot-negative", "rot-zero", "trans-negative", "trans-nan"])
+def test_report_bad_tolerance(override, needles, sim, calibrated, tmp_path, capsys):
+    """Each was accepted (a page with a verdict against a negative tolerance)."""
+    err = expect_cli_error(["report", calibrated / "result.json", "--vehicle", next(iter(sim[1])), "--out",
+                            tmp_path / "r.html", "--set", override], capsys, "Tolerance at tolerance", *needles)
+    assert _one_paragraph(err)
+    assert not (tmp_path / "r.html").exists()
+
+
+def test_calibrate_when_result_json_is_a_directory(sim, tmp_path, capsys):
+    """The error named the temporary file (result.NNNN.tmp.json) the writer renames over the target."""
+    root, _ = sim
+    out = tmp_path / "run"
+    (out / "result.json").mkdir(parents=True)
+    err = expect_cli_error(_calibrate(root, out, "--max-frames", "1"), capsys,
+                           f"{out / 'result.json'} is a directory", f"[file {out / 'result.json'}]")
+    assert ".tmp" not in err and _one_paragraph(err)
+    assert (out / "result.json").is_dir() and not list(out.glob("*.tmp*"))
+
+
 @pytest.mark.parametrize("override,needle", [("epochs=0", "epochs must be >= 1"), ("lr=-0.1", "lr must be >= 0"),
                                              ("batch_size=-1", "batch_size must be >= 1")])
 def test_train_bad_set_values_fail_before_training(override, needle, sim, tmp_path, capsys):

@@ -68,8 +68,29 @@ def extrinsic_report(T_cam_radar: np.ndarray) -> dict:
             "t_m": [float(x) for x in T[:3, 3]]}
 
 
-def _array(x) -> np.ndarray | None:
-    return None if x is None else np.asarray(x, np.float64)
+def _matrix(x, n: int, name: str) -> np.ndarray:
+    """``x`` as a finite (n, n) float64 matrix; ``ValueError`` naming ``name`` otherwise (a result read back)."""
+    try:
+        a = np.asarray(x, np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} is not a {n}x{n} matrix of numbers (got {str(x)[:60]})") from None
+    if a.shape != (n, n):
+        raise ValueError(f"{name} is not a {n}x{n} matrix (shape {a.shape})")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} holds non-finite values (NaN/inf)")
+    return a
+
+
+def _mapping(d, name: str) -> dict:
+    """``d`` when it is a JSON object; ``TypeError`` naming ``name`` and what it is otherwise."""
+    if not isinstance(d, dict):
+        raise TypeError(f"{name} is a JSON {_json_kind(d)}, not an object")
+    return d
+
+
+def _json_kind(x) -> str:
+    return {list: "array", str: "string", bool: "boolean", int: "number", float: "number",
+            type(None): "null"}.get(type(x), type(x).__name__)
 
 
 @dataclass(frozen=True)
@@ -107,8 +128,12 @@ class Estimate:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict) -> Estimate:
-        return cls(np.asarray(d["T_cam_radar"], np.float64), np.asarray(d["cov_right_radar"], np.float64),
+    def from_dict(cls, d: dict, where: str = "estimate") -> Estimate:
+        """EXTRINSIC (or FRAME) back; ``TypeError`` / ``ValueError`` naming ``where`` when it is not an
+        object or its transform / covariance is not a finite 4x4 / 6x6 matrix (``KeyError``: a missing key)."""
+        d = _mapping(d, where)
+        return cls(_matrix(d["T_cam_radar"], 4, f"{where}.T_cam_radar"),
+                   _matrix(d["cov_right_radar"], 6, f"{where}.cov_right_radar"),
                    std_from_dict(d["std_cam"], STD_FRAME), d["status"], bool(d.get("regularised", False)),
                    tuple(d.get("weak_directions", ())))
 
@@ -156,10 +181,11 @@ class FrameEstimate:
         }
 
     @classmethod
-    def from_dict(cls, d: dict) -> FrameEstimate:
+    def from_dict(cls, d: dict, where: str = "frame") -> FrameEstimate:
+        d = _mapping(d, where)
         return cls(
             index=int(d["index"]), frame_id=d["frame_id"], timestamp_us=int(d["timestamp_us"]),
-            estimate=Estimate.from_dict(d), n_window=int(d["n_window"]), n_total=int(d["n_total"]),
+            estimate=Estimate.from_dict(d, where), n_window=int(d["n_window"]), n_total=int(d["n_total"]),
             inlier_fraction=float(d["inlier_fraction"]), step_statistic=d["step_statistic"],
             step_threshold=d["step_threshold"], step_alarm=bool(d["step_alarm"]), solve_ms=float(d["solve_ms"]),
             cov_ms=float(d["cov_ms"]), events=tuple(d.get("events", ())),
@@ -208,11 +234,19 @@ class VehicleResult:
 
     @classmethod
     def from_dict(cls, d: dict, vehicle: str | None = None) -> VehicleResult:
+        """``TypeError`` / ``ValueError`` naming the vehicle and the field for an entry that is not an object,
+        or an estimate whose transform / covariance is not a finite 4x4 / 6x6 matrix; ``KeyError``: a missing key."""
+        where = f"vehicles[{vehicle!r}]" if vehicle is not None else "vehicle result"
+        d = _mapping(d, where)
         truth, crb = d.get("truth"), d.get("crb_std_cam")
+        trajectory = d.get("trajectory", [])
+        if not isinstance(trajectory, list):
+            raise TypeError(f"{where}.trajectory is a JSON {_json_kind(trajectory)}, not an array")
         return cls(
-            vehicle=d.get("vehicle", vehicle or ""), final=Estimate.from_dict(d["final"]),
-            trajectory=[FrameEstimate.from_dict(f) for f in d.get("trajectory", [])],
-            truth_T=None if truth is None else _array(truth["T_cam_radar"]), error=d.get("error"),
+            vehicle=d.get("vehicle", vehicle or ""), final=Estimate.from_dict(d["final"], f"{where}.final"),
+            trajectory=[FrameEstimate.from_dict(f, f"{where}.trajectory[{k}]") for k, f in enumerate(trajectory)],
+            truth_T=None if truth is None else _matrix(_mapping(truth, f"{where}.truth")["T_cam_radar"], 4,
+                                                       f"{where}.truth.T_cam_radar"), error=d.get("error"),
             crb_std=None if crb is None else std_from_dict(crb, STD_FRAME), drift=d.get("drift"),
             skipped=list(d.get("frames_skipped", [])), n_frames=int(d.get("n_frames", 0)),
             network=d.get("network"), method=d.get("method", ""), checkpoint=d.get("checkpoint"),
@@ -265,9 +299,11 @@ class CalibrationRun:
             raise DataError(f"not a calibrate result of schema_version {SCHEMA_VERSION} (found "
                             f"{version if version is not None else d.get('schema') if isinstance(d, dict) else d!r}); "
                             "re-run hybrid-calib calibrate with --overwrite", path=source or None)
+        vehicles = _mapping(d["vehicles"], '"vehicles"')
+        failed = _mapping(d.get("vehicles_failed") or {}, '"vehicles_failed"')
         return cls(d["data"], d["version"], d["correspondences"], d["mode"],
-                   {name: VehicleResult.from_dict(v, name) for name, v in d["vehicles"].items()},
-                   {str(k): str(v) for k, v in (d.get("vehicles_failed") or {}).items()})
+                   {name: VehicleResult.from_dict(v, name) for name, v in vehicles.items()},
+                   {str(k): str(v) for k, v in failed.items()})
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=2)
@@ -282,7 +318,8 @@ class CalibrationRun:
 
     @classmethod
     def load(cls, path: str | Path) -> CalibrationRun:
-        """Read a ``result.json``; ``DataError`` naming it when it is missing, not JSON or another schema."""
+        """Read a ``result.json``; ``DataError`` naming it when it is missing, not JSON, another schema, or
+        incomplete / invalid (a missing key, an entry that is not an object, a non-finite or misshapen matrix)."""
         path = Path(path)
         try:
             text = path.read_text()
@@ -290,5 +327,5 @@ class CalibrationRun:
         except (OSError, json.JSONDecodeError) as e:
             raise DataError(f"calibrate result unreadable ({e})", path=str(path)) from None
         except (KeyError, TypeError, ValueError) as e:
-            raise DataError(f"calibrate result incomplete ({type(e).__name__}: {e}); re-run hybrid-calib "
+            raise DataError(f"calibrate result incomplete or invalid ({type(e).__name__}: {e}); re-run hybrid-calib "
                             "calibrate with --overwrite", path=str(path)) from None

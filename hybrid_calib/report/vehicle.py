@@ -28,6 +28,10 @@ class ReportConfig:
     frames: int = 3  # camera frames shown before / after, spread over the drive
     checkpoint: str = ""  # network checkpoint for the attention figure ("" = the one the result names, if any)
 
+    def __post_init__(self):
+        if isinstance(self.frames, bool) or not isinstance(self.frames, int) or self.frames < 0:
+            raise ValueError(f"frames must be an integer >= 0 (camera frames shown), got {self.frames!r}")
+
 
 def pick_vehicle(run: CalibrationRun, vehicle: str | None, source: str) -> str:
     """The vehicle to report: ``vehicle`` or the run's only one; ``HybridCalibError`` otherwise."""
