@@ -159,3 +159,25 @@ def test_direction_of_travel_from_matches_when_the_rotation_is_known():
     assert cm is not None, why
     err = np.degrees(np.arccos(np.clip(cm.c @ c_true / np.linalg.norm(c_true), -1, 1)))
     assert err < 0.5 and cm.n_inliers >= 150
+
+
+def test_the_gate_uses_the_tightest_honest_covariance():
+    """The window's first covariance is its network prior inflated by N D (a weighting for a bias the
+    N priors share, not their uncertainty). A failed VO pair 21 deg off passes a gate that wide, and
+    the motion then sets the yaw; gated against the frame's own pass (C + D) it is refused."""
+    from hybrid_calib.hybrid.motion import gated_innovation
+
+    X = nominal_T_cam_radar()
+    m = _measurement(X, 0.2)
+    bad = MotionMeasurement(m.c, m.R_A, m.s, m.psi + np.radians(21.0), m.sigma, m.speed)
+    C = np.diag([np.radians(1.5) ** 2] * 3 + [0.3 ** 2] * 3)
+    D = np.diag([np.radians(3.3) ** 2] * 3 + [0.8 ** 2] * 3)
+    window = C + 40 * D  # the weighting covariance after the first of 40 frames
+    conf = MotionConfig()
+    wide = innovation(X, bad, conf, window)
+    fo = fold(GaussianPrior(X, window), X, wide, conf)
+    assert fo is not None and np.degrees(abs(local(X, fo.prior.T)[2])) > 10  # accepted: the yaw jumps
+    inn = gated_innovation(X, bad, conf, (C + D, window))
+    assert inn.std < wide.std and fold(GaussianPrior(X, window), X, inn, conf) is None
+    good = gated_innovation(X, m, conf, (C + D, None))  # a measurement that fits passes either way
+    assert fold(GaussianPrior(X, window), X, good, conf) is not None

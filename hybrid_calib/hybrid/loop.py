@@ -43,7 +43,7 @@ from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.geometry import local, se3_exp
 from hybrid_calib.hybrid.average import AverageConfig, robust_average
 from hybrid_calib.hybrid.measurement import MeasurementConfig, frame_inputs, prior_trusted
-from hybrid_calib.hybrid.motion import MotionConfig, MotionSource, fold, innovation
+from hybrid_calib.hybrid.motion import MotionConfig, MotionSource, fold, gated_innovation
 from hybrid_calib.hybrid.network import NetworkRunner, build_runner, refine_checkpoint, shipped_checkpoint
 from hybrid_calib.hybrid.ood import OODPolicy, decide, json_score, out_of_domain, skip_record
 from hybrid_calib.metrics import extrinsic_error
@@ -354,8 +354,9 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
         if motion is not None and fi.prior is not None:
             prior = GaussianPrior(fi.prior.T, fi.prior.cov + inflate)
             m, why = motion.measurement(pair, i, T[:3, :3]) if pair is not None else (None, "first frame")
-            inn = None if m is None else innovation(T, m, conf.motion,
-                                                    prior.cov if reported_cov is None else reported_cov)
+            # gated by the tighter of the estimate's covariance and this frame's pass with its drive error
+            single = fi.prior.cov + inflate / len(drive.indices)
+            inn = None if m is None else gated_innovation(T, m, conf.motion, (single, reported_cov))
             fo = fold(prior, T, inn, conf.motion) if inn is not None else None
             g_frames.append(fo.gain_motion if fo is not None else np.zeros(6))
             if fo is not None:

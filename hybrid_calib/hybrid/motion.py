@@ -225,6 +225,16 @@ def innovation(T: np.ndarray, m: MotionMeasurement, conf: MotionConfig, cov: np.
     return Innovation(r, J, sigma, float(np.sqrt(sigma ** 2 + float(J @ cov @ J))))
 
 
+def gated_innovation(T: np.ndarray, m: MotionMeasurement, conf: MotionConfig, covs) -> Innovation:
+    """``innovation`` of ``m`` at ``T`` against the tightest of ``covs`` ((6, 6) each, None skipped): each is
+    an upper bound on the uncertainty of ``T`` (the window's reported covariance; the frame's own network
+    pass with its drive-common error), so the smallest innovation std is the honest gate. The hybrid's
+    window weights its network priors with ``C + N D`` (generalised least squares for a shared bias):
+    used as the gate, that covariance is ~sqrt(N) too wide in the first frames, and one failed VO pair
+    (a 21 deg heading on a rainy validation drive) passed it and set the yaw for the whole drive."""
+    return min((innovation(T, m, conf, c) for c in covs if c is not None), key=lambda x: x.std)
+
+
 @dataclass(frozen=True)
 class Folded:
     """A frame's prior with the motion folded in. prior: the combined Gaussian. info_motion: (6, 6)
