@@ -181,3 +181,28 @@ def test_the_gate_uses_the_tightest_honest_covariance():
     assert inn.std < wide.std and fold(GaussianPrior(X, window), X, inn, conf) is None
     good = gated_innovation(X, m, conf, (C + D, None))  # a measurement that fits passes either way
     assert fold(GaussianPrior(X, window), X, good, conf) is not None
+
+
+def test_consistent_residuals_beyond_the_gate_are_admitted_by_consensus():
+    """A network estimate that starts beyond the gate would be locked out of every motion correction;
+    three gated-out residuals in a row that agree (one side, within gate x their own std) say the
+    estimate is off and are admitted. Scattered outliers (a failed VO pair now and then) are not."""
+    from hybrid_calib.hybrid.motion import Innovation, MotionGate
+
+    conf = MotionConfig()
+    s = np.radians(1.13)
+
+    def inn(r_deg):
+        return Innovation(np.radians(r_deg), np.zeros(6), s, 1.2 * s)  # gate: 3 x 1.36 deg = 4.1 deg
+
+    g = MotionGate(conf)
+    assert g.admit(inn(1.0)) and not g.admitted_by_consensus
+    assert not g.admit(inn(8.0)) and not g.admit(inn(9.5))  # two: not yet a consensus
+    assert g.admit(inn(7.5)) and g.admitted_by_consensus  # the third agrees: the estimate is 8 deg off
+    assert g.admit(inn(6.0)) and g.admitted_by_consensus  # still beyond the gate, still agreeing
+    assert g.admit(inn(0.5)) and not g.admitted_by_consensus and g.recent == []  # back inside: reset
+    scattered = MotionGate(conf)
+    assert not any(scattered.admit(inn(r)) for r in (21.0, -9.0, 15.0, -30.0, 6.0))  # both sides / far apart
+    assert not MotionGate(MotionConfig(consensus=0)).admit(inn(8.0))
+    with pytest.raises(ValueError, match="consensus"):
+        MotionConfig(consensus=-1)

@@ -43,7 +43,7 @@ from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.geometry import local, se3_exp
 from hybrid_calib.hybrid.average import AverageConfig, robust_average
 from hybrid_calib.hybrid.measurement import MeasurementConfig, frame_inputs, prior_trusted
-from hybrid_calib.hybrid.motion import MotionConfig, MotionSource, fold, gated_innovation
+from hybrid_calib.hybrid.motion import MotionConfig, MotionGate, MotionSource, fold, gated_innovation
 from hybrid_calib.hybrid.network import NetworkRunner, build_runner, refine_checkpoint, shipped_checkpoint
 from hybrid_calib.hybrid.ood import OODPolicy, decide, json_score, out_of_domain, skip_record
 from hybrid_calib.metrics import extrinsic_error
@@ -333,6 +333,7 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
     in_window, pending = [], None  # drive positions of the window's frames; a mount step not yet applied
     inflate = len(drive.indices) * np.diag(np.asarray(mconf.drive_std, np.float64) ** 2)
     s_mot = np.radians(conf.motion.drive_std_deg)
+    motion_gate = MotionGate(conf.motion)
     for k, i in enumerate(tqdm(drive.indices, desc=f"hybrid {drive.vehicle}", disable=not conf.progress,
                                leave=False)):
         pair, prev = prev, i
@@ -357,13 +358,14 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
             # gated by the tighter of the estimate's covariance and this frame's pass with its drive error
             single = fi.prior.cov + inflate / len(drive.indices)
             inn = None if m is None else gated_innovation(T, m, conf.motion, (single, reported_cov))
-            fo = fold(prior, T, inn, conf.motion) if inn is not None else None
+            fo = fold(prior, T, inn, conf.motion, gated=False) if inn is not None and motion_gate.admit(inn) else None
             g_frames.append(fo.gain_motion if fo is not None else np.zeros(6))
             if fo is not None:
                 prior = fo.prior
                 mrec = {"motion": {"residual_deg": fo.residual_deg, "weight": fo.weight,
                                    "sigma_deg": float(np.degrees(inn.sigma)), "speed_mps": m.speed,
-                                   "vo_inliers": m.n_vo_inliers}}
+                                   "vo_inliers": m.n_vo_inliers,
+                                   **({"admitted": "consensus"} if motion_gate.admitted_by_consensus else {})}}
             else:
                 mrec = {"motion_skipped": why or "residual outside the innovation gate (MotionConfig.gate)"}
             if inn is not None:

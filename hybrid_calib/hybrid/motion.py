@@ -53,10 +53,14 @@ from hybrid_calib.sensors.visual_odometry import (
 @dataclass(frozen=True)
 class MotionConfig:
     enabled: bool = True  # the motion constraint in the hybrid (off: the network's SE(3) alone)
-    sigma_vo_deg: float = 1.12  # VO heading std, deg (fitted on validation drives: benchmarks/motion_fit.py, docs)
+    sigma_vo_deg: float = 1.13  # VO heading std, deg (fitted on validation drives: benchmarks/motion_fit.py, docs)
     huber: float = 2.0  # Huber threshold on the whitened residual at the frame's start
     gate: float = 3.0  # innovation gate: |r| > gate * sqrt(sigma^2 + J C J^T) (C: the estimate's covariance) -> dropped
-    drive_std_deg: float = 0.18  # error common to a drive's motion measurements, deg (added to the covariance)
+    drive_std_deg: float = 0.29  # error common to a drive's motion measurements, deg (added to the covariance)
+    # this many gated-out residuals in a row that agree with each other (within gate x their own std)
+    # and lie on one side: the estimate is off, not the measurements; they are admitted (Huber-weighted)
+    # until the residuals fall inside the gate again (0: never; ``MotionGate``)
+    consensus: int = 3
     min_speed_mps: float = 2.0  # slower: the Doppler heading is too noisy, the pair is skipped
     max_gap_s: float = 1.5  # frames further apart are not a pair
     # VO's rotation angle must match the vehicle's own (ego poses: odometry, mount-independent) within
@@ -72,6 +76,8 @@ class MotionConfig:
     def __post_init__(self):
         if self.rotation not in ("ego", "vo"):
             raise ValueError(f"MotionConfig.rotation={self.rotation!r}; valid: ego, vo")
+        if self.consensus < 0:
+            raise ValueError(f"MotionConfig.consensus must be >= 0 (0: off), got {self.consensus}")
         if self.sigma_vo_deg < 0 or self.drive_std_deg < 0 or self.huber <= 0 or self.min_speed_mps < 0:
             raise ValueError("MotionConfig: sigma_vo_deg, drive_std_deg, min_speed_mps must be >= 0 and huber > 0 "
                              f"(got {self.sigma_vo_deg}, {self.drive_std_deg}, {self.min_speed_mps}, {self.huber})")
@@ -235,6 +241,38 @@ def gated_innovation(T: np.ndarray, m: MotionMeasurement, conf: MotionConfig, co
     return min((innovation(T, m, conf, c) for c in covs if c is not None), key=lambda x: x.std)
 
 
+class MotionGate:
+    """The innovation gate of one drive, with re-admission by consensus.
+
+    ``admit(inn)``: True when ``|r| <= gate * std`` (the innovation's std: measurement and estimate).
+    Otherwise the residual is remembered; once the last ``consensus`` remembered residuals (in a row)
+    lie on one side and within ``gate`` of their median by their own measurement std, the estimate is
+    what is off (the tight gate protects a good estimate from a failed VO pair, but it would also lock
+    a network estimate that starts beyond it out of every correction), and they are admitted, Huber-
+    weighted by ``fold``, until a residual passes the gate again. ``admitted_by_consensus`` tells the
+    caller which way the last one went in."""
+
+    def __init__(self, conf: MotionConfig):
+        self.conf = conf
+        self.recent: list[float] = []
+        self.admitted_by_consensus = False
+
+    def admit(self, inn: Innovation) -> bool:
+        c = self.conf
+        self.admitted_by_consensus = False
+        if abs(inn.r) <= c.gate * inn.std:
+            self.recent.clear()
+            return True
+        self.recent = (self.recent + [inn.r])[-max(c.consensus, 1):]
+        if c.consensus == 0 or len(self.recent) < c.consensus:
+            return False
+        r = np.asarray(self.recent)
+        one_side = bool(np.all(r > 0) or np.all(r < 0))
+        agree = bool(np.all(np.abs(r - np.median(r)) <= c.gate * inn.sigma))
+        self.admitted_by_consensus = one_side and agree
+        return self.admitted_by_consensus
+
+
 @dataclass(frozen=True)
 class Folded:
     """A frame's prior with the motion folded in. prior: the combined Gaussian. info_motion: (6, 6)
@@ -249,14 +287,16 @@ class Folded:
     weight: float
 
 
-def fold(prior: GaussianPrior, T0: np.ndarray, inn: Innovation, conf: MotionConfig) -> Folded | None:
+def fold(prior: GaussianPrior, T0: np.ndarray, inn: Innovation, conf: MotionConfig,
+         gated: bool = True) -> Folded | None:
     """The network prior (``prior``) and the motion residual linearised at ``T0`` (4, 4) (``inn``,
     ``innovation`` at T0) in one Gaussian (module doc), or None when it fails the innovation gate
-    ``|r| > gate * std``. ``prior.cov``: (6, 6) right tangent, radar frame [rad, m]."""
+    ``|r| > gate * std`` (``gated=False``: the caller's ``MotionGate`` decided). ``prior.cov``: (6, 6)
+    right tangent, radar frame [rad, m]."""
     from hybrid_calib.geometry import local
 
     r, J, sigma = inn.r, inn.J, inn.sigma
-    if abs(r) > conf.gate * inn.std:
+    if gated and abs(r) > conf.gate * inn.std:
         return None
     z = abs(r) / max(sigma, 1e-12)
     weight = min(1.0, conf.huber / z) if z > 0 else 1.0
