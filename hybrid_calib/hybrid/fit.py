@@ -228,12 +228,15 @@ def fit_measurement(roots, version: str, checkpoint: str, out: str | Path, start
     cands = {}
     for rows in rows_options:
         # round 1: the loop with the unfitted model (its rows, no prior, no shared error) gives the regime
+        # its passes in a cache of their own: the fit reads exactly them, whatever later rounds (or an
+        # earlier run into the same --out) left in the shared cache
+        round1 = {**base, "measurement": {"rows": rows}, "cache_dir": str(out / f"network-cache-round1-{rows}")}
         for k, r in enumerate(roots):
-            run_calibration(r, version, out / f"round1-{rows}-{k}", {**base, "measurement": {"rows": rows}})
+            run_calibration(r, version, out / f"round1-{rows}-{k}", round1)
         from learned.checkpoint import read_checkpoint_meta
 
         net_range = read_checkpoint_meta(checkpoint)[1].get("train_config", {}).get("perturbation", "R1")
-        passes = in_range(load_passes(out / "network-cache", truths), net_range)
+        passes = in_range(load_passes(out / f"network-cache-round1-{rows}", truths), net_range)
         st = pass_statistics(passes, w.factor, w.schedule, rows)
         s = fit_sigma_scale(st["norms"])
         fitted = fit_from_statistics(pass_statistics(passes, w.factor, w.schedule, rows, s), rows, s)
