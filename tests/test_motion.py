@@ -206,3 +206,17 @@ def test_consistent_residuals_beyond_the_gate_are_admitted_by_consensus():
     assert not MotionGate(MotionConfig(consensus=0)).admit(inn(8.0))
     with pytest.raises(ValueError, match="consensus"):
         MotionConfig(consensus=-1)
+
+
+def test_the_motion_moves_the_rotation_only_unless_told():
+    """Its lever-arm sensitivity to the translation is small and, against the network's weak
+    translation prior, walked the lateral offset metres away on 200-frame R2 drives: off by default."""
+    X = nominal_T_cam_radar() @ make_T(so3_exp([0.0, 0.0, np.radians(1.0)]), np.array([0.3, 0.2, 0.0]))
+    m = _measurement(nominal_T_cam_radar(), 0.4)
+    C = np.diag([np.radians(2.0) ** 2] * 3 + [0.5 ** 2] * 3)
+    rot_only = innovation(X, m, MotionConfig(), C)
+    both = innovation(X, m, MotionConfig(translation=True), C)
+    assert np.all(rot_only.J[3:] == 0.0) and np.any(both.J[3:] != 0.0)
+    np.testing.assert_allclose(rot_only.J[:3], both.J[:3])
+    fo = fold(GaussianPrior(X, C), X, rot_only, MotionConfig())
+    assert np.allclose(local(X, fo.prior.T)[3:], 0.0) and abs(local(X, fo.prior.T)[2]) > 0
