@@ -155,6 +155,9 @@ def test_out_of_domain_frames_are_dropped_with_the_reason(fitted, sim_root, tmp_
     assert len(dropped) == v.ood["dropped"] == sum(s > thr for s in scores) >= 1
     assert all("out of domain" in s["reason"] for s in dropped) and len(v.trajectory) == 3 - len(dropped)
     assert not v.final.status.startswith("inconclusive")
+    # the kept frames keep their drive positions: a dropped frame leaves a gap (step alarms, plots, reports)
+    kept = [k for k, s in enumerate(scores) if s <= thr]
+    assert [f.index for f in v.trajectory] == kept
 
 
 def test_checkpoint_without_ood_block_keeps_working_and_says_so(sim_root, tmp_path):

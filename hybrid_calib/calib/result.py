@@ -15,7 +15,7 @@
           "crb_std_cam": STD | null,       # Cramer-Rao std, oracle data only (docs: crb.py)
           "drift": DriftDecision.to_dict() | null,    # vs the vehicle's reference extrinsic
           "network": NETWORK | null,       # the producer's own SE(3) (measurement files with a network block)
-          "step_alarms": [frame index, ...],
+          "step_alarms": [FRAME index, ...],   # the trajectory's index of each frame that raised an alarm
           "trajectory": [FRAME, ...],     # window mode: one per frame (pure: the network's per frame)
           "method": str, "checkpoint": str | null, "errors_against": "truth" | "tables" | null,
           "start": {"kind", "seed", "T_cam_radar"} | null,   # the vehicle's start (same for every method)
@@ -142,7 +142,7 @@ class Estimate:
 class FrameEstimate:
     """What the sliding window outputs after one frame."""
 
-    index: int  # running frame number in this calibrator (0-based)
+    index: int  # 0-based frame number: its position in the drive (learned methods), else the window's count
     frame_id: str
     timestamp_us: int
     estimate: Estimate

@@ -109,6 +109,11 @@ class Drive:
     def errors_against(self) -> str:
         return "truth" if self.simulated else "tables"
 
+    def positions(self) -> dict[int, int]:
+        """dataset index -> the frame's position in this drive (0-based): a learned trajectory's
+        ``FrameEstimate.index``, so frames the loop dropped leave gaps instead of shifting later ones."""
+        return {i: k for k, i in enumerate(self.indices)}
+
 
 def resolve_depth(data, version: str, conf: HybridConfig) -> tuple[str, str]:
     """(depth spec, note): ``conf.depth``, or lidar-densified on a real root with LiDAR, or "" (the
@@ -264,9 +269,9 @@ def with_cov(f: FrameEstimate, cov: np.ndarray, conf: HybridConfig) -> FrameEsti
 
 
 def _pure(runner, drive, T0, conf, tr):
-    traj, rows = [], tr.rows
-    for k, (_, out) in enumerate(_passes(runner, drive, T0, conf, tr)):
-        traj.append(_frame(k, out.rows_last.frame_id, out.rows_last.timestamp_us,
+    traj, rows, pos = [], tr.rows, drive.positions()
+    for i, out in _passes(runner, drive, T0, conf, tr):
+        traj.append(_frame(pos[i], out.rows_last.frame_id, out.rows_last.timestamp_us,
                            _estimate(out.T, runner.network_cov(out), conf), 1, out.seconds * 1e3))
         rows.append({"frame_id": out.rows_last.frame_id, "used": 0, "rejected": 0, "network_ms": out.seconds * 1e3,
                      "ood_score": json_score(runner.ood_score(out))})
@@ -279,11 +284,11 @@ def _pure_avg(runner, drive, T0, conf, tr):
     passes, rows = _passes(runner, drive, T0, conf, tr), tr.rows
     Ts = np.stack([o.T for _, o in passes]) if passes else np.zeros((0, 4, 4))
     covs = np.stack([runner.network_cov(o) + S for _, o in passes]) if passes else np.zeros((0, 6, 6))
-    traj, M = [], None
-    for k, (_, out) in enumerate(passes):
+    traj, M, pos = [], None, drive.positions()
+    for k, (i, out) in enumerate(passes):
         t0 = time.perf_counter()
         M, cov, w = robust_average(Ts[: k + 1], covs[: k + 1], conf.average, M)
-        traj.append(_frame(k, out.rows_last.frame_id, out.rows_last.timestamp_us, _estimate(M, cov, conf), k + 1,
+        traj.append(_frame(pos[i], out.rows_last.frame_id, out.rows_last.timestamp_us, _estimate(M, cov, conf), k + 1,
                            out.seconds * 1e3 + (time.perf_counter() - t0) * 1e3))
         rows.append({"frame_id": out.rows_last.frame_id, "used": 0, "rejected": 0, "network_ms": out.seconds * 1e3,
                      "ood_score": json_score(runner.ood_score(out))})
@@ -381,7 +386,7 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
             fe = dataclasses.replace(fe, step_alarm=True, events=(
                 *fe.events, pending.describe(conf.mount.threshold) + f"; window restarted from frame {pending.change}"))
             pending = None
-        traj.append(fe)
+        traj.append(dataclasses.replace(fe, index=k))  # the frame's position in the drive, not the window's count
         g_mot = np.sum(g_frames, axis=0) if g_frames else np.zeros(6)
         motion_gain.append(g_mot)
         T, fused_cov = fe.T if turned is None else turned, fe.cov
