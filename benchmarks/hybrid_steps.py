@@ -30,15 +30,6 @@ DRIVES = (("knock-urban", "urban", True), ("knock-highway", "highway", True), ("
           ("highway", "highway", False), ("straight", "straight", False))
 
 
-def drive_positions(root) -> dict[str, int]:
-    """camera token -> the frame's position in its vehicle's drive (0-based), over a simulated root."""
-    from hybrid_calib.hybrid.loop import HybridConfig, open_drives
-    from learned.dataset import camera_token
-
-    frames, drives = open_drives(root, "v1.0-sim", HybridConfig(), lidar=False)
-    return {camera_token(frames, i): k for d in drives.values() for k, i in enumerate(d.indices)}
-
-
 def main(argv=None) -> int:
     from hybrid_calib.hybrid import HybridConfig, run_calibration
     from hybrid_calib.sim.drive import SimConfig
@@ -64,10 +55,8 @@ def main(argv=None) -> int:
         root = simulate(merge(SimConfig, o), a.out / "data" / name, progress=False)
         run = run_calibration(root, "v1.0-sim", a.out / "cal" / name, hconf)
         change = a.frames // 2 if knocked else None
-        position = drive_positions(root)
         for v, vr in run.vehicles.items():
-            # drive frames, not the calibrator's running index (which skips the frames the loop dropped)
-            alarms = [position[f.frame_id] for f in vr.trajectory if f.step_alarm]
+            alarms = [f.index for f in vr.trajectory if f.step_alarm]  # drive frames (hybrid.loop.Drive.positions)
             after = [i for i in alarms if change is not None and i >= change]
             false = [i for i in alarms if change is None or i < change]
             rows.append({"drive": name, "vehicle": v, "knocked": knocked, "frames": len(vr.trajectory),

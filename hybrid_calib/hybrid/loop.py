@@ -336,7 +336,8 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
     T, fused_cov, traj = T0.copy(), None, []
     g_frames, motion_gain, prev, reported_cov = [], [], None, None
     in_window, pending = [], None  # drive positions of the window's frames; a mount step not yet applied
-    inflate = len(drive.indices) * np.diag(np.asarray(mconf.drive_std, np.float64) ** 2)
+    D = np.diag(np.asarray(mconf.drive_std, np.float64) ** 2)  # the network's drive-common error
+    inflate = len(drive.indices) * D
     s_mot = np.radians(conf.motion.drive_std_deg)
     motion_gate = MotionGate(conf.motion)
     for k, i in enumerate(tqdm(drive.indices, desc=f"hybrid {drive.vehicle}", disable=not conf.progress,
@@ -361,8 +362,7 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
             prior = GaussianPrior(fi.prior.T, fi.prior.cov + inflate)
             m, why = motion.measurement(pair, i, T[:3, :3]) if pair is not None else (None, "first frame")
             # gated by the tighter of the estimate's covariance and this frame's pass with its drive error
-            single = fi.prior.cov + inflate / len(drive.indices)
-            inn = None if m is None else gated_innovation(T, m, conf.motion, (single, reported_cov))
+            inn = None if m is None else gated_innovation(T, m, conf.motion, (fi.prior.cov + D, reported_cov))
             fo = fold(prior, T, inn, conf.motion, gated=False) if inn is not None and motion_gate.admit(inn) else None
             g_frames.append(fo.gain_motion if fo is not None else np.zeros(6))
             if fo is not None:

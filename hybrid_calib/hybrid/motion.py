@@ -228,14 +228,14 @@ class Innovation:
     def z(self) -> float:
         return self.r / self.std
 
+    def inside(self, gate: float) -> bool:
+        """The innovation gate: ``|r| <= gate * std`` (the one rule of ``fold`` and ``MotionGate``)."""
+        return abs(self.r) <= gate * self.std
+
 
 def innovation(T: np.ndarray, m: MotionMeasurement, conf: MotionConfig, cov: np.ndarray) -> Innovation:
     """The ``Innovation`` of ``m`` at ``T`` (4, 4); cov: (6, 6) the uncertainty of T."""
-    r, J = heading_residual(T, m)
-    if not conf.translation:
-        J = np.concatenate([J[:3], np.zeros(3)])
-    sigma = float(np.hypot(m.sigma, np.radians(conf.sigma_vo_deg)))
-    return Innovation(r, J, sigma, float(np.sqrt(sigma ** 2 + float(J @ cov @ J))))
+    return gated_innovation(T, m, conf, (cov,))
 
 
 def gated_innovation(T: np.ndarray, m: MotionMeasurement, conf: MotionConfig, covs) -> Innovation:
@@ -245,7 +245,12 @@ def gated_innovation(T: np.ndarray, m: MotionMeasurement, conf: MotionConfig, co
     window weights its network priors with ``C + N D`` (generalised least squares for a shared bias):
     used as the gate, that covariance is ~sqrt(N) too wide in the first frames, and one failed VO pair
     (a 21 deg heading on a rainy validation drive) passed it and set the yaw for the whole drive."""
-    return min((innovation(T, m, conf, c) for c in covs if c is not None), key=lambda x: x.std)
+    r, J = heading_residual(T, m)
+    if not conf.translation:
+        J = np.concatenate([J[:3], np.zeros(3)])
+    sigma = float(np.hypot(m.sigma, np.radians(conf.sigma_vo_deg)))
+    spread = min(float(J @ c @ J) for c in covs if c is not None)
+    return Innovation(r, J, sigma, float(np.sqrt(sigma ** 2 + spread)))
 
 
 class MotionGate:
@@ -267,7 +272,7 @@ class MotionGate:
     def admit(self, inn: Innovation) -> bool:
         c = self.conf
         self.admitted_by_consensus = False
-        if abs(inn.r) <= c.gate * inn.std:
+        if inn.inside(c.gate):
             self.recent.clear()
             return True
         self.recent = (self.recent + [inn.r])[-max(c.consensus, 1):]
@@ -303,7 +308,7 @@ def fold(prior: GaussianPrior, T0: np.ndarray, inn: Innovation, conf: MotionConf
     from hybrid_calib.geometry import local
 
     r, J, sigma = inn.r, inn.J, inn.sigma
-    if gated and abs(r) > conf.gate * inn.std:
+    if gated and not inn.inside(conf.gate):
         return None
     z = abs(r) / max(sigma, 1e-12)
     weight = min(1.0, conf.huber / z) if z > 0 else 1.0
