@@ -109,6 +109,7 @@ def main(argv=None) -> int:
                    help="candidate thresholds: quantiles of d2 on the calibration half of the fit frames")
     p.add_argument("--max-false-alarm", type=float, default=0.05)
     p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--device", default="cpu", help="torch device of the network (cpu, cuda)")
     p.add_argument("--out", required=True, type=Path)
     p.add_argument("--fit-into", action="store_true", help="write the chosen model into the checkpoint")
     a = p.parse_args(argv)
@@ -124,7 +125,8 @@ def main(argv=None) -> int:
     def runner_of(depth):
         def make(root, frames):
             tag = Path(root).name + "-" + (depth or "ckpt")
-            return NetworkRunner(a.checkpoint, frames, depth, a.out / "cache" / tag, a.out / "depth" / tag, a.threads)
+            return NetworkRunner(a.checkpoint, frames, depth, a.out / "cache" / tag, a.out / "depth" / tag, a.threads,
+                                 device=a.device)
         return make
 
     from hybrid_calib.hybrid.loop import trained_depth

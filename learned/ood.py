@@ -56,7 +56,7 @@ def frame_features(out: dict) -> dict[str, np.ndarray]:
     fused = out["fused"]
     B = fused[0].shape[0]
     desc = torch.cat([fused[0], fused[-1]], 1).double()
-    mass = torch.full((B,), float("nan"), dtype=torch.float64)
+    mass = torch.full((B,), float("nan"), dtype=torch.float64, device=desc.device)
     ent = mass.clone()
     fv = out["match"][0].get("fv")
     if fv is not None:
@@ -76,7 +76,8 @@ def frame_features(out: dict) -> dict[str, np.ndarray]:
         ent[none] = 1.0
     xi = lie.se3_log(out["T_deltas"][-1].detach().double())
     w = out["fusion_weights"][-1]
-    fusion = w[:, 0].double().mean(-1) if w is not None else torch.full((B,), 0.5, dtype=torch.float64)
+    fusion = (w[:, 0].double().mean(-1) if w is not None
+              else torch.full((B,), 0.5, dtype=torch.float64, device=desc.device))
     sig = torch.stack([mass, ent, xi[:, :3].norm(dim=1), xi[:, 3:].norm(dim=1),
                        out["log_var"][-1].double().mean(1), fusion], 1)
     sig = torch.nan_to_num(sig, nan=0.0)  # no FV matching head (ablations): constant signals

@@ -127,12 +127,13 @@ class NetworkRunner:
     """The network of a checkpoint over the frames of one dataset (see the module doc).
 
     frames: the indexable frames (``learned.dataset.open_frames``); depth: estimator spec ("" = the
-    checkpoint's training depth); cache_dir: network-output cache ("" = none); depth_cache: folder.
+    checkpoint's training depth); cache_dir: network-output cache ("" = none); depth_cache: folder;
+    device: torch device of the network ("cpu", "cuda"); outputs are always numpy on the CPU.
     """
 
     def __init__(self, checkpoint: str | Path, frames, depth: str = "", cache_dir: str | Path = "",
                  depth_cache: str | Path = "", threads: int = 2, min_confidence: float = 0.1,
-                 model_factory=None):
+                 model_factory=None, device: str = "cpu"):
         import torch
 
         from learned.checkpoint import load_model
@@ -141,7 +142,8 @@ class NetworkRunner:
         from learned.ood import ood_model_of
 
         torch.set_num_threads(max(1, threads))
-        self.model, self.ckpt = load_model(checkpoint, model_factory=model_factory)
+        self.device = torch.device(device)
+        self.model, self.ckpt = load_model(checkpoint, device=self.device, model_factory=model_factory)
         self.ood, self.ood_note = ood_model_of(self.ckpt.export, str(self.ckpt.path))
         trained = self.ckpt.train_config or {}
         self.depth_name = depth or trained_with(trained)
@@ -210,11 +212,11 @@ class NetworkRunner:
         from learned.dataset import collate
         from learned.export import ExportConfig, export_correspondences
         from learned.ood import frame_features
-        from learned.train import model_inputs
+        from learned.train import model_inputs, to_device
 
         t0 = time.perf_counter()
         batch = collate([{**s, "T_init": torch.from_numpy(np.asarray(T_in, np.float32))}])
-        inputs = model_inputs(batch)
+        inputs = to_device(model_inputs(batch), self.device)
         inputs["token"] = batch["token"]
         inputs["timestamp_us"] = batch["timestamp_us"]
         with torch.no_grad():
@@ -225,7 +227,7 @@ class NetworkRunner:
                 corr, cov = export_correspondences(self.model, out, inputs, conf)
                 rows.append(dataclasses.replace(corr[0], frame_id=str(batch["token"][0])))
             feats = frame_features(out)
-        T_iters = torch.stack([T[0].double() for T in out["T_iters"]]).numpy()
+        T_iters = torch.stack([T[0].double() for T in out["T_iters"]]).cpu().numpy()
         return NetworkOutput(np.asarray(T_in, np.float64), T_iters, np.asarray(cov[0], np.float64), rows[0], rows[1],
                              time.perf_counter() - t0, feats["descriptor"][0], feats["signals"][0])
 
