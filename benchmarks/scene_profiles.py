@@ -1,0 +1,138 @@
+"""How one drive's reflector heights differ from the radar-pixel factor's height model, measured.
+
+The per-drive scene nuisance of the factor (``factors.scene``; ``RadarPixelFactorConfig.scene_*``)
+stands for three deviations a drive's reflectors share: a height offset per range knot ``a`` (m), a
+left/right height slope ``c_y`` (m per m of lateral position) and an offset of the mean squared
+height per knot ``q`` (m^2), each with a prior std (0.25 m, 0.005 m/m, 0.35 m^2 by default). This
+benchmark measures those deviations on simulated drives, where every reflector's true height is
+known, so the priors can be checked against the world instead of only against NEES:
+
+1. per frame, the real reflectors that project into the image (``calib.oracle``, true positions,
+   no noise, no outliers), radar frame: slant range ``r``, lateral ``y``, height ``h``;
+2. per reflector, the factor's expectation under its fixed model (``factors.projection``: ``h ~
+   N(mean, std^2)`` truncated to the beam): ``d = h - E[h | r]``, ``s = h^2 - E[h^2 | r]``;
+3. per drive, least squares ``d = B(r) a + c_y y`` and ``s = B(r) q`` (``B``: the scene's range hats).
+
+Reported per preset: the RMS over drives of ``c_y`` (and as an angle: a height slope across the
+road is what a roll of the radar about its forward axis looks like), of ``a`` and ``q`` per knot, and
+per drive ``c_y`` with the number of reflectors. The per-drive values include the drive's own
+sampling (the reflectors it happened to see), which is what the estimate of that drive meets.
+
+    PYTHONPATH=. .venv/bin/python benchmarks/scene_profiles.py --data SIM_urban SIM_highway SIM_rain SIM_straight \
+        --frames 60 --out OUT
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+
+def drive_rows(frames, conf) -> np.ndarray:
+    """(N, 3) slant range, lateral y, height (metres, radar frame) of the real reflectors in view."""
+    from hybrid_calib.calib.oracle import OracleConfig, oracle_from_frame
+    from hybrid_calib.errors import DataError
+
+    oconf = OracleConfig(n_per_frame=100000, sigma_px=1e-6, outlier_frac=0.0, elevation="world")
+    g = np.random.default_rng(0)
+    out = []
+    for f in frames:
+        try:
+            _, truth = oracle_from_frame(f, oconf, g)
+        except DataError as e:
+            if "no real radar reflector" in str(e):
+                continue
+            raise
+        p = truth.points_true[truth.inlier]
+        out.append(np.stack([np.linalg.norm(p, axis=1), p[:, 1], p[:, 2]], 1))
+    return np.concatenate(out) if out else np.zeros((0, 3))
+
+
+def fit_drive(rows: np.ndarray, conf) -> dict:
+    """The drive's scene deviations from the factor's model (module doc, step 2-3)."""
+    from factors.projection import truncated_normal_moments
+    from factors.scene import range_hats
+
+    r, y, h = rows.T
+    beam, centre = np.deg2rad(conf.elevation_beam_deg), np.deg2rad(conf.elevation_mean_deg)
+    mean_h, std_h = truncated_normal_moments(conf.reflector_height_mean_m, conf.reflector_height_std_m,
+                                             r * np.sin(centre - beam), r * np.sin(centre + beam))
+    d, s = h - mean_h, h ** 2 - (mean_h ** 2 + std_h ** 2)
+    B = range_hats(r, conf.scene_knots_m)
+    seen = B.sum(0) > 1.0  # knots with reflectors near them
+    A = np.concatenate([B[:, seen], y[:, None]], 1)
+    coef = np.linalg.lstsq(A, d, rcond=None)[0]
+    a = np.full(B.shape[1], np.nan)
+    a[seen] = coef[:-1]
+    q = np.full(B.shape[1], np.nan)
+    q[seen] = np.linalg.lstsq(B[:, seen], s, rcond=None)[0]
+    return {"reflectors": int(len(r)), "c_y": float(coef[-1]), "a": a.tolist(), "q": q.tolist(),
+            "knot_weight": B.sum(0).tolist(), "lateral_std_m": float(np.std(y)),
+            "mean_d": float(np.mean(d)), "mean_s": float(np.mean(s))}
+
+
+def rms(x) -> float:
+    x = np.asarray(x, np.float64)
+    x = x[np.isfinite(x)]
+    return float(np.sqrt(np.mean(x ** 2))) if len(x) else float("nan")
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--data", nargs="+", required=True, type=Path, help="v1.0-sim roots (one preset each)")
+    p.add_argument("--frames", type=int, default=60, help="keyframes per drive (the first N)")
+    p.add_argument("--out", required=True, type=Path)
+    a = p.parse_args(argv)
+
+    from factors.config import RadarPixelFactorConfig
+    from hybrid_calib.config import save_json_atomic
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+
+    conf = RadarPixelFactorConfig()
+    a.out.mkdir(parents=True, exist_ok=True)
+    result = {"command": "PYTHONPATH=. python benchmarks/scene_profiles.py " + " ".join(sys.argv[1:] if argv is None
+                                                                                          else argv),
+              "knots_m": list(conf.scene_knots_m),
+              "priors": {"scene_height_std_m": conf.scene_height_std_m,
+                         "scene_lateral_slope_std": conf.scene_lateral_slope_std,
+                         "scene_height_sq_std_m2": conf.scene_height_sq_std_m2},
+              "roots": {}}
+    for root in a.data:
+        ds = NuScenesRadarCamera(root, "v1.0-sim", conf={"check_images": False, "skip_empty_radar": False})
+        drives = {}
+        for scene, idx in ds.frames_by_vehicle().items():
+            idx = idx[: a.frames]
+            rows = drive_rows([ds[i] for i in idx], conf)
+            if len(rows) < 20:
+                print(f"{root.name} {scene}: {len(rows)} reflectors, skipped")
+                continue
+            drives[scene] = fit_drive(rows, conf)
+            print(f"{root.name} {scene}: {len(rows)} reflectors, c_y {drives[scene]['c_y']:+.4f} m/m", flush=True)
+        c = [v["c_y"] for v in drives.values()]
+        A = np.array([v["a"] for v in drives.values()])
+        Q = np.array([v["q"] for v in drives.values()])
+        result["roots"][str(root)] = {
+            "drives": drives,
+            "c_y_rms": rms(c), "c_y_rms_deg": float(np.degrees(np.arctan(rms(c)))),
+            "c_y_mean": float(np.mean(c)),
+            "a_rms_per_knot": [rms(A[:, k]) for k in range(A.shape[1])],
+            "q_rms_per_knot": [rms(Q[:, k]) for k in range(Q.shape[1])]}
+    save_json_atomic(a.out / "scene_profiles.json", result)
+    knots = ", ".join(f"{k:g}" for k in conf.scene_knots_m)
+    print(f"\n| root | drives | c_y RMS m/m (deg) | c_y mean | a RMS per knot ({knots} m), m | q RMS per knot, m^2 |")
+    print("|---|---|---|---|---|---|")
+    for root, v in result["roots"].items():
+        print(f"| {Path(root).name} | {len(v['drives'])} | {v['c_y_rms']:.4f} ({v['c_y_rms_deg']:.2f}) | "
+              f"{v['c_y_mean']:+.4f} | {', '.join(f'{x:.2f}' for x in v['a_rms_per_knot'])} | "
+              f"{', '.join(f'{x:.2f}' for x in v['q_rms_per_knot'])} |")
+    pr = result["priors"]
+    print(f"(priors: a {pr['scene_height_std_m']} m, c_y {pr['scene_lateral_slope_std']} m/m, "
+          f"q {pr['scene_height_sq_std_m2']} m^2; wrote {a.out / 'scene_profiles.json'})")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
