@@ -130,7 +130,34 @@ def read_checkpoint_meta(path: str | Path) -> tuple[Path, dict[str, Any]]:
         raise CheckpointError("checkpoint metadata lacks epoch, model_config or files.weights; it is not a "
                               "hybrid-calib checkpoint (ckpt-NNNN.json written by `hybrid-calib train`)",
                               path=str(path))
+    for key in ("train_config", "metrics", "export"):
+        if not isinstance(meta.get(key, {}), dict):
+            raise CheckpointError(f"checkpoint field {key!r} is a JSON {type(meta[key]).__name__}, not an object; the "
+                                  "file is corrupt: fix it, copy it again or pick another checkpoint", path=str(path))
     return path, meta
+
+
+def check_export(export: dict[str, Any], path: Path) -> None:
+    """``CheckpointError`` naming the file when the ``export`` block cannot work: an unknown key (a typo
+    is otherwise ignored), a ``cov_scale`` / ``sigma_scale`` that is not a finite factor > 0 (or 6 for
+    ``cov_scale``), or a ``hybrid`` / ``ood`` block that is not an object (their fields are checked
+    where they are used: ``hybrid_calib.hybrid.loop.measurement_config``, ``learned.ood``)."""
+    import dataclasses
+
+    from learned.export import ExportConfig, scale_problem
+
+    keys = {f.name for f in dataclasses.fields(ExportConfig)}
+    unknown = sorted(set(export) - keys)
+    problem = (f"unknown key(s) {unknown} (valid: {sorted(keys)})" if unknown else
+               scale_problem(export.get("cov_scale", 1.0), export.get("sigma_scale", 1.0)))
+    if not problem:
+        bad = [k for k in ("hybrid", "ood") if not isinstance(export.get(k, {}), dict)]
+        problem = f"{bad[0]} is a JSON {type(export[bad[0]]).__name__}, not an object" if bad else ""
+    if problem:
+        raise CheckpointError(f"checkpoint export block: {problem}; fix it in the JSON, or remove the entry and "
+                              "fit it again (cov_scale: hybrid-calib evaluate --split val --fit-uncertainty; "
+                              "sigma_scale: benchmarks/correspondence_quality.py --fit-into; hybrid: "
+                              "benchmarks/hybrid_fit.py --fit-into; ood: benchmarks/ood_fit.py)", path=str(path))
 
 
 def _weights_path(path: Path, meta: dict[str, Any]) -> Path:
@@ -182,6 +209,7 @@ def load_checkpoint(path: str | Path, model: torch.nn.Module | None = None,
     / ``scheduler`` when given. Raises ``CheckpointError`` / ``HybridCalibError`` naming the file on
     any problem (missing, truncated, garbage, a pickle, a mismatch)."""
     path, meta = read_checkpoint_meta(path)
+    check_export(meta.get("export", {}), path)
     ckpt = Checkpoint(path, int(meta["epoch"]), meta["model_config"], meta.get("train_config", {}),
                       meta.get("metrics", {}), meta.get("export", {}))
     if model is not None:
@@ -229,6 +257,11 @@ def load_model(path: str | Path, device: str | torch.device = "cpu", model_facto
     if model_factory is None:
         from learned.model import RCAutoCalib as model_factory
     path, meta = read_checkpoint_meta(path)
-    model = model_factory(model_config(meta["model_config"]))
+    try:
+        cfg = model_config(meta["model_config"])
+    except HybridCalibError as e:  # ConfigError: its "--set model.KEY" hint names the field
+        raise CheckpointError(f"checkpoint model_config is invalid: {e}; the JSON was edited or is corrupt: fix "
+                              "that field, copy the file again or pick another checkpoint", path=str(path)) from None
+    model = model_factory(cfg)
     ckpt = load_checkpoint(path, model, map_location="cpu")
     return model.to(device).eval(), ckpt
