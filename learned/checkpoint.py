@@ -202,6 +202,24 @@ def state_mismatch(expected: dict, got: dict, show: int = 2) -> str:
     return "; ".join(parts) or "the tensors differ in dtype"
 
 
+def check_weight_values(state: dict, expected: dict, weights: Path) -> None:
+    """``CheckpointError`` naming ``weights`` when a tensor holds NaN/inf (a diverged training run; every
+    estimate would be NaN) or is an integer tensor where the model has a floating one (its values would be
+    rounded silently by ``load_state_dict``). Float16/32/64 all load, and so does a float counter
+    (``num_batches_tracked``)."""
+    kind = [k for k, v in state.items() if k in expected and expected[k].is_floating_point()
+            and not v.is_floating_point()]
+    if kind:
+        raise CheckpointError(f"weights hold {len(kind)} tensor(s) of the wrong kind of dtype (first: {kind[0]} is "
+                              f"{state[kind[0]].dtype}, the model's is {expected[kind[0]].dtype}); the weights file "
+                              "was converted wrongly: copy the original or pick another checkpoint", path=str(weights))
+    bad = [k for k, v in state.items() if v.is_floating_point() and not bool(torch.isfinite(v).all())]
+    if bad:
+        raise CheckpointError(f"weights hold NaN/inf values in {len(bad)} tensor(s) (first: {bad[0]}); the training "
+                              "run diverged or the file is corrupt: pick an earlier checkpoint of the run",
+                              path=str(weights))
+
+
 def load_checkpoint(path: str | Path, model: torch.nn.Module | None = None,
                     optimizer: torch.optim.Optimizer | None = None, scheduler: Any = None,
                     map_location: str | torch.device = "cpu") -> Checkpoint:
@@ -215,6 +233,7 @@ def load_checkpoint(path: str | Path, model: torch.nn.Module | None = None,
     if model is not None:
         weights = _weights_path(path, meta)
         state = _load_weights(weights, str(map_location))
+        check_weight_values(state, model.state_dict(), weights)
         try:
             model.load_state_dict(state, strict=True)
         except RuntimeError:

@@ -1052,3 +1052,30 @@ def test_a_negative_seed_stays_valid_where_seeds_are_hashed(sim, tmp_path, monke
     rc, err = run_cli(["fleet", "--data", root, "--out", tmp_path / "fleet", "--no-plots", "--no-report",
                        "--max-frames", "1", "--seed", "-1"], capsys)
     assert rc == 0, err
+
+
+@pytest.mark.parametrize("case,needles", [
+    ("nan", ["weights hold NaN/inf values in 1 tensor(s)", "pick an earlier checkpoint"]),
+    ("integer", ["1 tensor(s) of the wrong kind of dtype", "torch.int32", "torch.float32"]),
+])
+def test_checkpoint_weights_with_nan_or_integer_values(case, needles, tmp_path):
+    """NaN weights (a diverged run) ended in "information must be a finite (6, 6) matrix" (an internal error)
+    at the first frame; integer weights were rounded into the model silently. float64 / float16 still load."""
+    from safetensors.numpy import load_file, save_file
+
+    from hybrid_calib.errors import CheckpointError
+    from learned.checkpoint import load_model
+
+    path = _ckpt_copy(tmp_path)
+    w = path.with_suffix(".safetensors")
+    tensors = load_file(str(w))
+    key = next(k for k, v in tensors.items() if v.ndim >= 2)
+    for dtype in (np.float64, np.float16):
+        save_file({**tensors, key: tensors[key].astype(dtype)}, str(w))
+        load_model(path)
+    bad = np.full_like(tensors[key], np.nan) if case == "nan" else tensors[key].astype(np.int32)
+    save_file({**tensors, key: bad}, str(w))
+    with pytest.raises(CheckpointError) as e:
+        load_model(path)
+    for needle in (*needles, key, w):
+        assert str(needle) in str(e.value), (needle, str(e.value))
