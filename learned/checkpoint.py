@@ -130,7 +130,34 @@ def read_checkpoint_meta(path: str | Path) -> tuple[Path, dict[str, Any]]:
         raise CheckpointError("checkpoint metadata lacks epoch, model_config or files.weights; it is not a "
                               "hybrid-calib checkpoint (ckpt-NNNN.json written by `hybrid-calib train`)",
                               path=str(path))
+    for key in ("train_config", "metrics", "export"):
+        if not isinstance(meta.get(key, {}), dict):
+            raise CheckpointError(f"checkpoint field {key!r} is a JSON {type(meta[key]).__name__}, not an object; the "
+                                  "file is corrupt: fix it, copy it again or pick another checkpoint", path=str(path))
     return path, meta
+
+
+def check_export(export: dict[str, Any], path: Path) -> None:
+    """``CheckpointError`` naming the file when the ``export`` block cannot work: an unknown key (a typo
+    is otherwise ignored), a ``cov_scale`` / ``sigma_scale`` that is not a finite factor > 0 (or 6 for
+    ``cov_scale``), or a ``hybrid`` / ``ood`` block that is not an object (their fields are checked
+    where they are used: ``hybrid_calib.hybrid.loop.measurement_config``, ``learned.ood``)."""
+    import dataclasses
+
+    from learned.export import ExportConfig, scale_problem
+
+    keys = {f.name for f in dataclasses.fields(ExportConfig)}
+    unknown = sorted(set(export) - keys)
+    problem = (f"unknown key(s) {unknown} (valid: {sorted(keys)})" if unknown else
+               scale_problem(export.get("cov_scale", 1.0), export.get("sigma_scale", 1.0)))
+    if not problem:
+        bad = [k for k in ("hybrid", "ood") if not isinstance(export.get(k, {}), dict)]
+        problem = f"{bad[0]} is a JSON {type(export[bad[0]]).__name__}, not an object" if bad else ""
+    if problem:
+        raise CheckpointError(f"checkpoint export block: {problem}; fix it in the JSON, or remove the entry and "
+                              "fit it again (cov_scale: hybrid-calib evaluate --split val --fit-uncertainty; "
+                              "sigma_scale: benchmarks/correspondence_quality.py --fit-into; hybrid: "
+                              "benchmarks/hybrid_fit.py --fit-into; ood: benchmarks/ood_fit.py)", path=str(path))
 
 
 def _weights_path(path: Path, meta: dict[str, Any]) -> Path:
@@ -175,6 +202,24 @@ def state_mismatch(expected: dict, got: dict, show: int = 2) -> str:
     return "; ".join(parts) or "the tensors differ in dtype"
 
 
+def check_weight_values(state: dict, expected: dict, weights: Path) -> None:
+    """``CheckpointError`` naming ``weights`` when a tensor holds NaN/inf (a diverged training run; every
+    estimate would be NaN) or is an integer tensor where the model has a floating one (its values would be
+    rounded silently by ``load_state_dict``). Float16/32/64 all load, and so does a float counter
+    (``num_batches_tracked``)."""
+    kind = [k for k, v in state.items() if k in expected and expected[k].is_floating_point()
+            and not v.is_floating_point()]
+    if kind:
+        raise CheckpointError(f"weights hold {len(kind)} tensor(s) of the wrong kind of dtype (first: {kind[0]} is "
+                              f"{state[kind[0]].dtype}, the model's is {expected[kind[0]].dtype}); the weights file "
+                              "was converted wrongly: copy the original or pick another checkpoint", path=str(weights))
+    bad = [k for k, v in state.items() if v.is_floating_point() and not bool(torch.isfinite(v).all())]
+    if bad:
+        raise CheckpointError(f"weights hold NaN/inf values in {len(bad)} tensor(s) (first: {bad[0]}); the training "
+                              "run diverged or the file is corrupt: pick an earlier checkpoint of the run",
+                              path=str(weights))
+
+
 def load_checkpoint(path: str | Path, model: torch.nn.Module | None = None,
                     optimizer: torch.optim.Optimizer | None = None, scheduler: Any = None,
                     map_location: str | torch.device = "cpu") -> Checkpoint:
@@ -182,11 +227,13 @@ def load_checkpoint(path: str | Path, model: torch.nn.Module | None = None,
     / ``scheduler`` when given. Raises ``CheckpointError`` / ``HybridCalibError`` naming the file on
     any problem (missing, truncated, garbage, a pickle, a mismatch)."""
     path, meta = read_checkpoint_meta(path)
+    check_export(meta.get("export", {}), path)
     ckpt = Checkpoint(path, int(meta["epoch"]), meta["model_config"], meta.get("train_config", {}),
                       meta.get("metrics", {}), meta.get("export", {}))
     if model is not None:
         weights = _weights_path(path, meta)
         state = _load_weights(weights, str(map_location))
+        check_weight_values(state, model.state_dict(), weights)
         try:
             model.load_state_dict(state, strict=True)
         except RuntimeError:
@@ -229,6 +276,11 @@ def load_model(path: str | Path, device: str | torch.device = "cpu", model_facto
     if model_factory is None:
         from learned.model import RCAutoCalib as model_factory
     path, meta = read_checkpoint_meta(path)
-    model = model_factory(model_config(meta["model_config"]))
+    try:
+        cfg = model_config(meta["model_config"])
+    except HybridCalibError as e:  # ConfigError: its "--set model.KEY" hint names the field
+        raise CheckpointError(f"checkpoint model_config is invalid: {e}; the JSON was edited or is corrupt: fix "
+                              "that field, copy the file again or pick another checkpoint", path=str(path)) from None
+    model = model_factory(cfg)
     ckpt = load_checkpoint(path, model, map_location="cpu")
     return model.to(device).eval(), ckpt

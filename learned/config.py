@@ -98,6 +98,9 @@ class ModelConfig:
         for name, value in sizes.items():  # a layer width / pool size <= 0 fails deep inside torch otherwise
             if any(int(v) < 1 for v in (value if isinstance(value, (tuple, list)) else (value,))):
                 raise ConfigError(f"ModelConfig.{name}={value!r}: layer sizes must be >= 1")
+        for name in ("depth_norm_m", "height_norm_m", "bev_res_m", "pseudo_bev_max_depth_m"):  # divisors, ranges
+            if not 0 < getattr(self, name) < float("inf"):
+                raise ConfigError(f"ModelConfig.{name}={getattr(self, name)!r}: must be a finite number > 0")
         if self.mca_heads < 1 or self.feat_dim % self.mca_heads:
             raise ConfigError(f"ModelConfig.mca_heads={self.mca_heads} must divide feat_dim={self.feat_dim}")
 

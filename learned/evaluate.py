@@ -59,6 +59,16 @@ class EvalConfig:
     split_options: SplitConfig = field(default_factory=SplitConfig)  # must match training's to hold out scenes
     export: dict = field(default_factory=dict)  # learned.export.ExportConfig overrides (e.g. a fitted cov_scale)
 
+    def __post_init__(self):
+        from learned.export import ExportConfig
+        from learned.train import check_sizes_and_device
+
+        if self.batch_size < 1 or self.max_frames < 0:
+            raise ValueError(f"EvalConfig: batch_size must be >= 1 and max_frames >= 0, got {self.batch_size} and "
+                             f"{self.max_frames}")
+        check_sizes_and_device(self, "EvalConfig")
+        merge(ExportConfig, self.export, "export.")  # a bad --set export.KEY fails before the data are read
+
 
 def eval_indices(frames: Sequence[RadarCameraFrame], conf: EvalConfig) -> list[int]:
     idx = split_indices(frames, conf.split, conf.split_options)

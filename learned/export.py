@@ -66,6 +66,28 @@ class ExportConfig:
     hybrid: dict = field(default_factory=dict)  # the hybrid's measurement model (hybrid.measurement), not used here
     ood: dict = field(default_factory=dict)  # the out-of-domain density model (learned.ood), not used here
 
+    def __post_init__(self):
+        if problem := scale_problem(self.cov_scale, self.sigma_scale):
+            raise ValueError(f"ExportConfig: {problem}")
+
+
+def scale_problem(cov_scale, sigma_scale) -> str:
+    """What is wrong with an export block's ``cov_scale`` (a finite number > 0, or 6 of them) and
+    ``sigma_scale`` (a finite number > 0); "" when both can work."""
+    try:
+        cov = np.asarray(cov_scale, np.float64)
+    except (TypeError, ValueError):
+        cov = np.full(1, np.nan)
+    if cov.shape not in ((), (6,)) or not np.all(np.isfinite(cov)) or not np.all(cov > 0):
+        return f"cov_scale={cov_scale!r}: need one finite factor > 0 or 6 of them (per axis: rot x3, trans x3)"
+    try:
+        sigma = float(sigma_scale)
+    except (TypeError, ValueError):
+        sigma = float("nan")
+    if not (np.isfinite(sigma) and sigma > 0):
+        return f"sigma_scale={sigma_scale!r}: need a finite factor > 0"
+    return ""
+
 
 def _np(x: torch.Tensor) -> np.ndarray:
     return x.detach().cpu().double().numpy()

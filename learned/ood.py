@@ -145,20 +145,24 @@ class OODModel:
         try:
             mean, std = np.asarray(d["mean"], np.float64), np.asarray(d["std"], np.float64)
             comp, var = np.atleast_2d(np.asarray(d["components"], np.float64)), np.asarray(d["variances"], np.float64)
-            res, thr = float(d["residual_mean"]), float(d["threshold"])
+            res, thr, quantile = float(d["residual_mean"]), float(d["threshold"]), float(d.get("quantile", 0.99))
         except (TypeError, ValueError) as e:
             raise OODError(f"export.ood holds a non-numeric value ({e}); {FIT_HINT}") from None
         D = len(mean)
-        if mean.ndim != 1 or std.shape != (D,) or comp.shape[1:] != (D,) or var.shape != (len(comp),):
+        if mean.ndim != 1 or not D or std.shape != (D,) or comp.shape[1:] != (D,) or var.shape != (len(comp),):
             raise OODError(f"export.ood arrays disagree in shape (mean {mean.shape}, std {std.shape}, components "
                            f"{comp.shape}, variances {var.shape}); {FIT_HINT}")
         arrays_ok = all(np.all(np.isfinite(a)) for a in (mean, std, comp, var))
-        if not arrays_ok or np.any(std <= 0) or np.any(var <= 0) or not (thr > 0 and np.isfinite(thr)) or res < 0:
-            raise OODError(f"export.ood holds non-finite or non-positive statistics; {FIT_HINT}")
+        if not arrays_ok or np.any(std <= 0) or np.any(var <= 0) or not (thr > 0 and np.isfinite(thr)) \
+                or not (res >= 0 and np.isfinite(res)) or not 0 < quantile <= 1:
+            raise OODError(f"export.ood holds non-finite or non-positive statistics (or a quantile outside (0, 1]: "
+                           f"{quantile}); {FIT_HINT}")
+        if not isinstance(d.get("fitted", {}), Mapping):
+            raise OODError(f"export.ood fitted is a {type(d['fitted']).__name__}, not an object; {FIT_HINT}")
         features = str(d["features"])
         if features not in FEATURE_SETS:
             raise OODError(f"export.ood features {features!r} unknown; valid: {FEATURE_SETS}; {FIT_HINT}")
-        return cls(features, mean, std, comp, var, res, thr, float(d.get("quantile", 0.99)), dict(d.get("fitted", {})))
+        return cls(features, mean, std, comp, var, res, thr, quantile, dict(d.get("fitted", {})))
 
 
 def fit_ood(feats: Mapping[str, np.ndarray], features: str = "all", k: int = 16, quantile: float = 0.99,

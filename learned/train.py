@@ -84,6 +84,22 @@ class TrainConfig:
                 raise ValueError(f"TrainConfig.{name} must be >= 0, got {getattr(self, name)}")
         if not self.lr >= 0:  # 0 is allowed: the weights stay where they start
             raise ValueError(f"TrainConfig.lr must be >= 0, got {self.lr}")
+        for name in ("weight_decay", "grad_clip"):  # torch refuses a negative one; NaN disables clipping silently
+            if not 0 <= getattr(self, name) < float("inf"):
+                raise ValueError(f"TrainConfig.{name} must be a finite number >= 0, got {getattr(self, name)}")
+        check_sizes_and_device(self, "TrainConfig")
+
+
+def check_sizes_and_device(conf, owner: str) -> None:
+    """``ValueError`` naming the option when ``conf.max_radar_points`` < 1, ``conf.max_lidar_points`` < 0
+    or ``conf.device`` is not a torch device (each failed deep inside torch / numpy)."""
+    if conf.max_radar_points < 1 or conf.max_lidar_points < 0:
+        raise ValueError(f"{owner}: max_radar_points must be >= 1 and max_lidar_points >= 0, got "
+                         f"{conf.max_radar_points} and {conf.max_lidar_points}")
+    try:
+        torch.device(conf.device)
+    except (RuntimeError, TypeError):
+        raise ValueError(f"{owner}.device={conf.device!r} is not a torch device; e.g. cpu, cuda or cuda:0") from None
 
 
 PRESETS: dict[str, dict[str, Any]] = {

@@ -415,6 +415,13 @@ SET_CASES = [
     (["calibrate"], "seed=1.5", ["seed=1.5", "integer"]),
     (["calibrate"], "window.window=0", ["window", ">= 1, got 0"]),
     (["calibrate"], "vehicles=[veh]", ["vehicles='[veh]'", "a list is JSON with quoted strings"]),
+    (["calibrate"], "seed=-1", ["CalibrateConfig.seed must be >= 0", "-1"]),
+    (["calibrate", "--seed", "-2"], "max_frames=1", ["CalibrateConfig.seed must be >= 0", "-2"]),
+    (["calibrate"], "oracle.outlier_frac=NaN", ["outlier_frac must be a finite number in 0..1", "nan"]),
+    (["calibrate"], "oracle.outlier_frac=2", ["outlier_frac must be a finite number in 0..1", "got 2"]),
+    (["calibrate"], "oracle.sigma_px=0", ["sigma_px must be a finite number > 0"]),
+    (["calibrate"], "oracle.radar_points=bogus", ["radar_points='bogus'", "truth, recorded"]),
+    (["simulate"], "seed=-1", ["seed=-1; must be >= 0"]),
     (["calibrate", "--method", "pure"], "start=R9", ["start='R9'", "reference"]),
     (["calibrate", "--method", "pure"], "max_frames=-2", ["max_frames must be >= 0"]),
     (["calibrate", "--method", "pure"], "threads=0", ["threads must be >= 1"]),
@@ -685,7 +692,11 @@ def test_calibrate_when_result_json_is_a_directory(sim, tmp_path, capsys):
 
 
 @pytest.mark.parametrize("override,needle", [("epochs=0", "epochs must be >= 1"), ("lr=-0.1", "lr must be >= 0"),
-                                             ("batch_size=-1", "batch_size must be >= 1")])
+                                             ("batch_size=-1", "batch_size must be >= 1"),
+                                             ("weight_decay=-1", "weight_decay must be a finite number >= 0"),
+                                             ("grad_clip=NaN", "grad_clip must be a finite number >= 0"),
+                                             ("max_radar_points=-5", "max_radar_points must be >= 1"),
+                                             ("device=bogus", "'bogus' is not a torch device")])
 def test_train_bad_set_values_fail_before_training(override, needle, sim, tmp_path, capsys):
     root, _ = sim
     expect_cli_error(["train", "--data", root, "--version", SIM_VERSION, "--out", tmp_path / "t", "--no-progress",
@@ -879,6 +890,8 @@ def test_simulate_set_extrinsic_change_not_a_group(captured_sim, tmp_path, capsy
     ("model.phi_pool_fv=[0,2]", "ModelConfig.phi_pool_fv=(0, 2)"),
     ("model.lstm_hidden=0", "ModelConfig.lstm_hidden=0"),
     ("model.radar_widths=[8]", "need three widths"),
+    ("model.bev_res_m=0", "ModelConfig.bev_res_m=0: must be a finite number > 0"),
+    ("model.depth_norm_m=-1", "ModelConfig.depth_norm_m=-1"),
 ])
 def test_train_bad_model_sizes_fail_before_training(override, needle, tiny, tmp_path, capsys):
     """Each used to be a RuntimeError / IndexError from inside torch (an internal error)."""
@@ -910,3 +923,159 @@ def test_compare_reruns_a_damaged_trial_and_names_a_damaged_config(sim, tmp_path
     config.write_text(config.read_text()[:30])
     err = expect_cli_error(argv, capsys, "compare config of this --out is unreadable", config, "another --out")
     assert _one_paragraph(err)
+
+
+# ---------------------------------------------------------------- checkpoint JSON: model_config and export blocks
+def _edit_ckpt(tmp_path: Path, edit) -> Path:
+    path = _ckpt_copy(tmp_path)
+    meta = json.loads(path.read_text())
+    edit(meta)
+    path.write_text(json.dumps(meta))
+    return path
+
+
+def _set_in(*keys_value):
+    *keys, key, value = keys_value
+
+    def edit(meta):
+        d = meta
+        for k in keys:
+            d = d[k]
+        d[key] = value
+    return edit
+
+
+NAN = float("nan")
+CKPT_JSON_CASES = {  # case -> (edit(meta), needles); each was an internal error or accepted silently
+    "cov-scale-3-values": (_set_in("export", "cov_scale", [1, 2, 3]), ["cov_scale=[1, 2, 3]", "6 of them"]),
+    "cov-scale-negative": (_set_in("export", "cov_scale", [-1, 1, 1, 1, 1, 1]), ["cov_scale=[-1,", "> 0"]),
+    "cov-scale-nan": (_set_in("export", "cov_scale", [NAN, 1, 1, 1, 1, 1]), ["cov_scale=[nan,"]),
+    "cov-scale-zero": (_set_in("export", "cov_scale", 0), ["cov_scale=0"]),
+    "cov-scale-string": (_set_in("export", "cov_scale", "x"), ["cov_scale='x'"]),
+    "sigma-scale-negative": (_set_in("export", "sigma_scale", -1), ["sigma_scale=-1", "finite factor > 0"]),
+    "sigma-scale-zero": (_set_in("export", "sigma_scale", 0), ["sigma_scale=0"]),
+    "export-unknown-key": (_set_in("export", "cov_scales", 1.0), ["unknown key(s) ['cov_scales']"]),
+    "export-a-list": (_set_in("export", [1]), ["field 'export' is a JSON list"]),
+    "train-config-a-list": (_set_in("train_config", [1]), ["field 'train_config' is a JSON list"]),
+    "hybrid-a-list": (_set_in("export", "hybrid", [1]), ["hybrid is a JSON list"]),
+    "model-config-string-size": (_set_in("model_config", "feat_dim", "abc"), ["model_config is invalid",
+                                                                              "feat_dim='abc'"]),
+    "model-config-zero-resolution": (_set_in("model_config", "bev_res_m", 0), ["bev_res_m=0", "finite number > 0"]),
+    "model-config-negative-norm": (_set_in("model_config", "depth_norm_m", -1), ["depth_norm_m=-1"]),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CKPT_JSON_CASES))
+def test_checkpoint_json_with_a_bad_value_names_the_file(case, tmp_path):
+    from hybrid_calib.errors import CheckpointError
+    from learned.checkpoint import load_model
+
+    edit, needles = CKPT_JSON_CASES[case]
+    path = _edit_ckpt(tmp_path, edit)
+    with pytest.raises(CheckpointError) as e:
+        load_model(path)
+    for needle in (*needles, path):
+        assert str(needle) in str(e.value), (needle, str(e.value))
+
+
+def test_checkpoint_bad_cov_scale_through_calibrate(sim, tmp_path, capsys):
+    """The NaN cov_scale used to end in "information must be a finite (6, 6) matrix" (an internal error)."""
+    root, _ = sim
+    path = _edit_ckpt(tmp_path, _set_in("export", "cov_scale", [NAN] * 6))
+    err = expect_cli_error(_calibrate(root, tmp_path / "out", "--method", "pure", "--checkpoint", path,
+                                      "--max-frames", "1"), capsys, "cov_scale=[nan", "--fit-uncertainty", path)
+    assert _one_paragraph(err)
+
+
+@pytest.mark.parametrize("key,value,needle", [
+    ("drive_std", [-0.01] * 6, "drive_std >= 0"),
+    ("prior_cov_scale", [NAN] * 6, "every value must be finite"),
+    ("nosuch", 1, "unknown option(s) ['nosuch']"),
+])
+def test_checkpoint_bad_hybrid_block_names_the_checkpoint(key, value, needle, tmp_path):
+    """A negative drive_std or a NaN prior_cov_scale was accepted; every bad block now names the checkpoint."""
+    from types import SimpleNamespace
+
+    from hybrid_calib.errors import DataError
+    from hybrid_calib.hybrid.loop import HybridConfig, measurement_config
+
+    block = json.loads((SHIPPED / "small-sim-r1.json").read_text())["export"]["hybrid"]
+    runner = SimpleNamespace(ckpt=SimpleNamespace(export={"hybrid": {**block, key: value}}, path=tmp_path / "c.json"))
+    with pytest.raises(DataError, match="export.hybrid block is invalid") as e:
+        measurement_config(runner, HybridConfig())
+    assert needle in str(e.value) and str(tmp_path / "c.json") in str(e.value)
+    runner.ckpt.export = {"hybrid": block}
+    assert measurement_config(runner, HybridConfig()).drive_std == tuple(block["drive_std"])  # the shipped one reads
+
+
+@pytest.mark.parametrize("change,needle", [
+    ({"quantile": "x"}, "non-numeric"), ({"quantile": 0.0}, "quantile outside (0, 1]"),
+    ({"residual_mean": NAN}, "non-finite"), ({"fitted": [1, 2]}, "fitted is a list"),
+    ({"mean": [], "std": [], "components": [[]], "variances": [1.0]}, "disagree in shape"),
+], ids=["quantile-string", "quantile-zero", "residual-nan", "fitted-a-list", "no-features"])
+def test_checkpoint_bad_ood_block(change, needle):
+    """Each was an internal error (a string quantile, a list 'fitted') or accepted until the first frame (NaN
+    residual_mean, a model of 0 features)."""
+    from learned.ood import OODError, OODModel
+
+    block = json.loads((SHIPPED / "small-sim-r1.json").read_text())["export"]["ood"]
+    OODModel.from_dict(block)
+    with pytest.raises(OODError) as e:
+        OODModel.from_dict({**block, **change})
+    assert needle in str(e.value)
+
+
+@pytest.mark.parametrize("override,needles", [
+    ("export.cov_scale=[1,2,3]", ["ExportConfig at export", "cov_scale=(1, 2, 3)"]),
+    ("export.sigma_scale=-1", ["sigma_scale=-1"]),
+    ("batch_size=0", ["batch_size must be >= 1"]),
+    ("device=bogus", ["device='bogus' is not a torch device"]),
+    ("max_radar_points=0", ["max_radar_points must be >= 1"]),
+])
+def test_evaluate_bad_set_values_fail_before_the_data(override, needles, tmp_path, capsys):
+    """Each was an internal error from torch / numpy / Correspondences once the frames were read."""
+    expect_cli_error(["evaluate", "--data", tmp_path / "nowhere", "--checkpoint", tmp_path / "none.json", "--out",
+                      tmp_path / "e", "--no-progress", "--set", override], capsys, *needles)
+    assert not (tmp_path / "e").exists()
+
+
+def test_a_negative_seed_stays_valid_where_seeds_are_hashed(sim, tmp_path, monkeypatch, capsys):
+    """compare and fleet hash (seed, vehicle) into their generators: --seed -1 runs there, while the oracle
+    pipeline of calibrate (numpy's generator) refuses it (test_bad_set_value)."""
+    import hybrid_calib.plots.compare
+
+    monkeypatch.setattr(hybrid_calib.plots.compare, "plot_error_vs_frames", lambda *a, **k: None)
+    root, _ = sim
+    rc, err = run_cli(["compare", "--data", root, "--out", tmp_path / "cmp", "--methods", "oracle", "--trials", "1",
+                       "--max-frames", "1", "--no-progress", "--seed", "-1"], capsys)
+    assert rc == 0, err
+    rc, err = run_cli(["fleet", "--data", root, "--out", tmp_path / "fleet", "--no-plots", "--no-report",
+                       "--max-frames", "1", "--seed", "-1"], capsys)
+    assert rc == 0, err
+
+
+@pytest.mark.parametrize("case,needles", [
+    ("nan", ["weights hold NaN/inf values in 1 tensor(s)", "pick an earlier checkpoint"]),
+    ("integer", ["1 tensor(s) of the wrong kind of dtype", "torch.int32", "torch.float32"]),
+])
+def test_checkpoint_weights_with_nan_or_integer_values(case, needles, tmp_path):
+    """NaN weights (a diverged run) ended in "information must be a finite (6, 6) matrix" (an internal error)
+    at the first frame; integer weights were rounded into the model silently. float64 / float16 still load."""
+    from safetensors.numpy import load_file, save_file
+
+    from hybrid_calib.errors import CheckpointError
+    from learned.checkpoint import load_model
+
+    path = _ckpt_copy(tmp_path)
+    w = path.with_suffix(".safetensors")
+    tensors = load_file(str(w))
+    key = next(k for k, v in tensors.items() if v.ndim >= 2)
+    for dtype in (np.float64, np.float16):
+        save_file({**tensors, key: tensors[key].astype(dtype)}, str(w))
+        load_model(path)
+    bad = np.full_like(tensors[key], np.nan) if case == "nan" else tensors[key].astype(np.int32)
+    save_file({**tensors, key: bad}, str(w))
+    with pytest.raises(CheckpointError) as e:
+        load_model(path)
+    for needle in (*needles, key, w):
+        assert str(needle) in str(e.value), (needle, str(e.value))

@@ -62,6 +62,24 @@ class OracleConfig:
     reflector_height_mean_m: float = 0.0  # "model" + "height": mean height above the radar plane (match the factor)
     reflector_height_std_m: float = 1.0  # "model" + "height": height std before truncation to the beam (match)
 
+    def __post_init__(self):  # each was an internal error (or a silent no-op) deep in the oracle
+        choices = {"radar_points": ("truth", "recorded"), "elevation": ("world", "model"),
+                   "elevation_model": ("anisotropic", "height")}
+        for name, valid in choices.items():
+            if getattr(self, name) not in valid:
+                raise ValueError(f"OracleConfig.{name}={getattr(self, name)!r}; valid: {', '.join(valid)}")
+        ranges = {"sigma_px": "> 0", "outlier_frac": "in 0..1", "min_depth_m": ">= 0", "image_margin_px": ">= 0",
+                  "elevation_beam_deg": ">= 0", "reflector_height_std_m": ">= 0"}
+        for name, rule in ranges.items():
+            v = float(getattr(self, name))
+            ok = np.isfinite(v) and (v > 0 if rule == "> 0" else v >= 0) and (rule != "in 0..1" or v <= 1)
+            if not ok:
+                raise ValueError(f"OracleConfig.{name} must be a finite number {rule}, got {getattr(self, name)!r} "
+                                 f"(--set oracle.{name}=...)")
+        if self.n_per_frame < 1 or self.image_width < 0:
+            raise ValueError(f"OracleConfig: n_per_frame must be >= 1 and image_width >= 0 (0 = as rendered), got "
+                             f"{self.n_per_frame} and {self.image_width}")
+
 
 @dataclass(frozen=True)
 class OracleTruth:

@@ -30,7 +30,7 @@ from hybrid_calib.calib.oracle import OracleConfig, oracle_from_frame
 from hybrid_calib.calib.result import CalibrationRun, VehicleResult
 from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
-from hybrid_calib.config import merge, save_json_atomic, to_dict
+from hybrid_calib.config import ConfigError, merge, save_json_atomic, to_dict
 from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.perturbation import RANGES, vehicle_start
 
@@ -221,7 +221,7 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
     result_path = out / "result.json"
     if result_path.is_file() and not overwrite:
         return CalibrationRun.load(result_path)
-    rng = np.random.default_rng(conf.seed)
+    rng = _seed_rng(conf.seed)
     if correspondences == "oracle":
         inputs = _load_oracle(data, version, conf, rng)
     else:
@@ -244,6 +244,15 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
     return run
 
 
+def _seed_rng(seed: int) -> np.random.Generator:
+    """The run's generator; ``ConfigError`` for a negative seed (numpy takes seeds >= 0 only; the learned
+    methods and compare hash theirs, so they take any integer)."""
+    if seed < 0:
+        raise ConfigError(f"CalibrateConfig.seed must be >= 0 for the oracle pipeline, got {seed} (--seed / --set "
+                          "seed)")
+    return np.random.default_rng(seed)
+
+
 def replay_inputs(data, version: str, correspondences: str, conf: CalibrateConfig | dict | None = None
                   ) -> dict[str, tuple[VehicleInput, np.ndarray]]:
     """The inputs a ``calibrate`` run saw, rebuilt from its data and effective config (``RUN/config.json``):
@@ -251,7 +260,7 @@ def replay_inputs(data, version: str, correspondences: str, conf: CalibrateConfi
     ``calibrate``'s own (every oracle row first, then each vehicle's start in name order), so oracle
     rows and R1/R2 starts come out identical to the run's. Used by the report (residuals, before/after)."""
     conf = merge(CalibrateConfig, conf)
-    rng = np.random.default_rng(conf.seed)
+    rng = _seed_rng(conf.seed)
     if correspondences == "oracle":
         inputs = _load_oracle(data, version, conf, rng)
     else:

@@ -201,8 +201,15 @@ def start_of(drive: Drive, conf: HybridConfig) -> np.ndarray:
 
 
 def measurement_config(runner: NetworkRunner, conf: HybridConfig) -> MeasurementConfig:
-    """The checkpoint's fitted ``export["hybrid"]`` block with ``conf.measurement`` over it."""
-    return merge(MeasurementConfig, {**runner.ckpt.export.get("hybrid", {}), **conf.measurement})
+    """The checkpoint's fitted ``export["hybrid"]`` block with ``conf.measurement`` over it; a block that
+    is wrong on its own is a ``DataError`` naming the checkpoint."""
+    fitted = runner.ckpt.export.get("hybrid", {})
+    try:
+        merge(MeasurementConfig, fitted)
+    except HybridCalibError as e:
+        raise DataError(f"checkpoint export.hybrid block is invalid ({e}); fix it in the JSON, or remove it and fit "
+                        "it again with benchmarks/hybrid_fit.py --fit-into", path=str(runner.ckpt.path)) from None
+    return merge(MeasurementConfig, {**fitted, **conf.measurement})
 
 
 def _estimate(T: np.ndarray, cov: np.ndarray, conf: HybridConfig, note: str = "") -> Estimate:

@@ -64,6 +64,12 @@ class MeasurementConfig:
             raise ValueError("MeasurementConfig.shared_std, drive_std and prior_cov_scale need 6 values each")
         if not self.sigma_scale > 0 or min(self.prior_cov_scale) <= 0 or min(self.shared_std) < 0:
             raise ValueError("MeasurementConfig: sigma_scale and prior_cov_scale must be > 0, shared_std >= 0")
+        values = (self.sigma_scale, self.trust_sigma_frac, *self.shared_std, *self.prior_cov_scale, *self.drive_std)
+        if not np.all(np.isfinite(np.asarray(values, np.float64))) or min(self.drive_std) < 0:
+            raise ValueError(f"MeasurementConfig: every value must be finite and drive_std >= 0, got sigma_scale="
+                             f"{self.sigma_scale}, shared_std={list(self.shared_std)}, prior_cov_scale="
+                             f"{list(self.prior_cov_scale)}, drive_std={list(self.drive_std)}, trust_sigma_frac="
+                             f"{self.trust_sigma_frac}")
 
 
 @dataclass(frozen=True)

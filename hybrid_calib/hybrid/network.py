@@ -201,7 +201,12 @@ class NetworkRunner:
         has no ``export.ood`` (``ood_note`` says so) or the output carries no features."""
         if self.ood is None or not out.ood_descriptor.size:
             return float("nan")
-        return float(self.ood.score({"descriptor": out.ood_descriptor, "signals": out.ood_signals})[0])
+        from learned.ood import OODError
+
+        try:
+            return float(self.ood.score({"descriptor": out.ood_descriptor, "signals": out.ood_signals})[0])
+        except OODError as e:  # fitted on another network's features
+            raise OODError(f"checkpoint {self.checkpoint}: {e}") from None
 
     def forward(self, s: dict, T_in: np.ndarray) -> NetworkOutput:
         """The network on a prepared sample ``s`` (``sample``, possibly altered) from ``T_in``; not cached."""

@@ -72,6 +72,8 @@ class SimConfig:
             raise ValueError(f"jpeg_quality={self.jpeg_quality}; valid: 1..100")
         if not self.frame_interval_s > 0:
             raise ValueError(f"frame_interval_s={self.frame_interval_s}; must be > 0")
+        if self.seed < 0:  # numpy's generators take non-negative seeds only
+            raise ValueError(f"seed={self.seed}; must be >= 0 (--seed / --set seed)")
 
     @property
     def scenario_config(self) -> ScenarioConfig:
