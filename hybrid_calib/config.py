@@ -147,6 +147,18 @@ def parse_overrides(items: list[str] | None) -> dict[str, Any]:
     return out
 
 
+def deep_update(base: dict[str, Any], overrides: Mapping[str, Any]) -> dict[str, Any]:
+    """``base`` updated in place by ``overrides`` key by key, nested dicts merged rather than replaced
+    (``--set export.sigma_scale=1.2`` changes that one value of a checkpoint's export block and keeps
+    the others). Returns ``base``."""
+    for key, value in overrides.items():
+        if isinstance(value, Mapping) and isinstance(base.get(key), dict):
+            deep_update(base[key], value)
+        else:
+            base[key] = value
+    return base
+
+
 def save_text_atomic(path: Path, text: str) -> Path:
     """Write ``text`` (UTF-8) to ``path`` atomically (``hybrid_calib.atomic``); the parent is created."""
     from hybrid_calib.atomic import write_bytes_atomic

@@ -1079,3 +1079,26 @@ def test_checkpoint_weights_with_nan_or_integer_values(case, needles, tmp_path):
         load_model(path)
     for needle in (*needles, key, w):
         assert str(needle) in str(e.value), (needle, str(e.value))
+
+
+def test_evaluate_set_one_export_value_keeps_the_checkpoints_others(sim, tmp_path, capsys):
+    """``--set export.sigma_scale=...`` replaced the whole export block: the checkpoint's fitted cov_scale
+    was silently dropped (the covariance reported raw)."""
+    root, _ = sim
+    out = tmp_path / "eval"
+    rc, err = run_cli(["evaluate", "--data", root, "--version", SIM_VERSION, "--checkpoint",
+                       SHIPPED / "small-sim-r1.json", "--out", out, "--split", "all", "--max-frames", "1",
+                       "--no-progress", "--set", "export.sigma_scale=1.25"], capsys)
+    assert rc == 0, err
+    export = json.loads((out / "export_config.json").read_text())["eval"]["export"]
+    shipped = json.loads((SHIPPED / "small-sim-r1.json").read_text())["export"]
+    assert export["sigma_scale"] == 1.25
+    assert export["cov_scale"] == shipped["cov_scale"] != 1.0
+
+
+def test_deep_update_merges_nested_overrides():
+    from hybrid_calib.config import deep_update
+
+    base = {"export": {"cov_scale": [2.0] * 6, "sigma_scale": 0.5}, "split": "all"}
+    assert deep_update(base, {"export": {"sigma_scale": 1.2}, "split": "val", "new": {"a": 1}}) == {
+        "export": {"cov_scale": [2.0] * 6, "sigma_scale": 1.2}, "split": "val", "new": {"a": 1}}

@@ -26,7 +26,7 @@ import json
 from pathlib import Path
 
 from hybrid_calib.commands import add_split_arguments, nonnegative_int, positive_int, split_overrides
-from hybrid_calib.config import parse_overrides
+from hybrid_calib.config import deep_update, parse_overrides
 from hybrid_calib.errors import HybridCalibError
 from hybrid_calib.perturbation import RANGES
 
@@ -110,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
             raise HybridCalibError("--fit-uncertainty on the test split would leave nothing held out to check it; "
                                    "fit with --split val (or --split all on a separate root)")
         conf["export"]["cov_scale"] = 1.0  # fit against the raw covariance
-    conf.update(user)
+    deep_update(conf, user)  # --set export.KEY=... changes that value and keeps the checkpoint's others
     # the LiDAR-camera variant calibrates T_cam_lidar from LiDAR points; lidar-densified depth reads them too
     lidar = model.cfg.variant == "lidar" or needs_lidar(str(conf.get("depth", "")))
     frames = open_roots(args.data, args.version, lidar=lidar, options={"nsweeps": args.nsweeps})
