@@ -1257,3 +1257,44 @@ def test_network_outputs_of_another_checkpoint_are_not_reused(sim, tmp_path, cap
     assert rc == 0, err
     page = (tmp_path / "r.html").read_text()
     assert "unknown option" not in page and "a pure run: its rows came from the network" in page
+
+
+MANIFEST_HEAD = {"schema": "hybrid-calib/fleet-manifest/v1", "method": "oracle", "seed": 0}
+
+
+@pytest.mark.parametrize("jobs,needles", [
+    ({"sim-veh-000": 5}, ["entry 'sim-veh-000' is malformed", "a JSON int"]),
+    ({"sim-veh-000": {"state": "done"}}, ["entry 'sim-veh-000' is malformed", "job None"]),
+    ({"zzz": {"job": {"id": "zzz"}, "state": "done", "attempts": 1}}, ["entry 'zzz' is malformed", "vehicle"]),
+    ([], ['"jobs" is a JSON list']),
+], ids=["entry-an-int", "entry-without-job", "job-record-incomplete", "jobs-a-list"])
+def test_fleet_out_manifest_with_malformed_entries(jobs, needles, sim, tmp_path, capsys):
+    """OUT/manifest.json entries edited by hand were an internal error (KeyError / TypeError), or accepted."""
+    root, _ = sim
+    out = tmp_path / "fleet"
+    out.mkdir()
+    (out / "manifest.json").write_text(json.dumps({**MANIFEST_HEAD, "jobs": jobs}))
+    err = expect_cli_error(["fleet", "--data", root, "--out", out, "--no-plots", "--no-report"], capsys, *needles,
+                           "move it away to start over", out / "manifest.json")
+    assert _one_paragraph(err) and not (out / "vehicles").exists()
+
+
+def test_fleet_reruns_a_damaged_result_of_an_earlier_runs_vehicle(sim, tmp_path, capsys):
+    """A vehicle done in an earlier run but not listed in this one (a FLEET.json naming fewer vehicles) kept its
+    "done" state when its result.json was damaged: the whole fleet ran, then the summary failed on that file."""
+    root, frames = sim
+    first, second = sorted(frames)
+    out = tmp_path / "fleet"
+    rc, err = run_cli(["fleet", "--data", root, "--out", out, "--max-frames", "1", "--no-plots", "--no-report"], capsys)
+    assert rc == 0, err
+    good = json.loads((out / "vehicles" / first / "result.json").read_text())
+    (out / "vehicles" / first / "result.json").write_text('{"vehicles": 5}')
+    fleet_file = tmp_path / "FLEET.json"
+    fleet_file.write_text(json.dumps({"version": SIM_VERSION, "roots": [{"data": str(root), "vehicles": [second]}]}))
+    rc, err = run_cli(["fleet", "--manifest", fleet_file, "--out", out, "--max-frames", "1", "--no-plots",
+                       "--no-report"], capsys)
+    assert rc == 0, err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["counts"]["done"] == 2
+    again = json.loads((out / "vehicles" / first / "result.json").read_text())["vehicles"][first]
+    assert again["final"] == good["vehicles"][first]["final"]  # calibrated again, the same

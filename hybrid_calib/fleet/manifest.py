@@ -81,7 +81,7 @@ class Manifest:
             if (doc.get("method"), doc.get("seed")) != (method, seed):
                 raise DataError(f"this OUT holds a fleet run of method {doc.get('method')!r}, seed {doc.get('seed')}; "
                                 f"pass the same --method/--seed or another --out", path=str(path))
-            m.jobs = dict(old)
+            m.jobs = _checked_jobs(old, path)
         for job in jobs:
             e = m.jobs.get(job.id)
             if e is None:
@@ -99,6 +99,11 @@ class Manifest:
                 e.update(state="done", reason=None, file=None, result=_rel(job.result_path, path.parent))
             elif e["state"] != "failed":
                 e.update(state="pending", result=None)
+        ids = {job.id for job in jobs}
+        for jid, e in m.jobs.items():  # jobs of earlier runs only (e.g. another root): the same resume rules
+            if jid not in ids and e["state"] in ("done", "running"):
+                done = bool(e.get("result")) and result_complete(path.parent / str(e["result"]))
+                e.update(state="done" if done else "pending", result=e.get("result") if done else None)
         m.save()
         return m
 
@@ -143,6 +148,29 @@ class Manifest:
 
     def counts(self) -> dict[str, int]:
         return {s: sum(e["state"] == s for e in self.jobs.values()) for s in STATES}
+
+
+def _checked_jobs(jobs, path: Path) -> dict[str, dict]:
+    """The ``jobs`` of a manifest read back, each entry checked to be what ``Manifest`` writes (module doc);
+    ``DataError`` naming the file and the first bad entry (an edited or foreign file)."""
+    if not isinstance(jobs, dict):
+        raise DataError(f"fleet manifest \"jobs\" is a JSON {type(jobs).__name__}, not an object of job entries; "
+                        "move it away to start over", path=str(path))
+    for jid, e in jobs.items():
+        try:
+            if not isinstance(e, dict):
+                raise TypeError(f"a JSON {type(e).__name__}, not an object")
+            if e.get("state") not in STATES:
+                raise ValueError(f"state {e.get('state')!r}, not one of {STATES}")
+            job = Job.from_dict(e["job"]) if isinstance(e.get("job"), dict) else None
+            if job is None or job.id != jid:
+                raise ValueError(f"job {e.get('job')!r} is not this entry's job record")
+            if isinstance(e.get("attempts"), bool) or not isinstance(e.get("attempts"), int):
+                raise ValueError(f"attempts {e.get('attempts')!r}, not an integer")
+        except (KeyError, TypeError, ValueError) as err:
+            raise DataError(f"fleet manifest entry {jid!r} is malformed ({err}); the file was edited or is not a "
+                            "hybrid-calib fleet manifest: move it away to start over", path=str(path)) from None
+    return dict(jobs)
 
 
 # the Job fields a result depends on (not: out, threads, tables_T / design_T, which follow from data)
