@@ -1298,3 +1298,23 @@ def test_fleet_reruns_a_damaged_result_of_an_earlier_runs_vehicle(sim, tmp_path,
     assert summary["counts"]["done"] == 2
     again = json.loads((out / "vehicles" / first / "result.json").read_text())["vehicles"][first]
     assert again["final"] == good["vehicles"][first]["final"]  # calibrated again, the same
+
+
+def test_evaluate_out_of_other_roots_or_a_damaged_export_config(sim, tmp_path, capsys):
+    """export_config.json did not record the roots: frames of another --data were added to the ones already in
+    OUT/frames and the table mixed both; an unreadable export_config.json was an internal error."""
+    root, _ = sim
+    other = tmp_path / "other"
+    shutil.copytree(root, other)
+    out = tmp_path / "eval"
+    argv = ["evaluate", "--version", SIM_VERSION, "--checkpoint", SHIPPED / "small-sim-r1.json", "--out", out,
+            "--split", "all", "--max-frames", "1", "--no-progress"]
+    rc, err = run_cli([*argv, "--data", root], capsys)
+    assert rc == 0, err
+    err = expect_cli_error([*argv, "--data", other], capsys, "holds predictions made with frames of other roots",
+                           "--overwrite", out / "export_config.json")
+    assert _one_paragraph(err)
+    assert json.loads((out / "results.json").read_text())["n_frames"] == 1
+    (out / "export_config.json").write_text("{")
+    expect_cli_error([*argv, "--data", root], capsys, "export config of this --out is unreadable",
+                     out / "export_config.json")
