@@ -187,7 +187,8 @@ def compare(roots: list, version: str, out: str | Path, conf: CompareConfig | di
     conf = merge(CompareConfig, conf)
     out = Path(out)
     cfg_path = out / "compare_config.json"
-    record = to_dict(conf)
+    # the trials' drives too: trial k is the k-th vehicle of these roots (resolved: "./sim" and "sim" are one)
+    record = {**to_dict(conf), "data": {"roots": [str(Path(r).resolve()) for r in roots], "version": version}}
 
     def same(a: dict) -> dict:  # trial k does not depend on the trial count: more trials extend a run
         return {k: v for k, v in json.loads(json.dumps(a)).items() if k != "trials"}
@@ -200,8 +201,14 @@ def compare(roots: list, version: str, out: str | Path, conf: CompareConfig | di
         raise DataError(f"the compare config of this --out is unreadable ({type(e).__name__}: {e}); it records the "
                         f"configuration its trials were run with: delete {out} (or that file) to start over, or use "
                         "another --out", path=str(cfg_path)) from None
+    if previous is not None and "data" not in previous:  # written before the roots were recorded
+        previous = {**previous, "data": record["data"]}
     if previous is not None and same(previous) != same(record):
-        raise HybridCalibError(f"{out} holds trials of another configuration ({cfg_path}); use another --out")
+        was = previous.get("data")
+        what = (f"other roots or --version ({', '.join(map(str, was.get('roots', [])))}; {was.get('version')})"
+                if isinstance(was, dict) and was != record["data"] else "another configuration")
+        raise HybridCalibError(f"{out} holds trials of {what} ({cfg_path}), which this run would report as its "
+                               "own; pass the same options or use another --out")
     save_json_atomic(cfg_path, record)
     problems = run_trials([str(r) for r in roots], version, out, conf, progress)
     results = {m: load_trials(out, m, conf.trials) for m in conf.methods}

@@ -35,7 +35,7 @@ import torch
 
 from hybrid_calib.config import merge, save_json_atomic, to_dict
 from hybrid_calib.data.frame import RadarCameraFrame
-from hybrid_calib.errors import HybridCalibError
+from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.metrics import METRIC_KEYS, STD_KEYS_RADAR, extrinsic_error, format_table, summarize
 from learned.dataset import CalibDataset, DatasetConfig, SplitConfig, camera_token, collate, split_indices
 from learned.depth import DepthCache, build_depth_estimator
@@ -289,22 +289,37 @@ def write_report(result: EvalResult, out: str | Path, config: dict | None = None
 
 def evaluate(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig | dict, out: str | Path, *,
              checkpoint: str | Path | None = None, overwrite: bool = False, progress: bool = True,
-             **method_options) -> EvalResult:
+             data: dict | None = None, **method_options) -> EvalResult:
     """Export with ``conf.method`` into ``out`` (skipping frames already there unless ``overwrite``),
-    then compute and write the table. A changed config in an existing ``out`` is an error.
-    ``method_options`` go to the method's exporter (``export_pure``: ``exporter``)."""
+    then compute and write the table. A changed config in an existing ``out`` is an error; ``data`` (what
+    the frames were read from, e.g. {"roots", "version", "nsweeps"}) is part of it: frames of other roots
+    would be tabled with the ones already there. ``method_options`` go to the method's exporter
+    (``export_pure``: ``exporter``)."""
     conf = merge(EvalConfig, conf)
     if conf.method not in METHODS:
         raise HybridCalibError(f"unknown method {conf.method!r}; available: {sorted(METHODS)}")
     out = Path(out)
     record = {"eval": to_dict(conf), "checkpoint": str(checkpoint) if checkpoint else None,
               "model_config": to_dict(model.cfg) if hasattr(model, "cfg") else None}
+    if data is not None:
+        record["data"] = data
     cfg_path = out / "export_config.json"
     if cfg_path.is_file() and not overwrite:
-        old = json.loads(cfg_path.read_text())
+        try:
+            old = json.loads(cfg_path.read_text())
+            if not isinstance(old, dict):
+                raise TypeError(f"a JSON {type(old).__name__}, not an object")
+        except (OSError, ValueError, TypeError) as e:
+            raise DataError(f"the export config of this --out is unreadable ({type(e).__name__}: {e}); it records "
+                            "what its predictions were made with: use --overwrite or another --out",
+                            path=str(cfg_path)) from None
+        if "data" not in old and "data" in record:  # written before the data was recorded
+            old = {**old, "data": record["data"]}
         if old != json.loads(json.dumps(record)):
-            raise HybridCalibError(f"{out} holds predictions made with another config ({cfg_path}); "
-                                   "use --overwrite or another --out")
+            what = ("frames of other roots, --version or --nsweeps" if old.get("data") != record.get("data")
+                    else "another config")
+            raise HybridCalibError(f"{out} holds predictions made with {what} ({cfg_path}), which this run would "
+                                   "table with its own; use --overwrite or another --out")
     if overwrite:
         for old_file in (out / "frames").glob("*.npz"):
             old_file.unlink()

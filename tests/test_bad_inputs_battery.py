@@ -1102,3 +1102,219 @@ def test_deep_update_merges_nested_overrides():
     base = {"export": {"cov_scale": [2.0] * 6, "sigma_scale": 0.5}, "split": "all"}
     assert deep_update(base, {"export": {"sigma_scale": 1.2}, "split": "val", "new": {"a": 1}}) == {
         "export": {"cov_scale": [2.0] * 6, "sigma_scale": 1.2}, "split": "val", "new": {"a": 1}}
+
+
+# ---------------------------------------------------------------- root variants, reused --out folders, report frames
+def test_a_table_with_a_utf8_bom_is_read(tiny, capsys):
+    """A table saved with a UTF-8 byte order mark was 'not valid JSON ... corrupt or truncated'."""
+    path = tiny.vdir / "scene.json"
+    path.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())
+    rc, err = run_cli(_inspect(tiny), capsys)
+    assert rc == 0, err
+
+
+@pytest.mark.parametrize("version", ["v1.0-trainval", "samples", ""], ids=["empty-folder", "samples", "the-root"])
+def test_a_version_folder_without_tables_names_the_versions_there(version, tiny, capsys):
+    """An empty (or wrong) version folder was "table 'scene' is missing ... re-extract the metadata archive"."""
+    (tiny.root / "v1.0-trainval").mkdir()
+    (tiny.root / "samples").mkdir(exist_ok=True)
+    argv = ["inspect", "--data", tiny.root, "--version", version, "--no-progress"]
+    err = expect_cli_error(argv, capsys, "holds none of the nuScenes tables",
+                           f"versions found there: ['{tiny.version}']")
+    assert _one_paragraph(err)
+
+
+def test_a_missing_lidar_file_says_how_to_do_without_it(tiny):
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+
+    lidar = [sd for sd in tiny.tables["sample_data"] if "LIDAR_TOP" in sd["filename"]]
+    tiny.path(lidar[1]).unlink()
+    ds = NuScenesRadarCamera(tiny.root, tiny.version, conf={"load_lidar": True})
+    list(ds)
+    (skip,) = ds.skipped
+    assert skip.index == 1 and "LiDAR file not found" in skip.reason and "another --depth" in skip.reason, skip
+
+
+def _drop_images(root: Path, frames) -> None:
+    for f in frames:
+        (root / f.camera_sd["filename"]).unlink()
+
+
+def test_a_vehicle_whose_images_are_gone_is_named_with_the_reason(sim_copy, tmp_path, capsys):
+    """A wanted vehicle none of whose frames reads was "vehicle(s) [...] not in the data (vehicles: [... it ...])"
+    (the fleet's failure reason of such a vehicle with a network method)."""
+    root, frames = sim_copy
+    bad = sorted(frames)[1]
+    _drop_images(root, frames[bad])
+    argv = _calibrate(root, tmp_path / "out", "--method", "pure", "--set", f'vehicles=["{bad}"]')
+    err = expect_cli_error(argv, capsys, f"vehicle {bad}: no readable frame", "camera image not found")
+    assert "not in the data" not in err
+
+
+def test_a_vehicle_without_frames_in_the_split_says_so(sim, tmp_path, capsys):
+    root, frames = sim
+    argv = _calibrate(root, tmp_path / "out", "--method", "pure", "--split", "test", "--split-by", "vehicle",
+                      "--set", f'vehicles=["{sorted(frames)[0]}"]')
+    err = expect_cli_error(argv, capsys, f"['{sorted(frames)[0]}'] have no frame in split 'test'", "--split all")
+    assert "not in the data" not in err
+
+
+def test_fleet_out_of_another_root_or_options_is_refused(sim, tmp_path, capsys):
+    """A rerun into the same --out with another root (or --set/--max-frames) reported the first run's results as
+    its own (the manifest was updated to the new root, the result files were not recomputed)."""
+    root, _ = sim
+    other = tmp_path / "other"
+    shutil.copytree(root, other)
+    out = tmp_path / "fleet"
+    argv = ["fleet", "--data", root, "--out", out, "--max-frames", "1", "--no-plots", "--no-report"]
+    rc, err = run_cli(argv, capsys)
+    assert rc == 0, err
+    mtimes = {p: p.stat().st_mtime_ns for p in out.glob("vehicles/*/result.json")}
+    assert len(mtimes) == 2
+    rc, err = run_cli(argv, capsys)  # the same run again: resumes, recomputes nothing
+    assert rc == 0 and mtimes == {p: p.stat().st_mtime_ns for p in out.glob("vehicles/*/result.json")}, err
+    for changed, needle in (([other], f"data: \"{root}\" -> \"{other}\""), ([root, "--set", "window.window=2"],
+                                                                          "calib: ")):
+        argv2 = ["fleet", "--data", *changed, "--out", out, "--max-frames", "1", "--no-plots", "--no-report"]
+        err = expect_cli_error(argv2, capsys, "calibrated with other options", needle, "another --out",
+                               out / "manifest.json")
+        assert _one_paragraph(err)
+    assert mtimes == {p: p.stat().st_mtime_ns for p in out.glob("vehicles/*/result.json")}
+
+
+def test_compare_out_of_another_root_is_refused(sim, tmp_path, monkeypatch, capsys):
+    """compare_config.json did not record the roots: trials of one root were reported as another root's."""
+    import hybrid_calib.plots.compare
+
+    monkeypatch.setattr(hybrid_calib.plots.compare, "plot_error_vs_frames", lambda *a, **k: None)
+    root, _ = sim
+    other = tmp_path / "other"
+    shutil.copytree(root, other)
+    out = tmp_path / "cmp"
+    argv = ["compare", "--out", out, "--methods", "oracle", "--trials", "1", "--max-frames", "1", "--no-progress"]
+    rc, err = run_cli([*argv, "--data", root], capsys)
+    assert rc == 0, err
+    rc, err = run_cli([*argv, "--data", f"{root}/"], capsys)  # the same root, spelled otherwise: resumes
+    assert rc == 0, err
+    err = expect_cli_error([*argv, "--data", other], capsys, "holds trials of other roots", str(root), "another --out")
+    assert _one_paragraph(err)
+
+
+def test_demo_out_of_another_configuration_is_refused_before_any_work(tmp_path, capsys):
+    """A demo rerun into the same --out with another method returned the first run's calibration untouched."""
+    from hybrid_calib.commands.demo import DemoConfig
+    from hybrid_calib.config import merge, to_dict
+
+    out = tmp_path / "demo"
+    out.mkdir()
+    (out / "demo_config.json").write_text(json.dumps(to_dict(merge(DemoConfig, {"frames": 3}))))
+    err = expect_cli_error(["demo", "--out", out, "--set", "frames=3", "method=oracle", "workers=1"], capsys,
+                           "holds a demo of another configuration", "method: 'hybrid' -> 'oracle'", "--overwrite")
+    assert _one_paragraph(err) and sorted(p.name for p in out.iterdir()) == ["demo_config.json"]
+    (out / "demo_config.json").write_text("[")
+    expect_cli_error(["demo", "--out", out], capsys, "demo config of this --out is unreadable", "--overwrite")
+
+
+def test_report_goes_on_when_frames_of_the_runs_root_are_gone(sim, tmp_path, capsys):
+    """The run's own root lost images (or its tables broke) after the run: the report failed with the first
+    missing image; the page now notes the frames it cannot show."""
+    root, frames = sim
+    data = tmp_path / "data"
+    shutil.copytree(root, data)
+    run = tmp_path / "run"
+    assert run_cli(_calibrate(data, run, "--max-frames", "1"), capsys)[0] == 0
+    vehicle = sorted(frames)[0]
+    (data / frames[vehicle][-1].camera_sd["filename"]).unlink()
+    html = tmp_path / "r.html"
+    argv = ["report", run / "result.json", "--vehicle", vehicle, "--out", html, "--frames", "2"]
+    rc, err = run_cli(argv, capsys)
+    assert rc == 0, err
+    assert f"frame {frames[vehicle][-1].index} not shown: camera image not found" in html.read_text()
+    (data / SIM_VERSION / "sample_data.json").write_text("[")
+    rc, err = run_cli(argv, capsys)
+    assert rc == 0 and "no camera frames shown" in html.read_text(), err
+    expect_cli_error([*argv, "--data", data, "--version", SIM_VERSION], capsys, "not valid JSON")  # given: an error
+
+
+def test_network_outputs_of_another_checkpoint_are_not_reused(sim, tmp_path, capsys):
+    """OUT/network-cache was keyed by frame and start only: `calibrate --overwrite` into the same --out with
+    another --checkpoint reported the first network's estimate under the second one's name. A learned run's
+    report said its config was "unreadable (unknown option(s) ...)"."""
+    root, frames = sim
+    vehicle = sorted(frames)[0]
+
+    def final(out, ckpt, *extra):
+        argv = _calibrate(root, out, "--method", "pure", "--max-frames", "1", "--checkpoint", SHIPPED / ckpt,
+                          "--set", f'vehicles=["{vehicle}"]', *extra)
+        rc, err = run_cli(argv, capsys)
+        assert rc == 0, err
+        return json.loads((out / "result.json").read_text())["vehicles"][vehicle]["final"]["T_cam_radar"]
+
+    first = final(tmp_path / "a", "small-sim-r1.json")
+    again = final(tmp_path / "a", "small-sim-r2.json", "--overwrite")
+    assert again == final(tmp_path / "b", "small-sim-r2.json") and again != first
+    rc, err = run_cli(["report", tmp_path / "a" / "result.json", "--out", tmp_path / "r.html", "--frames", "1"], capsys)
+    assert rc == 0, err
+    page = (tmp_path / "r.html").read_text()
+    assert "unknown option" not in page and "a pure run: its rows came from the network" in page
+
+
+MANIFEST_HEAD = {"schema": "hybrid-calib/fleet-manifest/v1", "method": "oracle", "seed": 0}
+
+
+@pytest.mark.parametrize("jobs,needles", [
+    ({"sim-veh-000": 5}, ["entry 'sim-veh-000' is malformed", "a JSON int"]),
+    ({"sim-veh-000": {"state": "done"}}, ["entry 'sim-veh-000' is malformed", "job None"]),
+    ({"zzz": {"job": {"id": "zzz"}, "state": "done", "attempts": 1}}, ["entry 'zzz' is malformed", "vehicle"]),
+    ([], ['"jobs" is a JSON list']),
+], ids=["entry-an-int", "entry-without-job", "job-record-incomplete", "jobs-a-list"])
+def test_fleet_out_manifest_with_malformed_entries(jobs, needles, sim, tmp_path, capsys):
+    """OUT/manifest.json entries edited by hand were an internal error (KeyError / TypeError), or accepted."""
+    root, _ = sim
+    out = tmp_path / "fleet"
+    out.mkdir()
+    (out / "manifest.json").write_text(json.dumps({**MANIFEST_HEAD, "jobs": jobs}))
+    err = expect_cli_error(["fleet", "--data", root, "--out", out, "--no-plots", "--no-report"], capsys, *needles,
+                           "move it away to start over", out / "manifest.json")
+    assert _one_paragraph(err) and not (out / "vehicles").exists()
+
+
+def test_fleet_reruns_a_damaged_result_of_an_earlier_runs_vehicle(sim, tmp_path, capsys):
+    """A vehicle done in an earlier run but not listed in this one (a FLEET.json naming fewer vehicles) kept its
+    "done" state when its result.json was damaged: the whole fleet ran, then the summary failed on that file."""
+    root, frames = sim
+    first, second = sorted(frames)
+    out = tmp_path / "fleet"
+    rc, err = run_cli(["fleet", "--data", root, "--out", out, "--max-frames", "1", "--no-plots", "--no-report"], capsys)
+    assert rc == 0, err
+    good = json.loads((out / "vehicles" / first / "result.json").read_text())
+    (out / "vehicles" / first / "result.json").write_text('{"vehicles": 5}')
+    fleet_file = tmp_path / "FLEET.json"
+    fleet_file.write_text(json.dumps({"version": SIM_VERSION, "roots": [{"data": str(root), "vehicles": [second]}]}))
+    rc, err = run_cli(["fleet", "--manifest", fleet_file, "--out", out, "--max-frames", "1", "--no-plots",
+                       "--no-report"], capsys)
+    assert rc == 0, err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["counts"]["done"] == 2
+    again = json.loads((out / "vehicles" / first / "result.json").read_text())["vehicles"][first]
+    assert again["final"] == good["vehicles"][first]["final"]  # calibrated again, the same
+
+
+def test_evaluate_out_of_other_roots_or_a_damaged_export_config(sim, tmp_path, capsys):
+    """export_config.json did not record the roots: frames of another --data were added to the ones already in
+    OUT/frames and the table mixed both; an unreadable export_config.json was an internal error."""
+    root, _ = sim
+    other = tmp_path / "other"
+    shutil.copytree(root, other)
+    out = tmp_path / "eval"
+    argv = ["evaluate", "--version", SIM_VERSION, "--checkpoint", SHIPPED / "small-sim-r1.json", "--out", out,
+            "--split", "all", "--max-frames", "1", "--no-progress"]
+    rc, err = run_cli([*argv, "--data", root], capsys)
+    assert rc == 0, err
+    err = expect_cli_error([*argv, "--data", other], capsys, "holds predictions made with frames of other roots",
+                           "--overwrite", out / "export_config.json")
+    assert _one_paragraph(err)
+    assert json.loads((out / "results.json").read_text())["n_frames"] == 1
+    (out / "export_config.json").write_text("{")
+    expect_cli_error([*argv, "--data", root], capsys, "export config of this --out is unreadable",
+                     out / "export_config.json")

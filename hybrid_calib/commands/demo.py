@@ -120,6 +120,34 @@ def _overlay(root: Path, out_png: Path) -> Path:
     return draw_radar_truth(best, true_xyz, out_png)
 
 
+RUN_ONLY = ("threads", "engine", "workers")  # DemoConfig fields that change how the stages run, not what they give
+
+
+def check_same_demo(path: Path, conf: DemoConfig) -> None:
+    """``HybridCalibError`` when ``path`` (an earlier run's ``demo_config.json``) records another configuration:
+    the stages already done there (the calibration, the fleet) would be reported as this run's."""
+    import json
+
+    from hybrid_calib.errors import DataError, HybridCalibError
+
+    if not path.is_file():
+        return
+    try:
+        old = json.loads(path.read_text())
+        if not isinstance(old, dict):
+            raise TypeError(f"a JSON {type(old).__name__}, not an object")
+    except (OSError, ValueError, TypeError) as e:
+        raise DataError(f"the demo config of this --out is unreadable ({type(e).__name__}: {e}); it records what its "
+                        "stages were computed with: pass --overwrite to recompute every stage, or another --out",
+                        path=str(path)) from None
+    new = to_dict(conf)
+    changed = [f"{k}: {old.get(k)!r} -> {v!r}" for k, v in new.items() if k not in RUN_ONLY and old.get(k) != v]
+    if changed:
+        raise HybridCalibError(f"{path.parent} holds a demo of another configuration ({'; '.join(changed)}; "
+                               f"{path}), whose finished stages this run would report as its own; pass --overwrite "
+                               "to recompute every stage, or another --out")
+
+
 def run_demo(out: str | Path, conf: DemoConfig | dict | None = None, overwrite: bool = False) -> dict:
     """Run the demo into ``out``; returns a summary dict (also written to ``out/summary.json``)."""
     import shutil
@@ -141,6 +169,8 @@ def run_demo(out: str | Path, conf: DemoConfig | dict | None = None, overwrite: 
                                     "threads": conf.threads, "window": {"window": conf.window}})
     fleet_confs = fleet_sim_configs(conf)
     merge(HybridConfig, {"method": conf.fleet_method})
+    if not overwrite:
+        check_same_demo(out / "demo_config.json", conf)
     out.mkdir(parents=True, exist_ok=True)
     save_json_atomic(out / "demo_config.json", to_dict(conf))
 

@@ -114,9 +114,9 @@ def run(args: argparse.Namespace) -> int:
     # the LiDAR-camera variant calibrates T_cam_lidar from LiDAR points; lidar-densified depth reads them too
     lidar = model.cfg.variant == "lidar" or needs_lidar(str(conf.get("depth", "")))
     frames = open_roots(args.data, args.version, lidar=lidar, options={"nsweeps": args.nsweeps})
+    data = {"roots": [str(Path(d).resolve()) for d in args.data], "version": args.version, "nsweeps": args.nsweeps}
     result = evaluate(model, frames, conf, args.out, checkpoint=" -> ".join(map(str, stage_paths)),
-                      overwrite=args.overwrite,
-                      progress=not args.no_progress)
+                      overwrite=args.overwrite, progress=not args.no_progress, data=data)
     plot_error_cdf(result, Path(args.out) / "errors_cdf.png")
     print(result.table())
     skipped_path = Path(args.out) / "skipped.json"  # frames with bad files, skipped by the export

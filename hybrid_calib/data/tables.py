@@ -65,6 +65,12 @@ def version_dir(root: str | Path, version: str) -> Path:
         hint = f"versions found there: {found}" if found else "no version folder (with sample.json) found there"
         raise DataError(f"version folder {version!r} does not exist under the nuScenes root; {hint}; "
                         "pass one of them with --version", path=str(vdir))
+    if not any((vdir / f"{name}.json").is_file() for name in REQUIRED_TABLES):
+        found = [v for v in available_versions(root) if (root / v).resolve() != vdir.resolve()]
+        hint = f"versions found there: {found}" if found else "no version folder (with sample.json) found there"
+        raise DataError(f"{vdir} holds none of the nuScenes tables {sorted(REQUIRED_TABLES)}, so it is not a version "
+                        f"folder (an empty or unfinished extraction, or --version names another folder); {hint}; pass "
+                        "one of them with --version, or extract the metadata archive there", path=str(vdir))
     return vdir
 
 
@@ -79,7 +85,7 @@ def load_table(vdir: Path, name: str, required_fields: Iterable[str] = ("token",
         raise DataError(f"table {name!r} is missing; a nuScenes version folder needs the tables "
                         f"{sorted(REQUIRED_TABLES)}; re-extract the dataset's metadata archive", path=str(path))
     try:
-        with open(path, encoding="utf-8") as f:
+        with open(path, encoding="utf-8-sig") as f:  # a UTF-8 byte order mark (some editors write one) is read past
             records = json.load(f)
     except json.JSONDecodeError as e:
         raise DataError(f"table {name!r} is not valid JSON ({e.msg} at line {e.lineno} column {e.colno}); "

@@ -13,7 +13,9 @@ Resume rules (``Manifest.open``): a job whose result file is complete (written a
 present means complete) is ``done``, whatever state the manifest last recorded (a driver killed
 after the job wrote its result, before the manifest was saved); a job without one is ``pending``,
 or stays ``failed`` (with its reason) until it is retried. Nothing done is recomputed, and a job id
-is never listed twice.
+is never listed twice. A done job recorded with other result-defining options (another root, version,
+``--set``/``--max-frames``, checkpoint or prior) is refused (``DataError`` naming the job and the
+options), not reported as this run's result.
 
 Saving: one job per line (``json.dumps`` per entry, the C encoder: a 1000-job manifest, 1.9 MB,
 took 0.67 s against 1.09 s indented, on the shared 2-core box at load 8), at most every
@@ -27,6 +29,7 @@ result: the resume rules read the result files.
 from __future__ import annotations
 
 import json
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -78,18 +81,29 @@ class Manifest:
             if (doc.get("method"), doc.get("seed")) != (method, seed):
                 raise DataError(f"this OUT holds a fleet run of method {doc.get('method')!r}, seed {doc.get('seed')}; "
                                 f"pass the same --method/--seed or another --out", path=str(path))
-            m.jobs = dict(old)
+            m.jobs = _checked_jobs(old, path)
         for job in jobs:
             e = m.jobs.get(job.id)
             if e is None:
                 m.jobs[job.id] = {"job": job.to_dict(), "state": "pending", "reason": None, "file": None,
                                   "attempts": 0, "wall_s": None, "cpu_s": None, "host": None, "result": None}
                 continue
-            e["job"] = job.to_dict()  # options such as --checkpoint may change between reruns
-            if result_complete(job.result_path):
+            done = result_complete(job.result_path)
+            if done and (changed := _changed_options(e["job"], job)):
+                raise DataError(f"this OUT holds vehicle {job.id} calibrated with other options "
+                                f"({'; '.join(changed)}), so this run would report that result as its own; pass the "
+                                f"same options, or another --out (or move {job.out} away to calibrate it again)",
+                                path=str(path))
+            e["job"] = job.to_dict()  # a job not done yet runs with this run's options
+            if done:
                 e.update(state="done", reason=None, file=None, result=_rel(job.result_path, path.parent))
             elif e["state"] != "failed":
                 e.update(state="pending", result=None)
+        ids = {job.id for job in jobs}
+        for jid, e in m.jobs.items():  # jobs of earlier runs only (e.g. another root): the same resume rules
+            if jid not in ids and e["state"] in ("done", "running"):
+                done = bool(e.get("result")) and result_complete(path.parent / str(e["result"]))
+                e.update(state="done" if done else "pending", result=e.get("result") if done else None)
         m.save()
         return m
 
@@ -134,6 +148,70 @@ class Manifest:
 
     def counts(self) -> dict[str, int]:
         return {s: sum(e["state"] == s for e in self.jobs.values()) for s in STATES}
+
+
+def _checked_jobs(jobs, path: Path) -> dict[str, dict]:
+    """The ``jobs`` of a manifest read back, each entry checked to be what ``Manifest`` writes (module doc);
+    ``DataError`` naming the file and the first bad entry (an edited or foreign file)."""
+    if not isinstance(jobs, dict):
+        raise DataError(f"fleet manifest \"jobs\" is a JSON {type(jobs).__name__}, not an object of job entries; "
+                        "move it away to start over", path=str(path))
+    for jid, e in jobs.items():
+        try:
+            if not isinstance(e, dict):
+                raise TypeError(f"a JSON {type(e).__name__}, not an object")
+            if e.get("state") not in STATES:
+                raise ValueError(f"state {e.get('state')!r}, not one of {STATES}")
+            job = Job.from_dict(e["job"]) if isinstance(e.get("job"), dict) else None
+            if job is None or job.id != jid:
+                raise ValueError(f"job {e.get('job')!r} is not this entry's job record")
+            if isinstance(e.get("attempts"), bool) or not isinstance(e.get("attempts"), int):
+                raise ValueError(f"attempts {e.get('attempts')!r}, not an integer")
+        except (KeyError, TypeError, ValueError) as err:
+            raise DataError(f"fleet manifest entry {jid!r} is malformed ({err}); the file was edited or is not a "
+                            "hybrid-calib fleet manifest: move it away to start over", path=str(path)) from None
+    return dict(jobs)
+
+
+# the Job fields a result depends on (not: out, threads, tables_T / design_T, which follow from data)
+_RESULT_FIELDS = ("data", "version", "vehicle", "method", "seed", "checkpoint", "calib", "prior")
+
+
+def _changed_options(old: dict, job: Job) -> list[str]:
+    """"FIELD: OLD -> NEW" for each result-defining field in which the job recorded in the manifest (``old``,
+    a ``Job.to_dict``) differs from ``job``; paths compare resolved, the checkpoint only for network methods."""
+    changed = []
+    for k in _RESULT_FIELDS:
+        a, b = old.get(k), getattr(job, k)
+        if k == "checkpoint" and job.method == "oracle":
+            continue
+        if k in ("data", "checkpoint"):
+            same = (a or None) == (b or None) or (bool(a) and bool(b) and os.path.realpath(a) == os.path.realpath(b))
+        elif k == "calib":  # compared as the config they make: --max-frames 0 is the default, not a change
+            same = _effective(job.method, a) == _effective(job.method, b)
+        else:
+            same = json.loads(json.dumps(a)) == json.loads(json.dumps(b))
+        if not same:
+            changed.append(f"{k}: {_short(a)} -> {_short(b)}")
+    return changed
+
+
+def _effective(method: str, calib) -> object:
+    """The per-vehicle config the ``calib`` overrides make for ``method`` (plain dict), or them as given
+    when they do not make one."""
+    from hybrid_calib.calib.pipeline import CalibrateConfig
+    from hybrid_calib.config import merge, to_dict
+    from hybrid_calib.hybrid.loop import HybridConfig
+
+    try:
+        return to_dict(merge(CalibrateConfig if method == "oracle" else HybridConfig, calib or {}))
+    except (ValueError, TypeError):  # ConfigError is a ValueError
+        return json.loads(json.dumps(calib))
+
+
+def _short(value, limit: int = 80) -> str:
+    text = json.dumps(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def _rel(path: str | Path, base: Path) -> str:

@@ -178,9 +178,14 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
         drives[vehicle] = Drive(vehicle, list(idx), static, ref, simulated,
                                 None if ego_radar is None else np.asarray(ego_radar, np.float64),
                                 _end_truth(frames, idx, static) if simulated else None)
-    if conf.vehicles is not None and (missing := sorted(set(conf.vehicles) - set(drives))):
-        raise DataError(f"vehicle(s) {missing} not in the data (vehicles: {sorted(frames.frames_by_vehicle())})",
-                        path=str(data))
+    # a wanted vehicle none of whose frames reads is in ``unreadable`` with its reason, not "not in the data"
+    if conf.vehicles is not None and (missing := sorted(set(conf.vehicles) - set(drives) - set(unreadable or {}))):
+        present = sorted(frames.frames_by_vehicle())
+        if in_data := [v for v in missing if v in present]:  # present, but no frame of the split
+            opts = f" (split options {conf.split_options})" if conf.split_options else ""
+            raise DataError(f"vehicle(s) {in_data} have no frame in split {conf.split!r}{opts}; pass --split all or "
+                            "other split options", path=str(data))
+        raise DataError(f"vehicle(s) {missing} not in the data (vehicles: {present})", path=str(data))
     return frames, drives
 
 

@@ -96,10 +96,16 @@ def _start_key(T: np.ndarray) -> str:
 
 
 class OutputCache:
-    """``root/<token>-<hash of T_in>.npz`` per network pass (atomic writes; a corrupt entry is a miss)."""
+    """``root/<token>-<hash of T_in>.npz`` per network pass (atomic writes; a corrupt entry is a miss).
 
-    def __init__(self, root: str | Path):
+    ``network``: the identity of the network that makes the outputs (``network_key``: the checkpoint's
+    files and the depth estimator), stored in each entry; an entry of another network (the same ``--out``
+    rerun with another ``--checkpoint``, ``--refine`` or ``--depth``) is a miss and is overwritten. ""
+    (a reader that does not know the network) accepts any entry."""
+
+    def __init__(self, root: str | Path, network: str = ""):
         self.root = Path(root)
+        self.network = network
 
     def path(self, token: str, T_in: np.ndarray) -> Path:
         safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in token)
@@ -111,6 +117,8 @@ class OutputCache:
             return None
         try:
             with np.load(p, allow_pickle=False) as z:
+                if self.network and ("network" not in z.files or str(z["network"]) != self.network):
+                    return None  # another network's output (or an entry older than the key): recomputed
                 return NetworkOutput.from_arrays(z)
         except (OSError, ValueError, KeyError):
             return None
@@ -119,8 +127,20 @@ class OutputCache:
         p = self.path(token, out.T_in)
         p.parent.mkdir(parents=True, exist_ok=True)
         tmp = p.with_name(f".{p.stem}.{os.getpid()}.tmp.npz")
-        np.savez(tmp, **out.to_arrays())
+        np.savez(tmp, **out.to_arrays(), network=np.array(self.network))
         tmp.replace(p)
+
+
+def network_key(checkpoint: str | Path, depth_name: str, depth_hash: str) -> str:
+    """The identity of a network's outputs (``OutputCache``): the checkpoint's JSON and weights (their
+    bytes: a retrained or edited checkpoint at the same path is another network) and its depth input."""
+    from learned.checkpoint import _weights_path, read_checkpoint_meta
+
+    path, meta = read_checkpoint_meta(checkpoint)
+    h = hashlib.sha1(f"{depth_name}/{depth_hash}/".encode())
+    for f in (path, _weights_path(path, meta)):
+        h.update(f.read_bytes())
+    return h.hexdigest()[:16]
 
 
 class NetworkRunner:
@@ -154,7 +174,8 @@ class NetworkRunner:
                               perturbation=self.range, seed=0, variant=self.model.cfg.variant)
         self.dataset = CalibDataset(frames, dconf, build_depth_estimator(self.depth_name, depth_opts),
                                     cache=DepthCache(depth_cache) if depth_cache else None, train=False)
-        self.cache = OutputCache(cache_dir) if cache_dir else None
+        self.key = network_key(self.ckpt.path, self.depth_name, self.dataset.depth.config_hash())
+        self.cache = OutputCache(cache_dir, self.key) if cache_dir else None
         self.min_confidence = float(min_confidence)
         self._samples: dict[int, dict | None] = {}
 
@@ -249,7 +270,8 @@ class CascadeRunner:
 
     def __init__(self, coarse: NetworkRunner, refine: NetworkRunner, cache_dir: str | Path = ""):
         self.coarse, self.refine = coarse, refine
-        self.cache = OutputCache(cache_dir) if cache_dir else None
+        self.key = hashlib.sha1(f"cascade/{coarse.key}/{refine.key}".encode()).hexdigest()[:16]
+        self.cache = OutputCache(cache_dir, self.key) if cache_dir else None
         self.ckpt, self.range = refine.ckpt, coarse.range
         self.depth_name = coarse.depth_name
         self.ood, self.ood_note = refine.ood, refine.ood_note  # the features are the refining pass's

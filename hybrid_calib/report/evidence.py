@@ -86,6 +86,9 @@ def segment_estimates(vr) -> dict[str, tuple[np.ndarray, str, int]]:
     return out
 
 
+LEARNED_METHODS = ("hybrid", "pure", "pure-avg")  # a result's ``correspondences`` when the network made its rows
+
+
 def run_config(result_path: Path) -> CalibrateConfig | None:
     """The run's effective config (``config.json`` next to ``result.json``), or None when absent."""
     p = Path(result_path).parent / "config.json"
@@ -139,13 +142,17 @@ def gather(run: CalibrationRun, result_path: Path, vehicle: str, data: str | Pat
         ev.notes.append(f"no data root: {root / version} is not there (pass --data ROOT --version V), so no camera "
                         "frames, correspondences or residuals are shown")
         return ev
+    by_token: dict = {}
+    learned = run.correspondences in LEARNED_METHODS  # its config.json is a HybridConfig, its rows the network's
     try:
-        conf = run_config(result_path)
+        conf = None if learned else run_config(result_path)
     except HybridCalibError as e:  # e.g. a config written by another version: the page goes on without rows
         conf = None
         ev.notes.append(str(e))
-    by_token: dict = {}
-    if conf is None:
+    if learned:
+        ev.notes.append(f"a {run.correspondences} run: its rows came from the network at each frame, which the report "
+                        "does not run again, so no correspondences or residuals are shown")
+    elif conf is None:
         ev.notes.append(f"no usable run config ({Path(result_path).parent / 'config.json'}): the rows and the start "
                         "cannot be rebuilt, so no correspondences or residuals are shown")
     else:
@@ -170,35 +177,42 @@ def gather(run: CalibrationRun, result_path: Path, vehicle: str, data: str | Pat
         elif inputs:
             ev.notes.append(f"the run's rows hold no vehicle {vehicle} (they hold {', '.join(sorted(inputs))})")
     _frames(ev, root, version, vehicle, vr, n_frames, by_token,
-            None if conf is None else _factor_and_gate(conf, run.mode))
+            None if conf is None else _factor_and_gate(conf, run.mode), explicit=data is not None)
     return ev
 
 
-def _frames(ev: Evidence, root: Path, version: str, vehicle: str, vr, n: int, by_token: dict, fg) -> None:
+def _frames(ev: Evidence, root: Path, version: str, vehicle: str, vr, n: int, by_token: dict, fg,
+            explicit: bool = False) -> None:
     from hybrid_calib.data.nuscenes import NuScenesRadarCamera
     from hybrid_calib.geometry import transform_points
 
     if n <= 0:
         ev.notes.append("no camera frames requested (--frames 0)")
         return
-    ds = NuScenesRadarCamera(root, version)
+    try:
+        ds = NuScenesRadarCamera(root, version)
+    except HybridCalibError as e:  # the run's own root changed since the run: the page goes on without frames
+        if explicit:  # a --data root given for the frames that cannot be read: say so
+            raise
+        ev.notes.append(f"no camera frames shown: {root / version} cannot be read ({e})")
+        return
     idx = ds.frames_by_vehicle().get(vehicle)
     if not idx:
         ev.notes.append(f"vehicle {vehicle} has no frame in {root / version}: no camera frames shown")
         return
     start = ev.start
-    if start is None:
-        start = np.asarray(ds[idx[0]].extras.get("reference_T_cam_radar", ds[idx[0]].T_cam_radar), np.float64)
-        ev.start_label = "the vehicle's reference (its calibration tables)"
     seg = segment_estimates(vr)
     for i in sorted({idx[int(round(k))] for k in np.linspace(0, len(idx) - 1, n)}):
-        f = ds[i]
-        T_res, label, k = seg.get(f.sample_token) or seg.get(f.camera_token) or (vr.final.T, "result", None)
-        try:
+        try:  # a frame whose files went missing or bad since the run is a note, not the end of the page
+            f = ds[i]
             img = f.load_image()
         except DataError as e:
             ev.notes.append(f"frame {i} not shown: {e}")
             continue
+        if start is None:
+            start = np.asarray(f.extras.get("reference_T_cam_radar", f.T_cam_radar), np.float64)
+            ev.start_label = "the vehicle's reference (its calibration tables)"
+        T_res, label, k = seg.get(f.sample_token) or seg.get(f.camera_token) or (vr.final.T, "result", None)
         pts = np.asarray(f.radar_points)
         uv0, z0 = f.camera.project(transform_points(start, pts))
         uv1, z1 = f.camera.project(transform_points(T_res, pts))
@@ -208,5 +222,5 @@ def _frames(ev: Evidence, root: Path, version: str, vehicle: str, vr, n: int, by
             sf.pairs_start = _pairs(corr, start, f, *fg)
             sf.pairs_result = _pairs(corr, T_res, f, *fg)
         ev.frames.append(sf)
-    if ev.frames and all(s.pairs_result is None for s in ev.frames):
+    if ev.frames and by_token and all(s.pairs_result is None for s in ev.frames):  # rows there, none matched
         ev.notes.append("the correspondences are not drawn: the rows of the shown frames could not be matched")
