@@ -1318,3 +1318,22 @@ def test_evaluate_out_of_other_roots_or_a_damaged_export_config(sim, tmp_path, c
     (out / "export_config.json").write_text("{")
     expect_cli_error([*argv, "--data", root], capsys, "export config of this --out is unreadable",
                      out / "export_config.json")
+
+
+def test_report_of_a_learned_run_draws_the_start_it_used(sim, tmp_path, capsys):
+    """The report of a network-method run drew its "start" picture from the calibration tables whatever the
+    run's --start was: it now uses the start the result recorded (an R1 start here)."""
+    import html
+
+    root, frames = sim
+    vehicle = sorted(frames)[0]
+    out = tmp_path / "run"
+    rc, err = run_cli(_calibrate(root, out, "--method", "pure", "--max-frames", "1", "--start", "R1",
+                                 "--checkpoint", SHIPPED / "small-sim-r1.json", "--set", f'vehicles=["{vehicle}"]'),
+                      capsys)
+    assert rc == 0, err
+    rc, err = run_cli(["report", out / "result.json", "--out", tmp_path / "r.html", "--frames", "1"], capsys)
+    assert rc == 0, err
+    page = html.unescape((tmp_path / "r.html").read_text())
+    assert "projected with the start (the run's R1 start (seed 0))" in page
+    assert "projected with the start (the vehicle's reference" not in page

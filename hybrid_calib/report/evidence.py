@@ -181,6 +181,24 @@ def gather(run: CalibrationRun, result_path: Path, vehicle: str, data: str | Pat
     return ev
 
 
+def _recorded_start(vr) -> tuple[np.ndarray | None, str]:
+    """(4, 4) the start a vehicle's result recorded (``VehicleResult.start``: learned methods) and what it
+    was, or (None, "") when it recorded none or an unusable one."""
+    rec = getattr(vr, "start", None)
+    if not isinstance(rec, dict) or rec.get("T_cam_radar") is None:
+        return None, ""
+    try:
+        T = np.asarray(rec["T_cam_radar"], np.float64)
+    except (TypeError, ValueError):
+        return None, ""
+    if T.shape != (4, 4) or not np.isfinite(T).all():
+        return None, ""
+    kind = str(rec.get("kind", ""))
+    if kind == "reference":
+        return T, "the vehicle's reference (its calibration tables)"
+    return T, f"the run's {kind} start (seed {rec.get('seed')})"
+
+
 def _frames(ev: Evidence, root: Path, version: str, vehicle: str, vr, n: int, by_token: dict, fg,
             explicit: bool = False) -> None:
     from hybrid_calib.data.nuscenes import NuScenesRadarCamera
@@ -201,6 +219,10 @@ def _frames(ev: Evidence, root: Path, version: str, vehicle: str, vr, n: int, by
         ev.notes.append(f"vehicle {vehicle} has no frame in {root / version}: no camera frames shown")
         return
     start = ev.start
+    if start is None:  # a learned run: the start it recorded (result.json "start"), not the tables
+        start, label = _recorded_start(vr)
+        if start is not None:
+            ev.start, ev.start_label = start, label
     seg = segment_estimates(vr)
     for i in sorted({idx[int(round(k))] for k in np.linspace(0, len(idx) - 1, n)}):
         try:  # a frame whose files went missing or bad since the run is a note, not the end of the page
