@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from hybrid_calib.calib.result import VehicleResult, failed_vehicles_message
-from hybrid_calib.config import merge, save_json_atomic, to_dict
+from hybrid_calib.config import merge, read_out_record, save_json_atomic, to_dict
 from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.hybrid.loop import METHODS, HybridConfig, _Session, vehicle_learned, vehicle_oracle
 from hybrid_calib.metrics import METRIC_KEYS
@@ -193,14 +193,8 @@ def compare(roots: list, version: str, out: str | Path, conf: CompareConfig | di
     def same(a: dict) -> dict:  # trial k does not depend on the trial count: more trials extend a run
         return {k: v for k, v in json.loads(json.dumps(a)).items() if k != "trials"}
 
-    try:
-        previous = json.loads(cfg_path.read_text()) if cfg_path.is_file() else None
-        if previous is not None and not isinstance(previous, dict):
-            raise TypeError(f"a JSON {type(previous).__name__}, not an object")
-    except (OSError, ValueError, TypeError) as e:
-        raise DataError(f"the compare config of this --out is unreadable ({type(e).__name__}: {e}); it records the "
-                        f"configuration its trials were run with: delete {out} (or that file) to start over, or use "
-                        "another --out", path=str(cfg_path)) from None
+    previous = read_out_record(cfg_path, "compare config", f"the configuration its trials were run with: delete "
+                               f"{out} (or that file) to start over, or use another --out")
     if previous is not None and "data" not in previous:  # written before the roots were recorded
         previous = {**previous, "data": record["data"]}
     if previous is not None and same(previous) != same(record):

@@ -159,6 +159,24 @@ def deep_update(base: dict[str, Any], overrides: Mapping[str, Any]) -> dict[str,
     return base
 
 
+def read_out_record(path: Path, what: str, records: str) -> dict[str, Any] | None:
+    """The JSON object an earlier run left in its --out to say what it was computed with (``path``), or None
+    when there is none. ``DataError`` naming the file when it does not read back as an object: "the
+    ``what`` of this --out is unreadable (...); it records ``records``" (``records`` also says what to do)."""
+    from hybrid_calib.errors import DataError
+
+    if not path.is_file():
+        return None
+    try:
+        doc = json.loads(path.read_text())
+        if not isinstance(doc, dict):
+            raise TypeError(f"a JSON {type(doc).__name__}, not an object")
+    except (OSError, ValueError, TypeError) as e:
+        raise DataError(f"the {what} of this --out is unreadable ({type(e).__name__}: {e}); it records {records}",
+                        path=str(path)) from None
+    return doc
+
+
 def save_text_atomic(path: Path, text: str) -> Path:
     """Write ``text`` (UTF-8) to ``path`` atomically (``hybrid_calib.atomic``); the parent is created."""
     from hybrid_calib.atomic import write_bytes_atomic

@@ -33,9 +33,9 @@ from typing import Any
 import numpy as np
 import torch
 
-from hybrid_calib.config import merge, save_json_atomic, to_dict
+from hybrid_calib.config import merge, read_out_record, save_json_atomic, to_dict
 from hybrid_calib.data.frame import RadarCameraFrame
-from hybrid_calib.errors import DataError, HybridCalibError
+from hybrid_calib.errors import HybridCalibError
 from hybrid_calib.metrics import METRIC_KEYS, STD_KEYS_RADAR, extrinsic_error, format_table, summarize
 from learned.dataset import CalibDataset, DatasetConfig, SplitConfig, camera_token, collate, split_indices
 from learned.depth import DepthCache, build_depth_estimator
@@ -304,15 +304,9 @@ def evaluate(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig | dict,
     if data is not None:
         record["data"] = data
     cfg_path = out / "export_config.json"
-    if cfg_path.is_file() and not overwrite:
-        try:
-            old = json.loads(cfg_path.read_text())
-            if not isinstance(old, dict):
-                raise TypeError(f"a JSON {type(old).__name__}, not an object")
-        except (OSError, ValueError, TypeError) as e:
-            raise DataError(f"the export config of this --out is unreadable ({type(e).__name__}: {e}); it records "
-                            "what its predictions were made with: use --overwrite or another --out",
-                            path=str(cfg_path)) from None
+    old = None if overwrite else read_out_record(cfg_path, "export config", "what its predictions were made "
+                                                 "with: use --overwrite or another --out")
+    if old is not None:
         if "data" not in old and "data" in record:  # written before the data was recorded
             old = {**old, "data": record["data"]}
         if old != json.loads(json.dumps(record)):

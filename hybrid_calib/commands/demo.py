@@ -126,20 +126,13 @@ RUN_ONLY = ("threads", "engine", "workers")  # DemoConfig fields that change how
 def check_same_demo(path: Path, conf: DemoConfig) -> None:
     """``HybridCalibError`` when ``path`` (an earlier run's ``demo_config.json``) records another configuration:
     the stages already done there (the calibration, the fleet) would be reported as this run's."""
-    import json
+    from hybrid_calib.config import read_out_record
+    from hybrid_calib.errors import HybridCalibError
 
-    from hybrid_calib.errors import DataError, HybridCalibError
-
-    if not path.is_file():
+    old = read_out_record(path, "demo config", "what its stages were computed with: pass --overwrite to recompute "
+                          "every stage, or another --out")
+    if old is None:
         return
-    try:
-        old = json.loads(path.read_text())
-        if not isinstance(old, dict):
-            raise TypeError(f"a JSON {type(old).__name__}, not an object")
-    except (OSError, ValueError, TypeError) as e:
-        raise DataError(f"the demo config of this --out is unreadable ({type(e).__name__}: {e}); it records what its "
-                        "stages were computed with: pass --overwrite to recompute every stage, or another --out",
-                        path=str(path)) from None
     new = to_dict(conf)
     changed = [f"{k}: {old.get(k)!r} -> {v!r}" for k, v in new.items() if k not in RUN_ONLY and old.get(k) != v]
     if changed:
