@@ -1337,3 +1337,25 @@ def test_report_of_a_learned_run_draws_the_start_it_used(sim, tmp_path, capsys):
     page = html.unescape((tmp_path / "r.html").read_text())
     assert "projected with the start (the run's R1 start (seed 0))" in page
     assert "projected with the start (the vehicle's reference" not in page
+
+
+# ---------------------------------------------------------------- round 3
+def test_calibrate_out_of_another_run_is_refused(sim, calibrated, tmp_path, capsys):
+    """A calibrate rerun into the same --out with another method, root or option printed the first run's result as
+    its own (only "result.json exists" said otherwise); the same run again still reuses it."""
+    root, _ = sim
+    run = tmp_path / "run"
+    shutil.copytree(calibrated, run)
+    mtime = (run / "result.json").stat().st_mtime_ns
+    rc, err = run_cli(_calibrate(f"{root}/", run, "--max-frames", "1"), capsys)  # the same run: reused
+    assert rc == 0, err
+    for extra, needle in ((["--max-frames", "2"], "max_frames: 1 -> 2"),
+                          (["--max-frames", "1", "--start", "R2"], 'start: "reference" -> "R2"'),
+                          (["--max-frames", "1", "--method", "pure"], "method / correspondences 'oracle' -> 'pure'")):
+        err = expect_cli_error(_calibrate(root, run, *extra), capsys, "holds the result of another run", needle,
+                               run / "result.json", "--overwrite")
+        assert _one_paragraph(err)
+    other = tmp_path / "other"
+    other.mkdir()
+    expect_cli_error(_calibrate(other, run, "--max-frames", "1"), capsys, f"--data '{root}' -> '{other}'")
+    assert (run / "result.json").stat().st_mtime_ns == mtime
