@@ -1359,3 +1359,34 @@ def test_calibrate_out_of_another_run_is_refused(sim, calibrated, tmp_path, caps
     other.mkdir()
     expect_cli_error(_calibrate(other, run, "--max-frames", "1"), capsys, f"--data '{root}' -> '{other}'")
     assert (run / "result.json").stat().st_mtime_ns == mtime
+
+
+# (command and options, needles): each was silently ignored (or failed every job alike)
+IGNORED_OPTION_CASES = [
+    (["calibrate", "--depth", "nosuch"], ["--depth: is for the learned methods", "--method oracle runs no network"]),
+    (["calibrate", "--checkpoint", "x.json", "--refine", "shipped"],
+     ["--checkpoint:", "drop --checkpoint and --refine"]),
+    (["calibrate", "--method", "pure", "--mode", "batch"], ["--mode batch:", "--method pure runs the sliding window"]),
+    (["calibrate", "--method", "hybrid", "--backend", "ceres"], ["--backend:", "--method hybrid"]),
+    (["fleet", "--checkpoint", SHIPPED / "small-sim-r1.json"], ["--checkpoint: is for the network methods"]),
+    (["fleet", "--address", "127.0.0.1:1"], ["--address: is for --engine ray", "--engine local"]),
+    (["fleet", "--engine", "process", "--ray-temp", "/tmp/r"], ["--ray-temp: is for --engine ray"]),
+    (["fleet", "--workers", "2"], ["--workers: 2 parallel jobs need --engine process or ray"]),
+    (["fleet", "--method", "pure", "--set", "mode=batch"], ["--set: mode: --method pure runs the sliding window"]),
+    (["fleet", "--method", "pure", "--prior", "fleet_prior.json"], ["--prior: the fleet prior is applied by --method "
+                                                                   "oracle only"]),
+    (["fleet", "--method", "pure", "--set", "threads=2"], ["threads=2 is chosen with --threads"]),
+    # a HybridConfig key is valid for a network method (it was refused as not a CalibrateConfig option)
+    (["fleet", "--method", "pure", "--set", "measurement.rows=last", "--checkpoint", "none.json"],
+     ["checkpoint not found"]),
+]
+
+
+@pytest.mark.parametrize("argv,needles", IGNORED_OPTION_CASES, ids=[" ".join(map(str, a)) for a, _ in
+                                                                      IGNORED_OPTION_CASES])
+def test_an_option_the_method_or_engine_would_ignore_is_refused(argv, needles, sim, tmp_path, capsys):
+    root, _ = sim
+    out = tmp_path / "out"
+    err = expect_cli_error([argv[0], "--data", root, "--out", out, "--max-frames", "1", "--no-plots", *argv[1:]],
+                           capsys, *needles)
+    assert _one_paragraph(err) and not out.exists()
