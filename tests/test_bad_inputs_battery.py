@@ -1390,3 +1390,31 @@ def test_an_option_the_method_or_engine_would_ignore_is_refused(argv, needles, s
     err = expect_cli_error([argv[0], "--data", root, "--out", out, "--max-frames", "1", "--no-plots", *argv[1:]],
                            capsys, *needles)
     assert _one_paragraph(err) and not out.exists()
+
+
+def test_train_resume_with_other_data_or_options_is_refused(tmp_path):
+    """`train` into a run folder resumed with another --range, --set lr or other roots: it continued the run with
+    them (the optimizer kept the old lr) and train_config.json recorded them as the whole run's."""
+    from hybrid_calib.errors import HybridCalibError
+    from learned.train import TrainConfig, check_resume
+
+    out = tmp_path / "run"
+    out.mkdir()
+    conf = to_dict_of(TrainConfig())
+    data = {"roots": ["/a"], "version": "v1.0-sim", "nsweeps": 1}
+    (out / "train_config.json").write_text(json.dumps({"train": conf, "model": {}, "data": data}))
+    last = out / "checkpoints" / "ckpt-0002.json"
+    check_resume(out, last, {**conf, "epochs": 80, "threads": 4}, data)  # more epochs, other threads: resumes
+    with pytest.raises(HybridCalibError, match=r'up to ckpt-0002.json with other options \(perturbation: "R1" -> "R2"'):
+        check_resume(out, last, {**conf, "perturbation": "R2"}, data)
+    with pytest.raises(HybridCalibError, match=r'data: .*"/a".* -> .*"/b"'):
+        check_resume(out, last, conf, {**data, "roots": ["/b"]})
+    (out / "train_config.json").write_text("{")
+    with pytest.raises(HybridCalibError, match="train config of this --out is unreadable"):
+        check_resume(out, last, conf, data)
+
+
+def to_dict_of(conf) -> dict:
+    from hybrid_calib.config import to_dict
+
+    return to_dict(conf)
