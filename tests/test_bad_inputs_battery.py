@@ -1418,3 +1418,28 @@ def to_dict_of(conf) -> dict:
     from hybrid_calib.config import to_dict
 
     return to_dict(conf)
+
+
+def test_report_data_or_version_that_do_not_hold_the_run(sim, calibrated, tmp_path, capsys):
+    """report --data ROOT of another drive with the same vehicle name drew that drive's frames and replayed its rows
+    as the result's; --version V that is not there (given explicitly) gave a page without pictures."""
+    root, frames = sim
+    vehicle = next(iter(frames))
+    other = tmp_path / "other"
+    shutil.copytree(root, other)
+    tables = other / SIM_VERSION
+    samples = [r["token"] for r in json.loads((tables / "sample.json").read_text())]
+    for path in tables.glob("*.json"):  # the same drives under other sample tokens: another drive to the report
+        text = path.read_text()
+        for t in samples:
+            text = text.replace(t, t[::-1])
+        path.write_text(text)
+    argv = ["report", calibrated / "result.json", "--vehicle", vehicle, "--out", tmp_path / "r.html"]
+    err = expect_cli_error([*argv, "--data", other], capsys, "--data", tables, "holds none of the 1 frames",
+                           vehicle, f"the run read {root}")
+    assert _one_paragraph(err)
+    expect_cli_error([*argv, "--version", "v9"], capsys, "--version", root / "v9", "is not there")
+    expect_cli_error([*argv, "--data", root, "--version", "v9"], capsys, "--version", root / "v9")
+    assert not (tmp_path / "r.html").exists()
+    rc, err = run_cli([*argv, "--data", f"{root}/", "--frames", "1"], capsys)  # the run's own root, given: fine
+    assert rc == 0 and (tmp_path / "r.html").is_file(), err
