@@ -1443,3 +1443,19 @@ def test_report_data_or_version_that_do_not_hold_the_run(sim, calibrated, tmp_pa
     assert not (tmp_path / "r.html").exists()
     rc, err = run_cli([*argv, "--data", f"{root}/", "--frames", "1"], capsys)  # the run's own root, given: fine
     assert rc == 0 and (tmp_path / "r.html").is_file(), err
+
+
+@pytest.mark.parametrize("filename,why", [("", "is empty"), ("/etc/hostname", "is absolute"),
+                                          ("../../outside/x.pcd", "leaves the root ('..')")],
+                         ids=["empty", "absolute", "dotdot"])
+@pytest.mark.parametrize("which", ["radar", "camera"])
+def test_a_filename_outside_the_root_is_a_skip_naming_it(filename, why, which, tiny):
+    """An empty filename read the root folder ("Is a directory"), an absolute or '..' one a file outside the
+    dataset as the frame's; now the frame is skipped naming the record's filename."""
+    sd = (tiny.radar_sd if which == "radar" else tiny.cam_sd)[1]
+    sd["filename"] = filename
+    tiny.rewrite_table("sample_data")
+    skipped = _skips_of(tiny)
+    assert [s.index for s in skipped] == [1], skipped
+    for needle in (f"field 'filename' {filename!r} {why}", "relative to the root", "sample_data.json", sd["token"]):
+        assert needle in skipped[0].reason, (needle, skipped[0].reason)
