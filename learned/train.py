@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from hybrid_calib.config import ConfigError, merge, save_json_atomic, to_dict
+from hybrid_calib.config import ConfigError, merge, read_out_record, save_json_atomic, to_dict
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.errors import HybridCalibError
 from hybrid_calib.metrics import extrinsic_error
@@ -179,14 +179,39 @@ def _tensorboard(out: Path):
         return None
 
 
+RESUME_FREE = ("epochs", "threads", "num_workers", "device", "depth_cache")  # may change when a run resumes
+
+
+def check_resume(out: Path, last: Path, conf: dict, source: dict | None) -> None:
+    """``HybridCalibError`` when the run in ``out`` (its ``train_config.json``; up to checkpoint ``last``) was
+    trained with other options (``conf``: ``to_dict(TrainConfig)``, ``RESUME_FREE`` aside) or other data
+    (``source``): resuming would continue it with these and record them as the whole run's."""
+    previous = read_out_record(out / "train_config.json", "train config", "the options its checkpoints were "
+                               "trained with: resume with the same options, or choose another --out")
+    if previous is None:
+        return
+    old = previous.get("train") if isinstance(previous.get("train"), dict) else {}
+    changed = [f"{k}: {json.dumps(old.get(k))} -> {json.dumps(v)}" for k, v in conf.items()
+               if k not in RESUME_FREE and old.get(k) != v]
+    if source is not None and previous.get("data") not in (None, source):
+        changed.insert(0, f"data: {json.dumps(previous['data'])} -> {json.dumps(source)}")
+    if changed:
+        raise HybridCalibError(f"{out} holds a run trained up to {last.name} with other options "
+                               f"({'; '.join(changed)}); resume with the same options and data (only "
+                               f"{', '.join(RESUME_FREE)} may change), or choose another --out")
+
+
 def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str | Path, *, resume: bool = True,
-          progress: bool = True, model_factory: Callable[[Any], torch.nn.Module] | None = None) -> Path:
+          progress: bool = True, model_factory: Callable[[Any], torch.nn.Module] | None = None,
+          source: dict | None = None) -> Path:
     """Train RC-AutoCalib on the ``train`` split of ``frames``; returns the last checkpoint's JSON.
 
     ``conf``: a ``TrainConfig`` (or overrides of the defaults). ``out``: the run folder (module
-    docstring). With ``resume`` an existing run continues after its last checkpoint; without it an
-    existing run folder with checkpoints is an error (pick a new ``out``). ``model_factory`` builds
-    the network from its ``ModelConfig`` (default ``learned.model.RCAutoCalib``)."""
+    docstring). With ``resume`` an existing run continues after its last checkpoint, when it was trained
+    with the same options (``RESUME_FREE`` aside) and ``source``; without it an existing run folder with
+    checkpoints is an error (pick a new ``out``). ``model_factory`` builds the network from its
+    ``ModelConfig`` (default ``learned.model.RCAutoCalib``). ``source``: where ``frames`` came from (the
+    command's roots, version, sweeps), recorded in ``train_config.json`` as "data"."""
     from tqdm import tqdm
 
     if model_factory is None:
@@ -206,8 +231,11 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
     if last is not None and load_checkpoint(last).model_config != model_conf_dict:
         raise HybridCalibError(f"{last} was trained with another model config; resume with the same "
                                "preset and --set options, or choose another --out")
+    if last is not None:
+        check_resume(out, last, to_dict(conf), source)
     out.mkdir(parents=True, exist_ok=True)
-    save_json_atomic(out / "train_config.json", {"train": to_dict(conf), "model": model_conf_dict})
+    save_json_atomic(out / "train_config.json", {"train": to_dict(conf), "model": model_conf_dict,
+                                                 **({"data": source} if source is not None else {})})
 
     train_idx = split_indices(frames, "train", conf.split)
     val_idx = split_indices(frames, "val", conf.split)

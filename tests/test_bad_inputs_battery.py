@@ -1337,3 +1337,125 @@ def test_report_of_a_learned_run_draws_the_start_it_used(sim, tmp_path, capsys):
     page = html.unescape((tmp_path / "r.html").read_text())
     assert "projected with the start (the run's R1 start (seed 0))" in page
     assert "projected with the start (the vehicle's reference" not in page
+
+
+# ---------------------------------------------------------------- round 3
+def test_calibrate_out_of_another_run_is_refused(sim, calibrated, tmp_path, capsys):
+    """A calibrate rerun into the same --out with another method, root or option printed the first run's result as
+    its own (only "result.json exists" said otherwise); the same run again still reuses it."""
+    root, _ = sim
+    run = tmp_path / "run"
+    shutil.copytree(calibrated, run)
+    mtime = (run / "result.json").stat().st_mtime_ns
+    rc, err = run_cli(_calibrate(f"{root}/", run, "--max-frames", "1"), capsys)  # the same run: reused
+    assert rc == 0, err
+    for extra, needle in ((["--max-frames", "2"], "max_frames: 1 -> 2"),
+                          (["--max-frames", "1", "--start", "R2"], 'start: "reference" -> "R2"'),
+                          (["--max-frames", "1", "--method", "pure"], "method / correspondences 'oracle' -> 'pure'")):
+        err = expect_cli_error(_calibrate(root, run, *extra), capsys, "holds the result of another run", needle,
+                               run / "result.json", "--overwrite")
+        assert _one_paragraph(err)
+    other = tmp_path / "other"
+    other.mkdir()
+    expect_cli_error(_calibrate(other, run, "--max-frames", "1"), capsys, f"--data '{root}' -> '{other}'")
+    assert (run / "result.json").stat().st_mtime_ns == mtime
+
+
+# (command and options, needles): each was silently ignored (or failed every job alike)
+IGNORED_OPTION_CASES = [
+    (["calibrate", "--depth", "nosuch"], ["--depth: is for the learned methods", "--method oracle runs no network"]),
+    (["calibrate", "--checkpoint", "x.json", "--refine", "shipped"],
+     ["--checkpoint:", "drop --checkpoint and --refine"]),
+    (["calibrate", "--method", "pure", "--mode", "batch"], ["--mode batch:", "--method pure runs the sliding window"]),
+    (["calibrate", "--method", "hybrid", "--backend", "ceres"], ["--backend:", "--method hybrid"]),
+    (["fleet", "--checkpoint", SHIPPED / "small-sim-r1.json"], ["--checkpoint: is for the network methods"]),
+    (["fleet", "--address", "127.0.0.1:1"], ["--address: is for --engine ray", "--engine local"]),
+    (["fleet", "--engine", "process", "--ray-temp", "/tmp/r"], ["--ray-temp: is for --engine ray"]),
+    (["fleet", "--workers", "2"], ["--workers: 2 parallel jobs need --engine process or ray"]),
+    (["fleet", "--method", "pure", "--set", "mode=batch"], ["--set: mode: --method pure runs the sliding window"]),
+    (["fleet", "--method", "pure", "--prior", "fleet_prior.json"], ["--prior: the fleet prior is applied by --method "
+                                                                   "oracle only"]),
+    (["fleet", "--method", "pure", "--set", "threads=2"], ["threads=2 is chosen with --threads"]),
+    # a HybridConfig key is valid for a network method (it was refused as not a CalibrateConfig option)
+    (["fleet", "--method", "pure", "--set", "measurement.rows=last", "--checkpoint", "none.json"],
+     ["checkpoint not found"]),
+]
+
+
+@pytest.mark.parametrize("argv,needles", IGNORED_OPTION_CASES, ids=[" ".join(map(str, a)) for a, _ in
+                                                                      IGNORED_OPTION_CASES])
+def test_an_option_the_method_or_engine_would_ignore_is_refused(argv, needles, sim, tmp_path, capsys):
+    root, _ = sim
+    out = tmp_path / "out"
+    err = expect_cli_error([argv[0], "--data", root, "--out", out, "--max-frames", "1", "--no-plots", *argv[1:]],
+                           capsys, *needles)
+    assert _one_paragraph(err) and not out.exists()
+
+
+def test_train_resume_with_other_data_or_options_is_refused(tmp_path):
+    """`train` into a run folder resumed with another --range, --set lr or other roots: it continued the run with
+    them (the optimizer kept the old lr) and train_config.json recorded them as the whole run's."""
+    from hybrid_calib.errors import HybridCalibError
+    from learned.train import TrainConfig, check_resume
+
+    out = tmp_path / "run"
+    out.mkdir()
+    conf = to_dict_of(TrainConfig())
+    data = {"roots": ["/a"], "version": "v1.0-sim", "nsweeps": 1}
+    (out / "train_config.json").write_text(json.dumps({"train": conf, "model": {}, "data": data}))
+    last = out / "checkpoints" / "ckpt-0002.json"
+    check_resume(out, last, {**conf, "epochs": 80, "threads": 4}, data)  # more epochs, other threads: resumes
+    with pytest.raises(HybridCalibError, match=r'up to ckpt-0002.json with other options \(perturbation: "R1" -> "R2"'):
+        check_resume(out, last, {**conf, "perturbation": "R2"}, data)
+    with pytest.raises(HybridCalibError, match=r'data: .*"/a".* -> .*"/b"'):
+        check_resume(out, last, conf, {**data, "roots": ["/b"]})
+    (out / "train_config.json").write_text("{")
+    with pytest.raises(HybridCalibError, match="train config of this --out is unreadable"):
+        check_resume(out, last, conf, data)
+
+
+def to_dict_of(conf) -> dict:
+    from hybrid_calib.config import to_dict
+
+    return to_dict(conf)
+
+
+def test_report_data_or_version_that_do_not_hold_the_run(sim, calibrated, tmp_path, capsys):
+    """report --data ROOT of another drive with the same vehicle name drew that drive's frames and replayed its rows
+    as the result's; --version V that is not there (given explicitly) gave a page without pictures."""
+    root, frames = sim
+    vehicle = next(iter(frames))
+    other = tmp_path / "other"
+    shutil.copytree(root, other)
+    tables = other / SIM_VERSION
+    samples = [r["token"] for r in json.loads((tables / "sample.json").read_text())]
+    for path in tables.glob("*.json"):  # the same drives under other sample tokens: another drive to the report
+        text = path.read_text()
+        for t in samples:
+            text = text.replace(t, t[::-1])
+        path.write_text(text)
+    argv = ["report", calibrated / "result.json", "--vehicle", vehicle, "--out", tmp_path / "r.html"]
+    err = expect_cli_error([*argv, "--data", other], capsys, "--data", tables, "holds none of the 1 frames",
+                           vehicle, f"the run read {root}")
+    assert _one_paragraph(err)
+    expect_cli_error([*argv, "--version", "v9"], capsys, "--version", root / "v9", "is not there")
+    expect_cli_error([*argv, "--data", root, "--version", "v9"], capsys, "--version", root / "v9")
+    assert not (tmp_path / "r.html").exists()
+    rc, err = run_cli([*argv, "--data", f"{root}/", "--frames", "1"], capsys)  # the run's own root, given: fine
+    assert rc == 0 and (tmp_path / "r.html").is_file(), err
+
+
+@pytest.mark.parametrize("filename,why", [("", "is empty"), ("/etc/hostname", "is absolute"),
+                                          ("../../outside/x.pcd", "leaves the root ('..')")],
+                         ids=["empty", "absolute", "dotdot"])
+@pytest.mark.parametrize("which", ["radar", "camera"])
+def test_a_filename_outside_the_root_is_a_skip_naming_it(filename, why, which, tiny):
+    """An empty filename read the root folder ("Is a directory"), an absolute or '..' one a file outside the
+    dataset as the frame's; now the frame is skipped naming the record's filename."""
+    sd = (tiny.radar_sd if which == "radar" else tiny.cam_sd)[1]
+    sd["filename"] = filename
+    tiny.rewrite_table("sample_data")
+    skipped = _skips_of(tiny)
+    assert [s.index for s in skipped] == [1], skipped
+    for needle in (f"field 'filename' {filename!r} {why}", "relative to the root", "sample_data.json", sd["token"]):
+        assert needle in skipped[0].reason, (needle, skipped[0].reason)

@@ -8,7 +8,7 @@ import pytest
 
 from hybrid_calib.calib.oracle import synthetic_drive
 from hybrid_calib.commands import calibrate
-from hybrid_calib.errors import DataError
+from hybrid_calib.errors import DataError, HybridCalibError
 from tests.helpers import rng
 
 
@@ -47,7 +47,11 @@ def test_calibrate_oracle_window_writes_result_schema_and_plots(sim_root, tmp_pa
     assert (out / "plots" / f"{name}_trajectory.png").is_file() and (out / "plots" / f"{name}_drift.png").is_file()
     # idempotent: a second run without --overwrite leaves the result untouched
     mtime = (out / "result.json").stat().st_mtime_ns
-    assert calibrate.run(_args("--data", str(sim_root), "--out", str(out))) == 0
+    assert calibrate.run(_args("--data", str(sim_root), "--out", str(out), "--window", "3")) == 0
+    assert (out / "result.json").stat().st_mtime_ns == mtime
+    # ... but a run with other options does not report it as its own (it read the window-3 result)
+    with pytest.raises(HybridCalibError, match=r"another run \(window: .*--overwrite"):
+        calibrate.run(_args("--data", str(sim_root), "--out", str(out)))
     assert (out / "result.json").stat().st_mtime_ns == mtime
 
 

@@ -254,6 +254,11 @@ def test_train_checkpoints_logs_and_resumes(frames, tmp_path):
     other["model"] = {**TINY_MODEL, "lstm_hidden": 16}
     with pytest.raises(HybridCalibError, match="another model config"):
         train(train_config("small", other), frames, run, progress=False)
+    # other training options (or data) would continue the run with them and record them as the whole run's
+    with pytest.raises(HybridCalibError, match=r"other options \(perturbation: \"R1\" -> \"R2\"; lr: 0.001 -> "):
+        train(train_config("small", {**_train_conf(tmp_path, 4), "perturbation": "R2", "lr": 0.01}), frames, run,
+              progress=False)
+    assert latest_checkpoint(run / "checkpoints").name == "ckpt-0003.json"
 
 
 def test_init_weights_starts_a_new_run_from_a_checkpoint(frames, tmp_path):

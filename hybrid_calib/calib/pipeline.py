@@ -27,7 +27,7 @@ from hybrid_calib.calib.batch import BatchConfig, solve_batch
 from hybrid_calib.calib.covariance import prior_pinned_std
 from hybrid_calib.calib.drift import DriftConfig, reference_test
 from hybrid_calib.calib.oracle import OracleConfig, oracle_from_frame
-from hybrid_calib.calib.result import CalibrationRun, VehicleResult
+from hybrid_calib.calib.result import CalibrationRun, VehicleResult, reuse_result
 from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import ConfigError, merge, save_json_atomic, to_dict
@@ -220,7 +220,7 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
     out = Path(out)
     result_path = out / "result.json"
     if result_path.is_file() and not overwrite:
-        return CalibrationRun.load(result_path)
+        return reuse_result(out, data, version, str(correspondences), to_dict(conf))
     rng = _seed_rng(conf.seed)
     if correspondences == "oracle":
         inputs = _load_oracle(data, version, conf, rng)

@@ -50,8 +50,8 @@ from pathlib import Path
 import numpy as np
 
 from hybrid_calib.calib.covariance import CovarianceReport
-from hybrid_calib.config import save_json_atomic
-from hybrid_calib.errors import DataError
+from hybrid_calib.config import read_out_record, save_json_atomic
+from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.geometry import R_AXES_CAM_FROM_RADAR, camera_euler_from_rotation
 from hybrid_calib.metrics import std_dict, std_from_dict
 
@@ -329,3 +329,39 @@ class CalibrationRun:
         except (KeyError, TypeError, ValueError) as e:
             raise DataError(f"calibrate result incomplete or invalid ({type(e).__name__}: {e}); re-run hybrid-calib "
                             "calibrate with --overwrite", path=str(path)) from None
+
+
+RUN_ONLY = ("progress", "threads", "cache_dir", "depth_cache")  # config keys of how a run ran, not of what it gave
+
+
+def reuse_result(out: str | Path, data, version: str, source: str, conf: dict) -> CalibrationRun:
+    """The ``CalibrationRun`` an earlier run left in ``out`` (``result.json``), when it was computed from the same
+    ``data`` root, ``version``, ``source`` (correspondences, or the learned method) and effective config ``conf``
+    (``to_dict``; its ``config.json``, the ``RUN_ONLY`` keys aside). ``HybridCalibError`` naming what differs
+    otherwise: the earlier result would be reported as this run's."""
+    out = Path(out)
+    run = CalibrationRun.load(out / "result.json")
+    old = read_out_record(out / "config.json", "calibrate config", "the configuration its result.json was computed "
+                          "with: pass --overwrite to recompute, or another --out")
+
+    def same_path(a, b) -> bool:
+        return str(a) == str(b) or Path(str(a)).resolve() == Path(str(b)).resolve()
+
+    changed = [f"{what} {a!r} -> {b!r}" for what, a, b, same in (
+        ("--data", run.data, str(data), same_path), ("--version", run.version, version, str.__eq__),
+        ("method / correspondences", run.correspondences, source, same_path)) if not same(a, b)]
+    if old is not None and not changed:  # another method's config has other keys: the method says it all
+        changed = [f"{k}: {_short(old.get(k))} -> {_short(v)}" for k, v in conf.items()
+                   if k not in RUN_ONLY and old.get(k) != v]
+    if changed:
+        more = f"; {len(changed) - 4} more" if len(changed) > 4 else ""
+        raise HybridCalibError(f"{out} holds the result of another run ({'; '.join(changed[:4])}{more}; "
+                               f"{out / 'result.json'}), "
+                               "which this run would report as its own; pass --overwrite to recompute, or another "
+                               "--out")
+    return run
+
+
+def _short(value) -> str:
+    text = json.dumps(value)
+    return text if len(text) <= 60 else text[:57] + "..."

@@ -16,6 +16,7 @@ from hybrid_calib.commands import (
     split_overrides,
 )
 from hybrid_calib.config import parse_overrides
+from hybrid_calib.errors import OptionError
 from hybrid_calib.perturbation import RANGES
 
 HELP = "calibrate T_cam_radar per vehicle: hybrid (network + factor graph), pure, pure-avg or oracle"
@@ -71,6 +72,10 @@ def _learned(args: argparse.Namespace, on_vehicle):
     if args.correspondences != "oracle":
         raise HybridCalibError(f"--correspondences is for --method oracle (measurement files); --method "
                                f"{args.method} runs the network itself")
+    if args.mode == "batch" or args.backend is not None:  # HybridConfig has no batch solve: they were ignored
+        flag = "--mode batch" if args.mode == "batch" else "--backend"
+        raise OptionError(flag, f"--method {args.method} runs the sliding window (or the network alone), not a batch "
+                                f"solve; drop {flag}, or use --method oracle")
     overrides = parse_overrides(args.set)
     reject_set_keys(overrides, {"method": "--method", "split": "--split"})
     # a flag that was passed wins over --set; an absent one leaves --set (or the default) in charge
@@ -101,6 +106,11 @@ def run(args: argparse.Namespace) -> int:
 
         raise HybridCalibError("--split and the split flags select frames for the learned methods (hybrid, pure, "
                                "pure-avg); --method oracle uses every frame (limit it with --max-frames)")
+    network = [flag for flag in ("--checkpoint", "--refine", "--depth") if getattr(args, flag[2:])]
+    if network:  # the oracle pipeline runs no network: they were ignored
+        raise OptionError(network[0], f"is for the learned methods (--method hybrid, pure or pure-avg); --method "
+                                      f"oracle runs no network: drop {' and '.join(network)}, or pass a learned "
+                                      "--method")
     overrides = parse_overrides(args.set)
     # an explicit flag wins over --set; an absent one leaves --set (or the default) in charge
     overrides.update(given_flags(args, {**FLAGS, "mode": "mode"}))

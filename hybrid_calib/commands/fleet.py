@@ -7,6 +7,7 @@ from pathlib import Path
 
 from hybrid_calib.commands import given_flags, nonnegative_int, positive_int, reject_set_keys
 from hybrid_calib.config import parse_overrides
+from hybrid_calib.errors import OptionError
 
 HELP = "calibrate every vehicle of one or more roots as resumable jobs (local | process | ray) + fleet view"
 
@@ -48,10 +49,20 @@ def run(args: argparse.Namespace) -> int:
     from hybrid_calib.fleet.driver import FleetOptions, run_fleet
     from hybrid_calib.fleet.prior import load_priors
 
+    check_options(args)
     calib = parse_overrides(args.set)
     reject_set_keys(calib, {"seed": "--seed"})  # each job's seed comes from the fleet seed and its vehicle
     calib.update(given_flags(args, {"max_frames": "max_frames"}))  # --max-frames wins over --set max_frames
-    merge(CalibrateConfig, {**calib, "seed": args.seed})  # ConfigError names a bad option before any job runs
+    if args.method == "oracle":
+        merge(CalibrateConfig, {**calib, "seed": args.seed})  # ConfigError names a bad option before any job runs
+    else:  # the network methods' jobs merge --set into HybridConfig (fleet.jobs.calibrate_job): checked alike
+        from hybrid_calib.hybrid import HybridConfig
+
+        reject_set_keys(calib, {"method": "--method", "checkpoint": "--checkpoint", "threads": "--threads"})
+        if unsupported := sorted(set(calib) & {"mode", "batch"}):  # every job would fail alike
+            raise OptionError("--set", f"{', '.join(unsupported)}: --method {args.method} runs the sliding window "
+                                       "(or the network alone), not a batch solve; drop it, or use --method oracle")
+        merge(HybridConfig, {**calib, "method": args.method, "seed": args.seed})
     if args.checkpoint is not None and args.method != "oracle":  # one bad checkpoint would fail every job alike
         from learned.checkpoint import read_checkpoint_meta
 
@@ -90,6 +101,24 @@ def run(args: argparse.Namespace) -> int:
         if page is not None:
             print(f"fleet page: {page} (one report.html beside each vehicle's result.json)")
     return 0 if c["failed"] == 0 else 1
+
+
+def check_options(args: argparse.Namespace) -> None:
+    """``OptionError`` for an option the chosen --method / --engine would ignore, or (--prior with a network
+    method) one that would fail every job alike."""
+    if args.method == "oracle" and args.checkpoint is not None:
+        raise OptionError("--checkpoint", "is for the network methods (--method hybrid, pure or pure-avg); --method "
+                                          "oracle runs no network: drop --checkpoint, or pass a network --method")
+    if args.method != "oracle" and args.prior is not None:
+        raise OptionError("--prior", f"the fleet prior is applied by --method oracle only; --method {args.method} "
+                                     "fuses the network's own prior: drop --prior, or use --method oracle")
+    for flag, value in (("--address", args.address), ("--ray-temp", args.ray_temp)):
+        if value is not None and args.engine != "ray":
+            raise OptionError(flag, f"is for --engine ray; --engine {args.engine} starts no Ray: drop {flag}, or pass "
+                                    "--engine ray")
+    if args.workers > 1 and args.engine == "local":
+        raise OptionError("--workers", f"{args.workers} parallel jobs need --engine process or ray; --engine local "
+                                       "runs one job at a time: pass --engine process, or drop --workers")
 
 
 def write_fleet_pages(summary: dict, out: Path) -> Path | None:

@@ -58,7 +58,8 @@ def run(args: argparse.Namespace) -> int:
         overrides["init_weights"] = args.init
     conf = train_config(args.preset, overrides)
     frames = open_roots(args.data, args.version, options={"nsweeps": args.nsweeps})
-    last = train(conf, frames, args.out, resume=not args.no_resume, progress=not args.no_progress)
+    source = {"roots": [str(Path(d).resolve()) for d in args.data], "version": args.version, "nsweeps": args.nsweeps}
+    last = train(conf, frames, args.out, resume=not args.no_resume, progress=not args.no_progress, source=source)
     plot_history(args.out / "epochs.csv", args.out / "history.png")
     print(f"last checkpoint: {last}")
     return 0

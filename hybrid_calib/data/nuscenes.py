@@ -243,7 +243,7 @@ class NuScenesRadarCamera:
         ref = self.frames[i]
         t = self.tables
         cam, rad = ref.camera_sd, ref.radar_sd
-        image_path = self.root / cam["filename"]
+        image_path = t.file(cam)
         width, height = _image_size_field(cam, t.path("sample_data"))
         if self.conf.check_images or not (width and height):
             w_file, h_file = image_header(image_path, cam["token"])
@@ -312,7 +312,7 @@ class NuScenesRadarCamera:
             raise DataError(f"sample has no {self.conf.lidar_channel} keyframe but load_lidar is set; set "
                             "load_lidar=false or pick another lidar_channel", path=str(t.path("sample_data")),
                             token=ref.sample_token)
-        path = self.root / sd["filename"]
+        path = t.file(sd)
         raw = read_lidar_bin(path)
         pts = raw[:, :4]
         finite = np.all(np.isfinite(pts[:, :3]), axis=1)

@@ -84,7 +84,7 @@ def accumulate_radar(tables: NuScenesTables, sd: dict, nsweeps: int, conf: Radar
     """
     if nsweeps < 1:
         raise ValueError(f"nsweeps must be >= 1, got {nsweeps}")
-    path0 = tables.root / sd["filename"]
+    path0 = tables.file(sd)
     pts0, rows0, n_raw, n_nan = load_filtered_sweep(path0, conf, sd["token"])
     out = RadarSweeps(points=pts0, rows=rows0, sweep_index=np.zeros(len(pts0), np.int16),
                       dt_s=np.zeros(len(pts0), np.float32), n_raw=n_raw, n_nonfinite=n_nan,
@@ -99,7 +99,7 @@ def accumulate_radar(tables: NuScenesTables, sd: dict, nsweeps: int, conf: Radar
             break
         prev = tables.get("sample_data", prev_token, f"sample_data {sd['token']} (prev pointer)")
         prev_token = prev["prev"]
-        path = tables.root / prev["filename"]
+        path = tables.file(prev)
         if not path.is_file():
             out.missing_paths.append(str(path))
             continue

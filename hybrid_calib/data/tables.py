@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Iterable
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 
 import numpy as np
 
@@ -188,6 +188,21 @@ class NuScenesTables:
     def path(self, name: str) -> Path:
         """The file of table ``name``."""
         return self.vdir / f"{name}.json"
+
+    def file(self, sd: dict) -> Path:
+        """The data file of sample_data record ``sd``: its ``filename`` under the root. ``DataError`` naming the
+        record when the filename is empty, absolute or climbs out of the root with '..' (it read a directory, or
+        a file outside the dataset, as the frame's)."""
+        name = sd["filename"]
+        posix = PurePosixPath(name)
+        problems = {"is empty": not name.strip(), "is absolute": posix.is_absolute() or Path(name).is_absolute(),
+                    "leaves the root ('..')": ".." in posix.parts}
+        why = next((text for text, bad in problems.items() if bad), "")
+        if why:
+            raise DataError(f"sample_data field 'filename' {name!r} {why}; filenames are relative to the root, e.g. "
+                            "samples/CAM_FRONT/x.jpg: fix the record or re-extract the tables",
+                            path=str(self.path("sample_data")), token=sd["token"])
+        return self.root / name
 
     def get(self, table: str, token: str, referenced_by: str = "") -> dict:
         """The record of ``table`` with ``token``; ``DataError`` if it does not resolve."""

@@ -35,7 +35,14 @@ from hybrid_calib.calib.covariance import analyse_information, inconclusive_stat
 from hybrid_calib.calib.drift import DriftConfig, reference_test
 from hybrid_calib.calib.mount_monitor import MountMonitor, MountMonitorConfig
 from hybrid_calib.calib.oracle import OracleConfig
-from hybrid_calib.calib.result import CalibrationRun, Estimate, FrameEstimate, VehicleResult, failed_vehicles_message
+from hybrid_calib.calib.result import (
+    CalibrationRun,
+    Estimate,
+    FrameEstimate,
+    VehicleResult,
+    failed_vehicles_message,
+    reuse_result,
+)
 from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import merge, save_json_atomic, to_dict
@@ -582,7 +589,7 @@ def run_calibration(data: str | Path, version: str, out: str | Path, conf: Hybri
     conf = merge(HybridConfig, conf)
     out = Path(out)
     if (out / "result.json").is_file() and not overwrite:
-        return CalibrationRun.load(out / "result.json")
+        return reuse_result(out, data, version, conf.method, to_dict(conf))
     conf = dataclasses.replace(conf, cache_dir=conf.cache_dir or str(out / "network-cache"),
                                depth_cache=conf.depth_cache or str(out / "depth-cache"))
     session = _Session(data, version, conf)

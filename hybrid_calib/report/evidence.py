@@ -26,7 +26,7 @@ import numpy as np
 from hybrid_calib.calib.pipeline import CalibrateConfig, replay_inputs
 from hybrid_calib.calib.result import CalibrationRun
 from hybrid_calib.config import merge
-from hybrid_calib.errors import DataError, HybridCalibError
+from hybrid_calib.errors import DataError, HybridCalibError, OptionError
 
 
 @dataclass
@@ -139,9 +139,15 @@ def gather(run: CalibrationRun, result_path: Path, vehicle: str, data: str | Pat
     root = Path(data) if data is not None else Path(run.data)
     version = version or run.version
     if not (root / version).is_dir():
+        if version != run.version or root.is_dir() and data is not None:  # given: say so, not a page without pictures
+            raise OptionError("--version" if version != run.version else "--data",
+                              f"{root / version} is not there; pass the root and version folder of the run's frames "
+                              f"(it calibrated {run.data}, {run.version}), or leave --data / --version out")
         ev.notes.append(f"no data root: {root / version} is not there (pass --data ROOT --version V), so no camera "
                         "frames, correspondences or residuals are shown")
         return ev
+    if data is not None:
+        _check_frames_there(root, version, vehicle, vr, run)
     by_token: dict = {}
     learned = run.correspondences in LEARNED_METHODS  # its config.json is a HybridConfig, its rows the network's
     try:
@@ -179,6 +185,22 @@ def gather(run: CalibrationRun, result_path: Path, vehicle: str, data: str | Pat
     _frames(ev, root, version, vehicle, vr, n_frames, by_token,
             None if conf is None else _factor_and_gate(conf, run.mode), explicit=data is not None)
     return ev
+
+
+def _check_frames_there(root: Path, version: str, vehicle: str, vr, run: CalibrationRun) -> None:
+    """``OptionError`` when a ``--data`` root holds none of the frames the result calibrated for ``vehicle``
+    (another root's vehicle of that name: its pictures and rows would be shown as this result's). A result
+    without a trajectory (batch) names no frames: nothing to check."""
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+
+    known = {f.frame_id for f in vr.trajectory}
+    if not known:
+        return
+    ds = NuScenesRadarCamera(root, version, conf={"check_images": False})
+    if not any(ref.sample_token in known or ref.camera_sd.get("token") in known for ref in ds.frames):
+        raise OptionError("--data", f"{root / version} holds none of the {len(known)} frames this result calibrated "
+                                    f"for vehicle {vehicle} (the run read {run.data}, {run.version}); pass the root "
+                                    "the run calibrated, or leave --data out")
 
 
 def _recorded_start(vr) -> tuple[np.ndarray | None, str]:
