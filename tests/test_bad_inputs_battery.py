@@ -1459,3 +1459,54 @@ def test_a_filename_outside_the_root_is_a_skip_naming_it(filename, why, which, t
     assert [s.index for s in skipped] == [1], skipped
     for needle in (f"field 'filename' {filename!r} {why}", "relative to the root", "sample_data.json", sd["token"]):
         assert needle in skipped[0].reason, (needle, skipped[0].reason)
+
+
+# ---------------------------------------------------------------- probe 4: values accepted silently before
+def _loaded(tiny, **conf) -> tuple[list, list]:
+    """Every frame of the tiny root loaded in turn with DataConfig ``conf``: (loaded indices, skip records)."""
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+
+    ds = NuScenesRadarCamera(tiny.root, tiny.version, conf=conf)
+    return [f.index for f in ds], ds.skipped
+
+
+@pytest.mark.parametrize("which,value,apart", [("radar", 10**30, "+1e+24 s"), ("radar", -1, "-1.6e+09 s"),
+                                               ("camera", -5, "+1.6e+09 s"), ("radar", 10**400, "more than 1e294 s"),
+                                               ("lidar", 10**30, "+1e+24 s")],
+                         ids=["radar-1e30", "radar-negative", "camera-negative", "radar-400-digits", "lidar-1e30"])
+def test_a_timestamp_far_from_the_cameras_is_a_skip_naming_it(which, value, apart, tiny):
+    """A radar (or camera, LiDAR) timestamp of 1e30 us or below zero was accepted: inspect showed a camera-radar
+    offset of 2.5e26 ms. Now the frame is skipped naming the record, both timestamps and the limit."""
+    sd = {"radar": tiny.radar_sd, "camera": tiny.cam_sd, "lidar": tiny.lidar_sd}[which][1]
+    sd["timestamp"] = value
+    tiny.rewrite_table("sample_data")
+    loaded, skipped = _loaded(tiny, load_lidar=which == "lidar")
+    assert loaded == [0, 2] and [s.index for s in skipped] == [1], skipped
+    named = tiny.cam_sd[1] if which == "camera" else sd
+    other = tiny.radar_sd[1] if which == "camera" else sd
+    what = "LiDAR" if which == "lidar" else "radar"
+    for needle in (f"{what} sample_data timestamp", apart, "max_sync_offset_s=0.5 s", str(named["timestamp"]),
+                   named["token"], other["token"], "sample_data.json"):
+        assert needle in skipped[0].reason, (needle, skipped[0].reason)
+    assert _loaded(tiny, max_sync_offset_s=1e300, load_lidar=which == "lidar")[0] == ([0, 1, 2] if value < 10**300
+                                                                                      else [0, 2])
+
+
+def test_sync_limit_must_be_positive(tiny):
+    from hybrid_calib.config import ConfigError
+
+    for bad in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(ConfigError, match="max_sync_offset_s must be a positive number of seconds"):
+            _loaded(tiny, max_sync_offset_s=bad)
+
+
+@pytest.mark.parametrize("value", [float("nan"), float("inf"), 1.5, 1e30, True, "12"], ids=str)
+def test_a_timestamp_that_is_not_an_integer_names_the_table_and_token(value, tiny):
+    from hybrid_calib.errors import DataError
+
+    tiny.radar_sd[1]["timestamp"] = value
+    tiny.rewrite_table("sample_data")
+    with pytest.raises(DataError, match="field 'timestamp' is .*expected int") as e:
+        _loaded(tiny)
+    assert "table 'sample_data'" in str(e.value) and "sample_data.json" in str(e.value)
+    assert tiny.radar_sd[1]["token"] in str(e.value)
