@@ -1510,3 +1510,35 @@ def test_a_timestamp_that_is_not_an_integer_names_the_table_and_token(value, tin
         _loaded(tiny)
     assert "table 'sample_data'" in str(e.value) and "sample_data.json" in str(e.value)
     assert tiny.radar_sd[1]["token"] in str(e.value)
+
+
+def _pose_record(tiny, table: str) -> dict:
+    """The record of ``table`` frame 1's radar reads: its ego_pose, or the radar's calibrated_sensor."""
+    token = tiny.radar_sd[1]["ego_pose_token"] if table == "ego_pose" else "cs_RADAR_FRONT"
+    return next(r for r in tiny.tables[table] if r["token"] == token)
+
+
+@pytest.mark.parametrize("key,value,why", [
+    ("translation", [[1], [2], [3]], "not a list of 3 numbers"), ("translation", [True, False, True], "not a list"),
+    ("translation", ["1", 2, 3], "not a list"), ("translation", [1, 2], "not a list of 3 numbers"),
+    ("translation", [10**400, 0, 0], "non-finite"), ("rotation", [True, False, False, False], "not a list of 4"),
+    ("rotation", [[1], [0], [0], [0]], "not a list of 4 numbers")],
+    ids=["nested", "booleans", "string", "two", "huge", "rotation-booleans", "rotation-nested"])
+@pytest.mark.parametrize("table", ["ego_pose", "calibrated_sensor"])
+def test_a_pose_that_is_not_a_list_of_numbers_is_named(table, key, value, why, tiny):
+    """numpy read a translation of [[1], [2], [3]], [true, false, true] or ["1", 2, 3] (and a rotation of booleans)
+    as numbers: the frame loaded with that pose. Now it is a skip naming the table, the record and the field."""
+    rec = _pose_record(tiny, table)
+    rec[key] = value
+    tiny.rewrite_table(table)
+    loaded, skipped = _loaded(tiny)
+    assert loaded == ([0, 2] if table == "ego_pose" else []), skipped
+    reason = skipped[0].reason
+    for needle in (f"table {table!r} field {key!r} is", why, f"{table}.json", f"token {rec['token']}"):
+        assert needle in reason, (needle, reason)
+
+
+def test_an_intrinsic_of_booleans_is_named(tiny):
+    _set_intrinsic(tiny, [[True, False, True], [False, True, True], [False, False, True]])
+    loaded, skipped = _loaded(tiny)
+    assert loaded == [] and "camera_intrinsic must be a finite 3x3 matrix" in skipped[0].reason, skipped
