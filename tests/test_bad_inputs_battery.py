@@ -1542,3 +1542,35 @@ def test_an_intrinsic_of_booleans_is_named(tiny):
     _set_intrinsic(tiny, [[True, False, True], [False, True, True], [False, False, True]])
     loaded, skipped = _loaded(tiny)
     assert loaded == [] and "camera_intrinsic must be a finite 3x3 matrix" in skipped[0].reason, skipped
+
+
+@pytest.mark.parametrize("key,value,needle", [
+    ("width", 0, "field 'width' is 0 but 'height' is 90"), ("height", 0, "field 'height' is 0 but 'width' is 160"),
+    ("width", -5, "field 'width' is -5, expected a positive whole number"),
+    ("height", 89.5, "field 'height' is 89.5, expected a positive whole number")],
+    ids=["width-0", "height-0", "width-negative", "height-fractional"])
+@pytest.mark.parametrize("check_images", [True, False])
+def test_an_image_size_of_0_or_below_is_a_skip_naming_it(key, value, needle, check_images, tiny):
+    """A camera width (or height) of 0 turned the image-size check off silently, and -5 passed with
+    check_images=false (the frame's camera was -5 pixels wide). Now each is a skip naming the record."""
+    tiny.cam_sd[1][key] = value
+    tiny.rewrite_table("sample_data")
+    loaded, skipped = _loaded(tiny, check_images=check_images)
+    assert loaded == [0, 2] and [s.index for s in skipped] == [1], skipped
+    for text in (needle, "sample_data.json", tiny.cam_sd[1]["token"]):
+        assert text in skipped[0].reason, (text, skipped[0].reason)
+
+
+@pytest.mark.parametrize("size", [{"width": 0, "height": 0}, {"width": None, "height": None}, {"width": None}, {}],
+                         ids=["both-0", "both-null", "width-null", "absent"])
+def test_an_unknown_image_size_is_read_from_the_file(size, tiny):
+    """Both sizes 0 (the devkit's value in non-image records), null or absent: the size comes from the image file."""
+    for key in ("width", "height"):
+        tiny.cam_sd[1].pop(key)
+    tiny.cam_sd[1].update(size)
+    tiny.rewrite_table("sample_data")
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+
+    for check_images in (True, False):
+        frame = NuScenesRadarCamera(tiny.root, tiny.version, conf={"check_images": check_images})[1]
+        assert (frame.camera.width, frame.camera.height) == (160, 90)

@@ -391,16 +391,28 @@ def _sim_pose(rec: dict | None, key: str) -> np.ndarray | None:
 
 
 def _image_size_field(cam: dict, table: Path) -> tuple[int, int]:
-    """A camera sample_data record's optional ``width`` / ``height`` (0 when absent, null or 0, as in the
-    devkit's radar records); ``DataError`` naming the record when they are not numbers."""
+    """A camera sample_data record's ``width`` / ``height``, pixels: positive whole numbers, 0 where unknown (absent
+    or null, or both 0 as in the devkit's radar records; the size is then read from the image file). ``DataError``
+    naming the record when one is not a number, is negative or fractional, or is 0 while the other is given (that
+    turned the size check off silently, and a negative size passed with check_images=false)."""
     size = []
     for key in ("width", "height"):
-        value = cam.get(key) or 0
+        value = cam.get(key)
+        value = 0 if value is None else value
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
             raise DataError(f"sample_data field {key!r} is {value!r}, expected an integer number of pixels (or 0 / "
                             "null when unknown); the table does not follow the nuScenes schema: fix or re-extract it",
                             path=str(table), token=cam["token"])
+        if value < 0 or value != int(value):
+            raise DataError(f"sample_data field {key!r} is {value!r}, expected a positive whole number of pixels (or "
+                            "0 / null when unknown); fix the record or re-extract the tables", path=str(table),
+                            token=cam["token"])
         size.append(int(value))
+    for zero, given, (a, b) in (("width", "height", size), ("height", "width", size[::-1])):
+        if a == 0 and b > 0 and cam.get(zero) is not None:
+            raise DataError(f"sample_data field {zero!r} is {cam[zero]!r} but {given!r} is {b}; a camera record gives "
+                            "both image sizes in pixels, or neither (0 / null / absent: read from the image file): "
+                            "fix the record or re-extract the tables", path=str(table), token=cam["token"])
     return size[0], size[1]
 
 
