@@ -1574,3 +1574,24 @@ def test_an_unknown_image_size_is_read_from_the_file(size, tiny):
     for check_images in (True, False):
         frame = NuScenesRadarCamera(tiny.root, tiny.version, conf={"check_images": check_images})[1]
         assert (frame.camera.width, frame.camera.height) == (160, 90)
+
+
+def test_inspect_frame_without_out_or_out_of_range_fails_first(tiny, tmp_path, monkeypatch, capsys):
+    """--frame without --out was ignored silently; with --out, a --frame past the last frame was named only after
+    every frame had been read and the summary written. Now both fail before any frame is read."""
+    import hybrid_calib.data.summary as summary_module
+
+    def no_summary(*args, **kwargs):
+        raise AssertionError("the summary was computed before --frame was checked")
+
+    monkeypatch.setattr(summary_module, "summarize_dataset", no_summary)
+    err = expect_cli_error(_inspect(tiny, "--frame", "1"), capsys, "--frame", "written only with --out",
+                           "pass --out DIR to draw frame 1")
+    assert _one_paragraph(err)
+    out = tmp_path / "out"
+    err = expect_cli_error(_inspect(tiny, "--frame", "3", "--out", out), capsys, "--frame", "frame 3 does not exist",
+                           "has 3 frames (0..2)")
+    assert _one_paragraph(err) and not out.exists()
+    monkeypatch.undo()
+    rc, err = run_cli(_inspect(tiny, "--frame", "2", "--out", out), capsys)
+    assert rc == 0 and (out / "overlay.png").is_file() and (out / "inspect_summary.json").is_file(), err
