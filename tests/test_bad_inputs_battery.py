@@ -1595,3 +1595,30 @@ def test_inspect_frame_without_out_or_out_of_range_fails_first(tiny, tmp_path, m
     monkeypatch.undo()
     rc, err = run_cli(_inspect(tiny, "--frame", "2", "--out", out), capsys)
     assert rc == 0 and (out / "overlay.png").is_file() and (out / "inspect_summary.json").is_file(), err
+
+
+def test_inspect_groups_many_skips_by_reason(tmp_path, capsys):
+    """inspect printed one line per skipped frame: hundreds on a bad drive. Now one line per kind of reason (count,
+    the first reason in full, a few more frames) in the terminal; inspect_summary.json keeps every item."""
+    from tests.tiny_nuscenes import make_tiny_root
+
+    tiny = make_tiny_root(tmp_path / "many", n_samples=10)
+    for sd in tiny.radar_sd[1:8]:  # 7 truncated radar files
+        tiny.path(sd).write_bytes(tiny.path(sd).read_bytes()[:-40])
+    tiny.radar_sd[9]["timestamp"] += 10**9  # one timestamp 1000 s off
+    tiny.rewrite_table("sample_data")
+    from hybrid_calib.cli import main
+
+    out = tmp_path / "out"
+    assert main([str(a) for a in _inspect(tiny, "--out", out, "--set", "radar_filter.ambig_states=null")]) == 0
+    text = capsys.readouterr().out
+    lines = [ln for ln in text.splitlines() if "skipped" in ln or ln.startswith("  also")]
+    assert lines[0].endswith("2/10 frames loaded, 8 skipped"), text
+    assert lines[1].startswith("skipped 7 items for one reason, e.g. frame 1: truncated PCD"), text
+    assert str(tiny.path(tiny.radar_sd[1])) in lines[1] and lines[2] == (
+        "  also frame 2 (sample2), frame 3 (sample3), frame 4 (sample4) and 3 more"), text
+    assert lines[3].startswith("skipped frame 9: radar sample_data timestamp"), text
+    assert f"every skipped item is listed in {out / 'inspect_summary.json'}" in text and len(lines) == 5, text
+    summary = json.loads((out / "inspect_summary.json").read_text())
+    assert [s["index"] for s in summary["skipped"]] == [1, 2, 3, 4, 5, 6, 7, 9]
+    assert all("truncated PCD" in s["reason"] for s in summary["skipped"][:7])

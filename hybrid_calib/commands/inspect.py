@@ -1,10 +1,11 @@
 """``hybrid-calib inspect``: what a nuScenes-format root holds, per scene and vehicle, and what is wrong with it.
 
 Prints one line per scene (frames, radar points per sweep after filtering, NaN points dropped,
-radar-camera time offset) and every skipped item with its reason. With ``--out DIR`` also writes
-``DIR/inspect_summary.json`` (schema: ``hybrid_calib.data.summary``), ``DIR/inspect_config.json``
-(the effective data config) and ``DIR/overlay.png`` (one frame's radar and LiDAR points projected
-on its image with the ground-truth extrinsics; ``--frame N`` picks the frame, and needs ``--out``).
+radar-camera time offset) and the skipped items grouped by reason (a count, one reason in full, a
+few more frames and tokens). With ``--out DIR`` also writes ``DIR/inspect_summary.json`` (schema:
+``hybrid_calib.data.summary``; every skipped item), ``DIR/inspect_config.json`` (the effective data
+config) and ``DIR/overlay.png`` (one frame's radar and LiDAR points projected on its image with the
+ground-truth extrinsics; ``--frame N`` picks the frame, and needs ``--out``).
 """
 
 from __future__ import annotations
@@ -50,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
         valid = f" (0..{len(ds) - 1}); pass one of them, or drop --frame to draw the first loaded" if len(ds) else ""
         raise OptionError("--frame", f"frame {args.frame} does not exist; this root has {len(ds)} frames{valid}")
     summary = summarize_dataset(ds, progress=not args.no_progress)
-    print(summary.format())
+    print(summary.format(None if args.out is None else str(Path(args.out) / "inspect_summary.json")))
     if args.out is None:
         return 0 if summary.n_loaded else 1
     out = Path(args.out)
