@@ -1622,3 +1622,21 @@ def test_inspect_groups_many_skips_by_reason(tmp_path, capsys):
     summary = json.loads((out / "inspect_summary.json").read_text())
     assert [s["index"] for s in summary["skipped"]] == [1, 2, 3, 4, 5, 6, 7, 9]
     assert all("truncated PCD" in s["reason"] for s in summary["skipped"][:7])
+
+
+def test_calibrate_says_it_reused_the_earlier_result(sim, calibrated, tmp_path, capsys):
+    """A calibrate rerun with the same options reuses result.json, but still printed "wrote .../result.json". Now it
+    says it reused the earlier result and how to recompute; --overwrite recomputes and says "wrote"."""
+    from hybrid_calib.cli import main
+
+    root, _ = sim
+    run = tmp_path / "run"
+    shutil.copytree(calibrated, run)
+    mtime = (run / "result.json").stat().st_mtime_ns
+    assert main([str(a) for a in _calibrate(root, run, "--max-frames", "1")]) == 0
+    text = capsys.readouterr().out
+    assert f"reused the earlier result {run / 'result.json'}" in text and "pass --overwrite to recompute" in text
+    assert "wrote" not in text and (run / "result.json").stat().st_mtime_ns == mtime, text
+    assert main([str(a) for a in _calibrate(root, run, "--max-frames", "1", "--overwrite")]) == 0
+    text = capsys.readouterr().out
+    assert f"wrote {run / 'result.json'}" in text and "reused the earlier" not in text, text
