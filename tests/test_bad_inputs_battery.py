@@ -1459,3 +1459,184 @@ def test_a_filename_outside_the_root_is_a_skip_naming_it(filename, why, which, t
     assert [s.index for s in skipped] == [1], skipped
     for needle in (f"field 'filename' {filename!r} {why}", "relative to the root", "sample_data.json", sd["token"]):
         assert needle in skipped[0].reason, (needle, skipped[0].reason)
+
+
+# ---------------------------------------------------------------- probe 4: values accepted silently before
+def _loaded(tiny, **conf) -> tuple[list, list]:
+    """Every frame of the tiny root loaded in turn with DataConfig ``conf``: (loaded indices, skip records)."""
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+
+    ds = NuScenesRadarCamera(tiny.root, tiny.version, conf=conf)
+    return [f.index for f in ds], ds.skipped
+
+
+@pytest.mark.parametrize("which,value,apart", [("radar", 10**30, "+1e+24 s"), ("radar", -1, "-1.6e+09 s"),
+                                               ("camera", -5, "+1.6e+09 s"), ("radar", 10**400, "more than 1e294 s"),
+                                               ("lidar", 10**30, "+1e+24 s")],
+                         ids=["radar-1e30", "radar-negative", "camera-negative", "radar-400-digits", "lidar-1e30"])
+def test_a_timestamp_far_from_the_cameras_is_a_skip_naming_it(which, value, apart, tiny):
+    """A radar (or camera, LiDAR) timestamp of 1e30 us or below zero was accepted: inspect showed a camera-radar
+    offset of 2.5e26 ms. Now the frame is skipped naming the record, both timestamps and the limit."""
+    sd = {"radar": tiny.radar_sd, "camera": tiny.cam_sd, "lidar": tiny.lidar_sd}[which][1]
+    sd["timestamp"] = value
+    tiny.rewrite_table("sample_data")
+    loaded, skipped = _loaded(tiny, load_lidar=which == "lidar")
+    assert loaded == [0, 2] and [s.index for s in skipped] == [1], skipped
+    named = tiny.cam_sd[1] if which == "camera" else sd
+    other = tiny.radar_sd[1] if which == "camera" else sd
+    what = "LiDAR" if which == "lidar" else "radar"
+    for needle in (f"{what} sample_data timestamp", apart, "max_sync_offset_s=0.5 s", str(named["timestamp"]),
+                   named["token"], other["token"], "sample_data.json"):
+        assert needle in skipped[0].reason, (needle, skipped[0].reason)
+    assert _loaded(tiny, max_sync_offset_s=1e300, load_lidar=which == "lidar")[0] == ([0, 1, 2] if value < 10**300
+                                                                                      else [0, 2])
+
+
+def test_sync_limit_must_be_positive(tiny):
+    from hybrid_calib.config import ConfigError
+
+    for bad in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(ConfigError, match="max_sync_offset_s must be a positive number of seconds"):
+            _loaded(tiny, max_sync_offset_s=bad)
+
+
+@pytest.mark.parametrize("value", [float("nan"), float("inf"), 1.5, 1e30, True, "12"], ids=str)
+def test_a_timestamp_that_is_not_an_integer_names_the_table_and_token(value, tiny):
+    from hybrid_calib.errors import DataError
+
+    tiny.radar_sd[1]["timestamp"] = value
+    tiny.rewrite_table("sample_data")
+    with pytest.raises(DataError, match="field 'timestamp' is .*expected int") as e:
+        _loaded(tiny)
+    assert "table 'sample_data'" in str(e.value) and "sample_data.json" in str(e.value)
+    assert tiny.radar_sd[1]["token"] in str(e.value)
+
+
+def _pose_record(tiny, table: str) -> dict:
+    """The record of ``table`` frame 1's radar reads: its ego_pose, or the radar's calibrated_sensor."""
+    token = tiny.radar_sd[1]["ego_pose_token"] if table == "ego_pose" else "cs_RADAR_FRONT"
+    return next(r for r in tiny.tables[table] if r["token"] == token)
+
+
+@pytest.mark.parametrize("key,value,why", [
+    ("translation", [[1], [2], [3]], "not a list of 3 numbers"), ("translation", [True, False, True], "not a list"),
+    ("translation", ["1", 2, 3], "not a list"), ("translation", [1, 2], "not a list of 3 numbers"),
+    ("translation", [10**400, 0, 0], "non-finite"), ("rotation", [True, False, False, False], "not a list of 4"),
+    ("rotation", [[1], [0], [0], [0]], "not a list of 4 numbers")],
+    ids=["nested", "booleans", "string", "two", "huge", "rotation-booleans", "rotation-nested"])
+@pytest.mark.parametrize("table", ["ego_pose", "calibrated_sensor"])
+def test_a_pose_that_is_not_a_list_of_numbers_is_named(table, key, value, why, tiny):
+    """numpy read a translation of [[1], [2], [3]], [true, false, true] or ["1", 2, 3] (and a rotation of booleans)
+    as numbers: the frame loaded with that pose. Now it is a skip naming the table, the record and the field."""
+    rec = _pose_record(tiny, table)
+    rec[key] = value
+    tiny.rewrite_table(table)
+    loaded, skipped = _loaded(tiny)
+    assert loaded == ([0, 2] if table == "ego_pose" else []), skipped
+    reason = skipped[0].reason
+    for needle in (f"table {table!r} field {key!r} is", why, f"{table}.json", f"token {rec['token']}"):
+        assert needle in reason, (needle, reason)
+
+
+def test_an_intrinsic_of_booleans_is_named(tiny):
+    _set_intrinsic(tiny, [[True, False, True], [False, True, True], [False, False, True]])
+    loaded, skipped = _loaded(tiny)
+    assert loaded == [] and "camera_intrinsic must be a finite 3x3 matrix" in skipped[0].reason, skipped
+
+
+@pytest.mark.parametrize("key,value,needle", [
+    ("width", 0, "field 'width' is 0 but 'height' is 90"), ("height", 0, "field 'height' is 0 but 'width' is 160"),
+    ("width", -5, "field 'width' is -5, expected a positive whole number"),
+    ("height", 89.5, "field 'height' is 89.5, expected a positive whole number")],
+    ids=["width-0", "height-0", "width-negative", "height-fractional"])
+@pytest.mark.parametrize("check_images", [True, False])
+def test_an_image_size_of_0_or_below_is_a_skip_naming_it(key, value, needle, check_images, tiny):
+    """A camera width (or height) of 0 turned the image-size check off silently, and -5 passed with
+    check_images=false (the frame's camera was -5 pixels wide). Now each is a skip naming the record."""
+    tiny.cam_sd[1][key] = value
+    tiny.rewrite_table("sample_data")
+    loaded, skipped = _loaded(tiny, check_images=check_images)
+    assert loaded == [0, 2] and [s.index for s in skipped] == [1], skipped
+    for text in (needle, "sample_data.json", tiny.cam_sd[1]["token"]):
+        assert text in skipped[0].reason, (text, skipped[0].reason)
+
+
+@pytest.mark.parametrize("size", [{"width": 0, "height": 0}, {"width": None, "height": None}, {"width": None}, {}],
+                         ids=["both-0", "both-null", "width-null", "absent"])
+def test_an_unknown_image_size_is_read_from_the_file(size, tiny):
+    """Both sizes 0 (the devkit's value in non-image records), null or absent: the size comes from the image file."""
+    for key in ("width", "height"):
+        tiny.cam_sd[1].pop(key)
+    tiny.cam_sd[1].update(size)
+    tiny.rewrite_table("sample_data")
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+
+    for check_images in (True, False):
+        frame = NuScenesRadarCamera(tiny.root, tiny.version, conf={"check_images": check_images})[1]
+        assert (frame.camera.width, frame.camera.height) == (160, 90)
+
+
+def test_inspect_frame_without_out_or_out_of_range_fails_first(tiny, tmp_path, monkeypatch, capsys):
+    """--frame without --out was ignored silently; with --out, a --frame past the last frame was named only after
+    every frame had been read and the summary written. Now both fail before any frame is read."""
+    import hybrid_calib.data.summary as summary_module
+
+    def no_summary(*args, **kwargs):
+        raise AssertionError("the summary was computed before --frame was checked")
+
+    monkeypatch.setattr(summary_module, "summarize_dataset", no_summary)
+    err = expect_cli_error(_inspect(tiny, "--frame", "1"), capsys, "--frame", "written only with --out",
+                           "pass --out DIR to draw frame 1")
+    assert _one_paragraph(err)
+    out = tmp_path / "out"
+    err = expect_cli_error(_inspect(tiny, "--frame", "3", "--out", out), capsys, "--frame", "frame 3 does not exist",
+                           "has 3 frames (0..2)")
+    assert _one_paragraph(err) and not out.exists()
+    monkeypatch.undo()
+    rc, err = run_cli(_inspect(tiny, "--frame", "2", "--out", out), capsys)
+    assert rc == 0 and (out / "overlay.png").is_file() and (out / "inspect_summary.json").is_file(), err
+
+
+def test_inspect_groups_many_skips_by_reason(tmp_path, capsys):
+    """inspect printed one line per skipped frame: hundreds on a bad drive. Now one line per kind of reason (count,
+    the first reason in full, a few more frames) in the terminal; inspect_summary.json keeps every item."""
+    from tests.tiny_nuscenes import make_tiny_root
+
+    tiny = make_tiny_root(tmp_path / "many", n_samples=10)
+    for sd in tiny.radar_sd[1:8]:  # 7 truncated radar files
+        tiny.path(sd).write_bytes(tiny.path(sd).read_bytes()[:-40])
+    tiny.radar_sd[9]["timestamp"] += 10**9  # one timestamp 1000 s off
+    tiny.rewrite_table("sample_data")
+    from hybrid_calib.cli import main
+
+    out = tmp_path / "out"
+    assert main([str(a) for a in _inspect(tiny, "--out", out, "--set", "radar_filter.ambig_states=null")]) == 0
+    text = capsys.readouterr().out
+    lines = [ln for ln in text.splitlines() if "skipped" in ln or ln.startswith("  also")]
+    assert lines[0].endswith("2/10 frames loaded, 8 skipped"), text
+    assert lines[1].startswith("skipped 7 items for one reason, e.g. frame 1: truncated PCD"), text
+    assert str(tiny.path(tiny.radar_sd[1])) in lines[1] and lines[2] == (
+        "  also frame 2 (sample2), frame 3 (sample3), frame 4 (sample4) and 3 more"), text
+    assert lines[3].startswith("skipped frame 9: radar sample_data timestamp"), text
+    assert f"every skipped item is listed in {out / 'inspect_summary.json'}" in text and len(lines) == 5, text
+    summary = json.loads((out / "inspect_summary.json").read_text())
+    assert [s["index"] for s in summary["skipped"]] == [1, 2, 3, 4, 5, 6, 7, 9]
+    assert all("truncated PCD" in s["reason"] for s in summary["skipped"][:7])
+
+
+def test_calibrate_says_it_reused_the_earlier_result(sim, calibrated, tmp_path, capsys):
+    """A calibrate rerun with the same options reuses result.json, but still printed "wrote .../result.json". Now it
+    says it reused the earlier result and how to recompute; --overwrite recomputes and says "wrote"."""
+    from hybrid_calib.cli import main
+
+    root, _ = sim
+    run = tmp_path / "run"
+    shutil.copytree(calibrated, run)
+    mtime = (run / "result.json").stat().st_mtime_ns
+    assert main([str(a) for a in _calibrate(root, run, "--max-frames", "1")]) == 0
+    text = capsys.readouterr().out
+    assert f"reused the earlier result {run / 'result.json'}" in text and "pass --overwrite to recompute" in text
+    assert "wrote" not in text and (run / "result.json").stat().st_mtime_ns == mtime, text
+    assert main([str(a) for a in _calibrate(root, run, "--max-frames", "1", "--overwrite")]) == 0
+    text = capsys.readouterr().out
+    assert f"wrote {run / 'result.json'}" in text and "reused the earlier" not in text, text

@@ -88,8 +88,6 @@ def _learned(args: argparse.Namespace, on_vehicle):
     if args.window is not None:  # an absent flag leaves --set (or the default) in charge
         overrides.setdefault("window", {})["window"] = args.window
     conf = merge(HybridConfig, overrides)
-    if (args.out / "result.json").is_file() and not args.overwrite:
-        print(f"{args.out / 'result.json'} exists; pass --overwrite to recompute")
     return run_calibration(args.data, args.version, args.out, conf, overwrite=args.overwrite, on_vehicle=on_vehicle)
 
 
@@ -99,8 +97,9 @@ def run(args: argparse.Namespace) -> int:
     from hybrid_calib.plots.calibration import plot_vehicle
 
     on_vehicle = None if args.no_plots else partial(plot_vehicle, out_dir=args.out / "plots")
+    reused = (args.out / "result.json").is_file() and not args.overwrite  # calibrate returns it, if of this run
     if args.method != "oracle":
-        return _report(_learned(args, on_vehicle), args.out)
+        return _report(_learned(args, on_vehicle), args.out, reused)
     if args.split != "all" or split_overrides(args):
         from hybrid_calib.errors import HybridCalibError
 
@@ -119,14 +118,14 @@ def run(args: argparse.Namespace) -> int:
     if args.backend is not None:
         overrides.setdefault("batch", {})["backend"] = args.backend
     conf = merge(CalibrateConfig, overrides)  # ConfigError (unknown key, wrong type, bad value) names the option
-    if (args.out / "result.json").is_file() and not args.overwrite:
-        print(f"{args.out / 'result.json'} exists; pass --overwrite to recompute")
     result = calibrate(args.data, args.version, args.correspondences, args.out, conf, overwrite=args.overwrite,
                        on_vehicle=on_vehicle)
-    return _report(result, args.out)
+    return _report(result, args.out, reused)
 
 
-def _report(result, out: Path) -> int:
+def _report(result, out: Path, reused: bool = False) -> int:
+    """Print one line per vehicle and where the result is; ``reused``: it is an earlier run's ``result.json`` (same
+    data and options), read back, not computed (nor written) now."""
     from hybrid_calib.calib.drift import drift_verdict
     from hybrid_calib.calib.result import STD_FRAME
     from hybrid_calib.metrics import std_dict
@@ -158,6 +157,11 @@ def _report(result, out: Path) -> int:
             print(f"  radar mount monitor ({v.mount['pairs_tested']} frame pairs tested): {steps or 'no step'}")
     for name, reason in result.vehicles_failed.items():
         print(f"{name}: FAILED: {reason}", file=sys.stderr)
-    print(f"wrote {out / 'result.json'}" + (f" ({len(result.vehicles_failed)} vehicle(s) failed: listed there under "
-                                             "vehicles_failed)" if result.vehicles_failed else ""))
+    failed = (f" ({len(result.vehicles_failed)} vehicle(s) failed: listed there under vehicles_failed)"
+              if result.vehicles_failed else "")
+    if reused:
+        print(f"reused the earlier result {out / 'result.json'}{failed}: it was computed with the same data and "
+              "options, so nothing was recomputed or written; pass --overwrite to recompute")
+    else:
+        print(f"wrote {out / 'result.json'}{failed}")
     return 1 if result.vehicles_failed else 0

@@ -1,10 +1,11 @@
 """``hybrid-calib inspect``: what a nuScenes-format root holds, per scene and vehicle, and what is wrong with it.
 
 Prints one line per scene (frames, radar points per sweep after filtering, NaN points dropped,
-radar-camera time offset) and every skipped item with its reason. With ``--out DIR`` also writes
-``DIR/inspect_summary.json`` (schema: ``hybrid_calib.data.summary``), ``DIR/inspect_config.json``
-(the effective data config) and ``DIR/overlay.png`` (one frame's radar and LiDAR points projected
-on its image with the ground-truth extrinsics).
+radar-camera time offset) and the skipped items grouped by reason (a count, one reason in full, a
+few more frames and tokens). With ``--out DIR`` also writes ``DIR/inspect_summary.json`` (schema:
+``hybrid_calib.data.summary``; every skipped item), ``DIR/inspect_config.json`` (the effective data
+config) and ``DIR/overlay.png`` (one frame's radar and LiDAR points projected on its image with the
+ground-truth extrinsics; ``--frame N`` picks the frame, and needs ``--out``).
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--camera", default="CAM_FRONT", help="camera channel (default CAM_FRONT)")
     parser.add_argument("--nsweeps", type=positive_int, default=1, help="radar sweeps accumulated per frame")
     parser.add_argument("--frame", type=nonnegative_int, default=None,
-                        help="frame index for the overlay (default: first loaded)")
+                        help="frame index for the overlay written with --out (default: first loaded)")
     parser.add_argument("--out", type=Path, default=None, help="write the JSON summary, config and overlay PNG here")
     parser.add_argument("--set", dest="overrides", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
                         help="DataConfig override, e.g. --set radar_filter.enabled=false (repeatable)")
@@ -38,13 +39,19 @@ def run(args: argparse.Namespace) -> int:
     from hybrid_calib.data.summary import summarize_dataset
     from hybrid_calib.plots.projection import render_overlay
 
+    if args.frame is not None and args.out is None:  # the overlay is the only thing --frame picks
+        raise OptionError("--frame", "picks the frame of the overlay PNG, which is written only with --out; pass --out "
+                                     f"DIR to draw frame {args.frame}, or drop --frame")
     overrides = parse_overrides(args.overrides)
     overrides.setdefault("nsweeps", args.nsweeps)
     overrides.setdefault("decode_images", True)  # inspect looks for everything that is wrong, pixel data included
     conf = merge(DataConfig, overrides)
     ds = NuScenesRadarCamera(args.data, args.version, args.radar, args.camera, conf)
+    if args.frame is not None and args.frame >= len(ds):  # before the summary: it reads every frame
+        valid = f" (0..{len(ds) - 1}); pass one of them, or drop --frame to draw the first loaded" if len(ds) else ""
+        raise OptionError("--frame", f"frame {args.frame} does not exist; this root has {len(ds)} frames{valid}")
     summary = summarize_dataset(ds, progress=not args.no_progress)
-    print(summary.format())
+    print(summary.format(None if args.out is None else str(Path(args.out) / "inspect_summary.json")))
     if args.out is None:
         return 0 if summary.n_loaded else 1
     out = Path(args.out)
@@ -53,8 +60,6 @@ def run(args: argparse.Namespace) -> int:
     save_json_atomic(out / "inspect_summary.json", summary.to_json())
     print(f"wrote {out / 'inspect_summary.json'}")
     index = args.frame if args.frame is not None else summary.first_loaded
-    if index is not None and index >= len(ds):
-        raise OptionError("--frame", f"frame {index} does not exist; this root has {len(ds)} frames (0..{len(ds) - 1})")
     if index is not None:
         lidar = conf.lidar_channel in ds.tables.channels()
         frame_ds = ds if (conf.load_lidar or not lidar) else NuScenesRadarCamera(

@@ -9,8 +9,9 @@ Bad input policy:
 - Root, version folder, tables, channel names and subsets are checked when the dataset is built;
   problems raise ``DataError`` naming the file / token and what to do.
 - Per-frame problems (corrupt PCD, missing or non-image or truncated JPEG, unresolved token, a sweep
-  whose points are all NaN, an empty sweep after filtering) raise ``DataError`` from
-  ``dataset[i]``; iteration records a ``SkipRecord`` in ``dataset.skipped`` and goes on
+  whose points are all NaN, an empty sweep after filtering, a radar or LiDAR keyframe whose timestamp is more
+  than ``DataConfig.max_sync_offset_s`` from the camera's) raise ``DataError`` from ``dataset[i]``;
+  iteration records a ``SkipRecord`` in ``dataset.skipped`` and goes on
   (``on_error="skip"``) or re-raises (``on_error="raise"``).
 - Points with NaN/inf coordinates are dropped and counted (``extras["radar_nonfinite_dropped"]``);
   a sweep in which every point is NaN is rejected.
@@ -68,6 +69,9 @@ class DataConfig:
     skip_empty_radar: bool = True  # a frame with zero radar points after filtering is an error (skipped)
     check_images: bool = True  # eager image header check (signature, size, end marker; no decode)
     decode_images: bool = False  # also decode each image in dataset[i] and reject corrupt pixel data (slower)
+    # |t_radar - t_camera| (and |t_lidar - t_camera| with load_lidar) above this, seconds, makes the frame a skip:
+    # one of the timestamps is corrupt (real nuScenes keyframes are under 0.1 s apart, simulated ones under 0.06 s)
+    max_sync_offset_s: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -114,6 +118,9 @@ class NuScenesRadarCamera:
             raise ConfigError(f"DataConfig.on_error must be 'skip' or 'raise', got {self.conf.on_error!r}")
         if int(self.conf.nsweeps) < 1:
             raise ConfigError(f"DataConfig.nsweeps (--nsweeps) must be >= 1, got {self.conf.nsweeps}")
+        if not 0 < float(self.conf.max_sync_offset_s) < float("inf"):
+            raise ConfigError(f"DataConfig.max_sync_offset_s must be a positive number of seconds, got "
+                              f"{self.conf.max_sync_offset_s}")
         self.root = Path(root)
         self.version = version
         self.radar_channel = radar_channel
@@ -243,6 +250,7 @@ class NuScenesRadarCamera:
         ref = self.frames[i]
         t = self.tables
         cam, rad = ref.camera_sd, ref.radar_sd
+        _check_sync(cam, rad, "radar", self.conf.max_sync_offset_s, t.path("sample_data"))
         image_path = t.file(cam)
         width, height = _image_size_field(cam, t.path("sample_data"))
         if self.conf.check_images or not (width and height):
@@ -312,6 +320,7 @@ class NuScenesRadarCamera:
             raise DataError(f"sample has no {self.conf.lidar_channel} keyframe but load_lidar is set; set "
                             "load_lidar=false or pick another lidar_channel", path=str(t.path("sample_data")),
                             token=ref.sample_token)
+        _check_sync(ref.camera_sd, sd, "LiDAR", self.conf.max_sync_offset_s, t.path("sample_data"))
         path = t.file(sd)
         raw = read_lidar_bin(path)
         pts = raw[:, :4]
@@ -382,14 +391,40 @@ def _sim_pose(rec: dict | None, key: str) -> np.ndarray | None:
 
 
 def _image_size_field(cam: dict, table: Path) -> tuple[int, int]:
-    """A camera sample_data record's optional ``width`` / ``height`` (0 when absent, null or 0, as in the
-    devkit's radar records); ``DataError`` naming the record when they are not numbers."""
+    """A camera sample_data record's ``width`` / ``height``, pixels: positive whole numbers, 0 where unknown (absent
+    or null, or both 0 as in the devkit's radar records; the size is then read from the image file). ``DataError``
+    naming the record when one is not a number, is negative or fractional, or is 0 while the other is given (that
+    turned the size check off silently, and a negative size passed with check_images=false)."""
     size = []
     for key in ("width", "height"):
-        value = cam.get(key) or 0
+        value = cam.get(key)
+        value = 0 if value is None else value
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
             raise DataError(f"sample_data field {key!r} is {value!r}, expected an integer number of pixels (or 0 / "
                             "null when unknown); the table does not follow the nuScenes schema: fix or re-extract it",
                             path=str(table), token=cam["token"])
+        if value < 0 or value != int(value):
+            raise DataError(f"sample_data field {key!r} is {value!r}, expected a positive whole number of pixels (or "
+                            "0 / null when unknown); fix the record or re-extract the tables", path=str(table),
+                            token=cam["token"])
         size.append(int(value))
+    for zero, given, (a, b) in (("width", "height", size), ("height", "width", size[::-1])):
+        if a == 0 and b > 0 and cam.get(zero) is not None:
+            raise DataError(f"sample_data field {zero!r} is {cam[zero]!r} but {given!r} is {b}; a camera record gives "
+                            "both image sizes in pixels, or neither (0 / null / absent: read from the image file): "
+                            "fix the record or re-extract the tables", path=str(table), token=cam["token"])
     return size[0], size[1]
+
+
+def _check_sync(cam: dict, sd: dict, what: str, limit_s: float, table: Path) -> None:
+    """``DataError`` naming sample_data ``sd`` (and the camera record) when its timestamp is more than ``limit_s``
+    seconds from the camera keyframe's. Timestamps are integer microseconds, compared exactly (a timestamp of
+    1e30 us or one below zero is named, not turned into an offset of 1e26 ms)."""
+    dt_us = sd["timestamp"] - cam["timestamp"]
+    if abs(dt_us) <= limit_s * 1e6:
+        return
+    apart = f"{dt_us / 10**6:+.6g} s" if abs(dt_us) < 10**300 else "more than 1e294 s"
+    raise DataError(f"{what} sample_data timestamp {sd['timestamp']} us is {apart} from the camera's "
+                    f"({cam['timestamp']} us, sample_data {cam['token']}), more than max_sync_offset_s={limit_s:g} s "
+                    "(nuScenes keyframes are under 0.1 s apart), so one of the timestamps is corrupt: fix the record "
+                    "or re-extract the tables", path=str(table), token=sd["token"])

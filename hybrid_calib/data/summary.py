@@ -15,6 +15,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -71,8 +72,10 @@ class DatasetSummary:
                     camera_channel=self.camera_channel, n_frames=self.n_frames, n_loaded=self.n_loaded,
                     n_skipped=len(self.skipped), groups=[g.to_json() for g in self.groups], skipped=self.skipped)
 
-    def format(self) -> str:
-        """A human-readable table: one line per scene/vehicle, then the skipped items."""
+    def format(self, listed_in: str | None = None) -> str:
+        """A human-readable table: one line per scene/vehicle, then the skipped items grouped by reason (count,
+        the first one's reason, a few more of its frames and tokens: a drive with hundreds of bad frames does not
+        flood the terminal). ``listed_in``: the file that lists every skipped item, named when some are left out."""
         lines = [f"{self.root} [{self.version}] {self.radar_channel} -> {self.camera_channel}: "
                  f"{self.n_loaded}/{self.n_frames} frames loaded, {len(self.skipped)} skipped",
                  f"{'scene':24s} {'vehicle':12s} {'frames':>6s} {'loaded':>6s} {'radar pts/sweep':>18s} "
@@ -86,9 +89,49 @@ class DatasetSummary:
         if not self.n_frames:
             lines.append(f"no frames: no sample has both a {self.radar_channel} and a {self.camera_channel} keyframe "
                          "(the skipped items below say why); check --radar/--camera and the tables")
-        for s in self.skipped:
-            lines.append(f"skipped frame {s['index'] if s['index'] is not None else '-'}: {s['reason']}")
+        lines += format_skips(self.skipped, listed_in)
         return "\n".join(lines)
+
+
+EXAMPLES_PER_REASON = 3  # further frames (index and token) shown per kind of skip reason in the terminal
+_HEX_TOKEN = re.compile(r"\b[0-9a-f]{32}\b")  # a nuScenes token
+_SUFFIX = re.compile(r" \[(file|token) [^\]]*\]$")  # the [file ..., token ...] that DataError appends
+
+
+def skip_kind(rec: dict[str, Any]) -> str:
+    """A skip record's reason with what names the one item taken out (its token and file, other tokens, numbers),
+    so that the reasons of frames that failed alike compare equal."""
+    text = _SUFFIX.sub("", rec["reason"])
+    for name in (rec.get("path"), rec.get("token")):
+        if name:
+            text = text.replace(str(name), "<>")
+    return re.sub(r"\d+", "#", _HEX_TOKEN.sub("<token>", text))
+
+
+def format_skips(skipped: list[dict[str, Any]], listed_in: str | None = None) -> list[str]:
+    """Terminal lines for skip records (``SkipRecord`` dicts): one per kind of reason (``skip_kind``), in order of
+    first occurrence, with its count, the first item's full reason and up to ``EXAMPLES_PER_REASON`` more items."""
+    groups: dict[str, list[dict[str, Any]]] = {}
+    for rec in skipped:
+        groups.setdefault(skip_kind(rec), []).append(rec)
+
+    def where(rec: dict[str, Any]) -> str:
+        return f"frame {rec['index'] if rec['index'] is not None else '-'}"
+
+    lines = []
+    for recs in groups.values():
+        first = recs[0]
+        if len(recs) == 1:
+            lines.append(f"skipped {where(first)}: {first['reason']}")
+            continue
+        lines.append(f"skipped {len(recs)} items for one reason, e.g. {where(first)}: {first['reason']}")
+        more = ", ".join(f"{where(r)} ({r['token']})" for r in recs[1:1 + EXAMPLES_PER_REASON])
+        rest = len(recs) - 1 - EXAMPLES_PER_REASON
+        lines.append(f"  also {more}" + (f" and {rest} more" if rest > 0 else ""))
+    if any(len(recs) > 1 + EXAMPLES_PER_REASON for recs in groups.values()):
+        lines.append(f"every skipped item is listed in {listed_in}" if listed_in else
+                     "pass --out DIR to list every skipped item in DIR/inspect_summary.json")
+    return lines
 
 
 def summarize_dataset(ds: NuScenesRadarCamera, progress: bool = True) -> DatasetSummary:

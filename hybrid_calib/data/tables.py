@@ -267,9 +267,11 @@ class NuScenesTables:
     def camera_intrinsic(self, sd: dict) -> np.ndarray:
         """(3, 3) float64 camera matrix of a camera sample_data record."""
         cs = self.get("calibrated_sensor", sd["calibrated_sensor_token"], f"sample_data {sd['token']}")
-        try:
-            K = np.asarray(cs["camera_intrinsic"], dtype=np.float64)
-        except (ValueError, TypeError):  # ragged rows, strings, objects
+        rows = cs["camera_intrinsic"]
+        try:  # ragged rows, strings, booleans, objects: not a matrix
+            K = np.asarray(rows, dtype=np.float64) if isinstance(rows, list) and all(
+                _is_number_list(row) for row in rows) else np.full(0, np.nan)
+        except (ValueError, OverflowError):  # ragged rows; an integer beyond float range
             K = np.full(0, np.nan)
         if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
             raise DataError(f"calibrated_sensor camera_intrinsic must be a finite 3x3 matrix with positive focal "
@@ -294,15 +296,35 @@ def _index_by_token(records: list[dict], path: Path) -> dict[str, dict]:
 QUAT_NORM_TOL = 1e-3  # |norm(q) - 1| up to this is rounding in the file: renormalised; beyond it the record is rejected
 
 
+def _is_number_list(value) -> bool:
+    """A flat JSON list of numbers (int or float; not bool, str, null or a nested list)."""
+    return isinstance(value, list) and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in value)
+
+
+def _vector(rec: dict, key: str, n: int, what: str, path: Path) -> np.ndarray:
+    """A record's field ``key`` as (n,) float64: a flat JSON list of ``n`` finite numbers. ``DataError`` naming the
+    table, the record's token and the field otherwise (numpy read ``[[1], [2], [3]]``, ``[true, false, true]`` and
+    ``["1", 2, 3]`` as numbers)."""
+    value = rec[key]
+    if not _is_number_list(value) or len(value) != n:
+        why = f"not a list of {n} numbers"
+    else:
+        try:
+            v = np.asarray(value, dtype=np.float64)
+        except OverflowError:  # an integer beyond float range
+            v = np.full(n, np.inf)
+        if np.all(np.isfinite(v)):
+            return v
+        why = "non-finite"
+    text = repr(value)
+    text = text if len(text) <= 80 else text[:77] + "..."
+    raise DataError(f"table {path.stem!r} field {key!r} is {text} ({why}); expected {what}: fix the record or "
+                    "re-extract the tables", path=str(path), token=rec.get("token"))
+
+
 def _unit_quaternion(rec: dict, path: Path) -> np.ndarray:
     """A record's ``rotation`` [w, x, y, z] as a unit quaternion; ``DataError`` when its norm is far from 1."""
-    try:
-        q = np.asarray(rec["rotation"], dtype=np.float64)
-    except (ValueError, TypeError):
-        q = np.full(0, np.nan)
-    if q.shape != (4,) or not np.all(np.isfinite(q)):
-        raise DataError(f"rotation {rec['rotation']!r} is not a finite [w, x, y, z] quaternion", path=str(path),
-                        token=rec.get("token"))
+    q = _vector(rec, "rotation", 4, "a [w, x, y, z] unit quaternion (4 numbers)", path)
     norm = float(np.linalg.norm(q))
     if abs(norm - 1.0) > QUAT_NORM_TOL:
         raise DataError(f"rotation quaternion has norm {norm:.6g}, not 1 (tolerance {QUAT_NORM_TOL:g}); the "
@@ -311,8 +333,12 @@ def _unit_quaternion(rec: dict, path: Path) -> np.ndarray:
 
 
 def _pose(rec: dict, path: Path) -> np.ndarray:
+    """(4, 4) child -> parent of an ego_pose / calibrated_sensor record; ``DataError`` naming the table, token and
+    field when its rotation or translation is not a flat list of 4 / 3 finite numbers (or not a unit quaternion)."""
+    q = _unit_quaternion(rec, path)
+    t = _vector(rec, "translation", 3, "[x, y, z] metres (3 numbers)", path)
     try:
-        T = pose_from_nuscenes(_unit_quaternion(rec, path), rec["translation"])
+        T = pose_from_nuscenes(q, t)
     except (ValueError, TypeError) as e:
         raise DataError(f"invalid rotation/translation ({e}); expected a [w, x, y, z] unit quaternion and "
                         "[x, y, z] metres", path=str(path), token=rec.get("token")) from None
