@@ -127,7 +127,8 @@ def test_closed_loop_runs_the_network_from_the_fused_estimate(sim_root, tmp_path
     from hybrid_calib.hybrid.network import OutputCache
 
     run = run_calibration(sim_root, "v1.0-sim", tmp_path / "h", {**BASE, "method": "hybrid",
-                                                                  "vehicles": ("sim-veh-000",)})
+                                                                  "vehicles": ("sim-veh-000",),
+                                                                  "lidar": {"min_rows": 15, "max_std_m": 1.0}})
     (v,) = run.vehicles.values()
     assert v.method == "hybrid" and v.errors_against == "truth" and v.checkpoint.endswith("small-sim-r1.json")
     assert len(v.trajectory) == len(v.frame_rows) == 3 and v.error["nees"] > 0
@@ -138,6 +139,11 @@ def test_closed_loop_runs_the_network_from_the_fused_estimate(sim_root, tmp_path
     assert not np.allclose(starts[1], starts[0])
     back = CalibrationRun.load(tmp_path / "h" / "result.json").vehicles["sim-veh-000"]
     assert back.method == "hybrid" and back.frame_rows == v.frame_rows and back.start == v.start
+    # the LiDAR's lateral offset was measured on the loop's frames and folded into the last estimate only
+    assert v.lidar["applied"] and v.lidar["frames"] == 3 and back.lidar == v.lidar, v.lidar
+    h = np.r_[-np.asarray(v.lidar["coupling_m_per_rad"]), 0.0, 1.0, 0.0]  # what dy measures (its Kalman row)
+    assert h @ v.trajectory[-1].cov @ h <= v.lidar["dy_std_m"] ** 2 * (1 + 1e-9)  # at most the measurement's
+    assert h @ v.trajectory[-2].cov @ h > v.lidar["dy_std_m"] ** 2
 
 
 def test_every_method_starts_a_vehicle_from_the_same_extrinsic(sim_root, tmp_path):

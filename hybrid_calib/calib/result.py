@@ -20,7 +20,12 @@
           "method": str, "checkpoint": str | null, "errors_against": "truth" | "tables" | null,
           "start": {"kind", "seed", "T_cam_radar"} | null,   # the vehicle's start (same for every method)
           "frame_rows": [{"frame_id", "used", "rejected", "deflation", "prior_used", "network_ms"}, ...],
-          "config": {...} | null          # the method's effective config (hybrid.HybridConfig)
+          "config": {...} | null,         # the method's effective config (hybrid.HybridConfig)
+          "ood": {...} | null,            # learned methods: out-of-domain scores and decision (hybrid.ood)
+          "mount": {...} | null,          # hybrid: the radar mount monitor (docs/conventions.md)
+          "lidar": {"applied", "dy_m", "dy_std_m", "dx_m_unused", "range_offset_m", "coupling_m_per_rad",
+                    "rows", "frames", "scale_m", "note"} | null
+                                          # hybrid: the radar's lateral offset from the LiDAR (calib.lidar_alignment)
         }
       },
       "vehicles_failed": {VEHICLE: reason}  # vehicles whose data could not be calibrated (e.g. no usable
@@ -215,6 +220,7 @@ class VehicleResult:
     config: dict | None = None  # the effective method config (learned methods)
     ood: dict | None = None  # out-of-domain scores and decision (learned methods; hybrid.ood.decide)
     mount: dict | None = None  # the radar mount monitor: steps and levels (hybrid; calib.mount_monitor.summary)
+    lidar: dict | None = None  # the LiDAR's lateral offset of the radar (hybrid; calib.lidar_alignment record)
 
     def to_dict(self) -> dict:
         return {
@@ -229,7 +235,7 @@ class VehicleResult:
             "trajectory": [f.to_dict() for f in self.trajectory],
             "method": self.method, "checkpoint": self.checkpoint, "start": self.start,
             "errors_against": self.errors_against, "frame_rows": self.frame_rows, "config": self.config,
-            "ood": self.ood, "mount": self.mount,
+            "ood": self.ood, "mount": self.mount, "lidar": self.lidar,
         }
 
     @classmethod
@@ -251,7 +257,7 @@ class VehicleResult:
             skipped=list(d.get("frames_skipped", [])), n_frames=int(d.get("n_frames", 0)),
             network=d.get("network"), method=d.get("method", ""), checkpoint=d.get("checkpoint"),
             start=d.get("start"), errors_against=d.get("errors_against"), frame_rows=list(d.get("frame_rows", [])),
-            config=d.get("config"), ood=d.get("ood"), mount=d.get("mount"),
+            config=d.get("config"), ood=d.get("ood"), mount=d.get("mount"), lidar=d.get("lidar"),
         )
 
     def to_json(self) -> str:

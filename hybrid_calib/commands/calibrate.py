@@ -155,6 +155,11 @@ def _report(result, out: Path, reused: bool = False) -> int:
             steps = "; ".join(f"the radar turned by {st['step_deg']:+.2f} +- {st['std_deg']:.2f} deg in yaw from frame "
                               f"{st['change']} (alarm at frame {st['at']})" for st in v.mount["steps"])
             print(f"  radar mount monitor ({v.mount['pairs_tested']} frame pairs tested): {steps or 'no step'}")
+        if v.lidar is not None:
+            got = (f"radar lateral offset {v.lidar['dy_m'] * 100:+.1f} +- {v.lidar['dy_std_m'] * 100:.1f} cm "
+                   f"({v.lidar['rows']} detections on {v.lidar['frames']} frames)" if "dy_m" in v.lidar else "")
+            state = "applied" if v.lidar["applied"] else f"not applied: {v.lidar.get('note', '')}"
+            print(f"  LiDAR alignment: {got}{'; ' if got else ''}{state}")
     for name, reason in result.vehicles_failed.items():
         print(f"{name}: FAILED: {reason}", file=sys.stderr)
     failed = (f" ({len(result.vehicles_failed)} vehicle(s) failed: listed there under vehicles_failed)"

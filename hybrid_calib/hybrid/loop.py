@@ -33,6 +33,7 @@ import numpy as np
 
 from hybrid_calib.calib.covariance import analyse_information, inconclusive_status
 from hybrid_calib.calib.drift import DriftConfig, reference_test
+from hybrid_calib.calib.lidar_alignment import LidarAlignConfig, align, apply_lateral, drive_frames
 from hybrid_calib.calib.mount_monitor import MountMonitor, MountMonitorConfig
 from hybrid_calib.calib.oracle import OracleConfig
 from hybrid_calib.calib.result import (
@@ -76,6 +77,7 @@ class HybridConfig:
     measurement: dict = field(default_factory=dict)  # MeasurementConfig overrides over the checkpoint's export.hybrid
     motion: MotionConfig = MotionConfig()  # the camera-VO / radar-Doppler motion constraint (hybrid; hybrid.motion)
     mount: MountMonitorConfig = MountMonitorConfig()  # radar mount steps, Doppler vs ego poses (calib.mount_monitor)
+    lidar: LidarAlignConfig = LidarAlignConfig()  # the radar's lateral offset from the LiDAR (calib.lidar_alignment)
     average: AverageConfig = AverageConfig()  # pure-avg
     oracle: OracleConfig = OracleConfig()  # oracle rows (simulated roots only)
     drift: DriftConfig = DriftConfig()  # reference chi-square test of the final estimate
@@ -279,12 +281,33 @@ def with_drive_error(traj: list[FrameEstimate], drive_std, conf: HybridConfig) -
     return [with_cov(f, f.cov + D, conf) for f in traj]
 
 
-def with_cov(f: FrameEstimate, cov: np.ndarray, conf: HybridConfig) -> FrameEstimate:
-    """Frame ``f`` re-reported with covariance ``cov`` (6, 6), keeping the window's own notes (a
-    solve that did not converge, a restart after a step)."""
+def with_cov(f: FrameEstimate, cov: np.ndarray, conf: HybridConfig, T: np.ndarray | None = None) -> FrameEstimate:
+    """Frame ``f`` re-reported with covariance ``cov`` (6, 6) (and estimate ``T``, when given), keeping
+    the window's own notes (a solve that did not converge, a restart after a step)."""
     notes = [f.estimate.status[i:].split(")")[0] for key in ("NOT CONVERGED", "recovering")
              if (i := f.estimate.status.find(key)) >= 0]
-    return dataclasses.replace(f, estimate=_estimate(f.T, cov, conf, "; ".join(notes)))
+    return dataclasses.replace(f, estimate=_estimate(f.T if T is None else T, cov, conf, "; ".join(notes)))
+
+
+def with_lidar(traj: list[FrameEstimate], drive: Drive, frames, conf: HybridConfig, mon: MountMonitor | None
+               ) -> tuple[list[FrameEstimate], dict]:
+    """The trajectory with the LiDAR's lateral offset (``calib.lidar_alignment``) folded into its last
+    estimate, and the result's ``lidar`` block (what was measured, and whether and why not it was applied).
+    Frames: those the loop used, after the radar's last mount step (the mount before it was another)."""
+    since = mon.steps[-1].change if mon is not None and mon.steps else 0
+    indices = [drive.indices[f.index] for f in traj if f.index >= since and 0 <= f.index < len(drive.indices)]
+    lfs = drive_frames(frames, indices, conf.lidar)
+    if not lfs:
+        return traj, {"applied": False, "note": "no LiDAR in the frames (the alignment needs the LiDAR keyframes "
+                                                "and the tables' LiDAR-camera extrinsic)"}
+    last = traj[-1]
+    a, why = align(lfs, last.T, conf.lidar)
+    if a is None:
+        return traj, {"applied": False, "note": why}
+    if a.dy_std > conf.lidar.max_std_m:
+        return traj, a.record(False, f"std {a.dy_std * 100:.1f} cm > max_std_m {conf.lidar.max_std_m * 100:g} cm")
+    T, cov = apply_lateral(last.T, last.cov, a)
+    return [*traj[:-1], with_cov(last, cov, conf, T)], a.record(True)
 
 
 def _pure(runner, drive, T0, conf, tr):
@@ -498,7 +521,11 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     if not traj:
         raise DataError(f"vehicle {drive.vehicle}: no usable frame ({len(tr.skipped)} skipped; first: "
                         f"{tr.skipped[0]['reason'] if tr.skipped else '-'})")
+    lidar = None
+    if conf.method == "hybrid" and conf.lidar.enabled and frames is not None:
+        traj, lidar = with_lidar(traj, drive, frames, conf, mon)
     res = VehicleResult(drive.vehicle, traj[-1].estimate, traj, skipped=tr.skipped, n_frames=len(traj))
+    res.lidar = lidar
     res.checkpoint = runner.checkpoint
     res.frame_rows = tr.rows
     res.ood = ood
