@@ -167,6 +167,19 @@ def test_verdict_from_the_result_and_steps():
     assert verdict_of(_vr((0,) * 6, (0.01,) * 6)).moved.startswith("not tested")
 
 
+def test_the_lidar_alignment_is_said_in_words():
+    from hybrid_calib.report.vehicle import lidar_html, status_html
+
+    vr = _vr((0,) * 6, (0.01,) * 6)
+    assert lidar_html(vr) == "" and "LiDAR" not in status_html(vr)
+    vr.lidar = {"applied": True, "dy_m": -0.089, "dy_std_m": 0.034, "rows": 377, "frames": 41}
+    assert "-8.9 +- 3.4 cm" in status_html(vr) and "applied: the camera-x translation" in lidar_html(vr)
+    vr.lidar = {"applied": False, "dy_m": 0.2, "dy_std_m": 0.2, "rows": 120, "frames": 9, "note": "std 20.0 cm > 10"}
+    assert "not applied: std 20.0 cm &gt; 10" in lidar_html(vr)
+    vr.lidar = {"applied": False, "note": "no LiDAR in the frames"}
+    assert "not run: no LiDAR in the frames" in lidar_html(vr)
+
+
 def test_fleet_page_links_vehicle_reports_and_names_the_flagged(run_dir, tmp_path):
     result = run_dir / "run" / "result.json"
     run = CalibrationRun.load(result)

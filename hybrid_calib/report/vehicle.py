@@ -112,7 +112,23 @@ def status_html(vr: VehicleResult) -> str:
         cells = "".join(num(x, ".3f" if j < 3 else ".2f") for j, x in enumerate(vr.crb_std))
         crb = ("<p class=meta>Cramer-Rao bound of this drive (oracle rows), 1-sigma per camera axis (deg x3, cm x3):"
                f"</p><table><tr>{''.join(f'<th>{esc(a)}</th>' for a in AXIS_NAMES)}</tr><tr>{cells}</tr></table>")
-    return f"<h2>What the data could not pin</h2><p id=\"status\">{esc(words.strip())}</p>{crb}"
+    return f"<h2>What the data could not pin</h2><p id=\"status\">{esc(words.strip())}</p>{crb}{lidar_html(vr)}"
+
+
+def lidar_html(vr: VehicleResult) -> str:
+    """The hybrid's LiDAR alignment (``vr.lidar``, docs/conventions.md) in words, or "" without one."""
+    la = vr.lidar
+    if not la:
+        return ""
+    if "dy_m" not in la:
+        words = f"not run: {la.get('note', '')}"
+    else:
+        words = (f"the radar's lateral offset (about camera x) measured against the LiDAR's scene: "
+                 f"{la['dy_m'] * 100:+.1f} +- {la['dy_std_m'] * 100:.1f} cm from the loop's estimate "
+                 f"({la['rows']} radar detections on {la['frames']} frames); ")
+        words += ("applied: the camera-x translation and its 1-sigma above are the LiDAR's, not the network's."
+                  if la["applied"] else f"not applied: {la.get('note', '')}")
+    return f"<p id=\"lidar\">LiDAR alignment: {esc(words)}</p>"
 
 
 def _figures(vr: VehicleResult, ev: Evidence, tmp: Path) -> str:
