@@ -299,7 +299,8 @@ def with_lidar(traj: list[FrameEstimate], drive: Drive, frames, conf: HybridConf
     lfs = drive_frames(frames, indices, conf.lidar)
     if not lfs:
         return traj, {"applied": False, "note": "no LiDAR in the frames (the alignment needs the LiDAR keyframes "
-                                                "and the tables' LiDAR-camera extrinsic)"}
+                                                "and the tables' LiDAR-camera extrinsic; the frames are read with "
+                                                "their LiDAR only for --depth lidar-densified)"}
     last = traj[-1]
     a, why = align(lfs, last.T, conf.lidar)
     if a is None:
