@@ -68,7 +68,7 @@ def main(argv=None) -> int:
                                err_raw_m=float(a.delta[1]) - need, coupling=[float(c) for c in a.coupling],
                                std_m=a.dy_std, range_offset_m=float(a.delta[2]),
                                cluster_var=float(a.cov[1, 1]) - conf.systematic_m ** 2, rows=a.rows,
-                               dx_m=float(a.delta[0]), dx_need_m=float(local(start, truth)[3]))
+                               dx_m=float(a.delta[0]), dx_need_m=float(xi[3]))
                 rows.append(row)
                 print(f"{root.name}/{vehicle} trial {t}: start dy {need:+.3f} m -> "
                       + (f"error {row['err_m']:+.3f} m (std {row['std_m']:.3f}, {a.rows} rows)" if a else why),

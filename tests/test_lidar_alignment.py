@@ -75,6 +75,15 @@ def test_the_coupling_is_how_dy_moves_with_the_estimates_rotation():
     assert abs((b.delta[1] - a.delta[1]) - a.coupling[2] * phi) < 0.3 * abs(a.coupling[2] * phi) + 0.002
 
 
+def test_a_frame_with_no_lidar_ahead_of_the_radar_is_left_out_not_a_crash():
+    frames = _poles(np.random.default_rng(5))
+    f = frames[0]
+    behind = LidarFrame(f.lidar * [-1, 1, 1], f.T_cam_lidar, f.A, f.radar_xy, "behind")  # every point behind
+    a, why = align([behind, *frames], X_TRUE, LidarAlignConfig(min_rows=30))
+    assert a is not None, why
+    assert a.frames == len(frames)
+
+
 def test_refuses_too_few_frames_rows_or_one_direction():
     frames = _poles(np.random.default_rng(1), n_frames=2)
     a, why = align(frames, X_TRUE, LidarAlignConfig())

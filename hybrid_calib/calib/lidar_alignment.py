@@ -136,9 +136,8 @@ def lidar_frame(frame, conf: LidarAlignConfig = LidarAlignConfig()) -> LidarFram
 
 def _match(f: LidarFrame, T: np.ndarray, gate: float, conf: LidarAlignConfig, b: float = 0.0
            ) -> tuple[np.ndarray, np.ndarray]:
-    """(e (K,) m, J (K, 3)) of one frame's matched detections at ``T`` (the frame's T_cam_radar); J's last
-    column is d e / d b of the common range offset ``b`` (0 when ``range_bias`` is off); ``e = r - m``
-    (without ``b``), kept when ``|e - b| < gate``."""
+    """(e (K,) m, u (K, 2)) of one frame's matched detections at ``T`` (the frame's T_cam_radar): ``e = r - m``
+    (without ``b``), kept when ``|e - b| < gate``; ``u`` the matched point's unit direction (``d e / d [dx, dy]``)."""
     T_radar_lidar = se3_inverse(T) @ f.T_cam_lidar
     Q = f.lidar @ T_radar_lidar[:3, :3].T + T_radar_lidar[:3, 3]
     Q = Q[Q[:, 0] > conf.min_forward_m, :2]
@@ -152,14 +151,13 @@ def _match(f: LidarFrame, T: np.ndarray, gate: float, conf: LidarAlignConfig, b:
     a = np.arctan2(f.radar_xy[:, 1], f.radar_xy[:, 0])
     beam = np.radians(conf.beam_deg)
     lo, hi = np.searchsorted(az, a - beam), np.searchsorted(az, a + beam)
-    e, J = [], []
+    e, u = [], []
     for k in np.flatnonzero(hi > lo):
         j = lo[k] + int(np.argmin(rng[lo[k]:hi[k]]))
         if abs(r[k] - rng[j] - b) < gate:
             e.append(r[k] - rng[j])
-            J.append(Q[j] / rng[j])
-    J = np.asarray(J, np.float64).reshape(-1, 2)
-    return np.asarray(e, np.float64), np.column_stack([J, np.full(len(J), -1.0 if conf.range_bias else 0.0)])
+            u.append(Q[j] / rng[j])
+    return np.asarray(e, np.float64), np.asarray(u, np.float64).reshape(-1, 2)
 
 
 def align(frames: list[LidarFrame], X: np.ndarray, conf: LidarAlignConfig = LidarAlignConfig()
@@ -210,8 +208,10 @@ def _solve(frames: list[LidarFrame], X: np.ndarray, conf: LidarAlignConfig) -> t
         e = np.concatenate([q[0] for q in parts])
         if len(e) < conf.min_rows:
             return None, f"{len(e)} radar detections match a LiDAR surface (need {conf.min_rows})"
-        J = np.concatenate([q[1] for q in parts])[:, :p]
-        e = e + (d[2] * J[:, 2] if p == 3 else 0.0)  # r - m - b: the residual at the current range offset
+        J = np.concatenate([q[1] for q in parts])
+        if p == 3:  # d e / d b = -1; the residual at the current range offset: r - m - b
+            J = np.column_stack([J, np.full(len(J), -1.0)])
+            e = e - d[2]
         fid = np.concatenate([np.full(len(q[0]), k) for k, q in enumerate(parts)])
         scale = max(1.4826 * float(np.median(np.abs(e - np.median(e)))), 0.02)
         w = np.minimum(1.0, conf.huber * scale / np.maximum(np.abs(e), 1e-12))
