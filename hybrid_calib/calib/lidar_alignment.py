@@ -242,6 +242,16 @@ def apply_lateral(T: np.ndarray, cov: np.ndarray, a: LidarAlignment) -> tuple[np
     return T @ se3_exp(xi), 0.5 * (cov2 + cov2.T)
 
 
+def describe(block: dict) -> str:
+    """A result's ``lidar`` block (``LidarAlignment.record``, or ``{"applied": False, "note"}`` when it did not
+    run) in one line of words: what was measured and whether it was applied, or why not."""
+    if "dy_m" not in block:
+        return f"not run: {block.get('note', '')}"
+    words = (f"radar lateral offset {block['dy_m'] * 100:+.1f} +- {block['dy_std_m'] * 100:.1f} cm from the loop's "
+             f"estimate ({block['rows']} detections on {block['frames']} frames)")
+    return words + ("; applied" if block["applied"] else f"; not applied: {block.get('note', '')}")
+
+
 def drive_frames(frames, indices, conf: LidarAlignConfig = LidarAlignConfig()) -> list[LidarFrame]:
     """The alignment inputs of dataset ``indices`` (unreadable frames and frames without LiDAR left out)."""
     out = []

@@ -127,6 +127,7 @@ def _report(result, out: Path, reused: bool = False) -> int:
     """Print one line per vehicle and where the result is; ``reused``: it is an earlier run's ``result.json`` (same
     data and options), read back, not computed (nor written) now."""
     from hybrid_calib.calib.drift import drift_verdict
+    from hybrid_calib.calib.lidar_alignment import describe as describe_lidar
     from hybrid_calib.calib.result import STD_FRAME
     from hybrid_calib.metrics import std_dict
 
@@ -156,10 +157,7 @@ def _report(result, out: Path, reused: bool = False) -> int:
                               f"{st['change']} (alarm at frame {st['at']})" for st in v.mount["steps"])
             print(f"  radar mount monitor ({v.mount['pairs_tested']} frame pairs tested): {steps or 'no step'}")
         if v.lidar is not None:
-            got = (f"radar lateral offset {v.lidar['dy_m'] * 100:+.1f} +- {v.lidar['dy_std_m'] * 100:.1f} cm "
-                   f"({v.lidar['rows']} detections on {v.lidar['frames']} frames)" if "dy_m" in v.lidar else "")
-            state = "applied" if v.lidar["applied"] else f"not applied: {v.lidar.get('note', '')}"
-            print(f"  LiDAR alignment: {got}{'; ' if got else ''}{state}")
+            print(f"  LiDAR alignment: {describe_lidar(v.lidar)}")
     for name, reason in result.vehicles_failed.items():
         print(f"{name}: FAILED: {reason}", file=sys.stderr)
     failed = (f" ({len(result.vehicles_failed)} vehicle(s) failed: listed there under vehicles_failed)"

@@ -199,6 +199,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from hybrid_calib.calib.drift import drift_verdict
+    from hybrid_calib.calib.lidar_alignment import describe as describe_lidar
 
     s = run_demo(args.out, parse_overrides(args.set), overwrite=args.overwrite)
     print(f"simulated drive:      {s['sim_root']}")
@@ -215,11 +216,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"  1-sigma (camera):   rot {std['rot_x_cam_deg']:.3f}/{std['rot_y_cam_deg']:.3f}/"
               f"{std['rot_z_cam_deg']:.3f} deg, t {std['t_x_cam_cm']:.2f}/{std['t_y_cam_cm']:.2f}/"
               f"{std['t_z_cam_cm']:.2f} cm")
-        if (la := v.get("lidar")) and "dy_m" in la:
-            print(f"  LiDAR alignment:    radar lateral offset {la['dy_m'] * 100:+.1f} +- "
-                  f"{la['dy_std_m'] * 100:.1f} cm "
-                  f"({la['rows']} detections, {la['frames']} frames; "
-                  + ("applied" if la["applied"] else f"not applied: {la.get('note', '')}") + ")")
+        if v.get("lidar"):
+            print(f"  LiDAR alignment:    {describe_lidar(v['lidar'])}")
         if f["status"].startswith("weak"):
             print("  note: a 2D radar records no elevation, so its height and pitch against the camera are pinned\n"
                   "        only by the reflector-height prior; the 1-sigma above says so (docs/conventions.md)")

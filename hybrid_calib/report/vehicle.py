@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hybrid_calib.calib.lidar_alignment import describe as describe_lidar
 from hybrid_calib.calib.result import CalibrationRun, VehicleResult, extrinsic_report
 from hybrid_calib.config import merge
 from hybrid_calib.errors import HybridCalibError
@@ -117,18 +118,13 @@ def status_html(vr: VehicleResult) -> str:
 
 def lidar_html(vr: VehicleResult) -> str:
     """The hybrid's LiDAR alignment (``vr.lidar``, docs/conventions.md) in words, or "" without one."""
-    la = vr.lidar
-    if not la:
+    if not vr.lidar:
         return ""
-    if "dy_m" not in la:
-        words = f"not run: {la.get('note', '')}"
-    else:
-        words = (f"the radar's lateral offset (about camera x) measured against the LiDAR's scene: "
-                 f"{la['dy_m'] * 100:+.1f} +- {la['dy_std_m'] * 100:.1f} cm from the loop's estimate "
-                 f"({la['rows']} radar detections on {la['frames']} frames); ")
-        words += ("applied: the camera-x translation and its 1-sigma above are the LiDAR's, not the network's."
-                  if la["applied"] else f"not applied: {la.get('note', '')}")
-    return f"<p id=\"lidar\">LiDAR alignment: {esc(words)}</p>"
+    words = describe_lidar(vr.lidar)
+    if vr.lidar["applied"]:
+        words += ": the camera-x translation and its 1-sigma above are the LiDAR's, not the network's"
+    return (f"<p id=\"lidar\">LiDAR alignment (the radar's offset along camera x against the LiDAR's scene): "
+            f"{esc(words)}</p>")
 
 
 def _figures(vr: VehicleResult, ev: Evidence, tmp: Path) -> str:
