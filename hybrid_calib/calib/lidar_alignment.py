@@ -165,8 +165,7 @@ def align(frames: list[LidarFrame], X: np.ndarray, conf: LidarAlignConfig = Lida
     """(the alignment of the module doc at the static estimate ``X`` (4, 4), "") or (None, why not)."""
     if len(frames) < conf.min_frames:
         return None, f"{len(frames)} frame(s) with LiDAR (need {conf.min_frames})"
-    if len(frames) > conf.max_frames:
-        frames = [frames[int(k)] for k in np.linspace(0, len(frames) - 1, conf.max_frames).round()]
+    frames = _evenly(frames, conf.max_frames)
     a, why = _solve(frames, X, conf)
     if a is None or conf.coupling_deg <= 0:
         return a, why
@@ -252,10 +251,18 @@ def describe(block: dict) -> str:
     return words + ("; applied" if block["applied"] else f"; not applied: {block.get('note', '')}")
 
 
+def _evenly(items: list, n: int) -> list:
+    """At most ``n`` of ``items``, evenly spaced (first and last kept)."""
+    if len(items) <= n:
+        return list(items)
+    return [items[int(k)] for k in np.linspace(0, len(items) - 1, n).round()]
+
+
 def drive_frames(frames, indices, conf: LidarAlignConfig = LidarAlignConfig()) -> list[LidarFrame]:
-    """The alignment inputs of dataset ``indices`` (unreadable frames and frames without LiDAR left out)."""
+    """The alignment inputs of dataset ``indices``, at most ``conf.max_frames`` of them evenly spaced (the
+    frames ``align`` would keep: the others are not read), unreadable frames and frames without LiDAR left out."""
     out = []
-    for i in indices:
+    for i in _evenly(list(indices), conf.max_frames):
         try:
             lf = lidar_frame(frames[i], conf)
         except DataError:
