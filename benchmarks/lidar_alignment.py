@@ -16,7 +16,6 @@ on validation drives); the check: NEES and coverage of dy with the stored value,
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
@@ -24,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from alignment_args import parser, start_error  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -32,17 +32,8 @@ def main(argv=None) -> int:
     from hybrid_calib.geometry import local, se3_exp
     from learned.dataset import open_frames
 
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", nargs="+", required=True, type=Path)
-    ap.add_argument("--version", default="v1.0-sim")
-    ap.add_argument("--out", required=True, type=Path)
+    ap = parser(__doc__, 0.5, "LidarAlignConfig")
     ap.add_argument("--frames", type=int, default=30)
-    ap.add_argument("--trials", type=int, default=1)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--trans", type=float, default=0.5, help="start translation error, uniform +- m per radar axis")
-    ap.add_argument("--rot", type=float, nargs=3, default=[0.7, 0.7, 0.25],
-                    help="start rotation error std about radar x, y, z, deg")
-    ap.add_argument("--set", nargs="*", default=[], help="LidarAlignConfig overrides")
     args = ap.parse_args(argv)
     conf = merge(LidarAlignConfig, parse_overrides(args.set))
     rng = np.random.default_rng(args.seed)
@@ -53,8 +44,7 @@ def main(argv=None) -> int:
             lfs = drive_frames(frames, idx[: args.frames], conf)
             truth = np.asarray(frames[idx[0]].extras["T_cam_radar_static"], np.float64)
             for t in range(args.trials):
-                xi = np.concatenate([np.radians(args.rot) * rng.standard_normal(3),
-                                     rng.uniform(-args.trans, args.trans, 3) * [1, 1, 0.2]])
+                xi = start_error(rng, args, (1, 1, 0.2))
                 start = truth @ se3_exp(xi)
                 a, why = align(lfs, start, conf)
                 xi = local(start, truth)

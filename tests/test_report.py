@@ -180,6 +180,19 @@ def test_the_lidar_alignment_is_said_in_words():
     assert "not run: no LiDAR in the frames" in lidar_html(vr)
 
 
+def test_the_doppler_lever_arm_is_said_in_words():
+    from hybrid_calib.report.vehicle import doppler_html, status_html
+
+    vr = _vr((0,) * 6, (0.01,) * 6)
+    assert doppler_html(vr) == "" and "Doppler" not in status_html(vr)
+    vr.doppler = {"applied": True, "dx_m": 0.123, "dx_std_m": 0.051, "pairs": 198, "turning": 71}
+    assert "+12.3 +- 5.1 cm" in status_html(vr) and "198 sweep pairs, 71 turning" in doppler_html(vr)
+    assert "applied: the camera-z translation" in doppler_html(vr)
+    vr.doppler = {"applied": False, "dx_m": 0.4, "dx_std_m": 1.2, "pairs": 199, "turning": 0,
+                  "note": "0 sweep pairs in turns (need 20): the lever arm shows only while the vehicle turns"}
+    assert "not applied: 0 sweep pairs in turns (need 20)" in doppler_html(vr)
+
+
 def test_fleet_page_links_vehicle_reports_and_names_the_flagged(run_dir, tmp_path):
     result = run_dir / "run" / "result.json"
     run = CalibrationRun.load(result)

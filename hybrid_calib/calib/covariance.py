@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hybrid_calib.calib.degeneracy import DegeneracyConfig, RowGeometry, explain
+from hybrid_calib.geometry import se3_exp
 
 AXES = ("x", "y", "z")
 # fleet words of the camera axes (docs/conventions.md): rotation about x, y, z; translation along x, y, z
@@ -94,6 +95,17 @@ def report_std(T_cam_radar: np.ndarray, cov: np.ndarray) -> np.ndarray:
     translation along camera x, y, z in centimetres (docs/conventions.md)."""
     d = np.sqrt(np.clip(np.diag(report_cov(T_cam_radar, cov)), 0.0, None))
     return np.concatenate([np.degrees(d[:3]), d[3:] * 100.0])
+
+
+def fold_scalar(T: np.ndarray, cov: np.ndarray, h: np.ndarray, z: float, var: float) -> tuple[np.ndarray, np.ndarray]:
+    """(T', cov'): one scalar measurement ``z = h @ xi + n`` (``n`` of variance ``var``) of the right
+    perturbation ``xi`` at ``T`` (4, 4), ``cov`` (6, 6) [rotation, translation], folded in by a Kalman update;
+    correlated directions move with it. Used by the hybrid's LiDAR and Doppler alignments."""
+    h = np.asarray(h, np.float64)
+    s = float(h @ cov @ h) + var
+    k = cov @ h / s
+    cov2 = cov - np.outer(k, h @ cov)
+    return T @ se3_exp(k * z), 0.5 * (cov2 + cov2.T)
 
 
 def _check_cov(cov: np.ndarray) -> np.ndarray:

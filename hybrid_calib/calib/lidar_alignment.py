@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hybrid_calib.calib.covariance import fold_scalar
 from hybrid_calib.errors import DataError
 from hybrid_calib.geometry import se3_exp, se3_inverse
 
@@ -234,11 +235,7 @@ def apply_lateral(T: np.ndarray, cov: np.ndarray, a: LidarAlignment) -> tuple[np
     h = np.zeros(6)
     h[RADAR_Y] = 1.0
     h[:3] = -a.coupling  # dy measured at T also carries T's rotation error (LidarAlignment.coupling)
-    s = float(h @ cov @ h) + a.cov[1, 1]
-    k = cov @ h / s
-    xi = k * float(a.delta[1])
-    cov2 = cov - np.outer(k, h @ cov)
-    return T @ se3_exp(xi), 0.5 * (cov2 + cov2.T)
+    return fold_scalar(T, cov, h, float(a.delta[1]), float(a.cov[1, 1]))
 
 
 def describe(block: dict) -> str:

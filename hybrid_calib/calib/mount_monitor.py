@@ -147,31 +147,10 @@ class MountMonitor:
     def residual(self, ia: int, fa, va, ib: int, fb, vb) -> tuple[float | None, str]:
         """(y deg, "") of the pair a -> b, or (None, why it was skipped)."""
         c = self.conf
-        dt = (fb.timestamp_radar_us - fa.timestamp_radar_us) * 1e-6
-        if not 0 < dt <= c.max_gap_s:
-            return None, f"radar sweeps {dt:.2f} s apart (a pair needs 0 < dt <= {c.max_gap_s:g} s)"
-        if va is None or vb is None:
-            return None, "no Doppler velocity"
-        if min(va.speed, vb.speed) < c.min_speed_mps:
-            return None, f"radar speed {min(va.speed, vb.speed):.1f} m/s (need {c.min_speed_mps:g})"
-        Ta, Tb = fa.extras.get("T_global_ego_radar"), fb.extras.get("T_global_ego_radar")
-        if Ta is None or Tb is None:
-            return None, "no ego pose at the radar's timestamp"
-        Ta, Tb = np.asarray(Ta, np.float64), np.asarray(Tb, np.float64)
-        if not (np.isfinite(Ta).all() and np.isfinite(Tb).all()):
-            return None, "an ego pose is not finite"
-        R_A = Ta[:3, :3].T @ Tb[:3, :3]
-        D = Ta[:3, :3].T @ (Tb[:3, 3] - Ta[:3, 3])
-        turn = float(np.degrees(np.linalg.norm(so3_log(R_A)))) / dt
-        if turn > c.max_turn_dps:
-            return None, f"turning at {turn:.0f} deg/s (at most {c.max_turn_dps:g})"
-        s = float(np.linalg.norm(D))
-        if s < c.min_speed_mps * dt * 0.5:
-            return None, f"the ego poses moved {s:.2f} m while the radar measured {va.speed:.1f} m/s"
-        R = self.T_ego_radar[:3, :3]
-        psi, sig, speed = chord_heading(va.v, va.cov, vb.v, vb.cov, radar_yaw_change(R_A, R))
-        m = MotionMeasurement(D / s, R_A, s, psi, sig, speed, fa.radar_token, fb.radar_token, 0,
-                              min(va.n_inliers, vb.n_inliers))
+        m, why = ego_measurement(fa, va, fb, vb, self.T_ego_radar[:3, :3], c.min_speed_mps, c.max_gap_s,
+                                 c.max_turn_dps)
+        if m is None:
+            return None, why
         y = float(np.degrees(heading_residual(self.T_ego_radar, m)[0]))
         return (y, "") if np.isfinite(y) else (None, "the residual is not finite (a Doppler fit without a direction)")
 
@@ -275,6 +254,38 @@ class MountMonitor:
                 d.update(step_deg=b["level_deg"] - a["level_deg"], std_deg=float(np.hypot(a["std_deg"], b["std_deg"])))
             steps.append(d)
         return {"steps": steps, "levels": levels, "pairs_tested": len(self.series), "threshold": self.conf.threshold}
+
+
+def ego_measurement(fa, va, fb, vb, R_ego_radar: np.ndarray, min_speed_mps: float, max_gap_s: float,
+                    max_turn_dps: float) -> tuple[MotionMeasurement | None, str]:
+    """The pair a -> b as a ``factors.motion`` measurement with the ego in the camera's place (module doc), or
+    (None, why it was skipped). fa / fb: frames (``timestamp_radar_us``, ``extras["T_global_ego_radar"]``,
+    ``radar_token``); va / vb: their ``RadarVelocity`` (or None); R_ego_radar: (3, 3) the mount's rotation
+    (carries the radar's velocity at b into frame a). Used by the monitor and by ``calib.lever_arm``."""
+    dt = (fb.timestamp_radar_us - fa.timestamp_radar_us) * 1e-6
+    if not 0 < dt <= max_gap_s:
+        return None, f"radar sweeps {dt:.2f} s apart (a pair needs 0 < dt <= {max_gap_s:g} s)"
+    if va is None or vb is None:
+        return None, "no Doppler velocity"
+    if min(va.speed, vb.speed) < min_speed_mps:
+        return None, f"radar speed {min(va.speed, vb.speed):.1f} m/s (need {min_speed_mps:g})"
+    Ta, Tb = fa.extras.get("T_global_ego_radar"), fb.extras.get("T_global_ego_radar")
+    if Ta is None or Tb is None:
+        return None, "no ego pose at the radar's timestamp"
+    Ta, Tb = np.asarray(Ta, np.float64), np.asarray(Tb, np.float64)
+    if not (np.isfinite(Ta).all() and np.isfinite(Tb).all()):
+        return None, "an ego pose is not finite"
+    R_A = Ta[:3, :3].T @ Tb[:3, :3]
+    D = Ta[:3, :3].T @ (Tb[:3, 3] - Ta[:3, 3])
+    turn = float(np.degrees(np.linalg.norm(so3_log(R_A)))) / dt
+    if turn > max_turn_dps:
+        return None, f"turning at {turn:.0f} deg/s (at most {max_turn_dps:g})"
+    s = float(np.linalg.norm(D))
+    if s < min_speed_mps * dt * 0.5:
+        return None, f"the ego poses moved {s:.2f} m while the radar measured {va.speed:.1f} m/s"
+    psi, sig, speed = chord_heading(va.v, va.cov, vb.v, vb.cov, radar_yaw_change(R_A, R_ego_radar))
+    return MotionMeasurement(D / s, R_A, s, psi, sig, speed, fa.radar_token, fb.radar_token, 0,
+                             min(va.n_inliers, vb.n_inliers)), ""
 
 
 def monitor_drive(frames, indices: list[int], T_ego_radar: np.ndarray, conf: MountMonitorConfig = MountMonitorConfig()

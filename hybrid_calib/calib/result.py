@@ -26,6 +26,9 @@
           "lidar": {"applied", "dy_m", "dy_std_m", "dx_m_unused", "range_offset_m", "coupling_m_per_rad",
                     "rows", "frames", "scale_m", "note"} | null
                                           # hybrid: the radar's lateral offset from the LiDAR (calib.lidar_alignment)
+          "doppler": {"applied", "dx_m", "dx_std_m", "heading_bias_deg", "h", "pairs", "turning", "scale_deg",
+                      "skipped", "note"} | null
+                                          # hybrid: the radar's forward offset from its Doppler (calib.lever_arm)
         }
       },
       "vehicles_failed": {VEHICLE: reason}  # vehicles whose data could not be calibrated (e.g. no usable
@@ -221,6 +224,7 @@ class VehicleResult:
     ood: dict | None = None  # out-of-domain scores and decision (learned methods; hybrid.ood.decide)
     mount: dict | None = None  # the radar mount monitor: steps and levels (hybrid; calib.mount_monitor.summary)
     lidar: dict | None = None  # the LiDAR's lateral offset of the radar (hybrid; calib.lidar_alignment record)
+    doppler: dict | None = None  # the radar's forward offset from its Doppler in turns (hybrid; calib.lever_arm record)
 
     def to_dict(self) -> dict:
         return {
@@ -235,7 +239,7 @@ class VehicleResult:
             "trajectory": [f.to_dict() for f in self.trajectory],
             "method": self.method, "checkpoint": self.checkpoint, "start": self.start,
             "errors_against": self.errors_against, "frame_rows": self.frame_rows, "config": self.config,
-            "ood": self.ood, "mount": self.mount, "lidar": self.lidar,
+            "ood": self.ood, "mount": self.mount, "lidar": self.lidar, "doppler": self.doppler,
         }
 
     @classmethod
@@ -258,6 +262,7 @@ class VehicleResult:
             network=d.get("network"), method=d.get("method", ""), checkpoint=d.get("checkpoint"),
             start=d.get("start"), errors_against=d.get("errors_against"), frame_rows=list(d.get("frame_rows", [])),
             config=d.get("config"), ood=d.get("ood"), mount=d.get("mount"), lidar=d.get("lidar"),
+            doppler=d.get("doppler"),
         )
 
     def to_json(self) -> str:

@@ -127,6 +127,7 @@ def _report(result, out: Path, reused: bool = False) -> int:
     """Print one line per vehicle and where the result is; ``reused``: it is an earlier run's ``result.json`` (same
     data and options), read back, not computed (nor written) now."""
     from hybrid_calib.calib.drift import drift_verdict
+    from hybrid_calib.calib.lever_arm import describe as describe_doppler
     from hybrid_calib.calib.lidar_alignment import describe as describe_lidar
     from hybrid_calib.calib.result import STD_FRAME
     from hybrid_calib.metrics import std_dict
@@ -158,6 +159,8 @@ def _report(result, out: Path, reused: bool = False) -> int:
             print(f"  radar mount monitor ({v.mount['pairs_tested']} frame pairs tested): {steps or 'no step'}")
         if v.lidar is not None:
             print(f"  LiDAR alignment: {describe_lidar(v.lidar)}")
+        if v.doppler is not None:
+            print(f"  Doppler lever arm: {describe_doppler(v.doppler)}")
     for name, reason in result.vehicles_failed.items():
         print(f"{name}: FAILED: {reason}", file=sys.stderr)
     failed = (f" ({len(result.vehicles_failed)} vehicle(s) failed: listed there under vehicles_failed)"

@@ -199,6 +199,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from hybrid_calib.calib.drift import drift_verdict
+    from hybrid_calib.calib.lever_arm import describe as describe_doppler
     from hybrid_calib.calib.lidar_alignment import describe as describe_lidar
 
     s = run_demo(args.out, parse_overrides(args.set), overwrite=args.overwrite)
@@ -218,6 +219,8 @@ def run(args: argparse.Namespace) -> int:
               f"{std['t_z_cam_cm']:.2f} cm")
         if v.get("lidar"):
             print(f"  LiDAR alignment:    {describe_lidar(v['lidar'])}")
+        if v.get("doppler"):
+            print(f"  Doppler lever arm:  {describe_doppler(v['doppler'])}")
         if f["status"].startswith("weak"):
             print("  note: a 2D radar records no elevation, so its height and pitch against the camera are pinned\n"
                   "        only by the reflector-height prior; the 1-sigma above says so (docs/conventions.md)")

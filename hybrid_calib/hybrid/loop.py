@@ -33,6 +33,8 @@ import numpy as np
 
 from hybrid_calib.calib.covariance import analyse_information, inconclusive_status
 from hybrid_calib.calib.drift import DriftConfig, reference_test
+from hybrid_calib.calib.lever_arm import LeverArmConfig, apply_forward, drive_inputs, refusal
+from hybrid_calib.calib.lever_arm import fit as fit_lever_arm
 from hybrid_calib.calib.lidar_alignment import LidarAlignConfig, align, apply_lateral, drive_frames
 from hybrid_calib.calib.mount_monitor import MountMonitor, MountMonitorConfig
 from hybrid_calib.calib.oracle import OracleConfig
@@ -78,6 +80,7 @@ class HybridConfig:
     motion: MotionConfig = MotionConfig()  # the camera-VO / radar-Doppler motion constraint (hybrid; hybrid.motion)
     mount: MountMonitorConfig = MountMonitorConfig()  # radar mount steps, Doppler vs ego poses (calib.mount_monitor)
     lidar: LidarAlignConfig = LidarAlignConfig()  # the radar's lateral offset from the LiDAR (calib.lidar_alignment)
+    doppler: LeverArmConfig = LeverArmConfig()  # the radar's forward offset from its Doppler in turns (calib.lever_arm)
     average: AverageConfig = AverageConfig()  # pure-avg
     oracle: OracleConfig = OracleConfig()  # oracle rows (simulated roots only)
     drift: DriftConfig = DriftConfig()  # reference chi-square test of the final estimate
@@ -311,6 +314,28 @@ def with_lidar(traj: list[FrameEstimate], drive: Drive, frames, conf: HybridConf
     return [*traj[:-1], with_cov(last, cov, conf, T)], a.record(True)
 
 
+def with_doppler(traj: list[FrameEstimate], drive: Drive, frames, conf: HybridConfig, mon: MountMonitor | None,
+                 motion: MotionSource | None) -> tuple[list[FrameEstimate], dict]:
+    """The trajectory with the radar's forward offset from its Doppler in turns (``calib.lever_arm``) folded
+    into its last estimate, and the result's ``doppler`` block (what was measured, and whether and why not it
+    was applied). Sweeps: every frame of the drive after the radar's last mount step (the Doppler does not
+    depend on the network's domain); velocities: the motion source's (one Doppler fit per frame)."""
+    since = mon.steps[-1].change if mon is not None and mon.steps else 0
+    velocity = motion.velocity if motion is not None else None
+    sweeps, T_ego_cam = drive_inputs(frames, drive.indices[since:], velocity)
+    if T_ego_cam is None:
+        return traj, {"applied": False, "note": "no camera mount (T_ego_cam) in the tables: the ego poses cannot "
+                                                "be carried to the camera"}
+    last = traj[-1]
+    a, why = fit_lever_arm(sweeps, last.T, T_ego_cam, conf.doppler)
+    if a is None:
+        return traj, {"applied": False, "note": why}
+    if why := refusal(a, conf.doppler):
+        return traj, a.record(False, why)
+    T, cov = apply_forward(last.T, last.cov, a)
+    return [*traj[:-1], with_cov(last, cov, conf, T)], a.record(True)
+
+
 def _pure(runner, drive, T0, conf, tr):
     traj, rows, pos = [], tr.rows, drive.positions()
     for i, out in _passes(runner, drive, T0, conf, tr):
@@ -525,8 +550,12 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     lidar = None
     if conf.method == "hybrid" and conf.lidar.enabled and frames is not None:
         traj, lidar = with_lidar(traj, drive, frames, conf, mon)
+    doppler = None
+    if conf.method == "hybrid" and conf.doppler.enabled and frames is not None:
+        traj, doppler = with_doppler(traj, drive, frames, conf, mon, motion)
     res = VehicleResult(drive.vehicle, traj[-1].estimate, traj, skipped=tr.skipped, n_frames=len(traj))
     res.lidar = lidar
+    res.doppler = doppler
     res.checkpoint = runner.checkpoint
     res.frame_rows = tr.rows
     res.ood = ood

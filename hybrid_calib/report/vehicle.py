@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hybrid_calib.calib.lever_arm import describe as describe_doppler
 from hybrid_calib.calib.lidar_alignment import describe as describe_lidar
 from hybrid_calib.calib.result import CalibrationRun, VehicleResult, extrinsic_report
 from hybrid_calib.config import merge
@@ -113,18 +114,29 @@ def status_html(vr: VehicleResult) -> str:
         cells = "".join(num(x, ".3f" if j < 3 else ".2f") for j, x in enumerate(vr.crb_std))
         crb = ("<p class=meta>Cramer-Rao bound of this drive (oracle rows), 1-sigma per camera axis (deg x3, cm x3):"
                f"</p><table><tr>{''.join(f'<th>{esc(a)}</th>' for a in AXIS_NAMES)}</tr><tr>{cells}</tr></table>")
-    return f"<h2>What the data could not pin</h2><p id=\"status\">{esc(words.strip())}</p>{crb}{lidar_html(vr)}"
+    return (f"<h2>What the data could not pin</h2><p id=\"status\">{esc(words.strip())}</p>{crb}{lidar_html(vr)}"
+            f"{doppler_html(vr)}")
 
 
 def lidar_html(vr: VehicleResult) -> str:
     """The hybrid's LiDAR alignment (``vr.lidar``, docs/conventions.md) in words, or "" without one."""
-    if not vr.lidar:
+    return _alignment_html(vr.lidar, describe_lidar, "lidar", "LiDAR alignment (the radar's offset along camera x "
+                           "against the LiDAR's scene)", "camera-x translation", "LiDAR's")
+
+
+def doppler_html(vr: VehicleResult) -> str:
+    """The hybrid's Doppler lever arm (``vr.doppler``, docs/conventions.md) in words, or "" without one."""
+    return _alignment_html(vr.doppler, describe_doppler, "doppler", "Doppler lever arm (the radar's forward offset "
+                           "from its own motion in turns)", "camera-z translation", "Doppler's")
+
+
+def _alignment_html(block: dict | None, describe, pid: str, title: str, axis: str, whose: str) -> str:
+    if not block:
         return ""
-    words = describe_lidar(vr.lidar)
-    if vr.lidar["applied"]:
-        words += ": the camera-x translation and its 1-sigma above are the LiDAR's, not the network's"
-    return (f"<p id=\"lidar\">LiDAR alignment (the radar's offset along camera x against the LiDAR's scene): "
-            f"{esc(words)}</p>")
+    words = describe(block)
+    if block["applied"]:
+        words += f": the {axis} and its 1-sigma above are the {whose}, not the network's"
+    return f"<p id=\"{pid}\">{esc(title)}: {esc(words)}</p>"
 
 
 def _figures(vr: VehicleResult, ev: Evidence, tmp: Path) -> str:

@@ -1,0 +1,266 @@
+"""The radar's forward offset from its Doppler in turns: the lever arm against the vehicle's own motion.
+
+Why. The network does not correct translation (docs/benchmarks.md, "Why translation is not learned"),
+the LiDAR pins only the radar's lateral offset (``calib.lidar_alignment``: its forward offset is
+collinear with the depth of the radar's reflections), so the hybrid's forward translation (camera z,
+radar x) stayed at the start's level: 18 cm from R1 starts, 57 cm from R2 on 200-frame drives.
+
+What measures it. When the vehicle turns, a point ahead of the rear axle moves sideways: a radar
+``x`` metres ahead of the vehicle's origin travels at ``v + omega x`` to the side. Per pair of
+consecutive sweeps the radar's Doppler gives the direction of its own travel in its own frame, and the
+ego poses give the vehicle's displacement ``D`` and rotation ``R_A`` (``calib.mount_monitor.ego_measurement``,
+the pair the mount monitor tests). With the radar's mount ``M = T_ego_cam X`` (``X = T_cam_radar``, the
+estimate; ``T_ego_cam`` from the tables) the residual is ``factors.motion.heading_residual(M, m)``:
+
+    d = R^T (D + (R_A - I) t),    r = wrap(atan2(d_y, d_x) - psi)          (M = (R, t))
+
+``(R_A - I) t`` is the lever arm: ``~ theta [-t_y, t_x, 0]`` for a turn ``theta``, so the residual
+moves with ``t_x`` in proportion to the turn (``~0.5 deg per metre`` at the simulator's urban turns).
+The fit (Gauss-Newton, Huber weights on a robust scale) solves for two parameters of the right
+perturbation of ``M`` (equal to that of ``X``: both are in the radar frame): the rotation about the
+radar's z axis (the Doppler's heading bias and the estimate's yaw error, common to every pair, so a
+yaw error cannot read as an offset) and ``rho_x``, the forward translation. Straight driving carries
+no lever arm: on a highway the std is metres and the fit is not applied (``max_std_m``), with the
+reason in words.
+
+Its covariance is the fit's own, ``noise_scale`` times the residuals' robust scale squared times
+``(J^T W J)^-1`` (the pairs' errors are correlated in time: neighbouring pairs share a sweep and the
+Doppler's bias wanders with the scene), plus ``systematic_m`` for what is common to a drive (the tables'
+camera mount, the Doppler's bias in turns); both fitted together on validation drives of 30 to 200
+frames (benchmarks/lever_arm.py, docs/benchmarks.md; a sandwich over blocks of pairs was tried and was
+noisier: its z^2 ranged 0.8-1.4 across drive lengths against 0.8-1.3). Turns
+faster than ``max_turn_dps`` are skipped as in the mount monitor: the sweep's timing error grows with
+the turn rate (scene-0916: 1.5 deg of heading in 20-30 deg/s turns, as large as the lever arm's own
+signal).
+
+``rho_x`` is fitted at the estimate: ``coupling`` (central differences of the whole fit along each of
+the six right-perturbation directions of the estimate) gives the row ``h`` of what it measures,
+``rho_x = h @ xi`` for the estimate's error ``xi`` (``h[3] ~ 1``), and ``apply_forward`` folds it in by a
+Kalman update (``calib.covariance.fold_scalar``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from factors.motion import heading_residual
+from hybrid_calib.calib.covariance import fold_scalar
+from hybrid_calib.calib.mount_monitor import ego_measurement
+from hybrid_calib.errors import DataError
+from hybrid_calib.geometry import se3_exp
+
+RADAR_X = 3  # index of the radar-x (forward) translation in the right tangent [phi (3), rho (3)]
+_FIT = (2, RADAR_X)  # the fitted components: rotation about radar z, translation along radar x
+
+
+@dataclass(frozen=True)
+class LeverArmConfig:
+    enabled: bool = True  # hybrid: fold the Doppler's forward offset into the final estimate
+    min_speed_mps: float = 2.0  # slower pairs are skipped (the Doppler heading is noise), m/s
+    max_gap_s: float = 1.5  # sweeps further apart are not a pair, s
+    max_turn_dps: float = 15.0  # faster turns are skipped (module doc; the mount monitor's value), deg/s
+    turn_dps: float = 3.0  # a pair turning at least this fast counts as "in a turn" in the words, deg/s
+    huber: float = 1.345  # Huber threshold, in robust residual scales
+    iterations: int = 4  # Gauss-Newton steps
+    min_pairs: int = 10  # fewer usable pairs: no fit
+    # fewer pairs in turns (``turn_dps``): the fit is reported, not applied; on validation windows of 30-60 frames
+    # with fewer, errors reached 3.8 sigma (benchmarks/lever_arm.py, docs/benchmarks.md)
+    min_turning: int = 20
+    # the fit's covariance: noise_scale x (robust scale)^2 x (J^T W J)^-1, plus systematic_m^2 on rho_x; both
+    # fitted together on validation drives 9105-9108 at 30-200 frames (benchmarks/lever_arm.py, docs/benchmarks.md):
+    # the pairs' errors are correlated over time (neighbouring pairs share a sweep; the Doppler's bias wanders
+    # with the scene), which the first factor carries, and a drive-common part, which the second does
+    noise_scale: float = 1.4
+    systematic_m: float = 0.039  # m
+    max_std_m: float = 0.10  # a fit less certain than this is not applied (reported only), m
+    coupling_deg: float = 0.5  # step of the central differences along the estimate's rotation, deg (0: none)
+    coupling_m: float = 0.05  # ... and along its translation, m
+
+    def __post_init__(self):
+        if not (self.min_speed_mps >= 0 and self.max_gap_s > 0 and self.max_turn_dps > 0 and self.turn_dps >= 0
+                and self.huber > 0 and self.iterations >= 1 and self.min_pairs >= 3 and self.min_turning >= 0
+                and self.noise_scale > 0
+                and self.systematic_m >= 0 and self.max_std_m > 0 and self.coupling_deg >= 0
+                and self.coupling_m >= 0):
+            raise ValueError(f"LeverArmConfig: need min_speed_mps >= 0, max_gap_s > 0, max_turn_dps > 0, "
+                             f"turn_dps >= 0, huber > 0, iterations >= 1, min_pairs >= 3, min_turning >= 0, "
+                             f"noise_scale > 0, "
+                             f"systematic_m >= 0, max_std_m > 0 and coupling steps >= 0 (got {self})")
+
+
+@dataclass(frozen=True)
+class EgoSweep:
+    """What a pair needs of one frame (the ``ego_measurement`` interface of a frame, without its points):
+    ``timestamp_radar_us``, ``extras["T_global_ego_radar"]`` (4, 4) and ``radar_token``; ``velocity``: the
+    sweep's Doppler velocity (``RadarVelocity``) or None, with ``why`` not."""
+
+    timestamp_radar_us: int
+    extras: dict
+    radar_token: str
+    velocity: object = None
+    why: str = ""
+
+
+@dataclass(frozen=True)
+class LeverArm:
+    """delta: (2,) [rotation about radar z rad, rho_x m] of the right perturbation of the estimate it was
+    measured at. cov: (2, 2) (the fit's, ``systematic_m^2`` added to rho_x). pairs: pairs used; turning:
+    of them, those turning at least ``turn_dps``. scale: the residuals' robust scale, rad. h: (6,) the
+    row of the module doc (``rho_x = h @ xi``; zeros but ``h[3] = 1`` when the coupling is not computed).
+    skipped: {reason: count} of the pairs left out."""
+
+    delta: np.ndarray
+    cov: np.ndarray
+    pairs: int
+    turning: int
+    scale: float
+    h: np.ndarray = field(default_factory=lambda: np.eye(6)[RADAR_X])
+    skipped: dict = field(default_factory=dict)
+
+    @property
+    def dx_std(self) -> float:
+        return float(np.sqrt(self.cov[1, 1]))
+
+    def record(self, applied: bool, why: str = "") -> dict:
+        """The result's ``doppler`` block (plain JSON)."""
+        return {"applied": applied, "dx_m": float(self.delta[1]), "dx_std_m": self.dx_std,
+                "heading_bias_deg": float(np.degrees(self.delta[0])), "h": [float(c) for c in self.h],
+                "pairs": self.pairs, "turning": self.turning, "scale_deg": float(np.degrees(self.scale)),
+                "skipped": dict(self.skipped), **({"note": why} if why else {})}
+
+
+def _measurements(sweeps: list[EgoSweep], R: np.ndarray, conf: LeverArmConfig) -> tuple[list, dict]:
+    """(the pairs' ``MotionMeasurement`` at the mount rotation ``R`` (3, 3), {reason: [count, first example]}
+    of those skipped; the reason is the example's words before its first number)."""
+    ms, skipped = [], {}
+    for a, b in zip(sweeps[:-1], sweeps[1:]):
+        if a.velocity is None or b.velocity is None:
+            why = f"no Doppler velocity: {(a if a.velocity is None else b).why}"
+            m = None
+        else:
+            m, why = ego_measurement(a, a.velocity, b, b.velocity, R, conf.min_speed_mps, conf.max_gap_s,
+                                     conf.max_turn_dps)
+        if m is None:
+            key = re.split(r"[\d:(]", why)[0].strip()
+            skipped.setdefault(key, [0, why])[0] += 1
+        else:
+            ms.append(m)
+    return ms, skipped
+
+
+def _solve(ms: list, M: np.ndarray, conf: LeverArmConfig) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+    """(delta (2,), cov (2, 2) without the drive-common term, robust scale rad, per-pair turn angle rad) of the
+    fit at mount ``M``."""
+    d = np.zeros(2)
+    for _ in range(conf.iterations + 1):
+        xi = np.zeros(6)
+        xi[list(_FIT)] = d
+        Md = M @ se3_exp(xi)
+        rj = [heading_residual(Md, m) for m in ms]
+        r = np.array([x[0] for x in rj])
+        J = np.array([x[1][list(_FIT)] for x in rj])
+        ok = np.isfinite(r) & np.isfinite(J).all(axis=1)
+        r, J = np.where(ok, r, 0.0), np.where(ok[:, None], J, 0.0)
+        scale = max(1.4826 * float(np.median(np.abs(r[ok] - np.median(r[ok])))), 1e-4)
+        w = np.where(ok, np.minimum(1.0, conf.huber * scale / np.maximum(np.abs(r), 1e-12)), 0.0)
+        H = (J * w[:, None]).T @ J
+        if _ < conf.iterations:
+            d = d - np.linalg.lstsq(H, (J * w[:, None]).T @ r, rcond=None)[0]
+    cov = conf.noise_scale * scale ** 2 * np.linalg.pinv(H)
+    if np.linalg.cond(H) > 1e12:  # no turn at all: rho_x is not observed
+        cov[1, 1] = max(cov[1, 1], 1e6)
+    turn = np.array([np.linalg.norm(np.array([m.R_A[2, 1] - m.R_A[1, 2], m.R_A[0, 2] - m.R_A[2, 0],
+                                              m.R_A[1, 0] - m.R_A[0, 1]])) / 2 for m in ms])
+    return d, cov, scale, turn
+
+
+def fit(sweeps: list[EgoSweep], X: np.ndarray, T_ego_cam: np.ndarray, conf: LeverArmConfig = LeverArmConfig()
+        ) -> tuple[LeverArm | None, str]:
+    """(the fit of the module doc at the estimate ``X = T_cam_radar`` (4, 4), "") or (None, why not).
+    sweeps: the drive's sweeps in time order (consecutive ones form the pairs); T_ego_cam: (4, 4) the tables'."""
+    M = np.asarray(T_ego_cam, np.float64) @ np.asarray(X, np.float64)
+    ms, skipped = _measurements(sweeps, M[:3, :3], conf)
+    if len(ms) < conf.min_pairs:
+        top = "; ".join(f"{n} pairs: {why}" for n, why in sorted(skipped.values(), key=lambda v: -v[0])[:2])
+        return None, f"{len(ms)} usable sweep pairs (need {conf.min_pairs})" + (f"; skipped {top}" if top else "")
+    d, cov, scale, turn = _solve(ms, M, conf)
+    cov[1, 1] += conf.systematic_m ** 2
+    dt = np.array([(b.timestamp_radar_us - a.timestamp_radar_us) * 1e-6 for a, b in zip(sweeps[:-1], sweeps[1:])])
+    turning = int(np.sum(turn / np.median(dt) >= np.radians(conf.turn_dps))) if len(dt) else 0
+    out = LeverArm(d, cov, len(ms), turning, scale, skipped={k: v[0] for k, v in skipped.items()})
+    if conf.coupling_deg <= 0 and conf.coupling_m <= 0:
+        return out, ""
+    # What rho_x measures (module doc): -d rho_x / d (a right perturbation of the estimate), each direction
+    # by central differences of the whole fit (the pairs rebuilt at the turned mount); rho_x itself: -1.
+    h = np.eye(6)[RADAR_X]
+    steps = [np.radians(conf.coupling_deg)] * 3 + [conf.coupling_m] * 3
+    for j in range(6):
+        if j == RADAR_X or steps[j] <= 0:
+            continue
+        side = []
+        for sgn in (1.0, -1.0):
+            e = np.zeros(6)
+            e[j] = sgn * steps[j]
+            Mj = M @ se3_exp(e)
+            msj, _ = _measurements(sweeps, Mj[:3, :3], conf)
+            side.append(_solve(msj, Mj, conf)[0][1] if len(msj) >= conf.min_pairs else np.nan)
+        if np.isfinite(side).all():
+            h[j] = -(side[0] - side[1]) / (2 * steps[j])
+    return dataclasses.replace(out, h=h), ""
+
+
+def refusal(a: LeverArm, conf: LeverArmConfig = LeverArmConfig()) -> str:
+    """Why a fit is reported but not applied ("" when it is applied): too few pairs in turns, or too uncertain."""
+    if a.turning < conf.min_turning:
+        return (f"{a.turning} sweep pairs in turns (need {conf.min_turning}): the lever arm shows only while the "
+                f"vehicle turns")
+    if a.dx_std > conf.max_std_m:
+        return f"std {a.dx_std * 100:.1f} cm > max_std_m {conf.max_std_m * 100:g} cm"
+    return ""
+
+
+def apply_forward(T: np.ndarray, cov: np.ndarray, a: LeverArm) -> tuple[np.ndarray, np.ndarray]:
+    """(T', cov') with ``rho_x`` folded in as a measurement of ``h @ xi`` of the right perturbation ``xi`` at
+    ``T`` (4, 4), ``cov`` (6, 6) [rotation, translation]."""
+    return fold_scalar(T, cov, a.h, float(a.delta[1]), float(a.cov[1, 1]))
+
+
+def describe(block: dict) -> str:
+    """A result's ``doppler`` block (``LeverArm.record``, or ``{"applied": False, "note"}`` when it did not run)
+    in one line of words: what was measured and whether it was applied, or why not."""
+    if "dx_m" not in block:
+        return f"not run: {block.get('note', '')}"
+    words = (f"radar forward offset {block['dx_m'] * 100:+.1f} +- {block['dx_std_m'] * 100:.1f} cm from the loop's "
+             f"estimate (Doppler in turns against the ego poses: {block['pairs']} sweep pairs, {block['turning']} "
+             f"turning)")
+    return words + ("; applied" if block["applied"] else f"; not applied: {block.get('note', '')}")
+
+
+def drive_inputs(frames, indices, velocity: Callable[[int], tuple] | None = None
+                 ) -> tuple[list[EgoSweep], np.ndarray | None]:
+    """(the sweeps of dataset ``indices`` in drive order, the tables' ``T_ego_cam`` (4, 4) of the first readable
+    frame or None). velocity: dataset index -> (``RadarVelocity`` | None, why) (the hybrid passes its motion
+    source's); default ``estimate_velocity`` of the frame. An unreadable frame breaks the chain of pairs
+    (a sweep without a velocity or pose stands in for it)."""
+    from hybrid_calib.sensors.radar_velocity import estimate_velocity
+
+    sweeps, T_ego_cam = [], None
+    for i in indices:
+        try:
+            f = frames[i]
+            v, why = velocity(i) if velocity is not None else estimate_velocity(
+                f.radar_points, f.radar_fields, sweep_index=f.extras.get("radar_sweep_index"))
+        except DataError as e:
+            sweeps.append(EgoSweep(0, {}, "", None, f"frame unreadable: {e}"))
+            continue
+        if T_ego_cam is None and f.extras.get("T_ego_cam") is not None:
+            T_ego_cam = np.asarray(f.extras["T_ego_cam"], np.float64)
+        pose = f.extras.get("T_global_ego_radar")
+        sweeps.append(EgoSweep(int(f.timestamp_radar_us), {"T_global_ego_radar": pose}, f.radar_token,
+                               v if pose is not None else None, why if pose is not None else "no ego pose"))
+    return sweeps, T_ego_cam

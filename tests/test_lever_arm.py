@@ -1,0 +1,140 @@
+"""The radar's forward offset from its Doppler in turns (calib.lever_arm): recovery on a synthetic drive with
+turns, the yaw error that must not read as an offset, a straight road that cannot tell, the Kalman fold, and
+unreadable frames."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hybrid_calib.calib.lever_arm import (
+    RADAR_X,
+    EgoSweep,
+    LeverArmConfig,
+    apply_forward,
+    describe,
+    drive_inputs,
+    fit,
+    refusal,
+)
+from hybrid_calib.errors import DataError
+from hybrid_calib.geometry import local, se3_exp, se3_inverse
+from hybrid_calib.sensors.radar_velocity import RadarVelocity
+
+# camera 1.7 m ahead of the rear axle at 1.5 m height, looking forward (z forward, x right, y down)
+T_EGO_CAM = np.array([[0.0, 0, 1, 1.7], [-1, 0, 0, 0.0], [0, -1, 0, 1.5], [0, 0, 0, 1]])
+T_EGO_RADAR = np.eye(4)
+T_EGO_RADAR[:3, 3] = [3.4, 0.1, 0.5]
+X_TRUE = se3_inverse(T_EGO_CAM) @ T_EGO_RADAR  # T_cam_radar
+
+
+def _rz(a: float) -> np.ndarray:
+    return np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+
+
+def _drive(g: np.random.Generator, n: int = 120, turn_dps: float = 9.0, speed: float = 9.0,
+           noise_mps: float = 0.03) -> list[EgoSweep]:
+    """Keyframes 0.5 s apart on a winding road (turn rate ``turn_dps`` sin(2 pi t / 20 s)); the radar's
+    Doppler velocity (its own frame) with ``noise_mps`` of noise per axis."""
+    sweeps, pos, yaw, dt, sub = [], np.zeros(3), 0.0, 0.5, 50
+    omega = lambda t: np.radians(turn_dps) * np.sin(2 * np.pi * t / 20.0)  # noqa: E731
+    for k in range(n):
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = _rz(yaw), pos
+        v_ego = np.array([speed, 0.0, 0.0]) + np.cross([0.0, 0.0, omega(k * dt)], T_EGO_RADAR[:3, 3])
+        v = (T_EGO_RADAR[:3, :3].T @ v_ego)[:2] + noise_mps * g.standard_normal(2)
+        sweeps.append(EgoSweep(int(k * dt * 1e6), {"T_global_ego_radar": T}, f"s{k}",
+                               RadarVelocity(v, np.eye(2) * noise_mps ** 2, 40, 50, 0.1)))
+        for j in range(sub):  # the rear axle's path (midpoint rule)
+            h = dt / sub
+            mid = yaw + 0.5 * h * omega(k * dt + (j + 0.5) * h)
+            pos = pos + speed * h * np.array([np.cos(mid), np.sin(mid), 0.0])
+            yaw += h * omega(k * dt + (j + 0.5) * h)
+    return sweeps
+
+
+def test_the_forward_offset_is_recovered_from_turns_whatever_the_yaw_error():
+    g = np.random.default_rng(0)
+    sweeps = _drive(g)
+    # the estimate: 30 cm short along the radar's x, 0.3 deg of yaw and 10 cm sideways off
+    start = X_TRUE @ se3_exp(np.array([0.0, 0.0, np.radians(0.3), -0.30, 0.10, 0.0]))
+    a, why = fit(sweeps, start, T_EGO_CAM, LeverArmConfig(systematic_m=0.0))
+    assert a is not None, why
+    xi = local(start, X_TRUE)
+    assert a.h[RADAR_X] == 1.0 and np.all(np.abs(np.delete(a.h, RADAR_X)) < 0.2), a.h
+    assert abs(a.delta[1] - a.h @ xi) < 3 * a.dx_std and a.dx_std < 0.03, (a.delta, a.h @ xi, a.dx_std)
+    assert abs(a.delta[1] - 0.30) < 0.05 and a.turning > 40 and a.pairs == len(sweeps) - 1 and not refusal(a)
+    # the yaw error is the fit's other parameter, not an offset
+    assert abs(np.degrees(a.delta[0]) + 0.3) < 0.1
+
+
+def test_a_straight_road_cannot_tell_and_says_so():
+    sweeps = _drive(np.random.default_rng(1), n=60, turn_dps=0.0)
+    a, why = fit(sweeps, X_TRUE, T_EGO_CAM)
+    assert a is not None and a.turning == 0 and a.dx_std > LeverArmConfig().max_std_m, a
+    words = describe(a.record(False, refusal(a)))
+    assert "0 turning" in words and "not applied: 0 sweep pairs in turns (need 20)" in words, words
+    assert refusal(a, LeverArmConfig(min_turning=0)).startswith("std ")
+
+
+def test_too_few_pairs_and_slow_pairs_are_refused_with_the_reason():
+    sweeps = _drive(np.random.default_rng(2), n=8)
+    a, why = fit(sweeps, X_TRUE, T_EGO_CAM)
+    assert a is None and "7 usable sweep pairs (need 10)" in why
+    slow = _drive(np.random.default_rng(2), n=30, speed=1.0)
+    a, why = fit(slow, X_TRUE, T_EGO_CAM)
+    assert a is None and "skipped 29 pairs: radar speed 1.0 m/s (need 2)" in why, why
+    assert describe({"applied": False, "note": why}).startswith("not run: 0 usable")
+
+
+def test_the_kalman_fold_moves_the_estimate_and_shrinks_only_what_was_measured():
+    g = np.random.default_rng(3)
+    sweeps = _drive(g)
+    start = X_TRUE @ se3_exp(np.array([0.0, 0.0, 0.0, -0.25, 0.0, 0.0]))
+    a, _ = fit(sweeps, start, T_EGO_CAM)
+    cov = np.diag([1e-4, 1e-4, 1e-4, 0.3 ** 2, 0.05 ** 2, 0.3 ** 2])
+    T2, cov2 = apply_forward(start, cov, a)
+    before, after = np.abs(local(start, X_TRUE)), np.abs(local(T2, X_TRUE))
+    assert after[RADAR_X] < 3 * a.dx_std < 0.2 < before[RADAR_X]
+    assert a.h @ cov2 @ a.h <= a.cov[1, 1] * (1 + 1e-9) and cov2[RADAR_X, RADAR_X] < cov[RADAR_X, RADAR_X]
+    assert np.allclose(np.diag(cov2)[[0, 1, 2, 5]], np.diag(cov)[[0, 1, 2, 5]], rtol=0.05)
+    assert np.allclose(cov2, cov2.T) and np.all(np.linalg.eigvalsh(cov2) > 0)
+
+
+class _Frames:
+    """Dataset-like: index -> frame, raising DataError for unreadable ones."""
+
+    def __init__(self, sweeps, bad=()):
+        self.sweeps, self.bad = sweeps, set(bad)
+
+    def __getitem__(self, i):
+        if i in self.bad:
+            raise DataError(f"frame {i} unreadable [file x.pcd]")
+        s = self.sweeps[i]
+
+        class F:
+            timestamp_radar_us = s.timestamp_radar_us
+            radar_token = s.radar_token
+            extras = {**s.extras, "T_ego_cam": T_EGO_CAM}
+            radar_points = np.zeros((0, 3))
+            radar_fields = {}
+        return F()
+
+
+def test_unreadable_frames_break_the_chain_and_are_counted_not_a_crash():
+    sweeps = _drive(np.random.default_rng(4), n=60)
+    frames = _Frames(sweeps, bad={10, 30})
+    got, T_ego_cam = drive_inputs(frames, range(60), velocity=lambda i: (sweeps[i].velocity, ""))
+    assert len(got) == 60 and np.allclose(T_ego_cam, T_EGO_CAM)
+    assert got[10].velocity is None and "unreadable" in got[10].why
+    a, why = fit(got, X_TRUE, T_ego_cam)
+    assert a is not None and a.pairs == 59 - 4 and sum(a.skipped.values()) == 4, (a.skipped, why)
+    # without a velocity function the frame's own Doppler fit is tried (these frames have no points)
+    got, _ = drive_inputs(frames, range(5))
+    assert all(s.velocity is None for s in got)
+
+
+@pytest.mark.parametrize("bad", [{"min_pairs": 2}, {"noise_scale": 0.0}, {"max_std_m": 0.0}, {"huber": -1.0}])
+def test_bad_options_are_refused(bad):
+    with pytest.raises(ValueError, match="LeverArmConfig"):
+        LeverArmConfig(**bad)
