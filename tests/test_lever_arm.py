@@ -4,6 +4,8 @@ unreadable frames."""
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -138,3 +140,23 @@ def test_unreadable_frames_break_the_chain_and_are_counted_not_a_crash():
 def test_bad_options_are_refused(bad):
     with pytest.raises(ValueError, match="LeverArmConfig"):
         LeverArmConfig(**bad)
+
+
+def test_the_hybrid_folds_it_into_the_last_estimate_only_when_the_drive_turns():
+    from hybrid_calib.hybrid.loop import Drive, HybridConfig, _estimate, _frame, with_doppler
+
+    conf = HybridConfig()
+    start = X_TRUE @ se3_exp(np.array([0.0, 0.0, 0.0, 0.3, 0.0, 0.0]))
+    cov = np.diag([1e-4, 1e-4, 1e-4, 0.4 ** 2, 0.05 ** 2, 0.4 ** 2])
+    traj = [_frame(k, f"s{k}", 0, _estimate(start, cov, conf), 1, 1.0) for k in range(3)]
+    for turn, applied in ((9.0, True), (0.0, False)):
+        sweeps = _drive(np.random.default_rng(5), n=80, turn_dps=turn)
+        drive = Drive("v", list(range(80)), X_TRUE, X_TRUE, True)
+        motion = SimpleNamespace(velocity=lambda i, s=sweeps: (s[i].velocity, ""))  # the loop's motion source
+        out, block = with_doppler(traj, drive, _Frames(sweeps), conf, None, motion)
+        assert block["applied"] is applied and len(out) == 3 and out[:2] == traj[:2], block
+        err = abs(local(out[-1].T, X_TRUE)[RADAR_X])
+        if applied:
+            assert err < 3 * block["dx_std_m"] < 0.2 and out[-1].cov[RADAR_X, RADAR_X] < 0.1 * cov[RADAR_X, RADAR_X]
+        else:
+            assert out[-1] is traj[-1] and "pairs in turns" in block["note"]
