@@ -160,3 +160,17 @@ def test_the_hybrid_folds_it_into_the_last_estimate_only_when_the_drive_turns():
             assert err < 3 * block["dx_std_m"] < 0.2 and out[-1].cov[RADAR_X, RADAR_X] < 0.1 * cov[RADAR_X, RADAR_X]
         else:
             assert out[-1] is traj[-1] and "pairs in turns" in block["note"]
+
+
+def test_non_finite_poses_velocities_and_mounts_are_refused_in_words():
+    sweeps = _drive(np.random.default_rng(6), n=30)
+    bad = [EgoSweep(s.timestamp_radar_us, s.extras, s.radar_token,
+                    RadarVelocity(np.full(2, np.nan), s.velocity.cov, 40, 50, 0.1)) for s in sweeps]
+    a, why = fit(bad, X_TRUE, T_EGO_CAM)
+    assert a is None and "finite residual" in why, why
+    nan_pose = [EgoSweep(s.timestamp_radar_us, {"T_global_ego_radar": np.full((4, 4), np.nan)}, s.radar_token,
+                         s.velocity) for s in sweeps]
+    a, why = fit(nan_pose, X_TRUE, T_EGO_CAM)
+    assert a is None and "an ego pose is not finite" in why, why
+    a, why = fit(sweeps, np.full((4, 4), np.nan), T_EGO_CAM)
+    assert a is None and "not a finite 4x4" in why

@@ -153,9 +153,9 @@ def _measurements(sweeps: list[EgoSweep], R: np.ndarray, conf: LeverArmConfig) -
     return ms, skipped
 
 
-def _solve(ms: list, M: np.ndarray, conf: LeverArmConfig) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+def _solve(ms: list, M: np.ndarray, conf: LeverArmConfig) -> tuple[np.ndarray, np.ndarray, float, np.ndarray] | None:
     """(delta (2,), cov (2, 2) without the drive-common term, robust scale rad, per-pair turn angle rad) of the
-    fit at mount ``M``."""
+    fit at mount ``M``, or None when fewer than ``min_pairs`` pairs give a finite residual."""
     d = np.zeros(2)
     for _ in range(conf.iterations + 1):
         xi = np.zeros(6)
@@ -165,6 +165,8 @@ def _solve(ms: list, M: np.ndarray, conf: LeverArmConfig) -> tuple[np.ndarray, n
         r = np.array([x[0] for x in rj])
         J = np.array([x[1][list(_FIT)] for x in rj])
         ok = np.isfinite(r) & np.isfinite(J).all(axis=1)
+        if ok.sum() < conf.min_pairs:
+            return None
         r, J = np.where(ok, r, 0.0), np.where(ok[:, None], J, 0.0)
         scale = max(1.4826 * float(np.median(np.abs(r[ok] - np.median(r[ok])))), 1e-4)
         w = np.where(ok, np.minimum(1.0, conf.huber * scale / np.maximum(np.abs(r), 1e-12)), 0.0)
@@ -184,11 +186,17 @@ def fit(sweeps: list[EgoSweep], X: np.ndarray, T_ego_cam: np.ndarray, conf: Leve
     """(the fit of the module doc at the estimate ``X = T_cam_radar`` (4, 4), "") or (None, why not).
     sweeps: the drive's sweeps in time order (consecutive ones form the pairs); T_ego_cam: (4, 4) the tables'."""
     M = np.asarray(T_ego_cam, np.float64) @ np.asarray(X, np.float64)
+    if M.shape != (4, 4) or not np.isfinite(M).all():
+        return None, "the estimate or the tables' camera mount (T_ego_cam) is not a finite 4x4 transform"
     ms, skipped = _measurements(sweeps, M[:3, :3], conf)
     if len(ms) < conf.min_pairs:
         top = "; ".join(f"{n} pairs: {why}" for n, why in sorted(skipped.values(), key=lambda v: -v[0])[:2])
         return None, f"{len(ms)} usable sweep pairs (need {conf.min_pairs})" + (f"; skipped {top}" if top else "")
-    d, cov, scale, turn = _solve(ms, M, conf)
+    solved = _solve(ms, M, conf)
+    if solved is None:
+        return None, (f"fewer than {conf.min_pairs} of the {len(ms)} usable sweep pairs give a finite residual (a "
+                      f"Doppler velocity or ego pose without a direction)")
+    d, cov, scale, turn = solved
     cov[1, 1] += conf.systematic_m ** 2
     dt = np.array([(b.timestamp_radar_us - a.timestamp_radar_us) * 1e-6 for a, b in zip(sweeps[:-1], sweeps[1:])])
     turning = int(np.sum(turn / np.median(dt) >= np.radians(conf.turn_dps))) if len(dt) else 0
@@ -208,7 +216,8 @@ def fit(sweeps: list[EgoSweep], X: np.ndarray, T_ego_cam: np.ndarray, conf: Leve
             e[j] = sgn * steps[j]
             Mj = M @ se3_exp(e)
             msj, _ = _measurements(sweeps, Mj[:3, :3], conf)
-            side.append(_solve(msj, Mj, conf)[0][1] if len(msj) >= conf.min_pairs else np.nan)
+            sj = _solve(msj, Mj, conf) if len(msj) >= conf.min_pairs else None
+            side.append(np.nan if sj is None else sj[0][1])
         if np.isfinite(side).all():
             h[j] = -(side[0] - side[1]) / (2 * steps[j])
     return dataclasses.replace(out, h=h), ""
