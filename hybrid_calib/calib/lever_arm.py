@@ -52,7 +52,7 @@ from factors.motion import heading_residual
 from hybrid_calib.calib.covariance import fold_scalar
 from hybrid_calib.calib.mount_monitor import ego_measurement
 from hybrid_calib.errors import DataError
-from hybrid_calib.geometry import se3_exp
+from hybrid_calib.geometry import se3_exp, so3_log
 
 RADAR_X = 3  # index of the radar-x (forward) translation in the right tangent [phi (3), rho (3)]
 _FIT = (2, RADAR_X)  # the fitted components: rotation about radar z, translation along radar x
@@ -176,8 +176,7 @@ def _solve(ms: list, M: np.ndarray, conf: LeverArmConfig) -> tuple[np.ndarray, n
     cov = conf.noise_scale * scale ** 2 * np.linalg.pinv(H)
     if np.linalg.cond(H) > 1e12:  # no turn at all: rho_x is not observed
         cov[1, 1] = max(cov[1, 1], 1e6)
-    turn = np.array([np.linalg.norm(np.array([m.R_A[2, 1] - m.R_A[1, 2], m.R_A[0, 2] - m.R_A[2, 0],
-                                              m.R_A[1, 0] - m.R_A[0, 1]])) / 2 for m in ms])
+    turn = np.array([np.linalg.norm(so3_log(m.R_A)) for m in ms])
     return d, cov, scale, turn
 
 

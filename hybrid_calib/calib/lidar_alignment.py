@@ -229,6 +229,13 @@ def _solve(frames: list[LidarFrame], X: np.ndarray, conf: LidarAlignConfig) -> t
     return LidarAlignment(d, cov, int(len(e)), n, scale, len(conf.gates_m)), ""
 
 
+def refusal(a: LidarAlignment, conf: LidarAlignConfig = LidarAlignConfig()) -> str:
+    """Why an alignment is reported but not applied ("" when it is applied): too uncertain."""
+    if a.dy_std > conf.max_std_m:
+        return f"std {a.dy_std * 100:.1f} cm > max_std_m {conf.max_std_m * 100:g} cm"
+    return ""
+
+
 def apply_lateral(T: np.ndarray, cov: np.ndarray, a: LidarAlignment) -> tuple[np.ndarray, np.ndarray]:
     """(T', cov') with the alignment's ``dy`` folded in as a measurement of ``xi[4] - coupling @ xi[:3]`` of the
     right perturbation ``xi`` at ``T`` (4, 4), ``cov`` (6, 6) [rotation, translation] (Kalman update)."""

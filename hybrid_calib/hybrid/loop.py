@@ -36,6 +36,7 @@ from hybrid_calib.calib.drift import DriftConfig, reference_test
 from hybrid_calib.calib.lever_arm import LeverArmConfig, apply_forward, drive_inputs, refusal
 from hybrid_calib.calib.lever_arm import fit as fit_lever_arm
 from hybrid_calib.calib.lidar_alignment import LidarAlignConfig, align, apply_lateral, drive_frames
+from hybrid_calib.calib.lidar_alignment import refusal as lidar_refusal
 from hybrid_calib.calib.mount_monitor import MountMonitor, MountMonitorConfig
 from hybrid_calib.calib.oracle import OracleConfig
 from hybrid_calib.calib.result import (
@@ -292,26 +293,38 @@ def with_cov(f: FrameEstimate, cov: np.ndarray, conf: HybridConfig, T: np.ndarra
     return dataclasses.replace(f, estimate=_estimate(f.T if T is None else T, cov, conf, "; ".join(notes)))
 
 
+def _since_last_step(mon: MountMonitor | None) -> int:
+    """The drive position the radar's current mount starts at: its last step's change, or 0."""
+    return mon.steps[-1].change if mon is not None and mon.steps else 0
+
+
+def _fold_last(traj: list[FrameEstimate], conf: HybridConfig, a, why: str, refused: str, apply
+               ) -> tuple[list[FrameEstimate], dict]:
+    """The trajectory with the alignment ``a`` (``None``: not measured, because ``why``) folded into its last
+    estimate by ``apply(T, cov, a)`` unless ``refused`` says why not, and the alignment's result block."""
+    if a is None:
+        return traj, {"applied": False, "note": why}
+    if refused:
+        return traj, a.record(False, refused)
+    last = traj[-1]
+    T, cov = apply(last.T, last.cov, a)
+    return [*traj[:-1], with_cov(last, cov, conf, T)], a.record(True)
+
+
 def with_lidar(traj: list[FrameEstimate], drive: Drive, frames, conf: HybridConfig, mon: MountMonitor | None
                ) -> tuple[list[FrameEstimate], dict]:
     """The trajectory with the LiDAR's lateral offset (``calib.lidar_alignment``) folded into its last
     estimate, and the result's ``lidar`` block (what was measured, and whether and why not it was applied).
     Frames: those the loop used, after the radar's last mount step (the mount before it was another)."""
-    since = mon.steps[-1].change if mon is not None and mon.steps else 0
+    since = _since_last_step(mon)
     indices = [drive.indices[f.index] for f in traj if f.index >= since and 0 <= f.index < len(drive.indices)]
     lfs = drive_frames(frames, indices, conf.lidar)
     if not lfs:
         return traj, {"applied": False, "note": "no LiDAR in the frames (the alignment needs the LiDAR keyframes "
                                                 "and the tables' LiDAR-camera extrinsic; the frames are read with "
                                                 "their LiDAR only for --depth lidar-densified)"}
-    last = traj[-1]
-    a, why = align(lfs, last.T, conf.lidar)
-    if a is None:
-        return traj, {"applied": False, "note": why}
-    if a.dy_std > conf.lidar.max_std_m:
-        return traj, a.record(False, f"std {a.dy_std * 100:.1f} cm > max_std_m {conf.lidar.max_std_m * 100:g} cm")
-    T, cov = apply_lateral(last.T, last.cov, a)
-    return [*traj[:-1], with_cov(last, cov, conf, T)], a.record(True)
+    a, why = align(lfs, traj[-1].T, conf.lidar)
+    return _fold_last(traj, conf, a, why, lidar_refusal(a, conf.lidar) if a else "", apply_lateral)
 
 
 def with_doppler(traj: list[FrameEstimate], drive: Drive, frames, conf: HybridConfig, mon: MountMonitor | None,
@@ -320,20 +333,13 @@ def with_doppler(traj: list[FrameEstimate], drive: Drive, frames, conf: HybridCo
     into its last estimate, and the result's ``doppler`` block (what was measured, and whether and why not it
     was applied). Sweeps: every frame of the drive after the radar's last mount step (the Doppler does not
     depend on the network's domain); velocities: the motion source's (one Doppler fit per frame)."""
-    since = mon.steps[-1].change if mon is not None and mon.steps else 0
     velocity = motion.velocity if motion is not None else None
-    sweeps, T_ego_cam = drive_inputs(frames, drive.indices[since:], velocity)
+    sweeps, T_ego_cam = drive_inputs(frames, drive.indices[_since_last_step(mon):], velocity)
     if T_ego_cam is None:
         return traj, {"applied": False, "note": "no camera mount (T_ego_cam) in the tables: the ego poses cannot "
                                                 "be carried to the camera"}
-    last = traj[-1]
-    a, why = fit_lever_arm(sweeps, last.T, T_ego_cam, conf.doppler)
-    if a is None:
-        return traj, {"applied": False, "note": why}
-    if why := refusal(a, conf.doppler):
-        return traj, a.record(False, why)
-    T, cov = apply_forward(last.T, last.cov, a)
-    return [*traj[:-1], with_cov(last, cov, conf, T)], a.record(True)
+    a, why = fit_lever_arm(sweeps, traj[-1].T, T_ego_cam, conf.doppler)
+    return _fold_last(traj, conf, a, why, refusal(a, conf.doppler) if a else "", apply_forward)
 
 
 def _pure(runner, drive, T0, conf, tr):
