@@ -29,7 +29,8 @@ from alignment_args import parser, start_error  # noqa: E402
 
 
 def main(argv=None) -> int:
-    from hybrid_calib.calib.lever_arm import RADAR_X, LeverArmConfig, drive_inputs, fit, refusal
+    from hybrid_calib.calib.ego_doppler import drive_sweeps
+    from hybrid_calib.calib.lever_arm import RADAR_X, LeverArmConfig, fit, refusal
     from hybrid_calib.config import merge, parse_overrides, save_json_atomic
     from hybrid_calib.geometry import local, se3_exp
     from learned.dataset import open_frames
@@ -44,17 +45,18 @@ def main(argv=None) -> int:
     for root in args.data:
         frames = open_frames(root, args.version)
         for vehicle, idx in sorted(frames.frames_by_vehicle().items()):
-            all_sweeps, T_ego_cam = drive_inputs(frames, idx)
+            all_sweeps, T_ego_cam = drive_sweeps(frames, idx, between=conf.sweeps)
             truth = np.asarray(frames[idx[0]].extras["T_cam_radar_static"], np.float64)
             for n, off in [(m, o) for m in args.frames for o in range(0, max(len(idx) - m, 0) + 1, max(m, 50))]:
-                sweeps = all_sweeps[off:off + n]
+                sweeps = [s for s in all_sweeps if off <= s.position < off + n]
                 for t in range(args.trials):
                     xi = start_error(rng, args)
                     start = truth @ se3_exp(xi)
                     t0 = time.perf_counter()
                     a, why = fit(sweeps, start, T_ego_cam, conf)
                     xi = local(start, truth)
-                    row = {"root": root.name, "vehicle": vehicle, "frames": len(sweeps), "offset": off, "trial": t,
+                    row = {"root": root.name, "vehicle": vehicle, "frames": len({s.position for s in sweeps}),
+                           "offset": off, "trial": t,
                            "start_dx_m": float(xi[RADAR_X]), "seconds": time.perf_counter() - t0}
                     if a is None:
                         row["failed"] = why

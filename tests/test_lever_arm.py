@@ -9,16 +9,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from hybrid_calib.calib.lever_arm import (
-    RADAR_X,
-    EgoSweep,
-    LeverArmConfig,
-    apply_forward,
-    describe,
-    drive_inputs,
-    fit,
-    refusal,
-)
+from hybrid_calib.calib.ego_doppler import EgoSweep, drive_sweeps
+from hybrid_calib.calib.lever_arm import RADAR_X, LeverArmConfig, apply_forward, describe, fit, refusal
 from hybrid_calib.errors import DataError
 from hybrid_calib.geometry import local, se3_exp, se3_inverse
 from hybrid_calib.sensors.radar_velocity import RadarVelocity
@@ -126,13 +118,13 @@ class _Frames:
 def test_unreadable_frames_break_the_chain_and_are_counted_not_a_crash():
     sweeps = _drive(np.random.default_rng(4), n=60)
     frames = _Frames(sweeps, bad={10, 30})
-    got, T_ego_cam = drive_inputs(frames, range(60), velocity=lambda i: (sweeps[i].velocity, ""))
+    got, T_ego_cam = drive_sweeps(frames, range(60), velocity=lambda i: (sweeps[i].velocity, ""))
     assert len(got) == 60 and np.allclose(T_ego_cam, T_EGO_CAM)
     assert got[10].velocity is None and "unreadable" in got[10].why
     a, why = fit(got, X_TRUE, T_ego_cam)
     assert a is not None and a.pairs == 59 - 4 and sum(a.skipped.values()) == 4, (a.skipped, why)
     # without a velocity function the frame's own Doppler fit is tried (these frames have no points)
-    got, _ = drive_inputs(frames, range(5))
+    got, _ = drive_sweeps(frames, range(5))
     assert all(s.velocity is None for s in got)
 
 

@@ -51,6 +51,8 @@ def test_config_is_checked():
         MountMonitorConfig(min_frames=1)
     with pytest.raises(ValueError, match="level_pairs"):
         MountMonitorConfig(level_pairs=4)
+    with pytest.raises(ValueError, match="pair_dt_s"):
+        MountMonitorConfig(pair_dt_s=2.0)
 
 
 # ---------------------------------------------------------------------------------- on simulated drives
@@ -92,6 +94,30 @@ def test_a_knocked_radar_is_flagged_and_an_untouched_one_is_not(knocked_and_not)
     assert 12 <= s.at <= 18 and abs(s.change - 12) <= 1
     before, after = mon.levels()
     assert abs(after["level_deg"] - before["level_deg"] - 1.0) < 0.2  # the knock's size, measured
+
+
+def test_the_sweeps_between_keyframes_steady_the_reading_and_find_the_knock_no_later(knocked_and_not):
+    from hybrid_calib.calib.mount_monitor import tested_words
+
+    plain, knocked = knocked_and_not
+    frames, idx = _drive(plain)
+    T = frames[idx[0]].extras["T_ego_radar"]
+    sweeps, _ = monitor_drive(frames, idx, T)
+    keyframes, _ = monitor_drive(frames, idx, T, MountMonitorConfig(sweeps=False))
+    assert np.median(sweeps.pairs) >= 5 and set(keyframes.pairs) == {1}
+
+    def spread(m):
+        y = np.array([v for _, v in m.series])
+        return float(np.median(np.abs(y - np.median(y))))
+
+    assert spread(sweeps) < 0.7 * spread(keyframes)
+    assert tested_words(sweeps.summary()) == f"{len(sweeps.series)} frames tested ({sum(sweeps.pairs)} sweep pairs)"
+    assert tested_words(keyframes.summary()) == f"{len(keyframes.series)} frame pairs tested"
+    frames, idx = _drive(knocked)
+    a, _ = monitor_drive(frames, idx, T)
+    b, _ = monitor_drive(frames, idx, T, MountMonitorConfig(sweeps=False))
+    assert len(a.steps) == len(b.steps) == 1 and a.steps[0].at <= b.steps[0].at
+    assert abs(a.levels()[1]["level_deg"] - a.levels()[0]["level_deg"] - 1.0) < 0.1
 
 
 def test_the_reference_rotation_does_not_matter_but_missing_ego_poses_are_said(knocked_and_not):

@@ -52,7 +52,9 @@ def test_all_tables_and_schema(root):
             assert set(t[name][0]) == set(json.loads(ref.read_text())[0]), name
     assert len(t["log"]) == 2 and {r["vehicle"] for r in t["log"]} == {"sim-veh-000", "sim-veh-001"}
     assert len(t["scene"]) == 2 and len(t["sample"]) == 2 * FRAMES
-    assert len(t["sample_data"]) == 3 * 2 * FRAMES == len(t["ego_pose"])
+    # camera, radar and LiDAR keyframes, and the radar's 5 non-keyframe sweeps per keyframe (the default)
+    assert len(t["sample_data"]) == (3 + 5) * 2 * FRAMES == len(t["ego_pose"])
+    assert sum(not r["is_key_frame"] for r in t["sample_data"]) == 5 * 2 * FRAMES
     assert t["map"][0]["log_tokens"] == [r["token"] for r in t["log"]]
     assert (root / t["map"][0]["filename"]).is_file()
     assert {s["channel"] for s in t["sensor"]} == {"CAM_FRONT", "RADAR_FRONT", "LIDAR_TOP"}
@@ -74,11 +76,12 @@ def test_chains_files_and_side_files(root):
             tok = nxt
         assert n == scene["nbr_samples"] == FRAMES
     for r in sd.values():
-        assert r["is_key_frame"] and (root / r["filename"]).is_file()
+        assert (root / r["filename"]).is_file()
         if r["next"]:
             assert sd[r["next"]]["prev"] == r["token"] and sd[r["next"]]["timestamp"] > r["timestamp"]
         ch = sensor[cs[r["calibrated_sensor_token"]]["sensor_token"]]
-        assert r["filename"].startswith(f"samples/{ch}/")
+        assert r["filename"].startswith(f"{'samples' if r['is_key_frame'] else 'sweeps'}/{ch}/")
+        assert r["is_key_frame"] or ch == "RADAR_FRONT"  # only the radar has sweeps between keyframes
         if ch == "CAM_FRONT":
             img = cv2.imread(str(root / r["filename"]))
             assert img.shape == (r["height"], r["width"], 3) == (225, 400, 3)

@@ -7,8 +7,8 @@ radar x) stayed at the start's level: 18 cm from R1 starts, 57 cm from R2 on 200
 
 What measures it. When the vehicle turns, a point ahead of the rear axle moves sideways: a radar
 ``x`` metres ahead of the vehicle's origin travels at ``v + omega x`` to the side. Per pair of
-consecutive sweeps the radar's Doppler gives the direction of its own travel in its own frame, and the
-ego poses give the vehicle's displacement ``D`` and rotation ``R_A`` (``calib.mount_monitor.ego_measurement``,
+sweeps (``calib.ego_doppler``) the radar's Doppler gives the direction of its own travel in its own frame, and the
+ego poses give the vehicle's displacement ``D`` and rotation ``R_A`` (``calib.ego_doppler.ego_measurement``,
 the pair the mount monitor tests). With the radar's mount ``M = T_ego_cam X`` (``X = T_cam_radar``, the
 estimate; ``T_ego_cam`` from the tables) the residual is ``factors.motion.heading_residual(M, m)``:
 
@@ -43,15 +43,13 @@ from __future__ import annotations
 
 import dataclasses
 import re
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from factors.motion import heading_residual
 from hybrid_calib.calib.covariance import fold_scalar
-from hybrid_calib.calib.mount_monitor import ego_measurement
-from hybrid_calib.errors import DataError
+from hybrid_calib.calib.ego_doppler import EgoSweep, ego_measurement, pair_skip, sweep_pairs
 from hybrid_calib.geometry import se3_exp, so3_log
 
 RADAR_X = 3  # index of the radar-x (forward) translation in the right tangent [phi (3), rho (3)]
@@ -65,6 +63,10 @@ class LeverArmConfig:
     max_gap_s: float = 1.5  # sweeps further apart are not a pair, s
     max_turn_dps: float = 15.0  # faster turns are skipped (module doc; the mount monitor's value), deg/s
     turn_dps: float = 3.0  # a pair turning at least this fast counts as "in a turn" in the words, deg/s
+    # pair the radar's non-keyframe sweeps too (calib.ego_doppler)? Off: noise_scale and systematic_m below were
+    # fitted on keyframe pairs, and 6-7 pairs per interval are not 6-7 times the information (docs/benchmarks.md)
+    sweeps: bool = False
+    pair_dt_s: float = 0.4  # a sweep's partner is the latest sweep at least this much earlier, s
     huber: float = 1.345  # Huber threshold, in robust residual scales
     iterations: int = 4  # Gauss-Newton steps
     min_pairs: int = 10  # fewer usable pairs: no fit
@@ -83,27 +85,16 @@ class LeverArmConfig:
 
     def __post_init__(self):
         if not (self.min_speed_mps >= 0 and self.max_gap_s > 0 and self.max_turn_dps > 0 and self.turn_dps >= 0
-                and self.huber > 0 and self.iterations >= 1 and self.min_pairs >= 3 and self.min_turning >= 0
+                and 0 < self.pair_dt_s < self.max_gap_s and self.huber > 0 and self.iterations >= 1
+                and self.min_pairs >= 3 and self.min_turning >= 0
                 and self.noise_scale > 0
                 and self.systematic_m >= 0 and self.max_std_m > 0 and self.coupling_deg >= 0
                 and self.coupling_m >= 0):
             raise ValueError(f"LeverArmConfig: need min_speed_mps >= 0, max_gap_s > 0, max_turn_dps > 0, "
-                             f"turn_dps >= 0, huber > 0, iterations >= 1, min_pairs >= 3, min_turning >= 0, "
+                             f"turn_dps >= 0, 0 < pair_dt_s < max_gap_s, huber > 0, iterations >= 1, min_pairs >= 3, "
+                             f"min_turning >= 0, "
                              f"noise_scale > 0, "
                              f"systematic_m >= 0, max_std_m > 0 and coupling steps >= 0 (got {self})")
-
-
-@dataclass(frozen=True)
-class EgoSweep:
-    """What a pair needs of one frame (the ``ego_measurement`` interface of a frame, without its points):
-    ``timestamp_radar_us``, ``extras["T_global_ego_radar"]`` (4, 4) and ``radar_token``; ``velocity``: the
-    sweep's Doppler velocity (``RadarVelocity``) or None, with ``why`` not."""
-
-    timestamp_radar_us: int
-    extras: dict
-    radar_token: str
-    velocity: object = None
-    why: str = ""
 
 
 @dataclass(frozen=True)
@@ -134,15 +125,14 @@ class LeverArm:
                 "skipped": dict(self.skipped), **({"note": why} if why else {})}
 
 
-def _measurements(sweeps: list[EgoSweep], R: np.ndarray, conf: LeverArmConfig) -> tuple[list, dict]:
-    """(the pairs' ``MotionMeasurement`` at the mount rotation ``R`` (3, 3), {reason: [count, first example]}
-    of those skipped; the reason is the example's words before its first number)."""
-    ms, skipped = [], {}
-    for a, b in zip(sweeps[:-1], sweeps[1:]):
-        if a.velocity is None or b.velocity is None:
-            why = f"no Doppler velocity: {(a if a.velocity is None else b).why}"
-            m = None
-        else:
+def _measurements(sweeps: list[EgoSweep], R: np.ndarray, conf: LeverArmConfig) -> tuple[list, list, dict]:
+    """(the pairs' ``MotionMeasurement`` at the mount rotation ``R`` (3, 3), their time spans s, {reason: [count,
+    first example]} of those skipped; the reason is the example's words before its first number)."""
+    ms, dts, skipped = [], [], {}
+    for a, b in sweep_pairs(sweeps, conf.pair_dt_s):
+        why = pair_skip(a, b)
+        m = None
+        if not why:
             m, why = ego_measurement(a, a.velocity, b, b.velocity, R, conf.min_speed_mps, conf.max_gap_s,
                                      conf.max_turn_dps)
         if m is None:
@@ -150,7 +140,8 @@ def _measurements(sweeps: list[EgoSweep], R: np.ndarray, conf: LeverArmConfig) -
             skipped.setdefault(key, [0, why])[0] += 1
         else:
             ms.append(m)
-    return ms, skipped
+            dts.append((b.timestamp_radar_us - a.timestamp_radar_us) * 1e-6)
+    return ms, dts, skipped
 
 
 def _solve(ms: list, M: np.ndarray, conf: LeverArmConfig) -> tuple[np.ndarray, np.ndarray, float, np.ndarray] | None:
@@ -183,11 +174,12 @@ def _solve(ms: list, M: np.ndarray, conf: LeverArmConfig) -> tuple[np.ndarray, n
 def fit(sweeps: list[EgoSweep], X: np.ndarray, T_ego_cam: np.ndarray, conf: LeverArmConfig = LeverArmConfig()
         ) -> tuple[LeverArm | None, str]:
     """(the fit of the module doc at the estimate ``X = T_cam_radar`` (4, 4), "") or (None, why not).
-    sweeps: the drive's sweeps in time order (consecutive ones form the pairs); T_ego_cam: (4, 4) the tables'."""
+    sweeps: the drive's sweeps in time order (``calib.ego_doppler.sweep_pairs`` forms the pairs); T_ego_cam: (4, 4)
+    the tables'."""
     M = np.asarray(T_ego_cam, np.float64) @ np.asarray(X, np.float64)
     if M.shape != (4, 4) or not np.isfinite(M).all():
         return None, "the estimate or the tables' camera mount (T_ego_cam) is not a finite 4x4 transform"
-    ms, skipped = _measurements(sweeps, M[:3, :3], conf)
+    ms, dts, skipped = _measurements(sweeps, M[:3, :3], conf)
     if len(ms) < conf.min_pairs:
         top = "; ".join(f"{n} pairs: {why}" for n, why in sorted(skipped.values(), key=lambda v: -v[0])[:2])
         return None, f"{len(ms)} usable sweep pairs (need {conf.min_pairs})" + (f"; skipped {top}" if top else "")
@@ -197,8 +189,7 @@ def fit(sweeps: list[EgoSweep], X: np.ndarray, T_ego_cam: np.ndarray, conf: Leve
                       f"Doppler velocity or ego pose without a direction)")
     d, cov, scale, turn = solved
     cov[1, 1] += conf.systematic_m ** 2
-    dt = np.array([(b.timestamp_radar_us - a.timestamp_radar_us) * 1e-6 for a, b in zip(sweeps[:-1], sweeps[1:])])
-    turning = int(np.sum(turn / np.median(dt) >= np.radians(conf.turn_dps))) if len(dt) else 0
+    turning = int(np.sum(turn / np.asarray(dts) >= np.radians(conf.turn_dps)))
     out = LeverArm(d, cov, len(ms), turning, scale, skipped={k: v[0] for k, v in skipped.items()})
     if conf.coupling_deg <= 0 and conf.coupling_m <= 0:
         return out, ""
@@ -214,7 +205,7 @@ def fit(sweeps: list[EgoSweep], X: np.ndarray, T_ego_cam: np.ndarray, conf: Leve
             e = np.zeros(6)
             e[j] = sgn * steps[j]
             Mj = M @ se3_exp(e)
-            msj, _ = _measurements(sweeps, Mj[:3, :3], conf)
+            msj, _, _ = _measurements(sweeps, Mj[:3, :3], conf)
             sj = _solve(msj, Mj, conf) if len(msj) >= conf.min_pairs else None
             side.append(np.nan if sj is None else sj[0][1])
         if np.isfinite(side).all():
@@ -247,28 +238,3 @@ def describe(block: dict) -> str:
              f"estimate (Doppler in turns against the ego poses: {block['pairs']} sweep pairs, {block['turning']} "
              f"turning)")
     return words + ("; applied" if block["applied"] else f"; not applied: {block.get('note', '')}")
-
-
-def drive_inputs(frames, indices, velocity: Callable[[int], tuple] | None = None
-                 ) -> tuple[list[EgoSweep], np.ndarray | None]:
-    """(the sweeps of dataset ``indices`` in drive order, the tables' ``T_ego_cam`` (4, 4) of the first readable
-    frame or None). velocity: dataset index -> (``RadarVelocity`` | None, why) (the hybrid passes its motion
-    source's); default ``estimate_velocity`` of the frame. An unreadable frame breaks the chain of pairs
-    (a sweep without a velocity or pose stands in for it)."""
-    from hybrid_calib.sensors.radar_velocity import estimate_velocity
-
-    sweeps, T_ego_cam = [], None
-    for i in indices:
-        try:
-            f = frames[i]
-            v, why = velocity(i) if velocity is not None else estimate_velocity(
-                f.radar_points, f.radar_fields, sweep_index=f.extras.get("radar_sweep_index"))
-        except DataError as e:
-            sweeps.append(EgoSweep(0, {}, "", None, f"frame unreadable: {e}"))
-            continue
-        if T_ego_cam is None and f.extras.get("T_ego_cam") is not None:
-            T_ego_cam = np.asarray(f.extras["T_ego_cam"], np.float64)
-        pose = f.extras.get("T_global_ego_radar")
-        sweeps.append(EgoSweep(int(f.timestamp_radar_us), {"T_global_ego_radar": pose}, f.radar_token,
-                               v if pose is not None else None, why if pose is not None else "no ego pose"))
-    return sweeps, T_ego_cam

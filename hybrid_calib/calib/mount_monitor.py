@@ -1,11 +1,13 @@
 """Has the radar moved on the vehicle? A step test on the radar's heading against the vehicle's own motion.
 
-Per pair of consecutive frames the radar's Doppler gives the direction of its own travel in its
+Per pair of sweeps (``calib.ego_doppler``: each sweep and the latest one ``pair_dt_s`` or more before it;
+on a root with the radar's non-keyframe sweeps 6-7 pairs per keyframe interval, on a keyframe-only root the
+pair of consecutive keyframes) the radar's Doppler gives the direction of its own travel in its
 own frame (``sensors.radar_velocity``, the chord of its velocities at the two sweeps), and the ego
 poses at the two radar timestamps give the same travel in the vehicle's frame (odometry: the
-vehicle's displacement ``D`` and rotation ``R_A`` between the sweeps, in ego frame a). With the
-radar's mount ``T_ego_radar`` the residual is the factor of ``factors.motion`` with the ego in the
-camera's place::
+vehicle's displacement ``D`` and rotation ``R_A`` between the sweeps, in ego frame a). Each keyframe's
+reading is the median of the pairs ending in its interval. With the radar's mount ``T_ego_radar`` the
+residual is the factor of ``factors.motion`` with the ego in the camera's place::
 
     d = R^T (D + (R_A - I) t),    y = wrap(atan2(d_y, d_x) - psi)        (T_ego_radar = (R, t))
 
@@ -13,7 +15,8 @@ camera's place::
 while the radar stays where it is, and it moves by the yaw of a knock at once. It needs no camera
 and no network, and it does not depend on the reference mount's rotation (only on its lever arm
 ``t``, to centimetres): the test looks for a change of ``y``, not at its level. Its noise is the
-Doppler's, ~0.15-0.3 deg per pair in the simulator (a 1 deg knock is 3-6 sigma in one pair), against
+Doppler's, ~0.15-0.3 deg per pair in the simulator (a 1 deg knock is 3-6 sigma in one pair; the median of a
+keyframe interval's 6 pairs 0.07-0.105 deg), against
 ~1.1 deg for the camera's two-view odometry (``hybrid.motion``), whose errors also drift with the
 scene by about as much as a knock (measured, docs/benchmarks.md "The mount monitor").
 
@@ -21,7 +24,8 @@ The test (``MountMonitor``). The level is the median of the last ``level_pairs``
 since the last change (at least ``min_frames``) before a CUSUM's current excursion, so a step does
 not pull it along while the slow wander of the Doppler's bias (a few tenths of a degree over tens of
 frames, with the scene) is followed. The noise scale is the larger of those values' median absolute
-deviation and their successive differences' (over sqrt 2), at least ``floor_deg``. The standardised
+deviation and their successive differences' (over sqrt 2), at least ``floor_deg / sqrt(n)`` for readings of
+``n`` pairs (the level's median; ``floor_deg`` is one pair's floor). The standardised
 deviations ``z``, clipped to ``+-clip`` (one failed Doppler fit adds at most ``clip - drift``), feed
 a two-sided CUSUM with allowance ``drift``; above ``threshold`` it alarms. The change point is the
 split of the level's pairs with the largest two-sample mean difference (``change_point``), the step
@@ -45,10 +49,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from factors.motion import MotionMeasurement, chord_heading, heading_residual, radar_yaw_change
-from hybrid_calib.errors import DataError
-from hybrid_calib.geometry import so3_log
-from hybrid_calib.sensors.radar_velocity import RadarVelocityConfig, estimate_velocity
+from factors.motion import heading_residual
+from hybrid_calib.calib.ego_doppler import EgoSweep, ego_measurement, frame_sweeps, pair_skip, partner
 
 MEDIAN_VAR = np.pi / 2  # variance of a Gaussian sample's median, in units of sigma^2 / n
 
@@ -63,8 +65,10 @@ class MountMonitorConfig:
     drift: float = 1.0  # CUSUM allowance per pair, in noise sigmas (half the smallest step sought: 2 sigma)
     threshold: float = 8.0  # CUSUM alarm level, in noise sigmas
     clip: float = 3.0  # standardised deviations are clipped to +-this (heavy tails)
-    level_pairs: int = 20  # the level is the median of at most this many pairs (it follows the Doppler's slow wander)
-    min_frames: int = 8  # pairs of a level before the test runs (after the start and after each change)
+    level_pairs: int = 20  # the level: the median of at most this many readings (it follows the Doppler's slow wander)
+    min_frames: int = 8  # readings of a level before the test runs (after the start and after each change)
+    sweeps: bool = True  # pair the non-keyframe sweeps too, where the root has them (calib.ego_doppler)
+    pair_dt_s: float = 0.4  # a sweep's partner is the latest sweep at least this much earlier (calib.ego_doppler), s
 
     def __post_init__(self):
         if self.min_frames < 3 or self.floor_deg <= 0 or self.threshold <= 0 or self.clip <= self.drift:
@@ -76,6 +80,9 @@ class MountMonitorConfig:
             raise ValueError(f"MountMonitorConfig: need level_pairs >= min_frames, max_turn_dps > 0, min_speed_mps "
                              f">= 0 and max_gap_s > 0 (got {self.level_pairs}, {self.max_turn_dps}, "
                              f"{self.min_speed_mps}, {self.max_gap_s})")
+        if not 0 < self.pair_dt_s < self.max_gap_s:
+            raise ValueError(f"MountMonitorConfig: need 0 < pair_dt_s < max_gap_s (got {self.pair_dt_s}, "
+                             f"{self.max_gap_s})")
 
 
 @dataclass(frozen=True)
@@ -107,12 +114,13 @@ class MountReading:
     statistic: float | None = None
     skipped: str = ""
     step: MountStep | None = None
+    pairs: int = 0  # sweep pairs whose median ``residual_deg`` is
 
     def record(self) -> dict:
         """The reading as a frame row's ``mount`` entry (plain JSON)."""
         if self.residual_deg is None:
             return {"skipped": self.skipped}
-        return {"residual_deg": self.residual_deg, "z": self.z, "statistic": self.statistic}
+        return {"residual_deg": self.residual_deg, "z": self.z, "statistic": self.statistic, "pairs": self.pairs}
 
 
 @dataclass
@@ -120,7 +128,8 @@ class MountMonitor:
     """The test of the module doc over one drive, fed frame by frame (``update``).
 
     frames: indexable by dataset index -> frame (``RadarCameraFrame``: radar points and fields,
-    ``extras["T_global_ego_radar"]``). T_ego_radar: (4, 4) the radar's reference mount (its lever arm
+    ``extras["T_global_ego_radar"]``), with ``radar_sweeps_between`` where the non-keyframe sweeps are to be
+    paired too (``calib.ego_doppler``). T_ego_radar: (4, 4) the radar's reference mount (its lever arm
     matters, its rotation does not). velocity: dataset index -> (``RadarVelocity`` | None, why); the
     hybrid passes its motion source's (one cached Doppler fit per frame for both uses); default:
     ``estimate_velocity`` of the frame with the default ``RadarVelocityConfig``."""
@@ -129,70 +138,77 @@ class MountMonitor:
     T_ego_radar: np.ndarray
     conf: MountMonitorConfig = MountMonitorConfig()
     velocity: Callable[[int], tuple] | None = None
-    series: list[tuple[int, float]] = field(default_factory=list)  # (position, residual deg) of the level's pairs
+    series: list[tuple[int, float]] = field(default_factory=list)  # (position, reading deg) of the tested frames
+    pairs: list[int] = field(default_factory=list)  # sweep pairs behind each reading of ``series``
     steps: list[MountStep] = field(default_factory=list)
-    _prev: tuple | None = None
+    _history: list[EgoSweep] = field(default_factory=list)  # the sweeps a partner can still be (calib.ego_doppler)
     _start: int = 0  # first element of ``series`` in the current level
     _pos: float = 0.0
     _neg: float = 0.0
     _pos_from: int | None = None  # where each CUSUM last left zero (None: at the level's first tested pair)
     _neg_from: int | None = None
 
-    def _velocity(self, index: int, f) -> tuple:
-        if self.velocity is not None:
-            return self.velocity(index)
-        return estimate_velocity(f.radar_points, f.radar_fields, RadarVelocityConfig(),
-                                 f.extras.get("radar_sweep_index"))
-
-    def residual(self, ia: int, fa, va, ib: int, fb, vb) -> tuple[float | None, str]:
+    def residual(self, a: EgoSweep, b: EgoSweep) -> tuple[float | None, str]:
         """(y deg, "") of the pair a -> b, or (None, why it was skipped)."""
         c = self.conf
-        m, why = ego_measurement(fa, va, fb, vb, self.T_ego_radar[:3, :3], c.min_speed_mps, c.max_gap_s,
-                                 c.max_turn_dps)
+        why = pair_skip(a, b)
+        if why:
+            return None, why
+        m, why = ego_measurement(a, a.velocity, b, b.velocity, self.T_ego_radar[:3, :3], c.min_speed_mps,
+                                 c.max_gap_s, c.max_turn_dps)
         if m is None:
             return None, why
         y = float(np.degrees(heading_residual(self.T_ego_radar, m)[0]))
         return (y, "") if np.isfinite(y) else (None, "the residual is not finite (a Doppler fit without a direction)")
 
     def update(self, position: int, index: int) -> MountReading:
-        """Feed the frame at drive ``position`` (dataset ``index``); its pair is (previous fed frame, it)."""
-        try:
-            f = self.frames[index]
-            v, why = self._velocity(index, f)
-        except DataError as e:
-            self._prev = None
-            return MountReading(position, skipped=f"frame unreadable: {e}")
-        prev, self._prev = self._prev, (index, f, v, why)
-        if prev is None:
-            return MountReading(position, skipped="first frame of a pair")
-        if prev[2] is None or v is None:
-            return MountReading(position, skipped=f"no Doppler velocity: {prev[3] if prev[2] is None else why}")
-        y, why = self.residual(prev[0], prev[1], prev[2], index, f, v)
-        if y is None:
+        """Feed the frame at drive ``position`` (dataset ``index``): the pairs ending at the sweeps of its keyframe
+        interval (``calib.ego_doppler``: each sweep and its partner ``pair_dt_s`` or more before it), their
+        median as the reading. Skipped, with the keyframe pair's reason, when none of them gives a residual."""
+        sweeps, _ = frame_sweeps(self.frames, index, position, self.velocity, self.conf.sweeps)
+        ys, why = [], ""
+        for b in sweeps:
+            a = partner(self._history, b, self.conf.pair_dt_s)
+            self._history.append(b)
+            y, why = (None, "first frame of a pair") if a is None else self.residual(a, b)
+            if y is not None:
+                ys.append(y)
+        known = [s for s in self._history if s.timestamp_radar_us is not None]
+        if known:  # keep what a partner can still be: max_gap_s back from the newest sweep (and one barrier)
+            t_last = known[-1].timestamp_radar_us
+            keep = next((k for k, s in enumerate(self._history) if s.timestamp_radar_us is not None
+                         and (t_last - s.timestamp_radar_us) * 1e-6 <= self.conf.max_gap_s), 0)
+            self._history = self._history[max(keep - 1, 0):]
+        if not ys:
             return MountReading(position, skipped=why)
-        return self.add_residual(position, y)
+        return self.add_residual(position, float(np.median(ys)), len(ys))
 
-    def scale(self, level: np.ndarray) -> float:
+    def scale(self, level: np.ndarray, pairs: float = 1.0) -> float:
         """The level's noise std, deg (module doc): the larger of its spread and its successive
-        differences' (over sqrt 2), robustly (MAD), and at least ``floor_deg``."""
+        differences' (over sqrt 2), robustly (MAD), and at least ``floor_deg / sqrt(pairs)`` (``pairs``: the
+        median number of pairs in a reading of the level; the median of n pairs is ~sqrt(n) times steadier)."""
         def mad(x):
             return 1.4826 * float(np.median(np.abs(x - np.median(x)))) if len(x) else 0.0
 
-        return max(self.conf.floor_deg, mad(level), mad(np.diff(level)) / np.sqrt(2.0))
+        return max(self.conf.floor_deg / np.sqrt(max(pairs, 1.0)), mad(level), mad(np.diff(level)) / np.sqrt(2.0))
 
-    def add_residual(self, position: int, y: float) -> MountReading:
-        """Test one pair's residual ``y`` (deg) at drive ``position`` (``update`` computes it from the frames)."""
+    def add_residual(self, position: int, y: float, pairs: int = 1) -> MountReading:
+        """Test one reading ``y`` (deg; the median of ``pairs`` pairs' residuals) at drive ``position``
+        (``update`` computes it from the frames)."""
         c = self.conf
         if len(self.series) - self._start < c.min_frames:
             self.series.append((position, y))
-            return MountReading(position, y)
+            self.pairs.append(pairs)
+            return MountReading(position, y, pairs=pairs)
         # the level rests on the pairs before a CUSUM's current excursion (a step must not pull it along)
         ends = [f for f, v in ((self._pos_from, self._pos), (self._neg_from, self._neg)) if v > 0 and f is not None]
         end = max(min(ends, default=len(self.series)), self._start + c.min_frames)
-        level = np.array([v for _, v in self.series[max(self._start, end - c.level_pairs):end]])
-        base, s = float(np.median(level)), self.scale(level)
+        lo = max(self._start, end - c.level_pairs)
+        level = np.array([v for _, v in self.series[lo:end]])
+        base, s = float(np.median(level)), self.scale(level, float(np.median(self.pairs[lo:end])))
         z = (y - base) / (s * np.sqrt(1.0 + MEDIAN_VAR / len(level)))
         self.series.append((position, y))
+        self.pairs.append(pairs)
         n = len(self.series) - 1
         self._pos_from = n if self._pos_from is None else self._pos_from
         self._neg_from = n if self._neg_from is None else self._neg_from
@@ -205,7 +221,7 @@ class MountMonitor:
             self._neg_from = n + 1
         stat = max(self._pos, self._neg)
         if stat <= c.threshold:
-            return MountReading(position, y, float(z), stat)
+            return MountReading(position, y, float(z), stat, pairs=pairs)
         cp = self.change_point(base, s)
         before = np.array([v for _, v in self.series[self._start:cp]])
         after = np.array([v for _, v in self.series[cp:]])
@@ -214,7 +230,7 @@ class MountMonitor:
         self.steps.append(step)
         self._start, self._pos, self._neg = cp, 0.0, 0.0
         self._pos_from = self._neg_from = None
-        return MountReading(position, y, float(z), stat, step=step)
+        return MountReading(position, y, float(z), stat, step=step, pairs=pairs)
 
     def change_point(self, base: float, s: float) -> int:
         """Index into ``series`` of the first pair after the change: the split of the current level's
@@ -237,9 +253,11 @@ class MountMonitor:
             v = np.array([y for _, y in self.series[a:b]])
             if not len(v):
                 continue
-            s = self.scale(v) if len(v) > 2 else self.conf.floor_deg
+            n = float(np.median(self.pairs[a:b]))
+            s = self.scale(v, n) if len(v) > 2 else self.conf.floor_deg / np.sqrt(n)
             out.append({"from": self.series[a][0], "to": self.series[b - 1][0], "level_deg": float(np.median(v)),
-                        "std_deg": float(s * np.sqrt(MEDIAN_VAR / len(v))), "pairs": int(len(v))})
+                        "std_deg": float(s * np.sqrt(MEDIAN_VAR / len(v))), "frames": int(len(v)),
+                        "pairs": int(sum(self.pairs[a:b]))})
         return out
 
     def summary(self) -> dict:
@@ -253,39 +271,8 @@ class MountMonitor:
                 a, b = levels[j], levels[j + 1]
                 d.update(step_deg=b["level_deg"] - a["level_deg"], std_deg=float(np.hypot(a["std_deg"], b["std_deg"])))
             steps.append(d)
-        return {"steps": steps, "levels": levels, "pairs_tested": len(self.series), "threshold": self.conf.threshold}
-
-
-def ego_measurement(fa, va, fb, vb, R_ego_radar: np.ndarray, min_speed_mps: float, max_gap_s: float,
-                    max_turn_dps: float) -> tuple[MotionMeasurement | None, str]:
-    """The pair a -> b as a ``factors.motion`` measurement with the ego in the camera's place (module doc), or
-    (None, why it was skipped). fa / fb: frames (``timestamp_radar_us``, ``extras["T_global_ego_radar"]``,
-    ``radar_token``); va / vb: their ``RadarVelocity`` (or None); R_ego_radar: (3, 3) the mount's rotation
-    (carries the radar's velocity at b into frame a). Used by the monitor and by ``calib.lever_arm``."""
-    dt = (fb.timestamp_radar_us - fa.timestamp_radar_us) * 1e-6
-    if not 0 < dt <= max_gap_s:
-        return None, f"radar sweeps {dt:.2f} s apart (a pair needs 0 < dt <= {max_gap_s:g} s)"
-    if va is None or vb is None:
-        return None, "no Doppler velocity"
-    if min(va.speed, vb.speed) < min_speed_mps:
-        return None, f"radar speed {min(va.speed, vb.speed):.1f} m/s (need {min_speed_mps:g})"
-    Ta, Tb = fa.extras.get("T_global_ego_radar"), fb.extras.get("T_global_ego_radar")
-    if Ta is None or Tb is None:
-        return None, "no ego pose at the radar's timestamp"
-    Ta, Tb = np.asarray(Ta, np.float64), np.asarray(Tb, np.float64)
-    if not (np.isfinite(Ta).all() and np.isfinite(Tb).all()):
-        return None, "an ego pose is not finite"
-    R_A = Ta[:3, :3].T @ Tb[:3, :3]
-    D = Ta[:3, :3].T @ (Tb[:3, 3] - Ta[:3, 3])
-    turn = float(np.degrees(np.linalg.norm(so3_log(R_A)))) / dt
-    if turn > max_turn_dps:
-        return None, f"turning at {turn:.0f} deg/s (at most {max_turn_dps:g})"
-    s = float(np.linalg.norm(D))
-    if s < min_speed_mps * dt * 0.5:
-        return None, f"the ego poses moved {s:.2f} m while the radar measured {va.speed:.1f} m/s"
-    psi, sig, speed = chord_heading(va.v, va.cov, vb.v, vb.cov, radar_yaw_change(R_A, R_ego_radar))
-    return MotionMeasurement(D / s, R_A, s, psi, sig, speed, fa.radar_token, fb.radar_token, 0,
-                             min(va.n_inliers, vb.n_inliers)), ""
+        return {"steps": steps, "levels": levels, "frames_tested": len(self.series),
+                "pairs_tested": int(sum(self.pairs)), "threshold": self.conf.threshold}
 
 
 def monitor_drive(frames, indices: list[int], T_ego_radar: np.ndarray, conf: MountMonitorConfig = MountMonitorConfig()
@@ -293,3 +280,11 @@ def monitor_drive(frames, indices: list[int], T_ego_radar: np.ndarray, conf: Mou
     """The monitor over a whole drive (dataset ``indices`` in time order): (monitor, readings)."""
     mon = MountMonitor(frames, np.asarray(T_ego_radar, np.float64), conf)
     return mon, [mon.update(k, i) for k, i in enumerate(indices)]
+
+
+def tested_words(summary: dict) -> str:
+    """How much a ``summary()`` block tested, in words: frames and the sweep pairs behind them (a result written
+    before the sweeps were paired holds ``pairs_tested`` alone, one pair per frame)."""
+    pairs = int(summary.get("pairs_tested", 0))
+    frames = int(summary.get("frames_tested", pairs))
+    return f"{frames} frames tested ({pairs} sweep pairs)" if pairs != frames else f"{frames} frame pairs tested"

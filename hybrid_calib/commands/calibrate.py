@@ -129,6 +129,7 @@ def _report(result, out: Path, reused: bool = False) -> int:
     from hybrid_calib.calib.drift import drift_verdict
     from hybrid_calib.calib.lever_arm import describe as describe_doppler
     from hybrid_calib.calib.lidar_alignment import describe as describe_lidar
+    from hybrid_calib.calib.mount_monitor import tested_words
     from hybrid_calib.calib.result import STD_FRAME
     from hybrid_calib.metrics import std_dict
 
@@ -156,7 +157,7 @@ def _report(result, out: Path, reused: bool = False) -> int:
         if v.mount is not None:
             steps = "; ".join(f"the radar turned by {st['step_deg']:+.2f} +- {st['std_deg']:.2f} deg in yaw from frame "
                               f"{st['change']} (alarm at frame {st['at']})" for st in v.mount["steps"])
-            print(f"  radar mount monitor ({v.mount['pairs_tested']} frame pairs tested): {steps or 'no step'}")
+            print(f"  radar mount monitor ({tested_words(v.mount)}): {steps or 'no step'}")
         if v.lidar is not None:
             print(f"  LiDAR alignment: {describe_lidar(v.lidar)}")
         if v.doppler is not None:

@@ -50,7 +50,7 @@ from hybrid_calib.data.filters import RadarFilterConfig
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.data.image_header import decode_image, image_header
 from hybrid_calib.data.pcd import read_lidar_bin
-from hybrid_calib.data.sweeps import accumulate_radar
+from hybrid_calib.data.sweeps import InterSweep, accumulate_radar, sweeps_between_keyframes
 from hybrid_calib.data.tables import NuScenesTables
 from hybrid_calib.errors import DataError
 from hybrid_calib.geometry import pose_from_nuscenes, se3_inverse
@@ -146,6 +146,7 @@ class NuScenesRadarCamera:
             for tok, reason in self.tables.index_problems]
         self._iter_skips: dict[int, SkipRecord] = {}
         self._warned_missing_sweeps = False
+        self.radar_sweeps_missing = 0  # non-keyframe sweep files absent on disk (radar_sweeps_between)
         self.frames: list[FrameRef] = self._build_index()
         if not self.frames and self._index_skips:  # nothing to read, and the reason is known: say it now
             first = self._index_skips[0]
@@ -312,6 +313,17 @@ class NuScenesRadarCamera:
             radar_points=radar_points, radar_fields=radar_fields, T_cam_radar=T_cam_radar,
             lidar_points=lidar_points, T_cam_lidar=T_cam_lidar, depth_path=depth if depth.is_file() else None,
             extras=extras)
+
+    def radar_sweeps_between(self, i: int) -> list[InterSweep]:
+        """The radar's non-keyframe sweeps between frame ``i``'s previous keyframe and its keyframe sweep, oldest
+        first (``data.sweeps.sweeps_between_keyframes``; empty on a keyframe-only root). Reads only their PCDs
+        and ego poses, not frame ``i`` itself: they stay usable when its camera image is unreadable."""
+        n = len(self)
+        if not -n <= i < n:
+            raise IndexError(f"frame index {i} out of range for {n} frames")
+        out, missing = sweeps_between_keyframes(self.tables, self.frames[i % n].radar_sd, self.conf.radar_filter)
+        self.radar_sweeps_missing += missing
+        return out
 
     def _lidar(self, ref: FrameRef, T_cam_global: np.ndarray, extras: dict) -> tuple[np.ndarray, np.ndarray]:
         t = self.tables

@@ -120,6 +120,52 @@ def accumulate_radar(tables: NuScenesTables, sd: dict, nsweeps: int, conf: Radar
     return out
 
 
+@dataclass(frozen=True)
+class InterSweep:
+    """One non-keyframe radar sweep, in its own radar frame (not moved): what the Doppler needs of it.
+
+    points: (N, 3) metres, filtered and finite; fields: per-point PCD fields (N,) each (``vx``, ``vy`` m/s);
+    T_global_ego: (4, 4) the ego pose at its timestamp (its sample_data's ego_pose). ``why`` is set (and
+    ``points`` empty) when its file could not be read: the sweep is then named but carries nothing."""
+
+    token: str
+    timestamp_us: int
+    T_global_ego: np.ndarray
+    points: np.ndarray
+    fields: dict
+    why: str = ""
+
+
+def sweeps_between_keyframes(tables: NuScenesTables, sd: dict, conf: RadarFilterConfig, limit: int = 20
+                             ) -> tuple[list[InterSweep], int]:
+    """(the non-keyframe sweeps between the previous keyframe of ``sd``'s channel and ``sd``, oldest first;
+    how many of them have no file on disk). Follows the ``prev`` pointers until a keyframe, the scene's
+    start or ``limit`` sweeps (nuScenes' RADAR_FRONT: 6-7 per 0.5 s interval). Absent files (keyframe-only
+    releases such as a mini copy without ``sweeps/``) are counted, not errors; a file that exists but does
+    not read as a radar PCD comes back with ``why`` (the caller skips it in words)."""
+    out, missing, token = [], 0, sd.get("prev", "")
+    while token and len(out) + missing < limit:
+        rec = tables.get("sample_data", token, f"sample_data {sd['token']} (prev pointer)")
+        if rec.get("is_key_frame", False):
+            break
+        token = rec.get("prev", "")
+        path = tables.file(rec)
+        if not path.is_file():
+            missing += 1
+            continue
+        try:
+            pose = tables.T_global_ego(rec)
+            pts, _, _, _ = load_filtered_sweep(path, conf, rec["token"])
+        except DataError as e:
+            out.append(InterSweep(rec["token"], int(rec["timestamp"]), np.full((4, 4), np.nan), np.zeros((0, 3)),
+                                  {}, f"sweep unreadable: {e}"))
+            continue
+        xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=1).astype(np.float64)
+        out.append(InterSweep(rec["token"], int(rec["timestamp"]), pose, xyz,
+                              {n: pts[n] for n in pts.dtype.names or ()}))
+    return out[::-1], missing
+
+
 def _transform_structured(points: np.ndarray, T: np.ndarray) -> np.ndarray:
     """Move a structured radar array's x, y, z (and velocity vectors, z velocity taken as 0) by T."""
     out = points.copy()

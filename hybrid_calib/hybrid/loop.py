@@ -33,7 +33,8 @@ import numpy as np
 
 from hybrid_calib.calib.covariance import analyse_information, inconclusive_status
 from hybrid_calib.calib.drift import DriftConfig, reference_test
-from hybrid_calib.calib.lever_arm import LeverArmConfig, apply_forward, drive_inputs, refusal
+from hybrid_calib.calib.ego_doppler import drive_sweeps
+from hybrid_calib.calib.lever_arm import LeverArmConfig, apply_forward, refusal
 from hybrid_calib.calib.lever_arm import fit as fit_lever_arm
 from hybrid_calib.calib.lidar_alignment import LidarAlignConfig, align, apply_lateral, drive_frames
 from hybrid_calib.calib.lidar_alignment import refusal as lidar_refusal
@@ -334,7 +335,7 @@ def with_doppler(traj: list[FrameEstimate], drive: Drive, frames, conf: HybridCo
     was applied). Sweeps: every frame of the drive after the radar's last mount step (the Doppler does not
     depend on the network's domain); velocities: the motion source's (one Doppler fit per frame)."""
     velocity = motion.velocity if motion is not None else None
-    sweeps, T_ego_cam = drive_inputs(frames, drive.indices[_since_last_step(mon):], velocity)
+    sweeps, T_ego_cam = drive_sweeps(frames, drive.indices[_since_last_step(mon):], velocity, conf.doppler.sweeps)
     if T_ego_cam is None:
         return traj, {"applied": False, "note": "no camera mount (T_ego_cam) in the tables: the ego poses cannot "
                                                 "be carried to the camera"}

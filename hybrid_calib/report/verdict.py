@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hybrid_calib.calib.mount_monitor import tested_words
 from hybrid_calib.calib.result import VehicleResult
 
 DELTA_KEYS = ("rot_x_deg", "rot_y_deg", "rot_z_deg", "t_x_cm", "t_y_cm", "t_z_cm")
@@ -120,7 +121,7 @@ def moved_during_drive(vr: VehicleResult) -> tuple[str, tuple[int, ...]]:
     mount = vr.mount or {}
     tests = "windowed chi-square of the recent frames against the long-run estimate"
     if mount:
-        tests = (f"the radar mount monitor over {mount.get('pairs_tested', 0)} frame pairs (the radar's Doppler "
+        tests = (f"the radar mount monitor over {tested_words(mount)} (the radar's Doppler "
                  f"heading against the vehicle's ego poses), and the window's {tests}")
     if not alarms:
         return f"no: no step alarm over the {len(vr.trajectory)} frames of the drive ({tests})", ()

@@ -43,7 +43,9 @@ class SimConfig:
     seed: int = 0  # master seed; every vehicle / frame derives its own
     frame_interval_s: float = 0.5  # time between keyframes (nuScenes keyframes: 2 Hz)
     radar_offset_ms: tuple[float, float] = (30.0, 50.0)  # |t_radar - t_cam| range, ms (random sign)
-    radar_sweeps_per_frame: int = 0  # extra non-keyframe radar sweeps before each keyframe sweep (0..5)
+    # non-keyframe radar sweeps before each keyframe sweep (0..5): nuScenes' RADAR_FRONT runs at ~13 Hz, 6-7 sweeps
+    # per 0.5 s keyframe interval; the mount monitor and the lever arm pair them (calib.ego_doppler)
+    radar_sweeps_per_frame: int = 5
     radar_sweep_period_ms: float = 1000.0 / 13.0  # radar cycle time (ARS 408: ~13 Hz), ms
     lidar_offset_ms: float = 5.0  # |t_lidar - t_cam| at most, ms
     image_scale: float = 0.5  # camera = nuScenes CAM_FRONT (1600x900) scaled by this

@@ -1,0 +1,81 @@
+"""The radar's sweeps between keyframes (data.sweeps, calib.ego_doppler): read from a root that has them, absent
+from one that does not, a missing or corrupt sweep file said in words, the pairing rule, and the mount monitor
+steadier with them."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hybrid_calib.calib.ego_doppler import EgoSweep, drive_sweeps, partner, sweep_pairs
+
+
+def _sweep(t_s: float | None, k: int = 0) -> EgoSweep:
+    return EgoSweep(None if t_s is None else int(round(t_s * 1e6)), {}, f"s{k}", position=k)
+
+
+def test_each_sweep_pairs_with_the_latest_one_far_enough_back():
+    kf = [_sweep(0.5 * k, k) for k in range(5)]  # a keyframe-only drive: the previous keyframe
+    got = [(a.radar_token, b.radar_token) for a, b in sweep_pairs(kf, 0.4)]
+    assert got == [(f"s{k}", f"s{k + 1}") for k in range(4)]
+    sw = [_sweep(0.077 * k, k) for k in range(20)]  # 13 Hz: the sweep 6 back (0.46 s), every sweep in two pairs
+    pairs = sweep_pairs(sw, 0.4)
+    assert len(pairs) == 14 and all(int(b.radar_token[1:]) - int(a.radar_token[1:]) == 6 for a, b in pairs)
+    assert partner(sw[:3], sw[3], 0.4) is None  # the drive's first sweeps have none
+    barrier = [_sweep(0.0, 0), _sweep(None, 1), _sweep(0.1, 2)]  # an unreadable frame that cannot be placed in time
+    assert partner(barrier[:2], _sweep(0.6, 3), 0.4) is barrier[1]  # the pair across it is skipped, not stretched
+    assert partner(barrier[:1], barrier[1], 0.4) is barrier[0]
+
+
+@pytest.fixture(scope="module")
+def roots(tmp_path_factory):
+    """One 6-frame urban drive with the default 5 non-keyframe sweeps per interval, and the same keyframe-only."""
+    from hybrid_calib.config import merge
+    from hybrid_calib.sim.drive import SimConfig
+    from hybrid_calib.sim.simulate import simulate
+
+    tmp = tmp_path_factory.mktemp("sweeps")
+    base = {"scenario": "urban", "vehicles": 1, "frames": 6, "seed": 5, "image_scale": 0.05}
+    return (simulate(merge(SimConfig, base), tmp / "sweeps", progress=False),
+            simulate(merge(SimConfig, {**base, "radar_sweeps_per_frame": 0}), tmp / "keyframes", progress=False))
+
+
+def test_the_sweeps_between_keyframes_are_read_and_a_keyframe_only_root_has_none(roots):
+    from learned.dataset import open_frames
+
+    frames = open_frames(roots[0], "v1.0-sim", lidar=False)
+    (idx,) = frames.frames_by_vehicle().values()
+    got = frames.radar_sweeps_between(idx[2])
+    t_prev, t_key = frames[idx[1]].timestamp_radar_us, frames[idx[2]].timestamp_radar_us
+    assert len(got) == 5 and all(t_prev < s.timestamp_us < t_key for s in got)
+    assert np.all(np.diff([s.timestamp_us for s in got]) > 60_000)  # oldest first, ~77 ms apart
+    assert all(len(s.points) > 8 and "vx" in s.fields and np.isfinite(s.T_global_ego).all() and not s.why for s in got)
+    assert len(frames.radar_sweeps_between(idx[0])) == 5  # the simulator starts every interval with its sweeps
+    sweeps, T_ego_cam = drive_sweeps(frames, idx)
+    assert T_ego_cam is not None and len(sweeps) == 6 * len(idx)
+    assert [s.position for s in sweeps if s.keyframe] == list(range(len(idx)))
+    assert sum(s.velocity is not None for s in sweeps) >= len(sweeps) - 2
+    kf = open_frames(roots[1], "v1.0-sim", lidar=False)
+    assert all(kf.radar_sweeps_between(i) == [] for i in range(len(kf)))
+    assert len(drive_sweeps(kf, list(range(len(kf))))[0]) == len(kf)
+
+
+def test_a_missing_or_corrupt_sweep_file_is_counted_or_said_not_a_crash(roots, tmp_path):
+    import shutil
+
+    from learned.dataset import open_frames
+
+    root = tmp_path / "root"
+    shutil.copytree(roots[0], root)
+    frames = open_frames(root, "v1.0-sim", lidar=False)
+    (idx,) = frames.frames_by_vehicle().values()
+    names = [frames.tables.get("sample_data", s.token)["filename"] for s in frames.radar_sweeps_between(idx[3])]
+    (root / names[0]).unlink()
+    (root / names[1]).write_bytes(b"not a pcd")
+    frames = open_frames(root, "v1.0-sim", lidar=False)
+    got = frames.radar_sweeps_between(idx[3])
+    assert len(got) == 4 and frames.radar_sweeps_missing == 1
+    bad = [s for s in got if s.why]
+    assert len(bad) == 1 and "sweep unreadable" in bad[0].why and len(bad[0].points) == 0
+    sweeps, _ = drive_sweeps(frames, idx)
+    assert any("sweep unreadable" in s.why and s.velocity is None for s in sweeps)
