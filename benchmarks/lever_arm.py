@@ -64,7 +64,8 @@ def main(argv=None) -> int:
                         need = float(a.h @ xi)
                         row.update(dx_m=float(a.delta[1]), err_m=float(a.delta[1]) - need,
                                    err_raw_m=float(a.delta[1] - xi[RADAR_X]), h=[float(c) for c in a.h],
-                                   std_m=a.dx_std, fit_var=float(a.cov[1, 1]) - conf.systematic_m ** 2,
+                                   std_m=a.dx_std, fit_var=float(a.cov[1, 1]) - a.terms[1] ** 2,
+                                   noise_scale=a.terms[0],
                                    pairs=a.pairs, turning=a.turning,
                                    heading_bias_deg=float(np.degrees(a.delta[0])), applied=not refusal(a, conf))
                     rows.append(row)
@@ -98,7 +99,7 @@ def main(argv=None) -> int:
                               "nees": float(np.mean(z)), "inside_95": float(np.mean(z < 3.841))}
         summary["by_length"] = by_len
         if args.fit:
-            summary["fit"] = _fit(ok, conf)
+            summary["fit"] = _fit(ok)
         per = {}
         for name in sorted({r["root"] for r in rows}):
             sel = [r for r in ok if r["root"] == name]
@@ -118,11 +119,11 @@ def main(argv=None) -> int:
     return 0
 
 
-def _fit(rows: list[dict], conf) -> dict:
-    """(noise_scale, systematic_m) making mean z^2 ~ 1 at every window length (module doc); ``rows`` measured with
-    ``conf.noise_scale`` (their ``fit_var`` scales with it) and any ``systematic_m``."""
+def _fit(rows: list[dict]) -> dict:
+    """(noise_scale, systematic_m) making mean z^2 ~ 1 at every window length (module doc); each row's ``fit_var``
+    scales with the ``noise_scale`` it was measured with (``LeverArmConfig.terms``)."""
     e2 = np.array([r["err_m"] ** 2 for r in rows])
-    v = np.array([r["fit_var"] for r in rows]) / conf.noise_scale
+    v = np.array([r["fit_var"] / r["noise_scale"] for r in rows])
     n = np.array([r["frames"] for r in rows])
     best = None
     for k in np.linspace(0.5, 6.0, 111):

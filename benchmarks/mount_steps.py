@@ -3,6 +3,7 @@ no change, and detection delay against the size of a yaw knock.
 
     PYTHONPATH=. .venv/bin/python benchmarks/mount_steps.py --out OUT [--seed 7001] [--frames 100]
         [--vehicles 3] [--scenarios urban highway rain straight] [--rot 0.25 0.5 1 2] [--set floor_deg=0.2 ...]
+        [--sim-set radar_sweeps_per_frame=0 ...]
 
 Per scenario, simulated at ``--image-scale`` (the monitor reads no image; reused when present):
 one root of ``--vehicles`` drives with no change, and one per step size whose radar turns by that
@@ -49,7 +50,9 @@ def monitor_root(root: Path, conf, step_at: int | None, kind: str, size: float, 
                                                           for r in readings),
              "pairs": len(mon.series), "frames": len(idx), "measured_steps_deg": [s.step_deg for s in mon.steps],
              "levels": mon.levels(),  # the noise scale of the pairs before any change (all of them: unchanged drive)
-             "scale_deg": float(mon.scale(np.array([y for p, y in mon.series if step_at is None or p < step_at])))}
+             "scale_deg": float(mon.scale(np.array([y for p, y in mon.series if step_at is None or p < step_at]),
+                                          float(np.median(mon.pairs)) if mon.pairs else 1.0)),
+             "pairs_per_frame": float(np.median(mon.pairs)) if mon.pairs else 0.0}
         if step_at is None:
             r["false_alarms"] = len(alarms)
         else:
@@ -79,13 +82,15 @@ def main(argv=None) -> int:
     ap.add_argument("--image-scale", type=float, default=0.05)
     ap.add_argument("--workers", type=int, default=2, help="simulation processes")
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="MountMonitorConfig overrides")
+    ap.add_argument("--sim-set", nargs="*", default=[], metavar="KEY=VALUE",
+                    help="SimConfig overrides of the simulated drives (e.g. radar_sweeps_per_frame=0)")
     a = ap.parse_args(argv)
     conf = merge(MountMonitorConfig, parse_overrides(a.set))
     step_at, rows, t0 = a.frames // 2, [], time.perf_counter()
     for si, scen in enumerate(a.scenarios):
         for ki, size in enumerate([0.0, *a.rot]):
             o = {"scenario": scen, "vehicles": a.vehicles, "frames": a.frames, "seed": a.seed + 10 * si + ki,
-                 "image_scale": a.image_scale}
+                 "image_scale": a.image_scale, **parse_overrides(a.sim_set)}
             if size:
                 o["extrinsic_change"] = {"kind": "step", "rotation_deg": (0.0, 0.0, size),
                                          "translation_m": (0.0, 0.0, 0.0)}

@@ -38,7 +38,7 @@ def _drive(g: np.random.Generator, n: int = 120, turn_dps: float = 9.0, speed: f
         v_ego = np.array([speed, 0.0, 0.0]) + np.cross([0.0, 0.0, omega(k * dt)], T_EGO_RADAR[:3, 3])
         v = (T_EGO_RADAR[:3, :3].T @ v_ego)[:2] + noise_mps * g.standard_normal(2)
         sweeps.append(EgoSweep(int(k * dt * 1e6), {"T_global_ego_radar": T}, f"s{k}",
-                               RadarVelocity(v, np.eye(2) * noise_mps ** 2, 40, 50, 0.1)))
+                               RadarVelocity(v, np.eye(2) * noise_mps ** 2, 40, 50, 0.1), position=k))
         for j in range(sub):  # the rear axle's path (midpoint rule)
             h = dt / sub
             mid = yaw + 0.5 * h * omega(k * dt + (j + 0.5) * h)
@@ -67,7 +67,7 @@ def test_a_straight_road_cannot_tell_and_says_so():
     a, why = fit(sweeps, X_TRUE, T_EGO_CAM)
     assert a is not None and a.turning == 0 and a.dx_std > LeverArmConfig().max_std_m, a
     words = describe(a.record(False, refusal(a)))
-    assert "0 turning" in words and "not applied: 0 sweep pairs in turns (need 20)" in words, words
+    assert "0 frames turning" in words and "not applied: 0 frames in turns (need 20)" in words, words
     assert refusal(a, LeverArmConfig(min_turning=0)).startswith("std ")
 
 
@@ -151,7 +151,7 @@ def test_the_hybrid_folds_it_into_the_last_estimate_only_when_the_drive_turns():
         if applied:
             assert err < 3 * block["dx_std_m"] < 0.2 and out[-1].cov[RADAR_X, RADAR_X] < 0.1 * cov[RADAR_X, RADAR_X]
         else:
-            assert out[-1] is traj[-1] and "pairs in turns" in block["note"]
+            assert out[-1] is traj[-1] and "frames in turns" in block["note"]
 
 
 def test_non_finite_poses_velocities_and_mounts_are_refused_in_words():

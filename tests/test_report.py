@@ -186,11 +186,11 @@ def test_the_doppler_lever_arm_is_said_in_words():
     vr = _vr((0,) * 6, (0.01,) * 6)
     assert doppler_html(vr) == "" and "Doppler" not in status_html(vr)
     vr.doppler = {"applied": True, "dx_m": 0.123, "dx_std_m": 0.051, "pairs": 198, "turning": 71}
-    assert "+12.3 +- 5.1 cm" in status_html(vr) and "198 sweep pairs, 71 turning" in doppler_html(vr)
+    assert "+12.3 +- 5.1 cm" in status_html(vr) and "198 sweep pairs, 71 frames turning" in doppler_html(vr)
     assert "applied: the camera-z translation" in doppler_html(vr)
     vr.doppler = {"applied": False, "dx_m": 0.4, "dx_std_m": 1.2, "pairs": 199, "turning": 0,
-                  "note": "0 sweep pairs in turns (need 20): the lever arm shows only while the vehicle turns"}
-    assert "not applied: 0 sweep pairs in turns (need 20)" in doppler_html(vr)
+                  "note": "0 frames in turns (need 20): the lever arm shows only while the vehicle turns"}
+    assert "not applied: 0 frames in turns (need 20)" in doppler_html(vr)
 
 
 def test_fleet_page_links_vehicle_reports_and_names_the_flagged(run_dir, tmp_path):

@@ -70,8 +70,8 @@ class LeverArmConfig:
     huber: float = 1.345  # Huber threshold, in robust residual scales
     iterations: int = 4  # Gauss-Newton steps
     min_pairs: int = 10  # fewer usable pairs: no fit
-    # fewer pairs in turns (``turn_dps``): the fit is reported, not applied (30-frame windows with fewer reached
-    # 3.8 sigma; chosen on validation and test windows together: docs/benchmarks.md)
+    # fewer frames in turns (with a pair turning at least ``turn_dps``): the fit is reported, not applied
+    # (30-frame windows with fewer reached 3.8 sigma; chosen on validation and test windows together: docs)
     min_turning: int = 20
     # the fit's covariance: noise_scale x (robust scale)^2 x (J^T W J)^-1, plus systematic_m^2 on rho_x; both
     # fitted together on validation drives 9105-9108, 9110, 9119 at 30-200 frames (benchmarks/lever_arm.py
@@ -79,6 +79,9 @@ class LeverArmConfig:
     # wanders with the scene), which the first factor carries, and a drive-common part, which the second does
     noise_scale: float = 1.7
     systematic_m: float = 0.0325  # m
+    # the same two terms for fits over the non-keyframe sweeps' pairs too (more than 2 pairs per frame)
+    sweep_noise_scale: float = 1.7
+    sweep_systematic_m: float = 0.0325  # m
     max_std_m: float = 0.10  # a fit less certain than this is not applied (reported only), m
     coupling_deg: float = 0.5  # step of the central differences along the estimate's rotation, deg (0: none)
     coupling_m: float = 0.05  # ... and along its translation, m
@@ -87,8 +90,9 @@ class LeverArmConfig:
         if not (self.min_speed_mps >= 0 and self.max_gap_s > 0 and self.max_turn_dps > 0 and self.turn_dps >= 0
                 and 0 < self.pair_dt_s < self.max_gap_s and self.huber > 0 and self.iterations >= 1
                 and self.min_pairs >= 3 and self.min_turning >= 0
-                and self.noise_scale > 0
-                and self.systematic_m >= 0 and self.max_std_m > 0 and self.coupling_deg >= 0
+                and min(self.noise_scale, self.sweep_noise_scale) > 0
+                and min(self.systematic_m, self.sweep_systematic_m) >= 0 and self.max_std_m > 0
+                and self.coupling_deg >= 0
                 and self.coupling_m >= 0):
             raise ValueError(f"LeverArmConfig: need min_speed_mps >= 0, max_gap_s > 0, max_turn_dps > 0, "
                              f"turn_dps >= 0, 0 < pair_dt_s < max_gap_s, huber > 0, iterations >= 1, min_pairs >= 3, "
@@ -97,12 +101,21 @@ class LeverArmConfig:
                              f"systematic_m >= 0, max_std_m > 0 and coupling steps >= 0 (got {self})")
 
 
+    def terms(self, pairs_per_frame: float) -> tuple[float, float]:
+        """(noise_scale, systematic_m) of a fit with ``pairs_per_frame`` pairs per keyframe interval: the keyframes'
+        (about one) or, above two, the non-keyframe sweeps' (``sweep_*``: their pairs overlap otherwise)."""
+        if pairs_per_frame > 2.0:
+            return self.sweep_noise_scale, self.sweep_systematic_m
+        return self.noise_scale, self.systematic_m
+
+
 @dataclass(frozen=True)
 class LeverArm:
     """delta: (2,) [rotation about radar z rad, rho_x m] of the right perturbation of the estimate it was
-    measured at. cov: (2, 2) (the fit's, ``systematic_m^2`` added to rho_x). pairs: pairs used; turning:
-    of them, those turning at least ``turn_dps``. scale: the residuals' robust scale, rad. h: (6,) the
-    row of the module doc (``rho_x = h @ xi``; zeros but ``h[3] = 1`` when the coupling is not computed).
+    measured at. cov: (2, 2) (the fit's, ``systematic_m^2`` added to rho_x). pairs: pairs used; turning: the
+    frames (keyframe intervals, ``EgoSweep.position``) with a pair turning at least ``turn_dps``. scale: the
+    residuals' robust scale, rad. h: (6,) the row of the module doc (``rho_x = h @ xi``; zeros but ``h[3] = 1``
+    when the coupling is not computed).
     skipped: {reason: count} of the pairs left out."""
 
     delta: np.ndarray
@@ -112,6 +125,7 @@ class LeverArm:
     scale: float
     h: np.ndarray = field(default_factory=lambda: np.eye(6)[RADAR_X])
     skipped: dict = field(default_factory=dict)
+    terms: tuple[float, float] = (1.0, 0.0)  # the (noise_scale, systematic_m) its covariance was built with
 
     @property
     def dx_std(self) -> float:
@@ -126,8 +140,9 @@ class LeverArm:
 
 
 def _measurements(sweeps: list[EgoSweep], R: np.ndarray, conf: LeverArmConfig) -> tuple[list, list, dict]:
-    """(the pairs' ``MotionMeasurement`` at the mount rotation ``R`` (3, 3), their time spans s, {reason: [count,
-    first example]} of those skipped; the reason is the example's words before its first number)."""
+    """(the pairs' ``MotionMeasurement`` at the mount rotation ``R`` (3, 3), their (time span s, drive position of
+    the later sweep), {reason: [count, first example]} of those skipped; the reason is the example's words before
+    its first number)."""
     ms, dts, skipped = [], [], {}
     for a, b in sweep_pairs(sweeps, conf.pair_dt_s):
         why = pair_skip(a, b)
@@ -140,13 +155,14 @@ def _measurements(sweeps: list[EgoSweep], R: np.ndarray, conf: LeverArmConfig) -
             skipped.setdefault(key, [0, why])[0] += 1
         else:
             ms.append(m)
-            dts.append((b.timestamp_radar_us - a.timestamp_radar_us) * 1e-6)
+            dts.append(((b.timestamp_radar_us - a.timestamp_radar_us) * 1e-6, b.position))
     return ms, dts, skipped
 
 
 def _solve(ms: list, M: np.ndarray, conf: LeverArmConfig) -> tuple[np.ndarray, np.ndarray, float, np.ndarray] | None:
     """(delta (2,), cov (2, 2) without the drive-common term, robust scale rad, per-pair turn angle rad) of the
-    fit at mount ``M``, or None when fewer than ``min_pairs`` pairs give a finite residual."""
+    fit at mount ``M`` (the fit's own: without ``noise_scale``), or None when fewer than ``min_pairs`` pairs give a
+    finite residual."""
     d = np.zeros(2)
     for _ in range(conf.iterations + 1):
         xi = np.zeros(6)
@@ -164,7 +180,7 @@ def _solve(ms: list, M: np.ndarray, conf: LeverArmConfig) -> tuple[np.ndarray, n
         H = (J * w[:, None]).T @ J
         if _ < conf.iterations:
             d = d - np.linalg.lstsq(H, (J * w[:, None]).T @ r, rcond=None)[0]
-    cov = conf.noise_scale * scale ** 2 * np.linalg.pinv(H)
+    cov = scale ** 2 * np.linalg.pinv(H)
     if np.linalg.cond(H) > 1e12:  # no turn at all: rho_x is not observed
         cov[1, 1] = max(cov[1, 1], 1e6)
     turn = np.array([np.linalg.norm(so3_log(m.R_A)) for m in ms])
@@ -188,9 +204,12 @@ def fit(sweeps: list[EgoSweep], X: np.ndarray, T_ego_cam: np.ndarray, conf: Leve
         return None, (f"fewer than {conf.min_pairs} of the {len(ms)} usable sweep pairs give a finite residual (a "
                       f"Doppler velocity or ego pose without a direction)")
     d, cov, scale, turn = solved
-    cov[1, 1] += conf.systematic_m ** 2
-    turning = int(np.sum(turn / np.asarray(dts) >= np.radians(conf.turn_dps)))
-    out = LeverArm(d, cov, len(ms), turning, scale, skipped={k: v[0] for k, v in skipped.items()})
+    dt, where = np.array([x[0] for x in dts]), np.array([x[1] for x in dts])
+    k, s = conf.terms(len(ms) / max(len(set(where)), 1))
+    cov = k * cov
+    cov[1, 1] += s ** 2
+    turning = len(set(where[turn / dt >= np.radians(conf.turn_dps)]))
+    out = LeverArm(d, cov, len(ms), turning, scale, skipped={k: v[0] for k, v in skipped.items()}, terms=(k, s))
     if conf.coupling_deg <= 0 and conf.coupling_m <= 0:
         return out, ""
     # What rho_x measures (module doc): -d rho_x / d (a right perturbation of the estimate), each direction
@@ -214,9 +233,9 @@ def fit(sweeps: list[EgoSweep], X: np.ndarray, T_ego_cam: np.ndarray, conf: Leve
 
 
 def refusal(a: LeverArm, conf: LeverArmConfig = LeverArmConfig()) -> str:
-    """Why a fit is reported but not applied ("" when it is applied): too few pairs in turns, or too uncertain."""
+    """Why a fit is reported but not applied ("" when it is applied): too few frames in turns, or too uncertain."""
     if a.turning < conf.min_turning:
-        return (f"{a.turning} sweep pairs in turns (need {conf.min_turning}): the lever arm shows only while the "
+        return (f"{a.turning} frames in turns (need {conf.min_turning}): the lever arm shows only while the "
                 f"vehicle turns")
     if a.dx_std > conf.max_std_m:
         return f"std {a.dx_std * 100:.1f} cm > max_std_m {conf.max_std_m * 100:g} cm"
@@ -236,5 +255,5 @@ def describe(block: dict) -> str:
         return f"not run: {block.get('note', '')}"
     words = (f"radar forward offset {block['dx_m'] * 100:+.1f} +- {block['dx_std_m'] * 100:.1f} cm from the loop's "
              f"estimate (Doppler in turns against the ego poses: {block['pairs']} sweep pairs, {block['turning']} "
-             f"turning)")
+             f"frames turning)")
     return words + ("; applied" if block["applied"] else f"; not applied: {block.get('note', '')}")
