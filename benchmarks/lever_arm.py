@@ -69,7 +69,7 @@ def main(argv=None) -> int:
                                    pairs=a.pairs, turning=a.turning,
                                    heading_bias_deg=float(np.degrees(a.delta[0])), applied=not refusal(a, conf))
                     rows.append(row)
-                    print(f"{root.name}/{vehicle} frames {off}-{off + len(sweeps) - 1} trial {t}: start dx "
+                    print(f"{root.name}/{vehicle} frames {off}-{off + row['frames'] - 1} trial {t}: start dx "
                           f"{xi[RADAR_X]:+.3f} m -> " + (f"error {row['err_m']:+.3f} m (std {row['std_m']:.3f}, "
                                                           f"{a.pairs} pairs, {a.turning} turning)" if a else why),
                           flush=True)
