@@ -27,10 +27,11 @@ def _rz(a: float) -> np.ndarray:
 
 
 def _drive(g: np.random.Generator, n: int = 120, turn_dps: float = 9.0, speed: float = 9.0,
-           noise_mps: float = 0.03) -> list[EgoSweep]:
-    """Keyframes 0.5 s apart on a winding road (turn rate ``turn_dps`` sin(2 pi t / 20 s)); the radar's
-    Doppler velocity (its own frame) with ``noise_mps`` of noise per axis."""
-    sweeps, pos, yaw, dt, sub = [], np.zeros(3), 0.0, 0.5, 50
+           noise_mps: float = 0.03, per_frame: int = 1) -> list[EgoSweep]:
+    """Keyframes 0.5 s apart on a winding road (turn rate ``turn_dps`` sin(2 pi t / 20 s)), each with
+    ``per_frame - 1`` sweeps before it (``n`` sweeps in all); the radar's Doppler velocity (its own frame) with
+    ``noise_mps`` of noise per axis."""
+    sweeps, pos, yaw, dt, sub = [], np.zeros(3), 0.0, 0.5 / per_frame, 50
     omega = lambda t: np.radians(turn_dps) * np.sin(2 * np.pi * t / 20.0)  # noqa: E731
     for k in range(n):
         T = np.eye(4)
@@ -38,7 +39,8 @@ def _drive(g: np.random.Generator, n: int = 120, turn_dps: float = 9.0, speed: f
         v_ego = np.array([speed, 0.0, 0.0]) + np.cross([0.0, 0.0, omega(k * dt)], T_EGO_RADAR[:3, 3])
         v = (T_EGO_RADAR[:3, :3].T @ v_ego)[:2] + noise_mps * g.standard_normal(2)
         sweeps.append(EgoSweep(int(k * dt * 1e6), {"T_global_ego_radar": T}, f"s{k}",
-                               RadarVelocity(v, np.eye(2) * noise_mps ** 2, 40, 50, 0.1), position=k))
+                               RadarVelocity(v, np.eye(2) * noise_mps ** 2, 40, 50, 0.1), position=k // per_frame,
+                               keyframe=(k + 1) % per_frame == 0))
         for j in range(sub):  # the rear axle's path (midpoint rule)
             h = dt / sub
             mid = yaw + 0.5 * h * omega(k * dt + (j + 0.5) * h)
@@ -60,6 +62,20 @@ def test_the_forward_offset_is_recovered_from_turns_whatever_the_yaw_error():
     assert abs(a.delta[1] - 0.30) < 0.05 and a.turning > 40 and a.pairs == len(sweeps) - 1 and not refusal(a)
     # the yaw error is the fit's other parameter, not an offset
     assert abs(np.degrees(a.delta[0]) + 0.3) < 0.1
+
+
+def test_the_sweeps_between_keyframes_pair_with_their_own_terms_and_narrow_the_fit():
+    sweeps = _drive(np.random.default_rng(7), n=6 * 60, per_frame=6)  # 60 frames of 6 sweeps, 83 ms apart
+    keyframes = [s for s in sweeps if s.keyframe]
+    start = X_TRUE @ se3_exp(np.array([0.0, 0.0, 0.0, -0.30, 0.0, 0.0]))
+    conf = LeverArmConfig()
+    a, _ = fit(sweeps, start, T_EGO_CAM, conf)
+    b, _ = fit(keyframes, start, T_EGO_CAM, conf)
+    assert a.terms == (conf.sweep_noise_scale, conf.sweep_systematic_m) and b.terms == (conf.noise_scale,
+                                                                                         conf.systematic_m)
+    assert a.pairs > 5 * b.pairs and a.turning <= 60 and abs(a.turning - b.turning) <= 3  # turning counts frames
+    xi = local(start, X_TRUE)
+    assert abs(a.delta[1] - a.h @ xi) < 3 * a.dx_std < 3 * b.dx_std, (a.delta, a.dx_std, b.dx_std)
 
 
 def test_a_straight_road_cannot_tell_and_says_so():
