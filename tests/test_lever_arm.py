@@ -90,7 +90,7 @@ def test_a_straight_road_cannot_tell_and_says_so():
 def test_too_few_pairs_and_slow_pairs_are_refused_with_the_reason():
     sweeps = _drive(np.random.default_rng(2), n=8)
     a, why = fit(sweeps, X_TRUE, T_EGO_CAM)
-    assert a is None and "7 usable sweep pairs (need 10)" in why
+    assert a is None and "7 usable sweep pairs in 7 frames (need 10 of each)" in why
     slow = _drive(np.random.default_rng(2), n=30, speed=1.0)
     a, why = fit(slow, X_TRUE, T_EGO_CAM)
     assert a is None and "skipped 29 pairs: radar speed 1.0 m/s (need 2)" in why, why

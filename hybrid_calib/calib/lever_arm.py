@@ -72,7 +72,7 @@ class LeverArmConfig:
     pair_dt_s: float = 0.4  # a sweep's partner is the latest sweep at least this much earlier, s
     huber: float = 1.345  # Huber threshold, in robust residual scales
     iterations: int = 4  # Gauss-Newton steps
-    min_pairs: int = 10  # fewer usable pairs: no fit
+    min_pairs: int = 10  # fewer usable pairs, or fewer frames they end in: no fit
     # fewer frames in turns (with a pair turning at least ``turn_dps``): the fit is reported, not applied
     # (30-frame windows with fewer reached 3.8 sigma; chosen on validation and test windows together: docs)
     min_turning: int = 20
@@ -202,9 +202,12 @@ def fit(sweeps: list[EgoSweep], X: np.ndarray, T_ego_cam: np.ndarray, conf: Leve
     if M.shape != (4, 4) or not np.isfinite(M).all():
         return None, "the estimate or the tables' camera mount (T_ego_cam) is not a finite 4x4 transform"
     ms, dts, skipped = _measurements(sweeps, M[:3, :3], conf)
-    if len(ms) < conf.min_pairs:
+    where = [x[1] for x in dts]  # a sweep without a drive position (-1: built by hand) is a frame of its own
+    frames = len(set(where)) if min(where, default=0) >= 0 else len(ms)
+    if min(len(ms), frames) < conf.min_pairs:
         top = "; ".join(f"{n} pairs: {why}" for n, why in sorted(skipped.values(), key=lambda v: -v[0])[:2])
-        return None, f"{len(ms)} usable sweep pairs (need {conf.min_pairs})" + (f"; skipped {top}" if top else "")
+        return None, (f"{len(ms)} usable sweep pairs in {frames} frames (need {conf.min_pairs} of each)"
+                      + (f"; skipped {top}" if top else ""))
     solved = _solve(ms, M, conf)
     if solved is None:
         return None, (f"fewer than {conf.min_pairs} of the {len(ms)} usable sweep pairs give a finite residual (a "
