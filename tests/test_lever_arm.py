@@ -160,7 +160,8 @@ def test_the_hybrid_folds_it_into_the_last_estimate_only_when_the_drive_turns():
     for turn, applied in ((9.0, True), (0.0, False)):
         sweeps = _drive(np.random.default_rng(5), n=80, turn_dps=turn)
         drive = Drive("v", list(range(80)), X_TRUE, X_TRUE, True)
-        motion = SimpleNamespace(velocity=lambda i, s=sweeps: (s[i].velocity, ""))  # the loop's motion source
+        # the loop's motion source: its velocities and its sweep cache
+        motion = SimpleNamespace(velocity=lambda i, s=sweeps: (s[i].velocity, ""), sweeps={})
         out, block = with_doppler(traj, drive, _Frames(sweeps), conf, None, motion)
         assert block["applied"] is applied and len(out) == 3 and out[:2] == traj[:2], block
         err = abs(local(out[-1].T, X_TRUE)[RADAR_X])

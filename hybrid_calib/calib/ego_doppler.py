@@ -22,6 +22,7 @@ keyframe on a dataset that cannot name it) is a barrier: the pair that would rea
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -113,12 +114,26 @@ def sweep_pairs(sweeps: Sequence[EgoSweep], pair_dt_s: float) -> list[tuple[EgoS
 
 
 def frame_sweeps(frames, index: int, position: int, velocity: Callable[[int], tuple] | None = None,
-                 between: bool = True) -> tuple[list[EgoSweep], object | None]:
+                 between: bool = True, cache: dict | None = None) -> tuple[list[EgoSweep], np.ndarray | None]:
     """(the sweeps of the keyframe interval ending at dataset ``index``, oldest first, the keyframe sweep last;
-    the frame, or None when it is unreadable). ``between``: include the non-keyframe sweeps when ``frames``
-    offers them (``radar_sweeps_between``, the nuScenes dataset's). velocity: dataset index -> (``RadarVelocity``
-    | None, why) for the keyframe (the hybrid passes its motion source's); default ``estimate_velocity`` of the
-    frame; the non-keyframe sweeps always get their own."""
+    the tables' ``T_ego_cam`` (4, 4) of the frame, or None when it is unreadable or has none). ``between``:
+    include the non-keyframe sweeps when ``frames`` offers them (``radar_sweeps_between``, the nuScenes
+    dataset's). velocity: dataset index -> (``RadarVelocity`` | None, why) for the keyframe (the hybrid passes
+    its motion source's); default ``estimate_velocity`` of the frame; the non-keyframe sweeps always get their
+    own. cache: a dict kept across calls (the hybrid's motion source's), so that the mount monitor and the lever
+    arm read and fit each sweep once."""
+    key = (index, between)
+    if cache is not None and key in cache:
+        sweeps, T_ego_cam = cache[key]
+        return [s if s.position == position else dataclasses.replace(s, position=position) for s in sweeps], T_ego_cam
+    sweeps, T_ego_cam = _read_frame_sweeps(frames, index, position, velocity, between)
+    if cache is not None:
+        cache[key] = (sweeps, T_ego_cam)
+    return list(sweeps), T_ego_cam
+
+
+def _read_frame_sweeps(frames, index: int, position: int, velocity, between: bool
+                       ) -> tuple[list[EgoSweep], np.ndarray | None]:
     out = []
     if between and hasattr(frames, "radar_sweeps_between"):
         for s in frames.radar_sweeps_between(index):
@@ -137,17 +152,17 @@ def frame_sweeps(frames, index: int, position: int, velocity: Callable[[int], tu
     pose = f.extras.get("T_global_ego_radar")
     out.append(EgoSweep(int(f.timestamp_radar_us), {"T_global_ego_radar": pose}, f.radar_token,
                         v if pose is not None else None, why if pose is not None else "no ego pose", position))
-    return out, f
+    T_ego_cam = f.extras.get("T_ego_cam")
+    return out, None if T_ego_cam is None else np.asarray(T_ego_cam, np.float64)
 
 
-def drive_sweeps(frames, indices, velocity: Callable[[int], tuple] | None = None, between: bool = True
-                 ) -> tuple[list[EgoSweep], np.ndarray | None]:
+def drive_sweeps(frames, indices, velocity: Callable[[int], tuple] | None = None, between: bool = True,
+                 cache: dict | None = None) -> tuple[list[EgoSweep], np.ndarray | None]:
     """(the sweeps of dataset ``indices`` in drive order (``frame_sweeps`` of each), the tables' ``T_ego_cam``
     (4, 4) of the first readable frame or None)."""
     sweeps, T_ego_cam = [], None
     for k, i in enumerate(indices):
-        got, f = frame_sweeps(frames, i, k, velocity, between)
+        got, T = frame_sweeps(frames, i, k, velocity, between, cache)
         sweeps += got
-        if T_ego_cam is None and f is not None and f.extras.get("T_ego_cam") is not None:
-            T_ego_cam = np.asarray(f.extras["T_ego_cam"], np.float64)
+        T_ego_cam = T if T_ego_cam is None else T_ego_cam
     return sweeps, T_ego_cam

@@ -144,6 +144,7 @@ class MountMonitor:
     T_ego_radar: np.ndarray
     conf: MountMonitorConfig = MountMonitorConfig()
     velocity: Callable[[int], tuple] | None = None
+    sweep_cache: dict | None = None  # ``calib.ego_doppler.frame_sweeps``' cache (the hybrid's motion source's)
     series: list[tuple[int, float]] = field(default_factory=list)  # (position, reading deg) of the tested frames
     pairs: list[int] = field(default_factory=list)  # sweep pairs behind each reading of ``series``
     steps: list[MountStep] = field(default_factory=list)
@@ -171,7 +172,7 @@ class MountMonitor:
         """Feed the frame at drive ``position`` (dataset ``index``): the pairs ending at the sweeps of its keyframe
         interval (``calib.ego_doppler``: each sweep and its partner ``pair_dt_s`` or more before it), their
         median as the reading. Skipped, with the keyframe pair's reason, when none of them gives a residual."""
-        sweeps, _ = frame_sweeps(self.frames, index, position, self.velocity, self.conf.sweeps)
+        sweeps, _ = frame_sweeps(self.frames, index, position, self.velocity, self.conf.sweeps, self.sweep_cache)
         ys, why = [], ""
         for b in sweeps:
             a = partner(self._history, b, self.conf.pair_dt_s)

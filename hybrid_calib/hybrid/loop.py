@@ -334,8 +334,9 @@ def with_doppler(traj: list[FrameEstimate], drive: Drive, frames, conf: HybridCo
     into its last estimate, and the result's ``doppler`` block (what was measured, and whether and why not it
     was applied). Sweeps: every frame of the drive after the radar's last mount step (the Doppler does not
     depend on the network's domain); velocities: the motion source's (one Doppler fit per frame)."""
-    velocity = motion.velocity if motion is not None else None
-    sweeps, T_ego_cam = drive_sweeps(frames, drive.indices[_since_last_step(mon):], velocity, conf.doppler.sweeps)
+    velocity, cache = (motion.velocity, motion.sweeps) if motion is not None else (None, None)
+    sweeps, T_ego_cam = drive_sweeps(frames, drive.indices[_since_last_step(mon):], velocity, conf.doppler.sweeps,
+                                     cache)
     if T_ego_cam is None:
         return traj, {"applied": False, "note": "no camera mount (T_ego_cam) in the tables: the ego poses cannot "
                                                 "be carried to the camera"}
@@ -526,7 +527,8 @@ def mount_monitor(frames, drive: Drive, conf: HybridConfig, motion: MotionSource
     source's (``conf.motion.velocity``, each frame's fitted once for both)."""
     if conf.method != "hybrid" or not conf.mount.enabled or frames is None or drive.ego_radar is None:
         return None
-    return MountMonitor(frames, drive.ego_radar, conf.mount, (motion or MotionSource(frames, conf.motion)).velocity)
+    src = motion or MotionSource(frames, conf.motion)
+    return MountMonitor(frames, drive.ego_radar, conf.mount, src.velocity, src.sweeps)
 
 
 def _run_learned(runner, drive, T0, conf, tr, motion, frames):

@@ -97,6 +97,9 @@ class MotionSource:
     conf: MotionConfig = MotionConfig()
     cache_dir: str = ""
     _velocity: dict = field(default_factory=dict)
+    # the frames' radar sweeps (``calib.ego_doppler.frame_sweeps``' cache): the mount monitor and the lever arm
+    # read and fit each sweep once
+    sweeps: dict = field(default_factory=dict)
 
     def _frame(self, i: int):
         return self.frames[i]
