@@ -214,7 +214,7 @@ def fit(sweeps: list[EgoSweep], X: np.ndarray, T_ego_cam: np.ndarray, conf: Leve
                       f"Doppler velocity or ego pose without a direction)")
     d, cov, scale, turn = solved
     dt, where = np.array([x[0] for x in dts]), np.array([x[1] for x in dts])
-    k, s = conf.terms(len(ms) / max(len(set(where)), 1))
+    k, s = conf.terms(len(ms) / max(frames, 1))
     cov = k * cov
     cov[1, 1] += s ** 2
     turning = len(set(where[turn / dt >= np.radians(conf.turn_dps)]))
