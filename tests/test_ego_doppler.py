@@ -79,3 +79,37 @@ def test_a_missing_or_corrupt_sweep_file_is_counted_or_said_not_a_crash(roots, t
     assert len(bad) == 1 and "sweep unreadable" in bad[0].why and len(bad[0].points) == 0
     sweeps, _ = drive_sweeps(frames, idx)
     assert any("sweep unreadable" in s.why and s.velocity is None for s in sweeps)
+
+
+def test_a_broken_sweep_record_is_said_and_the_drive_goes_on(roots, tmp_path):
+    """A ``prev`` pointer that resolves to nothing and a file name that leaves the root: each sweep is named with
+    why, the walk keeps what it read, and the drive's other sweeps (and frames) still pair."""
+    import json
+    import shutil
+
+    from hybrid_calib.calib.ego_doppler import pair_skip
+    from learned.dataset import open_frames
+
+    root = tmp_path / "root"
+    shutil.copytree(roots[0], root)
+    frames = open_frames(root, "v1.0-sim", lidar=False)
+    (idx,) = frames.frames_by_vehicle().values()
+    broken, escapes = frames.radar_sweeps_between(idx[2])[2].token, frames.radar_sweeps_between(idx[4])[1].token
+    table = root / "v1.0-sim" / "sample_data.json"
+    records = json.loads(table.read_text())
+    for r in records:
+        if r["token"] == broken:
+            r["prev"] = "no-such-token"
+        if r["token"] == escapes:
+            r["filename"] = "sweeps/RADAR_FRONT/../../../etc/passwd"
+    table.write_text(json.dumps(records))
+    frames = open_frames(root, "v1.0-sim", lidar=False)
+    got = frames.radar_sweeps_between(idx[2])
+    assert len(got) == 4 and got[0].timestamp_us is None and "no-such-token" in got[0].why  # the 3 after the break
+    assert all(not s.why for s in got[1:])
+    got = frames.radar_sweeps_between(idx[4])
+    assert len(got) == 5 and "leaves the root" in got[1].why and got[1].timestamp_us is not None
+    sweeps, _ = drive_sweeps(frames, idx)
+    skips = [pair_skip(a, b) for a, b in sweep_pairs(sweeps, 0.4)]
+    assert sum("no-such-token" in s for s in skips) >= 1 and sum("leaves the root" in s for s in skips) >= 1
+    assert sum(s == "" for s in skips) >= len(skips) - 12  # one bad record costs the pairs that touch it

@@ -205,7 +205,8 @@ def fit(sweeps: list[EgoSweep], X: np.ndarray, T_ego_cam: np.ndarray, conf: Leve
     where = [x[1] for x in dts]  # a sweep without a drive position (-1: built by hand) is a frame of its own
     frames = len(set(where)) if min(where, default=0) >= 0 else len(ms)
     if min(len(ms), frames) < conf.min_pairs:
-        top = "; ".join(f"{n} pairs: {why}" for n, why in sorted(skipped.values(), key=lambda v: -v[0])[:2])
+        worst = sorted(skipped.values(), key=lambda v: -v[0])[:2]
+        top = "; ".join(f"{n} pair{'' if n == 1 else 's'}: {why}" for n, why in worst)
         return None, (f"{len(ms)} usable sweep pairs in {frames} frames (need {conf.min_pairs} of each)"
                       + (f"; skipped {top}" if top else ""))
     solved = _solve(ms, M, conf)

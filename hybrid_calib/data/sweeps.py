@@ -129,7 +129,7 @@ class InterSweep:
     ``points`` empty) when its file could not be read: the sweep is then named but carries nothing."""
 
     token: str
-    timestamp_us: int
+    timestamp_us: int | None  # None: a record that could not be resolved (a broken ``prev`` pointer)
     T_global_ego: np.ndarray
     points: np.ndarray
     fields: dict
@@ -142,18 +142,24 @@ def sweeps_between_keyframes(tables: NuScenesTables, sd: dict, conf: RadarFilter
     how many of them have no file on disk). Follows the ``prev`` pointers until a keyframe, the scene's
     start or ``limit`` sweeps (nuScenes' RADAR_FRONT: 6-7 per 0.5 s interval). Absent files (keyframe-only
     releases such as a mini copy without ``sweeps/``) are counted, not errors; a file that exists but does
-    not read as a radar PCD comes back with ``why`` (the caller skips it in words)."""
-    out, missing, token = [], 0, sd.get("prev", "")
+    not read as a radar PCD, or a record whose file name or ego pose is broken, comes back with ``why`` (the
+    caller skips it in words). A ``prev`` pointer that does not resolve ends the walk with such an entry, its
+    time unknown (``timestamp_us`` None): the sweeps after it are kept, one bad record never stops a drive."""
+    out, missing, token, newer = [], 0, sd.get("prev", ""), sd
     while token and len(out) + missing < limit:
-        rec = tables.get("sample_data", token, f"sample_data {sd['token']} (prev pointer)")
+        try:
+            rec = tables.get("sample_data", token, f"sample_data {newer['token']} (prev pointer)")
+        except DataError as e:
+            out.append(InterSweep(token, None, np.full((4, 4), np.nan), np.zeros((0, 3)), {}, f"sweep unreadable: {e}"))
+            break
         if rec.get("is_key_frame", False):
             break
-        token = rec.get("prev", "")
-        path = tables.file(rec)
-        if not path.is_file():
-            missing += 1
-            continue
+        token, newer = rec.get("prev", ""), rec
         try:
+            path = tables.file(rec)
+            if not path.is_file():
+                missing += 1
+                continue
             pose = tables.T_global_ego(rec)
             pts, _, _, _ = load_filtered_sweep(path, conf, rec["token"])
         except DataError as e:
