@@ -29,6 +29,21 @@ class ConfigError(HybridCalibError, ValueError):
     """An unknown or ill-typed configuration key (the message names the option and its valid values)."""
 
 
+def require(conf: Any, rules: Mapping[str, bool]) -> None:
+    """Raise ``ValueError`` naming each rule of ``rules`` (its text, e.g. ``"0 < pair_dt_s < max_gap_s"``) that is
+    False, with the values of the fields it names: "LeverArmConfig: need sweep_noise_scale > 0 (got
+    sweep_noise_scale=0)". For ``__post_init__`` checks, so the message names the option the user set."""
+    import re
+
+    failing = [text for text, ok in rules.items() if not ok]
+    if not failing:
+        return
+    names = [f.name for f in dataclasses.fields(conf)]
+    used = [n for n in names if any(re.search(rf"\b{n}\b", t) for t in failing)]
+    got = ", ".join(f"{n}={getattr(conf, n)!r}" for n in used)
+    raise ValueError(f"{type(conf).__name__}: need {'; '.join(failing)} (got {got})")
+
+
 def merge(cls: type[C], overrides: Mapping[str, Any] | C | None = None, _path: str = "") -> C:
     """Build ``cls`` (a frozen dataclass) from its defaults updated by ``overrides``.
 

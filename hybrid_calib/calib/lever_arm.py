@@ -53,6 +53,7 @@ import numpy as np
 from factors.motion import heading_residual
 from hybrid_calib.calib.covariance import fold_scalar
 from hybrid_calib.calib.ego_doppler import EgoSweep, ego_measurement, pair_skip, sweep_pairs
+from hybrid_calib.config import require
 from hybrid_calib.geometry import se3_exp, so3_log
 
 RADAR_X = 3  # index of the radar-x (forward) translation in the right tangent [phi (3), rho (3)]
@@ -93,19 +94,15 @@ class LeverArmConfig:
     coupling_m: float = 0.05  # ... and along its translation, m
 
     def __post_init__(self):
-        if not (self.min_speed_mps >= 0 and self.max_gap_s > 0 and self.max_turn_dps > 0 and self.turn_dps >= 0
-                and 0 < self.pair_dt_s < self.max_gap_s and self.huber > 0 and self.iterations >= 1
-                and self.min_pairs >= 3 and self.min_turning >= 0
-                and min(self.noise_scale, self.sweep_noise_scale) > 0
-                and min(self.systematic_m, self.sweep_systematic_m) >= 0 and self.max_std_m > 0
-                and self.coupling_deg >= 0
-                and self.coupling_m >= 0):
-            raise ValueError(f"LeverArmConfig: need min_speed_mps >= 0, max_gap_s > 0, max_turn_dps > 0, "
-                             f"turn_dps >= 0, 0 < pair_dt_s < max_gap_s, huber > 0, iterations >= 1, min_pairs >= 3, "
-                             f"min_turning >= 0, "
-                             f"noise_scale > 0, "
-                             f"systematic_m >= 0, max_std_m > 0 and coupling steps >= 0 (got {self})")
-
+        require(self, {
+            "min_speed_mps >= 0": self.min_speed_mps >= 0, "max_gap_s > 0": self.max_gap_s > 0,
+            "max_turn_dps > 0": self.max_turn_dps > 0, "turn_dps >= 0": self.turn_dps >= 0,
+            "0 < pair_dt_s < max_gap_s": 0 < self.pair_dt_s < self.max_gap_s, "huber > 0": self.huber > 0,
+            "iterations >= 1": self.iterations >= 1, "min_pairs >= 3": self.min_pairs >= 3,
+            "min_turning >= 0": self.min_turning >= 0, "noise_scale > 0": self.noise_scale > 0,
+            "sweep_noise_scale > 0": self.sweep_noise_scale > 0, "systematic_m >= 0": self.systematic_m >= 0,
+            "sweep_systematic_m >= 0": self.sweep_systematic_m >= 0, "max_std_m > 0": self.max_std_m > 0,
+            "coupling_deg >= 0": self.coupling_deg >= 0, "coupling_m >= 0": self.coupling_m >= 0})
 
     def terms(self, pairs_per_frame: float) -> tuple[float, float]:
         """(noise_scale, systematic_m) of a fit with ``pairs_per_frame`` pairs per keyframe interval: the keyframes'

@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hybrid_calib.calib.covariance import fold_scalar
+from hybrid_calib.config import require
 from hybrid_calib.errors import DataError
 from hybrid_calib.geometry import se3_exp, se3_inverse
 
@@ -67,12 +68,13 @@ class LidarAlignConfig:
     coupling_deg: float = 0.5  # step of the central differences of dy against the estimate's rotation, deg (0: none)
 
     def __post_init__(self):
-        if not (self.beam_deg > 0 and self.top_m > self.ground_m and self.min_rows >= 3 and self.min_frames >= 1
-                and self.max_frames >= self.min_frames and self.gates_m and min(self.gates_m) > 0
-                and self.huber > 0 and self.systematic_m >= 0 and self.max_std_m > 0 and self.coupling_deg >= 0):
-            raise ValueError(f"LidarAlignConfig: need beam_deg > 0, top_m > ground_m, min_rows >= 3, "
-                             f"max_frames >= min_frames >= 1, positive gates_m and huber, systematic_m >= 0 and "
-                             f"max_std_m > 0, coupling_deg >= 0 (got {self})")
+        require(self, {
+            "beam_deg > 0": self.beam_deg > 0, "top_m > ground_m": self.top_m > self.ground_m,
+            "min_rows >= 3": self.min_rows >= 3, "min_frames >= 1": self.min_frames >= 1,
+            "max_frames >= min_frames": self.max_frames >= self.min_frames,
+            "gates_m positive": bool(self.gates_m) and min(self.gates_m) > 0, "huber > 0": self.huber > 0,
+            "systematic_m >= 0": self.systematic_m >= 0, "max_std_m > 0": self.max_std_m > 0,
+            "coupling_deg >= 0": self.coupling_deg >= 0})
 
 
 @dataclass(frozen=True)

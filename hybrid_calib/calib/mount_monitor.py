@@ -52,6 +52,7 @@ import numpy as np
 
 from factors.motion import heading_residual
 from hybrid_calib.calib.ego_doppler import EgoSweep, ego_measurement, frame_sweeps, pair_skip, partner
+from hybrid_calib.config import require
 
 MEDIAN_VAR = np.pi / 2  # variance of a Gaussian sample's median, in units of sigma^2 / n
 
@@ -76,19 +77,12 @@ class MountMonitorConfig:
     pair_dt_s: float = 0.4  # a sweep's partner is the latest sweep at least this much earlier (calib.ego_doppler), s
 
     def __post_init__(self):
-        if (self.min_frames < 3 or self.floor_deg <= 0 or self.wander_deg < 0 or self.threshold <= 0
-                or self.clip <= self.drift):
-            raise ValueError(f"MountMonitorConfig: need min_frames >= 3, floor_deg > 0, threshold > 0 and clip > "
-                             f"drift (got {self.min_frames}, {self.floor_deg}, {self.threshold}, {self.clip}, "
-                             f"{self.drift})")
-        if (self.level_pairs < self.min_frames or self.max_turn_dps <= 0 or self.min_speed_mps < 0
-                or self.max_gap_s <= 0):
-            raise ValueError(f"MountMonitorConfig: need level_pairs >= min_frames, max_turn_dps > 0, min_speed_mps "
-                             f">= 0 and max_gap_s > 0 (got {self.level_pairs}, {self.max_turn_dps}, "
-                             f"{self.min_speed_mps}, {self.max_gap_s})")
-        if not 0 < self.pair_dt_s < self.max_gap_s:
-            raise ValueError(f"MountMonitorConfig: need 0 < pair_dt_s < max_gap_s (got {self.pair_dt_s}, "
-                             f"{self.max_gap_s})")
+        require(self, {
+            "min_frames >= 3": self.min_frames >= 3, "floor_deg > 0": self.floor_deg > 0,
+            "wander_deg >= 0": self.wander_deg >= 0, "threshold > 0": self.threshold > 0,
+            "clip > drift": self.clip > self.drift, "level_pairs >= min_frames": self.level_pairs >= self.min_frames,
+            "max_turn_dps > 0": self.max_turn_dps > 0, "min_speed_mps >= 0": self.min_speed_mps >= 0,
+            "max_gap_s > 0": self.max_gap_s > 0, "0 < pair_dt_s < max_gap_s": 0 < self.pair_dt_s < self.max_gap_s})
 
 
 @dataclass(frozen=True)
