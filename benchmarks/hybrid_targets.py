@@ -9,7 +9,8 @@ Test drives: ``hybrid-calib simulate`` with seeds 9201 (urban), 9202 (highway), 
 data); the shipped networks were trained on seeds 0, 2, 3 and the hybrid fitted on seeds 9101-9103
 (``benchmarks/hybrid_fit.py``), so none of these drives was seen. Per range: ``hybrid-calib compare``
 (resumable) with the shipped checkpoint of the range, then the checks below are printed and written
-to ``OUT/targets.json``:
+to ``OUT/compare-R*/targets.json``, and every range's record found under OUT to ``OUT/targets.json`` (so R1
+and R2 run side by side into one OUT leave both there):
 - the hybrid beats pure and pure-avg on every axis, means and medians;
 - hybrid rotation mean <= 0.05 deg, translation x and z <= 2 cm (means);
 - coverage of the hybrid's 95 % ellipsoid in [90, 98] %, mean NEES in [5, 7.5], overall and per scenario;
@@ -77,15 +78,19 @@ def main(argv=None) -> int:
     from hybrid_calib.config import save_json_atomic
 
     roots = simulate_test_drives(a.out / "data", a.vehicles, a.frames)
-    report = {"command": "PYTHONPATH=. python benchmarks/hybrid_targets.py " + " ".join(sys.argv[1:]), "ranges": {}}
+    command = "PYTHONPATH=. python benchmarks/hybrid_targets.py " + " ".join(sys.argv[1:])
     for r in a.ranges:
         conf = {"range": r, "trials": a.trials, "methods": tuple(a.methods.split(",")),
                 "hybrid": {"threads": a.threads, "max_frames": a.max_frames or a.frames}}
-        s = compare(roots, "v1.0-sim", a.out / f"compare-{r}", conf, command=report["command"])
-        report["ranges"][r] = {"targets": check(s), "compare_md": str(a.out / f"compare-{r}" / "compare.md")}
+        s = compare(roots, "v1.0-sim", a.out / f"compare-{r}", conf, command=command)
+        rec = {"command": command, "targets": check(s), "compare_md": str(a.out / f"compare-{r}" / "compare.md")}
+        save_json_atomic(a.out / f"compare-{r}" / "targets.json", rec)
         print((a.out / f"compare-{r}" / "compare.md").read_text())
-        print(json.dumps(report["ranges"][r]["targets"], indent=1))
-    save_json_atomic(a.out / "targets.json", report)
+        print(json.dumps(rec["targets"], indent=1))
+    # every range's record, also those of another run into this --out (the ranges are often run side by side)
+    ranges = {d.name.removeprefix("compare-"): json.loads((d / "targets.json").read_text())
+              for d in sorted(a.out.glob("compare-*")) if (d / "targets.json").is_file()}
+    save_json_atomic(a.out / "targets.json", {"ranges": ranges})
     return 0
 
 
