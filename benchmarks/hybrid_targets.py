@@ -62,6 +62,34 @@ def check(summary: dict) -> dict:
     return res
 
 
+# an error axis and its reported std in the result's std_cam block (roll, pitch, yaw: about camera z, x, y)
+STD_OF = {"roll_deg": "rot_z_cam_deg", "pitch_deg": "rot_x_cam_deg", "yaw_deg": "rot_y_cam_deg",
+          "x_cm": "t_x_cam_cm", "y_cm": "t_y_cam_cm", "z_cm": "t_z_cam_cm"}
+
+
+def by_scenario(out: Path) -> dict:
+    """Per test root, the hybrid's trials in ``out`` (a compare folder): per axis the mean and median absolute
+    error, the mean reported std and the mean z^2 (error / std)^2, and in how many trials the LiDAR's lateral
+    offset and the Doppler's forward offset were applied."""
+    import numpy as np
+
+    rows: dict[str, list[dict]] = {}
+    for f in sorted((out / "trials" / "hybrid").glob("*.json")):
+        d = json.loads(f.read_text())
+        rows.setdefault(Path(d["config"]["root"]).name, []).append(d)
+    res = {}
+    for root, ds in rows.items():
+        err = {a: np.abs([d["error"][a] for d in ds]) for a in AXES}
+        std = {a: np.array([d["final"]["std_cam"][STD_OF[a]] for d in ds]) for a in AXES}
+        res[root] = {"trials": len(ds),
+                     "lidar_applied": sum(bool((d.get("lidar") or {}).get("applied")) for d in ds),
+                     "doppler_applied": sum(bool((d.get("doppler") or {}).get("applied")) for d in ds),
+                     **{a: {"mean": float(err[a].mean()), "median": float(np.median(err[a])),
+                            "std": float(std[a].mean()), "z2": float(np.mean((err[a] / std[a]) ** 2))}
+                        for a in AXES}}
+    return res
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--out", type=Path, required=True)
@@ -83,10 +111,16 @@ def main(argv=None) -> int:
         conf = {"range": r, "trials": a.trials, "methods": tuple(a.methods.split(",")),
                 "hybrid": {"threads": a.threads, "max_frames": a.max_frames or a.frames}}
         s = compare(roots, "v1.0-sim", a.out / f"compare-{r}", conf, command=command)
-        rec = {"command": command, "targets": check(s), "compare_md": str(a.out / f"compare-{r}" / "compare.md")}
+        rec = {"command": command, "targets": check(s), "compare_md": str(a.out / f"compare-{r}" / "compare.md"),
+               "hybrid_by_scenario": by_scenario(a.out / f"compare-{r}")}
         save_json_atomic(a.out / f"compare-{r}" / "targets.json", rec)
         print((a.out / f"compare-{r}" / "compare.md").read_text())
         print(json.dumps(rec["targets"], indent=1))
+        for root, v in rec["hybrid_by_scenario"].items():
+            z = v["z_cm"]
+            print(f"hybrid {root}: {v['trials']} trials, Doppler applied in {v['doppler_applied']}; camera z "
+                  f"{z['mean']:.2f} / {z['median']:.2f} cm (mean / median), reported std {z['std']:.2f} cm, "
+                  f"mean z^2 {z['z2']:.2f}")
     # every range's record, also those of another run into this --out (the ranges are often run side by side)
     ranges = {d.name.removeprefix("compare-"): json.loads((d / "targets.json").read_text())
               for d in sorted(a.out.glob("compare-*")) if (d / "targets.json").is_file()}
