@@ -113,3 +113,25 @@ def test_a_broken_sweep_record_is_said_and_the_drive_goes_on(roots, tmp_path):
     skips = [pair_skip(a, b) for a, b in sweep_pairs(sweeps, 0.4)]
     assert sum("no-such-token" in s for s in skips) >= 1 and sum("leaves the root" in s for s in skips) >= 1
     assert sum(s == "" for s in skips) >= len(skips) - 12  # one bad record costs the pairs that touch it
+
+
+def test_inspect_says_whether_the_sweeps_between_keyframes_are_there(roots, tmp_path):
+    import shutil
+
+    from hybrid_calib.data.summary import summarize_dataset
+    from learned.dataset import open_frames
+
+    def line(root):
+        s = summarize_dataset(open_frames(root, "v1.0-sim", lidar=False), progress=False)
+        return s.format().splitlines()[-1], s.to_json()["groups"][0]["radar_sweeps_between"]
+
+    text, rec = line(roots[0])
+    assert rec == {"records": 30, "on_disk": 30, "broken": 0} and "30 (5.0 per frame), all on disk" in text
+    text, rec = line(roots[1])
+    assert rec["records"] == 0 and "none in the tables" in text and "keyframes only" in text
+    copy = tmp_path / "keyframe-only"  # the tables keep the sweep records, the files are gone (a mini copy)
+    shutil.copytree(roots[0], copy)
+    shutil.rmtree(copy / "sweeps")
+    text, rec = line(copy)
+    assert rec == {"records": 30, "on_disk": 0, "broken": 0}
+    assert "none on disk (a keyframe-only copy)" in text and "add the sweeps/ folder for about 6 times" in text

@@ -8,7 +8,10 @@
      "groups": [{"scene": str, "vehicle": str, "log_token": str, "frames": int, "loaded": int,
                  "radar_points_per_sweep": {"mean": float, "min": int, "max": int},
                  "radar_points_raw_mean": float, "radar_nonfinite_dropped": int, "lidar_nonfinite_dropped": int,
-                 "dt_radar_minus_camera_ms": {"mean": float, "min": float, "max": float}}],
+                 "dt_radar_minus_camera_ms": {"mean": float, "min": float, "max": float},
+                 "radar_sweeps_between": {"records": int, "on_disk": int, "broken": int}}],
+                 # radar_sweeps_between: the non-keyframe radar sweeps between the group's keyframes (the
+                 # mount monitor and the Doppler lever arm pair them too where their files are on disk)
      "skipped": [{"index": int | null, "token": str, "path": str | null, "reason": str}]}
 """
 
@@ -22,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+from hybrid_calib.data.sweeps import sweep_files_between
 
 
 @dataclass
@@ -36,6 +40,9 @@ class GroupSummary:
     nonfinite: int = 0  # NaN/inf radar points dropped
     lidar_nonfinite: int = 0  # NaN/inf LiDAR points dropped (when LiDAR is loaded)
     dt_ms: list[float] = field(default_factory=list)  # radar minus camera timestamp, milliseconds
+    sweeps_between: int = 0  # non-keyframe radar sweep records between the keyframes (data.sweeps)
+    sweeps_on_disk: int = 0  # ... whose files are on disk
+    sweeps_broken: int = 0  # ... broken (a prev pointer that does not resolve, a file name outside the root)
 
     def to_json(self) -> dict[str, Any]:
         pts = np.asarray(self.radar_points or [0])
@@ -46,7 +53,9 @@ class GroupSummary:
                     radar_points_raw_mean=float(np.mean(self.radar_raw)) if self.radar_raw else 0.0,
                     radar_nonfinite_dropped=self.nonfinite, lidar_nonfinite_dropped=self.lidar_nonfinite,
                     dt_radar_minus_camera_ms=dict(mean=float(np.mean(dt)), min=float(np.min(dt)),
-                                                  max=float(np.max(dt))))
+                                                  max=float(np.max(dt))),
+                    radar_sweeps_between=dict(records=self.sweeps_between, on_disk=self.sweeps_on_disk,
+                                              broken=self.sweeps_broken))
 
 
 @dataclass
@@ -86,12 +95,32 @@ class DatasetSummary:
             lines.append(f"{g.scene[:24]:24s} {g.vehicle[:12]:12s} {g.frames:6d} {g.loaded:6d} "
                          f"{p['mean']:7.1f} [{p['min']:3d},{p['max']:4d}] {j['radar_points_raw_mean']:6.1f} "
                          f"{g.nonfinite:5d} {j['dt_radar_minus_camera_ms']['mean']:7.1f}")
+        lines += self._sweep_lines()
         if not self.n_frames:
             lines.append(f"no frames: no sample has both a {self.radar_channel} and a {self.camera_channel} keyframe "
                          "(the skipped items below say why); check --radar/--camera and the tables")
         lines += format_skips(self.skipped, listed_in)
         return "\n".join(lines)
 
+    def _sweep_lines(self) -> list[str]:
+        """What the radar's non-keyframe sweeps give the Doppler steps (mount monitor, lever arm), in words."""
+        n, on = sum(g.sweeps_between for g in self.groups), sum(g.sweeps_on_disk for g in self.groups)
+        broken = sum(g.sweeps_broken for g in self.groups)
+        tail = (f"; {broken} broken record(s) (a prev pointer that does not resolve, a file name outside the root), "
+                "each skipped in words" if broken else "")
+        head = f"{self.radar_channel} sweeps between keyframes: "
+        if not n:
+            return [head + "none in the tables; the mount monitor and the Doppler lever arm pair keyframes only" + tail]
+        per = n / max(self.n_frames, 1)
+        if on == n:
+            return [head + f"{n} ({per:.1f} per frame), all on disk; the mount monitor and the Doppler lever arm pair "
+                    "them too" + tail]
+        if on:
+            return [head + f"{n} in the tables ({per:.1f} per frame), {on} on disk ({n - on} missing); the mount "
+                    "monitor and the Doppler lever arm pair those on disk too" + tail]
+        return [head + f"{n} in the tables ({per:.1f} per frame), none on disk (a keyframe-only copy); the mount "
+                f"monitor and the Doppler lever arm pair keyframes only; add the sweeps/ folder for about "
+                f"{1 + per:.0f} times as many pairs" + tail]
 
 EXAMPLES_PER_REASON = 3  # further frames (index and token) shown per kind of skip reason in the terminal
 _HEX_TOKEN = re.compile(r"\b[0-9a-f]{32}\b")  # a nuScenes token
@@ -142,6 +171,10 @@ def summarize_dataset(ds: NuScenesRadarCamera, progress: bool = True) -> Dataset
     for ref in ds.frames:
         g = groups.setdefault(ref.scene_token, GroupSummary(ref.scene_name, ref.vehicle, ref.log_token))
         g.frames += 1
+        records, on_disk, broken = sweep_files_between(ds.tables, ref.radar_sd)
+        g.sweeps_between += records
+        g.sweeps_on_disk += on_disk
+        g.sweeps_broken += broken
     first = None
     for f in tqdm(ds, total=len(ds), desc="inspect", unit="frame", disable=not progress):
         g = groups[f.extras["scene_token"]]

@@ -136,6 +136,43 @@ class InterSweep:
     why: str = ""
 
 
+def _walk_between(tables: NuScenesTables, sd: dict, limit: int):
+    """Yield ``(token, record, error)`` for the non-keyframe sweeps before ``sd``, newest first, back to the
+    previous keyframe of its channel, the scene's start or ``limit`` records; a ``prev`` pointer that does not
+    resolve is yielded once with ``record`` None and its ``DataError``, and ends the walk."""
+    token, newer = sd.get("prev", ""), sd
+    for _ in range(limit):
+        if not token:
+            return
+        try:
+            rec = tables.get("sample_data", token, f"sample_data {newer['token']} (prev pointer)")
+        except DataError as e:
+            yield token, None, e
+            return
+        if rec.get("is_key_frame", False):
+            return
+        yield token, rec, None
+        token, newer = rec.get("prev", ""), rec
+
+
+def sweep_files_between(tables: NuScenesTables, sd: dict, limit: int = 20) -> tuple[int, int, int]:
+    """(the non-keyframe sweep records between the previous keyframe and ``sd``, how many of their files are on
+    disk, how many further records are broken: a ``prev`` pointer that does not resolve, a file name outside the
+    root): what ``inspect`` reports, without reading a file."""
+    records = on_disk = broken = 0
+    for _, rec, err in _walk_between(tables, sd, limit):
+        if err is not None:
+            return records, on_disk, broken + 1
+        try:
+            path = tables.file(rec)
+        except DataError:
+            broken += 1
+            continue
+        records += 1
+        on_disk += path.is_file()
+    return records, on_disk, broken
+
+
 def sweeps_between_keyframes(tables: NuScenesTables, sd: dict, conf: RadarFilterConfig, limit: int = 20
                              ) -> tuple[list[InterSweep], int]:
     """(the non-keyframe sweeps between the previous keyframe of ``sd``'s channel and ``sd``, oldest first;
@@ -145,16 +182,12 @@ def sweeps_between_keyframes(tables: NuScenesTables, sd: dict, conf: RadarFilter
     not read as a radar PCD, or a record whose file name or ego pose is broken, comes back with ``why`` (the
     caller skips it in words). A ``prev`` pointer that does not resolve ends the walk with such an entry, its
     time unknown (``timestamp_us`` None): the sweeps after it are kept, one bad record never stops a drive."""
-    out, missing, token, newer = [], 0, sd.get("prev", ""), sd
-    while token and len(out) + missing < limit:
-        try:
-            rec = tables.get("sample_data", token, f"sample_data {newer['token']} (prev pointer)")
-        except DataError as e:
-            out.append(InterSweep(token, None, np.full((4, 4), np.nan), np.zeros((0, 3)), {}, f"sweep unreadable: {e}"))
+    out, missing = [], 0
+    for token, rec, err in _walk_between(tables, sd, limit):
+        if err is not None:
+            out.append(InterSweep(token, None, np.full((4, 4), np.nan), np.zeros((0, 3)), {},
+                                  f"sweep unreadable: {err}"))
             break
-        if rec.get("is_key_frame", False):
-            break
-        token, newer = rec.get("prev", ""), rec
         try:
             path = tables.file(rec)
             if not path.is_file():
