@@ -13,6 +13,13 @@ known, so the priors can be checked against the world instead of only against NE
    N(mean, std^2)`` truncated to the beam): ``d = h - E[h | r]``, ``s = h^2 - E[h^2 | r]``;
 3. per drive, least squares ``d = B(r) a + c_y y`` and ``s = B(r) q`` (``B``: the scene's range hats).
 
+``--lidar-radius R`` also asks whether the LiDAR could measure ``c_y`` (issue 10's option of per-row height
+priors from what the other sensors see): per reflector, the mean height of the LiDAR points within R metres
+of its radar position (r cos az, r sin az) horizontally and inside the radar's elevation field of view
+(radar frame, through the true extrinsic: the best case), and the same fit on those heights; reported is
+the RMS of ``c_y(LiDAR) - c_y(true)`` over the drives against the RMS of ``c_y(true)`` (what a zero-mean
+prior already errs by).
+
 Reported per preset: the RMS over drives of ``c_y`` (and as an angle: a height slope across the
 road is what a roll of the radar about its forward axis looks like), of ``a`` and ``q`` per knot, and
 per drive ``c_y`` with the number of reflectors. The per-drive values include the drive's own
@@ -31,14 +38,16 @@ from pathlib import Path
 import numpy as np
 
 
-def drive_rows(frames, conf) -> np.ndarray:
-    """(N, 3) slant range, lateral y, height (metres, radar frame) of the real reflectors in view."""
+def drive_rows(frames, conf, lidar_radius: float = 0.0) -> tuple[np.ndarray, np.ndarray | None]:
+    """(N, 3) slant range, lateral y, height (metres, radar frame) of the real reflectors in view, and with
+    ``lidar_radius`` > 0 the same rows with the LiDAR's height at each (module doc; None otherwise; reflectors
+    with fewer than 2 LiDAR points near them are left out of both)."""
     from hybrid_calib.calib.oracle import OracleConfig, oracle_from_frame
     from hybrid_calib.errors import DataError
 
     oconf = OracleConfig(n_per_frame=100000, sigma_px=1e-6, outlier_frac=0.0, elevation="world")
     g = np.random.default_rng(0)
-    out = []
+    out, lidar = [], []
     for f in frames:
         try:
             _, truth = oracle_from_frame(f, oconf, g)
@@ -47,8 +56,33 @@ def drive_rows(frames, conf) -> np.ndarray:
                 continue
             raise
         p = truth.points_true[truth.inlier]
-        out.append(np.stack([np.linalg.norm(p, axis=1), p[:, 1], p[:, 2]], 1))
-    return np.concatenate(out) if out else np.zeros((0, 3))
+        rows = np.stack([np.linalg.norm(p, axis=1), p[:, 1], p[:, 2]], 1)
+        if lidar_radius > 0:
+            keep, h = _lidar_heights(f, rows, p, lidar_radius)
+            rows = rows[keep]
+            lidar.append(np.concatenate([rows[:, :2], h[:, None]], 1))
+        out.append(rows)
+    empty = np.zeros((0, 3))
+    return (np.concatenate(out) if out else empty,
+            None if lidar_radius <= 0 else np.concatenate(lidar) if lidar else empty)
+
+
+def _lidar_heights(f, rows: np.ndarray, p: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """(mask of the reflectors with >= 2 LiDAR points near them, the mean LiDAR height at each kept one, m)."""
+    from hybrid_calib.geometry import se3_inverse
+
+    T = se3_inverse(f.T_cam_radar) @ f.T_cam_lidar  # LiDAR -> radar through the true extrinsic
+    L = f.lidar_points[:, :3].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+    az = np.arctan2(p[:, 1], p[:, 0])
+    xy = rows[:, :1] * np.stack([np.cos(az), np.sin(az)], 1)
+    keep, h = np.zeros(len(rows), bool), []
+    for k in range(len(rows)):
+        m = ((np.linalg.norm(L[:, :2] - xy[k], axis=1) < radius)
+             & (np.abs(L[:, 2]) < rows[k, 0] * np.tan(np.deg2rad(7.0)) + 0.3))
+        if m.sum() >= 2:
+            keep[k] = True
+            h.append(float(np.mean(L[m, 2])))
+    return keep, np.asarray(h)
 
 
 def fit_drive(rows: np.ndarray, conf) -> dict:
@@ -85,6 +119,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--data", nargs="+", required=True, type=Path, help="v1.0-sim roots (one preset each)")
     p.add_argument("--frames", type=int, default=60, help="keyframes per drive (the first N)")
     p.add_argument("--out", required=True, type=Path)
+    p.add_argument("--lidar-radius", type=float, default=0.0,
+                   help="also fit c_y on the LiDAR's heights at the reflectors (this radius, m; module doc)")
     a = p.parse_args(argv)
 
     from factors.config import RadarPixelFactorConfig
@@ -101,16 +137,24 @@ def main(argv: list[str] | None = None) -> int:
                          "scene_height_sq_std_m2": conf.scene_height_sq_std_m2},
               "roots": {}}
     for root in a.data:
-        ds = NuScenesRadarCamera(root, "v1.0-sim", conf={"check_images": False, "skip_empty_radar": False})
+        ds = NuScenesRadarCamera(root, "v1.0-sim", conf={"check_images": False, "skip_empty_radar": False,
+                                                          "load_lidar": a.lidar_radius > 0})
         drives = {}
         for scene, idx in ds.frames_by_vehicle().items():
             idx = idx[: a.frames]
-            rows = drive_rows([ds[i] for i in idx], conf)
+            rows, lidar = drive_rows([ds[i] for i in idx], conf, a.lidar_radius)
             if len(rows) < 20:
                 print(f"{root.name} {scene}: {len(rows)} reflectors, skipped")
                 continue
             drives[scene] = fit_drive(rows, conf)
-            print(f"{root.name} {scene}: {len(rows)} reflectors, c_y {drives[scene]['c_y']:+.4f} m/m", flush=True)
+            extra = ""
+            if lidar is not None:
+                drives[scene]["c_y_lidar"] = fit_drive(lidar, conf)["c_y"]
+                drives[scene]["height_corr_lidar"] = float(np.corrcoef(rows[:, 2], lidar[:, 2])[0, 1])
+                extra = (f", from the LiDAR {drives[scene]['c_y_lidar']:+.4f} (height correlation "
+                         f"{drives[scene]['height_corr_lidar']:.2f})")
+            print(f"{root.name} {scene}: {len(rows)} reflectors, c_y {drives[scene]['c_y']:+.4f} m/m{extra}",
+                  flush=True)
         c = [v["c_y"] for v in drives.values()]
         A = np.array([v["a"] for v in drives.values()])
         Q = np.array([v["q"] for v in drives.values()])
@@ -120,6 +164,11 @@ def main(argv: list[str] | None = None) -> int:
             "c_y_mean": float(np.mean(c)),
             "a_rms_per_knot": [rms(A[:, k]) for k in range(A.shape[1])],
             "q_rms_per_knot": [rms(Q[:, k]) for k in range(Q.shape[1])]}
+        if a.lidar_radius > 0:
+            err = rms([v["c_y_lidar"] - v["c_y"] for v in drives.values()])
+            result["roots"][str(root)]["c_y_lidar_error_rms"] = err
+            print(f"{root.name}: c_y from the LiDAR errs by {err:.4f} m/m RMS over {len(drives)} drives; a zero-mean "
+                  f"prior by {rms(c):.4f}")
     save_json_atomic(a.out / "scene_profiles.json", result)
     knots = ", ".join(f"{k:g}" for k in conf.scene_knots_m)
     print(f"\n| root | drives | c_y RMS m/m (deg) | c_y mean | a RMS per knot ({knots} m), m | q RMS per knot, m^2 |")
