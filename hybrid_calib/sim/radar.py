@@ -135,7 +135,8 @@ def simulate_radar_sweep(prims: Primitives, T_global_radar: np.ndarray, radar_ve
     if radar_velocity.shape != (3,) or not np.all(np.isfinite(radar_velocity)):
         raise ValueError(f"radar_velocity must be a finite (3,) vector in m/s, got {radar_velocity!r}")
     el_grid, az_grid = ray_grid(conf)
-    buf, dirs = cast_angular(prims, T_global_radar, el_grid, az_grid, conf.far_range_m)
+    reach = ((conf.near_range_m, np.deg2rad(conf.near_fov_deg)), (conf.far_range_m, np.deg2rad(conf.far_fov_deg)))
+    buf, dirs = cast_angular(prims, T_global_radar, el_grid, az_grid, conf.far_range_m, reach=reach)
     R = T_global_radar[:3, :3]
     E, A = buf.t.shape
     EL = np.broadcast_to(el_grid[:, None], (E, A))

@@ -255,12 +255,17 @@ def angular_grid_dirs(elevations: np.ndarray, azimuths: np.ndarray) -> np.ndarra
 
 
 def cast_angular(prims: Primitives, T_global_sensor: np.ndarray, elevations: np.ndarray, azimuths: np.ndarray,
-                 max_range: float, wrap: bool = False) -> tuple[HitBuffer, np.ndarray]:
+                 max_range: float, wrap: bool = False, reach: tuple[tuple[float, float], ...] = ()
+                 ) -> tuple[HitBuffer, np.ndarray]:
     """Cast an (elevation x azimuth) grid of rays from a sensor (LiDAR, radar).
 
     elevations: (E,) increasing radians; azimuths: (A,) increasing radians in the sensor frame
     (atan2(y, x)); wrap: True when the azimuths cover the full circle. Returns the hit buffer (E, A)
     and the global directions (E, A, 3).
+    reach: ((range m, half azimuth rad), ...), the scans of a sensor that uses a hit only at a range and
+    azimuth inside one of them (the radar's near and far scans): a primitive is not cast against the rays
+    where no hit on it could be used (beyond every scan's range at its azimuth). Rays whose first surface
+    was such a primitive then report a farther one or none, equally unusable; every usable hit is the same.
     """
     R, o = T_global_sensor[:3, :3], T_global_sensor[:3, 3]
     dirs = angular_grid_dirs(elevations, azimuths) @ R.T
@@ -278,13 +283,22 @@ def cast_angular(prims: Primitives, T_global_sensor: np.ndarray, elevations: np.
         half_az = np.where(rad < dh, np.arcsin(np.clip(rad / dh, 0, 1)), np.pi)
         half_el = np.where(rad < d, np.arcsin(np.clip(rad / d, 0, 1)), np.pi)
     A = len(azimuths)
+    near = d - rad  # no hit on the primitive is nearer than this, m
     for k, j in enumerate(idx):
         e0 = np.searchsorted(elevations, el_c[k] - half_el[k], "left")
         e1 = np.searchsorted(elevations, el_c[k] + half_el[k], "right")
         if e0 >= e1:
             continue
         lo, hi = az_c[k] - half_az[k], az_c[k] + half_az[k]
-        if half_az[k] >= np.pi:
+        if reach:
+            usable = max((h for r, h in reach if near[k] <= r), default=None)
+            if usable is None:
+                continue
+            lo, hi = max(lo, -usable), min(hi, usable)
+            if lo > hi:
+                continue
+            spans = [(np.searchsorted(azimuths, lo, "left"), np.searchsorted(azimuths, hi, "right"))]
+        elif half_az[k] >= np.pi:
             spans = [(0, A)]
         elif wrap and (lo < -np.pi or hi > np.pi):
             lo_w = lo + 2 * np.pi if lo < -np.pi else lo
