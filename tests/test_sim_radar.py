@@ -191,3 +191,27 @@ def test_bad_inputs_are_named():
     # an empty world: clutter only, all in the radar plane
     sweep = simulate_radar_sweep(empty_primitives(), np.eye(4), np.zeros(3), RadarConfig(clutter_per_sweep=20), g)
     assert len(sweep) > 5 and np.all(sweep.kind == CLUTTER) and np.all(sweep.true_xyz[:, 2] == 0)
+
+
+def test_the_cast_skips_only_rays_whose_hits_no_scan_could_use():
+    """``cast_angular(reach=...)``: every hit inside the radar's near or far scan is the one of a full cast;
+    primitives are skipped (fewer rays cast) only where a hit could not be a detection."""
+    from hybrid_calib.sim.radar import ray_grid
+    from hybrid_calib.sim.raycast import cast_angular
+
+    d = VehicleDrive(small_conf(scenario="urban"), 0)
+    conf = d.radar_config
+    el, az = ray_grid(conf)
+    reach = ((conf.near_range_m, np.deg2rad(conf.near_fov_deg)), (conf.far_range_m, np.deg2rad(conf.far_fov_deg)))
+    for t in (0.5, 1.5, 2.5):
+        T = d.ego.T_global_ego(t) @ d.T_ego_radar(0)
+        prims = d.world.primitives_at(t, T[:3, 3], conf.far_range_m)
+        full, _ = cast_angular(prims, T, el, az, conf.far_range_m)
+        cut, _ = cast_angular(prims, T, el, az, conf.far_range_m, reach=reach)
+        AZ = np.broadcast_to(az[None, :], full.t.shape)
+        usable = in_field_of_view(conf, full.t, AZ) | in_field_of_view(conf, cut.t, AZ)
+        assert usable.sum() > 100
+        np.testing.assert_array_equal(cut.t[usable], full.t[usable])
+        np.testing.assert_array_equal(cut.prim[usable], full.prim[usable])
+        assert np.all(cut.t[~usable] >= full.t[~usable])  # a skipped surface only uncovers a farther one
+        assert (cut.prim != full.prim).any()  # the far field outside +-9 deg was not cast
