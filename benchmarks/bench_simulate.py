@@ -86,8 +86,6 @@ def scene_mesh(prims):
 
 
 def renderer_comparison(drive: VehicleDrive, n: int) -> dict[str, float]:
-    import trimesh
-
     cam = drive.conf.camera
     rays = cam.rays()
     out: dict[str, tuple[float, float]] = {}
@@ -95,6 +93,11 @@ def renderer_comparison(drive: VehicleDrive, n: int) -> dict[str, float]:
     prims = drive.world.primitives_at(0.0)
     out["numpy analytic caster (used)"] = _timed(
         lambda k: cast_pinhole(prims, Ts[k], rays, cam.K, drive.conf.camera_max_range_m), n)
+    try:  # the alternatives are optional (pip install trimesh embreex rtree): not project dependencies
+        import trimesh
+    except ImportError:
+        out["trimesh alternatives (trimesh not installed)"] = (float("nan"), float("nan"))
+        return out
     mesh = scene_mesh(prims.subset(cull(prims, Ts[0][:3, 3], 300.0)))
     out["_triangles"] = (len(mesh.faces), len(mesh.faces))
 
