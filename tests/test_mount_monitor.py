@@ -113,6 +113,8 @@ def test_the_sweeps_between_keyframes_steady_the_reading_and_find_the_knock_no_l
     assert spread(sweeps) < 0.7 * spread(keyframes)
     assert tested_words(sweeps.summary()) == f"{len(sweeps.series)} frames tested ({sum(sweeps.pairs)} sweep pairs)"
     assert tested_words(keyframes.summary()) == f"{len(keyframes.series)} frame pairs tested"
+    absent = tested_words({**keyframes.summary(), "sweeps_absent": True})  # the hybrid's record on a mini copy
+    assert absent.endswith("keyframes only: the root's radar sweeps between keyframes have no files (add sweeps/)")
     frames, idx = _drive(knocked)
     a, _ = monitor_drive(frames, idx, T)
     b, _ = monitor_drive(frames, idx, T, MountMonitorConfig(sweeps=False))
@@ -170,6 +172,14 @@ def test_the_hybrid_restarts_its_window_turned_by_the_measured_step(knocked_and_
     (step,) = vr.mount["steps"]
     assert abs(step["change"] - 12) <= 1 and 0.6 < step["step_deg"] < 1.4
     assert all("mount" in r for r in vr.frame_rows)
+    assert vr.mount["sweeps_absent"] is False  # the simulated root holds its sweeps' files
+    import shutil
+
+    mini = tmp_path / "mini"  # a keyframe-only copy: the tables list the sweeps, the files are gone
+    shutil.copytree(knocked_and_not[1], mini, ignore=shutil.ignore_patterns("sweeps"))
+    few = run_vehicle(mini, "v1.0-sim", "sim-veh-000", {**conf, "max_frames": 6})  # network passes: cached above
+    assert few.mount["sweeps_absent"] is True
+    assert few.mount["pairs_tested"] == few.mount["frames_tested"] > 0  # keyframes only: one pair a frame
     k = alarms[0]
     turned = vr.trajectory[k].T @ se3_exp(np.array([0, 0, np.radians(step["step_deg_at_alarm"]), 0, 0, 0]))
     cache = OutputCache(tmp_path / "cache")  # the next frame's network ran from the turned estimate

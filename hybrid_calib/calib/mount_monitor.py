@@ -286,7 +286,11 @@ def monitor_drive(frames, indices: list[int], T_ego_radar: np.ndarray, conf: Mou
 
 def tested_words(summary: dict) -> str:
     """How much a ``summary()`` block tested, in words: frames and the sweep pairs behind them (a result written
-    before the sweeps were paired holds ``pairs_tested`` alone, one pair per frame)."""
+    before the sweeps were paired holds ``pairs_tested`` alone, one pair per frame), and, when the hybrid recorded
+    ``sweeps_absent``, that the root's sweeps between keyframes were listed but not on disk."""
     pairs = int(summary.get("pairs_tested", 0))
     frames = int(summary.get("frames_tested", pairs))
-    return f"{frames} frames tested ({pairs} sweep pairs)" if pairs != frames else f"{frames} frame pairs tested"
+    words = f"{frames} frames tested ({pairs} sweep pairs)" if pairs != frames else f"{frames} frame pairs tested"
+    if summary.get("sweeps_absent"):  # the hybrid's record: the tables list sweeps between keyframes, no files
+        words += "; keyframes only: the root's radar sweeps between keyframes have no files (add sweeps/)"
+    return words

@@ -546,6 +546,7 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     frames by dataset index, for the radar mount monitor (hybrid only; None = no monitor)."""
     T0 = start_of(drive, conf)
     tr = _Trace(drop=True)
+    absent = getattr(frames, "radar_sweeps_missing", 0)  # sweep files the tables list and the disk lacks
     traj, mon = _run_learned(runner, drive, T0, conf, tr, motion, frames)
     ood = decide(tr.scores, conf.ood, runner.ood_note)
     ood["dropped"] = sum("ood_score" in s for s in tr.skipped)
@@ -568,7 +569,8 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     res.checkpoint = runner.checkpoint
     res.frame_rows = tr.rows
     res.ood = ood
-    res.mount = None if mon is None else mon.summary()
+    res.mount = None if mon is None else {
+        **mon.summary(), "sweeps_absent": getattr(frames, "radar_sweeps_missing", 0) > absent}
     res.config = {**to_dict(conf), "measurement_effective": to_dict(measurement_config(runner, conf)),
                   "depth_effective": runner.depth_name, **({"depth_note": note} if note else {})}
     if wider := range_note(conf.start, runner.range, runner.checkpoint):
