@@ -195,3 +195,14 @@ def test_the_hybrid_restarts_its_window_turned_by_the_measured_step(knocked_and_
     assert "radar turned" not in verdict_of(small).why  # below the 0.5 deg tolerance: the usual verdict
     off = run_vehicle(knocked_and_not[1], "v1.0-sim", "sim-veh-000", {**conf, "mount": {"enabled": False}})
     assert off.mount is None and not any(f.step_alarm for f in off.trajectory)  # the alarm was the monitor's
+
+
+def test_a_step_the_window_already_raised_is_not_raised_again_by_the_monitor():
+    from types import SimpleNamespace as F
+
+    from hybrid_calib.hybrid.loop import alarm_since
+
+    traj = [F(index=k, step_alarm=k in (5, 23)) for k in range(24)]
+    assert alarm_since(traj, 20) == 23  # the window fired after the knock at 20: the monitor's alarm joins it
+    assert alarm_since(traj, 6) == 23 and alarm_since(traj, 24) is None
+    assert alarm_since([F(index=k, step_alarm=k == 5) for k in range(24)], 20) is None  # an earlier step's alarm

@@ -459,8 +459,10 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
             cal.reset(keep_last=keep, T=turned)
             in_window = in_window[len(in_window) - keep:] if keep else []
             g_frames = g_frames[len(g_frames) - keep:] if keep else []
-            fe = dataclasses.replace(fe, step_alarm=True, events=(
-                *fe.events, pending.describe(conf.mount.threshold) + f"; window restarted from frame {pending.change}"))
+            seen = alarm_since(traj, pending.change)
+            fe = dataclasses.replace(fe, step_alarm=fe.step_alarm or seen is None, events=(
+                *fe.events, pending.describe(conf.mount.threshold) + f"; window restarted from frame {pending.change}"
+                + ("" if seen is None else f" (the same step as the window's alarm at frame {seen})")))
             pending = None
         traj.append(dataclasses.replace(fe, index=k))  # the frame's position in the drive, not the window's count
         g_mot = np.sum(g_frames, axis=0) if g_frames else np.zeros(6)
@@ -519,6 +521,14 @@ def range_note(start: str, trained: str, checkpoint: str) -> str:
     return (f"the start range {start} (+-{RANGES[start][0]:g} deg, +-{RANGES[start][1]:g} m) is wider than the "
             f"{trained} range the checkpoint {checkpoint} was trained on: expect poor estimates; use a checkpoint "
             f"trained on {start} (or --refine it after one)")
+
+
+def alarm_since(traj: list, change: int) -> int | None:
+    """The drive position of the latest step alarm in ``traj`` at or after position ``change``, or None. One knock,
+    one alarm: when the window's own test already fired for the step the mount monitor has just found (at or after
+    its change point), the monitor's finding is recorded on its frame with that alarm's position, not raised
+    again (on a knocked test drive the window fired at frame 23 and the monitor at 24, for one knock at 20)."""
+    return next((f.index for f in reversed(traj) if f.step_alarm and f.index >= change), None)
 
 
 def mount_monitor(frames, drive: Drive, conf: HybridConfig, motion: MotionSource | None) -> MountMonitor | None:
