@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import numbers
+import re
 import types
 import typing
 from collections.abc import Mapping
@@ -33,8 +34,6 @@ def require(conf: Any, rules: Mapping[str, bool]) -> None:
     """Raise ``ValueError`` naming each rule of ``rules`` (its text, e.g. ``"0 < pair_dt_s < max_gap_s"``) that is
     False, with the values of the fields it names: "LeverArmConfig: need sweep_noise_scale > 0 (got
     sweep_noise_scale=0)". For ``__post_init__`` checks, so the message names the option the user set."""
-    import re
-
     failing = [text for text, ok in rules.items() if not ok]
     if not failing:
         return

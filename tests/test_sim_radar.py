@@ -215,3 +215,5 @@ def test_the_cast_skips_only_rays_whose_hits_no_scan_could_use():
         np.testing.assert_array_equal(cut.prim[usable], full.prim[usable])
         assert np.all(cut.t[~usable] >= full.t[~usable])  # a skipped surface only uncovers a farther one
         assert (cut.prim != full.prim).any()  # the far field outside +-9 deg was not cast
+    with pytest.raises(ValueError, match="reach limits the azimuths"):
+        cast_angular(prims, T, el, az, conf.far_range_m, wrap=True, reach=reach)

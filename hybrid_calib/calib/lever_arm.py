@@ -199,8 +199,9 @@ def fit(sweeps: list[EgoSweep], X: np.ndarray, T_ego_cam: np.ndarray, conf: Leve
     if M.shape != (4, 4) or not np.isfinite(M).all():
         return None, "the estimate or the tables' camera mount (T_ego_cam) is not a finite 4x4 transform"
     ms, dts, skipped = _measurements(sweeps, M[:3, :3], conf)
-    where = [x[1] for x in dts]  # a sweep without a drive position (-1: built by hand) is a frame of its own
-    frames = len(set(where)) if min(where, default=0) >= 0 else len(ms)
+    dt, where = np.array([x[0] for x in dts]), np.array([x[1] for x in dts], int)
+    # a sweep without a drive position (-1: built by hand) is a frame of its own
+    frames = len(set(where.tolist())) if min(where, default=0) >= 0 else len(ms)
     if min(len(ms), frames) < conf.min_pairs:
         worst = sorted(skipped.values(), key=lambda v: -v[0])[:2]
         top = "; ".join(f"{n} pair{'' if n == 1 else 's'}: {why}" for n, why in worst)
@@ -211,7 +212,6 @@ def fit(sweeps: list[EgoSweep], X: np.ndarray, T_ego_cam: np.ndarray, conf: Leve
         return None, (f"fewer than {conf.min_pairs} of the {len(ms)} usable sweep pairs give a finite residual (a "
                       f"Doppler velocity or ego pose without a direction)")
     d, cov, scale, turn = solved
-    dt, where = np.array([x[0] for x in dts]), np.array([x[1] for x in dts])
     k, s = conf.terms(len(ms) / max(frames, 1))
     cov = k * cov
     cov[1, 1] += s ** 2

@@ -135,6 +135,11 @@ class InterSweep:
     fields: dict
     why: str = ""
 
+    @classmethod
+    def unreadable(cls, token: str, timestamp_us: int | None, why: str) -> InterSweep:
+        """A sweep named with why it carries nothing (no pose, no points)."""
+        return cls(token, timestamp_us, np.full((4, 4), np.nan), np.zeros((0, 3)), {}, f"sweep unreadable: {why}")
+
 
 def _walk_between(tables: NuScenesTables, sd: dict, limit: int):
     """Yield ``(token, record, error)`` for the non-keyframe sweeps before ``sd``, newest first, back to the
@@ -185,8 +190,7 @@ def sweeps_between_keyframes(tables: NuScenesTables, sd: dict, conf: RadarFilter
     out, missing = [], 0
     for token, rec, err in _walk_between(tables, sd, limit):
         if err is not None:
-            out.append(InterSweep(token, None, np.full((4, 4), np.nan), np.zeros((0, 3)), {},
-                                  f"sweep unreadable: {err}"))
+            out.append(InterSweep.unreadable(token, None, str(err)))
             break
         try:
             path = tables.file(rec)
@@ -196,8 +200,7 @@ def sweeps_between_keyframes(tables: NuScenesTables, sd: dict, conf: RadarFilter
             pose = tables.T_global_ego(rec)
             pts, _, _, _ = load_filtered_sweep(path, conf, rec["token"])
         except DataError as e:
-            out.append(InterSweep(rec["token"], int(rec["timestamp"]), np.full((4, 4), np.nan), np.zeros((0, 3)),
-                                  {}, f"sweep unreadable: {e}"))
+            out.append(InterSweep.unreadable(rec["token"], int(rec["timestamp"]), str(e)))
             continue
         xyz = np.stack([pts["x"], pts["y"], pts["z"]], axis=1).astype(np.float64)
         out.append(InterSweep(rec["token"], int(rec["timestamp"]), pose, xyz,

@@ -75,7 +75,7 @@ def estimate_velocity(points: np.ndarray, fields: dict, conf: RadarVelocityConfi
     band = conf.inlier_mps + conf.inlier_frac * np.abs(vr)
     rng = np.random.default_rng(n)  # deterministic per sweep
     pairs = np.array([rng.choice(n, 2, replace=False) for _ in range(conf.iterations)]).reshape(-1, 2)
-    M = A[pairs]  # (I, 2, 2): every hypothesis at once (the same draws and picks as one at a time, ~10x faster)
+    M = A[pairs]  # (I, 2, 2): every hypothesis at once (the same draws and pick as one at a time, 3.5-4x faster)
     well = np.abs(np.linalg.det(M)) >= 1e-3
     M, pairs = M[well], pairs[well]
     best = None

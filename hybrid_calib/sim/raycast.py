@@ -266,7 +266,10 @@ def cast_angular(prims: Primitives, T_global_sensor: np.ndarray, elevations: np.
     azimuth inside one of them (the radar's near and far scans): a primitive is not cast against the rays
     where no hit on it could be used (beyond every scan's range at its azimuth). Rays whose first surface
     was such a primitive then report a farther one or none, equally unusable; every usable hit is the same.
+    Not with ``wrap`` (a sensor whose scans are limited in azimuth does not cover the full circle).
     """
+    if reach and wrap:
+        raise ValueError("cast_angular: reach limits the azimuths, wrap covers the full circle; use one of them")
     R, o = T_global_sensor[:3, :3], T_global_sensor[:3, 3]
     dirs = angular_grid_dirs(elevations, azimuths) @ R.T
     buf = cast_ground(o, dirs, max_range)
@@ -283,7 +286,9 @@ def cast_angular(prims: Primitives, T_global_sensor: np.ndarray, elevations: np.
         half_az = np.where(rad < dh, np.arcsin(np.clip(rad / dh, 0, 1)), np.pi)
         half_el = np.where(rad < d, np.arcsin(np.clip(rad / d, 0, 1)), np.pi)
     A = len(azimuths)
-    near = d - rad  # no hit on the primitive is nearer than this, m
+    if reach:  # per primitive, the widest half azimuth of a scan that reaches its nearest point (-1: none does)
+        ranges, halves = np.array(reach, np.float64).T
+        usable = np.where((d - rad)[:, None] <= ranges, halves, -1.0).max(axis=1)
     for k, j in enumerate(idx):
         e0 = np.searchsorted(elevations, el_c[k] - half_el[k], "left")
         e1 = np.searchsorted(elevations, el_c[k] + half_el[k], "right")
@@ -291,11 +296,8 @@ def cast_angular(prims: Primitives, T_global_sensor: np.ndarray, elevations: np.
             continue
         lo, hi = az_c[k] - half_az[k], az_c[k] + half_az[k]
         if reach:
-            usable = max((h for r, h in reach if near[k] <= r), default=None)
-            if usable is None:
-                continue
-            lo, hi = max(lo, -usable), min(hi, usable)
-            if lo > hi:
+            lo, hi = max(lo, -usable[k]), min(hi, usable[k])
+            if lo > hi:  # also where no scan reaches the primitive (usable -1)
                 continue
             spans = [(np.searchsorted(azimuths, lo, "left"), np.searchsorted(azimuths, hi, "right"))]
         elif half_az[k] >= np.pi:
