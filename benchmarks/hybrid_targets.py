@@ -2,12 +2,15 @@
 for R1 and R2, and check every target.
 
     PYTHONPATH=. python benchmarks/hybrid_targets.py --out OUT [--vehicles 2] [--frames 200] \
-        [--max-frames 0] [--trials 20] [--methods pure,pure-avg,hybrid] [--ranges R1 R2] [--threads 2]
+        [--max-frames 0] [--trials 20] [--methods pure,pure-avg,hybrid] [--ranges R1 R2] [--threads 2] \
+        [--scenarios urban:9201 highway:9202 rain:9203]
 
 Test drives: ``hybrid-calib simulate`` with seeds 9201 (urban), 9202 (highway), 9203 (rain),
 ``--vehicles`` each, ``--frames`` keyframes, image_scale 0.25 (as the shipped networks' training
 data); the shipped networks were trained on seeds 0, 2, 3 and the hybrid fitted on seeds 9101-9103
-(``benchmarks/hybrid_fit.py``), so none of these drives was seen. Per range: ``hybrid-calib compare``
+(``benchmarks/hybrid_fit.py``), so none of these drives was seen. ``--scenarios NAME:SEED ...`` draws
+other test drives (a fresh seed per preset, ``straight`` too): the check that no figure is tuned to 9201-9203.
+Per range: ``hybrid-calib compare``
 (resumable) with the shipped checkpoint of the range, then the checks below are printed and written
 to ``OUT/compare-R*/targets.json``, and every range's record found under OUT to ``OUT/targets.json`` (so R1
 and R2 run side by side into one OUT leave both there):
@@ -28,12 +31,13 @@ SCENARIOS = {"urban": 9201, "highway": 9202, "rain": 9203}
 AXES = ("roll_deg", "pitch_deg", "yaw_deg", "x_cm", "y_cm", "z_cm")
 
 
-def simulate_test_drives(out: Path, vehicles: int, frames: int) -> list[Path]:
+def simulate_test_drives(out: Path, vehicles: int, frames: int, scenarios: dict[str, int] | None = None
+                         ) -> list[Path]:
     from hybrid_calib.sim.drive import SimConfig
     from hybrid_calib.sim.simulate import simulate
 
     roots = []
-    for name, seed in SCENARIOS.items():
+    for name, seed in (scenarios or SCENARIOS).items():
         conf = SimConfig(scenario=name, vehicles=vehicles, frames=frames, seed=seed, image_scale=0.25)
         roots.append(Path(simulate(conf, out / f"test_{name}")))
     return roots
@@ -100,12 +104,18 @@ def main(argv=None) -> int:
     p.add_argument("--methods", default="pure,pure-avg,hybrid")
     p.add_argument("--ranges", nargs="+", default=["R1", "R2"])
     p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--scenarios", nargs="+", default=[f"{k}:{v}" for k, v in SCENARIOS.items()],
+                   help="test drives as PRESET:SEED (default: the issue's urban:9201 highway:9202 rain:9203)")
     a = p.parse_args(argv)
+    try:
+        scenarios = {s.split(":")[0]: int(s.split(":")[1]) for s in a.scenarios}
+    except (IndexError, ValueError):
+        p.error(f"--scenarios takes PRESET:SEED items (e.g. urban:9501), got {a.scenarios}")
 
     from hybrid_calib.compare import compare
     from hybrid_calib.config import save_json_atomic
 
-    roots = simulate_test_drives(a.out / "data", a.vehicles, a.frames)
+    roots = simulate_test_drives(a.out / "data", a.vehicles, a.frames, scenarios)
     command = "PYTHONPATH=. python benchmarks/hybrid_targets.py " + " ".join(sys.argv[1:])
     for r in a.ranges:
         conf = {"range": r, "trials": a.trials, "methods": tuple(a.methods.split(",")),

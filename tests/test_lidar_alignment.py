@@ -1,5 +1,6 @@
-"""The radar's lateral offset from the LiDAR (calib.lidar_alignment): recovery on a synthetic scene of
-poles and on a simulated drive, the Kalman fold into an estimate, and the refusals."""
+"""The radar's lateral and forward offsets from the LiDAR (calib.lidar_alignment): recovery on a synthetic
+scene of poles and on a simulated drive, moving detections left out, the Kalman fold into an estimate, and the
+refusals."""
 
 from __future__ import annotations
 
@@ -7,13 +8,16 @@ import numpy as np
 import pytest
 
 from hybrid_calib.calib.lidar_alignment import (
+    RADAR_X,
     RADAR_Y,
     LidarAlignConfig,
     LidarAlignment,
     LidarFrame,
     align,
-    apply_lateral,
+    apply_offsets,
+    describe,
     drive_frames,
+    forward_refusal,
 )
 from hybrid_calib.geometry import local, se3_exp
 
@@ -65,14 +69,22 @@ def test_a_range_offset_on_a_one_sided_scene_does_not_become_a_lateral_offset():
     assert abs(b.delta[1] - need) > max(0.1, 5 * b.dy_std)
 
 
-def test_the_coupling_is_how_dy_moves_with_the_estimates_rotation():
+def test_the_coupling_is_how_dy_and_dx_move_with_the_estimates_rotation():
+    # LiDAR rings at 0.2, 0.8 and 1.5 m above the radar plane: a turn about radar x moves what the radar's
+    # beams meet sideways by the rings' mean height (dy), one about radar y moves it along x (dx)
     frames = _poles(np.random.default_rng(4), lateral=(-20, -2))
     a, _ = align(frames, X_TRUE, LidarAlignConfig(systematic_m=0.0, min_rows=30))
-    phi = np.radians(0.3)
-    b, _ = align(frames, X_TRUE @ se3_exp(np.array([0.0, 0.0, phi, 0.0, 0.0, 0.0])),
-                 LidarAlignConfig(systematic_m=0.0, coupling_deg=0.0, min_rows=30))
-    assert abs(a.coupling[2]) > 0.1  # a one-sided scene: a turn of the radar reads partly as a lateral offset
-    assert abs((b.delta[1] - a.delta[1]) - a.coupling[2] * phi) < 0.3 * abs(a.coupling[2] * phi) + 0.002
+    eps = np.radians(0.3)
+    for axis, which, c in ((0, 1, a.coupling[0]), (1, 0, a.coupling_x[1])):
+        d = []
+        for sgn in (1.0, -1.0):
+            phi = np.zeros(6)
+            phi[axis] = sgn * eps
+            conf = LidarAlignConfig(systematic_m=0.0, coupling_deg=0.0, min_rows=30)
+            b, _ = align(frames, X_TRUE @ se3_exp(phi), conf)
+            d.append(b.delta[which])
+        assert abs(c) > 0.5 and abs((d[0] - d[1]) / (2 * eps) - c) < 0.1 * abs(c)
+    assert np.isclose(a.coupling[0], -a.coupling_x[1], rtol=0.05)  # the same rings seen from either side
 
 
 def test_a_frame_with_no_lidar_ahead_of_the_radar_is_left_out_not_a_crash():
@@ -102,11 +114,40 @@ def test_refuses_too_few_frames_rows_or_one_direction():
     assert a is None and "one direction" in why
 
 
+def test_the_forward_offset_is_recovered_beside_a_range_offset_with_an_honest_std():
+    # poles across +-45 deg of azimuth, reflections 0.2 m behind the surface: dx and b are told apart by cos a
+    frames = _poles(np.random.default_rng(7), n_frames=10, lateral=(-20, 20), range_offset_m=0.2)
+    start = X_TRUE @ se3_exp(np.array([0.0, 0.0, 0.0, -0.4, 0.3, 0.0]))
+    need = local(start, X_TRUE)
+    a, why = align(frames, start, LidarAlignConfig(systematic_m=0.0, systematic_x_m=0.0, min_rows=30))
+    assert a is not None, why
+    assert abs(a.delta[0] - need[RADAR_X]) < max(3 * a.dx_std, 0.01) and a.dx_std < 0.05
+    assert abs(a.delta[1] - need[RADAR_Y]) < 0.01 and abs(a.delta[2] - 0.2) < 0.1
+    # the drive-common term enters dx's variance; a dx less certain than max_std_x_m, or beside a deep range
+    # offset, is not folded
+    b, _ = align(frames, start, LidarAlignConfig(systematic_m=0.0, systematic_x_m=0.12, min_rows=30))
+    assert np.isclose(b.cov[0, 0], a.cov[0, 0] + 0.12 ** 2, rtol=1e-6, atol=1e-9)
+    assert forward_refusal(b, LidarAlignConfig(max_std_x_m=0.1)).startswith("forward offset std 12.")
+    assert forward_refusal(a, LidarAlignConfig(max_range_offset_m=0.1)).startswith("the radar's reflections lie +19 cm")
+    assert forward_refusal(a, LidarAlignConfig(forward=False)).startswith("forward offset off")
+    assert forward_refusal(a, LidarAlignConfig()) == ""
+
+
+def test_one_pass_stops_short_of_a_start_far_off_and_more_passes_do_not():
+    frames = _poles(np.random.default_rng(9), n_frames=8, lateral=(-20, 20), range_offset_m=0.1)
+    start = X_TRUE @ se3_exp(np.array([0.0, 0.0, 0.0, 0.45, -0.45, 0.0]))
+    need = local(start, X_TRUE)[3:5]
+    one, _ = align(frames, start, LidarAlignConfig(passes=1, min_rows=30, coupling_deg=0.0))
+    three, _ = align(frames, start, LidarAlignConfig(passes=3, min_rows=30, coupling_deg=0.0))
+    assert np.abs(one.delta[:2] - need).max() > 0.3  # the first pass re-associated onto the wrong poles
+    assert np.abs(three.delta[:2] - need).max() < 0.03 and three.iterations == 3 * one.iterations
+
+
 def test_apply_lateral_is_a_kalman_update_along_radar_y():
     cov = np.diag(np.square([0.01, 0.01, 0.005, 0.1, 0.3, 0.1]))
     cov[2, RADAR_Y] = cov[RADAR_Y, 2] = 0.5 * 0.005 * 0.3  # yaw and lateral offset correlated
     a = LidarAlignment(np.array([0.05, 0.2, 0.1]), np.diag([0.01, 0.03 ** 2, 0.01]), 100, 10, 0.2, 8)
-    T, cov2 = apply_lateral(X_TRUE, cov, a)
+    T, cov2 = apply_offsets(X_TRUE, cov, a, forward=False)
     xi = local(X_TRUE, T)
     gain = 0.3 ** 2 / (0.3 ** 2 + 0.03 ** 2)
     assert np.isclose(xi[RADAR_Y], gain * 0.2, rtol=1e-6) and abs(xi[3]) < 1e-9  # dx is not used
@@ -115,11 +156,56 @@ def test_apply_lateral_is_a_kalman_update_along_radar_y():
     assert np.isclose(cov2[3, 3], cov[3, 3]) and np.linalg.eigvalsh(cov2).min() > 0
     # with a coupling, dy measures xi[4] - c * xi[2]: its innovation variance carries the yaw's
     c = LidarAlignment(a.delta, a.cov, 100, 10, 0.2, 8, coupling=np.array([0.0, 0.0, 4.0]))
-    T3, cov3 = apply_lateral(X_TRUE, cov, c)
+    T3, cov3 = apply_offsets(X_TRUE, cov, c, forward=False)
     h = np.array([0, 0, -4.0, 0, 1, 0])
     s = h @ cov @ h + 0.03 ** 2
     np.testing.assert_allclose(local(X_TRUE, T3), cov @ h / s * 0.2, rtol=1e-6, atol=1e-12)
     assert np.isclose(h @ cov3 @ h, (h @ cov @ h) * 0.03 ** 2 / s)
+
+
+def test_apply_offsets_with_dx_is_the_information_form_update():
+    g = np.random.default_rng(9)
+    M = g.standard_normal((6, 6)) * [0.01, 0.01, 0.005, 0.1, 0.3, 0.1]
+    cov = M @ M.T + np.diag(np.square([0.002, 0.002, 0.001, 0.02, 0.05, 0.02]))
+    fit_cov = np.array([[0.06 ** 2, 0.3 * 0.06 * 0.03, 0], [0.3 * 0.06 * 0.03, 0.03 ** 2, 0], [0, 0, 0.01]])
+    a = LidarAlignment(np.array([-0.12, 0.2, 0.1]), fit_cov, 100, 10, 0.2, 8,
+                       coupling=np.array([0.5, 0.0, 4.0]), coupling_x=np.array([0.0, -1.0, 0.2]))
+    T, cov2 = apply_offsets(X_TRUE, cov, a)
+    H = np.zeros((2, 6))
+    H[0, RADAR_X], H[1, RADAR_Y] = 1.0, 1.0
+    H[0, :3], H[1, :3] = -a.coupling_x, -a.coupling
+    R = fit_cov[:2, :2]
+    post = np.linalg.inv(np.linalg.inv(cov) + H.T @ np.linalg.inv(R) @ H)
+    np.testing.assert_allclose(cov2, post, rtol=1e-6, atol=1e-12)
+    np.testing.assert_allclose(local(X_TRUE, T), post @ H.T @ np.linalg.solve(R, a.delta[:2]), rtol=1e-6, atol=1e-12)
+    assert np.linalg.eigvalsh(cov2).min() > 0
+
+
+def test_the_record_and_its_words_say_what_was_folded():
+    a = LidarAlignment(np.array([-0.12, 0.2, 0.1]), np.diag([0.2 ** 2, 0.03 ** 2, 0.01]), 100, 10, 0.2, 8, moving=7)
+    no = forward_refusal(a, LidarAlignConfig())
+    rec = a.record(True, forward=not no, forward_why=no)
+    assert rec["applied"] and not rec["forward_applied"] and rec["moving_dropped"] == 7
+    assert "lateral applied, forward not: forward offset std 20.0 cm" in describe(rec)
+    assert describe(a.record(True, forward=True)).endswith("forward -12.0 +- 20.0 cm; both applied")
+    # a result written before the forward offset ("dx_m_unused") still reads
+    old = {"applied": True, "dy_m": 0.2, "dy_std_m": 0.03, "dx_m_unused": -0.1, "rows": 100, "frames": 10}
+    assert describe(old).endswith("frames); lateral applied")
+
+
+def test_moving_detections_are_told_by_the_radars_own_doppler():
+    from hybrid_calib.sensors.radar_velocity import stationary
+
+    g = np.random.default_rng(3)
+    az = g.uniform(-0.7, 0.7, 40)
+    pts = np.column_stack([20 * np.cos(az), 20 * np.sin(az), np.zeros(40)])
+    v = np.array([12.0, 0.5])
+    vr = -(np.cos(az) * v[0] + np.sin(az) * v[1]) + 0.05 * g.standard_normal(40)
+    vr[:6] += 8.0  # six moving cars
+    vr[6] = np.nan
+    fields = {"vx": vr * np.cos(az), "vy": vr * np.sin(az)}
+    still = stationary(pts, fields, v)
+    assert not still[:7].any() and still[7:].all()
 
 
 @pytest.fixture(scope="module")
@@ -140,9 +226,13 @@ def test_on_a_simulated_drive(sim_root):
     assert len(lfs) == len(idx) and all(len(f.lidar) for f in lfs)
     truth = np.asarray(frames[0].extras["T_cam_radar_static"])
     start = truth @ se3_exp(np.array([0.0, 0.0, 0.004, -0.2, 0.35, 0.0]))
-    a, why = align(lfs, start)
+    a, why = align(lfs, start, LidarAlignConfig(min_rows=50))  # 8 frames: fewer than the default 100 rows
     assert a is not None, why
-    err = a.delta[1] - local(start, truth)[RADAR_Y]
-    assert abs(err) < 3 * a.dy_std and a.dy_std < 0.06
+    need = local(start, truth)
+    assert abs(a.delta[1] - need[RADAR_Y]) < 3 * a.dy_std and a.dy_std < 0.06
+    assert abs(a.delta[0] - need[RADAR_X]) < 3 * a.dx_std and a.dx_std < 0.15
+    # the moving traffic the radar's own Doppler tells apart is left out
+    everything = drive_frames(frames, idx, LidarAlignConfig(stationary=False))
+    assert sum(len(f.radar_xy) for f in everything) == sum(len(f.radar_xy) + f.moving for f in lfs)
     # without LiDAR there is nothing to align with
     assert drive_frames(open_frames(sim_root, "v1.0-sim", lidar=False), idx) == []

@@ -100,12 +100,21 @@ def report_std(T_cam_radar: np.ndarray, cov: np.ndarray) -> np.ndarray:
 def fold_scalar(T: np.ndarray, cov: np.ndarray, h: np.ndarray, z: float, var: float) -> tuple[np.ndarray, np.ndarray]:
     """(T', cov'): one scalar measurement ``z = h @ xi + n`` (``n`` of variance ``var``) of the right
     perturbation ``xi`` at ``T`` (4, 4), ``cov`` (6, 6) [rotation, translation], folded in by a Kalman update;
-    correlated directions move with it. Used by the hybrid's LiDAR and Doppler alignments."""
-    h = np.asarray(h, np.float64)
-    s = float(h @ cov @ h) + var
-    k = cov @ h / s
-    cov2 = cov - np.outer(k, h @ cov)
-    return T @ se3_exp(k * z), 0.5 * (cov2 + cov2.T)
+    correlated directions move with it. Used by the hybrid's Doppler alignment (``fold_linear`` with one row)."""
+    return fold_linear(T, cov, np.asarray(h, np.float64)[None, :], np.array([z], np.float64), np.array([[var]]))
+
+
+def fold_linear(T: np.ndarray, cov: np.ndarray, H: np.ndarray, z: np.ndarray, R: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """(T', cov'): measurements ``z = H xi + n`` (H (k, 6), z (k,), ``n`` of covariance R (k, k)) of the right
+    perturbation ``xi`` at ``T`` (4, 4), ``cov`` (6, 6) [rotation, translation], folded in by one Kalman update
+    (Joseph form: the covariance stays symmetric and positive); correlated directions move with them."""
+    H = np.asarray(H, np.float64)
+    S = H @ cov @ H.T + np.asarray(R, np.float64)
+    K = np.linalg.solve(0.5 * (S + S.T), H @ cov).T  # (6, k) = cov H^T S^-1
+    IKH = np.eye(6) - K @ H
+    cov2 = IKH @ cov @ IKH.T + K @ R @ K.T
+    return T @ se3_exp(K @ np.asarray(z, np.float64)), 0.5 * (cov2 + cov2.T)
 
 
 def _check_cov(cov: np.ndarray) -> np.ndarray:

@@ -23,9 +23,11 @@
           "config": {...} | null,         # the method's effective config (hybrid.HybridConfig)
           "ood": {...} | null,            # learned methods: out-of-domain scores and decision (hybrid.ood)
           "mount": {...} | null,          # hybrid: the radar mount monitor (docs/conventions.md)
-          "lidar": {"applied", "dy_m", "dy_std_m", "dx_m_unused", "range_offset_m", "coupling_m_per_rad",
-                    "rows", "frames", "scale_m", "note"} | null
-                                          # hybrid: the radar's lateral offset from the LiDAR (calib.lidar_alignment)
+          "lidar": {"applied", "dy_m", "dy_std_m", "dx_m", "dx_std_m", "forward_applied", "range_offset_m",
+                    "coupling_m_per_rad", "coupling_x_m_per_rad", "rows", "frames", "moving_dropped", "scale_m",
+                    "note", "forward_note"} | null
+                                          # hybrid: the radar's lateral and forward offsets from the LiDAR
+                                          # (calib.lidar_alignment; results before 2026-12-02: "dx_m_unused")
           "doppler": {"applied", "dx_m", "dx_std_m", "heading_bias_deg", "h", "pairs", "turning", "scale_deg",
                       "skipped", "note"} | null
                                           # hybrid: the radar's forward offset from its Doppler (calib.lever_arm)

@@ -36,7 +36,7 @@ from hybrid_calib.calib.drift import DriftConfig, reference_test
 from hybrid_calib.calib.ego_doppler import drive_sweeps
 from hybrid_calib.calib.lever_arm import LeverArmConfig, apply_forward, refusal
 from hybrid_calib.calib.lever_arm import fit as fit_lever_arm
-from hybrid_calib.calib.lidar_alignment import LidarAlignConfig, align, apply_lateral, drive_frames
+from hybrid_calib.calib.lidar_alignment import LidarAlignConfig, align, apply_offsets, drive_frames, forward_refusal
 from hybrid_calib.calib.lidar_alignment import refusal as lidar_refusal
 from hybrid_calib.calib.mount_monitor import MountMonitor, MountMonitorConfig
 from hybrid_calib.calib.oracle import OracleConfig
@@ -314,8 +314,9 @@ def _fold_last(traj: list[FrameEstimate], conf: HybridConfig, a, why: str, refus
 
 def with_lidar(traj: list[FrameEstimate], drive: Drive, frames, conf: HybridConfig, mon: MountMonitor | None
                ) -> tuple[list[FrameEstimate], dict]:
-    """The trajectory with the LiDAR's lateral offset (``calib.lidar_alignment``) folded into its last
-    estimate, and the result's ``lidar`` block (what was measured, and whether and why not it was applied).
+    """The trajectory with the LiDAR's lateral (and, when it is certain enough, forward) offset
+    (``calib.lidar_alignment``) folded into its last estimate, and the result's ``lidar`` block (what was
+    measured, and whether and why not it was applied).
     Frames: those the loop used, after the radar's last mount step (the mount before it was another)."""
     since = _since_last_step(mon)
     indices = [drive.indices[f.index] for f in traj if f.index >= since and 0 <= f.index < len(drive.indices)]
@@ -325,7 +326,10 @@ def with_lidar(traj: list[FrameEstimate], drive: Drive, frames, conf: HybridConf
                                                 "and the tables' LiDAR-camera extrinsic; the frames are read with "
                                                 "their LiDAR only for --depth lidar-densified)"}
     a, why = align(lfs, traj[-1].T, conf.lidar)
-    return _fold_last(traj, conf, a, why, lidar_refusal(a, conf.lidar) if a else "", apply_lateral)
+    no_dx = forward_refusal(a, conf.lidar) if a else ""
+    traj, block = _fold_last(traj, conf, a, why, lidar_refusal(a, conf.lidar) if a else "",
+                             lambda T, cov, a: apply_offsets(T, cov, a, forward=not no_dx))
+    return traj, (a.record(True, forward=not no_dx, forward_why=no_dx) if block.get("applied") else block)
 
 
 def with_doppler(traj: list[FrameEstimate], drive: Drive, frames, conf: HybridConfig, mon: MountMonitor | None,

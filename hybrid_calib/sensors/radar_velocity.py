@@ -54,6 +54,18 @@ def radial_velocity(points: np.ndarray, fields: dict) -> tuple[np.ndarray, np.nd
     return az, vr
 
 
+def stationary(points: np.ndarray, fields: dict, v: np.ndarray, conf: RadarVelocityConfig = RadarVelocityConfig()
+               ) -> np.ndarray:
+    """(N,) bool: the detections whose radial velocity is the stationary world's seen from a radar moving at
+    ``v`` (2,) m/s (within the inlier band ``inlier_mps + inlier_frac |v_r|``): the rule ``estimate_velocity``
+    selects its inliers by. Moving objects (and detections without a finite velocity) are False.
+    points: (N, 3) radar frame, metres; fields: per-point PCD fields with ``vx``, ``vy``."""
+    az, vr = radial_velocity(np.asarray(points, np.float64), fields)
+    pred = -(np.cos(az) * v[0] + np.sin(az) * v[1])
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(vr) & (np.abs(pred - vr) < conf.inlier_mps + conf.inlier_frac * np.abs(vr))
+
+
 def estimate_velocity(points: np.ndarray, fields: dict, conf: RadarVelocityConfig = RadarVelocityConfig(),
                       sweep_index: np.ndarray | None = None) -> tuple[RadarVelocity | None, str]:
     """The radar's velocity from one frame's detections, or (None, why not).
