@@ -312,3 +312,18 @@ def test_a_bad_run_config_leaves_a_note_not_a_crash(run_dir, tmp_path):
     notes = _parse(out).ids["notes"]
     assert "config.json" in notes and "no correspondences or residuals" in notes
     assert "Residuals unavailable" in out.read_text()
+
+
+def test_a_mount_monitor_that_tested_nothing_does_not_say_no():
+    """A hybrid result whose radar mount monitor tested no frame pair (no usable Doppler velocity) does not
+    answer "did the sensor move?" with "no": the radar's yaw was not tested."""
+    from hybrid_calib.calib.mount_monitor import tested_words
+    from hybrid_calib.report.verdict import moved_during_drive
+
+    vr = _vr((0.0,) * 6, (0.05,) * 6, alarms=(99,))  # a trajectory, no alarm in it
+    vr.mount = {"steps": [], "levels": [], "frames_tested": 0, "pairs_tested": 0, "threshold": 8.0}
+    moved, frames = moved_during_drive(vr)
+    assert moved.startswith("not told for the radar's yaw") and frames == ()
+    assert tested_words(vr.mount).startswith("no frame pair tested")
+    vr.mount = {**vr.mount, "frames_tested": 4, "pairs_tested": 4}
+    assert moved_during_drive(vr)[0].startswith("no: no step alarm over the 5 frames")

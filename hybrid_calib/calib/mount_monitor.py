@@ -290,7 +290,13 @@ def tested_words(summary: dict) -> str:
     ``sweeps_absent``, that the root's sweeps between keyframes were listed but not on disk."""
     pairs = int(summary.get("pairs_tested", 0))
     frames = int(summary.get("frames_tested", pairs))
-    words = f"{frames} frames tested ({pairs} sweep pairs)" if pairs != frames else f"{frames} frame pairs tested"
+    if not pairs:
+        words = ("no frame pair tested (no pair had a usable Doppler velocity of the radar and ego poses: a step of "
+                 "the radar's yaw alone would go unseen by it)")
+    elif pairs != frames:
+        words = f"{frames} frames tested ({pairs} sweep pairs)"
+    else:
+        words = f"{frames} frame pairs tested"
     if summary.get("sweeps_absent"):  # the hybrid's record: the tables list sweeps between keyframes, no files
         words += "; keyframes only: the root's radar sweeps between keyframes have no files (add sweeps/)"
     return words
