@@ -39,6 +39,8 @@ ignored by the reader. A bad file raises ``DataError`` naming the file, the key 
 
 from __future__ import annotations
 
+import zipfile
+import zlib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -192,11 +194,16 @@ def save_measurements(path: str | Path, m: FrameMeasurements, extra: Mapping[str
 
 def load_measurements(path: str | Path) -> FrameMeasurements:
     """One frame file; ``DataError`` naming it when it is unreadable or not in the format."""
+    if Path(path).exists() and not Path(path).is_file():  # a named pipe blocked np.load for ever
+        raise DataError("measurement file is not a regular file (a directory, named pipe or device); replace it "
+                        "with a file written by the export, or move it out of the directory", path=str(path))
     try:
         with np.load(path, allow_pickle=False) as z:
             return from_arrays(z, str(path))
-    except (OSError, ValueError, KeyError) as e:  # not a zip, truncated, pickled arrays
-        raise DataError(f"unreadable measurement file ({e}); re-run the export", path=str(path)) from None
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error) as e:
+        # not a zip, pickled arrays; truncated: BadZipFile (the archive), EOFError / zlib.error (a member)
+        raise DataError(f"unreadable measurement file ({type(e).__name__}: {e}); the file is corrupt or truncated: "
+                        "re-run the export", path=str(path)) from None
 
 
 def measurement_files(directory: str | Path) -> dict[str, list[Path]]:
@@ -220,14 +227,21 @@ def measurement_files(directory: str | Path) -> dict[str, list[Path]]:
     return groups
 
 
-def load_measurement_dir(directory: str | Path) -> dict[str, list[FrameMeasurements]]:
+def load_measurement_dir(directory: str | Path, skipped: list | None = None) -> dict[str, list[FrameMeasurements]]:
     """Every frame under ``directory`` (``measurement_files``), grouped by the file's ``vehicle``
     (a file without one takes its sub-directory's name, "" when flat); each group sorted by camera
-    timestamp, then frame id."""
+    timestamp, then frame id. A bad file raises its ``DataError``, or, when ``skipped`` is a list, is
+    appended to it as ``(sub-directory name, path, DataError)`` and left out."""
     out: dict[str, list[FrameMeasurements]] = {}
     for sub, files in measurement_files(directory).items():
         for f in files:
-            m = load_measurements(f)
+            try:
+                m = load_measurements(f)
+            except DataError as e:
+                if skipped is None:
+                    raise
+                skipped.append((sub, f, e))
+                continue
             out.setdefault(m.vehicle or sub, []).append(m)
     for frames in out.values():
         frames.sort(key=lambda m: (m.timestamp_us, m.frame_id))

@@ -41,3 +41,11 @@ def ray_session(tmp_path_factory):
         ray.shutdown()
     os.environ.clear()
     os.environ.update(env)
+
+
+@pytest.fixture
+def tiny(tmp_path):
+    """The hand-written 3-sample root of tests/tiny_nuscenes.py (no simulator: milliseconds)."""
+    from tests.tiny_nuscenes import make_tiny_root
+
+    return make_tiny_root(tmp_path / "tiny", n_samples=3)

@@ -59,3 +59,13 @@ def expect_cli_error(argv: list, capsys, *needles, rc: int = 2) -> str:
     for needle in needles:
         assert str(needle) in err, (needle, err)
     return err
+
+
+def skips_of(tiny) -> list:
+    """Every frame of a tiny root (the ``tiny`` fixture) loaded in turn: the skip records (any other exception
+    fails the test)."""
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+
+    ds = NuScenesRadarCamera(tiny.root, tiny.version)
+    list(ds)
+    return ds.skipped

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from hybrid_calib.cli import EXIT_ERROR
-from tests.helpers import expect_cli_error, run_cli
+from tests.helpers import expect_cli_error, run_cli, skips_of
 from tests.tiny_nuscenes import corrupt_jpeg_scan
 
 SIM_VERSION = "v1.0-sim"
@@ -750,23 +750,6 @@ def test_compare_leaves_out_a_bad_vehicle_records_a_bad_frame_and_finishes(sim_c
 
 
 # ---------------------------------------------------------------- values that parse as JSON but not as what they name
-@pytest.fixture
-def tiny(tmp_path):
-    """The hand-written 3-sample root of tests/tiny_nuscenes.py (no simulator: milliseconds)."""
-    from tests.tiny_nuscenes import make_tiny_root
-
-    return make_tiny_root(tmp_path / "tiny", n_samples=3)
-
-
-def _skips_of(tiny) -> list:
-    """Every frame of the tiny root loaded in turn: the skip records (any other exception fails the test)."""
-    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
-
-    ds = NuScenesRadarCamera(tiny.root, tiny.version)
-    list(ds)
-    return ds.skipped
-
-
 def _set_intrinsic(tiny, value):
     next(cs for cs in tiny.tables["calibrated_sensor"] if cs["token"] == "cs_CAM_FRONT")["camera_intrinsic"] = value
     tiny.rewrite_table("calibrated_sensor")
@@ -804,7 +787,7 @@ TABLE_VALUE_CASES = {  # case -> (corrupt(tiny), the frames skipped, needles of 
 def test_a_value_of_the_wrong_shape_is_a_skip_naming_it(case, tiny):
     corrupt, skipped_frames, needles = TABLE_VALUE_CASES[case]
     corrupt(tiny)
-    skipped = _skips_of(tiny)
+    skipped = skips_of(tiny)
     assert [s.index for s in skipped] == skipped_frames, skipped
     for needle in needles:
         assert needle in skipped[0].reason, (needle, skipped[0].reason)
@@ -819,7 +802,7 @@ def test_filter_field_of_count_2_is_named_when_the_filter_reads_it(tiny):
     counts[14] = b"2"  # invalid_state (the 15th field)
     head = head.replace(b"\nCOUNT " + b" ".join([b"1"] * 18), b"\nCOUNT " + b" ".join(counts))
     path.write_bytes(head + b"DATA binary\n" + body * 2)
-    skipped = _skips_of(tiny)
+    skipped = skips_of(tiny)
     assert [s.index for s in skipped] == [1] and "field 'invalid_state'" in skipped[0].reason, skipped
 
 
@@ -1459,7 +1442,7 @@ def test_a_filename_outside_the_root_is_a_skip_naming_it(filename, why, which, t
     sd = (tiny.radar_sd if which == "radar" else tiny.cam_sd)[1]
     sd["filename"] = filename
     tiny.rewrite_table("sample_data")
-    skipped = _skips_of(tiny)
+    skipped = skips_of(tiny)
     assert [s.index for s in skipped] == [1], skipped
     for needle in (f"field 'filename' {filename!r} {why}", "relative to the root", "sample_data.json", sd["token"]):
         assert needle in skipped[0].reason, (needle, skipped[0].reason)

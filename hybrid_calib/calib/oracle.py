@@ -35,11 +35,15 @@ recorded points moved by ``N`` (so the single extrinsic ``X`` explains every fra
 
 from __future__ import annotations
 
+import zipfile
+import zlib
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from factors.correspondences import Correspondences
+from hybrid_calib.data.pcd import check_regular_file
 from hybrid_calib.errors import DataError
 from hybrid_calib.geometry import project_points, se3_inverse, transform_points
 
@@ -106,19 +110,27 @@ def oracle_from_frame(frame, conf: OracleConfig, rng: np.random.Generator) -> tu
         raise DataError("frame has no simulator truth (extras radar_truth_path / radar_rows); oracle "
                         "correspondences need a v1.0-sim root written by `hybrid-calib simulate` and nsweeps=1",
                         token=frame.radar_token)
+    where = f"frame {frame.sample_token}"
     try:
-        with np.load(path) as z:
+        check_regular_file(Path(path), "simulator truth file", frame.radar_token)
+        with np.load(path, allow_pickle=False) as z:
             true_xyz = np.asarray(z["true_xyz"], np.float64)
             kind = np.asarray(z["kind"]) if "kind" in z.files else np.zeros(len(true_xyz), np.int64)
-    except (OSError, KeyError, ValueError) as e:
-        raise DataError(f"simulator truth unreadable ({e}); re-run hybrid-calib simulate", path=str(path),
+    except (OSError, KeyError, ValueError, TypeError, EOFError, zipfile.BadZipFile, zlib.error) as e:
+        # a truncated .npz is a BadZipFile (or EOFError / zlib.error on the member), not an OSError
+        raise DataError(f"simulator truth of {where} unreadable ({type(e).__name__}: {e}); the file is corrupt or "
+                        "truncated: re-run hybrid-calib simulate", path=str(path),
                         token=frame.radar_token) from None
     rows = np.asarray(ex["radar_rows"], np.int64)
     if true_xyz.ndim != 2 or true_xyz.shape[1] != 3 or len(rows) != len(frame.radar_points) or \
             (len(rows) and rows.max() >= len(true_xyz)):
-        raise DataError(f"simulator truth true_xyz {true_xyz.shape} does not match the PCD rows "
-                        f"({len(frame.radar_points)} points, max row {rows.max() if len(rows) else -1})",
-                        path=str(path), token=frame.radar_token)
+        raise DataError(f"simulator truth true_xyz {true_xyz.shape} of {where} does not match the PCD rows "
+                        f"({len(frame.radar_points)} points, max row {rows.max() if len(rows) else -1}); re-run "
+                        "hybrid-calib simulate", path=str(path), token=frame.radar_token)
+    if kind.shape != (len(true_xyz),) or kind.dtype.kind not in "iub":
+        raise DataError(f"simulator truth 'kind' {kind.dtype}{list(kind.shape)} of {where} does not match true_xyz "
+                        f"({len(true_xyz)} rows; expected one integer per row); the file is corrupt: re-run "
+                        "hybrid-calib simulate", path=str(path), token=frame.radar_token)
     X = np.asarray(ex.get("T_cam_radar_static", frame.T_cam_radar), np.float64)
     T_frame = np.asarray(frame.T_cam_radar, np.float64)
     N = se3_inverse(X) @ T_frame  # radar motion between radar and camera timestamps

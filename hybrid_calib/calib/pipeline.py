@@ -105,7 +105,10 @@ def load_oracle(data, version: str, conf: CalibrateConfig | dict | None, rng) ->
 
 
 def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig) -> dict[str, VehicleInput]:
-    groups = load_measurement_dir(directory)
+    bad: list = []  # (sub-directory, file, DataError) of each unreadable file: skipped, the others are used
+    groups = load_measurement_dir(directory, bad)
+    if bad and not groups:
+        raise DataError(f"none of the {len(bad)} measurement file(s) reads; first: {bad[0][2]}", path=str(directory))
     refs: dict[str, np.ndarray] = {}
     truths: dict[str, np.ndarray] = {}
     if data is not None and version:
@@ -130,6 +133,10 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig)
         truth = truths.get(vehicle)
         out[vehicle] = VehicleInput(vehicle, [m.corr for m in ms], ref, [truth] * len(ms) if truth is not None else [],
                                     network=[m.network for m in ms])
+    for sub, path, e in bad:  # a file that does not read has no vehicle field: its folder's, else every vehicle's
+        for vehicle in [sub] if sub in out else list(out):
+            out[vehicle].skipped.append({"index": None, "token": Path(path).stem,
+                                         "reason": f"measurement file skipped: {e}"})
     return out
 
 

@@ -17,6 +17,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+from hybrid_calib.data.pcd import check_regular_file
 from hybrid_calib.errors import DataError
 
 _PNG_SIG = b"\x89PNG\r\n\x1a\n"
@@ -32,6 +33,7 @@ def image_header(path: str | Path, token: str | None = None) -> tuple[int, int]:
     """
     path = Path(path)
     try:
+        check_regular_file(path, "camera image", token)
         size = path.stat().st_size
         with open(path, "rb") as f:
             head = f.read(8)
@@ -117,8 +119,10 @@ def decode_image(path: str | Path, token: str | None = None):
     import cv2
 
     path = Path(path)
-    if not path.is_file():
-        raise DataError("camera image not found", path=str(path), token=token)
+    try:
+        check_regular_file(path, "camera image", token)
+    except OSError:  # missing (or its folder unreadable)
+        raise DataError("camera image not found", path=str(path), token=token) from None
     with _captured_stderr() as captured:
         bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
     report = captured.text.strip()

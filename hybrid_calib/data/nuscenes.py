@@ -37,6 +37,7 @@ Bad input policy:
 from __future__ import annotations
 
 import json
+import math
 import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -51,7 +52,7 @@ from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.data.image_header import decode_image, image_header
 from hybrid_calib.data.pcd import read_lidar_bin
 from hybrid_calib.data.sweeps import InterSweep, accumulate_radar, sweeps_between_keyframes
-from hybrid_calib.data.tables import NuScenesTables
+from hybrid_calib.data.tables import MAX_MOUNT_TRANSLATION_M, QUAT_NORM_TOL, NuScenesTables, _is_number_list
 from hybrid_calib.errors import DataError
 from hybrid_calib.geometry import pose_from_nuscenes, se3_inverse
 from hybrid_calib.sensors.camera import PinholeCamera
@@ -263,7 +264,8 @@ class NuScenesRadarCamera:
             width, height = w_file, h_file
         if self.conf.decode_images:
             decode_image(image_path, cam["token"])
-        camera = PinholeCamera.from_K(t.camera_intrinsic(cam), width, height)
+        camera = PinholeCamera.from_K(t.camera_intrinsic(cam, (width, height) if width and height else None), width,
+                                     height)
 
         T_ego_cam, T_ego_radar = t.T_ego_sensor(cam), t.T_ego_sensor(rad)
         T_ge_cam, T_ge_radar = t.T_global_ego(cam), t.T_global_ego(rad)
@@ -363,22 +365,48 @@ class NuScenesRadarCamera:
 
 
 def _load_sim_vehicles(vdir: Path) -> dict[str, dict]:
-    """``VERSION/sim_vehicle.json`` (written by the simulator) -> log_token -> vehicle record; {} if absent."""
+    """``VERSION/sim_vehicle.json`` (written by the simulator) -> log_token -> vehicle record; {} if absent.
+
+    A file that cannot be read or parsed is read as absent (a ``SimVehicleWarning`` says so): the root is then
+    what a root simulated before the file existed is (the drift reference comes from the calibrated_sensor
+    tables). A file that parses but holds a malformed pose (``SIM_POSE_KEYS``, ``nominal``) is a ``DataError``
+    naming the file, the log token and the key: every frame of that vehicle would use it."""
     path = vdir / "sim_vehicle.json"
     if not path.is_file():
         return {}
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise DataError(f"sim_vehicle.json is not valid JSON ({e}); re-run hybrid-calib simulate",
-                        path=str(path)) from None
+    except (json.JSONDecodeError, UnicodeDecodeError, OSError, RecursionError) as e:
+        why = f"not valid JSON ({e})" if isinstance(e, (json.JSONDecodeError, UnicodeDecodeError)) else \
+            "nested too deeply" if isinstance(e, RecursionError) else f"unreadable ({e})"
+        warnings.warn(f"{path} is {why}; reading the root as one without it (the drift reference is the "
+                      "calibrated_sensor tables' extrinsic and the simulator's factory calibration is not used): "
+                      "re-run hybrid-calib simulate to restore it, or delete the file to silence this",
+                      SimVehicleWarning, stacklevel=3)
+        return {}
     if isinstance(data, dict) and "vehicles" in data:
         data = data["vehicles"]
     if isinstance(data, list):
         data = {rec.get("log_token"): rec for rec in data if isinstance(rec, dict)}
     if not isinstance(data, dict) or not all(isinstance(v, dict) for v in data.values()):
         raise DataError("sim_vehicle.json must map log tokens to vehicle records", path=str(path))
+    for log_token, rec in data.items():
+        for key in SIM_POSE_KEYS:
+            _sim_pose(rec, key, path, log_token)
+        nominal = rec.get("nominal") or rec.get("nominal_extrinsics") or {}
+        for channel, node in (nominal.items() if isinstance(nominal, dict) else ()):
+            _sim_pose({"node": node}, "node", path, log_token, f"nominal.{channel}")
     return data
+
+
+class SimVehicleWarning(UserWarning):
+    """``sim_vehicle.json`` exists but cannot be read; the root is read as one without it."""
+
+
+# the poses of a sim_vehicle.json record (ego <- sensor mounts), checked when the file is loaded
+SIM_POSE_KEYS = ("factory_T_ego_radar", "factory_T_ego_cam", "nominal_T_ego_radar", "nominal_T_ego_cam",
+                 "true_T_ego_radar_start", "true_T_ego_cam")
+_ROTATION_TOL = 1e-6  # |R^T R - I| of a 4x4 pose given as a matrix
 
 
 def _sim_nominal_T_ego_radar(rec: dict | None, radar_channel: str) -> np.ndarray | None:
@@ -390,16 +418,67 @@ def _sim_nominal_T_ego_radar(rec: dict | None, radar_channel: str) -> np.ndarray
     return _sim_pose({"node": node}, "node") if node is not None else _sim_pose(rec, "nominal_T_ego_radar")
 
 
-def _sim_pose(rec: dict | None, key: str) -> np.ndarray | None:
+def _sim_pose(rec: dict | None, key: str, path: Path | None = None, log_token: str | None = None,
+              name: str | None = None) -> np.ndarray | None:
     """A (4, 4) pose stored under ``key`` of a simulated vehicle record ({rotation, translation} or a
-    4x4 list), or None when absent."""
+    4x4 list), or None when absent. ``DataError`` naming ``path`` (sim_vehicle.json), the log token and the key
+    (``name``, default ``key``) when it is not a unit quaternion and a finite translation within
+    ``tables.MAX_MOUNT_TRANSLATION_M`` of the ego origin, or not a rigid 4x4 matrix."""
     node = rec.get(key) if rec else None
     if node is None:
         return None
+    T, why = _sim_pose_or_reason(node)
+    if T is None:
+        raise DataError(f"sim_vehicle.json record of log {log_token} key {name or key!r}: {why}; expected "
+                        "{\"rotation\": [w, x, y, z] unit quaternion, \"translation\": [x, y, z] metres} or a 4x4 "
+                        "rigid transform: re-run hybrid-calib simulate, or delete sim_vehicle.json to read the root "
+                        "without it (the drift reference is then the calibrated_sensor tables' extrinsic)",
+                        path=str(path) if path is not None else "sim_vehicle.json", token=log_token)
+    return T
+
+
+def _sim_pose_or_reason(node) -> tuple[np.ndarray | None, str]:
+    """(pose, "") of a sim_vehicle.json pose node, or (None, what is wrong, with the value)."""
+    def show(value) -> str:
+        text = repr(value)
+        return text if len(text) <= 80 else text[:77] + "..."
+
     if isinstance(node, dict):
-        return pose_from_nuscenes(node["rotation"], node["translation"])
-    T = np.asarray(node, dtype=np.float64)
-    return T if T.shape == (4, 4) else None
+        missing = [k for k in ("rotation", "translation") if k not in node]
+        if missing:
+            return None, f"lacks {missing} (has {sorted(node)})"
+        q, t = node["rotation"], node["translation"]
+        for field, value, n in (("rotation", q, 4), ("translation", t, 3)):
+            if not _is_number_list(value) or len(value) != n:
+                return None, f"{field!r} is {show(value)}, not a list of {n} numbers"
+        try:
+            q, t = np.asarray(q, np.float64), np.asarray(t, np.float64)
+        except OverflowError:  # an integer beyond float range
+            return None, f"a value beyond float range in {show(node)}"
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(t))):
+            return None, f"non-finite values in {show(node)}"
+        norm = float(np.linalg.norm(q))
+        if abs(norm - 1.0) > QUAT_NORM_TOL:
+            return None, f"'rotation' {show(node['rotation'])} has norm {norm:.6g}, not 1 (tolerance {QUAT_NORM_TOL:g})"
+        T = pose_from_nuscenes(q / norm, t)
+    elif isinstance(node, list) and len(node) == 4 and all(_is_number_list(r) and len(r) == 4 for r in node):
+        try:
+            T = np.asarray(node, dtype=np.float64)
+        except OverflowError:
+            return None, f"a value beyond float range in {show(node)}"
+        if not np.all(np.isfinite(T)):
+            return None, f"non-finite values in {show(node)}"
+        R = T[:3, :3]
+        if not np.allclose(T[3], [0, 0, 0, 1], atol=_ROTATION_TOL) or \
+                not np.allclose(R.T @ R, np.eye(3), atol=_ROTATION_TOL) or np.linalg.det(R) <= 0:
+            return None, f"{show(node)} is not rigid (rotation not orthonormal or last row not [0, 0, 0, 1])"
+    else:
+        return None, f"{show(node)} is neither a {{rotation, translation}} object nor a 4x4 list of numbers"
+    dist = math.hypot(*T[:3, 3])
+    if dist > MAX_MOUNT_TRANSLATION_M:
+        return None, (f"the translation puts the sensor {dist:.6g} m from the ego origin, more than "
+                      f"{MAX_MOUNT_TRANSLATION_M:g} m")
+    return T, ""
 
 
 def _image_size_field(cam: dict, table: Path) -> tuple[int, int]:

@@ -5,6 +5,8 @@ Every reader error is a ``DataError`` naming the file and what is wrong.
 
 from __future__ import annotations
 
+import os
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -37,6 +39,20 @@ def _header_text(n_points: int) -> bytes:
     ).encode("ascii")
 
 
+def check_regular_file(path: Path, what: str, token: str | None = None) -> None:
+    """``DataError`` naming ``path`` when it exists but is not a regular file (after following links): reading a
+    named pipe (FIFO) blocked the job for ever, a directory or a device is not a data file either. A missing
+    path raises ``FileNotFoundError`` (each reader says what to do about it)."""
+    mode = os.stat(path).st_mode
+    if stat.S_ISREG(mode):
+        return
+    kind = ("a named pipe (FIFO)" if stat.S_ISFIFO(mode) else "a directory" if stat.S_ISDIR(mode)
+            else "a socket" if stat.S_ISSOCK(mode) else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode)
+            else "a special file")
+    raise DataError(f"{what} is {kind}, not a regular file, so it cannot be read; replace it with the dataset's "
+                    "file (re-extract or re-download it)", path=str(path), token=token)
+
+
 def write_radar_pcd(path: str | Path, points: np.ndarray) -> Path:
     """Write a structured array of dtype ``RADAR_DTYPE`` (N,) as a nuScenes radar PCD, atomically."""
     path = Path(path)
@@ -62,6 +78,7 @@ def read_radar_pcd(path: str | Path) -> np.ndarray:
     """
     path = Path(path)
     try:
+        check_regular_file(path, "radar file")
         raw = path.read_bytes()
     except FileNotFoundError:
         raise DataError("radar file not found; check the dataset root and version", path=str(path)) from None
@@ -123,6 +140,7 @@ def read_lidar_bin(path: str | Path, n_fields: int = 5) -> np.ndarray:
     """nuScenes LIDAR_TOP ``.pcd.bin`` (float32 x 5: x, y, z, intensity, ring) -> (N, 5) float32."""
     path = Path(path)
     try:
+        check_regular_file(path, "LiDAR file")
         data = path.read_bytes()
     except FileNotFoundError:
         raise DataError("LiDAR file not found; the LiDAR is read for lidar-densified depth (the default --depth on "

@@ -24,6 +24,7 @@ list of records, each a dict with a unique ``token``.
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Iterable
 from pathlib import Path, PurePosixPath
 
@@ -257,15 +258,19 @@ class NuScenesTables:
     def T_ego_sensor(self, sd: dict) -> np.ndarray:
         """(4, 4) sensor -> ego of a sample_data record (its calibrated_sensor)."""
         cs = self.get("calibrated_sensor", sd["calibrated_sensor_token"], f"sample_data {sd['token']}")
-        return _pose(cs, self.path("calibrated_sensor"))
+        return _pose(cs, self.path("calibrated_sensor"), MAX_MOUNT_TRANSLATION_M, "a sensor mount")
 
     def T_global_ego(self, sd: dict) -> np.ndarray:
         """(4, 4) ego -> global at a sample_data record's timestamp (its ego_pose)."""
         ep = self.get("ego_pose", sd["ego_pose_token"], f"sample_data {sd['token']}")
-        return _pose(ep, self.path("ego_pose"))
+        return _pose(ep, self.path("ego_pose"), MAX_EGO_TRANSLATION_M, "an ego pose")
 
-    def camera_intrinsic(self, sd: dict) -> np.ndarray:
-        """(3, 3) float64 camera matrix of a camera sample_data record."""
+    def camera_intrinsic(self, sd: dict, size: tuple[int, int] | None = None) -> np.ndarray:
+        """(3, 3) float64 camera matrix of a camera sample_data record. ``DataError`` naming calibrated_sensor.json,
+        the record's token and the value when it is not a finite 3x3 matrix with third row [0, 0, 1], focal
+        lengths in ``FOCAL_RANGE_PX`` and the principal point inside the image extended by its own size on each
+        side (``size`` (width, height) in pixels; else the record's width / height; unknown: within
+        ``MAX_PRINCIPAL_POINT_PX``)."""
         cs = self.get("calibrated_sensor", sd["calibrated_sensor_token"], f"sample_data {sd['token']}")
         rows = cs["camera_intrinsic"]
         try:  # ragged rows, strings, booleans, objects: not a matrix
@@ -273,11 +278,43 @@ class NuScenesTables:
                 _is_number_list(row) for row in rows) else np.full(0, np.nan)
         except (ValueError, OverflowError):  # ragged rows; an integer beyond float range
             K = np.full(0, np.nan)
+        path, token = str(self.path("calibrated_sensor")), cs["token"]
         if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
             raise DataError(f"calibrated_sensor camera_intrinsic must be a finite 3x3 matrix with positive focal "
                             f"lengths, got {cs['camera_intrinsic']!r}; is this a camera channel?",
-                            path=str(self.path("calibrated_sensor")), token=cs["token"])
+                            path=path, token=token)
+        fix = "fix the record or re-extract the tables"
+        if np.max(np.abs(K[2] - [0.0, 0.0, 1.0])) > 1e-6:
+            raise DataError(f"calibrated_sensor camera_intrinsic third row is {rows[2]!r}, expected [0, 0, 1] (a "
+                            f"pinhole camera matrix [[fx, s, cx], [0, fy, cy], [0, 0, 1]]); {fix}", path=path,
+                            token=token)
+        lo, hi = FOCAL_RANGE_PX
+        for name, v in (("fx", K[0, 0]), ("fy", K[1, 1])):
+            if not lo <= v <= hi:
+                raise DataError(f"calibrated_sensor camera_intrinsic {name} is {v:.6g} px, outside the plausible "
+                                f"range {lo:g}..{hi:g} px (nuScenes cameras have about 1266 px); {fix}", path=path,
+                                token=token)
+        width, height = size or (_positive_int(sd.get("width")), _positive_int(sd.get("height")))
+        for name, v, extent in (("cx", K[0, 2], width), ("cy", K[1, 2], height)):
+            if extent:
+                ok, bound = -extent <= v <= 2 * extent, f"{-extent}..{2 * extent} px (the image, {extent} px, " \
+                    "extended by its own size on each side)"
+            else:
+                ok, bound = abs(v) <= MAX_PRINCIPAL_POINT_PX, f"+-{MAX_PRINCIPAL_POINT_PX:g} px (image size unknown)"
+            if not ok:
+                raise DataError(f"calibrated_sensor camera_intrinsic principal point {name} is {v:.6g} px, outside "
+                                f"{bound}; {fix}", path=path, token=token)
         return K
+
+
+FOCAL_RANGE_PX = (1.0, 1e5)  # plausible focal lengths, pixels (a 1e-300 px focal length made K singular)
+MAX_PRINCIPAL_POINT_PX = 1e5  # |cx|, |cy| bound, pixels, when the image size is not known
+
+
+def _positive_int(value) -> int:
+    """A record's width / height when it is a positive whole number, else 0 (unknown)."""
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0
+    return int(value) if ok and value == int(value) else 0
 
 
 def _index_by_token(records: list[dict], path: Path) -> dict[str, dict]:
@@ -294,6 +331,10 @@ def _index_by_token(records: list[dict], path: Path) -> dict[str, dict]:
 
 
 QUAT_NORM_TOL = 1e-3  # |norm(q) - 1| up to this is rounding in the file: renormalised; beyond it the record is rejected
+# plausibility bounds of a translation, metres: a sensor mount (calibrated_sensor) sits on the vehicle, and nuScenes
+# map coordinates (ego_pose) reach a few km; beyond these the record is corrupt (1e30 m overflowed the solvers)
+MAX_MOUNT_TRANSLATION_M = 50.0
+MAX_EGO_TRANSLATION_M = 1e7
 
 
 def _is_number_list(value) -> bool:
@@ -332,11 +373,20 @@ def _unit_quaternion(rec: dict, path: Path) -> np.ndarray:
     return q / norm
 
 
-def _pose(rec: dict, path: Path) -> np.ndarray:
+def _pose(rec: dict, path: Path, max_translation_m: float = float("inf"), what: str = "a pose") -> np.ndarray:
     """(4, 4) child -> parent of an ego_pose / calibrated_sensor record; ``DataError`` naming the table, token and
-    field when its rotation or translation is not a flat list of 4 / 3 finite numbers (or not a unit quaternion)."""
+    field when its rotation or translation is not a flat list of 4 / 3 finite numbers (or not a unit quaternion),
+    or the translation is more than ``max_translation_m`` from the parent's origin (``what`` names the record kind
+    in that message)."""
     q = _unit_quaternion(rec, path)
     t = _vector(rec, "translation", 3, "[x, y, z] metres (3 numbers)", path)
+    dist = math.hypot(*t)  # no overflow warning for 1e300
+    if not dist <= max_translation_m:  # "not <=": inf too
+        text = repr(rec["translation"])
+        text = text if len(text) <= 80 else text[:77] + "..."
+        raise DataError(f"table {path.stem!r} field 'translation' is {text}, {dist:.6g} m from the origin; {what} "
+                        f"must lie within {max_translation_m:g} m, so the record is corrupt: fix the record or "
+                        "re-extract the tables", path=str(path), token=rec.get("token"))
     try:
         T = pose_from_nuscenes(q, t)
     except (ValueError, TypeError) as e:

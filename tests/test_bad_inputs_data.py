@@ -1,0 +1,353 @@
+"""Bad inputs the data layer used to accept or crash on: a malformed pose in sim_vehicle.json, a truncated
+simulator truth or measurement file, implausible numbers in the tables (mounts and ego poses at 1e30 m,
+focal lengths of 1e-300 px, a principal point at 1e9 px, a K whose third row is not [0, 0, 1]) and data
+files that are named pipes (reading one blocked for ever). Each is a ``DataError`` naming the file and
+the token or key, and a long job records the bad frame (or file) and goes on."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import threading
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hybrid_calib.data.nuscenes import NuScenesRadarCamera, SimVehicleWarning
+from hybrid_calib.errors import DataError
+from tests.helpers import expect_cli_error, run_cli, skips_of
+from tests.tiny_nuscenes import T_EGO_CAM
+
+SIM_VERSION = "v1.0-sim"
+
+
+@pytest.fixture(scope="module")
+def small_sim(tmp_path_factory):
+    """A simulated root of 1 vehicle x 4 frames at image_scale 0.05 (a few seconds)."""
+    from hybrid_calib.config import merge
+    from hybrid_calib.sim.drive import SimConfig
+    from hybrid_calib.sim.simulate import simulate
+
+    root = tmp_path_factory.mktemp("small") / "sim"
+    simulate(merge(SimConfig, {"vehicles": 1, "frames": 4, "image_scale": 0.05, "seed": 3}), root, workers=1,
+             progress=False)
+    return root
+
+
+@pytest.fixture
+def sim_copy(small_sim, tmp_path):
+    copy = tmp_path / "copy"
+    shutil.copytree(small_sim, copy)
+    return copy
+
+
+def _calibrate(root, out, *extra) -> list:
+    return ["calibrate", "--data", root, "--version", SIM_VERSION, "--out", out, "--no-plots", *extra]
+
+
+# ---------------------------------------------------------------- sim_vehicle.json
+def _sim_vehicle(tiny, key: str, value) -> Path:
+    """A sim_vehicle.json on the tiny root whose ``key`` is ``value`` (the rest: valid factory poses)."""
+    from hybrid_calib.geometry import pose_to_nuscenes
+    from tests.tiny_nuscenes import T_EGO_RADAR
+
+    rec = {"vehicle": "tiny"}
+    for k, T in (("factory_T_ego_radar", T_EGO_RADAR), ("factory_T_ego_cam", T_EGO_CAM)):
+        rot, trans = pose_to_nuscenes(T)
+        rec[k] = {"rotation": rot, "translation": trans}
+    if isinstance(value, dict) and key in rec:
+        rec[key] = {**rec[key], **value}
+        rec[key] = {k: v for k, v in rec[key].items() if v is not KeyError}
+    else:
+        rec[key] = value
+    path = tiny.vdir / "sim_vehicle.json"
+    path.write_text(json.dumps({"log0": rec}))
+    return path
+
+
+SIM_VEHICLE_CASES = {  # case -> (key, value, needle); each was "internal error: ValueError/KeyError" naming no file
+    "zero-quaternion": ("factory_T_ego_radar", {"rotation": [0, 0, 0, 0]}, "norm 0"),
+    "translation-a-string": ("factory_T_ego_radar", {"translation": "abc"}, "'translation' is 'abc'"),
+    "rotation-missing": ("factory_T_ego_cam", {"rotation": KeyError}, "lacks ['rotation']"),
+    "ragged-matrix": ("nominal_T_ego_radar", [[1, 0, 0], [0, 1]], "neither a {rotation, translation} object"),
+    "matrix-not-rigid": ("nominal_T_ego_cam", np.diag([2.0, 1, 1, 1]).tolist(), "not rigid"),
+    "mount-1e30-m": ("true_T_ego_cam", {"rotation": [1, 0, 0, 0], "translation": [1e30, 0, 0]}, "more than 50 m"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(SIM_VEHICLE_CASES))
+def test_a_bad_pose_in_sim_vehicle_json_names_the_file_log_and_key(case, tiny, capsys):
+    key, value, needle = SIM_VEHICLE_CASES[case]
+    path = _sim_vehicle(tiny, key, value)
+    with pytest.raises(DataError) as e:
+        NuScenesRadarCamera(tiny.root, tiny.version)
+    msg = str(e.value)
+    for want in (str(path), "log log0", repr(key), needle, "re-run hybrid-calib simulate", "delete sim_vehicle.json"):
+        assert want in msg, (want, msg)
+    err = expect_cli_error(["inspect", "--data", tiny.root, "--version", tiny.version, "--no-progress"], capsys,
+                           path, repr(key), needle)
+    assert len([ln for ln in err.splitlines() if ln.strip()]) == 1, err
+
+
+def test_an_unreadable_sim_vehicle_json_is_read_as_absent_with_a_warning(tiny):
+    ref = NuScenesRadarCamera(tiny.root, tiny.version)[1].extras["reference_T_cam_radar"]
+    path = tiny.vdir / "sim_vehicle.json"
+    path.write_text('[{"log_token": "log0", "factory_T_ego_radar": {"rot')  # cut short
+    with pytest.warns(SimVehicleWarning, match="reading the root as one without it") as w:
+        ds = NuScenesRadarCamera(tiny.root, tiny.version)
+    assert str(path) in str(w[0].message) and "not valid JSON" in str(w[0].message)
+    assert ds.sim_vehicles == {}
+    np.testing.assert_array_equal(ds[1].extras["reference_T_cam_radar"], ref)
+
+
+def test_a_valid_sim_vehicle_json_still_gives_the_factory_reference(tiny):
+    from hybrid_calib.geometry import se3_inverse
+    from tests.tiny_nuscenes import T_EGO_RADAR
+
+    _sim_vehicle(tiny, "nominal_T_ego_radar", np.eye(4).tolist())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        ds = NuScenesRadarCamera(tiny.root, tiny.version)
+    np.testing.assert_allclose(ds[0].extras["reference_T_cam_radar"], se3_inverse(T_EGO_CAM) @ T_EGO_RADAR,
+                               atol=1e-9)
+
+
+# ---------------------------------------------------------------- simulator truth (oracle)
+def _truth_files(root: Path) -> list[Path]:
+    return sorted((root / "sim_truth" / "RADAR_FRONT").glob("*.npz"))
+
+
+def _truth_of_frame(root: Path, index: int) -> Path:
+    ds = NuScenesRadarCamera(root, SIM_VERSION, conf={"check_images": False})
+    return root / "sim_truth" / "RADAR_FRONT" / (Path(ds.frames[index].radar_sd["filename"]).stem + ".npz")
+
+
+def _short_kind(path: Path) -> None:
+    with np.load(path) as z:
+        d = dict(z)
+    d["kind"] = d["kind"][:3]
+    np.savez(path, **d)
+
+
+TRUTH_CASES = {  # case -> (corrupt(path), needle); BadZipFile aborted the whole run, IndexError too
+    "truncated": (lambda p: p.write_bytes(p.read_bytes()[: p.stat().st_size // 2]), "BadZipFile"),
+    "kind-shorter-than-true_xyz": (_short_kind, "'kind' int8[3]"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(TRUTH_CASES))
+def test_a_bad_simulator_truth_file_is_a_recorded_skip_and_the_oracle_run_finishes(case, sim_copy, tmp_path, capsys):
+    corrupt, needle = TRUTH_CASES[case]
+    path = _truth_of_frame(sim_copy, 1)
+    corrupt(path)
+    out = tmp_path / "out"
+    rc, err = run_cli(_calibrate(sim_copy, out), capsys)
+    assert rc == 0, err
+    (v,) = json.loads((out / "result.json").read_text())["vehicles"].values()
+    assert v["n_frames"] == 3 and [s["index"] for s in v["frames_skipped"]] == [1], v["frames_skipped"]
+    reason = v["frames_skipped"][0]["reason"]
+    ds = NuScenesRadarCamera(sim_copy, SIM_VERSION, conf={"check_images": False})
+    for want in (str(path), needle, f"frame {ds.frames[1].sample_token}"):
+        assert want in reason, (want, reason)
+
+
+# ---------------------------------------------------------------- measurement files
+def _write_measurements(root: Path, directory: Path) -> list[Path]:
+    """One factors.io file per oracle frame of ``root`` (what ``evaluate --out`` writes, without a network)."""
+    from factors.io import FrameMeasurements, save_measurements
+    from hybrid_calib.calib.pipeline import load_oracle
+
+    (vi,) = load_oracle(root, SIM_VERSION, {}, np.random.default_rng(0)).values()
+    return [save_measurements(directory / "frames" / f"{c.frame_id}.npz", FrameMeasurements(c, vi.vehicle, 0))
+            for c in vi.frames]
+
+
+def test_a_truncated_measurement_file_is_named(tmp_path):
+    from factors.io import load_measurement_dir, load_measurements, save_measurements
+    from tests.test_factors_io import _frame
+
+    path = save_measurements(tmp_path / "E" / "frames" / "f0.npz", _frame(0))
+    save_measurements(tmp_path / "E" / "frames" / "f1.npz", _frame(1))
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    with pytest.raises(DataError, match="unreadable measurement file .*truncated") as e:
+        load_measurements(path)
+    assert str(path) in str(e.value)
+    with pytest.raises(DataError, match="f0.npz"):  # the default still stops at a bad file
+        load_measurement_dir(tmp_path / "E")
+    skipped: list = []
+    groups = load_measurement_dir(tmp_path / "E", skipped)
+    assert [m.frame_id for m in groups["veh-a"]] == ["tok-1"] and [s[1] for s in skipped] == [path]
+
+
+def test_calibrate_skips_a_truncated_measurement_file_and_names_it(small_sim, tmp_path, capsys):
+    files = _write_measurements(small_sim, tmp_path / "EV")
+    bad = files[1]
+    bad.write_bytes(bad.read_bytes()[: bad.stat().st_size // 2])
+    out = tmp_path / "out"
+    rc, err = run_cli(_calibrate(small_sim, out, "--correspondences", tmp_path / "EV"), capsys)
+    assert rc == 0, err
+    (v,) = json.loads((out / "result.json").read_text())["vehicles"].values()
+    assert v["n_frames"] == len(files) - 1
+    (skip,) = v["frames_skipped"]
+    assert str(bad) in skip["reason"] and "unreadable measurement file" in skip["reason"], skip
+    for f in files:  # every file bad: one clear error naming the first
+        f.write_bytes(b"PK\x03\x04 truncated")
+    expect_cli_error(_calibrate(small_sim, tmp_path / "out2", "--correspondences", tmp_path / "EV"), capsys,
+                     f"none of the {len(files)} measurement file(s) reads", files[0])
+
+
+# ---------------------------------------------------------------- implausible numbers in the tables
+def _set_cs(tiny, channel: str, key: str, value) -> Path:
+    next(cs for cs in tiny.tables["calibrated_sensor"] if cs["token"] == f"cs_{channel}")[key] = value
+    tiny.rewrite_table("calibrated_sensor")
+    return tiny.vdir / "calibrated_sensor.json"
+
+
+def _set_ego(tiny, value) -> Path:
+    for ep in tiny.tables["ego_pose"]:
+        ep["translation"] = value
+    tiny.rewrite_table("ego_pose")
+    return tiny.vdir / "ego_pose.json"
+
+
+def _K(**change) -> list:
+    K = {"fx": 100.0, "fy": 100.0, "cx": 80.0, "cy": 45.0, "s": 0.0, "row3": [0, 0, 1], **change}
+    return [[K["fx"], K["s"], K["cx"]], [0, K["fy"], K["cy"]], K["row3"]]
+
+
+TABLE_CASES = {  # case -> (corrupt(tiny) -> table file, token, needles); each was accepted (or crashed later)
+    "radar-mount-1e30": (lambda t: _set_cs(t, "RADAR_FRONT", "translation", [1e30, 0, 0]), "cs_RADAR_FRONT",
+                         ["field 'translation'", "1e+30 m", "within 50 m"]),
+    "camera-mount-60m": (lambda t: _set_cs(t, "CAM_FRONT", "translation", [0, 60, 0]), "cs_CAM_FRONT",
+                         ["60 m from the origin", "within 50 m"]),
+    "ego-pose-1e30": (lambda t: _set_ego(t, [1e30, 0, 0]), "sd_", ["field 'translation'", "within 1e+07 m"]),
+    "ego-pose-1e308-each": (lambda t: _set_ego(t, [1e308, 1e308, 1e308]), "sd_", ["1.73205e+308 m", "within 1e+07 m"]),
+    "focal-1e-300": (lambda t: _set_cs(t, "CAM_FRONT", "camera_intrinsic", _K(fx=1e-300, fy=1e-300)), "cs_CAM_FRONT",
+                     ["fx is 1e-300 px", "1..100000 px"]),
+    "focal-1e9": (lambda t: _set_cs(t, "CAM_FRONT", "camera_intrinsic", _K(fy=1e9)), "cs_CAM_FRONT",
+                  ["fy is 1e+09 px"]),
+    "principal-point-1e9": (lambda t: _set_cs(t, "CAM_FRONT", "camera_intrinsic", _K(cx=1e9)), "cs_CAM_FRONT",
+                            ["cx is 1e+09 px", "-160..320 px"]),
+    "principal-point-below": (lambda t: _set_cs(t, "CAM_FRONT", "camera_intrinsic", _K(cy=-91)), "cs_CAM_FRONT",
+                              ["cy is -91 px", "-90..180 px"]),
+    "third-row": (lambda t: _set_cs(t, "CAM_FRONT", "camera_intrinsic", _K(row3=[0, 0, 2])), "cs_CAM_FRONT",
+                  ["third row is [0, 0, 2]", "expected [0, 0, 1]"]),
+    "skew-inf": (lambda t: _set_cs(t, "CAM_FRONT", "camera_intrinsic", _K(s=1e400)), "cs_CAM_FRONT",
+                 ["finite 3x3"]),
+}
+
+
+@pytest.mark.parametrize("case", sorted(TABLE_CASES))
+def test_an_implausible_table_value_is_a_skip_naming_table_token_and_bound(case, tiny):
+    corrupt, token, needles = TABLE_CASES[case]
+    path = corrupt(tiny)
+    skipped = skips_of(tiny)
+    assert [s.index for s in skipped] == [0, 1, 2], skipped
+    for want in (str(path), f"token {token}", *needles):
+        assert want in skipped[0].reason, (want, skipped[0].reason)
+
+
+def test_plausible_values_at_the_bounds_still_read(tiny):
+    _set_cs(tiny, "CAM_FRONT", "camera_intrinsic", _K(fx=1.0, fy=1e5, cx=-160.0, cy=180.0, s=3.0,
+                                                       row3=[0, 0, 1 + 1e-9]))
+    _set_cs(tiny, "RADAR_FRONT", "translation", [49.0, 0, 0])
+    _set_ego(tiny, [9e6, 0, 0])
+    assert skips_of(tiny) == []
+
+
+def test_the_principal_point_bound_without_an_image_size(tiny):
+    sd = {**tiny.cam_sd[0], "width": 0, "height": 0}
+    _set_cs(tiny, "CAM_FRONT", "camera_intrinsic", _K(cx=5e4))
+    tables = NuScenesRadarCamera(tiny.root, tiny.version).tables
+    assert tables.camera_intrinsic(sd)[0, 2] == 5e4  # no size: only |cx| <= 1e5
+    _set_cs(tiny, "CAM_FRONT", "camera_intrinsic", _K(cx=2e5))
+    tables = NuScenesRadarCamera(tiny.root, tiny.version).tables
+    with pytest.raises(DataError, match="cx is 200000 px, outside \\+-100000 px"):
+        tables.camera_intrinsic(sd)
+
+
+# ---------------------------------------------------------------- named pipes
+def _fifo(path: Path) -> Path:
+    path.unlink()
+    os.mkfifo(path)
+    return path
+
+
+def _without_hanging(fn, fifo: Path, seconds: float = 30.0):
+    """``fn()`` in a thread; if it is still blocked (reading ``fifo``) after ``seconds``, the pipe is opened
+    for writing and closed (the reader gets end-of-file) and the test fails instead of hanging."""
+    box: dict = {}
+
+    def target():
+        try:
+            box["value"] = fn()
+        except BaseException as e:  # re-raised below, in the test's thread
+            box["error"] = e
+
+    t = threading.Thread(target=target, daemon=True)
+    t.start()
+    t.join(seconds)
+    if t.is_alive():
+        try:
+            os.close(os.open(fifo, os.O_WRONLY | os.O_NONBLOCK))
+        except OSError:
+            pass
+        t.join(5)
+        pytest.fail(f"reading the named pipe {fifo} blocked for {seconds} s")
+    if "error" in box:
+        raise box["error"]
+    return box.get("value")
+
+
+FIFO_CASES = {  # the file of frame 1 that becomes a named pipe; reading it blocked for ever
+    "radar": (lambda t: t.path(t.radar_sd[1]), "radar file is a named pipe (FIFO), not a regular file", {}),
+    "lidar": (lambda t: t.path(t.lidar_sd[1]), "LiDAR file is a named pipe (FIFO), not a regular file",
+              {"load_lidar": True}),
+    "image": (lambda t: t.path(t.cam_sd[1]), "camera image is a named pipe (FIFO), not a regular file", {}),
+    "image-decoded": (lambda t: t.path(t.cam_sd[1]), "camera image is a named pipe (FIFO)",
+                      {"check_images": False, "decode_images": True}),
+}
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no named pipes on this platform")
+@pytest.mark.parametrize("case", sorted(FIFO_CASES))
+def test_a_data_file_that_is_a_named_pipe_is_a_skip_not_a_hang(case, tiny):
+    which, needle, conf = FIFO_CASES[case]
+    path = _fifo(which(tiny))
+    ds = NuScenesRadarCamera(tiny.root, tiny.version, conf=conf)
+    assert len(_without_hanging(lambda: list(ds), path)) == 2
+    (skip,) = ds.skipped
+    assert skip.index == 1 and needle in skip.reason and str(path) in skip.reason, skip
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no named pipes on this platform")
+def test_inspect_names_a_radar_file_that_is_a_named_pipe(tiny, capsys):
+    from hybrid_calib.cli import main
+
+    path = _fifo(tiny.path(tiny.radar_sd[0]))
+    rc = _without_hanging(lambda: main(["inspect", "--data", str(tiny.root), "--version", tiny.version,
+                                        "--no-progress"]), path)
+    out, err = capsys.readouterr()
+    assert rc == 0 and "Traceback" not in err, err
+    assert "skipped frame 0: radar file is a named pipe (FIFO), not a regular file" in out + err
+    assert str(path) in out + err
+
+
+def test_readers_name_a_directory_and_a_pipe(tmp_path):
+    from hybrid_calib.data.image_header import image_header
+    from hybrid_calib.data.pcd import read_lidar_bin, read_radar_pcd
+
+    (tmp_path / "d.pcd").mkdir()
+    with pytest.raises(DataError, match="radar file is a directory, not a regular file"):
+        read_radar_pcd(tmp_path / "d.pcd")
+    with pytest.raises(DataError, match="not found"):
+        read_radar_pcd(tmp_path / "missing.pcd")
+    if hasattr(os, "mkfifo"):
+        os.mkfifo(tmp_path / "p.bin")
+        with pytest.raises(DataError, match="LiDAR file is a named pipe"):
+            _without_hanging(lambda: read_lidar_bin(tmp_path / "p.bin"), tmp_path / "p.bin")
+        with pytest.raises(DataError, match="camera image is a named pipe .*token tok"):
+            _without_hanging(lambda: image_header(tmp_path / "p.bin", "tok"), tmp_path / "p.bin")
