@@ -34,6 +34,16 @@ EXIT_ERROR = 2  # an expected failure, explained in one line (argparse uses 2 fo
 EXIT_BUG = 3  # an unexpected exception: rerun with --debug and report it
 
 
+# what an interrupted command keeps, and how it goes on
+RESUMES = {
+    "calibrate": "the vehicles it finished are kept in --out/vehicles-done: rerun the same command to go on from there",
+    "compare": "the trials it finished are kept in --out: rerun the same command to go on from there",
+    "fleet": "the vehicles it finished are kept in --out (manifest.json): rerun the same command to go on",
+    "train": "its last checkpoint is kept in --out: rerun the same command to resume training",
+    "simulate": "the frames it wrote are kept: rerun the same command to go on",
+}
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="hybrid-calib", description="Target-free radar-camera extrinsic calibration.")
@@ -56,7 +66,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         if debug:
             raise
-        print(f"hybrid-calib {args.command}: interrupted", file=sys.stderr)
+        kept = RESUMES.get(args.command)
+        print(f"hybrid-calib {args.command}: interrupted" + (f"; {kept}" if kept else ""), file=sys.stderr)
         return 130
     except Exception as e:
         if debug:

@@ -128,7 +128,8 @@ def test_closed_loop_runs_the_network_from_the_fused_estimate(sim_root, tmp_path
 
     run = run_calibration(sim_root, "v1.0-sim", tmp_path / "h", {**BASE, "method": "hybrid",
                                                                   "vehicles": ("sim-veh-000",),
-                                                                  "lidar": {"min_rows": 15, "max_std_m": 1.0}})
+                                                                  "lidar": {"min_rows": 15, "max_std_m": 1.0,
+                                                                            "stationary": False}})
     (v,) = run.vehicles.values()
     assert v.method == "hybrid" and v.errors_against == "truth" and v.checkpoint.endswith("small-sim-r1.json")
     assert len(v.trajectory) == len(v.frame_rows) == 3 and v.error["nees"] > 0
@@ -148,6 +149,44 @@ def test_closed_loop_runs_the_network_from_the_fused_estimate(sim_root, tmp_path
     # partner), and it says so
     assert v.doppler == back.doppler and not v.doppler["applied"], v.doppler
     assert "usable sweep pairs in 2 frames (need 10 of each)" in v.doppler["note"], v.doppler
+
+
+def test_an_interrupted_run_keeps_its_finished_vehicles_and_goes_on_from_there(sim_root, tmp_path, monkeypatch):
+    from hybrid_calib.calib.result import CalibrationRun
+    from hybrid_calib.hybrid import loop, run_calibration
+
+    conf = {**BASE, "method": "pure", "max_frames": 2}
+
+    def stop(vr):
+        raise KeyboardInterrupt  # Ctrl-C once the first vehicle is done
+
+    with pytest.raises(KeyboardInterrupt):
+        run_calibration(sim_root, "v1.0-sim", tmp_path / "p", conf, on_vehicle=stop)
+    kept = sorted((tmp_path / "p" / "vehicles-done").glob("sim-veh-*.json"))
+    assert [f.name for f in kept] == ["sim-veh-000.json"] and not (tmp_path / "p" / "result.json").exists()
+    ran = []
+    real = loop._Session.vehicle
+    monkeypatch.setattr(loop._Session, "vehicle", lambda self, name: ran.append(name) or real(self, name))
+    run = run_calibration(sim_root, "v1.0-sim", tmp_path / "p", conf)
+    assert ran == ["sim-veh-001"] and sorted(run.vehicles) == ["sim-veh-000", "sim-veh-001"]
+    assert not (tmp_path / "p" / "vehicles-done").exists()  # result.json holds everything now
+    assert CalibrationRun.load(tmp_path / "p" / "result.json").vehicles["sim-veh-000"].final.status
+    # another configuration does not reuse what an interrupted run of this one kept
+    with pytest.raises(KeyboardInterrupt):
+        run_calibration(sim_root, "v1.0-sim", tmp_path / "q", conf, on_vehicle=stop)
+    ran.clear()
+    run_calibration(sim_root, "v1.0-sim", tmp_path / "q", {**conf, "seed": 9})
+    assert ran == ["sim-veh-000", "sim-veh-001"]
+    # the oracle pipeline keeps them the same way, and the resumed run is the uninterrupted one
+    from hybrid_calib.calib import pipeline
+
+    with pytest.raises(KeyboardInterrupt):
+        pipeline.calibrate(sim_root, "v1.0-sim", "oracle", tmp_path / "o", {"start": "R1"}, on_vehicle=stop,
+                           progress=False)
+    resumed = pipeline.calibrate(sim_root, "v1.0-sim", "oracle", tmp_path / "o", {"start": "R1"}, progress=False)
+    whole = pipeline.calibrate(sim_root, "v1.0-sim", "oracle", tmp_path / "w", {"start": "R1"}, progress=False)
+    for name in ("sim-veh-000", "sim-veh-001"):
+        np.testing.assert_allclose(resumed.vehicles[name].final.T, whole.vehicles[name].final.T, atol=1e-12)
 
 
 def test_every_method_starts_a_vehicle_from_the_same_extrinsic(sim_root, tmp_path):

@@ -27,7 +27,7 @@ from hybrid_calib.calib.batch import BatchConfig, solve_batch
 from hybrid_calib.calib.covariance import prior_pinned_std
 from hybrid_calib.calib.drift import DriftConfig, reference_test
 from hybrid_calib.calib.oracle import OracleConfig, oracle_from_frame
-from hybrid_calib.calib.result import CalibrationRun, VehicleResult, reuse_result
+from hybrid_calib.calib.result import CalibrationRun, VehicleProgress, VehicleResult, reuse_result
 from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import ConfigError, merge, save_json_atomic, to_dict
@@ -236,18 +236,17 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
     if not inputs:
         raise DataError("no vehicle to calibrate (check --vehicles and the dataset)", path=str(data))
     run = CalibrationRun(str(data), version, str(correspondences), conf.mode)
-    for name, vi in inputs.items():
-        try:
-            vr = calibrate_vehicle(vi, conf, rng, progress, (priors or {}).get(name))
-        except DataError as e:  # this vehicle's data (e.g. no usable frame): recorded, the others go on
-            run.vehicles_failed[name] = str(e)
-            continue
-        run.vehicles[name] = vr
-        if on_vehicle is not None:
-            on_vehicle(vr)
+    # the vehicles an interrupted run finished (each vehicle's start is seeded by its name and the oracle rows
+    # are drawn above for all: skipping them leaves the others' draws as they were)
+    stamp = {**to_dict(conf), "priors": {k: [np.asarray(p.T).tolist(), np.asarray(p.cov).tolist()]
+                                         for k, p in sorted((priors or {}).items())}}
+    done = VehicleProgress(out, data, version, str(correspondences), stamp, fresh=overwrite)
+    done.fill(run, list(inputs), lambda name: calibrate_vehicle(inputs[name], conf, rng, progress,
+                                                                (priors or {}).get(name)), on_vehicle, progress)
     run.raise_if_none_done()
     save_json_atomic(out / "config.json", to_dict(conf))
     run.save(result_path)
+    done.finish()
     return run
 
 

@@ -54,6 +54,7 @@ NETWORK = {"n_frames": frames with a network estimate, "frame_id": the last such
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -345,6 +346,84 @@ class CalibrationRun:
 
 
 RUN_ONLY = ("progress", "threads", "cache_dir", "depth_cache")  # config keys of how a run ran, not of what it gave
+
+
+class VehicleProgress:
+    """The vehicles a ``calibrate`` run into ``out`` has finished, kept so that an interrupted run resumes where it
+    stopped: ``out/vehicles-done/`` holds one JSON per finished vehicle (``VehicleResult``) or failed one
+    (``{"failed": reason}``), written atomically as each ends, and ``stamp.json`` (data, version, source and the
+    effective config). A run with another stamp, or ``fresh`` (``--overwrite``), starts afresh; ``finish`` removes
+    the folder once ``result.json`` holds everything. A damaged file is recomputed, not trusted."""
+
+    def __init__(self, out: str | Path, data, version: str, source: str, conf: dict, fresh: bool = False):
+        import shutil
+
+        self.dir = Path(out) / "vehicles-done"
+        self.stamp = json.loads(json.dumps({"data": str(Path(str(data)).resolve()), "version": version,
+                                            "source": str(source), "config": conf}, default=str))
+        try:
+            same = json.loads((self.dir / "stamp.json").read_text()) == self.stamp
+        except (OSError, ValueError):
+            same = False
+        if self.dir.exists() and (fresh or not same):
+            shutil.rmtree(self.dir, ignore_errors=True)
+        self.done: dict[str, VehicleResult | str] = {}
+        if self.dir.is_dir():
+            for f in sorted(self.dir.glob("*.json")):
+                if f.name == "stamp.json":
+                    continue
+                try:
+                    d = json.loads(f.read_text())
+                    name = str(d["vehicle"])
+                    self.done[name] = str(d["failed"]) if "failed" in d else VehicleResult.from_dict(d["result"], name)
+                except (OSError, ValueError, KeyError, TypeError):
+                    continue
+        else:
+            save_json_atomic(self.dir / "stamp.json", self.stamp)
+
+    def _path(self, name: str) -> Path:
+        from urllib.parse import quote
+
+        return self.dir / f"{quote(name, safe='')}.json"
+
+    def record(self, name: str, result: VehicleResult | str) -> None:
+        """Keep one vehicle's result (or, a string, why it failed)."""
+        body = {"failed": result} if isinstance(result, str) else {"result": result.to_dict()}
+        save_json_atomic(self._path(name), {"vehicle": name, **body})
+
+    def finish(self) -> None:
+        import shutil
+
+        shutil.rmtree(self.dir, ignore_errors=True)
+
+    def fill(self, run: CalibrationRun, names, compute: Callable[[str], VehicleResult],
+             on_vehicle: Callable[[VehicleResult], object] | None = None, announce: bool = True) -> None:
+        """Each vehicle of ``names`` into ``run``: what an interrupted run kept, as it is, else ``compute(name)``,
+        kept as soon as it ends; a ``DataError`` is that vehicle's failure (recorded, the others go on).
+        ``on_vehicle`` is called with each newly computed result."""
+        import sys
+
+        if self.done and announce:
+            print(f"resuming: {len(self.done)} vehicle(s) finished by an interrupted run ({self.dir})",
+                  file=sys.stderr)
+        for name in names:
+            if name in self.done:
+                kept = self.done[name]
+                if isinstance(kept, str):
+                    run.vehicles_failed[name] = kept
+                else:
+                    run.vehicles[name] = kept
+                continue
+            try:
+                vr = compute(name)
+            except DataError as e:  # this vehicle's data: recorded, the other vehicles go on
+                run.vehicles_failed[name] = str(e)
+                self.record(name, str(e))
+                continue
+            run.vehicles[name] = vr
+            self.record(name, vr)
+            if on_vehicle is not None:
+                on_vehicle(vr)
 
 
 def reuse_result(out: str | Path, data, version: str, source: str, conf: dict) -> CalibrationRun:

@@ -44,6 +44,7 @@ from hybrid_calib.calib.result import (
     CalibrationRun,
     Estimate,
     FrameEstimate,
+    VehicleProgress,
     VehicleResult,
     failed_vehicles_message,
     reuse_result,
@@ -679,16 +680,10 @@ def run_calibration(data: str | Path, version: str, out: str | Path, conf: Hybri
         raise DataError("no vehicle to calibrate (check --set vehicles=... and the dataset)", path=str(data))
     mode = {"hybrid": "window", "oracle": "window", "pure": "network", "pure-avg": "average"}[conf.method]
     run = CalibrationRun(str(data), version, conf.method, mode, vehicles_failed=dict(session.unreadable))
-    for name in session.drives:
-        try:
-            vr = session.vehicle(name)
-        except DataError as e:  # this vehicle's data: recorded, the other vehicles go on
-            run.vehicles_failed[name] = str(e)
-            continue
-        run.vehicles[name] = vr
-        if on_vehicle is not None:
-            on_vehicle(vr)
+    done = VehicleProgress(out, data, version, conf.method, to_dict(conf), fresh=overwrite)
+    done.fill(run, list(session.drives), session.vehicle, on_vehicle, conf.progress)
     run.raise_if_none_done()
     save_json_atomic(out / "config.json", to_dict(conf))
     run.save(out / "result.json")
+    done.finish()
     return run
