@@ -199,6 +199,28 @@ def test_calibrate_skips_a_truncated_measurement_file_and_names_it(small_sim, tm
                      f"none of the {len(files)} measurement file(s) reads", files[0])
 
 
+def test_measurement_files_of_another_root_are_not_calibrated_against_this_ones_truth(small_sim, tmp_path, capsys):
+    import dataclasses
+
+    from factors.io import load_measurements, save_measurements
+
+    files = _write_measurements(small_sim, tmp_path / "EV")
+    m = load_measurements(files[0])  # one file of a frame this root does not hold: left out, and said
+    save_measurements(files[0], dataclasses.replace(m, corr=dataclasses.replace(m.corr, frame_id="not-a-frame-here")))
+    out = tmp_path / "out"
+    rc, err = run_cli(_calibrate(small_sim, out, "--correspondences", tmp_path / "EV"), capsys)
+    assert rc == 0, err
+    (v,) = json.loads((out / "result.json").read_text())["vehicles"].values()
+    assert v["n_frames"] == len(files) - 1
+    (skip,) = v["frames_skipped"]
+    assert skip["token"] == "not-a-frame-here" and "not in this root" in skip["reason"], skip
+    for f in files:  # every file of another root: one clear error, nothing computed against the wrong truth
+        m = load_measurements(f)
+        save_measurements(f, dataclasses.replace(m, corr=dataclasses.replace(m.corr, frame_id="other-" + f.stem)))
+    expect_cli_error(_calibrate(small_sim, tmp_path / "out2", "--correspondences", tmp_path / "EV"), capsys,
+                     f"none of the {len(files)} measurement files' frames", "exported from another dataset")
+
+
 # ---------------------------------------------------------------- implausible numbers in the tables
 def _set_cs(tiny, channel: str, key: str, value) -> Path:
     next(cs for cs in tiny.tables["calibrated_sensor"] if cs["token"] == f"cs_{channel}")[key] = value

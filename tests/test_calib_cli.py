@@ -1,6 +1,7 @@
 """``hybrid-calib calibrate`` smoke tests on a tiny simulated drive and on exported correspondences."""
 
 import argparse
+import dataclasses
 import json
 
 import numpy as np
@@ -63,7 +64,8 @@ def test_calibrate_batch_from_exported_correspondence_dir(sim_root, tmp_path):
     frames, _ = synthetic_drive(T, 3, rng(0))
     d = tmp_path / "corr"
     d.mkdir()
-    for k, c in enumerate(frames):
+    for k, c in enumerate(frames):  # rows of the root's own frames (files name the frames they were measured on)
+        c = dataclasses.replace(c, frame_id=ds.frames[k % len(ds.frames)].camera_sd["token"])
         np.savez(d / f"{k:03d}.npz", **c.to_npz_dict())
     out = tmp_path / "run"
     assert calibrate.run(_args("--data", str(sim_root), "--correspondences", str(d), "--mode", "batch",

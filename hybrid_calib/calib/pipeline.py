@@ -111,14 +111,23 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig)
         raise DataError(f"none of the {len(bad)} measurement file(s) reads; first: {bad[0][2]}", path=str(directory))
     refs: dict[str, np.ndarray] = {}
     truths: dict[str, np.ndarray] = {}
+    tokens: set[str] = set()
     if data is not None and version:
         from hybrid_calib.data.nuscenes import NuScenesRadarCamera
 
         ds = NuScenesRadarCamera(data, version, conf={"check_images": False})
+        # a file names its frame by the camera sample_data token (evaluate's export) or the sample (the oracle's)
+        tokens = {t for ref in ds.frames for t in (ref.camera_sd["token"], ref.sample_token, ref.radar_sd["token"])}
         for vehicle, idx in ds.frames_by_vehicle().items():
             f = ds[idx[0]]
             refs[vehicle] = np.asarray(f.extras["reference_T_cam_radar"], np.float64)
             truths[vehicle] = np.asarray(f.extras.get("T_cam_radar_static", f.T_cam_radar), np.float64)
+        ids = [str(m.frame_id) for ms in groups.values() for m in ms]
+        foreign = [i for i in ids if i not in tokens]
+        if ids and len(foreign) == len(ids):  # another root's files: errors against this root's truth would be wrong
+            raise DataError(f"none of the {len(ids)} measurement files' frames (sample or sample_data tokens, e.g. "
+                            f"{foreign[0]!r}) is a frame of this root: they were exported from another dataset; pass "
+                            f"the --data/--version they come from", path=str(directory))
     out: dict[str, VehicleInput] = {}
     for name, ms in groups.items():
         vehicle = name or (next(iter(refs)) if len(refs) == 1 else "all")
@@ -131,8 +140,12 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig)
                             f"--data/--version of the dataset they come from (vehicles there: {sorted(refs)})",
                             path=str(directory))
         truth = truths.get(vehicle)
-        out[vehicle] = VehicleInput(vehicle, [m.corr for m in ms], ref, [truth] * len(ms) if truth is not None else [],
-                                    network=[m.network for m in ms])
+        mine = [m for m in ms if not tokens or str(m.frame_id) in tokens]
+        out[vehicle] = VehicleInput(vehicle, [m.corr for m in mine], ref,
+                                    [truth] * len(mine) if truth is not None else [], network=[m.network for m in mine])
+        out[vehicle].skipped.extend({"index": None, "token": str(m.frame_id), "reason": "measurement file of a frame "
+                                     "not in this root (another dataset's export): left out"}
+                                    for m in ms if tokens and str(m.frame_id) not in tokens)
     for sub, path, e in bad:  # a file that does not read has no vehicle field: its folder's, else every vehicle's
         for vehicle in [sub] if sub in out else list(out):
             out[vehicle].skipped.append({"index": None, "token": Path(path).stem,
