@@ -182,16 +182,22 @@ def test_a_truncated_measurement_file_is_named(tmp_path):
     assert [m.frame_id for m in groups["veh-a"]] == ["tok-1"] and [s[1] for s in skipped] == [path]
 
 
-def test_calibrate_skips_a_truncated_measurement_file_and_names_it(small_sim, tmp_path, capsys):
-    files = _write_measurements(small_sim, tmp_path / "EV")
-    bad = files[1]
-    bad.write_bytes(bad.read_bytes()[: bad.stat().st_size // 2])
+def _the_one_skip(root: Path, tmp_path: Path, capsys, files: list[Path]) -> dict:
+    """``calibrate --correspondences tmp_path/EV`` on ``root`` succeeds with every file but one: its skip record."""
     out = tmp_path / "out"
-    rc, err = run_cli(_calibrate(small_sim, out, "--correspondences", tmp_path / "EV"), capsys)
+    rc, err = run_cli(_calibrate(root, out, "--correspondences", tmp_path / "EV"), capsys)
     assert rc == 0, err
     (v,) = json.loads((out / "result.json").read_text())["vehicles"].values()
     assert v["n_frames"] == len(files) - 1
     (skip,) = v["frames_skipped"]
+    return skip
+
+
+def test_calibrate_skips_a_truncated_measurement_file_and_names_it(small_sim, tmp_path, capsys):
+    files = _write_measurements(small_sim, tmp_path / "EV")
+    bad = files[1]
+    bad.write_bytes(bad.read_bytes()[: bad.stat().st_size // 2])
+    skip = _the_one_skip(small_sim, tmp_path, capsys, files)
     assert str(bad) in skip["reason"] and "unreadable measurement file" in skip["reason"], skip
     for f in files:  # every file bad: one clear error naming the first
         f.write_bytes(b"PK\x03\x04 truncated")
@@ -207,12 +213,7 @@ def test_measurement_files_of_another_root_are_not_calibrated_against_this_ones_
     files = _write_measurements(small_sim, tmp_path / "EV")
     m = load_measurements(files[0])  # one file of a frame this root does not hold: left out, and said
     save_measurements(files[0], dataclasses.replace(m, corr=dataclasses.replace(m.corr, frame_id="not-a-frame-here")))
-    out = tmp_path / "out"
-    rc, err = run_cli(_calibrate(small_sim, out, "--correspondences", tmp_path / "EV"), capsys)
-    assert rc == 0, err
-    (v,) = json.loads((out / "result.json").read_text())["vehicles"].values()
-    assert v["n_frames"] == len(files) - 1
-    (skip,) = v["frames_skipped"]
+    skip = _the_one_skip(small_sim, tmp_path, capsys, files)
     assert skip["token"] == "not-a-frame-here" and "not in this root" in skip["reason"], skip
     for f in files:  # every file of another root: one clear error, nothing computed against the wrong truth
         m = load_measurements(f)
