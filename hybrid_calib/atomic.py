@@ -17,6 +17,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from hybrid_calib.errors import HybridCalibError
+
 _IS_A_DIRECTORY = ("{path} is a directory, so the output file cannot be written there; move the directory away or "
                    "write the outputs elsewhere")
 
@@ -51,3 +53,48 @@ def write_bytes_atomic(path: str | Path, data: bytes) -> Path:
     with atomic_path(path) as tmp:
         tmp.write_bytes(data)
     return Path(path)
+
+
+LOCK_NAME = ".hybrid-calib.lock"
+
+
+@contextmanager
+def out_dir_lock(out: str | Path, command: str) -> Iterator[None]:
+    """Hold ``out``'s lock (``OUT/.hybrid-calib.lock``, an advisory ``flock``: released when the process ends,
+    however it ends) while a command writes there, so that two runs into one folder do not overwrite each other's
+    results: the second gets ``OutDirBusy`` naming the first (its pid, command and start). ``out`` is created if
+    missing and, when the block leaves nothing in it but the lock, removed again."""
+    import fcntl
+    import time
+
+    out = Path(out)
+    created = not out.exists()
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / LOCK_NAME
+    f = open(path, "a+")
+    try:
+        fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        f.seek(0)
+        holder = f.read().strip() or "another process"
+        f.close()
+        raise OutDirBusy(f"{out} is being written by another hybrid-calib run ({holder}); wait for it to end, or pass "
+                         "another --out") from None
+    try:
+        f.seek(0)
+        f.truncate()
+        f.write(f"pid {os.getpid()}, hybrid-calib {command}, since {time.strftime('%Y-%m-%d %H:%M:%S')}")
+        f.flush()
+        yield
+    finally:
+        try:
+            if created and [p.name for p in out.iterdir()] == [LOCK_NAME]:
+                path.unlink()
+                out.rmdir()
+        except OSError:
+            pass
+        f.close()
+
+
+class OutDirBusy(HybridCalibError):
+    """Another run holds the output folder's lock (``out_dir_lock``); the command line turns it into an error."""

@@ -14,7 +14,9 @@ import importlib
 import os
 import re
 import sys
+from pathlib import Path
 
+from hybrid_calib.atomic import out_dir_lock
 from hybrid_calib.errors import HybridCalibError, check_out_dir
 
 # subcommand name -> module in hybrid_calib.commands (each has HELP, add_arguments, run).
@@ -60,9 +62,16 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     debug = args.debug or os.environ.get("HYBRID_CALIB_DEBUG", "") not in ("", "0")
+    out = getattr(args, "out", None)
     try:
-        check_out_dir(getattr(args, "out", None))
-        return int(args._run(args) or 0)
+        if args.command == "report":  # --out is the page (a file), written atomically
+            check_out_dir(None if out is None else Path(out).parent)
+            return int(args._run(args) or 0)
+        check_out_dir(out)
+        if out is None:
+            return int(args._run(args) or 0)
+        with out_dir_lock(out, args.command):
+            return int(args._run(args) or 0)
     except KeyboardInterrupt:
         if debug:
             raise

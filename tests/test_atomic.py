@@ -53,3 +53,43 @@ def test_errors_name_the_target_not_the_temporary(tmp_path):
         target.mkdir()
     assert e.value.filename == str(target) and ".tmp" not in str(e.value)
     assert sorted(x.name for x in tmp_path.iterdir()) == ["result.json"] and target.is_dir()
+
+
+def test_two_runs_into_one_out_folder_the_second_is_refused_naming_the_first(tmp_path):
+    from hybrid_calib.atomic import LOCK_NAME, OutDirBusy, out_dir_lock
+
+    out = tmp_path / "run"
+    with out_dir_lock(out, "calibrate"):
+        with pytest.raises(OutDirBusy, match=r"being written by another hybrid-calib run \(pid \d+, hybrid-calib "
+                                             r"calibrate, since .*\); wait for it to end, or pass another --out"):
+            with out_dir_lock(out, "calibrate"):
+                pass
+        (out / "result.json").write_text("{}")
+    with out_dir_lock(out, "calibrate"):  # released when the first ends
+        pass
+    assert (out / LOCK_NAME).exists() and (out / "result.json").exists()
+    empty = tmp_path / "nothing"  # a folder the lock created and nothing else used is removed again
+    with pytest.raises(ValueError):
+        with out_dir_lock(empty, "train"):
+            raise ValueError("a bad option")
+    assert not empty.exists()
+
+
+def test_the_lock_holds_across_processes(tmp_path, capsys):
+    import subprocess
+    import sys
+
+    from hybrid_calib.cli import main
+
+    out = tmp_path / "run"
+    code = ("import sys, time; from hybrid_calib.atomic import out_dir_lock\n"
+            f"with out_dir_lock({str(out)!r}, 'compare'):\n    print('held', flush=True); time.sleep(30)")
+    other = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    try:
+        assert other.stdout.readline().strip() == "held"
+        assert main(["inspect", "--data", str(tmp_path / "none"), "--version", "v1.0-mini", "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert "being written by another hybrid-calib run" in err and "hybrid-calib compare" in err, err
+    finally:
+        other.kill()
+        other.wait()
