@@ -10,6 +10,8 @@ All functions take plain arrays or a ``RadarCameraFrame`` and return plain dicts
 
 from __future__ import annotations
 
+import zipfile
+
 import numpy as np
 
 from hybrid_calib.data.frame import RadarCameraFrame
@@ -38,8 +40,11 @@ def radar_stats(frame: RadarCameraFrame) -> dict:
            "true_kind": None, "unsupported": None}
     truth = frame.extras.get("radar_truth_path")
     if truth is not None and "radar_rows" in frame.extras:
-        with np.load(truth) as t:
-            out["true_kind"] = np.asarray(t["kind"])[frame.extras["radar_rows"]]
+        try:
+            with np.load(truth) as t:
+                out["true_kind"] = np.asarray(t["kind"])[frame.extras["radar_rows"]]
+        except (OSError, ValueError, KeyError, IndexError, EOFError, zipfile.BadZipFile):
+            pass  # a damaged simulator truth file: the kinds are unknown for this frame (the statistics go on)
     if frame.lidar_points is not None and frame.T_cam_lidar is not None:
         T_radar_lidar = se3_inverse(frame.T_cam_radar) @ frame.T_cam_lidar
         q = np.asarray(frame.lidar_points[:, :3], float) @ T_radar_lidar[:3, :3].T + T_radar_lidar[:3, 3]
