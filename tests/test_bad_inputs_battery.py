@@ -59,7 +59,7 @@ def _table(root: Path, name: str) -> tuple[Path, list]:
 
 def _one_paragraph(err: str) -> bool:
     """The error is one line (progress bars of the work before it aside)."""
-    lines = [ln for ln in err.splitlines() if "it/s]" not in ln and ln.strip()]
+    lines = [ln for ln in err.splitlines() if "it/s]" not in ln and "s/it]" not in ln and ln.strip()]  # tqdm bars
     return len(lines) == 1 and lines[0].startswith("hybrid-calib ")
 
 
