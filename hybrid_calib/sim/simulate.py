@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hybrid_calib.atomic import atomic_path, write_bytes_atomic
+from hybrid_calib.atomic import LOCK_NAME, atomic_path, write_bytes_atomic
 from hybrid_calib.config import save_json_atomic, to_dict
 from hybrid_calib.data.frame import write_depth_png
 from hybrid_calib.data.pcd import write_lidar_bin, write_radar_pcd
@@ -142,7 +142,7 @@ def simulate(conf: SimConfig, out: str | Path, overwrite: bool = False, workers:
     root = Path(out)
     conf_path = root / "sim_config.json"
     conf_dict = to_dict(conf)
-    if root.is_dir() and any(root.iterdir()) and not conf_path.exists():
+    if root.is_dir() and any(p.name != LOCK_NAME for p in root.iterdir()) and not conf_path.exists():
         raise HybridCalibError(
             f"{root} is not empty and holds no hybrid-calib simulation (no sim_config.json); refusing to write "
             "or delete anything there: choose an empty or new --out")
