@@ -374,3 +374,13 @@ def test_readers_name_a_directory_and_a_pipe(tmp_path):
             _without_hanging(lambda: read_lidar_bin(tmp_path / "p.bin"), tmp_path / "p.bin")
         with pytest.raises(DataError, match="camera image is a named pipe .*token tok"):
             _without_hanging(lambda: image_header(tmp_path / "p.bin", "tok"), tmp_path / "p.bin")
+
+
+def test_radar_points_at_an_impossible_range_are_dropped_and_counted():
+    from hybrid_calib.data.filters import MAX_RANGE_M, RadarFilterConfig, filter_radar
+
+    pts = np.zeros(4, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4")])
+    pts["x"] = [10.0, 3e38, np.nan, MAX_RANGE_M]
+    rows, dropped = filter_radar(pts, RadarFilterConfig(dynprop_states=None, ambig_states=None,
+                                                        invalid_states=None))
+    assert list(rows) == [0, 3] and dropped == 2

@@ -24,11 +24,17 @@ class RadarFilterConfig:
     ambig_states: tuple[int, ...] | None = (3,)  # kept ambig_state values; None = any
 
 
+MAX_RANGE_M = 1000.0  # beyond any automotive radar's reach (the ARS 408's: 250 m): a corrupt coordinate
+
+
 def finite_mask(points: np.ndarray) -> np.ndarray:
-    """(N,) structured radar array -> (N,) bool: x, y and z all finite."""
+    """(N,) structured radar array -> (N,) bool: x, y and z all finite and within ``MAX_RANGE_M`` of the sensor
+    (a point at 3e38 m is a corrupt file, not a reflector)."""
     keep = np.ones(len(points), dtype=bool)
     for name in XYZ:
-        keep &= np.isfinite(points[name])
+        v = np.asarray(points[name], np.float64)
+        with np.errstate(invalid="ignore"):
+            keep &= np.isfinite(v) & (np.abs(v) <= MAX_RANGE_M)
     return keep
 
 

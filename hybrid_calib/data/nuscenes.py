@@ -13,7 +13,8 @@ Bad input policy:
   than ``DataConfig.max_sync_offset_s`` from the camera's) raise ``DataError`` from ``dataset[i]``;
   iteration records a ``SkipRecord`` in ``dataset.skipped`` and goes on
   (``on_error="skip"``) or re-raises (``on_error="raise"``).
-- Points with NaN/inf coordinates are dropped and counted (``extras["radar_nonfinite_dropped"]``);
+- Points with NaN/inf coordinates (or beyond 1 km: ``filters.MAX_RANGE_M``) are dropped and counted
+  (``extras["radar_nonfinite_dropped"]``);
   a sweep in which every point is NaN is rejected.
 - Images are checked eagerly but cheaply (signature, size and end marker, no decode; see
   ``image_header``); ``RadarCameraFrame.load_image`` decodes lazily and rejects an image whose
@@ -283,8 +284,9 @@ class NuScenesRadarCamera:
         pts = sweeps.points
         if len(pts) == 0 and self.conf.skip_empty_radar:
             raise DataError(f"radar sweep has 0 points after filtering ({sweeps.n_raw} read, "
-                            f"{sweeps.n_nonfinite} NaN); loosen radar_filter or set skip_empty_radar=false to keep "
-                            "empty frames", path=str(self.root / rad["filename"]), token=rad["token"])
+                            f"{sweeps.n_nonfinite} NaN or beyond 1 km); loosen radar_filter or set "
+                            "skip_empty_radar=false to keep empty frames", path=str(self.root / rad["filename"]),
+                            token=rad["token"])
         radar_points = np.stack([pts["x"], pts["y"], pts["z"]], axis=1).astype(np.float64)
         radar_fields = {name: pts[name].copy() for name in pts.dtype.names or ()}
 

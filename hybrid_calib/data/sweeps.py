@@ -40,7 +40,7 @@ class RadarSweeps:
     sweep_index: np.ndarray
     dt_s: np.ndarray
     n_raw: int = 0  # points in the read files before filtering
-    n_nonfinite: int = 0  # points dropped because x, y or z was NaN/inf
+    n_nonfinite: int = 0  # points dropped because x, y or z was NaN/inf (or beyond filters.MAX_RANGE_M)
     sweep_tokens: list[str] = field(default_factory=list)  # sample_data tokens used, newest first
     missing_paths: list[str] = field(default_factory=list)  # earlier sweep files absent on disk
 
@@ -71,7 +71,8 @@ def load_filtered_sweep(path: Path, conf: RadarFilterConfig, token: str) -> tupl
         raise DataError(f"radar PCD lacks field {e.args[0]!r} needed by the radar filter; disable that filter "
                         f"(radar_filter.{option}=null)", path=str(path), token=token) from None
     if len(raw) and n_nonfinite == len(raw):
-        raise DataError(f"all {len(raw)} radar points have NaN/inf coordinates; the file is corrupt, re-export it",
+        raise DataError(f"all {len(raw)} radar points have NaN/inf coordinates (or lie beyond 1 km); the file is "
+                        "corrupt, re-export it",
                         path=str(path), token=token)
     return raw[rows], rows, len(raw), n_nonfinite
 
