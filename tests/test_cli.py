@@ -30,3 +30,21 @@ def test_set_accepts_several_values_and_repeats(name):
     args = build_parser().parse_args([name, *REQUIRED[name], "--set", "a=1", "b=2", "--set", "c=3"])
     values = getattr(args, "set", None) or getattr(args, "overrides", None)
     assert values == ["a=1", "b=2", "c=3"]
+
+
+def test_an_interrupt_says_what_was_kept_and_how_to_go_on(tmp_path, monkeypatch, capsys):
+    from hybrid_calib.cli import RESUMES, main
+    from hybrid_calib.commands import calibrate, report
+
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(calibrate, "run", interrupted)
+    monkeypatch.setattr(report, "run", interrupted)
+    assert main(["calibrate", "--data", str(tmp_path), "--out", str(tmp_path / "run")]) == 130
+    err = capsys.readouterr().err
+    assert err.strip() == f"hybrid-calib calibrate: interrupted; {RESUMES['calibrate']}"
+    assert not (tmp_path / "run").exists()  # the lock's folder, created for the run, held nothing else
+    assert main(["report", str(tmp_path / "result.json"), "--out", str(tmp_path / "r.html")]) == 130
+    assert capsys.readouterr().err.strip() == "hybrid-calib report: interrupted"  # nothing to resume
+    assert set(RESUMES) <= set(COMMANDS)
