@@ -53,6 +53,7 @@ covariance): the estimate's rotation uncertainty widens them, and correlated axe
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -63,6 +64,7 @@ from hybrid_calib.errors import DataError
 from hybrid_calib.geometry import se3_exp, se3_inverse
 from hybrid_calib.sensors.radar_velocity import RadarVelocityConfig, estimate_velocity, stationary
 
+DEFAULT_VELOCITY = RadarVelocityConfig()  # the Doppler fit and stationary band when the caller gives none
 RADAR_X, RADAR_Y = 3, 4  # indices of the radar-x / radar-y translation in the right tangent [phi (3), rho (3)]
 
 
@@ -90,7 +92,6 @@ class LidarAlignConfig:
     passes: int = 3  # the fit re-run from the offsets the previous pass found
     range_bias: bool = True  # fit a common range offset (reflection depth): a one-sided scene cannot make it dy
     coupling_deg: float = 0.5  # step of the central differences of dy, dx against the rotation, deg (0: none)
-    velocity: RadarVelocityConfig = RadarVelocityConfig()  # the frame's Doppler velocity and the stationary band
 
     def __post_init__(self):
         require(self, {
@@ -160,11 +161,14 @@ class LidarAlignment:
                 **({"note": why} if why else {}), **({"forward_note": forward_why} if forward_why else {})}
 
 
-def lidar_frame(frame, conf: LidarAlignConfig = LidarAlignConfig()) -> LidarFrame | None:
+def lidar_frame(frame, conf: LidarAlignConfig = LidarAlignConfig(), velocity: tuple | None = None,
+                velocity_conf: RadarVelocityConfig = DEFAULT_VELOCITY) -> LidarFrame | None:
     """The alignment's inputs from a ``RadarCameraFrame`` loaded with its LiDAR, or None when it has no
     LiDAR, no ego mount of the camera or no radar detection. With ``conf.stationary`` the detections the
     frame's Doppler velocity calls moving are dropped; a frame whose velocity cannot be told (no velocity
-    fields, too few stationary detections) keeps them all."""
+    fields, too few stationary detections) keeps them all. velocity: the frame's ``(RadarVelocity | None,
+    why)`` when the caller has it (the hybrid's motion source), else ``estimate_velocity`` with
+    ``velocity_conf`` (whose inlier band also tells the stationary detections)."""
     if frame.lidar_points is None or frame.T_cam_lidar is None or not len(frame.radar_points):
         return None
     T_ego_cam = frame.extras.get("T_ego_cam")
@@ -180,9 +184,10 @@ def lidar_frame(frame, conf: LidarAlignConfig = LidarAlignConfig()) -> LidarFram
     radar = np.asarray(frame.radar_points, np.float64)
     moving = 0
     if conf.stationary:
-        v, _ = estimate_velocity(radar, frame.radar_fields, conf.velocity, frame.extras.get("radar_sweep_index"))
+        v, _ = velocity or estimate_velocity(radar, frame.radar_fields, velocity_conf,
+                                              frame.extras.get("radar_sweep_index"))
         if v is not None:
-            still = stationary(radar, frame.radar_fields, v.v, conf.velocity)
+            still = stationary(radar, frame.radar_fields, v.v, velocity_conf)
             moving = int(len(still) - still.sum())
             radar = radar[still]
     return LidarFrame(L[keep], T_cam_lidar, A, radar[:, :2], frame.radar_token, moving)
@@ -366,13 +371,17 @@ def _evenly(items: list, n: int) -> list:
     return [items[int(k)] for k in np.linspace(0, len(items) - 1, n).round()]
 
 
-def drive_frames(frames, indices, conf: LidarAlignConfig = LidarAlignConfig()) -> list[LidarFrame]:
+def drive_frames(frames, indices, conf: LidarAlignConfig = LidarAlignConfig(),
+                 velocity: Callable[[int], tuple] | None = None,
+                 velocity_conf: RadarVelocityConfig = DEFAULT_VELOCITY) -> list[LidarFrame]:
     """The alignment inputs of dataset ``indices``, at most ``conf.max_frames`` of them evenly spaced (the
-    frames ``align`` would keep: the others are not read), unreadable frames and frames without LiDAR left out."""
+    frames ``align`` would keep: the others are not read), unreadable frames and frames without LiDAR left out.
+    velocity: dataset index -> (``RadarVelocity`` | None, why) (the hybrid passes its motion source's, which fitted
+    each frame's Doppler once already; default ``estimate_velocity`` with ``velocity_conf``)."""
     out = []
     for i in _evenly(list(indices), conf.max_frames):
         try:
-            lf = lidar_frame(frames[i], conf)
+            lf = lidar_frame(frames[i], conf, None if velocity is None else velocity(i), velocity_conf)
         except DataError:
             continue
         if lf is not None:

@@ -313,15 +313,16 @@ def _fold_last(traj: list[FrameEstimate], conf: HybridConfig, a, why: str, refus
     return [*traj[:-1], with_cov(last, cov, conf, T)], a.record(True)
 
 
-def with_lidar(traj: list[FrameEstimate], drive: Drive, frames, conf: HybridConfig, mon: MountMonitor | None
-               ) -> tuple[list[FrameEstimate], dict]:
+def with_lidar(traj: list[FrameEstimate], drive: Drive, frames, conf: HybridConfig, mon: MountMonitor | None,
+               motion: MotionSource | None = None) -> tuple[list[FrameEstimate], dict]:
     """The trajectory with the LiDAR's lateral (and, when it is certain enough, forward) offset
     (``calib.lidar_alignment``) folded into its last estimate, and the result's ``lidar`` block (what was
     measured, and whether and why not it was applied).
     Frames: those the loop used, after the radar's last mount step (the mount before it was another)."""
     since = _since_last_step(mon)
     indices = [drive.indices[f.index] for f in traj if f.index >= since and 0 <= f.index < len(drive.indices)]
-    lfs = drive_frames(frames, indices, conf.lidar)
+    lfs = drive_frames(frames, indices, conf.lidar, motion.velocity if motion is not None else None,
+                       conf.motion.velocity)
     if not lfs:
         return traj, {"applied": False, "note": "no LiDAR in the frames (the alignment needs the LiDAR keyframes "
                                                 "and the tables' LiDAR-camera extrinsic; the frames are read with "
@@ -574,7 +575,7 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
                         f"{tr.skipped[0]['reason'] if tr.skipped else '-'})")
     lidar = None
     if conf.method == "hybrid" and conf.lidar.enabled and frames is not None:
-        traj, lidar = with_lidar(traj, drive, frames, conf, mon)
+        traj, lidar = with_lidar(traj, drive, frames, conf, mon, motion)
     doppler = None
     if conf.method == "hybrid" and conf.doppler.enabled and frames is not None:
         traj, doppler = with_doppler(traj, drive, frames, conf, mon, motion)

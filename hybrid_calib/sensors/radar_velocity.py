@@ -63,7 +63,12 @@ def stationary(points: np.ndarray, fields: dict, v: np.ndarray, conf: RadarVeloc
     az, vr = radial_velocity(np.asarray(points, np.float64), fields)
     pred = -(np.cos(az) * v[0] + np.sin(az) * v[1])
     with np.errstate(invalid="ignore"):
-        return np.isfinite(vr) & (np.abs(pred - vr) < conf.inlier_mps + conf.inlier_frac * np.abs(vr))
+        return np.isfinite(vr) & (np.abs(pred - vr) < _band(vr, conf))
+
+
+def _band(vr: np.ndarray, conf: RadarVelocityConfig) -> np.ndarray:
+    """(N,) m/s: how far a stationary detection's radial velocity ``vr`` may lie from the fitted velocity's."""
+    return conf.inlier_mps + conf.inlier_frac * np.abs(vr)
 
 
 def estimate_velocity(points: np.ndarray, fields: dict, conf: RadarVelocityConfig = RadarVelocityConfig(),
@@ -84,7 +89,7 @@ def estimate_velocity(points: np.ndarray, fields: dict, conf: RadarVelocityConfi
     if n < conf.min_inliers:
         return None, f"{n} radar detections with a velocity (need {conf.min_inliers})"
     A = -np.stack([np.cos(az), np.sin(az)], 1)
-    band = conf.inlier_mps + conf.inlier_frac * np.abs(vr)
+    band = _band(vr, conf)
     rng = np.random.default_rng(n)  # deterministic per sweep
     pairs = np.array([rng.choice(n, 2, replace=False) for _ in range(conf.iterations)]).reshape(-1, 2)
     M = A[pairs]  # (I, 2, 2): every hypothesis at once (the same draws and pick as one at a time, 3.5-4x faster)
