@@ -39,8 +39,6 @@ ignored by the reader. A bad file raises ``DataError`` naming the file, the key 
 
 from __future__ import annotations
 
-import zipfile
-import zlib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -49,6 +47,7 @@ import numpy as np
 
 from factors.correspondences import Correspondences
 from hybrid_calib.atomic import atomic_path
+from hybrid_calib.data.files import read_npz
 from hybrid_calib.errors import DataError
 
 SCHEMA_VERSION = 1
@@ -194,16 +193,8 @@ def save_measurements(path: str | Path, m: FrameMeasurements, extra: Mapping[str
 
 def load_measurements(path: str | Path) -> FrameMeasurements:
     """One frame file; ``DataError`` naming it when it is unreadable or not in the format."""
-    if Path(path).exists() and not Path(path).is_file():  # a named pipe blocked np.load for ever
-        raise DataError("measurement file is not a regular file (a directory, named pipe or device); replace it "
-                        "with a file written by the export, or move it out of the directory", path=str(path))
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            return from_arrays(z, str(path))
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error) as e:
-        # not a zip, pickled arrays; truncated: BadZipFile (the archive), EOFError / zlib.error (a member)
-        raise DataError(f"unreadable measurement file ({type(e).__name__}: {e}); the file is corrupt or truncated: "
-                        "re-run the export", path=str(path)) from None
+    with read_npz(path, "measurement file", "re-run the export, or move it out of the directory") as z:
+        return from_arrays(z, str(path))
 
 
 def measurement_files(directory: str | Path) -> dict[str, list[Path]]:

@@ -30,6 +30,7 @@ import numpy as np
 
 from hybrid_calib.atomic import atomic_path
 from hybrid_calib.config import merge, save_json_atomic, to_dict
+from hybrid_calib.data.files import NPZ_ERRORS
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.errors import DataError, HybridCalibError
 
@@ -346,8 +347,8 @@ class DepthCache:
                 if depth.shape == tuple(size_hw) and depth.dtype == np.float32:
                     self.hits += 1
                     return depth
-            except (OSError, ValueError):
-                pass  # a corrupt entry is recomputed below
+            except NPZ_ERRORS:
+                pass  # a corrupt entry (truncated, a pickle, not an array) is recomputed below
         self.misses += 1
         depth = np.asarray(estimator.estimate(frame, size_hw, image), dtype=np.float32)
         path.parent.mkdir(parents=True, exist_ok=True)

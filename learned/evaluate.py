@@ -34,6 +34,7 @@ import numpy as np
 import torch
 
 from hybrid_calib.config import merge, read_out_record, save_json_atomic, to_dict
+from hybrid_calib.data.files import read_npz
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.errors import HybridCalibError
 from hybrid_calib.metrics import METRIC_KEYS, STD_KEYS_RADAR, extrinsic_error, format_table, summarize
@@ -208,7 +209,7 @@ def evaluate_predictions(out: str | Path, method: str = "pure") -> EvalResult:
     per: dict[str, list] = {}
     tokens, unc = [], []
     for path in files:
-        with np.load(path, allow_pickle=False) as z:
+        with read_npz(path, "exported prediction", _REEXPORT) as z:
             T_gt, T_init, T_iters = z["T_gt"], z["T_start"], z["T_iters"]
             tokens.append(str(z["frame_id"]))
             if (pair := _tangent_error(z)) is not None:
@@ -224,6 +225,7 @@ def evaluate_predictions(out: str | Path, method: str = "pure") -> EvalResult:
 
 
 CHI2_6_95 = 12.591587243743977  # chi-square, 6 dof, 95 %
+_REEXPORT = "remove it and re-run the same hybrid-calib evaluate command (finished frames are kept)"
 
 
 def _tangent_error(z) -> tuple[np.ndarray, np.ndarray] | None:
@@ -244,7 +246,7 @@ def tangent_errors(out: str | Path) -> tuple[np.ndarray, np.ndarray]:
     frames under ``out/frames`` that have one (``calibrate_cov_scale`` takes both)."""
     pairs = []
     for path in sorted((Path(out) / "frames").glob("*.npz")):
-        with np.load(path, allow_pickle=False) as z:
+        with read_npz(path, "exported prediction", _REEXPORT) as z:
             pairs.append(_tangent_error(z))
     return _stack([p for p in pairs if p is not None])
 

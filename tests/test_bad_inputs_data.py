@@ -172,7 +172,7 @@ def test_a_truncated_measurement_file_is_named(tmp_path):
     path = save_measurements(tmp_path / "E" / "frames" / "f0.npz", _frame(0))
     save_measurements(tmp_path / "E" / "frames" / "f1.npz", _frame(1))
     path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
-    with pytest.raises(DataError, match="unreadable measurement file .*truncated") as e:
+    with pytest.raises(DataError, match="measurement file unreadable .*truncated") as e:
         load_measurements(path)
     assert str(path) in str(e.value)
     with pytest.raises(DataError, match="f0.npz"):  # the default still stops at a bad file
@@ -198,7 +198,7 @@ def test_calibrate_skips_a_truncated_measurement_file_and_names_it(small_sim, tm
     bad = files[1]
     bad.write_bytes(bad.read_bytes()[: bad.stat().st_size // 2])
     skip = _the_one_skip(small_sim, tmp_path, capsys, files)
-    assert str(bad) in skip["reason"] and "unreadable measurement file" in skip["reason"], skip
+    assert str(bad) in skip["reason"] and "measurement file unreadable" in skip["reason"], skip
     for f in files:  # every file bad: one clear error naming the first
         f.write_bytes(b"PK\x03\x04 truncated")
     expect_cli_error(_calibrate(small_sim, tmp_path / "out2", "--correspondences", tmp_path / "EV"), capsys,
@@ -384,3 +384,39 @@ def test_radar_points_at_an_impossible_range_are_dropped_and_counted():
     rows, dropped = filter_radar(pts, RadarFilterConfig(dynprop_states=None, ambig_states=None,
                                                         invalid_states=None))
     assert list(rows) == [0, 3] and dropped == 2
+
+
+@pytest.mark.parametrize("damage", ["truncated", "garbage", "directory", "missing key"])
+def test_read_npz_names_every_kind_of_damaged_archive(damage, tmp_path):
+    from hybrid_calib.data.files import read_npz
+
+    path = tmp_path / "a.npz"
+    np.savez(path, x=np.arange(1000.0))
+    if damage == "truncated":
+        path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    elif damage == "garbage":
+        path.write_bytes(b"not an archive")
+    elif damage == "directory":
+        path.unlink()
+        path.mkdir()
+    with pytest.raises(DataError, match="thing file (unreadable|is a directory).*") as e:
+        with read_npz(path, "thing file", "re-run it", token="tok-9") as z:
+            z["y" if damage == "missing key" else "x"]
+    assert str(path) in str(e.value) and "tok-9" in str(e.value)
+    assert damage == "directory" or "re-run it" in str(e.value)
+
+
+def test_damaged_cache_entries_are_recomputed_not_fatal(tmp_path):
+    """The loop's network and depth caches are written atomically, but a disk can still hand back a truncated
+    entry: it is a miss (recomputed), never a crash of the run."""
+    from hybrid_calib.hybrid.network import OutputCache
+    from tests.test_hybrid import T_TRUE, _output
+
+    cache = OutputCache(tmp_path / "c", "net")
+    out = _output(np.random.default_rng(0))
+    cache.put("tok", out)
+    assert cache.get("tok", out.T_in) is not None
+    p = cache.path("tok", out.T_in)
+    p.write_bytes(p.read_bytes()[: p.stat().st_size // 3])
+    assert cache.get("tok", out.T_in) is None
+    assert np.allclose(out.T_in, T_TRUE)

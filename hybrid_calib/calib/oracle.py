@@ -35,15 +35,12 @@ recorded points moved by ``N`` (so the single extrinsic ``X`` explains every fra
 
 from __future__ import annotations
 
-import zipfile
-import zlib
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from factors.correspondences import Correspondences
-from hybrid_calib.data.pcd import check_regular_file
+from hybrid_calib.data.files import read_npz
 from hybrid_calib.errors import DataError
 from hybrid_calib.geometry import project_points, se3_inverse, transform_points
 
@@ -111,16 +108,9 @@ def oracle_from_frame(frame, conf: OracleConfig, rng: np.random.Generator) -> tu
                         "correspondences need a v1.0-sim root written by `hybrid-calib simulate` and nsweeps=1",
                         token=frame.radar_token)
     where = f"frame {frame.sample_token}"
-    try:
-        check_regular_file(Path(path), "simulator truth file", frame.radar_token)
-        with np.load(path, allow_pickle=False) as z:
-            true_xyz = np.asarray(z["true_xyz"], np.float64)
-            kind = np.asarray(z["kind"]) if "kind" in z.files else np.zeros(len(true_xyz), np.int64)
-    except (OSError, KeyError, ValueError, TypeError, EOFError, zipfile.BadZipFile, zlib.error) as e:
-        # a truncated .npz is a BadZipFile (or EOFError / zlib.error on the member), not an OSError
-        raise DataError(f"simulator truth of {where} unreadable ({type(e).__name__}: {e}); the file is corrupt or "
-                        "truncated: re-run hybrid-calib simulate", path=str(path),
-                        token=frame.radar_token) from None
+    with read_npz(path, f"simulator truth of {where}", "re-run hybrid-calib simulate", frame.radar_token) as z:
+        true_xyz = np.asarray(z["true_xyz"], np.float64)
+        kind = np.asarray(z["kind"]) if "kind" in z.files else np.zeros(len(true_xyz), np.int64)
     rows = np.asarray(ex["radar_rows"], np.int64)
     if true_xyz.ndim != 2 or true_xyz.shape[1] != 3 or len(rows) != len(frame.radar_points) or \
             (len(rows) and rows.max() >= len(true_xyz)):

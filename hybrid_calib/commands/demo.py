@@ -99,6 +99,7 @@ def vehicle_verdict(row: dict) -> str:
 def _overlay(root: Path, out_png: Path) -> Path:
     """Draw the frame with the most radar returns inside the image (of 8 spread over the drive)
     with its true reflectors."""
+    from hybrid_calib.data.files import read_npz
     from hybrid_calib.data.nuscenes import NuScenesRadarCamera
     from hybrid_calib.geometry import transform_points
     from hybrid_calib.plots.projection import draw_radar_truth
@@ -114,9 +115,9 @@ def _overlay(root: Path, out_png: Path) -> Path:
     true_xyz = None
     truth_path = best.extras.get("radar_truth_path")
     if truth_path is not None:
-        truth = np.load(truth_path)
         rows = best.extras.get("radar_rows", np.arange(len(best.radar_points)))
-        true_xyz = truth["true_xyz"][rows]
+        with read_npz(truth_path, "simulator truth file", "re-run make demo") as truth:
+            true_xyz = truth["true_xyz"][rows]
     return draw_radar_truth(best, true_xyz, out_png)
 
 

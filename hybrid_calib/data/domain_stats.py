@@ -10,11 +10,11 @@ All functions take plain arrays or a ``RadarCameraFrame`` and return plain dicts
 
 from __future__ import annotations
 
-import zipfile
-
 import numpy as np
 
+from hybrid_calib.data.files import read_npz
 from hybrid_calib.data.frame import RadarCameraFrame
+from hybrid_calib.errors import DataError
 from hybrid_calib.geometry import R_AXES_CAM_FROM_RADAR, se3_inverse
 
 IMAGE_SIZE_WH = (400, 225)  # image statistics are taken at this common size (nuScenes 1600 x 900 / 4)
@@ -41,9 +41,9 @@ def radar_stats(frame: RadarCameraFrame) -> dict:
     truth = frame.extras.get("radar_truth_path")
     if truth is not None and "radar_rows" in frame.extras:
         try:
-            with np.load(truth) as t:
+            with read_npz(truth, "simulator truth file", "re-run hybrid-calib simulate") as t:
                 out["true_kind"] = np.asarray(t["kind"])[frame.extras["radar_rows"]]
-        except (OSError, ValueError, KeyError, IndexError, EOFError, zipfile.BadZipFile):
+        except DataError:
             pass  # a damaged simulator truth file: the kinds are unknown for this frame (the statistics go on)
     if frame.lidar_points is not None and frame.T_cam_lidar is not None:
         T_radar_lidar = se3_inverse(frame.T_cam_radar) @ frame.T_cam_lidar

@@ -17,7 +17,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from hybrid_calib.data.pcd import check_regular_file
+from hybrid_calib.data.files import check_regular_file
 from hybrid_calib.errors import DataError
 
 _PNG_SIG = b"\x89PNG\r\n\x1a\n"

@@ -5,13 +5,12 @@ Every reader error is a ``DataError`` naming the file and what is wrong.
 
 from __future__ import annotations
 
-import os
-import stat
 from pathlib import Path
 
 import numpy as np
 
 from hybrid_calib.atomic import write_bytes_atomic
+from hybrid_calib.data.files import check_regular_file
 from hybrid_calib.errors import DataError
 
 # The 18 fields of a nuScenes radar PCD, in file order, with their numpy types.
@@ -37,20 +36,6 @@ def _header_text(n_points: int) -> bytes:
         f"FIELDS {names}\nSIZE {sizes}\nTYPE {types}\nCOUNT {counts}\n"
         f"WIDTH {n_points}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n_points}\nDATA binary\n"
     ).encode("ascii")
-
-
-def check_regular_file(path: Path, what: str, token: str | None = None) -> None:
-    """``DataError`` naming ``path`` when it exists but is not a regular file (after following links): reading a
-    named pipe (FIFO) blocked the job for ever, a directory or a device is not a data file either. A missing
-    path raises ``FileNotFoundError`` (each reader says what to do about it)."""
-    mode = os.stat(path).st_mode
-    if stat.S_ISREG(mode):
-        return
-    kind = ("a named pipe (FIFO)" if stat.S_ISFIFO(mode) else "a directory" if stat.S_ISDIR(mode)
-            else "a socket" if stat.S_ISSOCK(mode) else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode)
-            else "a special file")
-    raise DataError(f"{what} is {kind}, not a regular file, so it cannot be read; replace it with the dataset's "
-                    "file (re-extract or re-download it)", path=str(path), token=token)
 
 
 def write_radar_pcd(path: str | Path, points: np.ndarray) -> Path:

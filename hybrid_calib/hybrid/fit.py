@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from hybrid_calib.calib.schedule import frame_information, robust_solve
+from hybrid_calib.data.files import NPZ_ERRORS
 from hybrid_calib.geometry import local
 from hybrid_calib.hybrid.measurement import MeasurementConfig
 
@@ -185,8 +186,11 @@ def load_passes(cache_dir: Path, truths: dict[str, np.ndarray]) -> list:
         token = p.stem.rsplit("-", 1)[0]
         if token not in truths:
             continue
-        with np.load(p, allow_pickle=False) as z:
-            out.append((NetworkOutput.from_arrays(z), truths[token]))
+        try:
+            with np.load(p, allow_pickle=False) as z:
+                out.append((NetworkOutput.from_arrays(z), truths[token]))
+        except NPZ_ERRORS:
+            continue  # a damaged cache entry: that pass is left out of the fit (the loop recomputes it)
     return out
 
 

@@ -38,6 +38,7 @@ import numpy as np
 from factors.motion import MotionMeasurement, chord_heading, chord_length, heading_residual, radar_yaw_change
 from hybrid_calib.atomic import write_bytes_atomic
 from hybrid_calib.calib.schedule import GaussianPrior
+from hybrid_calib.data.files import NPZ_ERRORS
 from hybrid_calib.errors import DataError
 from hybrid_calib.geometry import retract, so3_exp, so3_log
 from hybrid_calib.sensors.radar_velocity import RadarVelocityConfig, estimate_velocity
@@ -128,12 +129,12 @@ class MotionSource:
         path = self._cache(fa, fb)
         if path is not None and path.is_file():
             try:
-                with np.load(path) as z:
+                with np.load(path, allow_pickle=False) as z:
                     if "pa" in z:
                         return (z["pa"], z["pb"], z["K"]), ""
                     return None, str(z["reason"])
-            except (OSError, ValueError, KeyError):
-                pass  # a damaged cache entry is recomputed
+            except NPZ_ERRORS:
+                pass  # a damaged cache entry (truncated, not a zip, a missing key) is recomputed
         m, why = match_features(fa.load_image(), fb.load_image(), fa.camera, self.conf.vo)
         if path is not None:
             buf = io.BytesIO()

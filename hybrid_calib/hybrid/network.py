@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from factors.correspondences import Correspondences
+from hybrid_calib.data.files import NPZ_ERRORS
 from hybrid_calib.errors import HybridCalibError
 
 SHIPPED = Path(__file__).resolve().parents[2] / "learned" / "checkpoints"
@@ -120,8 +121,8 @@ class OutputCache:
                 if self.network and ("network" not in z.files or str(z["network"]) != self.network):
                     return None  # another network's output (or an entry older than the key): recomputed
                 return NetworkOutput.from_arrays(z)
-        except (OSError, ValueError, KeyError):
-            return None
+        except NPZ_ERRORS:
+            return None  # a damaged entry (truncated, not a zip, a missing key) is recomputed
 
     def put(self, token: str, out: NetworkOutput) -> None:
         p = self.path(token, out.T_in)

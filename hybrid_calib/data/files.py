@@ -1,0 +1,58 @@
+"""Reading the files a run is given or wrote before: the one home of "is this a file we can read?".
+
+- ``check_regular_file``: a named pipe blocked a reader for ever; a directory or a device is not a data file.
+- ``read_npz``: a ``.npz`` opened without pickles, with every way it can be damaged (not a zip, truncated
+  archive or member, a missing key, a misshaped array read in the body) turned into one ``DataError`` naming
+  the file and what to do.
+- ``NPZ_ERRORS``: those ways, for the caches that recompute a damaged entry instead of failing.
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+import zipfile
+import zlib
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+from hybrid_calib.errors import DataError
+
+# np.load of a damaged .npz: not a zip (BadZipFile / ValueError), a truncated archive (BadZipFile) or member
+# (EOFError, zlib.error), pickled arrays refused (ValueError), a missing key (KeyError), an unreadable file
+# (OSError); IndexError / TypeError from a body that indexes a misshaped array
+NPZ_ERRORS: tuple[type[BaseException], ...] = (OSError, ValueError, KeyError, IndexError, TypeError, EOFError,
+                                               zipfile.BadZipFile, zlib.error)
+
+
+def check_regular_file(path: str | Path, what: str, token: str | None = None) -> None:
+    """``DataError`` naming ``path`` when it exists but is not a regular file (after following links): reading a
+    named pipe (FIFO) blocked the job for ever, a directory or a device is not a data file either. A missing
+    path raises ``FileNotFoundError`` (each reader says what to do about it)."""
+    mode = os.stat(path).st_mode
+    if stat.S_ISREG(mode):
+        return
+    kind = ("a named pipe (FIFO)" if stat.S_ISFIFO(mode) else "a directory" if stat.S_ISDIR(mode)
+            else "a socket" if stat.S_ISSOCK(mode) else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode)
+            else "a special file")
+    raise DataError(f"{what} is {kind}, not a regular file, so it cannot be read; replace it with the dataset's "
+                    "file (re-extract or re-download it)", path=str(path), token=token)
+
+
+@contextmanager
+def read_npz(path: str | Path, what: str, fix: str, token: str | None = None) -> Iterator[np.lib.npyio.NpzFile]:
+    """``with read_npz(path, "measurement file", "re-run the export") as z: ...``: the open archive (no pickles).
+
+    Any of ``NPZ_ERRORS`` raised while opening it or in the body (a missing key, a misshaped array) becomes
+    ``DataError("<what> unreadable (<error>); the file is corrupt or truncated: <fix>")`` naming ``path`` and
+    ``token``; a path that is not a regular file is named as such first (a FIFO would block ``np.load``)."""
+    try:
+        check_regular_file(path, what, token)
+        with np.load(path, allow_pickle=False) as z:
+            yield z
+    except NPZ_ERRORS as e:
+        raise DataError(f"{what} unreadable ({type(e).__name__}: {e}); the file is corrupt or truncated: {fix}",
+                        path=str(path), token=token) from None
