@@ -53,7 +53,14 @@ from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.data.image_header import decode_image, image_header
 from hybrid_calib.data.pcd import read_lidar_bin
 from hybrid_calib.data.sweeps import InterSweep, accumulate_radar, sweeps_between_keyframes
-from hybrid_calib.data.tables import MAX_MOUNT_TRANSLATION_M, QUAT_NORM_TOL, NuScenesTables, _is_number_list
+from hybrid_calib.data.tables import (
+    MAX_MOUNT_TRANSLATION_M,
+    QUAT_NORM_TOL,
+    NuScenesTables,
+    _is_number_list,
+    short_repr,
+    vector_or_reason,
+)
 from hybrid_calib.errors import DataError
 from hybrid_calib.geometry import pose_from_nuscenes, se3_inverse
 from hybrid_calib.sensors.camera import PinholeCamera
@@ -441,41 +448,32 @@ def _sim_pose(rec: dict | None, key: str, path: Path | None = None, log_token: s
 
 def _sim_pose_or_reason(node) -> tuple[np.ndarray | None, str]:
     """(pose, "") of a sim_vehicle.json pose node, or (None, what is wrong, with the value)."""
-    def show(value) -> str:
-        text = repr(value)
-        return text if len(text) <= 80 else text[:77] + "..."
-
     if isinstance(node, dict):
         missing = [k for k in ("rotation", "translation") if k not in node]
         if missing:
             return None, f"lacks {missing} (has {sorted(node)})"
-        q, t = node["rotation"], node["translation"]
-        for field, value, n in (("rotation", q, 4), ("translation", t, 3)):
-            if not _is_number_list(value) or len(value) != n:
-                return None, f"{field!r} is {show(value)}, not a list of {n} numbers"
-        try:
-            q, t = np.asarray(q, np.float64), np.asarray(t, np.float64)
-        except OverflowError:  # an integer beyond float range
-            return None, f"a value beyond float range in {show(node)}"
-        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(t))):
-            return None, f"non-finite values in {show(node)}"
+        (q, why_q), (t, why_t) = vector_or_reason(node["rotation"], 4), vector_or_reason(node["translation"], 3)
+        for field, why in (("rotation", why_q), ("translation", why_t)):
+            if why:
+                return None, f"{field!r} is {short_repr(node[field])}, {why}"
         norm = float(np.linalg.norm(q))
         if abs(norm - 1.0) > QUAT_NORM_TOL:
-            return None, f"'rotation' {show(node['rotation'])} has norm {norm:.6g}, not 1 (tolerance {QUAT_NORM_TOL:g})"
+            return None, (f"'rotation' {short_repr(node['rotation'])} has norm {norm:.6g}, not 1 (tolerance "
+                          f"{QUAT_NORM_TOL:g})")
         T = pose_from_nuscenes(q / norm, t)
     elif isinstance(node, list) and len(node) == 4 and all(_is_number_list(r) and len(r) == 4 for r in node):
         try:
             T = np.asarray(node, dtype=np.float64)
         except OverflowError:
-            return None, f"a value beyond float range in {show(node)}"
+            return None, f"a value beyond float range in {short_repr(node)}"
         if not np.all(np.isfinite(T)):
-            return None, f"non-finite values in {show(node)}"
+            return None, f"non-finite values in {short_repr(node)}"
         R = T[:3, :3]
         if not np.allclose(T[3], [0, 0, 0, 1], atol=_ROTATION_TOL) or \
                 not np.allclose(R.T @ R, np.eye(3), atol=_ROTATION_TOL) or np.linalg.det(R) <= 0:
-            return None, f"{show(node)} is not rigid (rotation not orthonormal or last row not [0, 0, 0, 1])"
+            return None, f"{short_repr(node)} is not rigid (rotation not orthonormal or last row not [0, 0, 0, 1])"
     else:
-        return None, f"{show(node)} is neither a {{rotation, translation}} object nor a 4x4 list of numbers"
+        return None, f"{short_repr(node)} is neither a {{rotation, translation}} object nor a 4x4 list of numbers"
     dist = math.hypot(*T[:3, 3])
     if dist > MAX_MOUNT_TRANSLATION_M:
         return None, (f"the translation puts the sensor {dist:.6g} m from the ego origin, more than "

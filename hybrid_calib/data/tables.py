@@ -346,21 +346,30 @@ def _vector(rec: dict, key: str, n: int, what: str, path: Path) -> np.ndarray:
     """A record's field ``key`` as (n,) float64: a flat JSON list of ``n`` finite numbers. ``DataError`` naming the
     table, the record's token and the field otherwise (numpy read ``[[1], [2], [3]]``, ``[true, false, true]`` and
     ``["1", 2, 3]`` as numbers)."""
-    value = rec[key]
-    if not _is_number_list(value) or len(value) != n:
-        why = f"not a list of {n} numbers"
-    else:
-        try:
-            v = np.asarray(value, dtype=np.float64)
-        except OverflowError:  # an integer beyond float range
-            v = np.full(n, np.inf)
-        if np.all(np.isfinite(v)):
-            return v
-        why = "non-finite"
+    v, why = vector_or_reason(rec[key], n)
+    if v is not None:
+        return v
+    raise DataError(f"table {path.stem!r} field {key!r} is {short_repr(rec[key])} ({why}); expected {what}: fix the "
+                    "record or re-extract the tables", path=str(path), token=rec.get("token"))
+
+
+def short_repr(value) -> str:
+    """``repr(value)`` cut to 80 characters, for naming a bad value in a message."""
     text = repr(value)
-    text = text if len(text) <= 80 else text[:77] + "..."
-    raise DataError(f"table {path.stem!r} field {key!r} is {text} ({why}); expected {what}: fix the record or "
-                    "re-extract the tables", path=str(path), token=rec.get("token"))
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+def vector_or_reason(value, n: int) -> tuple[np.ndarray | None, str]:
+    """((n,) float64, "") of a flat JSON list of ``n`` finite numbers, or (None, "not a list of n numbers" |
+    "non-finite"): numpy would read ``[[1], [2], [3]]``, ``[true, false, true]`` and ``["1", 2, 3]`` as numbers,
+    and an integer beyond float range as inf."""
+    if not _is_number_list(value) or len(value) != n:
+        return None, f"not a list of {n} numbers"
+    try:
+        v = np.asarray(value, dtype=np.float64)
+    except OverflowError:  # an integer beyond float range
+        return None, "non-finite"
+    return (v, "") if np.all(np.isfinite(v)) else (None, "non-finite")
 
 
 def _unit_quaternion(rec: dict, path: Path) -> np.ndarray:
@@ -382,9 +391,8 @@ def _pose(rec: dict, path: Path, max_translation_m: float = float("inf"), what: 
     t = _vector(rec, "translation", 3, "[x, y, z] metres (3 numbers)", path)
     dist = math.hypot(*t)  # no overflow warning for 1e300
     if not dist <= max_translation_m:  # "not <=": inf too
-        text = repr(rec["translation"])
-        text = text if len(text) <= 80 else text[:77] + "..."
-        raise DataError(f"table {path.stem!r} field 'translation' is {text}, {dist:.6g} m from the origin; {what} "
+        raise DataError(f"table {path.stem!r} field 'translation' is {short_repr(rec['translation'])}, {dist:.6g} m "
+                        f"from the origin; {what} "
                         f"must lie within {max_translation_m:g} m, so the record is corrupt: fix the record or "
                         "re-extract the tables", path=str(path), token=rec.get("token"))
     try:
