@@ -300,17 +300,18 @@ def _since_last_step(mon: MountMonitor | None) -> int:
     return mon.steps[-1].change if mon is not None and mon.steps else 0
 
 
-def _fold_last(traj: list[FrameEstimate], conf: HybridConfig, a, why: str, refused: str, apply
+def _fold_last(traj: list[FrameEstimate], conf: HybridConfig, a, why: str, refused: str, apply, record=None
                ) -> tuple[list[FrameEstimate], dict]:
     """The trajectory with the alignment ``a`` (``None``: not measured, because ``why``) folded into its last
-    estimate by ``apply(T, cov, a)`` unless ``refused`` says why not, and the alignment's result block."""
+    estimate by ``apply(T, cov, a)`` unless ``refused`` says why not, and the alignment's result block
+    (``record(a)`` when applied; default ``a.record(True)``)."""
     if a is None:
         return traj, {"applied": False, "note": why}
     if refused:
         return traj, a.record(False, refused)
     last = traj[-1]
     T, cov = apply(last.T, last.cov, a)
-    return [*traj[:-1], with_cov(last, cov, conf, T)], a.record(True)
+    return [*traj[:-1], with_cov(last, cov, conf, T)], (record or (lambda a: a.record(True)))(a)
 
 
 def with_lidar(traj: list[FrameEstimate], drive: Drive, frames, conf: HybridConfig, mon: MountMonitor | None,
@@ -329,9 +330,9 @@ def with_lidar(traj: list[FrameEstimate], drive: Drive, frames, conf: HybridConf
                                                 "their LiDAR only for --depth lidar-densified)"}
     a, why = align(lfs, traj[-1].T, conf.lidar)
     no_dx = forward_refusal(a, conf.lidar) if a else ""
-    traj, block = _fold_last(traj, conf, a, why, lidar_refusal(a, conf.lidar) if a else "",
-                             lambda T, cov, a: apply_offsets(T, cov, a, forward=not no_dx))
-    return traj, (a.record(True, forward=not no_dx, forward_why=no_dx) if block.get("applied") else block)
+    return _fold_last(traj, conf, a, why, lidar_refusal(a, conf.lidar) if a else "",
+                      lambda T, cov, a: apply_offsets(T, cov, a, forward=not no_dx),
+                      lambda a: a.record(True, forward=not no_dx, forward_why=no_dx))
 
 
 def with_doppler(traj: list[FrameEstimate], drive: Drive, frames, conf: HybridConfig, mon: MountMonitor | None,
