@@ -164,7 +164,8 @@ def test_verdict_from_the_result_and_steps():
                                                            "tolerance": {"rot_deg": 0.3}}, alarms=(3,)))
     assert (v.word, v.why) == ("recalibrate", "knocked") and "rot_deg 0.3" in v.tolerance
     assert v.moved_frames == (3,) and v.moved.startswith("yes")
-    assert verdict_of(_vr((0,) * 6, (0.01,) * 6)).moved.startswith("not tested")
+    assert verdict_of(_vr((0,) * 6, (0.01,) * 6)).moved_answer == "not tested"
+    assert verdict_of(_vr((0,) * 6, (0.01,) * 6, alarms=(3,))).moved_answer == "yes"
 
 
 def test_the_lidar_alignment_is_said_in_words():

@@ -102,8 +102,7 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
         o = offsets[n]
         rot = float(np.linalg.norm(o[:3])) if o is not None else float("nan")
         tr = float(np.linalg.norm(o[3:])) if o is not None else float("nan")
-        moved = (f"yes (frames {', '.join(map(str, v.moved_frames))})" if v.moved_frames
-                 else "not told" if v.moved.startswith("not") else "no")
+        moved = (f"yes (frames {', '.join(map(str, v.moved_frames))})" if v.moved_frames else v.moved_answer)
         rows += (f'<tr data-vehicle="{esc(n)}"><td class=l>{link}</td>'
                  f'<td class="l {verdict_class(v.word)}" data-key="verdict">{esc(v.word)}</td>'
                  f'<td class=l>{"yes" if n in flagged else "no"}</td>'

@@ -73,6 +73,12 @@ class Verdict:
     moved: str
     moved_frames: tuple[int, ...] = ()
 
+    @property
+    def moved_answer(self) -> str:
+        """The short answer ``moved`` opens with (``moved_during_drive`` writes each sentence so): "yes", "no",
+        "not told" (no test could run) or "not tested" (a batch result)."""
+        return next(a for a in MOVED_ANSWERS if self.moved.startswith(a))
+
 
 def _fmt(j: int, v: float) -> str:
     return f"{v:.2f} deg" if j < 3 else f"{v:.1f} cm"
@@ -112,9 +118,12 @@ def _out_of_domain_why(status: str) -> str:
     return f"The result cannot be trusted, so it says nothing about the mount: {reason}."
 
 
+MOVED_ANSWERS = ("yes", "not told", "not tested", "no")  # the words a moved sentence opens with ("no" last)
+
+
 def moved_during_drive(vr: VehicleResult) -> tuple[str, tuple[int, ...]]:
-    """Whether a step test fired (the window's, and the hybrid's radar mount monitor), in words, and
-    the frames where it did."""
+    """Whether a step test fired (the window's, and the hybrid's radar mount monitor), in words opening with
+    one of ``MOVED_ANSWERS``, and the frames where it did."""
     if not vr.trajectory:
         return "not tested (batch result: the step detector runs in the sliding window only)", ()
     alarms = tuple(f.index for f in vr.trajectory if f.step_alarm)
