@@ -293,3 +293,62 @@ def test_simulated_drive_reads_back(sim_root):
     for a, b in ((0, 1), (2, 3)):
         step = local(frames[a].extras["T_cam_radar_static"], frames[b].extras["T_cam_radar_static"])
         assert np.degrees(np.linalg.norm(step[:3])) > 0.5
+
+
+def _recalibrated_radar(tmp_path: Path, yaw: float = 0.03, second_log: bool = True):
+    """A tiny root of 6 samples whose last 3 radar keyframes use a second RADAR_FRONT calibration (yawed), in a
+    second scene of a second log of the same vehicle (``second_log``) or in the same one."""
+    from hybrid_calib.geometry import make_T, pose_to_nuscenes, so3_exp
+    from tests.tiny_nuscenes import T_EGO_RADAR
+
+    tiny = make_tiny_root(tmp_path / "two-cal", n_samples=6)
+    t = tiny.tables
+    rot, trans = pose_to_nuscenes(make_T(so3_exp([0.0, 0.0, yaw]), T_EGO_RADAR[:3, 3]))
+    t["calibrated_sensor"].append(dict(token="cs_RADAR_FRONT_b", sensor_token="sensor_RADAR_FRONT",
+                                       rotation=rot, translation=trans, camera_intrinsic=[]))
+    for sd in tiny.radar_sd[3:]:
+        sd["calibrated_sensor_token"] = "cs_RADAR_FRONT_b"
+    if second_log:
+        t["log"].append({**t["log"][0], "token": "log1", "date_captured": "2026-02-01"})
+        (scene,) = t["scene"]
+        t["scene"].append({**scene, "token": "scene1", "log_token": "log1", "nbr_samples": 3, "name": "tiny-scene-b",
+                           "first_sample_token": "sample3"})
+        scene.update(nbr_samples=3, last_sample_token="sample2")
+        for sample in t["sample"][3:]:
+            sample["scene_token"] = "scene1"
+        t["sample"][2]["next"], t["sample"][3]["prev"] = "", ""
+    for name in ("calibrated_sensor", "sample_data", "log", "scene", "sample"):
+        tiny.rewrite_table(name)
+    return tiny
+
+
+def test_a_vehicle_with_two_calibrations_is_two_vehicles(tmp_path):
+    """nuScenes calibrates each log: n015's radar is yawed -0.85 deg in 34 scenes and +0.20 deg in 349. Frames of
+    two calibrations fused as one drive would be one extrinsic for two mounts, so each is its own vehicle."""
+    from hybrid_calib.data.summary import summarize_dataset
+
+    tiny = _recalibrated_radar(tmp_path)
+    ds = NuScenesRadarCamera(tiny.root, VERSION)
+    assert ds.frames_by_vehicle() == {"tiny": [0, 1, 2], "tiny-cal2": [3, 4, 5]}
+    assert ds.calibration_splits == {"tiny": ["tiny", "tiny-cal2"]}
+    static = [ds[i].extras["T_cam_radar_static"] for i in (0, 2, 3, 5)]
+    assert np.allclose(static[0], static[1]) and np.allclose(static[2], static[3])
+    assert not np.allclose(static[0], static[2])
+    text = summarize_dataset(ds, progress=False).format()
+    assert "vehicle tiny: its logs hold 2 different camera-radar calibrations" in text and "tiny-cal2" in text
+    # a vehicle filter names either calibration, or the vehicle's first one; an unknown one lists them
+    from hybrid_calib.data.nuscenes import DataConfig
+    from hybrid_calib.errors import DataError
+
+    assert NuScenesRadarCamera(tiny.root, VERSION, conf=DataConfig(vehicles=("tiny-cal2",))).frames_by_vehicle() == \
+        {"tiny-cal2": [0, 1, 2]}
+    assert list(NuScenesRadarCamera(tiny.root, VERSION, conf=DataConfig(vehicles=("tiny",))).frames_by_vehicle()) == \
+        ["tiny"]
+    with pytest.raises(DataError, match=r"\['tiny-cal3'\] not found; vehicles present: \['tiny', 'tiny-cal2'\]"):
+        NuScenesRadarCamera(tiny.root, VERSION, conf=DataConfig(vehicles=("tiny-cal3",)))
+    # one calibration, however many records (every log has its own tokens): one vehicle
+    same = _recalibrated_radar(tmp_path / "same", yaw=0.02)
+    assert list(NuScenesRadarCamera(same.root, VERSION).frames_by_vehicle()) == ["tiny"]
+    # within one log the tables change only in a simulated root, where they hold the moving true mount: one vehicle
+    moved = _recalibrated_radar(tmp_path / "moved", second_log=False)
+    assert NuScenesRadarCamera(moved.root, VERSION).frames_by_vehicle() == {"tiny": [0, 1, 2, 3, 4, 5]}

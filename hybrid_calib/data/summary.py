@@ -67,6 +67,7 @@ class DatasetSummary:
     groups: list[GroupSummary]
     skipped: list[dict[str, Any]]
     first_loaded: int | None  # index of the first frame that loaded (used for the overlay)
+    calibration_splits: dict[str, list[str]] = field(default_factory=dict)  # vehicle -> its names
 
     @property
     def n_frames(self) -> int:
@@ -79,7 +80,8 @@ class DatasetSummary:
     def to_json(self) -> dict[str, Any]:
         return dict(root=self.root, version=self.version, radar_channel=self.radar_channel,
                     camera_channel=self.camera_channel, n_frames=self.n_frames, n_loaded=self.n_loaded,
-                    n_skipped=len(self.skipped), groups=[g.to_json() for g in self.groups], skipped=self.skipped)
+                    n_skipped=len(self.skipped), groups=[g.to_json() for g in self.groups], skipped=self.skipped,
+                    calibration_splits=self.calibration_splits)
 
     def format(self, listed_in: str | None = None) -> str:
         """A human-readable table: one line per scene/vehicle, then the skipped items grouped by reason (count,
@@ -96,6 +98,10 @@ class DatasetSummary:
                          f"{p['mean']:7.1f} [{p['min']:3d},{p['max']:4d}] {j['radar_points_raw_mean']:6.1f} "
                          f"{g.nonfinite:5d} {j['dt_radar_minus_camera_ms']['mean']:7.1f}")
         lines += self._sweep_lines()
+        for vehicle, names in self.calibration_splits.items():
+            lines.append(f"vehicle {vehicle}: its logs hold {len(names)} different camera-radar calibrations in the "
+                         f"tables, so it is calibrated as {len(names)} vehicles, one per calibration: "
+                         f"{', '.join(names)} (the first met keeps the name)")
         if not self.n_frames:
             lines.append(f"no frames: no sample has both a {self.radar_channel} and a {self.camera_channel} keyframe "
                          "(the skipped items below say why); check --radar/--camera and the tables")
@@ -186,4 +192,4 @@ def summarize_dataset(ds: NuScenesRadarCamera, progress: bool = True) -> Dataset
         g.dt_ms.append((f.timestamp_radar_us - f.timestamp_camera_us) / 1000.0)
         first = f.index if first is None else first
     return DatasetSummary(str(ds.root), ds.version, ds.radar_channel, ds.camera_channel, list(groups.values()),
-                          [dataclasses.asdict(s) for s in ds.skipped], first)
+                          [dataclasses.asdict(s) for s in ds.skipped], first, dict(ds.calibration_splits))
