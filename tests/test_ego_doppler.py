@@ -135,3 +135,34 @@ def test_inspect_says_whether_the_sweeps_between_keyframes_are_there(roots, tmp_
     text, rec = line(copy)
     assert rec == {"records": 30, "on_disk": 0, "broken": 0}
     assert "none on disk (a keyframe-only copy)" in text and "add the sweeps/ folder for about 6 times" in text
+
+
+def test_ego_poses_that_contradict_the_doppler_speed_are_not_used():
+    """Frozen ego poses (the vehicle 'standing still' while the radar sees the world pass at 9 m/s) gave the motion
+    constraint the rotation 0 in turns and the hybrid a confident 3.6 deg error with a 'recalibrate' verdict."""
+    from types import SimpleNamespace
+
+    from hybrid_calib.calib.ego_doppler import ego_measurement, pose_doppler_conflict
+    from hybrid_calib.geometry import make_T
+    from hybrid_calib.hybrid.motion import ego_conflict
+
+    assert pose_doppler_conflict(4.5, 0.5, 9.0) == "" and pose_doppler_conflict(4.6, 0.5, 8.7) == ""
+    assert pose_doppler_conflict(4.0, 0.5, 8.7) == ""  # 0.7 m/s off at 8.7 m/s: inside 1 m/s
+    assert pose_doppler_conflict(0.0, 0.5, 8.7).startswith("the ego poses moved 0.00 m in 0.50 s (0.0 m/s) while "
+                                                           "the radar measured 8.7 m/s")
+    assert pose_doppler_conflict(30.0, 0.5, 30.0)  # 60 m/s against 30
+    assert pose_doppler_conflict(13.0, 0.5, 30.0) == ""  # 26 against 30 m/s: within 25 %
+
+    still = make_T(np.eye(3), [10.0, 0.0, 0.0])
+    a = SimpleNamespace(extras={"T_global_ego_cam": still, "T_global_ego_radar": still}, timestamp_camera_us=0,
+                        timestamp_radar_us=0, radar_token="a")
+    b = SimpleNamespace(extras={"T_global_ego_cam": still, "T_global_ego_radar": still}, timestamp_camera_us=500_000,
+                        timestamp_radar_us=500_000, radar_token="b")
+    assert "ego_pose.json" in ego_conflict(a, b, 8.7)
+    v = SimpleNamespace(v=np.array([-8.7, 0.0]), cov=np.eye(2) * 1e-4, speed=8.7, n_inliers=30)
+    m, why = ego_measurement(a, v, b, v, np.eye(3), 2.0, 1.5, 40.0)
+    assert m is None and "while the radar measured 8.7 m/s" in why
+    b.extras = {k: make_T(np.eye(3), [14.4, 0.0, 0.0]) for k in b.extras}  # 8.8 m/s: agrees
+    assert ego_conflict(a, b, 8.7) == ""
+    m, why = ego_measurement(a, v, b, v, np.eye(3), 2.0, 1.5, 40.0)
+    assert m is not None, why

@@ -325,6 +325,8 @@ def test_a_mount_monitor_that_tested_nothing_does_not_say_no():
     vr.mount = {"steps": [], "levels": [], "frames_tested": 0, "pairs_tested": 0, "threshold": 8.0}
     moved, frames = moved_during_drive(vr)
     assert moved.startswith("not told for the radar's yaw") and frames == ()
-    assert tested_words(vr.mount).startswith("no frame pair tested")
+    assert tested_words(vr.mount).startswith("no frame pair tested (no pair had a usable Doppler velocity")
+    skipped = {**vr.mount, "frames_skipped": 4, "skip_example": "the ego poses moved 0.00 m"}
+    assert tested_words(skipped).startswith("no frame pair tested (4 frames skipped, the first because the ego poses")
     vr.mount = {**vr.mount, "frames_tested": 4, "pairs_tested": 4}
     assert moved_during_drive(vr)[0].startswith("no: no step alarm over the 5 frames")

@@ -142,6 +142,8 @@ class MountMonitor:
     series: list[tuple[int, float]] = field(default_factory=list)  # (position, reading deg) of the tested frames
     pairs: list[int] = field(default_factory=list)  # sweep pairs behind each reading of ``series``
     steps: list[MountStep] = field(default_factory=list)
+    skipped: int = 0  # frames after the first with no reading
+    skip_example: str = ""  # the first one's reason
     _history: list[EgoSweep] = field(default_factory=list)  # the sweeps a partner can still be (calib.ego_doppler)
     _start: int = 0  # first element of ``series`` in the current level
     _pos: float = 0.0
@@ -181,6 +183,9 @@ class MountMonitor:
                          and (t_last - s.timestamp_radar_us) * 1e-6 <= self.conf.max_gap_s), 0)
             self._history = self._history[max(keep - 1, 0):]
         if not ys:
+            if why != "first frame of a pair":
+                self.skipped += 1
+                self.skip_example = self.skip_example or why
             return MountReading(position, skipped=why)
         return self.add_residual(position, float(np.median(ys)), len(ys))
 
@@ -274,7 +279,8 @@ class MountMonitor:
                 d.update(step_deg=b["level_deg"] - a["level_deg"], std_deg=float(np.hypot(a["std_deg"], b["std_deg"])))
             steps.append(d)
         return {"steps": steps, "levels": levels, "frames_tested": len(self.series),
-                "pairs_tested": int(sum(self.pairs)), "threshold": self.conf.threshold}
+                "pairs_tested": int(sum(self.pairs)), "threshold": self.conf.threshold,
+                **({"frames_skipped": self.skipped, "skip_example": self.skip_example} if self.skipped else {})}
 
 
 def monitor_drive(frames, indices: list[int], T_ego_radar: np.ndarray, conf: MountMonitorConfig = MountMonitorConfig()
@@ -291,8 +297,9 @@ def tested_words(summary: dict) -> str:
     pairs = int(summary.get("pairs_tested", 0))
     frames = int(summary.get("frames_tested", pairs))
     if not pairs:
-        words = ("no frame pair tested (no pair had a usable Doppler velocity of the radar and ego poses: a step of "
-                 "the radar's yaw alone would go unseen by it)")
+        why = (f"{summary['frames_skipped']} frames skipped, the first because {summary['skip_example']}"
+               if summary.get("skip_example") else "no pair had a usable Doppler velocity of the radar and ego poses")
+        words = f"no frame pair tested ({why}: a step of the radar's yaw alone would go unseen by it)"
     elif pairs != frames:
         words = f"{frames} frames tested ({pairs} sweep pairs)"
     else:

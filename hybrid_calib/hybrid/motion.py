@@ -37,6 +37,7 @@ import numpy as np
 
 from factors.motion import MotionMeasurement, chord_heading, chord_length, heading_residual, radar_yaw_change
 from hybrid_calib.atomic import write_bytes_atomic
+from hybrid_calib.calib.ego_doppler import pose_doppler_conflict
 from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.data.files import NPZ_ERRORS
 from hybrid_calib.errors import DataError
@@ -145,15 +146,19 @@ class MotionSource:
             write_bytes_atomic(path, buf.getvalue())
         return m, why
 
-    def camera(self, fa, fb, R_cam_radar: np.ndarray) -> tuple[CameraMotion | None, str]:
+    def camera(self, fa, fb, R_cam_radar: np.ndarray, speed_mps: float | None = None
+               ) -> tuple[CameraMotion | None, str]:
         """The camera's motion a -> b (module doc): with ego poses, the rotation is the vehicle's
         rotation angle about the radar's up axis (the current estimate's; a 2D radar is mounted level)
-        and only the direction of travel is estimated (``travel_given_rotation``); without them the
-        five-point essential matrix."""
+        and only the direction of travel is estimated (``travel_given_rotation``); without them, or when
+        their travel contradicts the radar's Doppler speed ``speed_mps`` (``ego_doppler.pose_doppler_conflict``:
+        frozen or foreign poses), the five-point essential matrix."""
         m, why = self._matches(fa, fb)
         if m is None:
             return None, why
         omega = ego_rotation(fa, fb)
+        if omega is not None and speed_mps is not None and ego_conflict(fa, fb, speed_mps):
+            omega = None
         if omega is None or self.conf.rotation == "vo":
             cm, why = motion_from_matches(*m, self.conf.vo)
             if cm is not None and omega is not None:
@@ -183,7 +188,7 @@ class MotionSource:
         if min(va.speed, vb.speed) < self.conf.min_speed_mps:
             return None, f"radar speed {min(va.speed, vb.speed):.1f} m/s (need {self.conf.min_speed_mps:g})"
         try:
-            cm, why = self.camera(fa, fb, R_cam_radar)
+            cm, why = self.camera(fa, fb, R_cam_radar, 0.5 * (va.speed + vb.speed))
         except DataError as e:
             return None, f"image unreadable: {e}"
         if cm is None:
@@ -204,6 +209,16 @@ class MotionSource:
         return MotionMeasurement(c, R_A, chord_length(speed, dt, yaw_ab), psi, sig, speed,
                                  fa.camera_token, fb.camera_token, cm.n_inliers,
                                  min(va.n_inliers, vb.n_inliers)), ""
+
+
+def ego_conflict(fa, fb, speed_mps: float) -> str:
+    """Why the frames' ego poses (at the camera's timestamps) contradict the radar's Doppler speed, or ""."""
+    Ta, Tb = fa.extras.get("T_global_ego_cam"), fb.extras.get("T_global_ego_cam")
+    dt = (fb.timestamp_camera_us - fa.timestamp_camera_us) * 1e-6
+    if Ta is None or Tb is None or dt <= 0:
+        return ""
+    travel = float(np.linalg.norm(np.asarray(Tb, np.float64)[:3, 3] - np.asarray(Ta, np.float64)[:3, 3]))
+    return pose_doppler_conflict(travel, dt, speed_mps)
 
 
 def ego_rotation(fa, fb) -> np.ndarray | None:
