@@ -71,7 +71,11 @@ def out_dir_lock(out: str | Path, command: str) -> Iterator[None]:
     created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
     path = out / LOCK_NAME
-    f = open(path, "a+")
+    if path.is_symlink() or (path.exists() and not path.is_file()):  # a link's target would be overwritten
+        kind = "a symbolic link" if path.is_symlink() else "a directory" if path.is_dir() else "a special file"
+        raise HybridCalibError(f"{path} is {kind}, not the lock file hybrid-calib keeps in its output folder; "
+                               "remove it and rerun")
+    f = os.fdopen(os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o644), "r+")
     try:
         fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError:

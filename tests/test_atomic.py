@@ -93,3 +93,24 @@ def test_the_lock_holds_across_processes(tmp_path, capsys):
     finally:
         other.kill()
         other.wait()
+
+
+@pytest.mark.parametrize("kind", ["symlink", "directory"])
+def test_a_lock_path_that_is_not_a_file_is_named_and_never_followed(kind, tmp_path):
+    """A symbolic link in the lock's place had its target overwritten with the lock's text; a directory there gave
+    a bare 'Is a directory'."""
+    from hybrid_calib.atomic import LOCK_NAME, out_dir_lock
+    from hybrid_calib.errors import HybridCalibError
+
+    out, precious = tmp_path / "run", tmp_path / "precious.txt"
+    out.mkdir()
+    precious.write_text("precious")
+    if kind == "symlink":
+        (out / LOCK_NAME).symlink_to(precious)
+    else:
+        (out / LOCK_NAME).mkdir()
+    with pytest.raises(HybridCalibError, match=f"is a {'symbolic link' if kind == 'symlink' else 'directory'}, not "
+                                               "the lock file .*remove it and rerun"):
+        with out_dir_lock(out, "calibrate"):
+            pass
+    assert precious.read_text() == "precious"

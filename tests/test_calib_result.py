@@ -77,3 +77,18 @@ def test_std_keys_name_their_frame():
     assert list(std_dict(np.arange(6.0), "radar").values()) == list(range(6))
     with pytest.raises(ValueError, match="valid"):
         std_keys("camera")
+
+
+def test_a_file_in_place_of_the_kept_vehicles_folder_is_named(tmp_path):
+    """'File exists [file OUT/vehicles-done]' said neither what the folder is for nor what to do."""
+    from hybrid_calib.calib.result import VehicleProgress
+    from hybrid_calib.errors import HybridCalibError
+
+    (tmp_path / "vehicles-done").write_text("hi")
+    with pytest.raises(HybridCalibError, match="vehicles-done is a file, not the folder where hybrid-calib keeps the "
+                                               "vehicles an interrupted run finished; move it away"):
+        VehicleProgress(tmp_path, tmp_path, "v1.0-sim", "hybrid", {"seed": 0})
+    (tmp_path / "vehicles-done").unlink()
+    done = VehicleProgress(tmp_path, tmp_path, "v1.0-sim", "hybrid", {"seed": 0})
+    (tmp_path / "vehicles-done" / "v.json").mkdir()  # one vehicle's file cannot be written: warned, the run goes on
+    done.record("v", "no usable frame")

@@ -115,6 +115,34 @@ def test_a_broken_sweep_record_is_said_and_the_drive_goes_on(roots, tmp_path):
     assert sum(s == "" for s in skips) >= len(skips) - 12  # one bad record costs the pairs that touch it
 
 
+@pytest.mark.parametrize("damage", ["cycle", "forward"])
+def test_a_prev_pointer_cycle_or_one_forward_in_time_ends_the_walk_in_words(damage, roots, tmp_path):
+    """A cycle of prev pointers was walked round to the limit (57 sweep pairs instead of 42, the same sweeps used
+    several times, no word); a pointer to a later record is no earlier sweep either."""
+    import json
+    import shutil
+
+    from learned.dataset import open_frames
+
+    root = tmp_path / "root"
+    shutil.copytree(roots[0], root)
+    frames = open_frames(root, "v1.0-sim", lidar=False)
+    (idx,) = frames.frames_by_vehicle().values()
+    sweeps = frames.radar_sweeps_between(idx[3])  # oldest first
+    table = root / "v1.0-sim" / "sample_data.json"
+    records = json.loads(table.read_text())
+    target = sweeps[-1].token if damage == "cycle" else frames.radar_sweeps_between(idx[4])[0].token
+    for r in records:
+        if r["token"] == sweeps[1].token:
+            r["prev"] = target  # the second sweep points back at the newest one of its interval / the next interval
+    table.write_text(json.dumps(records))
+    got = open_frames(root, "v1.0-sim", lidar=False).radar_sweeps_between(idx[3])
+    read = [s.token for s in got[1:]]  # the broken pointer's entry, then the sweeps after it, each once
+    assert read == [s.token for s in sweeps[1:]]
+    assert got[0].timestamp_us is None and ("a cycle" if damage == "cycle" else "not older") in got[0].why
+    assert "prev pointer" in got[0].why and all(not s.why for s in got[1:])
+
+
 def test_inspect_says_whether_the_sweeps_between_keyframes_are_there(roots, tmp_path):
     import shutil
 

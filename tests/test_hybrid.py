@@ -171,12 +171,33 @@ def test_an_interrupted_run_keeps_its_finished_vehicles_and_goes_on_from_there(s
     assert ran == ["sim-veh-001"] and sorted(run.vehicles) == ["sim-veh-000", "sim-veh-001"]
     assert not (tmp_path / "p" / "vehicles-done").exists()  # result.json holds everything now
     assert CalibrationRun.load(tmp_path / "p" / "result.json").vehicles["sim-veh-000"].final.status
-    # another configuration does not reuse what an interrupted run of this one kept
+    # another configuration neither reuses nor silently discards what an interrupted run of this one kept
+    from hybrid_calib.errors import HybridCalibError
+
     with pytest.raises(KeyboardInterrupt):
         run_calibration(sim_root, "v1.0-sim", tmp_path / "q", conf, on_vehicle=stop)
+    with pytest.raises(HybridCalibError, match=r"holds 1 vehicle\(s\) finished by an interrupted run of another "
+                                               r"configuration \(seed: 4 -> 9\).*--overwrite"):
+        run_calibration(sim_root, "v1.0-sim", tmp_path / "q", {**conf, "seed": 9})
+    # a record copied from another run, or renamed, is recomputed, not trusted
+    done = tmp_path / "q" / "vehicles-done"
+    record = json.loads((done / "sim-veh-000.json").read_text())
+    (done / "sim-veh-001.json").write_text(json.dumps({**record, "vehicle": "sim-veh-001"}))
     ran.clear()
-    run_calibration(sim_root, "v1.0-sim", tmp_path / "q", {**conf, "seed": 9})
+    run = run_calibration(sim_root, "v1.0-sim", tmp_path / "q", conf)
+    assert ran == ["sim-veh-001"] and run.vehicles["sim-veh-001"].vehicle == "sim-veh-001"
+    with pytest.raises(KeyboardInterrupt):
+        run_calibration(sim_root, "v1.0-sim", tmp_path / "r", conf, on_vehicle=stop)
+    ran.clear()
+    run_calibration(sim_root, "v1.0-sim", tmp_path / "r", {**conf, "seed": 9}, overwrite=True)
     assert ran == ["sim-veh-000", "sim-veh-001"]
+    # a moved folder resumes (the caches' paths in its config are how the run ran, not what it gave)
+    with pytest.raises(KeyboardInterrupt):
+        run_calibration(sim_root, "v1.0-sim", tmp_path / "s", conf, on_vehicle=stop)
+    (tmp_path / "s").rename(tmp_path / "s2")
+    ran.clear()
+    run_calibration(sim_root, "v1.0-sim", tmp_path / "s2", conf)
+    assert ran == ["sim-veh-001"]
     # the oracle pipeline keeps them the same way, and the resumed run is the uninterrupted one
     from hybrid_calib.calib import pipeline
 

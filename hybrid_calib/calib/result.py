@@ -352,34 +352,62 @@ class VehicleProgress:
     """The vehicles a ``calibrate`` run into ``out`` has finished, kept so that an interrupted run resumes where it
     stopped: ``out/vehicles-done/`` holds one JSON per finished vehicle (``VehicleResult``) or failed one
     (``{"failed": reason}``), written atomically as each ends, and ``stamp.json`` (data, version, source and the
-    effective config). A run with another stamp, or ``fresh`` (``--overwrite``), starts afresh; ``finish`` removes
-    the folder once ``result.json`` holds everything. A damaged file is recomputed, not trusted."""
+    effective config). ``finish`` removes the folder once ``result.json`` holds everything.
+
+    - Kept vehicles of another configuration (another stamp, the ``RUN_ONLY`` keys aside, so a moved folder still
+      resumes) are never discarded silently: ``HybridCalibError`` naming what differs, unless ``fresh``
+      (``--overwrite``), which starts afresh.
+    - Each record carries the key of its stamp and vehicle (``_record_key``): a record copied from another run or
+      renamed, or a damaged file, is recomputed, and said so on stderr.
+    - The folder is a cache: a vehicle that cannot be kept (a directory in its file's place) is warned about and
+      the run goes on."""
 
     def __init__(self, out: str | Path, data, version: str, source: str, conf: dict, fresh: bool = False):
         import shutil
+        import sys
 
         self.dir = Path(out) / "vehicles-done"
         self.stamp = json.loads(json.dumps({"data": str(Path(str(data)).resolve()), "version": version,
                                             "source": str(source), "config": conf}, default=str))
-        try:
-            same = json.loads((self.dir / "stamp.json").read_text()) == self.stamp
-        except (OSError, ValueError):
-            same = False
-        if self.dir.exists() and (fresh or not same):
-            shutil.rmtree(self.dir, ignore_errors=True)
         self.done: dict[str, VehicleResult | str] = {}
+        if self.dir.exists() and not self.dir.is_dir():
+            raise HybridCalibError(f"{self.dir} is a file, not the folder where hybrid-calib keeps the vehicles an "
+                                   "interrupted run finished; move it away (or pass another --out) and rerun")
+        if self.dir.is_dir() and fresh:
+            shutil.rmtree(self.dir, ignore_errors=True)
         if self.dir.is_dir():
-            for f in sorted(self.dir.glob("*.json")):
-                if f.name == "stamp.json":
-                    continue
-                try:
-                    d = json.loads(f.read_text())
-                    name = str(d["vehicle"])
-                    self.done[name] = str(d["failed"]) if "failed" in d else VehicleResult.from_dict(d["result"], name)
-                except (OSError, ValueError, KeyError, TypeError):
-                    continue
-        else:
+            kept = sorted(f for f in self.dir.glob("*.json") if f.name != "stamp.json")
+            try:
+                old = json.loads((self.dir / "stamp.json").read_text())
+                changed = _changes(old, self.stamp) if isinstance(old, dict) else ["stamp.json is not an object"]
+            except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
+                changed = [f"its stamp.json is unreadable ({type(e).__name__})"]
+            if changed and kept:
+                more = f"; {len(changed) - 4} more" if len(changed) > 4 else ""
+                raise HybridCalibError(
+                    f"{self.dir} holds {len(kept)} vehicle(s) finished by an interrupted run of another configuration "
+                    f"({'; '.join(changed[:4])}{more}); rerun that run's command to finish it, pass --overwrite to "
+                    "discard them, or pass another --out")
+            if changed:
+                shutil.rmtree(self.dir, ignore_errors=True)
+            for f in kept if not changed else ():
+                name, why = self._read(f)
+                if why:
+                    print(f"vehicles-done: {f.name} is recomputed: {why}", file=sys.stderr)
+        if not self.dir.is_dir():
             save_json_atomic(self.dir / "stamp.json", self.stamp)
+
+    def _read(self, f: Path) -> tuple[str, str]:
+        """Keep one record into ``done``: (vehicle, "") or (name, why it is not this run's)."""
+        try:
+            d = json.loads(f.read_text())
+            name = str(d["vehicle"])
+            if f != self._path(name) or d.get("key") != _record_key(self.stamp, name):
+                return name, "not this run's record of that vehicle (copied from another run, or renamed)"
+            self.done[name] = str(d["failed"]) if "failed" in d else VehicleResult.from_dict(d["result"], name)
+            return name, ""
+        except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
+            return "", f"unreadable ({type(e).__name__}: {e})"
 
     def _path(self, name: str) -> Path:
         from urllib.parse import quote
@@ -387,9 +415,16 @@ class VehicleProgress:
         return self.dir / f"{quote(name, safe='')}.json"
 
     def record(self, name: str, result: VehicleResult | str) -> None:
-        """Keep one vehicle's result (or, a string, why it failed)."""
+        """Keep one vehicle's result (or, a string, why it failed); one that cannot be kept is warned about (the
+        folder is a cache: the run goes on, and the vehicle is in its result.json)."""
+        import sys
+
         body = {"failed": result} if isinstance(result, str) else {"result": result.to_dict()}
-        save_json_atomic(self._path(name), {"vehicle": name, **body})
+        try:
+            save_json_atomic(self._path(name), {"vehicle": name, "key": _record_key(self.stamp, name), **body})
+        except (OSError, HybridCalibError) as e:
+            print(f"vehicles-done: {name} could not be kept ({e}); an interruption now would compute it again",
+                  file=sys.stderr)
 
     def finish(self) -> None:
         import shutil
@@ -436,15 +471,8 @@ def reuse_result(out: str | Path, data, version: str, source: str, conf: dict) -
     old = read_out_record(out / "config.json", "calibrate config", "the configuration its result.json was computed "
                           "with: pass --overwrite to recompute, or another --out")
 
-    def same_path(a, b) -> bool:
-        return str(a) == str(b) or Path(str(a)).resolve() == Path(str(b)).resolve()
-
-    changed = [f"{what} {a!r} -> {b!r}" for what, a, b, same in (
-        ("--data", run.data, str(data), same_path), ("--version", run.version, version, str.__eq__),
-        ("method / correspondences", run.correspondences, source, same_path)) if not same(a, b)]
-    if old is not None and not changed:  # another method's config has other keys: the method says it all
-        changed = [f"{k}: {_short(old.get(k))} -> {_short(v)}" for k, v in conf.items()
-                   if k not in RUN_ONLY and old.get(k) != v]
+    changed = _changes({"data": run.data, "version": run.version, "source": run.correspondences, "config": old},
+                       {"data": str(data), "version": version, "source": source, "config": conf})
     if changed:
         more = f"; {len(changed) - 4} more" if len(changed) > 4 else ""
         raise HybridCalibError(f"{out} holds the result of another run ({'; '.join(changed[:4])}{more}; "
@@ -452,6 +480,32 @@ def reuse_result(out: str | Path, data, version: str, source: str, conf: dict) -
                                "which this run would report as its own; pass --overwrite to recompute, or another "
                                "--out")
     return run
+
+
+def _changes(old: dict, new: dict) -> list[str]:
+    """What differs between two runs' stamps (``data``, ``version``, ``source``: correspondences or the learned
+    method, and ``config``: the effective config, None when unknown), in words; the ``RUN_ONLY`` config keys aside.
+    The config is compared only when the rest is the same (another method's config has other keys)."""
+    def same_path(a, b) -> bool:
+        return str(a) == str(b) or Path(str(a)).resolve() == Path(str(b)).resolve()
+
+    changed = [f"{what} {a!r} -> {b!r}" for what, a, b, same in (
+        ("--data", old.get("data"), new["data"], same_path), ("--version", old.get("version"), new["version"],
+                                                                 lambda a, b: a == b),
+        ("method / correspondences", old.get("source"), new["source"], same_path)) if not same(a, b)]
+    old_conf = old.get("config")
+    if isinstance(old_conf, dict) and not changed:
+        changed = [f"{k}: {_short(old_conf.get(k))} -> {_short(v)}" for k, v in new["config"].items()
+                   if k not in RUN_ONLY and old_conf.get(k) != v]
+    return changed
+
+
+def _record_key(stamp: dict, name: str) -> str:
+    """The key a kept vehicle's record carries: its run's stamp (the ``RUN_ONLY`` config keys aside) and name."""
+    import hashlib
+
+    core = {**stamp, "config": {k: v for k, v in stamp["config"].items() if k not in RUN_ONLY}}
+    return hashlib.sha1(json.dumps([core, name], sort_keys=True, default=str).encode()).hexdigest()
 
 
 def _short(value) -> str:

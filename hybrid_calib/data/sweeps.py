@@ -145,20 +145,35 @@ class InterSweep:
 def _walk_between(tables: NuScenesTables, sd: dict, limit: int):
     """Yield ``(token, record, error)`` for the non-keyframe sweeps before ``sd``, newest first, back to the
     previous keyframe of its channel, the scene's start or ``limit`` records; a ``prev`` pointer that does not
-    resolve is yielded once with ``record`` None and its ``DataError``, and ends the walk."""
-    token, newer = sd.get("prev", ""), sd
+    resolve, or that comes back to a record already walked (a cycle) or to one not older than the record pointing
+    at it, is yielded once with ``record`` None and its ``DataError``, and ends the walk."""
+    token, newer, seen = sd.get("prev", ""), sd, {sd.get("token")}
     for _ in range(limit):
         if not token:
             return
         try:
             rec = tables.get("sample_data", token, f"sample_data {newer['token']} (prev pointer)")
+            if token in seen or not _older(rec, newer):
+                why = "comes back to a record already walked (a cycle)" if token in seen else \
+                    f"points at a record not older than it ({rec.get('timestamp')} >= {newer.get('timestamp')} us)"
+                raise DataError(f"sample_data {newer['token']}: its prev pointer {why}; the sweeps before it are not "
+                                "used: fix or re-extract the tables", path=str(tables.path("sample_data")), token=token)
         except DataError as e:
             yield token, None, e
             return
         if rec.get("is_key_frame", False):
             return
+        seen.add(token)
         yield token, rec, None
         token, newer = rec.get("prev", ""), rec
+
+
+def _older(rec: dict, newer: dict) -> bool:
+    """Whether ``rec``'s timestamp is before ``newer``'s (True when either is not a number: said elsewhere)."""
+    a, b = rec.get("timestamp"), newer.get("timestamp")
+    if not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in (a, b)):
+        return True
+    return a < b
 
 
 def sweep_files_between(tables: NuScenesTables, sd: dict, limit: int = 20) -> tuple[int, int, int]:
