@@ -344,11 +344,12 @@ class DepthCache:
         if path.is_file():
             try:
                 depth = np.load(path, allow_pickle=False)
-                if depth.shape == tuple(size_hw) and depth.dtype == np.float32:
+                if depth.shape == tuple(size_hw) and depth.dtype == np.float32 and np.isfinite(depth).any():
                     self.hits += 1
                     return depth
             except NPZ_ERRORS:
                 pass  # a corrupt entry (truncated, a pickle, not an array) is recomputed below
+            # (so is one of another shape or type, or without one finite depth: no estimator gives that)
         self.misses += 1
         depth = np.asarray(estimator.estimate(frame, size_hw, image), dtype=np.float32)
         path.parent.mkdir(parents=True, exist_ok=True)

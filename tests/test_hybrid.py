@@ -338,3 +338,31 @@ def test_fit_calibrates_the_drive_term_on_the_loop_as_it_ships(sim_root, tmp_pat
     round3 = json.loads((tmp_path / "round3-none-0" / "config.json").read_text())
     assert round2["motion"]["enabled"] is False and round3["motion"]["enabled"] is True
     assert CalibrationRun.load(tmp_path / "round3-none-0" / "result.json").vehicles
+
+
+def test_a_non_finite_network_pass_is_a_skipped_frame_not_the_end_of_the_run(sim_root, tmp_path, monkeypatch):
+    """A depth map of NaN made the pass NaN and the run ended in 'internal error: GaussianPrior has NaN/inf
+    entries' (calibrate, compare and a whole fleet)."""
+    import dataclasses
+
+    from hybrid_calib.hybrid import run_vehicle
+    from hybrid_calib.hybrid.network import NetworkRunner
+
+    out = _output(np.random.default_rng(0))
+    assert out.finite and not dataclasses.replace(out, cov_raw=out.cov_raw * np.nan).finite
+    real = NetworkRunner.forward
+    poisoned = {}
+
+    def forward(self, s, T_in):
+        o = real(self, s, T_in)
+        if not poisoned or poisoned.get("index") == s.get("index", 0):
+            poisoned["index"] = s.get("index", 0)
+            return dataclasses.replace(o, T_iters=o.T_iters * np.nan)
+        return o
+
+    monkeypatch.setattr(NetworkRunner, "forward", forward)
+    for method in ("hybrid", "pure"):
+        v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", {**BASE, "method": method, "max_frames": 3,
+                                                              "cache_dir": str(tmp_path / method)})
+        assert np.isfinite(v.final.T).all() and len(v.skipped) >= 1, v.skipped
+        assert "is not finite (NaN/inf)" in v.skipped[0]["reason"]

@@ -118,6 +118,8 @@ def test_cache_hit_is_identical_and_changed_config_misses(tmp_path):
     assert cache.misses == 3
     path.write_bytes(b"garbage")  # a corrupt entry is recomputed, not returned
     np.testing.assert_array_equal(cache.get(est, frame, (30, 60)), first)
+    np.save(path, np.full((30, 60), np.nan, np.float32))  # no estimator gives a map without one finite depth
+    np.testing.assert_array_equal(cache.get(est, frame, (30, 60)), first)
 
 
 def test_build_depth_estimator_rejects_unknown_names():

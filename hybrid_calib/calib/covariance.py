@@ -342,7 +342,8 @@ def analyse_information(
     conf = merge(CovarianceConfig, conf)
     info = np.asarray(info, dtype=np.float64)
     if info.shape != (6, 6) or not np.all(np.isfinite(info)):
-        raise ValueError(f"information must be a finite (6, 6) matrix, got shape {info.shape}")
+        raise ValueError(f"information must be a finite (6, 6) matrix, got "
+                         f"{'shape ' + str(info.shape) if info.shape != (6, 6) else 'non-finite entries'}")
     info = 0.5 * (info + info.T)
     pinned = pinned_std is not None and np.any(np.asarray(pinned_std) > 0)
     if pinned and not pinned_marginalised:

@@ -77,6 +77,13 @@ class NetworkOutput:
     def T(self) -> np.ndarray:
         return self.T_iters[-1]
 
+    @property
+    def finite(self) -> bool:
+        """Whether the estimates, the covariance and the rows are all finite (a depth map of NaN made them NaN)."""
+        arrays = (self.T_in, self.T_iters, self.cov_raw, *(a for c in (self.rows_first, self.rows_last)
+                                                          for a in (c.points_radar, c.pixels, c.sigma_px)))
+        return all(np.isfinite(np.asarray(a, np.float64)).all() for a in arrays)
+
     def to_arrays(self) -> dict[str, np.ndarray]:
         d = {"T_in": self.T_in, "T_iters": self.T_iters, "cov_raw": self.cov_raw,
              "seconds": np.array(self.seconds), "ood_descriptor": self.ood_descriptor, "ood_signals": self.ood_signals}
@@ -179,6 +186,7 @@ class NetworkRunner:
         self.cache = OutputCache(cache_dir, self.key) if cache_dir else None
         self.min_confidence = float(min_confidence)
         self._samples: dict[int, dict | None] = {}
+        self._not_finite: dict[int, str] = {}  # frames whose pass came out non-finite: why (bad_reason)
 
     @property
     def checkpoint(self) -> str:
@@ -192,7 +200,7 @@ class NetworkRunner:
         return self._samples[index]
 
     def bad_reason(self, index: int) -> str:
-        return self.dataset.bad.get(index, "")
+        return self.dataset.bad.get(index, "") or self._not_finite.get(index, "")
 
     def token(self, index: int) -> str:
         from learned.dataset import camera_token
@@ -202,12 +210,16 @@ class NetworkRunner:
     def run(self, index: int, T_in: np.ndarray) -> NetworkOutput | None:
         """The network on frame ``index`` from ``T_in`` (4, 4); cached; None for a bad frame."""
         token = self.token(index)
-        if self.cache is not None and (hit := self.cache.get(token, T_in)) is not None:
+        if self.cache is not None and (hit := self.cache.get(token, T_in)) is not None and hit.finite:
             return hit
         s = self.sample(index)
         if s is None:
             return None
         out = self.forward(s, T_in)
+        if not out.finite:  # a frame, not the run: skipped with why
+            self._not_finite[index] = (f"the network's output on frame {token} is not finite (NaN/inf): its inputs "
+                                       "hold NaN/inf (the depth map, the image or the radar returns)")
+            return None
         if self.cache is not None:
             self.cache.put(token, out)
         return out
