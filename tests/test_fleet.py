@@ -394,3 +394,26 @@ def test_fleet_command_pages_link_every_done_vehicle(local_run):
         report = (out / r["result"]).parent / "report.html"
         assert report.is_file(), report
         assert r["vehicle"] in html and f'href="{report.relative_to(out)}"' in html
+
+
+def test_an_unexpected_error_in_one_vehicle_is_its_failure_not_the_fleets(fleet_root, tmp_path, monkeypatch):
+    """A bug met by one vehicle's data (a NaN depth map made 'internal error: GaussianPrior has NaN/inf entries')
+    ended the whole fleet, the others unrecorded and the last run's summary left stale."""
+    from hybrid_calib.fleet import jobs
+
+    real = jobs.calibrate_job
+
+    def calibrate(job):
+        if job.vehicle == "sim-veh-002":
+            raise ValueError("GaussianPrior has NaN/inf entries")
+        return real(job)
+
+    monkeypatch.setattr(jobs, "calibrate_job", calibrate)
+    summary = run_fleet([str(fleet_root)], None, "v1.0-sim", "oracle", tmp_path / "f", seed=1,
+                        calib={"window": {"window": 3}}, options=FleetOptions(plots=False))
+    doc = json.loads((tmp_path / "f" / "manifest.json").read_text())
+    states = {e["job"]["vehicle"]: (e["state"], e["reason"]) for e in doc["jobs"].values()}
+    assert states["sim-veh-002"][0] == "failed"
+    assert states["sim-veh-002"][1].startswith("internal error (please report it with this vehicle's data): "
+                                               "ValueError: GaussianPrior has NaN/inf entries")
+    assert states["sim-veh-000"][0] == "done" and summary is not None

@@ -225,16 +225,20 @@ def run_job(job: dict) -> dict:
     """Run one job (a ``Job.to_dict``) in whatever process this is; returns its outcome as plain data:
     {"id", "state": "done" | "failed", "reason", "file", "wall_s", "cpu_s" (this process's CPU time),
     "host", "pid", "result"}.
-    A ``HybridCalibError`` (corrupt data, a method not available) is the job's failure; anything else
-    (an ``OSError``, a bug) propagates, so the engine can retry system failures."""
+    A ``HybridCalibError`` (corrupt data, a method not available) is the job's failure; so is an unexpected
+    error (a bug met by this vehicle's data: the fleet goes on and the reason says "internal error"); an
+    ``OSError`` propagates, so the engine can retry system failures."""
     j = Job.from_dict(job)
     set_threads(j.threads)
     t0, c0 = time.perf_counter(), time.process_time()
     base = {"id": j.id, "host": socket.gethostname(), "pid": os.getpid()}
     try:
         path = calibrate_job(j)
-    except HybridCalibError as e:
-        return {**base, "state": "failed", "reason": f"{type(e).__name__}: {e}", "file": getattr(e, "path", None),
+    except OSError:
+        raise
+    except Exception as e:  # noqa: BLE001 - one vehicle's failure, never the fleet's
+        what = "" if isinstance(e, HybridCalibError) else "internal error (please report it with this vehicle's data): "
+        return {**base, "state": "failed", "reason": f"{what}{type(e).__name__}: {e}", "file": getattr(e, "path", None),
                 "wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0, "result": None}
     return {**base, "state": "done", "reason": None, "file": None, "wall_s": time.perf_counter() - t0,
             "cpu_s": time.process_time() - c0, "result": str(path)}
