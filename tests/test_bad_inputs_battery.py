@@ -644,6 +644,17 @@ DAMAGED_RESULTS = {  # case -> (damage(doc, vehicle), needles beyond the file); 
                     ["final.T_cam_radar is not a 4x4 matrix", "(3, 3)"]),
     "frame-T-nan": (lambda doc, v: doc["vehicles"][v]["trajectory"][0]["T_cam_radar"][1].__setitem__(1, float("nan")),
                     ["trajectory[0].T_cam_radar holds non-finite values"]),
+    # the hybrid's blocks (a probe: KeyError 'step_deg', "Unknown format code 'f'", "'list' object has no 'get'")
+    "mount-step-garbage": (lambda doc, v: doc["vehicles"][v].__setitem__("mount", {"steps": [{"frame": "x"}]}),
+                           ["mount.steps[0] lacks finite ['step_deg', 'std_deg', 'change', 'at']"]),
+    "lidar-dy-a-string": (lambda doc, v: doc["vehicles"][v].__setitem__("lidar", {"applied": True, "dy_m": "x"}),
+                          ["lidar.dy_m is 'x', not a finite number"]),
+    "lidar-dy-nan": (lambda doc, v: doc["vehicles"][v].__setitem__("lidar", {"applied": True, "dy_m": float("nan")}),
+                     ["lidar.dy_m is 'nan', not a finite number"]),
+    "lidar-applied-a-string": (lambda doc, v: doc["vehicles"][v].__setitem__("lidar", {"applied": "yes"}),
+                               ["lidar.applied is a JSON string, not a boolean"]),
+    "doppler-a-list": (lambda doc, v: doc["vehicles"][v].__setitem__("doppler", [1, 2]),
+                       ["doppler is a JSON array, not an object"]),
 }
 
 

@@ -99,6 +99,44 @@ def _mapping(d, name: str) -> dict:
     return d
 
 
+# the numbers the reports and the terminal read from a hybrid result's blocks: finite where present
+_BLOCK_NUMBERS = {
+    "mount": ("frames_tested", "pairs_tested", "threshold"),
+    "lidar": ("dy_m", "dy_std_m", "dx_m", "dx_std_m", "rows", "frames"),
+    "doppler": ("dx_m", "dx_std_m", "pairs", "frames", "turning"),
+}
+_STEP_NUMBERS = ("step_deg", "std_deg", "change", "at")
+
+
+def _number(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and bool(np.isfinite(x))
+
+
+def _block(d: dict, key: str, where: str) -> dict | None:
+    """The hybrid's ``mount`` / ``lidar`` / ``doppler`` block of a vehicle result read back: None, or an object
+    whose numbers (``_BLOCK_NUMBERS``; each step's ``_STEP_NUMBERS``) are finite where present and whose
+    ``applied`` is a boolean; ``TypeError`` / ``ValueError`` naming the field otherwise (a report crashed on
+    them)."""
+    b = d.get(key)
+    if b is None:
+        return None
+    b = _mapping(b, f"{where}.{key}")
+    for k in _BLOCK_NUMBERS[key]:
+        if k in b and b[k] is not None and not _number(b[k]):
+            raise ValueError(f"{where}.{key}.{k} is {str(b[k])[:40]!r}, not a finite number")
+    if "applied" in b and not isinstance(b["applied"], bool):
+        raise TypeError(f"{where}.{key}.applied is a JSON {_json_kind(b['applied'])}, not a boolean")
+    steps = b.get("steps", [])
+    if key == "mount" and not isinstance(steps, list):
+        raise TypeError(f"{where}.mount.steps is a JSON {_json_kind(steps)}, not an array")
+    for j, st in enumerate(steps if key == "mount" else ()):
+        st = _mapping(st, f"{where}.mount.steps[{j}]")
+        bad = [k for k in _STEP_NUMBERS if not _number(st.get(k))]
+        if bad:
+            raise ValueError(f"{where}.mount.steps[{j}] lacks finite {bad}")
+    return b
+
+
 def _json_kind(x) -> str:
     return {list: "array", str: "string", bool: "boolean", int: "number", float: "number",
             type(None): "null"}.get(type(x), type(x).__name__)
@@ -264,8 +302,8 @@ class VehicleResult:
             skipped=list(d.get("frames_skipped", [])), n_frames=int(d.get("n_frames", 0)),
             network=d.get("network"), method=d.get("method", ""), checkpoint=d.get("checkpoint"),
             start=d.get("start"), errors_against=d.get("errors_against"), frame_rows=list(d.get("frame_rows", [])),
-            config=d.get("config"), ood=d.get("ood"), mount=d.get("mount"), lidar=d.get("lidar"),
-            doppler=d.get("doppler"),
+            config=d.get("config"), ood=d.get("ood"), mount=_block(d, "mount", where),
+            lidar=_block(d, "lidar", where), doppler=_block(d, "doppler", where),
         )
 
     def to_json(self) -> str:
