@@ -79,7 +79,8 @@ def run_trials(roots: list, version: str, out: Path, conf: CompareConfig, progre
         raise HybridCalibError(f"no vehicle in {roots}" + (f": {failed_vehicles_message(left_out)}" if left_out
                                                           else ""))
     failed = []
-    todo = [(k, m) for k in range(conf.trials) for m in conf.methods if _read_trial(_trial_file(out, m, k)) is None]
+    todo = [(k, m) for k in range(conf.trials) for m in conf.methods
+            if _read_trial(_trial_file(out, m, k), m, k, vehicles[k % len(vehicles)][1]) is None]
     for k, method in tqdm(todo, desc="compare trials", disable=not progress):
         s, name = vehicles[k % len(vehicles)]
         c = dataclasses.replace(hconf, method=method, seed=conf.seed + k // len(vehicles))
@@ -92,25 +93,38 @@ def run_trials(roots: list, version: str, out: Path, conf: CompareConfig, progre
             continue
         vr.config = {**(vr.config or {}), "trial": k, "root": str(s.data)}
         path = _trial_file(out, method, k)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        save_json_atomic(path, vr.to_dict())
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            save_json_atomic(path, vr.to_dict())
+        except (OSError, HybridCalibError) as e:  # the trial is computed: the comparison goes on without keeping it
+            failed.append({"trial": k, "method": method, "vehicle": name,
+                           "reason": f"computed, but its trial file could not be written ({e}); rerun to compute it "
+                                     "again once the path is free"})
     return {"vehicles_left_out": left_out, "trials_failed": failed}
 
 
 def load_trials(out: Path, method: str, trials: int) -> list[VehicleResult]:
-    return [r for k in range(trials) if (r := _read_trial(_trial_file(out, method, k))) is not None]
+    return [r for k in range(trials) if (r := _read_trial(_trial_file(out, method, k), method, k)) is not None]
 
 
-def _read_trial(path: Path) -> VehicleResult | None:
-    """The trial in ``path``, or None when there is none yet. A file that does not read back as a trial (cut
-    short by a crash, edited, another schema) is reported on stderr and counts as not done, so it is rerun."""
+def _read_trial(path: Path, method: str, k: int, vehicle: str | None = None) -> VehicleResult | None:
+    """Trial ``k`` of ``method`` (on ``vehicle``, when given) from ``path``, or None when there is none yet. A
+    file that does not read back as that trial (cut short by a crash, edited, another schema, or another
+    method's, trial's or vehicle's result copied there) is reported on stderr and counts as not done, so it is
+    rerun."""
     if not path.exists():
         return None
     try:
         doc = json.loads(path.read_text())
         if not isinstance(doc, dict):
             raise TypeError(f"a JSON {type(doc).__name__}, not an object")
-        return VehicleResult.from_dict(doc)
+        vr = VehicleResult.from_dict(doc)
+        holds = {"method": vr.method, "trial": (vr.config or {}).get("trial"), "vehicle": vr.vehicle}
+        wanted = {"method": method, "trial": k, **({"vehicle": vehicle} if vehicle is not None else {})}
+        if wrong := [f"{key} {holds[key]!r}" for key, want in wanted.items() if holds[key] != want]:
+            raise ValueError(f"it holds the result of {', '.join(wrong)}, not trial {k} of {method}"
+                             + (f" on {vehicle}" if vehicle else ""))
+        return vr
     except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
         print(f"compare: trial file {path} is unreadable ({type(e).__name__}: {e}); running that trial again",
               file=sys.stderr)

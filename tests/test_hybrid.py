@@ -258,6 +258,13 @@ def test_compare_smoke_resumes_and_writes_the_table(sim_root, tmp_path):
     assert main(argv) == 0  # resumed: nothing recomputed
     assert (out / "trials" / "hybrid" / "0000.json").stat().st_mtime_ns == mtime
     assert main([*argv[:-1], "--seed", "3", "--no-progress"]) == 2  # another config in the same folder
+    # another method's or another trial's result in a trial's file is said and run again, never reported as it
+    trial = out / "trials" / "hybrid" / "0000.json"
+    for source in ("pure/0000.json", "hybrid/0001.json"):
+        trial.write_text((out / "trials" / source).read_text())
+        assert main(argv) == 0
+        back = json.loads(trial.read_text())
+        assert back["method"] == "hybrid" and back["config"]["trial"] == 0, source
 
 
 def test_cascade_runs_the_refining_network_from_the_coarse_estimate(sim_root, tmp_path):

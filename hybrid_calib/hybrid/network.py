@@ -20,7 +20,6 @@ on validation scenes) reads the same outputs ("export once, evaluate many").
 from __future__ import annotations
 
 import hashlib
-import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -114,6 +113,7 @@ class OutputCache:
     def __init__(self, root: str | Path, network: str = ""):
         self.root = Path(root)
         self.network = network
+        self._warned = False
 
     def path(self, token: str, T_in: np.ndarray) -> Path:
         safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in token)
@@ -132,11 +132,22 @@ class OutputCache:
             return None  # a damaged entry (truncated, not a zip, a missing key) is recomputed
 
     def put(self, token: str, out: NetworkOutput) -> None:
+        """Keep one pass (atomically). A cache is recomputable: an entry that cannot be written (a directory in
+        its place, a full disk) is warned about once and the run goes on."""
+        import sys
+
+        from hybrid_calib.atomic import atomic_path
+
         p = self.path(token, out.T_in)
-        p.parent.mkdir(parents=True, exist_ok=True)
-        tmp = p.with_name(f".{p.stem}.{os.getpid()}.tmp.npz")
-        np.savez(tmp, **out.to_arrays(), network=np.array(self.network))
-        tmp.replace(p)
+        try:
+            p.parent.mkdir(parents=True, exist_ok=True)
+            with atomic_path(p) as tmp:
+                np.savez(tmp, **out.to_arrays(), network=np.array(self.network))
+        except (OSError, HybridCalibError) as e:
+            if not self._warned:
+                self._warned = True
+                print(f"network cache: {p} could not be written ({e}); going on without caching this pass (and "
+                      "saying so once)", file=sys.stderr)
 
 
 def network_key(checkpoint: str | Path, depth_name: str, depth_hash: str) -> str:
