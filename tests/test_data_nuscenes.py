@@ -349,6 +349,7 @@ def test_a_vehicle_with_two_calibrations_is_two_vehicles(tmp_path):
     # one calibration, however many records (every log has its own tokens): one vehicle
     same = _recalibrated_radar(tmp_path / "same", yaw=0.02)
     assert list(NuScenesRadarCamera(same.root, VERSION).frames_by_vehicle()) == ["tiny"]
-    # within one log the tables change only in a simulated root, where they hold the moving true mount: one vehicle
+    # a radar re-mounted within one log of a real root too (a probe: the scene's calibration was used throughout)
     moved = _recalibrated_radar(tmp_path / "moved", second_log=False)
-    assert NuScenesRadarCamera(moved.root, VERSION).frames_by_vehicle() == {"tiny": [0, 1, 2, 3, 4, 5]}
+    assert NuScenesRadarCamera(moved.root, VERSION).frames_by_vehicle() == {"tiny": [0, 1, 2], "tiny-cal2": [3, 4, 5]}
+

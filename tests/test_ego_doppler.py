@@ -79,6 +79,21 @@ def test_a_missing_or_corrupt_sweep_file_is_counted_or_said_not_a_crash(roots, t
     assert len(bad) == 1 and "sweep unreadable" in bad[0].why and len(bad[0].points) == 0
     sweeps, _ = drive_sweeps(frames, idx)
     assert any("sweep unreadable" in s.why and s.velocity is None for s in sweeps)
+    # one file of many missing is said as such, not as "keyframes only: no sweep files"
+    from hybrid_calib.calib.mount_monitor import tested_words
+    from hybrid_calib.hybrid.loop import sweep_files_record
+
+    record = sweep_files_record(frames, idx)
+    assert record["sweeps_absent"] is False and record["sweeps_missing"]["n"] == 1
+    assert record["sweeps_missing"]["first"] == str(root / names[0])
+    words = tested_words({"pairs_tested": 3, "frames_tested": 3, **record})
+    assert "1 of the " in words and "radar sweep files between keyframes are missing" in words
+    assert "keyframes only" not in words
+    # a directory in a sweep file's place is said as such (it was counted as a missing file)
+    (root / names[2]).unlink()
+    (root / names[2]).mkdir()
+    got = open_frames(root, "v1.0-sim", lidar=False).radar_sweeps_between(idx[3])
+    assert any("radar sweep file is a directory, not a regular file" in s.why for s in got)
 
 
 def test_a_broken_sweep_record_is_said_and_the_drive_goes_on(roots, tmp_path):

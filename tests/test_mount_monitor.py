@@ -206,3 +206,13 @@ def test_a_step_the_window_already_raised_is_not_raised_again_by_the_monitor():
     assert alarm_since(traj, 20) == 23  # the window fired after the knock at 20: the monitor's alarm joins it
     assert alarm_since(traj, 6) == 23 and alarm_since(traj, 24) is None
     assert alarm_since([F(index=k, step_alarm=k == 5) for k in range(24)], 20) is None  # an earlier step's alarm
+
+
+def test_a_simulated_vehicle_whose_true_mount_moves_stays_one_vehicle(knocked_and_not):
+    """A simulated root's tables hold the true mount, with a new radar record where it moves (the knock): a change
+    for the step detectors to find in one drive, not a second calibration (data.nuscenes splits real roots only)."""
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+
+    frames = NuScenesRadarCamera(knocked_and_not[1], "v1.0-sim")
+    assert len({f.radar_sd["calibrated_sensor_token"] for f in frames.frames}) == 2
+    assert list(frames.frames_by_vehicle()) == ["sim-veh-000"] and not frames.calibration_splits

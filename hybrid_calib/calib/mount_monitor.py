@@ -306,4 +306,7 @@ def tested_words(summary: dict) -> str:
         words = f"{frames} frame pairs tested"
     if summary.get("sweeps_absent"):  # the hybrid's record: the tables list sweeps between keyframes, no files
         words += "; keyframes only: the root's radar sweeps between keyframes have no files (add sweeps/)"
+    elif isinstance(gone := summary.get("sweeps_missing"), dict):
+        words += (f"; {gone.get('n')} of the {gone.get('of')} radar sweep files between keyframes are missing "
+                  f"(first: {gone.get('first')}): their pairs are skipped")
     return words

@@ -161,6 +161,7 @@ class NuScenesRadarCamera:
         self._iter_skips: dict[int, SkipRecord] = {}
         self._warned_missing_sweeps = False
         self.radar_sweeps_missing = 0  # non-keyframe sweep files absent on disk (radar_sweeps_between)
+        self.sweep_files: dict[int, tuple[int, list[str]]] = {}  # frame -> (sweeps listed, files missing) so far
         self.calibration_splits: dict[str, list[str]] = {}  # vehicle -> its calibrations' names, when more than 1
         self.frames: list[FrameRef] = self._build_index()
         if not self.frames and self._index_skips:  # nothing to read, and the reason is known: say it now
@@ -234,11 +235,14 @@ class NuScenesRadarCamera:
         vehicle per calibration: ``NAME`` for the first one met, ``NAME-cal2``, ``NAME-cal3``, ... for the next.
 
         A vehicle's logs can be calibrated differently (nuScenes: n015's radar is yawed -0.85 deg in 34 scenes and
-        +0.20 deg in 349); fused as one drive they would be one extrinsic for two mounts, reported against the
-        first one's tables. A log's calibration is the camera and radar calibrated_sensor values of its first frame
-        (not the tokens: every log has its own records, most of them equal); within a log the tables do not change
-        on a real vehicle (a simulated root's do where its true mount moves, one log per vehicle: never split). The
-        split is noted in ``calibration_splits``."""
+        +0.20 deg in 349), and a table can re-mount a sensor within a log; fused as one drive they would be one
+        extrinsic for two mounts, reported against the first one's tables. A calibration is the camera and radar
+        calibrated_sensor values of a frame (not the tokens: every log has its own records, most of them equal).
+        A simulated root is never split: its tables hold the true mount, which moves where the simulation says
+        so (one log per vehicle; the step detectors are what finds such a change). The split is noted in
+        ``calibration_splits``."""
+        if self.version == "v1.0-sim" or self.sim_vehicles:
+            return frames
         cs = self.tables.by_token["calibrated_sensor"]
 
         def mount(ref: FrameRef) -> str:
@@ -246,14 +250,10 @@ class NuScenesRadarCamera:
             return json.dumps([[r.get("translation"), r.get("rotation")] for r in recs], default=str)
 
         seen: dict[str, dict[str, str]] = {}  # vehicle -> mount -> name
-        of_log: dict[str, str] = {}  # log token -> name
         out = []
         for ref in frames:
-            if ref.log_token not in of_log:
-                names = seen.setdefault(ref.vehicle, {})
-                of_log[ref.log_token] = names.setdefault(
-                    mount(ref), ref.vehicle if not names else f"{ref.vehicle}-cal{len(names) + 1}")
-            name = of_log[ref.log_token]
+            names = seen.setdefault(ref.vehicle, {})
+            name = names.setdefault(mount(ref), ref.vehicle if not names else f"{ref.vehicle}-cal{len(names) + 1}")
             out.append(ref if name == ref.vehicle else dataclasses.replace(ref, vehicle=name))
         self.calibration_splits = {v: list(m.values()) for v, m in seen.items() if len(m) > 1}
         return out
@@ -378,7 +378,8 @@ class NuScenesRadarCamera:
         if not -n <= i < n:
             raise IndexError(f"frame index {i} out of range for {n} frames")
         out, missing = sweeps_between_keyframes(self.tables, self.frames[i % n].radar_sd, self.conf.radar_filter)
-        self.radar_sweeps_missing += missing
+        self.radar_sweeps_missing += len(missing)
+        self.sweep_files[i % n] = (len(out) + len(missing), [str(p) for p in missing])
         return out
 
     def _lidar(self, ref: FrameRef, T_cam_global: np.ndarray, extras: dict) -> tuple[np.ndarray, np.ndarray]:

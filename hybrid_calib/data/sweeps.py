@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hybrid_calib.data.files import check_regular_file
 from hybrid_calib.data.filters import RadarFilterConfig, filter_radar
 from hybrid_calib.data.pcd import read_radar_pcd
 from hybrid_calib.data.tables import NuScenesTables
@@ -195,24 +196,26 @@ def sweep_files_between(tables: NuScenesTables, sd: dict, limit: int = 20) -> tu
 
 
 def sweeps_between_keyframes(tables: NuScenesTables, sd: dict, conf: RadarFilterConfig, limit: int = 20
-                             ) -> tuple[list[InterSweep], int]:
+                             ) -> tuple[list[InterSweep], list[Path]]:
     """(the non-keyframe sweeps between the previous keyframe of ``sd``'s channel and ``sd``, oldest first;
-    how many of them have no file on disk). Follows the ``prev`` pointers until a keyframe, the scene's
+    the files of those the tables list and the disk lacks). Follows the ``prev`` pointers until a keyframe, the scene's
     start or ``limit`` sweeps (nuScenes' RADAR_FRONT: 6-7 per 0.5 s interval). Absent files (keyframe-only
     releases such as a mini copy without ``sweeps/``) are counted, not errors; a file that exists but does
     not read as a radar PCD, or a record whose file name or ego pose is broken, comes back with ``why`` (the
-    caller skips it in words). A ``prev`` pointer that does not resolve ends the walk with such an entry, its
-    time unknown (``timestamp_us`` None): the sweeps after it are kept, one bad record never stops a drive."""
-    out, missing = [], 0
+    caller skips it in words), and so does a path that is there but is not a file (a directory). A ``prev``
+    pointer that does not resolve ends the walk with such an entry, its time unknown (``timestamp_us`` None): the
+    sweeps after it are kept, one bad record never stops a drive."""
+    out, missing = [], []
     for token, rec, err in _walk_between(tables, sd, limit):
         if err is not None:
             out.append(InterSweep.unreadable(token, None, str(err)))
             break
         try:
             path = tables.file(rec)
-            if not path.is_file():
-                missing += 1
+            if not path.exists():
+                missing.append(path)
                 continue
+            check_regular_file(path, "radar sweep file", rec["token"])
             pose = tables.T_global_ego(rec)
             pts, _, _, _ = load_filtered_sweep(path, conf, rec["token"])
         except DataError as e:

@@ -295,6 +295,19 @@ def with_cov(f: FrameEstimate, cov: np.ndarray, conf: HybridConfig, T: np.ndarra
     return dataclasses.replace(f, estimate=_estimate(f.T if T is None else T, cov, conf, "; ".join(notes)))
 
 
+def sweep_files_record(frames, indices) -> dict:
+    """The mount block's words on the radar's sweep files between keyframes over dataset ``indices`` (those the
+    monitor read): ``sweeps_absent`` when the tables list sweeps and none is on disk (a keyframe-only copy), else
+    ``sweeps_missing`` {"n", "of", "first"} when some are missing."""
+    seen = [getattr(frames, "sweep_files", {}).get(i) for i in indices]
+    listed = sum(s[0] for s in seen if s)
+    missing = [p for s in seen if s for p in s[1]]
+    if listed and len(missing) == listed:
+        return {"sweeps_absent": True}
+    return {"sweeps_absent": False, **({"sweeps_missing": {"n": len(missing), "of": listed, "first": missing[0]}}
+                                       if missing else {})}
+
+
 def _since_last_step(mon: MountMonitor | None) -> int:
     """The drive position the radar's current mount starts at: its last step's change, or 0."""
     return mon.steps[-1].change if mon is not None and mon.steps else 0
@@ -563,7 +576,6 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     frames by dataset index, for the radar mount monitor (hybrid only; None = no monitor)."""
     T0 = start_of(drive, conf)
     tr = _Trace(drop=True)
-    absent = getattr(frames, "radar_sweeps_missing", 0)  # sweep files the tables list and the disk lacks
     traj, mon = _run_learned(runner, drive, T0, conf, tr, motion, frames)
     ood = decide(tr.scores, conf.ood, runner.ood_note)
     ood["dropped"] = sum("ood_score" in s for s in tr.skipped)
@@ -586,8 +598,7 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     res.checkpoint = runner.checkpoint
     res.frame_rows = tr.rows
     res.ood = ood
-    res.mount = None if mon is None else {
-        **mon.summary(), "sweeps_absent": getattr(frames, "radar_sweeps_missing", 0) > absent}
+    res.mount = None if mon is None else {**mon.summary(), **sweep_files_record(frames, drive.indices)}
     res.config = {**to_dict(conf), "measurement_effective": to_dict(measurement_config(runner, conf)),
                   "depth_effective": runner.depth_name, **({"depth_note": note} if note else {})}
     if wider := range_note(conf.start, runner.range, runner.checkpoint):
