@@ -185,8 +185,9 @@ class LidarDepth:
     def estimate(self, frame: RadarCameraFrame, size_hw: tuple[int, int],
                  image: np.ndarray | None = None) -> np.ndarray:
         if frame.lidar_points is None or frame.T_cam_lidar is None:
-            raise DataError("LidarDepth needs the frame's LiDAR sweep and T_cam_lidar but it has none; load the "
-                            "root with its LIDAR_TOP channel (load_lidar) or use another --depth",
+            raise DataError("lidar-densified depth needs the frame's LiDAR sweep and the tables' LiDAR mount, and "
+                            "this frame has neither (the root has no LIDAR_TOP channel); pass another --depth: "
+                            "corrupted-truth on a simulated root, depth-anything:/local/model/dir on any",
                             token=frame.camera_token)
         cam = frame.camera.scaled(size_hw[1] / frame.camera.width, size_hw[0] / frame.camera.height)
         K = cam.K  # the same resized intrinsics the dataset gives the network

@@ -128,9 +128,11 @@ def read_lidar_bin(path: str | Path, n_fields: int = 5) -> np.ndarray:
         check_regular_file(path, "LiDAR file")
         data = path.read_bytes()
     except FileNotFoundError:
-        raise DataError("LiDAR file not found; the LiDAR is read for lidar-densified depth (the default --depth on "
-                        "a real root) and load_lidar: restore the LiDAR folder of samples/ next to the version folder, "
-                        "or pass another --depth (e.g. depth-anything:/local/model/dir)", path=str(path)) from None
+        raise DataError("LiDAR file not found; the LiDAR is read for lidar-densified depth (the depth the shipped "
+                        "checkpoints were trained with, chosen by default) and the hybrid's LiDAR alignment: restore "
+                        "the LiDAR folder of samples/ next to the version folder, or pass another --depth "
+                        "(corrupted-truth on a simulated root, depth-anything:/local/model/dir on any)",
+                        path=str(path)) from None
     except OSError as e:
         raise DataError(f"cannot read LiDAR file: {e}", path=str(path)) from None
     if not data:  # a real sweep always has points (the ground, the car's own body): a failed copy
