@@ -155,6 +155,11 @@ def test_lidar_depth_projects_fills_and_keeps_the_foreground(tmp_path):
     assert isinstance(build_depth_estimator("lidar-densified"), LidarDepth)
     with pytest.raises(DataError, match="LiDAR sweep"):
         LidarDepth().estimate(make_frame(tmp_path, None, "nolidar"), (H, W))
+    # a sweep that reads but does not see what the camera sees (behind the car, all zeros): the frame is skipped
+    for bad in (np.c_[-pts[:, :1], pts[:, 1:]], np.zeros_like(pts)):
+        blind = dataclasses.replace(frame, lidar_points=np.c_[bad, np.zeros(len(bad))].astype(np.float32))
+        with pytest.raises(DataError, match=r"gives a depth at only 0.0 % of the image .*the frame is skipped"):
+            LidarDepth().estimate(blind, (H, W))
 
 
 def _tiny_depth_anything(directory, metric: bool = True):
