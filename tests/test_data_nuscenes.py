@@ -334,8 +334,10 @@ def test_a_vehicle_with_two_calibrations_is_two_vehicles(tmp_path):
     static = [ds[i].extras["T_cam_radar_static"] for i in (0, 2, 3, 5)]
     assert np.allclose(static[0], static[1]) and np.allclose(static[2], static[3])
     assert not np.allclose(static[0], static[2])
+    assert ds.calibration_offsets["tiny-cal2"] == pytest.approx((np.degrees(0.01), 0.0), abs=1e-6)
     text = summarize_dataset(ds, progress=False).format()
-    assert "vehicle tiny: its logs hold 2 different camera-radar calibrations" in text and "tiny-cal2" in text
+    assert "vehicle tiny: its frames hold 2 different camera-radar calibrations" in text
+    assert "(tiny-cal2: 0.57 deg, 0.0 cm from tiny's)" in text
     # a vehicle filter names either calibration, or the vehicle's first one; an unknown one lists them
     from hybrid_calib.data.nuscenes import DataConfig
     from hybrid_calib.errors import DataError
@@ -349,6 +351,8 @@ def test_a_vehicle_with_two_calibrations_is_two_vehicles(tmp_path):
     # one calibration, however many records (every log has its own tokens): one vehicle
     same = _recalibrated_radar(tmp_path / "same", yaw=0.02)
     assert list(NuScenesRadarCamera(same.root, VERSION).frames_by_vehicle()) == ["tiny"]
+    noise = _recalibrated_radar(tmp_path / "noise", yaw=0.02 + 1e-9)  # float noise of a table rewritten elsewhere
+    assert list(NuScenesRadarCamera(noise.root, VERSION).frames_by_vehicle()) == ["tiny"]
     # a radar re-mounted within one log of a real root too (a probe: the scene's calibration was used throughout)
     moved = _recalibrated_radar(tmp_path / "moved", second_log=False)
     assert NuScenesRadarCamera(moved.root, VERSION).frames_by_vehicle() == {"tiny": [0, 1, 2], "tiny-cal2": [3, 4, 5]}

@@ -192,7 +192,7 @@ def test_ego_poses_that_contradict_the_doppler_speed_are_not_used():
     assert pose_doppler_conflict(4.5, 0.5, 9.0) == "" and pose_doppler_conflict(4.6, 0.5, 8.7) == ""
     assert pose_doppler_conflict(4.0, 0.5, 8.7) == ""  # 0.7 m/s off at 8.7 m/s: inside 1 m/s
     assert pose_doppler_conflict(0.0, 0.5, 8.7).startswith("the ego poses moved 0.00 m in 0.50 s (0.0 m/s) while "
-                                                           "the radar measured 8.7 m/s")
+                                                           "the radar's Doppler measured 8.7 m/s")
     assert pose_doppler_conflict(30.0, 0.5, 30.0)  # 60 m/s against 30
     assert pose_doppler_conflict(13.0, 0.5, 30.0) == ""  # 26 against 30 m/s: within 25 %
 
@@ -204,8 +204,12 @@ def test_ego_poses_that_contradict_the_doppler_speed_are_not_used():
     assert "ego_pose.json" in ego_conflict(a, b, 8.7)
     v = SimpleNamespace(v=np.array([-8.7, 0.0]), cov=np.eye(2) * 1e-4, speed=8.7, n_inliers=30)
     m, why = ego_measurement(a, v, b, v, np.eye(3), 2.0, 1.5, 40.0)
-    assert m is None and "while the radar measured 8.7 m/s" in why
+    assert m is None and "while the radar's Doppler measured 8.7 m/s" in why and "vx_comp" in why
     b.extras = {k: make_T(np.eye(3), [14.4, 0.0, 0.0]) for k in b.extras}  # 8.8 m/s: agrees
     assert ego_conflict(a, b, 8.7) == ""
     m, why = ego_measurement(a, v, b, v, np.eye(3), 2.0, 1.5, 40.0)
     assert m is not None, why
+    # a radar whose velocity fields say 0 m/s while the poses move is not a parked car
+    v0 = SimpleNamespace(v=np.zeros(2), cov=np.eye(2) * 1e-4, speed=0.0, n_inliers=30)
+    m, why = ego_measurement(a, v0, b, v0, np.eye(3), 2.0, 1.5, 40.0)
+    assert m is None and "the radar's Doppler measured 0.0 m/s" in why, why

@@ -63,8 +63,6 @@ def ego_measurement(fa, va, fb, vb, R_ego_radar: np.ndarray, min_speed_mps: floa
         return None, f"radar sweeps {dt:.2f} s apart (a pair needs 0 < dt <= {max_gap_s:g} s)"
     if va is None or vb is None:
         return None, "no Doppler velocity"
-    if min(va.speed, vb.speed) < min_speed_mps:
-        return None, f"radar speed {min(va.speed, vb.speed):.1f} m/s (need {min_speed_mps:g})"
     Ta, Tb = fa.extras.get("T_global_ego_radar"), fb.extras.get("T_global_ego_radar")
     if Ta is None or Tb is None:
         return None, "no ego pose at the radar's timestamp"
@@ -73,12 +71,14 @@ def ego_measurement(fa, va, fb, vb, R_ego_radar: np.ndarray, min_speed_mps: floa
         return None, "an ego pose is not finite"
     R_A = Ta[:3, :3].T @ Tb[:3, :3]
     D = Ta[:3, :3].T @ (Tb[:3, 3] - Ta[:3, 3])
+    s = float(np.linalg.norm(D))
+    if why := pose_doppler_conflict(s, dt, 0.5 * (va.speed + vb.speed)):  # before the speed: a radar saying 0 m/s
+        return None, why                                                   # while the poses move is not a parked car
+    if min(va.speed, vb.speed) < min_speed_mps:
+        return None, f"radar speed {min(va.speed, vb.speed):.1f} m/s (need {min_speed_mps:g})"
     turn = float(np.degrees(np.linalg.norm(so3_log(R_A)))) / dt
     if turn > max_turn_dps:
         return None, f"turning at {turn:.0f} deg/s (at most {max_turn_dps:g})"
-    s = float(np.linalg.norm(D))
-    if why := pose_doppler_conflict(s, dt, 0.5 * (va.speed + vb.speed)):
-        return None, why
     psi, sig, speed = chord_heading(va.v, va.cov, vb.v, vb.cov, radar_yaw_change(R_A, R_ego_radar))
     return MotionMeasurement(D / s, R_A, s, psi, sig, speed, fa.radar_token, fb.radar_token, 0,
                              min(va.n_inliers, vb.n_inliers)), ""
@@ -98,8 +98,9 @@ def pose_doppler_conflict(travel_m: float, dt_s: float, speed_mps: float) -> str
     v = travel_m / dt_s
     if not np.isfinite(speed_mps) or abs(v - speed_mps) <= max(POSE_SPEED_TOL_MPS, POSE_SPEED_TOL_REL * speed_mps):
         return ""  # a Doppler fit without a speed is refused by its own checks, not blamed on the poses
-    return (f"the ego poses moved {travel_m:.2f} m in {dt_s:.2f} s ({v:.1f} m/s) while the radar measured "
-            f"{speed_mps:.1f} m/s: the ego poses (ego_pose.json) do not match this drive")
+    return (f"the ego poses moved {travel_m:.2f} m in {dt_s:.2f} s ({v:.1f} m/s) while the radar's Doppler measured "
+            f"{speed_mps:.1f} m/s: the ego poses (ego_pose.json) or the radar's velocity fields (vx_comp, vy_comp of "
+            "its files) are wrong for this drive")
 
 
 def pair_skip(a: EgoSweep, b: EgoSweep) -> str:

@@ -95,6 +95,9 @@ class SkipRecord:
     reason: str  # what is wrong and what to do
 
 
+# two camera-radar extrinsics of a vehicle's tables closer than this (deg, cm) are one calibration: nuScenes' own
+# differ by 0.46 deg and more (radar yaws -0.85, -0.26, 0.00, +0.20 deg) or by centimetres (camera mounts)
+SAME_CALIBRATION = (0.01, 0.1)
 _CAL_SUFFIX = re.compile(r"-cal\d+$")  # NAME-cal2: the second calibration of vehicle NAME (_one_mount_per_vehicle)
 
 
@@ -163,6 +166,7 @@ class NuScenesRadarCamera:
         self.radar_sweeps_missing = 0  # non-keyframe sweep files absent on disk (radar_sweeps_between)
         self.sweep_files: dict[int, tuple[int, list[str]]] = {}  # frame -> (sweeps listed, files missing) so far
         self.calibration_splits: dict[str, list[str]] = {}  # vehicle -> its calibrations' names, when more than 1
+        self.calibration_offsets: dict[str, tuple[float, float]] = {}  # NAME-calN -> (deg, cm) from NAME's
         self.frames: list[FrameRef] = self._build_index()
         if not self.frames and self._index_skips:  # nothing to read, and the reason is known: say it now
             first = self._index_skips[0]
@@ -236,26 +240,40 @@ class NuScenesRadarCamera:
 
         A vehicle's logs can be calibrated differently (nuScenes: n015's radar is yawed -0.85 deg in 34 scenes and
         +0.20 deg in 349), and a table can re-mount a sensor within a log; fused as one drive they would be one
-        extrinsic for two mounts, reported against the first one's tables. A calibration is the camera and radar
-        calibrated_sensor values of a frame (not the tokens: every log has its own records, most of them equal).
-        A simulated root is never split: its tables hold the true mount, which moves where the simulation says
-        so (one log per vehicle; the step detectors are what finds such a change). The split is noted in
-        ``calibration_splits``."""
+        extrinsic for two mounts, reported against the first one's tables. A calibration is a frame's camera-radar
+        extrinsic from its calibrated_sensor records (not the tokens: every log has its own records, most of them
+        equal), the same within ``SAME_CALIBRATION`` (float noise of tables rewritten by other tools). A simulated
+        root is never split: its tables hold the true mount, which moves where the simulation says so (one log per
+        vehicle; the step detectors are what finds such a change). The split is noted in ``calibration_splits``
+        (vehicle -> its names) and ``calibration_offsets`` (name -> how far, deg and cm, from the vehicle's first)."""
         if self.version == "v1.0-sim" or self.sim_vehicles:
             return frames
-        cs = self.tables.by_token["calibrated_sensor"]
+        t = self.tables
 
-        def mount(ref: FrameRef) -> str:
-            recs = [cs.get(sd.get("calibrated_sensor_token"), {}) for sd in (ref.camera_sd, ref.radar_sd)]
-            return json.dumps([[r.get("translation"), r.get("rotation")] for r in recs], default=str)
+        def extrinsic(ref: FrameRef) -> np.ndarray | None:
+            try:
+                return se3_inverse(t.T_ego_sensor(ref.camera_sd)) @ t.T_ego_sensor(ref.radar_sd)
+            except (DataError, KeyError, TypeError):
+                return None  # a broken record: the frame says so when it is read
 
-        seen: dict[str, dict[str, str]] = {}  # vehicle -> mount -> name
+        def offset(T: np.ndarray, T0: np.ndarray) -> tuple[float, float]:
+            R = T0[:3, :3].T @ T[:3, :3]
+            angle = float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0))))
+            return angle, float(100 * np.linalg.norm(T[:3, 3] - T0[:3, 3]))
+
+        seen: dict[str, list[tuple[str, np.ndarray]]] = {}  # vehicle -> [(name, extrinsic)]
         out = []
         for ref in frames:
-            names = seen.setdefault(ref.vehicle, {})
-            name = names.setdefault(mount(ref), ref.vehicle if not names else f"{ref.vehicle}-cal{len(names) + 1}")
+            known, T = seen.setdefault(ref.vehicle, []), extrinsic(ref)
+            name = next((n for n, T0 in known if T is None or T0 is None or
+                         all(d <= tol for d, tol in zip(offset(T, T0), SAME_CALIBRATION))), None)
+            if name is None:
+                name = ref.vehicle if not known else f"{ref.vehicle}-cal{len(known) + 1}"
+                known.append((name, T))
             out.append(ref if name == ref.vehicle else dataclasses.replace(ref, vehicle=name))
-        self.calibration_splits = {v: list(m.values()) for v, m in seen.items() if len(m) > 1}
+        self.calibration_splits = {v: [n for n, _ in k] for v, k in seen.items() if len(k) > 1}
+        self.calibration_offsets = {n: offset(T, k[0][1]) for k in seen.values() if len(k) > 1 for n, T in k[1:]
+                                    if T is not None and k[0][1] is not None}
         return out
 
     def __len__(self) -> int:

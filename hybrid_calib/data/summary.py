@@ -68,6 +68,7 @@ class DatasetSummary:
     skipped: list[dict[str, Any]]
     first_loaded: int | None  # index of the first frame that loaded (used for the overlay)
     calibration_splits: dict[str, list[str]] = field(default_factory=dict)  # vehicle -> its names
+    calibration_offsets: dict[str, tuple[float, float]] = field(default_factory=dict)  # NAME-calN -> (deg, cm)
 
     @property
     def n_frames(self) -> int:
@@ -81,7 +82,7 @@ class DatasetSummary:
         return dict(root=self.root, version=self.version, radar_channel=self.radar_channel,
                     camera_channel=self.camera_channel, n_frames=self.n_frames, n_loaded=self.n_loaded,
                     n_skipped=len(self.skipped), groups=[g.to_json() for g in self.groups], skipped=self.skipped,
-                    calibration_splits=self.calibration_splits)
+                    calibration_splits=self.calibration_splits, calibration_offsets=self.calibration_offsets)
 
     def format(self, listed_in: str | None = None) -> str:
         """A human-readable table: one line per scene/vehicle, then the skipped items grouped by reason (count,
@@ -99,9 +100,11 @@ class DatasetSummary:
                          f"{g.nonfinite:5d} {j['dt_radar_minus_camera_ms']['mean']:7.1f}")
         lines += self._sweep_lines()
         for vehicle, names in self.calibration_splits.items():
-            lines.append(f"vehicle {vehicle}: its logs hold {len(names)} different camera-radar calibrations in the "
+            far = [f"{n}: {d:.2f} deg, {cm:.1f} cm from {vehicle}'s" for n in names[1:]
+                   if (off := self.calibration_offsets.get(n)) is not None for d, cm in [off]]
+            lines.append(f"vehicle {vehicle}: its frames hold {len(names)} different camera-radar calibrations in the "
                          f"tables, so it is calibrated as {len(names)} vehicles, one per calibration: "
-                         f"{', '.join(names)} (the first met keeps the name)")
+                         f"{', '.join(names)} (the first met keeps the name)" + (f" ({'; '.join(far)})" if far else ""))
         if not self.n_frames:
             lines.append(f"no frames: no sample has both a {self.radar_channel} and a {self.camera_channel} keyframe "
                          "(the skipped items below say why); check --radar/--camera and the tables")
@@ -192,4 +195,5 @@ def summarize_dataset(ds: NuScenesRadarCamera, progress: bool = True) -> Dataset
         g.dt_ms.append((f.timestamp_radar_us - f.timestamp_camera_us) / 1000.0)
         first = f.index if first is None else first
     return DatasetSummary(str(ds.root), ds.version, ds.radar_channel, ds.camera_channel, list(groups.values()),
-                          [dataclasses.asdict(s) for s in ds.skipped], first, dict(ds.calibration_splits))
+                          [dataclasses.asdict(s) for s in ds.skipped], first, dict(ds.calibration_splits),
+                          dict(ds.calibration_offsets))
