@@ -191,6 +191,13 @@ def test_an_interrupted_run_keeps_its_finished_vehicles_and_goes_on_from_there(s
     ran.clear()
     run_calibration(sim_root, "v1.0-sim", tmp_path / "r", {**conf, "seed": 9}, overwrite=True)
     assert ran == ["sim-veh-000", "sim-veh-001"]
+    # a damaged stamp loses nothing: the kept records carry their run's key
+    with pytest.raises(KeyboardInterrupt):
+        run_calibration(sim_root, "v1.0-sim", tmp_path / "t", conf, on_vehicle=stop)
+    (tmp_path / "t" / "vehicles-done" / "stamp.json").write_text("{garbage")
+    ran.clear()
+    run_calibration(sim_root, "v1.0-sim", tmp_path / "t", conf)
+    assert ran == ["sim-veh-001"]
     # a moved folder resumes (the caches' paths in its config are how the run ran, not what it gave)
     with pytest.raises(KeyboardInterrupt):
         run_calibration(sim_root, "v1.0-sim", tmp_path / "s", conf, on_vehicle=stop)

@@ -396,7 +396,8 @@ class VehicleProgress:
       resumes) are never discarded silently: ``HybridCalibError`` naming what differs, unless ``fresh``
       (``--overwrite``), which starts afresh.
     - Each record carries the key of its stamp and vehicle (``_record_key``): a record copied from another run or
-      renamed, or a damaged file, is recomputed, and said so on stderr.
+      renamed, or a damaged file, is recomputed, and said so on stderr; so a damaged or missing ``stamp.json``
+      loses nothing (the records of this run are kept, and the stamp written again).
     - The folder is a cache: a vehicle that cannot be kept (a directory in its file's place) is warned about and
       the run goes on."""
 
@@ -408,6 +409,7 @@ class VehicleProgress:
         self.stamp = json.loads(json.dumps({"data": str(Path(str(data)).resolve()), "version": version,
                                             "source": str(source), "config": conf}, default=str))
         self.done: dict[str, VehicleResult | str] = {}
+        changed: list[str] = []
         if self.dir.exists() and not self.dir.is_dir():
             raise HybridCalibError(f"{self.dir} is a file, not the folder where hybrid-calib keeps the vehicles an "
                                    "interrupted run finished; move it away (or pass another --out) and rerun")
@@ -417,9 +419,9 @@ class VehicleProgress:
             kept = sorted(f for f in self.dir.glob("*.json") if f.name != "stamp.json")
             try:
                 old = json.loads((self.dir / "stamp.json").read_text())
-                changed = _changes(old, self.stamp) if isinstance(old, dict) else ["stamp.json is not an object"]
-            except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
-                changed = [f"its stamp.json is unreadable ({type(e).__name__})"]
+                changed = _changes(old, self.stamp) if isinstance(old, dict) else []
+            except (OSError, ValueError, KeyError, TypeError, AttributeError):
+                changed = []  # a damaged or missing stamp: each record's own key tells whether it is this run's
             if changed and kept:
                 more = f"; {len(changed) - 4} more" if len(changed) > 4 else ""
                 raise HybridCalibError(
@@ -432,7 +434,7 @@ class VehicleProgress:
                 name, why = self._read(f)
                 if why:
                     print(f"vehicles-done: {f.name} is recomputed: {why}", file=sys.stderr)
-        if not self.dir.is_dir():
+        if not self.dir.is_dir() or not changed:
             save_json_atomic(self.dir / "stamp.json", self.stamp)
 
     def _read(self, f: Path) -> tuple[str, str]:
