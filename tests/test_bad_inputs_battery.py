@@ -695,6 +695,25 @@ def test_report_bad_tolerance(override, needles, sim, calibrated, tmp_path, caps
     assert not (tmp_path / "r.html").exists()
 
 
+def test_report_never_writes_over_its_input_or_a_file_that_is_not_a_page(sim, calibrated, tmp_path, capsys):
+    """--out result.json (a slip for report.html) replaced the calibration result with the page, and any other
+    file (a run's config.json, a dataset table) likewise."""
+    run = tmp_path / "run"
+    shutil.copytree(calibrated, run)
+    before = (run / "result.json").read_bytes()
+    vehicle = next(iter(sim[1]))
+    for out, needle in ((run / "result.json", "is not an .html file name"),
+                        (run / "config.json", "is not an .html file name")):
+        err = expect_cli_error(["report", run / "result.json", "--vehicle", vehicle, "--out", out], capsys, "--out",
+                               needle, out)
+        assert _one_paragraph(err)
+    (run / "notes.html").write_text("my own notes, not a page")
+    expect_cli_error(["report", run / "result.json", "--vehicle", vehicle, "--out", run / "notes.html"], capsys,
+                     "exists and is not an HTML page, so it is not replaced")
+    assert (run / "result.json").read_bytes() == before
+    assert (run / "notes.html").read_text() == "my own notes, not a page"
+
+
 def test_calibrate_when_result_json_is_a_directory(sim, tmp_path, capsys):
     """The error named the temporary file (result.NNNN.tmp.json) the writer renames over the target."""
     root, _ = sim
