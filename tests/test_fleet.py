@@ -417,3 +417,20 @@ def test_an_unexpected_error_in_one_vehicle_is_its_failure_not_the_fleets(fleet_
     assert states["sim-veh-002"][1].startswith("internal error (please report it with this vehicle's data): "
                                                "ValueError: GaussianPrior has NaN/inf entries")
     assert states["sim-veh-000"][0] == "done" and summary is not None
+
+
+def test_roots_of_one_folder_name_get_job_ids_that_tell_them_apart(fleet_root, tmp_path):
+    """Two different roots both called .../sim were refused as 'the same root given twice'."""
+    import shutil
+
+    from hybrid_calib.errors import DataError
+    from hybrid_calib.fleet.jobs import discover_jobs
+
+    a, b = tmp_path / "2024-05" / "sim", tmp_path / "2024-06" / "sim"
+    for r in (a, b):
+        shutil.copytree(fleet_root / "v1.0-sim", r / "v1.0-sim")  # the tables are what job discovery reads
+    jobs = discover_jobs([(str(a), "v1.0-sim", None), (str(b), "v1.0-sim", None)], "oracle", tmp_path / "out")
+    ids = [j.id for j in jobs]
+    assert len(set(ids)) == len(ids) == 8 and "2024-05-sim-sim-veh-000" in ids and "2024-06-sim-sim-veh-000" in ids
+    with pytest.raises(DataError, match=r"repeat: a root is given twice \(.*2024-05/sim\)"):
+        discover_jobs([(str(a), "v1.0-sim", None), (str(a / "."), "v1.0-sim", None)], "oracle", tmp_path / "out")

@@ -135,6 +135,20 @@ def _design_T(rec: dict | None) -> np.ndarray | None:
         return None
 
 
+def _root_labels(roots: list[str]) -> dict[str, str]:
+    """root -> the label its vehicles' job ids get when a vehicle name is in two roots: the folder name, with as
+    many parent folders as it takes to tell roots of one folder name apart (``2024-05-sim``, ``2024-06-sim``)."""
+    given = {}  # resolved -> the path as given (its parts name it)
+    for r in roots:
+        given.setdefault(str(Path(r).resolve()), Path(r).absolute())
+    depth, most = 1, max(len(p.parts) for p in given.values())
+    while True:
+        labels = {k: "-".join(p.parts[-depth:]).lstrip("/") for k, p in given.items()}
+        if len(set(labels.values())) == len(labels) or depth >= most:
+            return {r: labels[str(Path(r).resolve())] for r in roots}
+        depth += 1
+
+
 def check_fleet_roots(sources: list[tuple[str, str, tuple[str, ...] | None]], manifest: str | Path) -> None:
     """``DataError`` naming the manifest and the entry when a root it lists (``read_fleet_file``) is not a
     directory on this machine."""
@@ -160,9 +174,10 @@ def discover_jobs(roots: list[tuple[str, str, tuple[str, ...] | None]], method: 
             raise DataError(f"vehicles {missing} not in this root (it has {sorted(vs)})", path=str(root))
         found += [(root, version, v, info) for v, info in sorted(vs.items()) if wanted is None or v in wanted]
     names = [v for _, _, v, _ in found]
+    labels = _root_labels([root for root, _, _, _ in found])
     jobs = []
     for root, version, v, info in found:
-        jid = v if names.count(v) == 1 else f"{Path(root).name}-{v}"
+        jid = v if names.count(v) == 1 else f"{labels[root]}-{v}"
         priors = priors or {}
         prior = priors[jid] if jid in priors else priors.get("*")  # an outlier's None stays None
         jobs.append(Job(jid, v, str(root), version, method, str(Path(out) / "vehicles" / jid), seed, checkpoint,
@@ -170,7 +185,8 @@ def discover_jobs(roots: list[tuple[str, str, tuple[str, ...] | None]], method: 
     ids = [j.id for j in jobs]
     dup = sorted({i for i in ids if ids.count(i) > 1})
     if dup:
-        raise DataError(f"job ids {dup} repeat (same root given twice?); pass each root once")
+        twice = ", ".join(sorted({j.data for j in jobs if j.id in dup}))
+        raise DataError(f"job ids {dup} repeat: a root is given twice ({twice}); pass each root once")
     return sorted(jobs, key=lambda j: j.id)
 
 
