@@ -92,6 +92,9 @@ class LidarAlignConfig:
     passes: int = 3  # the fit re-run from the offsets the previous pass found
     range_bias: bool = True  # fit a common range offset (reflection depth): a one-sided scene cannot make it dy
     coupling_deg: float = 0.5  # step of the central differences of dy, dx against the rotation, deg (0: none)
+    # dy farther from the loop's estimate than this many stds of their difference: not applied (the tables'
+    # LiDAR-camera extrinsic, or the loop, is wrong: neither can be told from the other)
+    max_innovation: float = 4.0
 
     def __post_init__(self):
         require(self, {
@@ -102,7 +105,8 @@ class LidarAlignConfig:
             "systematic_m >= 0": self.systematic_m >= 0, "max_std_m > 0": self.max_std_m > 0,
             "systematic_x_m >= 0": self.systematic_x_m >= 0, "max_std_x_m > 0": self.max_std_x_m > 0,
             "max_range_offset_m > 0": self.max_range_offset_m > 0,
-            "passes >= 1": self.passes >= 1, "coupling_deg >= 0": self.coupling_deg >= 0})
+            "passes >= 1": self.passes >= 1, "coupling_deg >= 0": self.coupling_deg >= 0,
+            "max_innovation > 0": self.max_innovation > 0})
 
 
 @dataclass(frozen=True)
@@ -149,10 +153,12 @@ class LidarAlignment:
     def dx_std(self) -> float:
         return float(np.sqrt(self.cov[0, 0]))
 
-    def record(self, applied: bool, why: str = "", forward: bool = False, forward_why: str = "") -> dict:
+    def record(self, applied: bool, why: str = "", forward: bool = False, forward_why: str = "",
+               innovation: float | None = None) -> dict:
         """The result's ``lidar`` block (plain JSON): ``applied`` (dy folded in), ``forward_applied`` (dx too),
-        and the reasons when not."""
+        and the reasons when not; ``innovation_sigma``: dy against the loop's estimate in stds (``innovation``)."""
         return {"applied": applied, "dy_m": float(self.delta[1]), "dy_std_m": self.dy_std,
+                **({"innovation_sigma": float(innovation)} if innovation is not None else {}),
                 "dx_m": float(self.delta[0]), "dx_std_m": self.dx_std, "forward_applied": bool(applied and forward),
                 "range_offset_m": float(self.delta[2]),
                 "coupling_m_per_rad": [float(c) for c in self.coupling],
@@ -311,11 +317,26 @@ def _solve(frames: list[LidarFrame], X: np.ndarray, conf: LidarAlignConfig) -> t
     return LidarAlignment(d, cov, int(len(e)), n, scale, len(conf.gates_m), moving=moving), ""
 
 
-def refusal(a: LidarAlignment, conf: LidarAlignConfig = LidarAlignConfig()) -> str:
-    """Why an alignment is reported but not applied ("" when it is applied): its dy is too uncertain."""
+def refusal(a: LidarAlignment, conf: LidarAlignConfig = LidarAlignConfig(), cov: np.ndarray | None = None) -> str:
+    """Why an alignment is reported but not applied ("" when it is applied): its dy is too uncertain, or, with
+    the loop's covariance ``cov`` (6, 6) of the estimate it was measured at, farther from that estimate than
+    ``max_innovation`` stds of their difference (``innovation``)."""
     if a.dy_std > conf.max_std_m:
         return f"std {a.dy_std * 100:.1f} cm > max_std_m {conf.max_std_m * 100:g} cm"
+    z = innovation(a, cov) if cov is not None else 0.0
+    if abs(z) > conf.max_innovation:
+        return (f"{a.delta[1] * 100:+.1f} cm from the loop's estimate is {abs(z):.1f} stds of what either can be off "
+                f"by (max_innovation {conf.max_innovation:g}): the tables' LiDAR-camera extrinsic or the loop's "
+                "estimate is wrong, and which cannot be told; check the LiDAR's calibration")
     return ""
+
+
+def innovation(a: LidarAlignment, cov: np.ndarray) -> float:
+    """dy against the loop's estimate in stds of their difference: ``dy / sqrt(h C h + var(dy))`` with ``h`` the
+    Kalman row of dy (``apply_offsets``) and ``C`` (6, 6) the loop's covariance of the estimate."""
+    h = np.zeros(6)
+    h[RADAR_Y], h[:3] = 1.0, -np.asarray(a.coupling, np.float64)
+    return float(a.delta[1] / np.sqrt(h @ np.asarray(cov, np.float64) @ h + a.cov[1, 1]))
 
 
 def forward_refusal(a: LidarAlignment, conf: LidarAlignConfig = LidarAlignConfig()) -> str:
@@ -358,10 +379,11 @@ def describe(block: dict) -> str:
         words += f", forward {block['dx_m'] * 100:+.1f} +- {block['dx_std_m'] * 100:.1f} cm"
     if not block["applied"]:
         return words + f"; not applied: {block.get('note', '')}"
+    inherits = " (through the tables' LiDAR-camera extrinsic: an error there is carried into the result)"
     if block.get("forward_applied"):
-        return words + "; both applied"
+        return words + "; both applied" + inherits
     note = block.get("forward_note")
-    return words + "; lateral applied" + (f", forward not: {note}" if note else "")
+    return words + "; lateral applied" + (f", forward not: {note}" if note else "") + inherits
 
 
 def _evenly(items: list, n: int) -> list:

@@ -102,7 +102,7 @@ def _mapping(d, name: str) -> dict:
 # the numbers the reports and the terminal read from a hybrid result's blocks: finite where present
 _BLOCK_NUMBERS = {
     "mount": ("frames_tested", "pairs_tested", "threshold"),
-    "lidar": ("dy_m", "dy_std_m", "dx_m", "dx_std_m", "rows", "frames"),
+    "lidar": ("dy_m", "dy_std_m", "dx_m", "dx_std_m", "rows", "frames", "innovation_sigma"),
     "doppler": ("dx_m", "dx_std_m", "pairs", "frames", "turning"),
 }
 _STEP_NUMBERS = ("step_deg", "std_deg", "change", "at")

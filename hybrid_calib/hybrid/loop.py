@@ -37,6 +37,7 @@ from hybrid_calib.calib.ego_doppler import drive_sweeps
 from hybrid_calib.calib.lever_arm import LeverArmConfig, apply_forward, refusal
 from hybrid_calib.calib.lever_arm import fit as fit_lever_arm
 from hybrid_calib.calib.lidar_alignment import LidarAlignConfig, align, apply_offsets, drive_frames, forward_refusal
+from hybrid_calib.calib.lidar_alignment import innovation as lidar_innovation
 from hybrid_calib.calib.lidar_alignment import refusal as lidar_refusal
 from hybrid_calib.calib.mount_monitor import MountMonitor, MountMonitorConfig
 from hybrid_calib.calib.oracle import OracleConfig
@@ -342,10 +343,13 @@ def with_lidar(traj: list[FrameEstimate], drive: Drive, frames, conf: HybridConf
                                                 "and the tables' LiDAR-camera extrinsic; the frames are read with "
                                                 "their LiDAR only for --depth lidar-densified)"}
     a, why = align(lfs, traj[-1].T, conf.lidar)
-    no_dx = forward_refusal(a, conf.lidar) if a else ""
-    return _fold_last(traj, conf, a, why, lidar_refusal(a, conf.lidar) if a else "",
-                      lambda T, cov, a: apply_offsets(T, cov, a, forward=not no_dx),
-                      lambda a: a.record(True, forward=not no_dx, forward_why=no_dx))
+    if a is None:
+        return traj, {"applied": False, "note": why}
+    no_dx, z = forward_refusal(a, conf.lidar), lidar_innovation(a, traj[-1].cov)
+    if no := lidar_refusal(a, conf.lidar, traj[-1].cov):
+        return traj, a.record(False, no, innovation=z)
+    return _fold_last(traj, conf, a, why, "", lambda T, cov, a: apply_offsets(T, cov, a, forward=not no_dx),
+                      lambda a: a.record(True, forward=not no_dx, forward_why=no_dx, innovation=z))
 
 
 def with_doppler(traj: list[FrameEstimate], drive: Drive, frames, conf: HybridConfig, mon: MountMonitor | None,
