@@ -216,3 +216,25 @@ def test_a_simulated_vehicle_whose_true_mount_moves_stays_one_vehicle(knocked_an
     frames = NuScenesRadarCamera(knocked_and_not[1], "v1.0-sim")
     assert len({f.radar_sd["calibrated_sensor_token"] for f in frames.frames}) == 2
     assert list(frames.frames_by_vehicle()) == ["sim-veh-000"] and not frames.calibration_splits
+
+
+def test_a_level_no_radar_mount_holds_is_said_and_not_a_no(knocked_and_not):
+    """Ego poses with mirrored headings (the right speed) read the radar -110 deg from its tables over a whole drive
+    and the monitor said 'no step': a level beyond max_level_deg is said, and "did it move?" is not told."""
+    from hybrid_calib.calib.mount_monitor import MountMonitor, tested_words
+    from hybrid_calib.report.verdict import moved_during_drive
+    from tests.test_report import _vr
+
+    mon = MountMonitor(None, np.eye(4))
+    for k in range(12):
+        mon.add_residual(k, -110.0 + 0.1 * (k % 3), 6)
+    s = mon.summary()
+    assert "disagree by -109.9" in s["implausible"] and "ego_pose.json" in s["implausible"] and not s["steps"]
+    assert "disagree by -109.9" in tested_words(s)
+    vr = _vr((0.0,) * 6, (0.05,) * 6, alarms=(99,))
+    vr.mount = s
+    assert moved_during_drive(vr)[0].startswith("not told for the radar's yaw: the radar's Doppler heading")
+    fine = MountMonitor(None, np.eye(4))
+    for k in range(12):
+        fine.add_residual(k, 0.8 + 0.1 * (k % 3), 6)  # a radar 0.9 deg from its tables: a mount, said as a level only
+    assert "implausible" not in fine.summary()

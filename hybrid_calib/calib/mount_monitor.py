@@ -75,6 +75,9 @@ class MountMonitorConfig:
     min_frames: int = 8  # readings of a level before the test runs (after the start and after each change)
     sweeps: bool = True  # pair the non-keyframe sweeps too, where the root has them (calib.ego_doppler)
     pair_dt_s: float = 0.4  # a sweep's partner is the latest sweep at least this much earlier (calib.ego_doppler), s
+    # a level farther than this from the tables' mount (deg, beyond 3 of its stds) is no mount a radar holds: the
+    # ego poses' headings or the radar's velocity fields are wrong (mirrored poses read -110 deg, doubled +55)
+    max_level_deg: float = 10.0
 
     def __post_init__(self):
         require(self, {
@@ -82,7 +85,8 @@ class MountMonitorConfig:
             "wander_deg >= 0": self.wander_deg >= 0, "threshold > 0": self.threshold > 0,
             "clip > drift": self.clip > self.drift, "level_pairs >= min_frames": self.level_pairs >= self.min_frames,
             "max_turn_dps > 0": self.max_turn_dps > 0, "min_speed_mps >= 0": self.min_speed_mps >= 0,
-            "max_gap_s > 0": self.max_gap_s > 0, "0 < pair_dt_s < max_gap_s": 0 < self.pair_dt_s < self.max_gap_s})
+            "max_gap_s > 0": self.max_gap_s > 0, "0 < pair_dt_s < max_gap_s": 0 < self.pair_dt_s < self.max_gap_s,
+            "max_level_deg > 0": self.max_level_deg > 0})
 
 
 @dataclass(frozen=True)
@@ -278,8 +282,14 @@ class MountMonitor:
                 a, b = levels[j], levels[j + 1]
                 d.update(step_deg=b["level_deg"] - a["level_deg"], std_deg=float(np.hypot(a["std_deg"], b["std_deg"])))
             steps.append(d)
+        far = [lv for lv in levels if abs(lv["level_deg"]) - 3 * lv["std_deg"] > self.conf.max_level_deg]
+        implausible = {"implausible": (
+            f"the radar's Doppler heading and the ego poses' disagree by {far[0]['level_deg']:+.1f} +- "
+            f"{far[0]['std_deg']:.1f} deg (frames {far[0]['from']}-{far[0]['to']}; a radar's mount is within "
+            f"{self.conf.max_level_deg:g} deg of its tables): the ego poses' headings (ego_pose.json), the radar's "
+            "velocity fields or its mount in the tables are wrong, so its steps are not told")} if far else {}
         return {"steps": steps, "levels": levels, "frames_tested": len(self.series),
-                "pairs_tested": int(sum(self.pairs)), "threshold": self.conf.threshold,
+                "pairs_tested": int(sum(self.pairs)), "threshold": self.conf.threshold, **implausible,
                 **({"frames_skipped": self.skipped, "skip_example": self.skip_example} if self.skipped else {})}
 
 
@@ -304,6 +314,8 @@ def tested_words(summary: dict) -> str:
         words = f"{frames} frames tested ({pairs} sweep pairs)"
     else:
         words = f"{frames} frame pairs tested"
+    if summary.get("implausible"):
+        words += f"; {summary['implausible']}"
     if summary.get("sweeps_absent"):  # the hybrid's record: the tables list sweeps between keyframes, no files
         words += "; keyframes only: the root's radar sweeps between keyframes have no files (add sweeps/)"
     elif isinstance(gone := summary.get("sweeps_missing"), dict):

@@ -157,7 +157,8 @@ def _report(result, out: Path, reused: bool = False) -> int:
         if v.mount is not None:
             steps = "; ".join(f"the radar turned by {st['step_deg']:+.2f} +- {st['std_deg']:.2f} deg in yaw from frame "
                               f"{st['change']} (alarm at frame {st['at']})" for st in v.mount["steps"])
-            found = steps or ("no step" if v.mount.get("pairs_tested") else "not tested")
+            found = steps or ("not told" if v.mount.get("implausible") else
+                              "no step" if v.mount.get("pairs_tested") else "not tested")
             print(f"  radar mount monitor ({tested_words(v.mount)}): {found}")
         if v.lidar is not None:
             print(f"  LiDAR alignment: {describe_lidar(v.lidar)}")

@@ -365,7 +365,8 @@ def with_doppler(traj: list[FrameEstimate], drive: Drive, frames, conf: HybridCo
         return traj, {"applied": False, "note": "no camera mount (T_ego_cam) in the tables: the ego poses cannot "
                                                 "be carried to the camera"}
     a, why = fit_lever_arm(sweeps, traj[-1].T, T_ego_cam, conf.doppler)
-    return _fold_last(traj, conf, a, why, refusal(a, conf.doppler) if a else "", apply_forward)
+    wrong = (mon.summary().get("implausible") or "") if mon is not None else ""  # the same pairs: not trusted
+    return _fold_last(traj, conf, a, why, (wrong or refusal(a, conf.doppler)) if a else "", apply_forward)
 
 
 def _pure(runner, drive, T0, conf, tr):

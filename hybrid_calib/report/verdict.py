@@ -132,6 +132,9 @@ def moved_during_drive(vr: VehicleResult) -> tuple[str, tuple[int, ...]]:
     if mount:
         tests = (f"the radar mount monitor over {tested_words(mount)} (the radar's Doppler "
                  f"heading against the vehicle's ego poses), and the window's {tests}")
+    if not alarms and mount.get("implausible"):
+        return (f"not told for the radar's yaw: {mount['implausible']}; the window's windowed chi-square raised no "
+                f"step alarm over the {len(vr.trajectory)} frames of the drive"), ()
     if not alarms and mount and not int(mount.get("pairs_tested", 0)):
         return (f"not told for the radar's yaw: the radar mount monitor tested no frame pair; the window's {tests} "
                 f"raised no step alarm over the {len(vr.trajectory)} frames of the drive"), ()
