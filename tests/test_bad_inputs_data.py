@@ -420,3 +420,14 @@ def test_damaged_cache_entries_are_recomputed_not_fatal(tmp_path):
     p.write_bytes(p.read_bytes()[: p.stat().st_size // 3])
     assert cache.get("tok", out.T_in) is None
     assert np.allclose(out.T_in, T_TRUE)
+
+
+def test_a_keyframe_with_another_sensors_calibration_is_named_not_read_as_that_sensor(tiny):
+    """A LiDAR sample_data row carrying the radar's calibrated_sensor_token made its .pcd.bin the sample's radar
+    keyframe, reported as 'not a PCD file'."""
+    tiny.lidar_sd[0]["calibrated_sensor_token"] = "cs_RADAR_FRONT"
+    tiny.rewrite_table("sample_data")
+    ds = NuScenesRadarCamera(tiny.root, tiny.version)
+    assert len(ds) == 2  # the other samples still read
+    (why,) = [s.reason for s in ds.skipped if "two RADAR_FRONT keyframes" in s.reason]
+    assert tiny.lidar_sd[0]["token"] in why and tiny.radar_sd[0]["token"] in why and "LIDAR_TOP" in why

@@ -174,7 +174,8 @@ def test_the_lidar_alignment_is_said_in_words():
     vr = _vr((0,) * 6, (0.01,) * 6)
     assert lidar_html(vr) == "" and "LiDAR" not in status_html(vr)
     vr.lidar = {"applied": True, "dy_m": -0.089, "dy_std_m": 0.034, "rows": 377, "frames": 41}
-    assert "-8.9 +- 3.4 cm" in status_html(vr) and "the camera-x translation and its 1-sigma above are the LiDAR" in lidar_html(vr)
+    assert "-8.9 +- 3.4 cm" in status_html(vr)
+    assert "the camera-x translation and its 1-sigma above are the LiDAR" in lidar_html(vr)
     vr.lidar = {"applied": False, "dy_m": 0.2, "dy_std_m": 0.2, "rows": 120, "frames": 9, "note": "std 20.0 cm > 10"}
     assert "not applied: std 20.0 cm &gt; 10" in lidar_html(vr)
     vr.lidar = {"applied": False, "note": "no LiDAR in the frames"}

@@ -169,6 +169,7 @@ class NuScenesTables:
         # (sample_token, channel) -> keyframe sample_data record; problems found on the way.
         self.keyframes: dict[tuple[str, str], dict] = {}
         self.index_problems: list[tuple[str, str]] = []  # (token, reason)
+        ambiguous: dict[tuple[str, str], dict] = {}  # (sample, channel) with two keyframes -> the first one
         for sd in self.records["sample_data"]:
             if not sd["is_key_frame"]:
                 continue
@@ -176,7 +177,17 @@ class NuScenesTables:
             if sensor is None:
                 self.index_problems.append((sd["token"], self._unresolved_cs_reason(sd)))
                 continue
-            self.keyframes[(sd["sample_token"], sensor["channel"])] = sd
+            key = (sd["sample_token"], sensor["channel"])
+            if key in self.keyframes or key in ambiguous:  # one of them carries another sensor's calibration
+                first = self.keyframes.pop(key, None) or ambiguous[key]
+                ambiguous[key] = first
+                self.index_problems.append((sd["token"], (
+                    f"sample {key[0]} has two {key[1]} keyframes, sample_data {first['token']} "
+                    f"({first.get('filename')}) and {sd['token']} ({sd.get('filename')}): the calibrated_sensor_token "
+                    f"of the one whose file is not a {key[1]} file is wrong (it names the {key[1]} sensor); neither "
+                    "is used, fix the record")))
+                continue
+            self.keyframes[key] = sd
 
     def _unresolved_cs_reason(self, sd: dict) -> str:
         cs = self.by_token["calibrated_sensor"].get(sd["calibrated_sensor_token"])
