@@ -655,6 +655,8 @@ DAMAGED_RESULTS = {  # case -> (damage(doc, vehicle), needles beyond the file); 
                                ["lidar.applied is a JSON string, not a boolean"]),
     "doppler-a-list": (lambda doc, v: doc["vehicles"][v].__setitem__("doppler", [1, 2]),
                        ["doppler is a JSON array, not an object"]),
+    "error-nan": (lambda doc, v: doc["vehicles"][v]["error"].__setitem__("rot_mean_deg", float("nan")),
+                  ["error.rot_mean_deg is 'nan', not a finite number"]),
 }
 
 

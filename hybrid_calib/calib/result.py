@@ -137,6 +137,20 @@ def _block(d: dict, key: str, where: str) -> dict | None:
     return b
 
 
+def _error(d: dict, where: str) -> dict | None:
+    """A vehicle result's ``error`` block read back: None, or an object of finite numbers (``ValueError`` naming
+    the key otherwise: a page of 'rotation nan deg' was written from one)."""
+    e = d.get("error")
+    if e is None:
+        return None
+    e = _mapping(e, f"{where}.error")
+    # (a NEES of a singular covariance may be inf: kept, the metrics themselves never are)
+    if bad := [k for k, v in e.items() if not (_number(v) or v is None or isinstance(v, (str, bool))
+                                                or (k == "nees" and isinstance(v, float) and not np.isnan(v)))]:
+        raise ValueError(f"{where}.error.{bad[0]} is {str(e[bad[0]])[:40]!r}, not a finite number")
+    return e
+
+
 def _json_kind(x) -> str:
     return {list: "array", str: "string", bool: "boolean", int: "number", float: "number",
             type(None): "null"}.get(type(x), type(x).__name__)
@@ -297,7 +311,7 @@ class VehicleResult:
             vehicle=d.get("vehicle", vehicle or ""), final=Estimate.from_dict(d["final"], f"{where}.final"),
             trajectory=[FrameEstimate.from_dict(f, f"{where}.trajectory[{k}]") for k, f in enumerate(trajectory)],
             truth_T=None if truth is None else _matrix(_mapping(truth, f"{where}.truth")["T_cam_radar"], 4,
-                                                       f"{where}.truth.T_cam_radar"), error=d.get("error"),
+                                                       f"{where}.truth.T_cam_radar"), error=_error(d, where),
             crb_std=None if crb is None else std_from_dict(crb, STD_FRAME), drift=d.get("drift"),
             skipped=list(d.get("frames_skipped", [])), n_frames=int(d.get("n_frames", 0)),
             network=d.get("network"), method=d.get("method", ""), checkpoint=d.get("checkpoint"),
