@@ -237,3 +237,17 @@ def test_on_a_simulated_drive(sim_root):
     assert sum(len(f.radar_xy) for f in everything) == sum(len(f.radar_xy) + f.moving for f in lfs)
     # without LiDAR there is nothing to align with
     assert drive_frames(open_frames(sim_root, "v1.0-sim", lidar=False), idx) == []
+
+
+def test_a_lateral_offset_many_stds_from_the_loop_is_not_applied():
+    """The offsets inherit the tables' LiDAR-camera extrinsic: one far beyond what the LiDAR and the loop can be off
+    by together is a gross error of one of them, said and not applied."""
+    from hybrid_calib.calib.lidar_alignment import LidarAlignConfig, LidarAlignment, innovation, refusal
+
+    a = LidarAlignment(np.array([0.0, 0.6, 0.1]), np.diag([0.05 ** 2, 0.025 ** 2, 0.01]), 300, 20, 0.2, 8)
+    tight = np.diag([1e-6] * 3 + [0.1 ** 2] * 3)  # the loop: 10 cm on each translation
+    assert innovation(a, tight) == pytest.approx(0.6 / np.hypot(0.1, 0.025), rel=1e-6)  # ~5.8
+    why = refusal(a, LidarAlignConfig(), tight)
+    assert "+60.0 cm from the loop's estimate is 5.8 stds" in why and "LiDAR-camera extrinsic" in why
+    assert refusal(a, LidarAlignConfig(), np.diag([1e-6] * 3 + [0.3 ** 2] * 3)) == ""  # an R2 loop: 2 stds
+    assert refusal(a, LidarAlignConfig()) == ""  # without the loop's covariance: the std rule alone
