@@ -185,6 +185,11 @@ def _markdown(summary: dict, conf: CompareConfig, command: str) -> str:
         lines.append(f"| {m} | {s['trials']} | {c['nees_mean']:.2f} | {c['nees_median']:.2f} | "
                      f"{100 * c['coverage_95']:.0f} % | {100 * s['not_ok_fraction']:.0f} % | {ms} | "
                      f"{s['frames_mean']:.0f} |")
+    short = [f"{m}: {summary['methods'][m]['trials'] if m in summary['methods'] else 0} of {conf.trials}"
+             for m in conf.methods if m not in summary["methods"] or summary["methods"][m]["trials"] < conf.trials]
+    if short:  # the rows are then not over the same trials: said where they are read
+        lines += ["", f"**Not every trial finished** ({'; '.join(short)}): those rows are over fewer trials than the "
+                      "others; why each failed is in compare.json (trials_failed), and a rerun tries them again."]
     lines += ["", "Per root (scenario): mean NEES / coverage", ""]
     for m, s in summary["methods"].items():
         parts = [f"{k}: {c['nees_mean']:.1f} / {100 * c['coverage_95']:.0f} %" for k, c in

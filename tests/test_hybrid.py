@@ -380,3 +380,19 @@ def test_a_non_finite_network_pass_is_a_skipped_frame_not_the_end_of_the_run(sim
                                                               "cache_dir": str(tmp_path / method)})
         assert np.isfinite(v.final.T).all() and len(v.skipped) >= 1, v.skipped
         assert "is not finite (NaN/inf)" in v.skipped[0]["reason"]
+
+
+def test_compare_says_when_a_method_finished_fewer_trials():
+    """A failed trial left its method's row averaged over fewer trials than the others', said nowhere near it."""
+    from hybrid_calib.compare import CompareConfig, _markdown
+    from hybrid_calib.config import merge
+    from hybrid_calib.metrics import METRIC_KEYS
+
+    conf = merge(CompareConfig, {"trials": 4, "methods": ("pure", "pure-avg", "hybrid")})
+    errs = {k: 0.0 for k in METRIC_KEYS}
+    row = {"mean": errs, "median": errs, "consistency": {"nees_mean": 6.0, "nees_median": 5.0, "coverage_95": 0.9},
+           "ms_per_frame": 1.0, "not_ok_fraction": 0.0, "frames_mean": 3, "consistency_per_root": {}}
+    text = _markdown({"methods": {"pure": {**row, "trials": 4}, "hybrid": {**row, "trials": 3}}}, conf, "cmd")
+    assert "**Not every trial finished** (pure-avg: 0 of 4; hybrid: 3 of 4)" in text
+    full = _markdown({"methods": {m: {**row, "trials": 4} for m in conf.methods}}, conf, "cmd")
+    assert "Not every trial" not in full
