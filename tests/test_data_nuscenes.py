@@ -357,3 +357,15 @@ def test_a_vehicle_with_two_calibrations_is_two_vehicles(tmp_path):
     moved = _recalibrated_radar(tmp_path / "moved", second_log=False)
     assert NuScenesRadarCamera(moved.root, VERSION).frames_by_vehicle() == {"tiny": [0, 1, 2], "tiny-cal2": [3, 4, 5]}
 
+
+
+def test_a_vehicles_scenes_are_taken_in_the_order_they_were_driven(tmp_path):
+    """scene.json need not list a vehicle's scenes in time order; the drive is fused in time order."""
+    tiny = _recalibrated_radar(tmp_path, yaw=0.02)  # two scenes of one vehicle, one calibration
+    t = tiny.tables
+    t["scene"].reverse()  # the later scene listed first
+    tiny.rewrite_table("scene")
+    ds = NuScenesRadarCamera(tiny.root, VERSION)
+    (idx,) = ds.frames_by_vehicle().values()
+    stamps = [ds.frames[i].camera_sd["timestamp"] for i in idx]
+    assert stamps == sorted(stamps) and [ds.frames[i].scene_name for i in idx[:1]] == ["tiny-scene"]

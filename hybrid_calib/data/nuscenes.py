@@ -285,11 +285,21 @@ class NuScenesRadarCamera:
         return self._index_skips + [self._iter_skips[i] for i in sorted(self._iter_skips)]
 
     def frames_by_vehicle(self) -> dict[str, list[int]]:
-        """Vehicle name -> dataset indices of its frames, in time order."""
+        """Vehicle name -> dataset indices of its frames, in time order (the camera keyframes' timestamps: a
+        vehicle's scenes need not be listed in scene.json in the order they were driven)."""
         out: dict[str, list[int]] = {}
         for i, f in enumerate(self.frames):
             out.setdefault(f.vehicle, []).append(i)
-        return out
+
+        def when(i: int):
+            t = self.frames[i].camera_sd.get("timestamp")
+            return t if isinstance(t, int) and not isinstance(t, bool) else None
+
+        def ordered(idx: list[int]) -> list[int]:  # a timestamp that is not a number: the tables' order kept
+            ts = [when(i) for i in idx]
+            return idx if None in ts else [i for _, i in sorted(zip(ts, idx))]
+
+        return {v: ordered(idx) for v, idx in out.items()}
 
     def scenes(self) -> list[dict[str, Any]]:
         """One dict per scene with frames: name, token, vehicle, log_token, indices."""
