@@ -59,14 +59,16 @@ class EvalConfig:
     depth_cache: str = ""  # depth cache folder ("" = OUT/depth-cache)
     split_options: SplitConfig = field(default_factory=SplitConfig)  # must match training's to hold out scenes
     export: dict = field(default_factory=dict)  # learned.export.ExportConfig overrides (e.g. a fitted cov_scale)
+    # --fit-uncertainty: fewer frames than this fit nothing (a variance from n frames is good to sqrt(2/n): 26 %)
+    fit_min_frames: int = 30
 
     def __post_init__(self):
         from learned.export import ExportConfig
         from learned.train import check_sizes_and_device
 
-        if self.batch_size < 1 or self.max_frames < 0:
-            raise ValueError(f"EvalConfig: batch_size must be >= 1 and max_frames >= 0, got {self.batch_size} and "
-                             f"{self.max_frames}")
+        if self.batch_size < 1 or self.max_frames < 0 or self.fit_min_frames < 1:
+            raise ValueError(f"EvalConfig: batch_size and fit_min_frames must be >= 1 and max_frames >= 0, got "
+                             f"{self.batch_size}, {self.fit_min_frames} and {self.max_frames}")
         check_sizes_and_device(self, "EvalConfig")
         merge(ExportConfig, self.export, "export.")  # a bad --set export.KEY fails before the data are read
 

@@ -447,8 +447,16 @@ def test_cli_train_then_evaluate(sim_root, tmp_path, capsys):
 
     # fit the covariance scale on the val scene; it lands in the checkpoint and the next export uses it
     ckpt_json = run / "checkpoints" / "ckpt-0001.json"
+    before = ckpt_json.read_bytes()
     assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--split", "val",
-                                     "--fit-uncertainty", "--out", str(tmp_path / "fit"), "--no-progress"]) == 0
+                                     "--fit-uncertainty", "--out", str(tmp_path / "fit0"), "--no-progress"]) == 2
+    assert "fewer than 30" in capsys.readouterr().err and ckpt_json.read_bytes() == before  # nothing written
+    assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--split", "all",
+                                     "--fit-uncertainty", "--out", str(tmp_path / "fit1"), "--no-progress"]) == 2
+    assert "a root the checkpoint was trained on" in capsys.readouterr().err
+    assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--split", "val",
+                                     "--fit-uncertainty", "--out", str(tmp_path / "fit"), "--no-progress",
+                                     "--set", "fit_min_frames=1"]) == 0  # the tiny test drive: accepted when asked
     assert "fitted cov_scale" in capsys.readouterr().out
     fitted = json.loads(ckpt_json.read_text())["export"]["cov_scale"]
     assert len(fitted) == 6 and all(v > 0 for v in fitted)

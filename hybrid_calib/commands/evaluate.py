@@ -64,6 +64,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
 
+def trained_on(checkpoint: str | Path, roots) -> list[str]:
+    """The ``roots`` the training run of ``checkpoint`` read (its run folder's ``train_config.json`` "data"), [] when
+    it does not say (a shipped checkpoint records its data in words, in ``provenance``)."""
+    run = Path(checkpoint).resolve().parent.parent / "train_config.json"
+    try:
+        data = json.loads(run.read_text()).get("data") or {}
+        seen = {str(Path(r).resolve()) for r in data.get("roots", [])}
+    except (OSError, ValueError, AttributeError, TypeError):
+        return []
+    return [str(r) for r in roots if str(Path(r).resolve()) in seen]
+
+
 def run(args: argparse.Namespace) -> int:
     from hybrid_calib.config import merge
     from hybrid_calib.plots.evaluation import plot_error_cdf
@@ -109,6 +121,10 @@ def run(args: argparse.Namespace) -> int:
         if args.split == "test":
             raise HybridCalibError("--fit-uncertainty on the test split would leave nothing held out to check it; "
                                    "fit with --split val (or --split all on a separate root)")
+        if args.split in ("all", "train") and (seen := trained_on(last.path, args.data)):
+            raise HybridCalibError(f"--fit-uncertainty with --split {args.split} on {', '.join(seen)}, a root the "
+                                   f"checkpoint was trained on ({last.path}): its frames would make the covariance "
+                                   "look honest where it was fitted; use --split val, or a root it never saw")
         conf["export"]["cov_scale"] = 1.0  # fit against the raw covariance
     deep_update(conf, user)  # --set export.KEY=... changes that value and keeps the checkpoint's others
     # the LiDAR-camera variant calibrates T_cam_lidar from LiDAR points; lidar-densified depth reads them too
@@ -138,6 +154,12 @@ def run(args: argparse.Namespace) -> int:
         errors, covs = tangent_errors(args.out)
         if not len(errors):
             raise HybridCalibError(f"no exported covariances in {args.out}; nothing to fit")
+        least = merge(EvalConfig, user).fit_min_frames
+        if len(errors) < least:  # six variances from a handful of frames would be stored as the network's truth
+            raise HybridCalibError(f"--fit-uncertainty: {len(errors)} frames with an exported covariance, fewer than "
+                                   f"{least} (a variance from n frames is good to sqrt(2/n)); nothing was written to "
+                                   f"{last.path}: fit on more validation frames (drop --max-frames, add roots), or "
+                                   "pass --set fit_min_frames=N to accept fewer")
         scale = calibrate_cov_scale(errors, covs, per_axis=True)
         roots = " ".join(str(d) for d in args.data)
         note = (f"per-axis fit on {len(errors)} frames of {roots} (split {args.split}, range "
