@@ -20,6 +20,7 @@ import csv
 import hashlib
 import json
 import logging
+import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -156,8 +157,18 @@ class _CsvLog:
         self.path, self.columns = path, list(columns)
         rows = []
         if path.is_file():
-            with path.open(newline="") as f:
-                rows = [r for r in csv.DictReader(f) if int(r["epoch"]) <= keep_until_epoch]
+            try:
+                with path.open(newline="", errors="replace") as f:
+                    read = list(csv.DictReader(f))
+            except (OSError, csv.Error):
+                read = []
+            for n, r in enumerate(read, start=2):
+                try:
+                    if int(str(r.get("epoch"))) <= keep_until_epoch:
+                        rows.append(r)
+                except ValueError:  # a side record: a line that does not parse is dropped, the run goes on
+                    print(f"train: {path} line {n} does not parse (epoch {str(r.get('epoch'))[:20]!r}); dropped from "
+                          "the log", file=sys.stderr)
         with path.open("w", newline="") as f:
             w = csv.DictWriter(f, self.columns)
             w.writeheader()

@@ -434,3 +434,26 @@ def test_roots_of_one_folder_name_get_job_ids_that_tell_them_apart(fleet_root, t
     assert len(set(ids)) == len(ids) == 8 and "2024-05-sim-sim-veh-000" in ids and "2024-06-sim-sim-veh-000" in ids
     with pytest.raises(DataError, match=r"repeat: a root is given twice \(.*2024-05/sim\)"):
         discover_jobs([(str(a), "v1.0-sim", None), (str(a / "."), "v1.0-sim", None)], "oracle", tmp_path / "out")
+
+
+@pytest.mark.parametrize("damage,needle", [
+    (lambda p: p.__setitem__("T_cam_radar", np.full((4, 4), np.nan).tolist()), "holds non-finite values"),
+    (lambda p: p.__setitem__("cov_right_radar", (-np.eye(6)).tolist()), "not symmetric positive definite"),
+    (lambda p: p.__setitem__("T_cam_radar", (2 * np.eye(4)).tolist()), "not a rigid transform"),
+], ids=["nan", "negative-cov", "not-rigid"])
+def test_a_damaged_fleet_prior_is_named_on_load(damage, needle, tmp_path):
+    """Each was accepted and then failed every vehicle as an 'internal error' blaming the vehicle's data."""
+    from hybrid_calib.errors import DataError
+    from hybrid_calib.fleet.prior import load_priors
+
+    prior = {"T_cam_radar": np.eye(4).tolist(), "cov_right_radar": (np.eye(6) * 1e-4).tolist()}
+    path = tmp_path / "fleet_prior.json"
+    path.write_text(json.dumps({"priors": {"v": prior}}))
+    assert load_priors(path)["v"] == prior
+    damage(prior)
+    path.write_text(json.dumps({"priors": {"v": prior}}))
+    with pytest.raises(DataError, match=f"fleet prior unreadable .*{needle}"):
+        load_priors(path)
+    path.write_text(json.dumps({"priors": [1, 2]}))
+    with pytest.raises(DataError, match="not an object of job id"):
+        load_priors(path)

@@ -293,9 +293,11 @@ def test_cascade_runs_the_refining_network_from_the_coarse_estimate(sim_root, tm
     np.testing.assert_array_equal(out.cov_raw, fine.cov_raw)
     np.testing.assert_array_equal(out.rows_first.pixels, coarse.rows_first.pixels)  # measured against T0 only
     np.testing.assert_array_equal(out.T_in, T0)
-    v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", {**BASE, "method": "hybrid", "max_frames": 2,
-                                                          "refine": str(r1)})
-    assert "->" in v.checkpoint and len(v.trajectory) == 2
+    np.testing.assert_array_equal(runner.network_cov(out), runner.refine.network_cov(out))  # the last stage's
+    for method in ("hybrid", "pure", "pure-avg"):  # pure and pure-avg ended in "no attribute 'network_cov'"
+        v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", {**BASE, "method": method, "max_frames": 2,
+                                                              "refine": str(r1)})
+        assert "->" in v.checkpoint and len(v.trajectory) == 2, method
 
 
 def test_a_checkpoint_without_its_fitted_models_is_never_trusted(sim_root, tmp_path):

@@ -239,15 +239,19 @@ def test_on_a_simulated_drive(sim_root):
     assert drive_frames(open_frames(sim_root, "v1.0-sim", lidar=False), idx) == []
 
 
-def test_a_lateral_offset_many_stds_from_the_loop_is_not_applied():
-    """The offsets inherit the tables' LiDAR-camera extrinsic: one far beyond what the LiDAR and the loop can be off
-    by together is a gross error of one of them, said and not applied."""
-    from hybrid_calib.calib.lidar_alignment import LidarAlignConfig, LidarAlignment, innovation, refusal
+def test_a_lateral_offset_many_stds_from_the_loop_is_said_and_refused_only_when_asked():
+    """The offsets inherit the tables' LiDAR-camera extrinsic, and a loop started far off can be over-confident: a
+    probe's radar 80 cm off its tables read 6.2 stds with the LiDAR right. So the disagreement is said, and refused
+    only with max_innovation set."""
+    from hybrid_calib.calib.lidar_alignment import LidarAlignConfig, LidarAlignment, describe, innovation, refusal
 
     a = LidarAlignment(np.array([0.0, 0.6, 0.1]), np.diag([0.05 ** 2, 0.025 ** 2, 0.01]), 300, 20, 0.2, 8)
     tight = np.diag([1e-6] * 3 + [0.1 ** 2] * 3)  # the loop: 10 cm on each translation
-    assert innovation(a, tight) == pytest.approx(0.6 / np.hypot(0.1, 0.025), rel=1e-6)  # ~5.8
-    why = refusal(a, LidarAlignConfig(), tight)
+    z = innovation(a, tight)
+    assert z == pytest.approx(0.6 / np.hypot(0.1, 0.025), rel=1e-6)  # ~5.8
+    assert refusal(a, LidarAlignConfig(), tight) == ""  # default: applied
+    assert "lies 5.8 stds from the loop's estimate" in describe(a.record(True, forward=False, innovation=z))
+    assert "stds from the loop" not in describe(a.record(True, innovation=1.2))
+    why = refusal(a, LidarAlignConfig(max_innovation=4.0), tight)
     assert "+60.0 cm from the loop's estimate is 5.8 stds" in why and "LiDAR-camera extrinsic" in why
-    assert refusal(a, LidarAlignConfig(), np.diag([1e-6] * 3 + [0.3 ** 2] * 3)) == ""  # an R2 loop: 2 stds
-    assert refusal(a, LidarAlignConfig()) == ""  # without the loop's covariance: the std rule alone
+    assert refusal(a, LidarAlignConfig(max_innovation=4.0), np.diag([1e-6] * 3 + [0.3 ** 2] * 3)) == ""

@@ -92,9 +92,12 @@ class LidarAlignConfig:
     passes: int = 3  # the fit re-run from the offsets the previous pass found
     range_bias: bool = True  # fit a common range offset (reflection depth): a one-sided scene cannot make it dy
     coupling_deg: float = 0.5  # step of the central differences of dy, dx against the rotation, deg (0: none)
-    # dy farther from the loop's estimate than this many stds of their difference: not applied (the tables'
-    # LiDAR-camera extrinsic, or the loop, is wrong: neither can be told from the other)
-    max_innovation: float = 4.0
+    # dy farther from the loop's estimate than this many stds of their difference: not applied (0: never refused,
+    # the default). Off because the two cases cannot be told apart: a wrong LiDAR-camera table (the LiDAR wrong)
+    # and a radar far off its tables with an over-confident loop (the LiDAR right: a probe's 80 cm table error
+    # read 6.2 stds, the real scene up to 3.5); the innovation is recorded and said instead (``describe``)
+    max_innovation: float = 0.0
+    far_innovation: float = 4.0  # beyond this many stds the LiDAR line says the two disagree
 
     def __post_init__(self):
         require(self, {
@@ -106,7 +109,7 @@ class LidarAlignConfig:
             "systematic_x_m >= 0": self.systematic_x_m >= 0, "max_std_x_m > 0": self.max_std_x_m > 0,
             "max_range_offset_m > 0": self.max_range_offset_m > 0,
             "passes >= 1": self.passes >= 1, "coupling_deg >= 0": self.coupling_deg >= 0,
-            "max_innovation > 0": self.max_innovation > 0})
+            "max_innovation >= 0": self.max_innovation >= 0, "far_innovation > 0": self.far_innovation > 0})
 
 
 @dataclass(frozen=True)
@@ -324,7 +327,7 @@ def refusal(a: LidarAlignment, conf: LidarAlignConfig = LidarAlignConfig(), cov:
     if a.dy_std > conf.max_std_m:
         return f"std {a.dy_std * 100:.1f} cm > max_std_m {conf.max_std_m * 100:g} cm"
     z = innovation(a, cov) if cov is not None else 0.0
-    if abs(z) > conf.max_innovation:
+    if conf.max_innovation and abs(z) > conf.max_innovation:
         return (f"{a.delta[1] * 100:+.1f} cm from the loop's estimate is {abs(z):.1f} stds of what either can be off "
                 f"by (max_innovation {conf.max_innovation:g}): the tables' LiDAR-camera extrinsic or the loop's "
                 "estimate is wrong, and which cannot be told; check the LiDAR's calibration")
@@ -380,6 +383,10 @@ def describe(block: dict) -> str:
     if not block["applied"]:
         return words + f"; not applied: {block.get('note', '')}"
     inherits = " (through the tables' LiDAR-camera extrinsic: an error there is carried into the result)"
+    z = block.get("innovation_sigma")
+    if isinstance(z, (int, float)) and abs(z) > LidarAlignConfig.far_innovation:
+        inherits += (f"; it lies {abs(z):.1f} stds from the loop's estimate: the radar is far off its tables, or the "
+                     "LiDAR is (check the LiDAR's calibration before recalibrating the radar)")
     if block.get("forward_applied"):
         return words + "; both applied" + inherits
     note = block.get("forward_note")

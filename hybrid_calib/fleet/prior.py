@@ -218,6 +218,22 @@ def fit_fleet_prior(names: list[str], Ts: list[np.ndarray], covs: list[np.ndarra
         {names[i]: f for i, f in loo.items()}, alpha, P)
 
 
+def _check_prior(k: str, p: dict) -> None:
+    """``ValueError`` naming prior ``k`` when its transform is not a finite rigid 4x4 or its covariance not a finite
+    symmetric positive-definite 6x6 (a NaN prior failed every vehicle as an "internal error")."""
+    T = np.asarray(p["T_cam_radar"], np.float64)
+    C = np.asarray(p["cov_right_radar"], np.float64)
+    if T.shape != (4, 4) or C.shape != (6, 6):
+        raise ValueError(f"prior {k!r} needs T_cam_radar 4x4 and cov_right_radar 6x6")
+    if not (np.isfinite(T).all() and np.isfinite(C).all()):
+        raise ValueError(f"prior {k!r} holds non-finite values")
+    R = T[:3, :3]
+    if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) <= 0 or not np.allclose(T[3], [0, 0, 0, 1]):
+        raise ValueError(f"prior {k!r}: T_cam_radar is not a rigid transform")
+    if not np.allclose(C, C.T, atol=1e-12 + 1e-9 * np.abs(C).max()) or np.linalg.eigvalsh(0.5 * (C + C.T)).min() <= 0:
+        raise ValueError(f"prior {k!r}: cov_right_radar is not symmetric positive definite")
+
+
 def load_priors(path: str | Path) -> dict[str, dict]:
     """``fleet_prior.json`` (``FleetPrior.save``) -> its "priors" (job id -> {"T_cam_radar",
     "cov_right_radar"}, or None for a named outlier; "*" for a new vehicle); ``DataError`` naming the file."""
@@ -227,10 +243,12 @@ def load_priors(path: str | Path) -> dict[str, dict]:
     try:
         doc = json.loads(path.read_text())
         priors = doc["priors"]
+        if not isinstance(priors, dict):
+            raise TypeError(f"'priors' is a JSON {type(priors).__name__}, not an object of job id -> prior")
         for k, p in priors.items():
-            if p is not None and (np.shape(p["T_cam_radar"]) != (4, 4) or np.shape(p["cov_right_radar"]) != (6, 6)):
-                raise ValueError(f"prior {k!r} needs T_cam_radar 4x4 and cov_right_radar 6x6")
-    except (OSError, ValueError, KeyError, TypeError) as e:
+            if p is not None:
+                _check_prior(k, p)
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, np.linalg.LinAlgError) as e:
         raise DataError(f"fleet prior unreadable ({type(e).__name__}: {e}); pass the fleet_prior.json of a "
                         "hybrid-calib fleet run", path=str(path)) from None
     return dict(priors)

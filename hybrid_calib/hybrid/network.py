@@ -310,6 +310,10 @@ class CascadeRunner:
     def bad_reason(self, index: int) -> str:
         return self.coarse.bad_reason(index) or self.refine.bad_reason(index)
 
+    def network_cov(self, out: NetworkOutput) -> np.ndarray:
+        """(6, 6) the covariance the cascade reports: its last (refining) stage's, with that checkpoint's scale."""
+        return self.refine.network_cov(out)
+
     def token(self, index: int) -> str:
         return self.coarse.token(index)
 
