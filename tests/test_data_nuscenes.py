@@ -369,3 +369,16 @@ def test_a_vehicles_scenes_are_taken_in_the_order_they_were_driven(tmp_path):
     (idx,) = ds.frames_by_vehicle().values()
     stamps = [ds.frames[i].camera_sd["timestamp"] for i in idx]
     assert stamps == sorted(stamps) and [ds.frames[i].scene_name for i in idx[:1]] == ["tiny-scene"]
+
+
+def test_the_hybrid_says_which_calibrations_of_a_vehicle_it_calibrates(tmp_path, capsys):
+    """A vehicle split into NAME and NAME-cal2 was never explained, and a filter naming NAME dropped NAME-cal2
+    without a word."""
+    from hybrid_calib.hybrid.loop import HybridConfig, open_drives
+
+    tiny = _recalibrated_radar(tmp_path)
+    _, drives = open_drives(tiny.root, VERSION, HybridConfig(vehicles=("tiny",)), lidar=False)
+    assert list(drives) == ["tiny"]
+    err = capsys.readouterr().err
+    assert "vehicle tiny: its frames hold 2 camera-radar calibrations in the tables, calibrated as tiny, tiny-cal2" \
+        in err and "(tiny-cal2 not among the vehicles asked for)" in err

@@ -457,6 +457,9 @@ def test_cli_train_then_evaluate(sim_root, tmp_path, capsys):
     assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--split", "all",
                                      "--fit-uncertainty", "--out", str(tmp_path / "fit1"), "--no-progress"]) == 2
     assert "a root the checkpoint was trained on" in capsys.readouterr().err
+    assert _run_command("evaluate", ["--data", str(sim_root), "--version", "v1.0-mini", "--checkpoint", str(run),
+                                     "--split", "val", "--fit-uncertainty", "--out", str(tmp_path / "fit2")]) == 2
+    assert "has no ground truth, only its tables" in capsys.readouterr().err  # a real root: the tables' errors
     assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--split", "val",
                                      "--fit-uncertainty", "--out", str(tmp_path / "fit"), "--no-progress",
                                      "--set", "fit_min_frames=1"]) == 0  # the tiny test drive: accepted when asked

@@ -121,6 +121,12 @@ def run(args: argparse.Namespace) -> int:
         if args.split == "test":
             raise HybridCalibError("--fit-uncertainty on the test split would leave nothing held out to check it; "
                                    "fit with --split val (or --split all on a separate root)")
+        if args.version != "v1.0-sim":  # errors against the tables, out-of-domain frames among them
+            raise HybridCalibError(f"--fit-uncertainty on a {args.version} root: it has no ground truth, only its "
+                                   "tables (themselves a few tenths of a degree off) and frames outside the network's "
+                                   "domain, so the fitted scale would be the tables' and the domain gap's; fit on "
+                                   "simulated validation drives (v1.0-sim), or, for a network fine-tuned on real "
+                                   "frames, with benchmarks/real_finetune.py (its scale floored at 1)")
         if args.split in ("all", "train") and (seen := trained_on(last.path, args.data)):
             raise HybridCalibError(f"--fit-uncertainty with --split {args.split} on {', '.join(seen)}, a root the "
                                    f"checkpoint was trained on ({last.path}): its frames would make the covariance "

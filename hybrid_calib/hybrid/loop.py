@@ -24,6 +24,7 @@ final estimate describes.
 from __future__ import annotations
 
 import dataclasses
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -163,6 +164,11 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
 
     frames = open_frames(data, version, lidar=lidar)
     simulated = bool(getattr(frames, "sim_vehicles", {}))
+    for vehicle, names in getattr(frames, "calibration_splits", {}).items():  # said where the names appear
+        left = [n for n in names if conf.vehicles is not None and n not in conf.vehicles]
+        print(f"vehicle {vehicle}: its frames hold {len(names)} camera-radar calibrations in the tables, calibrated "
+              f"as {', '.join(names)}" + (f" ({', '.join(left)} not among the vehicles asked for)" if left else ""),
+              file=sys.stderr)
     keep = None if conf.split == "all" else set(split_indices(frames, conf.split, conf.split_options))
     drives = {}
     for vehicle, idx in sorted(frames.frames_by_vehicle().items()):
