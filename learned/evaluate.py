@@ -66,9 +66,11 @@ class EvalConfig:
         from learned.export import ExportConfig
         from learned.train import check_sizes_and_device
 
-        if self.batch_size < 1 or self.max_frames < 0 or self.fit_min_frames < 1:
-            raise ValueError(f"EvalConfig: batch_size and fit_min_frames must be >= 1 and max_frames >= 0, got "
-                             f"{self.batch_size}, {self.fit_min_frames} and {self.max_frames}")
+        if self.batch_size < 1 or self.max_frames < 0:
+            raise ValueError(f"EvalConfig: batch_size must be >= 1 and max_frames >= 0, got {self.batch_size} and "
+                             f"{self.max_frames}")
+        if self.fit_min_frames < 1:
+            raise ValueError(f"EvalConfig: fit_min_frames must be >= 1, got {self.fit_min_frames}")
         check_sizes_and_device(self, "EvalConfig")
         merge(ExportConfig, self.export, "export.")  # a bad --set export.KEY fails before the data are read
 
