@@ -70,6 +70,14 @@ def se3_log(T: np.ndarray) -> np.ndarray:
     return np.concatenate([omega, v])
 
 
+def is_rigid(T: np.ndarray, atol: float = 1e-6) -> bool:
+    """Whether a finite (4, 4) ``T`` is a rigid transform: an orthonormal, right-handed rotation block (to ``atol``)
+    and a last row [0, 0, 0, 1]."""
+    R = T[:3, :3]
+    return bool(np.allclose(R.T @ R, np.eye(3), atol=atol) and np.linalg.det(R) > 0
+                and np.allclose(T[3], [0, 0, 0, 1], atol=atol))
+
+
 def se3_inverse(T: np.ndarray) -> np.ndarray:
     """Inverse of a (4, 4) rigid transform."""
     R, t = T[:3, :3], T[:3, 3]

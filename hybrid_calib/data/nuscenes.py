@@ -64,7 +64,7 @@ from hybrid_calib.data.tables import (
     vector_or_reason,
 )
 from hybrid_calib.errors import DataError
-from hybrid_calib.geometry import pose_from_nuscenes, se3_inverse
+from hybrid_calib.geometry import is_rigid, pose_from_nuscenes, se3_inverse, so3_log
 from hybrid_calib.sensors.camera import PinholeCamera
 
 
@@ -257,8 +257,7 @@ class NuScenesRadarCamera:
                 return None  # a broken record: the frame says so when it is read
 
         def offset(T: np.ndarray, T0: np.ndarray) -> tuple[float, float]:
-            R = T0[:3, :3].T @ T[:3, :3]
-            angle = float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0))))
+            angle = float(np.degrees(np.linalg.norm(so3_log(T0[:3, :3].T @ T[:3, :3]))))
             return angle, float(100 * np.linalg.norm(T[:3, 3] - T0[:3, 3]))
 
         seen: dict[str, list[tuple[str, np.ndarray]]] = {}  # vehicle -> [(name, extrinsic)]
@@ -542,9 +541,7 @@ def _sim_pose_or_reason(node) -> tuple[np.ndarray | None, str]:
             return None, f"a value beyond float range in {short_repr(node)}"
         if not np.all(np.isfinite(T)):
             return None, f"non-finite values in {short_repr(node)}"
-        R = T[:3, :3]
-        if not np.allclose(T[3], [0, 0, 0, 1], atol=_ROTATION_TOL) or \
-                not np.allclose(R.T @ R, np.eye(3), atol=_ROTATION_TOL) or np.linalg.det(R) <= 0:
+        if not is_rigid(T, _ROTATION_TOL):
             return None, f"{short_repr(node)} is not rigid (rotation not orthonormal or last row not [0, 0, 0, 1])"
     else:
         return None, f"{short_repr(node)} is neither a {{rotation, translation}} object nor a 4x4 list of numbers"

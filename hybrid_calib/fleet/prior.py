@@ -46,7 +46,7 @@ import numpy as np
 
 from hybrid_calib.config import save_json_atomic
 from hybrid_calib.errors import DataError
-from hybrid_calib.geometry import local, retract
+from hybrid_calib.geometry import is_rigid, local, retract
 
 MIN_VEHICLES = 3  # fewer inliers say nothing about a spread
 PINNED_INFLATION = 100.0  # priors carry this x the common-mode covariance P (module doc): no pull there
@@ -227,8 +227,7 @@ def _check_prior(k: str, p: dict) -> None:
         raise ValueError(f"prior {k!r} needs T_cam_radar 4x4 and cov_right_radar 6x6")
     if not (np.isfinite(T).all() and np.isfinite(C).all()):
         raise ValueError(f"prior {k!r} holds non-finite values")
-    R = T[:3, :3]
-    if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) <= 0 or not np.allclose(T[3], [0, 0, 0, 1]):
+    if not is_rigid(T):
         raise ValueError(f"prior {k!r}: T_cam_radar is not a rigid transform")
     if not np.allclose(C, C.T, atol=1e-12 + 1e-9 * np.abs(C).max()) or np.linalg.eigvalsh(0.5 * (C + C.T)).min() <= 0:
         raise ValueError(f"prior {k!r}: cov_right_radar is not symmetric positive definite")
