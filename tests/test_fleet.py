@@ -365,6 +365,32 @@ def test_a_fleet_prior_tightens_a_vehicle(fleet_root, local_run, tmp_path):
     before, after = s["vehicles"]["sim-veh-000"]["std_cam"], s2["vehicles"]["sim-veh-000"]["std_cam"]
     assert after["t_y_cam_cm"] < 0.5 * before["t_y_cam_cm"]
     assert s2["vehicles"]["sim-veh-001"]["std_cam"] == s["vehicles"]["sim-veh-001"]["std_cam"]  # no prior: as before
+    # the result says the prior was applied and which axes it dominates (the verdict restates it there)
+    assert s2["vehicles"]["sim-veh-000"]["prior"] is not None and s2["vehicles"]["sim-veh-001"]["prior"] is None
+    drift = json.loads((tmp_path / "vehicles/sim-veh-000/result.json").read_text())["vehicles"]["sim-veh-000"]["drift"]
+    assert "fleet prior" in drift["verdict"] and drift["prior"]["words"] in drift["verdict"]
+
+
+def test_a_fleet_prior_is_applied_only_to_the_vehicle_it_was_fitted_on(local_run, fleet_root, tmp_path):
+    """Another fleet's prior whose vehicle names matched gave each vehicle a stranger's leave-one-out prior:
+    'differs by 4.71 cm: recalibrate', NEES 252. The file now records where each vehicle came from."""
+    from hybrid_calib.fleet.prior import load_priors, match_prior
+
+    doc = json.loads((local_run[0] / "fleet_prior.json").read_text())
+    assert doc["basis"]["vehicles"] >= 3 and doc["basis"]["frames"] > 0
+    priors = load_priors(local_run[0] / "fleet_prior.json")
+    name = next(k for k, p in priors.items() if k != "*" and p is not None)
+    src = doc["sources"][name]
+    p, note = match_prior(priors, name, src["data"], "v1.0-sim", src["vehicle"])
+    assert p is priors[name] and note is None
+    p, note = match_prior(priors, name, str(tmp_path), "v1.0-sim", src["vehicle"])  # same name, other root
+    assert p is priors["*"] and "not on this root's; it gets the new-vehicle prior" in note
+    p, note = match_prior(priors, "a-new-one", str(tmp_path), "v1.0-sim", "a-new-one")
+    assert p is priors["*"] and note is None
+    del doc["sources"]  # an older file: applied by name, with a word
+    (tmp_path / "old.json").write_text(json.dumps(doc))
+    p, note = match_prior(load_priors(tmp_path / "old.json"), name, str(tmp_path), "v1.0-sim", name)
+    assert p is not None and "by name only" in note
 
 
 def test_fleet_file_lists_roots_and_bad_files_name_themselves(tmp_path):
@@ -440,7 +466,9 @@ def test_roots_of_one_folder_name_get_job_ids_that_tell_them_apart(fleet_root, t
     (lambda p: p.__setitem__("T_cam_radar", np.full((4, 4), np.nan).tolist()), "holds non-finite values"),
     (lambda p: p.__setitem__("cov_right_radar", (-np.eye(6)).tolist()), "not symmetric positive definite"),
     (lambda p: p.__setitem__("T_cam_radar", (2 * np.eye(4)).tolist()), "not a rigid transform"),
-], ids=["nan", "negative-cov", "not-rigid"])
+    # 1e-14: every vehicle pinned to the prior's mean, "recalibrate" with micro-degree stds
+    (lambda p: p.__setitem__("cov_right_radar", (np.eye(6) * 1e-14).tolist()), "tighter than any fleet can know"),
+], ids=["nan", "negative-cov", "not-rigid", "absurdly-tight"])
 def test_a_damaged_fleet_prior_is_named_on_load(damage, needle, tmp_path):
     """Each was accepted and then failed every vehicle as an 'internal error' blaming the vehicle's data."""
     from hybrid_calib.errors import DataError
@@ -449,7 +477,7 @@ def test_a_damaged_fleet_prior_is_named_on_load(damage, needle, tmp_path):
     prior = {"T_cam_radar": np.eye(4).tolist(), "cov_right_radar": (np.eye(6) * 1e-4).tolist()}
     path = tmp_path / "fleet_prior.json"
     path.write_text(json.dumps({"priors": {"v": prior}}))
-    assert load_priors(path)["v"] == prior
+    assert load_priors(path)["v"] == {**prior, "file": str(path)}
     damage(prior)
     path.write_text(json.dumps({"priors": {"v": prior}}))
     with pytest.raises(DataError, match=f"fleet prior unreadable .*{needle}"):

@@ -283,6 +283,20 @@ def reference_test(
                          kind, sentence, tuple(axes), z)
 
 
+PRIOR_DOMINATED = 0.7  # posterior std >= this x the external prior's on an axis: the data hardly moved it there
+
+
+def prior_note(std_post: np.ndarray, std_prior: np.ndarray) -> dict:
+    """What an external prior (the fleet's) did to an estimate: ``std_post`` and ``std_prior`` (6,) camera-axis
+    std [deg x3, cm x3]; the axes where the posterior's std is still >= ``PRIOR_DOMINATED`` x the prior's are
+    named ("dominated"): there the estimate, and a verdict against the tables, restate the prior."""
+    std_post, std_prior = np.asarray(std_post, float), np.asarray(std_prior, float)
+    dom = [AXIS_WORDS[i] for i in range(6) if std_post[i] >= PRIOR_DOMINATED * std_prior[i]]
+    words = (f"the fleet prior dominates {', '.join(dom)} (the drive's data left its std there): the verdict on "
+             "those axes restates the prior" if dom else "the fleet prior was applied; the drive's data dominate")
+    return {"std_prior_cam": std_prior.tolist(), "dominated": dom, "words": words}
+
+
 @dataclass
 class StepTest:
     """One evaluation of the windowed step test. statistic: scaled (``raw / scale``); armed: the

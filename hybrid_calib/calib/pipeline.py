@@ -212,6 +212,11 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, rng, progress: bo
     res = VehicleResult(vi.vehicle, final, traj, skipped=skipped, n_frames=len(frames))
     fc = conf.window.factor if conf.mode == "window" else conf.batch.factor
     res.drift = reference_test(final.T, final.cov, vi.reference, conf.drift, prior_pinned_std(fc)).to_dict()
+    if prior is not None:
+        from hybrid_calib.calib.drift import prior_note
+
+        res.drift["prior"] = prior_note(final.std, report_std(np.asarray(prior.T), np.asarray(prior.cov)))
+        res.drift["verdict"] = f"{res.drift['verdict']} ({res.drift['prior']['words']})"
     res.network = _network_summary(vi)
     if vi.truth:
         T_true = vi.truth[-1]

@@ -91,6 +91,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"{c['vehicles']} vehicles: {c['done']} done, {c['failed']} failed; {c['out_of_tolerance']} out of "
           f"tolerance, {c['drifted_in_drive']} drifted inside the drive, {c['fleet_outliers']} fleet outlier(s)"
           + (f" ({', '.join(summary['fleet_prior']['outliers'])})" if c["fleet_outliers"] else ""))
+    for note in summary.get("notes") or []:
+        print(f"  note: {note}")
     for jid, r in summary["vehicles"].items():
         if r["state"] == "failed":
             print(f"  failed {jid}: {r['reason']}")

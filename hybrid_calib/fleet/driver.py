@@ -45,7 +45,11 @@ def run_fleet(roots: list[str] | None, manifest: str | None, version: str, metho
     sources = read_fleet_file(manifest, version) if manifest else [(str(r), version, None) for r in roots or []]
     if manifest:
         check_fleet_roots(sources, manifest)
-    jobs = discover_jobs(sources, method, out, seed, checkpoint, calib, priors, options.threads)
+    notes: list[str] = []
+    jobs = discover_jobs(sources, method, out, seed, checkpoint, calib, priors, options.threads, notes)
+    if priors is not None and not any(j.prior is not None for j in jobs):
+        notes.append(f"the fleet prior holds no prior for any of the {len(jobs)} vehicle(s) (its vehicles: "
+                     f"{sorted(k for k in priors if k != '*')[:6]}, and no new-vehicle prior '*'): none is applied")
     m = Manifest.open(out / "manifest.json", jobs, method, seed)
     todo = m.todo()
     host = socket.gethostname()
@@ -60,4 +64,5 @@ def run_fleet(roots: list[str] | None, manifest: str | None, version: str, metho
                    options.address, options.ray_temp or out / "ray", options.retries, None, options.object_store_mb)
     finally:  # also when interrupted: the bookkeeping of every finished job reaches the file
         m.flush()
-    return write_summary(m, plot=options.plots, alpha=options.alpha)
+    summary = write_summary(m, plot=options.plots, alpha=options.alpha, notes=notes)
+    return summary

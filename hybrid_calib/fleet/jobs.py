@@ -160,10 +160,13 @@ def check_fleet_roots(sources: list[tuple[str, str, tuple[str, ...] | None]], ma
 
 def discover_jobs(roots: list[tuple[str, str, tuple[str, ...] | None]], method: str, out: str | Path,
                   seed: int = 0, checkpoint: str | None = None, calib: dict | None = None,
-                  priors: dict | None = None, threads: int = 1) -> list[Job]:
+                  priors: dict | None = None, threads: int = 1, notes: list[str] | None = None) -> list[Job]:
     """One job per vehicle of every root ([(root, version, vehicles or None)]), sorted by id. A vehicle
     name found in two roots gets its root's folder name as a prefix (``<folder>-<vehicle>``).
-    ``priors``: ``fleet.prior.load_priors`` (job id -> prior dict or None; "*" for any other job)."""
+    ``priors``: ``fleet.prior.load_priors`` (job id -> prior dict or None; "*" for any other job), matched by
+    ``fleet.prior.match_prior``; what it says about the match is appended to ``notes``."""
+    from hybrid_calib.fleet.prior import match_prior
+
     if method not in METHODS:
         raise HybridCalibError(f"--method {method!r}; valid: {METHODS}")
     found = []
@@ -178,8 +181,9 @@ def discover_jobs(roots: list[tuple[str, str, tuple[str, ...] | None]], method: 
     jobs = []
     for root, version, v, info in found:
         jid = v if names.count(v) == 1 else f"{labels[root]}-{v}"
-        priors = priors or {}
-        prior = priors[jid] if jid in priors else priors.get("*")  # an outlier's None stays None
+        prior, note = match_prior(priors or {}, jid, str(root), version, v)
+        if note is not None and notes is not None:
+            notes.append(note)
         jobs.append(Job(jid, v, str(root), version, method, str(Path(out) / "vehicles" / jid), seed, checkpoint,
                         dict(calib or {}), prior, info["tables_T"], info["design_T"], threads))
     ids = [j.id for j in jobs]

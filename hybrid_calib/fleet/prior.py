@@ -51,6 +51,10 @@ from hybrid_calib.geometry import is_rigid, local, retract
 MIN_VEHICLES = 3  # fewer inliers say nothing about a spread
 PINNED_INFLATION = 100.0  # priors carry this x the common-mode covariance P (module doc): no pull there
 VAR_FLOOR = (np.radians(1e-3) ** 2,) * 3 + ((1e-5) ** 2,) * 3  # (6,) [rad^2, m^2]: keeps S positive
+# a prior tighter than this on any axis (std, [rad x3, m x3]) is refused on load: no target-free calibration of a
+# fleet knows a mount to better than a hundredth of a degree or a millimetre (a 1e-14 covariance pinned every
+# vehicle to the prior's mean and called each "recalibrate" with micro-degree stds)
+MIN_PRIOR_STD = (np.radians(0.01),) * 3 + (1e-3,) * 3
 
 
 @dataclass(frozen=True)
@@ -132,6 +136,9 @@ class FleetPrior:
     loo: dict[str, Fit] = field(default_factory=dict)  # inlier name -> fit without it
     alpha: float = 1e-3
     common_cov: np.ndarray = field(default_factory=lambda: np.zeros((6, 6)))  # P (module doc)
+    # name -> {"data": root (resolved), "version", "vehicle", "frames"}: where each vehicle came from, so that a
+    # later fleet applies a named prior only to the same vehicle of the same root (``match_prior``)
+    sources: dict[str, dict] = field(default_factory=dict)
 
     @property
     def T_mean(self) -> np.ndarray:
@@ -175,7 +182,9 @@ class FleetPrior:
             "common_cov_right_radar": self.common_cov.tolist(),
             "alpha": self.alpha, "iterations": self.fit.iterations,
             "vehicles": self.names, "inliers": self.inliers, "outliers": self.outliers, "tests": self.tests,
-            "priors": self.priors(),
+            "priors": self.priors(), "sources": self.sources,
+            "basis": {"vehicles": len(self.names), "inliers": len(self.inliers),
+                      "frames": sum(int(v.get("frames") or 0) for v in self.sources.values()) or None},
         }
 
     def save(self, path: str | Path) -> Path:
@@ -183,10 +192,12 @@ class FleetPrior:
 
 
 def fit_fleet_prior(names: list[str], Ts: list[np.ndarray], covs: list[np.ndarray], T_ref: np.ndarray,
-                    alpha: float = 1e-3, rounds: int = 10, common_cov: np.ndarray | None = None) -> FleetPrior:
+                    alpha: float = 1e-3, rounds: int = 10, common_cov: np.ndarray | None = None,
+                    sources: dict[str, dict] | None = None) -> FleetPrior:
     """Fit the fleet model (module doc) to vehicles ``names`` with estimates ``Ts`` (each (4, 4)) and
     covariances ``covs`` (each (6, 6), right tangent, radar frame, [rad, m]) around ``T_ref`` (4, 4).
     ``common_cov`` (6, 6): the part of every ``covs[i]`` shared by all vehicles (P; default none).
+    ``sources``: name -> {"data", "version", "vehicle", "frames"} (``FleetPrior.sources``).
     ``DataError`` with fewer than ``MIN_VEHICLES`` vehicles."""
     from scipy.stats import chi2
 
@@ -215,7 +226,7 @@ def fit_fleet_prior(names: list[str], Ts: list[np.ndarray], covs: list[np.ndarra
         np.asarray(T_ref, np.float64), list(names), fit, [names[i] for i in inl],
         {names[i]: {"d2": tests[i][0], "p_value": tests[i][1]} for i in range(len(names)) if i not in inl},
         {names[i]: {"d2": tests[i][0], "p_value": tests[i][1]} for i in range(len(names))},
-        {names[i]: f for i, f in loo.items()}, alpha, P)
+        {names[i]: f for i, f in loo.items()}, alpha, P, dict(sources or {}))
 
 
 def _check_prior(k: str, p: dict) -> None:
@@ -231,23 +242,69 @@ def _check_prior(k: str, p: dict) -> None:
         raise ValueError(f"prior {k!r}: T_cam_radar is not a rigid transform")
     if not np.allclose(C, C.T, atol=1e-12 + 1e-9 * np.abs(C).max()) or np.linalg.eigvalsh(0.5 * (C + C.T)).min() <= 0:
         raise ValueError(f"prior {k!r}: cov_right_radar is not symmetric positive definite")
+    std = np.sqrt(np.diag(C))
+    if (low := np.flatnonzero(std < np.asarray(MIN_PRIOR_STD))).size:
+        axes = ", ".join(("rot x", "rot y", "rot z", "t x", "t y", "t z")[i] for i in low)
+        raise ValueError(f"prior {k!r}: cov_right_radar is tighter than any fleet can know a mount ({axes}: std "
+                         f"{', '.join(f'{std[i]:.2g}' for i in low)} [rad | m], floor 0.01 deg / 1 mm)")
 
 
 def load_priors(path: str | Path) -> dict[str, dict]:
     """``fleet_prior.json`` (``FleetPrior.save``) -> its "priors" (job id -> {"T_cam_radar",
-    "cov_right_radar"}, or None for a named outlier; "*" for a new vehicle); ``DataError`` naming the file."""
+    "cov_right_radar", "file", and "source" where the file records it}, or None for a named outlier; "*" for a new
+    vehicle); ``DataError`` naming the file (also for a prior tighter than ``MIN_PRIOR_STD``)."""
     import json
 
     path = Path(path)
     try:
         doc = json.loads(path.read_text())
         priors = doc["priors"]
+        sources = doc.get("sources") or {}
         if not isinstance(priors, dict):
             raise TypeError(f"'priors' is a JSON {type(priors).__name__}, not an object of job id -> prior")
+        if not isinstance(sources, dict) or not all(isinstance(v, dict) for v in sources.values()):
+            raise TypeError("'sources' is not an object of vehicle -> {data, version, vehicle, frames}")
         for k, p in priors.items():
             if p is not None:
                 _check_prior(k, p)
     except (OSError, ValueError, KeyError, TypeError, AttributeError, np.linalg.LinAlgError) as e:
         raise DataError(f"fleet prior unreadable ({type(e).__name__}: {e}); pass the fleet_prior.json of a "
                         "hybrid-calib fleet run", path=str(path)) from None
-    return dict(priors)
+    out = {}
+    for k, p in priors.items():
+        if p is not None:
+            p = {"T_cam_radar": p["T_cam_radar"], "cov_right_radar": p["cov_right_radar"], "file": str(path)}
+            if isinstance(sources.get(k), dict):
+                p["source"] = {f: sources[k].get(f) for f in ("data", "version", "vehicle")}
+        out[k] = p
+    return out
+
+
+def same_source(source: dict, data: str, version: str, vehicle: str) -> bool:
+    """Whether a prior's recorded ``source`` ({"data", "version", "vehicle"}) is vehicle ``vehicle`` of root
+    ``data`` (compared resolved) and ``version``."""
+    try:
+        same_root = Path(str(source.get("data"))).resolve() == Path(data).resolve()
+    except (OSError, RuntimeError):
+        same_root = False
+    return same_root and source.get("version") == version and source.get("vehicle") == vehicle
+
+
+def match_prior(priors: dict, job_id: str, data: str, version: str, vehicle: str) -> tuple[dict | None, str | None]:
+    """The prior for a job (``load_priors``' dict): the one named ``job_id`` when it was fitted on this very
+    vehicle of this root, else the new-vehicle prior "*"; with a note (str) when a named prior was passed over or
+    could not be checked (a file without "sources"), else None. A named outlier's None stays None."""
+    if job_id not in priors:
+        return priors.get("*"), None
+    p = priors[job_id]
+    if p is None:
+        return None, None
+    src = p.get("source")
+    if src is None:
+        return p, (f"{job_id}: the fleet prior's file records no source for its vehicles; its prior named "
+                   f"{job_id!r} is applied by name only (refit it with this version to check)")
+    if same_source(src, data, version, vehicle):
+        return p, None
+    return priors.get("*"), (f"{job_id}: the fleet prior named {job_id!r} was fitted on vehicle {src.get('vehicle')} "
+                             f"of {src.get('data')} ({src.get('version')}), not on this root's; it gets the "
+                             "new-vehicle prior instead")

@@ -94,6 +94,8 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
         j = e["job"]
         row = {"vehicle": j["vehicle"], "data": j["data"], **{k: e.get(k) for k in (
             "state", "reason", "file", "attempts", "wall_s", "host", "result")}, "plots": [], "flags": []}
+        pj = j.get("prior")
+        row["prior"] = None if pj is None else {"file": pj.get("file"), "source": pj.get("source")}
         rows[jid] = row
         if e["state"] != "done" or not e.get("result"):
             continue
@@ -125,7 +127,11 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
     if fit_prior and len(results) >= MIN_VEHICLES:
         names = sorted(results)
         prior = fit_fleet_prior(names, [results[n].final.T for n in names], [results[n].final.cov for n in names],
-                                T_ref, alpha, common_cov=common_cov([m.jobs[n]["job"] for n in names]))
+                                T_ref, alpha, common_cov=common_cov([m.jobs[n]["job"] for n in names]),
+                                sources={n: {"data": str(Path(m.jobs[n]["job"]["data"]).resolve()),
+                                             "version": m.jobs[n]["job"]["version"],
+                                             "vehicle": m.jobs[n]["job"]["vehicle"], "frames": results[n].n_frames}
+                                         for n in names})
         for n in names:
             rows[n]["fleet_test"] = prior.tests[n]
             if n in prior.outliers:
@@ -145,10 +151,12 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
     return summary, prior
 
 
-def write_summary(m: Manifest, plot: bool = True, alpha: float = 1e-3) -> dict:
+def write_summary(m: Manifest, plot: bool = True, alpha: float = 1e-3, notes: list[str] | None = None) -> dict:
     """Write ``summary.json``, ``summary.md``, ``fleet_prior.json`` (with >= 3 done vehicles) and
-    ``fleet.png`` beside the manifest; returns the summary."""
+    ``fleet.png`` beside the manifest; returns the summary. ``notes``: sentences for the reader (which fleet
+    prior a vehicle got and why; ``run_fleet``)."""
     summary, prior = build_summary(m, alpha=alpha)
+    summary["notes"] = list(notes or [])
     base = m.path.parent
     if prior is not None:
         prior.save(base / "fleet_prior.json")
@@ -172,6 +180,11 @@ def summary_markdown(s: dict) -> str:
              f"not finished; {c['out_of_tolerance']} out of tolerance, {c['drifted_in_drive']} drifted inside the "
              f"drive, {c['fleet_outliers']} fleet outlier(s), {c['degenerate']} degenerate, "
              f"{c.get('inconclusive', 0)} inconclusive (out of the network's domain), {c['weak']} weak.", ""]
+    lines += [f"Note: {n}" for n in s.get("notes") or []] + ([""] if s.get("notes") else [])
+    applied = sorted({(r.get("prior") or {}).get("file") for r in s["vehicles"].values()} - {None})
+    if applied:
+        lines += [f"Fleet prior applied (from {', '.join(applied)}): "
+                  f"{sum(bool(r.get('prior')) for r in s['vehicles'].values())} of {c['vehicles']} vehicles.", ""]
     fp = s.get("fleet_prior")
     if fp:
         sp = fp["spread_std_cam"]
