@@ -260,9 +260,18 @@ def load_checkpoint(path: str | Path, model: torch.nn.Module | None = None,
 
 def set_export_overrides(path: str | Path, overrides: dict[str, Any], note: str = "") -> Path:
     """Store ``learned.export.ExportConfig`` overrides (e.g. a fitted ``cov_scale``) in a checkpoint's
-    JSON (``"export"``, merged into what is there; ``note`` says how they were fitted). Atomic."""
+    JSON (``"export"``, merged into what is there; ``note`` says how they were fitted). A value it replaces is
+    kept, with its note and the time, in ``"export_history"`` (a refit on four frames silently replaced one
+    fitted on 240). Atomic."""
+    import datetime
+
     path, meta = read_checkpoint_meta(path)
-    meta["export"] = {**meta.get("export", {}), **overrides}
+    old = meta.get("export") or {}
+    when = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+    meta.setdefault("export_history", []).extend(
+        {"key": k, "value": old[k], "note": (meta.get("export_notes") or {}).get(k, ""), "replaced_at": when}
+        for k in overrides if k in old and old[k] != overrides[k])
+    meta["export"] = {**old, **overrides}
     if note:
         meta.setdefault("export_notes", {}).update({k: note for k in overrides})
     return save_json_atomic(path, meta)

@@ -324,6 +324,28 @@ def test_checkpoint_round_trip_restores_model_and_optimizer(tmp_path):
         load_checkpoint(tmp_path / "ckpt-0099.json")
 
 
+def test_a_refit_keeps_the_value_it_replaces_and_shipped_checkpoints_are_not_rewritten(tmp_path):
+    """A four-frame refit silently replaced a cov_scale fitted on 240 frames; pointed at the package's own
+    checkpoint, evaluate --fit-uncertainty would have rewritten the installation in place."""
+    from pathlib import Path
+
+    import learned
+    from hybrid_calib.commands.evaluate import refuse_shipped
+    from learned.checkpoint import save_checkpoint, set_export_overrides
+
+    path = save_checkpoint(tmp_path / "ckpt-0001", torch.nn.Linear(2, 2), epoch=1, model_config={"a": 1})
+    set_export_overrides(path, {"cov_scale": [2.0] * 6}, "fitted on 240 frames")
+    set_export_overrides(path, {"cov_scale": [2.0] * 6}, "the same value again")  # nothing replaced
+    set_export_overrides(path, {"cov_scale": [0.5] * 6, "sigma_scale": 1.1}, "fitted on 4 frames")
+    meta = json.loads(path.read_text())
+    assert meta["export"]["cov_scale"] == [0.5] * 6 and meta["export_notes"]["cov_scale"] == "fitted on 4 frames"
+    (old,) = meta["export_history"]
+    assert old["key"] == "cov_scale" and old["value"] == [2.0] * 6 and old["note"] == "the same value again"
+    with pytest.raises(HybridCalibError, match="shipped with the package; copy"):
+        refuse_shipped(Path(learned.__file__).parent / "checkpoints" / "small-sim-r1.json")
+    refuse_shipped(path)  # a checkpoint of the user's own
+
+
 # ------------------------------------------------------------------------------------ evaluation
 
 

@@ -64,6 +64,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
 
+def refuse_shipped(path: str | Path) -> None:
+    """``HybridCalibError`` when ``path`` is one of the checkpoints shipped inside the installed package: a fit
+    written there would change every later run of every user of this installation."""
+    import learned
+
+    shipped = (Path(learned.__file__).parent / "checkpoints").resolve()
+    if Path(path).resolve().is_relative_to(shipped):
+        raise HybridCalibError(f"--fit-uncertainty would rewrite {path}, a checkpoint shipped with the package; copy "
+                               "its .json and .safetensors into a folder of yours and pass the copy as --checkpoint")
+
+
 def trained_on(checkpoint: str | Path, roots) -> list[str]:
     """The ``roots`` the training run of ``checkpoint`` read (its run folder's ``train_config.json`` "data"), [] when
     it does not say (a shipped checkpoint records its data in words, in ``provenance``)."""
@@ -131,6 +142,7 @@ def run(args: argparse.Namespace) -> int:
             raise HybridCalibError(f"--fit-uncertainty with --split {args.split} on {', '.join(seen)}, a root the "
                                    f"checkpoint was trained on ({last.path}): its frames would make the covariance "
                                    "look honest where it was fitted; use --split val, or a root it never saw")
+        refuse_shipped(last.path)
         conf["export"]["cov_scale"] = 1.0  # fit against the raw covariance
     deep_update(conf, user)  # --set export.KEY=... changes that value and keeps the checkpoint's others
     # the LiDAR-camera variant calibrates T_cam_lidar from LiDAR points; lidar-densified depth reads them too
@@ -153,7 +165,7 @@ def run(args: argparse.Namespace) -> int:
               f"{100 * u['inside_95']:.1f} % inside the 95 % ellipsoid ({u['n_frames']} frames)")
     print(f"wrote {Path(args.out) / 'results.json'} and results.md")
     if args.fit_uncertainty:
-        from learned.checkpoint import set_export_overrides
+        from learned.checkpoint import read_checkpoint_meta, set_export_overrides
         from learned.evaluate import tangent_errors
         from learned.export import calibrate_cov_scale
 
@@ -170,6 +182,14 @@ def run(args: argparse.Namespace) -> int:
         roots = " ".join(str(d) for d in args.data)
         note = (f"per-axis fit on {len(errors)} frames of {roots} (split {args.split}, range "
                 f"{args.perturbation}) by hybrid-calib evaluate --fit-uncertainty")
+        _, meta = read_checkpoint_meta(last.path)
+        before, notes = meta.get("export") or {}, meta.get("export_notes") or {}
         set_export_overrides(last.path, {"cov_scale": scale}, note)
         print(f"fitted cov_scale {', '.join(f'{v:.3g}' for v in scale)} -> written to {last.path}")
+        if "cov_scale" in before:
+            print(f"  it replaces cov_scale {before['cov_scale']} ({notes.get('cov_scale') or 'no note'}); the old "
+                  "value is kept in the checkpoint's export_history")
+        if stale := [k for k in ("hybrid", "sigma_scale") if k in before]:
+            print(f"  note: export.{' and export.'.join(stale)} were fitted with the earlier covariance scale; refit "
+                  "them for this one (docs/benchmarks.md names the commands)")
     return 0
