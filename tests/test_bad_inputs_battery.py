@@ -442,6 +442,10 @@ SET_CASES = [
     (["simulate"], "scenario=nosuch", ["nosuch"]),
     (["simulate"], "image_scale=0", ["image_scale=0", "0.01..4"]),
     (["simulate"], "image_scale=-1", ["image_scale=-1"]),
+    # these failed every frame (or wrote 0-byte LiDAR files) and still ended "wrote ... x 2 frames", rc 0
+    (["simulate"], "radar.clutter_per_sweep=-3", ["at radar", "0 <= clutter_per_sweep", "clutter_per_sweep=-3"]),
+    (["simulate"], "lidar.azimuth_steps=0", ["at lidar", "0 < azimuth_steps", "azimuth_steps=0"]),
+    (["simulate"], "radar.ghost_probability=2", ["0 <= ghost_probability <= 1"]),
     (["demo"], "image_scale=0", ["image_scale=0"]),
     (["demo"], "engine=nosuch", ["engine='nosuch'", "local"]),
     (["demo"], "method=nosuch", ["method='nosuch'"]),
@@ -885,15 +889,27 @@ def captured_sim(monkeypatch):
 @pytest.mark.parametrize("argv,kind,frame", [
     (["--set", "extrinsic_change.kind=step", "extrinsic_change.frame=2"], "step", 2),
     (["--set", "extrinsic_change.kind=step", "--change-frame", "3"], "step", 3),
-    (["--set", "extrinsic_change.kind=step", "--extrinsic-change", "drift"], "drift", -1),
+    (["--set", "extrinsic_change.kind=step", "--extrinsic-change", "step"], "step", -1),
     ([], "none", -1),
-], ids=["set-only", "set-and-frame-flag", "flag-wins", "defaults"])
+], ids=["set-only", "set-and-frame-flag", "flag-agrees", "defaults"])
 def test_simulate_honours_set_extrinsic_change(argv, kind, frame, captured_sim, tmp_path, capsys):
     """The --extrinsic-change / --change-frame defaults used to overwrite --set extrinsic_change.* silently."""
     rc, err = run_cli(["simulate", "--out", tmp_path / "s", "--frames", "6", *argv], capsys)
     assert rc == 0, err
     (conf,) = captured_sim
     assert (conf.extrinsic_change.kind, conf.extrinsic_change.frame) == (kind, frame)
+
+
+@pytest.mark.parametrize("argv,needles", [
+    (["--set", "extrinsic_change.kind=step", "--extrinsic-change", "drift"],
+     ["--extrinsic-change", "'drift' contradicts --set extrinsic_change.kind='step'"]),
+    (["--extrinsic-change", "none", "--change-frame", "2"], ["--change-frame", "the extrinsic change is 'none'"]),
+    (["--extrinsic-change", "drift", "--change-frame", "2"], ["--change-frame", "--extrinsic-change step"]),
+], ids=["flag-contradicts-set", "frame-without-step", "frame-with-drift"])
+def test_simulate_names_contradicting_change_options(argv, needles, captured_sim, tmp_path, capsys):
+    """The flag silently won over --set, and --change-frame without a step was ignored without a word."""
+    expect_cli_error(["simulate", "--out", tmp_path / "s", "--frames", "6", *argv], capsys, *needles)
+    assert captured_sim == []
 
 
 def test_simulate_set_extrinsic_change_not_a_group(captured_sim, tmp_path, capsys):

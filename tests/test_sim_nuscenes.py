@@ -210,3 +210,19 @@ def test_refuses_a_foreign_non_empty_folder(tmp_path, monkeypatch, capsys):
     keep.write_bytes(b"x")
     assert run_cli(monkeypatch, "--frames", "1", "--out", str(tmp_path), "--overwrite") == 2
     assert "no sim_config.json" in capsys.readouterr().err and keep.is_file()
+
+
+def test_a_simulation_where_every_frame_fails_ends_in_an_error(tmp_path, monkeypatch):
+    """A config every frame failed on ended rc 0, "wrote nuScenes root ... x 2 frames", an empty sample table."""
+    from hybrid_calib.config import merge
+    from hybrid_calib.errors import HybridCalibError
+    from hybrid_calib.sim import simulate as sim_module
+    from hybrid_calib.sim.drive import SimConfig
+
+    def broken(job):
+        return job[1], job[3].index, "Traceback (most recent call last):\n  ...\nValueError: lam < 0 or lam is NaN\n"
+
+    monkeypatch.setattr(sim_module, "_work", broken)
+    with pytest.raises(HybridCalibError, match=r"no frame could be simulated \(all 2 failed; first, vehicle 0 frame 0: "
+                                               r"ValueError: lam < 0 or lam is NaN\); check the --set values"):
+        sim_module.simulate(merge(SimConfig, {"frames": 2, "image_scale": 0.125}), tmp_path / "s", workers=1)

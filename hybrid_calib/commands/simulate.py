@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 from hybrid_calib.commands import given_flags, positive_int
@@ -42,13 +43,31 @@ def run(args: argparse.Namespace) -> int:
     flags = given_flags(args, {"kind": "extrinsic_change", "frame": "change_frame"})
     change = overrides.get("extrinsic_change", {})
     if flags and isinstance(change, dict):  # not a dict: merge names the bad --set value
+        for key, flag in (("kind", "--extrinsic-change"), ("frame", "--change-frame")):
+            if key in flags and key in change and change[key] != flags[key]:
+                raise OptionError(flag, f"{flags[key]!r} contradicts --set extrinsic_change.{key}={change[key]!r}; "
+                                        "pass one of them")
         overrides["extrinsic_change"] = {**change, **flags}
     conf = merge(SimConfig, overrides)  # ConfigError (unknown key, wrong type, bad value) names the option
     step = conf.extrinsic_change
+    if "frame" in flags and step.kind != "step":  # it was ignored without a word
+        raise OptionError("--change-frame", f"places a step, but the extrinsic change is {step.kind!r}; pass "
+                                            "--extrinsic-change step, or drop --change-frame")
     if step.kind == "step" and not -1 <= step.frame < conf.frames:
         raise OptionError("--change-frame", f"frame {step.frame} is outside the drive's {conf.frames} frames; pass "
                                             f"0..{conf.frames - 1} (or -1 for the middle)")
     root = simulate(conf, args.out, overwrite=args.overwrite, workers=args.workers)
-    print(f"wrote nuScenes root {root} (version v1.0-sim): {conf.vehicles} vehicle(s) x {conf.frames} frames, "
+    truth = Path(root) / "v1.0-sim" / "sim_vehicle.json"
+    failed = {v["vehicle"]: len(v.get("failed_frames") or []) for v in
+              (json.loads(truth.read_text()) if truth.is_file() else [])}
+    n_bad = sum(failed.values())
+    frames = f"{conf.frames} frames" if not n_bad else \
+        f"{conf.frames} frames, {conf.vehicles * conf.frames - n_bad} of {conf.vehicles * conf.frames} written"
+    print(f"wrote nuScenes root {root} (version v1.0-sim): {conf.vehicles} vehicle(s) x {frames}, "
           f"scenario {conf.scenario}")
-    return 0
+    for name, n in failed.items():
+        if n:
+            print(f"  {name}: {n} of {conf.frames} frames failed and were left out "
+                  f"({'every frame: it has no samples' if n == conf.frames else 'see failed_frames'} in "
+                  f"{Path(root) / 'v1.0-sim' / 'sim_vehicle.json'})")
+    return 0 if not n_bad else 1

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hybrid_calib.config import require
 from hybrid_calib.sim.raycast import GROUND, Primitives, cast_angular, check_pose
 
 
@@ -28,6 +29,20 @@ class LidarConfig:
     range_noise_m: float = 0.02  # range noise standard deviation, metres
     dropout_probability: float = 0.03  # chance that a return is lost
     intensity_noise: float = 0.05  # relative intensity noise
+
+    def __post_init__(self):
+        # azimuth_steps=0 wrote 0-byte LiDAR files without a word
+        require(self, {**{f"0 < {n} < inf": 0 < getattr(self, n) < np.inf
+                          for n in ("n_beams", "azimuth_steps", "max_range_m")},
+                       **{f"0 <= {n} < inf": 0 <= getattr(self, n) < np.inf
+                          for n in ("min_range_m", "range_noise_m", "intensity_noise")},
+                       "0 <= dropout_probability < 1": 0 <= self.dropout_probability < 1})
+        if not self.min_range_m < self.max_range_m:
+            raise ValueError(f"min_range_m={self.min_range_m} must be below max_range_m={self.max_range_m}")
+        if not (self.elevation_min_deg < self.elevation_max_deg or (self.n_beams == 1 and np.isfinite(
+                self.elevation_min_deg) and self.elevation_min_deg == self.elevation_max_deg)):
+            raise ValueError(f"elevation_min_deg={self.elevation_min_deg} must be below elevation_max_deg="
+                             f"{self.elevation_max_deg}")
 
 
 def beam_elevations(conf: LidarConfig) -> np.ndarray:

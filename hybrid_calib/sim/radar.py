@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hybrid_calib.config import require
 from hybrid_calib.data.pcd import empty_radar_points
 from hybrid_calib.sim.raycast import Primitives, cast_angular, check_pose
 
@@ -66,6 +67,25 @@ class RadarConfig:
     rcs_floor_db: float | None = None  # None: no floor; else points whose RCS is below it are rarely reported
     # (the ARS 408 cluster list of nuScenes holds almost nothing under -5 dBsm), dBsm
     rcs_floor_width_db: float = 1.0  # width of the soft RCS floor's sigmoid, dB
+
+    def __post_init__(self):
+        # a value no radar has (clutter_per_sweep=-3 failed every frame with numpy's "lam < 0", and the run ended
+        # "wrote ... x 2 frames"): refused here, named, as a ConfigError of --set radar.KEY
+        positive = ("near_fov_deg", "near_range_m", "far_fov_deg", "far_range_m", "elevation_fov_deg",
+                    "elevation_beamwidth_deg", "ray_azimuth_step_deg", "ray_elevation_step_deg", "range_cell_m",
+                    "azimuth_cell_deg", "max_returns_per_object", "max_points", "detection_slope_db",
+                    "rcs_floor_width_db")
+        nonnegative = ("min_range_m", "range_noise_m", "azimuth_noise_deg", "position_quantisation_m",
+                       "velocity_noise_mps", "velocity_quantisation_mps", "rcs_noise_db", "rcs_quantisation_db",
+                       "azimuth_loss_db", "extra_loss_db", "clutter_per_sweep", "ghost_loss_db")
+        require(self, {**{f"0 < {n} < inf": 0 < getattr(self, n) < np.inf for n in positive},
+                       **{f"0 <= {n} < inf": 0 <= getattr(self, n) < np.inf for n in nonnegative},
+                       **{f"0 <= {n} <= 1": 0 <= getattr(self, n) <= 1
+                          for n in ("max_detection_probability", "ghost_probability")}})
+        if not self.min_range_m < min(self.near_range_m, self.far_range_m):
+            raise ValueError(f"min_range_m={self.min_range_m} must be below near_range_m and far_range_m")
+        if len(self.clutter_rcs_db) != 2 or not np.isfinite(self.clutter_rcs_db).all() or self.clutter_rcs_db[1] < 0:
+            raise ValueError(f"clutter_rcs_db={list(self.clutter_rcs_db)}: need [mean, std >= 0] in dBsm")
 
 
 @dataclass

@@ -197,6 +197,12 @@ def simulate(conf: SimConfig, out: str | Path, overwrite: bool = False, workers:
     save_json_atomic(root / VERSION / "sim_vehicle.json",
                      [_vehicle_truth(d, vr, failed[v]) for v, (d, vr) in enumerate(zip(drives, vehicles))])
     n_bad = sum(len(f) for f in failed.values())
+    if n_bad == conf.vehicles * conf.frames:  # a config every frame fails on (a value the checks let through)
+        v0 = next(v for v in failed if failed[v])
+        first = failed[v0][0]
+        raise HybridCalibError(f"no frame could be simulated (all {n_bad} failed; first, vehicle {v0} frame "
+                               f"{first['frame']}: {first['error'].strip().splitlines()[-1]}); check the --set values "
+                               f"(failed_frames in {root / VERSION / 'sim_vehicle.json'})")
     if n_bad:
         log.warning("%d frame(s) failed and were left out; see failed_frames in %s", n_bad,
                     root / VERSION / "sim_vehicle.json")
