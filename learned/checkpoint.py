@@ -252,7 +252,9 @@ def load_checkpoint(path: str | Path, model: torch.nn.Module | None = None,
             if scheduler is not None and state.get("scheduler") is not None:
                 scheduler.load_state_dict(state["scheduler"])
         except Exception as e:  # torch.load raises RuntimeError / UnpicklingError / EOFError / OSError
-            raise CheckpointError(f"optimizer state is missing, corrupt or not a plain state dict ({e}); start a "
+            why = f"{type(e).__name__}: {str(e).strip().splitlines()[0][:160] if str(e).strip() else '-'}"  # not
+            # PyTorch's whole weights_only paragraph
+            raise CheckpointError(f"optimizer state is missing, corrupt or not a plain state dict ({why}); start a "
                                   "new run with --init on this checkpoint instead of resuming",
                                   path=str(optim)) from None
     return ckpt

@@ -212,6 +212,15 @@ def check_resume(out: Path, last: Path, conf: dict, source: dict | None) -> None
                                f"{', '.join(RESUME_FREE)} may change), or choose another --out")
 
 
+def _resume_error(out: Path, last: Path, e: HybridCalibError) -> HybridCalibError:
+    """The error for a run whose last checkpoint (the one a resume continues from) cannot be read, saying what to
+    do: the checkpoint's own advice ("pick another checkpoint") did not apply, the resume takes the newest one."""
+    stem = last.name.removesuffix(".json")
+    files = ", ".join(sorted(p.name for p in last.parent.glob(f"{stem}.*")))
+    return HybridCalibError(f"resuming {out}: its last checkpoint {stem} cannot be read ({e}); move {files} out of "
+                            f"{last.parent} to resume after the epoch before it, or pass another --out to start afresh")
+
+
 def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str | Path, *, resume: bool = True,
           progress: bool = True, model_factory: Callable[[Any], torch.nn.Module] | None = None,
           source: dict | None = None) -> Path:
@@ -239,7 +248,11 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
     last = latest_checkpoint(ckpt_dir)
     if last is not None and not resume:
         raise HybridCalibError(f"{out} already holds checkpoints ({last.name}); resume, or choose another --out")
-    if last is not None and load_checkpoint(last).model_config != model_conf_dict:
+    try:
+        last_meta = None if last is None else load_checkpoint(last)
+    except HybridCalibError as e:
+        raise _resume_error(out, last, e) from None
+    if last_meta is not None and last_meta.model_config != model_conf_dict:
         raise HybridCalibError(f"{last} was trained with another model config; resume with the same "
                                "preset and --set options, or choose another --out")
     if last is not None:
@@ -278,7 +291,10 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
         load_checkpoint(conf.init_weights, model, map_location=device)
         log.info("weights initialised from %s (epoch %d)", conf.init_weights, init.epoch)
     if last is not None:
-        ckpt = load_checkpoint(last, model, optimizer, scheduler, map_location=device)
+        try:
+            ckpt = load_checkpoint(last, model, optimizer, scheduler, map_location=device)
+        except HybridCalibError as e:
+            raise _resume_error(out, last, e) from None
         start = ckpt.epoch + 1
         log.info("resuming %s after epoch %d", out, ckpt.epoch)
     steps_log = _CsvLog(out / "steps.csv", ["epoch", "step", "lr", *LOSS_KEYS, "seconds"], start - 1)

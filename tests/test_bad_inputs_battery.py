@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from hybrid_calib.cli import EXIT_ERROR
 from tests.helpers import expect_cli_error, run_cli, skips_of
@@ -1449,6 +1450,25 @@ def test_train_resume_with_other_data_or_options_is_refused(tmp_path):
     (out / "train_config.json").write_text("{")
     with pytest.raises(HybridCalibError, match="train config of this --out is unreadable"):
         check_resume(out, last, conf, data)
+
+
+def test_train_resume_names_a_damaged_last_checkpoint_and_what_to_move(tmp_path):
+    """A truncated last checkpoint stopped the resume with "copy it again or pick another checkpoint": the resume
+    takes the newest one, there is none to pick."""
+    from hybrid_calib.errors import HybridCalibError
+    from learned.checkpoint import save_checkpoint
+    from learned.train import train
+
+    ck = tmp_path / "run" / "checkpoints"
+    ck.mkdir(parents=True)
+    for epoch in (1, 2):
+        save_checkpoint(ck / f"ckpt-{epoch:04d}", torch.nn.Linear(2, 2), epoch=epoch, model_config={"a": 1})
+    text = (ck / "ckpt-0002.json").read_text()
+    (ck / "ckpt-0002.json").write_text(text[: len(text) // 2])
+    with pytest.raises(HybridCalibError, match=r"resuming .*run: its last checkpoint ckpt-0002 cannot be read "
+                                               r"\(.*not valid JSON.*\); move ckpt-0002.json, ckpt-0002.safetensors "
+                                               r"out of .* to resume after the epoch before it"):
+        train({"epochs": 3}, [], tmp_path / "run")
 
 
 def to_dict_of(conf) -> dict:
