@@ -373,7 +373,7 @@ CKPT_CASES = {
 }
 
 
-@pytest.mark.parametrize("command", ["calibrate", "evaluate"])
+@pytest.mark.parametrize("command", ["calibrate", "evaluate", "fleet"])
 @pytest.mark.parametrize("case", sorted(CKPT_CASES))
 def test_bad_checkpoint(case, command, sim, tmp_path, capsys):
     root, _ = sim
@@ -383,11 +383,15 @@ def test_bad_checkpoint(case, command, sim, tmp_path, capsys):
     arg = named if named.suffix == ".json" else ck
     if command == "calibrate":
         argv = _calibrate(root, tmp_path / "out", "--method", "pure", "--checkpoint", arg, "--max-frames", "1")
+    elif command == "fleet":  # checked once, before any job (it failed every vehicle alike, one paragraph each)
+        argv = ["fleet", "--data", root, "--version", SIM_VERSION, "--out", tmp_path / "out", "--method", "pure",
+                "--checkpoint", arg, "--max-frames", "1", "--no-plots", "--no-report"]
     else:
         argv = ["evaluate", "--data", root, "--version", SIM_VERSION, "--checkpoint", arg, "--out", tmp_path / "out",
                 "--split", "all", "--max-frames", "1", "--no-progress"]
     err = expect_cli_error(argv, capsys, named, *needles)
     assert _one_paragraph(err)  # even when the message quotes torch's
+    assert not (tmp_path / "out" / "manifest.json").exists()
 
 
 def test_checkpoint_of_another_range_is_named(sim, tmp_path, capsys):
@@ -405,6 +409,23 @@ def test_checkpoint_of_another_range_is_named(sim, tmp_path, capsys):
     from hybrid_calib.hybrid.loop import range_note
 
     assert range_note("R1", "R2", "c") == "" and range_note("reference", "R0", "c") == ""
+
+
+def test_no_usable_frame_from_a_start_beyond_the_checkpoints_range_says_so(sim, tmp_path, capsys, monkeypatch):
+    """The R0 network from R2 starts matched nothing: "no usable frame (first: no correspondence rows)", with
+    no word that the start was beyond the range the checkpoint was trained for."""
+    from hybrid_calib.hybrid import loop
+
+    def nothing(runner, drive, T0, conf, tr, motion, frames):
+        tr.skipped.append({"index": 0, "token": "t", "reason": "no correspondence rows"})
+        return [], None
+
+    monkeypatch.setattr(loop, "_run_learned", nothing)
+    root, _ = sim
+    expect_cli_error(_calibrate(root, tmp_path / "out", "--method", "hybrid", "--start", "R2", "--checkpoint",
+                                SHIPPED / "small-sim-r0.json", "--max-frames", "1", "--set", "threads=1"), capsys,
+                     "no usable frame", "no correspondence rows", "start range R2", "wider than the R0 range",
+                     "use a checkpoint trained on R2")
 
 
 # ---------------------------------------------------------------- --set: unknown key, wrong type, bad value
@@ -749,6 +770,13 @@ def test_fleet_checkpoint_checked_before_any_job(sim, tmp_path, capsys):
     root, _ = sim
     expect_cli_error(["fleet", "--data", root, "--out", tmp_path / "f", "--method", "pure", "--checkpoint",
                       tmp_path / "none.json"], capsys, "checkpoint not found", tmp_path / "none.json")
+    assert not (tmp_path / "f" / "manifest.json").exists()
+    ck = _ckpt_copy(tmp_path)  # a damaged export block failed each vehicle with the same paragraph
+    meta = json.loads(ck.read_text())
+    meta["export"]["cov_scale"] = [float("nan")] * 6
+    ck.write_text(json.dumps(meta))
+    expect_cli_error(["fleet", "--data", root, "--out", tmp_path / "f", "--method", "pure", "--checkpoint", ck],
+                     capsys, "checkpoint export block", "cov_scale")
     assert not (tmp_path / "f" / "manifest.json").exists()
 
 

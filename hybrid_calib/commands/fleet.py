@@ -64,9 +64,9 @@ def run(args: argparse.Namespace) -> int:
                                        "(or the network alone), not a batch solve; drop it, or use --method oracle")
         merge(HybridConfig, {**calib, "method": args.method, "seed": args.seed})
     if args.checkpoint is not None and args.method != "oracle":  # one bad checkpoint would fail every job alike
-        from learned.checkpoint import read_checkpoint_meta
+        from learned.checkpoint import load_model
 
-        read_checkpoint_meta(args.checkpoint)  # CheckpointError naming the file
+        load_model(args.checkpoint)  # CheckpointError naming the file: its metadata, export block and weights
     options = FleetOptions(args.engine, args.workers, args.address, None if args.ray_temp is None else
                            str(args.ray_temp), threads=args.threads, retries=args.retries, plots=not args.no_plots)
     bar = None  # made at the first finished vehicle (bad input fails before, without a bar)

@@ -595,8 +595,9 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
         traj, mon = _run_learned(runner, drive, T0, conf, tr, motion, frames)
         ood.update(dropped=0, note="too few frames in domain: the estimate uses every frame and is not trusted")
     if not traj:
+        wider = range_note(conf.start, runner.range, runner.checkpoint)
         raise DataError(f"vehicle {drive.vehicle}: no usable frame ({len(tr.skipped)} skipped; first: "
-                        f"{tr.skipped[0]['reason'] if tr.skipped else '-'})")
+                        f"{tr.skipped[0]['reason'] if tr.skipped else '-'})" + (f"; {wider}" if wider else ""))
     lidar = None
     if conf.method == "hybrid" and conf.lidar.enabled and frames is not None:
         traj, lidar = with_lidar(traj, drive, frames, conf, mon, motion)
