@@ -106,8 +106,8 @@ class CorruptedTruthDepth:
         if truth is None:
             raise DataError(
                 "CorruptedTruthDepth needs the simulator's ground-truth depth but this frame has none "
-                "(depth_path is None); for real data use a metric depth model: "
-                "--depth depth-anything:/local/model/dir (DepthAnythingEstimator)",
+                "(depth_path is None); for real data pass --depth lidar-densified (the root's LiDAR) or a metric "
+                "depth model: --depth depth-anything:/local/model/dir (DepthAnythingEstimator)",
                 token=frame.camera_token)
         return self.corrupt(truth, size_hw, frame.camera_token)
 

@@ -266,6 +266,10 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
     if not train_idx:
         raise HybridCalibError(f"the train split is empty ({len(frames)} frames, split by {conf.split.by}); "
                                "give more scenes or set split.test_fraction / split.val_fraction lower")
+    if not val_idx:  # epochs.csv's val_* columns stayed empty and history.png had no validation curve, no word
+        log.warning("no validation frames: split.by=%s with val_fraction %s leaves none of the %d frames for "
+                    "validation (no val_* columns, no validation curve); add roots or scenes, or pass --set "
+                    "split.by=time", conf.split.by, conf.split.val_fraction, len(frames))
     depth = build_depth_estimator(conf.depth, conf.depth_options)
     cache = DepthCache(Path(conf.depth_cache) if conf.depth_cache else out / "depth-cache")
     dconf = dataset_config(conf, model_conf)

@@ -766,6 +766,26 @@ def test_train_bad_set_values_fail_before_training(override, needle, sim, tmp_pa
     assert not (tmp_path / "t").exists()
 
 
+def test_train_root_given_twice_is_refused(sim, tmp_path, capsys):
+    """Every frame counted twice, without a word (fleet refused the same)."""
+    root, _ = sim
+    expect_cli_error(["train", "--data", root, f"{root}/.", "--version", SIM_VERSION, "--out", tmp_path / "t",
+                      "--no-progress"], capsys, "--data", "given twice")
+    assert not (tmp_path / "t").exists()
+
+
+def test_train_says_when_no_frame_is_left_for_validation(sim, tmp_path, capsys, caplog):
+    """Two scenes split by scene leave no validation frame: the val_* columns stayed empty, no word."""
+    import logging
+
+    root, _ = sim
+    with caplog.at_level(logging.WARNING, logger="learned.train"):
+        rc, err = run_cli(["train", "--data", root, "--version", SIM_VERSION, "--out", tmp_path / "t", "--no-progress",
+                           "--epochs", "1", "--set", "samples_per_epoch=1", "val_samples=1", "batch_size=1"], capsys)
+    assert rc == 0, err
+    assert "no validation frames: split.by=scene" in caplog.text and "split.by=time" in caplog.text
+
+
 def test_fleet_checkpoint_checked_before_any_job(sim, tmp_path, capsys):
     root, _ = sim
     expect_cli_error(["fleet", "--data", root, "--out", tmp_path / "f", "--method", "pure", "--checkpoint",

@@ -18,6 +18,7 @@ from pathlib import Path
 
 from hybrid_calib.commands import positive_int
 from hybrid_calib.config import parse_overrides
+from hybrid_calib.errors import OptionError
 from hybrid_calib.perturbation import RANGES
 
 HELP = "train the RC-AutoCalib network (resumable; presets small / paper)"
@@ -57,7 +58,15 @@ def run(args: argparse.Namespace) -> int:
     if args.init is not None:
         overrides["init_weights"] = args.init
     conf = train_config(args.preset, overrides)
+    resolved = [Path(d).resolve() for d in args.data]
+    if twice := sorted({str(d) for d in resolved if resolved.count(d) > 1}):
+        raise OptionError("--data", f"{', '.join(twice)} is given twice (every frame would count twice); pass each "
+                                    "root once")
     frames = open_roots(args.data, args.version, options={"nsweeps": args.nsweeps})
+    if real := [str(d) for d in args.data if not (Path(d) / args.version / "sim_vehicle.json").is_file()]:
+        print(f"note: {', '.join(real)} holds no simulator truth ({args.version}): its calibrated_sensor tables "
+              "are the training truth (themselves a few tenths of a degree off); label figures on its frames as "
+              "training figures and keep some frames out (docs/benchmarks.md: benchmarks/real_finetune.py)")
     source = {"roots": [str(Path(d).resolve()) for d in args.data], "version": args.version, "nsweeps": args.nsweeps}
     last = train(conf, frames, args.out, resume=not args.no_resume, progress=not args.no_progress, source=source)
     plot_history(args.out / "epochs.csv", args.out / "history.png")
