@@ -359,6 +359,27 @@ def test_a_vehicle_with_two_calibrations_is_two_vehicles(tmp_path):
 
 
 
+def test_a_camera_intrinsic_that_changes_within_a_log_is_named(tmp_path):
+    """41 different CAM_FRONT intrinsics in one log (fx x0.95 / x1.05) were accepted without a word."""
+    from hybrid_calib.data.summary import summarize_dataset
+
+    tiny = make_tiny_root(tmp_path / "intr", n_samples=4)
+    assert NuScenesRadarCamera(tiny.root, VERSION).intrinsic_changes() == {}
+    cs = next(c for c in tiny.tables["calibrated_sensor"] if c["token"] == "cs_CAM_FRONT")
+    K = np.asarray(cs["camera_intrinsic"])
+    for i, sd in enumerate(tiny.cam_sd):
+        scaled = K.copy()
+        scaled[:2, :2] *= 0.95 if i % 2 else 1.05
+        tiny.tables["calibrated_sensor"].append({**cs, "token": f"cs_cam_{i}", "camera_intrinsic": scaled.tolist()})
+        sd["calibrated_sensor_token"] = f"cs_cam_{i}"
+    for name in ("calibrated_sensor", "sample_data"):
+        tiny.rewrite_table(name)
+    changes = NuScenesRadarCamera(tiny.root, VERSION).intrinsic_changes()
+    assert list(changes) == ["tiny-log"] and "intrinsic changes within the log (2 different ones" in changes["tiny-log"]
+    assert "log tiny-log: CAM_FRONT's intrinsic changes" in summarize_dataset(
+        NuScenesRadarCamera(tiny.root, VERSION), progress=False).format()
+
+
 def test_a_vehicles_scenes_are_taken_in_the_order_they_were_driven(tmp_path):
     """scene.json need not list a vehicle's scenes in time order; the drive is fused in time order."""
     tiny = _recalibrated_radar(tmp_path, yaw=0.02)  # two scenes of one vehicle, one calibration

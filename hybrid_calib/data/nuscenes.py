@@ -275,6 +275,31 @@ class NuScenesRadarCamera:
                                     if T is not None and k[0][1] is not None}
         return out
 
+    def intrinsic_changes(self) -> dict[str, str]:
+        """Log name (or token) -> a sentence, for each log whose camera intrinsic changes from frame to frame
+        (entries more than 0.1 % apart). One camera in one log has one calibration; 41 intrinsics for CAM_FRONT
+        in one log (fx x0.95 / x1.05 alternating) mean broken tables, and were accepted without a word (each frame
+        is still read with its own). Between logs a camera may be recalibrated: not named."""
+        by_log: dict[str, list[np.ndarray]] = {}
+        for ref in self.frames:
+            try:
+                K = self.tables.camera_intrinsic(ref.camera_sd)
+            except (DataError, KeyError, TypeError):
+                continue  # a broken record: the frame says so when it is read
+            Ks = by_log.setdefault(ref.log_token, [])
+            if not any(np.allclose(K, K0, rtol=1e-3, atol=1e-6) for K0 in Ks):
+                Ks.append(K)
+        out = {}
+        for log, Ks in by_log.items():
+            if len(Ks) > 1:
+                rec = self.tables.by_token["log"].get(log) or {}
+                fx = [float(K[0, 0]) for K in Ks]
+                out[str(rec.get("logfile") or log)] = (
+                    f"{self.camera_channel}'s intrinsic changes within the log ({len(Ks)} different ones; fx "
+                    f"{min(fx):.0f}..{max(fx):.0f} px): one camera in one drive has one calibration, so the tables "
+                    "are likely broken; each frame is read with its own")
+        return out
+
     def __len__(self) -> int:
         return len(self.frames)
 

@@ -69,6 +69,7 @@ class DatasetSummary:
     first_loaded: int | None  # index of the first frame that loaded (used for the overlay)
     calibration_splits: dict[str, list[str]] = field(default_factory=dict)  # vehicle -> its names
     calibration_offsets: dict[str, tuple[float, float]] = field(default_factory=dict)  # NAME-calN -> (deg, cm)
+    intrinsic_changes: dict[str, str] = field(default_factory=dict)  # log -> sentence (NuScenesRadarCamera)
 
     @property
     def n_frames(self) -> int:
@@ -82,7 +83,8 @@ class DatasetSummary:
         return dict(root=self.root, version=self.version, radar_channel=self.radar_channel,
                     camera_channel=self.camera_channel, n_frames=self.n_frames, n_loaded=self.n_loaded,
                     n_skipped=len(self.skipped), groups=[g.to_json() for g in self.groups], skipped=self.skipped,
-                    calibration_splits=self.calibration_splits, calibration_offsets=self.calibration_offsets)
+                    calibration_splits=self.calibration_splits, calibration_offsets=self.calibration_offsets,
+                    intrinsic_changes=self.intrinsic_changes)
 
     def format(self, listed_in: str | None = None) -> str:
         """A human-readable table: one line per scene/vehicle, then the skipped items grouped by reason (count,
@@ -105,6 +107,7 @@ class DatasetSummary:
             lines.append(f"vehicle {vehicle}: its frames hold {len(names)} different camera-radar calibrations in the "
                          f"tables, so it is calibrated as {len(names)} vehicles, one per calibration: "
                          f"{', '.join(names)} (the first met keeps the name)" + (f" ({'; '.join(far)})" if far else ""))
+        lines += [f"log {log}: {words}" for log, words in self.intrinsic_changes.items()]
         if not self.n_frames:
             lines.append(f"no frames: no sample has both a {self.radar_channel} and a {self.camera_channel} keyframe "
                          "(the skipped items below say why); check --radar/--camera and the tables")
@@ -196,4 +199,4 @@ def summarize_dataset(ds: NuScenesRadarCamera, progress: bool = True) -> Dataset
         first = f.index if first is None else first
     return DatasetSummary(str(ds.root), ds.version, ds.radar_channel, ds.camera_channel, list(groups.values()),
                           [dataclasses.asdict(s) for s in ds.skipped], first, dict(ds.calibration_splits),
-                          dict(ds.calibration_offsets))
+                          dict(ds.calibration_offsets), ds.intrinsic_changes())

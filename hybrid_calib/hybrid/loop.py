@@ -169,6 +169,8 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
         print(f"vehicle {vehicle}: its frames hold {len(names)} camera-radar calibrations in the tables, calibrated "
               f"as {', '.join(names)}" + (f" ({', '.join(left)} not among the vehicles asked for)" if left else ""),
               file=sys.stderr)
+    for log, words in (frames.intrinsic_changes() if hasattr(frames, "intrinsic_changes") else {}).items():
+        print(f"log {log}: {words}", file=sys.stderr)
     keep = None if conf.split == "all" else set(split_indices(frames, conf.split, conf.split_options))
     drives = {}
     for vehicle, idx in sorted(frames.frames_by_vehicle().items()):
