@@ -238,3 +238,11 @@ def test_a_level_no_radar_mount_holds_is_said_and_not_a_no(knocked_and_not):
     for k in range(12):
         fine.add_residual(k, 0.8 + 0.1 * (k % 3), 6)  # a radar 0.9 deg from its tables: a mount, said as a level only
     assert "implausible" not in fine.summary()
+    # while the drive runs: from the third reading the headings are known wrong (the hybrid's motion constraint
+    # then takes its rotation from the images), never on a plausible mount
+    early = MountMonitor(None, np.eye(4))
+    seen = []
+    for k in range(5):
+        early.add_residual(k, -110.0 + 0.1 * (k % 3), 6)
+        seen.append(early.headings_implausible())
+    assert seen == [False, False, True, True, True] and not fine.headings_implausible()

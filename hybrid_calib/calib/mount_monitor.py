@@ -254,6 +254,18 @@ class MountMonitor:
         t = np.abs(head / c - (v.sum() - head) / (n - c)) * np.sqrt(c * (n - c) / n)
         return self._start + int(c[np.argmax(t)])
 
+    def headings_implausible(self) -> bool:
+        """Whether the current level (the pairs since the last step) already lies more than ``max_level_deg``
+        beyond 3 stds from the tables' mount (``summary``'s "implausible", on the pairs seen so far): the ego
+        poses' headings are then not to be trusted by anyone (the hybrid's motion
+        constraint takes its rotation from the images instead). Three readings suffice: the margin is 10 deg."""
+        v = np.array([y for _, y in self.series[self._start:]])
+        if len(v) < 3:
+            return False
+        n = float(np.median(self.pairs[self._start:]))
+        s = float(self.scale(v, n) * np.sqrt(MEDIAN_VAR / len(v)))
+        return abs(float(np.median(v))) - 3 * s > self.conf.max_level_deg
+
     def levels(self) -> list[dict]:
         """The drive cut at its alarms: per piece the positions it spans, its level of ``y`` (deg:
         the radar's yaw on the vehicle minus the reference mount's, plus the Doppler's bias), the

@@ -469,19 +469,23 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
         prior, mrec = fi.prior, {}
         if motion is not None and fi.prior is not None:
             prior = GaussianPrior(fi.prior.T, fi.prior.cov + inflate)
-            m, why = motion.measurement(pair, i, T[:3, :3]) if pair is not None else (None, "first frame")
+            # headings the radar's Doppler already contradicts (mirrored ego poses): rotation from the images
+            ego = mount is None or not mount.headings_implausible()
+            m, why = motion.measurement(pair, i, T[:3, :3], ego) if pair is not None else (None, "first frame")
+            if not ego:
+                mrec["motion_rotation"] = "images (the ego poses' headings contradict the radar's Doppler)"
             # gated by the tighter of the estimate's covariance and this frame's pass with its drive error
             inn = None if m is None else gated_innovation(T, m, conf.motion, (fi.prior.cov + D, reported_cov))
             fo = fold(prior, T, inn, conf.motion, gated=False) if inn is not None and motion_gate.admit(inn) else None
             g_frames.append(fo.gain_motion if fo is not None else np.zeros(6))
             if fo is not None:
                 prior = fo.prior
-                mrec = {"motion": {"residual_deg": fo.residual_deg, "weight": fo.weight,
+                mrec = {**mrec, "motion": {"residual_deg": fo.residual_deg, "weight": fo.weight,
                                    "sigma_deg": float(np.degrees(inn.sigma)), "speed_mps": m.speed,
                                    "vo_inliers": m.n_vo_inliers,
                                    **({"admitted": "consensus"} if motion_gate.admitted_by_consensus else {})}}
             else:
-                mrec = {"motion_skipped": why or "residual outside the innovation gate (MotionConfig.gate)"}
+                mrec = {**mrec, "motion_skipped": why or "residual outside the innovation gate (MotionConfig.gate)"}
             if inn is not None:
                 mrec["motion_z"] = float(inn.z)
         fe, turned = cal.update(fi.corr, prior), None

@@ -146,17 +146,18 @@ class MotionSource:
             write_bytes_atomic(path, buf.getvalue())
         return m, why
 
-    def camera(self, fa, fb, R_cam_radar: np.ndarray, speed_mps: float | None = None
+    def camera(self, fa, fb, R_cam_radar: np.ndarray, speed_mps: float | None = None, ego: bool = True
                ) -> tuple[CameraMotion | None, str]:
         """The camera's motion a -> b (module doc): with ego poses, the rotation is the vehicle's
         rotation angle about the radar's up axis (the current estimate's; a 2D radar is mounted level)
         and only the direction of travel is estimated (``travel_given_rotation``); without them, or when
         their travel contradicts the radar's Doppler speed ``speed_mps`` (``ego_doppler.pose_doppler_conflict``:
-        frozen or foreign poses), the five-point essential matrix."""
+        frozen or foreign poses), or when ``ego`` is False (their headings are known to be wrong: the radar
+        mount monitor's implausible level), the five-point essential matrix."""
         m, why = self._matches(fa, fb)
         if m is None:
             return None, why
-        omega = ego_rotation(fa, fb)
+        omega = ego_rotation(fa, fb) if ego else None
         if omega is not None and speed_mps is not None and ego_conflict(fa, fb, speed_mps):
             omega = None
         if omega is None or self.conf.rotation == "vo":
@@ -171,10 +172,12 @@ class MotionSource:
         up = np.asarray(R_cam_radar, np.float64)[:, 2]
         return travel_given_rotation(*m, so3_exp(omega[2] * up), self.conf.vo)
 
-    def measurement(self, ia: int, ib: int, R_cam_radar: np.ndarray) -> tuple[MotionMeasurement | None, str]:
+    def measurement(self, ia: int, ib: int, R_cam_radar: np.ndarray, ego: bool = True
+                    ) -> tuple[MotionMeasurement | None, str]:
         """The motion constraint between frames ``ia`` and ``ib`` (indices into ``frames``), or (None,
         why not). ``R_cam_radar`` (3, 3): the current estimate; it gives the rotation axis (with ego
-        poses) and carries the radar velocity at b into frame a, both first-order insensitive to it."""
+        poses) and carries the radar velocity at b into frame a, both first-order insensitive to it.
+        ``ego`` False: the ego poses' rotation is not used (``camera``)."""
         try:
             fa, fb = self._frame(ia), self._frame(ib)
         except DataError as e:
@@ -188,7 +191,7 @@ class MotionSource:
         if min(va.speed, vb.speed) < self.conf.min_speed_mps:
             return None, f"radar speed {min(va.speed, vb.speed):.1f} m/s (need {self.conf.min_speed_mps:g})"
         try:
-            cm, why = self.camera(fa, fb, R_cam_radar, 0.5 * (va.speed + vb.speed))
+            cm, why = self.camera(fa, fb, R_cam_radar, 0.5 * (va.speed + vb.speed), ego)
         except DataError as e:
             return None, f"image unreadable: {e}"
         if cm is None:
