@@ -347,8 +347,10 @@ class DepthCache:
         self.misses = 0
 
     def path(self, estimator: DepthEstimator, token: str, size_hw: tuple[int, int]) -> Path:
-        safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in token)
-        return self.root / f"{estimator.name}-{estimator.config_hash()}" / f"{safe}_{size_hw[1]}x{size_hw[0]}.npy"
+        from hybrid_calib.data.files import file_part
+
+        name = f"{file_part(token)}_{size_hw[1]}x{size_hw[0]}.npy"
+        return self.root / f"{estimator.name}-{estimator.config_hash()}" / name
 
     def get(self, estimator: DepthEstimator, frame: RadarCameraFrame, size_hw: tuple[int, int],
             image: np.ndarray | None = None) -> np.ndarray:

@@ -81,8 +81,9 @@ def eval_indices(frames: Sequence[RadarCameraFrame], conf: EvalConfig) -> list[i
 
 
 def _frame_file(out: Path, token: str) -> Path:
-    safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in token)
-    return out / "frames" / f"{safe}.npz"
+    from hybrid_calib.data.files import file_part
+
+    return out / "frames" / f"{file_part(token)}.npz"
 
 
 def _measurements(corr, batch: dict, b: int, T_iters: np.ndarray, unc: np.ndarray, iteration: int):

@@ -485,3 +485,25 @@ def test_a_damaged_fleet_prior_is_named_on_load(damage, needle, tmp_path):
     path.write_text(json.dumps({"priors": [1, 2]}))
     with pytest.raises(DataError, match="not an object of job id"):
         load_priors(path)
+
+
+@pytest.mark.parametrize("name", ["../../victim", "/abs/victim", "a/b", "", "..", ".hidden"])
+def test_a_vehicle_name_from_the_tables_never_leaves_the_run_folder(name, fleet_root, tmp_path):
+    """log.json's vehicle is input: "../../victim" wrote a fleet's result.json over another run's, outside --out."""
+    import shutil
+
+    from hybrid_calib.data.files import file_part
+    from hybrid_calib.fleet.jobs import discover_jobs
+
+    root = tmp_path / "root"
+    shutil.copytree(fleet_root / "v1.0-sim", root / "v1.0-sim")
+    for table in ("log.json", "sim_vehicle.json"):
+        doc = json.loads((root / "v1.0-sim" / table).read_text())
+        doc[0]["vehicle"] = name
+        (root / "v1.0-sim" / table).write_text(json.dumps(doc))
+    out = tmp_path / "out"
+    jobs = discover_jobs([(str(root), "v1.0-sim", None)], "oracle", out)
+    job = next(j for j in jobs if j.vehicle == name)
+    assert Path(job.out).parent == out / "vehicles" and Path(job.out).name == file_part(name)
+    assert len({j.out for j in jobs}) == len(jobs)
+    assert file_part("a/b") != file_part("a_b") and file_part("sim-veh-000") == "sim-veh-000"

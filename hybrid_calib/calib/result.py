@@ -464,9 +464,9 @@ class VehicleProgress:
             return "", f"unreadable ({type(e).__name__}: {e})"
 
     def _path(self, name: str) -> Path:
-        from urllib.parse import quote
+        from hybrid_calib.data.files import file_part
 
-        return self.dir / f"{quote(name, safe='')}.json"
+        return self.dir / f"{file_part(name)}.json"
 
     def record(self, name: str, result: VehicleResult | str) -> None:
         """Keep one vehicle's result (or, a string, why it failed); one that cannot be kept is warned about (the

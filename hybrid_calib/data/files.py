@@ -5,6 +5,8 @@
   archive or member, a missing key, a misshaped array read in the body) turned into one ``DataError`` naming
   the file and what to do.
 - ``NPZ_ERRORS``: those ways, for the caches that recompute a damaged entry instead of failing.
+- ``file_part``: a name taken from the data (a vehicle, a token) as one safe file-name component: the one
+  rule for every file or folder a run names after them.
 """
 
 from __future__ import annotations
@@ -26,6 +28,33 @@ from hybrid_calib.errors import DataError
 # (OSError); IndexError / TypeError from a body that indexes a misshaped array
 NPZ_ERRORS: tuple[type[BaseException], ...] = (OSError, ValueError, KeyError, IndexError, TypeError, EOFError,
                                                zipfile.BadZipFile, zlib.error)
+
+
+MAX_FILE_PART = 120  # characters of a name kept in a file name (the rest: a digest)
+
+
+def file_part(name: str) -> str:
+    """``name`` (a vehicle name from log.json, a sample_data token, a job id) as ONE safe file-name component.
+
+    The tables are input: a vehicle named ``../../x``, ``/abs``, ``a/b`` or ``""`` put a fleet's results outside
+    ``--out`` (and replaced another run's). Percent-encoding (``urllib.parse.quote`` with nothing but letters,
+    digits and ``-_.~`` kept) is injective, so two names never share a file (``a/b`` and ``a_b`` did in the
+    caches, which then served one frame's data for the other); a name of dots only or starting with one (``..``,
+    a hidden file) has its dots encoded too, an empty one is ``%``, and a long one keeps ``MAX_FILE_PART``
+    characters and a digest of the whole. Names of letters, digits, ``-``, ``_`` and inner dots are unchanged
+    (``sim-veh-000``, ``n015``, nuScenes' hex tokens)."""
+    import hashlib
+    from urllib.parse import quote
+
+    name = str(name)
+    part = quote(name, safe="")
+    if part.startswith("."):
+        part = "%2E" + part[1:]
+    if part.strip(".") == "" or part.endswith("."):
+        part = part.replace(".", "%2E") or "%"
+    if len(part) > MAX_FILE_PART:
+        part = part[:MAX_FILE_PART] + "~" + hashlib.sha1(name.encode("utf-8", "surrogatepass")).hexdigest()[:12]
+    return part
 
 
 def check_regular_file(path: str | Path, what: str, token: str | None = None) -> None:

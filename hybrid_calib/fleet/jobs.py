@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hybrid_calib.data.files import file_part
 from hybrid_calib.errors import DataError, HybridCalibError
 
 METHODS = ("hybrid", "pure", "pure-avg", "oracle")  # issue 9's methods; "oracle" runs today
@@ -184,8 +185,10 @@ def discover_jobs(roots: list[tuple[str, str, tuple[str, ...] | None]], method: 
         prior, note = match_prior(priors or {}, jid, str(root), version, v)
         if note is not None and notes is not None:
             notes.append(note)
-        jobs.append(Job(jid, v, str(root), version, method, str(Path(out) / "vehicles" / jid), seed, checkpoint,
-                        dict(calib or {}), prior, info["tables_T"], info["design_T"], threads))
+        # the folder is named after the vehicle of the tables, encoded (a name "../../x" escaped --out)
+        folder = str(Path(out) / "vehicles" / file_part(jid))
+        jobs.append(Job(jid, v, str(root), version, method, folder, seed, checkpoint, dict(calib or {}), prior,
+                        info["tables_T"], info["design_T"], threads))
     ids = [j.id for j in jobs]
     dup = sorted({i for i in ids if ids.count(i) > 1})
     if dup:

@@ -39,7 +39,7 @@ from factors.motion import MotionMeasurement, chord_heading, chord_length, headi
 from hybrid_calib.atomic import write_bytes_atomic
 from hybrid_calib.calib.ego_doppler import pose_doppler_conflict
 from hybrid_calib.calib.schedule import GaussianPrior
-from hybrid_calib.data.files import NPZ_ERRORS
+from hybrid_calib.data.files import NPZ_ERRORS, file_part
 from hybrid_calib.errors import DataError
 from hybrid_calib.geometry import retract, so3_exp, so3_log
 from hybrid_calib.sensors.radar_velocity import RadarVelocityConfig, estimate_velocity
@@ -121,7 +121,8 @@ class MotionSource:
         from hybrid_calib.config import to_dict
 
         key = hashlib.sha1(json.dumps(to_dict(self.conf.vo), sort_keys=True).encode()).hexdigest()[:10]
-        return Path(self.cache_dir) / "motion" / f"matches-{key}" / f"{fa.camera_token}__{fb.camera_token}.npz"
+        pair = f"{file_part(fa.camera_token)}__{file_part(fb.camera_token)}.npz"
+        return Path(self.cache_dir) / "motion" / f"matches-{key}" / pair
 
     def _matches(self, fa, fb) -> tuple[tuple | None, str]:
         """The image matches a -> b ((pa, pb, K) or None, why), cached as ``.npz``."""

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from factors.correspondences import Correspondences
-from hybrid_calib.data.files import NPZ_ERRORS
+from hybrid_calib.data.files import NPZ_ERRORS, file_part
 from hybrid_calib.errors import HybridCalibError
 
 SHIPPED = Path(__file__).resolve().parents[2] / "learned" / "checkpoints"
@@ -116,8 +116,7 @@ class OutputCache:
         self._warned = False
 
     def path(self, token: str, T_in: np.ndarray) -> Path:
-        safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in token)
-        return self.root / f"{safe}-{_start_key(T_in)}.npz"
+        return self.root / f"{file_part(token)}-{_start_key(T_in)}.npz"
 
     def get(self, token: str, T_in: np.ndarray) -> NetworkOutput | None:
         p = self.path(token, T_in)

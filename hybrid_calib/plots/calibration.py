@@ -9,6 +9,7 @@ import numpy as np
 
 from hybrid_calib.calib.drift import drift_verdict
 from hybrid_calib.calib.result import VehicleResult
+from hybrid_calib.data.files import file_part
 from hybrid_calib.metrics import signed_errors
 from hybrid_calib.plots.figure import pyplot, save_figure
 
@@ -46,7 +47,7 @@ def plot_vehicle(vr: VehicleResult, out_dir: Path) -> list[Path]:
     fig.suptitle(f"{vr.vehicle}: estimate {'error vs truth' if vr.truth_T is not None else 'minus final estimate'}"
                  f" (camera axes) with the reported +-2 sigma")
     fig.tight_layout()
-    p1 = save_figure(fig, out_dir / f"{vr.vehicle}_trajectory.png", dpi=90)
+    p1 = save_figure(fig, out_dir / f"{file_part(vr.vehicle)}_trajectory.png", dpi=90)
 
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(10, 5), sharex=True)
     st = np.array([np.nan if f.step_statistic is None else f.step_statistic for f in vr.trajectory])
@@ -67,5 +68,5 @@ def plot_vehicle(vr: VehicleResult, out_dir: Path) -> list[Path]:
     fig.suptitle(f"{vr.vehicle}: step detector; chi2 vs reference {d.get('statistic', float('nan')):.1f} "
                  f"(p {d.get('p_value', float('nan')):.2g})\n{verdict}", fontsize=9)
     fig.tight_layout()
-    p2 = save_figure(fig, out_dir / f"{vr.vehicle}_drift.png", dpi=90)
+    p2 = save_figure(fig, out_dir / f"{file_part(vr.vehicle)}_drift.png", dpi=90)
     return [p1, p2]

@@ -19,6 +19,7 @@ import numpy as np
 from hybrid_calib.calib.drift import reference_test
 from hybrid_calib.calib.result import CalibrationRun, VehicleResult
 from hybrid_calib.config import merge
+from hybrid_calib.data.files import file_part
 from hybrid_calib.errors import DataError
 from hybrid_calib.report.html import esc, img_tag, num, verdict_class, write_page
 from hybrid_calib.report.vehicle import ReportConfig, write_report
@@ -73,7 +74,7 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
             if reports is not None and name in reports:
                 pages[name] = Path(reports[name])
             elif reports is None:
-                page = p.parent / ("report.html" if len(run.vehicles) == 1 else f"report-{name}.html")
+                page = p.parent / ("report.html" if len(run.vehicles) == 1 else f"report-{file_part(name)}.html")
                 pages[name] = write_report(p, page, vname, data, version, conf)
     names = list(vehicles)
     verdicts = {n: verdict_of(vr, conf.tolerance) for n, (vr, _) in vehicles.items()}
