@@ -269,6 +269,30 @@ def test_jpeg_that_does_not_decode_fails_lazily(tiny):
     assert str(path) in str(e.value) and tiny.cam_sd[3]["token"] in str(e.value)
 
 
+def _with_exif_orientation(jpeg: bytes, orientation: int) -> bytes:
+    """``jpeg`` with an APP1 EXIF segment holding one tag: Orientation (0x0112) = ``orientation``."""
+    import struct
+
+    tiff = b"MM\x00\x2a" + struct.pack(">I", 8) + struct.pack(">H", 1) + \
+        struct.pack(">HHIHH", 0x0112, 3, 1, orientation, 0) + struct.pack(">I", 0)
+    body = b"Exif\x00\x00" + tiff
+    return jpeg[:2] + b"\xff\xe1" + struct.pack(">H", len(body) + 2) + body + jpeg[2:]
+
+
+def test_a_jpeg_with_an_exif_orientation_is_read_as_stored(tiny):
+    """OpenCV turned an image tagged "rotate 90": every frame skipped as "900x1600 but the calibration says
+    1600x900", while inspect read the header's size. The stored grid is what the intrinsics describe."""
+    from hybrid_calib.data.image_header import decode_image
+
+    path = tiny.path(tiny.cam_sd[0])
+    plain = decode_image(path)
+    path.write_bytes(_with_exif_orientation(path.read_bytes(), 6))
+    assert cv2.imread(str(path)).shape[:2] == plain.shape[1::-1][:2]  # OpenCV's default turns it
+    turned = decode_image(path)
+    assert turned.shape == plain.shape and np.array_equal(turned, plain)
+    assert _open(tiny)[0].load_image().shape == plain.shape
+
+
 def test_image_size_mismatch(tiny):
     tiny.cam_sd[1]["width"] = 1600
     tiny.cam_sd[1]["height"] = 900

@@ -406,6 +406,21 @@ def test_fleet_file_lists_roots_and_bad_files_name_themselves(tmp_path):
     f.write_text("{not json")
     with pytest.raises(DataError, match="unreadable"):
         read_fleet_file(f, "v1.0-sim")
+    # each of these was an internal error, or calibrated the whole root when one vehicle (or none) was asked for
+    f.write_bytes(json.dumps({"note": "caf\u00e9", "roots": ["a"]}).encode().replace(b"\\u00e9", "\u00e9".encode("latin-1")))
+    with pytest.raises(DataError, match="unreadable .*UnicodeDecodeError.*UTF-8 JSON"):
+        read_fleet_file(f, "v1.0-sim")
+    f.write_text("[" * 100000 + "]" * 100000)
+    with pytest.raises(DataError, match="nested too deeply"):
+        read_fleet_file(f, "v1.0-sim")
+    f.write_text(json.dumps({"roots": [{"data": "a", "vehciles": ["x"]}]}))
+    with pytest.raises(DataError, match=r"roots\[0\]: unknown key\(s\) \['vehciles'\]"):
+        read_fleet_file(f, "v1.0-sim")
+    f.write_text(json.dumps({"roots": [{"data": "a", "vehicles": []}]}))
+    with pytest.raises(DataError, match=r"roots\[0\].vehicles is empty"):
+        read_fleet_file(f, "v1.0-sim")
+    f.write_text(json.dumps({"note": "free text", "_by": "me", "roots": [{"data": "a", "comment": "ok"}]}))
+    assert read_fleet_file(f, "v1.0-sim") == [(str(tmp_path / "a"), "v1.0-sim", None)]
 
 
 def test_fleet_command_pages_link_every_done_vehicle(local_run):
@@ -507,3 +522,49 @@ def test_a_vehicle_name_from_the_tables_never_leaves_the_run_folder(name, fleet_
     assert Path(job.out).parent == out / "vehicles" and Path(job.out).name == file_part(name)
     assert len({j.out for j in jobs}) == len(jobs)
     assert file_part("a/b") != file_part("a_b") and file_part("sim-veh-000") == "sim-veh-000"
+
+
+def test_a_pool_worker_exits_when_its_driver_is_killed(tmp_path):
+    """After `kill -9` of a fleet driver (--engine process) its workers slept on the pool's queue for ever."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    script = tmp_path / "driver.py"
+    script.write_text(
+        "import multiprocessing as mp, sys, time\n"
+        "from hybrid_calib.fleet.engines import _exit_with_parent\n"
+        "def worker():\n"
+        "    _exit_with_parent(0.1)\n"
+        "    time.sleep(120)\n"
+        "if __name__ == '__main__':\n"
+        "    p = mp.get_context('spawn').Process(target=worker)\n"
+        "    p.start()\n"
+        "    print(p.pid, flush=True)\n"
+        "    time.sleep(120)\n")
+    driver = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True,
+                              cwd=Path(__file__).resolve().parents[1])
+    worker = int(driver.stdout.readline())
+    time.sleep(1.0)  # the watcher is running
+    os.kill(driver.pid, signal.SIGKILL)
+    driver.wait()
+
+    def alive(pid: int) -> bool:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return False
+        try:  # a zombie (exited, not yet reaped by its new parent) counts as gone
+            return Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0] != "Z"
+        except OSError:
+            return False
+
+    deadline = time.time() + 10
+    while alive(worker) and time.time() < deadline:
+        time.sleep(0.1)
+    gone = not alive(worker)
+    if not gone:
+        os.kill(worker, signal.SIGKILL)
+    assert gone, "the worker outlived its driver"

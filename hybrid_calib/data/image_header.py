@@ -123,8 +123,10 @@ def decode_image(path: str | Path, token: str | None = None):
         check_regular_file(path, "camera image", token)
     except OSError:  # missing (or its folder unreadable)
         raise DataError("camera image not found", path=str(path), token=token) from None
-    with _captured_stderr() as captured:
-        bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    with _captured_stderr() as captured:  # the stored pixel grid, as the intrinsics and the nuScenes devkit (PIL)
+        # read it: OpenCV otherwise turns an image with an EXIF orientation tag, and every frame was skipped as
+        # "900x1600 but the calibration says 1600x900" while inspect read the header's 1600x900
+        bgr = cv2.imread(str(path), cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
     report = captured.text.strip()
     if bgr is None:
         raise DataError(f"camera image does not decode (corrupt or not a JPEG/PNG{': ' + report if report else ''}); "

@@ -95,6 +95,28 @@ def _init_worker(threads: int) -> None:
     set_threads(threads)
 
 
+def _exit_with_parent(period_s: float = 2.0) -> None:
+    """In a process-pool worker: exit when the driver that started it is gone. A driver killed with -9 left its
+    workers asleep on the pool's queue for ever (~460 MB each, the output log held open); what they had finished
+    is in the result files, and the next run redoes the job they were on."""
+    import threading
+    import time
+
+    parent = os.getppid()
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(period_s)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
+
+
+def _init_pool_worker(threads: int) -> None:
+    _init_worker(threads)
+    _exit_with_parent()
+
+
 def _remote_job(job: dict) -> dict:
     """``run_job`` in a Ray worker (a joined cluster's workers do not inherit ``_worker_env``)."""
     _init_worker(job["threads"])
@@ -136,7 +158,7 @@ def _process_loop(jobs, on_start, on_outcome, workers, retries, in_flight, threa
     queue = list(jobs)
     tries: dict[str, int] = {}
     ctx = multiprocessing.get_context("spawn")
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker, initargs=(threads,))
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_pool_worker, initargs=(threads,))
     running: dict = {}
     try:
         while queue or running:
@@ -168,7 +190,7 @@ def _process_loop(jobs, on_start, on_outcome, workers, retries, in_flight, threa
                     queue.insert(0, job)
                 running.clear()
                 pool.shutdown(wait=False, cancel_futures=True)
-                pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker,
+                pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_pool_worker,
                                            initargs=(threads,))
     finally:
         pool.shutdown(wait=True, cancel_futures=True)

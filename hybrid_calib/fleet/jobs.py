@@ -10,7 +10,8 @@ and the result file the job wrote: ``OUT/vehicles/<job id>/result.json`` (``cali
     {"version": "v1.0-sim",                       # optional, default the command's --version
      "roots": [ROOT, ...] | [{"data": ROOT, "version": V, "vehicles": [NAME, ...]}, ...]}
 
-(a bare list is read as ``roots``; relative paths are relative to the file).
+(a bare list is read as ``roots``; relative paths are relative to the file; "note", "comment" and keys starting
+with "_" are free text; any other key is refused: a typo such as "vehciles" calibrated the whole root).
 """
 
 from __future__ import annotations
@@ -68,19 +69,31 @@ def job_seed(seed: int, vehicle: str) -> int:
     return int(zlib.crc32(f"{int(seed)}/{vehicle}".encode()))
 
 
+FREE_TEXT = {"note", "comment", "description"}  # FLEET.json keys a reader may write anything in
+
+
 def read_fleet_file(path: str | Path, version: str) -> list[tuple[str, str, tuple[str, ...] | None]]:
     """``FLEET.json`` (module doc) -> [(root, version, vehicles or None)]; ``DataError`` naming the file."""
     path = Path(path)
     try:
-        doc = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as e:
-        raise DataError(f"fleet manifest unreadable ({e}); pass a JSON file as in hybrid_calib/fleet/jobs.py",
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError, RecursionError) as e:  # ValueError: not JSON, or not UTF-8
+        why = "nested too deeply" if isinstance(e, RecursionError) else f"{type(e).__name__}: {e}"
+        raise DataError(f"fleet manifest unreadable ({why}); pass a UTF-8 JSON file as in hybrid_calib/fleet/jobs.py",
                         path=str(path)) from None
+
+    def unknown(d: dict, allowed: set[str], where: str) -> None:
+        bad = sorted(k for k in d if k not in allowed | FREE_TEXT and not str(k).startswith("_"))
+        if bad:
+            raise DataError(f"fleet manifest {where}: unknown key(s) {bad} (valid: {sorted(allowed)}; free text: "
+                            f"{sorted(FREE_TEXT)} or a key starting with '_'); fix the spelling", path=str(path))
+
     if isinstance(doc, list):
         doc = {"roots": doc}
     if not isinstance(doc, dict) or not isinstance(doc.get("roots"), list) or not doc["roots"]:
         raise DataError('fleet manifest needs a non-empty "roots" list (paths or {"data", "version", '
                         '"vehicles"})', path=str(path))
+    unknown(doc, {"roots", "version"}, "top level")
     version = str(doc.get("version", version))
     out = []
     for i, r in enumerate(doc["roots"]):
@@ -88,12 +101,16 @@ def read_fleet_file(path: str | Path, version: str) -> list[tuple[str, str, tupl
         if not isinstance(r, dict) or not isinstance(r.get("data"), str):
             raise DataError(f"fleet manifest roots[{i}] is {r!r}; expected a path or {{\"data\": PATH, ...}}",
                             path=str(path))
+        unknown(r, {"data", "version", "vehicles"}, f"roots[{i}]")
         root = Path(r["data"])
         root = root if root.is_absolute() else path.parent / root
         vehicles = r.get("vehicles")
         if vehicles is not None and not (isinstance(vehicles, list) and all(isinstance(v, str) for v in vehicles)):
             raise DataError(f"fleet manifest roots[{i}].vehicles is {vehicles!r}; expected a list of vehicle names",
                             path=str(path))
+        if vehicles is not None and not vehicles:  # it read as "every vehicle"
+            raise DataError(f"fleet manifest roots[{i}].vehicles is empty; list the vehicles to calibrate, or drop "
+                            "the key to calibrate every vehicle of the root", path=str(path))
         out.append((str(root), str(r.get("version", version)), tuple(vehicles) if vehicles else None))
     return out
 

@@ -257,7 +257,7 @@ def load_priors(path: str | Path) -> dict[str, dict]:
 
     path = Path(path)
     try:
-        doc = json.loads(path.read_text())
+        doc = json.loads(path.read_text(encoding="utf-8"))
         priors = doc["priors"]
         sources = doc.get("sources") or {}
         if not isinstance(priors, dict):
@@ -267,8 +267,8 @@ def load_priors(path: str | Path) -> dict[str, dict]:
         for k, p in priors.items():
             if p is not None:
                 _check_prior(k, p)
-    except (OSError, ValueError, KeyError, TypeError, AttributeError, np.linalg.LinAlgError) as e:
-        raise DataError(f"fleet prior unreadable ({type(e).__name__}: {e}); pass the fleet_prior.json of a "
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, np.linalg.LinAlgError, RecursionError) as e:
+        raise DataError(f"fleet prior unreadable ({type(e).__name__}: {str(e)[:300]}); pass the fleet_prior.json of a "
                         "hybrid-calib fleet run", path=str(path)) from None
     out = {}
     for k, p in priors.items():
