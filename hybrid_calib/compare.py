@@ -125,8 +125,9 @@ def _read_trial(path: Path, method: str, k: int, vehicle: str | None = None) -> 
             raise ValueError(f"it holds the result of {', '.join(wrong)}, not trial {k} of {method}"
                              + (f" on {vehicle}" if vehicle else ""))
         return vr
-    except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
-        print(f"compare: trial file {path} is unreadable ({type(e).__name__}: {e}); running that trial again",
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, RecursionError) as e:
+        print(f"compare: trial file {path} is unreadable ({type(e).__name__}: {str(e)[:200]}); running that trial "
+              "again",
               file=sys.stderr)
         return None
 

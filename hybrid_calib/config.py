@@ -185,8 +185,9 @@ def read_out_record(path: Path, what: str, records: str) -> dict[str, Any] | Non
         doc = json.loads(path.read_text())
         if not isinstance(doc, dict):
             raise TypeError(f"a JSON {type(doc).__name__}, not an object")
-    except (OSError, ValueError, TypeError) as e:
-        raise DataError(f"the {what} of this --out is unreadable ({type(e).__name__}: {e}); it records {records}",
+    except (OSError, ValueError, TypeError, RecursionError) as e:
+        raise DataError(f"the {what} of this --out is unreadable ({type(e).__name__}: {str(e)[:200]}); it records "
+                        f"{records}",
                         path=str(path)) from None
     return doc
 

@@ -122,8 +122,9 @@ def read_checkpoint_meta(path: str | Path) -> tuple[Path, dict[str, Any]]:
         raise CheckpointError(f"checkpoint metadata is not valid JSON ({e.msg} at line {e.lineno} column "
                               f"{e.colno}); the file is truncated or corrupt: copy it again or pick another "
                               "checkpoint", path=str(path)) from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise CheckpointError(f"cannot read checkpoint metadata: {e}", path=str(path)) from None
+    except (OSError, UnicodeDecodeError, RecursionError) as e:
+        why = "it nests JSON too deeply: it is not a checkpoint" if isinstance(e, RecursionError) else e
+        raise CheckpointError(f"cannot read checkpoint metadata: {why}", path=str(path)) from None
     files = meta.get("files") if isinstance(meta, dict) else None
     if not isinstance(meta, dict) or not isinstance(files, dict) or "weights" not in files \
             or not isinstance(meta.get("model_config"), dict) or not isinstance(meta.get("epoch"), int):

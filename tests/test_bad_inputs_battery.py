@@ -1745,3 +1745,17 @@ def test_calibrate_says_it_reused_the_earlier_result(sim, calibrated, tmp_path, 
     assert main([str(a) for a in _calibrate(root, run, "--max-frames", "1", "--overwrite")]) == 0
     text = capsys.readouterr().out
     assert f"wrote {run / 'result.json'}" in text and "reused the earlier" not in text, text
+
+
+@pytest.mark.parametrize("what", ["report", "checkpoint", "manifest", "prior"])
+def test_json_nested_too_deeply_is_named_not_an_internal_error(what, sim, tmp_path, capsys):
+    """A JSON file of nested brackets ended report and calibrate with 'internal error: RecursionError'."""
+    root, _ = sim
+    deep = tmp_path / "deep.json"
+    deep.write_text("[" * 100000 + "]" * 100000)
+    argv = {"report": ["report", deep, "--out", tmp_path / "r.html"],
+            "checkpoint": _calibrate(root, tmp_path / "out", "--method", "pure", "--checkpoint", deep),
+            "manifest": ["fleet", "--manifest", deep, "--out", tmp_path / "f"],
+            "prior": ["fleet", "--data", root, "--prior", deep, "--out", tmp_path / "f"]}[what]
+    err = expect_cli_error(argv, capsys, deep).replace(str(deep), "")
+    assert ("nested too deeply" in err or "nests JSON too deeply" in err) and "internal error" not in err

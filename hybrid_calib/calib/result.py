@@ -390,8 +390,10 @@ class CalibrationRun:
         try:
             text = path.read_text()
             return cls.from_json(text, str(path))
-        except (OSError, json.JSONDecodeError) as e:
-            raise DataError(f"calibrate result unreadable ({e})", path=str(path)) from None
+        except (OSError, json.JSONDecodeError, UnicodeDecodeError, RecursionError) as e:
+            why = "nested too deeply" if isinstance(e, RecursionError) else e
+            raise DataError(f"calibrate result unreadable ({why}); pass the result.json of a hybrid-calib calibrate "
+                            "run", path=str(path)) from None
         except (KeyError, TypeError, ValueError) as e:
             raise DataError(f"calibrate result incomplete or invalid ({type(e).__name__}: {e}); re-run hybrid-calib "
                             "calibrate with --overwrite", path=str(path)) from None
@@ -434,7 +436,7 @@ class VehicleProgress:
             try:
                 old = json.loads((self.dir / "stamp.json").read_text())
                 changed = _changes(old, self.stamp) if isinstance(old, dict) else []
-            except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            except (OSError, ValueError, KeyError, TypeError, AttributeError, RecursionError):
                 changed = []  # a damaged or missing stamp: each record's own key tells whether it is this run's
             if changed and kept:
                 more = f"; {len(changed) - 4} more" if len(changed) > 4 else ""
@@ -460,8 +462,8 @@ class VehicleProgress:
                 return name, "not this run's record of that vehicle (copied from another run, or renamed)"
             self.done[name] = str(d["failed"]) if "failed" in d else VehicleResult.from_dict(d["result"], name)
             return name, ""
-        except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
-            return "", f"unreadable ({type(e).__name__}: {e})"
+        except (OSError, ValueError, KeyError, TypeError, AttributeError, RecursionError) as e:
+            return "", f"unreadable ({type(e).__name__}: {str(e)[:200]})"
 
     def _path(self, name: str) -> Path:
         from hybrid_calib.data.files import file_part

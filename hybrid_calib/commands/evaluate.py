@@ -82,7 +82,7 @@ def trained_on(checkpoint: str | Path, roots) -> list[str]:
     try:
         data = json.loads(run.read_text()).get("data") or {}
         seen = {str(Path(r).resolve()) for r in data.get("roots", [])}
-    except (OSError, ValueError, AttributeError, TypeError):
+    except (OSError, ValueError, AttributeError, TypeError, RecursionError):
         return []
     return [str(r) for r in roots if str(Path(r).resolve()) in seen]
 

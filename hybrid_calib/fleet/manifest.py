@@ -75,8 +75,10 @@ class Manifest:
                 old = doc["jobs"]
                 if doc.get("schema") != SCHEMA:
                     raise ValueError(f"schema {doc.get('schema')!r}")
-            except (OSError, ValueError, KeyError, TypeError) as e:
-                raise DataError(f"fleet manifest unreadable ({e}); move it away to start over",
+            except (OSError, ValueError, KeyError, TypeError, RecursionError) as e:
+                why = "nested too deeply" if isinstance(e, RecursionError) else f"{type(e).__name__}: {str(e)[:200]}"
+                raise DataError(f"fleet manifest unreadable ({why}); move it away to "
+                                "start over",
                                 path=str(path)) from None
             if (doc.get("method"), doc.get("seed")) != (method, seed):
                 raise DataError(f"this OUT holds a fleet run of method {doc.get('method')!r}, seed {doc.get('seed')}; "

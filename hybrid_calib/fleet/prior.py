@@ -268,7 +268,8 @@ def load_priors(path: str | Path) -> dict[str, dict]:
             if p is not None:
                 _check_prior(k, p)
     except (OSError, ValueError, KeyError, TypeError, AttributeError, np.linalg.LinAlgError, RecursionError) as e:
-        raise DataError(f"fleet prior unreadable ({type(e).__name__}: {str(e)[:300]}); pass the fleet_prior.json of a "
+        why = "nested too deeply" if isinstance(e, RecursionError) else f"{type(e).__name__}: {str(e)[:300]}"
+        raise DataError(f"fleet prior unreadable ({why}); pass the fleet_prior.json of a "
                         "hybrid-calib fleet run", path=str(path)) from None
     out = {}
     for k, p in priors.items():

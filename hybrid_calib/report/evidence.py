@@ -96,7 +96,7 @@ def run_config(result_path: Path) -> CalibrateConfig | None:
         return None
     try:
         return merge(CalibrateConfig, json.loads(p.read_text()))
-    except (ValueError, TypeError, json.JSONDecodeError) as e:
+    except (OSError, ValueError, TypeError, RecursionError) as e:
         raise DataError(f"run config unreadable ({e}); without it the report cannot rebuild the run's rows",
                         path=str(p)) from None
 

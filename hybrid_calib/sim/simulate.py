@@ -151,7 +151,7 @@ def simulate(conf: SimConfig, out: str | Path, overwrite: bool = False, workers:
 
         try:
             old = json.loads(conf_path.read_text())
-        except (OSError, ValueError):
+        except (OSError, ValueError, RecursionError):
             old = None
         if old != json.loads(json.dumps(conf_dict)):
             raise HybridCalibError(
