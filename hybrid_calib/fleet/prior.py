@@ -35,6 +35,12 @@ the inlier set is stable. The prior for an inlier vehicle is its leave-one-out p
 distribution ``N(T_ref exp(mu_-i), S_-i + Cov(mu_-i) + PINNED_INFLATION P)`` (its own data is not
 counted twice); for a new vehicle the full fit's; an outlier gets none (the crowd must not pull it
 back).
+
+Applying a saved prior (``load_priors``, ``match_prior``): the file records where each vehicle came from
+(``sources``: root, version, vehicle, frames); a named prior goes only to that vehicle of that root (another
+fleet's vehicle of the same name is a new vehicle to it), and a prior tighter than ``MIN_PRIOR_STD`` on any axis
+is refused on load. A vehicle's verdict names the axes where its estimate still restates the prior
+(``calib.drift.prior_note``).
 """
 
 from __future__ import annotations
