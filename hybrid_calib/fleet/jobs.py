@@ -200,7 +200,7 @@ def discover_jobs(roots: list[tuple[str, str, tuple[str, ...] | None]], method: 
     for root, version, v, info in found:
         jid = v if names.count(v) == 1 else f"{labels[root]}-{v}"
         prior, note = match_prior(priors or {}, jid, str(root), version, v)
-        if note is not None and notes is not None:
+        if note is not None and notes is not None and note not in notes:
             notes.append(note)
         # the folder is named after the vehicle of the tables, encoded (a name "../../x" escaped --out)
         folder = str(Path(out) / "vehicles" / file_part(jid))

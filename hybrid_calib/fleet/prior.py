@@ -308,8 +308,8 @@ def match_prior(priors: dict, job_id: str, data: str, version: str, vehicle: str
         return None, None
     src = p.get("source")
     if src is None:
-        return p, (f"{job_id}: the fleet prior's file records no source for its vehicles; its prior named "
-                   f"{job_id!r} is applied by name only (refit it with this version to check)")
+        return p, ("the fleet prior's file records no source for its vehicles (written by an older version): its "
+                   "named priors are applied by vehicle name only; refit it to have them checked")
     if same_source(src, data, version, vehicle):
         return p, None
     return priors.get("*"), (f"{job_id}: the fleet prior named {job_id!r} was fitted on vehicle {src.get('vehicle')} "
