@@ -390,7 +390,7 @@ def test_a_fleet_prior_is_applied_only_to_the_vehicle_it_was_fitted_on(local_run
     del doc["sources"]  # an older file: applied by name, with a word
     (tmp_path / "old.json").write_text(json.dumps(doc))
     p, note = match_prior(load_priors(tmp_path / "old.json"), name, str(tmp_path), "v1.0-sim", name)
-    assert p is not None and "by name only" in note
+    assert p is not None and "by vehicle name only" in note
 
 
 def test_fleet_file_lists_roots_and_bad_files_name_themselves(tmp_path):
