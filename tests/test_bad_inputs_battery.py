@@ -1759,3 +1759,16 @@ def test_json_nested_too_deeply_is_named_not_an_internal_error(what, sim, tmp_pa
             "prior": ["fleet", "--data", root, "--prior", deep, "--out", tmp_path / "f"]}[what]
     err = expect_cli_error(argv, capsys, deep).replace(str(deep), "")
     assert ("nested too deeply" in err or "nests JSON too deeply" in err) and "internal error" not in err
+
+
+def test_every_oracle_row_an_outlier_is_a_result_that_cannot_tell(sim, tmp_path, capsys):
+    """oracle.outlier_frac=1 (allowed) ended the run with 'internal error: Singular matrix' in the Cramer-Rao bound;
+    with 0.95 the unconverged estimate read 'differs by 96 deg in roll: recalibrate'."""
+    root, _ = sim
+    out = tmp_path / "out"
+    rc, err = run_cli(_calibrate(root, out, "--max-frames", "2", "--set", "oracle.outlier_frac=1"), capsys)
+    assert rc == 0, err
+    for v in json.loads((out / "result.json").read_text())["vehicles"].values():
+        assert "NOT CONVERGED" in v["final"]["status"] and v["crb_std_cam"] is None
+        assert v["drift"]["verdict"].startswith("cannot tell: the last solve did not converge")
+        assert v["drift"]["verdict_kind"] == "cannot tell" and not v["drift"]["drifted"]

@@ -331,3 +331,16 @@ def test_a_mount_monitor_that_tested_nothing_does_not_say_no():
     assert tested_words(skipped).startswith("no frame pair tested (4 frames skipped, the first because the ego poses")
     vr.mount = {**vr.mount, "frames_tested": 4, "pairs_tested": 4}
     assert moved_during_drive(vr)[0].startswith("no: no step alarm over the 5 frames")
+
+
+def test_the_attention_section_finds_a_network_methods_checkpoint(tmp_path):
+    """A hybrid / pure result names its checkpoint in vehicles.<v>.checkpoint; the page said 'the result names no
+    network checkpoint (a run on oracle or plain correspondences)'."""
+    from hybrid_calib.report.attention import attention_html
+    from hybrid_calib.report.evidence import Evidence
+
+    vr = _vr((0.0,) * 6, (0.1,) * 6)
+    assert "names no network checkpoint" in attention_html(vr, Evidence(), None, "v1.0-sim", "", tmp_path)
+    vr.checkpoint = "/ck/small-sim-r1.json -> /ck/small-sim-r0.json"  # a cascade: its first stage is drawn
+    html = attention_html(vr, Evidence(), None, "v1.0-sim", "", tmp_path)
+    assert "checkpoint /ck/small-sim-r1.json is named but no camera frame" in html

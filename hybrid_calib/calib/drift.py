@@ -283,6 +283,19 @@ def reference_test(
                          kind, sentence, tuple(axes), z)
 
 
+def unconverged(drift: dict, status: str) -> dict:
+    """``drift`` (``DriftDecision.to_dict``) with its verdict turned into "cannot tell" when the estimate's
+    ``status`` says the last solve did not converge (``schedule.convergence_note``'s "NOT CONVERGED"): such an
+    estimate says nothing about the mount (all oracle rows gross outliers read "differs by 96 deg in roll:
+    recalibrate"). Unchanged otherwise."""
+    if "NOT CONVERGED" not in status:
+        return drift
+    return {**drift, "drifted": False, "verdict_kind": "cannot tell",
+            "verdict": "cannot tell: the last solve did not converge, so the estimate says nothing about the mount "
+                       f"(it differs from the reference by {drift.get('rot_change_deg', float('nan')):.2f} deg, "
+                       f"{drift.get('trans_change_cm', float('nan')):.1f} cm)"}
+
+
 PRIOR_DOMINATED = 0.7  # posterior std >= this x the external prior's on an axis: the data hardly moved it there
 
 

@@ -16,6 +16,7 @@ roots) errors, NEES and, for oracle data, the Cramer-Rao std are added.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,7 +26,7 @@ import numpy as np
 from factors.io import load_measurement_dir
 from hybrid_calib.calib.batch import BatchConfig, solve_batch
 from hybrid_calib.calib.covariance import prior_pinned_std
-from hybrid_calib.calib.drift import DriftConfig, reference_test
+from hybrid_calib.calib.drift import DriftConfig, reference_test, unconverged
 from hybrid_calib.calib.oracle import OracleConfig, oracle_from_frame
 from hybrid_calib.calib.result import CalibrationRun, VehicleProgress, VehicleResult, reuse_result
 from hybrid_calib.calib.schedule import GaussianPrior
@@ -211,7 +212,8 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, rng, progress: bo
         final = solve_batch(frames, T0, conf.batch, priors=None if prior is None else [prior]).estimate
     res = VehicleResult(vi.vehicle, final, traj, skipped=skipped, n_frames=len(frames))
     fc = conf.window.factor if conf.mode == "window" else conf.batch.factor
-    res.drift = reference_test(final.T, final.cov, vi.reference, conf.drift, prior_pinned_std(fc)).to_dict()
+    drift = reference_test(final.T, final.cov, vi.reference, conf.drift, prior_pinned_std(fc))
+    res.drift = unconverged(drift.to_dict(), final.status)
     if prior is not None:
         from hybrid_calib.calib.drift import prior_note
 
@@ -227,7 +229,12 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, rng, progress: bo
         from hybrid_calib.calib.crb import oracle_crb
 
         T_true = vi.truth[-1]
-        res.crb_std = report_std(T_true, oracle_crb(T_true, vi.frames, vi.oracle_truths, conf.oracle.sigma_px, fc))
+        try:
+            res.crb_std = report_std(T_true, oracle_crb(T_true, vi.frames, vi.oracle_truths, conf.oracle.sigma_px, fc))
+        except np.linalg.LinAlgError:  # no inlier row pins a direction (e.g. oracle.outlier_frac=1): no bound to give;
+            res.crb_std = None  # it ended the whole run with 'internal error: Singular matrix'
+            res.final = dataclasses.replace(res.final, status=res.final.status + (
+                " (no Cramer-Rao bound: the true reflectors' rows leave a direction unconstrained)"))
     return res
 
 

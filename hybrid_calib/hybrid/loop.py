@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from hybrid_calib.calib.covariance import analyse_information, inconclusive_status
-from hybrid_calib.calib.drift import DriftConfig, reference_test
+from hybrid_calib.calib.drift import DriftConfig, reference_test, unconverged
 from hybrid_calib.calib.ego_doppler import drive_sweeps
 from hybrid_calib.calib.lever_arm import LeverArmConfig, apply_forward, refusal
 from hybrid_calib.calib.lever_arm import fit as fit_lever_arm
@@ -523,7 +523,7 @@ LEARNED = {"hybrid": _hybrid, "pure": _pure, "pure-avg": _pure_avg}
 
 def _finish(res: VehicleResult, drive: Drive, T0: np.ndarray, conf: HybridConfig) -> VehicleResult:
     final = res.final
-    res.drift = reference_test(final.T, final.cov, drive.reference, conf.drift).to_dict()
+    res.drift = unconverged(reference_test(final.T, final.cov, drive.reference, conf.drift).to_dict(), final.status)
     truth = drive.base if drive.end is None else drive.end  # the mount at the drive's end (a knock moved it)
     e = local(truth, final.T)
     res.truth_T = truth

@@ -43,7 +43,10 @@ def attention_figure(checkpoint: str | Path, data: str | Path, version: str, fra
 
 def attention_html(vr: VehicleResult, ev: Evidence, data, version: str, checkpoint: str, tmp: Path) -> str:
     """The attention section: the figure, or one line saying why it is absent."""
-    ckpt = checkpoint or (vr.network or {}).get("checkpoint") or ""
+    # the network methods name theirs in ``vr.checkpoint`` (a cascade: "A -> B", the first stage's attention is
+    # drawn); a run on exported correspondences in ``network["checkpoint"]``
+    named = str(vr.checkpoint or (vr.network or {}).get("checkpoint") or "").split(" -> ")[0].strip()
+    ckpt = checkpoint or named
     head = "<h3>Cross-attention on one frame</h3>"
     if not ckpt:
         return head + ("<p class=note>Absent: the result names no network checkpoint (a run on oracle or plain "
