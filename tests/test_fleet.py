@@ -568,3 +568,27 @@ def test_a_pool_worker_exits_when_its_driver_is_killed(tmp_path):
     if not gone:
         os.kill(worker, signal.SIGKILL)
     assert gone, "the worker outlived its driver"
+
+
+def test_a_vehicle_renamed_by_an_added_root_keeps_its_result(local_run, fleet_root, tmp_path):
+    """A root added on rerun renamed sim-veh-000 to <root>-sim-veh-000: it was calibrated again under the new id and
+    kept under the old one, so the fleet view and prior counted it twice (10 vehicles for 7)."""
+    import os
+    import shutil
+
+    out = tmp_path / "out"
+    shutil.copytree(local_run[0], out)
+    other = tmp_path / "other"
+    shutil.copytree(fleet_root, other, copy_function=os.link)  # a copy of the same root: the same logs
+    fleet = tmp_path / "FLEET.json"
+    fleet.write_text(json.dumps({"roots": [str(fleet_root), {"data": str(other), "vehicles": ["sim-veh-000"]}]}))
+    before = json.loads((out / "vehicles/sim-veh-000/result.json").read_text())
+    s = run_fleet(None, str(fleet), "v1.0-sim", "oracle", out, seed=1, calib={"window": {"window": 3}},
+                  options=FleetOptions(plots=False))
+    ids = set(json.loads((out / "manifest.json").read_text())["jobs"])
+    moved = next(i for i in ids if i.endswith("-sim-veh-000") and i != "other-sim-veh-000")
+    assert ids == {moved, "other-sim-veh-000", "sim-veh-001", "sim-veh-002", "sim-veh-003"}
+    assert s["counts"]["vehicles"] == 5 and not (out / "vehicles/sim-veh-000").exists()
+    assert json.loads((out / "vehicles" / moved / "result.json").read_text()) == before  # moved, not recomputed
+    assert any("have a new id now" in n and f"sim-veh-000 -> {moved}" in n for n in s["notes"])
+    assert any("hold the same log(s)" in n for n in s["notes"])

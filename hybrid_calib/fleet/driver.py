@@ -51,6 +51,14 @@ def run_fleet(roots: list[str] | None, manifest: str | None, version: str, metho
         notes.append(f"the fleet prior holds no prior for any of the {len(jobs)} vehicle(s) (its vehicles: "
                      f"{sorted(k for k in priors if k != '*')[:6]}, and no new-vehicle prior '*'): none is applied")
     m = Manifest.open(out / "manifest.json", jobs, method, seed)
+    if m.renamed:
+        notes.append(f"{len(m.renamed)} vehicle(s) of an earlier run into this --out have a new id now that the roots "
+                     f"differ ({', '.join(f'{a} -> {b}' for a, b in sorted(m.renamed.items())[:4])}): their results "
+                     "moved with them")
+    if earlier := sorted(set(m.jobs) - {j.id for j in jobs}):
+        notes.append(f"the fleet view also holds {len(earlier)} vehicle(s) of earlier runs into this --out that this "
+                     f"command did not list ({', '.join(earlier[:4])}{', ...' if len(earlier) > 4 else ''}): pass "
+                     "another --out for a fleet of these roots alone")
     todo = m.todo()
     host = socket.gethostname()
 

@@ -128,7 +128,8 @@ def _root_vehicles(root: str, version: str) -> dict[str, dict]:
         T_ego_cam, T_ego_radar = ds.tables.T_ego_sensor(ref.camera_sd), ds.tables.T_ego_sensor(ref.radar_sd)
         design = _design_T(ds.sim_vehicles.get(ref.log_token))
         out[vehicle] = {"tables_T": (se3_inverse(T_ego_cam) @ T_ego_radar).tolist(),
-                        "design_T": None if design is None else design.tolist()}
+                        "design_T": None if design is None else design.tolist(),
+                        "logs": sorted({ds.frames[i].log_token for i in idx})}
     return out
 
 
@@ -196,6 +197,13 @@ def discover_jobs(roots: list[tuple[str, str, tuple[str, ...] | None]], method: 
         found += [(root, version, v, info) for v, info in sorted(vs.items()) if wanted is None or v in wanted]
     names = [v for _, _, v, _ in found]
     labels = _root_labels([root for root, _, _, _ in found])
+    holders: dict[str, set[str]] = {}  # log token -> the roots holding it
+    for root, _, _, info in found:
+        for log in info.get("logs", ()):
+            holders.setdefault(log, set()).add(str(root))
+    if (shared := sorted({tuple(sorted(r)) for r in holders.values() if len(r) > 1})) and notes is not None:
+        notes.append(f"roots {' and '.join(shared[0])} hold the same log(s) (a copy of one root?): those drives are "
+                     "calibrated and counted in the fleet view and prior once per root; pass one of them")
     jobs = []
     for root, version, v, info in found:
         jid = v if names.count(v) == 1 else f"{labels[root]}-{v}"

@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from hybrid_calib.config import save_text_atomic
+from hybrid_calib.data.files import file_part
 from hybrid_calib.errors import DataError
 from hybrid_calib.fleet.jobs import Job
 
@@ -58,6 +59,7 @@ class Manifest:
     method: str
     seed: int
     jobs: dict[str, dict] = field(default_factory=dict)  # id -> entry (module doc)
+    renamed: dict[str, str] = field(default_factory=dict)  # old id -> new id of a vehicle (``_follow_renames``)
     save_every_s: float = 1.0  # the most often mark_running / record rewrite the file
     _next_save: float = field(default=float("-inf"), repr=False)  # and at most 1/5 of the driver's time
     _dirty: bool = field(default=False, repr=False)
@@ -84,6 +86,7 @@ class Manifest:
                 raise DataError(f"this OUT holds a fleet run of method {doc.get('method')!r}, seed {doc.get('seed')}; "
                                 f"pass the same --method/--seed or another --out", path=str(path))
             m.jobs = _checked_jobs(old, path)
+        m.renamed = _follow_renames(m.jobs, jobs, path)
         for job in jobs:
             e = m.jobs.get(job.id)
             if e is None:
@@ -150,6 +153,44 @@ class Manifest:
 
     def counts(self) -> dict[str, int]:
         return {s: sum(e["state"] == s for e in self.jobs.values()) for s in STATES}
+
+
+def _same_vehicle(a: dict, job: Job) -> bool:
+    """Whether the manifest's job record ``a`` is ``job``'s vehicle: the same vehicle of the same root and version."""
+    return (a.get("vehicle"), a.get("version")) == (job.vehicle, job.version) and \
+        os.path.realpath(str(a.get("data"))) == os.path.realpath(job.data)
+
+
+def _follow_renames(entries: dict[str, dict], jobs: list[Job], path: Path) -> dict[str, str]:
+    """Move each vehicle an earlier run recorded under another id to its id in this run (old id -> new id).
+
+    A job id is the vehicle's name, prefixed with its root's folder name only when two roots share the name
+    (``jobs.discover_jobs``): a root added to (or dropped from) the command renames vehicles, and the rerun
+    calibrated them again under the new id and kept the old entries, so the fleet view and prior counted those
+    vehicles twice (10 for 7). The entry and its folder (``vehicles/<id>/``, renamed atomically) follow the
+    vehicle; a folder that cannot move leaves the vehicle to be calibrated again under its new id."""
+    ids = {j.id for j in jobs}
+    renamed = {}
+    for job in jobs:
+        if job.id in entries:
+            continue
+        old = next((k for k, e in entries.items() if k not in ids and _same_vehicle(e["job"], job)), None)
+        if old is None:
+            continue
+        e = entries.pop(old)
+        # the folder beside this manifest (a job's recorded "out" is absolute: stale when --out was moved)
+        src, dst = path.parent / "vehicles" / file_part(old), Path(job.out)
+        try:
+            if src.is_dir() and not dst.exists():
+                dst.parent.mkdir(parents=True, exist_ok=True)
+                os.replace(src, dst)
+        except OSError:
+            pass  # the result stays where it is; this run computes the vehicle again under its new id
+        e["job"] = {**e["job"], "id": job.id, "out": job.out}
+        e["result"] = None
+        entries[job.id] = e
+        renamed[old] = job.id
+    return renamed
 
 
 def _checked_jobs(jobs, path: Path) -> dict[str, dict]:
