@@ -1772,3 +1772,14 @@ def test_every_oracle_row_an_outlier_is_a_result_that_cannot_tell(sim, tmp_path,
         assert "NOT CONVERGED" in v["final"]["status"] and v["crb_std_cam"] is None
         assert v["drift"]["verdict"].startswith("cannot tell: the last solve did not converge")
         assert v["drift"]["verdict_kind"] == "cannot tell" and not v["drift"]["drifted"]
+
+
+@pytest.mark.parametrize("command", ["calibrate", "compare"])
+def test_an_empty_split_is_named_not_blamed_on_the_vehicles(command, sim, tmp_path, capsys):
+    """--split test on a root whose scenes all go to train: 'no vehicle to calibrate (check --set vehicles=...)'
+    (calibrate) and 'no vehicle in [ROOT]' (compare), though the root has vehicles."""
+    root, _ = sim
+    argv = (_calibrate(root, tmp_path / "out", "--method", "pure", "--max-frames", "1") if command == "calibrate" else
+            ["compare", "--data", root, "--version", SIM_VERSION, "--trials", "1", "--methods", "pure",
+             "--no-progress", "--out", tmp_path / "out"])
+    expect_cli_error([*argv, "--split", "test", "--test-fraction", "0"], capsys, "is in split 'test'", "--split all")

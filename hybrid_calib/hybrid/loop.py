@@ -172,13 +172,14 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
     for log, words in (frames.intrinsic_changes() if hasattr(frames, "intrinsic_changes") else {}).items():
         print(f"log {log}: {words}", file=sys.stderr)
     keep = None if conf.split == "all" else set(split_indices(frames, conf.split, conf.split_options))
-    drives = {}
+    drives, outside_split = {}, []
     for vehicle, idx in sorted(frames.frames_by_vehicle().items()):
         if conf.vehicles is not None and vehicle not in conf.vehicles:
             continue
         if keep is not None:
             idx = [i for i in idx if i in keep]
             if not idx:
+                outside_split.append(vehicle)
                 continue
         idx = idx[: conf.max_frames] if conf.max_frames > 0 else idx
         f, first_error = None, None
@@ -202,6 +203,11 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
         drives[vehicle] = Drive(vehicle, list(idx), static, ref, simulated,
                                 None if ego_radar is None else np.asarray(ego_radar, np.float64),
                                 _end_truth(frames, idx, static) if simulated else None)
+    if outside_split and not drives and not unreadable:  # "no vehicle to calibrate (check --set vehicles=...)"
+        opts = f", split options {conf.split_options}" if conf.split_options else ""
+        raise DataError(f"no frame of vehicle(s) {outside_split} is in split {conf.split!r}{opts} ({len(frames)} "
+                        "frames in the data; split by scene, a root of one scene is all train); pass --split all, or "
+                        "--split-by time, or other --val-fraction / --test-fraction", path=str(data))
     # a wanted vehicle none of whose frames reads is in ``unreadable`` with its reason, not "not in the data"
     if conf.vehicles is not None and (missing := sorted(set(conf.vehicles) - set(drives) - set(unreadable or {}))):
         present = sorted(frames.frames_by_vehicle())
