@@ -465,7 +465,9 @@ def test_cli_train_then_evaluate(sim_root, tmp_path, capsys):
     assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--out", str(tmp_path / "e0"),
                                      "--set", "export.min_confidence=0", "--no-progress"]) == 0
     assert _run_command("calibrate", ["--correspondences", str(tmp_path / "e0"), *cal_argv, str(tmp_path / "c1")]) == 0
-    assert "sim-veh-002" in capsys.readouterr().out
+    said = capsys.readouterr()
+    assert "sim-veh-002" in said.out  # the test split's vehicle; the others are said to have no file in the export
+    assert "2 vehicle(s) of the root have no measurement file" in said.err and "sim-veh-000" in said.err
     (veh,) = CalibrationRun.load(tmp_path / "c1" / "result.json").vehicles.values()
     assert veh.vehicle == "sim-veh-002" and veh.n_frames == 3 and len(veh.trajectory) == 3
     assert veh.network["n_frames"] == 3 and veh.network["std_cam"] is not None and veh.error is not None

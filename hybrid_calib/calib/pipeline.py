@@ -105,7 +105,10 @@ def load_oracle(data, version: str, conf: CalibrateConfig | dict | None, rng) ->
     return _load_oracle(data, version, merge(CalibrateConfig, conf), rng)
 
 
-def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig) -> dict[str, VehicleInput]:
+def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
+              absent: dict[str, str] | None = None) -> dict[str, VehicleInput]:
+    """The measurement files of ``directory`` per vehicle; each vehicle of the root (``data``) with none of them is
+    put in ``absent`` (``calibrate`` says so: they vanished from result.json without a word)."""
     bad: list = []  # (sub-directory, file, DataError) of each unreadable file: skipped, the others are used
     groups = load_measurement_dir(directory, bad)
     if bad and not groups:
@@ -147,6 +150,10 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig)
         out[vehicle].skipped.extend({"index": None, "token": str(m.frame_id), "reason": "measurement file of a frame "
                                      "not in this root (another dataset's export): left out"}
                                     for m in ms if tokens and str(m.frame_id) not in tokens)
+    if absent is not None:
+        for vehicle in sorted(refs):
+            if vehicle not in out and (conf.vehicles is None or vehicle in conf.vehicles):
+                absent[vehicle] = f"no measurement file in {directory}"
     for sub, path, e in bad:  # a file that does not read has no vehicle field: its folder's, else every vehicle's
         for vehicle in [sub] if sub in out else list(out):
             out[vehicle].skipped.append({"index": None, "token": Path(path).stem,
@@ -254,12 +261,20 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
     if result_path.is_file() and not overwrite:
         return reuse_result(out, data, version, str(correspondences), to_dict(conf))
     rng = _seed_rng(conf.seed)
+    absent: dict[str, str] = {}
     if correspondences == "oracle":
         inputs = _load_oracle(data, version, conf, rng)
     else:
-        inputs = _load_dir(Path(correspondences), data, version, conf)
+        inputs = _load_dir(Path(correspondences), data, version, conf, absent)
     if not inputs:
         raise DataError("no vehicle to calibrate (check --vehicles and the dataset)", path=str(data))
+    if absent:  # said, not failed: an export of one split covers the vehicles of that split only
+        import sys
+
+        print(f"note: {len(absent)} vehicle(s) of the root have no measurement file in {correspondences} and are not "
+              f"calibrated ({', '.join(sorted(absent)[:5])}{', ...' if len(absent) > 5 else ''}): the export covered "
+              "other vehicles or frames; export them too (hybrid-calib evaluate --split all) to calibrate them",
+              file=sys.stderr)
     run = CalibrationRun(str(data), version, str(correspondences), conf.mode)
     # the vehicles an interrupted run finished (each vehicle's start is seeded by its name and the oracle rows
     # are drawn above for all: skipping them leaves the others' draws as they were)
