@@ -135,6 +135,15 @@ def _pcd_points(path: Path, field: str, value) -> None:
     write_radar_pcd(path, pts)
 
 
+def _byte_swapped(path: Path) -> None:
+    data = path.read_bytes()
+    head = data.index(b"DATA binary\n") + len(b"DATA binary\n")
+    from hybrid_calib.data.pcd import read_radar_pcd
+
+    pts = read_radar_pcd(path)
+    path.write_bytes(data[:head] + pts.astype(pts.dtype.newbyteorder(">")).tobytes())
+
+
 def _pcd_header(path: Path, old: bytes, new: bytes) -> None:
     data = path.read_bytes()
     assert old in data
@@ -169,6 +178,11 @@ RADAR_FRAME_CASES = {
                                       [_radar_file(r, f)])[1],
     "pcd-points-overstated": lambda r, f: (_pcd_header(_radar_file(r, f), b"\nPOINTS ", b"\nPOINTS 9"),
                                            [_radar_file(r, f)])[1],
+    # POINTS below WIDTH x HEIGHT read half of every sweep silently
+    "pcd-points-understated": lambda r, f: (_pcd_header(_radar_file(r, f), b"\nWIDTH ", b"\nWIDTH 9"),
+                                            ["WIDTH x HEIGHT", _radar_file(r, f)])[1],
+    # a big-endian body loaded as a few points at the sensor itself (~1e-8 m)
+    "pcd-byte-swapped": lambda r, f: (_byte_swapped(_radar_file(r, f)), ["byte-swapped", _radar_file(r, f)])[1],
     "ego-pose-non-unit-quaternion": lambda r, f: ["norm 2", _ego_pose(r, f, "rotation", [2.0, 0.0, 0.0, 0.0])],
     "ego-pose-nan": lambda r, f: ["non-finite", _ego_pose(r, f, "translation", [float("nan"), 0.0, 0.0])],
     "ego-pose-token-missing": lambda r, f: ["nosuchpose", "does not resolve", f.radar_sd["token"],

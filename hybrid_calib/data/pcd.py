@@ -110,6 +110,10 @@ def read_radar_pcd(path: str | Path) -> np.ndarray:
         n_points = int(header["POINTS"][0])
         if n_points < 0 or any(int(c) < 1 for c in counts):
             raise ValueError("POINTS must be >= 0 and every COUNT >= 1")
+        if "WIDTH" in header and "HEIGHT" in header and \
+                int(header["WIDTH"][0]) * int(header["HEIGHT"][0]) != n_points:  # half a sweep read silently
+            raise ValueError(f"POINTS {n_points} but WIDTH x HEIGHT = {header['WIDTH'][0]} x {header['HEIGHT'][0]}; "
+                             "they must agree")
     except (KeyError, ValueError, TypeError) as e:
         raise DataError(f"PCD header has an invalid field description ({e})", path=str(path)) from None
     body = raw[pos:]

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from hybrid_calib.data.files import check_regular_file
-from hybrid_calib.data.filters import RadarFilterConfig, filter_radar
+from hybrid_calib.data.filters import RadarFilterConfig, filter_radar, finite_mask
 from hybrid_calib.data.pcd import read_radar_pcd
 from hybrid_calib.data.tables import NuScenesTables
 from hybrid_calib.errors import DataError
@@ -23,6 +23,7 @@ from hybrid_calib.geometry import se3_inverse
 
 _VELOCITY_PAIRS = (("vx", "vy"), ("vx_comp", "vy_comp"))
 _FILTER_OPTION = {"invalid_state": "invalid_states", "dyn_prop": "dynprop_states", "ambig_state": "ambig_states"}
+AT_SENSOR_M = 0.01  # a radar point this close to the sensor is no reflector (the ARS 408 sees from ~0.2 m)
 
 
 @dataclass
@@ -75,6 +76,13 @@ def load_filtered_sweep(path: Path, conf: RadarFilterConfig, token: str) -> tupl
         raise DataError(f"all {len(raw)} radar points have NaN/inf coordinates (or lie beyond 1 km); the file is "
                         "corrupt, re-export it",
                         path=str(path), token=token)
+    # a byte-swapped body reads as points beyond 1 km (dropped above) and points at the sensor itself (~1e-8 m):
+    # nearly every point implausible, with a few left to be "the sweep"
+    at_sensor = np.hypot(raw["x"].astype(np.float64), raw["y"].astype(np.float64)) < AT_SENSOR_M
+    if len(raw) >= 3 and np.mean(at_sensor | ~finite_mask(raw)) > 0.9 and at_sensor.any():
+        raise DataError(f"{int(at_sensor.sum())} of the {len(raw)} radar points lie at the sensor itself (within "
+                        f"{100 * AT_SENSOR_M:g} cm) and {n_nonfinite} are NaN or beyond 1 km: the file is byte-swapped "
+                        "or corrupt, re-export it", path=str(path), token=token)
     return raw[rows], rows, len(raw), n_nonfinite
 
 
