@@ -1797,3 +1797,24 @@ def test_an_empty_split_is_named_not_blamed_on_the_vehicles(command, sim, tmp_pa
             ["compare", "--data", root, "--version", SIM_VERSION, "--trials", "1", "--methods", "pure",
              "--no-progress", "--out", tmp_path / "out"])
     expect_cli_error([*argv, "--split", "test", "--test-fraction", "0"], capsys, "is in split 'test'", "--split all")
+
+
+def test_a_flag_given_wins_over_set_in_every_command_and_says_so(sim, tmp_path, capsys, monkeypatch):
+    """inspect let --set nsweeps=3 overrule a typed --nsweeps 1 (calibrate the other way round), both silently."""
+    from hybrid_calib.data import nuscenes
+
+    seen = []
+
+    def opened(*a, **k):
+        seen.append(a[-1])
+        raise nuscenes.DataError("stop here")
+
+    monkeypatch.setattr(nuscenes, "NuScenesRadarCamera", opened)
+    root, _ = sim
+    _, err = run_cli(["inspect", "--data", root, "--version", SIM_VERSION, "--no-progress", "--nsweeps", "1",
+                      "--set", "nsweeps=3"], capsys)
+    assert seen[0].nsweeps == 1 and "--nsweeps 1 wins over --set nsweeps=3" in err
+    monkeypatch.undo()
+    out = tmp_path / "out"
+    rc, err = run_cli(_calibrate(root, out, "--max-frames", "1", "--set", "max_frames=2"), capsys)
+    assert rc == 0 and "--max-frames 1 wins over --set max_frames=2" in err

@@ -48,11 +48,21 @@ def split_overrides(args: argparse.Namespace) -> dict:
                               "gap_frames": "gap_frames"})
 
 
-def given_flags(args: argparse.Namespace, keys: dict[str, str]) -> dict:
+def given_flags(args: argparse.Namespace, keys: dict[str, str], overrides: dict | None = None) -> dict:
     """Config key -> value of the flags passed on the command line (``keys``: config key -> ``args``
     attribute; a flag whose argparse default is None and that was not passed is left out). A flag that
-    was passed wins over ``--set``; one that was not leaves ``--set`` (or the config's default) in charge."""
-    return {k: getattr(args, a) for k, a in keys.items() if getattr(args, a, None) is not None}
+    was passed wins over ``--set``; one that was not leaves ``--set`` (or the config's default) in charge.
+    With ``overrides`` (the ``--set`` values), a flag that overrules a different ``--set`` value is said on stderr
+    (the one rule of every command; it was silent, and inspect applied the opposite one)."""
+    import sys
+
+    given = {k: getattr(args, a) for k, a in keys.items() if getattr(args, a, None) is not None}
+    for k, v in given.items():
+        if overrides is not None and k in overrides and overrides[k] != v:
+            flag = "--" + keys[k].replace("_", "-")
+            print(f"note: {flag} {v} wins over --set {k}={overrides[k]!r} (a flag given overrules --set)",
+                  file=sys.stderr)
+    return given
 
 
 def reject_set_keys(overrides: dict, keys: dict[str, str]) -> None:

@@ -79,7 +79,7 @@ def _learned(args: argparse.Namespace, on_vehicle):
     overrides = parse_overrides(args.set)
     reject_set_keys(overrides, {"method": "--method", "split": "--split"})
     # a flag that was passed wins over --set; an absent one leaves --set (or the default) in charge
-    overrides.update(method=args.method, split=args.split, **given_flags(args, FLAGS))
+    overrides.update(method=args.method, split=args.split, **given_flags(args, FLAGS, overrides))
     for key in ("checkpoint", "depth", "refine"):
         if getattr(args, key):
             overrides[key] = getattr(args, key)
@@ -112,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
                                       "--method")
     overrides = parse_overrides(args.set)
     # an explicit flag wins over --set; an absent one leaves --set (or the default) in charge
-    overrides.update(given_flags(args, {**FLAGS, "mode": "mode"}))
+    overrides.update(given_flags(args, {**FLAGS, "mode": "mode"}, overrides))
     if args.window is not None:
         overrides.setdefault("window", {})["window"] = args.window
     if args.backend is not None:

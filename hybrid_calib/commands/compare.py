@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
     hybrid = parse_overrides(args.set)
     # compare sets these per trial from its own flags
     reject_set_keys(hybrid, {"method": "--methods", "start": "--range", "seed": "--seed", "split": "--split"})
-    hybrid.update(split=args.split, **given_flags(args, {"max_frames": "max_frames"}))
+    hybrid.update(split=args.split, **given_flags(args, {"max_frames": "max_frames"}, hybrid))
     for key in ("checkpoint", "refine"):
         if getattr(args, key):  # "" = not passed: --set (or the default) stays in charge
             hybrid[key] = getattr(args, key)

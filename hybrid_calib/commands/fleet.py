@@ -52,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     check_options(args)
     calib = parse_overrides(args.set)
     reject_set_keys(calib, {"seed": "--seed"})  # each job's seed comes from the fleet seed and its vehicle
-    calib.update(given_flags(args, {"max_frames": "max_frames"}))  # --max-frames wins over --set max_frames
+    calib.update(given_flags(args, {"max_frames": "max_frames"}, calib))  # --max-frames wins over --set max_frames
     if args.method == "oracle":
         merge(CalibrateConfig, {**calib, "seed": args.seed})  # ConfigError names a bad option before any job runs
     else:  # the network methods' jobs merge --set into HybridConfig (fleet.jobs.calibrate_job): checked alike

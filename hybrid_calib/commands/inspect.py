@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from hybrid_calib.commands import nonnegative_int, positive_int
+from hybrid_calib.commands import given_flags, nonnegative_int, positive_int
 from hybrid_calib.config import merge, parse_overrides, save_json_atomic, to_dict
 from hybrid_calib.errors import OptionError
 
@@ -25,7 +25,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--version", required=True, help="version folder, e.g. v1.0-mini, v1.0-trainval, v1.0-sim")
     parser.add_argument("--radar", default="RADAR_FRONT", help="radar channel (default RADAR_FRONT)")
     parser.add_argument("--camera", default="CAM_FRONT", help="camera channel (default CAM_FRONT)")
-    parser.add_argument("--nsweeps", type=positive_int, default=1, help="radar sweeps accumulated per frame")
+    parser.add_argument("--nsweeps", type=positive_int, default=None,
+                        help="radar sweeps accumulated per frame (default: 1, or --set nsweeps=N)")
     parser.add_argument("--frame", type=nonnegative_int, default=None,
                         help="frame index for the overlay written with --out (default: first loaded)")
     parser.add_argument("--out", type=Path, default=None, help="write the JSON summary, config and overlay PNG here")
@@ -43,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
         raise OptionError("--frame", "picks the frame of the overlay PNG, which is written only with --out; pass --out "
                                      f"DIR to draw frame {args.frame}, or drop --frame")
     overrides = parse_overrides(args.overrides)
-    overrides.setdefault("nsweeps", args.nsweeps)
+    overrides.update(given_flags(args, {"nsweeps": "nsweeps"}, overrides))  # a flag given wins, as everywhere
     overrides.setdefault("decode_images", True)  # inspect looks for everything that is wrong, pixel data included
     conf = merge(DataConfig, overrides)
     ds = NuScenesRadarCamera(args.data, args.version, args.radar, args.camera, conf)

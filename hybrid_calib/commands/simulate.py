@@ -39,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
 
     overrides = parse_overrides(args.set)
     # a flag that was passed wins over --set; an absent one leaves --set (or the default) in charge
-    overrides.update(given_flags(args, {k: k for k in ("scenario", "vehicles", "frames", "seed")}))
+    overrides.update(given_flags(args, {k: k for k in ("scenario", "vehicles", "frames", "seed")}, overrides))
     flags = given_flags(args, {"kind": "extrinsic_change", "frame": "change_frame"})
     change = overrides.get("extrinsic_change", {})
     if flags and isinstance(change, dict):  # not a dict: merge names the bad --set value
