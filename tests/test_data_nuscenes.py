@@ -403,3 +403,19 @@ def test_the_hybrid_says_which_calibrations_of_a_vehicle_it_calibrates(tmp_path,
     err = capsys.readouterr().err
     assert "vehicle tiny: its frames hold 2 camera-radar calibrations in the tables, calibrated as tiny, tiny-cal2" \
         in err and "(tiny-cal2 not among the vehicles asked for)" in err
+
+
+def test_inspect_warns_about_tables_that_load_but_cannot_be_right():
+    """Images half the size the intrinsics were made for (0 of 1967 radar points in the image) and timestamps in
+    milliseconds (keyframes 0.5 ms apart) were a clean bill: '41/41 frames loaded, 0 skipped'."""
+    from hybrid_calib.data.summary import DatasetSummary, GroupSummary
+
+    def summary(in_image: int, step_us: int) -> str:
+        g = GroupSummary("s", "v", "log", frames=40, loaded=40, radar_points=[50] * 40, radar_in_image=in_image,
+                         camera_us=[k * step_us for k in range(40)])
+        return DatasetSummary("root", "v1.0-mini", "RADAR_FRONT", "CAM_FRONT", [g], [], 0).format()
+
+    clean = summary(900, 500_000)
+    assert "warning" not in clean
+    assert "warning: only 0 of 2000 radar points (0.0 %) project into the CAM_FRONT image" in summary(0, 500_000)
+    assert "warning: keyframes are 0.500 ms apart" in summary(900, 500)

@@ -26,6 +26,10 @@ import numpy as np
 
 from hybrid_calib.data.nuscenes import NuScenesRadarCamera
 from hybrid_calib.data.sweeps import sweep_files_between
+from hybrid_calib.geometry import transform_points
+
+MIN_IN_IMAGE = 0.02  # fewer radar points in the image than this fraction: the tables' calibration cannot be right
+MIN_KEYFRAME_GAP_US = 10_000  # keyframes closer than 10 ms (nuScenes: 500 ms): the timestamps are not microseconds
 
 
 @dataclass
@@ -43,6 +47,8 @@ class GroupSummary:
     sweeps_between: int = 0  # non-keyframe radar sweep records between the keyframes (data.sweeps)
     sweeps_on_disk: int = 0  # ... whose files are on disk
     sweeps_broken: int = 0  # ... broken (a prev pointer that does not resolve, a file name outside the root)
+    radar_in_image: int = 0  # radar points that project into the image with the tables' extrinsic and intrinsics
+    camera_us: list[int] = field(default_factory=list)  # camera keyframe timestamps (the sanity of their unit)
 
     def to_json(self) -> dict[str, Any]:
         pts = np.asarray(self.radar_points or [0])
@@ -100,7 +106,7 @@ class DatasetSummary:
             lines.append(f"{g.scene[:24]:24s} {g.vehicle[:12]:12s} {g.frames:6d} {g.loaded:6d} "
                          f"{p['mean']:7.1f} [{p['min']:3d},{p['max']:4d}] {j['radar_points_raw_mean']:6.1f} "
                          f"{g.nonfinite:5d} {j['dt_radar_minus_camera_ms']['mean']:7.1f}")
-        lines += self._sweep_lines()
+        lines += self._sweep_lines() + self._sanity_lines()
         for vehicle, names in self.calibration_splits.items():
             far = [f"{n}: {d:.2f} deg, {cm:.1f} cm from {vehicle}'s" for n in names[1:]
                    if (off := self.calibration_offsets.get(n)) is not None for d, cm in [off]]
@@ -113,6 +119,22 @@ class DatasetSummary:
                          "(the skipped items below say why); check --radar/--camera and the tables")
         lines += format_skips(self.skipped, listed_in)
         return "\n".join(lines)
+
+    def _sanity_lines(self) -> list[str]:
+        """Warnings on tables that load but cannot be right: radar points that (almost) never fall into the image
+        with the tables' calibration, keyframes milliseconds apart (both passed as a clean bill)."""
+        out = []
+        pts, inside = sum(sum(g.radar_points) for g in self.groups), sum(g.radar_in_image for g in self.groups)
+        if pts >= 50 and inside < MIN_IN_IMAGE * pts:
+            out.append(f"warning: only {inside} of {pts} radar points ({100 * inside / pts:.1f} %) project into the "
+                       f"{self.camera_channel} image with the tables' extrinsic and intrinsics: the intrinsics may be "
+                       "for another image size (width/height in sample_data against camera_intrinsic's principal "
+                       "point), or the camera-radar extrinsic is far off")
+        gaps = [d for g in self.groups for d in np.diff(sorted(g.camera_us))]
+        if gaps and 0 < float(np.median(gaps)) < MIN_KEYFRAME_GAP_US:
+            out.append(f"warning: keyframes are {float(np.median(gaps)) / 1000:.3f} ms apart (median): the timestamps "
+                       "look like milliseconds or seconds; nuScenes uses microseconds (keyframes ~500 ms apart)")
+        return out
 
     def _sweep_lines(self) -> list[str]:
         """What the radar's non-keyframe sweeps give the Doppler steps (mount monitor, lever arm), in words."""
@@ -196,6 +218,9 @@ def summarize_dataset(ds: NuScenesRadarCamera, progress: bool = True) -> Dataset
         g.nonfinite += int(f.extras["radar_nonfinite_dropped"])
         g.lidar_nonfinite += int(f.extras.get("lidar_nonfinite_dropped", 0))
         g.dt_ms.append((f.timestamp_radar_us - f.timestamp_camera_us) / 1000.0)
+        g.camera_us.append(int(f.timestamp_camera_us))
+        uv, z = f.camera.project(transform_points(f.T_cam_radar, f.radar_points))
+        g.radar_in_image += int(((z > 0) & f.camera.in_image(uv)).sum())
         first = f.index if first is None else first
     return DatasetSummary(str(ds.root), ds.version, ds.radar_channel, ds.camera_channel, list(groups.values()),
                           [dataclasses.asdict(s) for s in ds.skipped], first, dict(ds.calibration_splits),
