@@ -316,3 +316,21 @@ def test_step_detector_axis_scales_lag_and_longer_windows():
     for _ in range(4):
         det.observe({5: _axis_test(np.full(6, 10.0))})
     assert np.allclose(det.axis_scales(5), before)
+
+
+def test_a_yaw_difference_the_radar_mount_monitor_does_not_see_points_at_the_camera_side():
+    """A principal point 20 px off read as the radar yawed 3.9 deg: 'recalibrate', while the mount monitor read the
+    radar at its tables' yaw (0.13 +- 0.07 deg); the verdict now names the camera side as the likelier cause."""
+    from hybrid_calib.calib.drift import camera_side_note
+
+    drift = {"verdict": "differs by 3.94 deg in yaw: recalibrate",
+             "axes": {"yaw": {"delta": 3.94, "std": 0.51, "tolerance": 0.5, "decision": "differs"}}}
+    agrees = {"steps": [], "levels": [{"level_deg": 0.13, "std_deg": 0.07, "pairs": 42}]}
+    noted = camera_side_note(drift, agrees)
+    assert "camera side" in noted["verdict"] and "+0.13 +- 0.07 deg" in noted["camera_side"]
+    moved = {"steps": [], "levels": [{"level_deg": 3.8, "std_deg": 0.1, "pairs": 42}]}  # the radar turned: no note
+    assert camera_side_note(drift, moved) == drift
+    assert camera_side_note(drift, None) == drift
+    assert camera_side_note(drift, {**agrees, "steps": [{"step_deg": 1.0}]}) == drift
+    within = {**drift, "axes": {"yaw": {**drift["axes"]["yaw"], "decision": "within"}}}
+    assert camera_side_note(within, agrees) == within

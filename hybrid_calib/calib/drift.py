@@ -296,6 +296,27 @@ def unconverged(drift: dict, status: str) -> dict:
                        f"{drift.get('trans_change_cm', float('nan')):.1f} cm)"}
 
 
+def camera_side_note(drift: dict, mount: dict | None) -> dict:
+    """``drift`` with a sentence added when it says the yaw differs from the tables while the radar mount monitor
+    (``calib.mount_monitor``: the radar's yaw on the vehicle from its Doppler against the ego poses) reads the radar
+    at its tables' yaw: the camera side (its mount or its intrinsics: a principal point 20 px off read as a 3.9 deg
+    yaw) is then the likelier cause, not the radar. Unchanged otherwise (no monitor, a step, a level off the tables,
+    or no yaw difference)."""
+    yaw = (drift.get("axes") or {}).get("yaw") or {}
+    levels = (mount or {}).get("levels") or []
+    if yaw.get("decision") != "differs" or len(levels) != 1 or (mount or {}).get("steps"):
+        return drift
+    lv = levels[0]
+    level, std = float(lv.get("level_deg", np.nan)), float(lv.get("std_deg", np.nan))
+    if not (np.isfinite(level) and np.isfinite(std)) or abs(level) > 3 * std + 0.1 * float(yaw["tolerance"]) or \
+            abs(float(yaw["delta"]) - level) < 3 * np.hypot(float(yaw["std"]), std):
+        return drift
+    note = (f"the radar's own yaw on the vehicle agrees with its tables (radar mount monitor: {level:+.2f} +- "
+            f"{std:.2f} deg over {lv.get('pairs', '?')} sweep pairs), so the camera side (its mount or intrinsics in "
+            "calibrated_sensor.json) is the likelier cause of the yaw difference")
+    return {**drift, "camera_side": note, "verdict": f"{drift.get('verdict', '')}; {note}"}
+
+
 PRIOR_DOMINATED = 0.7  # posterior std >= this x the external prior's on an axis: the data hardly moved it there
 
 

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from hybrid_calib.calib.covariance import analyse_information, inconclusive_status
-from hybrid_calib.calib.drift import DriftConfig, reference_test, unconverged
+from hybrid_calib.calib.drift import DriftConfig, camera_side_note, reference_test, unconverged
 from hybrid_calib.calib.ego_doppler import drive_sweeps
 from hybrid_calib.calib.lever_arm import LeverArmConfig, apply_forward, refusal
 from hybrid_calib.calib.lever_arm import fit as fit_lever_arm
@@ -628,6 +628,7 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     if wider := range_note(conf.start, runner.range, runner.checkpoint):
         res.config["range_note"] = wider
     res = _finish(res, drive, T0, conf)
+    res.drift = camera_side_note(res.drift, res.mount)
     reason = "; and ".join(r for r in (ood["inconclusive"], unfitted_reason(runner, conf.method)) if r)
     if reason:
         final = dataclasses.replace(res.final, status=inconclusive_status(reason, res.final.status))
