@@ -592,3 +592,36 @@ def test_a_vehicle_renamed_by_an_added_root_keeps_its_result(local_run, fleet_ro
     assert json.loads((out / "vehicles" / moved / "result.json").read_text()) == before  # moved, not recomputed
     assert any("have a new id now" in n and f"sim-veh-000 -> {moved}" in n for n in s["notes"])
     assert any("hold the same log(s)" in n for n in s["notes"])
+
+
+def test_a_rerun_after_the_data_changed_does_not_reuse_the_old_results(local_run, fleet_root, tmp_path):
+    """The rerun after a re-download (or a re-simulation) said "reused the earlier result ...: the same data" and a
+    fleet reported the old vehicles as done for the new data: the path alone decided."""
+    import os
+    import shutil
+
+    from hybrid_calib.calib.pipeline import calibrate
+    from hybrid_calib.errors import HybridCalibError
+
+    root = tmp_path / "root"
+    shutil.copytree(fleet_root, root, copy_function=os.link)
+    conf = {"window": {"window": 3}, "vehicles": ("sim-veh-000",)}
+    calibrate(root, "v1.0-sim", "oracle", tmp_path / "c", conf)
+    calibrate(root, "v1.0-sim", "oracle", tmp_path / "c", conf)  # unchanged: reused
+    image = next((root / "samples" / "CAM_FRONT").iterdir())
+    data = image.read_bytes()
+    image.unlink()
+    image.write_bytes(data)  # re-downloaded: its folder changed
+    with pytest.raises(HybridCalibError, match="was computed before .*data changed.*--overwrite"):
+        calibrate(root, "v1.0-sim", "oracle", tmp_path / "c", conf)
+    # a fleet: the done vehicles of that root are calibrated again, and the run says why
+    out = tmp_path / "fleet"
+    shutil.copytree(local_run[0], out)
+    manifest = (out / "manifest.json").read_text().replace(str(fleet_root), str(root))
+    (out / "manifest.json").write_text(manifest)
+    for stamp in out.glob("vehicles/*/data_stamp.json"):
+        stamp.write_text(json.dumps({"digest": "from other data"}))
+    s = run_fleet([str(root)], None, "v1.0-sim", "oracle", out, seed=1, calib={"window": {"window": 3}},
+                  options=FleetOptions(plots=False))
+    assert any("calibrated again: their root's data changed" in n for n in s["notes"])
+    assert all(json.loads(p.read_text())["digest"] != "from other data" for p in out.glob("vehicles/*/data_stamp.json"))

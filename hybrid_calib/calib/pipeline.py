@@ -28,10 +28,11 @@ from hybrid_calib.calib.batch import BatchConfig, solve_batch
 from hybrid_calib.calib.covariance import prior_pinned_std
 from hybrid_calib.calib.drift import DriftConfig, reference_test, unconverged
 from hybrid_calib.calib.oracle import OracleConfig, oracle_from_frame
-from hybrid_calib.calib.result import CalibrationRun, VehicleProgress, VehicleResult, reuse_result
+from hybrid_calib.calib.result import DATA_STAMP, CalibrationRun, VehicleProgress, VehicleResult, reuse_result
 from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import ConfigError, merge, save_json_atomic, to_dict
+from hybrid_calib.data.files import data_stamp
 from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.perturbation import RANGES, vehicle_start
 
@@ -285,6 +286,8 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
                                                                 (priors or {}).get(name)), on_vehicle, progress)
     run.raise_if_none_done()
     save_json_atomic(out / "config.json", to_dict(conf))
+    if data is not None:  # a rerun on changed data must not reuse it
+        save_json_atomic(out / DATA_STAMP, data_stamp(data, version))
     run.save(result_path)
     done.finish()
     return run

@@ -399,6 +399,7 @@ class CalibrationRun:
                             "calibrate with --overwrite", path=str(path)) from None
 
 
+DATA_STAMP = "data_stamp.json"  # beside result.json: ``data.files.data_stamp`` of the data it was computed from
 RUN_ONLY = ("progress", "threads", "cache_dir", "depth_cache")  # config keys of how a run ran, not of what it gave
 
 
@@ -529,6 +530,19 @@ def reuse_result(out: str | Path, data, version: str, source: str, conf: dict) -
 
     changed = _changes({"data": run.data, "version": run.version, "source": run.correspondences, "config": old},
                        {"data": str(data), "version": version, "source": source, "config": conf})
+    # the same path, but the data in it may have changed since
+    if not changed and data is not None and (out / DATA_STAMP).is_file():
+        from hybrid_calib.data.files import data_stamp
+
+        try:
+            then = json.loads((out / DATA_STAMP).read_text()).get("digest")
+        except (OSError, ValueError, AttributeError, RecursionError):
+            then = None
+        now = data_stamp(data, version)
+        if then is not None and then != now["digest"]:
+            raise HybridCalibError(f"{out / 'result.json'} was computed before {data}'s data changed (its tables or "
+                                   f"sensor folders were modified since, the newest at {now['newest']}): pass "
+                                   "--overwrite to recompute it from the data as they are now, or another --out")
     if changed:
         more = f"; {len(changed) - 4} more" if len(changed) > 4 else ""
         raise HybridCalibError(f"{out} holds the result of another run ({'; '.join(changed[:4])}{more}; "

@@ -7,6 +7,8 @@
 - ``NPZ_ERRORS``: those ways, for the caches that recompute a damaged entry instead of failing.
 - ``file_part``: a name taken from the data (a vehicle, a token) as one safe file-name component: the one
   rule for every file or folder a run names after them.
+- ``data_stamp``: what changes when a root's data change (its tables, its sensor folders), so a rerun never
+  reuses a result computed from other data on the strength of the path.
 """
 
 from __future__ import annotations
@@ -55,6 +57,30 @@ def file_part(name: str) -> str:
     if len(part) > MAX_FILE_PART:
         part = part[:MAX_FILE_PART] + "~" + hashlib.sha1(name.encode("utf-8", "surrogatepass")).hexdigest()[:12]
     return part
+
+
+def data_stamp(root: str | Path, version: str) -> dict:
+    """{"digest", "newest"} of a root's data as a calibration reads it: the version folder's tables (name, size,
+    modification time) and the folders of ``samples/`` and ``sweeps/`` (their modification time changes when a
+    file in them is added, removed or replaced by a rename: a re-download, a re-simulation). A file rewritten in
+    place is not seen (stat'ing every frame file of a large root on each rerun is not worth it). ``newest``: the
+    latest of those times (ISO, UTC), for the message."""
+    import datetime
+    import hashlib
+
+    root = Path(root)
+    items = []
+    for path in sorted((root / version).glob("*.json")) + sorted(
+            d for top in ("samples", "sweeps") if (root / top).is_dir() for d in (root / top).iterdir() if d.is_dir()):
+        try:
+            st = path.stat()
+        except OSError:
+            continue
+        items.append((str(path.relative_to(root)), st.st_size if path.is_file() else 0, st.st_mtime_ns))
+    newest = max((t for _, _, t in items), default=0)
+    return {"digest": hashlib.sha1(repr(items).encode()).hexdigest(),
+            "newest": datetime.datetime.fromtimestamp(newest / 1e9, datetime.timezone.utc).isoformat(
+                timespec="seconds") if newest else None}
 
 
 def check_regular_file(path: str | Path, what: str, token: str | None = None) -> None:

@@ -51,6 +51,9 @@ def run_fleet(roots: list[str] | None, manifest: str | None, version: str, metho
         notes.append(f"the fleet prior holds no prior for any of the {len(jobs)} vehicle(s) (its vehicles: "
                      f"{sorted(k for k in priors if k != '*')[:6]}, and no new-vehicle prior '*'): none is applied")
     m = Manifest.open(out / "manifest.json", jobs, method, seed)
+    if m.stale:
+        notes.append(f"{len(m.stale)} vehicle(s) done by an earlier run are calibrated again: their root's data "
+                     f"changed since ({', '.join(m.stale[:4])}{', ...' if len(m.stale) > 4 else ''})")
     if m.renamed:
         notes.append(f"{len(m.renamed)} vehicle(s) of an earlier run into this --out have a new id now that the roots "
                      f"differ ({', '.join(f'{a} -> {b}' for a, b in sorted(m.renamed.items())[:4])}): their results "

@@ -60,6 +60,7 @@ class Manifest:
     seed: int
     jobs: dict[str, dict] = field(default_factory=dict)  # id -> entry (module doc)
     renamed: dict[str, str] = field(default_factory=dict)  # old id -> new id of a vehicle (``_follow_renames``)
+    stale: list[str] = field(default_factory=list)  # done jobs whose root's data changed since (``_data_changed``)
     save_every_s: float = 1.0  # the most often mark_running / record rewrite the file
     _next_save: float = field(default=float("-inf"), repr=False)  # and at most 1/5 of the driver's time
     _dirty: bool = field(default=False, repr=False)
@@ -87,6 +88,7 @@ class Manifest:
                                 f"pass the same --method/--seed or another --out", path=str(path))
             m.jobs = _checked_jobs(old, path)
         m.renamed = _follow_renames(m.jobs, jobs, path)
+        stamps: dict = {}  # (root, version) -> data_stamp, computed once per root
         for job in jobs:
             e = m.jobs.get(job.id)
             if e is None:
@@ -94,6 +96,9 @@ class Manifest:
                                   "attempts": 0, "wall_s": None, "cpu_s": None, "host": None, "result": None}
                 continue
             done = result_complete(job.result_path)
+            if done and _data_changed(job, stamps):  # re-downloaded, re-simulated: computed again, and said
+                done = False
+                m.stale.append(job.id)
             if done and (changed := _changed_options(e["job"], job)):
                 raise DataError(f"this OUT holds vehicle {job.id} calibrated with other options "
                                 f"({'; '.join(changed)}), so this run would report that result as its own; pass the "
@@ -153,6 +158,23 @@ class Manifest:
 
     def counts(self) -> dict[str, int]:
         return {s: sum(e["state"] == s for e in self.jobs.values()) for s in STATES}
+
+
+def _data_changed(job: Job, stamps: dict) -> bool:
+    """Whether ``job``'s root changed since its result was computed (``calib.result.DATA_STAMP`` beside it against
+    ``data.files.data_stamp`` now): a fleet rerun after a re-download or a re-simulation reported the old vehicles
+    as done for the new data. A result without a stamp (an older version's) is kept."""
+    from hybrid_calib.calib.result import DATA_STAMP
+    from hybrid_calib.data.files import data_stamp
+
+    try:
+        then = json.loads((Path(job.out) / DATA_STAMP).read_text()).get("digest")
+    except (OSError, ValueError, AttributeError, RecursionError):
+        return False
+    key = (os.path.realpath(job.data), job.version)
+    if key not in stamps:
+        stamps[key] = data_stamp(job.data, job.version)["digest"]
+    return then is not None and then != stamps[key]
 
 
 def _same_vehicle(a: dict, job: Job) -> bool:

@@ -43,6 +43,7 @@ from hybrid_calib.calib.lidar_alignment import refusal as lidar_refusal
 from hybrid_calib.calib.mount_monitor import MountMonitor, MountMonitorConfig
 from hybrid_calib.calib.oracle import OracleConfig
 from hybrid_calib.calib.result import (
+    DATA_STAMP,
     CalibrationRun,
     Estimate,
     FrameEstimate,
@@ -54,6 +55,7 @@ from hybrid_calib.calib.result import (
 from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import merge, save_json_atomic, to_dict
+from hybrid_calib.data.files import data_stamp
 from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.geometry import local, se3_exp
 from hybrid_calib.hybrid.average import AverageConfig, robust_average
@@ -722,6 +724,7 @@ def run_calibration(data: str | Path, version: str, out: str | Path, conf: Hybri
     done.fill(run, list(session.drives), session.vehicle, on_vehicle, conf.progress)
     run.raise_if_none_done()
     save_json_atomic(out / "config.json", to_dict(conf))
+    save_json_atomic(out / DATA_STAMP, data_stamp(data, version))  # a rerun on changed data must not reuse it
     run.save(out / "result.json")
     done.finish()
     return run
