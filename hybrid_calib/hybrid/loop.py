@@ -205,11 +205,12 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
         drives[vehicle] = Drive(vehicle, list(idx), static, ref, simulated,
                                 None if ego_radar is None else np.asarray(ego_radar, np.float64),
                                 _end_truth(frames, idx, static) if simulated else None)
-    if outside_split and not drives and not unreadable:  # "no vehicle to calibrate (check --set vehicles=...)"
+    if outside_split and not drives and not unreadable and conf.vehicles is None:  # "no vehicle to calibrate (check
+        # --set vehicles=...)"; with a vehicle filter, the wanted vehicles' own message below
         opts = f", split options {conf.split_options}" if conf.split_options else ""
         raise DataError(f"no frame of vehicle(s) {outside_split} is in split {conf.split!r}{opts} ({len(frames)} "
-                        "frames in the data; split by scene, a root of one scene is all train); pass --split all, or "
-                        "--split-by time, or other --val-fraction / --test-fraction", path=str(data))
+                        "frames in the data; split by scene, the scenes of a small root can all go to train); pass "
+                        "--split all, or --split-by time, or other --val-fraction / --test-fraction", path=str(data))
     # a wanted vehicle none of whose frames reads is in ``unreadable`` with its reason, not "not in the data"
     if conf.vehicles is not None and (missing := sorted(set(conf.vehicles) - set(drives) - set(unreadable or {}))):
         present = sorted(frames.frames_by_vehicle())
