@@ -63,7 +63,8 @@ def out_dir_lock(out: str | Path, command: str) -> Iterator[None]:
     """Hold ``out``'s lock (``OUT/.hybrid-calib.lock``, an advisory ``flock``: released when the process ends,
     however it ends) while a command writes there, so that two runs into one folder do not overwrite each other's
     results: the second gets ``OutDirBusy`` naming the first (its pid, command and start). ``out`` is created if
-    missing and, when the block leaves nothing in it but the lock, removed again."""
+    missing and, when the block leaves nothing in it, removed again; a lock file this run created is removed at the
+    end (while still held)."""
     import fcntl
     import time
 
@@ -75,6 +76,7 @@ def out_dir_lock(out: str | Path, command: str) -> Iterator[None]:
         kind = "a symbolic link" if path.is_symlink() else "a directory" if path.is_dir() else "a special file"
         raise HybridCalibError(f"{path} is {kind}, not the lock file hybrid-calib keeps in its output folder; "
                                "remove it and rerun")
+    existed = path.exists()
     f = os.fdopen(os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o644), "r+")
     try:
         fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -91,9 +93,10 @@ def out_dir_lock(out: str | Path, command: str) -> Iterator[None]:
         f.flush()
         yield
     finally:
-        try:
-            if created and [p.name for p in out.iterdir()] == [LOCK_NAME]:
+        try:  # unlinked while still held: a run that opened it meanwhile finds it locked and stops (no two holders)
+            if not existed:  # a refused run left it in the user's data root ("refusing to write anything there")
                 path.unlink()
+            if created and not any(out.iterdir()):
                 out.rmdir()
         except OSError:
             pass

@@ -65,9 +65,15 @@ def test_two_runs_into_one_out_folder_the_second_is_refused_naming_the_first(tmp
             with out_dir_lock(out, "calibrate"):
                 pass
         (out / "result.json").write_text("{}")
+        assert (out / LOCK_NAME).exists()  # while held
     with out_dir_lock(out, "calibrate"):  # released when the first ends
         pass
-    assert (out / LOCK_NAME).exists() and (out / "result.json").exists()
+    # and removed: a refused run left it in the user's data root ("refusing to write anything there")
+    assert not (out / LOCK_NAME).exists() and (out / "result.json").exists()
+    (out / LOCK_NAME).write_text("")  # one that was there before is left
+    with out_dir_lock(out, "calibrate"):
+        pass
+    assert (out / LOCK_NAME).exists()
     empty = tmp_path / "nothing"  # a folder the lock created and nothing else used is removed again
     with pytest.raises(ValueError):
         with out_dir_lock(empty, "train"):

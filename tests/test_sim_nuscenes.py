@@ -226,3 +226,22 @@ def test_a_simulation_where_every_frame_fails_ends_in_an_error(tmp_path, monkeyp
     with pytest.raises(HybridCalibError, match=r"no frame could be simulated \(all 2 failed; first, vehicle 0 frame 0: "
                                                r"ValueError: lam < 0 or lam is NaN\); check the --set values"):
         sim_module.simulate(merge(SimConfig, {"frames": 2, "image_scale": 0.125}), tmp_path / "s", workers=1)
+
+
+def test_overwrite_never_deletes_another_versions_files(tmp_path):
+    """simulate --overwrite on a root that also held a real version deleted its 123 files in samples/."""
+    from hybrid_calib.config import merge
+    from hybrid_calib.errors import HybridCalibError
+    from hybrid_calib.sim.drive import SimConfig
+    from hybrid_calib.sim.simulate import simulate
+
+    root = tmp_path / "root"
+    conf = merge(SimConfig, {"frames": 1, "image_scale": 0.125})
+    simulate(conf, root, workers=1)
+    (root / "v1.0-mini").mkdir()
+    (root / "v1.0-mini" / "sample_data.json").write_text("[]")
+    real = root / "samples" / "CAM_FRONT" / "n015-real.jpg"
+    real.write_bytes(b"a real image")
+    with pytest.raises(HybridCalibError, match="also holds v1.0-mini .* refusing"):
+        simulate(conf, root, overwrite=True, workers=1)
+    assert real.read_bytes() == b"a real image"

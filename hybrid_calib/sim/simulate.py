@@ -157,7 +157,14 @@ def simulate(conf: SimConfig, out: str | Path, overwrite: bool = False, workers:
             raise HybridCalibError(
                 f"{root} already holds a simulation with a different configuration ({conf_path}); "
                 "pass --overwrite to replace it or choose another --out")
-    if overwrite:
+    if overwrite and root.is_dir():  # the sample folders are shared by every version of a root: never another's
+        others = sorted(d.name for d in root.iterdir() if d.is_dir() and d.name != VERSION
+                        and (d / "sample_data.json").is_file())
+        if others:
+            raise HybridCalibError(
+                f"{root} also holds {', '.join(others)} (another version's tables, whose files share samples/ with "
+                f"the simulation's): --overwrite would delete them with the simulation's sample folders; refusing. "
+                "Choose another --out")
         for d in OWNED_DIRS:
             shutil.rmtree(root / d, ignore_errors=True)
     root.mkdir(parents=True, exist_ok=True)
