@@ -147,8 +147,15 @@ class NuScenesRadarCamera:
         wanted = [radar_channel, camera_channel] + ([self.conf.lidar_channel] if self.conf.load_lidar else [])
         for ch in wanted:
             if ch not in channels:
-                raise DataError(f"channel {ch!r} is not in sensor.json; channels present: {channels}",
-                                path=str(self.tables.path("sensor")))
+                kind = "radar" if ch == radar_channel else "camera" if ch == camera_channel else "lidar"
+                same = [c for c in channels if self.tables.modality(c) == kind]
+                how = ("; inspect reads another with --radar / --camera; calibrate, fleet, compare, train and evaluate "
+                       "work on RADAR_FRONT -> CAM_FRONT (nuScenes' front radar and camera): to calibrate another "
+                       "pair, name its channels so in sensor.json" if kind != "lidar" else
+                       "; the LiDAR is read for lidar-densified depth and the hybrid's LiDAR alignment: pass another "
+                       "--depth, or --set lidar.enabled=false")
+                raise DataError(f"channel {ch!r} is not in sensor.json; {kind} channels present: {same or 'none'}"
+                                f"{how}", path=str(self.tables.path("sensor")))
         for ch, modality, option in ((radar_channel, "radar", "--radar"), (camera_channel, "camera", "--camera"),
                                      (self.conf.lidar_channel, "lidar", "lidar_channel")):
             found = self.tables.modality(ch)
