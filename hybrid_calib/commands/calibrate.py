@@ -40,8 +40,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--depth", default="",
                    help="learned methods: depth estimator (default: the checkpoint's; a real root with LiDAR: "
                         "lidar-densified)")
-    p.add_argument("--correspondences", default="oracle",
-                   help="'oracle' (simulated roots: from the ground truth) or a directory of measurement files "
+    p.add_argument("--correspondences", default=None,
+                   help="'oracle' (the default; simulated roots: from the ground truth) or a directory of measurement "
+                        "files "
                         "(factors.io *.npz: the --out of hybrid-calib evaluate, flat, or one sub-directory per "
                         "vehicle)")
     p.add_argument("--mode", default=None, choices=("window", "batch"), help="default: window (or --set mode=...)")
@@ -69,9 +70,12 @@ def _learned(args: argparse.Namespace, on_vehicle):
     from hybrid_calib.errors import HybridCalibError
     from hybrid_calib.hybrid import HybridConfig, run_calibration
 
-    if args.correspondences != "oracle":
-        raise HybridCalibError(f"--correspondences is for --method oracle (measurement files); --method "
-                               f"{args.method} runs the network itself")
+    if args.correspondences is not None:  # 'oracle' too: it was accepted and had no effect
+        raise HybridCalibError(f"--correspondences is for --method oracle (the true reflectors or measurement "
+                               f"files); --method {args.method} runs the network itself: drop --correspondences")
+    if args.window is not None and args.method in ("pure", "pure-avg"):  # no window: it was ignored
+        raise HybridCalibError(f"--window sets the sliding window of --method hybrid and oracle; --method "
+                               f"{args.method} runs the network alone on each frame: drop --window")
     if args.mode == "batch" or args.backend is not None:  # HybridConfig has no batch solve: they were ignored
         flag = "--mode batch" if args.mode == "batch" else "--backend"
         raise OptionError(flag, f"--method {args.method} runs the sliding window (or the network alone), not a batch "
@@ -118,7 +122,8 @@ def run(args: argparse.Namespace) -> int:
     if args.backend is not None:
         overrides.setdefault("batch", {})["backend"] = args.backend
     conf = merge(CalibrateConfig, overrides)  # ConfigError (unknown key, wrong type, bad value) names the option
-    result = calibrate(args.data, args.version, args.correspondences, args.out, conf, overwrite=args.overwrite,
+    result = calibrate(args.data, args.version, args.correspondences or "oracle", args.out, conf,
+                       overwrite=args.overwrite,
                        on_vehicle=on_vehicle)
     return _report(result, args.out, reused)
 
