@@ -1824,3 +1824,25 @@ def test_a_flag_given_wins_over_set_in_every_command_and_says_so(sim, tmp_path, 
     out = tmp_path / "out"
     rc, err = run_cli(_calibrate(root, out, "--max-frames", "1", "--set", "max_frames=2"), capsys)
     assert rc == 0 and "--max-frames 1 wins over --set max_frames=2" in err
+
+
+def test_the_network_methods_take_the_data_options_their_errors_advise(sim, tmp_path, capsys, monkeypatch):
+    """'radar PCD lacks field invalid_state ...: disable that filter (radar_filter.invalid_states=null)' was advice no
+    command but inspect could follow: a root of such files could not be calibrated at all."""
+    import learned.dataset
+
+    seen = []
+    real = learned.dataset.open_frames
+
+    def opened(*a, **k):
+        seen.append(k.get("options"))
+        return real(*a, **k)
+
+    monkeypatch.setattr(learned.dataset, "open_frames", opened)
+    root, _ = sim
+    rc, err = run_cli(_calibrate(root, tmp_path / "out", "--method", "pure", "--max-frames", "1", "--set", "threads=1",
+                                 "data.radar_filter.invalid_states=null"), capsys)
+    assert rc == 0, err
+    assert seen and seen[0] == {"radar_filter": {"invalid_states": None}}
+    expect_cli_error(_calibrate(root, tmp_path / "o2", "--method", "pure", "--set", "data.radar_filtr.x=1"), capsys,
+                     "unknown option(s) ['radar_filtr'] for DataConfig at data")

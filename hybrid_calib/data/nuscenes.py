@@ -396,7 +396,9 @@ class NuScenesRadarCamera:
         if len(pts) == 0 and self.conf.skip_empty_radar:
             raise DataError(f"radar sweep has 0 points after filtering ({sweeps.n_raw} read, "
                             f"{sweeps.n_nonfinite} NaN or beyond 1 km); loosen radar_filter or set "
-                            "skip_empty_radar=false to keep empty frames", path=str(self.root / rad["filename"]),
+                            "skip_empty_radar=false to keep empty frames (inspect: --set KEY=VALUE; the network "
+                            "methods of calibrate, fleet and compare: --set data.KEY=VALUE)",
+                            path=str(self.root / rad["filename"]),
                             token=rad["token"])
         radar_points = np.stack([pts["x"], pts["y"], pts["z"]], axis=1).astype(np.float64)
         radar_fields = {name: pts[name].copy() for name in pts.dtype.names or ()}

@@ -71,7 +71,9 @@ def load_filtered_sweep(path: Path, conf: RadarFilterConfig, token: str) -> tupl
     except KeyError as e:
         option = _FILTER_OPTION[e.args[0]]
         raise DataError(f"radar PCD lacks field {e.args[0]!r} needed by the radar filter; disable that filter "
-                        f"(radar_filter.{option}=null)", path=str(path), token=token) from None
+                        f"(radar_filter.{option}=null: --set radar_filter.{option}=null in inspect, --set "
+                        f"data.radar_filter.{option}=null with the network methods of calibrate, fleet and compare)",
+                        path=str(path), token=token) from None
     if len(raw) and n_nonfinite == len(raw):
         raise DataError(f"all {len(raw)} radar points have NaN/inf coordinates (or lie beyond 1 km); the file is "
                         "corrupt, re-export it",

@@ -84,6 +84,9 @@ class HybridConfig:
     split_options: dict = field(default_factory=dict)  # learned.dataset.SplitConfig overrides, e.g. {"by": "time"}
     window: WindowConfig = WindowConfig()  # the sliding window (hybrid, oracle)
     measurement: dict = field(default_factory=dict)  # MeasurementConfig overrides over the checkpoint's export.hybrid
+    # DataConfig overrides for reading the root (hybrid_calib.data.nuscenes), e.g. {"radar_filter":
+    # {"invalid_states": null}} for radar files without that field: --set data.radar_filter.invalid_states=null
+    data: dict = field(default_factory=dict)
     motion: MotionConfig = MotionConfig()  # the camera-VO / radar-Doppler motion constraint (hybrid; hybrid.motion)
     mount: MountMonitorConfig = MountMonitorConfig()  # radar mount steps, Doppler vs ego poses (calib.mount_monitor)
     lidar: LidarAlignConfig = LidarAlignConfig()  # the radar's lateral offset from the LiDAR (calib.lidar_alignment)
@@ -108,6 +111,10 @@ class HybridConfig:
             raise ValueError(f"HybridConfig.max_frames must be >= 0 (0 = all frames), got {self.max_frames}")
         if self.threads < 1:
             raise ValueError(f"HybridConfig.threads must be >= 1, got {self.threads}")
+        from hybrid_calib.config import merge
+        from hybrid_calib.data.nuscenes import DataConfig
+
+        merge(DataConfig, self.data, "data.")  # ConfigError naming --set data.KEY
 
 
 @dataclass
@@ -164,7 +171,7 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
     ``unreadable`` is a dict, recorded there (vehicle -> reason) and left out."""
     from learned.dataset import open_frames, split_indices
 
-    frames = open_frames(data, version, lidar=lidar)
+    frames = open_frames(data, version, lidar=lidar, options=conf.data)
     simulated = bool(getattr(frames, "sim_vehicles", {}))
     for vehicle, names in getattr(frames, "calibration_splits", {}).items():  # said where the names appear
         left = [n for n in names if conf.vehicles is not None and n not in conf.vehicles]
