@@ -608,6 +608,13 @@ def test_a_rerun_after_the_data_changed_does_not_reuse_the_old_results(local_run
     conf = {"window": {"window": 3}, "vehicles": ("sim-veh-000",)}
     calibrate(root, "v1.0-sim", "oracle", tmp_path / "c", conf)
     calibrate(root, "v1.0-sim", "oracle", tmp_path / "c", conf)  # unchanged: reused
+    from hybrid_calib.config import merge
+    from hybrid_calib.sim.drive import SimConfig
+    from hybrid_calib.sim.simulate import simulate
+
+    # a rerun of the same simulation (make demo twice) rewrites the tables unchanged: still the same data
+    simulate(merge(SimConfig, {"vehicles": 4, "frames": 3, "image_scale": 0.125, "seed": 7}), root, workers=1)
+    calibrate(root, "v1.0-sim", "oracle", tmp_path / "c", conf)
     image = next((root / "samples" / "CAM_FRONT").iterdir())
     data = image.read_bytes()
     image.unlink()

@@ -60,24 +60,33 @@ def file_part(name: str) -> str:
 
 
 def data_stamp(root: str | Path, version: str) -> dict:
-    """{"digest", "newest"} of a root's data as a calibration reads it: the version folder's tables (name, size,
-    modification time) and the folders of ``samples/`` and ``sweeps/`` (their modification time changes when a
-    file in them is added, removed or replaced by a rename: a re-download, a re-simulation). A file rewritten in
-    place is not seen (stat'ing every frame file of a large root on each rerun is not worth it). ``newest``: the
-    latest of those times (ISO, UTC), for the message."""
+    """{"digest", "newest"} of a root's data as a calibration reads it: the version folder's tables (name and
+    content: a rerun of ``simulate`` rewrites them unchanged) and the folders of ``samples/`` and ``sweeps/`` (their
+    modification time changes when a file in them is added, removed or replaced by a rename: a re-download, a
+    re-simulation). A frame file rewritten in place is not seen (stat'ing every frame file of a large root on each
+    rerun is not worth it). ``newest``: the latest of those times (ISO, UTC), for the message."""
     import datetime
     import hashlib
 
     root = Path(root)
     items = []
-    for path in sorted((root / version).glob("*.json")) + sorted(
-            d for top in ("samples", "sweeps") if (root / top).is_dir() for d in (root / top).iterdir() if d.is_dir()):
+    for path in sorted((root / version).glob("*.json")):
         try:
-            st = path.stat()
+            h = hashlib.sha1()
+            with open(path, "rb") as f:
+                for chunk in iter(lambda: f.read(1 << 20), b""):
+                    h.update(chunk)
+            items.append((path.name, h.hexdigest(), path.stat().st_mtime_ns))
         except OSError:
             continue
-        items.append((str(path.relative_to(root)), st.st_size if path.is_file() else 0, st.st_mtime_ns))
+    for path in sorted(d for top in ("samples", "sweeps") if (root / top).is_dir()
+                       for d in (root / top).iterdir() if d.is_dir()):
+        try:
+            items.append((str(path.relative_to(root)), "", path.stat().st_mtime_ns))
+        except OSError:
+            continue
     newest = max((t for _, _, t in items), default=0)
+    items = [(name, h, 0 if h else t) for name, h, t in items]  # a table by its content, a folder by its time
     return {"digest": hashlib.sha1(repr(items).encode()).hexdigest(),
             "newest": datetime.datetime.fromtimestamp(newest / 1e9, datetime.timezone.utc).isoformat(
                 timespec="seconds") if newest else None}
