@@ -387,6 +387,13 @@ def test_a_fleet_prior_is_applied_only_to_the_vehicle_it_was_fitted_on(local_run
     assert p is priors["*"] and "not on this root's; it gets the new-vehicle prior" in note
     p, note = match_prior(priors, "a-new-one", str(tmp_path), "v1.0-sim", "a-new-one")
     assert p is priors["*"] and note is None
+    kept, doc["priors"][name] = doc["priors"][name], None  # a named outlier of that fleet: not a verdict on a stranger
+    (tmp_path / "outlier.json").write_text(json.dumps(doc))
+    out_priors = load_priors(tmp_path / "outlier.json")
+    assert match_prior(out_priors, name, src["data"], "v1.0-sim", src["vehicle"]) == (None, None)
+    p, note = match_prior(out_priors, name, str(tmp_path), "v1.0-sim", src["vehicle"])
+    assert p == out_priors["*"] and "new-vehicle prior" in note
+    doc["priors"][name] = kept
     del doc["sources"]  # an older file: applied by name, with a word
     (tmp_path / "old.json").write_text(json.dumps(doc))
     p, note = match_prior(load_priors(tmp_path / "old.json"), name, str(tmp_path), "v1.0-sim", name)
@@ -620,6 +627,10 @@ def test_a_rerun_after_the_data_changed_does_not_reuse_the_old_results(local_run
     image.unlink()
     image.write_bytes(data)  # re-downloaded: its folder changed
     with pytest.raises(HybridCalibError, match="was computed before .*data changed.*--overwrite"):
+        calibrate(root, "v1.0-sim", "oracle", tmp_path / "c", conf)
+    calibrate(root, "v1.0-sim", "oracle", tmp_path / "c", conf, overwrite=True)
+    (tmp_path / "c" / "data_stamp.json").write_text("{")  # damaged: it switched the check off
+    with pytest.raises(HybridCalibError, match="data_stamp.json is damaged.*cannot be told"):
         calibrate(root, "v1.0-sim", "oracle", tmp_path / "c", conf)
     # a fleet: the done vehicles of that root are calibrated again, and the run says why
     out = tmp_path / "fleet"

@@ -262,6 +262,8 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
     if result_path.is_file() and not overwrite:
         return reuse_result(out, data, version, str(correspondences), to_dict(conf))
     rng = _seed_rng(conf.seed)
+    # before reading: data that change during the run are not this result's
+    stamp_data = None if data is None else data_stamp(data, version)
     absent: dict[str, str] = {}
     if correspondences == "oracle":
         inputs = _load_oracle(data, version, conf, rng)
@@ -280,14 +282,15 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
     # the vehicles an interrupted run finished (each vehicle's start is seeded by its name and the oracle rows
     # are drawn above for all: skipping them leaves the others' draws as they were)
     stamp = {**to_dict(conf), "priors": {k: [np.asarray(p.T).tolist(), np.asarray(p.cov).tolist()]
-                                         for k, p in sorted((priors or {}).items())}}
+                                         for k, p in sorted((priors or {}).items())},
+             **({} if stamp_data is None else {"data_stamp": stamp_data["digest"]})}
     done = VehicleProgress(out, data, version, str(correspondences), stamp, fresh=overwrite)
     done.fill(run, list(inputs), lambda name: calibrate_vehicle(inputs[name], conf, rng, progress,
                                                                 (priors or {}).get(name)), on_vehicle, progress)
     run.raise_if_none_done()
     save_json_atomic(out / "config.json", to_dict(conf))
-    if data is not None:  # a rerun on changed data must not reuse it
-        save_json_atomic(out / DATA_STAMP, data_stamp(data, version))
+    if stamp_data is not None:  # a rerun on changed data must not reuse it
+        save_json_atomic(out / DATA_STAMP, stamp_data)
     run.save(result_path)
     done.finish()
     return run

@@ -531,15 +531,19 @@ def reuse_result(out: str | Path, data, version: str, source: str, conf: dict) -
     changed = _changes({"data": run.data, "version": run.version, "source": run.correspondences, "config": old},
                        {"data": str(data), "version": version, "source": source, "config": conf})
     # the same path, but the data in it may have changed since
-    if not changed and data is not None and (out / DATA_STAMP).is_file():
+    if not changed and data is not None and (out / DATA_STAMP).exists():
         from hybrid_calib.data.files import data_stamp
 
         try:
             then = json.loads((out / DATA_STAMP).read_text()).get("digest")
         except (OSError, ValueError, AttributeError, RecursionError):
             then = None
+        if not isinstance(then, str):  # damaged: it cannot vouch for the data, so the result is not reused
+            raise HybridCalibError(f"{out / DATA_STAMP} is damaged, so whether {data}'s data changed since "
+                                   f"{out / 'result.json'} was computed cannot be told: pass --overwrite to recompute, "
+                                   "or another --out")
         now = data_stamp(data, version)
-        if then is not None and then != now["digest"]:
+        if then != now["digest"]:
             raise HybridCalibError(f"{out / 'result.json'} was computed before {data}'s data changed (its tables or "
                                    f"sensor folders were modified since, the newest at {now['newest']}): pass "
                                    "--overwrite to recompute it from the data as they are now, or another --out")
@@ -565,7 +569,8 @@ def _changes(old: dict, new: dict) -> list[str]:
         ("method / correspondences", old.get("source"), new["source"], same_path)) if not same(a, b)]
     old_conf = old.get("config")
     if isinstance(old_conf, dict) and not changed:
-        changed = [f"{k}: {_short(old_conf.get(k))} -> {_short(v)}" for k, v in new["config"].items()
+        changed = [("the data in --data (its tables or sensor folders changed since)" if k == "data_stamp" else
+                    f"{k}: {_short(old_conf.get(k))} -> {_short(v)}") for k, v in new["config"].items()
                    if k not in RUN_ONLY and old_conf.get(k) != v
                    and not (k not in old_conf and v in ({}, None))]  # a key a later version added, at its default
     return changed

@@ -57,7 +57,7 @@ def run_fleet(roots: list[str] | None, manifest: str | None, version: str, metho
     if m.renamed:
         notes.append(f"{len(m.renamed)} vehicle(s) of an earlier run into this --out have a new id now that the roots "
                      f"differ ({', '.join(f'{a} -> {b}' for a, b in sorted(m.renamed.items())[:4])}): their results "
-                     "moved with them")
+                     "moved with them, unless said otherwise")
     if earlier := sorted(set(m.jobs) - {j.id for j in jobs}):
         notes.append(f"the fleet view also holds {len(earlier)} vehicle(s) of earlier runs into this --out that this "
                      f"command did not list ({', '.join(earlier[:4])}{', ...' if len(earlier) > 4 else ''}): pass "

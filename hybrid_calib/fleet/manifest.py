@@ -163,18 +163,22 @@ class Manifest:
 def _data_changed(job: Job, stamps: dict) -> bool:
     """Whether ``job``'s root changed since its result was computed (``calib.result.DATA_STAMP`` beside it against
     ``data.files.data_stamp`` now): a fleet rerun after a re-download or a re-simulation reported the old vehicles
-    as done for the new data. A result without a stamp (an older version's) is kept."""
+    as done for the new data. A result without a stamp (an older version's) is kept; a damaged stamp vouches for
+    nothing."""
     from hybrid_calib.calib.result import DATA_STAMP
     from hybrid_calib.data.files import data_stamp
 
-    try:
-        then = json.loads((Path(job.out) / DATA_STAMP).read_text()).get("digest")
-    except (OSError, ValueError, AttributeError, RecursionError):
+    path = Path(job.out) / DATA_STAMP
+    if not path.exists():
         return False
+    try:
+        then = json.loads(path.read_text()).get("digest")
+    except (OSError, ValueError, AttributeError, RecursionError):
+        then = None  # damaged: it cannot vouch for the data; computed again
     key = (os.path.realpath(job.data), job.version)
     if key not in stamps:
         stamps[key] = data_stamp(job.data, job.version)["digest"]
-    return then is not None and then != stamps[key]
+    return not isinstance(then, str) or then != stamps[key]
 
 
 def _same_vehicle(a: dict, job: Job) -> bool:
@@ -202,16 +206,20 @@ def _follow_renames(entries: dict[str, dict], jobs: list[Job], path: Path) -> di
         e = entries.pop(old)
         # the folder beside this manifest (a job's recorded "out" is absolute: stale when --out was moved)
         src, dst = path.parent / "vehicles" / file_part(old), Path(job.out)
+        moved = False
         try:
             if src.is_dir() and not dst.exists():
                 dst.parent.mkdir(parents=True, exist_ok=True)
                 os.replace(src, dst)
+                moved = True
         except OSError:
-            pass  # the result stays where it is; this run computes the vehicle again under its new id
+            pass
         e["job"] = {**e["job"], "id": job.id, "out": job.out}
         e["result"] = None
         entries[job.id] = e
-        renamed[old] = job.id
+        # not moved (its new folder exists, or the move failed): calibrated again under the new id, the old
+        # folder left as it is
+        renamed[old] = job.id if moved else f"{job.id} (calibrated again: {src} could not move to {dst})"
     return renamed
 
 

@@ -279,10 +279,11 @@ def load_priors(path: str | Path) -> dict[str, dict]:
                         "hybrid-calib fleet run", path=str(path)) from None
     out = {}
     for k, p in priors.items():
-        if p is not None:
-            p = {"T_cam_radar": p["T_cam_radar"], "cov_right_radar": p["cov_right_radar"], "file": str(path)}
-            if isinstance(sources.get(k), dict):
-                p["source"] = {f: sources[k].get(f) for f in ("data", "version", "vehicle")}
+        # a named outlier (no prior) keeps its source too: another root's outlier verdict must not pass by name
+        p = {"outlier": True, "file": str(path)} if p is None else \
+            {"T_cam_radar": p["T_cam_radar"], "cov_right_radar": p["cov_right_radar"], "file": str(path)}
+        if isinstance(sources.get(k), dict):
+            p["source"] = {f: sources[k].get(f) for f in ("data", "version", "vehicle")}
         out[k] = p
     return out
 
@@ -302,16 +303,22 @@ def match_prior(priors: dict, job_id: str, data: str, version: str, vehicle: str
     vehicle of this root, else the new-vehicle prior "*"; with a note (str) when a named prior was passed over or
     could not be checked (a file without "sources"), else None. A named outlier's None stays None."""
     if job_id not in priors:
-        return priors.get("*"), None
+        return _usable(priors.get("*")), None
     p = priors[job_id]
     if p is None:
         return None, None
     src = p.get("source")
-    if src is None:
-        return p, ("the fleet prior's file records no source for its vehicles (written by an older version): its "
-                   "named priors are applied by vehicle name only; refit it to have them checked")
+    if not isinstance(src, dict):
+        return _usable(p), ("the fleet prior's file records no source for its vehicles (written by an older "
+                            "version): its named priors are applied by vehicle name only; refit it to have them "
+                            "checked")
     if same_source(src, data, version, vehicle):
-        return p, None
-    return priors.get("*"), (f"{job_id}: the fleet prior named {job_id!r} was fitted on vehicle {src.get('vehicle')} "
-                             f"of {src.get('data')} ({src.get('version')}), not on this root's; it gets the "
-                             "new-vehicle prior instead")
+        return _usable(p), None
+    return _usable(priors.get("*")), (f"{job_id}: the fleet prior's entry {job_id!r} was fitted on vehicle "
+                                      f"{src.get('vehicle')!r} of {src.get('data')!r} ({src.get('version')!r}), not "
+                                      "on this root's; it gets the new-vehicle prior instead")
+
+
+def _usable(p: dict | None) -> dict | None:
+    """A prior as a job takes it: None for a named outlier (``load_priors``' {"outlier": True})."""
+    return None if p is None or p.get("outlier") else p

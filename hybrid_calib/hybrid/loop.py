@@ -723,16 +723,18 @@ def run_calibration(data: str | Path, version: str, out: str | Path, conf: Hybri
         return reuse_result(out, data, version, conf.method, to_dict(conf))
     conf = dataclasses.replace(conf, cache_dir=conf.cache_dir or str(out / "network-cache"),
                                depth_cache=conf.depth_cache or str(out / "depth-cache"))
+    stamp = data_stamp(data, version)  # before reading: data that change during the run are not this result's
     session = _Session(data, version, conf)
     if not session.drives:
         raise DataError("no vehicle to calibrate (check --set vehicles=... and the dataset)", path=str(data))
     mode = {"hybrid": "window", "oracle": "window", "pure": "network", "pure-avg": "average"}[conf.method]
     run = CalibrationRun(str(data), version, conf.method, mode, vehicles_failed=dict(session.unreadable))
-    done = VehicleProgress(out, data, version, conf.method, to_dict(conf), fresh=overwrite)
+    done = VehicleProgress(out, data, version, conf.method, {**to_dict(conf), "data_stamp": stamp["digest"]},
+                           fresh=overwrite)
     done.fill(run, list(session.drives), session.vehicle, on_vehicle, conf.progress)
     run.raise_if_none_done()
     save_json_atomic(out / "config.json", to_dict(conf))
-    save_json_atomic(out / DATA_STAMP, data_stamp(data, version))  # a rerun on changed data must not reuse it
+    save_json_atomic(out / DATA_STAMP, stamp)  # a rerun on changed data must not reuse it
     run.save(out / "result.json")
     done.finish()
     return run

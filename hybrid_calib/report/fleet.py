@@ -13,6 +13,7 @@ import os
 import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from urllib.parse import quote
 
 import numpy as np
 
@@ -99,7 +100,10 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
         v = verdicts[n]
         link = esc(n)
         if n in pages:
-            link = f'<a href="{esc(os.path.relpath(pages[n], out.parent))}">{esc(n)}</a>'
+            # a URL: a folder named with %-escapes (data.files.file_part) is escaped once more, or the browser
+            # decodes it to a folder that does not exist
+            rel = Path(os.path.relpath(pages[n], out.parent)).as_posix()
+            link = f'<a href="{esc(quote(rel, safe="/"))}">{esc(n)}</a>'
         o = offsets[n]
         rot = float(np.linalg.norm(o[:3])) if o is not None else float("nan")
         tr = float(np.linalg.norm(o[3:])) if o is not None else float("nan")

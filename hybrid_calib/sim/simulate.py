@@ -159,7 +159,7 @@ def simulate(conf: SimConfig, out: str | Path, overwrite: bool = False, workers:
                 "pass --overwrite to replace it or choose another --out")
     if overwrite and root.is_dir():  # the sample folders are shared by every version of a root: never another's
         others = sorted(d.name for d in root.iterdir() if d.is_dir() and d.name != VERSION
-                        and (d / "sample_data.json").is_file())
+                        and any((d / f"{t}.json").exists() for t in ("sample_data", "sample", "scene", "log")))
         if others:
             raise HybridCalibError(
                 f"{root} also holds {', '.join(others)} (another version's tables, whose files share samples/ with "
