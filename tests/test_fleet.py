@@ -643,3 +643,14 @@ def test_a_rerun_after_the_data_changed_does_not_reuse_the_old_results(local_run
                   options=FleetOptions(plots=False))
     assert any("calibrated again: their root's data changed" in n for n in s["notes"])
     assert all(json.loads(p.read_text())["digest"] != "from other data" for p in out.glob("vehicles/*/data_stamp.json"))
+
+
+def test_a_file_in_a_vehicles_folder_place_is_that_vehicles_failure_in_words(fleet_root, tmp_path):
+    """It ended as "system failure after retries: NotADirectoryError", retried to no avail."""
+    out = tmp_path / "f"
+    (out / "vehicles").mkdir(parents=True)
+    (out / "vehicles" / "sim-veh-000").write_text("not a folder")
+    s = run_fleet([str(fleet_root)], None, "v1.0-sim", "oracle", out, seed=1,
+                  calib={"window": {"window": 3}, "vehicles": ["sim-veh-000"]}, options=FleetOptions(plots=False))
+    r = s["vehicles"]["sim-veh-000"]
+    assert r["state"] == "failed" and "is a file, not this vehicle's folder" in r["reason"] and r["attempts"] == 1

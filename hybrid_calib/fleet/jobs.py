@@ -244,6 +244,8 @@ def calibrate_job(job: Job) -> Path:
     from hybrid_calib.plots.calibration import plot_vehicle
 
     out = Path(job.out)
+    if out.exists() and not out.is_dir():  # an OSError here was retried as a system failure, to no avail
+        raise HybridCalibError(f"{out} is a file, not this vehicle's folder of the fleet run; move it away and rerun")
     plots = partial(plot_vehicle, out_dir=out / "plots")
     if job.method == "oracle":
         from hybrid_calib.calib.pipeline import calibrate
