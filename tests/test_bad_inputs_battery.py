@@ -1846,3 +1846,5 @@ def test_the_network_methods_take_the_data_options_their_errors_advise(sim, tmp_
     assert seen and seen[0] == {"radar_filter": {"invalid_states": None}}
     expect_cli_error(_calibrate(root, tmp_path / "o2", "--method", "pure", "--set", "data.radar_filtr.x=1"), capsys,
                      "unknown option(s) ['radar_filtr'] for DataConfig at data")
+    expect_cli_error(_calibrate(root, tmp_path / "o3", "--method", "pure", "--set", 'data.vehicles=["x"]'), capsys,
+                     "data.vehicles: choose the vehicles with --set vehicles=")

@@ -115,6 +115,9 @@ class HybridConfig:
         from hybrid_calib.data.nuscenes import DataConfig
 
         merge(DataConfig, self.data, "data.")  # ConfigError naming --set data.KEY
+        if "vehicles" in self.data:  # two vehicle filters: a wanted vehicle left out read "not in the data"
+            raise ValueError("data.vehicles: choose the vehicles with --set vehicles=[...] (the one filter of the "
+                             "network methods), not data.vehicles")
 
 
 @dataclass
