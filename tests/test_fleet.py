@@ -654,3 +654,47 @@ def test_a_file_in_a_vehicles_folder_place_is_that_vehicles_failure_in_words(fle
                   calib={"window": {"window": 3}, "vehicles": ["sim-veh-000"]}, options=FleetOptions(plots=False))
     r = s["vehicles"]["sim-veh-000"]
     assert r["state"] == "failed" and "is a file, not this vehicle's folder" in r["reason"] and r["attempts"] == 1
+
+
+def test_fleet_page_links_escape_encoded_vehicle_folders(local_run, tmp_path):
+    """A vehicle folder named with %-escapes (data.files.file_part) was linked unescaped: the browser decoded it to a
+    folder that does not exist."""
+    from hybrid_calib.report import write_fleet_page
+
+    result = local_run[0] / "vehicles" / "sim-veh-000" / "result.json"
+    page = tmp_path / "vehicles" / "a%2Fb" / "report.html"
+    html = write_fleet_page([result], tmp_path / "fleet.html", reports={"sim-veh-000": page}).read_text()
+    assert 'href="vehicles/a%252Fb/report.html"' in html
+
+
+def test_an_interrupted_run_resumed_on_changed_data_keeps_none_of_its_vehicles(fleet_root, tmp_path, monkeypatch):
+    """Resumed after the data changed, an interrupted calibrate reused the vehicles it had finished from the old
+    data, and its stamp, written at the end, vouched for the new data."""
+    import os
+    import shutil
+
+    from hybrid_calib.calib import pipeline
+    from hybrid_calib.errors import HybridCalibError
+
+    root = tmp_path / "root"
+    shutil.copytree(fleet_root, root, copy_function=os.link)
+    real, calls = pipeline.calibrate_vehicle, []
+
+    def interrupted(*a, **k):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(*a, **k)
+
+    monkeypatch.setattr(pipeline, "calibrate_vehicle", interrupted)
+    conf = {"window": {"window": 3}, "vehicles": ("sim-veh-000", "sim-veh-001")}
+    with pytest.raises(KeyboardInterrupt):
+        pipeline.calibrate(root, "v1.0-sim", "oracle", tmp_path / "c", conf)
+    assert len(list((tmp_path / "c" / "vehicles-done").glob("sim-veh-*.json"))) == 1
+    image = next((root / "samples" / "CAM_FRONT").iterdir())
+    data = image.read_bytes()
+    image.unlink()
+    image.write_bytes(data)  # re-downloaded while the run was stopped
+    with pytest.raises(HybridCalibError, match=r"finished by an interrupted run of another configuration \(the data "
+                                               r"in --data"):
+        pipeline.calibrate(root, "v1.0-sim", "oracle", tmp_path / "c", conf)
