@@ -400,6 +400,19 @@ class CalibrationRun:
 
 
 DATA_STAMP = "data_stamp.json"  # beside result.json: ``data.files.data_stamp`` of the data it was computed from
+def stored_digest(out: str | Path) -> str | None:
+    """The data digest recorded beside a result (``out/DATA_STAMP``): "" when there is none (an older version's
+    result), None when the file is damaged (it vouches for nothing)."""
+    path = Path(out) / DATA_STAMP
+    if not path.exists():
+        return ""
+    try:
+        digest = json.loads(path.read_text()).get("digest")
+    except (OSError, ValueError, AttributeError, RecursionError):
+        return None
+    return digest if isinstance(digest, str) and digest else None
+
+
 RUN_ONLY = ("progress", "threads", "cache_dir", "depth_cache")  # config keys of how a run ran, not of what it gave
 
 
@@ -531,14 +544,11 @@ def reuse_result(out: str | Path, data, version: str, source: str, conf: dict) -
     changed = _changes({"data": run.data, "version": run.version, "source": run.correspondences, "config": old},
                        {"data": str(data), "version": version, "source": source, "config": conf})
     # the same path, but the data in it may have changed since
-    if not changed and data is not None and (out / DATA_STAMP).exists():
+    then = "" if changed or data is None else stored_digest(out)
+    if then != "":
         from hybrid_calib.data.files import data_stamp
 
-        try:
-            then = json.loads((out / DATA_STAMP).read_text()).get("digest")
-        except (OSError, ValueError, AttributeError, RecursionError):
-            then = None
-        if not isinstance(then, str):  # damaged: it cannot vouch for the data, so the result is not reused
+        if then is None:  # damaged: it cannot vouch for the data, so the result is not reused
             raise HybridCalibError(f"{out / DATA_STAMP} is damaged, so whether {data}'s data changed since "
                                    f"{out / 'result.json'} was computed cannot be told: pass --overwrite to recompute, "
                                    "or another --out")

@@ -165,20 +165,16 @@ def _data_changed(job: Job, stamps: dict) -> bool:
     ``data.files.data_stamp`` now): a fleet rerun after a re-download or a re-simulation reported the old vehicles
     as done for the new data. A result without a stamp (an older version's) is kept; a damaged stamp vouches for
     nothing."""
-    from hybrid_calib.calib.result import DATA_STAMP
+    from hybrid_calib.calib.result import stored_digest
     from hybrid_calib.data.files import data_stamp
 
-    path = Path(job.out) / DATA_STAMP
-    if not path.exists():
+    then = stored_digest(job.out)
+    if then == "":
         return False
-    try:
-        then = json.loads(path.read_text()).get("digest")
-    except (OSError, ValueError, AttributeError, RecursionError):
-        then = None  # damaged: it cannot vouch for the data; computed again
     key = (os.path.realpath(job.data), job.version)
     if key not in stamps:
         stamps[key] = data_stamp(job.data, job.version)["digest"]
-    return not isinstance(then, str) or then != stamps[key]
+    return then != stamps[key]  # a damaged stamp (None) vouches for nothing: computed again
 
 
 def _same_vehicle(a: dict, job: Job) -> bool:
