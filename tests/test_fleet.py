@@ -404,9 +404,20 @@ def test_fleet_file_lists_roots_and_bad_files_name_themselves(tmp_path):
     from hybrid_calib.errors import DataError
     from hybrid_calib.fleet.jobs import read_fleet_file
 
+    for root, version in (("a", "v1.0-mini"), ("a", "v1.0-sim"), ("b", "v1.0-mini")):  # version folders with a table
+        (tmp_path / root / version).mkdir(parents=True, exist_ok=True)
+        (tmp_path / root / version / "sample.json").write_text("[]")
+    b = str(tmp_path / "b")  # absolute
     f = tmp_path / "FLEET.json"
-    f.write_text(json.dumps({"version": "v1.0-mini", "roots": ["a", {"data": "/abs/b", "vehicles": ["x"]}]}))
-    assert read_fleet_file(f, "v1.0-sim") == [(str(tmp_path / "a"), "v1.0-mini", None), ("/abs/b", "v1.0-mini", ("x",))]
+    f.write_text(json.dumps({"version": "v1.0-mini", "roots": ["a", {"data": b, "vehicles": ["x"]}]}))
+    assert read_fleet_file(f, "v1.0-sim") == [(str(tmp_path / "a"), "v1.0-mini", None), (b, "v1.0-mini", ("x",))]
+    # a version no root holds is refused up front, saying where it came from (not "pass --version")
+    for doc, where in (({"version": "v9", "roots": ["a"]}, 'the top-level "version"'),
+                       ({"roots": [{"data": "a", "version": "v9"}]}, r"roots\[0\].version"),
+                       ({"roots": ["b"]}, "the command's --version")):
+        f.write_text(json.dumps(doc))
+        with pytest.raises(DataError, match=rf"FLEET.json roots\[0\]: version folder 'v[19].*set {where}.* to one of"):
+            read_fleet_file(f, "v1.0-sim")
     f.write_text(json.dumps({"roots": [3]}))
     with pytest.raises(DataError, match=r"roots\[0\].*FLEET.json"):
         read_fleet_file(f, "v1.0-sim")

@@ -54,8 +54,9 @@ def available_versions(root: str | Path) -> list[str]:
     return sorted(p.name for p in root.iterdir() if p.is_dir() and (p / "sample.json").is_file())
 
 
-def version_dir(root: str | Path, version: str) -> Path:
-    """``ROOT/VERSION`` after checking that it exists. ``DataError`` lists the versions that do."""
+def version_dir(root: str | Path, version: str, fix: str = "pass one of them with --version") -> Path:
+    """``ROOT/VERSION`` after checking that it exists. ``DataError`` lists the versions that do and says
+    ``fix`` (where the caller's version came from)."""
     root = Path(root)
     if not root.is_dir():
         raise DataError("nuScenes root is not a directory; pass the folder that holds the version folder "
@@ -64,14 +65,14 @@ def version_dir(root: str | Path, version: str) -> Path:
     if not vdir.is_dir():
         found = available_versions(root)
         hint = f"versions found there: {found}" if found else "no version folder (with sample.json) found there"
-        raise DataError(f"version folder {version!r} does not exist under the nuScenes root; {hint}; "
-                        "pass one of them with --version", path=str(vdir))
+        raise DataError(f"version folder {version!r} does not exist under the nuScenes root; {hint}; {fix}",
+                        path=str(vdir))
     if not any((vdir / f"{name}.json").is_file() for name in REQUIRED_TABLES):
         found = [v for v in available_versions(root) if (root / v).resolve() != vdir.resolve()]
         hint = f"versions found there: {found}" if found else "no version folder (with sample.json) found there"
         raise DataError(f"{vdir} holds none of the nuScenes tables {sorted(REQUIRED_TABLES)}, so it is not a version "
-                        f"folder (an empty or unfinished extraction, or --version names another folder); {hint}; pass "
-                        "one of them with --version, or extract the metadata archive there", path=str(vdir))
+                        f"folder (an empty or unfinished extraction, or the version names another folder); {hint}; "
+                        f"{fix}, or extract the metadata archive there", path=str(vdir))
     return vdir
 
 

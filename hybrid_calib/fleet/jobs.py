@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from hybrid_calib.data.files import file_part
+from hybrid_calib.data.tables import version_dir
 from hybrid_calib.errors import DataError, HybridCalibError
 
 METHODS = ("hybrid", "pure", "pure-avg", "oracle")  # issue 9's methods; "oracle" runs today
@@ -111,7 +112,14 @@ def read_fleet_file(path: str | Path, version: str) -> list[tuple[str, str, tupl
         if vehicles is not None and not vehicles:  # it read as "every vehicle"
             raise DataError(f"fleet manifest roots[{i}].vehicles is empty; list the vehicles to calibrate, or drop "
                             "the key to calibrate every vehicle of the root", path=str(path))
-        out.append((str(root), str(r.get("version", version)), tuple(vehicles) if vehicles else None))
+        v = str(r.get("version", version))
+        where = (f"roots[{i}].version" if "version" in r else 'the top-level "version"' if "version" in doc
+                 else "the command's --version (or a \"version\" in the manifest)")
+        try:
+            version_dir(root, v, fix=f"set {where} to one of them")
+        except DataError as e:
+            raise DataError(f"fleet manifest {path} roots[{i}]: {e}") from None
+        out.append((str(root), v, tuple(vehicles) if vehicles else None))
     return out
 
 
