@@ -70,3 +70,16 @@ def test_draw_radar_truth_and_overlay(tmp_path):
     assert a.shape == b.shape and np.abs(a.astype(int) - b.astype(int)).max() > 50  # the cyan rings
     assert cv2.imread(str(render_overlay(frame, tmp_path / "sub" / "overlay.png"))) is not None
     assert not list(tmp_path.rglob("*.tmp.png"))
+
+
+def test_a_name_in_another_script_is_drawn_without_a_warning_per_glyph(tmp_path):
+    import warnings
+
+    from hybrid_calib.plots.figure import pyplot, save_figure
+
+    fig, ax = pyplot().subplots()
+    ax.set_title("车辆-1")  # a vehicle named in a script the default font lacks
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        out = save_figure(fig, tmp_path / "v.png")
+    assert out.is_file() and not [w for w in caught if "Glyph" in str(w.message)]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 from hybrid_calib.atomic import atomic_path
@@ -19,10 +20,12 @@ def pyplot():
 
 def save_figure(fig, path: str | Path, dpi: float | None = None) -> Path:
     """Write ``fig`` to ``path`` (PNG) through a temporary file, close it, return the path.
-    ``dpi`` None keeps the figure's own dpi. The parent folder is created."""
+    ``dpi`` None keeps the figure's own dpi. The parent folder is created. A character the font lacks (a
+    vehicle or scene named in another script) is drawn as a box, without matplotlib's warning per glyph."""
     path = Path(path)
     try:
-        with atomic_path(path) as tmp:
+        with atomic_path(path) as tmp, warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=r"Glyph \d+ .*missing from", category=UserWarning)
             fig.savefig(tmp, dpi=dpi if dpi is not None else "figure")
     finally:
         pyplot().close(fig)
