@@ -709,3 +709,30 @@ def test_an_interrupted_run_resumed_on_changed_data_keeps_none_of_its_vehicles(f
     with pytest.raises(HybridCalibError, match=r"finished by an interrupted run of another configuration \(the data "
                                                r"in --data"):
         pipeline.calibrate(root, "v1.0-sim", "oracle", tmp_path / "c", conf)
+
+
+def test_a_renamed_vehicle_whose_folder_cannot_move_is_said_and_calibrated_again(tmp_path):
+    """The new id's folder is there already: the old folder is left as it is (nothing overwritten), the entry
+    follows the vehicle without a result, and the note says it is calibrated again and why."""
+    from hybrid_calib.fleet.jobs import Job
+    from hybrid_calib.fleet.manifest import _follow_renames
+
+    root = tmp_path / "root"
+    root.mkdir()
+    vehicles = tmp_path / "out" / "vehicles"
+    (vehicles / "v1").mkdir(parents=True)
+    (vehicles / "v1" / "result.json").write_text("{}")
+    (vehicles / "root-v1").mkdir()
+    old = Job("v1", "v1", str(root), "v1.0-sim", "oracle", str(vehicles / "v1"))
+    new = Job("root-v1", "v1", str(root), "v1.0-sim", "oracle", str(vehicles / "root-v1"))
+    entries = {"v1": {"job": old.to_dict(), "state": "done", "result": "vehicles/v1/result.json"}}
+    renamed = _follow_renames(entries, [new], tmp_path / "out" / "manifest.json")
+    assert set(entries) == {"root-v1"} and entries["root-v1"]["result"] is None
+    assert entries["root-v1"]["job"]["out"] == new.out
+    assert "calibrated again" in renamed["v1"] and "could not move" in renamed["v1"]
+    assert (vehicles / "v1" / "result.json").is_file()  # left as it was
+    # a folder that can move does
+    entries = {"v1": {"job": old.to_dict(), "state": "done", "result": "vehicles/v1/result.json"}}
+    (vehicles / "root-v1").rmdir()
+    assert _follow_renames(entries, [new], tmp_path / "out" / "manifest.json") == {"v1": "root-v1"}
+    assert (vehicles / "root-v1" / "result.json").is_file() and not (vehicles / "v1").exists()
