@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from hybrid_calib.calib.result import VehicleResult, failed_vehicles_message
-from hybrid_calib.config import merge, read_out_record, save_json_atomic, to_dict
+from hybrid_calib.config import merge, read_out_record, save_json_atomic, save_text_atomic, to_dict
 from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.hybrid.loop import METHODS, HybridConfig, _Session, vehicle_learned, vehicle_oracle
 from hybrid_calib.metrics import METRIC_KEYS
@@ -71,10 +71,14 @@ def run_trials(roots: list, version: str, out: Path, conf: CompareConfig, progre
                                 cache_dir=conf.hybrid.cache_dir or str(out / "network-cache"),
                                 depth_cache=conf.hybrid.depth_cache or str(out / "depth-cache"))
     learned = any(m != "oracle" for m in conf.methods)
-    sessions = [_Session(r, version, dataclasses.replace(hconf, method="hybrid" if learned else "oracle"))
-                for r in roots]
+    sessions, left_out = [], {}
+    for r in roots:
+        try:
+            sessions.append(_Session(r, version, dataclasses.replace(hconf, method="hybrid" if learned else "oracle")))
+        except DataError as e:  # no vehicle of this root reads: the other roots are compared
+            left_out[f"every vehicle of {r}"] = str(e)
     vehicles = [(s, name) for s in sessions for name in s.drives]
-    left_out = {name: reason for s in sessions for name, reason in s.unreadable.items()}
+    left_out.update({name: reason for s in sessions for name, reason in s.unreadable.items()})
     if not vehicles:
         raise HybridCalibError(f"no vehicle in {roots}" + (f": {failed_vehicles_message(left_out)}" if left_out
                                                           else ""))
@@ -191,6 +195,9 @@ def _markdown(summary: dict, conf: CompareConfig, command: str) -> str:
     if short:  # the rows are then not over the same trials: said where they are read
         lines += ["", f"**Not every trial finished** ({'; '.join(short)}): those rows are over fewer trials than the "
                       "others; why each failed is in compare.json (trials_failed), and a rerun tries them again."]
+    if summary.get("vehicles_left_out"):  # the trials then went to the other vehicles: said where they are read
+        lines += ["", f"**Left out** (none of their frames reads; the trials went to the other vehicles): "
+                      f"{', '.join(sorted(summary['vehicles_left_out']))}; why, in compare.json (vehicles_left_out)."]
     lines += ["", "Per root (scenario): mean NEES / coverage", ""]
     for m, s in summary["methods"].items():
         parts = [f"{k}: {c['nees_mean']:.1f} / {100 * c['coverage_95']:.0f} %" for k, c in
@@ -199,30 +206,101 @@ def _markdown(summary: dict, conf: CompareConfig, command: str) -> str:
     return "\n".join(lines) + "\n"
 
 
+# keys of compare_config.json that do not change what a trial gives: how the run ran, the trial count (more trials
+# extend a run), the methods (each has its own trial files) and the checkpoint paths (their contents are "network")
+_NOT_OF_A_TRIAL = ("trials", "methods", "hybrid.threads", "hybrid.progress", "hybrid.cache_dir", "hybrid.depth_cache",
+                   "hybrid.checkpoint", "hybrid.refine")
+
+
+def _flat(d: dict, prefix: str = "") -> dict:
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, dict) and v and k not in ("data", "network"):
+            out.update(_flat(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def _record(roots: list, version: str, conf: CompareConfig) -> dict:
+    """What the trials of ``conf`` on ``roots`` depend on (``compare_config.json``): the config, the roots (resolved:
+    "./sim" and "sim" are one) with their data stamps (``data.files.data_stamp``: a re-simulated or re-downloaded
+    root is other data) and, for the learned methods, the checkpoints' contents (``hybrid.loop.network_identity``)."""
+    from hybrid_calib.data.files import data_stamp
+    from hybrid_calib.hybrid.loop import network_identity
+
+    learned = any(m != "oracle" for m in conf.methods)
+    hconf = dataclasses.replace(conf.hybrid, start=conf.range, method="hybrid" if learned else "oracle")
+    return {**to_dict(conf), **network_identity(hconf),
+            "data": {"roots": [str(Path(r).resolve()) for r in roots], "version": version,
+                     "stamps": [data_stamp(r, version)["digest"] for r in roots]}}
+
+
+def _differences(previous: dict, record: dict) -> list[str]:
+    """What differs between the record of the kept trials and this run's, in words (``_NOT_OF_A_TRIAL`` aside; a
+    key the earlier record lacks is not held against it)."""
+    old, new = _flat(previous), _flat(record)
+    words = []
+    was, now = previous.get("data"), record["data"]
+    if isinstance(was, dict):
+        if [was.get("roots"), was.get("version")] != [now["roots"], now["version"]]:
+            words.append(f"other roots or --version ({', '.join(map(str, was.get('roots') or []))}; "
+                         f"{was.get('version')})")
+        elif "stamps" in was and was["stamps"] != now["stamps"]:
+            changed = [r for r, a, b in zip(now["roots"], was["stamps"], now["stamps"]) if a != b]
+            words.append(f"the data in {', '.join(changed)} as it was before (its tables or sensor folders changed "
+                         "since: re-simulated or re-downloaded)")
+    if "network" in previous and "network" in record and previous["network"] != record["network"]:
+        words.append("another network checkpoint (the checkpoint's files differ: another file, or retrained or "
+                     "edited at the same path)")
+    options = [f"{k}: {json.dumps(old[k])} -> {json.dumps(v)}" for k, v in new.items()
+               if k in old and k not in ("data", "network") + _NOT_OF_A_TRIAL and old[k] != v]
+    return words + ([f"another configuration ({'; '.join(options)})"] if options else [])
+
+
+def _check_roots(roots: list, version: str, methods) -> None:
+    """A root without the version folder, and oracle on a real root, refused before any trial is run or any file
+    written (a root whose vehicles do not read is left out later, and the others compared)."""
+    from hybrid_calib.data.tables import version_dir
+
+    for r in roots:
+        version_dir(r, version)
+    if "oracle" not in methods:
+        return
+    real = [str(r) for r in roots if (Path(r) / version).is_dir() and not (Path(r) / version / "sim_vehicle.json"
+                                                                            ).is_file()]
+    if real:
+        raise HybridCalibError(f"method oracle needs simulated roots (the true reflectors); {', '.join(real)} "
+                               f"{'is a real root' if len(real) == 1 else 'are real roots'}: drop oracle from "
+                               "--methods (hybrid, pure and pure-avg run on real data)")
+
+
 def compare(roots: list, version: str, out: str | Path, conf: CompareConfig | dict | None = None,
-            command: str = "", progress: bool = True) -> dict:
-    """Run (or resume) every trial, then write compare.json, compare.md and the plot; returns the summary."""
+            command: str = "", progress: bool = True, overwrite: bool = False) -> dict:
+    """Run (or resume) every trial, then write compare.json, compare.md and the plot; returns the summary.
+    ``overwrite``: the kept trials and tables of ``out`` are removed first (its caches, keyed by content, stay)."""
+    import shutil
+
     from hybrid_calib.plots.compare import plot_error_vs_frames
 
     conf = merge(CompareConfig, conf)
     out = Path(out)
+    _check_roots(roots, version, conf.methods)
     cfg_path = out / "compare_config.json"
-    # the trials' drives too: trial k is the k-th vehicle of these roots (resolved: "./sim" and "sim" are one)
-    record = {**to_dict(conf), "data": {"roots": [str(Path(r).resolve()) for r in roots], "version": version}}
-
-    def same(a: dict) -> dict:  # trial k does not depend on the trial count: more trials extend a run
-        return {k: v for k, v in json.loads(json.dumps(a)).items() if k != "trials"}
-
-    previous = read_out_record(cfg_path, "compare config", f"the configuration its trials were run with: delete "
-                               f"{out} (or that file) to start over, or use another --out")
+    record = _record(roots, version, conf)
+    if overwrite:
+        shutil.rmtree(out / "trials", ignore_errors=True)
+        for name in ("compare_config.json", "compare.json", "compare.md", "error_vs_frames.png"):
+            (out / name).unlink(missing_ok=True)
+    previous = read_out_record(cfg_path, "compare config", "the configuration its trials were run with: pass "
+                               "--overwrite to start over, or use another --out")
     if previous is not None and "data" not in previous:  # written before the roots were recorded
         previous = {**previous, "data": record["data"]}
-    if previous is not None and same(previous) != same(record):
-        was = previous.get("data")
-        what = (f"other roots or --version ({', '.join(map(str, was.get('roots', [])))}; {was.get('version')})"
-                if isinstance(was, dict) and was != record["data"] else "another configuration")
-        raise HybridCalibError(f"{out} holds trials of {what} ({cfg_path}), which this run would report as its "
-                               "own; pass the same options or use another --out")
+    if previous is not None and (changed := _differences(previous, record)):
+        raise HybridCalibError(f"{out} holds trials of {'; '.join(changed)} ({cfg_path}), which this run would "
+                               "report as its own; pass the same options, --overwrite to start over, or another --out")
+    if previous is not None and "network" in previous and "network" not in record:  # an oracle-only rerun: the kept
+        record["network"] = previous["network"]  # learned trials keep the identity of the network that made them
     save_json_atomic(cfg_path, record)
     problems = run_trials([str(r) for r in roots], version, out, conf, progress)
     results = {m: load_trials(out, m, conf.trials) for m in conf.methods}
@@ -234,9 +312,6 @@ def compare(roots: list, version: str, out: str | Path, conf: CompareConfig | di
                "config": record, "methods": {m: summarize_method(rs) for m, rs in results.items() if rs},
                **problems}
     save_json_atomic(out / "compare.json", summary)
-    md = out / "compare.md"
-    tmp = md.with_name(md.name + ".tmp")
-    tmp.write_text(_markdown(summary, conf, command))
-    tmp.replace(md)
+    save_text_atomic(out / "compare.md", _markdown(summary, conf, command))
     plot_error_vs_frames(results, out / "error_vs_frames.png")
     return summary

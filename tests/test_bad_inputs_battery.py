@@ -726,7 +726,7 @@ def test_check_T_names_a_non_finite_transform():
 @pytest.mark.parametrize("override,needles", [
     ("tolerance.rot_deg=-1", ["rot_deg must be a finite number > 0", "got -1", "tolerance.rot_deg=0.5"]),
     ("tolerance.rot_deg=0", ["rot_deg must be a finite number > 0", "got 0"]),
-    ("tolerance.trans_cm=-2.5", ["trans_cm must be a finite number > 0", "got -2.5", "tolerance.trans_cm=5"]),
+    ("tolerance.trans_cm=-2.5", ["trans_cm must be a finite number > 0", "got -2.5", "tolerance.trans_cm=2"]),
     ("tolerance.trans_cm=NaN", ["trans_cm must be a finite number > 0", "got nan"]),
 ], ids=["rot-negative", "rot-zero", "trans-negative", "trans-nan"])
 def test_report_bad_tolerance(override, needles, sim, calibrated, tmp_path, capsys):

@@ -243,7 +243,7 @@ def test_every_method_starts_a_vehicle_from_the_same_extrinsic(sim_root, tmp_pat
     assert not np.allclose(v.start["T_cam_radar"], starts["pure"])
 
 
-def test_compare_smoke_resumes_and_writes_the_table(sim_root, tmp_path):
+def test_compare_smoke_resumes_and_writes_the_table(sim_root, tmp_path, capsys):
     from hybrid_calib.cli import main
 
     out = tmp_path / "cmp"
@@ -265,6 +265,14 @@ def test_compare_smoke_resumes_and_writes_the_table(sim_root, tmp_path):
     assert main(argv) == 0  # resumed: nothing recomputed
     assert (out / "trials" / "hybrid" / "0000.json").stat().st_mtime_ns == mtime
     assert main([*argv[:-1], "--seed", "3", "--no-progress"]) == 2  # another config in the same folder
+    assert "another configuration (seed: 0 -> 3)" in capsys.readouterr().err  # what differs, named
+    # what does not change a trial does not block the rerun: the methods' order or a subset, the threads, the default
+    # checkpoint spelled out (its contents are what counts)
+    from hybrid_calib.hybrid.network import shipped_checkpoint
+
+    same = [*argv[:8], "hybrid,pure", *argv[9:-1], "threads=2", "--checkpoint", str(shipped_checkpoint("R1")),
+            "--no-progress"]
+    assert main(same) == 0 and (out / "trials" / "hybrid" / "0000.json").stat().st_mtime_ns == mtime
     # another method's or another trial's result in a trial's file is said and run again, never reported as it
     trial = out / "trials" / "hybrid" / "0000.json"
     for source in ("pure/0000.json", "hybrid/0001.json"):
@@ -398,3 +406,72 @@ def test_compare_says_when_a_method_finished_fewer_trials():
     assert "**Not every trial finished** (pure-avg: 0 of 4; hybrid: 3 of 4)" in text
     full = _markdown({"methods": {m: {**row, "trials": 4} for m in conf.methods}}, conf, "cmd")
     assert "Not every trial" not in full
+
+
+def test_compare_refuses_kept_trials_of_other_data_and_leaves_out_a_root_that_does_not_read(sim_root, tmp_path,
+                                                                                             capsys):
+    """Trials of a re-simulated root at the same path were reported with the new root's as one row; oracle on a real
+    root was refused only after trials had been written (and the corrected rerun then refused); one root with no
+    readable vehicle ended the whole comparison."""
+    import shutil
+
+    from hybrid_calib.cli import main
+
+    root = tmp_path / "root"
+    shutil.copytree(sim_root, root)
+    out = tmp_path / "cmp"
+    argv = ["compare", "--data", str(root), "--methods", "oracle", "--trials", "2", "--out", str(out), "--set",
+            "window.window=3", "--no-progress"]
+    assert main(argv) == 0
+    table = root / "v1.0-sim" / "sample_data.json"
+    table.write_text(table.read_text() + "\n")  # the same path, other data (a re-simulation, a re-download)
+    assert main(argv) == 2
+    assert f"the data in {root.resolve()} as it was before" in capsys.readouterr().err
+    assert main([*argv, "--overwrite"]) == 0 and main(argv) == 0
+    # oracle on a real root: refused before anything is written
+    real = tmp_path / "real"
+    shutil.copytree(sim_root, real)
+    (real / "v1.0-sim" / "sim_vehicle.json").unlink()
+    assert main(["compare", "--data", str(real), "--methods", "pure,oracle", "--trials", "1", "--out",
+                 str(tmp_path / "c2")]) == 2
+    assert "oracle needs simulated roots" in capsys.readouterr().err and not (tmp_path / "c2").exists()
+    # a root none of whose vehicles reads is left out (said, in compare.md too); the other root is compared
+    bad = tmp_path / "bad"
+    shutil.copytree(sim_root, bad)
+    for d in (bad / "samples").iterdir():
+        for f in d.iterdir():
+            f.write_bytes(b"")
+    assert main(["compare", "--data", str(root), str(bad), "--methods", "oracle", "--trials", "2", "--out",
+                 str(tmp_path / "c3"), "--set", "window.window=3", "--no-progress"]) == 1
+    s = json.loads((tmp_path / "c3" / "compare.json").read_text())
+    assert s["methods"]["oracle"]["trials"] == 2 and f"every vehicle of {bad}" in s["vehicles_left_out"]
+    assert "**Left out**" in (tmp_path / "c3" / "compare.md").read_text()
+
+
+def test_a_checkpoint_changed_in_place_is_another_network(sim_root, tmp_path):
+    """calibrate reused its result ("the same data and options") after the checkpoint at --checkpoint was retrained;
+    compare mixed trials of the two networks."""
+    import shutil
+
+    from hybrid_calib.compare import _differences
+    from hybrid_calib.errors import HybridCalibError
+    from hybrid_calib.hybrid import run_calibration
+    from hybrid_calib.hybrid.network import shipped_checkpoint
+
+    ck = tmp_path / "ck"
+    ck.mkdir()
+    for f in shipped_checkpoint("R1").parent.glob("small-sim-r1.*"):
+        shutil.copy(f, ck / f.name)
+    conf = {**BASE, "method": "pure", "checkpoint": str(ck / "small-sim-r1.json"), "max_frames": 1,
+            "vehicles": ["sim-veh-000"]}
+    run_calibration(sim_root, "v1.0-sim", tmp_path / "c", conf)
+    run_calibration(sim_root, "v1.0-sim", tmp_path / "c", conf)  # unchanged: reused
+    weights = ck / "small-sim-r1.safetensors"
+    weights.write_bytes(weights.read_bytes()[:-1] + b" ")  # retrained at the same path
+    with pytest.raises(HybridCalibError, match="network checkpoint's files"):
+        run_calibration(sim_root, "v1.0-sim", tmp_path / "c", conf)
+    a = {"range": "R1", "network": {"checkpoint": "aa"}, "data": {"roots": ["r"], "version": "v", "stamps": ["s"]}}
+    assert _differences(a, {**a, "network": {"checkpoint": "bb"}}) == [
+        "another network checkpoint (the checkpoint's files differ: another file, or retrained or edited at the same "
+        "path)"]
+    assert _differences(a, dict(a)) == []

@@ -344,3 +344,25 @@ def test_the_attention_section_finds_a_network_methods_checkpoint(tmp_path):
     vr.checkpoint = "/ck/small-sim-r1.json -> /ck/small-sim-r0.json"  # a cascade: its first stage is drawn
     html = attention_html(vr, Evidence(), None, "v1.0-sim", "", tmp_path)
     assert "checkpoint /ck/small-sim-r1.json is named but no camera frame" in html
+
+
+def test_a_tolerance_asked_of_the_report_redoes_the_calibrators_test():
+    """``report --set tolerance.rot_deg=0.01`` kept the calibrator's verdict against its own 0.5 deg: the asked
+    tolerance was ignored whenever the result stored a verdict (every current one does)."""
+    from hybrid_calib.calib.drift import reference_test
+    from hybrid_calib.geometry import retract
+
+    ref = nominal_T_cam_radar()
+    est = retract(ref, np.array([0.0, 0.0, np.radians(0.2), 0.0, 0.0, 0.0]))  # 0.2 deg about the radar's z
+    cov = np.diag([np.radians(0.01) ** 2] * 3 + [0.001 ** 2] * 3)
+    drift = reference_test(est, cov, ref).to_dict()
+    vr = VehicleResult("v", Estimate(est, cov, np.full(6, 0.01), "ok"), drift=drift)
+    own = verdict_of(vr)
+    assert own.word == "within tolerance" and "redone" not in own.source and "0.5 deg" in own.tolerance
+    tight = verdict_of(vr, Tolerance(rot_deg=0.05))
+    assert tight.word == "recalibrate" and "0.05 deg" in tight.why and "redone" in tight.source
+    assert "2 cm" in tight.tolerance  # the axis not asked keeps the calibration's
+    loose = reference_test(retract(ref, np.array([0.0, 0.0, 0.0, 0.0, 0.10, 0.0])), cov, ref).to_dict()
+    vr_loose = VehicleResult("v", Estimate(est, cov, np.full(6, 0.01), "ok"), drift=loose)
+    assert verdict_of(vr_loose).word == "recalibrate"  # 10 cm against 2 cm
+    assert verdict_of(vr_loose, Tolerance(trans_cm=30)).word == "within tolerance"

@@ -160,6 +160,7 @@ class DriftDecision:
     verdict: str = ""
     axes: tuple[AxisCheck, ...] = ()
     z: float = float("nan")
+    alpha: float = DriftConfig.alpha  # significance of the test (the per-axis z values follow from it)
 
     def to_dict(self) -> dict:
         return {
@@ -169,7 +170,7 @@ class DriftDecision:
             "exceeds_margin": bool(self.exceeds_margin), "drifted": bool(self.drifted),
             "delta_camera": {k: float(v) for k, v in zip(AXIS_KEYS, self.delta_report)},
             "rot_change_deg": float(self.rot_change_deg), "trans_change_cm": float(self.trans_change_cm),
-            "verdict_kind": self.verdict_kind, "verdict": self.verdict,
+            "verdict_kind": self.verdict_kind, "verdict": self.verdict, "alpha": float(self.alpha),
             "verdict_test": f"per camera axis: differs if |delta| - {self.z:.2f} sigma > tolerance, within if "
                             "|delta| + z_in sigma <= tolerance (z_in = Phi^-1(1 - alpha))",
             "axes": {a.name: a.to_dict() for a in self.axes},
@@ -201,11 +202,16 @@ def _and(names: list[str]) -> str:
     return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
 
 
-def _check_axes(delta: np.ndarray, std: np.ndarray, pinned: np.ndarray, conf: DriftConfig, z_out: float,
-                z_in: float) -> list[AxisCheck]:
+def _check_axes(delta: np.ndarray, std: np.ndarray, pinned: np.ndarray, tolerance: np.ndarray,
+                alpha: float) -> list[AxisCheck]:
+    """The per-axis decisions (module doc) of camera-axis ``delta`` and ``std`` (6,) [deg x3, cm x3] against
+    ``tolerance`` (6,), at significance ``alpha``."""
+    from scipy.stats import norm
+
+    z_out, z_in = float(norm.isf(alpha / 6)), float(norm.isf(alpha))
     out = []
     for i, name in enumerate(AXIS_WORDS):
-        tol = conf.tolerance_rot_deg if i < 3 else conf.tolerance_trans_cm
+        tol = float(tolerance[i])
         lo, hi = abs(delta[i]) - z_out * std[i], abs(delta[i]) + z_in * std[i]
         decision = "differs" if lo > tol else "within" if hi <= tol else "undecided"
         out.append(AxisCheck(name, float(delta[i]), float(std[i]), tol, decision, bool(pinned[i])))
@@ -274,13 +280,39 @@ def reference_test(
     std_report = np.sqrt(var_rep) * units
     pinned = pinned_camera_axes(B, pinned_std)
     z = float(norm.isf(conf.alpha / 6))
-    axes = _check_axes(delta_report, std_report, pinned, conf, z, float(norm.isf(conf.alpha)))
+    tolerance = np.array([conf.tolerance_rot_deg] * 3 + [conf.tolerance_trans_cm] * 3)
+    axes = _check_axes(delta_report, std_report, pinned, tolerance, conf.alpha)
     kind, sentence = _verdict(axes)
     rot = float(np.degrees(np.linalg.norm(d[:3])))
     trans = float(np.linalg.norm(delta_report[3:]))
     exceeds = any(abs(a.delta) > a.tolerance for a in axes)
     return DriftDecision(s, 6, p, thr, p < conf.alpha, exceeds, kind == "recalibrate", delta_report, rot, trans,
-                         kind, sentence, tuple(axes), z)
+                         kind, sentence, tuple(axes), z, conf.alpha)
+
+
+def against_tolerance(drift: dict, status: str, mount: dict | None, rot_deg: float | None = None,
+                      trans_cm: float | None = None) -> dict:
+    """A stored reference test (``DriftDecision.to_dict``) redone against another tolerance (deg per rotation axis,
+    cm per translation axis; None keeps the axis' stored one): the same per-axis decisions and verdict as
+    ``reference_test`` (at the stored ``alpha``), then ``unconverged`` (``status``) and ``camera_side_note``
+    (``mount``: the result's mount-monitor block) as the calibrator applies them. A block without the six per-axis
+    checks (written before they existed) is returned unchanged."""
+    axes = drift.get("axes")
+    if not isinstance(axes, dict) or any(not isinstance(axes.get(n), dict) for n in AXIS_WORDS):
+        return drift
+    rows = [axes[n] for n in AXIS_WORDS]
+    delta = np.array([float(a["delta"]) for a in rows])
+    std = np.array([float(a["std"]) for a in rows])
+    pinned = np.array([bool(a.get("prior_pinned")) for a in rows])
+    tolerance = np.array([float(a["tolerance"]) if given is None else float(given)
+                          for a, given in zip(rows, [rot_deg] * 3 + [trans_cm] * 3)])
+    checks = _check_axes(delta, std, pinned, tolerance, float(drift.get("alpha", DriftConfig.alpha)))
+    kind, sentence = _verdict(checks)
+    out = {k: v for k, v in drift.items() if k != "camera_side"}
+    out.update(verdict_kind=kind, verdict=sentence, drifted=kind == "recalibrate",
+               exceeds_margin=any(abs(a.delta) > a.tolerance for a in checks),
+               axes={a.name: a.to_dict() for a in checks})
+    return camera_side_note(unconverged(out, status), mount)
 
 
 def unconverged(drift: dict, status: str) -> dict:

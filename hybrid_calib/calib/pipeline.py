@@ -74,7 +74,7 @@ class VehicleInput:
     skipped: list = field(default_factory=list)  # [{"index", "token", "reason"}]
 
 
-def _load_oracle(data, version: str, conf: CalibrateConfig, rng) -> dict[str, VehicleInput]:
+def _load_oracle(data, version: str, conf: CalibrateConfig, rng, progress: bool = True) -> dict[str, VehicleInput]:
     from tqdm import tqdm
 
     from hybrid_calib.data.nuscenes import NuScenesRadarCamera
@@ -86,7 +86,7 @@ def _load_oracle(data, version: str, conf: CalibrateConfig, rng) -> dict[str, Ve
             continue
         vi = out[vehicle] = VehicleInput(vehicle)
         idx = idx[: conf.max_frames] if conf.max_frames > 0 else idx
-        for i in tqdm(idx, desc=f"oracle {vehicle}", leave=False):
+        for i in tqdm(idx, desc=f"oracle {vehicle}", leave=False, disable=not progress):
             try:
                 f = ds[i]
                 c, t = oracle_from_frame(f, conf.oracle, rng)
@@ -101,9 +101,11 @@ def _load_oracle(data, version: str, conf: CalibrateConfig, rng) -> dict[str, Ve
     return out
 
 
-def load_oracle(data, version: str, conf: CalibrateConfig | dict | None, rng) -> dict[str, VehicleInput]:
-    """Oracle inputs (simulated roots) of every vehicle in ``conf.vehicles`` (all when None)."""
-    return _load_oracle(data, version, merge(CalibrateConfig, conf), rng)
+def load_oracle(data, version: str, conf: CalibrateConfig | dict | None, rng, progress: bool = True
+                ) -> dict[str, VehicleInput]:
+    """Oracle inputs (simulated roots) of every vehicle in ``conf.vehicles`` (all when None); ``progress``: a bar
+    per vehicle."""
+    return _load_oracle(data, version, merge(CalibrateConfig, conf), rng, progress)
 
 
 def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,

@@ -580,6 +580,8 @@ def _changes(old: dict, new: dict) -> list[str]:
     old_conf = old.get("config")
     if isinstance(old_conf, dict) and not changed:
         changed = [("the data in --data (its tables or sensor folders changed since)" if k == "data_stamp" else
+                    "the network checkpoint's files (changed since: retrained or edited at the same path; or the "
+                    "earlier run did not record them)" if k == "network" else
                     f"{k}: {_short(old_conf.get(k))} -> {_short(v)}") for k, v in new["config"].items()
                    if k not in RUN_ONLY and old_conf.get(k) != v
                    and not (k not in old_conf and v in ({}, None))]  # a key a later version added, at its default

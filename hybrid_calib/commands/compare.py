@@ -38,6 +38,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, required=True, help="output folder (resumable: finished trials are kept)")
     p.add_argument("--set", action="extend", nargs="+", metavar="KEY=VALUE", default=[],
                    help="HybridConfig overrides for every method, e.g. threads=1 measurement.rows=last")
+    p.add_argument("--overwrite", action="store_true", help="remove the trials and tables an earlier run left in "
+                   "--out and run every trial again (the network and depth caches, keyed by content, are kept)")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
 
@@ -53,13 +55,14 @@ def run(args: argparse.Namespace) -> int:
             hybrid[key] = getattr(args, key)
     if flags := split_overrides(args):
         hybrid["split_options"] = {**hybrid.get("split_options", {}), **flags}
-    methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
+    methods = tuple(dict.fromkeys(m.strip() for m in args.methods.split(",") if m.strip()))  # once each, in order
     if not methods:
         raise OptionError("--methods", f"{args.methods!r} names no method; pass a comma-separated list of pure, "
                                        "pure-avg, hybrid, oracle")
     conf = {"range": args.range, "trials": args.trials, "seed": args.seed, "hybrid": hybrid, "methods": methods}
     command = "hybrid-calib " + " ".join(sys.argv[1:])
-    s = compare(args.data, args.version, args.out, conf, command=command, progress=not args.no_progress)
+    s = compare(args.data, args.version, args.out, conf, command=command, progress=not args.no_progress,
+                overwrite=args.overwrite)
     for m, r in s["methods"].items():
         e, d, c = r["mean"], r["median"], r["consistency"]
         print(f"{m:>9}: rot mean {e['rot_mean_deg']:.3f} deg (median {d['rot_mean_deg']:.3f}), trans mean "

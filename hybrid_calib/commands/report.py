@@ -24,7 +24,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     # dest out_html: --out is a file here, not the output directory the CLI checks for other commands
     p.add_argument("--out", dest="out_html", type=Path, required=True, help="the HTML file to write, e.g. report.html")
     p.add_argument("--set", action="extend", nargs="+", metavar="KEY=VALUE", default=[],
-                   help="ReportConfig overrides, e.g. tolerance.rot_deg=0.3 tolerance.trans_cm=3")
+                   help="ReportConfig overrides, e.g. tolerance.rot_deg=0.3 tolerance.trans_cm=3 (the verdict's "
+                   "tolerance per camera axis; default: the one the calibration used, drift.tolerance_rot_deg / "
+                   "drift.tolerance_trans_cm: 0.5 deg and 2 cm)")
 
 
 def run(args: argparse.Namespace) -> int:

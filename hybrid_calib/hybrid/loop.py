@@ -61,7 +61,13 @@ from hybrid_calib.geometry import local, se3_exp
 from hybrid_calib.hybrid.average import AverageConfig, robust_average
 from hybrid_calib.hybrid.measurement import MeasurementConfig, frame_inputs, prior_trusted
 from hybrid_calib.hybrid.motion import MotionConfig, MotionGate, MotionSource, fold, gated_innovation
-from hybrid_calib.hybrid.network import NetworkRunner, build_runner, refine_checkpoint, shipped_checkpoint
+from hybrid_calib.hybrid.network import (
+    NetworkRunner,
+    build_runner,
+    checkpoint_digest,
+    refine_checkpoint,
+    shipped_checkpoint,
+)
 from hybrid_calib.hybrid.ood import OODPolicy, decide, json_score, out_of_domain, skip_record
 from hybrid_calib.metrics import extrinsic_error
 from hybrid_calib.perturbation import RANGES, vehicle_start
@@ -662,7 +668,7 @@ def vehicle_oracle(data, version: str, drive: Drive, conf: HybridConfig) -> Vehi
     cconf = CalibrateConfig(window=conf.window, oracle=conf.oracle, drift=conf.drift, start=conf.start,
                             seed=conf.seed, max_frames=conf.max_frames, vehicles=(drive.vehicle,))
     rng = vehicle_rng(conf.seed, drive.vehicle, "oracle")
-    vi = load_oracle(data, version, cconf, rng)[drive.vehicle]
+    vi = load_oracle(data, version, cconf, rng, conf.progress)[drive.vehicle]
     T0 = start_of(drive, conf)
     res = calibrate_vehicle(vi, cconf, rng, progress=conf.progress, T_start=T0)
     res.config = to_dict(conf)
@@ -705,6 +711,17 @@ class _Session:
         return vehicle_learned(self.runner, drive, self.conf, self.note, self.motion, self.frames)
 
 
+def network_identity(conf: HybridConfig) -> dict:
+    """``{"network": {"checkpoint": digest[, "refine": digest]}}``: what a learned method's result depends on beyond
+    its config, the contents of its checkpoints (``network.checkpoint_digest``), so that one retrained or edited at
+    the same path is not taken for the one an earlier result was computed with; ``{}`` for oracle."""
+    if conf.method == "oracle":
+        return {}
+    refine = refine_checkpoint(conf.refine)
+    return {"network": {"checkpoint": checkpoint_digest(conf.checkpoint or shipped_checkpoint(conf.start)),
+                        **({"refine": checkpoint_digest(refine)} if refine else {})}}
+
+
 def run_vehicle(data: str | Path, version: str, vehicle: str, conf: HybridConfig | dict | None = None
                 ) -> VehicleResult:
     """Calibrate ONE vehicle of a nuScenes root with ``conf.method`` (plain data in: paths, names, a
@@ -722,8 +739,9 @@ def run_calibration(data: str | Path, version: str, out: str | Path, conf: Hybri
     folders. With ``overwrite=False`` an existing result is returned untouched."""
     conf = merge(HybridConfig, conf)
     out = Path(out)
+    network = network_identity(conf)
     if (out / "result.json").is_file() and not overwrite:
-        return reuse_result(out, data, version, conf.method, to_dict(conf))
+        return reuse_result(out, data, version, conf.method, {**to_dict(conf), **network})
     conf = dataclasses.replace(conf, cache_dir=conf.cache_dir or str(out / "network-cache"),
                                depth_cache=conf.depth_cache or str(out / "depth-cache"))
     stamp = data_stamp(data, version)  # before reading: data that change during the run are not this result's
@@ -732,11 +750,11 @@ def run_calibration(data: str | Path, version: str, out: str | Path, conf: Hybri
         raise DataError("no vehicle to calibrate (check --set vehicles=... and the dataset)", path=str(data))
     mode = {"hybrid": "window", "oracle": "window", "pure": "network", "pure-avg": "average"}[conf.method]
     run = CalibrationRun(str(data), version, conf.method, mode, vehicles_failed=dict(session.unreadable))
-    done = VehicleProgress(out, data, version, conf.method, {**to_dict(conf), "data_stamp": stamp["digest"]},
-                           fresh=overwrite)
+    done = VehicleProgress(out, data, version, conf.method,
+                           {**to_dict(conf), **network, "data_stamp": stamp["digest"]}, fresh=overwrite)
     done.fill(run, list(session.drives), session.vehicle, on_vehicle, conf.progress)
     run.raise_if_none_done()
-    save_json_atomic(out / "config.json", to_dict(conf))
+    save_json_atomic(out / "config.json", {**to_dict(conf), **network})
     save_json_atomic(out / DATA_STAMP, stamp)  # a rerun on changed data must not reuse it
     run.save(out / "result.json")
     done.finish()

@@ -149,16 +149,25 @@ class OutputCache:
                       "saying so once)", file=sys.stderr)
 
 
-def network_key(checkpoint: str | Path, depth_name: str, depth_hash: str) -> str:
-    """The identity of a network's outputs (``OutputCache``): the checkpoint's JSON and weights (their
-    bytes: a retrained or edited checkpoint at the same path is another network) and its depth input."""
+def checkpoint_digest(checkpoint: str | Path) -> str:
+    """The identity of a checkpoint: SHA-1 of its JSON and weights files (their bytes: a retrained or edited
+    checkpoint at the same path is another network; the same files under another path are the same one)."""
     from learned.checkpoint import _weights_path, read_checkpoint_meta
 
     path, meta = read_checkpoint_meta(checkpoint)
-    h = hashlib.sha1(f"{depth_name}/{depth_hash}/".encode())
+    h = hashlib.sha1()
     for f in (path, _weights_path(path, meta)):
-        h.update(f.read_bytes())
-    return h.hexdigest()[:16]
+        with open(f, "rb") as fh:
+            for chunk in iter(lambda: fh.read(1 << 20), b""):
+                h.update(chunk)
+        h.update(b"/")
+    return h.hexdigest()
+
+
+def network_key(checkpoint: str | Path, depth_name: str, depth_hash: str) -> str:
+    """The identity of a network's outputs (``OutputCache``): the checkpoint (``checkpoint_digest``) and its depth
+    input."""
+    return hashlib.sha1(f"{depth_name}/{depth_hash}/{checkpoint_digest(checkpoint)}".encode()).hexdigest()[:16]
 
 
 class NetworkRunner:

@@ -26,7 +26,7 @@ STD_KEYS = ("rot_x_cam_deg", "rot_y_cam_deg", "rot_z_cam_deg", "t_x_cam_cm", "t_
 
 @dataclass(frozen=True)
 class ReportConfig:
-    tolerance: Tolerance = Tolerance()  # the verdict's tolerance (when the result has none)
+    tolerance: Tolerance = Tolerance()  # the verdict's tolerance (unset: the one the calibration's test used)
     frames: int = 3  # camera frames shown before / after, spread over the drive
     checkpoint: str = ""  # network checkpoint for the attention figure ("" = the one the result names, if any)
 

@@ -3,10 +3,12 @@ it need recalibrating, or can the data not tell; and did the sensor move during 
 
 The result's drift block (``VehicleResult.drift``: ``calib.drift.DriftDecision.to_dict``) compares
 the final estimate with the vehicle's reference (its calibration tables). When that block carries
-its own ``"verdict"`` (words and tolerance, written by the calibrator) it is used as is. Otherwise
-the verdict is derived here, per camera axis, from the change ``delta`` (``drift["delta_camera"]``)
-and the estimate's 1-sigma ``s`` (``final.std_cam``), against a tolerance ``tol`` per axis (rotation
-deg, translation cm, ``ReportConfig``):
+its own ``"verdict"`` (words and tolerance, written by the calibrator) it is used as is, unless the
+report is asked for another tolerance (``Tolerance``, ``--set tolerance.rot_deg=...``): its per-axis
+test is then redone against that one (``calib.drift.against_tolerance``). Otherwise (a result
+written before verdicts were stored) the verdict is derived here, per camera axis, from the change
+``delta`` (``drift["delta_camera"]``) and the estimate's 1-sigma ``s`` (``final.std_cam``), against a
+tolerance ``tol`` per axis (rotation deg, translation cm, ``ReportConfig``):
 
 - "recalibrate": some axis changed by more than the tolerance beyond doubt, ``|delta| - 3 s > tol``;
 - "within tolerance": every axis is within it beyond doubt, ``|delta| + 3 s <= tol``;
@@ -30,6 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hybrid_calib.calib.drift import DriftConfig, against_tolerance
 from hybrid_calib.calib.mount_monitor import tested_words
 from hybrid_calib.calib.result import VehicleResult
 
@@ -43,21 +46,40 @@ INCONCLUSIVE = "inconclusive"  # calib.covariance.inconclusive_status: the input
 
 @dataclass(frozen=True)
 class Tolerance:
-    rot_deg: float = 0.5  # per camera axis, degrees: a change below this needs no recalibration
-    trans_cm: float = 5.0  # per camera axis, centimetres
+    """The verdict's tolerance per camera axis. None (the default): the one the calibration's reference test used
+    (``calib.drift.DriftConfig``: ``--set drift.tolerance_rot_deg=...`` at calibrate time); a value redoes that test
+    against it (``calib.drift.against_tolerance``)."""
+
+    rot_deg: float | None = None  # degrees per rotation axis: a change below this needs no recalibration
+    trans_cm: float | None = None  # centimetres per translation axis
 
     def __post_init__(self):
         for name, unit in (("rot_deg", "degrees per rotation axis"), ("trans_cm", "centimetres per translation axis")):
             value = getattr(self, name)
+            if value is None:
+                continue
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
                 raise ValueError(f"{name} must be a finite number > 0 ({unit}), got {value!r}; e.g. --set "
-                                 f"tolerance.{name}={getattr(Tolerance, name):g} (the default)")
+                                 f"tolerance.{name}={_DEFAULT[name]:g} (the calibrator's default)")
+
+    @property
+    def given(self) -> bool:
+        return self.rot_deg is not None or self.trans_cm is not None
+
+    def resolved(self) -> Tolerance:
+        """The tolerance with an unset axis at the calibrator's default (``DriftConfig``)."""
+        return Tolerance(*(_DEFAULT[k] if getattr(self, k) is None else getattr(self, k) for k in _DEFAULT))
 
     def per_axis(self) -> np.ndarray:
-        return np.array([self.rot_deg] * 3 + [self.trans_cm] * 3)
+        t = self.resolved()
+        return np.array([t.rot_deg] * 3 + [t.trans_cm] * 3)
 
     def describe(self) -> str:
-        return f"{self.rot_deg:g} deg per rotation axis, {self.trans_cm:g} cm per translation axis (camera axes)"
+        t = self.resolved()
+        return f"{t.rot_deg:g} deg per rotation axis, {t.trans_cm:g} cm per translation axis (camera axes)"
+
+
+_DEFAULT = {"rot_deg": DriftConfig.tolerance_rot_deg, "trans_cm": DriftConfig.tolerance_trans_cm}
 
 
 @dataclass(frozen=True)
@@ -164,7 +186,9 @@ def verdict_of(vr: VehicleResult, tol: Tolerance | None = None) -> Verdict:
     tolerance during the drive (``mount_step_beyond``: it rests on neither the network nor the window)."""
     tol = tol or Tolerance()
     v = _verdict_vs_reference(vr, tol)
-    turned = mount_step_beyond(vr, tol.rot_deg)
+    stored = ((vr.drift or {}).get("axes") or {}).get("yaw") or {}  # the calibration's own, when none is asked for
+    rot = tol.rot_deg if tol.rot_deg is not None else float(stored.get("tolerance", tol.resolved().rot_deg))
+    turned = mount_step_beyond(vr, rot)
     if not turned:
         return v
     return Verdict("recalibrate", f"{turned} Against the reference at the drive's end: {v.word}: {v.why}",
@@ -179,14 +203,18 @@ def _verdict_vs_reference(vr: VehicleResult, tol: Tolerance) -> Verdict:
         return Verdict("inconclusive", _out_of_domain_why(vr.final.status), tol.describe(),
                        "the result's status (out-of-domain input)", moved, frames)
     d = vr.drift or {}
+    source = "the calibrator's reference test (result.json drift block)"
+    if d.get("verdict_kind") and tol.given:  # the tolerance asked for: the calibrator's per-axis test redone with it
+        redone = against_tolerance(d, vr.final.status, vr.mount, tol.rot_deg, tol.trans_cm)
+        if redone is not d:
+            d, source = redone, f"{source}, redone against the tolerance asked for"
     given = d.get("verdict")
     kind = d.get("verdict_kind")
     if kind:  # the calibrator's reference test (calib.drift): kind, sentence and per-axis tolerances
         word = {"cannot tell": "inconclusive"}.get(kind, kind)
         tols = {a.get("unit"): a.get("tolerance") for a in (d.get("axes") or {}).values()}
         tol_text = ", ".join(f"{v:g} {u} per camera axis" for u, v in tols.items() if v is not None)
-        return Verdict(word, str(given or kind), tol_text or "not stated by the result",
-                       "the calibrator's reference test (result.json drift block)", moved, frames)
+        return Verdict(word, str(given or kind), tol_text or "not stated by the result", source, moved, frames)
     if given:
         word = given.get("verdict", given.get("word", "")) if isinstance(given, dict) else str(given)
         why = (given.get("why") or given.get("reason") or "") if isinstance(given, dict) else ""
