@@ -665,6 +665,12 @@ def _damaged_result(calibrated: Path, tmp_path: Path, damage) -> tuple[Path, str
     return path, vehicle
 
 
+def _set_at(key: str, i: int, j: int, value: float):
+    def damage(doc, v):
+        doc["vehicles"][v]["final"][key][i][j] = value
+    return damage
+
+
 def _nan_at(key: str, *index):
     def damage(doc, v):
         doc["vehicles"][v]["final"][key][index[0]][index[1]] = float("nan")
@@ -684,6 +690,10 @@ DAMAGED_RESULTS = {  # case -> (damage(doc, vehicle), needles beyond the file); 
                     ["final.T_cam_radar is not a 4x4 matrix", "(3, 3)"]),
     "frame-T-nan": (lambda doc, v: doc["vehicles"][v]["trajectory"][0]["T_cam_radar"][1].__setitem__(1, float("nan")),
                     ["trajectory[0].T_cam_radar holds non-finite values"]),
+    # a probe: an internal error ("rotation block is not a proper rotation") in the report's residuals
+    "final-T-not-a-rotation": (_set_at("T_cam_radar", 0, 0, 5.0), ["final.T_cam_radar is not a rigid transform"]),
+    "final-cov-asymmetric": (_set_at("cov_right_radar", 0, 1, 1.0), ["final.cov_right_radar is not a covariance"]),
+    "final-cov-negative": (_set_at("cov_right_radar", 3, 3, -1.0), ["final.cov_right_radar is not a covariance"]),
     # the hybrid's blocks (a probe: KeyError 'step_deg', "Unknown format code 'f'", "'list' object has no 'get'")
     "mount-step-garbage": (lambda doc, v: doc["vehicles"][v].__setitem__("mount", {"steps": [{"frame": "x"}]}),
                            ["mount.steps[0] lacks finite ['step_deg', 'std_deg', 'change', 'at']"]),
@@ -1848,3 +1858,42 @@ def test_the_network_methods_take_the_data_options_their_errors_advise(sim, tmp_
                      "unknown option(s) ['radar_filtr'] for DataConfig at data")
     expect_cli_error(_calibrate(root, tmp_path / "o3", "--method", "pure", "--set", 'data.vehicles=["x"]'), capsys,
                      "data.vehicles: choose the vehicles with --set vehicles=")
+
+
+def test_report_says_what_a_file_that_is_not_a_result_is_and_why_a_vehicle_has_none(sim, calibrated, tmp_path,
+                                                                                     capsys):
+    """A failed vehicle read "not in the result"; compare.json / a compare trial read "re-run calibrate"; a
+    --checkpoint that is not one was accepted (exit 0, a note in the page)."""
+    run = tmp_path / "run"
+    shutil.copytree(calibrated, run)
+    doc = json.loads((run / "result.json").read_text())
+    gone = sorted(doc["vehicles"])[0]
+    vr = doc["vehicles"].pop(gone)
+    doc["vehicles_failed"] = {gone: "no readable frame (the camera files are damaged)"}
+    (run / "result.json").write_text(json.dumps(doc))
+    page = tmp_path / "r.html"
+    expect_cli_error(["report", run / "result.json", "--vehicle", gone, "--out", page], capsys,
+                     f"vehicle {gone!r} failed", "the camera files are damaged", "rerun calibrate")
+    (tmp_path / "compare.json").write_text(json.dumps({"methods": {}, "trials": 2}))
+    expect_cli_error(["report", tmp_path / "compare.json", "--out", page], capsys, "it is a compare summary")
+    (tmp_path / "trial.json").write_text(json.dumps(vr))
+    expect_cli_error(["report", tmp_path / "trial.json", "--out", page], capsys, "it is one vehicle's result")
+    expect_cli_error(["report", calibrated / "result.json", "--vehicle", sorted(doc["vehicles"])[0], "--checkpoint",
+                      tmp_path / "compare.json", "--out", page], capsys, "not a hybrid-calib checkpoint")
+    assert not page.exists()
+
+
+def test_inspect_reads_the_lidar_files_of_a_root_that_has_them(sim_copy, capsys):
+    """A truncated LiDAR file, for which the learned methods skip the frame on real roots, was reported clean."""
+    from hybrid_calib.cli import main
+
+    root, by_vehicle = sim_copy
+    frame = next(iter(by_vehicle.values()))[0]
+    lidar = root / frame.lidar_sd["filename"]
+    lidar.write_bytes(lidar.read_bytes()[:-7])
+    argv = ["inspect", "--data", str(root), "--version", SIM_VERSION, "--no-progress"]
+    main(argv)
+    text = capsys.readouterr().out
+    assert "1 skipped" in text and "LiDAR file size" in text and lidar.name in text
+    main([*argv, "--set", "load_lidar=false"])  # asked not to: not read
+    assert "0 skipped" in capsys.readouterr().out

@@ -149,17 +149,17 @@ def test_window_solve_changes_nothing_until_adopted():
 
 
 def test_far_start_is_rescued_from_the_initial_extrinsic():
-    """A 40 deg / 3 m start solved from one frame of 25 rows diverges (no row fits); at the next frame
-    the window is re-solved from the initial extrinsic with a convex start and kept because more rows fit."""
+    """A 40 deg / 3 m start: the convex-start solve of one frame of 25 rows diverges (4 % of the rows fit). The
+    window is re-solved from the start without the convex stage, and with it from the initial extrinsic, and the
+    solve that fits most rows is kept (before: the frame stayed NOT CONVERGED until the next one)."""
     T = nominal_T_cam_radar()
     frames, _ = synthetic_drive(T, 3, rng(7), {"n_per_frame": 25})
     g = rng(602)
     T0 = perturb_camera_frame(T, np.radians(g.uniform(-40, 40, 3)), g.uniform(-3, 3, 3))
     cal = SlidingWindowCalibrator(T0, {"window": 5})
     outs = [cal.update(f) for f in frames]
-    assert outs[0].inlier_fraction < 0.25 and "NOT CONVERGED" in outs[0].status
-    assert outs[1].events and outs[1].events[0].startswith("not converged (inlier fraction")
-    assert outs[1].inlier_fraction > 0.5 and "NOT CONVERGED" not in outs[1].status
+    assert outs[0].events and outs[0].events[0].startswith("not converged (inlier fraction 0.0")
+    assert outs[0].inlier_fraction > 0.5 and "NOT CONVERGED" not in outs[0].status
     assert extrinsic_error(outs[-1].T, T).rot_mean_deg < 0.5
 
 
@@ -181,3 +181,26 @@ def test_a_batch_in_a_wrong_basin_is_re_solved_progressively_or_says_not_converg
         assert "re-solved progressively" in b.estimate.status and "NOT CONVERGED" not in b.estimate.status
     else:
         assert b.inlier_fraction < 0.25 and "NOT CONVERGED: only 2 % of the drive's" in b.estimate.status
+
+
+def test_a_knocked_sensor_never_pulls_the_window_into_a_basin_only_the_new_frames_support(tmp_path):
+    """Measured on a simulated urban drive with a 1.5 deg / 1 deg knock at frame 6: a convex start jumped to 83 deg
+    with 7 % of frame 2 fitting (and came back), and after the knock the rescue kept a 72 deg / 48 m estimate that
+    fitted 8 % of the new frame, to the drive's end, with a 1-sigma of ~1 deg. Now the rescue keeps what fits most
+    rows of the window: frame 2 is re-solved from the previous estimate, and after the knock (too few frames for the
+    step detector) the estimate stays at the mount before it, said NOT CONVERGED."""
+    import json
+
+    from hybrid_calib.calib.pipeline import calibrate
+    from hybrid_calib.config import merge
+    from hybrid_calib.sim.drive import SimConfig
+    from hybrid_calib.sim.simulate import simulate
+
+    conf = merge(SimConfig, {"vehicles": 1, "frames": 12, "seed": 3, "image_scale": 0.125,
+                             "extrinsic_change": {"kind": "step", "frame": 6}})
+    root = simulate(conf, tmp_path / "sim", progress=False)
+    run = calibrate(root, "v1.0-sim", "oracle", tmp_path / "out", {"start": "R1"})
+    vr = next(iter(run.vehicles.values()))
+    assert vr.error["geodesic_deg"] < 5, vr.error  # was 71.5 deg (the knock itself is ~1.8 deg)
+    assert "NOT CONVERGED" in vr.final.status and "cannot tell" in vr.drift["verdict"]
+    assert all(json.dumps(list(f.events)).count("not converged") <= 1 for f in vr.trajectory)

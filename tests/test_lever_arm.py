@@ -183,3 +183,14 @@ def test_non_finite_poses_velocities_and_mounts_are_refused_in_words():
     assert a is None and "an ego pose is not finite" in why, why
     a, why = fit(sweeps, np.full((4, 4), np.nan), T_EGO_CAM)
     assert a is None and "not a finite 4x4" in why
+
+
+def test_a_fit_the_data_do_not_determine_is_not_shown_as_a_number():
+    """A fit evaluated at a 72 deg wrong estimate printed "radar forward offset -118804.7 +- 261250.9 cm"."""
+    from hybrid_calib.calib.lever_arm import describe
+
+    block = {"applied": False, "dx_m": -1188.05, "dx_std_m": 2612.5, "heading_bias_deg": 965.3, "pairs": 66,
+             "turning": 11, "note": "11 frames in turns (need 20)"}
+    words = describe(block)
+    assert "not determined" in words and "-1188" not in words and "118804" not in words and "need 20" in words
+    assert "+12.0 +- 3.0 cm" in describe({**block, "dx_m": 0.12, "dx_std_m": 0.03})

@@ -255,11 +255,18 @@ def apply_forward(T: np.ndarray, cov: np.ndarray, a: LeverArm) -> tuple[np.ndarr
     return fold_scalar(T, cov, a.h, float(a.delta[1]), float(a.cov[1, 1]))
 
 
+UNDETERMINED_M = 1.0  # a fit with a std above this (m) says nothing: its value is not shown (a diverged fit: km)
+
+
 def describe(block: dict) -> str:
     """A result's ``doppler`` block (``LeverArm.record``, or ``{"applied": False, "note"}`` when it did not run)
     in one line of words: what was measured and whether it was applied, or why not."""
     if "dx_m" not in block:
         return f"not run: {block.get('note', '')}"
+    if not block["applied"] and not float(block.get("dx_std_m", np.inf)) <= UNDETERMINED_M:
+        return (f"radar forward offset not determined by the Doppler in turns (std {block.get('dx_std_m', np.nan):.3g}"
+                f" m from {block['pairs']} sweep pairs, {block['turning']} frames turning); not applied: "
+                f"{block.get('note', '')}")
     words = (f"radar forward offset {block['dx_m'] * 100:+.1f} +- {block['dx_std_m'] * 100:.1f} cm from the loop's "
              f"estimate (Doppler in turns against the ego poses: {block['pairs']} sweep pairs, {block['turning']} "
              f"frames turning)")

@@ -92,6 +92,28 @@ def _matrix(x, n: int, name: str) -> np.ndarray:
     return a
 
 
+def _transform(x, name: str) -> np.ndarray:
+    """``_matrix`` of a rigid transform: an orthonormal rotation block with determinant +1 and [0, 0, 0, 1] below
+    (1e-6); ``ValueError`` naming ``name`` otherwise (a hand-edited or damaged result)."""
+    T = _matrix(x, 4, name)
+    R = T[:3, :3]
+    if not (np.allclose(R.T @ R, np.eye(3), atol=1e-6) and abs(np.linalg.det(R) - 1) < 1e-6
+            and np.allclose(T[3], [0, 0, 0, 1], atol=1e-9)):
+        raise ValueError(f"{name} is not a rigid transform (its rotation block is not a rotation, or its last row is "
+                         "not [0, 0, 0, 1])")
+    return T
+
+
+def _covariance(x, name: str) -> np.ndarray:
+    """``_matrix`` of a covariance: symmetric and positive semi-definite (relative 1e-6); ``ValueError`` naming
+    ``name`` otherwise."""
+    C = _matrix(x, 6, name)
+    scale = max(float(np.abs(C).max()), 1e-300)
+    if not np.allclose(C, C.T, atol=1e-6 * scale, rtol=0) or np.linalg.eigvalsh(0.5 * (C + C.T)).min() < -1e-6 * scale:
+        raise ValueError(f"{name} is not a covariance (not symmetric, or a negative variance)")
+    return C
+
+
 def _mapping(d, name: str) -> dict:
     """``d`` when it is a JSON object; ``TypeError`` naming ``name`` and what it is otherwise."""
     if not isinstance(d, dict):
@@ -195,8 +217,8 @@ class Estimate:
         """EXTRINSIC (or FRAME) back; ``TypeError`` / ``ValueError`` naming ``where`` when it is not an
         object or its transform / covariance is not a finite 4x4 / 6x6 matrix (``KeyError``: a missing key)."""
         d = _mapping(d, where)
-        return cls(_matrix(d["T_cam_radar"], 4, f"{where}.T_cam_radar"),
-                   _matrix(d["cov_right_radar"], 6, f"{where}.cov_right_radar"),
+        return cls(_transform(d["T_cam_radar"], f"{where}.T_cam_radar"),
+                   _covariance(d["cov_right_radar"], f"{where}.cov_right_radar"),
                    std_from_dict(d["std_cam"], STD_FRAME), d["status"], bool(d.get("regularised", False)),
                    tuple(d.get("weak_directions", ())))
 
@@ -310,7 +332,7 @@ class VehicleResult:
         return cls(
             vehicle=d.get("vehicle", vehicle or ""), final=Estimate.from_dict(d["final"], f"{where}.final"),
             trajectory=[FrameEstimate.from_dict(f, f"{where}.trajectory[{k}]") for k, f in enumerate(trajectory)],
-            truth_T=None if truth is None else _matrix(_mapping(truth, f"{where}.truth")["T_cam_radar"], 4,
+            truth_T=None if truth is None else _transform(_mapping(truth, f"{where}.truth")["T_cam_radar"],
                                                        f"{where}.truth.T_cam_radar"), error=_error(d, where),
             crb_std=None if crb is None else std_from_dict(crb, STD_FRAME), drift=d.get("drift"),
             skipped=list(d.get("frames_skipped", [])), n_frames=int(d.get("n_frames", 0)),
@@ -364,7 +386,7 @@ class CalibrationRun:
         if version != SCHEMA_VERSION:
             raise DataError(f"not a calibrate result of schema_version {SCHEMA_VERSION} (found "
                             f"{version if version is not None else d.get('schema') if isinstance(d, dict) else d!r}); "
-                            "re-run hybrid-calib calibrate with --overwrite", path=source or None)
+                            + _what_it_is(d), path=source or None)
         vehicles = _mapping(d["vehicles"], '"vehicles"')
         failed = _mapping(d.get("vehicles_failed") or {}, '"vehicles_failed"')
         return cls(d["data"], d["version"], d["correspondences"], d["mode"],
@@ -397,6 +419,17 @@ class CalibrationRun:
         except (KeyError, TypeError, ValueError) as e:
             raise DataError(f"calibrate result incomplete or invalid ({type(e).__name__}: {e}); re-run hybrid-calib "
                             "calibrate with --overwrite", path=str(path)) from None
+
+
+def _what_it_is(d) -> str:
+    """What a JSON that is not a calibrate result looks like, and what to pass instead."""
+    if isinstance(d, dict) and {"methods", "trials"} <= set(d):
+        return ("it is a compare summary (compare.json): the report reads a calibrate run's result.json (compare's "
+                "tables are compare.md)")
+    if isinstance(d, dict) and {"vehicle", "final"} <= set(d):
+        return ("it is one vehicle's result (a compare trial, or a calibrate run's vehicles-done entry): pass the "
+                "result.json of a calibrate run (hybrid-calib calibrate ... --out OUT writes OUT/result.json)")
+    return "pass the result.json of a hybrid-calib calibrate run, or re-run calibrate with --overwrite"
 
 
 DATA_STAMP = "data_stamp.json"  # beside result.json: ``data.files.data_stamp`` of the data it was computed from

@@ -1,7 +1,9 @@
 """``hybrid-calib inspect``: what a nuScenes-format root holds, per scene and vehicle, and what is wrong with it.
 
 Prints one line per scene (frames, radar points per sweep after filtering, NaN points dropped,
-radar-camera time offset) and the skipped items grouped by reason (a count, one reason in full, a
+radar-camera time offset; the camera images are decoded, and the LiDAR files read when the root
+has a LiDAR channel, as the learned methods read them on real roots: ``--set load_lidar=false``
+skips them) and the skipped items grouped by reason (a count, one reason in full, a
 few more frames and tokens). With ``--out DIR`` also writes ``DIR/inspect_summary.json`` (schema:
 ``hybrid_calib.data.summary``; every skipped item), ``DIR/inspect_config.json`` (the effective data
 config) and ``DIR/overlay.png`` (one frame's radar and LiDAR points projected on its image with the
@@ -46,6 +48,11 @@ def run(args: argparse.Namespace) -> int:
     overrides = parse_overrides(args.overrides)
     overrides.update(given_flags(args, {"nsweeps": "nsweeps"}, overrides))  # a flag given wins, as everywhere
     overrides.setdefault("decode_images", True)  # inspect looks for everything that is wrong, pixel data included
+    if "load_lidar" not in overrides:  # and the LiDAR files the learned methods read on real roots, when there
+        from hybrid_calib.data.tables import NuScenesTables
+
+        channel = overrides.get("lidar_channel", DataConfig.lidar_channel)
+        overrides["load_lidar"] = channel in NuScenesTables(args.data, args.version).channels()
     conf = merge(DataConfig, overrides)
     ds = NuScenesRadarCamera(args.data, args.version, args.radar, args.camera, conf)
     if args.frame is not None and args.frame >= len(ds):  # before the summary: it reads every frame

@@ -13,7 +13,7 @@ import numpy as np
 
 from hybrid_calib.calib.lever_arm import describe as describe_doppler
 from hybrid_calib.calib.lidar_alignment import describe as describe_lidar
-from hybrid_calib.calib.result import CalibrationRun, VehicleResult, extrinsic_report
+from hybrid_calib.calib.result import CalibrationRun, VehicleResult, extrinsic_report, failed_vehicles_message
 from hybrid_calib.config import merge
 from hybrid_calib.errors import HybridCalibError
 from hybrid_calib.report.evidence import Evidence, gather
@@ -38,12 +38,21 @@ class ReportConfig:
 def pick_vehicle(run: CalibrationRun, vehicle: str | None, source: str) -> str:
     """The vehicle to report: ``vehicle`` or the run's only one; ``HybridCalibError`` otherwise."""
     names = sorted(run.vehicles)
+    failed = run.vehicles_failed
+    if vehicle in failed:
+        raise HybridCalibError(f"vehicle {vehicle!r} failed in the run of {source}, so it has no result to report: "
+                               f"{failed[vehicle]}; fix its data and rerun calibrate")
+    if vehicle is None and not names and failed:
+        raise HybridCalibError(f"every vehicle failed in the run of {source}, so there is no result to report: "
+                               f"{failed_vehicles_message(failed)}")
     if vehicle is None:
         if len(names) != 1:
             raise HybridCalibError(f"{source} holds {len(names)} vehicles ({', '.join(names)}): pass --vehicle NAME")
         return names[0]
     if vehicle not in run.vehicles:
-        raise HybridCalibError(f"vehicle {vehicle!r} is not in {source} (vehicles: {', '.join(names)})")
+        also = f"; failed: {', '.join(sorted(failed))}" if failed else ""
+        raise HybridCalibError(f"vehicle {vehicle!r} is not in {source} (vehicles: {', '.join(names) or 'none'}"
+                               f"{also})")
     return vehicle
 
 
