@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 from hybrid_calib.atomic import out_dir_lock
-from hybrid_calib.errors import HybridCalibError, check_out_dir
+from hybrid_calib.errors import HybridCalibError, check_out_dir, check_out_outside_data
 
 # subcommand name -> module in hybrid_calib.commands (each has HELP, add_arguments, run).
 COMMANDS: dict[str, str] = {
@@ -68,6 +68,7 @@ def main(argv: list[str] | None = None) -> int:
             check_out_dir(None if out is None else Path(out).parent)
             return int(args._run(args) or 0)
         check_out_dir(out)
+        check_out_outside_data(out, getattr(args, "data", None), getattr(args, "version", None))
         if out is None:
             return int(args._run(args) or 0)
         with out_dir_lock(out, args.command):

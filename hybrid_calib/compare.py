@@ -27,7 +27,15 @@ from pathlib import Path
 import numpy as np
 
 from hybrid_calib.calib.result import VehicleResult, failed_vehicles_message
-from hybrid_calib.config import merge, read_out_record, save_json_atomic, save_text_atomic, to_dict
+from hybrid_calib.config import (
+    changed_options,
+    merge,
+    read_out_record,
+    save_json_atomic,
+    save_text_atomic,
+    to_dict,
+)
+from hybrid_calib.data.files import root_labels
 from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.hybrid.loop import METHODS, HybridConfig, _Session, vehicle_learned, vehicle_oracle
 from hybrid_calib.metrics import METRIC_KEYS
@@ -141,13 +149,15 @@ def _consistency(nees: np.ndarray) -> dict:
             "coverage_95": float(np.mean(nees < CHI2_6_95))}
 
 
-def summarize_method(results: list[VehicleResult]) -> dict:
-    """The table row of one method over its trials (module doc, step 3)."""
+def summarize_method(results: list[VehicleResult], labels: dict[str, str] | None = None) -> dict:
+    """The table row of one method over its trials (module doc, step 3); ``labels``: root (as its trials record it)
+    -> its name in the per-root rows (``data.files.root_labels``; default the folder name)."""
     errs = [r.error for r in results]
     nees = np.array([e["nees"] for e in errs])
     per_root: dict[str, list[float]] = {}
     for r in results:
-        per_root.setdefault(Path((r.config or {}).get("root", "")).name, []).append(r.error["nees"])
+        root = str((r.config or {}).get("root", ""))
+        per_root.setdefault((labels or {}).get(root, Path(root).name), []).append(r.error["nees"])
     ms = []
     for r in results:
         net = {row["frame_id"]: row.get("network_ms", 0.0) for row in r.frame_rows}
@@ -212,14 +222,7 @@ _NOT_OF_A_TRIAL = ("trials", "methods", "hybrid.threads", "hybrid.progress", "hy
                    "hybrid.checkpoint", "hybrid.refine")
 
 
-def _flat(d: dict, prefix: str = "") -> dict:
-    out = {}
-    for k, v in d.items():
-        if isinstance(v, dict) and v and k not in ("data", "network"):
-            out.update(_flat(v, f"{prefix}{k}."))
-        else:
-            out[f"{prefix}{k}"] = v
-    return out
+_WHOLE = ("data", "network", "hybrid.data", "hybrid.measurement", "hybrid.split_options")  # compared as one value
 
 
 def _record(roots: list, version: str, conf: CompareConfig) -> dict:
@@ -239,7 +242,6 @@ def _record(roots: list, version: str, conf: CompareConfig) -> dict:
 def _differences(previous: dict, record: dict) -> list[str]:
     """What differs between the record of the kept trials and this run's, in words (``_NOT_OF_A_TRIAL`` aside; a
     key the earlier record lacks is not held against it)."""
-    old, new = _flat(previous), _flat(record)
     words = []
     was, now = previous.get("data"), record["data"]
     if isinstance(was, dict):
@@ -253,8 +255,7 @@ def _differences(previous: dict, record: dict) -> list[str]:
     if "network" in previous and "network" in record and previous["network"] != record["network"]:
         words.append("another network checkpoint (the checkpoint's files differ: another file, or retrained or "
                      "edited at the same path)")
-    options = [f"{k}: {json.dumps(old[k])} -> {json.dumps(v)}" for k, v in new.items()
-               if k in old and k not in ("data", "network") + _NOT_OF_A_TRIAL and old[k] != v]
+    options = changed_options(previous, record, skip=("data", "network") + _NOT_OF_A_TRIAL, whole=_WHOLE)
     return words + ([f"another configuration ({'; '.join(options)})"] if options else [])
 
 
@@ -263,8 +264,12 @@ def _check_roots(roots: list, version: str, methods) -> None:
     written (a root whose vehicles do not read is left out later, and the others compared)."""
     from hybrid_calib.data.tables import version_dir
 
+    seen: dict[str, str] = {}
     for r in roots:
         version_dir(r, version)
+        if (key := str(Path(r).resolve())) in seen:  # its trials would be counted twice as independent ones
+            raise HybridCalibError(f"--data names the root {key} twice ({seen[key]} and {r}); give each root once")
+        seen[key] = str(r)
     if "oracle" not in methods:
         return
     real = [str(r) for r in roots if (Path(r) / version).is_dir() and not (Path(r) / version / "sim_vehicle.json"
@@ -278,7 +283,7 @@ def _check_roots(roots: list, version: str, methods) -> None:
 def compare(roots: list, version: str, out: str | Path, conf: CompareConfig | dict | None = None,
             command: str = "", progress: bool = True, overwrite: bool = False) -> dict:
     """Run (or resume) every trial, then write compare.json, compare.md and the plot; returns the summary.
-    ``overwrite``: the kept trials and tables of ``out`` are removed first (its caches, keyed by content, stay)."""
+    ``overwrite``: the kept trials, tables and own caches of ``out`` are removed first."""
     import shutil
 
     from hybrid_calib.plots.compare import plot_error_vs_frames
@@ -289,6 +294,9 @@ def compare(roots: list, version: str, out: str | Path, conf: CompareConfig | di
     cfg_path = out / "compare_config.json"
     record = _record(roots, version, conf)
     if overwrite:
+        from hybrid_calib.hybrid.network import clear_own_caches
+
+        clear_own_caches(out, conf.hybrid.cache_dir, conf.hybrid.depth_cache)
         shutil.rmtree(out / "trials", ignore_errors=True)
         for name in ("compare_config.json", "compare.json", "compare.md", "error_vs_frames.png"):
             (out / name).unlink(missing_ok=True)
@@ -304,12 +312,13 @@ def compare(roots: list, version: str, out: str | Path, conf: CompareConfig | di
     save_json_atomic(cfg_path, record)
     problems = run_trials([str(r) for r in roots], version, out, conf, progress)
     results = {m: load_trials(out, m, conf.trials) for m in conf.methods}
+    labels = root_labels([str(r) for r in roots], "/")
     if not any(results.values()):
         first = problems["trials_failed"][0]["reason"] if problems["trials_failed"] else "-"
         raise DataError(f"no trial finished ({len(problems['trials_failed'])} failed; first: {first})",
                         path=str(roots[0]))
     summary = {"range": conf.range, "trials": conf.trials, "roots": [str(r) for r in roots], "command": command,
-               "config": record, "methods": {m: summarize_method(rs) for m, rs in results.items() if rs},
+               "config": record, "methods": {m: summarize_method(rs, labels) for m, rs in results.items() if rs},
                **problems}
     save_json_atomic(out / "compare.json", summary)
     save_text_atomic(out / "compare.md", _markdown(summary, conf, command))

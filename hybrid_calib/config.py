@@ -15,7 +15,7 @@ import numbers
 import re
 import types
 import typing
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -171,6 +171,32 @@ def deep_update(base: dict[str, Any], overrides: Mapping[str, Any]) -> dict[str,
         else:
             base[key] = value
     return base
+
+
+def changed_options(old: Mapping[str, Any], new: Mapping[str, Any], skip: Iterable[str] = (),
+                    whole: Iterable[str] = ()) -> list[str]:
+    """What differs between two records of a run's options (nested dicts, e.g. ``to_dict`` of a config), in words:
+    ``"a.b: 1 -> 2"`` (JSON values, long ones cut). ``skip``: dotted keys not compared; ``whole``: keys compared as
+    one value, not descended into. A key the old record lacks (written by an earlier version) is not held against
+    it."""
+    skip, whole = set(skip), set(whole)
+
+    def flat(d: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for k, v in d.items():
+            key = f"{prefix}{k}"
+            if isinstance(v, Mapping) and v and key not in whole:
+                out.update(flat(v, f"{key}."))
+            else:
+                out[key] = v
+        return out
+
+    def short(v: Any) -> str:
+        text = json.dumps(v, default=str)
+        return text if len(text) <= 60 else text[:57] + "..."
+
+    a, b = flat(json.loads(json.dumps(old, default=str))), flat(json.loads(json.dumps(new, default=str)))
+    return [f"{k}: {short(a[k])} -> {short(v)}" for k, v in b.items() if k in a and k not in skip and a[k] != v]
 
 
 def read_out_record(path: Path, what: str, records: str) -> dict[str, Any] | None:

@@ -56,3 +56,20 @@ def check_out_dir(path: str | Path | None, option: str = "--out") -> None:
         what = "is not writable" if existing == path else f"(the nearest existing folder of {path}) is not writable"
         raise OptionError(option, f"{existing} {what}, so the outputs cannot be written there; pass a directory you "
                                   "can write to")
+
+
+def check_out_outside_data(out: str | Path | None, data, version: str | None) -> None:
+    """``OptionError`` when the output folder ``out`` is (inside) a data root's version folder or sensor folders
+    (``samples/``, ``sweeps/``) of ``data`` (a root or a list of roots): the outputs would lie among the dataset's
+    files, and the run's own files would change the root's data stamp (its next run: "the data changed")."""
+    if out is None or data is None:
+        return
+    out = Path(out).resolve()
+    for root in data if isinstance(data, (list, tuple)) else [data]:
+        root = Path(root).resolve()
+        for part in ([version] if version else []) + ["samples", "sweeps"]:
+            inside = root / part
+            if out == inside or inside in out.parents:
+                raise OptionError("--out", f"{out} is inside the data root's {part}/ folder ({inside}): the outputs "
+                                           "would lie among the dataset's files; pass a folder outside them (e.g. "
+                                           f"{root.parent / 'runs'})")

@@ -78,6 +78,17 @@ def is_rigid(T: np.ndarray, atol: float = 1e-6) -> bool:
                 and np.allclose(T[3], [0, 0, 0, 1], atol=atol))
 
 
+def nearest_rigid(T: np.ndarray) -> np.ndarray:
+    """(4, 4) ``T`` with its rotation block replaced by the nearest rotation (SVD, Frobenius norm) and the last row
+    [0, 0, 0, 1]: e.g. a float32 network output, orthonormal only to ~1e-7, made exact in float64."""
+    T = np.array(T, dtype=np.float64)
+    U, _, Vt = np.linalg.svd(T[:3, :3])
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    T[:3, :3] = U @ D @ Vt
+    T[3] = [0.0, 0.0, 0.0, 1.0]
+    return T
+
+
 def se3_inverse(T: np.ndarray) -> np.ndarray:
     """Inverse of a (4, 4) rigid transform."""
     R, t = T[:3, :3], T[:3, 3]

@@ -161,6 +161,21 @@ def check_export(export: dict[str, Any], path: Path) -> None:
                               "benchmarks/hybrid_fit.py --fit-into; ood: benchmarks/ood_fit.py)", path=str(path))
 
 
+def checkpoint_digest(checkpoint: str | Path) -> str:
+    """The identity of a checkpoint: SHA-1 of its JSON and weights files (their bytes: a retrained or edited
+    checkpoint at the same path is another network; the same files under another path are the same one)."""
+    import hashlib
+
+    path, meta = read_checkpoint_meta(checkpoint)
+    h = hashlib.sha1()
+    for f in (path, _weights_path(path, meta)):
+        with open(f, "rb") as fh:
+            for chunk in iter(lambda: fh.read(1 << 20), b""):
+                h.update(chunk)
+        h.update(b"/")
+    return h.hexdigest()
+
+
 def _weights_path(path: Path, meta: dict[str, Any]) -> Path:
     """The ``.safetensors`` file a checkpoint JSON names, checked to be one (never a pickle) and present."""
     name = str(meta["files"]["weights"])

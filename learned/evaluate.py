@@ -25,6 +25,7 @@ the same signature that writes the same per-frame files (T_iters may hold one fi
 from __future__ import annotations
 
 import json
+import shutil
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,7 +34,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from hybrid_calib.config import merge, read_out_record, save_json_atomic, to_dict
+from hybrid_calib.config import changed_options, merge, read_out_record, save_json_atomic, to_dict
 from hybrid_calib.data.files import read_npz
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.errors import HybridCalibError
@@ -294,14 +295,34 @@ def write_report(result: EvalResult, out: str | Path, config: dict | None = None
     return path
 
 
+def _what_differs(old: dict, new: dict) -> str:
+    """Words for what differs between the record of the kept predictions and this run's (``evaluate``)."""
+    was, now = old.get("data") or {}, new.get("data") or {}
+    words = []
+    if [was.get(k) for k in ("roots", "version", "nsweeps")] != [now.get(k) for k in ("roots", "version", "nsweeps")]:
+        words.append("frames of other roots, --version or --nsweeps")
+    elif "stamps" in was and was.get("stamps") != now.get("stamps"):
+        changed = [r for r, a, b in zip(now.get("roots", []), was["stamps"], now.get("stamps", [])) if a != b]
+        words.append(f"the data in {', '.join(changed)} as it was before (its tables or sensor folders changed since)")
+    if old.get("network") != new.get("network"):
+        words.append("another checkpoint's files (retrained or edited at the same path, or another file)")
+    options = changed_options(old, new, skip=("data", "network"), whole=("data", "network"))
+    if options:
+        words.append(f"another config ({'; '.join(options[:4])}{'; ...' if len(options) > 4 else ''})")
+    return "; ".join(words) or "another config"
+
+
 def evaluate(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig | dict, out: str | Path, *,
              checkpoint: str | Path | None = None, overwrite: bool = False, progress: bool = True,
-             data: dict | None = None, **method_options) -> EvalResult:
+             data: dict | None = None, network: list[str] | None = None, **method_options) -> EvalResult:
     """Export with ``conf.method`` into ``out`` (skipping frames already there unless ``overwrite``),
     then compute and write the table. A changed config in an existing ``out`` is an error; ``data`` (what
     the frames were read from, e.g. {"roots", "version", "nsweeps"}) is part of it: frames of other roots
-    would be tabled with the ones already there. ``method_options`` go to the method's exporter
-    (``export_pure``: ``exporter``)."""
+    would be tabled with the ones already there (with ``"stamps"``, ``hybrid_calib.data.files.data_stamp`` per root:
+    a root re-made at the same path is other data); ``network``: the checkpoints' digests
+    (``learned.checkpoint.checkpoint_digest``: one retrained at the same path is another network). ``overwrite``
+    also empties ``out``'s own depth cache (keyed by frame token, which a re-made root keeps). ``method_options`` go
+    to the method's exporter (``export_pure``: ``exporter``)."""
     conf = merge(EvalConfig, conf)
     if conf.method not in METHODS:
         raise HybridCalibError(f"unknown method {conf.method!r}; available: {sorted(METHODS)}")
@@ -310,20 +331,23 @@ def evaluate(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig | dict,
               "model_config": to_dict(model.cfg) if hasattr(model, "cfg") else None}
     if data is not None:
         record["data"] = data
+    if network is not None:
+        record["network"] = network
     cfg_path = out / "export_config.json"
     old = None if overwrite else read_out_record(cfg_path, "export config", "what its predictions were made "
                                                  "with: use --overwrite or another --out")
     if old is not None:
-        if "data" not in old and "data" in record:  # written before the data was recorded
-            old = {**old, "data": record["data"]}
+        for key in ("data", "network"):  # written before it was recorded
+            if key not in old and key in record:
+                old = {**old, key: record[key]}
         if old != json.loads(json.dumps(record)):
-            what = ("frames of other roots, --version or --nsweeps" if old.get("data") != record.get("data")
-                    else "another config")
-            raise HybridCalibError(f"{out} holds predictions made with {what} ({cfg_path}), which this run would "
-                                   "table with its own; use --overwrite or another --out")
+            raise HybridCalibError(f"{out} holds predictions made with {_what_differs(old, record)} ({cfg_path}), "
+                                   "which this run would table with its own; use --overwrite or another --out")
     if overwrite:
         for old_file in (out / "frames").glob("*.npz"):
             old_file.unlink()
+        if not conf.depth_cache:  # its own: recomputed from the data as they are now
+            shutil.rmtree(out / "depth-cache", ignore_errors=True)
     save_json_atomic(cfg_path, record)
     METHODS[conf.method](model, frames, conf, out, overwrite=overwrite, progress=progress, **method_options)
     result = evaluate_predictions(out, conf.method)

@@ -1337,12 +1337,12 @@ def test_report_goes_on_when_frames_of_the_runs_root_are_gone(sim, tmp_path, cap
     run = tmp_path / "run"
     assert run_cli(_calibrate(data, run, "--max-frames", "1"), capsys)[0] == 0
     vehicle = sorted(frames)[0]
-    (data / frames[vehicle][-1].camera_sd["filename"]).unlink()
+    (data / frames[vehicle][0].camera_sd["filename"]).unlink()  # the frame the run calibrated (the one shown)
     html = tmp_path / "r.html"
     argv = ["report", run / "result.json", "--vehicle", vehicle, "--out", html, "--frames", "2"]
     rc, err = run_cli(argv, capsys)
     assert rc == 0, err
-    assert f"frame {frames[vehicle][-1].index} not shown: camera image not found" in html.read_text()
+    assert f"frame {frames[vehicle][0].index} not shown: camera image not found" in html.read_text()
     (data / SIM_VERSION / "sample_data.json").write_text("[")
     rc, err = run_cli(argv, capsys)
     assert rc == 0 and "no camera frames shown" in html.read_text(), err
@@ -1897,3 +1897,13 @@ def test_inspect_reads_the_lidar_files_of_a_root_that_has_them(sim_copy, capsys)
     assert "1 skipped" in text and "LiDAR file size" in text and lidar.name in text
     main([*argv, "--set", "load_lidar=false"])  # asked not to: not read
     assert "0 skipped" in capsys.readouterr().out
+
+
+def test_an_out_folder_inside_the_data_root_is_refused(sim, capsys):
+    """--out ROOT/v1.0-sim wrote result.json among the tables, and the run's own files then made its result "computed
+    before the data changed" on the next run."""
+    root, _ = sim
+    for inside in (root / SIM_VERSION, root / SIM_VERSION / "run", root / "samples" / "x"):
+        expect_cli_error(["calibrate", "--data", root, "--method", "oracle", "--out", inside], capsys,
+                         "is inside the data root's", "pass a folder outside them")
+    assert not (root / SIM_VERSION / "run").exists() and not (root / "samples" / "x").exists()

@@ -334,3 +334,22 @@ def test_a_yaw_difference_the_radar_mount_monitor_does_not_see_points_at_the_cam
     assert camera_side_note(drift, {**agrees, "steps": [{"step_deg": 1.0}]}) == drift
     within = {**drift, "axes": {"yaw": {**drift["axes"]["yaw"], "decision": "within"}}}
     assert camera_side_note(within, agrees) == within
+
+
+def test_an_untrusted_estimate_is_never_a_reason_to_recalibrate():
+    """An out-of-domain hybrid result (status "inconclusive: ...") kept "differs by 1.30 deg in yaw: recalibrate" in
+    result.json and the console, and the fleet counted it out of tolerance, while the report said inconclusive."""
+    from hybrid_calib.calib.covariance import inconclusive_status
+    from hybrid_calib.calib.drift import reference_test, unconverged
+    from hybrid_calib.geometry import retract
+    from tests.helpers import nominal_T_cam_radar
+
+    ref = nominal_T_cam_radar()
+    est = retract(ref, np.array([0.0, 0.0, np.radians(1.3), 0.0, 0.0, 0.0]))
+    drift = reference_test(est, np.diag([np.radians(0.05) ** 2] * 3 + [1e-6] * 3), ref).to_dict()
+    assert drift["verdict_kind"] == "recalibrate" and drift["drifted"]
+    status = inconclusive_status("only 44 of 82 frames are inside the network's training domain", "weak: yaw")
+    out = unconverged(drift, status)
+    assert out["verdict_kind"] == "cannot tell" and not out["drifted"]
+    assert "not trusted (only 44 of 82 frames" in out["verdict"] and "estimate's own status" not in out["verdict"]
+    assert unconverged(drift, "ok") is drift

@@ -92,3 +92,20 @@ def test_a_file_in_place_of_the_kept_vehicles_folder_is_named(tmp_path):
     done = VehicleProgress(tmp_path, tmp_path, "v1.0-sim", "hybrid", {"seed": 0})
     (tmp_path / "vehicles-done" / "v.json").mkdir()  # one vehicle's file cannot be written: warned, the run goes on
     done.record("v", "no usable frame")
+
+
+def test_a_run_that_only_failed_leaves_nothing_that_blocks_the_corrected_command(tmp_path):
+    """calibrate --depth corrupted-truth on a real root failed every vehicle; the corrected command (as the error
+    advised) was refused: "holds 1 vehicle(s) finished by an interrupted run of another configuration"."""
+    from hybrid_calib.calib.result import VehicleProgress
+    from hybrid_calib.errors import HybridCalibError
+
+    first = VehicleProgress(tmp_path, tmp_path, "v1.0-mini", "pure", {"depth": "corrupted-truth"})
+    first.record("n015", "no usable frame")
+    VehicleProgress(tmp_path, tmp_path, "v1.0-mini", "pure", {"depth": ""})  # runs: nothing finished was kept
+    done = VehicleProgress(tmp_path, tmp_path, "v1.0-mini", "pure", {"depth": "x"})
+    done.record("n015", "no usable frame")
+    # a finished vehicle is work: another configuration is still refused
+    done.record("n008", VehicleResult("n008", _estimate(rng(1)), n_frames=2))
+    with pytest.raises(HybridCalibError, match="holds 1 vehicle"):
+        VehicleProgress(tmp_path, tmp_path, "v1.0-mini", "pure", {"depth": ""})

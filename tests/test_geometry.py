@@ -79,3 +79,14 @@ def test_metrics_zero_at_truth():
     T = nominal_T_cam_radar()
     e = extrinsic_error(T, T)
     assert max(e.as_dict().values()) < 1e-9
+
+
+def test_nearest_rigid_makes_a_float32_rotation_exact():
+    from hybrid_calib.geometry import is_rigid, nearest_rigid, se3_exp
+
+    T = se3_exp(np.array([0.3, -0.2, 1.1, 0.5, -1.0, 2.0]))
+    noisy = T.astype(np.float32).astype(np.float64) + 1e-7
+    noisy[3] = [0, 0, 0, 1]
+    fixed = nearest_rigid(noisy)
+    assert is_rigid(fixed, 1e-12) and np.abs(fixed - T).max() < 1e-6
+    np.testing.assert_array_equal(fixed[:3, 3], noisy[:3, 3])

@@ -406,9 +406,24 @@ def test_evaluate_table_columns_and_zero_error_for_an_oracle(frames, tmp_path):
     again = evaluate(OracleModel(), frames, conf, out, exporter=oracle_exporter, progress=False)
     assert {p: p.stat().st_mtime_ns for p in (out / "frames").glob("*.npz")} == mtimes
     assert again.rows == evaluate_predictions(out).rows
-    with pytest.raises(HybridCalibError, match="another config"):
+    with pytest.raises(HybridCalibError, match=r"another config \(eval.perturbation: \"R2\" -> \"R1\""):
         evaluate(OracleModel(), frames, EvalConfig(perturbation="R1", split_options=conf.split_options), out,
                  exporter=oracle_exporter, progress=False)
+    # the same root re-made at the same path, or the checkpoint retrained there: other predictions, said
+    data = {"roots": ["/r"], "version": "v1.0-sim", "nsweeps": 1, "stamps": ["a"]}
+    evaluate(OracleModel(), frames, conf, tmp_path / "e2", exporter=oracle_exporter, progress=False, data=data,
+             network=["n1"])
+    for other, words in (({"data": {**data, "stamps": ["b"]}}, "the data in /r as it was before"),
+                         ({"network": ["n2"]}, "another checkpoint's files")):
+        with pytest.raises(HybridCalibError, match=words):
+            evaluate(OracleModel(), frames, conf, tmp_path / "e2", exporter=oracle_exporter, progress=False,
+                     **{"data": data, "network": ["n1"], **other})
+    stale = tmp_path / "e2" / "depth-cache" / "stale"
+    stale.parent.mkdir(exist_ok=True)
+    stale.write_text("x")  # --overwrite recomputes from the data as they are now: its own depth cache goes too
+    evaluate(OracleModel(), frames, conf, tmp_path / "e2", exporter=oracle_exporter, progress=False, data=data,
+             network=["n2"], overwrite=True)
+    assert not stale.exists()
 
 
 # ------------------------------------------------------------------------------------ command line

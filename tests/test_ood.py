@@ -59,7 +59,8 @@ def test_decision_counts_in_domain_frames():
     assert decide([0.2, 0.5, 0.9, 3.0], pol)["inconclusive"] == ""
     d = decide([0.2, 5.0, 4.0, 3.0], pol)
     assert d["in_domain"] == 1 and "only 1 of 4 frames" in d["inconclusive"]
-    assert decide([0.1, 0.2], pol)["inconclusive"]  # fewer than 3 frames in all
+    assert "calibrate on more frames" in decide([0.1, 0.2], pol)["inconclusive"]  # fewer than 3 frames in all: said
+    assert "only 1 of 2 frames" in decide([0.1, 9.0], pol)["inconclusive"]
     d = decide([float("nan")] * 3, pol, "no export.ood")
     assert not d["available"] and d["inconclusive"] == "" and d["note"] == "no export.ood"
     assert inconclusive_status("why", "ok").startswith("inconclusive: why")

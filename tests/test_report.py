@@ -366,3 +366,19 @@ def test_a_tolerance_asked_of_the_report_redoes_the_calibrators_test():
     vr_loose = VehicleResult("v", Estimate(est, cov, np.full(6, 0.01), "ok"), drift=loose)
     assert verdict_of(vr_loose).word == "recalibrate"  # 10 cm against 2 cm
     assert verdict_of(vr_loose, Tolerance(trans_cm=30)).word == "within tolerance"
+
+
+def test_a_real_roots_tables_are_not_called_the_truth():
+    """On a real root the page's "truth" column and "Error against the ground truth" were the nuScenes tables."""
+    import dataclasses
+
+    from hybrid_calib.report.vehicle import extrinsic_html
+
+    vr = _vr((0,) * 6, (0.01,) * 6)
+    vr = dataclasses.replace(vr, truth_T=nominal_T_cam_radar(), error={"geodesic_deg": 1.3, "trans_norm_cm": 24.0,
+                                                                         "nees": 6.1}, errors_against="tables")
+    html = extrinsic_html(vr)
+    assert "<th>tables (reference)</th>" in html and "Error against the calibration tables" in html
+    assert "Error against the ground truth" not in html
+    sim = extrinsic_html(dataclasses.replace(vr, errors_against="truth"))
+    assert "<th>truth</th>" in sim and "Error against the ground truth" in sim

@@ -317,13 +317,19 @@ def against_tolerance(drift: dict, status: str, mount: dict | None, rot_deg: flo
 
 def unconverged(drift: dict, status: str) -> dict:
     """``drift`` (``DriftDecision.to_dict``) with its verdict turned into "cannot tell" when the estimate's
-    ``status`` says the last solve did not converge (``schedule.convergence_note``'s "NOT CONVERGED"): such an
-    estimate says nothing about the mount (all oracle rows gross outliers read "differs by 96 deg in roll:
-    recalibrate"). Unchanged otherwise."""
-    if "NOT CONVERGED" not in status:
+    ``status`` says it cannot be trusted: the last solve did not converge (``schedule.convergence_note``'s "NOT
+    CONVERGED": all oracle rows gross outliers read "differs by 96 deg in roll: recalibrate"), or the network's
+    input was out of its domain (an ``inconclusive:`` status, ``covariance.inconclusive_status``: measured, "differs
+    by 1.30 deg in yaw: recalibrate" on a result the report called inconclusive, and the fleet counted out of
+    tolerance). Such an estimate says nothing about the mount. Unchanged otherwise."""
+    if "NOT CONVERGED" in status:
+        why = "the last solve did not converge"
+    elif status.startswith("inconclusive"):
+        why = f"the estimate is not trusted ({status[len('inconclusive'):].lstrip(': ').split(' [')[0][:300]})"
+    else:
         return drift
     return {**drift, "drifted": False, "verdict_kind": "cannot tell",
-            "verdict": "cannot tell: the last solve did not converge, so the estimate says nothing about the mount "
+            "verdict": f"cannot tell: {why}, so the estimate says nothing about the mount "
                        f"(it differs from the reference by {drift.get('rot_change_deg', float('nan')):.2f} deg, "
                        f"{drift.get('trans_change_cm', float('nan')):.1f} cm)"}
 

@@ -95,10 +95,10 @@ def _matrix(x, n: int, name: str) -> np.ndarray:
 def _transform(x, name: str) -> np.ndarray:
     """``_matrix`` of a rigid transform: an orthonormal rotation block with determinant +1 and [0, 0, 0, 1] below
     (1e-6); ``ValueError`` naming ``name`` otherwise (a hand-edited or damaged result)."""
+    from hybrid_calib.geometry import is_rigid
+
     T = _matrix(x, 4, name)
-    R = T[:3, :3]
-    if not (np.allclose(R.T @ R, np.eye(3), atol=1e-6) and abs(np.linalg.det(R) - 1) < 1e-6
-            and np.allclose(T[3], [0, 0, 0, 1], atol=1e-9)):
+    if not is_rigid(T, 1e-6):
         raise ValueError(f"{name} is not a rigid transform (its rotation block is not a rotation, or its last row is "
                          "not [0, 0, 0, 1])")
     return T
@@ -485,10 +485,12 @@ class VehicleProgress:
                 changed = _changes(old, self.stamp) if isinstance(old, dict) else []
             except (OSError, ValueError, KeyError, TypeError, AttributeError, RecursionError):
                 changed = []  # a damaged or missing stamp: each record's own key tells whether it is this run's
-            if changed and kept:
+            finished = [f for f in kept if _holds_result(f)]  # a failure alone is no work to keep: the corrected
+            if changed and finished:  # command (another --depth, --start) runs, as the failure's message advised
                 more = f"; {len(changed) - 4} more" if len(changed) > 4 else ""
                 raise HybridCalibError(
-                    f"{self.dir} holds {len(kept)} vehicle(s) finished by an interrupted run of another configuration "
+                    f"{self.dir} holds {len(finished)} vehicle(s) finished by an interrupted run of another "
+                    "configuration "
                     f"({'; '.join(changed[:4])}{more}); rerun that run's command to finish it, pass --overwrite to "
                     "discard them, or pass another --out")
             if changed:
@@ -619,6 +621,15 @@ def _changes(old: dict, new: dict) -> list[str]:
                    if k not in RUN_ONLY and old_conf.get(k) != v
                    and not (k not in old_conf and v in ({}, None))]  # a key a later version added, at its default
     return changed
+
+
+def _holds_result(f: Path) -> bool:
+    """Whether a ``vehicles-done`` record holds a finished vehicle's result (not a failure, not unreadable)."""
+    try:
+        d = json.loads(f.read_text())
+        return isinstance(d, dict) and "result" in d
+    except (OSError, ValueError, RecursionError):
+        return False
 
 
 def _record_key(stamp: dict, name: str) -> str:

@@ -58,7 +58,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                                   "(e.g. --split test --split-by time: the held-out end of each scene)")
     p.add_argument("--out", type=Path, default=Path("outputs/calibrate"),
                    help="run directory (default: outputs/calibrate)")
-    p.add_argument("--overwrite", action="store_true", help="recompute even if RUN/result.json exists")
+    p.add_argument("--overwrite", action="store_true",
+                   help="recompute even if RUN/result.json exists (its network and depth caches too)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--set", action="extend", nargs="+", metavar="KEY=VALUE", default=[],
                    help="CalibrateConfig overrides (oracle), e.g. window.factor.kernel=tukey oracle.outlier_frac=0.3; "

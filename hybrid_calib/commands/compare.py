@@ -38,8 +38,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, required=True, help="output folder (resumable: finished trials are kept)")
     p.add_argument("--set", action="extend", nargs="+", metavar="KEY=VALUE", default=[],
                    help="HybridConfig overrides for every method, e.g. threads=1 measurement.rows=last")
-    p.add_argument("--overwrite", action="store_true", help="remove the trials and tables an earlier run left in "
-                   "--out and run every trial again (the network and depth caches, keyed by content, are kept)")
+    p.add_argument("--overwrite", action="store_true", help="remove the trials, tables and network / depth caches "
+                   "an earlier run left in --out and run every trial again from the data as they are now")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
 

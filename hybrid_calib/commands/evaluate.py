@@ -89,8 +89,9 @@ def trained_on(checkpoint: str | Path, roots) -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     from hybrid_calib.config import merge
+    from hybrid_calib.data.files import data_stamp
     from hybrid_calib.plots.evaluation import plot_error_cdf
-    from learned.checkpoint import load_model
+    from learned.checkpoint import checkpoint_digest, load_model
     from learned.dataset import open_roots
     from learned.depth import needs_lidar
     from learned.evaluate import EvalConfig, evaluate
@@ -148,9 +149,11 @@ def run(args: argparse.Namespace) -> int:
     # the LiDAR-camera variant calibrates T_cam_lidar from LiDAR points; lidar-densified depth reads them too
     lidar = model.cfg.variant == "lidar" or needs_lidar(str(conf.get("depth", "")))
     frames = open_roots(args.data, args.version, lidar=lidar, options={"nsweeps": args.nsweeps})
-    data = {"roots": [str(Path(d).resolve()) for d in args.data], "version": args.version, "nsweeps": args.nsweeps}
+    data = {"roots": [str(Path(d).resolve()) for d in args.data], "version": args.version, "nsweeps": args.nsweeps,
+            "stamps": [data_stamp(d, args.version)["digest"] for d in args.data]}
     result = evaluate(model, frames, conf, args.out, checkpoint=" -> ".join(map(str, stage_paths)),
-                      overwrite=args.overwrite, progress=not args.no_progress, data=data)
+                      overwrite=args.overwrite, progress=not args.no_progress, data=data,
+                      network=[checkpoint_digest(p) for p in stage_paths])
     plot_error_cdf(result, Path(args.out) / "errors_cdf.png")
     print(result.table())
     skipped_path = Path(args.out) / "skipped.json"  # frames with bad files, skipped by the export

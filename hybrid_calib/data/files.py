@@ -120,3 +120,18 @@ def read_npz(path: str | Path, what: str, fix: str, token: str | None = None) ->
     except NPZ_ERRORS as e:
         raise DataError(f"{what} unreadable ({type(e).__name__}: {e}); the file is corrupt or truncated: {fix}",
                         path=str(path), token=token) from None
+
+
+def root_labels(roots: list[str], sep: str = "-") -> dict[str, str]:
+    """root (as given) -> a short label that tells the roots apart: the folder name, with as many parent folders as
+    it takes to tell roots of one folder name apart, joined by ``sep`` (``2024-05-sim``, ``2024-06-sim``; the fleet's
+    job ids, compare's per-root rows). Spellings of one folder get one label."""
+    given = {}  # resolved -> the path as given (its parts name it)
+    for r in roots:
+        given.setdefault(str(Path(r).resolve()), Path(r).absolute())
+    depth, most = 1, max((len(p.parts) for p in given.values()), default=1)
+    while True:
+        labels = {k: sep.join(p.parts[-depth:]).lstrip("/") for k, p in given.items()}
+        if len(set(labels.values())) == len(labels) or depth >= most:
+            return {r: labels[str(Path(r).resolve())] for r in roots}
+        depth += 1

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hybrid_calib.data.files import file_part
+from hybrid_calib.data.files import file_part, root_labels
 from hybrid_calib.data.tables import version_dir
 from hybrid_calib.errors import DataError, HybridCalibError
 
@@ -162,20 +162,6 @@ def _design_T(rec: dict | None) -> np.ndarray | None:
         return None
 
 
-def _root_labels(roots: list[str]) -> dict[str, str]:
-    """root -> the label its vehicles' job ids get when a vehicle name is in two roots: the folder name, with as
-    many parent folders as it takes to tell roots of one folder name apart (``2024-05-sim``, ``2024-06-sim``)."""
-    given = {}  # resolved -> the path as given (its parts name it)
-    for r in roots:
-        given.setdefault(str(Path(r).resolve()), Path(r).absolute())
-    depth, most = 1, max(len(p.parts) for p in given.values())
-    while True:
-        labels = {k: "-".join(p.parts[-depth:]).lstrip("/") for k, p in given.items()}
-        if len(set(labels.values())) == len(labels) or depth >= most:
-            return {r: labels[str(Path(r).resolve())] for r in roots}
-        depth += 1
-
-
 def check_fleet_roots(sources: list[tuple[str, str, tuple[str, ...] | None]], manifest: str | Path) -> None:
     """``DataError`` naming the manifest and the entry when a root it lists (``read_fleet_file``) is not a
     directory on this machine."""
@@ -204,7 +190,7 @@ def discover_jobs(roots: list[tuple[str, str, tuple[str, ...] | None]], method: 
             raise DataError(f"vehicles {missing} not in this root (it has {sorted(vs)})", path=str(root))
         found += [(root, version, v, info) for v, info in sorted(vs.items()) if wanted is None or v in wanted]
     names = [v for _, _, v, _ in found]
-    labels = _root_labels([root for root, _, _, _ in found])
+    labels = root_labels([root for root, _, _, _ in found])
     holders: dict[str, set[str]] = {}  # log token -> the roots holding it
     for root, _, _, info in found:
         for log in info.get("logs", ()):

@@ -64,7 +64,7 @@ from hybrid_calib.hybrid.motion import MotionConfig, MotionGate, MotionSource, f
 from hybrid_calib.hybrid.network import (
     NetworkRunner,
     build_runner,
-    checkpoint_digest,
+    clear_own_caches,
     refine_checkpoint,
     shipped_checkpoint,
 )
@@ -653,6 +653,8 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
         final = dataclasses.replace(res.final, status=inconclusive_status(reason, res.final.status))
         res.final = final
         res.trajectory[-1] = dataclasses.replace(res.trajectory[-1], estimate=final)
+        if res.drift:  # an untrusted estimate's difference from the tables is no reason to recalibrate
+            res.drift = unconverged(res.drift, final.status)
     return res
 
 
@@ -712,9 +714,12 @@ class _Session:
 
 
 def network_identity(conf: HybridConfig) -> dict:
-    """``{"network": {"checkpoint": digest[, "refine": digest]}}``: what a learned method's result depends on beyond
-    its config, the contents of its checkpoints (``network.checkpoint_digest``), so that one retrained or edited at
-    the same path is not taken for the one an earlier result was computed with; ``{}`` for oracle."""
+    """``{"network": {"checkpoint": digest[, "refine": digest]}}``: what a learned method's result depends on
+    beyond its config, the contents of its checkpoints (``learned.checkpoint.checkpoint_digest``), so that one
+    retrained or edited at the same path is not taken for the one an earlier result was computed with; ``{}`` for
+    oracle."""
+    from learned.checkpoint import checkpoint_digest
+
     if conf.method == "oracle":
         return {}
     refine = refine_checkpoint(conf.refine)
@@ -742,6 +747,8 @@ def run_calibration(data: str | Path, version: str, out: str | Path, conf: Hybri
     network = network_identity(conf)
     if (out / "result.json").is_file() and not overwrite:
         return reuse_result(out, data, version, conf.method, {**to_dict(conf), **network})
+    if overwrite:
+        clear_own_caches(out, conf.cache_dir, conf.depth_cache)
     conf = dataclasses.replace(conf, cache_dir=conf.cache_dir or str(out / "network-cache"),
                                depth_cache=conf.depth_cache or str(out / "depth-cache"))
     stamp = data_stamp(data, version)  # before reading: data that change during the run are not this result's

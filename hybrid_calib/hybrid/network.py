@@ -29,6 +29,7 @@ import numpy as np
 from factors.correspondences import Correspondences
 from hybrid_calib.data.files import NPZ_ERRORS, file_part
 from hybrid_calib.errors import HybridCalibError
+from hybrid_calib.geometry import nearest_rigid
 
 SHIPPED = Path(__file__).resolve().parents[2] / "learned" / "checkpoints"
 
@@ -149,24 +150,23 @@ class OutputCache:
                       "saying so once)", file=sys.stderr)
 
 
-def checkpoint_digest(checkpoint: str | Path) -> str:
-    """The identity of a checkpoint: SHA-1 of its JSON and weights files (their bytes: a retrained or edited
-    checkpoint at the same path is another network; the same files under another path are the same one)."""
-    from learned.checkpoint import _weights_path, read_checkpoint_meta
+def clear_own_caches(out: str | Path, cache_dir: str = "", depth_cache: str = "") -> None:
+    """``--overwrite``: empty the network-output and depth caches a run keeps in its own ``out`` (``network-cache``,
+    ``depth-cache``; a folder the config names, ``cache_dir`` / ``depth_cache``, is the user's and kept), so that the
+    run recomputes from the data as they are now: their entries are keyed by frame token (and start), which a root
+    re-made at the same path keeps (measured: the old answer came back after the data changed)."""
+    import shutil
 
-    path, meta = read_checkpoint_meta(checkpoint)
-    h = hashlib.sha1()
-    for f in (path, _weights_path(path, meta)):
-        with open(f, "rb") as fh:
-            for chunk in iter(lambda: fh.read(1 << 20), b""):
-                h.update(chunk)
-        h.update(b"/")
-    return h.hexdigest()
+    for given, name in ((cache_dir, "network-cache"), (depth_cache, "depth-cache")):
+        if not given:
+            shutil.rmtree(Path(out) / name, ignore_errors=True)
 
 
 def network_key(checkpoint: str | Path, depth_name: str, depth_hash: str) -> str:
-    """The identity of a network's outputs (``OutputCache``): the checkpoint (``checkpoint_digest``) and its depth
-    input."""
+    """The identity of a network's outputs (``OutputCache``): the checkpoint (``learned.checkpoint.checkpoint_digest``)
+    and its depth input."""
+    from learned.checkpoint import checkpoint_digest
+
     return hashlib.sha1(f"{depth_name}/{depth_hash}/{checkpoint_digest(checkpoint)}".encode()).hexdigest()[:16]
 
 
@@ -285,7 +285,8 @@ class NetworkRunner:
                 corr, cov = export_correspondences(self.model, out, inputs, conf)
                 rows.append(dataclasses.replace(corr[0], frame_id=str(batch["token"][0])))
             feats = frame_features(out)
-        T_iters = torch.stack([T[0].double() for T in out["T_iters"]]).cpu().numpy()
+        # float32 in the network: orthonormal to ~1e-7 only; the estimate a result reports is an exact rigid transform
+        T_iters = np.stack([nearest_rigid(T[0].double().cpu().numpy()) for T in out["T_iters"]])
         return NetworkOutput(np.asarray(T_in, np.float64), T_iters, np.asarray(cov[0], np.float64), rows[0], rows[1],
                              time.perf_counter() - t0, feats["descriptor"][0], feats["signals"][0])
 

@@ -67,7 +67,12 @@ def decide(scores: list[float], policy: OODPolicy, note: str = "") -> dict:
     n_in = int(np.sum(s <= policy.threshold))
     block["in_domain"] = n_in
     need = max(policy.min_in_domain_frames, int(np.ceil(policy.min_in_domain_fraction * len(s))))
-    if n_in < need:
+    if n_in < need and len(s) < policy.min_in_domain_frames and n_in == len(s):  # the drive, not the domain
+        block["inconclusive"] = (
+            f"the drive has {len(s)} frame{'s' if len(s) != 1 else ''} (all inside the network's training domain), "
+            f"fewer than the {need} in-domain frames the out-of-domain test needs before it trusts the network's "
+            "answer: calibrate on more frames (--max-frames)")
+    elif n_in < need:
         block["inconclusive"] = (
             f"only {n_in} of {len(s)} frames are inside the network's training domain (out-of-domain score <= "
             f"{policy.threshold:g}; median score {np.median(s):.1f}), fewer than the {need} required: the network's "

@@ -59,6 +59,7 @@ def attention_html(vr: VehicleResult, ev: Evidence, data, version: str, checkpoi
     except (HybridCalibError, OSError) as e:
         return head + f"<p class=note>Absent: the network could not run ({esc(e)}).</p>"
     return (head + f"<p class=meta>Checkpoint {esc(ckpt)} on frame {frame.index}, from the fixed R1 evaluation start. "
-            "Top: points projected with the start (red) and the network's estimate (green; white: truth). Middle: "
+            "Top: points projected with the start (red) and the network's estimate (green; white: truth, or on a "
+            "real root its tables). Middle: "
             "which image regions the radar points attend to and back. Bottom: the bird's-eye views.</p>"
             + img_tag(png, "network cross-attention"))

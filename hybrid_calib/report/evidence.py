@@ -240,6 +240,9 @@ def _frames(ev: Evidence, root: Path, version: str, vehicle: str, vr, n: int, by
     if not idx:
         ev.notes.append(f"vehicle {vehicle} has no frame in {root / version}: no camera frames shown")
         return
+    known = {f.frame_id for f in vr.trajectory}  # the frames the run calibrated (e.g. --max-frames), when it says
+    used = [i for i in idx if ds.frames[i].sample_token in known or ds.frames[i].camera_sd.get("token") in known]
+    idx = used or idx
     start = ev.start
     if start is None:  # a learned run: the start it recorded (result.json "start"), not the tables
         start, label = _recorded_start(vr)
