@@ -336,6 +336,8 @@ def evaluate(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig | dict,
     cfg_path = out / "export_config.json"
     old = None if overwrite else read_out_record(cfg_path, "export config", "what its predictions were made "
                                                  "with: use --overwrite or another --out")
+    if old is not None and not any((out / "frames").glob("*.npz")):  # an earlier run that exported nothing (it
+        old = None  # failed before its first frame): nothing of it to mix with this run's predictions
     if old is not None:
         for key in ("data", "network"):  # written before it was recorded
             if key not in old and key in record:

@@ -98,9 +98,12 @@ def check_sizes_and_device(conf, owner: str) -> None:
         raise ValueError(f"{owner}: max_radar_points must be >= 1 and max_lidar_points >= 0, got "
                          f"{conf.max_radar_points} and {conf.max_lidar_points}")
     try:
-        torch.device(conf.device)
+        device = torch.device(conf.device)
     except (RuntimeError, TypeError):
         raise ValueError(f"{owner}.device={conf.device!r} is not a torch device; e.g. cpu, cuda or cuda:0") from None
+    if device.type == "cuda" and not torch.cuda.is_available():  # the CPU build of torch: an assert deep inside
+        raise ValueError(f"{owner}.device={conf.device!r}: this torch has no usable CUDA device "
+                         f"(torch {torch.__version__}, torch.cuda.is_available() is False); use device=cpu")
 
 
 PRESETS: dict[str, dict[str, Any]] = {

@@ -1907,3 +1907,18 @@ def test_an_out_folder_inside_the_data_root_is_refused(sim, capsys):
         expect_cli_error(["calibrate", "--data", root, "--method", "oracle", "--out", inside], capsys,
                          "is inside the data root's", "pass a folder outside them")
     assert not (root / SIM_VERSION / "run").exists() and not (root / "samples" / "x").exists()
+
+
+@pytest.mark.skipif(__import__("torch").cuda.is_available(), reason="a machine with CUDA runs device=cuda")
+def test_device_cuda_without_cuda_is_an_option_error_and_blocks_nothing(sim, tmp_path, capsys):
+    """--set device=cuda on the CPU build of torch was an internal error (an assert deep in torch), and evaluate's
+    corrected rerun was then refused ("holds predictions made with another config": there were none)."""
+    root, _ = sim
+    out = tmp_path / "ev"
+    argv = ["evaluate", "--data", root, "--split", "all", "--checkpoint", SHIPPED / "small-sim-r1.json",
+            "--no-progress", "--out", out, "--set", "threads=1", "max_radar_points=32"]
+    expect_cli_error([*argv, "device=cuda"], capsys, "device='cuda'", "no usable CUDA device", "use device=cpu")
+    (out / "frames").mkdir(parents=True, exist_ok=True)
+    (out / "export_config.json").write_text(json.dumps({"eval": {"device": "cuda"}}))  # a run that exported nothing
+    got, err = run_cli(argv, capsys)
+    assert got == 0, err

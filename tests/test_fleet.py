@@ -378,8 +378,13 @@ def test_a_fleet_prior_is_applied_only_to_the_vehicle_it_was_fitted_on(local_run
 
     doc = json.loads((local_run[0] / "fleet_prior.json").read_text())
     assert doc["basis"]["vehicles"] >= 3 and doc["basis"]["frames"] > 0
-    priors = load_priors(local_run[0] / "fleet_prior.json")
-    name = next(k for k, p in priors.items() if k != "*" and p is not None)
+    # 3 vehicles: none gets a named prior (its leave-one-out fit would rest on 2); here one is given, as a larger
+    # fleet's file has them
+    assert doc["no_prior"] == doc["inliers"] and all(doc["priors"][n] is None for n in doc["inliers"])
+    name = doc["inliers"][0]
+    doc["priors"][name] = doc["priors"]["*"]
+    (tmp_path / "named.json").write_text(json.dumps(doc))
+    priors = load_priors(tmp_path / "named.json")
     src = doc["sources"][name]
     p, note = match_prior(priors, name, src["data"], "v1.0-sim", src["vehicle"])
     assert p is priors[name] and note is None
@@ -736,3 +741,26 @@ def test_a_renamed_vehicle_whose_folder_cannot_move_is_said_and_calibrated_again
     (vehicles / "root-v1").rmdir()
     assert _follow_renames(entries, [new], tmp_path / "out" / "manifest.json") == {"v1": "root-v1"}
     assert (vehicles / "root-v1" / "result.json").is_file() and not (vehicles / "v1").exists()
+
+
+def test_the_fleet_outlier_test_knows_the_spread_is_estimated_from_few_vehicles():
+    """Two of five healthy simulated vehicles were named fleet outliers at alpha 1e-3 (d2 47 and 37 against
+    chi-square(6)): the spread estimated from four vehicles was used as if known. A knocked one is still named."""
+    from scipy.stats import chi2
+
+    from hybrid_calib.fleet.prior import fit_fleet_prior, outlier_p_value
+    from hybrid_calib.geometry import retract
+    from tests.helpers import nominal_T_cam_radar
+
+    assert outlier_p_value(47.1, 4) > 1e-3 > chi2.sf(47.1, 6)  # the measured case: no longer an outlier
+    assert outlier_p_value(20.0, 500) == pytest.approx(chi2.sf(20.0, 6))  # a large fleet: chi-square
+    g = np.random.default_rng(3)
+    T = nominal_T_cam_radar()
+    names = [f"v{i}" for i in range(8)]
+    spread = np.array([np.radians(0.5)] * 3 + [0.02] * 3)
+    Ts = [retract(T, g.normal(0, spread)) for _ in names]
+    covs = [np.diag((spread / 20) ** 2)] * len(names)
+    healthy = fit_fleet_prior(names, Ts, covs, T)
+    assert not healthy.outliers
+    Ts[3] = retract(Ts[3], np.array([0, 0, np.radians(8.0), 0, 0, 0]))  # knocked by 8 deg
+    assert list(fit_fleet_prior(names, Ts, covs, T).outliers) == ["v3"]

@@ -75,6 +75,19 @@ def inconclusive_status(reason: str, estimate_status: str = "") -> str:
     return f"inconclusive: {reason}" + (f" [the estimate's own status: {estimate_status}]" if estimate_status else "")
 
 
+def untrusted_status(status: str) -> str:
+    """Why an estimate whose status is ``status`` cannot be trusted, in words ("" when it can): the last solve did
+    not converge (``schedule.convergence_note``'s "NOT CONVERGED"), the network's input was out of its domain
+    (``inconclusive_status``), or the data did not determine it ("degenerate")."""
+    if "NOT CONVERGED" in status:
+        return "the last solve did not converge"
+    if status.startswith("inconclusive"):
+        return "the network's input was out of its domain"
+    if status.startswith("degenerate"):
+        return "the data did not determine it"
+    return ""
+
+
 def report_basis(T_cam_radar: np.ndarray) -> np.ndarray:
     """``B = blockdiag(R, R)`` (6, 6) with R = rotation of ``T_cam_radar`` (radar -> camera axes)."""
     R = np.asarray(T_cam_radar, dtype=np.float64)[:3, :3]

@@ -175,8 +175,9 @@ def _report(result, out: Path, reused: bool = False) -> int:
     failed = (f" ({len(result.vehicles_failed)} vehicle(s) failed: listed there under vehicles_failed)"
               if result.vehicles_failed else "")
     if reused:
-        print(f"reused the earlier result {out / 'result.json'}{failed}: it was computed with the same data and "
-              "options, so nothing was recomputed or written; pass --overwrite to recompute")
+        print(f"reused the earlier result {out / 'result.json'}{failed}: it was computed with the same options, "
+              "checkpoint and data (the same tables, and sensor folders unchanged since; a file rewritten in place "
+              "is not checked), so nothing was recomputed or written; pass --overwrite to recompute")
     else:
         print(f"wrote {out / 'result.json'}{failed}")
     return 1 if result.vehicles_failed else 0

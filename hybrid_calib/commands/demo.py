@@ -92,7 +92,9 @@ def vehicle_verdict(row: dict) -> str:
         why.append("inconclusive: too few frames inside the network's training domain")
     if why:
         return "FLAGGED: " + "; ".join(why)
-    fleet = "not a fleet outlier" if row.get("fleet_test") else "no fleet test (fewer than 3 vehicles done)"
+    test = row.get("fleet_test") or {}
+    fleet = ("not a fleet outlier" if "p_value" in test else test.get("left_out")
+             or "no fleet test (fewer than 3 trusted vehicles done)")
     return f"ok: no step alarm, {fleet}; vs its tables: {row['verdict'].split(':')[0]}"
 
 

@@ -29,12 +29,15 @@ tightened them falsely (measured: camera-y std 31 -> 23 cm at an unchanged 36 cm
 Priors therefore carry ``PINNED_INFLATION x P`` (10x the std: uninformative there).
 
 Robustness: each vehicle is tested against the fleet fitted WITHOUT it (leave-one-out):
-``d_i^2 = (x_i - mu_-i)^T (S_-i + C_i + Cov(mu_-i))^-1 (x_i - mu_-i)`` ~ chi-square(6); a vehicle
-with p < ``alpha`` is an outlier (a knocked radar), named, and left out of the fit; repeated until
-the inlier set is stable. The prior for an inlier vehicle is its leave-one-out predictive
-distribution ``N(T_ref exp(mu_-i), S_-i + Cov(mu_-i) + PINNED_INFLATION P)`` (its own data is not
-counted twice); for a new vehicle the full fit's; an outlier gets none (the crowd must not pull it
-back).
+``d_i^2 = (x_i - mu_-i)^T (S_-i + C_i + Cov(mu_-i))^-1 (x_i - mu_-i)``, referred to the sum of six
+squared Student-t(m - 1) with m the other vehicles (``outlier_p_value``: S is estimated from them, not
+known; chi-square(6) only for large fleets); a vehicle with p < ``alpha`` is an outlier (a knocked
+radar), named, and left out of the fit; repeated until the inlier set is stable. The prior for an
+inlier vehicle is its leave-one-out predictive distribution ``N(T_ref exp(mu_-i), S_-i + Cov(mu_-i) +
+PINNED_INFLATION P)`` (its own data is not counted twice), given only when it rests on at least
+``MIN_VEHICLES`` other vehicles (a fleet of 3: none, "no_prior" in the file); for a new vehicle the
+full fit's; an outlier gets none (the crowd must not pull it back). The caller leaves out vehicles
+whose own status says their estimate is not trusted (``fleet.summary``).
 
 Applying a saved prior (``load_priors``, ``match_prior``): the file records where each vehicle came from
 (``sources``: root, version, vehicle, frames); a named prior goes only to that vehicle of that root (another
@@ -46,6 +49,7 @@ is refused on load. A vehicle's verdict names the axes where its estimate still 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -129,6 +133,29 @@ def _d2(x: np.ndarray, C: np.ndarray, f: Fit) -> float:
     return float(r @ np.linalg.solve(f.S + C + f.cov_mu, r))
 
 
+@lru_cache(maxsize=64)
+def _sum_t2_sample(dof: int) -> np.ndarray:
+    """Sorted Monte Carlo sample (200 000, fixed seed) of the sum of six squared Student-t(``dof``) variables."""
+    g = np.random.default_rng(20261202)
+    return np.sort((g.standard_t(dof, size=(200_000, 6)) ** 2).sum(axis=1))
+
+
+def outlier_p_value(d2: float, m: int) -> float:
+    """p-value of a vehicle's ``d2`` against a fleet fitted on ``m`` other vehicles. The spread S is estimated
+    from those m vehicles, not known: each standardised axis is then Student-t with m - 1 degrees of freedom, not
+    normal, and ``d2`` is referred to the sum of six squared t(m - 1) (Monte Carlo) rather than chi-square(6) (as
+    if S were known: measured, 2 of 5 healthy simulated vehicles named outliers at alpha 1e-3, d2 47 and 37).
+    Conservative where the vehicles' own covariances dominate S; chi-square(6) from 100 degrees of freedom on."""
+    from scipy.stats import chi2
+
+    dof = max(int(m) - 1, 1)
+    if dof >= 100:
+        return float(chi2.sf(d2, 6))
+    sample = _sum_t2_sample(dof)
+    above = len(sample) - int(np.searchsorted(sample, d2, side="left"))
+    return (above + 1) / (len(sample) + 1)
+
+
 @dataclass
 class FleetPrior:
     """The fitted fleet model (module doc). Vectors are right-tangent offsets from ``T_ref``."""
@@ -154,8 +181,9 @@ class FleetPrior:
     def prior(self, name: str | None = None) -> dict | None:
         """The prior for vehicle ``name`` (leave-one-out for an inlier, the full fit for a new
         vehicle, None for an outlier) as plain data {"T_cam_radar", "cov_right_radar"}."""
-        if name in self.outliers:
-            return None
+        if name in self.outliers or (name in self.inliers and len(self.inliers) - 1 < MIN_VEHICLES):
+            return None  # an outlier; or too few other vehicles for its leave-one-out prior (its own estimate
+            # would be counted twice by the full fit)
         f = self.loo.get(name, self.fit) if name is not None else self.fit
         T = retract(self.T_ref, f.mu)
         cov = f.S + f.cov_mu + PINNED_INFLATION * self.common_cov
@@ -179,7 +207,9 @@ class FleetPrior:
 
         return {
             "schema": "hybrid-calib/fleet-prior/v1",
-            "model": "x_i = local(T_ref, T_i) ~ N(mu, S + C_i), S diagonal; EM; leave-one-out chi2(6) outlier test",
+            "model": "x_i = local(T_ref, T_i) ~ N(mu, S + C_i), S diagonal; EM; leave-one-out outlier test, d2 "
+                     "referred to the sum of six squared Student-t(m - 1), m the other vehicles (chi2(6) from m = 101)",
+            "no_prior": sorted(n for n in self.inliers if len(self.inliers) - 1 < MIN_VEHICLES),
             "T_ref": self.T_ref.tolist(), "T_mean": self.T_mean.tolist(), "mean_report": extrinsic_report(self.T_mean),
             "mu_right_radar": self.fit.mu.tolist(), "spread_cov_right_radar": self.fit.S.tolist(),
             "mean_cov_right_radar": self.fit.cov_mu.tolist(),
@@ -205,8 +235,6 @@ def fit_fleet_prior(names: list[str], Ts: list[np.ndarray], covs: list[np.ndarra
     ``common_cov`` (6, 6): the part of every ``covs[i]`` shared by all vehicles (P; default none).
     ``sources``: name -> {"data", "version", "vehicle", "frames"} (``FleetPrior.sources``).
     ``DataError`` with fewer than ``MIN_VEHICLES`` vehicles."""
-    from scipy.stats import chi2
-
     if len(names) < MIN_VEHICLES:
         raise DataError(f"a fleet prior needs >= {MIN_VEHICLES} calibrated vehicles, got {len(names)}")
     x = np.array([local(T_ref, T) for T in Ts])
@@ -217,11 +245,11 @@ def fit_fleet_prior(names: list[str], Ts: list[np.ndarray], covs: list[np.ndarra
     tests: dict[int, tuple[float, float]] = {}
     for _ in range(rounds):
         fit = _em(x[inl], C[inl])
-        loo = {i: _em(x[[j for j in inl if j != i]], C[[j for j in inl if j != i]], init=fit) for i in inl} \
-            if len(inl) > MIN_VEHICLES else {}
+        # every inlier against the fleet WITHOUT it (a fit that includes it would test it against itself)
+        loo = {i: _em(x[[j for j in inl if j != i]], C[[j for j in inl if j != i]], init=fit) for i in inl}
         for i in range(len(names)):
             d2 = _d2(x[i], C[i], loo.get(i, fit))
-            tests[i] = (d2, float(chi2.sf(d2, 6)))
+            tests[i] = (d2, outlier_p_value(d2, len(inl) - 1 if i in loo else len(inl)))
         new = [i for i in range(len(names)) if tests[i][1] >= alpha]
         if len(new) < MIN_VEHICLES:  # no crowd to speak of: keep the largest-p vehicles
             new = sorted(sorted(range(len(names)), key=lambda i: -tests[i][1])[:MIN_VEHICLES])

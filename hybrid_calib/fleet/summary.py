@@ -17,7 +17,7 @@
                "std_cam": STD, "verdict": str, "drift": {"drifted", "p_value", "statistic"},
                "step_alarms": [frame, ...], "error": {...} | null,
                "mount_steps": [{"at", "change", "step_deg", "std_deg", "statistic"}, ...],  # hybrid: mount monitor
-               "fleet_test": {"d2", "p_value"} | null,
+               "fleet_test": {"d2", "p_value", "reference"} | {"left_out": why} | null,
                "flags": ["out_of_tolerance", "drifted_in_drive", "fleet_outlier", "degenerate", "inconclusive"]}
                # "inconclusive": the status is "inconclusive: ..." (input out of the network's domain,
                # hybrid.ood); its verdict is "inconclusive" whatever the drift block says
@@ -124,8 +124,15 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
         if vr.final.status.startswith("inconclusive"):
             row["flags"].append("inconclusive")
     prior = None
-    if fit_prior and len(results) >= MIN_VEHICLES:
-        names = sorted(results)
+    # an estimate its own status calls untrusted (out of the network's domain, degenerate, not converged) says
+    # nothing about where the fleet's mounts are: it is left out of the fit (and said)
+    from hybrid_calib.calib.covariance import untrusted_status
+
+    trusted = {n: vr for n, vr in results.items() if not untrusted_status(vr.final.status)}
+    for n in sorted(set(results) - set(trusted)):
+        rows[n]["fleet_test"] = {"left_out": f"not in the fleet prior: {untrusted_status(results[n].final.status)}"}
+    if fit_prior and len(trusted) >= MIN_VEHICLES:
+        names = sorted(trusted)
         prior = fit_fleet_prior(names, [results[n].final.T for n in names], [results[n].final.cov for n in names],
                                 T_ref, alpha, common_cov=common_cov([m.jobs[n]["job"] for n in names]),
                                 sources={n: {"data": str(Path(m.jobs[n]["job"]["data"]).resolve()),
