@@ -353,3 +353,27 @@ def test_an_untrusted_estimate_is_never_a_reason_to_recalibrate():
     assert out["verdict_kind"] == "cannot tell" and not out["drifted"]
     assert "not trusted (only 44 of 82 frames" in out["verdict"] and "estimate's own status" not in out["verdict"]
     assert unconverged(drift, "ok") is drift
+
+
+def test_a_prior_the_data_disagree_with_is_found():
+    """A fleet prior turned 5 deg in roll pulled the estimate by ~0.5 deg while the verdict said "the drive's data
+    dominate"; nothing compared the prior with what the data say."""
+    from hybrid_calib.calib.drift import prior_conflict, prior_note
+    from hybrid_calib.calib.oracle import synthetic_drive
+    from hybrid_calib.calib.schedule import GaussianPrior
+    from hybrid_calib.calib.window import SlidingWindowCalibrator
+    from hybrid_calib.geometry import retract
+    from tests.helpers import nominal_T_cam_radar, rng
+
+    T = nominal_T_cam_radar()
+    frames, _ = synthetic_drive(T, 8, rng(4))
+    cov = np.diag([np.radians(1.0) ** 2] * 3 + [0.05 ** 2] * 3)
+    for offset, conflict in ((np.zeros(6), False), (np.array([np.radians(5.0), 0, 0, 0, 0, 0]), True)):
+        prior = GaussianPrior(retract(T, offset), cov)
+        cal = SlidingWindowCalibrator(T, {"window": 20, "detect_steps": False})
+        for k, f in enumerate(frames):
+            out = cal.update(f, prior=prior if k == 0 else None)
+        c = prior_conflict(out.estimate.T, out.estimate.info, prior.T, prior.cov)
+        assert c["conflict"] is conflict, c
+        words = prior_note(np.ones(6), np.full(6, 10.0), c)["words"]
+        assert ("disagrees with this drive's data" in words) is conflict

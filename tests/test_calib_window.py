@@ -204,3 +204,17 @@ def test_a_knocked_sensor_never_pulls_the_window_into_a_basin_only_the_new_frame
     assert vr.error["geodesic_deg"] < 5, vr.error  # was 71.5 deg (the knock itself is ~1.8 deg)
     assert "NOT CONVERGED" in vr.final.status and "cannot tell" in vr.drift["verdict"]
     assert all(json.dumps(list(f.events)).count("not converged") <= 1 for f in vr.trajectory)
+
+
+@pytest.mark.parametrize("key,value,words", [
+    ("min_inlier_fraction", 2.0, "0 <= min_inlier_fraction <= 1"),  # made every good solve "NOT CONVERGED"
+    ("random_walk_rot_deg_per_sqrt_s", -1.0, "random_walk_rot_deg_per_sqrt_s >= 0"),  # silently read as 0
+    ("default_dt_s", 0.0, "default_dt_s > 0"),
+    ("convex_frames", -1, "convex_frames >= 0"),
+    ("relinearize_trans_cm", float("nan"), "finite numbers"),
+])
+def test_window_options_no_window_can_have_are_refused(key, value, words):
+    from hybrid_calib.calib.window import WindowConfig
+
+    with pytest.raises(ValueError, match=words.replace("(", r"\(")):
+        WindowConfig(**{key: value})

@@ -225,9 +225,11 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, rng, progress: bo
     drift = reference_test(final.T, final.cov, vi.reference, conf.drift, prior_pinned_std(fc))
     res.drift = unconverged(drift.to_dict(), final.status)
     if prior is not None:
-        from hybrid_calib.calib.drift import prior_note
+        from hybrid_calib.calib.drift import prior_conflict, prior_note
 
-        res.drift["prior"] = prior_note(final.std, report_std(np.asarray(prior.T), np.asarray(prior.cov)))
+        conflict = None if final.info is None else prior_conflict(final.T, final.info, np.asarray(prior.T),
+                                                                  np.asarray(prior.cov))
+        res.drift["prior"] = prior_note(final.std, report_std(np.asarray(prior.T), np.asarray(prior.cov)), conflict)
         res.drift["verdict"] = f"{res.drift['verdict']} ({res.drift['prior']['words']})"
     res.network = _network_summary(vi)
     if vi.truth:

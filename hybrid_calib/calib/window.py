@@ -89,6 +89,20 @@ class WindowConfig:
     def __post_init__(self):
         if self.window < 1:
             raise ValueError(f"WindowConfig.window must be >= 1, got {self.window}")
+        from hybrid_calib.config import require
+
+        finite = all(np.isfinite(getattr(self, k)) for k in (
+            "random_walk_rot_deg_per_sqrt_s", "random_walk_trans_cm_per_sqrt_s", "default_dt_s", "relinearize_rot_deg",
+            "relinearize_trans_cm", "min_inlier_fraction"))
+        require(self, {
+            "convex_frames >= 0": self.convex_frames >= 0,
+            "random_walk_rot_deg_per_sqrt_s >= 0": self.random_walk_rot_deg_per_sqrt_s >= 0,
+            "random_walk_trans_cm_per_sqrt_s >= 0": self.random_walk_trans_cm_per_sqrt_s >= 0,
+            "default_dt_s > 0": self.default_dt_s > 0,
+            "relinearize_rot_deg > 0": self.relinearize_rot_deg > 0,
+            "relinearize_trans_cm > 0": self.relinearize_trans_cm > 0,
+            "0 <= min_inlier_fraction <= 1": 0 <= self.min_inlier_fraction <= 1,
+            "finite numbers": finite})
 
 
 @dataclass(frozen=True)
