@@ -764,3 +764,18 @@ def test_the_fleet_outlier_test_knows_the_spread_is_estimated_from_few_vehicles(
     assert not healthy.outliers
     Ts[3] = retract(Ts[3], np.array([0, 0, np.radians(8.0), 0, 0, 0]))  # knocked by 8 deg
     assert list(fit_fleet_prior(names, Ts, covs, T).outliers) == ["v3"]
+
+
+def test_a_vehicle_that_fails_on_its_rerun_keeps_no_old_result_at_the_documented_path(fleet_root, tmp_path):
+    """Its data went bad after a first run: the rerun failed and vehicles/<v>/result.json still held the calibration
+    of data that no longer exist (and every later rerun said it was "calibrated again")."""
+    from hybrid_calib.errors import DataError
+    from hybrid_calib.fleet.jobs import Job, calibrate_job
+
+    out = tmp_path / "vehicles" / BAD
+    out.mkdir(parents=True)
+    (out / "result.json").write_text('{"an": "earlier run"}')
+    job = Job(BAD, BAD, str(fleet_root), "v1.0-sim", "oracle", str(out), calib={"window": {"window": 3}})
+    with pytest.raises(DataError):
+        calibrate_job(job)
+    assert not (out / "result.json").exists() and (out / "result.stale.json").read_text() == '{"an": "earlier run"}'

@@ -466,6 +466,11 @@ def test_a_checkpoint_changed_in_place_is_another_network(sim_root, tmp_path):
             "vehicles": ["sim-veh-000"]}
     run_calibration(sim_root, "v1.0-sim", tmp_path / "c", conf)
     run_calibration(sim_root, "v1.0-sim", tmp_path / "c", conf)  # unchanged: reused
+    from hybrid_calib.hybrid.loop import trained_depth
+
+    kept = (tmp_path / "c" / "result.json").stat().st_mtime_ns  # the default depth spelled out is the same run
+    run_calibration(sim_root, "v1.0-sim", tmp_path / "c", {**conf, "depth": trained_depth(conf["checkpoint"])})
+    assert (tmp_path / "c" / "result.json").stat().st_mtime_ns == kept
     weights = ck / "small-sim-r1.safetensors"
     weights.write_bytes(weights.read_bytes()[:-1] + b" ")  # retrained at the same path
     with pytest.raises(HybridCalibError, match="network checkpoint's files"):

@@ -95,7 +95,9 @@ def vehicle_verdict(row: dict) -> str:
     test = row.get("fleet_test") or {}
     fleet = ("not a fleet outlier" if "p_value" in test else test.get("left_out")
              or "no fleet test (fewer than 3 trusted vehicles done)")
-    return f"ok: no step alarm, {fleet}; vs its tables: {row['verdict'].split(':')[0]}"
+    verdict = row["verdict"].split(":")[0]
+    # "ok" only when the tables test says so; "cannot tell" (a short drive, a prior-pinned axis) is no alarm, not ok
+    return f"{'ok' if verdict == 'within tolerance' else 'no alarm'}: no step alarm, {fleet}; vs its tables: {verdict}"
 
 
 def _overlay(root: Path, out_png: Path) -> Path:

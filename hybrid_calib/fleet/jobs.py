@@ -240,6 +240,8 @@ def calibrate_job(job: Job) -> Path:
     out = Path(job.out)
     if out.exists() and not out.is_dir():  # an OSError here was retried as a system failure, to no avail
         raise HybridCalibError(f"{out} is a file, not this vehicle's folder of the fleet run; move it away and rerun")
+    if (out / "result.json").is_file():  # an earlier run's, superseded (the data changed): kept aside, so that a
+        os.replace(out / "result.json", out / "result.stale.json")  # failure now leaves no result at that path
     plots = partial(plot_vehicle, out_dir=out / "plots")
     if job.method == "oracle":
         from hybrid_calib.calib.pipeline import calibrate

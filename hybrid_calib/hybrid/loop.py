@@ -44,6 +44,7 @@ from hybrid_calib.calib.mount_monitor import MountMonitor, MountMonitorConfig
 from hybrid_calib.calib.oracle import OracleConfig
 from hybrid_calib.calib.result import (
     DATA_STAMP,
+    RUN_ONLY,
     CalibrationRun,
     Estimate,
     FrameEstimate,
@@ -163,6 +164,11 @@ def resolve_depth(data, version: str, conf: HybridConfig) -> tuple[str, str]:
     if not simulated and "LIDAR_TOP" in tables.channels():
         return LidarDepth.name, "real root without --depth: using lidar-densified depth (the LiDAR through the tables)"
     return "", ""
+
+
+def effective_depth(data, version: str, conf: HybridConfig) -> str:
+    """The depth estimator a learned run uses: ``--depth``, the real root's lidar-densified, or the checkpoint's."""
+    return resolve_depth(data, version, conf)[0] or trained_depth(conf.checkpoint or shipped_checkpoint(conf.start))
 
 
 def trained_depth(checkpoint) -> str:
@@ -744,9 +750,12 @@ def run_calibration(data: str | Path, version: str, out: str | Path, conf: Hybri
     folders. With ``overwrite=False`` an existing result is returned untouched."""
     conf = merge(HybridConfig, conf)
     out = Path(out)
-    network = network_identity(conf)
+    # what the result depends on: the config with the depth estimator it resolves to (--depth lidar-densified and
+    # the real root's default are one run) and the checkpoints' contents
+    stamped = {**to_dict(conf), **({"depth": effective_depth(data, version, conf)} if conf.method != "oracle" else {}),
+               **network_identity(conf)}
     if (out / "result.json").is_file() and not overwrite:
-        return reuse_result(out, data, version, conf.method, {**to_dict(conf), **network})
+        return reuse_result(out, data, version, conf.method, stamped)
     if overwrite:
         clear_own_caches(out, conf.cache_dir, conf.depth_cache)
     conf = dataclasses.replace(conf, cache_dir=conf.cache_dir or str(out / "network-cache"),
@@ -757,11 +766,11 @@ def run_calibration(data: str | Path, version: str, out: str | Path, conf: Hybri
         raise DataError("no vehicle to calibrate (check --set vehicles=... and the dataset)", path=str(data))
     mode = {"hybrid": "window", "oracle": "window", "pure": "network", "pure-avg": "average"}[conf.method]
     run = CalibrationRun(str(data), version, conf.method, mode, vehicles_failed=dict(session.unreadable))
-    done = VehicleProgress(out, data, version, conf.method,
-                           {**to_dict(conf), **network, "data_stamp": stamp["digest"]}, fresh=overwrite)
+    done = VehicleProgress(out, data, version, conf.method, {**stamped, "data_stamp": stamp["digest"]},
+                           fresh=overwrite)
     done.fill(run, list(session.drives), session.vehicle, on_vehicle, conf.progress)
     run.raise_if_none_done()
-    save_json_atomic(out / "config.json", {**to_dict(conf), **network})
+    save_json_atomic(out / "config.json", {**stamped, **{k: v for k, v in to_dict(conf).items() if k in RUN_ONLY}})
     save_json_atomic(out / DATA_STAMP, stamp)  # a rerun on changed data must not reuse it
     run.save(out / "result.json")
     done.finish()
