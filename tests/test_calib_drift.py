@@ -377,3 +377,14 @@ def test_a_prior_the_data_disagree_with_is_found():
         assert c["conflict"] is conflict, c
         words = prior_note(np.ones(6), np.full(6, 10.0), c)["words"]
         assert ("disagrees with this drive's data" in words) is conflict
+
+
+@pytest.mark.parametrize("key,value", [("alpha", 2.0), ("alpha", 0.0), ("tolerance_rot_deg", -1.0),
+                                       ("tolerance_trans_cm", 0.0), ("ref_rot_std_deg", -0.1),
+                                       ("alpha", float("nan"))])
+def test_drift_options_no_test_can_have_are_refused(key, value):
+    """drift.alpha=2 turned a prior-pinned 1-sigma difference into "recalibrate"; a negative tolerance was printed."""
+    from hybrid_calib.calib.drift import DriftConfig
+
+    with pytest.raises(ValueError, match=f"DriftConfig: need .*{key}"):
+        DriftConfig(**{key: value})

@@ -458,6 +458,9 @@ def test_fleet_command_pages_link_every_done_vehicle(local_run):
         report = (out / r["result"]).parent / "report.html"
         assert report.is_file(), report
         assert r["vehicle"] in html and f'href="{report.relative_to(out)}"' in html
+    # the failed vehicle is listed with its reason and counted (it was left out: "3 vehicles" for a fleet of 4)
+    assert "Fleet calibration: 4 vehicles, 3 with a result" in html and "1 without a result" in html
+    assert f"<li><b>{BAD}</b>: failed: " in html and "no usable frame" in html
 
 
 def test_an_unexpected_error_in_one_vehicle_is_its_failure_not_the_fleets(fleet_root, tmp_path, monkeypatch):
@@ -779,3 +782,16 @@ def test_a_vehicle_that_fails_on_its_rerun_keeps_no_old_result_at_the_documented
     with pytest.raises(DataError):
         calibrate_job(job)
     assert not (out / "result.json").exists() and (out / "result.stale.json").read_text() == '{"an": "earlier run"}'
+
+
+def test_a_done_job_of_a_checkpoint_changed_in_place_is_not_taken_for_this_runs():
+    """fleet reused its vehicles after the checkpoint at --checkpoint was retrained (calibrate noticed, fleet not)."""
+    from hybrid_calib.fleet.jobs import Job
+    from hybrid_calib.fleet.manifest import _changed_options
+
+    job = Job("v", "v", "/r", "v1.0-sim", "pure", "/o/v", checkpoint="/ck.json", network={"checkpoint": "bb"})
+    old = {**job.to_dict(), "network": {"checkpoint": "aa"}}
+    assert _changed_options(old, job) == ["the network checkpoint's files (retrained or edited at the same path, or "
+                                          "another file)"]
+    assert _changed_options(job.to_dict(), job) == []
+    assert _changed_options({**job.to_dict(), "network": None}, job) == []  # an older manifest: not held against it

@@ -134,6 +134,9 @@ def write_fleet_pages(summary: dict, out: Path) -> Path | None:
     if not done:
         return None
     design = (summary.get("design_mount") or {}).get("T_cam_radar")
+    others = {jid: (r["state"] if r["state"] != "failed" else f"failed: {r.get('reason') or ''}")
+              for jid, r in summary["vehicles"].items() if r["state"] != "done"}
     return write_fleet_page([out / r["result"] for r in done.values()], out / "fleet.html",
                             design=None if design is None else np.asarray(design),
-                            flagged=[jid for jid, r in done.items() if r.get("flags")], labels=list(done))
+                            flagged=[jid for jid, r in done.items() if r.get("flags")], labels=list(done),
+                            not_done=others)

@@ -51,6 +51,9 @@ class Job:
     tables_T: list | None = None  # (4, 4) the tables' T_cam_radar (inv(T_ego_cam) T_ego_radar), first frame
     design_T: list | None = None  # (4, 4) the recorded design (nominal) mount, when the root has one
     threads: int = 1  # torch / BLAS threads inside the worker
+    # the network methods: the contents of the checkpoints they run (``hybrid.loop.network_identity``), so that a
+    # checkpoint retrained or edited at the same path is not taken for the one a done job ran
+    network: dict | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -178,10 +181,17 @@ def discover_jobs(roots: list[tuple[str, str, tuple[str, ...] | None]], method: 
     name found in two roots gets its root's folder name as a prefix (``<folder>-<vehicle>``).
     ``priors``: ``fleet.prior.load_priors`` (job id -> prior dict or None; "*" for any other job), matched by
     ``fleet.prior.match_prior``; what it says about the match is appended to ``notes``."""
+    from hybrid_calib.config import merge
     from hybrid_calib.fleet.prior import match_prior
+    from hybrid_calib.hybrid.loop import HybridConfig, network_identity
 
     if method not in METHODS:
         raise HybridCalibError(f"--method {method!r}; valid: {METHODS}")
+    network = None
+    if method != "oracle":  # the checkpoint the jobs run (the shipped one of the start range by default)
+        keys = {k: v for k, v in (calib or {}).items() if k in ("start", "refine")}
+        network = network_identity(merge(HybridConfig, {"method": method, "checkpoint": checkpoint or "", **keys}))
+        network = network.get("network")
     found = []
     for root, version, wanted in roots:
         vs = _root_vehicles(root, version)
@@ -207,7 +217,7 @@ def discover_jobs(roots: list[tuple[str, str, tuple[str, ...] | None]], method: 
         # the folder is named after the vehicle of the tables, encoded (a name "../../x" escaped --out)
         folder = str(Path(out) / "vehicles" / file_part(jid))
         jobs.append(Job(jid, v, str(root), version, method, folder, seed, checkpoint, dict(calib or {}), prior,
-                        info["tables_T"], info["design_T"], threads))
+                        info["tables_T"], info["design_T"], threads, network))
     ids = [j.id for j in jobs]
     dup = sorted({i for i in ids if ids.count(i) > 1})
     if dup:

@@ -243,7 +243,7 @@ def _checked_jobs(jobs, path: Path) -> dict[str, dict]:
 
 
 # the Job fields a result depends on (not: out, threads, tables_T / design_T, which follow from data)
-_RESULT_FIELDS = ("data", "version", "vehicle", "method", "seed", "checkpoint", "calib", "prior")
+_RESULT_FIELDS = ("data", "version", "vehicle", "method", "seed", "checkpoint", "calib", "prior", "network")
 
 
 def _changed_options(old: dict, job: Job) -> list[str]:
@@ -252,7 +252,12 @@ def _changed_options(old: dict, job: Job) -> list[str]:
     changed = []
     for k in _RESULT_FIELDS:
         a, b = old.get(k), getattr(job, k)
-        if k == "checkpoint" and job.method == "oracle":
+        if k in ("checkpoint", "network") and job.method == "oracle":
+            continue
+        if k == "network":  # the checkpoint's contents (an older manifest did not record them: not held against it)
+            if a is not None and a != b:
+                changed.append("the network checkpoint's files (retrained or edited at the same path, or another "
+                               "file)")
             continue
         if k in ("data", "checkpoint"):
             same = (a or None) == (b or None) or (bool(a) and bool(b) and os.path.realpath(a) == os.path.realpath(b))

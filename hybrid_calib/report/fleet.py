@@ -39,7 +39,8 @@ def _offset(vr: VehicleResult, design: np.ndarray | None) -> np.ndarray | None:
 def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.ndarray | None = None,
                      flagged: Sequence[str] = (), reports: Mapping[str, str | Path] | None = None,
                      data: str | Path | None = None, version: str | None = None,
-                     conf: ReportConfig | dict | None = None, labels: Sequence[str] | None = None) -> Path:
+                     conf: ReportConfig | dict | None = None, labels: Sequence[str] | None = None,
+                     not_done: Mapping[str, str] | None = None) -> Path:
     """Write the fleet page ``out`` (HTML) from per-vehicle result files.
 
     results: ``result.json`` paths. design: (4, 4) design-mount ``T_cam_radar`` or None. flagged: names
@@ -50,7 +51,9 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
     (``report.html``, ``report-<vehicle>.html`` for a result with several vehicles) with ``data`` /
     ``version`` / ``conf``. labels: one name per result file (a fleet's job ids), shown instead of the
     vehicle name of a single-vehicle result (two roots may both hold ``sim-veh-000``); ``flagged`` and
-    ``reports`` then use the labels. Returns the path written."""
+    ``reports`` then use the labels. not_done: vehicle -> why it has no result ("failed: <reason>", "pending"):
+    listed on the page and counted, so a fleet with failures does not read as a smaller, clean one. Returns the
+    path written."""
     from hybrid_calib.plots.fleet import draw_fleet
 
     conf = merge(ReportConfig, conf)
@@ -116,9 +119,17 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
                  f"{num(max(vr.final.std[:3]), '.3f', 'max_rot_sigma_deg')}"
                  f"{num(max(vr.final.std[3:]), '.2f', 'max_t_sigma_cm')}<td>{vr.n_frames}</td></tr>")
     counts = {w: sum(v.word == w for v in verdicts.values()) for w in VERDICTS}
-    body = (f"<h1>Fleet calibration: {len(names)} vehicles</h1>"
+    not_done = dict(not_done or {})
+    missing = ""
+    if not_done:
+        items = "".join(f"<li><b>{esc(n)}</b>: {esc(why)}</li>" for n, why in sorted(not_done.items()))
+        missing = f"<h2>Vehicles without a result ({len(not_done)})</h2><ul id=\"not-done\">{items}</ul>"
+    total = len(names) + len(not_done)
+    body = (f"<h1>Fleet calibration: {total} vehicles"
+            + (f", {len(names)} with a result" if not_done else "") + "</h1>"
             f"<p id=\"fleet-summary\"><b>{counts['recalibrate']} to recalibrate, "
-            f"{counts['inconclusive']} inconclusive, {counts['within tolerance']} within tolerance.</b> Flagged: "
+            f"{counts['inconclusive']} inconclusive, {counts['within tolerance']} within tolerance"
+            + (f", {len(not_done)} without a result (failed or not run)" if not_done else "") + ".</b> Flagged: "
             f"{esc(', '.join(flagged)) if flagged else 'none'}. Tolerance: "
             f"{esc(next(iter(verdicts.values())).tolerance)}.</p>"
             f"<h2>Offsets from the {esc(reference)}</h2>{fig}"
@@ -127,6 +138,6 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
             "<table class=sortable id=\"vehicles\"><thead><tr><th class=l>vehicle</th><th class=l>verdict</th>"
             "<th class=l>flagged</th><th class=l>status</th><th class=l>moved in drive</th><th>offset rot (deg)</th>"
             "<th>offset t (cm)</th><th>max rot sigma (deg)</th><th>max t sigma (cm)</th><th>frames</th></tr></thead>"
-            f"<tbody>{rows}</tbody></table>"
+            f"<tbody>{rows}</tbody></table>{missing}"
             f"<p class=meta>Results: {esc(', '.join(str(p) for _, p in vehicles.values()))}</p>")
-    return write_page(out, f"fleet: {len(names)} vehicles", body)
+    return write_page(out, f"fleet: {total} vehicles", body)
