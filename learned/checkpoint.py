@@ -161,6 +161,17 @@ def check_export(export: dict[str, Any], path: Path) -> None:
                               "benchmarks/hybrid_fit.py --fit-into; ood: benchmarks/ood_fit.py)", path=str(path))
 
 
+def trained_data(checkpoint: str | Path) -> dict[str, Any]:
+    """What the training run of ``checkpoint`` read (its run folder's ``train_config.json`` "data": roots, version,
+    nsweeps), {} when it does not say (a shipped checkpoint records its data in words, in ``provenance``)."""
+    try:
+        path = _resolve(checkpoint)
+        data = json.loads((path.resolve().parent.parent / "train_config.json").read_text()).get("data")
+    except (OSError, ValueError, AttributeError, TypeError, RecursionError, CheckpointError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
 def checkpoint_digest(checkpoint: str | Path) -> str:
     """The identity of a checkpoint: SHA-1 of its JSON and weights files (their bytes: a retrained or edited
     checkpoint at the same path is another network; the same files under another path are the same one)."""

@@ -505,3 +505,27 @@ def test_compare_takes_each_root_once_and_tells_roots_of_one_folder_name_apart(s
     assert main([*base, "--data", str(a), str(b), "--out", str(tmp_path / "c2")]) == 0
     rows = json.loads((tmp_path / "c2" / "compare.json").read_text())["methods"]["oracle"]["consistency_per_root"]
     assert set(rows) == {"urban/sim", "highway/sim"} and all(r["n"] == 2 for r in rows.values())
+
+
+def test_a_network_reads_the_radar_sweeps_it_was_trained_on(tmp_path, capsys):
+    """A network trained with --nsweeps 3 was fed 1 sweep per frame by calibrate and evaluate, silently: the
+    checkpoint's run records its data, and the default now follows it (a differing --set is said)."""
+    import shutil
+
+    from hybrid_calib.config import merge
+    from hybrid_calib.hybrid.loop import HybridConfig, _Session
+    from hybrid_calib.hybrid.network import shipped_checkpoint
+    from learned.checkpoint import trained_data
+
+    ck = tmp_path / "run" / "checkpoints"
+    ck.mkdir(parents=True)
+    for f in shipped_checkpoint("R1").parent.glob("small-sim-r1.*"):
+        shutil.copy(f, ck / f.name.replace("small-sim-r1", "ckpt-0001"))
+    (tmp_path / "run" / "train_config.json").write_text(json.dumps({"data": {"roots": ["/r"], "nsweeps": 3}}))
+    assert trained_data(tmp_path / "run")["nsweeps"] == 3 and trained_data(shipped_checkpoint("R1")) == {}
+    session = _Session.__new__(_Session)
+    conf = session._trained_sweeps(merge(HybridConfig, {}), ck / "ckpt-0001.json")
+    assert conf.data["nsweeps"] == 3 and "3 radar sweeps per frame" in capsys.readouterr().err
+    asked = merge(HybridConfig, {"data": {"nsweeps": 1}})
+    assert session._trained_sweeps(asked, ck / "ckpt-0001.json") is asked
+    assert "trained on 3 sweeps" in capsys.readouterr().err

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 from hybrid_calib.commands import add_split_arguments, nonnegative_int, positive_int, split_overrides
@@ -54,7 +55,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--depth", default=None,
                         help="depth estimator (default: the checkpoint's; real data: depth-anything:/local/model/dir "
                              "or lidar-densified)")
-    parser.add_argument("--nsweeps", type=positive_int, default=1, help="radar sweeps accumulated per frame")
+    parser.add_argument("--nsweeps", type=positive_int, default=None,
+                        help="radar sweeps accumulated per frame (default: what the checkpoint's training run read, "
+                             "else 1)")
     parser.add_argument("--set", dest="overrides", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
                         help="EvalConfig override, e.g. --set batch_size=8 --set device=cuda (repeatable)")
     parser.add_argument("--fit-uncertainty", action="store_true",
@@ -78,11 +81,11 @@ def refuse_shipped(path: str | Path) -> None:
 def trained_on(checkpoint: str | Path, roots) -> list[str]:
     """The ``roots`` the training run of ``checkpoint`` read (its run folder's ``train_config.json`` "data"), [] when
     it does not say (a shipped checkpoint records its data in words, in ``provenance``)."""
-    run = Path(checkpoint).resolve().parent.parent / "train_config.json"
+    from learned.checkpoint import trained_data
+
     try:
-        data = json.loads(run.read_text()).get("data") or {}
-        seen = {str(Path(r).resolve()) for r in data.get("roots", [])}
-    except (OSError, ValueError, AttributeError, TypeError, RecursionError):
+        seen = {str(Path(r).resolve()) for r in trained_data(checkpoint).get("roots", [])}
+    except (TypeError, ValueError):
         return []
     return [str(r) for r in roots if str(Path(r).resolve()) in seen]
 
@@ -91,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
     from hybrid_calib.config import merge
     from hybrid_calib.data.files import data_stamp
     from hybrid_calib.plots.evaluation import plot_error_cdf
-    from learned.checkpoint import checkpoint_digest, load_model
+    from learned.checkpoint import checkpoint_digest, load_model, trained_data
     from learned.dataset import open_roots
     from learned.depth import needs_lidar
     from learned.evaluate import EvalConfig, evaluate
@@ -148,6 +151,15 @@ def run(args: argparse.Namespace) -> int:
     deep_update(conf, user)  # --set export.KEY=... changes that value and keeps the checkpoint's others
     # the LiDAR-camera variant calibrates T_cam_lidar from LiDAR points; lidar-densified depth reads them too
     lidar = model.cfg.variant == "lidar" or needs_lidar(str(conf.get("depth", "")))
+    trained = trained_data(last.path).get("nsweeps")
+    if args.nsweeps is None:
+        args.nsweeps = int(trained) if isinstance(trained, int) and trained >= 1 else 1
+        if args.nsweeps != 1:
+            print(f"note: {args.nsweeps} radar sweeps per frame, as the checkpoint's training run read (--nsweeps "
+                  "to change)", file=sys.stderr)
+    elif isinstance(trained, int) and trained != args.nsweeps:
+        print(f"note: --nsweeps {args.nsweeps}, but the checkpoint was trained on {trained} sweeps per frame: its "
+              "inputs differ from what it learned", file=sys.stderr)
     frames = open_roots(args.data, args.version, lidar=lidar, options={"nsweeps": args.nsweeps})
     data = {"roots": [str(Path(d).resolve()) for d in args.data], "version": args.version, "nsweeps": args.nsweeps,
             "stamps": [data_stamp(d, args.version)["digest"] for d in args.data]}

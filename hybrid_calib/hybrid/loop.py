@@ -698,6 +698,7 @@ class _Session:
             return
         depth, self.note = resolve_depth(data, version, conf)
         ckpt = conf.checkpoint or shipped_checkpoint(conf.start)
+        conf = self.conf = self._trained_sweeps(conf, ckpt)
         effective = depth or trained_depth(ckpt)  # "" = the checkpoint's own (lidar-densified needs the LiDAR)
         self.frames, self.drives = open_drives(data, version, conf, lidar=needs_lidar(effective),
                                                unreadable=self.unreadable)
@@ -706,6 +707,27 @@ class _Session:
                                    conf.depth_cache, conf.threads)
         self.motion = (MotionSource(self.frames, conf.motion, conf.cache_dir)
                        if conf.method == "hybrid" and conf.motion.enabled else None)
+
+    def _trained_sweeps(self, conf: HybridConfig, ckpt) -> HybridConfig:
+        """``conf`` reading the radar sweeps per frame the checkpoint's training run read (its train_config.json),
+        unless ``--set data.nsweeps`` says otherwise (then a differing count is said): a network trained on 3 sweeps
+        was fed 1, silently."""
+        import sys
+
+        from learned.checkpoint import trained_data
+
+        trained = trained_data(ckpt).get("nsweeps")
+        if not isinstance(trained, int) or trained < 1:
+            return conf
+        if "nsweeps" not in conf.data:
+            if trained != 1:
+                print(f"note: {trained} radar sweeps per frame, as the checkpoint's training run read (--set "
+                      "data.nsweeps=N to change)", file=sys.stderr)
+                conf = dataclasses.replace(conf, data={**conf.data, "nsweeps": trained})
+        elif conf.data["nsweeps"] != trained:
+            print(f"note: data.nsweeps={conf.data['nsweeps']}, but the checkpoint was trained on {trained} sweeps per "
+                  "frame: its inputs differ from what it learned", file=sys.stderr)
+        return conf
 
     def _check_some_drive(self) -> None:
         """``DataError`` when every vehicle is unreadable (one vehicle: the run_vehicle / fleet job case)."""
