@@ -72,7 +72,8 @@ def _trial_file(out: Path, method: str, k: int) -> Path:
 def run_trials(roots: list, version: str, out: Path, conf: CompareConfig, progress: bool = True) -> dict:
     """Step 1-2 of the module doc. Bad data does not stop the comparison: returns ``{"vehicles_left_out":
     {vehicle: reason} (none of its frames reads), "trials_failed": [{"trial", "method", "vehicle",
-    "reason"}]}`` (a failed trial writes no file, so a rerun tries it again)."""
+    "reason"}], "trials_kept": n (finished by an earlier run), "trials_run": n}`` (a failed trial writes no file,
+    so a rerun tries it again)."""
     from tqdm import tqdm
 
     hconf = dataclasses.replace(conf.hybrid, start=conf.range, progress=False,
@@ -112,7 +113,9 @@ def run_trials(roots: list, version: str, out: Path, conf: CompareConfig, progre
             failed.append({"trial": k, "method": method, "vehicle": name,
                            "reason": f"computed, but its trial file could not be written ({e}); rerun to compute it "
                                      "again once the path is free"})
-    return {"vehicles_left_out": left_out, "trials_failed": failed}
+    kept = conf.trials * len(conf.methods) - len(todo)
+    return {"vehicles_left_out": left_out, "trials_failed": failed, "trials_kept": kept,
+            "trials_run": len(todo) - len(failed)}
 
 
 def load_trials(out: Path, method: str, trials: int) -> list[VehicleResult]:

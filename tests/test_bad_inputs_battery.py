@@ -1897,6 +1897,9 @@ def test_inspect_reads_the_lidar_files_of_a_root_that_has_them(sim_copy, capsys)
     assert "1 skipped" in text and "LiDAR file size" in text and lidar.name in text
     main([*argv, "--set", "load_lidar=false"])  # asked not to: not read
     assert "0 skipped" in capsys.readouterr().out
+    # the overlay of that very frame: said as such (was: the frame's data error alone, after the summary)
+    expect_cli_error([*argv, "--frame", str(frame.index), "--out", str(root.parent / "insp")], capsys,
+                     f"frame {frame.index} is one of the skipped frames", "pick another, e.g. --frame")
 
 
 def test_an_out_folder_inside_the_data_root_is_refused(sim, capsys):

@@ -262,8 +262,10 @@ def test_compare_smoke_resumes_and_writes_the_table(sim_root, tmp_path, capsys):
     for k in range(2):
         assert trials["pure"][k]["start"] == trials["hybrid"][k]["start"] == trials["pure-avg"][k]["start"]
     mtime = (out / "trials" / "hybrid" / "0000.json").stat().st_mtime_ns
-    assert main(argv) == 0  # resumed: nothing recomputed
+    capsys.readouterr()
+    assert main(argv) == 0  # resumed: nothing recomputed, and said
     assert (out / "trials" / "hybrid" / "0000.json").stat().st_mtime_ns == mtime
+    assert "kept 6 trial(s) an earlier run finished" in capsys.readouterr().out
     assert main([*argv[:-1], "--seed", "3", "--no-progress"]) == 2  # another config in the same folder
     assert "another configuration (seed: 0 -> 3)" in capsys.readouterr().err  # what differs, named
     # what does not change a trial does not block the rerun: the methods' order or a subset, the threads, the default

@@ -68,6 +68,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"{m:>9}: rot mean {e['rot_mean_deg']:.3f} deg (median {d['rot_mean_deg']:.3f}), trans mean "
               f"{e['trans_mean_cm']:.2f} cm (median {d['trans_mean_cm']:.2f}); NEES {c['nees_mean']:.1f}, "
               f"coverage {100 * c['coverage_95']:.0f} %, not ok {100 * r['not_ok_fraction']:.0f} %")
+    if s.get("trials_kept"):  # a rerun: say what it reused (calibrate says so too)
+        print(f"kept {s['trials_kept']} trial(s) an earlier run finished in {args.out / 'trials'} (same data, network "
+              f"and options); ran {s['trials_run']}")
     for name, reason in s["vehicles_left_out"].items():
         print(f"left out {name}: {reason}", file=sys.stderr)
     for t in s["trials_failed"]:

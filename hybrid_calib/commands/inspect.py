@@ -68,6 +68,12 @@ def run(args: argparse.Namespace) -> int:
     save_json_atomic(out / "inspect_summary.json", summary.to_json())
     print(f"wrote {out / 'inspect_summary.json'}")
     index = args.frame if args.frame is not None else summary.first_loaded
+    bad = next((r for r in summary.skipped if args.frame is not None and r.get("index") == args.frame), None)
+    if bad is not None:  # the summary is written; the overlay of a frame that does not load cannot be
+        other = (f"e.g. --frame {summary.first_loaded} (the first that loads)" if summary.first_loaded is not None
+                 else "no frame of this root loads")
+        raise OptionError("--frame", f"frame {args.frame} is one of the skipped frames ({bad['reason']}), so it "
+                                     f"cannot be drawn; pick another, {other}")
     if index is not None:
         lidar = conf.lidar_channel in ds.tables.channels()
         frame_ds = ds if (conf.load_lidar or not lidar) else NuScenesRadarCamera(
