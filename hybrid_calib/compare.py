@@ -35,7 +35,7 @@ from hybrid_calib.config import (
     save_text_atomic,
     to_dict,
 )
-from hybrid_calib.data.files import root_labels
+from hybrid_calib.data.files import root_labels, stamps_changed
 from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.hybrid.loop import METHODS, HybridConfig, _Session, vehicle_learned, vehicle_oracle
 from hybrid_calib.metrics import METRIC_KEYS
@@ -251,10 +251,8 @@ def _differences(previous: dict, record: dict) -> list[str]:
         if [was.get("roots"), was.get("version")] != [now["roots"], now["version"]]:
             words.append(f"other roots or --version ({', '.join(map(str, was.get('roots') or []))}; "
                          f"{was.get('version')})")
-        elif "stamps" in was and was["stamps"] != now["stamps"]:
-            changed = [r for r, a, b in zip(now["roots"], was["stamps"], now["stamps"]) if a != b]
-            words.append(f"the data in {', '.join(changed)} as it was before (its tables or sensor folders changed "
-                         "since: re-simulated or re-downloaded)")
+        elif changed := stamps_changed(was, now):
+            words.append(changed)
     if "network" in previous and "network" in record and previous["network"] != record["network"]:
         words.append("another network checkpoint (the checkpoint's files differ: another file, or retrained or "
                      "edited at the same path)")

@@ -297,13 +297,14 @@ def write_report(result: EvalResult, out: str | Path, config: dict | None = None
 
 def _what_differs(old: dict, new: dict) -> str:
     """Words for what differs between the record of the kept predictions and this run's (``evaluate``)."""
+    from hybrid_calib.data.files import stamps_changed
+
     was, now = old.get("data") or {}, new.get("data") or {}
     words = []
     if [was.get(k) for k in ("roots", "version", "nsweeps")] != [now.get(k) for k in ("roots", "version", "nsweeps")]:
         words.append("frames of other roots, --version or --nsweeps")
-    elif "stamps" in was and was.get("stamps") != now.get("stamps"):
-        changed = [r for r, a, b in zip(now.get("roots", []), was["stamps"], now.get("stamps", [])) if a != b]
-        words.append(f"the data in {', '.join(changed)} as it was before (its tables or sensor folders changed since)")
+    elif changed := stamps_changed(was, now):
+        words.append(changed)
     if old.get("network") != new.get("network"):
         words.append("another checkpoint's files (retrained or edited at the same path, or another file)")
     options = changed_options(old, new, skip=("data", "network"), whole=("data", "network"))

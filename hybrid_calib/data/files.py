@@ -122,6 +122,17 @@ def read_npz(path: str | Path, what: str, fix: str, token: str | None = None) ->
                         path=str(path), token=token) from None
 
 
+def stamps_changed(was: dict, now: dict) -> str:
+    """Words for a record of the data a run read (``{"roots", "stamps"}``: ``data_stamp`` digests per root) whose
+    roots' data changed since ``was`` was recorded; "" when they did not, or when ``was`` holds no stamps (an older
+    record)."""
+    if "stamps" not in was or was.get("stamps") == now.get("stamps"):
+        return ""
+    changed = [r for r, a, b in zip(now.get("roots", []), was["stamps"], now.get("stamps", [])) if a != b]
+    return (f"the data in {', '.join(changed or now.get('roots', []))} as it was before (its tables or sensor folders "
+            "changed since: re-simulated or re-downloaded)")
+
+
 def root_labels(roots: list[str], sep: str = "-") -> dict[str, str]:
     """root (as given) -> a short label that tells the roots apart: the folder name, with as many parent folders as
     it takes to tell roots of one folder name apart, joined by ``sep`` (``2024-05-sim``, ``2024-06-sim``; the fleet's
