@@ -46,6 +46,16 @@ RESUMES = {
 }
 
 
+def _has_checkpoint(out: Path) -> bool:
+    """Whether a train run's ``out`` holds a checkpoint to resume from (``learned.train``: ``out/checkpoints``)."""
+    from learned.checkpoint import latest_checkpoint
+
+    try:
+        return latest_checkpoint(out / "checkpoints") is not None
+    except OSError:  # an unreadable folder: the interrupt message must not fail
+        return False
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="hybrid-calib", description="Target-free radar-camera extrinsic calibration.")
@@ -77,6 +87,8 @@ def main(argv: list[str] | None = None) -> int:
         if debug:
             raise
         kept = RESUMES.get(args.command)
+        if args.command == "train" and out is not None and not _has_checkpoint(Path(out)):
+            kept = "it stopped before its first checkpoint, so nothing is kept: rerun the same command to start again"
         print(f"hybrid-calib {args.command}: interrupted" + (f"; {kept}" if kept else ""), file=sys.stderr)
         return 130
     except Exception as e:

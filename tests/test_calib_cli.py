@@ -42,6 +42,9 @@ def test_calibrate_oracle_window_writes_result_schema_and_plots(sim_root, tmp_pa
     assert set(fin["std_cam"]) == {"rot_x_cam_deg", "rot_y_cam_deg", "rot_z_cam_deg", "t_x_cam_cm", "t_y_cam_cm",
                                    "t_z_cam_cm"}
     assert fin["status"].split(":")[0] in ("ok", "weak", "degenerate")
+    # what was run and from where, as every method's result says it (it was '' and null for the oracle)
+    assert v["method"] == "oracle" and v["errors_against"] == "truth"
+    assert v["start"]["kind"] == "reference" and np.asarray(v["start"]["T_cam_radar"]).shape == (4, 4)
     assert v["drift"]["dof"] == 6 and 0 <= v["drift"]["p_value"] <= 1
     assert v["error"]["rot_mean_deg"] < 1.0 and v["crb_std_cam"] is not None
     assert (out / "config.json").is_file()
@@ -72,6 +75,7 @@ def test_calibrate_batch_from_exported_correspondence_dir(sim_root, tmp_path):
                                "--out", str(out), "--no-plots")) == 0
     (v,) = json.loads((out / "result.json").read_text())["vehicles"].values()
     assert v["error"]["rot_mean_deg"] < 0.3 and v["trajectory"] == []
+    assert v["method"] == "measurements" and v["start"]["kind"] == "reference"
 
 
 def test_bad_correspondence_file_is_named(tmp_path):
@@ -104,3 +108,6 @@ def test_network_method_without_window_flag_keeps_the_default(sim_root, tmp_path
                  "--no-plots", "--out", str(tmp_path / "h")]) == 0, capsys.readouterr().err
     run = CalibrationRun.load(tmp_path / "h" / "result.json")
     assert run.vehicles and all(v.method == "hybrid" for v in run.vehicles.values())
+    # the shipped checkpoint's fitted model takes the network's SE(3) alone: said, not "rows used 0"
+    out = capsys.readouterr().out
+    assert "the network's SE(3) prior only (measurement.rows=none" in out and "rows used 0" not in out

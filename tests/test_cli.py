@@ -48,3 +48,20 @@ def test_an_interrupt_says_what_was_kept_and_how_to_go_on(tmp_path, monkeypatch,
     assert main(["report", str(tmp_path / "result.json"), "--out", str(tmp_path / "r.html")]) == 130
     assert capsys.readouterr().err.strip() == "hybrid-calib report: interrupted"  # nothing to resume
     assert set(RESUMES) <= set(COMMANDS)
+
+
+def test_a_train_run_interrupted_before_its_first_checkpoint_does_not_promise_one(tmp_path, monkeypatch, capsys):
+    from hybrid_calib.cli import RESUMES, main
+    from hybrid_calib.commands import train
+
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(train, "run", interrupted)
+    argv = ["train", "--data", str(tmp_path), "--out", str(tmp_path / "run")]
+    assert main(argv) == 130
+    assert "before its first checkpoint, so nothing is kept" in capsys.readouterr().err
+    (tmp_path / "run" / "checkpoints").mkdir(parents=True)
+    (tmp_path / "run" / "checkpoints" / "ckpt-0003.json").write_text("{}")
+    assert main(argv) == 130
+    assert capsys.readouterr().err.strip() == f"hybrid-calib train: interrupted; {RESUMES['train']}"

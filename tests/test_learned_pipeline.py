@@ -511,13 +511,17 @@ def test_cli_train_then_evaluate(sim_root, tmp_path, capsys):
     np.testing.assert_allclose(fitted, np.mean(xi ** 2 / np.diagonal(C, axis1=1, axis2=2), axis=0))
     assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--out",
                                      str(tmp_path / "scaled"), "--no-progress"]) == 0
-    capsys.readouterr()
+    assert "no held-out measure" not in capsys.readouterr().err  # the test split: held out
     raw = {p.name: np.load(p)["cov"] for p in (out / "frames").glob("*.npz")}
     for p in (tmp_path / "scaled" / "frames").glob("*.npz"):
         np.testing.assert_allclose(np.diag(np.load(p)["cov"]), np.diag(raw[p.name]) * fitted, rtol=1e-6)
     assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--fit-uncertainty",
                                      "--out", str(tmp_path / "e3")]) == 2
     assert "nothing held out" in capsys.readouterr().err
+    # the frames it was trained on, evaluated: said, since the table then measures no held-out error
+    assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--split", "all",
+                                     "--max-frames", "2", "--out", str(tmp_path / "e4"), "--no-progress"]) == 0
+    assert "these frames include its training frames, so the table is no held-out measure" in capsys.readouterr().err
     # a two-stage cascade (the same checkpoint twice): every stage's iterations are in the table
     assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--refine", str(run),
                                      "--out", str(tmp_path / "cascade"), "--no-progress"]) == 0

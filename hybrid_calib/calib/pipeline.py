@@ -221,6 +221,8 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, rng, progress: bo
     else:
         final = solve_batch(frames, T0, conf.batch, priors=None if prior is None else [prior]).estimate
     res = VehicleResult(vi.vehicle, final, traj, skipped=skipped, n_frames=len(frames))
+    res.start = {"kind": conf.start, "seed": conf.seed, "T_cam_radar": T0.tolist()}
+    res.errors_against = "truth" if vi.truth else None
     fc = conf.window.factor if conf.mode == "window" else conf.batch.factor
     drift = reference_test(final.T, final.cov, vi.reference, conf.drift, prior_pinned_std(fc))
     res.drift = unconverged(drift.to_dict(), final.status)
@@ -289,8 +291,14 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
                                          for k, p in sorted((priors or {}).items())},
              **({} if stamp_data is None else {"data_stamp": stamp_data["digest"]})}
     done = VehicleProgress(out, data, version, str(correspondences), stamp, fresh=overwrite)
-    done.fill(run, list(inputs), lambda name: calibrate_vehicle(inputs[name], conf, rng, progress,
-                                                                (priors or {}).get(name)), on_vehicle, progress)
+    method = "oracle" if correspondences == "oracle" else "measurements"  # rows from a directory (factors.io)
+
+    def one(name: str) -> VehicleResult:
+        res = calibrate_vehicle(inputs[name], conf, rng, progress, (priors or {}).get(name))
+        res.method = method
+        return res
+
+    done.fill(run, list(inputs), one, on_vehicle, progress)
     run.raise_if_none_done()
     save_json_atomic(out / "config.json", to_dict(conf))
     if stamp_data is not None:  # a rerun on changed data must not reuse it

@@ -158,8 +158,12 @@ def _report(result, out: Path, reused: bool = False) -> int:
             used = sum(r["used"] for r in v.frame_rows)
             rej = sum(r["rejected"] for r in v.frame_rows)
             ms = sum(r["network_ms"] for r in v.frame_rows) / len(v.frame_rows)
-            print(f"  {v.method}: {len(v.frame_rows)} frames, rows used {used}, rejected {rej}; network "
-                  f"{ms:.0f} ms/frame; checkpoint {v.checkpoint}")
+            meas = (v.config or {}).get("measurement_effective") or {}
+            what = ("the network's SE(3) prior only (measurement.rows=none: the checkpoint's fitted model; its "
+                    "correspondence rows are not used)" if meas.get("rows") == "none" and not used else
+                    f"rows used {used}, rejected {rej}")
+            print(f"  {v.method}: {len(v.frame_rows)} frames, {what}; network {ms:.0f} ms/frame; checkpoint "
+                  f"{v.checkpoint}")
         if v.mount is not None:
             steps = "; ".join(f"the radar turned by {st['step_deg']:+.2f} +- {st['std_deg']:.2f} deg in yaw from frame "
                               f"{st['change']} (alarm at frame {st['at']})" for st in v.mount["steps"])

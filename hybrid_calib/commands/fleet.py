@@ -8,6 +8,7 @@ from pathlib import Path
 from hybrid_calib.commands import given_flags, nonnegative_int, positive_int, reject_set_keys
 from hybrid_calib.config import parse_overrides
 from hybrid_calib.errors import OptionError
+from hybrid_calib.fleet.summary import n_vehicles
 
 HELP = "calibrate every vehicle of one or more roots as resumable jobs (local | process | ray) + fleet view"
 
@@ -88,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
     if bar is not None:
         bar.close()
     c = summary["counts"]
-    print(f"{c['vehicles']} vehicles: {c['done']} done, {c['failed']} failed; {c['out_of_tolerance']} out of "
+    print(f"{n_vehicles(c['vehicles'])}: {c['done']} done, {c['failed']} failed; {c['out_of_tolerance']} out of "
           f"tolerance, {c['drifted_in_drive']} drifted inside the drive, {c['fleet_outliers']} fleet outlier(s)"
           + (f" ({', '.join(summary['fleet_prior']['outliers'])})" if c["fleet_outliers"] else ""))
     for note in summary.get("notes") or []:

@@ -40,6 +40,11 @@ from hybrid_calib.fleet.manifest import Manifest
 SCHEMA = "hybrid-calib/fleet-summary/v1"
 
 
+def n_vehicles(n: int) -> str:
+    """"1 vehicle", "3 vehicles": the count of a fleet's vehicles in words."""
+    return f"{n} vehicle{'' if n == 1 else 's'}"
+
+
 def camera_offset(T_ref: np.ndarray, T: np.ndarray) -> np.ndarray:
     """(6,) offset of ``T`` from ``T_ref`` in camera axes: rotation [deg x3], translation [cm x3]."""
     from hybrid_calib.calib.covariance import report_basis
@@ -183,7 +188,7 @@ def summary_markdown(s: dict) -> str:
     c = s["counts"]
     lines = [f"# Fleet calibration: {s['out']}", "",
              f"method {s['method']}, seed {s['seed']}; design mount: {s['design_mount']['source']}", "",
-             f"**{c['vehicles']} vehicles**: {c['done']} done, {c['failed']} failed, {c['pending'] + c['running']} "
+             f"**{n_vehicles(c['vehicles'])}**: {c['done']} done, {c['failed']} failed, {c['pending'] + c['running']} "
              f"not finished; {c['out_of_tolerance']} out of tolerance, {c['drifted_in_drive']} drifted inside the "
              f"drive, {c['fleet_outliers']} fleet outlier(s), {c['degenerate']} degenerate, "
              f"{c.get('inconclusive', 0)} inconclusive (out of the network's domain), {c['weak']} weak.", ""]
@@ -191,7 +196,7 @@ def summary_markdown(s: dict) -> str:
     applied = sorted({(r.get("prior") or {}).get("file") for r in s["vehicles"].values()} - {None})
     if applied:
         lines += [f"Fleet prior applied (from {', '.join(applied)}): "
-                  f"{sum(bool(r.get('prior')) for r in s['vehicles'].values())} of {c['vehicles']} vehicles.", ""]
+                  f"{sum(bool(r.get('prior')) for r in s['vehicles'].values())} of {n_vehicles(c['vehicles'])}.", ""]
     fp = s.get("fleet_prior")
     if fp:
         sp = fp["spread_std_cam"]

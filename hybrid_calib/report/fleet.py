@@ -22,6 +22,7 @@ from hybrid_calib.calib.result import CalibrationRun, VehicleResult
 from hybrid_calib.config import merge
 from hybrid_calib.data.files import file_part
 from hybrid_calib.errors import DataError
+from hybrid_calib.fleet.summary import n_vehicles
 from hybrid_calib.report.html import esc, img_tag, num, verdict_class, write_page
 from hybrid_calib.report.vehicle import ReportConfig, write_report
 from hybrid_calib.report.verdict import DELTA_KEYS, VERDICTS, verdict_of
@@ -125,7 +126,7 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
         items = "".join(f"<li><b>{esc(n)}</b>: {esc(why)}</li>" for n, why in sorted(not_done.items()))
         missing = f"<h2>Vehicles without a result ({len(not_done)})</h2><ul id=\"not-done\">{items}</ul>"
     total = len(names) + len(not_done)
-    body = (f"<h1>Fleet calibration: {total} vehicles"
+    body = (f"<h1>Fleet calibration: {n_vehicles(total)}"
             + (f", {len(names)} with a result" if not_done else "") + "</h1>"
             f"<p id=\"fleet-summary\"><b>{counts['recalibrate']} to recalibrate, "
             f"{counts['inconclusive']} inconclusive, {counts['within tolerance']} within tolerance"
@@ -140,4 +141,4 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
             "<th>offset t (cm)</th><th>max rot sigma (deg)</th><th>max t sigma (cm)</th><th>frames</th></tr></thead>"
             f"<tbody>{rows}</tbody></table>{missing}"
             f"<p class=meta>Results: {esc(', '.join(str(p) for _, p in vehicles.values()))}</p>")
-    return write_page(out, f"fleet: {total} vehicles", body)
+    return write_page(out, f"fleet: {n_vehicles(total)}", body)
