@@ -183,12 +183,10 @@ def open_frames(data: str | Path, version: str = "v1.0-sim", *, lidar: bool = Tr
     keyframe when ``lidar`` and the root has one (the noise-resistant matcher needs it in training).
     ``options``: ``DataConfig`` overrides (nsweeps, scenes, vehicles, ...)."""
     from hybrid_calib.data.nuscenes import NuScenesRadarCamera
-    from hybrid_calib.data.tables import NuScenesTables
 
     options = dict(options or {})
-    if lidar and "load_lidar" not in options:
-        channel = options.get("lidar_channel", "LIDAR_TOP")
-        options["load_lidar"] = channel in NuScenesTables(data, version).channels()
+    if lidar:
+        options.setdefault("load_lidar", None)  # None: when the root has the channel (DataConfig)
     return NuScenesRadarCamera(data, version, conf=options)
 
 

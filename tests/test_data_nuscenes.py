@@ -199,6 +199,16 @@ def test_tiny_ego_motion_compensation_is_exact(tmp_path):
         np.testing.assert_allclose(np.linalg.norm(shift), 0.675, atol=1e-9)
 
 
+def test_load_lidar_none_reads_the_lidar_where_the_root_has_one(tmp_path):
+    """``load_lidar=None`` (inspect, the learned methods): the LiDAR when sensor.json names the channel, resolved on
+    the tables read once (they were read a second time to decide it); a root without that channel reads none."""
+    tiny = make_tiny_root(tmp_path, n_samples=2, speed=15.0)
+    ds = NuScenesRadarCamera(tiny.root, VERSION, conf={"load_lidar": None})
+    assert ds.conf.load_lidar is True and ds[0].lidar_points is not None
+    other = NuScenesRadarCamera(tiny.root, VERSION, conf={"load_lidar": None, "lidar_channel": "LIDAR_LEFT"})
+    assert other.conf.load_lidar is False and other[0].lidar_points is None
+
+
 def test_tiny_multisweep_accumulation(tmp_path):
     tiny = make_tiny_root(tmp_path, n_samples=3, sweeps=2)
     ds = NuScenesRadarCamera(tiny.root, VERSION, conf={"nsweeps": 3})

@@ -333,12 +333,13 @@ def unconverged(drift: dict, status: str) -> dict:
     input was out of its domain (an ``inconclusive:`` status, ``covariance.inconclusive_status``: measured, "differs
     by 1.30 deg in yaw: recalibrate" on a result the report called inconclusive, and the fleet counted out of
     tolerance). Such an estimate says nothing about the mount. Unchanged otherwise."""
-    if "NOT CONVERGED" in status:
-        why = "the last solve did not converge"
-    elif status.startswith("inconclusive"):
-        why = f"the estimate is not trusted ({status[len('inconclusive'):].lstrip(': ').split(' [')[0][:300]})"
-    else:
+    from hybrid_calib.calib.covariance import untrusted_status
+
+    why = untrusted_status(status)  # the one reading of a status (a degenerate one's stds already say it)
+    if not why or status.startswith("degenerate"):
         return drift
+    if status.startswith("inconclusive") and "NOT CONVERGED" not in status:
+        why = f"the estimate is not trusted ({status[len('inconclusive'):].lstrip(': ').split(' [')[0][:300]})"
     return {**drift, "drifted": False, "verdict_kind": "cannot tell",
             "verdict": f"cannot tell: {why}, so the estimate says nothing about the mount "
                        f"(it differs from the reference by {drift.get('rot_change_deg', float('nan')):.2f} deg, "

@@ -48,13 +48,10 @@ def run(args: argparse.Namespace) -> int:
     overrides = parse_overrides(args.overrides)
     overrides.update(given_flags(args, {"nsweeps": "nsweeps"}, overrides))  # a flag given wins, as everywhere
     overrides.setdefault("decode_images", True)  # inspect looks for everything that is wrong, pixel data included
-    if "load_lidar" not in overrides:  # and the LiDAR files the learned methods read on real roots, when there
-        from hybrid_calib.data.tables import NuScenesTables
-
-        channel = overrides.get("lidar_channel", DataConfig.lidar_channel)
-        overrides["load_lidar"] = channel in NuScenesTables(args.data, args.version).channels()
+    overrides.setdefault("load_lidar", None)  # and the LiDAR files the learned methods read, when the root has them
     conf = merge(DataConfig, overrides)
     ds = NuScenesRadarCamera(args.data, args.version, args.radar, args.camera, conf)
+    conf = ds.conf  # load_lidar resolved on the root's channels
     if args.frame is not None and args.frame >= len(ds):  # before the summary: it reads every frame
         valid = f" (0..{len(ds) - 1}); pass one of them, or drop --frame to draw the first loaded" if len(ds) else ""
         raise OptionError("--frame", f"frame {args.frame} does not exist; this root has {len(ds)} frames{valid}")

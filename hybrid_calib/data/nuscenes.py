@@ -72,7 +72,7 @@ from hybrid_calib.sensors.camera import PinholeCamera
 class DataConfig:
     radar_filter: RadarFilterConfig = RadarFilterConfig()  # point filters (devkit defaults)
     nsweeps: int = 1  # radar sweeps per frame (1 = keyframe only; earlier sweeps need their files)
-    load_lidar: bool = False  # also load the LiDAR keyframe points and T_cam_lidar
+    load_lidar: bool | None = False  # also load the LiDAR keyframe points and T_cam_lidar (None: when the root has it)
     lidar_channel: str = "LIDAR_TOP"  # LiDAR channel used when load_lidar is set
     scenes: tuple[str, ...] | None = None  # scene names or tokens to keep; None = all
     vehicles: tuple[str, ...] | None = None  # log vehicle names to keep; None = all
@@ -144,6 +144,8 @@ class NuScenesRadarCamera:
         self.camera_channel = camera_channel
         self.tables = NuScenesTables(root, version)
         channels = self.tables.channels()
+        if self.conf.load_lidar is None:  # "when the root has one", resolved on the tables read once here
+            self.conf = dataclasses.replace(self.conf, load_lidar=self.conf.lidar_channel in channels)
         wanted = [radar_channel, camera_channel] + ([self.conf.lidar_channel] if self.conf.load_lidar else [])
         for ch in wanted:
             if ch not in channels:
