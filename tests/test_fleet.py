@@ -795,3 +795,23 @@ def test_a_done_job_of_a_checkpoint_changed_in_place_is_not_taken_for_this_runs(
                                           "another file)"]
     assert _changed_options(job.to_dict(), job) == []
     assert _changed_options({**job.to_dict(), "network": None}, job) == []  # an older manifest: not held against it
+
+
+def test_summary_says_a_fleet_spread_it_cannot_resolve():
+    """A spread fitted far below the vehicles' own 1-sigma (the EM sits at its floor: 3 vehicles that agree) is
+    "not resolved", not the fleet's spread (summary.md printed 0.004 deg as if it were measured)."""
+    from hybrid_calib.fleet.summary import summary_markdown
+
+    std = dict(zip(("rot_x_cam_deg", "rot_y_cam_deg", "rot_z_cam_deg", "t_x_cam_cm", "t_y_cam_cm", "t_z_cam_cm"),
+                   (0.3, 0.3, 0.3, 2.0, 2.0, 2.0)))
+    spread = dict(zip(std, (0.795, 0.008, 0.004, 0.14, 13.61, 0.09)))
+    s = {"out": "o", "method": "oracle", "seed": 0, "design_mount": {"source": "tables"},
+         "counts": {"vehicles": 3, "done": 3, "failed": 0, "pending": 0, "running": 0, "out_of_tolerance": 0,
+                    "drifted_in_drive": 0, "fleet_outliers": 0, "degenerate": 0, "inconclusive": 0, "weak": 0},
+         "fleet_prior": {"spread_std_cam": spread, "mean_std_cam": std, "inliers": ["a", "b", "c"], "outliers": []},
+         "vehicles": {n: {"state": "failed", "reason": "x", "std_cam": std} for n in ("a", "b", "c")}}
+    line = next(x for x in summary_markdown(s).splitlines() if x.startswith("Fleet prior:"))
+    assert "rot 0.795/n.r./n.r. deg, t n.r./13.61/n.r. cm" in line and "not resolved" in line
+    assert "n.r." not in next(x for x in summary_markdown({**s, "fleet_prior": {
+        **s["fleet_prior"], "spread_std_cam": dict(zip(std, (0.5,) * 3 + (3.0,) * 3))}}).splitlines()
+        if x.startswith("Fleet prior:"))

@@ -40,6 +40,9 @@ from hybrid_calib.fleet.manifest import Manifest
 SCHEMA = "hybrid-calib/fleet-summary/v1"
 
 
+UNRESOLVED = 0.1  # a fleet spread under this fraction of the vehicles' own median std: not resolved (summary.md)
+
+
 def n_vehicles(n: int) -> str:
     """"1 vehicle", "3 vehicles": the count of a fleet's vehicles in words."""
     return f"{n} vehicle{'' if n == 1 else 's'}"
@@ -199,11 +202,16 @@ def summary_markdown(s: dict) -> str:
                   f"{sum(bool(r.get('prior')) for r in s['vehicles'].values())} of {n_vehicles(c['vehicles'])}.", ""]
     fp = s.get("fleet_prior")
     if fp:
-        sp = fp["spread_std_cam"]
+        sp = list(fp["spread_std_cam"].values())
+        own = [list(r["std_cam"].values()) for n, r in s["vehicles"].items()
+               if n in fp["inliers"] and r.get("std_cam")]
+        floor = UNRESOLVED * np.median(own, axis=0) if own else np.zeros(6)
+        shown = [f"{v:.{3 if i < 3 else 2}f}" if v >= floor[i] else "n.r." for i, v in enumerate(sp)]
         lines += [f"Fleet prior: {len(fp['inliers'])} inliers; spread (1 sigma, camera axes) rot "
-                  f"{sp['rot_x_cam_deg']:.3f}/{sp['rot_y_cam_deg']:.3f}/{sp['rot_z_cam_deg']:.3f} deg, t "
-                  f"{sp['t_x_cam_cm']:.2f}/{sp['t_y_cam_cm']:.2f}/{sp['t_z_cam_cm']:.2f} cm; outliers (named): "
-                  f"{', '.join(fp['outliers']) or 'none'}", ""]
+                  f"{'/'.join(shown[:3])} deg, t {'/'.join(shown[3:])} cm; outliers (named): "
+                  f"{', '.join(fp['outliers']) or 'none'}"
+                  + (f" (n.r.: not resolved: the vehicles agree within their own 1-sigma along that axis, the spread "
+                     f"fitted there is under {UNRESOLVED:g} of it)" if "n.r." in shown else ""), ""]
     lines += ["Offsets from the design mount, camera axes (rot x/y/z deg, t x/y/z cm), +- 1 sigma.", "",
               "| vehicle | state | status | rot offset [deg] | t offset [cm] | verdict vs tables | flags | note |",
               "|---|---|---|---|---|---|---|---|"]
