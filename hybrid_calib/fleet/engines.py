@@ -146,7 +146,12 @@ def _worker_env(threads: int, extra: dict[str, str] | None = None) -> Iterator[N
 
 def _run_process(jobs, on_start, on_outcome, workers, retries, in_flight):
     threads = jobs[0].threads
-    with _worker_env(threads):  # workers are spawned at submit and when a broken pool is rebuilt
+    # workers are spawned at submit and when a broken pool is rebuilt; multiprocessing's resource tracker (started
+    # with the pool, from this environment) warned of "leaked semaphore objects" after a worker was killed or
+    # stopped by Ctrl-C: the pool's own queue lock, nothing of ours, and the next run is not affected
+    quiet = {"PYTHONWARNINGS": ",".join(filter(None, (os.environ.get("PYTHONWARNINGS"),
+                                                      "ignore::UserWarning:multiprocessing.resource_tracker")))}
+    with _worker_env(threads, quiet):
         _process_loop(jobs, on_start, on_outcome, workers, retries, in_flight, threads)
 
 
@@ -192,8 +197,20 @@ def _process_loop(jobs, on_start, on_outcome, workers, retries, in_flight, threa
                 pool.shutdown(wait=False, cancel_futures=True)
                 pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_pool_worker,
                                            initargs=(threads,))
+    except KeyboardInterrupt:  # Ctrl-C: stop now. The workers took the interrupt too and went on to the job already
+        _stop_workers(pool)  # queued for them (a whole extra vehicle ran before the exit); the next run redoes theirs
+        raise
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _stop_workers(pool) -> None:
+    """Terminate a process pool's workers (``ProcessPoolExecutor`` has no public way to; its ``_processes``)."""
+    for proc in list((getattr(pool, "_processes", None) or {}).values()):
+        try:
+            proc.terminate()
+        except (OSError, AttributeError):  # already gone
+            pass
 
 
 def ray_temp_dir(temp_dir: str | Path) -> Path:
