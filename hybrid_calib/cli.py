@@ -28,6 +28,7 @@ COMMANDS: dict[str, str] = {
     "evaluate": "evaluate",
     "calibrate": "calibrate",
     "report": "report",
+    "export": "export",
     "fleet": "fleet",
     "compare": "compare",
 }

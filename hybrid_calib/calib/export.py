@@ -1,0 +1,280 @@
+"""The calibrated radar mounts written back as nuScenes tables (``export_mounts``; ``hybrid-calib export``).
+
+A calibration measures the radar against the camera (``T_cam_radar``). Each exported vehicle's radar records
+of ``calibrated_sensor.json`` are rewritten as ``T_ego_radar = T_ego_cam @ T_cam_radar`` with the camera's mount
+from the same tables, taken as exact: radar-camera data cannot tell a moved camera from a moved radar (where the
+radar mount monitor reads the radar at its tables' yaw, the drift verdict says the camera side is the likelier
+cause: ``calib.drift.camera_side_note``; export.json repeats that sentence). Every sample_data of those records,
+keyframes and sweeps, then reads the calibrated mount; every other record is written as it was.
+
+Per camera axis (``calib.drift``'s test against the tables, ``AXIS_WORDS``): where it decides ("differs" or
+"within": the estimate is known to better than the tolerance) the estimate's offset is written; where it does not
+("undecided", or prior-pinned: the vertical offset and the pitch on most drives, which the data do not observe)
+the tables' value is kept, since an estimate that cannot tell the tolerance apart would only replace them with a
+noisier number. ``std_ego`` is the estimate's 1-sigma; along the kept axes the value written is the tables'.
+
+Which vehicles (``which``):
+- ``"recalibrate"`` (the default): those whose verdict against the tables is "recalibrate" (``calib.drift``: the
+  estimate differs from them beyond the tolerance, with confidence). A mount within tolerance, or one the data
+  cannot decide, keeps its tables: a new record would only replace them with a noisier number.
+- ``"trusted"``: every vehicle whose estimate can be trusted.
+Never exported: an untrusted estimate (``calib.covariance.untrusted_status``: not converged, out of the network's
+domain, degenerate); a vehicle whose radar records hold more than one calibration along its drive (one estimate
+cannot stand for both), or are shared with another vehicle, or are paired with camera mounts that differ; a result
+computed from data that changed since (its ``data_stamp.json``). Each is said, with why, in ``export.json``.
+
+Outputs (``MountExport.save``): ``OUT/calibrated_sensor.json`` (the root's table, exported records replaced) and
+``OUT/export.json`` (per vehicle: exported or why not, the records before and after, the estimate's 1-sigma in
+ego axes). Copy the table into a copy of the root's version folder to use it; the root itself is never written.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from hybrid_calib.calib.drift import AXIS_WORDS
+from hybrid_calib.errors import DataError, OptionError
+
+SCHEMA = "hybrid-calib/mount-export/v1"
+WHICH = ("recalibrate", "trusted")
+
+
+@dataclass
+class MountExport:
+    """What ``export_mounts`` did: the new table's records and one entry per vehicle of the results."""
+
+    data: str
+    version: str
+    which: str
+    results: list[str]
+    table: list[dict] = field(repr=False, default_factory=list)  # calibrated_sensor.json, exported records replaced
+    vehicles: dict[str, dict] = field(default_factory=dict)  # name -> {"exported", "why", "records", "std_ego", ...}
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def exported(self) -> list[str]:
+        return sorted(n for n, v in self.vehicles.items() if v["exported"])
+
+    def to_dict(self) -> dict:
+        return {"schema": SCHEMA, "data": self.data, "version": self.version, "which": self.which,
+                "results": self.results, "camera_mounts": "the tables' camera records, taken as exact",
+                "exported": self.exported, "vehicles": self.vehicles, "notes": self.notes}
+
+    def save(self, out: str | Path) -> tuple[Path, Path]:
+        """Write ``out/calibrated_sensor.json`` and ``out/export.json`` (atomically); their paths."""
+        from hybrid_calib.config import save_json_atomic
+
+        out = Path(out)
+        return (save_json_atomic(out / "calibrated_sensor.json", self.table),
+                save_json_atomic(out / "export.json", self.to_dict()))
+
+
+def _std_ego(T_ego_radar: np.ndarray, cov: np.ndarray) -> dict:
+    """The 1-sigma of a right-perturbation covariance (6, 6) [rad, m] of the radar's pose, about and along the ego
+    axes: {"rot_x_ego_deg", ..., "t_z_ego_cm"}. The perturbation is the radar frame's, the same for ``T_cam_radar``
+    and ``T_ego_radar``; ``blockdiag(R, R)`` with R = the radar's rotation in the ego frame turns it to ego axes."""
+    R = T_ego_radar[:3, :3]
+    B = np.zeros((6, 6))
+    B[:3, :3] = B[3:, 3:] = R
+    std = np.sqrt(np.maximum(np.diag(B @ cov @ B.T), 0.0))
+    keys = ("rot_x_ego_deg", "rot_y_ego_deg", "rot_z_ego_deg", "t_x_ego_cm", "t_y_ego_cm", "t_z_ego_cm")
+    return dict(zip(keys, [float(v) for v in np.r_[np.degrees(std[:3]), 100 * std[3:]]]))
+
+
+def _change(T_new: np.ndarray, T_old: np.ndarray) -> dict:
+    """How far a new radar record is from the old one: rotation angle [deg], translation [cm], in ego axes."""
+    from hybrid_calib.geometry import so3_log
+
+    dR = so3_log(T_old[:3, :3].T @ T_new[:3, :3])
+    return {"rot_deg": float(np.degrees(np.linalg.norm(dR))),
+            "trans_cm": float(100 * np.linalg.norm(T_new[:3, 3] - T_old[:3, 3])),
+            "t_ego_cm": [float(v) for v in 100 * (T_new[:3, 3] - T_old[:3, 3])]}
+
+
+def _record(T: np.ndarray) -> dict:
+    from hybrid_calib.geometry import pose_to_nuscenes
+
+    rotation, translation = pose_to_nuscenes(T)
+    return {"translation": translation, "rotation": rotation}
+
+
+def _same(T: np.ndarray, T0: np.ndarray) -> bool:
+    """Two mounts the data layer counts as one calibration (``data.nuscenes.SAME_CALIBRATION``)."""
+    from hybrid_calib.data.nuscenes import SAME_CALIBRATION
+    from hybrid_calib.geometry import so3_log
+
+    rot = float(np.degrees(np.linalg.norm(so3_log(T0[:3, :3].T @ T[:3, :3]))))
+    return rot <= SAME_CALIBRATION[0] and 100 * float(np.linalg.norm(T[:3, 3] - T0[:3, 3])) <= SAME_CALIBRATION[1]
+
+
+def _kept_axes(vr) -> list[int]:
+    """The camera axes (``calib.drift.AXIS_WORDS`` order) along which the tables are kept: those the result's
+    per-axis test against the tables leaves undecided (its 3-sigma straddles the tolerance: the estimate is too
+    uncertain to replace them) or calls prior-pinned (the data do not observe them). Along the others (decision
+    "differs" or "within") the estimate is measured to better than the tolerance, and it is written."""
+    axes = (vr.drift or {}).get("axes") or {}
+    return [i for i, word in enumerate(AXIS_WORDS)
+            if (a := axes.get(word) or {}).get("prior_pinned") or a.get("decision") not in ("differs", "within")]
+
+
+def _keep_axes(T_ref: np.ndarray, T_est: np.ndarray, kept: list[int]) -> np.ndarray:
+    """``T_est`` (4, 4, ``T_cam_radar``) with its offset from ``T_ref`` along the camera axes ``kept`` removed: the
+    offset ``local(T_ref, T_est)`` turned to camera axes (``calib.covariance.report_basis``), those components set to
+    zero, turned back and applied to ``T_ref``. ``T_est`` itself when nothing is kept."""
+    from hybrid_calib.calib.covariance import report_basis
+    from hybrid_calib.geometry import local, retract
+
+    if not kept:
+        return T_est
+    B = report_basis(T_ref)
+    d = B @ local(T_ref, T_est)
+    d[kept] = 0.0
+    return retract(T_ref, B.T @ d)
+
+
+def _why_not(vr, which: str) -> str:
+    """Why a vehicle's estimate is not exported under ``which`` ("" when it is)."""
+    from hybrid_calib.calib.covariance import untrusted_status
+
+    if why := untrusted_status(vr.final.status):
+        return f"not exported: {why}, so the estimate is no calibration ({vr.final.status.split(';')[0][:160]})"
+    kind = (vr.drift or {}).get("verdict_kind")
+    if which == "recalibrate" and kind != "recalibrate":
+        said = (vr.drift or {}).get("verdict") or "no verdict against the tables"
+        return (f"kept the tables: the verdict is not 'recalibrate' ({said[:240]}); --which trusted writes every "
+                "trusted estimate")
+    return ""
+
+
+def _check_stamp(path: Path, root: Path, version: str) -> str:
+    """"" when the result at ``path`` was computed from the data now at ``root`` (or says nothing of it: a note
+    then), else why it is refused."""
+    from hybrid_calib.calib.result import stored_digest
+    from hybrid_calib.data.files import data_stamp
+
+    stored = stored_digest(path.parent)
+    if stored and stored != data_stamp(root, version)["digest"]:
+        return (f"the data in {root} changed since {path} was computed (its data_stamp.json differs): re-run the "
+                "calibration on the data as they are now")
+    return ""
+
+
+def export_mounts(results: list[str | Path], out: str | Path | None = None, data: str | Path | None = None,
+                  version: str | None = None, which: str = "recalibrate",
+                  vehicles: list[str] | None = None) -> MountExport:
+    """The calibrated radar mounts of ``results`` (``result.json`` files of one root: calibrate, fleet vehicles,
+    demo) as the root's ``calibrated_sensor`` table (module doc); saved to ``out`` when given. ``data`` /
+    ``version``: the root (default: the one the results record); ``vehicles``: only these (default: every vehicle
+    of the results). ``DataError`` / ``OptionError`` naming the file or option when nothing can be exported
+    from these inputs at all; a vehicle that cannot be exported is said in its entry."""
+    from hybrid_calib.calib.result import CalibrationRun
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+    from hybrid_calib.geometry import se3_inverse
+
+    if which not in WHICH:
+        raise OptionError("--which", f"{which!r} is not a choice; valid: {', '.join(WHICH)}")
+    if not results:
+        raise OptionError("RESULT", "no result file given; pass the result.json of a calibrate or fleet run")
+    paths = [Path(p) for p in results]
+    runs = [(p, CalibrationRun.load(p)) for p in paths]
+    roots = {(str(Path(r.data).resolve()), r.version) for _, r in runs if r.data}
+    if data is None:
+        if len(roots) != 1:
+            raise OptionError("--data", f"the results record {len(roots)} data roots ({sorted(roots) or 'none'}); "
+                                        "pass the one root whose tables to export with --data (and --version)")
+        data, recorded_version = next(iter(roots))
+        version = version or recorded_version
+    root = Path(data)
+    version = version or runs[0][1].version
+    if not (root / str(version)).is_dir():
+        raise OptionError("--data", f"{root / str(version)} is not a folder: pass the nuScenes root the results "
+                                    "were computed on, with --version its version folder")
+    if out is not None:
+        o, vdir = Path(out).resolve(), (root / version).resolve()
+        if o == vdir or vdir in o.parents:
+            raise OptionError("--out", f"{out} is the root's own version folder: export never writes the root's "
+                                       "tables; pass another folder and copy calibrated_sensor.json into a copy of it")
+    ds = NuScenesRadarCamera(root, version, conf={"check_images": False})
+    t = ds.tables
+    found: dict[str, tuple[Path, object]] = {}
+    for p, run in runs:
+        for name, vr in run.vehicles.items():
+            if name in found:
+                raise DataError(f"vehicle {name} is in two result files ({found[name][0]} and {p}); pass one of "
+                                "them", path=str(p))
+            found[name] = (p, vr)
+    if vehicles:
+        if unknown := sorted(set(vehicles) - set(found)):
+            raise OptionError("--vehicle", f"{', '.join(unknown)} not in the results; they hold "
+                                           f"{', '.join(sorted(found))}")
+        found = {n: found[n] for n in vehicles}
+    stale = {p: why for p in {p for p, _ in found.values()} if (why := _check_stamp(p, root, version))}
+    # the radar and camera calibrated_sensor records of every vehicle's frames
+    radar_of: dict[str, set[str]] = {}
+    pairs: dict[tuple[str, str], set[str]] = {}  # (vehicle, radar record) -> camera records
+    for ref in ds.frames:
+        r, c = ref.radar_sd["calibrated_sensor_token"], ref.camera_sd["calibrated_sensor_token"]
+        radar_of.setdefault(ref.vehicle, set()).add(r)
+        pairs.setdefault((ref.vehicle, r), set()).add(c)
+    users: dict[str, set[str]] = {}
+    for v, toks in radar_of.items():
+        for tok in toks:
+            users.setdefault(tok, set()).add(v)
+    exp = MountExport(str(root), version, which, [str(p) for p in paths],
+                      table=[dict(rec) for rec in t.records["calibrated_sensor"]])
+    index = {rec["token"]: i for i, rec in enumerate(exp.table)}
+    for name, (p, vr) in sorted(found.items()):
+        entry = {"result": str(p), "status": vr.final.status, "verdict": (vr.drift or {}).get("verdict"),
+                 "exported": False, "why": "", "records": [], "std_ego": None}
+        exp.vehicles[name] = entry
+        why = stale.get(p) or _why_not(vr, which)
+        toks = sorted(radar_of.get(name, ()))
+        if not why and not toks:
+            why = (f"not exported: no frame of {root} ({version}) is of vehicle {name}; pass the root it was "
+                   "calibrated on")
+        if not why and (shared := sorted({u for tok in toks for u in users[tok]} - {name})):
+            why = (f"not exported: its radar records are shared with vehicle(s) {', '.join(shared)} of the root; one "
+                   "record cannot hold two vehicles' mounts")
+        if why:
+            entry["why"] = why
+            continue
+        T_est = np.asarray(vr.final.T, np.float64)
+        kept = _kept_axes(vr)
+        new: list[tuple[str, np.ndarray, np.ndarray]] = []
+        mounts = []  # (T_ego_cam, T_ego_radar) per record: one calibration along the drive
+        for tok in toks:
+            cams = sorted(pairs[(name, tok)])
+            T_cams = [t.T_ego_sensor({"token": f"(frames of {name})", "calibrated_sensor_token": c}) for c in cams]
+            if any(not _same(T, T_cams[0]) for T in T_cams[1:]):
+                why = (f"not exported: its radar record {tok} is paired with {len(cams)} camera mounts that differ "
+                       "(the camera was re-mounted along the drive); one radar record cannot fit both")
+                break
+            T_old = t.T_ego_sensor({"token": f"(frames of {name})", "calibrated_sensor_token": tok})
+            mounts.append((T_cams[0], T_old))
+            new.append((tok, T_old, T_cams[0] @ _keep_axes(se3_inverse(T_cams[0]) @ T_old, T_est, kept)))
+        if not why and any(not _same(se3_inverse(Tc) @ Tr, se3_inverse(mounts[0][0]) @ mounts[0][1])
+                           for Tc, Tr in mounts[1:]):
+            why = ("not exported: its tables hold more than one radar-camera calibration along the drive (a mount "
+                   "change); the estimate stands for the drive's end only")
+        if why:
+            entry["why"] = why
+            continue
+        for tok, T_old, T_new in new:
+            before = {k: exp.table[index[tok]][k] for k in ("translation", "rotation")}
+            exp.table[index[tok]] = {**exp.table[index[tok]], **_record(T_new)}
+            entry["records"].append({"token": tok, "before": before, "after": _record(T_new),
+                                     "change": _change(T_new, T_old)})
+        entry.update(exported=True, std_ego=_std_ego(new[0][2], np.asarray(vr.final.cov, np.float64)),
+                     tables_kept=[AXIS_WORDS[i] for i in kept],
+                     why=f"exported: {len(new)} radar record(s) replaced" + (
+                         f" (the tables' {', '.join(AXIS_WORDS[i] for i in kept)} kept: the data do not decide "
+                         f"{'it' if len(kept) == 1 else 'them'} against the tolerance)"
+                         if kept else ""))
+    if stale:
+        exp.notes += list(stale.values())
+    if out is not None:
+        exp.save(out)
+    return exp

@@ -1,0 +1,44 @@
+"""``hybrid-calib export``: the calibrated radar mounts as the root's ``calibrated_sensor.json``
+(``hybrid_calib.calib.export``)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+HELP = "write the calibrated radar mounts of result.json files as the root's nuScenes calibrated_sensor table"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("results", nargs="+", type=Path, metavar="RESULT",
+                   help="result.json files of one root (calibrate, fleet's vehicles/<v>/result.json, demo)")
+    p.add_argument("--out", type=Path, required=True,
+                   help="folder for calibrated_sensor.json and export.json (never the root's own version folder)")
+    p.add_argument("--data", type=Path, default=None, help="the nuScenes root (default: the one the results record)")
+    p.add_argument("--version", default=None, help="its version folder (default: the results')")
+    p.add_argument("--which", default="recalibrate", choices=("recalibrate", "trusted"),
+                   help="recalibrate (default): only vehicles whose verdict against the tables is 'recalibrate'; "
+                        "trusted: every trusted estimate. An untrusted one (not converged, out of the network's "
+                        "domain, degenerate) is never exported")
+    p.add_argument("--vehicle", action="append", default=None, metavar="NAME",
+                   help="export only this vehicle (repeatable; default: every vehicle of the results)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from hybrid_calib.calib.export import export_mounts
+
+    exp = export_mounts(args.results, args.out, args.data, args.version, args.which, args.vehicle)
+    for name, v in exp.vehicles.items():
+        line = f"{name}: {v['why']}"
+        if v["exported"]:
+            ch = v["records"][0]["change"]
+            sd = v["std_ego"]
+            line += (f"; moved {ch['rot_deg']:.2f} deg, {ch['trans_cm']:.1f} cm from the tables; 1-sigma (ego axes) "
+                     f"rot {sd['rot_x_ego_deg']:.2f}/{sd['rot_y_ego_deg']:.2f}/{sd['rot_z_ego_deg']:.2f} deg, t "
+                     f"{sd['t_x_ego_cm']:.1f}/{sd['t_y_ego_cm']:.1f}/{sd['t_z_ego_cm']:.1f} cm")
+        print(line)
+    for note in exp.notes:
+        print(f"note: {note}")
+    print(f"{len(exp.exported)} of {len(exp.vehicles)} vehicle(s) exported; the camera records are the tables' "
+          f"(taken as exact); wrote {Path(args.out) / 'calibrated_sensor.json'} and export.json")
+    return 0

@@ -1,0 +1,121 @@
+"""``hybrid-calib export``: the calibrated radar mounts as the root's calibrated_sensor table (calib/export.py)."""
+
+import dataclasses
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from hybrid_calib.calib.covariance import report_basis
+from hybrid_calib.calib.result import CalibrationRun
+from hybrid_calib.errors import OptionError
+from hybrid_calib.geometry import local, retract
+
+VERSION = "v1.0-sim"
+
+
+@pytest.fixture(scope="module")
+def calibrated(tmp_path_factory):
+    """A 2-vehicle simulated root and its oracle calibration (result.json with data_stamp.json beside it)."""
+    sim = pytest.importorskip("hybrid_calib.sim.simulate")
+    from hybrid_calib.calib.pipeline import calibrate
+    from hybrid_calib.config import merge
+    from hybrid_calib.sim.drive import SimConfig
+
+    root = tmp_path_factory.mktemp("sim")
+    sim.simulate(merge(SimConfig, {"frames": 4, "vehicles": 2, "image_scale": 0.125, "seed": 5}), root,
+                 overwrite=False, workers=1)
+    out = tmp_path_factory.mktemp("cal")
+    calibrate(root, VERSION, "oracle", out, {"window": {"window": 3}}, progress=False)
+    return root, out / "result.json"
+
+
+def _tables_T(root, vehicle: str) -> np.ndarray:
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+
+    ds = NuScenesRadarCamera(root, VERSION, conf={"check_images": False, "vehicles": (vehicle,)})
+    return ds[0].extras["T_cam_radar_static"]
+
+
+def _edited(result, path, vehicle: str, T=None, kind="recalibrate", status=None, pinned=("vertical offset",),
+            undecided=("roll",)):
+    """The result with one vehicle's estimate, verdict, status and per-axis decisions set (yaw differs, the
+    ``undecided`` axes undecided, the others within; ``pinned`` prior-pinned); saved at ``path``."""
+    run = CalibrationRun.load(result)
+    vr = run.vehicles[vehicle]
+    decide = {w: "differs" if w == "yaw" else "undecided" if w in undecided + pinned else "within"
+              for w in vr.drift["axes"]}
+    axes = {w: {**a, "prior_pinned": w in pinned, "decision": decide[w]} for w, a in vr.drift["axes"].items()}
+    vr.final = dataclasses.replace(vr.final, T=vr.final.T if T is None else T, status=status or vr.final.status)
+    vr.drift = {**vr.drift, "verdict_kind": kind, "verdict": f"{kind}: (edited for the test)", "axes": axes}
+    run.save(path)
+    return path
+
+
+def _read_back(root, table, tmp_path, vehicle: str) -> np.ndarray:
+    """T_cam_radar of ``vehicle`` as the data layer reads a copy of ``root`` whose calibrated_sensor.json is
+    ``table``."""
+    copy = tmp_path / "copy"
+    shutil.copytree(root / VERSION, copy / VERSION)
+    for top in ("samples", "sweeps", "maps", "sim_truth", "sim_depth"):
+        if (root / top).exists():
+            (copy / top).symlink_to(root / top)
+    shutil.copy(table, copy / VERSION / "calibrated_sensor.json")
+    return _tables_T(copy, vehicle)
+
+
+def test_export_writes_the_estimate_where_measured_and_keeps_the_tables_where_pinned(calibrated, tmp_path):
+    from hybrid_calib.calib.export import export_mounts
+
+    root, result = calibrated
+    T_tab = _tables_T(root, "sim-veh-000")
+    B = report_basis(T_tab)
+    d_cam = np.radians([0.0, 1.5, 0.4, 0, 0, 0]) + np.r_[0, 0, 0, 0.04, 0.30, -0.03]  # yaw, roll; x, y, z in m
+    T_est = retract(T_tab, B.T @ d_cam)
+    path = _edited(result, tmp_path / "r" / "result.json", "sim-veh-000", T=T_est)
+    exp = export_mounts([path], tmp_path / "out")
+    assert exp.exported == ["sim-veh-000"] and not exp.vehicles["sim-veh-001"]["exported"]
+    assert "kept the tables: the verdict is not 'recalibrate'" in exp.vehicles["sim-veh-001"]["why"]
+    v = exp.vehicles["sim-veh-000"]
+    assert v["tables_kept"] == ["roll", "vertical offset"] and "roll, vertical offset kept" in v["why"]
+    assert v["std_ego"] is not None and set(v["std_ego"]) >= {"rot_z_ego_deg", "t_x_ego_cm"}
+    # read back through the data layer: the estimate along every decided axis, the tables' roll (undecided) and
+    # vertical offset (prior-pinned)
+    T_back = _read_back(root, tmp_path / "out" / "calibrated_sensor.json", tmp_path, "sim-veh-000")
+    got = B @ local(T_tab, T_back)
+    np.testing.assert_allclose(got, [0, np.radians(1.5), 0, 0.04, 0.0, -0.03], atol=1e-9)
+    # the other vehicle's records, and every other record, are unchanged
+    before = json.loads((root / VERSION / "calibrated_sensor.json").read_text())
+    after = json.loads((tmp_path / "out" / "calibrated_sensor.json").read_text())
+    changed = [a["token"] for a, b in zip(after, before) if a != b]
+    assert len(after) == len(before) and changed == [r["token"] for r in v["records"]] and len(changed) == 1
+    np.testing.assert_allclose(_read_back(root, tmp_path / "out" / "calibrated_sensor.json", tmp_path / "2",
+                                          "sim-veh-001"), _tables_T(root, "sim-veh-001"), atol=1e-12)
+    saved = json.loads((tmp_path / "out" / "export.json").read_text())
+    assert saved["exported"] == ["sim-veh-000"] and saved["which"] == "recalibrate"
+
+
+def test_untrusted_stale_and_misdirected_exports_are_refused(calibrated, tmp_path):
+    from hybrid_calib.calib.export import export_mounts
+    from hybrid_calib.cli import main
+
+    root, result = calibrated
+    # an untrusted estimate is never written, even with --which trusted
+    path = _edited(result, tmp_path / "u" / "result.json", "sim-veh-000",
+                   status="weak: x (last solve: NOT CONVERGED after 50 iterations)")
+    exp = export_mounts([path], tmp_path / "o1", which="trusted")
+    assert exp.exported == ["sim-veh-001"] and "did not converge" in exp.vehicles["sim-veh-000"]["why"]
+    # a result of data that changed since: refused, said
+    stale = _edited(result, tmp_path / "s" / "result.json", "sim-veh-000")
+    (stale.parent / "data_stamp.json").write_text(json.dumps({"digest": "0" * 40}))
+    exp = export_mounts([stale], tmp_path / "o2", which="trusted")
+    assert exp.exported == [] and "changed since" in exp.vehicles["sim-veh-000"]["why"]
+    # never into the root's own tables; an unknown vehicle is named
+    with pytest.raises(OptionError, match="root's own version folder"):
+        export_mounts([result], root / VERSION)
+    with pytest.raises(OptionError, match="sim-veh-009 not in the results"):
+        export_mounts([result], tmp_path / "o3", vehicles=["sim-veh-009"])
+    # the command: one line per vehicle, then what was written
+    assert main(["export", str(path), "--out", str(tmp_path / "o4"), "--which", "trusted"]) == 0
+    assert not (root / VERSION / "export.json").exists()
