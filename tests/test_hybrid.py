@@ -531,3 +531,32 @@ def test_a_network_reads_the_radar_sweeps_it_was_trained_on(tmp_path, capsys):
     asked = merge(HybridConfig, {"data": {"nsweeps": 1}})
     assert session._trained_sweeps(asked, ck / "ckpt-0001.json") is asked
     assert "trained on 3 sweeps" in capsys.readouterr().err
+
+
+
+def test_frames_that_do_not_read_do_not_widen_the_drive_error(sim_root, tmp_path, monkeypatch):
+    """The hybrid's drive-common network error is counted over the network priors it fused: a drive of 3 frames
+    whose last one does not read gives the 2-frame drive's covariance (it was wider by sqrt(3/2) along the
+    network's axes: the error counted N / n times, N the drive's frames; probe 7: x1.35 with 5 of 10 unreadable)."""
+    from hybrid_calib.hybrid import run_vehicle
+    from hybrid_calib.hybrid.network import NetworkRunner
+
+    conf = {**BASE, "method": "hybrid", "lidar": {"enabled": False}, "doppler": {"enabled": False}}
+    two = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", {**conf, "max_frames": 2, "cache_dir": str(tmp_path / "a")})
+    real, seen, bad = NetworkRunner.run, [], {}
+
+    def run(self, index, T_in):  # the drive's last frame: its files do not read (``bad``)
+        if index == bad.get("index"):
+            return None
+        seen.append(index)
+        return real(self, index, T_in)
+
+    monkeypatch.setattr(NetworkRunner, "run", run)
+    full = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", {**conf, "cache_dir": str(tmp_path / "b")})
+    assert full.n_frames == 3 and "drive_error_priors" not in full.config  # every frame read: no rerun
+    bad["index"] = seen[-1]
+    short = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", {**conf, "cache_dir": str(tmp_path / "c")})
+    assert short.n_frames == 2 and short.config["drive_error_priors"] == 2 and len(short.skipped) == 1
+    np.testing.assert_allclose(short.final.cov, two.final.cov, rtol=1e-6)
+    np.testing.assert_allclose(short.final.T, two.final.T, atol=1e-9)
+    assert np.all(np.diag(full.final.cov) < np.diag(two.final.cov))  # the third frame's information, when it reads
