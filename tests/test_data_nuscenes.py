@@ -390,6 +390,22 @@ def test_a_camera_intrinsic_that_changes_within_a_log_is_named(tmp_path):
         NuScenesRadarCamera(tiny.root, VERSION), progress=False).format()
 
 
+def test_an_intrinsic_for_another_image_size_is_named(tmp_path):
+    """Images twice the size of their intrinsic's (resized, the intrinsic kept) passed every check; the network then
+    called every frame out of its domain and the hybrid ended 21 deg off with no word of the cause (probe 7)."""
+    from hybrid_calib.data.summary import summarize_dataset
+
+    tiny = make_tiny_root(tmp_path / "pp", n_samples=2)
+    cs = next(c for c in tiny.tables["calibrated_sensor"] if c["token"] == "cs_CAM_FRONT")
+    K = np.asarray(cs["camera_intrinsic"], np.float64)
+    cs["camera_intrinsic"] = (K * [[1, 1, 0.5], [1, 1, 0.5], [1, 1, 1]]).tolist()  # the principal point of half size
+    tiny.rewrite_table("calibrated_sensor")
+    (words,) = NuScenesRadarCamera(tiny.root, VERSION).intrinsic_changes().values()
+    assert "principal point" in words and "likely for another image size" in words and "fix camera_intrinsic" in words
+    assert "CAM_FRONT's principal point" in summarize_dataset(NuScenesRadarCamera(tiny.root, VERSION),
+                                                               progress=False).format()
+
+
 def test_a_vehicles_scenes_are_taken_in_the_order_they_were_driven(tmp_path):
     """scene.json need not list a vehicle's scenes in time order; the drive is fused in time order."""
     tiny = _recalibrated_radar(tmp_path, yaw=0.02)  # two scenes of one vehicle, one calibration

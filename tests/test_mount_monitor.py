@@ -246,3 +246,17 @@ def test_a_level_no_radar_mount_holds_is_said_and_not_a_no(knocked_and_not):
         early.add_residual(k, -110.0 + 0.1 * (k % 3), 6)
         seen.append(early.headings_implausible())
     assert seen == [False, False, True, True, True] and not fine.headings_implausible()
+
+
+def test_no_step_says_where_the_monitor_is_blind():
+    """A 1.5 deg knock at frame 6 of a 12-frame drive read "no step" as on a clean drive: the monitor learns its
+    level over 8 readings and needs 4 more to alarm (probe 7). "no step" now says so."""
+    from hybrid_calib.calib.mount_monitor import MountMonitorConfig, blind_words
+
+    c = MountMonitorConfig()
+    assert c.frames_to_alarm() == 4  # threshold 8 / (clip 3 - drift 1)
+    short = {"frames_tested": 11, "blind_frames": [c.min_frames, c.frames_to_alarm()]}
+    assert blind_words(short) == ("it could not see a step on a drive this short: 11 frames tested, a level needs 8 "
+                                  "and an alarm 4 more")
+    assert blind_words({**short, "frames_tested": 40}) == "blind to a step in the first 8 or the last 4 frames tested"
+    assert blind_words({"frames_tested": 40}) == ""  # a result written before the words

@@ -79,6 +79,10 @@ class MountMonitorConfig:
     # ego poses' headings or the radar's velocity fields are wrong (mirrored poses read -110 deg, doubled +55)
     max_level_deg: float = 10.0
 
+    def frames_to_alarm(self) -> int:
+        """The fewest readings after a step that can alarm: each adds at most ``clip - drift`` to the CUSUM."""
+        return int(np.ceil(self.threshold / (self.clip - self.drift)))
+
     def __post_init__(self):
         require(self, {
             "min_frames >= 3": self.min_frames >= 3, "floor_deg > 0": self.floor_deg > 0,
@@ -302,6 +306,7 @@ class MountMonitor:
             "velocity fields or its mount in the tables are wrong, so its steps are not told")} if far else {}
         return {"steps": steps, "levels": levels, "frames_tested": len(self.series),
                 "pairs_tested": int(sum(self.pairs)), "threshold": self.conf.threshold, **implausible,
+                "blind_frames": [self.conf.min_frames, self.conf.frames_to_alarm()],
                 **({"frames_skipped": self.skipped, "skip_example": self.skip_example} if self.skipped else {})}
 
 
@@ -310,6 +315,21 @@ def monitor_drive(frames, indices: list[int], T_ego_radar: np.ndarray, conf: Mou
     """The monitor over a whole drive (dataset ``indices`` in time order): (monitor, readings)."""
     mon = MountMonitor(frames, np.asarray(T_ego_radar, np.float64), conf)
     return mon, [mon.update(k, i) for k, i in enumerate(indices)]
+
+
+def blind_words(summary: dict) -> str:
+    """Where the monitor could not have seen a step, in words ("" for a result without ``blind_frames``): before
+    its first ``min_frames`` readings (the level is being learnt) and in the last frames a step needs to push the
+    CUSUM over its threshold (``MountMonitorConfig.frames_to_alarm``). A 1.5 deg knock at frame 6 of a 12-frame
+    drive read "no step" as on a clean drive (probe 7)."""
+    first, last = (summary.get("blind_frames") or [None, None])[:2]
+    if first is None:
+        return ""
+    n = int(summary.get("frames_tested", 0))
+    if n < first + last:
+        return (f"it could not see a step on a drive this short: {n} frames tested, a level needs {first} and an alarm "
+                f"{last} more")
+    return f"blind to a step in the first {first} or the last {last} frames tested"
 
 
 def tested_words(summary: dict) -> str:

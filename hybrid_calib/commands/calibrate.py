@@ -135,7 +135,7 @@ def _report(result, out: Path, reused: bool = False) -> int:
     from hybrid_calib.calib.drift import drift_verdict
     from hybrid_calib.calib.lever_arm import describe as describe_doppler
     from hybrid_calib.calib.lidar_alignment import describe as describe_lidar
-    from hybrid_calib.calib.mount_monitor import tested_words
+    from hybrid_calib.calib.mount_monitor import blind_words, tested_words
     from hybrid_calib.calib.result import STD_FRAME
     from hybrid_calib.metrics import std_dict
 
@@ -169,6 +169,8 @@ def _report(result, out: Path, reused: bool = False) -> int:
                               f"{st['change']} (alarm at frame {st['at']})" for st in v.mount["steps"])
             found = steps or ("not told" if v.mount.get("implausible") else
                               "no step" if v.mount.get("pairs_tested") else "not tested")
+            if found == "no step" and (blind := blind_words(v.mount)):
+                found += f" ({blind})"
             print(f"  radar mount monitor ({tested_words(v.mount)}): {found}")
         if v.lidar is not None:
             print(f"  LiDAR alignment: {describe_lidar(v.lidar)}")

@@ -98,6 +98,9 @@ class SkipRecord:
 # two camera-radar extrinsics of a vehicle's tables closer than this (deg, cm) are one calibration: nuScenes' own
 # differ by 0.46 deg and more (radar yaws -0.85, -0.26, 0.00, +0.20 deg) or by centimetres (camera mounts)
 SAME_CALIBRATION = (0.01, 0.1)
+# a principal point farther than this fraction of the image's width or height from its centre: an intrinsic for
+# another image size (nuScenes' CAM_FRONT: 51 % / 55 %; the simulator's: 51 % / 54 %)
+MAX_PP_OFF_CENTRE = 0.15
 _CAL_SUFFIX = re.compile(r"-cal\d+$")  # NAME-cal2: the second calibration of vehicle NAME (_one_mount_per_vehicle)
 
 
@@ -307,6 +310,41 @@ class NuScenesRadarCamera:
                     f"{self.camera_channel}'s intrinsic changes within the log ({len(Ks)} different ones; fx "
                     f"{min(fx):.0f}..{max(fx):.0f} px): one camera in one drive has one calibration, so the tables "
                     "are likely broken; each frame is read with its own")
+        for log, words in self._off_centre().items():
+            out[log] = f"{out[log]}; and {words}" if log in out else words
+        return out
+
+    def _off_centre(self) -> dict[str, str]:
+        """Log name -> a sentence, for each log whose camera principal point (the first frame's intrinsic) lies more
+        than ``MAX_PP_OFF_CENTRE`` of the image's width or height from its centre, the size read from the image
+        file's header (the tables' width / height when it does not read). Images resized without their intrinsic
+        (or an intrinsic for another size) passed every check and showed up only as a network "out of its domain"
+        (probe 7: 1600 x 900 images with the 800 x 450 intrinsic; the hybrid ended 21 deg off)."""
+        from hybrid_calib.data.image_header import image_header
+
+        out, seen = {}, set()
+        for ref in self.frames:
+            if ref.log_token in seen:
+                continue
+            seen.add(ref.log_token)
+            try:
+                K = self.tables.camera_intrinsic(ref.camera_sd)
+            except (DataError, KeyError, TypeError):
+                continue  # a broken record: the frame says so when it is read
+            try:
+                w, h = image_header(self.tables.file(ref.camera_sd), ref.camera_sd.get("token"))
+            except (DataError, OSError):
+                w, h = ref.camera_sd.get("width"), ref.camera_sd.get("height")
+            if not (isinstance(w, int) and isinstance(h, int) and w > 0 and h > 0) or max(
+                    abs(K[0, 2] / w - 0.5), abs(K[1, 2] / h - 0.5)) <= MAX_PP_OFF_CENTRE:
+                continue
+            rec = self.tables.by_token["log"].get(ref.log_token) or {}
+            out[str(rec.get("logfile") or ref.log_token)] = (
+                f"{self.camera_channel}'s principal point ({K[0, 2]:.0f}, {K[1, 2]:.0f}) px lies at "
+                f"{100 * K[0, 2] / w:.0f} % / {100 * K[1, 2] / h:.0f} % of its {w} x {h} image (a camera's is near "
+                f"the centre): camera_intrinsic is likely for another image size (about {2 * K[0, 2]:.0f} x "
+                f"{2 * K[1, 2]:.0f}), or the images were resized without it; radar points project to the wrong "
+                "pixels and the network sees another camera: fix camera_intrinsic or the images")
         return out
 
     def __len__(self) -> int:

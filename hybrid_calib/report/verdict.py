@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hybrid_calib.calib.drift import DriftConfig, against_tolerance
-from hybrid_calib.calib.mount_monitor import tested_words
+from hybrid_calib.calib.mount_monitor import blind_words, tested_words
 from hybrid_calib.calib.result import VehicleResult
 
 DELTA_KEYS = ("rot_x_deg", "rot_y_deg", "rot_z_deg", "t_x_cm", "t_y_cm", "t_z_cm")
@@ -161,7 +161,10 @@ def moved_during_drive(vr: VehicleResult) -> tuple[str, tuple[int, ...]]:
         return (f"not told for the radar's yaw: the radar mount monitor tested no frame pair; the window's {tests} "
                 f"raised no step alarm over the {len(vr.trajectory)} frames of the drive"), ()
     if not alarms:
-        return f"no: no step alarm over the {len(vr.trajectory)} frames of the drive ({tests})", ()
+        blind = blind_words(mount) if mount else ""
+        return (f"no: no step alarm over the {len(vr.trajectory)} frames of the drive ({tests})"
+                + (f"; the radar mount monitor is {blind}" if blind.startswith("blind") else
+                   f"; but {blind}" if blind else "")), ()
     turned = "; ".join(f"the radar turned on the vehicle by {s['step_deg']:+.2f} +- {s['std_deg']:.2f} deg in yaw "
                        f"from about frame {s['change']}" for s in mount.get("steps", []))
     return (f"yes: the sensor stepped during the drive (step detected at frame{'s' if len(alarms) > 1 else ''} "
