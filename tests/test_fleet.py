@@ -821,3 +821,28 @@ def test_summary_says_a_fleet_spread_it_cannot_resolve():
     assert "n.r." not in next(x for x in summary_markdown({**s, "fleet_prior": {
         **s["fleet_prior"], "spread_std_cam": dict(zip(std, (0.5,) * 3 + (3.0,) * 3))}}).splitlines()
         if x.startswith("Fleet prior:"))
+
+
+def test_one_vehicles_corrupt_mount_record_fails_that_job_alone(fleet_root, tmp_path):
+    """A vehicle whose radar calibrated_sensor record is corrupt (a quaternion of norm 1.05) ended the whole fleet
+    while its jobs were planned, before any vehicle ran (probe 7); ``calibrate`` fails that vehicle alone."""
+    import shutil
+
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+
+    root = tmp_path / "root"
+    shutil.copytree(fleet_root / "v1.0-sim", root / "v1.0-sim")
+    for top in ("samples", "sweeps", "maps", "sim_truth", "sim_depth"):
+        if (fleet_root / top).exists():
+            (root / top).symlink_to(fleet_root / top)
+    ds = NuScenesRadarCamera(root, "v1.0-sim", conf={"check_images": False})
+    token = ds.frames[ds.frames_by_vehicle()["sim-veh-001"][0]].radar_sd["calibrated_sensor_token"]
+    table = json.loads((root / "v1.0-sim" / "calibrated_sensor.json").read_text())
+    for rec in table:
+        if rec["token"] == token:
+            rec["rotation"] = [1.05 * q for q in rec["rotation"]]
+    (root / "v1.0-sim" / "calibrated_sensor.json").write_text(json.dumps(table))
+    s = run_fleet([str(root)], None, "v1.0-sim", "oracle", tmp_path / "out", seed=1, calib={"window": {"window": 3}},
+                  options=FleetOptions(plots=False))
+    assert s["vehicles"]["sim-veh-000"]["state"] == "done"
+    assert s["vehicles"]["sim-veh-001"]["state"] == "failed" and "quaternion" in s["vehicles"]["sim-veh-001"]["reason"]

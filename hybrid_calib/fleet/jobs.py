@@ -135,10 +135,16 @@ def _root_vehicles(root: str, version: str) -> dict[str, dict]:
     ds = NuScenesRadarCamera(root, version, conf={"check_images": False})
     out = {}
     for vehicle, idx in ds.frames_by_vehicle().items():
-        ref = ds.frames[idx[0]]
-        T_ego_cam, T_ego_radar = ds.tables.T_ego_sensor(ref.camera_sd), ds.tables.T_ego_sensor(ref.radar_sd)
-        design = _design_T(ds.sim_vehicles.get(ref.log_token))
-        out[vehicle] = {"tables_T": (se3_inverse(T_ego_cam) @ T_ego_radar).tolist(),
+        tables_T = None
+        for i in idx:  # the first frame whose mounts read: a corrupt record is the job's to fail on, named there
+            ref = ds.frames[i]
+            try:
+                tables_T = se3_inverse(ds.tables.T_ego_sensor(ref.camera_sd)) @ ds.tables.T_ego_sensor(ref.radar_sd)
+                break
+            except (DataError, KeyError, TypeError):  # one vehicle's broken calibrated_sensor ended the whole fleet
+                continue
+        design = _design_T(ds.sim_vehicles.get(ds.frames[idx[0]].log_token))
+        out[vehicle] = {"tables_T": None if tables_T is None else tables_T.tolist(),
                         "design_T": None if design is None else design.tolist(),
                         "logs": sorted({ds.frames[i].log_token for i in idx})}
     return out
