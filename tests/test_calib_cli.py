@@ -54,7 +54,7 @@ def test_calibrate_oracle_window_writes_result_schema_and_plots(sim_root, tmp_pa
     assert calibrate.run(_args("--data", str(sim_root), "--out", str(out), "--window", "3")) == 0
     assert (out / "result.json").stat().st_mtime_ns == mtime
     # ... but a run with other options does not report it as its own (it read the window-3 result)
-    with pytest.raises(HybridCalibError, match=r"another run \(window: .*--overwrite"):
+    with pytest.raises(HybridCalibError, match=r"another run \(window.window: 3 -> 20;.*--overwrite"):
         calibrate.run(_args("--data", str(sim_root), "--out", str(out)))
     assert (out / "result.json").stat().st_mtime_ns == mtime
 

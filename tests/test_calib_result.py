@@ -109,3 +109,24 @@ def test_a_run_that_only_failed_leaves_nothing_that_blocks_the_corrected_command
     done.record("n008", VehicleResult("n008", _estimate(rng(1)), n_frames=2))
     with pytest.raises(HybridCalibError, match="holds 1 vehicle"):
         VehicleProgress(tmp_path, tmp_path, "v1.0-mini", "pure", {"depth": ""})
+
+
+def test_an_interrupted_run_of_other_options_names_the_option_that_differs(tmp_path):
+    """The refusal cut both nested configs to the same 60 characters ('motion: {"enabled": true, ... ->
+    {"enabled": true, ...'), and blamed a retrained checkpoint when --start chose the other shipped one (probe 7)."""
+    from hybrid_calib.calib.result import VehicleProgress
+    from hybrid_calib.errors import HybridCalibError
+
+    conf = {"start": "R1", "checkpoint": "", "network": "aaa",
+            "motion": {"enabled": True, "sigma_vo_deg": 1.13, "huber": 2.0, "gate": 3.0, "vo": {"features": 4000}}}
+    done = VehicleProgress(tmp_path, tmp_path, "v1.0-sim", "hybrid", conf)
+    done.record("v", VehicleResult("v", _estimate(rng(1)), n_frames=2))
+    other = {**conf, "motion": {**conf["motion"], "vo": {"features": 3000}}}
+    with pytest.raises(HybridCalibError, match=r"configuration \(motion\.vo\.features: 4000 -> 3000\)"):
+        VehicleProgress(tmp_path, tmp_path, "v1.0-sim", "hybrid", other)
+    with pytest.raises(HybridCalibError, match=r"start: \"R1\" -> \"R2\"; the network \(another checkpoint: start "
+                                               r"changed; the shipped one follows --start\)") as e:
+        VehicleProgress(tmp_path, tmp_path, "v1.0-sim", "hybrid", {**conf, "start": "R2", "network": "bbb"})
+    assert "retrained" not in str(e.value)
+    with pytest.raises(HybridCalibError, match="retrained or edited at the same path"):
+        VehicleProgress(tmp_path, tmp_path, "v1.0-sim", "hybrid", {**conf, "network": "bbb"})

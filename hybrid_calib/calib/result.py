@@ -614,12 +614,20 @@ def _changes(old: dict, new: dict) -> list[str]:
         ("method / correspondences", old.get("source"), new["source"], same_path)) if not same(a, b)]
     old_conf = old.get("config")
     if isinstance(old_conf, dict) and not changed:
-        changed = [("the data in --data (its tables or sensor folders changed since)" if k == "data_stamp" else
-                    "the network checkpoint's files (changed since: retrained or edited at the same path; or the "
-                    "earlier run did not record them)" if k == "network" else
-                    f"{k}: {_short(old_conf.get(k))} -> {_short(v)}") for k, v in new["config"].items()
-                   if k not in RUN_ONLY and old_conf.get(k) != v
-                   and not (k not in old_conf and v in ({}, None))]  # a key a later version added, at its default
+        from hybrid_calib.config import changed_options
+
+        new_conf, special = new["config"], ("data_stamp", "network")
+        changed = changed_options(  # the leaf keys (motion.vo.features: 4000 -> 3000), not two cut JSON objects
+            {k: v for k, v in old_conf.items() if k not in RUN_ONLY + special},
+            {k: v for k, v in new_conf.items() if k not in RUN_ONLY + special})
+        if old_conf.get("data_stamp") != new_conf.get("data_stamp") and "data_stamp" in new_conf:
+            changed.append("the data in --data (its tables or sensor folders changed since)")
+        if old_conf.get("network") != new_conf.get("network") and "network" in new_conf:
+            chosen = [w for w in changed if w.split(":")[0] in ("checkpoint", "refine", "start")]
+            changed.append(f"the network (another checkpoint: {', '.join(c.split(':')[0] for c in chosen)} changed; "
+                           "the shipped one follows --start)" if chosen else
+                           "the network checkpoint's files (changed since: retrained or edited at the same path; or "
+                           "the earlier run did not record them)")
     return changed
 
 
@@ -638,8 +646,3 @@ def _record_key(stamp: dict, name: str) -> str:
 
     core = {**stamp, "config": {k: v for k, v in stamp["config"].items() if k not in RUN_ONLY}}
     return hashlib.sha1(json.dumps([core, name], sort_keys=True, default=str).encode()).hexdigest()
-
-
-def _short(value) -> str:
-    text = json.dumps(value)
-    return text if len(text) <= 60 else text[:57] + "..."
