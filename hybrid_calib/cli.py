@@ -14,6 +14,7 @@ import importlib
 import os
 import re
 import sys
+import warnings
 from pathlib import Path
 
 from hybrid_calib.atomic import out_dir_lock
@@ -47,6 +48,11 @@ RESUMES = {
 }
 
 
+def _one_line(message, category, filename, lineno, line=None) -> str:
+    """``warnings.formatwarning`` for the command line: ``warning: MESSAGE`` (``--debug``: Python's own)."""
+    return f"warning: {message}\n"
+
+
 def _has_checkpoint(out: Path) -> bool:
     """Whether a train run's ``out`` holds a checkpoint to resume from (``learned.train``: ``out/checkpoints``)."""
     from learned.checkpoint import latest_checkpoint
@@ -73,6 +79,17 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     debug = args.debug or os.environ.get("HYBRID_CALIB_DEBUG", "") not in ("", "0")
+    before = warnings.formatwarning
+    if not debug:  # a warning is one line, as every other message: not our source file and line after it
+        warnings.formatwarning = _one_line
+    try:
+        return _run(args, debug)
+    finally:
+        warnings.formatwarning = before
+
+
+def _run(args: argparse.Namespace, debug: bool) -> int:
+    """The command, inside the error boundary (module doc)."""
     out = getattr(args, "out", None)
     try:
         if args.command == "report":  # --out is the page (a file), written atomically

@@ -293,9 +293,10 @@ class CalibDataset(torch.utils.data.Dataset):
             frame = self.frames[fi]
             return self._sample(i, frame)
         except DataError as e:
+            if fi not in self.bad:  # said once: a frame read again (a second pass, a rerun) was said twice
+                log.warning("skipping frame %d: %s", fi, e)
             self.bad[fi] = str(e)
             self.bad_files[fi] = e.path
-            log.warning("skipping frame %d: %s", fi, e)
             return None
 
     def _sample(self, i: int, frame: RadarCameraFrame) -> dict:

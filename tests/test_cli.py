@@ -67,3 +67,25 @@ def test_a_train_run_interrupted_before_its_first_checkpoint_does_not_promise_on
     (tmp_path / "run" / "checkpoints" / "ckpt-0003.json").write_text("{}")
     assert main(argv) == 130
     assert capsys.readouterr().err.strip() == f"hybrid-calib train: interrupted; {RESUMES['train']}"
+
+
+def test_a_warning_is_one_line(tmp_path, monkeypatch, capsys):
+    """A Python warning printed our source file and line after it (``MissingSweepWarning ... frame = self[i]``)."""
+    import warnings
+
+    from hybrid_calib.cli import main
+    from hybrid_calib.commands import report
+
+    def warns(args):
+        warnings.warn("RADAR_FRONT: earlier radar sweep files are absent", UserWarning)
+        return 0
+
+    monkeypatch.setattr(report, "run", warns)
+    before = warnings.formatwarning
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        monkeypatch.setattr(warnings, "showwarning", lambda m, c, f, n, file=None, line=None: print(
+            warnings.formatwarning(m, c, f, n, line), end="", file=__import__("sys").stderr))
+        assert main(["report", str(tmp_path / "r.json"), "--out", str(tmp_path / "r.html")]) == 0
+    assert capsys.readouterr().err == "warning: RADAR_FRONT: earlier radar sweep files are absent\n"
+    assert warnings.formatwarning is before  # restored for whoever called main

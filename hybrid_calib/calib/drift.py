@@ -342,8 +342,8 @@ def unconverged(drift: dict, status: str) -> dict:
         why = f"the estimate is not trusted ({status[len('inconclusive'):].lstrip(': ').split(' [')[0][:300]})"
     return {**drift, "drifted": False, "verdict_kind": "cannot tell",
             "verdict": f"cannot tell: {why}, so the estimate says nothing about the mount "
-                       f"(it differs from the reference by {drift.get('rot_change_deg', float('nan')):.2f} deg, "
-                       f"{drift.get('trans_change_cm', float('nan')):.1f} cm)"}
+                       f"(it differs from the reference by {drift.get('rot_change_deg', float('nan')):.2f} deg "
+                       f"(rotation angle), {drift.get('trans_change_cm', float('nan')):.1f} cm)"}
 
 
 def camera_side_note(drift: dict, mount: dict | None) -> dict:

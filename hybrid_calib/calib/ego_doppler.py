@@ -99,8 +99,8 @@ def pose_doppler_conflict(travel_m: float, dt_s: float, speed_mps: float) -> str
     if not np.isfinite(speed_mps) or abs(v - speed_mps) <= max(POSE_SPEED_TOL_MPS, POSE_SPEED_TOL_REL * speed_mps):
         return ""  # a Doppler fit without a speed is refused by its own checks, not blamed on the poses
     return (f"the ego poses moved {travel_m:.2f} m in {dt_s:.2f} s ({v:.1f} m/s) while the radar's Doppler measured "
-            f"{speed_mps:.1f} m/s: the ego poses (ego_pose.json) or the radar's velocity fields (vx_comp, vy_comp of "
-            "its files) are wrong for this drive")
+            f"{speed_mps:.1f} m/s: the ego poses (ego_pose.json) or the radar's velocity fields (vx, vy: the raw "
+            "Doppler velocity of its files) are wrong for this drive")
 
 
 def pair_skip(a: EgoSweep, b: EgoSweep) -> str:

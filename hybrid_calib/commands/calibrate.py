@@ -145,11 +145,16 @@ def _report(result, out: Path, reused: bool = False) -> int:
                 f"{s['rot_z_cam_deg']:.3f} deg, t {s['t_x_cam_cm']:.2f}/{s['t_y_cam_cm']:.2f}/{s['t_z_cam_cm']:.2f} cm")
         if v.error:
             line += (f"; error{' vs the tables' if v.errors_against == 'tables' else ''} "
-                     f"{v.error['rot_mean_deg']:.3f} deg, {v.error['trans_norm_cm']:.2f} cm")
+                     f"{v.error['rot_mean_deg']:.3f} deg (mean of the three angles), {v.error['trans_norm_cm']:.2f} cm "
+                     "(norm)")
         if v.drift:
             line += f"; vs reference (tables): {drift_verdict(v.drift)} (chi2 p {v.drift['p_value']:.2g})"
         if v.skipped:
-            line += f"; {len(v.skipped)} frame(s) skipped (bad files; listed in result.json)"
+            ood = sum("ood_score" in r for r in v.skipped)
+            bad = len(v.skipped) - ood
+            line += "; " + " and ".join(w for w in (
+                f"{bad} frame(s) skipped (bad files or no rows)" if bad else "",
+                f"{ood} frame(s) dropped as out of the network's domain" if ood else "")) + " (listed in result.json)"
         print(line)
         for key in ("depth_note", "range_note"):
             if v.config and v.config.get(key):
