@@ -77,7 +77,7 @@ def test_a_warning_is_one_line(tmp_path, monkeypatch, capsys):
     from hybrid_calib.commands import report
 
     def warns(args):
-        warnings.warn("RADAR_FRONT: earlier radar sweep files are absent", UserWarning)
+        warnings.warn("RADAR_FRONT: earlier radar sweep files are absent", UserWarning, stacklevel=2)
         return 0
 
     monkeypatch.setattr(report, "run", warns)
