@@ -111,3 +111,29 @@ def test_network_method_without_window_flag_keeps_the_default(sim_root, tmp_path
     # the shipped checkpoint's fitted model takes the network's SE(3) alone: said, not "rows used 0"
     out = capsys.readouterr().out
     assert "the network's SE(3) prior only (measurement.rows=none" in out and "rows used 0" not in out
+
+
+def test_a_networks_exported_rows_never_give_a_trusted_verdict(sim_root, tmp_path):
+    """evaluate's export fused by calibrate as independent rows: NEES 36-415 and "recalibrate" at p 1e-97 on 2 of 3
+    healthy simulated vehicles (probe 7). Rows that carry a network block are 'inconclusive', naming the hybrid."""
+    from hybrid_calib.calib.covariance import untrusted_status
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+
+    ds = NuScenesRadarCamera(sim_root, "v1.0-sim", conf={"check_images": False})
+    T = ds[0].extras["T_cam_radar_static"]
+    frames, _ = synthetic_drive(T, 3, rng(0))
+    d = tmp_path / "corr"
+    d.mkdir()
+    for k, c in enumerate(frames):  # with the network's own SE(3) and covariance: an evaluate export
+        c = dataclasses.replace(c, frame_id=ds.frames[k % len(ds.frames)].camera_sd["token"])
+        np.savez(d / f"{k:03d}.npz", **c.to_npz_dict(), T_cam_radar=T, cov=np.eye(6) * 1e-4, iteration=0,
+                 T_start=T)
+    (d / "export_config.json").write_text(json.dumps({"checkpoint": "learned/checkpoints/small-sim-r1.json"}))
+    out = tmp_path / "run"
+    assert calibrate.run(_args("--data", str(sim_root), "--correspondences", str(d), "--mode", "batch",
+                               "--out", str(out), "--no-plots")) == 0
+    (v,) = json.loads((out / "result.json").read_text())["vehicles"].values()
+    assert v["final"]["status"].startswith("inconclusive: its rows are a network's") and "--method hybrid" in \
+        v["final"]["status"]
+    assert v["drift"]["verdict_kind"] == "cannot tell" and v["checkpoint"].endswith("small-sim-r1.json")
+    assert "its rows are a network's" in untrusted_status(v["final"]["status"])

@@ -77,12 +77,13 @@ def inconclusive_status(reason: str, estimate_status: str = "") -> str:
 
 def untrusted_status(status: str) -> str:
     """Why an estimate whose status is ``status`` cannot be trusted, in words ("" when it can): the last solve did
-    not converge (``schedule.convergence_note``'s "NOT CONVERGED"), the network's input was out of its domain
-    (``inconclusive_status``), or the data did not determine it ("degenerate")."""
+    not converge (``schedule.convergence_note``'s "NOT CONVERGED"), an ``inconclusive_status`` (its reason: the
+    network's input out of its domain, a checkpoint without its fitted models, network rows fused without the
+    hybrid's model), or the data did not determine it ("degenerate")."""
     if "NOT CONVERGED" in status:
         return "the last solve did not converge"
     if status.startswith("inconclusive"):
-        return "the network's input was out of its domain"
+        return f"it is not trusted ({status[len('inconclusive'):].lstrip(': ').split(' [')[0][:300]})"
     if status.startswith("degenerate"):
         return "the data did not determine it"
     return ""

@@ -338,8 +338,6 @@ def unconverged(drift: dict, status: str) -> dict:
     why = untrusted_status(status)  # the one reading of a status (a degenerate one's stds already say it)
     if not why or status.startswith("degenerate"):
         return drift
-    if status.startswith("inconclusive") and "NOT CONVERGED" not in status:
-        why = f"the estimate is not trusted ({status[len('inconclusive'):].lstrip(': ').split(' [')[0][:300]})"
     return {**drift, "drifted": False, "verdict_kind": "cannot tell",
             "verdict": f"cannot tell: {why}, so the estimate says nothing about the mount "
                        f"(it differs from the reference by {drift.get('rot_change_deg', float('nan')):.2f} deg "

@@ -17,6 +17,7 @@ roots) errors, NEES and, for oracle data, the Cramer-Rao std are added.
 from __future__ import annotations
 
 import dataclasses
+import json
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -183,6 +184,34 @@ def _network_summary(vi: VehicleInput) -> dict | None:
     }
 
 
+# why an estimate from a network's exported rows is not trusted (measured on clean simulated drives, probe 7: NEES
+# 36-415 and "recalibrate" at p 1e-97 on 2 of 3 healthy vehicles)
+NETWORK_ROWS = ("its rows are a network's (exported by hybrid-calib evaluate), fused here as independent measurements: "
+                "their errors share the network's bias on the drive, which only the hybrid models, so the covariance "
+                "is far too small; calibrate with --method hybrid for an estimate with a covariance to trust")
+
+
+def _exporting_checkpoint(folder: Path) -> str | None:
+    """The checkpoint an ``evaluate`` export in ``folder`` ran (its ``export_config.json``), or None."""
+    try:
+        ckpt = json.loads((folder / "export_config.json").read_text()).get("checkpoint")
+    except (OSError, ValueError, AttributeError, RecursionError):
+        return None
+    return ckpt if isinstance(ckpt, str) else None
+
+
+def untrusted(res: VehicleResult, reason: str) -> None:
+    """``res`` marked ``inconclusive: reason`` (its own status kept after it), its last frame and its drift verdict
+    with it ("cannot tell": an untrusted estimate's difference from the tables is no reason to recalibrate)."""
+    from hybrid_calib.calib.covariance import inconclusive_status
+
+    res.final = dataclasses.replace(res.final, status=inconclusive_status(reason, res.final.status))
+    if res.trajectory:
+        res.trajectory[-1] = dataclasses.replace(res.trajectory[-1], estimate=res.final)
+    if res.drift:
+        res.drift = unconverged(res.drift, res.final.status)
+
+
 def _start(vi: VehicleInput, conf: CalibrateConfig, rng) -> np.ndarray:
     if conf.start == "reference":
         return vi.reference
@@ -292,10 +321,14 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
              **({} if stamp_data is None else {"data_stamp": stamp_data["digest"]})}
     done = VehicleProgress(out, data, version, str(correspondences), stamp, fresh=overwrite)
     method = "oracle" if correspondences == "oracle" else "measurements"  # rows from a directory (factors.io)
+    exporter = None if correspondences == "oracle" else _exporting_checkpoint(Path(correspondences))
 
     def one(name: str) -> VehicleResult:
         res = calibrate_vehicle(inputs[name], conf, rng, progress, (priors or {}).get(name))
         res.method = method
+        if res.network is not None:  # a network's rows (hybrid-calib evaluate's export): never a trusted verdict
+            res.checkpoint = exporter
+            untrusted(res, NETWORK_ROWS)
         return res
 
     done.fill(run, list(inputs), one, on_vehicle, progress)

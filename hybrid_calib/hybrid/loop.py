@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hybrid_calib.calib.covariance import analyse_information, inconclusive_status
+from hybrid_calib.calib.covariance import analyse_information
 from hybrid_calib.calib.drift import DriftConfig, camera_side_note, reference_test, unconverged
 from hybrid_calib.calib.ego_doppler import drive_sweeps
 from hybrid_calib.calib.lever_arm import LeverArmConfig, apply_forward, refusal
@@ -42,6 +42,7 @@ from hybrid_calib.calib.lidar_alignment import innovation as lidar_innovation
 from hybrid_calib.calib.lidar_alignment import refusal as lidar_refusal
 from hybrid_calib.calib.mount_monitor import MountMonitor, MountMonitorConfig
 from hybrid_calib.calib.oracle import OracleConfig
+from hybrid_calib.calib.pipeline import untrusted
 from hybrid_calib.calib.result import (
     DATA_STAMP,
     RUN_ONLY,
@@ -674,11 +675,7 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     res.drift = camera_side_note(res.drift, res.mount)
     reason = "; and ".join(r for r in (ood["inconclusive"], unfitted_reason(runner, conf.method)) if r)
     if reason:
-        final = dataclasses.replace(res.final, status=inconclusive_status(reason, res.final.status))
-        res.final = final
-        res.trajectory[-1] = dataclasses.replace(res.trajectory[-1], estimate=final)
-        if res.drift:  # an untrusted estimate's difference from the tables is no reason to recalibrate
-            res.drift = unconverged(res.drift, final.status)
+        untrusted(res, reason)
     return res
 
 

@@ -204,7 +204,7 @@ def _verdict_vs_reference(vr: VehicleResult, tol: Tolerance) -> Verdict:
         moved += "; but the solve did not converge, so these alarms may only mark its failures"
     if vr.final.status.startswith(INCONCLUSIVE):
         return Verdict("inconclusive", _out_of_domain_why(vr.final.status), tol.describe(),
-                       "the result's status (out-of-domain input)", moved, frames)
+                       "the result's status (not trusted)", moved, frames)
     d = vr.drift or {}
     source = "the calibrator's reference test (result.json drift block)"
     if d.get("verdict_kind") and tol.given:  # the tolerance asked for: the calibrator's per-axis test redone with it
