@@ -53,6 +53,15 @@ def _one_line(message, category, filename, lineno, line=None) -> str:
     return f"warning: {message}\n"
 
 
+def _has_vehicles_done(out: Path) -> bool:
+    """Whether a calibrate run's ``out`` keeps a vehicle an interrupted run finished (``calib.result.VehicleProgress``:
+    ``out/vehicles-done/<vehicle>.json`` beside its ``stamp.json``)."""
+    try:
+        return any(p.name != "stamp.json" for p in (out / "vehicles-done").glob("*.json"))
+    except OSError:
+        return False
+
+
 def _has_checkpoint(out: Path) -> bool:
     """Whether a train run's ``out`` holds a checkpoint to resume from (``learned.train``: ``out/checkpoints``)."""
     from learned.checkpoint import latest_checkpoint
@@ -107,6 +116,9 @@ def _run(args: argparse.Namespace, debug: bool) -> int:
         kept = RESUMES.get(args.command)
         if args.command == "train" and out is not None and not _has_checkpoint(Path(out)):
             kept = "it stopped before its first checkpoint, so nothing is kept: rerun the same command to start again"
+        if args.command == "calibrate" and out is not None and not _has_vehicles_done(Path(out)):
+            kept = ("it stopped before a vehicle finished, so nothing is kept: rerun the same command to start again "
+                    "(an earlier run's result, if any, is as it was)")
         print(f"hybrid-calib {args.command}: interrupted" + (f"; {kept}" if kept else ""), file=sys.stderr)
         return 130
     except Exception as e:

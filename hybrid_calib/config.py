@@ -144,6 +144,7 @@ def parse_overrides(items: list[str] | None) -> dict[str, Any]:
     """Command-line ``key=value`` / ``a.b=value`` overrides -> nested dict (values parsed as JSON
     when possible, else kept as strings)."""
     out: dict[str, Any] = {}
+    given: dict[str, str] = {}  # dotted key -> the item that set it
     for item in items or []:
         if "=" not in item:
             raise ConfigError(f"--set {item!r}: an override must look like KEY=VALUE (nested: a.b=VALUE; "
@@ -153,6 +154,11 @@ def parse_overrides(items: list[str] | None) -> dict[str, Any]:
             value = json.loads(raw)
         except json.JSONDecodeError:
             value = raw
+        # the same option twice (last one won, silently), or an option and a key inside it (an internal error)
+        clash = next((k for k in given if k == key or k.startswith(key + ".") or key.startswith(k + ".")), None)
+        if clash is not None and not (clash == key and given[clash] == item):
+            raise ConfigError(f"--set {given[clash]!r} and {item!r} set the same option; give it once")
+        given[key] = item
         node = out
         parts = key.split(".")
         for p in parts[:-1]:

@@ -67,6 +67,9 @@ def check_out_outside_data(out: str | Path | None, data, version: str | None) ->
     out = Path(out).resolve()
     for root in data if isinstance(data, (list, tuple)) else [data]:
         root = Path(root).resolve()
+        if out == root:  # its result.json, config.json and caches beside samples/ and the version folder
+            raise OptionError("--out", f"{out} is the data root itself: the outputs would lie among the dataset's "
+                                       f"folders; pass a folder outside it (e.g. {root.parent / 'runs'})")
         for part in ([version] if version else []) + ["samples", "sweeps"]:
             inside = root / part
             if out == inside or inside in out.parents:

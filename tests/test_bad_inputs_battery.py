@@ -1910,6 +1910,10 @@ def test_an_out_folder_inside_the_data_root_is_refused(sim, capsys):
         expect_cli_error(["calibrate", "--data", root, "--method", "oracle", "--out", inside], capsys,
                          "is inside the data root's", "pass a folder outside them")
     assert not (root / SIM_VERSION / "run").exists() and not (root / "samples" / "x").exists()
+    # the root itself: result.json, config.json and the caches beside samples/ (probe 7)
+    expect_cli_error(["calibrate", "--data", root, "--method", "oracle", "--out", root], capsys,
+                     "is the data root itself", "pass a folder outside it")
+    assert not (root / "result.json").exists()
 
 
 @pytest.mark.skipif(__import__("torch").cuda.is_available(), reason="a machine with CUDA runs device=cuda")

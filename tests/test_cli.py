@@ -44,9 +44,14 @@ def test_an_interrupt_says_what_was_kept_and_how_to_go_on(tmp_path, monkeypatch,
     monkeypatch.setattr(calibrate, "run", interrupted)
     monkeypatch.setattr(report, "run", interrupted)
     assert main(["calibrate", "--data", str(tmp_path), "--out", str(tmp_path / "run")]) == 130
-    err = capsys.readouterr().err
-    assert err.strip() == f"hybrid-calib calibrate: interrupted; {RESUMES['calibrate']}"
+    err = capsys.readouterr().err  # nothing finished: nothing promised (it named a folder that was not there)
+    assert err.strip().startswith("hybrid-calib calibrate: interrupted; it stopped before a vehicle finished, so "
+                                  "nothing is kept")
     assert not (tmp_path / "run").exists()  # the lock's folder, created for the run, held nothing else
+    (tmp_path / "run2" / "vehicles-done").mkdir(parents=True)
+    (tmp_path / "run2" / "vehicles-done" / "sim-veh-000.json").write_text("{}")
+    assert main(["calibrate", "--data", str(tmp_path), "--out", str(tmp_path / "run2")]) == 130
+    assert capsys.readouterr().err.strip() == f"hybrid-calib calibrate: interrupted; {RESUMES['calibrate']}"
     assert main(["report", str(tmp_path / "result.json"), "--out", str(tmp_path / "r.html")]) == 130
     assert capsys.readouterr().err.strip() == "hybrid-calib report: interrupted"  # nothing to resume
     assert set(RESUMES) <= set(COMMANDS)
@@ -89,3 +94,14 @@ def test_a_warning_is_one_line(tmp_path, monkeypatch, capsys):
         assert main(["report", str(tmp_path / "r.json"), "--out", str(tmp_path / "r.html")]) == 0
     assert capsys.readouterr().err == "warning: RADAR_FRONT: earlier radar sweep files are absent\n"
     assert warnings.formatwarning is before  # restored for whoever called main
+
+
+def test_an_option_set_twice_is_refused():
+    """``--set window.window=5 window.window=7`` silently took 7; ``--set window=3 window.window=5`` was an internal
+    error (probe 7)."""
+    from hybrid_calib.config import ConfigError, parse_overrides
+
+    assert parse_overrides(["a.b=1", "a.c=2", "a.b=1"]) == {"a": {"b": 1, "c": 2}}  # the same item twice: harmless
+    for items in (["window.window=5", "window.window=7"], ["window=3", "window.window=5"]):
+        with pytest.raises(ConfigError, match="set the same option; give it once"):
+            parse_overrides(items)

@@ -138,3 +138,15 @@ def test_trailing_bytes_after_body_are_ignored(tmp_path):
     path = write_radar_pcd(tmp_path / "p.pcd", pts)
     path.write_bytes(path.read_bytes() + bytes(3728))
     np.testing.assert_array_equal(read_radar_pcd(path), pts)
+
+
+@pytest.mark.parametrize("head,kind", [(b"# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\n", "a PCD file"),
+                                       (b"\xff\xd8\xff\xe0" + b"\0" * 16, "a JPEG image")])
+def test_a_lidar_row_pointing_at_another_sensors_file_is_named(tmp_path, head, kind):
+    """A radar .pcd of 8740 bytes (a multiple of 20) was read as 437 LiDAR points of garbage (probe 7)."""
+    from hybrid_calib.data.pcd import read_lidar_bin
+
+    p = tmp_path / "x.pcd.bin"
+    p.write_bytes(head.ljust(1000, b"\0"))  # 1000 bytes: a whole number of 20-byte LiDAR points
+    with pytest.raises(DataError, match=f"LiDAR file is {kind}.*points at another sensor's file"):
+        read_lidar_bin(p)

@@ -305,7 +305,9 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
     else:
         inputs = _load_dir(Path(correspondences), data, version, conf, absent)
     if not inputs:
-        raise DataError("no vehicle to calibrate (check --vehicles and the dataset)", path=str(data))
+        asked = "" if conf.vehicles is None else f" among the vehicles asked for (--set vehicles={list(conf.vehicles)})"
+        raise DataError(f"no vehicle to calibrate{asked}: check the vehicle names (hybrid-calib inspect lists them) "
+                        "and that the root's frames read", path=str(data))
     if absent:  # said, not failed: an export of one split covers the vehicles of that split only
         import sys
 

@@ -125,6 +125,11 @@ def read_radar_pcd(path: str | Path) -> np.ndarray:
     return np.frombuffer(body[:need], dtype=dtype).copy()
 
 
+# the first bytes of files a LiDAR row must not point at: a radar PCD (text header), an image
+_OTHER_FILES = ((b"# .PCD", "a PCD file with a text header (a radar's)"), (b"VERSION", "a PCD file (a radar's)"),
+                (b"\xff\xd8\xff", "a JPEG image"), (b"\x89PNG", "a PNG image"))
+
+
 def read_lidar_bin(path: str | Path, n_fields: int = 5) -> np.ndarray:
     """nuScenes LIDAR_TOP ``.pcd.bin`` (float32 x 5: x, y, z, intensity, ring) -> (N, 5) float32."""
     path = Path(path)
@@ -142,6 +147,10 @@ def read_lidar_bin(path: str | Path, n_fields: int = 5) -> np.ndarray:
     if not data:  # a real sweep always has points (the ground, the car's own body): a failed copy
         raise DataError("LiDAR file is empty (0 bytes); it was not copied or extracted completely, re-download it",
                         path=str(path))
+    kind = next((k for magic, k in _OTHER_FILES if data.startswith(magic)), "")
+    if kind:  # a row pointed at another sensor's file: decoded as floats it was silently a cloud of garbage
+        raise DataError(f"LiDAR file is {kind}, not a LiDAR .pcd.bin (raw float32 points): the sample_data row points "
+                        "at another sensor's file; fix its filename in sample_data.json", path=str(path))
     point_bytes = 4 * n_fields
     if len(data) % point_bytes:
         raise DataError(f"LiDAR file size {len(data)} bytes is not a multiple of {point_bytes} ({n_fields} float32 "

@@ -71,7 +71,7 @@ def decide(scores: list[float], policy: OODPolicy, note: str = "") -> dict:
         block["inconclusive"] = (
             f"the drive has {len(s)} frame{'s' if len(s) != 1 else ''} (all inside the network's training domain), "
             f"fewer than the {need} in-domain frames the out-of-domain test needs before it trusts the network's "
-            "answer: calibrate on more frames (--max-frames)")
+            "answer: calibrate on more frames (--max-frames, or a wider --split)")
     elif n_in < need:
         block["inconclusive"] = (
             f"only {n_in} of {len(s)} frames are inside the network's training domain (out-of-domain score <= "
