@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import numbers
 import re
 import types
@@ -39,6 +40,8 @@ def require(conf: Any, rules: Mapping[str, bool]) -> None:
         return
     names = [f.name for f in dataclasses.fields(conf)]
     used = [n for n in names if any(re.search(rf"\b{n}\b", t) for t in failing)]
+    if not used:  # a rule on every field ("finite numbers"): the fields that break it, else all ("got )" said nothing)
+        used = [n for n in names if isinstance(v := getattr(conf, n), float) and not math.isfinite(v)] or names
     got = ", ".join(f"{n}={getattr(conf, n)!r}" for n in used)
     raise ValueError(f"{type(conf).__name__}: need {'; '.join(failing)} (got {got})")
 

@@ -54,6 +54,14 @@ def _tmp(path: Path) -> Path:
     return path.with_name(f".{path.name}.{os.getpid()}.tmp")
 
 
+def _umask_mode(path: Path) -> None:
+    """Give ``path`` the permissions of a file created under the process's umask (safetensors writes its file 0600:
+    the weights of a shared run folder were readable by their owner alone, the JSON beside them by everyone)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    os.chmod(path, 0o666 & ~mask)
+
+
 def save_checkpoint(stem: str | Path, model: torch.nn.Module, *, epoch: int, model_config: dict,
                     train_config: dict | None = None, metrics: dict | None = None,
                     optimizer: torch.optim.Optimizer | None = None, scheduler: Any = None) -> Path:
@@ -64,6 +72,7 @@ def save_checkpoint(stem: str | Path, model: torch.nn.Module, *, epoch: int, mod
     state = {k: v.detach().to("cpu").contiguous().clone() for k, v in model.state_dict().items()}
     tmp = _tmp(weights)
     save_file(state, str(tmp), metadata={"model_config": json.dumps(model_config), "epoch": str(epoch)})
+    _umask_mode(tmp)
     tmp.replace(weights)
     files = {"weights": weights.name}
     if optimizer is not None:

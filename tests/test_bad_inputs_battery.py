@@ -461,6 +461,7 @@ SET_CASES = [
     (["calibrate", "--method", "hybrid"], "doppler.sweep_noise_scale=0", ["need sweep_noise_scale > 0",
                                                                          "got sweep_noise_scale=0"]),
     (["calibrate", "--method", "hybrid"], "mount.wander_deg=-0.1", ["need wander_deg >= 0", "wander_deg=-0.1"]),
+    (["calibrate"], "drift.tolerance_rot_deg=1e400", ["need finite numbers", "got tolerance_rot_deg=inf"]),  # "got )"
     (["calibrate", "--method", "hybrid"], "lidar.gates_m=[]", ["need gates_m positive", "gates_m=()"]),
     (["calibrate", "--method", "pure"], "start=R9", ["start='R9'", "reference"]),
     (["calibrate", "--method", "pure"], "max_frames=-2", ["max_frames must be >= 0"]),
@@ -475,6 +476,8 @@ SET_CASES = [
     (["compare"], "max_frames=-1", ["max_frames must be >= 0"]),
     (["simulate"], "frames=-3", ["frames=-3"]),
     (["simulate"], "vehicles=0", ["vehicles=0"]),
+    (["simulate"], "frame_interval_s=0", ["frame_interval_s=0 is outside 0.05..10 s"]),  # was blamed on the sweeps
+    (["simulate"], "frame_interval_s=1e6", ["frame_interval_s=1000000.0 is outside"]),  # was ~110 MB/s of world
     (["simulate"], "scenario=nosuch", ["nosuch"]),
     (["simulate"], "image_scale=0", ["image_scale=0", "0.01..4"]),
     (["simulate"], "image_scale=-1", ["image_scale=-1"]),

@@ -313,6 +313,12 @@ def test_checkpoint_round_trip_restores_model_and_optimizer(tmp_path):
     sched2 = torch.optim.lr_scheduler.StepLR(opt2, 2, 0.5)
     ckpt = load_checkpoint(tmp_path / "ckpt-0007.safetensors", model2, opt2, sched2)
     assert (ckpt.epoch, ckpt.model_config, ckpt.metrics) == (7, {"a": 1}, {"x": 0.5}) and ckpt.path == path
+    # the weights readable as the JSON beside them (safetensors wrote them 0600: a shared run folder's were private)
+    import os
+
+    mask = os.umask(0)
+    os.umask(mask)
+    assert (tmp_path / "ckpt-0007.safetensors").stat().st_mode & 0o777 == 0o666 & ~mask
     for a, b in zip(model.state_dict().values(), model2.state_dict().values()):
         assert torch.equal(a, b)
     assert opt2.state_dict()["param_groups"][0]["lr"] == opt.state_dict()["param_groups"][0]["lr"]

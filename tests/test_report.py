@@ -382,3 +382,29 @@ def test_a_real_roots_tables_are_not_called_the_truth():
     assert "Error against the ground truth" not in html
     sim = extrinsic_html(dataclasses.replace(vr, errors_against="truth"))
     assert "<th>truth</th>" in sim and "Error against the ground truth" in sim
+
+
+def test_a_step_the_mount_monitor_measured_is_the_calibrators_verdict_too():
+    """A knocked radar: the report said "recalibrate" (the mount monitor's step) while calibrate's line and
+    result.json's drift block said "cannot tell" (probe 7). The calibrator's verdict now carries the step, and the
+    report does not say it twice."""
+    import dataclasses
+
+    from hybrid_calib.calib.drift import with_mount_step
+    from hybrid_calib.report.verdict import verdict_of
+
+    from hybrid_calib.calib.drift import DriftConfig, reference_test
+
+    T = nominal_T_cam_radar()
+    cov = np.diag([np.radians(1.0) ** 2] * 3 + [0.05 ** 2] * 3)  # the end cannot tell against 0.5 deg / 2 cm
+    drift = reference_test(T, cov, T, DriftConfig()).to_dict()
+    vr = VehicleResult("v", Estimate(T, cov, np.full(6, 1.0), "ok"), drift=drift)
+    assert vr.drift["verdict_kind"] == "cannot tell"
+    mount = {"steps": [{"step_deg": 1.53, "std_deg": 0.1, "change": 6}]}
+    raised = with_mount_step(vr.drift, mount)
+    assert raised["verdict_kind"] == "recalibrate" and raised["drifted"] and raised["at_end"]["verdict_kind"] == \
+        "cannot tell" and raised["verdict"].startswith("recalibrate: The radar turned on the vehicle")
+    assert with_mount_step(vr.drift, {"steps": [{"step_deg": 0.3, "std_deg": 0.1, "change": 6}]}) is vr.drift
+    v = verdict_of(dataclasses.replace(vr, drift=raised, mount=mount))
+    assert v.word == "recalibrate" and v.why.count("The radar turned on the vehicle") == 1
+    assert "Against the reference at the drive's end: inconclusive" in v.why

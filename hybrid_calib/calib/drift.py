@@ -344,6 +344,34 @@ def unconverged(drift: dict, status: str) -> dict:
                        f"(rotation angle), {drift.get('trans_change_cm', float('nan')):.1f} cm)"}
 
 
+def mount_steps_beyond(mount: dict | None, rot_tol_deg: float) -> str:
+    """A sentence when the radar mount monitor (a result's ``mount`` block, hybrid) measured a step of the radar's
+    yaw during the drive beyond ``rot_tol_deg`` with its 3-sigma (``|step| - 3 std > tol``), else ""."""
+    big = [st for st in (mount or {}).get("steps", []) if abs(st["step_deg"]) - 3 * st["std_deg"] > rot_tol_deg]
+    if not big:
+        return ""
+    turns = "; ".join(f"by {st['step_deg']:+.2f} +- {3 * st['std_deg']:.2f} deg (3 sigma) in yaw from about frame "
+                      f"{st['change']}" for st in big)
+    return (f"The radar turned on the vehicle during the drive {turns}, beyond the {rot_tol_deg:g} deg tolerance "
+            "(the radar mount monitor: its Doppler heading against the vehicle's ego poses).")
+
+
+def with_mount_step(drift: dict, mount: dict | None) -> dict:
+    """``drift`` with its verdict "recalibrate" when the radar mount monitor measured a step beyond the yaw
+    tolerance during the drive (``mount_steps_beyond``): the monitor rests on neither the network nor the window, so
+    the step stands even where the estimate at the drive's end cannot tell. The verdict against the reference at
+    the end is kept in ``at_end`` (the report judges it again against a tolerance asked for). A knocked radar read
+    "cannot tell" in calibrate's line and result.json while the report said "recalibrate" (probe 7). Unchanged
+    when there is no such step."""
+    tol = ((drift.get("axes") or {}).get("yaw") or {}).get("tolerance")
+    turned = mount_steps_beyond(mount, float(tol)) if tol is not None else ""
+    if not turned:
+        return drift
+    keys = ("verdict_kind", "verdict", "drifted")
+    return {**drift, "at_end": {k: drift.get(k) for k in keys}, "verdict_kind": "recalibrate", "drifted": True,
+            "verdict": f"recalibrate: {turned} Against the reference at the drive's end: {drift.get('verdict')}"}
+
+
 def camera_side_note(drift: dict, mount: dict | None) -> dict:
     """``drift`` with a sentence added when it says the yaw differs from the tables while the radar mount monitor
     (``calib.mount_monitor``: the radar's yaw on the vehicle from its Doppler against the ego poses) reads the radar

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from hybrid_calib.calib.covariance import analyse_information
-from hybrid_calib.calib.drift import DriftConfig, camera_side_note, reference_test, unconverged
+from hybrid_calib.calib.drift import DriftConfig, camera_side_note, reference_test, unconverged, with_mount_step
 from hybrid_calib.calib.ego_doppler import drive_sweeps
 from hybrid_calib.calib.lever_arm import LeverArmConfig, apply_forward, refusal
 from hybrid_calib.calib.lever_arm import fit as fit_lever_arm
@@ -676,6 +676,8 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     reason = "; and ".join(r for r in (ood["inconclusive"], unfitted_reason(runner, conf.method)) if r)
     if reason:
         untrusted(res, reason)
+    if res.drift:  # a step the radar mount monitor measured stands whatever the estimate at the end can tell
+        res.drift = with_mount_step(res.drift, res.mount)
     return res
 
 

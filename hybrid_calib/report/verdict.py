@@ -27,12 +27,13 @@ measured the radar turning during the drive by more than the rotation tolerance 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from hybrid_calib.calib.drift import DriftConfig, against_tolerance
+from hybrid_calib.calib.drift import DriftConfig, against_tolerance, mount_steps_beyond
 from hybrid_calib.calib.mount_monitor import blind_words, tested_words
 from hybrid_calib.calib.result import VehicleResult
 
@@ -171,27 +172,17 @@ def moved_during_drive(vr: VehicleResult) -> tuple[str, tuple[int, ...]]:
             f"{', '.join(map(str, alarms))}; the window restarted there)" + (f": {turned}" if turned else "")), alarms
 
 
-def mount_step_beyond(vr: VehicleResult, rot_tol_deg: float) -> str:
-    """A sentence when the radar mount monitor (``vr.mount``, hybrid) measured a step of the radar's
-    yaw during the drive beyond ``rot_tol_deg`` with its 3-sigma (``|step| - 3 std > tol``), else ""."""
-    big = [st for st in (vr.mount or {}).get("steps", []) if abs(st["step_deg"]) - 3 * st["std_deg"] > rot_tol_deg]
-    if not big:
-        return ""
-    turns = "; ".join(f"by {st['step_deg']:+.2f} +- {3 * st['std_deg']:.2f} deg (3 sigma) in yaw from about frame "
-                      f"{st['change']}" for st in big)
-    return (f"The radar turned on the vehicle during the drive {turns}, beyond the {rot_tol_deg:g} deg tolerance "
-            "(the radar mount monitor: its Doppler heading against the vehicle's ego poses).")
-
-
 def verdict_of(vr: VehicleResult, tol: Tolerance | None = None) -> Verdict:
     """The vehicle's verdict: the drift block's own ``"verdict"`` when present, else ``derive_verdict``;
     "recalibrate" whatever they say when the radar mount monitor measured a step beyond the rotation
-    tolerance during the drive (``mount_step_beyond``: it rests on neither the network nor the window)."""
+    tolerance during the drive (``calib.drift.mount_steps_beyond``: it rests on neither the network nor the window)."""
     tol = tol or Tolerance()
+    if (vr.drift or {}).get("at_end"):  # the calibrator's own verdict raised by a step (calib.drift.with_mount_step):
+        vr = dataclasses.replace(vr, drift={**vr.drift, **vr.drift["at_end"]})  # judged here against ``tol`` again
     v = _verdict_vs_reference(vr, tol)
     stored = ((vr.drift or {}).get("axes") or {}).get("yaw") or {}  # the calibration's own, when none is asked for
     rot = tol.rot_deg if tol.rot_deg is not None else float(stored.get("tolerance", tol.resolved().rot_deg))
-    turned = mount_step_beyond(vr, rot)
+    turned = mount_steps_beyond(vr.mount, rot)
     if not turned:
         return v
     return Verdict("recalibrate", f"{turned} Against the reference at the drive's end: {v.word}: {v.why}",
