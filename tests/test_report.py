@@ -390,10 +390,8 @@ def test_a_step_the_mount_monitor_measured_is_the_calibrators_verdict_too():
     report does not say it twice."""
     import dataclasses
 
-    from hybrid_calib.calib.drift import with_mount_step
+    from hybrid_calib.calib.drift import DriftConfig, reference_test, with_mount_step
     from hybrid_calib.report.verdict import verdict_of
-
-    from hybrid_calib.calib.drift import DriftConfig, reference_test
 
     T = nominal_T_cam_radar()
     cov = np.diag([np.radians(1.0) ** 2] * 3 + [0.05 ** 2] * 3)  # the end cannot tell against 0.5 deg / 2 cm
