@@ -355,6 +355,16 @@ class NuScenesRadarCamera:
         """Index-time problems followed by the frames skipped so far while iterating (by index)."""
         return self._index_skips + [self._iter_skips[i] for i in sorted(self._iter_skips)]
 
+    def ego_travel_m(self, indices: list[int]) -> float | None:
+        """How far the ego vehicle moved over the frames ``indices`` (time order), metres: the sum of the distances
+        between consecutive camera keyframes' ego poses (tables only). None when a pose does not read (the frame
+        says why when it is read)."""
+        try:
+            p = [self.tables.T_global_ego(self.frames[i].camera_sd)[:3, 3] for i in indices]
+        except (DataError, KeyError, TypeError):
+            return None
+        return float(sum(np.linalg.norm(b - a) for a, b in zip(p, p[1:])))
+
     def frames_by_vehicle(self) -> dict[str, list[int]]:
         """Vehicle name -> dataset indices of its frames, in time order (the camera keyframes' timestamps: a
         vehicle's scenes need not be listed in scene.json in the order they were driven)."""
