@@ -44,7 +44,7 @@ def _edited(result, path, vehicle: str, T=None, kind="recalibrate", status=None,
     ``undecided`` axes undecided, the others within; ``pinned`` prior-pinned); saved at ``path``."""
     run = CalibrationRun.load(result)
     vr = run.vehicles[vehicle]
-    decide = {w: "differs" if w == "yaw" else "undecided" if w in undecided + pinned else "within"
+    decide = {w: "undecided" if w in undecided + pinned else "differs" if w == "yaw" else "within"
               for w in vr.drift["axes"]}
     axes = {w: {**a, "prior_pinned": w in pinned, "decision": decide[w]} for w, a in vr.drift["axes"].items()}
     vr.final = dataclasses.replace(vr.final, T=vr.final.T if T is None else T, status=status or vr.final.status)
@@ -111,6 +111,12 @@ def test_untrusted_stale_and_misdirected_exports_are_refused(calibrated, tmp_pat
     (stale.parent / "data_stamp.json").write_text(json.dumps({"digest": "0" * 40}))
     exp = export_mounts([stale], tmp_path / "o2", which="trusted")
     assert exp.exported == [] and "changed since" in exp.vehicles["sim-veh-000"]["why"]
+    # an estimate that decides no axis against the tolerance writes nothing: the record would be the tables'
+    from hybrid_calib.calib.drift import AXIS_WORDS
+
+    vague = _edited(result, tmp_path / "v" / "result.json", "sim-veh-000", undecided=AXIS_WORDS)
+    exp = export_mounts([vague], tmp_path / "o5")
+    assert exp.exported == [] and "decide no axis against the tolerance" in exp.vehicles["sim-veh-000"]["why"]
     # never into the root's own tables; an unknown vehicle is named
     with pytest.raises(OptionError, match="root's own version folder"):
         export_mounts([result], root / VERSION)

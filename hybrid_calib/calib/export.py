@@ -243,6 +243,10 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
             continue
         T_est = np.asarray(vr.final.T, np.float64)
         kept = _kept_axes(vr)
+        if len(kept) == len(AXIS_WORDS):  # the record would be the tables' own
+            entry["why"] = ("kept the tables: the data decide no axis against the tolerance (each is undecided or "
+                            "prior-pinned), so there is nothing measured to write")
+            continue
         new: list[tuple[str, np.ndarray, np.ndarray]] = []
         mounts = []  # (T_ego_cam, T_ego_radar) per record: one calibration along the drive
         for tok in toks:
