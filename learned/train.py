@@ -304,6 +304,11 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
             raise _resume_error(out, last, e) from None
         start = ckpt.epoch + 1
         log.info("resuming %s after epoch %d", out, ckpt.epoch)
+        if ckpt.epoch >= conf.epochs:  # a run already past --epochs returned its later checkpoint without a word
+            earlier = ckpt_dir / f"ckpt-{conf.epochs:04d}.json"
+            log.warning("%s already holds %d epochs (>= --epochs %d): nothing to train; its last checkpoint is "
+                        "epoch %d%s", out, ckpt.epoch, conf.epochs, ckpt.epoch,
+                        f" (the {conf.epochs}-epoch one: {earlier})" if earlier.is_file() else "")
     steps_log = _CsvLog(out / "steps.csv", ["epoch", "step", "lr", *LOSS_KEYS, "seconds"], start - 1)
     epochs_log = _CsvLog(out / "epochs.csv", ["epoch", "lr", *(f"train_{k}" for k in LOSS_KEYS),
                                               *(f"val_{k}" for k in LOSS_KEYS), "val_rot_geodesic_deg",

@@ -414,3 +414,14 @@ def test_lidar_nan_points_are_counted_in_the_summary(tiny):
     ds = _open(tiny, load_lidar=True)
     assert ds[0].extras["lidar_nonfinite_dropped"] == 2 and len(ds[0].lidar_points) == 4
     assert summarize_dataset(ds, progress=False).to_json()["groups"][0]["lidar_nonfinite_dropped"] == 2
+
+
+def test_an_unfinished_simulation_is_named(tmp_path):
+    """A simulate run interrupted before its tables were written read as "no version folder (with sample.json) found
+    there" (probe 7); the rerun of simulate finishes it."""
+    from hybrid_calib.data.tables import version_dir
+
+    (tmp_path / "sim_config.json").write_text("{}")
+    (tmp_path / "samples").mkdir()
+    with pytest.raises(DataError, match="an unfinished simulation.*rerun the simulate command"):
+        version_dir(tmp_path, "v1.0-sim")

@@ -202,7 +202,7 @@ def _weights(path) -> dict:
     return load_file(str(path))
 
 
-def test_train_checkpoints_logs_and_resumes(frames, tmp_path):
+def test_train_checkpoints_logs_and_resumes(frames, tmp_path, caplog):
     from hybrid_calib.plots.training import plot_history
     from learned.checkpoint import latest_checkpoint, load_model
     from learned.train import train, train_config
@@ -246,6 +246,12 @@ def test_train_checkpoints_logs_and_resumes(frames, tmp_path):
     wf = _weights(fresh.with_suffix(".safetensors"))
     for k in w3:
         torch.testing.assert_close(wf[k], w3[k], rtol=1e-5, atol=1e-6)
+
+    # --epochs below what the run holds: nothing to train, and said (the later checkpoint came back silently)
+    caplog.clear()
+    assert train(train_config("small", _train_conf(tmp_path, 2)), frames, run, progress=False).name == "ckpt-0003.json"
+    assert any("already holds 3 epochs (>= --epochs 2): nothing to train" in m and "ckpt-0002.json" in m
+               for m in caplog.messages)
 
     model, ckpt = load_model(run)
     assert ckpt.epoch == 3 and not model.training

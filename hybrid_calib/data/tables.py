@@ -62,6 +62,10 @@ def version_dir(root: str | Path, version: str, fix: str = "pass one of them wit
         raise DataError("nuScenes root is not a directory; pass the folder that holds the version folder "
                         "(e.g. v1.0-mini) and samples/", path=str(root))
     vdir = root / version
+    if not vdir.is_dir() and (root / "sim_config.json").is_file() and not available_versions(root):
+        raise DataError("an unfinished simulation: sim_config.json is there but no tables yet (simulate writes them "
+                        "when every frame is rendered); rerun the simulate command that made it to finish it",
+                        path=str(root))
     if not vdir.is_dir():
         found = available_versions(root)
         hint = f"versions found there: {found}" if found else "no version folder (with sample.json) found there"
