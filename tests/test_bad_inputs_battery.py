@@ -462,6 +462,9 @@ SET_CASES = [
                                                                          "got sweep_noise_scale=0"]),
     (["calibrate", "--method", "hybrid"], "mount.wander_deg=-0.1", ["need wander_deg >= 0", "wander_deg=-0.1"]),
     (["calibrate"], "drift.tolerance_rot_deg=1e400", ["need finite numbers", "got tolerance_rot_deg=inf"]),  # "got )"
+    # a key of another method: accepted without effect (probe 7), as --method oracle refuses the hybrid's
+    (["calibrate", "--method", "hybrid"], "oracle.outlier_frac=0.3", ["oracle.* is not used by --method hybrid"]),
+    (["calibrate", "--method", "pure"], "motion.enabled=false", ["motion.* is not used by --method pure"]),
     (["calibrate", "--method", "hybrid"], "lidar.gates_m=[]", ["need gates_m positive", "gates_m=()"]),
     (["calibrate", "--method", "pure"], "start=R9", ["start='R9'", "reference"]),
     (["calibrate", "--method", "pure"], "max_frames=-2", ["max_frames must be >= 0"]),

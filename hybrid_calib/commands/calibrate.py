@@ -83,6 +83,13 @@ def _learned(args: argparse.Namespace, on_vehicle):
                                 f"solve; drop {flag}, or use --method oracle")
     overrides = parse_overrides(args.set)
     reject_set_keys(overrides, {"method": "--method", "split": "--split"})
+    unused = [k for k, used_by in (("oracle", ("oracle",)), ("measurement", ("hybrid", "pure-avg")),
+                                   ("motion", ("hybrid",)), ("mount", ("hybrid",)), ("lidar", ("hybrid",)),
+                                   ("doppler", ("hybrid",)))
+              if k in overrides and args.method not in used_by]
+    if unused:  # accepted and without effect (--method oracle refuses the hybrid's keys the same way)
+        raise OptionError("--set", f"{', '.join(k + '.*' for k in unused)} {'is' if len(unused) == 1 else 'are'} not "
+                                   f"used by --method {args.method}: drop {'it' if len(unused) == 1 else 'them'}")
     # a flag that was passed wins over --set; an absent one leaves --set (or the default) in charge
     overrides.update(method=args.method, split=args.split, **given_flags(args, FLAGS, overrides))
     for key in ("checkpoint", "depth", "refine"):

@@ -63,9 +63,10 @@ def version_dir(root: str | Path, version: str, fix: str = "pass one of them wit
                         "(e.g. v1.0-mini) and samples/", path=str(root))
     vdir = root / version
     if not vdir.is_dir() and (root / "sim_config.json").is_file() and not available_versions(root):
-        raise DataError("an unfinished simulation: sim_config.json is there but no tables yet (simulate writes them "
-                        "when every frame is rendered); rerun the simulate command that made it to finish it",
-                        path=str(root))
+        raise DataError(f"version folder {version!r} does not exist under the nuScenes root; no version folder found "
+                        "there, but sim_config.json is: an unfinished simulation (simulate writes the tables when "
+                        "every frame is rendered); rerun the simulate command that made it to finish it",
+                        path=str(vdir))
     if not vdir.is_dir():
         found = available_versions(root)
         hint = f"versions found there: {found}" if found else "no version folder (with sample.json) found there"
