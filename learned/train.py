@@ -271,8 +271,9 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
                                "give more scenes or set split.test_fraction / split.val_fraction lower")
     if not val_idx:  # epochs.csv's val_* columns stayed empty and history.png had no validation curve, no word
         log.warning("no validation frames: split.by=%s with val_fraction %s leaves none of the %d frames for "
-                    "validation (no val_* columns, no validation curve); add roots or scenes, or pass --set "
-                    "split.by=time", conf.split.by, conf.split.val_fraction, len(frames))
+                    "validation (no val_* columns, no validation curve); add roots or scenes, or pass --set %s",
+                    conf.split.by, conf.split.val_fraction, len(frames),
+                    "split.val_fraction=0.2 (or more frames)" if conf.split.by == "time" else "split.by=time")
     depth = build_depth_estimator(conf.depth, conf.depth_options)
     cache = DepthCache(Path(conf.depth_cache) if conf.depth_cache else out / "depth-cache")
     dconf = dataset_config(conf, model_conf)

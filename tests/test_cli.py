@@ -105,3 +105,16 @@ def test_an_option_set_twice_is_refused():
     for items in (["window.window=5", "window.window=7"], ["window=3", "window.window=5"]):
         with pytest.raises(ConfigError, match="set the same option; give it once"):
             parse_overrides(items)
+
+
+def test_train_on_a_real_root_defaults_to_the_depth_calibrate_uses(tmp_path, capsys):
+    """train on a real root failed every frame after loading them all ("CorruptedTruthDepth needs the simulator's
+    ground-truth depth"), while calibrate picks lidar-densified there (probe 7)."""
+    from hybrid_calib.commands.train import _real_root_depth
+    from tests.tiny_nuscenes import VERSION, make_tiny_root
+
+    tiny = make_tiny_root(tmp_path / "real", n_samples=2)
+    assert _real_root_depth([tiny.root], VERSION) == "lidar-densified"
+    assert "is a real root: training on lidar-densified depth" in capsys.readouterr().err
+    (tiny.root / VERSION / "sim_vehicle.json").write_text("[]")  # the simulator's mark: its own depth truth
+    assert _real_root_depth([tiny.root], VERSION) == ""

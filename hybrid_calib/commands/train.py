@@ -35,7 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="perturbation range of the training starts (default R1)")
     parser.add_argument("--epochs", type=positive_int, default=None, help="number of epochs (overrides the preset)")
     parser.add_argument("--depth", default=None,
-                        help="depth estimator: corrupted-truth (default), lidar-densified or "
+                        help="depth estimator: corrupted-truth (default on simulated roots), lidar-densified (the "
+                             "default on a real root) or "
                              "depth-anything:/local/model/dir")
     parser.add_argument("--init", default=None, metavar="CKPT",
                         help="start a new run from this checkpoint's weights (fine-tuning; same model config)")
@@ -44,6 +45,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="TrainConfig override, e.g. --set batch_size=4 --set model.feat_dim=32 (repeatable)")
     parser.add_argument("--no-resume", action="store_true", help="fail instead of resuming an existing run")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+
+
+def _real_root_depth(roots, version: str) -> str:
+    """The depth a run without --depth trains with when a root is real (no simulator truth): lidar-densified, as
+    calibrate picks (said); "" when every root is simulated (the preset's corrupted-truth). The default failed on
+    every frame of a real root, after loading them all. ``OptionError`` for a real root without LiDAR."""
+    import sys
+
+    from hybrid_calib.data.tables import NuScenesTables
+
+    real = [r for r in roots if not (Path(r) / version / "sim_vehicle.json").is_file()]
+    if not real:
+        return ""
+    blind = [str(r) for r in real if "LIDAR_TOP" not in NuScenesTables(r, version).channels()]
+    if blind:
+        raise OptionError("--depth", f"{', '.join(blind)} is a real root without LIDAR_TOP, and the default depth "
+                                     "(corrupted-truth) needs the simulator's: pass --depth "
+                                     "depth-anything:/local/model/dir")
+    print(f"note: {', '.join(map(str, real))} is a real root: training on lidar-densified depth (the LiDAR through the "
+          "tables), as calibrate uses there; pass --depth to choose", file=sys.stderr)
+    return "lidar-densified"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -57,6 +79,8 @@ def run(args: argparse.Namespace) -> int:
             overrides[key] = getattr(args, key)
     if args.init is not None:
         overrides["init_weights"] = args.init
+    if "depth" not in overrides and (depth := _real_root_depth(args.data, args.version)):
+        overrides["depth"] = depth
     conf = train_config(args.preset, overrides)
     resolved = [Path(d).resolve() for d in args.data]
     if twice := sorted({str(d) for d in resolved if resolved.count(d) > 1}):
