@@ -253,7 +253,8 @@ def _verdict(axes: list[AxisCheck]) -> tuple[str, str]:
                        f"tolerance {_fmt(a.tolerance, a.unit)}; the data do not observe it)")
         else:
             why.append(f"{a.name} differs by {_fmt(abs(a.delta), a.unit)} +- {_fmt(a.std, a.unit)}, not precise "
-                       f"enough to decide against the {_fmt(a.tolerance, a.unit)} tolerance (more frames narrow it)")
+                       f"enough to decide against the {_fmt(a.tolerance, a.unit)} tolerance (frames of other scenes "
+                       "and turns narrow it; more of the same straight road may not)")
     return "cannot tell", "cannot tell: " + "; ".join(why) + note
 
 
