@@ -215,6 +215,10 @@ def test_empty_sweep_after_filtering(tiny):
     assert kept.radar_points.shape == (0, 3) and kept.extras["radar_rows"].shape == (0,)
     assert len(_open(tiny, radar_filter={"ambig_states": None})[1].radar_points) == 6
     assert len(_open(tiny, radar_filter={"enabled": False})[1].radar_points) == 6
+    # an empty list keeps no value (it reads as "no invalid states"): said, with what the lists mean (probe 7)
+    ds = _open(tiny, radar_filter={"invalid_states": []})
+    list(ds)
+    assert "radar_filter.invalid_states=[] keeps no value" in ds.skipped[-1].reason
 
 
 def test_zero_point_pcd_is_empty_sweep(tiny):

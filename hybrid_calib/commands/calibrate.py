@@ -139,6 +139,7 @@ def run(args: argparse.Namespace) -> int:
 def _report(result, out: Path, reused: bool = False) -> int:
     """Print one line per vehicle and where the result is; ``reused``: it is an earlier run's ``result.json`` (same
     data and options), read back, not computed (nor written) now."""
+    from hybrid_calib.calib.covariance import untrusted_status
     from hybrid_calib.calib.drift import drift_verdict
     from hybrid_calib.calib.lever_arm import describe as describe_doppler
     from hybrid_calib.calib.lidar_alignment import describe as describe_lidar
@@ -148,7 +149,9 @@ def _report(result, out: Path, reused: bool = False) -> int:
 
     for name, v in result.vehicles.items():
         s = std_dict(v.final.std, STD_FRAME)
-        line = (f"{name}: {v.final.status}; std (camera axes) rot {s['rot_x_cam_deg']:.3f}/{s['rot_y_cam_deg']:.3f}/"
+        label = "std (camera axes; untrusted, as the status says)" if untrusted_status(v.final.status) else \
+            "std (camera axes)"
+        line = (f"{name}: {v.final.status}; {label} rot {s['rot_x_cam_deg']:.3f}/{s['rot_y_cam_deg']:.3f}/"
                 f"{s['rot_z_cam_deg']:.3f} deg, t {s['t_x_cam_cm']:.2f}/{s['t_y_cam_cm']:.2f}/{s['t_z_cam_cm']:.2f} cm")
         if v.error:
             line += (f"; error{' vs the tables' if v.errors_against == 'tables' else ''} "

@@ -444,8 +444,13 @@ class NuScenesRadarCamera:
                 "no sweeps/ folder; set nsweeps=1 to silence this.", MissingSweepWarning, stacklevel=2)
         pts = sweeps.points
         if len(pts) == 0 and self.conf.skip_empty_radar:
+            rf = self.conf.radar_filter
+            empty = [k for k in ("invalid_states", "dynprop_states", "ambig_states")
+                     if rf.enabled and getattr(rf, k) is not None and not len(getattr(rf, k))]
             raise DataError(f"radar sweep has 0 points after filtering ({sweeps.n_raw} read, "
-                            f"{sweeps.n_nonfinite} NaN or beyond 1 km); loosen radar_filter or set "
+                            f"{sweeps.n_nonfinite} NaN or beyond 1 km)"
+                            + (f"; radar_filter.{' and '.join(empty)}=[] keeps no value (the lists hold the values "
+                               "kept; null keeps any)" if empty else "") + "; loosen radar_filter or set "
                             "skip_empty_radar=false to keep empty frames (inspect: --set KEY=VALUE; the network "
                             "methods of calibrate, fleet and compare: --set data.KEY=VALUE)",
                             path=str(self.root / rad["filename"]),
