@@ -210,6 +210,12 @@ def test_ego_poses_that_contradict_the_doppler_speed_are_not_used():
     assert ego_conflict(a, b, 8.7) == ""
     m, why = ego_measurement(a, v, b, v, np.eye(3), 2.0, 1.5, 40.0)
     assert m is not None, why
+    # a heading flipped in the tables is no turn (it read "turning at 329 deg/s (at most 15)", probe 7)
+    from scipy.spatial.transform import Rotation
+
+    b.extras = {k: make_T(Rotation.from_euler("z", 180, degrees=True).as_matrix(), [14.4, 0.0, 0.0]) for k in b.extras}
+    m, why = ego_measurement(a, v, b, v, np.eye(3), 2.0, 1.5, 40.0)
+    assert m is None and "which no vehicle does: the ego poses (ego_pose.json) are wrong here" in why
     # a radar whose velocity fields say 0 m/s while the poses move is not a parked car
     v0 = SimpleNamespace(v=np.zeros(2), cov=np.eye(2) * 1e-4, speed=0.0, n_inliers=30)
     m, why = ego_measurement(a, v0, b, v0, np.eye(3), 2.0, 1.5, 40.0)

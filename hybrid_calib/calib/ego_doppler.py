@@ -49,6 +49,8 @@ class EgoSweep:
     position: int = -1
     keyframe: bool = True
 
+MAX_PLAUSIBLE_TURN_DPS = 120.0  # a yaw rate no road vehicle reaches (a tight U-turn: ~40 deg/s), deg/s
+
 
 def ego_measurement(fa, va, fb, vb, R_ego_radar: np.ndarray, min_speed_mps: float, max_gap_s: float,
                     max_turn_dps: float) -> tuple[MotionMeasurement | None, str]:
@@ -77,6 +79,9 @@ def ego_measurement(fa, va, fb, vb, R_ego_radar: np.ndarray, min_speed_mps: floa
     if min(va.speed, vb.speed) < min_speed_mps:
         return None, f"radar speed {min(va.speed, vb.speed):.1f} m/s (need {min_speed_mps:g})"
     turn = float(np.degrees(np.linalg.norm(so3_log(R_A)))) / dt
+    if turn > MAX_PLAUSIBLE_TURN_DPS:  # a heading flipped in the tables read as a "turn"
+        return None, (f"the ego poses turn {turn:.0f} deg/s between these sweeps ({dt:.2f} s), which no vehicle "
+                      "does: the ego poses (ego_pose.json) are wrong here")
     if turn > max_turn_dps:
         return None, f"turning at {turn:.0f} deg/s (at most {max_turn_dps:g})"
     psi, sig, speed = chord_heading(va.v, va.cov, vb.v, vb.cov, radar_yaw_change(R_A, R_ego_radar))
