@@ -86,11 +86,10 @@ def _std_ego(T_ego_radar: np.ndarray, cov: np.ndarray) -> dict:
 
 def _change(T_new: np.ndarray, T_old: np.ndarray) -> dict:
     """How far a new radar record is from the old one: rotation angle [deg], translation [cm], in ego axes."""
-    from hybrid_calib.geometry import so3_log
+    from hybrid_calib.data.nuscenes import mount_offset
 
-    dR = so3_log(T_old[:3, :3].T @ T_new[:3, :3])
-    return {"rot_deg": float(np.degrees(np.linalg.norm(dR))),
-            "trans_cm": float(100 * np.linalg.norm(T_new[:3, 3] - T_old[:3, 3])),
+    rot_deg, trans_cm = mount_offset(T_new, T_old)
+    return {"rot_deg": rot_deg, "trans_cm": trans_cm,
             "t_ego_cm": [float(v) for v in 100 * (T_new[:3, 3] - T_old[:3, 3])]}
 
 
@@ -99,15 +98,6 @@ def _record(T: np.ndarray) -> dict:
 
     rotation, translation = pose_to_nuscenes(T)
     return {"translation": translation, "rotation": rotation}
-
-
-def _same(T: np.ndarray, T0: np.ndarray) -> bool:
-    """Two mounts the data layer counts as one calibration (``data.nuscenes.SAME_CALIBRATION``)."""
-    from hybrid_calib.data.nuscenes import SAME_CALIBRATION
-    from hybrid_calib.geometry import so3_log
-
-    rot = float(np.degrees(np.linalg.norm(so3_log(T0[:3, :3].T @ T[:3, :3]))))
-    return rot <= SAME_CALIBRATION[0] and 100 * float(np.linalg.norm(T[:3, 3] - T0[:3, 3])) <= SAME_CALIBRATION[1]
 
 
 def _kept_axes(vr) -> list[int]:
@@ -171,7 +161,7 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
     of the results). ``DataError`` / ``OptionError`` naming the file or option when nothing can be exported
     from these inputs at all; a vehicle that cannot be exported is said in its entry."""
     from hybrid_calib.calib.result import CalibrationRun
-    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera, same_calibration
     from hybrid_calib.geometry import se3_inverse
 
     if which not in WHICH:
@@ -252,14 +242,14 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
         for tok in toks:
             cams = sorted(pairs[(name, tok)])
             T_cams = [t.T_ego_sensor({"token": f"(frames of {name})", "calibrated_sensor_token": c}) for c in cams]
-            if any(not _same(T, T_cams[0]) for T in T_cams[1:]):
+            if any(not same_calibration(T, T_cams[0]) for T in T_cams[1:]):
                 why = (f"not exported: its radar record {tok} is paired with {len(cams)} camera mounts that differ "
                        "(the camera was re-mounted along the drive); one radar record cannot fit both")
                 break
             T_old = t.T_ego_sensor({"token": f"(frames of {name})", "calibrated_sensor_token": tok})
             mounts.append((T_cams[0], T_old))
             new.append((tok, T_old, T_cams[0] @ _keep_axes(se3_inverse(T_cams[0]) @ T_old, T_est, kept)))
-        if not why and any(not _same(se3_inverse(Tc) @ Tr, se3_inverse(mounts[0][0]) @ mounts[0][1])
+        if not why and any(not same_calibration(se3_inverse(Tc) @ Tr, se3_inverse(mounts[0][0]) @ mounts[0][1])
                            for Tc, Tr in mounts[1:]):
             why = ("not exported: its tables hold more than one radar-camera calibration along the drive (a mount "
                    "change); the estimate stands for the drive's end only")

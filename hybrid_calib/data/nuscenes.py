@@ -98,6 +98,17 @@ class SkipRecord:
 # two camera-radar extrinsics of a vehicle's tables closer than this (deg, cm) are one calibration: nuScenes' own
 # differ by 0.46 deg and more (radar yaws -0.85, -0.26, 0.00, +0.20 deg) or by centimetres (camera mounts)
 SAME_CALIBRATION = (0.01, 0.1)
+def mount_offset(T: np.ndarray, T0: np.ndarray) -> tuple[float, float]:
+    """How far apart two mounts (4, 4) are: (rotation angle, deg; translation, cm)."""
+    angle = float(np.degrees(np.linalg.norm(so3_log(T0[:3, :3].T @ T[:3, :3]))))
+    return angle, float(100 * np.linalg.norm(T[:3, 3] - T0[:3, 3]))
+
+
+def same_calibration(T: np.ndarray, T0: np.ndarray) -> bool:
+    """Two mounts the tables hold as one calibration (within ``SAME_CALIBRATION``)."""
+    return all(d <= tol for d, tol in zip(mount_offset(T, T0), SAME_CALIBRATION))
+
+
 # a principal point farther than this fraction of the image's width or height from its centre: an intrinsic for
 # another image size (nuScenes' CAM_FRONT: 51 % / 55 %; the simulator's: 51 % / 54 %)
 MAX_PP_OFF_CENTRE = 0.15
@@ -268,22 +279,17 @@ class NuScenesRadarCamera:
             except (DataError, KeyError, TypeError):
                 return None  # a broken record: the frame says so when it is read
 
-        def offset(T: np.ndarray, T0: np.ndarray) -> tuple[float, float]:
-            angle = float(np.degrees(np.linalg.norm(so3_log(T0[:3, :3].T @ T[:3, :3]))))
-            return angle, float(100 * np.linalg.norm(T[:3, 3] - T0[:3, 3]))
-
         seen: dict[str, list[tuple[str, np.ndarray]]] = {}  # vehicle -> [(name, extrinsic)]
         out = []
         for ref in frames:
             known, T = seen.setdefault(ref.vehicle, []), extrinsic(ref)
-            name = next((n for n, T0 in known if T is None or T0 is None or
-                         all(d <= tol for d, tol in zip(offset(T, T0), SAME_CALIBRATION))), None)
+            name = next((n for n, T0 in known if T is None or T0 is None or same_calibration(T, T0)), None)
             if name is None:
                 name = ref.vehicle if not known else f"{ref.vehicle}-cal{len(known) + 1}"
                 known.append((name, T))
             out.append(ref if name == ref.vehicle else dataclasses.replace(ref, vehicle=name))
         self.calibration_splits = {v: [n for n, _ in k] for v, k in seen.items() if len(k) > 1}
-        self.calibration_offsets = {n: offset(T, k[0][1]) for k in seen.values() if len(k) > 1 for n, T in k[1:]
+        self.calibration_offsets = {n: mount_offset(T, k[0][1]) for k in seen.values() if len(k) > 1 for n, T in k[1:]
                                     if T is not None and k[0][1] is not None}
         return out
 
