@@ -31,11 +31,13 @@ def calibrated(tmp_path_factory):
     return root, out / "result.json"
 
 
-def _tables_T(root, vehicle: str) -> np.ndarray:
+def _tables_T(root, vehicle: str, key: str = "T_cam_radar_static") -> np.ndarray:
+    """The vehicle's T_cam_radar from the tables (``key`` "reference_T_cam_radar": what its verdict compares
+    against; on a simulated root the factory calibration of sim_vehicle.json, the tables holding the truth)."""
     from hybrid_calib.data.nuscenes import NuScenesRadarCamera
 
     ds = NuScenesRadarCamera(root, VERSION, conf={"check_images": False, "vehicles": (vehicle,)})
-    return ds[0].extras["T_cam_radar_static"]
+    return ds[0].extras[key]
 
 
 def _edited(result, path, vehicle: str, T=None, kind="recalibrate", status=None, pinned=("vertical offset",),
@@ -69,10 +71,11 @@ def test_export_writes_the_estimate_where_measured_and_keeps_the_tables_where_pi
     from hybrid_calib.calib.export import export_mounts
 
     root, result = calibrated
-    T_tab = _tables_T(root, "sim-veh-000")
-    B = report_basis(T_tab)
+    T_ref = _tables_T(root, "sim-veh-000", "reference_T_cam_radar")  # the factory calibration the verdict uses
+    assert not np.allclose(T_ref, _tables_T(root, "sim-veh-000"))  # not the simulator's truth in the tables
+    B = report_basis(T_ref)
     d_cam = np.radians([0.0, 1.5, 0.4, 0, 0, 0]) + np.r_[0, 0, 0, 0.04, 0.30, -0.03]  # yaw, roll; x, y, z in m
-    T_est = retract(T_tab, B.T @ d_cam)
+    T_est = retract(T_ref, B.T @ d_cam)
     path = _edited(result, tmp_path / "r" / "result.json", "sim-veh-000", T=T_est)
     exp = export_mounts([path], tmp_path / "out")
     assert exp.exported == ["sim-veh-000"] and not exp.vehicles["sim-veh-001"]["exported"]
@@ -80,10 +83,10 @@ def test_export_writes_the_estimate_where_measured_and_keeps_the_tables_where_pi
     v = exp.vehicles["sim-veh-000"]
     assert v["tables_kept"] == ["roll", "vertical offset"] and "roll, vertical offset kept" in v["why"]
     assert v["std_ego"] is not None and set(v["std_ego"]) >= {"rot_z_ego_deg", "t_x_ego_cm"}
-    # read back through the data layer: the estimate along every decided axis, the tables' roll (undecided) and
-    # vertical offset (prior-pinned)
+    # read back through the data layer: the estimate along every decided axis, the reference's roll (undecided)
+    # and vertical offset (prior-pinned)
     T_back = _read_back(root, tmp_path / "out" / "calibrated_sensor.json", tmp_path, "sim-veh-000")
-    got = B @ local(T_tab, T_back)
+    got = B @ local(T_ref, T_back)
     np.testing.assert_allclose(got, [0, np.radians(1.5), 0, 0.04, 0.0, -0.03], atol=1e-9)
     # the other vehicle's records, and every other record, are unchanged
     before = json.loads((root / VERSION / "calibrated_sensor.json").read_text())
@@ -106,6 +109,7 @@ def test_untrusted_stale_and_misdirected_exports_are_refused(calibrated, tmp_pat
                    status="weak: x (last solve: NOT CONVERGED after 50 iterations)")
     exp = export_mounts([path], tmp_path / "o1", which="trusted")
     assert exp.exported == ["sim-veh-001"] and "did not converge" in exp.vehicles["sim-veh-000"]["why"]
+    assert any("no data stamp beside it" in n for n in exp.notes)  # an edited copy: not checked, and said
     # a result of data that changed since: refused, said
     stale = _edited(result, tmp_path / "s" / "result.json", "sim-veh-000")
     (stale.parent / "data_stamp.json").write_text(json.dumps({"digest": "0" * 40}))
@@ -120,6 +124,15 @@ def test_untrusted_stale_and_misdirected_exports_are_refused(calibrated, tmp_pat
     # never into the root's own tables; an unknown vehicle is named
     with pytest.raises(OptionError, match="root's own version folder"):
         export_mounts([result], root / VERSION)
+    with pytest.raises(OptionError, match="is the data root itself"):  # the root from the result, no --data
+        export_mounts([result], root)
+    # a result without the per-axis test (an older version's) says so, not "decides no axis"
+    run = CalibrationRun.load(result)
+    for vr in run.vehicles.values():
+        vr.drift = {k: v for k, v in vr.drift.items() if k != "axes"}
+    run.save(tmp_path / "old" / "result.json")
+    exp = export_mounts([tmp_path / "old" / "result.json"], tmp_path / "o6", which="trusted")
+    assert exp.exported == [] and "holds no per-axis test" in exp.vehicles["sim-veh-000"]["why"]
     with pytest.raises(OptionError, match="sim-veh-009 not in the results"):
         export_mounts([result], tmp_path / "o3", vehicles=["sim-veh-009"])
     # the command: one line per vehicle, then what was written

@@ -160,7 +160,7 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
     ``version``: the root (default: the one the results record); ``vehicles``: only these (default: every vehicle
     of the results). ``DataError`` / ``OptionError`` naming the file or option when nothing can be exported
     from these inputs at all; a vehicle that cannot be exported is said in its entry."""
-    from hybrid_calib.calib.result import CalibrationRun
+    from hybrid_calib.calib.result import CalibrationRun, stored_digest
     from hybrid_calib.data.nuscenes import NuScenesRadarCamera, same_calibration
     from hybrid_calib.geometry import se3_inverse
 
@@ -183,10 +183,13 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
         raise OptionError("--data", f"{root / str(version)} is not a folder: pass the nuScenes root the results "
                                     "were computed on, with --version its version folder")
     if out is not None:
+        from hybrid_calib.errors import check_out_outside_data
+
         o, vdir = Path(out).resolve(), (root / version).resolve()
         if o == vdir or vdir in o.parents:
             raise OptionError("--out", f"{out} is the root's own version folder: export never writes the root's "
                                        "tables; pass another folder and copy calibrated_sensor.json into a copy of it")
+        check_out_outside_data(out, root, version)  # the root itself, its sensor folders (the root from the results)
     ds = NuScenesRadarCamera(root, version, conf={"check_images": False})
     t = ds.tables
     found: dict[str, tuple[Path, object]] = {}
@@ -202,6 +205,7 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
                                            f"{', '.join(sorted(found))}")
         found = {n: found[n] for n in vehicles}
     stale = {p: why for p in {p for p, _ in found.values()} if (why := _check_stamp(p, root, version))}
+    unstamped = sorted(str(p) for p in {p for p, _ in found.values()} if p not in stale and not stored_digest(p.parent))
     # the radar and camera calibrated_sensor records of every vehicle's frames
     radar_of: dict[str, set[str]] = {}
     pairs: dict[tuple[str, str], set[str]] = {}  # (vehicle, radar record) -> camera records
@@ -233,6 +237,10 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
             continue
         T_est = np.asarray(vr.final.T, np.float64)
         kept = _kept_axes(vr)
+        if not (vr.drift or {}).get("axes"):  # an older result: no per-axis test to say what was measured
+            entry["why"] = ("not exported: the result holds no per-axis test against the tables (written by an older "
+                            "version): calibrate again to export it")
+            continue
         if len(kept) == len(AXIS_WORDS):  # the record would be the tables' own
             entry["why"] = ("kept the tables: the data decide no axis against the tolerance (each is undecided or "
                             "prior-pinned), so there is nothing measured to write")
@@ -248,7 +256,11 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
                 break
             T_old = t.T_ego_sensor({"token": f"(frames of {name})", "calibrated_sensor_token": tok})
             mounts.append((T_cams[0], T_old))
-            new.append((tok, T_old, T_cams[0] @ _keep_axes(se3_inverse(T_cams[0]) @ T_old, T_est, kept)))
+            # kept axes: the reference the verdict compared against (the tables; a simulated root's factory
+            # calibration, sim_vehicle.json, since its calibrated_sensor holds the simulator's truth)
+            T_ref = ds.reference_of(next(f for f in ds.frames if f.vehicle == name
+                                         and f.radar_sd["calibrated_sensor_token"] == tok))
+            new.append((tok, T_old, T_cams[0] @ _keep_axes(T_ref, T_est, kept)))
         if not why and any(not same_calibration(se3_inverse(Tc) @ Tr, se3_inverse(mounts[0][0]) @ mounts[0][1])
                            for Tc, Tr in mounts[1:]):
             why = ("not exported: its tables hold more than one radar-camera calibration along the drive (a mount "
@@ -269,6 +281,9 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
                          if kept else ""))
     if stale:
         exp.notes += list(stale.values())
+    if unstamped:  # a fleet vehicle's result (its stamp is in the fleet's manifest) or an older run's
+        exp.notes.append(f"{', '.join(unstamped)} record{'s' if len(unstamped) == 1 else ''} no data stamp beside "
+                         "it (data_stamp.json): not checked against the data as they are now")
     if out is not None:
         exp.save(out)
     return exp

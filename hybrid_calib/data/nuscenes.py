@@ -524,6 +524,12 @@ class NuScenesRadarCamera:
         T_cam_lidar = T_cam_global @ t.T_global_ego(sd) @ t.T_ego_sensor(sd)
         return np.ascontiguousarray(pts[finite], dtype=np.float32), T_cam_lidar
 
+    def reference_of(self, ref: FrameRef) -> np.ndarray:
+        """(4, 4) the reference T_cam_radar of a frame from the tables alone (``_reference``; no sensor file read):
+        what a drift verdict on its vehicle compared against. ``DataError`` when its records do not read."""
+        T_ego_cam = self.tables.T_ego_sensor(ref.camera_sd)
+        return self._reference(ref, T_ego_cam, se3_inverse(T_ego_cam) @ self.tables.T_ego_sensor(ref.radar_sd))
+
     def _reference(self, ref: FrameRef, T_ego_cam: np.ndarray, T_cam_radar_static: np.ndarray) -> np.ndarray:
         """The extrinsic a drift detector compares against: the vehicle's calibration tables. In a
         v1.0-sim root ``calibrated_sensor`` carries the simulator's ground truth, so the tables a
