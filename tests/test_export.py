@@ -79,7 +79,8 @@ def test_export_writes_the_estimate_where_measured_and_keeps_the_tables_where_pi
     path = _edited(result, tmp_path / "r" / "result.json", "sim-veh-000", T=T_est)
     exp = export_mounts([path], tmp_path / "out")
     assert exp.exported == ["sim-veh-000"] and not exp.vehicles["sim-veh-001"]["exported"]
-    assert "kept the tables: the verdict is not 'recalibrate'" in exp.vehicles["sim-veh-001"]["why"]
+    assert "kept the tables: the verdict against them is 'cannot tell', not 'recalibrate'" in \
+        exp.vehicles["sim-veh-001"]["why"]
     v = exp.vehicles["sim-veh-000"]
     assert v["tables_kept"] == ["roll", "vertical offset"] and "roll, vertical offset kept" in v["why"]
     assert v["std_ego"] is not None and set(v["std_ego"]) >= {"rot_z_ego_deg", "t_x_ego_cm"}
@@ -114,7 +115,7 @@ def test_untrusted_stale_and_misdirected_exports_are_refused(calibrated, tmp_pat
     stale = _edited(result, tmp_path / "s" / "result.json", "sim-veh-000")
     (stale.parent / "data_stamp.json").write_text(json.dumps({"digest": "0" * 40}))
     exp = export_mounts([stale], tmp_path / "o2", which="trusted")
-    assert exp.exported == [] and "changed since" in exp.vehicles["sim-veh-000"]["why"]
+    assert exp.exported == [] and "computed from other data" in exp.vehicles["sim-veh-000"]["why"]
     # an estimate that decides no axis against the tolerance writes nothing: the record would be the tables'
     from hybrid_calib.calib.drift import AXIS_WORDS
 
@@ -135,6 +136,23 @@ def test_untrusted_stale_and_misdirected_exports_are_refused(calibrated, tmp_pat
     assert exp.exported == [] and "holds no per-axis test" in exp.vehicles["sim-veh-000"]["why"]
     with pytest.raises(OptionError, match="sim-veh-009 not in the results"):
         export_mounts([result], tmp_path / "o3", vehicles=["sim-veh-009"])
-    # the command: one line per vehicle, then what was written
-    assert main(["export", str(path), "--out", str(tmp_path / "o4"), "--which", "trusted"]) == 0
+    # the command: one line per vehicle, then what was written; exit 1 when a vehicle was refused
+    assert main(["export", str(path), "--out", str(tmp_path / "o4"), "--which", "trusted"]) == 1
     assert not (root / VERSION / "export.json").exists()
+    # an export already in --out is not replaced silently (exported vehicle by vehicle, only the last was kept)
+    with pytest.raises(OptionError, match="holds an export already.*--overwrite"):
+        export_mounts([path], tmp_path / "o4", which="trusted")
+    assert export_mounts([path], tmp_path / "o4", which="trusted", overwrite=True).exported == ["sim-veh-001"]
+    # a result of another root without a data stamp is not written into this one (vehicle names repeat)
+    other = CalibrationRun.load(path)
+    other.data = str(tmp_path / "elsewhere")
+    other.save(tmp_path / "x" / "result.json")
+    exp = export_mounts([tmp_path / "x" / "result.json"], tmp_path / "o7", data=root, which="trusted")
+    assert exp.exported == [] and "was computed on" in exp.vehicles["sim-veh-001"]["why"]
+    # the radar did not move on the vehicle (its Doppler agrees with its tables): its record is not moved
+    side = _edited(result, tmp_path / "c" / "result.json", "sim-veh-000")
+    run = CalibrationRun.load(side)
+    run.vehicles["sim-veh-000"].drift["camera_side"] = "the camera side is the likelier cause of the yaw difference"
+    run.save(side)
+    exp = export_mounts([side], tmp_path / "o8")
+    assert exp.exported == [] and "the camera side is the likelier cause" in exp.vehicles["sim-veh-000"]["why"]

@@ -7,11 +7,13 @@ radar mount monitor reads the radar at its tables' yaw, the drift verdict says t
 cause: ``calib.drift.camera_side_note``; export.json repeats that sentence). Every sample_data of those records,
 keyframes and sweeps, then reads the calibrated mount; every other record is written as it was.
 
-Per camera axis (``calib.drift``'s test against the tables, ``AXIS_WORDS``): where it decides ("differs" or
+Per camera axis (``calib.drift``'s test against the reference, ``AXIS_WORDS``): where it decides ("differs" or
 "within": the estimate is known to better than the tolerance) the estimate's offset is written; where it does not
-("undecided", or prior-pinned: the vertical offset and the pitch on most drives, which the data do not observe)
-the tables' value is kept, since an estimate that cannot tell the tolerance apart would only replace them with a
-noisier number. ``std_ego`` is the estimate's 1-sigma; along the kept axes the value written is the tables'.
+("undecided"; prior-pinned: the vertical offset and the pitch on most drives, which the data do not observe; or
+dominated by a fleet prior) the reference's value is kept, since an estimate that cannot tell the tolerance apart
+would only replace it with a noisier number. The reference is the one the verdict used (``reference_of``): the
+tables, or on a simulated root the factory calibration of ``sim_vehicle.json`` (its ``calibrated_sensor`` holds the
+simulator's truth). ``std_ego`` is the estimate's 1-sigma; along the kept axes the value written is the reference's.
 
 Which vehicles (``which``):
 - ``"recalibrate"`` (the default): those whose verdict against the tables is "recalibrate" (``calib.drift``: the
@@ -21,7 +23,9 @@ Which vehicles (``which``):
 Never exported: an untrusted estimate (``calib.covariance.untrusted_status``: not converged, out of the network's
 domain, degenerate); a vehicle whose radar records hold more than one calibration along its drive (one estimate
 cannot stand for both), or are shared with another vehicle, or are paired with camera mounts that differ; a result
-computed from data that changed since (its ``data_stamp.json``). Each is said, with why, in ``export.json``.
+computed from other data (its ``data_stamp.json``; without one, another recorded root); a vehicle whose verdict
+names the camera side as the likelier cause (its radar's Doppler agrees with its tables). Each is said, with why,
+in ``export.json``.
 
 Outputs (``MountExport.save``): ``OUT/calibrated_sensor.json`` (the root's table, exported records replaced) and
 ``OUT/export.json`` (per vehicle: exported or why not, the records before and after, the estimate's 1-sigma in
@@ -103,11 +107,13 @@ def _record(T: np.ndarray) -> dict:
 def _kept_axes(vr) -> list[int]:
     """The camera axes (``calib.drift.AXIS_WORDS`` order) along which the tables are kept: those the result's
     per-axis test against the tables leaves undecided (its 3-sigma straddles the tolerance: the estimate is too
-    uncertain to replace them) or calls prior-pinned (the data do not observe them). Along the others (decision
-    "differs" or "within") the estimate is measured to better than the tolerance, and it is written."""
+    uncertain to replace them), calls prior-pinned (the data do not observe them), or a fleet prior dominates
+    (``calib.drift.prior_note``: the estimate restates the prior). Along the others (decision "differs" or
+    "within") the estimate is measured to better than the tolerance, and it is written."""
     axes = (vr.drift or {}).get("axes") or {}
-    return [i for i, word in enumerate(AXIS_WORDS)
-            if (a := axes.get(word) or {}).get("prior_pinned") or a.get("decision") not in ("differs", "within")]
+    dominated = set(((vr.drift or {}).get("prior") or {}).get("dominated") or ())  # a fleet prior's, not measured
+    return [i for i, word in enumerate(AXIS_WORDS) if word in dominated
+            or (a := axes.get(word) or {}).get("prior_pinned") or a.get("decision") not in ("differs", "within")]
 
 
 def _keep_axes(T_ref: np.ndarray, T_est: np.ndarray, kept: list[int]) -> np.ndarray:
@@ -131,35 +137,44 @@ def _why_not(vr, which: str) -> str:
 
     if why := untrusted_status(vr.final.status):
         return f"not exported: {why}, so the estimate is no calibration ({vr.final.status.split(';')[0][:160]})"
+    if side := (vr.drift or {}).get("camera_side"):  # the radar did not move on the vehicle: do not move its record
+        return f"not exported: {side}; writing the radar's record would move a radar its own Doppler says did not move"
     kind = (vr.drift or {}).get("verdict_kind")
     if which == "recalibrate" and kind != "recalibrate":
-        said = (vr.drift or {}).get("verdict") or "no verdict against the tables"
-        return (f"kept the tables: the verdict is not 'recalibrate' ({said[:240]}); --which trusted writes every "
-                "trusted estimate")
+        return (f"kept the tables: the verdict against them is '{kind or 'none'}', not 'recalibrate' (result.json "
+                "says why); --which trusted writes every trusted estimate")
     return ""
 
 
-def _check_stamp(path: Path, root: Path, version: str) -> str:
-    """"" when the result at ``path`` was computed from the data now at ``root`` (or says nothing of it: a note
-    then), else why it is refused."""
+def _check_stamp(path: Path, run, root: Path, version: str) -> str:
+    """"" when the result at ``path`` (``run``) was computed from the data now at ``root`` / ``version``, else why
+    it is refused. Its data stamp decides (a root moved or copied elsewhere is the same data); without one, the
+    root and version it records must be these (vehicle names repeat across roots: every simulated root has a
+    sim-veh-000, nuScenes' n015 drives in several releases)."""
     from hybrid_calib.calib.result import stored_digest
     from hybrid_calib.data.files import data_stamp
 
     stored = stored_digest(path.parent)
+    same_place = (not run.data or Path(run.data).resolve() == root.resolve()) and run.version in (None, "", version)
     if stored and stored != data_stamp(root, version)["digest"]:
-        return (f"the data in {root} changed since {path} was computed (its data_stamp.json differs): re-run the "
-                "calibration on the data as they are now")
+        where = "" if same_place else f", on {run.data} ({run.version}), not on {root} ({version})"
+        return (f"{path} was computed from other data{where} (its data_stamp.json differs from the data now): "
+                "re-run the calibration on this root, or pass the root it was computed on")
+    if not stored and not same_place:
+        return (f"{path} was computed on {run.data} ({run.version}), not on {root} ({version}), and records no data "
+                "stamp that would show them to be the same data: pass the root it was computed on")
     return ""
 
 
 def export_mounts(results: list[str | Path], out: str | Path | None = None, data: str | Path | None = None,
                   version: str | None = None, which: str = "recalibrate",
-                  vehicles: list[str] | None = None) -> MountExport:
+                  vehicles: list[str] | None = None, overwrite: bool = False) -> MountExport:
     """The calibrated radar mounts of ``results`` (``result.json`` files of one root: calibrate, fleet vehicles,
     demo) as the root's ``calibrated_sensor`` table (module doc); saved to ``out`` when given. ``data`` /
     ``version``: the root (default: the one the results record); ``vehicles``: only these (default: every vehicle
     of the results). ``DataError`` / ``OptionError`` naming the file or option when nothing can be exported
-    from these inputs at all; a vehicle that cannot be exported is said in its entry."""
+    from these inputs at all; a vehicle that cannot be exported is said in its entry. An ``out`` that holds an
+    export already is refused unless ``overwrite`` (one command takes every result file of one table)."""
     from hybrid_calib.calib.result import CalibrationRun, stored_digest
     from hybrid_calib.data.nuscenes import NuScenesRadarCamera, same_calibration
     from hybrid_calib.geometry import se3_inverse
@@ -190,6 +205,10 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
             raise OptionError("--out", f"{out} is the root's own version folder: export never writes the root's "
                                        "tables; pass another folder and copy calibrated_sensor.json into a copy of it")
         check_out_outside_data(out, root, version)  # the root itself, its sensor folders (the root from the results)
+        if (Path(out) / "export.json").is_file() and not overwrite:  # exported vehicle by vehicle, the last won
+            raise OptionError("--out", f"{out} holds an export already (export.json); pass --overwrite to replace it, "
+                                       "or another --out. To put several vehicles in one table, pass all their "
+                                       "result files to one export command")
     ds = NuScenesRadarCamera(root, version, conf={"check_images": False})
     t = ds.tables
     found: dict[str, tuple[Path, object]] = {}
@@ -200,11 +219,15 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
                                 "them", path=str(p))
             found[name] = (p, vr)
     if vehicles:
-        if unknown := sorted(set(vehicles) - set(found)):
+        failed = {n for _, run in runs for n in run.vehicles_failed}
+        if unknown := sorted(set(vehicles) - set(found) - failed):
             raise OptionError("--vehicle", f"{', '.join(unknown)} not in the results; they hold "
                                            f"{', '.join(sorted(found))}")
-        found = {n: found[n] for n in vehicles}
-    stale = {p: why for p in {p for p, _ in found.values()} if (why := _check_stamp(p, root, version))}
+        found = {n: found[n] for n in vehicles if n in found}
+    if not found:
+        raise DataError(f"{', '.join(map(str, paths))} hold{'s' if len(paths) == 1 else ''} no calibrated vehicle: "
+                        "nothing to export (a failed vehicle is listed under vehicles_failed)", path=str(paths[0]))
+    stale = {p: why for p, run in runs if (why := _check_stamp(p, run, root, version))}
     unstamped = sorted(str(p) for p in {p for p, _ in found.values()} if p not in stale and not stored_digest(p.parent))
     # the radar and camera calibrated_sensor records of every vehicle's frames
     radar_of: dict[str, set[str]] = {}
@@ -224,7 +247,7 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
         entry = {"result": str(p), "status": vr.final.status, "verdict": (vr.drift or {}).get("verdict"),
                  "exported": False, "why": "", "records": [], "std_ego": None}
         exp.vehicles[name] = entry
-        why = stale.get(p) or _why_not(vr, which)
+        why = (f"not exported: {stale[p]}" if p in stale else "") or _why_not(vr, which)
         toks = sorted(radar_of.get(name, ()))
         if not why and not toks:
             why = (f"not exported: no frame of {root} ({version}) is of vehicle {name}; pass the root it was "
@@ -279,8 +302,12 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
                          f" (the tables' {', '.join(AXIS_WORDS[i] for i in kept)} kept: the data do not decide "
                          f"{'it' if len(kept) == 1 else 'them'} against the tolerance)"
                          if kept else ""))
-    if stale:
-        exp.notes += list(stale.values())
+    for p, run in runs:  # a vehicle whose calibration failed is named, not dropped
+        for name, reason in sorted(run.vehicles_failed.items()):
+            if (not vehicles or name in vehicles) and name not in exp.vehicles:
+                exp.vehicles[name] = {"result": str(p), "status": None, "verdict": None, "exported": False,
+                                      "why": f"not exported: its calibration failed ({str(reason)[:300]})",
+                                      "records": [], "std_ego": None}
     if unstamped:  # a fleet vehicle's result (its stamp is in the fleet's manifest) or an older run's
         exp.notes.append(f"{', '.join(unstamped)} record{'s' if len(unstamped) == 1 else ''} no data stamp beside "
                          "it (data_stamp.json): not checked against the data as they are now")

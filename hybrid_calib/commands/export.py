@@ -22,12 +22,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "domain, degenerate) is never exported")
     p.add_argument("--vehicle", action="append", default=None, metavar="NAME",
                    help="export only this vehicle (repeatable; default: every vehicle of the results)")
+    p.add_argument("--overwrite", action="store_true", help="replace an export already in --out")
 
 
 def run(args: argparse.Namespace) -> int:
     from hybrid_calib.calib.export import export_mounts
 
-    exp = export_mounts(args.results, args.out, args.data, args.version, args.which, args.vehicle)
+    exp = export_mounts(args.results, args.out, args.data, args.version, args.which, args.vehicle, args.overwrite)
     for name, v in exp.vehicles.items():
         line = f"{name}: {v['why']}"
         if v["exported"]:
@@ -39,6 +40,8 @@ def run(args: argparse.Namespace) -> int:
         print(line)
     for note in exp.notes:
         print(f"note: {note}")
-    print(f"{len(exp.exported)} of {len(exp.vehicles)} vehicle(s) exported; the camera records are the tables' "
-          f"(taken as exact); wrote {Path(args.out) / 'calibrated_sensor.json'} and export.json")
-    return 0
+    refused = [n for n, v in exp.vehicles.items() if v["why"].startswith("not exported")]
+    print(f"{len(exp.exported)} of {len(exp.vehicles)} vehicle(s) exported"
+          + (f", {len(refused)} refused" if refused else "") + "; the camera records are the tables' (taken as "
+          f"exact); wrote {Path(args.out) / 'calibrated_sensor.json'} and export.json")
+    return 1 if refused else 0  # a script can tell "some could not be written" from "nothing needed writing"
