@@ -156,3 +156,27 @@ def test_untrusted_stale_and_misdirected_exports_are_refused(calibrated, tmp_pat
     run.save(side)
     exp = export_mounts([side], tmp_path / "o8")
     assert exp.exported == [] and "the camera side is the likelier cause" in exp.vehicles["sim-veh-000"]["why"]
+
+
+def test_a_vehicle_whose_records_do_not_resolve_is_named_with_the_index_problem(calibrated, tmp_path):
+    """A radar record deleted from calibrated_sensor.json read as "no frame of ROOT is of vehicle X; pass the root it
+    was calibrated on" (probe 8): the root's index problem is named."""
+    from hybrid_calib.calib.export import export_mounts
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+
+    root, result = calibrated
+    copy = tmp_path / "copy"
+    shutil.copytree(root / VERSION, copy / VERSION)
+    for top in ("samples", "sweeps", "maps", "sim_truth", "sim_depth"):
+        if (root / top).exists():
+            (copy / top).symlink_to(root / top)
+    ds = NuScenesRadarCamera(copy, VERSION, conf={"check_images": False})
+    token = ds.frames[ds.frames_by_vehicle()["sim-veh-001"][0]].radar_sd["calibrated_sensor_token"]
+    table = json.loads((copy / VERSION / "calibrated_sensor.json").read_text())
+    (copy / VERSION / "calibrated_sensor.json").write_text(json.dumps([r for r in table if r["token"] != token]))
+    run = CalibrationRun.load(result)
+    run.data = str(copy)  # computed there, no data stamp beside it
+    run.save(tmp_path / "r" / "result.json")
+    exp = export_mounts([tmp_path / "r" / "result.json"], tmp_path / "out", which="trusted")
+    why = exp.vehicles["sim-veh-001"]["why"]
+    assert "no frame of" in why and "the root's index skipped" in why and token in why, why

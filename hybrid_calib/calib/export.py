@@ -250,8 +250,10 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
         why = (f"not exported: {stale[p]}" if p in stale else "") or _why_not(vr, which)
         toks = sorted(radar_of.get(name, ()))
         if not why and not toks:
-            why = (f"not exported: no frame of {root} ({version}) is of vehicle {name}; pass the root it was "
-                   "calibrated on")
+            skips = ds.skipped  # the index's own problems (a record that does not resolve drops its frames)
+            why = (f"not exported: no frame of {root} ({version}) is of vehicle {name}"
+                   + (f" (the root's index skipped {len(skips)} item(s); first: {skips[0].reason[:200]})" if skips
+                      else "") + "; pass the root it was calibrated on, or fix its tables")
         if not why and (shared := sorted({u for tok in toks for u in users[tok]} - {name})):
             why = (f"not exported: its radar records are shared with vehicle(s) {', '.join(shared)} of the root; one "
                    "record cannot hold two vehicles' mounts")
