@@ -44,7 +44,8 @@ METRIC_KEYS = tuple(ExtrinsicError.__dataclass_fields__)
 # "cam": rotation about camera x, y, z (deg) and the components of t_cam_radar (cm), camera axes
 #   (``C_report = B C B^T``, docs/conventions.md "Reported per-axis standard deviations").
 # "radar": the right-tangent axes of T_cam_radar [omega, v] themselves (radar frame), deg and cm.
-STD_FRAMES = ("cam", "radar")
+# "ego": the same perturbation about and along the vehicle's axes (an exported radar mount, calib.export).
+STD_FRAMES = ("cam", "radar", "ego")
 
 
 def std_keys(frame: str) -> tuple[str, ...]:

@@ -79,13 +79,11 @@ class MountExport:
 def _std_ego(T_ego_radar: np.ndarray, cov: np.ndarray) -> dict:
     """The 1-sigma of a right-perturbation covariance (6, 6) [rad, m] of the radar's pose, about and along the ego
     axes: {"rot_x_ego_deg", ..., "t_z_ego_cm"}. The perturbation is the radar frame's, the same for ``T_cam_radar``
-    and ``T_ego_radar``; ``blockdiag(R, R)`` with R = the radar's rotation in the ego frame turns it to ego axes."""
-    R = T_ego_radar[:3, :3]
-    B = np.zeros((6, 6))
-    B[:3, :3] = B[3:, 3:] = R
-    std = np.sqrt(np.maximum(np.diag(B @ cov @ B.T), 0.0))
-    keys = ("rot_x_ego_deg", "rot_y_ego_deg", "rot_z_ego_deg", "t_x_ego_cm", "t_y_ego_cm", "t_z_ego_cm")
-    return dict(zip(keys, [float(v) for v in np.r_[np.degrees(std[:3]), 100 * std[3:]]]))
+    and ``T_ego_radar``, so ``report_std`` of the radar in the ego frame turns it to ego axes."""
+    from hybrid_calib.calib.covariance import report_std
+    from hybrid_calib.metrics import std_dict
+
+    return std_dict(report_std(T_ego_radar, cov), "ego")
 
 
 def _change(T_new: np.ndarray, T_old: np.ndarray) -> dict:

@@ -70,6 +70,7 @@ def _learned(args: argparse.Namespace, on_vehicle):
     from hybrid_calib.config import merge
     from hybrid_calib.errors import HybridCalibError
     from hybrid_calib.hybrid import HybridConfig, run_calibration
+    from hybrid_calib.hybrid.loop import unused_blocks
 
     if args.correspondences is not None:  # 'oracle' too: it was accepted and had no effect
         raise HybridCalibError(f"--correspondences is for --method oracle (the true reflectors or measurement "
@@ -83,11 +84,8 @@ def _learned(args: argparse.Namespace, on_vehicle):
                                 f"solve; drop {flag}, or use --method oracle")
     overrides = parse_overrides(args.set)
     reject_set_keys(overrides, {"method": "--method", "split": "--split"})
-    unused = [k for k, used_by in (("oracle", ("oracle",)), ("measurement", ("hybrid", "pure-avg")),
-                                   ("motion", ("hybrid",)), ("mount", ("hybrid",)), ("lidar", ("hybrid",)),
-                                   ("doppler", ("hybrid",)))
-              if k in overrides and args.method not in used_by]
-    if unused:  # accepted and without effect (--method oracle refuses the hybrid's keys the same way)
+    # accepted and without effect (--method oracle refuses the hybrid's keys the same way)
+    if unused := unused_blocks(args.method, overrides):
         raise OptionError("--set", f"{', '.join(k + '.*' for k in unused)} {'is' if len(unused) == 1 else 'are'} not "
                                    f"used by --method {args.method}: drop {'it' if len(unused) == 1 else 'them'}")
     # a flag that was passed wins over --set; an absent one leaves --set (or the default) in charge

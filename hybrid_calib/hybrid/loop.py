@@ -587,6 +587,17 @@ def unfitted_reason(runner, method: str) -> str:
             f"covariance is not calibrated; fit {' and '.join(how[k] for k in missing)} on validation drives")
 
 
+# the HybridConfig blocks only some methods read (``window``, ``average``, ``drift``, ... are read by more): a
+# ``--set`` of one for another method was accepted and had no effect
+BLOCK_METHODS = {"oracle": ("oracle",), "measurement": ("hybrid", "pure-avg"), "motion": ("hybrid",),
+                 "mount": ("hybrid",), "lidar": ("hybrid",), "doppler": ("hybrid",)}
+
+
+def unused_blocks(method: str, overrides: dict) -> list[str]:
+    """The config blocks of ``overrides`` (``--set``) that ``method`` does not read (``BLOCK_METHODS``)."""
+    return [k for k, methods in BLOCK_METHODS.items() if k in overrides and method not in methods]
+
+
 STANDSTILL_M = 1.0  # a drive whose ego poses travel less than this, metres: its frames are one view
 
 
