@@ -84,6 +84,9 @@ def test_export_writes_the_estimate_where_measured_and_keeps_the_tables_where_pi
     v = exp.vehicles["sim-veh-000"]
     assert v["tables_kept"] == ["roll", "vertical offset"] and "roll, vertical offset kept" in v["why"]
     assert v["std_ego"] is not None and set(v["std_ego"]) >= {"rot_z_ego_deg", "t_x_ego_cm"}
+    # per camera axis: the kept ones hold the tables' value, whose std is not the estimate's
+    assert {w for w, a in v["std_camera"].items() if a["written"] == "tables"} == {"roll", "vertical offset"}
+    assert v["std_camera"]["roll"]["std"] is None and v["std_camera"]["yaw"]["std"] > 0
     # read back through the data layer: the estimate along every decided axis, the reference's roll (undecided)
     # and vertical offset (prior-pinned)
     T_back = _read_back(root, tmp_path / "out" / "calibrated_sensor.json", tmp_path, "sim-veh-000")
@@ -180,3 +183,20 @@ def test_a_vehicle_whose_records_do_not_resolve_is_named_with_the_index_problem(
     exp = export_mounts([tmp_path / "r" / "result.json"], tmp_path / "out", which="trusted")
     why = exp.vehicles["sim-veh-001"]["why"]
     assert "no frame of" in why and "the root's index skipped" in why and token in why, why
+
+
+def test_a_result_computed_from_a_relative_root_exports_from_anywhere(calibrated, tmp_path, monkeypatch):
+    """The result records its root as an absolute path: export (and report) read it from another folder."""
+    from hybrid_calib.calib.export import export_mounts
+    from hybrid_calib.calib.pipeline import calibrate
+
+    root, _ = calibrated
+    monkeypatch.chdir(root.parent)
+    calibrate(root.name, VERSION, "oracle", tmp_path / "cal", {"window": {"window": 3}}, progress=False)
+    run = CalibrationRun.load(tmp_path / "cal" / "result.json")
+    assert run.data == str(root.resolve())
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    exp = export_mounts([tmp_path / "cal" / "result.json"], which="trusted")  # the root from the result
+    assert exp.data == str(root.resolve()) and set(exp.vehicles) == {"sim-veh-000", "sim-veh-001"}

@@ -13,7 +13,8 @@ Per camera axis (``calib.drift``'s test against the reference, ``AXIS_WORDS``): 
 dominated by a fleet prior) the reference's value is kept, since an estimate that cannot tell the tolerance apart
 would only replace it with a noisier number. The reference is the one the verdict used (``reference_of``): the
 tables, or on a simulated root the factory calibration of ``sim_vehicle.json`` (its ``calibrated_sensor`` holds the
-simulator's truth). ``std_ego`` is the estimate's 1-sigma; along the kept axes the value written is the reference's.
+simulator's truth). ``std_ego`` is the estimate's 1-sigma in ego axes; ``std_camera`` says per camera axis whether
+the record holds the estimate (with its 1-sigma) or the reference's value (std None: the tables' own, unknown here).
 
 Which vehicles (``which``):
 - ``"recalibrate"`` (the default): those whose verdict against the tables is "recalibrate" (``calib.drift``: the
@@ -84,6 +85,17 @@ def _std_ego(T_ego_radar: np.ndarray, cov: np.ndarray) -> dict:
     from hybrid_calib.metrics import std_dict
 
     return std_dict(report_std(T_ego_radar, cov), "ego")
+
+
+def _std_camera(T_est: np.ndarray, cov: np.ndarray, kept: list[int]) -> dict:
+    """Per camera axis (``AXIS_WORDS``): what the exported record holds there and its 1-sigma, {word: {"written":
+    "estimate" | "tables", "std": deg or cm | None}}. Along a kept axis the record holds the tables' value, whose
+    uncertainty is the tables' own (unknown here): its std is None, never the estimate's."""
+    from hybrid_calib.calib.covariance import report_std
+
+    std = report_std(T_est, cov)
+    return {w: {"written": "tables" if i in kept else "estimate", "std": None if i in kept else float(std[i]),
+                "unit": "deg" if i < 3 else "cm"} for i, w in enumerate(AXIS_WORDS)}
 
 
 def _change(T_new: np.ndarray, T_old: np.ndarray) -> dict:
@@ -296,7 +308,8 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
             exp.table[index[tok]] = {**exp.table[index[tok]], **_record(T_new)}
             entry["records"].append({"token": tok, "before": before, "after": _record(T_new),
                                      "change": _change(T_new, T_old)})
-        entry.update(exported=True, std_ego=_std_ego(new[0][2], np.asarray(vr.final.cov, np.float64)),
+        cov = np.asarray(vr.final.cov, np.float64)
+        entry.update(exported=True, std_ego=_std_ego(new[0][2], cov), std_camera=_std_camera(T_est, cov, kept),
                      tables_kept=[AXIS_WORDS[i] for i in kept],
                      why=f"exported: {len(new)} radar record(s) replaced" + (
                          f" (the tables' {', '.join(AXIS_WORDS[i] for i in kept)} kept: the data do not decide "

@@ -315,7 +315,7 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
               f"calibrated ({', '.join(sorted(absent)[:5])}{', ...' if len(absent) > 5 else ''}): the export covered "
               "other vehicles or frames; export them too (hybrid-calib evaluate --split all) to calibrate them",
               file=sys.stderr)
-    run = CalibrationRun(str(data), version, str(correspondences), conf.mode)
+    run = CalibrationRun(str(Path(data).resolve()), version, str(correspondences), conf.mode)  # read from anywhere
     # the vehicles an interrupted run finished (each vehicle's start is seeded by its name and the oracle rows
     # are drawn above for all: skipping them leaves the others' draws as they were)
     stamp = {**to_dict(conf), "priors": {k: [np.asarray(p.T).tolist(), np.asarray(p.cov).tolist()]

@@ -576,8 +576,11 @@ def reuse_result(out: str | Path, data, version: str, source: str, conf: dict) -
     old = read_out_record(out / "config.json", "calibrate config", "the configuration its result.json was computed "
                           "with: pass --overwrite to recompute, or another --out")
 
-    changed = _changes({"data": run.data, "version": run.version, "source": run.correspondences, "config": old},
-                       {"data": str(data), "version": version, "source": source, "config": conf})
+    def where(d):  # an older result's relative path, or a new one's absolute path: the same root either way
+        return str(Path(str(d)).resolve()) if d else d
+
+    changed = _changes({"data": where(run.data), "version": run.version, "source": run.correspondences, "config": old},
+                       {"data": where(data), "version": version, "source": source, "config": conf})
     # the same path, but the data in it may have changed since
     then = "" if changed or data is None else stored_digest(out)
     if then != "":

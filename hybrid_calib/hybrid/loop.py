@@ -831,7 +831,8 @@ def run_calibration(data: str | Path, version: str, out: str | Path, conf: Hybri
     if not session.drives:
         raise DataError("no vehicle to calibrate (check --set vehicles=... and the dataset)", path=str(data))
     mode = {"hybrid": "window", "oracle": "window", "pure": "network", "pure-avg": "average"}[conf.method]
-    run = CalibrationRun(str(data), version, conf.method, mode, vehicles_failed=dict(session.unreadable))
+    run = CalibrationRun(str(Path(data).resolve()), version, conf.method, mode,
+                         vehicles_failed=dict(session.unreadable))
     done = VehicleProgress(out, data, version, conf.method, {**stamped, "data_stamp": stamp["digest"]},
                            fresh=overwrite)
     done.fill(run, list(session.drives), session.vehicle, on_vehicle, conf.progress)
