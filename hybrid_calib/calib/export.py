@@ -69,10 +69,13 @@ class MountExport:
                 "exported": self.exported, "vehicles": self.vehicles, "notes": self.notes}
 
     def save(self, out: str | Path) -> tuple[Path, Path]:
-        """Write ``out/calibrated_sensor.json`` and ``out/export.json`` (atomically); their paths."""
+        """Write ``out/calibrated_sensor.json`` and ``out/export.json`` (each atomically); their paths. An earlier
+        export.json goes first: a run stopped between the two leaves a table without its export.json (said by its
+        absence), never a new table beside the old run's export.json."""
         from hybrid_calib.config import save_json_atomic
 
         out = Path(out)
+        (out / "export.json").unlink(missing_ok=True)
         return (save_json_atomic(out / "calibrated_sensor.json", self.table),
                 save_json_atomic(out / "export.json", self.to_dict()))
 
