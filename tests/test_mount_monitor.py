@@ -111,8 +111,9 @@ def test_the_sweeps_between_keyframes_steady_the_reading_and_find_the_knock_no_l
         return float(np.median(np.abs(y - np.median(y))))
 
     assert spread(sweeps) < 0.7 * spread(keyframes)
-    assert tested_words(sweeps.summary()) == f"{len(sweeps.series)} frames tested ({sum(sweeps.pairs)} sweep pairs)"
-    assert tested_words(keyframes.summary()) == f"{len(keyframes.series)} frame pairs tested"
+    head = f"{len(sweeps.series)} frames tested ({sum(sweeps.pairs)} sweep pairs); the radar's yaw on the vehicle "
+    assert tested_words(sweeps.summary()).startswith(head)
+    assert tested_words(keyframes.summary()).startswith(f"{len(keyframes.series)} frame pairs tested; ")
     absent = tested_words({**keyframes.summary(), "sweeps_absent": True})  # the hybrid's record on a mini copy
     assert absent.endswith("keyframes only: the root's radar sweeps between keyframes have no files (add sweeps/)")
     frames, idx = _drive(knocked)
@@ -260,3 +261,54 @@ def test_no_step_says_where_the_monitor_is_blind():
                                   "and an alarm 4 more")
     assert blind_words({**short, "frames_tested": 40}) == "blind to a step in the first 8 or the last 4 frames tested"
     assert blind_words({"frames_tested": 40}) == ""  # a result written before the words
+
+
+def _turned(T: np.ndarray, deg: float) -> np.ndarray:
+    """``T`` (4, 4, a mount on the vehicle) turned by ``deg`` about the ego z axis."""
+    from scipy.spatial.transform import Rotation
+
+    out = np.array(T, np.float64)
+    out[:3, :3] = Rotation.from_euler("z", deg, degrees=True).as_matrix() @ out[:3, :3]
+    return out
+
+
+def test_the_estimate_s_yaw_is_checked_against_the_radar_s_own_and_widened_where_they_disagree(knocked_and_not):
+    """Probe 9 (scene-0916): the loop put the radar's yaw 1.97 +- 0.16 deg off its tables, its own Doppler 0.93 +-
+    0.10, and the verdict read "recalibrate" by 1.97 deg. Two measurements of one angle that disagree: the yaw's
+    1-sigma now covers both, the status says so, and the verdict cannot tell. The sign of the monitor's level is
+    the estimate's own about the ego z axis (a tables' yaw 1 deg off: both read -1)."""
+    from hybrid_calib.calib.mount_monitor import yaw_agreement
+    from hybrid_calib.geometry import se3_inverse
+    from hybrid_calib.hybrid.loop import Drive, HybridConfig, _estimate, _frame, with_yaw_check
+
+    frames, idx = _drive(knocked_and_not[0])
+    f = frames[idx[0]]
+    T_er, T_cr = f.extras["T_ego_radar"], f.extras["T_cam_radar_static"]
+    T_ec = T_er @ se3_inverse(T_cr)
+    tables = _turned(T_er, 1.0)  # the tables hold the radar 1 deg off its true yaw
+    mon, _ = monitor_drive(frames, idx, tables)
+    check = yaw_agreement(T_cr, np.eye(6) * 1e-6, T_ec, tables, mon.summary())
+    assert abs(check["doppler_deg"] + 1.0) < 0.15 and abs(check["estimate_deg"] + 1.0) < 1e-9 and not check["disagree"]
+
+    # the estimate 2 deg off the tables, the Doppler 1 deg: widened, said, cannot tell
+    conf = HybridConfig()
+    cov = np.diag([1e-5, 1e-5, 1e-5, 1e-4, 1e-4, 1e-4])
+    T_est = se3_inverse(T_ec) @ _turned(T_er, -1.0)  # the truth turned the other way: 2 deg from the tables
+    traj = [_frame(0, "f", 0, _estimate(T_est, cov, conf), 1, 1.0)]
+    drive = Drive("v", list(idx), se3_inverse(T_ec) @ tables, se3_inverse(T_ec) @ tables, False, tables)
+    out, rec = with_yaw_check(traj, drive, conf, mon)
+    assert rec["disagree"] and rec["widened"] and rec["sigmas"] > 3
+    assert abs(rec["estimate_deg"] + 2.0) < 1e-6 and abs(rec["difference_deg"] + 1.0) < 0.15
+    u = np.asarray(rec["direction"])
+    std_after = np.degrees(np.sqrt(u @ out[-1].cov @ u))
+    assert std_after >= abs(rec["difference_deg"])  # the other measurement inside one sigma
+    assert np.allclose(out[-1].T, T_est) and "disagrees with the radar's own" in out[-1].estimate.status
+    from hybrid_calib.calib.drift import reference_test
+
+    assert reference_test(out[-1].T, out[-1].cov, drive.reference).verdict_kind != "recalibrate"
+    assert reference_test(T_est, cov, drive.reference).verdict_kind == "recalibrate"  # what it said before
+    # no monitor, a step, or an agreeing level: unchanged
+    assert with_yaw_check(traj, drive, conf, None) == (traj, None)
+    near = [_frame(0, "f", 0, _estimate(se3_inverse(T_ec) @ T_er, cov, conf), 1, 1.0)]
+    kept, rec = with_yaw_check(near, drive, conf, mon)
+    assert kept == near and not rec["disagree"]

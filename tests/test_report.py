@@ -330,7 +330,9 @@ def test_a_mount_monitor_that_tested_nothing_does_not_say_no():
     skipped = {**vr.mount, "frames_skipped": 4, "skip_example": "the ego poses moved 0.00 m"}
     assert tested_words(skipped).startswith("no frame pair tested (4 frames skipped, the first because the ego poses")
     vr.mount = {**vr.mount, "frames_tested": 4, "pairs_tested": 4}
-    assert moved_during_drive(vr)[0].startswith("no: no step alarm over the 5 frames")
+    said = moved_during_drive(vr)[0]
+    assert said.startswith("no: no step alarm (the radar mount monitor over 4 frame pairs tested")
+    assert said.endswith("over the 5 frames the estimate used)")
 
 
 def test_the_attention_section_finds_a_network_methods_checkpoint(tmp_path):

@@ -253,9 +253,11 @@ def _verdict(axes: list[AxisCheck]) -> tuple[str, str]:
                        f"tolerance {_fmt(a.tolerance, a.unit)}; the data do not observe it)")
         else:
             why.append(f"{a.name} differs by {_fmt(abs(a.delta), a.unit)} +- {_fmt(a.std, a.unit)}, not precise "
-                       f"enough to decide against the {_fmt(a.tolerance, a.unit)} tolerance (frames of other scenes "
-                       "and turns narrow it; more of the same straight road may not)")
-    return "cannot tell", "cannot tell: " + "; ".join(why) + note
+                       f"enough to decide against the {_fmt(a.tolerance, a.unit)} tolerance")
+    imprecise = sum(not a.prior_pinned for a in blocking)
+    hint = (f" (frames of other scenes and turns narrow {'it' if imprecise == 1 else 'them'}; more frames like "
+            "these may not)") if imprecise else ""
+    return "cannot tell", "cannot tell: " + "; ".join(why) + hint + note
 
 
 def reference_test(
@@ -386,7 +388,9 @@ def camera_side_note(drift: dict, mount: dict | None) -> dict:
     lv = levels[0]
     level, std = float(lv.get("level_deg", np.nan)), float(lv.get("std_deg", np.nan))
     if not (np.isfinite(level) and np.isfinite(std)) or abs(level) > 3 * std + 0.1 * float(yaw["tolerance"]) or \
-            abs(float(yaw["delta"]) - level) < 3 * np.hypot(float(yaw["std"]), std):
+            abs(float(yaw["delta"]) + level) < 3 * np.hypot(float(yaw["std"]), std):
+        # the verdict's yaw turns about camera y (down), the monitor's level about ego z (up): opposite signs for
+        # one turn of the radar (measured: a tables' yaw 1 deg off reads delta +1.00, level -1.02)
         return drift
     note = (f"the radar's own yaw on the vehicle agrees with its tables (radar mount monitor: {level:+.2f} +- "
             f"{std:.2f} deg over {lv.get('pairs', '?')} sweep pairs), so the camera side (its mount or intrinsics in "

@@ -160,9 +160,9 @@ def _report(result, out: Path, reused: bool = False) -> int:
         if v.skipped:
             ood = sum("ood_score" in r for r in v.skipped)
             bad = len(v.skipped) - ood
-            line += "; " + " and ".join(w for w in (
-                f"{bad} frame(s) skipped (bad files or no rows)" if bad else "",
-                f"{ood} frame(s) dropped as out of the network's domain" if ood else "")) + " (listed in result.json)"
+            said = (f"{bad} frame(s) skipped (bad files or no rows)" if bad else "",
+                    f"{ood} frame(s) dropped as out of the network's domain" if ood else "")
+            line += "; " + " and ".join(w for w in said if w) + " (listed in result.json)"
         print(line)
         for key in ("depth_note", "range_note"):
             if v.config and v.config.get(key):

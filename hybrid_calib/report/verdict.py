@@ -157,13 +157,13 @@ def moved_during_drive(vr: VehicleResult) -> tuple[str, tuple[int, ...]]:
                  f"heading against the vehicle's ego poses), and the window's {tests}")
     if not alarms and mount.get("implausible"):
         return (f"not told for the radar's yaw: {mount['implausible']}; the window's windowed chi-square raised no "
-                f"step alarm over the {len(vr.trajectory)} frames of the drive"), ()
+                f"step alarm over the {len(vr.trajectory)} frames the estimate used"), ()
     if not alarms and mount and not int(mount.get("pairs_tested", 0)):
         return (f"not told for the radar's yaw: the radar mount monitor tested no frame pair; the window's {tests} "
-                f"raised no step alarm over the {len(vr.trajectory)} frames of the drive"), ()
+                f"raised no step alarm over the {len(vr.trajectory)} frames the estimate used"), ()
     if not alarms:
         blind = blind_words(mount) if mount else ""
-        return (f"no: no step alarm over the {len(vr.trajectory)} frames of the drive ({tests})"
+        return (f"no: no step alarm ({tests}, over the {len(vr.trajectory)} frames the estimate used)"
                 + (f"; the radar mount monitor is {blind}" if blind.startswith("blind") else
                    f"; but {blind}" if blind else "")), ()
     turned = "; ".join(f"the radar turned on the vehicle by {s['step_deg']:+.2f} +- {s['std_deg']:.2f} deg in yaw "
