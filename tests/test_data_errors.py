@@ -223,8 +223,8 @@ def test_empty_sweep_after_filtering(tiny):
 
 def test_zero_point_pcd_is_empty_sweep(tiny):
     path = tiny.path(tiny.radar_sd[0])
-    write_radar_pcd(path, read_radar_pcd(path)[:0])
-    _iterate_and_check_skip(tiny, 0, "0 points after filtering")
+    write_radar_pcd(path, read_radar_pcd(path)[:0])  # nothing to filter: the file itself is empty (probe 9)
+    _iterate_and_check_skip(tiny, 0, "radar file holds no points", "skip_empty_radar")
 
 
 def test_filters_follow_devkit_defaults(tiny):
@@ -429,3 +429,17 @@ def test_an_unfinished_simulation_is_named(tmp_path):
     (tmp_path / "samples").mkdir()
     with pytest.raises(DataError, match="an unfinished simulation.*rerun the simulate command"):
         version_dir(tmp_path, "v1.0-sim")
+
+
+def test_a_recording_listed_twice_is_read_once(tiny):
+    """Tables that list one sensor file for two samples (a scene copied under new tokens, pointing at the same
+    files) were read as twice the frames, the copies counted as independent measurements (probe 9): the later
+    sample is skipped by the index, naming both samples."""
+    by_token = {sd["token"]: sd for sd in tiny.tables["sample_data"]}
+    by_token[tiny.radar_sd[2]["token"]]["filename"] = tiny.radar_sd[0]["filename"]
+    tiny.rewrite_table("sample_data")
+    ds = _open(tiny)
+    assert len(ds) == 3
+    (rec,) = [r for r in ds.skipped if "the same sensor file" in r.reason]
+    assert tiny.radar_sd[2]["sample_token"] in rec.reason and tiny.radar_sd[0]["sample_token"] in rec.reason
+    assert "the tables list one recording twice" in rec.reason

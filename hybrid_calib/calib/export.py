@@ -149,7 +149,8 @@ def _why_not(vr, which: str) -> str:
     from hybrid_calib.calib.covariance import untrusted_status
 
     if why := untrusted_status(vr.final.status):
-        return f"not exported: {why}, so the estimate is no calibration ({vr.final.status.split(';')[0][:160]})"
+        quoted = "" if vr.final.status.startswith("inconclusive") else f" ({vr.final.status.split(';')[0][:160]})"
+        return f"not exported: {why}, so the estimate is no calibration{quoted}"  # inconclusive: its reason is quoted
     if side := (vr.drift or {}).get("camera_side"):  # the radar did not move on the vehicle: do not move its record
         return f"not exported: {side}; writing the radar's record would move a radar its own Doppler says did not move"
     kind = (vr.drift or {}).get("verdict_kind")

@@ -247,6 +247,7 @@ class NuScenesRadarCamera:
                     continue
                 frames.append(FrameRef(sample["token"], scene["name"], scene["token"], log["token"],
                                        log["vehicle"], cam, rad))
+        frames = self._once_per_file(frames)
         frames = self._one_mount_per_vehicle(frames)
         if self.conf.vehicles is not None:
             names = sorted({f.vehicle for f in frames})
@@ -256,6 +257,27 @@ class NuScenesRadarCamera:
                                 path=str(t.path("calibrated_sensor")))
             frames = [f for f in frames if f.vehicle in self.conf.vehicles]
         return frames
+
+    def _once_per_file(self, frames: list[FrameRef]) -> list[FrameRef]:
+        """``frames`` without those whose camera or radar keyframe is a file an earlier frame reads already (each
+        said in the index's skips): tables that list one recording twice (a scene copied under new scene and log
+        tokens, pointing at the same files) were fused as one drive of twice the frames, the duplicates counted as
+        independent measurements (probe 9: a smaller 1-sigma, a lever arm over its turning-frames gate)."""
+        first: dict[str, FrameRef] = {}
+        out = []
+        for ref in frames:
+            files = [sd.get("filename") for sd in (ref.camera_sd, ref.radar_sd)]
+            dup = next((first[f] for f in files if f and f in first), None)
+            if dup is not None:
+                self._index_skips.append(SkipRecord(
+                    None, ref.sample_token, str(self.tables.path("sample_data")),
+                    f"sample {ref.sample_token} (scene {ref.scene_name}) reads the same sensor file as sample "
+                    f"{dup.sample_token} (scene {dup.scene_name}): the tables list one recording twice; its frame is "
+                    "read once"))
+                continue
+            first.update({f: ref for f in files if f})
+            out.append(ref)
+        return out
 
     def _one_mount_per_vehicle(self, frames: list[FrameRef]) -> list[FrameRef]:
         """``frames`` with each vehicle whose tables hold more than one camera-radar calibration split into one
@@ -453,12 +475,16 @@ class NuScenesRadarCamera:
             rf = self.conf.radar_filter
             empty = [k for k in ("invalid_states", "dynprop_states", "ambig_states")
                      if rf.enabled and getattr(rf, k) is not None and not len(getattr(rf, k))]
+            how = ("set skip_empty_radar=false to keep empty frames (inspect: --set KEY=VALUE; the network methods "
+                   "of calibrate, fleet and compare: --set data.KEY=VALUE)")
+            if not sweeps.n_raw:  # nothing to filter: the file itself holds no point (loosening cannot help)
+                raise DataError(f"radar file holds no points (its header says 0); a sweep of a moving car always has "
+                                f"some: the file was written or copied empty; re-extract it, or {how}",
+                                path=str(self.root / rad["filename"]), token=rad["token"])
             raise DataError(f"radar sweep has 0 points after filtering ({sweeps.n_raw} read, "
                             f"{sweeps.n_nonfinite} NaN or beyond 1 km)"
                             + (f"; radar_filter.{' and '.join(empty)}=[] keeps no value (the lists hold the values "
-                               "kept; null keeps any)" if empty else "") + "; loosen radar_filter or set "
-                            "skip_empty_radar=false to keep empty frames (inspect: --set KEY=VALUE; the network "
-                            "methods of calibrate, fleet and compare: --set data.KEY=VALUE)",
+                               "kept; null keeps any)" if empty else "") + f"; loosen radar_filter or {how}",
                             path=str(self.root / rad["filename"]),
                             token=rad["token"])
         radar_points = np.stack([pts["x"], pts["y"], pts["z"]], axis=1).astype(np.float64)

@@ -139,8 +139,9 @@ def read_lidar_bin(path: str | Path, n_fields: int = 5) -> np.ndarray:
     except FileNotFoundError:
         raise DataError("LiDAR file not found; the LiDAR is read for lidar-densified depth (the depth the shipped "
                         "checkpoints were trained with, chosen by default) and the hybrid's LiDAR alignment: restore "
-                        "the LiDAR folder of samples/ next to the version folder, or pass another --depth "
-                        "(corrupted-truth on a simulated root, depth-anything:/local/model/dir on any)",
+                        "the LiDAR folder of samples/ next to the version folder, or read the root without it: "
+                        "another --depth for calibrate, train and evaluate (corrupted-truth on a simulated root, "
+                        "depth-anything:/local/model/dir on any), --set load_lidar=false for inspect",
                         path=str(path)) from None
     except OSError as e:
         raise DataError(f"cannot read LiDAR file: {e}", path=str(path)) from None
