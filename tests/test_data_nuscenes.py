@@ -445,3 +445,25 @@ def test_inspect_warns_about_tables_that_load_but_cannot_be_right():
     assert "warning" not in clean
     assert "warning: only 0 of 2000 radar points (0.0 %) project into the CAM_FRONT image" in summary(0, 500_000)
     assert "warning: keyframes are 0.500 ms apart" in summary(900, 500)
+
+
+def test_inspect_warns_about_keyframes_that_do_not_advance_and_ego_poses_that_jump():
+    """A keyframe with its predecessor's timestamp, and an ego pose moved 50 m, passed inspect in silence (probe 9):
+    each is named with its sample."""
+    from hybrid_calib.data.summary import DatasetSummary, GroupSummary
+
+    def summary(times, xs) -> str:
+        track = [(f"s{k}", t, np.array([x, 0.0, 0.0])) for k, (t, x) in enumerate(zip(times, xs))]
+        g = GroupSummary("scene-1", "v", "log", frames=len(times), loaded=len(times), radar_points=[50] * len(times),
+                         radar_in_image=100 * len(times), camera_us=list(times), ego_track=track)
+        return DatasetSummary("root", "v1.0-mini", "RADAR_FRONT", "CAM_FRONT", [g], [], 0).format()
+
+    times = [k * 500_000 for k in range(10)]
+    xs = [5.0 * k for k in range(10)]  # 10 m/s
+    assert "warning" not in summary(times, xs)
+    dup = times[:5] + [times[4]] + times[6:]
+    said = summary(dup, xs)
+    assert "warning: scene scene-1: 1 keyframe(s) do not advance in time (sample s5" in said and "s4" in said
+    jump = xs[:5] + [xs[5] + 50.0] + xs[6:]
+    said = summary(times, jump)
+    assert "the ego pose jumps between 2 keyframe pair(s) (first: sample s4 -> s5, 110 m/s" in said

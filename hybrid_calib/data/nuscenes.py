@@ -527,7 +527,9 @@ class NuScenesRadarCamera:
             raise IndexError(f"frame index {i} out of range for {n} frames")
         out, missing = sweeps_between_keyframes(self.tables, self.frames[i % n].radar_sd, self.conf.radar_filter)
         self.radar_sweeps_missing += len(missing)
-        self.sweep_files[i % n] = (len(out) + len(missing), [str(p) for p in missing])
+        # listed: the records with a file name (a broken prev pointer ends the walk with an entry of no time)
+        listed = len(missing) + sum(s.timestamp_us is not None for s in out)
+        self.sweep_files[i % n] = (listed, [str(p) for p in missing])
         return out
 
     def _lidar(self, ref: FrameRef, T_cam_global: np.ndarray, extras: dict) -> tuple[np.ndarray, np.ndarray]:
