@@ -163,11 +163,13 @@ def test_far_start_is_rescued_from_the_initial_extrinsic():
     assert extrinsic_error(outs[-1].T, T).rot_mean_deg < 0.5
 
 
-@pytest.mark.parametrize("seed,rescued", [(630, True), (628, False)])
-def test_a_batch_in_a_wrong_basin_is_re_solved_progressively_or_says_not_converged(seed, rescued):
+@pytest.mark.parametrize("seed,how", [(630, "re-solved progressively"),
+                                      (628, "re-solved from the sliding window's estimate")])
+def test_a_batch_in_a_wrong_basin_is_re_solved_progressively_or_from_the_window(seed, how):
     """A 40 deg / 3 m start: the batch solved on all frames at once can end where almost no row fits.
-    Then it re-solves progressively (1, 4, then all frames) and keeps what fits more rows; when
-    nothing fits, the status says NOT CONVERGED (the report's verdict: inconclusive)."""
+    Then it re-solves progressively (1, 4, then all frames) and, when the first frames alone settle wrong
+    too (seed 628; a 5-frame urban drive of real reflector heights ended 66 deg off), from the sliding
+    window's estimate, keeping what fits more rows."""
     T = nominal_T_cam_radar()
     frames, _ = synthetic_drive(T, 8, rng(7), {"n_per_frame": 25})
     g = rng(seed)
@@ -176,11 +178,17 @@ def test_a_batch_in_a_wrong_basin_is_re_solved_progressively_or_says_not_converg
     assert direct.inlier_fraction < 0.25 and extrinsic_error(direct.estimate.T, T).rot_mean_deg > 20
     assert "NOT CONVERGED" not in direct.estimate.status  # nothing told the user
     b = solve_batch(frames, T0)
-    if rescued:
-        assert b.inlier_fraction > 0.7 and extrinsic_error(b.estimate.T, T).rot_mean_deg < 0.5
-        assert "re-solved progressively" in b.estimate.status and "NOT CONVERGED" not in b.estimate.status
-    else:
-        assert b.inlier_fraction < 0.25 and "NOT CONVERGED: only 2 % of the drive's" in b.estimate.status
+    assert b.inlier_fraction > 0.7 and extrinsic_error(b.estimate.T, T).rot_mean_deg < 0.5
+    assert how in b.estimate.status and "NOT CONVERGED" not in b.estimate.status
+
+
+def test_a_batch_nothing_fits_says_not_converged():
+    """Rows of no geometry (every one a gross outlier): no re-solve finds a fit, and the status says NOT CONVERGED
+    (the report's verdict: inconclusive)."""
+    T = nominal_T_cam_radar()
+    frames, _ = synthetic_drive(T, 6, rng(7), {"n_per_frame": 25, "outlier_frac": 1.0})
+    b = solve_batch(frames, perturb_camera_frame(T, np.radians([3.0, -2.0, 4.0]), [0.1, 0.0, -0.1]))
+    assert b.inlier_fraction < 0.25 and "NOT CONVERGED: only" in b.estimate.status
 
 
 def test_a_knocked_sensor_never_pulls_the_window_into_a_basin_only_the_new_frames_support(tmp_path):
