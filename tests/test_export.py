@@ -200,3 +200,17 @@ def test_a_result_computed_from_a_relative_root_exports_from_anywhere(calibrated
     monkeypatch.chdir(elsewhere)
     exp = export_mounts([tmp_path / "cal" / "result.json"], which="trusted")  # the root from the result
     assert exp.data == str(root.resolve()) and set(exp.vehicles) == {"sim-veh-000", "sim-veh-001"}
+
+
+def test_a_pure_result_is_never_exported(calibrated, tmp_path):
+    """One pass of the network alone (method pure) is no calibration, whatever its verdict (probe 10)."""
+    from hybrid_calib.calib.export import export_mounts
+
+    _, result = calibrated
+    path = _edited(result, tmp_path / "r" / "result.json", "sim-veh-000")
+    run = CalibrationRun.load(path)
+    run.vehicles["sim-veh-000"].method = "pure"
+    run.save(path)
+    exp = export_mounts([path], tmp_path / "out", which="trusted")
+    v = exp.vehicles["sim-veh-000"]
+    assert not v["exported"] and "one pass of the network alone (method pure) is no calibration" in v["why"]

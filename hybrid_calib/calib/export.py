@@ -151,6 +151,9 @@ def _why_not(vr, which: str) -> str:
     if why := untrusted_status(vr.final.status):
         quoted = "" if vr.final.status.startswith("inconclusive") else f" ({vr.final.status.split(';')[0][:160]})"
         return f"not exported: {why}, so the estimate is no calibration{quoted}"  # inconclusive: its reason is quoted
+    if getattr(vr, "method", None) == "pure":  # the network's last pass alone (hybrid.loop.one_pass_verdict)
+        return ("not exported: one pass of the network alone (method pure) is no calibration; calibrate with --method "
+                "hybrid")
     if side := (vr.drift or {}).get("camera_side"):  # the radar did not move on the vehicle: do not move its record
         return f"not exported: {side}; writing the radar's record would move a radar its own Doppler says did not move"
     kind = (vr.drift or {}).get("verdict_kind")

@@ -191,6 +191,33 @@ NETWORK_ROWS = ("its rows are a network's (exported by hybrid-calib evaluate), f
                 "is far too small; calibrate with --method hybrid for an estimate with a covariance to trust")
 
 
+# an estimate farther than this from the vehicle's tables (reference) is no radar mount: the solve went astray.
+# R2 starts lie up to 20 deg / 1.5 m per axis from the truth, but the truth lies near the tables (a knock: a few
+# degrees; the nuScenes fleet's radar mounts differ by under 2 deg); measured (probe 10): a 3-frame highway drive's
+# oracle solve from an R1 start ended 64 deg / 6.8 m off with 27 % of its rows fitting, status "weak", verdict
+# "recalibrate", and export wrote the radar 5.3 m under the ground
+ASTRAY_ROT_DEG = 25.0
+ASTRAY_TRANS_M = 2.0
+
+
+def trust_reason(res: VehicleResult, T_reference: np.ndarray) -> str:
+    """Why ``res``'s final estimate cannot be trusted whatever its covariance says, or "": its last solve did not
+    converge (``schedule.convergence_note``'s NOT CONVERGED: a status that still opened with "weak"), or it lies
+    farther from the vehicle's tables ``T_reference`` (4, 4) than ``ASTRAY_ROT_DEG`` / ``ASTRAY_TRANS_M``."""
+    from hybrid_calib.data.nuscenes import mount_offset
+
+    status = res.final.status
+    reasons = ["the last solve did not converge (NOT CONVERGED: too few of its rows fit the estimate)"
+               if "NOT CONVERGED" in status and not status.startswith("inconclusive") else ""]
+    rot_deg, trans_cm = mount_offset(np.asarray(res.final.T, np.float64), np.asarray(T_reference, np.float64))
+    if not (np.isfinite(rot_deg) and np.isfinite(trans_cm)) or rot_deg > ASTRAY_ROT_DEG or \
+            trans_cm > 100 * ASTRAY_TRANS_M:
+        reasons.append(f"the estimate lies {rot_deg:.1f} deg and {trans_cm / 100:.2f} m from the vehicle's tables, "
+                       f"farther than any radar mount sits from them ({ASTRAY_ROT_DEG:g} deg, {ASTRAY_TRANS_M:g} m): "
+                       "the solve went astray (too few frames or rows for its start); calibrate a longer drive")
+    return "; and ".join(r for r in reasons if r)
+
+
 def _exporting_checkpoint(folder: Path) -> str | None:
     """The checkpoint an ``evaluate`` export in ``folder`` ran (its ``export_config.json``), or None."""
     try:
@@ -331,6 +358,8 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
         if res.network is not None:  # a network's rows (hybrid-calib evaluate's export): never a trusted verdict
             res.checkpoint = exporter
             untrusted(res, NETWORK_ROWS)
+        elif why := trust_reason(res, inputs[name].reference):
+            untrusted(res, why)
         return res
 
     done.fill(run, list(inputs), one, on_vehicle, progress)
