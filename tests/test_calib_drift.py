@@ -431,3 +431,18 @@ def test_one_pass_of_the_network_alone_decides_nothing():
     assert "one pass of the network alone" in said["verdict"] and "differs by 7.92 deg in yaw" in said["verdict"]
     told = {"verdict_kind": "cannot tell", "verdict": "cannot tell: pitch is prior-pinned"}
     assert one_pass_verdict(told) == told and one_pass_verdict(None) is None
+
+
+def test_a_radar_that_turns_in_steps_each_within_the_tolerance_is_told_by_their_sum():
+    """Probe 11: a drifting radar (1.5 deg yaw ramp) gave the mount monitor steps of +0.55 and +0.50 deg, each
+    within the 0.5 deg tolerance with its 3 sigma, and the verdict said "cannot tell"; their sum is 1.04 deg."""
+    from hybrid_calib.calib.drift import mount_steps_beyond
+
+    lv = [{"level_deg": v, "std_deg": 0.03} for v in (0.11, 0.65, 1.15)]
+    mount = {"steps": [{"step_deg": 0.54, "std_deg": 0.05, "change": 14}, {"step_deg": 0.50, "std_deg": 0.05,
+                                                                               "change": 27}], "levels": lv}
+    said = mount_steps_beyond(mount, 0.5)
+    assert said.startswith("The radar turned on the vehicle during the drive by +1.04 +- 0.13 deg (3 sigma) in "
+                           "yaw in 2 steps from about frame 14 to 27")
+    one = {"steps": mount["steps"][:1], "levels": lv[:2]}
+    assert mount_steps_beyond(one, 0.5) == ""  # one step within the tolerance: nothing to tell

@@ -443,3 +443,4 @@ def test_a_recording_listed_twice_is_read_once(tiny):
     (rec,) = [r for r in ds.skipped if "the same sensor file" in r.reason]
     assert tiny.radar_sd[2]["sample_token"] in rec.reason and tiny.radar_sd[0]["sample_token"] in rec.reason
     assert "the tables list one recording twice" in rec.reason
+    assert ds.duplicates == {tiny.radar_sd[2]["sample_token"]: tiny.radar_sd[0]["sample_token"]}  # said by calibrate

@@ -466,4 +466,11 @@ def test_inspect_warns_about_keyframes_that_do_not_advance_and_ego_poses_that_ju
     assert "warning: scene scene-1: 1 keyframe(s) do not advance in time (sample s5" in said and "s4" in said
     jump = xs[:5] + [xs[5] + 50.0] + xs[6:]
     said = summary(times, jump)
-    assert "the ego pose jumps between 2 keyframe pair(s) (first: sample s4 -> s5, 110 m/s" in said
+    assert "the ego poses jump: 2 keyframe pair(s) faster than any road vehicle (70 m/s; first: sample s4 -> s5, " \
+           "110 m/s)" in said and "(worst: sample s5, 50.0 m)" in said
+    slow = [1.0 * k for k in range(10)]  # a parking lot at 2 m/s, one pose 10 m off (probe 11): ~20 m/s both ways
+    said = summary(times, slow[:5] + [slow[5] + 10.0] + slow[6:])
+    assert "faster than any" not in said and "off the path of their neighbours by more than 3 m (worst: sample s5, " \
+        "10.0 m)" in said
+    braking = list(np.cumsum([0.0] + [max(10.0 - 2.5 * k, 0.0) * 0.5 for k in range(9)]))  # 10 m/s to 0 at 5 m/s2
+    assert "warning" not in summary(times, braking)

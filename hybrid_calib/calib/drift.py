@@ -341,20 +341,30 @@ def unconverged(drift: dict, status: str) -> dict:
     why = untrusted_status(status)  # the one reading of a status (a degenerate one's stds already say it)
     if not why or status.startswith("degenerate"):
         return drift
+    cm = float(drift.get("trans_change_cm", float("nan")))
+    far = f"{cm / 100:.2f} m" if abs(cm) >= 100 else f"{cm:.1f} cm"
     return {**drift, "drifted": False, "verdict_kind": "cannot tell",
             "verdict": f"cannot tell: {why}, so the estimate says nothing about the mount "
                        f"(it differs from the reference by {drift.get('rot_change_deg', float('nan')):.2f} deg "
-                       f"(rotation angle), {drift.get('trans_change_cm', float('nan')):.1f} cm)"}
+                       f"(rotation angle), {far})"}
 
 
 def mount_steps_beyond(mount: dict | None, rot_tol_deg: float) -> str:
     """A sentence when the radar mount monitor (a result's ``mount`` block, hybrid) measured a step of the radar's
     yaw during the drive beyond ``rot_tol_deg`` with its 3-sigma (``|step| - 3 std > tol``), else ""."""
-    big = [st for st in (mount or {}).get("steps", []) if abs(st["step_deg"]) - 3 * st["std_deg"] > rot_tol_deg]
+    steps = (mount or {}).get("steps", [])
+    big = [st for st in steps if abs(st["step_deg"]) - 3 * st["std_deg"] > rot_tol_deg]
+    levels = (mount or {}).get("levels") or []
+    if not big and len(steps) > 1 and len(levels) == len(steps) + 1:  # a turn in steps each within the tolerance
+        total = float(levels[-1]["level_deg"] - levels[0]["level_deg"])  # (probe 11: a drifting radar, +0.55, +0.50)
+        std = float(np.hypot(levels[-1]["std_deg"], levels[0]["std_deg"]))
+        if abs(total) - 3 * std > rot_tol_deg:
+            big = [{"step_deg": total, "std_deg": std, "change": steps[0]["change"],
+                    "words": f"in {len(steps)} steps from about frame {steps[0]['change']} to {steps[-1]['change']}"}]
     if not big:
         return ""
-    turns = "; ".join(f"by {st['step_deg']:+.2f} +- {3 * st['std_deg']:.2f} deg (3 sigma) in yaw from about frame "
-                      f"{st['change']}" for st in big)
+    turns = "; ".join(f"by {st['step_deg']:+.2f} +- {3 * st['std_deg']:.2f} deg (3 sigma) in yaw "
+                      + st.get("words", f"from about frame {st['change']}") for st in big)
     return (f"The radar turned on the vehicle during the drive {turns}, beyond the {rot_tol_deg:g} deg tolerance "
             "(the radar mount monitor: its Doppler heading against the vehicle's ego poses).")
 

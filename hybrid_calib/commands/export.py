@@ -33,10 +33,10 @@ def run(args: argparse.Namespace) -> int:
         line = f"{name}: {v['why']}"
         if v["exported"]:
             ch = v["records"][0]["change"]
-            sd = v["std_ego"]
-            line += (f"; moved {ch['rot_deg']:.2f} deg, {ch['trans_cm']:.1f} cm from the tables; 1-sigma (ego axes) "
-                     f"rot {sd['rot_x_ego_deg']:.2f}/{sd['rot_y_ego_deg']:.2f}/{sd['rot_z_ego_deg']:.2f} deg, t "
-                     f"{sd['t_x_ego_cm']:.1f}/{sd['t_y_ego_cm']:.1f}/{sd['t_z_ego_cm']:.1f} cm")
+            written = [f"{w} {a['std']:.2f} {a['unit']}" for w, a in v["std_camera"].items()
+                       if a["written"] == "estimate"]  # the kept axes hold the tables' value: no std of ours
+            line += (f"; moved {ch['rot_deg']:.2f} deg, {ch['trans_cm']:.1f} cm from the tables; 1-sigma of what it "
+                     f"wrote (camera axes): {', '.join(written)}")
         print(line)
     for note in exp.notes:
         print(f"note: {note}")

@@ -190,6 +190,7 @@ class NuScenesRadarCamera:
         self.sweep_files: dict[int, tuple[int, list[str]]] = {}  # frame -> (sweeps listed, files missing) so far
         self.calibration_splits: dict[str, list[str]] = {}  # vehicle -> its calibrations' names, when more than 1
         self.calibration_offsets: dict[str, tuple[float, float]] = {}  # NAME-calN -> (deg, cm) from NAME's
+        self.duplicates: dict[str, str] = {}  # sample read once: a sensor file of it is the named earlier sample's
         self.frames: list[FrameRef] = self._build_index()
         if not self.frames and self._index_skips:  # nothing to read, and the reason is known: say it now
             first = self._index_skips[0]
@@ -274,6 +275,7 @@ class NuScenesRadarCamera:
                     f"sample {ref.sample_token} (scene {ref.scene_name}) reads the same sensor file as sample "
                     f"{dup.sample_token} (scene {dup.scene_name}): the tables list one recording twice; its frame is "
                     "read once"))
+                self.duplicates[ref.sample_token] = dup.sample_token
                 continue
             first.update({f: ref for f in files if f})
             out.append(ref)

@@ -144,8 +144,8 @@ class DatasetSummary:
         """What the radar's non-keyframe sweeps give the Doppler steps (mount monitor, lever arm), in words."""
         n, on = sum(g.sweeps_between for g in self.groups), sum(g.sweeps_on_disk for g in self.groups)
         broken = sum(g.sweeps_broken for g in self.groups)
-        tail = (f"; {broken} broken record(s) (a prev pointer that does not resolve, a file name outside the root), "
-                "each skipped in words" if broken else "")
+        tail = (f"; {broken} broken record(s) (a prev pointer that does not resolve or does not go back in time, a "
+                "file name outside the root): the sweeps behind them are not paired" if broken else "")
         head = f"{self.radar_channel} sweeps between keyframes: "
         if not n:
             return [head + "none in the tables; the mount monitor and the Doppler lever arm pair keyframes only" + tail]
@@ -182,8 +182,8 @@ def format_skips(skipped: list[dict[str, Any]], listed_in: str | None = None) ->
     for rec in skipped:
         groups.setdefault(skip_kind(rec), []).append(rec)
 
-    def where(rec: dict[str, Any]) -> str:
-        return f"frame {rec['index'] if rec['index'] is not None else '-'}"
+    def where(rec: dict[str, Any]) -> str:  # an item of the index (no frame yet) by its token
+        return f"frame {rec['index']}" if rec['index'] is not None else f"item {rec.get('token') or '-'}"
 
     lines = []
     for recs in groups.values():
@@ -192,7 +192,8 @@ def format_skips(skipped: list[dict[str, Any]], listed_in: str | None = None) ->
             lines.append(f"skipped {where(first)}: {first['reason']}")
             continue
         lines.append(f"skipped {len(recs)} items for one reason, e.g. {where(first)}: {first['reason']}")
-        more = ", ".join(f"{where(r)} ({r['token']})" for r in recs[1:1 + EXAMPLES_PER_REASON])
+        more = ", ".join(where(r) if r["index"] is None else f"{where(r)} ({r['token']})"
+                         for r in recs[1:1 + EXAMPLES_PER_REASON])
         rest = len(recs) - 1 - EXAMPLES_PER_REASON
         lines.append(f"  also {more}" + (f" and {rest} more" if rest > 0 else ""))
     if any(len(recs) > 1 + EXAMPLES_PER_REASON for recs in groups.values()):
@@ -202,6 +203,10 @@ def format_skips(skipped: list[dict[str, Any]], listed_in: str | None = None) ->
 
 
 MAX_EGO_SPEED_MPS = 70.0  # faster between two keyframes (252 km/h): no road vehicle, an ego pose that jumped
+# a keyframe's ego position this far from the straight line of its two neighbours' (at its time): a car braking at
+# 10 m/s2 or turning at 20 deg/s strays ~1 m at most over the second between them; a 10 m pose error in a
+# parking lot (~20 m/s apparent, under MAX_EGO_SPEED_MPS) passed inspect in silence (probe 11)
+MAX_POSE_OFF_PATH_M = 3.0
 
 
 def _time_and_pose_lines(g: GroupSummary) -> list[str]:
@@ -215,13 +220,22 @@ def _time_and_pose_lines(g: GroupSummary) -> list[str]:
         out.append(f"warning: scene {g.scene}: {len(back)} keyframe(s) do not advance in time (sample {b} at {tb} us, "
                    f"its predecessor {a} at {ta} us): the tables' timestamps are broken; the Doppler steps skip "
                    "those pairs; fix or re-extract sample_data.json / sample.json")
-    jumps = [(a[0], b[0], float(np.linalg.norm(b[2] - a[2])) / ((b[1] - a[1]) * 1e-6))
-             for a, b in zip(track, track[1:]) if b[1] > a[1]]
-    jumps = [j for j in jumps if j[2] > MAX_EGO_SPEED_MPS]
-    if jumps:
-        a, b, v = jumps[0]
-        out.append(f"warning: scene {g.scene}: the ego pose jumps between {len(jumps)} keyframe pair(s) (first: sample "
-                   f"{a} -> {b}, {v:.0f} m/s; no road vehicle goes faster than {MAX_EGO_SPEED_MPS:.0f}): an ego_pose "
+    fast = [(a[0], b[0], float(np.linalg.norm(b[2] - a[2])) / ((b[1] - a[1]) * 1e-6))
+            for a, b in zip(track, track[1:]) if b[1] > a[1]]
+    fast = [f for f in fast if f[2] > MAX_EGO_SPEED_MPS]
+    off = []  # (sample, metres off the line of its neighbours)
+    for a, b, c in zip(track, track[1:], track[2:]):
+        if a[1] < b[1] < c[1]:
+            w = (b[1] - a[1]) / (c[1] - a[1])
+            if (d := float(np.linalg.norm(b[2] - ((1 - w) * a[2] + w * c[2])))) > MAX_POSE_OFF_PATH_M:
+                off.append((b[0], d))
+    if fast or off:
+        worst = max(off, key=lambda o: o[1]) if off else None
+        said = [f"{len(fast)} keyframe pair(s) faster than any road vehicle ({MAX_EGO_SPEED_MPS:.0f} m/s; first: "
+                f"sample {fast[0][0]} -> {fast[0][1]}, {fast[0][2]:.0f} m/s)" if fast else "",
+                f"{len(off)} keyframe(s) off the path of their neighbours by more than {MAX_POSE_OFF_PATH_M:g} m "
+                f"(worst: sample {worst[0]}, {worst[1]:.1f} m)" if off else ""]
+        out.append(f"warning: scene {g.scene}: the ego poses jump: {'; '.join(w for w in said if w)}: an ego_pose "
                    "record is wrong; the Doppler steps skip pairs whose travel contradicts the radar's speed")
     return out
 

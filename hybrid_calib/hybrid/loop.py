@@ -196,6 +196,11 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
               file=sys.stderr)
     for log, words in (frames.intrinsic_changes() if hasattr(frames, "intrinsic_changes") else {}).items():
         print(f"log {log}: {words}", file=sys.stderr)
+    if dup := getattr(frames, "duplicates", None):  # the index read them once (data.nuscenes._once_per_file)
+        first = next(iter(dup.items()))
+        print(f"note: {len(dup)} sample(s) read the same sensor files as earlier samples (first: {first[0]}, as "
+              f"{first[1]}): the tables list one recording twice; each frame is read once (hybrid-calib inspect lists "
+              "them)", file=sys.stderr)
     keep = None if conf.split == "all" else set(split_indices(frames, conf.split, conf.split_options))
     drives, outside_split = {}, []
     for vehicle, idx in sorted(frames.frames_by_vehicle().items()):
@@ -431,14 +436,19 @@ def with_yaw_check(traj: list[FrameEstimate], drive: Drive, conf: HybridConfig, 
     check = yaw_agreement(last.T, last.cov, drive.ego_radar @ se3_inverse(drive.base), drive.ego_radar, mon.summary())
     if check is None or not check["disagree"]:
         return traj, check
+    from hybrid_calib.calib.covariance import report_std
+
     u, d = np.asarray(check["direction"]), np.radians(check["difference_deg"])
     cov = last.cov + d * d * np.outer(u, u)
     words = (f"its yaw disagrees with the radar's own: the estimate puts the radar {check['estimate_deg']:+.2f} +- "
              f"{check['estimate_std_deg']:.2f} deg from its tables' yaw on the vehicle, the radar's Doppler against "
              f"the ego poses {check['doppler_deg']:+.2f} +- {check['doppler_std_deg']:.2f} deg "
-             f"({check['sigmas']:.1f} sigma apart): one of them, or the camera's mount in the tables, is wrong; the "
-             "yaw's 1-sigma is widened to cover both")
-    return [*traj[:-1], with_cov(last, cov, conf, note=words)], {**check, "widened": True, "words": words}
+             f"({check['sigmas']:.1f} sigma apart): the estimate, or the camera's mount in the tables (which the "
+             "comparison takes as exact), is wrong; the yaw's 1-sigma is widened to cover both")
+    # the data's own words kept (they say what the drive observes; the widening is this disagreement's, said after)
+    est = dataclasses.replace(last.estimate, cov=cov, std=report_std(last.T, cov),
+                              status=f"{last.estimate.status} ({words})")
+    return [*traj[:-1], dataclasses.replace(last, estimate=est)], {**check, "widened": True, "words": words}
 
 
 def _pure(runner, drive, T0, conf, tr):
