@@ -334,14 +334,12 @@ def with_drive_error(traj: list[FrameEstimate], drive_std, conf: HybridConfig) -
     return [with_cov(f, f.cov + D, conf) for f in traj]
 
 
-def with_cov(f: FrameEstimate, cov: np.ndarray, conf: HybridConfig, T: np.ndarray | None = None,
-             note: str = "") -> FrameEstimate:
+def with_cov(f: FrameEstimate, cov: np.ndarray, conf: HybridConfig, T: np.ndarray | None = None) -> FrameEstimate:
     """Frame ``f`` re-reported with covariance ``cov`` (6, 6) (and estimate ``T``, when given), keeping
-    the window's own notes (a solve that did not converge, a restart after a step), and ``note`` after them."""
+    the window's own notes (a solve that did not converge, a restart after a step)."""
     notes = [f.estimate.status[i:].split(")")[0] for key in ("NOT CONVERGED", "recovering")
              if (i := f.estimate.status.find(key)) >= 0]
-    return dataclasses.replace(f, estimate=_estimate(f.T if T is None else T, cov, conf,
-                                                     "; ".join(n for n in (*notes, note) if n)))
+    return dataclasses.replace(f, estimate=_estimate(f.T if T is None else T, cov, conf, "; ".join(notes)))
 
 
 def sweep_files_record(frames, indices) -> dict:
@@ -753,7 +751,6 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     if res.drift:  # a step the radar mount monitor measured stands whatever the estimate at the end can tell
         res.drift = with_mount_step(res.drift, res.mount)
     return res
-
 
 
 def one_pass_verdict(drift: dict | None) -> dict | None:
