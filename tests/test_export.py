@@ -214,3 +214,18 @@ def test_a_pure_result_is_never_exported(calibrated, tmp_path):
     exp = export_mounts([path], tmp_path / "out", which="trusted")
     v = exp.vehicles["sim-veh-000"]
     assert not v["exported"] and "one pass of the network alone (method pure) is no calibration" in v["why"]
+
+
+def test_a_knock_the_estimate_after_it_cannot_decide_is_said_not_kept_in_silence(calibrated, tmp_path):
+    """The demo's knocked vehicle reads "recalibrate" (the mount monitor's step), but its estimate after the knock
+    decides no axis: export said "kept the tables: the data decide no axis", as for a healthy mount."""
+    from hybrid_calib.calib.drift import AXIS_WORDS
+    from hybrid_calib.calib.export import export_mounts
+
+    _, result = calibrated
+    path = _edited(result, tmp_path / "r" / "result.json", "sim-veh-000", pinned=(), undecided=AXIS_WORDS)
+    run = CalibrationRun.load(path)
+    run.vehicles["sim-veh-000"].drift["at_end"] = {"verdict_kind": "cannot tell", "verdict": "cannot tell: ..."}
+    run.save(path)
+    v = export_mounts([path], tmp_path / "out").vehicles["sim-veh-000"]
+    assert not v["exported"] and v["why"].startswith("not exported: the radar turned on the vehicle during the drive")

@@ -286,6 +286,11 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
         if len(kept) == len(AXIS_WORDS):  # the record would be the tables' own
             entry["why"] = ("kept the tables: the data decide no axis against the tolerance (each is undecided or "
                             "prior-pinned), so there is nothing measured to write")
+            if (vr.drift or {}).get("at_end"):  # "recalibrate" for a step the mount monitor measured in the drive
+                entry["why"] = ("not exported: the radar turned on the vehicle during the drive (its verdict: "
+                                "recalibrate), but the estimate after the turn decides no axis against the tolerance "
+                                "yet (too few frames since the turn); calibrate a drive recorded after it and export "
+                                "that")
             continue
         new: list[tuple[str, np.ndarray, np.ndarray]] = []
         mounts = []  # (T_ego_cam, T_ego_radar) per record: one calibration along the drive
