@@ -204,10 +204,11 @@ def trust_reason(res: VehicleResult, T_reference: np.ndarray) -> str:
     """Why ``res``'s final estimate cannot be trusted whatever its covariance says, or "": its last solve did not
     converge (``schedule.convergence_note``'s NOT CONVERGED: a status that still opened with "weak"), or it lies
     farther from the vehicle's tables ``T_reference`` (4, 4) than ``ASTRAY_ROT_DEG`` / ``ASTRAY_TRANS_M``."""
+    from hybrid_calib.calib.covariance import untrusted_status
     from hybrid_calib.data.nuscenes import mount_offset
 
-    status = res.final.status
-    reasons = ["the last solve did not converge (NOT CONVERGED: too few of its rows fit the estimate)"
+    status = res.final.status  # read through the one reading of a status (a degenerate one's stds already say it)
+    reasons = [f"{untrusted_status(status)} (NOT CONVERGED: too few of its rows fit the estimate)"
                if "NOT CONVERGED" in status and not status.startswith("inconclusive") else ""]
     rot_deg, trans_cm = mount_offset(np.asarray(res.final.T, np.float64), np.asarray(T_reference, np.float64))
     if not (np.isfinite(rot_deg) and np.isfinite(trans_cm)) or rot_deg > ASTRAY_ROT_DEG or \

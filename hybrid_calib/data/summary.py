@@ -211,8 +211,9 @@ MAX_POSE_OFF_PATH_M = 3.0
 
 def _time_and_pose_lines(g: GroupSummary) -> list[str]:
     """Warnings on a scene's keyframes in their order: radar timestamps that do not advance (the Doppler steps skip
-    such pairs, and the mount monitor's words blamed missing sweep files), and ego poses that jump faster than
-    ``MAX_EGO_SPEED_MPS`` (a pose 50 m off passed inspect and calibrate in silence: probe 9)."""
+    such pairs, and the mount monitor's words blamed missing sweep files), and ego poses that jump: faster than
+    ``MAX_EGO_SPEED_MPS`` between two keyframes, or a keyframe farther than ``MAX_POSE_OFF_PATH_M`` off the straight
+    line of its neighbours (a pose 50 m off passed inspect and calibrate in silence: probe 9; 10 m: probe 11)."""
     out, track = [], g.ego_track
     back = [(a[0], b[0], a[1], b[1]) for a, b in zip(track, track[1:]) if b[1] <= a[1]]
     if back:
