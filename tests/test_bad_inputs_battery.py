@@ -1842,6 +1842,22 @@ def test_a_flag_given_wins_over_set_in_every_command_and_says_so(sim, tmp_path, 
     assert rc == 0 and "--max-frames 1 wins over --set max_frames=2" in err
 
 
+def test_evaluate_flags_are_not_overruled_by_set(sim, tmp_path, capsys):
+    """evaluate let --set perturbation / split / max_frames / method / split_options silently overrule the flags
+    (--range R1 evaluated R2 starts), against the rule of every other command."""
+    root, _ = sim
+    base = ["evaluate", "--data", root, "--checkpoint", SHIPPED / "small-sim-r1.json", "--no-progress"]
+    for key, flag in (("perturbation=R2", "--range"), ("split=val", "--split"), ("max_frames=3", "--max-frames"),
+                      ("method=hybrid", "--method")):
+        expect_cli_error([*base, "--out", tmp_path / "x", "--set", key], capsys, f"is chosen with {flag}")
+    out = tmp_path / "ev"
+    rc, err = run_cli([*base, "--split", "all", "--max-frames", "1", "--split-by", "time", "--out", out, "--set",
+                       "threads=1", "max_radar_points=32", "split_options.by=scene"], capsys)
+    assert rc == 0, err
+    assert "--split-by time wins over --set split_options.by='scene'" in err
+    assert json.loads((out / "results.json").read_text())["config"]["eval"]["split_options"]["by"] == "time"
+
+
 def test_the_network_methods_take_the_data_options_their_errors_advise(sim, tmp_path, capsys, monkeypatch):
     """'radar PCD lacks field invalid_state ...: disable that filter (radar_filter.invalid_states=null)' was advice no
     command but inspect could follow: a root of such files could not be calibrated at all."""

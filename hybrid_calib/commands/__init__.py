@@ -42,10 +42,13 @@ def add_split_arguments(p: argparse.ArgumentParser, default: str | None, what: s
                    help="split.gap_frames, by=time: frames dropped between the parts (default 3)")
 
 
+SPLIT_FLAGS = {"by": "split_by", "test_fraction": "test_fraction", "val_fraction": "val_fraction",
+               "gap_frames": "gap_frames"}  # SplitConfig key -> args attribute of its flag
+
+
 def split_overrides(args: argparse.Namespace) -> dict:
     """The ``SplitConfig`` overrides the split flags give (only those passed)."""
-    return given_flags(args, {"by": "split_by", "test_fraction": "test_fraction", "val_fraction": "val_fraction",
-                              "gap_frames": "gap_frames"})
+    return given_flags(args, SPLIT_FLAGS)
 
 
 def given_flags(args: argparse.Namespace, keys: dict[str, str], overrides: dict | None = None) -> dict:

@@ -26,7 +26,15 @@ import json
 import sys
 from pathlib import Path
 
-from hybrid_calib.commands import add_split_arguments, nonnegative_int, positive_int, split_overrides
+from hybrid_calib.commands import (
+    SPLIT_FLAGS,
+    add_split_arguments,
+    given_flags,
+    nonnegative_int,
+    positive_int,
+    reject_set_keys,
+    split_overrides,
+)
 from hybrid_calib.config import deep_update, parse_overrides
 from hybrid_calib.errors import HybridCalibError
 from hybrid_calib.perturbation import RANGES
@@ -39,7 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="nuScenes root(s) (each holds VERSION/ and samples/); several are read as one")
     parser.add_argument("--version", default="v1.0-sim", help="version folder (default v1.0-sim)")
     parser.add_argument("--range", dest="perturbation", default="R1", choices=tuple(RANGES),
-                        help="perturbation range of the starts (fixed per frame)")
+                        help="perturbation range of the starts (fixed per frame; default R1)")
     parser.add_argument("--method", default="pure", help="pure = the network alone")
     parser.add_argument("--checkpoint", required=True, type=Path,
                         help="ckpt-NNNN.json / .safetensors, or a run folder (its last checkpoint)")
@@ -101,6 +109,13 @@ def run(args: argparse.Namespace) -> int:
 
     user = parse_overrides(args.overrides)
     merge(EvalConfig, user)  # a bad --set fails here, before the checkpoint and the data are read
+    # a flag with a default always has a value: --set must not overrule it silently (the rule of every command)
+    reject_set_keys(user, {"method": "--method", "perturbation": "--range", "split": "--split",
+                           "max_frames": "--max-frames"})
+    given = given_flags(args, {"depth": "depth"}, user)
+    flags = split_overrides(args)  # the split flags change the checkpoint's split (or the default)
+    given_flags(args, {f"split_options.{k}": a for k, a in SPLIT_FLAGS.items()},
+                {f"split_options.{k}": v for k, v in (user.get("split_options") or {}).items()})
     model, ckpt = load_model(args.checkpoint)
     trained = ckpt.train_config or {}
     last = ckpt
@@ -122,7 +137,7 @@ def run(args: argparse.Namespace) -> int:
     for key, src in (("split_options", "split"), ("depth", "depth"), ("depth_options", "depth_options")):
         if src in trained:
             conf[key] = trained[src]
-    if flags := split_overrides(args):  # the split flags change the checkpoint's split (or the default)
+    if flags:
         conf["split_options"] = {**conf.get("split_options", {}), **flags}
     if args.depth is not None:
         conf["depth"] = args.depth
@@ -149,6 +164,7 @@ def run(args: argparse.Namespace) -> int:
         refuse_shipped(last.path)
         conf["export"]["cov_scale"] = 1.0  # fit against the raw covariance
     deep_update(conf, user)  # --set export.KEY=... changes that value and keeps the checkpoint's others
+    deep_update(conf, {**given, **({"split_options": flags} if flags else {})})  # a flag given wins over --set
     # the LiDAR-camera variant calibrates T_cam_lidar from LiDAR points; lidar-densified depth reads them too
     lidar = model.cfg.variant == "lidar" or needs_lidar(str(conf.get("depth", "")))
     trained = trained_data(last.path).get("nsweeps")

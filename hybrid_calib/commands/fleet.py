@@ -39,7 +39,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-report", action="store_true",
                    help="skip the HTML pages (OUT/fleet.html and a report.html beside each vehicle's result)")
     p.add_argument("--set", action="extend", nargs="+", metavar="KEY=VALUE", default=[],
-                   help="CalibrateConfig overrides for every vehicle, e.g. window.window=10 mode=batch")
+                   help="overrides for every vehicle: CalibrateConfig keys for --method oracle (e.g. window.window=10 "
+                        "mode=batch), HybridConfig keys for hybrid / pure / pure-avg (e.g. measurement.rows=none)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -98,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
         if r["state"] == "failed":
             print(f"  failed {jid}: {r['reason']}")
     print(f"wrote {args.out / 'summary.md'}, {args.out / 'summary.json'}, {args.out / 'manifest.json'}; "
-          f"per vehicle: {args.out / 'vehicles'}/<vehicle>/result.json")
+          f"per vehicle: {args.out / 'vehicles'}/<job>/result.json")
     if not args.no_report:
         page = write_fleet_pages(summary, args.out)
         if page is not None:
