@@ -60,9 +60,16 @@ class CompareConfig:
             raise ValueError(f"CompareConfig.range={self.range!r}; valid: R1, R2")
         if self.trials < 1:
             raise ValueError("CompareConfig.trials must be >= 1")
+        if self.trials > MAX_TRIALS:  # each trial is a calibration of seconds to minutes; the list was built first
+            raise ValueError(f"CompareConfig.trials={self.trials} (--trials): more than {MAX_TRIALS} trials, each a "
+                             "calibration of seconds to minutes, would not finish; pass at most "
+                             f"{MAX_TRIALS}, or split the comparison over several --out folders")
         if "oracle" in self.methods and self.hybrid.split != "all":
             raise ValueError(f"CompareConfig: method oracle uses every frame; split={self.hybrid.split!r} is for the "
                              "learned methods (drop oracle or the split)")
+
+
+MAX_TRIALS = 10_000  # CompareConfig.trials: 20-100 measure a method; 10 000 run for days on a workstation
 
 
 def _trial_file(out: Path, method: str, k: int) -> Path:

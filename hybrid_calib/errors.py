@@ -58,6 +58,23 @@ def check_out_dir(path: str | Path | None, option: str = "--out") -> None:
                                   "can write to")
 
 
+# the file each command writes at the top of its --out (and no other command does there)
+OUT_MARKERS = {"train": "train_config.json", "evaluate": "export_config.json", "calibrate": "result.json",
+               "compare": "compare_config.json", "fleet": "manifest.json", "export": "export.json",
+               "demo": "demo_config.json", "inspect": "inspect_config.json"}
+
+
+def check_out_owner(out: str | Path | None, command: str) -> None:
+    """``OptionError`` when ``out`` holds another command's outputs (its ``OUT_MARKERS`` file): a run there mixed
+    its files with them (a train run beside an evaluate run's results, sharing its depth cache)."""
+    if out is None or not Path(out).is_dir():
+        return
+    for other, marker in OUT_MARKERS.items():
+        if other != command and (Path(out) / marker).is_file():
+            raise OptionError("--out", f"{out} holds the outputs of hybrid-calib {other} ({marker}); this {command} "
+                                       "run would mix its files with them: pass another --out")
+
+
 def check_out_outside_data(out: str | Path | None, data, version: str | None) -> None:
     """``OptionError`` when the output folder ``out`` is (inside) a data root's version folder or sensor folders
     (``samples/``, ``sweeps/``) of ``data`` (a root or a list of roots): the outputs would lie among the dataset's

@@ -6,7 +6,9 @@ Layout of one checkpoint with stem ``DIR/ckpt-0003``:
   ckpt-0003.optim.pt     ``{"optimizer": ..., "scheduler": ...}`` state dicts (training only)
   ckpt-0003.json         ``{"epoch", "model_config", "train_config", "metrics", "files"}``
 Every file is written to a temp name and renamed; the JSON is written last, so a checkpoint exists
-(``latest_checkpoint`` finds it) only once all its files are complete.
+(``latest_checkpoint`` finds it) only once all its files are complete. ``files.weights_sha256`` is the
+SHA-256 of the weights file: a JSON whose fitted models (``export``) belong to one network is not
+loaded with another network's weights copied beside it (checked whenever the JSON holds it).
 
 Reading is defensive: a missing, truncated or garbage JSON or ``.safetensors`` raises
 ``CheckpointError`` naming the file, and weights are only ever read from ``.safetensors`` (a JSON
@@ -74,7 +76,7 @@ def save_checkpoint(stem: str | Path, model: torch.nn.Module, *, epoch: int, mod
     save_file(state, str(tmp), metadata={"model_config": json.dumps(model_config), "epoch": str(epoch)})
     _umask_mode(tmp)
     tmp.replace(weights)
-    files = {"weights": weights.name}
+    files = {"weights": weights.name, "weights_sha256": weights_sha256(weights)}
     if optimizer is not None:
         optim = stem.with_suffix(".optim.pt")
         tmp = _tmp(optim)
@@ -196,6 +198,32 @@ def checkpoint_digest(checkpoint: str | Path) -> str:
     return h.hexdigest()
 
 
+def weights_sha256(weights: str | Path) -> str:
+    """SHA-256 (hex) of a weights file's bytes: ``files.weights_sha256`` of a checkpoint JSON."""
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(weights, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def check_weights_file(path: Path, meta: dict[str, Any], weights: Path) -> None:
+    """``CheckpointError`` when the JSON records the SHA-256 of its weights and the file beside it is another
+    (a network copied over it: the JSON's fitted models would be applied to weights they were not fitted on)."""
+    want = meta["files"].get("weights_sha256")
+    if want is None:
+        return
+    if not isinstance(want, str) or (got := weights_sha256(weights)) != want.lower():
+        raise CheckpointError(f"the weights file {weights.name} is not the one this checkpoint was saved with (its "
+                              f"SHA-256 {got[:12] if isinstance(want, str) else '?'}... against files.weights_sha256 "
+                              f"{str(want)[:12]}...): it was replaced or edited, and the fitted models in this JSON "
+                              "belong to the original; copy the matching .safetensors beside it (or, for weights you "
+                              "converted on purpose, remove files.weights_sha256 and refit the models)",
+                              path=str(path))
+
+
 def _weights_path(path: Path, meta: dict[str, Any]) -> Path:
     """The ``.safetensors`` file a checkpoint JSON names, checked to be one (never a pickle) and present."""
     name = str(meta["files"]["weights"])
@@ -276,6 +304,7 @@ def load_checkpoint(path: str | Path, model: torch.nn.Module | None = None,
             raise CheckpointError(f"weights do not fit this model ({state_mismatch(model.state_dict(), state)}); "
                                   "the weights file does not belong to this checkpoint's model_config: copy the "
                                   "matching .safetensors or pick another checkpoint", path=str(weights)) from None
+        check_weights_file(path, meta, weights)
     if optimizer is not None or scheduler is not None:
         name = meta["files"].get("optimizer")
         if name is None:

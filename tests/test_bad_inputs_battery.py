@@ -541,6 +541,15 @@ def test_compare_with_bad_method_names(methods, needles, sim, tmp_path, capsys):
                       "--no-progress"], capsys, *needles)
 
 
+def test_compare_with_more_trials_than_could_finish(sim, tmp_path, capsys):
+    """--trials 1000000000 ran 10 minutes without a word, building its list of trials (10 MB/s)."""
+    root, _ = sim
+    out = tmp_path / "cmp"
+    expect_cli_error(["compare", "--data", root, "--out", out, "--methods", "oracle", "--trials", "1000000000"],
+                     capsys, "--trials", "at most 10000")
+    assert not out.exists()
+
+
 def _report_input(tmp_path: Path, case: str) -> tuple[Path, list]:
     path = tmp_path / "result.json"
     if case == "missing":
@@ -559,12 +568,33 @@ def test_report_on_a_bad_result(case, tmp_path, capsys):
     assert not (tmp_path / "r.html").exists()
 
 
+def test_report_and_export_on_a_result_with_a_wrong_type_or_a_nan_std(sim, tmp_path, capsys):
+    """"data": 5 was an internal error (exit 3) in report and export; a NaN std was drawn as "+- nan"."""
+    root, _ = sim
+    run = tmp_path / "run"
+    rc, err = run_cli(_calibrate(root, run, "--max-frames", "2"), capsys)
+    assert rc == 0, err
+    good = json.loads((run / "result.json").read_text())
+    name = sorted(good["vehicles"])[0]
+    for case in ("data", "std"):
+        doc = json.loads(json.dumps(good))
+        if case == "data":
+            doc["data"] = 5
+        else:
+            doc["vehicles"][name]["final"]["std_cam"]["rot_x_cam_deg"] = float("nan")
+        (run / "result.json").write_text(json.dumps(doc))
+        for argv in (["report", run / "result.json", "--vehicle", name, "--out", tmp_path / "r.html"],
+                     ["export", run / "result.json", "--out", tmp_path / "exp"]):
+            expect_cli_error(argv, capsys, "calibrate result incomplete or invalid",
+                             '"data" is a JSON int' if case == "data" else "std_cam holds a non-finite value")
+
+
 @pytest.mark.parametrize("content,needles", [
     ("{bad", ["fleet manifest unreadable"]),
     (json.dumps({"roots": 5}), ['"roots" list']),
     (json.dumps({"roots": [{"version": "x"}]}), ["roots[0]"]),
     (json.dumps([1, 2]), ["fleet manifest"]),
-    (json.dumps({"roots": [{"data": "/nowhere/at/all"}]}), ["/nowhere/at/all", "not a directory"]),
+    (json.dumps({"roots": [{"data": "/nowhere/at/all"}]}), ["/nowhere/at/all", "does not exist"]),
     (json.dumps({"roots": [{"data": ".", "vehicles": "abc"}]}), ["roots[0].vehicles", "'abc'"]),
     (None, ["fleet manifest unreadable", "No such file"]),
 ], ids=["not-json", "roots-not-list", "entry-without-data", "a-list", "root-nowhere", "vehicles-not-list",
@@ -862,6 +892,11 @@ def test_compare_leaves_out_a_bad_vehicle_records_a_bad_frame_and_finishes(sim_c
         trial = json.loads((out / "trials" / "oracle" / f"{k:04d}.json").read_text())
         assert trial["vehicle"] == good_vehicle
         assert [s["index"] for s in trial["frames_skipped"]] == [good_frames[2].index]
+    from hybrid_calib.cli import main  # a smaller rerun: its tables hold 1 trial, and it says what else is on disk
+
+    assert main([str(a) for a in ["compare", "--data", root, "--out", out, "--methods", "oracle", "--trials", "1",
+                                  "--no-progress"]]) == 1
+    assert "also holds 1 finished trial(s) this run did not ask for (of oracle)" in capsys.readouterr().out
 
 
 # ---------------------------------------------------------------- values that parse as JSON but not as what they name
@@ -1187,6 +1222,9 @@ def test_checkpoint_weights_with_nan_or_integer_values(case, needles, tmp_path):
     w = path.with_suffix(".safetensors")
     tensors = load_file(str(w))
     key = next(k for k, v in tensors.items() if v.ndim >= 2)
+    meta = json.loads(path.read_text())
+    del meta["files"]["weights_sha256"]  # converted on purpose: the JSON no longer names the float32 file's hash
+    path.write_text(json.dumps(meta))
     for dtype in (np.float64, np.float16):
         save_file({**tensors, key: tensors[key].astype(dtype)}, str(w))
         load_model(path)
@@ -1346,6 +1384,10 @@ def test_report_goes_on_when_frames_of_the_runs_root_are_gone(sim, tmp_path, cap
     (data / frames[vehicle][0].camera_sd["filename"]).unlink()  # the frame the run calibrated (the one shown)
     html = tmp_path / "r.html"
     argv = ["report", run / "result.json", "--vehicle", vehicle, "--out", html, "--frames", "2"]
+    with pytest.warns(UserWarning, match="changed since"):  # its data stamp says so (a warning line on stderr)
+        rc, err = run_cli(argv, capsys)
+    assert rc == 0 and "changed since" in html.read_text(), err
+    (run / "data_stamp.json").unlink()  # a result that records no stamp (an older run's): the frames it can show
     rc, err = run_cli(argv, capsys)
     assert rc == 0, err
     assert f"frame {frames[vehicle][0].index} not shown: camera image not found" in html.read_text()
@@ -1842,6 +1884,47 @@ def test_a_flag_given_wins_over_set_in_every_command_and_says_so(sim, tmp_path, 
     assert rc == 0 and "--max-frames 1 wins over --set max_frames=2" in err
 
 
+@pytest.mark.parametrize("command,other", [("train", "evaluate"), ("calibrate", "train"), ("evaluate", "compare"),
+                                           ("fleet", "calibrate"), ("compare", "fleet")])
+def test_an_out_folder_of_another_command_is_refused(command, other, sim, tmp_path, capsys):
+    """train --out into an evaluate run's folder wrote its checkpoints beside the results and shared the depth
+    cache; any command into another's folder mixed their files."""
+    from hybrid_calib.errors import OUT_MARKERS
+
+    root, _ = sim
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / OUT_MARKERS[other]).write_text("{}")
+    argv = {"train": ["train", "--data", root, "--epochs", "1"],
+            "calibrate": ["calibrate", "--data", root], "evaluate": ["evaluate", "--data", root, "--checkpoint",
+                                                                  SHIPPED / "small-sim-r1.json"],
+            "fleet": ["fleet", "--data", root], "compare": ["compare", "--data", root]}[command]
+    expect_cli_error([*argv, "--out", out], capsys, f"holds the outputs of hybrid-calib {other}",
+                     OUT_MARKERS[other], "pass another --out")
+    assert sorted(p.name for p in out.iterdir()) == [OUT_MARKERS[other]]  # nothing written
+
+
+def test_a_fleet_root_whose_tables_do_not_read_is_left_out_and_the_others_go_on(sim, tmp_path, capsys):
+    """One root of several with a truncated table stopped the whole fleet before any vehicle (compare left it out)."""
+    root, _ = sim
+    bad = tmp_path / "broken"
+    shutil.copytree(root, bad)
+    table = bad / SIM_VERSION / "ego_pose.json"
+    table.write_text(table.read_text()[:100])
+    out = tmp_path / "fleet"
+    from hybrid_calib.cli import main
+
+    rc = main([str(a) for a in ["fleet", "--data", root, bad, "--out", out, "--max-frames", "1", "--no-plots",
+                                "--no-report"]])
+    printed = "".join(capsys.readouterr())
+    assert rc == 1, printed
+    assert f"left out root {bad}" in printed and "ego_pose" in printed
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["counts"]["done"] == 2 and list(summary["roots_left_out"]) == [str(bad)]
+    assert "Root left out" in (out / "summary.md").read_text()
+    expect_cli_error(["fleet", "--data", bad, "--out", tmp_path / "f2", "--max-frames", "1"], capsys, "ego_pose")
+
+
 def test_evaluate_flags_are_not_overruled_by_set(sim, tmp_path, capsys):
     """evaluate let --set perturbation / split / max_frames / method / split_options silently overrule the flags
     (--range R1 evaluated R2 starts), against the rule of every other command."""
@@ -1851,10 +1934,11 @@ def test_evaluate_flags_are_not_overruled_by_set(sim, tmp_path, capsys):
                       ("method=hybrid", "--method")):
         expect_cli_error([*base, "--out", tmp_path / "x", "--set", key], capsys, f"is chosen with {flag}")
     out = tmp_path / "ev"
-    rc, err = run_cli([*base, "--split", "all", "--max-frames", "1", "--split-by", "time", "--out", out, "--set",
-                       "threads=1", "max_radar_points=32", "split_options.by=scene"], capsys)
+    rc, err = run_cli([*base, "--split", "all", "--max-frames", "1", "--split-by", "time", "--range", "R2", "--out",
+                       out, "--set", "threads=1", "max_radar_points=32", "split_options.by=scene"], capsys)
     assert rc == 0, err
     assert "--split-by time wins over --set split_options.by='scene'" in err
+    assert "trained on R1 starts and is evaluated on R2 starts" in err  # said, not silent
     assert json.loads((out / "results.json").read_text())["config"]["eval"]["split_options"]["by"] == "time"
 
 

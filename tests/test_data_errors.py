@@ -72,9 +72,12 @@ def test_version_missing_lists_versions(tiny):
 
 
 def test_root_not_a_directory(tmp_path):
-    with pytest.raises(DataError, match="not a directory") as e:
+    with pytest.raises(DataError, match="does not exist") as e:
         NuScenesRadarCamera(tmp_path / "nowhere", VERSION)
     assert "nowhere" in str(e.value)
+    (tmp_path / "afile").write_text("x")
+    with pytest.raises(DataError, match="is not a directory"):
+        NuScenesRadarCamera(tmp_path / "afile", VERSION)
 
 
 def test_missing_table(tiny):

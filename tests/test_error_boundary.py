@@ -55,7 +55,7 @@ DATA_COMMANDS = ("inspect", "calibrate", "train", "evaluate")
 @pytest.mark.parametrize("command", ("inspect", "calibrate", "train", "fleet"))  # evaluate reads its checkpoint first
 def test_missing_root(command, tmp_path, capsys):
     _expect_error(_data_args(command, tmp_path / "nowhere", tmp_path / "out"), capsys,
-                  "not a directory", tmp_path / "nowhere")
+                  "does not exist", tmp_path / "nowhere")
 
 
 @pytest.mark.parametrize("command", ("inspect", "calibrate", "train", "fleet"))
@@ -211,6 +211,24 @@ def test_bad_checkpoint_names_the_file(case, small_ckpt, tmp_path):
     assert str(named) in str(e.value)
     if "pickle" in case:
         assert "never loads pickle" in str(e.value)
+
+
+def test_weights_of_another_network_beside_a_json_are_refused(small_ckpt, tmp_path):
+    """Another network's weights of the same shapes copied over a checkpoint's loaded silently: the JSON's fitted
+    models (covariance scale, the hybrid's measurement model, the out-of-domain score) were applied to them."""
+    path, _ = small_ckpt
+    weights = path.with_suffix(".safetensors")
+    assert len(json.loads(path.read_text())["files"]["weights_sha256"]) == 64
+    load_checkpoint(path, torch.nn.Linear(3, 2))  # its own weights load
+    other = save_checkpoint(tmp_path / "other" / "ckpt-0001", torch.nn.Linear(3, 2), epoch=1, model_config={"k": 1})
+    weights.write_bytes(other.with_suffix(".safetensors").read_bytes())
+    with pytest.raises(CheckpointError, match="is not the one this checkpoint was saved with") as e:
+        load_checkpoint(path, torch.nn.Linear(3, 2))
+    assert str(path) in str(e.value) and "copy the matching .safetensors" in str(e.value)
+    meta = json.loads(path.read_text())
+    del meta["files"]["weights_sha256"]  # a JSON without the record (older checkpoints) is not checked
+    path.write_text(json.dumps(meta))
+    load_checkpoint(path, torch.nn.Linear(3, 2))
 
 
 @pytest.mark.parametrize("case", ["missing", "truncated-json", "pickle"])

@@ -136,9 +136,11 @@ def test_kill_the_driver_then_rerun_gives_the_uninterrupted_results(local_run, f
     assert sorted(json.loads((out / "manifest.json").read_text())["jobs"]) == sorted(after) + [BAD]
 
 
-def test_a_killed_pool_worker_is_replaced_and_its_jobs_rerun(local_run, fleet_root, tmp_path):
+@pytest.mark.parametrize("retries", [2, 0])
+def test_a_killed_pool_worker_is_replaced_and_its_jobs_rerun(local_run, fleet_root, tmp_path, retries):
     """``process``: one pool worker SIGKILLed at the first outcome (the other jobs are still in
-    flight): the pool is rebuilt, the lost jobs are handed out again (``attempts`` 2), same results."""
+    flight): the pool is rebuilt, the lost jobs are handed out again (``attempts`` 2), same results. No lost job
+    is charged a try for a death that was not its own (with --retries 0 every one of them failed)."""
     import multiprocessing
 
     killed = []
@@ -151,7 +153,8 @@ def test_a_killed_pool_worker_is_replaced_and_its_jobs_rerun(local_run, fleet_ro
             os.kill(workers[0].pid, signal.SIGKILL)
 
     s = run_fleet([str(fleet_root)], None, "v1.0-sim", "oracle", tmp_path, seed=1, calib={"window": {"window": 3}},
-                  options=FleetOptions(engine="process", workers=2, plots=False), on_outcome=kill_a_worker)
+                  options=FleetOptions(engine="process", workers=2, plots=False, retries=retries),
+                  on_outcome=kill_a_worker)
     assert killed and s["counts"]["done"] == 3 and s["counts"]["failed"] == 1
     attempts = {k: e["attempts"] for k, e in json.loads((tmp_path / "manifest.json").read_text())["jobs"].items()}
     assert sorted(attempts.values())[0] == 1 and max(attempts.values()) == 2, attempts  # the lost jobs: 2
@@ -533,6 +536,11 @@ def test_a_damaged_fleet_prior_is_named_on_load(damage, needle, tmp_path):
     path.write_text(json.dumps({"priors": [1, 2]}))
     with pytest.raises(DataError, match="not an object of job id"):
         load_priors(path)
+    path.write_text(json.dumps({"vehicles": {}}))  # e.g. a summary.json: it said only "KeyError: 'priors'"
+    with pytest.raises(DataError, match="not a fleet_prior.json"):
+        load_priors(path)
+    with pytest.raises(DataError, match="fleet prior does not exist"):
+        load_priors(tmp_path / "none.json")
 
 
 @pytest.mark.parametrize("name", ["../../victim", "/abs/victim", "a/b", "", "..", ".hidden"])

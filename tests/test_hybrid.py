@@ -474,7 +474,12 @@ def test_a_checkpoint_changed_in_place_is_another_network(sim_root, tmp_path):
     run_calibration(sim_root, "v1.0-sim", tmp_path / "c", {**conf, "depth": trained_depth(conf["checkpoint"])})
     assert (tmp_path / "c" / "result.json").stat().st_mtime_ns == kept
     weights = ck / "small-sim-r1.safetensors"
-    weights.write_bytes(weights.read_bytes()[:-1] + b" ")  # retrained at the same path
+    weights.write_bytes(weights.read_bytes()[:-1] + b" ")  # retrained at the same path (its JSON with it)
+    from learned.checkpoint import weights_sha256
+
+    meta = json.loads((ck / "small-sim-r1.json").read_text())
+    meta["files"]["weights_sha256"] = weights_sha256(weights)
+    (ck / "small-sim-r1.json").write_text(json.dumps(meta))
     with pytest.raises(HybridCalibError, match="network checkpoint's files"):
         run_calibration(sim_root, "v1.0-sim", tmp_path / "c", conf)
     # --overwrite recomputes from the data as they are now: the run's own caches (keyed by frame token, which a

@@ -28,9 +28,9 @@ def test_every_range_and_the_paper_preset_are_shipped_with_provenance():
         assert meta["train_config"]["perturbation"] == rng
         assert {"data", "train", "evaluate"} <= set(meta["provenance"])
         assert len(meta["export"]["cov_scale"]) == 6  # the covariance scale fitted on validation frames
-        if path == PAPER:  # the paper preset ships for the pure network: no hybrid / OOD fit (CPU cost), and
-            assert "hybrid" not in meta["export"]  # so its hybrid results say inconclusive (test_hybrid)
-            continue
+        from learned.checkpoint import weights_sha256  # the fitted models are tied to these very weights
+
+        assert meta["files"]["weights_sha256"] == weights_sha256(path.with_suffix(".safetensors"))
         assert "hybrid" in meta["export"]  # the hybrid's measurement model, fitted on validation drives
         from learned.ood import OODModel
 

@@ -228,6 +228,18 @@ def test_report_command(run_dir, tmp_path, capsys):
     assert "pass --vehicle NAME" in capsys.readouterr().err
     assert main(["report", str(result), "--vehicle", "nope", "--out", str(out)]) == 2
     assert "'nope' is not in" in capsys.readouterr().err
+    import shutil
+
+    from hybrid_calib.hybrid.network import shipped_checkpoint
+
+    ck = tmp_path / "ck"  # a checkpoint named on the command line whose weights are cut short: an error, not a note
+    ck.mkdir()
+    for f in shipped_checkpoint("R1").parent.glob("small-sim-r1.*"):
+        shutil.copy(f, ck / f.name)
+    (ck / "small-sim-r1.safetensors").write_bytes((ck / "small-sim-r1.safetensors").read_bytes()[:1000])
+    assert main(["report", str(result), "--vehicle", name, "--checkpoint", str(ck / "small-sim-r1.json"), "--out",
+                 str(tmp_path / "y.html")]) == 2
+    assert "small-sim-r1.safetensors" in capsys.readouterr().err and not (tmp_path / "y.html").exists()
 
 
 def test_report_without_data_says_so(run_dir, tmp_path):
@@ -236,6 +248,27 @@ def test_report_without_data_says_so(run_dir, tmp_path):
     out = write_report(result, tmp_path / "r.html", vehicle=name, data=tmp_path / "missing")
     notes = _parse(out).ids["notes"]
     assert "no data root" in notes and "--data ROOT --version V" in notes
+    assert out.read_text().count("data:image/png") == 1  # only the 3-sigma bands (from result.json)
+
+
+def test_report_on_data_changed_since_the_result_shows_none_of_them(run_dir, tmp_path):
+    """A result drawn over a root re-simulated since (the same tokens, other data) showed the new frames and rows
+    beside the old numbers, without a word; export refused the same result."""
+    import shutil
+    import warnings
+
+    run = tmp_path / "run"
+    shutil.copytree(run_dir / "run", run)
+    stamp = json.loads((run / "data_stamp.json").read_text())
+    name = sorted(json.loads((run / "result.json").read_text())["vehicles"])[0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the data as they were: no warning
+        assert write_report(run / "result.json", tmp_path / "a.html", vehicle=name).read_text().count(
+            "data:image/png") > 1
+    (run / "data_stamp.json").write_text(json.dumps({**stamp, "digest": "0" * len(stamp["digest"])}))
+    with pytest.warns(UserWarning, match="changed since"):
+        out = write_report(run / "result.json", tmp_path / "b.html", vehicle=name)
+    assert "changed since" in _parse(out).ids["notes"]
     assert out.read_text().count("data:image/png") == 1  # only the 3-sigma bands (from result.json)
 
 

@@ -184,6 +184,28 @@ def test_parallel_workers_write_identical_files(tmp_path):
         assert (a / rel).read_bytes() == (b / rel).read_bytes(), rel
 
 
+def test_roots_of_other_options_share_no_token(tmp_path):
+    """Two roots simulated with the same seed and scenario but other options (here the domain randomisation) held
+    identical tokens for different data: evaluate read half of their frames and the depth cache mixed them."""
+    import dataclasses
+    import json
+
+    from hybrid_calib.sim.drive import SimConfig
+    from hybrid_calib.sim.simulate import simulate
+
+    conf = SimConfig(frames=2, vehicles=1, image_scale=0.125, seed=9)
+    other = dataclasses.replace(conf, randomise=dataclasses.replace(conf.randomise, enabled=True))
+
+    def tokens(root):
+        v = root / "v1.0-sim"
+        return {t: {r["token"] for r in json.loads((v / f"{t}.json").read_text())}
+                for t in ("sample_data", "sample", "log", "scene", "calibrated_sensor")}
+
+    a = tokens(simulate(conf, tmp_path / "a", progress=False))
+    b = tokens(simulate(other, tmp_path / "b", progress=False))
+    assert all(a[t] and not a[t] & b[t] for t in a), {t: len(a[t] & b[t]) for t in a}
+
+
 def test_a_failing_frame_is_recorded_and_left_out(tmp_path, monkeypatch):
     from hybrid_calib.sim.drive import SimConfig, VehicleDrive
     from hybrid_calib.sim.simulate import simulate

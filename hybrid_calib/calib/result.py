@@ -217,10 +217,12 @@ class Estimate:
         """EXTRINSIC (or FRAME) back; ``TypeError`` / ``ValueError`` naming ``where`` when it is not an
         object or its transform / covariance is not a finite 4x4 / 6x6 matrix (``KeyError``: a missing key)."""
         d = _mapping(d, where)
+        std = np.asarray(std_from_dict(d["std_cam"], STD_FRAME), np.float64)
+        if not np.all(np.isfinite(std)):  # a page showed "pitch 0.892 +- nan deg" under a verdict with a std
+            raise ValueError(f"{where}.std_cam holds a non-finite value")
         return cls(_transform(d["T_cam_radar"], f"{where}.T_cam_radar"),
                    _covariance(d["cov_right_radar"], f"{where}.cov_right_radar"),
-                   std_from_dict(d["std_cam"], STD_FRAME), d["status"], bool(d.get("regularised", False)),
-                   tuple(d.get("weak_directions", ())))
+                   std, d["status"], bool(d.get("regularised", False)), tuple(d.get("weak_directions", ())))
 
 
 @dataclass(frozen=True)
@@ -389,6 +391,9 @@ class CalibrationRun:
                             + _what_it_is(d), path=source or None)
         vehicles = _mapping(d["vehicles"], '"vehicles"')
         failed = _mapping(d.get("vehicles_failed") or {}, '"vehicles_failed"')
+        for key in ("data", "version", "correspondences", "mode"):  # paths and names: "data": 5 was an internal error
+            if not isinstance(d[key], str):
+                raise TypeError(f'"{key}" is a JSON {type(d[key]).__name__}, not a string')
         return cls(d["data"], d["version"], d["correspondences"], d["mode"],
                    {name: VehicleResult.from_dict(v, name) for name, v in vehicles.items()},
                    {str(k): str(v) for k, v in failed.items()})

@@ -118,6 +118,11 @@ def run(args: argparse.Namespace) -> int:
                 {f"split_options.{k}": v for k, v in (user.get("split_options") or {}).items()})
     model, ckpt = load_model(args.checkpoint)
     trained = ckpt.train_config or {}
+    if (rng := trained.get("perturbation")) in RANGES and rng != args.perturbation:
+        print(f"note: {ckpt.path.name} was trained on {rng} starts and is evaluated on {args.perturbation} starts: "
+              f"outside the range it was fitted for, its errors and covariance are not its {rng} figures (the "
+              f"shipped learned/checkpoints/small-sim-{args.perturbation.lower()}.json fits {args.perturbation})",
+              file=sys.stderr)
     last = ckpt
     stage_paths = [ckpt.path]
     if args.refine:

@@ -95,6 +95,8 @@ def run(args: argparse.Namespace) -> int:
           + (f" ({', '.join(summary['fleet_prior']['outliers'])})" if c["fleet_outliers"] else ""))
     for note in summary.get("notes") or []:
         print(f"  note: {note}")
+    for root, why in (summary.get("roots_left_out") or {}).items():
+        print(f"  left out root {root}: {why}")
     for jid, r in summary["vehicles"].items():
         if r["state"] == "failed":
             print(f"  failed {jid}: {r['reason']}")
@@ -104,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
         page = write_fleet_pages(summary, args.out)
         if page is not None:
             print(f"fleet page: {page} (one report.html beside each vehicle's result.json)")
-    return 0 if c["failed"] == 0 else 1
+    return 0 if c["failed"] == 0 and not summary.get("roots_left_out") else 1
 
 
 def check_options(args: argparse.Namespace) -> None:

@@ -69,7 +69,7 @@ def check_arguments(args: argparse.Namespace) -> None:
     if args.checkpoint and not Path(args.checkpoint).exists():
         raise OptionError("--checkpoint", f"{args.checkpoint} does not exist; pass a ckpt-NNNN.json, or leave "
                                           "--checkpoint out to use the one the result names")
-    if args.checkpoint:  # given, so it must be one (the result's own degrades to a note in the page)
-        from learned.checkpoint import read_checkpoint_meta
+    if args.checkpoint:  # given, so it must load, weights too (the result's own degrades to a note in the page)
+        from learned.checkpoint import load_model
 
-        read_checkpoint_meta(args.checkpoint)
+        load_model(args.checkpoint)

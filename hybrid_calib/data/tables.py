@@ -59,7 +59,8 @@ def version_dir(root: str | Path, version: str, fix: str = "pass one of them wit
     ``fix`` (where the caller's version came from)."""
     root = Path(root)
     if not root.is_dir():
-        raise DataError("nuScenes root is not a directory; pass the folder that holds the version folder "
+        what = "is not a directory" if root.exists() else "does not exist"
+        raise DataError(f"nuScenes root {what}; pass the folder that holds the version folder "
                         "(e.g. v1.0-mini) and samples/", path=str(root))
     vdir = root / version
     if not vdir.is_dir() and (root / "sim_config.json").is_file() and not available_versions(root):

@@ -46,7 +46,8 @@ def run_fleet(roots: list[str] | None, manifest: str | None, version: str, metho
     if manifest:
         check_fleet_roots(sources, manifest)
     notes: list[str] = []
-    jobs = discover_jobs(sources, method, out, seed, checkpoint, calib, priors, options.threads, notes)
+    left_out: dict[str, str] = {}  # roots whose tables cannot be read: recorded, the other roots go on
+    jobs = discover_jobs(sources, method, out, seed, checkpoint, calib, priors, options.threads, notes, left_out)
     if priors is not None and not any(j.prior is not None for j in jobs):
         notes.append(f"the fleet prior holds no prior for any of the {len(jobs)} vehicle(s) (its vehicles: "
                      f"{sorted(k for k in priors if k != '*')[:6]}, and no new-vehicle prior '*'): none is applied")
@@ -75,5 +76,5 @@ def run_fleet(roots: list[str] | None, manifest: str | None, version: str, metho
                    options.address, options.ray_temp or out / "ray", options.retries, None, options.object_store_mb)
     finally:  # also when interrupted: the bookkeeping of every finished job reaches the file
         m.flush()
-    summary = write_summary(m, plot=options.plots, alpha=options.alpha, notes=notes)
+    summary = write_summary(m, plot=options.plots, alpha=options.alpha, notes=notes, roots_left_out=left_out)
     return summary

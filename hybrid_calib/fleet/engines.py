@@ -162,15 +162,20 @@ def _process_loop(jobs, on_start, on_outcome, workers, retries, in_flight, threa
 
     queue = list(jobs)
     tries: dict[str, int] = {}
+    # jobs on a pool whose worker died: one of them killed it, but which is unknown, so none is charged a try; each
+    # then runs alone, where a crash is its own (one killed worker had cost every queued vehicle a try)
+    suspects: set[str] = set()
     ctx = multiprocessing.get_context("spawn")
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_pool_worker, initargs=(threads,))
     running: dict = {}
     try:
         while queue or running:
-            while queue and len(running) < in_flight:
+            while queue and len(running) < in_flight and not (running and (
+                    queue[0].id in suspects or any(j.id in suspects for j, _ in running.values()))):
                 job = queue.pop(0)
                 running[pool.submit(run_job, job.to_dict())] = (job, time.perf_counter())
                 on_start([job.id])
+            alone = len(running) == 1
             done, _ = wait(list(running), return_when=FIRST_COMPLETED)
             broken = False
             for fut in done:
@@ -179,9 +184,14 @@ def _process_loop(jobs, on_start, on_outcome, workers, retries, in_flight, threa
                     out = fut.result()
                 except BrokenProcessPool as e:  # a worker died (killed, out of memory): retry elsewhere
                     broken, err = True, e
+                    if not alone:  # not known to be this job's doing: run it alone, uncharged
+                        suspects.add(job.id)
+                        queue.insert(0, job)
+                        continue
                 except OSError as e:
                     err = e
                 else:
+                    suspects.discard(job.id)
                     on_outcome(out)
                     continue
                 tries[job.id] = tries.get(job.id, 0) + 1
@@ -189,9 +199,10 @@ def _process_loop(jobs, on_start, on_outcome, workers, retries, in_flight, threa
                     on_outcome(_failure(job, err, time.perf_counter() - t0))
                 else:
                     queue.insert(0, job)
-            if broken:  # every job still on the dead pool is lost with it: requeue them too
+            if broken:  # every job still on the dead pool is lost with it: requeue them too, as suspects
                 for fut, (job, _) in running.items():
                     fut.cancel()
+                    suspects.add(job.id)
                     queue.insert(0, job)
                 running.clear()
                 pool.shutdown(wait=False, cancel_futures=True)

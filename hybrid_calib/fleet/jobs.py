@@ -182,9 +182,12 @@ def check_fleet_roots(sources: list[tuple[str, str, tuple[str, ...] | None]], ma
 
 def discover_jobs(roots: list[tuple[str, str, tuple[str, ...] | None]], method: str, out: str | Path,
                   seed: int = 0, checkpoint: str | None = None, calib: dict | None = None,
-                  priors: dict | None = None, threads: int = 1, notes: list[str] | None = None) -> list[Job]:
+                  priors: dict | None = None, threads: int = 1, notes: list[str] | None = None,
+                  left_out: dict[str, str] | None = None) -> list[Job]:
     """One job per vehicle of every root ([(root, version, vehicles or None)]), sorted by id. A vehicle
     name found in two roots gets its root's folder name as a prefix (``<folder>-<vehicle>``).
+    ``left_out``: given, a root of several whose tables cannot be read is recorded there (root -> why) and the
+    others go on (as compare does); without it, or when no root reads, the ``DataError`` stops the fleet.
     ``priors``: ``fleet.prior.load_priors`` (job id -> prior dict or None; "*" for any other job), matched by
     ``fleet.prior.match_prior``; what it says about the match is appended to ``notes``."""
     from hybrid_calib.config import merge
@@ -200,11 +203,19 @@ def discover_jobs(roots: list[tuple[str, str, tuple[str, ...] | None]], method: 
         network = network.get("network")
     found = []
     for root, version, wanted in roots:
-        vs = _root_vehicles(root, version)
+        try:
+            vs = _root_vehicles(root, version)
+        except DataError as e:  # one root's broken tables: its vehicles cannot become jobs, the others can
+            if left_out is None or len(roots) == 1:
+                raise
+            left_out[str(root)] = str(e)
+            continue
         missing = sorted(set(wanted or ()) - set(vs))
         if missing:
             raise DataError(f"vehicles {missing} not in this root (it has {sorted(vs)})", path=str(root))
         found += [(root, version, v, info) for v, info in sorted(vs.items()) if wanted is None or v in wanted]
+    if not found and left_out:
+        raise DataError("no root of the fleet can be read: " + "; ".join(f"{r}: {why}" for r, why in left_out.items()))
     names = [v for _, _, v, _ in found]
     labels = root_labels([root for root, _, _, _ in found])
     holders: dict[str, set[str]] = {}  # log token -> the roots holding it

@@ -290,8 +290,13 @@ def load_priors(path: str | Path) -> dict[str, dict]:
     import json
 
     path = Path(path)
+    if not path.is_file():
+        raise DataError(f"fleet prior {'is a directory' if path.is_dir() else 'does not exist'}; pass the "
+                        "fleet_prior.json a hybrid-calib fleet run wrote beside its summary.json", path=str(path))
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
+        if not isinstance(doc, dict) or "priors" not in doc:
+            raise KeyError("no 'priors': not a fleet_prior.json")
         priors = doc["priors"]
         sources = doc.get("sources") or {}
         if not isinstance(priors, dict):

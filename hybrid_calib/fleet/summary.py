@@ -166,12 +166,14 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
     return summary, prior
 
 
-def write_summary(m: Manifest, plot: bool = True, alpha: float = 1e-3, notes: list[str] | None = None) -> dict:
+def write_summary(m: Manifest, plot: bool = True, alpha: float = 1e-3, notes: list[str] | None = None,
+                  roots_left_out: dict[str, str] | None = None) -> dict:
     """Write ``summary.json``, ``summary.md``, ``fleet_prior.json`` (with >= 3 done vehicles) and
     ``fleet.png`` beside the manifest; returns the summary. ``notes``: sentences for the reader (which fleet
-    prior a vehicle got and why; ``run_fleet``)."""
+    prior a vehicle got and why; ``run_fleet``); ``roots_left_out``: root -> why none of its vehicles is a job."""
     summary, prior = build_summary(m, alpha=alpha)
     summary["notes"] = list(notes or [])
+    summary["roots_left_out"] = dict(roots_left_out or {})
     base = m.path.parent
     if prior is not None:
         prior.save(base / "fleet_prior.json")
@@ -196,6 +198,8 @@ def summary_markdown(s: dict) -> str:
              f"drive, {c['fleet_outliers']} fleet outlier(s), {c['degenerate']} degenerate, "
              f"{c.get('inconclusive', 0)} inconclusive (out of the network's domain), {c['weak']} weak.", ""]
     lines += [f"Note: {n}" for n in s.get("notes") or []] + ([""] if s.get("notes") else [])
+    lines += [f"**Root left out** {r}: {why}" for r, why in (s.get("roots_left_out") or {}).items()] + (
+        [""] if s.get("roots_left_out") else [])
     applied = sorted({(r.get("prior") or {}).get("file") for r in s["vehicles"].values()} - {None})
     if applied:
         lines += [f"Fleet prior applied (from {', '.join(applied)}): "

@@ -148,6 +148,12 @@ def gather(run: CalibrationRun, result_path: Path, vehicle: str, data: str | Pat
         return ev
     if data is not None:
         _check_frames_there(root, version, vehicle, vr, run)
+    if changed := _data_changed(result_path, root, version):
+        import warnings
+
+        warnings.warn(changed, stacklevel=2)
+        ev.notes.append(changed)
+        return ev
     by_token: dict = {}
     learned = run.correspondences in LEARNED_METHODS  # its config.json is a HybridConfig, its rows the network's
     try:
@@ -185,6 +191,22 @@ def gather(run: CalibrationRun, result_path: Path, vehicle: str, data: str | Pat
     _frames(ev, root, version, vehicle, vr, n_frames, by_token,
             None if conf is None else _factor_and_gate(conf, run.mode), explicit=data is not None)
     return ev
+
+
+def _data_changed(result_path: Path, root: Path, version: str) -> str:
+    """Why the data at ``root`` / ``version`` are not those the result beside its ``data_stamp.json`` was computed
+    from ("" when they are, or when it records no stamp): its pictures, rows and residuals would be drawn from
+    other data next to its numbers (export refuses such a result for the same reason)."""
+    from hybrid_calib.calib.result import stored_digest
+    from hybrid_calib.data.files import data_stamp
+
+    stored = stored_digest(Path(result_path).parent)
+    if not stored or stored == data_stamp(root, version)["digest"]:
+        return ""
+    return (f"the data at {root / version} changed since {result_path} was computed (its data_stamp.json differs "
+            "from the data now: re-simulated, re-downloaded or edited), so no camera frames, correspondences, "
+            "residuals or attention are shown: they would come from other data; rerun the calibration on the data "
+            "as they are, or pass the root it was computed on with --data")
 
 
 def _check_frames_there(root: Path, version: str, vehicle: str, vr, run: CalibrationRun) -> None:

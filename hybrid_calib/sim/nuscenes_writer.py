@@ -92,6 +92,9 @@ class VehicleRecord:
     width: int
     height: int
     frames: list[FrameRecord] = field(default_factory=list)
+    # part of every token of this vehicle's records: a digest of the simulation's config, so two roots simulated
+    # with the same seed and scenario but other options (other data) never share a token
+    salt: str = ""
 
 
 def sample_file_name(log_name: str, channel: str, timestamp_us: int, key_frame: bool = True) -> str:
@@ -105,6 +108,11 @@ def log_name(vehicle: VehicleRecord) -> str:
     return f"{vehicle.name}-{vehicle.scenario}-seed{vehicle.seed}"
 
 
+def log_key(v: VehicleRecord) -> str:
+    """The part of every token of ``v``'s records that names its log (its name, salted: ``VehicleRecord.salt``)."""
+    return f"{log_name(v)}/{v.salt}" if v.salt else log_name(v)
+
+
 def build_tables(vehicles: list[VehicleRecord]) -> dict[str, list[dict]]:
     """All 13 tables for the given vehicles."""
     t: dict[str, list[dict]] = {name: [] for name in TABLES}
@@ -114,11 +122,11 @@ def build_tables(vehicles: list[VehicleRecord]) -> dict[str, list[dict]]:
                      for i, (n, d) in enumerate(CATEGORIES)]
     sensor_tok = {ch: token("sensor", ch) for ch in CHANNELS}
     t["sensor"] = [{"token": sensor_tok[ch], "channel": ch, "modality": m} for ch, m in CHANNELS.items()]
-    map_token = token("map", *(log_name(v) for v in vehicles))
+    map_token = token("map", *(log_key(v) for v in vehicles))
     for v in vehicles:
         _vehicle_tables(t, v, sensor_tok)
     t["map"] = [{"category": "semantic_prior", "token": map_token, "filename": f"maps/{map_token}.png",
-                 "log_tokens": [token("log", log_name(v)) for v in vehicles]}]
+                 "log_tokens": [token("log", log_key(v)) for v in vehicles]}]
     return t
 
 
@@ -130,23 +138,24 @@ def _cs_record(tok: str, sensor_token: str, T: np.ndarray, K: np.ndarray | None 
 
 def _vehicle_tables(t: dict[str, list[dict]], v: VehicleRecord, sensor_tok: dict[str, str]) -> None:
     ln = log_name(v)
-    log_tok = token("log", ln)
-    scene_tok = token("scene", ln)
+    lk = log_key(v)
+    log_tok = token("log", lk)
+    scene_tok = token("scene", lk)
     t["log"].append({"token": log_tok, "logfile": ln, "vehicle": v.name, "date_captured": "2026-01-01",
                      "location": f"sim-{v.scenario}"})
-    cam_cs = token("cs", ln, "CAM_FRONT")
-    lidar_cs = token("cs", ln, "LIDAR_TOP")
+    cam_cs = token("cs", lk, "CAM_FRONT")
+    lidar_cs = token("cs", lk, "LIDAR_TOP")
     t["calibrated_sensor"].append(_cs_record(cam_cs, sensor_tok["CAM_FRONT"], v.T_ego_cam, v.K))
     t["calibrated_sensor"].append(_cs_record(lidar_cs, sensor_tok["LIDAR_TOP"], v.T_ego_lidar))
     radar_cs: list[str] = []  # per frame: the radar record in force (a new one whenever the mount moves)
     last_T, current = None, ""
     for f in v.frames:
         if last_T is None or not np.array_equal(last_T, f.T_ego_radar):
-            current = token("cs", ln, "RADAR_FRONT", f.index)
+            current = token("cs", lk, "RADAR_FRONT", f.index)
             t["calibrated_sensor"].append(_cs_record(current, sensor_tok["RADAR_FRONT"], f.T_ego_radar))
             last_T = f.T_ego_radar
         radar_cs.append(current)
-    samples = [token("sample", ln, f.index) for f in v.frames]
+    samples = [token("sample", lk, f.index) for f in v.frames]
     for i, f in enumerate(v.frames):
         t["sample"].append({"token": samples[i], "timestamp": f.lidar_us,
                             "prev": samples[i - 1] if i > 0 else "",
@@ -163,7 +172,7 @@ def _vehicle_tables(t: dict[str, list[dict]], v: VehicleRecord, sensor_tok: dict
             else:
                 rows += [(i, us, name, T, radar_cs[i], False) for us, name, T in f.radar_sweeps]
                 rows.append((i, f.radar_us, f.radar_file, f.T_global_ego_radar, radar_cs[i], True))
-        toks = [token("sample_data", ln, ch, ts) for _, ts, *_ in rows]
+        toks = [token("sample_data", lk, ch, ts) for _, ts, *_ in rows]
         is_cam = ch == "CAM_FRONT"
         for n, (i, ts, name, T, cs_tok, key) in enumerate(rows):
             rot, trans = pose_to_nuscenes(T)

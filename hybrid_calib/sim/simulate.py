@@ -20,6 +20,7 @@ sim_vehicle.json), left out of the tables, and the run goes on.
 
 from __future__ import annotations
 
+import json
 import logging
 import shutil
 import traceback
@@ -41,6 +42,7 @@ from hybrid_calib.sim.nuscenes_writer import (
     FrameRecord,
     VehicleRecord,
     build_tables,
+    log_key,
     log_name,
     sample_file_name,
     token,
@@ -147,7 +149,6 @@ def simulate(conf: SimConfig, out: str | Path, overwrite: bool = False, workers:
             f"{root} is not empty and holds no hybrid-calib simulation (no sim_config.json); refusing to write "
             "or delete anything there: choose an empty or new --out")
     if conf_path.exists() and not overwrite:
-        import json
 
         try:
             old = json.loads(conf_path.read_text())
@@ -197,6 +198,7 @@ def simulate(conf: SimConfig, out: str | Path, overwrite: bool = False, workers:
         bad = {f["frame"] for f in failed[v]}
         vr = _vehicle_record(d)
         vr.frames = [r for r in records[v] if r.index not in bad]
+        vr.salt = token("sim_config", json.dumps(conf_dict, sort_keys=True))[:12]  # another config, other tokens
         vehicles.append(vr)
     tables = build_tables(vehicles)
     write_tables(root, tables)
@@ -243,7 +245,7 @@ def _vehicle_truth(d: VehicleDrive, vr: VehicleRecord, failed: list[dict]) -> di
     ch = c.extrinsic_change
     base = d.base_mounts
     return {
-        "log_token": token("log", log_name(vr)),
+        "log_token": token("log", log_key(vr)),
         "vehicle": d.name,
         "scenario": c.scenario,
         "seed": c.seed,

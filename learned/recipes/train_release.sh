@@ -112,6 +112,8 @@ ship() {  # run name, output stem: the last finished epoch into $W/ship, the wei
   mkdir -p "$W/ship"
   cp "$last" "$W/ship/$stem.json"
   cp "${last%.json}.safetensors" "$W/ship/$stem.safetensors"
+  # files keeps the weights' name only: the fits below run on these float32 weights, the paper's ship in float16;
+  # put files.weights_sha256 (learned.checkpoint.weights_sha256 of the file as shipped) in the JSON shipped beside it
   $PY - "$W/ship/$stem.json" <<'PYEOF'
 import json, sys
 p = sys.argv[1]
