@@ -1925,6 +1925,20 @@ def test_a_fleet_root_whose_tables_do_not_read_is_left_out_and_the_others_go_on(
     expect_cli_error(["fleet", "--data", bad, "--out", tmp_path / "f2", "--max-frames", "1"], capsys, "ego_pose")
 
 
+def test_a_fleet_rerun_naming_the_default_checkpoint_is_the_same_run(sim, tmp_path, capsys):
+    """A rerun with --checkpoint spelling out the shipped default was refused as "other options (checkpoint: null
+    -> .../small-sim-r1.json)"; the same files are the same network. Another checkpoint is still refused."""
+    root, _ = sim
+    out = tmp_path / "fleet"
+    argv = ["fleet", "--data", root, "--out", out, "--method", "pure", "--max-frames", "1", "--no-plots",
+            "--no-report", "--threads", "1"]
+    rc, err = run_cli(argv, capsys)
+    assert rc == 0, err
+    rc, err = run_cli([*argv, "--checkpoint", SHIPPED / "small-sim-r1.json"], capsys)
+    assert rc == 0, err
+    expect_cli_error([*argv, "--checkpoint", SHIPPED / "small-sim-r2.json"], capsys, "checkpoint")
+
+
 def test_evaluate_flags_are_not_overruled_by_set(sim, tmp_path, capsys):
     """evaluate let --set perturbation / split / max_frames / method / split_options silently overrule the flags
     (--range R1 evaluated R2 starts), against the rule of every other command."""

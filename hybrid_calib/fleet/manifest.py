@@ -261,6 +261,8 @@ def _changed_options(old: dict, job: Job) -> list[str]:
             continue
         if k in ("data", "checkpoint"):
             same = (a or None) == (b or None) or (bool(a) and bool(b) and os.path.realpath(a) == os.path.realpath(b))
+            if k == "checkpoint" and not same and old.get("network") is not None:
+                same = old["network"] == job.network  # the default named explicitly: the very same files
         elif k == "calib":  # compared as the config they make: --max-frames 0 is the default, not a change
             same = _effective(job.method, a) == _effective(job.method, b)
         else:
