@@ -76,6 +76,14 @@ def _trial_file(out: Path, method: str, k: int) -> Path:
     return out / "trials" / method / f"{k:04d}.json"
 
 
+def trials_not_asked(out: Path, methods: tuple[str, ...], trials: int) -> list[str]:
+    """The method of each trial file in ``out`` outside ``methods`` x ``range(trials)`` (an earlier run of more
+    trials or other methods: kept on disk, not in this run's tables), sorted."""
+    asked = {(m, k) for m in methods for k in range(trials)}
+    return sorted(p.parent.name for p in (Path(out) / "trials").glob("*/[0-9]*.json")
+                  if p.stem.isdigit() and (p.parent.name, int(p.stem)) not in asked)
+
+
 def run_trials(roots: list, version: str, out: Path, conf: CompareConfig, progress: bool = True) -> dict:
     """Step 1-2 of the module doc. Bad data does not stop the comparison: returns ``{"vehicles_left_out":
     {vehicle: reason} (none of its frames reads), "trials_failed": [{"trial", "method", "vehicle",

@@ -44,7 +44,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from hybrid_calib.compare import compare
+    from hybrid_calib.compare import compare, trials_not_asked
 
     hybrid = parse_overrides(args.set)
     # compare sets these per trial from its own flags
@@ -71,10 +71,7 @@ def run(args: argparse.Namespace) -> int:
     if s.get("trials_kept"):  # a rerun: say what it reused (calibrate says so too)
         print(f"kept {s['trials_kept']} trial(s) an earlier run finished in {args.out / 'trials'} (same data, network "
               f"and options); ran {s['trials_run']}")
-    asked = {(m, k) for m in methods for k in range(args.trials)}
-    more = sorted(p.parent.name for p in (args.out / "trials").glob("*/[0-9]*.json")
-                  if p.stem.isdigit() and (p.parent.name, int(p.stem)) not in asked)
-    if more:  # an earlier run of more trials or methods: its trials stay on disk, the tables hold this run's only
+    if more := trials_not_asked(args.out, methods, args.trials):  # an earlier run's: on disk, not in these tables
         print(f"note: {args.out / 'trials'} also holds {len(more)} finished trial(s) this run did not ask for (of "
               f"{', '.join(sorted(set(more)))}); the tables hold --trials {args.trials} of {','.join(methods)} only: "
               "rerun with the earlier --trials and --methods to see them again")

@@ -114,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
                            "max_frames": "--max-frames"})
     given = given_flags(args, {"depth": "depth"}, user)
     flags = split_overrides(args)  # the split flags change the checkpoint's split (or the default)
-    given_flags(args, {f"split_options.{k}": a for k, a in SPLIT_FLAGS.items()},
+    given_flags(args, {f"split_options.{k}": a for k, a in SPLIT_FLAGS.items()},  # says a --set value it overrules
                 {f"split_options.{k}": v for k, v in (user.get("split_options") or {}).items()})
     model, ckpt = load_model(args.checkpoint)
     trained = ckpt.train_config or {}
