@@ -86,10 +86,11 @@ def check_out_outside_data(out: str | Path | None, data, version: str | None) ->
         root = Path(root).resolve()
         if out == root:  # its result.json, config.json and caches beside samples/ and the version folder
             raise OptionError("--out", f"{out} is the data root itself: the outputs would lie among the dataset's "
-                                       f"folders; pass a folder outside it (e.g. {root.parent / 'runs'})")
+                                       "folders; pass a folder outside it (e.g. "
+                                       f"{root.parent / (root.name + '-out')})")
         for part in ([version] if version else []) + ["samples", "sweeps"]:
             inside = root / part
             if out == inside or inside in out.parents:
                 raise OptionError("--out", f"{out} is inside the data root's {part}/ folder ({inside}): the outputs "
                                            "would lie among the dataset's files; pass a folder outside them (e.g. "
-                                           f"{root.parent / 'runs'})")
+                                           f"{root.parent / (root.name + '-out')})")

@@ -306,7 +306,8 @@ def _what_differs(old: dict, new: dict) -> str:
     elif changed := stamps_changed(was, now):
         words.append(changed)
     if old.get("network") != new.get("network"):
-        words.append("another checkpoint's files (retrained or edited at the same path, or another file)")
+        words.append("another checkpoint's files (retrained or edited at the same path, e.g. by the fit an "
+                     "--fit-uncertainty run writes into it, or another file)")
     options = changed_options(old, new, skip=("data", "network"), whole=("data", "network"))
     if options:
         words.append(f"another config ({'; '.join(options[:4])}{'; ...' if len(options) > 4 else ''})")

@@ -137,6 +137,9 @@ def test_too_few_in_domain_frames_make_the_vehicle_inconclusive(fitted, sim_root
     v = CalibrationRun.load(tmp_path / "out" / "result.json").vehicles["sim-veh-000"]
     assert v.final.status.startswith("inconclusive: only 0 of 3 frames")
     assert v.ood["in_domain"] == 0 and v.ood["dropped"] == 0 and len(v.trajectory) == 3  # every frame, none dropped
+    # the every-frame rerun's scores (frame_rows) are counted apart from the deciding pass's (ood.scores)
+    assert v.ood["rerun_in_domain"] == sum(r["ood_score"] <= 1e-6 for r in v.frame_rows) == 0
+    assert "on that every-frame pass 0 of 3 frames scored in domain" in v.ood["note"]
     assert v.trajectory[-1].estimate.status == v.final.status == run.vehicles["sim-veh-000"].final.status
     verdict = verdict_of(v)
     assert verdict.word == "inconclusive" and "only 0 of 3 frames" in verdict.why

@@ -707,7 +707,12 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     if ood["inconclusive"]:  # too few frames in domain: every frame, nothing dropped, and say so (hybrid.ood)
         tr = _Trace(drop=False)
         traj, mon = _run_learned(runner, drive, T0, conf, tr, motion, frames)
-        ood.update(dropped=0, note="too few frames in domain: the estimate uses every frame and is not trusted")
+        # the rerun's passes start elsewhere (no frame dropped), so their scores differ: frame_rows hold them
+        rerun_in = sum(not out_of_domain(x, conf.ood) for x in tr.scores)
+        ood.update(dropped=0, rerun_in_domain=int(rerun_in), note=(
+            f"too few frames in domain on the pass that drops them ({ood['in_domain']} of {ood['frames']}, the "
+            "scores above): the estimate uses every frame and is not trusted; on that every-frame pass "
+            f"{rerun_in} of {len(tr.scores)} frames scored in domain (the scores in frame_rows)"))
     n_priors = None
     if tr.priors and tr.priors < DRIVE_ERROR_RERUN * len(drive.indices):  # the drive error counted N / n times
         n_priors = tr.priors
