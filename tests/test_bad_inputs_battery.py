@@ -1384,9 +1384,9 @@ def test_report_goes_on_when_frames_of_the_runs_root_are_gone(sim, tmp_path, cap
     (data / frames[vehicle][0].camera_sd["filename"]).unlink()  # the frame the run calibrated (the one shown)
     html = tmp_path / "r.html"
     argv = ["report", run / "result.json", "--vehicle", vehicle, "--out", html, "--frames", "2"]
-    with pytest.warns(UserWarning, match="changed since"):  # its data stamp says so (a warning line on stderr)
+    with pytest.warns(UserWarning, match="are not those"):  # its data stamp says so (a warning line on stderr)
         rc, err = run_cli(argv, capsys)
-    assert rc == 0 and "changed since" in html.read_text(), err
+    assert rc == 0 and "are not those" in html.read_text(), err
     (run / "data_stamp.json").unlink()  # a result that records no stamp (an older run's): the frames it can show
     rc, err = run_cli(argv, capsys)
     assert rc == 0, err
@@ -1895,13 +1895,18 @@ def test_an_out_folder_of_another_command_is_refused(command, other, sim, tmp_pa
     out = tmp_path / "out"
     out.mkdir()
     (out / OUT_MARKERS[other]).write_text("{}")
+    (out / "x").write_text("")  # some output of it (a marker alone is a run that failed before any: not refused)
     argv = {"train": ["train", "--data", root, "--epochs", "1"],
             "calibrate": ["calibrate", "--data", root], "evaluate": ["evaluate", "--data", root, "--checkpoint",
                                                                   SHIPPED / "small-sim-r1.json"],
             "fleet": ["fleet", "--data", root], "compare": ["compare", "--data", root]}[command]
     expect_cli_error([*argv, "--out", out], capsys, f"holds the outputs of hybrid-calib {other}",
                      OUT_MARKERS[other], "pass another --out")
-    assert sorted(p.name for p in out.iterdir()) == [OUT_MARKERS[other]]  # nothing written
+    assert sorted(p.name for p in out.iterdir()) == [OUT_MARKERS[other], "x"]  # nothing written
+    from hybrid_calib.errors import check_out_owner
+
+    (out / "x").unlink()  # the marker alone: a run of that command that failed before any output
+    check_out_owner(out, command)
 
 
 def test_a_fleet_root_whose_tables_do_not_read_is_left_out_and_the_others_go_on(sim, tmp_path, capsys):

@@ -203,10 +203,11 @@ def _data_changed(result_path: Path, root: Path, version: str) -> str:
     stored = stored_digest(Path(result_path).parent)
     if not stored or stored == data_stamp(root, version)["digest"]:
         return ""
-    return (f"the data at {root / version} changed since {result_path} was computed (its data_stamp.json differs "
-            "from the data now: re-simulated, re-downloaded or edited), so no camera frames, correspondences, "
-            "residuals or attention are shown: they would come from other data; rerun the calibration on the data "
-            "as they are, or pass the root it was computed on with --data")
+    return (f"the data at {root / version} are not those {result_path} was computed from (its data_stamp.json "
+            "differs from the data now: re-simulated, re-downloaded, edited, or another root or a copy whose folders' "
+            "times differ), so no camera frames, correspondences, residuals or attention are shown: they could come "
+            "from other data; rerun the calibration on the data as they are, or pass the root it was computed on "
+            "with --data")
 
 
 def _check_frames_there(root: Path, version: str, vehicle: str, vr, run: CalibrationRun) -> None:
