@@ -844,6 +844,9 @@ def test_train_says_when_no_frame_is_left_for_validation(sim, tmp_path, capsys, 
                            "--epochs", "1", "--set", "samples_per_epoch=1", "val_samples=1", "batch_size=1"], capsys)
     assert rc == 0, err
     assert "no validation frames: split.by=scene" in caplog.text and "split.by=time" in caplog.text
+    rc, err = run_cli(["train", "--data", root, "--version", SIM_VERSION, "--out", tmp_path / "t", "--no-progress",
+                       "--epochs", "2", "--set", "samples_per_epoch=1", "val_samples=1", "batch_size=1"], capsys)
+    assert rc == 0 and "holds ckpt-0001.json: the run resumes after it" in err, err  # a resume says what it keeps
 
 
 def test_fleet_checkpoint_checked_before_any_job(sim, tmp_path, capsys):
@@ -1941,6 +1944,7 @@ def test_a_fleet_rerun_naming_the_default_checkpoint_is_the_same_run(sim, tmp_pa
     assert rc == 0, err
     rc, err = run_cli([*argv, "--checkpoint", SHIPPED / "small-sim-r1.json"], capsys)
     assert rc == 0, err
+    assert any(n.startswith("kept 2 vehicle(s)") for n in json.loads((out / "summary.json").read_text())["notes"])
     expect_cli_error([*argv, "--checkpoint", SHIPPED / "small-sim-r2.json"], capsys, "checkpoint")
 
 

@@ -69,7 +69,10 @@ def _real_root_depth(roots, version: str) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    import sys
+
     from hybrid_calib.plots.training import plot_history
+    from learned.checkpoint import latest_checkpoint
     from learned.dataset import open_roots
     from learned.train import train, train_config
 
@@ -92,6 +95,9 @@ def run(args: argparse.Namespace) -> int:
               "are the training truth (themselves a few tenths of a degree off); label figures on its frames as "
               "training figures and keep some frames out (docs/benchmarks.md: benchmarks/real_finetune.py)")
     source = {"roots": [str(Path(d).resolve()) for d in args.data], "version": args.version, "nsweeps": args.nsweeps}
+    if not args.no_resume and (found := latest_checkpoint(args.out / "checkpoints")) is not None:
+        print(f"note: {args.out} holds {found.name}: the run resumes after it (with the same options and data), "
+              "its earlier epochs kept", file=sys.stderr)
     last = train(conf, frames, args.out, resume=not args.no_resume, progress=not args.no_progress, source=source)
     plot_history(args.out / "epochs.csv", args.out / "history.png")
     print(f"last checkpoint: {last}")

@@ -64,6 +64,9 @@ def run_fleet(roots: list[str] | None, manifest: str | None, version: str, metho
                      f"command did not list ({', '.join(earlier[:4])}{', ...' if len(earlier) > 4 else ''}): pass "
                      "another --out for a fleet of these roots alone")
     todo = m.todo()
+    if kept := sum(m.jobs[j.id]["state"] == "done" for j in jobs if j.id in m.jobs):  # a rerun: say what it keeps
+        notes.append(f"kept {kept} vehicle(s) an earlier run into this --out finished (same data and options); "
+                     f"{len(todo)} to run")
     host = socket.gethostname()
 
     def record(o: dict) -> None:
