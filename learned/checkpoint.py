@@ -191,22 +191,24 @@ def checkpoint_digest(checkpoint: str | Path) -> str:
     path, meta = read_checkpoint_meta(checkpoint)
     h = hashlib.sha1()
     for f in (path, _weights_path(path, meta)):
-        with open(f, "rb") as fh:
-            for chunk in iter(lambda: fh.read(1 << 20), b""):
-                h.update(chunk)
+        _hash_file(h, f)
         h.update(b"/")
     return h.hexdigest()
+
+
+def _hash_file(h, path: str | Path):
+    """``h`` (a ``hashlib`` object) updated with the bytes of ``path``, read in 1 MiB chunks; returns ``h``."""
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h
 
 
 def weights_sha256(weights: str | Path) -> str:
     """SHA-256 (hex) of a weights file's bytes: ``files.weights_sha256`` of a checkpoint JSON."""
     import hashlib
 
-    h = hashlib.sha256()
-    with open(weights, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
+    return _hash_file(hashlib.sha256(), weights).hexdigest()
 
 
 def check_weights_file(path: Path, meta: dict[str, Any], weights: Path) -> None:

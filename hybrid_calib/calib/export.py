@@ -168,12 +168,11 @@ def _check_stamp(path: Path, run, root: Path, version: str) -> str:
     it is refused. Its data stamp decides (a root moved or copied elsewhere is the same data); without one, the
     root and version it records must be these (vehicle names repeat across roots: every simulated root has a
     sim-veh-000, nuScenes' n015 drives in several releases)."""
-    from hybrid_calib.calib.result import stored_digest
-    from hybrid_calib.data.files import data_stamp
+    from hybrid_calib.calib.result import data_differ, stored_digest
 
     stored = stored_digest(path.parent)
     same_place = (not run.data or Path(run.data).resolve() == root.resolve()) and run.version in (None, "", version)
-    if stored and stored != data_stamp(root, version)["digest"]:
+    if data_differ(path.parent, root, version):
         where = "" if same_place else f", on {run.data} ({run.version}), not on {root} ({version})"
         return (f"{path} was computed from other data{where} (its data_stamp.json differs from the data now): "
                 "re-run the calibration on this root, or pass the root it was computed on")

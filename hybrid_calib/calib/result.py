@@ -451,6 +451,16 @@ def stored_digest(out: str | Path) -> str | None:
     return digest if isinstance(digest, str) and digest else None
 
 
+def data_differ(out: str | Path, root: str | Path, version: str) -> bool:
+    """Whether the data digest recorded beside a result (``out/DATA_STAMP``) differs from the data at ``root`` /
+    ``version`` now (``data.files.data_stamp``); False when it records none (export and report refuse, or leave out,
+    what such a result would draw from other data)."""
+    from hybrid_calib.data.files import data_stamp
+
+    stored = stored_digest(out)
+    return bool(stored) and stored != data_stamp(root, version)["digest"]
+
+
 RUN_ONLY = ("progress", "threads", "cache_dir", "depth_cache")  # config keys of how a run ran, not of what it gave
 
 

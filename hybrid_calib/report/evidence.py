@@ -197,11 +197,9 @@ def _data_changed(result_path: Path, root: Path, version: str) -> str:
     """Why the data at ``root`` / ``version`` are not those the result beside its ``data_stamp.json`` was computed
     from ("" when they are, or when it records no stamp): its pictures, rows and residuals would be drawn from
     other data next to its numbers (export refuses such a result for the same reason)."""
-    from hybrid_calib.calib.result import stored_digest
-    from hybrid_calib.data.files import data_stamp
+    from hybrid_calib.calib.result import data_differ
 
-    stored = stored_digest(Path(result_path).parent)
-    if not stored or stored == data_stamp(root, version)["digest"]:
+    if not data_differ(Path(result_path).parent, root, version):
         return ""
     return (f"the data at {root / version} are not those {result_path} was computed from (its data_stamp.json "
             "differs from the data now: re-simulated, re-downloaded, edited, or another root or a copy whose folders' "
