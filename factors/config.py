@@ -82,4 +82,12 @@ class RadarPixelFactorConfig:
         if not 0 <= self.elevation_beam_deg < 45:
             raise ValueError(
                 f"RadarPixelFactorConfig.elevation_beam_deg must be in [0, 45), got {self.elevation_beam_deg}")
+        from hybrid_calib.config import require_ranges
+
+        require_ranges(self, {"kernel_scale": "(0, 100]", "elevation_mean_deg": "[-45, 45]",
+                              "reflector_height_mean_m": "[-10, 10]", "reflector_height_std_m": "(0, 20]",
+                              "reflector_height_mean_std_m": "[0, 10]", "reflector_tilt_std_deg": "[0, 45]",
+                              "scene_knots_m": "[0, 1000]", "scene_height_std_m": "[0, 10]",
+                              "scene_height_sq_std_m2": "[0, 100]", "scene_lateral_slope_std": "[0, 1]",
+                              "scene_along_road_factor": "[1, 100]", "min_depth_m": "(0, 100]"})
 

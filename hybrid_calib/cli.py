@@ -18,7 +18,13 @@ import warnings
 from pathlib import Path
 
 from hybrid_calib.atomic import out_dir_lock
-from hybrid_calib.errors import HybridCalibError, check_out_dir, check_out_outside_data, check_out_owner
+from hybrid_calib.errors import (
+    HybridCalibError,
+    check_out_dir,
+    check_out_not_in_dataset,
+    check_out_outside_data,
+    check_out_owner,
+)
 
 # subcommand name -> module in hybrid_calib.commands (each has HELP, add_arguments, run).
 COMMANDS: dict[str, str] = {
@@ -106,6 +112,8 @@ def _run(args: argparse.Namespace, debug: bool) -> int:
             return int(args._run(args) or 0)
         check_out_dir(out)
         check_out_outside_data(out, getattr(args, "data", None), getattr(args, "version", None))
+        if args.command != "simulate":  # simulate's --out is the root it writes
+            check_out_not_in_dataset(out)
         check_out_owner(out, args.command)
         if out is None:
             return int(args._run(args) or 0)

@@ -46,6 +46,29 @@ def require(conf: Any, rules: Mapping[str, bool]) -> None:
     raise ValueError(f"{type(conf).__name__}: need {'; '.join(failing)} (got {got})")
 
 
+_INTERVAL = re.compile(r"^([\[(])\s*([^,\s]+)\s*,\s*([^\])\s]+)\s*([\])])$")
+
+
+def require_ranges(conf: Any, ranges: Mapping[str, str]) -> None:
+    """Raise ``ValueError`` naming every field of ``conf`` outside its interval, written as in maths:
+    ``{"kernel_scale": "(0, 100]", "min_rows": "[0, 1e6]"}`` ("(" / ")" open, "[" / "]" closed; a tuple
+    field: each element). For ``__post_init__`` checks (``require``'s message: "RadarPixelFactorConfig:
+    need kernel_scale in (0, 100] (got kernel_scale=1e+300)"). NaN is outside every interval. The bounds are
+    what the code can compute with and what is physically sensible, not tuning ranges."""
+    rules = {}
+    for name, spec in ranges.items():
+        m = _INTERVAL.match(spec)
+        if m is None:
+            raise TypeError(f"require_ranges: {spec!r} is not an interval like '(0, 1]'")
+        lo, hi = float(m[2]), float(m[3])
+        value = getattr(conf, name)
+        values = value if isinstance(value, (tuple, list)) else (value,)
+        rules[f"{name} in {spec}"] = all(
+            isinstance(v, numbers.Real) and not isinstance(v, bool)
+            and (lo < v if m[1] == "(" else lo <= v) and (v < hi if m[4] == ")" else v <= hi) for v in values)
+    require(conf, rules)
+
+
 def merge(cls: type[C], overrides: Mapping[str, Any] | C | None = None, _path: str = "") -> C:
     """Build ``cls`` (a frozen dataclass) from its defaults updated by ``overrides``.
 

@@ -79,7 +79,44 @@ def check_out_owner(out: str | Path | None, command: str) -> None:
                                        "run would mix its files with them: pass another --out")
 
 
-def check_out_outside_data(out: str | Path | None, data, version: str | None) -> None:
+TABLE_FILES = ("sample_data.json", "calibrated_sensor.json")  # a folder holding both is a nuScenes version folder
+
+
+def _is_version_folder(p: Path) -> bool:
+    return all((p / name).is_file() for name in TABLE_FILES)
+
+
+def _holds_version_folder(p: Path) -> bool:
+    try:
+        return p.is_dir() and any(c.is_dir() and _is_version_folder(c) for c in p.iterdir())
+    except OSError:  # unreadable: not ours to judge
+        return False
+
+
+def check_out_not_in_dataset(out: str | Path | None, option: str = "--out") -> None:
+    """``OptionError`` when the output folder ``out`` is a nuScenes root, or lies inside any root's version folder
+    (a folder holding ``TABLE_FILES``) or its ``samples/`` / ``sweeps/``: whichever root, not only the one the run
+    reads (an export into another root's version folder replaced its calibrated_sensor.json; a report page or a
+    cache landed among a dataset's files). Checked before the run takes its lock or creates the folder."""
+    if out is None or str(out) == "":
+        return
+    out = Path(out).resolve()
+    for p in (out, *out.parents):
+        if _is_version_folder(p):
+            raise OptionError(option, f"{out} is {'' if p == out else 'inside '}the nuScenes table folder {p} (it "
+                                      "holds sample_data.json and calibrated_sensor.json): the outputs would lie "
+                                      "among a dataset's tables and could replace them; pass a folder outside any "
+                                      "data root")
+        if p.name in ("samples", "sweeps") and _holds_version_folder(p.parent):
+            raise OptionError(option, f"{out} is inside the {p.name}/ folder of the nuScenes root {p.parent}: the "
+                                      "outputs would lie among the dataset's sensor files; pass a folder outside it")
+    if _holds_version_folder(out):
+        raise OptionError(option, f"{out} is a nuScenes root (it holds a version folder with sample_data.json): the "
+                                  "outputs would lie among the dataset's folders; pass a folder outside it (e.g. "
+                                  f"{out.parent / (out.name + '-out')})")
+
+
+def check_out_outside_data(out: str | Path | None, data, version: str | None, option: str = "--out") -> None:
     """``OptionError`` when the output folder ``out`` is (inside) a data root's version folder or sensor folders
     (``samples/``, ``sweeps/``) of ``data`` (a root or a list of roots): the outputs would lie among the dataset's
     files, and the run's own files would change the root's data stamp (its next run: "the data changed")."""
@@ -89,12 +126,12 @@ def check_out_outside_data(out: str | Path | None, data, version: str | None) ->
     for root in data if isinstance(data, (list, tuple)) else [data]:
         root = Path(root).resolve()
         if out == root:  # its result.json, config.json and caches beside samples/ and the version folder
-            raise OptionError("--out", f"{out} is the data root itself: the outputs would lie among the dataset's "
-                                       "folders; pass a folder outside it (e.g. "
-                                       f"{root.parent / (root.name + '-out')})")
+            raise OptionError(option, f"{out} is the data root itself: the outputs would lie among the dataset's "
+                                      "folders; pass a folder outside it (e.g. "
+                                      f"{root.parent / (root.name + '-out')})")
         for part in ([version] if version else []) + ["samples", "sweeps"]:
             inside = root / part
             if out == inside or inside in out.parents:
-                raise OptionError("--out", f"{out} is inside the data root's {part}/ folder ({inside}): the outputs "
-                                           "would lie among the dataset's files; pass a folder outside them (e.g. "
-                                           f"{root.parent / (root.name + '-out')})")
+                raise OptionError(option, f"{out} is inside the data root's {part}/ folder ({inside}): the outputs "
+                                          "would lie among the dataset's files; pass a folder outside them (e.g. "
+                                          f"{root.parent / (root.name + '-out')})")

@@ -29,6 +29,7 @@ from typing import Any
 import torch
 from safetensors.torch import load_file, save_file
 
+from hybrid_calib.atomic import atomic_path
 from hybrid_calib.config import save_json_atomic
 from hybrid_calib.errors import CheckpointError, HybridCalibError
 
@@ -52,10 +53,6 @@ def checkpoint_stem(directory: str | Path, epoch: int) -> Path:
     return Path(directory) / f"ckpt-{epoch:04d}"
 
 
-def _tmp(path: Path) -> Path:
-    return path.with_name(f".{path.name}.{os.getpid()}.tmp")
-
-
 def _umask_mode(path: Path) -> None:
     """Give ``path`` the permissions of a file created under the process's umask (safetensors writes its file 0600:
     the weights of a shared run folder were readable by their owner alone, the JSON beside them by everyone)."""
@@ -72,17 +69,15 @@ def save_checkpoint(stem: str | Path, model: torch.nn.Module, *, epoch: int, mod
     stem.parent.mkdir(parents=True, exist_ok=True)
     weights = stem.with_suffix(".safetensors")
     state = {k: v.detach().to("cpu").contiguous().clone() for k, v in model.state_dict().items()}
-    tmp = _tmp(weights)
-    save_file(state, str(tmp), metadata={"model_config": json.dumps(model_config), "epoch": str(epoch)})
-    _umask_mode(tmp)
-    tmp.replace(weights)
+    with atomic_path(weights) as tmp:  # a failed write leaves no partial file behind
+        save_file(state, str(tmp), metadata={"model_config": json.dumps(model_config), "epoch": str(epoch)})
+        _umask_mode(tmp)
     files = {"weights": weights.name, "weights_sha256": weights_sha256(weights)}
     if optimizer is not None:
         optim = stem.with_suffix(".optim.pt")
-        tmp = _tmp(optim)
-        torch.save({"optimizer": optimizer.state_dict(),
-                    "scheduler": scheduler.state_dict() if scheduler is not None else None}, tmp)
-        tmp.replace(optim)
+        with atomic_path(optim) as tmp:
+            torch.save({"optimizer": optimizer.state_dict(),
+                        "scheduler": scheduler.state_dict() if scheduler is not None else None}, tmp)
         files["optimizer"] = optim.name
     meta = {"epoch": int(epoch), "model_config": model_config, "train_config": train_config or {},
             "metrics": metrics or {}, "files": files}
@@ -106,7 +101,10 @@ def _resolve(path: str | Path) -> Path:
         if latest is None:
             latest = latest_checkpoint(path / "checkpoints")
         if latest is None:
-            raise HybridCalibError(f"no checkpoint (ckpt-NNNN.json) in {path}; train one with `hybrid-calib train`")
+            named = sorted(p.name for p in path.glob("*.json") if p.with_suffix(".safetensors").is_file())[:4]
+            raise HybridCalibError(f"no checkpoint (ckpt-NNNN.json) in {path}" + (
+                f"; it holds named checkpoints ({', '.join(named)}): pass one of them, e.g. --checkpoint "
+                f"{path / named[0]}" if named else "; train one with `hybrid-calib train`"))
         return latest
     if path.suffix in _PICKLE_SUFFIXES:
         raise CheckpointError("this is a pickled checkpoint; hybrid-calib never loads pickles (they can run code "
@@ -241,11 +239,19 @@ def _weights_path(path: Path, meta: dict[str, Any]) -> Path:
 
 
 def _load_weights(weights: Path, device: str) -> dict[str, torch.Tensor]:
+    from safetensors import SafetensorError
+
     try:
         return load_file(str(weights), device=device)
-    except Exception as e:  # safetensors raises its own SafetensorError for a bad header or body
+    except SafetensorError as e:  # a bad header or body; also safetensors' word for a device name it does not know
+        if str(e).startswith(f"device {device} "):
+            raise CheckpointError(f"device {device!r} is not a torch device ({e}); use cpu, cuda or cuda:N",
+                                  path=str(weights)) from None
         raise CheckpointError(f"weights file is not a valid safetensors file ({e}); it is truncated or corrupt: "
                               "copy it again or pick another checkpoint", path=str(weights)) from None
+    except RuntimeError as e:  # the file is fine: the device is not on this machine (no CUDA here)
+        raise CheckpointError(f"the weights cannot be placed on device {device!r} ({str(e).splitlines()[0][:160]}); "
+                              "use a device this machine has (cpu)", path=str(weights)) from None
 
 
 def state_mismatch(expected: dict, got: dict, show: int = 2) -> str:
@@ -314,16 +320,24 @@ def load_checkpoint(path: str | Path, model: torch.nn.Module | None = None,
         optim = path.parent / Path(str(name)).name
         try:
             state = torch.load(optim, map_location=map_location, weights_only=True)
-            if optimizer is not None:
-                optimizer.load_state_dict(state["optimizer"])
-            if scheduler is not None and state.get("scheduler") is not None:
-                scheduler.load_state_dict(state["scheduler"])
+            if not isinstance(state, dict) or not isinstance(state.get("optimizer"), dict):
+                raise TypeError("no 'optimizer' state dict in it")
         except Exception as e:  # torch.load raises RuntimeError / UnpicklingError / EOFError / OSError
             why = f"{type(e).__name__}: {str(e).strip().splitlines()[0][:160] if str(e).strip() else '-'}"  # not
             # PyTorch's whole weights_only paragraph
             raise CheckpointError(f"optimizer state is missing, corrupt or not a plain state dict ({why}); start a "
                                   "new run with --init on this checkpoint instead of resuming",
                                   path=str(optim)) from None
+        try:
+            if optimizer is not None:
+                optimizer.load_state_dict(state["optimizer"])
+            if scheduler is not None and state.get("scheduler") is not None:
+                scheduler.load_state_dict(state["scheduler"])
+        except (ValueError, KeyError, TypeError) as e:  # a state of another model or optimizer configuration
+            why = f"{type(e).__name__}: {str(e).strip().splitlines()[0][:160] if str(e).strip() else '-'}"
+            raise CheckpointError(f"the optimizer state does not fit this run's model and optimizer ({why}): the run's "
+                                  "--set model.* or training options differ from the checkpoint's; start a new run "
+                                  "with --init on this checkpoint instead of resuming", path=str(optim)) from None
     return ckpt
 
 

@@ -12,7 +12,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from hybrid_calib.config import ConfigError, merge
+from hybrid_calib.config import ConfigError, merge, require_ranges
 
 FUSIONS = ("selective", "add", "concat")
 VIEWS = ("both", "fv", "bev")
@@ -103,6 +103,18 @@ class ModelConfig:
                 raise ConfigError(f"ModelConfig.{name}={getattr(self, name)!r}: must be a finite number > 0")
         if self.mca_heads < 1 or self.feat_dim % self.mca_heads:
             raise ConfigError(f"ModelConfig.mca_heads={self.mca_heads} must divide feat_dim={self.feat_dim}")
+        require_ranges(self, {
+            "input_hw": "[8, 10000]", "depth_norm_m": "[0.1, 1000]", "min_depth_m": "[0, 100]",
+            "camera_height_m": "[0, 100]", "height_norm_m": "[0.1, 100]", "bev_hw": "[8, 10000]",
+            "bev_res_m": "[0.001, 10]", "bev_z_min_m": "[0, 1000]", "pseudo_bev_max_depth_m": "(0, 1000]",
+            "feat_dim": "[1, 4096]", "radar_widths": "[1, 4096]", "context_widths": "[1, 4096]",
+            "depth_branch_mid": "[1, 4096]", "mca_heads": "[1, 4096]", "phi_channels": "[1, 4096]",
+            "phi_pool_fv": "[1, 1000]", "phi_pool_bev": "[1, 1000]", "view_dim": "[1, 4096]", "match_dim": "[1, 4096]",
+            "nr_tau": "[1, 1e6]", "nr_delta_s_m": "[0, 10]", "nr_delta_m": "[0, 10]", "nr_chunk": "[1, 1e6]",
+            "sk_reduction": "[1, 4096]", "sk_min_dim": "[1, 4096]", "iterations": "[1, 100]",
+            "lstm_hidden": "[1, 4096]", "beta": "[0, 1000]", "lam": "[0, 1]", "iter_gamma": "[0, 1]",
+            "calib_rot_weight": "[0, 1000]", "calib_trans_weight": "[0, 1000]", "calib_point_weight": "[0, 1000]",
+            "unc_weight": "[0, 1000]"})
 
     @property
     def nr_active(self) -> bool:

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from hybrid_calib.config import ConfigError, merge
+from hybrid_calib.config import ConfigError, merge, require_ranges
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.geometry import perturb_camera_frame, transform_points
@@ -53,6 +53,10 @@ class DatasetConfig:
     seed: int = 0  # perturbation / subsampling seed
     lidar_max_depth_m: float = 200.0  # LiDAR points farther than this (camera z) are dropped
     variant: str = "radar"  # "radar": radar points / T_cam_radar; "lidar": LiDAR points / T_cam_lidar (supplement)
+
+    def __post_init__(self):
+        require_ranges(self, {"height": "[1, 10000]", "width": "[1, 10000]", "max_radar_points": "[1, 1e6]",
+                              "max_lidar_points": "[0, 1e6]", "lidar_max_depth_m": "(0, 1000]"})
 
 
 SPLIT_BY = ("scene", "vehicle", "log", "time")
@@ -87,6 +91,7 @@ class SplitConfig:
                               "must be in [0, 1) with a sum below 1")
         if self.gap_frames < 0:
             raise ConfigError(f"split.gap_frames must be >= 0, got {self.gap_frames}")
+        require_ranges(self, {"val_fraction": "[0, 1)", "test_fraction": "[0, 1)", "gap_frames": "[0, 1e6]"})
 
 
 def _rng(*keys: int | str) -> np.random.Generator:

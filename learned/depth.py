@@ -29,7 +29,7 @@ from typing import Protocol
 import numpy as np
 
 from hybrid_calib.atomic import atomic_path
-from hybrid_calib.config import merge, save_json_atomic, to_dict
+from hybrid_calib.config import merge, require_ranges, save_json_atomic, to_dict
 from hybrid_calib.data.files import NPZ_ERRORS
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.errors import DataError, HybridCalibError
@@ -76,6 +76,12 @@ class CorruptedTruthConfig:
     min_depth_m: float = 0.5  # outputs are clipped to [min_depth_m, max_depth_m]
     max_depth_m: float = 200.0  # paper: depth range 0..200 m
     sky_depth_m: float = 0.0  # value written where the truth has no return (0 = unknown; a monocular model says ~max)
+
+    def __post_init__(self):
+        require_ranges(self, {"scale_mean": "(0, 10]", "scale_std": "[0, 2]", "shift_mean_m": "[-100, 100]",
+                              "shift_std_m": "[0, 100]", "edge_blur_px": "[0, 100]", "rel_noise_lowfreq": "[0, 10]",
+                              "lowfreq_cells": "[1, 1000]", "noise_rel": "[0, 10]", "noise_quad_per_m": "[0, 1]",
+                              "min_depth_m": "[0, 1000]", "max_depth_m": "(0, 1000]", "sky_depth_m": "[0, 1000]"})
 
 
 class CorruptedTruthDepth:
@@ -164,6 +170,11 @@ class LidarDepthConfig:
     fill_kernels_px: tuple = (3, 5, 9, 17)  # hole filling: nearest-depth fill with growing square windows
     blur_px: float = 0.0  # optional smoothing (Gaussian sigma, output pixels) of the filled map
 
+    def __post_init__(self):
+        require_ranges(self, {"min_depth_m": "[0, 1000]", "max_depth_m": "(0, 1000]",
+                              "occlusion_kernel_px": "[0, 1000]", "occlusion_ratio": "[0, 1]",
+                              "fill_kernels_px": "[1, 1000]", "blur_px": "[0, 100]"})
+
 
 class LidarDepth:
     """Metric depth from the frame's LiDAR sweep, projected through the dataset's (known) LiDAR-camera
@@ -191,9 +202,9 @@ class LidarDepth:
                  image: np.ndarray | None = None) -> np.ndarray:
         if frame.lidar_points is None or frame.T_cam_lidar is None:
             raise DataError("lidar-densified depth needs the frame's LiDAR sweep and the tables' LiDAR mount, and "
-                            "this frame has neither (the root has no LIDAR_TOP channel); pass another --depth: "
-                            "corrupted-truth on a simulated root, depth-anything:/local/model/dir on any",
-                            token=frame.camera_token)
+                            "this frame was read without them (the root has no LiDAR channel, or the LiDAR was not "
+                            "loaded: --set data.load_lidar=false); pass another --depth: corrupted-truth on a "
+                            "simulated root, depth-anything:/local/model/dir on any", token=frame.camera_token)
         cam = frame.camera.scaled(size_hw[1] / frame.camera.width, size_hw[0] / frame.camera.height)
         K = cam.K  # the same resized intrinsics the dataset gives the network
         pts = np.asarray(frame.lidar_points, np.float64)[:, :3]
@@ -251,6 +262,9 @@ class DepthAnythingConfig:
     device: str = "cpu"  # torch device the depth model runs on
     max_depth_m: float = 200.0  # predictions are clipped to (0, max_depth_m]
     dtype: str = "float32"  # float32 | float16 | bfloat16 (half precision on GPU only)
+
+    def __post_init__(self):
+        require_ranges(self, {"max_depth_m": "(0, 1000]"})
 
 
 class DepthAnythingEstimator:
@@ -395,6 +409,10 @@ def build_depth_estimator(spec: str, overrides: dict | None = None) -> DepthEsti
     if spec == LidarDepth.name:
         return LidarDepth(overrides)
     if spec.startswith("depth-anything:"):
+        if not spec.split(":", 1)[1].strip():
+            raise HybridCalibError("--depth depth-anything: names no model directory; pass the local folder of a "
+                                   "Depth Anything model (its config.json and weights), e.g. "
+                                   "--depth depth-anything:/models/depth-anything-v2-small")
         return DepthAnythingEstimator(spec.split(":", 1)[1], overrides)
     raise HybridCalibError(
         f"unknown depth estimator {spec!r}: use 'corrupted-truth' (synthetic data with ground-truth "

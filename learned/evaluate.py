@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from hybrid_calib.config import changed_options, merge, read_out_record, save_json_atomic, to_dict
+from hybrid_calib.config import changed_options, merge, read_out_record, require_ranges, save_json_atomic, to_dict
 from hybrid_calib.data.files import read_npz
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.errors import HybridCalibError
@@ -73,6 +73,9 @@ class EvalConfig:
         if self.fit_min_frames < 1:
             raise ValueError(f"EvalConfig: fit_min_frames must be >= 1, got {self.fit_min_frames}")
         check_sizes_and_device(self, "EvalConfig")
+        require_ranges(self, {"max_frames": "[0, 1e7]", "batch_size": "[1, 4096]", "threads": "[1, 1024]",
+                              "max_radar_points": "[1, 1e6]", "max_lidar_points": "[0, 1e6]",
+                              "fit_min_frames": "[1, 1e6]"})
         merge(ExportConfig, self.export, "export.")  # a bad --set export.KEY fails before the data are read
 
 

@@ -50,6 +50,7 @@ import numpy as np
 import torch
 
 from factors.correspondences import Correspondences
+from hybrid_calib.config import require_ranges
 from learned import lie
 from learned.transform import STRIDE, cell_centres, cell_index
 
@@ -69,6 +70,8 @@ class ExportConfig:
     def __post_init__(self):
         if problem := scale_problem(self.cov_scale, self.sigma_scale):
             raise ValueError(f"ExportConfig: {problem}")
+        require_ranges(self, {"iteration": "[-1, 99]", "window": "[0, 100]", "min_confidence": "[0, 10]",
+                              "sigma_scale": "(0, 1000]", "cov_scale": "(0, 1e6]", "cov_floor": "(0, 10]"})
 
 
 def scale_problem(cov_scale, sigma_scale) -> str:

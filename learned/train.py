@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from hybrid_calib.config import ConfigError, merge, read_out_record, save_json_atomic, to_dict
+from hybrid_calib.config import ConfigError, merge, read_out_record, require_ranges, save_json_atomic, to_dict
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.errors import HybridCalibError
 from hybrid_calib.metrics import extrinsic_error
@@ -89,6 +89,10 @@ class TrainConfig:
             if not 0 <= getattr(self, name) < float("inf"):
                 raise ValueError(f"TrainConfig.{name} must be a finite number >= 0, got {getattr(self, name)}")
         check_sizes_and_device(self, "TrainConfig")
+        require_ranges(self, {"epochs": "[1, 1e4]", "batch_size": "[1, 4096]", "lr": "[0, 1]",
+                              "lr_halve_every": "[0, 1e4]", "weight_decay": "[0, 1]", "grad_clip": "[0, 1e6]",
+                              "samples_per_epoch": "[0, 1e8]", "val_samples": "[0, 1e8]", "num_workers": "[0, 256]",
+                              "threads": "[1, 1024]", "max_radar_points": "[1, 1e6]", "max_lidar_points": "[0, 1e6]"})
 
 
 def check_sizes_and_device(conf, owner: str) -> None:

@@ -160,7 +160,7 @@ def _write_measurements(root: Path, directory: Path) -> list[Path]:
     from factors.io import FrameMeasurements, save_measurements
     from hybrid_calib.calib.pipeline import load_oracle
 
-    (vi,) = load_oracle(root, SIM_VERSION, {}, np.random.default_rng(0)).values()
+    (vi,) = load_oracle(root, SIM_VERSION, {}).values()
     return [save_measurements(directory / "frames" / f"{c.frame_id}.npz", FrameMeasurements(c, vi.vehicle, 0))
             for c in vi.frames]
 

@@ -64,6 +64,13 @@ def test_decision_counts_in_domain_frames():
     d = decide([float("nan")] * 3, pol, "no export.ood")
     assert not d["available"] and d["inconclusive"] == "" and d["note"] == "no export.ood"
     assert inconclusive_status("why", "ok").startswith("inconclusive: why")
+    # frames that did not read count as not in domain: 4 of 5 read frames in domain is not 4 of 10 (probe 15)
+    pol = OODPolicy(threshold=1.0, min_in_domain_fraction=0.8, min_in_domain_frames=3)
+    assert decide([0.1, 0.2, 0.3, 0.4, 9.0], pol)["inconclusive"] == ""
+    d = decide([0.1, 0.2, 0.3, 0.4, 9.0], pol, unread=5)
+    assert d["unread"] == 5 and "only 4 of 10 frames" in d["inconclusive"] and "5 of them did not read" in \
+        d["inconclusive"]
+    assert "calibrate on more frames" not in decide([0.1, 0.2], pol, unread=3)["inconclusive"]
 
 
 # ---------------------------------------------------------------------------------- on a simulated drive

@@ -57,8 +57,18 @@ def test_write_rejects_wrong_dtype(tmp_path):
 
 def test_lidar_round_trip(tmp_path):
     pts = rng(1).normal(size=(100, 5)).astype(np.float32)
+    pts[:, 4] = rng(2).integers(0, 32, 100)  # the ring index
     back = read_lidar_bin(write_lidar_bin(tmp_path / "l.pcd.bin", pts))
     np.testing.assert_array_equal(back, pts)
+
+
+def test_a_lidar_file_of_four_values_per_point_is_named(tmp_path):
+    """x, y, z, intensity (KITTI's layout) in a file whose size is a multiple of 20 bytes was read as nuScenes
+    points of garbage geometry, silently (probe 15): its 5th value is no ring index."""
+    p = tmp_path / "kitti.pcd.bin"
+    p.write_bytes(rng(3).normal(0, 10, size=(1000, 4)).astype("<f4").tobytes())  # 16000 bytes: 800 "points"
+    with pytest.raises(DataError, match="no ring index.*4 values per point"):
+        read_lidar_bin(p)
 
 
 @needs_scene

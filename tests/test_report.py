@@ -114,7 +114,7 @@ def test_report_rebuilds_the_runs_rows_and_start(run_dir):
     name = sorted(inputs)[0]
     vi, T0 = inputs[name]
     vi.frames = vi.frames[:1]
-    again = calibrate_vehicle(vi, merge(CalibrateConfig, conf), np.random.default_rng(0), progress=False)
+    again = calibrate_vehicle(vi, merge(CalibrateConfig, conf), progress=False)
     np.testing.assert_allclose(again.trajectory[0].T, run.vehicles[name].trajectory[0].T, atol=1e-9)
     assert not np.allclose(T0, run.vehicles[name].final.T, atol=1e-3)  # an R1 start, far from the result
 

@@ -59,8 +59,10 @@ class BatchConfig:
     min_inlier_fraction: float = 0.25  # fewer rows fit: re-solve progressively (module doc), else NOT CONVERGED
 
     def __post_init__(self):
-        if not 0.0 <= self.min_inlier_fraction < 1.0:
-            raise ValueError(f"BatchConfig.min_inlier_fraction must be in [0, 1), got {self.min_inlier_fraction}")
+        from hybrid_calib.config import require, require_ranges
+
+        require(self, {"backend in ('gtsam', 'ceres')": self.backend in ("gtsam", "ceres")})
+        require_ranges(self, {"min_inlier_fraction": "[0, 1)"})
 
 
 @dataclass(frozen=True)

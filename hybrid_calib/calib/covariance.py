@@ -43,6 +43,13 @@ class CovarianceConfig:
     regularise_trans_m: float = 5.0  # std of the weak prior that replaces an unobservable translation (m)
     degeneracy: DegeneracyConfig = DegeneracyConfig()  # thresholds of the trade-off / geometry words
 
+    def __post_init__(self):
+        from hybrid_calib.config import require_ranges
+
+        require_ranges(self, {"rot_tol_deg": "(0, 90]", "trans_tol_cm": "(0, 1000]", "weak_factor": "[1, 1e6]",
+                              "unobservable_rel_eig": "[0, 1)", "regularise_rot_deg": "(0, 180]",
+                              "regularise_trans_m": "(0, 1000]"})
+
 
 @dataclass(frozen=True)
 class CovarianceReport:

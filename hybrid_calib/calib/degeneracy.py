@@ -51,6 +51,14 @@ class DegeneracyConfig:
     along_road_lateral_m: float = 1.0  # half-width of a "line along the road" (m, radar lateral offset)
     along_road_fraction: float = 0.8  # this fraction of the rows on two such lines: "all reflectors along the road"
 
+    def __post_init__(self):
+        from hybrid_calib.config import require_ranges
+
+        require_ranges(self, {"trade_off_correlation": "(0, 1]", "cause_correlation": "(0, 1]",
+                              "min_rows": "[0, 1e9]", "min_frames": "[0, 1e9]", "min_range_ratio": "[1, 1000]",
+                              "min_azimuth_spread_deg": "[0, 180]", "along_road_lateral_m": "(0, 100]",
+                              "along_road_fraction": "(0, 1]"})
+
 
 @dataclass
 class RowGeometry:

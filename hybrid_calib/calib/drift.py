@@ -77,7 +77,7 @@ class DriftConfig:
     ref_trans_std_cm: float = 0.0  # uncertainty of the reference itself, per axis (cm), added to C_est
 
     def __post_init__(self):
-        from hybrid_calib.config import require
+        from hybrid_calib.config import require, require_ranges
 
         require(self, {"0 < alpha < 1": 0 < self.alpha < 1,
                        "tolerance_rot_deg > 0": self.tolerance_rot_deg > 0,
@@ -86,6 +86,8 @@ class DriftConfig:
                        "ref_trans_std_cm >= 0": self.ref_trans_std_cm >= 0,
                        "finite numbers": all(np.isfinite([self.alpha, self.tolerance_rot_deg, self.tolerance_trans_cm,
                                                           self.ref_rot_std_deg, self.ref_trans_std_cm]))})
+        require_ranges(self, {"tolerance_rot_deg": "(0, 180]", "tolerance_trans_cm": "(0, 10000]",
+                              "ref_rot_std_deg": "[0, 90]", "ref_trans_std_cm": "[0, 10000]"})
 
 
 @dataclass(frozen=True)
@@ -120,6 +122,14 @@ class StepConfig:
     # the threshold is Bonferroni-corrected over all lengths (chi2.isf(p_alarm / lengths, 6)).
     # A small step in a weakly observed direction that 5 frames do not resolve shows in 10 or 20.
     long_frames: tuple[int, ...] = (10, 20)
+
+    def __post_init__(self):
+        from hybrid_calib.config import require_ranges
+
+        require_ranges(self, {"recent_frames": "[1, 1e6]", "min_history": "[1, 1e9]", "p_alarm": "(0, 1)",
+                              "consecutive": "[1, 1e6]", "every": "[1, 1e9]", "inlier_drop": "[0, 1]",
+                              "scale_window": "[1, 1e9]", "scale_min_tests": "[0, 1e9]", "scale_lag": "[0, 1e9]",
+                              "rearm_p": "(0, 1)", "rearm_tests": "[1, 1e6]", "long_frames": "[1, 1e6]"})
 
 
 # report axes in camera coordinates (docs/conventions.md): rotation about / translation along camera x, y, z

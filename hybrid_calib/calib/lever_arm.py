@@ -53,7 +53,7 @@ import numpy as np
 from factors.motion import heading_residual
 from hybrid_calib.calib.covariance import fold_scalar
 from hybrid_calib.calib.ego_doppler import EgoSweep, ego_measurement, pair_skip, sweep_pairs
-from hybrid_calib.config import require
+from hybrid_calib.config import require, require_ranges
 from hybrid_calib.geometry import se3_exp, so3_log
 
 RADAR_X = 3  # index of the radar-x (forward) translation in the right tangent [phi (3), rho (3)]
@@ -103,6 +103,12 @@ class LeverArmConfig:
             "sweep_noise_scale > 0": self.sweep_noise_scale > 0, "systematic_m >= 0": self.systematic_m >= 0,
             "sweep_systematic_m >= 0": self.sweep_systematic_m >= 0, "max_std_m > 0": self.max_std_m > 0,
             "coupling_deg >= 0": self.coupling_deg >= 0, "coupling_m >= 0": self.coupling_m >= 0})
+        require_ranges(self, {"min_speed_mps": "[0, 100]", "max_gap_s": "(0, 3600]", "max_turn_dps": "(0, 360]",
+                              "turn_dps": "[0, 360]", "huber": "(0, 100]", "iterations": "[1, 1000]",
+                              "min_pairs": "[3, 1e9]", "min_turning": "[0, 1e9]", "noise_scale": "(0, 1000]",
+                              "systematic_m": "[0, 10]", "sweep_noise_scale": "(0, 1000]",
+                              "sweep_systematic_m": "[0, 10]", "max_std_m": "(0, 100]", "coupling_deg": "[0, 10]",
+                              "coupling_m": "[0, 1]"})
 
     def terms(self, pairs_per_frame: float) -> tuple[float, float]:
         """(noise_scale, systematic_m) of a fit with ``pairs_per_frame`` pairs per keyframe interval: the keyframes'

@@ -59,7 +59,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hybrid_calib.calib.covariance import fold_linear
-from hybrid_calib.config import require
+from hybrid_calib.config import require, require_ranges
 from hybrid_calib.errors import DataError
 from hybrid_calib.geometry import se3_exp, se3_inverse
 from hybrid_calib.sensors.radar_velocity import RadarVelocityConfig, estimate_velocity, stationary
@@ -110,6 +110,13 @@ class LidarAlignConfig:
             "max_range_offset_m > 0": self.max_range_offset_m > 0,
             "passes >= 1": self.passes >= 1, "coupling_deg >= 0": self.coupling_deg >= 0,
             "max_innovation >= 0": self.max_innovation >= 0, "far_innovation > 0": self.far_innovation > 0})
+        require_ranges(self, {"beam_deg": "(0, 45]", "ground_m": "[-100, 100]", "top_m": "[-100, 100]",
+                              "min_forward_m": "[0, 1000]", "gates_m": "(0, 100]", "huber": "(0, 100]",
+                              "min_rows": "[3, 1e9]", "min_frames": "[1, 1e9]", "max_frames": "[1, 1e9]",
+                              "systematic_m": "[0, 10]", "systematic_x_m": "[0, 10]", "max_std_m": "(0, 100]",
+                              "max_std_x_m": "(0, 100]", "max_range_offset_m": "(0, 100]", "passes": "[1, 100]",
+                              "coupling_deg": "[0, 10]", "max_innovation": "[0, 1000]",
+                              "far_innovation": "(0, 1000]"})
 
 
 @dataclass(frozen=True)

@@ -52,7 +52,7 @@ import numpy as np
 
 from factors.motion import heading_residual
 from hybrid_calib.calib.ego_doppler import EgoSweep, ego_measurement, frame_sweeps, pair_skip, partner
-from hybrid_calib.config import require
+from hybrid_calib.config import require, require_ranges
 
 MEDIAN_VAR = np.pi / 2  # variance of a Gaussian sample's median, in units of sigma^2 / n
 
@@ -91,6 +91,10 @@ class MountMonitorConfig:
             "max_turn_dps > 0": self.max_turn_dps > 0, "min_speed_mps >= 0": self.min_speed_mps >= 0,
             "max_gap_s > 0": self.max_gap_s > 0, "0 < pair_dt_s < max_gap_s": 0 < self.pair_dt_s < self.max_gap_s,
             "max_level_deg > 0": self.max_level_deg > 0})
+        require_ranges(self, {"min_speed_mps": "[0, 100]", "max_gap_s": "(0, 3600]", "max_turn_dps": "(0, 360]",
+                              "floor_deg": "(0, 90]", "wander_deg": "[0, 90]", "drift": "[0, 100]",
+                              "threshold": "(0, 1e6]", "clip": "(0, 1000]", "level_pairs": "[3, 1e9]",
+                              "min_frames": "[3, 1e9]", "max_level_deg": "(0, 180]"})
 
 
 @dataclass(frozen=True)

@@ -69,17 +69,12 @@ class OracleConfig:
         for name, valid in choices.items():
             if getattr(self, name) not in valid:
                 raise ValueError(f"OracleConfig.{name}={getattr(self, name)!r}; valid: {', '.join(valid)}")
-        ranges = {"sigma_px": "> 0", "outlier_frac": "in 0..1", "min_depth_m": ">= 0", "image_margin_px": ">= 0",
-                  "elevation_beam_deg": ">= 0", "reflector_height_std_m": ">= 0"}
-        for name, rule in ranges.items():
-            v = float(getattr(self, name))
-            ok = np.isfinite(v) and (v > 0 if rule == "> 0" else v >= 0) and (rule != "in 0..1" or v <= 1)
-            if not ok:
-                raise ValueError(f"OracleConfig.{name} must be a finite number {rule}, got {getattr(self, name)!r} "
-                                 f"(--set oracle.{name}=...)")
-        if self.n_per_frame < 1 or self.image_width < 0:
-            raise ValueError(f"OracleConfig: n_per_frame must be >= 1 and image_width >= 0 (0 = as rendered), got "
-                             f"{self.n_per_frame} and {self.image_width}")
+        from hybrid_calib.config import require_ranges
+
+        require_ranges(self, {"n_per_frame": "[1, 1e6]", "sigma_px": "(0, 1000]", "outlier_frac": "[0, 1]",
+                              "min_depth_m": "[0, 1000]", "image_margin_px": "[0, 10000]", "image_width": "[0, 100000]",
+                              "elevation_beam_deg": "[0, 45)", "elevation_mean_deg": "[-45, 45]",
+                              "reflector_height_mean_m": "[-10, 10]", "reflector_height_std_m": "[0, 20]"})
 
 
 @dataclass(frozen=True)

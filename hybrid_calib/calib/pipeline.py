@@ -32,10 +32,10 @@ from hybrid_calib.calib.oracle import OracleConfig, oracle_from_frame
 from hybrid_calib.calib.result import DATA_STAMP, CalibrationRun, VehicleProgress, VehicleResult, reuse_result
 from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
-from hybrid_calib.config import ConfigError, merge, save_json_atomic, to_dict
+from hybrid_calib.config import merge, save_json_atomic, to_dict
 from hybrid_calib.data.files import data_stamp
-from hybrid_calib.errors import DataError, HybridCalibError
-from hybrid_calib.perturbation import RANGES, vehicle_start
+from hybrid_calib.errors import DataError, HybridCalibError, OptionError
+from hybrid_calib.perturbation import RANGES, vehicle_rng, vehicle_start
 
 MODES = ("window", "batch")
 STARTS = ("reference", *RANGES)
@@ -75,18 +75,25 @@ class VehicleInput:
     skipped: list = field(default_factory=list)  # [{"index", "token", "reason"}]
 
 
-def _load_oracle(data, version: str, conf: CalibrateConfig, rng, progress: bool = True) -> dict[str, VehicleInput]:
+def _load_oracle(data, version: str, conf: CalibrateConfig, progress: bool = True) -> dict[str, VehicleInput]:
     from tqdm import tqdm
 
     from hybrid_calib.data.nuscenes import NuScenesRadarCamera
 
     ds = NuScenesRadarCamera(data, version, conf={"check_images": False})
+    if not (Path(data) / "sim_truth").is_dir():  # said before any frame is read (it had failed every one in turn)
+        raise OptionError("--method", f"oracle (the default method) reads the simulator's true reflectors, and "
+                                      f"{data} has none (no sim_truth/ folder: a real root); calibrate it with "
+                                      "--method hybrid (or pure, pure-avg)")
     out: dict[str, VehicleInput] = {}
     for vehicle, idx in sorted(ds.frames_by_vehicle().items()):
         if conf.vehicles is not None and vehicle not in conf.vehicles:
             continue
         vi = out[vehicle] = VehicleInput(vehicle)
         idx = idx[: conf.max_frames] if conf.max_frames > 0 else idx
+        # drawn by (seed, vehicle) alone: the same rows whichever other vehicles the run holds, and in every
+        # command (calibrate, fleet, compare, the report's replay)
+        rng = vehicle_rng(conf.seed, vehicle, "oracle")
         for i in tqdm(idx, desc=f"oracle {vehicle}", leave=False, disable=not progress):
             try:
                 f = ds[i]
@@ -102,11 +109,11 @@ def _load_oracle(data, version: str, conf: CalibrateConfig, rng, progress: bool 
     return out
 
 
-def load_oracle(data, version: str, conf: CalibrateConfig | dict | None, rng, progress: bool = True
+def load_oracle(data, version: str, conf: CalibrateConfig | dict | None, progress: bool = True
                 ) -> dict[str, VehicleInput]:
-    """Oracle inputs (simulated roots) of every vehicle in ``conf.vehicles`` (all when None); ``progress``: a bar
-    per vehicle."""
-    return _load_oracle(data, version, merge(CalibrateConfig, conf), rng, progress)
+    """Oracle inputs (simulated roots) of every vehicle in ``conf.vehicles`` (all when None), each vehicle's rows
+    drawn from ``vehicle_rng(conf.seed, vehicle, "oracle")``; ``progress``: a bar per vehicle."""
+    return _load_oracle(data, version, merge(CalibrateConfig, conf), progress)
 
 
 def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
@@ -240,7 +247,7 @@ def untrusted(res: VehicleResult, reason: str) -> None:
         res.drift = unconverged(res.drift, res.final.status)
 
 
-def _start(vi: VehicleInput, conf: CalibrateConfig, rng) -> np.ndarray:
+def _start(vi: VehicleInput, conf: CalibrateConfig) -> np.ndarray:
     if conf.start == "reference":
         return vi.reference
     if not vi.truth:
@@ -249,7 +256,7 @@ def _start(vi: VehicleInput, conf: CalibrateConfig, rng) -> np.ndarray:
     return vehicle_start(vi.truth[0], conf.start, conf.seed, vi.vehicle)
 
 
-def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, rng, progress: bool = True,
+def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, progress: bool = True,
                       prior: GaussianPrior | None = None, T_start: np.ndarray | None = None) -> VehicleResult:
     """Calibrate one vehicle's frames; returns the per-frame trajectory (window) and the final estimate.
     ``prior``: an optional Gaussian prior on T_cam_radar (e.g. the fleet's, ``hybrid_calib.fleet.prior``),
@@ -268,7 +275,7 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, rng, progress: bo
     if not frames:
         raise DataError(f"vehicle {vi.vehicle}: no usable frame ({len(skipped)} skipped; first: "
                         f"{skipped[0]['reason'] if skipped else '-'})")
-    T0 = _start(vi, conf, rng) if T_start is None else np.asarray(T_start, np.float64)
+    T0 = _start(vi, conf) if T_start is None else np.asarray(T_start, np.float64)
     traj = []
     if conf.mode == "window":
         cal = SlidingWindowCalibrator(T0, conf.window)
@@ -324,12 +331,11 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
     result_path = out / "result.json"
     if result_path.is_file() and not overwrite:
         return reuse_result(out, data, version, str(correspondences), to_dict(conf))
-    rng = _seed_rng(conf.seed)
     # before reading: data that change during the run are not this result's
     stamp_data = None if data is None else data_stamp(data, version)
     absent: dict[str, str] = {}
     if correspondences == "oracle":
-        inputs = _load_oracle(data, version, conf, rng)
+        inputs = _load_oracle(data, version, conf)
     else:
         inputs = _load_dir(Path(correspondences), data, version, conf, absent)
     if not inputs:
@@ -344,8 +350,8 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
               "other vehicles or frames; export them too (hybrid-calib evaluate --split all) to calibrate them",
               file=sys.stderr)
     run = CalibrationRun(str(Path(data).resolve()), version, str(correspondences), conf.mode)  # read from anywhere
-    # the vehicles an interrupted run finished (each vehicle's start is seeded by its name and the oracle rows
-    # are drawn above for all: skipping them leaves the others' draws as they were)
+    # the vehicles an interrupted run finished (each vehicle's start and oracle rows are seeded by its name:
+    # skipping them leaves the others' draws as they were)
     stamp = {**to_dict(conf), "priors": {k: [np.asarray(p.T).tolist(), np.asarray(p.cov).tolist()]
                                          for k, p in sorted((priors or {}).items())},
              **({} if stamp_data is None else {"data_stamp": stamp_data["digest"]})}
@@ -354,7 +360,7 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
     exporter = None if correspondences == "oracle" else _exporting_checkpoint(Path(correspondences))
 
     def one(name: str) -> VehicleResult:
-        res = calibrate_vehicle(inputs[name], conf, rng, progress, (priors or {}).get(name))
+        res = calibrate_vehicle(inputs[name], conf, progress, (priors or {}).get(name))
         res.method = method
         if res.network is not None:  # a network's rows (hybrid-calib evaluate's export): never a trusted verdict
             res.checkpoint = exporter
@@ -373,25 +379,15 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
     return run
 
 
-def _seed_rng(seed: int) -> np.random.Generator:
-    """The run's generator; ``ConfigError`` for a negative seed (numpy takes seeds >= 0 only; the learned
-    methods and compare hash theirs, so they take any integer)."""
-    if seed < 0:
-        raise ConfigError(f"CalibrateConfig.seed must be >= 0 for the oracle pipeline, got {seed} (--seed / --set "
-                          "seed)")
-    return np.random.default_rng(seed)
-
-
 def replay_inputs(data, version: str, correspondences: str, conf: CalibrateConfig | dict | None = None
                   ) -> dict[str, tuple[VehicleInput, np.ndarray]]:
     """The inputs a ``calibrate`` run saw, rebuilt from its data and effective config (``RUN/config.json``):
     ``{vehicle: (VehicleInput, (4, 4) start extrinsic)}``. The seed and the order of the draws are
-    ``calibrate``'s own (every oracle row first, then each vehicle's start in name order), so oracle
-    rows and R1/R2 starts come out identical to the run's. Used by the report (residuals, before/after)."""
+    ``calibrate``'s own (each vehicle's rows and start drawn by (seed, vehicle) alone), so oracle rows and
+    R1/R2 starts come out identical to the run's. Used by the report (residuals, before/after)."""
     conf = merge(CalibrateConfig, conf)
-    rng = _seed_rng(conf.seed)
     if correspondences == "oracle":
-        inputs = _load_oracle(data, version, conf, rng)
+        inputs = _load_oracle(data, version, conf)
     else:
         inputs = _load_dir(Path(correspondences), data, version, conf)
-    return {name: (vi, _start(vi, conf, rng)) for name, vi in inputs.items()}
+    return {name: (vi, _start(vi, conf)) for name, vi in inputs.items()}

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from factors.config import RadarPixelFactorConfig
+from factors.config import KERNELS, RadarPixelFactorConfig
 from factors.correspondences import Correspondences
 from hybrid_calib.geometry import from_gtsam, to_gtsam
 
@@ -49,6 +49,14 @@ class ScheduleConfig:
     absolute_error_tol: float = 1e-10  # LM stops when the absolute cost decrease is below this
     final_gate: float = 3.0  # stage 3: least squares on rows with |e| < gate (whitened) at stage 2's optimum; 0 = off
     gate_iterations: int = 4  # stage 3 re-gates at its own optimum until the inlier sets repeat (at most this often)
+
+    def __post_init__(self):
+        from hybrid_calib.config import require, require_ranges
+
+        require(self, {f"convex_kernel in {KERNELS}": self.convex_kernel in KERNELS})
+        require_ranges(self, {"convex_scale": "(0, 100]", "max_iterations": "[1, 10000]",
+                              "relative_error_tol": "[0, 1)", "absolute_error_tol": "[0, 1]",
+                              "final_gate": "[0, 100]", "gate_iterations": "[1, 100]"})
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from hybrid_calib.commands import nonnegative_int
 from hybrid_calib.config import parse_overrides
-from hybrid_calib.errors import OptionError, check_out_dir
+from hybrid_calib.errors import OptionError, check_out_dir, check_out_not_in_dataset
 
 HELP = "write a self-contained HTML report (verdict, extrinsic +- 1 sigma, pictures) of a calibration result"
 
@@ -63,6 +63,7 @@ def check_arguments(args: argparse.Namespace) -> None:
         raise OptionError("--out", f"{out} exists and is not an HTML page, so it is not replaced; pass another file "
                                    "name, or move it away")
     check_out_dir(out.parent)
+    check_out_not_in_dataset(out.parent)  # the run's root or any other: a page among a dataset's files
     if args.data is not None and not args.data.is_dir():
         raise OptionError("--data", f"{args.data} is not a directory; pass the nuScenes root of the run's frames, or "
                                     "leave --data out to use the run's own root")

@@ -49,7 +49,7 @@ from typing import Any
 
 import numpy as np
 
-from hybrid_calib.config import ConfigError, merge
+from hybrid_calib.config import merge
 from hybrid_calib.data.filters import RadarFilterConfig
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.data.image_header import decode_image, image_header
@@ -83,6 +83,15 @@ class DataConfig:
     # |t_radar - t_camera| (and |t_lidar - t_camera| with load_lidar) above this, seconds, makes the frame a skip:
     # one of the timestamps is corrupt (real nuScenes keyframes are under 0.1 s apart, simulated ones under 0.06 s)
     max_sync_offset_s: float = 0.5
+
+    def __post_init__(self):
+        if self.on_error not in ("skip", "raise"):
+            raise ValueError(f"DataConfig.on_error must be 'skip' or 'raise', got {self.on_error!r}")
+        if not 1 <= int(self.nsweeps) <= 1000:
+            raise ValueError(f"DataConfig.nsweeps (--nsweeps) must be in 1..1000, got {self.nsweeps}")
+        if not 0 < float(self.max_sync_offset_s) < float("inf"):
+            raise ValueError(f"DataConfig.max_sync_offset_s must be a positive number of seconds, got "
+                             f"{self.max_sync_offset_s}")
 
 
 @dataclass(frozen=True)
@@ -145,13 +154,6 @@ class NuScenesRadarCamera:
     def __init__(self, root: str | Path, version: str, radar_channel: str = "RADAR_FRONT",
                  camera_channel: str = "CAM_FRONT", conf: DataConfig | dict | None = None):
         self.conf = merge(DataConfig, conf)
-        if self.conf.on_error not in ("skip", "raise"):
-            raise ConfigError(f"DataConfig.on_error must be 'skip' or 'raise', got {self.conf.on_error!r}")
-        if int(self.conf.nsweeps) < 1:
-            raise ConfigError(f"DataConfig.nsweeps (--nsweeps) must be >= 1, got {self.conf.nsweeps}")
-        if not 0 < float(self.conf.max_sync_offset_s) < float("inf"):
-            raise ConfigError(f"DataConfig.max_sync_offset_s must be a positive number of seconds, got "
-                              f"{self.conf.max_sync_offset_s}")
         self.root = Path(root)
         self.version = version
         self.radar_channel = radar_channel
@@ -185,6 +187,9 @@ class NuScenesRadarCamera:
             SkipRecord(None, tok, str(self.tables.path("sample_data")), reason)
             for tok, reason in self.tables.index_problems]
         self._iter_skips: dict[int, SkipRecord] = {}
+        # log vehicle -> its samples the index left out for lacking a camera or radar keyframe: a vehicle of the
+        # root with no frame at all (its car has no RADAR_FRONT) is said, not silently absent from the result
+        self.lacking_keyframes: dict[str, list[SkipRecord]] = {}
         self._warned_missing_sweeps = False
         self.radar_sweeps_missing = 0  # non-keyframe sweep files absent on disk (radar_sweeps_between)
         self.sweep_files: dict[int, tuple[int, list[str]]] = {}  # frame -> (sweeps listed, files missing) so far
@@ -242,9 +247,10 @@ class NuScenesRadarCamera:
                 rad = t.keyframe(sample["token"], self.radar_channel)
                 if cam is None or rad is None:
                     lacking = [ch for ch, sd in ((self.camera_channel, cam), (self.radar_channel, rad)) if sd is None]
-                    self._index_skips.append(SkipRecord(
-                        None, sample["token"], str(t.path("sample_data")),
-                        f"sample {sample['token']} has no keyframe for {lacking}; not a frame"))
+                    skip = SkipRecord(None, sample["token"], str(t.path("sample_data")),
+                                      f"sample {sample['token']} has no keyframe for {lacking}; not a frame")
+                    self._index_skips.append(skip)
+                    self.lacking_keyframes.setdefault(log["vehicle"], []).append(skip)
                     continue
                 frames.append(FrameRef(sample["token"], scene["name"], scene["token"], log["token"],
                                        log["vehicle"], cam, rad))
@@ -444,6 +450,8 @@ class NuScenesRadarCamera:
         ref = self.frames[i]
         t = self.tables
         cam, rad = ref.camera_sd, ref.radar_sd
+        for sd, channel in ((cam, self.camera_channel), (rad, self.radar_channel)):
+            _check_channel_file(sd, channel, t.path("sample_data"))
         _check_sync(cam, rad, "radar", self.conf.max_sync_offset_s, t.path("sample_data"))
         image_path = t.file(cam)
         width, height = _image_size_field(cam, t.path("sample_data"))
@@ -496,6 +504,7 @@ class NuScenesRadarCamera:
             T_ego_cam=T_ego_cam, T_ego_radar=T_ego_radar, T_global_ego_cam=T_ge_cam, T_global_ego_radar=T_ge_radar,
             T_cam_radar_static=T_cam_radar_static,
             reference_T_cam_radar=self._reference(ref, T_ego_cam, T_cam_radar_static),
+            reference_T_ego_radar=self._reference_mounts(ref, T_ego_cam, T_ego_radar)[1],
             radar_sweep_index=sweeps.sweep_index, radar_sweep_dt_s=sweeps.dt_s, radar_points_raw=sweeps.n_raw,
             radar_nonfinite_dropped=sweeps.n_nonfinite, radar_sweeps_used=len(sweeps.sweep_tokens),
             radar_sweeps_missing=len(sweeps.missing_paths), scene_token=ref.scene_token,
@@ -538,9 +547,11 @@ class NuScenesRadarCamera:
         t = self.tables
         sd = t.keyframe(ref.sample_token, self.conf.lidar_channel)
         if sd is None:
-            raise DataError(f"sample has no {self.conf.lidar_channel} keyframe but load_lidar is set; set "
-                            "load_lidar=false or pick another lidar_channel", path=str(t.path("sample_data")),
-                            token=ref.sample_token)
+            raise DataError(f"sample has no {self.conf.lidar_channel} keyframe, and this run reads the LiDAR (for "
+                            "lidar-densified depth, or with inspect's --set load_lidar=true): the frame is skipped; "
+                            "restore the sample's LiDAR record, or read the root without LiDAR (calibrate, train, "
+                            "evaluate: another --depth; inspect: --set load_lidar=false)",
+                            path=str(t.path("sample_data")), token=ref.sample_token)
         _check_sync(ref.camera_sd, sd, "LiDAR", self.conf.max_sync_offset_s, t.path("sample_data"))
         path = t.file(sd)
         raw = read_lidar_bin(path)
@@ -566,15 +577,36 @@ class NuScenesRadarCamera:
         real vehicle would have are ``sim_vehicle.json``'s factory calibration (truth + calibration
         error); roots simulated before it existed fall back to the nominal (fleet design) mount, real
         roots to the tables' own static extrinsic."""
+        T_ego_cam_ref, T_ego_radar_ref = self._reference_mounts(ref, T_ego_cam, T_ego_cam @ T_cam_radar_static)
+        return se3_inverse(T_ego_cam_ref) @ T_ego_radar_ref
+
+    def _reference_mounts(self, ref: FrameRef, T_ego_cam: np.ndarray, T_ego_radar: np.ndarray
+                          ) -> tuple[np.ndarray, np.ndarray]:
+        """(T_ego_cam, T_ego_radar), each (4, 4): the camera and radar mounts of the vehicle's calibration tables
+        (``_reference``): a simulated vehicle's factory calibration (its ``calibrated_sensor`` holds the truth), the
+        nominal radar mount of older simulated roots, else the tables' own. The radar mount monitor measures the
+        radar's yaw against this radar mount, as on a real vehicle (against the truth it read 'the radar agrees with
+        its tables' on a radar knocked before the drive, and blamed the camera)."""
         rec = self.sim_vehicles.get(ref.log_token)
         factory_radar = _sim_pose(rec, "factory_T_ego_radar")
         factory_cam = _sim_pose(rec, "factory_T_ego_cam")
         if factory_radar is not None and factory_cam is not None:
-            return se3_inverse(factory_cam) @ factory_radar
+            return factory_cam, factory_radar
         T_ego_radar_nom = _sim_nominal_T_ego_radar(rec, self.radar_channel)
-        if T_ego_radar_nom is None:
-            return T_cam_radar_static
-        return se3_inverse(T_ego_cam) @ T_ego_radar_nom
+        return T_ego_cam, (T_ego_radar if T_ego_radar_nom is None else T_ego_radar_nom)
+
+
+def _check_channel_file(sd: dict, channel: str, table: Path) -> None:
+    """``DataError`` when a ``channel`` record names another channel's file (``samples/<CHANNEL>/...__<CHANNEL>__...``,
+    nuScenes' layout): tables merged wrongly read the front-left radar's sweeps as RADAR_FRONT's, 86 deg off
+    (probe 15). File names outside that layout are not judged."""
+    name = str(sd.get("filename", ""))
+    parts = name.replace("\\", "/").split("/")
+    folder = parts[1] if len(parts) >= 3 and parts[0] in ("samples", "sweeps") else None
+    if folder is not None and folder != channel and f"__{folder}__" in parts[-1]:
+        raise DataError(f"{channel} sample_data record names the file {name}, a {folder} file: the record's "
+                        f"calibrated_sensor says {channel}, its file another channel's; fix its filename or its "
+                        f"calibrated_sensor_token in sample_data.json", path=str(table), token=sd.get("token"))
 
 
 def _load_sim_vehicles(vdir: Path) -> dict[str, dict]:

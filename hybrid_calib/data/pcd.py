@@ -156,7 +156,20 @@ def read_lidar_bin(path: str | Path, n_fields: int = 5) -> np.ndarray:
     if len(data) % point_bytes:
         raise DataError(f"LiDAR file size {len(data)} bytes is not a multiple of {point_bytes} ({n_fields} float32 "
                         "values per point); the file is truncated or corrupt, re-download it", path=str(path))
-    return np.frombuffer(data, dtype="<f4").reshape(-1, n_fields).copy()
+    points = np.frombuffer(data, dtype="<f4").reshape(-1, n_fields).copy()
+    if n_fields == 5 and len(points):
+        ring = points[:, 4]
+        with np.errstate(invalid="ignore"):
+            bad = ~(np.isfinite(ring) & (ring == np.round(ring)) & (ring >= 0) & (ring <= MAX_RING))
+        if np.mean(bad) > 0.01:  # a 4-float file (x, y, z, intensity: KITTI) whose size is a multiple of 20 bytes
+            raise DataError(f"LiDAR file does not hold nuScenes points (x, y, z, intensity, ring as float32): the 5th "
+                            f"value of {np.mean(bad):.0%} of its points is no ring index (an integer 0..{MAX_RING}; "
+                            "e.g. a file of 4 values per point, as KITTI writes); convert it to nuScenes' layout",
+                            path=str(path))
+    return points
+
+
+MAX_RING = 1023  # the largest laser index a LiDAR's ring column holds (nuScenes' LIDAR_TOP: 0..31)
 
 
 def write_lidar_bin(path: str | Path, points: np.ndarray) -> Path:

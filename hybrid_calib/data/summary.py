@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import re
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -134,10 +135,8 @@ class DatasetSummary:
                        "point), or the camera-radar extrinsic is far off")
         for g in self.groups:
             out += _time_and_pose_lines(g)
-        gaps = [d for g in self.groups for d in np.diff(sorted(g.camera_us))]
-        if gaps and 0 < float(np.median(gaps)) < MIN_KEYFRAME_GAP_US:
-            out.append(f"warning: keyframes are {float(np.median(gaps)) / 1000:.3f} ms apart (median): the timestamps "
-                       "look like milliseconds or seconds; nuScenes uses microseconds (keyframes ~500 ms apart)")
+        if gap := keyframe_gap_warning(g.camera_us for g in self.groups):
+            out.append(gap)
         return out
 
     def _sweep_lines(self) -> list[str]:
@@ -159,6 +158,17 @@ class DatasetSummary:
         return [head + f"{n} in the tables ({per:.1f} per frame), none on disk (a keyframe-only copy); the mount "
                 f"monitor and the Doppler lever arm pair keyframes only; add the sweeps/ folder for about "
                 f"{1 + per:.0f} times as many pairs" + tail]
+
+def keyframe_gap_warning(camera_us: Iterable[Iterable[int]]) -> str:
+    """A warning ("" if none) when the camera keyframe timestamps of the scenes (one iterable of microseconds per
+    scene) lie milliseconds apart at the median: the unit is not microseconds (inspect, and calibrate: the mount
+    monitor, the Doppler pairs and the motion constraint read time from them)."""
+    gaps = [d for us in camera_us for d in np.diff(sorted(us))]
+    if gaps and 0 < float(np.median(gaps)) < MIN_KEYFRAME_GAP_US:
+        return (f"warning: keyframes are {float(np.median(gaps)) / 1000:.3f} ms apart (median): the timestamps look "
+                "like milliseconds or seconds; nuScenes uses microseconds (keyframes ~500 ms apart)")
+    return ""
+
 
 EXAMPLES_PER_REASON = 3  # further frames (index and token) shown per kind of skip reason in the terminal
 _HEX_TOKEN = re.compile(r"\b[0-9a-f]{32}\b")  # a nuScenes token

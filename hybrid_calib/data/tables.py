@@ -71,6 +71,12 @@ def version_dir(root: str | Path, version: str, fix: str = "pass one of them wit
     if not vdir.is_dir():
         found = available_versions(root)
         hint = f"versions found there: {found}" if found else "no version folder (with sample.json) found there"
+        if not found and (root / "sample.json").is_file():  # --data names the version folder itself
+            hint += (f"; {root} is itself a version folder (it holds sample.json): pass its parent {root.parent} as "
+                     f"the root, with --version {root.name}")
+        elif not found and (below := [f"{c.name}/{v}" for c in sorted(root.iterdir()) if c.is_dir()
+                                      for v in available_versions(c)][:3]):  # --data one level too high
+            hint += f"; a folder below holds one ({', '.join(below)}): pass that folder as the root"
         raise DataError(f"version folder {version!r} does not exist under the nuScenes root; {hint}; {fix}",
                         path=str(vdir))
     if not any((vdir / f"{name}.json").is_file() for name in REQUIRED_TABLES):

@@ -244,9 +244,10 @@ def _local_ray_env(tmp: Path, token: bool = True) -> None:
     os.environ["RAY_TMPDIR"] = os.environ["TMPDIR"] = str(tmp)
     if token and not any(v in os.environ for v in ("RAY_AUTH_MODE", "RAY_AUTH_TOKEN", "RAY_AUTH_TOKEN_PATH")):
         token = tmp / "auth_token"
-        if not token.is_file():
-            token.write_text(secrets.token_hex(32))
-            token.chmod(0o600)
+        if not token.is_file():  # created owner-only: never readable by others, not even before a chmod
+            fd = os.open(token, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+            with os.fdopen(fd, "w") as f:
+                f.write(secrets.token_hex(32))
         os.environ["RAY_AUTH_MODE"], os.environ["RAY_AUTH_TOKEN_PATH"] = "token", str(token)
 
 

@@ -20,7 +20,6 @@ import json
 import os
 import socket
 import time
-import zlib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -44,7 +43,7 @@ class Job:
     version: str  # version folder under data
     method: str  # hybrid | pure | pure-avg | oracle
     out: str  # OUT/vehicles/<id>
-    seed: int = 0  # the fleet seed; the job's own seed is job_seed(seed, vehicle)
+    seed: int = 0  # the fleet seed: each vehicle's start (and oracle rows) drawn by (seed, vehicle), as calibrate's
     checkpoint: str | None = None  # network checkpoint (the learned methods)
     calib: dict = field(default_factory=dict)  # CalibrateConfig overrides (mode, window, max_frames, ...)
     prior: dict | None = None  # {"T_cam_radar": 4x4, "cov_right_radar": 6x6} (fleet.prior) or None
@@ -65,12 +64,6 @@ class Job:
     @property
     def result_path(self) -> Path:
         return Path(self.out) / RESULT
-
-
-def job_seed(seed: int, vehicle: str) -> int:
-    """The job's seed from the fleet seed and the vehicle name: independent of the engine, the
-    worker and the order of the jobs (results are identical across engines for a seed)."""
-    return int(zlib.crc32(f"{int(seed)}/{vehicle}".encode()))
 
 
 FREE_TEXT = {"note", "comment", "description"}  # FLEET.json keys a reader may write anything in
@@ -257,9 +250,11 @@ def calibrate_job(job: Job) -> Path:
     """THE per-vehicle calibration of the fleet: calibrate ``job.vehicle`` of ``job.data`` with
     ``job.method`` and write ``job.out/result.json`` (one vehicle's ``CalibrationRun``, atomic),
     its ``config.json`` and plots; returns the result path. ``oracle`` runs the factor graph on the
-    simulator's rows (``calib.pipeline``, seeded by ``job_seed``); the network methods (``hybrid``,
-    ``pure``, ``pure-avg``) run ``hybrid_calib.hybrid.run_calibration`` (its starts are seeded per
-    vehicle from the fleet seed). ``DataError`` for a vehicle whose data cannot be calibrated."""
+    simulator's rows (``calib.pipeline``); the network methods (``hybrid``, ``pure``, ``pure-avg``) run
+    ``hybrid_calib.hybrid.run_calibration``. Every method draws a vehicle's start (and oracle rows) from the
+    fleet seed and the vehicle's name alone (``perturbation.vehicle_rng``): the same as ``calibrate --seed``
+    of that vehicle, whatever the engine, the worker or the order of the jobs. ``DataError`` for a vehicle whose
+    data cannot be calibrated."""
     from functools import partial
 
     from hybrid_calib.plots.calibration import plot_vehicle
@@ -276,7 +271,7 @@ def calibrate_job(job: Job) -> Path:
 
         prior = None if job.prior is None else {job.vehicle: GaussianPrior(
             np.asarray(job.prior["T_cam_radar"], np.float64), np.asarray(job.prior["cov_right_radar"], np.float64))}
-        conf = {**job.calib, "vehicles": (job.vehicle,), "seed": job_seed(job.seed, job.vehicle)}
+        conf = {**job.calib, "vehicles": (job.vehicle,), "seed": job.seed}
         calibrate(job.data, job.version, "oracle", out, conf, overwrite=True, priors=prior, progress=False,
                   on_vehicle=plots)
         return job.result_path

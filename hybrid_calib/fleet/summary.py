@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hybrid_calib.config import save_json_atomic
+from hybrid_calib.config import save_json_atomic, save_text_atomic
 from hybrid_calib.errors import DataError
 from hybrid_calib.fleet.manifest import Manifest
 
@@ -182,9 +182,7 @@ def write_summary(m: Manifest, plot: bool = True, alpha: float = 1e-3, notes: li
 
         summary["plot"] = str(plot_fleet(summary, base / "fleet.png").relative_to(base))
     save_json_atomic(base / "summary.json", summary)
-    tmp = base / "summary.md.tmp"
-    tmp.write_text(summary_markdown(summary))
-    tmp.replace(base / "summary.md")
+    save_text_atomic(base / "summary.md", summary_markdown(summary))
     return summary
 
 

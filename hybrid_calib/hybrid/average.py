@@ -25,6 +25,11 @@ class AverageConfig:
     iterations: int = 30  # at most this many reweighting steps
     tol: float = 1e-9  # stop when the step's norm is below this
 
+    def __post_init__(self):
+        from hybrid_calib.config import require_ranges
+
+        require_ranges(self, {"kernel_scale": "(0, 100]", "iterations": "[1, 10000]", "tol": "[0, 1)"})
+
 
 def robust_average(Ts: np.ndarray, covs: np.ndarray, conf: AverageConfig | None = None, T0: np.ndarray | None = None
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -179,16 +179,18 @@ def fit_from_statistics(st: dict, rows: str, sigma_scale: float) -> dict:
 
 def load_passes(cache_dir: Path, truths: dict[str, np.ndarray]) -> list:
     """Every cached network pass of ``cache_dir`` whose frame token is in ``truths`` (token -> T_true)."""
+    from hybrid_calib.data.files import file_part
     from hybrid_calib.hybrid.network import NetworkOutput
 
+    by_part = {file_part(t): T for t, T in truths.items()}  # the cache names a pass by its token's file part
     out = []
     for p in sorted(Path(cache_dir).glob("*.npz")):
-        token = p.stem.rsplit("-", 1)[0]
-        if token not in truths:
+        T_true = by_part.get(p.stem.rsplit("-", 1)[0])
+        if T_true is None:
             continue
         try:
             with np.load(p, allow_pickle=False) as z:
-                out.append((NetworkOutput.from_arrays(z), truths[token]))
+                out.append((NetworkOutput.from_arrays(z), T_true))
         except NPZ_ERRORS:
             continue  # a damaged cache entry: that pass is left out of the fit (the loop recomputes it)
     return out

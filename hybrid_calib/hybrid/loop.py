@@ -58,7 +58,7 @@ from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import merge, save_json_atomic, to_dict
 from hybrid_calib.data.files import data_stamp
-from hybrid_calib.errors import DataError, HybridCalibError
+from hybrid_calib.errors import DataError, HybridCalibError, check_out_not_in_dataset, check_out_outside_data
 from hybrid_calib.geometry import local, se3_exp
 from hybrid_calib.hybrid.average import AverageConfig, robust_average
 from hybrid_calib.hybrid.measurement import MeasurementConfig, frame_inputs, prior_trusted
@@ -117,8 +117,8 @@ class HybridConfig:
             raise ValueError(f"HybridConfig.split={self.split!r}; valid: all, train, val, test")
         if self.max_frames < 0:
             raise ValueError(f"HybridConfig.max_frames must be >= 0 (0 = all frames), got {self.max_frames}")
-        if self.threads < 1:
-            raise ValueError(f"HybridConfig.threads must be >= 1, got {self.threads}")
+        if not 1 <= self.threads <= 1024:
+            raise ValueError(f"HybridConfig.threads must be in 1..1024 (torch CPU threads), got {self.threads}")
         from hybrid_calib.config import merge
         from hybrid_calib.data.nuscenes import DataConfig
 
@@ -137,10 +137,14 @@ class Drive:
     base: np.ndarray  # (4, 4) truth (simulated) or tables (real)
     reference: np.ndarray  # (4, 4) the reference the drift test uses
     simulated: bool
-    ego_radar: np.ndarray | None = None  # (4, 4) T_ego_radar of the first readable frame (mount monitor's lever arm)
+    # (4, 4) the radar mount of the vehicle's tables (a simulated vehicle's: its factory calibration) at the first
+    # readable frame: the radar mount monitor's reference and lever arm, and the yaw check's
+    ego_radar: np.ndarray | None = None
     # (4, 4) simulated roots: the truth at the drive's last frame (differs from base when the mount moved
     # during the drive, e.g. a knocked radar); the final estimate's errors are against it
     end: np.ndarray | None = None
+    # the vehicle's samples the index left out (no camera or radar keyframe): frames_skipped with index None
+    index_skips: list = field(default_factory=list)
 
     @property
     def errors_against(self) -> str:
@@ -185,6 +189,7 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
     ``conf.split`` (``learned.dataset.split_indices`` with ``conf.split_options``) and ``conf.max_frames``.
     A vehicle none of whose frames reads is a ``DataError`` (naming the first bad file), or, when
     ``unreadable`` is a dict, recorded there (vehicle -> reason) and left out."""
+    from hybrid_calib.data.summary import keyframe_gap_warning
     from learned.dataset import open_frames, split_indices
 
     frames = open_frames(data, version, lidar=lidar, options=conf.data)
@@ -201,6 +206,13 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
         print(f"note: {len(dup)} sample(s) read the same sensor files as earlier samples (first: {first[0]}, as "
               f"{first[1]}): the tables list one recording twice; each frame is read once (hybrid-calib inspect lists "
               "them)", file=sys.stderr)
+    by_scene: dict[str, list[int]] = {}
+    for ref in getattr(frames, "frames", []):
+        if isinstance(ref.camera_sd.get("timestamp"), int):
+            by_scene.setdefault(ref.scene_token, []).append(ref.camera_sd["timestamp"])
+    if gap := keyframe_gap_warning(by_scene.values()):  # inspect said it; a calibration read time from them silently
+        print(f"{gap}: the radar mount monitor, its Doppler pairs and the motion constraint read time from them; fix "
+              "the tables before trusting this calibration", file=sys.stderr)
     keep = None if conf.split == "all" else set(split_indices(frames, conf.split, conf.split_options))
     drives, outside_split = {}, []
     for vehicle, idx in sorted(frames.frames_by_vehicle().items()):
@@ -229,10 +241,21 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
             continue
         static = np.asarray(f.extras.get("T_cam_radar_static", f.T_cam_radar), np.float64)
         ref = np.asarray(f.extras.get("reference_T_cam_radar", static), np.float64)
-        ego_radar = f.extras.get("T_ego_radar")
+        ego_radar = f.extras.get("reference_T_ego_radar", f.extras.get("T_ego_radar"))
         drives[vehicle] = Drive(vehicle, list(idx), static, ref, simulated,
                                 None if ego_radar is None else np.asarray(ego_radar, np.float64),
-                                _end_truth(frames, idx, static) if simulated else None)
+                                _end_truth(frames, idx, static) if simulated else None,
+                                [{"index": None, "token": s.token, "reason": s.reason}
+                                 for s in getattr(frames, "lacking_keyframes", {}).get(vehicle, [])])
+    have = set(frames.frames_by_vehicle())
+    for vehicle, skips in sorted(getattr(frames, "lacking_keyframes", {}).items()):  # a vehicle of no frame at all
+        if vehicle in have or vehicle in drives or (conf.vehicles is not None and vehicle not in conf.vehicles):
+            continue
+        reason = (f"vehicle {vehicle}: no frame: none of its {len(skips)} sample(s) has both keyframes the run reads "
+                  f"(first: {skips[0].reason}); hybrid-calib inspect lists its channels")
+        if unreadable is None:
+            raise DataError(reason, path=str(data))
+        unreadable[vehicle] = reason
     if outside_split and not drives and not unreadable and conf.vehicles is None:  # "no vehicle to calibrate (check
         # --set vehicles=...)"; with a vehicle filter, the wanted vehicles' own message below
         opts = f", split options {conf.split_options}" if conf.split_options else ""
@@ -299,6 +322,12 @@ class _Trace:
     rows: list = field(default_factory=list)
     scores: list = field(default_factory=list)
     priors: int = 0  # network priors the hybrid inflated by its drive-common error (``_hybrid``)
+    unread: int = 0  # frames whose inputs did not read (the network never ran): they count against the domain test
+
+    def unreadable(self, runner: NetworkRunner, i: int) -> None:
+        """Record frame ``i`` as skipped: its files did not read (``runner.bad_reason``)."""
+        self.unread += 1
+        self.skipped.append({"index": int(i), "token": runner.token(i), "reason": runner.bad_reason(i)})
 
     def keep(self, runner: NetworkRunner, i: int, out, conf: HybridConfig) -> bool:
         """Score the pass; False (and recorded) when it is out of domain and dropped."""
@@ -319,7 +348,7 @@ def _passes(runner: NetworkRunner, drive: Drive, T0: np.ndarray, conf: HybridCon
     for i in tqdm(drive.indices, desc=f"network {drive.vehicle}", disable=not conf.progress, leave=False):
         out = runner.run(i, T0)
         if out is None:
-            tr.skipped.append({"index": int(i), "token": runner.token(i), "reason": runner.bad_reason(i)})
+            tr.unreadable(runner, i)
         elif tr.keep(runner, i, out, conf):
             outs.append((i, out))
     return outs
@@ -431,7 +460,9 @@ def with_yaw_check(traj: list[FrameEstimate], drive: Drive, conf: HybridConfig, 
     from hybrid_calib.geometry import se3_inverse
 
     last = traj[-1]
-    check = yaw_agreement(last.T, last.cov, drive.ego_radar @ se3_inverse(drive.base), drive.ego_radar, mon.summary())
+    # the tables' camera mount: their radar mount and the reference extrinsic (the truth's on simulated roots: probe 16)
+    check = yaw_agreement(last.T, last.cov, drive.ego_radar @ se3_inverse(drive.reference), drive.ego_radar,
+                          mon.summary())
     if check is None or not check["disagree"]:
         return traj, check
     from hybrid_calib.calib.covariance import report_std
@@ -532,7 +563,7 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
             pending = reading.step
         out = runner.run(i, T)
         if out is None:
-            skipped.append({"index": int(i), "token": runner.token(i), "reason": runner.bad_reason(i)})
+            tr.unreadable(runner, i)
             continue
         if not tr.keep(runner, i, out, conf):
             continue
@@ -702,7 +733,7 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     T0 = start_of(drive, conf)
     tr = _Trace(drop=True)
     traj, mon = _run_learned(runner, drive, T0, conf, tr, motion, frames)
-    ood = decide(tr.scores, conf.ood, runner.ood_note)
+    ood = decide(tr.scores, conf.ood, runner.ood_note, unread=tr.unread)
     ood["dropped"] = sum("ood_score" in s for s in tr.skipped)
     if ood["inconclusive"]:  # too few frames in domain: every frame, nothing dropped, and say so (hybrid.ood)
         tr = _Trace(drop=False)
@@ -732,7 +763,8 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     yaw_check = None
     if conf.method == "hybrid":
         traj, yaw_check = with_yaw_check(traj, drive, conf, mon)
-    res = VehicleResult(drive.vehicle, traj[-1].estimate, traj, skipped=tr.skipped, n_frames=len(traj))
+    res = VehicleResult(drive.vehicle, traj[-1].estimate, traj, skipped=drive.index_skips + tr.skipped,
+                        n_frames=len(traj))
     res.lidar = lidar
     res.doppler = doppler
     res.checkpoint = runner.checkpoint
@@ -774,17 +806,15 @@ def one_pass_verdict(drift: dict | None) -> dict | None:
 def vehicle_oracle(data, version: str, drive: Drive, conf: HybridConfig) -> VehicleResult:
     """The factor graph on oracle rows (simulated roots), from the vehicle's start."""
     from hybrid_calib.calib.pipeline import CalibrateConfig, calibrate_vehicle, load_oracle
-    from hybrid_calib.perturbation import vehicle_rng
 
     if not drive.simulated:
         raise HybridCalibError("method oracle needs a simulated root (the true reflectors); use hybrid, pure or "
                                "pure-avg on real data")
     cconf = CalibrateConfig(window=conf.window, oracle=conf.oracle, drift=conf.drift, start=conf.start,
                             seed=conf.seed, max_frames=conf.max_frames, vehicles=(drive.vehicle,))
-    rng = vehicle_rng(conf.seed, drive.vehicle, "oracle")
-    vi = load_oracle(data, version, cconf, rng, conf.progress)[drive.vehicle]
+    vi = load_oracle(data, version, cconf, conf.progress)[drive.vehicle]
     T0 = start_of(drive, conf)
-    res = calibrate_vehicle(vi, cconf, rng, progress=conf.progress, T_start=T0)
+    res = calibrate_vehicle(vi, cconf, progress=conf.progress, T_start=T0)
     res.config = to_dict(conf)
     res = _finish(res, drive, T0, conf)
     if why := trust_reason(res, drive.reference):
@@ -881,6 +911,9 @@ def run_calibration(data: str | Path, version: str, out: str | Path, conf: Hybri
     folders. With ``overwrite=False`` an existing result is returned untouched."""
     conf = merge(HybridConfig, conf)
     out = Path(out)
+    for option, path in (("--set cache_dir", conf.cache_dir), ("--set depth_cache", conf.depth_cache)):
+        check_out_outside_data(path or None, data, version, option)  # the run's own writes would change its data stamp
+        check_out_not_in_dataset(path or None, option)
     # what the result depends on: the config with the depth estimator it resolves to (--depth lidar-densified and
     # the real root's default are one run) and the checkpoints' contents
     stamped = {**to_dict(conf), **({"depth": effective_depth(data, version, conf)} if conf.method != "oracle" else {}),

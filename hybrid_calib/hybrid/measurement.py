@@ -70,6 +70,10 @@ class MeasurementConfig:
                              f"{self.sigma_scale}, shared_std={list(self.shared_std)}, prior_cov_scale="
                              f"{list(self.prior_cov_scale)}, drive_std={list(self.drive_std)}, trust_sigma_frac="
                              f"{self.trust_sigma_frac}")
+        from hybrid_calib.config import require_ranges
+
+        require_ranges(self, {"sigma_scale": "(0, 1000]", "shared_std": "[0, 100]", "prior_cov_scale": "(0, 1e6]",
+                              "drive_std": "[0, 100]", "trust_sigma_frac": "(0, 10]", "min_rows": "[1, 1e6]"})
 
 
 @dataclass(frozen=True)

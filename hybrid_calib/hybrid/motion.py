@@ -88,6 +88,11 @@ class MotionConfig:
         if self.sigma_vo_deg < 0 or self.drive_std_deg < 0 or self.huber <= 0 or self.min_speed_mps < 0:
             raise ValueError("MotionConfig: sigma_vo_deg, drive_std_deg, min_speed_mps must be >= 0 and huber > 0 "
                              f"(got {self.sigma_vo_deg}, {self.drive_std_deg}, {self.min_speed_mps}, {self.huber})")
+        from hybrid_calib.config import require_ranges
+
+        require_ranges(self, {"sigma_vo_deg": "(0, 90]", "huber": "(0, 100]", "gate": "(0, 1000]",
+                              "drive_std_deg": "[0, 90]", "consensus": "[0, 1e6]", "min_speed_mps": "[0, 100]",
+                              "max_gap_s": "(0, 3600]", "max_rotation_mismatch_deg": "(0, 180]"})
 
 
 @dataclass

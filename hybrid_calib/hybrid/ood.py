@@ -52,12 +52,15 @@ def skip_record(index: int, token: str, score: float, policy: OODPolicy) -> dict
                       "network was fitted on; frame dropped)"}
 
 
-def decide(scores: list[float], policy: OODPolicy, note: str = "") -> dict:
-    """The result's ``ood`` block: per-frame scores, counts, and ``inconclusive`` (reason, or "")."""
+def decide(scores: list[float], policy: OODPolicy, note: str = "", unread: int = 0) -> dict:
+    """The result's ``ood`` block: per-frame scores, counts, and ``inconclusive`` (reason, or ""). ``unread``:
+    frames of the drive whose files did not read (no score): they count as not in domain, so a damaged copy of a
+    root cannot earn more trust than the intact one by losing its doubtful frames (probe 15: 4 of 10 in domain on
+    the intact root was inconclusive, the same 4 of 5 readable ones on a damaged copy was not)."""
     s = np.asarray(scores, np.float64)
     available = bool(policy.enabled and len(s) and np.all(np.isfinite(s)))
     block = {"available": available, "threshold": policy.threshold, "scores": [json_score(x) for x in s],
-             "frames": int(len(s)), "in_domain": None, "inconclusive": ""}
+             "frames": int(len(s)), "in_domain": None, "inconclusive": "", "unread": int(unread)}
     if not policy.enabled:
         block["note"] = "out-of-domain score disabled (--set ood.enabled=false)"
         return block
@@ -66,17 +69,19 @@ def decide(scores: list[float], policy: OODPolicy, note: str = "") -> dict:
         return block
     n_in = int(np.sum(s <= policy.threshold))
     block["in_domain"] = n_in
-    need = max(policy.min_in_domain_frames, int(np.ceil(policy.min_in_domain_fraction * len(s))))
-    if n_in < need and len(s) < policy.min_in_domain_frames and n_in == len(s):  # the drive, not the domain
+    total = len(s) + int(unread)
+    need = max(policy.min_in_domain_frames, int(np.ceil(policy.min_in_domain_fraction * total)))
+    if n_in < need and total < policy.min_in_domain_frames and n_in == total:  # the drive, not the domain
         block["inconclusive"] = (
             f"the drive has {len(s)} frame{'s' if len(s) != 1 else ''} (all inside the network's training domain), "
             f"fewer than the {need} in-domain frames the out-of-domain test needs before it trusts the network's "
             "answer: calibrate on more frames (--max-frames, or a wider --split)")
     elif n_in < need:
+        unread_words = f"; {unread} of them did not read" if unread else ""
         block["inconclusive"] = (
-            f"only {n_in} of {len(s)} frames are inside the network's training domain (out-of-domain score <= "
-            f"{policy.threshold:g}; median score {np.median(s):.1f}), fewer than the {need} required: the network's "
-            "answer cannot be trusted on this input")
+            f"only {n_in} of {total} frames are inside the network's training domain (out-of-domain score <= "
+            f"{policy.threshold:g}; median score {np.median(s):.1f}{unread_words}), fewer than the {need} required: "
+            "the network's answer cannot be trusted on this input")
     return block
 
 

@@ -143,8 +143,12 @@ def gather(run: CalibrationRun, result_path: Path, vehicle: str, data: str | Pat
             raise OptionError("--version" if version != run.version else "--data",
                               f"{root / version} is not there; pass the root and version folder of the run's frames "
                               f"(it calibrated {run.data}, {run.version}), or leave --data / --version out")
-        ev.notes.append(f"no data root: {root / version} is not there (pass --data ROOT --version V), so no camera "
-                        "frames, correspondences or residuals are shown")
+        gone = (f"no data root: {root / version} is not there (pass --data ROOT --version V), so no camera frames, "
+                "correspondences or residuals are shown")
+        import warnings
+
+        warnings.warn(gone, stacklevel=2)  # said on the terminal too, as a data stamp that differs is
+        ev.notes.append(gone)
         return ev
     if data is not None:
         _check_frames_there(root, version, vehicle, vr, run)

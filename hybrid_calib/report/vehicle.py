@@ -30,8 +30,8 @@ class ReportConfig:
     checkpoint: str = ""  # network checkpoint for the attention figure ("" = the one the result names, if any)
 
     def __post_init__(self):
-        if isinstance(self.frames, bool) or not isinstance(self.frames, int) or self.frames < 0:
-            raise ValueError(f"frames must be an integer >= 0 (camera frames shown), got {self.frames!r}")
+        if isinstance(self.frames, bool) or not isinstance(self.frames, int) or not 0 <= self.frames <= 100:
+            raise ValueError(f"frames must be an integer in 0..100 (camera frames shown), got {self.frames!r}")
 
 
 def pick_vehicle(run: CalibrationRun, vehicle: str | None, source: str) -> str:

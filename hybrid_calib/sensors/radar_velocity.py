@@ -30,6 +30,13 @@ class RadarVelocityConfig:
     min_azimuth_spread_deg: float = 10.0  # inliers' azimuth std; below it the lateral velocity is unobservable
     newest_sweep_only: bool = True  # accumulated older sweeps carry velocities of another instant
 
+    def __post_init__(self):
+        from hybrid_calib.config import require_ranges
+
+        require_ranges(self, {"inlier_mps": "(0, 100]", "inlier_frac": "[0, 1]", "iterations": "[1, 1e6]",
+                              "min_inliers": "[2, 1e6]", "min_inlier_fraction": "[0, 1]",
+                              "min_azimuth_spread_deg": "[0, 180]"})
+
 
 @dataclass(frozen=True)
 class RadarVelocity:

@@ -30,6 +30,13 @@ class VisualOdometryConfig:
     # too little parallax: the motion is not unique (rotation and translation trade off), no motion
     max_homography_ratio: float = 0.8
 
+    def __post_init__(self):
+        from hybrid_calib.config import require_ranges
+
+        require_ranges(self, {"max_width": "[32, 100000]", "features": "[8, 1e6]", "ratio": "(0, 1]",
+                              "ransac_px": "(0, 1000]", "ransac_confidence": "(0, 1)", "min_inliers": "[5, 1e6]",
+                              "min_parallax_px": "[0, 10000]", "max_homography_ratio": "(0, 1]"})
+
 
 @dataclass(frozen=True)
 class CameraMotion:

@@ -9,6 +9,7 @@ from functools import cached_property
 
 import numpy as np
 
+from hybrid_calib.config import require_ranges
 from hybrid_calib.sensors.camera import PinholeCamera
 from hybrid_calib.sim.extrinsics import ExtrinsicChange, MountPerturbation, VehicleMounts, sample_mounts
 from hybrid_calib.sim.lidar import LidarConfig, simulate_lidar_sweep
@@ -66,11 +67,6 @@ class SimConfig:
         if not 0.05 <= self.frame_interval_s <= MAX_FRAME_INTERVAL_S:
             raise ValueError(f"frame_interval_s={self.frame_interval_s} is outside 0.05..{MAX_FRAME_INTERVAL_S:g} s "
                              "(nuScenes keyframes are 0.5 s apart; the world is built for the whole drive)")
-        span_ms = self.radar_sweeps_per_frame * (self.radar_sweep_period_ms + 1.0) + 2 * self.radar_offset_ms[1]
-        if self.radar_sweeps_per_frame < 0 or span_ms >= 1000 * self.frame_interval_s:
-            raise ValueError(f"radar_sweeps_per_frame={self.radar_sweeps_per_frame} sweeps of "
-                             f"{self.radar_sweep_period_ms:.1f} ms do not fit between keyframes "
-                             f"{self.frame_interval_s} s apart; use fewer")
         if self.vehicles < 1 or self.frames < 1:
             raise ValueError(f"need at least one vehicle and one frame, got vehicles={self.vehicles} "
                              f"frames={self.frames}")
@@ -81,6 +77,26 @@ class SimConfig:
             raise ValueError(f"jpeg_quality={self.jpeg_quality}; valid: 1..100")
         if self.seed < 0:  # numpy's generators take non-negative seeds only
             raise ValueError(f"seed={self.seed}; must be >= 0 (--seed / --set seed)")
+        # frames: the world is built for the whole drive (~1.5 s and ~2 MB per km of urban road); radar_sweep_period_ms:
+        # sweeps are jittered by +-1 ms, so shorter periods reorder them; camera_max_range_m: the depth PNGs hold
+        # uint16 centimetres (farther depths were clipped to 655.35 m without a word)
+        require_ranges(self, {"vehicles": "[1, 1e4]", "frames": "[1, 1e5]", "frame_interval_s": "[0.05, 10]",
+                              "radar_offset_ms": "[0, 1000]", "radar_sweeps_per_frame": "[0, 1000]",
+                              "radar_sweep_period_ms": "[2, 1000]", "lidar_offset_ms": "[0, 1000]",
+                              "image_scale": "[0.01, 4]", "jpeg_quality": "[1, 100]",
+                              "camera_max_range_m": "(0, 655]"})
+        span_ms = self.radar_sweeps_per_frame * (self.radar_sweep_period_ms + 1.0) + 2 * self.radar_offset_ms[1]
+        if self.radar_sweeps_per_frame < 0 or span_ms >= 1000 * self.frame_interval_s:
+            raise ValueError(f"radar_sweeps_per_frame={self.radar_sweeps_per_frame} sweeps of "
+                             f"{self.radar_sweep_period_ms:.1f} ms do not fit between keyframes "
+                             f"{self.frame_interval_s} s apart; use fewer")
+        try:  # radar with the scenario's weather (its extra loss added) and the most randomised clutter must be valid
+            r = self.effective_radar
+            if self.randomise.enabled:
+                dataclasses.replace(r, clutter_per_sweep=r.clutter_per_sweep * self.randomise.clutter_scale[1])
+        except ValueError as e:
+            extra = " and the largest randomise.clutter_scale" if self.randomise.enabled else ""
+            raise ValueError(f"radar with the {self.scenario} scenario's weather{extra}: {e}") from None
 
     @property
     def scenario_config(self) -> ScenarioConfig:

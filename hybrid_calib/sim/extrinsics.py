@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hybrid_calib.config import require_ranges
 from hybrid_calib.geometry import make_T, se3_exp
 
 # Camera axes (x right, y down, z forward) in the ego frame (x forward, y left, z up).
@@ -36,6 +37,7 @@ class ExtrinsicChange:
     def __post_init__(self):
         if self.kind not in EXTRINSIC_CHANGES:
             raise ValueError(f"extrinsic change kind {self.kind!r} is not one of {EXTRINSIC_CHANGES}")
+        require_ranges(self, {"frame": "[-1, 1e5]", "rotation_deg": "[-180, 180]", "translation_m": "[-10, 10]"})
 
     def step_frame(self, frames: int) -> int:
         return frames // 2 if self.frame < 0 else self.frame
@@ -72,6 +74,12 @@ class MountPerturbation:
     lidar_translation_m: float = 0.01  # per-axis LiDAR translation spread, metres
     factory_rotation_std_deg: float = 0.1  # factory (end-of-line) calibration error per axis and sensor, degrees
     factory_translation_std_m: float = 0.005  # factory calibration error per axis and sensor, metres
+
+    def __post_init__(self):
+        require_ranges(self, {"radar_rotation_deg": "[0, 90]", "radar_translation_m": "[0, 10]",
+                              "camera_rotation_deg": "[0, 90]", "camera_translation_m": "[0, 10]",
+                              "lidar_rotation_deg": "[0, 90]", "lidar_translation_m": "[0, 10]",
+                              "factory_rotation_std_deg": "[0, 90]", "factory_translation_std_m": "[0, 10]"})
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hybrid_calib.config import require
+from hybrid_calib.config import require, require_ranges
 from hybrid_calib.sim.raycast import GROUND, Primitives, cast_angular, check_pose
 
 
@@ -43,6 +43,10 @@ class LidarConfig:
                 self.elevation_min_deg) and self.elevation_min_deg == self.elevation_max_deg)):
             raise ValueError(f"elevation_min_deg={self.elevation_min_deg} must be below elevation_max_deg="
                              f"{self.elevation_max_deg}")
+        require_ranges(self, {"n_beams": "[1, 512]", "elevation_min_deg": "[-90, 90]", "elevation_max_deg": "[-90, 90]",
+                              "azimuth_steps": "[1, 36000]", "min_range_m": "[0, 1000)", "max_range_m": "(0, 1000]",
+                              "range_noise_m": "[0, 10]", "dropout_probability": "[0, 1)",
+                              "intensity_noise": "[0, 10]"})
 
 
 def beam_elevations(conf: LidarConfig) -> np.ndarray:

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hybrid_calib.config import require
+from hybrid_calib.config import require, require_ranges
 from hybrid_calib.data.pcd import empty_radar_points
 from hybrid_calib.sim.raycast import Primitives, cast_angular, check_pose
 
@@ -86,6 +86,22 @@ class RadarConfig:
             raise ValueError(f"min_range_m={self.min_range_m} must be below near_range_m and far_range_m")
         if len(self.clutter_rcs_db) != 2 or not np.isfinite(self.clutter_rcs_db).all() or self.clutter_rcs_db[1] < 0:
             raise ValueError(f"clutter_rcs_db={list(self.clutter_rcs_db)}: need [mean, std >= 0] in dBsm")
+        # range_cell_m / azimuth_cell_deg: a resolution cell's key holds 4096 range and 512 azimuth cells (finer ones
+        # merged the returns of other cells and objects)
+        require_ranges(self, {
+            "near_fov_deg": "(0, 180]", "near_range_m": "(0, 1000]", "far_fov_deg": "(0, 180]",
+            "far_range_m": "(0, 1000]", "min_range_m": "[0, 1000)", "elevation_fov_deg": "(0, 180]",
+            "elevation_beamwidth_deg": "(0, 180]", "ray_azimuth_step_deg": "[0.05, 90]",
+            "ray_elevation_step_deg": "[0.05, 90]", "range_cell_m": "[0.25, 100]", "azimuth_cell_deg": "[0.75, 180]",
+            "max_returns_per_object": "[1, 1000]", "max_points": "[1, 10000]",
+            "range_noise_m": "[0, 10]", "azimuth_noise_deg": "[0, 90]", "position_quantisation_m": "[0.001, 10]",
+            "velocity_noise_mps": "[0, 50]", "velocity_quantisation_mps": "[0.001, 10]", "rcs_noise_db": "[0, 50]",
+            "rcs_quantisation_db": "[0.001, 10]", "snr_ref_db": "[0, 300]", "detection_threshold_db": "[-100, 200]",
+            "detection_slope_db": "[0.01, 100]", "max_detection_probability": "[0, 1]", "azimuth_loss_db": "[0, 100]",
+            "extra_loss_db": "[0, 200]", "clutter_per_sweep": "[0, 1e4]", "clutter_rcs_db": "[-100, 100]",
+            "ghost_probability": "[0, 1]", "ghost_min_rcs_db": "[-100, 100]", "ghost_loss_db": "[0, 100]",
+            **({"rcs_floor_db": "[-100, 100]"} if self.rcs_floor_db is not None else {}),
+            "rcs_floor_width_db": "[0.01, 100]"})
 
 
 @dataclass

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hybrid_calib.config import require_ranges
 from hybrid_calib.geometry import pose_from_nuscenes
 from hybrid_calib.sim.radar import RadarConfig
 from hybrid_calib.sim.render import ShadingConfig
@@ -95,6 +96,17 @@ class Randomisation:
             v = getattr(self, f.name)
             if f.name != "per_frame" and isinstance(v, tuple) and (len(v) != 2 or v[0] > v[1]):
                 raise ValueError(f"randomise.{f.name}={list(v)} must be a range [low, high] with low <= high")
+        # the radar ranges: as RadarConfig's bounds (a draw outside them would fail mid-drive)
+        require_ranges(self, {
+            "exposure": "(0, 10]", "gamma": "(0, 10]", "contrast": "(0, 10]", "saturation": "[0, 10]",
+            "white_balance": "[0, 1]", "warmth": "[-1, 1]", "object_tint": "[0, 1]", "ground_tint": "[0, 1]",
+            "haze": "[0.01, 100]", "overcast_probability": "[0, 1]", "blur_sigma_px": "[0, 100]", "noise_std": "[0, 1]",
+            "jpeg_quality": "[1, 100]", "rcs_floor_db": "[-100, 100]", "snr_ref_db": "[0, 300]",
+            "detection_threshold_db": "[-100, 200]", "max_returns_per_object": "[1, 1000]",
+            "azimuth_loss_db": "[0, 100]", "range_noise_m": "[0, 10]", "azimuth_noise_deg": "[0, 90]",
+            "rcs_noise_db": "[0, 50]", "velocity_noise_mps": "[0, 50]", "clutter_scale": "[0, 10]",
+            "clutter_rcs_mean_db": "[-100, 100]", "ghost_scale": "[0, 100]", "focal_jitter": "[0, 0.5]",
+            "principal_jitter_px": "[0, 500]"})
 
 
 @dataclass(frozen=True)

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hybrid_calib.config import require_ranges
 from hybrid_calib.sim.raycast import BOX, GROUND, HitBuffer, Primitives
 from hybrid_calib.sim.world import GROUND_CLASSES, MATERIAL_INDEX, World
 
@@ -43,6 +44,14 @@ class ShadingConfig:
     object_tint: float = 0.0  # per-object, per-channel albedo gain spread (uniform +- this, hashed from the id)
     ground_tint: float = 0.0  # per ground class and channel albedo gain spread (uniform +- this)
     tint_seed: int = 0  # seed of the object and ground tints
+
+    def __post_init__(self):
+        # contrast / fog_distance: the scenario's times the randomised factors; tint_seed: hashed in int64
+        require_ranges(self, {"ambient": "[0, 10]", "diffuse": "[0, 10]", "contrast": "(0, 100]",
+                              "fog_distance": "[0.01, 1e6]", "noise_std": "[0, 1]", "exposure": "(0, 10]",
+                              "gamma": "(0, 10]", "saturation": "[0, 10]", "white_balance": "[0, 10]",
+                              "blur_sigma_px": "[0, 100]", "object_tint": "[0, 1]", "ground_tint": "[0, 1]",
+                              "tint_seed": "[0, 2147483647]"})
 
 
 def hash_noise(ix: np.ndarray, iy: np.ndarray, seed: int = 0) -> np.ndarray:

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hybrid_calib.config import require, require_ranges
 from hybrid_calib.sim.trajectory import EGO_START_S
 from hybrid_calib.sim.world import (
     RoadLayout,
@@ -53,6 +54,17 @@ class ScenarioConfig:
     radar_extra_loss_db: float = 0.0  # extra two-way radar loss (rain), dB
     radar_clutter_per_sweep: float = 4.0  # mean number of clutter detections per radar sweep
     radar_ghost_probability: float = 0.05  # probability that a strong return spawns a multipath ghost
+
+    def __post_init__(self):
+        require_ranges(self, {"ego_speed": "[0, 100]", "ego_speed_variation": "[0, 1)", "straight_length": "[1, 1e5]",
+                              "turn_radius": "[1, 1e5]", "turn_angle_deg": "[0, 180]", "parked_per_100m": "[0, 100]",
+                              "lead_vehicles": "[0, 100]", "same_direction_per_km": "[0, 1000]",
+                              "oncoming_per_km": "[0, 1000]", "pedestrians_per_100m": "[0, 100]",
+                              "pole_spacing": "[0, 1e4]", "signs_per_100m": "[0, 100]", "trees_per_100m": "[0, 100]",
+                              "bushes_per_100m": "[0, 100]", "image_contrast": "(0, 10]", "fog_distance": "[1, 1e4]",
+                              "radar_extra_loss_db": "[0, 100]", "radar_clutter_per_sweep": "[0, 1e4]",
+                              "radar_ghost_probability": "[0, 1]"})
+        require(self, {"pole_spacing = 0 (none) or >= 1": self.pole_spacing == 0 or self.pole_spacing >= 1})
 
 
 PRESETS: dict[str, ScenarioConfig] = {

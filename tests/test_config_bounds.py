@@ -1,0 +1,164 @@
+"""Every --set option has bounds (calibration, simulator, network): a value no computation can use is refused at start,
+naming the option and its interval (each of these ran into an internal error or a silent no-op deep inside)."""
+
+import pytest
+
+from factors.config import RadarPixelFactorConfig
+from hybrid_calib.calib.batch import BatchConfig
+from hybrid_calib.calib.covariance import CovarianceConfig
+from hybrid_calib.calib.degeneracy import DegeneracyConfig
+from hybrid_calib.calib.drift import DriftConfig, StepConfig
+from hybrid_calib.calib.lever_arm import LeverArmConfig
+from hybrid_calib.calib.lidar_alignment import LidarAlignConfig
+from hybrid_calib.calib.mount_monitor import MountMonitorConfig
+from hybrid_calib.calib.oracle import OracleConfig
+from hybrid_calib.calib.pipeline import CalibrateConfig
+from hybrid_calib.calib.schedule import ScheduleConfig
+from hybrid_calib.calib.window import WindowConfig
+from hybrid_calib.config import ConfigError, merge, require_ranges
+from hybrid_calib.data.nuscenes import DataConfig
+from hybrid_calib.hybrid.average import AverageConfig
+from hybrid_calib.hybrid.loop import HybridConfig
+from hybrid_calib.hybrid.measurement import MeasurementConfig
+from hybrid_calib.hybrid.motion import MotionConfig
+from hybrid_calib.sensors.radar_velocity import RadarVelocityConfig
+from hybrid_calib.sensors.visual_odometry import VisualOdometryConfig
+from hybrid_calib.sim.drive import SimConfig
+from hybrid_calib.sim.extrinsics import ExtrinsicChange, MountPerturbation
+from hybrid_calib.sim.lidar import LidarConfig
+from hybrid_calib.sim.radar import RadarConfig
+from hybrid_calib.sim.randomise import Randomisation
+from hybrid_calib.sim.render import ShadingConfig
+from hybrid_calib.sim.scenarios import ScenarioConfig
+from learned.config import ModelConfig
+from learned.dataset import DatasetConfig, SplitConfig
+from learned.depth import CorruptedTruthConfig, DepthAnythingConfig, LidarDepthConfig
+from learned.evaluate import EvalConfig
+from learned.export import ExportConfig
+from learned.train import TrainConfig
+
+CLASSES = [RadarPixelFactorConfig, BatchConfig, CovarianceConfig, DegeneracyConfig, DriftConfig, StepConfig,
+           LeverArmConfig, LidarAlignConfig, MountMonitorConfig, OracleConfig, CalibrateConfig, ScheduleConfig,
+           WindowConfig, DataConfig, AverageConfig, HybridConfig, MeasurementConfig, MotionConfig,
+           RadarVelocityConfig, VisualOdometryConfig,
+           # the simulator and the network
+           SimConfig, LidarConfig, RadarConfig, ShadingConfig, ScenarioConfig, Randomisation, ExtrinsicChange,
+           MountPerturbation, ModelConfig, DatasetConfig, SplitConfig, CorruptedTruthConfig, DepthAnythingConfig,
+           LidarDepthConfig, EvalConfig, ExportConfig, TrainConfig]
+
+
+@pytest.mark.parametrize("cls", CLASSES, ids=lambda c: c.__name__)
+def test_defaults_are_inside_their_bounds(cls):
+    merge(cls)
+
+
+# (class, option, value): the fuzz of session 21 (calibrate --method oracle, 2 frames) found each accepted
+BAD = [
+    (RadarPixelFactorConfig, "reflector_height_std_m", 1e300),  # internal error
+    (RadarPixelFactorConfig, "scene_height_std_m", 1e300),  # internal error
+    (RadarPixelFactorConfig, "elevation_mean_deg", 1e300),
+    (RadarPixelFactorConfig, "min_depth_m", -1),
+    (ScheduleConfig, "convex_kernel", "zzz"),  # internal error
+    (ScheduleConfig, "convex_scale", 0),  # internal error
+    (ScheduleConfig, "max_iterations", 10**12),  # internal error (an int overflow in GTSAM)
+    (ScheduleConfig, "max_iterations", 0),
+    (CovarianceConfig, "rot_tol_deg", 0),  # internal error
+    (CovarianceConfig, "trans_tol_cm", 1e300),  # internal error
+    (CovarianceConfig, "rot_tol_deg", -1),
+    (DegeneracyConfig, "along_road_lateral_m", 1e300),  # internal error
+    (DegeneracyConfig, "trade_off_correlation", -1),
+    (DriftConfig, "ref_rot_std_deg", 1e300),  # internal error
+    (DriftConfig, "ref_trans_std_cm", 1e300),  # internal error
+    (StepConfig, "p_alarm", 0),
+    (StepConfig, "consecutive", -1),
+    (StepConfig, "long_frames", (10, -20)),
+    (WindowConfig, "window", 10**12),
+    (BatchConfig, "backend", "zzz"),
+    (OracleConfig, "sigma_px", 1e300),
+    (LeverArmConfig, "noise_scale", 1e300),
+    (LidarAlignConfig, "beam_deg", 1e300),
+    (MountMonitorConfig, "threshold", 1e300),
+    (AverageConfig, "iterations", 0),
+    (MeasurementConfig, "trust_sigma_frac", -1),
+    (MotionConfig, "gate", 0),
+    (RadarVelocityConfig, "min_inliers", -1),
+    (VisualOdometryConfig, "ratio", 0),
+    (DataConfig, "nsweeps", 0),
+    (HybridConfig, "threads", 10**12),
+    # the simulator and the network
+    (SimConfig, "radar_sweep_period_ms", 0),
+    (SimConfig, "lidar_offset_ms", 1e300),
+    (SimConfig, "camera_max_range_m", -1),
+    (SimConfig, "frames", 10**12),
+    (SimConfig, "vehicles", 10**12),
+    (LidarConfig, "max_range_m", 1e300),
+    (LidarConfig, "n_beams", 10**12),
+    (RadarConfig, "range_noise_m", 1e300),
+    (RadarConfig, "max_points", 10**12),
+    (RadarConfig, "near_fov_deg", 1e300),
+    (RadarConfig, "position_quantisation_m", 0),  # divides: NaN points
+    (ShadingConfig, "gamma", -1),
+    (ScenarioConfig, "ego_speed", -1),
+    (ScenarioConfig, "pole_spacing", 1e-300),  # a pole every 1e-300 m: endless
+    (Randomisation, "gamma", (-1.0, 1.0)),
+    (Randomisation, "range_noise_m", (0.1, 1e300)),
+    (ExtrinsicChange, "frame", -2),
+    (MountPerturbation, "radar_rotation_deg", -1),
+    (ModelConfig, "beta", -1),
+    (ModelConfig, "nr_tau", 0),
+    (ModelConfig, "feat_dim", 10**12),
+    (DatasetConfig, "height", -1),
+    (SplitConfig, "gap_frames", 10**12),
+    (CorruptedTruthConfig, "max_depth_m", -1),
+    (DepthAnythingConfig, "max_depth_m", -1),
+    (LidarDepthConfig, "max_depth_m", -1),
+    (EvalConfig, "threads", 0),
+    (EvalConfig, "threads", -1),
+    (ExportConfig, "window", -1),
+    (ExportConfig, "min_confidence", 1e300),
+    (TrainConfig, "lr", 1e300),
+    (TrainConfig, "epochs", 10**12),
+    (TrainConfig, "threads", 10**12),
+]
+
+
+@pytest.mark.parametrize("cls,key,value", BAD, ids=[f"{c.__name__}.{k}={v}" for c, k, v in BAD])
+def test_a_value_no_computation_can_use_is_refused_naming_the_option(cls, key, value):
+    with pytest.raises(ConfigError, match=key):
+        merge(cls, {key: value})
+
+
+def test_nested_option_is_refused_with_its_path():
+    with pytest.raises(ConfigError, match=r"window\.factor.*kernel_scale in \(0, 100\]"):
+        merge(CalibrateConfig, {"window": {"factor": {"kernel_scale": 1e300}}})
+
+
+def test_require_ranges_reads_intervals_as_written():
+    from dataclasses import dataclass
+
+    @dataclass(frozen=True)
+    class _Conf:
+        a: float = 1.0
+        b: tuple = (1, 2)
+
+    for a, ok in ((0.0, False), (1e-9, True), (100.0, True), (100.1, False), (float("nan"), False)):
+        conf = _Conf(a=a)
+        if ok:
+            require_ranges(conf, {"a": "(0, 100]"})
+        else:
+            with pytest.raises(ValueError, match=r"need a in \(0, 100\]"):
+                require_ranges(conf, {"a": "(0, 100]"})
+    with pytest.raises(ValueError, match=r"b in \[1, 2\)"):
+        require_ranges(_Conf(), {"b": "[1, 2)"})
+    with pytest.raises(TypeError, match="not an interval"):
+        require_ranges(_Conf(), {"a": "0..1"})
+
+
+def test_nested_sim_option_and_the_scenario_weather_are_checked():
+    with pytest.raises(ConfigError, match="radar.*range_noise_m"):
+        merge(SimConfig, {"radar": {"range_noise_m": 1e300}})
+    merge(SimConfig, {"scenario": "urban", "radar": {"extra_loss_db": 200}})
+    with pytest.raises(ConfigError, match="rain scenario's weather.*extra_loss_db"):  # rain adds 7 dB
+        merge(SimConfig, {"scenario": "rain", "radar": {"extra_loss_db": 200}})
+    with pytest.raises(ConfigError, match="randomise.clutter_scale.*clutter_per_sweep"):  # 6000 x 2: a draw too many
+        merge(SimConfig, {"radar": {"clutter_per_sweep": 6000}, "randomise": {"enabled": True}})
