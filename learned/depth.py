@@ -202,7 +202,7 @@ class LidarDepth:
                  image: np.ndarray | None = None) -> np.ndarray:
         if frame.lidar_points is None or frame.T_cam_lidar is None:
             raise DataError("lidar-densified depth needs the frame's LiDAR sweep and the tables' LiDAR mount, and "
-                            "this frame was read without them (the root has no LiDAR channel, or the LiDAR was not "
+                            "this frame was read without them (the root has no LIDAR_TOP channel, or the LiDAR was not "
                             "loaded: --set data.load_lidar=false); pass another --depth: corrupted-truth on a "
                             "simulated root, depth-anything:/local/model/dir on any", token=frame.camera_token)
         cam = frame.camera.scaled(size_hw[1] / frame.camera.width, size_hw[0] / frame.camera.height)

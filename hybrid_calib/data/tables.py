@@ -194,11 +194,15 @@ class NuScenesTables:
             if key in self.keyframes or key in ambiguous:  # one of them carries another sensor's calibration
                 first = self.keyframes.pop(key, None) or ambiguous[key]
                 ambiguous[key] = first
+                swept = [str(r.get("filename", "")).startswith("sweeps/") for r in (first, sd)]
+                why = ("the one under sweeps/ is a sweep marked is_key_frame (a converter that marks every "
+                       "sample_data a keyframe); neither is used, set is_key_frame false on sweeps/ records"
+                       if any(swept) else
+                       f"the calibrated_sensor_token of the one whose file is not a {key[1]} file is wrong (it names "
+                       f"the {key[1]} sensor); neither is used, fix the record")
                 self.index_problems.append((sd["token"], (
                     f"sample {key[0]} has two {key[1]} keyframes, sample_data {first['token']} "
-                    f"({first.get('filename')}) and {sd['token']} ({sd.get('filename')}): the calibrated_sensor_token "
-                    f"of the one whose file is not a {key[1]} file is wrong (it names the {key[1]} sensor); neither "
-                    "is used, fix the record")))
+                    f"({first.get('filename')}) and {sd['token']} ({sd.get('filename')}): {why}")))
                 continue
             self.keyframes[key] = sd
 
