@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hybrid_calib.calib.covariance import status_kind
 from hybrid_calib.calib.result import VehicleResult, failed_vehicles_message
 from hybrid_calib.config import (
     changed_options,
@@ -38,9 +39,7 @@ from hybrid_calib.config import (
 from hybrid_calib.data.files import root_labels, stamps_changed
 from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.hybrid.loop import METHODS, HybridConfig, _Session, vehicle_learned, vehicle_oracle
-from hybrid_calib.metrics import METRIC_KEYS
-
-CHI2_6_95 = 12.591587243743977  # chi-square, 6 dof, 95 %
+from hybrid_calib.metrics import CHI2_6_95, METRIC_KEYS
 
 
 @dataclass(frozen=True)
@@ -187,8 +186,8 @@ def summarize_method(results: list[VehicleResult], labels: dict[str, str] | None
         "median": {k: float(np.median([e[k] for e in errs])) for k in METRIC_KEYS},
         "consistency": _consistency(nees),
         "consistency_per_root": {k: _consistency(np.array(v)) for k, v in sorted(per_root.items())},
-        "not_ok_fraction": float(np.mean([not r.final.status.startswith("ok") for r in results])),
-        "inconclusive_fraction": float(np.mean([r.final.status.startswith("inconclusive") for r in results])),
+        "not_ok_fraction": float(np.mean([status_kind(r.final.status) != "ok" for r in results])),
+        "inconclusive_fraction": float(np.mean([status_kind(r.final.status) == "inconclusive" for r in results])),
         "ms_per_frame": float(np.mean(ms)) if ms else None,
         "frames_mean": float(np.mean([r.n_frames for r in results])),
     }

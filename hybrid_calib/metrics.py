@@ -17,6 +17,18 @@ import numpy as np
 
 from hybrid_calib.geometry import camera_euler_from_rotation, so3_log
 
+CHI2_6_95 = 12.591587243743977  # scipy.stats.chi2.ppf(0.95, 6): NEES below it is inside the 95 % ellipsoid
+
+
+def nees(xi: np.ndarray, cov: np.ndarray) -> np.ndarray | float:
+    """Normalised estimation error squared ``xi^T C^-1 xi`` (6 on average when ``cov`` is honest). ``xi``: (6,) or
+    (F, 6) errors in the right tangent [rad, m] of ``T_cam_radar`` (``local(T_true, T_est)``); ``cov``: (6, 6) or
+    (F, 6, 6) in the same tangent. A float for one error, (F,) for F."""
+    xi, cov = np.asarray(xi, np.float64), np.asarray(cov, np.float64)
+    if xi.ndim == 1:
+        return float(xi @ np.linalg.solve(cov, xi))
+    return np.einsum("fi,fi->f", xi, np.linalg.solve(cov, xi[..., None])[..., 0])
+
 
 @dataclass(frozen=True)
 class ExtrinsicError:

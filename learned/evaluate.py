@@ -38,7 +38,8 @@ from hybrid_calib.config import changed_options, merge, read_out_record, require
 from hybrid_calib.data.files import read_npz
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.errors import HybridCalibError
-from hybrid_calib.metrics import METRIC_KEYS, STD_KEYS_RADAR, extrinsic_error, format_table, summarize
+from hybrid_calib.metrics import CHI2_6_95, METRIC_KEYS, STD_KEYS_RADAR, extrinsic_error, format_table, summarize
+from hybrid_calib.metrics import nees as nees_of
 from learned.dataset import CalibDataset, DatasetConfig, SplitConfig, camera_token, collate, split_indices
 from learned.depth import DepthCache, build_depth_estimator
 
@@ -233,7 +234,6 @@ def evaluate_predictions(out: str | Path, method: str = "pure") -> EvalResult:
                       uncertainty_consistency(*_stack(unc)))
 
 
-CHI2_6_95 = 12.591587243743977  # chi-square, 6 dof, 95 %
 _REEXPORT = "remove it and re-run the same hybrid-calib evaluate command (finished frames are kept)"
 
 
@@ -269,7 +269,7 @@ def uncertainty_consistency(xi: np.ndarray, C: np.ndarray) -> dict[str, Any]:
     ``hybrid_calib.metrics.std_keys("radar")``)."""
     if not len(xi):
         return {}
-    nees = np.einsum("fi,fij,fj->f", xi, np.linalg.inv(C), xi)
+    nees = nees_of(xi, C)
     scale = np.array([np.degrees(1.0)] * 3 + [100.0] * 3)
     return {
         "n_frames": len(xi), "nees_mean": float(nees.mean()), "nees_median": float(np.median(nees)),

@@ -51,6 +51,7 @@ import torch
 
 from factors.correspondences import Correspondences
 from hybrid_calib.config import require_ranges
+from hybrid_calib.metrics import nees
 from learned import lie
 from learned.transform import STRIDE, cell_centres, cell_index
 
@@ -205,5 +206,4 @@ def calibrate_cov_scale(errors: np.ndarray, covs: np.ndarray, per_axis: bool = F
     errors, covs = np.asarray(errors, np.float64), np.asarray(covs, np.float64)
     if per_axis:
         return [float(v) for v in np.mean(errors ** 2 / np.diagonal(covs, axis1=1, axis2=2), axis=0)]
-    nees = np.einsum("fi,fij,fj->f", errors, np.linalg.inv(covs), errors)
-    return float(np.mean(nees) / 6.0)
+    return float(np.mean(nees(errors, covs)) / 6.0)

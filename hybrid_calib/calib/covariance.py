@@ -74,7 +74,14 @@ class CovarianceReport:
 
 
 
-STATUS_WORDS = ("ok", "weak", "degenerate", "inconclusive")
+STATUS_WORDS = ("ok", "weak", "degenerate", "inconclusive")  # what a status opens with (docs/conventions.md)
+NOT_CONVERGED = "NOT CONVERGED"  # ``schedule.convergence_note``'s mark in a status: the last solve did not converge
+
+
+def status_kind(status: str) -> str:
+    """The word of ``STATUS_WORDS`` a status opens with ("" for none): the one reading of a status's kind."""
+    word = str(status).split(":", 1)[0].split(" ", 1)[0].strip()
+    return word if word in STATUS_WORDS else ""
 
 
 def inconclusive_status(reason: str, estimate_status: str = "") -> str:
@@ -87,11 +94,11 @@ def untrusted_status(status: str) -> str:
     not converge (``schedule.convergence_note``'s "NOT CONVERGED"), an ``inconclusive_status`` (its reason: the
     network's input out of its domain, a checkpoint without its fitted models, network rows fused without the
     hybrid's model), or the data did not determine it ("degenerate")."""
-    if "NOT CONVERGED" in status:
+    if NOT_CONVERGED in status:
         return "the last solve did not converge"
-    if status.startswith("inconclusive"):
+    if status_kind(status) == "inconclusive":
         return f"it is not trusted ({status[len('inconclusive'):].lstrip(': ').split(' [')[0][:300]})"
-    if status.startswith("degenerate"):
+    if status_kind(status) == "degenerate":
         return "the data did not determine it"
     return ""
 

@@ -346,10 +346,10 @@ def unconverged(drift: dict, status: str) -> dict:
     input was out of its domain (an ``inconclusive:`` status, ``covariance.inconclusive_status``: measured, "differs
     by 1.30 deg in yaw: recalibrate" on a result the report called inconclusive, and the fleet counted out of
     tolerance). Such an estimate says nothing about the mount. Unchanged otherwise."""
-    from hybrid_calib.calib.covariance import untrusted_status
+    from hybrid_calib.calib.covariance import status_kind, untrusted_status
 
     why = untrusted_status(status)  # the one reading of a status (a degenerate one's stds already say it)
-    if not why or status.startswith("degenerate"):
+    if not why or status_kind(status) == "degenerate":
         return drift
     cm = float(drift.get("trans_change_cm", float("nan")))
     far = f"{cm / 100:.2f} m" if abs(cm) >= 100 else f"{cm:.1f} cm"

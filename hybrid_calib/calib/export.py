@@ -40,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hybrid_calib.calib.covariance import status_kind
 from hybrid_calib.calib.drift import AXIS_WORDS
 from hybrid_calib.errors import DataError, OptionError
 
@@ -149,7 +150,7 @@ def _why_not(vr, which: str) -> str:
     from hybrid_calib.calib.covariance import untrusted_status
 
     if why := untrusted_status(vr.final.status):
-        quoted = "" if vr.final.status.startswith("inconclusive") else f" ({vr.final.status.split(';')[0][:160]})"
+        quoted = "" if status_kind(vr.final.status) == "inconclusive" else f" ({vr.final.status.split(';')[0][:160]})"
         return f"not exported: {why}, so the estimate is no calibration{quoted}"  # inconclusive: its reason is quoted
     if getattr(vr, "method", None) == "pure":  # the network's last pass alone (hybrid.loop.one_pass_verdict)
         return ("not exported: one pass of the network alone (method pure) is no calibration; calibrate with --method "

@@ -26,7 +26,7 @@ import numpy as np
 
 from factors.io import load_measurement_dir
 from hybrid_calib.calib.batch import BatchConfig, solve_batch
-from hybrid_calib.calib.covariance import prior_pinned_std
+from hybrid_calib.calib.covariance import NOT_CONVERGED, prior_pinned_std, status_kind
 from hybrid_calib.calib.drift import DriftConfig, reference_test, unconverged
 from hybrid_calib.calib.oracle import OracleConfig, oracle_from_frame
 from hybrid_calib.calib.result import DATA_STAMP, CalibrationRun, VehicleProgress, VehicleResult, reuse_result
@@ -216,7 +216,7 @@ def trust_reason(res: VehicleResult, T_reference: np.ndarray) -> str:
 
     status = res.final.status  # read through the one reading of a status (a degenerate one's stds already say it)
     reasons = [f"{untrusted_status(status)} (NOT CONVERGED: too few of its rows fit the estimate)"
-               if "NOT CONVERGED" in status and not status.startswith("inconclusive") else ""]
+               if NOT_CONVERGED in status and status_kind(status) != "inconclusive" else ""]
     rot_deg, trans_cm = mount_offset(np.asarray(res.final.T, np.float64), np.asarray(T_reference, np.float64))
     if not (np.isfinite(rot_deg) and np.isfinite(trans_cm)) or rot_deg > ASTRAY_ROT_DEG or \
             trans_cm > 100 * ASTRAY_TRANS_M:
@@ -266,7 +266,7 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, progress: bool = 
 
     from hybrid_calib.calib.covariance import report_std
     from hybrid_calib.geometry import local
-    from hybrid_calib.metrics import extrinsic_error
+    from hybrid_calib.metrics import extrinsic_error, nees
 
     # a frame without rows (a network that matched nothing confidently) carries no information
     frames = [c for c in vi.frames if len(c)]
@@ -302,7 +302,7 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, progress: bool = 
         T_true = vi.truth[-1]
         res.truth_T = T_true
         e = local(T_true, final.T)
-        res.error = {**extrinsic_error(final.T, T_true).as_dict(), "nees": float(e @ np.linalg.solve(final.cov, e))}
+        res.error = {**extrinsic_error(final.T, T_true).as_dict(), "nees": nees(e, final.cov)}
     if vi.oracle_truths:
         from hybrid_calib.calib.crb import oracle_crb
 

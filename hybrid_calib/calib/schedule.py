@@ -218,7 +218,9 @@ def convergence_note(inlier_fraction: float, min_fraction: float, what: str = "t
     ``NOT CONVERGED`` (the report's verdict reads that mark) with the fraction that fits."""
     if inlier_fraction >= min_fraction:
         return ""
-    return f"NOT CONVERGED: only {100 * inlier_fraction:.0f} % of {what} correspondences fit the estimate"
+    from hybrid_calib.calib.covariance import NOT_CONVERGED
+
+    return f"{NOT_CONVERGED}: only {100 * inlier_fraction:.0f} % of {what} correspondences fit the estimate"
 
 
 def inlier_mask(T: np.ndarray, corr: Correspondences, conf: RadarPixelFactorConfig, gate: float) -> np.ndarray:

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hybrid_calib.calib.covariance import status_kind
 from hybrid_calib.config import merge, parse_overrides, save_json_atomic, to_dict
 
 HELP = "simulate a small drive, draw radar points on the image, calibrate radar->camera, report"
@@ -226,7 +227,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"  LiDAR alignment:    {describe_lidar(v['lidar'])}")
         if v.get("doppler"):
             print(f"  Doppler lever arm:  {describe_doppler(v['doppler'])}")
-        if f["status"].startswith("weak"):
+        if status_kind(f["status"]) == "weak":
             print("  note: a 2D radar records no elevation, so its height and pitch against the camera are pinned\n"
                   "        only by the reflector-height prior; the 1-sigma above says so (docs/conventions.md)")
         if v.get("drift"):

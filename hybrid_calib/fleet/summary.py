@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hybrid_calib.calib.covariance import status_kind
 from hybrid_calib.config import save_json_atomic, save_text_atomic
 from hybrid_calib.errors import DataError
 from hybrid_calib.fleet.manifest import Manifest
@@ -119,7 +120,7 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
                        keys, camera_offset(np.asarray(j["tables_T"]), vr.final.T).tolist())),
                    std_cam=std_dict(vr.final.std, STD_FRAME),
                    drift={k: d.get(k) for k in ("drifted", "p_value", "statistic")},
-                   verdict="inconclusive" if vr.final.status.startswith("inconclusive") else (
+                   verdict="inconclusive" if status_kind(vr.final.status) == "inconclusive" else (
                        d.get("verdict") or ("out of tolerance" if d.get("drifted") else "within tolerance")),
                    step_alarms=[f.index for f in vr.trajectory if f.step_alarm], error=vr.error, fleet_test=None,
                    mount_steps=(vr.mount or {}).get("steps", []))
@@ -127,9 +128,9 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
             row["flags"].append("out_of_tolerance")
         if row["step_alarms"]:
             row["flags"].append("drifted_in_drive")
-        if vr.final.status.startswith("degenerate"):
+        if status_kind(vr.final.status) == "degenerate":
             row["flags"].append("degenerate")
-        if vr.final.status.startswith("inconclusive"):
+        if status_kind(vr.final.status) == "inconclusive":
             row["flags"].append("inconclusive")
     prior = None
     # an estimate its own status calls untrusted (out of the network's domain, degenerate, not converged) says
@@ -154,7 +155,7 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
     counts = {**m.counts(), "vehicles": len(rows)}
     for flag in ("out_of_tolerance", "drifted_in_drive", "fleet_outlier", "degenerate", "inconclusive"):
         counts[flag + ("s" if flag == "fleet_outlier" else "")] = sum(flag in r["flags"] for r in rows.values())
-    counts["weak"] = sum(str(r.get("status", "")).startswith("weak") for r in rows.values())
+    counts["weak"] = sum(status_kind(r.get("status", "")) == "weak" for r in rows.values())
     pd = None if prior is None else prior.to_dict()
     summary = {
         "schema": SCHEMA, "out": str(base), "method": m.method, "seed": m.seed, "counts": counts,

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hybrid_calib.calib.covariance import analyse_information
+from hybrid_calib.calib.covariance import NOT_CONVERGED, analyse_information
 from hybrid_calib.calib.drift import DriftConfig, camera_side_note, reference_test, unconverged, with_mount_step
 from hybrid_calib.calib.ego_doppler import drive_sweeps
 from hybrid_calib.calib.lever_arm import LeverArmConfig, apply_forward, refusal
@@ -71,7 +71,7 @@ from hybrid_calib.hybrid.network import (
     shipped_checkpoint,
 )
 from hybrid_calib.hybrid.ood import OODPolicy, decide, json_score, out_of_domain, skip_record
-from hybrid_calib.metrics import extrinsic_error
+from hybrid_calib.metrics import extrinsic_error, nees
 from hybrid_calib.perturbation import RANGES, vehicle_start
 
 METHODS = ("hybrid", "pure", "pure-avg", "oracle")
@@ -366,7 +366,7 @@ def with_drive_error(traj: list[FrameEstimate], drive_std, conf: HybridConfig) -
 def with_cov(f: FrameEstimate, cov: np.ndarray, conf: HybridConfig, T: np.ndarray | None = None) -> FrameEstimate:
     """Frame ``f`` re-reported with covariance ``cov`` (6, 6) (and estimate ``T``, when given), keeping
     the window's own notes (a solve that did not converge, a restart after a step)."""
-    notes = [f.estimate.status[i:].split(")")[0] for key in ("NOT CONVERGED", "recovering")
+    notes = [f.estimate.status[i:].split(")")[0] for key in (NOT_CONVERGED, "recovering")
              if (i := f.estimate.status.find(key)) >= 0]
     return dataclasses.replace(f, estimate=_estimate(f.T if T is None else T, cov, conf, "; ".join(notes)))
 
@@ -634,7 +634,7 @@ def _finish(res: VehicleResult, drive: Drive, T0: np.ndarray, conf: HybridConfig
     truth = drive.base if drive.end is None else drive.end  # the mount at the drive's end (a knock moved it)
     e = local(truth, final.T)
     res.truth_T = truth
-    res.error = {**extrinsic_error(final.T, truth).as_dict(), "nees": float(e @ np.linalg.solve(final.cov, e))}
+    res.error = {**extrinsic_error(final.T, truth).as_dict(), "nees": nees(e, final.cov)}
     res.method = conf.method
     res.start = {"kind": conf.start, "seed": conf.seed, "T_cam_radar": T0.tolist()}
     res.errors_against = drive.errors_against

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hybrid_calib.calib.covariance import NOT_CONVERGED, status_kind
 from hybrid_calib.calib.drift import DriftConfig, against_tolerance, mount_steps_beyond
 from hybrid_calib.calib.mount_monitor import blind_words, tested_words
 from hybrid_calib.calib.result import VehicleResult
@@ -41,7 +42,6 @@ DELTA_KEYS = ("rot_x_deg", "rot_y_deg", "rot_z_deg", "t_x_cm", "t_y_cm", "t_z_cm
 AXIS_NAMES = ("rotation about camera x", "rotation about camera y", "rotation about camera z",
               "translation along camera x", "translation along camera y", "translation along camera z")
 VERDICTS = ("within tolerance", "recalibrate", "inconclusive")
-NOT_CONVERGED = "NOT CONVERGED"  # calib.schedule.convergence_note's mark in a status
 INCONCLUSIVE = "inconclusive"  # calib.covariance.inconclusive_status: the input is out of the network's domain
 
 
@@ -111,7 +111,7 @@ def derive_verdict(vr: VehicleResult, tol: Tolerance) -> tuple[str, str]:
     """(word, why) from the drift block, the std and the status (module docstring)."""
     if vr.final.status.startswith(INCONCLUSIVE):
         return "inconclusive", _out_of_domain_why(vr.final.status)
-    if vr.final.status.startswith("degenerate"):
+    if status_kind(vr.final.status) == "degenerate":
         return "inconclusive", f"The data could not determine the extrinsic ({vr.final.status})."
     if NOT_CONVERGED in vr.final.status:
         return "inconclusive", (f"The last solve did not converge, so its estimate says nothing about the mount "
