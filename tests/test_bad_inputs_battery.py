@@ -466,7 +466,7 @@ SET_CASES = [
     (["calibrate", "--method", "hybrid"], "lidar.gates_m=[]", ["need gates_m positive", "gates_m=()"]),
     (["calibrate", "--method", "pure"], "start=R9", ["start='R9'", "reference"]),
     (["calibrate", "--method", "pure"], "max_frames=-2", ["max_frames must be >= 0"]),
-    (["calibrate", "--method", "pure"], "threads=0", ["threads must be in 1..1024"]),
+    (["calibrate", "--method", "pure"], "threads=0", ["threads must be in 1..256"]),
     (["calibrate", "--method", "pure"], "method=nosuch", ["--set", "--method"]),
     (["calibrate", "--method", "pure"], "split=nosuch", ["--set", "--split"]),
     (["fleet"], "seed=3", ["--set", "--seed"]),

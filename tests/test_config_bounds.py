@@ -162,3 +162,25 @@ def test_nested_sim_option_and_the_scenario_weather_are_checked():
         merge(SimConfig, {"scenario": "rain", "radar": {"extra_loss_db": 200}})
     with pytest.raises(ConfigError, match="randomise.clutter_scale.*clutter_per_sweep"):  # 6000 x 2: a draw too many
         merge(SimConfig, {"radar": {"clutter_per_sweep": 6000}, "randomise": {"enabled": True}})
+
+
+@pytest.mark.parametrize("argv", [
+    ["simulate", "--workers", "999999999", "--out", "{tmp}/s"],
+    ["fleet", "--data", "{tmp}", "--workers", "1000", "--out", "{tmp}/f"],
+    ["fleet", "--data", "{tmp}", "--threads", "1000", "--out", "{tmp}/f"],
+    ["fleet", "--data", "{tmp}", "--retries", "999999999", "--out", "{tmp}/f"],
+])
+def test_process_counts_are_bounded(argv, tmp_path, capsys):
+    """``simulate --workers 999999999`` forked workers until the machine stopped (a process pool on Linux starts all
+    of them at once; the fuzz of session 21 met it): refused by argparse (exit 2), nothing started."""
+    from tests.helpers import run_cli
+
+    rc, err = run_cli([a.format(tmp=tmp_path) for a in argv], capsys)
+    assert rc == 2 and "must be at most" in err, err
+
+
+def test_fleet_options_are_bounded():
+    from hybrid_calib.fleet.driver import FleetOptions
+
+    with pytest.raises(ValueError, match="workers in"):
+        FleetOptions(engine="process", workers=10**9)

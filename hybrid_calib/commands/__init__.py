@@ -9,6 +9,26 @@ def positive_int(text: str) -> int:
     return _int_at_least(text, 1)
 
 
+MAX_PROCESSES = 256  # --workers / --threads: more than any machine this runs on has cores (a pool of 1e9 forked 1e9)
+
+
+def process_count(text: str) -> int:
+    """argparse ``type``: processes or threads, 1..``MAX_PROCESSES`` (``--workers 999999999`` forked workers until
+    the machine stopped: a process pool on Linux starts all of them at once)."""
+    value = _int_at_least(text, 1)
+    if value > MAX_PROCESSES:
+        raise argparse.ArgumentTypeError(f"must be at most {MAX_PROCESSES}, got {value} (pass the cores to use)")
+    return value
+
+
+def retry_count(text: str) -> int:
+    """argparse ``type``: retries of a failed job, 0..100 (each retry reruns a job that crashed)."""
+    value = _int_at_least(text, 0)
+    if value > 100:
+        raise argparse.ArgumentTypeError(f"must be at most 100, got {value}")
+    return value
+
+
 def nonnegative_int(text: str) -> int:
     """argparse ``type``: an integer >= 0 (a limit where 0 means "all")."""
     return _int_at_least(text, 0)

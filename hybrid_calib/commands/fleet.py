@@ -5,7 +5,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from hybrid_calib.commands import given_flags, nonnegative_int, positive_int, reject_set_keys
+from hybrid_calib.commands import (
+    given_flags,
+    nonnegative_int,
+    process_count,
+    reject_set_keys,
+    retry_count,
+)
 from hybrid_calib.config import parse_overrides
 from hybrid_calib.errors import OptionError
 from hybrid_calib.fleet.summary import n_vehicles
@@ -25,11 +31,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--address", help="Ray cluster to join, e.g. HEAD:6379 (every node: this package, and the roots "
                                      "and --out on a shared file system at the same paths; default: start a local "
                                      "Ray of --workers CPUs)")
-    p.add_argument("--workers", type=positive_int, default=1,
+    p.add_argument("--workers", type=process_count, default=1,
                    help="parallel jobs (default: 1; with --address: at least the cluster's CPUs / --threads)")
-    p.add_argument("--threads", type=positive_int, default=1, help="torch / BLAS threads per worker (default: 1)")
+    p.add_argument("--threads", type=process_count, default=1, help="torch / BLAS threads per worker (default: 1)")
     p.add_argument("--ray-temp", type=Path, help="temp dir of a local Ray (default: OUT/ray; keep it short)")
-    p.add_argument("--retries", type=nonnegative_int, default=2, help="retries of a system failure (default: 2)")
+    p.add_argument("--retries", type=retry_count, default=2,
+                   help="retries of a system failure (default: 2, at most 100)")
     p.add_argument("--prior", type=Path, help="fleet_prior.json of an earlier fleet run: each vehicle's prior "
                                               "(leave-one-out; the fleet's for a new vehicle; none for an outlier)")
     p.add_argument("--seed", type=int, default=0, help="fleet seed; each job seeds from (seed, vehicle) (default: 0)")

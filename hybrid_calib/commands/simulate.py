@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from hybrid_calib.commands import given_flags, positive_int
+from hybrid_calib.commands import given_flags, positive_int, process_count
 from hybrid_calib.config import merge, parse_overrides
 from hybrid_calib.errors import OptionError
 from hybrid_calib.sim.drive import SimConfig
@@ -26,7 +26,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="radar mount movement during each drive (default: none, or --set extrinsic_change.kind=...)")
     p.add_argument("--change-frame", type=int, default=None,
                    help="frame of a step change (default: -1, the middle; or --set extrinsic_change.frame=N)")
-    p.add_argument("--workers", type=positive_int, default=1, help="rendering processes (default: 1)")
+    p.add_argument("--workers", type=process_count, default=1, help="rendering processes (default: 1)")
     p.add_argument("--overwrite", action="store_true", help="re-render everything instead of resuming")
     p.add_argument("--set", action="extend", nargs="+", metavar="KEY=VALUE", default=[],
                    help="SimConfig overrides, e.g. image_scale=0.25 radar.clutter_per_sweep=8 lidar.azimuth_steps=540; "

@@ -31,6 +31,12 @@ class FleetOptions:
     plots: bool = True  # fleet.png
     alpha: float = 1e-3  # fleet outlier test level
 
+    def __post_init__(self):
+        from hybrid_calib.config import require_ranges
+
+        require_ranges(self, {"workers": "[1, 256]", "threads": "[1, 256]", "retries": "[0, 100]",
+                              "object_store_mb": "[50, 1e6]", "alpha": "(0, 1)"})
+
 
 def run_fleet(roots: list[str] | None, manifest: str | None, version: str, method: str, out: str | Path,
               seed: int = 0, checkpoint: str | None = None, calib: dict | None = None, priors: dict | None = None,

@@ -166,6 +166,7 @@ def _process_loop(jobs, on_start, on_outcome, workers, retries, in_flight, threa
     # then runs alone, where a crash is its own (one killed worker had cost every queued vehicle a try)
     suspects: set[str] = set()
     ctx = multiprocessing.get_context("spawn")
+    workers = max(1, min(workers, len(queue)))  # no idle process started
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_pool_worker, initargs=(threads,))
     running: dict = {}
     try:

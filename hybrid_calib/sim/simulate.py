@@ -179,7 +179,7 @@ def simulate(conf: SimConfig, out: str | Path, overwrite: bool = False, workers:
     failed: dict[int, list[dict]] = {v: [] for v in range(conf.vehicles)}
     bar = tqdm(total=len(jobs), desc=f"simulate {conf.scenario}", unit="frame", disable=not progress)
     if workers > 1 and len(jobs) > 1:
-        with ProcessPoolExecutor(max_workers=workers) as pool:
+        with ProcessPoolExecutor(max_workers=min(workers, len(jobs))) as pool:  # no idle process forked
             results = pool.map(_work, jobs, chunksize=4)
             for v, k, err in results:
                 _record(failed, v, k, err)
