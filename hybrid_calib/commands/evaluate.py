@@ -75,29 +75,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
 
-def refuse_shipped(path: str | Path) -> None:
-    """``HybridCalibError`` when ``path`` is one of the checkpoints shipped inside the installed package: a fit
-    written there would change every later run of every user of this installation."""
-    import learned
-
-    shipped = (Path(learned.__file__).parent / "checkpoints").resolve()
-    if Path(path).resolve().is_relative_to(shipped):
-        raise HybridCalibError(f"--fit-uncertainty would rewrite {path}, a checkpoint shipped with the package; copy "
-                               "its .json and .safetensors into a folder of yours and pass the copy as --checkpoint")
-
-
-def trained_on(checkpoint: str | Path, roots) -> list[str]:
-    """The ``roots`` the training run of ``checkpoint`` read (its run folder's ``train_config.json`` "data"), [] when
-    it does not say (a shipped checkpoint records its data in words, in ``provenance``)."""
-    from learned.checkpoint import trained_data
-
-    try:
-        seen = {str(Path(r).resolve()) for r in trained_data(checkpoint).get("roots", [])}
-    except (TypeError, ValueError):
-        return []
-    return [str(r) for r in roots if str(Path(r).resolve()) in seen]
-
-
 def run(args: argparse.Namespace) -> int:
     from hybrid_calib.config import merge
     from hybrid_calib.data.files import data_stamp
@@ -106,6 +83,7 @@ def run(args: argparse.Namespace) -> int:
     from learned.dataset import open_roots
     from learned.depth import needs_lidar
     from learned.evaluate import EvalConfig, evaluate
+    from learned.uncertainty_fit import check_fit, fit_uncertainty, trained_on
 
     user = parse_overrides(args.overrides)
     merge(EvalConfig, user)  # a bad --set fails here, before the checkpoint and the data are read
@@ -150,23 +128,7 @@ def run(args: argparse.Namespace) -> int:
             conf["depth_options"] = {}  # the checkpoint's options belong to its own estimator
     conf["export"] = dict(last.export)
     if args.fit_uncertainty:
-        if args.refine:
-            raise HybridCalibError("--fit-uncertainty fits one checkpoint's covariance; run it on each checkpoint "
-                                   "alone, without --refine")
-        if args.split == "test":
-            raise HybridCalibError("--fit-uncertainty on the test split would leave nothing held out to check it; "
-                                   "fit with --split val (or --split all on a separate root)")
-        if args.version != "v1.0-sim":  # errors against the tables, out-of-domain frames among them
-            raise HybridCalibError(f"--fit-uncertainty on a {args.version} root: it has no ground truth, only its "
-                                   "tables (themselves a few tenths of a degree off) and frames outside the network's "
-                                   "domain, so the fitted scale would be the tables' and the domain gap's; fit on "
-                                   "simulated validation drives (v1.0-sim), or, for a network fine-tuned on real "
-                                   "frames, with benchmarks/real_finetune.py (its scale floored at 1)")
-        if args.split in ("all", "train") and (seen := trained_on(last.path, args.data)):
-            raise HybridCalibError(f"--fit-uncertainty with --split {args.split} on {', '.join(seen)}, a root the "
-                                   f"checkpoint was trained on ({last.path}): its frames would make the covariance "
-                                   "look honest where it was fitted; use --split val, or a root it never saw")
-        refuse_shipped(last.path)
+        check_fit(last.path, args.data, args.split, args.version, bool(args.refine))
         conf["export"]["cov_scale"] = 1.0  # fit against the raw covariance
     deep_update(conf, user)  # --set export.KEY=... changes that value and keeps the checkpoint's others
     deep_update(conf, {**given, **({"split_options": flags} if flags else {})})  # a flag given wins over --set
@@ -205,31 +167,13 @@ def run(args: argparse.Namespace) -> int:
               f"{100 * u['inside_95']:.1f} % inside the 95 % ellipsoid ({u['n_frames']} frames)")
     print(f"wrote {Path(args.out) / 'results.json'} and results.md")
     if args.fit_uncertainty:
-        from learned.checkpoint import read_checkpoint_meta, set_export_overrides
-        from learned.evaluate import tangent_errors
-        from learned.export import calibrate_cov_scale
-
-        errors, covs = tangent_errors(args.out)
-        if not len(errors):
-            raise HybridCalibError(f"no exported covariances in {args.out}; nothing to fit")
-        least = merge(EvalConfig, user).fit_min_frames
-        if len(errors) < least:  # six variances from a handful of frames would be stored as the network's truth
-            raise HybridCalibError(f"--fit-uncertainty: {len(errors)} frames with an exported covariance, fewer than "
-                                   f"{least} (a variance from n frames is good to sqrt(2/n)); nothing was written to "
-                                   f"{last.path}: fit on more validation frames (drop --max-frames, add roots), or "
-                                   "pass --set fit_min_frames=N to accept fewer")
-        scale = calibrate_cov_scale(errors, covs, per_axis=True)
-        roots = " ".join(str(d) for d in args.data)
-        note = (f"per-axis fit on {len(errors)} frames of {roots} (split {args.split}, range "
-                f"{args.perturbation}) by hybrid-calib evaluate --fit-uncertainty")
-        _, meta = read_checkpoint_meta(last.path)
-        before, notes = meta.get("export") or {}, meta.get("export_notes") or {}
-        set_export_overrides(last.path, {"cov_scale": scale}, note)
-        print(f"fitted cov_scale {', '.join(f'{v:.3g}' for v in scale)} -> written to {last.path}")
-        if "cov_scale" in before:
-            print(f"  it replaces cov_scale {before['cov_scale']} ({notes.get('cov_scale') or 'no note'}); the old "
-                  "value is kept in the checkpoint's export_history")
-        if stale := [k for k in ("hybrid", "sigma_scale") if k in before]:
-            print(f"  note: export.{' and export.'.join(stale)} were fitted with the earlier covariance scale; refit "
-                  "them for this one (docs/benchmarks.md names the commands)")
+        fit = fit_uncertainty(args.out, last.path, args.data, args.split, args.perturbation,
+                              merge(EvalConfig, user).fit_min_frames)
+        print(f"fitted cov_scale {', '.join(f'{v:.3g}' for v in fit.cov_scale)} -> written to {fit.checkpoint}")
+        if fit.replaced:
+            print(f"  it replaces cov_scale {fit.replaced[0]} ({fit.replaced[1]}); the old value is kept in the "
+                  "checkpoint's export_history")
+        if fit.stale:
+            print(f"  note: export.{' and export.'.join(fit.stale)} were fitted with the earlier covariance scale; "
+                  "refit them for this one (docs/benchmarks.md names the commands)")
     return 0

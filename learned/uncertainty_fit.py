@@ -1,0 +1,99 @@
+"""Fitting the exported covariance's per-axis scale on held-out frames (``hybrid-calib evaluate --fit-uncertainty``).
+
+The refusals come first (``check_fit``): a fit on the test split, on a real root (its tables are no truth), on the
+training frames, or into a checkpoint shipped with the package would store a scale that looks honest where it was
+fitted. ``fit_uncertainty`` then reads an evaluate run's exported errors and covariances, fits ``cov_scale`` per axis
+(``learned.export.calibrate_cov_scale``) and writes it into the checkpoint's export block with a note.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from hybrid_calib.errors import HybridCalibError
+
+
+def refuse_shipped(path: str | Path) -> None:
+    """``HybridCalibError`` when ``path`` is one of the checkpoints shipped inside the installed package: a fit
+    written there would change every later run of every user of this installation."""
+    import learned
+
+    shipped = (Path(learned.__file__).parent / "checkpoints").resolve()
+    if Path(path).resolve().is_relative_to(shipped):
+        raise HybridCalibError(f"--fit-uncertainty would rewrite {path}, a checkpoint shipped with the package; copy "
+                               "its .json and .safetensors into a folder of yours and pass the copy as --checkpoint")
+
+
+def trained_on(checkpoint: str | Path, roots) -> list[str]:
+    """The ``roots`` the training run of ``checkpoint`` read (its run folder's ``train_config.json`` "data"), [] when
+    it does not say (a shipped checkpoint records its data in words, in ``provenance``)."""
+    from learned.checkpoint import trained_data
+
+    try:
+        seen = {str(Path(r).resolve()) for r in trained_data(checkpoint).get("roots", [])}
+    except (TypeError, ValueError):
+        return []
+    return [str(r) for r in roots if str(Path(r).resolve()) in seen]
+
+
+def check_fit(checkpoint: str | Path, roots, split: str, version: str, refine: bool) -> None:
+    """``HybridCalibError`` for a fit that would not be held out: with ``--refine`` (several checkpoints), on the test
+    split, on a real root (``version`` other than v1.0-sim), on the frames ``checkpoint`` was trained on, or into a
+    shipped checkpoint."""
+    if refine:
+        raise HybridCalibError("--fit-uncertainty fits one checkpoint's covariance; run it on each checkpoint "
+                               "alone, without --refine")
+    if split == "test":
+        raise HybridCalibError("--fit-uncertainty on the test split would leave nothing held out to check it; "
+                               "fit with --split val (or --split all on a separate root)")
+    if version != "v1.0-sim":  # errors against the tables, out-of-domain frames among them
+        raise HybridCalibError(f"--fit-uncertainty on a {version} root: it has no ground truth, only its "
+                               "tables (themselves a few tenths of a degree off) and frames outside the network's "
+                               "domain, so the fitted scale would be the tables' and the domain gap's; fit on "
+                               "simulated validation drives (v1.0-sim), or, for a network fine-tuned on real "
+                               "frames, with benchmarks/real_finetune.py (its scale floored at 1)")
+    if split in ("all", "train") and (seen := trained_on(checkpoint, roots)):
+        raise HybridCalibError(f"--fit-uncertainty with --split {split} on {', '.join(seen)}, a root the "
+                               f"checkpoint was trained on ({checkpoint}): its frames would make the covariance "
+                               "look honest where it was fitted; use --split val, or a root it never saw")
+    refuse_shipped(checkpoint)
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """What ``fit_uncertainty`` wrote: the per-axis ``cov_scale`` (6,) [radar tangent: rotation x3, translation x3],
+    the frames it rests on, the scale it replaced (with its note) and the export keys fitted under the old scale."""
+
+    checkpoint: Path
+    cov_scale: list[float]
+    n_frames: int
+    replaced: tuple | None = None  # (old cov_scale, its note) or None
+    stale: list[str] = field(default_factory=list)  # export.hybrid / sigma_scale: fitted with the earlier scale
+
+
+def fit_uncertainty(out: str | Path, checkpoint: str | Path, roots, split: str, perturbation: str,
+                    min_frames: int) -> FitResult:
+    """Fit the exported covariance's per-axis scale on the frames an evaluate run wrote into ``out`` and store it in
+    ``checkpoint``'s export block (``HybridCalibError`` with fewer than ``min_frames`` frames: nothing written)."""
+    from learned.checkpoint import read_checkpoint_meta, set_export_overrides
+    from learned.evaluate import tangent_errors
+    from learned.export import calibrate_cov_scale
+
+    errors, covs = tangent_errors(out)
+    if not len(errors):
+        raise HybridCalibError(f"no exported covariances in {out}; nothing to fit")
+    if len(errors) < min_frames:  # six variances from a handful of frames would be stored as the network's truth
+        raise HybridCalibError(f"--fit-uncertainty: {len(errors)} frames with an exported covariance, fewer than "
+                               f"{min_frames} (a variance from n frames is good to sqrt(2/n)); nothing was written to "
+                               f"{checkpoint}: fit on more validation frames (drop --max-frames, add roots), or "
+                               "pass --set fit_min_frames=N to accept fewer")
+    scale = calibrate_cov_scale(errors, covs, per_axis=True)
+    note = (f"per-axis fit on {len(errors)} frames of {' '.join(str(d) for d in roots)} (split {split}, range "
+            f"{perturbation}) by hybrid-calib evaluate --fit-uncertainty")
+    _, meta = read_checkpoint_meta(checkpoint)
+    before, notes = meta.get("export") or {}, meta.get("export_notes") or {}
+    set_export_overrides(checkpoint, {"cov_scale": scale}, note)
+    replaced = (before["cov_scale"], notes.get("cov_scale") or "no note") if "cov_scale" in before else None
+    return FitResult(Path(checkpoint), [float(v) for v in scale], len(errors), replaced,
+                     [k for k in ("hybrid", "sigma_scale") if k in before])
