@@ -342,8 +342,8 @@ def test_a_refit_keeps_the_value_it_replaces_and_shipped_checkpoints_are_not_rew
     from pathlib import Path
 
     import learned
-    from learned.uncertainty_fit import refuse_shipped
     from learned.checkpoint import save_checkpoint, set_export_overrides
+    from learned.uncertainty_fit import refuse_shipped
 
     path = save_checkpoint(tmp_path / "ckpt-0001", torch.nn.Linear(2, 2), epoch=1, model_config={"a": 1})
     set_export_overrides(path, {"cov_scale": [2.0] * 6}, "fitted on 240 frames")

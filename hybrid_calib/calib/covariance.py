@@ -78,6 +78,15 @@ STATUS_WORDS = ("ok", "weak", "degenerate", "inconclusive")  # what a status ope
 NOT_CONVERGED = "NOT CONVERGED"  # ``schedule.convergence_note``'s mark in a status: the last solve did not converge
 
 
+def camera_offset(T_ref: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """(6,) offset of ``T`` (4, 4) from ``T_ref`` (4, 4) in camera axes (``report_basis``): rotation [deg x3],
+    translation [cm x3]."""
+    from hybrid_calib.geometry import local
+
+    d = report_basis(T_ref) @ local(T_ref, T)
+    return np.concatenate([np.degrees(d[:3]), d[3:] * 100.0])
+
+
 def status_kind(status: str) -> str:
     """The word of ``STATUS_WORDS`` a status opens with ("" for none): the one reading of a status's kind."""
     word = str(status).split(":", 1)[0].split(" ", 1)[0].strip()

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hybrid_calib.calib.covariance import status_kind
+from hybrid_calib.calib.covariance import camera_offset, status_kind
 from hybrid_calib.config import save_json_atomic, save_text_atomic
 from hybrid_calib.errors import DataError
 from hybrid_calib.fleet.manifest import Manifest
@@ -47,15 +47,6 @@ UNRESOLVED = 0.1  # a fleet spread under this fraction of the vehicles' own medi
 def n_vehicles(n: int) -> str:
     """"1 vehicle", "3 vehicles": the count of a fleet's vehicles in words."""
     return f"{n} vehicle{'' if n == 1 else 's'}"
-
-
-def camera_offset(T_ref: np.ndarray, T: np.ndarray) -> np.ndarray:
-    """(6,) offset of ``T`` from ``T_ref`` in camera axes: rotation [deg x3], translation [cm x3]."""
-    from hybrid_calib.calib.covariance import report_basis
-    from hybrid_calib.geometry import local
-
-    d = report_basis(T_ref) @ local(T_ref, T)
-    return np.concatenate([np.degrees(d[:3]), d[3:] * 100.0])
 
 
 def design_mount(jobs: list[dict]) -> tuple[np.ndarray, str]:

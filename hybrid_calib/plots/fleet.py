@@ -60,7 +60,7 @@ def plot_fleet(summary: dict, path: str | Path) -> Path:
     band = None
     fp = summary.get("fleet_prior")
     if fp:
-        from hybrid_calib.fleet.summary import camera_offset
+        from hybrid_calib.calib.covariance import camera_offset
 
         mean = camera_offset(np.asarray(summary["design_mount"]["T_cam_radar"]), np.asarray(fp["T_mean"]))
         band = (mean, np.array(list(fp["spread_std_cam"].values())))
