@@ -34,7 +34,15 @@ from typing import Any
 import numpy as np
 import torch
 
-from hybrid_calib.config import changed_options, merge, read_out_record, require_ranges, save_json_atomic, to_dict
+from hybrid_calib.config import (
+    changed_options,
+    merge,
+    read_out_record,
+    require_ranges,
+    save_json_atomic,
+    save_text_atomic,
+    to_dict,
+)
 from hybrid_calib.data.files import read_npz
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.errors import HybridCalibError
@@ -291,10 +299,7 @@ def write_report(result: EvalResult, out: str | Path, config: dict | None = None
         "n_frames": result.n_frames, "metrics": list(METRIC_KEYS), "rows": result.rows,
         "per_frame": result.per_frame, "tokens": result.tokens, "uncertainty": result.uncertainty,
         "config": config or {}})
-    md = out / "results.md"
-    tmp = md.with_name(md.name + ".tmp")
-    tmp.write_text(result.markdown())
-    tmp.replace(md)
+    save_text_atomic(out / "results.md", result.markdown())
     return path
 
 

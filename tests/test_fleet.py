@@ -516,6 +516,7 @@ def test_an_unexpected_error_in_one_vehicle_is_its_failure_not_the_fleets(fleet_
     assert states["sim-veh-002"][0] == "failed"
     assert states["sim-veh-002"][1].startswith("internal error (please report it with this vehicle's data): "
                                                "ValueError: GaussianPrior has NaN/inf entries")
+    assert "[at test_fleet.py:" in states["sim-veh-002"][1] and "in calibrate]" in states["sim-veh-002"][1]  # where
     assert states["sim-veh-000"][0] == "done" and summary is not None
 
 

@@ -289,6 +289,15 @@ def calibrate_job(job: Job) -> Path:
     return job.result_path
 
 
+def _where(e: BaseException) -> str:
+    """The innermost frame of ``e``'s traceback as "file:line in function" (the traceback itself stays out of the
+    manifest; this line is what a bug report needs first)."""
+    import traceback
+
+    frames = traceback.extract_tb(e.__traceback__)
+    return f"{Path(frames[-1].filename).name}:{frames[-1].lineno} in {frames[-1].name}" if frames else "?"
+
+
 def run_job(job: dict) -> dict:
     """Run one job (a ``Job.to_dict``) in whatever process this is; returns its outcome as plain data:
     {"id", "state": "done" | "failed", "reason", "file", "wall_s", "cpu_s" (this process's CPU time),
@@ -306,7 +315,9 @@ def run_job(job: dict) -> dict:
         raise
     except Exception as e:  # noqa: BLE001 - one vehicle's failure, never the fleet's
         what = "" if isinstance(e, HybridCalibError) else "internal error (please report it with this vehicle's data): "
-        return {**base, "state": "failed", "reason": f"{what}{type(e).__name__}: {e}", "file": getattr(e, "path", None),
+        where = "" if isinstance(e, HybridCalibError) else f" [at {_where(e)}]"  # a bug: where it was met
+        return {**base, "state": "failed", "reason": f"{what}{type(e).__name__}: {e}{where}",
+                "file": getattr(e, "path", None),
                 "wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0, "result": None}
     return {**base, "state": "done", "reason": None, "file": None, "wall_s": time.perf_counter() - t0,
             "cpu_s": time.process_time() - c0, "result": str(path)}
