@@ -78,6 +78,31 @@ def _has_checkpoint(out: Path) -> bool:
         return False
 
 
+CACHE_KEYS = ("cache_dir", "depth_cache")  # --set keys naming a folder the run writes (at any depth: hybrid.cache_dir)
+
+
+def set_paths(args: argparse.Namespace) -> list[tuple[str, str]]:
+    """[(option, path)] of the folders a command's ``--set`` names for its caches (``CACHE_KEYS``); [] when the
+    ``--set`` items do not parse (the command says why)."""
+    from hybrid_calib.config import parse_overrides
+
+    try:
+        overrides = parse_overrides(getattr(args, "set", None) or getattr(args, "overrides", None) or [])
+    except Exception:  # noqa: BLE001 - a malformed --set is the command's own error, said by it
+        return []
+    found: list[tuple[str, str]] = []
+
+    def walk(d: dict, prefix: str) -> None:
+        for k, v in d.items():
+            if isinstance(v, dict):
+                walk(v, f"{prefix}{k}.")
+            elif k in CACHE_KEYS and isinstance(v, str) and v:
+                found.append((f"--set {prefix}{k}", v))
+
+    walk(overrides, "")
+    return found
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="hybrid-calib", description="Target-free radar-camera extrinsic calibration.")
@@ -112,8 +137,10 @@ def _run(args: argparse.Namespace, debug: bool) -> int:
             return int(args._run(args) or 0)
         check_out_dir(out)
         check_out_outside_data(out, getattr(args, "data", None), getattr(args, "version", None))
-        if args.command != "simulate":  # simulate's --out is the root it writes
-            check_out_not_in_dataset(out)
+        check_out_not_in_dataset(out, root_ok=args.command == "simulate")  # simulate's --out is the root it writes
+        for option, path in set_paths(args):  # caches named by --set: the same rule as --out, before anything runs
+            check_out_outside_data(path, getattr(args, "data", None), getattr(args, "version", None), option)
+            check_out_not_in_dataset(path, option)
         check_out_owner(out, args.command)
         if out is None:
             return int(args._run(args) or 0)

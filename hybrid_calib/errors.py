@@ -93,14 +93,26 @@ def _holds_version_folder(p: Path) -> bool:
         return False
 
 
-def check_out_not_in_dataset(out: str | Path | None, option: str = "--out") -> None:
+def check_out_not_in_dataset(out: str | Path | None, option: str = "--out", root_ok: bool = False) -> None:
     """``OptionError`` when the output folder ``out`` is a nuScenes root, or lies inside any root's version folder
     (a folder holding ``TABLE_FILES``) or its ``samples/`` / ``sweeps/``: whichever root, not only the one the run
     reads (an export into another root's version folder replaced its calibrated_sensor.json; a report page or a
-    cache landed among a dataset's files). Checked before the run takes its lock or creates the folder."""
+    cache landed among a dataset's files). Checked before the run takes its lock or creates the folder. ``root_ok``:
+    ``out`` may itself be a root (simulate's --out), but not lie inside one's data folders."""
     if out is None or str(out) == "":
         return
-    out = Path(out).resolve()
+    for form in _path_forms(out):
+        _check_not_in_dataset(form, option, root_ok)
+
+
+def _path_forms(path: str | Path) -> list[Path]:
+    """``path`` absolute as written and with its symlinks resolved (one or two paths): a root whose samples/ is a
+    symlink into a store holds ``ROOT/samples/x`` only as written, a symlinked output folder only resolved."""
+    written, resolved = Path(os.path.abspath(path)), Path(path).resolve()
+    return [written] if written == resolved else [written, resolved]
+
+
+def _check_not_in_dataset(out: Path, option: str, root_ok: bool) -> None:
     for p in (out, *out.parents):
         if _is_version_folder(p):
             raise OptionError(option, f"{out} is {'' if p == out else 'inside '}the nuScenes table folder {p} (it "
@@ -110,7 +122,7 @@ def check_out_not_in_dataset(out: str | Path | None, option: str = "--out") -> N
         if p.name in ("samples", "sweeps") and _holds_version_folder(p.parent):
             raise OptionError(option, f"{out} is inside the {p.name}/ folder of the nuScenes root {p.parent}: the "
                                       "outputs would lie among the dataset's sensor files; pass a folder outside it")
-    if _holds_version_folder(out):
+    if not root_ok and _holds_version_folder(out):  # simulate writes a root: its own, resumed or --overwrite
         raise OptionError(option, f"{out} is a nuScenes root (it holds a version folder with sample_data.json): the "
                                   "outputs would lie among the dataset's folders; pass a folder outside it (e.g. "
                                   f"{out.parent / (out.name + '-out')})")
@@ -122,9 +134,9 @@ def check_out_outside_data(out: str | Path | None, data, version: str | None, op
     files, and the run's own files would change the root's data stamp (its next run: "the data changed")."""
     if out is None or data is None:
         return
-    out = Path(out).resolve()
-    for root in data if isinstance(data, (list, tuple)) else [data]:
-        root = Path(root).resolve()
+    pairs = [(o, r) for d in (data if isinstance(data, (list, tuple)) else [data])
+             for o in _path_forms(out) for r in _path_forms(d)]
+    for out, root in pairs:  # each written / resolved form of the output against each of the root
         if out == root:  # its result.json, config.json and caches beside samples/ and the version folder
             raise OptionError(option, f"{out} is the data root itself: the outputs would lie among the dataset's "
                                       "folders; pass a folder outside it (e.g. "
@@ -132,6 +144,7 @@ def check_out_outside_data(out: str | Path | None, data, version: str | None, op
         for part in ([version] if version else []) + ["samples", "sweeps"]:
             inside = root / part
             if out == inside or inside in out.parents:
-                raise OptionError(option, f"{out} is inside the data root's {part}/ folder ({inside}): the outputs "
+                where = "" if out == inside else "inside "
+                raise OptionError(option, f"{out} is {where}the data root's {part}/ folder ({inside}): the outputs "
                                           "would lie among the dataset's files; pass a folder outside them (e.g. "
                                           f"{root.parent / (root.name + '-out')})")

@@ -81,3 +81,40 @@ def test_samples_and_vehicles_the_index_leaves_out_are_in_the_result(tiny):
     assert [s["token"] for s in drives["tiny"].index_skips] == ["sample1"]
     assert drives["tiny"].index_skips[0]["index"] is None and "RADAR_FRONT" in drives["tiny"].index_skips[0]["reason"]
     assert "n999" not in drives and "no frame" in unreadable["n999"] and "RADAR_FRONT" in unreadable["n999"]
+
+
+def test_simulate_writes_no_root_inside_another_and_caches_are_checked_in_every_command(tiny, tmp_path, capsys):
+    """Probe 18: simulate --out ROOT/v1.0-mini/simroot wrote a whole root among another's tables (and one under
+    samples/ changed that root's data stamp: its results read "computed from other data"); evaluate, train and
+    compare wrote --set depth_cache / cache_dir into data roots (only calibrate checked them); fleet failed every job
+    on them (exit 1) instead of refusing the option."""
+    before = _listing(tiny.root)
+    ck = "learned/checkpoints/small-sim-r1.json"
+    for argv in (["simulate", "--vehicles", "1", "--frames", "2", "--out", tiny.vdir / "simroot"],
+                 ["simulate", "--vehicles", "1", "--frames", "2", "--out", tiny.root / "samples" / "simroot"],
+                 ["evaluate", "--data", tiny.root, "--version", tiny.version, "--checkpoint", ck, "--out",
+                  tmp_path / "e", "--set", f"depth_cache={tiny.vdir / 'dc'}"],
+                 ["train", "--data", tiny.root, "--version", tiny.version, "--out", tmp_path / "t", "--set",
+                  f"depth_cache={tiny.root / 'sweeps' / 'dc'}"],
+                 ["compare", "--data", tiny.root, "--version", tiny.version, "--out", tmp_path / "c", "--set",
+                  f"hybrid.cache_dir={tiny.root / 'samples' / 'nc'}"],
+                 ["fleet", "--data", tiny.root, "--version", tiny.version, "--out", tmp_path / "f", "--set",
+                  f"depth_cache={tiny.vdir / 'dc'}"]):
+        expect_cli_error(argv, capsys, "--set " if "--set" in argv else "--out", "folder")
+    assert _listing(tiny.root) == before and not any((tmp_path / d).exists() for d in "etcf")
+
+
+def test_a_root_whose_samples_folder_is_a_symlink_is_guarded_too(tiny, tmp_path):
+    """Probe 18: with ROOT/samples -> ../store/samples, --out ROOT/samples wrote result.json among the sensor files:
+    both checks resolved the symlink first, and the resolved path no longer lay under the root."""
+    from hybrid_calib.errors import check_out_outside_data
+
+    store = tmp_path / "store"
+    store.mkdir()
+    (tiny.root / "samples").rename(store / "samples")
+    (tiny.root / "samples").symlink_to(store / "samples")
+    for out in (tiny.root / "samples", tiny.root / "samples" / "x"):
+        with pytest.raises(OptionError, match="samples/ folder"):
+            check_out_not_in_dataset(out)
+        with pytest.raises(OptionError, match="samples/ folder"):
+            check_out_outside_data(out, tiny.root, tiny.version)

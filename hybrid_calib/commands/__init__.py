@@ -21,6 +21,15 @@ def process_count(text: str) -> int:
     return value
 
 
+def cluster_workers(text: str) -> int:
+    """argparse ``type``: parallel jobs of a fleet, 1..100000 (a Ray cluster's CPUs; on this machine the command
+    allows ``MAX_PROCESSES``)."""
+    value = _int_at_least(text, 1)
+    if value > 100_000:
+        raise argparse.ArgumentTypeError(f"must be at most 100000, got {value}")
+    return value
+
+
 def retry_count(text: str) -> int:
     """argparse ``type``: retries of a failed job, 0..100 (each retry reruns a job that crashed)."""
     value = _int_at_least(text, 0)

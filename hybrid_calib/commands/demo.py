@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from hybrid_calib.calib.covariance import status_kind
-from hybrid_calib.config import merge, parse_overrides, save_json_atomic, to_dict
+from hybrid_calib.config import merge, parse_overrides, require_ranges, save_json_atomic, to_dict
 
 HELP = "simulate a small drive, draw radar points on the image, calibrate radar->camera, report"
 
@@ -54,6 +54,9 @@ class DemoConfig:
             raise ValueError(f"DemoConfig.engine={self.engine!r}; valid: local, process")
         if self.fleet_frames < 2 or self.workers < 1:
             raise ValueError(f"DemoConfig.fleet_frames={self.fleet_frames} (>= 2) / workers={self.workers} (>= 1)")
+        require_ranges(self, {"frames": "[2, 1e5]", "image_scale": "[0.01, 4]", "window": "[1, 1e9]",
+                              "threads": "[1, 256]", "fleet_frames": "[2, 1e5]", "knock_deg": "[-90, 90]",
+                              "workers": "[1, 256]"})
 
 
 FLEET = {  # demo fleet vehicle -> SimConfig overrides (the knock is added by fleet_sim_configs)

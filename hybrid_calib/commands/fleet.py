@@ -6,6 +6,8 @@ import argparse
 from pathlib import Path
 
 from hybrid_calib.commands import (
+    MAX_PROCESSES,
+    cluster_workers,
     given_flags,
     nonnegative_int,
     process_count,
@@ -31,7 +33,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--address", help="Ray cluster to join, e.g. HEAD:6379 (every node: this package, and the roots "
                                      "and --out on a shared file system at the same paths; default: start a local "
                                      "Ray of --workers CPUs)")
-    p.add_argument("--workers", type=process_count, default=1,
+    p.add_argument("--workers", type=cluster_workers, default=1,
                    help="parallel jobs (default: 1; with --address: at least the cluster's CPUs / --threads)")
     p.add_argument("--threads", type=process_count, default=1, help="torch / BLAS threads per worker (default: 1)")
     p.add_argument("--ray-temp", type=Path, help="temp dir of a local Ray (default: OUT/ray; keep it short)")
@@ -132,6 +134,9 @@ def check_options(args: argparse.Namespace) -> None:
     if args.workers > 1 and args.engine == "local":
         raise OptionError("--workers", f"{args.workers} parallel jobs need --engine process or ray; --engine local "
                                        "runs one job at a time: pass --engine process, or drop --workers")
+    if args.workers > MAX_PROCESSES and args.address is None:  # a cluster's CPUs may be more than one machine's
+        raise OptionError("--workers", f"{args.workers} processes on this machine: at most {MAX_PROCESSES} (pass the "
+                                       "cores to use); more only with --engine ray --address (a cluster)")
 
 
 def write_fleet_pages(summary: dict, out: Path) -> Path | None:

@@ -34,7 +34,7 @@ class FleetOptions:
     def __post_init__(self):
         from hybrid_calib.config import require_ranges
 
-        require_ranges(self, {"workers": "[1, 256]", "threads": "[1, 256]", "retries": "[0, 100]",
+        require_ranges(self, {"workers": "[1, 1e5]", "threads": "[1, 256]", "retries": "[0, 100]",
                               "object_store_mb": "[50, 1e6]", "alpha": "(0, 1)"})
 
 

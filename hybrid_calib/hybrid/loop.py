@@ -735,13 +735,18 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     traj, mon = _run_learned(runner, drive, T0, conf, tr, motion, frames)
     ood = decide(tr.scores, conf.ood, runner.ood_note, unread=tr.unread)
     ood["dropped"] = sum("ood_score" in s for s in tr.skipped)
-    if ood["inconclusive"]:  # too few frames in domain: every frame, nothing dropped, and say so (hybrid.ood)
+    total = ood["frames"] + ood.get("unread", 0)  # the frames that did not read count too (hybrid.ood.decide)
+    if ood["inconclusive"] and not ood["dropped"]:  # nothing was dropped: the pass already used every frame
+        ood.update(rerun_in_domain=ood["in_domain"], note=(
+            f"too few frames in domain ({ood['in_domain']} of {total}, the scores above; none was dropped): the "
+            "estimate uses every frame that read and is not trusted"))
+    elif ood["inconclusive"]:  # too few frames in domain: every frame, nothing dropped, and say so (hybrid.ood)
         tr = _Trace(drop=False)
         traj, mon = _run_learned(runner, drive, T0, conf, tr, motion, frames)
         # the rerun's passes start elsewhere (no frame dropped), so their scores differ: frame_rows hold them
         rerun_in = sum(not out_of_domain(x, conf.ood) for x in tr.scores)
         ood.update(dropped=0, rerun_in_domain=int(rerun_in), note=(
-            f"too few frames in domain on the pass that drops them ({ood['in_domain']} of {ood['frames']}, the "
+            f"too few frames in domain on the pass that drops them ({ood['in_domain']} of {total}, the "
             "scores above): the estimate uses every frame and is not trusted; on that every-frame pass "
             f"{rerun_in} of {len(tr.scores)} frames scored in domain (the scores in frame_rows)"))
     n_priors = None

@@ -34,6 +34,12 @@ class OODPolicy:
     min_in_domain_fraction: float = 0.8  # fewer in-domain frames than this fraction: inconclusive
     min_in_domain_frames: int = 3  # fewer in-domain frames than this: inconclusive
 
+    def __post_init__(self):
+        from hybrid_calib.config import require_ranges
+
+        require_ranges(self, {"threshold": "(0, 1e6]", "min_in_domain_fraction": "[0, 1]",
+                              "min_in_domain_frames": "[0, 1e9]"})
+
 
 def json_score(score: float) -> float | None:
     """A score for JSON: None when unavailable (NaN)."""
