@@ -308,7 +308,9 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
             # calibration, sim_vehicle.json, since its calibrated_sensor holds the simulator's truth)
             T_ref = ds.reference_of(next(f for f in ds.frames if f.vehicle == name
                                          and f.radar_sd["calibrated_sensor_token"] == tok))
-            new.append((tok, T_old, T_cams[0] @ _keep_axes(T_ref, T_est, kept)))
+            # the change is measured from the reference too (the tables' own record on a real root; on a simulated
+            # one its factory calibration, as the verdict: the record there holds the truth)
+            new.append((tok, T_cams[0] @ T_ref, T_cams[0] @ _keep_axes(T_ref, T_est, kept)))
         if not why and any(not same_calibration(se3_inverse(Tc) @ Tr, se3_inverse(mounts[0][0]) @ mounts[0][1])
                            for Tc, Tr in mounts[1:]):
             why = ("not exported: its tables hold more than one radar-camera calibration along the drive (a mount "
@@ -316,11 +318,11 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
         if why:
             entry["why"] = why
             continue
-        for tok, T_old, T_new in new:
+        for tok, T_base, T_new in new:
             before = {k: exp.table[index[tok]][k] for k in ("translation", "rotation")}
             exp.table[index[tok]] = {**exp.table[index[tok]], **_record(T_new)}
             entry["records"].append({"token": tok, "before": before, "after": _record(T_new),
-                                     "change": _change(T_new, T_old)})
+                                     "change": _change(T_new, T_base)})
         cov = np.asarray(vr.final.cov, np.float64)
         entry.update(exported=True, std_ego=_std_ego(new[0][2], cov), std_camera=_std_camera(T_est, cov, kept),
                      tables_kept=[AXIS_WORDS[i] for i in kept],
