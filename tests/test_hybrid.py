@@ -583,3 +583,29 @@ def test_a_drive_that_did_not_move_is_not_trusted(tmp_path):
         said[speed] = standstill_reason(ds, Drive("tiny", idx, np.eye(4), np.eye(4), simulated=False))
     assert said[0.0].startswith("the vehicle did not move (its ego poses travel 0.00 m over 3 frames)")
     assert said[15.0] == ""  # 15 m/s for a second: it moved
+
+
+def test_a_straight_road_is_named_in_the_hybrids_status():
+    """Probe 16: no hybrid status named a straight road, the oracle's always did (the along-road rule of
+    calib.degeneracy on the reflectors the network matched, its thresholds)."""
+    from hybrid_calib.calib.degeneracy import RowGeometry
+    from hybrid_calib.calib.result import Estimate, FrameEstimate
+    from hybrid_calib.hybrid.loop import HybridConfig, with_road_words
+
+    def traj(status):
+        est = Estimate(np.eye(4), np.eye(6) * 1e-4, np.ones(6), status)
+        return [FrameEstimate(0, "f", 0, est, 1, 1, float("nan"), None, None, False, 0.0, 0.0)]
+
+    g = np.random.default_rng(0)
+    road, town = RowGeometry(), RowGeometry()
+    for _ in range(5):  # kerbs 4 m either side, 5-60 m ahead; a town: reflectors all around
+        x = g.uniform(5, 60, 40)
+        road.add(np.column_stack([x, np.where(np.arange(40) % 2, 4.0, -4.0) + g.normal(0, 0.2, 40), 0 * x]))
+        town.add(np.column_stack([x, g.uniform(-25, 25, 40), 0 * x]))
+    conf = HybridConfig()
+    assert with_road_words(traj("ok"), town, conf)[-1].estimate.status == "ok"
+    assert with_road_words(traj("ok"), road, conf)[-1].estimate.status.startswith("weak: all the reflectors the "
+                                                                                   "network matched lie along the road")
+    weak = with_road_words(traj("weak: vertical offset is poorly observed"), road, conf)[-1].estimate.status
+    assert weak.startswith("weak: vertical offset is poorly observed; all the reflectors") and "% on two lines" in weak
+    assert with_road_words(traj("inconclusive: why"), road, conf)[-1].estimate.status == "inconclusive: why"

@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from hybrid_calib.calib.covariance import NOT_CONVERGED, analyse_information
+from hybrid_calib.calib.degeneracy import RowGeometry
 from hybrid_calib.calib.drift import DriftConfig, camera_side_note, reference_test, unconverged, with_mount_step
 from hybrid_calib.calib.ego_doppler import drive_sweeps
 from hybrid_calib.calib.lever_arm import LeverArmConfig, apply_forward, refusal
@@ -323,6 +324,9 @@ class _Trace:
     scores: list = field(default_factory=list)
     priors: int = 0  # network priors the hybrid inflated by its drive-common error (``_hybrid``)
     unread: int = 0  # frames whose inputs did not read (the network never ran): they count against the domain test
+    # where the reflectors the network matched lie (its iteration-0 rows, kept frames): the status names a straight
+    # road as the oracle's does (``with_road_words``)
+    geometry: RowGeometry = field(default_factory=RowGeometry)
 
     def unreadable(self, runner: NetworkRunner, i: int) -> None:
         """Record frame ``i`` as skipped: its files did not read (``runner.bad_reason``)."""
@@ -336,6 +340,7 @@ class _Trace:
         if self.drop and out_of_domain(score, conf.ood):
             self.skipped.append(skip_record(i, runner.token(i), score, conf.ood))
             return False
+        self.geometry.add(out.rows_first.points_radar)
         return True
 
 
@@ -369,6 +374,28 @@ def with_cov(f: FrameEstimate, cov: np.ndarray, conf: HybridConfig, T: np.ndarra
     notes = [f.estimate.status[i:].split(")")[0] for key in (NOT_CONVERGED, "recovering")
              if (i := f.estimate.status.find(key)) >= 0]
     return dataclasses.replace(f, estimate=_estimate(f.T if T is None else T, cov, conf, "; ".join(notes)))
+
+
+def with_road_words(traj: list[FrameEstimate], geometry: RowGeometry, conf: HybridConfig) -> list[FrameEstimate]:
+    """The trajectory with its last status naming a straight road (``calib.degeneracy.along_road`` on the reflectors
+    the network matched, the oracle's rule and thresholds): an "ok" becomes "weak", a "weak" gets the words; an
+    untrusted status is left as it is. Words only: the drive-common error term already widens the covariance for a
+    network error that does not average out (probe 16: no hybrid status named a straight road; the oracle's all do)."""
+    from hybrid_calib.calib.covariance import status_kind
+    from hybrid_calib.calib.degeneracy import along_road
+
+    frac = along_road(geometry, conf.window.covariance.degeneracy)
+    if frac is None or not traj:
+        return traj
+    last = traj[-1]
+    words = (f"all the reflectors the network matched lie along the road ({100 * frac:.0f} % on two lines parallel "
+             "to the travel direction): every frame shows it one kind of scene, so its error there does not average "
+             "out over the drive")
+    kind = status_kind(last.estimate.status)
+    if kind not in ("ok", "weak"):
+        return traj
+    status = f"weak: {words}" if kind == "ok" else f"{last.estimate.status}; {words}"
+    return [*traj[:-1], dataclasses.replace(last, estimate=dataclasses.replace(last.estimate, status=status))]
 
 
 def sweep_files_record(frames, indices) -> dict:
@@ -768,6 +795,7 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     yaw_check = None
     if conf.method == "hybrid":
         traj, yaw_check = with_yaw_check(traj, drive, conf, mon)
+        traj = with_road_words(traj, tr.geometry, conf)
     res = VehicleResult(drive.vehicle, traj[-1].estimate, traj, skipped=drive.index_skips + tr.skipped,
                         n_frames=len(traj))
     res.lidar = lidar
