@@ -33,6 +33,7 @@ from hybrid_calib.calib.schedule import frame_information, robust_solve
 from hybrid_calib.data.files import NPZ_ERRORS
 from hybrid_calib.geometry import local
 from hybrid_calib.hybrid.measurement import MeasurementConfig
+from hybrid_calib.metrics import nees
 
 UNITS = np.array([np.degrees(1.0)] * 3 + [100.0] * 3)  # tangent [rad, m] -> [deg, cm]
 RAYLEIGH_MEDIAN = float(np.sqrt(2 * np.log(2)))
@@ -116,8 +117,8 @@ def fit_shared_std(xi: np.ndarray, covs: np.ndarray, trim: float = 95.0) -> np.n
     p0 = np.log(np.maximum(np.std(x, axis=0), floor))
     p = minimize(nll, p0, args=(x, C), method="Nelder-Mead", options={"maxiter": 4000, "xatol": 1e-4}).x
     M = C + np.diag(np.exp(2 * p))
-    nees = np.einsum("fi,fi->f", x, np.linalg.solve(M, x[..., None])[..., 0])
-    keep = nees <= np.percentile(nees, trim)
+    nees_f = nees(x, M)
+    keep = nees_f <= np.percentile(nees_f, trim)
     p = minimize(nll, p, args=(x[keep], C[keep]), method="Nelder-Mead", options={"maxiter": 4000, "xatol": 1e-4}).x
     std = np.exp(p)
     return np.where(std < floor, 0.0, std)
@@ -147,12 +148,12 @@ def fit_drive_scale(errors, covs, drive_std, target: float = 6.0) -> float:
     C0 = [np.asarray(c, np.float64) - D for c in covs]
     es = [np.asarray(e, np.float64) for e in errors]
 
-    def nees(k):
-        return float(np.mean([e @ np.linalg.solve(C + k * k * D, e) for e, C in zip(es, C0)]))
+    def nees_at(k):
+        return float(np.mean([nees(e, C + k * k * D) for e, C in zip(es, C0)]))
 
-    if not es or not np.any(D) or nees(1.0) <= target:
+    if not es or not np.any(D) or nees_at(1.0) <= target:
         return 1.0
-    return float(brentq(lambda k: nees(k) - target, 1.0, 100.0)) if nees(100.0) < target else 100.0
+    return float(brentq(lambda k: nees_at(k) - target, 1.0, 100.0)) if nees_at(100.0) < target else 100.0
 
 
 def fit_from_statistics(st: dict, rows: str, sigma_scale: float) -> dict:
@@ -259,7 +260,7 @@ def fit_measurement(roots, version: str, checkpoint: str, out: str | Path, start
         fitted["values"]["drive_std"] = [float(scale * v) for v in old]
         fitted["summary"]["drive_scale"] = scale
         extra = np.diag((scale ** 2 - 1) * old ** 2)  # the reported covariances with the scaled term
-        errs = [{**e, "nees": float(xi @ np.linalg.solve(np.asarray(c) + extra, xi))}
+        errs = [{**e, "nees": nees(xi, np.asarray(c) + extra)}
                 for e, (xi, c) in zip(errs, finals)]
         fitted["validation"] = {
             "rot_mean_deg": float(np.mean([e["rot_mean_deg"] for e in errs])),
@@ -287,7 +288,7 @@ def fit_measurement(roots, version: str, checkpoint: str, out: str | Path, start
         fitted["validation_with_motion"] = {
             "rot_mean_deg": float(np.mean([e["rot_mean_deg"] for e in errs])),
             "trans_mean_cm": float(np.mean([e["trans_mean_cm"] for e in errs])),
-            "nees_mean_before": float(np.mean([xi @ np.linalg.solve(np.asarray(c), xi) for xi, c in finals])),
-            "nees_mean": float(np.mean([xi @ np.linalg.solve(np.asarray(c) + extra, xi) for xi, c in finals])),
+            "nees_mean_before": float(np.mean([nees(xi, c) for xi, c in finals])),
+            "nees_mean": float(np.mean([nees(xi, np.asarray(c) + extra) for xi, c in finals])),
             "vehicles": len(errs)}
     return {"chosen": cands[chosen]["values"], "candidates": cands}

@@ -216,7 +216,8 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
               "the tables before trusting this calibration", file=sys.stderr)
     keep = None if conf.split == "all" else set(split_indices(frames, conf.split, conf.split_options))
     drives, outside_split = {}, []
-    for vehicle, idx in sorted(frames.frames_by_vehicle().items()):
+    by_vehicle = frames.frames_by_vehicle()
+    for vehicle, idx in sorted(by_vehicle.items()):
         if conf.vehicles is not None and vehicle not in conf.vehicles:
             continue
         if keep is not None:
@@ -248,9 +249,8 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
                                 _end_truth(frames, idx, static) if simulated else None,
                                 [{"index": None, "token": s.token, "reason": s.reason}
                                  for s in getattr(frames, "lacking_keyframes", {}).get(vehicle, [])])
-    have = set(frames.frames_by_vehicle())
     for vehicle, skips in sorted(getattr(frames, "lacking_keyframes", {}).items()):  # a vehicle of no frame at all
-        if vehicle in have or vehicle in drives or (conf.vehicles is not None and vehicle not in conf.vehicles):
+        if vehicle in by_vehicle or vehicle in drives or (conf.vehicles is not None and vehicle not in conf.vehicles):
             continue
         reason = (f"vehicle {vehicle}: no frame: none of its {len(skips)} sample(s) has both keyframes the run reads "
                   f"(first: {skips[0].reason}); hybrid-calib inspect lists its channels")
@@ -265,7 +265,7 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
                         "--split all, or --split-by time, or other --val-fraction / --test-fraction", path=str(data))
     # a wanted vehicle none of whose frames reads is in ``unreadable`` with its reason, not "not in the data"
     if conf.vehicles is not None and (missing := sorted(set(conf.vehicles) - set(drives) - set(unreadable or {}))):
-        present = sorted(frames.frames_by_vehicle())
+        present = sorted(by_vehicle)
         if in_data := [v for v in missing if v in present]:  # present, but no frame of the split
             opts = f" (split options {conf.split_options})" if conf.split_options else ""
             raise DataError(f"vehicle(s) {in_data} have no frame in split {conf.split!r}{opts}; pass --split all or "

@@ -118,7 +118,7 @@ def ood_passes(runner, indices: list[int], base: np.ndarray, start_range: str, s
     signals), score (NaN without ``export.ood``), rotation / translation error of the final estimate
     against ``base`` (deg, cm) and its NEES with the checkpoint's ``cov_scale``."""
     from hybrid_calib.geometry import local
-    from hybrid_calib.metrics import extrinsic_error
+    from hybrid_calib.metrics import extrinsic_error, nees
     from hybrid_calib.perturbation import perturbed_start, vehicle_rng
 
     g = vehicle_rng(seed, vehicle, "ood")
@@ -147,5 +147,5 @@ def ood_passes(runner, indices: list[int], base: np.ndarray, start_range: str, s
         recs.append({"index": int(i), "token": runner.token(i), "descriptor": out.ood_descriptor,
                      "signals": out.ood_signals, "score": runner.ood_score(out),
                      "rot_deg": float(err.geodesic_deg), "trans_cm": float(err.trans_norm_cm),
-                     "nees": float(e @ np.linalg.solve(runner.network_cov(out), e))})
+                     "nees": nees(e, runner.network_cov(out))})
     return recs
