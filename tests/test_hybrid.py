@@ -227,6 +227,10 @@ def test_every_method_starts_a_vehicle_from_the_same_extrinsic(sim_root, tmp_pat
                                                               "cache_dir": str(tmp_path / "cache")})
         starts[m] = np.asarray(v.start["T_cam_radar"])
         assert v.method == m and v.vehicle == "sim-veh-001"
+        # what the method does not measure is prior-pinned in its verdict: a learned method's roll, pitch and height
+        # (loop.LEARNED_NOT_MEASURED), the oracle's pitch and height (the elevation prior; compare's oracle lost them)
+        pinned = {a for a, x in v.drift["axes"].items() if x["prior_pinned"]}
+        assert pinned == ({"pitch", "vertical offset"} if m == "oracle" else {"pitch", "roll", "vertical offset"}), m
     for m, T in starts.items():
         np.testing.assert_array_equal(T, starts["hybrid"], err_msg=m)
     # the oracle pipeline of `calibrate` (all vehicles, one rng) draws the same start for this vehicle
@@ -609,3 +613,25 @@ def test_a_straight_road_is_named_in_the_hybrids_status():
     weak = with_road_words(traj("weak: vertical offset is poorly observed"), road, conf)[-1].estimate.status
     assert weak.startswith("weak: vertical offset is poorly observed; all the reflectors") and "% on two lines" in weak
     assert with_road_words(traj("inconclusive: why"), road, conf)[-1].estimate.status == "inconclusive: why"
+
+
+def test_what_a_learned_method_does_not_measure_is_named_in_its_status():
+    """Session 22: the hybrid's roll and pitch moved by at most 0.18 deg whatever the radar's tilt (1.5-2 deg in roll
+    and / or pitch, simulated, same seeds), and its height is the start's; probe 16 saw a pitched radar read "differs
+    by 0.07 deg +- 0.82 deg" with a status naming only offsets. The status names the three prior-pinned, each once."""
+    from hybrid_calib.calib.result import Estimate, FrameEstimate
+    from hybrid_calib.hybrid.loop import with_prior_words
+
+    def traj(status):
+        est = Estimate(np.eye(4), np.eye(6) * 1e-4, np.array([0.8, 0.3, 0.7, 2.0, 14.0, 9.0]), status)
+        return [FrameEstimate(0, "f", 0, est, 1, 1, float("nan"), None, None, False, 0.0, 0.0)]
+
+    ok = with_prior_words(traj("ok"))[-1].estimate.status
+    assert ok.startswith("weak: roll, pitch and vertical offset are prior-pinned, not measured by this drive (")
+    assert "std roll 0.7 deg, pitch 0.8 deg, vertical offset 14 cm" in ok and "tilted or raised" in ok
+    named = "weak: vertical offset (translation along camera y) is prior-pinned, not measured (std 14 cm)"
+    weak = with_prior_words(traj(named))[-1].estimate.status
+    assert weak.startswith(named + "; roll and pitch are prior-pinned") and weak.count("vertical offset") == 1
+    assert "the vertical offset is the start's" not in weak
+    assert with_prior_words(traj("inconclusive: why"))[-1].estimate.status == "inconclusive: why"
+    assert with_prior_words([]) == []

@@ -219,7 +219,8 @@ def _fmt(x: float, unit: str) -> str:
     return f"{x:.2g} {unit}" if abs(x) < 0.1 else f"{x:.2f} {unit}" if abs(x) < 10 else f"{x:.0f} {unit}"
 
 
-def _and(names: list[str]) -> str:
+def join_and(names: list[str]) -> str:
+    """"a", "a and b", "a, b and c"."""
     return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
 
 
@@ -251,7 +252,7 @@ def _verdict(axes: list[AxisCheck]) -> tuple[str, str]:
     unchecked = [a for a in axes if a.decision == "undecided" and a not in blocking]
     note = ""
     if unchecked:
-        note = (f"; {_and([a.name for a in unchecked])} not checked: prior-pinned "
+        note = (f"; {join_and([a.name for a in unchecked])} not checked: prior-pinned "
                 f"(std {', '.join(_fmt(a.std, a.unit) for a in unchecked)}; a 2D radar does not observe "
                 f"{'it' if len(unchecked) == 1 else 'them'})")
     if not blocking:
