@@ -43,8 +43,9 @@ def simulate_test_drives(out: Path, vehicles: int, frames: int, scenarios: dict[
     return roots
 
 
-def check(summary: dict) -> dict:
-    m = summary["methods"]
+def check(summary) -> dict:
+    """Issue 9's targets of a ``compare.CompareResult`` (value, met)."""
+    m = {k: v.to_dict() for k, v in summary.methods.items()}
     h = m.get("hybrid")
     if h is None:
         return {}

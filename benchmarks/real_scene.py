@@ -110,10 +110,10 @@ def loop_methods(data: Path, version: str, ckpt: Path, seeds: int, split: str, s
     res = {}
     for m in methods:
         rows = [_trial_row(vr) for vr in load_trials(out / "compare-R1", m, seeds)]
-        s = summary["methods"][m]
-        res[m] = {"mean": s["mean"], "median": s["median"], "consistency": s["consistency"],
-                  "not_ok_fraction": s["not_ok_fraction"], "ms_per_frame": s["ms_per_frame"],
-                  "frames_mean": s["frames_mean"], "trials": rows,
+        s = summary.methods[m]
+        res[m] = {"mean": s.mean, "median": s.median, "consistency": s.consistency,
+                  "not_ok_fraction": s.not_ok_fraction, "ms_per_frame": s.ms_per_frame,
+                  "frames_mean": s.frames_mean, "trials": rows,
                   "flagged": sum(r["flag_ok_outside_3sigma"] for r in rows)}
     return res
 

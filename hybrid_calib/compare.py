@@ -83,11 +83,56 @@ def trials_not_asked(out: Path, methods: tuple[str, ...], trials: int) -> list[s
                   if p.stem.isdigit() and (p.parent.name, int(p.stem)) not in asked)
 
 
-def run_trials(roots: list, version: str, out: Path, conf: CompareConfig, progress: bool = True) -> dict:
-    """Step 1-2 of the module doc. Bad data does not stop the comparison: returns ``{"vehicles_left_out":
-    {vehicle: reason} (none of its frames reads), "trials_failed": [{"trial", "method", "vehicle",
-    "reason"}], "trials_kept": n (finished by an earlier run), "trials_run": n}`` (a failed trial writes no file,
-    so a rerun tries it again)."""
+@dataclass(frozen=True)
+class TrialsRun:
+    """What ``run_trials`` did. Bad data does not stop the comparison: a failed trial writes no file, so a rerun
+    tries it again."""
+
+    vehicles_left_out: dict[str, str]  # vehicle (or "every vehicle of ROOT") -> why none of its frames reads
+    trials_failed: tuple[dict, ...]  # {"trial", "method", "vehicle", "reason"}
+    trials_kept: int  # finished by an earlier run (same data, network and options)
+    trials_run: int
+
+
+@dataclass(frozen=True)
+class MethodSummary:
+    """The table row of one method over its trials (module doc, step 3). Errors: ``metrics.METRIC_KEYS`` (deg, cm)."""
+
+    trials: int
+    mean: dict[str, float]
+    median: dict[str, float]
+    consistency: dict  # {"n", "nees_mean", "nees_median", "coverage_95"} of the final estimates (dof 6)
+    consistency_per_root: dict[str, dict]  # the same per root (scenario), by its label
+    not_ok_fraction: float  # trials whose status is not "ok"
+    inconclusive_fraction: float
+    ms_per_frame: float | None  # CPU wall time per frame (hybrid: network + window)
+    frames_mean: float
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+@dataclass(frozen=True)
+class CompareResult:
+    """What ``compare`` returns; ``to_dict`` is ``OUT/compare.json``."""
+
+    range: str
+    trials: int
+    roots: tuple[str, ...]
+    command: str
+    config: dict  # compare_config.json: the data, network and options the trials ran with
+    methods: dict[str, MethodSummary]  # the methods with at least one finished trial
+    run: TrialsRun
+
+    def to_dict(self) -> dict:
+        return {"range": self.range, "trials": self.trials, "roots": list(self.roots), "command": self.command,
+                "config": self.config, "methods": {m: s.to_dict() for m, s in self.methods.items()},
+                "vehicles_left_out": self.run.vehicles_left_out, "trials_failed": list(self.run.trials_failed),
+                "trials_kept": self.run.trials_kept, "trials_run": self.run.trials_run}
+
+
+def run_trials(roots: list, version: str, out: Path, conf: CompareConfig, progress: bool = True) -> TrialsRun:
+    """Step 1-2 of the module doc."""
     from tqdm import tqdm
 
     hconf = dataclasses.replace(conf.hybrid, start=conf.range, progress=False,
@@ -128,8 +173,7 @@ def run_trials(roots: list, version: str, out: Path, conf: CompareConfig, progre
                            "reason": f"computed, but its trial file could not be written ({e}); rerun to compute it "
                                      "again once the path is free"})
     kept = conf.trials * len(conf.methods) - len(todo)
-    return {"vehicles_left_out": left_out, "trials_failed": failed, "trials_kept": kept,
-            "trials_run": len(todo) - len(failed)}
+    return TrialsRun(left_out, tuple(failed), kept, len(todo) - len(failed))
 
 
 def load_trials(out: Path, method: str, trials: int) -> list[VehicleResult]:
@@ -166,7 +210,7 @@ def _consistency(nees: np.ndarray) -> dict:
             "coverage_95": float(np.mean(nees < CHI2_6_95))}
 
 
-def summarize_method(results: list[VehicleResult], labels: dict[str, str] | None = None) -> dict:
+def summarize_method(results: list[VehicleResult], labels: dict[str, str] | None = None) -> MethodSummary:
     """The table row of one method over its trials (module doc, step 3); ``labels``: root (as its trials record it)
     -> its name in the per-root rows (``data.files.root_labels``; default the folder name)."""
     errs = [r.error for r in results]
@@ -180,20 +224,20 @@ def summarize_method(results: list[VehicleResult], labels: dict[str, str] | None
         net = {row["frame_id"]: row.get("network_ms", 0.0) for row in r.frame_rows}
         ms += [f.solve_ms + f.cov_ms + (net.get(f.frame_id, 0.0) if r.method == "hybrid" else 0.0)
                for f in r.trajectory]
-    return {
-        "trials": len(results),
-        "mean": {k: float(np.mean([e[k] for e in errs])) for k in METRIC_KEYS},
-        "median": {k: float(np.median([e[k] for e in errs])) for k in METRIC_KEYS},
-        "consistency": _consistency(nees),
-        "consistency_per_root": {k: _consistency(np.array(v)) for k, v in sorted(per_root.items())},
-        "not_ok_fraction": float(np.mean([status_kind(r.final.status) != "ok" for r in results])),
-        "inconclusive_fraction": float(np.mean([status_kind(r.final.status) == "inconclusive" for r in results])),
-        "ms_per_frame": float(np.mean(ms)) if ms else None,
-        "frames_mean": float(np.mean([r.n_frames for r in results])),
-    }
+    return MethodSummary(
+        trials=len(results),
+        mean={k: float(np.mean([e[k] for e in errs])) for k in METRIC_KEYS},
+        median={k: float(np.median([e[k] for e in errs])) for k in METRIC_KEYS},
+        consistency=_consistency(nees),
+        consistency_per_root={k: _consistency(np.array(v)) for k, v in sorted(per_root.items())},
+        not_ok_fraction=float(np.mean([status_kind(r.final.status) != "ok" for r in results])),
+        inconclusive_fraction=float(np.mean([status_kind(r.final.status) == "inconclusive" for r in results])),
+        ms_per_frame=float(np.mean(ms)) if ms else None,
+        frames_mean=float(np.mean([r.n_frames for r in results])),
+    )
 
 
-def _markdown(summary: dict, conf: CompareConfig, command: str) -> str:
+def _markdown(summary: CompareResult, conf: CompareConfig, command: str) -> str:
     lines = [f"# compare: range {conf.range}, {conf.trials} trials", "", f"Command: `{command}`", "",
              "Errors against the truth (simulated) or the tables (real roots); rotation in degrees, translation "
              "in cm. Time per frame: CPU wall time (hybrid: network + window; pure: the network pass is "
@@ -202,8 +246,8 @@ def _markdown(summary: dict, conf: CompareConfig, command: str) -> str:
         lines += [f"## {stat} over trials", "",
                   "| method | R.Mean | Roll | Pitch | Yaw | Geodesic | T.Mean | X | Y | Z | Norm |",
                   "|---|---|---|---|---|---|---|---|---|---|---|"]
-        for m, s in summary["methods"].items():
-            e = s[stat]
+        for m, s in summary.methods.items():
+            e = getattr(s, stat)
             lines.append(f"| {m} | {e['rot_mean_deg']:.3f} | {e['roll_deg']:.3f} | {e['pitch_deg']:.3f} | "
                          f"{e['yaw_deg']:.3f} | {e['geodesic_deg']:.3f} | {e['trans_mean_cm']:.2f} | {e['x_cm']:.2f} | "
                          f"{e['y_cm']:.2f} | {e['z_cm']:.2f} | {e['trans_norm_cm']:.2f} |")
@@ -211,24 +255,24 @@ def _markdown(summary: dict, conf: CompareConfig, command: str) -> str:
     lines += ["## covariance and status", "",
               "| method | trials | mean NEES (6 if honest) | median NEES | coverage of the 95 % ellipsoid | not ok | "
               "ms/frame | frames |", "|---|---|---|---|---|---|---|---|"]
-    for m, s in summary["methods"].items():
-        c = s["consistency"]
-        ms = "-" if s["ms_per_frame"] is None else f"{s['ms_per_frame']:.0f}"
-        lines.append(f"| {m} | {s['trials']} | {c['nees_mean']:.2f} | {c['nees_median']:.2f} | "
-                     f"{100 * c['coverage_95']:.0f} % | {100 * s['not_ok_fraction']:.0f} % | {ms} | "
-                     f"{s['frames_mean']:.0f} |")
-    short = [f"{m}: {summary['methods'][m]['trials'] if m in summary['methods'] else 0} of {conf.trials}"
-             for m in conf.methods if m not in summary["methods"] or summary["methods"][m]["trials"] < conf.trials]
+    for m, s in summary.methods.items():
+        c = s.consistency
+        ms = "-" if s.ms_per_frame is None else f"{s.ms_per_frame:.0f}"
+        lines.append(f"| {m} | {s.trials} | {c['nees_mean']:.2f} | {c['nees_median']:.2f} | "
+                     f"{100 * c['coverage_95']:.0f} % | {100 * s.not_ok_fraction:.0f} % | {ms} | "
+                     f"{s.frames_mean:.0f} |")
+    done = {m: s.trials for m, s in summary.methods.items()}
+    short = [f"{m}: {done.get(m, 0)} of {conf.trials}" for m in conf.methods if done.get(m, 0) < conf.trials]
     if short:  # the rows are then not over the same trials: said where they are read
         lines += ["", f"**Not every trial finished** ({'; '.join(short)}): those rows are over fewer trials than the "
                       "others; why each failed is in compare.json (trials_failed), and a rerun tries them again."]
-    if summary.get("vehicles_left_out"):  # the trials then went to the other vehicles: said where they are read
+    if summary.run.vehicles_left_out:  # the trials then went to the other vehicles: said where they are read
         lines += ["", f"**Left out** (none of their frames reads; the trials went to the other vehicles): "
-                      f"{', '.join(sorted(summary['vehicles_left_out']))}; why, in compare.json (vehicles_left_out)."]
+                      f"{', '.join(sorted(summary.run.vehicles_left_out))}; why, in compare.json (vehicles_left_out)."]
     lines += ["", "Per root (scenario): mean NEES / coverage", ""]
-    for m, s in summary["methods"].items():
+    for m, s in summary.methods.items():
         parts = [f"{k}: {c['nees_mean']:.1f} / {100 * c['coverage_95']:.0f} %" for k, c in
-                 s["consistency_per_root"].items()]
+                 s.consistency_per_root.items()]
         lines.append(f"- {m}: " + "; ".join(parts))
     return "\n".join(lines) + "\n"
 
@@ -296,8 +340,8 @@ def _check_roots(roots: list, version: str, methods) -> None:
 
 
 def compare(roots: list, version: str, out: str | Path, conf: CompareConfig | dict | None = None,
-            command: str = "", progress: bool = True, overwrite: bool = False) -> dict:
-    """Run (or resume) every trial, then write compare.json, compare.md and the plot; returns the summary.
+            command: str = "", progress: bool = True, overwrite: bool = False) -> CompareResult:
+    """Run (or resume) every trial, then write compare.json, compare.md and the plot; returns their summary.
     ``overwrite``: the kept trials, tables and own caches of ``out`` are removed first."""
     import shutil
 
@@ -329,13 +373,12 @@ def compare(roots: list, version: str, out: str | Path, conf: CompareConfig | di
     results = {m: load_trials(out, m, conf.trials) for m in conf.methods}
     labels = root_labels([str(r) for r in roots], "/")
     if not any(results.values()):
-        first = problems["trials_failed"][0]["reason"] if problems["trials_failed"] else "-"
-        raise DataError(f"no trial finished ({len(problems['trials_failed'])} failed; first: {first})",
+        first = problems.trials_failed[0]["reason"] if problems.trials_failed else "-"
+        raise DataError(f"no trial finished ({len(problems.trials_failed)} failed; first: {first})",
                         path=str(roots[0]))
-    summary = {"range": conf.range, "trials": conf.trials, "roots": [str(r) for r in roots], "command": command,
-               "config": record, "methods": {m: summarize_method(rs, labels) for m, rs in results.items() if rs},
-               **problems}
-    save_json_atomic(out / "compare.json", summary)
+    summary = CompareResult(conf.range, conf.trials, tuple(str(r) for r in roots), command, record,
+                            {m: summarize_method(rs, labels) for m, rs in results.items() if rs}, problems)
+    save_json_atomic(out / "compare.json", summary.to_dict())
     save_text_atomic(out / "compare.md", _markdown(summary, conf, command))
     plot_error_vs_frames(results, out / "error_vs_frames.png")
     return summary

@@ -400,18 +400,29 @@ def test_a_non_finite_network_pass_is_a_skipped_frame_not_the_end_of_the_run(sim
 
 def test_compare_says_when_a_method_finished_fewer_trials():
     """A failed trial left its method's row averaged over fewer trials than the others', said nowhere near it."""
-    from hybrid_calib.compare import CompareConfig, _markdown
+    from hybrid_calib.compare import CompareConfig, CompareResult, MethodSummary, TrialsRun, _markdown
     from hybrid_calib.config import merge
     from hybrid_calib.metrics import METRIC_KEYS
 
     conf = merge(CompareConfig, {"trials": 4, "methods": ("pure", "pure-avg", "hybrid")})
     errs = {k: 0.0 for k in METRIC_KEYS}
-    row = {"mean": errs, "median": errs, "consistency": {"nees_mean": 6.0, "nees_median": 5.0, "coverage_95": 0.9},
-           "ms_per_frame": 1.0, "not_ok_fraction": 0.0, "frames_mean": 3, "consistency_per_root": {}}
-    text = _markdown({"methods": {"pure": {**row, "trials": 4}, "hybrid": {**row, "trials": 3}}}, conf, "cmd")
+
+    def row(trials):
+        return MethodSummary(trials, errs, errs, {"nees_mean": 6.0, "nees_median": 5.0, "coverage_95": 0.9}, {},
+                             0.0, 0.0, 1.0, 3)
+
+    def result(methods, left_out=None):
+        return CompareResult("R1", 4, ("r",), "cmd", {}, methods, TrialsRun(left_out or {}, (), 0, 4))
+
+    text = _markdown(result({"pure": row(4), "hybrid": row(3)}), conf, "cmd")
     assert "**Not every trial finished** (pure-avg: 0 of 4; hybrid: 3 of 4)" in text
-    full = _markdown({"methods": {m: {**row, "trials": 4} for m in conf.methods}}, conf, "cmd")
-    assert "Not every trial" not in full
+    full = _markdown(result({m: row(4) for m in conf.methods}), conf, "cmd")
+    assert "Not every trial" not in full and "Left out" not in full
+    assert "**Left out** (none of their frames reads" in _markdown(result({}, {"v": "why"}), conf, "cmd")
+    # compare.json is the result's to_dict: the keys its readers use
+    d = result({"pure": row(4)}).to_dict()
+    assert set(d) >= {"methods", "vehicles_left_out", "trials_failed", "trials_kept", "trials_run", "roots"}
+    assert d["methods"]["pure"]["trials"] == 4 and d["methods"]["pure"]["consistency"]["coverage_95"] == 0.9
 
 
 def test_compare_refuses_kept_trials_of_other_data_and_leaves_out_a_root_that_does_not_read(sim_root, tmp_path,

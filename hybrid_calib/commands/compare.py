@@ -63,21 +63,21 @@ def run(args: argparse.Namespace) -> int:
     command = "hybrid-calib " + " ".join(sys.argv[1:])
     s = compare(args.data, args.version, args.out, conf, command=command, progress=not args.no_progress,
                 overwrite=args.overwrite)
-    for m, r in s["methods"].items():
-        e, d, c = r["mean"], r["median"], r["consistency"]
+    for m, r in s.methods.items():
+        e, d, c = r.mean, r.median, r.consistency
         print(f"{m:>9}: rot mean {e['rot_mean_deg']:.3f} deg (median {d['rot_mean_deg']:.3f}), trans mean "
               f"{e['trans_mean_cm']:.2f} cm (median {d['trans_mean_cm']:.2f}); NEES {c['nees_mean']:.1f}, "
-              f"coverage {100 * c['coverage_95']:.0f} %, not ok {100 * r['not_ok_fraction']:.0f} %")
-    if s.get("trials_kept"):  # a rerun: say what it reused (calibrate says so too)
-        print(f"kept {s['trials_kept']} trial(s) an earlier run finished in {args.out / 'trials'} (same data, network "
-              f"and options); ran {s['trials_run']}")
+              f"coverage {100 * c['coverage_95']:.0f} %, not ok {100 * r.not_ok_fraction:.0f} %")
+    if s.run.trials_kept:  # a rerun: say what it reused (calibrate says so too)
+        print(f"kept {s.run.trials_kept} trial(s) an earlier run finished in {args.out / 'trials'} (same data, "
+              f"network and options); ran {s.run.trials_run}")
     if more := trials_not_asked(args.out, methods, args.trials):  # an earlier run's: on disk, not in these tables
         print(f"note: {args.out / 'trials'} also holds {len(more)} finished trial(s) this run did not ask for (of "
               f"{', '.join(sorted(set(more)))}); the tables hold --trials {args.trials} of {','.join(methods)} only: "
               "rerun with the earlier --trials and --methods to see them again")
-    for name, reason in s["vehicles_left_out"].items():
+    for name, reason in s.run.vehicles_left_out.items():
         print(f"left out {name}: {reason}", file=sys.stderr)
-    for t in s["trials_failed"]:
+    for t in s.run.trials_failed:
         print(f"trial {t['trial']} ({t['method']}, {t['vehicle']}) failed: {t['reason']}", file=sys.stderr)
     print(f"wrote {args.out / 'compare.md'}, compare.json and error_vs_frames.png")
-    return 1 if s["vehicles_left_out"] or s["trials_failed"] else 0
+    return 1 if s.run.vehicles_left_out or s.run.trials_failed else 0

@@ -22,6 +22,7 @@ It chains the simulator, the calibrator and the plots, so it lives with the comm
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -150,8 +151,26 @@ def check_same_demo(path: Path, conf: DemoConfig) -> None:
                                "to recompute every stage, or another --out")
 
 
-def run_demo(out: str | Path, conf: DemoConfig | dict | None = None, overwrite: bool = False) -> dict:
-    """Run the demo into ``out``; returns a summary dict (also written to ``out/summary.json``)."""
+@dataclass(frozen=True)
+class DemoResult:
+    """What ``run_demo`` made; ``to_dict`` is ``out/summary.json``. Paths are strings as written."""
+
+    sim_root: str  # the simulated drive (a nuScenes root)
+    projection_png: str  # radar points and true reflectors over a camera image
+    calibration_result: str  # the calibration's result.json
+    calibration_plots: str
+    vehicles: dict[str, dict]  # the calibration's vehicles (``VehicleResult.to_dict`` each)
+    fleet_method: str
+    fleet_dir: str
+    fleet_page: str | None
+    fleet: dict[str, dict]  # fleet job id -> {"root", "verdict", "flags", "report" (the page, or None)}
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def run_demo(out: str | Path, conf: DemoConfig | dict | None = None, overwrite: bool = False) -> DemoResult:
+    """Run the demo into ``out``; returns what it made (also written to ``out/summary.json``)."""
     import shutil
     from functools import partial
 
@@ -187,15 +206,13 @@ def run_demo(out: str | Path, conf: DemoConfig | dict | None = None, overwrite: 
     fleet = run_fleet(roots, None, "v1.0-sim", conf.fleet_method, out / "fleet", conf.seed,
                       options=FleetOptions(conf.engine, conf.workers, threads=conf.threads))
     page = write_fleet_pages(fleet, out / "fleet")
-    summary = {"sim_root": str(root), "projection_png": str(png),
-               "calibration_result": str(out / "calibration" / "result.json"),
-               "calibration_plots": str(out / "calibration" / "plots"), "vehicles": run.to_dict()["vehicles"],
-               "fleet_method": conf.fleet_method, "fleet_dir": str(out / "fleet"),
-               "fleet_page": None if page is None else str(page),
-               "fleet": {jid: {"root": r["data"], "verdict": vehicle_verdict(r), "flags": r["flags"],
-                               "report": str(out / "fleet" / Path(r["result"]).parent / "report.html")
-                               if r.get("result") else None} for jid, r in fleet["vehicles"].items()}}
-    save_json_atomic(out / "summary.json", summary)
+    summary = DemoResult(
+        str(root), str(png), str(out / "calibration" / "result.json"), str(out / "calibration" / "plots"),
+        run.to_dict()["vehicles"], conf.fleet_method, str(out / "fleet"), None if page is None else str(page),
+        {jid: {"root": r["data"], "verdict": vehicle_verdict(r), "flags": r["flags"],
+               "report": str(out / "fleet" / Path(r["result"]).parent / "report.html") if r.get("result") else None}
+         for jid, r in fleet["vehicles"].items()})
+    save_json_atomic(out / "summary.json", summary.to_dict())
     return summary
 
 
@@ -212,9 +229,9 @@ def run(args: argparse.Namespace) -> int:
     from hybrid_calib.calib.lidar_alignment import describe as describe_lidar
 
     s = run_demo(args.out, parse_overrides(args.set), overwrite=args.overwrite)
-    print(f"simulated drive:      {s['sim_root']}")
-    print(f"radar on camera:      {s['projection_png']}")
-    for name, v in s["vehicles"].items():
+    print(f"simulated drive:      {s.sim_root}")
+    print(f"radar on camera:      {s.projection_png}")
+    for name, v in s.vehicles.items():
         f = v["final"]
         std = f["std_cam"]
         print(f"calibration [{name}]: method {v['method']}"
@@ -230,20 +247,23 @@ def run(args: argparse.Namespace) -> int:
             print(f"  LiDAR alignment:    {describe_lidar(v['lidar'])}")
         if v.get("doppler"):
             print(f"  Doppler lever arm:  {describe_doppler(v['doppler'])}")
-        if status_kind(f["status"]) == "weak":
+        if status_kind(f["status"]) == "weak" and v["method"] == "oracle":
             print("  note: a 2D radar records no elevation, so its height and pitch against the camera are pinned\n"
                   "        only by the reflector-height prior; the 1-sigma above says so (docs/conventions.md)")
+        elif status_kind(f["status"]) == "weak":
+            print("  note: a 2D radar records no elevation: its roll and pitch here are the network's learned prior\n"
+                  "        of the radar's mount and its height is the start's, not measured (the status names them)")
         if v.get("drift"):
             print(f"  vs reference:       {drift_verdict(v['drift'])} (chi2 p {v['drift']['p_value']:.2g}; the "
                   "reference is the vehicle's calibration tables)")
-    print(f"calibration result:   {s['calibration_result']}")
-    print(f"calibration plots:    {s['calibration_plots']}")
-    print(f"fleet of {len(s['fleet'])} simulated vehicles (urban; urban with its radar knocked mid-drive; straight "
-          f"road), method {s['fleet_method']}" + (" (the simulator's true reflectors)" if s["fleet_method"] == "oracle"
-                                                  else "") + ":")
-    for jid, v in s["fleet"].items():
+    print(f"calibration result:   {s.calibration_result}")
+    print(f"calibration plots:    {s.calibration_plots}")
+    print(f"fleet of {len(s.fleet)} simulated vehicles (urban; urban with its radar knocked mid-drive; straight "
+          f"road), method {s.fleet_method}" + (" (the simulator's true reflectors)" if s.fleet_method == "oracle"
+                                               else "") + ":")
+    for jid, v in s.fleet.items():
         print(f"  {jid}: {v['verdict']}")
         if v["report"]:
             print(f"    report: {v['report']}")
-    print(f"fleet page:           {s['fleet_page']}")
+    print(f"fleet page:           {s.fleet_page}")
     return 0
