@@ -134,3 +134,32 @@ def test_straight_scenario_names_the_weak_direction(tmp_path):
     assert "camera" in est.status and "std" in est.status
     assert "all reflectors lie along the road" in est.status, est.status  # straight-specific words
     assert est.std[:3].max() > 1.0 or est.std[3:].max() > 10.0  # deg / cm: large where it says so
+
+
+@pytest.mark.parametrize("times, weak", [(15.0, True), (9.0, False)])
+def test_a_direction_is_named_weak_above_weak_factor_times_its_tolerance(times, weak):
+    """``weak_factor`` (10): a rotation std of 15x ``rot_tol_deg`` is named, one of 9x is not (the other axes at half
+    their tolerance). A mutation probe found the boundary unpinned."""
+    conf = {"rot_tol_deg": 0.1, "trans_tol_cm": 1.0, "weak_factor": 10.0}
+    std = np.array([np.radians(0.05)] * 3 + [0.005] * 3)
+    std[0] = np.radians(0.1 * times)  # rotation about radar x = camera x at the identity
+    rep = analyse_information(np.eye(4), np.diag(1.0 / std**2), conf)
+    if weak:
+        assert rep.status.startswith("weak:") and "pitch (rotation about camera x)" in rep.status, rep.status
+        assert f"std {0.1 * times:.3g} deg" in rep.status
+    else:
+        assert rep.status == "ok", rep.status
+
+
+def test_elevation_moments_of_the_uniform_beam():
+    """E[cos phi], E[sin phi] and std(phi) of phi uniform in [mean - beam, mean + beam] against quadrature (the
+    Jacobian checks are self-consistent and cannot see a wrong moment)."""
+    from scipy.integrate import quad
+
+    for beam, mean in ((5.0, 2.0), (7.0, 0.0), (0.5, -1.0)):
+        b, m = np.radians(beam), np.radians(mean)
+        c, s, sd = elevation_moments(beam, mean)
+        assert c == pytest.approx(quad(np.cos, m - b, m + b)[0] / (2 * b), rel=1e-9)
+        assert s == pytest.approx(quad(np.sin, m - b, m + b)[0] / (2 * b), rel=1e-9, abs=1e-12)
+        var = quad(lambda p, m=m: (p - m) ** 2, m - b, m + b)[0] / (2 * b)
+        assert sd == pytest.approx(np.sqrt(var), rel=1e-9)

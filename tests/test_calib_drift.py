@@ -446,3 +446,46 @@ def test_a_radar_that_turns_in_steps_each_within_the_tolerance_is_told_by_their_
                            "yaw in 2 steps from about frame 14 to 27")
     one = {"steps": mount["steps"][:1], "levels": lv[:2]}
     assert mount_steps_beyond(one, 0.5) == ""  # one step within the tolerance: nothing to tell
+
+
+def test_per_axis_decisions_sit_at_their_documented_boundaries():
+    """An axis differs when |delta| - z_out sigma > tolerance with the Bonferroni z_out = Phi^-1(1 - alpha / 6) (2.94
+    at alpha 0.01; 2.33 without the /6 would call 4.6 +- 1 cm against 2 cm "differs"), and is within when |delta| +
+    z_in sigma <= tolerance (z_in = 2.33). A mutation probe found no test at either boundary."""
+    from hybrid_calib.calib.drift import _check_axes
+
+    std, tol = np.array([0.1] * 3 + [1.0] * 3), np.array([0.5] * 3 + [2.0] * 3)
+
+    def decision(axis, d):
+        delta = np.zeros(6)
+        delta[axis] = d
+        return _check_axes(delta, std, np.zeros(6, bool), tol, 0.01)[axis].decision
+
+    assert decision(3, 4.6) == "undecided" and decision(3, -4.6) == "undecided"  # 4.6 - 2.94 = 1.66 < 2
+    assert decision(3, 5.0) == "differs" and decision(3, -5.0) == "differs"  # 5.0 - 2.94 = 2.06 > 2
+    assert decision(1, 0.26) == "within"  # 0.26 + 0.233 <= 0.5
+    assert decision(1, 0.28) == "undecided"  # 0.28 + 0.233 > 0.5
+
+
+def test_the_references_own_uncertainty_enters_the_test():
+    """``ref_rot_std_deg`` / ``ref_trans_std_cm`` (the tables' own uncertainty) widen the test's covariance: a 0.3 deg
+    yaw difference is "within tolerance" against an exact reference and "cannot tell" against one known to 0.5 deg."""
+    T = nominal_T_cam_radar()
+    turned = perturb_camera_frame(T, np.radians([0.0, 0.0, 0.3]), [0.0, 0.0, 0.0])  # [roll, pitch, yaw]
+    tiny = np.eye(6) * 1e-14
+    exact = reference_test(turned, tiny, T, DriftConfig(ref_rot_std_deg=0.01, ref_trans_std_cm=0.01))
+    assert exact.verdict_kind == "within tolerance" and exact.statistic == pytest.approx(900, rel=1e-3)
+    loose = reference_test(turned, tiny, T, DriftConfig(ref_rot_std_deg=0.5, ref_trans_std_cm=0.01))
+    assert loose.statistic == pytest.approx(0.36, rel=1e-3)  # (0.3 / 0.5)^2
+    assert loose.verdict_kind == "cannot tell" and "yaw differs by 0.30 deg +- 0.50 deg" in loose.verdict
+
+
+def test_an_under_dispersed_statistic_never_scales_the_threshold_down():
+    """The over-dispersion scale is >= 1: statistics smaller than chi2(6)'s (a drive quieter than the model) must not
+    make later ones look larger (without the floor 30 tests of 1.0 give a scale of 0.19 and a 0.9 x threshold test
+    an alarm)."""
+    det = StepDetector({"consecutive": 1, "scale_min_tests": 5, "scale_lag": 0, "long_frames": ()})
+    for _ in range(30):
+        assert not det.observe(1.0).alarm
+    assert det.scale == 1.0
+    assert not det.observe(0.9 * det.threshold).alarm and not det.observe(0.9 * det.threshold).alarm

@@ -81,6 +81,9 @@ def test_random_walk_covariance_scales_with_dt():
         random_walk_factor(1, 2, cov, 0.0)
     with pytest.raises(ValueError, match="positive definite"):
         extrinsic_prior_factor(1, np.eye(4), np.zeros((6, 6)))
+    # an orthonormal block with det -1 (a reflection) is no rotation: only the determinant test sees it
+    with pytest.raises(ValueError, match="not a proper rotation"):
+        extrinsic_prior_factor(1, np.diag([1.0, 1.0, -1.0, 1.0]), np.eye(6))
 
 
 def test_builtin_factors_pass_the_harness_too():
