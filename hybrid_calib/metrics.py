@@ -20,6 +20,15 @@ from hybrid_calib.geometry import camera_euler_from_rotation, so3_log
 CHI2_6_95 = 12.591587243743977  # scipy.stats.chi2.ppf(0.95, 6): NEES below it is inside the 95 % ellipsoid
 
 
+def mad_scale(x: np.ndarray, floor: float = 0.0) -> float:
+    """Robust std of the values ``x`` (any shape): 1.4826 x their median absolute deviation (the std of a Gaussian),
+    at least ``floor``; ``floor`` for no values. The scale of every IRLS fit's residuals (same unit as ``x``)."""
+    x = np.asarray(x, np.float64).ravel()
+    if not len(x):
+        return float(floor)
+    return max(1.4826 * float(np.median(np.abs(x - np.median(x)))), float(floor))
+
+
 def nees(xi: np.ndarray, cov: np.ndarray) -> np.ndarray | float:
     """Normalised estimation error squared ``xi^T C^-1 xi`` (6 on average when ``cov`` is honest). ``xi``: (6,) or
     (F, 6) errors in the right tangent [rad, m] of ``T_cam_radar`` (``local(T_true, T_est)``); ``cov``: (6, 6) or

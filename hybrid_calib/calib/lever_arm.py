@@ -51,10 +51,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from factors.motion import heading_residual
+from factors.robust import weight
 from hybrid_calib.calib.covariance import fold_scalar
 from hybrid_calib.calib.ego_doppler import EgoSweep, ego_measurement, pair_skip, sweep_pairs
 from hybrid_calib.config import require, require_ranges
 from hybrid_calib.geometry import se3_exp, so3_log
+from hybrid_calib.metrics import mad_scale
 
 RADAR_X = 3  # index of the radar-x (forward) translation in the right tangent [phi (3), rho (3)]
 _FIT = (2, RADAR_X)  # the fitted components: rotation about radar z, translation along radar x
@@ -184,8 +186,8 @@ def _solve(ms: list, M: np.ndarray, conf: LeverArmConfig) -> tuple[np.ndarray, n
         if ok.sum() < conf.min_pairs:
             return None
         r, J = np.where(ok, r, 0.0), np.where(ok[:, None], J, 0.0)
-        scale = max(1.4826 * float(np.median(np.abs(r[ok] - np.median(r[ok])))), 1e-4)
-        w = np.where(ok, np.minimum(1.0, conf.huber * scale / np.maximum(np.abs(r), 1e-12)), 0.0)
+        scale = mad_scale(r[ok], 1e-4)
+        w = np.where(ok, weight("huber", np.abs(r), conf.huber * scale), 0.0)
         H = (J * w[:, None]).T @ J
         if _ < conf.iterations:
             d = d - np.linalg.lstsq(H, (J * w[:, None]).T @ r, rcond=None)[0]

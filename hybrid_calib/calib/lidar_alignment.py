@@ -58,10 +58,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from factors.robust import weight
 from hybrid_calib.calib.covariance import fold_linear
 from hybrid_calib.config import require, require_ranges
 from hybrid_calib.errors import DataError
 from hybrid_calib.geometry import se3_exp, se3_inverse
+from hybrid_calib.metrics import mad_scale
 from hybrid_calib.sensors.radar_velocity import RadarVelocityConfig, estimate_velocity, stationary
 
 DEFAULT_VELOCITY = RadarVelocityConfig()  # the Doppler fit and stationary band when the caller gives none
@@ -309,8 +311,8 @@ def _solve(frames: list[LidarFrame], X: np.ndarray, conf: LidarAlignConfig) -> t
             J = np.column_stack([J, np.full(len(J), -1.0)])
             e = e - d[2]
         fid = np.concatenate([np.full(len(q[0]), k) for k, q in enumerate(parts)])
-        scale = max(1.4826 * float(np.median(np.abs(e - np.median(e)))), 0.02)
-        w = np.minimum(1.0, conf.huber * scale / np.maximum(np.abs(e), 1e-12))
+        scale = mad_scale(e, 0.02)
+        w = weight("huber", np.abs(e), conf.huber * scale)
         H = (J * w[:, None]).T @ J
         if np.linalg.cond(H[:2, :2]) > 1e8 or np.linalg.cond(H) > 1e10:
             return None, "the matched detections do not span the radar plane (one direction only)"

@@ -53,6 +53,7 @@ import numpy as np
 from factors.motion import heading_residual
 from hybrid_calib.calib.ego_doppler import EgoSweep, ego_measurement, frame_sweeps, pair_skip, partner
 from hybrid_calib.config import require, require_ranges
+from hybrid_calib.metrics import mad_scale
 
 MEDIAN_VAR = np.pi / 2  # variance of a Gaussian sample's median, in units of sigma^2 / n
 
@@ -205,11 +206,8 @@ class MountMonitor:
         """The level's noise std, deg (module doc): the larger of its spread and its successive
         differences' (over sqrt 2), robustly (MAD), and at least ``floor_deg / sqrt(pairs)`` (``pairs``: the
         median number of pairs in a reading of the level; the median of n pairs is ~sqrt(n) times steadier)."""
-        def mad(x):
-            return 1.4826 * float(np.median(np.abs(x - np.median(x)))) if len(x) else 0.0
-
         floor = max(self.conf.floor_deg / np.sqrt(max(pairs, 1.0)), self.conf.wander_deg)
-        return max(floor, mad(level), mad(np.diff(level)) / np.sqrt(2.0))
+        return max(floor, mad_scale(level), mad_scale(np.diff(level)) / np.sqrt(2.0))
 
     def add_residual(self, position: int, y: float, pairs: int = 1) -> MountReading:
         """Test one reading ``y`` (deg; the median of ``pairs`` pairs' residuals) at drive ``position``

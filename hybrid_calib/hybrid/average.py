@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from factors.robust import weight
 from hybrid_calib.geometry import local, retract
 
 
@@ -45,7 +46,7 @@ def robust_average(Ts: np.ndarray, covs: np.ndarray, conf: AverageConfig | None 
     for _ in range(conf.iterations):
         xi = np.stack([local(M, T) for T in Ts])
         d2 = np.einsum("fi,fij,fj->f", xi, infos, xi)
-        w = 1.0 / (1.0 + d2 / conf.kernel_scale ** 2)
+        w = weight("cauchy", np.sqrt(np.maximum(d2, 0.0)), conf.kernel_scale)
         H = np.einsum("f,fij->ij", w, infos)
         step = np.linalg.solve(H, np.einsum("f,fij,fj->i", w, infos, xi))
         M = retract(M, step)

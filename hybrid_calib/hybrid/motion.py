@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from factors.motion import MotionMeasurement, chord_heading, chord_length, heading_residual, radar_yaw_change
+from factors.robust import weight
 from hybrid_calib.atomic import write_bytes_atomic
 from hybrid_calib.calib.ego_doppler import pose_doppler_conflict
 from hybrid_calib.calib.schedule import GaussianPrior
@@ -339,8 +340,8 @@ def fold(prior: GaussianPrior, T0: np.ndarray, inn: Innovation, conf: MotionConf
     if gated and not inn.inside(conf.gate):
         return None
     z = abs(r) / max(sigma, 1e-12)
-    weight = min(1.0, conf.huber / z) if z > 0 else 1.0
-    w = weight / sigma ** 2
+    w_huber = float(weight("huber", z, conf.huber))
+    w = w_huber / sigma ** 2
     L_p = np.linalg.inv(prior.cov)
     mu_p = local(T0, prior.T)
     L_m = w * np.outer(J, J)
@@ -348,4 +349,4 @@ def fold(prior: GaussianPrior, T0: np.ndarray, inn: Innovation, conf: MotionConf
     L = 0.5 * (L + L.T)
     mu = np.linalg.solve(L, L_p @ mu_p - w * J * r)
     cov = np.linalg.inv(L)
-    return Folded(GaussianPrior(retract(T0, mu), 0.5 * (cov + cov.T)), L_m, w * J, float(np.degrees(r)), weight)
+    return Folded(GaussianPrior(retract(T0, mu), 0.5 * (cov + cov.T)), L_m, w * J, float(np.degrees(r)), w_huber)

@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hybrid_calib.metrics import mad_scale
+
 
 @dataclass(frozen=True)
 class RadarVelocityConfig:
@@ -122,6 +124,6 @@ def estimate_velocity(points: np.ndarray, fields: dict, conf: RadarVelocityConfi
         return None, f"the stationary detections span {np.degrees(np.std(az[best])):.1f} deg of azimuth " \
                      f"(need {conf.min_azimuth_spread_deg:g}): the lateral velocity is not observed"
     res = A[best] @ v - vr[best]
-    sigma = max(1.4826 * float(np.median(np.abs(res - np.median(res)))), 0.05)
+    sigma = mad_scale(res, 0.05)
     cov = sigma ** 2 * np.linalg.inv(A[best].T @ A[best])
     return RadarVelocity(v, cov, int(best.sum()), n, sigma), ""
