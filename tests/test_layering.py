@@ -3,7 +3,7 @@
 Every module under ``hybrid_calib/``, ``factors/`` and ``learned/`` is parsed with ``ast`` (imports at module
 level and inside functions alike) and mapped to its layer:
 
- 1 hybrid_calib.{geometry, config, errors, metrics, perturbation, atomic}
+ 1 hybrid_calib.{geometry, config, errors, metrics, perturbation, atomic, words}
  2 hybrid_calib.data, hybrid_calib.sensors (what real data needs: pinhole camera)
  3 hybrid_calib.sim (the synthetic world and its ray-cast radar / LiDAR)
  4 factors
@@ -36,6 +36,7 @@ LAYERS: dict[str, int] = {
     "hybrid_calib.metrics": 1,
     "hybrid_calib.perturbation": 1,
     "hybrid_calib.atomic": 1,
+    "hybrid_calib.words": 1,
     "hybrid_calib.data": 2,
     "hybrid_calib.sensors": 2,
     "hybrid_calib.sim": 3,
@@ -51,7 +52,8 @@ LAYERS: dict[str, int] = {
     "hybrid_calib.cli": 8,
 }
 # pairs of the same layer that must not import each other
-SIBLINGS_APART = (("hybrid_calib.calib", "learned"),)
+SIBLINGS_APART = (("hybrid_calib.calib", "learned"), ("hybrid_calib.fleet", "hybrid_calib.report"),
+                  ("hybrid_calib.fleet", "hybrid_calib.compare"), ("hybrid_calib.compare", "hybrid_calib.report"))
 SIM = "hybrid_calib.sim"
 PLOTS = "hybrid_calib.plots"
 

@@ -66,6 +66,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from hybrid_calib.geometry import local, retract
+from hybrid_calib.words import join_and
 
 
 @dataclass(frozen=True)
@@ -217,11 +218,6 @@ def chi2_quadratic(d: np.ndarray, cov: np.ndarray) -> float:
 
 def _fmt(x: float, unit: str) -> str:
     return f"{x:.2g} {unit}" if abs(x) < 0.1 else f"{x:.2f} {unit}" if abs(x) < 10 else f"{x:.0f} {unit}"
-
-
-def join_and(names: list[str]) -> str:
-    """"a", "a and b", "a, b and c"."""
-    return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
 
 
 def _check_axes(delta: np.ndarray, std: np.ndarray, pinned: np.ndarray, tolerance: np.ndarray,

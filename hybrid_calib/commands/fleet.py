@@ -16,7 +16,7 @@ from hybrid_calib.commands import (
 )
 from hybrid_calib.config import parse_overrides
 from hybrid_calib.errors import OptionError
-from hybrid_calib.fleet.summary import n_vehicles
+from hybrid_calib.words import n_vehicles
 
 HELP = "calibrate every vehicle of one or more roots as resumable jobs (local | process | ray) + fleet view"
 

@@ -37,16 +37,12 @@ from hybrid_calib.calib.covariance import camera_offset, status_kind
 from hybrid_calib.config import save_json_atomic, save_text_atomic
 from hybrid_calib.errors import DataError
 from hybrid_calib.fleet.manifest import Manifest
+from hybrid_calib.words import n_vehicles
 
 SCHEMA = "hybrid-calib/fleet-summary/v1"
 
 
 UNRESOLVED = 0.1  # a fleet spread under this fraction of the vehicles' own median std: not resolved (summary.md)
-
-
-def n_vehicles(n: int) -> str:
-    """"1 vehicle", "3 vehicles": the count of a fleet's vehicles in words."""
-    return f"{n} vehicle{'' if n == 1 else 's'}"
 
 
 def design_mount(jobs: list[dict]) -> tuple[np.ndarray, str]:

@@ -38,7 +38,6 @@ from hybrid_calib.calib.degeneracy import RowGeometry
 from hybrid_calib.calib.drift import (
     DriftConfig,
     camera_side_note,
-    join_and,
     reference_test,
     unconverged,
     with_mount_step,
@@ -82,6 +81,7 @@ from hybrid_calib.hybrid.network import (
 from hybrid_calib.hybrid.ood import OODPolicy, decide, json_score, out_of_domain, skip_record
 from hybrid_calib.metrics import extrinsic_error, nees
 from hybrid_calib.perturbation import RANGES, vehicle_start
+from hybrid_calib.words import join_and
 
 METHODS = ("hybrid", "pure", "pure-avg", "oracle")
 STARTS = ("reference", *RANGES)

@@ -22,10 +22,10 @@ from hybrid_calib.calib.result import CalibrationRun, VehicleResult
 from hybrid_calib.config import merge
 from hybrid_calib.data.files import file_part
 from hybrid_calib.errors import DataError
-from hybrid_calib.fleet.summary import n_vehicles
 from hybrid_calib.report.html import esc, img_tag, num, verdict_class, write_page
 from hybrid_calib.report.vehicle import ReportConfig, write_report
 from hybrid_calib.report.verdict import DELTA_KEYS, VERDICTS, verdict_of
+from hybrid_calib.words import n_vehicles
 
 
 def _offset(vr: VehicleResult, design: np.ndarray | None) -> np.ndarray | None:
