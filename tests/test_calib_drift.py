@@ -489,3 +489,30 @@ def test_an_under_dispersed_statistic_never_scales_the_threshold_down():
         assert not det.observe(1.0).alarm
     assert det.scale == 1.0
     assert not det.observe(0.9 * det.threshold).alarm and not det.observe(0.9 * det.threshold).alarm
+
+
+def test_the_scale_rests_on_lagged_statistics_only():
+    """``scale_lag``: the statistics right after a step must not inflate the over-dispersion scale that is to reveal
+    it (without the lag, 20 tests of a 10-sigma step among 15 quiet ones set the scale to ~100 and hid the step)."""
+    g = np.random.default_rng(1)
+    det = StepDetector({"scale_min_tests": 5, "scale_lag": 20, "long_frames": ()})
+    for _ in range(15):
+        det.observe({5: (g.normal(size=6), np.eye(6))})
+    for _ in range(20):
+        det.observe({5: (np.full(6, 10.0), np.eye(6))})
+    assert det.scale < 2.0 and np.all(det.axis_scales(det.lengths[0]) < 3.0), (det.scale, det.axis_scales(5))
+
+
+def test_a_recent_estimate_more_certain_than_the_long_run_falls_back_to_its_own_covariance():
+    """Hausman's difference ``C_recent - C_long`` is not PSD when the recent window holds more information than the
+    long run (after a restart); the test then uses ``C_recent`` (conservative), never a negative statistic."""
+    from hybrid_calib.calib.covariance import report_basis
+    from hybrid_calib.calib.drift import chi2_quadratic
+
+    T = nominal_T_cam_radar()
+    info_long = np.diag([1e6] * 3 + [1e4] * 3)
+    T2 = retract(T, np.array([1e-3, 0.0, 0.0, 0.01, 0.0, 0.0]))
+    u, C = StepDetector().difference(T, info_long, T2, 2 * info_long)
+    B = report_basis(T)
+    np.testing.assert_allclose(C, B @ np.linalg.inv(2 * info_long) @ B.T, rtol=1e-9, atol=1e-18)
+    assert chi2_quadratic(u, C) > 0

@@ -646,3 +646,37 @@ def test_what_a_learned_method_does_not_measure_is_named_in_its_status():
     assert "the vertical offset is the start's" not in weak
     assert with_prior_words(traj("inconclusive: why"))[-1].estimate.status == "inconclusive: why"
     assert with_prior_words([]) == []
+
+
+@pytest.mark.parametrize("motion", [True, False])
+def test_the_drive_common_network_error_reaches_the_reported_covariance(sim_root, tmp_path, motion):
+    """The network's error common to a drive (``export.hybrid.drive_std``) does not average over frames: with the
+    motion constraint it enters each prior N times (N frames fused: ``C / N + D``), without it it is added to the
+    fused covariance. Either way no axis the network alone measures may end below ``D`` (a mutation probe found both
+    terms unpinned: a covariance 3x too small passed)."""
+    from hybrid_calib.hybrid import run_vehicle
+
+    D = np.array([0.01] * 3 + [1.0] * 3)  # 1 m on translation: far above what 3 frames of the network resolve
+    v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", {
+        **BASE, "method": "hybrid", "lidar": {"enabled": False}, "doppler": {"enabled": False},
+        "motion": {"enabled": motion}, "measurement": {"rows": "none", "drive_std": D.tolist()},
+        "ood": {"enabled": False}, "cache_dir": str(tmp_path / "cache")})
+    assert v.n_frames == 3
+    assert np.all(np.diag(v.final.cov)[3:] >= 0.99 * D[3:] ** 2), np.sqrt(np.diag(v.final.cov))
+
+
+def test_with_drive_error_adds_the_drive_common_term_to_every_frame():
+    from hybrid_calib.calib.covariance import report_std
+    from hybrid_calib.calib.result import Estimate, FrameEstimate
+    from hybrid_calib.hybrid.loop import HybridConfig, with_drive_error
+
+    T = np.eye(4)
+    cov = np.diag([1e-6] * 3 + [1e-4] * 3)
+    traj = [FrameEstimate(k, "f", 0, Estimate(T, cov, np.ones(6), "ok"), 1, 1, float("nan"), None, None, False, 0.0,
+                          0.0) for k in range(2)]
+    std = np.array([0.002, 0.003, 0.004, 0.05, 0.06, 0.07])
+    out = with_drive_error(traj, std, HybridConfig())
+    for f in out:
+        np.testing.assert_allclose(f.cov, cov + np.diag(std ** 2), rtol=1e-12)
+        np.testing.assert_allclose(f.estimate.std, report_std(T, cov + np.diag(std ** 2)))  # re-read, not kept
+    assert with_drive_error(traj, np.zeros(6), HybridConfig()) is traj

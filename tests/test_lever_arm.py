@@ -194,3 +194,14 @@ def test_a_fit_the_data_do_not_determine_is_not_shown_as_a_number():
     words = describe(block)
     assert "not determined" in words and "-1188" not in words and "118804" not in words and "need 20" in words
     assert "+12.0 +- 3.0 cm" in describe({**block, "dx_m": 0.12, "dx_std_m": 0.03})
+
+
+def test_the_drive_common_term_is_added_to_the_forward_offsets_variance():
+    """``systematic_m`` (what a drive's pairs share) adds its square to var(dx) and moves nothing else."""
+    g = np.random.default_rng(0)
+    sweeps = _drive(g)
+    start = X_TRUE @ se3_exp(np.array([0.0, 0.0, np.radians(0.3), -0.30, 0.10, 0.0]))
+    a0, _ = fit(sweeps, start, T_EGO_CAM, LeverArmConfig(systematic_m=0.0))
+    a5, _ = fit(sweeps, start, T_EGO_CAM, LeverArmConfig(systematic_m=0.05))
+    assert a5.dx_std ** 2 - a0.dx_std ** 2 == pytest.approx(0.05 ** 2, rel=1e-6)
+    np.testing.assert_allclose(a5.delta, a0.delta, atol=1e-12)

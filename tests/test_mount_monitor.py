@@ -312,3 +312,11 @@ def test_the_estimate_s_yaw_is_checked_against_the_radar_s_own_and_widened_where
     near = [_frame(0, "f", 0, _estimate(se3_inverse(T_ec) @ T_er, cov, conf), 1, 1.0)]
     kept, rec = with_yaw_check(near, drive, conf, mon)
     assert kept == near and not rec["disagree"]
+
+
+def test_a_negative_half_degree_step_is_found_too():
+    """The mirror of the step above (every other step test turned the radar the positive way)."""
+    g = np.random.default_rng(3)
+    mon = _feed(np.r_[g.normal(0.7, 0.15, 40), g.normal(0.2, 0.15, 40)])
+    (s,) = mon.steps
+    assert 40 <= s.at <= 52 and abs(s.change - 40) <= 3 and abs(s.step_deg + 0.5) < 0.1, s

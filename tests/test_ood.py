@@ -202,3 +202,28 @@ def test_malformed_ood_block_in_a_checkpoint_stops_with_the_file_named(fitted, s
                str(bad), "--start", "R1", "--out", str(tmp_path / "o"), "--set", "threads=1", "max_frames=1"])
     err = capsys.readouterr().err
     assert rc != 0 and str(bad) in err and "export.ood" in err and "Traceback" not in err
+
+
+def test_a_frame_off_the_fitted_subspace_is_out_of_domain():
+    """The density has two terms: the principal directions and the residual off them. A frame whose features leave
+    the subspace the in-domain frames span (not far along any principal direction) is out of domain; one 1 sigma
+    along a principal direction is not (a mutation probe found the residual term unpinned)."""
+    g = np.random.default_rng(0)
+    X = g.normal(size=(400, 2)) @ g.normal(size=(2, 8)) + 1e-3 * g.normal(size=(400, 8))
+    m = fit_ood({"descriptor": X, "signals": np.zeros((400, 1))}, features="descriptor", k=2)
+    u = np.linalg.svd(m.components)[2][-1]  # a unit direction orthogonal to both components (standardised units)
+    off = m.mean + m.std * 10 * u
+    along = m.mean + m.std * m.components[0] * np.sqrt(m.variances[0])
+    s = m.score({"descriptor": np.stack([off, along]), "signals": np.zeros((2, 1))})
+    assert s[0] > 1 and s[1] < 1, s
+
+
+def test_the_in_domain_count_needed_rounds_up():
+    """``min_in_domain_fraction`` of the frames, rounded up: 4 of 6 in domain is 67 %, short of 80 % (5 needed)."""
+    from hybrid_calib.hybrid.ood import OODPolicy, decide
+
+    block = decide([0.1] * 4 + [9.0] * 2, OODPolicy(min_in_domain_fraction=0.8, min_in_domain_frames=3))
+    assert block["in_domain"] == 4 and block["inconclusive"].startswith("only 4 of 6 frames"), block
+    assert "fewer than the 5 required" in block["inconclusive"]
+    assert decide([0.1] * 5 + [9.0], OODPolicy(min_in_domain_fraction=0.8, min_in_domain_frames=3))["inconclusive"] \
+        == ""

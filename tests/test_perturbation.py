@@ -26,3 +26,19 @@ def test_start_is_the_sampled_perturbation(name):
     rot_deg, trans_m = RANGES[name]
     assert np.all(np.abs(np.degrees(xi[:3])) <= rot_deg) and np.all(np.abs(xi[3:]) <= trans_m)
     np.testing.assert_allclose(signed_errors(T0, T), xi, atol=1e-9)
+
+
+@pytest.mark.parametrize("name", sorted(RANGES))
+def test_perturbations_fill_their_range_on_both_sides(name):
+    """Each axis uniform in [-bound, +bound]: both signs reached, centred (a one-sided draw passed the bound check)."""
+    rot_deg, trans_m = perturbation_bounds(name)
+    if rot_deg == 0 and trans_m == 0:
+        return
+    g = np.random.default_rng(0)
+    xi = np.array([sample_perturbation(g, name) for _ in range(2000)])
+    bound = np.array([np.radians(rot_deg)] * 3 + [trans_m] * 3)
+    for a in range(6):
+        if bound[a] == 0:
+            continue
+        assert xi[:, a].min() < -0.9 * bound[a] and xi[:, a].max() > 0.9 * bound[a], a
+        assert abs(xi[:, a].mean()) < 0.05 * bound[a], a
