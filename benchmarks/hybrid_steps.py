@@ -56,7 +56,7 @@ def main(argv=None) -> int:
         run = run_calibration(root, "v1.0-sim", a.out / "cal" / name, hconf)
         change = a.frames // 2 if knocked else None
         for v, vr in run.vehicles.items():
-            alarms = [f.index for f in vr.trajectory if f.step_alarm]  # drive frames (hybrid.loop.Drive.positions)
+            alarms = [f.index for f in vr.trajectory if f.step_alarm]  # drive frames (hybrid.drives.Drive.positions)
             after = [i for i in alarms if change is not None and i >= change]
             false = [i for i in alarms if change is None or i < change]
             rows.append({"drive": name, "vehicle": v, "knocked": knocked, "frames": len(vr.trajectory),

@@ -79,7 +79,8 @@ def _describe(root: Path) -> dict:
 
 
 def _records(runner_of, roots, version, seeds, corruption="", lidar=False):
-    from hybrid_calib.hybrid.loop import HybridConfig, open_drives
+    from hybrid_calib.hybrid.drives import open_drives
+    from hybrid_calib.hybrid.loop import HybridConfig
     from hybrid_calib.hybrid.ood import ood_passes
 
     recs = []
@@ -129,7 +130,7 @@ def main(argv=None) -> int:
                                  device=a.device)
         return make
 
-    from hybrid_calib.hybrid.loop import trained_depth
+    from hybrid_calib.hybrid.drives import trained_depth
     from learned.depth import needs_lidar
 
     lidar = needs_lidar(trained_depth(a.checkpoint))  # its own depth path reads the LiDAR

@@ -421,7 +421,8 @@ def test_a_vehicles_scenes_are_taken_in_the_order_they_were_driven(tmp_path):
 def test_the_hybrid_says_which_calibrations_of_a_vehicle_it_calibrates(tmp_path, capsys):
     """A vehicle split into NAME and NAME-cal2 was never explained, and a filter naming NAME dropped NAME-cal2
     without a word."""
-    from hybrid_calib.hybrid.loop import HybridConfig, open_drives
+    from hybrid_calib.hybrid.drives import open_drives
+    from hybrid_calib.hybrid.loop import HybridConfig
 
     tiny = _recalibrated_radar(tmp_path)
     _, drives = open_drives(tiny.root, VERSION, HybridConfig(vehicles=("tiny",)), lidar=False)

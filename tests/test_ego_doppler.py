@@ -81,7 +81,7 @@ def test_a_missing_or_corrupt_sweep_file_is_counted_or_said_not_a_crash(roots, t
     assert any("sweep unreadable" in s.why and s.velocity is None for s in sweeps)
     # one file of many missing is said as such, not as "keyframes only: no sweep files"
     from hybrid_calib.calib.mount_monitor import tested_words
-    from hybrid_calib.hybrid.loop import sweep_files_record
+    from hybrid_calib.hybrid.drives import sweep_files_record
 
     record = sweep_files_record(frames, idx)
     assert record["sweeps_absent"] is False and record["sweeps_missing"]["n"] == 1

@@ -228,7 +228,8 @@ def test_every_method_starts_a_vehicle_from_the_same_extrinsic(sim_root, tmp_pat
         starts[m] = np.asarray(v.start["T_cam_radar"])
         assert v.method == m and v.vehicle == "sim-veh-001"
         # what the method does not measure is prior-pinned in its verdict: a learned method's roll, pitch and height
-        # (loop.LEARNED_NOT_MEASURED), the oracle's pitch and height (the elevation prior; compare's oracle lost them)
+        # (corrections.LEARNED_NOT_MEASURED), the oracle's pitch and height (the elevation prior; compare's oracle
+        # lost them)
         pinned = {a for a, x in v.drift["axes"].items() if x["prior_pinned"]}
         assert pinned == ({"pitch", "vertical offset"} if m == "oracle" else {"pitch", "roll", "vertical offset"}), m
     for m, T in starts.items():
@@ -483,7 +484,7 @@ def test_a_checkpoint_changed_in_place_is_another_network(sim_root, tmp_path):
             "vehicles": ["sim-veh-000"]}
     run_calibration(sim_root, "v1.0-sim", tmp_path / "c", conf)
     run_calibration(sim_root, "v1.0-sim", tmp_path / "c", conf)  # unchanged: reused
-    from hybrid_calib.hybrid.loop import trained_depth
+    from hybrid_calib.hybrid.drives import trained_depth
 
     kept = (tmp_path / "c" / "result.json").stat().st_mtime_ns  # the default depth spelled out is the same run
     run_calibration(sim_root, "v1.0-sim", tmp_path / "c", {**conf, "depth": trained_depth(conf["checkpoint"])})
@@ -587,7 +588,7 @@ def test_a_drive_that_did_not_move_is_not_trusted(tmp_path):
     """A stand-still drive's frames repeat one view: its 1-sigma shrank from 1 frame to 10 with the same estimate
     (NEES 13.7 -> 23.3 on real data, probe 7). A learned result of it is 'inconclusive', saying why."""
     from hybrid_calib.data.nuscenes import NuScenesRadarCamera
-    from hybrid_calib.hybrid.loop import Drive, standstill_reason
+    from hybrid_calib.hybrid.drives import Drive, standstill_reason
     from tests.tiny_nuscenes import VERSION, make_tiny_root
 
     said = {}
@@ -605,7 +606,8 @@ def test_a_straight_road_is_named_in_the_hybrids_status():
     calib.degeneracy on the reflectors the network matched, its thresholds)."""
     from hybrid_calib.calib.degeneracy import RowGeometry
     from hybrid_calib.calib.result import Estimate, FrameEstimate
-    from hybrid_calib.hybrid.loop import HybridConfig, with_road_words
+    from hybrid_calib.hybrid.corrections import with_road_words
+    from hybrid_calib.hybrid.loop import HybridConfig
 
     def traj(status):
         est = Estimate(np.eye(4), np.eye(6) * 1e-4, np.ones(6), status)
@@ -631,7 +633,7 @@ def test_what_a_learned_method_does_not_measure_is_named_in_its_status():
     and / or pitch, simulated, same seeds), and its height is the start's; probe 16 saw a pitched radar read "differs
     by 0.07 deg +- 0.82 deg" with a status naming only offsets. The status names the three prior-pinned, each once."""
     from hybrid_calib.calib.result import Estimate, FrameEstimate
-    from hybrid_calib.hybrid.loop import with_prior_words
+    from hybrid_calib.hybrid.corrections import with_prior_words
 
     def traj(status):
         est = Estimate(np.eye(4), np.eye(6) * 1e-4, np.array([0.8, 0.3, 0.7, 2.0, 14.0, 9.0]), status)
@@ -668,7 +670,8 @@ def test_the_drive_common_network_error_reaches_the_reported_covariance(sim_root
 def test_with_drive_error_adds_the_drive_common_term_to_every_frame():
     from hybrid_calib.calib.covariance import report_std
     from hybrid_calib.calib.result import Estimate, FrameEstimate
-    from hybrid_calib.hybrid.loop import HybridConfig, with_drive_error
+    from hybrid_calib.hybrid.corrections import with_drive_error
+    from hybrid_calib.hybrid.loop import HybridConfig
 
     T = np.eye(4)
     cov = np.diag([1e-6] * 3 + [1e-4] * 3)

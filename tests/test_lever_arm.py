@@ -151,12 +151,14 @@ def test_bad_options_are_refused(bad):
 
 
 def test_the_hybrid_folds_it_into_the_last_estimate_only_when_the_drive_turns():
-    from hybrid_calib.hybrid.loop import Drive, HybridConfig, _estimate, _frame, with_doppler
+    from hybrid_calib.hybrid.corrections import reported_estimate, with_doppler
+    from hybrid_calib.hybrid.drives import Drive
+    from hybrid_calib.hybrid.loop import HybridConfig, _frame
 
     conf = HybridConfig()
     start = X_TRUE @ se3_exp(np.array([0.0, 0.0, 0.0, 0.3, 0.0, 0.0]))
     cov = np.diag([1e-4, 1e-4, 1e-4, 0.4 ** 2, 0.05 ** 2, 0.4 ** 2])
-    traj = [_frame(k, f"s{k}", 0, _estimate(start, cov, conf), 1, 1.0) for k in range(3)]
+    traj = [_frame(k, f"s{k}", 0, reported_estimate(start, cov, conf), 1, 1.0) for k in range(3)]
     for turn, applied in ((9.0, True), (0.0, False)):
         sweeps = _drive(np.random.default_rng(5), n=80, turn_dps=turn)
         drive = Drive("v", list(range(80)), X_TRUE, X_TRUE, True)

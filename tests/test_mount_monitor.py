@@ -279,7 +279,9 @@ def test_the_estimate_s_yaw_is_checked_against_the_radar_s_own_and_widened_where
     the estimate's own about the ego z axis (a tables' yaw 1 deg off: both read -1)."""
     from hybrid_calib.calib.mount_monitor import yaw_agreement
     from hybrid_calib.geometry import se3_inverse
-    from hybrid_calib.hybrid.loop import Drive, HybridConfig, _estimate, _frame, with_yaw_check
+    from hybrid_calib.hybrid.corrections import reported_estimate, with_yaw_check
+    from hybrid_calib.hybrid.drives import Drive
+    from hybrid_calib.hybrid.loop import HybridConfig, _frame
 
     frames, idx = _drive(knocked_and_not[0])
     f = frames[idx[0]]
@@ -294,7 +296,7 @@ def test_the_estimate_s_yaw_is_checked_against_the_radar_s_own_and_widened_where
     conf = HybridConfig()
     cov = np.diag([1e-5, 1e-5, 1e-5, 1e-4, 1e-4, 1e-4])
     T_est = se3_inverse(T_ec) @ _turned(T_er, -1.0)  # the truth turned the other way: 2 deg from the tables
-    traj = [_frame(0, "f", 0, _estimate(T_est, cov, conf), 1, 1.0)]
+    traj = [_frame(0, "f", 0, reported_estimate(T_est, cov, conf), 1, 1.0)]
     drive = Drive("v", list(idx), se3_inverse(T_ec) @ tables, se3_inverse(T_ec) @ tables, False, tables)
     out, rec = with_yaw_check(traj, drive, conf, mon)
     assert rec["disagree"] and rec["widened"] and rec["sigmas"] > 3
@@ -309,7 +311,7 @@ def test_the_estimate_s_yaw_is_checked_against_the_radar_s_own_and_widened_where
     assert reference_test(T_est, cov, drive.reference).verdict_kind == "recalibrate"  # what it said before
     # no monitor, a step, or an agreeing level: unchanged
     assert with_yaw_check(traj, drive, conf, None) == (traj, None)
-    near = [_frame(0, "f", 0, _estimate(se3_inverse(T_ec) @ T_er, cov, conf), 1, 1.0)]
+    near = [_frame(0, "f", 0, reported_estimate(se3_inverse(T_ec) @ T_er, cov, conf), 1, 1.0)]
     kept, rec = with_yaw_check(near, drive, conf, mon)
     assert kept == near and not rec["disagree"]
 

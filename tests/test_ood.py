@@ -91,7 +91,8 @@ def fitted(sim_root, tmp_path_factory):
     """A tiny untrained network as a checkpoint, its OOD model fitted on the clean frames of the drive
     (several starts per frame) and stored in its export block; returns (checkpoint, runner, drives)."""
     from hybrid_calib.config import to_dict
-    from hybrid_calib.hybrid.loop import HybridConfig, open_drives
+    from hybrid_calib.hybrid.drives import open_drives
+    from hybrid_calib.hybrid.loop import HybridConfig
     from hybrid_calib.hybrid.network import NetworkRunner
     from hybrid_calib.hybrid.ood import ood_passes
     from learned.checkpoint import save_checkpoint, set_export_overrides

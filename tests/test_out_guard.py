@@ -61,7 +61,8 @@ def test_samples_and_vehicles_the_index_leaves_out_are_in_the_result(tiny):
     import copy
 
     from hybrid_calib.config import merge
-    from hybrid_calib.hybrid.loop import HybridConfig, open_drives
+    from hybrid_calib.hybrid.drives import open_drives
+    from hybrid_calib.hybrid.loop import HybridConfig
 
     sd = tiny.tables["sample_data"]
     sd.remove(next(r for r in sd if r["sample_token"] == "sample1" and r["calibrated_sensor_token"] == "cs_RADAR_FRONT"

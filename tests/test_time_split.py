@@ -10,7 +10,8 @@ import pytest
 
 from hybrid_calib.config import ConfigError
 from hybrid_calib.errors import HybridCalibError
-from hybrid_calib.hybrid.loop import HybridConfig, open_drives
+from hybrid_calib.hybrid.drives import open_drives
+from hybrid_calib.hybrid.loop import HybridConfig
 from learned.dataset import SplitConfig, split_indices
 from tests.tiny_nuscenes import VERSION, make_tiny_root
 

@@ -199,7 +199,8 @@ def load_passes(cache_dir: Path, truths: dict[str, np.ndarray]) -> list:
 
 def drive_truths(roots, version: str) -> dict[str, np.ndarray]:
     """camera token -> the drive's true static extrinsic (4, 4), over simulated roots."""
-    from hybrid_calib.hybrid.loop import HybridConfig, open_drives
+    from hybrid_calib.hybrid.drives import open_drives
+    from hybrid_calib.hybrid.loop import HybridConfig
     from learned.dataset import camera_token
 
     truths = {}

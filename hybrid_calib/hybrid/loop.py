@@ -14,6 +14,10 @@ calibrate --method`` and of the fleet engine.
 The learned methods drop the frames the network's out-of-domain score flags, and a vehicle with too
 few frames in domain is ``inconclusive`` (``hybrid.ood``: the rule, and the result's ``ood`` block).
 
+A vehicle's drive (its frames, start and what errors are against) is ``hybrid.drives``; what the hybrid folds into
+its trajectory after the loop (the LiDAR's and the Doppler's offsets, the drive-common errors, the yaw check, the
+status words) is ``hybrid.corrections``.
+
 Every method starts a vehicle from ``perturbation.vehicle_start(base, start, seed, vehicle)``: the
 same start for every method and whatever else the run holds. ``base`` is the truth on simulated
 roots and the tables' extrinsic on real roots, and errors are against it (``errors_against``); on a
@@ -24,8 +28,6 @@ final estimate describes.
 from __future__ import annotations
 
 import dataclasses
-import re
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -33,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hybrid_calib.calib.covariance import NOT_CONVERGED, analyse_information, prior_pinned_std
+from hybrid_calib.calib.covariance import prior_pinned_std
 from hybrid_calib.calib.degeneracy import RowGeometry
 from hybrid_calib.calib.drift import (
     DriftConfig,
@@ -42,12 +44,8 @@ from hybrid_calib.calib.drift import (
     unconverged,
     with_mount_step,
 )
-from hybrid_calib.calib.ego_doppler import drive_sweeps
-from hybrid_calib.calib.lever_arm import LeverArmConfig, apply_forward, refusal
-from hybrid_calib.calib.lever_arm import fit as fit_lever_arm
-from hybrid_calib.calib.lidar_alignment import LidarAlignConfig, align, apply_offsets, drive_frames, forward_refusal
-from hybrid_calib.calib.lidar_alignment import innovation as lidar_innovation
-from hybrid_calib.calib.lidar_alignment import refusal as lidar_refusal
+from hybrid_calib.calib.lever_arm import LeverArmConfig
+from hybrid_calib.calib.lidar_alignment import LidarAlignConfig
 from hybrid_calib.calib.mount_monitor import MountMonitor, MountMonitorConfig
 from hybrid_calib.calib.oracle import OracleConfig
 from hybrid_calib.calib.pipeline import trust_reason, untrusted
@@ -69,6 +67,28 @@ from hybrid_calib.data.files import data_stamp
 from hybrid_calib.errors import DataError, HybridCalibError, check_out_not_in_dataset, check_out_outside_data
 from hybrid_calib.geometry import local, se3_exp
 from hybrid_calib.hybrid.average import AverageConfig, robust_average
+from hybrid_calib.hybrid.corrections import (
+    LEARNED_NOT_MEASURED,
+    motion_bias_cov,
+    reported_estimate,
+    with_doppler,
+    with_drive_error,
+    with_lidar,
+    with_motion_bias,
+    with_prior_words,
+    with_road_words,
+    with_yaw_check,
+)
+from hybrid_calib.hybrid.drives import (
+    Drive,
+    effective_depth,
+    open_drives,
+    resolve_depth,
+    standstill_reason,
+    start_of,
+    sweep_files_record,
+    trained_depth,
+)
 from hybrid_calib.hybrid.measurement import MeasurementConfig, frame_inputs, prior_trusted
 from hybrid_calib.hybrid.motion import MotionConfig, MotionGate, MotionSource, fold, gated_innovation
 from hybrid_calib.hybrid.network import (
@@ -80,8 +100,7 @@ from hybrid_calib.hybrid.network import (
 )
 from hybrid_calib.hybrid.ood import OODPolicy, decide, json_score, out_of_domain, skip_record
 from hybrid_calib.metrics import extrinsic_error, nees
-from hybrid_calib.perturbation import RANGES, vehicle_start
-from hybrid_calib.words import join_and
+from hybrid_calib.perturbation import RANGES
 
 METHODS = ("hybrid", "pure", "pure-avg", "oracle")
 STARTS = ("reference", *RANGES)
@@ -137,167 +156,6 @@ class HybridConfig:
                              "network methods), not data.vehicles")
 
 
-@dataclass
-class Drive:
-    """One vehicle of a root: its frame indices (time order), the start base and what errors are against."""
-
-    vehicle: str
-    indices: list[int]
-    base: np.ndarray  # (4, 4) truth (simulated) or tables (real)
-    reference: np.ndarray  # (4, 4) the reference the drift test uses
-    simulated: bool
-    # (4, 4) the radar mount of the vehicle's tables (a simulated vehicle's: its factory calibration) at the first
-    # readable frame: the radar mount monitor's reference and lever arm, and the yaw check's
-    ego_radar: np.ndarray | None = None
-    # (4, 4) simulated roots: the truth at the drive's last frame (differs from base when the mount moved
-    # during the drive, e.g. a knocked radar); the final estimate's errors are against it
-    end: np.ndarray | None = None
-    # the vehicle's samples the index left out (no camera or radar keyframe): frames_skipped with index None
-    index_skips: list = field(default_factory=list)
-
-    @property
-    def errors_against(self) -> str:
-        return "truth" if self.simulated else "tables"
-
-    def positions(self) -> dict[int, int]:
-        """dataset index -> the frame's position in this drive (0-based): a learned trajectory's
-        ``FrameEstimate.index``, so frames the loop dropped leave gaps instead of shifting later ones."""
-        return {i: k for k, i in enumerate(self.indices)}
-
-
-def resolve_depth(data, version: str, conf: HybridConfig) -> tuple[str, str]:
-    """(depth spec, note): ``conf.depth``, or lidar-densified on a real root with LiDAR, or "" (the
-    checkpoint's)."""
-    from hybrid_calib.data.tables import NuScenesTables
-    from learned.depth import LidarDepth
-
-    if conf.depth:
-        return conf.depth, ""
-    tables = NuScenesTables(data, version)
-    simulated = (tables.vdir / "sim_vehicle.json").is_file()
-    if not simulated and "LIDAR_TOP" in tables.channels():
-        return LidarDepth.name, "real root without --depth: using lidar-densified depth (the LiDAR through the tables)"
-    return "", ""
-
-
-def effective_depth(data, version: str, conf: HybridConfig) -> str:
-    """The depth estimator a learned run uses: ``--depth``, the real root's lidar-densified, or the checkpoint's."""
-    return resolve_depth(data, version, conf)[0] or trained_depth(conf.checkpoint or shipped_checkpoint(conf.start))
-
-
-def trained_depth(checkpoint) -> str:
-    """The depth spec a checkpoint (path) was trained with (``learned.depth.trained_with``)."""
-    from learned.checkpoint import read_checkpoint_meta
-    from learned.depth import trained_with
-
-    return trained_with(read_checkpoint_meta(checkpoint)[1].get("train_config"))
-
-
-def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable: dict | None = None):
-    """(frames, {vehicle: Drive}) of a root, restricted to ``conf.vehicles``, the frames of
-    ``conf.split`` (``learned.dataset.split_indices`` with ``conf.split_options``) and ``conf.max_frames``.
-    A vehicle none of whose frames reads is a ``DataError`` (naming the first bad file), or, when
-    ``unreadable`` is a dict, recorded there (vehicle -> reason) and left out."""
-    from hybrid_calib.data.summary import keyframe_gap_warning
-    from learned.dataset import open_frames, split_indices
-
-    frames = open_frames(data, version, lidar=lidar, options=conf.data)
-    simulated = bool(getattr(frames, "sim_vehicles", {}))
-    for vehicle, names in getattr(frames, "calibration_splits", {}).items():  # said where the names appear
-        left = [n for n in names if conf.vehicles is not None and n not in conf.vehicles]
-        print(f"vehicle {vehicle}: its frames hold {len(names)} camera-radar calibrations in the tables, calibrated "
-              f"as {', '.join(names)}" + (f" ({', '.join(left)} not among the vehicles asked for)" if left else ""),
-              file=sys.stderr)
-    for log, words in (frames.intrinsic_changes() if hasattr(frames, "intrinsic_changes") else {}).items():
-        print(f"log {log}: {words}", file=sys.stderr)
-    if dup := getattr(frames, "duplicates", None):  # the index read them once (data.nuscenes._once_per_file)
-        first = next(iter(dup.items()))
-        print(f"note: {len(dup)} sample(s) read the same sensor files as earlier samples (first: {first[0]}, as "
-              f"{first[1]}): the tables list one recording twice; each frame is read once (hybrid-calib inspect lists "
-              "them)", file=sys.stderr)
-    by_scene: dict[str, list[int]] = {}
-    for ref in getattr(frames, "frames", []):
-        if isinstance(ref.camera_sd.get("timestamp"), int):
-            by_scene.setdefault(ref.scene_token, []).append(ref.camera_sd["timestamp"])
-    if gap := keyframe_gap_warning(by_scene.values()):  # inspect said it; a calibration read time from them silently
-        print(f"{gap}: the radar mount monitor, its Doppler pairs and the motion constraint read time from them; fix "
-              "the tables before trusting this calibration", file=sys.stderr)
-    keep = None if conf.split == "all" else set(split_indices(frames, conf.split, conf.split_options))
-    drives, outside_split = {}, []
-    by_vehicle = frames.frames_by_vehicle()
-    for vehicle, idx in sorted(by_vehicle.items()):
-        if conf.vehicles is not None and vehicle not in conf.vehicles:
-            continue
-        if keep is not None:
-            idx = [i for i in idx if i in keep]
-            if not idx:
-                outside_split.append(vehicle)
-                continue
-        idx = idx[: conf.max_frames] if conf.max_frames > 0 else idx
-        f, first_error = None, None
-        for i in idx:  # the first readable frame gives the extrinsics
-            try:
-                f = frames[i]
-                break
-            except DataError as e:
-                first_error = first_error or e
-                continue
-        if f is None:
-            reason = (f"vehicle {vehicle}: no readable frame ({len(idx)} frame(s) tried; first: "
-                      f"{first_error if first_error is not None else '-'})")
-            if unreadable is None:
-                raise DataError(reason, path=str(data))
-            unreadable[vehicle] = reason
-            continue
-        static = np.asarray(f.extras.get("T_cam_radar_static", f.T_cam_radar), np.float64)
-        ref = np.asarray(f.extras.get("reference_T_cam_radar", static), np.float64)
-        ego_radar = f.extras.get("reference_T_ego_radar", f.extras.get("T_ego_radar"))
-        drives[vehicle] = Drive(vehicle, list(idx), static, ref, simulated,
-                                None if ego_radar is None else np.asarray(ego_radar, np.float64),
-                                _end_truth(frames, idx, static) if simulated else None,
-                                [{"index": None, "token": s.token, "reason": s.reason}
-                                 for s in getattr(frames, "lacking_keyframes", {}).get(vehicle, [])])
-    for vehicle, skips in sorted(getattr(frames, "lacking_keyframes", {}).items()):  # a vehicle of no frame at all
-        if vehicle in by_vehicle or vehicle in drives or (conf.vehicles is not None and vehicle not in conf.vehicles):
-            continue
-        reason = (f"vehicle {vehicle}: no frame: none of its {len(skips)} sample(s) has both keyframes the run reads "
-                  f"(first: {skips[0].reason}); hybrid-calib inspect lists its channels")
-        if unreadable is None:
-            raise DataError(reason, path=str(data))
-        unreadable[vehicle] = reason
-    if outside_split and not drives and not unreadable and conf.vehicles is None:  # "no vehicle to calibrate (check
-        # --set vehicles=...)"; with a vehicle filter, the wanted vehicles' own message below
-        opts = f", split options {conf.split_options}" if conf.split_options else ""
-        raise DataError(f"no frame of vehicle(s) {outside_split} is in split {conf.split!r}{opts} ({len(frames)} "
-                        "frames in the data; split by scene, the scenes of a small root can all go to train); pass "
-                        "--split all, or --split-by time, or other --val-fraction / --test-fraction", path=str(data))
-    # a wanted vehicle none of whose frames reads is in ``unreadable`` with its reason, not "not in the data"
-    if conf.vehicles is not None and (missing := sorted(set(conf.vehicles) - set(drives) - set(unreadable or {}))):
-        present = sorted(by_vehicle)
-        if in_data := [v for v in missing if v in present]:  # present, but no frame of the split
-            opts = f" (split options {conf.split_options})" if conf.split_options else ""
-            raise DataError(f"vehicle(s) {in_data} have no frame in split {conf.split!r}{opts}; pass --split all or "
-                            "other split options", path=str(data))
-        raise DataError(f"vehicle(s) {missing} not in the data (vehicles: {present})", path=str(data))
-    return frames, drives
-
-
-def _end_truth(frames, idx: list[int], static: np.ndarray) -> np.ndarray:
-    """The static truth at the last readable frame of a simulated drive (``static`` when none reads)."""
-    for i in reversed(idx):
-        try:
-            f = frames[i]
-        except DataError:
-            continue
-        return np.asarray(f.extras.get("T_cam_radar_static", f.T_cam_radar), np.float64)
-    return static
-
-
-def start_of(drive: Drive, conf: HybridConfig) -> np.ndarray:
-    return vehicle_start(drive.reference if conf.start == "reference" else drive.base, conf.start, conf.seed,
-                         drive.vehicle)
-
-
 def measurement_config(runner: NetworkRunner, conf: HybridConfig) -> MeasurementConfig:
     """The checkpoint's fitted ``export["hybrid"]`` block with ``conf.measurement`` over it; a block that
     is wrong on its own is a ``DataError`` naming the checkpoint."""
@@ -308,25 +166,6 @@ def measurement_config(runner: NetworkRunner, conf: HybridConfig) -> Measurement
         raise DataError(f"checkpoint export.hybrid block is invalid ({e}); fix it in the JSON, or remove it and fit "
                         "it again with benchmarks/hybrid_fit.py --fit-into", path=str(runner.ckpt.path)) from None
     return merge(MeasurementConfig, {**fitted, **conf.measurement})
-
-
-# What a learned method does not measure, as a (6,) right-tangent mask (radar axes: rotation about x = roll, about y =
-# pitch; translation along z = height): the network's roll and pitch are its learned prior of the radar's mount seen
-# through the camera, and its height is the start's (it does not learn translation). Measured (session 22, simulated
-# urban and highway drives with the same seeds, the radar tilted by 1.5-2 deg in roll and / or pitch or not at all):
-# the hybrid's roll and pitch moved by at most 0.18 deg whatever the radar's tilt, so a tilted radar is not seen (docs/
-# benchmarks.md, "What the hybrid does not measure"). A 2D radar
-# has no elevation: neither its Doppler nor its ranges against the LiDAR see these three either. They are named
-# "prior-pinned, not measured" in the status and the reference test (calib.covariance, calib.drift); only the mask
-# matters (covariance.pinned_camera_axes).
-LEARNED_NOT_MEASURED = np.array([1.0, 1.0, 0.0, 0.0, 0.0, 1.0])
-
-
-def _estimate(T: np.ndarray, cov: np.ndarray, conf: HybridConfig, note: str = "") -> Estimate:
-    cov = 0.5 * (cov + cov.T)
-    rep = analyse_information(T, np.linalg.inv(cov), conf.window.covariance, cov_hint=cov,
-                              pinned_std=LEARNED_NOT_MEASURED, pinned_marginalised=True)
-    return Estimate.from_report(T, rep, None, note)
 
 
 def _frame(k: int, fid: str, ts: int, est: Estimate, n: int, ms: float) -> FrameEstimate:
@@ -346,7 +185,7 @@ class _Trace:
     priors: int = 0  # network priors the hybrid inflated by its drive-common error (``_hybrid``)
     unread: int = 0  # frames whose inputs did not read (the network never ran): they count against the domain test
     # where the reflectors the network matched lie (its iteration-0 rows, kept frames): the status names a straight
-    # road as the oracle's does (``with_road_words``)
+    # road as the oracle's does (``corrections.with_road_words``)
     geometry: RowGeometry = field(default_factory=RowGeometry)
 
     def unreadable(self, runner: NetworkRunner, i: int) -> None:
@@ -380,187 +219,11 @@ def _passes(runner: NetworkRunner, drive: Drive, T0: np.ndarray, conf: HybridCon
     return outs
 
 
-def with_drive_error(traj: list[FrameEstimate], drive_std, conf: HybridConfig) -> list[FrameEstimate]:
-    """The trajectory with the drive-common network error ``diag(drive_std^2)`` added to every
-    reported covariance (``measurement`` module doc, item 4); unchanged when it is zero."""
-    D = np.diag(np.asarray(drive_std, np.float64) ** 2)
-    if not np.any(D):
-        return traj
-    return [with_cov(f, f.cov + D, conf) for f in traj]
-
-
-def with_cov(f: FrameEstimate, cov: np.ndarray, conf: HybridConfig, T: np.ndarray | None = None) -> FrameEstimate:
-    """Frame ``f`` re-reported with covariance ``cov`` (6, 6) (and estimate ``T``, when given), keeping
-    the window's own notes (a solve that did not converge, a restart after a step)."""
-    notes = [f.estimate.status[i:].split(")")[0] for key in (NOT_CONVERGED, "recovering")
-             if (i := f.estimate.status.find(key)) >= 0]
-    return dataclasses.replace(f, estimate=_estimate(f.T if T is None else T, cov, conf, "; ".join(notes)))
-
-
-def with_road_words(traj: list[FrameEstimate], geometry: RowGeometry, conf: HybridConfig) -> list[FrameEstimate]:
-    """The trajectory with its last status naming a straight road (``calib.degeneracy.along_road`` on the reflectors
-    the network matched, the oracle's rule and thresholds): an "ok" becomes "weak", a "weak" gets the words; an
-    untrusted status is left as it is. Words only: the drive-common error term already widens the covariance for a
-    network error that does not average out (probe 16: no hybrid status named a straight road; the oracle's all do)."""
-    from hybrid_calib.calib.covariance import status_kind
-    from hybrid_calib.calib.degeneracy import along_road
-
-    frac = along_road(geometry, conf.window.covariance.degeneracy)
-    if frac is None or not traj:
-        return traj
-    last = traj[-1]
-    words = (f"all the reflectors the network matched lie along the road ({100 * frac:.0f} % on two lines parallel "
-             "to the travel direction): every frame shows it one kind of scene, so its error there does not average "
-             "out over the drive")
-    kind = status_kind(last.estimate.status)
-    if kind not in ("ok", "weak"):
-        return traj
-    status = f"weak: {words}" if kind == "ok" else f"{last.estimate.status}; {words}"
-    return [*traj[:-1], dataclasses.replace(last, estimate=dataclasses.replace(last.estimate, status=status))]
-
-
-def with_prior_words(traj: list[FrameEstimate]) -> list[FrameEstimate]:
-    """The trajectory with its last status naming what a learned method does not measure (``LEARNED_NOT_MEASURED``):
-    roll and pitch (the network's learned prior of the radar's mount) and the vertical offset (the start's), each
-    unless the covariance's reading already named it prior-pinned. An "ok" becomes "weak"; an untrusted status is left
-    as it is. Words only: the reported stds are the fitted spread of the network's errors on simulated fleets (probe
-    16: a radar pitched 2 deg read "differs by 0.07 deg +- 0.82 deg" in pitch, its status naming only offsets)."""
-    from hybrid_calib.calib.covariance import status_kind
-
-    if not traj or status_kind(traj[-1].estimate.status) not in ("ok", "weak"):
-        return traj
-    last = traj[-1]
-    status, std = last.estimate.status, last.estimate.std
-    named = [w for w, i in (("roll", 2), ("pitch", 0), ("vertical offset", 4))
-             if not re.search(rf"\b{w} \([^)]*\) is prior-pinned", status)]
-    if not named:
-        return traj
-    units = {"roll": (2, "deg"), "pitch": (0, "deg"), "vertical offset": (4, "cm")}
-    stds = ", ".join(f"{w} {std[units[w][0]]:.2g} {units[w][1]}" for w in named)
-    what = [*(["the network's learned prior of the radar's mount, seen through the camera"]
-              if {"roll", "pitch"} & set(named) else []),
-            *(["the vertical offset is the start's"] if "vertical offset" in named else [])]
-    words = (f"{join_and(named)} {'is' if len(named) == 1 else 'are'} prior-pinned, not measured by this drive ("
-             f"{'; '.join(what)}; std {stds}): a 2D radar has no elevation, so a radar tilted or raised off the "
-             "fleet's mounts is not seen")
-    status = f"weak: {words}" if status_kind(status) == "ok" else f"{status}; {words}"
-    return [*traj[:-1], dataclasses.replace(last, estimate=dataclasses.replace(last.estimate, status=status))]
-
-
-def sweep_files_record(frames, indices) -> dict:
-    """The mount block's words on the radar's sweep files between keyframes over dataset ``indices`` (those the
-    monitor read): ``sweeps_absent`` when the tables list sweeps and none is on disk (a keyframe-only copy), else
-    ``sweeps_missing`` {"n", "of", "first"} when some are missing."""
-    seen = [getattr(frames, "sweep_files", {}).get(i) for i in indices]
-    listed = sum(s[0] for s in seen if s)
-    missing = [p for s in seen if s for p in s[1]]
-    if listed and len(missing) == listed:
-        return {"sweeps_absent": True}
-    return {"sweeps_absent": False, **({"sweeps_missing": {"n": len(missing), "of": listed, "first": missing[0]}}
-                                       if missing else {})}
-
-
-def _since_last_step(mon: MountMonitor | None) -> int:
-    """The drive position the radar's current mount starts at: its last step's change, or 0."""
-    return mon.steps[-1].change if mon is not None and mon.steps else 0
-
-
-def _fold_last(traj: list[FrameEstimate], conf: HybridConfig, a, why: str, refused: str, apply, record=None
-               ) -> tuple[list[FrameEstimate], dict]:
-    """The trajectory with the alignment ``a`` (``None``: not measured, because ``why``) folded into its last
-    estimate by ``apply(T, cov, a)`` unless ``refused`` says why not, and the alignment's result block
-    (``record(a)`` when applied; default ``a.record(True)``)."""
-    if a is None:
-        return traj, {"applied": False, "note": why}
-    if refused:
-        return traj, a.record(False, refused)
-    last = traj[-1]
-    T, cov = apply(last.T, last.cov, a)
-    return [*traj[:-1], with_cov(last, cov, conf, T)], (record or (lambda a: a.record(True)))(a)
-
-
-def with_lidar(traj: list[FrameEstimate], drive: Drive, frames, conf: HybridConfig, mon: MountMonitor | None,
-               motion: MotionSource | None = None) -> tuple[list[FrameEstimate], dict]:
-    """The trajectory with the LiDAR's lateral (and, when it is certain enough, forward) offset
-    (``calib.lidar_alignment``) folded into its last estimate, and the result's ``lidar`` block (what was
-    measured, and whether and why not it was applied).
-    Frames: those the loop used, after the radar's last mount step (the mount before it was another)."""
-    since = _since_last_step(mon)
-    indices = [drive.indices[f.index] for f in traj if f.index >= since and 0 <= f.index < len(drive.indices)]
-    lfs = drive_frames(frames, indices, conf.lidar, motion.velocity if motion is not None else None,
-                       conf.motion.velocity)
-    if not lfs:
-        return traj, {"applied": False, "note": "no LiDAR in the frames (the alignment needs the LiDAR keyframes "
-                                                "and the tables' LiDAR-camera extrinsic; the frames are read with "
-                                                "their LiDAR only for --depth lidar-densified)"}
-    a, why = align(lfs, traj[-1].T, conf.lidar)
-    if a is None:
-        return traj, {"applied": False, "note": why}
-    no_dx, z = forward_refusal(a, conf.lidar), lidar_innovation(a, traj[-1].cov)
-    if no := lidar_refusal(a, conf.lidar, traj[-1].cov):
-        return traj, a.record(False, no, innovation=z)
-    return _fold_last(traj, conf, a, why, "", lambda T, cov, a: apply_offsets(T, cov, a, forward=not no_dx),
-                      lambda a: a.record(True, forward=not no_dx, forward_why=no_dx, innovation=z))
-
-
-def with_doppler(traj: list[FrameEstimate], drive: Drive, frames, conf: HybridConfig, mon: MountMonitor | None,
-                 motion: MotionSource | None) -> tuple[list[FrameEstimate], dict]:
-    """The trajectory with the radar's forward offset from its Doppler in turns (``calib.lever_arm``) folded
-    into its last estimate, and the result's ``doppler`` block (what was measured, and whether and why not it
-    was applied). Sweeps: every frame of the drive after the radar's last mount step (the Doppler does not
-    depend on the network's domain); velocities: the motion source's (one Doppler fit per frame)."""
-    velocity, cache = (motion.velocity, motion.sweeps) if motion is not None else (None, None)
-    sweeps, T_ego_cam = drive_sweeps(frames, drive.indices[_since_last_step(mon):], velocity, conf.doppler.sweeps,
-                                     cache)
-    if T_ego_cam is None:
-        return traj, {"applied": False, "note": "no camera mount (T_ego_cam) in the tables: the ego poses cannot "
-                                                "be carried to the camera"}
-    a, why = fit_lever_arm(sweeps, traj[-1].T, T_ego_cam, conf.doppler)
-    wrong = (mon.summary().get("implausible") or "") if mon is not None else ""  # the same pairs: not trusted
-    return _fold_last(traj, conf, a, why, (wrong or refusal(a, conf.doppler)) if a else "", apply_forward)
-
-
-def with_yaw_check(traj: list[FrameEstimate], drive: Drive, conf: HybridConfig, mon: MountMonitor | None
-                   ) -> tuple[list[FrameEstimate], dict | None]:
-    """The trajectory with its last estimate's yaw checked against the radar's own yaw on the vehicle (the mount
-    monitor's level: ``calib.mount_monitor.yaw_agreement``), and the check's record (None: no monitor, or no one
-    level to compare with). Where the two disagree (both put the radar off its tables' yaw, by amounts more than 3
-    sigma apart), one of them, or the camera's mount in the tables, is wrong and nothing here tells which: the
-    estimate's variance about the ego z axis grows by the squared difference, so its 1-sigma covers the other
-    measurement too, and its status says so. Measured on nuScenes scene-0916 (probe 9): the loop on its in-domain
-    frames put the radar's yaw 1.97 +- 0.16 deg off the tables, its Doppler 0.93 +- 0.10; without the check the
-    verdict read "recalibrate" by 1.97 deg (and 1.11 +- 0.34 from another start)."""
-    if mon is None or drive.ego_radar is None or not traj:
-        return traj, None
-    from hybrid_calib.calib.mount_monitor import yaw_agreement
-    from hybrid_calib.geometry import se3_inverse
-
-    last = traj[-1]
-    # the tables' camera mount: their radar mount and the reference extrinsic (the truth's on simulated roots: probe 16)
-    check = yaw_agreement(last.T, last.cov, drive.ego_radar @ se3_inverse(drive.reference), drive.ego_radar,
-                          mon.summary())
-    if check is None or not check["disagree"]:
-        return traj, check
-    from hybrid_calib.calib.covariance import report_std
-
-    u, d = np.asarray(check["direction"]), np.radians(check["difference_deg"])
-    cov = last.cov + d * d * np.outer(u, u)
-    words = (f"its yaw disagrees with the radar's own: the estimate puts the radar {check['estimate_deg']:+.2f} +- "
-             f"{check['estimate_std_deg']:.2f} deg from its tables' yaw on the vehicle, the radar's Doppler against "
-             f"the ego poses {check['doppler_deg']:+.2f} +- {check['doppler_std_deg']:.2f} deg "
-             f"({check['sigmas']:.1f} sigma apart): the estimate, or the camera's mount in the tables (which the "
-             "comparison takes as exact), is wrong; the yaw's 1-sigma is widened to cover both")
-    # the data's own words kept (they say what the drive observes; the widening is this disagreement's, said after)
-    est = dataclasses.replace(last.estimate, cov=cov, std=report_std(last.T, cov),
-                              status=f"{last.estimate.status} ({words})")
-    return [*traj[:-1], dataclasses.replace(last, estimate=est)], {**check, "widened": True, "words": words}
-
-
 def _pure(runner, drive, T0, conf, tr):
     traj, rows, pos = [], tr.rows, drive.positions()
     for i, out in _passes(runner, drive, T0, conf, tr):
         traj.append(_frame(pos[i], out.rows_last.frame_id, out.rows_last.timestamp_us,
-                           _estimate(out.T, runner.network_cov(out), conf), 1, out.seconds * 1e3))
+                           reported_estimate(out.T, runner.network_cov(out), conf), 1, out.seconds * 1e3))
         rows.append({"frame_id": out.rows_last.frame_id, "used": 0, "rejected": 0, "network_ms": out.seconds * 1e3,
                      "ood_score": json_score(runner.ood_score(out))})
     return traj
@@ -576,27 +239,14 @@ def _pure_avg(runner, drive, T0, conf, tr):
     for k, (i, out) in enumerate(passes):
         t0 = time.perf_counter()
         M, cov, w = robust_average(Ts[: k + 1], covs[: k + 1], conf.average, M)
-        traj.append(_frame(pos[i], out.rows_last.frame_id, out.rows_last.timestamp_us, _estimate(M, cov, conf), k + 1,
+        traj.append(_frame(pos[i], out.rows_last.frame_id, out.rows_last.timestamp_us,
+                           reported_estimate(M, cov, conf), k + 1,
                            out.seconds * 1e3 + (time.perf_counter() - t0) * 1e3))
         rows.append({"frame_id": out.rows_last.frame_id, "used": 0, "rejected": 0, "network_ms": out.seconds * 1e3,
                      "ood_score": json_score(runner.ood_score(out))})
     if passes:
         rows[-1]["weights"] = [float(x) for x in w]
     return with_drive_error(traj, mconf.drive_std, conf)
-
-
-def motion_bias_cov(C: np.ndarray, g: np.ndarray, motion_std_rad: float) -> np.ndarray:
-    """``C + s^2 (C g)(C g)^T``: the window's covariance ``C`` (6, 6) with a heading bias common to
-    the drive's motion measurements (std ``s`` rad) carried through their summed gain ``g = sum(w J)``
-    (6,) (a consider covariance)."""
-    gm = C @ g
-    return C + motion_std_rad ** 2 * np.outer(gm, gm)
-
-
-def with_motion_bias(traj: list[FrameEstimate], motion_gain: list[np.ndarray], motion_std_rad: float,
-                     conf: HybridConfig) -> list[FrameEstimate]:
-    """The trajectory with ``motion_bias_cov`` in every reported covariance (``motion_gain``: per frame)."""
-    return [with_cov(f, motion_bias_cov(f.cov, g, motion_std_rad), conf) for f, g in zip(traj, motion_gain)]
 
 
 def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mount: MountMonitor | None = None,
@@ -745,21 +395,6 @@ BLOCK_METHODS = {"oracle": ("oracle",), "measurement": ("hybrid", "pure-avg"), "
 def unused_blocks(method: str, overrides: dict) -> list[str]:
     """The config blocks of ``overrides`` (``--set``) that ``method`` does not read (``BLOCK_METHODS``)."""
     return [k for k, methods in BLOCK_METHODS.items() if k in overrides and method not in methods]
-
-
-STANDSTILL_M = 1.0  # a drive whose ego poses travel less than this, metres: its frames are one view
-
-
-def standstill_reason(frames, drive: Drive) -> str:
-    """Why a learned result of a drive that did not move cannot be trusted, or "": its frames repeat one view, so the
-    network's passes on them share their errors, yet each entered as an independent frame (a stand-still drive's
-    1-sigma shrank from 1 frame to 10 with the same estimate, NEES 13.7 -> 23.3 on real data: probe 7)."""
-    travel = getattr(frames, "ego_travel_m", lambda idx: None)(drive.indices) if len(drive.indices) > 1 else None
-    if travel is None or travel >= STANDSTILL_M:
-        return ""
-    return (f"the vehicle did not move (its ego poses travel {travel:.2f} m over {len(drive.indices)} frames): the "
-            "frames repeat one view, so they are not independent measurements and the covariance is too small; "
-            "calibrate on a drive")
 
 
 def range_note(start: str, trained: str, checkpoint: str) -> str:

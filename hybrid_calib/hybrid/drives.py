@@ -1,0 +1,208 @@
+"""A vehicle's drive as the learned methods read it: its frames in time order, the start's base and what errors are
+against (``Drive``, ``open_drives``), the depth the network reads there, its start, and what the drive itself says
+about trust (a vehicle that did not move, the radar's sweep files).
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from hybrid_calib.errors import DataError
+from hybrid_calib.hybrid.network import shipped_checkpoint
+from hybrid_calib.perturbation import vehicle_start
+
+if TYPE_CHECKING:
+    from hybrid_calib.hybrid.loop import HybridConfig
+
+
+@dataclass
+class Drive:
+    """One vehicle of a root: its frame indices (time order), the start base and what errors are against."""
+
+    vehicle: str
+    indices: list[int]
+    base: np.ndarray  # (4, 4) truth (simulated) or tables (real)
+    reference: np.ndarray  # (4, 4) the reference the drift test uses
+    simulated: bool
+    # (4, 4) the radar mount of the vehicle's tables (a simulated vehicle's: its factory calibration) at the first
+    # readable frame: the radar mount monitor's reference and lever arm, and the yaw check's
+    ego_radar: np.ndarray | None = None
+    # (4, 4) simulated roots: the truth at the drive's last frame (differs from base when the mount moved
+    # during the drive, e.g. a knocked radar); the final estimate's errors are against it
+    end: np.ndarray | None = None
+    # the vehicle's samples the index left out (no camera or radar keyframe): frames_skipped with index None
+    index_skips: list = field(default_factory=list)
+
+    @property
+    def errors_against(self) -> str:
+        return "truth" if self.simulated else "tables"
+
+    def positions(self) -> dict[int, int]:
+        """dataset index -> the frame's position in this drive (0-based): a learned trajectory's
+        ``FrameEstimate.index``, so frames the loop dropped leave gaps instead of shifting later ones."""
+        return {i: k for k, i in enumerate(self.indices)}
+
+
+def resolve_depth(data, version: str, conf: HybridConfig) -> tuple[str, str]:
+    """(depth spec, note): ``conf.depth``, or lidar-densified on a real root with LiDAR, or "" (the
+    checkpoint's)."""
+    from hybrid_calib.data.tables import NuScenesTables
+    from learned.depth import LidarDepth
+
+    if conf.depth:
+        return conf.depth, ""
+    tables = NuScenesTables(data, version)
+    simulated = (tables.vdir / "sim_vehicle.json").is_file()
+    if not simulated and "LIDAR_TOP" in tables.channels():
+        return LidarDepth.name, "real root without --depth: using lidar-densified depth (the LiDAR through the tables)"
+    return "", ""
+
+
+def effective_depth(data, version: str, conf: HybridConfig) -> str:
+    """The depth estimator a learned run uses: ``--depth``, the real root's lidar-densified, or the checkpoint's."""
+    return resolve_depth(data, version, conf)[0] or trained_depth(conf.checkpoint or shipped_checkpoint(conf.start))
+
+
+def trained_depth(checkpoint) -> str:
+    """The depth spec a checkpoint (path) was trained with (``learned.depth.trained_with``)."""
+    from learned.checkpoint import read_checkpoint_meta
+    from learned.depth import trained_with
+
+    return trained_with(read_checkpoint_meta(checkpoint)[1].get("train_config"))
+
+
+def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable: dict | None = None):
+    """(frames, {vehicle: Drive}) of a root, restricted to ``conf.vehicles``, the frames of
+    ``conf.split`` (``learned.dataset.split_indices`` with ``conf.split_options``) and ``conf.max_frames``.
+    A vehicle none of whose frames reads is a ``DataError`` (naming the first bad file), or, when
+    ``unreadable`` is a dict, recorded there (vehicle -> reason) and left out."""
+    from hybrid_calib.data.summary import keyframe_gap_warning
+    from learned.dataset import open_frames, split_indices
+
+    frames = open_frames(data, version, lidar=lidar, options=conf.data)
+    simulated = bool(getattr(frames, "sim_vehicles", {}))
+    for vehicle, names in getattr(frames, "calibration_splits", {}).items():  # said where the names appear
+        left = [n for n in names if conf.vehicles is not None and n not in conf.vehicles]
+        print(f"vehicle {vehicle}: its frames hold {len(names)} camera-radar calibrations in the tables, calibrated "
+              f"as {', '.join(names)}" + (f" ({', '.join(left)} not among the vehicles asked for)" if left else ""),
+              file=sys.stderr)
+    for log, words in (frames.intrinsic_changes() if hasattr(frames, "intrinsic_changes") else {}).items():
+        print(f"log {log}: {words}", file=sys.stderr)
+    if dup := getattr(frames, "duplicates", None):  # the index read them once (data.nuscenes._once_per_file)
+        first = next(iter(dup.items()))
+        print(f"note: {len(dup)} sample(s) read the same sensor files as earlier samples (first: {first[0]}, as "
+              f"{first[1]}): the tables list one recording twice; each frame is read once (hybrid-calib inspect lists "
+              "them)", file=sys.stderr)
+    by_scene: dict[str, list[int]] = {}
+    for ref in getattr(frames, "frames", []):
+        if isinstance(ref.camera_sd.get("timestamp"), int):
+            by_scene.setdefault(ref.scene_token, []).append(ref.camera_sd["timestamp"])
+    if gap := keyframe_gap_warning(by_scene.values()):  # inspect said it; a calibration read time from them silently
+        print(f"{gap}: the radar mount monitor, its Doppler pairs and the motion constraint read time from them; fix "
+              "the tables before trusting this calibration", file=sys.stderr)
+    keep = None if conf.split == "all" else set(split_indices(frames, conf.split, conf.split_options))
+    drives, outside_split = {}, []
+    by_vehicle = frames.frames_by_vehicle()
+    for vehicle, idx in sorted(by_vehicle.items()):
+        if conf.vehicles is not None and vehicle not in conf.vehicles:
+            continue
+        if keep is not None:
+            idx = [i for i in idx if i in keep]
+            if not idx:
+                outside_split.append(vehicle)
+                continue
+        idx = idx[: conf.max_frames] if conf.max_frames > 0 else idx
+        f, first_error = None, None
+        for i in idx:  # the first readable frame gives the extrinsics
+            try:
+                f = frames[i]
+                break
+            except DataError as e:
+                first_error = first_error or e
+                continue
+        if f is None:
+            reason = (f"vehicle {vehicle}: no readable frame ({len(idx)} frame(s) tried; first: "
+                      f"{first_error if first_error is not None else '-'})")
+            if unreadable is None:
+                raise DataError(reason, path=str(data))
+            unreadable[vehicle] = reason
+            continue
+        static = np.asarray(f.extras.get("T_cam_radar_static", f.T_cam_radar), np.float64)
+        ref = np.asarray(f.extras.get("reference_T_cam_radar", static), np.float64)
+        ego_radar = f.extras.get("reference_T_ego_radar", f.extras.get("T_ego_radar"))
+        drives[vehicle] = Drive(vehicle, list(idx), static, ref, simulated,
+                                None if ego_radar is None else np.asarray(ego_radar, np.float64),
+                                _end_truth(frames, idx, static) if simulated else None,
+                                [{"index": None, "token": s.token, "reason": s.reason}
+                                 for s in getattr(frames, "lacking_keyframes", {}).get(vehicle, [])])
+    for vehicle, skips in sorted(getattr(frames, "lacking_keyframes", {}).items()):  # a vehicle of no frame at all
+        if vehicle in by_vehicle or vehicle in drives or (conf.vehicles is not None and vehicle not in conf.vehicles):
+            continue
+        reason = (f"vehicle {vehicle}: no frame: none of its {len(skips)} sample(s) has both keyframes the run reads "
+                  f"(first: {skips[0].reason}); hybrid-calib inspect lists its channels")
+        if unreadable is None:
+            raise DataError(reason, path=str(data))
+        unreadable[vehicle] = reason
+    if outside_split and not drives and not unreadable and conf.vehicles is None:  # "no vehicle to calibrate (check
+        # --set vehicles=...)"; with a vehicle filter, the wanted vehicles' own message below
+        opts = f", split options {conf.split_options}" if conf.split_options else ""
+        raise DataError(f"no frame of vehicle(s) {outside_split} is in split {conf.split!r}{opts} ({len(frames)} "
+                        "frames in the data; split by scene, the scenes of a small root can all go to train); pass "
+                        "--split all, or --split-by time, or other --val-fraction / --test-fraction", path=str(data))
+    # a wanted vehicle none of whose frames reads is in ``unreadable`` with its reason, not "not in the data"
+    if conf.vehicles is not None and (missing := sorted(set(conf.vehicles) - set(drives) - set(unreadable or {}))):
+        present = sorted(by_vehicle)
+        if in_data := [v for v in missing if v in present]:  # present, but no frame of the split
+            opts = f" (split options {conf.split_options})" if conf.split_options else ""
+            raise DataError(f"vehicle(s) {in_data} have no frame in split {conf.split!r}{opts}; pass --split all or "
+                            "other split options", path=str(data))
+        raise DataError(f"vehicle(s) {missing} not in the data (vehicles: {present})", path=str(data))
+    return frames, drives
+
+
+def _end_truth(frames, idx: list[int], static: np.ndarray) -> np.ndarray:
+    """The static truth at the last readable frame of a simulated drive (``static`` when none reads)."""
+    for i in reversed(idx):
+        try:
+            f = frames[i]
+        except DataError:
+            continue
+        return np.asarray(f.extras.get("T_cam_radar_static", f.T_cam_radar), np.float64)
+    return static
+
+
+def start_of(drive: Drive, conf: HybridConfig) -> np.ndarray:
+    return vehicle_start(drive.reference if conf.start == "reference" else drive.base, conf.start, conf.seed,
+                         drive.vehicle)
+
+
+def sweep_files_record(frames, indices) -> dict:
+    """The mount block's words on the radar's sweep files between keyframes over dataset ``indices`` (those the
+    monitor read): ``sweeps_absent`` when the tables list sweeps and none is on disk (a keyframe-only copy), else
+    ``sweeps_missing`` {"n", "of", "first"} when some are missing."""
+    seen = [getattr(frames, "sweep_files", {}).get(i) for i in indices]
+    listed = sum(s[0] for s in seen if s)
+    missing = [p for s in seen if s for p in s[1]]
+    if listed and len(missing) == listed:
+        return {"sweeps_absent": True}
+    return {"sweeps_absent": False, **({"sweeps_missing": {"n": len(missing), "of": listed, "first": missing[0]}}
+                                       if missing else {})}
+
+
+STANDSTILL_M = 1.0  # a drive whose ego poses travel less than this, metres: its frames are one view
+
+
+def standstill_reason(frames, drive: Drive) -> str:
+    """Why a learned result of a drive that did not move cannot be trusted, or "": its frames repeat one view, so the
+    network's passes on them share their errors, yet each entered as an independent frame (a stand-still drive's
+    1-sigma shrank from 1 frame to 10 with the same estimate, NEES 13.7 -> 23.3 on real data: probe 7)."""
+    travel = getattr(frames, "ego_travel_m", lambda idx: None)(drive.indices) if len(drive.indices) > 1 else None
+    if travel is None or travel >= STANDSTILL_M:
+        return ""
+    return (f"the vehicle did not move (its ego poses travel {travel:.2f} m over {len(drive.indices)} frames): the "
+            "frames repeat one view, so they are not independent measurements and the covariance is too small; "
+            "calibrate on a drive")
