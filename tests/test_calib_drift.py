@@ -516,3 +516,32 @@ def test_a_recent_estimate_more_certain_than_the_long_run_falls_back_to_its_own_
     B = report_basis(T)
     np.testing.assert_allclose(C, B @ np.linalg.inv(2 * info_long) @ B.T, rtol=1e-9, atol=1e-18)
     assert chi2_quadratic(u, C) > 0
+
+
+def test_an_estimate_pulled_toward_a_prior_its_data_contradict_decides_nothing():
+    """Probe 20: with a fleet prior the drive's data disagreed with (p 1e-9), a 6-frame vehicle read "differs by 1.11
+    deg in roll: recalibrate" (its roll 0.22 deg off the truth without the prior, 0.88 with it), the words saying "the
+    drive's data dominate", and export wrote that mount. Such a verdict is "cannot tell", kept so by a report's
+    other tolerance, and not exported."""
+    from types import SimpleNamespace
+
+    from hybrid_calib.calib.drift import against_tolerance, prior_note, with_prior
+    from hybrid_calib.calib.export import _why_not
+
+    T = nominal_T_cam_radar()
+    C = np.diag([np.radians(0.05) ** 2] * 3 + [0.005 ** 2] * 3)
+    moved = perturb_camera_frame(T, np.radians([1.1, 0.0, 0.0]), [0.0, 0.0, 0.0])
+    drift = reference_test(moved, C, T).to_dict()
+    assert drift["verdict_kind"] == "recalibrate"
+    conflict = {"statistic": 48.0, "dof": 6, "p_value": 1e-9, "conflict": True}
+    bad = with_prior(drift, prior_note(np.ones(6), np.full(6, 10.0), conflict))
+    assert bad["verdict_kind"] == "cannot tell" and not bad["drifted"], bad["verdict"]
+    assert bad["verdict"].startswith("cannot tell: the fleet prior disagrees with this drive's data (chi2 48.0 on 6")
+    assert "differs by 1.10 deg in roll" in bad["with_prior"] and "data dominate" not in bad["verdict"]
+    assert against_tolerance(bad, "ok", None, rot_deg=0.3)["verdict_kind"] == "cannot tell"
+    vr = SimpleNamespace(final=SimpleNamespace(status="ok"), method="oracle", drift=bad)
+    assert _why_not(vr, "trusted").startswith("not exported: the fleet prior disagrees")
+    fine = with_prior(drift, prior_note(np.ones(6), np.full(6, 10.0), {**conflict, "conflict": False}))
+    assert fine["verdict_kind"] == "recalibrate" and fine["verdict"].endswith("(the fleet prior was applied; the "
+                                                                             "drive's data dominate)")
+    assert _why_not(SimpleNamespace(final=SimpleNamespace(status="ok"), method="oracle", drift=fine), "trusted") == ""

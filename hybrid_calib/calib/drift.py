@@ -315,9 +315,9 @@ def against_tolerance(drift: dict, status: str, mount: dict | None, rot_deg: flo
                       trans_cm: float | None = None) -> dict:
     """A stored reference test (``DriftDecision.to_dict``) redone against another tolerance (deg per rotation axis,
     cm per translation axis; None keeps the axis' stored one): the same per-axis decisions and verdict as
-    ``reference_test`` (at the stored ``alpha``), then ``unconverged`` (``status``) and ``camera_side_note``
-    (``mount``: the result's mount-monitor block) as the calibrator applies them. A block without the six per-axis
-    checks (written before they existed) is returned unchanged."""
+    ``reference_test`` (at the stored ``alpha``), then ``unconverged`` (``status``), ``with_prior`` (the stored fleet
+    prior's note) and ``camera_side_note`` (``mount``: the result's mount-monitor block) as the calibrator applies
+    them. A block without the six per-axis checks (written before they existed) is returned unchanged."""
     axes = drift.get("axes")
     if not isinstance(axes, dict) or any(not isinstance(axes.get(n), dict) for n in AXIS_WORDS):
         return drift
@@ -329,11 +329,14 @@ def against_tolerance(drift: dict, status: str, mount: dict | None, rot_deg: flo
                           for a, given in zip(rows, [rot_deg] * 3 + [trans_cm] * 3)])
     checks = _check_axes(delta, std, pinned, tolerance, float(drift.get("alpha", DriftConfig.alpha)))
     kind, sentence = _verdict(checks)
-    out = {k: v for k, v in drift.items() if k != "camera_side"}
+    out = {k: v for k, v in drift.items() if k not in ("camera_side", "prior", "with_prior")}
     out.update(verdict_kind=kind, verdict=sentence, drifted=kind == "recalibrate",
                exceeds_margin=any(abs(a.delta) > a.tolerance for a in checks),
                axes={a.name: a.to_dict() for a in checks})
-    return camera_side_note(unconverged(out, status), mount)
+    out = unconverged(out, status)
+    if isinstance(drift.get("prior"), dict) and "words" in drift["prior"]:  # as the calibrator applied it
+        out = with_prior(out, drift["prior"])
+    return camera_side_note(out, mount)
 
 
 def unconverged(drift: dict, status: str) -> dict:
@@ -427,12 +430,26 @@ def prior_note(std_post: np.ndarray, std_prior: np.ndarray, conflict: dict | Non
     dom = [AXIS_WORDS[i] for i in range(6) if std_post[i] >= PRIOR_DOMINATED * std_prior[i]]
     words = (f"the fleet prior dominates {', '.join(dom)} (the drive's data left its std there): the verdict on "
              "those axes restates the prior" if dom else "the fleet prior was applied; the drive's data dominate")
-    if conflict and conflict.get("conflict"):
+    if conflict and conflict.get("conflict"):  # the data do not dominate what they disagree with: said alone
         words = (f"the fleet prior disagrees with this drive's data (chi2 {conflict['statistic']:.1f} on "
                  f"{conflict['dof']} dof, p {conflict['p_value']:.1g}): the estimate is pulled toward it; check where "
-                 f"the prior came from, or calibrate without it; {words}")
+                 "the prior came from, or calibrate without it" + (f"; it dominates {', '.join(dom)}" if dom else ""))
     return {"std_prior_cam": std_prior.tolist(), "dominated": dom, "words": words,
             **({"conflict": conflict} if conflict else {})}
+
+
+def with_prior(drift: dict, note: dict) -> dict:
+    """``drift`` (``DriftDecision.to_dict``) with the fleet prior's ``note`` (``prior_note``): its words after the
+    verdict; and when the drive's data disagree with the prior (``prior_conflict``), the verdict "cannot tell" (the
+    verdict the estimate pulled toward the prior gave is kept as ``with_prior``): an estimate pulled toward a prior its
+    data contradict decides nothing about the mount (probe 20: a 6-frame drive read "differs by 1.11 deg in roll:
+    recalibrate" with such a prior, its roll error against the truth 0.22 deg without it and 0.88 with it)."""
+    out = {**drift, "prior": note}
+    if (note.get("conflict") or {}).get("conflict"):
+        return {**out, "drifted": False, "verdict_kind": "cannot tell", "with_prior": drift.get("verdict"),
+                "verdict": f"cannot tell: {note['words']}; the estimate decides nothing about the mount (with the "
+                           f"prior it read: {drift.get('verdict')})"}
+    return {**out, "verdict": f"{drift.get('verdict')} ({note['words']})"}
 
 
 def prior_conflict(T_post: np.ndarray, info_post: np.ndarray, T_prior: np.ndarray, cov_prior: np.ndarray,

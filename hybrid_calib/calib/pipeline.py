@@ -291,12 +291,12 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, progress: bool = 
     drift = reference_test(final.T, final.cov, vi.reference, conf.drift, prior_pinned_std(fc))
     res.drift = unconverged(drift.to_dict(), final.status)
     if prior is not None:
-        from hybrid_calib.calib.drift import prior_conflict, prior_note
+        from hybrid_calib.calib.drift import prior_conflict, prior_note, with_prior
 
         conflict = None if final.info is None else prior_conflict(final.T, final.info, np.asarray(prior.T),
                                                                   np.asarray(prior.cov))
-        res.drift["prior"] = prior_note(final.std, report_std(np.asarray(prior.T), np.asarray(prior.cov)), conflict)
-        res.drift["verdict"] = f"{res.drift['verdict']} ({res.drift['prior']['words']})"
+        res.drift = with_prior(res.drift, prior_note(final.std, report_std(np.asarray(prior.T), np.asarray(prior.cov)),
+                                                     conflict))
     res.network = _network_summary(vi)
     if vi.truth:
         T_true = vi.truth[-1]
