@@ -31,7 +31,8 @@ import numpy as np
 from hybrid_calib.calib.covariance import status_kind
 from hybrid_calib.config import merge, parse_overrides, require_ranges, save_json_atomic, to_dict
 
-HELP = "simulate a small drive, draw radar points on the image, calibrate radar->camera, report"
+HELP = ("simulate a small drive, draw radar points on the image, calibrate radar->camera; then calibrate a 3-vehicle "
+        "simulated fleet (one radar knocked) and print one verdict per vehicle")
 
 
 @dataclass(frozen=True)

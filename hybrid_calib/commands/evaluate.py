@@ -67,7 +67,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="radar sweeps accumulated per frame (default: what the checkpoint's training run read, "
                              "else 1)")
     parser.add_argument("--set", dest="overrides", action="extend", nargs="+", default=[], metavar="KEY=VALUE",
-                        help="EvalConfig override, e.g. --set batch_size=8 --set device=cuda (repeatable)")
+                        help="EvalConfig override, e.g. --set batch_size=8 threads=2 (device=cuda with a CUDA build of "
+                             "torch; repeatable)")
     parser.add_argument("--fit-uncertainty", action="store_true",
                         help="fit per-axis factors for the exported covariance on these frames and store them in "
                              "the checkpoint (use --split val or a separate root; never the test split)")

@@ -49,7 +49,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="skip the HTML pages (OUT/fleet.html and a report.html beside each vehicle's result)")
     p.add_argument("--set", action="extend", nargs="+", metavar="KEY=VALUE", default=[],
                    help="overrides for every vehicle: CalibrateConfig keys for --method oracle (e.g. window.window=10 "
-                        "mode=batch), HybridConfig keys for hybrid / pure / pure-avg (e.g. measurement.rows=none)")
+                        "mode=batch), HybridConfig keys for hybrid / pure / pure-avg (e.g. measurement.rows=none); "
+                        "threads, seed, method and checkpoint are this command's flags")
 
 
 def run(args: argparse.Namespace) -> int:

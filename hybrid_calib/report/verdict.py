@@ -185,7 +185,10 @@ def verdict_of(vr: VehicleResult, tol: Tolerance | None = None) -> Verdict:
     turned = mount_steps_beyond(vr.mount, rot)
     if not turned:
         return v
-    return Verdict("recalibrate", f"{turned} Against the reference at the drive's end: {v.word}: {v.why}",
+    # the why often opens with its own verdict words ("cannot tell: ..."): said once, not "inconclusive: cannot tell"
+    said = v.why if v.why.startswith(("cannot tell", "within tolerance", "differs", "inconclusive")) else \
+        f"{v.word}: {v.why}"
+    return Verdict("recalibrate", f"{turned} Against the reference at the drive's end: {said}",
                    v.tolerance, f"the radar mount monitor; {v.source}", v.moved, v.moved_frames)
 
 
