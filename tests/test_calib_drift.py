@@ -545,3 +545,28 @@ def test_an_estimate_pulled_toward_a_prior_its_data_contradict_decides_nothing()
     assert fine["verdict_kind"] == "recalibrate" and fine["verdict"].endswith("(the fleet prior was applied; the "
                                                                              "drive's data dominate)")
     assert _why_not(SimpleNamespace(final=SimpleNamespace(status="ok"), method="oracle", drift=fine), "trusted") == ""
+
+
+def test_the_calibrator_refuses_a_prior_the_drives_data_contradict():
+    """The estimate is then the drive's own (the same as without the prior), and its verdict says why."""
+    from hybrid_calib.calib.pipeline import CalibrateConfig, VehicleInput, calibrate_vehicle
+    from hybrid_calib.calib.schedule import GaussianPrior
+
+    T = nominal_T_cam_radar()
+    frames, _ = synthetic_drive(T, 8, rng(4))
+    vi = VehicleInput("v", frames, reference=T)
+    from hybrid_calib.config import merge
+
+    conf = merge(CalibrateConfig, {"window": {"window": 20, "detect_steps": False}})
+    cov = np.diag([np.radians(1.0) ** 2] * 3 + [0.05 ** 2] * 3)
+    own = calibrate_vehicle(vi, conf, progress=False, T_start=T)
+    bad = calibrate_vehicle(vi, conf, progress=False, prior=GaussianPrior(retract(T, np.array(
+        [np.radians(5.0), 0, 0, 0, 0, 0])), cov), T_start=T)
+    np.testing.assert_allclose(bad.final.T, own.final.T, atol=1e-12)
+    assert bad.drift["prior"]["refused"] and bad.drift["prior"]["conflict"]["conflict"]
+    assert bad.drift["verdict"].endswith("(the fleet prior was not applied: it disagrees with this drive's data "
+                                         f"(chi2 {bad.drift['prior']['conflict']['statistic']:.1f} on 6 dof, p "
+                                         f"{bad.drift['prior']['conflict']['p_value']:.1g}); the estimate is the "
+                                         "drive's own: check where the prior came from)"), bad.drift["verdict"]
+    good = calibrate_vehicle(vi, conf, progress=False, prior=GaussianPrior(T, cov), T_start=T)
+    assert not good.drift["prior"].get("refused") and "the fleet prior dominates pitch" in good.drift["verdict"]

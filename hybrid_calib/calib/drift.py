@@ -438,14 +438,25 @@ def prior_note(std_post: np.ndarray, std_prior: np.ndarray, conflict: dict | Non
             **({"conflict": conflict} if conflict else {})}
 
 
+def refused_prior(note: dict) -> dict:
+    """``prior_note``'s block for a prior the drive's data contradict, which the calibrator therefore did not apply
+    (``calib.pipeline.calibrate_vehicle``): ``refused`` and words that say so; the estimate is the drive's own."""
+    c = note.get("conflict") or {}
+    return {**note, "refused": True, "dominated": [],
+            "words": (f"the fleet prior was not applied: it disagrees with this drive's data (chi2 "
+                      f"{c.get('statistic', float('nan')):.1f} on {c.get('dof', 0)} dof, p {c.get('p_value', 0):.1g}); "
+                      "the estimate is the drive's own: check where the prior came from")}
+
+
 def with_prior(drift: dict, note: dict) -> dict:
-    """``drift`` (``DriftDecision.to_dict``) with the fleet prior's ``note`` (``prior_note``): its words after the
-    verdict; and when the drive's data disagree with the prior (``prior_conflict``), the verdict "cannot tell" (the
-    verdict the estimate pulled toward the prior gave is kept as ``with_prior``): an estimate pulled toward a prior its
-    data contradict decides nothing about the mount (probe 20: a 6-frame drive read "differs by 1.11 deg in roll:
-    recalibrate" with such a prior, its roll error against the truth 0.22 deg without it and 0.88 with it)."""
+    """``drift`` (``DriftDecision.to_dict``) with the fleet prior's ``note`` (``prior_note``, or ``refused_prior``):
+    its words after the verdict; and when the drive's data disagree with a prior that was applied anyway
+    (``prior_conflict``), the verdict "cannot tell" (the verdict the estimate pulled toward the prior gave is kept as
+    ``with_prior``): an estimate pulled toward a prior its data contradict decides nothing about the mount (probe 20: a
+    6-frame drive read "differs by 1.11 deg in roll: recalibrate" with such a prior, its roll error against the truth
+    0.22 deg without it and 0.88 with it). ``calibrate_vehicle`` refuses such a prior instead."""
     out = {**drift, "prior": note}
-    if (note.get("conflict") or {}).get("conflict"):
+    if not note.get("refused") and (note.get("conflict") or {}).get("conflict"):
         return {**out, "drifted": False, "verdict_kind": "cannot tell", "with_prior": drift.get("verdict"),
                 "verdict": f"cannot tell: {note['words']}; the estimate decides nothing about the mount (with the "
                            f"prior it read: {drift.get('verdict')})"}

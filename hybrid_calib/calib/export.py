@@ -155,7 +155,8 @@ def _why_not(vr, which: str) -> str:
     if getattr(vr, "method", None) == "pure":  # the network's last pass alone (hybrid.loop.one_pass_verdict)
         return ("not exported: one pass of the network alone (method pure) is no calibration; calibrate with --method "
                 "hybrid")
-    if ((vr.drift or {}).get("prior") or {}).get("conflict", {}).get("conflict"):  # calib.drift.with_prior
+    prior = (vr.drift or {}).get("prior") or {}
+    if not prior.get("refused") and (prior.get("conflict") or {}).get("conflict"):  # calib.drift.with_prior
         return (f"not exported: {vr.drift['prior']['words']} (the estimate is pulled toward a prior this drive's data "
                 "contradict)")
     if side := (vr.drift or {}).get("camera_side"):  # the radar did not move on the vehicle: do not move its record

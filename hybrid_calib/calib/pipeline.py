@@ -260,7 +260,9 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, progress: bool = 
                       prior: GaussianPrior | None = None, T_start: np.ndarray | None = None) -> VehicleResult:
     """Calibrate one vehicle's frames; returns the per-frame trajectory (window) and the final estimate.
     ``prior``: an optional Gaussian prior on T_cam_radar (e.g. the fleet's, ``hybrid_calib.fleet.prior``),
-    given with the first frame (window; it then lives in the marginal prior) or to the batch solve.
+    given with the first frame (window; it then lives in the marginal prior) or to the batch solve; a prior the
+    drive's own data contradict (``drift.prior_conflict``) is refused: the vehicle is calibrated without it and its
+    verdict says why (``drift.refused_prior``).
     ``T_start`` (4, 4): the start extrinsic (default: ``conf.start`` drawn for the vehicle)."""
     from tqdm import tqdm
 
@@ -291,12 +293,16 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, progress: bool = 
     drift = reference_test(final.T, final.cov, vi.reference, conf.drift, prior_pinned_std(fc))
     res.drift = unconverged(drift.to_dict(), final.status)
     if prior is not None:
-        from hybrid_calib.calib.drift import prior_conflict, prior_note, with_prior
+        from hybrid_calib.calib.drift import prior_conflict, prior_note, refused_prior, with_prior
 
         conflict = None if final.info is None else prior_conflict(final.T, final.info, np.asarray(prior.T),
                                                                   np.asarray(prior.cov))
-        res.drift = with_prior(res.drift, prior_note(final.std, report_std(np.asarray(prior.T), np.asarray(prior.cov)),
-                                                     conflict))
+        note = prior_note(final.std, report_std(np.asarray(prior.T), np.asarray(prior.cov)), conflict)
+        if conflict and conflict["conflict"]:  # the drive's data contradict the prior: its own estimate, and why
+            own = calibrate_vehicle(vi, conf, progress, None, T0)
+            own.drift = with_prior(own.drift, refused_prior(note))
+            return own
+        res.drift = with_prior(res.drift, note)
     res.network = _network_summary(vi)
     if vi.truth:
         T_true = vi.truth[-1]
