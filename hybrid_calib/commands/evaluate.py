@@ -35,8 +35,7 @@ from hybrid_calib.commands import (
     reject_set_keys,
     split_overrides,
 )
-from hybrid_calib.config import deep_update, parse_overrides
-from hybrid_calib.errors import HybridCalibError
+from hybrid_calib.config import parse_overrides
 from hybrid_calib.perturbation import RANGES
 
 HELP = "evaluate a trained network on held-out frames (paper table: rotation deg, translation cm)"
@@ -80,11 +79,11 @@ def run(args: argparse.Namespace) -> int:
     from hybrid_calib.config import merge
     from hybrid_calib.data.files import data_stamp
     from hybrid_calib.plots.evaluation import plot_error_cdf
-    from learned.checkpoint import checkpoint_digest, load_model, trained_data
+    from learned.checkpoint import checkpoint_digest
     from learned.dataset import open_roots
-    from learned.depth import needs_lidar
+    from learned.eval_setup import setup_evaluation
     from learned.evaluate import EvalConfig, evaluate
-    from learned.uncertainty_fit import check_fit, fit_uncertainty, trained_on
+    from learned.uncertainty_fit import fit_uncertainty, trained_on
 
     user = parse_overrides(args.overrides)
     merge(EvalConfig, user)  # a bad --set fails here, before the checkpoint and the data are read
@@ -95,59 +94,17 @@ def run(args: argparse.Namespace) -> int:
     flags = split_overrides(args)  # the split flags change the checkpoint's split (or the default)
     given_flags(args, {f"split_options.{k}": a for k, a in SPLIT_FLAGS.items()},  # says a --set value it overrules
                 {f"split_options.{k}": v for k, v in (user.get("split_options") or {}).items()})
-    model, ckpt = load_model(args.checkpoint)
-    trained = ckpt.train_config or {}
-    if (rng := trained.get("perturbation")) in RANGES and rng != args.perturbation:
-        print(f"note: {ckpt.path.name} was trained on {rng} starts and is evaluated on {args.perturbation} starts: "
-              f"outside the range it was fitted for, its errors and covariance are not its {rng} figures (the "
-              f"shipped learned/checkpoints/small-sim-{args.perturbation.lower()}.json fits {args.perturbation})",
-              file=sys.stderr)
-    last = ckpt
-    stage_paths = [ckpt.path]
-    if args.refine:
-        from learned.cascade import Cascade
-
-        stages = [model]
-        for path in args.refine:
-            m, last = load_model(path)
-            stages.append(m)
-            stage_paths.append(last.path)
-        try:
-            model = Cascade(stages).eval()
-        except ValueError as e:
-            raise HybridCalibError(f"--refine: {e}") from None
-    conf = {"method": args.method, "perturbation": args.perturbation, "split": args.split,
-            "max_frames": args.max_frames}
-    for key, src in (("split_options", "split"), ("depth", "depth"), ("depth_options", "depth_options")):
-        if src in trained:
-            conf[key] = trained[src]
-    if flags:
-        conf["split_options"] = {**conf.get("split_options", {}), **flags}
-    if args.depth is not None:
-        conf["depth"] = args.depth
-        if args.depth != trained.get("depth"):
-            conf["depth_options"] = {}  # the checkpoint's options belong to its own estimator
-    conf["export"] = dict(last.export)
-    if args.fit_uncertainty:
-        check_fit(last.path, args.data, args.split, args.version, bool(args.refine))
-        conf["export"]["cov_scale"] = 1.0  # fit against the raw covariance
-    deep_update(conf, user)  # --set export.KEY=... changes that value and keeps the checkpoint's others
-    deep_update(conf, {**given, **({"split_options": flags} if flags else {})})  # a flag given wins over --set
-    # the LiDAR-camera variant calibrates T_cam_lidar from LiDAR points; lidar-densified depth reads them too
-    lidar = model.cfg.variant == "lidar" or needs_lidar(str(conf.get("depth", "")))
-    trained = trained_data(last.path).get("nsweeps")
-    if args.nsweeps is None:
-        args.nsweeps = int(trained) if isinstance(trained, int) and trained >= 1 else 1
-        if args.nsweeps != 1:
-            print(f"note: {args.nsweeps} radar sweeps per frame, as the checkpoint's training run read (--nsweeps "
-                  "to change)", file=sys.stderr)
-    elif isinstance(trained, int) and trained != args.nsweeps:
-        print(f"note: --nsweeps {args.nsweeps}, but the checkpoint was trained on {trained} sweeps per frame: its "
-              "inputs differ from what it learned", file=sys.stderr)
-    frames = open_roots(args.data, args.version, lidar=lidar, options={"nsweeps": args.nsweeps})
-    data = {"roots": [str(Path(d).resolve()) for d in args.data], "version": args.version, "nsweeps": args.nsweeps,
+    setup = setup_evaluation(args.checkpoint, args.refine, method=args.method, perturbation=args.perturbation,
+                             split=args.split, max_frames=args.max_frames, depth=args.depth, nsweeps=args.nsweeps,
+                             split_flags=flags, overrides=user, given=given, fit_uncertainty=args.fit_uncertainty,
+                             data=args.data, version=args.version)
+    for note in setup.notes:
+        print(note, file=sys.stderr)
+    last, stage_paths = setup.last, setup.stage_paths
+    frames = open_roots(args.data, args.version, lidar=setup.lidar, options={"nsweeps": setup.nsweeps})
+    data = {"roots": [str(Path(d).resolve()) for d in args.data], "version": args.version, "nsweeps": setup.nsweeps,
             "stamps": [data_stamp(d, args.version)["digest"] for d in args.data]}
-    result = evaluate(model, frames, conf, args.out, checkpoint=" -> ".join(map(str, stage_paths)),
+    result = evaluate(setup.model, frames, setup.conf, args.out, checkpoint=" -> ".join(map(str, stage_paths)),
                       overwrite=args.overwrite, progress=not args.no_progress, data=data,
                       network=[checkpoint_digest(p) for p in stage_paths])
     plot_error_cdf(result, Path(args.out) / "errors_cdf.png")
