@@ -641,7 +641,7 @@ def test_what_a_learned_method_does_not_measure_is_named_in_its_status():
 
     ok = with_prior_words(traj("ok"))[-1].estimate.status
     assert ok.startswith("weak: roll, pitch and vertical offset are prior-pinned, not measured by this drive (")
-    assert "std roll 0.7 deg, pitch 0.8 deg, vertical offset 14 cm" in ok and "tilted or raised" in ok
+    assert "std roll 0.70 deg, pitch 0.80 deg, vertical offset 14 cm" in ok and "tilted or raised" in ok
     named = "weak: vertical offset (translation along camera y) is prior-pinned, not measured (std 14 cm)"
     weak = with_prior_words(traj(named))[-1].estimate.status
     assert weak.startswith(named + "; roll and pitch are prior-pinned") and weak.count("vertical offset") == 1

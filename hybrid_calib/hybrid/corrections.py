@@ -108,7 +108,8 @@ def with_prior_words(traj: list[FrameEstimate]) -> list[FrameEstimate]:
     if not named:
         return traj
     units = {"roll": (2, "deg"), "pitch": (0, "deg"), "vertical offset": (4, "cm")}
-    stds = ", ".join(f"{w} {std[units[w][0]]:.2g} {units[w][1]}" for w in named)
+    stds = ", ".join(f"{w} {std[units[w][0]]:.2f} deg" if units[w][1] == "deg" else f"{w} {std[units[w][0]]:.3g} cm"
+                     for w in named)
     what = [*(["the network's learned prior of the radar's mount, seen through the camera"]
               if {"roll", "pitch"} & set(named) else []),
             *(["the vertical offset is the start's"] if "vertical offset" in named else [])]
