@@ -103,13 +103,12 @@ def with_prior_words(traj: list[FrameEstimate]) -> list[FrameEstimate]:
         return traj
     last = traj[-1]
     status, std = last.estimate.status, last.estimate.std
-    named = [w for w, i in (("roll", 2), ("pitch", 0), ("vertical offset", 4))
-             if not re.search(rf"\b{w} \([^)]*\) is prior-pinned", status)]
+    axes = {"roll": (2, "deg"), "pitch": (0, "deg"), "vertical offset": (4, "cm")}  # camera-axis std index, unit
+    named = [w for w in axes if not re.search(rf"\b{w} \([^)]*\) is prior-pinned", status)]
     if not named:
         return traj
-    units = {"roll": (2, "deg"), "pitch": (0, "deg"), "vertical offset": (4, "cm")}
-    stds = ", ".join(f"{w} {std[units[w][0]]:.2f} deg" if units[w][1] == "deg" else f"{w} {std[units[w][0]]:.3g} cm"
-                     for w in named)
+    stds = ", ".join(f"{w} {std[i]:.2f} deg" if unit == "deg" else f"{w} {std[i]:.3g} cm"
+                     for w, (i, unit) in axes.items() if w in named)
     what = [*(["the network's learned prior of the radar's mount, seen through the camera"]
               if {"roll", "pitch"} & set(named) else []),
             *(["the vertical offset is the start's"] if "vertical offset" in named else [])]
