@@ -376,6 +376,15 @@ def test_fleet_prior_recovers_mean_and_spread_and_names_the_outlier():
     assert fp.prior("knocked") is None and fp.priors()["knocked"] is None
     p = fp.prior("v00")  # leave-one-out: its own data is not in its prior
     assert np.shape(p["cov_right_radar"]) == (6, 6) and not np.allclose(p["T_cam_radar"], fp.T_mean)
+    # the predictive variance of a spread estimated from m = 49 other vehicles: Student-t, (m - 1) / (m - 3) S
+    loo = fp.loo["v00"]
+    np.testing.assert_allclose(np.asarray(p["cov_right_radar"]), 48 / 46 * loo.S + loo.cov_mu, rtol=1e-9, atol=1e-18)
+    # a fleet of 4 hands out no prior (each would rest on 3: the t's variance is infinite), a fleet of 5 one 3x S
+    four = fit_fleet_prior(names[:4], Ts[:4], covs[:4], T_ref)
+    assert all(four.prior(n) is None for n in four.inliers) and four.prior(None) is not None
+    five = fit_fleet_prior(names[:5], Ts[:5], covs[:5], T_ref)
+    np.testing.assert_allclose(np.asarray(five.prior("v00")["cov_right_radar"]),
+                               3 * five.loo["v00"].S + five.loo["v00"].cov_mu, rtol=1e-9, atol=1e-18)
     # a common-mode error (the prior-pinned directions): every prior keeps it in full, the test ignores it
     P = np.diag([0, np.radians(1.0) ** 2, 0, 0, 0, 0.3 ** 2])
     shift = retract(np.eye(4), np.array([0, np.radians(0.8), 0, 0, 0, 0.25]))
@@ -411,11 +420,13 @@ def test_a_fleet_prior_is_applied_only_to_the_vehicle_it_was_fitted_on(local_run
 
     doc = json.loads((local_run[0] / "fleet_prior.json").read_text())
     assert doc["basis"]["vehicles"] >= 3 and doc["basis"]["frames"] > 0
-    # 3 vehicles: none gets a named prior (its leave-one-out fit would rest on 2); here one is given, as a larger
-    # fleet's file has them
+    # 3 vehicles: none gets a prior (a spread from 2 or 3 vehicles has no finite predictive variance); here one is
+    # given, as a larger fleet's file has them
     assert doc["no_prior"] == doc["inliers"] and all(doc["priors"][n] is None for n in doc["inliers"])
+    assert doc["priors"]["*"] is None
     name = doc["inliers"][0]
-    doc["priors"][name] = doc["priors"]["*"]
+    doc["priors"]["*"] = doc["priors"][name] = {"T_cam_radar": doc["T_mean"],
+                                                "cov_right_radar": np.diag([1e-4] * 3 + [1e-2] * 3).tolist()}
     (tmp_path / "named.json").write_text(json.dumps(doc))
     priors = load_priors(tmp_path / "named.json")
     src = doc["sources"][name]

@@ -33,10 +33,11 @@ Robustness: each vehicle is tested against the fleet fitted WITHOUT it (leave-on
 squared Student-t(m - 1) with m the other vehicles (``outlier_p_value``: S is estimated from them, not
 known; chi-square(6) only for large fleets); a vehicle with p < ``alpha`` is an outlier (a knocked
 radar), named, and left out of the fit; repeated until the inlier set is stable. The prior for an
-inlier vehicle is its leave-one-out predictive distribution ``N(T_ref exp(mu_-i), S_-i + Cov(mu_-i) +
-PINNED_INFLATION P)`` (its own data is not counted twice), given only when it rests on at least
-``MIN_VEHICLES`` other vehicles (a fleet of 3: none, "no_prior" in the file); for a new vehicle the
-full fit's; an outlier gets none (the crowd must not pull it back). The caller leaves out vehicles
+inlier vehicle is its leave-one-out predictive distribution ``N(T_ref exp(mu_-i), f(m) S_-i + Cov(mu_-i) +
+PINNED_INFLATION P)`` (its own data is not counted twice; ``f(m) = (m - 1) / (m - 3)``, ``predictive_factor``: the
+Student-t's variance, for S itself is estimated from the m other vehicles), given only when it rests on at least
+``MIN_PRIOR_VEHICLES`` (4) other vehicles (a fleet of 4: none, "no_prior" in the file); for a new vehicle the
+full fit's (m = all inliers); an outlier gets none (the crowd must not pull it back). The caller leaves out vehicles
 whose own status says their estimate is not trusted (``fleet.summary``).
 
 Applying a saved prior (``load_priors``, ``match_prior``): the file records where each vehicle came from
@@ -59,6 +60,11 @@ from hybrid_calib.errors import DataError
 from hybrid_calib.geometry import is_rigid, local, retract
 
 MIN_VEHICLES = 3  # fewer inliers say nothing about a spread
+# a prior rests on at least this many vehicles: the spread ``S`` is estimated from them, so the predictive distribution
+# of a vehicle's mount is a Student-t with m - 1 degrees of freedom, whose variance ``(m - 1) / (m - 3) S`` is finite
+# from m = 4 on (``predictive_factor``); a Gaussian with ``S`` itself handed out by a 4-vehicle fleet missed its own
+# vehicles by d2 = 19.7 on average against 4 (probe 21; 24 vehicles: 4.90)
+MIN_PRIOR_VEHICLES = 4
 PINNED_INFLATION = 100.0  # priors carry this x the common-mode covariance P (module doc): no pull there
 VAR_FLOOR = (np.radians(1e-3) ** 2,) * 3 + ((1e-5) ** 2,) * 3  # (6,) [rad^2, m^2]: keeps S positive
 # a prior tighter than this on any axis (std, [rad x3, m x3]) is refused on load: no target-free calibration of a
@@ -156,6 +162,13 @@ def outlier_p_value(d2: float, m: int) -> float:
     return (above + 1) / (len(sample) + 1)
 
 
+def predictive_factor(m: int) -> float:
+    """Variance factor of a vehicle's predictive distribution when the fleet spread was estimated from ``m`` vehicles:
+    the Student-t's ``nu / (nu - 2)`` with ``nu = m - 1`` (3 for m = 4, 1.5 for 7, 1.1 for 23); infinite below m = 4."""
+    nu = int(m) - 1
+    return float("inf") if nu <= 2 else nu / (nu - 2)
+
+
 @dataclass
 class FleetPrior:
     """The fitted fleet model (module doc). Vectors are right-tangent offsets from ``T_ref``."""
@@ -180,13 +193,15 @@ class FleetPrior:
 
     def prior(self, name: str | None = None) -> dict | None:
         """The prior for vehicle ``name`` (leave-one-out for an inlier, the full fit for a new
-        vehicle, None for an outlier) as plain data {"T_cam_radar", "cov_right_radar"}."""
-        if name in self.outliers or (name in self.inliers and len(self.inliers) - 1 < MIN_VEHICLES):
-            return None  # an outlier; or too few other vehicles for its leave-one-out prior (its own estimate
-            # would be counted twice by the full fit)
+        vehicle, None for an outlier) as plain data {"T_cam_radar", "cov_right_radar"}: the predictive distribution
+        of its mount, ``predictive_factor(m) S + Cov(mu) + PINNED_INFLATION P`` with m the vehicles it rests on;
+        None below ``MIN_PRIOR_VEHICLES`` of them."""
+        rests_on = len(self.inliers) - (name in self.inliers)  # its own estimate is not counted twice
+        if name in self.outliers or rests_on < MIN_PRIOR_VEHICLES:
+            return None  # an outlier; or too few other vehicles to know the spread
         f = self.loo.get(name, self.fit) if name is not None else self.fit
         T = retract(self.T_ref, f.mu)
-        cov = f.S + f.cov_mu + PINNED_INFLATION * self.common_cov
+        cov = predictive_factor(rests_on) * f.S + f.cov_mu + PINNED_INFLATION * self.common_cov
         return {"T_cam_radar": T.tolist(), "cov_right_radar": _sym(cov).tolist()}
 
     def priors(self) -> dict[str, dict]:
@@ -209,7 +224,7 @@ class FleetPrior:
             "schema": "hybrid-calib/fleet-prior/v1",
             "model": "x_i = local(T_ref, T_i) ~ N(mu, S + C_i), S diagonal; EM; leave-one-out outlier test, d2 "
                      "referred to the sum of six squared Student-t(m - 1), m the other vehicles (chi2(6) from m = 101)",
-            "no_prior": sorted(n for n in self.inliers if len(self.inliers) - 1 < MIN_VEHICLES),
+            "no_prior": sorted(n for n in self.inliers if len(self.inliers) - 1 < MIN_PRIOR_VEHICLES),
             "T_ref": self.T_ref.tolist(), "T_mean": self.T_mean.tolist(), "mean_report": extrinsic_report(self.T_mean),
             "mu_right_radar": self.fit.mu.tolist(), "spread_cov_right_radar": self.fit.S.tolist(),
             "mean_cov_right_radar": self.fit.cov_mu.tolist(),
