@@ -570,3 +570,32 @@ def test_the_calibrator_refuses_a_prior_the_drives_data_contradict():
                                          "drive's own: check where the prior came from)"), bad.drift["verdict"]
     good = calibrate_vehicle(vi, conf, progress=False, prior=GaussianPrior(T, cov), T_start=T)
     assert not good.drift["prior"].get("refused") and "the fleet prior dominates pitch" in good.drift["verdict"]
+
+
+def test_a_fleet_prior_does_not_decide_whether_a_radar_moved():
+    """Probe 21: on 6-frame drives the fleet prior pulled radars knocked 1.5 deg in roll toward the fleet (1.8 own
+    sigmas) and 3 of 9 lost their "recalibrate". The verdict is now the drive's own (the same calibration without the
+    prior); the reported estimate still holds the prior."""
+    from hybrid_calib.calib.covariance import prior_pinned_std
+    from hybrid_calib.calib.pipeline import CalibrateConfig, VehicleInput, calibrate_vehicle
+    from hybrid_calib.calib.schedule import GaussianPrior
+    from hybrid_calib.config import merge
+
+    T = nominal_T_cam_radar()  # the tables and the fleet's mean
+    knocked = perturb_camera_frame(T, np.radians([1.2, 0.0, 0.0]), [0.0, 0.0, 0.0])  # [roll, pitch, yaw]
+    frames, _ = synthetic_drive(knocked, 1, rng(6))  # one frame: roll known to ~0.18 deg
+    vi = VehicleInput("v", frames, reference=T)
+    conf = merge(CalibrateConfig, {"window": {"window": 20, "detect_steps": False}})
+    fleet = GaussianPrior(T, np.diag([np.radians(0.3) ** 2] * 3 + [0.02 ** 2] * 3))
+    own = calibrate_vehicle(vi, conf, progress=False, T_start=T)
+    with_fleet = calibrate_vehicle(vi, conf, progress=False, prior=fleet, T_start=T)
+    assert own.drift["verdict_kind"] == "recalibrate", own.drift["verdict"]
+    assert not with_fleet.drift["prior"]["conflict"]["conflict"] and not with_fleet.drift["prior"].get("refused")
+    # the estimate holds the prior: judged on it, the knock would read "cannot tell" ...
+    pinned = prior_pinned_std(conf.window.factor)
+    pulled = reference_test(with_fleet.final.T, with_fleet.final.cov, T, conf.drift, pinned)
+    assert pulled.verdict_kind == "cannot tell", pulled.verdict
+    # ... the verdict is the drive's own
+    assert with_fleet.drift["verdict_kind"] == "recalibrate", with_fleet.drift["verdict"]
+    assert with_fleet.drift["delta_camera"] == own.drift["delta_camera"] and "own data" in with_fleet.drift["tested_on"]
+    assert with_fleet.final.std[2] < own.final.std[2]  # and the prior did tighten the reported roll

@@ -428,8 +428,9 @@ def prior_note(std_post: np.ndarray, std_prior: np.ndarray, conflict: dict | Non
     (``prior_conflict``): a prior the drive's data disagree with is said first."""
     std_post, std_prior = np.asarray(std_post, float), np.asarray(std_prior, float)
     dom = [AXIS_WORDS[i] for i in range(6) if std_post[i] >= PRIOR_DOMINATED * std_prior[i]]
-    words = (f"the fleet prior dominates {', '.join(dom)} (the drive's data left its std there): the verdict on "
-             "those axes restates the prior" if dom else "the fleet prior was applied; the drive's data dominate")
+    words = (f"the fleet prior dominates {', '.join(dom)} (the drive's data left its std there): the estimate on "
+             "those axes restates the prior, the verdict is the data's own" if dom else
+             "the fleet prior was applied; the drive's data dominate")
     if conflict and conflict.get("conflict"):  # the data do not dominate what they disagree with: said alone
         words = (f"the fleet prior disagrees with this drive's data (chi2 {conflict['statistic']:.1f} on "
                  f"{conflict['dof']} dof, p {conflict['p_value']:.1g}): the estimate is pulled toward it; check where "
