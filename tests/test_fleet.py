@@ -865,6 +865,12 @@ def test_summary_says_a_fleet_spread_it_cannot_resolve():
     assert "n.r." not in next(x for x in summary_markdown({**s, "fleet_prior": {
         **s["fleet_prior"], "spread_std_cam": dict(zip(std, (0.5,) * 3 + (3.0,) * 3))}}).splitlines()
         if x.startswith("Fleet prior:"))
+    # a prior given to every vehicle but not applied to one (its data disagree): counted apart (probe 21)
+    given = {"a": {"file": "p.json"}, "b": {"file": "p.json", "refused": "the fleet prior was not applied: ..."},
+             "c": {"file": "p.json"}}
+    text = summary_markdown({**s, "vehicles": {n: {**r, "prior": given[n]} for n, r in s["vehicles"].items()}})
+    assert ("Fleet prior (from p.json): given to 3 of 3 vehicles, applied to 2, not applied to 1 (the drive's data "
+            "disagree with it: their verdicts say so).") in text
 
 
 def test_one_vehicles_corrupt_mount_record_fails_that_job_alone(fleet_root, tmp_path):

@@ -111,6 +111,8 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
                        d.get("verdict") or ("out of tolerance" if d.get("drifted") else "within tolerance")),
                    step_alarms=[f.index for f in vr.trajectory if f.step_alarm], error=vr.error, fleet_test=None,
                    mount_steps=(vr.mount or {}).get("steps", []))
+        if row["prior"] is not None and (d.get("prior") or {}).get("refused"):  # calib.drift.refused_prior
+            row["prior"]["refused"] = d["prior"]["words"]
         if d.get("drifted"):
             row["flags"].append("out_of_tolerance")
         if row["step_alarms"]:
@@ -188,8 +190,12 @@ def summary_markdown(s: dict) -> str:
         [""] if s.get("roots_left_out") else [])
     applied = sorted({(r.get("prior") or {}).get("file") for r in s["vehicles"].values()} - {None})
     if applied:
-        lines += [f"Fleet prior applied (from {', '.join(applied)}): "
-                  f"{sum(bool(r.get('prior')) for r in s['vehicles'].values())} of {n_vehicles(c['vehicles'])}.", ""]
+        given = [r["prior"] for r in s["vehicles"].values() if r.get("prior")]
+        refused = sum(bool(p.get("refused")) for p in given)
+        lines += [f"Fleet prior (from {', '.join(applied)}): given to {len(given)} of {n_vehicles(c['vehicles'])}, "
+                  f"applied to {len(given) - refused}" + (f", not applied to {refused} (the drive's data disagree "
+                                                           "with it: their verdicts say so)" if refused else "") + ".",
+                  ""]
     fp = s.get("fleet_prior")
     if fp:
         sp = list(fp["spread_std_cam"].values())
