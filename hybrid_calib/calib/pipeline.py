@@ -260,9 +260,10 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, progress: bool = 
                       prior: GaussianPrior | None = None, T_start: np.ndarray | None = None) -> VehicleResult:
     """Calibrate one vehicle's frames; returns the per-frame trajectory (window) and the final estimate.
     ``prior``: an optional Gaussian prior on T_cam_radar (e.g. the fleet's, ``hybrid_calib.fleet.prior``),
-    given with the first frame (window; it then lives in the marginal prior) or to the batch solve; a prior the
-    drive's own data contradict (``drift.prior_conflict``) is refused: the vehicle is calibrated without it and its
-    verdict says why (``drift.refused_prior``).
+    given with the first frame (window; it then lives in the marginal prior) or to the batch solve. The vehicle is
+    then also calibrated without it: the verdict against the tables is that calibration's (``drift.tested_on``), and
+    a prior the drive's own data contradict (``drift.prior_conflict``) is refused: that calibration is the result, its
+    verdict saying why (``drift.refused_prior``).
     ``T_start`` (4, 4): the start extrinsic (default: ``conf.start`` drawn for the vehicle)."""
     from tqdm import tqdm
 
