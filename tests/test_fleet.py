@@ -436,6 +436,10 @@ def test_a_fleet_prior_is_applied_only_to_the_vehicle_it_was_fitted_on(local_run
     assert p is priors["*"] and "not on this root's; it gets the new-vehicle prior" in note
     p, note = match_prior(priors, "a-new-one", str(tmp_path), "v1.0-sim", "a-new-one")
     assert p is priors["*"] and note is None
+    # the same vehicle of the same root under another job id (its root run alone, without the prefix a fleet of
+    # several roots gave it): its own leave-one-out prior, not the full fit's that holds its estimate (probe 21)
+    p, note = match_prior(priors, "root-" + name, src["data"], "v1.0-sim", src["vehicle"])
+    assert p is priors[name] and "its leave-one-out prior is applied" in note
     kept, doc["priors"][name] = doc["priors"][name], None  # a named outlier of that fleet: not a verdict on a stranger
     (tmp_path / "outlier.json").write_text(json.dumps(doc))
     out_priors = load_priors(tmp_path / "outlier.json")

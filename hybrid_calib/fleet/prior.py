@@ -348,9 +348,17 @@ def same_source(source: dict, data: str, version: str, vehicle: str) -> bool:
 
 def match_prior(priors: dict, job_id: str, data: str, version: str, vehicle: str) -> tuple[dict | None, str | None]:
     """The prior for a job (``load_priors``' dict): the one named ``job_id`` when it was fitted on this very
-    vehicle of this root, else the new-vehicle prior "*"; with a note (str) when a named prior was passed over or
-    could not be checked (a file without "sources"), else None. A named outlier's None stays None."""
+    vehicle of this root, else the one fitted on this vehicle of this root under another job id (a root run alone
+    names its vehicles without the root's prefix a fleet of several roots gave them), else the new-vehicle prior "*";
+    with a note (str) when a named prior was passed over, found by its source, or could not be checked (a file without
+    "sources"), else None. A named outlier's None stays None."""
     if job_id not in priors:
+        for name, p in priors.items():  # the vehicle was in the fit under another id: its own leave-one-out prior
+            if name != "*" and isinstance(p, dict) and isinstance(p.get("source"), dict) and \
+                    same_source(p["source"], data, version, vehicle):
+                return _usable(p), (f"{job_id}: the fleet prior's entry {name!r} was fitted on this vehicle of this "
+                                    "root: its leave-one-out prior is applied (the full fit's would hold its own "
+                                    "estimate)")
         return _usable(priors.get("*")), None
     p = priors[job_id]
     if p is None:
