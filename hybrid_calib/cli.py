@@ -22,7 +22,6 @@ from hybrid_calib.errors import (
     HybridCalibError,
     check_out_dir,
     check_out_not_in_dataset,
-    check_out_outside_data,
     check_out_owner,
 )
 
@@ -136,11 +135,11 @@ def _run(args: argparse.Namespace, debug: bool) -> int:
             check_out_dir(None if out is None else Path(out).parent)
             return int(args._run(args) or 0)
         check_out_dir(out)
-        check_out_outside_data(out, getattr(args, "data", None), getattr(args, "version", None))
-        check_out_not_in_dataset(out, root_ok=args.command == "simulate")  # simulate's --out is the root it writes
+        data, version = getattr(args, "data", None), getattr(args, "version", None)
+        # simulate's --out is the root it writes
+        check_out_not_in_dataset(out, root_ok=args.command == "simulate", data=data, version=version)
         for option, path in set_paths(args):  # caches named by --set: the same rule as --out, before anything runs
-            check_out_outside_data(path, getattr(args, "data", None), getattr(args, "version", None), option)
-            check_out_not_in_dataset(path, option)
+            check_out_not_in_dataset(path, option, data=data, version=version)
         check_out_owner(out, args.command)
         if out is None:
             return int(args._run(args) or 0)

@@ -93,14 +93,18 @@ def _holds_version_folder(p: Path) -> bool:
         return False
 
 
-def check_out_not_in_dataset(out: str | Path | None, option: str = "--out", root_ok: bool = False) -> None:
+def check_out_not_in_dataset(out: str | Path | None, option: str = "--out", root_ok: bool = False, data=None,
+                             version: str | None = None) -> None:
     """``OptionError`` when the output folder ``out`` is a nuScenes root, or lies inside any root's version folder
     (a folder holding ``TABLE_FILES``) or its ``samples/`` / ``sweeps/``: whichever root, not only the one the run
     reads (an export into another root's version folder replaced its calibrated_sensor.json; a report page or a
-    cache landed among a dataset's files). Checked before the run takes its lock or creates the folder. ``root_ok``:
-    ``out`` may itself be a root (simulate's --out), but not lie inside one's data folders."""
+    cache landed among a dataset's files); first, with ``data`` / ``version``, the run's own roots
+    (``check_out_outside_data``: their folders also when their tables are incomplete). Checked before the run takes
+    its lock or creates the folder. ``root_ok``: ``out`` may itself be a root (simulate's --out), but not lie inside
+    one's data folders."""
     if out is None or str(out) == "":
         return
+    check_out_outside_data(out, data, version, option)
     for form in _path_forms(out):
         _check_not_in_dataset(form, option, root_ok)
 

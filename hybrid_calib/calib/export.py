@@ -219,14 +219,14 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
         raise OptionError("--data", f"{root / str(version)} is not a folder: pass the nuScenes root the results "
                                     "were computed on, with --version its version folder")
     if out is not None:
-        from hybrid_calib.errors import check_out_not_in_dataset, check_out_outside_data
+        from hybrid_calib.errors import check_out_not_in_dataset
 
         o, vdir = Path(out).resolve(), (root / version).resolve()
         if o == vdir or vdir in o.parents:
             raise OptionError("--out", f"{out} is the root's own version folder: export never writes the root's "
                                        "tables; pass another folder and copy calibrated_sensor.json into a copy of it")
-        check_out_outside_data(out, root, version)  # the root itself, its sensor folders (the root from the results)
-        check_out_not_in_dataset(out)  # and any other root's (its calibrated_sensor.json would be replaced)
+        # the root of the results (itself, its sensor folders) and any other root's (its calibrated_sensor.json)
+        check_out_not_in_dataset(out, data=root, version=version)
         if (Path(out) / "export.json").is_file() and not overwrite:  # exported vehicle by vehicle, the last won
             raise OptionError("--out", f"{out} holds an export already (export.json); pass --overwrite to replace it, "
                                        "or another --out. To put several vehicles in one table, pass all their "

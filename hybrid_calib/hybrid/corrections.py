@@ -74,19 +74,25 @@ def with_road_words(traj: list[FrameEstimate], geometry: RowGeometry, conf: Hybr
     the network matched, the oracle's rule and thresholds): an "ok" becomes "weak", a "weak" gets the words; an
     untrusted status is left as it is. Words only: the drive-common error term already widens the covariance for a
     network error that does not average out (probe 16: no hybrid status named a straight road; the oracle's all do)."""
-    from hybrid_calib.calib.covariance import status_kind
     from hybrid_calib.calib.degeneracy import along_road
 
     frac = along_road(geometry, conf.window.covariance.degeneracy)
-    if frac is None or not traj:
+    if frac is None:
         return traj
-    last = traj[-1]
-    words = (f"all the reflectors the network matched lie along the road ({100 * frac:.0f} % on two lines parallel "
-             "to the travel direction): every frame shows it one kind of scene, so its error there does not average "
-             "out over the drive")
-    kind = status_kind(last.estimate.status)
+    return _with_words(traj, f"all the reflectors the network matched lie along the road ({100 * frac:.0f} % on two "
+                             "lines parallel to the travel direction): every frame shows it one kind of scene, so its "
+                             "error there does not average out over the drive")
+
+
+def _with_words(traj: list[FrameEstimate], words: str) -> list[FrameEstimate]:
+    """The trajectory with ``words`` added to its last status: an "ok" becomes "weak: words", a "weak" gets "; words";
+    an untrusted status (and an empty trajectory) is left as it is."""
+    from hybrid_calib.calib.covariance import status_kind
+
+    kind = status_kind(traj[-1].estimate.status) if traj else None
     if kind not in ("ok", "weak"):
         return traj
+    last = traj[-1]
     status = f"weak: {words}" if kind == "ok" else f"{last.estimate.status}; {words}"
     return [*traj[:-1], dataclasses.replace(last, estimate=dataclasses.replace(last.estimate, status=status))]
 
@@ -97,12 +103,9 @@ def with_prior_words(traj: list[FrameEstimate]) -> list[FrameEstimate]:
     unless the covariance's reading already named it prior-pinned. An "ok" becomes "weak"; an untrusted status is left
     as it is. Words only: the reported stds are the fitted spread of the network's errors on simulated fleets (probe
     16: a radar pitched 2 deg read "differs by 0.07 deg +- 0.82 deg" in pitch, its status naming only offsets)."""
-    from hybrid_calib.calib.covariance import status_kind
-
-    if not traj or status_kind(traj[-1].estimate.status) not in ("ok", "weak"):
+    if not traj:
         return traj
-    last = traj[-1]
-    status, std = last.estimate.status, last.estimate.std
+    status, std = traj[-1].estimate.status, traj[-1].estimate.std
     axes = {"roll": (2, "deg"), "pitch": (0, "deg"), "vertical offset": (4, "cm")}  # camera-axis std index, unit
     named = [w for w in axes if not re.search(rf"\b{w} \([^)]*\) is prior-pinned", status)]
     if not named:
@@ -112,11 +115,9 @@ def with_prior_words(traj: list[FrameEstimate]) -> list[FrameEstimate]:
     what = [*(["the network's learned prior of the radar's mount, seen through the camera"]
               if {"roll", "pitch"} & set(named) else []),
             *(["the vertical offset is the start's"] if "vertical offset" in named else [])]
-    words = (f"{join_and(named)} {'is' if len(named) == 1 else 'are'} prior-pinned, not measured by this drive ("
-             f"{'; '.join(what)}; std {stds}): a 2D radar has no elevation, so a radar tilted or raised off the "
-             "fleet's mounts is not seen")
-    status = f"weak: {words}" if status_kind(status) == "ok" else f"{status}; {words}"
-    return [*traj[:-1], dataclasses.replace(last, estimate=dataclasses.replace(last.estimate, status=status))]
+    return _with_words(traj, f"{join_and(named)} {'is' if len(named) == 1 else 'are'} prior-pinned, not measured "
+                             f"by this drive ({'; '.join(what)}; std {stds}): a 2D radar has no elevation, so a radar "
+                             "tilted or raised off the fleet's mounts is not seen")
 
 
 def _since_last_step(mon: MountMonitor | None) -> int:

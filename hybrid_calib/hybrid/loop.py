@@ -64,7 +64,7 @@ from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import merge, save_json_atomic, to_dict
 from hybrid_calib.data.files import data_stamp
-from hybrid_calib.errors import DataError, HybridCalibError, check_out_not_in_dataset, check_out_outside_data
+from hybrid_calib.errors import DataError, HybridCalibError, check_out_not_in_dataset
 from hybrid_calib.geometry import local, se3_exp
 from hybrid_calib.hybrid.average import AverageConfig, robust_average
 from hybrid_calib.hybrid.corrections import (
@@ -633,8 +633,8 @@ def run_calibration(data: str | Path, version: str, out: str | Path, conf: Hybri
     conf = merge(HybridConfig, conf)
     out = Path(out)
     for option, path in (("--set cache_dir", conf.cache_dir), ("--set depth_cache", conf.depth_cache)):
-        check_out_outside_data(path or None, data, version, option)  # the run's own writes would change its data stamp
-        check_out_not_in_dataset(path or None, option)
+        # the run's own writes would change its data stamp; any root's tables could be replaced
+        check_out_not_in_dataset(path or None, option, data=data, version=version)
     # what the result depends on: the config with the depth estimator it resolves to (--depth lidar-densified and
     # the real root's default are one run) and the checkpoints' contents
     stamped = {**to_dict(conf), **({"depth": effective_depth(data, version, conf)} if conf.method != "oracle" else {}),
