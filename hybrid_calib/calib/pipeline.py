@@ -291,9 +291,10 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, progress: bool = 
     res.start = {"kind": conf.start, "seed": conf.seed, "T_cam_radar": T0.tolist()}
     res.errors_against = "truth" if vi.truth else None
     fc = conf.window.factor if conf.mode == "window" else conf.batch.factor
-    drift = reference_test(final.T, final.cov, vi.reference, conf.drift, prior_pinned_std(fc))
-    res.drift = unconverged(drift.to_dict(), final.status)
-    if prior is not None:
+    if prior is None:
+        drift = reference_test(final.T, final.cov, vi.reference, conf.drift, prior_pinned_std(fc))
+        res.drift = unconverged(drift.to_dict(), final.status)
+    else:
         from hybrid_calib.calib.drift import prior_conflict, prior_note, refused_prior, with_prior
 
         # the drive's own estimate: the verdict is its (a prior says where a fleet's mounts are, not whether this one
