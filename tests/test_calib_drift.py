@@ -599,3 +599,30 @@ def test_a_fleet_prior_does_not_decide_whether_a_radar_moved():
     assert with_fleet.drift["verdict_kind"] == "recalibrate", with_fleet.drift["verdict"]
     assert with_fleet.drift["delta_camera"] == own.drift["delta_camera"] and "own data" in with_fleet.drift["tested_on"]
     assert with_fleet.final.std[2] < own.final.std[2]  # and the prior did tighten the reported roll
+    # what the prior did is measured against the drive's own estimate, and said (probe 21 MED-2: the marginal-std
+    # test read "the drive's data dominate" for a roll the prior moved by 1.8 own sigmas)
+    note = with_fleet.drift["prior"]
+    assert "roll" in note["pulled"] and note["pull_own_sigma"][2] >= 1.0, note
+    assert "it moved the estimate from the drive's own by roll -" in with_fleet.drift["verdict"], with_fleet.drift
+    np.testing.assert_allclose(with_fleet.drift["own_estimate"]["T_cam_radar"], own.final.T)  # fleet.summary fits it
+
+
+def test_what_a_prior_did_is_measured_against_the_drives_own_estimate():
+    """An axis the prior moved by a sigma of the drive's own, or whose information it mostly holds, is named
+    whatever the prior's own marginal std (inflated by the pitch / vertical common-mode term) says."""
+    from hybrid_calib.calib.drift import prior_note
+
+    own = np.array([0.2, 0.3, 0.2, 1.0, 10.0, 2.0])
+    wide = np.full(6, 100.0)  # the old marginal test (post >= 0.7 x prior) names nothing against it
+    quiet = prior_note(own * 0.95, wide, None, own, own * 0.1)
+    assert quiet["dominated"] == [] and quiet["pulled"] == []
+    assert quiet["words"] == ("the fleet prior was applied; the drive's data dominate; it moved the estimate by at "
+                              "most 0.1 of the drive's own sigma on any axis")
+    pull = np.array([0.0, 0.0, -0.36, 0.0, 0.0, 0.0])
+    pulled = prior_note(own * 0.95, wide, None, own, pull)
+    assert pulled["pulled"] == ["roll"] and pulled["dominated"] == []
+    assert pulled["words"].endswith("it moved the estimate from the drive's own by roll -0.36 deg (1.8 of its sigma)")
+    held = prior_note(own * np.array([1, 1, 1, 0.6, 1, 1]), wide, None, own, np.zeros(6))
+    assert held["dominated"] == ["lateral offset"] and abs(held["share"][3] - 0.64) < 1e-9
+    assert prior_note(own, own, None)["dominated"] == ["pitch", "yaw", "roll", "lateral offset", "vertical offset",
+                                                       "longitudinal offset"]  # no own estimate: the marginal test

@@ -411,6 +411,14 @@ def test_a_fleet_prior_tightens_a_vehicle(fleet_root, local_run, tmp_path):
     assert s2["vehicles"]["sim-veh-000"]["prior"] is not None and s2["vehicles"]["sim-veh-001"]["prior"] is None
     drift = json.loads((tmp_path / "vehicles/sim-veh-000/result.json").read_text())["vehicles"]["sim-veh-000"]["drift"]
     assert "fleet prior" in drift["verdict"] and drift["prior"]["words"] in drift["verdict"]
+    # the fleet prior this run writes is fitted on what each drive measured alone: the same as a run without the
+    # prior (probe 21 MED-4: fitted on estimates holding the prior, it narrowed on every reuse)
+    s3 = run_fleet([str(fleet_root)], None, "v1.0-sim", "oracle", tmp_path / "plain", seed=2,
+                   calib={"window": {"window": 3}}, options=FleetOptions(plots=False))
+    assert s3["vehicles"]["sim-veh-000"]["std_cam"] != after
+    fitted, plain = (json.loads((d / "fleet_prior.json").read_text()) for d in (tmp_path, tmp_path / "plain"))
+    np.testing.assert_allclose(fitted["mu_right_radar"], plain["mu_right_radar"], atol=1e-12)
+    np.testing.assert_allclose(fitted["spread_cov_right_radar"], plain["spread_cov_right_radar"], atol=1e-15)
 
 
 def test_a_fleet_prior_is_applied_only_to_the_vehicle_it_was_fitted_on(local_run, fleet_root, tmp_path):

@@ -419,24 +419,47 @@ def camera_side_note(drift: dict, mount: dict | None) -> dict:
 
 
 PRIOR_DOMINATED = 0.7  # posterior std >= this x the external prior's on an axis: the data hardly moved it there
+PRIOR_SHARE = 0.5  # the prior holds at least this share of an axis's information (1 - var_post / var_own): dominated
+PRIOR_PULL = 1.0  # the prior moved an axis's estimate by at least this many of the drive's own sigmas: named
 
 
-def prior_note(std_post: np.ndarray, std_prior: np.ndarray, conflict: dict | None = None) -> dict:
-    """What an external prior (the fleet's) did to an estimate: ``std_post`` and ``std_prior`` (6,) camera-axis
-    std [deg x3, cm x3]; the axes where the posterior's std is still >= ``PRIOR_DOMINATED`` x the prior's are
-    named ("dominated"): there the estimate, and a verdict against the tables, restate the prior. ``conflict``
-    (``prior_conflict``): a prior the drive's data disagree with is said first."""
+def prior_note(std_post: np.ndarray, std_prior: np.ndarray, conflict: dict | None = None,
+               std_own: np.ndarray | None = None, pull: np.ndarray | None = None) -> dict:
+    """What an external prior (the fleet's) did to an estimate; every array (6,) camera axes [deg x3, cm x3].
+    With the same drive calibrated without the prior (``std_own``, its std; ``pull``, the estimate with the prior
+    minus the one without, ``covariance.camera_offset``), an axis is "dominated" where the prior holds at least
+    ``PRIOR_SHARE`` of its information (``1 - std_post^2 / std_own^2``) and "pulled" where it moved the estimate by
+    at least ``PRIOR_PULL`` of the drive's own sigmas: both are named, with the pull. Without them (an older caller)
+    the marginal test ``std_post >= PRIOR_DOMINATED x std_prior``; it under-reports, since a prior acts through
+    correlated directions and its camera-axis marginals hold the pitch / vertical common-mode term (probe 21: a roll
+    moved 1.8 of its own sigmas and a lateral offset with 45 % of its information from the prior read "the drive's
+    data dominate"). There the estimate, and export, restate the prior; the verdict against the tables is the
+    drive's own either way. ``conflict`` (``prior_conflict``): a prior the drive's data disagree with is said first."""
     std_post, std_prior = np.asarray(std_post, float), np.asarray(std_prior, float)
-    dom = [AXIS_WORDS[i] for i in range(6) if std_post[i] >= PRIOR_DOMINATED * std_prior[i]]
+    block: dict = {"std_prior_cam": std_prior.tolist()}
+    if std_own is None or pull is None:
+        dom = [AXIS_WORDS[i] for i in range(6) if std_post[i] >= PRIOR_DOMINATED * std_prior[i]]
+        moved = ""
+    else:
+        std_own, pull = np.asarray(std_own, float), np.asarray(pull, float)
+        share = np.clip(1.0 - (std_post / np.maximum(std_own, 1e-12)) ** 2, 0.0, 1.0)
+        sig = np.abs(pull) / np.maximum(std_own, 1e-12)
+        dom = [AXIS_WORDS[i] for i in range(6) if share[i] >= PRIOR_SHARE]
+        block.update(share=share.tolist(), pull_cam=pull.tolist(), pull_own_sigma=sig.tolist(),
+                     pulled=[AXIS_WORDS[i] for i in range(6) if sig[i] >= PRIOR_PULL])
+        big = [i for i in np.argsort(-sig) if sig[i] >= PRIOR_PULL]
+        moved = ("; it moved the estimate from the drive's own by " + ", ".join(
+            f"{AXIS_WORDS[i]} {pull[i]:+.2f} {'deg' if i < 3 else 'cm'} ({sig[i]:.1f} of its sigma)" for i in big)
+            if big else f"; it moved the estimate by at most {sig.max():.1f} of the drive's own sigma on any axis")
     words = (f"the fleet prior dominates {', '.join(dom)} (the drive's data left its std there): the estimate on "
              "those axes restates the prior, the verdict is the data's own" if dom else
-             "the fleet prior was applied; the drive's data dominate")
+             "the fleet prior was applied; the drive's data dominate") + moved
     if conflict and conflict.get("conflict"):  # the data do not dominate what they disagree with: said alone
         words = (f"the fleet prior disagrees with this drive's data (chi2 {conflict['statistic']:.1f} on "
                  f"{conflict['dof']} dof, p {conflict['p_value']:.1g}): the estimate is pulled toward it; check where "
-                 "the prior came from, or calibrate without it" + (f"; it dominates {', '.join(dom)}" if dom else ""))
-    return {"std_prior_cam": std_prior.tolist(), "dominated": dom, "words": words,
-            **({"conflict": conflict} if conflict else {})}
+                 "the prior came from, or calibrate without it" + (f"; it dominates {', '.join(dom)}" if dom else "")
+                 + moved)
+    return {**block, "dominated": dom, "words": words, **({"conflict": conflict} if conflict else {})}
 
 
 def refused_prior(note: dict) -> dict:

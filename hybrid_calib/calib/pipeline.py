@@ -267,7 +267,7 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, progress: bool = 
     ``T_start`` (4, 4): the start extrinsic (default: ``conf.start`` drawn for the vehicle)."""
     from tqdm import tqdm
 
-    from hybrid_calib.calib.covariance import report_std
+    from hybrid_calib.calib.covariance import camera_offset, report_std
     from hybrid_calib.geometry import local
     from hybrid_calib.metrics import extrinsic_error, nees
 
@@ -302,13 +302,17 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, progress: bool = 
         own = calibrate_vehicle(vi, conf, progress, None, T0)
         conflict = None if final.info is None else prior_conflict(final.T, final.info, np.asarray(prior.T),
                                                                   np.asarray(prior.cov))
-        note = prior_note(final.std, report_std(np.asarray(prior.T), np.asarray(prior.cov)), conflict)
+        note = prior_note(final.std, report_std(np.asarray(prior.T), np.asarray(prior.cov)), conflict,
+                          own.final.std, camera_offset(own.final.T, final.T))
         if conflict and conflict["conflict"]:  # the drive's data contradict the prior: its own estimate, and why
             own.drift = with_prior(own.drift, refused_prior(note))
             return own
         res.drift = {**with_prior(own.drift, note), "tested_on": "the drive's own data: the same calibration without "
                      "the fleet prior (its estimate is what the verdict compares with the tables); the reported "
-                     "estimate holds the prior"}
+                     "estimate holds the prior",
+                     # what a fleet prior is fitted on next (fleet.summary): a prior fitted on estimates that hold a
+                     # prior counts that prior's information again (probe 21 MED-4)
+                     "own_estimate": {"T_cam_radar": own.final.T.tolist(), "cov_right_radar": own.final.cov.tolist()}}
     res.network = _network_summary(vi)
     if vi.truth:
         T_true = vi.truth[-1]

@@ -231,6 +231,8 @@ class FleetPrior:
             "spread_std_cam": std_dict(self.spread_std_cam(), STD_FRAME),
             "mean_std_cam": std_dict(report_std(self.T_mean, self.fit.cov_mu + self.common_cov), STD_FRAME),
             "common_cov_right_radar": self.common_cov.tolist(),
+            "fitted_on": "each vehicle's drive alone (a vehicle given a fleet prior enters with its calibration "
+                         "without it: fleet.summary._own_estimate)",
             "alpha": self.alpha, "iterations": self.fit.iterations,
             "vehicles": self.names, "inliers": self.inliers, "outliers": self.outliers, "tests": self.tests,
             "priors": self.priors(), "sources": self.sources,
