@@ -78,6 +78,11 @@ def test_local_run_isolates_the_corrupt_vehicle_and_writes_the_fleet_view(local_
     assert set(good["offset_from_design"]) == set(good["std_cam"]) and good["verdict"]
     assert s["design_mount"]["source"] == "recorded" and s["fleet_prior"] is not None
     assert "| sim-veh-003 | failed |" in (out / "summary.md").read_text()
+    # the offset from the tables is the one the verdict weighs (a simulated vehicle's factory calibration, not the
+    # ground truth its calibrated_sensor holds: probe 24 read a 1.53 deg yaw offset beside "differs by 1.21 deg")
+    drift = json.loads((out / good["result"]).read_text())["vehicles"]["sim-veh-000"]["drift"]
+    np.testing.assert_allclose([good["offset_from_tables"][k] for k in sorted(good["offset_from_tables"])],
+                               [drift["delta_camera"][k] for k in sorted(drift["delta_camera"])], atol=1e-9)
     # a rerun retries the failed vehicle (once more) and leaves the done ones untouched
     mtimes = {p: p.stat().st_mtime_ns for p in (out / "vehicles").glob("*/result.json")}
     s2 = run_fleet([str(s["vehicles"]["sim-veh-000"]["data"])], None, "v1.0-sim", "oracle", out, seed=2,

@@ -281,7 +281,7 @@ def reference_test(
     """
     from scipy.stats import norm
 
-    from hybrid_calib.calib.covariance import pinned_camera_axes, report_basis
+    from hybrid_calib.calib.covariance import camera_offset, pinned_camera_axes, report_basis
     from hybrid_calib.config import merge
 
     conf = merge(DriftConfig, conf)
@@ -294,8 +294,7 @@ def reference_test(
     s = chi2_quadratic(d, C)
     p = float(chi2.sf(s, 6))
     thr = float(chi2.isf(conf.alpha, 6))
-    R = T_est[:3, :3]
-    delta_report = np.concatenate([np.degrees(R @ d[:3]), (T_est[:3, 3] - T_ref[:3, 3]) * 100])
+    delta_report = camera_offset(T_ref, T_est)
     units = np.array([np.degrees(1.0)] * 3 + [100.0] * 3)
     var_rep = np.clip(np.diag(B @ C @ B.T), 0.0, None)
     std_report = np.sqrt(var_rep) * units

@@ -571,6 +571,12 @@ class NuScenesRadarCamera:
         T_ego_cam = self.tables.T_ego_sensor(ref.camera_sd)
         return self._reference(ref, T_ego_cam, se3_inverse(T_ego_cam) @ self.tables.T_ego_sensor(ref.radar_sd))
 
+    def reference_T_cam_radar(self, ref: FrameRef) -> np.ndarray:
+        """(4, 4) the vehicle's calibration tables' T_cam_radar at frame ``ref`` (``_reference``), from the tables
+        alone (no sensor file read); ``DataError`` / ``KeyError`` when its calibrated_sensor records do not read."""
+        T_ego_cam = self.tables.T_ego_sensor(ref.camera_sd)
+        return self._reference(ref, T_ego_cam, se3_inverse(T_ego_cam) @ self.tables.T_ego_sensor(ref.radar_sd))
+
     def _reference(self, ref: FrameRef, T_ego_cam: np.ndarray, T_cam_radar_static: np.ndarray) -> np.ndarray:
         """The extrinsic a drift detector compares against: the vehicle's calibration tables. In a
         v1.0-sim root ``calibrated_sensor`` carries the simulator's ground truth, so the tables a

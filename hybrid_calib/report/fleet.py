@@ -1,10 +1,11 @@
-"""The fleet page: the fleet plot (each vehicle's offset from the design mount with +-1 sigma, the
+"""The fleet page: the fleet plot (each vehicle's offset from the design mount with +-2 sigma as fleet.png, the
 outliers named), a sortable table of vehicles with verdict and status, links to per-vehicle pages.
 
 Inputs are plain (the fleet engine wires them): result files (``result.json``, one or more vehicles
 each), an optional design mount (4, 4) ``T_cam_radar``, optional names of flagged vehicles. Offsets
-are ``calib.drift.reference_test``'s camera-axis change of each final estimate against the design
-mount; without a design mount, against each vehicle's own reference (its drift block).
+are the camera-axis change of each final estimate from the design mount (``calib.covariance.camera_offset``, as
+summary.json and the reference test); without a design mount, against each vehicle's own reference (its drift
+block).
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from urllib.parse import quote
 
 import numpy as np
 
-from hybrid_calib.calib.drift import reference_test
+from hybrid_calib.calib.covariance import camera_offset
 from hybrid_calib.calib.result import CalibrationRun, VehicleResult
 from hybrid_calib.config import merge
 from hybrid_calib.data.files import file_part
@@ -32,7 +33,7 @@ def _offset(vr: VehicleResult, design: np.ndarray | None) -> np.ndarray | None:
     """(6,) camera-axis change [deg x3, cm x3] of the final estimate from the design mount (or the
     vehicle's reference when ``design`` is None); None when neither is known."""
     if design is not None:
-        return np.asarray(reference_test(vr.final.T, vr.final.cov, design).delta_report, float)
+        return camera_offset(design, vr.final.T)
     d = (vr.drift or {}).get("delta_camera")
     return None if d is None else np.array([float(d[k]) for k in DELTA_KEYS])
 
@@ -95,7 +96,7 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
             png = draw_fleet(plotted, np.array([offsets[n] for n in plotted]),
                              np.array([vehicles[n][0].final.std for n in plotted]),
                              [("flagged",) if n in flagged else () for n in plotted], Path(tmp) / "fleet.png",
-                             f"offset from the {reference} per vehicle", n_sigma=1.0)
+                             f"offset from the {reference} per vehicle")
             fig = img_tag(png, "fleet plot")
 
     rows = ""
