@@ -442,10 +442,14 @@ def test_a_radar_that_turns_in_steps_each_within_the_tolerance_is_told_by_their_
     mount = {"steps": [{"step_deg": 0.54, "std_deg": 0.05, "change": 14}, {"step_deg": 0.50, "std_deg": 0.05,
                                                                                "change": 27}], "levels": lv}
     said = mount_steps_beyond(mount, 0.5)
-    assert said.startswith("The radar turned on the vehicle during the drive by +1.04 +- 0.13 deg (3 sigma) in "
-                           "yaw in 2 steps from about frame 14 to 27")
+    assert said.startswith("The radar turned on the vehicle during the drive by 1.04 +- 0.13 deg (3 sigma) to the "
+                           "left in yaw in 2 steps from about frame 14 to 27")
     one = {"steps": mount["steps"][:1], "levels": lv[:2]}
     assert mount_steps_beyond(one, 0.5) == ""  # one step within the tolerance: nothing to tell
+    # a direction, never a sign: the monitor's yaw is about the vehicle's up axis, the verdict's about camera y
+    # (probe 24: "turned by +1.43 deg in yaw" beside the verdict's yaw -1.40 for the same turn)
+    right = {"steps": [{"step_deg": -1.43, "std_deg": 0.09, "change": 10}], "levels": []}
+    assert "by 1.43 +- 0.27 deg (3 sigma) to the right in yaw from about frame 10" in mount_steps_beyond(right, 0.5)
 
 
 def test_per_axis_decisions_sit_at_their_documented_boundaries():

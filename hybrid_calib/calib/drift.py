@@ -372,7 +372,9 @@ def mount_steps_beyond(mount: dict | None, rot_tol_deg: float) -> str:
                     "words": f"in {len(steps)} steps from about frame {steps[0]['change']} to {steps[-1]['change']}"}]
     if not big:
         return ""
-    turns = "; ".join(f"by {st['step_deg']:+.2f} +- {3 * st['std_deg']:.2f} deg (3 sigma) in yaw "
+    from hybrid_calib.calib.mount_monitor import turn_words
+
+    turns = "; ".join(f"by {turn_words(st['step_deg'], st['std_deg'], 3)} "
                       + st.get("words", f"from about frame {st['change']}") for st in big)
     return (f"The radar turned on the vehicle during the drive {turns}, beyond the {rot_tol_deg:g} deg tolerance "
             "(the radar mount monitor: its Doppler heading against the vehicle's ego poses).")

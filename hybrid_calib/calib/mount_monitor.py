@@ -319,6 +319,16 @@ def monitor_drive(frames, indices: list[int], T_ego_radar: np.ndarray, conf: Mou
     return mon, [mon.update(k, i) for k, i in enumerate(indices)]
 
 
+def turn_words(step_deg: float, std_deg: float, n_sigma: int = 1) -> str:
+    """A yaw step of the radar on the vehicle in words: "1.43 +- 0.09 deg to the left" (``n_sigma`` > 1: "+- x deg
+    (3 sigma)"). The monitor measures about the vehicle's up axis (left positive); the reference test's yaw turns
+    about camera y (down), so one turn of the radar reads with opposite signs there: said as a direction, never as a
+    sign (probe 24: "turned by +1.43 deg in yaw" beside "yaw -1.40" for the same turn)."""
+    side = "to the left" if step_deg > 0 else "to the right" if step_deg < 0 else ""
+    return (f"{abs(step_deg):.2f} +- {n_sigma * std_deg:.2f} deg" + (f" ({n_sigma} sigma)" if n_sigma > 1 else "")
+            + (f" {side}" if side else "") + " in yaw")
+
+
 def blind_words(summary: dict) -> str:
     """Where the monitor could not have seen a step, in words ("" for a result without ``blind_frames``): before
     its first ``min_frames`` readings (the level is being learnt) and in the last frames a step needs to push the

@@ -141,7 +141,7 @@ def _report(result, out: Path, reused: bool = False) -> int:
     from hybrid_calib.calib.drift import drift_verdict
     from hybrid_calib.calib.lever_arm import describe as describe_doppler
     from hybrid_calib.calib.lidar_alignment import describe as describe_lidar
-    from hybrid_calib.calib.mount_monitor import blind_words, tested_words
+    from hybrid_calib.calib.mount_monitor import blind_words, tested_words, turn_words
     from hybrid_calib.calib.result import STD_FRAME
     from hybrid_calib.metrics import std_dict
 
@@ -178,7 +178,7 @@ def _report(result, out: Path, reused: bool = False) -> int:
             print(f"  {v.method}: {len(v.frame_rows)} frames, {what}; network {ms:.0f} ms/frame; checkpoint "
                   f"{v.checkpoint}")
         if v.mount is not None:
-            steps = "; ".join(f"the radar turned by {st['step_deg']:+.2f} +- {st['std_deg']:.2f} deg in yaw from frame "
+            steps = "; ".join(f"the radar turned by {turn_words(st['step_deg'], st['std_deg'])} from frame "
                               f"{st['change']} (alarm at frame {st['at']})" for st in v.mount["steps"])
             found = steps or ("not told" if v.mount.get("implausible") else
                               "no step" if v.mount.get("pairs_tested") else "not tested")

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from hybrid_calib.calib.covariance import status_kind
+from hybrid_calib.calib.mount_monitor import turn_words
 from hybrid_calib.config import merge, parse_overrides, require_ranges, save_json_atomic, to_dict
 
 HELP = ("simulate a small drive, draw radar points on the image, calibrate radar->camera; then calibrate a 3-vehicle "
@@ -85,7 +86,7 @@ def vehicle_verdict(row: dict) -> str:
         return f"FAILED: {row.get('reason')}"
     why = []
     if row["step_alarms"]:
-        turned = "".join(f"; its radar turned by {s['step_deg']:+.2f} +- {s['std_deg']:.2f} deg in yaw from frame "
+        turned = "".join(f"; its radar turned by {turn_words(s['step_deg'], s['std_deg'])} from frame "
                          f"{s['change']}" for s in row.get("mount_steps", [])[:1])
         why.append(f"its mount stepped inside the drive (step alarm at frame {row['step_alarms'][0]}{turned})")
     if "out_of_tolerance" in row["flags"]:

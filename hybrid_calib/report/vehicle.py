@@ -67,9 +67,10 @@ def verdict_html(v: Verdict, vr: VehicleResult) -> str:
         test = (f"<div class=\"meta\">Reference test (chi-square, dof {d.get('dof', 6)}): statistic "
                 f"{d['statistic']:.1f}, p-value {d['p_value']:.2g}, change "
                 f"{d.get('rot_change_deg', float('nan')):.2f} deg / {d.get('trans_change_cm', float('nan')):.1f} cm; "
-                f"significant: {d.get('significant')}, flagged as drifted by the test: {d.get('drifted')} (the test "
-                "flags any significant change above a small practical margin, also along a direction the data could "
-                "not pin; the verdict above weighs the change and its 3-sigma against the tolerance).</div>")
+                f"significant: {d.get('significant')}; some axis beyond the tolerance (the change itself, not "
+                f"weighed by its sigma): {d.get('exceeds_margin')}. The chi-square flags any significant change, also "
+                "along a direction the data could not pin; the verdict above weighs each axis's change and its "
+                "sigma against the tolerance.</div>")
     return (f'<div class="verdict {verdict_class(v.word)}" id="verdict"><div class="word">{esc(v.word)}</div>'
             f"<p>{esc(v.why)}</p><p><b>Tolerance:</b> {esc(v.tolerance)}. <span class=\"meta\">({esc(v.source)})"
             f"</span></p><p><b>Did the sensor move during the drive?</b> <span id=\"moved\">{esc(v.moved)}</span></p>"

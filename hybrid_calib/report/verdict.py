@@ -35,7 +35,7 @@ import numpy as np
 
 from hybrid_calib.calib.covariance import NOT_CONVERGED, status_kind
 from hybrid_calib.calib.drift import DriftConfig, against_tolerance, mount_steps_beyond
-from hybrid_calib.calib.mount_monitor import blind_words, tested_words
+from hybrid_calib.calib.mount_monitor import blind_words, tested_words, turn_words
 from hybrid_calib.calib.result import VehicleResult
 
 DELTA_KEYS = ("rot_x_deg", "rot_y_deg", "rot_z_deg", "t_x_cm", "t_y_cm", "t_z_cm")
@@ -166,7 +166,7 @@ def moved_during_drive(vr: VehicleResult) -> tuple[str, tuple[int, ...]]:
         return (f"no: no step alarm ({tests}, over the {len(vr.trajectory)} frames the estimate used)"
                 + (f"; the radar mount monitor is {blind}" if blind.startswith("blind") else
                    f"; but {blind}" if blind else "")), ()
-    turned = "; ".join(f"the radar turned on the vehicle by {s['step_deg']:+.2f} +- {s['std_deg']:.2f} deg in yaw "
+    turned = "; ".join(f"the radar turned on the vehicle by {turn_words(s['step_deg'], s['std_deg'])} "
                        f"from about frame {s['change']}" for s in mount.get("steps", []))
     return (f"yes: the sensor stepped during the drive (step detected at frame{'s' if len(alarms) > 1 else ''} "
             f"{', '.join(map(str, alarms))}; the window restarted there)" + (f": {turned}" if turned else "")), alarms
