@@ -4,6 +4,7 @@ tiny simulated drive with the shipped small network, identical starts across met
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -683,3 +684,29 @@ def test_with_drive_error_adds_the_drive_common_term_to_every_frame():
         np.testing.assert_allclose(f.cov, cov + np.diag(std ** 2), rtol=1e-12)
         np.testing.assert_allclose(f.estimate.std, report_std(T, cov + np.diag(std ** 2)))  # re-read, not kept
     assert with_drive_error(traj, np.zeros(6), HybridConfig()) is traj
+
+
+def test_frames_are_counted_by_their_position_in_the_drive(sim_root, tmp_path, monkeypatch):
+    """A skipped frame's index is its position in the drive, as the trajectory's and the step alarms' (probe 24: a
+    20-frame drive's hybrid result listed 'index 21', the root's count, for its frame 1); the oracle's trajectory
+    counts drive positions too, not the frames its window used."""
+    from hybrid_calib.calib.pipeline import calibrate
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+    from hybrid_calib.hybrid import run_vehicle
+    from hybrid_calib.hybrid.network import NetworkRunner
+
+    ds = NuScenesRadarCamera(sim_root, "v1.0-sim", conf={"check_images": False})
+    idx = ds.frames_by_vehicle()["sim-veh-001"]
+    assert idx[1] != 1  # the root's count and the drive's differ for this vehicle
+    real = NetworkRunner.run
+    monkeypatch.setattr(NetworkRunner, "run", lambda self, i, T: None if i == idx[1] else real(self, i, T))
+    v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-001", {**BASE, "method": "hybrid", "cache_dir": str(tmp_path / "h"),
+                                                          "lidar": {"enabled": False}, "doppler": {"enabled": False}})
+    assert [s["index"] for s in v.skipped] == [1] and [f.index for f in v.trajectory] == [0, 2]
+    root = tmp_path / "root"
+    shutil.copytree(sim_root, root)
+    (root / ds.frames[idx[1]].radar_sd["filename"]).write_bytes(b"not a pcd file\x00\x01")
+    run = calibrate(root, "v1.0-sim", "oracle", tmp_path / "o", {"vehicles": ["sim-veh-001"], "window": {"window": 3}},
+                    progress=False)
+    o = run.vehicles["sim-veh-001"]
+    assert [s["index"] for s in o.skipped] == [1] and [f.index for f in o.trajectory] == [0, 2], o.skipped

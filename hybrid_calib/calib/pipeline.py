@@ -72,7 +72,8 @@ class VehicleInput:
     truth: list = field(default_factory=list)  # per frame (4, 4) true static extrinsic (sim only)
     oracle_truths: list = field(default_factory=list)  # per frame OracleTruth (oracle only)
     network: list = field(default_factory=list)  # per frame factors.io.NetworkEstimate | None (files only)
-    skipped: list = field(default_factory=list)  # [{"index", "token", "reason"}]
+    skipped: list = field(default_factory=list)  # [{"index" (its position in the drive, or None), "token", "reason"}]
+    positions: list = field(default_factory=list)  # per frame its position in the drive (default: 0, 1, ...)
 
 
 def _load_oracle(data, version: str, conf: CalibrateConfig, progress: bool = True) -> dict[str, VehicleInput]:
@@ -94,13 +95,14 @@ def _load_oracle(data, version: str, conf: CalibrateConfig, progress: bool = Tru
         # drawn by (seed, vehicle) alone: the same rows whichever other vehicles the run holds, and in every
         # command (calibrate, fleet, compare, the report's replay)
         rng = vehicle_rng(conf.seed, vehicle, "oracle")
-        for i in tqdm(idx, desc=f"oracle {vehicle}", leave=False, disable=not progress):
+        for k, i in enumerate(tqdm(idx, desc=f"oracle {vehicle}", leave=False, disable=not progress)):
             try:
                 f = ds[i]
                 c, t = oracle_from_frame(f, conf.oracle, rng)
-            except DataError as e:  # one bad frame is recorded, the drive goes on
-                vi.skipped.append({"index": int(i), "token": e.token or ds.frames[i].sample_token, "reason": str(e)})
+            except DataError as e:  # one bad frame is recorded (by its position in the drive), the drive goes on
+                vi.skipped.append({"index": k, "token": e.token or ds.frames[i].sample_token, "reason": str(e)})
                 continue
+            vi.positions.append(k)
             vi.frames.append(c)
             vi.truth.append(t.T_cam_radar)
             vi.oracle_truths.append(t)
@@ -272,9 +274,11 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, progress: bool = 
     from hybrid_calib.metrics import extrinsic_error, nees
 
     # a frame without rows (a network that matched nothing confidently) carries no information
+    pos = list(vi.positions) if len(vi.positions) == len(vi.frames) else list(range(len(vi.frames)))
     frames = [c for c in vi.frames if len(c)]
-    skipped = vi.skipped + [{"index": i, "token": c.frame_id, "reason": "no correspondence rows"}
-                            for i, c in enumerate(vi.frames) if not len(c)]
+    kept = [k for k, c in zip(pos, vi.frames) if len(c)]
+    skipped = vi.skipped + [{"index": k, "token": c.frame_id, "reason": "no correspondence rows"}
+                            for k, c in zip(pos, vi.frames) if not len(c)]
     if not frames:
         raise DataError(f"vehicle {vi.vehicle}: no usable frame ({len(skipped)} skipped; first: "
                         f"{skipped[0]['reason'] if skipped else '-'})")
@@ -283,7 +287,9 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, progress: bool = 
     if conf.mode == "window":
         cal = SlidingWindowCalibrator(T0, conf.window)
         for k, c in enumerate(tqdm(frames, desc=f"calibrate {vi.vehicle}", disable=not progress)):
-            traj.append(cal.update(c, prior=prior if k == 0 else None))
+            # index: the frame's position in the drive (as the learned methods', the skipped frames' and the mount
+            # monitor's), not the window's count of frames it used
+            traj.append(dataclasses.replace(cal.update(c, prior=prior if k == 0 else None), index=kept[k]))
         final = traj[-1].estimate
     else:
         final = solve_batch(frames, T0, conf.batch, priors=None if prior is None else [prior]).estimate

@@ -8,7 +8,8 @@
       "data": str, "version": str, "correspondences": "oracle" | DIR, "mode": "window" | "batch",
       "vehicles": {
         VEHICLE: {
-          "vehicle": str, "n_frames": int, "frames_skipped": [{"index", "token", "reason"}],
+          "vehicle": str, "n_frames": int, "frames_skipped": [{"index", "token", "reason"}],  # index: the frame's
+                                           # position in the drive as FRAME's (null: a file of no drive frame)
           "final": EXTRINSIC,              # the estimate after the last frame (window) / of the batch
           "truth": {"T_cam_radar", "report"} | null,  # when the data has ground truth
           "error": {metrics.ExtrinsicError fields..., "nees": float} | null,
@@ -44,7 +45,8 @@ STD = {"rot_x_cam_deg", "rot_y_cam_deg", "rot_z_cam_deg", "t_x_cam_cm", "t_y_cam
 per-axis 1-sigma in CAMERA axes (``C_report = B C B^T``, docs/conventions.md); the keys are defined
 once, in ``hybrid_calib.metrics.std_keys("cam")``.
 
-FRAME = {"index", "frame_id", "timestamp_us", EXTRINSIC without "report", "n_window", "n_total",
+FRAME = {"index" (the frame's position in the drive, counted from 0, every method), "frame_id", "timestamp_us",
+EXTRINSIC without "report", "n_window", "n_total",
 "inlier_fraction", "step_statistic", "step_threshold", "step_alarm", "solve_ms", "cov_ms", "events"}.
 
 NETWORK = {"n_frames": frames with a network estimate, "frame_id": the last such frame, "iteration",

@@ -188,17 +188,19 @@ class _Trace:
     # road as the oracle's does (``corrections.with_road_words``)
     geometry: RowGeometry = field(default_factory=RowGeometry)
 
-    def unreadable(self, runner: NetworkRunner, i: int) -> None:
-        """Record frame ``i`` as skipped: its files did not read (``runner.bad_reason``)."""
+    def unreadable(self, runner: NetworkRunner, i: int, k: int) -> None:
+        """Record frame ``i`` (dataset index; ``k`` its position in the drive, the record's ``index``) as skipped:
+        its files did not read (``runner.bad_reason``)."""
         self.unread += 1
-        self.skipped.append({"index": int(i), "token": runner.token(i), "reason": runner.bad_reason(i)})
+        self.skipped.append({"index": int(k), "token": runner.token(i), "reason": runner.bad_reason(i)})
 
-    def keep(self, runner: NetworkRunner, i: int, out, conf: HybridConfig) -> bool:
-        """Score the pass; False (and recorded) when it is out of domain and dropped."""
+    def keep(self, runner: NetworkRunner, i: int, k: int, out, conf: HybridConfig) -> bool:
+        """Score the pass of frame ``i`` (drive position ``k``); False (and recorded) when it is out of domain and
+        dropped."""
         score = runner.ood_score(out) if conf.ood.enabled else float("nan")
         self.scores.append(score)
         if self.drop and out_of_domain(score, conf.ood):
-            self.skipped.append(skip_record(i, runner.token(i), score, conf.ood))
+            self.skipped.append(skip_record(k, runner.token(i), score, conf.ood))
             return False
         self.geometry.add(out.rows_first.points_radar)
         return True
@@ -210,11 +212,12 @@ def _passes(runner: NetworkRunner, drive: Drive, T0: np.ndarray, conf: HybridCon
     from tqdm import tqdm
 
     outs = []
-    for i in tqdm(drive.indices, desc=f"network {drive.vehicle}", disable=not conf.progress, leave=False):
+    for k, i in enumerate(tqdm(drive.indices, desc=f"network {drive.vehicle}", disable=not conf.progress,
+                               leave=False)):
         out = runner.run(i, T0)
         if out is None:
-            tr.unreadable(runner, i)
-        elif tr.keep(runner, i, out, conf):
+            tr.unreadable(runner, i, k)
+        elif tr.keep(runner, i, k, out, conf):
             outs.append((i, out))
     return outs
 
@@ -289,14 +292,14 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
             pending = reading.step
         out = runner.run(i, T)
         if out is None:
-            tr.unreadable(runner, i)
+            tr.unreadable(runner, i, k)
             continue
-        if not tr.keep(runner, i, out, conf):
+        if not tr.keep(runner, i, k, out, conf):
             continue
         trusted = prior_trusted(conf.start, runner.range, fused_cov, mconf.trust_sigma_frac)
         fi = frame_inputs(out, T, mconf, conf.window.factor, gate, trusted)
         if not len(fi.corr) and fi.prior is None:
-            skipped.append({"index": int(i), "token": out.rows_first.frame_id, "reason": "no correspondence rows"})
+            skipped.append({"index": k, "token": out.rows_first.frame_id, "reason": "no correspondence rows"})
             continue
         prior, mrec = fi.prior, {}
         if motion is not None and fi.prior is not None:

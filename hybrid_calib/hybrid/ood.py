@@ -52,7 +52,7 @@ def out_of_domain(score: float, policy: OODPolicy) -> bool:
 
 
 def skip_record(index: int, token: str, score: float, policy: OODPolicy) -> dict:
-    """The ``frames_skipped`` entry of a dropped frame."""
+    """The ``frames_skipped`` entry of a dropped frame (``index``: its position in the drive)."""
     return {"index": int(index), "token": token, "ood_score": float(score),
             "reason": f"out of domain: score {score:.2f} > {policy.threshold:g} (the input is unlike the frames the "
                       "network was fitted on; frame dropped)"}
