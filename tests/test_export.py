@@ -101,6 +101,11 @@ def test_export_writes_the_estimate_where_measured_and_keeps_the_tables_where_pi
                                           "sim-veh-001"), _tables_T(root, "sim-veh-001"), atol=1e-12)
     saved = json.loads((tmp_path / "out" / "export.json").read_text())
     assert saved["exported"] == ["sim-veh-000"] and saved["which"] == "recalibrate"
+    # the record's change is measured from the reference it names, which is what the verdict compared with
+    rec = saved["vehicles"]["sim-veh-000"]["records"][0]
+    ref_t, after_t = np.array(rec["reference"]["translation"]), np.array(rec["after"]["translation"])
+    np.testing.assert_allclose(rec["change"]["t_ego_cm"], 100 * (after_t - ref_t), atol=1e-9)
+    assert rec["change_from"] == "reference"
 
 
 def test_untrusted_stale_and_misdirected_exports_are_refused(calibrated, tmp_path):

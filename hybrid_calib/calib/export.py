@@ -13,8 +13,12 @@ Per camera axis (``calib.drift``'s test against the reference, ``AXIS_WORDS``): 
 dominated by a fleet prior) the reference's value is kept, since an estimate that cannot tell the tolerance apart
 would only replace it with a noisier number. The reference is the one the verdict used (``reference_of``): the
 tables, or on a simulated root the factory calibration of ``sim_vehicle.json`` (its ``calibrated_sensor`` holds the
-simulator's truth). ``std_ego`` is the estimate's 1-sigma in ego axes; ``std_camera`` says per camera axis whether
-the record holds the estimate (with its 1-sigma) or the reference's value (std None: the tables' own, unknown here).
+simulator's truth). Each replaced record in ``export.json``: ``before`` (the record as the root holds it: on a
+simulated root the simulator's truth), ``reference`` (the reference mount, ``T_ego_cam T_ref``), ``after`` and
+``change`` (after against ``reference``, as the verdict). ``std_ego`` is the estimate's 1-sigma in ego axes: along
+the camera axes the record keeps (``tables_kept``) it is not the written value's; ``std_camera`` says per camera axis
+whether the record holds the estimate (with its 1-sigma) or the reference's value (std None: the tables' own,
+unknown here).
 
 Which vehicles (``which``):
 - ``"recalibrate"`` (the default): those whose verdict against the tables is "recalibrate" (``calib.drift``: the
@@ -325,8 +329,12 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
         for tok, T_base, T_new in new:
             before = {k: exp.table[index[tok]][k] for k in ("translation", "rotation")}
             exp.table[index[tok]] = {**exp.table[index[tok]], **_record(T_new)}
-            entry["records"].append({"token": tok, "before": before, "after": _record(T_new),
-                                     "change": _change(T_new, T_base)})
+            # "change" is after vs "reference" (what the verdict compared with), not vs "before" (the record as the
+            # root held it: on a simulated root the simulator's truth; probe 24 read before -> after 1.75 cm beside a
+            # change of 0.02 cm)
+            entry["records"].append({"token": tok, "before": before, "reference": _record(T_base),
+                                     "after": _record(T_new), "change": _change(T_new, T_base),
+                                     "change_from": "reference"})
         cov = np.asarray(vr.final.cov, np.float64)
         entry.update(exported=True, std_ego=_std_ego(new[0][2], cov), std_camera=_std_camera(T_est, cov, kept),
                      tables_kept=[AXIS_WORDS[i] for i in kept],
