@@ -240,8 +240,8 @@ def summarize_method(results: list[VehicleResult], labels: dict[str, str] | None
 def _markdown(summary: CompareResult, conf: CompareConfig, command: str) -> str:
     lines = [f"# compare: range {conf.range}, {conf.trials} trials", "", f"Command: `{command}`", "",
              "Errors against the truth (simulated) or the tables (real roots); rotation in degrees, translation "
-             "in cm. Time per frame: CPU wall time (hybrid: network + window; pure: the network pass is "
-             "listed under network ms).", ""]
+             "in cm. Time per frame (ms/frame): CPU wall time, the network pass included for every learned "
+             "method (hybrid: network + window; pure, pure-avg: the network pass; oracle: the window).", ""]
     for stat in ("mean", "median"):
         lines += [f"## {stat} over trials", "",
                   "| method | R.Mean | Roll | Pitch | Yaw | Geodesic | T.Mean | X | Y | Z | Norm |",

@@ -137,3 +137,19 @@ def test_a_networks_exported_rows_never_give_a_trusted_verdict(sim_root, tmp_pat
         v["final"]["status"]
     assert v["drift"]["verdict_kind"] == "cannot tell" and v["checkpoint"].endswith("small-sim-r1.json")
     assert "its rows are a network's" in untrusted_status(v["final"]["status"])
+
+
+def test_the_terminal_says_the_windows_step_alarms(capsys, tmp_path):
+    """result.json, the report and the fleet told the window's step alarm; calibrate's terminal did not (probe 24)."""
+    from types import SimpleNamespace
+
+    from hybrid_calib.commands.calibrate import _report
+    from tests.test_report import _vr
+
+    run = SimpleNamespace(vehicles={"v": _vr((0,) * 6, (0.05,) * 6, alarms=(1, 3))}, vehicles_failed={})
+    assert _report(run, tmp_path) == 0
+    out = capsys.readouterr().out
+    assert "  step alarms at frames 1, 3 (the window's step test" in out
+    assert "rot x/y/z (pitch/yaw/roll) 0.050/0.050/0.050 deg, t x/y/z 0.05/0.05/0.05 cm" in out
+    _report(SimpleNamespace(vehicles={"v": _vr((0,) * 6, (0.05,) * 6)}, vehicles_failed={}), tmp_path)
+    assert "step alarm" not in capsys.readouterr().out

@@ -149,8 +149,9 @@ def _report(result, out: Path, reused: bool = False) -> int:
         s = std_dict(v.final.std, STD_FRAME)
         label = "std (camera axes; untrusted, as the status says)" if untrusted_status(v.final.status) else \
             "std (camera axes)"
-        line = (f"{name}: {v.final.status}; {label} rot {s['rot_x_cam_deg']:.3f}/{s['rot_y_cam_deg']:.3f}/"
-                f"{s['rot_z_cam_deg']:.3f} deg, t {s['t_x_cam_cm']:.2f}/{s['t_y_cam_cm']:.2f}/{s['t_z_cam_cm']:.2f} cm")
+        line = (f"{name}: {v.final.status}; {label} rot x/y/z (pitch/yaw/roll) {s['rot_x_cam_deg']:.3f}/"
+                f"{s['rot_y_cam_deg']:.3f}/{s['rot_z_cam_deg']:.3f} deg, t x/y/z {s['t_x_cam_cm']:.2f}/"
+                f"{s['t_y_cam_cm']:.2f}/{s['t_z_cam_cm']:.2f} cm")
         if v.error:
             line += (f"; error{' vs the tables' if v.errors_against == 'tables' else ''} "
                      f"{v.error['rot_mean_deg']:.3f} deg (mean of the three angles), {v.error['trans_norm_cm']:.2f} cm "
@@ -164,6 +165,10 @@ def _report(result, out: Path, reused: bool = False) -> int:
                     f"{ood} frame(s) dropped as out of the network's domain" if ood else "")
             line += "; " + " and ".join(w for w in said if w) + " (listed in result.json)"
         print(line)
+        if alarms := [f.index for f in v.trajectory if f.step_alarm]:  # said as result.json, the report and the fleet
+            print(f"  step alarm{'s' if len(alarms) > 1 else ''} at frame{'s' if len(alarms) > 1 else ''} "
+                  f"{', '.join(map(str, alarms))} (the window's step test: the mount changed inside the drive; the "
+                  "window restarted there and the estimate is the mount after it)")
         for key in ("depth_note", "range_note"):
             if v.config and v.config.get(key):
                 print(f"  note: {v.config[key]}")

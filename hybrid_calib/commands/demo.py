@@ -242,8 +242,8 @@ def run(args: argparse.Namespace) -> int:
             e = v["error"]
             print(f"  error vs truth:     rotation {e['rot_mean_deg']:.3f} deg (mean |roll,pitch,yaw|), "
                   f"translation {e['trans_norm_cm']:.2f} cm (norm)")
-        print(f"  1-sigma (camera):   rot {std['rot_x_cam_deg']:.3f}/{std['rot_y_cam_deg']:.3f}/"
-              f"{std['rot_z_cam_deg']:.3f} deg, t {std['t_x_cam_cm']:.2f}/{std['t_y_cam_cm']:.2f}/"
+        print(f"  1-sigma (camera):   rot x/y/z (pitch/yaw/roll) {std['rot_x_cam_deg']:.3f}/{std['rot_y_cam_deg']:.3f}/"
+              f"{std['rot_z_cam_deg']:.3f} deg, t x/y/z {std['t_x_cam_cm']:.2f}/{std['t_y_cam_cm']:.2f}/"
               f"{std['t_z_cam_cm']:.2f} cm")
         if v.get("lidar"):
             print(f"  LiDAR alignment:    {describe_lidar(v['lidar'])}")
