@@ -39,7 +39,7 @@ from hybrid_calib.config import (
 from hybrid_calib.data.files import root_labels, stamps_changed
 from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.hybrid.loop import METHODS, HybridConfig, _Session, vehicle_learned, vehicle_oracle
-from hybrid_calib.metrics import CHI2_6_95, METRIC_KEYS
+from hybrid_calib.metrics import METRIC_KEYS, consistency
 
 
 @dataclass(frozen=True)
@@ -205,11 +205,6 @@ def _read_trial(path: Path, method: str, k: int, vehicle: str | None = None) -> 
         return None
 
 
-def _consistency(nees: np.ndarray) -> dict:
-    return {"n": int(len(nees)), "nees_mean": float(np.mean(nees)), "nees_median": float(np.median(nees)),
-            "coverage_95": float(np.mean(nees < CHI2_6_95))}
-
-
 def summarize_method(results: list[VehicleResult], labels: dict[str, str] | None = None) -> MethodSummary:
     """The table row of one method over its trials (module doc, step 3); ``labels``: root (as its trials record it)
     -> its name in the per-root rows (``data.files.root_labels``; default the folder name)."""
@@ -228,8 +223,8 @@ def summarize_method(results: list[VehicleResult], labels: dict[str, str] | None
         trials=len(results),
         mean={k: float(np.mean([e[k] for e in errs])) for k in METRIC_KEYS},
         median={k: float(np.median([e[k] for e in errs])) for k in METRIC_KEYS},
-        consistency=_consistency(nees),
-        consistency_per_root={k: _consistency(np.array(v)) for k, v in sorted(per_root.items())},
+        consistency=consistency(nees),
+        consistency_per_root={k: consistency(np.array(v)) for k, v in sorted(per_root.items())},
         not_ok_fraction=float(np.mean([status_kind(r.final.status) != "ok" for r in results])),
         inconclusive_fraction=float(np.mean([status_kind(r.final.status) == "inconclusive" for r in results])),
         ms_per_frame=float(np.mean(ms)) if ms else None,

@@ -39,6 +39,17 @@ def nees(xi: np.ndarray, cov: np.ndarray) -> np.ndarray | float:
     return np.einsum("fi,fi->f", xi, np.linalg.solve(cov, xi[..., None])[..., 0])
 
 
+def consistency(nees_values) -> dict:
+    """How honest covariances were over a set of estimates, from their NEES (``nees``), the one summary every
+    command reports (docs/conventions.md "Error metrics"): ``{"n", "nees_mean" (6 if honest), "nees_median",
+    "coverage_95" (the fraction inside the 95 % ellipsoid, NEES < ``CHI2_6_95``; 0.95 if honest)}``."""
+    v = np.asarray(nees_values, np.float64).reshape(-1)
+    if not len(v):
+        return {"n": 0, "nees_mean": None, "nees_median": None, "coverage_95": None}
+    return {"n": int(len(v)), "nees_mean": float(v.mean()), "nees_median": float(np.median(v)),
+            "coverage_95": float(np.mean(v < CHI2_6_95))}
+
+
 @dataclass(frozen=True)
 class ExtrinsicError:
     """Errors of one estimate. Angles in degrees, translations in centimetres, all >= 0."""

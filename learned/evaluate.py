@@ -46,7 +46,14 @@ from hybrid_calib.config import (
 from hybrid_calib.data.files import read_npz
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.errors import HybridCalibError
-from hybrid_calib.metrics import CHI2_6_95, METRIC_KEYS, STD_KEYS_RADAR, extrinsic_error, format_table, summarize
+from hybrid_calib.metrics import (
+    METRIC_KEYS,
+    STD_KEYS_RADAR,
+    consistency,
+    extrinsic_error,
+    format_table,
+    summarize,
+)
 from hybrid_calib.metrics import nees as nees_of
 from learned.dataset import CalibDataset, DatasetConfig, SplitConfig, camera_token, collate, split_indices
 from learned.depth import DepthCache, build_depth_estimator
@@ -209,9 +216,9 @@ class EvalResult:
         text = "\n".join(lines) + f"\n\n{self.n_frames} frames; rotation in degrees, translation in cm.\n"
         u = self.uncertainty
         if u:
-            text += (f"\nExported 6x6 covariance of the final estimate over {u['n_frames']} frames: mean NEES "
+            text += (f"\nExported 6x6 covariance of the final estimate over {u['n']} frames: mean NEES "
                      f"{u['nees_mean']:.2f} (6 if honest), median {u['nees_median']:.2f}, "
-                     f"{100 * u['inside_95']:.1f} % inside the 95 % ellipsoid.\n\n"
+                     f"coverage {100 * u['coverage_95']:.1f} % (inside the 95 % ellipsoid).\n\n"
                      "| axis | RMSE | mean reported 1-sigma |\n|---|---|---|\n")
             for name, rmse, sd in zip(u["axes"], u["rmse"], u["sigma_mean"]):
                 text += f"| {name} | {rmse:.3f} | {sd:.3f} |\n"
@@ -251,7 +258,7 @@ def _tangent_error(z) -> tuple[np.ndarray, np.ndarray] | None:
 
     if "cov" not in z.files:
         return None
-    return local(z["T_iters"][-1], z["T_gt"]), z["cov"]
+    return local(z["T_gt"], z["T_iters"][-1]), z["cov"]
 
 
 def _stack(pairs: list) -> tuple[np.ndarray, np.ndarray]:
@@ -259,7 +266,7 @@ def _stack(pairs: list) -> tuple[np.ndarray, np.ndarray]:
 
 
 def tangent_errors(out: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """(F, 6) right-tangent errors Log(T_final^-1 T_gt) and (F, 6, 6) exported covariances of the
+    """(F, 6) right-tangent errors Log(T_gt^-1 T_final) and (F, 6, 6) exported covariances of the
     frames under ``out/frames`` that have one (``calibrate_cov_scale`` takes both)."""
     pairs = []
     for path in sorted((Path(out) / "frames").glob("*.npz")):
@@ -269,19 +276,16 @@ def tangent_errors(out: str | Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def uncertainty_consistency(xi: np.ndarray, C: np.ndarray) -> dict[str, Any]:
-    """Is the exported per-frame covariance honest? ``xi`` (F, 6) = Log(T_final^-1 T_gt) (right
-    tangent, [rot rad, trans m]) and ``C`` (F, 6, 6) as ``tangent_errors`` gives them; NEES =
-    xi^T C^-1 xi. Returns {} when F = 0, else n_frames, nees_mean (6 if honest), nees_median,
-    inside_95 (fraction with NEES below the chi-square 95 % bound; 0.95 if honest), axes, rmse and
-    sigma_mean per tangent axis (degrees / cm; the axes are the radar frame's: ``axes`` are
-    ``hybrid_calib.metrics.std_keys("radar")``)."""
+    """Is the exported per-frame covariance honest? ``xi`` (F, 6) = Log(T_gt^-1 T_final) (right
+    tangent, [rot rad, trans m], ``metrics.nees``'s error) and ``C`` (F, 6, 6) as ``tangent_errors`` gives them.
+    Returns {} when F = 0, else ``metrics.consistency`` (n, nees_mean, nees_median, coverage_95: the summary compare
+    and calibrate report) with axes, rmse and sigma_mean per tangent axis (degrees / cm; the axes are the radar
+    frame's: ``axes`` are ``hybrid_calib.metrics.std_keys("radar")``)."""
     if not len(xi):
         return {}
-    nees = nees_of(xi, C)
     scale = np.array([np.degrees(1.0)] * 3 + [100.0] * 3)
     return {
-        "n_frames": len(xi), "nees_mean": float(nees.mean()), "nees_median": float(np.median(nees)),
-        "inside_95": float(np.mean(nees < CHI2_6_95)), "axes": list(STD_KEYS_RADAR),
+        **consistency(nees_of(xi, C)), "axes": list(STD_KEYS_RADAR),
         "rmse": (np.sqrt((xi ** 2).mean(0)) * scale).tolist(),
         "sigma_mean": (np.sqrt(np.diagonal(C, axis1=1, axis2=2)).mean(0) * scale).tolist(),
     }

@@ -480,7 +480,7 @@ def test_cli_train_then_evaluate(sim_root, tmp_path, capsys):
     assert res["config"]["eval"]["split_options"]["test_groups"] == ["scene-sim-veh-002"]
     assert set(res["rows"]["pure"]) == set(METRIC_KEYS) and (out / "results.md").is_file()
     assert (out / "errors_cdf.png").stat().st_size > 1000
-    assert res["uncertainty"]["n_frames"] == 3 and len(res["uncertainty"]["rmse"]) == 6
+    assert res["uncertainty"]["n"] == 3 and len(res["uncertainty"]["rmse"]) == 6
 
     # the evaluate output feeds calibrate directly (factors.io files; the network block is carried). The
     # one-epoch model is confident about nothing: export every row, and a frame without rows is skipped

@@ -121,8 +121,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"{len(skipped)} frame(s) skipped; listed in {skipped_path}")
     u = result.uncertainty
     if u:
-        print(f"exported covariance: mean NEES {u['nees_mean']:.2f} (6 if honest), "
-              f"{100 * u['inside_95']:.1f} % inside the 95 % ellipsoid ({u['n_frames']} frames)")
+        print(f"exported covariance: mean NEES {u['nees_mean']:.2f} (6 if honest), coverage "
+              f"{100 * u['coverage_95']:.1f} % (inside the 95 % ellipsoid; {u['n']} frames)")
     print(f"wrote {Path(args.out) / 'results.json'} and results.md")
     if args.fit_uncertainty:
         fit = fit_uncertainty(args.out, last.path, args.data, args.split, args.perturbation,
