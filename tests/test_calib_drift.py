@@ -481,7 +481,7 @@ def test_the_references_own_uncertainty_enters_the_test():
     assert exact.verdict_kind == "within tolerance" and exact.statistic == pytest.approx(900, rel=1e-3)
     loose = reference_test(turned, tiny, T, DriftConfig(ref_rot_std_deg=0.5, ref_trans_std_cm=0.01))
     assert loose.statistic == pytest.approx(0.36, rel=1e-3)  # (0.3 / 0.5)^2
-    assert loose.verdict_kind == "cannot tell" and "yaw differs by 0.30 deg +- 0.50 deg" in loose.verdict
+    assert loose.verdict_kind == "cannot tell" and "yaw differs by 0.30 deg +- 0.50 deg at 1 sigma" in loose.verdict
 
 
 def test_an_under_dispersed_statistic_never_scales_the_threshold_down():

@@ -150,7 +150,7 @@ def test_too_few_in_domain_frames_make_the_vehicle_inconclusive(fitted, sim_root
     assert "on that every-frame pass 0 of 3 frames scored in domain" in v.ood["note"]
     assert v.trajectory[-1].estimate.status == v.final.status == run.vehicles["sim-veh-000"].final.status
     verdict = verdict_of(v)
-    assert verdict.word == "inconclusive" and "only 0 of 3 frames" in verdict.why
+    assert verdict.word == "cannot tell" and "only 0 of 3 frames" in verdict.why
 
 
 def test_out_of_domain_frames_are_dropped_with_the_reason(fitted, sim_root, tmp_path):

@@ -136,12 +136,12 @@ def _vr(delta, std, status="ok", drift_extra=None, alarms=()):
 @pytest.mark.parametrize("delta, std, status, word, names", [
     ((0.1, 0, 0, 1, 0, 0), (0.05,) * 3 + (0.5,) * 3, "ok", "within tolerance", ()),
     ((0, 1.2, 0, 0, 0, 0), (0.05,) * 3 + (0.5,) * 3, "ok", "recalibrate", ("rotation about camera y",)),
-    ((0, 0, 0, 0, 12, 0), (0.05,) * 3 + (0.5, 30, 0.5), "weak: translation along camera y", "inconclusive",
+    ((0, 0, 0, 0, 12, 0), (0.05,) * 3 + (0.5, 30, 0.5), "weak: translation along camera y", "cannot tell",
      ("translation along camera y",)),
-    ((0, 0, 0, 0, 0, 0), (0.05,) * 6, "degenerate: rotation about camera z is unobservable", "inconclusive",
+    ((0, 0, 0, 0, 0, 0), (0.05,) * 6, "degenerate: rotation about camera z is unobservable", "cannot tell",
      ("degenerate",)),
     ((0, 9, 0, 0, 0, 0), (0.05,) * 6, "ok (NOT CONVERGED: only 3 % of the frame's correspondences fit the estimate)",
-     "inconclusive", ("did not converge",)),
+     "cannot tell", ("did not converge",)),
 ])
 def test_verdict_rules(delta, std, status, word, names):
     v = verdict_of(_vr(delta, std, status), Tolerance(rot_deg=0.5, trans_cm=5.0))
@@ -156,7 +156,7 @@ def test_out_of_domain_status_makes_the_verdict_inconclusive_whatever_the_drift_
     status = inconclusive_status("only 2 of 41 frames are inside the network's training domain", "ok")
     for extra in ({}, {"verdict_kind": "within tolerance", "verdict": "within tolerance"}):
         v = verdict_of(_vr((0.01,) * 6, (0.01,) * 6, status, drift_extra=extra))
-        assert v.word == "inconclusive" and "only 2 of 41 frames" in v.why and "status" in v.source
+        assert v.word == "cannot tell" and "only 2 of 41 frames" in v.why and "status" in v.source
 
 
 def test_verdict_from_the_result_and_steps():

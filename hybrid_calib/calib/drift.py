@@ -240,7 +240,7 @@ def _verdict(axes: list[AxisCheck]) -> tuple[str, str]:
     """(kind, sentence) from the per-axis checks (module docstring)."""
     differs = [a for a in axes if a.decision == "differs"]
     if differs:
-        parts = [f"{_fmt(abs(a.delta), a.unit)} in {a.name} (+- {_fmt(a.std, a.unit)}, tolerance "
+        parts = [f"{_fmt(abs(a.delta), a.unit)} in {a.name} (+- {_fmt(a.std, a.unit)} at 1 sigma, tolerance "
                  f"{_fmt(a.tolerance, a.unit)})" for a in differs]
         return "recalibrate", "differs by " + "; ".join(parts) + ": recalibrate"
     # a prior-pinned axis only blocks the verdict when its difference itself is beyond the tolerance
@@ -256,10 +256,12 @@ def _verdict(axes: list[AxisCheck]) -> tuple[str, str]:
     why = []
     for a in blocking:
         if a.prior_pinned:
-            why.append(f"{a.name} is prior-pinned (differs by {_fmt(abs(a.delta), a.unit)} +- {_fmt(a.std, a.unit)}, "
+            why.append(f"{a.name} is prior-pinned (differs by {_fmt(abs(a.delta), a.unit)} +- {_fmt(a.std, a.unit)} "
+                       "at 1 sigma, "
                        f"tolerance {_fmt(a.tolerance, a.unit)}; the data do not observe it)")
         else:
-            why.append(f"{a.name} differs by {_fmt(abs(a.delta), a.unit)} +- {_fmt(a.std, a.unit)}, not precise "
+            why.append(f"{a.name} differs by {_fmt(abs(a.delta), a.unit)} +- {_fmt(a.std, a.unit)} at 1 sigma, not "
+                       "precise "
                        f"enough to decide against the {_fmt(a.tolerance, a.unit)} tolerance")
     imprecise = sum(not a.prior_pinned for a in blocking)
     hint = (f" (frames of other scenes and turns narrow {'it' if imprecise == 1 else 'them'}; more frames like "

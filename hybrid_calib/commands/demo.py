@@ -96,7 +96,7 @@ def vehicle_verdict(row: dict) -> str:
     if "degenerate" in row["flags"]:
         why.append("degenerate drive")
     if "inconclusive" in row["flags"]:
-        why.append("inconclusive: too few frames inside the network's training domain")
+        why.append(f"not trusted: {row.get('status', 'inconclusive')}")
     if why:
         return "FLAGGED: " + "; ".join(why)
     test = row.get("fleet_test") or {}

@@ -19,8 +19,9 @@
                "mount_steps": [{"at", "change", "step_deg", "std_deg", "statistic"}, ...],  # hybrid: mount monitor
                "fleet_test": {"d2", "p_value", "reference"} | {"left_out": why} | null,
                "flags": ["out_of_tolerance", "drifted_in_drive", "fleet_outlier", "degenerate", "inconclusive"]}
-               # "inconclusive": the status is "inconclusive: ..." (input out of the network's domain,
-               # hybrid.ood); its verdict is "inconclusive" whatever the drift block says
+               # "inconclusive": the status is "inconclusive: ..." (the estimate is not trusted: input out of the
+               # network's domain, a solve that did not converge, ...); its verdict is "cannot tell" whatever the
+               # drift block says
 
     OFFSET = {"rot_x_cam_deg", "rot_y_cam_deg", "rot_z_cam_deg", "t_x_cam_cm", "t_y_cam_cm", "t_z_cam_cm"}:
     B local(T_ref, T_est) (the right-tangent offset mapped to camera axes exactly as the std blocks,
@@ -107,7 +108,8 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
                        keys, camera_offset(np.asarray(j["tables_T"]), vr.final.T).tolist())),
                    std_cam=std_dict(vr.final.std, STD_FRAME),
                    drift={k: d.get(k) for k in ("drifted", "p_value", "statistic")},
-                   verdict="inconclusive" if status_kind(vr.final.status) == "inconclusive" else (
+                   verdict="cannot tell: the estimate is not trusted (its status: inconclusive)"
+                   if status_kind(vr.final.status) == "inconclusive" else (
                        d.get("verdict") or ("out of tolerance" if d.get("drifted") else "within tolerance")),
                    step_alarms=[f.index for f in vr.trajectory if f.step_alarm], error=vr.error, fleet_test=None,
                    mount_steps=(vr.mount or {}).get("steps", []))
@@ -203,7 +205,7 @@ def summary_markdown(s: dict) -> str:
              f"**{n_vehicles(c['vehicles'])}**: {c['done']} done, {c['failed']} failed, {c['pending'] + c['running']} "
              f"not finished; {c['out_of_tolerance']} out of tolerance, {c['drifted_in_drive']} drifted inside the "
              f"drive, {c['fleet_outliers']} fleet outlier(s), {c['degenerate']} degenerate, "
-             f"{c.get('inconclusive', 0)} inconclusive (out of the network's domain), {c['weak']} weak.", ""]
+             f"{c.get('inconclusive', 0)} inconclusive (status: the estimate is not trusted), {c['weak']} weak.", ""]
     lines += [f"Note: {n}" for n in s.get("notes") or []] + ([""] if s.get("notes") else [])
     lines += [f"**Root left out** {r}: {why}" for r, why in (s.get("roots_left_out") or {}).items()] + (
         [""] if s.get("roots_left_out") else [])

@@ -12,13 +12,13 @@ tolerance ``tol`` per axis (rotation deg, translation cm, ``ReportConfig``):
 
 - "recalibrate": some axis changed by more than the tolerance beyond doubt, ``|delta| - 3 s > tol``;
 - "within tolerance": every axis is within it beyond doubt, ``|delta| + 3 s <= tol``;
-- "inconclusive": neither; the axes whose 3-sigma interval straddles the tolerance are named (a
+- "cannot tell": neither; the axes whose 3-sigma interval straddles the tolerance are named (a
   direction the data could not pin, e.g. the radar height of a 2D radar, ends here), as does a
   "degenerate" status, a last solve that did not converge ("NOT CONVERGED" in the status) or a
   result without drift block.
 
 An ``inconclusive: ...`` status (the learned network's input was out of its domain: ``hybrid.ood``)
-makes the verdict "inconclusive" with that reason before anything else, the drift block's own
+makes the verdict "cannot tell" with that reason before anything else, the drift block's own
 verdict included: the estimate it tested cannot be trusted. One thing overrides every verdict: the
 hybrid's radar mount monitor (``calib.mount_monitor``, independent of the network and the window)
 measured the radar turning during the drive by more than the rotation tolerance beyond its 3 sigma:
@@ -41,7 +41,7 @@ from hybrid_calib.calib.result import VehicleResult
 DELTA_KEYS = ("rot_x_deg", "rot_y_deg", "rot_z_deg", "t_x_cm", "t_y_cm", "t_z_cm")
 AXIS_NAMES = ("rotation about camera x", "rotation about camera y", "rotation about camera z",
               "translation along camera x", "translation along camera y", "translation along camera z")
-VERDICTS = ("within tolerance", "recalibrate", "inconclusive")
+VERDICTS = ("within tolerance", "recalibrate", "cannot tell")  # the calibrator's words (calib.drift.VERDICT_KINDS)
 INCONCLUSIVE = "inconclusive"  # calib.covariance.inconclusive_status: the input is out of the network's domain
 
 
@@ -110,15 +110,15 @@ def _fmt(j: int, v: float) -> str:
 def derive_verdict(vr: VehicleResult, tol: Tolerance) -> tuple[str, str]:
     """(word, why) from the drift block, the std and the status (module docstring)."""
     if vr.final.status.startswith(INCONCLUSIVE):
-        return "inconclusive", _out_of_domain_why(vr.final.status)
+        return "cannot tell", _out_of_domain_why(vr.final.status)
     if status_kind(vr.final.status) == "degenerate":
-        return "inconclusive", f"The data could not determine the extrinsic ({vr.final.status})."
+        return "cannot tell", f"The data could not determine the extrinsic ({vr.final.status})."
     if NOT_CONVERGED in vr.final.status:
-        return "inconclusive", (f"The last solve did not converge, so its estimate says nothing about the mount "
+        return "cannot tell", (f"The last solve did not converge, so its estimate says nothing about the mount "
                                 f"({vr.final.status}).")
     d = vr.drift or {}
     if "delta_camera" not in d:
-        return "inconclusive", "The result holds no comparison with a reference extrinsic (no drift block)."
+        return "cannot tell", "The result holds no comparison with a reference extrinsic (no drift block)."
     delta = np.array([float(d["delta_camera"][k]) for k in DELTA_KEYS])
     s, t = np.asarray(vr.final.std, float), tol.per_axis()
     out = np.abs(delta) - 3 * s > t
@@ -132,7 +132,7 @@ def derive_verdict(vr: VehicleResult, tol: Tolerance) -> tuple[str, str]:
                                     "3-sigma interval inside it.")
     axes = "; ".join(f"{AXIS_NAMES[j]}: {_fmt(j, delta[j])} +- {_fmt(j, 3 * s[j])} (3 sigma)"
                      for j in np.flatnonzero(~inside))
-    return "inconclusive", (f"The data cannot tell whether these axes are within the tolerance of the reference "
+    return "cannot tell", (f"The data cannot tell whether these axes are within the tolerance of the reference "
                             f"(their 3-sigma interval straddles it): {axes}.")
 
 
@@ -197,7 +197,7 @@ def _verdict_vs_reference(vr: VehicleResult, tol: Tolerance) -> Verdict:
     if frames and NOT_CONVERGED in vr.final.status:
         moved += "; but the solve did not converge, so these alarms may only mark its failures"
     if vr.final.status.startswith(INCONCLUSIVE):
-        return Verdict("inconclusive", _out_of_domain_why(vr.final.status), tol.describe(),
+        return Verdict("cannot tell", _out_of_domain_why(vr.final.status), tol.describe(),
                        "the result's status (not trusted)", moved, frames)
     d = vr.drift or {}
     source = "the calibrator's reference test (result.json drift block)"
@@ -208,7 +208,7 @@ def _verdict_vs_reference(vr: VehicleResult, tol: Tolerance) -> Verdict:
     given = d.get("verdict")
     kind = d.get("verdict_kind")
     if kind:  # the calibrator's reference test (calib.drift): kind, sentence and per-axis tolerances
-        word = {"cannot tell": "inconclusive"}.get(kind, kind)
+        word = kind
         tols = {a.get("unit"): a.get("tolerance") for a in (d.get("axes") or {}).values()}
         tol_text = ", ".join(f"{v:g} {u} per camera axis" for u, v in tols.items() if v is not None)
         return Verdict(word, str(given or kind), tol_text or "not stated by the result", source, moved, frames)
