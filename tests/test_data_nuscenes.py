@@ -475,3 +475,20 @@ def test_inspect_warns_about_keyframes_that_do_not_advance_and_ego_poses_that_ju
         "10.0 m)" in said
     braking = list(np.cumsum([0.0] + [max(10.0 - 2.5 * k, 0.0) * 0.5 for k in range(9)]))  # 10 m/s to 0 at 5 m/s2
     assert "warning" not in summary(times, braking)
+
+
+def test_a_scene_without_samples_is_said_not_silently_dropped(tiny):
+    """Probe 23: a scene of scene.json whose samples are absent (tables of a larger release, or a partial copy)
+    vanished without a word, and asking for it read 'no vehicle to calibrate (check --set vehicles=...)'."""
+    from hybrid_calib.errors import DataError
+
+    (scene,) = tiny.tables["scene"]
+    tiny.tables["scene"].append({**scene, "token": "scene-absent", "name": "tiny-absent",
+                                 "first_sample_token": "nope", "last_sample_token": "nope2"})
+    tiny.rewrite_table("scene")
+    ds = NuScenesRadarCamera(tiny.root, VERSION)
+    assert len(ds.frames) == 3
+    (skip,) = [s for s in ds.skipped if "no sample in sample.json" in s.reason]
+    assert skip.reason.startswith("1 of the 2 scene(s) of scene.json have no sample in sample.json (tiny-absent;")
+    with pytest.raises(DataError, match="first: 1 of the 1 scene.s. of scene.json have no sample in sample.json"):
+        NuScenesRadarCamera(tiny.root, VERSION, conf={"scenes": ("tiny-absent",)})

@@ -232,6 +232,15 @@ class NuScenesRadarCamera:
                 None, token, str(t.path("scene")),
                 f"{n} sample(s) reference scene {token}, which is not in scene.json; they are skipped (the tables "
                 "are inconsistent: re-extract the metadata)"))
+        empty = [sc for sc in scenes if not t.scene_samples(sc)]
+        if empty:  # a partial metadata copy, or scene.json of a larger release: said once, not silently dropped
+            names = [sc["name"] for sc in empty]
+            self._index_skips.append(SkipRecord(
+                None, empty[0]["token"], str(t.path("sample")),
+                f"{len(empty)} of the {len(scenes)} scene(s) of scene.json have no sample in sample.json "
+                f"({', '.join(names[:5])}{', ...' if len(names) > 5 else ''}; e.g. {names[0]}'s first_sample_token "
+                f"{empty[0].get('first_sample_token')!r} does not resolve): they hold no frame (tables of another "
+                "release or a partial copy: use the version folder that holds their samples)"))
         for scene in scenes:
             log = t.by_token["log"].get(scene["log_token"])
             if log is None:
