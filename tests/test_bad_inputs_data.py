@@ -431,3 +431,21 @@ def test_a_keyframe_with_another_sensors_calibration_is_named_not_read_as_that_s
     assert len(ds) == 2  # the other samples still read
     (why,) = [s.reason for s in ds.skipped if "two RADAR_FRONT keyframes" in s.reason]
     assert tiny.lidar_sd[0]["token"] in why and tiny.radar_sd[0]["token"] in why and "LIDAR_TOP" in why
+
+
+@pytest.mark.parametrize("ext", [".jpg", ".png"])
+def test_a_grayscale_camera_image_is_named_not_fed_to_the_network(tmp_path, ext):
+    """Probe 23: a CAM_FRONT JPEG re-encoded as one grey channel was read (converted to three equal channels) and fed
+    to the network without a word; a colour image of the same size is fine."""
+    import cv2
+
+    from hybrid_calib.data.image_header import image_header
+    from hybrid_calib.errors import DataError
+
+    rgb = np.random.default_rng(0).integers(0, 255, (24, 32, 3), np.uint8)
+    cv2.imwrite(str(tmp_path / f"colour{ext}"), rgb)
+    assert image_header(tmp_path / f"colour{ext}") == (32, 24)
+    cv2.imwrite(str(tmp_path / f"grey{ext}"), rgb[..., 0])
+    with pytest.raises(DataError, match="camera image is grayscale") as e:
+        image_header(tmp_path / f"grey{ext}", "tok")
+    assert f"grey{ext}" in str(e.value) and "tok" in str(e.value)

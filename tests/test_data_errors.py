@@ -266,7 +266,7 @@ def test_jpeg_that_does_not_decode_fails_lazily(tiny):
     # a JPEG whose header is sound (SOI, SOF with a size, EOI) but that has no image data: it passes the
     # eager check, and load_image raises when it tries to decode it.
     path = tiny.path(tiny.cam_sd[3])
-    sof = bytes.fromhex("ffc0000b08005a00a0010111 00".replace(" ", ""))
+    sof = bytes.fromhex("ffc0001108005a00a003011100021100031100")  # three components (colour)
     path.write_bytes(b"\xff\xd8" + sof + b"\xff\xd9")
     assert image_header(path) == (160, 90)
     ds = _open(tiny)

@@ -37,8 +37,9 @@ def image_header(path: str | Path, token: str | None = None) -> tuple[int, int]:
         size = path.stat().st_size
         with open(path, "rb") as f:
             head = f.read(8)
+            channels = None
             if head[:3] == b"\xff\xd8\xff":
-                wh = _jpeg_size(f)
+                wh, channels = _jpeg_size(f) or (None, None)
                 end = b"\xff\xd9"
             elif head == _PNG_SIG:
                 f.seek(8)
@@ -47,6 +48,7 @@ def image_header(path: str | Path, token: str | None = None) -> tuple[int, int]:
                     wh = None
                 else:
                     wh = struct.unpack(">II", chunk[8:16])
+                    channels = {0: 1, 4: 1}.get(chunk[17], 3) if len(chunk) >= 18 else None  # colour type 0, 4: grey
                 end = b"IEND"
             else:
                 what = "empty" if size == 0 else f"starts with bytes {head[:4].hex()}"
@@ -65,11 +67,15 @@ def image_header(path: str | Path, token: str | None = None) -> tuple[int, int]:
     if end not in tail:
         raise DataError("camera image is truncated (no end-of-image marker); the file is corrupt or partially "
                         "copied, re-download it", path=str(path), token=token)
+    if channels == 1:  # probe 23: a grey image in a CAM_FRONT record was read and fed to the network silently
+        raise DataError("camera image is grayscale (one channel); a nuScenes camera records colour and the network "
+                        "reads colour images: this file is not the camera's frame (a converted copy?); restore the "
+                        "original image", path=str(path), token=token)
     return int(wh[0]), int(wh[1])
 
 
-def _jpeg_size(f) -> tuple[int, int] | None:
-    """Walk JPEG marker segments from just after SOI to the first SOF; ``(width, height)`` or None."""
+def _jpeg_size(f) -> tuple[tuple[int, int], int] | None:
+    """Walk JPEG marker segments from just after SOI to the first SOF; ``((width, height), components)`` or None."""
     f.seek(2)
     while True:
         b = f.read(1)
@@ -89,11 +95,11 @@ def _jpeg_size(f) -> tuple[int, int] | None:
         if length < 2:
             return None
         if marker in _JPEG_SOF:
-            seg = f.read(5)
-            if len(seg) < 5:
+            seg = f.read(6)
+            if len(seg) < 6:
                 return None
             h, w = struct.unpack(">HH", seg[1:5])
-            return w, h
+            return (w, h), seg[5]
         f.seek(length - 2, 1)
         # the next byte must start a marker
         b = f.read(1)
