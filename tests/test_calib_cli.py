@@ -75,7 +75,26 @@ def test_calibrate_batch_from_exported_correspondence_dir(sim_root, tmp_path):
                                "--out", str(out), "--no-plots")) == 0
     (v,) = json.loads((out / "result.json").read_text())["vehicles"].values()
     assert v["error"]["rot_mean_deg"] < 0.3 and v["trajectory"] == []
-    assert v["method"] == "measurements" and v["start"]["kind"] == "reference"
+    assert v["method"] == "measurements" and v["start"]["kind"] == "reference" and v["errors_against"] == "truth"
+
+
+def test_exported_rows_on_a_real_root_are_measured_against_its_tables(tiny, tmp_path, capsys):
+    """Probe 23: on a real root calibrate --correspondences printed 'error 1.142 deg' as if against a truth; the
+    other methods say 'vs the tables' there."""
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+
+    ds = NuScenesRadarCamera(tiny.root, tiny.version, conf={"check_images": False})
+    T = ds[0].extras["T_cam_radar_static"]
+    frames, _ = synthetic_drive(T, 3, rng(0))
+    d = tmp_path / "corr"
+    d.mkdir()
+    for k, c in enumerate(frames):
+        np.savez(d / f"{k:03d}.npz", **dataclasses.replace(c, frame_id=ds.frames[k].camera_sd["token"]).to_npz_dict())
+    out = tmp_path / "run"
+    assert calibrate.run(_args("--data", str(tiny.root), "--version", tiny.version, "--correspondences", str(d),
+                               "--mode", "batch", "--out", str(out), "--no-plots")) == 0
+    (v,) = json.loads((out / "result.json").read_text())["vehicles"].values()
+    assert v["errors_against"] == "tables" and "; error vs the tables " in capsys.readouterr().out
 
 
 def test_bad_correspondence_file_is_named(tmp_path):

@@ -139,7 +139,11 @@ def test_too_few_in_domain_frames_make_the_vehicle_inconclusive(fitted, sim_root
     ok = run_calibration(sim_root, "v1.0-sim", tmp_path / "in", {**conf, "ood": {"min_in_domain_frames": 2}})
     v = ok.vehicles["sim-veh-000"]
     assert v.ood["available"] and v.ood["in_domain"] == 3 and not v.final.status.startswith("inconclusive")
-    assert all(r["ood_score"] < 1.0 for r in v.frame_rows)
+    assert all(r["ood_score"] < 1.0 for r in v.frame_rows) and "out-of-domain test is off" not in v.final.status
+    # the test switched off: the status says nothing checked the input (probe 23: the real scene then read "weak"
+    # with a yaw 1-sigma 4 sigmas off its tables)
+    off = run_calibration(sim_root, "v1.0-sim", tmp_path / "off", {**conf, "ood": {"enabled": False}})
+    assert "the out-of-domain test is off (ood.enabled=false)" in off.vehicles["sim-veh-000"].final.status
     # the same drive judged against a threshold no frame meets: every frame is out of domain
     run = run_calibration(sim_root, "v1.0-sim", tmp_path / "out", {**conf, "ood": {"threshold": 1e-6}})
     v = CalibrationRun.load(tmp_path / "out" / "result.json").vehicles["sim-veh-000"]

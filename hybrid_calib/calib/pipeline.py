@@ -74,6 +74,7 @@ class VehicleInput:
     network: list = field(default_factory=list)  # per frame factors.io.NetworkEstimate | None (files only)
     skipped: list = field(default_factory=list)  # [{"index" (its position in the drive, or None), "token", "reason"}]
     positions: list = field(default_factory=list)  # per frame its position in the drive (default: 0, 1, ...)
+    against: str | None = None  # what ``truth`` is: "truth" (simulated; the default when given) or "tables" (real)
 
 
 def _load_oracle(data, version: str, conf: CalibrateConfig, progress: bool = True) -> dict[str, VehicleInput]:
@@ -129,10 +130,12 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
     refs: dict[str, np.ndarray] = {}
     truths: dict[str, np.ndarray] = {}
     tokens: set[str] = set()
+    against = None  # what the errors are measured against: a simulated root's truth, a real root's tables
     if data is not None and version:
         from hybrid_calib.data.nuscenes import NuScenesRadarCamera
 
         ds = NuScenesRadarCamera(data, version, conf={"check_images": False})
+        against = "truth" if ds.sim_vehicles else "tables"
         # a file names its frame by the camera sample_data token (evaluate's export) or the sample (the oracle's)
         tokens = {t for ref in ds.frames for t in (ref.camera_sd["token"], ref.sample_token, ref.radar_sd["token"])}
         for vehicle, idx in ds.frames_by_vehicle().items():
@@ -159,7 +162,8 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
         truth = truths.get(vehicle)
         mine = [m for m in ms if not tokens or str(m.frame_id) in tokens]
         out[vehicle] = VehicleInput(vehicle, [m.corr for m in mine], ref,
-                                    [truth] * len(mine) if truth is not None else [], network=[m.network for m in mine])
+                                    [truth] * len(mine) if truth is not None else [], network=[m.network for m in mine],
+                                    against=against)
         out[vehicle].skipped.extend({"index": None, "token": str(m.frame_id), "reason": "measurement file of a frame "
                                      "not in this root (another dataset's export): left out"}
                                     for m in ms if tokens and str(m.frame_id) not in tokens)
@@ -295,7 +299,7 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, progress: bool = 
         final = solve_batch(frames, T0, conf.batch, priors=None if prior is None else [prior]).estimate
     res = VehicleResult(vi.vehicle, final, traj, skipped=skipped, n_frames=len(frames))
     res.start = {"kind": conf.start, "seed": conf.seed, "T_cam_radar": T0.tolist()}
-    res.errors_against = "truth" if vi.truth else None
+    res.errors_against = (vi.against or "truth") if vi.truth else None
     fc = conf.window.factor if conf.mode == "window" else conf.batch.factor
     if prior is None:
         drift = reference_test(final.T, final.cov, vi.reference, conf.drift, prior_pinned_std(fc))

@@ -75,6 +75,7 @@ from hybrid_calib.hybrid.corrections import (
     with_drive_error,
     with_lidar,
     with_motion_bias,
+    with_ood_off_words,
     with_prior_words,
     with_road_words,
     with_yaw_check,
@@ -486,7 +487,7 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     if conf.method == "hybrid":
         traj, yaw_check = with_yaw_check(traj, drive, conf, mon)
         traj = with_road_words(traj, tr.geometry, conf)
-    traj = with_prior_words(traj)
+    traj = with_ood_off_words(with_prior_words(traj), conf.ood.enabled)
     res = VehicleResult(drive.vehicle, traj[-1].estimate, traj, skipped=drive.index_skips + tr.skipped,
                         n_frames=len(traj))
     res.lidar = lidar

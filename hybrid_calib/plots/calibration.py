@@ -44,7 +44,8 @@ def plot_vehicle(vr: VehicleResult, out_dir: Path) -> list[Path]:
         ax.set_ylim(-lim, lim)
     axes[1, 0].set_xlabel("frame")
     axes[0, 0].legend(fontsize=7)
-    fig.suptitle(f"{vr.vehicle}: estimate {'error vs truth' if vr.truth_T is not None else 'minus final estimate'}"
+    against = "the tables" if vr.errors_against == "tables" else "truth"  # a real root's errors: vs its tables
+    fig.suptitle(f"{vr.vehicle}: estimate {f'error vs {against}' if vr.truth_T is not None else 'minus final estimate'}"
                  f" (camera axes) with the reported +-2 sigma")
     fig.tight_layout()
     p1 = save_figure(fig, out_dir / f"{file_part(vr.vehicle)}_trajectory.png", dpi=90)
@@ -60,7 +61,11 @@ def plot_vehicle(vr: VehicleResult, out_dir: Path) -> list[Path]:
             a1.axvline(f.index, color="orange", lw=2, alpha=0.6)
     a1.legend(fontsize=7)
     a1.set_ylabel("statistic")
-    a2.plot(k, [f.inlier_fraction for f in vr.trajectory], color="tab:green")
+    if not vr.frame_rows or any(r.get("used") or r.get("rejected") for r in vr.frame_rows):  # learned: rows fused?
+        a2.plot(k, [f.inlier_fraction for f in vr.trajectory], color="tab:green")
+    else:  # no correspondence rows (a learned method fusing the network's SE(3) alone): no fraction to draw
+        a2.text(0.5, 0.5, "no correspondence rows: the network's SE(3) prior only", ha="center", va="center",
+                transform=a2.transAxes, fontsize=9)
     a2.set_ylabel("inlier fraction")
     a2.set_xlabel("frame")
     d = vr.drift or {}
