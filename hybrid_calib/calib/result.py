@@ -15,18 +15,25 @@
           "error": {metrics.ExtrinsicError fields..., "nees": float} | null,
           "crb_std_cam": STD | null,       # Cramer-Rao std, oracle data only (docs: crb.py)
           "drift": DriftDecision.to_dict() | null,    # vs the vehicle's reference extrinsic
-          "network": NETWORK | null,       # the producer's own SE(3) (measurement files with a network block)
+          "network": NETWORK | null,       # calibrate --correspondences only: the producer's own SE(3) (measurement
+                                           # files with a network block); null for the learned methods, whose
+                                           # network passes are in trajectory / frame_rows
           "step_alarms": [FRAME index, ...],   # the trajectory's index of each frame that raised an alarm
           "trajectory": [FRAME, ...],     # window mode: one per frame (pure: the network's per frame)
           "method": str, "checkpoint": str | null, "errors_against": "truth" | "tables" | null,
           "start": {"kind", "seed", "T_cam_radar"} | null,   # the vehicle's start (same for every method)
-          "frame_rows": [{"frame_id", "used", "rejected", "deflation", "prior_used", "network_ms"}, ...],
-          "config": {...} | null,         # the method's effective config (hybrid.HybridConfig)
+          "frame_rows": [{"frame_id", "used", "rejected", "network_ms", "ood_score",   # learned methods, per pass
+                          # hybrid also: "deflation", "prior_used", "motion", "motion_z", "motion_skipped",
+                          # "motion_rotation", "mount", "note" (docs/conventions.md); pure-avg: "weights"
+                          }, ...],
+          "config": {...} | null,         # the method's effective config (hybrid.HybridConfig; the oracle of
+                                          # compare the same; calibrate's oracle: null, its config.json beside)
           "ood": {...} | null,            # learned methods: out-of-domain scores and decision (hybrid.ood)
           "mount": {...} | null,          # hybrid: the radar mount monitor (docs/conventions.md)
-          "lidar": {"applied", "dy_m", "dy_std_m", "dx_m", "dx_std_m", "forward_applied", "range_offset_m",
-                    "coupling_m_per_rad", "coupling_x_m_per_rad", "rows", "frames", "moving_dropped", "scale_m",
-                    "note", "forward_note"} | null
+          "lidar": {"applied", "dy_m", "dy_std_m", "innovation_sigma", "dx_m", "dx_std_m", "forward_applied",
+                    "range_offset_m", "coupling_m_per_rad", "coupling_x_m_per_rad", "rows", "frames",
+                    "moving_dropped", "scale_m", "note" (when not applied), "forward_note" (when the forward offset
+                    is not)} | null
                                           # hybrid: the radar's lateral and forward offsets from the LiDAR
                                           # (calib.lidar_alignment; results before 2026-12-02: "dx_m_unused")
           "doppler": {"applied", "dx_m", "dx_std_m", "heading_bias_deg", "h", "pairs", "turning", "scale_deg",
