@@ -104,7 +104,9 @@ def extrinsic_html(vr: VehicleResult) -> str:
         e = vr.error
         against = ("the calibration tables (a real root has no ground truth: the tables are themselves a "
                    "calibration, a few tenths of a degree off)" if tables else "the ground truth")
-        err = (f"<p>Error against {against}: rotation {e['geodesic_deg']:.3f} deg (geodesic), translation "
+        mean = (f"{e['rot_mean_deg']:.3f} deg (mean of |roll|, |pitch|, |yaw|, as the terminal and compare) and "
+                if "rot_mean_deg" in e else "")
+        err = (f"<p>Error against {against}: rotation {mean}{e['geodesic_deg']:.3f} deg (geodesic), translation "
                f"{e['trans_norm_cm']:.2f} cm (norm); NEES {e.get('nees', float('nan')):.2f} (6 expected for an "
                f"honest covariance{', if the tables were the truth' if tables else ''}).</p>")
     return (f"<h2>Extrinsic T_cam_radar</h2><p class=meta>Convention: <code>T_cam_radar</code> maps radar "
