@@ -437,14 +437,17 @@ def test_inspect_warns_about_tables_that_load_but_cannot_be_right():
     milliseconds (keyframes 0.5 ms apart) were a clean bill: '41/41 frames loaded, 0 skipped'."""
     from hybrid_calib.data.summary import DatasetSummary, GroupSummary
 
-    def summary(in_image: int, step_us: int) -> str:
+    def summary(in_image: int, step_us: int, boresight: float = 1.0) -> str:
         g = GroupSummary("s", "v", "log", frames=40, loaded=40, radar_points=[50] * 40, radar_in_image=in_image,
-                         camera_us=[k * step_us for k in range(40)])
+                         camera_us=[k * step_us for k in range(40)], boresight_deg=boresight)
         return DatasetSummary("root", "v1.0-mini", "RADAR_FRONT", "CAM_FRONT", [g], [], 0).format()
 
     clean = summary(900, 500_000)
     assert "warning" not in clean
     assert "warning: only 0 of 2000 radar points (0.0 %) project into the CAM_FRONT image" in summary(0, 500_000)
+    assert "the intrinsics may be for another image size" in summary(0, 500_000)
+    # a rear radar with the front camera (probe 23: --radar RADAR_BACK_LEFT blamed the intrinsics)
+    assert "the RADAR_FRONT looks 175 deg away from the CAM_FRONT's axis" in summary(0, 500_000, 175.0)
     assert "warning: keyframes are 0.500 ms apart" in summary(900, 500)
 
 

@@ -49,6 +49,7 @@ class GroupSummary:
     sweeps_on_disk: int = 0  # ... whose files are on disk
     sweeps_broken: int = 0  # ... broken (a prev pointer that does not resolve, a file name outside the root)
     radar_in_image: int = 0  # radar points that project into the image with the tables' extrinsic and intrinsics
+    boresight_deg: float = 0.0  # the largest angle between the radar's boresight (x) and the camera's axis (z)
     camera_us: list[int] = field(default_factory=list)  # camera keyframe timestamps (the sanity of their unit)
     # per loaded frame in scene order: (sample token, radar timestamp us, ego position at it (3,) m)
     ego_track: list[tuple[str, int, np.ndarray]] = field(default_factory=list)
@@ -129,10 +130,14 @@ class DatasetSummary:
         out = []
         pts, inside = sum(sum(g.radar_points) for g in self.groups), sum(g.radar_in_image for g in self.groups)
         if pts >= 50 and inside < MIN_IN_IMAGE * pts:
+            away = max((g.boresight_deg for g in self.groups), default=0.0)
             out.append(f"warning: only {inside} of {pts} radar points ({100 * inside / pts:.1f} %) project into the "
-                       f"{self.camera_channel} image with the tables' extrinsic and intrinsics: the intrinsics may be "
-                       "for another image size (width/height in sample_data against camera_intrinsic's principal "
-                       "point), or the camera-radar extrinsic is far off")
+                       f"{self.camera_channel} image with the tables' extrinsic and intrinsics: "
+                       + (f"the {self.radar_channel} looks {away:.0f} deg away from the {self.camera_channel}'s axis "
+                          "(a side or rear radar sees little of this camera's view: pair it with a camera facing "
+                          "its way, --radar/--camera)" if away > 60 else
+                          "the intrinsics may be for another image size (width/height in sample_data against "
+                          "camera_intrinsic's principal point), or the camera-radar extrinsic is far off"))
         for g in self.groups:
             out += _time_and_pose_lines(g)
         if gap := keyframe_gap_warning(g.camera_us for g in self.groups):
@@ -278,6 +283,8 @@ def summarize_dataset(ds: NuScenesRadarCamera, progress: bool = True) -> Dataset
             g.ego_track.append((f.sample_token, int(f.timestamp_radar_us), np.asarray(pose)[:3, 3].copy()))
         uv, z = f.camera.project(transform_points(f.T_cam_radar, f.radar_points))
         g.radar_in_image += int(((z > 0) & f.camera.in_image(uv)).sum())
+        x_cam = np.asarray(f.T_cam_radar, np.float64)[:3, 0]  # the radar's boresight in camera axes
+        g.boresight_deg = max(g.boresight_deg, float(np.degrees(np.arccos(np.clip(x_cam[2], -1.0, 1.0)))))
         first = f.index if first is None else first
     return DatasetSummary(str(ds.root), ds.version, ds.radar_channel, ds.camera_channel, list(groups.values()),
                           [dataclasses.asdict(s) for s in ds.skipped], first, dict(ds.calibration_splits),
