@@ -2060,3 +2060,15 @@ def test_device_cuda_without_cuda_is_an_option_error_and_blocks_nothing(sim, tmp
     (out / "export_config.json").write_text(json.dumps({"eval": {"device": "cuda"}}))  # a run that exported nothing
     got, err = run_cli(argv, capsys)
     assert got == 0, err
+
+
+def test_ground_truth_depth_on_a_real_root_is_refused_at_the_start(tiny, tmp_path):
+    """Probe 23: --depth corrupted-truth on a real root skipped every frame in turn ('CorruptedTruthDepth needs the
+    simulator's ground-truth depth') before the run failed; it is one option error now, naming what to pass."""
+    from hybrid_calib.errors import OptionError
+    from hybrid_calib.hybrid import run_calibration
+
+    with pytest.raises(OptionError, match="no sim_truth/ folder: a real root.*--depth lidar-densified") as e:
+        run_calibration(tiny.root, tiny.version, tmp_path / "out", {"method": "pure", "depth": "corrupted-truth",
+                                                                     "progress": False})
+    assert e.value.option == "--depth" and not (tmp_path / "out" / "result.json").exists()

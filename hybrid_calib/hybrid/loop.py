@@ -64,7 +64,7 @@ from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import merge, save_json_atomic, to_dict
 from hybrid_calib.data.files import data_stamp
-from hybrid_calib.errors import DataError, HybridCalibError, check_out_not_in_dataset
+from hybrid_calib.errors import DataError, HybridCalibError, OptionError, check_out_not_in_dataset
 from hybrid_calib.geometry import local, se3_exp
 from hybrid_calib.hybrid.average import AverageConfig, robust_average
 from hybrid_calib.hybrid.corrections import (
@@ -564,6 +564,12 @@ class _Session:
         ckpt = conf.checkpoint or shipped_checkpoint(conf.start)
         conf = self.conf = self._trained_sweeps(conf, ckpt)
         effective = depth or trained_depth(ckpt)  # "" = the checkpoint's own (lidar-densified needs the LiDAR)
+        if effective.split(":", 1)[0] == "corrupted-truth" and not (Path(data) / "sim_truth").is_dir():
+            # said once at the start, not as a skip of every frame in turn (probe 23)
+            whose = "the --depth given" if depth else "the checkpoint's"
+            raise OptionError("--depth", f"{effective} ({whose}) corrupts the simulator's ground-truth depth, and "
+                                         f"{data} has none (no sim_truth/ folder: a real root); pass --depth "
+                                         "lidar-densified (the LiDAR) or --depth depth-anything:/local/model/dir")
         self.frames, self.drives = open_drives(data, version, conf, lidar=needs_lidar(effective),
                                                unreadable=self.unreadable)
         self._check_some_drive()
