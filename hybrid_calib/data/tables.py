@@ -77,14 +77,18 @@ def version_dir(root: str | Path, version: str, fix: str = "pass one of them wit
         elif not found and (below := [f"{c.name}/{v}" for c in sorted(root.iterdir()) if c.is_dir()
                                       for v in available_versions(c)][:3]):  # --data one level too high
             hint += f"; a folder below holds one ({', '.join(below)}): pass that folder as the root"
-        raise DataError(f"version folder {version!r} does not exist under the nuScenes root; {hint}; {fix}",
-                        path=str(vdir))
+        # "pass one of them" only when there is one to pass (probe 23: it said so beside "no version folder found")
+        todo = fix if found else "" if ";" in hint else ("pass the nuScenes root: the folder that holds the version "
+                                                          "folder (e.g. v1.0-mini) and samples/")
+        raise DataError(f"version folder {version!r} does not exist under the nuScenes root; {hint}"
+                        + (f"; {todo}" if todo else ""), path=str(vdir))
     if not any((vdir / f"{name}.json").is_file() for name in REQUIRED_TABLES):
         found = [v for v in available_versions(root) if (root / v).resolve() != vdir.resolve()]
         hint = f"versions found there: {found}" if found else "no version folder (with sample.json) found there"
         raise DataError(f"{vdir} holds none of the nuScenes tables {sorted(REQUIRED_TABLES)}, so it is not a version "
                         f"folder (an empty or unfinished extraction, or the version names another folder); {hint}; "
-                        f"{fix}, or extract the metadata archive there", path=str(vdir))
+                        + (f"{fix}, or extract" if found else "extract") + " the metadata archive there",
+                        path=str(vdir))
     return vdir
 
 
