@@ -447,3 +447,16 @@ def test_a_recording_listed_twice_is_read_once(tiny):
     assert tiny.radar_sd[2]["sample_token"] in rec.reason and tiny.radar_sd[0]["sample_token"] in rec.reason
     assert "the tables list one recording twice" in rec.reason
     assert ds.duplicates == {tiny.radar_sd[2]["sample_token"]: tiny.radar_sd[0]["sample_token"]}  # said by calibrate
+
+
+def test_a_missing_version_folder_says_what_to_pass(tmp_path):
+    """Probe 23: 'no version folder found there; ... pass one of them with --version' with none to pass."""
+    from hybrid_calib.data.tables import version_dir
+
+    with pytest.raises(DataError) as e:
+        version_dir(tmp_path, "v1.0-trainval")
+    assert "pass one of them" not in str(e.value) and "pass the nuScenes root" in str(e.value)
+    (tmp_path / "v1.0-mini").mkdir()
+    (tmp_path / "v1.0-mini" / "sample.json").write_text("[]")
+    with pytest.raises(DataError, match=r"versions found there: \['v1.0-mini'\]; pass one of them with --version"):
+        version_dir(tmp_path, "v1.0-trainval")
