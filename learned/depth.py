@@ -360,16 +360,18 @@ class DepthCache:
         self.hits = 0
         self.misses = 0
 
-    def path(self, estimator: DepthEstimator, token: str, size_hw: tuple[int, int]) -> Path:
+    def path(self, estimator: DepthEstimator, token: str, size_hw: tuple[int, int], inputs: str = "") -> Path:
         from hybrid_calib.data.files import file_part
 
-        name = f"{file_part(token)}_{size_hw[1]}x{size_hw[0]}.npy"
+        name = f"{file_part(token)}{'-' + inputs if inputs else ''}_{size_hw[1]}x{size_hw[0]}.npy"
         return self.root / f"{estimator.name}-{estimator.config_hash()}" / name
 
     def get(self, estimator: DepthEstimator, frame: RadarCameraFrame, size_hw: tuple[int, int],
             image: np.ndarray | None = None) -> np.ndarray:
-        """The cached depth of ``frame`` at ``size_hw``, computing and storing it on a miss."""
-        path = self.path(estimator, frame.camera_token, size_hw)
+        """The cached depth of ``frame`` at ``size_hw``, computing and storing it on a miss. An entry is of the
+        frame's token and its inputs (``depth_inputs``): two roots whose tokens coincide (a copy of a scene, edited)
+        share a cache without reading each other's depth (probe 23)."""
+        path = self.path(estimator, frame.camera_token, size_hw, depth_inputs(frame))
         if path.is_file():
             try:
                 depth = np.load(path, allow_pickle=False)
@@ -388,6 +390,23 @@ class DepthCache:
         with atomic_path(path) as tmp:
             np.save(tmp, depth, allow_pickle=False)
         return depth
+
+
+def depth_inputs(frame: RadarCameraFrame) -> str:
+    """A short hash of what any depth estimator reads from ``frame``: its image and ground-truth depth files (resolved
+    path, size, modification time), the intrinsics, and the LiDAR points with their extrinsic."""
+    h = hashlib.sha1()
+    for p in (frame.image_path, frame.depth_path):
+        if p is not None:
+            try:
+                st = Path(p).stat()
+                h.update(f"{Path(p).resolve()}/{st.st_size}/{st.st_mtime_ns}".encode())
+            except OSError:
+                h.update(f"{p}/absent".encode())
+    for a in (frame.K, frame.T_cam_lidar, frame.lidar_points):
+        if a is not None:
+            h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()[:12]
 
 
 def trained_with(train_config: dict | None) -> str:

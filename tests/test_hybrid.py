@@ -710,3 +710,26 @@ def test_frames_are_counted_by_their_position_in_the_drive(sim_root, tmp_path, m
                     progress=False)
     o = run.vehicles["sim-veh-001"]
     assert [s["index"] for s in o.skipped] == [1] and [f.index for f in o.trajectory] == [0, 2], o.skipped
+
+
+def test_a_cache_shared_by_two_roots_of_the_same_tokens_keeps_them_apart(sim_root, tmp_path):
+    """Probe 23: a root and its copy with other camera images (the same tokens) gave bit-identical answers through
+    one --set cache_dir (and compare's one cache for all its roots); each root's answer is now its own."""
+    import cv2
+
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+    from hybrid_calib.hybrid import run_vehicle
+
+    copy = tmp_path / "copy"
+    shutil.copytree(sim_root, copy)
+    ds = NuScenesRadarCamera(copy, "v1.0-sim", conf={"check_images": False})
+    for i in ds.frames_by_vehicle()["sim-veh-000"]:  # the camera looks elsewhere: its images mirrored
+        p = copy / ds.frames[i].camera_sd["filename"]
+        cv2.imwrite(str(p), cv2.imread(str(p))[:, ::-1])
+    conf = {**BASE, "method": "pure", "max_frames": 2, "lidar": {"enabled": False}, "doppler": {"enabled": False}}
+    shared = {**conf, "cache_dir": str(tmp_path / "shared"), "depth_cache": str(tmp_path / "shared-depth")}
+    a = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", shared)
+    b = run_vehicle(copy, "v1.0-sim", "sim-veh-000", shared)
+    alone = run_vehicle(copy, "v1.0-sim", "sim-veh-000", {**conf, "cache_dir": str(tmp_path / "alone")})
+    np.testing.assert_allclose(b.final.T, alone.final.T, atol=1e-9)
+    assert not np.allclose(a.final.T, b.final.T, atol=1e-6)

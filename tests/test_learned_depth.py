@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from hybrid_calib.data.frame import RadarCameraFrame, write_depth_png
 from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.sensors.camera import PinholeCamera
-from learned.depth import CorruptedTruthDepth, DepthCache, LidarDepth, build_depth_estimator
+from learned.depth import CorruptedTruthDepth, DepthCache, LidarDepth, build_depth_estimator, depth_inputs
 
 H, W = 60, 120
 QUIET = dict(scale_std=0.0, shift_std_m=0.0, edge_blur_px=0.0, rel_noise_lowfreq=0.0, noise_rel=0.0,
@@ -107,12 +109,12 @@ def test_cache_hit_is_identical_and_changed_config_misses(tmp_path):
     second = cache.get(CorruptedTruthDepth(), frame, (30, 60))  # a new instance with the same config
     np.testing.assert_array_equal(first, second)
     assert (cache.hits, cache.misses) == (1, 1)
-    path = cache.path(est, frame.camera_token, (30, 60))
+    path = cache.path(est, frame.camera_token, (30, 60), depth_inputs(frame))
     assert path.is_file() and (path.parent / "estimator.json").is_file()
     assert not list(path.parent.glob("*.tmp*"))  # atomic: no temp files left
     changed = CorruptedTruthDepth({"seed": 3})
     third = cache.get(changed, frame, (30, 60))
-    assert cache.misses == 2 and cache.path(changed, frame.camera_token, (30, 60)) != path
+    assert cache.misses == 2 and cache.path(changed, frame.camera_token, (30, 60), depth_inputs(frame)) != path
     assert not np.array_equal(first, third)
     cache.get(est, frame, (15, 30))  # another size is another entry
     assert cache.misses == 3
@@ -120,6 +122,12 @@ def test_cache_hit_is_identical_and_changed_config_misses(tmp_path):
     np.testing.assert_array_equal(cache.get(est, frame, (30, 60)), first)
     np.save(path, np.full((30, 60), np.nan, np.float32))  # no estimator gives a map without one finite depth
     np.testing.assert_array_equal(cache.get(est, frame, (30, 60)), first)
+    # another frame of the same token (a copy of the root, edited: probe 23 read one root's depth for the other's)
+    other = dataclasses.replace(frame, depth_path=make_frame(tmp_path / "b", ramp_depth() * 2).depth_path)
+    assert other.camera_token == frame.camera_token
+    misses = cache.misses
+    np.testing.assert_array_equal(cache.get(est, other, (30, 60)), est.estimate(other, (30, 60)))
+    assert cache.misses == misses + 1 and not np.array_equal(cache.get(est, other, (30, 60)), first)
 
 
 def test_build_depth_estimator_rejects_unknown_names():

@@ -106,9 +106,10 @@ def _start_key(T: np.ndarray) -> str:
 class OutputCache:
     """``root/<token>-<hash of T_in>.npz`` per network pass (atomic writes; a corrupt entry is a miss).
 
-    ``network``: the identity of the network that makes the outputs (``network_key``: the checkpoint's
-    files and the depth estimator), stored in each entry; an entry of another network (the same ``--out``
-    rerun with another ``--checkpoint``, ``--refine`` or ``--depth``) is a miss and is overwritten. ""
+    ``network``: the identity of the network and its data that make the outputs (``NetworkRunner.key``: the
+    checkpoint's files, the depth estimator and ``data_key``), stored in each entry; an entry of another network
+    (the same ``--out`` rerun with another ``--checkpoint``, ``--refine`` or ``--depth``) or of other data (another
+    root whose tokens coincide, a root changed since) is a miss and is overwritten. ""
     (a reader that does not know the network) accepts any entry."""
 
     def __init__(self, root: str | Path, network: str = ""):
@@ -170,6 +171,19 @@ def network_key(checkpoint: str | Path, depth_name: str, depth_hash: str) -> str
     return hashlib.sha1(f"{depth_name}/{depth_hash}/{checkpoint_digest(checkpoint)}".encode()).hexdigest()[:16]
 
 
+def data_key(frames) -> str:
+    """The identity of the data a runner reads (``frames``: a ``NuScenesRadarCamera``): its root's resolved path and
+    version and ``data.files.data_stamp`` (the tables by content, the sensor folders by time); "" for frames of no
+    root (a test's list)."""
+    from hybrid_calib.data.files import data_stamp
+
+    root, version = getattr(frames, "root", None), getattr(frames, "version", None)
+    if root is None or version is None:
+        return ""
+    return hashlib.sha1(f"{Path(root).resolve()}/{version}/{data_stamp(root, version)['digest']}".encode()
+                        ).hexdigest()[:16]
+
+
 class NetworkRunner:
     """The network of a checkpoint over the frames of one dataset (see the module doc).
 
@@ -201,7 +215,11 @@ class NetworkRunner:
                               perturbation=self.range, seed=0, variant=self.model.cfg.variant)
         self.dataset = CalibDataset(frames, dconf, build_depth_estimator(self.depth_name, depth_opts),
                                     cache=DepthCache(depth_cache) if depth_cache else None, train=False)
-        self.key = network_key(self.ckpt.path, self.depth_name, self.dataset.depth.config_hash())
+        # the outputs are of this network on these data: a cache shared by roots whose tokens coincide (a copy of a
+        # scene, edited; compare's one cache for all its roots) returned one root's passes for the other's frames,
+        # bit-identical (probe 23)
+        self.key = hashlib.sha1(f"{network_key(self.ckpt.path, self.depth_name, self.dataset.depth.config_hash())}/"
+                                f"{data_key(frames)}".encode()).hexdigest()[:16]
         self.cache = OutputCache(cache_dir, self.key) if cache_dir else None
         self.min_confidence = float(min_confidence)
         self._samples: dict[int, dict | None] = {}
