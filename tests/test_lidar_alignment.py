@@ -255,3 +255,20 @@ def test_a_lateral_offset_many_stds_from_the_loop_is_said_and_refused_only_when_
     why = refusal(a, LidarAlignConfig(max_innovation=4.0), tight)
     assert "+60.0 cm from the loop's estimate is 5.8 stds" in why and "LiDAR-camera extrinsic" in why
     assert refusal(a, LidarAlignConfig(max_innovation=4.0), np.diag([1e-6] * 3 + [0.3 ** 2] * 3)) == ""
+
+
+def test_a_lateral_offset_many_stds_from_the_loop_widens_the_lateral_std_to_cover_both():
+    """Probe 23: the cascade on the real scene read a lateral offset 23-35 cm off its tables at +- 0.9 cm after the
+    LiDAR's offset, 12 stds from the loop, was folded in: the fold took the tighter one's word for both."""
+    from hybrid_calib.calib.covariance import report_std
+    from hybrid_calib.calib.lidar_alignment import RADAR_Y
+    from hybrid_calib.hybrid.corrections import lidar_widened
+    from tests.test_report import _vr
+
+    vr = _vr((0,) * 6, (0.05,) * 6, alarms=(0,))
+    f = vr.trajectory[-1]
+    before = report_std(f.T, f.cov)
+    wide, words = lidar_widened(f, -0.28, -12.1)
+    assert wide.cov[RADAR_Y, RADAR_Y] == pytest.approx(f.cov[RADAR_Y, RADAR_Y] + 0.28 ** 2)
+    assert max(wide.estimate.std[3:]) >= 28.0 > max(before[3:])  # camera cm: the 28 cm difference is inside 1 sigma
+    assert "-28.0 cm from the loop's estimate, 12.1 stds apart" in wide.estimate.status and words in wide.estimate.status
