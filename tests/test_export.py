@@ -234,3 +234,25 @@ def test_a_knock_the_estimate_after_it_cannot_decide_is_said_not_kept_in_silence
     run.save(path)
     v = export_mounts([path], tmp_path / "out").vehicles["sim-veh-000"]
     assert not v["exported"] and v["why"].startswith("not exported: the radar turned on the vehicle during the drive")
+
+
+def test_a_learned_yaw_the_radars_doppler_did_not_check_is_not_written():
+    """Probe 23: with the mount monitor off (and the domain test loosened) the hybrid on the real scene read 'differs
+    by 1.97 deg in yaw (+- 0.16 deg): recalibrate' and export wrote it; the radar's Doppler read 0.93 deg. A learned
+    method's yaw is written only where the monitor checked it (its level, or a turn it measured)."""
+    from types import SimpleNamespace
+
+    from hybrid_calib.calib.export import _why_not
+
+    drift = {"verdict_kind": "recalibrate", "axes": {"yaw": {"decision": "differs", "delta": -1.97}}}
+
+    def vr(method, mount):
+        return SimpleNamespace(final=SimpleNamespace(status="weak: x"), method=method, drift=drift, mount=mount)
+
+    why = _why_not(vr("hybrid", None), "recalibrate")
+    assert why.startswith("not exported: the yaw differs from the tables by 1.97 deg, and the radar's own Doppler did "
+                          "not check it"), why
+    assert _why_not(vr("pure-avg", {"pairs_tested": 0}), "recalibrate").startswith("not exported: the yaw differs")
+    assert _why_not(vr("hybrid", {"yaw_check": {"disagree": False}}), "recalibrate") == ""
+    assert _why_not(vr("hybrid", {"steps": [{"step_deg": 1.0}]}), "recalibrate") == ""
+    assert _why_not(vr("oracle", None), "recalibrate") == ""  # the oracle's yaw is the reflectors', not a network's

@@ -196,6 +196,8 @@ def test_the_hybrid_restarts_its_window_turned_by_the_measured_step(knocked_and_
     assert "radar turned" not in verdict_of(small).why  # below the 0.5 deg tolerance: the usual verdict
     off = run_vehicle(knocked_and_not[1], "v1.0-sim", "sim-veh-000", {**conf, "mount": {"enabled": False}})
     assert off.mount is None and not any(f.step_alarm for f in off.trajectory)  # the alarm was the monitor's
+    assert "unchecked by the radar's own Doppler: the mount monitor is off" in off.final.status  # probe 23
+    assert "unchecked by the radar's own Doppler" not in vr.final.status
 
 
 def test_a_step_the_window_already_raised_is_not_raised_again_by_the_monitor():

@@ -165,6 +165,16 @@ def _why_not(vr, which: str) -> str:
                 "contradict)")
     if side := (vr.drift or {}).get("camera_side"):  # the radar did not move on the vehicle: do not move its record
         return f"not exported: {side}; writing the radar's record would move a radar its own Doppler says did not move"
+    yaw = ((vr.drift or {}).get("axes") or {}).get("yaw") or {}
+    mount = vr.mount or {}
+    if getattr(vr, "method", None) in ("hybrid", "pure-avg") and yaw.get("decision") == "differs" and \
+            not (mount.get("yaw_check") or mount.get("steps")):  # the Doppler's level, or a turn it measured
+        # a learned yaw alone carries the network's bias on the input (probe 23: the real scene with the mount
+        # monitor off and the domain test loosened exported a 1.97 +- 0.16 deg yaw; its Doppler read 0.93)
+        return (f"not exported: the yaw differs from the tables by {abs(float(yaw.get('delta', 0.0))):.2f} deg, and "
+                "the radar's own Doppler did not check it (no radar mount monitor level to compare with: "
+                "mount.enabled=false, or too few sweep pairs): a learned method's yaw alone is not written; "
+                "calibrate with the mount monitor on")
     kind = (vr.drift or {}).get("verdict_kind")
     if which == "recalibrate" and kind != "recalibrate":
         return (f"kept the tables: the verdict against them is '{kind or 'none'}', not 'recalibrate' (result.json "
