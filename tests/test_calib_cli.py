@@ -95,6 +95,18 @@ def test_exported_rows_on_a_real_root_are_measured_against_its_tables(tiny, tmp_
                                "--mode", "batch", "--out", str(out), "--no-plots")) == 0
     (v,) = json.loads((out / "result.json").read_text())["vehicles"].values()
     assert v["errors_against"] == "tables" and "; error vs the tables " in capsys.readouterr().out
+    # an export that records the data it was measured on is fused only with those data (probe 23: a copy of the
+    # root with other images shares its tokens, and took the original's rows)
+    from hybrid_calib.calib.pipeline import _check_exported_from
+    from hybrid_calib.data.files import data_stamp
+
+    record = {"data": {"roots": ["/elsewhere"], "stamps": ["0" * 40]}}
+    (d / "export_config.json").write_text(json.dumps(record))
+    with pytest.raises(DataError, match="exported from other data than"):
+        _check_exported_from(d, tiny.root, tiny.version)
+    record["data"]["stamps"].append(data_stamp(tiny.root, tiny.version)["digest"])
+    (d / "export_config.json").write_text(json.dumps(record))
+    _check_exported_from(d, tiny.root, tiny.version)  # one of its roots is this one, as it is now
 
 
 def test_bad_correspondence_file_is_named(tmp_path):

@@ -136,6 +136,7 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
 
         ds = NuScenesRadarCamera(data, version, conf={"check_images": False})
         against = "truth" if ds.sim_vehicles else "tables"
+        _check_exported_from(directory, data, version)
         # a file names its frame by the camera sample_data token (evaluate's export) or the sample (the oracle's)
         tokens = {t for ref in ds.frames for t in (ref.camera_sd["token"], ref.sample_token, ref.radar_sd["token"])}
         for vehicle, idx in ds.frames_by_vehicle().items():
@@ -230,6 +231,26 @@ def trust_reason(res: VehicleResult, T_reference: np.ndarray) -> str:
                        f"farther than any radar mount sits from them ({ASTRAY_ROT_DEG:g} deg, {ASTRAY_TRANS_M:g} m): "
                        "the solve went astray (too few frames or rows for its start); calibrate a longer drive")
     return "; and ".join(r for r in reasons if r)
+
+
+def _check_exported_from(folder: Path, data, version: str) -> None:
+    """``DataError`` when an ``evaluate`` export in ``folder`` records the data stamps of the roots it read
+    (``export_config.json`` ``data.stamps``) and none is that of ``data`` / ``version`` now: its rows were measured on
+    other images (a copy of the root with other files shares its tokens: probe 23 fused them as this root's,
+    bit-identical to the original's). An export that records no stamp is not judged."""
+    from hybrid_calib.data.files import data_stamp
+
+    try:
+        rec = json.loads((folder / "export_config.json").read_text()).get("data") or {}
+        stamps, roots = list(rec.get("stamps") or []), list(rec.get("roots") or [])
+    except (OSError, ValueError, AttributeError, TypeError, RecursionError):
+        return
+    if not stamps or data_stamp(data, version)["digest"] in stamps:
+        return
+    raise DataError(f"the measurement files were exported from other data than {data} ({version}) holds now: the "
+                    f"export records the data stamps of {', '.join(map(str, roots)) or 'its roots'} and none is this "
+                    "root's (another root whose tokens coincide, or this root changed since); re-run hybrid-calib "
+                    "evaluate on this root, or pass the --data it was exported from", path=str(folder))
 
 
 def _exporting_checkpoint(folder: Path) -> str | None:
