@@ -626,7 +626,41 @@ def test_what_a_prior_did_is_measured_against_the_drives_own_estimate():
     pulled = prior_note(own * 0.95, wide, None, own, pull)
     assert pulled["pulled"] == ["roll"] and pulled["dominated"] == []
     assert pulled["words"].endswith("it moved the estimate from the drive's own by roll -0.36 deg (1.8 of its sigma)")
+    two = prior_note(own * 0.95, wide, None, own, np.array([0.0, 0.0, -0.36, 0.0, 25.0, 0.0]))  # the larger first
+    assert two["words"].endswith("by vertical offset +25.00 cm (2.5 of its sigma), roll -0.36 deg (1.8 of its sigma)")
     held = prior_note(own * np.array([1, 1, 1, 0.6, 1, 1]), wide, None, own, np.zeros(6))
     assert held["dominated"] == ["lateral offset"] and abs(held["share"][3] - 0.64) < 1e-9
     assert prior_note(own, own, None)["dominated"] == ["pitch", "yaw", "roll", "lateral offset", "vertical offset",
                                                        "longitudinal offset"]  # no own estimate: the marginal test
+
+
+def test_the_prior_conflict_recovers_the_data_only_estimate():
+    """The conflict test takes the drive's own estimate out of a posterior that holds the prior: on a linear Gaussian
+    case its statistic is (x_d - x_p)^T (C_d + C_p)^-1 (x_d - x_p) exactly (mutation probe 25: the data-only mean's
+    sign flipped survived); a refused prior dominates nothing (its axes would keep the tables on export)."""
+    from hybrid_calib.calib.drift import prior_conflict, prior_note, refused_prior
+    from hybrid_calib.geometry import retract
+
+    T = nominal_T_cam_radar()
+    C_d = np.diag([np.radians(0.2) ** 2] * 3 + [0.02 ** 2] * 3)
+    C_p = np.diag([np.radians(0.3) ** 2] * 3 + [0.03 ** 2] * 3)
+    x_d = np.array([np.radians(0.5), 0, 0, 0.03, 0, 0])  # the data's mean, tangent at T
+    x_p = np.array([0, np.radians(-0.4), 0, 0, 0.02, 0])  # the prior's
+    I_post = np.linalg.inv(C_d) + np.linalg.inv(C_p)
+    x_post = np.linalg.solve(I_post, np.linalg.solve(C_d, x_d) + np.linalg.solve(C_p, x_p))
+    T_post = retract(T, x_post)
+    c = prior_conflict(T_post, I_post, retract(T, x_p), C_p)
+    want = (x_d - x_p) @ np.linalg.solve(C_d + C_p, x_d - x_p)
+    assert c["dof"] == 6 and c["statistic"] == pytest.approx(want, rel=0.02), (c, want)
+    note = prior_note(np.ones(6), np.ones(6), {**c, "conflict": True})
+    assert note["dominated"] and refused_prior(note)["dominated"] == []
+
+
+def test_a_mount_step_is_beyond_the_tolerance_only_with_its_3_sigma():
+    from hybrid_calib.calib.drift import mount_steps_beyond
+
+    inside = {"step_deg": -0.75, "std_deg": 0.1, "change": 12}  # 0.75 - 3 x 0.1 = 0.45: not beyond 0.5
+    assert mount_steps_beyond({"steps": [inside]}, 0.5) == ""
+    beyond = {**inside, "step_deg": -0.85}  # 0.55
+    assert "by 0.85 +- 0.30 deg (3 sigma) to the right in yaw from about frame 12, beyond the 0.5 deg" in \
+        mount_steps_beyond({"steps": [beyond]}, 0.5)
