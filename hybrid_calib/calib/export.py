@@ -166,7 +166,7 @@ def _why_not(vr, which: str) -> str:
     if side := (vr.drift or {}).get("camera_side"):  # the radar did not move on the vehicle: do not move its record
         return f"not exported: {side}; writing the radar's record would move a radar its own Doppler says did not move"
     yaw = ((vr.drift or {}).get("axes") or {}).get("yaw") or {}
-    mount = vr.mount or {}
+    mount = getattr(vr, "mount", None) or {}
     if getattr(vr, "method", None) in ("hybrid", "pure-avg") and yaw.get("decision") == "differs" and \
             not (mount.get("yaw_check") or mount.get("steps")):  # the Doppler's level, or a turn it measured
         # a learned yaw alone carries the network's bias on the input (probe 23: the real scene with the mount
