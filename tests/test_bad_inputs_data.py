@@ -449,3 +449,31 @@ def test_a_grayscale_camera_image_is_named_not_fed_to_the_network(tmp_path, ext)
     with pytest.raises(DataError, match="camera image is grayscale") as e:
         image_header(tmp_path / f"grey{ext}", "tok")
     assert f"grey{ext}" in str(e.value) and "tok" in str(e.value)
+
+
+# ---- tests the mutation probe (probe 25) found missing: each fails under its mutant
+
+def test_a_grey_alpha_png_is_grayscale(tmp_path):
+    import cv2
+
+    from hybrid_calib.data.image_header import image_header
+    from hybrid_calib.errors import DataError
+    p = tmp_path / "g.png"
+    cv2.imwrite(str(p), np.zeros((8, 8), np.uint8))
+    b = bytearray(p.read_bytes())
+    assert b[25] == 0
+    b[25] = 4  # IHDR colour type: grey + alpha
+    p.write_bytes(bytes(b))
+    with pytest.raises(DataError, match="grayscale"):
+        image_header(p)
+
+
+def test_a_jpeg_with_several_fill_bytes_reads(tmp_path):
+    import cv2
+
+    from hybrid_calib.data.image_header import image_header
+    p = tmp_path / "c.jpg"
+    cv2.imwrite(str(p), np.random.default_rng(0).integers(0, 255, (24, 32, 3), np.uint8))
+    b = p.read_bytes()
+    p.write_bytes(b[:2] + b"\xff\xff" + b[2:])  # fill bytes before the first marker after SOI
+    assert image_header(p) == (32, 24)

@@ -664,3 +664,50 @@ def test_a_mount_step_is_beyond_the_tolerance_only_with_its_3_sigma():
     beyond = {**inside, "step_deg": -0.85}  # 0.55
     assert "by 0.85 +- 0.30 deg (3 sigma) to the right in yaw from about frame 12, beyond the 0.5 deg" in \
         mount_steps_beyond({"steps": [beyond]}, 0.5)
+
+
+# ---- more tests the mutation probe (probe 25) found missing
+
+OWN = np.array([0.2, 0.3, 0.2, 1.0, 10.0, 2.0])  # a drive's own camera-axis std [deg x3, cm x3]
+WIDE = np.full(6, 100.0)
+
+
+def test_a_pull_of_exactly_one_own_sigma_is_named():
+    from hybrid_calib.calib.drift import prior_note
+    assert len(prior_note(OWN * 0.95, WIDE, None, OWN, OWN)["pulled"]) == 6
+
+
+def test_a_degenerate_status_keeps_its_verdict():
+    from hybrid_calib.calib.drift import unconverged
+    d = {"verdict_kind": "recalibrate", "verdict": "differs by 2 deg in yaw: recalibrate", "drifted": True}
+    assert unconverged(d, "degenerate: rotation about camera z is unobservable") is d
+
+
+def test_the_prior_conflict_counts_the_directions_the_data_observe():
+    from scipy.stats import chi2
+
+    from hybrid_calib.calib.drift import prior_conflict
+    from hybrid_calib.geometry import retract
+    T = nominal_T_cam_radar()
+    C = np.diag([np.radians(0.5) ** 2] * 3 + [0.02 ** 2] * 3)
+    I_d = np.diag([1e5, 1e5, 1e5, 1e4, 0.0, 0.0])  # the data observe 4 directions
+    c = prior_conflict(T, np.linalg.inv(C) + I_d, retract(T, np.array([0.01, 0, 0, 0, 0, 0])), C)
+    assert c["dof"] == 4 and c["p_value"] == pytest.approx(chi2.sf(c["statistic"], 4))
+
+
+def test_a_monitor_level_that_explains_the_yaw_gives_no_camera_note():
+    from hybrid_calib.calib.drift import camera_side_note
+    drift = {"verdict": "differs by 0.60 deg in yaw: recalibrate",
+             "axes": {"yaw": {"delta": 0.6, "std": 0.02, "tolerance": 0.5, "decision": "differs"}}}
+    same_turn = {"steps": [], "levels": [{"level_deg": -0.55, "std_deg": 0.17, "pairs": 40}]}
+    assert camera_side_note(drift, same_turn) == drift
+
+
+def test_the_prior_conflict_with_data_as_informative_as_the_prior():
+    from hybrid_calib.calib.drift import prior_conflict
+    from hybrid_calib.geometry import retract
+    T = nominal_T_cam_radar()
+    C = np.diag([np.radians(0.5) ** 2] * 3 + [0.02 ** 2] * 3)
+    x_p = np.array([np.radians(1.0), 0, 0, 0.01, 0, 0])
+    c = prior_conflict(T, 2 * np.linalg.inv(C), retract(T, x_p), C)
+    assert c["statistic"] == pytest.approx(2 * x_p @ np.linalg.solve(C, x_p), rel=1e-6) and c["dof"] == 6

@@ -256,3 +256,15 @@ def test_a_learned_yaw_the_radars_doppler_did_not_check_is_not_written():
     assert _why_not(vr("hybrid", {"yaw_check": {"disagree": False}}), "recalibrate") == ""
     assert _why_not(vr("hybrid", {"steps": [{"step_deg": 1.0}]}), "recalibrate") == ""
     assert _why_not(vr("oracle", None), "recalibrate") == ""  # the oracle's yaw is the reflectors', not a network's
+
+
+# ---- tests the mutation probe (probe 25) found missing: each fails under its mutant
+
+def test_axes_a_fleet_prior_dominates_keep_the_tables():
+    from types import SimpleNamespace
+
+    from hybrid_calib.calib.drift import AXIS_WORDS
+    from hybrid_calib.calib.export import _kept_axes
+    vr = SimpleNamespace(drift={"axes": {w: {"decision": "within"} for w in AXIS_WORDS},
+                                "prior": {"dominated": ["roll"]}})
+    assert _kept_axes(vr) == [AXIS_WORDS.index("roll")]

@@ -310,6 +310,9 @@ def test_an_inconclusive_vehicle_is_flagged_counted_and_never_within_tolerance(l
     r = s["vehicles"]["sim-veh-001"]
     assert r["state"] == "done" and "inconclusive" in r["flags"]
     assert r["verdict"].startswith("cannot tell: the estimate is not trusted")
+    # and an untrusted estimate is not fitted into the fleet's mounts (mutation probe 25)
+    assert r["fleet_test"]["left_out"].startswith("not in the fleet prior: ")
+    assert "sim-veh-001" not in ((s["fleet_prior"] or {}).get("inliers") or [])
     assert s["counts"]["inconclusive"] == 1 and s["counts"]["failed"] == 1
     assert "1 inconclusive" in (tmp_path / "summary.md").read_text()
     # one word per meaning: the fleet page counts that vehicle's verdict "cannot tell", as summary.json's verdict
@@ -920,3 +923,59 @@ def test_one_vehicles_corrupt_mount_record_fails_that_job_alone(fleet_root, tmp_
                   options=FleetOptions(plots=False))
     assert s["vehicles"]["sim-veh-000"]["state"] == "done"
     assert s["vehicles"]["sim-veh-001"]["state"] == "failed" and "quaternion" in s["vehicles"]["sim-veh-001"]["reason"]
+
+
+# ---- tests the mutation probe (probe 25) found missing: each fails under its mutant
+
+def _small_fleet(n, seed=2):
+    from hybrid_calib.geometry import retract
+    g = np.random.default_rng(seed)
+    T_ref = nominal_T_cam_radar()
+    names, Ts, covs = [], [], []
+    for i in range(n):
+        x = np.concatenate([np.radians(g.normal(0, 0.3, 3)), g.normal(0, 0.02, 3)])
+        names.append(f"v{i:02d}")
+        Ts.append(retract(T_ref, x))
+        covs.append(np.diag(np.concatenate([np.radians([0.1] * 3), [0.01] * 3]) ** 2))
+    names.append("knocked")
+    Ts.append(retract(T_ref, np.array([np.radians(3.0), 0, 0, 0, 0, 0])))
+    covs.append(covs[0])
+    return names, Ts, covs, T_ref
+
+
+def test_the_leave_one_out_p_value_rests_on_the_other_vehicles():
+    from hybrid_calib.fleet.prior import fit_fleet_prior, outlier_p_value
+    fp = fit_fleet_prior(*_small_fleet(6))
+    for n in fp.inliers:
+        assert fp.tests[n]["p_value"] == outlier_p_value(fp.tests[n]["d2"], len(fp.inliers) - 1)
+
+
+def test_the_outlier_test_is_chi_square_from_101_vehicles_on():
+    from scipy.stats import chi2
+
+    from hybrid_calib.fleet.prior import outlier_p_value
+    assert outlier_p_value(20.0, 101) == chi2.sf(20.0, 6) and outlier_p_value(20.0, 100) != chi2.sf(20.0, 6)
+
+
+def test_with_too_few_passing_the_fit_keeps_the_largest_p_vehicles():
+    from hybrid_calib.fleet.prior import MIN_VEHICLES, fit_fleet_prior
+    fp = fit_fleet_prior(*_small_fleet(8), alpha=1.0)
+    assert "knocked" not in fp.inliers and len(fp.inliers) == MIN_VEHICLES
+
+
+def test_a_four_vehicle_fleet_lists_every_inlier_without_a_prior():
+    from hybrid_calib.fleet.prior import fit_fleet_prior
+    names, Ts, covs, T_ref = _small_fleet(10)
+    four = fit_fleet_prior(names[:4], Ts[:4], covs[:4], T_ref)
+    assert four.to_dict()["no_prior"] == sorted(four.inliers)
+
+
+def test_summary_md_counts_refused_priors_apart():
+    from hybrid_calib.fleet.summary import summary_markdown
+    c = {"vehicles": 2, "done": 0, "failed": 0, "pending": 2, "running": 0, "out_of_tolerance": 0,
+         "drifted_in_drive": 0, "fleet_outliers": 0, "degenerate": 0, "inconclusive": 0, "weak": 0}
+    rows = {"a": {"state": "pending", "prior": {"file": "p.json"}},
+            "b": {"state": "pending", "prior": {"file": "p.json", "refused": "the fleet prior was not applied"}}}
+    md = summary_markdown({"out": "o", "method": "oracle", "seed": 0, "counts": c,
+                           "design_mount": {"source": "recorded"}, "vehicles": rows})
+    assert "applied to 1, not applied to 1" in md

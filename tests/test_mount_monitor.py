@@ -324,3 +324,21 @@ def test_a_negative_half_degree_step_is_found_too():
     mon = _feed(np.r_[g.normal(0.7, 0.15, 40), g.normal(0.2, 0.15, 40)])
     (s,) = mon.steps
     assert 40 <= s.at <= 52 and abs(s.change - 40) <= 3 and abs(s.step_deg + 0.5) < 0.1, s
+
+
+# ---- tests the mutation probe (probe 25) found missing: each fails under its mutant
+
+def test_a_step_is_the_difference_of_the_levels_either_side_of_its_change():
+    from tests.test_mount_monitor import _feed
+    g = np.random.default_rng(3)
+    mon = _feed(np.r_[g.normal(0.2, 0.15, 40), g.normal(1.2, 0.15, 40)])
+    st, lv = mon.summary()["steps"][0], mon.levels()
+    assert st["std_deg"] == pytest.approx(np.hypot(lv[0]["std_deg"], lv[1]["std_deg"]))
+    assert lv[1]["from"] == mon.steps[0].change and lv[0]["to"] == mon.steps[0].change - 1
+    exact = _feed(np.r_[np.zeros(40), np.ones(40)])
+    assert exact.steps[0].change == 40
+
+
+def test_a_one_sigma_turn_in_words():
+    from hybrid_calib.calib.mount_monitor import turn_words
+    assert turn_words(1.43, 0.09) == "1.43 +- 0.09 deg to the left in yaw"

@@ -232,3 +232,20 @@ def test_the_in_domain_count_needed_rounds_up():
     assert "fewer than the 5 required" in block["inconclusive"]
     assert decide([0.1] * 5 + [9.0], OODPolicy(min_in_domain_fraction=0.8, min_in_domain_frames=3))["inconclusive"] \
         == ""
+
+
+# ---- tests the mutation probe (probe 25) found missing: each fails under its mutant
+
+def test_unread_frames_count_against_the_domain_not_the_drive():
+    from hybrid_calib.hybrid.ood import OODPolicy, decide
+    why = decide([0.1, 0.1], OODPolicy(threshold=1.0, min_in_domain_frames=5), unread=1)["inconclusive"]
+    assert why.startswith("only 2 of 3 frames") and "1 of them did not read" in why
+
+
+def test_an_unreadable_frame_is_counted_and_recorded_by_its_drive_position():
+    from types import SimpleNamespace
+
+    from hybrid_calib.hybrid.loop import _Trace
+    tr = _Trace()
+    tr.unreadable(SimpleNamespace(token=lambda i: "t", bad_reason=lambda i: "bad"), 7, 1)
+    assert tr.unread == 1 and tr.skipped == [{"index": 1, "token": "t", "reason": "bad"}]

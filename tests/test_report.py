@@ -442,3 +442,22 @@ def test_a_step_the_mount_monitor_measured_is_the_calibrators_verdict_too():
     assert v.word == "recalibrate" and v.why.count("The radar turned on the vehicle") == 1
     assert "Against the reference at the drive's end: cannot tell: " in v.why  # one verdict word, not two (probe 20)
     assert "inconclusive: cannot tell" not in v.why
+
+
+# ---- tests the mutation probe (probe 25) found missing: each fails under its mutant
+
+def test_a_derived_verdict_recalibrates_beyond_three_sigma_only():
+    from hybrid_calib.report.verdict import Tolerance, verdict_of
+    from tests.test_report import _vr
+    assert verdict_of(_vr((0, 0.62, 0, 0, 0, 0), (0.05,) * 6), Tolerance(rot_deg=0.5, trans_cm=5.0)).word == \
+        "cannot tell"
+
+
+def test_a_monitor_step_is_judged_against_the_calibrations_tolerance():
+    from hybrid_calib.report.verdict import Tolerance, verdict_of
+    from tests.test_report import _vr
+    vr = _vr((0.0,) * 6, (0.01,) * 6, drift_extra={"verdict_kind": "within tolerance", "verdict": "within tolerance",
+                                                   "axes": {"yaw": {"tolerance": 2.0, "unit": "deg"}}})
+    vr.mount = {"steps": [{"step_deg": 1.0, "std_deg": 0.05, "change": 3}], "levels": []}
+    assert verdict_of(vr).word == "within tolerance"
+    assert verdict_of(vr, Tolerance(rot_deg=0.5)).word == "recalibrate"
