@@ -169,15 +169,23 @@ def test_inspect_says_whether_the_sweeps_between_keyframes_are_there(roots, tmp_
         return s.format().splitlines()[-1], s.to_json()["groups"][0]["radar_sweeps_between"]
 
     text, rec = line(roots[0])
-    assert rec == {"records": 30, "on_disk": 30, "broken": 0} and "30 (5.0 per frame), all on disk" in text
+    assert rec == {"records": 30, "on_disk": 30, "broken": 0, "unreadable": 0} and "30 (5.0 per frame), all on disk" \
+        in text
     text, rec = line(roots[1])
     assert rec["records"] == 0 and "none in the tables" in text and "keyframes only" in text
     copy = tmp_path / "keyframe-only"  # the tables keep the sweep records, the files are gone (a mini copy)
     shutil.copytree(roots[0], copy)
     shutil.rmtree(copy / "sweeps")
     text, rec = line(copy)
-    assert rec == {"records": 30, "on_disk": 0, "broken": 0}
+    assert rec == {"records": 30, "on_disk": 0, "broken": 0, "unreadable": 0}
     assert "none on disk (a keyframe-only copy)" in text and "add the sweeps/ folder for about 6 times" in text
+    # a sweep file there but truncated is said (probe 23: a truncated and an empty one counted "on disk", ready)
+    shutil.copytree(roots[0] / "sweeps", copy / "sweeps")
+    bad = sorted((copy / "sweeps").rglob("*.pcd"))[0]
+    bad.write_bytes(bad.read_bytes()[:100])
+    text, rec = line(copy)
+    assert rec == {"records": 30, "on_disk": 30, "broken": 0, "unreadable": 1}
+    assert "; 1 of the files on disk do not read (first: " in text and bad.name in text
 
 
 def test_ego_poses_that_contradict_the_doppler_speed_are_not_used():

@@ -48,6 +48,8 @@ class GroupSummary:
     sweeps_between: int = 0  # non-keyframe radar sweep records between the keyframes (data.sweeps)
     sweeps_on_disk: int = 0  # ... whose files are on disk
     sweeps_broken: int = 0  # ... broken (a prev pointer that does not resolve, a file name outside the root)
+    sweeps_unreadable: int = 0  # ... on disk, but not readable as a radar PCD (truncated, empty)
+    sweep_unreadable: str = ""  # the first of those, and why
     radar_in_image: int = 0  # radar points that project into the image with the tables' extrinsic and intrinsics
     boresight_deg: float = 0.0  # the largest angle between the radar's boresight (x) and the camera's axis (z)
     camera_us: list[int] = field(default_factory=list)  # camera keyframe timestamps (the sanity of their unit)
@@ -65,7 +67,7 @@ class GroupSummary:
                     dt_radar_minus_camera_ms=dict(mean=float(np.mean(dt)), min=float(np.min(dt)),
                                                   max=float(np.max(dt))),
                     radar_sweeps_between=dict(records=self.sweeps_between, on_disk=self.sweeps_on_disk,
-                                              broken=self.sweeps_broken))
+                                              broken=self.sweeps_broken, unreadable=self.sweeps_unreadable))
 
 
 @dataclass
@@ -148,8 +150,12 @@ class DatasetSummary:
         """What the radar's non-keyframe sweeps give the Doppler steps (mount monitor, lever arm), in words."""
         n, on = sum(g.sweeps_between for g in self.groups), sum(g.sweeps_on_disk for g in self.groups)
         broken = sum(g.sweeps_broken for g in self.groups)
+        unread = sum(g.sweeps_unreadable for g in self.groups)
+        bad_file = next((g.sweep_unreadable for g in self.groups if g.sweep_unreadable), "")
         tail = (f"; {broken} broken record(s) (a prev pointer that does not resolve or does not go back in time, a "
                 "file name outside the root): the sweeps behind them are not paired" if broken else "")
+        tail += (f"; {unread} of the files on disk do not read (first: {bad_file[:400]}): those are not paired"
+                 if unread else "")
         head = f"{self.radar_channel} sweeps between keyframes: "
         if not n:
             return [head + "none in the tables; the mount monitor and the Doppler lever arm pair keyframes only" + tail]
@@ -264,10 +270,12 @@ def summarize_dataset(ds: NuScenesRadarCamera, progress: bool = True) -> Dataset
     for ref in ds.frames:
         g = groups.setdefault(ref.scene_token, GroupSummary(ref.scene_name, ref.vehicle, ref.log_token))
         g.frames += 1
-        records, on_disk, broken = sweep_files_between(ds.tables, ref.radar_sd)
+        records, on_disk, broken, unreadable, why = sweep_files_between(ds.tables, ref.radar_sd)
         g.sweeps_between += records
         g.sweeps_on_disk += on_disk
         g.sweeps_broken += broken
+        g.sweeps_unreadable += unreadable
+        g.sweep_unreadable = g.sweep_unreadable or why
     first = None
     for f in tqdm(ds, total=len(ds), desc="inspect", unit="frame", disable=not progress):
         g = groups[f.extras["scene_token"]]

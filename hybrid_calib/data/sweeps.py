@@ -187,22 +187,32 @@ def _older(rec: dict, newer: dict) -> bool:
     return a < b
 
 
-def sweep_files_between(tables: NuScenesTables, sd: dict, limit: int = 20) -> tuple[int, int, int]:
+def sweep_files_between(tables: NuScenesTables, sd: dict, limit: int = 20) -> tuple[int, int, int, int, str]:
     """(the non-keyframe sweep records between the previous keyframe and ``sd``, how many of their files are on
-    disk, how many further records are broken: a ``prev`` pointer that does not resolve, a file name outside the
-    root): what ``inspect`` reports, without reading a file."""
-    records = on_disk = broken = 0
+    disk, how many further records are broken (a ``prev`` pointer that does not resolve, a file name outside the
+    root), how many of the files on disk do not read as radar PCDs, the first of those with why, or ""): what
+    ``inspect`` reports (probe 23: a truncated and an empty sweep were counted on disk, ready to pair)."""
+    from hybrid_calib.data.pcd import read_radar_pcd
+
+    records = on_disk = broken = unreadable = 0
+    first = ""
     for _, rec, err in _walk_between(tables, sd, limit):
         if err is not None:
-            return records, on_disk, broken + 1
+            return records, on_disk, broken + 1, unreadable, first
         try:
             path = tables.file(rec)
         except DataError:
             broken += 1
             continue
         records += 1
-        on_disk += path.is_file()
-    return records, on_disk, broken
+        if path.is_file():
+            on_disk += 1
+            try:
+                read_radar_pcd(path)
+            except (DataError, OSError, ValueError) as e:
+                unreadable += 1
+                first = first or str(e)
+    return records, on_disk, broken, unreadable, first
 
 
 def sweeps_between_keyframes(tables: NuScenesTables, sd: dict, conf: RadarFilterConfig, limit: int = 20
