@@ -268,3 +268,18 @@ def test_axes_a_fleet_prior_dominates_keep_the_tables():
     vr = SimpleNamespace(drift={"axes": {w: {"decision": "within"} for w in AXIS_WORDS},
                                 "prior": {"dominated": ["roll"]}})
     assert _kept_axes(vr) == [AXIS_WORDS.index("roll")]
+
+
+def test_a_record_that_would_move_the_radar_off_its_bracket_is_not_written(calibrated, tmp_path):
+    """Probe 23: the cascade on the real scene (its domain test loosened) wrote a radar 97.4 cm from its tables, with a
+    lateral 1-sigma of 0.96 cm. A record farther than MAX_MOVE_M from the tables is refused, saying why."""
+    from hybrid_calib.calib.export import MAX_MOVE_M, export_mounts
+
+    root, result = calibrated
+    T_ref = _tables_T(root, "sim-veh-000", "reference_T_cam_radar")
+    B = report_basis(T_ref)
+    far = retract(T_ref, B.T @ (np.radians([0.0, 1.5, 0, 0, 0, 0]) + np.r_[0, 0, 0, MAX_MOVE_M + 0.05, 0, 0]))
+    exp = export_mounts([_edited(result, tmp_path / "r" / "result.json", "sim-veh-000", T=far)], tmp_path / "out")
+    v = exp.vehicles["sim-veh-000"]
+    assert not v["exported"] and v["why"].startswith("not exported: it would move the radar 3") and \
+        "farther than a radar moves on its bracket (30 cm)" in v["why"], v["why"]

@@ -106,6 +106,9 @@ def _std_camera(T_est: np.ndarray, cov: np.ndarray, kept: list[int]) -> dict:
                 "unit": "deg" if i < 3 else "cm"} for i, w in enumerate(AXIS_WORDS)}
 
 
+MAX_MOVE_M = 0.30  # an exported radar record farther than this from its tables is refused (the bracket, not the drive)
+
+
 def _change(T_new: np.ndarray, T_old: np.ndarray) -> dict:
     """How far a new radar record is from the old one: rotation angle [deg], translation [cm], in ego axes."""
     from hybrid_calib.data.nuscenes import mount_offset
@@ -333,6 +336,13 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
                            for Tc, Tr in mounts[1:]):
             why = ("not exported: its tables hold more than one radar-camera calibration along the drive (a mount "
                    "change); the estimate stands for the drive's end only")
+        moves = [_change(T_new, T_base)["trans_cm"] for _, T_base, T_new in new]
+        if not why and moves and max(moves) > 100 * MAX_MOVE_M:
+            # probe 23: the cascade on the real scene, its domain test loosened, wrote a radar 97.4 cm from its tables
+            # with a lateral 1-sigma of 0.96 cm; a radar does not travel that far on its bracket
+            why = (f"not exported: it would move the radar {max(moves):.1f} cm from its tables, farther than a radar "
+                   f"moves on its bracket ({100 * MAX_MOVE_M:g} cm): the estimate or the tables are wrong; check both "
+                   "(a drive of other scenes, the LiDAR's and the Doppler's offsets in result.json) before writing one")
         if why:
             entry["why"] = why
             continue
