@@ -303,7 +303,7 @@ def test_an_inconclusive_vehicle_is_flagged_counted_and_never_within_tolerance(l
     f = tmp_path / "vehicles" / "sim-veh-001" / "result.json"
     doc = json.loads(f.read_text())
     doc["vehicles"]["sim-veh-001"]["final"]["status"] = ("inconclusive: only 2 of 10 frames are inside the network's "
-                                                         "training domain [the estimate's own status: ok]")
+                                                         "training domain [the estimate's own status: weak: yaw]")
     f.write_text(json.dumps(doc))
     s = run_fleet([str(fleet_root)], None, "v1.0-sim", "oracle", tmp_path, seed=2, calib={"window": {"window": 3}},
                   options=FleetOptions(plots=False))
@@ -314,6 +314,8 @@ def test_an_inconclusive_vehicle_is_flagged_counted_and_never_within_tolerance(l
     assert r["fleet_test"]["left_out"].startswith("not in the fleet prior: ")
     assert "sim-veh-001" not in ((s["fleet_prior"] or {}).get("inliers") or [])
     assert s["counts"]["inconclusive"] == 1 and s["counts"]["failed"] == 1
+    # counted once, by what its status opens with (the estimate's own "weak" it keeps is not a weak result)
+    assert s["counts"]["weak"] == sum(str(v.get("status") or "").startswith("weak") for v in s["vehicles"].values())
     assert "1 inconclusive" in (tmp_path / "summary.md").read_text()
     # one word per meaning: the fleet page counts that vehicle's verdict "cannot tell", as summary.json's verdict
     # and the calibrator's (probe 21: fleet.html's "inconclusive" counted verdicts, summary.md's statuses)
