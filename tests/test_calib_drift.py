@@ -711,3 +711,19 @@ def test_the_prior_conflict_with_data_as_informative_as_the_prior():
     x_p = np.array([np.radians(1.0), 0, 0, 0.01, 0, 0])
     c = prior_conflict(T, 2 * np.linalg.inv(C), retract(T, x_p), C)
     assert c["statistic"] == pytest.approx(2 * x_p @ np.linalg.solve(C, x_p), rel=1e-6) and c["dof"] == 6
+
+
+def test_a_recalibrate_that_puts_the_radar_off_its_bracket_cannot_tell():
+    """Probe 23: the cascade on the real scene (its domain test loosened) read "differs by 35 cm in lateral offset
+    (+- 0.96 cm); 91 cm in longitudinal offset: recalibrate"; a radar does not travel that far on its bracket."""
+    from hybrid_calib.calib.drift import MAX_MOVE_M
+
+    T = nominal_T_cam_radar()
+    C = np.diag([np.radians(0.05) ** 2] * 3 + [0.005 ** 2] * 3)
+    near = reference_test(perturb_camera_frame(T, [0.0, 0.0, 0.0], [0.2, 0.0, 0.0]), C, T)  # 20 cm: a real move
+    assert near.verdict_kind == "recalibrate" and near.verdict.startswith("differs by 20 cm in lateral offset")
+    far = reference_test(perturb_camera_frame(T, [0.0, 0.0, 0.0], [MAX_MOVE_M + 0.05, 0.0, 0.0]), C, T)
+    assert far.verdict_kind == "cannot tell" and not far.drifted, far.verdict
+    assert far.verdict.startswith("cannot tell: it puts the radar 35 cm from its tables, farther than a radar moves "
+                                  "on its bracket (30 cm)") and "(it read: differs by 35 cm in lateral offset" in \
+        far.verdict

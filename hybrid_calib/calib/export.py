@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from hybrid_calib.calib.covariance import status_kind
-from hybrid_calib.calib.drift import AXIS_WORDS
+from hybrid_calib.calib.drift import AXIS_WORDS, MAX_MOVE_M
 from hybrid_calib.errors import DataError, OptionError
 
 SCHEMA = "hybrid-calib/mount-export/v1"
@@ -104,9 +104,6 @@ def _std_camera(T_est: np.ndarray, cov: np.ndarray, kept: list[int]) -> dict:
     std = report_std(T_est, cov)
     return {w: {"written": "tables" if i in kept else "estimate", "std": None if i in kept else float(std[i]),
                 "unit": "deg" if i < 3 else "cm"} for i, w in enumerate(AXIS_WORDS)}
-
-
-MAX_MOVE_M = 0.30  # an exported radar record farther than this from its tables is refused (the bracket, not the drive)
 
 
 def _change(T_new: np.ndarray, T_old: np.ndarray) -> dict:
