@@ -242,9 +242,9 @@ MAX_MOVE_M = 0.30  # farther than this from its tables a radar has not moved on 
 def _verdict(axes: list[AxisCheck]) -> tuple[str, str]:
     """(kind, sentence) from the per-axis checks (module docstring). A "recalibrate" whose differing translation axes
     put the radar more than ``MAX_MOVE_M`` from its tables is "cannot tell": a radar does not travel that far on its
-    bracket, so the estimate
-    (or the tables) is wrong, not the mount (probe 23: the cascade on the real scene, its domain test loosened, read
-    "differs by 35 cm in lateral offset (+- 0.96 cm); 91 cm in longitudinal offset: recalibrate")."""
+    bracket, so the estimate (or the tables) is wrong, not the mount (probe 23: the cascade on the real scene, its
+    domain test loosened, read "differs by 35 cm in lateral offset (+- 0.96 cm); 91 cm in longitudinal offset:
+    recalibrate")."""
     differs = [a for a in axes if a.decision == "differs"]
     if differs:
         parts = [f"{_fmt(abs(a.delta), a.unit)} in {a.name} (+- {_fmt(a.std, a.unit)} at 1 sigma, tolerance "
