@@ -184,16 +184,25 @@ def lidar_widened(f: FrameEstimate, dy_m: float, z: float) -> tuple[FrameEstimat
     which is wrong (the loop over-confident, or the tables' LiDAR-camera extrinsic) cannot be told; the fold took the
     tighter one's word for both, the widened 1-sigma covers both, as the yaw check's (probe 23: the cascade on the
     real scene read a lateral offset 23-35 cm off its tables at +- 0.9 cm, the LiDAR 12 stds from the loop)."""
-    from hybrid_calib.calib.covariance import report_std
     from hybrid_calib.calib.lidar_alignment import RADAR_Y
 
-    cov = f.cov.copy()
-    cov[RADAR_Y, RADAR_Y] += dy_m ** 2
     words = (f"the LiDAR puts the radar's lateral offset {dy_m * 100:+.1f} cm from the loop's estimate, {abs(z):.1f} "
              "stds apart: the loop's estimate, or the tables' LiDAR-camera extrinsic, is wrong; the lateral 1-sigma "
              "is widened to cover both")
-    est = dataclasses.replace(f.estimate, cov=cov, std=report_std(f.T, cov), status=f"{f.estimate.status} ({words})")
-    return dataclasses.replace(f, estimate=est), words
+    return _noted(f, words, np.eye(6)[RADAR_Y], dy_m), words
+
+
+def _noted(f: FrameEstimate, words: str, u: np.ndarray | None = None, d: float = 0.0) -> FrameEstimate:
+    """Frame ``f`` with ``(words)`` after its status (the data's own words kept: the note is said after them) and,
+    with a unit tangent direction ``u`` (6,), its covariance widened by ``d^2 u u^T`` (two measurements that
+    disagree by ``d`` along ``u``: the 1-sigma then covers both), the reported std with it."""
+    from hybrid_calib.calib.covariance import report_std
+
+    est = dataclasses.replace(f.estimate, status=f"{f.estimate.status} ({words})")
+    if u is not None:
+        cov = f.cov + d * d * np.outer(u, u)
+        est = dataclasses.replace(est, cov=cov, std=report_std(f.T, cov))
+    return dataclasses.replace(f, estimate=est)
 
 
 def with_doppler(traj: list[FrameEstimate], drive: Drive, frames, conf: HybridConfig, mon: MountMonitor | None,
@@ -224,11 +233,8 @@ def with_yaw_check(traj: list[FrameEstimate], drive: Drive, conf: HybridConfig, 
     frames put the radar's yaw 1.97 +- 0.16 deg off the tables, its Doppler 0.93 +- 0.10; without the check the
     verdict read "recalibrate" by 1.97 deg (and 1.11 +- 0.34 from another start)."""
     if traj and not conf.mount.enabled:  # said: export writes no yaw the Doppler did not check (calib.export)
-        last = traj[-1]
-        est = dataclasses.replace(last.estimate, status=f"{last.estimate.status} (its yaw is the network's and the "
-                                                        "window's, unchecked by the radar's own Doppler: the mount "
-                                                        "monitor is off, mount.enabled=false)")
-        return [*traj[:-1], dataclasses.replace(last, estimate=est)], None
+        return [*traj[:-1], _noted(traj[-1], "its yaw is the network's and the window's, unchecked by the radar's own "
+                                             "Doppler: the mount monitor is off, mount.enabled=false")], None
     if mon is None or drive.ego_radar is None or not traj:
         return traj, None
     from hybrid_calib.calib.mount_monitor import yaw_agreement
@@ -240,19 +246,13 @@ def with_yaw_check(traj: list[FrameEstimate], drive: Drive, conf: HybridConfig, 
                           mon.summary())
     if check is None or not check["disagree"]:
         return traj, check
-    from hybrid_calib.calib.covariance import report_std
-
-    u, d = np.asarray(check["direction"]), np.radians(check["difference_deg"])
-    cov = last.cov + d * d * np.outer(u, u)
     words = (f"its yaw disagrees with the radar's own: the estimate puts the radar {check['estimate_deg']:+.2f} +- "
              f"{check['estimate_std_deg']:.2f} deg from its tables' yaw on the vehicle, the radar's Doppler against "
              f"the ego poses {check['doppler_deg']:+.2f} +- {check['doppler_std_deg']:.2f} deg "
              f"({check['sigmas']:.1f} sigma apart): the estimate, or the camera's mount in the tables (which the "
              "comparison takes as exact), is wrong; the yaw's 1-sigma is widened to cover both")
-    # the data's own words kept (they say what the drive observes; the widening is this disagreement's, said after)
-    est = dataclasses.replace(last.estimate, cov=cov, std=report_std(last.T, cov),
-                              status=f"{last.estimate.status} ({words})")
-    return [*traj[:-1], dataclasses.replace(last, estimate=est)], {**check, "widened": True, "words": words}
+    widened = _noted(last, words, np.asarray(check["direction"]), np.radians(check["difference_deg"]))
+    return [*traj[:-1], widened], {**check, "widened": True, "words": words}
 
 
 def motion_bias_cov(C: np.ndarray, g: np.ndarray, motion_std_rad: float) -> np.ndarray:
