@@ -38,6 +38,7 @@ Bad input policy:
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
 import re
@@ -579,6 +580,18 @@ class NuScenesRadarCamera:
         what a drift verdict on its vehicle compared against. ``DataError`` when its records do not read."""
         T_ego_cam = self.tables.T_ego_sensor(ref.camera_sd)
         return self._reference(ref, T_ego_cam, se3_inverse(T_ego_cam) @ self.tables.T_ego_sensor(ref.radar_sd))
+
+    @functools.cached_property
+    def identity(self) -> str:
+        """The identity of the data this object reads: the root's resolved path, the version and
+        ``data.files.data_stamp`` (the tables by content, the sensor folders by time), hashed; computed once (the
+        network's output cache is keyed by it: ``hybrid.network.NetworkRunner``)."""
+        import hashlib
+
+        from hybrid_calib.data.files import data_stamp
+
+        stamp = data_stamp(self.root, self.version)["digest"]
+        return hashlib.sha1(f"{self.root.resolve()}/{self.version}/{stamp}".encode()).hexdigest()[:16]
 
     def reference_T_cam_radar(self, ref: FrameRef) -> np.ndarray:
         """(4, 4) the vehicle's calibration tables' T_cam_radar at frame ``ref`` (``_reference``), from the tables

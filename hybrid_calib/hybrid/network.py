@@ -107,9 +107,9 @@ class OutputCache:
     """``root/<token>-<hash of T_in>.npz`` per network pass (atomic writes; a corrupt entry is a miss).
 
     ``network``: the identity of the network and its data that make the outputs (``NetworkRunner.key``: the
-    checkpoint's files, the depth estimator and ``data_key``), stored in each entry; an entry of another network
-    (the same ``--out`` rerun with another ``--checkpoint``, ``--refine`` or ``--depth``) or of other data (another
-    root whose tokens coincide, a root changed since) is a miss and is overwritten. ""
+    checkpoint's files, the depth estimator and ``NuScenesRadarCamera.identity``), stored in each entry; an entry of
+    another network (the same ``--out`` rerun with another ``--checkpoint``, ``--refine`` or ``--depth``) or of other
+    data (another root whose tokens coincide, a root changed since) is a miss and is overwritten. ""
     (a reader that does not know the network) accepts any entry."""
 
     def __init__(self, root: str | Path, network: str = ""):
@@ -171,19 +171,6 @@ def network_key(checkpoint: str | Path, depth_name: str, depth_hash: str) -> str
     return hashlib.sha1(f"{depth_name}/{depth_hash}/{checkpoint_digest(checkpoint)}".encode()).hexdigest()[:16]
 
 
-def data_key(frames) -> str:
-    """The identity of the data a runner reads (``frames``: a ``NuScenesRadarCamera``): its root's resolved path and
-    version and ``data.files.data_stamp`` (the tables by content, the sensor folders by time); "" for frames of no
-    root (a test's list)."""
-    from hybrid_calib.data.files import data_stamp
-
-    root, version = getattr(frames, "root", None), getattr(frames, "version", None)
-    if root is None or version is None:
-        return ""
-    return hashlib.sha1(f"{Path(root).resolve()}/{version}/{data_stamp(root, version)['digest']}".encode()
-                        ).hexdigest()[:16]
-
-
 class NetworkRunner:
     """The network of a checkpoint over the frames of one dataset (see the module doc).
 
@@ -219,7 +206,7 @@ class NetworkRunner:
         # scene, edited; compare's one cache for all its roots) returned one root's passes for the other's frames,
         # bit-identical (probe 23)
         self.key = hashlib.sha1(f"{network_key(self.ckpt.path, self.depth_name, self.dataset.depth.config_hash())}/"
-                                f"{data_key(frames)}".encode()).hexdigest()[:16]
+                                f"{getattr(frames, 'identity', '')}".encode()).hexdigest()[:16]
         self.cache = OutputCache(cache_dir, self.key) if cache_dir else None
         self.min_confidence = float(min_confidence)
         self._samples: dict[int, dict | None] = {}
