@@ -240,11 +240,10 @@ def _check_exported_from(folder: Path, data, version: str) -> None:
     bit-identical to the original's). An export that records no stamp is not judged."""
     from hybrid_calib.data.files import data_stamp
 
-    try:
-        rec = json.loads((folder / "export_config.json").read_text()).get("data") or {}
-        stamps, roots = list(rec.get("stamps") or []), list(rec.get("roots") or [])
-    except (OSError, ValueError, AttributeError, TypeError, RecursionError):
-        return
+    rec = _export_record(folder).get("data")
+    rec = rec if isinstance(rec, dict) else {}
+    stamps, roots = rec.get("stamps"), rec.get("roots")
+    stamps, roots = (list(v) if isinstance(v, list) else [] for v in (stamps, roots))
     if not stamps or data_stamp(data, version)["digest"] in stamps:
         return
     raise DataError(f"the measurement files were exported from other data than {data} ({version}) holds now: the "
@@ -253,12 +252,19 @@ def _check_exported_from(folder: Path, data, version: str) -> None:
                     "evaluate on this root, or pass the --data it was exported from", path=str(folder))
 
 
+def _export_record(folder: Path) -> dict:
+    """An ``evaluate`` export's ``export_config.json`` in ``folder`` ({} when absent or unreadable: a folder of
+    measurement files need not come from evaluate)."""
+    try:
+        rec = json.loads((folder / "export_config.json").read_text())
+    except (OSError, ValueError, RecursionError):
+        return {}
+    return rec if isinstance(rec, dict) else {}
+
+
 def _exporting_checkpoint(folder: Path) -> str | None:
     """The checkpoint an ``evaluate`` export in ``folder`` ran (its ``export_config.json``), or None."""
-    try:
-        ckpt = json.loads((folder / "export_config.json").read_text()).get("checkpoint")
-    except (OSError, ValueError, AttributeError, RecursionError):
-        return None
+    ckpt = _export_record(folder).get("checkpoint")
     return ckpt if isinstance(ckpt, str) else None
 
 
