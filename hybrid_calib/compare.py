@@ -313,25 +313,37 @@ def _differences(previous: dict, record: dict) -> list[str]:
     return words + ([f"another configuration ({'; '.join(options)})"] if options else [])
 
 
-def _check_roots(roots: list, version: str, methods) -> None:
-    """A root without the version folder, and oracle on a real root, refused before any trial is run or any file
+def _check_roots(roots: list, version: str, methods) -> tuple[list, dict[str, str]]:
+    """(the roots to compare, {"every vehicle of ROOT": why} of those left out). A root without the version folder is
+    left out when another root has it (as ``fleet`` does; with one root, or none that has it, the first one's error
+    is raised); a root named twice, and oracle on a real root, are refused. All before any trial is run or any file
     written (a root whose vehicles do not read is left out later, and the others compared)."""
     from hybrid_calib.data.tables import version_dir
 
     seen: dict[str, str] = {}
+    kept, left_out, first = [], {}, None
     for r in roots:
-        version_dir(r, version)
         if (key := str(Path(r).resolve())) in seen:  # its trials would be counted twice as independent ones
             raise HybridCalibError(f"--data names the root {key} twice ({seen[key]} and {r}); give each root once")
         seen[key] = str(r)
+        try:
+            version_dir(r, version)
+        except DataError as e:
+            first = first or e
+            left_out[f"every vehicle of {r}"] = str(e)
+            continue
+        kept.append(r)
+    if not kept:
+        raise first
     if "oracle" not in methods:
-        return
+        return kept, left_out
     real = [str(r) for r in roots if (Path(r) / version).is_dir() and not (Path(r) / version / "sim_vehicle.json"
                                                                             ).is_file()]
     if real:
         raise HybridCalibError(f"method oracle needs simulated roots (the true reflectors); {', '.join(real)} "
                                f"{'is a real root' if len(real) == 1 else 'are real roots'}: drop oracle from "
                                "--methods (hybrid, pure and pure-avg run on real data)")
+    return kept, left_out
 
 
 def compare(roots: list, version: str, out: str | Path, conf: CompareConfig | dict | None = None,
@@ -344,7 +356,7 @@ def compare(roots: list, version: str, out: str | Path, conf: CompareConfig | di
 
     conf = merge(CompareConfig, conf)
     out = Path(out)
-    _check_roots(roots, version, conf.methods)
+    roots, roots_left_out = _check_roots(roots, version, conf.methods)
     cfg_path = out / "compare_config.json"
     record = _record(roots, version, conf)
     if overwrite:
@@ -365,6 +377,8 @@ def compare(roots: list, version: str, out: str | Path, conf: CompareConfig | di
         record["network"] = previous["network"]  # learned trials keep the identity of the network that made them
     save_json_atomic(cfg_path, record)
     problems = run_trials([str(r) for r in roots], version, out, conf, progress)
+    if roots_left_out:  # said with the vehicles that do not read (compare.json, compare.md, the terminal)
+        problems = dataclasses.replace(problems, vehicles_left_out={**roots_left_out, **problems.vehicles_left_out})
     results = {m: load_trials(out, m, conf.trials) for m in conf.methods}
     labels = root_labels([str(r) for r in roots], "/")
     if not any(results.values()):

@@ -465,6 +465,18 @@ def test_compare_refuses_kept_trials_of_other_data_and_leaves_out_a_root_that_do
     s = json.loads((tmp_path / "c3" / "compare.json").read_text())
     assert s["methods"]["oracle"]["trials"] == 2 and f"every vehicle of {bad}" in s["vehicles_left_out"]
     assert "**Left out**" in (tmp_path / "c3" / "compare.md").read_text()
+    # a root without the version folder (the trainval tables' root, a wrong folder): left out as fleet does, not the
+    # whole comparison refused; alone, it is refused before anything is written
+    tables_only = tmp_path / "tables-only"
+    tables_only.mkdir()
+    assert main(["compare", "--data", str(root), str(tables_only), "--methods", "oracle", "--trials", "1", "--out",
+                 str(tmp_path / "c4"), "--set", "window.window=3", "--no-progress"]) == 1
+    s = json.loads((tmp_path / "c4" / "compare.json").read_text())
+    assert s["roots"] == [str(root)] and "version folder 'v1.0-sim' does not exist" in s["vehicles_left_out"][
+        f"every vehicle of {tables_only}"]
+    assert main(["compare", "--data", str(tables_only), "--methods", "oracle", "--trials", "1", "--out",
+                 str(tmp_path / "c5")]) == 2
+    assert "does not exist under the nuScenes root" in capsys.readouterr().err and not (tmp_path / "c5").exists()
 
 
 def test_a_checkpoint_changed_in_place_is_another_network(sim_root, tmp_path):
