@@ -9,7 +9,10 @@
       "vehicles": {
         VEHICLE: {
           "vehicle": str, "n_frames": int, "frames_skipped": [{"index", "token", "reason"}],  # index: the frame's
-                                           # position in the drive as FRAME's (null: a file of no drive frame)
+                                           # position in the drive as FRAME's (null: a file of no drive frame);
+                                           # token: the frame's own (its camera sample_data token, as frame_id;
+                                           # null index: the sample's), whichever file failed: the reason names
+                                           # that file and its token
           "final": EXTRINSIC,              # the estimate after the last frame (window) / of the batch
           "truth": {"T_cam_radar", "report"} | null,  # when the data has ground truth
           "error": {metrics.ExtrinsicError fields..., "nees": float} | null,
