@@ -495,3 +495,30 @@ def test_a_scene_without_samples_is_said_not_silently_dropped(tiny):
     assert skip.reason.startswith("1 of the 2 scene(s) of scene.json have no sample in sample.json (tiny-absent;")
     with pytest.raises(DataError, match="first: 1 of the 1 scene.s. of scene.json have no sample in sample.json"):
         NuScenesRadarCamera(tiny.root, VERSION, conf={"scenes": ("tiny-absent",)})
+
+
+def test_a_copy_of_a_root_is_the_same_data_and_a_changed_one_is_not(tmp_path):
+    """The data stamp hashed the sensor folders' modification times: a `cp -r` of a root (or the root on another
+    machine of the fleet) was "other data", so report dropped its pictures and reruns recomputed (probe 23)."""
+    import os
+    import shutil
+
+    from hybrid_calib.data.files import data_stamp
+
+    root = tmp_path / "a"
+    (root / "v1.0-mini").mkdir(parents=True)
+    (root / "v1.0-mini" / "sample.json").write_text("[]")
+    for ch in ("CAM_FRONT", "RADAR_FRONT"):
+        (root / "samples" / ch).mkdir(parents=True)
+        (root / "samples" / ch / f"{ch}_1.bin").write_bytes(b"x")
+    stamp = data_stamp(root, "v1.0-mini")
+    copy = tmp_path / "b"
+    shutil.copytree(root, copy)
+    for d in (copy / "samples").iterdir():
+        os.utime(d, (1e9, 1e9))  # cp -r: the folders' times are the copy's
+    assert data_stamp(copy, "v1.0-mini")["digest"] == stamp["digest"]
+    (copy / "samples" / "CAM_FRONT" / "CAM_FRONT_2.bin").write_bytes(b"y")  # a frame file added
+    assert data_stamp(copy, "v1.0-mini")["digest"] != stamp["digest"]
+    (copy / "samples" / "CAM_FRONT" / "CAM_FRONT_2.bin").unlink()
+    (copy / "v1.0-mini" / "sample.json").write_text("[ ]")  # a table edited
+    assert data_stamp(copy, "v1.0-mini")["digest"] != stamp["digest"]

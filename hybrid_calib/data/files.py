@@ -61,32 +61,36 @@ def file_part(name: str) -> str:
 
 def data_stamp(root: str | Path, version: str) -> dict:
     """{"digest", "newest"} of a root's data as a calibration reads it: the version folder's tables (name and
-    content: a rerun of ``simulate`` rewrites them unchanged) and the folders of ``samples/`` and ``sweeps/`` (their
-    modification time changes when a file in them is added, removed or replaced by a rename: a re-download, a
-    re-simulation). A frame file rewritten in place is not seen (stat'ing every frame file of a large root on each
-    rerun is not worth it). ``newest``: the latest of those times (ISO, UTC), for the message."""
+    content: a rerun of ``simulate`` rewrites them unchanged) and the file names in each folder of ``samples/`` and
+    ``sweeps/`` (a file added, removed or renamed: a re-download or re-simulation of other frames). Not the folders'
+    modification times: a copy of a root (``cp -r``, another machine of the fleet) is the same data, and its
+    results, their reports and caches hold on it (probe 23: a ``cp -r`` of a root made ``report`` drop its
+    pictures). A frame file rewritten in place under its name is not seen (hashing or stat'ing every frame file
+    of a large root on each rerun is not worth it). ``newest``: the latest modification time of those tables and
+    folders (ISO, UTC), for the message."""
     import datetime
     import hashlib
 
     root = Path(root)
-    items = []
+    items, newest = [], 0
     for path in sorted((root / version).glob("*.json")):
         try:
             h = hashlib.sha1()
             with open(path, "rb") as f:
                 for chunk in iter(lambda: f.read(1 << 20), b""):
                     h.update(chunk)
-            items.append((path.name, h.hexdigest(), path.stat().st_mtime_ns))
+            items.append((path.name, h.hexdigest()))
+            newest = max(newest, path.stat().st_mtime_ns)
         except OSError:
             continue
     for path in sorted(d for top in ("samples", "sweeps") if (root / top).is_dir()
                        for d in (root / top).iterdir() if d.is_dir()):
         try:
-            items.append((str(path.relative_to(root)), "", path.stat().st_mtime_ns))
+            names = sorted(e.name for e in os.scandir(path))
+            newest = max(newest, path.stat().st_mtime_ns)
         except OSError:
             continue
-    newest = max((t for _, _, t in items), default=0)
-    items = [(name, h, 0 if h else t) for name, h, t in items]  # a table by its content, a folder by its time
+        items.append((str(path.relative_to(root)), hashlib.sha1("\n".join(names).encode()).hexdigest()))
     return {"digest": hashlib.sha1(repr(items).encode()).hexdigest(),
             "newest": datetime.datetime.fromtimestamp(newest / 1e9, datetime.timezone.utc).isoformat(
                 timespec="seconds") if newest else None}

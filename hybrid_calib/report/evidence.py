@@ -206,8 +206,8 @@ def _data_changed(result_path: Path, root: Path, version: str) -> str:
     if not data_differ(Path(result_path).parent, root, version):
         return ""
     return (f"the data at {root / version} are not those {result_path} was computed from (its data_stamp.json "
-            "differs from the data now: re-simulated, re-downloaded, edited, or another root or a copy whose folders' "
-            "times differ), so no camera frames, correspondences, residuals or attention are shown: they could come "
+            "differs from the data now: re-simulated, re-downloaded, tables edited, or frame files added, removed or "
+            "renamed), so no camera frames, correspondences, residuals or attention are shown: they could come "
             "from other data; rerun the calibration on the data as they are, or pass the root it was computed on "
             "with --data")
 
