@@ -585,8 +585,7 @@ class NuScenesRadarCamera:
     def identity(self) -> str:
         """The identity of the data this object reads: the root's resolved path, the version and
         ``data.files.data_stamp`` (the tables by content, the sensor folders by their file names), hashed; computed
-        once (the
-        network's output cache is keyed by it: ``hybrid.network.NetworkRunner``)."""
+        once (the network's output cache is keyed by it: ``hybrid.network.NetworkRunner``)."""
         import hashlib
 
         from hybrid_calib.data.files import data_stamp
