@@ -163,3 +163,20 @@ def test_elevation_moments_of_the_uniform_beam():
         assert s == pytest.approx(quad(np.sin, m - b, m + b)[0] / (2 * b), rel=1e-9, abs=1e-12)
         var = quad(lambda p, m=m: (p - m) ** 2, m - b, m + b)[0] / (2 * b)
         assert sd == pytest.approx(np.sqrt(var), rel=1e-9)
+
+
+def test_a_weak_direction_of_one_axis_is_said_with_that_axis_std():
+    """The status gave the weak eigen-direction's std ("pitch ... (std 1.03 deg)") beside the axis' own 1.04 deg in the
+    result and the verdict (probe 24); a direction mixing axes says its std is along it."""
+    conf = {"rot_tol_deg": 0.1, "trans_tol_cm": 1.0, "weak_factor": 10.0}
+    std = np.array([np.radians(0.05)] * 3 + [0.005] * 3)
+    std[0], std[4] = np.radians(2.0), 0.05
+    cov = np.diag(std**2)
+    cov[0, 4] = cov[4, 0] = 0.3 * std[0] * std[4]  # pitch leans a little on the vertical offset
+    rep = analyse_information(np.eye(4), np.linalg.inv(cov), conf)
+    axis = float(np.degrees(np.sqrt(report_cov(np.eye(4), rep.cov)[0, 0])))
+    assert f"pitch (rotation about camera x) is poorly observed (std {axis:.3g} deg)" in rep.status, rep.status
+    mixed = np.diag([np.radians(0.05) ** 2] * 3 + [0.005**2] * 3)
+    mixed[np.ix_([0, 1], [0, 1])] = np.radians(2.0) ** 2 * np.array([[1.0, 0.999], [0.999, 1.0]])
+    rep = analyse_information(np.eye(4), np.linalg.inv(mixed), conf)
+    assert "deg along that direction" in rep.status, rep.status

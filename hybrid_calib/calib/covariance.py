@@ -188,14 +188,23 @@ def _name_direction(vec_report: np.ndarray) -> str:
     return " coupled with ".join(parts) if parts else "mixed direction"
 
 
-def _fmt_std(std_scaled: float, vec_report: np.ndarray, conf: CovarianceConfig) -> str:
-    """Std of a scaled direction in the unit of its dominant block."""
+def _fmt_std(std_scaled: float, vec_report: np.ndarray, conf: CovarianceConfig, Cz: np.ndarray | None = None) -> str:
+    """Std of a scaled direction in the unit of its dominant block. A direction that is (90 % or more) one camera
+    axis is said with that axis' own std (``Cz``: the scaled report covariance), so the status reads as the axis' std
+    of the result and the verdict (probe 24: "pitch ... (std 1.03 deg)" beside the axis' 1.04); a mixed one's std is
+    said to be along it."""
     v = vec_report / np.linalg.norm(vec_report)
+    i = int(np.argmax(v**2))
+    along = ""
+    if Cz is not None and v[i] ** 2 >= 0.9:
+        std_scaled = float(np.sqrt(max(Cz[i, i], 0.0)))
+    elif Cz is not None:
+        along = " along that direction"
     if np.sum(v[:3] ** 2) >= np.sum(v[3:] ** 2):
         deg = std_scaled * conf.rot_tol_deg
-        return f"std {deg:.3g} deg"
+        return f"std {deg:.3g} deg{along}"
     cm = std_scaled * conf.trans_tol_cm
-    return f"std {cm / 100:.3g} m" if cm >= 100 else f"std {cm:.3g} cm"
+    return (f"std {cm / 100:.3g} m" if cm >= 100 else f"std {cm:.3g} cm") + along
 
 
 RADAR_PITCH, RADAR_Z = 1, 5  # right-tangent [omega, v] indices: rotation about radar y, translation along radar z
@@ -428,7 +437,7 @@ def analyse_information(
         names.append(name)
         on_pinned = float(np.sum(vec[pinned_axes] ** 2)) > 0.5
         how = "unobservable" if in_null else "prior-pinned, not measured" if on_pinned else "poorly observed"
-        details.append(f"{name} is {how} ({_fmt_std(std_scaled, vec, conf)})")
+        details.append(f"{name} is {how} ({_fmt_std(std_scaled, vec, conf, Cz)})")
     cov_t, observed = _without_pinned(cov, B, pinned_std if pinned else None)
     why, weak = explain(B @ cov_t @ B.T, geometry, conf.degeneracy, regularised or bool(details), observed)
     if regularised:
