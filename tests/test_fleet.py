@@ -723,7 +723,9 @@ def test_a_rerun_after_the_data_changed_does_not_reuse_the_old_results(local_run
     image = next((root / "samples" / "CAM_FRONT").iterdir())
     data = image.read_bytes()
     image.unlink()
-    image.write_bytes(data)  # re-downloaded: its folder changed
+    image.write_bytes(data)  # the same file again (a copy, a re-download of the same bytes): the same data
+    calibrate(root, "v1.0-sim", "oracle", tmp_path / "c", conf)
+    (root / "samples" / "CAM_FRONT" / ("x" + image.name)).write_bytes(data)  # a re-download of other frames
     with pytest.raises(HybridCalibError, match="was computed before .*data changed.*--overwrite"):
         calibrate(root, "v1.0-sim", "oracle", tmp_path / "c", conf)
     calibrate(root, "v1.0-sim", "oracle", tmp_path / "c", conf, overwrite=True)
