@@ -105,6 +105,9 @@ def test_an_option_set_twice_is_refused():
     for items in (["window.window=5", "window.window=7"], ["window=3", "window.window=5"]):
         with pytest.raises(ConfigError, match="set the same option; give it once"):
             parse_overrides(items)
+    # an integer past Python's conversion limit was an internal error (probe 27)
+    with pytest.raises(ConfigError, match=r"window.window=9+\.\.\.\(5014 characters\)'.*does not read as a number"):
+        parse_overrides(["window.window=" + "9" * 5000])
 
 
 def test_train_on_a_real_root_defaults_to_the_depth_calibrate_uses(tmp_path, capsys):
