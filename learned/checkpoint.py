@@ -149,8 +149,8 @@ def read_checkpoint_meta(path: str | Path) -> tuple[Path, dict[str, Any]]:
 
 def check_export(export: dict[str, Any], path: Path) -> None:
     """``CheckpointError`` naming the file when the ``export`` block cannot work: an unknown key (a typo
-    is otherwise ignored), a ``cov_scale`` / ``sigma_scale`` that is not a finite factor > 0 (or 6 for
-    ``cov_scale``), or a ``hybrid`` / ``ood`` block that is not an object (their fields are checked
+    is otherwise ignored), a ``cov_scale`` / ``sigma_scale`` outside ``ExportConfig``'s intervals (one or 6
+    factors for ``cov_scale``), or a ``hybrid`` / ``ood`` block that is not an object (their fields are checked
     where they are used: ``hybrid_calib.hybrid.loop.measurement_config``, ``learned.ood``)."""
     import dataclasses
 

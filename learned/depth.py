@@ -409,10 +409,22 @@ def depth_inputs(frame: RadarCameraFrame) -> str:
     return h.hexdigest()[:12]
 
 
-def trained_with(train_config: dict | None) -> str:
-    """The depth spec a checkpoint was trained with (its ``train_config["depth"]``; corrupted-truth, the
-    training default, when it does not say)."""
-    return str((train_config or {}).get("depth", CorruptedTruthDepth.name))
+def trained_with(train_config: dict | None, source: str | Path | None = None) -> str:
+    """The depth spec a checkpoint (its JSON: ``source``) was trained with (its ``train_config["depth"]``;
+    corrupted-truth, the training default, when it does not say). ``CheckpointError`` naming the file and the field
+    when it names no estimator (probe 27: a damaged field read as if the user had passed a wrong ``--depth``)."""
+    from hybrid_calib.errors import CheckpointError
+
+    spec = (train_config or {}).get("depth", CorruptedTruthDepth.name) if isinstance(train_config, (dict, type(None))) \
+        else None
+    known = spec in (CorruptedTruthDepth.name, LidarDepth.name) or (
+        isinstance(spec, str) and spec.startswith("depth-anything:") and spec.split(":", 1)[1].strip())
+    if not known:
+        raise CheckpointError(f"the checkpoint's train_config.depth is {spec!r}, which names no depth estimator "
+                              f"('{CorruptedTruthDepth.name}', '{LidarDepth.name}' or 'depth-anything:DIR'): the "
+                              "checkpoint is damaged; fix the field, or pass --depth to say which depth to use",
+                              path=None if source is None else str(source))
+    return spec
 
 
 def needs_lidar(spec: str) -> bool:

@@ -76,20 +76,21 @@ class ExportConfig:
 
 
 def scale_problem(cov_scale, sigma_scale) -> str:
-    """What is wrong with an export block's ``cov_scale`` (a finite number > 0, or 6 of them) and
-    ``sigma_scale`` (a finite number > 0); "" when both can work."""
+    """What is wrong with an export block's ``cov_scale`` (a number in (0, 1e6], or 6 of them) and
+    ``sigma_scale`` (a number in (0, 1000]); "" when both can work (the intervals of ``ExportConfig``: a checkpoint's
+    block is refused at load naming its file, not later as if an option were wrong; probe 27)."""
     try:
         cov = np.asarray(cov_scale, np.float64)
     except (TypeError, ValueError):
         cov = np.full(1, np.nan)
-    if cov.shape not in ((), (6,)) or not np.all(np.isfinite(cov)) or not np.all(cov > 0):
-        return f"cov_scale={cov_scale!r}: need one finite factor > 0 or 6 of them (per axis: rot x3, trans x3)"
+    if cov.shape not in ((), (6,)) or not np.all(np.isfinite(cov)) or not np.all((cov > 0) & (cov <= 1e6)):
+        return f"cov_scale={cov_scale!r}: need one factor in (0, 1e6] or 6 of them (per axis: rot x3, trans x3)"
     try:
         sigma = float(sigma_scale)
     except (TypeError, ValueError):
         sigma = float("nan")
-    if not (np.isfinite(sigma) and sigma > 0):
-        return f"sigma_scale={sigma_scale!r}: need a finite factor > 0"
+    if not (np.isfinite(sigma) and 0 < sigma <= 1000):
+        return f"sigma_scale={sigma_scale!r}: need a factor in (0, 1000]"
     return ""
 
 

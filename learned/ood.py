@@ -157,6 +157,11 @@ class OODModel:
                 or not (res >= 0 and np.isfinite(res)) or not 0 < quantile <= 1:
             raise OODError(f"export.ood holds non-finite or non-positive statistics (or a quantile outside (0, 1]: "
                            f"{quantile}); {FIT_HINT}")
+        if np.abs(comp @ comp.T - np.eye(len(comp))).max() > 1e-6:
+            raise OODError(f"export.ood components are not orthonormal rows (principal directions); {FIT_HINT}")
+        if thr > 100 * (len(comp) + 1):  # in-domain frames' d2 is about k + 1: such a test flags nothing (probe 27)
+            raise OODError(f"export.ood threshold {thr:g} is more than 100 times the distance of an in-domain frame "
+                           f"(about {len(comp) + 1}), so the test would pass every frame; {FIT_HINT}")
         if not isinstance(d.get("fitted", {}), Mapping):
             raise OODError(f"export.ood fitted is a {type(d['fitted']).__name__}, not an object; {FIT_HINT}")
         features = str(d["features"])

@@ -1102,11 +1102,14 @@ def _set_in(*keys_value):
 NAN = float("nan")
 CKPT_JSON_CASES = {  # case -> (edit(meta), needles); each was an internal error or accepted silently
     "cov-scale-3-values": (_set_in("export", "cov_scale", [1, 2, 3]), ["cov_scale=[1, 2, 3]", "6 of them"]),
-    "cov-scale-negative": (_set_in("export", "cov_scale", [-1, 1, 1, 1, 1, 1]), ["cov_scale=[-1,", "> 0"]),
+    "cov-scale-negative": (_set_in("export", "cov_scale", [-1, 1, 1, 1, 1, 1]), ["cov_scale=[-1,", "(0, 1e6]"]),
+    # accepted by calibrate (every std clamped to 30 deg / 5 m), refused by evaluate naming no file (probe 27)
+    "cov-scale-huge": (_set_in("export", "cov_scale", 1e308), ["cov_scale=1e+308", "(0, 1e6]"]),
+    "sigma-scale-huge": (_set_in("export", "sigma_scale", 1e308), ["sigma_scale=1e+308", "(0, 1000]"]),
     "cov-scale-nan": (_set_in("export", "cov_scale", [NAN, 1, 1, 1, 1, 1]), ["cov_scale=[nan,"]),
     "cov-scale-zero": (_set_in("export", "cov_scale", 0), ["cov_scale=0"]),
     "cov-scale-string": (_set_in("export", "cov_scale", "x"), ["cov_scale='x'"]),
-    "sigma-scale-negative": (_set_in("export", "sigma_scale", -1), ["sigma_scale=-1", "finite factor > 0"]),
+    "sigma-scale-negative": (_set_in("export", "sigma_scale", -1), ["sigma_scale=-1", "(0, 1000]"]),
     "sigma-scale-zero": (_set_in("export", "sigma_scale", 0), ["sigma_scale=0"]),
     "export-unknown-key": (_set_in("export", "cov_scales", 1.0), ["unknown key(s) ['cov_scales']"]),
     "export-a-list": (_set_in("export", [1]), ["field 'export' is a JSON list"]),
@@ -1138,6 +1141,16 @@ def test_checkpoint_bad_cov_scale_through_calibrate(sim, tmp_path, capsys):
     path = _edit_ckpt(tmp_path, _set_in("export", "cov_scale", [NAN] * 6))
     err = expect_cli_error(_calibrate(root, tmp_path / "out", "--method", "pure", "--checkpoint", path,
                                       "--max-frames", "1"), capsys, "cov_scale=[nan", "--fit-uncertainty", path)
+    assert _one_paragraph(err)
+
+
+def test_checkpoint_naming_no_depth_estimator_is_a_damaged_checkpoint(sim, tmp_path, capsys):
+    """train_config.depth 42 read "unknown depth estimator '42': use ..." as if the user had passed --depth, naming no
+    file (probe 27)."""
+    root, _ = sim
+    path = _edit_ckpt(tmp_path, _set_in("train_config", "depth", 42))
+    err = expect_cli_error(_calibrate(root, tmp_path / "out", "--method", "hybrid", "--checkpoint", path,
+                                      "--max-frames", "1"), capsys, "train_config.depth is 42", "damaged", path)
     assert _one_paragraph(err)
 
 

@@ -40,6 +40,11 @@ def test_density_model_flags_noise_and_passes_clean_synthetic_frames():
       "residual_mean": 1.0, "threshold": 1.0}, "non-positive"),
     ({"features": "pixels", "mean": [0.0], "std": [1.0], "components": [[1.0]], "variances": [1.0],
       "residual_mean": 1.0, "threshold": 1.0}, "unknown"),
+    # a threshold that passes every frame, directions that are not directions: accepted without a word (probe 27)
+    ({"features": "signals", "mean": [0.0], "std": [1.0], "components": [[1.0]], "variances": [1.0],
+      "residual_mean": 1.0, "threshold": 1e308}, "would pass every frame"),
+    ({"features": "signals", "mean": [0.0, 0.0], "std": [1.0, 1.0], "components": [[0.0, 0.0]], "variances": [1.0],
+      "residual_mean": 1.0, "threshold": 1.0}, "not orthonormal"),
 ])
 def test_malformed_ood_block_is_a_clear_error(block, words):
     with pytest.raises(OODError, match=words) as e:

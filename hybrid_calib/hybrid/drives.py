@@ -72,7 +72,8 @@ def trained_depth(checkpoint) -> str:
     from learned.checkpoint import read_checkpoint_meta
     from learned.depth import trained_with
 
-    return trained_with(read_checkpoint_meta(checkpoint)[1].get("train_config"))
+    path, meta = read_checkpoint_meta(checkpoint)
+    return trained_with(meta.get("train_config"), path)
 
 
 def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable: dict | None = None):

@@ -194,7 +194,7 @@ class NetworkRunner:
         self.model, self.ckpt = load_model(checkpoint, device=self.device, model_factory=model_factory)
         self.ood, self.ood_note = ood_model_of(self.ckpt.export, str(self.ckpt.path))
         trained = self.ckpt.train_config or {}
-        self.depth_name = depth or trained_with(trained)
+        self.depth_name = depth or trained_with(trained, self.ckpt.path)
         depth_opts = trained.get("depth_options", {}) if self.depth_name == trained.get("depth") else {}
         H, W = (int(v) for v in self.model.cfg.input_hw)
         self.range = str(trained.get("perturbation", "R1"))
