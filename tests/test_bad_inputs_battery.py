@@ -741,6 +741,22 @@ DAMAGED_RESULTS = {  # case -> (damage(doc, vehicle), needles beyond the file); 
                        ["doppler is a JSON array, not an object"]),
     "error-nan": (lambda doc, v: doc["vehicles"][v]["error"].__setitem__("rot_mean_deg", float("nan")),
                   ["error.rot_mean_deg is 'nan', not a finite number"]),
+    # probe 27: internal errors in report, export and a resumed fleet, or a page that contradicts itself
+    "drift-a-string": (lambda doc, v: doc["vehicles"][v].__setitem__("drift", "x"),
+                       ["drift is a JSON string, not an object"]),
+    "drift-kind-edited": (lambda doc, v: doc["vehicles"][v]["drift"].update(
+        verdict_kind="recalibrate", verdict="cannot tell: edited"), ["drift.verdict_kind 'recalibrate' is not what"]),
+    "drift-kind-unknown": (lambda doc, v: doc["vehicles"][v]["drift"].__setitem__("verdict_kind", "fine"),
+                           ["drift.verdict_kind is 'fine', not one of"]),
+    "final-cov-zero": (lambda doc, v: doc["vehicles"][v]["final"].__setitem__("cov_right_radar", [[0.0] * 6] * 6),
+                       ["final.cov_right_radar is not a covariance of an estimate"]),
+    "final-cov-huge": (lambda doc, v: doc["vehicles"][v]["final"].__setitem__("cov_right_radar",
+                                                                             (1e308 * np.eye(6)).tolist()),
+                       ["final.cov_right_radar holds an entry of 1e+308"]),
+    "n-frames-negative": (lambda doc, v: doc["vehicles"][v].__setitem__("n_frames", -3),
+                          ["n_frames is '-3', not a count of frames"]),
+    "frame-rows-a-string": (lambda doc, v: doc["vehicles"][v].__setitem__("frame_rows", "nope"),
+                            ["frame_rows is a JSON string, not an array"]),
 }
 
 

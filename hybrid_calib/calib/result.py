@@ -121,6 +121,10 @@ def _covariance(x, name: str) -> np.ndarray:
     ``name`` otherwise."""
     C = _matrix(x, 6, name)
     scale = max(float(np.abs(C).max()), 1e-300)
+    if scale > 1e12:  # rad^2, m^2: no estimate is that uncertain (and its eigenvalues overflow; probe 27)
+        raise ValueError(f"{name} holds an entry of {scale:.3g}, beyond any covariance of an extrinsic (rad^2, m^2)")
+    if not np.all(np.diag(C) > 0):  # an exact estimate: no result of a solve claims one (probe 27: all zeros)
+        raise ValueError(f"{name} is not a covariance of an estimate (a variance is zero or negative)")
     if not np.allclose(C, C.T, atol=1e-6 * scale, rtol=0) or np.linalg.eigvalsh(0.5 * (C + C.T)).min() < -1e-6 * scale:
         raise ValueError(f"{name} is not a covariance (not symmetric, or a negative variance)")
     return C
@@ -169,6 +173,38 @@ def _block(d: dict, key: str, where: str) -> dict | None:
         if bad:
             raise ValueError(f"{where}.mount.steps[{j}] lacks finite {bad}")
     return b
+
+
+def _object_or_null(d: dict, key: str, where: str) -> dict | None:
+    """``d[key]`` when it is an object or absent / null; ``TypeError`` naming the field otherwise (probe 27: a
+    ``drift`` of "x" was an internal error in report and export, and stopped a resumed fleet)."""
+    return None if d.get(key) is None else _mapping(d[key], f"{where}.{key}")
+
+
+def _drift(d: dict, where: str) -> dict | None:
+    """A vehicle result's ``drift`` block read back: None, or an object whose ``verdict_kind`` is one of
+    ``drift.VERDICT_KINDS`` and is said by its ``verdict`` sentence (a hand-edited kind made report headline and
+    export act on a "recalibrate" the sentence does not say; probe 27)."""
+    from hybrid_calib.calib.drift import VERDICT_KINDS
+
+    b = _object_or_null(d, "drift", where)
+    if b is None or "verdict_kind" not in b:
+        return b
+    kind, verdict = b["verdict_kind"], b.get("verdict", "")
+    if kind not in VERDICT_KINDS:
+        raise ValueError(f"{where}.drift.verdict_kind is {str(kind)[:40]!r}, not one of {list(VERDICT_KINDS)}")
+    if not isinstance(verdict, str) or (verdict and kind not in verdict):
+        raise ValueError(f"{where}.drift.verdict_kind {kind!r} is not what its verdict says "
+                         f"({str(verdict)[:60]!r}): the file was edited")
+    return b
+
+
+def _array(d: dict, key: str, where: str) -> list:
+    """``d[key]`` (absent: []) when it is a JSON array; ``TypeError`` naming the field otherwise."""
+    x = d.get(key, [])
+    if not isinstance(x, list):
+        raise TypeError(f"{where}.{key} is a JSON {_json_kind(x)}, not an array")
+    return x
 
 
 def _error(d: dict, where: str) -> dict | None:
@@ -340,19 +376,24 @@ class VehicleResult:
         where = f"vehicles[{vehicle!r}]" if vehicle is not None else "vehicle result"
         d = _mapping(d, where)
         truth, crb = d.get("truth"), d.get("crb_std_cam")
-        trajectory = d.get("trajectory", [])
-        if not isinstance(trajectory, list):
-            raise TypeError(f"{where}.trajectory is a JSON {_json_kind(trajectory)}, not an array")
+        trajectory = _array(d, "trajectory", where)
+        n_frames = d.get("n_frames", 0)
+        if not (isinstance(n_frames, int) and not isinstance(n_frames, bool) and n_frames >= 0):
+            raise ValueError(f"{where}.n_frames is {str(n_frames)[:40]!r}, not a count of frames")
+        for key in ("method", "vehicle"):
+            if not isinstance(d.get(key, ""), str):
+                raise TypeError(f"{where}.{key} is a JSON {_json_kind(d[key])}, not a string")
         return cls(
             vehicle=d.get("vehicle", vehicle or ""), final=Estimate.from_dict(d["final"], f"{where}.final"),
             trajectory=[FrameEstimate.from_dict(f, f"{where}.trajectory[{k}]") for k, f in enumerate(trajectory)],
             truth_T=None if truth is None else _transform(_mapping(truth, f"{where}.truth")["T_cam_radar"],
                                                        f"{where}.truth.T_cam_radar"), error=_error(d, where),
-            crb_std=None if crb is None else std_from_dict(crb, STD_FRAME), drift=d.get("drift"),
-            skipped=list(d.get("frames_skipped", [])), n_frames=int(d.get("n_frames", 0)),
-            network=d.get("network"), method=d.get("method", ""), checkpoint=d.get("checkpoint"),
-            start=d.get("start"), errors_against=d.get("errors_against"), frame_rows=list(d.get("frame_rows", [])),
-            config=d.get("config"), ood=d.get("ood"), mount=_block(d, "mount", where),
+            crb_std=None if crb is None else std_from_dict(crb, STD_FRAME), drift=_drift(d, where),
+            skipped=list(_array(d, "frames_skipped", where)), n_frames=n_frames,
+            network=_object_or_null(d, "network", where), method=d.get("method", ""), checkpoint=d.get("checkpoint"),
+            start=_object_or_null(d, "start", where), errors_against=d.get("errors_against"),
+            frame_rows=list(_array(d, "frame_rows", where)), config=_object_or_null(d, "config", where),
+            ood=_object_or_null(d, "ood", where), mount=_block(d, "mount", where),
             lidar=_block(d, "lidar", where), doppler=_block(d, "doppler", where),
         )
 
