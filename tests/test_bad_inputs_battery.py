@@ -755,6 +755,8 @@ DAMAGED_RESULTS = {  # case -> (damage(doc, vehicle), needles beyond the file); 
                        ["final.cov_right_radar holds an entry of 1e+308"]),
     "n-frames-negative": (lambda doc, v: doc["vehicles"][v].__setitem__("n_frames", -3),
                           ["n_frames is '-3', not a count of frames"]),
+    "frame-without-index": (lambda doc, v: doc["vehicles"][v]["trajectory"][0].pop("index"),
+                            ["trajectory[0] lacks ['index']"]),
     "frame-rows-a-string": (lambda doc, v: doc["vehicles"][v].__setitem__("frame_rows", "nope"),
                             ["frame_rows is a JSON string, not an array"]),
 }

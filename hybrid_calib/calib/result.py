@@ -318,6 +318,10 @@ class FrameEstimate:
     @classmethod
     def from_dict(cls, d: dict, where: str = "frame") -> FrameEstimate:
         d = _mapping(d, where)
+        keys = ("index", "frame_id", "timestamp_us", "n_window", "n_total", "inlier_fraction", "step_statistic",
+                "step_threshold", "step_alarm", "solve_ms", "cov_ms")
+        if missing := [k for k in keys if k not in d]:
+            raise KeyError(f"{where} lacks {missing}")  # a bare KeyError 'index' named no frame (probe 27)
         return cls(
             index=int(d["index"]), frame_id=d["frame_id"], timestamp_us=int(d["timestamp_us"]),
             estimate=Estimate.from_dict(d, where), n_window=int(d["n_window"]), n_total=int(d["n_total"]),
