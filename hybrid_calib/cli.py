@@ -10,6 +10,7 @@ one line naming the exception and asking for a rerun with ``--debug`` (exit stat
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import os
 import re
@@ -116,6 +117,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    for name in ("stdout", "stderr"):  # a closed stream (`2>&-`): Python sets it to None, every print and bar failed
+        if getattr(sys, name) is None:
+            setattr(sys, name, open(os.devnull, "w"))  # noqa: SIM115 (the process' stream, open to its end)
     args = build_parser().parse_args(argv)
     debug = args.debug or os.environ.get("HYBRID_CALIB_DEBUG", "") not in ("", "0")
     before = warnings.formatwarning
@@ -145,6 +149,9 @@ def _run(args: argparse.Namespace, debug: bool) -> int:
             return int(args._run(args) or 0)
         with out_dir_lock(out, args.command):
             return int(args._run(args) or 0)
+    except BrokenPipeError:  # `| head -1`: the reader has gone; nothing more to say, and nowhere to say it
+        _stdout_to_devnull()
+        return 141  # 128 + SIGPIPE, as a shell reports a command a pipe ended
     except KeyboardInterrupt:
         if debug:
             raise
@@ -162,6 +169,15 @@ def _run(args: argparse.Namespace, debug: bool) -> int:
         return report_error(args.command, e)
 
 
+def _stdout_to_devnull() -> None:
+    """Point the process' standard output at /dev/null: what is still buffered for a reader that has gone (or a full
+    disk) must not fail again, as a traceback, when the interpreter flushes it at exit."""
+    try:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    except (OSError, ValueError, AttributeError):
+        pass
+
+
 def report_error(command: str, e: Exception) -> int:
     """Print one line for ``e`` (no traceback) and return the exit status (``EXIT_ERROR`` or ``EXIT_BUG``)."""
     if isinstance(e, HybridCalibError):  # one paragraph: a message quoting a library's may span lines
@@ -171,6 +187,11 @@ def report_error(command: str, e: Exception) -> int:
     if isinstance(e, OSError) and e.filename:
         print(f"hybrid-calib {command}: error: {e.strerror or e} [file {e.filename}]; check the path and its "
               "permissions", file=sys.stderr)
+        return EXIT_ERROR
+    if isinstance(e, OSError) and e.errno in (errno.ENOSPC, errno.EIO, errno.EPIPE, errno.EBADF):  # `> /dev/full`
+        _stdout_to_devnull()
+        print(f"hybrid-calib {command}: error: cannot write to its output ({e.strerror or e}): the disk or device "
+              "the output goes to is full or failing; redirect it elsewhere", file=sys.stderr)
         return EXIT_ERROR
     print(f"hybrid-calib {command}: internal error: {type(e).__name__}: {e}\n"
           f"  this looks like a bug (or an input not checked yet); rerun with --debug for the traceback and "

@@ -313,3 +313,27 @@ def test_evaluate_skips_frames_with_a_corrupt_pcd_or_image(tmp_path):
     assert [s["token"] for s in skipped] == [ds.frames[1].camera_sd["token"], ds.frames[2].camera_sd["token"]]
     assert [s["file"] for s in skipped] == [str(pcd), str(jpg)]
     assert "truncated PCD" in skipped[0]["reason"] and "corrupt pixel data" in skipped[1]["reason"]
+
+
+def test_output_streams_that_fail_are_not_bugs(tiny, tmp_path):
+    """`| head -1` and `> /dev/full` were "internal error" (exit 3), a closed stderr (`2>&-`) stopped calibrate at its
+    first progress bar (probe 27)."""
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "PYTHONPATH": os.getcwd(), "OMP_NUM_THREADS": "1"}
+    cli = [sys.executable, "-m", "hybrid_calib.cli"]
+    inspect = [*cli, "inspect", "--data", str(tiny.root), "--version", VERSION, "--no-progress"]
+    p = subprocess.run(f"{' '.join(inspect)} | head -c 1 > /dev/null; echo rc ${{PIPESTATUS[0]}} >&2", shell=True,
+                       executable="/bin/bash", env=env, capture_output=True, text=True, timeout=300)
+    assert "internal error" not in p.stderr and "Traceback" not in p.stderr, p.stderr
+    if os.path.exists("/dev/full"):
+        with open("/dev/full", "w") as full:
+            p = subprocess.run(inspect, env=env, stdout=full, stderr=subprocess.PIPE, text=True, timeout=300)
+        assert p.returncode == EXIT_ERROR and "cannot write to its output (No space left" in p.stderr, p.stderr
+    sim = [*cli, "simulate", "--vehicles", "1", "--frames", "3", "--set", "image_scale=0.125", "--workers", "1",
+           "--out", str(tmp_path / "sim")]  # progress bars on stderr
+    p = subprocess.run(sim, env=env, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, timeout=600,
+                       preexec_fn=lambda: os.close(2))
+    assert p.returncode == 0 and (tmp_path / "sim" / "v1.0-sim" / "sample.json").is_file(), p.stdout[-500:]
