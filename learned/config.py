@@ -104,8 +104,9 @@ class ModelConfig:
         if self.mca_heads < 1 or self.feat_dim % self.mca_heads:
             raise ConfigError(f"ModelConfig.mca_heads={self.mca_heads} must divide feat_dim={self.feat_dim}")
         require_ranges(self, {
-            "input_hw": "[8, 10000]", "depth_norm_m": "[0.1, 1000]", "min_depth_m": "[0, 100]",
-            "camera_height_m": "[0, 100]", "height_norm_m": "[0.1, 100]", "bev_hw": "[8, 10000]",
+            # 8 px: one feature cell, which the network's normalisation cannot train on (probe 27)
+            "input_hw": "[16, 10000]", "depth_norm_m": "[0.1, 1000]", "min_depth_m": "[0, 100]",
+            "camera_height_m": "[0, 100]", "height_norm_m": "[0.1, 100]", "bev_hw": "[16, 10000]",
             "bev_res_m": "[0.001, 10]", "bev_z_min_m": "[0, 1000]", "pseudo_bev_max_depth_m": "(0, 1000]",
             "feat_dim": "[1, 4096]", "radar_widths": "[1, 4096]", "context_widths": "[1, 4096]",
             "depth_branch_mid": "[1, 4096]", "mca_heads": "[1, 4096]", "phi_channels": "[1, 4096]",

@@ -105,6 +105,9 @@ def check_sizes_and_device(conf, owner: str) -> None:
         device = torch.device(conf.device)
     except (RuntimeError, TypeError):
         raise ValueError(f"{owner}.device={conf.device!r} is not a torch device; e.g. cpu, cuda or cuda:0") from None
+    if device.type not in ("cpu", "cuda"):  # mps, meta, xpu ...: an internal error inside torch (probe 27)
+        raise ValueError(f"{owner}.device={conf.device!r}: the network runs on cpu or cuda devices; use device=cpu "
+                         "(or cuda on a GPU machine)")
     if device.type == "cuda" and not torch.cuda.is_available():  # the CPU build of torch: an assert deep inside
         raise ValueError(f"{owner}.device={conf.device!r}: this torch has no usable CUDA device "
                          f"(torch {torch.__version__}, torch.cuda.is_available() is False); use device=cpu")

@@ -834,7 +834,10 @@ def test_calibrate_when_result_json_is_a_directory(sim, tmp_path, capsys):
                                              ("weight_decay=-1", "weight_decay must be a finite number >= 0"),
                                              ("grad_clip=NaN", "grad_clip must be a finite number >= 0"),
                                              ("max_radar_points=-5", "max_radar_points must be >= 1"),
-                                             ("device=bogus", "'bogus' is not a torch device")])
+                                             ("device=bogus", "'bogus' is not a torch device"),
+                                             # probe 27: internal errors inside torch
+                                             ("device=mps", "runs on cpu or cuda devices"),
+                                             ("model.input_hw=[8,8]", "need input_hw in [16, 10000]")])
 def test_train_bad_set_values_fail_before_training(override, needle, sim, tmp_path, capsys):
     root, _ = sim
     expect_cli_error(["train", "--data", root, "--version", SIM_VERSION, "--out", tmp_path / "t", "--no-progress",
@@ -1215,6 +1218,7 @@ def test_checkpoint_bad_ood_block(change, needle):
     ("export.sigma_scale=-1", ["sigma_scale=-1"]),
     ("batch_size=0", ["batch_size must be >= 1"]),
     ("device=bogus", ["device='bogus' is not a torch device"]),
+    ("device=meta", ["device='meta'", "runs on cpu or cuda devices"]),
     ("max_radar_points=0", ["max_radar_points must be >= 1"]),
 ])
 def test_evaluate_bad_set_values_fail_before_the_data(override, needles, tmp_path, capsys):
