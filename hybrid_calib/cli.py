@@ -184,6 +184,10 @@ def report_error(command: str, e: Exception) -> int:
         message = re.sub(r"\s*\n\s*", " ", str(e))
         print(f"hybrid-calib {command}: error: {message}", file=sys.stderr)
         return EXIT_ERROR
+    if isinstance(e, (FileExistsError, NotADirectoryError)) and e.filename:  # mkdir where a file lies (probe 27)
+        print(f"hybrid-calib {command}: error: {e.filename} (or a folder above it) is a file where a folder is "
+              f"needed ({e.strerror or e}); move the file away, or pass another path", file=sys.stderr)
+        return EXIT_ERROR
     if isinstance(e, OSError) and e.filename:
         print(f"hybrid-calib {command}: error: {e.strerror or e} [file {e.filename}]; check the path and its "
               "permissions", file=sys.stderr)

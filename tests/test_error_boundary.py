@@ -337,3 +337,19 @@ def test_output_streams_that_fail_are_not_bugs(tiny, tmp_path):
     p = subprocess.run(sim, env=env, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, timeout=600,
                        preexec_fn=lambda: os.close(2))
     assert p.returncode == 0 and (tmp_path / "sim" / "v1.0-sim" / "sample.json").is_file(), p.stdout[-500:]
+
+
+def test_a_file_where_a_folder_is_needed_is_said_so(tmp_path, capsys, monkeypatch):
+    """train with a file named `checkpoints` in its run folder read "File exists [file ...]; check the path and its
+    permissions" (probe 27)."""
+    import hybrid_calib.commands.simulate as simulate
+
+    blocker = tmp_path / "checkpoints"
+    blocker.write_text("x")
+
+    def mkdir(args):
+        (blocker / "x").mkdir(parents=True, exist_ok=True)
+
+    monkeypatch.setattr(simulate, "run", mkdir)
+    _expect_error(["simulate", "--out", tmp_path / "s"], capsys, f"{blocker / 'x'} (or a folder above it) is a file "
+                  "where a folder is needed", "move the file away")
