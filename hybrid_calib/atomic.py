@@ -5,8 +5,8 @@ POSIX; same suffix, so writers that choose the format by extension (OpenCV, ``np
 ``np.savez``, matplotlib) write the right one), and only a complete file is renamed over the target.
 A crash leaves either the old file or the new one, never a half-written one; a failed writer
 removes its temporary file. The temporary name carries the process id, so concurrent workers
-writing the same path do not share a temporary file. An ``OSError`` of the write names the target,
-never the temporary file (a target that is a directory is refused before the writer runs).
+writing the same path do not share a temporary file. An ``OSError`` of the write (a full disk too) names the
+target, never the temporary file (a target that is a directory is refused before the writer runs).
 """
 
 from __future__ import annotations
@@ -38,11 +38,14 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
             raise OSError(f"writing {path}: the writer produced no file")
         tmp.replace(path)
     except OSError as e:
-        if e.filename is None or str(e.filename) not in (str(tmp), str(path)):
+        if e.filename is not None and str(e.filename) not in (str(tmp), str(path)):
             raise  # about another path (a file the writer read, a parent folder): it names that one
+        # no filename: a write into the open temporary file (a full disk: ENOSPC, or numpy's "N requested and M
+        # written", which has no errno): about this file too (probe 27: "internal error", naming no file)
+        code = e.errno or (errno.ENOSPC if "requested and" in str(e) else errno.EIO)
         what = (_IS_A_DIRECTORY.format(path=path) if path.is_dir() else
                 f"{path} cannot be written ({e.strerror or e})")
-        raise OSError(e.errno or errno.EIO, what, str(path)) from None  # the errno's subclass
+        raise OSError(code, what, str(path)) from None  # the errno's subclass
     finally:
         if tmp.exists():
             tmp.unlink()

@@ -188,6 +188,11 @@ def report_error(command: str, e: Exception) -> int:
         print(f"hybrid-calib {command}: error: {e.filename} (or a folder above it) is a file where a folder is "
               f"needed ({e.strerror or e}); move the file away, or pass another path", file=sys.stderr)
         return EXIT_ERROR
+    if isinstance(e, OSError) and e.filename and e.errno in (errno.ENOSPC, errno.EDQUOT):
+        print(f"hybrid-calib {command}: error: no space left on the device while writing {e.filename}; free space "
+              "there or pass another output path (what was written before is kept: every file is replaced whole or "
+              "not at all, and a rerun resumes)", file=sys.stderr)
+        return EXIT_ERROR
     if isinstance(e, OSError) and e.filename:
         print(f"hybrid-calib {command}: error: {e.strerror or e} [file {e.filename}]; check the path and its "
               "permissions", file=sys.stderr)

@@ -120,3 +120,24 @@ def test_a_lock_path_that_is_not_a_file_is_named_and_never_followed(kind, tmp_pa
         with out_dir_lock(out, "calibrate"):
             pass
     assert precious.read_text() == "precious"
+
+
+@pytest.mark.parametrize("failure", [OSError(28, "No space left on device"),
+                                     OSError("19200 requested and 13280 written")])
+def test_a_full_disk_names_the_file_and_is_not_a_bug(failure, tmp_path, capsys):
+    """A write into the open temporary file on a full disk (no file name on the error; numpy's short write has no
+    errno either) was "internal error ... looks like a bug" in every writing command (probe 27)."""
+    import errno
+
+    from hybrid_calib.cli import EXIT_ERROR, report_error
+
+    p = tmp_path / "depth.npy"
+    write_bytes_atomic(p, b"old")
+    with pytest.raises(OSError) as e, atomic_path(p) as tmp:
+        tmp.write_bytes(b"half")
+        raise failure
+    assert e.value.errno == errno.ENOSPC and e.value.filename == str(p)
+    assert p.read_bytes() == b"old" and sorted(x.name for x in tmp_path.iterdir()) == ["depth.npy"]
+    assert report_error("calibrate", e.value) == EXIT_ERROR
+    err = capsys.readouterr().err
+    assert f"no space left on the device while writing {p}" in err and "what was written before is kept" in err
