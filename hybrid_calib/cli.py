@@ -200,7 +200,8 @@ def report_error(command: str, e: Exception) -> int:
     if isinstance(e, OSError) and e.errno in (errno.ENOSPC, errno.EIO, errno.EPIPE, errno.EBADF):  # `> /dev/full`
         _stdout_to_devnull()
         print(f"hybrid-calib {command}: error: cannot write to its output ({e.strerror or e}): the disk or device "
-              "the output goes to is full or failing; redirect it elsewhere", file=sys.stderr)
+              "its files or its standard output go to is full or failing; free space there, or write elsewhere",
+              file=sys.stderr)
         return EXIT_ERROR
     print(f"hybrid-calib {command}: internal error: {type(e).__name__}: {e}\n"
           f"  this looks like a bug (or an input not checked yet); rerun with --debug for the traceback and "
