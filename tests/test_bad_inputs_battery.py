@@ -185,6 +185,9 @@ RADAR_FRAME_CASES = {
     "pcd-byte-swapped": lambda r, f: (_byte_swapped(_radar_file(r, f)), ["byte-swapped", _radar_file(r, f)])[1],
     "ego-pose-non-unit-quaternion": lambda r, f: ["norm 2", _ego_pose(r, f, "rotation", [2.0, 0.0, 0.0, 0.0])],
     "ego-pose-nan": lambda r, f: ["non-finite", _ego_pose(r, f, "translation", [float("nan"), 0.0, 0.0])],
+    # a pose 2.5 s away (another instant's) moved the radar's Doppler yaw by 3 deg without a word (probe 27)
+    "ego-pose-of-another-instant": lambda r, f: ["+2.500 s from the record's own time", f.radar_sd["token"],
+                                                 _ego_pose(r, f, "timestamp", f.radar_sd["timestamp"] + 2_500_000)],
     "ego-pose-token-missing": lambda r, f: ["nosuchpose", "does not resolve", f.radar_sd["token"],
                                             _sd_token(r, f, "ego_pose_token", "nosuchpose").with_name("ego_pose.json")],
 }

@@ -293,9 +293,20 @@ class NuScenesTables:
         return _pose(cs, self.path("calibrated_sensor"), MAX_MOUNT_TRANSLATION_M, "a sensor mount")
 
     def T_global_ego(self, sd: dict) -> np.ndarray:
-        """(4, 4) ego -> global at a sample_data record's timestamp (its ego_pose)."""
+        """(4, 4) ego -> global at a sample_data record's timestamp (its ego_pose). ``DataError`` naming both
+        tokens when the ego pose's own timestamp is more than ``MAX_EGO_POSE_OFFSET_US`` from the record's (nuScenes
+        writes them equal: a pose seconds away moved the radar's yaw from its Doppler by 3 deg, silently; probe
+        27)."""
         ep = self.get("ego_pose", sd["ego_pose_token"], f"sample_data {sd['token']}")
-        return _pose(ep, self.path("ego_pose"), MAX_EGO_TRANSLATION_M, "an ego pose")
+        T = _pose(ep, self.path("ego_pose"), MAX_EGO_TRANSLATION_M, "an ego pose")
+        a, b = ep.get("timestamp"), sd.get("timestamp")
+        if _is_number(a) and _is_number(b) and abs(a - b) > MAX_EGO_POSE_OFFSET_US:
+            raise DataError(f"the ego pose of sample_data {sd['token']} is at {a} us, {(a - b) / 1e6:+.3f} s from the "
+                            f"record's own time {b} us (nuScenes writes them equal; at most "
+                            f"{MAX_EGO_POSE_OFFSET_US / 1e3:g} ms): the record's ego_pose_token names another "
+                            "instant's pose; fix the record or re-extract the tables", path=str(self.path("ego_pose")),
+                            token=ep.get("token"))
+        return T
 
     def camera_intrinsic(self, sd: dict, size: tuple[int, int] | None = None) -> np.ndarray:
         """(3, 3) float64 camera matrix of a camera sample_data record. ``DataError`` naming calibrated_sensor.json,
@@ -364,9 +375,17 @@ def _index_by_token(records: list[dict], path: Path) -> dict[str, dict]:
 
 QUAT_NORM_TOL = 1e-3  # |norm(q) - 1| up to this is rounding in the file: renormalised; beyond it the record is rejected
 # plausibility bounds of a translation, metres: a sensor mount (calibrated_sensor) sits on the vehicle, and nuScenes
+# an ego pose's timestamp against its sample_data record's: equal in nuScenes; 25 ms (half a LiDAR sweep) moves a
+# vehicle at 30 m/s by 0.75 m, beyond which the pose belongs to another instant
+MAX_EGO_POSE_OFFSET_US = 25_000
 # map coordinates (ego_pose) reach a few km; beyond these the record is corrupt (1e30 m overflowed the solvers)
 MAX_MOUNT_TRANSLATION_M = 50.0
 MAX_EGO_TRANSLATION_M = 1e7
+
+
+def _is_number(x) -> bool:
+    """A finite JSON number (int or float; not bool)."""
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
 
 
 def _is_number_list(value) -> bool:
