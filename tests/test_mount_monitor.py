@@ -40,6 +40,25 @@ def test_noise_and_isolated_gross_errors_raise_no_alarm():
     assert len(_feed(y).steps) <= 1  # Gaussian noise: ~0 alarms in 3000 pairs with the default test
 
 
+# the keyframe readings of the real scene-0916 (hybrid, R1 seed 0: positions, deg), recorded by probe 26
+REAL_POSITIONS = [5, 6, 7, 8, 9, 10, 11, 12, 13, 20, 21, 22, 23, 24, 25, 26, 27, 28, 29, 30, 31, 32, 33, 34, 35]
+REAL_READINGS = [-1.1149, -1.0232, -0.1297, -0.2335, -0.4061, -0.3158, -0.3601, -1.3464, -0.7079, -1.169, -0.8607,
+                 -0.6512, -0.9267, -0.276, -0.4467, -0.9444, -0.9445, -0.7435, -1.1077, -0.6394, -0.9307, -1.0233,
+                 -1.3071, -1.1923, -1.2454]
+
+
+@pytest.mark.parametrize("k", range(len(REAL_READINGS)))
+@pytest.mark.parametrize("nudge", [-0.01, 0.01])
+def test_a_hundredth_of_a_degree_does_not_decide_a_step(k, nudge):
+    """On the real scene a 0.005 deg change of one reading turned "no step" into "the radar turned 0.58 deg to the
+    right" (a CUSUM that had barely left zero held the level while the Doppler wandered; probe 26). No reading
+    nudged by 0.01 deg raises an alarm on these readings of a radar that did not move."""
+    mon = MountMonitor(frames=None, T_ego_radar=np.eye(4))
+    for j, (pos, y) in enumerate(zip(REAL_POSITIONS, REAL_READINGS)):
+        mon.add_residual(pos, y + (nudge if j == k else 0.0))
+    assert mon.steps == [], mon.steps
+
+
 def test_the_test_restarts_after_an_alarm_one_step_one_alarm():
     g = np.random.default_rng(6)
     mon = _feed(np.r_[g.normal(0.0, 0.15, 30), g.normal(1.0, 0.15, 60)])

@@ -23,7 +23,11 @@ scene by about as much as a knock (measured, docs/benchmarks.md "The mount monit
 The test (``MountMonitor``). The level is the median of the last ``level_pairs`` values of ``y``
 since the last change (at least ``min_frames``) before a CUSUM's current excursion, so a step does
 not pull it along while the slow wander of the Doppler's bias (a few tenths of a degree over tens of
-frames, with the scene) is followed. The noise scale is the larger of those values' median absolute
+frames, with the scene) is followed. Only an excursion of ``freeze_at`` noise sigmas or more holds the
+level: one that has barely left zero did so by chance, and holding the level there made the wander that
+followed an alarm (probe 26: on the real scene-0916 a 0.005 deg change of one reading decided between "no
+step" and "turned 0.58 deg"; replayed, 25 of 37 real series flipped under a 0.01 deg change, 0 with
+``freeze_at`` 1, while the alarms of 101 simulated series, 10 of them with steps or drifts, were unchanged). The noise scale is the larger of those values' median absolute
 deviation and their successive differences' (over sqrt 2), at least ``floor_deg / sqrt(n)`` for readings of
 ``n`` pairs (the level's median; ``floor_deg`` is one pair's floor) and at least ``wander_deg`` (the Doppler's
 slow wander with the scene, which more pairs do not average down). The standardised
@@ -72,6 +76,7 @@ class MountMonitorConfig:
     drift: float = 1.0  # CUSUM allowance per pair, in noise sigmas (half the smallest step sought: 2 sigma)
     threshold: float = 8.0  # CUSUM alarm level, in noise sigmas
     clip: float = 3.0  # standardised deviations are clipped to +-this (heavy tails)
+    freeze_at: float = 1.0  # a CUSUM excursion holds the level only from this size on, in noise sigmas (module doc)
     level_pairs: int = 20  # the level: the median of at most this many readings (it follows the Doppler's slow wander)
     min_frames: int = 8  # readings of a level before the test runs (after the start and after each change)
     sweeps: bool = True  # pair the non-keyframe sweeps too, where the root has them (calib.ego_doppler)
@@ -95,6 +100,7 @@ class MountMonitorConfig:
         require_ranges(self, {"min_speed_mps": "[0, 100]", "max_gap_s": "(0, 3600]", "max_turn_dps": "(0, 360]",
                               "floor_deg": "(0, 90]", "wander_deg": "[0, 90]", "drift": "[0, 100]",
                               "threshold": "(0, 1e6]", "clip": "(0, 1000]", "level_pairs": "[3, 1e9]",
+                              "freeze_at": "[0, 1e6]",
                               "min_frames": "[3, 1e9]", "max_level_deg": "(0, 180]"})
 
 
@@ -218,7 +224,8 @@ class MountMonitor:
             self.pairs.append(pairs)
             return MountReading(position, y, pairs=pairs)
         # the level rests on the pairs before a CUSUM's current excursion (a step must not pull it along)
-        ends = [f for f, v in ((self._pos_from, self._pos), (self._neg_from, self._neg)) if v > 0 and f is not None]
+        ends = [f for f, v in ((self._pos_from, self._pos), (self._neg_from, self._neg))
+                if v >= c.freeze_at and f is not None]
         end = max(min(ends, default=len(self.series)), self._start + c.min_frames)
         lo = max(self._start, end - c.level_pairs)
         level = np.array([v for _, v in self.series[lo:end]])
