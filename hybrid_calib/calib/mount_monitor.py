@@ -29,8 +29,9 @@ followed an alarm (probe 26: on the real scene-0916 a 0.005 deg change of one re
 step" and "turned 0.58 deg"; replayed, 25 of 37 real series flipped under a 0.01 deg change, 0 with
 ``freeze_at`` 1, while the alarms of 101 simulated series, 10 of them with steps or drifts, were unchanged).
 The noise scale is the larger of those values' median absolute deviation and their successive differences'
-(over sqrt 2), at least ``floor_deg / sqrt(n)`` for readings of ``n`` pairs (the level's median; ``floor_deg`` is one pair's floor) and at least ``wander_deg`` (the Doppler's
-slow wander with the scene, which more pairs do not average down). The standardised
+(over sqrt 2), at least ``floor_deg / sqrt(n)`` for readings of ``n`` pairs (the level's median; ``floor_deg``
+is one pair's floor) and at least ``wander_deg`` (the Doppler's slow wander with the scene, which more pairs do not
+average down). The standardised
 deviations ``z``, clipped to ``+-clip`` (one failed Doppler fit adds at most ``clip - drift``), feed
 a two-sided CUSUM with allowance ``drift``; above ``threshold`` it alarms. The change point is the
 split of the level's pairs with the largest two-sample mean difference (``change_point``), the step
