@@ -335,6 +335,16 @@ def test_the_estimate_s_yaw_is_checked_against_the_radar_s_own_and_widened_where
     near = [_frame(0, "f", 0, reported_estimate(se3_inverse(T_ec) @ T_er, cov, conf), 1, 1.0)]
     kept, rec = with_yaw_check(near, drive, conf, mon)
     assert kept == near and not rec["disagree"]
+    # the LiDAR's lateral offset was folded in at the estimate's yaw (6.5 m/rad): the widening carries it along, so
+    # the lateral 1-sigma covers the offset the other yaw implies (probe 26: 5.5 cm beside a 22.7 cm error, exported)
+    lidar = {"applied": True, "coupling_m_per_rad": [0.0, 0.0, 6.5], "forward_applied": False,
+             "coupling_x_m_per_rad": [0.0, 0.0, 30.0]}
+    out2, rec2 = with_yaw_check(traj, drive, conf, mon, lidar)
+    shift = 6.5 * float(np.asarray(rec2["direction"])[:3] @ [0.0, 0.0, 1.0]) * np.radians(rec2["difference_deg"])
+    assert np.sqrt(out2[-1].cov[4, 4]) >= abs(shift) > 0.05  # m
+    assert np.sqrt(out2[-1].cov[3, 3]) < 0.011  # the forward offset was not folded: not widened
+    assert "with the offsets the LiDAR measured at that yaw" in out2[-1].estimate.status
+    assert np.isclose(np.degrees(np.sqrt(u @ out2[-1].cov @ u)), std_after)  # the yaw as without the LiDAR
 
 
 def test_a_negative_half_degree_step_is_found_too():

@@ -222,8 +222,8 @@ def with_doppler(traj: list[FrameEstimate], drive: Drive, frames, conf: HybridCo
     return _fold_last(traj, conf, a, why, (wrong or refusal(a, conf.doppler)) if a else "", apply_forward)
 
 
-def with_yaw_check(traj: list[FrameEstimate], drive: Drive, conf: HybridConfig, mon: MountMonitor | None
-                   ) -> tuple[list[FrameEstimate], dict | None]:
+def with_yaw_check(traj: list[FrameEstimate], drive: Drive, conf: HybridConfig, mon: MountMonitor | None,
+                   lidar: dict | None = None) -> tuple[list[FrameEstimate], dict | None]:
     """The trajectory with its last estimate's yaw checked against the radar's own yaw on the vehicle (the mount
     monitor's level: ``calib.mount_monitor.yaw_agreement``), and the check's record (None: no monitor, or no one
     level to compare with). Where the two disagree (both put the radar off its tables' yaw, by amounts more than 3
@@ -231,7 +231,10 @@ def with_yaw_check(traj: list[FrameEstimate], drive: Drive, conf: HybridConfig, 
     estimate's variance about the ego z axis grows by the squared difference, so its 1-sigma covers the other
     measurement too, and its status says so. Measured on nuScenes scene-0916 (probe 9): the loop on its in-domain
     frames put the radar's yaw 1.97 +- 0.16 deg off the tables, its Doppler 0.93 +- 0.10; without the check the
-    verdict read "recalibrate" by 1.97 deg (and 1.11 +- 0.34 from another start)."""
+    verdict read "recalibrate" by 1.97 deg (and 1.11 +- 0.34 from another start). The offsets the LiDAR measured at
+    the estimate's yaw (``lidar``: the result's block, when applied) move with that yaw by their coupling, so the
+    widening carries them along (``yaw_widening``; probe 26: the lateral 1-sigma stayed 5.5 cm beside a yaw widened
+    by 1.2 deg, with the lateral offset 22.7 cm off at 6.5 m/rad, and export wrote it)."""
     if traj and not conf.mount.enabled:  # said: export writes no yaw the Doppler did not check (calib.export)
         return [*traj[:-1], _noted(traj[-1], "its yaw is the network's and the window's, unchecked by the radar's own "
                                              "Doppler: the mount monitor is off, mount.enabled=false")], None
@@ -250,9 +253,27 @@ def with_yaw_check(traj: list[FrameEstimate], drive: Drive, conf: HybridConfig, 
              f"{check['estimate_std_deg']:.2f} deg from its tables' yaw on the vehicle, the radar's Doppler against "
              f"the ego poses {check['doppler_deg']:+.2f} +- {check['doppler_std_deg']:.2f} deg "
              f"({check['sigmas']:.1f} sigma apart): the estimate, or the camera's mount in the tables (which the "
-             "comparison takes as exact), is wrong; the yaw's 1-sigma is widened to cover both")
-    widened = _noted(last, words, np.asarray(check["direction"]), np.radians(check["difference_deg"]))
-    return [*traj[:-1], widened], {**check, "widened": True, "words": words}
+             "comparison takes as exact), is wrong; the yaw's 1-sigma is widened to cover both"
+             + (", with the offsets the LiDAR measured at that yaw" if lidar and lidar.get("applied") else ""))
+    u, d = yaw_widening(np.asarray(check["direction"], np.float64), np.radians(check["difference_deg"]), lidar)
+    return [*traj[:-1], _noted(last, words, u, d)], {**check, "widened": True, "words": words}
+
+
+def yaw_widening(u: np.ndarray, d: float, lidar: dict | None) -> tuple[np.ndarray, float]:
+    """(unit direction (6,), length) of the yaw check's widening: the yaw direction ``u`` (unit tangent) by ``d``
+    rad, and, where the LiDAR's offsets were folded in (``lidar["applied"]``, ``forward_applied``), the lateral
+    (forward) offset they then imply, ``coupling @ u[:3]`` per radian (``calib.lidar_alignment``: the fold measured
+    ``xi[4] - coupling @ xi[:3]``, so a yaw that is off by ``d`` leaves the folded offset off by that much)."""
+    from hybrid_calib.calib.lidar_alignment import RADAR_X, RADAR_Y
+
+    v = np.asarray(u, np.float64).copy()
+    for axis, key, on in ((RADAR_Y, "coupling_m_per_rad", "applied"), (RADAR_X, "coupling_x_m_per_rad",
+                                                                      "forward_applied")):
+        c = (lidar or {}).get(key)
+        if (lidar or {}).get(on) and isinstance(c, list) and len(c) == 3 and np.all(np.isfinite(c)):
+            v[axis] += float(np.asarray(c, np.float64) @ u[:3])
+    n = float(np.linalg.norm(v))
+    return v / n, d * n
 
 
 def motion_bias_cov(C: np.ndarray, g: np.ndarray, motion_std_rad: float) -> np.ndarray:

@@ -485,7 +485,7 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
         traj, doppler = with_doppler(traj, drive, frames, conf, mon, motion)
     yaw_check = None
     if conf.method == "hybrid":
-        traj, yaw_check = with_yaw_check(traj, drive, conf, mon)
+        traj, yaw_check = with_yaw_check(traj, drive, conf, mon, lidar)
         traj = with_road_words(traj, tr.geometry, conf)
     traj = with_ood_off_words(with_prior_words(traj), conf.ood.enabled)
     res = VehicleResult(drive.vehicle, traj[-1].estimate, traj, skipped=drive.index_skips + tr.skipped,
