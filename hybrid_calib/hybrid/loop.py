@@ -283,7 +283,8 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
     in_window, pending = [], None  # drive positions of the window's frames; a mount step not yet applied
     D = np.diag(np.asarray(mconf.drive_std, np.float64) ** 2)  # the network's drive-common error
     inflate = (n_priors or len(drive.indices)) * D
-    s_mot = np.radians(conf.motion.drive_std_deg)
+    s_mot = np.radians(conf.motion.drive_std_deg if drive.simulated else
+                       max(conf.motion.drive_std_deg, conf.motion.real_drive_std_deg))
     motion_gate = MotionGate(conf.motion)
     for k, i in enumerate(tqdm(drive.indices, desc=f"hybrid {drive.vehicle}", disable=not conf.progress,
                                leave=False)):
