@@ -180,10 +180,10 @@ def parse_overrides(items: list[str] | None) -> dict[str, Any]:
             value = json.loads(raw)
         except json.JSONDecodeError:
             value = raw
-        except ValueError as e:  # an integer of thousands of digits (Python's conversion limit; probe 27)
+        except (ValueError, RecursionError) as e:  # thousands of digits, or of nested brackets (probe 27)
             shown = item if len(item) <= 60 else item[:40] + f"...({len(item)} characters)"
-            raise ConfigError(f"--set {shown!r}: its value does not read as a number ({e}); give a value inside the "
-                              "option's interval") from None
+            why = "is nested too deeply" if isinstance(e, RecursionError) else f"does not read as a number ({e})"
+            raise ConfigError(f"--set {shown!r}: its value {why}; give a value inside the option's interval") from None
         # the same option twice (last one won, silently), or an option and a key inside it (an internal error)
         clash = next((k for k in given if k == key or k.startswith(key + ".") or key.startswith(k + ".")), None)
         if clash is not None and not (clash == key and given[clash] == item):

@@ -108,6 +108,8 @@ def test_an_option_set_twice_is_refused():
     # an integer past Python's conversion limit was an internal error (probe 27)
     with pytest.raises(ConfigError, match=r"window.window=9+\.\.\.\(5014 characters\)'.*does not read as a number"):
         parse_overrides(["window.window=" + "9" * 5000])
+    with pytest.raises(ConfigError, match="is nested too deeply"):
+        parse_overrides(["mode=" + "[" * 5000 + "]" * 5000])
 
 
 def test_train_on_a_real_root_defaults_to_the_depth_calibrate_uses(tmp_path, capsys):
