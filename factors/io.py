@@ -117,6 +117,9 @@ def _bad(source: str, msg: str) -> DataError:
                      "factors.io.save_measurements (or re-run the export)", path=source or None)
 
 
+MAX_ROWS = 100_000  # correspondence rows of one frame file
+
+
 def _array(d: Mapping, key: str, shape: tuple, source: str) -> np.ndarray:
     """``d[key]`` as float64 with ``shape`` (-1 = any length), finite."""
     a = np.asarray(d[key])
@@ -154,14 +157,19 @@ def from_arrays(d: Mapping, source: str = "") -> FrameMeasurements:
         raise _bad(source, f"missing key(s) {missing}")
     pts = _array(d, "points_radar", (-1, 3), source)
     n = len(pts)
+    if n > MAX_ROWS:  # a radar sweep has 50-125 detections: such a file stalled the run (probe 27: 2 million rows)
+        raise _bad(source, f"{n} rows, more than a frame holds (at most {MAX_ROWS})")
     rows = {"points_radar": pts}
     for key, shape in (("pixels", (n, 2)), ("sigma_px", (n,)), ("confidence", (n,))):
         rows[key] = _array(d, key, shape, source)
     if np.any(rows["sigma_px"] <= 0):
         raise _bad(source, "key 'sigma_px' has values <= 0")
+    K = _array(d, "K", (3, 3), source)
+    if not (K[0, 0] > 0 and K[1, 1] > 0 and np.allclose(K[2], [0.0, 0.0, 1.0])):  # a zero K passed (probe 27)
+        raise _bad(source, "key 'K' is not a camera intrinsic matrix (focal lengths > 0, last row [0, 0, 1])")
     try:
         corr = Correspondences(rows["points_radar"], rows["pixels"], rows["sigma_px"], rows["confidence"],
-                               _array(d, "K", (3, 3), source), str(d["frame_id"]), int(d["timestamp_us"]))
+                               K, str(d["frame_id"]), int(d["timestamp_us"]))
     except ValueError as e:
         raise _bad(source, str(e)) from None
     network = None
@@ -224,10 +232,16 @@ def load_measurement_dir(directory: str | Path, skipped: list | None = None) -> 
     timestamp, then frame id. A bad file raises its ``DataError``, or, when ``skipped`` is a list, is
     appended to it as ``(sub-directory name, path, DataError)`` and left out."""
     out: dict[str, list[FrameMeasurements]] = {}
+    seen: dict[tuple, Path] = {}  # (vehicle, frame id) -> its first file: a copy would be fused twice (probe 27)
     for sub, files in measurement_files(directory).items():
         for f in files:
             try:
                 m = load_measurements(f)
+                if (key := (m.vehicle or sub, m.frame_id)) in seen:
+                    raise DataError(f"frame {m.frame_id!r} of vehicle {key[0]!r} is also in {seen[key]}: one frame's "
+                                    "rows fused twice would count its information twice; used once, remove the copy",
+                                    path=str(f))
+                seen[key] = f
             except DataError as e:
                 if skipped is None:
                     raise

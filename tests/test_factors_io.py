@@ -66,6 +66,10 @@ def test_round_trip_with_and_without_the_network_block(tmp_path):
     (lambda d: d.update(cov=np.triu(np.ones((6, 6)))), "'cov' is not symmetric"),
     (lambda d: d.pop("T_cam_radar"), "without 'T_cam_radar'"),
     (lambda d: d.update(T_start=np.ones((4, 4))), "'T_start' is not a rigid transform"),
+    # probe 27: a zero K passed, a file of 2 million rows stalled the run
+    (lambda d: d.update(K=np.zeros((3, 3))), "'K' is not a camera intrinsic matrix"),
+    (lambda d: d.update(**{k: np.repeat(d[k], 20_000, axis=0) for k in ("points_radar", "pixels", "sigma_px",
+                                                                          "confidence")}), "140000 rows, more than"),
 ])
 def test_bad_file_names_file_and_key(tmp_path, change, message):
     d = to_arrays(_frame(0))
@@ -97,3 +101,20 @@ def test_directory_layouts_group_by_vehicle(tmp_path):
     assert {k: len(v) for k, v in load_measurement_dir(tmp_path / "V").items()} == {"x": 2, "y": 1}
     save_measurements(tmp_path / "F" / "0.npz", _frame(0, vehicle=""))
     assert list(load_measurement_dir(tmp_path / "F")) == [""]
+
+
+def test_a_frame_file_copied_under_another_name_is_used_once(tmp_path):
+    """A copy of one frame file was fused twice (7 frames of a 6-frame vehicle: its information counted twice;
+    probe 27): the copy is skipped, named, and the frame used once."""
+    import shutil
+
+    for i in range(3):
+        save_measurements(tmp_path / "E" / "frames" / f"{i}.npz", _frame(i, ts=10 * (i + 1)))
+    shutil.copy(tmp_path / "E" / "frames" / "1.npz", tmp_path / "E" / "frames" / "1-copy.npz")
+    skipped = []
+    groups = load_measurement_dir(tmp_path / "E", skipped)
+    assert [m.frame_id for m in groups["veh-a"]] == ["tok-0", "tok-1", "tok-2"]
+    (_, path, e), = skipped
+    assert path.name == "1.npz" and "is also in" in str(e) and "1-copy.npz" in str(e)
+    with pytest.raises(DataError, match="used once, remove the copy"):
+        load_measurement_dir(tmp_path / "E")
