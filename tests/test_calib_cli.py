@@ -184,3 +184,24 @@ def test_the_terminal_says_the_windows_step_alarms(capsys, tmp_path):
     assert "rot x/y/z (pitch/yaw/roll) 0.050/0.050/0.050 deg, t x/y/z 0.05/0.05/0.05 cm" in out
     _report(SimpleNamespace(vehicles={"v": _vr((0,) * 6, (0.05,) * 6)}, vehicles_failed={}), tmp_path)
     assert "step alarm" not in capsys.readouterr().out
+
+
+def test_files_of_a_vehicle_the_root_does_not_have_are_left_out_and_the_others_calibrated(sim_root, tmp_path):
+    """One file naming a vehicle the root does not have ("ghost-veh") stopped the whole run (probe 27)."""
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+
+    ds = NuScenesRadarCamera(sim_root, "v1.0-sim", conf={"check_images": False})
+    vehicle, idx = next(iter(ds.frames_by_vehicle().items()))
+    frames, _ = synthetic_drive(ds[idx[0]].extras["T_cam_radar_static"], 3, rng(0))
+    d = tmp_path / "corr"
+    for name in (vehicle, "ghost-veh"):
+        (d / name).mkdir(parents=True)
+        for k, c in enumerate(frames):
+            c = dataclasses.replace(c, frame_id=ds.frames[idx[k % len(idx)]].camera_sd["token"])
+            np.savez(d / name / f"{k:03d}.npz", **c.to_npz_dict())
+    out = tmp_path / "run"
+    assert calibrate.run(_args("--data", str(sim_root), "--correspondences", str(d), "--mode", "batch",
+                               "--out", str(out), "--no-plots")) in (0, 1)
+    doc = json.loads((out / "result.json").read_text())
+    assert list(doc["vehicles"]) == [vehicle]
+    assert "no reference extrinsic for vehicle 'ghost-veh'" in doc["vehicles_failed"]["ghost-veh"]

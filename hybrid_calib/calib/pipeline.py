@@ -157,9 +157,12 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
         ms = ms[: conf.max_frames] if conf.max_frames > 0 else ms
         ref = refs.get(vehicle)
         if ref is None:
-            raise DataError(f"no reference extrinsic for vehicle {vehicle!r} of the measurement files: pass "
-                            f"--data/--version of the dataset they come from (vehicles there: {sorted(refs)})",
-                            path=str(directory))
+            why = (f"no reference extrinsic for vehicle {vehicle!r} of the measurement files: pass --data/--version "
+                   f"of the dataset they come from (vehicles there: {sorted(refs)})")
+            if absent is None or not refs or len(groups) == 1:
+                raise DataError(why, path=str(directory))
+            absent[vehicle] = f"{why}; its {len(ms)} file(s) in {directory} left out"  # the others go on (probe 27)
+            continue
         truth = truths.get(vehicle)
         mine = [m for m in ms if not tokens or str(m.frame_id) in tokens]
         out[vehicle] = VehicleInput(vehicle, [m.corr for m in mine], ref,
@@ -395,6 +398,9 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
         asked = "" if conf.vehicles is None else f" among the vehicles asked for (--set vehicles={list(conf.vehicles)})"
         raise DataError(f"no vehicle to calibrate{asked}: check the vehicle names (hybrid-calib inspect lists them) "
                         "and that the root's frames read", path=str(data))
+    # files of a vehicle the root does not have (another root's, a renamed one): failed, the others calibrated
+    foreign = {v: why for v, why in absent.items() if why.startswith("no reference extrinsic")}
+    absent = {v: why for v, why in absent.items() if v not in foreign}
     if absent:  # said, not failed: an export of one split covers the vehicles of that split only
         import sys
 
@@ -403,6 +409,7 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
               "other vehicles or frames; export them too (hybrid-calib evaluate --split all) to calibrate them",
               file=sys.stderr)
     run = CalibrationRun(str(Path(data).resolve()), version, str(correspondences), conf.mode)  # read from anywhere
+    run.vehicles_failed.update(foreign)
     # the vehicles an interrupted run finished (each vehicle's start and oracle rows are seeded by its name:
     # skipping them leaves the others' draws as they were)
     stamp = {**to_dict(conf), "priors": {k: [np.asarray(p.T).tolist(), np.asarray(p.cov).tolist()]
