@@ -460,3 +460,18 @@ def test_a_missing_version_folder_says_what_to_pass(tmp_path):
     (tmp_path / "v1.0-mini" / "sample.json").write_text("[]")
     with pytest.raises(DataError, match=r"versions found there: \['v1.0-mini'\]; pass one of them with --version"):
         version_dir(tmp_path, "v1.0-trainval")
+
+
+def test_a_table_that_is_a_folder_or_a_fifo_is_said_so(tmp_path):
+    """A FIFO log.json, a folder named sensor.json were "table ... is missing; re-extract" (probe 27)."""
+    import os
+
+    from hybrid_calib.data.tables import load_table
+    from hybrid_calib.errors import DataError
+
+    (tmp_path / "sensor.json").mkdir()
+    with pytest.raises(DataError, match="table 'sensor' is a directory, not a regular file"):
+        load_table(tmp_path, "sensor")
+    os.mkfifo(tmp_path / "log.json")
+    with pytest.raises(DataError, match=r"table 'log' is a named pipe \(FIFO\)"):
+        load_table(tmp_path, "log")

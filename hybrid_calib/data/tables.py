@@ -99,6 +99,10 @@ def load_table(vdir: Path, name: str, required_fields: Iterable[str] = ("token",
     record lacks a required field.
     """
     path = Path(vdir) / f"{name}.json"
+    if path.exists() and not path.is_file():  # a FIFO, a device, a folder: said as what it is (probe 27)
+        from hybrid_calib.data.files import check_regular_file
+
+        check_regular_file(path, f"table {name!r}")
     if not path.is_file():
         raise DataError(f"table {name!r} is missing; a nuScenes version folder needs the tables "
                         f"{sorted(REQUIRED_TABLES)}; re-extract the dataset's metadata archive", path=str(path))
