@@ -103,6 +103,30 @@ def set_paths(args: argparse.Namespace) -> list[tuple[str, str]]:
     return found
 
 
+REPEATABLE = {"--set", "--refine", "--vehicle"}  # options that gather every value given (argparse extend / append)
+PATH_OPTIONS = {"--out", "--data"}  # an empty one read as the current folder
+
+
+def _repeated_or_empty(argv: list[str]) -> str:
+    """Why the command line cannot mean what it says ("" when it can): an option given twice keeps only its last
+    value in argparse (``simulate --out a --out b`` wrote b alone; ``--data A --data B`` read B), and an empty path
+    reads as the current folder ("--out '': . is not empty"; probe 27)."""
+    seen: set[str] = set()
+    for k, token in enumerate(argv):
+        if token == "--":
+            break
+        if not token.startswith("--") or len(token) < 3:
+            continue
+        name, eq, value = token.partition("=")
+        if name in seen and name not in REPEATABLE:
+            return (f"{name} is given twice; give it once (argparse would keep only the last value"
+                    + ("; several roots go after one --data" if name == "--data" else "") + ")")
+        seen.add(name)
+        if name in PATH_OPTIONS and (value if eq else (argv[k + 1] if k + 1 < len(argv) else None)) == "":
+            return f"{name} is empty; pass a path"
+    return ""
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="hybrid-calib", description="Target-free radar-camera extrinsic calibration.")
@@ -121,6 +145,9 @@ def main(argv: list[str] | None = None) -> int:
         if getattr(sys, name) is None:
             setattr(sys, name, open(os.devnull, "w"))  # noqa: SIM115 (the process' stream, open to its end)
     args = build_parser().parse_args(argv)
+    if problem := _repeated_or_empty(sys.argv[1:] if argv is None else [str(a) for a in argv]):
+        print(f"hybrid-calib {args.command}: error: {problem}", file=sys.stderr)
+        return EXIT_ERROR
     debug = args.debug or os.environ.get("HYBRID_CALIB_DEBUG", "") not in ("", "0")
     before = warnings.formatwarning
     if not debug:  # a warning is one line, as every other message: not our source file and line after it

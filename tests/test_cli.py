@@ -123,3 +123,18 @@ def test_train_on_a_real_root_defaults_to_the_depth_calibrate_uses(tmp_path, cap
     assert "is a real root: training on lidar-densified depth" in capsys.readouterr().err
     (tiny.root / VERSION / "sim_vehicle.json").write_text("[]")  # the simulator's mark: its own depth truth
     assert _real_root_depth([tiny.root], VERSION) == ""
+
+
+def test_an_option_given_twice_or_an_empty_path_is_refused(tmp_path, capsys):
+    """`simulate --out a --out b` wrote b alone, `--scenario highway --scenario rain` ran rain, `--out ''` read as the
+    current folder (probe 27)."""
+    from hybrid_calib.cli import EXIT_ERROR, main
+
+    assert main(["simulate", "--out", str(tmp_path / "a"), "--out", str(tmp_path / "b")]) == EXIT_ERROR
+    assert "--out is given twice; give it once" in capsys.readouterr().err
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+    assert main(["simulate", "--scenario=highway", "--scenario", "rain", "--out", str(tmp_path / "c")]) == EXIT_ERROR
+    assert "--scenario is given twice" in capsys.readouterr().err
+    assert main(["simulate", "--out", ""]) == EXIT_ERROR and "--out is empty; pass a path" in capsys.readouterr().err
+    assert main(["inspect", "--data", str(tmp_path), "--data", str(tmp_path), "--version", "v"]) == EXIT_ERROR
+    assert "several roots go after one --data" in capsys.readouterr().err
