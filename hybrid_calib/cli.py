@@ -1,8 +1,9 @@
 """``hybrid-calib``: one command with subcommands, a thin layer over typed functions.
 
 The error boundary is here, in one place: ``main`` turns every expected failure (a
-``HybridCalibError``: bad data, a bad option, a bad checkpoint; or an ``OSError`` naming a file) into
-one line ``hybrid-calib COMMAND: error: ...`` on stderr and exit status 2. Anything else is a bug:
+``HybridCalibError``: bad data, a bad option, a bad checkpoint; an ``OSError`` naming a file; a full or failing
+output; an option given twice) into one line ``hybrid-calib COMMAND: error: ...`` on stderr and exit status 2 (a
+reader that has gone, ``| head``: quietly, 141; Ctrl-C: 130, saying what is kept). Anything else is a bug:
 one line naming the exception and asking for a rerun with ``--debug`` (exit status 3). ``--debug``
 (or ``HYBRID_CALIB_DEBUG=1``) lets every exception through with its traceback.
 """
