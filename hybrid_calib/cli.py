@@ -171,6 +171,7 @@ def _run(args: argparse.Namespace, debug: bool) -> int:
         # simulate's --out is the root it writes
         check_out_not_in_dataset(out, root_ok=args.command == "simulate", data=data, version=version)
         for option, path in set_paths(args):  # caches named by --set: the same rule as --out, before anything runs
+            check_out_dir(path, option)  # an existing file there: no cache was written, without a word (probe 27)
             check_out_not_in_dataset(path, option, data=data, version=version)
         check_out_owner(out, args.command)
         if out is None:

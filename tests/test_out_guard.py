@@ -119,3 +119,12 @@ def test_a_root_whose_samples_folder_is_a_symlink_is_guarded_too(tiny, tmp_path)
             check_out_not_in_dataset(out)
         with pytest.raises(OptionError, match="samples/ folder"):
             check_out_outside_data(out, tiny.root, tiny.version)
+
+
+def test_a_cache_folder_that_is_a_file_is_refused_before_anything_runs(tiny, tmp_path, capsys):
+    """`--set cache_dir=afile` ran with no cache written or read, and said nothing (probe 27)."""
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    expect_cli_error(["calibrate", "--data", tiny.root, "--version", tiny.version, "--method", "pure", "--out",
+                      tmp_path / "out", "--set", f"cache_dir={afile}"], capsys, "--set cache_dir", "existing file")
+    assert not (tmp_path / "out").exists()
