@@ -511,6 +511,13 @@ def test_cli_train_then_evaluate(sim_root, tmp_path, capsys):
     assert _run_command("evaluate", ["--data", str(sim_root), "--version", "v1.0-mini", "--checkpoint", str(run),
                                      "--split", "val", "--fit-uncertainty", "--out", str(tmp_path / "fit2")]) == 2
     assert "has no ground truth, only its tables" in capsys.readouterr().err  # a real root: the tables' errors
+    from unittest import mock
+
+    with mock.patch("hybrid_calib.commands.evaluate.os.access", lambda path, mode: False):  # a read-only checkpoint
+        assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--split", "val",
+                                         "--fit-uncertainty", "--out", str(tmp_path / "fit3"), "--no-progress",
+                                         "--set", "fit_min_frames=1"]) == 2
+    assert "cannot be written" in capsys.readouterr().err and not (tmp_path / "fit3" / "results.json").exists()
     assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--split", "val",
                                      "--fit-uncertainty", "--out", str(tmp_path / "fit"), "--no-progress",
                                      "--set", "fit_min_frames=1"]) == 0  # the tiny test drive: accepted when asked

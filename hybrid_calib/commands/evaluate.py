@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -36,6 +37,7 @@ from hybrid_calib.commands import (
     split_overrides,
 )
 from hybrid_calib.config import parse_overrides
+from hybrid_calib.errors import OptionError
 from hybrid_calib.perturbation import RANGES
 
 HELP = "evaluate a trained network on held-out frames (paper table: rotation deg, translation cm)"
@@ -101,6 +103,11 @@ def run(args: argparse.Namespace) -> int:
     for note in setup.notes:
         print(note, file=sys.stderr)
     last, stage_paths = setup.last, setup.stage_paths
+    if args.fit_uncertainty and not all(os.access(q, os.W_OK) for q in (last.path, Path(last.path).parent)):
+        # the fit is written into the checkpoint at the end: said before the frames are read, not after (probe 27)
+        raise OptionError("--fit-uncertainty", f"{last.path} cannot be written (it, or its folder, is read-only), "
+                                               "and the fitted scale goes into it: copy the checkpoint to a folder "
+                                               "you can write and pass the copy")
     frames = open_roots(args.data, args.version, lidar=setup.lidar, options={"nsweeps": setup.nsweeps})
     data = {"roots": [str(Path(d).resolve()) for d in args.data], "version": args.version, "nsweeps": setup.nsweeps,
             "stamps": [data_stamp(d, args.version)["digest"] for d in args.data]}
