@@ -91,7 +91,7 @@ from hybrid_calib.hybrid.drives import (
     trained_depth,
 )
 from hybrid_calib.hybrid.measurement import MeasurementConfig, frame_inputs, prior_trusted
-from hybrid_calib.hybrid.motion import MotionConfig, MotionGate, MotionSource, fold, gated_innovation
+from hybrid_calib.hybrid.motion import MotionConfig, MotionGate, MotionSource, drive_std_rad, fold, gated_innovation
 from hybrid_calib.hybrid.network import (
     NetworkRunner,
     build_runner,
@@ -283,8 +283,7 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
     in_window, pending = [], None  # drive positions of the window's frames; a mount step not yet applied
     D = np.diag(np.asarray(mconf.drive_std, np.float64) ** 2)  # the network's drive-common error
     inflate = (n_priors or len(drive.indices)) * D
-    s_mot = np.radians(conf.motion.drive_std_deg if drive.simulated else
-                       max(conf.motion.drive_std_deg, conf.motion.real_drive_std_deg))
+    s_mot = drive_std_rad(conf.motion, drive.simulated)
     motion_gate = MotionGate(conf.motion)
     for k, i in enumerate(tqdm(drive.indices, desc=f"hybrid {drive.vehicle}", disable=not conf.progress,
                                leave=False)):

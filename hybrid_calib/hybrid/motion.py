@@ -103,6 +103,12 @@ class MotionConfig:
                               "max_gap_s": "(0, 3600]", "max_rotation_mismatch_deg": "(0, 180]"})
 
 
+def drive_std_rad(conf: MotionConfig, simulated: bool) -> float:
+    """The error common to a drive's motion measurements (rad): ``drive_std_deg``, and on a real root at least
+    ``real_drive_std_deg`` (the module doc)."""
+    return float(np.radians(conf.drive_std_deg if simulated else max(conf.drive_std_deg, conf.real_drive_std_deg)))
+
+
 @dataclass
 class MotionSource:
     """Motion measurements of one root's frames (``learned.dataset`` frames or any sequence of
