@@ -245,12 +245,23 @@ def load_measurement_dir(directory: str | Path, skipped: list | None = None) -> 
             except DataError as e:
                 if skipped is None:
                     raise
-                skipped.append((sub, f, e))
+                skipped.append((_vehicle_of(f) or sub, f, e))
                 continue
             out.setdefault(m.vehicle or sub, []).append(m)
     for frames in out.values():
         frames.sort(key=lambda m: (m.timestamp_us, m.frame_id))
     return dict(sorted(out.items()))
+
+
+def _vehicle_of(path: Path) -> str:
+    """The ``vehicle`` a frame file that failed its checks still names ("" when even that does not read): its skip is
+    then the vehicle's alone, not listed under every vehicle of a flat directory (probe 27)."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            v = z["vehicle"] if "vehicle" in z.files else None
+            return str(v) if v is not None and v.ndim == 0 and v.dtype.kind == "U" else ""
+    except Exception:  # noqa: BLE001 (a damaged file: any reader error means "does not say")
+        return ""
 
 
 def load_correspondence_dir(directory: str | Path) -> list[Correspondences]:

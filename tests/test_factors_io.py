@@ -118,3 +118,17 @@ def test_a_frame_file_copied_under_another_name_is_used_once(tmp_path):
     assert path.name == "1.npz" and "is also in" in str(e) and "1-copy.npz" in str(e)
     with pytest.raises(DataError, match="used once, remove the copy"):
         load_measurement_dir(tmp_path / "E")
+
+
+def test_a_file_that_fails_its_checks_is_skipped_under_the_vehicle_it_names(tmp_path):
+    """A bad file of a flat directory was listed as skipped under every vehicle (probe 27): where its `vehicle` still
+    reads, the skip is that vehicle's."""
+    save_measurements(tmp_path / "E" / "a.npz", _frame(0, vehicle="veh-a"))
+    save_measurements(tmp_path / "E" / "b.npz", _frame(1, vehicle="veh-b"))
+    d = to_arrays(_frame(2, vehicle="veh-b"))
+    d["sigma_px"] = -np.abs(d["sigma_px"])
+    np.savez(tmp_path / "E" / "c.npz", **d)
+    (tmp_path / "E" / "d.npz").write_bytes(b"garbage")
+    skipped = []
+    load_measurement_dir(tmp_path / "E", skipped)
+    assert [(sub, p.name) for sub, p, _ in skipped] == [("veh-b", "c.npz"), ("", "d.npz")]
