@@ -415,8 +415,8 @@ def trained_with(train_config: dict | None, source: str | Path | None = None) ->
     when it names no estimator (probe 27: a damaged field read as if the user had passed a wrong ``--depth``)."""
     from hybrid_calib.errors import CheckpointError
 
-    spec = (train_config or {}).get("depth", CorruptedTruthDepth.name) if isinstance(train_config, (dict, type(None))) \
-        else None
+    config = {} if train_config is None else train_config
+    spec = config.get("depth", CorruptedTruthDepth.name) if isinstance(config, dict) else None
     known = spec in (CorruptedTruthDepth.name, LidarDepth.name) or (
         isinstance(spec, str) and spec.startswith("depth-anything:") and spec.split(":", 1)[1].strip())
     if not known:

@@ -120,9 +120,11 @@ def load_oracle(data, version: str, conf: CalibrateConfig | dict | None, progres
 
 
 def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
-              absent: dict[str, str] | None = None) -> dict[str, VehicleInput]:
+              absent: dict[str, str] | None = None, unknown: dict[str, str] | None = None) -> dict[str, VehicleInput]:
     """The measurement files of ``directory`` per vehicle; each vehicle of the root (``data``) with none of them is
-    put in ``absent`` (``calibrate`` says so: they vanished from result.json without a word)."""
+    put in ``absent`` (``calibrate`` says so: they vanished from result.json without a word), each vehicle of the
+    files that the root does not have in ``unknown`` (vehicle -> why), when given and another vehicle's files are
+    there (probe 27: one such file stopped the run)."""
     bad: list = []  # (sub-directory, file, DataError) of each unreadable file: skipped, the others are used
     groups = load_measurement_dir(directory, bad)
     if bad and not groups:
@@ -159,9 +161,9 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
         if ref is None:
             why = (f"no reference extrinsic for vehicle {vehicle!r} of the measurement files: pass --data/--version "
                    f"of the dataset they come from (vehicles there: {sorted(refs)})")
-            if absent is None or not refs or len(groups) == 1:
+            if unknown is None or not refs or len(groups) == 1:
                 raise DataError(why, path=str(directory))
-            absent[vehicle] = f"{why}; its {len(ms)} file(s) in {directory} left out"  # the others go on (probe 27)
+            unknown[vehicle] = f"{why}; its {len(ms)} file(s) in {directory} left out"
             continue
         truth = truths.get(vehicle)
         mine = [m for m in ms if not tokens or str(m.frame_id) in tokens]
@@ -390,17 +392,15 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
     # before reading: data that change during the run are not this result's
     stamp_data = None if data is None else data_stamp(data, version)
     absent: dict[str, str] = {}
+    unknown: dict[str, str] = {}  # files of a vehicle the root does not have: failed, the others calibrated
     if correspondences == "oracle":
         inputs = _load_oracle(data, version, conf)
     else:
-        inputs = _load_dir(Path(correspondences), data, version, conf, absent)
+        inputs = _load_dir(Path(correspondences), data, version, conf, absent, unknown)
     if not inputs:
         asked = "" if conf.vehicles is None else f" among the vehicles asked for (--set vehicles={list(conf.vehicles)})"
         raise DataError(f"no vehicle to calibrate{asked}: check the vehicle names (hybrid-calib inspect lists them) "
                         "and that the root's frames read", path=str(data))
-    # files of a vehicle the root does not have (another root's, a renamed one): failed, the others calibrated
-    foreign = {v: why for v, why in absent.items() if why.startswith("no reference extrinsic")}
-    absent = {v: why for v, why in absent.items() if v not in foreign}
     if absent:  # said, not failed: an export of one split covers the vehicles of that split only
         import sys
 
@@ -409,7 +409,7 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
               "other vehicles or frames; export them too (hybrid-calib evaluate --split all) to calibrate them",
               file=sys.stderr)
     run = CalibrationRun(str(Path(data).resolve()), version, str(correspondences), conf.mode)  # read from anywhere
-    run.vehicles_failed.update(foreign)
+    run.vehicles_failed.update(unknown)
     # the vehicles an interrupted run finished (each vehicle's start and oracle rows are seeded by its name:
     # skipping them leaves the others' draws as they were)
     stamp = {**to_dict(conf), "priors": {k: [np.asarray(p.T).tolist(), np.asarray(p.cov).tolist()]

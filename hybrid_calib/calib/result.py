@@ -74,6 +74,7 @@ import numpy as np
 
 from hybrid_calib.calib.covariance import CovarianceReport
 from hybrid_calib.config import read_out_record, save_json_atomic
+from hybrid_calib.data.tables import is_number
 from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.geometry import R_AXES_CAM_FROM_RADAR, camera_euler_from_rotation
 from hybrid_calib.metrics import std_dict, std_from_dict
@@ -146,10 +147,6 @@ _BLOCK_NUMBERS = {
 _STEP_NUMBERS = ("step_deg", "std_deg", "change", "at")
 
 
-def _number(x) -> bool:
-    return isinstance(x, (int, float)) and not isinstance(x, bool) and bool(np.isfinite(x))
-
-
 def _block(d: dict, key: str, where: str) -> dict | None:
     """The hybrid's ``mount`` / ``lidar`` / ``doppler`` block of a vehicle result read back: None, or an object
     whose numbers (``_BLOCK_NUMBERS``; each step's ``_STEP_NUMBERS``) are finite where present and whose
@@ -160,7 +157,7 @@ def _block(d: dict, key: str, where: str) -> dict | None:
         return None
     b = _mapping(b, f"{where}.{key}")
     for k in _BLOCK_NUMBERS[key]:
-        if k in b and b[k] is not None and not _number(b[k]):
+        if k in b and b[k] is not None and not is_number(b[k]):
             raise ValueError(f"{where}.{key}.{k} is {str(b[k])[:40]!r}, not a finite number")
     if "applied" in b and not isinstance(b["applied"], bool):
         raise TypeError(f"{where}.{key}.applied is a JSON {_json_kind(b['applied'])}, not a boolean")
@@ -169,7 +166,7 @@ def _block(d: dict, key: str, where: str) -> dict | None:
         raise TypeError(f"{where}.mount.steps is a JSON {_json_kind(steps)}, not an array")
     for j, st in enumerate(steps if key == "mount" else ()):
         st = _mapping(st, f"{where}.mount.steps[{j}]")
-        bad = [k for k in _STEP_NUMBERS if not _number(st.get(k))]
+        bad = [k for k in _STEP_NUMBERS if not is_number(st.get(k))]
         if bad:
             raise ValueError(f"{where}.mount.steps[{j}] lacks finite {bad}")
     return b
@@ -215,7 +212,7 @@ def _error(d: dict, where: str) -> dict | None:
         return None
     e = _mapping(e, f"{where}.error")
     # (a NEES of a singular covariance may be inf: kept, the metrics themselves never are)
-    if bad := [k for k, v in e.items() if not (_number(v) or v is None or isinstance(v, (str, bool))
+    if bad := [k for k, v in e.items() if not (is_number(v) or v is None or isinstance(v, (str, bool))
                                                 or (k == "nees" and isinstance(v, float) and not np.isnan(v)))]:
         raise ValueError(f"{where}.error.{bad[0]} is {str(e[bad[0]])[:40]!r}, not a finite number")
     return e

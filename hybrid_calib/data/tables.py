@@ -304,7 +304,7 @@ class NuScenesTables:
         ep = self.get("ego_pose", sd["ego_pose_token"], f"sample_data {sd['token']}")
         T = _pose(ep, self.path("ego_pose"), MAX_EGO_TRANSLATION_M, "an ego pose")
         a, b = ep.get("timestamp"), sd.get("timestamp")
-        if _is_number(a) and _is_number(b) and abs(a - b) > MAX_EGO_POSE_OFFSET_US:
+        if is_number(a) and is_number(b) and abs(a - b) > MAX_EGO_POSE_OFFSET_US:
             raise DataError(f"the ego pose of sample_data {sd['token']} is at {a} us, {(a - b) / 1e6:+.3f} s from the "
                             f"record's own time {b} us (nuScenes writes them equal; at most "
                             f"{MAX_EGO_POSE_OFFSET_US / 1e3:g} ms): the record's ego_pose_token names another "
@@ -360,7 +360,7 @@ MAX_PRINCIPAL_POINT_PX = 1e5  # |cx|, |cy| bound, pixels, when the image size is
 
 def _positive_int(value) -> int:
     """A record's width / height when it is a positive whole number, else 0 (unknown)."""
-    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0
+    ok = is_number(value) and value > 0
     return int(value) if ok and value == int(value) else 0
 
 
@@ -378,17 +378,17 @@ def _index_by_token(records: list[dict], path: Path) -> dict[str, dict]:
 
 
 QUAT_NORM_TOL = 1e-3  # |norm(q) - 1| up to this is rounding in the file: renormalised; beyond it the record is rejected
-# plausibility bounds of a translation, metres: a sensor mount (calibrated_sensor) sits on the vehicle, and nuScenes
 # an ego pose's timestamp against its sample_data record's: equal in nuScenes; 25 ms (half a LiDAR sweep) moves a
 # vehicle at 30 m/s by 0.75 m, beyond which the pose belongs to another instant
 MAX_EGO_POSE_OFFSET_US = 25_000
+# plausibility bounds of a translation, metres: a sensor mount (calibrated_sensor) sits on the vehicle, and nuScenes
 # map coordinates (ego_pose) reach a few km; beyond these the record is corrupt (1e30 m overflowed the solvers)
 MAX_MOUNT_TRANSLATION_M = 50.0
 MAX_EGO_TRANSLATION_M = 1e7
 
 
-def _is_number(x) -> bool:
-    """A finite JSON number (int or float; not bool)."""
+def is_number(x) -> bool:
+    """A finite JSON number (int or float; not bool): a record's field, or a result's read back."""
     return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
 
 
