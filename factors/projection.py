@@ -153,8 +153,9 @@ def _skew_rows(p: np.ndarray) -> np.ndarray:
     return S
 
 
-def _project(K: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Camera points (N, 3) -> pixels (N, 2) and the projection Jacobian d uv / d P (N, 2, 3)."""
+def project_with_jacobian(K: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Camera points (N, 3) -> pixels (N, 2) and the projection Jacobian d uv / d P (N, 2, 3); ``K`` (3, 3) with
+    its skew ``K[0, 1]``. The one pinhole Jacobian of the factors and of the Cramer-Rao bound."""
     X, Y, Z = P[:, 0], P[:, 1], P[:, 2]
     iz = 1.0 / Z
     xn, yn = X * iz, Y * iz
@@ -207,7 +208,7 @@ def _camera_points(T_cam_radar: np.ndarray, rows: RowModel):
     P = rows.p_bar @ R.T + t
     valid = P[:, 2] > rows.min_depth
     P[:, 2] = np.maximum(P[:, 2], rows.min_depth)
-    uv, Jp = _project(rows.K, P)
+    uv, Jp = project_with_jacobian(rows.K, P)
     return R, P, valid, uv, Jp
 
 

@@ -11,6 +11,7 @@ from hybrid_calib.calib.oracle import synthetic_drive
 from hybrid_calib.calib.window import SlidingWindowCalibrator
 from hybrid_calib.geometry import local, retract, se3_exp
 from tests.helpers import NO_SCENE, nominal_T_cam_radar, random_pose, rng
+from tests.jacobians import check_se3_residual_jacobian
 
 
 def test_report_std_rotates_into_camera_axes():
@@ -65,23 +66,21 @@ def test_singular_information_uses_regularised_prior():
     assert ok.status == "ok" and not ok.regularised
 
 
-def test_pixel_jacobian_matches_finite_differences():
+@pytest.mark.parametrize("skew_px", [0.0, 3.5])
+def test_pixel_jacobian_matches_finite_differences(skew_px):
+    """The Cramer-Rao bound's pose Jacobian through the one harness, with a skewed K too (it once ignored K[0, 1])."""
     g = rng(5)
     T = nominal_T_cam_radar() @ se3_exp(g.normal(size=6) * 0.05)
     P = np.column_stack([g.uniform(5, 40, 8), g.uniform(-5, 5, 8), g.uniform(-1, 1, 8)])
-    K = np.array([[1266.0, 0, 816], [0, 1266.0, 491], [0, 0, 1]])
-    Jp, _ = pixel_jacobians(T, P, K)
+    K = np.array([[1266.0, skew_px, 816], [0, 1266.0, 491], [0, 0, 1]])
 
-    def proj(TT):
+    def pixels(TT):
         q = P @ TT[:3, :3].T + TT[:3, 3]
-        return (q[:, :2] / q[:, 2:]) * [K[0, 0], K[1, 1]] + K[:2, 2]
+        uv = np.stack([K[0, 0] * q[:, 0] / q[:, 2] + K[0, 1] * q[:, 1] / q[:, 2] + K[0, 2],
+                       K[1, 1] * q[:, 1] / q[:, 2] + K[1, 2]], axis=1)
+        return uv.reshape(-1), pixel_jacobians(TT, P, K)[0].reshape(-1, 6)
 
-    h = 1e-6
-    for k in range(6):
-        d = np.zeros(6)
-        d[k] = h
-        num = (proj(retract(T, d)) - proj(retract(T, -d))) / (2 * h)
-        np.testing.assert_allclose(Jp[:, :, k], num, rtol=1e-5, atol=1e-4)
+    check_se3_residual_jacobian(pixels, T, rtol=1e-6, atol=1e-4)
 
 
 @pytest.mark.parametrize("beam", [0.0, 7.0])

@@ -61,6 +61,21 @@ def test_camera_euler_axes():
     assert_close(rpy, [0, 0, 0.1], scale=1e3)
 
 
+def test_camera_euler_order_is_intrinsic_y_x_z():
+    """docs/conventions.md: ``R = Ry(yaw) Rx(pitch) Rz(roll)``, built here from elementary matrices. Single-axis
+    rotations and round trips cannot tell the order (another order used both ways passes them; probe 28): a
+    composed rotation of three large angles can."""
+    roll, pitch, yaw = np.radians([15.0, -12.0, 18.0])
+    c, s = np.cos, np.sin
+    Rx = np.array([[1, 0, 0], [0, c(pitch), -s(pitch)], [0, s(pitch), c(pitch)]])
+    Ry = np.array([[c(yaw), 0, s(yaw)], [0, 1, 0], [-s(yaw), 0, c(yaw)]])
+    Rz = np.array([[c(roll), -s(roll), 0], [s(roll), c(roll), 0], [0, 0, 1]])
+    R = Ry @ Rx @ Rz
+    assert_close(G.camera_euler_from_rotation(R), [roll, pitch, yaw], scale=1e3)
+    assert_close(G.rotation_from_camera_euler([roll, pitch, yaw]), R, scale=1e3)
+    assert np.abs(G.camera_euler_from_rotation(Rz @ Rx @ Ry) - [roll, pitch, yaw]).max() > np.radians(1)
+
+
 @pytest.mark.parametrize("seed", range(5))
 def test_perturbation_reads_back_through_metrics(seed):
     g = rng(seed)

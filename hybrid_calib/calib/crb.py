@@ -4,7 +4,8 @@ Model of one inlier correspondence i (docs/conventions.md frames):
     pixel_i = pi(K (R p_i + t)) + n_i,   n_i ~ N(0, sigma_i^2 / c_i I_2)
 where ``p_i`` (3,) is the *true* reflector in the radar frame. A 2D radar does not measure the
 reflector's elevation e_i: it is a nuisance with a prior of std ``sigma_e`` (a uniform elevation
-within a beam of width ``beta`` has ``sigma_e = beta / sqrt(12)``). Linearising the arc at the truth,
+within ``+-beta``, ``RadarPixelFactorConfig.elevation_beam_deg`` being that half-width, has
+``sigma_e = beta / sqrt(3)``: ``factors.projection.elevation_moments``). Linearising the arc at the truth,
 the elevation adds ``j_e sigma_e^2 j_e^T`` to the pixel covariance, with ``j_e`` (2,) the image of
 the arc tangent ``dp/de = rho (-sin e cos a, -sin e sin a, cos e)``. Eliminating the nuisance
 (Schur complement of the per-row Fisher information with the elevation prior) gives exactly
@@ -20,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from factors.projection import project_with_jacobian
 from hybrid_calib.geometry import skew
 
 
@@ -35,13 +37,7 @@ def pixel_jacobians(T_cam_radar: np.ndarray, points_radar: np.ndarray, K: np.nda
     q = P @ R.T + t
     if np.any(q[:, 2] <= 1e-6):
         raise ValueError("crb: a point lies behind the camera; pass only points that project")
-    fx, fy = K[0, 0], K[1, 1]
-    z = q[:, 2]
-    Jpi = np.zeros((len(P), 2, 3))
-    Jpi[:, 0, 0] = fx / z
-    Jpi[:, 0, 2] = -fx * q[:, 0] / z**2
-    Jpi[:, 1, 1] = fy / z
-    Jpi[:, 1, 2] = -fy * q[:, 1] / z**2
+    _, Jpi = project_with_jacobian(np.asarray(K, np.float64), q)
     J_point = Jpi @ R  # d pixel / d p
     # T Exp([w, v]) p = R (p + w x p + v) + t  ->  dq/dw = -R [p]x, dq/dv = R
     J_pose = np.zeros((len(P), 2, 6))
@@ -133,11 +129,6 @@ def crb_covariance(information: np.ndarray, pinned_std: np.ndarray | None = None
     except np.linalg.LinAlgError:
         C = np.linalg.pinv(F, hermitian=True) + np.eye(6) * 1e12 * (np.linalg.matrix_rank(F) < 6)
     return inflate_prior_pinned(C, pinned_std)
-
-
-def beam_sigma(elevation_beam_deg: float) -> float:
-    """Std (rad) of an elevation uniform within +-beam/2: ``beam / sqrt(12)``."""
-    return float(np.radians(elevation_beam_deg) / np.sqrt(12.0))
 
 
 def oracle_crb(T_cam_radar: np.ndarray, frames, truths, sigma_px, factor_conf) -> np.ndarray:
