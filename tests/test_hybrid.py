@@ -352,6 +352,25 @@ def test_drive_scale_brings_the_validation_nees_to_six_and_never_shrinks():
     assert fit_drive_scale(errors, np.broadcast_to(W + np.diag(big ** 2), (400, 6, 6)), big) == 1.0
 
 
+def test_the_fitted_prior_scale_and_shared_std_are_not_biased_low_by_trimming():
+    """Gaussian network errors whose covariance is really twice the exported one: the prior scale reads 2 (the
+    trimmed mean alone read 1.52), and a per-frame shared error of known std is recovered, not shrunk (probe 28)."""
+    from hybrid_calib.hybrid.fit import _trimmed_scale, fit_shared_std
+
+    g = np.random.default_rng(11)
+    ratio = 2.0 * g.normal(size=(20000, 6)) ** 2  # xi_k^2 / C_kk with the true variance 2 C_kk
+    assert all(abs(_trimmed_scale(ratio[:, k]) - 2.0) < 0.08 for k in range(6))
+    heavy = np.where(g.random(20000) < 0.03, 50.0, 1.0) * g.normal(size=20000) ** 2  # 3 % gross: the core's scale
+    assert 0.9 < _trimmed_scale(heavy) < 1.25
+    C = np.broadcast_to(np.diag(np.full(6, 0.01 ** 2)), (3000, 6, 6))
+    shared = np.array([0.02, 0.0, 0.01, 0.03, 0.0, 0.015])
+    xi = g.normal(size=(3000, 6)) * np.sqrt(0.01 ** 2 + shared ** 2)
+    std = fit_shared_std(xi, C)
+    big = shared > 0
+    assert np.all(np.abs(std[big] / shared[big] - 1.0) < 0.1), std
+    assert np.all(std[~big] < 0.006), std
+
+
 def test_fit_calibrates_the_drive_term_on_the_loop_as_it_ships(sim_root, tmp_path):
     """Round 3 of the fit runs the chosen model with the motion constraint on (the product's loop) and
     only ever widens the drive-common term it calibrated without it."""
