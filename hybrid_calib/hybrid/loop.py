@@ -302,7 +302,7 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
         if not len(fi.corr) and fi.prior is None:
             skipped.append({"index": k, "token": out.rows_first.frame_id, "reason": "no correspondence rows"})
             continue
-        prior, mrec = fi.prior, {}
+        prior, mrec, gain = fi.prior, {}, np.zeros(6)  # gain: this frame's motion gain (none without a fold)
         if motion is not None and fi.prior is not None:
             prior = GaussianPrior(fi.prior.T, fi.prior.cov + inflate)
             tr.priors += 1
@@ -314,9 +314,8 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
             # gated by the tighter of the estimate's covariance and this frame's pass with its drive error
             inn = None if m is None else gated_innovation(T, m, conf.motion, (fi.prior.cov + D, reported_cov))
             fo = fold(prior, T, inn, conf.motion, gated=False) if inn is not None and motion_gate.admit(inn) else None
-            g_frames.append(fo.gain_motion if fo is not None else np.zeros(6))
             if fo is not None:
-                prior = fo.prior
+                prior, gain = fo.prior, fo.gain_motion
                 mrec = {**mrec, "motion": {"residual_deg": fo.residual_deg, "weight": fo.weight,
                                    "sigma_deg": float(np.degrees(inn.sigma)), "speed_mps": m.speed,
                                    "vo_inliers": m.n_vo_inliers,
@@ -327,8 +326,9 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
                 mrec["motion_z"] = float(inn.z)
         fe, turned = cal.update(fi.corr, prior), None
         in_window.append(k)
+        g_frames.append(gain)  # one per frame entering the window, so a restart keeps the two aligned
         if pending is not None:  # the radar turned: restart the window from the frames since the change
-            keep = min(sum(p >= pending.change for p in in_window), conf.window.window, len(g_frames) or 10 ** 9)
+            keep = min(sum(p >= pending.change for p in in_window), conf.window.window)
             turned = fe.T @ se3_exp(np.array([0.0, 0.0, np.radians(pending.step_deg), 0.0, 0.0, 0.0]))
             cal.reset(keep_last=keep, T=turned)
             in_window = in_window[len(in_window) - keep:] if keep else []
