@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import csv
 import hashlib
+import io
 import json
 import logging
 import sys
@@ -30,6 +31,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from hybrid_calib.atomic import write_bytes_atomic
 from hybrid_calib.config import ConfigError, merge, read_out_record, require_ranges, save_json_atomic, to_dict
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.errors import HybridCalibError
@@ -179,10 +181,11 @@ class _CsvLog:
                 except ValueError:  # a side record: a line that does not parse is dropped, the run goes on
                     print(f"train: {path} line {n} does not parse (epoch {str(r.get('epoch'))[:20]!r}); dropped from "
                           "the log", file=sys.stderr)
-        with path.open("w", newline="") as f:
-            w = csv.DictWriter(f, self.columns)
-            w.writeheader()
-            w.writerows(rows)
+        text = io.StringIO(newline="")
+        w = csv.DictWriter(text, self.columns)
+        w.writeheader()
+        w.writerows(rows)
+        write_bytes_atomic(path, text.getvalue().encode())  # a kill here keeps the old log whole (probe 28)
 
     def write(self, row: dict) -> None:
         with self.path.open("a", newline="") as f:

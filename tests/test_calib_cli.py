@@ -21,8 +21,8 @@ def _args(*argv):
 
 @pytest.fixture(scope="module")
 def sim_root(tmp_path_factory):
-    sim = pytest.importorskip("hybrid_calib.sim.simulate")
     from hybrid_calib.config import merge
+    from hybrid_calib.sim import simulate as sim
     from hybrid_calib.sim.drive import SimConfig
 
     root = tmp_path_factory.mktemp("sim")

@@ -117,10 +117,10 @@ def test_crb_of_random_pose_is_symmetric_positive():
 def test_straight_scenario_names_the_weak_direction(tmp_path):
     """The simulator's ``straight`` drive: few, similar frames; the status must name what is
     poorly observed (with its std) instead of reporting a silently tight covariance."""
-    sim = pytest.importorskip("hybrid_calib.sim.simulate")
     from hybrid_calib.calib.oracle import OracleConfig, oracle_from_frame
     from hybrid_calib.config import merge
     from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+    from hybrid_calib.sim import simulate as sim
     from hybrid_calib.sim.drive import SimConfig
 
     sim.simulate(merge(SimConfig, {"scenario": "straight", "frames": 3, "image_scale": 0.125}), tmp_path,

@@ -292,8 +292,8 @@ def test_merge_rejects_wrong_types_and_keeps_good_ones():
 def test_evaluate_skips_frames_with_a_corrupt_pcd_or_image(tmp_path):
     """A truncated radar PCD and a JPEG with corrupt scan data: both frames are listed in skipped.json
     (index, token, file, reason) and the other frames are evaluated."""
-    sim = pytest.importorskip("hybrid_calib.sim.simulate")
     from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+    from hybrid_calib.sim import simulate as sim
     from hybrid_calib.sim.drive import SimConfig
     from learned.evaluate import EvalConfig, evaluate
     from tests.test_learned_pipeline import OracleModel, oracle_exporter

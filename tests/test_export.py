@@ -18,9 +18,9 @@ VERSION = "v1.0-sim"
 @pytest.fixture(scope="module")
 def calibrated(tmp_path_factory):
     """A 2-vehicle simulated root and its oracle calibration (result.json with data_stamp.json beside it)."""
-    sim = pytest.importorskip("hybrid_calib.sim.simulate")
     from hybrid_calib.calib.pipeline import calibrate
     from hybrid_calib.config import merge
+    from hybrid_calib.sim import simulate as sim
     from hybrid_calib.sim.drive import SimConfig
 
     root = tmp_path_factory.mktemp("sim")

@@ -21,9 +21,9 @@ from tests.helpers import nominal_T_cam_radar
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory):
     """A tiny simulated drive (2 vehicles x 6 frames, 200x112 images) calibrated from an R1 start."""
-    sim = pytest.importorskip("hybrid_calib.sim.simulate")
     from hybrid_calib.calib.pipeline import calibrate
     from hybrid_calib.config import merge
+    from hybrid_calib.sim import simulate as sim
     from hybrid_calib.sim.drive import SimConfig
 
     base = tmp_path_factory.mktemp("report")

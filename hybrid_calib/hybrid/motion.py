@@ -184,9 +184,9 @@ class MotionSource:
             cm, why = motion_from_matches(*m, self.conf.vo)
             if cm is not None and omega is not None:
                 vo_deg = float(np.degrees(np.linalg.norm(so3_log(cm.R_ab))))
-                ego = float(np.degrees(np.linalg.norm(omega)))
-                if abs(vo_deg - ego) > self.conf.max_rotation_mismatch_deg:
-                    return None, (f"its rotation {vo_deg:.1f} deg disagrees with the ego poses' {ego:.1f} deg "
+                ego_deg = float(np.degrees(np.linalg.norm(omega)))
+                if abs(vo_deg - ego_deg) > self.conf.max_rotation_mismatch_deg:
+                    return None, (f"its rotation {vo_deg:.1f} deg disagrees with the ego poses' {ego_deg:.1f} deg "
                                   f"(more than {self.conf.max_rotation_mismatch_deg:g}): a wrong two-view solution")
             return cm, why
         up = np.asarray(R_cam_radar, np.float64)[:, 2]
