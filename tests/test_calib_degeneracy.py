@@ -41,6 +41,21 @@ def test_a_normal_drive_has_no_geometry_words():
     assert geo.n_frames == 4 and geo.n_rows == 240 and geo.along_road_fraction(1.0) < 0.5
 
 
+def test_a_lead_vehicle_is_counted_on_one_line_only():
+    """Half the rows on a lead vehicle dead ahead (within 0.5 m of the radar's axis), half spread over +-25 m: 60 % at
+    most lie on two lines, not 105 % (the left and right bands overlapped at the axis; probe 29), and nothing is
+    said about the road. All rows dead ahead: 100 %, never more."""
+    g = rng(14)
+    geo, ahead = RowGeometry(), RowGeometry()
+    for _ in range(6):
+        lat = np.r_[g.uniform(-0.5, 0.5, 30), g.uniform(-25, 25, 30)]
+        geo.add(np.column_stack([g.uniform(5, 60, 60), lat, np.zeros(60)]))
+        ahead.add(np.column_stack([g.uniform(5, 60, 60), np.zeros(60), np.zeros(60)]))
+    assert 0.5 <= geo.along_road_fraction(1.0) < 0.7
+    assert not any("along the road" in c for c in geometry_causes(geo, DegeneracyConfig()))
+    assert ahead.along_road_fraction(1.0) == 1.0
+
+
 def _road_points(g, n, lateral=(-6.0, 5.0)):
     """Reflectors on two lines along the road (kerbs, poles at fixed lateral offsets), radar frame."""
     x = g.uniform(8.0, 80.0, n)
