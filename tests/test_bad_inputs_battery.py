@@ -158,6 +158,16 @@ def _ego_pose(root: Path, frame, key: str, value) -> Path:
     return path
 
 
+def _camera_pose_moved(root: Path, frame, metres: float) -> Path:
+    """The camera keyframe's ego pose moved ``metres`` along global x: the frame's radar pose no longer agrees."""
+    path, recs = _table(root, "ego_pose")
+    rec = next(r for r in recs if r["token"] == frame.camera_sd["ego_pose_token"])
+    assert rec["token"] != frame.radar_sd["ego_pose_token"]
+    rec["translation"] = [rec["translation"][0] + metres, *rec["translation"][1:]]
+    path.write_text(json.dumps(recs))
+    return path
+
+
 def _sd_token(root: Path, frame, key: str, value) -> Path:
     path, recs = _table(root, "sample_data")
     rec = next(r for r in recs if r["token"] == frame.radar_sd["token"])
@@ -188,6 +198,9 @@ RADAR_FRAME_CASES = {
     # a pose 2.5 s away (another instant's) moved the radar's Doppler yaw by 3 deg without a word (probe 27)
     "ego-pose-of-another-instant": lambda r, f: ["+2.500 s from the record's own time", f.radar_sd["token"],
                                                  _ego_pose(r, f, "timestamp", f.radar_sd["timestamp"] + 2_500_000)],
+    # the camera's pose 50 m off its radar's, 30 ms apart, moved the frame's points silently (probe 29)
+    "ego-pose-of-the-camera-jumped": lambda r, f: ["no road vehicle moves so far", "camera's record",
+                                                   f.camera_sd["token"], _camera_pose_moved(r, f, 50.0)],
     "ego-pose-token-missing": lambda r, f: ["nosuchpose", "does not resolve", f.radar_sd["token"],
                                             _sd_token(r, f, "ego_pose_token", "nosuchpose").with_name("ego_pose.json")],
 }

@@ -57,7 +57,11 @@ from hybrid_calib.data.image_header import decode_image, image_header
 from hybrid_calib.data.pcd import read_lidar_bin
 from hybrid_calib.data.sweeps import InterSweep, accumulate_radar, sweeps_between_keyframes
 from hybrid_calib.data.tables import (
+    MAX_EGO_SPEED_MPS,
+    MAX_EGO_TURN_DPS,
     MAX_MOUNT_TRANSLATION_M,
+    POSE_PAIR_MARGIN_DEG,
+    POSE_PAIR_MARGIN_M,
     QUAT_NORM_TOL,
     NuScenesTables,
     _is_number_list,
@@ -479,6 +483,7 @@ class NuScenesRadarCamera:
 
         T_ego_cam, T_ego_radar = t.T_ego_sensor(cam), t.T_ego_sensor(rad)
         T_ge_cam, T_ge_radar = t.T_global_ego(cam), t.T_global_ego(rad)
+        _check_pose_pair(cam, T_ge_cam, rad, T_ge_radar, "radar", t.path("ego_pose"))
         T_cam_global = se3_inverse(T_ego_cam) @ se3_inverse(T_ge_cam)
         T_cam_radar = T_cam_global @ T_ge_radar @ T_ego_radar
         T_cam_radar_static = se3_inverse(T_ego_cam) @ T_ego_radar
@@ -572,7 +577,9 @@ class NuScenesRadarCamera:
                             path=str(path), token=sd["token"])
         extras["lidar_token"] = sd["token"]
         extras["lidar_nonfinite_dropped"] = int((~finite).sum())
-        T_cam_lidar = T_cam_global @ t.T_global_ego(sd) @ t.T_ego_sensor(sd)
+        T_ge_lidar = t.T_global_ego(sd)
+        _check_pose_pair(ref.camera_sd, extras["T_global_ego_cam"], sd, T_ge_lidar, "LiDAR", t.path("ego_pose"))
+        T_cam_lidar = T_cam_global @ T_ge_lidar @ t.T_ego_sensor(sd)
         return np.ascontiguousarray(pts[finite], dtype=np.float32), T_cam_lidar
 
     def reference_of(self, ref: FrameRef) -> np.ndarray:
@@ -767,6 +774,26 @@ def _image_size_field(cam: dict, table: Path) -> tuple[int, int]:
                             "both image sizes in pixels, or neither (0 / null / absent: read from the image file): "
                             "fix the record or re-extract the tables", path=str(table), token=cam["token"])
     return size[0], size[1]
+
+
+def _check_pose_pair(cam: dict, T_cam: np.ndarray, sd: dict, T_sd: np.ndarray, what: str, table: Path) -> None:
+    """``DataError`` naming both sample_data records when their ego poses (``T_cam``, ``T_sd`` (4, 4) ego -> global
+    at the camera's and the other record's time) lie farther apart than a road vehicle moves between the two
+    timestamps: ``MAX_EGO_SPEED_MPS`` times the gap plus ``POSE_PAIR_MARGIN_M``, or turned by more than
+    ``MAX_EGO_TURN_DPS`` times the gap plus ``POSE_PAIR_MARGIN_DEG``. Inspect's jump test walks the radar's keyframe
+    poses only: a camera pose 50 m off moved the frame's radar points into the image by its error, silently (probe
+    29)."""
+    dt = abs(sd["timestamp"] - cam["timestamp"]) * 1e-6
+    rel = se3_inverse(T_cam) @ T_sd
+    metres = float(np.linalg.norm(rel[:3, 3]))
+    deg = float(np.degrees(np.linalg.norm(so3_log(rel[:3, :3]))))
+    if metres <= MAX_EGO_SPEED_MPS * dt + POSE_PAIR_MARGIN_M and deg <= MAX_EGO_TURN_DPS * dt + POSE_PAIR_MARGIN_DEG:
+        return
+    raise DataError(f"the ego poses of the camera's record (sample_data {cam['token']}) and the {what}'s are "
+                    f"{metres:.2f} m and {deg:.1f} deg apart, {dt * 1e3:.0f} ms apart in time: no road vehicle moves "
+                    f"so far ({MAX_EGO_SPEED_MPS:g} m/s, {MAX_EGO_TURN_DPS:g} deg/s); one of the two ego_pose records "
+                    "is wrong: fix it or re-extract the tables (the frame is skipped)", path=str(table),
+                    token=sd["token"])
 
 
 def _check_sync(cam: dict, sd: dict, what: str, limit_s: float, table: Path) -> None:

@@ -27,6 +27,7 @@ import numpy as np
 
 from hybrid_calib.data.nuscenes import NuScenesRadarCamera
 from hybrid_calib.data.sweeps import sweep_files_between
+from hybrid_calib.data.tables import MAX_EGO_SPEED_MPS
 from hybrid_calib.geometry import transform_points
 
 MIN_IN_IMAGE = 0.02  # fewer radar points in the image than this fraction: the tables' calibration cannot be right
@@ -223,7 +224,6 @@ def format_skips(skipped: list[dict[str, Any]], listed_in: str | None = None) ->
     return lines
 
 
-MAX_EGO_SPEED_MPS = 70.0  # faster between two keyframes (252 km/h): no road vehicle, an ego pose that jumped
 # a keyframe's ego position this far from the straight line of its two neighbours' (at its time): a car braking at
 # 10 m/s2 or turning at 20 deg/s strays ~1 m at most over the second between them; a 10 m pose error in a
 # parking lot (~20 m/s apparent, under MAX_EGO_SPEED_MPS) passed inspect in silence (probe 11)
