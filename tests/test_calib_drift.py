@@ -409,6 +409,7 @@ def test_an_estimate_far_from_any_mount_or_not_converged_is_not_trusted():
     vr.final = dataclasses.replace(vr.final, T=far)
     why = trust_reason(vr, ref)
     assert why.startswith("the estimate lies 64.0 deg and") and "the solve went astray" in why
+    assert "or the tables' mount itself is wrong" in why  # a quaternion in the wrong order reads the same (probe 29)
     untrusted(vr, why)
     assert vr.final.status.startswith("inconclusive: the estimate lies 64.0 deg")
     assert vr.drift["verdict_kind"] == "cannot tell" and vr.drift["drifted"] is False

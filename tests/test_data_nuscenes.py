@@ -446,8 +446,21 @@ def test_inspect_warns_about_tables_that_load_but_cannot_be_right():
     assert "warning" not in clean
     assert "warning: only 0 of 2000 radar points (0.0 %) project into the CAM_FRONT image" in summary(0, 500_000)
     assert "the intrinsics may be for another image size" in summary(0, 500_000)
+    # a front radar turned away by its mount's rotation: a quaternion written x, y, z, w (probe 29), not a rear radar
+    away = summary(0, 500_000, 175.0)
+    assert "the tables' mounts turn the RADAR_FRONT 175 deg away from the CAM_FRONT's axis: both channels are FRONT" \
+        in away and "a quaternion written x, y, z, w" in away
     # a rear radar with the front camera (probe 23: --radar RADAR_BACK_LEFT blamed the intrinsics)
-    assert "the RADAR_FRONT looks 175 deg away from the CAM_FRONT's axis" in summary(0, 500_000, 175.0)
+    g = GroupSummary("s", "v", "log", frames=40, loaded=40, radar_points=[50] * 40, radar_in_image=0,
+                     camera_us=[k * 500_000 for k in range(40)], boresight_deg=150.0)
+    rear = DatasetSummary("root", "v1.0-mini", "RADAR_BACK_LEFT", "CAM_FRONT", [g], [], 0).format()
+    assert "turn the RADAR_BACK_LEFT 150 deg away" in rear and "either a side or rear radar" in rear
+    # one scene of two: named (the root's total hid it)
+    ok = GroupSummary("t", "w", "log2", frames=40, loaded=40, radar_points=[50] * 40, radar_in_image=1800,
+                      camera_us=[k * 500_000 for k in range(40)], boresight_deg=1.0)
+    one = DatasetSummary("root", "v1.0-mini", "RADAR_FRONT", "CAM_FRONT", [g, ok], [], 0).format()
+    assert "warning: only 0 of 2000 radar points (0.0 %) project into the CAM_FRONT image with the tables' " \
+           "extrinsic and intrinsics in 1 of 2 scenes (s of v)" in one
     assert "warning: keyframes are 0.500 ms apart" in summary(900, 500)
 
 

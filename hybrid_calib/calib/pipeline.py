@@ -234,7 +234,9 @@ def trust_reason(res: VehicleResult, T_reference: np.ndarray) -> str:
             trans_cm > 100 * ASTRAY_TRANS_M:
         reasons.append(f"the estimate lies {rot_deg:.1f} deg and {trans_cm / 100:.2f} m from the vehicle's tables, "
                        f"farther than any radar mount sits from them ({ASTRAY_ROT_DEG:g} deg, {ASTRAY_TRANS_M:g} m): "
-                       "the solve went astray (too few frames or rows for its start); calibrate a longer drive")
+                       "the solve went astray (too few frames or rows for its start: calibrate a longer drive), or "
+                       "the tables' mount itself is wrong (a rotation or translation in calibrated_sensor.json: "
+                       "hybrid-calib inspect warns when the radar's points miss the image with it)")
     return "; and ".join(r for r in reasons if r)
 
 

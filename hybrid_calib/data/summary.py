@@ -131,14 +131,18 @@ class DatasetSummary:
         """Warnings on tables that load but cannot be right: radar points that (almost) never fall into the image
         with the tables' calibration, keyframes milliseconds apart (both passed as a clean bill)."""
         out = []
-        pts, inside = sum(sum(g.radar_points) for g in self.groups), sum(g.radar_in_image for g in self.groups)
-        if pts >= 50 and inside < MIN_IN_IMAGE * pts:
-            away = max((g.boresight_deg for g in self.groups), default=0.0)
+        blind = [g for g in self.groups if sum(g.radar_points) >= 50 and g.radar_in_image < MIN_IN_IMAGE * sum(
+            g.radar_points)]  # per scene: one vehicle's wrong mount hid among others' right ones (probe 29)
+        if blind:
+            pts, inside = sum(sum(g.radar_points) for g in blind), sum(g.radar_in_image for g in blind)
+            away = max(g.boresight_deg for g in blind)
+            where = ("" if len(blind) == len(self.groups) else f" in {len(blind)} of {len(self.groups)} scenes (" +
+                     ", ".join(f"{g.scene} of {g.vehicle}" for g in blind[:4]) + (", ..." if len(blind) > 4 else "")
+                     + ")")
             out.append(f"warning: only {inside} of {pts} radar points ({100 * inside / pts:.1f} %) project into the "
-                       f"{self.camera_channel} image with the tables' extrinsic and intrinsics: "
-                       + (f"the {self.radar_channel} looks {away:.0f} deg away from the {self.camera_channel}'s axis "
-                          "(a side or rear radar sees little of this camera's view: pair it with a camera facing "
-                          "its way, --radar/--camera)" if away > 60 else
+                       f"{self.camera_channel} image with the tables' extrinsic and intrinsics{where}: "
+                       + (f"the tables' mounts turn the {self.radar_channel} {away:.0f} deg away from the "
+                          f"{self.camera_channel}'s axis: " + self._away_words() if away > 60 else
                           "the intrinsics may be for another image size (width/height in sample_data against "
                           "camera_intrinsic's principal point), or the camera-radar extrinsic is far off"))
         for g in self.groups:
@@ -146,6 +150,22 @@ class DatasetSummary:
         if gap := keyframe_gap_warning(g.camera_us for g in self.groups):
             out.append(gap)
         return out
+
+    def _away_words(self) -> str:
+        """Why a radar would look away from the camera: another direction (a side or rear radar), or a mount rotation
+        written wrong in calibrated_sensor.json; the second first when both channels name the same side (probe 29: a
+        radar quaternion in x, y, z, w order read "RADAR_FRONT looks 180 deg away ... pair it with a camera facing its
+        way")."""
+        sides = ("FRONT", "BACK", "LEFT", "RIGHT")
+        same = [w for w in sides if w in self.radar_channel.upper().split("_")
+                and w in self.camera_channel.upper().split("_")]
+        wrong = ("a mount rotation in calibrated_sensor.json is wrong (a quaternion written x, y, z, w instead of "
+                 "w, x, y, z, or the inverse rotation: check both channels' records)")
+        other = ("a side or rear radar sees little of this camera's view: pair it with a camera facing its way, "
+                 "--radar/--camera")
+        if same:
+            return f"both channels are {same[0]} sensors, so {wrong}; or the channels' names are not their directions"
+        return f"either {other}, or {wrong}"
 
     def _sweep_lines(self) -> list[str]:
         """What the radar's non-keyframe sweeps give the Doppler steps (mount monitor, lever arm), in words."""
