@@ -462,6 +462,14 @@ def test_inspect_warns_about_tables_that_load_but_cannot_be_right():
     assert "warning: only 0 of 2000 radar points (0.0 %) project into the CAM_FRONT image with the tables' " \
            "extrinsic and intrinsics in 1 of 2 scenes (s of v)" in one
     assert "warning: keyframes are 0.500 ms apart" in summary(900, 500)
+    # a radar record 0.3 s from its camera's, and a mount 34 m from the vehicle's origin (decimetres): silent (probe 29)
+    g = GroupSummary("s", "v", "log", frames=40, loaded=40, radar_points=[50] * 40, radar_in_image=900,
+                     camera_us=[k * 500_000 for k in range(40)], late=[("tok7", 329.0)],
+                     far_mount=("RADAR_FRONT", 34.5))
+    said = DatasetSummary("root", "v1.0-mini", "RADAR_FRONT", "CAM_FRONT", [g], [], 0).format()
+    assert "1 keyframe(s) whose RADAR_FRONT record is more than 100 ms from its CAM_FRONT record (worst: sample " \
+           "tok7, +329 ms" in said
+    assert "the RADAR_FRONT's mount lies 34.5 m from the vehicle's origin" in said
 
 
 def test_inspect_warns_about_keyframes_that_do_not_advance_and_ego_poses_that_jump():

@@ -31,6 +31,12 @@ from hybrid_calib.data.tables import MAX_EGO_SPEED_MPS
 from hybrid_calib.geometry import transform_points
 
 MIN_IN_IMAGE = 0.02  # fewer radar points in the image than this fraction: the tables' calibration cannot be right
+# a keyframe's radar record this far in time from its camera's (nuScenes: under 0.1 s; the loader refuses beyond its
+# max_sync_offset_s, 0.5 s): said, since a record naming another instant moved the yaw by 2.5 deg silently (probe 29)
+SYNC_WARN_MS = 100.0
+# a sensor mount farther than this from the vehicle's origin (nuScenes: within 4 m) is said: a translation in
+# decimetres (34 m) passed every check below the loader's 50 m bound (probe 29)
+MOUNT_WARN_M = 10.0
 MIN_KEYFRAME_GAP_US = 10_000  # keyframes closer than 10 ms (nuScenes: 500 ms): the timestamps are not microseconds
 
 
@@ -56,6 +62,8 @@ class GroupSummary:
     camera_us: list[int] = field(default_factory=list)  # camera keyframe timestamps (the sanity of their unit)
     # per loaded frame in scene order: (sample token, radar timestamp us, ego position at it (3,) m)
     ego_track: list[tuple[str, int, np.ndarray]] = field(default_factory=list)
+    late: list[tuple[str, float]] = field(default_factory=list)  # (sample, radar - camera ms) beyond SYNC_WARN_MS
+    far_mount: tuple[str, float] = ("", 0.0)  # the channel whose mount lies farthest from the ego origin; how far, m
 
     def to_json(self) -> dict[str, Any]:
         pts = np.asarray(self.radar_points or [0])
@@ -147,6 +155,17 @@ class DatasetSummary:
                           "camera_intrinsic's principal point), or the camera-radar extrinsic is far off"))
         for g in self.groups:
             out += _time_and_pose_lines(g)
+            if g.late:
+                worst = max(g.late, key=lambda x: abs(x[1]))
+                out.append(f"warning: scene {g.scene}: {len(g.late)} keyframe(s) whose {self.radar_channel} record is "
+                           f"more than {SYNC_WARN_MS:g} ms from its {self.camera_channel} record (worst: sample "
+                           f"{worst[0]}, {worst[1]:+.0f} ms; nuScenes keyframes are under 0.1 s apart): a timestamp "
+                           "or the instant a record names is wrong, and the frame's motion compensation uses it; "
+                           "fix or re-extract sample_data.json")
+            if g.far_mount[1] > MOUNT_WARN_M:
+                out.append(f"warning: scene {g.scene}: the {g.far_mount[0]}'s mount lies {g.far_mount[1]:.1f} m from "
+                           f"the vehicle's origin in calibrated_sensor.json (a sensor on a car sits within a few "
+                           "metres of it): a translation in another unit (cm, dm) or another frame's; fix the record")
         if gap := keyframe_gap_warning(g.camera_us for g in self.groups):
             out.append(gap)
         return out
@@ -305,6 +324,11 @@ def summarize_dataset(ds: NuScenesRadarCamera, progress: bool = True) -> Dataset
         g.nonfinite += int(f.extras["radar_nonfinite_dropped"])
         g.lidar_nonfinite += int(f.extras.get("lidar_nonfinite_dropped", 0))
         g.dt_ms.append((f.timestamp_radar_us - f.timestamp_camera_us) / 1000.0)
+        if abs(g.dt_ms[-1]) > SYNC_WARN_MS:
+            g.late.append((f.sample_token, g.dt_ms[-1]))
+        for channel, key in ((ds.radar_channel, "T_ego_radar"), (ds.camera_channel, "T_ego_cam")):
+            if (mount := f.extras.get(key)) is not None and (d := float(np.linalg.norm(mount[:3, 3]))) > g.far_mount[1]:
+                g.far_mount = (channel, d)
         g.camera_us.append(int(f.timestamp_camera_us))
         pose = f.extras.get("T_global_ego_radar")
         if pose is not None and np.all(np.isfinite(pose)):
