@@ -1013,6 +1013,21 @@ def test_a_channel_of_another_modality_is_one_clear_error(argv, needles, tiny, c
     assert _one_paragraph(err)
 
 
+def test_a_channel_named_twice_in_sensor_json_is_said_and_modalities_read_in_any_case(tiny, capsys):
+    """A second sensor record named RADAR_FRONT (a camera) read "RADAR_FRONT is a camera sensor, not a radar" and
+    "Radar" read "is a Radar sensor in sensor.json, not a radar" (probe 29)."""
+    for s in tiny.tables["sensor"]:
+        s["modality"] = s["modality"].capitalize()
+    tiny.rewrite_table("sensor")
+    rc, err = run_cli(_inspect(tiny), capsys)
+    assert rc == 0, err  # "Radar" is a radar
+    tiny.tables["sensor"].insert(0, dict(token="sensor_dup", channel="RADAR_FRONT", modality="camera"))
+    tiny.rewrite_table("sensor")
+    err = expect_cli_error(_inspect(tiny), capsys, "'RADAR_FRONT' (--radar) is named by several sensor records",
+                           "modalities camera and radar", tiny.vdir / "sensor.json")
+    assert _one_paragraph(err)
+
+
 def test_an_empty_scene_table_says_so(tiny, capsys):
     tiny.tables["scene"] = []
     tiny.rewrite_table("scene")

@@ -182,6 +182,11 @@ class NuScenesRadarCamera:
         for ch, modality, option in ((radar_channel, "radar", "--radar"), (camera_channel, "camera", "--camera"),
                                      (self.conf.lidar_channel, "lidar", "lidar_channel")):
             found = self.tables.modality(ch)
+            if ch in wanted and "/" in found:  # a second record of the channel read as "a camera, not a radar"
+                raise DataError(f"channel {ch!r} ({option}) is named by several sensor records in sensor.json, of "
+                                f"modalities {found.replace('/', ' and ')}: one channel is one sensor; remove the "
+                                "record that is not its sensor (and the calibrated_sensor records that name it)",
+                                path=str(self.tables.path("sensor")))
             if ch in wanted and found != modality:
                 same = [c for c in channels if self.tables.modality(c) == modality]
                 raise DataError(f"channel {ch!r} ({option}) is a {found or 'unknown'} sensor in sensor.json, not a "

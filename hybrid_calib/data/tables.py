@@ -256,8 +256,9 @@ class NuScenesTables:
         return sorted({s["channel"] for s in self.records["sensor"]})
 
     def modality(self, channel: str) -> str:
-        """The ``modality`` (camera / radar / lidar) sensor.json gives a channel ("" if it is not there)."""
-        return next((s["modality"] for s in self.records["sensor"] if s["channel"] == channel), "")
+        """The ``modality`` (camera / radar / lidar) sensor.json gives a channel, read in lower case ("Radar" is a
+        radar); "" if it is not there; "a/b" when several records name the channel with different modalities."""
+        return "/".join(sorted({str(s["modality"]).lower() for s in self.records["sensor"] if s["channel"] == channel}))
 
     def channel_of(self, sd: dict) -> str:
         """The sensor channel (e.g. ``RADAR_FRONT``) of a sample_data record."""
