@@ -323,6 +323,18 @@ def test_an_inconclusive_vehicle_is_flagged_counted_and_never_within_tolerance(l
 
     page = write_fleet_page([tmp_path / r["result"]], tmp_path / "fleet.html").read_text()
     assert "cannot tell (the data do not decide" in page and " inconclusive (" not in page
+    # the radar mount monitor measured a turn beyond the tolerance (calib.drift.with_mount_step): recalibrate, as
+    # calibrate, result.json and the reports say, also in the fleet's text view (it read "cannot tell": probe 30)
+    drift = doc["vehicles"]["sim-veh-001"]["drift"]
+    doc["vehicles"]["sim-veh-001"]["drift"] = {
+        **drift, "at_end": {k: drift.get(k) for k in ("verdict_kind", "verdict", "drifted")},
+        "verdict_kind": "recalibrate", "drifted": True,
+        "verdict": "recalibrate: The radar turned on the vehicle during the drive by 1.48 +- 0.34 deg (3 sigma) to "
+                   "the left in yaw. Against the reference at the drive's end: cannot tell"}
+    f.write_text(json.dumps(doc))
+    s = run_fleet([str(fleet_root)], None, "v1.0-sim", "oracle", tmp_path, seed=2, calib={"window": {"window": 3}},
+                  options=FleetOptions(plots=False))
+    assert s["vehicles"]["sim-veh-001"]["verdict"].startswith("recalibrate: The radar turned")
 
 
 def test_network_method_job_matches_the_hybrid_entry_point(fleet_root, tmp_path):

@@ -108,8 +108,11 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
                        keys, camera_offset(np.asarray(j["tables_T"]), vr.final.T).tolist())),
                    std_cam=std_dict(vr.final.std, STD_FRAME),
                    drift={k: d.get(k) for k in ("drifted", "p_value", "statistic")},
+                   # an untrusted estimate cannot tell, unless the radar mount monitor measured a turn beyond the
+                   # tolerance (calib.drift.with_mount_step: "recalibrate", as calibrate, result.json and the
+                   # reports say; the fleet's text view read "cannot tell" for it: probe 30)
                    verdict="cannot tell: the estimate is not trusted (its status: inconclusive)"
-                   if status_kind(vr.final.status) == "inconclusive" else (
+                   if status_kind(vr.final.status) == "inconclusive" and not d.get("at_end") else (
                        d.get("verdict") or ("out of tolerance" if d.get("drifted") else "within tolerance")),
                    step_alarms=[f.index for f in vr.trajectory if f.step_alarm], error=vr.error, fleet_test=None,
                    mount_steps=(vr.mount or {}).get("steps", []))
