@@ -180,7 +180,8 @@ def test_the_terminal_says_the_windows_step_alarms(capsys, tmp_path):
     run = SimpleNamespace(vehicles={"v": _vr((0,) * 6, (0.05,) * 6, alarms=(1, 3))}, vehicles_failed={})
     assert _report(run, tmp_path) == 0
     out = capsys.readouterr().out
-    assert "  step alarms at frames 1, 3 (the window's step test" in out
+    assert "  step alarms at frame 1: the window's step test (the mount changed inside the drive; the window " \
+           "restarted there, the estimate is the mount after it); frame 3: the window's step test" in out
     assert "rot x/y/z (pitch/yaw/roll) 0.050/0.050/0.050 deg, t x/y/z 0.05/0.05/0.05 cm" in out
     _report(SimpleNamespace(vehicles={"v": _vr((0,) * 6, (0.05,) * 6)}, vehicles_failed={}), tmp_path)
     assert "step alarm" not in capsys.readouterr().out

@@ -370,4 +370,4 @@ def test_a_step_is_the_difference_of_the_levels_either_side_of_its_change():
 
 def test_a_one_sigma_turn_in_words():
     from hybrid_calib.calib.mount_monitor import turn_words
-    assert turn_words(1.43, 0.09) == "1.43 +- 0.09 deg to the left in yaw"
+    assert turn_words(1.43, 0.09) == "1.43 +- 0.09 deg (1 sigma) to the left in yaw"

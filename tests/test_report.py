@@ -119,7 +119,9 @@ def test_report_rebuilds_the_runs_rows_and_start(run_dir):
     assert not np.allclose(T0, run.vehicles[name].final.T, atol=1e-3)  # an R1 start, far from the result
 
 
-def _vr(delta, std, status="ok", drift_extra=None, alarms=()):
+def _vr(delta, std, status="ok", drift_extra=None, alarms=(), tested=False):
+    """A vehicle result; ``alarms`` (frame indices) gives it a 5-frame trajectory, whose window step test computed a
+    statistic at every frame when ``tested``."""
     keys = ("rot_x_deg", "rot_y_deg", "rot_z_deg", "t_x_cm", "t_y_cm", "t_z_cm")
     est = Estimate(nominal_T_cam_radar(), np.eye(6) * 1e-6, np.asarray(std, float), status)
     drift = {"delta_camera": dict(zip(keys, delta)), "statistic": 1.0, "p_value": 0.5, "drifted": False}
@@ -128,8 +130,8 @@ def _vr(delta, std, status="ok", drift_extra=None, alarms=()):
     if alarms:
         from hybrid_calib.calib.result import FrameEstimate
 
-        vr.trajectory = [FrameEstimate(k, str(k), 0, est, 1, 1, 1.0, None, None, k in alarms, 0.0, 0.0)
-                         for k in range(5)]
+        vr.trajectory = [FrameEstimate(k, str(k), 0, est, 1, 1, 1.0, 1.0 if tested else None, 30.0 if tested else None,
+                                       k in alarms, 0.0, 0.0) for k in range(5)]
     return vr
 
 
@@ -355,17 +357,46 @@ def test_a_mount_monitor_that_tested_nothing_does_not_say_no():
     from hybrid_calib.calib.mount_monitor import tested_words
     from hybrid_calib.report.verdict import moved_during_drive
 
-    vr = _vr((0.0,) * 6, (0.05,) * 6, alarms=(99,))  # a trajectory, no alarm in it
+    vr = _vr((0.0,) * 6, (0.05,) * 6, alarms=(99,), tested=True)  # a trajectory, no alarm in it
     vr.mount = {"steps": [], "levels": [], "frames_tested": 0, "pairs_tested": 0, "threshold": 8.0}
     moved, frames = moved_during_drive(vr)
     assert moved.startswith("not told for the radar's yaw") and frames == ()
+    assert moved.endswith("no step alarm from the window's windowed chi-square of the recent frames against the "
+                          "long-run estimate, over the 5 frames the estimate used")
     assert tested_words(vr.mount).startswith("no frame pair tested (no pair had a usable Doppler velocity")
     skipped = {**vr.mount, "frames_skipped": 4, "skip_example": "the ego poses moved 0.00 m"}
     assert tested_words(skipped).startswith("no frame pair tested (4 frames skipped, the first because the ego poses")
-    vr.mount = {**vr.mount, "frames_tested": 4, "pairs_tested": 4}
+    vr.mount = {**vr.mount, "frames_tested": 40, "pairs_tested": 40, "blind_frames": [10, 5]}
     said = moved_during_drive(vr)[0]
-    assert said.startswith("no: no step alarm (the radar mount monitor over 4 frame pairs tested")
-    assert said.endswith("over the 5 frames the estimate used)")
+    assert said.startswith("no: no step alarm from the radar mount monitor (the radar's Doppler heading against the "
+                           "vehicle's ego poses) over 40 frame pairs tested and from the window's")
+    assert said.endswith("; the radar mount monitor is blind to a step in the first 10 or the last 5 frames tested")
+    # a 4-frame monitor cannot alarm: with no window statistic either (pure, pure-avg, a short drive) nothing was
+    # tested, which read "no: no step alarm ... over the 16 frames the estimate used" for a pure result (probe 30)
+    vr = _vr((0.0,) * 6, (0.05,) * 6, alarms=(99,))
+    assert moved_during_drive(vr)[0].startswith("not tested: no step test could run on this result (the window's "
+                                                "step test computed no statistic over these 5 frames")
+    vr.mount = {"steps": [], "levels": [], "frames_tested": 4, "pairs_tested": 4, "blind_frames": [10, 5]}
+    said = moved_during_drive(vr)[0]
+    assert said.startswith("not tested:") and "the radar mount monitor: it could not see a step on a drive this " \
+        "short: 4 frames tested" in said
+
+
+def test_a_step_alarm_names_the_test_that_raised_it():
+    """A radar mount monitor step credited to the window's test at the alarm frame (probe 30: "the window's step test
+    ... the window restarted there" at frame 13 for a monitor step from frame 8); a window alarm stays the window's."""
+    from hybrid_calib.report.verdict import alarm_words, moved_during_drive
+
+    vr = _vr((0.0,) * 6, (0.05,) * 6, alarms=(3, 4), tested=True)
+    vr.mount = {"steps": [{"at": 3, "change": 1, "step_deg": 1.48, "std_deg": 0.11, "statistic": 10.0}],
+                "levels": [], "frames_tested": 5, "pairs_tested": 5}
+    words = alarm_words(vr)
+    assert words[0].startswith("frame 3: the radar mount monitor (its Doppler against the ego poses): the radar "
+                               "turned by 1.48 +- 0.11 deg (1 sigma) to the left in yaw from about frame 1")
+    assert words[1].startswith("frame 4: the window's step test")
+    moved, frames = moved_during_drive(vr)
+    assert moved.startswith("yes: the sensor stepped during the drive; step alarm at frame 3: the radar mount") \
+        and frames == (3, 4)
 
 
 def test_the_attention_section_finds_a_network_methods_checkpoint(tmp_path):

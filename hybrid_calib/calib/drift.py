@@ -428,8 +428,11 @@ def camera_side_note(drift: dict, mount: dict | None) -> dict:
         # the verdict's yaw turns about camera y (down), the monitor's level about ego z (up): opposite signs for
         # one turn of the radar (measured: a tables' yaw 1 deg off reads delta +1.00, level -1.02)
         return drift
-    note = (f"the radar's own yaw on the vehicle agrees with its tables (radar mount monitor: {level:+.2f} +- "
-            f"{std:.2f} deg over {lv.get('pairs', '?')} sweep pairs), so the camera side (its mount or intrinsics in "
+    from hybrid_calib.calib.mount_monitor import level_words
+
+    note = (f"the radar's own yaw on the vehicle agrees with its tables (radar mount monitor: "
+            f"{level_words(level, std)} its tables' over {lv.get('pairs', '?')} sweep pairs), so the camera side "
+            "(its mount or intrinsics in "
             "calibrated_sensor.json) is the likelier cause of the yaw difference")
     return {**drift, "camera_side": note, "verdict": f"{drift.get('verdict', '')}; {note}"}
 

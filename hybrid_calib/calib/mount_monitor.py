@@ -118,7 +118,7 @@ class MountStep:
 
     def describe(self, threshold: float) -> str:
         return (f"radar mount step: the radar's heading against the vehicle's own motion (Doppler vs ego poses) "
-                f"moved by {self.step_deg:+.2f} +- {self.std_deg:.2f} deg (yaw) from frame {self.change} "
+                f"moved by {turn_words(self.step_deg, self.std_deg)} from frame {self.change} "
                 f"(CUSUM {self.statistic:.1f} > {threshold:g})")
 
 
@@ -328,13 +328,21 @@ def monitor_drive(frames, indices: list[int], T_ego_radar: np.ndarray, conf: Mou
 
 
 def turn_words(step_deg: float, std_deg: float, n_sigma: int = 1) -> str:
-    """A yaw step of the radar on the vehicle in words: "1.43 +- 0.09 deg to the left" (``n_sigma`` > 1: "+- x deg
-    (3 sigma)"). The monitor measures about the vehicle's up axis (left positive); the reference test's yaw turns
-    about camera y (down), so one turn of the radar reads with opposite signs there: said as a direction, never as a
-    sign (probe 24: "turned by +1.43 deg in yaw" beside "yaw -1.40" for the same turn)."""
+    """A yaw step of the radar on the vehicle in words: "1.43 +- 0.09 deg (1 sigma) to the left in yaw" (``n_sigma``
+    3: "+- x deg (3 sigma)"). The monitor measures about the vehicle's up axis (left positive); the reference test's
+    yaw turns about camera y (down), so one turn of the radar reads with opposite signs there: said as a direction,
+    never as a sign (probe 24: "turned by +1.43 deg in yaw" beside "yaw -1.40" for the same turn)."""
     side = "to the left" if step_deg > 0 else "to the right" if step_deg < 0 else ""
-    return (f"{abs(step_deg):.2f} +- {n_sigma * std_deg:.2f} deg" + (f" ({n_sigma} sigma)" if n_sigma > 1 else "")
-            + (f" {side}" if side else "") + " in yaw")
+    return (f"{abs(step_deg):.2f} +- {n_sigma * std_deg:.2f} deg ({n_sigma} sigma)" + (f" {side}" if side else "")
+            + " in yaw")  # the sigma always said: one step read "+- 0.34 deg (3 sigma)" and "+- 0.11 deg" (probe 30)
+
+
+def level_words(level_deg: float, std_deg: float) -> str:
+    """The radar's yaw on the vehicle against its tables' in words, a direction as ``turn_words``: "0.36 +- 0.12 deg
+    (1 sigma) to the right of" (the level turns about the vehicle's up axis, left positive; a signed "-0.36" beside the
+    reference test's camera yaw "+1.63" read as two different turns: probe 30)."""
+    side = "to the left of" if level_deg > 0 else "to the right of" if level_deg < 0 else "at"
+    return f"{abs(level_deg):.2f} +- {std_deg:.2f} deg (1 sigma) {side}"
 
 
 def blind_words(summary: dict) -> str:
@@ -370,8 +378,8 @@ def tested_words(summary: dict) -> str:
     if summary.get("implausible"):
         words += f"; {summary['implausible']}"
     elif len(levels) == 1 and pairs and not summary.get("steps"):  # the radar's yaw on the vehicle, as it reads
-        words += (f"; the radar's yaw on the vehicle {levels[0]['level_deg']:+.2f} +- {levels[0]['std_deg']:.2f} deg "
-                  "from its tables' (its Doppler against the ego poses)")
+        words += (f"; the radar's yaw on the vehicle {level_words(levels[0]['level_deg'], levels[0]['std_deg'])} its "
+                  "tables' (its Doppler against the ego poses)")
     if summary.get("sweeps_absent"):  # the hybrid's record: the tables list sweeps between keyframes, no files
         words += "; keyframes only: the root's radar sweeps between keyframes have no files (add sweeps/)"
     elif isinstance(gone := summary.get("sweeps_missing"), dict):

@@ -144,6 +144,7 @@ def _report(result, out: Path, reused: bool = False) -> int:
     from hybrid_calib.calib.mount_monitor import blind_words, tested_words, turn_words
     from hybrid_calib.calib.result import STD_FRAME
     from hybrid_calib.metrics import std_dict
+    from hybrid_calib.report.verdict import alarm_words
 
     for name, v in result.vehicles.items():
         s = std_dict(v.final.std, STD_FRAME)
@@ -165,10 +166,8 @@ def _report(result, out: Path, reused: bool = False) -> int:
                     f"{ood} frame(s) dropped as out of the network's domain" if ood else "")
             line += "; " + " and ".join(w for w in said if w) + " (listed in result.json)"
         print(line)
-        if alarms := [f.index for f in v.trajectory if f.step_alarm]:  # said as result.json, the report and the fleet
-            print(f"  step alarm{'s' if len(alarms) > 1 else ''} at frame{'s' if len(alarms) > 1 else ''} "
-                  f"{', '.join(map(str, alarms))} (the window's step test: the mount changed inside the drive; the "
-                  "window restarted there and the estimate is the mount after it)")
+        if alarms := alarm_words(v):  # each named with the test that raised it, as the report says it
+            print(f"  step alarm{'s' if len(alarms) > 1 else ''} at " + "; ".join(alarms))
         for key in ("depth_note", "range_note"):
             if v.config and v.config.get(key):
                 print(f"  note: {v.config[key]}")

@@ -144,32 +144,60 @@ def _out_of_domain_why(status: str) -> str:
 MOVED_ANSWERS = ("yes", "not told", "not tested", "no")  # the words a moved sentence opens with ("no" last)
 
 
+def alarm_words(vr: VehicleResult) -> list[str]:
+    """Per step alarm of ``vr``'s trajectory, in drive order: "frame K: " and which test raised it. A radar mount
+    monitor step (``vr.mount["steps"]``) is credited to the first alarm at or after its ``at``; the others are the
+    window's own step test. A monitor alarm at frame 13 read "the window's step test ... the window restarted
+    there", where the window had kept the frames from the change at frame 8 (probe 30)."""
+    alarms = [f.index for f in vr.trajectory if f.step_alarm]
+    credited: dict[int, dict] = {}
+    for st in sorted((vr.mount or {}).get("steps") or [], key=lambda st: int(st.get("at", 0))):
+        a = next((a for a in alarms if a >= int(st.get("at", 0)) and a not in credited), None)
+        if a is not None:
+            credited[a] = st
+    out = []
+    for a in alarms:
+        st = credited.get(a)
+        out.append(f"frame {a}: the window's step test (the mount changed inside the drive; the window restarted "
+                   "there, the estimate is the mount after it)" if st is None else
+                   f"frame {a}: the radar mount monitor (its Doppler against the ego poses): the radar turned by "
+                   f"{turn_words(st['step_deg'], st['std_deg'])} from about frame {st['change']}; the window kept "
+                   "only the frames since then")
+    return out
+
+
 def moved_during_drive(vr: VehicleResult) -> tuple[str, tuple[int, ...]]:
     """Whether a step test fired (the window's, and the hybrid's radar mount monitor), in words opening with
-    one of ``MOVED_ANSWERS``, and the frames where it did."""
+    one of ``MOVED_ANSWERS``, and the frames where it did. "no" only when a test ran: the pure methods run no
+    window and a short drive gives its test no statistic, which read "no: no step alarm" (probe 30)."""
     if not vr.trajectory:
         return "not tested (batch result: the step detector runs in the sliding window only)", ()
     alarms = tuple(f.index for f in vr.trajectory if f.step_alarm)
     mount = vr.mount or {}
-    tests = "windowed chi-square of the recent frames against the long-run estimate"
-    if mount:
-        tests = (f"the radar mount monitor over {tested_words(mount)} (the radar's Doppler "
-                 f"heading against the vehicle's ego poses), and the window's {tests}")
-    if not alarms and mount.get("implausible"):
-        return (f"not told for the radar's yaw: {mount['implausible']}; the window's windowed chi-square raised no "
-                f"step alarm over the {len(vr.trajectory)} frames the estimate used"), ()
-    if not alarms and mount and not int(mount.get("pairs_tested", 0)):
-        return (f"not told for the radar's yaw: the radar mount monitor tested no frame pair; the window's {tests} "
-                f"raised no step alarm over the {len(vr.trajectory)} frames the estimate used"), ()
-    if not alarms:
-        blind = blind_words(mount) if mount else ""
-        return (f"no: no step alarm ({tests}, over the {len(vr.trajectory)} frames the estimate used)"
-                + (f"; the radar mount monitor is {blind}" if blind.startswith("blind") else
-                   f"; but {blind}" if blind else "")), ()
-    turned = "; ".join(f"the radar turned on the vehicle by {turn_words(s['step_deg'], s['std_deg'])} "
-                       f"from about frame {s['change']}" for s in mount.get("steps", []))
-    return (f"yes: the sensor stepped during the drive (step detected at frame{'s' if len(alarms) > 1 else ''} "
-            f"{', '.join(map(str, alarms))}; the window restarted there)" + (f": {turned}" if turned else "")), alarms
+    n = len(vr.trajectory)
+    window_ran = any(f.step_statistic is not None for f in vr.trajectory)
+    window = (f"the window's windowed chi-square of the recent frames against the long-run estimate, over the {n} "
+              "frames the estimate used") if window_ran else ""
+    blind = blind_words(mount) if mount else ""
+    mount_ran = bool(mount) and int(mount.get("pairs_tested", 0)) > 0 and not blind.startswith("it could not")
+    monitor = (f"the radar mount monitor (the radar's Doppler heading against the vehicle's ego poses) over "
+               f"{tested_words(mount)}") if mount else ""
+    if alarms:
+        return "yes: the sensor stepped during the drive; step alarm at " + "; ".join(alarm_words(vr)), alarms
+    if mount.get("implausible"):
+        return f"not told for the radar's yaw: {mount['implausible']}" + (
+            f"; no step alarm from {window}" if window else ""), ()
+    if not window_ran and not mount_ran:
+        why = ("the window's step test computed no statistic over these " + str(n) + " frames (a drive too short for "
+               "its history, or a method that runs no window: pure, pure-avg)")
+        return f"not tested: no step test could run on this result ({why}" + (
+            f"; the radar mount monitor: {blind or tested_words(mount)}" if mount else "") + ")", ()
+    if mount and not mount_ran:  # the window's test ran; the monitor tested nothing, or too little to alarm
+        return (f"not told for the radar's yaw: {monitor}" + (f"; {blind}" if blind.startswith("it could not") else "")
+                + f"; no step alarm from {window}"), ()
+    tests = " and from ".join(t for t in (monitor, window) if t and (t is not monitor or mount_ran))
+    return (f"no: no step alarm from {tests}" + (f"; the radar mount monitor is {blind}" if blind.startswith("blind")
+                                                else "")), ()
 
 
 def verdict_of(vr: VehicleResult, tol: Tolerance | None = None) -> Verdict:
