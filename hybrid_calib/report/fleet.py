@@ -138,7 +138,11 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
             f"{esc(next(iter(verdicts.values())).tolerance)}.</p>"
             f"<h2>Offsets from the {esc(reference)}</h2>{fig}"
             "<h2>Vehicles</h2><p class=meta>Click a column to sort. Offsets: rotation angle and translation norm "
-            "of the change, camera axes; sigma: the largest per-axis 1-sigma.</p>"
+            f"of each estimate from the {esc(reference)} (as the plot above), camera axes; "
+            # both used to be called "the change" (probe 30)
+            + ("the change from a vehicle's own tables, which its verdict judges, is in its report; "
+               if design is not None else "")
+            + "sigma: the largest per-axis 1-sigma.</p>"
             "<table class=sortable id=\"vehicles\"><thead><tr><th class=l>vehicle</th><th class=l>verdict</th>"
             "<th class=l>flagged</th><th class=l>status</th><th class=l>moved in drive</th><th>offset rot (deg)</th>"
             "<th>offset t (cm)</th><th>max rot sigma (deg)</th><th>max t sigma (cm)</th><th>frames</th></tr></thead>"
