@@ -327,7 +327,8 @@ def test_a_yaw_difference_the_radar_mount_monitor_does_not_see_points_at_the_cam
              "axes": {"yaw": {"delta": 3.94, "std": 0.51, "tolerance": 0.5, "decision": "differs"}}}
     agrees = {"steps": [], "levels": [{"level_deg": 0.13, "std_deg": 0.07, "pairs": 42}]}
     noted = camera_side_note(drift, agrees)
-    assert "camera side" in noted["verdict"] and "0.13 +- 0.07 deg (1 sigma) to the left of its tables" in noted["camera_side"]
+    assert "camera side" in noted["verdict"]
+    assert "0.13 +- 0.07 deg (1 sigma) to the left of its tables" in noted["camera_side"]
     moved = {"steps": [], "levels": [{"level_deg": -3.8, "std_deg": 0.1, "pairs": 42}]}  # the radar turned: no note
     assert camera_side_note(drift, moved) == drift
     assert camera_side_note(drift, None) == drift

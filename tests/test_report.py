@@ -253,6 +253,18 @@ def test_report_without_data_says_so(run_dir, tmp_path):
     assert out.read_text().count("data:image/png") == 1  # only the 3-sigma bands (from result.json)
 
 
+def test_a_report_on_a_moved_root_names_the_root_its_frames_came_from(run_dir, tmp_path):
+    """--data at a copy of the run's root: the header named only the run's own root (probe 30: a moved root)."""
+    import shutil
+
+    result = run_dir / "run" / "result.json"
+    name = sorted(json.loads(result.read_text())["vehicles"])[0]
+    moved = shutil.copytree(run_dir / "sim", tmp_path / "sim-moved")
+    page = write_report(result, tmp_path / "m.html", vehicle=name, data=moved).read_text()
+    assert f"frames shown from {moved} (v1.0-sim)" in page and "data:image/png" in page
+    assert "frames shown from" not in write_report(result, tmp_path / "o.html", vehicle=name).read_text()
+
+
 def test_report_on_data_changed_since_the_result_shows_none_of_them(run_dir, tmp_path):
     """A result drawn over a root re-simulated since (the same tokens, other data) showed the new frames and rows
     beside the old numbers, without a word; export refused the same result."""

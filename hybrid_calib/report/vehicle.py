@@ -227,7 +227,11 @@ def write_report(result: str | Path, out: str | Path, vehicle: str | None = None
     notes = "".join(f"<li>{esc(x)}</li>" for x in ev.notes)
     body = (f"<h1>Radar-camera calibration: {esc(name)}</h1>"
             f"<p class=meta>{vr.n_frames} frames, {esc(run.mode)} mode, correspondences: {esc(run.correspondences)}; "
-            f"data: {esc(run.data)} ({esc(run.version)}); result: {esc(result)}</p>"
+            f"data: {esc(run.data)} ({esc(run.version)})"
+            # the frames shown come from --data when given: the run's own root may have moved since (probe 30)
+            + (f"; frames shown from {esc(str(data))} ({esc(version or run.version)})"
+               if data is not None and Path(data).resolve() != Path(run.data).resolve() else "")
+            + f"; result: {esc(result)}</p>"
             f"{verdict_html(v, vr)}{extrinsic_html(vr)}{status_html(vr)}{figs}{network_html(vr, ev, att)}"
             + (f"<h2>Notes</h2><ul id=\"notes\">{notes}</ul>" if notes else "")
             + f"<p class=meta>Written by hybrid-calib report in {time.perf_counter() - t0:.1f} s.</p>")
