@@ -108,6 +108,20 @@ def test_export_writes_the_estimate_where_measured_and_keeps_the_tables_where_pi
     assert rec["change_from"] == "reference"
 
 
+def test_export_says_what_its_change_is_measured_from(calibrated, tmp_path, capsys):
+    """The terminal said "moved 0.11 deg, 0.0 cm from the tables", a change from no table a user can open on a
+    simulated root (its reference is the factory calibration; probe 30): it names the verdict's reference."""
+    from hybrid_calib.cli import main
+
+    root, result = calibrated
+    T_ref = _tables_T(root, "sim-veh-000", "reference_T_cam_radar")
+    T_est = retract(T_ref, report_basis(T_ref).T @ np.r_[0.0, np.radians(1.5), 0.0, 0.0, 0.0, 0.0])
+    path = _edited(result, tmp_path / "r" / "result.json", "sim-veh-000", T=T_est)
+    assert main(["export", str(path), "--out", str(tmp_path / "out")]) == 0
+    out = capsys.readouterr().out
+    assert "sim-veh-000: exported" in out and "cm from the camera-radar calibration the verdict compared with" in out
+
+
 def test_untrusted_stale_and_misdirected_exports_are_refused(calibrated, tmp_path):
     from hybrid_calib.calib.export import export_mounts
     from hybrid_calib.cli import main
