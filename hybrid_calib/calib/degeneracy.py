@@ -110,20 +110,21 @@ class RowGeometry:
         return self._quantile(getattr(self, which), edges, q)
 
     def along_road_fraction(self, half_width_m: float) -> float:
-        """Largest fraction of the rows on two lines parallel to the radar x axis (each ``half_width_m``
-        wide, not overlapping: a straight road's kerbs, poles, parked cars, a lead vehicle). Each row counts
-        once: the best left and right bands used to overlap at the axis, and a lead vehicle read "200 %"
-        (probe 29)."""
+        """Largest fraction of the rows on two lines parallel to the radar x axis, one left and one right of the
+        radar (each ``half_width_m`` wide, sharing no row): a straight road's kerbs, poles, parked cars. The best
+        left and right bands used to overlap at the axis, so a lead vehicle dead ahead counted twice ("105 %",
+        "200 % on two lines"; probe 29)."""
         if self.n_rows == 0:
             return 0.0
+        centres = 0.5 * (_LAT_EDGES[:-1] + _LAT_EDGES[1:])
         k = max(1, int(round(half_width_m / (_LAT_EDGES[1] - _LAT_EDGES[0]))))
         band = np.convolve(self.lateral, np.ones(2 * k + 1), mode="same")  # rows within +-half_width of each centre
         gap = 2 * k + 1  # band centres this many bins apart share no bin
-        if len(band) <= gap:
-            return float(band.max() / self.n_rows)
-        best_before = np.maximum.accumulate(band)  # the best band ending at or before each bin
-        pairs = band[gap:] + best_before[:-gap]
-        return float(min(max(pairs.max(), band.max()), self.n_rows) / self.n_rows)
+        right = np.maximum.accumulate(np.where(centres < 0, band, 0.0))  # the best right band at or below each bin
+        left = np.flatnonzero(centres > 0)
+        below = left - gap
+        pairs = band[left] + np.where(below >= 0, right[np.maximum(below, 0)], 0.0)
+        return float(min(pairs.max(), self.n_rows) / self.n_rows)
 
 
 def along_road(geom: RowGeometry | None, conf: DegeneracyConfig) -> float | None:
