@@ -432,8 +432,7 @@ def camera_side_note(drift: dict, mount: dict | None) -> dict:
 
     note = (f"the radar's own yaw on the vehicle agrees with its tables (radar mount monitor: "
             f"{level_words(level, std)} its tables' over {lv.get('pairs', '?')} sweep pairs), so the camera side "
-            "(its mount or intrinsics in "
-            "calibrated_sensor.json) is the likelier cause of the yaw difference")
+            "(its mount or intrinsics in calibrated_sensor.json) is the likelier cause of the yaw difference")
     return {**drift, "camera_side": note, "verdict": f"{drift.get('verdict', '')}; {note}"}
 
 

@@ -38,8 +38,7 @@ def run(args: argparse.Namespace) -> int:
             # from the reference the verdict used (export.json "reference"): the tables' camera-radar calibration,
             # on a simulated root its factory one in sim_vehicle.json, not the record it replaces (probe 30)
             line += (f"; moved {ch['rot_deg']:.2f} deg, {ch['trans_cm']:.1f} cm from the camera-radar calibration the "
-                     "verdict compared with; 1-sigma of what it "
-                     f"wrote (camera axes): {', '.join(written)}")
+                     f"verdict compared with; 1-sigma of what it wrote (camera axes): {', '.join(written)}")
         print(line)
     for note in exp.notes:
         print(f"note: {note}")

@@ -136,8 +136,10 @@ class DatasetSummary:
         return "\n".join(lines)
 
     def _sanity_lines(self) -> list[str]:
-        """Warnings on tables that load but cannot be right: radar points that (almost) never fall into the image
-        with the tables' calibration, keyframes milliseconds apart (both passed as a clean bill)."""
+        """Warnings on tables that load but cannot be right: a scene whose radar points (almost) never fall into the
+        image with the tables' calibration, keyframes milliseconds apart, ego poses that jump, a keyframe's radar
+        record more than ``SYNC_WARN_MS`` from its camera's, a mount more than ``MOUNT_WARN_M`` from the vehicle's
+        origin (each passed as a clean bill)."""
         out = []
         blind = [g for g in self.groups if sum(g.radar_points) >= 50 and g.radar_in_image < MIN_IN_IMAGE * sum(
             g.radar_points)]  # per scene: one vehicle's wrong mount hid among others' right ones (probe 29)

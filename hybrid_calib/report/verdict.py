@@ -195,7 +195,7 @@ def moved_during_drive(vr: VehicleResult) -> tuple[str, tuple[int, ...]]:
     if mount and not mount_ran:  # the window's test ran; the monitor tested nothing, or too little to alarm
         return (f"not told for the radar's yaw: {monitor}" + (f"; {blind}" if blind.startswith("it could not") else "")
                 + f"; no step alarm from {window}"), ()
-    tests = " and from ".join(t for t in (monitor, window) if t and (t is not monitor or mount_ran))
+    tests = " and from ".join(t for t in (monitor, window) if t)  # a monitor here ran (the branch above)
     return (f"no: no step alarm from {tests}" + (f"; the radar mount monitor is {blind}" if blind.startswith("blind")
                                                 else "")), ()
 
