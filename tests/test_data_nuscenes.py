@@ -470,6 +470,13 @@ def test_inspect_warns_about_tables_that_load_but_cannot_be_right():
     assert "1 keyframe(s) whose RADAR_FRONT record is more than 100 ms from its CAM_FRONT record (worst: sample " \
            "tok7, +329 ms" in said
     assert "the RADAR_FRONT's mount lies 34.5 m from the vehicle's origin" in said
+    # one frame of another image size (sample_data without width / height): read with the drive's intrinsics
+    g = GroupSummary("s", "v", "log", frames=40, loaded=40, radar_points=[50] * 40, radar_in_image=900,
+                     camera_us=[k * 500_000 for k in range(40)],
+                     image_sizes={(1600, 900): [39, "tok0"], (1280, 720): [1, "tok9"]})
+    said = DatasetSummary("root", "v1.0-mini", "RADAR_FRONT", "CAM_FRONT", [g], [], 0).format()
+    assert "its CAM_FRONT images are not all one size: 39 frames 1600 x 900, and 1280 x 720 (1 frame(s), first: " \
+           "sample tok9)" in said
 
 
 def test_inspect_warns_about_keyframes_that_do_not_advance_and_ego_poses_that_jump():

@@ -64,6 +64,8 @@ class GroupSummary:
     ego_track: list[tuple[str, int, np.ndarray]] = field(default_factory=list)
     late: list[tuple[str, float]] = field(default_factory=list)  # (sample, radar - camera ms) beyond SYNC_WARN_MS
     far_mount: tuple[str, float] = ("", 0.0)  # the channel whose mount lies farthest from the ego origin; how far, m
+    # (width, height) of its camera images -> (frames, first sample): one camera's intrinsics fit one image size
+    image_sizes: dict[tuple[int, int], list] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         pts = np.asarray(self.radar_points or [0])
@@ -164,6 +166,14 @@ class DatasetSummary:
                            f"{worst[0]}, {worst[1]:+.0f} ms; nuScenes keyframes are under 0.1 s apart): a timestamp "
                            "or the instant a record names is wrong, and the frame's motion compensation uses it; "
                            "fix or re-extract sample_data.json")
+            if len(g.image_sizes) > 1:  # a frame of another size read with the drive's intrinsics (probe 29)
+                (w, h), (n, _) = max(g.image_sizes.items(), key=lambda kv: kv[1][0])
+                odd = [f"{ww} x {hh} ({m} frame(s), first: sample {tok})" for (ww, hh), (m, tok) in
+                       g.image_sizes.items() if (ww, hh) != (w, h)]
+                out.append(f"warning: scene {g.scene}: its {self.camera_channel} images are not all one size: {n} "
+                           f"frames {w} x {h}, and {'; '.join(odd[:3])}: a camera's intrinsics fit one image size, "
+                           "so those frames were resized or belong to another camera; replace them or give them "
+                           "their own calibrated_sensor record")
             if g.far_mount[1] > MOUNT_WARN_M:
                 out.append(f"warning: scene {g.scene}: the {g.far_mount[0]}'s mount lies {g.far_mount[1]:.1f} m from "
                            f"the vehicle's origin in calibrated_sensor.json (a sensor on a car sits within a few "
@@ -328,6 +338,8 @@ def summarize_dataset(ds: NuScenesRadarCamera, progress: bool = True) -> Dataset
         g.dt_ms.append((f.timestamp_radar_us - f.timestamp_camera_us) / 1000.0)
         if abs(g.dt_ms[-1]) > SYNC_WARN_MS:
             g.late.append((f.sample_token, g.dt_ms[-1]))
+        size = g.image_sizes.setdefault((int(f.camera.width), int(f.camera.height)), [0, f.sample_token])
+        size[0] += 1
         for channel, key in ((ds.radar_channel, "T_ego_radar"), (ds.camera_channel, "T_ego_cam")):
             if (mount := f.extras.get(key)) is not None and (d := float(np.linalg.norm(mount[:3, 3]))) > g.far_mount[1]:
                 g.far_mount = (channel, d)
