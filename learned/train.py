@@ -31,7 +31,6 @@ from typing import Any
 import numpy as np
 import torch
 
-from hybrid_calib.atomic import write_bytes_atomic
 from hybrid_calib.config import ConfigError, merge, read_out_record, require_ranges, save_json_atomic, to_dict
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.errors import HybridCalibError
@@ -185,7 +184,9 @@ class _CsvLog:
         w = csv.DictWriter(text, self.columns)
         w.writeheader()
         w.writerows(rows)
-        write_bytes_atomic(path, text.getvalue().encode())  # a kill here keeps the old log whole (probe 28)
+        from hybrid_calib.config import save_text_atomic
+
+        save_text_atomic(path, text.getvalue())  # a kill here keeps the old log whole (probe 28)
 
     def write(self, row: dict) -> None:
         with self.path.open("a", newline="") as f:

@@ -124,7 +124,7 @@ class RowGeometry:
         left = np.flatnonzero(centres > 0)
         below = left - gap
         pairs = band[left] + np.where(below >= 0, right[np.maximum(below, 0)], 0.0)
-        return float(min(pairs.max(), self.n_rows) / self.n_rows)
+        return float(pairs.max() / self.n_rows)
 
 
 def along_road(geom: RowGeometry | None, conf: DegeneracyConfig) -> float | None:

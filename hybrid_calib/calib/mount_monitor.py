@@ -332,17 +332,21 @@ def turn_words(step_deg: float, std_deg: float, n_sigma: int = 1) -> str:
     3: "+- x deg (3 sigma)"). The monitor measures about the vehicle's up axis (left positive); the reference test's
     yaw turns about camera y (down), so one turn of the radar reads with opposite signs there: said as a direction,
     never as a sign (probe 24: "turned by +1.43 deg in yaw" beside "yaw -1.40" for the same turn)."""
-    side = "to the left" if step_deg > 0 else "to the right" if step_deg < 0 else ""
+    side = _side(step_deg)
     return (f"{abs(step_deg):.2f} +- {n_sigma * std_deg:.2f} deg ({n_sigma} sigma)" + (f" {side}" if side else "")
             + " in yaw")  # the sigma always said: one step read "+- 0.34 deg (3 sigma)" and "+- 0.11 deg" (probe 30)
+
+
+def _side(yaw_deg: float) -> str:
+    """A yaw about the vehicle's up axis as a direction: "to the left" (positive), "to the right", or ""."""
+    return "to the left" if yaw_deg > 0 else "to the right" if yaw_deg < 0 else ""
 
 
 def level_words(level_deg: float, std_deg: float) -> str:
     """The radar's yaw on the vehicle against its tables' in words, a direction as ``turn_words``: "0.36 +- 0.12 deg
     (1 sigma) to the right of" (the level turns about the vehicle's up axis, left positive; a signed "-0.36" beside the
     reference test's camera yaw "+1.63" read as two different turns: probe 30)."""
-    side = "to the left of" if level_deg > 0 else "to the right of" if level_deg < 0 else "at"
-    return f"{abs(level_deg):.2f} +- {std_deg:.2f} deg (1 sigma) {side}"
+    return f"{abs(level_deg):.2f} +- {std_deg:.2f} deg (1 sigma) {_side(level_deg) + ' of' if level_deg else 'at'}"
 
 
 def blind_words(summary: dict) -> str:

@@ -188,8 +188,8 @@ def moved_during_drive(vr: VehicleResult) -> tuple[str, tuple[int, ...]]:
         return f"not told for the radar's yaw: {mount['implausible']}" + (
             f"; no step alarm from {window}" if window else ""), ()
     if not window_ran and not mount_ran:
-        why = ("the window's step test computed no statistic over these " + str(n) + " frames (a drive too short for "
-               "its history, or a method that runs no window: pure, pure-avg)")
+        why = (f"the window's step test computed no statistic over these {n} frames (a drive too short for its "
+               "history, or a method that runs no window: pure, pure-avg)")
         return f"not tested: no step test could run on this result ({why}" + (
             f"; the radar mount monitor: {blind or tested_words(mount)}" if mount else "") + ")", ()
     if mount and not mount_ran:  # the window's test ran; the monitor tested nothing, or too little to alarm
