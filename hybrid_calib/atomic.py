@@ -106,5 +106,43 @@ def out_dir_lock(out: str | Path, command: str) -> Iterator[None]:
         f.close()
 
 
+RUNS_NAME = "runs.json"  # OUT/runs.json: every command that finished writing into the folder (``record_run``)
+RUNS_KEPT = 200  # the newest records kept
+
+
+def record_run(out: str | Path, command: str, argv: list[str], status: int, started: float) -> Path | None:
+    """Append what ran into ``out`` to ``OUT/runs.json`` (a JSON list, oldest first, the newest ``RUNS_KEPT``): the
+    command line as typed, the working folder it was typed in, the start and end (UTC, ISO 8601), its exit status,
+    the hybrid-calib and Python versions and the host. A folder's results then say which command made them, when,
+    and which runs resumed them. Not a configuration: nothing compares it (each command's own record does that).
+    A record that cannot be read is replaced (say so nowhere: it is a log); returns its path, None when ``out``
+    is not a folder."""
+    import json
+    import platform
+    import shlex
+    import time
+
+    import hybrid_calib
+
+    out = Path(out)
+    if not out.is_dir():
+        return None
+    path = out / RUNS_NAME
+    try:
+        runs = json.loads(path.read_text())
+        runs = runs if isinstance(runs, list) else []
+    except (OSError, ValueError):
+        runs = []
+
+    def utc(t: float) -> str:
+        return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(t))
+
+    runs.append({"command": " ".join(["hybrid-calib", *map(shlex.quote, argv)]), "cwd": os.getcwd(),
+                 "started_utc": utc(started), "finished_utc": utc(time.time()), "exit_status": int(status),
+                 "hybrid_calib": hybrid_calib.__version__, "python": platform.python_version(),
+                 "host": platform.node()})
+    return write_bytes_atomic(path, (json.dumps(runs[-RUNS_KEPT:], indent=2) + "\n").encode("utf-8"))
+
+
 class OutDirBusy(HybridCalibError):
     """Another run holds the output folder's lock (``out_dir_lock``); the command line turns it into an error."""

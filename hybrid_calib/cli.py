@@ -19,7 +19,7 @@ import sys
 import warnings
 from pathlib import Path
 
-from hybrid_calib.atomic import out_dir_lock
+from hybrid_calib.atomic import LOCK_NAME, out_dir_lock, record_run
 from hybrid_calib.errors import (
     HybridCalibError,
     check_out_dir,
@@ -154,13 +154,17 @@ def main(argv: list[str] | None = None) -> int:
     if not debug:  # a warning is one line, as every other message: not our source file and line after it
         warnings.formatwarning = _one_line
     try:
-        return _run(args, debug)
+        return _run(args, debug, sys.argv[1:] if argv is None else [str(a) for a in argv])
     finally:
         warnings.formatwarning = before
 
 
-def _run(args: argparse.Namespace, debug: bool) -> int:
-    """The command, inside the error boundary (module doc)."""
+def _run(args: argparse.Namespace, debug: bool, argv: list[str]) -> int:
+    """The command, inside the error boundary (module doc). A command that returns, into an output folder that
+    holds more than its lock, appends its command line to ``OUT/runs.json`` (``atomic.record_run``; not simulate's
+    root, not report's page)."""
+    import time
+
     out = getattr(args, "out", None)
     try:
         if args.command == "report":  # --out is the page (a file), written atomically
@@ -177,7 +181,11 @@ def _run(args: argparse.Namespace, debug: bool) -> int:
         if out is None:
             return int(args._run(args) or 0)
         with out_dir_lock(out, args.command):
-            return int(args._run(args) or 0)
+            started = time.time()
+            status = int(args._run(args) or 0)
+            if args.command != "simulate" and any(p.name != LOCK_NAME for p in Path(out).iterdir()):
+                record_run(out, args.command, argv, status, started)
+            return status
     except BrokenPipeError:  # `| head -1`: the reader has gone; nothing more to say, and nowhere to say it
         _stdout_to_devnull()
         return 141  # 128 + SIGPIPE, as a shell reports a command a pipe ended

@@ -275,7 +275,8 @@ def _markdown(summary: CompareResult, conf: CompareConfig, command: str) -> str:
 # keys of compare_config.json that do not change what a trial gives: how the run ran, the trial count (more trials
 # extend a run), the methods (each has its own trial files) and the checkpoint paths (their contents are "network")
 _NOT_OF_A_TRIAL = ("trials", "methods", "hybrid.threads", "hybrid.progress", "hybrid.cache_dir", "hybrid.depth_cache",
-                   "hybrid.checkpoint", "hybrid.refine")
+                   "hybrid.checkpoint", "hybrid.refine",
+                   "hybrid.start")  # = range, compared as "range" (records before 2026-12-04 hold "reference")
 
 
 _WHOLE = ("data", "network", "hybrid.data", "hybrid.measurement", "hybrid.split_options")  # compared as one value
@@ -290,7 +291,12 @@ def _record(roots: list, version: str, conf: CompareConfig) -> dict:
 
     learned = any(m != "oracle" for m in conf.methods)
     hconf = dataclasses.replace(conf.hybrid, start=conf.range, method="hybrid" if learned else "oracle")
-    return {**to_dict(conf), **network_identity(hconf),
+    # the trials' hybrid block as they ran it: from the range's starts (not the default "reference"); the method and
+    # the seed are each trial's own (``methods``, ``seed``), so not recorded as one value
+    record = to_dict(dataclasses.replace(conf, hybrid=dataclasses.replace(conf.hybrid, start=conf.range)))
+    for key in ("method", "seed"):
+        record["hybrid"].pop(key, None)
+    return {**record, **network_identity(hconf),
             "data": {"roots": [str(Path(r).resolve()) for r in roots], "version": version,
                      "stamps": [data_stamp(r, version)["digest"] for r in roots]}}
 

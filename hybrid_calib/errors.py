@@ -69,12 +69,12 @@ def check_out_owner(out: str | Path | None, command: str) -> None:
     its files with them (a train run beside an evaluate run's results, sharing its depth cache)."""
     if out is None or not Path(out).is_dir():
         return
-    from hybrid_calib.atomic import LOCK_NAME
+    from hybrid_calib.atomic import LOCK_NAME, RUNS_NAME
 
     for other, marker in OUT_MARKERS.items():
         # a marker alone (with the lock file) is a run that failed before any output: nothing there to mix with
         if other != command and (Path(out) / marker).is_file() and any(
-                p.name not in (marker, LOCK_NAME) for p in Path(out).iterdir()):
+                p.name not in (marker, LOCK_NAME, RUNS_NAME) for p in Path(out).iterdir()):
             raise OptionError("--out", f"{out} holds the outputs of hybrid-calib {other} ({marker}); this {command} "
                                        "run would mix its files with them: pass another --out")
 

@@ -141,3 +141,24 @@ def test_a_full_disk_names_the_file_and_is_not_a_bug(failure, tmp_path, capsys):
     assert report_error("calibrate", e.value) == EXIT_ERROR
     err = capsys.readouterr().err
     assert f"no space left on the device while writing {p}" in err and "what was written before is kept" in err
+
+
+def test_the_runs_log_appends_each_command_and_replaces_an_unreadable_one(tmp_path):
+    import json
+    import time
+
+    from hybrid_calib.atomic import RUNS_NAME, record_run
+
+    assert record_run(tmp_path / "missing", "fleet", [], 0, time.time()) is None  # no folder: nothing created
+    assert not (tmp_path / "missing").exists()
+    t0 = time.time()
+    record_run(tmp_path, "calibrate", ["calibrate", "--data", "my root", "--out", str(tmp_path)], 0, t0)
+    record_run(tmp_path, "calibrate", ["calibrate", "--data", "my root"], 2, t0)
+    runs = json.loads((tmp_path / RUNS_NAME).read_text())
+    assert [r["exit_status"] for r in runs] == [0, 2]
+    assert runs[0]["command"] == f"hybrid-calib calibrate --data 'my root' --out {tmp_path}"  # pastes back as typed
+    assert runs[0]["started_utc"].endswith("Z") and runs[0]["started_utc"] <= runs[0]["finished_utc"]
+    assert {"cwd", "hybrid_calib", "python", "host"} <= set(runs[0])
+    (tmp_path / RUNS_NAME).write_text("{not json")  # a log, not a record: replaced, never an error
+    record_run(tmp_path, "fleet", ["fleet"], 0, t0)
+    assert [r["command"] for r in json.loads((tmp_path / RUNS_NAME).read_text())] == ["hybrid-calib fleet"]

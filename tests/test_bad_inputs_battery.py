@@ -1979,6 +1979,7 @@ def test_an_out_folder_of_another_command_is_refused(command, other, sim, tmp_pa
     from hybrid_calib.errors import check_out_owner
 
     (out / "x").unlink()  # the marker alone: a run of that command that failed before any output
+    (out / "runs.json").write_text("[]")  # with its log of commands (atomic.record_run): not an output to mix with
     check_out_owner(out, command)
 
 

@@ -272,7 +272,15 @@ def test_compare_smoke_resumes_and_writes_the_table(sim_root, tmp_path, capsys):
     assert main(argv) == 0  # resumed: nothing recomputed, and said
     assert (out / "trials" / "hybrid" / "0000.json").stat().st_mtime_ns == mtime
     assert "kept 6 trial(s) an earlier run finished" in capsys.readouterr().out
+    # the record says the trials ran from the range's starts (it said the default "reference"), and the folder
+    # says which commands made and resumed it, and when
+    record = json.loads((out / "compare_config.json").read_text())
+    assert record["range"] == record["hybrid"]["start"] == "R1" and "method" not in record["hybrid"]
+    runs = json.loads((out / "runs.json").read_text())
+    assert [r["command"] for r in runs] == ["hybrid-calib " + " ".join(argv)] * 2
+    assert all(r["exit_status"] == 0 and r["started_utc"] <= r["finished_utc"] for r in runs)
     assert main([*argv[:-1], "--seed", "3", "--no-progress"]) == 2  # another config in the same folder
+    assert len(json.loads((out / "runs.json").read_text())) == 2  # a refused run is not a run of this folder
     assert "another configuration (seed: 0 -> 3)" in capsys.readouterr().err  # what differs, named
     # what does not change a trial does not block the rerun: the methods' order or a subset, the threads, the default
     # checkpoint spelled out (its contents are what counts)
