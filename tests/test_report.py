@@ -247,7 +247,8 @@ def test_report_command(run_dir, tmp_path, capsys):
 def test_report_without_data_says_so(run_dir, tmp_path):
     result = run_dir / "run" / "result.json"
     name = sorted(json.loads(result.read_text())["vehicles"])[0]
-    out = write_report(result, tmp_path / "r.html", vehicle=name, data=tmp_path / "missing")
+    with pytest.warns(UserWarning, match="no data root: .*missing.* is not there"):  # said on the terminal too
+        out = write_report(result, tmp_path / "r.html", vehicle=name, data=tmp_path / "missing")
     notes = _parse(out).ids["notes"]
     assert "no data root" in notes and "--data ROOT --version V" in notes
     assert out.read_text().count("data:image/png") == 1  # only the 3-sigma bands (from result.json)
