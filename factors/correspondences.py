@@ -31,6 +31,14 @@ class Correspondences:
     timestamp_us: int = 0
 
     def __post_init__(self):
+        for name in ("points_radar", "pixels", "sigma_px", "confidence", "K"):  # owned, float64, read-only: what
+            value = getattr(self, name)  # was validated stays so (a caller's array changed after it was not)
+            try:
+                arr = np.array(value, dtype=np.float64)
+            except (TypeError, ValueError) as e:
+                raise ValueError(f"Correspondences[{self.frame_id}].{name}: not an array of numbers ({e})") from None
+            arr.flags.writeable = False
+            object.__setattr__(self, name, arr)
         n = len(self.points_radar)
         checks = {
             "points_radar": (np.shape(self.points_radar), (n, 3)),
@@ -47,9 +55,25 @@ class Correspondences:
                 raise ValueError(f"Correspondences[{self.frame_id}].{name} has NaN/inf values; drop those rows")
         if np.any(np.asarray(self.sigma_px) <= 0):
             raise ValueError(f"Correspondences[{self.frame_id}].sigma_px must be > 0")
+        if np.any((self.confidence < 0) | (self.confidence > 1)):
+            raise ValueError(f"Correspondences[{self.frame_id}].confidence must lie in [0, 1] (it multiplies each "
+                             f"row's information), got {self.confidence.min():g} .. {self.confidence.max():g}")
+        K = self.K
+        if not (np.all(np.isfinite(K)) and K[0, 0] > 0 and K[1, 1] > 0 and np.allclose(K[2], [0, 0, 1])):
+            raise ValueError(f"Correspondences[{self.frame_id}].K is not a pinhole camera matrix (finite, positive "
+                             f"focal lengths fx = K[0, 0] and fy = K[1, 1], last row [0, 0, 1]): {K.tolist()}")
 
     def __len__(self) -> int:
         return len(self.points_radar)
+
+    def content_key(self) -> str:
+        """A digest of the rows (radar points and pixels, exactly): two frames with one key repeat one measurement
+        (a stalled or replayed feed), which fused as two would shrink a covariance as if they were independent."""
+        import hashlib
+
+        h = hashlib.sha1(np.ascontiguousarray(self.points_radar).tobytes())
+        h.update(np.ascontiguousarray(self.pixels).tobytes())
+        return h.hexdigest()
 
     def subset(self, mask: np.ndarray) -> Correspondences:
         """The rows selected by a boolean mask or index array."""
@@ -77,3 +101,21 @@ class Correspondences:
         from factors.io import from_arrays
 
         return from_arrays(d).corr
+
+
+def repeated_frames(frames) -> dict[int, int]:
+    """{index: index of the earlier frame it repeats} over ``Correspondences`` ``frames`` with rows
+    (``content_key``); frames without rows repeat nothing."""
+    first: dict[str, int] = {}
+    out = {}
+    for i, f in enumerate(frames):
+        if len(f):
+            out.update({i: first[k]} if (k := f.content_key()) in first else {})
+            first.setdefault(k, i)
+    return out
+
+
+def repeat_message(frame_id: str, earlier_id: str) -> str:
+    """The words for a frame whose rows repeat an earlier frame's (``repeated_frames``)."""
+    return (f"frame {frame_id or '?'} repeats the rows of frame {earlier_id or '?'} exactly (a stalled or replayed "
+            "feed?): one measurement, not two independent ones, so it is left out")

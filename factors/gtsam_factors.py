@@ -20,28 +20,15 @@ from factors.robust import robustify
 
 
 def _check_cov(cov: np.ndarray, name: str) -> np.ndarray:
-    cov = np.asarray(cov, np.float64)
-    if cov.shape != (6, 6):
-        raise ValueError(f"{name}: expected a finite (6, 6) covariance, got shape {cov.shape}")
-    if not np.all(np.isfinite(cov)):
-        raise ValueError(f"{name}: covariance holds non-finite values (NaN/inf)")
-    if not np.allclose(cov, cov.T, rtol=1e-9, atol=1e-15 * max(1.0, np.abs(cov).max())):
-        raise ValueError(f"{name}: covariance is not symmetric")
-    if np.linalg.eigvalsh(cov).min() <= 0:
-        raise ValueError(f"{name}: covariance is not positive definite (use a large variance for a free axis)")
-    return cov
+    from hybrid_calib.geometry import check_covariance
+
+    return check_covariance(cov, name)
 
 
 def _check_T(T: np.ndarray, name: str) -> np.ndarray:
-    T = np.asarray(T, np.float64)
-    if T.shape != (4, 4):
-        raise ValueError(f"{name}: expected a finite (4, 4) transform, got shape {T.shape}")
-    if not np.all(np.isfinite(T)):
-        raise ValueError(f"{name}: transform holds non-finite values (NaN/inf)")
-    R = T[:3, :3]
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
-        raise ValueError(f"{name}: rotation block is not a proper rotation")
-    return T
+    from hybrid_calib.geometry import check_transform
+
+    return check_transform(T, name)
 
 
 def robust_rows(T_cam_radar: np.ndarray, rows: RowModel, conf: RadarPixelFactorConfig):

@@ -96,8 +96,8 @@ def to_arrays(m: FrameMeasurements) -> dict[str, np.ndarray]:
     c = m.corr
     d = {
         "schema_version": np.array(SCHEMA_VERSION, np.int64),
-        **{k: np.asarray(getattr(c, k), np.float64) for k in ROW_KEYS},
-        "K": np.asarray(c.K, np.float64), "frame_id": np.array(str(c.frame_id)),
+        **{k: np.array(getattr(c, k), np.float64) for k in ROW_KEYS},  # copies: the frame's own are read-only
+        "K": np.array(c.K, np.float64), "frame_id": np.array(str(c.frame_id)),
         "timestamp_us": np.array(int(c.timestamp_us), np.int64),
         "timestamp_radar_us": np.array(int(m.timestamp_radar_us), np.int64), "vehicle": np.array(str(m.vehicle)),
     }
@@ -136,9 +136,15 @@ def _array(d: Mapping, key: str, shape: tuple, source: str) -> np.ndarray:
 
 
 def _transform(d: Mapping, key: str, source: str) -> np.ndarray:
+    from hybrid_calib.geometry import is_rigid
+
     T = _array(d, key, (4, 4), source)
     if not np.allclose(T[3], [0, 0, 0, 1]):
         raise _bad(source, f"key {key!r} is not a rigid transform (last row {T[3].tolist()})")
+    if not is_rigid(T, atol=1e-4):  # float32 network outputs are orthonormal to ~1e-7; a scaled rotation read as
+        raise _bad(source, f"key {key!r} is not a rigid transform (its rotation block is not a rotation: "  # exact
+                           f"R^T R - I up to {np.abs(T[:3, :3].T @ T[:3, :3] - np.eye(3)).max():.2g}, det "
+                           f"{np.linalg.det(T[:3, :3]):.3g})")
     return T
 
 

@@ -109,8 +109,15 @@ def signed_errors(T_est: np.ndarray, T_gt: np.ndarray) -> np.ndarray:
 
 
 def extrinsic_error(T_est: np.ndarray, T_gt: np.ndarray) -> ExtrinsicError:
-    """Error of a (4, 4) ``T_cam_radar`` estimate against the (4, 4) ground truth."""
-    s = signed_errors(np.asarray(T_est, float), np.asarray(T_gt, float))
+    """Error of a (4, 4) ``T_cam_radar`` estimate against the (4, 4) ground truth (``ValueError`` naming the one
+    that is not a finite (4, 4) array: a NaN was numpy's "SVD did not converge"; a float32 network output's rotation,
+    orthonormal to ~1e-6 only, is measured as it is)."""
+    for name, T in (("T_est", T_est), ("T_gt", T_gt)):
+        if np.shape(T) != (4, 4) or not np.all(np.isfinite(T)):
+            raise ValueError(f"extrinsic_error {name}: expected a finite (4, 4) transform, got shape {np.shape(T)}"
+                             + ("" if np.shape(T) != (4, 4) else " with NaN/inf values"))
+    T_est, T_gt = np.asarray(T_est, float), np.asarray(T_gt, float)
+    s = signed_errors(T_est, T_gt)
     rpy = np.degrees(np.abs(s[:3]))
     dt = np.abs(s[3:]) * 100.0
     geo = np.degrees(np.linalg.norm(so3_log(T_est[:3, :3] @ T_gt[:3, :3].T)))

@@ -154,8 +154,13 @@ def export_pure(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig, out
     cache = DepthCache(Path(conf.depth_cache) if conf.depth_cache else out / "depth-cache")
     indices = eval_indices(frames, conf)
     if not indices:
-        raise HybridCalibError(f"no frames in split {conf.split!r} ({len(frames)} frames in the data); "
-                               "for a separately simulated test drive use --split all")
+        by = merge(SplitConfig, conf.split_options).by
+        how = (f"split.by={by} puts whole {by}s in one split (a hash of the name; a simulated root's scenes are "
+               "named by vehicle, scene-sim-veh-NNN, so with the default salt and fractions a root of fewer than 10 "
+               "vehicles has no test scene and of fewer than 8 no val scene): split each scene in time instead "
+               "with --split-by time (and train with --set split.by=time), or, " if by != "time" else "")
+        raise HybridCalibError(f"no frames in split {conf.split!r} ({len(frames)} frames in the data); {how}for a "
+                               "separately simulated test drive the network never trained on, use --split all")
     dataset = CalibDataset(frames, dconf, depth, indices=indices, cache=cache, train=False)
     todo = []
     for i, fi in enumerate(indices):

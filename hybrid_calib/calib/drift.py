@@ -65,7 +65,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
-from hybrid_calib.geometry import local, retract
+from hybrid_calib.geometry import check_covariance, check_transform, local, retract
 from hybrid_calib.words import join_and
 
 
@@ -300,7 +300,9 @@ def reference_test(
     from hybrid_calib.config import merge
 
     conf = merge(DriftConfig, conf)
-    T_est, T_ref = np.asarray(T_est, float), np.asarray(T_ref, float)
+    # a NaN, zero or negative covariance read as "within tolerance" (std 0), a scaled rotation scaled the std
+    T_est, T_ref = check_transform(T_est, "reference_test T_est"), check_transform(T_ref, "reference_test T_ref")
+    cov_est = check_covariance(cov_est, "reference_test cov_est", semidefinite=True)
     d = local(T_ref, T_est)
     C_ref = np.diag([np.radians(conf.ref_rot_std_deg) ** 2] * 3 + [(conf.ref_trans_std_cm / 100) ** 2] * 3)
     # the reference's std is given in camera axes: rotate into the radar-frame tangent of T_est

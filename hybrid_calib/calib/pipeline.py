@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from factors.correspondences import repeat_message, repeated_frames
 from factors.io import load_measurement_dir
 from hybrid_calib.calib.batch import BatchConfig, solve_batch
 from hybrid_calib.calib.covariance import NOT_CONVERGED, prior_pinned_std, status_kind
@@ -313,10 +314,13 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, progress: bool = 
 
     # a frame without rows (a network that matched nothing confidently) carries no information
     pos = list(vi.positions) if len(vi.positions) == len(vi.frames) else list(range(len(vi.frames)))
-    frames = [c for c in vi.frames if len(c)]
-    kept = [k for k, c in zip(pos, vi.frames) if len(c)]
+    repeats = repeated_frames(vi.frames)  # the same rows again (a stalled or replayed feed): one measurement
+    frames = [c for i, c in enumerate(vi.frames) if len(c) and i not in repeats]
+    kept = [k for i, (k, c) in enumerate(zip(pos, vi.frames)) if len(c) and i not in repeats]
     skipped = vi.skipped + [{"index": k, "token": c.frame_id, "reason": "no correspondence rows"}
                             for k, c in zip(pos, vi.frames) if not len(c)]
+    skipped += [{"index": pos[i], "token": vi.frames[i].frame_id,
+                 "reason": repeat_message(vi.frames[i].frame_id, vi.frames[j].frame_id)} for i, j in repeats.items()]
     if not frames:
         raise DataError(f"vehicle {vi.vehicle}: no usable frame ({len(skipped)} skipped; first: "
                         f"{skipped[0]['reason'] if skipped else '-'})")

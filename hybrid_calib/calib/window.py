@@ -34,6 +34,7 @@ Design (one extrinsic state; a fixed-lag window with lazy relinearisation):
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import time
 from collections import deque
@@ -42,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from factors.config import RadarPixelFactorConfig
-from factors.correspondences import Correspondences
+from factors.correspondences import Correspondences, repeat_message
 from factors.scene import scene_prior_std
 from hybrid_calib.calib.covariance import (
     CovarianceConfig,
@@ -67,7 +68,7 @@ from hybrid_calib.calib.schedule import (
     robust_solve,
 )
 from hybrid_calib.config import merge
-from hybrid_calib.geometry import local, retract
+from hybrid_calib.geometry import check_transform, local, retract
 
 
 @dataclass(frozen=True)
@@ -127,6 +128,7 @@ class _Frame:
     lin: Linearisation | None = None  # None until the frame was solved once
 
 
+REPEAT_MEMORY = 1000  # frames whose rows a new frame is compared with (a repeat of one of them is refused)
 _WEAK_INFO = 1e-8  # information added to a Gaussian before inverting it (std 1e4 rad / 1e4 m)
 
 
@@ -182,9 +184,7 @@ class SlidingWindowCalibrator:
 
     def __init__(self, T_init: np.ndarray, conf: WindowConfig | dict | None = None):
         self.conf = merge(WindowConfig, conf)
-        T_init = np.asarray(T_init, np.float64)
-        if T_init.shape != (4, 4) or not np.all(np.isfinite(T_init)):
-            raise ValueError(f"T_init must be a finite (4, 4) transform, got shape {T_init.shape}")
+        T_init = check_transform(T_init, "SlidingWindowCalibrator T_init")
         self.T = T_init.copy()
         self.T_init = T_init.copy()
         self.frames: deque[_Frame] = deque()
@@ -202,6 +202,7 @@ class SlidingWindowCalibrator:
         # per-drive scene nuisance (factors.scene): its cross information with the marginalised frames
         self._scene = len(scene_prior_std(self.conf.factor)) > 0
         self._marg_scene_cross = np.zeros((6, len(scene_prior_std(self.conf.factor))))
+        self._seen: dict[str, str] = {}  # content_key -> frame_id of the last REPEAT_MEMORY frames with rows
 
     # ------------------------------------------------------------------ linearisation
     def _gate(self) -> float:
@@ -434,11 +435,38 @@ class SlidingWindowCalibrator:
             self._marginalise(self.frames.popleft())
         return fr
 
+    def _snapshot(self) -> dict:
+        """The calibrator's state, to restore when an update fails (the frames' rows and priors are shared, not
+        copied: nothing changes them)."""
+        memo = {id(self.conf): self.conf}
+        for fr in self.frames:
+            memo[id(fr.corr)] = fr.corr
+            if fr.prior is not None:
+                memo[id(fr.prior)] = fr.prior
+        return copy.deepcopy(self.__dict__, memo)
+
     def update(self, corr: Correspondences, prior: GaussianPrior | None = None,
                timestamp_us: int | None = None) -> FrameEstimate:
-        """Add one frame (its correspondences and optional prior on T_cam_radar) and re-estimate."""
+        """Add one frame (its correspondences and optional prior on T_cam_radar) and re-estimate. A frame whose
+        update raises leaves the calibrator as it was before it (a stream that logs the error and goes on loses
+        that frame only: the frame stayed in the window and failed the next 20 good ones, probe 31)."""
         if not isinstance(corr, Correspondences):
             raise TypeError(f"update() needs a Correspondences, got {type(corr)}")
+        before = self._snapshot()
+        try:
+            return self._update(corr, prior, timestamp_us)
+        except BaseException:
+            self.__dict__.update(before)
+            raise
+
+    def _update(self, corr: Correspondences, prior: GaussianPrior | None, timestamp_us: int | None
+                ) -> FrameEstimate:
+        if len(corr):  # the same rows again: one measurement, which counted twice shrinks the covariance (probe 31)
+            if (key := corr.content_key()) in self._seen:
+                raise ValueError(repeat_message(corr.frame_id, self._seen[key]))
+            self._seen[key] = corr.frame_id
+            while len(self._seen) > REPEAT_MEMORY:
+                del self._seen[next(iter(self._seen))]
         t0 = time.perf_counter()
         ts = int(corr.timestamp_us if timestamp_us is None else timestamp_us)
         self._advance_clock(ts)

@@ -2,8 +2,10 @@
 
 One frame per sample (keyframe) that has both channels: the camera keyframe image and the radar
 keyframe sweep of the same sample (plus, optionally, earlier radar sweeps and the LiDAR keyframe).
-The ground-truth extrinsic is ego-motion compensated (docs/conventions.md):
-``T_cam_radar = inv(T_ego_cam) inv(T_global_ego(t_cam)) T_global_ego(t_radar) T_ego_radar``.
+A frame's projection of radar points into its image is ego-motion compensated (docs/conventions.md):
+``frame.T_cam_radar = inv(T_ego_cam) inv(T_global_ego(t_cam)) T_global_ego(t_radar) T_ego_radar``; the
+calibrated quantity, and the truth errors are scored against, is the mount ``inv(T_ego_cam) T_ego_radar``
+(``extras["T_cam_radar_static"]``).
 
 Bad input policy:
 - Root, version folder, tables, channel names and subsets are checked when the dataset is built;

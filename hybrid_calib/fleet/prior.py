@@ -57,7 +57,7 @@ import numpy as np
 
 from hybrid_calib.config import save_json_atomic
 from hybrid_calib.errors import DataError
-from hybrid_calib.geometry import is_rigid, local, retract
+from hybrid_calib.geometry import check_covariance, check_transform, is_rigid, local, retract
 
 MIN_VEHICLES = 3  # fewer inliers say nothing about a spread
 # a prior rests on at least this many vehicles: the spread ``S`` is estimated from them, so the predictive distribution
@@ -252,6 +252,14 @@ def fit_fleet_prior(names: list[str], Ts: list[np.ndarray], covs: list[np.ndarra
     ``common_cov`` (6, 6): the part of every ``covs[i]`` shared by all vehicles (P; default none).
     ``sources``: name -> {"data", "version", "vehicle", "frames"} (``FleetPrior.sources``).
     ``DataError`` with fewer than ``MIN_VEHICLES`` vehicles."""
+    if not len(names) == len(Ts) == len(covs):  # zip-like truncation dropped vehicles without a word
+        raise ValueError(f"fit_fleet_prior: {len(names)} names, {len(Ts)} transforms and {len(covs)} covariances; "
+                         "give one of each per vehicle")
+    if len(set(names)) != len(names):
+        raise ValueError(f"fit_fleet_prior: a vehicle named twice ({sorted({n for n in names if names.count(n) > 1})})")
+    T_ref = check_transform(T_ref, "fit_fleet_prior T_ref")
+    Ts = [check_transform(T, f"fit_fleet_prior Ts[{k}] ({names[k]})") for k, T in enumerate(Ts)]
+    covs = [check_covariance(c, f"fit_fleet_prior covs[{k}] ({names[k]})") for k, c in enumerate(covs)]
     if len(names) < MIN_VEHICLES:
         raise DataError(f"a fleet prior needs >= {MIN_VEHICLES} calibrated vehicles, got {len(names)}")
     x = np.array([local(T_ref, T) for T in Ts])

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from factors.robust import weight
-from hybrid_calib.geometry import local, retract
+from hybrid_calib.geometry import check_covariance, check_transform, local, retract
 
 
 @dataclass(frozen=True)
@@ -40,6 +40,9 @@ def robust_average(Ts: np.ndarray, covs: np.ndarray, conf: AverageConfig | None 
     Ts, covs = np.asarray(Ts, np.float64), np.asarray(covs, np.float64)
     if len(Ts) == 0 or Ts.shape[1:] != (4, 4) or covs.shape != (len(Ts), 6, 6):
         raise ValueError(f"robust_average needs (F, 4, 4) and (F, 6, 6) with F > 0, got {Ts.shape}, {covs.shape}")
+    for f in range(len(Ts)):  # a NaN or singular one was a numpy LinAlgError, a negative one negative variances
+        check_transform(Ts[f], f"robust_average Ts[{f}]")
+        check_covariance(covs[f], f"robust_average covs[{f}]")
     infos = np.linalg.inv(covs)
     M = np.asarray(Ts[0] if T0 is None else T0, np.float64).copy()
     w = np.ones(len(Ts))

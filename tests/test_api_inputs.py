@@ -1,0 +1,182 @@
+"""The Python API meets bad input as the command line does (probe 31): a clear ``ValueError`` naming the argument,
+never a numpy traceback, a confident answer from a broken covariance, a frame counted twice, or a calibrator that a
+rejected frame leaves broken."""
+
+import numpy as np
+import pytest
+
+from factors.correspondences import Correspondences, repeated_frames
+from hybrid_calib.calib.batch import solve_batch
+from hybrid_calib.calib.drift import reference_test
+from hybrid_calib.calib.oracle import synthetic_drive
+from hybrid_calib.calib.window import SlidingWindowCalibrator
+from hybrid_calib.geometry import local, perturb_camera_frame
+from hybrid_calib.metrics import extrinsic_error, nees
+from tests.helpers import nominal_T_cam_radar, rng
+
+WINDOW = {"window": 4, "detect_steps": False}
+
+
+def _drive(n=8):
+    T = nominal_T_cam_radar()
+    frames, _ = synthetic_drive(T, n, rng(1))
+    return T, frames, perturb_camera_frame(T, np.radians([1.0, -1.0, 1.5]), [0.05, -0.03, 0.04])
+
+
+def _copy(c: Correspondences, frame_id: str, ts: int) -> Correspondences:
+    return Correspondences(c.points_radar, c.pixels, c.sigma_px, c.confidence, c.K, frame_id, ts)
+
+
+def test_a_frame_whose_update_fails_costs_only_itself(monkeypatch):
+    """The frame was pushed into the window before its solve: after one failure the next 20 good frames failed."""
+    import hybrid_calib.calib.window as window
+
+    T, frames, T0 = _drive()
+    clean = SlidingWindowCalibrator(T0, WINDOW)
+    want = [clean.update(f) for f in frames]
+    cal = SlidingWindowCalibrator(T0, WINDOW)
+    for f in frames[:3]:
+        cal.update(f)
+    real, calls = window.robust_solve, []
+
+    def failing(*a, **k):
+        calls.append(1)
+        raise np.linalg.LinAlgError("Eigenvalues did not converge")
+
+    monkeypatch.setattr(window, "robust_solve", failing)
+    with pytest.raises(np.linalg.LinAlgError):
+        cal.update(_copy(frames[3], "bad", frames[3].timestamp_us))
+    assert calls and [fr.corr.frame_id for fr in cal.frames] == [f.frame_id for f in frames[:3]]
+    monkeypatch.setattr(window, "robust_solve", real)
+    got = [cal.update(f) for f in frames[3:]]  # as if the failed frame had never come
+    np.testing.assert_allclose(got[-1].T, want[-1].T, atol=1e-12)
+    np.testing.assert_allclose(got[-1].cov, want[-1].cov, rtol=1e-9, atol=1e-15)
+    assert got[-1].n_total == want[-1].n_total
+
+
+def test_a_repeated_frame_is_not_counted_as_a_second_measurement(tmp_path):
+    """20 copies of one frame: the estimate stayed, the std shrank as 1/sqrt(20): NEES 62."""
+    T, frames, T0 = _drive()
+    copies = [_copy(frames[0], f"copy{k}", 1000 * k) for k in range(5)]
+    assert repeated_frames([frames[1], *copies, frames[2]]) == {2: 1, 3: 1, 4: 1, 5: 1}
+    with pytest.raises(ValueError, match="4 of the 5 frames repeat .* frame copy1 repeats the rows of frame copy0"):
+        solve_batch(copies, T0)
+    cal = SlidingWindowCalibrator(T0, WINDOW)
+    first = cal.update(copies[0])
+    with pytest.raises(ValueError, match="frame copy1 repeats the rows of frame copy0 exactly"):
+        cal.update(copies[1])
+    assert cal.update(frames[1]).n_total == 2  # the refused copy left nothing behind
+    assert first.n_total == 1
+    # the command line's pipeline leaves repeats out and lists them
+    from hybrid_calib.calib.pipeline import CalibrateConfig, VehicleInput, calibrate_vehicle
+
+    vi = VehicleInput("veh", [frames[1], *copies], truth=[T] * 6, reference=T)
+    from hybrid_calib.config import merge
+
+    res = calibrate_vehicle(vi, merge(CalibrateConfig, {"start": "reference", "window": WINDOW}), progress=False)
+    assert res.n_frames == 2 and len(res.trajectory) == 2
+    assert [s["token"] for s in res.skipped] == [f"copy{k}" for k in range(1, 5)]
+    assert all("repeats the rows of frame copy0" in s["reason"] for s in res.skipped)
+
+
+@pytest.mark.parametrize("change, message", [
+    (dict(confidence=-1.0), "confidence must lie in \\[0, 1\\]"),
+    (dict(confidence=1e6), "confidence must lie in \\[0, 1\\]"),
+    (dict(K=np.full((3, 3), np.nan)), "K is not a pinhole camera matrix"),
+    (dict(K=np.diag([-500.0, 500.0, 1.0])), "K is not a pinhole camera matrix"),
+    (dict(K=np.zeros((3, 3))), "K is not a pinhole camera matrix"),
+    (dict(pixels="abc"), "pixels: not an array of numbers"),
+])
+def test_correspondences_refuse_what_no_factor_can_use(change, message):
+    _, frames, _ = _drive(1)
+    c = frames[0]
+    fields = dict(points_radar=c.points_radar, pixels=c.pixels, sigma_px=c.sigma_px, confidence=c.confidence, K=c.K)
+    if "confidence" in change:
+        change = {"confidence": np.full(len(c), change["confidence"])}
+    with pytest.raises(ValueError, match=message):
+        Correspondences(**{**fields, **change}, frame_id="f7")
+
+
+def test_validated_rows_cannot_be_changed_behind_the_check():
+    _, frames, _ = _drive(1)
+    c = frames[0]
+    pixels = np.array(c.pixels)
+    own = Correspondences(c.points_radar, pixels, c.sigma_px, c.confidence, c.K, "f")
+    pixels[0, 0] = np.nan  # the caller's array: not the frame's
+    assert np.all(np.isfinite(own.pixels))
+    with pytest.raises(ValueError, match="read-only"):
+        own.pixels[0, 0] = np.nan
+
+
+@pytest.mark.parametrize("T_init, message", [
+    (lambda T: np.diag([1.5, 1.5, 1.5, 1.0]) @ T, "T_init: rotation block is not a proper rotation"),
+    (lambda T: np.vstack([T[:3], [1.0, 2.0, 3.0, 4.0]]), "T_init: last row"),
+    (lambda T: T[:3], "T_init: expected a finite \\(4, 4\\) transform"),
+    (lambda T: np.full((4, 4), np.nan), "T_init: transform holds non-finite"),
+])
+def test_a_start_that_is_not_a_transform_is_named_by_every_entry_point(T_init, message):
+    """The Ceres backend took a scaled rotation GTSAM refused; a 3x4 start was a pybind constructor error."""
+    T, frames, _ = _drive(2)
+    bad = T_init(T)
+    for backend in ("gtsam", "ceres"):
+        with pytest.raises(ValueError, match=message):
+            solve_batch(frames, bad, {"backend": backend})
+    with pytest.raises(ValueError, match=message):
+        SlidingWindowCalibrator(bad)
+
+
+def test_the_reference_test_refuses_a_covariance_it_cannot_read():
+    """A negative-definite or zero covariance read "within tolerance" (chi2 -0.36, p 1.0); NaN was a LinAlgError."""
+    T = nominal_T_cam_radar()
+    T_est = perturb_camera_frame(T, np.radians([0.0, 0.3, 0.0]), [0.0, 0.0, 0.0])
+    good = np.diag([np.radians(0.5) ** 2] * 3 + [0.05 ** 2] * 3)
+    assert reference_test(T_est, good, T).verdict_kind == "cannot tell"
+    for cov, message in ((-good, "not positive semidefinite"), (np.zeros((6, 6)), "not positive semidefinite"),
+                         (np.full((6, 6), np.nan), "non-finite"), (np.triu(good + 1e-3), "not symmetric")):
+        with pytest.raises(ValueError, match=f"reference_test cov_est: .*{message}"):
+            reference_test(T_est, cov, T)
+    with pytest.raises(ValueError, match="reference_test T_est: rotation block"):
+        reference_test(np.diag([1.5, 1.5, 1.5, 1.0]) @ T_est, good, T)
+
+
+def test_averages_errors_and_fleet_priors_name_what_is_wrong():
+    from hybrid_calib.fleet.prior import fit_fleet_prior
+    from hybrid_calib.hybrid.average import robust_average
+
+    T = nominal_T_cam_radar()
+    Ts = [perturb_camera_frame(T, np.radians([0.1 * k, 0, 0]), [0, 0, 0]) for k in range(6)]
+    C = np.diag([1e-4] * 3 + [1e-3] * 3)
+    with pytest.raises(ValueError, match="robust_average covs\\[0\\]: covariance is not positive definite"):
+        robust_average(np.stack(Ts), np.zeros((6, 6, 6)))
+    with pytest.raises(ValueError, match="robust_average Ts\\[2\\]: transform holds non-finite"):
+        robust_average(np.stack([*Ts[:2], np.full((4, 4), np.nan), *Ts[3:]]), np.stack([C] * 6))
+    M, cov, _ = robust_average(np.stack(Ts), np.stack([C] * 6))
+    assert np.all(np.diag(cov) > 0) and nees(local(T, M), cov) >= 0
+    with pytest.raises(ValueError, match="extrinsic_error T_est: .*NaN"):
+        extrinsic_error(np.full((4, 4), np.nan), T)
+    names = [f"v{k}" for k in range(6)]
+    with pytest.raises(ValueError, match="6 names, 5 transforms and 6 covariances"):
+        fit_fleet_prior(names, Ts[:5], [C] * 6, T)
+    with pytest.raises(ValueError, match="a vehicle named twice"):
+        fit_fleet_prior(["v"] * 6, Ts, [C] * 6, T)
+    with pytest.raises(ValueError, match="covs\\[5\\] \\(v5\\): covariance is not positive definite"):
+        fit_fleet_prior(names, Ts, [C] * 5 + [-C], T)
+    with pytest.raises(ValueError, match="Ts\\[1\\] \\(v1\\): rotation block"):
+        fit_fleet_prior(names, [Ts[0], 2 * Ts[1], *Ts[2:]], [C] * 6, T)
+
+
+def test_a_measurement_file_with_a_scaled_network_rotation_is_refused(tmp_path):
+    """Only the last row was checked: a 2x rotation read as a perfect one (network error 0.0 deg)."""
+    from factors.io import FrameMeasurements, NetworkEstimate, from_arrays, to_arrays
+    from hybrid_calib.errors import DataError
+
+    T, frames, _ = _drive(1)
+    d = to_arrays(FrameMeasurements(frames[0], "veh", 0, NetworkEstimate(T, None, 0, None)))
+    assert from_arrays(d).network is not None
+    d["T_cam_radar"] = np.diag([2.0, 2.0, 2.0, 1.0]) @ T
+    with pytest.raises(DataError, match="'T_cam_radar' is not a rigid transform \\(its rotation block"):
+        from_arrays(d, "f.npz")
+    d = to_arrays(FrameMeasurements(frames[0]))
+    d["confidence"][0] = -1.0
+    with pytest.raises(DataError, match="confidence must lie in \\[0, 1\\]"):
+        from_arrays(d, "f.npz")
