@@ -272,6 +272,22 @@ def test_manifest_resume_rules(local_run, tmp_path):
         Manifest.open(moved / "manifest.json", jobs, "oracle", 3)
 
 
+def test_a_root_named_relatively_is_recorded_resolved_so_a_rerun_from_elsewhere_resumes(local_run, fleet_root,
+                                                                                          monkeypatch):
+    """The manifest held --data as typed ("sim4"): the same fleet rerun from another folder, or by the root's
+    absolute path, was refused as "calibrated with other options" (probe 31)."""
+    from hybrid_calib.fleet.jobs import discover_jobs
+
+    out, _ = local_run
+    monkeypatch.chdir(fleet_root.parent)
+    jobs = discover_jobs([(fleet_root.name, "v1.0-sim", None)], "oracle", out, seed=2,
+                         calib={"window": {"window": 3}})
+    assert {j.data for j in jobs} == {str(fleet_root.resolve())}
+    monkeypatch.chdir(out)  # elsewhere: the recorded jobs are this run's (every finished vehicle kept)
+    m = Manifest.open(out / "manifest.json", jobs, "oracle", 2)
+    assert sorted(j.id for j in m.todo()) == [BAD]
+
+
 def test_a_degenerate_drive_is_a_result_not_a_failure(local_run, fleet_root, tmp_path):
     """A vehicle whose estimate came out ``degenerate`` (its status, as ``calib.covariance`` writes it) is
     ``done`` with a ``degenerate`` flag and counted, not ``failed``; the rerun computes nothing again."""

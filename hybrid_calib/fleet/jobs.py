@@ -228,7 +228,10 @@ def discover_jobs(roots: list[tuple[str, str, tuple[str, ...] | None]], method: 
             notes.append(note)
         # the folder is named after the vehicle of the tables, encoded (a name "../../x" escaped --out)
         folder = str(Path(out) / "vehicles" / file_part(jid))
-        jobs.append(Job(jid, v, str(root), version, method, folder, seed, checkpoint, dict(calib or {}), prior,
+        # the root resolved: a rerun from another folder, or naming it by its absolute path, is the same fleet (the
+        # manifest held it as typed, and a resume from elsewhere was refused as "other options"; probe 31)
+        jobs.append(Job(jid, v, str(Path(root).resolve()), version, method, folder, seed, checkpoint,
+                        dict(calib or {}), prior,
                         info["tables_T"], info["design_T"], threads, network))
     ids = [j.id for j in jobs]
     dup = sorted({i for i in ids if ids.count(i) > 1})
