@@ -772,3 +772,30 @@ def test_a_cache_shared_by_two_roots_of_the_same_tokens_keeps_them_apart(sim_roo
     alone = run_vehicle(copy, "v1.0-sim", "sim-veh-000", {**conf, "cache_dir": str(tmp_path / "alone")})
     np.testing.assert_allclose(b.final.T, alone.final.T, atol=1e-9)
     assert not np.allclose(a.final.T, b.final.T, atol=1e-6)
+
+
+def test_a_cascades_drive_common_error_is_not_below_its_coarse_networks():
+    """The shipped R0 block (fitted on 3 drives for the cascade) put the lateral drive-common std at 1.1 mm against the
+    R1 network's 10 cm: a 10-frame drive read "differs by 8.15 cm (+- 1.68 cm): recalibrate", 4.5 sigma from the
+    truth (probe 32). The refining pass starts where the coarse one ended: no axis below the coarse network's."""
+    from types import SimpleNamespace
+
+    from hybrid_calib.hybrid.loop import HybridConfig, measurement_config
+    from hybrid_calib.hybrid.network import shipped_checkpoint
+
+    def runner(name):
+        return SimpleNamespace(ckpt=SimpleNamespace(export=json.loads(shipped_checkpoint(name).read_text())["export"],
+                                                    path=shipped_checkpoint(name)))
+
+    fine, coarse = runner("R0"), runner("R1")
+    r0, r1 = (np.array(r.ckpt.export["hybrid"]["drive_std"]) for r in (fine, coarse))
+    assert r0[4] < 0.01 < r1[4]  # the shipped blocks this guards against
+    alone = measurement_config(fine, HybridConfig())
+    cascade = measurement_config(SimpleNamespace(ckpt=fine.ckpt, coarse=coarse), HybridConfig())
+    np.testing.assert_array_equal(alone.drive_std, r0)
+    np.testing.assert_array_equal(cascade.drive_std, np.maximum(r0, r1))
+    assert cascade.prior_cov_scale == alone.prior_cov_scale  # the refining block otherwise as fitted
+    # an explicit --set measurement.drive_std still wins
+    mine = measurement_config(SimpleNamespace(ckpt=fine.ckpt, coarse=coarse),
+                              HybridConfig(measurement={"drive_std": [0.01] * 6}))
+    assert mine.drive_std == (0.01,) * 6
