@@ -466,6 +466,23 @@ def test_a_fleet_prior_tightens_a_vehicle(fleet_root, local_run, tmp_path):
     np.testing.assert_allclose(fitted["spread_cov_right_radar"], plain["spread_cov_right_radar"], atol=1e-15)
 
 
+def test_a_prior_file_that_names_every_vehicle_without_one_says_why(local_run, fleet_root, tmp_path):
+    """A fleet rerun with its own prior file: every vehicle's leave-one-out entry is empty (too few others), and the
+    note said "no new-vehicle prior '*'" of a file that has one (probe 32)."""
+    from hybrid_calib.fleet.prior import load_priors
+
+    doc = json.loads((local_run[0] / "fleet_prior.json").read_text())
+    doc["priors"]["*"] = {"T_cam_radar": doc["T_mean"], "cov_right_radar": np.diag([1e-4] * 3 + [1e-2] * 3).tolist()}
+    (tmp_path / "p.json").write_text(json.dumps(doc))
+    fleet = tmp_path / "FLEET.json"  # the vehicles it names (the corrupt one is not: it would get '*')
+    fleet.write_text(json.dumps({"version": "v1.0-sim",
+                                 "roots": [{"data": str(fleet_root), "vehicles": doc["inliers"]}]}))
+    s = run_fleet(None, str(fleet), "v1.0-sim", "oracle", tmp_path / "f", seed=2, calib={"window": {"window": 3}},
+                  priors=load_priors(tmp_path / "p.json"), options=FleetOptions(plots=False))
+    note = next(n for n in s["notes"] if "holds no prior for any" in n)
+    assert "no new-vehicle prior" not in note and "named in it without one" in note and "fewer than 4 other" in note
+
+
 def test_a_fleet_prior_is_applied_only_to_the_vehicle_it_was_fitted_on(local_run, fleet_root, tmp_path):
     """Another fleet's prior whose vehicle names matched gave each vehicle a stranger's leave-one-out prior:
     'differs by 4.71 cm: recalibrate', NEES 252. The file now records where each vehicle came from."""

@@ -15,6 +15,7 @@ from pathlib import Path
 from hybrid_calib.fleet.engines import run_engine
 from hybrid_calib.fleet.jobs import check_fleet_roots, discover_jobs, read_fleet_file
 from hybrid_calib.fleet.manifest import Manifest
+from hybrid_calib.fleet.prior import MIN_PRIOR_VEHICLES
 
 
 @dataclass(frozen=True)
@@ -55,8 +56,14 @@ def run_fleet(roots: list[str] | None, manifest: str | None, version: str, metho
     left_out: dict[str, str] = {}  # roots whose tables cannot be read: recorded, the other roots go on
     jobs = discover_jobs(sources, method, out, seed, checkpoint, calib, priors, options.threads, notes, left_out)
     if priors is not None and not any(j.prior is not None for j in jobs):
+        named = sorted(k for k in priors if k != "*")
+        star = priors.get("*")  # load_priors: a dict, {"outlier": True} for a named outlier's None
+        why = ("and no new-vehicle prior '*'" if not isinstance(star, dict) or star.get("outlier") else
+               "each of these vehicles is named in it without one: an outlier of its fit, or an inlier whose "
+               f"leave-one-out prior rests on fewer than {MIN_PRIOR_VEHICLES} other vehicles; its new-vehicle prior "
+               "'*' is for vehicles it does not name")
         notes.append(f"the fleet prior holds no prior for any of the {len(jobs)} vehicle(s) (its vehicles: "
-                     f"{sorted(k for k in priors if k != '*')[:6]}, and no new-vehicle prior '*'): none is applied")
+                     f"{named[:6]}{', ...' if len(named) > 6 else ''}; {why}): none is applied")
     m = Manifest.open(out / "manifest.json", jobs, method, seed)
     if m.stale:
         notes.append(f"{len(m.stale)} vehicle(s) done by an earlier run are calibrated again: their root's data "
