@@ -135,7 +135,7 @@ def targets(pure: dict, loop: dict) -> dict:
     if "hybrid" in loop:
         h = loop["hybrid"]
         inconclusive = h["not_ok_fraction"] == 1.0
-        t["hybrid rotation mean <= 0.3 deg (or no trial ok: every status weak / degenerate)"] = (
+        t["hybrid rotation mean <= 0.3 deg (or no trial ok: every status weak, degenerate or inconclusive)"] = (
             h["mean"]["rot_mean_deg"], h["mean"]["rot_mean_deg"] <= 0.3 or inconclusive)
     for m, r in loop.items():
         t[f"{m}: no ok status with the error outside 3-sigma"] = (r["flagged"], r["flagged"] == 0)

@@ -218,7 +218,9 @@ def main(argv=None) -> int:
     p.add_argument("--workers", type=int, default=1)
     p.add_argument("--overwrite", action="store_true", help="re-simulate the roots under --out (else resume them)")
     p.add_argument("--mount-vehicles", type=int, default=200, help="simulated vehicles for the mount statistics")
-    p.add_argument("--figures", type=Path, default=REPO / "docs" / "figures")
+    p.add_argument("--figures", type=Path, default=REPO / "docs" / "figures",
+                   help="folder of the PNGs (default: the checkout's docs/figures, the committed figures: pass another "
+                        "folder to keep them)")
     args = p.parse_args(argv)
     warnings.filterwarnings("ignore", message=".*sweep files are absent.*")
     t0 = time.perf_counter()

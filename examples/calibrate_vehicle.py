@@ -8,6 +8,7 @@ extrinsic, per-axis 1-sigma in the camera frame, status words and the error agai
     .venv/bin/python examples/calibrate_vehicle.py --out outputs/examples/calibrate --frames 20
 """
 
+import numpy as np
 from _common import example_args
 
 from hybrid_calib.hybrid import run_calibration
@@ -22,6 +23,8 @@ for name, v in run.vehicles.items():
     f = v.final
     print(f"{name}: method {v.method}, {len(v.trajectory)} frames, status {f.status}")
     print(f"  T_cam_radar =\n{f.T.round(4)}")
+    print(f"  1-sigma (camera axes): rotation x/y/z {np.array2string(f.std[:3], precision=3)} deg, translation "
+          f"{np.array2string(f.std[3:], precision=2)} cm")
     if v.error is not None:
         print(f"  error vs truth: rotation {v.error['rot_mean_deg']:.3f} deg, translation "
               f"{v.error['trans_norm_cm']:.2f} cm")

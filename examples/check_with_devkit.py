@@ -1,10 +1,12 @@
 """Open a nuScenes-format root with the official nuscenes-devkit and walk its tables.
 
-Acceptance check, not a CI test (the devkit needs ``opencv-python``, which clashes with the
-headless OpenCV hybrid-calib uses): run it in a throwaway environment::
+Acceptance check, not a CI test (the devkit pins its own numpy, matplotlib and OpenCV versions, which need not
+match hybrid-calib's): run it in a throwaway environment::
 
     python3 -m venv /tmp/devkit-venv && /tmp/devkit-venv/bin/pip install nuscenes-devkit
     /tmp/devkit-venv/bin/python examples/check_with_devkit.py DIR VERSION
+    # and hybrid-calib's reader against the devkit's, frame by frame (T_cam_radar, radar points):
+    PYTHONPATH=. /tmp/devkit-venv/bin/python examples/check_with_devkit.py DIR VERSION --compare
 
 It prints table sizes, walks every scene -> sample -> sample_data (following the devkit's
 ``sample['data']`` reverse index and the ``next`` pointers), counts the sample_data files that

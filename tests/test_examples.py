@@ -19,12 +19,12 @@ def _run(script: str, args: list[str]) -> str:
 
 def test_sliding_window_api():
     out = _run("sliding_window_api.py", [])
-    assert out.count("frame ") == 6 and "deg" in out
+    assert out.count("frame ") == 6 and "deg" in out and "estimate T_cam_radar =" in out
 
 
 def test_calibrate_vehicle(tmp_path):
     out = _run("calibrate_vehicle.py", ["--out", str(tmp_path), *TINY])
-    assert "method hybrid, 3 frames" in out and "error vs truth" in out
+    assert "method hybrid, 3 frames" in out and "error vs truth" in out and "1-sigma (camera axes): rotation" in out
     assert (tmp_path / "calibration" / "result.json").is_file()
 
 
