@@ -565,3 +565,19 @@ def test_evaluate_names_the_reason_when_every_frame_fails(frames, tmp_path):
         evaluate(OracleModel(), no_depth, EvalConfig(split="all"), tmp_path / "e", exporter=oracle_exporter,
                  progress=False)
     assert len(json.loads((tmp_path / "e" / "skipped.json").read_text())) == 2
+
+
+def test_an_empty_split_says_how_to_split_in_time(frames, tmp_path):
+    """The README's evaluate on a 3-vehicle simulated root always failed: its scenes (named by vehicle) hash into
+    train; the error offered only --split all, which on a trained root evaluates training frames (probe 32)."""
+    from learned.evaluate import EvalConfig, evaluate
+
+    conf = EvalConfig(split="test", split_options=SplitConfig(test_groups=("no-such-scene",)))
+    with pytest.raises(HybridCalibError, match="no frames in split 'test'.*split.by=scene puts whole scenes .*"
+                                               "--split-by time .*--set split.by=time"):
+        evaluate(OracleModel(), frames, conf, tmp_path / "e", exporter=oracle_exporter, progress=False)
+    with pytest.raises(HybridCalibError, match="no frames in split 'val'") as e:  # by time: nothing to add
+        evaluate(OracleModel(), frames, EvalConfig(split="val", split_options=SplitConfig(by="time", val_fraction=0,
+                                                                                         gap_frames=0)),
+                 tmp_path / "e2", exporter=oracle_exporter, progress=False)
+    assert "--split-by time" not in str(e.value)
