@@ -109,4 +109,4 @@ def test_real_scene_benchmark_flags_an_ok_answer_outside_its_3_sigma():
     t = bench.targets(pure, {"hybrid": {"mean": {"rot_mean_deg": 0.9}, "not_ok_fraction": 0.2, "flagged": 1}})
     assert t["R1 rotation mean <= 1.0 deg"][1] and not t["R1 yaw <= 1.0 deg"][1]
     assert not t["hybrid: no ok status with the error outside 3-sigma"][1]
-    assert not t["hybrid rotation mean <= 0.3 deg (or no trial ok: every status weak / degenerate)"][1]
+    assert not t["hybrid rotation mean <= 0.3 deg (or no trial ok: every status weak, degenerate or inconclusive)"][1]
