@@ -181,6 +181,12 @@ def export_pure(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig, out
             T_iters = torch.stack([T.double() for T in out_m["T_iters"]], dim=1).cpu().numpy()  # (B, N, 4, 4)
             unc_np = unc.detach().double().cpu().numpy() if isinstance(unc, torch.Tensor) else np.asarray(unc)
             for b, token in enumerate(batch["token"]):
+                if not (np.all(np.isfinite(T_iters[b])) and np.all(np.isfinite(unc_np[b]))):
+                    # never written as a prediction (a rerun read its own NaN file as "corrupt": probe 33)
+                    dataset.bad.setdefault(int(batch["index"][b]), (
+                        f"the network's output on frame {token} is not finite (NaN/inf): its inputs hold NaN/inf (the "
+                        "depth map, the image or the radar returns) or the checkpoint's weights are broken"))
+                    continue
                 m, extra = _measurements(corr[b], batch, b, T_iters[b], unc_np[b], export_conf.iteration)
                 written.append(save_measurements(_frame_file(out, token), m, extra))
     skipped = dataset.skip_records()  # every frame whose files were bad; the rest of the run went on

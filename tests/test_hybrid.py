@@ -799,3 +799,45 @@ def test_a_cascades_drive_common_error_is_not_below_its_coarse_networks():
     mine = measurement_config(SimpleNamespace(ckpt=fine.ckpt, coarse=coarse),
                               HybridConfig(measurement={"drive_std": [0.01] * 6}))
     assert mine.drive_std == (0.01,) * 6
+
+
+def _blown_up_checkpoint(folder):
+    """The shipped R1 checkpoint with three conv weights x 1e30 (finite, hash updated): every pass is NaN / inf."""
+    from safetensors import safe_open
+    from safetensors.torch import load_file, save_file
+
+    from hybrid_calib.hybrid.network import shipped_checkpoint
+    from learned.checkpoint import weights_sha256
+
+    src = shipped_checkpoint("R1")
+    state = load_file(str(src.with_suffix(".safetensors")))
+    for k in [k for k, v in state.items() if v.ndim == 4][:3]:
+        state[k] = state[k] * 1e30
+    with safe_open(str(src.with_suffix(".safetensors")), "pt") as f:
+        metadata = f.metadata()
+    folder.mkdir(parents=True, exist_ok=True)
+    save_file(state, str(folder / "blown.safetensors"), metadata=metadata)
+    meta = json.loads(src.read_text())
+    meta["files"] = {**meta["files"], "weights": "blown.safetensors",
+                     "weights_sha256": weights_sha256(folder / "blown.safetensors")}
+    (folder / "blown.json").write_text(json.dumps(meta))
+    return folder / "blown.json"
+
+
+def test_a_network_whose_output_is_not_finite_skips_its_frames_and_says_why(sim_root, tmp_path, capsys):
+    """An SVD of the NaN output ran before the finiteness check: exit 3 'internal error'; evaluate wrote the NaN
+    passes as predictions and then called its own files corrupt on every rerun (probe 33)."""
+    from hybrid_calib.cli import main
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+    from hybrid_calib.hybrid.network import build_runner
+
+    ckpt = _blown_up_checkpoint(tmp_path / "ck")
+    frames = NuScenesRadarCamera(sim_root, "v1.0-sim", conf={"check_images": False})
+    runner = build_runner(ckpt, None, frames, depth="corrupted-truth")
+    assert runner.run(0, frames[0].T_cam_radar) is None and "is not finite (NaN/inf)" in runner.bad_reason(0)
+    argv = ["evaluate", "--data", str(sim_root), "--split", "all", "--range", "R1", "--checkpoint", str(ckpt),
+            "--max-frames", "2", "--out", str(tmp_path / "ev"), "--no-progress"]
+    for _ in range(2):  # and the same words on a rerun
+        assert main(argv) == 2
+        assert "every frame to export failed" in (err := capsys.readouterr().err) and "is not finite" in err
+        assert not list((tmp_path / "ev" / "frames").glob("*.npz")) if (tmp_path / "ev" / "frames").exists() else True

@@ -63,3 +63,26 @@ def test_shipped_checkpoint_reduces_rotation_error_on_unseen_frames(tmp_path, rn
     # measured on 239 held-out frames (docs/benchmarks.md): R1 / R2 rotation errors drop ~4-6x, R0 (starts
     # within 2 deg) by a third
     assert np.mean(final) < (0.8 if rng == "R0" else 0.5) * np.mean(init), (np.mean(init), np.mean(final))
+
+
+@pytest.mark.parametrize("edit", [{"input_hw": [48, 96]}, {"iterations": 1}, {"input_hw": None}])
+def test_a_checkpoint_json_whose_model_config_was_edited_is_refused(edit, tmp_path):
+    """input_hw, iterations or variant change no tensor shape: an edited JSON loaded silently and its fitted models
+    were applied to another network (probe 33: NEES 3.7 -> 32.8, coverage 12.5 %, exit 0)."""
+    import shutil
+
+    from learned.checkpoint import CheckpointError
+
+    for suffix in (".json", ".safetensors"):
+        shutil.copy(SHIPPED["R1"].with_suffix(suffix), tmp_path / f"small-sim-r1{suffix}")
+    load_model(tmp_path / "small-sim-r1.json")  # as shipped: loads
+    meta = json.loads((tmp_path / "small-sim-r1.json").read_text())
+    key, value = next(iter(edit.items()))
+    if value is None:
+        del meta["model_config"][key]  # a key deleted: the dataclass default would have been used
+    else:
+        meta["model_config"][key] = value
+    (tmp_path / "small-sim-r1.json").write_text(json.dumps(meta))
+    with pytest.raises(CheckpointError, match=f"model_config differs from the one its weights small-sim-r1.safetensors "
+                                              f"were saved with, in 1 key\\(s\\): {key} .*the JSON was edited"):
+        load_model(tmp_path / "small-sim-r1.json")
