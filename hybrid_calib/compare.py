@@ -37,7 +37,7 @@ from hybrid_calib.config import (
     to_dict,
 )
 from hybrid_calib.data.files import root_labels, stamps_changed
-from hybrid_calib.errors import DataError, HybridCalibError
+from hybrid_calib.errors import CheckpointError, DataError, HybridCalibError
 from hybrid_calib.hybrid.loop import METHODS, HybridConfig, _Session, vehicle_learned, vehicle_oracle
 from hybrid_calib.metrics import METRIC_KEYS, consistency
 
@@ -143,6 +143,8 @@ def run_trials(roots: list, version: str, out: Path, conf: CompareConfig, progre
     for r in roots:
         try:
             sessions.append(_Session(r, version, dataclasses.replace(hconf, method="hybrid" if learned else "oracle")))
+        except CheckpointError:  # the network's file, not this root: no root can be compared (it read "no vehicle")
+            raise
         except DataError as e:  # no vehicle of this root reads: the other roots are compared
             left_out[f"every vehicle of {r}"] = str(e)
     vehicles = [(s, name) for s in sessions for name in s.drives]
@@ -374,6 +376,8 @@ def compare(roots: list, version: str, out: str | Path, conf: CompareConfig | di
             (out / name).unlink(missing_ok=True)
     previous = read_out_record(cfg_path, "compare config", "the configuration its trials were run with: pass "
                                "--overwrite to start over, or use another --out")
+    if previous is not None and not any((out / "trials").glob("*/*.json")):
+        previous = None  # a run that stopped before its first trial (a broken checkpoint): nothing to keep or refuse
     if previous is not None and "data" not in previous:  # written before the roots were recorded
         previous = {**previous, "data": record["data"]}
     if previous is not None and (changed := _differences(previous, record)):

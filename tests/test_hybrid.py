@@ -841,3 +841,26 @@ def test_a_network_whose_output_is_not_finite_skips_its_frames_and_says_why(sim_
         assert main(argv) == 2
         assert "every frame to export failed" in (err := capsys.readouterr().err) and "is not finite" in err
         assert not list((tmp_path / "ev" / "frames").glob("*.npz")) if (tmp_path / "ev" / "frames").exists() else True
+
+
+def test_compare_on_a_broken_checkpoint_names_it_and_runs_once_it_is_repaired(sim_root, tmp_path, capsys):
+    """It said "no vehicle in [root]: weights file ..." and kept compare_config.json, so the same command after the
+    user copied the checkpoint again was refused as "holds trials of another network checkpoint" (none had run)."""
+    import shutil
+
+    from hybrid_calib.cli import main
+    from hybrid_calib.hybrid.network import shipped_checkpoint
+
+    for suffix in (".json", ".safetensors"):
+        shutil.copy(shipped_checkpoint("R1").with_suffix(suffix), tmp_path / f"small-sim-r1{suffix}")
+    weights = tmp_path / "small-sim-r1.safetensors"
+    good = weights.read_bytes()
+    weights.write_bytes(good[: len(good) // 2])
+    argv = ["compare", "--data", str(sim_root), "--range", "R1", "--trials", "1", "--methods", "pure",
+            "--max-frames", "1", "--checkpoint", str(tmp_path / "small-sim-r1.json"), "--out", str(tmp_path / "c"),
+            "--set", "threads=1", "--no-progress"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "not a valid safetensors file" in err and "no vehicle in" not in err
+    weights.write_bytes(good)  # copied again, as the message says
+    assert main(argv) == 0, capsys.readouterr().err

@@ -64,7 +64,7 @@ from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import merge, save_json_atomic, to_dict
 from hybrid_calib.data.files import data_stamp
-from hybrid_calib.errors import DataError, HybridCalibError, OptionError, check_out_not_in_dataset
+from hybrid_calib.errors import CheckpointError, DataError, HybridCalibError, OptionError, check_out_not_in_dataset
 from hybrid_calib.geometry import local, se3_exp
 from hybrid_calib.hybrid.average import AverageConfig, robust_average
 from hybrid_calib.hybrid.corrections import (
@@ -164,8 +164,9 @@ def measurement_config(runner: NetworkRunner, conf: HybridConfig) -> Measurement
     try:
         merge(MeasurementConfig, fitted)
     except HybridCalibError as e:
-        raise DataError(f"checkpoint export.hybrid block is invalid ({e}); fix it in the JSON, or remove it and fit "
-                        "it again with benchmarks/hybrid_fit.py --fit-into", path=str(runner.ckpt.path)) from None
+        raise CheckpointError(f"checkpoint export.hybrid block is invalid ({e}); fix it in the JSON, or remove it and "
+                              "fit it again with benchmarks/hybrid_fit.py --fit-into",
+                              path=str(runner.ckpt.path)) from None
     coarse = getattr(runner, "coarse", None)  # a cascade (CascadeRunner): the refining checkpoint's block
     c_std = None if coarse is None else coarse.ckpt.export.get("hybrid", {}).get("drive_std")
     if c_std and "drive_std" in fitted:
