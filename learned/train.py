@@ -235,6 +235,21 @@ def _resume_error(out: Path, last: Path, e: HybridCalibError) -> HybridCalibErro
                             f"{last.parent} to resume after the epoch before it, or pass another --out to start afresh")
 
 
+def check_writable(folder: Path) -> None:
+    """``HybridCalibError`` naming ``folder`` (created if missing) when a file cannot be written in it: tried, since
+    permissions do not say it all (a read-only mount, an immutable folder, root's writes)."""
+    import os
+
+    probe = folder / f".write-test.{os.getpid()}"
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as e:
+        raise HybridCalibError(f"{folder} cannot be written ({e.strerror or e}): the checkpoints go there; make it "
+                               "writable, or pass another --out") from None
+
+
 def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str | Path, *, resume: bool = True,
           progress: bool = True, model_factory: Callable[[Any], torch.nn.Module] | None = None,
           source: dict | None = None) -> Path:
@@ -272,6 +287,7 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
     if last is not None:
         check_resume(out, last, to_dict(conf), source)
     out.mkdir(parents=True, exist_ok=True)
+    check_writable(ckpt_dir)  # before an epoch's work, not after it (probe 33: a read-only checkpoints/ was exit 3)
     save_json_atomic(out / "train_config.json", {"train": to_dict(conf), "model": model_conf_dict,
                                                  **({"data": source} if source is not None else {})})
 

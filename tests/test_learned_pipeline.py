@@ -581,3 +581,23 @@ def test_an_empty_split_says_how_to_split_in_time(frames, tmp_path):
                                                                                          gap_frames=0)),
                  tmp_path / "e2", exporter=oracle_exporter, progress=False)
     assert "--split-by time" not in str(e.value)
+
+
+def test_a_checkpoints_folder_that_cannot_be_written_is_said_before_any_epoch(frames, tmp_path, monkeypatch):
+    """A read-only (immutable, as root) checkpoints/ trained the whole epoch, then ended in exit 3 (probe 33)."""
+    from pathlib import Path
+
+    from learned.train import train, train_config
+
+    real = Path.write_bytes
+
+    def refuse(self, data):
+        if self.name.startswith(".write-test"):
+            raise PermissionError(1, "Operation not permitted", str(self))
+        return real(self, data)
+
+    monkeypatch.setattr(Path, "write_bytes", refuse)
+    with pytest.raises(HybridCalibError, match="checkpoints cannot be written \\(Operation not permitted\\): the "
+                                               "checkpoints go there"):
+        train(train_config("small", _train_conf(tmp_path, 1)), frames, tmp_path / "run", progress=False)
+    assert not (tmp_path / "run" / "epochs.csv").exists()
