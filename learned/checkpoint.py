@@ -163,11 +163,26 @@ def check_export(export: dict[str, Any], path: Path) -> None:
     if not problem:
         bad = [k for k in ("hybrid", "ood") if not isinstance(export.get(k, {}), dict)]
         problem = f"{bad[0]} is a JSON {type(export[bad[0]]).__name__}, not an object" if bad else ""
+    if not problem and (where := _non_finite(export)):  # evaluate copied a NaN ood block into its records
+        problem = f"{where} is not a finite number (NaN/inf)"
     if problem:
         raise CheckpointError(f"checkpoint export block: {problem}; fix it in the JSON, or remove the entry and "
                               "fit it again (cov_scale: hybrid-calib evaluate --split val --fit-uncertainty; "
                               "sigma_scale: benchmarks/correspondence_quality.py --fit-into; hybrid: "
                               "benchmarks/hybrid_fit.py --fit-into; ood: benchmarks/ood_fit.py)", path=str(path))
+
+
+def _non_finite(value: Any, where: str = "") -> str:
+    """Where in a JSON value (dotted keys, [i] indices) the first NaN/inf number sits, "" when none does."""
+    import math
+
+    if isinstance(value, float):
+        return "" if math.isfinite(value) else where or "the value"
+    items = value.items() if isinstance(value, dict) else enumerate(value) if isinstance(value, list) else ()
+    for k, v in items:
+        if found := _non_finite(v, f"{where}[{k}]" if isinstance(k, int) else f"{where}.{k}".lstrip(".")):
+            return found
+    return ""
 
 
 def trained_data(checkpoint: str | Path) -> dict[str, Any]:

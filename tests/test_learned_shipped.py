@@ -86,3 +86,21 @@ def test_a_checkpoint_json_whose_model_config_was_edited_is_refused(edit, tmp_pa
     with pytest.raises(CheckpointError, match=f"model_config differs from the one its weights small-sim-r1.safetensors "
                                               f"were saved with, in 1 key\\(s\\): {key} .*the JSON was edited"):
         load_model(tmp_path / "small-sim-r1.json")
+
+
+@pytest.mark.parametrize("edit, where", [(("ood", "mean", 2), "ood.mean\\[2\\]"),
+                                         (("hybrid", "drive_std", 0), "hybrid.drive_std\\[0\\]")])
+def test_a_non_finite_number_in_a_checkpoints_fitted_blocks_is_refused_on_load(edit, where, tmp_path):
+    """evaluate took a NaN export.ood block and copied it into its records as bare NaN tokens (probe 33)."""
+    import shutil
+
+    from learned.checkpoint import CheckpointError, load_checkpoint
+
+    for suffix in (".json", ".safetensors"):
+        shutil.copy(SHIPPED["R1"].with_suffix(suffix), tmp_path / f"small-sim-r1{suffix}")
+    meta = json.loads((tmp_path / "small-sim-r1.json").read_text())
+    block, key, i = edit
+    meta["export"][block][key][i] = float("nan")
+    (tmp_path / "small-sim-r1.json").write_text(json.dumps(meta))  # json writes NaN, as a hand edit would
+    with pytest.raises(CheckpointError, match=f"export block: {where} is not a finite number"):
+        load_checkpoint(tmp_path / "small-sim-r1.json")
