@@ -6,6 +6,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+SIGMA_PX_RANGE = (1e-6, 1e6)  # pixels: a row's 1-sigma outside this is no measurement (its information overflows)
+POINT_RANGE_M = (0.0, 1e5)  # |coordinate|, metres: no radar detection lies 100 km away
+PIXEL_RANGE = (0.0, 1e7)  # |coordinate|, pixels: no image is ten million pixels wide
+
 
 @dataclass(frozen=True)
 class Correspondences:
@@ -55,6 +59,15 @@ class Correspondences:
                 raise ValueError(f"Correspondences[{self.frame_id}].{name} has NaN/inf values; drop those rows")
         if np.any(np.asarray(self.sigma_px) <= 0):
             raise ValueError(f"Correspondences[{self.frame_id}].sigma_px must be > 0")
+        # magnitudes no sensor gives, whose squares overflow the solver's information (probe 33: a file with sigma_px
+        # 1e-300 or points at 1e300 m ended calibrate in "internal error")
+        for name, (low, high), unit in (("sigma_px", SIGMA_PX_RANGE, "px"), ("points_radar", POINT_RANGE_M, "m"),
+                                        ("pixels", PIXEL_RANGE, "px")):
+            v = np.abs(getattr(self, name))
+            if v.size and (v.max() > high or v.min() < low):
+                worst = v.max() if v.max() > high else v.min()
+                raise ValueError(f"Correspondences[{self.frame_id}].{name} holds |{worst:g}| {unit}, outside "
+                                 f"[{low:g}, {high:g}] {unit}: no sensor gives it; check the producer's units")
         if np.any((self.confidence < 0) | (self.confidence > 1)):
             raise ValueError(f"Correspondences[{self.frame_id}].confidence must lie in [0, 1] (it multiplies each "
                              f"row's information), got {self.confidence.min():g} .. {self.confidence.max():g}")

@@ -86,13 +86,17 @@ def test_a_repeated_frame_is_not_counted_as_a_second_measurement(tmp_path):
     (dict(K=np.diag([-500.0, 500.0, 1.0])), "K is not a pinhole camera matrix"),
     (dict(K=np.zeros((3, 3))), "K is not a pinhole camera matrix"),
     (dict(pixels="abc"), "pixels: not an array of numbers"),
+    (dict(sigma_px=1e-300), "sigma_px holds \\|1e-300\\| px, outside \\[1e-06, 1e\\+06\\] px"),
+    (dict(points_radar=1e300), "points_radar holds \\|1e\\+300\\| m, outside"),
+    (dict(pixels=-1e300), "pixels holds \\|1e\\+300\\| px, outside"),
 ])
 def test_correspondences_refuse_what_no_factor_can_use(change, message):
     _, frames, _ = _drive(1)
     c = frames[0]
     fields = dict(points_radar=c.points_radar, pixels=c.pixels, sigma_px=c.sigma_px, confidence=c.confidence, K=c.K)
-    if "confidence" in change:
-        change = {"confidence": np.full(len(c), change["confidence"])}
+    key, value = next(iter(change.items()))
+    if isinstance(value, float):  # one value for every row of that field
+        change = {key: np.full(np.shape(fields[key]), value)}
     with pytest.raises(ValueError, match=message):
         Correspondences(**{**fields, **change}, frame_id="f7")
 
