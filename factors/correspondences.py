@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-SIGMA_PX_RANGE = (1e-6, 1e6)  # pixels: a row's 1-sigma outside this is no measurement (its information overflows)
+SIGMA_PX_RANGE = (1e-12, 1e6)  # pixels: no 1-sigma outside this is a measurement (its information overflows)
 POINT_RANGE_M = (0.0, 1e5)  # |coordinate|, metres: no radar detection lies 100 km away
 PIXEL_RANGE = (0.0, 1e7)  # |coordinate|, pixels: no image is ten million pixels wide
 

@@ -86,7 +86,7 @@ def test_a_repeated_frame_is_not_counted_as_a_second_measurement(tmp_path):
     (dict(K=np.diag([-500.0, 500.0, 1.0])), "K is not a pinhole camera matrix"),
     (dict(K=np.zeros((3, 3))), "K is not a pinhole camera matrix"),
     (dict(pixels="abc"), "pixels: not an array of numbers"),
-    (dict(sigma_px=1e-300), "sigma_px holds \\|1e-300\\| px, outside \\[1e-06, 1e\\+06\\] px"),
+    (dict(sigma_px=1e-300), "sigma_px holds \\|1e-300\\| px, outside \\[1e-12, 1e\\+06\\] px"),
     (dict(points_radar=1e300), "points_radar holds \\|1e\\+300\\| m, outside"),
     (dict(pixels=-1e300), "pixels holds \\|1e\\+300\\| px, outside"),
 ])
