@@ -141,8 +141,9 @@ def _transform(d: Mapping, key: str, source: str) -> np.ndarray:
     T = _array(d, key, (4, 4), source)
     if not np.allclose(T[3], [0, 0, 0, 1]):
         raise _bad(source, f"key {key!r} is not a rigid transform (last row {T[3].tolist()})")
-    if not is_rigid(T, atol=1e-4):  # float32 network outputs are orthonormal to ~1e-7; a scaled rotation read as
-        raise _bad(source, f"key {key!r} is not a rigid transform (its rotation block is not a rotation: "  # exact
+    # float32 network outputs are orthonormal to ~1e-7; a scaled rotation was read as an exact one (probe 31)
+    if not is_rigid(T, atol=1e-4):
+        raise _bad(source, f"key {key!r} is not a rigid transform (its rotation block is not a rotation: "
                            f"R^T R - I up to {np.abs(T[:3, :3].T @ T[:3, :3] - np.eye(3)).max():.2g}, det "
                            f"{np.linalg.det(T[:3, :3]):.3g})")
     return T

@@ -292,8 +292,8 @@ class NetworkRunner:
             feats = frame_features(out)
         # float32 in the network: orthonormal to ~1e-7 only; the estimate a result reports is an exact rigid transform
         # (a non-finite pass is kept as it is: ``run`` skips its frame and says why; an SVD of NaN raised, probe 33)
-        T_iters = np.stack([nearest_rigid(T) if np.all(np.isfinite(T)) else T
-                            for T in (T[0].double().cpu().numpy() for T in out["T_iters"])])
+        raw = [T[0].double().cpu().numpy() for T in out["T_iters"]]
+        T_iters = np.stack([nearest_rigid(T) if np.all(np.isfinite(T)) else T for T in raw])
         return NetworkOutput(np.asarray(T_in, np.float64), T_iters, np.asarray(cov[0], np.float64), rows[0], rows[1],
                              time.perf_counter() - t0, feats["descriptor"][0], feats["signals"][0])
 
