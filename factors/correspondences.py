@@ -80,13 +80,13 @@ class Correspondences:
         return len(self.points_radar)
 
     def content_key(self) -> str:
-        """A digest of the rows (radar points and pixels, exactly): two frames with one key repeat one measurement
-        (a stalled or replayed feed), which fused as two would shrink a covariance as if they were independent."""
+        """A digest of the rows (radar points and pixels, exactly, in any order): two frames with one key repeat one
+        measurement (a stalled or replayed feed), which fused as two would shrink a covariance as if they were
+        independent."""
         import hashlib
 
-        h = hashlib.sha1(np.ascontiguousarray(self.points_radar).tobytes())
-        h.update(np.ascontiguousarray(self.pixels).tobytes())
-        return h.hexdigest()
+        rows = np.hstack([self.points_radar, self.pixels])
+        return hashlib.sha1(np.ascontiguousarray(rows[np.lexsort(rows.T[::-1])]).tobytes()).hexdigest()
 
     def subset(self, mask: np.ndarray) -> Correspondences:
         """The rows selected by a boolean mask or index array."""

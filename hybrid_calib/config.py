@@ -13,6 +13,7 @@ import dataclasses
 import json
 import math
 import numbers
+import os
 import re
 import types
 import typing
@@ -99,6 +100,8 @@ def merge(cls: type[C], overrides: Mapping[str, Any] | C | None = None, _path: s
         if isinstance(hint, type) and dataclasses.is_dataclass(hint):
             kwargs[key] = merge(hint, value, f"{_path}{key}.")
             continue
+        if hint is str and isinstance(value, os.PathLike):  # a Path for a path option (the API's natural type)
+            value = os.fspath(value)
         if hint is not None and not check_type(value, hint):
             listy = isinstance(value, str) and any(t in _type_name(hint) for t in ("tuple", "list"))
             raise ConfigError(f"option {_path}{key}={value!r} ({type(value).__name__}) is not a valid "

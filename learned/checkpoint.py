@@ -417,4 +417,9 @@ def load_model(path: str | Path, device: str | torch.device = "cpu", model_facto
                               "that field, copy the file again or pick another checkpoint", path=str(path)) from None
     model = model_factory(cfg)
     ckpt = load_checkpoint(path, model, map_location="cpu")
-    return model.to(device).eval(), ckpt
+    try:
+        return model.to(device).eval(), ckpt
+    except (RuntimeError, AssertionError) as e:  # an unknown device name; CUDA on a CPU build of torch
+        raise CheckpointError(f"the network cannot be placed on device {str(device)!r} "
+                              f"({str(e).splitlines()[0][:160] if str(e) else type(e).__name__}); use a device this "
+                              "machine has (cpu)", path=str(path)) from None

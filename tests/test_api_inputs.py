@@ -184,3 +184,31 @@ def test_a_measurement_file_with_a_scaled_network_rotation_is_refused(tmp_path):
     d["confidence"][0] = -1.0
     with pytest.raises(DataError, match="confidence must lie in \\[0, 1\\]"):
         from_arrays(d, "f.npz")
+
+
+def test_a_repeat_is_a_repeat_in_any_row_order_and_paths_may_be_paths(tmp_path):
+    """Reordered rows of one frame passed as a new frame (probe 33); a pathlib.Path for a checkpoint option was a
+    ConfigError with a command-line hint (probe 33)."""
+    from pathlib import Path
+
+    from hybrid_calib.config import merge
+    from hybrid_calib.hybrid.loop import HybridConfig
+
+    _, frames, _ = _drive(1)
+    c = frames[0]
+    order = np.arange(len(c))[::-1]
+    shuffled = Correspondences(c.points_radar[order], c.pixels[order], c.sigma_px[order], c.confidence[order], c.K,
+                               "shuffled")
+    assert repeated_frames([c, shuffled]) == {1: 0}
+    moved = Correspondences(c.points_radar, c.pixels + 1e-3, c.sigma_px, c.confidence, c.K, "moved")
+    assert repeated_frames([c, moved]) == {}  # other pixels: another measurement
+    conf = merge(HybridConfig, {"checkpoint": tmp_path / "c.json", "cache_dir": Path("cache")})
+    assert conf.checkpoint == str(tmp_path / "c.json") and conf.cache_dir == "cache"
+
+
+def test_a_network_on_a_device_this_machine_lacks_is_named(tmp_path):
+    from hybrid_calib.hybrid.network import shipped_checkpoint
+    from learned.checkpoint import CheckpointError, load_model
+
+    with pytest.raises(CheckpointError, match="cannot be placed on device 'tpu'.*use a device this machine has"):
+        load_model(shipped_checkpoint("R1"), device="tpu")
