@@ -103,8 +103,8 @@ def _resolve(path: str | Path) -> Path:
         if latest is None:
             named = sorted(p.name for p in path.glob("*.json") if p.with_suffix(".safetensors").is_file())[:4]
             raise HybridCalibError(f"no checkpoint (ckpt-NNNN.json) in {path}" + (
-                f"; it holds named checkpoints ({', '.join(named)}): pass one of them, e.g. --checkpoint "
-                f"{path / named[0]}" if named else "; train one with `hybrid-calib train`"))
+                f"; it holds named checkpoints ({', '.join(named)}): pass one of them, e.g. {path / named[0]}"
+                if named else "; train one with `hybrid-calib train`"))
         return latest
     if path.suffix in _PICKLE_SUFFIXES:
         raise CheckpointError("this is a pickled checkpoint; hybrid-calib never loads pickles (they can run code "
@@ -126,7 +126,7 @@ def read_checkpoint_meta(path: str | Path) -> tuple[Path, dict[str, Any]]:
     lacks ``epoch`` / ``model_config`` / ``files.weights``."""
     path = _resolve(path)
     try:
-        meta = json.loads(path.read_text(encoding="utf-8"))
+        meta = json.loads(path.read_text(encoding="utf-8-sig"))  # a byte-order mark (a Windows editor) is no damage
     except json.JSONDecodeError as e:
         raise CheckpointError(f"checkpoint metadata is not valid JSON ({e.msg} at line {e.lineno} column "
                               f"{e.colno}); the file is truncated or corrupt: copy it again or pick another "

@@ -104,3 +104,18 @@ def test_a_non_finite_number_in_a_checkpoints_fitted_blocks_is_refused_on_load(e
     (tmp_path / "small-sim-r1.json").write_text(json.dumps(meta))  # json writes NaN, as a hand edit would
     with pytest.raises(CheckpointError, match=f"export block: {where} is not a finite number"):
         load_checkpoint(tmp_path / "small-sim-r1.json")
+
+
+def test_a_checkpoint_json_saved_with_a_byte_order_mark_loads_and_a_folder_of_named_ones_is_said(tmp_path):
+    """A Windows editor's BOM read as "truncated or corrupt"; the folder message said --checkpoint to train --init."""
+    import shutil
+
+    from learned.checkpoint import load_checkpoint
+
+    for suffix in (".json", ".safetensors"):
+        shutil.copy(SHIPPED["R1"].with_suffix(suffix), tmp_path / f"small-sim-r1{suffix}")
+    (tmp_path / "small-sim-r1.json").write_bytes(b"\xef\xbb\xbf" + (tmp_path / "small-sim-r1.json").read_bytes())
+    assert load_checkpoint(tmp_path / "small-sim-r1.json").epoch >= 1
+    with pytest.raises(Exception, match="holds named checkpoints \\(small-sim-r1.json\\): pass one of them, e.g. "
+                                        f"{tmp_path / 'small-sim-r1.json'}$"):
+        load_checkpoint(tmp_path)
