@@ -181,11 +181,20 @@ def _run(args: argparse.Namespace, debug: bool, argv: list[str]) -> int:
         if out is None:
             return int(args._run(args) or 0)
         with out_dir_lock(out, args.command):
-            started = time.time()
-            status = int(args._run(args) or 0)
-            if args.command != "simulate" and any(p.name != LOCK_NAME for p in Path(out).iterdir()):
-                record_run(out, args.command, argv, status, started)
-            return status
+            started, status, before = time.time(), None, _listing(Path(out))
+            try:
+                status = int(args._run(args) or 0)
+                return status
+            finally:  # also a run that failed or was interrupted after writing something (not one refused before
+                # it wrote: its folder is as it was): its line says how it ended
+                after = _listing(Path(out))
+                if args.command != "simulate" and after and (status is not None or after != before):
+                    error = sys.exc_info()[1]
+                    try:
+                        record_run(out, args.command, argv, _exit_status(status, error), started)
+                    except OSError:
+                        if error is None:  # the run's own error is the one to say
+                            raise
     except BrokenPipeError:  # `| head -1`: the reader has gone; nothing more to say, and nowhere to say it
         _stdout_to_devnull()
         return 141  # 128 + SIGPIPE, as a shell reports a command a pipe ended
@@ -204,6 +213,25 @@ def _run(args: argparse.Namespace, debug: bool, argv: list[str]) -> int:
         if debug:
             raise
         return report_error(args.command, e)
+
+
+def _listing(out: Path) -> dict[str, int]:
+    """The top of an output folder, its lock aside: entry -> modification time (ns); a folder written into changes."""
+    try:
+        return {p.name: p.stat().st_mtime_ns for p in out.iterdir() if p.name != LOCK_NAME}
+    except OSError:
+        return {}
+
+
+def _exit_status(status: int | None, error: BaseException | None) -> int:
+    """The exit status a run ends with: ``status`` when it returned, else the one its exception gets below."""
+    if status is not None or error is None:
+        return int(status or 0)
+    if isinstance(error, KeyboardInterrupt):
+        return 130
+    if isinstance(error, BrokenPipeError):
+        return 141
+    return EXIT_ERROR if isinstance(error, (HybridCalibError, OSError)) else EXIT_BUG
 
 
 def _stdout_to_devnull() -> None:

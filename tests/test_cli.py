@@ -1,5 +1,7 @@
 """The command line: every subcommand registers, and ``--set`` behaves the same everywhere."""
 
+import json
+
 import pytest
 
 from hybrid_calib.cli import COMMANDS, build_parser
@@ -52,6 +54,19 @@ def test_an_interrupt_says_what_was_kept_and_how_to_go_on(tmp_path, monkeypatch,
     (tmp_path / "run2" / "vehicles-done" / "sim-veh-000.json").write_text("{}")
     assert main(["calibrate", "--data", str(tmp_path), "--out", str(tmp_path / "run2")]) == 130
     assert capsys.readouterr().err.strip() == f"hybrid-calib calibrate: interrupted; {RESUMES['calibrate']}"
+    assert not (tmp_path / "run2" / "runs.json").exists()  # it wrote nothing: its folder is as it was
+
+    def finished_one_then_interrupted(args):
+        (args.out / "vehicles-done" / "sim-veh-001.json").write_text("{}")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(calibrate, "run", finished_one_then_interrupted)
+    assert main(["calibrate", "--data", str(tmp_path), "--out", str(tmp_path / "run2")]) == 130
+    capsys.readouterr()
+    # the folder's log of commands says how the run that wrote there ended (it listed only runs that returned)
+    runs = json.loads((tmp_path / "run2" / "runs.json").read_text())
+    assert [(r["command"].split()[1], r["exit_status"]) for r in runs] == [("calibrate", 130)]
+    monkeypatch.setattr(calibrate, "run", interrupted)
     assert main(["report", str(tmp_path / "result.json"), "--out", str(tmp_path / "r.html")]) == 130
     assert capsys.readouterr().err.strip() == "hybrid-calib report: interrupted"  # nothing to resume
     assert set(RESUMES) <= set(COMMANDS)
