@@ -160,9 +160,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run(args: argparse.Namespace, debug: bool, argv: list[str]) -> int:
-    """The command, inside the error boundary (module doc). A command that returns, into an output folder that
-    holds more than its lock, appends its command line to ``OUT/runs.json`` (``atomic.record_run``; not simulate's
-    root, not report's page)."""
+    """The command, inside the error boundary (module doc). A command that returns, or fails after writing into its
+    output folder, appends its command line and exit status to ``OUT/runs.json`` (``atomic.record_run``; not
+    simulate's root, not report's page)."""
     import time
 
     out = getattr(args, "out", None)

@@ -78,7 +78,7 @@ def is_rigid(T: np.ndarray, atol: float = 1e-6) -> bool:
                 and np.allclose(T[3], [0, 0, 0, 1], atol=atol))
 
 
-def _finite_array(x, shape: tuple, name: str, what: str) -> np.ndarray:
+def check_finite_array(x, shape: tuple, name: str, what: str) -> np.ndarray:
     """``x`` as a float64 array of ``shape``, or ``ValueError`` naming ``name`` (``what``: transform, covariance)."""
     try:
         x = np.array(x, dtype=np.float64)
@@ -95,7 +95,7 @@ def check_transform(T, name: str) -> np.ndarray:
     """``T`` as a float64 (4, 4) array, or ``ValueError`` naming ``name`` when it is not a finite rigid transform
     (shape, NaN/inf, a rotation block that is not a proper rotation to 1e-6, a last row other than [0, 0, 0, 1]):
     the one check of a transform a caller passes in (a start, a reference, a prior's mean)."""
-    T = _finite_array(T, (4, 4), name, "transform")
+    T = check_finite_array(T, (4, 4), name, "transform")
     R = T[:3, :3]
     if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
         raise ValueError(f"{name}: rotation block is not a proper rotation (R R^T = I, det +1)")
@@ -108,7 +108,7 @@ def check_covariance(cov, name: str, semidefinite: bool = False) -> np.ndarray:
     """``cov`` as a float64 (6, 6) array, or ``ValueError`` naming ``name`` when it is not a finite symmetric
     positive definite matrix (``semidefinite``: a zero eigenvalue allowed, not an all-zero matrix): the one check of a
     covariance a caller passes in (a prior, an estimate's to test or average)."""
-    cov = _finite_array(cov, (6, 6), name, "covariance")
+    cov = check_finite_array(cov, (6, 6), name, "covariance")
     scale = max(1.0, float(np.abs(cov).max()))
     if not np.allclose(cov, cov.T, rtol=1e-9, atol=1e-15 * scale):
         raise ValueError(f"{name}: covariance is not symmetric")

@@ -15,7 +15,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from hybrid_calib.geometry import camera_euler_from_rotation, so3_log
+from hybrid_calib.geometry import camera_euler_from_rotation, check_finite_array, so3_log
 
 CHI2_6_95 = 12.591587243743977  # scipy.stats.chi2.ppf(0.95, 6): NEES below it is inside the 95 % ellipsoid
 
@@ -112,11 +112,8 @@ def extrinsic_error(T_est: np.ndarray, T_gt: np.ndarray) -> ExtrinsicError:
     """Error of a (4, 4) ``T_cam_radar`` estimate against the (4, 4) ground truth (``ValueError`` naming the one
     that is not a finite (4, 4) array: a NaN was numpy's "SVD did not converge"; a float32 network output's rotation,
     orthonormal to ~1e-6 only, is measured as it is)."""
-    for name, T in (("T_est", T_est), ("T_gt", T_gt)):
-        if np.shape(T) != (4, 4) or not np.all(np.isfinite(T)):
-            raise ValueError(f"extrinsic_error {name}: expected a finite (4, 4) transform, got shape {np.shape(T)}"
-                             + ("" if np.shape(T) != (4, 4) else " with NaN/inf values"))
-    T_est, T_gt = np.asarray(T_est, float), np.asarray(T_gt, float)
+    T_est, T_gt = (check_finite_array(T, (4, 4), f"extrinsic_error {name}", "transform")
+                   for name, T in (("T_est", T_est), ("T_gt", T_gt)))
     s = signed_errors(T_est, T_gt)
     rpy = np.degrees(np.abs(s[:3]))
     dt = np.abs(s[3:]) * 100.0
