@@ -266,10 +266,10 @@ def save_text_atomic(path: Path, text: str) -> Path:
 
 def save_json_atomic(path: Path, obj: Any) -> Path:
     """Write JSON to ``path`` atomically (temp file + rename)."""
-    return save_text_atomic(path, json.dumps(obj, indent=2, default=_json_default))
+    return save_text_atomic(path, json.dumps(obj, indent=2, default=json_default))
 
 
-def _json_default(o: Any) -> Any:
+def json_default(o: Any) -> Any:
     import numpy as np
 
     if isinstance(o, np.ndarray):

@@ -35,8 +35,13 @@ def nees(xi: np.ndarray, cov: np.ndarray) -> np.ndarray | float:
     (F, 6, 6) in the same tangent. A float for one error, (F,) for F."""
     xi, cov = np.asarray(xi, np.float64), np.asarray(cov, np.float64)
     if xi.ndim == 1:
-        return float(xi @ np.linalg.solve(cov, xi))
-    return np.einsum("fi,fi->f", xi, np.linalg.solve(cov, xi[..., None])[..., 0])
+        v = np.array([xi @ np.linalg.solve(cov, xi)])
+    else:
+        v = np.einsum("fi,fi->f", xi, np.linalg.solve(cov, xi[..., None])[..., 0])
+    if len(bad := np.flatnonzero(v < 0)):  # a NEES of -3 read as "inside the ellipsoid" (probe 31)
+        which = "" if xi.ndim == 1 else f" (estimate {int(bad[0])} of {len(v)})"
+        raise ValueError(f"NEES is negative{which}: its covariance is not positive definite")
+    return float(v[0]) if xi.ndim == 1 else v
 
 
 def consistency(nees_values) -> dict:

@@ -93,6 +93,19 @@ def latest_checkpoint(directory: str | Path) -> Path | None:
     return max(found)[1] if found else None
 
 
+def orphaned_weights(directory: str | Path, last: Path | None) -> list[Path]:
+    """The ``ckpt-NNNN.safetensors`` in ``directory`` past ``last`` (the latest complete checkpoint's JSON, or None)
+    without their JSON: a save cut short between its two files, or a JSON deleted; a resume trains them again."""
+    directory = Path(directory)
+    if not directory.is_dir():
+        return []
+    after = -1 if last is None else int(_STEM.match(last.name).group(1))
+    found = [(int(m.group(1)), p) for p in directory.glob("ckpt-*.safetensors")
+             if (m := _STEM.match(p.with_suffix(".json").name)) and int(m.group(1)) > after
+             and not p.with_suffix(".json").is_file()]
+    return [p for _, p in sorted(found)]
+
+
 def _resolve(path: str | Path) -> Path:
     """A checkpoint given as its JSON, its .safetensors, its stem or a directory -> its JSON path."""
     path = Path(path)
@@ -350,6 +363,9 @@ def load_checkpoint(path: str | Path, model: torch.nn.Module | None = None,
         try:
             model.load_state_dict(state, strict=True)
         except RuntimeError:
+            # the JSON's model_config edited (a deleted feat_dim built a model of the default width) is what is
+            # wrong when the weights carry the config they were saved with: said so, not blamed on the weights
+            check_config_of_weights(path, meta, weights)
             raise CheckpointError(f"weights do not fit this model ({state_mismatch(model.state_dict(), state)}); "
                                   "the weights file does not belong to this checkpoint's model_config: copy the "
                                   "matching .safetensors or pick another checkpoint", path=str(weights)) from None

@@ -35,7 +35,7 @@ from hybrid_calib.config import ConfigError, merge, read_out_record, require_ran
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.errors import HybridCalibError
 from hybrid_calib.metrics import extrinsic_error
-from learned.checkpoint import checkpoint_stem, latest_checkpoint, load_checkpoint, save_checkpoint
+from learned.checkpoint import checkpoint_stem, latest_checkpoint, load_checkpoint, orphaned_weights, save_checkpoint
 from learned.dataset import CalibDataset, DatasetConfig, SplitConfig, collate, split_indices
 from learned.depth import DepthCache, build_depth_estimator
 
@@ -286,6 +286,11 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
                                "preset and --set options, or choose another --out")
     if last is not None:
         check_resume(out, last, to_dict(conf), source)
+    if orphans := orphaned_weights(ckpt_dir, last):  # trained again and overwritten: said (probe 33), not refused
+        log.warning("%s hold(s) no checkpoint JSON beside (a save cut short, or the JSON deleted): %s trained again "
+                    "from %s and overwritten; move them away first to keep them", ", ".join(p.name for p in orphans),
+                    "those epochs are" if len(orphans) > 1 else "that epoch is",
+                    f"after {last.name}" if last is not None else "the start")
     out.mkdir(parents=True, exist_ok=True)
     check_writable(ckpt_dir)  # before an epoch's work, not after it (probe 33: a read-only checkpoints/ was exit 3)
     save_json_atomic(out / "train_config.json", {"train": to_dict(conf), "model": model_conf_dict,

@@ -1668,6 +1668,24 @@ def test_train_resume_names_a_damaged_last_checkpoint_and_what_to_move(tmp_path)
         train({"epochs": 3}, [], tmp_path / "run")
 
 
+def test_train_resume_says_it_overwrites_weights_whose_json_is_gone(tmp_path, caplog):
+    """ckpt-0003.json deleted (or a save cut short after the weights): the resume trained epoch 3 again and overwrote
+    ckpt-0003.safetensors without a word (probe 33). Earlier orphans (before the last complete one) stay untouched."""
+    from learned.checkpoint import orphaned_weights, save_checkpoint
+
+    ck = tmp_path / "run" / "checkpoints"
+    ck.mkdir(parents=True)
+    for epoch in (1, 2, 3, 4):
+        save_checkpoint(ck / f"ckpt-{epoch:04d}", torch.nn.Linear(2, 2), epoch=epoch, model_config={"a": 1})
+    (ck / "ckpt-0001.json").unlink()
+    (ck / "ckpt-0003.json").unlink()
+    (ck / "ckpt-0004.json").unlink()
+    assert [p.name for p in orphaned_weights(ck, ck / "ckpt-0002.json")] == ["ckpt-0003.safetensors",
+                                                                             "ckpt-0004.safetensors"]
+    assert [p.name for p in orphaned_weights(ck, None)] == [f"ckpt-000{e}.safetensors" for e in (1, 3, 4)]
+    assert orphaned_weights(tmp_path / "none", None) == []
+
+
 def to_dict_of(conf) -> dict:
     from hybrid_calib.config import to_dict
 

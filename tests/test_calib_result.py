@@ -130,3 +130,27 @@ def test_an_interrupted_run_of_other_options_names_the_option_that_differs(tmp_p
     assert "retrained" not in str(e.value)
     with pytest.raises(HybridCalibError, match="retrained or edited at the same path"):
         VehicleProgress(tmp_path, tmp_path, "v1.0-sim", "hybrid", {**conf, "network": "bbb"})
+
+
+def test_an_estimate_holds_read_only_copies_of_its_arrays():
+    """``Estimate.T`` / ``.cov`` were the caller's arrays, writeable: ``est.T[:3, 3] += 1`` on a window's output moved
+    what the window and the result held (probe 33)."""
+    g = rng(3)
+    T, A = random_pose(g), g.normal(size=(6, 6))
+    est = Estimate(T, A @ A.T, np.ones(6), "ok", info=np.eye(6))
+    T[0, 3] += 1.0  # the caller's array changed afterwards: the estimate's did not
+    assert est.T[0, 3] != T[0, 3]
+    for name in ("T", "cov", "std", "info"):
+        with pytest.raises(ValueError, match="read-only"):
+            getattr(est, name)[0] += 1.0
+
+
+def test_a_run_that_would_not_load_back_is_not_written(tmp_path):
+    """``CalibrationRun.save`` wrote a NaN covariance as bare NaN, which ``load`` then refused (probe 31)."""
+    run = _run(rng(4))
+    cov = np.array(run.vehicles["veh-b"].final.cov)
+    cov[2, 2] = np.nan
+    run.vehicles["veh-b"] = VehicleResult("veh-b", Estimate(run.vehicles["veh-b"].final.T, cov, np.ones(6), "ok"))
+    with pytest.raises(ValueError, match=r"not written: .*result.json would not load back .*cov_right_radar"):
+        run.save(tmp_path / "result.json")
+    assert not (tmp_path / "result.json").exists()

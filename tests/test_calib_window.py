@@ -105,6 +105,21 @@ def test_update_rejects_bad_input():
         SlidingWindowCalibrator(np.eye(3))
 
 
+def test_a_random_walk_refuses_a_frame_from_before_the_previous_one():
+    """With a random walk, a timestamp that went backwards was read as one default step without a word (probe 31);
+    the frame is refused (the calibrator as before it) and the stream goes on. Without a walk time order is free."""
+    T = nominal_T_cam_radar()
+    frames, _ = synthetic_drive(T, 3, rng(7))
+    walk = SlidingWindowCalibrator(T, {"random_walk_rot_deg_per_sqrt_s": 0.01, "detect_steps": False})
+    walk.update(frames[0], timestamp_us=2_000_000)
+    with pytest.raises(ValueError, match=r"timestamp 1000000 us is 1.000 s before the previous frame's .* time order"):
+        walk.update(frames[1], timestamp_us=1_000_000)
+    assert walk.update(frames[1], timestamp_us=2_500_000).n_total == 2
+    still = SlidingWindowCalibrator(T, {"detect_steps": False})
+    still.update(frames[0], timestamp_us=2_000_000)
+    assert still.update(frames[1], timestamp_us=1_000_000).n_total == 2
+
+
 def test_needs_relinearisation_thresholds_and_missing_points():
     T = nominal_T_cam_radar()
     near = retract(T, np.array([np.radians(0.05), 0, 0, 0.01, 0, 0]))

@@ -283,6 +283,11 @@ def test_a_root_named_relatively_is_recorded_resolved_so_a_rerun_from_elsewhere_
     jobs = discover_jobs([(fleet_root.name, "v1.0-sim", None)], "oracle", out, seed=2,
                          calib={"window": {"window": 3}})
     assert {j.data for j in jobs} == {str(fleet_root.resolve())}
+    # --out typed relatively: each vehicle's folder recorded resolved (a worker in another folder wrote its result
+    # where its own working folder said; probe 33)
+    typed = discover_jobs([(fleet_root.name, "v1.0-sim", None)], "oracle", os.path.relpath(out), seed=2,
+                          calib={"window": {"window": 3}})
+    assert [j.out for j in typed] == [j.out for j in jobs] and all(Path(j.out).is_absolute() for j in typed)
     monkeypatch.chdir(out)  # elsewhere: the recorded jobs are this run's (every finished vehicle kept)
     m = Manifest.open(out / "manifest.json", jobs, "oracle", 2)
     assert sorted(j.id for j in m.todo()) == [BAD]

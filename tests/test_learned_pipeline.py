@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -231,8 +232,13 @@ def test_train_checkpoints_logs_and_resumes(frames, tmp_path, caplog):
     # with a word: it ended the resume in an internal error)
     with (run / "epochs.csv").open("a") as f:
         f.write("zzz\n")
+    # epoch 3's weights left without their JSON (a save cut short): trained again and overwritten, with a word
+    shutil.copy(run / "checkpoints" / "ckpt-0002.safetensors", run / "checkpoints" / "ckpt-0003.safetensors")
+    caplog.clear()
     last = train(train_config("small", _train_conf(tmp_path, 3)), frames, run, progress=False)
     assert last.name == "ckpt-0003.json"
+    assert any("ckpt-0003.safetensors hold(s) no checkpoint JSON" in m and "trained again from after ckpt-0002.json"
+               in m for m in caplog.messages)
     assert (run / "checkpoints" / "ckpt-0001.safetensors").stat().st_mtime_ns == mtime1
     with (run / "epochs.csv").open() as f:
         assert [int(r["epoch"]) for r in csv.DictReader(f)] == [1, 2, 3]

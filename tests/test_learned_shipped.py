@@ -65,10 +65,11 @@ def test_shipped_checkpoint_reduces_rotation_error_on_unseen_frames(tmp_path, rn
     assert np.mean(final) < (0.8 if rng == "R0" else 0.5) * np.mean(init), (np.mean(init), np.mean(final))
 
 
-@pytest.mark.parametrize("edit", [{"input_hw": [48, 96]}, {"iterations": 1}, {"input_hw": None}])
+@pytest.mark.parametrize("edit", [{"input_hw": [48, 96]}, {"iterations": 1}, {"input_hw": None}, {"feat_dim": None}])
 def test_a_checkpoint_json_whose_model_config_was_edited_is_refused(edit, tmp_path):
     """input_hw, iterations or variant change no tensor shape: an edited JSON loaded silently and its fitted models
-    were applied to another network (probe 33: NEES 3.7 -> 32.8, coverage 12.5 %, exit 0)."""
+    were applied to another network (probe 33: NEES 3.7 -> 32.8, coverage 12.5 %, exit 0). A deleted feat_dim (a
+    model of the default width) blamed the weights file: the JSON is what was edited."""
     import shutil
 
     from learned.checkpoint import CheckpointError

@@ -19,3 +19,23 @@ def test_evaluates_per_axis_sigma_is_a_std_not_a_variance():
     u = uncertainty_consistency(np.zeros((2, 6)), np.stack([np.eye(6) * 1e-4] * 2))
     np.testing.assert_allclose(u["sigma_mean"], [np.degrees(0.01)] * 3 + [1.0] * 3)
     assert u["n"] == 2 and u["nees_mean"] == 0.0 and u["coverage_95"] == 1.0 and u["rmse"] == [0.0] * 6
+
+
+def test_nees_and_the_reported_std_refuse_a_covariance_that_is_not_positive():
+    """A NEES of -3 read as inside the 95 % ellipsoid, and a negative variance was reported as a std of 0 (probe 31);
+    a singular covariance's rounding (-1e-20) still reports 0."""
+    import pytest
+
+    from hybrid_calib.calib.covariance import report_std
+    from hybrid_calib.metrics import nees
+
+    bad = np.diag([1.0, 1.0, -1.0, 1.0, 1.0, 1.0])
+    with pytest.raises(ValueError, match="NEES is negative: its covariance is not positive definite"):
+        nees(np.array([0, 0, 1.0, 0, 0, 0]), bad)
+    with pytest.raises(ValueError, match=r"NEES is negative \(estimate 1 of 2\)"):
+        nees(np.array([[1.0, 0, 0, 0, 0, 0], [0, 0, 1.0, 0, 0, 0]]), np.stack([bad, bad]))
+    assert nees(np.ones(6), np.eye(6)) == 6.0
+    with pytest.raises(ValueError, match="variance of rotation about camera z is -1"):
+        report_std(np.eye(4), bad)
+    std = report_std(np.eye(4), np.diag([1e-4, 1e-4, -1e-20, 1e-4, 1e-4, 1e-4]))
+    assert std[2] == 0.0 and np.isclose(std[3], 1.0)

@@ -425,6 +425,29 @@ def test_the_attention_section_finds_a_network_methods_checkpoint(tmp_path):
     assert "checkpoint /ck/small-sim-r1.json is named but no camera frame" in html
 
 
+def test_the_attention_section_says_when_the_checkpoint_given_is_not_the_results(tmp_path, monkeypatch):
+    """``report --checkpoint B`` on a result calibrated with A drew B's attention without a word (probe 33); the same
+    file named by another path is not flagged."""
+    from types import SimpleNamespace
+
+    import hybrid_calib.report.attention as attention
+    from hybrid_calib.report.evidence import Evidence
+
+    png = tmp_path / "a.png"
+    png.write_bytes(b"\x89PNG")
+    monkeypatch.setattr(attention, "attention_figure", lambda *a, **k: png)
+    a, b = tmp_path / "a.json", tmp_path / "b.json"
+    a.write_text("{}"), b.write_text("{}")
+    vr = _vr((0.0,) * 6, (0.1,) * 6)
+    vr.checkpoint = str(a)
+    ev = Evidence(frames=[SimpleNamespace(index=0)])
+    other = attention.attention_html(vr, ev, None, "v1.0-sim", str(b), tmp_path)
+    assert f"The result was calibrated with {a}</b>" in other and "not that file" in other
+    same = attention.attention_html(vr, ev, None, "v1.0-sim", str(tmp_path / "." / "a.json"), tmp_path)
+    own = attention.attention_html(vr, ev, None, "v1.0-sim", "", tmp_path)
+    assert "calibrated with" not in same and "calibrated with" not in own
+
+
 def test_a_tolerance_asked_of_the_report_redoes_the_calibrators_test():
     """``report --set tolerance.rot_deg=0.01`` kept the calibrator's verdict against its own 0.5 deg: the asked
     tolerance was ignored whenever the result stored a verdict (every current one does)."""

@@ -73,7 +73,7 @@ from pathlib import Path
 import numpy as np
 
 from hybrid_calib.calib.covariance import CovarianceReport
-from hybrid_calib.config import read_out_record, save_json_atomic
+from hybrid_calib.config import json_default, read_out_record, save_json_atomic
 from hybrid_calib.data.tables import is_number
 from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.geometry import R_AXES_CAM_FROM_RADAR, camera_euler_from_rotation
@@ -239,6 +239,16 @@ class Estimate:
     regularised: bool = False
     weak_directions: tuple[str, ...] = ()
     info: np.ndarray | None = None  # (6, 6) information before regularisation (for tests/NEES)
+
+    def __post_init__(self):
+        # read-only float64 copies: an estimate handed out (a window's output, a result's final) cannot be changed in
+        # place by its reader (``est.T[:3, 3] += ...`` moved the window's own state; probe 33)
+        for name in ("T", "cov", "std", "info"):
+            value = getattr(self, name)
+            if value is not None:
+                value = np.array(value, np.float64)
+                value.flags.writeable = False
+                object.__setattr__(self, name, value)
 
     @classmethod
     def from_report(cls, T: np.ndarray, rep: CovarianceReport, info: np.ndarray | None = None,
@@ -460,8 +470,14 @@ class CalibrationRun:
         return cls.from_dict(json.loads(text), source)
 
     def save(self, path: str | Path) -> Path:
-        """Write ``path`` (``result.json``) atomically."""
-        return save_json_atomic(Path(path), self.to_dict())
+        """Write ``path`` (``result.json``) atomically; ``ValueError`` naming the entry, and nothing written, when the
+        run would not load back (a NaN in an error or a matrix: a result.json that ``load`` then refuses)."""
+        d = self.to_dict()
+        try:
+            CalibrationRun.from_json(json.dumps(d, default=json_default))
+        except (KeyError, TypeError, ValueError, DataError) as e:
+            raise ValueError(f"not written: {path} would not load back ({type(e).__name__}: {e})") from None
+        return save_json_atomic(Path(path), d)
 
     @classmethod
     def load(cls, path: str | Path) -> CalibrationRun:

@@ -420,9 +420,14 @@ class SlidingWindowCalibrator:
         """Time since the previous frame (``default_dt_s`` without timestamps) widens the marginal
         prior by the random walk."""
         c = self.conf
+        walk = c.random_walk_rot_deg_per_sqrt_s > 0 or c.random_walk_trans_cm_per_sqrt_s > 0
+        if walk and self.last_ts is not None and 0 < ts < self.last_ts:  # read as one default step (probe 31)
+            raise ValueError(f"timestamp {ts} us is {(self.last_ts - ts) * 1e-6:.3f} s before the previous frame's "
+                             f"({self.last_ts} us): with a random walk the frames must come in time order (the drift "
+                             "allowed between them is per second); sort them, or pass timestamp_us")
         dt = (ts - self.last_ts) * 1e-6 if (self.last_ts is not None and ts > self.last_ts) else c.default_dt_s
         self.last_ts = ts
-        if self.marg is not None and (c.random_walk_rot_deg_per_sqrt_s > 0 or c.random_walk_trans_cm_per_sqrt_s > 0):
+        if self.marg is not None and walk:
             Tm, Lm = self.marg
             self.marg = (Tm, random_walk_information(Lm, self._q(dt)))
 

@@ -227,7 +227,9 @@ def discover_jobs(roots: list[tuple[str, str, tuple[str, ...] | None]], method: 
         if note is not None and notes is not None and note not in notes:
             notes.append(note)
         # the folder is named after the vehicle of the tables, encoded (a name "../../x" escaped --out)
-        folder = str(Path(out) / "vehicles" / file_part(jid))
+        # resolved, as the root below: a worker (a Ray node, a process started elsewhere) writes where the driver
+        # meant whatever its own working folder (it was stored as typed; probe 33)
+        folder = str(Path(out).resolve() / "vehicles" / file_part(jid))
         # the root resolved: a rerun from another folder, or naming it by its absolute path, is the same fleet (the
         # manifest held it as typed, and a resume from elsewhere was refused as "other options"; probe 31)
         jobs.append(Job(jid, v, str(Path(root).resolve()), version, method, folder, seed, checkpoint,

@@ -106,7 +106,7 @@ class Manifest:
                                 path=str(path))
             e["job"] = job.to_dict()  # a job not done yet runs with this run's options
             if done:
-                e.update(state="done", reason=None, file=None, result=_rel(job.result_path, path.parent))
+                e.update(state="done", reason=None, file=None, result=rel_path(job.result_path, path.parent))
             elif e["state"] != "failed":
                 e.update(state="pending", result=None)
         ids = {job.id for job in jobs}
@@ -152,7 +152,7 @@ class Manifest:
         e = self.jobs[outcome["id"]]
         e.update(state=outcome["state"], reason=outcome.get("reason"), file=outcome.get("file"),
                  wall_s=outcome.get("wall_s"), cpu_s=outcome.get("cpu_s"), host=outcome.get("host") or e.get("host"),
-                 result=_rel(outcome["result"], self.path.parent) if outcome.get("result") else None)
+                 result=rel_path(outcome["result"], self.path.parent) if outcome.get("result") else None)
         self._changed()
         return e
 
@@ -290,7 +290,8 @@ def _short(value, limit: int = 80) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
-def _rel(path: str | Path, base: Path) -> str:
+def rel_path(path: str | Path, base: Path) -> str:
+    """``path`` relative to the folder ``base`` (both resolved), or as given when it is not under it."""
     p = Path(path)
     try:
         return str(p.resolve().relative_to(base.resolve()))

@@ -37,7 +37,7 @@ import numpy as np
 from hybrid_calib.calib.covariance import camera_offset, status_kind
 from hybrid_calib.config import save_json_atomic, save_text_atomic
 from hybrid_calib.errors import DataError
-from hybrid_calib.fleet.manifest import Manifest
+from hybrid_calib.fleet.manifest import Manifest, rel_path
 from hybrid_calib.words import n_vehicles
 
 SCHEMA = "hybrid-calib/fleet-summary/v1"
@@ -99,8 +99,7 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
         vr = next(iter(CalibrationRun.load(base / e["result"]).vehicles.values()))
         results[jid] = vr
         plots = Path(j["out"]) / "plots"
-        row["plots"] = sorted(str(p.relative_to(base)) if p.is_relative_to(base) else str(p)
-                              for p in plots.glob("*.png")) if plots.is_dir() else []
+        row["plots"] = sorted(rel_path(p, base) for p in plots.glob("*.png")) if plots.is_dir() else []
         d = vr.drift or {}
         row.update(n_frames=vr.n_frames, status=vr.final.status,
                    offset_from_design=dict(zip(keys, camera_offset(T_ref, vr.final.T).tolist())),

@@ -6,6 +6,7 @@ the shipped small checkpoints."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from hybrid_calib.calib.result import VehicleResult
@@ -58,8 +59,20 @@ def attention_html(vr: VehicleResult, ev: Evidence, data, version: str, checkpoi
         png = attention_figure(ckpt, data, version, frame.index, tmp / "attention.png")
     except (HybridCalibError, OSError) as e:
         return head + f"<p class=note>Absent: the network could not run ({esc(e)}).</p>"
-    return (head + f"<p class=meta>Checkpoint {esc(ckpt)} on frame {frame.index}, from the fixed R1 evaluation start. "
+    other = ""  # --checkpoint given, another than the result's: the figure is not of the network that calibrated
+    if checkpoint and named and not _same_file(checkpoint, named):
+        other = (f" <b>The result was calibrated with {esc(named)}</b>; this figure is of the checkpoint given with "
+                 "--checkpoint, which is not that file.")
+    return (head + f"<p class=meta>Checkpoint {esc(ckpt)} on frame {frame.index}, from the fixed R1 evaluation start."
+            f"{other} "
             "Top: points projected with the start (red) and the network's estimate (green; white: truth, or on a "
             "real root its tables). Middle: "
             "which image regions the radar points attend to and back. Bottom: the bird's-eye views.</p>"
             + img_tag(png, "network cross-attention"))
+
+
+def _same_file(a: str, b: str) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:  # one is not there (a path relative to where calibrate ran)
+        return False
