@@ -260,6 +260,12 @@ TABLE_CASES = {  # case -> (corrupt(tiny) -> table file, token, needles); each w
                   ["third row is [0, 0, 2]", "expected [0, 0, 1]"]),
     "skew-inf": (lambda t: _set_cs(t, "CAM_FRONT", "camera_intrinsic", _K(s=1e400)), "cs_CAM_FRONT",
                  ["finite 3x3"]),
+    # the projection keeps fx, fy, cx, cy: a skew was dropped without a word (probe 34)
+    "skew-500": (lambda t: _set_cs(t, "CAM_FRONT", "camera_intrinsic", _K(s=500.0)), "cs_CAM_FRONT",
+                 ["skew of 500 px", "zero-skew pinhole"]),
+    "lower-triangle": (lambda t: _set_cs(t, "CAM_FRONT", "camera_intrinsic",
+                                         [[100.0, 0, 80.0], [5.0, 100.0, 45.0], [0, 0, 1]]), "cs_CAM_FRONT",
+                       ["second row is [5.0, 100.0, 45.0]", "expected [0, fy, cy]"]),
 }
 
 
@@ -274,7 +280,7 @@ def test_an_implausible_table_value_is_a_skip_naming_table_token_and_bound(case,
 
 
 def test_plausible_values_at_the_bounds_still_read(tiny):
-    _set_cs(tiny, "CAM_FRONT", "camera_intrinsic", _K(fx=1.0, fy=1e5, cx=-160.0, cy=180.0, s=3.0,
+    _set_cs(tiny, "CAM_FRONT", "camera_intrinsic", _K(fx=1.0, fy=1e5, cx=-160.0, cy=180.0, s=0.5,
                                                        row3=[0, 0, 1 + 1e-9]))
     _set_cs(tiny, "RADAR_FRONT", "translation", [49.0, 0, 0])
     _set_ego(tiny, [9e6, 0, 0])

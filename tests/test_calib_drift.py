@@ -57,6 +57,14 @@ def test_verdict_words_for_prior_pinned_axes():
     pitched = perturb_camera_frame(T, np.radians([0.0, 0.9, 0.0]), [0.0, 0.0, 0.0])
     d = reference_test(pitched, C, T, pinned_std=pinned)
     assert d.verdict_kind == "cannot tell" and d.verdict.startswith("cannot tell: pitch is prior-pinned"), d.verdict
+    # far beyond the tolerance on the pinned axis, and more than its std can cover: still the prior's centre against
+    # the tables, never "recalibrate" (probe 34: a radar truly tilted 6.5 deg, tables right: "differs by 5.75 deg in
+    # pitch (+- 0.82 deg at 1 sigma): recalibrate")
+    far = reference_test(perturb_camera_frame(T, np.radians([0.0, 5.75, 0.0]), [0.0, 0.0, 0.0]), C, T,
+                         pinned_std=pinned)
+    assert far.verdict_kind == "cannot tell" and not far.drifted and far.verdict.startswith(
+        "cannot tell: pitch is prior-pinned (differs by 5.75 deg"), far.verdict
+    assert far.to_dict()["axes"]["pitch"]["decision"] == "undecided"
     # without the pinned information the same covariance reads as "not precise enough"
     d = reference_test(pitched, C, T)
     assert d.verdict_kind == "cannot tell" and "pitch differs by 0.90 deg" in d.verdict
@@ -729,3 +737,26 @@ def test_a_recalibrate_that_puts_the_radar_off_its_bracket_cannot_tell():
     assert far.verdict.startswith("cannot tell: it puts the radar 35 cm from its tables, farther than a radar moves "
                                   "on its bracket (30 cm)") and "(it read: differs by 35 cm in lateral offset" in \
         far.verdict
+
+
+def test_a_cannot_tell_verdict_says_when_the_radars_own_doppler_puts_its_yaw_far_from_its_tables():
+    """Probe 34: the tables' radar turned 8 deg; the Doppler level read 8.93 +- 0.10 deg off them, the verdict only
+    "cannot tell: ... the estimate says nothing about the mount". The note is added to a "cannot tell" beyond 3 x the
+    tolerance (the real scene's 0.93 +- 0.10 deg is not), never changes the verdict, and survives a report's redo."""
+    from hybrid_calib.calib.drift import against_tolerance, doppler_level_note, unconverged
+
+    T = nominal_T_cam_radar()
+    C, pinned = _pinned_cov()
+    told = unconverged(reference_test(T, C, T, pinned_std=pinned).to_dict(), "inconclusive: out of domain")
+    far = {"levels": [{"level_deg": -8.93, "std_deg": 0.10, "pairs": 40, "from": 0, "to": 40}], "steps": []}
+    noted = doppler_level_note(told, far)
+    assert noted["verdict_kind"] == "cannot tell" and not noted["drifted"]
+    assert noted["verdict"].startswith(told["verdict"] + "; but the radar's own Doppler against the ego poses")
+    assert "puts its yaw on the vehicle 8.93 +- 0.14 deg (1 sigma) to the right of its tables'" in noted["verdict"]
+    near = {**far, "levels": [{**far["levels"][0], "level_deg": 0.93}]}
+    assert doppler_level_note(told, near) == told
+    assert doppler_level_note(told, {**far, "steps": [{"change": 3}]}) == told
+    fine = reference_test(T, C, T, pinned_std=pinned).to_dict()  # "within tolerance": not this note's to add to
+    assert doppler_level_note(fine, far) == fine
+    redone = against_tolerance(noted, "inconclusive: out of domain", far, rot_deg=1.0)
+    assert redone["verdict"].count("the radar's own Doppler") == 1

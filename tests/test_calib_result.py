@@ -154,3 +154,35 @@ def test_a_run_that_would_not_load_back_is_not_written(tmp_path):
     with pytest.raises(ValueError, match=r"not written: .*result.json would not load back .*cov_right_radar"):
         run.save(tmp_path / "result.json")
     assert not (tmp_path / "result.json").exists()
+
+
+def test_an_estimate_whose_drive_ends_unseen_or_whose_pair_shares_no_view_is_not_trusted():
+    """Probe 34: a radar turned 180 deg at frame 4 of 8: the oracle's frames 4-7 had no reflector in the image, and
+    the result was "weak", scored against frame 3's truth; a rear radar with the front camera read "the solve went
+    astray ... calibrate a longer drive"."""
+    from hybrid_calib.calib.pipeline import trust_reason, unseen_end_reason
+
+    g = rng(5)
+    T = nominal_T_cam_radar()
+    est = Estimate(T, np.eye(6) * 1e-4, np.ones(6), "weak: something")
+    traj = [FrameEstimate(k, f"f{k}", k, est, 1, 1, 1.0, None, None, False, 1.0, 1.0) for k in range(4)]
+    gap = [{"index": k, "token": f"f{k}", "reason": "no correspondence rows"} for k in range(4, 8)]
+    vr = VehicleResult("v", est, traj, skipped=gap, errors_against="truth")
+    why = unseen_end_reason(vr)
+    assert why.startswith("the drive's last 4 of 8 frames (from frame 4 on) gave nothing to fuse") and \
+        "(its errors are against frame 3's truth)" in why
+    assert why in trust_reason(vr, T)
+    batch = VehicleResult("v", est, [], skipped=gap)  # a batch result: the frames used are the ones not skipped
+    assert unseen_end_reason(batch).startswith("the drive's last 4 of 8 frames") and "truth" not in \
+        unseen_end_reason(batch)
+    assert unseen_end_reason(VehicleResult("v", est, traj, skipped=gap[2:])) == ""  # 2 frames: not yet
+    long = [FrameEstimate(k, f"f{k}", k, est, 1, 1, 1.0, None, None, False, 1.0, 1.0) for k in range(14)]
+    tail = [{"index": k, "token": f"f{k}", "reason": "no correspondence rows"} for k in range(14, 17)]
+    assert unseen_end_reason(VehicleResult("v", est, long, skipped=tail)) == ""  # 3 of 17: under a quarter
+    ood = [{**s, "ood_score": 3.0} for s in gap]  # the domain test's drops: its own reason says them
+    assert unseen_end_reason(VehicleResult("v", est, traj, skipped=ood)) == ""
+    assert trust_reason(VehicleResult("v", est, traj), T) == ""
+    rear = T @ np.diag([-1.0, -1.0, 1.0, 1.0])  # the radar turned 180 deg about its up axis: it looks backward
+    away = trust_reason(VehicleResult("v", Estimate(rear, np.eye(6) * 1e-4, np.ones(6), "weak"), traj), rear)
+    assert "the vehicle's tables turn the radar 18" in away and "share no view" in away and "astray" not in away
+    assert g is not None

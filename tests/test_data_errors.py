@@ -475,3 +475,22 @@ def test_a_table_that_is_a_folder_or_a_fifo_is_said_so(tmp_path):
     os.mkfifo(tmp_path / "log.json")
     with pytest.raises(DataError, match=r"table 'log' is a named pipe \(FIFO\)"):
         load_table(tmp_path, "log")
+
+
+def test_a_channel_folder_missing_from_the_copy_is_named_not_the_root(tmp_path):
+    """A copy of a root with the front channels only: CAM_BACK's frames read "camera image not found; check the
+    dataset root (samples/ must sit next to the version folder)", where samples/ was right (probe 34)."""
+    from hybrid_calib.data.image_header import image_header
+    from hybrid_calib.data.pcd import read_radar_pcd
+
+    samples = tmp_path / "samples"
+    (samples / "CAM_FRONT").mkdir(parents=True)
+    (samples / "RADAR_FRONT").mkdir()
+    with pytest.raises(DataError, match=r"camera image not found; the folder samples/CAM_BACK does not exist under the "
+                                        r"root \(channel folders there: CAM_FRONT, RADAR_FRONT\): this copy has no "
+                                        r"CAM_BACK files"):
+        image_header(samples / "CAM_BACK" / "a.jpg")
+    with pytest.raises(DataError, match=r"radar file not found; the folder samples/RADAR_BACK_LEFT does not exist"):
+        read_radar_pcd(samples / "RADAR_BACK_LEFT" / "a.pcd")
+    with pytest.raises(DataError, match=r"camera image not found; check the dataset root"):  # the folder is there
+        image_header(samples / "CAM_FRONT" / "a.jpg")

@@ -332,6 +332,33 @@ def _recalibrated_radar(tmp_path: Path, yaw: float = 0.03, second_log: bool = Tr
     return tiny
 
 
+@pytest.mark.parametrize("channel", ["RADAR_FRONT", "CAM_FRONT"])
+def test_inspect_warns_about_a_sensor_upside_down_or_below_the_ground(channel, tmp_path):
+    """A mount rolled 180 deg about the sensor's axis keeps the radar's points in the image, so the in-image check
+    passed it, and calibrate sent the user to an inspect that said nothing; a radar 0.5 m under the road neither
+    (probe 34)."""
+    from hybrid_calib.data.summary import summarize_dataset
+    from hybrid_calib.geometry import make_T, pose_to_nuscenes, so3_exp
+    from tests.tiny_nuscenes import T_EGO_CAM, T_EGO_RADAR
+
+    clean = summarize_dataset(NuScenesRadarCamera(make_tiny_root(tmp_path / "clean", n_samples=3).root, VERSION),
+                              progress=False).format()
+    assert "up axis" not in clean and "below the vehicle's origin" not in clean
+    tiny = make_tiny_root(tmp_path / "flip", n_samples=3)
+    T = T_EGO_RADAR if channel == "RADAR_FRONT" else T_EGO_CAM
+    axis = [np.pi, 0.0, 0.0] if channel == "RADAR_FRONT" else [0.0, 0.0, np.pi]  # about the boresight / optical axis
+    flipped = make_T(T[:3, :3] @ so3_exp(axis), T[:3, 3] - np.array([0.0, 0.0, 2.5]))
+    rot, trans = pose_to_nuscenes(flipped)
+    cs = next(c for c in tiny.tables["calibrated_sensor"] if c["token"] == f"cs_{channel}")
+    cs.update(rotation=rot, translation=trans)
+    tiny.rewrite_table("calibrated_sensor")
+    text = summarize_dataset(NuScenesRadarCamera(tiny.root, VERSION), progress=False).format()
+    assert f"the {channel}'s mount in calibrated_sensor.json turns its up axis 180 deg from the vehicle's up" in text
+    assert (f"the {channel}'s mount lies {2.5 - T[2, 3]:.2f} m below the vehicle's origin" in text) == \
+        (T[2, 3] < 2.4)
+    assert ("unlike every frame the network was trained on" in text) == (channel == "CAM_FRONT")
+
+
 def test_a_vehicle_with_two_calibrations_is_two_vehicles(tmp_path):
     """nuScenes calibrates each log: n015's radar is yawed -0.85 deg in 34 scenes and +0.20 deg in 349. Frames of
     two calibrations fused as one drive would be one extrinsic for two mounts, so each is its own vehicle."""

@@ -371,3 +371,22 @@ def test_a_step_is_the_difference_of_the_levels_either_side_of_its_change():
 def test_a_one_sigma_turn_in_words():
     from hybrid_calib.calib.mount_monitor import turn_words
     assert turn_words(1.43, 0.09) == "1.43 +- 0.09 deg (1 sigma) to the left in yaw"
+
+
+def test_readings_that_scatter_beyond_any_mount_make_the_estimate_untrusted():
+    """A radar turned 180 deg at frame 4 of 8 read "0.08 +- 89.67 deg ... no step" and the hybrid's result stayed
+    "weak" 180 deg off (probe 34): readings of one level scattering beyond max_level_deg are said, and the result is
+    not trusted for it (``scatter_reason``); the usual frame-to-frame noise is not."""
+    from hybrid_calib.calib.mount_monitor import scatter_reason, tested_words
+
+    mon = _feed([0.1, -0.1, 0.0, 0.1, 179.0, -179.5, 179.8, 179.2])
+    s = mon.summary()
+    assert s["scattered"]["from"] == 0 and s["scattered"]["to"] == 7 and s["scattered"]["scatter_deg"] > 10
+    assert "the radar's Doppler heading on the vehicle scatters by" in s["implausible"]
+    assert "scatters by" in tested_words(s)
+    why = scatter_reason(s)
+    assert why.startswith("the radar's own heading on the vehicle (its Doppler against the ego poses) scatters by +-")
+    assert "(frames 0-7)" in why and "the radar turned during the drive" in why
+    steady = _feed(0.8 + 0.3 * np.random.default_rng(0).standard_normal(12))
+    assert "scattered" not in steady.summary() and scatter_reason(steady.summary()) == ""
+    assert scatter_reason(None) == ""

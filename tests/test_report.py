@@ -528,3 +528,25 @@ def test_a_monitor_step_is_judged_against_the_calibrations_tolerance():
     vr.mount = {"steps": [{"step_deg": 1.0, "std_deg": 0.05, "change": 3}], "levels": []}
     assert verdict_of(vr).word == "within tolerance"
     assert verdict_of(vr, Tolerance(rot_deg=0.5)).word == "recalibrate"
+
+
+def test_a_window_alarm_on_an_untrusted_estimate_is_not_told_as_the_mount_moving():
+    """Probe 34: a rear radar paired with the front camera (no shared view, 0 of 41 frames in domain) read "step alarm
+    at frame 15: the window's step test (the mount changed inside the drive ...)"; a trusted result's alarm is as
+    before, and a monitor step on an untrusted one still says the radar turned."""
+    from hybrid_calib.report.verdict import alarm_words, moved_during_drive
+
+    bad = _vr((0.0,) * 6, (0.05,) * 6, status="inconclusive: out of domain", alarms=(3,), tested=True)
+    assert alarm_words(bad) == ["frame 3: the window's step test, on an estimate that is not trusted (its status is "
+                                "inconclusive: the network's outputs may have jumped, not the mount; the window "
+                                "restarted there)"]
+    moved, frames = moved_during_drive(bad)
+    assert moved.startswith("not told: step alarm at frame 3: the window's step test, on an estimate that is not "
+                            "trusted") and frames == (3,)
+    good = _vr((0.0,) * 6, (0.05,) * 6, alarms=(3,), tested=True)
+    assert moved_during_drive(good)[0].startswith("yes: the sensor stepped during the drive; step alarm at frame 3: "
+                                                  "the window's step test (the mount changed")
+    bad.mount = {"steps": [{"at": 3, "change": 1, "step_deg": 1.48, "std_deg": 0.11, "statistic": 10.0}],
+                 "levels": [], "frames_tested": 5, "pairs_tested": 5}
+    assert moved_during_drive(bad)[0].startswith("yes: the sensor stepped during the drive; step alarm at frame 3: "
+                                                 "the radar mount monitor")

@@ -234,6 +234,23 @@ def test_refuses_a_foreign_non_empty_folder(tmp_path, monkeypatch, capsys):
     assert "no sim_config.json" in capsys.readouterr().err and keep.is_file()
 
 
+@pytest.mark.parametrize("argv, needle", [
+    (["--set", "mounts.radar_translation_m=5"], "vehicle 0's radar would sit -3.63 m over the road .* with "
+                                                "mounts.radar_translation_m as given"),
+    (["--extrinsic-change", "step", "--set", "extrinsic_change.translation_m=[0,0,-1]"],
+     "vehicle 0's radar at the drive's last frame would sit -0.52 m over the road .*extrinsic_change.translation_m"),
+])
+def test_a_sensor_drawn_under_the_road_is_refused_before_anything_is_written(argv, needle, tmp_path, monkeypatch,
+                                                                             capsys):
+    """mounts.radar_translation_m=5 put half the radars under the road (z -3.6 m) and the ray caster still returned
+    43 points a sweep: a root no vehicle can produce, written as valid (probe 34)."""
+    out = tmp_path / "s"
+    assert run_cli(monkeypatch, "--frames", "2", "--seed", "1", "--out", str(out), *argv) == 2
+    import re
+
+    assert re.search(needle, capsys.readouterr().err) and not out.exists()
+
+
 def test_a_simulation_where_every_frame_fails_ends_in_an_error(tmp_path, monkeypatch):
     """A config every frame failed on ended rc 0, "wrote nuScenes root ... x 2 frames", an empty sample table."""
     from hybrid_calib.config import merge

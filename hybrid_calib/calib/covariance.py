@@ -109,7 +109,9 @@ def untrusted_status(status: str) -> str:
     if NOT_CONVERGED in status:
         return "the last solve did not converge"
     if status_kind(status) == "inconclusive":
-        return f"it is not trusted ({status[len('inconclusive'):].lstrip(': ').split(' [')[0][:300]})"
+        why = status[len('inconclusive'):].lstrip(': ').split(' [')[0]
+        # cut at a word, marked (probe 34: "... check the radar's mount, a)")
+        return f"it is not trusted ({why if len(why) <= 300 else why[:300].rsplit(' ', 1)[0] + ' ...'})"
     if status_kind(status) == "degenerate":
         return "the data did not determine it"
     return ""

@@ -231,7 +231,9 @@ def _check_axes(delta: np.ndarray, std: np.ndarray, pinned: np.ndarray, toleranc
     for i, name in enumerate(AXIS_WORDS):
         tol = float(tolerance[i])
         lo, hi = abs(delta[i]) - z_out * std[i], abs(delta[i]) + z_in * std[i]
-        decision = "differs" if lo > tol else "within" if hi <= tol else "undecided"
+        # a prior-pinned axis never "differs": its difference is the prior's centre against the tables, not the data's
+        # (probe 34: a radar truly tilted 6.5 deg, its tables right, read "differs by 5.75 deg in pitch: recalibrate")
+        decision = "differs" if lo > tol and not pinned[i] else "within" if hi <= tol else "undecided"
         out.append(AxisCheck(name, float(delta[i]), float(std[i]), tol, decision, bool(pinned[i])))
     return out
 
@@ -352,7 +354,8 @@ def against_tolerance(drift: dict, status: str, mount: dict | None, rot_deg: flo
     out = unconverged(out, status)
     if isinstance(drift.get("prior"), dict) and "words" in drift["prior"]:  # as the calibrator applied it
         out = with_prior(out, drift["prior"])
-    return camera_side_note(out, mount)
+    out = {k: v for k, v in out.items() if k != "doppler_level"}  # said again against the asked tolerance
+    return doppler_level_note(camera_side_note(out, mount), mount)
 
 
 def unconverged(drift: dict, status: str) -> dict:
@@ -436,6 +439,32 @@ def camera_side_note(drift: dict, mount: dict | None) -> dict:
             f"{level_words(level, std)} its tables' over {lv.get('pairs', '?')} sweep pairs), so the camera side "
             "(its mount or intrinsics in calibrated_sensor.json) is the likelier cause of the yaw difference")
     return {**drift, "camera_side": note, "verdict": f"{drift.get('verdict', '')}; {note}"}
+
+
+def doppler_level_note(drift: dict | None, mount: dict | None) -> dict | None:
+    """``drift`` whose verdict is "cannot tell" with a sentence added when the radar mount monitor's one level puts the
+    radar's yaw on the vehicle beyond 3 x the yaw tolerance from its tables (by more than 3 of its std, the level's
+    bias added): the monitor rests on neither the network nor the window, so a user told "cannot tell" is told
+    this too (probe 34: tables turned 8 deg, the Doppler read 8.93 +- 0.10 deg, the verdict only "cannot tell: ...
+    says nothing about the mount"). Not a verdict: the level also holds the ego poses' heading errors. Unchanged
+    otherwise (another verdict, no one level, a step, an implausible level)."""
+    if not drift or drift.get("verdict_kind") != "cannot tell" or drift.get("doppler_level"):
+        return drift
+    yaw = (drift.get("axes") or {}).get("yaw") or {}
+    levels = (mount or {}).get("levels") or []
+    if len(levels) != 1 or (mount or {}).get("steps") or (mount or {}).get("implausible") or "tolerance" not in yaw:
+        return drift
+    from hybrid_calib.calib.mount_monitor import LEVEL_BIAS_DEG, level_words
+
+    level, std = float(levels[0].get("level_deg", np.nan)), float(levels[0].get("std_deg", np.nan))
+    sd = float(np.hypot(std, LEVEL_BIAS_DEG))
+    if not (np.isfinite(level) and np.isfinite(sd)) or abs(level) - 3 * sd <= 3 * float(yaw["tolerance"]):
+        return drift
+    note = (f"but the radar's own Doppler against the ego poses (which rests on neither the network nor the window) "
+            f"puts its yaw on the vehicle {level_words(level, sd)} its tables': check the radar's yaw (if the ego "
+            "poses are right, its tables' yaw is off)")
+    return {**drift, "doppler_level": {"level_deg": level, "std_deg": sd, "words": note},
+            "verdict": f"{drift.get('verdict', '')}; {note}"}
 
 
 PRIOR_DOMINATED = 0.7  # posterior std >= this x the external prior's on an axis: the data hardly moved it there

@@ -294,7 +294,7 @@ class MountMonitor:
             s = self.scale(v, n) if len(v) > 2 else self.conf.floor_deg / np.sqrt(n)
             out.append({"from": self.series[a][0], "to": self.series[b - 1][0], "level_deg": float(np.median(v)),
                         "std_deg": float(s * np.sqrt(MEDIAN_VAR / len(v))), "frames": int(len(v)),
-                        "pairs": int(sum(self.pairs[a:b]))})
+                        "pairs": int(sum(self.pairs[a:b])), "scatter_deg": float(s)})
         return out
 
     def summary(self) -> dict:
@@ -314,6 +314,16 @@ class MountMonitor:
             f"{far[0]['std_deg']:.1f} deg (frames {far[0]['from']}-{far[0]['to']}; a radar's mount is within "
             f"{self.conf.max_level_deg:g} deg of its tables): the ego poses' headings (ego_pose.json), the radar's "
             "velocity fields or its mount in the tables are wrong, so its steps are not told")} if far else {}
+        # readings of one level that scatter beyond any mount (probe 34: a radar turned 180 deg mid-drive read 0.08 +-
+        # 89.7 deg, "no step", and the result stayed "weak" 180 deg off): no one heading to tell steps from
+        scattered = [lv for lv in levels if lv["frames"] >= 3 and lv["scatter_deg"] > self.conf.max_level_deg]
+        if scattered and not far:
+            lv = scattered[0]
+            implausible = {"scattered": {k: lv[k] for k in ("scatter_deg", "from", "to")}, "implausible": (
+                f"the radar's Doppler heading on the vehicle scatters by +-{lv['scatter_deg']:.0f} deg from frame to "
+                f"frame (frames {lv['from']}-{lv['to']}; a radar's mount stays within {self.conf.max_level_deg:g} deg "
+                "of its tables): the radar turned during the drive by more than its step test could place, or its "
+                "velocity fields or the ego poses are wrong, so its steps are not told")}
         return {"steps": steps, "levels": levels, "frames_tested": len(self.series),
                 "pairs_tested": int(sum(self.pairs)), "threshold": self.conf.threshold, **implausible,
                 "blind_frames": [self.conf.min_frames, self.conf.frames_to_alarm()],
@@ -390,6 +400,18 @@ def tested_words(summary: dict) -> str:
         words += (f"; {gone.get('n')} of the {gone.get('of')} radar sweep files between keyframes are missing "
                   f"(first: {gone.get('first')}): their pairs are skipped")
     return words
+
+
+def scatter_reason(summary: dict | None) -> str:
+    """Why an estimate is not trusted when the monitor's readings scatter beyond any mount (``summary``'s
+    "scattered"): a radar that turned during the drive has no one extrinsic; "" otherwise."""
+    sc = (summary or {}).get("scattered")
+    if not isinstance(sc, dict):
+        return ""
+    return (f"the radar's own heading on the vehicle (its Doppler against the ego poses) scatters by "
+            f"+-{sc['scatter_deg']:.0f} deg from frame to frame (frames {sc['from']}-{sc['to']}), far more than a "
+            "mount allows: the radar turned during the drive (no one extrinsic holds for it), or its velocities or "
+            "the ego poses are wrong; check the radar's mount, and calibrate the frames after any change")
 
 
 # The Doppler level's own bias against the truth, deg: on simulated drives whose tables hold the truth the level

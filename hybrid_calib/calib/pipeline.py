@@ -231,14 +231,63 @@ def trust_reason(res: VehicleResult, T_reference: np.ndarray) -> str:
     reasons = [f"{untrusted_status(status)} (NOT CONVERGED: too few of its rows fit the estimate)"
                if NOT_CONVERGED in status and status_kind(status) != "inconclusive" else ""]
     rot_deg, trans_cm = mount_offset(np.asarray(res.final.T, np.float64), np.asarray(T_reference, np.float64))
-    if not (np.isfinite(rot_deg) and np.isfinite(trans_cm)) or rot_deg > ASTRAY_ROT_DEG or \
+    if away := no_view_reason(T_reference):  # said as the cause, not "the solve went astray ... a longer drive"
+        reasons.append(away)
+    elif not (np.isfinite(rot_deg) and np.isfinite(trans_cm)) or rot_deg > ASTRAY_ROT_DEG or \
             trans_cm > 100 * ASTRAY_TRANS_M:
         reasons.append(f"the estimate lies {rot_deg:.1f} deg and {trans_cm / 100:.2f} m from the vehicle's tables, "
                        f"farther than any radar mount sits from them ({ASTRAY_ROT_DEG:g} deg, {ASTRAY_TRANS_M:g} m): "
                        "the solve went astray (too few frames or rows for its start: calibrate a longer drive), or "
                        "the tables' mount itself is wrong (a rotation or translation in calibrated_sensor.json: "
-                       "hybrid-calib inspect warns when the radar's points miss the image with it)")
+                       "hybrid-calib inspect warns when the radar's points miss the image with it, or a sensor is "
+                       "upside down in it)")
+    reasons.append(unseen_end_reason(res))
     return "; and ".join(r for r in reasons if r)
+
+
+NO_VIEW_DEG = 90.0  # the radar's boresight this far from the camera's optical axis: no field of view is that wide
+
+
+def no_view_reason(T_reference: np.ndarray) -> str:
+    """Why a camera and a radar cannot be calibrated together, or "": their tables' extrinsic ``T_reference``
+    (4, 4) turns the radar's boresight more than ``NO_VIEW_DEG`` from the camera's optical axis (probe 34: a rear
+    radar paired with the front camera read "the solve went astray (... calibrate a longer drive)")."""
+    x_cam = np.asarray(T_reference, np.float64)[:3, 0]  # the radar's boresight in camera axes
+    away = float(np.degrees(np.arccos(np.clip(x_cam[2], -1.0, 1.0))))
+    if not away > NO_VIEW_DEG:
+        return ""
+    return (f"the vehicle's tables turn the radar {away:.0f} deg away from the camera's optical axis, so the two share "
+            "no view: nothing the radar sees is in the image (a side or rear radar paired with this camera, or a mount "
+            "rotation written wrong in calibrated_sensor.json: hybrid-calib inspect says which)")
+
+
+# a drive whose last frames gave nothing to fuse, this many of them at least (and a quarter of the drive), ends with an
+# estimate of the mount before them: a radar knocked away from the camera's view looks exactly so (probe 34: turned
+# 180 deg at frame 4 of 8, the oracle's frames 4-7 had no reflector in the image, the result was "weak", scored
+# against frame 3's truth with a yaw "within tolerance")
+UNSEEN_END_FRAMES = 3
+
+
+def unseen_end_reason(res: VehicleResult) -> str:
+    """Why an estimate cannot stand for the mount at the drive's end, or "": the drive's last frames (at least
+    ``UNSEEN_END_FRAMES`` and a quarter of its frames) are all in ``res.skipped`` (no rows, unreadable, repeats; not
+    the frames the network's domain test dropped, which its own reason names), so
+    the estimate is of the mount before them. Frame positions are the skipped entries' and the trajectory's
+    ``index`` (the drive's frame numbers from 0)."""
+    # frames the domain test left out are its reason's to say (``hybrid.ood``), not this one's
+    skipped = {int(s["index"]) for s in res.skipped if isinstance(s, dict) and isinstance(s.get("index"), int)
+               and "ood_score" not in s}
+    used = {int(f.index) for f in res.trajectory} or (set(range(max(skipped) + 1)) - skipped if skipped else set())
+    if not skipped or not used:
+        return ""
+    last, end = max(used), max(skipped | used)
+    n_after = end - last
+    if n_after < max(UNSEEN_END_FRAMES, 0.25 * (end + 1)) or not all(k in skipped for k in range(last + 1, end + 1)):
+        return ""
+    return (f"the drive's last {n_after} of {end + 1} frames (from frame {last + 1} on) gave nothing to fuse (listed "
+            "in frames_skipped): a radar knocked, blocked or failed there sees nothing the camera sees, so this "
+            f"estimate is the mount up to frame {last}, not at the drive's end"
+            + (f" (its errors are against frame {last}'s truth)" if res.errors_against == "truth" else ""))
 
 
 def _check_exported_from(folder: Path, data, version: str) -> None:

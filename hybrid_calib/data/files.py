@@ -96,6 +96,19 @@ def data_stamp(root: str | Path, version: str) -> dict:
                 timespec="seconds") if newest else None}
 
 
+def missing_folder_words(path: str | Path) -> str:
+    """Why a dataset file is missing when its channel's whole folder is (``samples/CAM_BACK`` absent beside other
+    channels: a copy that ships some channels only), or "" when the folder is there (probe 34: "check the dataset
+    root" sent a user to a root that was right)."""
+    folder = Path(path).parent
+    if folder.is_dir() or not folder.parent.is_dir():
+        return ""
+    there = sorted(p.name for p in folder.parent.iterdir() if p.is_dir())
+    return (f"; the folder {folder.parent.name}/{folder.name} does not exist under the root (channel folders there: "
+            f"{', '.join(there[:8]) or 'none'}{', ...' if len(there) > 8 else ''}): this copy has no {folder.name} "
+            "files; copy them in, or pick a channel it has")
+
+
 def check_regular_file(path: str | Path, what: str, token: str | None = None) -> None:
     """``DataError`` naming ``path`` when it exists but is not a regular file (after following links): reading a
     named pipe (FIFO) blocked the job for ever, a directory or a device is not a data file either. A missing

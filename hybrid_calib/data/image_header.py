@@ -17,7 +17,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from hybrid_calib.data.files import check_regular_file
+from hybrid_calib.data.files import check_regular_file, missing_folder_words
 from hybrid_calib.errors import DataError
 
 _PNG_SIG = b"\x89PNG\r\n\x1a\n"
@@ -57,7 +57,8 @@ def image_header(path: str | Path, token: str | None = None) -> tuple[int, int]:
             f.seek(max(0, size - _TAIL))
             tail = f.read(_TAIL)
     except FileNotFoundError:
-        raise DataError("camera image not found; check the dataset root (samples/ must sit next to the version "
+        raise DataError(("camera image not found" + why) if (why := missing_folder_words(path)) else
+                        "camera image not found; check the dataset root (samples/ must sit next to the version "
                         "folder)", path=str(path), token=token) from None
     except OSError as e:
         raise DataError(f"cannot read camera image: {e}", path=str(path), token=token) from None

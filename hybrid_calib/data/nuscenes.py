@@ -174,9 +174,11 @@ class NuScenesRadarCamera:
             if ch not in channels:
                 kind = "radar" if ch == radar_channel else "camera" if ch == camera_channel else "lidar"
                 same = [c for c in channels if self.tables.modality(c) == kind]
+                # renaming channels in sensor.json (the old advice) left every sample_data file named for its own
+                # channel, and each frame was refused (probe 34)
                 how = ("; inspect reads another with --radar / --camera; calibrate, fleet, compare, train and evaluate "
-                       "work on RADAR_FRONT -> CAM_FRONT (nuScenes' front radar and camera): to calibrate another "
-                       "pair, name its channels so in sensor.json" if kind != "lidar" else
+                       "work on RADAR_FRONT -> CAM_FRONT only (nuScenes' front radar and camera, the pair the network "
+                       "was trained on): another pair is not supported by them" if kind != "lidar" else
                        "; the LiDAR is read for lidar-densified depth and the hybrid's LiDAR alignment: pass another "
                        "--depth, or --set lidar.enabled=false")
                 raise DataError(f"channel {ch!r} is not in sensor.json; {kind} channels present: {same or 'none'}"

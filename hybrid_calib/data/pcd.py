@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from hybrid_calib.atomic import write_bytes_atomic
-from hybrid_calib.data.files import check_regular_file
+from hybrid_calib.data.files import check_regular_file, missing_folder_words
 from hybrid_calib.errors import DataError
 
 # The 18 fields of a nuScenes radar PCD, in file order, with their numpy types.
@@ -66,7 +66,8 @@ def read_radar_pcd(path: str | Path) -> np.ndarray:
         check_regular_file(path, "radar file")
         raw = path.read_bytes()
     except FileNotFoundError:
-        raise DataError("radar file not found; check the dataset root and version", path=str(path)) from None
+        raise DataError(("radar file not found" + why) if (why := missing_folder_words(path)) else
+                        "radar file not found; check the dataset root and version", path=str(path)) from None
     except OSError as e:
         raise DataError(f"cannot read radar file: {e}", path=str(path)) from None
     if not raw:

@@ -37,6 +37,8 @@ SYNC_WARN_MS = 100.0
 # a sensor mount farther than this from the vehicle's origin (nuScenes: within 4 m) is said: a translation in
 # decimetres (34 m) passed every check below the loader's 50 m bound (probe 29)
 MOUNT_WARN_M = 10.0
+TILT_WARN_DEG = 60.0  # a sensor's up axis this far from the vehicle's (nuScenes' front sensors: within ~2 deg)
+LOW_WARN_M = -0.1  # a mount this far below the ego origin (on the ground) is below the road
 MIN_KEYFRAME_GAP_US = 10_000  # keyframes closer than 10 ms (nuScenes: 500 ms): the timestamps are not microseconds
 
 
@@ -64,6 +66,8 @@ class GroupSummary:
     ego_track: list[tuple[str, int, np.ndarray]] = field(default_factory=list)
     late: list[tuple[str, float]] = field(default_factory=list)  # (sample, radar - camera ms) beyond SYNC_WARN_MS
     far_mount: tuple[str, float] = ("", 0.0)  # the channel whose mount lies farthest from the ego origin; how far, m
+    tilted: tuple[str, float] = ("", 0.0)  # the channel whose "up" (camera -y, radar z) leans most from ego up; deg
+    low_mount: tuple[str, float] = ("", 0.0)  # the channel whose mount lies lowest, below the ground; its height, m
     # (width, height) of its camera images -> (frames, first sample): one camera's intrinsics fit one image size
     image_sizes: dict[tuple[int, int], list] = field(default_factory=dict)
 
@@ -174,6 +178,17 @@ class DatasetSummary:
                            f"frames {w} x {h}, and {'; '.join(odd[:3])}: a camera's intrinsics fit one image size, "
                            "so those frames were resized or belong to another camera; replace them or give them "
                            "their own calibrated_sensor record")
+            if g.tilted[1] > TILT_WARN_DEG:
+                out.append(f"warning: scene {g.scene}: the {g.tilted[0]}'s mount in calibrated_sensor.json turns its "
+                           f"up axis {g.tilted[1]:.0f} deg from the vehicle's up (a sensor mounted upside down or on "
+                           "its side, or a rotation written wrong: a quaternion in x, y, z, w order, or inverted): "
+                           "check the record's rotation" + ("; a camera really mounted so is unlike every frame the "
+                                                            "network was trained on" if g.tilted[0] ==
+                                                            self.camera_channel else ""))
+            if g.low_mount[1] < LOW_WARN_M:
+                out.append(f"warning: scene {g.scene}: the {g.low_mount[0]}'s mount lies {-g.low_mount[1]:.2f} m below "
+                           "the vehicle's origin in calibrated_sensor.json (nuScenes' ego origin is on the ground: a "
+                           "sensor sits above it): a translation's sign or unit is wrong; fix the record")
             if g.far_mount[1] > MOUNT_WARN_M:
                 out.append(f"warning: scene {g.scene}: the {g.far_mount[0]}'s mount lies {g.far_mount[1]:.1f} m from "
                            f"the vehicle's origin in calibrated_sensor.json (a sensor on a car sits within a few "
@@ -340,9 +355,19 @@ def summarize_dataset(ds: NuScenesRadarCamera, progress: bool = True) -> Dataset
             g.late.append((f.sample_token, g.dt_ms[-1]))
         size = g.image_sizes.setdefault((int(f.camera.width), int(f.camera.height)), [0, f.sample_token])
         size[0] += 1
-        for channel, key in ((ds.radar_channel, "T_ego_radar"), (ds.camera_channel, "T_ego_cam")):
-            if (mount := f.extras.get(key)) is not None and (d := float(np.linalg.norm(mount[:3, 3]))) > g.far_mount[1]:
+        for channel, key, up in ((ds.radar_channel, "T_ego_radar", (0.0, 0.0, 1.0)),
+                                 (ds.camera_channel, "T_ego_cam", (0.0, -1.0, 0.0))):
+            if (mount := f.extras.get(key)) is None:
+                continue
+            if (d := float(np.linalg.norm(mount[:3, 3]))) > g.far_mount[1]:
                 g.far_mount = (channel, d)
+            # a sensor's up axis (an image's up: camera -y; a radar's z) in ego: a mount rolled ~180 deg still lands the
+            # radar's points in the image, so the in-image check passed it (probe 34)
+            lean = float(np.degrees(np.arccos(np.clip((np.asarray(mount, np.float64)[:3, :3] @ up)[2], -1.0, 1.0))))
+            if lean > g.tilted[1]:
+                g.tilted = (channel, lean)
+            if (z := float(mount[2, 3])) < g.low_mount[1]:
+                g.low_mount = (channel, z)
         g.camera_us.append(int(f.timestamp_camera_us))
         pose = f.extras.get("T_global_ego_radar")
         if pose is not None and np.all(np.isfinite(pose)):

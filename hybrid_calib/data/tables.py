@@ -336,6 +336,14 @@ class NuScenesTables:
             raise DataError(f"calibrated_sensor camera_intrinsic third row is {rows[2]!r}, expected [0, 0, 1] (a "
                             f"pinhole camera matrix [[fx, s, cx], [0, fy, cy], [0, 0, 1]]); {fix}", path=path,
                             token=token)
+        if abs(K[1, 0]) > 1e-6:
+            raise DataError(f"calibrated_sensor camera_intrinsic second row is {rows[1]!r}, expected [0, fy, cy] (a "
+                            f"pinhole camera matrix [[fx, s, cx], [0, fy, cy], [0, 0, 1]]); {fix}", path=path,
+                            token=token)
+        if abs(K[0, 1]) > MAX_SKEW_PX:  # read as 0 (the projection keeps fx, fy, cx, cy): every projection was off
+            raise DataError(f"calibrated_sensor camera_intrinsic has a skew of {K[0, 1]:.6g} px (its [0][1] entry); "
+                            "hybrid-calib models a zero-skew pinhole camera (as nuScenes'): resample the images to a "
+                            f"zero-skew camera and write its matrix, or {fix}", path=path, token=token)
         lo, hi = FOCAL_RANGE_PX
         for name, v in (("fx", K[0, 0]), ("fy", K[1, 1])):
             if not lo <= v <= hi:
@@ -357,6 +365,7 @@ class NuScenesTables:
 
 FOCAL_RANGE_PX = (1.0, 1e5)  # plausible focal lengths, pixels (a 1e-300 px focal length made K singular)
 MAX_PRINCIPAL_POINT_PX = 1e5  # |cx|, |cy| bound, pixels, when the image size is not known
+MAX_SKEW_PX = 0.5  # |K[0][1]| beyond this is refused (probe 34: a 500 px skew was dropped without a word)
 
 
 def _positive_int(value) -> int:

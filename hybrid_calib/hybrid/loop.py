@@ -40,13 +40,14 @@ from hybrid_calib.calib.degeneracy import RowGeometry
 from hybrid_calib.calib.drift import (
     DriftConfig,
     camera_side_note,
+    doppler_level_note,
     reference_test,
     unconverged,
     with_mount_step,
 )
 from hybrid_calib.calib.lever_arm import LeverArmConfig
 from hybrid_calib.calib.lidar_alignment import LidarAlignConfig
-from hybrid_calib.calib.mount_monitor import MountMonitor, MountMonitorConfig
+from hybrid_calib.calib.mount_monitor import MountMonitor, MountMonitorConfig, scatter_reason
 from hybrid_calib.calib.oracle import OracleConfig
 from hybrid_calib.calib.pipeline import trust_reason, untrusted
 from hybrid_calib.calib.result import (
@@ -517,11 +518,12 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     if conf.method == "pure":
         res.drift = one_pass_verdict(res.drift)
     reason = "; and ".join(r for r in (ood["inconclusive"], unfitted_reason(runner, conf.method),
-                                       standstill_reason(frames, drive), trust_reason(res, drive.reference)) if r)
+                                       standstill_reason(frames, drive), scatter_reason(res.mount),
+                                       trust_reason(res, drive.reference)) if r)
     if reason:
         untrusted(res, reason)
     if res.drift:  # a step the radar mount monitor measured stands whatever the estimate at the end can tell
-        res.drift = with_mount_step(res.drift, res.mount)
+        res.drift = doppler_level_note(with_mount_step(res.drift, res.mount), res.mount)
     return res
 
 

@@ -139,6 +139,30 @@ def vehicle_mounts(conf: SimConfig, vehicle: int) -> tuple[VehicleDraw | None, t
     return draw, base, sample_mounts(_rng(c.seed, vehicle, 2), c.mounts, _rng(c.seed, vehicle, 5), base)
 
 
+MIN_MOUNT_HEIGHT_M = 0.1  # a sensor lower than this over the road (the ego origin is on the ground) is not on a car
+
+
+def check_mounts(conf: SimConfig) -> None:
+    """``ConfigError`` naming the vehicle, the sensor and the option when a drawn mount (or the radar at the end of
+    ``extrinsic_change``) lies below ``MIN_MOUNT_HEIGHT_M`` over the road: the ray caster still saw a scene from under
+    the road and the root was written as if valid (probe 34: ``mounts.radar_translation_m=5``, radar 3.6 m below)."""
+    from hybrid_calib.config import ConfigError
+
+    for v in range(conf.vehicles):
+        m = vehicle_mounts(conf, v)[2]
+        end = m.radar_at(conf.extrinsic_change, conf.frames - 1, conf.frames)
+        for name, T, option in (("camera", m.T_ego_cam, "mounts.camera_translation_m"),
+                                ("radar", m.T_ego_radar, "mounts.radar_translation_m"),
+                                ("LiDAR", m.T_ego_lidar, "mounts.lidar_translation_m"),
+                                ("radar at the drive's last frame", end, "extrinsic_change.translation_m")):
+            if (z := float(T[2, 3])) < MIN_MOUNT_HEIGHT_M:
+                raise ConfigError(f"vehicle {v}'s {name} would sit {z:+.2f} m over the road (below "
+                                  f"{MIN_MOUNT_HEIGHT_M:g} m: under or on the ground, no car's sensor) with "
+                                  f"{option} as given; give a smaller {option}" + (
+                                      " (a change in the radar's own axes: z is up)" if option.startswith("extrinsic")
+                                      else " (the spread is per axis, the vertical one included)"))
+
+
 def vehicle_camera(conf: SimConfig, draw: VehicleDraw | None) -> PinholeCamera:
     """A vehicle's camera: ``SimConfig.camera``, or with randomised real mounts the drawn CAM_FRONT
     intrinsics (1600 x 900 scaled by ``image_scale``)."""

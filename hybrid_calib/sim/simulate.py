@@ -35,7 +35,7 @@ from hybrid_calib.data.frame import write_depth_png
 from hybrid_calib.data.pcd import write_lidar_bin, write_radar_pcd
 from hybrid_calib.errors import HybridCalibError
 from hybrid_calib.geometry import pose_to_nuscenes
-from hybrid_calib.sim.drive import SimConfig, VehicleDrive
+from hybrid_calib.sim.drive import SimConfig, VehicleDrive, check_mounts
 from hybrid_calib.sim.extrinsics import NOMINAL_T_EGO_CAM, NOMINAL_T_EGO_RADAR
 from hybrid_calib.sim.nuscenes_writer import (
     VERSION,
@@ -141,6 +141,7 @@ def simulate(conf: SimConfig, out: str | Path, overwrite: bool = False, workers:
 
     if not isinstance(conf, SimConfig):
         raise TypeError(f"conf must be a SimConfig (build one with hybrid_calib.config.merge), got {type(conf)}")
+    check_mounts(conf)  # before anything is written
     root = Path(out)
     conf_path = root / "sim_config.json"
     conf_dict = to_dict(conf)
