@@ -390,3 +390,24 @@ def test_readings_that_scatter_beyond_any_mount_make_the_estimate_untrusted():
     steady = _feed(0.8 + 0.3 * np.random.default_rng(0).standard_normal(12))
     assert "scattered" not in steady.summary() and scatter_reason(steady.summary()) == ""
     assert scatter_reason(None) == ""
+
+
+def test_the_hybrid_does_not_trust_an_estimate_whose_radar_heading_scatters(knocked_and_not, tmp_path, monkeypatch):
+    """The loop's wiring of ``scatter_reason`` and ``doppler_level_note`` (probe 34): a monitor whose readings scatter
+    beyond any mount makes the hybrid's result inconclusive, saying why; a far level adds its words to the verdict."""
+    from hybrid_calib.calib.mount_monitor import MountMonitor
+    from hybrid_calib.hybrid import run_vehicle
+
+    real = MountMonitor.summary
+    conf = {"method": "hybrid", "start": "R1", "seed": 2, "threads": 1, "progress": False, "max_frames": 8,
+            "cache_dir": str(tmp_path / "cache")}
+    monkeypatch.setattr(MountMonitor, "summary", lambda self: {
+        **real(self), "scattered": {"scatter_deg": 133.0, "from": 1, "to": 7}, "implausible": "scatters"})
+    vr = run_vehicle(knocked_and_not[0], "v1.0-sim", "sim-veh-000", conf)
+    assert vr.final.status.startswith("inconclusive: the radar's own heading on the vehicle (its Doppler against the "
+                                      "ego poses) scatters by +-133 deg from frame to frame (frames 1-7)")
+    monkeypatch.setattr(MountMonitor, "summary", lambda self: {
+        **real(self), "levels": [{"level_deg": 9.0, "std_deg": 0.1, "from": 1, "to": 7, "frames": 7, "pairs": 40}]})
+    vr = run_vehicle(knocked_and_not[0], "v1.0-sim", "sim-veh-000", {**conf, "ood": {"min_in_domain_frames": 1000}})
+    assert vr.drift["verdict_kind"] == "cannot tell" and "puts its yaw on the vehicle 9.00 +- 0.14 deg" in \
+        vr.drift["verdict"]
