@@ -168,3 +168,25 @@ def test_effective_radar_config():
     assert rain.extra_loss_db == scenario("rain").radar_extra_loss_db
     own = merge(SimConfig, {"scenario": "rain", "radar": {"clutter_per_sweep": 2.0}}).effective_radar
     assert own.clutter_per_sweep == 2.0
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_the_ego_never_drives_into_the_vehicles_ahead_in_its_lane(seed):
+    """Probe 35: the ego's speed oscillation outran the lead vehicles (2 % faster on average) by up to 22 m on the
+    highway, and 2 of 14 fresh highway drives ran the camera into the lead truck (depth 1.03 m over the image). Every
+    lead vehicle's rear stays at least MIN_GAP_M ahead of the ego's front over a minute's drive."""
+    from hybrid_calib.sim.scenarios import MIN_GAP_M
+    from hybrid_calib.sim.trajectory import EGO_FRONT_M, EGO_START_S, EgoMotion
+
+    conf = PRESETS["highway"]
+    world = build_world(conf, seed, 3000.0)
+    lane = world.layout.lane_centre(world.layout.lanes_per_direction - 1)
+    ego = EgoMotion(world.path, lane, conf.ego_speed, conf.ego_speed_variation)
+    leads = sorted((o for o in world.objects if o.speed > 0 and abs(o.lateral - lane) < 0.01), key=lambda o: o.s0)
+    assert len(leads) == conf.lead_vehicles
+    t = np.linspace(0.0, 60.0, 1201)
+    front = np.array([ego.s(x) for x in t]) + EGO_FRONT_M
+    for o in leads:
+        assert np.min(o.s0 + o.speed * t - o.size[0] / 2 - front) >= MIN_GAP_M - 1e-6
+        front = o.s0 + o.speed * t + o.size[0] / 2
+    assert leads[0].s0 >= EGO_START_S + 25.0

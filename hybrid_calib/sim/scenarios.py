@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hybrid_calib.config import require, require_ranges
-from hybrid_calib.sim.trajectory import EGO_START_S
+from hybrid_calib.sim.trajectory import EGO_FRONT_M, EGO_START_S, ego_catch_up_m
 from hybrid_calib.sim.world import (
     RoadLayout,
     RoadPath,
@@ -65,6 +65,10 @@ class ScenarioConfig:
                               "radar_extra_loss_db": "[0, 100]", "radar_clutter_per_sweep": "[0, 1e4]",
                               "radar_ghost_probability": "[0, 1]"})
         require(self, {"pole_spacing = 0 (none) or >= 1": self.pole_spacing == 0 or self.pole_spacing >= 1})
+
+
+LEAD_SPEED_FACTOR = 1.02  # the lead vehicles in the ego's lane drive 2 % faster than the ego's mean speed
+MIN_GAP_M = 2.0  # the least gap between the ego's front and a lead vehicle's rear (and between lead vehicles)
 
 
 PRESETS: dict[str, ScenarioConfig] = {
@@ -206,10 +210,15 @@ def build_world(conf: ScenarioConfig, seed: int, length: float) -> World:
     # moving traffic; all vehicles of a lane share its speed, so they never run into each other
     ego_lane = L.lanes_per_direction - 1
     g = stream(20)
+    lead_speed = conf.ego_speed * LEAD_SPEED_FACTOR
+    # each lead vehicle's rear at least MIN_GAP_M ahead of the ego's front (and of the vehicle before it) at the
+    # ego's closest approach: drawn nearer, it is moved on (probe 35: 2 of 14 highway drives drove into the truck)
+    clear = EGO_START_S + EGO_FRONT_M + ego_catch_up_m(conf.ego_speed, conf.ego_speed_variation, lead_speed)
     for k in range(conf.lead_vehicles):
         cls, dims, col = _random_vehicle(g)
-        add(cls, vehicle_parts(cls, *dims, col), EGO_START_S + 25.0 + 30.0 * k + g.uniform(0, 15),
-            L.lane_centre(ego_lane), speed=conf.ego_speed * 1.02, size=dims)
+        s_lead = max(EGO_START_S + 25.0 + 30.0 * k + g.uniform(0, 15), clear + MIN_GAP_M + dims[0] / 2)
+        add(cls, vehicle_parts(cls, *dims, col), s_lead, L.lane_centre(ego_lane), speed=lead_speed, size=dims)
+        clear = s_lead + dims[0] / 2
     for lane in range(L.lanes_per_direction):
         for d, (direction, rate) in enumerate(((1.0, conf.same_direction_per_km if lane != ego_lane else 0.0),
                                                (-1.0, conf.oncoming_per_km))):
