@@ -390,6 +390,12 @@ def test_readings_that_scatter_beyond_any_mount_make_the_estimate_untrusted():
     steady = _feed(0.8 + 0.3 * np.random.default_rng(0).standard_normal(12))
     assert "scattered" not in steady.summary() and scatter_reason(steady.summary()) == ""
     assert scatter_reason(None) == ""
+    # a step beyond any mount, measured: the estimate after it is not trusted (its verdict stays "recalibrate")
+    turned = {"steps": [{"change": 8, "at": 12, "step_deg": -179.9, "std_deg": 0.1}], "levels": []}
+    assert scatter_reason(turned).startswith("the radar mount monitor measured the radar turn by 179.90 +- 0.10 deg "
+                                             "(1 sigma) to the right in yaw from about frame 8, beyond any mount")
+    knock = {"steps": [{"change": 8, "at": 12, "step_deg": 1.5, "std_deg": 0.1}], "levels": []}
+    assert scatter_reason(knock) == "" and scatter_reason(knock, max_level_deg=1.0) != ""
 
 
 def test_the_hybrid_does_not_trust_an_estimate_whose_radar_heading_scatters(knocked_and_not, tmp_path, monkeypatch):

@@ -402,16 +402,26 @@ def tested_words(summary: dict) -> str:
     return words
 
 
-def scatter_reason(summary: dict | None) -> str:
-    """Why an estimate is not trusted when the monitor's readings scatter beyond any mount (``summary``'s
-    "scattered"): a radar that turned during the drive has no one extrinsic; "" otherwise."""
+def scatter_reason(summary: dict | None, max_level_deg: float = MountMonitorConfig.max_level_deg) -> str:
+    """Why an estimate is not trusted for what the radar mount monitor saw, or "": its readings scatter beyond any
+    mount (``summary``'s "scattered": a radar that turned during the drive has no one extrinsic), or it measured a
+    step beyond ``max_level_deg`` at 3 sigma (probe 34: a radar turned 180 deg at frame 8 of 16; the verdict said
+    "recalibrate", the estimate after the turn stayed `weak` with a yaw 1-sigma of 0.35 deg, 180 deg off: the
+    network knows radars within a few degrees of their mount)."""
     sc = (summary or {}).get("scattered")
-    if not isinstance(sc, dict):
+    if isinstance(sc, dict):
+        return (f"the radar's own heading on the vehicle (its Doppler against the ego poses) scatters by "
+                f"+-{sc['scatter_deg']:.0f} deg from frame to frame (frames {sc['from']}-{sc['to']}), far more than "
+                "a mount allows: the radar turned during the drive (no one extrinsic holds for it), or its velocities "
+                "or the ego poses are wrong; check the radar's mount, and calibrate the frames after any change")
+    big = [st for st in (summary or {}).get("steps") or []
+           if abs(float(st.get("step_deg", 0.0))) - 3 * float(st.get("std_deg", 0.0)) > max_level_deg]
+    if not big:
         return ""
-    return (f"the radar's own heading on the vehicle (its Doppler against the ego poses) scatters by "
-            f"+-{sc['scatter_deg']:.0f} deg from frame to frame (frames {sc['from']}-{sc['to']}), far more than a "
-            "mount allows: the radar turned during the drive (no one extrinsic holds for it), or its velocities or "
-            "the ego poses are wrong; check the radar's mount, and calibrate the frames after any change")
+    st = big[-1]
+    return (f"the radar mount monitor measured the radar turn by {turn_words(st['step_deg'], st['std_deg'])} from "
+            f"about frame {st['change']}, beyond any mount ({max_level_deg:g} deg): the network knows radars within a "
+            "few degrees of their mount, so the estimate after the turn is not trusted")
 
 
 # The Doppler level's own bias against the truth, deg: on simulated drives whose tables hold the truth the level

@@ -518,7 +518,8 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     if conf.method == "pure":
         res.drift = one_pass_verdict(res.drift)
     reason = "; and ".join(r for r in (ood["inconclusive"], unfitted_reason(runner, conf.method),
-                                       standstill_reason(frames, drive), scatter_reason(res.mount),
+                                       standstill_reason(frames, drive),
+                                       scatter_reason(res.mount, conf.mount.max_level_deg),
                                        trust_reason(res, drive.reference)) if r)
     if reason:
         untrusted(res, reason)
