@@ -325,11 +325,18 @@ def test_an_inconclusive_vehicle_is_flagged_counted_and_never_within_tolerance(l
     doc = json.loads(f.read_text())
     doc["vehicles"]["sim-veh-001"]["final"]["status"] = ("inconclusive: only 2 of 10 frames are inside the network's "
                                                          "training domain [the estimate's own status: weak: yaw]")
+    doc["vehicles"]["sim-veh-001"]["trajectory"][1]["step_alarm"] = True  # the window's test on untrusted inputs
     f.write_text(json.dumps(doc))
     s = run_fleet([str(fleet_root)], None, "v1.0-sim", "oracle", tmp_path, seed=2, calib={"window": {"window": 3}},
                   options=FleetOptions(plots=False))
     r = s["vehicles"]["sim-veh-001"]
     assert r["state"] == "done" and "inconclusive" in r["flags"]
+    # its alarm is kept, not counted as the mount moving (probe 34: "the mount changed inside the drive" for a rear
+    # radar paired with the front camera); the demo's line says "not trusted", not "stepped"
+    from hybrid_calib.commands.demo import vehicle_verdict
+
+    assert r["step_alarms"] and "drifted_in_drive" not in r["flags"] and s["counts"]["drifted_in_drive"] == 0
+    assert "stepped" not in vehicle_verdict(r) and "not trusted: inconclusive" in vehicle_verdict(r)
     assert r["verdict"].startswith("cannot tell: the estimate is not trusted")
     # and an untrusted estimate is not fitted into the fleet's mounts (mutation probe 25)
     assert r["fleet_test"]["left_out"].startswith("not in the fleet prior: ")

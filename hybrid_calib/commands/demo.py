@@ -85,7 +85,7 @@ def vehicle_verdict(row: dict) -> str:
     if row["state"] != "done":
         return f"FAILED: {row.get('reason')}"
     why = []
-    if row["step_alarms"]:
+    if "drifted_in_drive" in row["flags"]:  # fleet.summary: not a window alarm on an untrusted estimate
         turned = "".join(f"; its radar turned by {turn_words(s['step_deg'], s['std_deg'])} from frame "
                          f"{s['change']}" for s in row.get("mount_steps", [])[:1])
         why.append(f"its mount stepped inside the drive (step alarm at frame {row['step_alarms'][0]}{turned})")

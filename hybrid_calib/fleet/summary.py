@@ -122,7 +122,9 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
                                              | set(d["prior"].get("pulled") or ()))
         if d.get("drifted"):
             row["flags"].append("out_of_tolerance")
-        if row["step_alarms"]:
+        # a window alarm on an untrusted estimate is its inputs' jump as much as the mount's (report.verdict:
+        # "not told"); a step the radar mount monitor measured stands either way
+        if row["step_alarms"] and (status_kind(vr.final.status) != "inconclusive" or row["mount_steps"]):
             row["flags"].append("drifted_in_drive")
         if status_kind(vr.final.status) == "degenerate":
             row["flags"].append("degenerate")
