@@ -179,3 +179,20 @@ def test_a_weak_direction_of_one_axis_is_said_with_that_axis_std():
     mixed[np.ix_([0, 1], [0, 1])] = np.radians(2.0) ** 2 * np.array([[1.0, 0.999], [0.999, 1.0]])
     rep = analyse_information(np.eye(4), np.linalg.inv(mixed), conf)
     assert "deg along that direction" in rep.status, rep.status
+
+
+def test_an_indefinite_information_is_read_as_unobservable_not_inverted():
+    """Probe 36: an information matrix with a negative eigenvalue (a rear radar paired with the front camera, rows that
+    fit nothing) was inverted into a covariance with a negative variance, and the run ended in "internal error". Its
+    negative directions are unobservable now (regularised, "degenerate"); a solver's marginal that is not a
+    covariance is not used either."""
+    T = nominal_T_cam_radar()
+    V = np.linalg.qr(rng(8).normal(size=(6, 6)))[0]
+    info = V @ np.diag([1e6, 1e6, 1e6, 1e6, 1e6, -3e4]) @ V.T
+    rep = analyse_information(T, info)
+    assert rep.regularised and rep.status.startswith("degenerate")
+    assert np.linalg.eigvalsh(rep.cov)[0] > 0 and np.all(np.isfinite(rep.std_report))
+    good = V @ np.diag([1e6] * 6) @ V.T
+    bad_hint = np.linalg.inv(good) - 1e-3 * np.outer(V[:, 0], V[:, 0])  # a negative variance along V[:, 0]
+    rep = analyse_information(T, good, cov_hint=bad_hint)
+    np.testing.assert_allclose(rep.cov, np.linalg.inv(good), rtol=1e-9, atol=1e-15)

@@ -343,7 +343,7 @@ def test_inspect_warns_about_a_sensor_upside_down_or_below_the_ground(channel, t
 
     clean = summarize_dataset(NuScenesRadarCamera(make_tiny_root(tmp_path / "clean", n_samples=3).root, VERSION),
                               progress=False).format()
-    assert "up axis" not in clean and "below the vehicle's origin" not in clean
+    assert "up axis" not in clean and "over the vehicle's origin" not in clean
     tiny = make_tiny_root(tmp_path / "flip", n_samples=3)
     T = T_EGO_RADAR if channel == "RADAR_FRONT" else T_EGO_CAM
     axis = [np.pi, 0.0, 0.0] if channel == "RADAR_FRONT" else [0.0, 0.0, np.pi]  # about the boresight / optical axis
@@ -354,9 +354,16 @@ def test_inspect_warns_about_a_sensor_upside_down_or_below_the_ground(channel, t
     tiny.rewrite_table("calibrated_sensor")
     text = summarize_dataset(NuScenesRadarCamera(tiny.root, VERSION), progress=False).format()
     assert f"the {channel}'s mount in calibrated_sensor.json turns its up axis 180 deg from the vehicle's up" in text
-    assert (f"the {channel}'s mount lies {2.5 - T[2, 3]:.2f} m below the vehicle's origin" in text) == \
-        (T[2, 3] < 2.4)
+    assert f"the {channel}'s mount lies {T[2, 3] - 2.5:+.2f} m over the vehicle's origin in calibrated_sensor.json, " \
+        "under 0.1 m" in text
     assert ("unlike every frame the network was trained on" in text) == (channel == "CAM_FRONT")
+    # a 45 deg roll (probe 36: missed at the old 60 deg threshold) and a mount 5 cm over the ground are said too
+    rot, trans = pose_to_nuscenes(make_T(T[:3, :3] @ so3_exp(np.array(axis) / 4), [T[0, 3], T[1, 3], 0.05]))
+    cs.update(rotation=rot, translation=trans)
+    tiny.rewrite_table("calibrated_sensor")
+    text = summarize_dataset(NuScenesRadarCamera(tiny.root, VERSION), progress=False).format()
+    assert f"the {channel}'s mount in calibrated_sensor.json turns its up axis 45 deg" in text
+    assert f"the {channel}'s mount lies +0.05 m over the vehicle's origin" in text
 
 
 def test_a_vehicle_with_two_calibrations_is_two_vehicles(tmp_path):

@@ -396,6 +396,12 @@ def test_readings_that_scatter_beyond_any_mount_make_the_estimate_untrusted():
                                              "(1 sigma) to the right in yaw from about frame 8, beyond any mount")
     knock = {"steps": [{"change": 8, "at": 12, "step_deg": 1.5, "std_deg": 0.1}], "levels": []}
     assert scatter_reason(knock) == "" and scatter_reason(knock, max_level_deg=1.0) != ""
+    # one level far from the tables (probe 36: turned 180 deg at frame 2 of 16, read "weak" 180 deg off), no step
+    away = _feed([179.8 + 0.1 * (k % 3) for k in range(12)]).summary()
+    assert away["far"]["from"] == 0 and "so its steps are not told" in away["implausible"]
+    assert scatter_reason(away).startswith("the radar's own heading on the vehicle (its Doppler against the ego poses) "
+                                           "lies 179.90 +- ") and "beyond any mount (10 deg)" in scatter_reason(away)
+    assert "far" not in _feed([0.8 + 0.1 * (k % 3) for k in range(12)]).summary()
 
 
 def test_the_hybrid_does_not_trust_an_estimate_whose_radar_heading_scatters(knocked_and_not, tmp_path, monkeypatch):

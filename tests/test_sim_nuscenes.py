@@ -235,17 +235,20 @@ def test_refuses_a_foreign_non_empty_folder(tmp_path, monkeypatch, capsys):
 
 
 @pytest.mark.parametrize("argv, needle", [
-    (["--set", "mounts.radar_translation_m=5"], "vehicle 0's radar would sit -3.63 m over the road .* with "
-                                                "mounts.radar_translation_m as given"),
-    (["--extrinsic-change", "step", "--set", "extrinsic_change.translation_m=[0,0,-1]"],
-     "vehicle 0's radar at the drive's last frame would sit -0.52 m over the road .*extrinsic_change.translation_m"),
+    (["--seed", "1", "--set", "mounts.radar_translation_m=5"],
+     r"vehicle 0's radar would sit outside a car \(.*z -3.63 m \(allowed 0.1 .. 4\).* with mounts.radar_translation_m "
+     r"as given"),
+    (["--seed", "0", "--set", "mounts.radar_translation_m=5"],  # beside the car, not under it (probe 36)
+     r"vehicle 0's radar would sit outside a car \(y \+2.82 m \(allowed -1.5 .. 1.5\)"),
+    (["--seed", "1", "--extrinsic-change", "step", "--set", "extrinsic_change.translation_m=[0,0,-1]"],
+     r"vehicle 0's radar at the drive's last frame would sit outside a car \(z -0.52 m .*extrinsic_change"),
 ])
 def test_a_sensor_drawn_under_the_road_is_refused_before_anything_is_written(argv, needle, tmp_path, monkeypatch,
                                                                              capsys):
     """mounts.radar_translation_m=5 put half the radars under the road (z -3.6 m) and the ray caster still returned
     43 points a sweep: a root no vehicle can produce, written as valid (probe 34)."""
     out = tmp_path / "s"
-    assert run_cli(monkeypatch, "--frames", "2", "--seed", "1", "--out", str(out), *argv) == 2
+    assert run_cli(monkeypatch, "--frames", "2", "--out", str(out), *argv) == 2
     import re
 
     assert re.search(needle, capsys.readouterr().err) and not out.exists()

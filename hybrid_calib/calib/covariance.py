@@ -408,6 +408,15 @@ def analyse_information(
         info = marginalise_prior_pinned(info, pinned_std, external_info)
     if pinned:
         cov_hint = None  # a solver's marginal does not know the nuisance: invert the marginalised information
+    # negative information is none: an indefinite matrix (a Schur complement or a subtracted term gone past zero on
+    # rows that fit nothing) had its inverse reported as a covariance with a negative variance (probe 36: a rear radar
+    # paired with the front camera ended in "internal error"); such directions are unobservable below
+    w, V = np.linalg.eigh(info)
+    if w[0] < -1e-12 * max(float(np.max(np.abs(w))), 1e-300):
+        info = (V * np.clip(w, 0.0, None)) @ V.T
+        cov_hint = None
+    if cov_hint is not None and np.linalg.eigvalsh(0.5 * (_check_cov(cov_hint) + _check_cov(cov_hint).T))[0] < 0:
+        cov_hint = None  # a solver's marginal that is not a covariance: the information's inverse instead
     B = report_basis(T_cam_radar)
     s = _scale(conf)
     # xi_report = B xi ; scaled z = xi_report / s -> xi = B^T diag(s) z ; info_z = D B info B^T D

@@ -309,11 +309,13 @@ class MountMonitor:
                 d.update(step_deg=b["level_deg"] - a["level_deg"], std_deg=float(np.hypot(a["std_deg"], b["std_deg"])))
             steps.append(d)
         far = [lv for lv in levels if abs(lv["level_deg"]) - 3 * lv["std_deg"] > self.conf.max_level_deg]
-        implausible = {"implausible": (
+        implausible = {"far": {k: far[-1][k] for k in ("level_deg", "std_deg", "from", "to")}, "implausible": (
             f"the radar's Doppler heading and the ego poses' disagree by {far[0]['level_deg']:+.1f} +- "
             f"{far[0]['std_deg']:.1f} deg (frames {far[0]['from']}-{far[0]['to']}; a radar's mount is within "
             f"{self.conf.max_level_deg:g} deg of its tables): the ego poses' headings (ego_pose.json), the radar's "
-            "velocity fields or its mount in the tables are wrong, so its steps are not told")} if far else {}
+            "velocity fields or its mount in the tables are wrong"
+            # a step measured into a far level was told (probe 36: "... so its steps are not told): the radar turned")
+            + ("" if steps else ", so its steps are not told"))} if far else {}
         # readings of one level that scatter beyond any mount (probe 34: a radar turned 180 deg mid-drive read 0.08 +-
         # 89.7 deg, "no step", and the result stayed "weak" 180 deg off): no one heading to tell steps from
         scattered = [lv for lv in levels if lv["frames"] >= 3 and lv["scatter_deg"] > self.conf.max_level_deg]
@@ -404,8 +406,9 @@ def tested_words(summary: dict) -> str:
 
 def scatter_reason(summary: dict | None, max_level_deg: float = MountMonitorConfig.max_level_deg) -> str:
     """Why an estimate is not trusted for what the radar mount monitor saw, or "": its readings scatter beyond any
-    mount (``summary``'s "scattered": a radar that turned during the drive has no one extrinsic), or it measured a
-    step beyond ``max_level_deg`` at 3 sigma (probe 34: a radar turned 180 deg at frame 8 of 16; the verdict said
+    mount (``summary``'s "scattered": a radar that turned during the drive has no one extrinsic), its level lies
+    beyond ``max_level_deg`` from the tables (``summary``'s "far"), or it measured a step beyond ``max_level_deg``
+    at 3 sigma (probe 34: a radar turned 180 deg at frame 8 of 16; the verdict said
     "recalibrate", the estimate after the turn stayed `weak` with a yaw 1-sigma of 0.35 deg, 180 deg off: the
     network knows radars within a few degrees of their mount)."""
     sc = (summary or {}).get("scattered")
@@ -416,6 +419,13 @@ def scatter_reason(summary: dict | None, max_level_deg: float = MountMonitorConf
                 "or the ego poses are wrong; check the radar's mount, and calibrate the frames after any change")
     big = [st for st in (summary or {}).get("steps") or []
            if abs(float(st.get("step_deg", 0.0))) - 3 * float(st.get("std_deg", 0.0)) > max_level_deg]
+    far = (summary or {}).get("far")
+    if not big and isinstance(far, dict):  # probe 36: a radar turned 180 deg at frame 2 of 16 read one level, -179.8
+        return (f"the radar's own heading on the vehicle (its Doppler against the ego poses) lies "  # deg: "weak"
+                f"{level_words(far['level_deg'], far['std_deg'])} its tables' (frames {far['from']}-{far['to']}), "
+                f"beyond any mount ({max_level_deg:g} deg): the radar is not mounted as its tables say (a knock, or a "
+                "rotation wrong in calibrated_sensor.json), or the ego poses or its velocities are wrong; the network "
+                "knows radars within a few degrees of their tables, so the estimate is not trusted")
     if not big:
         return ""
     st = big[-1]

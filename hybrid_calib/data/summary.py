@@ -37,8 +37,10 @@ SYNC_WARN_MS = 100.0
 # a sensor mount farther than this from the vehicle's origin (nuScenes: within 4 m) is said: a translation in
 # decimetres (34 m) passed every check below the loader's 50 m bound (probe 29)
 MOUNT_WARN_M = 10.0
-TILT_WARN_DEG = 60.0  # a sensor's up axis this far from the vehicle's (nuScenes' front sensors: within ~2 deg)
-LOW_WARN_M = -0.1  # a mount this far below the ego origin (on the ground) is below the road
+# a sensor's up axis this far from the vehicle's (nuScenes' cameras and radars: within 1.3 deg; a camera pitched down
+# 20 deg on a truck is not said; a 45 deg roll was, by probe 36, missed at 60)
+TILT_WARN_DEG = 30.0
+MIN_MOUNT_HEIGHT_M = 0.1  # a sensor lower than this over the ego origin (on the ground) is on or under the road
 MIN_KEYFRAME_GAP_US = 10_000  # keyframes closer than 10 ms (nuScenes: 500 ms): the timestamps are not microseconds
 
 
@@ -67,7 +69,7 @@ class GroupSummary:
     late: list[tuple[str, float]] = field(default_factory=list)  # (sample, radar - camera ms) beyond SYNC_WARN_MS
     far_mount: tuple[str, float] = ("", 0.0)  # the channel whose mount lies farthest from the ego origin; how far, m
     tilted: tuple[str, float] = ("", 0.0)  # the channel whose "up" (camera -y, radar z) leans most from ego up; deg
-    low_mount: tuple[str, float] = ("", 0.0)  # the channel whose mount lies lowest, below the ground; its height, m
+    low_mount: tuple[str, float] = ("", np.inf)  # the channel whose mount lies lowest; its height over the origin, m
     # (width, height) of its camera images -> (frames, first sample): one camera's intrinsics fit one image size
     image_sizes: dict[tuple[int, int], list] = field(default_factory=dict)
 
@@ -185,10 +187,11 @@ class DatasetSummary:
                            "check the record's rotation" + ("; a camera really mounted so is unlike every frame the "
                                                             "network was trained on" if g.tilted[0] ==
                                                             self.camera_channel else ""))
-            if g.low_mount[1] < LOW_WARN_M:
-                out.append(f"warning: scene {g.scene}: the {g.low_mount[0]}'s mount lies {-g.low_mount[1]:.2f} m below "
-                           "the vehicle's origin in calibrated_sensor.json (nuScenes' ego origin is on the ground: a "
-                           "sensor sits above it): a translation's sign or unit is wrong; fix the record")
+            if g.low_mount[1] < MIN_MOUNT_HEIGHT_M:
+                out.append(f"warning: scene {g.scene}: the {g.low_mount[0]}'s mount lies {g.low_mount[1]:+.2f} m over "
+                           f"the vehicle's origin in calibrated_sensor.json, under {MIN_MOUNT_HEIGHT_M:g} m (nuScenes' "
+                           "ego origin is on the ground: a sensor sits above it): a translation's sign or unit is "
+                           "wrong; fix the record")
             if g.far_mount[1] > MOUNT_WARN_M:
                 out.append(f"warning: scene {g.scene}: the {g.far_mount[0]}'s mount lies {g.far_mount[1]:.1f} m from "
                            f"the vehicle's origin in calibrated_sensor.json (a sensor on a car sits within a few "
