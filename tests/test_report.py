@@ -530,6 +530,21 @@ def test_a_monitor_step_is_judged_against_the_calibrations_tolerance():
     assert verdict_of(vr, Tolerance(rot_deg=0.5)).word == "recalibrate"
 
 
+def test_the_page_says_the_radars_own_doppler_level_beside_an_untrusted_verdict():
+    """Probe 36: calibrate's "cannot tell ...; but the radar's own Doppler ... puts its yaw on the vehicle 8.93 +- 0.14
+    deg ... check the radar's yaw" was not on the report page, whose untrusted verdict is built from the status."""
+    from hybrid_calib.report.verdict import verdict_of
+
+    words = "but the radar's own Doppler against the ego poses puts its yaw 8.93 +- 0.14 deg right of its tables'"
+    vr = _vr((0.0,) * 6, (0.05,) * 6, status="inconclusive: only 21 of 41 frames are inside the network's domain",
+             drift_extra={"verdict_kind": "cannot tell", "verdict": "cannot tell: ...",
+                          "doppler_level": {"level_deg": -8.93, "std_deg": 0.14, "words": words}})
+    v = verdict_of(vr)
+    assert v.word == "cannot tell" and v.why.endswith("; " + words)
+    vr.drift.pop("doppler_level")
+    assert "Doppler" not in verdict_of(vr).why
+
+
 def test_a_window_alarm_on_an_untrusted_estimate_is_not_told_as_the_mount_moving():
     """Probe 34: a rear radar paired with the front camera (no shared view, 0 of 41 frames in domain) read "step alarm
     at frame 15: the window's step test (the mount changed inside the drive ...)"; a trusted result's alarm is as

@@ -322,7 +322,7 @@ class MountMonitor:
         if scattered and not far:
             lv = scattered[0]
             implausible = {"scattered": {k: lv[k] for k in ("scatter_deg", "from", "to")}, "implausible": (
-                f"the radar's Doppler heading on the vehicle scatters by +-{lv['scatter_deg']:.0f} deg from frame to "
+                f"the radar's Doppler heading on the vehicle scatters by {_spread(lv['scatter_deg'])} from frame to "
                 f"frame (frames {lv['from']}-{lv['to']}; a radar's mount stays within {self.conf.max_level_deg:g} deg "
                 "of its tables): the radar turned during the drive by more than its step test could place, or its "
                 "velocity fields or the ego poses are wrong, so its steps are not told")}
@@ -404,6 +404,12 @@ def tested_words(summary: dict) -> str:
     return words
 
 
+def _spread(deg: float) -> str:
+    """A heading's frame-to-frame spread in words: "+-14 deg", or "more than 90 deg" (a robust std of headings that
+    wrap at 180 deg read "+-189 deg": probe 36)."""
+    return f"+-{deg:.0f} deg" if deg <= 90 else "more than 90 deg"
+
+
 def scatter_reason(summary: dict | None, max_level_deg: float = MountMonitorConfig.max_level_deg) -> str:
     """Why an estimate is not trusted for what the radar mount monitor saw, or "": its readings scatter beyond any
     mount (``summary``'s "scattered": a radar that turned during the drive has no one extrinsic), its level lies
@@ -414,7 +420,7 @@ def scatter_reason(summary: dict | None, max_level_deg: float = MountMonitorConf
     sc = (summary or {}).get("scattered")
     if isinstance(sc, dict):
         return (f"the radar's own heading on the vehicle (its Doppler against the ego poses) scatters by "
-                f"+-{sc['scatter_deg']:.0f} deg from frame to frame (frames {sc['from']}-{sc['to']}), far more than "
+                f"{_spread(sc['scatter_deg'])} from frame to frame (frames {sc['from']}-{sc['to']}), far more than "
                 "a mount allows: the radar turned during the drive (no one extrinsic holds for it), or its velocities "
                 "or the ego poses are wrong; check the radar's mount, and calibrate the frames after any change")
     big = [st for st in (summary or {}).get("steps") or []

@@ -422,7 +422,7 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, progress: bool = 
         T_true = vi.truth[-1]
         try:
             res.crb_std = report_std(T_true, oracle_crb(T_true, vi.frames, vi.oracle_truths, conf.oracle.sigma_px, fc))
-        except np.linalg.LinAlgError:  # no inlier row pins a direction (e.g. oracle.outlier_frac=1): no bound to give;
+        except (np.linalg.LinAlgError, ValueError):  # no inlier row pins a direction (oracle.outlier_frac=1): none;
             res.crb_std = None  # it ended the whole run with 'internal error: Singular matrix'
             res.final = dataclasses.replace(res.final, status=res.final.status + (
                 " (no Cramer-Rao bound: the true reflectors' rows leave a direction unconstrained)"))

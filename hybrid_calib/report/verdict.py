@@ -232,10 +232,11 @@ def _verdict_vs_reference(vr: VehicleResult, tol: Tolerance) -> Verdict:
     moved, frames = moved_during_drive(vr)
     if frames and NOT_CONVERGED in vr.final.status:
         moved += "; but the solve did not converge, so these alarms may only mark its failures"
-    if vr.final.status.startswith(INCONCLUSIVE):
-        return Verdict("cannot tell", _out_of_domain_why(vr.final.status), tol.describe(),
-                       "the result's status (not trusted)", moved, frames)
     d = vr.drift or {}
+    if vr.final.status.startswith(INCONCLUSIVE):  # the radar's own Doppler level, as calibrate says it (probe 36)
+        level = (d.get("doppler_level") or {}).get("words")
+        return Verdict("cannot tell", _out_of_domain_why(vr.final.status) + (f"; {level}" if level else ""),
+                       tol.describe(), "the result's status (not trusted)", moved, frames)
     source = "the calibrator's reference test (result.json drift block)"
     if d.get("verdict_kind") and tol.given:  # the tolerance asked for: the calibrator's per-axis test redone with it
         redone = against_tolerance(d, vr.final.status, vr.mount, tol.rot_deg, tol.trans_cm)
