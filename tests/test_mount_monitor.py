@@ -376,39 +376,41 @@ def test_a_one_sigma_turn_in_words():
 def test_readings_that_scatter_beyond_any_mount_make_the_estimate_untrusted():
     """A radar turned 180 deg at frame 4 of 8 read "0.08 +- 89.67 deg ... no step" and the hybrid's result stayed
     "weak" 180 deg off (probe 34): readings of one level scattering beyond max_level_deg are said, and the result is
-    not trusted for it (``scatter_reason``); the usual frame-to-frame noise is not."""
-    from hybrid_calib.calib.mount_monitor import scatter_reason, tested_words
+    not trusted for it (``monitor_trust_reason``); the usual frame-to-frame noise is not."""
+    from hybrid_calib.calib.mount_monitor import monitor_trust_reason as reason
+    from hybrid_calib.calib.mount_monitor import tested_words
 
     mon = _feed([0.1, -0.1, 0.0, 0.1, 179.0, -179.5, 179.8, 179.2])
     s = mon.summary()
     assert s["scattered"]["from"] == 0 and s["scattered"]["to"] == 7 and s["scattered"]["scatter_deg"] > 10
     assert "the radar's Doppler heading on the vehicle scatters by" in s["implausible"]
     assert "scatters by" in tested_words(s)
-    why = scatter_reason(s)
+    why = reason(s)
     assert why.startswith("the radar's own heading on the vehicle (its Doppler against the ego poses) scatters by "
                           "more than 90 deg")  # not "+-189 deg" (probe 36)
     assert "(frames 0-7)" in why and "the radar turned during the drive" in why
-    assert "scatters by +-14 deg" in scatter_reason({"scattered": {"scatter_deg": 14.2, "from": 0, "to": 9}})
+    assert "scatters by +-14 deg" in reason({"scattered": {"scatter_deg": 14.2, "from": 0, "to": 9}})
     steady = _feed(0.8 + 0.3 * np.random.default_rng(0).standard_normal(12))
-    assert "scattered" not in steady.summary() and scatter_reason(steady.summary()) == ""
-    assert scatter_reason(None) == ""
+    assert "scattered" not in steady.summary() and reason(steady.summary()) == ""
+    assert reason(None) == ""
     # a step beyond any mount, measured: the estimate after it is not trusted (its verdict stays "recalibrate")
     turned = {"steps": [{"change": 8, "at": 12, "step_deg": -179.9, "std_deg": 0.1}], "levels": []}
-    assert scatter_reason(turned).startswith("the radar mount monitor measured the radar turn by 179.90 +- 0.10 deg "
-                                             "(1 sigma) to the right in yaw from about frame 8, beyond any mount")
+    assert reason(turned).startswith("the radar mount monitor measured the radar turn by 179.90 +- 0.10 deg "
+                                     "(1 sigma) to the right in yaw from about frame 8, beyond any mount")
     knock = {"steps": [{"change": 8, "at": 12, "step_deg": 1.5, "std_deg": 0.1}], "levels": []}
-    assert scatter_reason(knock) == "" and scatter_reason(knock, max_level_deg=1.0) != ""
+    assert reason(knock) == "" and reason(knock, max_level_deg=1.0) != ""
     # one level far from the tables (probe 36: turned 180 deg at frame 2 of 16, read "weak" 180 deg off), no step
     away = _feed([179.8 + 0.1 * (k % 3) for k in range(12)]).summary()
     assert away["far"]["from"] == 0 and "so its steps are not told" in away["implausible"]
-    assert scatter_reason(away).startswith("the radar's own heading on the vehicle (its Doppler against the ego poses) "
-                                           "lies 179.90 +- ") and "beyond any mount (10 deg)" in scatter_reason(away)
+    assert reason(away).startswith("the radar's own heading on the vehicle (its Doppler against the ego poses) "
+                                   "lies 179.90 +- ") and "beyond any mount (10 deg)" in reason(away)
     assert "far" not in _feed([0.8 + 0.1 * (k % 3) for k in range(12)]).summary()
 
 
 def test_the_hybrid_does_not_trust_an_estimate_whose_radar_heading_scatters(knocked_and_not, tmp_path, monkeypatch):
-    """The loop's wiring of ``scatter_reason`` and ``doppler_level_note`` (probe 34): a monitor whose readings scatter
-    beyond any mount makes the hybrid's result inconclusive, saying why; a far level adds its words to the verdict."""
+    """The loop's wiring of ``monitor_trust_reason`` and ``doppler_level_note`` (probe 34): a monitor whose readings
+    scatter beyond any mount makes the hybrid's result inconclusive, saying why; a far level adds its words to the
+    verdict."""
     from hybrid_calib.calib.mount_monitor import MountMonitor
     from hybrid_calib.hybrid import run_vehicle
 

@@ -410,7 +410,8 @@ def _spread(deg: float) -> str:
     return f"+-{deg:.0f} deg" if deg <= 90 else "more than 90 deg"
 
 
-def scatter_reason(summary: dict | None, max_level_deg: float = MountMonitorConfig.max_level_deg) -> str:
+def monitor_trust_reason(summary: dict | None,
+                         max_level_deg: float = MountMonitorConfig.max_level_deg) -> str:
     """Why an estimate is not trusted for what the radar mount monitor saw, or "": its readings scatter beyond any
     mount (``summary``'s "scattered": a radar that turned during the drive has no one extrinsic), its level lies
     beyond ``max_level_deg`` from the tables (``summary``'s "far"), or it measured a step beyond ``max_level_deg``
@@ -426,8 +427,9 @@ def scatter_reason(summary: dict | None, max_level_deg: float = MountMonitorConf
     big = [st for st in (summary or {}).get("steps") or []
            if abs(float(st.get("step_deg", 0.0))) - 3 * float(st.get("std_deg", 0.0)) > max_level_deg]
     far = (summary or {}).get("far")
-    if not big and isinstance(far, dict):  # probe 36: a radar turned 180 deg at frame 2 of 16 read one level, -179.8
-        return (f"the radar's own heading on the vehicle (its Doppler against the ego poses) lies "  # deg: "weak"
+    # probe 36: a radar turned 180 deg at frame 2 of 16 read one level, -179.8 deg, and the result was "weak"
+    if not big and isinstance(far, dict):
+        return (f"the radar's own heading on the vehicle (its Doppler against the ego poses) lies "
                 f"{level_words(far['level_deg'], far['std_deg'])} its tables' (frames {far['from']}-{far['to']}), "
                 f"beyond any mount ({max_level_deg:g} deg): the radar is not mounted as its tables say (a knock, or a "
                 "rotation wrong in calibrated_sensor.json), or the ego poses or its velocities are wrong; the network "

@@ -47,7 +47,7 @@ from hybrid_calib.calib.drift import (
 )
 from hybrid_calib.calib.lever_arm import LeverArmConfig
 from hybrid_calib.calib.lidar_alignment import LidarAlignConfig
-from hybrid_calib.calib.mount_monitor import MountMonitor, MountMonitorConfig, scatter_reason
+from hybrid_calib.calib.mount_monitor import MountMonitor, MountMonitorConfig, monitor_trust_reason
 from hybrid_calib.calib.oracle import OracleConfig
 from hybrid_calib.calib.pipeline import trust_reason, untrusted
 from hybrid_calib.calib.result import (
@@ -519,7 +519,7 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
         res.drift = one_pass_verdict(res.drift)
     reason = "; and ".join(r for r in (ood["inconclusive"], unfitted_reason(runner, conf.method),
                                        standstill_reason(frames, drive),
-                                       scatter_reason(res.mount, conf.mount.max_level_deg),
+                                       monitor_trust_reason(res.mount, conf.mount.max_level_deg),
                                        trust_reason(res, drive.reference)) if r)
     if reason:
         untrusted(res, reason)
