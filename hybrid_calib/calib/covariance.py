@@ -404,20 +404,21 @@ def analyse_information(
         info = marginalise_prior_pinned(info, pinned_std, external_info)
     if pinned:
         cov_hint = None  # a solver's marginal does not know the nuisance: invert the marginalised information
-    # negative information is none: an indefinite matrix (a Schur complement or a subtracted term gone past zero on
-    # rows that fit nothing) had its inverse reported as a covariance with a negative variance (probe 36: a rear radar
-    # paired with the front camera ended in "internal error"); such directions are unobservable below
-    w, V = np.linalg.eigh(info)
-    if w[0] < -1e-12 * max(float(np.max(np.abs(w))), 1e-300):
-        info = (V * np.clip(w, 0.0, None)) @ V.T
-        cov_hint = None
-    if cov_hint is not None and np.linalg.eigvalsh(0.5 * (_check_cov(cov_hint) + _check_cov(cov_hint).T))[0] < 0:
-        cov_hint = None  # a solver's marginal that is not a covariance: the information's inverse instead
     B = report_basis(T_cam_radar)
     s = _scale(conf)
     # xi_report = B xi ; scaled z = xi_report / s -> xi = B^T diag(s) z ; info_z = D B info B^T D
     M = np.diag(s) @ B @ info @ B.T @ np.diag(s)
     evals, evecs = np.linalg.eigh(M)
+    if evals[0] < 0:  # M is congruent to ``info``: the same signs, found without a second decomposition
+        # negative information is none: an indefinite matrix (a Schur complement or a subtracted term gone past zero
+        # on rows that fit nothing) had its inverse reported as a covariance with a negative variance (probe 36: a
+        # rear radar paired with the front camera ended in "internal error"); such directions are unobservable below
+        w, V = np.linalg.eigh(info)
+        if w[0] < -1e-12 * max(float(np.max(np.abs(w))), 1e-300):
+            info = (V * np.clip(w, 0.0, None)) @ V.T
+            cov_hint = None
+            M = np.diag(s) @ B @ info @ B.T @ np.diag(s)
+            evals, evecs = np.linalg.eigh(M)
     lam_max = max(float(evals[-1]), 1e-300)
     unobs = evals < conf.unobservable_rel_eig * lam_max
     if not np.any(evals > 0):
@@ -430,8 +431,8 @@ def analyse_information(
         prior_info_report = np.diag(1.0 / prior_std**2)
         info_reg = info + B.T @ prior_info_report @ B
         cov = np.linalg.inv(0.5 * (info_reg + info_reg.T))
-    elif cov_hint is not None:
-        cov = _check_cov(cov_hint)
+    elif cov_hint is not None and np.linalg.eigvalsh(0.5 * ((hint := _check_cov(cov_hint)) + hint.T))[0] >= 0:
+        cov = hint  # a solver's marginal, when it is a covariance (else the information's inverse)
     else:
         cov = np.linalg.inv(info)
     cov = 0.5 * (cov + cov.T)

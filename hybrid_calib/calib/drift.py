@@ -422,23 +422,32 @@ def camera_side_note(drift: dict, mount: dict | None) -> dict:
     at its tables' yaw: the camera side (its mount or its intrinsics: a principal point 20 px off read as a 3.9 deg
     yaw) is then the likelier cause, not the radar. Unchanged otherwise (no monitor, a step, a level off the tables,
     or no yaw difference)."""
+    from hybrid_calib.calib.mount_monitor import level_words, sole_level
+
     yaw = (drift.get("axes") or {}).get("yaw") or {}
-    levels = (mount or {}).get("levels") or []
-    if yaw.get("decision") != "differs" or len(levels) != 1 or (mount or {}).get("steps"):
+    lv = sole_level(mount, plausible=False)
+    if yaw.get("decision") != "differs" or lv is None:
         return drift
-    lv = levels[0]
     level, std = float(lv.get("level_deg", np.nan)), float(lv.get("std_deg", np.nan))
     if not (np.isfinite(level) and np.isfinite(std)) or abs(level) > 3 * std + 0.1 * float(yaw["tolerance"]) or \
             abs(float(yaw["delta"]) + level) < 3 * np.hypot(float(yaw["std"]), std):
         # the verdict's yaw turns about camera y (down), the monitor's level about ego z (up): opposite signs for
         # one turn of the radar (measured: a tables' yaw 1 deg off reads delta +1.00, level -1.02)
         return drift
-    from hybrid_calib.calib.mount_monitor import level_words
-
     note = (f"the radar's own yaw on the vehicle agrees with its tables (radar mount monitor: "
             f"{level_words(level, std)} its tables' over {lv.get('pairs', '?')} sweep pairs), so the camera side "
             "(its mount or intrinsics in calibrated_sensor.json) is the likelier cause of the yaw difference")
     return {**drift, "camera_side": note, "verdict": f"{drift.get('verdict', '')}; {note}"}
+
+
+def alarms_say_moved(status: str, mount: dict | None) -> bool:
+    """Whether a result's step alarms say its mount moved: not when every alarm is the window's own step test on an
+    estimate whose ``status`` is inconclusive (its inputs, out of domain or with no view, may have jumped; probe 34),
+    while a step the radar mount monitor measured (``mount["steps"]``) stands either way. The report's "did the
+    sensor move" and the fleet's "drifted inside the drive" read this."""
+    from hybrid_calib.calib.covariance import status_kind
+
+    return status_kind(status) != "inconclusive" or bool((mount or {}).get("steps"))
 
 
 def doppler_level_note(drift: dict | None, mount: dict | None) -> dict | None:
@@ -450,13 +459,12 @@ def doppler_level_note(drift: dict | None, mount: dict | None) -> dict | None:
     otherwise (another verdict, no one level, a step, an implausible level)."""
     if not drift or drift.get("verdict_kind") != "cannot tell" or drift.get("doppler_level"):
         return drift
-    yaw = (drift.get("axes") or {}).get("yaw") or {}
-    levels = (mount or {}).get("levels") or []
-    if len(levels) != 1 or (mount or {}).get("steps") or (mount or {}).get("implausible") or "tolerance" not in yaw:
-        return drift
-    from hybrid_calib.calib.mount_monitor import LEVEL_BIAS_DEG, level_words
+    from hybrid_calib.calib.mount_monitor import LEVEL_BIAS_DEG, level_words, sole_level
 
-    level, std = float(levels[0].get("level_deg", np.nan)), float(levels[0].get("std_deg", np.nan))
+    yaw = (drift.get("axes") or {}).get("yaw") or {}
+    if (lv := sole_level(mount)) is None or "tolerance" not in yaw:
+        return drift
+    level, std = float(lv.get("level_deg", np.nan)), float(lv.get("std_deg", np.nan))
     sd = float(np.hypot(std, LEVEL_BIAS_DEG))
     if not (np.isfinite(level) and np.isfinite(sd)) or abs(level) - 3 * sd <= 3 * float(yaw["tolerance"]):
         return drift

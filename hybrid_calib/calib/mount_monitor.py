@@ -404,6 +404,17 @@ def tested_words(summary: dict) -> str:
     return words
 
 
+def sole_level(summary: dict | None, plausible: bool = True) -> dict | None:
+    """The monitor's one level (``summary``'s only entry of "levels": the radar's yaw on the vehicle against its
+    tables, as one number over the drive) when it measured no step, and with ``plausible`` no implausible reading
+    either; None otherwise. What the yaw check, the camera-side note and the Doppler note read."""
+    s = summary or {}
+    levels = s.get("levels") or []
+    if len(levels) != 1 or s.get("steps") or (plausible and s.get("implausible")):
+        return None
+    return levels[0]
+
+
 def _spread(deg: float) -> str:
     """A heading's frame-to-frame spread in words: "+-14 deg", or "more than 90 deg" (a robust std of headings that
     wrap at 180 deg read "+-189 deg": probe 36)."""
@@ -465,10 +476,10 @@ def yaw_agreement(T_cam_radar: np.ndarray, cov: np.ndarray, T_ego_cam: np.ndarra
     A level at the tables' yaw is ``calib.drift.camera_side_note``'s case (the camera side moved), not this one."""
     from scipy.spatial.transform import Rotation
 
-    levels = (summary or {}).get("levels") or []
-    if len(levels) != 1 or (summary or {}).get("steps") or (summary or {}).get("implausible"):
+    lv = sole_level(summary)
+    if lv is None:
         return None
-    level, std_lvl = float(levels[0].get("level_deg", np.nan)), float(levels[0].get("std_deg", np.nan))
+    level, std_lvl = float(lv.get("level_deg", np.nan)), float(lv.get("std_deg", np.nan))
     if not (np.isfinite(level) and np.isfinite(std_lvl)):
         return None
     R_est = (np.asarray(T_ego_cam, np.float64) @ np.asarray(T_cam_radar, np.float64))[:3, :3]
@@ -483,4 +494,4 @@ def yaw_agreement(T_cam_radar: np.ndarray, cov: np.ndarray, T_ego_cam: np.ndarra
     return {"estimate_deg": yaw, "estimate_std_deg": std_est, "doppler_deg": level, "doppler_std_deg": std_dop,
             "difference_deg": d, "sigmas": float(sig),
             "disagree": bool(sig > 3.0 and abs(level) > 3.0 * std_dop), "direction": u.tolist(),
-            "pairs": int(levels[0].get("pairs", 0))}
+            "pairs": int(lv.get("pairs", 0))}

@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from hybrid_calib.calib.covariance import camera_offset, status_kind
+from hybrid_calib.calib.drift import alarms_say_moved
 from hybrid_calib.config import save_json_atomic, save_text_atomic
 from hybrid_calib.errors import DataError
 from hybrid_calib.fleet.manifest import Manifest, rel_path
@@ -122,9 +123,7 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
                                              | set(d["prior"].get("pulled") or ()))
         if d.get("drifted"):
             row["flags"].append("out_of_tolerance")
-        # a window alarm on an untrusted estimate is its inputs' jump as much as the mount's (report.verdict:
-        # "not told"); a step the radar mount monitor measured stands either way
-        if row["step_alarms"] and (status_kind(vr.final.status) != "inconclusive" or row["mount_steps"]):
+        if row["step_alarms"] and alarms_say_moved(vr.final.status, vr.mount):  # as the report's "did it move"
             row["flags"].append("drifted_in_drive")
         if status_kind(vr.final.status) == "degenerate":
             row["flags"].append("degenerate")

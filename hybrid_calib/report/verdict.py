@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hybrid_calib.calib.covariance import NOT_CONVERGED, status_kind
-from hybrid_calib.calib.drift import DriftConfig, against_tolerance, mount_steps_beyond
+from hybrid_calib.calib.drift import DriftConfig, against_tolerance, alarms_say_moved, mount_steps_beyond
 from hybrid_calib.calib.mount_monitor import blind_words, tested_words, turn_words
 from hybrid_calib.calib.result import VehicleResult
 
@@ -188,7 +188,7 @@ def moved_during_drive(vr: VehicleResult) -> tuple[str, tuple[int, ...]]:
     mount_ran = bool(mount) and int(mount.get("pairs_tested", 0)) > 0 and not blind.startswith("it could not")
     monitor = (f"the radar mount monitor (the radar's Doppler heading against the vehicle's ego poses) over "
                f"{tested_words(mount)}") if mount else ""
-    if alarms and status_kind(vr.final.status) == "inconclusive" and not mount.get("steps"):
+    if alarms and not alarms_say_moved(vr.final.status, mount):
         return "not told: step alarm at " + "; ".join(alarm_words(vr)), alarms
     if alarms:
         return "yes: the sensor stepped during the drive; step alarm at " + "; ".join(alarm_words(vr)), alarms
