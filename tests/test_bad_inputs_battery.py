@@ -1598,6 +1598,11 @@ def test_calibrate_out_of_another_run_is_refused(sim, calibrated, tmp_path, caps
 # (command and options, needles): each was silently ignored (or failed every job alike)
 IGNORED_OPTION_CASES = [
     (["calibrate", "--depth", "nosuch"], ["--depth: is for the learned methods", "--method oracle runs no network"]),
+    # the learned methods' keys: refused as unknown CalibrateConfig options, with no word of what they are
+    (["calibrate", "--set", "threads=1", "progress=false"],
+     ["--set: progress, threads are options of the learned methods", "--method oracle runs no network: drop them"]),
+    (["calibrate", "--set", "measurement.rows=last"], ["measurement is an option of the learned methods"]),
+    (["fleet", "--set", "progress=false"], ["--set: progress is an option of the learned methods"]),
     (["calibrate", "--checkpoint", "x.json", "--refine", "shipped"],
      ["--checkpoint:", "drop --checkpoint and --refine"]),
     (["calibrate", "--method", "pure", "--mode", "batch"], ["--mode batch:", "--method pure runs the sliding window"]),

@@ -97,6 +97,25 @@ def given_flags(args: argparse.Namespace, keys: dict[str, str], overrides: dict 
     return given
 
 
+def reject_learned_keys(overrides: dict) -> None:
+    """``OptionError`` when ``--set`` for ``--method oracle`` names keys that only the learned methods' ``HybridConfig``
+    has (threads, progress, measurement.*, ...): they are named as the learned methods' options, not refused as
+    unknown ``CalibrateConfig`` keys with a list of valid ones that leaves the user guessing."""
+    import dataclasses
+
+    from hybrid_calib.calib.pipeline import CalibrateConfig
+    from hybrid_calib.errors import OptionError
+    from hybrid_calib.hybrid import HybridConfig
+
+    own = {f.name for f in dataclasses.fields(CalibrateConfig)}
+    keys = sorted(k for k in overrides if k not in own and k in {f.name for f in dataclasses.fields(HybridConfig)})
+    if keys:
+        one = len(keys) == 1
+        raise OptionError("--set", f"{', '.join(keys)} {'is an option' if one else 'are options'} of the learned "
+                                   f"methods (--method hybrid, pure or pure-avg); --method oracle runs no network: "
+                                   f"drop {'it' if one else 'them'}")
+
+
 def reject_set_keys(overrides: dict, keys: dict[str, str]) -> None:
     """``OptionError`` when ``--set`` names a key that only its own flag sets (``keys``: config key -> flag),
     instead of ignoring it silently."""

@@ -12,6 +12,7 @@ from hybrid_calib.commands import (
     given_flags,
     nonnegative_int,
     positive_int,
+    reject_learned_keys,
     reject_set_keys,
     split_overrides,
 )
@@ -121,6 +122,7 @@ def run(args: argparse.Namespace) -> int:
                                       f"oracle runs no network: drop {' and '.join(network)}, or pass a learned "
                                       "--method")
     overrides = parse_overrides(args.set)
+    reject_learned_keys(overrides)
     # an explicit flag wins over --set; an absent one leaves --set (or the default) in charge
     overrides.update(given_flags(args, {**FLAGS, "mode": "mode"}, overrides))
     if args.window is not None:

@@ -11,6 +11,7 @@ from hybrid_calib.commands import (
     given_flags,
     nonnegative_int,
     process_count,
+    reject_learned_keys,
     reject_set_keys,
     retry_count,
 )
@@ -66,6 +67,7 @@ def run(args: argparse.Namespace) -> int:
     reject_set_keys(calib, {"seed": "--seed"})  # each job's seed comes from the fleet seed and its vehicle
     calib.update(given_flags(args, {"max_frames": "max_frames"}, calib))  # --max-frames wins over --set max_frames
     if args.method == "oracle":
+        reject_learned_keys(calib)
         merge(CalibrateConfig, {**calib, "seed": args.seed})  # ConfigError names a bad option before any job runs
     else:  # the network methods' jobs merge --set into HybridConfig (fleet.jobs.calibrate_job): checked alike
         from hybrid_calib.hybrid import HybridConfig
