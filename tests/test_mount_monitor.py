@@ -407,6 +407,33 @@ def test_readings_that_scatter_beyond_any_mount_make_the_estimate_untrusted():
     assert "far" not in _feed([0.8 + 0.1 * (k % 3) for k in range(12)]).summary()
 
 
+def test_a_radar_turned_beyond_any_mount_in_the_blind_end_is_said_and_not_trusted():
+    """Probe 36: a radar knocked 180 deg at frame 12 of 16 (or 90 deg at frame 14) read "no step" (an alarm needs 4
+    readings) and the hybrid's estimate stayed `weak` far off. The last readings turned beyond any mount are said, and
+    the estimate is not trusted for them; a single far reading (a failed Doppler fit), a turn within a mount's range
+    and the real scene's readings are not."""
+    from hybrid_calib.calib.mount_monitor import monitor_trust_reason as reason
+
+    base = [0.1, -0.1, 0.0, 0.1, 0.2, 0.0, 0.1, 0.0, -0.1, 0.1, 0.0, 0.1]
+    flipped = _feed(base + [179.8, -179.5, 179.9, -179.7]).summary()  # wraps at 180 deg: one turn, not +-180
+    assert flipped["steps"] == [] and flipped["tail"] == {"from": 12, "to": 15, "frames": 4,
+                                                          "offset_deg": pytest.approx(180.05), "level_from": 0,
+                                                          "level_to": 11}
+    assert "in the last 4 frames tested (frames 12-15) lies 180.1 deg from the rest of the drive's (frames 0-11" in \
+        flipped["implausible"]
+    assert reason(flipped).startswith("the radar's own heading on the vehicle (its Doppler against the ego poses) "
+                                      "turned by 180.1 deg in the drive's last 4 frames tested (frames 12-15), beyond "
+                                      "any mount (10 deg) and too near the end for a step alarm")
+    late = _feed(base + [0.2, 0.1, -90.0, -91.0]).summary()
+    assert late["tail"]["frames"] == 2 and late["tail"]["offset_deg"] == pytest.approx(-90.6) and reason(late)
+    for quiet in (base + [0.1, 0.2, 0.0, 25.0],  # one reading: a failed fit (the CUSUM clips it)
+                  base + [0.1, 0.2, 5.0, 5.1],  # within a mount's range: unseen (blind_words says where)
+                  base + [0.1, 25.0, 0.2, 0.0],  # not at the end
+                  REAL_READINGS):
+        s = _feed(quiet).summary()
+        assert "tail" not in s and "implausible" not in s and reason(s) == "", quiet
+
+
 def test_the_hybrid_does_not_trust_an_estimate_whose_radar_heading_scatters(knocked_and_not, tmp_path, monkeypatch):
     """The loop's wiring of ``monitor_trust_reason`` and ``doppler_level_note`` (probe 34): a monitor whose readings
     scatter beyond any mount makes the hybrid's result inconclusive, saying why; a far level adds its words to the

@@ -280,6 +280,26 @@ class MountMonitor:
         s = float(self.scale(v, n) * np.sqrt(MEDIAN_VAR / len(v)))
         return abs(float(np.median(v))) - 3 * s > self.conf.max_level_deg
 
+    def tail_turn(self) -> dict | None:
+        """The drive's last readings when they turned away from the rest of the current level by more than
+        ``max_level_deg`` (each of them, wrapped at 180 deg) before the step test could alarm, or None.
+
+        Probe 36: a radar knocked 90 or 180 deg at frame 12 or 14 of 16 read "no step" (an alarm needs
+        ``frames_to_alarm`` readings; a level's median and robust spread pass over its last few), and the hybrid's
+        estimate stayed `weak` far off. Two readings at least (a single one is the failed Doppler fit the CUSUM clips),
+        three before them (a level to turn from); a turn under ``max_level_deg`` in the blind end stays unseen (said
+        by ``blind_words``). Returns {"from", "to", "frames", "offset_deg" (the median turn, deg), "level_from",
+        "level_to"} (positions)."""
+        part = self.series[self._start:]
+        y = np.array([v for _, v in part])
+        for r in range(len(y) - 3, 1, -1):  # the longest trailing run that turned
+            d = (y[-r:] - np.median(y[:-r]) + 180.0) % 360.0 - 180.0
+            d = d[0] + (d - d[0] + 180.0) % 360.0 - 180.0  # unwrapped about the first (180 deg reads +-180)
+            if np.all(np.abs(d) > self.conf.max_level_deg):
+                return {"from": part[-r][0], "to": part[-1][0], "frames": r, "offset_deg": float(np.median(d)),
+                        "level_from": part[0][0], "level_to": part[-r - 1][0]}
+        return None
+
     def levels(self) -> list[dict]:
         """The drive cut at its alarms: per piece the positions it spans, its level of ``y`` (deg:
         the radar's yaw on the vehicle minus the reference mount's, plus the Doppler's bias), the
@@ -326,6 +346,14 @@ class MountMonitor:
                 f"frame (frames {lv['from']}-{lv['to']}; a radar's mount stays within {self.conf.max_level_deg:g} deg "
                 "of its tables): the radar turned during the drive by more than its step test could place, or its "
                 "velocity fields or the ego poses are wrong, so its steps are not told")}
+        if (tail := self.tail_turn()) and not far and not scattered:
+            implausible = {"tail": tail, "implausible": (
+                f"the radar's Doppler heading on the vehicle in the last {tail['frames']} frames tested (frames "
+                f"{tail['from']}-{tail['to']}) lies {abs(tail['offset_deg']):.1f} deg from the rest of the drive's "
+                f"(frames {tail['level_from']}-{tail['level_to']}; a radar's mount stays within "
+                f"{self.conf.max_level_deg:g} deg of its tables): the radar turned too near the drive's end for its "
+                f"step test (an alarm needs {self.conf.frames_to_alarm()} frames), or those frames' velocity fields "
+                "or ego poses are wrong")}
         return {"steps": steps, "levels": levels, "frames_tested": len(self.series),
                 "pairs_tested": int(sum(self.pairs)), "threshold": self.conf.threshold, **implausible,
                 "blind_frames": [self.conf.min_frames, self.conf.frames_to_alarm()],
@@ -437,6 +465,14 @@ def monitor_trust_reason(summary: dict | None,
                 "or the ego poses are wrong; check the radar's mount, and calibrate the frames after any change")
     big = [st for st in (summary or {}).get("steps") or []
            if abs(float(st.get("step_deg", 0.0))) - 3 * float(st.get("std_deg", 0.0)) > max_level_deg]
+    tail = (summary or {}).get("tail")
+    if not big and isinstance(tail, dict):
+        return (f"the radar's own heading on the vehicle (its Doppler against the ego poses) turned by "
+                f"{abs(float(tail['offset_deg'])):.1f} deg in the drive's last {tail['frames']} frames tested (frames "
+                f"{tail['from']}-{tail['to']}), beyond any mount ({max_level_deg:g} deg) and too near the end for a "
+                "step alarm: the radar was knocked at the drive's end, or those frames' velocities or ego poses are "
+                "wrong; the estimate at the end is not trusted: check the radar's mount, and calibrate a drive after "
+                "it")
     far = (summary or {}).get("far")
     # probe 36: a radar turned 180 deg at frame 2 of 16 read one level, -179.8 deg, and the result was "weak"
     if not big and isinstance(far, dict):
