@@ -775,6 +775,18 @@ DAMAGED_RESULTS = {  # case -> (damage(doc, vehicle), needles beyond the file); 
                             ["trajectory[0] lacks ['index']"]),
     "frame-rows-a-string": (lambda doc, v: doc["vehicles"][v].__setitem__("frame_rows", "nope"),
                             ["frame_rows is a JSON string, not an array"]),
+    # probe 38: a page printed "NEES -3.00", "pitch -1.000 deg" and an error against a truth the file no longer held
+    "error-nees-negative": (lambda doc, v: doc["vehicles"][v]["error"].__setitem__("nees", -3.0),
+                            ["error.nees is -3.0, but the final estimate against", "the file was edited"]),
+    "error-norm-negative": (lambda doc, v: doc["vehicles"][v]["error"].__setitem__("trans_norm_cm", -5.0),
+                            ["error.trans_norm_cm is -5.0, but"]),
+    "truth-moved": (lambda doc, v: doc["vehicles"][v]["truth"]["T_cam_radar"][1].__setitem__(3, 1e9),
+                    ["but the final estimate against", "truth gives 1e+11"]),
+    "truth-deleted": (lambda doc, v: doc["vehicles"][v].pop("truth"), ["error is given but", "truth is not"]),
+    "std-negative": (lambda doc, v: doc["vehicles"][v]["final"]["std_cam"].__setitem__("rot_x_cam_deg", -1.0),
+                     ["final.std_cam.rot_x_cam_deg is -1, but its covariance (cov_right_radar) gives"]),
+    "frame-std-edited": (lambda doc, v: doc["vehicles"][v]["trajectory"][0]["std_cam"].__setitem__("t_z_cam_cm", 1e-3),
+                         ["trajectory[0].std_cam.t_z_cam_cm is 0.001, but its covariance"]),
 }
 
 

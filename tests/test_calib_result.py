@@ -5,15 +5,18 @@ import json
 import numpy as np
 import pytest
 
+from hybrid_calib.calib.covariance import report_std
 from hybrid_calib.calib.result import SCHEMA_VERSION, CalibrationRun, Estimate, FrameEstimate, VehicleResult
 from hybrid_calib.errors import DataError
-from hybrid_calib.metrics import STD_KEYS_CAM, STD_KEYS_RADAR, extrinsic_error, std_dict, std_keys
+from hybrid_calib.geometry import local
+from hybrid_calib.metrics import STD_KEYS_CAM, STD_KEYS_RADAR, extrinsic_error, nees, std_dict, std_keys
 from tests.helpers import nominal_T_cam_radar, random_pose, rng
 
 
 def _estimate(g, status="ok") -> Estimate:
     A = g.normal(size=(6, 6))
-    return Estimate(random_pose(g), A @ A.T, g.uniform(0.1, 2, 6), status, bool(g.integers(2)), ("rot x",))
+    T, cov = random_pose(g), A @ A.T
+    return Estimate(T, cov, report_std(T, cov), status, bool(g.integers(2)), ("rot x",))
 
 
 def _run(g) -> CalibrationRun:
@@ -24,7 +27,8 @@ def _run(g) -> CalibrationRun:
             for k in range(3)]
     T_true = nominal_T_cam_radar()
     v1 = VehicleResult("veh-a", traj[-1].estimate, traj, truth_T=T_true,
-                       error={**extrinsic_error(traj[-1].T, T_true).as_dict(), "nees": 4.2}, crb_std=g.uniform(0, 1, 6),
+                       error={**extrinsic_error(traj[-1].T, T_true).as_dict(),
+                              "nees": nees(local(T_true, traj[-1].T), traj[-1].cov)}, crb_std=g.uniform(0, 1, 6),
                        drift={"drifted": False, "p_value": 0.3, "dof": 6},
                        skipped=[{"index": 7, "token": "t7", "reason": "no points"}], n_frames=3,
                        network={"n_frames": 3, "frame_id": "f2", "iteration": 2, "T_cam_radar": T_true.tolist(),

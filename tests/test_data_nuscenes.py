@@ -366,6 +366,24 @@ def test_inspect_warns_about_a_sensor_upside_down_or_below_the_ground(channel, t
     assert f"the {channel}'s mount lies +0.05 m over the vehicle's origin" in text
 
 
+def test_inspect_warns_about_ego_poses_that_lean_the_vehicle_over(tmp_path):
+    """Every ego pose rolled 40 deg passed inspect in silence (probe 38): a car on a road leans a few degrees."""
+    from hybrid_calib.data.summary import summarize_dataset
+    from hybrid_calib.geometry import make_T, pose_from_nuscenes, pose_to_nuscenes, so3_exp
+
+    tiny = make_tiny_root(tmp_path / "rolled", n_samples=3)
+    for pose in tiny.tables["ego_pose"]:
+        T = pose_from_nuscenes(pose["rotation"], pose["translation"])
+        pose["rotation"], _ = pose_to_nuscenes(make_T(T[:3, :3] @ so3_exp([np.radians(40.0), 0.0, 0.0]), T[:3, 3]))
+    tiny.rewrite_table("ego_pose")
+    text = summarize_dataset(NuScenesRadarCamera(tiny.root, VERSION), progress=False).format()
+    assert "the ego poses lean the vehicle up to 40 deg from the world's up (sample " in text
+    assert "a rotation in ego_pose.json is written wrong" in text
+    clean = summarize_dataset(NuScenesRadarCamera(make_tiny_root(tmp_path / "clean", n_samples=3).root, VERSION),
+                              progress=False).format()
+    assert "ego poses lean" not in clean
+
+
 def test_a_vehicle_with_two_calibrations_is_two_vehicles(tmp_path):
     """nuScenes calibrates each log: n015's radar is yawed -0.85 deg in 34 scenes and +0.20 deg in 349. Frames of
     two calibrations fused as one drive would be one extrinsic for two mounts, so each is its own vehicle."""

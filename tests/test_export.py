@@ -7,10 +7,11 @@ import shutil
 import numpy as np
 import pytest
 
-from hybrid_calib.calib.covariance import report_basis
+from hybrid_calib.calib.covariance import report_basis, report_std
 from hybrid_calib.calib.result import CalibrationRun
 from hybrid_calib.errors import OptionError
 from hybrid_calib.geometry import local, retract
+from hybrid_calib.metrics import extrinsic_error, nees
 
 VERSION = "v1.0-sim"
 
@@ -49,7 +50,10 @@ def _edited(result, path, vehicle: str, T=None, kind="recalibrate", status=None,
     decide = {w: "undecided" if w in undecided + pinned else "differs" if w == "yaw" else "within"
               for w in vr.drift["axes"]}
     axes = {w: {**a, "prior_pinned": w in pinned, "decision": decide[w]} for w, a in vr.drift["axes"].items()}
-    vr.final = dataclasses.replace(vr.final, T=vr.final.T if T is None else T, status=status or vr.final.status)
+    # its std and error follow the estimate (a std not its covariance's, or an error not its truth's, is refused)
+    T = vr.final.T if T is None else T
+    vr.final = dataclasses.replace(vr.final, T=T, std=report_std(T, vr.final.cov), status=status or vr.final.status)
+    vr.error = {**extrinsic_error(T, vr.truth_T).as_dict(), "nees": nees(local(vr.truth_T, T), vr.final.cov)}
     vr.drift = {**vr.drift, "verdict_kind": kind, "verdict": f"{kind}: (edited for the test)", "axes": axes}
     run.save(path)
     return path

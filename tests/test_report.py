@@ -230,6 +230,12 @@ def test_report_command(run_dir, tmp_path, capsys):
     assert "pass --vehicle NAME" in capsys.readouterr().err
     assert main(["report", str(result), "--vehicle", "nope", "--out", str(out)]) == 2
     assert "'nope' is not in" in capsys.readouterr().err
+    empty = tmp_path / "empty" / "result.json"  # "holds 0 vehicles (): pass --vehicle NAME" (probe 38)
+    empty.parent.mkdir()
+    empty.write_text(json.dumps({**json.loads(result.read_text()), "vehicles": {}}))
+    assert main(["report", str(empty), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "holds no vehicle result (its 'vehicles' is empty" in err and "--vehicle" not in err
     import shutil
 
     from hybrid_calib.hybrid.network import shipped_checkpoint

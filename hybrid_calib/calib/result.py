@@ -72,12 +72,12 @@ from pathlib import Path
 
 import numpy as np
 
-from hybrid_calib.calib.covariance import CovarianceReport
+from hybrid_calib.calib.covariance import CovarianceReport, report_std
 from hybrid_calib.config import json_default, read_out_record, save_json_atomic
 from hybrid_calib.data.tables import is_number
 from hybrid_calib.errors import DataError, HybridCalibError
-from hybrid_calib.geometry import R_AXES_CAM_FROM_RADAR, camera_euler_from_rotation
-from hybrid_calib.metrics import std_dict, std_from_dict
+from hybrid_calib.geometry import R_AXES_CAM_FROM_RADAR, camera_euler_from_rotation, local
+from hybrid_calib.metrics import extrinsic_error, nees, std_dict, std_from_dict, std_keys
 
 SCHEMA_VERSION = 2
 SCHEMA = f"hybrid-calib/calibrate-result/v{SCHEMA_VERSION}"
@@ -275,9 +275,15 @@ class Estimate:
         std = np.asarray(std_from_dict(d["std_cam"], STD_FRAME), np.float64)
         if not np.all(np.isfinite(std)):  # a page showed "pitch 0.892 +- nan deg" under a verdict with a std
             raise ValueError(f"{where}.std_cam holds a non-finite value")
-        return cls(_transform(d["T_cam_radar"], f"{where}.T_cam_radar"),
-                   _covariance(d["cov_right_radar"], f"{where}.cov_right_radar"),
-                   std, d["status"], bool(d.get("regularised", False)), tuple(d.get("weak_directions", ())))
+        T = _transform(d["T_cam_radar"], f"{where}.T_cam_radar")
+        cov = _covariance(d["cov_right_radar"], f"{where}.cov_right_radar")
+        # the std is the covariance's, in camera axes (``report_std``): a page showed "pitch -1.000 deg" (probe 38)
+        if not np.allclose(std, own := report_std(T, cov), rtol=1e-6, atol=1e-9):
+            k = int(np.argmax(np.abs(std - own) - 1e-6 * np.abs(own)))
+            raise ValueError(f"{where}.std_cam.{std_keys(STD_FRAME)[k]} is {std[k]:.6g}, but its covariance "
+                             f"(cov_right_radar) gives {own[k]:.6g}: the file was edited; recompute it (calibrate "
+                             "--overwrite)")
+        return cls(T, cov, std, d["status"], bool(d.get("regularised", False)), tuple(d.get("weak_directions", ())))
 
 
 @dataclass(frozen=True)
@@ -406,7 +412,29 @@ class VehicleResult:
             frame_rows=list(_array(d, "frame_rows", where)), config=_object_or_null(d, "config", where),
             ood=_object_or_null(d, "ood", where), mount=_block(d, "mount", where),
             lidar=_block(d, "lidar", where), doppler=_block(d, "doppler", where),
-        )
+        )._errors_measured(where)
+
+    def _errors_measured(self, where: str) -> VehicleResult:
+        """Itself, when its ``error`` block is what its final estimate and truth give (``metrics.extrinsic_error``
+        and the NEES, as the calibrators compute them); ``ValueError`` naming the key otherwise: a page printed "NEES
+        -3.00" and an error against a truth the file no longer held (probe 38)."""
+        if self.error is None:
+            return self
+        if self.truth_T is None:
+            raise ValueError(f"{where}.error is given but {where}.truth is not: an error against no truth (the file "
+                             "was edited); recompute it (calibrate --overwrite), or drop the error block")
+        own = extrinsic_error(self.final.T, self.truth_T).as_dict()
+        try:
+            own["nees"] = nees(local(self.truth_T, self.final.T), self.final.cov)
+        except (ValueError, np.linalg.LinAlgError):  # a singular covariance: the NEES written was inf
+            own["nees"] = float("inf")
+        for key, value in self.error.items():
+            if key in own and not (value == own[key] or (is_number(value) and np.isclose(value, own[key],
+                                                                                          rtol=1e-6, atol=1e-9))):
+                raise ValueError(f"{where}.error.{key} is {str(value)[:40]}, but the final estimate against "
+                                 f"{where}.truth gives {own[key]:.6g}: the file was edited; recompute it (calibrate "
+                                 "--overwrite)")
+        return self
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=2)

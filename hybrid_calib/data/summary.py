@@ -66,6 +66,7 @@ class GroupSummary:
     camera_us: list[int] = field(default_factory=list)  # camera keyframe timestamps (the sanity of their unit)
     # per loaded frame in scene order: (sample token, radar timestamp us, ego position at it (3,) m)
     ego_track: list[tuple[str, int, np.ndarray]] = field(default_factory=list)
+    ego_lean: tuple[str, float] = ("", 0.0)  # the keyframe whose ego pose leans most from the world's up; deg
     late: list[tuple[str, float]] = field(default_factory=list)  # (sample, radar - camera ms) beyond SYNC_WARN_MS
     far_mount: tuple[str, float] = ("", 0.0)  # the channel whose mount lies farthest from the ego origin; how far, m
     tilted: tuple[str, float] = ("", 0.0)  # the channel whose "up" (camera -y, radar z) leans most from ego up; deg
@@ -187,6 +188,11 @@ class DatasetSummary:
                            "check the record's rotation" + ("; a camera really mounted so is unlike every frame the "
                                                             "network was trained on" if g.tilted[0] ==
                                                             self.camera_channel else ""))
+            if g.ego_lean[1] > TILT_WARN_DEG:
+                out.append(f"warning: scene {g.scene}: the ego poses lean the vehicle up to {g.ego_lean[1]:.0f} deg from "
+                           f"the world's up (sample {g.ego_lean[0]}; a car on a road leans a few degrees): a rotation "
+                           "in ego_pose.json is written wrong (a quaternion in x, y, z, w order, or another frame's); "
+                           "the Doppler steps and the motion compensation use them: fix the records")
             if g.low_mount[1] < MIN_MOUNT_HEIGHT_M:
                 out.append(f"warning: scene {g.scene}: the {g.low_mount[0]}'s mount lies {g.low_mount[1]:+.2f} m over "
                            f"the vehicle's origin in calibrated_sensor.json, under {MIN_MOUNT_HEIGHT_M:g} m (nuScenes' "
@@ -375,6 +381,10 @@ def summarize_dataset(ds: NuScenesRadarCamera, progress: bool = True) -> Dataset
         pose = f.extras.get("T_global_ego_radar")
         if pose is not None and np.all(np.isfinite(pose)):
             g.ego_track.append((f.sample_token, int(f.timestamp_radar_us), np.asarray(pose)[:3, 3].copy()))
+            # the vehicle's up (ego z) against the world's: every pose rolled 40 deg passed in silence (probe 38)
+            if (lean := float(np.degrees(np.arccos(np.clip(np.asarray(pose, np.float64)[2, 2], -1.0, 1.0))))) > \
+                    g.ego_lean[1]:
+                g.ego_lean = (f.sample_token, lean)
         uv, z = f.camera.project(transform_points(f.T_cam_radar, f.radar_points))
         g.radar_in_image += int(((z > 0) & f.camera.in_image(uv)).sum())
         x_cam = np.asarray(f.T_cam_radar, np.float64)[:3, 0]  # the radar's boresight in camera axes

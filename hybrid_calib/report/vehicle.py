@@ -44,6 +44,9 @@ def pick_vehicle(run: CalibrationRun, vehicle: str | None, source: str) -> str:
     if vehicle is None and not names and failed:
         raise HybridCalibError(f"every vehicle failed in the run of {source}, so there is no result to report: "
                                f"{failed_vehicles_message(failed)}")
+    if not names and not failed:  # "holds 0 vehicles (): pass --vehicle NAME" (probe 38): no name could help
+        raise HybridCalibError(f"{source} holds no vehicle result (its 'vehicles' is empty: an edited or incomplete "
+                               "file); rerun calibrate with --overwrite")
     if vehicle is None:
         if len(names) != 1:
             raise HybridCalibError(f"{source} holds {len(names)} vehicles ({', '.join(names)}): pass --vehicle NAME")
