@@ -189,10 +189,10 @@ class DatasetSummary:
                                                             "network was trained on" if g.tilted[0] ==
                                                             self.camera_channel else ""))
             if g.ego_lean[1] > TILT_WARN_DEG:
-                out.append(f"warning: scene {g.scene}: the ego poses lean the vehicle up to {g.ego_lean[1]:.0f} deg from "
-                           f"the world's up (sample {g.ego_lean[0]}; a car on a road leans a few degrees): a rotation "
-                           "in ego_pose.json is written wrong (a quaternion in x, y, z, w order, or another frame's); "
-                           "the Doppler steps and the motion compensation use them: fix the records")
+                out.append(f"warning: scene {g.scene}: the ego poses lean the vehicle up to {g.ego_lean[1]:.0f} deg "
+                           f"from the world's up (sample {g.ego_lean[0]}; a car on a road leans a few degrees): a "
+                           "rotation in ego_pose.json is written wrong (a quaternion in x, y, z, w order, or another "
+                           "frame's); the Doppler steps and the motion compensation use them: fix the records")
             if g.low_mount[1] < MIN_MOUNT_HEIGHT_M:
                 out.append(f"warning: scene {g.scene}: the {g.low_mount[0]}'s mount lies {g.low_mount[1]:+.2f} m over "
                            f"the vehicle's origin in calibrated_sensor.json, under {MIN_MOUNT_HEIGHT_M:g} m (nuScenes' "
