@@ -1615,6 +1615,11 @@ IGNORED_OPTION_CASES = [
      ["--set: progress, threads are options of the learned methods", "--method oracle runs no network: drop them"]),
     (["calibrate", "--set", "measurement.rows=last"], ["measurement is an option of the learned methods"]),
     (["fleet", "--set", "progress=false"], ["--set: progress is an option of the learned methods"]),
+    # the batch solve's settings without the batch mode: the window ran (probe 37)
+    (["calibrate", "--backend", "ceres"], ["--backend: sets the batch solve (--mode batch)", "add --mode batch"]),
+    (["calibrate", "--set", "batch.backend=ceres"], ["--set batch.*: sets the batch solve"]),
+    (["fleet", "--set", "batch.backend=ceres"], ["--set batch.*: sets the batch solve (--set mode=batch)"]),
+
     (["calibrate", "--checkpoint", "x.json", "--refine", "shipped"],
      ["--checkpoint:", "drop --checkpoint and --refine"]),
     (["calibrate", "--method", "pure", "--mode", "batch"], ["--mode batch:", "--method pure runs the sliding window"]),
@@ -1644,6 +1649,17 @@ def test_an_option_the_method_or_engine_would_ignore_is_refused(argv, needles, s
     err = expect_cli_error([argv[0], "--data", root, "--out", out, "--max-frames", "1", "--no-plots", *argv[1:]],
                            capsys, *needles)
     assert _one_paragraph(err) and not out.exists()
+
+
+def test_compare_refuses_a_network_for_the_oracle_alone(sim, tmp_path, capsys):
+    """`compare --methods oracle --checkpoint C` ran and ignored the checkpoint (probe 37)."""
+    root, _ = sim
+    out = tmp_path / "out"
+    for flags in (["--checkpoint", "x.json"], ["--refine", "shipped"]):
+        err = expect_cli_error(["compare", "--data", root, "--out", out, "--methods", "oracle", "--trials", "1",
+                                *flags], capsys, f"{flags[0]}: is for the learned methods",
+                               "--methods oracle runs no network")
+        assert _one_paragraph(err) and not out.exists()
 
 
 def test_train_resume_with_other_data_or_options_is_refused(tmp_path):

@@ -116,6 +116,19 @@ def reject_learned_keys(overrides: dict) -> None:
                                    f"drop {'it' if one else 'them'}")
 
 
+def reject_unused_batch(overrides: dict, mode: str | None = None, backend: str | None = None,
+                        batch_flag: str = "--mode batch") -> None:
+    """``OptionError`` when the oracle's batch settings (``--backend``, ``--set batch.*``) come without the batch
+    mode (``mode``: the command's --mode, or ``--set mode=batch``): the sliding window ran and they were ignored
+    (probe 37). ``batch_flag``: how the command asks for the batch mode."""
+    from hybrid_calib.errors import OptionError
+
+    if (backend is not None or "batch" in overrides) and (mode or overrides.get("mode", "window")) != "batch":
+        flag = "--backend" if backend is not None else "--set batch.*"
+        raise OptionError(flag, f"sets the batch solve ({batch_flag}); the sliding window (the default mode) does not "
+                                f"use it: add {batch_flag}, or drop {flag}")
+
+
 def reject_set_keys(overrides: dict, keys: dict[str, str]) -> None:
     """``OptionError`` when ``--set`` names a key that only its own flag sets (``keys``: config key -> flag),
     instead of ignoring it silently."""

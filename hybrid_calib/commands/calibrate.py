@@ -13,6 +13,7 @@ from hybrid_calib.commands import (
     nonnegative_int,
     positive_int,
     reject_learned_keys,
+    reject_unused_batch,
     reject_set_keys,
     split_overrides,
 )
@@ -123,6 +124,7 @@ def run(args: argparse.Namespace) -> int:
                                       "--method")
     overrides = parse_overrides(args.set)
     reject_learned_keys(overrides)
+    reject_unused_batch(overrides, args.mode, args.backend)
     # an explicit flag wins over --set; an absent one leaves --set (or the default) in charge
     overrides.update(given_flags(args, {**FLAGS, "mode": "mode"}, overrides))
     if args.window is not None:

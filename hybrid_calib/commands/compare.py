@@ -59,6 +59,10 @@ def run(args: argparse.Namespace) -> int:
     if not methods:
         raise OptionError("--methods", f"{args.methods!r} names no method; pass a comma-separated list of pure, "
                                        "pure-avg, hybrid, oracle")
+    network = [flag for flag in ("--checkpoint", "--refine") if getattr(args, flag[2:])]
+    if network and set(methods) <= {"oracle"}:  # the oracle runs no network: they were accepted and ignored (p37)
+        raise OptionError(network[0], f"is for the learned methods (pure, pure-avg, hybrid); --methods oracle runs no "
+                                      f"network: drop {' and '.join(network)}, or add a learned method to --methods")
     conf = {"range": args.range, "trials": args.trials, "seed": args.seed, "hybrid": hybrid, "methods": methods}
     command = "hybrid-calib " + " ".join(sys.argv[1:])
     s = compare(args.data, args.version, args.out, conf, command=command, progress=not args.no_progress,

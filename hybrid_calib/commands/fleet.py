@@ -12,6 +12,7 @@ from hybrid_calib.commands import (
     nonnegative_int,
     process_count,
     reject_learned_keys,
+    reject_unused_batch,
     reject_set_keys,
     retry_count,
 )
@@ -68,6 +69,7 @@ def run(args: argparse.Namespace) -> int:
     calib.update(given_flags(args, {"max_frames": "max_frames"}, calib))  # --max-frames wins over --set max_frames
     if args.method == "oracle":
         reject_learned_keys(calib)
+        reject_unused_batch(calib, batch_flag="--set mode=batch")
         merge(CalibrateConfig, {**calib, "seed": args.seed})  # ConfigError names a bad option before any job runs
     else:  # the network methods' jobs merge --set into HybridConfig (fleet.jobs.calibrate_job): checked alike
         from hybrid_calib.hybrid import HybridConfig
