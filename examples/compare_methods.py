@@ -1,8 +1,9 @@
 """Compare calibration methods on the same starts: pure network, averaged network, hybrid.
 
 Shows ``hybrid_calib.compare.compare``: every method runs the same (vehicle, R1 start) trials on
-one network-output cache and writes ``compare.json`` / ``compare.md`` (the paper's error table,
-95 % coverage and NEES of the reported covariance, time per frame) and ``error_vs_frames.png``.
+one network-output cache and writes ``OUT/compare/compare.json`` / ``compare.md`` (the paper's error table,
+95 % coverage and NEES of the reported covariance, time per frame) and ``error_vs_frames.png`` (the simulated
+drive in ``OUT/sim``).
 
     .venv/bin/python examples/compare_methods.py --out outputs/examples/compare --frames 20 --trials 2
 """

@@ -122,10 +122,15 @@ def _resolve(path: str | Path) -> Path:
     if path.suffix in _PICKLE_SUFFIXES:
         raise CheckpointError("this is a pickled checkpoint; hybrid-calib never loads pickles (they can run code "
                               "when loaded): pass a checkpoint JSON written by `hybrid-calib train`", path=str(path))
+    given = path
     if path.suffix == ".safetensors":
         path = path.with_suffix(".json")
     elif path.suffix != ".json":
         path = path.with_name(path.name + ".json")
+    if not path.is_file() and given.is_file():  # probe 37: "not found [file X.json]" for an existing file X
+        raise CheckpointError(f"not a checkpoint: a checkpoint is a JSON (ckpt-NNNN.json or a named one) with its "
+                              f".safetensors beside it, and {path.name} is not there; pass the checkpoint's JSON, or "
+                              "its run folder", path=str(given))
     if not path.is_file():
         raise CheckpointError("checkpoint not found (expected ckpt-NNNN.json with its .safetensors beside it, or "
                               "a run folder)", path=str(path))

@@ -400,6 +400,9 @@ CKPT_CASES = {
         p.with_suffix(".safetensors").read_bytes()[:1000]), p.with_suffix(".safetensors"))[1], []),
     "wrong-shapes": (_wrong_shapes, ["1 of the wrong shape", "[3, 3] instead of"]),
     "not-json": (lambda p: (p.write_text("{{{"), p)[1], []),
+    # probe 37: "checkpoint not found [file afile.json]" for a file that is there and is no checkpoint
+    "an-existing-other-file": (lambda p: (p.with_name("afile").write_text("hi"), p.with_name("afile"))[1],
+                               ["not a checkpoint", "afile.json is not there", "afile]"]),
 }
 
 
@@ -410,7 +413,7 @@ def test_bad_checkpoint(case, command, sim, tmp_path, capsys):
     make, needles = CKPT_CASES[case]
     ck = _ckpt_copy(tmp_path)
     named = make(ck)
-    arg = named if named.suffix == ".json" else ck
+    arg = ck if named.suffix == ".safetensors" else named
     if command == "calibrate":
         argv = _calibrate(root, tmp_path / "out", "--method", "pure", "--checkpoint", arg, "--max-frames", "1")
     elif command == "fleet":  # checked once, before any job (it failed every vehicle alike, one paragraph each)

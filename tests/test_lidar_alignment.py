@@ -128,6 +128,10 @@ def test_the_forward_offset_is_recovered_beside_a_range_offset_with_an_honest_st
     b, _ = align(frames, start, LidarAlignConfig(systematic_m=0.0, systematic_x_m=0.12, min_rows=30))
     assert np.isclose(b.cov[0, 0], a.cov[0, 0] + 0.12 ** 2, rtol=1e-6, atol=1e-9)
     assert forward_refusal(b, LidarAlignConfig(max_std_x_m=0.1)).startswith("forward offset std 12.")
+    # a std just over the limit shows the digits that put it over (probe 37: "10.0 cm > max_std_x_m 10 cm")
+    just = float(np.sqrt(b.cov[0, 0])) - 2e-4
+    assert forward_refusal(b, LidarAlignConfig(max_std_x_m=just)).startswith(
+        f"forward offset std {100 * np.sqrt(b.cov[0, 0]):.2f} cm > max_std_x_m {100 * just:g} cm")
     assert forward_refusal(a, LidarAlignConfig(max_range_offset_m=0.1)).startswith("the radar's reflections lie +19 cm")
     assert forward_refusal(a, LidarAlignConfig(forward=False)).startswith("forward offset off")
     assert forward_refusal(a, LidarAlignConfig()) == ""

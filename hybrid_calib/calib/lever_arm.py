@@ -57,6 +57,7 @@ from hybrid_calib.calib.ego_doppler import EgoSweep, ego_measurement, pair_skip,
 from hybrid_calib.config import require, require_ranges
 from hybrid_calib.geometry import se3_exp, so3_log
 from hybrid_calib.metrics import mad_scale
+from hybrid_calib.words import above
 
 RADAR_X = 3  # index of the radar-x (forward) translation in the right tangent [phi (3), rho (3)]
 _FIT = (2, RADAR_X)  # the fitted components: rotation about radar z, translation along radar x
@@ -253,7 +254,7 @@ def refusal(a: LeverArm, conf: LeverArmConfig = LeverArmConfig()) -> str:
         return (f"{a.turning} frames in turns (need {conf.min_turning}): the lever arm shows only while the "
                 f"vehicle turns")
     if a.dx_std > conf.max_std_m:
-        return f"std {a.dx_std * 100:.1f} cm > max_std_m {conf.max_std_m * 100:g} cm"
+        return f"std {above(a.dx_std, conf.max_std_m)} cm > max_std_m {conf.max_std_m * 100:g} cm"
     return ""
 
 

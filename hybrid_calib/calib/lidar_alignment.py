@@ -65,6 +65,7 @@ from hybrid_calib.errors import DataError
 from hybrid_calib.geometry import se3_exp, se3_inverse
 from hybrid_calib.metrics import mad_scale
 from hybrid_calib.sensors.radar_velocity import RadarVelocityConfig, estimate_velocity, stationary
+from hybrid_calib.words import above
 
 DEFAULT_VELOCITY = RadarVelocityConfig()  # the Doppler fit and stationary band when the caller gives none
 RADAR_X, RADAR_Y = 3, 4  # indices of the radar-x / radar-y translation in the right tangent [phi (3), rho (3)]
@@ -334,7 +335,7 @@ def refusal(a: LidarAlignment, conf: LidarAlignConfig = LidarAlignConfig(), cov:
     the loop's covariance ``cov`` (6, 6) of the estimate it was measured at, farther from that estimate than
     ``max_innovation`` stds of their difference (``innovation``)."""
     if a.dy_std > conf.max_std_m:
-        return f"std {a.dy_std * 100:.1f} cm > max_std_m {conf.max_std_m * 100:g} cm"
+        return f"std {above(a.dy_std, conf.max_std_m)} cm > max_std_m {conf.max_std_m * 100:g} cm"
     z = innovation(a, cov) if cov is not None else 0.0
     if conf.max_innovation and abs(z) > conf.max_innovation:
         return (f"{a.delta[1] * 100:+.1f} cm from the loop's estimate is {abs(z):.1f} stds of what either can be off "
@@ -356,8 +357,8 @@ def forward_refusal(a: LidarAlignment, conf: LidarAlignConfig = LidarAlignConfig
     if not conf.forward:
         return "forward offset off (lidar.forward=false)"
     if a.dx_std > conf.max_std_x_m:
-        return (f"forward offset std {a.dx_std * 100:.1f} cm > max_std_x_m {conf.max_std_x_m * 100:g} cm (the "
-                "detections' azimuths do not separate it from the radar's reflection depth)")
+        return (f"forward offset std {above(a.dx_std, conf.max_std_x_m)} cm > max_std_x_m {conf.max_std_x_m * 100:g} "
+                "cm (the detections' azimuths do not separate it from the radar's reflection depth)")
     if abs(a.delta[2]) > conf.max_range_offset_m:
         return (f"the radar's reflections lie {a.delta[2] * 100:+.0f} cm from the LiDAR's surfaces (beyond "
                 f"max_range_offset_m {conf.max_range_offset_m * 100:g} cm): a depth that deep varies with what the "

@@ -13,8 +13,8 @@ from hybrid_calib.commands import (
     nonnegative_int,
     positive_int,
     reject_learned_keys,
-    reject_unused_batch,
     reject_set_keys,
+    reject_unused_batch,
     split_overrides,
 )
 from hybrid_calib.config import parse_overrides

@@ -12,8 +12,8 @@ from hybrid_calib.commands import (
     nonnegative_int,
     process_count,
     reject_learned_keys,
-    reject_unused_batch,
     reject_set_keys,
+    reject_unused_batch,
     retry_count,
 )
 from hybrid_calib.config import parse_overrides
@@ -26,7 +26,8 @@ HELP = "calibrate every vehicle of one or more roots as resumable jobs (local | 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--data", type=Path, nargs="+", help="nuScenes root(s); one job per vehicle (log) of each")
-    src.add_argument("--manifest", type=Path, help='FLEET.json: {"roots": [ROOT | {"data", "version", "vehicles"}]}')
+    src.add_argument("--manifest", type=Path, help='FLEET.json: {"roots": [ROOT | {"data", "version", "vehicles"}]}; '
+                     "a relative ROOT or data path is read from the manifest's folder (not the current one)")
     p.add_argument("--version", default="v1.0-sim", help="version folder under each root (default: v1.0-sim)")
     p.add_argument("--method", default="oracle", choices=("hybrid", "pure", "pure-avg", "oracle"),
                    help="per-vehicle method (default: oracle; the network methods come with the hybrid package)")
