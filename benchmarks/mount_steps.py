@@ -1,5 +1,5 @@
 """The radar mount monitor (``calib.mount_monitor``) on simulated drives: false alarms on drives with
-no change, and detection delay against the size of a yaw knock.
+no change, detection delay against the size of a yaw knock, and false flags of its end-of-drive test.
 
     PYTHONPATH=. .venv/bin/python benchmarks/mount_steps.py --out OUT [--seed 7001] [--frames 100]
         [--vehicles 3] [--scenarios urban highway rain straight] [--rot 0.25 0.5 1 2] [--set floor_deg=0.2 ...]
@@ -60,8 +60,24 @@ def monitor_root(root: Path, conf, step_at: int | None, kind: str, size: float, 
             r.update(step_at=step_at, false_alarms=len([a for a in alarms if a < step_at]),
                      delay=(after[0] - step_at) if after else None, extra_alarms=max(len(after) - 1, 0))
         r["tested_all"] = sum(x.statistic is not None for x in readings)
+        r["tail_prefixes"], r["tail_fired"] = tail_fired(mon, conf)
         rows.append(r)
     return rows
+
+
+def tail_fired(mon, conf) -> tuple[int, int]:
+    """(prefixes, fired): the drive's readings cut after each reading from the fourth on, fed to a fresh monitor, and
+    how many of those cuts its end-of-drive test (``MountMonitor.tail_turn``: the last readings turned beyond any
+    mount) flags; on a drive whose radar turns less than ``max_level_deg`` every one is a false flag."""
+    from hybrid_calib.calib.mount_monitor import MountMonitor
+
+    fired = 0
+    for n in range(4, len(mon.series) + 1):
+        m = MountMonitor(frames=None, T_ego_radar=np.eye(4), conf=conf)
+        for (p, y), k in zip(mon.series[:n], mon.pairs[:n]):
+            m.add_residual(p, y, k)
+        fired += "tail" in m.summary()
+    return max(len(mon.series) - 3, 0), fired
 
 
 def main(argv=None) -> int:
@@ -129,6 +145,11 @@ def main(argv=None) -> int:
         print(f"\n{s}:\n{table(ps, a.within)}")
     print(f"\nevery alarm that is not a step's first (unchanged drives, before a step, and a second alarm after "
           f"one): {fa} in {tested} tested frames ({1000 * fa / max(tested, 1):.2f} per 1000)")
+    tp, tf = sum(r["tail_prefixes"] for r in rows), sum(r["tail_fired"] for r in rows)
+    summary["tail"] = {"prefixes": tp, "fired": tf}
+    save_json_atomic(a.out / "summary.json", summary)
+    print(f"the end-of-drive test (the last readings turned beyond {conf.max_level_deg:g} deg) on every drive cut "
+          f"after each of its readings: flagged {tf} of {tp} cuts (every radar here turns less: each flag is false)")
     if len(z):
         print(f"reported step size against the knock: {100 * step_std['inside_1.96']:.0f} % of {len(z)} steps inside "
               f"+-1.96 std, mean z^2 {step_std['mean_z2']:.2f} (1 if the std is honest)")

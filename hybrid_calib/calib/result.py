@@ -81,6 +81,8 @@ from hybrid_calib.metrics import extrinsic_error, nees, std_dict, std_from_dict,
 
 SCHEMA_VERSION = 2
 SCHEMA = f"hybrid-calib/calibrate-result/v{SCHEMA_VERSION}"
+# a result whose numbers contradict each other (``Estimate.from_dict``, ``VehicleResult._errors_measured``)
+EDITED = "the file was edited (or written by an older hybrid-calib); recompute it (calibrate --overwrite)"
 STD_FRAME = "cam"  # result std blocks are in camera axes (metrics.std_keys)
 
 
@@ -281,8 +283,7 @@ class Estimate:
         if not np.allclose(std, own := report_std(T, cov), rtol=1e-6, atol=1e-9):
             k = int(np.argmax(np.abs(std - own) - 1e-6 * np.abs(own)))
             raise ValueError(f"{where}.std_cam.{std_keys(STD_FRAME)[k]} is {std[k]:.6g}, but its covariance "
-                             f"(cov_right_radar) gives {own[k]:.6g}: the file was edited; recompute it (calibrate "
-                             "--overwrite)")
+                             f"(cov_right_radar) gives {own[k]:.6g}: {EDITED}")
         return cls(T, cov, std, d["status"], bool(d.get("regularised", False)), tuple(d.get("weak_directions", ())))
 
 
@@ -432,8 +433,7 @@ class VehicleResult:
             if key in own and not (value == own[key] or (is_number(value) and np.isclose(value, own[key],
                                                                                           rtol=1e-6, atol=1e-9))):
                 raise ValueError(f"{where}.error.{key} is {str(value)[:40]}, but the final estimate against "
-                                 f"{where}.truth gives {own[key]:.6g}: the file was edited; recompute it (calibrate "
-                                 "--overwrite)")
+                                 f"{where}.truth gives {own[key]:.6g}: {EDITED}")
         return self
 
     def to_json(self) -> str:
