@@ -422,8 +422,7 @@ class VehicleResult:
         if self.error is None:
             return self
         if self.truth_T is None:
-            raise ValueError(f"{where}.error is given but {where}.truth is not: an error against no truth (the file "
-                             "was edited); recompute it (calibrate --overwrite), or drop the error block")
+            raise ValueError(f"{where}.error is given but {where}.truth is not, an error against no truth: {EDITED}")
         own = extrinsic_error(self.final.T, self.truth_T).as_dict()
         try:
             own["nees"] = nees(local(self.truth_T, self.final.T), self.final.cov)
