@@ -127,6 +127,10 @@ def _resolve(path: str | Path) -> Path:
         path = path.with_suffix(".json")
     elif path.suffix != ".json":
         path = path.with_name(path.name + ".json")
+    if not path.is_file() and given.is_file() and given.suffix == ".safetensors":  # weights without their JSON
+        raise CheckpointError(f"checkpoint incomplete: its JSON {path.name} (the model config and fitted models, "
+                              "written by `hybrid-calib train` beside the weights) is missing; copy it beside "
+                              f"{given.name}", path=str(given))
     if not path.is_file() and given.is_file():  # probe 37: "not found [file X.json]" for an existing file X
         raise CheckpointError(f"not a checkpoint: a checkpoint is a JSON (ckpt-NNNN.json or a named one) with its "
                               f".safetensors beside it, and {path.name} is not there; pass the checkpoint's JSON, or "

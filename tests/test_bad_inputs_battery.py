@@ -403,6 +403,9 @@ CKPT_CASES = {
     # probe 37: "checkpoint not found [file afile.json]" for a file that is there and is no checkpoint
     "an-existing-other-file": (lambda p: (p.with_name("afile").write_text("hi"), p.with_name("afile"))[1],
                                ["not a checkpoint", "afile.json is not there", "afile]"]),
+    # weights whose JSON is gone: not "not a checkpoint" (probe 39)
+    "weights-without-json": (lambda p: (p.unlink(), p.with_suffix(".safetensors"))[1],
+                             ["checkpoint incomplete: its JSON", "is missing; copy it beside"]),
 }
 
 
@@ -413,7 +416,7 @@ def test_bad_checkpoint(case, command, sim, tmp_path, capsys):
     make, needles = CKPT_CASES[case]
     ck = _ckpt_copy(tmp_path)
     named = make(ck)
-    arg = ck if named.suffix == ".safetensors" else named
+    arg = ck if named.suffix == ".safetensors" and case != "weights-without-json" else named
     if command == "calibrate":
         argv = _calibrate(root, tmp_path / "out", "--method", "pure", "--checkpoint", arg, "--max-frames", "1")
     elif command == "fleet":  # checked once, before any job (it failed every vehicle alike, one paragraph each)

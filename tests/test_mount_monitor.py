@@ -276,8 +276,8 @@ def test_no_step_says_where_the_monitor_is_blind():
     from hybrid_calib.calib.mount_monitor import MountMonitorConfig, blind_words
 
     c = MountMonitorConfig()
-    assert c.frames_to_alarm() == 4  # threshold 8 / (clip 3 - drift 1)
-    short = {"frames_tested": 11, "blind_frames": [c.min_frames, c.frames_to_alarm()]}
+    assert c.blind_end() == 4  # threshold 8 / (clip 3 - drift 1)
+    short = {"frames_tested": 11, "blind_frames": [c.min_frames, c.blind_end()]}
     assert blind_words(short) == ("it could not see a step on a drive this short: 11 frames tested, a level needs 8 "
                                   "and an alarm 4 more")
     assert blind_words({**short, "frames_tested": 40}) == "blind to a step in the first 8 or the last 4 frames tested"
@@ -408,30 +408,46 @@ def test_readings_that_scatter_beyond_any_mount_make_the_estimate_untrusted():
 
 
 def test_a_radar_turned_beyond_any_mount_in_the_blind_end_is_said_and_not_trusted():
-    """Probe 36: a radar knocked 180 deg at frame 12 of 16 (or 90 deg at frame 14) read "no step" (an alarm needs 4
-    readings) and the hybrid's estimate stayed `weak` far off. The last readings turned beyond any mount are said, and
-    the estimate is not trusted for them; a single far reading (a failed Doppler fit), a turn within a mount's range
-    and the real scene's readings are not."""
+    """Probe 36: a radar knocked 180 deg at frame 12 of 16 (or 90 deg at frame 14) read "no step" (a step in the last
+    4 readings cannot alarm) and the hybrid's estimate stayed `weak` far off. The last readings turned beyond any
+    mount are said, and the estimate is not trusted for them; the turn is measured after the first of them (its sweep
+    pairs straddle the knock: 90 deg read 67.6, probe 39); the last reading alone counts when it is the median of 3
+    or more sweep pairs, as a lower bound. A single far reading of one pair (a failed Doppler fit), a turn within a
+    mount's range and the real scene's readings are not flagged."""
+    from hybrid_calib.calib.mount_monitor import MountMonitorConfig
     from hybrid_calib.calib.mount_monitor import monitor_trust_reason as reason
 
     base = [0.1, -0.1, 0.0, 0.1, 0.2, 0.0, 0.1, 0.0, -0.1, 0.1, 0.0, 0.1]
+    blind = MountMonitorConfig().blind_end()  # a step with this many readings left cannot alarm; one more can
+    assert blind == 4 and _feed(base + [90.0] * blind).steps == [] and len(_feed(base + [90.0] * (blind + 1)).steps)
     flipped = _feed(base + [179.8, -179.5, 179.9, -179.7]).summary()  # wraps at 180 deg: one turn, not +-180
     assert flipped["steps"] == [] and flipped["tail"] == {"from": 12, "to": 15, "frames": 4,
-                                                          "offset_deg": pytest.approx(180.05), "level_from": 0,
-                                                          "level_to": 11}
-    assert "in the last 4 frames tested (frames 12-15) lies 180.1 deg from the rest of the drive's (frames 0-11" in \
-        flipped["implausible"]
+                                                          "offset_deg": pytest.approx(180.25), "at_least": False,
+                                                          "level_from": 0, "level_to": 11}
+    assert "in the last 4 frames tested (frames 12-15) lies 180.2 deg from the rest of the drive's (frames 0-11" in \
+        flipped["implausible"] and "(an alarm needs 5 frames)" in flipped["implausible"]
     assert reason(flipped).startswith("the radar's own heading on the vehicle (its Doppler against the ego poses) "
-                                      "turned by 180.1 deg in the drive's last 4 frames tested (frames 12-15), beyond "
+                                      "turned by 180.2 deg in the drive's last 4 frames tested (frames 12-15), beyond "
                                       "any mount (10 deg) and too near the end for a step alarm")
-    late = _feed(base + [0.2, 0.1, -90.0, -91.0]).summary()
-    assert late["tail"]["frames"] == 2 and late["tail"]["offset_deg"] == pytest.approx(-90.6) and reason(late)
-    for quiet in (base + [0.1, 0.2, 0.0, 25.0],  # one reading: a failed fit (the CUSUM clips it)
+    late = _feed(base + [0.2, 0.1, -45.0, -90.0]).summary()  # the first reading after the knock: half of it
+    assert late["tail"]["frames"] == 2 and late["tail"]["offset_deg"] == pytest.approx(-90.1) and reason(late)
+
+    def fed(ys, pairs):
+        mon = MountMonitor(frames=None, T_ego_radar=np.eye(4))
+        for k, y in enumerate(ys):
+            mon.add_residual(k, float(y), pairs)
+        return mon.summary()
+
+    last = fed(base + [0.2, 0.1, 0.0, 45.0], pairs=6)  # knocked 90 deg at the last frame: its pairs straddle it
+    assert last["tail"]["frames"] == 1 and last["tail"]["at_least"]
+    assert "turned by 44.9 deg or more in the drive's last frame tested (frame 15)" in reason(last)
+    for quiet in (base + [0.1, 0.2, 0.0, 25.0],  # one reading of one pair: a failed fit (the CUSUM clips it)
                   base + [0.1, 0.2, 5.0, 5.1],  # within a mount's range: unseen (blind_words says where)
                   base + [0.1, 25.0, 0.2, 0.0],  # not at the end
                   REAL_READINGS):
         s = _feed(quiet).summary()
         assert "tail" not in s and "implausible" not in s and reason(s) == "", quiet
+    assert "tail" not in fed(base + [0.1, 0.2, 0.0, 25.0], pairs=2)  # two pairs: one failed fit can carry the median
 
 
 def test_the_hybrid_does_not_trust_an_estimate_whose_radar_heading_scatters(knocked_and_not, tmp_path, monkeypatch):

@@ -101,6 +101,16 @@ def inconclusive_status(reason: str, estimate_status: str = "") -> str:
     return f"inconclusive: {reason}" + (f" [the estimate's own status: {estimate_status}]" if estimate_status else "")
 
 
+def inconclusive_reason(status: str) -> str:
+    """The reason of an ``inconclusive_status`` up to its first ": " (what happened, without the advice after it),
+    or "" for another status: a fleet's one-line view names it (a radar knocked 90 deg at the drive's end read only
+    "the estimate is not trusted (its status: inconclusive)" there: probe 39)."""
+    if status_kind(status) != "inconclusive":
+        return ""
+    reason = status[len("inconclusive: "):].split(" [the estimate's own status: ")[0]
+    return reason.split(": ")[0]
+
+
 def untrusted_status(status: str) -> str:
     """Why an estimate whose status is ``status`` cannot be trusted, in words ("" when it can): the last solve did
     not converge (``schedule.convergence_note``'s "NOT CONVERGED"), an ``inconclusive_status`` (its reason: the

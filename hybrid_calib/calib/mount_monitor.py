@@ -86,9 +86,11 @@ class MountMonitorConfig:
     # ego poses' headings or the radar's velocity fields are wrong (mirrored poses read -110 deg, doubled +55)
     max_level_deg: float = 10.0
 
-    def frames_to_alarm(self) -> int:
-        """The fewest readings after a step that can alarm: each adds at most ``clip - drift`` to the CUSUM."""
-        return int(np.ceil(self.threshold / (self.clip - self.drift)))
+    def blind_end(self) -> int:
+        """The readings at a drive's end in which a step cannot alarm (the fewest that can is one more): each adds at
+        most ``clip - drift`` to the CUSUM, which must exceed ``threshold`` (4 by default: a radar turned 180 deg with
+        4 readings left read "too near the end for a step alarm (an alarm needs 4 frames)": probe 39)."""
+        return int(np.floor(self.threshold / (self.clip - self.drift)))
 
     def __post_init__(self):
         require(self, {
@@ -284,19 +286,24 @@ class MountMonitor:
         """The drive's last readings when they turned away from the rest of the current level by more than
         ``max_level_deg`` (each of them, wrapped at 180 deg) before the step test could alarm, or None.
 
-        Probe 36: a radar knocked 90 or 180 deg at frame 12 or 14 of 16 read "no step" (an alarm needs
-        ``frames_to_alarm`` readings; a level's median and robust spread pass over its last few), and the hybrid's
-        estimate stayed `weak` far off. Two readings at least (a single one is the failed Doppler fit the CUSUM clips),
-        three before them (a level to turn from); a turn under ``max_level_deg`` in the blind end stays unseen (said
-        by ``blind_words``). Returns {"from", "to", "frames", "offset_deg" (the median turn, deg), "level_from",
-        "level_to"} (positions)."""
+        Probe 36: a radar knocked 90 or 180 deg at frame 12 or 14 of 16 read "no step" (a step in the last
+        ``blind_end`` readings cannot alarm; a level's median and robust spread pass over its last few), and the
+        hybrid's estimate stayed `weak` far off. Two readings at least, or the last one alone when the median of 3 or
+        more sweep pairs (a reading of one pair may be a failed Doppler fit, which the CUSUM clips); three before them
+        (a level to turn from). The turn is measured from the readings after the run's first (the first one's sweep
+        pairs may straddle the knock: a 90 deg knock read 45 there, probe 39), or from the last alone, then a lower
+        bound ("at_least"). A turn under ``max_level_deg`` in the blind end stays unseen (said by ``blind_words``).
+        Returns {"from", "to", "frames", "offset_deg" (deg), "at_least", "level_from", "level_to"} (positions)."""
         part = self.series[self._start:]
         y = np.array([v for _, v in part])
-        for r in range(len(y) - 3, 1, -1):  # the longest trailing run that turned
+        for r in range(len(y) - 3, 0, -1):  # the longest trailing run that turned
+            if r == 1 and self.pairs[-1] < 3:
+                break
             d = (y[-r:] - np.median(y[:-r]) + 180.0) % 360.0 - 180.0
             d = d[0] + (d - d[0] + 180.0) % 360.0 - 180.0  # unwrapped about the first (180 deg reads +-180)
             if np.all(np.abs(d) > self.conf.max_level_deg):
-                return {"from": part[-r][0], "to": part[-1][0], "frames": r, "offset_deg": float(np.median(d)),
+                return {"from": part[-r][0], "to": part[-1][0], "frames": r,
+                        "offset_deg": float(np.median(d[1:] if r > 1 else d)), "at_least": r == 1,
                         "level_from": part[0][0], "level_to": part[-r - 1][0]}
         return None
 
@@ -348,15 +355,14 @@ class MountMonitor:
                 "velocity fields or the ego poses are wrong, so its steps are not told")}
         if (tail := self.tail_turn()) and not far and not scattered:
             implausible = {"tail": tail, "implausible": (
-                f"the radar's Doppler heading on the vehicle in the last {tail['frames']} frames tested (frames "
-                f"{tail['from']}-{tail['to']}) lies {abs(tail['offset_deg']):.1f} deg from the rest of the drive's "
-                f"(frames {tail['level_from']}-{tail['level_to']}; a radar's mount stays within "
+                f"the radar's Doppler heading on the vehicle in the {_last(tail)} lies {turn_size(tail)} from the "
+                f"rest of the drive's (frames {tail['level_from']}-{tail['level_to']}; a radar's mount stays within "
                 f"{self.conf.max_level_deg:g} deg of its tables): the radar turned too near the drive's end for its "
-                f"step test (an alarm needs {self.conf.frames_to_alarm()} frames), or those frames' velocity fields "
-                "or ego poses are wrong")}
+                f"step test (an alarm needs {self.conf.blind_end() + 1} frames), or those frames' velocity fields or "
+                "ego poses are wrong")}
         return {"steps": steps, "levels": levels, "frames_tested": len(self.series),
                 "pairs_tested": int(sum(self.pairs)), "threshold": self.conf.threshold, **implausible,
-                "blind_frames": [self.conf.min_frames, self.conf.frames_to_alarm()],
+                "blind_frames": [self.conf.min_frames, self.conf.blind_end()],
                 **({"frames_skipped": self.skipped, "skip_example": self.skip_example} if self.skipped else {})}
 
 
@@ -392,7 +398,7 @@ def level_words(level_deg: float, std_deg: float) -> str:
 def blind_words(summary: dict) -> str:
     """Where the monitor could not have seen a step, in words ("" for a result without ``blind_frames``): before
     its first ``min_frames`` readings (the level is being learnt) and in the last frames a step needs to push the
-    CUSUM over its threshold (``MountMonitorConfig.frames_to_alarm``). A 1.5 deg knock at frame 6 of a 12-frame
+    CUSUM over its threshold (``MountMonitorConfig.blind_end``). A 1.5 deg knock at frame 6 of a 12-frame
     drive read "no step" as on a clean drive (probe 7)."""
     first, last = (summary.get("blind_frames") or [None, None])[:2]
     if first is None:
@@ -443,6 +449,19 @@ def sole_level(summary: dict | None, plausible: bool = True) -> dict | None:
     return levels[0]
 
 
+def turn_size(tail: dict) -> str:
+    """The turn of ``summary()``'s "tail" in words: "89.9 deg", or "45.0 deg or more" (one reading, whose sweep
+    pairs may straddle the knock)."""
+    return f"{abs(float(tail['offset_deg'])):.1f} deg" + (" or more" if tail.get("at_least") else "")
+
+
+def _last(tail: dict) -> str:
+    """"last 3 frames tested (frames 13-15)" / "last frame tested (frame 15)"."""
+    n = int(tail["frames"])
+    return (f"last {n} frames tested (frames {tail['from']}-{tail['to']})" if n > 1 else
+            f"last frame tested (frame {tail['to']})")
+
+
 def _spread(deg: float) -> str:
     """A heading's frame-to-frame spread in words: "+-14 deg", or "more than 90 deg" (a robust std of headings that
     wrap at 180 deg read "+-189 deg": probe 36)."""
@@ -468,11 +487,10 @@ def monitor_trust_reason(summary: dict | None,
     tail = (summary or {}).get("tail")
     if not big and isinstance(tail, dict):
         return (f"the radar's own heading on the vehicle (its Doppler against the ego poses) turned by "
-                f"{abs(float(tail['offset_deg'])):.1f} deg in the drive's last {tail['frames']} frames tested (frames "
-                f"{tail['from']}-{tail['to']}), beyond any mount ({max_level_deg:g} deg) and too near the end for a "
-                "step alarm: the radar was knocked at the drive's end, or those frames' velocities or ego poses are "
-                "wrong; the estimate at the end is not trusted: check the radar's mount, and calibrate a drive after "
-                "it")
+                f"{turn_size(tail)} in the drive's {_last(tail)}, beyond any mount ({max_level_deg:g} deg) and too "
+                "near the end for a step alarm: the radar was knocked at the drive's end, or those frames' velocities "
+                "or ego poses are wrong; the estimate at the end is not trusted: check the radar's mount, and "
+                "calibrate a drive after it")
     far = (summary or {}).get("far")
     # probe 36: a radar turned 180 deg at frame 2 of 16 read one level, -179.8 deg, and the result was "weak"
     if not big and isinstance(far, dict):

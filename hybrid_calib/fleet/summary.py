@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hybrid_calib.calib.covariance import camera_offset, status_kind
+from hybrid_calib.calib.covariance import camera_offset, inconclusive_reason, status_kind
 from hybrid_calib.calib.drift import alarms_say_moved
 from hybrid_calib.config import save_json_atomic, save_text_atomic
 from hybrid_calib.errors import DataError
@@ -111,7 +111,8 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
                    # an untrusted estimate cannot tell, unless the radar mount monitor measured a turn beyond the
                    # tolerance (calib.drift.with_mount_step: "recalibrate", as calibrate, result.json and the
                    # reports say; the fleet's text view read "cannot tell" for it: probe 30)
-                   verdict="cannot tell: the estimate is not trusted (its status: inconclusive)"
+                   verdict=f"cannot tell: the estimate is not trusted (inconclusive: "
+                           f"{inconclusive_reason(vr.final.status)})"
                    if status_kind(vr.final.status) == "inconclusive" and not d.get("at_end") else (
                        d.get("verdict") or ("out of tolerance" if d.get("drifted") else "within tolerance")),
                    step_alarms=[f.index for f in vr.trajectory if f.step_alarm], error=vr.error, fleet_test=None,
