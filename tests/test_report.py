@@ -413,9 +413,15 @@ def test_a_step_alarm_names_the_test_that_raised_it():
     assert words[0].startswith("frame 3: the radar mount monitor (its Doppler against the ego poses): the radar "
                                "turned by 1.48 +- 0.11 deg (1 sigma) to the left in yaw from about frame 1")
     assert words[1].startswith("frame 4: the window's step test")
+    assert "raised at" not in words[0]
     moved, frames = moved_during_drive(vr)
     assert moved.startswith("yes: the sensor stepped during the drive; step alarm at frame 3: the radar mount") \
         and frames == (3, 4)
+    # raised on frame 2, not fused (dropped out of the network's domain): applied on the next (probe 39: "step alarm
+    # at frame 14" beside the monitor's "(alarm at frame 13)")
+    vr.mount["steps"][0]["at"] = 2
+    assert alarm_words(vr)[0].endswith("the window kept only the frames since then (raised at frame 2, applied at "
+                                       "frame 3, the next one fused)")
 
 
 def test_the_attention_section_finds_a_network_methods_checkpoint(tmp_path):

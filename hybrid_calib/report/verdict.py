@@ -168,7 +168,11 @@ def alarm_words(vr: VehicleResult) -> list[str]:
                    "there, the estimate is the mount after it)" if st is None else
                    f"frame {a}: the radar mount monitor (its Doppler against the ego poses): the radar turned by "
                    f"{turn_words(st['step_deg'], st['std_deg'])} from about frame {st['change']}; the window kept "
-                   "only the frames since then")
+                   "only the frames since then"
+                   # raised on a frame that was not fused (probe 39: "step alarm at frame 14" beside the monitor's
+                   # "(alarm at frame 13)" for one alarm: frame 13 was dropped out of the network's domain)
+                   + ("" if int(st.get("at", a)) == a else f" (raised at frame {st['at']}, applied at frame {a}, the "
+                                                             "next one fused)"))
     return out
 
 
