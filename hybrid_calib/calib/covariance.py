@@ -96,19 +96,26 @@ def status_kind(status: str) -> str:
     return word if word in STATUS_WORDS else ""
 
 
+OWN_STATUS = " [the estimate's own status: "  # where an inconclusive status keeps the estimate's own
+
+
 def inconclusive_status(reason: str, estimate_status: str = "") -> str:
     """``"inconclusive: <reason>"`` with the estimate's own status after it (kept for the record)."""
-    return f"inconclusive: {reason}" + (f" [the estimate's own status: {estimate_status}]" if estimate_status else "")
+    return f"inconclusive: {reason}" + (f"{OWN_STATUS}{estimate_status}]" if estimate_status else "")
+
+
+def inconclusive_why(status: str) -> str:
+    """The whole reason of an ``inconclusive_status`` (without the estimate's own status), or "" for another."""
+    if status_kind(status) != "inconclusive":
+        return ""
+    return status[len("inconclusive"):].lstrip(": ").split(OWN_STATUS)[0]
 
 
 def inconclusive_reason(status: str) -> str:
     """The reason of an ``inconclusive_status`` up to its first ": " (what happened, without the advice after it),
     or "" for another status: a fleet's one-line view names it (a radar knocked 90 deg at the drive's end read only
     "the estimate is not trusted (its status: inconclusive)" there: probe 39)."""
-    if status_kind(status) != "inconclusive":
-        return ""
-    reason = status[len("inconclusive: "):].split(" [the estimate's own status: ")[0]
-    return reason.split(": ")[0]
+    return inconclusive_why(status).split(": ")[0]
 
 
 def untrusted_status(status: str) -> str:
@@ -119,7 +126,7 @@ def untrusted_status(status: str) -> str:
     if NOT_CONVERGED in status:
         return "the last solve did not converge"
     if status_kind(status) == "inconclusive":
-        why = status[len('inconclusive'):].lstrip(': ').split(' [')[0]
+        why = inconclusive_why(status)
         # cut at a word, marked (probe 34: "... check the radar's mount, a)")
         return f"it is not trusted ({why if len(why) <= 300 else why[:300].rsplit(' ', 1)[0] + ' ...'})"
     if status_kind(status) == "degenerate":

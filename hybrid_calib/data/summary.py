@@ -337,6 +337,12 @@ def _time_and_pose_lines(g: GroupSummary) -> list[str]:
     return out
 
 
+def lean_deg(T: np.ndarray, up: tuple[float, float, float]) -> float:
+    """How far the axis ``up`` (3,) of a frame posed by ``T`` (4, 4, or its (3, 3) rotation) leans from the parent's z
+    (up) axis, deg: a sensor's up in ego axes, or the vehicle's up in the world."""
+    return float(np.degrees(np.arccos(np.clip((np.asarray(T, np.float64)[:3, :3] @ up)[2], -1.0, 1.0))))
+
+
 def summarize_dataset(ds: NuScenesRadarCamera, progress: bool = True) -> DatasetSummary:
     """Load every frame of ``ds`` once and summarise it per scene and vehicle."""
     from tqdm import tqdm
@@ -372,8 +378,7 @@ def summarize_dataset(ds: NuScenesRadarCamera, progress: bool = True) -> Dataset
                 g.far_mount = (channel, d)
             # a sensor's up axis (an image's up: camera -y; a radar's z) in ego: a mount rolled ~180 deg still lands the
             # radar's points in the image, so the in-image check passed it (probe 34)
-            lean = float(np.degrees(np.arccos(np.clip((np.asarray(mount, np.float64)[:3, :3] @ up)[2], -1.0, 1.0))))
-            if lean > g.tilted[1]:
+            if (lean := lean_deg(mount, up)) > g.tilted[1]:
                 g.tilted = (channel, lean)
             if (z := float(mount[2, 3])) < g.low_mount[1]:
                 g.low_mount = (channel, z)
@@ -382,8 +387,7 @@ def summarize_dataset(ds: NuScenesRadarCamera, progress: bool = True) -> Dataset
         if pose is not None and np.all(np.isfinite(pose)):
             g.ego_track.append((f.sample_token, int(f.timestamp_radar_us), np.asarray(pose)[:3, 3].copy()))
             # the vehicle's up (ego z) against the world's: every pose rolled 40 deg passed in silence (probe 38)
-            if (lean := float(np.degrees(np.arccos(np.clip(np.asarray(pose, np.float64)[2, 2], -1.0, 1.0))))) > \
-                    g.ego_lean[1]:
+            if (lean := lean_deg(pose, (0.0, 0.0, 1.0))) > g.ego_lean[1]:
                 g.ego_lean = (f.sample_token, lean)
         uv, z = f.camera.project(transform_points(f.T_cam_radar, f.radar_points))
         g.radar_in_image += int(((z > 0) & f.camera.in_image(uv)).sum())
