@@ -50,8 +50,8 @@ def monitor_root(root: Path, conf, step_at: int | None, kind: str, size: float, 
                                                           for r in readings),
              "pairs": len(mon.series), "frames": len(idx), "measured_steps_deg": [s.step_deg for s in mon.steps],
              "levels": mon.levels(),  # the noise scale of the pairs before any change (all of them: unchanged drive)
-             "scale_deg": float(mon.scale(np.array([y for p, y in mon.series if step_at is None or p < step_at]),
-                                          float(np.median(mon.pairs)) if mon.pairs else 1.0)),
+             "scale_deg": float(mon.level_scale(0, sum(step_at is None or p < step_at for p, _ in mon.series)))
+             if mon.series else None,
              "pairs_per_frame": float(np.median(mon.pairs)) if mon.pairs else 0.0}
         if step_at is None:
             r["false_alarms"] = len(alarms)
@@ -74,8 +74,8 @@ def tail_fired(mon, conf) -> tuple[int, int]:
     fired = 0
     for n in range(4, len(mon.series) + 1):
         m = MountMonitor(frames=None, T_ego_radar=np.eye(4), conf=conf)
-        for (p, y), k in zip(mon.series[:n], mon.pairs[:n]):
-            m.add_residual(p, y, k)
+        for (p, y), k, own in zip(mon.series[:n], mon.pairs[:n], mon.own[:n]):
+            m.add_residual(p, y, k, own)
         fired += "tail" in m.summary()
     return max(len(mon.series) - 3, 0), fired
 

@@ -8,7 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from hybrid_calib.calib.mount_monitor import MountMonitor, MountMonitorConfig, monitor_drive
+from hybrid_calib.calib.mount_monitor import MountMonitor, MountMonitorConfig, monitor_drive, reading_std
 
 
 def _feed(ys) -> MountMonitor:
@@ -57,6 +57,42 @@ def test_a_hundredth_of_a_degree_does_not_decide_a_step(k, nudge):
     for j, (pos, y) in enumerate(zip(REAL_POSITIONS, REAL_READINGS)):
         mon.add_residual(pos, y + (nudge if j == k else 0.0))
     assert mon.steps == [], mon.steps
+
+
+# a randomised radar that did not move (probe 39: `simulate --vehicles 4 --frames 24 --seed 9 --set
+# randomise.enabled=true`, sim-veh-001; velocity noise 0.24 m/s): its readings (6 sweep pairs each, deg) and each
+# reading's own noise std (``reading_std`` of its pairs), from ``monitor_drive``
+NOISY_READINGS = [0.306, 0.388, 0.402, 0.377, 0.422, -0.028, -0.394, -0.601, -0.181, 0.329, 0.383, 0.214, -0.077,
+                  -0.331, -0.748, 0.164, -0.221, -0.06, 0.009, 0.011, 0.093, -0.096, 0.071]
+NOISY_OWN = [0.196, 0.657, 0.219, 0.36, 0.212, 0.115, 0.181, 0.135, 0.246, 0.317, 0.058, 0.222, 0.205, 0.216, 0.486,
+             0.218, 0.332, 0.076, 0.211, 0.256, 0.115, 0.198, 0.092]
+
+
+def test_a_noisy_radar_whose_first_readings_agree_by_chance_is_not_flagged():
+    """Its first 5 readings agree within 0.05 deg, but each is the median of pairs scattered by ~0.5 deg: the level's
+    noise is the readings' own (~0.21 deg), not their chance agreement (the wander floor, 0.15 deg, alarmed "turned
+    0.45 +- 0.12 deg to the right" at frame 20). A 1 deg knock of the same radar is still found within 6 frames."""
+    def feed(own, ys=NOISY_READINGS):
+        mon = MountMonitor(frames=None, T_ego_radar=np.eye(4))
+        for k, (y, o) in enumerate(zip(ys, own)):
+            mon.add_residual(k + 1, y, 6, o)
+        return mon
+
+    assert feed([float("nan")] * len(NOISY_OWN)).steps  # without each reading's own noise: the false alarm
+    mon = feed(NOISY_OWN)
+    assert mon.steps == [] and mon.levels()[0]["scatter_deg"] >= 0.2, (mon.steps, mon.levels())
+    g = np.random.default_rng(11)
+    ys = np.r_[g.normal(0.0, 0.25, 30), g.normal(1.0, 0.25, 20)]
+    (st,) = feed(np.full(50, 0.21), ys).steps
+    assert 30 <= st.change <= 32 and 31 <= st.at <= 36 and abs(st.step_deg - 1.0) < 0.2, st
+
+
+def test_a_reading_s_own_noise_is_the_std_of_its_pairs_median():
+    g = np.random.default_rng(12)
+    stds = [reading_std(g.normal(0.0, 0.5, 6)) for _ in range(4000)]
+    meds = [np.median(g.normal(0.0, 0.5, 6)) for _ in range(4000)]
+    assert 0.85 < np.median(stds) / np.std(meds) < 1.15  # the median's std, from its own pairs
+    assert np.isnan(reading_std([0.1, 0.2])) and reading_std([0.0, 0.0, 0.0]) == 0.0
 
 
 def test_the_test_restarts_after_an_alarm_one_step_one_alarm():

@@ -30,8 +30,12 @@ step" and "turned 0.58 deg"; replayed, 25 of 37 real series flipped under a 0.01
 ``freeze_at`` 1, while the alarms of 101 simulated series, 10 of them with steps or drifts, were unchanged).
 The noise scale is the larger of those values' median absolute deviation and their successive differences'
 (over sqrt 2), at least ``floor_deg / sqrt(n)`` for readings of ``n`` pairs (the level's median; ``floor_deg``
-is one pair's floor) and at least ``wander_deg`` (the Doppler's slow wander with the scene, which more pairs do not
-average down). The standardised
+is one pair's floor), at least ``wander_deg`` (the Doppler's slow wander with the scene, which more pairs do not
+average down), and at least the readings' own noise: the median over the level's readings of the scatter of each
+reading's pairs about their median, as the std of that median (``reading_std``; readings of 3 or more pairs). A few
+readings that agree by chance do not make a noisy radar's level look steady (probe 39: a randomised radar, 0.24 m/s
+velocity noise, pairs scattered by ~0.5 deg; its first 5 readings agreed within 0.05 deg, the 18 after wandered by
++-0.5 deg with no change, and the test alarmed "turned 0.43 +- 0.11 deg"). The standardised
 deviations ``z``, clipped to ``+-clip`` (one failed Doppler fit adds at most ``clip - drift``), feed
 a two-sided CUSUM with allowance ``drift``; above ``threshold`` it alarms. The change point is the
 split of the level's pairs with the largest two-sample mean difference (``change_point``), the step
@@ -163,6 +167,7 @@ class MountMonitor:
     sweep_cache: dict | None = None  # ``calib.ego_doppler.frame_sweeps``' cache (the hybrid's motion source's)
     series: list[tuple[int, float]] = field(default_factory=list)  # (position, reading deg) of the tested frames
     pairs: list[int] = field(default_factory=list)  # sweep pairs behind each reading of ``series``
+    own: list[float] = field(default_factory=list)  # each reading's own noise std (``reading_std``; nan: < 3 pairs)
     steps: list[MountStep] = field(default_factory=list)
     skipped: int = 0  # frames after the first with no reading
     skip_example: str = ""  # the first one's reason
@@ -209,22 +214,31 @@ class MountMonitor:
                 self.skipped += 1
                 self.skip_example = self.skip_example or why
             return MountReading(position, skipped=why)
-        return self.add_residual(position, float(np.median(ys)), len(ys))
+        return self.add_residual(position, float(np.median(ys)), len(ys), reading_std(ys))
 
-    def scale(self, level: np.ndarray, pairs: float = 1.0) -> float:
+    def scale(self, level: np.ndarray, pairs: float = 1.0, own: float = 0.0) -> float:
         """The level's noise std, deg (module doc): the larger of its spread and its successive
         differences' (over sqrt 2), robustly (MAD), and at least ``floor_deg / sqrt(pairs)`` (``pairs``: the
-        median number of pairs in a reading of the level; the median of n pairs is ~sqrt(n) times steadier)."""
-        floor = max(self.conf.floor_deg / np.sqrt(max(pairs, 1.0)), self.conf.wander_deg)
+        median number of pairs in a reading of the level; the median of n pairs is ~sqrt(n) times steadier),
+        ``wander_deg`` and ``own`` (the readings' own noise std, ``level_scale``)."""
+        floor = max(self.conf.floor_deg / np.sqrt(max(pairs, 1.0)), self.conf.wander_deg, own)
         return max(floor, mad_scale(level), mad_scale(np.diff(level)) / np.sqrt(2.0))
 
-    def add_residual(self, position: int, y: float, pairs: int = 1) -> MountReading:
-        """Test one reading ``y`` (deg; the median of ``pairs`` pairs' residuals) at drive ``position``
-        (``update`` computes it from the frames)."""
+    def level_scale(self, a: int, b: int) -> float:
+        """``scale`` of the readings ``series[a:b]`` (at least 1), with their median number of pairs and the median of
+        their own noise stds (those of 3 or more pairs)."""
+        v = np.array([y for _, y in self.series[a:b]])
+        own = [x for x in self.own[a:b] if np.isfinite(x)]
+        return self.scale(v, float(np.median(self.pairs[a:b])), float(np.median(own)) if own else 0.0)
+
+    def add_residual(self, position: int, y: float, pairs: int = 1, own: float = float("nan")) -> MountReading:
+        """Test one reading ``y`` (deg; the median of ``pairs`` pairs' residuals, whose own noise std is ``own``,
+        ``reading_std``) at drive ``position`` (``update`` computes it from the frames)."""
         c = self.conf
         if len(self.series) - self._start < c.min_frames:
             self.series.append((position, y))
             self.pairs.append(pairs)
+            self.own.append(own)
             return MountReading(position, y, pairs=pairs)
         # the level rests on the pairs before a CUSUM's current excursion (a step must not pull it along)
         ends = [f for f, v in ((self._pos_from, self._pos), (self._neg_from, self._neg))
@@ -232,10 +246,11 @@ class MountMonitor:
         end = max(min(ends, default=len(self.series)), self._start + c.min_frames)
         lo = max(self._start, end - c.level_pairs)
         level = np.array([v for _, v in self.series[lo:end]])
-        base, s = float(np.median(level)), self.scale(level, float(np.median(self.pairs[lo:end])))
+        base, s = float(np.median(level)), self.level_scale(lo, end)
         z = (y - base) / (s * np.sqrt(1.0 + MEDIAN_VAR / len(level)))
         self.series.append((position, y))
         self.pairs.append(pairs)
+        self.own.append(own)
         n = len(self.series) - 1
         self._pos_from = n if self._pos_from is None else self._pos_from
         self._neg_from = n if self._neg_from is None else self._neg_from
@@ -278,8 +293,7 @@ class MountMonitor:
         v = np.array([y for _, y in self.series[self._start:]])
         if len(v) < 3:
             return False
-        n = float(np.median(self.pairs[self._start:]))
-        s = float(self.scale(v, n) * np.sqrt(MEDIAN_VAR / len(v)))
+        s = float(self.level_scale(self._start, len(self.series)) * np.sqrt(MEDIAN_VAR / len(v)))
         return abs(float(np.median(v))) - 3 * s > self.conf.max_level_deg
 
     def tail_turn(self) -> dict | None:
@@ -317,8 +331,8 @@ class MountMonitor:
             v = np.array([y for _, y in self.series[a:b]])
             if not len(v):
                 continue
-            n = float(np.median(self.pairs[a:b]))
-            s = self.scale(v, n) if len(v) > 2 else self.conf.floor_deg / np.sqrt(n)
+            s = (self.level_scale(a, b) if len(v) > 2
+                 else self.conf.floor_deg / np.sqrt(float(np.median(self.pairs[a:b]))))
             out.append({"from": self.series[a][0], "to": self.series[b - 1][0], "level_deg": float(np.median(v)),
                         "std_deg": float(s * np.sqrt(MEDIAN_VAR / len(v))), "frames": int(len(v)),
                         "pairs": int(sum(self.pairs[a:b])), "scatter_deg": float(s)})
@@ -364,6 +378,16 @@ class MountMonitor:
                 "pairs_tested": int(sum(self.pairs)), "threshold": self.conf.threshold, **implausible,
                 "blind_frames": [self.conf.min_frames, self.conf.blind_end()],
                 **({"frames_skipped": self.skipped, "skip_example": self.skip_example} if self.skipped else {})}
+
+
+def reading_std(ys) -> float:
+    """A reading's own noise std, deg: the robust scatter (MAD, corrected for a small sample: x n / (n - 0.8)) of its
+    ``ys`` (n pairs' residuals, deg) about their median, as the std of that median (x sqrt(pi / 2 / n)); nan for fewer
+    than 3 pairs (their scatter says little)."""
+    n = len(ys)
+    if n < 3:
+        return float("nan")
+    return mad_scale(np.asarray(ys, np.float64)) * n / (n - 0.8) * float(np.sqrt(MEDIAN_VAR / n))
 
 
 def monitor_drive(frames, indices: list[int], T_ego_radar: np.ndarray, conf: MountMonitorConfig = MountMonitorConfig()
