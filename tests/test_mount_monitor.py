@@ -87,6 +87,36 @@ def test_a_noisy_radar_whose_first_readings_agree_by_chance_is_not_flagged():
     assert 30 <= st.change <= 32 and 31 <= st.at <= 36 and abs(st.step_deg - 1.0) < 0.2, st
 
 
+def test_no_step_says_how_large_a_turn_it_would_have_found():
+    """"no step" on a radar whose readings scatter by 0.6 deg says nothing of a 0.5 deg knock (a simulated randomised
+    drive missed one): the summary holds the smallest turn found within 20 frames in 9 drives of 10, and the words say
+    it. Checked by simulation of the test itself: steps of that size, on readings of that scatter."""
+    from hybrid_calib.calib.mount_monitor import finds_words
+
+    def _feed(ys):  # readings of 6 sweep pairs each (the floor then is the wander's, 0.15 deg)
+        mon = MountMonitor(frames=None, T_ego_radar=np.eye(4))
+        for k, y in enumerate(ys):
+            mon.add_residual(k, float(y), 6)
+        return mon
+
+    g = np.random.default_rng(21)
+    for sd in (0.15, 0.3, 0.6):
+        quiet = _feed(g.normal(0.0, sd, 40)).summary()
+        assert quiet["steps"] == [] and quiet["finds_within"] == 20 and abs(quiet["scatter_deg"] - sd) < 0.3 * sd
+        size = quiet["finds_deg"]
+        assert 2.0 < size / quiet["scatter_deg"] < 2.6
+        delays = [next((st.at - 40 for st in _feed(np.r_[g.normal(0.0, sd, 40), g.normal(size, sd, 30)]).steps
+                        if st.at >= 40), 99) for _ in range(60)]
+        assert 0.8 <= np.mean(np.array(delays) <= 20) <= 1.0, (sd, size, delays)  # about 9 in 10 within 20 frames
+        half = [next((st.at - 40 for st in _feed(np.r_[g.normal(0.0, sd, 40), g.normal(size / 2, sd, 30)]).steps
+                      if st.at >= 40), 99) for _ in range(60)]
+        assert np.mean(np.array(half) <= 20) < 0.6, (sd, half)  # half that size is often missed: it means something
+    assert finds_words(quiet) == (f"a turn of {size:.2f} deg or more in yaw is found within 20 frames (9 drives in "
+                                  f"10; its readings scatter by {quiet['scatter_deg']:.2f} deg)")
+    assert finds_words({"frames_tested": 40}) == ""  # a result written before the figure
+    assert "finds_deg" not in _feed(g.normal(0.0, 0.15, 2)).summary()  # two readings: no level to scatter about
+
+
 def test_a_reading_s_own_noise_is_the_std_of_its_pairs_median():
     g = np.random.default_rng(12)
     stds = [reading_std(g.normal(0.0, 0.5, 6)) for _ in range(4000)]

@@ -390,6 +390,9 @@ def test_a_mount_monitor_that_tested_nothing_does_not_say_no():
     assert said.startswith("no: no step alarm from the radar mount monitor (the radar's Doppler heading against the "
                            "vehicle's ego poses) over 40 frame pairs tested and from the window's")
     assert said.endswith("; the radar mount monitor is blind to a step in the first 10 or the last 5 frames tested")
+    vr.mount = {**vr.mount, "finds_deg": 0.61, "finds_within": 20, "scatter_deg": 0.35}  # how large a turn it finds
+    assert moved_during_drive(vr)[0].endswith("; by the monitor a turn of 0.61 deg or more in yaw is found within 20 "
+                                              "frames (9 drives in 10; its readings scatter by 0.35 deg)")
     # a 4-frame monitor cannot alarm: with no window statistic either (pure, pure-avg, a short drive) nothing was
     # tested, which read "no: no step alarm ... over the 16 frames the estimate used" for a pure result (probe 30)
     vr = _vr((0.0,) * 6, (0.05,) * 6, alarms=(99,))

@@ -145,7 +145,7 @@ def _report(result, out: Path, reused: bool = False) -> int:
     from hybrid_calib.calib.drift import drift_verdict
     from hybrid_calib.calib.lever_arm import describe as describe_doppler
     from hybrid_calib.calib.lidar_alignment import describe as describe_lidar
-    from hybrid_calib.calib.mount_monitor import blind_words, tested_words, turn_words
+    from hybrid_calib.calib.mount_monitor import blind_words, finds_words, tested_words, turn_words
     from hybrid_calib.calib.result import STD_FRAME
     from hybrid_calib.metrics import std_dict
     from hybrid_calib.report.verdict import alarm_words
@@ -190,8 +190,8 @@ def _report(result, out: Path, reused: bool = False) -> int:
                               f"{st['change']} (alarm at frame {st['at']})" for st in v.mount["steps"])
             found = steps or ("not told" if v.mount.get("implausible") else
                               "no step" if v.mount.get("pairs_tested") else "not tested")
-            if found == "no step" and (blind := blind_words(v.mount)):
-                found += f" ({blind})"
+            if found == "no step" and (why := "; ".join(w for w in (blind_words(v.mount), finds_words(v.mount)) if w)):
+                found += f" ({why})"
             print(f"  radar mount monitor ({tested_words(v.mount)}): {found}")
         if v.lidar is not None:
             print(f"  LiDAR alignment: {describe_lidar(v.lidar)}")

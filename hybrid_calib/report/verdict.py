@@ -35,7 +35,7 @@ import numpy as np
 
 from hybrid_calib.calib.covariance import NOT_CONVERGED, status_kind
 from hybrid_calib.calib.drift import DriftConfig, against_tolerance, alarms_say_moved, mount_steps_beyond
-from hybrid_calib.calib.mount_monitor import blind_words, tested_words, turn_words
+from hybrid_calib.calib.mount_monitor import blind_words, finds_words, tested_words, turn_words
 from hybrid_calib.calib.result import VehicleResult
 
 DELTA_KEYS = ("rot_x_deg", "rot_y_deg", "rot_z_deg", "t_x_cm", "t_y_cm", "t_z_cm")
@@ -208,8 +208,9 @@ def moved_during_drive(vr: VehicleResult) -> tuple[str, tuple[int, ...]]:
         return (f"not told for the radar's yaw: {monitor}" + (f"; {blind}" if blind.startswith("it could not") else "")
                 + f"; no step alarm from {window}"), ()
     tests = " and from ".join(t for t in (monitor, window) if t)  # a monitor here ran (the branch above)
+    finds = finds_words(mount) if mount_ran else ""
     return (f"no: no step alarm from {tests}" + (f"; the radar mount monitor is {blind}" if blind.startswith("blind")
-                                                else "")), ()
+                                                else "") + (f"; by the monitor {finds}" if finds else "")), ()
 
 
 def verdict_of(vr: VehicleResult, tol: Tolerance | None = None) -> Verdict:
