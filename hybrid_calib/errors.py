@@ -146,9 +146,11 @@ def check_out_outside_data(out: str | Path | None, data, version: str | None, op
                                       "folders; pass a folder outside it (e.g. "
                                       f"{root.parent / (root.name + '-out')})")
         for part in ([version] if version else []) + ["samples", "sweeps"]:
-            inside = root / part
-            if out == inside or inside in out.parents:
-                where = "" if out == inside else "inside "
-                raise OptionError(option, f"{out} is {where}the data root's {part}/ folder ({inside}): the outputs "
-                                          "would lie among the dataset's files; pass a folder outside them (e.g. "
-                                          f"{root.parent / (root.name + '-out')})")
+            # the folder as written and resolved: a samples/ that is a symlink to a store on another disk holds the
+            # sensor files under its target too (probe 40: an --out given by that target's path was written into)
+            for inside in dict.fromkeys((root / part, (root / part).resolve())):
+                if out == inside or inside in out.parents:
+                    where = "" if out == inside else "inside "
+                    raise OptionError(option, f"{out} is {where}the data root's {part}/ folder ({inside}): the "
+                                              "outputs would lie among the dataset's files; pass a folder outside "
+                                              f"them (e.g. {root.parent / (root.name + '-out')})")

@@ -119,6 +119,11 @@ def test_a_root_whose_samples_folder_is_a_symlink_is_guarded_too(tiny, tmp_path)
             check_out_not_in_dataset(out)
         with pytest.raises(OptionError, match="samples/ folder"):
             check_out_outside_data(out, tiny.root, tiny.version)
+    # probe 40: the same folder by its target's path (the store) wrote result.json and caches among the sensor files
+    for out in (store / "samples", store / "samples" / "CAM_FRONT"):
+        with pytest.raises(OptionError, match="the data root's samples/ folder"):
+            check_out_outside_data(out, tiny.root, tiny.version)
+    check_out_outside_data(store / "elsewhere", tiny.root, tiny.version)  # beside it in the store: fine
 
 
 def test_a_cache_folder_that_is_a_file_is_refused_before_anything_runs(tiny, tmp_path, capsys):
