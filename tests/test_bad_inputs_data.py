@@ -132,9 +132,35 @@ def _short_kind(path: Path) -> None:
     np.savez(path, **d)
 
 
+def _scaled(factor: float):
+    def corrupt(path: Path) -> None:
+        with np.load(path) as z:
+            d = dict(z)
+        d["true_xyz"] = d["true_xyz"] * factor
+        np.savez(path, **d)
+    return corrupt
+
+
+def _of_another_frame(path: Path) -> None:
+    """The truth of another keyframe of the drive, with at least as many rows (an off-by-one export)."""
+    with np.load(path) as z:
+        n = len(z["true_xyz"])
+    others = [p for p in _truth_files(path.parents[2]) if p != path and "__RADAR_FRONT__" in p.name]
+    for other in others[::-1]:
+        with np.load(other) as z:
+            if len(z["true_xyz"]) >= n:
+                path.write_bytes(other.read_bytes())
+                return
+    raise AssertionError("no other truth file with as many rows")
+
+
 TRUTH_CASES = {  # case -> (corrupt(path), needle); BadZipFile aborted the whole run, IndexError too
     "truncated": (lambda p: p.write_bytes(p.read_bytes()[: p.stat().st_size // 2]), "BadZipFile"),
     "kind-shorter-than-true_xyz": (_short_kind, "'kind' int8[3]"),
+    # probe 40: x 1e6 ended the whole run in an internal error; x 1000 and another frame's truth were fused in silence
+    "scaled-by-1e6": (_scaled(1e6), "is not of its radar PCD"),
+    "scaled-by-1000": (_scaled(1e3), "the file belongs to another frame or is corrupt"),
+    "of-another-frame": (_of_another_frame, "m (median) from the points the radar recorded"),
 }
 
 
