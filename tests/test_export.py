@@ -169,6 +169,14 @@ def test_untrusted_stale_and_misdirected_exports_are_refused(calibrated, tmp_pat
     with pytest.raises(OptionError, match="holds an export already.*--overwrite"):
         export_mounts([path], tmp_path / "o4", which="trusted")
     assert export_mounts([path], tmp_path / "o4", which="trusted", overwrite=True).exported == ["sim-veh-001"]
+    # nor a calibrated_sensor.json no export wrote (probe 40: a user's backup of a root's table was replaced)
+    backup = tmp_path / "backup"
+    backup.mkdir()
+    (backup / "calibrated_sensor.json").write_bytes((root / VERSION / "calibrated_sensor.json").read_bytes())
+    with pytest.raises(OptionError, match="calibrated_sensor.json exists and no export wrote it.*--overwrite"):
+        export_mounts([path], backup, which="trusted")
+    assert (backup / "calibrated_sensor.json").read_bytes() == (root / VERSION / "calibrated_sensor.json").read_bytes()
+    assert export_mounts([path], backup, which="trusted", overwrite=True).exported == ["sim-veh-001"]
     # a result of another root without a data stamp is not written into this one (vehicle names repeat)
     other = CalibrationRun.load(path)
     other.data = str(tmp_path / "elsewhere")

@@ -245,6 +245,11 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
             raise OptionError("--out", f"{out} holds an export already (export.json); pass --overwrite to replace it, "
                                        "or another --out. To put several vehicles in one table, pass all their "
                                        "result files to one export command")
+        if (Path(out) / "calibrated_sensor.json").exists() and not (Path(out) / "export.json").is_file() \
+                and not overwrite:  # a table no export wrote: a user's copy of a root's (probe 40: replaced in silence)
+            raise OptionError("--out", f"{Path(out) / 'calibrated_sensor.json'} exists and no export wrote it (no "
+                                       "export.json beside it): it may be a copy of a root's table; pass another "
+                                       "--out, or --overwrite to replace it")
     ds = NuScenesRadarCamera(root, version, conf={"check_images": False})
     t = ds.tables
     found: dict[str, tuple[Path, object]] = {}
