@@ -820,11 +820,15 @@ def test_check_T_names_a_non_finite_transform():
 
 
 @pytest.mark.parametrize("override,needles", [
-    ("tolerance.rot_deg=-1", ["rot_deg must be a finite number > 0", "got -1", "tolerance.rot_deg=0.5"]),
-    ("tolerance.rot_deg=0", ["rot_deg must be a finite number > 0", "got 0"]),
-    ("tolerance.trans_cm=-2.5", ["trans_cm must be a finite number > 0", "got -2.5", "tolerance.trans_cm=2"]),
-    ("tolerance.trans_cm=NaN", ["trans_cm must be a finite number > 0", "got nan"]),
-], ids=["rot-negative", "rot-zero", "trans-negative", "trans-nan"])
+    ("tolerance.rot_deg=-1", ["rot_deg must be a finite number in (0, 180]", "got -1", "tolerance.rot_deg=0.5"]),
+    ("tolerance.rot_deg=0", ["rot_deg must be a finite number in (0, 180]", "got 0"]),
+    ("tolerance.trans_cm=-2.5", ["trans_cm must be a finite number in (0, 10000]", "got -2.5", "tolerance.trans_cm=2"]),
+    ("tolerance.trans_cm=NaN", ["trans_cm must be a finite number in (0, 10000]", "got nan"]),
+    # probe 40: accepted, and the page said "within tolerance" (calibrate refuses them: drift.tolerance_*)
+    ("tolerance.rot_deg=1e300", ["rot_deg must be a finite number in (0, 180]", "got 1e+300"]),
+    ("tolerance.rot_deg=720", ["rot_deg must be a finite number in (0, 180]", "got 720"]),
+    ("tolerance.trans_cm=1e300", ["trans_cm must be a finite number in (0, 10000]", "got 1e+300"]),
+], ids=["rot-negative", "rot-zero", "trans-negative", "trans-nan", "rot-1e300", "rot-720", "trans-1e300"])
 def test_report_bad_tolerance(override, needles, sim, calibrated, tmp_path, capsys):
     """Each was accepted (a page with a verdict against a negative tolerance)."""
     err = expect_cli_error(["report", calibrated / "result.json", "--vehicle", next(iter(sim[1])), "--out",

@@ -68,6 +68,8 @@ from scipy.stats import chi2
 from hybrid_calib.geometry import check_covariance, check_transform, local, retract
 from hybrid_calib.words import join_and
 
+TOLERANCE_MAX = {"rot_deg": 180.0, "trans_cm": 10000.0}  # the largest tolerance any verdict takes (deg, cm)
+
 
 @dataclass(frozen=True)
 class DriftConfig:
@@ -87,7 +89,8 @@ class DriftConfig:
                        "ref_trans_std_cm >= 0": self.ref_trans_std_cm >= 0,
                        "finite numbers": all(np.isfinite([self.alpha, self.tolerance_rot_deg, self.tolerance_trans_cm,
                                                           self.ref_rot_std_deg, self.ref_trans_std_cm]))})
-        require_ranges(self, {"tolerance_rot_deg": "(0, 180]", "tolerance_trans_cm": "(0, 10000]",
+        require_ranges(self, {"tolerance_rot_deg": f"(0, {TOLERANCE_MAX['rot_deg']:g}]",
+                              "tolerance_trans_cm": f"(0, {TOLERANCE_MAX['trans_cm']:g}]",
                               "ref_rot_std_deg": "[0, 90]", "ref_trans_std_cm": "[0, 10000]"})
 
 

@@ -34,7 +34,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from hybrid_calib.calib.covariance import NOT_CONVERGED, status_kind
-from hybrid_calib.calib.drift import DriftConfig, against_tolerance, alarms_say_moved, mount_steps_beyond
+from hybrid_calib.calib.drift import (
+    TOLERANCE_MAX,
+    DriftConfig,
+    against_tolerance,
+    alarms_say_moved,
+    mount_steps_beyond,
+)
 from hybrid_calib.calib.mount_monitor import blind_words, finds_words, tested_words, turn_words
 from hybrid_calib.calib.result import VehicleResult
 
@@ -59,8 +65,10 @@ class Tolerance:
             value = getattr(self, name)
             if value is None:
                 continue
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-                raise ValueError(f"{name} must be a finite number > 0 ({unit}), got {value!r}; e.g. --set "
+            top = TOLERANCE_MAX[name]  # the calibrator's bound (probe 40: 1e300 deg read "within tolerance")
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+                    or not 0 < value <= top:
+                raise ValueError(f"{name} must be a finite number in (0, {top:g}] ({unit}), got {value!r}; e.g. --set "
                                  f"tolerance.{name}={_DEFAULT[name]:g} (the calibrator's default)")
 
     @property
