@@ -511,6 +511,10 @@ SET_CASES = [
     (["demo"], "image_scale=0", ["image_scale=0"]),
     (["demo"], "engine=nosuch", ["engine='nosuch'", "local"]),
     (["demo"], "method=nosuch", ["method='nosuch'"]),
+    # unused with --split all, and written as bare Infinity / NaN into config.json and result.json (probe 40)
+    (["calibrate", "--method", "pure", "--test-fraction", "inf"], "threads=1", ["split.test_fraction=inf", "[0, 1)"]),
+    (["calibrate", "--method", "pure", "--test-fraction", "nan"], "threads=1", ["split.test_fraction=nan", "[0, 1)"]),
+    (["compare", "--methods", "pure", "--test-fraction", "nan"], "threads=1", ["split.test_fraction=nan"]),
 ]
 
 

@@ -59,6 +59,16 @@ def test_run_round_trips_through_json(tmp_path):
     assert CalibrationRun.load(path).to_dict() == doc
 
 
+def test_a_frame_that_fitted_no_rows_is_null_in_strict_json():
+    """method pure fits no rows: its NaN inlier fraction was written as a bare NaN, which strict JSON readers (a
+    browser's JSON.parse) refuse (probe 40)."""
+    g = rng(1)
+    fe = FrameEstimate(0, "f0", 0, _estimate(g), 1, 1, float("nan"), None, None, False, 1.0, 1.0)
+    text = json.dumps(fe.to_dict(), allow_nan=False)
+    assert json.loads(text)["inlier_fraction"] is None
+    assert np.isnan(FrameEstimate.from_dict(json.loads(text)).inlier_fraction)
+
+
 def test_other_schema_or_broken_file_is_named(tmp_path):
     doc = _run(rng(1)).to_dict()
     doc["schema_version"] = 1

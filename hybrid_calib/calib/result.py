@@ -297,7 +297,7 @@ class FrameEstimate:
     estimate: Estimate
     n_window: int  # frames currently in the window
     n_total: int  # frames whose information the estimate holds (window + marginalised)
-    inlier_fraction: float  # mean robust weight > 0.5 over the window's rows
+    inlier_fraction: float  # mean robust weight > 0.5 over the window's rows (NaN: none fitted, pure; null in JSON)
     step_statistic: float | None  # windowed chi-square (None when not tested yet)
     step_threshold: float | None
     step_alarm: bool
@@ -322,7 +322,8 @@ class FrameEstimate:
         return {
             "index": self.index, "frame_id": self.frame_id, "timestamp_us": int(self.timestamp_us),
             **self.estimate.to_dict(report=False), "n_window": self.n_window, "n_total": self.n_total,
-            "inlier_fraction": float(self.inlier_fraction),
+            # null where no rows were fitted (pure: NaN, written as a bare NaN that strict JSON readers refuse)
+            "inlier_fraction": float(self.inlier_fraction) if np.isfinite(self.inlier_fraction) else None,
             "step_statistic": None if self.step_statistic is None else float(self.step_statistic),
             "step_threshold": None if self.step_threshold is None else float(self.step_threshold),
             "step_alarm": bool(self.step_alarm), "solve_ms": float(self.solve_ms), "cov_ms": float(self.cov_ms),
@@ -339,7 +340,7 @@ class FrameEstimate:
         return cls(
             index=int(d["index"]), frame_id=d["frame_id"], timestamp_us=int(d["timestamp_us"]),
             estimate=Estimate.from_dict(d, where), n_window=int(d["n_window"]), n_total=int(d["n_total"]),
-            inlier_fraction=float(d["inlier_fraction"]), step_statistic=d["step_statistic"],
+            inlier_fraction=float("nan" if d["inlier_fraction"] is None else d["inlier_fraction"]), step_statistic=d["step_statistic"],
             step_threshold=d["step_threshold"], step_alarm=bool(d["step_alarm"]), solve_ms=float(d["solve_ms"]),
             cov_ms=float(d["cov_ms"]), events=tuple(d.get("events", ())),
         )

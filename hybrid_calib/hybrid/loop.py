@@ -153,6 +153,11 @@ class HybridConfig:
         from hybrid_calib.data.nuscenes import DataConfig
 
         merge(DataConfig, self.data, "data.")  # ConfigError naming --set data.KEY
+        from learned.dataset import SplitConfig
+
+        # checked when unused too (split all): an inf / NaN fraction was accepted and written as bare Infinity / NaN
+        # into config.json and result.json, which strict JSON readers refuse (probe 40)
+        merge(SplitConfig, self.split_options, "split_options.")
         if "vehicles" in self.data:  # two vehicle filters: a wanted vehicle left out read "not in the data"
             raise ValueError("data.vehicles: choose the vehicles with --set vehicles=[...] (the one filter of the "
                              "network methods), not data.vehicles")
