@@ -340,7 +340,8 @@ class FrameEstimate:
         return cls(
             index=int(d["index"]), frame_id=d["frame_id"], timestamp_us=int(d["timestamp_us"]),
             estimate=Estimate.from_dict(d, where), n_window=int(d["n_window"]), n_total=int(d["n_total"]),
-            inlier_fraction=float("nan" if d["inlier_fraction"] is None else d["inlier_fraction"]), step_statistic=d["step_statistic"],
+            inlier_fraction=float("nan" if d["inlier_fraction"] is None else d["inlier_fraction"]),
+            step_statistic=d["step_statistic"],
             step_threshold=d["step_threshold"], step_alarm=bool(d["step_alarm"]), solve_ms=float(d["solve_ms"]),
             cov_ms=float(d["cov_ms"]), events=tuple(d.get("events", ())),
         )
