@@ -577,6 +577,24 @@ def test_a_scene_without_samples_is_said_not_silently_dropped(tiny):
         NuScenesRadarCamera(tiny.root, VERSION, conf={"scenes": ("tiny-absent",)})
 
 
+@pytest.mark.parametrize("field,words", [
+    ("calibrated_sensor_token", "(its keyframe sample_data {sd} names no sensor: its calibrated_sensor does not resolve)"),
+    ("sample_token", "(1 keyframe sample_data record(s) name a sample not in sample.json, e.g. {sd}: one may be its "
+                     "keyframe)"),
+])
+def test_a_keyframe_whose_sensor_or_sample_does_not_resolve_is_named_where_its_sample_lacks_it(tiny, field, words):
+    """Probe 40: a radar keyframe whose calibrated_sensor_token (or sample_token) did not resolve read "sample X has
+    no keyframe for ['RADAR_FRONT']", naming neither the record nor the token (a dangling ego_pose_token was named)."""
+    sd = next(r for r in tiny.tables["sample_data"] if r["is_key_frame"] and "RADAR_FRONT" in r["filename"]
+              and r["sample_token"] == tiny.tables["sample"][1]["token"])
+    sd[field] = "deadbeef" * 4
+    tiny.rewrite_table("sample_data")
+    ds = NuScenesRadarCamera(tiny.root, VERSION)
+    (lacking,) = [s for s in ds.skipped if "has no keyframe for" in s.reason]
+    assert words.format(sd=sd["token"]) in lacking.reason, lacking.reason
+    assert any("deadbeef" * 4 in s.reason and sd["token"] in s.reason for s in ds.skipped), ds.skipped
+
+
 def test_a_copy_of_a_root_is_the_same_data_and_a_changed_one_is_not(tmp_path):
     """The data stamp hashed the sensor folders' modification times: a `cp -r` of a root (or the root on another
     machine of the fleet) was "other data", so report dropped its pictures and reruns recomputed (probe 23)."""

@@ -270,8 +270,12 @@ class NuScenesRadarCamera:
                 rad = t.keyframe(sample["token"], self.radar_channel)
                 if cam is None or rad is None:
                     lacking = [ch for ch, sd in ((self.camera_channel, cam), (self.radar_channel, rad)) if sd is None]
+                    own, lost = t.unplaced_keyframes.get(sample["token"]), t.unplaced_keyframes.get("")
+                    hint = (f" (its keyframe sample_data {', '.join(own)} names no sensor: its calibrated_sensor does "
+                            "not resolve)" if own else f" ({len(lost)} keyframe sample_data record(s) name a sample "
+                            f"not in sample.json, e.g. {lost[0]}: one may be its keyframe)" if lost else "")
                     skip = SkipRecord(None, sample["token"], str(t.path("sample_data")),
-                                      f"sample {sample['token']} has no keyframe for {lacking}; not a frame")
+                                      f"sample {sample['token']} has no keyframe for {lacking}{hint}; not a frame")
                     self._index_skips.append(skip)
                     self.lacking_keyframes.setdefault(log["vehicle"], []).append(skip)
                     continue

@@ -191,11 +191,18 @@ class NuScenesTables:
         self.keyframes: dict[tuple[str, str], dict] = {}
         self.index_problems: list[tuple[str, str]] = []  # (token, reason)
         ambiguous: dict[tuple[str, str], dict] = {}  # (sample, channel) with two keyframes -> the first one
+        # keyframes no channel or no sample could be found for: sample token (or "" when it does not resolve) -> their
+        # sample_data tokens (the sample "has no keyframe" said nothing of them: probe 40)
+        self.unplaced_keyframes: dict[str, list[str]] = {}
         for sd in self.records["sample_data"]:
             if not sd["is_key_frame"]:
                 continue
             sensor = self._sensor_of_cs.get(sd["calibrated_sensor_token"])
+            if sd["sample_token"] not in self.by_token["sample"]:  # said once below (a partial copy has many)
+                self.unplaced_keyframes.setdefault("", []).append(sd["token"])
+                continue
             if sensor is None:
+                self.unplaced_keyframes.setdefault(sd["sample_token"], []).append(sd["token"])
                 self.index_problems.append((sd["token"], self._unresolved_cs_reason(sd)))
                 continue
             key = (sd["sample_token"], sensor["channel"])
@@ -213,6 +220,12 @@ class NuScenesTables:
                     f"({first.get('filename')}) and {sd['token']} ({sd.get('filename')}): {why}")))
                 continue
             self.keyframes[key] = sd
+        if lost := self.unplaced_keyframes.get(""):
+            sd = self.by_token["sample_data"][lost[0]]
+            self.index_problems.append((sd["token"], (
+                f"{len(lost)} keyframe sample_data record(s) reference samples not in sample.json (first: "
+                f"{sd['token']}, {sd.get('filename')}, sample {sd['sample_token']}): they are no frame; the tables are "
+                "inconsistent or a partial copy: re-extract the metadata")))
 
     def _unresolved_cs_reason(self, sd: dict) -> str:
         cs = self.by_token["calibrated_sensor"].get(sd["calibrated_sensor_token"])
