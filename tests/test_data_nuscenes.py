@@ -578,7 +578,8 @@ def test_a_scene_without_samples_is_said_not_silently_dropped(tiny):
 
 
 @pytest.mark.parametrize("field,words", [
-    ("calibrated_sensor_token", "(its keyframe sample_data {sd} names no sensor: its calibrated_sensor does not resolve)"),
+    ("calibrated_sensor_token", "(its keyframe sample_data {sd} names no sensor: its calibrated_sensor does not "
+                                "resolve)"),
     ("sample_token", "(1 keyframe sample_data record(s) name a sample not in sample.json, e.g. {sd}: one may be its "
                      "keyframe)"),
 ])
