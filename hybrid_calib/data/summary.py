@@ -337,6 +337,29 @@ def _time_and_pose_lines(g: GroupSummary) -> list[str]:
     return out
 
 
+def ego_lean_warning(ds) -> str:
+    """inspect's warning on ego poses that lean the vehicle over (a quaternion written x, y, z, w), from the tables'
+    ego_pose records of ``ds``'s radar keyframes (no frame read), for the commands that calibrate from them; "" when
+    none leans more than ``TILT_WARN_DEG`` (probe 40: calibrate said nothing of it, and blamed the radar's mount)."""
+    from hybrid_calib.geometry import quat_wxyz_to_matrix
+
+    worst: tuple[str, float] = ("", 0.0)
+    records = ds.tables.by_token["ego_pose"] if hasattr(ds, "tables") else {}
+    for ref in getattr(ds, "frames", []):
+        rec = records.get(ref.radar_sd.get("ego_pose_token"))
+        try:
+            R = quat_wxyz_to_matrix(np.asarray(rec["rotation"], np.float64))
+        except (TypeError, KeyError, ValueError):  # no record, or a rotation the reader refuses (said per frame)
+            continue
+        if np.all(np.isfinite(R)) and (lean := lean_deg(R, (0.0, 0.0, 1.0))) > worst[1]:
+            worst = (ref.sample_token, lean)
+    if worst[1] <= TILT_WARN_DEG:
+        return ""
+    return (f"warning: the ego poses lean the vehicle up to {worst[1]:.0f} deg from the world's up (sample {worst[0]}; "
+            "a car on a road leans a few degrees): a rotation in ego_pose.json is written wrong (a quaternion in x, y, "
+            "z, w order, or another frame's)")
+
+
 def lean_deg(T: np.ndarray, up: tuple[float, float, float]) -> float:
     """How far the axis ``up`` (3,) of a frame posed by ``T`` (4, 4, or its (3, 3) rotation) leans from the parent's z
     (up) axis, deg: a sensor's up in ego axes, or the vehicle's up in the world."""
