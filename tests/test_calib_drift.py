@@ -183,6 +183,28 @@ def test_step_detector_check_solves_the_recent_frames_only_when_needed():
     assert out.test.alarm and out.T_recent is T_moved
 
 
+def test_a_difference_along_the_prior_pinned_directions_alone_is_no_step():
+    """Probe 41: the window's test alarmed on unchanged randomised drives ("steps" of pitch -1.6 deg and vertical
+    -11 cm) beside a status saying the data do not observe pitch and the vertical offset: their nuisance variance
+    (the reflector heights' model) is part of the difference's covariance. The same size along yaw still alarms."""
+    from hybrid_calib.calib.covariance import RADAR_PITCH, RADAR_Z, prior_pinned_std
+    from hybrid_calib.calib.window import WindowConfig
+
+    pinned = prior_pinned_std(WindowConfig().factor)
+    assert pinned[RADAR_PITCH] > 0 and pinned[RADAR_Z] > 0  # the default (height) model pins them
+    T = nominal_T_cam_radar()
+    info, H = np.eye(6) * 1e7, np.eye(6) * 1e5  # the recent frames: 0.18 deg, 3 mm
+    xi = np.zeros(6)
+    xi[RADAR_PITCH], xi[RADAR_Z] = np.radians(-1.6), -0.11
+    for det, alarm in ((StepDetector({"consecutive": 1}), True), (StepDetector({"consecutive": 1}, pinned), False)):
+        out = det.check(T, info, (-H @ xi, H), lambda: (retract(T, xi), H), resolve=False)
+        assert out.test.alarm is alarm, (alarm, out.test)
+    yaw = np.zeros(6)
+    yaw[2] = np.radians(1.6)  # about radar z: the radar's yaw on the vehicle, observed
+    out = StepDetector({"consecutive": 1}, pinned).check(T, info, (-H @ yaw, H), lambda: (retract(T, yaw), H), False)
+    assert out.test.alarm
+
+
 def _scene_biased_drive(T, n, g, step_at=None, T_after=None):
     """Frames whose reflector heights have a mean that changes from scene to scene (std 0.6 m; the
     factor assumes one mean): a few frames' estimate is biased by more than its pixel noise says,

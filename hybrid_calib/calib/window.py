@@ -50,6 +50,7 @@ from hybrid_calib.calib.covariance import (
     analyse_drive_information,
     graph_covariance,
     information_from_graph,
+    prior_pinned_std,
 )
 from hybrid_calib.calib.degeneracy import RowGeometry
 from hybrid_calib.calib.drift import StepConfig, StepDetector, StepOutcome
@@ -193,7 +194,7 @@ class SlidingWindowCalibrator:
         self.n_updates = 0
         self.since_reset = 0
         self.last_ts: int | None = None
-        self.detector = StepDetector(self.conf.step)
+        self.detector = StepDetector(self.conf.step, prior_pinned_std(self.conf.factor))
         self.info = np.zeros((6, 6))
         self.geometry = RowGeometry()  # where the rows since the last reset lie (status words)
         # information of external priors (e.g. the network's SE(3)) folded into the marginal prior;
