@@ -384,6 +384,27 @@ def test_inspect_warns_about_ego_poses_that_lean_the_vehicle_over(tmp_path):
     assert "ego poses lean" not in clean
 
 
+def test_calibrate_repeats_the_warning_on_ego_poses_that_lean_the_vehicle_over(tmp_path, capsys):
+    """Probe 40: ego poses written x, y, z, w (the vehicle upside down) drew inspect's warning, while calibrate said
+    nothing and its status blamed the radar's mount first. The network methods' drives now say it."""
+    from hybrid_calib.data.summary import ego_lean_warning
+    from hybrid_calib.geometry import make_T, pose_from_nuscenes, pose_to_nuscenes, so3_exp
+    from hybrid_calib.hybrid import HybridConfig
+    from hybrid_calib.hybrid.drives import open_drives
+
+    tiny = make_tiny_root(tmp_path / "rolled", n_samples=3)
+    for pose in tiny.tables["ego_pose"]:
+        T = pose_from_nuscenes(pose["rotation"], pose["translation"])
+        pose["rotation"], _ = pose_to_nuscenes(make_T(T[:3, :3] @ so3_exp([0.0, np.radians(120.0), 0.0]), T[:3, 3]))
+    tiny.rewrite_table("ego_pose")
+    said = ego_lean_warning(NuScenesRadarCamera(tiny.root, VERSION))
+    assert said.startswith("warning: the ego poses lean the vehicle up to 120 deg from the world's up (sample ")
+    assert ego_lean_warning(NuScenesRadarCamera(make_tiny_root(tmp_path / "clean", n_samples=3).root, VERSION)) == ""
+    open_drives(tiny.root, VERSION, HybridConfig(method="pure"), lidar=False)
+    assert said + ": the radar mount monitor, its Doppler pairs and the motion compensation read the poses; fix the " \
+        "tables before trusting this calibration" in capsys.readouterr().err
+
+
 def test_a_vehicle_with_two_calibrations_is_two_vehicles(tmp_path):
     """nuScenes calibrates each log: n015's radar is yawed -0.85 deg in 34 scenes and +0.20 deg in 349. Frames of
     two calibrations fused as one drive would be one extrinsic for two mounts, so each is its own vehicle."""
