@@ -188,11 +188,12 @@ def test_a_difference_along_the_prior_pinned_directions_alone_is_no_step():
     -11 cm) beside a status saying the data do not observe pitch and the vertical offset: their nuisance variance
     (the reflector heights' model) is part of the difference's covariance. The same size along yaw still alarms."""
     from hybrid_calib.calib.covariance import RADAR_PITCH, RADAR_Z, prior_pinned_std
-    from hybrid_calib.calib.window import WindowConfig
+    from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 
     pinned = prior_pinned_std(WindowConfig().factor)
     assert pinned[RADAR_PITCH] > 0 and pinned[RADAR_Z] > 0  # the default (height) model pins them
     T = nominal_T_cam_radar()
+    np.testing.assert_array_equal(SlidingWindowCalibrator(T).detector.pinned_var, pinned ** 2)  # the window's test
     info, H = np.eye(6) * 1e7, np.eye(6) * 1e5  # the recent frames: 0.18 deg, 3 mm
     xi = np.zeros(6)
     xi[RADAR_PITCH], xi[RADAR_Z] = np.radians(-1.6), -0.11
