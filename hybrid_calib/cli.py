@@ -105,7 +105,8 @@ def set_paths(args: argparse.Namespace) -> list[tuple[str, str]]:
 
 
 REPEATABLE = {"--set", "--refine", "--vehicle"}  # options that gather every value given (argparse extend / append)
-PATH_OPTIONS = {"--out", "--data"}  # an empty one read as the current folder
+PATH_OPTIONS = {"--out", "--data", "--prior", "--manifest", "--checkpoint", "--depth", "--refine", "--correspondences",
+                "--ray-temp", "--depth-cache"}  # an empty one read as the current folder, or as "not given"
 
 
 def _repeated_or_empty(argv: list[str]) -> str:
@@ -116,6 +117,11 @@ def _repeated_or_empty(argv: list[str]) -> str:
     for k, token in enumerate(argv):
         if token == "--":
             break
+        if token == "":  # an option's value or a positional path: "" read as the current folder or the default
+            before = argv[k - 1] if k else ""
+            if before.startswith("--") and "=" not in before:
+                return f"{before} is empty; pass a {'path' if before in PATH_OPTIONS else 'value'}"
+            return "an argument is empty (''); pass the path or value it stands for"
         if not token.startswith("--") or len(token) < 3:
             continue
         name, eq, value = token.partition("=")

@@ -151,5 +151,14 @@ def test_an_option_given_twice_or_an_empty_path_is_refused(tmp_path, capsys):
     assert main(["simulate", "--scenario=highway", "--scenario", "rain", "--out", str(tmp_path / "c")]) == EXIT_ERROR
     assert "--scenario is given twice" in capsys.readouterr().err
     assert main(["simulate", "--out", ""]) == EXIT_ERROR and "--out is empty; pass a path" in capsys.readouterr().err
+    # probe 40: --prior / --manifest '' read the current folder, --checkpoint '' the shipped network, RESULT '' '.'
+    for argv, said in ((["fleet", "--data", str(tmp_path), "--prior", "", "--out", str(tmp_path / "f")],
+                        "--prior is empty; pass a path"),
+                       (["fleet", "--manifest", "", "--out", str(tmp_path / "g")], "--manifest is empty; pass a path"),
+                       (["calibrate", "--data", str(tmp_path), "--checkpoint", "", "--method", "hybrid"],
+                        "--checkpoint is empty; pass a path"),
+                       (["inspect", "--data", str(tmp_path), "--version", ""], "--version is empty; pass a value"),
+                       (["report", "", "--out", str(tmp_path / "r.html")], "an argument is empty ('')")):
+        assert main(argv) == EXIT_ERROR and said in capsys.readouterr().err, argv
     assert main(["inspect", "--data", str(tmp_path), "--data", str(tmp_path), "--version", "v"]) == EXIT_ERROR
     assert "several roots go after one --data" in capsys.readouterr().err
