@@ -9,7 +9,7 @@ import pytest
 
 from hybrid_calib.calib.covariance import report_basis, report_std
 from hybrid_calib.calib.result import CalibrationRun
-from hybrid_calib.errors import OptionError
+from hybrid_calib.errors import DataError, OptionError
 from hybrid_calib.geometry import local, retract
 from hybrid_calib.metrics import extrinsic_error, nees
 
@@ -162,6 +162,17 @@ def test_untrusted_stale_and_misdirected_exports_are_refused(calibrated, tmp_pat
     assert exp.exported == [] and "holds no per-axis test" in exp.vehicles["sim-veh-000"]["why"]
     with pytest.raises(OptionError, match="sim-veh-009 not in the results"):
         export_mounts([result], tmp_path / "o3", vehicles=["sim-veh-009"])
+    # a vehicle that failed in the run is said so (probe 40: "holds no calibrated vehicle" beside a calibrated one)
+    run = CalibrationRun.load(result)
+    run.vehicles_failed["sim-veh-007"] = "vehicle sim-veh-007: no readable frame (a zero focal length)"
+    run.save(tmp_path / "failed" / "result.json")
+    with pytest.raises(DataError, match=r"vehicle sim-veh-007 failed in the run, nothing to export for it \(vehicle "
+                                        r"sim-veh-007: no readable frame \(a zero focal length\)\); calibrated there: "
+                                        "sim-veh-000, sim-veh-001"):
+        export_mounts([tmp_path / "failed" / "result.json"], tmp_path / "o9", vehicles=["sim-veh-007"])
+    with pytest.raises(OptionError, match=r"sim-veh-009 not in the results; they hold sim-veh-000, sim-veh-001 \(and "
+                                          r"failed: sim-veh-007\)"):
+        export_mounts([tmp_path / "failed" / "result.json"], tmp_path / "o9", vehicles=["sim-veh-009"])
     # the command: one line per vehicle, then what was written; exit 1 when a vehicle was refused
     assert main(["export", str(path), "--out", str(tmp_path / "o4"), "--which", "trusted"]) == 1
     assert not (root / VERSION / "export.json").exists()

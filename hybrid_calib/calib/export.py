@@ -263,7 +263,13 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
         failed = {n for _, run in runs for n in run.vehicles_failed}
         if unknown := sorted(set(vehicles) - set(found) - failed):
             raise OptionError("--vehicle", f"{', '.join(unknown)} not in the results; they hold "
-                                           f"{', '.join(sorted(found))}")
+                                           f"{', '.join(sorted(found))}"
+                                           + (f" (and failed: {', '.join(sorted(failed))})" if failed else ""))
+        if asked_failed := sorted(set(vehicles) & failed - set(found)):  # probe 40: "holds no calibrated vehicle"
+            reasons = {n: why for _, run in runs for n, why in run.vehicles_failed.items()}
+            raise DataError(f"vehicle {', '.join(asked_failed)} failed in the run, nothing to export for it ("
+                            f"{reasons[asked_failed[0]]}); calibrated there: {', '.join(sorted(found)) or 'none'}",
+                            path=str(paths[0]))
         found = {n: found[n] for n in vehicles if n in found}
     if not found:
         raise DataError(f"{', '.join(map(str, paths))} hold{'s' if len(paths) == 1 else ''} no calibrated vehicle: "
