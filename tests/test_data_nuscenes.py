@@ -617,6 +617,18 @@ def test_a_keyframe_whose_sensor_or_sample_does_not_resolve_is_named_where_its_s
     assert any("deadbeef" * 4 in s.reason and sd["token"] in s.reason for s in ds.skipped), ds.skipped
 
 
+@pytest.mark.parametrize("blank", ["", "  "])
+def test_a_log_that_names_no_vehicle_is_read_as_its_logfile_and_said(tiny, blank):
+    """Probe 40: log.json's vehicle "" keyed the result "", printed ": inconclusive" and made the fleet job folder
+    vehicles/%."""
+    tiny.tables["log"][0]["vehicle"] = blank
+    tiny.rewrite_table("log")
+    ds = NuScenesRadarCamera(tiny.root, VERSION)
+    assert {ref.vehicle for ref in ds.frames} == {"log-tiny-log"}
+    assert any("names no vehicle (its 'vehicle' is blank): its frames are read as vehicle log-tiny-log" in s.reason
+               for s in ds.skipped)
+
+
 def test_a_copy_of_a_root_is_the_same_data_and_a_changed_one_is_not(tmp_path):
     """The data stamp hashed the sensor folders' modification times: a `cp -r` of a root (or the root on another
     machine of the fleet) was "other data", so report dropped its pictures and reruns recomputed (probe 23)."""

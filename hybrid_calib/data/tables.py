@@ -190,6 +190,12 @@ class NuScenesTables:
         # (sample_token, channel) -> keyframe sample_data record; problems found on the way.
         self.keyframes: dict[tuple[str, str], dict] = {}
         self.index_problems: list[tuple[str, str]] = []  # (token, reason)
+        for lg in self.records["log"]:  # probe 40: a blank name keyed the result "" and a fleet job "vehicles/%"
+            if isinstance(lg["vehicle"], str) and not lg["vehicle"].strip():
+                lg["vehicle"] = f"log-{str(lg.get('logfile') or '').strip() or lg['token']}"
+                self.index_problems.append((lg["token"], (
+                    f"log {lg['token']} names no vehicle (its 'vehicle' is blank): its frames are read as vehicle "
+                    f"{lg['vehicle']}; fill in log.json's vehicle to name it")))
         ambiguous: dict[tuple[str, str], dict] = {}  # (sample, channel) with two keyframes -> the first one
         # keyframes no channel or no sample could be found for: sample token (or "" when it does not resolve) -> their
         # sample_data tokens (the sample "has no keyframe" said nothing of them: probe 40)
