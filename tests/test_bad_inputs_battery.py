@@ -291,7 +291,8 @@ def test_every_vehicle_bad_is_one_clear_error(sim_copy, tmp_path, capsys):
         _break_vehicle(root, fs)
     first, second = frames
     err = expect_cli_error(_calibrate(root, tmp_path / "out"), capsys, "no usable frame", first,
-                           _radar_file(root, frames[first][0]), f"1 more vehicle(s) failed as well: {second}")
+                           _radar_file(root, frames[first][0]), f"1 more vehicle(s) failed as well: {second} ("
+                           f"vehicle {second}: no usable frame")  # probe 40: its reason too, not its name alone
     assert _one_paragraph(err)
     assert not (tmp_path / "out" / "result.json").exists()
 

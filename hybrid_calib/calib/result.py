@@ -445,10 +445,16 @@ class VehicleResult:
         return cls.from_dict(json.loads(text))
 
 
-def failed_vehicles_message(failed: dict[str, str]) -> str:
-    """One paragraph for vehicles that all failed (vehicle -> reason): the first reason in full, the others by name."""
+def failed_vehicles_message(failed: dict[str, str], each: int = 240) -> str:
+    """One paragraph for vehicles that all failed (vehicle -> reason): the first reason in full, then each other
+    vehicle with its own reason (its first ``each`` characters; probe 40: "1 more vehicle(s) failed as well: X" named
+    no reason of X's, where the README promises each vehicle's)."""
     (first, reason), *rest = failed.items()
-    more = f"; {len(rest)} more vehicle(s) failed as well: {', '.join(v for v, _ in rest)}" if rest else ""
+    def short(v: str, why: str) -> str:
+        why = why if why.startswith(f"vehicle {v}") else f"{v}: {why}"
+        return why if len(why) <= each else why[: each - 3] + "..."
+    more = (f"; {len(rest)} more vehicle(s) failed as well: {', '.join(v for v, _ in rest)} ("
+            + "; ".join(short(v, why) for v, why in rest) + ")") if rest else ""
     return f"{reason}{more}"
 
 
