@@ -494,3 +494,24 @@ def test_a_channel_folder_missing_from_the_copy_is_named_not_the_root(tmp_path):
         read_radar_pcd(samples / "RADAR_BACK_LEFT" / "a.pcd")
     with pytest.raises(DataError, match=r"camera image not found; check the dataset root"):  # the folder is there
         image_header(samples / "CAM_FRONT" / "a.jpg")
+
+
+def test_a_channel_written_in_another_case_is_said_so_where_no_such_file_is(tiny):
+    """Probe 40: samples/radar_front/...__radar_front__... read "a radar_front file: ... its file another channel's". A
+    copy whose folder really is so named still reads."""
+    import shutil
+
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+
+    sd = next(r for r in tiny.tables["sample_data"] if r["is_key_frame"] and "RADAR_FRONT" in r["filename"]
+              and r["sample_token"] == tiny.tables["sample"][1]["token"])
+    good = sd["filename"]
+    sd["filename"] = good.replace("RADAR_FRONT", "radar_front")
+    tiny.rewrite_table("sample_data")
+    ds = NuScenesRadarCamera(tiny.root, tiny.version)
+    index = next(k for k, ref in enumerate(ds.frames) if ref.radar_sd["token"] == sd["token"])
+    with pytest.raises(DataError, match="its channel is written radar_front, in another case than RADAR_FRONT"):
+        ds[index]
+    (tiny.root / sd["filename"]).parent.mkdir(parents=True)
+    shutil.copy(tiny.root / good, tiny.root / sd["filename"])  # the file is there under that name: read
+    assert NuScenesRadarCamera(tiny.root, tiny.version)[index].radar_token == sd["token"]

@@ -478,7 +478,7 @@ class NuScenesRadarCamera:
         t = self.tables
         cam, rad = ref.camera_sd, ref.radar_sd
         for sd, channel in ((cam, self.camera_channel), (rad, self.radar_channel)):
-            _check_channel_file(sd, channel, t.path("sample_data"))
+            _check_channel_file(sd, channel, t.path("sample_data"), t.root)
         _check_sync(cam, rad, "radar", self.conf.max_sync_offset_s, t.path("sample_data"))
         image_path = t.file(cam)
         width, height = _image_size_field(cam, t.path("sample_data"))
@@ -644,13 +644,19 @@ class NuScenesRadarCamera:
         return T_ego_cam, (T_ego_radar if T_ego_radar_nom is None else T_ego_radar_nom)
 
 
-def _check_channel_file(sd: dict, channel: str, table: Path) -> None:
+def _check_channel_file(sd: dict, channel: str, table: Path, root: Path | None = None) -> None:
     """``DataError`` when a ``channel`` record names another channel's file (``samples/<CHANNEL>/...__<CHANNEL>__...``,
     nuScenes' layout): tables merged wrongly read the front-left radar's sweeps as RADAR_FRONT's, 86 deg off
     (probe 15). File names outside that layout are not judged."""
     name = str(sd.get("filename", ""))
     parts = name.replace("\\", "/").split("/")
     folder = parts[1] if len(parts) >= 3 and parts[0] in ("samples", "sweeps") else None
+    if folder is not None and folder != channel and folder.upper() == channel.upper():  # the channel in another case
+        if root is not None and (root / name).is_file():  # a copy whose folders really are so named: read (probe 40)
+            return
+        raise DataError(f"{channel} sample_data record names the file {name}: its channel is written {folder}, in "
+                        f"another case than {channel} (file names are case-sensitive: samples/{channel}/...); fix the "
+                        "filename in sample_data.json or the folder's name", path=str(table), token=sd.get("token"))
     if folder is not None and folder != channel and f"__{folder}__" in parts[-1]:
         raise DataError(f"{channel} sample_data record names the file {name}, a {folder} file: the record's "
                         f"calibrated_sensor says {channel}, its file another channel's; fix its filename or its "
