@@ -100,7 +100,8 @@ def test_no_alarm_without_change(seed):
     outs = [cal.update(f) for f in frames]
     assert not any(o.step_alarm for o in outs)
     stats = [o.step_statistic for o in outs if o.step_statistic is not None]
-    assert len(stats) > 20 and 3.0 < np.mean(stats) < 10.0
+    dof = cal.detector.dof  # 4: pitch and the vertical offset are prior-pinned (the height model's nuisance)
+    assert dof == 4 and len(stats) > 20 and 0.5 * dof < np.mean(stats) < 1.67 * dof
 
 
 @pytest.mark.parametrize("rot_deg,trans_m", [(1.5, 0.05), (0.3, 0.0)])
@@ -229,7 +230,9 @@ def test_false_alarm_bound_on_a_short_drive_with_scene_biased_heights():
     cal = SlidingWindowCalibrator(T, {"window": 8})
     outs = [cal.update(f) for f in _scene_biased_drive(T, 60, rng(31))]
     assert not any(o.step_alarm for o in outs)
-    assert cal.detector.scale > 1.1, cal.detector.scale  # median of the raw statistic above chi2(6)'s
+    # the scene's over-dispersion, learnt per axis (pitch and the vertical offset carry the heights' nuisance: the
+    # lateral offset is where the changing height mean shows)
+    assert cal.detector.axis_scales(5).max() > 1.5, cal.detector.axis_scales(5)
     T2 = perturb_camera_frame(T, np.radians([0.0, 0.0, 0.5]), [0.0, 0.0, 0.0])
     cal = SlidingWindowCalibrator(T, {"window": 8})
     outs = [cal.update(f) for f in _scene_biased_drive(T, 60, rng(32), step_at=35, T_after=T2)]

@@ -32,7 +32,8 @@ Two tests, both chi-square tests on a 6-DoF difference in the right tangent of `
    reflector heights' model, not measured) add their nuisance variance to that covariance: the heights of a few
    frames move the estimate along them by up to their std, and that is the scene, not the mount (probe 41: three
    alarms on unchanged randomised drives, "steps" of pitch -1.6 / -1.2 deg and vertical -11 / -23 cm, beside a
-   status that says the data do not observe them). A change there is told by nothing (the status says so).
+   status that says the data do not observe them). A change there is told by nothing (the status says so), and the
+   statistic's degrees of freedom are the other directions' (4: its threshold, re-arm level and scale reference).
    On realistic scenes the windowed statistic is over-dispersed (the reflector heights of a few
    frames bias their estimate by more than the pixel noise says: median 8-9 instead of chi2(6)'s
    5.35 on the straight preset), and per direction: real heights inflate pitch and vertical offset
@@ -123,12 +124,12 @@ class StepConfig:
     # over-disperses 5 frames does not average out over 20, and 10-20-frame windows overlap so
     # much that their own medians rest on few independent tests (too small a scale: false alarms)
     long_scale_floor: bool = True
-    rearm_p: float = 0.1  # hysteresis: after an alarm, re-arm once the scaled statistic < chi2.isf(rearm_p, 6) ...
+    rearm_p: float = 0.1  # hysteresis: after an alarm, re-arm once the scaled statistic < chi2.isf(rearm_p, dof) ...
     rearm_tests: int = 3  # ... on this many tests in a row
     # longer recent windows tested alongside ``recent_frames`` (a generalised likelihood ratio over
     # the step's age): the free Gauss-Newton step of the last m frames' cached linearisations for
     # each m, each scaled by its own running scale; the alarm statistic is the largest scaled one and
-    # the threshold is Bonferroni-corrected over all lengths (chi2.isf(p_alarm / lengths, 6)).
+    # the threshold is Bonferroni-corrected over all lengths (chi2.isf(p_alarm / lengths, dof)).
     # A small step in a weakly observed direction that 5 frames do not resolve shows in 10 or 20.
     long_frames: tuple[int, ...] = (10, 20)
 
@@ -622,11 +623,12 @@ class StepDetector:
         self.conf = merge(StepConfig, conf)
         # (6,) radar right-tangent variance of the prior-pinned nuisance (module doc), rad^2 / m^2
         self.pinned_var = np.zeros(6) if pinned_std is None else np.asarray(pinned_std, np.float64) ** 2
+        self.dof = max(1, 6 - int(np.count_nonzero(self.pinned_var)))  # the directions a step can show in
         m = self.conf.recent_frames
         # recent-window lengths tested: the shortest (also re-solved with a convex start) first
         self.lengths: tuple[int, ...] = (m,) + tuple(sorted({int(k) for k in self.conf.long_frames if k > m}))
-        self.threshold = float(chi2.isf(self.conf.p_alarm / len(self.lengths), 6))
-        self.rearm_level = float(chi2.isf(self.conf.rearm_p, 6))
+        self.threshold = float(chi2.isf(self.conf.p_alarm / len(self.lengths), self.dof))
+        self.rearm_level = float(chi2.isf(self.conf.rearm_p, self.dof))
         self._run = 0
         self._below = 0
         self.armed = True
@@ -654,11 +656,11 @@ class StepDetector:
         return lagged if len(lagged) >= max(1, self.conf.scale_min_tests) else h
 
     def scale_of(self, m: int) -> float:
-        """Over-dispersion of the ``m``-frame statistic: median of its (lagged) values / chi2(6)
+        """Over-dispersion of the ``m``-frame statistic: median of its (lagged) values / chi2(``dof``)
         median, >= 1 (and >= the shortest window's with ``long_scale_floor``)."""
         h = self._scale_sample(m)
         own = 1.0 if len(h) < max(1, self.conf.scale_min_tests) else \
-            max(1.0, float(np.median([x[0] for x in h])) / float(chi2.median(6)))
+            max(1.0, float(np.median([x[0] for x in h])) / float(chi2.median(self.dof)))
         m0 = self.lengths[0]
         return max(own, self.scale_of(m0)) if self.conf.long_scale_floor and m != m0 else own
 
@@ -733,7 +735,7 @@ class StepDetector:
 
     def statistic(self, T_long: np.ndarray, info_long: np.ndarray, T_recent: np.ndarray,
                   info_recent: np.ndarray) -> float:
-        """Windowed chi-square (dof 6). T_*: (4, 4); info_*: (6, 6) right-tangent information. The
+        """Windowed chi-square (dof ``dof``). T_*: (4, 4); info_*: (6, 6) right-tangent information. The
         recent frames are a subset of the long-run estimate's frames."""
         return chi2_quadratic(*self.difference(T_long, info_long, T_recent, info_recent))
 

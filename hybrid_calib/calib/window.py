@@ -488,9 +488,9 @@ class SlidingWindowCalibrator:
         step = self._test_step(inl) if self.conf.detect_steps else None
         alarm = step is not None and step.test.alarm
         if alarm:
-            events.append(f"step change detected (chi2 {step.test.statistic:.1f} > {step.test.threshold:.1f}, dof 6): "
-                          f"history dropped, window reset to the recent frames that fit the new estimate, "
-                          f"convex restart")
+            events.append(f"step change detected (chi2 {step.test.statistic:.1f} > {step.test.threshold:.1f}, dof "
+                          f"{self.detector.dof}): history dropped, window reset to the recent frames that fit the new "
+                          "estimate, convex restart")
             est, cov_ms = self._restart_after_step(step)
             n_total = len(self.frames)
             inl = fr.lin.inliers

@@ -53,7 +53,7 @@ def plot_vehicle(vr: VehicleResult, out_dir: Path) -> list[Path]:
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(10, 5), sharex=True)
     st = np.array([np.nan if f.step_statistic is None else f.step_statistic for f in vr.trajectory])
     thr = next((f.step_threshold for f in vr.trajectory if f.step_threshold is not None), None)
-    a1.semilogy(k, np.maximum(st, 1e-3), ".-", lw=0.8, label="windowed chi-square (dof 6) / its running scale")
+    a1.semilogy(k, np.maximum(st, 1e-3), ".-", lw=0.8, label="windowed chi-square / its running scale")
     if thr is not None:
         a1.axhline(thr, color="r", ls="--", label=f"alarm threshold {thr:.1f}")
     for f in vr.trajectory:
