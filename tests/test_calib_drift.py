@@ -194,7 +194,10 @@ def test_a_difference_along_the_prior_pinned_directions_alone_is_no_step():
     pinned = prior_pinned_std(WindowConfig().factor)
     assert pinned[RADAR_PITCH] > 0 and pinned[RADAR_Z] > 0  # the default (height) model pins them
     T = nominal_T_cam_radar()
-    np.testing.assert_array_equal(SlidingWindowCalibrator(T).detector.pinned_var, pinned ** 2)  # the window's test
+    det = SlidingWindowCalibrator(T).detector  # the window's test: 4 directions a step can show in
+    np.testing.assert_array_equal(det.pinned_var, pinned ** 2)
+    assert det.dof == 4 and np.isclose(det.threshold, chi2.isf(det.conf.p_alarm / len(det.lengths), 4))
+    assert np.isclose(det.rearm_level, chi2.isf(det.conf.rearm_p, 4))
     info, H = np.eye(6) * 1e7, np.eye(6) * 1e5  # the recent frames: 0.18 deg, 3 mm
     xi = np.zeros(6)
     xi[RADAR_PITCH], xi[RADAR_Z] = np.radians(-1.6), -0.11
