@@ -3,6 +3,7 @@ the fleet page, the command, and the pages in a real headless browser (tests/bro
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 from html.parser import HTMLParser
@@ -573,6 +574,8 @@ def test_a_window_alarm_on_an_untrusted_estimate_is_not_told_as_the_mount_moving
     moved, frames = moved_during_drive(bad)
     assert moved.startswith("not told: step alarm at frame 3: the window's step test, on an estimate that is not "
                             "trusted") and frames == (3,)
+    oracle = dataclasses.replace(bad, method="oracle")  # it runs no network (probe 41)
+    assert "inconclusive: its correspondence rows may have jumped, not the mount" in alarm_words(oracle)[0]
     good = _vr((0.0,) * 6, (0.05,) * 6, alarms=(3,), tested=True)
     assert moved_during_drive(good)[0].startswith("yes: the sensor stepped during the drive; step alarm at frame 3: "
                                                   "the window's step test (the mount changed")

@@ -167,10 +167,12 @@ def alarm_words(vr: VehicleResult) -> list[str]:
     # the window's test on an untrusted estimate (out of domain, no view, ...): its inputs may have jumped, not the
     # mount (probe 34: a rear radar with the front camera read "the mount changed inside the drive" at frame 15)
     untrusted = status_kind(vr.final.status) == "inconclusive"
+    # what may have jumped: the oracle runs no network (probe 41: its alarm read "the network's outputs")
+    inputs = "its correspondence rows" if vr.method == "oracle" else "the network's outputs"
     for a in alarms:
         st = credited.get(a)
         out.append(f"frame {a}: the window's step test, on an estimate that is not trusted (its status is "
-                   "inconclusive: the network's outputs may have jumped, not the mount; the window restarted there)"
+                   f"inconclusive: {inputs} may have jumped, not the mount; the window restarted there)"
                    if st is None and untrusted else
                    f"frame {a}: the window's step test (the mount changed inside the drive; the window restarted "
                    "there, the estimate is the mount after it)" if st is None else
