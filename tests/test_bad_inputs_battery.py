@@ -1370,12 +1370,14 @@ def test_a_table_with_a_utf8_bom_is_read(tiny, capsys):
 
 @pytest.mark.parametrize("version", ["v1.0-trainval", "samples", ""], ids=["empty-folder", "samples", "the-root"])
 def test_a_version_folder_without_tables_names_the_versions_there(version, tiny, capsys):
-    """An empty (or wrong) version folder was "table 'scene' is missing ... re-extract the metadata archive"."""
+    """An empty (or wrong) version folder was "table 'scene' is missing ... re-extract the metadata archive"; an
+    empty --version (the root itself) is refused by name (probe 40)."""
     (tiny.root / "v1.0-trainval").mkdir()
     (tiny.root / "samples").mkdir(exist_ok=True)
     argv = ["inspect", "--data", tiny.root, "--version", version, "--no-progress"]
-    err = expect_cli_error(argv, capsys, "holds none of the nuScenes tables",
-                           f"versions found there: ['{tiny.version}']")
+    needles = (["--version is empty; pass a value"] if version == "" else
+               ["holds none of the nuScenes tables", f"versions found there: ['{tiny.version}']"])
+    err = expect_cli_error(argv, capsys, *needles)
     assert _one_paragraph(err)
 
 
