@@ -108,7 +108,7 @@ def test_a_file_in_place_of_the_kept_vehicles_folder_is_named(tmp_path):
     done.record("v", "no usable frame")
 
 
-def test_a_run_that_only_failed_leaves_nothing_that_blocks_the_corrected_command(tmp_path):
+def test_a_run_that_only_failed_leaves_nothing_that_blocks_the_corrected_command(tmp_path, capsys):
     """calibrate --depth corrupted-truth on a real root failed every vehicle; the corrected command (as the error
     advised) was refused: "holds 1 vehicle(s) finished by an interrupted run of another configuration"."""
     from hybrid_calib.calib.result import VehicleProgress
@@ -121,6 +121,11 @@ def test_a_run_that_only_failed_leaves_nothing_that_blocks_the_corrected_command
     done.record("n015", "no usable frame")
     # a finished vehicle is work: another configuration is still refused
     done.record("n008", VehicleResult("n008", _estimate(rng(1)), n_frames=2))
+    capsys.readouterr()
+    again = VehicleProgress(tmp_path, tmp_path, "v1.0-mini", "pure", {"depth": "x"})  # the same run resumed: said
+    assert set(again.done) == {"n015", "n008"}
+    assert ("kept 1 vehicle(s) an interrupted run into this --out finished (same data and options): n008"
+            in capsys.readouterr().err)
     with pytest.raises(HybridCalibError, match="holds 1 vehicle"):
         VehicleProgress(tmp_path, tmp_path, "v1.0-mini", "pure", {"depth": ""})
 

@@ -619,6 +619,10 @@ class VehicleProgress:
                 name, why = self._read(f)
                 if why:
                     print(f"vehicles-done: {f.name} is recomputed: {why}", file=sys.stderr)
+            if finished := sorted(n for n, r in self.done.items() if isinstance(r, VehicleResult)):
+                # a rerun says what it keeps, as fleet's (probe 40: a resumed calibrate said nothing of them)
+                print(f"kept {len(finished)} vehicle(s) an interrupted run into this --out finished (same data and "
+                      f"options): {', '.join(finished[:5])}{' ...' if len(finished) > 5 else ''}", file=sys.stderr)
         if not self.dir.is_dir() or not changed:
             save_json_atomic(self.dir / "stamp.json", self.stamp)
 
