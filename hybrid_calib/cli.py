@@ -129,7 +129,7 @@ def _repeated_or_empty(argv: list[str]) -> str:
             return (f"{name} is given twice; give it once (argparse would keep only the last value"
                     + ("; several roots go after one --data" if name == "--data" else "") + ")")
         seen.add(name)
-        if name in PATH_OPTIONS and (value if eq else (argv[k + 1] if k + 1 < len(argv) else None)) == "":
+        if name in PATH_OPTIONS and eq and value == "":  # --out='' (the spaced form is the empty token's above)
             return f"{name} is empty; pass a path"
     return ""
 

@@ -151,9 +151,7 @@ def oracle_from_frame(frame, conf: OracleConfig, rng: np.random.Generator) -> tu
     if len(idx) > conf.n_per_frame:
         idx = np.sort(rng.choice(idx, conf.n_per_frame, replace=False))
     if conf.radar_points == "truth":
-        P = true_pts[idx]
-        rho, az = np.linalg.norm(P, axis=1), np.arctan2(P[:, 1], P[:, 0])
-        measured = np.stack([rho * np.cos(az), rho * np.sin(az), np.zeros(len(P))], axis=1)
+        measured = as_2d_radar_records(true_pts[idx])
     elif conf.radar_points == "recorded":
         measured = frame.radar_points[idx]
     else:
@@ -171,6 +169,13 @@ TRUTH_MEDIAN_OFF_M = 3.0  # a frame's real detections farther than this (median)
 TRUTH_ROW_OFF_M = 50.0  # one real detection farther than this from its truth: the truth file is corrupt
 
 
+def as_2d_radar_records(P: np.ndarray) -> np.ndarray:
+    """(n, 3) m: where a 2D radar without measurement noise records reflectors at ``P`` (n, 3) m, radar frame: their
+    slant range and azimuth in its plane (z = 0)."""
+    rho, az = np.linalg.norm(P, axis=1), np.arctan2(P[:, 1], P[:, 0])
+    return np.stack([rho * np.cos(az), rho * np.sin(az), np.zeros(len(P))], axis=1)
+
+
 def check_truth_matches_points(true_pts: np.ndarray, kind: np.ndarray, points: np.ndarray, where: str, path: str,
                                token: str | None) -> None:
     """``DataError`` when a frame's simulator truth is not of its PCD: its real reflectors (``kind`` 0; ``true_pts``
@@ -181,10 +186,9 @@ def check_truth_matches_points(true_pts: np.ndarray, kind: np.ndarray, points: n
     real = kind == 0
     if not real.any():
         return
-    P, rec = true_pts[real], np.asarray(points, np.float64)[real]
-    slant, az = np.linalg.norm(P, axis=1), np.arctan2(P[:, 1], P[:, 0])
+    rec = np.asarray(points, np.float64)[real]
     with np.errstate(invalid="ignore", over="ignore"):
-        d = np.hypot(rec[:, 0] - slant * np.cos(az), rec[:, 1] - slant * np.sin(az))
+        d = np.linalg.norm(rec[:, :2] - as_2d_radar_records(true_pts[real])[:, :2], axis=1)
     d = d[np.isfinite(d)]  # a non-finite truth row is dropped where the rows are chosen
     if not len(d):
         return

@@ -189,10 +189,8 @@ class DatasetSummary:
                                                             "network was trained on" if g.tilted[0] ==
                                                             self.camera_channel else ""))
             if g.ego_lean[1] > TILT_WARN_DEG:
-                out.append(f"warning: scene {g.scene}: the ego poses lean the vehicle up to {g.ego_lean[1]:.0f} deg "
-                           f"from the world's up (sample {g.ego_lean[0]}; a car on a road leans a few degrees): a "
-                           "rotation in ego_pose.json is written wrong (a quaternion in x, y, z, w order, or another "
-                           "frame's); the Doppler steps and the motion compensation use them: fix the records")
+                out.append(f"warning: scene {g.scene}: {lean_words(g.ego_lean[1], g.ego_lean[0])}; the Doppler steps "
+                           "and the motion compensation use them: fix the records")
             if g.low_mount[1] < MIN_MOUNT_HEIGHT_M:
                 out.append(f"warning: scene {g.scene}: the {g.low_mount[0]}'s mount lies {g.low_mount[1]:+.2f} m over "
                            f"the vehicle's origin in calibrated_sensor.json, under {MIN_MOUNT_HEIGHT_M:g} m (nuScenes' "
@@ -353,11 +351,14 @@ def ego_lean_warning(ds) -> str:
             continue
         if np.all(np.isfinite(R)) and (lean := lean_deg(R, (0.0, 0.0, 1.0))) > worst[1]:
             worst = (ref.sample_token, lean)
-    if worst[1] <= TILT_WARN_DEG:
-        return ""
-    return (f"warning: the ego poses lean the vehicle up to {worst[1]:.0f} deg from the world's up (sample {worst[0]}; "
-            "a car on a road leans a few degrees): a rotation in ego_pose.json is written wrong (a quaternion in x, y, "
-            "z, w order, or another frame's)")
+    return "" if worst[1] <= TILT_WARN_DEG else f"warning: {lean_words(worst[1], worst[0])}"
+
+
+def lean_words(lean: float, sample: str) -> str:
+    """Ego poses that lean the vehicle ``lean`` deg over (at ``sample``), in words: inspect's and calibrate's."""
+    return (f"the ego poses lean the vehicle up to {lean:.0f} deg from the world's up (sample {sample}; a car on a "
+            "road leans a few degrees): a rotation in ego_pose.json is written wrong (a quaternion in x, y, z, w "
+            "order, or another frame's)")
 
 
 def lean_deg(T: np.ndarray, up: tuple[float, float, float]) -> float:
