@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from factors.motion import heading_residual
 from hybrid_calib.calib.covariance import prior_pinned_std
 from hybrid_calib.calib.degeneracy import RowGeometry
 from hybrid_calib.calib.drift import (
@@ -329,7 +330,10 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
                 mrec["motion_rotation"] = "images (the ego poses' headings contradict the radar's Doppler)"
             # gated by the tighter of the estimate's covariance and this frame's pass with its drive error
             inn = None if m is None else gated_innovation(T, m, conf.motion, (fi.prior.cov + D, reported_cov))
-            fo = fold(prior, T, inn, conf.motion, gated=False) if inn is not None and motion_gate.admit(inn) else None
+            # the same measurement at the network's own output of this frame: whether the network moved with it
+            r_net = None if m is None else heading_residual(fi.prior.T, m)[0]
+            fo = (fold(prior, T, inn, conf.motion, gated=False)
+                  if inn is not None and motion_gate.admit(inn, r_net) else None)
             if fo is not None:
                 prior, gain = fo.prior, fo.gain_motion
                 mrec = {**mrec, "motion": {"residual_deg": fo.residual_deg, "weight": fo.weight,
@@ -337,7 +341,8 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
                                    "vo_inliers": m.n_vo_inliers,
                                    **({"admitted": "consensus"} if motion_gate.admitted_by_consensus else {})}}
             else:
-                mrec = {**mrec, "motion_skipped": why or "residual outside the innovation gate (MotionConfig.gate)"}
+                mrec = {**mrec, "motion_skipped": why or motion_gate.refused
+                        or "residual outside the innovation gate (MotionConfig.gate)"}
             if inn is not None:
                 mrec["motion_z"] = float(inn.z)
         fe, turned = cal.update(fi.corr, prior), None
@@ -354,6 +359,8 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
                 *fe.events, pending.describe(conf.mount.threshold) + f"; window restarted from frame {pending.change}"
                 + ("" if seen is None else f" (the same step as the window's alarm at frame {seen})")))
             pending = None
+        if fe.step_alarm or turned is not None:  # the window restarted: its estimate is not yet confirmed by motion
+            motion_gate.reset()
         traj.append(dataclasses.replace(fe, index=k))  # the frame's position in the drive, not the window's count
         g_mot = np.sum(g_frames, axis=0) if g_frames else np.zeros(6)
         motion_gain.append(g_mot)

@@ -70,6 +70,10 @@ class MotionConfig:
     # and lie on one side: the estimate is off, not the measurements; they are admitted (Huber-weighted)
     # until the residuals fall inside the gate again (0: never; ``MotionGate``)
     consensus: int = 3
+    # once this many residuals since the window last restarted lay inside their own Huber band (the motion
+    # confirmed the estimate), a consensus beyond the gate is admitted only when the network's outputs of those
+    # frames moved toward it too (``MotionGate``; 0: never required, the consensus alone admits)
+    confirm: int = 3
     # the motion's lever-arm term also moves the translation (off: it updates the rotation only). Off
     # by default: measured on 200-frame R2 test drives (urban), the folds' small translation Jacobian
     # against the network's weak translation prior walked the lateral offset 1.8-3.8 m away with a
@@ -99,7 +103,7 @@ class MotionConfig:
 
         require_ranges(self, {"sigma_vo_deg": "(0, 90]", "huber": "(0, 100]", "gate": "(0, 1000]",
                               "drive_std_deg": "[0, 90]", "real_drive_std_deg": "[0, 90]", "consensus": "[0, 1e6]",
-                              "min_speed_mps": "[0, 100]",
+                              "confirm": "[0, 1e6]", "min_speed_mps": "[0, 100]",
                               "max_gap_s": "(0, 3600]", "max_rotation_mismatch_deg": "(0, 180]"})
 
 
@@ -298,33 +302,63 @@ def gated_innovation(T: np.ndarray, m: MotionMeasurement, conf: MotionConfig, co
 class MotionGate:
     """The innovation gate of one drive, with re-admission by consensus.
 
-    ``admit(inn)``: True when ``|r| <= gate * std`` (the innovation's std: measurement and estimate).
+    ``admit(inn, r_net)``: True when ``|r| <= gate * std`` (the innovation's std: measurement and estimate).
     Otherwise the residual is remembered; once the last ``consensus`` remembered residuals (in a row)
     lie on one side and within ``gate`` of their median by their own measurement std, the estimate is
     what is off (the tight gate protects a good estimate from a failed VO pair, but it would also lock
     a network estimate that starts beyond it out of every correction), and they are admitted, Huber-
     weighted by ``fold``, until a residual passes the gate again. ``admitted_by_consensus`` tells the
-    caller which way the last one went in."""
+    caller which way the last one went in.
+
+    Once the motion has confirmed the estimate (``confirm`` residuals inside their own Huber band,
+    ``|r| <= huber * sigma``, since the window last restarted: ``reset``), agreeing residuals beyond
+    the gate are a stretch of drive where visual odometry fails the same way frame after frame (a
+    highway curve with a few far matches: 10 deg for 8 frames), not proof that the estimate is off:
+    the estimate did not move and the motion agreed with it. They are admitted only when the network's
+    own outputs moved toward them too (``r_net``: the residuals at the network's outputs of those frames;
+    their median at most half the estimate's), which a sensor that really moved gives; ``refused`` says
+    why a consensus was not taken."""
 
     def __init__(self, conf: MotionConfig):
         self.conf = conf
         self.recent: list[float] = []
+        self.recent_net: list[float] = []
+        self.agreed = 0  # residuals inside their own Huber band since the last reset
         self.admitted_by_consensus = False
+        self.refused = ""
 
-    def admit(self, inn: Innovation) -> bool:
+    def reset(self) -> None:
+        """The window restarted (a step alarm): the estimate is a new one, not confirmed by any motion yet."""
+        self.recent, self.recent_net, self.agreed = [], [], 0
+
+    def admit(self, inn: Innovation, r_net: float | None = None) -> bool:
         c = self.conf
-        self.admitted_by_consensus = False
+        self.admitted_by_consensus, self.refused = False, ""
         if inn.inside(c.gate):
-            self.recent.clear()
+            self.recent, self.recent_net = [], []
+            self.agreed += int(abs(inn.r) <= c.huber * inn.sigma)
             return True
-        self.recent = (self.recent + [inn.r])[-max(c.consensus, 1):]
+        keep = max(c.consensus, 1)
+        self.recent = (self.recent + [inn.r])[-keep:]
+        self.recent_net = (self.recent_net + [np.nan if r_net is None else r_net])[-keep:]
         if c.consensus == 0 or len(self.recent) < c.consensus:
             return False
         r = np.asarray(self.recent)
         one_side = bool(np.all(r > 0) or np.all(r < 0))
         agree = bool(np.all(np.abs(r - np.median(r)) <= c.gate * inn.sigma))
-        self.admitted_by_consensus = one_side and agree
-        return self.admitted_by_consensus
+        if not (one_side and agree):
+            return False
+        if c.confirm and self.agreed >= c.confirm:
+            net = np.asarray(self.recent_net)
+            moved = bool(np.all(np.isfinite(net)) and abs(np.median(net)) <= 0.5 * abs(np.median(r)))
+            if not moved:
+                self.refused = (f"{len(r)} agreeing residuals beyond the gate (median {np.degrees(np.median(r)):+.1f} "
+                                f"deg), but the motion agreed with this estimate at {self.agreed} frames since the "
+                                "window last restarted and the network's outputs did not move toward them: visual "
+                                "odometry failing on a stretch of road, not a moved sensor")
+                return False
+        self.admitted_by_consensus = True
+        return True
 
 
 @dataclass(frozen=True)
