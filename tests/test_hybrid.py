@@ -3,6 +3,7 @@ tiny simulated drive with the shipped small network, identical starts across met
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 
@@ -705,6 +706,47 @@ def test_the_drive_common_network_error_reaches_the_reported_covariance(sim_root
         "ood": {"enabled": False}, "cache_dir": str(tmp_path / "cache")})
     assert v.n_frames == 3
     assert np.all(np.diag(v.final.cov)[3:] >= 0.99 * D[3:] ** 2), np.sqrt(np.diag(v.final.cov))
+
+
+@pytest.mark.parametrize("case", ["network stayed", "network moved", "window restarted"])
+def test_the_loop_gives_the_motion_gate_the_networks_own_residual_and_restarts_it_with_the_window(
+        sim_root, tmp_path, monkeypatch, case):
+    """The wiring of ``MotionGate`` in the loop: the residual at the network's own output of the frame decides a
+    consensus against a confirmed estimate (probe 41), the refusal is recorded with its reason, and a window restart
+    (a step alarm) makes the estimate unconfirmed again. Frame 1's residual agrees; frame 2's is 10 deg beyond the
+    gate (``confirm`` and ``consensus`` 1 on this 3-frame drive)."""
+    from types import SimpleNamespace
+
+    from hybrid_calib.calib.window import SlidingWindowCalibrator
+    from hybrid_calib.hybrid import loop, run_vehicle
+    from hybrid_calib.hybrid.motion import Innovation, MotionSource
+
+    s = np.radians(1.13)
+    r_deg = iter([0.2, 10.0])
+    r_net_deg = iter([0.2, 1.0 if case == "network moved" else 10.0])
+    monkeypatch.setattr(MotionSource, "measurement",
+                        lambda self, ia, ib, R, ego=True: (SimpleNamespace(speed=10.0, n_vo_inliers=20), ""))
+    monkeypatch.setattr(loop, "gated_innovation", lambda T, m, conf, covs: Innovation(
+        np.radians(next(r_deg)), np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0]), s, 1.2 * s))
+    monkeypatch.setattr(loop, "heading_residual", lambda T, m: (np.radians(next(r_net_deg)), np.zeros(6)))
+    if case == "window restarted":
+        real, calls = SlidingWindowCalibrator.update, []
+
+        def update(self, corr, prior=None, timestamp_us=None):
+            calls.append(1)
+            fe = real(self, corr, prior, timestamp_us)
+            return dataclasses.replace(fe, step_alarm=True) if len(calls) == 2 else fe
+
+        monkeypatch.setattr(SlidingWindowCalibrator, "update", update)
+    v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", {
+        **BASE, "method": "hybrid", "lidar": {"enabled": False}, "doppler": {"enabled": False},
+        "ood": {"enabled": False}, "motion": {"confirm": 1, "consensus": 1}, "cache_dir": str(tmp_path / "cache")})
+    rows = v.frame_rows
+    assert len(rows) == 3 and rows[1]["motion"]["residual_deg"] == pytest.approx(0.2)
+    if case == "network stayed":
+        assert "motion" not in rows[2] and "did not move toward them" in rows[2]["motion_skipped"], rows[2]
+    else:
+        assert rows[2]["motion"]["admitted"] == "consensus", rows[2]
 
 
 def test_with_drive_error_adds_the_drive_common_term_to_every_frame():

@@ -208,6 +208,44 @@ def test_consistent_residuals_beyond_the_gate_are_admitted_by_consensus():
         MotionConfig(consensus=-1)
 
 
+def test_a_consensus_against_a_confirmed_estimate_needs_the_network_to_have_moved_too():
+    """Probe 41: on a highway curve visual odometry said -10 deg for 8 frames in a row (8-16 far matches) after 30
+    frames that agreed with the estimate within 1 deg; the consensus admitted them, the window's test fired, and the
+    drive ended 7.4 deg off. Once the motion has confirmed the estimate, agreeing residuals beyond the gate are
+    admitted only where the network's own outputs moved toward them (a sensor that really moved); a restart of the
+    window (``reset``) makes the estimate unconfirmed again."""
+    from hybrid_calib.hybrid.motion import Innovation, MotionGate
+
+    s = np.radians(1.13)
+
+    def inn(r_deg):
+        return Innovation(np.radians(r_deg), np.zeros(6), s, 1.2 * s)  # gate: 3 x 1.36 deg = 4.1 deg
+
+    def confirmed(conf=None):
+        g = MotionGate(conf or MotionConfig())
+        assert all(g.admit(inn(r)) for r in (0.3, -0.5, 0.8))  # inside their own Huber band: 3 agree
+        assert g.admit(inn(3.5)) and g.agreed == 3  # inside the gate but beyond 2 sigma: admitted, not agreeing
+        return g
+
+    g = confirmed()
+    stuck = [np.radians(r) for r in (-10.0, -9.5, -10.5)]  # the network's outputs where the estimate is
+    assert not any(g.admit(inn(r), rn) for r, rn in zip((-10.0, -9.5, -10.5), stuck))
+    assert "did not move toward them" in g.refused and "-10.0 deg" in g.refused and not g.admitted_by_consensus
+    assert not g.admit(inn(-10.2), np.radians(-10.1))  # still refused while the network stays
+    moved = confirmed()  # a sensor that moved: the network's outputs went (at least half-way) with the motion
+    assert not any(moved.admit(inn(r), np.radians(-1.0)) for r in (-10.0, -9.5))
+    assert moved.admit(inn(-10.5), np.radians(-4.0)) and moved.admitted_by_consensus and moved.refused == ""
+    unknown = confirmed()  # no network output to compare with: not taken as moved
+    assert not any(unknown.admit(inn(r)) for r in (-10.0, -9.5, -10.5)) and unknown.refused
+    g.reset()  # the window restarted: nothing confirms the new estimate yet, the consensus alone admits
+    assert not g.admit(inn(-10.0), np.radians(-10.0)) and not g.admit(inn(-9.5), np.radians(-9.5))
+    assert g.admit(inn(-10.5), np.radians(-10.5)) and g.admitted_by_consensus
+    off = confirmed(MotionConfig(confirm=0))  # 0: the consensus alone, whatever the motion said before
+    assert [off.admit(inn(r), np.radians(r)) for r in (-10.0, -9.5, -10.5)] == [False, False, True]
+    with pytest.raises(ValueError, match="confirm"):
+        MotionConfig(confirm=-1)
+
+
 def test_the_motion_moves_the_rotation_only_unless_told():
     """Its lever-arm sensitivity to the translation is small and, against the network's weak
     translation prior, walked the lateral offset metres away on 200-frame R2 drives: off by default."""
