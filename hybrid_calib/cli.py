@@ -23,6 +23,7 @@ from hybrid_calib.atomic import LOCK_NAME, out_dir_lock, record_run
 from hybrid_calib.errors import (
     HybridCalibError,
     check_out_dir,
+    check_out_files,
     check_out_not_in_dataset,
     check_out_owner,
 )
@@ -184,6 +185,7 @@ def _run(args: argparse.Namespace, debug: bool, argv: list[str]) -> int:
             check_out_dir(path, option)  # an existing file there: no cache was written, without a word (probe 27)
             check_out_not_in_dataset(path, option, data=data, version=version)
         check_out_owner(out, args.command)
+        check_out_files(out, args.command, getattr(args, "overwrite", None))
         if out is None:
             return int(args._run(args) or 0)
         with out_dir_lock(out, args.command):

@@ -64,6 +64,34 @@ OUT_MARKERS = {"train": "train_config.json", "evaluate": "export_config.json", "
                "demo": "demo_config.json", "inspect": "inspect_config.json"}
 
 
+# the other files each command writes at the top of its --out (a user's file of that name there was replaced)
+OUT_FILES = {"train": ("epochs.csv", "history.png"), "evaluate": ("errors_cdf.png", "skipped.json"),
+             "calibrate": ("config.json",), "compare": ("compare.json", "compare.md", "error_vs_frames.png"),
+             "fleet": ("summary.json", "summary.md", "fleet.png", "fleet_prior.json", "fleet.html"),
+             "demo": ("summary.json", "projection.png"), "inspect": ("inspect_summary.json", "overlay.png")}
+
+
+def check_out_files(out: str | Path | None, command: str, overwrite: bool | None = None) -> None:
+    """``OptionError`` when ``out`` holds a file that ``command`` writes (``OUT_FILES``) in a folder no hybrid-calib
+    run wrote (neither the command's ``OUT_MARKERS`` file nor ``runs.json``): the user's own file, which the run
+    would replace (probe 40: a config.json and an overlay.png of the user's were). ``overwrite``: True replaces them;
+    None: the command has no --overwrite (the message does not offer it)."""
+    if out is None or overwrite or not Path(out).is_dir():
+        return
+    from hybrid_calib.atomic import RUNS_NAME
+
+    marker = OUT_MARKERS.get(command)
+    if (Path(out) / RUNS_NAME).exists() or (marker and (Path(out) / marker).exists()):
+        return
+    if clash := [n for n in OUT_FILES.get(command, ()) if (Path(out) / n).exists()]:
+        names = ", ".join(clash)
+        how = "pass another --out, or --overwrite to replace them" if overwrite is not None else "pass another --out"
+        record = f"{marker} or {RUNS_NAME}" if marker else RUNS_NAME
+        raise OptionError("--out", f"{out} holds {names}, which hybrid-calib {command} writes there, and no record of "
+                                   f"a hybrid-calib run ({record}): not its outputs, and this run would replace them; "
+                                   f"{how}")
+
+
 def check_out_owner(out: str | Path | None, command: str) -> None:
     """``OptionError`` when ``out`` holds another command's outputs (its ``OUT_MARKERS`` file): a run there mixed
     its files with them (a train run beside an evaluate run's results, sharing its depth cache)."""

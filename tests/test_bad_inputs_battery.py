@@ -2053,6 +2053,28 @@ def test_an_out_folder_of_another_command_is_refused(command, other, sim, tmp_pa
     check_out_owner(out, command)
 
 
+@pytest.mark.parametrize("command,name", [("calibrate", "config.json"), ("fleet", "summary.json"),
+                                          ("inspect", "overlay.png")])
+def test_a_users_file_of_a_name_the_command_writes_is_not_replaced(command, name, sim, tmp_path, capsys):
+    """Probe 40: calibrate, fleet and inspect replaced a config.json, summary.json or overlay.png of the user's in a
+    folder that held no record of theirs. Refused now, naming the file; a folder of an earlier run of the command (its
+    marker, or runs.json) and --overwrite (where the command has it) go on."""
+    from hybrid_calib.errors import check_out_files
+
+    root, _ = sim
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / name).write_text("the user's own")
+    offer = "--overwrite to replace them" if command == "calibrate" else "pass another --out"
+    version = ["--version", "v1.0-sim"] if command == "inspect" else []
+    expect_cli_error([command, "--data", root, *version, "--out", out], capsys, f"holds {name}",
+                     f"hybrid-calib {command} writes there", "not its outputs", offer)
+    assert [p.name for p in out.iterdir()] == [name] and (out / name).read_text() == "the user's own"
+    check_out_files(out, command, overwrite=True)
+    (out / "runs.json").write_text("[]")  # a folder hybrid-calib wrote into: its own file, replaced as always
+    check_out_files(out, command)
+
+
 def test_a_fleet_root_whose_tables_do_not_read_is_left_out_and_the_others_go_on(sim, tmp_path, capsys):
     """One root of several with a truncated table stopped the whole fleet before any vehicle (compare left it out)."""
     root, _ = sim
