@@ -9,8 +9,8 @@ Per (root, vehicle, start, seed): ``hybrid.run_vehicle`` twice (network passes c
 two arms share every pass until they part); per arm the final error against the truth, NEES, whether the
 truth lies inside the 95 % ellipsoid, the step alarms, and the frames admitted by consensus and refused
 by the confirmation (``frame_rows[k].motion``/``motion_skipped``). Trials where no consensus was refused
-are identical in both arms by construction (printed as such). Rows go to ``OUT/trials.jsonl`` (resumable);
-the summary is printed and written to ``OUT/summary.json``.
+are identical in both arms by construction (printed as such; the second arm is not run). Rows go to
+``OUT/trials.jsonl`` (resumable); the summary is printed and written to ``OUT/summary.json``.
 """
 
 from __future__ import annotations
@@ -73,6 +73,10 @@ def main(argv=None) -> int:
                         continue
                     row = {"key": key}
                     for arm, over in ARMS.items():
+                        if arm != "shipped" and row["shipped"]["refused"] == 0:
+                            # no consensus refused: every gate decision of confirm=0 is the shipped one
+                            row[arm] = row["shipped"]
+                            continue
                         conf = {**base, "start": start, "seed": seed,
                                 "motion": {**base.get("motion", {}), **over.get("motion", {})}}
                         row[arm] = _arm(run_vehicle(root, "v1.0-sim", veh, conf))
