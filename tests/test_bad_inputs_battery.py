@@ -2053,6 +2053,24 @@ def test_an_out_folder_of_another_command_is_refused(command, other, sim, tmp_pa
     check_out_owner(out, command)
 
 
+def test_a_sample_whose_radar_keyframe_names_another_channel_is_listed_as_skipped_by_the_oracle(sim_copy, tmp_path):
+    """Probe 42: a radar keyframe whose calibrated_sensor is the camera's left its sample without a radar keyframe;
+    calibrate --method oracle dropped the frame without listing it (the hybrid listed it: ``Drive.skipped``)."""
+    from hybrid_calib.calib.pipeline import calibrate
+
+    root, by_vehicle = sim_copy
+    f = by_vehicle["sim-veh-000"][0]
+    path, rows = _table(root, "sample_data")
+    for r in rows:
+        if r["token"] == f.radar_sd["token"]:
+            r["calibrated_sensor_token"] = f.camera_sd["calibrated_sensor_token"]
+    path.write_text(json.dumps(rows))
+    run = calibrate(root, SIM_VERSION, "oracle", tmp_path / "o", {"vehicles": ["sim-veh-000"]}, progress=False)
+    v = run.vehicles["sim-veh-000"]
+    assert v.n_frames == 2 and [s["token"] for s in v.skipped] == [f.radar_sd["sample_token"]], v.skipped
+    assert "RADAR_FRONT" in v.skipped[0]["reason"]
+
+
 @pytest.mark.parametrize("command,name", [("calibrate", "config.json"), ("fleet", "summary.json"),
                                           ("inspect", "overlay.png")])
 def test_a_users_file_of_a_name_the_command_writes_is_not_replaced(command, name, sim, tmp_path, capsys):

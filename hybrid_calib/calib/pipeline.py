@@ -93,6 +93,9 @@ def _load_oracle(data, version: str, conf: CalibrateConfig, progress: bool = Tru
         if conf.vehicles is not None and vehicle not in conf.vehicles:
             continue
         vi = out[vehicle] = VehicleInput(vehicle)
+        # its samples that hold no frame (a keyframe missing or put on another channel): listed, as the hybrid's
+        vi.skipped.extend({"index": None, "token": s.token, "reason": s.reason}
+                          for s in ds.lacking_keyframes.get(vehicle, []))
         idx = idx[: conf.max_frames] if conf.max_frames > 0 else idx
         # drawn by (seed, vehicle) alone: the same rows whichever other vehicles the run holds, and in every
         # command (calibrate, fleet, compare, the report's replay)
