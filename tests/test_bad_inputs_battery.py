@@ -2071,6 +2071,28 @@ def test_a_sample_whose_radar_keyframe_names_another_channel_is_listed_as_skippe
     assert "RADAR_FRONT" in v.skipped[0]["reason"]
 
 
+def test_a_scene_whose_log_is_missing_is_said_by_calibrate_and_fleet(sim_copy, tmp_path, capsys):
+    """Probe 42: a scene whose log_token is not in log.json took its vehicle out of calibrate's and fleet's results
+    with exit status 0 and not a word (inspect listed it): the log names the vehicle, so the samples belong to none."""
+    from hybrid_calib.config import merge
+    from hybrid_calib.fleet.jobs import discover_jobs
+    from hybrid_calib.hybrid.drives import open_drives
+    from hybrid_calib.hybrid.loop import HybridConfig
+
+    root, _ = sim_copy
+    path, scenes = _table(root, "scene")
+    scenes[0]["log_token"] = "f" * 32
+    path.write_text(json.dumps(scenes))
+    rc, err = run_cli(["calibrate", "--data", root, "--out", tmp_path / "o", "--no-plots"], capsys)
+    assert rc == 0 and "samples of no vehicle are not calibrated" in err and "f" * 32 in err, err
+    assert "not in log.json" in err and "3 sample(s)" in err
+    open_drives(root, SIM_VERSION, merge(HybridConfig, {"method": "hybrid"}), lidar=False)
+    assert "samples of no vehicle are not calibrated" in capsys.readouterr().err
+    notes: list[str] = []
+    jobs = discover_jobs([(str(root), SIM_VERSION, None)], "oracle", tmp_path / "f", notes=notes)
+    assert len(jobs) == 1 and any("samples of no vehicle" in n and str(root) in n for n in notes), notes
+
+
 @pytest.mark.parametrize("command,name", [("calibrate", "config.json"), ("fleet", "summary.json"),
                                           ("inspect", "overlay.png")])
 def test_a_users_file_of_a_name_the_command_writes_is_not_replaced(command, name, sim, tmp_path, capsys):

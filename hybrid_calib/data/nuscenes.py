@@ -204,6 +204,9 @@ class NuScenesRadarCamera:
         # log vehicle -> its samples the index left out for lacking a camera or radar keyframe: a vehicle of the
         # root with no frame at all (its car has no RADAR_FRONT) is said, not silently absent from the result
         self.lacking_keyframes: dict[str, list[SkipRecord]] = {}
+        # samples the index left out that belong to no vehicle (their scene is not in scene.json, or its log is not
+        # in log.json): a calibration lists no vehicle for them, so it says them (probe 42: a vehicle vanished, rc 0)
+        self.vehicleless: list[SkipRecord] = []
         self._warned_missing_sweeps = False
         self.radar_sweeps_missing = 0  # non-keyframe sweep files absent on disk (radar_sweeps_between)
         self.sweep_files: dict[int, tuple[int, list[str]]] = {}  # frame -> (sweeps listed, files missing) so far
@@ -246,6 +249,7 @@ class NuScenesRadarCamera:
                 None, token, str(t.path("scene")),
                 f"{n} sample(s) reference scene {token}, which is not in scene.json; they are skipped (the tables "
                 "are inconsistent: re-extract the metadata)"))
+            self.vehicleless.append(self._index_skips[-1])
         empty = [sc for sc in scenes if not t.scene_samples(sc)]
         if empty:  # a partial metadata copy, or scene.json of a larger release: said once, not silently dropped
             names = [sc["name"] for sc in empty]
@@ -261,7 +265,8 @@ class NuScenesRadarCamera:
                 self._index_skips.append(SkipRecord(
                     None, scene["token"], str(t.path("log")),
                     f"scene {scene['name']} references log {scene['log_token']}, which is not in log.json; "
-                    "its samples are skipped"))
+                    f"its {len(t.scene_samples(scene))} sample(s) are skipped (the log names the vehicle)"))
+                self.vehicleless.append(self._index_skips[-1])
                 continue
             if wanted is not None and log["vehicle"] not in wanted:
                 continue

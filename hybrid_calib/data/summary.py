@@ -335,6 +335,17 @@ def _time_and_pose_lines(g: GroupSummary) -> list[str]:
     return out
 
 
+def vehicleless_warning(ds) -> str:
+    """The samples ``ds``'s index left out that belong to no vehicle (``NuScenesRadarCamera.vehicleless``: their scene
+    or its log is missing from the tables), in one sentence for the commands that calibrate per vehicle, or ""."""
+    skips = getattr(ds, "vehicleless", None) or []
+    if not skips:
+        return ""
+    more = f" (and {len(skips) - 1} more: hybrid-calib inspect lists them)" if len(skips) > 1 else ""
+    return (f"warning: samples of no vehicle are not calibrated: {skips[0].reason}{more}; fix the tables (scene.json, "
+            "log.json) to calibrate them")
+
+
 def ego_lean_warning(ds) -> str:
     """inspect's warning on ego poses that lean the vehicle over (a quaternion written x, y, z, w), from the tables'
     ego_pose records of ``ds``'s radar keyframes (no frame read), for the commands that calibrate from them; "" when

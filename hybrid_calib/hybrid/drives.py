@@ -81,7 +81,7 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
     ``conf.split`` (``learned.dataset.split_indices`` with ``conf.split_options``) and ``conf.max_frames``.
     A vehicle none of whose frames reads is a ``DataError`` (naming the first bad file), or, when
     ``unreadable`` is a dict, recorded there (vehicle -> reason) and left out."""
-    from hybrid_calib.data.summary import ego_lean_warning, keyframe_gap_warning
+    from hybrid_calib.data.summary import ego_lean_warning, keyframe_gap_warning, vehicleless_warning
     from learned.dataset import open_frames, split_indices
 
     frames = open_frames(data, version, lidar=lidar, options=conf.data)
@@ -105,6 +105,8 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
     if gap := keyframe_gap_warning(by_scene.values()):  # inspect said it; a calibration read time from them silently
         print(f"{gap}: the radar mount monitor, its Doppler pairs and the motion constraint read time from them; fix "
               "the tables before trusting this calibration", file=sys.stderr)
+    if lost := vehicleless_warning(frames):
+        print(lost, file=sys.stderr)
     if lean := ego_lean_warning(frames):  # inspect said it; a calibration read the poses silently (probe 40)
         print(f"{lean}: the radar mount monitor, its Doppler pairs and the motion compensation read the poses; fix "
               "the tables before trusting this calibration", file=sys.stderr)
