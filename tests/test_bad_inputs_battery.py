@@ -2093,6 +2093,37 @@ def test_a_scene_whose_log_is_missing_is_said_by_calibrate_and_fleet(sim_copy, t
     assert len(jobs) == 1 and any("samples of no vehicle" in n and str(root) in n for n in notes), notes
 
 
+@pytest.mark.parametrize("case", ["pose 5 km away", "radar keyframe 1 ms back"])
+def test_ego_poses_that_jump_and_keyframes_that_go_back_are_said_by_calibrate(case, sim_copy, tmp_path, capsys):
+    """Probe 42 (and an older known item): inspect warned of ego poses 5 km apart between two keyframes and of a radar
+    keyframe 1 ms before its predecessor, calibrate read them in silence (its monitor, Doppler steps and motion
+    compensation use both). Said now by calibrate, oracle and learned alike (``data.summary.ego_track_warnings``)."""
+    from hybrid_calib.config import merge
+    from hybrid_calib.hybrid.drives import open_drives
+    from hybrid_calib.hybrid.loop import HybridConfig
+
+    root, by_vehicle = sim_copy
+    a, b = by_vehicle["sim-veh-000"][:2]
+    if case == "pose 5 km away":
+        path, poses = _table(root, "ego_pose")
+        for p in poses:
+            if p["token"] == b.radar_sd["ego_pose_token"]:
+                p["translation"] = [p["translation"][0] + 5000.0, *p["translation"][1:]]
+        path.write_text(json.dumps(poses))
+        words = "the ego poses jump"
+    else:
+        path, rows = _table(root, "sample_data")
+        for r in rows:
+            if r["token"] == b.radar_sd["token"]:
+                r["timestamp"] = a.radar_sd["timestamp"] - 1000
+        path.write_text(json.dumps(rows))
+        words = "do not advance in time"
+    rc, err = run_cli(["calibrate", "--data", root, "--out", tmp_path / "o", "--no-plots"], capsys)
+    assert rc == 0 and words in err and b.radar_sd["sample_token"] in err, err
+    open_drives(root, SIM_VERSION, merge(HybridConfig, {"method": "hybrid"}), lidar=False)
+    assert words in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("command,name", [("calibrate", "config.json"), ("fleet", "summary.json"),
                                           ("inspect", "overlay.png")])
 def test_a_users_file_of_a_name_the_command_writes_is_not_replaced(command, name, sim, tmp_path, capsys):

@@ -165,7 +165,7 @@ class DatasetSummary:
                           "the intrinsics may be for another image size (width/height in sample_data against "
                           "camera_intrinsic's principal point), or the camera-radar extrinsic is far off"))
         for g in self.groups:
-            out += _time_and_pose_lines(g)
+            out += pose_track_lines(g.scene, g.ego_track)
             if g.late:
                 worst = max(g.late, key=lambda x: abs(x[1]))
                 out.append(f"warning: scene {g.scene}: {len(g.late)} keyframe(s) whose {self.radar_channel} record is "
@@ -303,16 +303,39 @@ def format_skips(skipped: list[dict[str, Any]], listed_in: str | None = None) ->
 MAX_POSE_OFF_PATH_M = 3.0
 
 
-def _time_and_pose_lines(g: GroupSummary) -> list[str]:
-    """Warnings on a scene's keyframes in their order: radar timestamps that do not advance (the Doppler steps skip
-    such pairs, and the mount monitor's words blamed missing sweep files), and ego poses that jump: faster than
-    ``MAX_EGO_SPEED_MPS`` between two keyframes, or a keyframe farther than ``MAX_POSE_OFF_PATH_M`` off the straight
-    line of its neighbours (a pose 50 m off passed inspect and calibrate in silence: probe 9; 10 m: probe 11)."""
-    out, track = [], g.ego_track
+def ego_track_warnings(ds, most: int = 3) -> list[str]:
+    """``pose_track_lines`` of every scene of ``ds`` from its tables alone (each radar keyframe's timestamp and ego
+    pose record; no sensor file read), at most ``most`` lines and one more saying how many were left out: what inspect
+    warns of, for the commands that calibrate from those poses and times (probe 42: ego poses 5 km apart between two
+    keyframes, and a radar keyframe 1 ms before its predecessor, passed calibrate in silence)."""
+    records = ds.tables.by_token["ego_pose"] if hasattr(ds, "tables") else {}
+    tracks: dict[str, list] = {}
+    for ref in getattr(ds, "frames", []):
+        rec, ts = records.get(ref.radar_sd.get("ego_pose_token")), ref.radar_sd.get("timestamp")
+        try:
+            t = np.asarray(rec["translation"], np.float64)
+        except (TypeError, KeyError, ValueError):  # no record, or one the reader refuses (said per frame)
+            continue
+        if isinstance(ts, int) and t.shape == (3,) and np.all(np.isfinite(t)):
+            tracks.setdefault(ref.scene_name, []).append((ref.sample_token, ts, t))
+    lines = [w for scene, track in tracks.items() for w in pose_track_lines(scene, track)]
+    if len(lines) > most:
+        lines = lines[:most] + [f"warning: and {len(lines) - most} more such warning(s) (hybrid-calib inspect lists "
+                                "them)"]
+    return lines
+
+
+def pose_track_lines(scene: str, track: list[tuple[str, int, np.ndarray]]) -> list[str]:
+    """Warnings on a scene's keyframes in their order (``track``: (sample token, radar timestamp us, ego position
+    (3,) m) each): radar timestamps that do not advance (the Doppler steps skip such pairs, and the mount monitor's
+    words blamed missing sweep files), and ego poses that jump: faster than ``MAX_EGO_SPEED_MPS`` between two
+    keyframes, or a keyframe farther than ``MAX_POSE_OFF_PATH_M`` off the straight line of its neighbours (a pose
+    50 m off passed inspect and calibrate in silence: probe 9; 10 m: probe 11)."""
+    out = []
     back = [(a[0], b[0], a[1], b[1]) for a, b in zip(track, track[1:]) if b[1] <= a[1]]
     if back:
         a, b, ta, tb = back[0]
-        out.append(f"warning: scene {g.scene}: {len(back)} keyframe(s) do not advance in time (sample {b} at {tb} us, "
+        out.append(f"warning: scene {scene}: {len(back)} keyframe(s) do not advance in time (sample {b} at {tb} us, "
                    f"its predecessor {a} at {ta} us): the tables' timestamps are broken; the Doppler steps skip "
                    "those pairs; fix or re-extract sample_data.json / sample.json")
     fast = [(a[0], b[0], float(np.linalg.norm(b[2] - a[2])) / ((b[1] - a[1]) * 1e-6))
@@ -330,7 +353,7 @@ def _time_and_pose_lines(g: GroupSummary) -> list[str]:
                 f"sample {fast[0][0]} -> {fast[0][1]}, {fast[0][2]:.0f} m/s)" if fast else "",
                 f"{len(off)} keyframe(s) off the path of their neighbours by more than {MAX_POSE_OFF_PATH_M:g} m "
                 f"(worst: sample {worst[0]}, {worst[1]:.1f} m)" if off else ""]
-        out.append(f"warning: scene {g.scene}: the ego poses jump: {'; '.join(w for w in said if w)}: an ego_pose "
+        out.append(f"warning: scene {scene}: the ego poses jump: {'; '.join(w for w in said if w)}: an ego_pose "
                    "record is wrong; the Doppler steps skip pairs whose travel contradicts the radar's speed")
     return out
 

@@ -81,7 +81,12 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
     ``conf.split`` (``learned.dataset.split_indices`` with ``conf.split_options``) and ``conf.max_frames``.
     A vehicle none of whose frames reads is a ``DataError`` (naming the first bad file), or, when
     ``unreadable`` is a dict, recorded there (vehicle -> reason) and left out."""
-    from hybrid_calib.data.summary import ego_lean_warning, keyframe_gap_warning, vehicleless_warning
+    from hybrid_calib.data.summary import (
+        ego_lean_warning,
+        ego_track_warnings,
+        keyframe_gap_warning,
+        vehicleless_warning,
+    )
     from learned.dataset import open_frames, split_indices
 
     frames = open_frames(data, version, lidar=lidar, options=conf.data)
@@ -107,6 +112,8 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
               "the tables before trusting this calibration", file=sys.stderr)
     if lost := vehicleless_warning(frames):
         print(lost, file=sys.stderr)
+    for line in ego_track_warnings(frames):  # inspect said them; the monitor, the Doppler and the motion read them
+        print(line, file=sys.stderr)
     if lean := ego_lean_warning(frames):  # inspect said it; a calibration read the poses silently (probe 40)
         print(f"{lean}: the radar mount monitor, its Doppler pairs and the motion compensation read the poses; fix "
               "the tables before trusting this calibration", file=sys.stderr)
