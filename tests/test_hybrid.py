@@ -749,6 +749,33 @@ def test_the_loop_gives_the_motion_gate_the_networks_own_residual_and_restarts_i
         assert rows[2]["motion"]["admitted"] == "consensus", rows[2]
 
 
+def test_each_step_of_the_mount_monitor_raises_its_own_alarm_in_a_drift(sim_root, tmp_path):
+    """Probe 43: in a drift the monitor's next step changes from the frame of its last step's alarm, and the loop took
+    that alarm for the new step's ("the same step as the window's alarm at frame 23"): 4 steps, 2 alarms. Each step
+    applied raises its own alarm unless the window's test fired for it."""
+    from types import SimpleNamespace
+
+    from hybrid_calib.config import merge
+    from hybrid_calib.hybrid import loop
+    from hybrid_calib.hybrid.drives import start_of
+
+    conf = merge(loop.HybridConfig, {**BASE, "method": "hybrid", "vehicles": ["sim-veh-000"], "ood": {"enabled": False},
+                                     "lidar": {"enabled": False}, "doppler": {"enabled": False},
+                                     "cache_dir": str(tmp_path / "cache")})
+    session = loop._Session(sim_root, "v1.0-sim", conf)
+    drive = session.drives["sim-veh-000"]
+
+    class Monitor:  # a step found at frames 1 and 2, each changing from the frame before it
+        def update(self, k, i):
+            step = SimpleNamespace(change=k - 1, step_deg=0.3, describe=lambda threshold: f"step from {k - 1}")
+            return SimpleNamespace(step=step if k in (1, 2) else None, record=lambda: {})
+
+    traj = loop._hybrid(session.runner, drive, start_of(drive, session.conf), session.conf, loop._Trace(), None,
+                        Monitor())
+    assert [f.step_alarm for f in traj] == [False, True, True], [f.events for f in traj]
+    assert not any("the same step as" in e for f in traj for e in f.events)
+
+
 def test_with_drive_error_adds_the_drive_common_term_to_every_frame():
     from hybrid_calib.calib.covariance import report_std
     from hybrid_calib.calib.result import Estimate, FrameEstimate

@@ -294,6 +294,10 @@ def test_a_step_the_window_already_raised_is_not_raised_again_by_the_monitor():
     assert alarm_since(traj, 20) == 23  # the window fired after the knock at 20: the monitor's alarm joins it
     assert alarm_since(traj, 6) == 23 and alarm_since(traj, 24) is None
     assert alarm_since([F(index=k, step_alarm=k == 5) for k in range(24)], 20) is None  # an earlier step's alarm
+    # a drift: the monitor's next step changes from the frame of its last one's alarm (probe 43), which is not this
+    # step's alarm
+    drift = [F(index=k, step_alarm=k == 23) for k in range(36)]
+    assert alarm_since(drift, 23, claimed={23}) is None and alarm_since(drift, 23) == 23
 
 
 def test_a_simulated_vehicle_whose_true_mount_moves_stays_one_vehicle(knocked_and_not):

@@ -298,6 +298,7 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
     T, fused_cov, traj = T0.copy(), None, []
     g_frames, motion_gain, prev, reported_cov = [], [], None, None
     in_window, pending = [], None  # drive positions of the window's frames; a mount step not yet applied
+    claimed: set[int] = set()  # positions of the alarms that stand for the mount steps applied so far
     D = np.diag(np.asarray(mconf.drive_std, np.float64) ** 2)  # the network's drive-common error
     inflate = (n_priors or len(drive.indices)) * D
     s_mot = drive_std_rad(conf.motion, drive.simulated)
@@ -354,7 +355,8 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
             cal.reset(keep_last=keep, T=turned)
             in_window = in_window[len(in_window) - keep:] if keep else []
             g_frames = g_frames[len(g_frames) - keep:] if keep else []
-            seen = alarm_since(traj, pending.change)
+            seen = alarm_since(traj, pending.change, claimed)
+            claimed.add(k if seen is None else seen)  # this step's alarm: not the next step's
             fe = dataclasses.replace(fe, step_alarm=fe.step_alarm or seen is None, events=(
                 *fe.events, pending.describe(conf.mount.threshold) + f"; window restarted from frame {pending.change}"
                 + ("" if seen is None else f" (the same step as the window's alarm at frame {seen})")))
@@ -434,12 +436,16 @@ def range_note(start: str, trained: str, checkpoint: str) -> str:
             f"trained on {start} (or --refine it after one)")
 
 
-def alarm_since(traj: list, change: int) -> int | None:
+def alarm_since(traj: list, change: int, claimed=()) -> int | None:
     """The drive position of the latest step alarm in ``traj`` at or after position ``change``, or None. One knock,
     one alarm: when the window's own test already fired for the step the mount monitor has just found (at or after
     its change point), the monitor's finding is recorded on its frame with that alarm's position, not raised
-    again (on a knocked test drive the window fired at frame 23 and the monitor at 24, for one knock at 20)."""
-    return next((f.index for f in reversed(traj) if f.step_alarm and f.index >= change), None)
+    again (on a knocked test drive the window fired at frame 23 and the monitor at 24, for one knock at 20).
+    ``claimed``: positions of alarms that already stand for an earlier step of the monitor: a drift's next step
+    changes from the frame of the last alarm (probe 43: steps from 23 and 48, found at 35 and 57, read "the same step
+    as the window's alarm at frame 23/48" and raised no alarm of their own)."""
+    return next((f.index for f in reversed(traj) if f.step_alarm and f.index >= change and f.index not in claimed),
+                None)
 
 
 def mount_monitor(frames, drive: Drive, conf: HybridConfig, motion: MotionSource | None) -> MountMonitor | None:
