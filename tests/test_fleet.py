@@ -855,8 +855,10 @@ def test_an_interrupted_run_resumed_on_changed_data_keeps_none_of_its_vehicles(f
     image = next((root / "samples" / "CAM_FRONT").iterdir())
     (root / "samples" / "CAM_FRONT" / ("x" + image.name)).write_bytes(image.read_bytes())  # other frames downloaded
     with pytest.raises(HybridCalibError, match=r"finished by an interrupted run of another configuration \(the data "
-                                               r"in --data"):
+                                               r"in --data.*the data changed since, so that run cannot be finished: "
+                                               r"pass --overwrite") as e:
         pipeline.calibrate(root, "v1.0-sim", "oracle", tmp_path / "c", conf)
+    assert "rerun that run's command" not in str(e.value)  # the command just run (probe 42)
 
 
 def test_a_renamed_vehicle_whose_folder_cannot_move_is_said_and_calibrated_again(tmp_path):

@@ -608,11 +608,14 @@ class VehicleProgress:
             finished = [f for f in kept if _holds_result(f)]  # a failure alone is no work to keep: the corrected
             if changed and finished:  # command (another --depth, --start) runs, as the failure's message advised
                 more = f"; {len(changed) - 4} more" if len(changed) > 4 else ""
+                # the same command on changed data cannot finish that run (probe 42: "rerun that run's command" was
+                # the command just run)
+                how = ("the data changed since, so that run cannot be finished: pass --overwrite to discard them and "
+                       "calibrate the data as it is now" if all(c.startswith("the data in --data") for c in changed)
+                       else "rerun that run's command to finish it, pass --overwrite to discard them")
                 raise HybridCalibError(
                     f"{self.dir} holds {len(finished)} vehicle(s) finished by an interrupted run of another "
-                    "configuration "
-                    f"({'; '.join(changed[:4])}{more}); rerun that run's command to finish it, pass --overwrite to "
-                    "discard them, or pass another --out")
+                    f"configuration ({'; '.join(changed[:4])}{more}); {how}, or pass another --out")
             if changed:
                 shutil.rmtree(self.dir, ignore_errors=True)
             for f in kept if not changed else ():
