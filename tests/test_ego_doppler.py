@@ -89,6 +89,10 @@ def test_a_missing_or_corrupt_sweep_file_is_counted_or_said_not_a_crash(roots, t
     words = tested_words({"pairs_tested": 3, "frames_tested": 3, **record})
     assert "1 of the " in words and "radar sweep files between keyframes are missing" in words
     assert "keyframes only" not in words
+    # a file there that does not read is named with why (probe 42: all zero-byte left only a count of skipped pairs)
+    assert record["sweeps_unreadable"]["n"] == 1 and names[1] in record["sweeps_unreadable"]["first"]
+    assert f"1 of the {record['sweeps_unreadable']['of']} radar sweep files between keyframes do not read (first: " \
+           f"sweep unreadable: " in words and "replace the files" in words
     # a directory in a sweep file's place is said as such (it was counted as a missing file)
     (root / names[2]).unlink()
     (root / names[2]).mkdir()

@@ -490,6 +490,9 @@ def tested_words(summary: dict) -> str:
     elif isinstance(gone := summary.get("sweeps_missing"), dict):
         words += (f"; {gone.get('n')} of the {gone.get('of')} radar sweep files between keyframes are missing "
                   f"(first: {gone.get('first')}): their pairs are skipped")
+    if isinstance(bad := summary.get("sweeps_unreadable"), dict):
+        words += (f"; {bad.get('n')} of the {bad.get('of')} radar sweep files between keyframes do not read (first: "
+                  f"{bad.get('first')}): their pairs are skipped; replace the files")
     return words
 
 

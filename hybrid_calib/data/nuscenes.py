@@ -209,7 +209,8 @@ class NuScenesRadarCamera:
         self.vehicleless: list[SkipRecord] = []
         self._warned_missing_sweeps = False
         self.radar_sweeps_missing = 0  # non-keyframe sweep files absent on disk (radar_sweeps_between)
-        self.sweep_files: dict[int, tuple[int, list[str]]] = {}  # frame -> (sweeps listed, files missing) so far
+        # frame -> (sweeps listed, files missing, why the unreadable ones did not read) so far
+        self.sweep_files: dict[int, tuple[int, list[str], list[str]]] = {}
         self.calibration_splits: dict[str, list[str]] = {}  # vehicle -> its calibrations' names, when more than 1
         self.calibration_offsets: dict[str, tuple[float, float]] = {}  # NAME-calN -> (deg, cm) from NAME's
         self.duplicates: dict[str, str] = {}  # sample read once: a sensor file of it is the named earlier sample's
@@ -573,7 +574,8 @@ class NuScenesRadarCamera:
         self.radar_sweeps_missing += len(missing)
         # listed: the records with a file name (a broken prev pointer ends the walk with an entry of no time)
         listed = len(missing) + sum(s.timestamp_us is not None for s in out)
-        self.sweep_files[i % n] = (listed, [str(p) for p in missing])
+        # the third part: why each listed sweep that is on disk did not read (a truncated or zero-byte file)
+        self.sweep_files[i % n] = (listed, [str(p) for p in missing], [s.why for s in out if s.why])
         return out
 
     def _lidar(self, ref: FrameRef, T_cam_global: np.ndarray, extras: dict) -> tuple[np.ndarray, np.ndarray]:

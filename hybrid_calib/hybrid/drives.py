@@ -196,14 +196,18 @@ def start_of(drive: Drive, conf: HybridConfig) -> np.ndarray:
 def sweep_files_record(frames, indices) -> dict:
     """The mount block's words on the radar's sweep files between keyframes over dataset ``indices`` (those the
     monitor read): ``sweeps_absent`` when the tables list sweeps and none is on disk (a keyframe-only copy), else
-    ``sweeps_missing`` {"n", "of", "first"} when some are missing."""
+    ``sweeps_missing`` {"n", "of", "first"} when some are missing, and ``sweeps_unreadable`` {"n", "of", "first": why}
+    when some are on disk and do not read (probe 42: all of a drive's sweep files zero-byte left the monitor on its
+    keyframes with a count of skipped pairs and no file named)."""
     seen = [getattr(frames, "sweep_files", {}).get(i) for i in indices]
     listed = sum(s[0] for s in seen if s)
     missing = [p for s in seen if s for p in s[1]]
+    unread = [w for s in seen if s and len(s) > 2 for w in s[2]]
     if listed and len(missing) == listed:
         return {"sweeps_absent": True}
     return {"sweeps_absent": False, **({"sweeps_missing": {"n": len(missing), "of": listed, "first": missing[0]}}
-                                       if missing else {})}
+                                       if missing else {}),
+            **({"sweeps_unreadable": {"n": len(unread), "of": listed, "first": unread[0]}} if unread else {})}
 
 
 STANDSTILL_M = 1.0  # a drive whose ego poses travel less than this, metres: its frames are one view

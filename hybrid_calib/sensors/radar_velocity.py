@@ -21,6 +21,10 @@ import numpy as np
 
 from hybrid_calib.metrics import mad_scale
 
+# no road vehicle is faster (252 km/h): a Doppler speed beyond it is velocity fields in other units or corrupt, and
+# ego poses that move faster between two keyframes jumped (``data.tables.MAX_EGO_SPEED_MPS``)
+MAX_ROAD_SPEED_MPS = 70.0
+
 
 @dataclass(frozen=True)
 class RadarVelocityConfig:
@@ -120,6 +124,9 @@ def estimate_velocity(points: np.ndarray, fields: dict, conf: RadarVelocityConfi
             break
         best = new
     v, *_ = np.linalg.lstsq(A[best], vr[best], rcond=None)
+    if not np.linalg.norm(v) <= MAX_ROAD_SPEED_MPS:  # probe 42: 1e20 m/s was blamed on the ego poses
+        return None, (f"a stationary-world Doppler speed of {np.linalg.norm(v):.3g} m/s, faster than any road vehicle "
+                      f"({MAX_ROAD_SPEED_MPS:g} m/s): the radar's velocity fields (vx, vy) are corrupt or not in m/s")
     if np.degrees(np.std(az[best])) < conf.min_azimuth_spread_deg:
         return None, f"the stationary detections span {np.degrees(np.std(az[best])):.1f} deg of azimuth " \
                      f"(need {conf.min_azimuth_spread_deg:g}): the lateral velocity is not observed"
