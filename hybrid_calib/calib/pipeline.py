@@ -36,7 +36,7 @@ from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import merge, save_json_atomic, to_dict
 from hybrid_calib.data.files import data_stamp
-from hybrid_calib.data.summary import ego_track_warnings, vehicleless_warning
+from hybrid_calib.data.summary import table_warnings
 from hybrid_calib.errors import DataError, HybridCalibError, OptionError
 from hybrid_calib.perturbation import RANGES, vehicle_rng, vehicle_start
 
@@ -90,9 +90,7 @@ def _load_oracle(data, version: str, conf: CalibrateConfig, progress: bool = Tru
         raise OptionError("--method", f"oracle (the default method) reads the simulator's true reflectors, and "
                                       f"{data} has none (no sim_truth/ folder: a real root); calibrate it with "
                                       "--method hybrid (or pure, pure-avg)")
-    if lost := vehicleless_warning(ds):  # a vehicle of them would be missing from the result without a word
-        print(lost, file=sys.stderr)
-    for line in ego_track_warnings(ds):  # inspect said them; the oracle's motion compensation reads the poses
+    for line in table_warnings(ds):  # a vehicle missing from the result, poses the motion compensation reads
         print(line, file=sys.stderr)
     out: dict[str, VehicleInput] = {}
     for vehicle, idx in sorted(ds.frames_by_vehicle().items()):

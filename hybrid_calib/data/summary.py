@@ -369,6 +369,14 @@ def vehicleless_warning(ds) -> str:
             "log.json) to calibrate them")
 
 
+def table_warnings(ds) -> list[str]:
+    """What a calibration says of ``ds``'s tables before it reads a frame (oracle and learned alike; inspect says the
+    same in its summary): samples of no vehicle (``vehicleless_warning``) and ego poses or radar times that jump or go
+    back (``ego_track_warnings``)."""
+    lost = vehicleless_warning(ds)
+    return ([lost] if lost else []) + ego_track_warnings(ds)
+
+
 def ego_lean_warning(ds) -> str:
     """inspect's warning on ego poses that lean the vehicle over (a quaternion written x, y, z, w), from the tables'
     ego_pose records of ``ds``'s radar keyframes (no frame read), for the commands that calibrate from them; "" when

@@ -81,12 +81,7 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
     ``conf.split`` (``learned.dataset.split_indices`` with ``conf.split_options``) and ``conf.max_frames``.
     A vehicle none of whose frames reads is a ``DataError`` (naming the first bad file), or, when
     ``unreadable`` is a dict, recorded there (vehicle -> reason) and left out."""
-    from hybrid_calib.data.summary import (
-        ego_lean_warning,
-        ego_track_warnings,
-        keyframe_gap_warning,
-        vehicleless_warning,
-    )
+    from hybrid_calib.data.summary import ego_lean_warning, keyframe_gap_warning, table_warnings
     from learned.dataset import open_frames, split_indices
 
     frames = open_frames(data, version, lidar=lidar, options=conf.data)
@@ -110,9 +105,7 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
     if gap := keyframe_gap_warning(by_scene.values()):  # inspect said it; a calibration read time from them silently
         print(f"{gap}: the radar mount monitor, its Doppler pairs and the motion constraint read time from them; fix "
               "the tables before trusting this calibration", file=sys.stderr)
-    if lost := vehicleless_warning(frames):
-        print(lost, file=sys.stderr)
-    for line in ego_track_warnings(frames):  # inspect said them; the monitor, the Doppler and the motion read them
+    for line in table_warnings(frames):  # inspect said them; the monitor, the Doppler and the motion read the poses
         print(line, file=sys.stderr)
     if lean := ego_lean_warning(frames):  # inspect said it; a calibration read the poses silently (probe 40)
         print(f"{lean}: the radar mount monitor, its Doppler pairs and the motion compensation read the poses; fix "
@@ -202,7 +195,7 @@ def sweep_files_record(frames, indices) -> dict:
     seen = [getattr(frames, "sweep_files", {}).get(i) for i in indices]
     listed = sum(s[0] for s in seen if s)
     missing = [p for s in seen if s for p in s[1]]
-    unread = [w for s in seen if s and len(s) > 2 for w in s[2]]
+    unread = [w for s in seen if s for w in s[2]]
     if listed and len(missing) == listed:
         return {"sweeps_absent": True}
     return {"sweeps_absent": False, **({"sweeps_missing": {"n": len(missing), "of": listed, "first": missing[0]}}
