@@ -90,9 +90,15 @@ def merge(cls: type[C], overrides: Mapping[str, Any] | C | None = None, _path: s
     hints = typing.get_type_hints(cls)
     unknown = sorted(set(overrides) - set(fields))
     if unknown:
+        # a group's prefix where the options are the group's own (probe 42: inspect --set data.radar_filter...,
+        # calibrate's spelling, where inspect's options are DataConfig's)
+        extra = unknown[0] if len(unknown) == 1 else ""
+        drop = (f"; drop the '{extra}.' prefix: the options here are {cls.__name__}'s own"
+                if extra and isinstance(overrides[extra], Mapping) and overrides[extra]
+                and set(overrides[extra]) <= set(fields) else "")
         raise ConfigError(
             f"unknown option(s) {unknown} for {cls.__name__}{' at ' + _path.rstrip('.') if _path else ''}; "
-            f"valid options: {sorted(fields)}"
+            f"valid options: {sorted(fields)}{drop}"
         )
     kwargs = {}
     for key, value in overrides.items():

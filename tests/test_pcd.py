@@ -69,6 +69,10 @@ def test_a_lidar_file_of_four_values_per_point_is_named(tmp_path):
     p.write_bytes(rng(3).normal(0, 10, size=(1000, 4)).astype("<f4").tobytes())  # 16000 bytes: 800 "points"
     with pytest.raises(DataError, match="no ring index.*4 values per point"):
         read_lidar_bin(p)
+    # a file of NaN (probe 42: diagnosed as KITTI's layout) is said as such
+    p.write_bytes(np.full((200, 5), np.nan, "<f4").tobytes())
+    with pytest.raises(DataError, match="all 200 LiDAR points have NaN/inf coordinates; the file is corrupt"):
+        read_lidar_bin(p)
 
 
 @needs_scene

@@ -158,6 +158,9 @@ def read_lidar_bin(path: str | Path, n_fields: int = 5) -> np.ndarray:
         raise DataError(f"LiDAR file size {len(data)} bytes is not a multiple of {point_bytes} ({n_fields} float32 "
                         "values per point); the file is truncated or corrupt, re-download it", path=str(path))
     points = np.frombuffer(data, dtype="<f4").reshape(-1, n_fields).copy()
+    if len(points) and not np.isfinite(points[:, :3]).any():  # said as such, not as another layout (probe 42)
+        raise DataError(f"all {len(points)} LiDAR points have NaN/inf coordinates; the file is corrupt, re-download it",
+                        path=str(path))
     if n_fields == 5 and len(points):
         ring = points[:, 4]
         with np.errstate(invalid="ignore"):
