@@ -19,6 +19,7 @@ not run again, so several ``--against`` share the shipped arm); each run prints 
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import sys
 from pathlib import Path
@@ -27,7 +28,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from hybrid_calib.config import parse_overrides, save_json_atomic  # noqa: E402
+from hybrid_calib.config import deep_update, parse_overrides, save_json_atomic  # noqa: E402
 
 CHI2_6_95 = 12.592
 SHIPPED = "shipped"
@@ -42,13 +43,6 @@ def _arm(res) -> dict:
             "consensus": sum(r.get("motion", {}).get("admitted") == "consensus" for r in rows),
             "refused": sum("agreeing residuals beyond the gate" in r.get("motion_skipped", "") for r in rows),
             "motion_frames": sum("motion" in r for r in rows), "status": res.final.status}
-
-
-def _deep(base: dict, over: dict) -> dict:
-    out = dict(base)
-    for k, v in over.items():
-        out[k] = _deep(out.get(k, {}), v) if isinstance(v, dict) and isinstance(out.get(k), dict | None) else v
-    return out
 
 
 def _stats(rows: list[dict], arm: str) -> dict:
@@ -105,7 +99,8 @@ def main(argv=None) -> int:
                     if gate_only and row[SHIPPED]["refused"] == 0:
                         row[arm] = row[SHIPPED]  # no consensus refused: every gate decision is the shipped one
                     else:
-                        row[arm] = _arm(run_vehicle(root, "v1.0-sim", veh, _deep(conf, parse_overrides(a.against))))
+                        against = deep_update(copy.deepcopy(conf), parse_overrides(a.against))
+                        row[arm] = _arm(run_vehicle(root, "v1.0-sim", veh, against))
                     with log.open("a") as f:
                         f.write(json.dumps(row) + "\n")
                     s, o = row[SHIPPED], row[arm]

@@ -59,7 +59,6 @@ from hybrid_calib.data.image_header import decode_image, image_header
 from hybrid_calib.data.pcd import read_lidar_bin
 from hybrid_calib.data.sweeps import InterSweep, accumulate_radar, sweeps_between_keyframes
 from hybrid_calib.data.tables import (
-    MAX_EGO_SPEED_MPS,
     MAX_EGO_TURN_DPS,
     MAX_MOUNT_TRANSLATION_M,
     POSE_PAIR_MARGIN_DEG,
@@ -73,6 +72,7 @@ from hybrid_calib.data.tables import (
 from hybrid_calib.errors import DataError
 from hybrid_calib.geometry import is_rigid, pose_from_nuscenes, se3_inverse, so3_log
 from hybrid_calib.sensors.camera import PinholeCamera
+from hybrid_calib.sensors.radar_velocity import MAX_ROAD_SPEED_MPS
 
 
 @dataclass(frozen=True)
@@ -805,7 +805,7 @@ def _image_size_field(cam: dict, table: Path) -> tuple[int, int]:
 def _check_pose_pair(cam: dict, T_cam: np.ndarray, sd: dict, T_sd: np.ndarray, what: str, table: Path) -> None:
     """``DataError`` naming both sample_data records when their ego poses (``T_cam``, ``T_sd`` (4, 4) ego -> global
     at the camera's and the other record's time) lie farther apart than a road vehicle moves between the two
-    timestamps: ``MAX_EGO_SPEED_MPS`` times the gap plus ``POSE_PAIR_MARGIN_M``, or turned by more than
+    timestamps: ``MAX_ROAD_SPEED_MPS`` times the gap plus ``POSE_PAIR_MARGIN_M``, or turned by more than
     ``MAX_EGO_TURN_DPS`` times the gap plus ``POSE_PAIR_MARGIN_DEG``. Inspect's jump test walks the radar's keyframe
     poses only: a camera pose 50 m off moved the frame's radar points into the image by its error, silently (probe
     29)."""
@@ -813,11 +813,11 @@ def _check_pose_pair(cam: dict, T_cam: np.ndarray, sd: dict, T_sd: np.ndarray, w
     rel = se3_inverse(T_cam) @ T_sd
     metres = float(np.linalg.norm(rel[:3, 3]))
     deg = float(np.degrees(np.linalg.norm(so3_log(rel[:3, :3]))))
-    if metres <= MAX_EGO_SPEED_MPS * dt + POSE_PAIR_MARGIN_M and deg <= MAX_EGO_TURN_DPS * dt + POSE_PAIR_MARGIN_DEG:
+    if metres <= MAX_ROAD_SPEED_MPS * dt + POSE_PAIR_MARGIN_M and deg <= MAX_EGO_TURN_DPS * dt + POSE_PAIR_MARGIN_DEG:
         return
     raise DataError(f"the ego poses of the camera's record (sample_data {cam['token']}) and the {what}'s are "
                     f"{metres:.2f} m and {deg:.1f} deg apart, {dt * 1e3:.0f} ms apart in time: no road vehicle moves "
-                    f"so far ({MAX_EGO_SPEED_MPS:g} m/s, {MAX_EGO_TURN_DPS:g} deg/s); one of the two ego_pose records "
+                    f"so far ({MAX_ROAD_SPEED_MPS:g} m/s, {MAX_EGO_TURN_DPS:g} deg/s); one of the two ego_pose records "
                     "is wrong: fix it or re-extract the tables (the frame is skipped)", path=str(table),
                     token=sd["token"])
 

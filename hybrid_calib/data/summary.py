@@ -27,8 +27,8 @@ import numpy as np
 
 from hybrid_calib.data.nuscenes import NuScenesRadarCamera
 from hybrid_calib.data.sweeps import sweep_files_between
-from hybrid_calib.data.tables import MAX_EGO_SPEED_MPS
 from hybrid_calib.geometry import transform_points
+from hybrid_calib.sensors.radar_velocity import MAX_ROAD_SPEED_MPS
 
 MIN_IN_IMAGE = 0.02  # fewer radar points in the image than this fraction: the tables' calibration cannot be right
 # a keyframe's radar record this far in time from its camera's (nuScenes: under 0.1 s; the loader refuses beyond its
@@ -299,7 +299,7 @@ def format_skips(skipped: list[dict[str, Any]], listed_in: str | None = None) ->
 
 # a keyframe's ego position this far from the straight line of its two neighbours' (at its time): a car braking at
 # 10 m/s2 or turning at 20 deg/s strays ~1 m at most over the second between them; a 10 m pose error in a
-# parking lot (~20 m/s apparent, under MAX_EGO_SPEED_MPS) passed inspect in silence (probe 11)
+# parking lot (~20 m/s apparent, under MAX_ROAD_SPEED_MPS) passed inspect in silence (probe 11)
 MAX_POSE_OFF_PATH_M = 3.0
 
 
@@ -328,7 +328,7 @@ def ego_track_warnings(ds, most: int = 3) -> list[str]:
 def pose_track_lines(scene: str, track: list[tuple[str, int, np.ndarray]]) -> list[str]:
     """Warnings on a scene's keyframes in their order (``track``: (sample token, radar timestamp us, ego position
     (3,) m) each): radar timestamps that do not advance (the Doppler steps skip such pairs, and the mount monitor's
-    words blamed missing sweep files), and ego poses that jump: faster than ``MAX_EGO_SPEED_MPS`` between two
+    words blamed missing sweep files), and ego poses that jump: faster than ``MAX_ROAD_SPEED_MPS`` between two
     keyframes, or a keyframe farther than ``MAX_POSE_OFF_PATH_M`` off the straight line of its neighbours (a pose
     50 m off passed inspect and calibrate in silence: probe 9; 10 m: probe 11)."""
     out = []
@@ -340,7 +340,7 @@ def pose_track_lines(scene: str, track: list[tuple[str, int, np.ndarray]]) -> li
                    "those pairs; fix or re-extract sample_data.json / sample.json")
     fast = [(a[0], b[0], float(np.linalg.norm(b[2] - a[2])) / ((b[1] - a[1]) * 1e-6))
             for a, b in zip(track, track[1:]) if b[1] > a[1]]
-    fast = [f for f in fast if f[2] > MAX_EGO_SPEED_MPS]
+    fast = [f for f in fast if f[2] > MAX_ROAD_SPEED_MPS]
     off = []  # (sample, metres off the line of its neighbours)
     for a, b, c in zip(track, track[1:], track[2:]):
         if a[1] < b[1] < c[1]:
@@ -349,7 +349,7 @@ def pose_track_lines(scene: str, track: list[tuple[str, int, np.ndarray]]) -> li
                 off.append((b[0], d))
     if fast or off:
         worst = max(off, key=lambda o: o[1]) if off else None
-        said = [f"{len(fast)} keyframe pair(s) faster than any road vehicle ({MAX_EGO_SPEED_MPS:.0f} m/s; first: "
+        said = [f"{len(fast)} keyframe pair(s) faster than any road vehicle ({MAX_ROAD_SPEED_MPS:.0f} m/s; first: "
                 f"sample {fast[0][0]} -> {fast[0][1]}, {fast[0][2]:.0f} m/s)" if fast else "",
                 f"{len(off)} keyframe(s) off the path of their neighbours by more than {MAX_POSE_OFF_PATH_M:g} m "
                 f"(worst: sample {worst[0]}, {worst[1]:.1f} m)" if off else ""]

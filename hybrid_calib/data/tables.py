@@ -32,7 +32,6 @@ import numpy as np
 
 from hybrid_calib.errors import DataError
 from hybrid_calib.geometry import pose_from_nuscenes
-from hybrid_calib.sensors.radar_velocity import MAX_ROAD_SPEED_MPS
 
 # The tables the data layer needs, with the fields it reads from each record.
 REQUIRED_TABLES: dict[str, tuple[str, ...]] = {
@@ -415,7 +414,6 @@ MAX_EGO_POSE_OFFSET_US = 25_000
 # map coordinates (ego_pose) reach a few km; beyond these the record is corrupt (1e30 m overflowed the solvers)
 MAX_MOUNT_TRANSLATION_M = 50.0
 MAX_EGO_TRANSLATION_M = 1e7
-MAX_EGO_SPEED_MPS = MAX_ROAD_SPEED_MPS  # faster between two keyframes: no road vehicle, an ego pose that jumped
 MAX_EGO_TURN_DPS = 120.0  # a road vehicle's yaw rate stays well below this (a tight turn at walking pace: ~60 deg/s)
 # one frame's records (camera, radar, LiDAR) are tens of ms apart: their ego poses may differ by the vehicle's motion
 # in that time plus this much of localisation noise (nuScenes: centimetres, a tenth of a degree)

@@ -22,7 +22,7 @@ import numpy as np
 from hybrid_calib.metrics import mad_scale
 
 # no road vehicle is faster (252 km/h): a Doppler speed beyond it is velocity fields in other units or corrupt, and
-# ego poses that move faster between two keyframes jumped (``data.tables.MAX_EGO_SPEED_MPS``)
+# ego poses that move faster between two keyframes jumped (inspect and calibrate: ``data.summary``, ``data.nuscenes``)
 MAX_ROAD_SPEED_MPS = 70.0
 
 
