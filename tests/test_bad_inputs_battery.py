@@ -957,7 +957,9 @@ def test_compare_leaves_out_a_bad_vehicle_records_a_bad_frame_and_finishes(sim_c
         trial = json.loads((out / "trials" / "oracle" / f"{k:04d}.json").read_text())
         assert trial["vehicle"] == good_vehicle
         assert [s["index"] for s in trial["frames_skipped"]] == [2]  # its position in the drive (as the trajectory)
-        assert [s["token"] for s in trial["frames_skipped"]] == [good_frames[2].radar_sd["sample_token"]]
+        # the frame's own token, its camera sample_data's (as the hybrid's and frame_id); the reason names the file
+        assert [s["token"] for s in trial["frames_skipped"]] == [good_frames[2].camera_sd["token"]]
+        assert good_frames[2].radar_sd["filename"] in trial["frames_skipped"][0]["reason"]
     from hybrid_calib.cli import main  # a smaller rerun: its tables hold 1 trial, and it says what else is on disk
 
     assert main([str(a) for a in ["compare", "--data", root, "--out", out, "--methods", "oracle", "--trials", "1",

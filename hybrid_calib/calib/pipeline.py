@@ -109,7 +109,9 @@ def _load_oracle(data, version: str, conf: CalibrateConfig, progress: bool = Tru
                 f = ds[i]
                 c, t = oracle_from_frame(f, conf.oracle, rng)
             except DataError as e:  # one bad frame is recorded (by its position in the drive), the drive goes on
-                vi.skipped.append({"index": k, "token": e.token or ds.frames[i].sample_token, "reason": str(e)})
+                # the frame's own token (its camera sample_data's, as the hybrid's and every frame_id); the reason
+                # names the file that failed and its token
+                vi.skipped.append({"index": k, "token": ds.frames[i].camera_sd["token"], "reason": str(e)})
                 continue
             vi.positions.append(k)
             vi.frames.append(c)
