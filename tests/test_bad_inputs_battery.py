@@ -1150,7 +1150,8 @@ def test_compare_reruns_a_damaged_trial_and_names_a_damaged_config(sim, tmp_path
     assert rc == 0, err
     trial = out / "trials" / "oracle" / "0000.json"
     good = json.loads(trial.read_text())
-    for damaged in (trial.read_text()[:40], "[]"):  # each was an internal error (also '{"schema": "other"}')
+    no_error = json.dumps({key: value for key, value in good.items() if key != "error"})  # probe 45
+    for damaged in (trial.read_text()[:40], "[]", no_error):  # each was an internal error (also '{"schema": "other"}')
         trial.write_text(damaged)
         rc, err = run_cli(argv, capsys)
         assert rc == 0 and f"trial file {trial} is unreadable" in err and "running that trial again" in err, err
