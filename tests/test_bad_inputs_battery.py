@@ -753,7 +753,12 @@ DAMAGED_RESULTS = {  # case -> (damage(doc, vehicle), needles beyond the file); 
                     ["trajectory[0].T_cam_radar holds non-finite values"]),
     # a probe: an internal error ("rotation block is not a proper rotation") in the report's residuals
     "final-T-not-a-rotation": (_set_at("T_cam_radar", 0, 0, 5.0), ["final.T_cam_radar is not a rigid transform"]),
-    "final-cov-asymmetric": (_set_at("cov_right_radar", 0, 1, 1.0), ["final.cov_right_radar is not a covariance"]),
+    "final-cov-asymmetric": (_set_at("cov_right_radar", 0, 1, 1.0),
+                             ["final.cov_right_radar is not a covariance: it is not symmetric"]),
+    # probe 45: symmetric, positive variances, read "not symmetric, or a negative variance"
+    "final-cov-not-psd": (lambda doc, v: (_set_at("cov_right_radar", 0, 1, 10.0)(doc, v),
+                                          _set_at("cov_right_radar", 1, 0, 10.0)(doc, v)),
+                          ["final.cov_right_radar is not a covariance: it is not positive semi-definite"]),
     "final-cov-negative": (_set_at("cov_right_radar", 3, 3, -1.0), ["final.cov_right_radar is not a covariance"]),
     # the hybrid's blocks (a probe: KeyError 'step_deg', "Unknown format code 'f'", "'list' object has no 'get'")
     "mount-step-garbage": (lambda doc, v: doc["vehicles"][v].__setitem__("mount", {"steps": [{"frame": "x"}]}),

@@ -128,8 +128,12 @@ def _covariance(x, name: str) -> np.ndarray:
         raise ValueError(f"{name} holds an entry of {scale:.3g}, beyond any covariance of an extrinsic (rad^2, m^2)")
     if not np.all(np.diag(C) > 0):  # an exact estimate: no result of a solve claims one (probe 27: all zeros)
         raise ValueError(f"{name} is not a covariance of an estimate (a variance is zero or negative)")
-    if not np.allclose(C, C.T, atol=1e-6 * scale, rtol=0) or np.linalg.eigvalsh(0.5 * (C + C.T)).min() < -1e-6 * scale:
-        raise ValueError(f"{name} is not a covariance (not symmetric, or a negative variance)")
+    if not np.allclose(C, C.T, atol=1e-6 * scale, rtol=0):
+        raise ValueError(f"{name} is not a covariance: it is not symmetric")
+    if (low := float(np.linalg.eigvalsh(0.5 * (C + C.T)).min())) < -1e-6 * scale:
+        # probe 45: positive variances whose covariances exceed them read "not symmetric, or a negative variance"
+        raise ValueError(f"{name} is not a covariance: it is not positive semi-definite (an eigenvalue of "
+                         f"{low:.3g}: its covariances are larger than its variances allow)")
     return C
 
 
