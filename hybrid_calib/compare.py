@@ -318,8 +318,15 @@ def _differences(previous: dict, record: dict) -> list[str]:
         elif changed := stamps_changed(was, now):
             words.append(changed)
     if "network" in previous and "network" in record and previous["network"] != record["network"]:
-        words.append("another network checkpoint (the checkpoint's files differ: another file, or retrained or "
-                     "edited at the same path)")
+        was_h, now_h = previous.get("hybrid") or {}, record.get("hybrid") or {}
+        if not (was_h.get("checkpoint") or now_h.get("checkpoint")) and previous.get("range") != record.get("range"):
+            # no --checkpoint either time: the range chose the shipped checkpoint (probe 45: this read "another
+            # network checkpoint ... retrained or edited" to a user who passed none)
+            words.append(f"another --range ({previous.get('range')} -> {record.get('range')}), and with it the shipped "
+                         "network checkpoint of that range")
+        else:
+            words.append("another network checkpoint (the checkpoint's files differ: another file, or retrained or "
+                         "edited at the same path)")
     options = changed_options(previous, record, skip=("data", "network") + _NOT_OF_A_TRIAL, whole=_WHOLE)
     return words + ([f"another configuration ({'; '.join(options)})"] if options else [])
 

@@ -550,6 +550,12 @@ def test_a_checkpoint_changed_in_place_is_another_network(sim_root, tmp_path):
         "another network checkpoint (the checkpoint's files differ: another file, or retrained or edited at the same "
         "path)"]
     assert _differences(a, dict(a)) == []
+    # no --checkpoint either time: another --range chose another shipped checkpoint (probe 45: it read as if the
+    # user's checkpoint had been retrained or edited)
+    other_range = _differences(a, {**a, "range": "R2", "network": {"checkpoint": "bb"}})
+    assert other_range[0] == "another --range (R1 -> R2), and with it the shipped network checkpoint of that range"
+    assert _differences({**a, "hybrid": {"checkpoint": "x.json"}}, {**a, "range": "R2", "hybrid": {
+        "checkpoint": "x.json"}, "network": {"checkpoint": "bb"}})[0].startswith("another network checkpoint")
 
 
 def test_compare_takes_each_root_once_and_tells_roots_of_one_folder_name_apart(sim_root, tmp_path, capsys):
