@@ -138,7 +138,7 @@ def export_pure(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig, out
     from tqdm import tqdm
 
     from factors.io import save_measurements
-    from learned.export import ExportConfig
+    from learned.export import ExportConfig, not_finite_reason
     from learned.train import model_inputs, to_device
 
     if exporter is None:
@@ -183,9 +183,7 @@ def export_pure(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig, out
             for b, token in enumerate(batch["token"]):
                 if not (np.all(np.isfinite(T_iters[b])) and np.all(np.isfinite(unc_np[b]))):
                     # never written as a prediction (a rerun read its own NaN file as "corrupt": probe 33)
-                    dataset.bad.setdefault(int(batch["index"][b]), (
-                        f"the network's output on frame {token} is not finite (NaN/inf): its inputs hold NaN/inf (the "
-                        "depth map, the image or the radar returns) or the checkpoint's weights are broken"))
+                    dataset.bad.setdefault(int(batch["index"][b]), not_finite_reason(token, inputs, b))
                     continue
                 m, extra = _measurements(corr[b], batch, b, T_iters[b], unc_np[b], export_conf.iteration)
                 written.append(save_measurements(_frame_file(out, token), m, extra))

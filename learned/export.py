@@ -75,6 +75,20 @@ class ExportConfig:
                               "sigma_scale": "(0, 1000]", "cov_scale": "(0, 1e6]", "cov_floor": "(0, 10]"})
 
 
+def not_finite_reason(token: str, inputs: Mapping, b: int = 0, checkpoint: str = "") -> str:
+    """Why the network's output on frame ``token`` (item ``b`` of the batch ``inputs``: its model inputs,
+    tensors) is not finite: the inputs, when they hold NaN/inf, else the checkpoint's weights (a probe: weights
+    scaled by 1e30, finite, blamed the frame's depth map, image or radar returns)."""
+    bad = [k for k, v in inputs.items() if isinstance(v, torch.Tensor) and v.is_floating_point() and v.dim() > 0
+           and b < len(v) and not bool(torch.isfinite(v[b]).all())]
+    if bad:
+        return (f"the network's output on frame {token} is not finite (NaN/inf): its inputs hold NaN/inf "
+                f"({', '.join(bad)}: the depth map, the image or the radar returns)")
+    return (f"the network's output on frame {token} is not finite (NaN/inf) although its inputs are finite: the "
+            f"checkpoint's weights{f' ({checkpoint})' if checkpoint else ''} overflow on it; restore or retrain the "
+            "checkpoint")
+
+
 def scale_problem(cov_scale, sigma_scale) -> str:
     """What is wrong with an export block's ``cov_scale`` (a number in (0, 1e6], or 6 of them) and
     ``sigma_scale`` (a number in (0, 1000]); "" when both can work (the intervals of ``ExportConfig``: a checkpoint's

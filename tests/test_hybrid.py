@@ -910,12 +910,29 @@ def test_a_network_whose_output_is_not_finite_skips_its_frames_and_says_why(sim_
     frames = NuScenesRadarCamera(sim_root, "v1.0-sim", conf={"check_images": False})
     runner = build_runner(ckpt, None, frames, depth="corrupted-truth")
     assert runner.run(0, frames[0].T_cam_radar) is None and "is not finite (NaN/inf)" in runner.bad_reason(0)
+    # its inputs are finite: the weights are named, not the frame's depth map, image or radar (probe 45)
+    assert "although its inputs are finite" in runner.bad_reason(0) and str(ckpt) in runner.bad_reason(0)
     argv = ["evaluate", "--data", str(sim_root), "--split", "all", "--range", "R1", "--checkpoint", str(ckpt),
             "--max-frames", "2", "--out", str(tmp_path / "ev"), "--no-progress"]
     for _ in range(2):  # and the same words on a rerun
         assert main(argv) == 2
         assert "every frame to export failed" in (err := capsys.readouterr().err) and "is not finite" in err
+        skipped = json.loads((tmp_path / "ev" / "skipped.json").read_text())
+        assert "although its inputs are finite" in json.dumps(skipped), skipped
         assert not list((tmp_path / "ev" / "frames").glob("*.npz")) if (tmp_path / "ev" / "frames").exists() else True
+
+
+def test_a_non_finite_output_blames_the_inputs_only_when_they_are_not_finite():
+    import torch
+
+    from learned.export import not_finite_reason
+
+    depth = torch.zeros(2, 1, 4, 4)
+    depth[1, 0, 2, 2] = float("nan")
+    inputs = {"depth": depth, "image": torch.zeros(2, 3, 4, 4), "n": torch.tensor([3, 4])}
+    assert "inputs hold NaN/inf (depth:" in not_finite_reason("tok", inputs, 1)
+    assert "although its inputs are finite" in not_finite_reason("tok", inputs, 0, "ck.json")
+    assert "(ck.json)" in not_finite_reason("tok", inputs, 0, "ck.json")
 
 
 def test_compare_on_a_broken_checkpoint_names_it_and_runs_once_it_is_repaired(sim_root, tmp_path, capsys):

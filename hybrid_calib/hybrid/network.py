@@ -240,9 +240,12 @@ class NetworkRunner:
         if s is None:
             return None
         out = self.forward(s, T_in)
-        if not out.finite:  # a frame, not the run: skipped with why
-            self._not_finite[index] = (f"the network's output on frame {token} is not finite (NaN/inf): its inputs "
-                                       "hold NaN/inf (the depth map, the image or the radar returns)")
+        if not out.finite:  # a frame, not the run: skipped with why (its inputs, or the checkpoint's weights)
+            from learned.dataset import collate
+            from learned.export import not_finite_reason
+            from learned.train import model_inputs
+
+            self._not_finite[index] = not_finite_reason(token, model_inputs(collate([s])), 0, str(self.checkpoint))
             return None
         if self.cache is not None:
             self.cache.put(token, out)
