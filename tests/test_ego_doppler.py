@@ -4,6 +4,8 @@ steadier with them."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -93,6 +95,20 @@ def test_a_missing_or_corrupt_sweep_file_is_counted_or_said_not_a_crash(roots, t
     assert record["sweeps_unreadable"]["n"] == 1 and names[1] in record["sweeps_unreadable"]["first"]
     assert f"1 of the {record['sweeps_unreadable']['of']} radar sweep files between keyframes do not read (first: " \
            f"sweep unreadable: " in words and "replace the files" in words
+    # a prev pointer to a record not older than its own ends the walk, and is counted among the records listed
+    # (probe 45: every radar timestamp equal read "5 of the 0 radar sweep files ... do not read")
+    path = root / "v1.0-sim" / "sample_data.json"
+    rows = json.loads(path.read_text())
+    kf = frames.frames[idx[4]].radar_sd
+    for r in rows:
+        if r["token"] == kf["prev"]:
+            r["timestamp"] = kf["timestamp"]
+    path.write_text(json.dumps(rows))
+    frames = open_frames(root, "v1.0-sim", lidar=False)
+    got = frames.radar_sweeps_between(idx[4])
+    assert len(got) == 1 and "not older than it" in got[0].why
+    record = sweep_files_record(frames, [idx[4]])
+    assert record["sweeps_unreadable"] == {"n": 1, "of": 1, "first": got[0].why}
     # a directory in a sweep file's place is said as such (it was counted as a missing file)
     (root / names[2]).unlink()
     (root / names[2]).mkdir()

@@ -572,8 +572,9 @@ class NuScenesRadarCamera:
             raise IndexError(f"frame index {i} out of range for {n} frames")
         out, missing = sweeps_between_keyframes(self.tables, self.frames[i % n].radar_sd, self.conf.radar_filter)
         self.radar_sweeps_missing += len(missing)
-        # listed: the records with a file name (a broken prev pointer ends the walk with an entry of no time)
-        listed = len(missing) + sum(s.timestamp_us is not None for s in out)
+        # listed: every record the walk reached, a broken prev pointer's entry (no time; it ends the walk) too: one
+        # that was not counted read "5 of the 0 radar sweep files ... do not read" (probe 45: equal timestamps)
+        listed = len(missing) + len(out)
         # the third part: why each listed sweep that is on disk did not read (a truncated or zero-byte file)
         self.sweep_files[i % n] = (listed, [str(p) for p in missing], [s.why for s in out if s.why])
         return out
