@@ -346,6 +346,9 @@ def _directory_fingerprint(path: Path) -> str:
 # Cache
 
 
+MAX_DEPTH_M = 1000.0  # no estimator's depth goes beyond (their max_depth_m are bounded by it)
+
+
 class DepthCache:
     """Per-frame on-disk depth cache.
 
@@ -375,12 +378,14 @@ class DepthCache:
         if path.is_file():
             try:
                 depth = np.load(path, allow_pickle=False)
-                if depth.shape == tuple(size_hw) and depth.dtype == np.float32 and np.isfinite(depth).any():
+                finite = depth[np.isfinite(depth)] if depth.shape == tuple(size_hw) else np.empty(0)
+                if depth.dtype == np.float32 and finite.size and finite.min() >= 0 and finite.max() <= MAX_DEPTH_M:
                     self.hits += 1
                     return depth
             except NPZ_ERRORS:
                 pass  # a corrupt entry (truncated, a pickle, not an array) is recomputed below
-            # (so is one of another shape or type, or without one finite depth: no estimator gives that)
+            # (so is one of another shape or type, without one finite depth, or beyond every estimator's range: an
+            # entry scaled by 1000 was read as it was, probe 45: the hybrid 3.1 deg off instead of 0.3)
         self.misses += 1
         depth = np.asarray(estimator.estimate(frame, size_hw, image), dtype=np.float32)
         path.parent.mkdir(parents=True, exist_ok=True)

@@ -122,6 +122,9 @@ def test_cache_hit_is_identical_and_changed_config_misses(tmp_path):
     np.testing.assert_array_equal(cache.get(est, frame, (30, 60)), first)
     np.save(path, np.full((30, 60), np.nan, np.float32))  # no estimator gives a map without one finite depth
     np.testing.assert_array_equal(cache.get(est, frame, (30, 60)), first)
+    for scaled in (first * 1000, -first):  # nor one beyond every estimator's range (probe 45: x1000 was read)
+        np.save(path, scaled.astype(np.float32))
+        np.testing.assert_array_equal(cache.get(est, frame, (30, 60)), first)
     # another frame of the same token (a copy of the root, edited: probe 23 read one root's depth for the other's)
     other = dataclasses.replace(frame, depth_path=make_frame(tmp_path / "b", ramp_depth() * 2).depth_path)
     assert other.camera_token == frame.camera_token
