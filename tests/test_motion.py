@@ -145,6 +145,35 @@ def test_visual_odometry_and_doppler_on_a_simulated_drive_agree_with_the_truth(d
     assert pairs >= 2 and good >= pairs - 1
 
 
+def test_frames_of_two_scenes_are_no_motion_pair(drive):
+    """Probe 45: a scene cut in two (one log each, the second log's ego poses moved 1000 m, a map frame of its own)
+    changed the hybrid's yaw by 0.2 deg in silence: the motion constraint and the mount monitor paired the last frame
+    of one scene with the first of the next."""
+    import dataclasses
+
+    from hybrid_calib.calib.ego_doppler import drive_sweeps, ego_measurement
+    from hybrid_calib.hybrid.motion import MotionSource
+
+    frames = [drive[k] for k in range(3)]
+    T = np.asarray(frames[0].extras["T_cam_radar_static"])
+    assert frames[0].extras["scene_token"] == frames[1].extras["scene_token"]
+    moved = np.eye(4)
+    moved[0, 3] = 1000.0
+    other = dataclasses.replace(frames[1], extras={
+        **frames[1].extras, "scene_token": "another-scene",
+        **{k: moved @ frames[1].extras[k] for k in ("T_global_ego_radar", "T_global_ego_cam")}})
+    same, _ = MotionSource(frames, MotionConfig()).measurement(0, 1, T[:3, :3])
+    m, why = MotionSource([frames[0], other], MotionConfig()).measurement(0, 1, T[:3, :3])
+    assert same is not None and m is None and "two scenes" in why and "another-scene" in why, why
+    sweeps, _ = drive_sweeps(drive, [0, 1], between=False)
+    a, b = sweeps
+    R = np.asarray(frames[0].extras["T_ego_radar"])[:3, :3]
+    assert ego_measurement(a, a.velocity, b, b.velocity, R, 0.5, 1.5, 30.0)[0] is not None
+    b2 = dataclasses.replace(b, extras={**b.extras, "scene_token": "another-scene"})
+    m, why = ego_measurement(a, a.velocity, b2, b2.velocity, R, 0.5, 1.5, 30.0)
+    assert m is None and "two scenes" in why
+
+
 def test_direction_of_travel_from_matches_when_the_rotation_is_known():
     from hybrid_calib.sensors.visual_odometry import travel_given_rotation
 

@@ -60,6 +60,8 @@ def ego_measurement(fa, va, fb, vb, R_ego_radar: np.ndarray, min_speed_mps: floa
     (carries the radar's velocity at b into frame a)."""
     if fa.timestamp_radar_us is None or fb.timestamp_radar_us is None:
         return None, "a sweep without a timestamp (its frame is unreadable)"
+    if why := scene_break(fa, fb):
+        return None, why
     dt = (fb.timestamp_radar_us - fa.timestamp_radar_us) * 1e-6
     if not 0 < dt <= max_gap_s:
         return None, f"radar sweeps {dt:.2f} s apart (a pair needs 0 < dt <= {max_gap_s:g} s)"
@@ -87,6 +89,17 @@ def ego_measurement(fa, va, fb, vb, R_ego_radar: np.ndarray, min_speed_mps: floa
     psi, sig, speed = chord_heading(va.v, va.cov, vb.v, vb.cov, radar_yaw_change(R_A, R_ego_radar))
     return MotionMeasurement(D / s, R_A, s, psi, sig, speed, fa.radar_token, fb.radar_token, 0,
                              min(va.n_inliers, vb.n_inliers)), ""
+
+
+def scene_break(fa, fb) -> str:
+    """Why frames or sweeps ``fa`` and ``fb`` are no pair ("" when they may be): they belong to two scenes
+    (``extras["scene_token"]``). A log's scenes are recorded apart, and two logs' ego poses are in two map frames: a
+    pair across them measured a motion no vehicle made (probe 45: a scene cut in two, its second log's poses moved
+    1000 m, changed the hybrid's yaw by 0.2 deg in silence)."""
+    a, b = fa.extras.get("scene_token"), fb.extras.get("scene_token")
+    if a and b and a != b:
+        return f"the frames are of two scenes ({a}, {b}): a motion is measured within one scene"
+    return ""
 
 
 # the ego poses' speed between two instants and the radar's Doppler speed disagree beyond max(1 m/s, 25 %): on the
@@ -159,22 +172,25 @@ def frame_sweeps(frames, index: int, position: int, velocity: Callable[[int], tu
 def _read_frame_sweeps(frames, index: int, position: int, velocity, between: bool
                        ) -> tuple[list[EgoSweep], np.ndarray | None]:
     out = []
+    ref = getattr(frames, "frames", None)
+    ref = ref[index] if isinstance(ref, list) and index < len(ref) else None
+    scene = {"scene_token": ref.scene_token} if getattr(ref, "scene_token", "") else {}  # its sweeps' (scene_break)
     if between and hasattr(frames, "radar_sweeps_between"):
         for s in frames.radar_sweeps_between(index):
             v, why = (None, s.why) if s.why else estimate_velocity(s.points, s.fields)
-            out.append(EgoSweep(s.timestamp_us, {"T_global_ego_radar": s.T_global_ego}, s.token, v, why, position,
-                                keyframe=False))
+            out.append(EgoSweep(s.timestamp_us, {"T_global_ego_radar": s.T_global_ego, **scene}, s.token, v, why,
+                                position, keyframe=False))
     try:
         f = frames[index]
         v, why = velocity(index) if velocity is not None else estimate_velocity(
             f.radar_points, f.radar_fields, sweep_index=f.extras.get("radar_sweep_index"))
     except DataError as e:
-        ref = getattr(frames, "frames", None)
-        ts = ref[index].radar_sd.get("timestamp") if isinstance(ref, list) and index < len(ref) else None
+        ts = ref.radar_sd.get("timestamp") if ref is not None else None
         out.append(EgoSweep(None if ts is None else int(ts), {}, "", None, f"frame unreadable: {e}", position))
         return out, None
     pose = f.extras.get("T_global_ego_radar")
-    out.append(EgoSweep(int(f.timestamp_radar_us), {"T_global_ego_radar": pose}, f.radar_token,
+    scene = {"scene_token": f.extras["scene_token"]} if f.extras.get("scene_token") else scene
+    out.append(EgoSweep(int(f.timestamp_radar_us), {"T_global_ego_radar": pose, **scene}, f.radar_token,
                         v if pose is not None else None, why if pose is not None else "no ego pose", position))
     T_ego_cam = f.extras.get("T_ego_cam")
     return out, None if T_ego_cam is None else np.asarray(T_ego_cam, np.float64)

@@ -39,7 +39,7 @@ import numpy as np
 from factors.motion import MotionMeasurement, chord_heading, chord_length, heading_residual, radar_yaw_change
 from factors.robust import weight
 from hybrid_calib.atomic import write_bytes_atomic
-from hybrid_calib.calib.ego_doppler import pose_doppler_conflict
+from hybrid_calib.calib.ego_doppler import pose_doppler_conflict, scene_break
 from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.data.files import NPZ_ERRORS, file_part
 from hybrid_calib.errors import DataError
@@ -206,6 +206,8 @@ class MotionSource:
             fa, fb = self._frame(ia), self._frame(ib)
         except DataError as e:
             return None, f"frame unreadable: {e}"
+        if why := scene_break(fa, fb):
+            return None, why
         dt = (fb.timestamp_radar_us - fa.timestamp_radar_us) * 1e-6
         if not 0 < dt <= self.conf.max_gap_s:
             return None, f"frames {dt:.2f} s apart (a pair needs 0 < dt <= {self.conf.max_gap_s:g} s)"
