@@ -463,6 +463,9 @@ def test_a_keyframe_with_another_sensors_calibration_is_named_not_read_as_that_s
     assert len(ds) == 2  # the other samples still read
     (why,) = [s.reason for s in ds.skipped if "two RADAR_FRONT keyframes" in s.reason]
     assert tiny.lidar_sd[0]["token"] in why and tiny.radar_sd[0]["token"] in why and "LIDAR_TOP" in why
+    # and the sample's record in the vehicle's frames_skipped says so (probe 45: it read "has no keyframe for")
+    (lacking,) = [s.reason for skips in ds.lacking_keyframes.values() for s in skips]
+    assert "two RADAR_FRONT keyframes" in lacking and "has no keyframe" not in lacking, lacking
 
 
 @pytest.mark.parametrize("ext", [".jpg", ".png"])

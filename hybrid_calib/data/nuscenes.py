@@ -280,9 +280,14 @@ class NuScenesRadarCamera:
                     hint = (f" (its keyframe sample_data {', '.join(own)} names no sensor: its calibrated_sensor does "
                             "not resolve)" if own else f" ({len(lost)} keyframe sample_data record(s) name a sample "
                             f"not in sample.json, e.g. {lost[0]}: one may be its keyframe)" if lost else "")
+                    two = [t.ambiguous_keyframes[(sample["token"], ch)] for ch in lacking
+                           if (sample["token"], ch) in t.ambiguous_keyframes]
+                    # probe 45: two camera keyframes read "has no keyframe for ['CAM_FRONT']"
                     skip = SkipRecord(None, sample["token"], str(t.path("sample_data")),
+                                      f"{'; '.join(two)}; not a frame" if two else
                                       f"sample {sample['token']} has no keyframe for {lacking}{hint}; not a frame")
-                    self._index_skips.append(skip)
+                    if not two:  # (two keyframes are among the index's problems already: said once)
+                        self._index_skips.append(skip)
                     self.lacking_keyframes.setdefault(log["vehicle"], []).append(skip)
                     continue
                 frames.append(FrameRef(sample["token"], scene["name"], scene["token"], log["token"],

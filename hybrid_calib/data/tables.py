@@ -197,6 +197,7 @@ class NuScenesTables:
                     f"log {lg['token']} names no vehicle (its 'vehicle' is blank): its frames are read as vehicle "
                     f"{lg['vehicle']}; fill in log.json's vehicle to name it")))
         ambiguous: dict[tuple[str, str], dict] = {}  # (sample, channel) with two keyframes -> the first one
+        self.ambiguous_keyframes: dict[tuple[str, str], str] = {}  # the same -> why neither is used
         # keyframes no channel or no sample could be found for: sample token (or "" when it does not resolve) -> their
         # sample_data tokens (the sample "has no keyframe" said nothing of them: probe 40)
         self.unplaced_keyframes: dict[str, list[str]] = {}
@@ -221,9 +222,10 @@ class NuScenesTables:
                        if any(swept) else
                        f"the calibrated_sensor_token of the one whose file is not a {key[1]} file is wrong (it names "
                        f"the {key[1]} sensor); neither is used, fix the record")
-                self.index_problems.append((sd["token"], (
-                    f"sample {key[0]} has two {key[1]} keyframes, sample_data {first['token']} "
-                    f"({first.get('filename')}) and {sd['token']} ({sd.get('filename')}): {why}")))
+                self.ambiguous_keyframes[key] = (f"sample {key[0]} has two {key[1]} keyframes, sample_data "
+                                                 f"{first['token']} ({first.get('filename')}) and {sd['token']} "
+                                                 f"({sd.get('filename')}): {why}")
+                self.index_problems.append((sd["token"], self.ambiguous_keyframes[key]))
                 continue
             self.keyframes[key] = sd
         if lost := self.unplaced_keyframes.get(""):
