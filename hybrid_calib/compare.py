@@ -123,10 +123,14 @@ class CompareResult:
     config: dict  # compare_config.json: the data, network and options the trials ran with
     methods: dict[str, MethodSummary]  # the methods with at least one finished trial
     run: TrialsRun
+    # what the trials say of the run as a whole, once (a start range wider than the checkpoint's: its rows are of a
+    # network outside what it learned; probe 45 found it said only in a failed trial's reason)
+    notes: tuple[str, ...] = ()
 
     def to_dict(self) -> dict:
         return {"range": self.range, "trials": self.trials, "roots": list(self.roots), "command": self.command,
-                "config": self.config, "methods": {m: s.to_dict() for m, s in self.methods.items()},
+                "config": self.config, "notes": list(self.notes),
+                "methods": {m: s.to_dict() for m, s in self.methods.items()},
                 "vehicles_left_out": self.run.vehicles_left_out, "trials_failed": list(self.run.trials_failed),
                 "trials_kept": self.run.trials_kept, "trials_run": self.run.trials_run}
 
@@ -239,6 +243,7 @@ def summarize_method(results: list[VehicleResult], labels: dict[str, str] | None
 
 def _markdown(summary: CompareResult, conf: CompareConfig, command: str) -> str:
     lines = [f"# compare: range {conf.range}, {conf.trials} trials", "", f"Command: `{command}`", "",
+             *[f"**Note:** {n}\n" for n in summary.notes],
              "Errors against the truth (simulated) or the tables (real roots); rotation in degrees, translation "
              "in cm. Time per frame (ms/frame): CPU wall time, the network pass included for every learned "
              "method (hybrid: network + window; pure, pure-avg: the network pass; oracle: the window).", ""]
@@ -405,8 +410,9 @@ def compare(roots: list, version: str, out: str | Path, conf: CompareConfig | di
         first = problems.trials_failed[0]["reason"] if problems.trials_failed else "-"
         raise DataError(f"no trial finished ({len(problems.trials_failed)} failed; first: {first})",
                         path=str(roots[0]))
+    notes = tuple(dict.fromkeys(n for rs in results.values() for r in rs if (n := (r.config or {}).get("range_note"))))
     summary = CompareResult(conf.range, conf.trials, tuple(str(r) for r in roots), command, record,
-                            {m: summarize_method(rs, labels) for m, rs in results.items() if rs}, problems)
+                            {m: summarize_method(rs, labels) for m, rs in results.items() if rs}, problems, notes)
     save_json_atomic(out / "compare.json", summary.to_dict())
     save_text_atomic(out / "compare.md", _markdown(summary, conf, command))
     plot_error_vs_frames(results, out / "error_vs_frames.png")

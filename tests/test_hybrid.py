@@ -935,6 +935,20 @@ def test_a_non_finite_output_blames_the_inputs_only_when_they_are_not_finite():
     assert "(ck.json)" in not_finite_reason("tok", inputs, 0, "ck.json")
 
 
+def test_compare_says_once_when_its_range_is_wider_than_the_checkpoints(sim_root, tmp_path, capsys):
+    """Probe 45: --range R2 with the R1 checkpoint wrote a pure row of NEES 64 and said nothing (calibrate notes it)."""
+    from hybrid_calib.cli import main
+    from hybrid_calib.hybrid.network import shipped_checkpoint
+
+    argv = ["compare", "--data", str(sim_root), "--range", "R2", "--checkpoint", str(shipped_checkpoint("R1")),
+            "--trials", "1", "--methods", "pure", "--max-frames", "1", "--out", str(tmp_path / "c"), "--no-progress"]
+    assert main(argv) == 0
+    said = capsys.readouterr().out
+    assert said.count("note: the start range R2") == 1 and "wider than the R1 range" in said, said
+    (note,) = json.loads((tmp_path / "c" / "compare.json").read_text())["notes"]
+    assert "wider than the R1 range" in note and note in (tmp_path / "c" / "compare.md").read_text()
+
+
 def test_compare_on_a_broken_checkpoint_names_it_and_runs_once_it_is_repaired(sim_root, tmp_path, capsys):
     """It said "no vehicle in [root]: weights file ..." and kept compare_config.json, so the same command after the
     user copied the checkpoint again was refused as "holds trials of another network checkpoint" (none had run)."""

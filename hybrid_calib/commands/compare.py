@@ -67,6 +67,8 @@ def run(args: argparse.Namespace) -> int:
     command = "hybrid-calib " + " ".join(sys.argv[1:])
     s = compare(args.data, args.version, args.out, conf, command=command, progress=not args.no_progress,
                 overwrite=args.overwrite)
+    for note in s.notes:
+        print(f"note: {note}")
     for m, r in s.methods.items():
         e, d, c = r.mean, r.median, r.consistency
         print(f"{m:>9}: rot mean {e['rot_mean_deg']:.3f} deg (median {d['rot_mean_deg']:.3f}), trans mean "
