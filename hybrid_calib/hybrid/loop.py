@@ -487,6 +487,11 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
         ood.update(rerun_in_domain=ood["in_domain"], note=(
             f"too few frames in domain ({ood['in_domain']} of {total}, the scores above; none was dropped): the "
             "estimate uses every frame that read and is not trusted"))
+    elif ood["inconclusive"] and traj and conf.ood.inconclusive_frames == "in-domain" and \
+            ood["in_domain"] >= conf.ood.min_in_domain_frames:  # enough to estimate from: the pass that dropped
+        ood.update(note=(  # the others is kept (hybrid.ood, rule 2)
+            f"too few frames in domain ({ood['in_domain']} of {total}, the scores above): the estimate uses those "
+            f"{ood['in_domain']} (the others dropped, in frames_skipped) and is not trusted"))
     elif ood["inconclusive"]:  # too few frames in domain: every frame, nothing dropped, and say so (hybrid.ood)
         tr = _Trace(drop=False)
         traj, mon = _run_learned(runner, drive, T0, conf, tr, motion, frames)
