@@ -656,6 +656,9 @@ def test_a_damaged_fleet_prior_is_named_on_load(damage, needle, tmp_path):
     path.write_text(json.dumps({"priors": {"v": prior}}))
     with pytest.raises(DataError, match=f"fleet prior unreadable .*{needle}"):
         load_priors(path)
+    path.write_text(json.dumps({"schema": "hybrid-calib/fleet-prior/v9", "priors": {}}))  # probe 45: accepted
+    with pytest.raises(DataError, match="schema is 'hybrid-calib/fleet-prior/v9', not 'hybrid-calib/fleet-prior/v1'"):
+        load_priors(path)
     path.write_text(json.dumps({"priors": [1, 2]}))
     with pytest.raises(DataError, match="not an object of job id"):
         load_priors(path)

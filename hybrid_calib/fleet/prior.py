@@ -221,7 +221,7 @@ class FleetPrior:
         from hybrid_calib.metrics import std_dict
 
         return {
-            "schema": "hybrid-calib/fleet-prior/v1",
+            "schema": PRIOR_SCHEMA,
             "model": "x_i = local(T_ref, T_i) ~ N(mu, S + C_i), S diagonal; EM; leave-one-out outlier test, d2 "
                      "referred to the sum of six squared Student-t(m - 1), m the other vehicles (chi2(6) from m = 101)",
             "no_prior": sorted(n for n in self.inliers if len(self.inliers) - 1 < MIN_PRIOR_VEHICLES),
@@ -308,6 +308,9 @@ def _check_prior(k: str, p: dict) -> None:
                          f"{', '.join(f'{std[i]:.2g}' for i in low)} [rad | m], floor 0.01 deg / 1 mm)")
 
 
+PRIOR_SCHEMA = "hybrid-calib/fleet-prior/v1"  # fleet_prior.json's "schema" (a file without one is read as it)
+
+
 def load_priors(path: str | Path) -> dict[str, dict]:
     """``fleet_prior.json`` (``FleetPrior.save``) -> its "priors" (job id -> {"T_cam_radar",
     "cov_right_radar", "file", and "source" where the file records it}, or None for a named outlier; "*" for a new
@@ -322,6 +325,9 @@ def load_priors(path: str | Path) -> dict[str, dict]:
         doc = json.loads(path.read_text(encoding="utf-8"))
         if not isinstance(doc, dict) or "priors" not in doc:
             raise KeyError("no 'priors': not a fleet_prior.json")
+        if doc.get("schema", PRIOR_SCHEMA) != PRIOR_SCHEMA:  # probe 45: another schema's file was read as this one
+            raise ValueError(f"its schema is {str(doc.get('schema'))[:60]!r}, not {PRIOR_SCHEMA!r} (a file of another "
+                             "version of hybrid-calib, or edited): rerun that fleet with this version")
         priors = doc["priors"]
         sources = doc.get("sources") or {}
         if not isinstance(priors, dict):
