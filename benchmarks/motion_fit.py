@@ -7,8 +7,11 @@ the fitted ``MotionConfig.sigma_vo_deg`` / ``drive_std_deg`` (fit on validation 
 Per consecutive frame pair of every vehicle (``hybrid.motion.MotionSource``): the heading residual
 of ``factors.motion`` at the true ``T_cam_radar_static``, the Doppler part of its std, the VO
 inliers and the radar speed. The fit: ``sigma_vo_deg`` such that the median of the whitened
-residual ``|r| / sqrt(sigma_doppler^2 + sigma_vo^2)`` is the Gaussian's 0.674 (the tails are left
-to the Huber weight); ``drive_std_deg``: the spread of the per-drive mean residuals beyond what
+residual ``|r| / sqrt(sigma_doppler^2 + sigma_vo^2)`` of the pairs with at least ``vo_inliers_full`` VO
+inliers is the Gaussian's 0.674 (the tails are left to the Huber weight), ``vo_inliers_power`` the same
+for the pairs with fewer (their VO std ``sigma_vo * (full / n) ** power``), ``vo_inliers_full`` the
+candidate of ``FULL_GRID`` whose fit whitens each quartile of the inlier counts closest to 0.674;
+``drive_std_deg``: the spread of the per-drive mean residuals beyond what
 their within-drive scatter explains: the second moment of the drive means about zero (a bias
 shared by all drives counts: its sign on a new drive is unknown) less their mean variance, >= 0.
 Prints a table and writes
@@ -51,18 +54,65 @@ def residuals(root: str, version: str, conf: MotionConfig, cache: str) -> list[d
     return rows
 
 
-def fit(rows: list[dict]) -> dict:
+FULL_GRID = (12, 15, 20, 25, 30, 40)  # candidate vo_inliers_full
+
+
+def _median_fit(f, hi: float) -> float:
+    """The root of the decreasing ``f`` on [0, hi] (0 when f(0) <= 0 already: no growth needed)."""
     from scipy.optimize import brentq
 
+    return 0.0 if f(0.0) <= 0 else (hi if f(hi) > 0 else float(brentq(f, 0.0, hi)))
+
+
+def fit_vo_sigma(r: np.ndarray, sd: np.ndarray, n: np.ndarray, full: int) -> tuple[float, float]:
+    """``(sigma_vo_deg, vo_inliers_power)`` for one ``vo_inliers_full``: the base std such that the whitened
+    residuals of the pairs with at least ``full`` inliers have the Gaussian's median 0.674, then the power such
+    that those of the pairs with fewer do too. r, sd: (P,) deg; n: (P,) VO inliers."""
+    rich = n >= full
+    if rich.sum() < 5:
+        return float("nan"), float("nan")
+    base = _median_fit(lambda s: float(np.median(np.abs(r[rich]) / np.hypot(sd[rich], s))) - 0.6745, 50.0)
+    poor = ~rich
+    if poor.sum() < 5:
+        return base, 0.0
+    grow = full / n[poor]
+    power = _median_fit(lambda q: float(np.median(np.abs(r[poor]) / np.hypot(sd[poor], base * grow ** q)))
+                        - 0.6745, 10.0)
+    return base, power
+
+
+def inlier_bins(r: np.ndarray, sig: np.ndarray, n: np.ndarray) -> list[dict]:
+    """The whitened residuals ``r / sig`` by VO inlier count (quartile bins): their median (0.674 when
+    the std is right) and the fraction inside 1.96."""
+    edges = np.unique(np.quantile(n, [0, 0.25, 0.5, 0.75, 1.0]).round())
+    out = []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        sel = (n >= lo) & ((n < hi) if hi < edges[-1] else (n <= hi))
+        if sel.any():
+            z = np.abs(r[sel]) / sig[sel]
+            out.append({"inliers": [int(lo), int(hi)], "pairs": int(sel.sum()), "median_whitened": float(np.median(z)),
+                        "inside_95": float(np.mean(z < 1.96)), "robust_std_deg": float(1.4826 * np.median(
+                            np.abs(r[sel] - np.median(r[sel]))))})
+    return out
+
+
+def fit(rows: list[dict]) -> dict:
     ok = [r for r in rows if "residual_deg" in r]
     r = np.array([x["residual_deg"] for x in ok])
     sd = np.array([x["sigma_doppler_deg"] for x in ok])
-
-    def med(s):
-        return float(np.median(np.abs(r) / np.hypot(sd, s))) - 0.6745
-
-    sigma_vo = 0.0 if med(0.0) <= 0 else brentq(med, 0.0, 50.0)
-    w = 1 / (sd ** 2 + sigma_vo ** 2)
+    n = np.array([x["vo_inliers"] for x in ok], np.float64)
+    # vo_inliers_full: the candidate whose fitted std whitens every inlier bin closest to the Gaussian's median
+    best = None
+    for full in FULL_GRID:
+        base, power = fit_vo_sigma(r, sd, n, full)
+        if not np.isfinite(base):
+            continue
+        sig = np.hypot(sd, base * np.where(n < full, full / n, 1.0) ** power)
+        score = float(sum(np.log(b["median_whitened"] / 0.6745) ** 2 for b in inlier_bins(r, sig, n)))
+        if best is None or score < best[0]:
+            best = (score, full, base, power, sig)
+    _, full, sigma_vo, power, sig = best
+    w = 1 / sig ** 2
     drives = sorted({(x["root"], x["vehicle"]) for x in ok})
     means, vars_ = [], []
     for d in drives:
@@ -82,8 +132,10 @@ def fit(rows: list[dict]) -> dict:
     return {"pairs": len(rows), "used": len(ok), "skipped": len(rows) - len(ok),
             "median_abs_residual_deg": float(np.median(np.abs(r))), "mean_residual_deg": float(np.mean(r)),
             "mad_residual_deg": float(1.4826 * np.median(np.abs(r - np.median(r)))),
-            "inside_95_whitened": float(np.mean(np.abs(r) / np.hypot(sd, sigma_vo) < 1.96)),
-            "sigma_vo_deg": float(sigma_vo), "drive_means_deg": means, "drive_std_deg": drive_std,
+            "inside_95_whitened": float(np.mean(np.abs(r) / sig < 1.96)),
+            "sigma_vo_deg": float(sigma_vo), "vo_inliers_full": int(full), "vo_inliers_power": float(power),
+            "inlier_bins": inlier_bins(r, sig, n), "inlier_bins_one_std": inlier_bins(r, np.hypot(sd, sigma_vo), n),
+            "drive_means_deg": means, "drive_std_deg": drive_std,
             "median_drive_mean_deg": float(np.median(means)) if means else float("nan")}
 
 
@@ -111,7 +163,12 @@ def main(argv=None) -> int:
     print(f"pairs {f['pairs']}, used {f['used']}, skipped {f['skipped']} {reasons}")
     print(f"residual at the truth: median |r| {f['median_abs_residual_deg']:.3f} deg, "
           f"mean {f['mean_residual_deg']:+.3f}, MAD {f['mad_residual_deg']:.3f}")
-    print(f"fit: sigma_vo_deg {f['sigma_vo_deg']:.3f}, drive_std_deg {f['drive_std_deg']:.3f} "
+    for name, key in (("fitted std", "inlier_bins"), ("sigma_vo_deg alone", "inlier_bins_one_std")):
+        print(f"by VO inliers, {name}: " + "; ".join(
+            f"{b['inliers'][0]}-{b['inliers'][1]}: {b['pairs']} pairs, robust std {b['robust_std_deg']:.2f} deg, "
+            f"median |r|/std {b['median_whitened']:.2f}, inside 1.96 {b['inside_95']:.0%}" for b in f[key]))
+    print(f"fit: sigma_vo_deg {f['sigma_vo_deg']:.3f}, vo_inliers_full {f['vo_inliers_full']}, "
+          f"vo_inliers_power {f['vo_inliers_power']:.2f}, drive_std_deg {f['drive_std_deg']:.3f} "
           f"(per-drive means {np.round(f['drive_means_deg'], 3).tolist()}); whitened inside 1.96: "
           f"{f['inside_95_whitened']:.1%}")
     save_json_atomic(out / "motion_fit.json", {"command": " ".join(sys.argv), "fit": f, "reasons": reasons,

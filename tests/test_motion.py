@@ -278,6 +278,42 @@ def test_a_consensus_against_a_confirmed_estimate_needs_the_network_to_have_move
         MotionConfig(confirm=-1)
 
 
+def test_a_pair_of_few_image_matches_gets_a_wider_vo_std_and_confirms_nothing():
+    """Visual odometry on 10-16 matches is more than 4 deg off in about half the pairs (robust std 3.6-9.8 deg
+    against 0.9 deg with 25 or more, docs/benchmarks.md); with one std for every pair such a pair pulled like a good
+    one. Its std grows as ``(vo_inliers_full / n) ** vo_inliers_power``, its pull shrinks by the square, and it
+    does not count toward confirming the estimate (``MotionGate``)."""
+    from dataclasses import replace
+
+    from hybrid_calib.hybrid.motion import MotionGate, vo_sigma_rad
+
+    conf = MotionConfig()
+    base = np.radians(conf.sigma_vo_deg)
+    assert vo_sigma_rad(conf, conf.vo_inliers_full) == pytest.approx(base)
+    assert vo_sigma_rad(conf, 400) == pytest.approx(base) and vo_sigma_rad(conf, 0) == pytest.approx(base)
+    n = conf.vo_inliers_full // 4
+    quarter = vo_sigma_rad(conf, n)
+    assert quarter == pytest.approx(base * (conf.vo_inliers_full / n) ** conf.vo_inliers_power)
+    assert quarter > 2.5 * base and vo_sigma_rad(replace(conf, vo_inliers_power=0.0), 10) == pytest.approx(base)
+    X = nominal_T_cam_radar()
+    T = X @ make_T(so3_exp([0.0, 0.0, np.radians(2.0)]), np.zeros(3))
+    C = np.diag([np.radians(0.5) ** 2] * 3 + [0.1 ** 2] * 3)
+    rich, poor = (replace(_measurement(X, 0.2), n_vo_inliers=n) for n in (60, conf.vo_inliers_full // 4))
+    i_rich, i_poor = innovation(T, rich, conf, C), innovation(T, poor, conf, C)
+    assert i_rich.r == pytest.approx(i_poor.r) and i_poor.sigma > 2.5 * i_rich.sigma
+    assert i_rich.supported and not i_poor.supported
+    prior = GaussianPrior(T, C)
+    pull = [np.linalg.norm(local(T, fold(prior, T, i, conf, gated=False).prior.T)[:3]) for i in (i_rich, i_poor)]
+    assert pull[1] < pull[0] / 3, pull
+    g = MotionGate(conf)
+    for _ in range(5):
+        assert g.admit(replace(i_poor, r=0.0))
+    assert g.agreed == 0  # five poor pairs at zero residual: still unconfirmed
+    assert all(g.admit(replace(i_rich, r=0.0)) for _ in range(3)) and g.agreed == 3
+    with pytest.raises(ValueError, match="vo_inliers_power"):
+        MotionConfig(vo_inliers_power=-1.0)
+
+
 def test_the_motion_moves_the_rotation_only_unless_told():
     """Its lever-arm sensitivity to the translation is small and, against the network's weak
     translation prior, walked the lateral offset metres away on 200-frame R2 drives: off by default."""

@@ -9,17 +9,17 @@ offset through the lever arm in turns. It uses no ego pose, no tables and no net
 share the network's drive-dependent bias, the error that no number of frames averages out of the
 network-only methods.
 
-Noise model (``MotionConfig``): the Doppler heading's own std (from the inliers' residuals) and a
-VO heading std ``sigma_vo_deg`` in quadrature; a Huber weight at ``huber`` sigma on the residual at
-the frame's start (VO fails on moving traffic, repetitive texture and turns); and an error common to
-a drive ``drive_std_deg`` (a radar azimuth misalignment inside the sensor, a VO bias of the
-scene; on a real root at least ``real_drive_std_deg``: sideslip and the ego poses' heading bias, which the
-simulator does not have), which the loop adds to the reported covariance through the motion's share of the
-estimate (``loop``). The pair is skipped (and why recorded) when the radar is slower than
-``min_speed_mps``, the frames are more than ``max_gap_s`` apart, either sensor cannot tell, or VO's
-rotation angle disagrees with the vehicle's (the ego poses' rotation angle between the two frames:
-the angle of a rigid rotation is the same in every frame on the vehicle, so no tables enter; it
-catches two-view VO trading rotation for a sideways travel in turns).
+Noise model (``MotionConfig``): the Doppler heading's own std (from the inliers' residuals) and a VO heading
+std in quadrature (``sigma_vo_deg``, larger for a pair of few image matches: ``vo_sigma_rad``); a Huber weight
+at ``huber`` sigma on the residual at the frame's start (VO fails on moving traffic, repetitive texture and
+turns); and an error common to a drive ``drive_std_deg`` (a radar azimuth misalignment inside the sensor, a VO
+bias of the scene; on a real root at least ``real_drive_std_deg``: sideslip and the ego poses' heading bias,
+which the simulator does not have), which the loop adds to the reported covariance through the motion's share
+of the estimate (``loop``). The pair is skipped (and why recorded) when the radar is slower than
+``min_speed_mps``, the frames are more than ``max_gap_s`` apart, either sensor cannot tell, or VO's rotation
+angle disagrees with the vehicle's (the ego poses' rotation angle between the two frames: the angle of a rigid
+rotation is the same in every frame on the vehicle, so no tables enter; it catches two-view VO trading
+rotation for a sideways travel in turns).
 
 How it enters the window: the window takes one Gaussian prior per frame. The network's SE(3) prior
 and the linearised motion residual (at the frame's start, the fused estimate) are combined in
@@ -57,7 +57,12 @@ from hybrid_calib.sensors.visual_odometry import (
 @dataclass(frozen=True)
 class MotionConfig:
     enabled: bool = True  # the motion constraint in the hybrid (off: the network's SE(3) alone)
-    sigma_vo_deg: float = 1.13  # VO heading std, deg (fitted on validation drives: benchmarks/motion_fit.py, docs)
+    sigma_vo_deg: float = 0.69  # VO heading std of a well-supported pair, deg (fitted: benchmarks/motion_fit.py, docs)
+    # a pair with fewer essential-matrix inliers than ``vo_inliers_full`` has the std ``sigma_vo_deg * (full / n) **
+    # vo_inliers_power`` (``vo_sigma_rad``): the VO heading's robust std is 2.0 deg on 10-16 inliers, 0.7 deg on 35
+    # or more (fitted with sigma_vo_deg on 53 validation drives, plain and randomised; power 0: one std for all)
+    vo_inliers_full: int = 40
+    vo_inliers_power: float = 0.9
     huber: float = 2.0  # Huber threshold on the whitened residual at the frame's start
     gate: float = 3.0  # innovation gate: |r| > gate * sqrt(sigma^2 + J C J^T) (C: the estimate's covariance) -> dropped
     drive_std_deg: float = 0.29  # error common to a drive's motion measurements, deg (added to the covariance)
@@ -102,9 +107,18 @@ class MotionConfig:
         from hybrid_calib.config import require_ranges
 
         require_ranges(self, {"sigma_vo_deg": "(0, 90]", "huber": "(0, 100]", "gate": "(0, 1000]",
+                              "vo_inliers_full": "[1, 1e6]", "vo_inliers_power": "[0, 10]",
                               "drive_std_deg": "[0, 90]", "real_drive_std_deg": "[0, 90]", "consensus": "[0, 1e6]",
                               "confirm": "[0, 1e6]", "min_speed_mps": "[0, 100]",
                               "max_gap_s": "(0, 3600]", "max_rotation_mismatch_deg": "(0, 180]"})
+
+
+def vo_sigma_rad(conf: MotionConfig, n_inliers: int) -> float:
+    """The VO heading std (rad) of a pair whose essential matrix had ``n_inliers`` inliers: ``sigma_vo_deg``, grown
+    by ``(vo_inliers_full / n) ** vo_inliers_power`` below ``vo_inliers_full`` (0 or less: not recorded, the base)."""
+    n = int(n_inliers)
+    grow = (conf.vo_inliers_full / n) ** conf.vo_inliers_power if 0 < n < conf.vo_inliers_full else 1.0
+    return float(np.radians(conf.sigma_vo_deg) * grow)
 
 
 def drive_std_rad(conf: MotionConfig, simulated: bool) -> float:
@@ -271,6 +285,7 @@ class Innovation:
     J: np.ndarray
     sigma: float
     std: float
+    supported: bool = True  # the VO had at least ``vo_inliers_full`` inliers (its std is the base one)
 
     @property
     def z(self) -> float:
@@ -296,9 +311,9 @@ def gated_innovation(T: np.ndarray, m: MotionMeasurement, conf: MotionConfig, co
     r, J = heading_residual(T, m)
     if not conf.translation:
         J = np.concatenate([J[:3], np.zeros(3)])
-    sigma = float(np.hypot(m.sigma, np.radians(conf.sigma_vo_deg)))
+    sigma = float(np.hypot(m.sigma, vo_sigma_rad(conf, m.n_vo_inliers)))
     spread = min(float(J @ c @ J) for c in covs if c is not None)
-    return Innovation(r, J, sigma, float(np.sqrt(sigma ** 2 + spread)))
+    return Innovation(r, J, sigma, float(np.sqrt(sigma ** 2 + spread)), not 0 < m.n_vo_inliers < conf.vo_inliers_full)
 
 
 class MotionGate:
@@ -312,9 +327,9 @@ class MotionGate:
     weighted by ``fold``, until a residual passes the gate again. ``admitted_by_consensus`` tells the
     caller which way the last one went in.
 
-    Once the motion has confirmed the estimate (``confirm`` residuals inside their own Huber band,
-    ``|r| <= huber * sigma``, since the window last restarted: ``reset``), agreeing residuals beyond
-    the gate are a stretch of drive where visual odometry fails the same way frame after frame (a
+    Once the motion has confirmed the estimate (``confirm`` residuals of well-supported VO pairs inside
+    their own Huber band, ``|r| <= huber * sigma``, since the window last restarted: ``reset``), agreeing
+    residuals beyond the gate are a stretch of drive where visual odometry fails the same way frame after frame (a
     highway curve with a few far matches: 10 deg for 8 frames), not proof that the estimate is off:
     the estimate did not move and the motion agreed with it. They are admitted only when the network's
     own outputs moved toward them too (``r_net``: the residuals at the network's outputs of those frames;
@@ -338,7 +353,8 @@ class MotionGate:
         self.admitted_by_consensus, self.refused = False, ""
         if inn.inside(c.gate):
             self.recent, self.recent_net = [], []
-            self.agreed += int(abs(inn.r) <= c.huber * inn.sigma)
+            # a pair of few image matches, its std grown (``vo_sigma_rad``), confirms nothing
+            self.agreed += int(inn.supported and abs(inn.r) <= c.huber * inn.sigma)
             return True
         keep = max(c.consensus, 1)
         self.recent = (self.recent + [inn.r])[-keep:]
