@@ -285,7 +285,9 @@ class Innovation:
     J: np.ndarray
     sigma: float
     std: float
-    supported: bool = True  # the VO had at least ``vo_inliers_full`` inliers (its std is the base one)
+    # the std the pair would have with a well-supported VO (``sigma_vo_deg``; None: ``sigma``): what confirms an
+    # estimate (``MotionGate``) is a residual as small as a good pair's, whatever the pair's own std
+    sigma_base: float | None = None
 
     @property
     def z(self) -> float:
@@ -313,7 +315,8 @@ def gated_innovation(T: np.ndarray, m: MotionMeasurement, conf: MotionConfig, co
         J = np.concatenate([J[:3], np.zeros(3)])
     sigma = float(np.hypot(m.sigma, vo_sigma_rad(conf, m.n_vo_inliers)))
     spread = min(float(J @ c @ J) for c in covs if c is not None)
-    return Innovation(r, J, sigma, float(np.sqrt(sigma ** 2 + spread)), not 0 < m.n_vo_inliers < conf.vo_inliers_full)
+    return Innovation(r, J, sigma, float(np.sqrt(sigma ** 2 + spread)),
+                      float(np.hypot(m.sigma, np.radians(conf.sigma_vo_deg))))
 
 
 class MotionGate:
@@ -327,9 +330,9 @@ class MotionGate:
     weighted by ``fold``, until a residual passes the gate again. ``admitted_by_consensus`` tells the
     caller which way the last one went in.
 
-    Once the motion has confirmed the estimate (``confirm`` residuals of well-supported VO pairs inside
-    their own Huber band, ``|r| <= huber * sigma``, since the window last restarted: ``reset``), agreeing
-    residuals beyond the gate are a stretch of drive where visual odometry fails the same way frame after frame (a
+    Once the motion has confirmed the estimate (``confirm`` residuals inside the Huber band of a well-supported
+    pair, ``|r| <= huber * sigma_base``, since the window last restarted: ``reset``), agreeing residuals beyond
+    the gate are a stretch of drive where visual odometry fails the same way frame after frame (a
     highway curve with a few far matches: 10 deg for 8 frames), not proof that the estimate is off:
     the estimate did not move and the motion agreed with it. They are admitted only when the network's
     own outputs moved toward them too (``r_net``: the residuals at the network's outputs of those frames;
@@ -353,8 +356,9 @@ class MotionGate:
         self.admitted_by_consensus, self.refused = False, ""
         if inn.inside(c.gate):
             self.recent, self.recent_net = [], []
-            # a pair of few image matches, its std grown (``vo_sigma_rad``), confirms nothing
-            self.agreed += int(inn.supported and abs(inn.r) <= c.huber * inn.sigma)
+            # within a well-supported pair's band, whatever this pair's own std (grown for few matches: a residual
+            # of 4 deg on 10 matches is inside its Huber band but confirms no estimate to a degree)
+            self.agreed += int(abs(inn.r) <= c.huber * (inn.sigma if inn.sigma_base is None else inn.sigma_base))
             return True
         keep = max(c.consensus, 1)
         self.recent = (self.recent + [inn.r])[-keep:]
