@@ -85,7 +85,7 @@ def test_exported_rows_on_a_real_root_are_measured_against_its_tables(tiny, tmp_
 
     ds = NuScenesRadarCamera(tiny.root, tiny.version, conf={"check_images": False})
     T = ds[0].extras["T_cam_radar_static"]
-    frames, _ = synthetic_drive(T, 3, rng(0))
+    frames, _ = synthetic_drive(T, 3, rng(0), camera_or_K=ds[0].camera)  # rows of its own camera (the K is checked)
     d = tmp_path / "corr"
     d.mkdir()
     for k, c in enumerate(frames):
@@ -168,6 +168,38 @@ def test_a_networks_exported_rows_never_give_a_trusted_verdict(sim_root, tmp_pat
         v["final"]["status"]
     assert v["drift"]["verdict_kind"] == "cannot tell" and v["checkpoint"].endswith("small-sim-r1.json")
     assert "its rows are a network's" in untrusted_status(v["final"]["status"])
+
+
+def test_a_measurement_file_of_another_cameras_intrinsics_is_left_out_and_said(sim_root, tmp_path):
+    """Probe 45: an export whose K had fx and fy doubled was fused in silence (rotation 0.43 -> 0.73 deg); a K of the
+    root's camera at another image size (the network's input size) is the same camera."""
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+    from hybrid_calib.sensors.camera import other_camera
+
+    ds = NuScenesRadarCamera(sim_root, "v1.0-sim", conf={"check_images": False})
+    T = ds[0].extras["T_cam_radar_static"]
+    frames, _ = synthetic_drive(T, 3, rng(0))
+    d = tmp_path / "corr"
+    d.mkdir()
+    tokens = [ds.frames[k % len(ds.frames)].camera_sd["token"] for k in range(len(frames))]
+    for k, c in enumerate(frames):
+        K = np.array(c.K, np.float64)
+        if k == 1:
+            K[0, 0] *= 2.0
+            K[1, 1] *= 2.0
+        c = dataclasses.replace(c, frame_id=tokens[k], K=K)
+        np.savez(d / f"{k:03d}.npz", **c.to_npz_dict())
+    out = tmp_path / "run"
+    assert calibrate.run(_args("--data", str(sim_root), "--correspondences", str(d), "--mode", "batch",
+                               "--out", str(out), "--no-plots")) == 0
+    (v,) = json.loads((out / "result.json").read_text())["vehicles"].values()
+    (skip,) = [s for s in v["frames_skipped"] if s["token"] == tokens[1]]
+    assert "are not the camera's at any image size" in skip["reason"] and "left out" in skip["reason"]
+    K = ds[0].camera.K
+    assert other_camera(ds[0].camera.scaled(0.25, 0.2133).K, K) == "" and other_camera(2 * K, K) == ""
+    focal = K.copy()
+    focal[[0, 1], [0, 1]] *= 1.05  # a focal length 5 % longer, the image centre the same: another camera
+    assert other_camera(np.diag([2.0, 2.0, 1.0]) @ K, K) == "" and "not the camera's" in other_camera(focal, K)
 
 
 def test_the_terminal_says_the_windows_step_alarms(capsys, tmp_path):

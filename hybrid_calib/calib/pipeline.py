@@ -39,6 +39,7 @@ from hybrid_calib.data.files import data_stamp
 from hybrid_calib.data.summary import table_warnings
 from hybrid_calib.errors import DataError, HybridCalibError, OptionError
 from hybrid_calib.perturbation import RANGES, vehicle_rng, vehicle_start
+from hybrid_calib.sensors.camera import other_camera
 
 MODES = ("window", "batch")
 STARTS = ("reference", *RANGES)
@@ -142,6 +143,7 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
     refs: dict[str, np.ndarray] = {}
     truths: dict[str, np.ndarray] = {}
     tokens: set[str] = set()
+    camera_K: dict[str, np.ndarray] = {}  # frame token -> its camera's intrinsics in the root's tables
     against = None  # what the errors are measured against: a simulated root's truth, a real root's tables
     if data is not None and version:
         from hybrid_calib.data.nuscenes import NuScenesRadarCamera
@@ -151,6 +153,12 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
         _check_exported_from(directory, data, version)
         # a file names its frame by the camera sample_data token (evaluate's export) or the sample (the oracle's)
         tokens = {t for ref in ds.frames for t in (ref.camera_sd["token"], ref.sample_token, ref.radar_sd["token"])}
+        for ref in ds.frames:  # each frame's camera intrinsics: a file's K must be of that camera (at some size)
+            try:
+                K = ds.tables.camera_intrinsic(ref.camera_sd)
+            except DataError:
+                continue  # said where the frame is read
+            camera_K.update(dict.fromkeys((ref.camera_sd["token"], ref.sample_token, ref.radar_sd["token"]), K))
         for vehicle, idx in ds.frames_by_vehicle().items():
             f = ds[idx[0]]
             refs[vehicle] = np.asarray(f.extras["reference_T_cam_radar"], np.float64)
@@ -176,13 +184,19 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
             unknown[vehicle] = f"{why}; its {len(ms)} file(s) in {directory} left out"
             continue
         truth = truths.get(vehicle)
-        mine = [m for m in ms if not tokens or str(m.frame_id) in tokens]
+        # probe 45: a file whose K was not the root camera's (fx, fy doubled) was fused in silence, 0.3 deg further off
+        wrong_K = {str(m.frame_id): why for m in ms if str(m.frame_id) in camera_K and
+                   (why := other_camera(m.corr.K, camera_K[str(m.frame_id)]))}
+        mine = [m for m in ms if (not tokens or str(m.frame_id) in tokens) and str(m.frame_id) not in wrong_K]
         out[vehicle] = VehicleInput(vehicle, [m.corr for m in mine], ref,
                                     [truth] * len(mine) if truth is not None else [], network=[m.network for m in mine],
                                     against=against)
         out[vehicle].skipped.extend({"index": None, "token": str(m.frame_id), "reason": "measurement file of a frame "
                                      "not in this root (another dataset's export): left out"}
                                     for m in ms if tokens and str(m.frame_id) not in tokens)
+        out[vehicle].skipped.extend({"index": None, "token": token, "reason": (
+            f"measurement file of frame {token}: {why} in the root's tables (exported from another camera or another "
+            "root, or edited): left out")} for token, why in wrong_K.items())
     if absent is not None:
         for vehicle in sorted(refs):
             if vehicle not in out and (conf.vehicles is None or vehicle in conf.vehicles):

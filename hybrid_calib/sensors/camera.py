@@ -88,3 +88,20 @@ class PinholeCamera:
         u, v = np.meshgrid(np.arange(self.width), np.arange(self.height))
         d = np.stack([(u - self.cx) / self.fx, (v - self.cy) / self.fy, np.ones_like(u, float)], -1)
         return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+
+def size_invariants(K: np.ndarray) -> np.ndarray:
+    """(2,) ``fx / (cx + 0.5)`` and ``fy / (cy + 0.5)`` of a (3, 3) intrinsic matrix: unchanged by resizing the
+    image (``PinholeCamera.scaled``, pixel centres kept), so two matrices of one camera at any sizes agree on them."""
+    K = np.asarray(K, np.float64)
+    return np.array([K[0, 0] / (K[0, 2] + 0.5), K[1, 1] / (K[1, 2] + 0.5)])
+
+
+def other_camera(K: np.ndarray, K_camera: np.ndarray, tol: float = 0.02) -> str:
+    """Why ``K`` (3, 3) is not the intrinsics of the camera ``K_camera`` at any image size ("" when it may be): its
+    ``size_invariants`` differ by more than ``tol`` (relative)."""
+    a, b = size_invariants(K), size_invariants(K_camera)
+    if np.all(np.isfinite(a)) and np.all(np.abs(a / b - 1.0) <= tol):
+        return ""
+    return (f"its intrinsics K (fx / (cx + 0.5) {a[0]:.4g}, fy / (cy + 0.5) {a[1]:.4g}) are not the camera's at any "
+            f"image size ({b[0]:.4g}, {b[1]:.4g}; more than {100 * tol:g} % apart)")
