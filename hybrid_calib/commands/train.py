@@ -96,8 +96,9 @@ def run(args: argparse.Namespace) -> int:
               "training figures and keep some frames out (docs/benchmarks.md: benchmarks/real_finetune.py)")
     source = {"roots": [str(Path(d).resolve()) for d in args.data], "version": args.version, "nsweeps": args.nsweeps}
     if not args.no_resume and (found := latest_checkpoint(args.out / "checkpoints")) is not None:
-        print(f"note: {args.out} holds {found.name}: the run resumes after it (with the same options and data), "
-              "its earlier epochs kept", file=sys.stderr)
+        # said as a condition: a run of other options or data is refused next (probe 45: "resumes" then the refusal)
+        print(f"note: {args.out} holds {found.name}: the run resumes after it if its options and data are the ones "
+              "it was trained with (checked next: otherwise refused), its earlier epochs kept", file=sys.stderr)
     last = train(conf, frames, args.out, resume=not args.no_resume, progress=not args.no_progress, source=source)
     plot_history(args.out / "epochs.csv", args.out / "history.png")
     print(f"last checkpoint: {last}")
