@@ -732,7 +732,7 @@ def test_the_loop_gives_the_motion_gate_the_networks_own_residual_and_restarts_i
     r_net_deg = iter([0.2, 1.0 if case == "network moved" else 10.0])
     monkeypatch.setattr(MotionSource, "measurement",
                         lambda self, ia, ib, R, ego=True: (SimpleNamespace(speed=10.0, n_vo_inliers=20), ""))
-    monkeypatch.setattr(loop, "gated_innovation", lambda T, m, conf, covs: Innovation(
+    monkeypatch.setattr(loop, "gated_innovation", lambda T, m, conf, covs, simulated=True: Innovation(
         np.radians(next(r_deg)), np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0]), s, 1.2 * s))
     monkeypatch.setattr(loop, "heading_residual", lambda T, m: (np.radians(next(r_net_deg)), np.zeros(6)))
     if case == "window restarted":

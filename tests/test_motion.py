@@ -313,6 +313,11 @@ def test_a_pair_of_few_image_matches_gets_a_wider_vo_std_and_confirms_only_as_a_
     assert g.agreed == 0  # five poor pairs 1.5 x a good pair's band off: the estimate is not confirmed
     assert g.admit(replace(i_poor, r=0.0)) and g.agreed == 1  # as small as a good pair's: it confirms
     assert all(g.admit(replace(i_rich, r=0.0)) for _ in range(2)) and g.agreed == 3
+    # on a real root at least real_sigma_vo_deg (the fit rests on the simulator's images), the confirmation band too
+    real = innovation(T, rich, conf, C, simulated=False)
+    assert vo_sigma_rad(conf, 400, simulated=False) == pytest.approx(np.radians(conf.real_sigma_vo_deg))
+    assert vo_sigma_rad(conf, n, simulated=False) == pytest.approx(max(quarter, np.radians(conf.real_sigma_vo_deg)))
+    assert real.sigma > i_rich.sigma and real.sigma_base == pytest.approx(real.sigma)
     with pytest.raises(ValueError, match="vo_inliers_power"):
         MotionConfig(vo_inliers_power=-1.0)
 

@@ -330,7 +330,8 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
             if not ego:
                 mrec["motion_rotation"] = "images (the ego poses' headings contradict the radar's Doppler)"
             # gated by the tighter of the estimate's covariance and this frame's pass with its drive error
-            inn = None if m is None else gated_innovation(T, m, conf.motion, (fi.prior.cov + D, reported_cov))
+            inn = None if m is None else gated_innovation(T, m, conf.motion, (fi.prior.cov + D, reported_cov),
+                                                          drive.simulated)
             # the same measurement at the network's own output of this frame: whether the network moved with it
             r_net = None if m is None else heading_residual(fi.prior.T, m)[0]
             fo = (fold(prior, T, inn, conf.motion, gated=False)
