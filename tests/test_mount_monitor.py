@@ -363,6 +363,27 @@ def _turned(T: np.ndarray, deg: float) -> np.ndarray:
     return out
 
 
+def test_after_a_step_the_yaw_check_reads_the_monitor_s_last_level(knocked_and_not):
+    """Probe 46: the check read the monitor's one level only, so it skipped every knocked drive; a restarted window
+    6-9 deg off in yaw kept its 0.7 deg 1-sigma beside the radar's own post-knock heading (-2.03 +- 0.04 deg)."""
+    from hybrid_calib.calib.mount_monitor import current_level, sole_level, yaw_agreement
+    from hybrid_calib.geometry import se3_inverse
+
+    frames, idx = _drive(knocked_and_not[1])
+    first, last = frames[idx[0]], frames[idx[-1]]
+    tables = first.extras["T_ego_radar"]  # the mount before the knock
+    T_ec = tables @ se3_inverse(first.extras["T_cam_radar_static"])
+    mon, _ = monitor_drive(frames, idx, tables)
+    summary = mon.summary()
+    assert summary["steps"] and sole_level(summary) is None and current_level(summary) is summary["levels"][-1]
+    after = last.extras["T_cam_radar_static"]  # the mount after it: the check agrees with it
+    check = yaw_agreement(after, np.eye(6) * 1e-6, T_ec, tables, summary)
+    assert abs(check["doppler_deg"] - check["estimate_deg"]) < 0.3 and not check["disagree"], check
+    assert abs(check["doppler_deg"]) > 0.7  # the knock, 1 deg, read by the radar's own heading
+    stale = yaw_agreement(first.extras["T_cam_radar_static"], np.eye(6) * 1e-6, T_ec, tables, summary)
+    assert stale["disagree"] and stale["sigmas"] > 3  # an estimate left at the mount before the knock
+
+
 def test_the_estimate_s_yaw_is_checked_against_the_radar_s_own_and_widened_where_they_disagree(knocked_and_not):
     """Probe 9 (scene-0916): the loop put the radar's yaw 1.97 +- 0.16 deg off its tables, its own Doppler 0.93 +-
     0.10, and the verdict read "recalibrate" by 1.97 deg. Two measurements of one angle that disagree: the yaw's

@@ -507,6 +507,20 @@ def sole_level(summary: dict | None, plausible: bool = True) -> dict | None:
     return levels[0]
 
 
+def current_level(summary: dict | None) -> dict | None:
+    """The monitor's level of the radar's mount as it is at the drive's end: its one level, or after a step the last
+    one when read over at least 3 frames; None with an implausible reading or none. What the yaw check reads: after
+    a knock the window restarts, and the restarted estimate is what the radar's own heading must agree with (probe 46:
+    the check skipped every knocked drive, and a restarted window 6-9 deg off in yaw kept its 0.7 deg 1-sigma)."""
+    s = summary or {}
+    levels = s.get("levels") or []
+    if not levels or s.get("implausible"):
+        return None
+    if len(levels) == 1 and not s.get("steps"):
+        return levels[0]
+    return levels[-1] if int(levels[-1].get("frames", 0)) >= 3 else None
+
+
 def turn_size(tail: dict) -> str:
     """The turn of ``summary()``'s "tail" in words: "89.9 deg", or "45.0 deg or more" (one reading, whose sweep
     pairs may straddle the knock)."""
@@ -580,7 +594,8 @@ def yaw_agreement(T_cam_radar: np.ndarray, cov: np.ndarray, T_ego_cam: np.ndarra
     the radar's Doppler against the ego poses, relative to the mount ``T_ego_radar_ref`` (4, 4) it was run with).
     Both as rotations about the ego z axis relative to ``T_ego_radar_ref`` [deg].
 
-    None when the monitor gives no one level (no reading, a step, an implausible level). Otherwise {"estimate_deg",
+    None when the monitor gives no level of the mount at the drive's end (``current_level``: no reading, a last step
+    read over fewer than 3 frames, an implausible level). Otherwise {"estimate_deg",
     "estimate_std_deg", "doppler_deg", "doppler_std_deg" (the level's std with ``bias_deg`` added), "difference_deg",
     "sigmas" (the difference over its std), "disagree", "direction" ((6,) unit right tangent of the yaw about ego
     z)}. ``disagree``: beyond 3 sigma while the level itself lies off the tables (beyond 3 of its std): both say the
@@ -588,7 +603,7 @@ def yaw_agreement(T_cam_radar: np.ndarray, cov: np.ndarray, T_ego_cam: np.ndarra
     A level at the tables' yaw is ``calib.drift.camera_side_note``'s case (the camera side moved), not this one."""
     from scipy.spatial.transform import Rotation
 
-    lv = sole_level(summary)
+    lv = current_level(summary)
     if lv is None:
         return None
     level, std_lvl = float(lv.get("level_deg", np.nan)), float(lv.get("std_deg", np.nan))
