@@ -322,6 +322,29 @@ def test_a_pair_of_few_image_matches_gets_a_wider_vo_std_and_confirms_only_as_a_
         MotionConfig(vo_inliers_power=-1.0)
 
 
+def test_after_a_restart_a_pair_of_few_matches_waits_for_the_motion_to_confirm_the_estimate():
+    """Probe 46: after a knock restarted the window its yaw std was 10-13 deg, the gate wide open, and the first pairs
+    it took were failed ones of 10-16 matches (+4.6, -7.3 deg) that set the yaw 6-9 deg off for the rest of the drive.
+    Until the motion confirms the restarted estimate, such a pair is taken only inside a good pair's Huber band; a
+    well-supported pair, and any pair before a restart, is gated as before."""
+    from hybrid_calib.hybrid.motion import Innovation, MotionGate
+
+    base = np.radians(0.8)
+
+    def inn(r_deg, sigma_deg):  # a wide-open gate: the estimate's own spread is 12 deg
+        return Innovation(np.radians(r_deg), np.zeros(6), np.radians(sigma_deg), np.radians(12.0), base)
+
+    g = MotionGate(MotionConfig())
+    assert g.admit(inn(4.6, 2.0))  # the drive's start: gated as before (inside the wide gate)
+    g.reset()
+    assert not g.admit(inn(4.6, 2.0)) and "few image matches" in g.refused and "+4.6 deg" in g.refused
+    assert g.admit(inn(-7.3, 0.8)) and g.refused == ""  # a well-supported pair: as before
+    assert g.admit(inn(0.5, 2.0)) and g.agreed == 1  # a poor pair as small as a good pair's: taken, and confirms
+    for _ in range(2):
+        assert g.admit(inn(0.3, 0.8))
+    assert g.agreed == 3 and g.admit(inn(4.6, 2.0))  # confirmed: the poor pair is gated as before
+
+
 def test_the_motion_moves_the_rotation_only_unless_told():
     """Its lever-arm sensitivity to the translation is small and, against the network's weak
     translation prior, walked the lateral offset metres away on 200-frame R2 drives: off by default."""

@@ -346,7 +346,9 @@ class MotionGate:
     the estimate did not move and the motion agreed with it. They are admitted only when the network's
     own outputs moved toward them too (``r_net``: the residuals at the network's outputs of those frames;
     their median at most half the estimate's), which a sensor that really moved gives; ``refused`` says
-    why a consensus was not taken."""
+    why a consensus was not taken. After a restart, until the motion has confirmed the new estimate, a pair of few
+    image matches (its std grown beyond the base, ``vo_sigma_rad``) is taken only inside a good pair's Huber band:
+    the restarted window's gate is wide open, and one failed pair set the yaw for the rest of the drive."""
 
     def __init__(self, conf: MotionConfig):
         self.conf = conf
@@ -355,14 +357,24 @@ class MotionGate:
         self.agreed = 0  # residuals inside their own Huber band since the last reset
         self.admitted_by_consensus = False
         self.refused = ""
+        self.restarted = False  # the window restarted at a mount step (``reset``)
 
     def reset(self) -> None:
         """The window restarted (a step alarm): the estimate is a new one, not confirmed by any motion yet."""
-        self.recent, self.recent_net, self.agreed = [], [], 0
+        self.recent, self.recent_net, self.agreed, self.restarted = [], [], 0, True
 
     def admit(self, inn: Innovation, r_net: float | None = None) -> bool:
         c = self.conf
         self.admitted_by_consensus, self.refused = False, ""
+        if self.restarted and self.agreed < max(c.confirm, 1) and inn.sigma_base is not None and \
+                inn.sigma > 1.05 * inn.sigma_base and abs(inn.r) > c.huber * inn.sigma_base:
+            # probe 46: after a restart the window's yaw std is 10-13 deg, the gate is wide open, and the first pairs
+            # it took were failed ones of 10-16 matches that set the yaw 6-9 deg off; until the motion confirms the
+            # restarted estimate, a pair of few matches is taken only when it agrees as a good pair would
+            self.refused = (f"a pair of few image matches (VO std {np.degrees(inn.sigma):.1f} deg) "
+                            f"{np.degrees(inn.r):+.1f} deg from an estimate the window restarted at a mount step "
+                            "and the motion has not confirmed yet: left out until it has")
+            return False
         if inn.inside(c.gate):
             self.recent, self.recent_net = [], []
             # within a well-supported pair's band, whatever this pair's own std (grown for few matches: a residual
