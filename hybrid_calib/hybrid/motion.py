@@ -297,6 +297,16 @@ class Innovation:
     sigma_base: float | None = None
 
     @property
+    def band(self) -> float:
+        """The std a residual is judged by for confirming an estimate: ``sigma_base`` (``sigma`` without one)."""
+        return self.sigma if self.sigma_base is None else self.sigma_base
+
+    @property
+    def few_matches(self) -> bool:
+        """Its VO std is grown beyond a well-supported pair's (``vo_sigma_rad``: fewer than ``vo_inliers_full``)."""
+        return self.sigma > 1.05 * self.band
+
+    @property
     def z(self) -> float:
         return self.r / self.std
 
@@ -366,8 +376,7 @@ class MotionGate:
     def admit(self, inn: Innovation, r_net: float | None = None) -> bool:
         c = self.conf
         self.admitted_by_consensus, self.refused = False, ""
-        if self.restarted and self.agreed < max(c.confirm, 1) and inn.sigma_base is not None and \
-                inn.sigma > 1.05 * inn.sigma_base and abs(inn.r) > c.huber * inn.sigma_base:
+        if self.restarted and self.agreed < max(c.confirm, 1) and inn.few_matches and abs(inn.r) > c.huber * inn.band:
             # probe 46: after a restart the window's yaw std is 10-13 deg, the gate is wide open, and the first pairs
             # it took were failed ones of 10-16 matches that set the yaw 6-9 deg off; until the motion confirms the
             # restarted estimate, a pair of few matches is taken only when it agrees as a good pair would
@@ -379,7 +388,7 @@ class MotionGate:
             self.recent, self.recent_net = [], []
             # within a well-supported pair's band, whatever this pair's own std (grown for few matches: a residual
             # of 4 deg on 10 matches is inside its Huber band but confirms no estimate to a degree)
-            self.agreed += int(abs(inn.r) <= c.huber * (inn.sigma if inn.sigma_base is None else inn.sigma_base))
+            self.agreed += int(abs(inn.r) <= c.huber * inn.band)
             return True
         keep = max(c.consensus, 1)
         self.recent = (self.recent + [inn.r])[-keep:]
