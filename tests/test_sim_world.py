@@ -190,3 +190,24 @@ def test_the_ego_never_drives_into_the_vehicles_ahead_in_its_lane(seed):
         assert np.min(o.s0 + o.speed * t - o.size[0] / 2 - front) >= MIN_GAP_M - 1e-6
         front = o.s0 + o.speed * t + o.size[0] / 2
     assert leads[0].s0 >= EGO_START_S + 25.0
+
+
+def test_the_ego_stops_as_at_a_red_light_and_drives_on():
+    """``stops``: the ego brakes to a standstill, holds still (pose and all: the keyframes repeat one view, as in the
+    199 of 850 nuScenes scenes that wait at a light), pulls away and drives on at its speed; the distance lost is
+    the stop's time at the speed; a stop that does not fit in the drive is refused, naming the options."""
+    from hybrid_calib.config import ConfigError, merge
+
+    plain = VehicleDrive(SimConfig(frames=60), 0)
+    d = VehicleDrive(merge(SimConfig, {"frames": 60, "stops": {"count": 2, "hold_s": 5.0, "ramp_s": 2.0}}), 0)
+    ((a, hold, ramp), (b, *_)) = d.ego.stops
+    assert (hold, ramp) == (5.0, 2.0) and np.isclose(a + 4.5, 30.0 / 4) and np.isclose(b + 4.5, 3 * 30.0 / 4)
+    assert np.allclose(d.ego.T_global_ego(a - 1.0), plain.ego.T_global_ego(a - 1.0))  # before the first stop
+    held = [d.ego.T_global_ego(t) for t in np.linspace(a + ramp, a + ramp + hold, 7)]
+    assert all(np.allclose(T, held[0], atol=1e-9) for T in held)  # standing still, pose and all
+    speed = [np.linalg.norm(d.ego.point_velocity(t, np.zeros(3))) for t in (a + ramp / 2, a + ramp + 1, b + 10)]
+    assert 0.5 < speed[0] < 9.0 and speed[1] < 1e-6 and speed[2] > 7.0
+    lost = plain.ego.s(b + 12.0) - d.ego.s(b + 12.0)  # two stops later: ~2 x (hold + ramp) s of driving lost
+    assert 0.8 * 2 * (hold + ramp) * 9.0 < lost < 1.2 * 2 * (hold + ramp) * 9.0
+    with pytest.raises(ConfigError, match=r"stops.count=3 .* do not fit in the 10 s drive"):
+        merge(SimConfig, {"frames": 20, "stops": {"count": 3}})

@@ -26,7 +26,7 @@ from hybrid_calib.sim.randomise import (
 from hybrid_calib.sim.raycast import cast_pinhole
 from hybrid_calib.sim.render import ShadingConfig, shade
 from hybrid_calib.sim.scenarios import ScenarioConfig, build_world, scenario
-from hybrid_calib.sim.trajectory import EGO_START_S, EgoMotion
+from hybrid_calib.sim.trajectory import EGO_START_S, EgoMotion, EgoStops
 from hybrid_calib.sim.world import GROUND_LIDAR_REFLECTIVITY, World
 
 # nuScenes CAM_FRONT intrinsics at full resolution (1600 x 900).
@@ -61,6 +61,7 @@ class SimConfig:
     radar: RadarConfig = RadarConfig()  # radar model (the scenario sets its weather fields)
     lidar: LidarConfig = LidarConfig()  # LiDAR model
     randomise: Randomisation = Randomisation()  # domain randomisation (off unless randomise.enabled=true)
+    stops: EgoStops = EgoStops()  # the ego's stops during each drive, as at a red light (none unless stops.count > 0)
 
     def __post_init__(self):
         scenario(self.scenario)  # validates the name
@@ -71,6 +72,7 @@ class SimConfig:
         if self.vehicles < 1 or self.frames < 1:
             raise ValueError(f"need at least one vehicle and one frame, got vehicles={self.vehicles} "
                              f"frames={self.frames}")
+        self.stops.windows(self.frames * self.frame_interval_s)  # ValueError naming the options when they do not fit
         if not 0.01 <= self.image_scale <= 4.0:  # 0.01: a 16x9 image, the smallest that renders
             raise ValueError(f"image_scale={self.image_scale} is outside 0.01..4 (the camera is nuScenes CAM_FRONT, "
                              "1600x900, scaled by it; e.g. 0.125 for a quick test)")
@@ -227,7 +229,8 @@ class VehicleDrive:
         drive_len = s.ego_speed * (1 + s.ego_speed_variation) * duration
         self.world = build_world(s, int(_rng(c.seed, self.vehicle, 1).integers(2**31)), EGO_START_S + drive_len + 400.0)
         lane = self.world.layout.lane_centre(self.world.layout.lanes_per_direction - 1)
-        self.ego = EgoMotion(self.world.path, lane, s.ego_speed, s.ego_speed_variation)
+        self.ego = EgoMotion(self.world.path, lane, s.ego_speed, s.ego_speed_variation,
+                             stops=c.stops.windows(c.frames * c.frame_interval_s))
         self.draw, self.base_mounts, self.mounts = vehicle_mounts(c, self.vehicle)
         self.base_us = BASE_TIMESTAMP_US + self.vehicle * 10_000_000_000
 

@@ -49,6 +49,7 @@ from hybrid_calib.sim.nuscenes_writer import (
     write_map_png,
     write_tables,
 )
+from hybrid_calib.sim.trajectory import EgoStops
 
 log = logging.getLogger(__name__)
 RADAR_TRUTH_KEYS = ("true_xyz", "kind", "object_id", "elevation", "object_speed", "snr_db")
@@ -145,6 +146,8 @@ def simulate(conf: SimConfig, out: str | Path, overwrite: bool = False, workers:
     root = Path(out)
     conf_path = root / "sim_config.json"
     conf_dict = to_dict(conf)
+    if conf.stops == EgoStops():  # a drive without stops: the root, its tokens and a resume as before stops existed
+        conf_dict.pop("stops")
     if root.is_dir() and any(p.name != LOCK_NAME for p in root.iterdir()) and not conf_path.exists():
         raise HybridCalibError(
             f"{root} is not empty and holds no hybrid-calib simulation (no sim_config.json); refusing to write "
