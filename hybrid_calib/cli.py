@@ -15,7 +15,9 @@ import errno
 import importlib
 import os
 import re
+import signal
 import sys
+import threading
 import warnings
 from pathlib import Path
 
@@ -54,6 +56,16 @@ RESUMES = {
     "train": "its last checkpoint is kept in --out: rerun the same command to resume training",
     "simulate": "the frames it wrote are kept: rerun the same command to go on",
 }
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (``kill``, ``timeout``, ``docker stop``, systemd, a batch scheduler's pre-emption): the run stops as
+    Ctrl-C stops it (what it finished kept, its exit status in ``OUT/runs.json``, its lock released), exit 143. It
+    had died at once, without a word, a line in runs.json or its lock released (probe 47)."""
+
+
+def _on_sigterm(signum, frame):
+    raise Terminated
 
 
 def _one_line(message, category, filename, lineno, line=None) -> str:
@@ -160,10 +172,15 @@ def main(argv: list[str] | None = None) -> int:
     before = warnings.formatwarning
     if not debug:  # a warning is one line, as every other message: not our source file and line after it
         warnings.formatwarning = _one_line
+    term = None
+    if threading.current_thread() is threading.main_thread():  # signal handlers live in the main thread only
+        term = signal.signal(signal.SIGTERM, _on_sigterm)
     try:
         return _run(args, debug, sys.argv[1:] if argv is None else [str(a) for a in argv])
     finally:
         warnings.formatwarning = before
+        if term is not None:
+            signal.signal(signal.SIGTERM, term)
 
 
 def _run(args: argparse.Namespace, debug: bool, argv: list[str]) -> int:
@@ -206,17 +223,19 @@ def _run(args: argparse.Namespace, debug: bool, argv: list[str]) -> int:
     except BrokenPipeError:  # `| head -1`: the reader has gone; nothing more to say, and nowhere to say it
         _stdout_to_devnull()
         return 141  # 128 + SIGPIPE, as a shell reports a command a pipe ended
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as e:
         if debug:
             raise
         kept = RESUMES.get(args.command)
         if args.command == "train" and out is not None and not _has_checkpoint(Path(out)):
             kept = "it stopped before its first checkpoint, so nothing is kept: rerun the same command to start again"
         if args.command == "calibrate" and out is not None and not _has_vehicles_done(Path(out)):
-            kept = ("it stopped before a vehicle finished, so nothing is kept: rerun the same command to start again "
-                    "(an earlier run's result, if any, is as it was)")
-        print(f"hybrid-calib {args.command}: interrupted" + (f"; {kept}" if kept else ""), file=sys.stderr)
-        return 130
+            # the network's and the depth's caches in --out are kept and a rerun reads them (probe 47)
+            kept = ("it stopped before a vehicle finished, so no vehicle's result is kept: rerun the same command to "
+                    "start again (an earlier run's result, if any, is as it was; what it cached is reused)")
+        how = "terminated (SIGTERM)" if isinstance(e, Terminated) else "interrupted"
+        print(f"hybrid-calib {args.command}: {how}" + (f"; {kept}" if kept else ""), file=sys.stderr)
+        return _exit_status(None, e)
     except Exception as e:
         if debug:
             raise
@@ -235,6 +254,8 @@ def _exit_status(status: int | None, error: BaseException | None) -> int:
     """The exit status a run ends with: ``status`` when it returned, else the one its exception gets below."""
     if status is not None or error is None:
         return int(status or 0)
+    if isinstance(error, Terminated):
+        return 143  # 128 + SIGTERM, as a shell reports a command the signal ended
     if isinstance(error, KeyboardInterrupt):
         return 130
     if isinstance(error, BrokenPipeError):

@@ -2258,6 +2258,26 @@ def test_report_says_what_a_file_that_is_not_a_result_is_and_why_a_vehicle_has_n
     assert not page.exists()
 
 
+def test_a_json_that_is_not_a_result_is_named_in_a_few_words(calibrated, tmp_path, capsys):
+    """Probe 47: a result wrapped in a list put the whole file (70 kB) into the one-line error; a fleet summary or
+    manifest read "found 'hybrid-calib/fleet-summary/v1'" as if a schema_version, and evaluate's results.json
+    "found None", each with "re-run calibrate with --overwrite"."""
+    doc = json.loads((calibrated / "result.json").read_text())
+    cases = {"list.json": ([doc], ["a JSON list of 1 item(s)", "pass the object itself"]),
+             "summary.json": ({"schema": "hybrid-calib/fleet-summary/v1", "vehicles": {}},
+                              ["a file of schema 'hybrid-calib/fleet-summary/v1'", "it is a fleet summary",
+                               "OUT/vehicles/<job id>/result.json"]),
+             "manifest.json": ({"schema": "hybrid-calib/fleet-manifest/v1"}, ["it is a fleet manifest"]),
+             "results.json": ({"n_frames": 4, "metrics": [], "rows": {}},
+                              ["keys: 'n_frames', 'metrics', 'rows'", "it is an evaluate summary"])}
+    for name, (content, words) in cases.items():
+        (tmp_path / name).write_text(json.dumps(content))
+        for command in (["report", tmp_path / name, "--out", tmp_path / "r.html"],
+                        ["export", tmp_path / name, "--out", tmp_path / "exp"]):
+            err = expect_cli_error(command, capsys, *words)
+            assert len(err) < 600 and "--overwrite" not in err, err
+
+
 def test_inspect_reads_the_lidar_files_of_a_root_that_has_them(sim_copy, capsys):
     """A truncated LiDAR file, for which the learned methods skip the frame on real roots, was reported clean."""
     from hybrid_calib.cli import main

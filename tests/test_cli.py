@@ -1,6 +1,7 @@
 """The command line: every subcommand registers, and ``--set`` behaves the same everywhere."""
 
 import json
+import os
 
 import pytest
 
@@ -48,7 +49,7 @@ def test_an_interrupt_says_what_was_kept_and_how_to_go_on(tmp_path, monkeypatch,
     assert main(["calibrate", "--data", str(tmp_path), "--out", str(tmp_path / "run")]) == 130
     err = capsys.readouterr().err  # nothing finished: nothing promised (it named a folder that was not there)
     assert err.strip().startswith("hybrid-calib calibrate: interrupted; it stopped before a vehicle finished, so "
-                                  "nothing is kept")
+                                  "no vehicle's result is kept")
     assert not (tmp_path / "run").exists()  # the lock's folder, created for the run, held nothing else
     (tmp_path / "run2" / "vehicles-done").mkdir(parents=True)
     (tmp_path / "run2" / "vehicles-done" / "sim-veh-000.json").write_text("{}")
@@ -70,6 +71,34 @@ def test_an_interrupt_says_what_was_kept_and_how_to_go_on(tmp_path, monkeypatch,
     assert main(["report", str(tmp_path / "result.json"), "--out", str(tmp_path / "r.html")]) == 130
     assert capsys.readouterr().err.strip() == "hybrid-calib report: interrupted"  # nothing to resume
     assert set(RESUMES) <= set(COMMANDS)
+
+
+def test_sigterm_stops_a_run_as_ctrl_c_does(tmp_path, monkeypatch, capsys):
+    """Probe 47: SIGTERM (kill, timeout, docker stop, a scheduler's pre-emption) killed calibrate and fleet at once,
+    exit 143 without a word, no line in runs.json and the lock left behind. Now it stops the run as Ctrl-C does: what
+    was finished kept and said, the exit status recorded, the lock released; the handler is the caller's again."""
+    import signal
+    import time
+
+    from hybrid_calib.atomic import LOCK_NAME
+    from hybrid_calib.cli import RESUMES, main
+    from hybrid_calib.commands import calibrate
+
+    def finished_one_then_terminated(args):
+        (args.out / "vehicles-done").mkdir(parents=True)
+        (args.out / "vehicles-done" / "sim-veh-000.json").write_text("{}")
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(5)  # the handler raises before this ends
+        raise AssertionError("SIGTERM did not stop the run")
+
+    before = signal.getsignal(signal.SIGTERM)
+    monkeypatch.setattr(calibrate, "run", finished_one_then_terminated)
+    assert main(["calibrate", "--data", str(tmp_path), "--out", str(tmp_path / "run")]) == 143
+    assert capsys.readouterr().err.strip() == f"hybrid-calib calibrate: terminated (SIGTERM); {RESUMES['calibrate']}"
+    runs = json.loads((tmp_path / "run" / "runs.json").read_text())
+    assert [(r["command"].split()[1], r["exit_status"]) for r in runs] == [("calibrate", 143)]
+    assert not (tmp_path / "run" / LOCK_NAME).exists()
+    assert signal.getsignal(signal.SIGTERM) == before
 
 
 def test_a_train_run_interrupted_before_its_first_checkpoint_does_not_promise_one(tmp_path, monkeypatch, capsys):

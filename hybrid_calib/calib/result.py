@@ -489,8 +489,7 @@ class CalibrationRun:
         """Raises ``DataError`` (naming ``source``) for another schema version."""
         version = d.get("schema_version") if isinstance(d, dict) else None
         if version != SCHEMA_VERSION:
-            raise DataError(f"not a calibrate result of schema_version {SCHEMA_VERSION} (found "
-                            f"{version if version is not None else d.get('schema') if isinstance(d, dict) else d!r}); "
+            raise DataError(f"not a calibrate result of schema_version {SCHEMA_VERSION} (found {_found(d)}); "
                             + _what_it_is(d), path=source or None)
         vehicles = _mapping(d["vehicles"], '"vehicles"')
         failed = _mapping(d.get("vehicles_failed") or {}, '"vehicles_failed"')
@@ -535,8 +534,40 @@ class CalibrationRun:
                             "calibrate with --overwrite", path=str(path)) from None
 
 
+def _found(d) -> str:
+    """What a JSON that is not a calibrate result holds, in a few words: its ``schema_version`` or ``schema``, its
+    keys, or its type (the whole file, repr'd, had been the message: a 70 kB line for a result wrapped in a list,
+    probe 47)."""
+    if isinstance(d, dict):
+        if d.get("schema_version") is not None:
+            return f"schema_version {str(d['schema_version'])[:40]!r}"
+        if isinstance(d.get("schema"), str):
+            return f"a file of schema {d['schema'][:80]!r}"
+        keys = ", ".join(repr(str(k)[:30]) for k in list(d)[:6]) + (", ..." if len(d) > 6 else "")
+        return f"a JSON object without a schema_version (keys: {keys or 'none'})"
+    if isinstance(d, list):
+        return f"a JSON list of {len(d)} item(s), not an object"
+    text = repr(d)
+    return f"a JSON {type(d).__name__}, {text[:60]}{'...' if len(text) > 60 else ''}"
+
+
+FLEET_FILES = {"hybrid-calib/fleet-summary/v1": "a fleet summary (summary.json)",
+               "hybrid-calib/fleet-manifest/v1": "a fleet manifest (manifest.json)"}
+
+
 def _what_it_is(d) -> str:
     """What a JSON that is not a calibrate result looks like, and what to pass instead."""
+    if isinstance(d, dict) and d.get("schema") in FLEET_FILES:
+        return (f"it is {FLEET_FILES[d['schema']]}: each vehicle's calibrate result of a fleet run is "
+                "OUT/vehicles/<job id>/result.json (its row in the summary names it)")
+    if isinstance(d, dict) and isinstance(d.get("schema"), str) and "calibrate-result" not in d["schema"]:
+        return ("it is another command's output: pass the result.json of a hybrid-calib calibrate run (calibrate "
+                "... --out OUT writes OUT/result.json)")
+    if isinstance(d, dict) and {"n_frames", "metrics", "rows"} <= set(d):
+        return ("it is an evaluate summary (hybrid-calib evaluate's results.json): pass the result.json of a "
+                "calibrate run (calibrate ... --out OUT writes OUT/result.json)")
+    if isinstance(d, list) and len(d) == 1 and isinstance(d[0], dict) and d[0].get("schema_version") is not None:
+        return "its one item looks like a result: pass the object itself, not a list holding it"
     if isinstance(d, dict) and {"methods", "trials"} <= set(d):
         return ("it is a compare summary (compare.json): the report reads a calibrate run's result.json (compare's "
                 "tables are compare.md)")
