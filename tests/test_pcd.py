@@ -121,11 +121,30 @@ def test_garbage_radar_names_file(tmp_path, payload):
     assert str(path) in str(e.value)
 
 
-def test_ascii_pcd_rejected(tmp_path):
-    path = write_radar_pcd(tmp_path / "a.pcd", _random_radar(3))
-    path.write_bytes(path.read_bytes().replace(b"DATA binary", b"DATA ascii"))
-    with pytest.raises(DataError, match="DATA mode"):
-        read_radar_pcd(path)
+def test_an_ascii_pcd_reads_as_its_binary_twin_and_a_compressed_one_says_how_to_convert(tmp_path):
+    """Probe 47: an ASCII PCD (what tools write when a user re-exports or edits a sweep) was refused with no way
+    forward. It reads as the binary file it was written from; a body that is not text, or is short, is named;
+    binary_compressed (LZF) says how to convert it."""
+    pts = _random_radar(9)
+    path = write_radar_pcd(tmp_path / "b.pcd", pts)
+    raw = path.read_bytes()
+    head, body = raw.split(b"DATA binary\n")
+    lines = [" ".join(repr(float(pts[n][i])) if pts.dtype[n].kind == "f" else str(int(pts[n][i]))
+                      for n in pts.dtype.names) for i in range(len(pts))]
+    (tmp_path / "a.pcd").write_bytes(head + b"DATA ascii\n" + "\n".join(lines).encode() + b"\n")
+    back = read_radar_pcd(tmp_path / "a.pcd")
+    assert back.dtype == pts.dtype
+    for name in pts.dtype.names:
+        np.testing.assert_array_equal(back[name], pts[name], err_msg=name)
+    (tmp_path / "short.pcd").write_bytes(head + b"DATA ascii\n" + "\n".join(lines[:4]).encode())
+    with pytest.raises(DataError, match="header says 9 points of 18 values but the ASCII body has 72"):
+        read_radar_pcd(tmp_path / "short.pcd")
+    (tmp_path / "x.pcd").write_bytes(raw.replace(b"DATA binary", b"DATA ascii"))  # a binary body labelled ascii
+    with pytest.raises(DataError, match="not a number"):
+        read_radar_pcd(tmp_path / "x.pcd")
+    (tmp_path / "c.pcd").write_bytes(raw.replace(b"DATA binary", b"DATA binary_compressed"))
+    with pytest.raises(DataError, match="DATA mode .*binary_compressed.*pcl_convert_pcd_ascii_binary"):
+        read_radar_pcd(tmp_path / "c.pcd")
 
 
 def test_missing_files_name_path(tmp_path):

@@ -37,6 +37,7 @@ from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import merge, save_json_atomic, to_dict
 from hybrid_calib.data.files import data_stamp
 from hybrid_calib.data.summary import table_warnings
+from hybrid_calib.data.views import ViewConfig, repeated_views
 from hybrid_calib.errors import DataError, HybridCalibError, OptionError
 from hybrid_calib.perturbation import RANGES, vehicle_rng, vehicle_start
 from hybrid_calib.sensors.camera import other_camera
@@ -56,6 +57,7 @@ class CalibrateConfig:
     seed: int = 0  # seed of the oracle noise and of R1/R2 starts
     max_frames: int = 0  # frames per vehicle (0 = all)
     vehicles: tuple[str, ...] | None = None  # vehicles to calibrate (None = all)
+    views: ViewConfig = ViewConfig()  # oracle: frames that repeat an earlier view (the ego stood still) are left out
 
     def __post_init__(self):
         if self.mode not in MODES:
@@ -102,10 +104,15 @@ def _load_oracle(data, version: str, conf: CalibrateConfig, progress: bool = Tru
         vi.skipped.extend({"index": None, "token": s.token, "reason": s.reason}
                           for s in ds.lacking_keyframes.get(vehicle, []))
         idx = idx[: conf.max_frames] if conf.max_frames > 0 else idx
+        repeats = repeated_views(ds.ego_poses(idx) if conf.views.enabled else [], conf.views)
         # drawn by (seed, vehicle) alone: the same rows whichever other vehicles the run holds, and in every
         # command (calibrate, fleet, compare, the report's replay)
         rng = vehicle_rng(conf.seed, vehicle, "oracle")
         for k, i in enumerate(tqdm(idx, desc=f"oracle {vehicle}", leave=False, disable=not progress)):
+            if k in repeats:  # the ego stood still: the true reflectors and their heights of the view it repeats
+                vi.skipped.append({"index": k, "token": ds.frames[i].camera_sd["token"],
+                                   "reason": repeats[k].reason(conf.views)})
+                continue
             try:
                 f = ds[i]
                 c, t = oracle_from_frame(f, conf.oracle, rng)

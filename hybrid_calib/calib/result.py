@@ -34,7 +34,8 @@
           "ood": {...} | null,            # learned methods: out-of-domain scores and decision (hybrid.ood)
           "mount": {...} | null,          # hybrid: the radar mount monitor (docs/conventions.md)
           "lidar": {"applied", "dy_m", "dy_std_m", "innovation_sigma", "dx_m", "dx_std_m", "forward_applied",
-                    "range_offset_m", "coupling_m_per_rad", "coupling_x_m_per_rad", "rows", "frames",
+                    "range_offset_m", "coupling_m_per_rad", "coupling_x_m_per_rad", "coupling_spread_m_per_rad",
+                    "coupling_x_spread_m_per_rad", "rows", "frames",
                     "moving_dropped", "scale_m", "note" (when not applied), "forward_note" (when the forward offset
                     is not)} | null
                                           # hybrid: the radar's lateral and forward offsets from the LiDAR

@@ -429,6 +429,17 @@ class NuScenesRadarCamera:
         """Index-time problems followed by the frames skipped so far while iterating (by index)."""
         return self._index_skips + [self._iter_skips[i] for i in sorted(self._iter_skips)]
 
+    def ego_poses(self, indices: list[int]) -> list[np.ndarray | None]:
+        """(4, 4) ego -> global of each frame of ``indices`` at its camera keyframe (tables only), None where it does
+        not read (the frame says why when it is read)."""
+        out = []
+        for i in indices:
+            try:
+                out.append(self.tables.T_global_ego(self.frames[i].camera_sd))
+            except (DataError, KeyError, TypeError, ValueError):
+                out.append(None)
+        return out
+
     def ego_travel_m(self, indices: list[int]) -> float | None:
         """How far the ego vehicle moved over the frames ``indices`` (time order), metres: the sum of the distances
         between consecutive camera keyframes' ego poses (tables only). None when a pose does not read (the frame

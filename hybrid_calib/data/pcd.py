@@ -93,9 +93,10 @@ def read_radar_pcd(path: str | Path) -> np.ndarray:
     for key in ("FIELDS", "SIZE", "TYPE", "POINTS"):
         if key not in header:
             raise DataError(f"PCD header lacks {key}; the file is corrupt", path=str(path))
-    if header["DATA"] != ["binary"]:
-        raise DataError(f"unsupported PCD DATA mode {header['DATA']}; only 'binary' radar PCDs are supported",
-                        path=str(path))
+    if header["DATA"] not in (["binary"], ["ascii"]):  # binary_compressed (LZF): a library this reader does not use
+        raise DataError(f"unsupported PCD DATA mode {header['DATA']}; radar PCDs are read as 'binary' (as nuScenes "
+                        "ships them) or 'ascii': convert the file, e.g. with PCL's "
+                        "pcl_convert_pcd_ascii_binary IN OUT 1", path=str(path))
     names, sizes, types = header["FIELDS"], header["SIZE"], header["TYPE"]
     counts = header.get("COUNT", ["1"] * len(names))
     if not (len(names) == len(sizes) == len(types) == len(counts)):
@@ -118,12 +119,36 @@ def read_radar_pcd(path: str | Path) -> np.ndarray:
     except (KeyError, ValueError, TypeError) as e:
         raise DataError(f"PCD header has an invalid field description ({e})", path=str(path)) from None
     body = raw[pos:]
+    if header["DATA"] == ["ascii"]:  # what tools write when a user re-exports or edits a sweep (probe 47)
+        return _ascii_points(body, dtype, n_points, path)
     need = n_points * dtype.itemsize
     if len(body) < need:
         raise DataError(
             f"truncated PCD: header says {n_points} points ({need} bytes) but the body has {len(body)} bytes; "
             "the file is corrupt or partially copied", path=str(path))
     return np.frombuffer(body[:need], dtype=dtype).copy()
+
+
+def _ascii_points(body: bytes, dtype: np.dtype, n_points: int, path: Path) -> np.ndarray:
+    """The points of an ASCII PCD's body (one point a line, its values in the header's field order) as ``dtype``."""
+    width = sum(int(np.prod(dtype[n].shape or (1,))) for n in dtype.names)
+    try:
+        values = np.array(body.decode("ascii").split(), dtype=np.float64)
+    except (UnicodeDecodeError, ValueError) as e:
+        raise DataError(f"ASCII PCD body holds something that is not a number ({str(e)[:80]}); the file is corrupt",
+                        path=str(path)) from None
+    if len(values) < n_points * width:
+        raise DataError(f"truncated PCD: header says {n_points} points of {width} values but the ASCII body has "
+                        f"{len(values)} values; the file is corrupt or partially copied", path=str(path))
+    rows = values[: n_points * width].reshape(n_points, width)
+    out = np.zeros(n_points, dtype=dtype)
+    col = 0
+    for name in dtype.names:
+        k = int(np.prod(dtype[name].shape or (1,)))
+        with np.errstate(invalid="ignore"):
+            out[name] = rows[:, col:col + k].reshape(out[name].shape)
+        col += k
+    return out
 
 
 # the first bytes of files a LiDAR row must not point at: a radar PCD (text header), an image

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from hybrid_calib.data.views import ViewConfig, repeated_views
 from hybrid_calib.errors import DataError
 from hybrid_calib.hybrid.network import shipped_checkpoint
 from hybrid_calib.perturbation import vehicle_start
@@ -36,10 +37,18 @@ class Drive:
     end: np.ndarray | None = None
     # the vehicle's samples the index left out (no camera or radar keyframe): frames_skipped with index None
     index_skips: list = field(default_factory=list)
+    # dataset index -> its skip record, for each frame that repeats an earlier view (the ego stood still:
+    # ``data.views``); every learned method leaves them out
+    repeats: dict = field(default_factory=dict)
 
     @property
     def errors_against(self) -> str:
         return "truth" if self.simulated else "tables"
+
+    @property
+    def n_views(self) -> int:
+        """The drive's frames that are new views (``repeats`` left out)."""
+        return len(self.indices) - len(self.repeats)
 
     def positions(self) -> dict[int, int]:
         """dataset index -> the frame's position in this drive (0-based): a learned trajectory's
@@ -144,7 +153,8 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
                                 None if ego_radar is None else np.asarray(ego_radar, np.float64),
                                 _end_truth(frames, idx, static) if simulated else None,
                                 [{"index": None, "token": s.token, "reason": s.reason}
-                                 for s in getattr(frames, "lacking_keyframes", {}).get(vehicle, [])])
+                                 for s in getattr(frames, "lacking_keyframes", {}).get(vehicle, [])],
+                                view_repeats(frames, idx, conf.views))
     for vehicle, skips in sorted(getattr(frames, "lacking_keyframes", {}).items()):  # a vehicle of no frame at all
         if vehicle in by_vehicle or vehicle in drives or (conf.vehicles is not None and vehicle not in conf.vehicles):
             continue
@@ -204,6 +214,14 @@ def sweep_files_record(frames, indices) -> dict:
 
 
 STANDSTILL_M = 1.0  # a drive whose ego poses travel less than this, metres: its frames are one view
+
+
+def view_repeats(frames, idx: list[int], conf: ViewConfig) -> dict:
+    """Dataset index -> skip record (``index``: its position in the drive) of each frame of ``idx`` that repeats an
+    earlier view (``data.views``; none where the frames have no ego poses)."""
+    poses = frames.ego_poses(idx) if conf.enabled and hasattr(frames, "ego_poses") else []
+    return {idx[k]: {"index": k, "token": frames.frames[idx[k]].camera_sd.get("token"), "reason": r.reason(conf)}
+            for k, r in repeated_views(poses, conf).items()}
 
 
 def standstill_reason(frames, drive: Drive) -> str:

@@ -66,6 +66,7 @@ from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import merge, save_json_atomic, to_dict
 from hybrid_calib.data.files import data_stamp
+from hybrid_calib.data.views import ViewConfig
 from hybrid_calib.errors import CheckpointError, DataError, HybridCalibError, OptionError, check_out_not_in_dataset
 from hybrid_calib.geometry import local, se3_exp
 from hybrid_calib.hybrid.average import AverageConfig, robust_average
@@ -134,6 +135,7 @@ class HybridConfig:
     oracle: OracleConfig = OracleConfig()  # oracle rows (simulated roots only)
     drift: DriftConfig = DriftConfig()  # reference chi-square test of the final estimate
     ood: OODPolicy = OODPolicy()  # out-of-domain frames and the inconclusive status (learned methods, hybrid.ood)
+    views: ViewConfig = ViewConfig()  # frames repeating an earlier view (the ego stood still): left out (data.views)
     threads: int = 1  # torch CPU threads (1: on a busy 2-core machine 2 threads were 40x slower, measured)
     cache_dir: str = ""  # network-output cache ("" = none; run_calibration: OUT/network-cache)
     depth_cache: str = ""  # depth cache ("" = none; run_calibration: OUT/depth-cache)
@@ -206,6 +208,13 @@ class _Trace:
     # road as the oracle's does (``corrections.with_road_words``)
     geometry: RowGeometry = field(default_factory=RowGeometry)
 
+    def repeated(self, drive: Drive, i: int) -> bool:
+        """True (and recorded) when frame ``i`` repeats an earlier view of the drive (``Drive.repeats``)."""
+        rec = drive.repeats.get(i)
+        if rec is not None:
+            self.skipped.append(dict(rec))
+        return rec is not None
+
     def unreadable(self, runner: NetworkRunner, i: int, k: int) -> None:
         """Record frame ``i`` (dataset index; ``k`` its position in the drive, the record's ``index``) as skipped:
         its files did not read (``runner.bad_reason``)."""
@@ -232,6 +241,8 @@ def _passes(runner: NetworkRunner, drive: Drive, T0: np.ndarray, conf: HybridCon
     outs = []
     for k, i in enumerate(tqdm(drive.indices, desc=f"network {drive.vehicle}", disable=not conf.progress,
                                leave=False)):
+        if tr.repeated(drive, i):
+            continue
         out = runner.run(i, T0)
         if out is None:
             tr.unreadable(runner, i, k)
@@ -300,7 +311,7 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
     in_window, pending = [], None  # drive positions of the window's frames; a mount step not yet applied
     claimed: set[int] = set()  # positions of the alarms that stand for the mount steps applied so far
     D = np.diag(np.asarray(mconf.drive_std, np.float64) ** 2)  # the network's drive-common error
-    inflate = (n_priors or len(drive.indices)) * D
+    inflate = (n_priors or drive.n_views) * D
     s_mot = drive_std_rad(conf.motion, drive.simulated)
     motion_gate = MotionGate(conf.motion)
     for k, i in enumerate(tqdm(drive.indices, desc=f"hybrid {drive.vehicle}", disable=not conf.progress,
@@ -309,6 +320,8 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
         reading = mount.update(k, i) if mount is not None else None
         if reading is not None and reading.step is not None:
             pending = reading.step
+        if tr.repeated(drive, i):
+            continue
         out = runner.run(i, T)
         if out is None:
             tr.unreadable(runner, i, k)
@@ -490,9 +503,7 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
             "estimate uses every frame that read and is not trusted"))
     elif ood["inconclusive"] and traj and conf.ood.inconclusive_frames == "in-domain" and \
             ood["in_domain"] >= conf.ood.min_in_domain_frames:  # enough to estimate from: the pass that dropped
-        ood.update(note=(  # the others is kept (hybrid.ood, rule 2)
-            f"too few frames in domain ({ood['in_domain']} of {total}, the scores above): the estimate uses those "
-            f"{ood['in_domain']} (the others dropped, in frames_skipped) and is not trusted"))
+        ood.update(note="in-domain")  # the others is kept (hybrid.ood, rule 2); its words once the last pass ran
     elif ood["inconclusive"]:  # too few frames in domain: every frame, nothing dropped, and say so (hybrid.ood)
         tr = _Trace(drop=False)
         traj, mon = _run_learned(runner, drive, T0, conf, tr, motion, frames)
@@ -503,11 +514,16 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
             "scores above): the estimate uses every frame and is not trusted; on that every-frame pass "
             f"{rerun_in} of {len(tr.scores)} frames scored in domain (the scores in frame_rows)"))
     n_priors = None
-    if tr.priors and tr.priors < DRIVE_ERROR_RERUN * len(drive.indices):  # the drive error counted N / n times
+    if tr.priors and tr.priors < DRIVE_ERROR_RERUN * drive.n_views:  # the drive error counted N / n times
         n_priors = tr.priors
         tr = _Trace(drop=tr.drop)
         traj, mon = _run_learned(runner, drive, T0, conf, tr, motion, frames, n_priors)
         ood["dropped"] = sum("ood_score" in s for s in tr.skipped) if tr.drop else 0
+    if ood.get("note") == "in-domain":  # the frames the last pass used: a rerun's passes start elsewhere, and
+        # their scores differ (probe 47: "uses those 21" on a pass that used 24 and dropped 17)
+        ood.update(note=(f"too few frames in domain ({ood['in_domain']} of {total}, the scores above): the estimate "
+                         f"uses the {len(traj)} frame(s) its pass scored in domain ({ood['dropped']} dropped, in "
+                         "frames_skipped) and is not trusted"))
     if not traj:
         wider = range_note(conf.start, runner.range, runner.checkpoint)
         raise DataError(f"vehicle {drive.vehicle}: no usable frame ({len(tr.skipped)} skipped; first: "
@@ -573,7 +589,7 @@ def vehicle_oracle(data, version: str, drive: Drive, conf: HybridConfig) -> Vehi
         raise HybridCalibError("method oracle needs a simulated root (the true reflectors); use hybrid, pure or "
                                "pure-avg on real data")
     cconf = CalibrateConfig(window=conf.window, oracle=conf.oracle, drift=conf.drift, start=conf.start,
-                            seed=conf.seed, max_frames=conf.max_frames, vehicles=(drive.vehicle,))
+                            views=conf.views, seed=conf.seed, max_frames=conf.max_frames, vehicles=(drive.vehicle,))
     vi = load_oracle(data, version, cconf, conf.progress)[drive.vehicle]
     T0 = start_of(drive, conf)
     res = calibrate_vehicle(vi, cconf, progress=conf.progress, T_start=T0)

@@ -294,5 +294,10 @@ def _frames(ev: Evidence, root: Path, version: str, vehicle: str, vr, n: int, by
             sf.pairs_start = _pairs(corr, start, f, *fg)
             sf.pairs_result = _pairs(corr, T_res, f, *fg)
         ev.frames.append(sf)
+    if not ev.frames and (bad := [n for n in ev.notes if " not shown: " in n]):  # said on the terminal too: the
+        import warnings  # page's notes alone left a run that showed no frame silent (probe 47: exit 0, "wrote ...")
+
+        warnings.warn(f"no camera frame shown: {len(bad)} of the vehicle's frames did not read (first: "
+                      f"{bad[0]}); the page says why for each", stacklevel=2)
     if ev.frames and by_token and all(s.pairs_result is None for s in ev.frames):  # rows there, none matched
         ev.notes.append("the correspondences are not drawn: the rows of the shown frames could not be matched")
