@@ -211,3 +211,24 @@ def test_the_ego_stops_as_at_a_red_light_and_drives_on():
     assert 0.8 * 2 * (hold + ramp) * 9.0 < lost < 1.2 * 2 * (hold + ramp) * 9.0
     with pytest.raises(ConfigError, match=r"stops.count=3 .* do not fit in the 10 s drive"):
         merge(SimConfig, {"frames": 20, "stops": {"count": 3}})
+
+
+def test_a_presets_fields_are_set_with_world_and_a_scenario_dot_key_is_refused(tmp_path, capsys):
+    """Probe 48: nothing of a preset (ego speed, traffic, turns) could be set from the command line, and
+    ``--set scenario.ego_speed=5`` beside ``--scenario urban`` rendered the preset's 9 m/s after a note."""
+    from hybrid_calib.cli import main
+    from hybrid_calib.config import ConfigError, merge
+
+    conf = merge(SimConfig, {"scenario": "highway", "world": {"ego_speed": 12.0, "lead_vehicles": 0}})
+    assert conf.scenario_config.ego_speed == 12.0 and conf.scenario_config.layout == PRESETS["highway"].layout
+    assert conf.scenario_config.lead_vehicles == 0 and SimConfig().scenario_config is PRESETS["urban"]
+    d = VehicleDrive(conf, 0)
+    assert np.isclose(np.linalg.norm(d.ego.point_velocity(2.0, np.zeros(3))), 12.0, rtol=0.1)
+    with pytest.raises(ConfigError, match=r"unknown option\(s\) \['ego_sped'\] for ScenarioConfig at world"):
+        merge(SimConfig, {"world": {"ego_sped": 5.0}})
+    with pytest.raises(ConfigError, match="ego_speed in"):
+        merge(SimConfig, {"world": {"ego_speed": -1.0}})
+    assert main(["simulate", "--scenario", "urban", "--frames", "2", "--set", "scenario.ego_speed=5",
+                 "--out", str(tmp_path / "s")]) == 2
+    assert "its fields are set with world.ego_speed=VALUE" in capsys.readouterr().err
+    assert not (tmp_path / "s").exists()

@@ -30,6 +30,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--overwrite", action="store_true", help="re-render everything instead of resuming")
     p.add_argument("--set", action="extend", nargs="+", metavar="KEY=VALUE", default=[],
                    help="SimConfig overrides, e.g. image_scale=0.25 radar.clutter_per_sweep=8 lidar.azimuth_steps=540; "
+                        "world.KEY=VALUE sets the scenario preset's fields (world.ego_speed=5 "
+                        "world.parked_per_100m=8); "
+                        "stops.count=2 stops.hold_s=10 stops the ego as at red lights; "
                         "randomise.enabled=true turns on domain randomisation (appearance, weather, radar noise "
                         "and rates, real nuScenes mounts and intrinsics; docs/sim_vs_real.md)")
 
@@ -38,6 +41,11 @@ def run(args: argparse.Namespace) -> int:
     from hybrid_calib.sim.simulate import simulate
 
     overrides = parse_overrides(args.set)
+    if isinstance(overrides.get("scenario"), dict):  # beside --scenario it was dropped with a note (probe 48)
+        key = next(iter(overrides["scenario"]), "KEY")
+        raise OptionError("--set", f"scenario.{key}: scenario is the preset's name (--scenario); its fields are set "
+                                   f"with world.{key}=VALUE (sim.scenarios.ScenarioConfig), e.g. --set "
+                                   "world.ego_speed=5")
     # a flag that was passed wins over --set; an absent one leaves --set (or the default) in charge
     overrides.update(given_flags(args, {k: k for k in ("scenario", "vehicles", "frames", "seed")}, overrides))
     flags = given_flags(args, {"kind": "extrinsic_change", "frame": "change_frame"})

@@ -9,7 +9,7 @@ from functools import cached_property
 
 import numpy as np
 
-from hybrid_calib.config import require_ranges
+from hybrid_calib.config import merge, require_ranges, to_dict
 from hybrid_calib.data.summary import MIN_MOUNT_HEIGHT_M
 from hybrid_calib.sensors.camera import PinholeCamera
 from hybrid_calib.sim.extrinsics import ExtrinsicChange, MountPerturbation, VehicleMounts, sample_mounts
@@ -62,9 +62,12 @@ class SimConfig:
     lidar: LidarConfig = LidarConfig()  # LiDAR model
     randomise: Randomisation = Randomisation()  # domain randomisation (off unless randomise.enabled=true)
     stops: EgoStops = EgoStops()  # the ego's stops during each drive, as at a red light (none unless stops.count > 0)
+    # ScenarioConfig fields over the preset's, e.g. {"ego_speed": 5.0, "parked_per_100m": 8.0}: --set world.ego_speed=5
+    world: dict = field(default_factory=dict)
 
     def __post_init__(self):
         scenario(self.scenario)  # validates the name
+        _ = self.scenario_config  # ConfigError naming a bad world.KEY
         # first (the sweeps' message below blamed them for a 0 s interval); 1e6 s built a world growing ~110 MB/s
         if not 0.05 <= self.frame_interval_s <= MAX_FRAME_INTERVAL_S:
             raise ValueError(f"frame_interval_s={self.frame_interval_s} is outside 0.05..{MAX_FRAME_INTERVAL_S:g} s "
@@ -101,9 +104,14 @@ class SimConfig:
             extra = " and the largest randomise.clutter_scale" if self.randomise.enabled else ""
             raise ValueError(f"radar with the {self.scenario} scenario's weather{extra}: {e}") from None
 
-    @property
+    @cached_property
     def scenario_config(self) -> ScenarioConfig:
-        return scenario(self.scenario)
+        """The preset ``scenario`` with ``world`` over it (probe 48: nothing of a preset could be set from the command
+        line, and ``--set scenario.ego_speed=5`` beside ``--scenario urban`` rendered the preset's 9 m/s)."""
+        preset = scenario(self.scenario)
+        if not self.world:
+            return preset
+        return merge(ScenarioConfig, {**to_dict(preset), **self.world}, "world.")
 
     @property
     def effective_radar(self) -> RadarConfig:

@@ -146,8 +146,9 @@ def simulate(conf: SimConfig, out: str | Path, overwrite: bool = False, workers:
     root = Path(out)
     conf_path = root / "sim_config.json"
     conf_dict = to_dict(conf)
-    if conf.stops == EgoStops():  # a drive without stops: the root, its tokens and a resume as before stops existed
-        conf_dict.pop("stops")
+    for key, default in (("stops", EgoStops()), ("world", {})):  # not set: the root, its tokens and a resume as
+        if getattr(conf, key) == default:  # before the option existed
+            conf_dict.pop(key)
     if root.is_dir() and any(p.name != LOCK_NAME for p in root.iterdir()) and not conf_path.exists():
         raise HybridCalibError(
             f"{root} is not empty and holds no hybrid-calib simulation (no sim_config.json); refusing to write "
