@@ -11,6 +11,9 @@ residual ``|r| / sqrt(sigma_doppler^2 + sigma_vo^2)`` of the pairs with at least
 inliers is the Gaussian's 0.674 (the tails are left to the Huber weight), ``vo_inliers_power`` the same
 for the pairs with fewer (their VO std ``sigma_vo * (full / n) ** power``), ``vo_inliers_full`` the
 candidate of ``FULL_GRID`` whose fit whitens each quartile of the inlier counts closest to 0.674;
+``vo_chord_power`` the same for the pairs whose radar chord (their travel) is below ``vo_chord_full_m``, the
+candidate of ``CHORD_GRID`` that whitens each quartile of those chords closest to 0.674 (``--hold`` keeps
+``sigma_vo_deg`` and the inlier terms at the config's values and fits the chord's alone);
 ``drive_std_deg``: the spread of the per-drive mean residuals beyond what
 their within-drive scatter explains: the second moment of the drive means about zero (a bias
 shared by all drives counts: its sign on a new drive is unknown) less their mean variance, >= 0.
@@ -50,11 +53,12 @@ def residuals(root: str, version: str, conf: MotionConfig, cache: str) -> list[d
             r, _ = heading_residual(T, m)
             rows.append({"root": root, "vehicle": vehicle, "pair": [a, b], "residual_deg": float(np.degrees(r)),
                          "sigma_doppler_deg": float(np.degrees(m.sigma)), "vo_inliers": m.n_vo_inliers,
-                         "speed_mps": m.speed})
+                         "speed_mps": m.speed, "chord_m": float(m.s)})
     return rows
 
 
 FULL_GRID = (12, 15, 20, 25, 30, 40)  # candidate vo_inliers_full
+CHORD_GRID = (3.0, 4.0, 5.0, 6.0, 8.0, 10.0)  # candidate vo_chord_full_m, metres
 
 
 def _median_fit(f, hi: float) -> float:
@@ -81,37 +85,63 @@ def fit_vo_sigma(r: np.ndarray, sd: np.ndarray, n: np.ndarray, full: int) -> tup
     return base, power
 
 
-def inlier_bins(r: np.ndarray, sig: np.ndarray, n: np.ndarray) -> list[dict]:
-    """The whitened residuals ``r / sig`` by VO inlier count (quartile bins): their median (0.674 when
-    the std is right) and the fraction inside 1.96."""
-    edges = np.unique(np.quantile(n, [0, 0.25, 0.5, 0.75, 1.0]).round())
+def fit_chord(r: np.ndarray, sd: np.ndarray, s_inl: np.ndarray, chord: np.ndarray, full: float) -> float:
+    """``vo_chord_power`` for one ``vo_chord_full_m`` = ``full``: the power such that the whitened residuals of the
+    pairs whose chord is below ``full`` have the Gaussian's median 0.674, their VO std ``s_inl (full / chord) **
+    power``. r, sd, s_inl: (P,) deg (``s_inl``: the VO std with the inlier terms); chord: (P,) m."""
+    short = (chord > 0) & (chord < full)
+    if short.sum() < 5:
+        return float("nan")
+    grow = full / chord[short]
+    return _median_fit(lambda q: float(np.median(np.abs(r[short]) / np.hypot(sd[short], s_inl[short] * grow ** q)))
+                       - 0.6745, 10.0)
+
+
+def inlier_bins(r: np.ndarray, sig: np.ndarray, n: np.ndarray, key: str = "inliers") -> list[dict]:
+    """The whitened residuals ``r / sig`` by VO inlier count (quartile bins; or by any ``n``, named ``key``): their
+    median (0.674 when the std is right) and the fraction inside 1.96."""
+    if not len(n):
+        return []
+    edges = np.unique(np.quantile(n, [0, 0.25, 0.5, 0.75, 1.0]).round(1 if key != "inliers" else 0))
     out = []
     for lo, hi in zip(edges[:-1], edges[1:]):
         sel = (n >= lo) & ((n < hi) if hi < edges[-1] else (n <= hi))
         if sel.any():
             z = np.abs(r[sel]) / sig[sel]
-            out.append({"inliers": [int(lo), int(hi)], "pairs": int(sel.sum()), "median_whitened": float(np.median(z)),
+            out.append({key: [float(lo), float(hi)], "pairs": int(sel.sum()), "median_whitened": float(np.median(z)),
                         "inside_95": float(np.mean(z < 1.96)), "robust_std_deg": float(1.4826 * np.median(
                             np.abs(r[sel] - np.median(r[sel]))))})
     return out
 
 
-def fit(rows: list[dict]) -> dict:
+def fit(rows: list[dict], hold: MotionConfig | None = None) -> dict:
     ok = [r for r in rows if "residual_deg" in r]
     r = np.array([x["residual_deg"] for x in ok])
     sd = np.array([x["sigma_doppler_deg"] for x in ok])
     n = np.array([x["vo_inliers"] for x in ok], np.float64)
-    # vo_inliers_full: the candidate whose fitted std whitens every inlier bin closest to the Gaussian's median
+    chord = np.array([x.get("chord_m", 0.0) for x in ok], np.float64)
+    # vo_inliers_full: the candidate whose fitted std whitens every inlier bin closest to the Gaussian's median;
+    # fitted on the pairs of long chords (each chord candidate's), or held at the config's (``hold``)
     best = None
-    for full in FULL_GRID:
-        base, power = fit_vo_sigma(r, sd, n, full)
-        if not np.isfinite(base):
-            continue
-        sig = np.hypot(sd, base * np.where(n < full, full / n, 1.0) ** power)
-        score = float(sum(np.log(b["median_whitened"] / 0.6745) ** 2 for b in inlier_bins(r, sig, n)))
-        if best is None or score < best[0]:
-            best = (score, full, base, power, sig)
-    _, full, sigma_vo, power, sig = best
+    for cf in CHORD_GRID:
+        long = ~((chord > 0) & (chord < cf))
+        for full in ((hold.vo_inliers_full,) if hold is not None else FULL_GRID):
+            if hold is not None:
+                base, power = hold.sigma_vo_deg, hold.vo_inliers_power
+            else:
+                base, power = fit_vo_sigma(r[long], sd[long], n[long], full)
+            if not np.isfinite(base):
+                continue
+            s_inl = base * np.where(n < full, full / np.maximum(n, 1), 1.0) ** power
+            q = fit_chord(r, sd, s_inl, chord, cf)
+            q = 0.0 if not np.isfinite(q) else q
+            sig = np.hypot(sd, s_inl * np.where(~long, cf / np.maximum(chord, 1e-3), 1.0) ** q)
+            bins = inlier_bins(r[long], sig[long], n[long]) + inlier_bins(r[~long], sig[~long], chord[~long], "chord")
+            score = float(sum(np.log(b["median_whitened"] / 0.6745) ** 2 for b in bins))
+            if best is None or score < best[0]:
+                best = (score, full, base, power, sig, cf, q)
+    _, full, sigma_vo, power, sig, chord_full, chord_power = best
+    sig_no_chord = np.hypot(sd, sigma_vo * np.where(n < full, full / np.maximum(n, 1), 1.0) ** power)
     w = 1 / sig ** 2
     drives = sorted({(x["root"], x["vehicle"]) for x in ok})
     means, vars_ = [], []
@@ -134,7 +164,10 @@ def fit(rows: list[dict]) -> dict:
             "mad_residual_deg": float(1.4826 * np.median(np.abs(r - np.median(r)))),
             "inside_95_whitened": float(np.mean(np.abs(r) / sig < 1.96)),
             "sigma_vo_deg": float(sigma_vo), "vo_inliers_full": int(full), "vo_inliers_power": float(power),
+            "vo_chord_full_m": float(chord_full), "vo_chord_power": float(chord_power), "held": hold is not None,
             "inlier_bins": inlier_bins(r, sig, n), "inlier_bins_one_std": inlier_bins(r, np.hypot(sd, sigma_vo), n),
+            "chord_bins": inlier_bins(r, sig, chord, "chord"),
+            "chord_bins_no_chord_term": inlier_bins(r, sig_no_chord, chord, "chord"),
             "drive_means_deg": means, "drive_std_deg": drive_std,
             "median_drive_mean_deg": float(np.median(means)) if means else float("nan")}
 
@@ -145,6 +178,8 @@ def main(argv=None) -> int:
     ap.add_argument("--version", default="v1.0-sim")
     ap.add_argument("--out", required=True)
     ap.add_argument("--set", nargs="*", default=[], help="MotionConfig overrides (key=value)")
+    ap.add_argument("--hold", action="store_true", help="keep sigma_vo_deg and the inlier terms at the config's "
+                    "values (--set); fit the chord's term alone")
     a = ap.parse_args(argv)
     conf = merge(MotionConfig, parse_overrides(a.set))
     out = Path(a.out)
@@ -154,7 +189,7 @@ def main(argv=None) -> int:
         rows += residuals(root, a.version, conf, str(out / "cache"))
         print(f"{root}: {sum('residual_deg' in r for r in rows)} pairs so far ({time.perf_counter() - t0:.0f} s)",
               flush=True)
-    f = fit(rows)
+    f = fit(rows, conf if a.hold else None)
     reasons = {}
     for r in rows:
         if "skipped" in r:
@@ -163,12 +198,16 @@ def main(argv=None) -> int:
     print(f"pairs {f['pairs']}, used {f['used']}, skipped {f['skipped']} {reasons}")
     print(f"residual at the truth: median |r| {f['median_abs_residual_deg']:.3f} deg, "
           f"mean {f['mean_residual_deg']:+.3f}, MAD {f['mad_residual_deg']:.3f}")
-    for name, key in (("fitted std", "inlier_bins"), ("sigma_vo_deg alone", "inlier_bins_one_std")):
-        print(f"by VO inliers, {name}: " + "; ".join(
-            f"{b['inliers'][0]}-{b['inliers'][1]}: {b['pairs']} pairs, robust std {b['robust_std_deg']:.2f} deg, "
+    for name, key, by in (("fitted std", "inlier_bins", "inliers"), ("sigma_vo_deg alone", "inlier_bins_one_std",
+                                                                       "inliers"),
+                          ("fitted std", "chord_bins", "chord"), ("without the chord term", "chord_bins_no_chord_term",
+                                                                  "chord")):
+        print(f"by {'VO inliers' if by == 'inliers' else 'radar chord (m)'}, {name}: " + "; ".join(
+            f"{b[by][0]:g}-{b[by][1]:g}: {b['pairs']} pairs, robust std {b['robust_std_deg']:.2f} deg, "
             f"median |r|/std {b['median_whitened']:.2f}, inside 1.96 {b['inside_95']:.0%}" for b in f[key]))
-    print(f"fit: sigma_vo_deg {f['sigma_vo_deg']:.3f}, vo_inliers_full {f['vo_inliers_full']}, "
-          f"vo_inliers_power {f['vo_inliers_power']:.2f}, drive_std_deg {f['drive_std_deg']:.3f} "
+    print(f"fit{' (inlier terms held)' if f['held'] else ''}: sigma_vo_deg {f['sigma_vo_deg']:.3f}, vo_inliers_full "
+          f"{f['vo_inliers_full']}, vo_inliers_power {f['vo_inliers_power']:.2f}, vo_chord_full_m "
+          f"{f['vo_chord_full_m']:g}, vo_chord_power {f['vo_chord_power']:.2f}, drive_std_deg {f['drive_std_deg']:.3f} "
           f"(per-drive means {np.round(f['drive_means_deg'], 3).tolist()}); whitened inside 1.96: "
           f"{f['inside_95_whitened']:.1%}")
     save_json_atomic(out / "motion_fit.json", {"command": " ".join(sys.argv), "fit": f, "reasons": reasons,

@@ -369,3 +369,31 @@ def test_a_real_root_s_motion_carries_at_least_the_real_drive_error():
     assert np.isclose(drive_std_rad(conf, False), np.radians(conf.real_drive_std_deg)) and conf.real_drive_std_deg >= 1
     wide = MotionConfig(drive_std_deg=2.0)  # a larger simulated figure is kept on real roots too
     assert np.isclose(drive_std_rad(wide, False), np.radians(2.0))
+
+
+def test_a_short_chord_grows_the_vo_std():
+    """Probe 48: at 5 m/s (2.5 m between keyframes) the VO headings were 2-4 deg off against a std of 0.75 deg, and
+    the hybrid's yaw ended 1.66 deg off at a 1-sigma of 0.39. A pair whose radar travelled less than
+    ``vo_chord_full_m`` has its VO std grown by ``(full / chord) ** vo_chord_power``, and its confirming band with it
+    (a good pair's residual at that baseline is larger too)."""
+    from dataclasses import replace
+
+    from hybrid_calib.hybrid.motion import vo_sigma_rad
+
+    conf = replace(MotionConfig(), vo_chord_full_m=4.0, vo_chord_power=1.0)
+    base = vo_sigma_rad(conf, 400)
+    assert vo_sigma_rad(conf, 400, chord_m=2.0) == pytest.approx(2 * base)
+    assert vo_sigma_rad(conf, 400, chord_m=4.0) == pytest.approx(base) == vo_sigma_rad(conf, 400, chord_m=12.0)
+    assert vo_sigma_rad(conf, 400, chord_m=0.0) == pytest.approx(base)  # not known: none
+    assert vo_sigma_rad(replace(conf, vo_chord_power=0.0), 400, chord_m=1.0) == pytest.approx(base)
+    assert vo_sigma_rad(conf, conf.vo_inliers_full // 4, chord_m=2.0) == pytest.approx(
+        2 * vo_sigma_rad(conf, conf.vo_inliers_full // 4))  # the two growths multiply
+    X = nominal_T_cam_radar()
+    T = X @ make_T(so3_exp([0.0, 0.0, np.radians(1.0)]), np.zeros(3))
+    C = np.diag([np.radians(0.5) ** 2] * 3 + [0.1 ** 2] * 3)
+    fast, slow = (replace(_measurement(X, 0.1, speed=v), n_vo_inliers=80) for v in (9.0, 3.0))
+    i_fast, i_slow = innovation(T, fast, conf, C), innovation(T, slow, conf, C)
+    assert slow.s == pytest.approx(1.5, rel=0.01) and fast.s > 4.0
+    vo = np.sqrt(i_slow.sigma ** 2 - slow.sigma ** 2)
+    assert vo == pytest.approx(base * 4.0 / slow.s, rel=1e-6) and i_slow.sigma_base == pytest.approx(i_slow.sigma)
+    assert np.sqrt(i_fast.sigma ** 2 - fast.sigma ** 2) == pytest.approx(base, rel=1e-6)

@@ -63,6 +63,12 @@ class MotionConfig:
     # or more (fitted with sigma_vo_deg on 53 validation drives, plain and randomised; power 0: one std for all)
     vo_inliers_full: int = 40
     vo_inliers_power: float = 0.9
+    # and a pair whose radar chord (the travel between its keyframes) is shorter than ``vo_chord_full_m`` has it grown
+    # by ``(full / chord) ** vo_chord_power`` too: a short baseline's translation direction is poorer (probe 48: at
+    # 5 m/s, 2.5 m chords, residuals of 2-4 deg against a std of 0.75; benchmarks/motion_fit.py --hold on 15 slow
+    # validation drives, 519 pairs of 1.1-5.6 m chords: docs/benchmarks.md "The visual odometry's std by its chord")
+    vo_chord_full_m: float = 6.0
+    vo_chord_power: float = 0.40
     # on a real root the VO std is at least this, deg: the fit rests on the simulator's images, and on the real
     # scene-0916 its pairs of 150-760 inliers, at 0.7 deg, pulled the yaw 1.3 deg further off the tables from one
     # start of three (the single std fitted before, 1.13 deg, kept there; ``vo_sigma_rad``)
@@ -112,18 +118,23 @@ class MotionConfig:
 
         require_ranges(self, {"sigma_vo_deg": "(0, 90]", "huber": "(0, 100]", "gate": "(0, 1000]",
                               "vo_inliers_full": "[1, 1e6]", "vo_inliers_power": "[0, 10]",
+                              "vo_chord_full_m": "(0, 1000]", "vo_chord_power": "[0, 10]",
                               "real_sigma_vo_deg": "[0, 90]",
                               "drive_std_deg": "[0, 90]", "real_drive_std_deg": "[0, 90]", "consensus": "[0, 1e6]",
                               "confirm": "[0, 1e6]", "min_speed_mps": "[0, 100]",
                               "max_gap_s": "(0, 3600]", "max_rotation_mismatch_deg": "(0, 180]"})
 
 
-def vo_sigma_rad(conf: MotionConfig, n_inliers: int, simulated: bool = True) -> float:
-    """The VO heading std (rad) of a pair whose essential matrix had ``n_inliers`` inliers: ``sigma_vo_deg``, grown
-    by ``(vo_inliers_full / n) ** vo_inliers_power`` below ``vo_inliers_full`` (0 or less: not recorded, the base);
-    on a real root (``simulated`` False) at least ``real_sigma_vo_deg``."""
-    n = int(n_inliers)
+def vo_sigma_rad(conf: MotionConfig, n_inliers: int, simulated: bool = True, chord_m: float = 0.0) -> float:
+    """The VO heading std (rad) of a pair whose essential matrix had ``n_inliers`` inliers and whose radar travelled
+    ``chord_m`` metres: ``sigma_vo_deg``, grown by ``(vo_inliers_full / n) ** vo_inliers_power`` below
+    ``vo_inliers_full`` (0 or less: not recorded, the base) and by ``(vo_chord_full_m / chord) ** vo_chord_power``
+    below ``vo_chord_full_m`` (0 or less: not known, none); on a real root (``simulated`` False) at least
+    ``real_sigma_vo_deg`` (fitted on scene-0916, whose keyframes are 1.8-3.1 m apart: its chords are in it)."""
+    n, chord = int(n_inliers), float(chord_m)
     grow = (conf.vo_inliers_full / n) ** conf.vo_inliers_power if 0 < n < conf.vo_inliers_full else 1.0
+    if 0 < chord < conf.vo_chord_full_m:
+        grow *= (conf.vo_chord_full_m / chord) ** conf.vo_chord_power
     s = float(np.radians(conf.sigma_vo_deg) * grow)
     return s if simulated else max(s, float(np.radians(conf.real_sigma_vo_deg)))
 
@@ -332,10 +343,10 @@ def gated_innovation(T: np.ndarray, m: MotionMeasurement, conf: MotionConfig, co
     r, J = heading_residual(T, m)
     if not conf.translation:
         J = np.concatenate([J[:3], np.zeros(3)])
-    sigma = float(np.hypot(m.sigma, vo_sigma_rad(conf, m.n_vo_inliers, simulated)))
+    sigma = float(np.hypot(m.sigma, vo_sigma_rad(conf, m.n_vo_inliers, simulated, m.s)))
     spread = min(float(J @ c @ J) for c in covs if c is not None)
     return Innovation(r, J, sigma, float(np.sqrt(sigma ** 2 + spread)),
-                      float(np.hypot(m.sigma, vo_sigma_rad(conf, 0, simulated))))
+                      float(np.hypot(m.sigma, vo_sigma_rad(conf, 0, simulated, m.s))))
 
 
 class MotionGate:
