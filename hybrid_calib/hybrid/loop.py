@@ -94,7 +94,15 @@ from hybrid_calib.hybrid.drives import (
     trained_depth,
 )
 from hybrid_calib.hybrid.measurement import MeasurementConfig, frame_inputs, prior_trusted
-from hybrid_calib.hybrid.motion import MotionConfig, MotionGate, MotionSource, drive_std_rad, fold, gated_innovation
+from hybrid_calib.hybrid.motion import (
+    MotionConfig,
+    MotionGate,
+    MotionSource,
+    drive_std_rad,
+    fold,
+    gated_innovation,
+    pair_partner,
+)
 from hybrid_calib.hybrid.network import (
     NetworkRunner,
     build_runner,
@@ -307,16 +315,19 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
     cal = SlidingWindowCalibrator(T0, conf.window)
     gate = conf.window.schedule.final_gate
     T, fused_cov, traj = T0.copy(), None, []
-    g_frames, motion_gain, prev, reported_cov = [], [], None, None
+    g_frames, motion_gain, reported_cov = [], [], None
     in_window, pending = [], None  # drive positions of the window's frames; a mount step not yet applied
     claimed: set[int] = set()  # positions of the alarms that stand for the mount steps applied so far
     D = np.diag(np.asarray(mconf.drive_std, np.float64) ** 2)  # the network's drive-common error
     inflate = (n_priors or drive.n_views) * D
     s_mot = drive_std_rad(conf.motion, drive.simulated)
     motion_gate = MotionGate(conf.motion)
+    recent: list = []  # (index, ego position, time) of the frames so far: the motion pair's partner (pair_partner)
     for k, i in enumerate(tqdm(drive.indices, desc=f"hybrid {drive.vehicle}", disable=not conf.progress,
                                leave=False)):
-        pair, prev = prev, i
+        here = motion.where(i) if motion is not None else (None, None)
+        pair = pair_partner(recent, *here, conf.motion)
+        recent = [*recent[-15:], (i, *here)]
         reading = mount.update(k, i) if mount is not None else None
         if reading is not None and reading.step is not None:
             pending = reading.step
@@ -352,9 +363,10 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
             if fo is not None:
                 prior, gain = fo.prior, fo.gain_motion
                 mrec = {**mrec, "motion": {"residual_deg": fo.residual_deg, "weight": fo.weight,
-                                   "sigma_deg": float(np.degrees(inn.sigma)), "speed_mps": m.speed,
-                                   "vo_inliers": m.n_vo_inliers,
-                                   **({"admitted": "consensus"} if motion_gate.admitted_by_consensus else {})}}
+                                           "sigma_deg": float(np.degrees(inn.sigma)), "speed_mps": m.speed,
+                                           "vo_inliers": m.n_vo_inliers, "paired_with": drive.positions()[pair],
+                                           **({"admitted": "consensus"} if motion_gate.admitted_by_consensus
+                                              else {})}}
             else:
                 mrec = {**mrec, "motion_skipped": why or motion_gate.refused
                         or "residual outside the innovation gate (MotionConfig.gate)"}

@@ -96,6 +96,11 @@ class MotionConfig:
     translation: bool = False
     min_speed_mps: float = 2.0  # slower: the Doppler heading is too noisy, the pair is skipped
     max_gap_s: float = 1.5  # frames further apart are not a pair
+    # a frame is paired with the latest earlier frame at least this far back along the ego's path (ego poses), within
+    # max_gap_s, else with the one before it (0: always the one before). A short baseline's heading is poor and a
+    # slow drive's VO carried biases of 1.3-1.7 deg at 1.5 m chords (probe 48's 3 m/s drive): paired 3 frames apart
+    # it has 4.5 m, an urban drive's chord (``pair_partner``)
+    min_chord_m: float = 4.0
     # VO's rotation angle must match the vehicle's own (ego poses: odometry, mount-independent) within
     # this, deg; two-view VO in turns and on repetitive texture trades rotation for a sideways travel
     max_rotation_mismatch_deg: float = 1.0
@@ -122,7 +127,8 @@ class MotionConfig:
                               "real_sigma_vo_deg": "[0, 90]",
                               "drive_std_deg": "[0, 90]", "real_drive_std_deg": "[0, 90]", "consensus": "[0, 1e6]",
                               "confirm": "[0, 1e6]", "min_speed_mps": "[0, 100]",
-                              "max_gap_s": "(0, 3600]", "max_rotation_mismatch_deg": "(0, 180]"})
+                              "max_gap_s": "(0, 3600]", "max_rotation_mismatch_deg": "(0, 180]",
+                              "min_chord_m": "[0, 1000]"})
 
 
 def vo_sigma_rad(conf: MotionConfig, n_inliers: int, simulated: bool = True, chord_m: float = 0.0) -> float:
@@ -137,6 +143,21 @@ def vo_sigma_rad(conf: MotionConfig, n_inliers: int, simulated: bool = True, cho
         grow *= (conf.vo_chord_full_m / chord) ** conf.vo_chord_power
     s = float(np.radians(conf.sigma_vo_deg) * grow)
     return s if simulated else max(s, float(np.radians(conf.real_sigma_vo_deg)))
+
+
+def pair_partner(history: list, p: np.ndarray | None, t: float | None, conf: MotionConfig) -> int | None:
+    """The frame a new frame (the ego at ``p`` (3,) m, time ``t`` s: ``MotionSource.where``) is paired with: the
+    latest of ``history`` ([(index, p, t)], oldest first) at least ``conf.min_chord_m`` back within ``max_gap_s``,
+    else the latest one (None: no history)."""
+    if not history:
+        return None
+    if conf.min_chord_m > 0 and p is not None and t is not None:
+        for j, pj, tj in reversed(history):
+            if tj is None or pj is None or t - tj > conf.max_gap_s:
+                break
+            if float(np.linalg.norm(p - pj)) >= conf.min_chord_m:
+                return j
+    return history[-1][0]
 
 
 def drive_std_rad(conf: MotionConfig, simulated: bool) -> float:
@@ -160,6 +181,16 @@ class MotionSource:
 
     def _frame(self, i: int):
         return self.frames[i]
+
+    def where(self, i: int) -> tuple[np.ndarray | None, float | None]:
+        """(the ego's position (3,) m, the camera keyframe's time s) of frame ``i`` from the tables (no file read),
+        or (None, None) where the frames do not say (``pair_partner`` then takes the frame before)."""
+        try:
+            (T,) = self.frames.ego_poses([i])
+            t = self.frames.frames[i].camera_sd["timestamp"] * 1e-6
+        except (AttributeError, KeyError, TypeError, ValueError, IndexError):
+            return None, None
+        return (None, None) if T is None else (np.asarray(T, np.float64)[:3, 3], float(t))
 
     def velocity(self, i: int):
         if i not in self._velocity:
