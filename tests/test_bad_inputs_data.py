@@ -468,6 +468,18 @@ def test_a_keyframe_with_another_sensors_calibration_is_named_not_read_as_that_s
     assert "two RADAR_FRONT keyframes" in lacking and "has no keyframe" not in lacking, lacking
 
 
+def test_a_radar_keyframe_naming_another_sample_blames_its_sample_token(tiny):
+    """Probe 47: the radar keyframe of one sample given another sample's token read 'the calibrated_sensor_token of
+    the one whose file is not a RADAR_FRONT file is wrong', yet both files were RADAR_FRONT files. Now the record
+    whose timestamp lies far from the sample's is named, with its sample_token."""
+    tiny.radar_sd[2]["sample_token"] = tiny.radar_sd[0]["sample_token"]
+    tiny.rewrite_table("sample_data")
+    ds = NuScenesRadarCamera(tiny.root, tiny.version)
+    (why,) = [s.reason for s in ds.skipped if "two RADAR_FRONT keyframes" in s.reason]
+    assert f"sample_data {tiny.radar_sd[2]['token']} lies" in why and "sample_token is likely wrong" in why, why
+    assert "calibrated_sensor_token" not in why
+
+
 @pytest.mark.parametrize("ext", [".jpg", ".png"])
 def test_a_grayscale_camera_image_is_named_not_fed_to_the_network(tmp_path, ext):
     """Probe 23: a CAM_FRONT JPEG re-encoded as one grey channel was read (converted to three equal channels) and fed

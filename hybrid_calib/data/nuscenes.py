@@ -241,15 +241,16 @@ class NuScenesRadarCamera:
                 raise DataError(f"vehicle(s) {unknown} not found; vehicles present: {present}",
                                 path=str(t.path("log")))
         frames: list[FrameRef] = []
-        orphans: dict[str, int] = {}  # scene token not in scene.json -> its samples (never indexed)
+        orphans: dict[str, list] = {}  # scene token not in scene.json -> its samples' tokens (never indexed)
         for sample in t.records["sample"]:
             if sample["scene_token"] not in t.by_token["scene"]:
-                orphans[sample["scene_token"]] = orphans.get(sample["scene_token"], 0) + 1
-        for token, n in orphans.items():
+                orphans.setdefault(sample["scene_token"], []).append(sample.get("token"))
+        for token, samples in orphans.items():  # the samples named too: they are the records to fix (probe 47)
             self._index_skips.append(SkipRecord(
                 None, token, str(t.path("scene")),
-                f"{n} sample(s) reference scene {token}, which is not in scene.json; they are skipped (the tables "
-                "are inconsistent: re-extract the metadata)"))
+                f"{len(samples)} sample(s) reference scene {token}, which is not in scene.json (sample "
+                f"{samples[0]}{f' and {len(samples) - 1} more' if len(samples) > 1 else ''}); they are skipped (the "
+                "tables are inconsistent: re-extract the metadata, or fix those samples' scene_token)"))
             self.vehicleless.append(self._index_skips[-1])
         empty = [sc for sc in scenes if not t.scene_samples(sc)]
         if empty:  # a partial metadata copy, or scene.json of a larger release: said once, not silently dropped

@@ -217,11 +217,15 @@ class NuScenesTables:
                 first = self.keyframes.pop(key, None) or ambiguous[key]
                 ambiguous[key] = first
                 swept = [str(r.get("filename", "")).startswith("sweeps/") for r in (first, sd)]
-                why = ("the one under sweeps/ is a sweep marked is_key_frame (a converter that marks every "
-                       "sample_data a keyframe); neither is used, set is_key_frame false on sweeps/ records"
-                       if any(swept) else
-                       f"the calibrated_sensor_token of the one whose file is not a {key[1]} file is wrong (it names "
-                       f"the {key[1]} sensor); neither is used, fix the record")
+                own = [f"/{key[1]}/" in str(r.get("filename", "")) for r in (first, sd)]
+                if any(swept):
+                    why = ("the one under sweeps/ is a sweep marked is_key_frame (a converter that marks every "
+                           "sample_data a keyframe); neither is used, set is_key_frame false on sweeps/ records")
+                elif all(own):  # both the channel's files: one names another sample (probe 47: 5 s apart)
+                    why = self._other_sample_reason(key[0], first, sd)
+                else:
+                    why = (f"the calibrated_sensor_token of the one whose file is not a {key[1]} file is wrong (it "
+                           f"names the {key[1]} sensor); neither is used, fix the record")
                 self.ambiguous_keyframes[key] = (f"sample {key[0]} has two {key[1]} keyframes, sample_data "
                                                  f"{first['token']} ({first.get('filename')}) and {sd['token']} "
                                                  f"({sd.get('filename')}): {why}")
@@ -234,6 +238,18 @@ class NuScenesTables:
                 f"{len(lost)} keyframe sample_data record(s) reference samples not in sample.json (first: "
                 f"{sd['token']}, {sd.get('filename')}, sample {sd['sample_token']}): they are no frame; the tables are "
                 "inconsistent or a partial copy: re-extract the metadata")))
+
+    def _other_sample_reason(self, sample_token: str, a: dict, b: dict) -> str:
+        """Why two keyframes of one channel's own files name one sample: one record's sample_token names another
+        sample; the one whose timestamp lies farther from the sample's is named."""
+        t = self.by_token["sample"].get(sample_token, {}).get("timestamp")
+        ta, tb = a.get("timestamp"), b.get("timestamp")
+        if not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in (t, ta, tb)):
+            return "one record's sample_token names another sample; neither is used, fix that record"
+        far = a if abs(ta - t) > abs(tb - t) else b
+        return (f"one record's sample_token names another sample: sample_data {far['token']} lies "
+                f"{abs(far['timestamp'] - t) / 1e6:.2f} s from the sample's timestamp ({abs(ta - tb) / 1e6:.2f} s "
+                "from the other), so its sample_token is likely wrong; neither is used, fix that record")
 
     def _unresolved_cs_reason(self, sd: dict) -> str:
         cs = self.by_token["calibrated_sensor"].get(sd["calibrated_sensor_token"])
