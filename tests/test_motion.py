@@ -399,23 +399,25 @@ def test_a_short_chord_grows_the_vo_std():
     assert np.sqrt(i_fast.sigma ** 2 - fast.sigma ** 2) == pytest.approx(base, rel=1e-6)
 
 
-def test_a_frame_is_paired_with_the_latest_frame_a_urban_chord_back():
+def test_a_frame_is_paired_with_the_latest_frame_a_chord_back():
     """Probe 48: at 3 m/s consecutive keyframes are 1.5 m apart and the VO headings of such pairs carried a drive's
     bias of 1.3-1.7 deg. A frame is paired with the latest earlier frame at least ``min_chord_m`` back along the
-    ego's path within ``max_gap_s`` (3 frames back at 3 m/s: 4.5 m), else the one before it."""
+    ego's path within ``max_gap_s`` (2 m by default: 2 frames back at 3 m/s; with 4 m, 3 back), else the one
+    before it."""
     from dataclasses import replace
 
     from hybrid_calib.hybrid.motion import pair_partner
 
-    conf = MotionConfig()
-    assert conf.min_chord_m == 4.0 and conf.max_gap_s == 1.5
+    conf = replace(MotionConfig(), min_chord_m=4.0)
+    assert MotionConfig().min_chord_m == 2.0 and conf.max_gap_s == 1.5
     slow = [(10 + k, np.array([1.5 * k, 0.0, 0.0]), 0.5 * k) for k in range(6)]
     assert pair_partner([], np.zeros(3), 0.0, conf) is None
     assert pair_partner(slow[:1], *slow[1][1:], conf) == 10  # nothing 4 m back yet: the one before
     assert pair_partner(slow[:3], *slow[3][1:], conf) == 10  # 4.5 m back, 1.5 s
     assert pair_partner(slow[:5], *slow[5][1:], conf) == 12
-    fast = [(k, np.array([4.5 * k, 0.0, 0.0]), 0.5 * k) for k in range(3)]
-    assert pair_partner(fast[:2], *fast[2][1:], conf) == 1  # an urban drive: the frame before
+    assert pair_partner(slow[:5], *slow[5][1:], MotionConfig()) == 13  # the default 2 m: 3 m back
+    fast = [(k, np.array([2.5 * k, 0.0, 0.0]), 0.5 * k) for k in range(3)]
+    assert pair_partner(fast[:2], *fast[2][1:], MotionConfig()) == 1  # 2.5 m chords (5 m/s): the frame before
     crawl = [(k, np.array([0.5 * k, 0.0, 0.0]), 0.5 * k) for k in range(6)]
     assert pair_partner(crawl[:5], *crawl[5][1:], conf) == 4  # nothing 4 m back within 1.5 s: the one before
     assert pair_partner(slow[:5], None, None, conf) == 14  # no pose: the one before

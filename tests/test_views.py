@@ -79,10 +79,10 @@ def test_the_learned_methods_leave_the_frames_a_stop_repeats_out(stop_root, tmp_
     assert [f.index for f in v.trajectory] == [0, 1, 2, 7] and len(v.frame_rows) == 4
 
 
-def test_the_motion_pairs_a_frame_with_one_an_urban_chord_back(stop_root, tmp_path, monkeypatch):
-    """The hybrid's motion pairs (``hybrid.motion.pair_partner``) on the stop drive: frame 2 (braking, 2.25 m on) is
-    paired with frame 0 (6.75 m back), frame 7 (pulling away) with frame 6 (nothing 4 m back within 1.5 s); the
-    repeated views 3-6 get none."""
+def test_the_motion_pairs_a_frame_with_one_a_chord_back(stop_root, tmp_path, monkeypatch):
+    """The hybrid's motion pairs (``hybrid.motion.pair_partner``) on the stop drive with ``min_chord_m`` 4 m: frame 2
+    (braking, 2.25 m on) is paired with frame 0 (6.75 m back), frame 7 (pulling away) with frame 6 (nothing 4 m back
+    within 1.5 s); the repeated views 3-6 get none."""
     from hybrid_calib.hybrid import run_calibration
     from hybrid_calib.hybrid.motion import MotionSource
 
@@ -95,6 +95,7 @@ def test_the_motion_pairs_a_frame_with_one_an_urban_chord_back(stop_root, tmp_pa
 
     monkeypatch.setattr(MotionSource, "measurement", spy)
     conf = {"method": "hybrid", "start": "R1", "seed": 4, "threads": 1, "progress": False,
-            "window": {"detect_steps": False}, "ood": {"enabled": False}, "mount": {"enabled": False}}
+            "window": {"detect_steps": False}, "ood": {"enabled": False}, "mount": {"enabled": False},
+            "motion": {"min_chord_m": 4.0}}
     run_calibration(stop_root, "v1.0-sim", tmp_path / "h", conf)
     assert calls == [(0, 1), (0, 2), (6, 7)], calls

@@ -97,10 +97,11 @@ class MotionConfig:
     min_speed_mps: float = 2.0  # slower: the Doppler heading is too noisy, the pair is skipped
     max_gap_s: float = 1.5  # frames further apart are not a pair
     # a frame is paired with the latest earlier frame at least this far back along the ego's path (ego poses), within
-    # max_gap_s, else with the one before it (0: always the one before). A short baseline's heading is poor and a
-    # slow drive's VO carried biases of 1.3-1.7 deg at 1.5 m chords (probe 48's 3 m/s drive): paired 3 frames apart
-    # it has 4.5 m, an urban drive's chord (``pair_partner``)
-    min_chord_m: float = 4.0
+    # max_gap_s, else with the one before it (0: always the one before). A slow drive's VO carried biases of 1.3-1.7
+    # deg at 1.5 m chords (probe 48's 3 m/s drive), beyond what the chord's std (below) covers there; paired further
+    # back on the real scene-0916 (keyframes 1.8-3.1 m apart, 4 m: two back) its yaw moved 0.6-1.3 deg further from
+    # the tables from 2 of 3 starts, so only chords under 2 m are paired back (``pair_partner``, docs/benchmarks.md)
+    min_chord_m: float = 2.0
     # VO's rotation angle must match the vehicle's own (ego poses: odometry, mount-independent) within
     # this, deg; two-view VO in turns and on repetitive texture trades rotation for a sideways travel
     max_rotation_mismatch_deg: float = 1.0
