@@ -279,8 +279,9 @@ def align(frames: list[LidarFrame], X: np.ndarray, conf: LidarAlignConfig = Lida
         if len(slope) == 2:
             c[:, j] = 0.5 * (slope[1.0] + slope[-1.0])  # the central difference
             spread[:, j] = 0.5 * np.abs(slope[1.0] - slope[-1.0])
-        elif slope:
+        elif slope:  # one side's fit failed: its slope is all there is, and how far from linear is unknown
             c[:, j] = next(iter(slope.values()))
+            spread[:, j] = np.abs(c[:, j])
     return dataclasses.replace(a, coupling=c[1], coupling_x=c[0], spread=spread[1], spread_x=spread[0]), ""
 
 
