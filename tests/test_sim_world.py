@@ -228,6 +228,10 @@ def test_a_presets_fields_are_set_with_world_and_a_scenario_dot_key_is_refused(t
         merge(SimConfig, {"world": {"ego_sped": 5.0}})
     with pytest.raises(ConfigError, match="ego_speed in"):
         merge(SimConfig, {"world": {"ego_speed": -1.0}})
+    with pytest.raises(ConfigError, match=r"straight_length as \(min, max\) with min <= max"):  # probe 49: numpy's
+        merge(SimConfig, {"world": {"straight_length": [10.0, 5.0]}})  # "high - low < 0" as an internal error
+    with pytest.raises(ConfigError, match="world.name: the preset is chosen with --scenario"):
+        merge(SimConfig, {"world": {"name": "foo"}})
     assert main(["simulate", "--scenario", "urban", "--frames", "2", "--set", "scenario.ego_speed=5",
                  "--out", str(tmp_path / "s")]) == 2
     assert "its fields are set with world.ego_speed=VALUE" in capsys.readouterr().err

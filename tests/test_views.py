@@ -99,3 +99,16 @@ def test_the_motion_pairs_a_frame_with_one_a_chord_back(stop_root, tmp_path, mon
             "motion": {"min_chord_m": 4.0}}
     run_calibration(stop_root, "v1.0-sim", tmp_path / "h", conf)
     assert calls == [(0, 1), (0, 2), (6, 7)], calls
+
+
+def test_a_drive_that_ends_at_a_red_light_is_not_blamed_on_the_radar(stop_root, tmp_path, capsys):
+    """Probe 49: a drive cut while the ego waited (its last 4 of 7 frames repeated views) read "inconclusive: the
+    drive's last 4 of 7 frames gave nothing to fuse: a radar knocked, blocked or failed there", and calibrate's line
+    counted them as "frame(s) skipped (bad files or no rows)". They are the view they repeat."""
+    from hybrid_calib.cli import main
+
+    assert main(["calibrate", "--data", str(stop_root), "--method", "oracle", "--start", "R1", "--max-frames", "7",
+                 "--out", str(tmp_path / "o"), "--no-plots"]) == 0
+    out = capsys.readouterr().out
+    assert "4 frame(s) left out as repeats of a view (the ego stood still)" in out and "bad files" not in out, out
+    assert "gave nothing to fuse" not in out and "inconclusive" not in out, out

@@ -111,7 +111,7 @@ def _load_oracle(data, version: str, conf: CalibrateConfig, progress: bool = Tru
         for k, i in enumerate(tqdm(idx, desc=f"oracle {vehicle}", leave=False, disable=not progress)):
             if k in repeats:  # the ego stood still: the true reflectors and their heights of the view it repeats
                 vi.skipped.append({"index": k, "token": ds.frames[i].camera_sd["token"],
-                                   "reason": repeats[k].reason(conf.views)})
+                                   "reason": repeats[k].reason(conf.views), "repeats": repeats[k].of})
                 continue
             try:
                 f = ds[i]
@@ -300,13 +300,15 @@ UNSEEN_END_FRAMES = 3
 
 def unseen_end_reason(res: VehicleResult) -> str:
     """Why an estimate cannot stand for the mount at the drive's end, or "": the drive's last frames (at least
-    ``UNSEEN_END_FRAMES`` and a quarter of its frames) are all in ``res.skipped`` (no rows, unreadable, repeats; not
-    the frames the network's domain test dropped, which its own reason names), so
+    ``UNSEEN_END_FRAMES`` and a quarter of its frames) are all in ``res.skipped`` (no rows, unreadable, repeated rows;
+    not the frames the network's domain test dropped, which its own reason names, nor repeated views), so
     the estimate is of the mount before them. Frame positions are the skipped entries' and the trajectory's
     ``index`` (the drive's frame numbers from 0)."""
-    # frames the domain test left out are its reason's to say (``hybrid.ood``), not this one's
+    # frames the domain test left out are its reason's to say (``hybrid.ood``), not this one's; a repeated view
+    # (``data.views``: the ego stood still) is the view it repeats, which was fused (probe 49: a drive ending at a red
+    # light read "a radar knocked, blocked or failed there")
     skipped = {int(s["index"]) for s in res.skipped if isinstance(s, dict) and isinstance(s.get("index"), int)
-               and "ood_score" not in s}
+               and "ood_score" not in s and "repeats" not in s}
     used = {int(f.index) for f in res.trajectory} or (set(range(max(skipped) + 1)) - skipped if skipped else set())
     if not skipped or not used:
         return ""

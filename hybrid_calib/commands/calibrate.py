@@ -165,8 +165,10 @@ def _report(result, out: Path, reused: bool = False) -> int:
             line += f"; vs reference (tables): {drift_verdict(v.drift)} (chi2 p {v.drift['p_value']:.2g})"
         if v.skipped:
             ood = sum("ood_score" in r for r in v.skipped)
-            bad = len(v.skipped) - ood
+            seen = sum("repeats" in r for r in v.skipped)  # the ego stood still: not bad (probe 49)
+            bad = len(v.skipped) - ood - seen
             said = (f"{bad} frame(s) skipped (bad files or no rows)" if bad else "",
+                    f"{seen} frame(s) left out as repeats of a view (the ego stood still)" if seen else "",
                     f"{ood} frame(s) dropped as out of the network's domain" if ood else "")
             line += "; " + " and ".join(w for w in said if w) + " (listed in result.json)"
         print(line)

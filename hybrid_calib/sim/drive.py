@@ -111,6 +111,9 @@ class SimConfig:
         preset = scenario(self.scenario)
         if not self.world:
             return preset
+        if "name" in self.world:  # the preset is --scenario's; a name of its own was accepted and did nothing
+            raise ValueError("world.name: the preset is chosen with --scenario (or --set scenario=NAME); world.KEY "
+                             "sets its other fields")
         return merge(ScenarioConfig, {**to_dict(preset), **self.world}, "world.")
 
     @property

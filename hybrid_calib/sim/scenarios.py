@@ -64,7 +64,11 @@ class ScenarioConfig:
                               "bushes_per_100m": "[0, 100]", "image_contrast": "(0, 10]", "fog_distance": "[1, 1e4]",
                               "radar_extra_loss_db": "[0, 100]", "radar_clutter_per_sweep": "[0, 1e4]",
                               "radar_ghost_probability": "[0, 1]"})
-        require(self, {"pole_spacing = 0 (none) or >= 1": self.pole_spacing == 0 or self.pole_spacing >= 1})
+        require(self, {"pole_spacing = 0 (none) or >= 1": self.pole_spacing == 0 or self.pole_spacing >= 1,
+                       # (min, max) ranges drawn from: [10, 5] was an internal error in numpy (probe 49)
+                       **{f"{k} as (min, max) with min <= max": len(getattr(self, k)) == 2 and
+                          getattr(self, k)[0] <= getattr(self, k)[1]
+                          for k in ("straight_length", "turn_radius", "turn_angle_deg")}})
 
 
 LEAD_SPEED_FACTOR = 1.02  # the lead vehicles in the ego's lane drive 2 % faster than the ego's mean speed
