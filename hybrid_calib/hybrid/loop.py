@@ -327,7 +327,7 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
                                leave=False)):
         here = motion.where(i) if motion is not None else (None, None)
         pair = pair_partner(recent, *here, conf.motion)
-        recent = [*recent[-15:], (i, *here)]
+        recent = [*recent[-63:], (i, *here)]  # max_gap_s back at the least keyframe interval (sim: 0.05 s)
         reading = mount.update(k, i) if mount is not None else None
         if reading is not None and reading.step is not None:
             pending = reading.step

@@ -98,7 +98,7 @@ class MotionConfig:
     max_gap_s: float = 1.5  # frames further apart are not a pair
     # a frame is paired with the latest earlier frame at least this far back along the ego's path (ego poses), within
     # max_gap_s, else with the one before it (0: always the one before). A slow drive's VO carried biases of 1.3-1.7
-    # deg at 1.5 m chords (probe 48's 3 m/s drive), beyond what the chord's std (below) covers there; paired further
+    # deg at 1.5 m chords (probe 48's 3 m/s drive), beyond what the chord's std (above) covers there; paired further
     # back on the real scene-0916 (keyframes 1.8-3.1 m apart, 4 m: two back) its yaw moved 0.6-1.3 deg further from
     # the tables from 2 of 3 starts, so only chords under 2 m are paired back (``pair_partner``, docs/benchmarks.md)
     min_chord_m: float = 2.0
