@@ -110,8 +110,7 @@ def _load_oracle(data, version: str, conf: CalibrateConfig, progress: bool = Tru
         rng = vehicle_rng(conf.seed, vehicle, "oracle")
         for k, i in enumerate(tqdm(idx, desc=f"oracle {vehicle}", leave=False, disable=not progress)):
             if k in repeats:  # the ego stood still: the true reflectors and their heights of the view it repeats
-                vi.skipped.append({"index": k, "token": ds.frames[i].camera_sd["token"],
-                                   "reason": repeats[k].reason(conf.views), "repeats": repeats[k].of})
+                vi.skipped.append(repeats[k].record(k, ds.frames[i].camera_sd["token"], conf.views))
                 continue
             try:
                 f = ds[i]

@@ -445,10 +445,10 @@ class NuScenesRadarCamera:
         """How far the ego vehicle moved over the frames ``indices`` (time order), metres: the sum of the distances
         between consecutive camera keyframes' ego poses (tables only). None when a pose does not read (the frame
         says why when it is read)."""
-        try:
-            p = [self.tables.T_global_ego(self.frames[i].camera_sd)[:3, 3] for i in indices]
-        except (DataError, KeyError, TypeError):
+        poses = self.ego_poses(indices)
+        if any(T is None for T in poses):
             return None
+        p = [T[:3, 3] for T in poses]
         return float(sum(np.linalg.norm(b - a) for a, b in zip(p, p[1:])))
 
     def frames_by_vehicle(self) -> dict[str, list[int]]:

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hybrid_calib.config import require_ranges
+from hybrid_calib.geometry import so3_log
 
 
 @dataclass(frozen=True)
@@ -47,6 +48,10 @@ class Repeat:
                 f"{self.turn_deg:.1f} deg since (a new view needs {conf.min_travel_m:g} m or {conf.min_turn_deg:g} "
                 "deg, views.min_travel_m / views.min_turn_deg): its errors would repeat that frame's")
 
+    def record(self, k: int, token: str | None, conf: ViewConfig) -> dict:
+        """Frame ``k``'s (its position in the drive) ``frames_skipped`` record: every method writes this one."""
+        return {"index": int(k), "token": token, "reason": self.reason(conf), "repeats": self.of}
+
 
 def repeated_views(poses: list, conf: ViewConfig) -> dict[int, Repeat]:
     """Position in the drive -> ``Repeat`` for each frame of ``poses`` (time order; (4, 4) ego -> global, or None
@@ -61,8 +66,7 @@ def repeated_views(poses: list, conf: ViewConfig) -> dict[int, Repeat]:
         T = np.asarray(T, np.float64)
         if last is not None:
             d = float(np.linalg.norm(T[:3, 3] - last[1][:3, 3]))
-            R = last[1][:3, :3].T @ T[:3, :3]
-            turn = float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0))))
+            turn = float(np.degrees(np.linalg.norm(so3_log(last[1][:3, :3].T @ T[:3, :3]))))
             if d < conf.min_travel_m and turn < conf.min_turn_deg:
                 out[k] = Repeat(last[0], d, turn)
                 continue

@@ -220,8 +220,8 @@ def view_repeats(frames, idx: list[int], conf: ViewConfig) -> dict:
     """Dataset index -> skip record (``index``: its position in the drive) of each frame of ``idx`` that repeats an
     earlier view (``data.views``; none where the frames have no ego poses)."""
     poses = frames.ego_poses(idx) if conf.enabled and hasattr(frames, "ego_poses") else []
-    return {idx[k]: {"index": k, "token": frames.frames[idx[k]].camera_sd.get("token"), "reason": r.reason(conf),
-                     "repeats": r.of} for k, r in repeated_views(poses, conf).items()}
+    return {idx[k]: r.record(k, frames.frames[idx[k]].camera_sd.get("token"), conf)
+            for k, r in repeated_views(poses, conf).items()}
 
 
 def standstill_reason(frames, drive: Drive) -> str:
