@@ -8,6 +8,29 @@ def join_and(names: list[str]) -> str:
     return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
 
 
+def some_of(names: list[str], first: list[str] = (), most: int = 8) -> str:
+    """At most ``most`` of ``names``, comma-separated, ``first`` (those of them to say first) leading, then "and N
+    more": a list a user reads in one line (a root of 200 vehicles put all their names into one error)."""
+    names = [str(n) for n in names]
+    if not names:
+        return "none"
+    lead = [n for n in first if n in names]
+    shown = lead + [n for n in names if n not in lead][:max(most - len(lead), 0)]
+    return ", ".join(shown) + (f" and {len(names) - len(shown)} more" if len(names) > len(shown) else "")
+
+
+def close_to(wanted: str, names: list[str]) -> list[str]:
+    """Up to three of ``names`` spelled like ``wanted`` (a mistyped vehicle or key), closest first."""
+    import difflib
+
+    return difflib.get_close_matches(str(wanted), [str(n) for n in names], n=3, cutoff=0.6)
+
+
+def join_or(names: list[str]) -> str:
+    """"a", "a or b", "a, b or c"."""
+    return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " or " + names[-1]
+
+
 def n_vehicles(n: int) -> str:
     """"1 vehicle", "3 vehicles": the count of a fleet's vehicles in words."""
     return f"{n} vehicle{'' if n == 1 else 's'}"

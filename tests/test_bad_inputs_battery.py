@@ -1424,6 +1424,16 @@ def test_a_vehicle_without_frames_in_the_split_says_so(sim, tmp_path, capsys):
     assert "not in the data" not in err
 
 
+def test_a_mistyped_vehicle_is_answered_with_the_closest_names_not_every_name(sim, tmp_path, capsys):
+    """A vehicle not in the root listed every vehicle of it (200 names in one line on a large root): now the closest
+    names, then at most a few more and a count."""
+    root, frames = sim
+    name = sorted(frames)[0]
+    argv = _calibrate(root, tmp_path / "out", "--method", "pure", "--set", f'vehicles=["{name}x"]')
+    err = expect_cli_error(argv, capsys, f"['{name}x'] not in the data; did you mean {name}", "inspect lists them")
+    assert "vehicles: [" not in err
+
+
 def test_fleet_out_of_another_root_or_options_is_refused(sim, tmp_path, capsys):
     """A rerun into the same --out with another root (or --set/--max-frames) reported the first run's results as
     its own (the manifest was updated to the new root, the result files were not recomputed)."""

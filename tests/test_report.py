@@ -231,6 +231,8 @@ def test_report_command(run_dir, tmp_path, capsys):
     assert "pass --vehicle NAME" in capsys.readouterr().err
     assert main(["report", str(result), "--vehicle", "nope", "--out", str(out)]) == 2
     assert "'nope' is not in" in capsys.readouterr().err
+    assert main(["report", str(result), "--vehicle", name + "x", "--out", str(out)]) == 2  # a typo: the close name
+    assert f"did you mean {name}" in capsys.readouterr().err
     empty = tmp_path / "empty" / "result.json"  # "holds 0 vehicles (): pass --vehicle NAME" (probe 38)
     empty.parent.mkdir()
     empty.write_text(json.dumps({**json.loads(result.read_text()), "vehicles": {}}))

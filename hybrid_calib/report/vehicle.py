@@ -19,6 +19,7 @@ from hybrid_calib.errors import HybridCalibError
 from hybrid_calib.report.evidence import Evidence, gather
 from hybrid_calib.report.html import esc, img_tag, num, verdict_class, write_page
 from hybrid_calib.report.verdict import AXIS_NAMES, Tolerance, Verdict, verdict_of
+from hybrid_calib.words import close_to, join_or, some_of
 
 STD_KEYS = ("rot_x_cam_deg", "rot_y_cam_deg", "rot_z_cam_deg", "t_x_cam_cm", "t_y_cam_cm", "t_z_cam_cm")
 
@@ -49,11 +50,13 @@ def pick_vehicle(run: CalibrationRun, vehicle: str | None, source: str) -> str:
                                "file); rerun calibrate with --overwrite")
     if vehicle is None:
         if len(names) != 1:
-            raise HybridCalibError(f"{source} holds {len(names)} vehicles ({', '.join(names)}): pass --vehicle NAME")
+            raise HybridCalibError(f"{source} holds {len(names)} vehicles ({some_of(names)}): pass --vehicle NAME")
         return names[0]
     if vehicle not in run.vehicles:
         also = f"; failed: {', '.join(sorted(failed))}" if failed else ""
-        raise HybridCalibError(f"vehicle {vehicle!r} is not in {source} (vehicles: {', '.join(names) or 'none'}"
+        close = close_to(vehicle, names)
+        mean = f"; did you mean {join_or(close)}?" if close else ""
+        raise HybridCalibError(f"vehicle {vehicle!r} is not in {source}{mean} (vehicles: {some_of(names, close)}"
                                f"{also})")
     return vehicle
 
