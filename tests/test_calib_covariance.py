@@ -66,6 +66,26 @@ def test_singular_information_uses_regularised_prior():
     assert ok.status == "ok" and not ok.regularised
 
 
+def test_what_is_unobservable_does_not_depend_on_the_tolerances():
+    """The rank decision is made in the default tolerances' basis: a user's 1e-4 deg rotation tolerance against 1 cm
+    called a roll measured to 0.155 deg "unobservable" and regularised it (probe 51); the tolerances name the weak
+    directions only. A tolerance no computation can use is refused (1e-300 ended in an internal LinAlgError)."""
+    std = np.array([np.radians(1.0), np.radians(0.015), np.radians(0.155), 0.005, 0.35, 0.0065])
+    info = np.diag(1.0 / std**2)
+    default = analyse_information(np.eye(4), info)
+    tight = analyse_information(np.eye(4), info, {"rot_tol_deg": 1e-4})
+    assert not default.regularised and not tight.regularised, tight.status
+    assert "unobservable" not in tight.status and "poorly observed" in tight.status
+    np.testing.assert_allclose(tight.cov, default.cov)
+    unobservable = np.diag(1.0 / std**2) * np.array([1, 1, 1, 1, 1, 1e-14])  # translation z: no information
+    for tol in ({}, {"rot_tol_deg": 1e-4}, {"trans_tol_cm": 10.0}):
+        rep = analyse_information(np.eye(4), unobservable, tol)
+        assert rep.regularised and "longitudinal offset (translation along camera z) is unobservable" in rep.status
+    for bad in ({"rot_tol_deg": 1e-300}, {"trans_tol_cm": 1e-300}):
+        with pytest.raises(ValueError, match="tol"):
+            analyse_information(np.eye(4), info, bad)
+
+
 @pytest.mark.parametrize("skew_px", [0.0, 3.5])
 def test_pixel_jacobian_matches_finite_differences(skew_px):
     """The Cramer-Rao bound's pose Jacobian through the one harness, with a skewed K too (it once ignored K[0, 1])."""

@@ -46,7 +46,9 @@ class CovarianceConfig:
     def __post_init__(self):
         from hybrid_calib.config import require_ranges
 
-        require_ranges(self, {"rot_tol_deg": "(0, 90]", "trans_tol_cm": "(0, 1000]", "weak_factor": "[1, 1e6]",
+        # a tolerance of 1e-300 made the scaled covariance overflow (``internal error: LinAlgError``: probe 51); no
+        # radar-camera calibration needs its rotation to 1e-4 deg or its translation to 10 um
+        require_ranges(self, {"rot_tol_deg": "[1e-4, 90]", "trans_tol_cm": "[1e-3, 1000]", "weak_factor": "[1, 1e6]",
                               "unobservable_rel_eig": "[0, 1)", "regularise_rot_deg": "(0, 180]",
                               "regularise_trans_m": "(0, 1000]"})
 
@@ -191,6 +193,12 @@ def _check_cov(cov: np.ndarray) -> np.ndarray:
 def _scale(conf: CovarianceConfig) -> np.ndarray:
     """(6,) physical unit of each report axis: tolerance in rad and in m."""
     return np.array([np.radians(conf.rot_tol_deg)] * 3 + [conf.trans_tol_cm / 100.0] * 3)
+
+
+# (6,) the basis the rank decision ("unobservable") is made in: the default tolerances, whatever the user's. Made in
+# the user's, a rotation tolerance of 1e-5 deg against 1 cm called a roll measured to 0.155 deg "unobservable" and
+# regularised it (probe 51): what the data cannot see does not depend on the accuracy a user needs
+RANK_SCALE = _scale(CovarianceConfig())
 
 
 def _name_direction(vec_report: np.ndarray) -> str:
@@ -423,8 +431,9 @@ def analyse_information(
         cov_hint = None  # a solver's marginal does not know the nuisance: invert the marginalised information
     B = report_basis(T_cam_radar)
     s = _scale(conf)
-    # xi_report = B xi ; scaled z = xi_report / s -> xi = B^T diag(s) z ; info_z = D B info B^T D
-    M = np.diag(s) @ B @ info @ B.T @ np.diag(s)
+    # xi_report = B xi ; scaled z = xi_report / s -> xi = B^T diag(s) z ; info_z = D B info B^T D; the rank decision
+    # in RANK_SCALE, the words (weak directions) in the user's tolerances s
+    M = np.diag(RANK_SCALE) @ B @ info @ B.T @ np.diag(RANK_SCALE)
     evals, evecs = np.linalg.eigh(M)
     if evals[0] < 0:  # M is congruent to ``info``: the same signs, found without a second decomposition
         # negative information is none: an indefinite matrix (a Schur complement or a subtracted term gone past zero
@@ -434,7 +443,7 @@ def analyse_information(
         if w[0] < -1e-12 * max(float(np.max(np.abs(w))), 1e-300):
             info = (V * np.clip(w, 0.0, None)) @ V.T
             cov_hint = None
-            M = np.diag(s) @ B @ info @ B.T @ np.diag(s)
+            M = np.diag(RANK_SCALE) @ B @ info @ B.T @ np.diag(RANK_SCALE)
             evals, evecs = np.linalg.eigh(M)
     lam_max = max(float(evals[-1]), 1e-300)
     unobs = evals < conf.unobservable_rel_eig * lam_max
@@ -457,6 +466,8 @@ def analyse_information(
     Cz = np.diag(1 / s) @ B @ cov @ B.T @ np.diag(1 / s)
     cevals, cevecs = np.linalg.eigh(0.5 * (Cz + Cz.T))
     names, details = [], []
+    # the unobservable subspace in the user's scaled coordinates (z_user = z_rank * RANK_SCALE / s), orthonormal
+    null = np.linalg.qr(np.diag(RANK_SCALE / s) @ evecs[:, unobs])[0] if regularised else np.zeros((6, 0))
     pinned_axes = pinned_camera_axes(B, pinned_std) if pinned else np.zeros(6, bool)
     for k in range(5, -1, -1):
         std_scaled = float(np.sqrt(max(cevals[k], 0.0)))
@@ -465,7 +476,7 @@ def analyse_information(
         vec = cevecs[:, k]
         name = _name_direction(vec)
         # is this direction (mostly) in the unobservable subspace?
-        in_null = regularised and float(np.sum((evecs[:, unobs].T @ vec) ** 2)) > 0.5
+        in_null = regularised and float(np.sum((null.T @ vec) ** 2)) > 0.5
         names.append(name)
         on_pinned = float(np.sum(vec[pinned_axes] ** 2)) > 0.5
         how = "unobservable" if in_null else "prior-pinned, not measured" if on_pinned else "poorly observed"
