@@ -68,9 +68,10 @@ def test_singular_information_uses_regularised_prior():
 
 def test_what_is_unobservable_does_not_depend_on_the_tolerances():
     """The rank decision is made in the default tolerances' basis: a user's 1e-4 deg rotation tolerance against 1 cm
-    called a roll measured to 0.155 deg "unobservable" and regularised it (probe 51); the tolerances name the weak
+    called a roll measured to 0.155 deg "unobservable" and regularised it (probe 51: 1e-5 deg; here 1 deg against
+    0.5 mm at 1e-4 deg); the tolerances name the weak
     directions only. A tolerance no computation can use is refused (1e-300 ended in an internal LinAlgError)."""
-    std = np.array([np.radians(1.0), np.radians(0.015), np.radians(0.155), 0.005, 0.35, 0.0065])
+    std = np.array([np.radians(1.0), np.radians(0.015), np.radians(1.0), 0.0005, 0.35, 0.00065])
     info = np.diag(1.0 / std**2)
     default = analyse_information(np.eye(4), info)
     tight = analyse_information(np.eye(4), info, {"rot_tol_deg": 1e-4})
