@@ -57,6 +57,9 @@ class RadarPixelFactorConfig:
     min_depth_m: float = 0.1  # points closer than this to the camera plane get a large constant residual
 
     def __post_init__(self):
+        from hybrid_calib.config import check_fields
+
+        check_fields(self)  # the types first: kernel_scale="2" was a bare TypeError below (probe 51)
         if self.kernel not in KERNELS:
             raise ValueError(f"RadarPixelFactorConfig.kernel={self.kernel!r}; valid: {KERNELS}")
         if self.elevation_model not in ELEVATION_MODELS:

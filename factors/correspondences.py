@@ -9,6 +9,7 @@ import numpy as np
 SIGMA_PX_RANGE = (1e-12, 1e6)  # pixels: no 1-sigma outside this is a measurement (its information overflows)
 POINT_RANGE_M = (0.0, 1e5)  # |coordinate|, metres: no radar detection lies 100 km away
 PIXEL_RANGE = (0.0, 1e7)  # |coordinate|, pixels: no image is ten million pixels wide
+FOCAL_MIN_PX = 1.0  # pixels: a focal length below one pixel images the whole world into one pixel
 
 
 @dataclass(frozen=True)
@@ -35,8 +36,22 @@ class Correspondences:
     timestamp_us: int = 0
 
     def __post_init__(self):
+        # the metadata as annotated: an int frame id is its str; a timestamp that is not an integer was refused only
+        # one call later, naming neither the frame nor the field (probe 51: 'abc', 1.9 truncated to 1)
+        if isinstance(self.frame_id, (int, np.integer)) and not isinstance(self.frame_id, bool):
+            object.__setattr__(self, "frame_id", str(self.frame_id))
+        if not isinstance(self.frame_id, str):
+            raise ValueError(f"Correspondences.frame_id must be a str (a sample token or index), got "
+                             f"{type(self.frame_id).__name__} {self.frame_id!r}")
+        if isinstance(self.timestamp_us, bool) or not isinstance(self.timestamp_us, (int, np.integer)):
+            raise ValueError(f"Correspondences[{self.frame_id}].timestamp_us must be an integer number of "
+                             f"microseconds (0 if unknown), got {type(self.timestamp_us).__name__} "
+                             f"{self.timestamp_us!r}")
+        object.__setattr__(self, "timestamp_us", int(self.timestamp_us))
         for name in ("points_radar", "pixels", "sigma_px", "confidence", "K"):  # owned, float64, read-only: what
             value = getattr(self, name)  # was validated stays so (a caller's array changed after it was not)
+            if np.iscomplexobj(value):  # float64 would keep the real part, with only a numpy warning
+                raise ValueError(f"Correspondences[{self.frame_id}].{name}: complex numbers; give real ones")
             try:
                 arr = np.array(value, dtype=np.float64)
             except (TypeError, ValueError) as e:
@@ -75,6 +90,12 @@ class Correspondences:
         if not (np.all(np.isfinite(K)) and K[0, 0] > 0 and K[1, 1] > 0 and np.allclose(K[2], [0, 0, 1])):
             raise ValueError(f"Correspondences[{self.frame_id}].K is not a pinhole camera matrix (finite, positive "
                              f"focal lengths fx = K[0, 0] and fy = K[1, 1], last row [0, 0, 1]): {K.tolist()}")
+        # a focal length of 1e200 px or a principal point at 1e300 px passed and failed inside the solver's
+        # eigen-decomposition (probe 51): the camera's numbers live in the pixels' range, a focal length >= 1 px
+        if np.abs(K[:2]).max() > PIXEL_RANGE[1] or min(K[0, 0], K[1, 1]) < FOCAL_MIN_PX:
+            raise ValueError(f"Correspondences[{self.frame_id}].K {K.tolist()}: focal lengths must lie in "
+                             f"[{FOCAL_MIN_PX:g}, {PIXEL_RANGE[1]:g}] px and every entry within {PIXEL_RANGE[1]:g} "
+                             "px: no camera has it; check the producer's units")
 
     def __len__(self) -> int:
         return len(self.points_radar)

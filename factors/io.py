@@ -135,6 +135,16 @@ def _array(d: Mapping, key: str, shape: tuple, source: str) -> np.ndarray:
     return a
 
 
+def _integer(d: Mapping, key: str, source: str) -> int:
+    """``d[key]`` as an int: a scalar integer, or a whole float (numpy stores what it is given); a string read
+    "unreadable (ValueError: invalid literal for int() ...)" without the key (probe 51)."""
+    a = np.asarray(d[key])
+    v = a.item() if a.shape == () else None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v != int(v):
+        raise _bad(source, f"key {key!r} is {a!r}, expected an integer")
+    return int(v)
+
+
 def _transform(d: Mapping, key: str, source: str) -> np.ndarray:
     from hybrid_calib.geometry import is_rigid
 
@@ -176,7 +186,7 @@ def from_arrays(d: Mapping, source: str = "") -> FrameMeasurements:
         raise _bad(source, "key 'K' is not a camera intrinsic matrix (focal lengths > 0, last row [0, 0, 1])")
     try:
         corr = Correspondences(rows["points_radar"], rows["pixels"], rows["sigma_px"], rows["confidence"],
-                               K, str(d["frame_id"]), int(d["timestamp_us"]))
+                               K, str(d["frame_id"]), _integer(d, "timestamp_us", source))
     except ValueError as e:
         raise _bad(source, str(e)) from None
     network = None
@@ -187,10 +197,18 @@ def from_arrays(d: Mapping, source: str = "") -> FrameMeasurements:
         cov = _array(d, "cov", (6, 6), source) if "cov" in keys else None
         if cov is not None and (not np.allclose(cov, cov.T, rtol=1e-6, atol=1e-12) or np.any(np.diag(cov) < 0)):
             raise _bad(source, "key 'cov' is not symmetric with a non-negative diagonal")
+        # a symmetric matrix of a negative eigenvalue was read as the network's covariance, its stds reported as
+        # ordinary ones (probe 51); float32 rounding of a semidefinite one passes
+        if cov is not None and (low := float(np.linalg.eigvalsh(0.5 * (cov + cov.T))[0])) < -1e-6 * max(
+                float(np.abs(cov).max()), 1e-300):
+            raise _bad(source, f"key 'cov' is not a covariance (an eigenvalue {low:.3g} < 0)")
+        if cov is not None and not np.any(cov):
+            raise _bad(source, "key 'cov' is all zeros (no network is certain); leave the key out when the covariance "
+                               "is unknown")
         network = NetworkEstimate(_transform(d, "T_cam_radar", source), cov,
-                                  int(d["iteration"]) if "iteration" in keys else -1,
+                                  _integer(d, "iteration", source) if "iteration" in keys else -1,
                                   _transform(d, "T_start", source) if "T_start" in keys else None)
-    return FrameMeasurements(corr, str(d["vehicle"]), int(d["timestamp_radar_us"]), network)
+    return FrameMeasurements(corr, str(d["vehicle"]), _integer(d, "timestamp_radar_us", source), network)
 
 
 def save_measurements(path: str | Path, m: FrameMeasurements, extra: Mapping[str, np.ndarray] | None = None) -> Path:

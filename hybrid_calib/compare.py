@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -369,7 +370,7 @@ def _check_roots(roots: list, version: str, methods) -> tuple[list, dict[str, st
     return kept, left_out
 
 
-def compare(roots: list, version: str, out: str | Path, conf: CompareConfig | dict | None = None,
+def compare(roots: list | str, version: str, out: str | Path, conf: CompareConfig | dict | None = None,
             command: str = "", progress: bool = True, overwrite: bool = False) -> CompareResult:
     """Run (or resume) every trial, then write compare.json, compare.md and the plot; returns their summary.
     ``overwrite``: the kept trials, tables and own caches of ``out`` are removed first."""
@@ -379,6 +380,8 @@ def compare(roots: list, version: str, out: str | Path, conf: CompareConfig | di
 
     conf = merge(CompareConfig, conf)
     out = Path(out)
+    if isinstance(roots, (str, os.PathLike)):  # one root: "sim" was read as the roots "s", "i", "m" (probe 51)
+        roots = [roots]
     roots, roots_left_out = _check_roots(roots, version, conf.methods)
     cfg_path = out / "compare_config.json"
     record = _record(roots, version, conf)

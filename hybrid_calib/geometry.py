@@ -91,13 +91,13 @@ def check_finite_array(x, shape: tuple, name: str, what: str) -> np.ndarray:
     return x
 
 
-def check_transform(T, name: str) -> np.ndarray:
+def check_transform(T, name: str, atol: float = 1e-6) -> np.ndarray:
     """``T`` as a float64 (4, 4) array, or ``ValueError`` naming ``name`` when it is not a finite rigid transform
-    (shape, NaN/inf, a rotation block that is not a proper rotation to 1e-6, a last row other than [0, 0, 0, 1]):
+    (shape, NaN/inf, a rotation block that is not a proper rotation to ``atol``, a last row other than [0, 0, 0, 1]):
     the one check of a transform a caller passes in (a start, a reference, a prior's mean)."""
     T = check_finite_array(T, (4, 4), name, "transform")
     R = T[:3, :3]
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+    if not np.allclose(R @ R.T, np.eye(3), atol=atol) or np.linalg.det(R) < 0:
         raise ValueError(f"{name}: rotation block is not a proper rotation (R R^T = I, det +1)")
     if not np.allclose(T[3], [0, 0, 0, 1], atol=1e-9):
         raise ValueError(f"{name}: last row is {T[3].tolist()}, not [0, 0, 0, 1]")

@@ -15,7 +15,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from hybrid_calib.geometry import camera_euler_from_rotation, check_finite_array, so3_log
+from hybrid_calib.geometry import camera_euler_from_rotation, check_transform, so3_log
 
 CHI2_6_95 = 12.591587243743977  # scipy.stats.chi2.ppf(0.95, 6): NEES below it is inside the 95 % ellipsoid
 
@@ -34,10 +34,14 @@ def nees(xi: np.ndarray, cov: np.ndarray) -> np.ndarray | float:
     (F, 6) errors in the right tangent [rad, m] of ``T_cam_radar`` (``local(T_true, T_est)``); ``cov``: (6, 6) or
     (F, 6, 6) in the same tangent. A float for one error, (F,) for F."""
     xi, cov = np.asarray(xi, np.float64), np.asarray(cov, np.float64)
-    if xi.ndim == 1:
-        v = np.array([xi @ np.linalg.solve(cov, xi)])
-    else:
-        v = np.einsum("fi,fi->f", xi, np.linalg.solve(cov, xi[..., None])[..., 0])
+    try:
+        if xi.ndim == 1:
+            v = np.array([xi @ np.linalg.solve(cov, xi)])
+        else:
+            v = np.einsum("fi,fi->f", xi, np.linalg.solve(cov, xi[..., None])[..., 0])
+    except np.linalg.LinAlgError:  # was a bare "Singular matrix" (probe 51)
+        raise ValueError("NEES of a singular covariance: a direction it gives zero variance has no error scale; "
+                         "regularise the covariance (calib.covariance.analyse_information) first") from None
     if len(bad := np.flatnonzero(v < 0)):  # a NEES of -3 read as "inside the ellipsoid" (probe 31)
         which = "" if xi.ndim == 1 else f" (estimate {int(bad[0])} of {len(v)})"
         raise ValueError(f"NEES is negative{which}: its covariance is not positive definite")
@@ -83,6 +87,9 @@ METRIC_KEYS = tuple(ExtrinsicError.__dataclass_fields__)
 # "radar": the right-tangent axes of T_cam_radar [omega, v] themselves (radar frame), deg and cm.
 # "ego": the same perturbation about and along the vehicle's axes (an exported radar mount, calib.export).
 STD_FRAMES = ("cam", "radar", "ego")
+# a transform measured by ``extrinsic_error`` is rigid to this (R R^T = I): a float32 network output passes, a sheared
+# or scaled rotation block does not
+RIGID_ATOL = 1e-4
 
 
 def std_keys(frame: str) -> tuple[str, ...]:
@@ -115,9 +122,10 @@ def signed_errors(T_est: np.ndarray, T_gt: np.ndarray) -> np.ndarray:
 
 def extrinsic_error(T_est: np.ndarray, T_gt: np.ndarray) -> ExtrinsicError:
     """Error of a (4, 4) ``T_cam_radar`` estimate against the (4, 4) ground truth (``ValueError`` naming the one
-    that is not a finite (4, 4) array: a NaN was numpy's "SVD did not converge"; a float32 network output's rotation,
-    orthonormal to ~1e-6 only, is measured as it is)."""
-    T_est, T_gt = (check_finite_array(T, (4, 4), f"extrinsic_error {name}", "transform")
+    that is not a finite rigid (4, 4) transform: a NaN was numpy's "SVD did not converge", and a rotation block 5 %
+    sheared measured as 0 error (probe 51); a float32 network output's rotation, orthonormal to ~1e-6 only, is
+    measured as it is)."""
+    T_est, T_gt = (check_transform(T, f"extrinsic_error {name}", atol=RIGID_ATOL)
                    for name, T in (("T_est", T_est), ("T_gt", T_gt)))
     s = signed_errors(T_est, T_gt)
     rpy = np.degrees(np.abs(s[:3]))

@@ -89,16 +89,50 @@ def test_a_repeated_frame_is_not_counted_as_a_second_measurement(tmp_path):
     (dict(sigma_px=1e-300), "sigma_px holds \\|1e-300\\| px, outside \\[1e-12, 1e\\+06\\] px"),
     (dict(points_radar=1e300), "points_radar holds \\|1e\\+300\\| m, outside"),
     (dict(pixels=-1e300), "pixels holds \\|1e\\+300\\| px, outside"),
+    (dict(K=np.diag([1e200, 1e200, 1.0])), "focal lengths must lie in \\[1, 1e\\+07\\] px"),
+    (dict(K=np.array([[500.0, 0, 1e300], [0, 500, 200], [0, 0, 1]])), "every entry within 1e\\+07 px"),
+    (dict(K=np.diag([1e-200, 1e-200, 1.0])), "focal lengths must lie in"),
+    (dict(pixels=1j), "pixels: complex numbers"),
+    (dict(timestamp_us="abc"), "timestamp_us must be an integer number of microseconds .*, got str 'abc'"),
+    (dict(timestamp_us=1.9), "timestamp_us must be an integer"),
+    (dict(frame_id=None), "frame_id must be a str"),
 ])
 def test_correspondences_refuse_what_no_factor_can_use(change, message):
     _, frames, _ = _drive(1)
     c = frames[0]
     fields = dict(points_radar=c.points_radar, pixels=c.pixels, sigma_px=c.sigma_px, confidence=c.confidence, K=c.K)
     key, value = next(iter(change.items()))
-    if isinstance(value, float):  # one value for every row of that field
+    if key in fields and isinstance(value, (float, complex)):  # one value for every row of that field
         change = {key: np.full(np.shape(fields[key]), value)}
     with pytest.raises(ValueError, match=message):
-        Correspondences(**{**fields, **change}, frame_id="f7")
+        Correspondences(**{"frame_id": "f7", **fields, **change})
+
+
+def test_an_integer_frame_id_is_its_string_and_numpy_timestamps_are_ints():
+    _, frames, _ = _drive(1)
+    c = frames[0]
+    own = Correspondences(c.points_radar, c.pixels, c.sigma_px, c.confidence, c.K, 42, np.int64(7))
+    assert own.frame_id == "42" and own.timestamp_us == 7 and type(own.timestamp_us) is int
+
+
+def test_metrics_and_priors_refuse_what_is_not_a_transform_or_a_covariance():
+    """A 5 % sheared rotation measured as 0 error; the Ceres back end took a sheared prior mean ("ok") and ended a
+    non-positive-definite prior covariance in a bare LinAlgError, where GTSAM's named both (probe 51); a singular
+    covariance's NEES was a bare "Singular matrix"."""
+    from hybrid_calib.calib.schedule import GaussianPrior
+
+    T, frames, T0 = _drive(2)
+    sheared = T.copy()
+    sheared[:3, 0] *= 1.05
+    with pytest.raises(ValueError, match="extrinsic_error T_est: rotation block is not a proper rotation"):
+        extrinsic_error(sheared, T)
+    assert extrinsic_error(T.astype(np.float32), T).geodesic_deg < 1e-3  # a float32 network output is measured
+    for cov, message in ((1e-4 * np.eye(6), "GaussianPrior.T: rotation block"), (-1e-4 * np.eye(6), "not positive"),
+                         (np.zeros((6, 6)), "not positive")):
+        with pytest.raises(ValueError, match=message):
+            GaussianPrior(sheared if "T:" in message else T, cov)
+    with pytest.raises(ValueError, match="NEES of a singular covariance"):
+        nees(np.ones(6), np.diag([1.0] * 5 + [0.0]))
 
 
 def test_validated_rows_cannot_be_changed_behind_the_check():
@@ -184,6 +218,17 @@ def test_a_measurement_file_with_a_scaled_network_rotation_is_refused(tmp_path):
     d["confidence"][0] = -1.0
     with pytest.raises(DataError, match="confidence must lie in \\[0, 1\\]"):
         from_arrays(d, "f.npz")
+    # a symmetric network covariance of a negative eigenvalue, or all zeros, was reported as ordinary stds; a
+    # timestamp that is not an integer read "unreadable (ValueError ...)" without the key (probe 51)
+    for cov, message in ((np.diag([1e-4] * 6) + 3e-4 * (np.eye(6, k=1) + np.eye(6, k=-1)), "eigenvalue"),
+                         (np.zeros((6, 6)), "all zeros")):
+        d = to_arrays(FrameMeasurements(frames[0], "veh", 0, NetworkEstimate(T, cov, 0, None)))
+        with pytest.raises(DataError, match=f"key 'cov' is .*{message}"):
+            from_arrays(d, "f.npz")
+    d = to_arrays(FrameMeasurements(frames[0]))
+    d["timestamp_radar_us"] = np.asarray("abc")
+    with pytest.raises(DataError, match="key 'timestamp_radar_us' is .*expected an integer"):
+        from_arrays(d, "f.npz")
 
 
 def test_a_repeat_is_a_repeat_in_any_row_order_and_paths_may_be_paths(tmp_path):
@@ -212,3 +257,31 @@ def test_a_network_on_a_device_this_machine_lacks_is_named(tmp_path):
 
     with pytest.raises(CheckpointError, match="cannot be placed on device 'tpu'.*use a device this machine has"):
         load_model(shipped_checkpoint("R1"), device="tpu")
+
+
+def test_configs_built_directly_check_their_types_as_merge_does(tmp_path):
+    """The constructors the examples call accepted SimConfig(frames=2.5) (a bare TypeError deep in simulate), a str
+    kernel scale (a bare TypeError) and an unknown engine (refused only inside run_fleet, as the flag '--engine'); a
+    list kept in a frozen config made it unhashable; one root given as a str was iterated letter by letter (probe
+    51)."""
+    from factors.config import RadarPixelFactorConfig
+    from hybrid_calib.compare import compare
+    from hybrid_calib.errors import DataError
+    from hybrid_calib.fleet.driver import FleetOptions, run_fleet
+    from hybrid_calib.sim.drive import SimConfig
+
+    for build, message in ((lambda: SimConfig(frames=2.5), "frames=2.5 \\(float\\) is not a valid integer for Sim"),
+                           (lambda: SimConfig(frames="20"), "frames='20' \\(str\\) is not a valid integer"),
+                           (lambda: RadarPixelFactorConfig(kernel_scale="2"), "kernel_scale='2' \\(str\\)"),
+                           (lambda: FleetOptions("local", 1.5), "workers=1.5"),
+                           (lambda: FleetOptions("foo"), "need engine in \\('local', 'process', 'ray'\\)")):
+        with pytest.raises(ValueError, match=message):
+            build()
+    conf = RadarPixelFactorConfig(scene_knots_m=[0.0, 10.0, 40.0])
+    assert conf.scene_knots_m == (0.0, 10.0, 40.0) and hash(conf)
+    missing = str(tmp_path / "no-such-root")
+    for run in (lambda: run_fleet(missing, None, "v1.0-sim", "oracle", tmp_path / "fleet"),
+                lambda: compare(missing, "v1.0-sim", tmp_path / "cmp", progress=False)):
+        with pytest.raises(DataError) as e:
+            run()
+        assert "no-such-root" in str(e.value) and "[file n]" not in str(e.value)

@@ -59,7 +59,7 @@ class CovarianceReport:
 
     cov: (6, 6) right-tangent radar-frame covariance [rot rad, trans m]; never over-confident: an
         unobservable direction carries the regularising prior's variance.
-    std_report: (6,) [roll-ish rot x, rot y, rot z in deg, t x, t y, t z in cm], camera axes
+    std_report: (6,) [rot x (pitch), rot y (yaw), rot z (roll) in deg, t x, t y, t z in cm], camera axes
         (``C_report = B C B^T``; rotation components are about camera x, y, z).
     status: "ok", "weak: ...", "degenerate: ..." (see ``analyse_information``; ``inconclusive_status`` is
         the fourth word, set by the learned methods, never here).
@@ -153,7 +153,9 @@ def report_cov(T_cam_radar: np.ndarray, cov: np.ndarray) -> np.ndarray:
 
 def report_std(T_cam_radar: np.ndarray, cov: np.ndarray) -> np.ndarray:
     """Per-axis std in the camera frame, (6,): rotation about camera x, y, z in degrees, then
-    translation along camera x, y, z in centimetres (docs/conventions.md)."""
+    translation along camera x, y, z in centimetres (docs/conventions.md). A negative variance (a covariance
+    that is not positive semidefinite) reads as 0: check a covariance a caller gives with
+    ``geometry.check_covariance`` first."""
     # a negative variance is clipped to 0, never raised: raising here ended whole runs in "internal error" on a
     # singular bound (probe 36); the covariances reported are made positive where they are computed
     # (``analyse_information`` reads negative information as unobservable) and checked where a caller gives one

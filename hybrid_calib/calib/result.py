@@ -236,7 +236,9 @@ class Estimate:
 
     T: (4, 4) T_cam_radar. cov: (6, 6) right tangent, radar frame [rad, m]. std: (6,) camera axes
     [deg x3, cm x3]. status: "ok" | "weak: ..." | "degenerate: ..." | "inconclusive: ..." (+ notes;
-    ``calib.covariance``).
+    ``calib.covariance``). A solve's own status keeps its word and marks a failure in its notes ("ok (NOT CONVERGED:
+    only 0 % of ...)"): read whether it can be trusted with ``calib.covariance.untrusted_status``, not from the first
+    word (a vehicle's result turns such a status into "inconclusive: ...").
     """
 
     T: np.ndarray
@@ -628,6 +630,7 @@ class VehicleProgress:
         self.stamp = json.loads(json.dumps({"data": str(Path(str(data)).resolve()), "version": version,
                                             "source": str(source), "config": conf}, default=str))
         self.done: dict[str, VehicleResult | str] = {}
+        self._said = False  # the kept vehicles said on opening (``fill`` does not say them again)
         changed: list[str] = []
         if self.dir.exists() and not self.dir.is_dir():
             raise HybridCalibError(f"{self.dir} is a file, not the folder where hybrid-calib keeps the vehicles an "
@@ -662,6 +665,7 @@ class VehicleProgress:
                 # a rerun says what it keeps, as fleet's (probe 40: a resumed calibrate said nothing of them)
                 print(f"kept {len(finished)} vehicle(s) an interrupted run into this --out finished (same data and "
                       f"options): {', '.join(finished[:5])}{' ...' if len(finished) > 5 else ''}", file=sys.stderr)
+                self._said = True  # ``fill`` does not say it again ("resuming: ..." beside it: probe 50)
         if not self.dir.is_dir() or not changed:
             save_json_atomic(self.dir / "stamp.json", self.stamp)
 
@@ -706,7 +710,7 @@ class VehicleProgress:
         ``on_vehicle`` is called with each newly computed result."""
         import sys
 
-        if self.done and announce:
+        if self.done and announce and not self._said:
             print(f"resuming: {len(self.done)} vehicle(s) finished by an interrupted run ({self.dir})",
                   file=sys.stderr)
         for name in names:

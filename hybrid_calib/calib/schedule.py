@@ -32,7 +32,7 @@ import numpy as np
 
 from factors.config import KERNELS, RadarPixelFactorConfig
 from factors.correspondences import Correspondences
-from hybrid_calib.geometry import from_gtsam, to_gtsam
+from hybrid_calib.geometry import check_covariance, check_transform, from_gtsam, to_gtsam
 
 X = 0  # the gtsam key of the extrinsic
 
@@ -67,11 +67,15 @@ class GaussianPrior:
     cov: np.ndarray
 
     def __post_init__(self):
+        """The one check of a prior, whichever back end solves it (the Ceres path took a sheared mean and reported
+        "ok", and a non-positive-definite covariance ended in a bare LinAlgError: probe 51)."""
         if np.shape(self.T) != (4, 4) or np.shape(self.cov) != (6, 6):
             raise ValueError(
                 f"GaussianPrior needs T (4, 4) and cov (6, 6), got {np.shape(self.T)}, {np.shape(self.cov)}")
         if not (np.all(np.isfinite(self.T)) and np.all(np.isfinite(self.cov))):
             raise ValueError("GaussianPrior has NaN/inf entries")
+        check_transform(self.T, "GaussianPrior.T")
+        check_covariance(self.cov, "GaussianPrior.cov")
 
 
 @dataclass(frozen=True)

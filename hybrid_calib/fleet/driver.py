@@ -8,11 +8,12 @@ finished vehicle.
 
 from __future__ import annotations
 
+import os
 import socket
 from dataclasses import dataclass
 from pathlib import Path
 
-from hybrid_calib.fleet.engines import run_engine
+from hybrid_calib.fleet.engines import ENGINES, run_engine
 from hybrid_calib.fleet.jobs import check_fleet_roots, discover_jobs, read_fleet_file
 from hybrid_calib.fleet.manifest import Manifest
 from hybrid_calib.fleet.prior import MIN_PRIOR_VEHICLES
@@ -33,13 +34,14 @@ class FleetOptions:
     alpha: float = 1e-3  # fleet outlier test level
 
     def __post_init__(self):
-        from hybrid_calib.config import require_ranges
+        from hybrid_calib.config import require, require_ranges
 
         require_ranges(self, {"workers": "[1, 1e5]", "threads": "[1, 256]", "retries": "[0, 100]",
                               "object_store_mb": "[50, 1e6]", "alpha": "(0, 1)"})
+        require(self, {f"engine in {ENGINES}": self.engine in ENGINES})  # was refused inside run_fleet as '--engine'
 
 
-def run_fleet(roots: list[str] | None, manifest: str | None, version: str, method: str, out: str | Path,
+def run_fleet(roots: list[str] | str | None, manifest: str | None, version: str, method: str, out: str | Path,
               seed: int = 0, checkpoint: str | None = None, calib: dict | None = None, priors: dict | None = None,
               options: FleetOptions = FleetOptions(), on_outcome=None) -> dict:
     """Calibrate every vehicle of ``roots`` (or of the ``FLEET.json`` ``manifest``) into
@@ -49,6 +51,8 @@ def run_fleet(roots: list[str] | None, manifest: str | None, version: str, metho
     from hybrid_calib.fleet.summary import write_summary
 
     out = Path(out)
+    if isinstance(roots, (str, os.PathLike)):  # one root: "sim" was read as the roots "s", "i", "m" (probe 51)
+        roots = [roots]
     sources = read_fleet_file(manifest, version) if manifest else [(str(r), version, None) for r in roots or []]
     if manifest:
         check_fleet_roots(sources, manifest)
