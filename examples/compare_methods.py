@@ -22,6 +22,6 @@ summary = compare([root], "v1.0-sim", args.out / "compare",
 for method, s in summary.methods.items():
     m, c = s.mean, s.consistency
     print(f"{method:9s}: rotation {m['rot_mean_deg']:.3f} deg, translation {m['trans_norm_cm']:.2f} cm (mean of "
-          f"{s.trials} trials); not ok {s.not_ok_fraction:.0%}; 95 % coverage {c['coverage_95']:.0%}, "
+          f"{s.trials} trials); inconclusive {s.inconclusive_fraction:.0%}; 95 % coverage {c['coverage_95']:.0%}, "
           f"mean NEES {c['nees_mean']:.1f}")
 print(f"table: {args.out / 'compare' / 'compare.md'}")

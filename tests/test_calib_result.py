@@ -126,6 +126,9 @@ def test_a_run_that_only_failed_leaves_nothing_that_blocks_the_corrected_command
     assert set(again.done) == {"n015", "n008"}
     assert ("kept 1 vehicle(s) an interrupted run into this --out finished (same data and options): n008"
             in capsys.readouterr().err)
+    run = CalibrationRun(str(tmp_path), "v1.0-mini", "oracle", "window")
+    again.fill(run, ["n008", "n015"], lambda name: pytest.fail("kept vehicles are not computed"))
+    assert "resuming" not in capsys.readouterr().err  # said once, not twice (probe 50)
     with pytest.raises(HybridCalibError, match="holds 1 vehicle"):
         VehicleProgress(tmp_path, tmp_path, "v1.0-mini", "pure", {"depth": ""})
 

@@ -320,3 +320,24 @@ def test_a_record_that_would_move_the_radar_off_its_bracket_is_not_written(calib
     v = exp.vehicles["sim-veh-000"]
     assert not v["exported"] and v["why"].startswith("not exported: it would move the radar 3") and \
         "farther than a radar moves on its bracket (30 cm)" in v["why"], v["why"]
+
+
+def test_a_knocked_simulated_radar_is_judged_on_its_reference_not_on_the_truths_records(tmp_path):
+    """A simulated step (--extrinsic-change step) writes the simulator's truth as two radar records, and export
+    refused the vehicle as "more than one radar-camera calibration along the drive (a mount change)": the user's
+    tables (the factory calibration the verdict used) hold one, as a real fleet's would (probe 50). On a simulated
+    root export says that its table holds the truth."""
+    from hybrid_calib.calib.export import export_mounts
+    from hybrid_calib.calib.pipeline import calibrate
+    from hybrid_calib.config import merge
+    from hybrid_calib.sim import simulate as sim
+    from hybrid_calib.sim.drive import SimConfig
+
+    root = tmp_path / "sim"
+    sim.simulate(merge(SimConfig, {"frames": 4, "vehicles": 1, "image_scale": 0.125, "seed": 5,
+                                   "extrinsic_change": {"kind": "step", "frame": 2}}), root, workers=1)
+    calibrate(root, VERSION, "oracle", tmp_path / "cal", {"window": {"window": 3}}, progress=False)
+    path = _edited(tmp_path / "cal" / "result.json", tmp_path / "e" / "result.json", "sim-veh-000", status="ok")
+    exp = export_mounts([path], tmp_path / "out")
+    assert exp.exported == ["sim-veh-000"], exp.vehicles["sim-veh-000"]["why"]
+    assert any("a simulated root: its calibrated_sensor.json holds the simulator's truth" in n for n in exp.notes)

@@ -809,6 +809,26 @@ def test_a_rerun_after_the_data_changed_does_not_reuse_the_old_results(local_run
     assert all(json.loads(p.read_text())["digest"] != "from other data" for p in out.glob("vehicles/*/data_stamp.json"))
 
 
+def test_a_rerun_on_another_root_of_the_same_vehicle_names_is_refused_and_keeps_the_results(local_run, fleet_root,
+                                                                                              tmp_path):
+    """Every simulated root names its vehicles sim-veh-000, ...: a fleet run of root B into the --out of root A's
+    fleet read A's done vehicles as "their root's data changed", overwrote them with B's and mixed both roots in
+    one fleet view and prior (probe 50)."""
+    import shutil
+
+    from hybrid_calib.errors import DataError
+
+    other = tmp_path / "other_root"
+    shutil.copytree(fleet_root, other, copy_function=os.link)
+    out = tmp_path / "fleet"
+    shutil.copytree(local_run[0], out)
+    before = {p: p.read_bytes() for p in out.glob("vehicles/*/result.json")}
+    with pytest.raises(DataError, match="holds vehicle sim-veh-000 of another root .*pass another --out"):
+        run_fleet([str(other)], None, "v1.0-sim", "oracle", out, seed=2, calib={"window": {"window": 3}},
+                  options=FleetOptions(plots=False))
+    assert before and all(p.read_bytes() == b for p, b in before.items())
+
+
 def test_a_file_in_a_vehicles_folder_place_is_that_vehicles_failure_in_words(fleet_root, tmp_path):
     """It ended as "system failure after retries: NotADirectoryError", retried to no avail."""
     out = tmp_path / "f"
@@ -1047,3 +1067,16 @@ def test_summary_md_counts_refused_priors_apart():
     md = summary_markdown({"out": "o", "method": "oracle", "seed": 0, "counts": c,
                            "design_mount": {"source": "recorded"}, "vehicles": rows})
     assert "applied to 1, not applied to 1" in md
+
+
+def test_a_method_without_a_step_test_says_so_instead_of_counting_no_drift(local_run):
+    """A pure-avg fleet read "0 drifted inside the drive" for radars knocked 1.5 deg mid-drive: pure and pure-avg
+    look for no step (probe 50)."""
+    from hybrid_calib.fleet.summary import drifted_words, summary_markdown
+
+    summary = local_run[1]
+    assert summary["step_test"] is True and "drifted inside the drive" in drifted_words(summary)
+    pure = {**summary, "method": "pure-avg", "step_test": False}
+    words = drifted_words(pure)
+    assert "not looked for (method pure-avg has no step test" in words and "drifted inside" not in words
+    assert words in summary_markdown(pure)

@@ -486,6 +486,14 @@ def test_a_tolerance_asked_of_the_report_redoes_the_calibrators_test():
     vr_loose = VehicleResult("v", Estimate(est, cov, np.full(6, 0.01), "ok"), drift=loose)
     assert verdict_of(vr_loose).word == "recalibrate"  # 10 cm against 2 cm
     assert verdict_of(vr_loose, Tolerance(trans_cm=30)).word == "within tolerance"
+    # the page's "some axis beyond the tolerance" is the test the verdict read: it said True from the stored 2 cm test
+    # beside a 30 cm tolerance (probe 50)
+    from hybrid_calib.report.vehicle import verdict_html
+
+    assert "beyond the tolerance (the change itself, not weighed by its sigma): True" in verdict_html(
+        verdict_of(vr_loose), vr_loose)
+    assert "beyond the tolerance (the change itself, not weighed by its sigma): False" in verdict_html(
+        verdict_of(vr_loose, Tolerance(trans_cm=30)), vr_loose)
 
 
 def test_a_real_roots_tables_are_not_called_the_truth():

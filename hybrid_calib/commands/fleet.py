@@ -63,6 +63,7 @@ def run(args: argparse.Namespace) -> int:
     from hybrid_calib.config import merge
     from hybrid_calib.fleet.driver import FleetOptions, run_fleet
     from hybrid_calib.fleet.prior import load_priors
+    from hybrid_calib.fleet.summary import drifted_words
 
     check_options(args)
     calib = parse_overrides(args.set)
@@ -106,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
         bar.close()
     c = summary["counts"]
     print(f"{n_vehicles(c['vehicles'])}: {c['done']} done, {c['failed']} failed; {c['out_of_tolerance']} out of "
-          f"tolerance, {c['drifted_in_drive']} drifted inside the drive, {c['fleet_outliers']} fleet outlier(s)"
+          f"tolerance, {drifted_words(summary)}, {c['fleet_outliers']} fleet outlier(s)"
           + (f" ({', '.join(summary['fleet_prior']['outliers'])})" if c["fleet_outliers"] else ""))
     for note in summary.get("notes") or []:
         print(f"  note: {note}")

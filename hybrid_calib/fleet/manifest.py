@@ -96,6 +96,14 @@ class Manifest:
                                   "attempts": 0, "wall_s": None, "cpu_s": None, "host": None, "result": None}
                 continue
             done = result_complete(job.result_path)
+            if done and not _same_vehicle(e["job"], job):  # before the data stamp: another root's vehicle of the same
+                # name (every simulated root names its vehicles sim-veh-000, ...) read as "its data changed" and was
+                # overwritten, the two roots mixed in one fleet view and prior (probe 50)
+                a = e["job"]
+                raise DataError(f"this OUT holds vehicle {job.id} of another root ({a.get('vehicle')!r} of "
+                                f"{a.get('data')}, {a.get('version')}); this run's {job.id} is {job.vehicle!r} of "
+                                f"{job.data}, {job.version}: pass another --out, or list both roots in one command "
+                                "(their vehicles are then named by root)", path=str(path))
             if done and _data_changed(job, stamps):  # re-downloaded, re-simulated: computed again, and said
                 done = False
                 m.stale.append(job.id)

@@ -5,6 +5,7 @@
     {"schema": ..., "out": OUT, "method": str, "seed": int,
      "counts": {"vehicles", "pending", "running", "done", "failed", "out_of_tolerance",
                 "drifted_in_drive", "fleet_outliers", "degenerate", "inconclusive", "weak"},
+     "step_test": bool,   # whether the method looks for a step inside the drive (hybrid.loop.STEP_METHODS)
      "design_mount": {"T_cam_radar": 4x4, "source": "recorded" | "mean of the tables"},
      "fleet_prior": {"T_mean", "spread_std_cam", "mean_std_cam", "inliers", "outliers"} | null,
      "vehicles": {JOB_ID: VEHICLE}}
@@ -39,6 +40,7 @@ from hybrid_calib.calib.drift import alarms_say_moved
 from hybrid_calib.config import save_json_atomic, save_text_atomic
 from hybrid_calib.errors import DataError
 from hybrid_calib.fleet.manifest import Manifest, rel_path
+from hybrid_calib.hybrid.loop import STEP_METHODS
 from hybrid_calib.words import n_vehicles
 
 SCHEMA = "hybrid-calib/fleet-summary/v1"
@@ -158,6 +160,7 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
     pd = None if prior is None else prior.to_dict()
     summary = {
         "schema": SCHEMA, "out": str(base), "method": m.method, "seed": m.seed, "counts": counts,
+        "step_test": m.method in STEP_METHODS,
         "design_mount": {"T_cam_radar": T_ref.tolist(), "source": source},
         "fleet_prior": None if pd is None else {k: pd[k] for k in (
             "T_mean", "spread_std_cam", "mean_std_cam", "inliers", "outliers")},
@@ -201,14 +204,22 @@ def write_summary(m: Manifest, plot: bool = True, alpha: float = 1e-3, notes: li
     return summary
 
 
+def drifted_words(s: dict) -> str:
+    """"N drifted inside the drive", or, for a method that looks for no step (``summary["step_test"]`` false),
+    that it was not looked for: a count of 0 read as "no radar moved"."""
+    if s.get("step_test", True):
+        return f"{s['counts']['drifted_in_drive']} drifted inside the drive"
+    return f"a step inside the drive not looked for (method {s['method']} has no step test: use hybrid or oracle)"
+
+
 def summary_markdown(s: dict) -> str:
     """The fleet view as a Markdown table (one row per vehicle) with counts and the fleet prior."""
     c = s["counts"]
     lines = [f"# Fleet calibration: {s['out']}", "",
              f"method {s['method']}, seed {s['seed']}; design mount: {s['design_mount']['source']}", "",
              f"**{n_vehicles(c['vehicles'])}**: {c['done']} done, {c['failed']} failed, {c['pending'] + c['running']} "
-             f"not finished; {c['out_of_tolerance']} out of tolerance, {c['drifted_in_drive']} drifted inside the "
-             f"drive, {c['fleet_outliers']} fleet outlier(s), {c['degenerate']} degenerate, "
+             f"not finished; {c['out_of_tolerance']} out of tolerance, {drifted_words(s)}, "
+             f"{c['fleet_outliers']} fleet outlier(s), {c['degenerate']} degenerate, "
              f"{c.get('inconclusive', 0)} inconclusive (status: the estimate is not trusted), {c['weak']} weak.", ""]
     lines += [f"Note: {n}" for n in s.get("notes") or []] + ([""] if s.get("notes") else [])
     lines += [f"**Root left out** {r}: {why}" for r, why in (s.get("roots_left_out") or {}).items()] + (

@@ -445,6 +445,10 @@ def unfitted_reason(runner, method: str) -> str:
 # ``--set`` of one for another method was accepted and had no effect
 BLOCK_METHODS = {"oracle": ("oracle",), "measurement": ("hybrid", "pure-avg"), "motion": ("hybrid",),
                  "mount": ("hybrid",), "lidar": ("hybrid",), "doppler": ("hybrid",)}
+# the methods that look for a step inside the drive (the window's step test; the hybrid's radar mount monitor too):
+# pure and pure-avg look for none, and a fleet of them counted "0 drifted inside the drive" for radars knocked
+# 1.5 deg mid-drive (probe 50)
+STEP_METHODS = ("hybrid", "oracle")
 
 
 def unused_blocks(method: str, overrides: dict) -> list[str]:

@@ -95,7 +95,8 @@ _DEFAULT = {"rot_deg": DriftConfig.tolerance_rot_deg, "trans_cm": DriftConfig.to
 class Verdict:
     """word: one of ``VERDICTS``; why: one or two sentences; tolerance: the tolerance in words;
     source: where the verdict came from; moved: whether the sensor stepped during the drive, in words;
-    moved_frames: the frame indices of the step alarms."""
+    moved_frames: the frame indices of the step alarms; test: the reference test it read (the result's drift block,
+    or that block redone against the tolerance asked for), None when it read none."""
 
     word: str
     why: str
@@ -103,6 +104,7 @@ class Verdict:
     source: str
     moved: str
     moved_frames: tuple[int, ...] = ()
+    test: dict | None = None
 
     @property
     def moved_answer(self) -> str:
@@ -263,7 +265,7 @@ def _verdict_vs_reference(vr: VehicleResult, tol: Tolerance) -> Verdict:
         word = kind
         tols = {a.get("unit"): a.get("tolerance") for a in (d.get("axes") or {}).values()}
         tol_text = ", ".join(f"{v:g} {u} per camera axis" for u, v in tols.items() if v is not None)
-        return Verdict(word, str(given or kind), tol_text or "not stated by the result", source, moved, frames)
+        return Verdict(word, str(given or kind), tol_text or "not stated by the result", source, moved, frames, d)
     if given:
         word = given.get("verdict", given.get("word", "")) if isinstance(given, dict) else str(given)
         why = (given.get("why") or given.get("reason") or "") if isinstance(given, dict) else ""
