@@ -186,8 +186,11 @@ def main(argv: list[str] | None = None) -> int:
 def _run(args: argparse.Namespace, debug: bool, argv: list[str]) -> int:
     """The command, inside the error boundary (module doc). A command that returns, or fails after writing into its
     output folder, appends its command line and exit status to ``OUT/runs.json`` (``atomic.record_run``; not
-    simulate's root, not report's page)."""
+    simulate's root, not report's page). ``args.argv``: the arguments as typed (``main(argv)``'s, not the Python
+    process's: compare.md named pytest's arguments as its command)."""
     import time
+
+    args.argv = argv
 
     out = getattr(args, "out", None)
     try:

@@ -243,7 +243,9 @@ def summarize_method(results: list[VehicleResult], labels: dict[str, str] | None
 
 
 def _markdown(summary: CompareResult, conf: CompareConfig, command: str) -> str:
-    lines = [f"# compare: range {conf.range}, {conf.trials} trials", "", f"Command: `{command}`", "",
+    # called from Python, no command line: said so, not an empty "Command: ``" (probe 51)
+    said = f"Command: `{command}`" if command else "Called from Python (hybrid_calib.compare.compare), no command line"
+    lines = [f"# compare: range {conf.range}, {conf.trials} trials", "", said, "",
              *[f"**Note:** {n}\n" for n in summary.notes],
              "Errors against the truth (simulated) or the tables (real roots); rotation in degrees, translation "
              "in cm. Time per frame (ms/frame): CPU wall time, the network pass included for every learned "

@@ -45,4 +45,5 @@ def test_compare_methods(tmp_path):
     out = _run("compare_methods.py", ["--out", str(tmp_path), *TINY, "--trials", "1"])
     for method in ("pure", "pure-avg", "hybrid"):
         assert f"{method:9s}: rotation" in out
-    assert (tmp_path / "compare" / "compare.md").is_file()
+    md = (tmp_path / "compare" / "compare.md").read_text()
+    assert "Called from Python" in md and "Command: ``" not in md  # not an empty command line (probe 51)

@@ -269,6 +269,7 @@ def test_compare_smoke_resumes_and_writes_the_table(sim_root, tmp_path, capsys):
         assert m["trials"] == 2 and 0 <= m["consistency"]["coverage_95"] <= 1 and "rot_mean_deg" in m["median"]
     md = (out / "compare.md").read_text()
     assert "| hybrid |" in md and "coverage" in md and (out / "error_vs_frames.png").stat().st_size > 1000
+    assert "Command: `hybrid-calib compare --data" in md
     trials = {m: [json.loads((out / "trials" / m / f"{k:04d}.json").read_text()) for k in range(2)]
               for m in ("pure", "pure-avg", "hybrid")}
     for k in range(2):

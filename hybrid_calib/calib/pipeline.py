@@ -90,7 +90,8 @@ def _load_oracle(data, version: str, conf: CalibrateConfig, progress: bool = Tru
 
     ds = NuScenesRadarCamera(data, version, conf={"check_images": False})
     if not (Path(data) / "sim_truth").is_dir():  # said before any frame is read (it had failed every one in turn)
-        raise OptionError("--method", f"oracle (the default method) reads the simulator's true reflectors, and "
+        raise OptionError("--method", f"oracle (also the default when no --method is given) reads the simulator's "
+                                      "true reflectors, and "
                                       f"{data} has none (no sim_truth/ folder: a real root); calibrate it with "
                                       "--method hybrid (or pure, pure-avg)")
     for line in table_warnings(ds):  # a vehicle missing from the result, poses the motion compensation reads

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import shlex
 import sys
 from pathlib import Path
 
@@ -64,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
         raise OptionError(network[0], f"is for the learned methods (pure, pure-avg, hybrid); --methods oracle runs no "
                                       f"network: drop {' and '.join(network)}, or add a learned method to --methods")
     conf = {"range": args.range, "trials": args.trials, "seed": args.seed, "hybrid": hybrid, "methods": methods}
-    command = "hybrid-calib " + " ".join(sys.argv[1:])
+    command = " ".join(["hybrid-calib", *map(shlex.quote, getattr(args, "argv", sys.argv[1:]))])
     s = compare(args.data, args.version, args.out, conf, command=command, progress=not args.no_progress,
                 overwrite=args.overwrite)
     for note in s.notes:
