@@ -654,3 +654,25 @@ def test_a_copy_of_a_root_is_the_same_data_and_a_changed_one_is_not(tmp_path):
     (copy / "samples" / "CAM_FRONT" / "CAM_FRONT_2.bin").unlink()
     (copy / "v1.0-mini" / "sample.json").write_text("[ ]")  # a table edited
     assert data_stamp(copy, "v1.0-mini")["digest"] != stamp["digest"]
+
+
+def test_a_calibration_repeats_inspects_warning_on_a_late_radar_clock():
+    """A radar clock 50 ms late (its records and ego poses re-stamped together) was warned by inspect, and calibrate
+    said nothing (probe 52): the commands that calibrate print ``table_warnings``, which now hold it."""
+    from types import SimpleNamespace
+
+    from hybrid_calib.data.summary import table_warnings
+
+    def ref(k, dt_ms):
+        return SimpleNamespace(scene_name="scene-1", sample_token=f"tok{k}", scene_token="s1",
+                               camera_sd={"timestamp": k * 500_000}, radar_sd={"timestamp": k * 500_000 + dt_ms * 1000})
+
+    ds = SimpleNamespace(frames=[ref(k, 150 if k in (3, 5) else 30) for k in range(8)], radar_channel="RADAR_FRONT",
+                         camera_channel="CAM_FRONT")
+    said = table_warnings(ds)
+    assert said == ["warning: scene scene-1: 2 keyframe(s) whose RADAR_FRONT record is more than 100 ms from its "
+                    "CAM_FRONT record (worst: sample tok3, +150 ms; nuScenes keyframes are under 0.1 s apart): a "
+                    "timestamp or the instant a record names is wrong, and the frame's motion compensation uses it; "
+                    "fix or re-extract sample_data.json"], said
+    ds.frames = [ref(k, 30) for k in range(8)]
+    assert table_warnings(ds) == []

@@ -344,6 +344,10 @@ def test_an_inconclusive_vehicle_is_flagged_counted_and_never_within_tolerance(l
     assert r["fleet_test"]["left_out"].startswith("not in the fleet prior: ")
     assert "sim-veh-001" not in ((s["fleet_prior"] or {}).get("inliers") or [])
     assert s["counts"]["inconclusive"] == 1 and s["counts"]["failed"] == 1
+    assert s["counts"]["doppler_off_tables"] == 0 and "doppler_off_tables" not in r["flags"]
+    # no fleet_prior.json, and why (it was missing without a word: probe 52)
+    assert s["fleet_prior"] is None and not (tmp_path / "fleet_prior.json").exists()
+    assert "no fleet prior (fleet_prior.json): 2 of the 3 done vehicle(s) have a trusted estimate" in s["notes"][-1]
     # counted once, by what its status opens with (the estimate's own "weak" it keeps is not a weak result)
     assert s["counts"]["weak"] == sum(str(v.get("status") or "").startswith("weak") for v in s["vehicles"].values())
     assert "1 inconclusive" in (tmp_path / "summary.md").read_text()
@@ -353,6 +357,22 @@ def test_an_inconclusive_vehicle_is_flagged_counted_and_never_within_tolerance(l
 
     page = write_fleet_page([tmp_path / r["result"]], tmp_path / "fleet.html").read_text()
     assert "cannot tell (the data do not decide" in page and " inconclusive (" not in page
+    # the radar's Doppler puts its yaw off its tables (calib.drift.doppler_level_note): the fleet view says it, in the
+    # row's verdict, a flag and the counts, and the fleet page's row (it was only on the vehicle's page: probe 52)
+    words = ("but the radar's own Doppler against the ego poses (which rests on neither the network nor the window) "
+             "puts its yaw on the vehicle 2.93 +- 0.14 deg (1 sigma) to the right of its tables': check the radar's "
+             "yaw")
+    doc["vehicles"]["sim-veh-001"]["drift"] = {**doc["vehicles"]["sim-veh-001"]["drift"],
+                                               "doppler_level": {"level_deg": -2.93, "std_deg": 0.14, "words": words}}
+    f.write_text(json.dumps(doc))
+    s = run_fleet([str(fleet_root)], None, "v1.0-sim", "oracle", tmp_path, seed=2, calib={"window": {"window": 3}},
+                  options=FleetOptions(plots=False))
+    r = s["vehicles"]["sim-veh-001"]
+    assert r["verdict"].endswith(f"; {words}") and "doppler_off_tables" in r["flags"]
+    assert s["counts"]["doppler_off_tables"] == 1
+    assert "1 whose radar's Doppler puts its yaw off its tables" in (tmp_path / "summary.md").read_text()
+    page = write_fleet_page([tmp_path / r["result"]], tmp_path / "fleet.html").read_text()
+    assert "its radar's Doppler puts its yaw off its tables: check the radar's yaw" in page
     # the radar mount monitor measured a turn beyond the tolerance (calib.drift.with_mount_step): recalibrate, as
     # calibrate, result.json and the reports say, also in the fleet's text view (it read "cannot tell": probe 30)
     drift = doc["vehicles"]["sim-veh-001"]["drift"]

@@ -243,6 +243,11 @@ def test_the_record_and_its_words_say_what_was_folded():
     assert "lateral applied, forward not: forward offset std 20.0 cm" in describe(rec)
     assert "forward -12.0 +- 20.0 cm; both applied (through the tables' LiDAR-camera extrinsic" in describe(
         a.record(True, forward=True))
+    # the extrinsic is two records: a wrong camera record moved the reading 60 cm and the words named the LiDAR alone
+    # (probe 52)
+    far = describe({**a.record(True, forward=True), "innovation_sigma": 5.5})
+    assert "the LiDAR's and the camera's calibrated_sensor records" in far and \
+        "check the LiDAR's and the camera's records in calibrated_sensor.json before recalibrating" in far
     # a result written before the forward offset ("dx_m_unused") still reads
     old = {"applied": True, "dy_m": 0.2, "dy_std_m": 0.03, "dx_m_unused": -0.1, "rows": 100, "frames": 10}
     assert "frames); lateral applied (through" in describe(old)

@@ -183,3 +183,24 @@ def test_a_lidar_row_pointing_at_another_sensors_file_is_named(tmp_path, head, k
     p.write_bytes(head.ljust(1000, b"\0"))  # 1000 bytes: a whole number of 20-byte LiDAR points
     with pytest.raises(DataError, match=f"LiDAR file is {kind}.*points at another sensor's file"):
         read_lidar_bin(p)
+
+
+def test_a_radar_file_without_the_filters_fields_names_every_one_at_once(tmp_path):
+    """A PCD of x y z rcs only was refused one missing filter field per try: three reruns to find the --set line
+    (probe 52). Every missing field is named, with the one --set line that disables their filters."""
+    from hybrid_calib.data.filters import RadarFilterConfig
+    from hybrid_calib.data.sweeps import load_filtered_sweep
+
+    head = ("VERSION 0.7\nFIELDS x y z rcs\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\nWIDTH 2\nHEIGHT 1\n"
+            "VIEWPOINT 0 0 0 1 0 0 0\nPOINTS 2\nDATA ascii\n")
+    path = tmp_path / "r.pcd"
+    path.write_text(head + "10.0 1.0 0.0 5.0\n20.0 -2.0 0.0 7.0\n")
+    with pytest.raises(DataError) as e:
+        load_filtered_sweep(path, RadarFilterConfig(), "tok")
+    said = str(e.value)
+    assert "lacks fields 'invalid_state', 'dyn_prop', 'ambig_state' needed by the radar filters" in said, said
+    assert "--set data.radar_filter.invalid_states=null data.radar_filter.dynprop_states=null " \
+           "data.radar_filter.ambig_states=null" in said
+    rows, _, n_raw, _ = load_filtered_sweep(path, RadarFilterConfig(invalid_states=None, dynprop_states=None,
+                                                                    ambig_states=None), "tok")
+    assert n_raw == 2 and len(rows) == 2

@@ -68,6 +68,9 @@ from hybrid_calib.sensors.radar_velocity import RadarVelocityConfig, estimate_ve
 from hybrid_calib.words import above
 
 DEFAULT_VELOCITY = RadarVelocityConfig()  # the Doppler fit and stationary band when the caller gives none
+# what to check when the LiDAR and the loop disagree: the LiDAR-camera extrinsic is T_cam_ego T_ego_lidar, two records
+# (probe 52: a camera record 1.28 deg off moved the LiDAR's lateral reading 60 cm, and the words named the LiDAR alone)
+CHECK_RECORDS = "check the LiDAR's and the camera's records in calibrated_sensor.json"
 RADAR_X, RADAR_Y = 3, 4  # indices of the radar-x / radar-y translation in the right tangent [phi (3), rho (3)]
 
 
@@ -349,7 +352,7 @@ def refusal(a: LidarAlignment, conf: LidarAlignConfig = LidarAlignConfig(), cov:
     if conf.max_innovation and abs(z) > conf.max_innovation:
         return (f"{a.delta[1] * 100:+.1f} cm from the loop's estimate is {abs(z):.1f} stds of what either can be off "
                 f"by (max_innovation {conf.max_innovation:g}): the tables' LiDAR-camera extrinsic or the loop's "
-                "estimate is wrong, and which cannot be told; check the LiDAR's calibration")
+                f"estimate is wrong, and which cannot be told; {CHECK_RECORDS}")
     return ""
 
 
@@ -411,11 +414,12 @@ def describe(block: dict) -> str:
         words += f", forward {block['dx_m'] * 100:+.1f} +- {block['dx_std_m'] * 100:.1f} cm"
     if not block["applied"]:
         return words + f"; not applied: {block.get('note', '')}"
-    inherits = " (through the tables' LiDAR-camera extrinsic: an error there is carried into the result)"
+    inherits = (" (through the tables' LiDAR-camera extrinsic, the LiDAR's and the camera's calibrated_sensor "
+                "records: an error in either is carried into the result)")
     z = block.get("innovation_sigma")
     if isinstance(z, (int, float)) and abs(z) > LidarAlignConfig.far_innovation:
         inherits += (f"; it lies {abs(z):.1f} stds from the loop's estimate: the radar is far off its tables, or the "
-                     "LiDAR is (check the LiDAR's calibration before recalibrating the radar)")
+                     f"LiDAR's or the camera's record is ({CHECK_RECORDS} before recalibrating the radar)")
     if block.get("forward_applied"):
         return words + "; both applied" + inherits
     note = block.get("forward_note")

@@ -108,7 +108,9 @@ def run(args: argparse.Namespace) -> int:
     c = summary["counts"]
     print(f"{n_vehicles(c['vehicles'])}: {c['done']} done, {c['failed']} failed; {c['out_of_tolerance']} out of "
           f"tolerance, {drifted_words(summary)}, {c['fleet_outliers']} fleet outlier(s)"
-          + (f" ({', '.join(summary['fleet_prior']['outliers'])})" if c["fleet_outliers"] else ""))
+          + (f" ({', '.join(summary['fleet_prior']['outliers'])})" if c["fleet_outliers"] else "")
+          + (f"; {c['doppler_off_tables']} whose radar's Doppler puts its yaw off its tables (check their yaw)"
+             if c.get("doppler_off_tables") else ""))
     for note in summary.get("notes") or []:
         print(f"  note: {note}")
     for root, why in (summary.get("roots_left_out") or {}).items():

@@ -41,18 +41,18 @@ def finite_mask(points: np.ndarray) -> np.ndarray:
 def state_mask(points: np.ndarray, conf: RadarFilterConfig) -> np.ndarray:
     """(N,) structured radar array -> (N,) bool: passes the state filters of ``conf``.
 
-    A field the filter needs but the PCD lacks raises ``KeyError`` naming the field (callers turn
-    it into a ``DataError`` naming the file).
+    Fields the filters need but the PCD lacks raise ``KeyError`` naming every one of them (its args; callers turn
+    it into a ``DataError`` naming the file: one field per try made a user rerun three times, probe 52).
     """
     keep = np.ones(len(points), dtype=bool)
     if not conf.enabled:
         return keep
-    for field, allowed in (("invalid_state", conf.invalid_states), ("dyn_prop", conf.dynprop_states),
-                           ("ambig_state", conf.ambig_states)):
-        if allowed is None:
-            continue
-        if field not in (points.dtype.names or ()):
-            raise KeyError(field)
+    used = [(field, allowed) for field, allowed in (("invalid_state", conf.invalid_states),
+                                                    ("dyn_prop", conf.dynprop_states),
+                                                    ("ambig_state", conf.ambig_states)) if allowed is not None]
+    if missing := [field for field, _ in used if field not in (points.dtype.names or ())]:
+        raise KeyError(*missing)
+    for field, allowed in used:
         keep &= np.isin(points[field], np.asarray(allowed))
     return keep
 

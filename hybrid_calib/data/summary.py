@@ -167,12 +167,7 @@ class DatasetSummary:
         for g in self.groups:
             out += pose_track_lines(g.scene, g.ego_track)
             if g.late:
-                worst = max(g.late, key=lambda x: abs(x[1]))
-                out.append(f"warning: scene {g.scene}: {len(g.late)} keyframe(s) whose {self.radar_channel} record is "
-                           f"more than {SYNC_WARN_MS:g} ms from its {self.camera_channel} record (worst: sample "
-                           f"{worst[0]}, {worst[1]:+.0f} ms; nuScenes keyframes are under 0.1 s apart): a timestamp "
-                           "or the instant a record names is wrong, and the frame's motion compensation uses it; "
-                           "fix or re-extract sample_data.json")
+                out.append(late_line(g.scene, g.late, self.radar_channel, self.camera_channel))
             if len(g.image_sizes) > 1:  # a frame of another size read with the drive's intrinsics (probe 29)
                 (w, h), (n, _) = max(g.image_sizes.items(), key=lambda kv: kv[1][0])
                 odd = [f"{ww} x {hh} ({m} frame(s), first: sample {tok})" for (ww, hh), (m, tok) in
@@ -369,12 +364,35 @@ def vehicleless_warning(ds) -> str:
             "log.json) to calibrate them")
 
 
+def late_line(scene: str, late: list[tuple[str, float]], radar_channel: str, camera_channel: str) -> str:
+    """The warning on a scene's keyframes whose radar record is more than ``SYNC_WARN_MS`` from its camera's
+    (``late``: (sample token, radar - camera ms) each)."""
+    worst = max(late, key=lambda x: abs(x[1]))
+    return (f"warning: scene {scene}: {len(late)} keyframe(s) whose {radar_channel} record is more than "
+            f"{SYNC_WARN_MS:g} ms from its {camera_channel} record (worst: sample {worst[0]}, {worst[1]:+.0f} ms; "
+            "nuScenes keyframes are under 0.1 s apart): a timestamp or the instant a record names is wrong, and the "
+            "frame's motion compensation uses it; fix or re-extract sample_data.json")
+
+
+def sync_warnings(ds) -> list[str]:
+    """``late_line`` of every scene of ``ds`` from its tables alone (each keyframe's radar and camera timestamps; no
+    file read): inspect's warning, for the commands that calibrate (probe 52: a radar clock 50 ms late was warned by
+    inspect, and calibrate said nothing)."""
+    late: dict[str, list[tuple[str, float]]] = {}
+    for ref in getattr(ds, "frames", []):
+        tr, tc = ref.radar_sd.get("timestamp"), ref.camera_sd.get("timestamp")
+        if isinstance(tr, int) and isinstance(tc, int) and abs(dt := (tr - tc) / 1000.0) > SYNC_WARN_MS:
+            late.setdefault(ref.scene_name, []).append((ref.sample_token, dt))
+    return [late_line(scene, rows, getattr(ds, "radar_channel", "radar"), getattr(ds, "camera_channel", "camera"))
+            for scene, rows in late.items()]
+
+
 def table_warnings(ds) -> list[str]:
     """What a calibration says of ``ds``'s tables before it reads a frame (oracle and learned alike; inspect says the
-    same in its summary): samples of no vehicle (``vehicleless_warning``) and ego poses or radar times that jump or go
-    back (``ego_track_warnings``)."""
+    same in its summary): samples of no vehicle (``vehicleless_warning``), ego poses or radar times that jump or go
+    back (``ego_track_warnings``) and radar records far from their camera's in time (``sync_warnings``)."""
     lost = vehicleless_warning(ds)
-    return ([lost] if lost else []) + ego_track_warnings(ds)
+    return ([lost] if lost else []) + ego_track_warnings(ds) + sync_warnings(ds)
 
 
 def ego_lean_warning(ds) -> str:

@@ -69,11 +69,14 @@ def load_filtered_sweep(path: Path, conf: RadarFilterConfig, token: str) -> tupl
     try:
         rows, n_nonfinite = filter_radar(raw, conf)
     except KeyError as e:
-        option = _FILTER_OPTION[e.args[0]]
-        raise DataError(f"radar PCD lacks field {e.args[0]!r} needed by the radar filter; disable that filter "
-                        f"(radar_filter.{option}=null: --set radar_filter.{option}=null in inspect, --set "
-                        f"data.radar_filter.{option}=null with the network methods of calibrate, fleet and compare)",
-                        path=str(path), token=token) from None
+        fields, options = list(e.args), [_FILTER_OPTION[f] for f in e.args]
+        one = len(fields) == 1
+        sets = " ".join(f"radar_filter.{o}=null" for o in options)
+        data_sets = " ".join(f"data.radar_filter.{o}=null" for o in options)
+        raise DataError(f"radar PCD lacks field{'' if one else 's'} {', '.join(map(repr, fields))} needed by the radar "
+                        f"filter{'' if one else 's'}; disable {'that filter' if one else 'those filters'} "
+                        f"({sets}: --set {sets} in inspect, --set {data_sets} with the network methods of calibrate, "
+                        "fleet and compare)", path=str(path), token=token) from None
     if len(raw) and n_nonfinite == len(raw):
         raise DataError(f"all {len(raw)} radar points have NaN/inf coordinates (or lie beyond 1 km); the file is "
                         "corrupt, re-export it",

@@ -4,7 +4,7 @@
 
     {"schema": ..., "out": OUT, "method": str, "seed": int,
      "counts": {"vehicles", "pending", "running", "done", "failed", "out_of_tolerance",
-                "drifted_in_drive", "fleet_outliers", "degenerate", "inconclusive", "weak"},
+                "drifted_in_drive", "fleet_outliers", "degenerate", "inconclusive", "weak", "doppler_off_tables"},
      "step_test": bool,   # whether the method looks for a step inside the drive (hybrid.loop.STEP_METHODS)
      "design_mount": {"T_cam_radar": 4x4, "source": "recorded" | "mean of the tables"},
      "fleet_prior": {"T_mean", "spread_std_cam", "mean_std_cam", "inliers", "outliers"} | null,
@@ -19,7 +19,10 @@
                "step_alarms": [frame, ...], "error": {...} | null,
                "mount_steps": [{"at", "change", "step_deg", "std_deg", "statistic"}, ...],  # hybrid: mount monitor
                "fleet_test": {"d2", "p_value", "reference"} | {"left_out": why} | null,
-               "flags": ["out_of_tolerance", "drifted_in_drive", "fleet_outlier", "degenerate", "inconclusive"]}
+               "flags": ["out_of_tolerance", "drifted_in_drive", "fleet_outlier", "degenerate", "inconclusive",
+                         "doppler_off_tables"]}
+               # "doppler_off_tables": the radar's own Doppler puts its yaw on the vehicle beyond 3 x the tolerance
+               # from its tables (calib.drift.doppler_level_note: "check the radar's yaw"), said in the verdict
                # "inconclusive": the status is "inconclusive: ..." (the estimate is not trusted: input out of the
                # network's domain, a solve that did not converge, ...); its verdict is "cannot tell" whatever the
                # drift block says
@@ -114,7 +117,9 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
                    # tolerance (calib.drift.with_mount_step: "recalibrate", as calibrate, result.json and the
                    # reports say; the fleet's text view read "cannot tell" for it: probe 30)
                    verdict=f"cannot tell: the estimate is not trusted (inconclusive: "
-                           f"{inconclusive_reason(vr.final.status)})"
+                           f"{inconclusive_reason(vr.final.status)})" + (
+                               f"; {d['doppler_level']['words']}" if (d.get("doppler_level") or {}).get("words")
+                               else "")
                    if status_kind(vr.final.status) == "inconclusive" and not d.get("at_end") else (
                        d.get("verdict") or ("out of tolerance" if d.get("drifted") else "within tolerance")),
                    step_alarms=[f.index for f in vr.trajectory if f.step_alarm], error=vr.error, fleet_test=None,
@@ -128,6 +133,9 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
             row["flags"].append("out_of_tolerance")
         if row["step_alarms"] and alarms_say_moved(vr.final.status, vr.mount):  # as the report's "did it move"
             row["flags"].append("drifted_in_drive")
+        if (d.get("doppler_level") or {}).get("words"):  # the radar's Doppler puts its yaw off its tables: the
+            # one direct evidence on an untrusted estimate, dropped by the fleet view (probe 52)
+            row["flags"].append("doppler_off_tables")
         if status_kind(vr.final.status) == "degenerate":
             row["flags"].append("degenerate")
         if status_kind(vr.final.status) == "inconclusive":
@@ -154,7 +162,8 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
             if n in prior.outliers:
                 rows[n]["flags"].append("fleet_outlier")
     counts = {**m.counts(), "vehicles": len(rows)}
-    for flag in ("out_of_tolerance", "drifted_in_drive", "fleet_outlier", "degenerate", "inconclusive"):
+    for flag in ("out_of_tolerance", "drifted_in_drive", "fleet_outlier", "degenerate", "inconclusive",
+                 "doppler_off_tables"):
         counts[flag + ("s" if flag == "fleet_outlier" else "")] = sum(flag in r["flags"] for r in rows.values())
     counts["weak"] = sum(status_kind(r.get("status", "")) == "weak" for r in rows.values())
     pd = None if prior is None else prior.to_dict()
@@ -166,6 +175,11 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
             "T_mean", "spread_std_cam", "mean_std_cam", "inliers", "outliers")},
         "vehicles": rows,
     }
+    if fit_prior and prior is None and results:  # fleet_prior.json was missing without a word (probe 52)
+        summary["fleet_prior_note"] = (
+            f"no fleet prior (fleet_prior.json): {len(trusted)} of the {len(results)} done vehicle(s) have a trusted "
+            f"estimate, fewer than the {MIN_VEHICLES} a fit needs (an inconclusive, degenerate or unconverged "
+            "estimate says nothing about where the fleet's mounts are)")
     return summary, prior
 
 
@@ -190,7 +204,7 @@ def write_summary(m: Manifest, plot: bool = True, alpha: float = 1e-3, notes: li
     ``fleet.png`` beside the manifest; returns the summary. ``notes``: sentences for the reader (which fleet
     prior a vehicle got and why; ``run_fleet``); ``roots_left_out``: root -> why none of its vehicles is a job."""
     summary, prior = build_summary(m, alpha=alpha)
-    summary["notes"] = list(notes or [])
+    summary["notes"] = list(notes or []) + ([summary["fleet_prior_note"]] if "fleet_prior_note" in summary else [])
     summary["roots_left_out"] = dict(roots_left_out or {})
     base = m.path.parent
     if prior is not None:
@@ -220,7 +234,9 @@ def summary_markdown(s: dict) -> str:
              f"**{n_vehicles(c['vehicles'])}**: {c['done']} done, {c['failed']} failed, {c['pending'] + c['running']} "
              f"not finished; {c['out_of_tolerance']} out of tolerance, {drifted_words(s)}, "
              f"{c['fleet_outliers']} fleet outlier(s), {c['degenerate']} degenerate, "
-             f"{c.get('inconclusive', 0)} inconclusive (status: the estimate is not trusted), {c['weak']} weak.", ""]
+             f"{c.get('inconclusive', 0)} inconclusive (status: the estimate is not trusted), {c['weak']} weak"
+             + (f"; {c['doppler_off_tables']} whose radar's Doppler puts its yaw off its tables (check those radars' "
+                "yaw)" if c.get("doppler_off_tables") else "") + ".", ""]
     lines += [f"Note: {n}" for n in s.get("notes") or []] + ([""] if s.get("notes") else [])
     lines += [f"**Root left out** {r}: {why}" for r, why in (s.get("roots_left_out") or {}).items()] + (
         [""] if s.get("roots_left_out") else [])

@@ -187,8 +187,8 @@ def lidar_widened(f: FrameEstimate, dy_m: float, z: float) -> tuple[FrameEstimat
     from hybrid_calib.calib.lidar_alignment import RADAR_Y
 
     words = (f"the LiDAR puts the radar's lateral offset {dy_m * 100:+.1f} cm from the loop's estimate, {abs(z):.1f} "
-             "stds apart: the loop's estimate, or the tables' LiDAR-camera extrinsic, is wrong; the lateral 1-sigma "
-             "is widened to cover both")
+             "stds apart: the loop's estimate, or the tables' LiDAR-camera extrinsic (the LiDAR's or the camera's "
+             "record), is wrong; the lateral 1-sigma is widened to cover both")
     return _noted(f, words, np.eye(6)[RADAR_Y], dy_m), words
 
 

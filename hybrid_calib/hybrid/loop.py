@@ -537,9 +537,15 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
         ood["dropped"] = sum("ood_score" in s for s in tr.skipped) if tr.drop else 0
     if ood.get("note") == "in-domain":  # the frames the last pass used: a rerun's passes start elsewhere, and
         # their scores differ (probe 47: "uses those 21" on a pass that used 24 and dropped 17)
-        ood.update(note=(f"too few frames in domain ({ood['in_domain']} of {total}, the scores above): the estimate "
-                         f"uses the {len(traj)} frame(s) its pass scored in domain ({ood['dropped']} dropped, in "
-                         "frames_skipped) and is not trusted"))
+        # two passes, two scores per frame: each count says whose (probe 52: "22 of 41" beside "18 used, 23
+        # dropped", one frame 0.87 in the scores and 2.60 in frames_skipped)
+        again = n_priors is not None
+        ood.update(note=(f"too few frames in domain ({ood['in_domain']} of {total} on the first pass, the scores "
+                         f"above): the estimate uses the {len(traj)} frame(s) its {'last ' if again else ''}pass "
+                         f"scored in domain ({ood['dropped']} dropped, in frames_skipped with "
+                         f"{'that pass' if again else 'their'} scores"
+                         + ("; a pass that starts from another estimate scores the frames differently" if again
+                            else "") + ") and is not trusted"))
     if not traj:
         wider = range_note(conf.start, runner.range, runner.checkpoint)
         raise DataError(f"vehicle {drive.vehicle}: no usable frame ({len(tr.skipped)} skipped; first: "

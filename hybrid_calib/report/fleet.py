@@ -113,8 +113,13 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
         rot = float(np.linalg.norm(o[:3])) if o is not None else float("nan")
         tr = float(np.linalg.norm(o[3:])) if o is not None else float("nan")
         moved = (f"yes (frames {', '.join(map(str, v.moved_frames))})" if v.moved_frames else v.moved_answer)
+        # the radar's Doppler against its tables, the one direct evidence on an untrusted estimate: in the row, not
+        # only on the vehicle's page (probe 52)
+        doppler = (" <span class=note>(its radar's Doppler puts its yaw off its tables: check the radar's yaw)</span>"
+                   if ((vr.drift or {}).get("doppler_level") or {}).get("words") else "")
         rows += (f'<tr data-vehicle="{esc(n)}"><td class=l>{link}</td>'
-                 f'<td class="l {verdict_class(v.word)}" data-key="verdict">{esc(v.word)}</td>'
+                 f'<td class="l {verdict_class(v.word)}" data-key="verdict" title="{esc(v.why)}">{esc(v.word)}'
+                 f'{doppler}</td>'
                  f'<td class=l>{"yes" if n in flagged else "no"}</td>'
                  f'<td class=l data-key="status">{esc(vr.final.status)}</td><td class=l>{moved}</td>'
                  f"{num(rot, '.2f', 'offset_rot_deg')}{num(tr, '.1f', 'offset_trans_cm')}"

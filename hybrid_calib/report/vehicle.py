@@ -109,8 +109,10 @@ def extrinsic_html(vr: VehicleResult) -> str:
     err = ""
     if vr.error:
         e = vr.error
+        # not "a few tenths of a degree off": the same page could put them 2.9 deg off by the radar's Doppler (p52)
         against = ("the calibration tables (a real root has no ground truth: the tables are themselves a "
-                   "calibration, a few tenths of a degree off)" if tables else "the ground truth")
+                   "calibration, with errors of their own: nuScenes' a few tenths of a degree, a wrong record "
+                   "degrees)" if tables else "the ground truth")
         mean = (f"{e['rot_mean_deg']:.3f} deg (mean of |roll|, |pitch|, |yaw|, as the terminal and compare) and "
                 if "rot_mean_deg" in e else "")
         err = (f"<p>Error against {against}: rotation {mean}{e['geodesic_deg']:.3f} deg (geodesic), translation "
