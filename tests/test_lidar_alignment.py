@@ -132,6 +132,15 @@ def test_the_forward_offset_is_recovered_beside_a_range_offset_with_an_honest_st
     b, _ = align(frames, start, LidarAlignConfig(systematic_m=0.0, systematic_x_m=0.12, min_rows=30))
     assert np.isclose(b.cov[0, 0], a.cov[0, 0] + 0.12 ** 2, rtol=1e-6, atol=1e-9)
     assert forward_refusal(b, LidarAlignConfig(max_std_x_m=0.1)).startswith("forward offset std 12.")
+    # ... unless it says more than the loop knows: at most informative_x (1) of the loop's own forward std (probe 53:
+    # R2 loops 50-91 cm off at a ~70 cm std, the LiDAR within 5 cm at 10.0-10.9 cm, refused by the cap alone)
+    sx = float(np.sqrt(b.cov[0, 0]))
+    assert forward_refusal(b, LidarAlignConfig(max_std_x_m=0.1), loop_std_x=1.05 * sx) == ""
+    assert "nor under informative_x 1 of the loop's own" in forward_refusal(b, LidarAlignConfig(max_std_x_m=0.1),
+                                                                             loop_std_x=0.95 * sx)
+    assert forward_refusal(b, LidarAlignConfig(max_std_x_m=0.1, informative_x=0.5), loop_std_x=1.05 * sx) != ""
+    assert forward_refusal(b, LidarAlignConfig(max_std_x_m=0.1, informative_x=0.0), loop_std_x=10.0).startswith(
+        "forward offset std 12.")
     # a std just over the limit shows the digits that put it over (probe 37: "10.0 cm > max_std_x_m 10 cm")
     just = float(np.sqrt(b.cov[0, 0])) - 2e-4
     assert forward_refusal(b, LidarAlignConfig(max_std_x_m=just)).startswith(

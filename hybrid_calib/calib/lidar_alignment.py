@@ -93,7 +93,12 @@ class LidarAlignConfig:
     # on the 200-frame ones; the same benchmark and drives)
     systematic_x_m: float = 0.09
     max_std_m: float = 0.10  # an alignment whose dy is less certain than this is not applied (reported only), m
-    max_std_x_m: float = 0.10  # a dx less certain than this is not folded (dy still is), m
+    max_std_x_m: float = 0.10  # a dx less certain than this is not folded (dy still is), m ...
+    # ... unless its std is at most this fraction of the loop's own std on the radar's forward axis: folded, it at
+    # least halves the loop's variance there, and its std is honest to conservative where it was validated (NEES
+    # 0.45-0.58: docs/benchmarks.md). Probe 53: from R2 starts on urban and rain the loop ended 50-91 cm forward at a
+    # ~70 cm std while the LiDAR read within 5 cm of the truth at 10.0-10.9 cm, refused by the 10 cm cap alone; 0: never
+    informative_x: float = 1.0
     max_range_offset_m: float = 0.30  # |b| beyond this: dx is not folded (reflections deep behind surfaces), m
     passes: int = 3  # the fit re-run from the offsets the previous pass found
     range_bias: bool = True  # fit a common range offset (reflection depth): a one-sided scene cannot make it dy
@@ -113,6 +118,7 @@ class LidarAlignConfig:
             "gates_m positive": bool(self.gates_m) and min(self.gates_m) > 0, "huber > 0": self.huber > 0,
             "systematic_m >= 0": self.systematic_m >= 0, "max_std_m > 0": self.max_std_m > 0,
             "systematic_x_m >= 0": self.systematic_x_m >= 0, "max_std_x_m > 0": self.max_std_x_m > 0,
+            "0 <= informative_x <= 1": 0 <= self.informative_x <= 1,
             "max_range_offset_m > 0": self.max_range_offset_m > 0,
             "passes >= 1": self.passes >= 1, "coupling_deg >= 0": self.coupling_deg >= 0,
             "max_innovation >= 0": self.max_innovation >= 0, "far_innovation > 0": self.far_innovation > 0})
@@ -371,13 +377,19 @@ def spread_var(spread: np.ndarray, cov: np.ndarray) -> float:
     return float(np.sum(np.asarray(spread, np.float64) ** 2 * np.clip(np.diag(cov)[:3], 0.0, None)))
 
 
-def forward_refusal(a: LidarAlignment, conf: LidarAlignConfig = LidarAlignConfig()) -> str:
-    """Why the alignment's dx is not folded with its dy ("" when it is): switched off, or too uncertain."""
+def forward_refusal(a: LidarAlignment, conf: LidarAlignConfig = LidarAlignConfig(),
+                    loop_std_x: float | None = None) -> str:
+    """Why the alignment's dx is not folded with its dy ("" when it is): switched off, or too uncertain: its std
+    above ``max_std_x_m`` and, with the loop's own std on the radar's forward axis ``loop_std_x`` (m), above
+    ``informative_x`` of it."""
     if not conf.forward:
         return "forward offset off (lidar.forward=false)"
-    if a.dx_std > conf.max_std_x_m:
+    informative = loop_std_x is not None and a.dx_std <= conf.informative_x * loop_std_x
+    if a.dx_std > conf.max_std_x_m and not informative:
+        loop = (f", nor under informative_x {conf.informative_x:g} of the loop's own {loop_std_x * 100:.1f} cm"
+                if loop_std_x is not None and conf.informative_x else "")
         return (f"forward offset std {above(a.dx_std, conf.max_std_x_m)} cm > max_std_x_m {conf.max_std_x_m * 100:g} "
-                "cm (the detections' azimuths do not separate it from the radar's reflection depth)")
+                f"cm{loop} (the detections' azimuths do not separate it from the radar's reflection depth)")
     if abs(a.delta[2]) > conf.max_range_offset_m:
         return (f"the radar's reflections lie {a.delta[2] * 100:+.0f} cm from the LiDAR's surfaces (beyond "
                 f"max_range_offset_m {conf.max_range_offset_m * 100:g} cm): a depth that deep varies with what the "

@@ -18,7 +18,7 @@ from hybrid_calib.calib.degeneracy import RowGeometry
 from hybrid_calib.calib.ego_doppler import drive_sweeps
 from hybrid_calib.calib.lever_arm import apply_forward, refusal
 from hybrid_calib.calib.lever_arm import fit as fit_lever_arm
-from hybrid_calib.calib.lidar_alignment import align, apply_offsets, drive_frames, forward_refusal
+from hybrid_calib.calib.lidar_alignment import RADAR_X, align, apply_offsets, drive_frames, forward_refusal
 from hybrid_calib.calib.lidar_alignment import innovation as lidar_innovation
 from hybrid_calib.calib.lidar_alignment import refusal as lidar_refusal
 from hybrid_calib.calib.mount_monitor import MountMonitor
@@ -167,7 +167,8 @@ def with_lidar(traj: list[FrameEstimate], drive: Drive, frames, conf: HybridConf
     a, why = align(lfs, traj[-1].T, conf.lidar)
     if a is None:
         return traj, {"applied": False, "note": why}
-    no_dx, z = forward_refusal(a, conf.lidar), lidar_innovation(a, traj[-1].cov)
+    loop_std_x = float(np.sqrt(max(traj[-1].cov[RADAR_X, RADAR_X], 0.0)))  # the loop's forward std, m
+    no_dx, z = forward_refusal(a, conf.lidar, loop_std_x), lidar_innovation(a, traj[-1].cov)
     if no := lidar_refusal(a, conf.lidar, traj[-1].cov):
         return traj, a.record(False, no, innovation=z)
     traj, block = _fold_last(traj, conf, a, why, "", lambda T, cov, a: apply_offsets(T, cov, a, forward=not no_dx),
@@ -264,7 +265,7 @@ def yaw_widening(u: np.ndarray, d: float, lidar: dict | None) -> tuple[np.ndarra
     rad, and, where the LiDAR's offsets were folded in (``lidar["applied"]``, ``forward_applied``), the lateral
     (forward) offset they then imply, ``coupling @ u[:3]`` per radian (``calib.lidar_alignment``: the fold measured
     ``xi[4] - coupling @ xi[:3]``, so a yaw that is off by ``d`` leaves the folded offset off by that much)."""
-    from hybrid_calib.calib.lidar_alignment import RADAR_X, RADAR_Y
+    from hybrid_calib.calib.lidar_alignment import RADAR_Y
 
     v = np.asarray(u, np.float64).copy()
     for axis, key, on in ((RADAR_Y, "coupling_m_per_rad", "applied"), (RADAR_X, "coupling_x_m_per_rad",
