@@ -123,10 +123,16 @@ def sim_root(tmp_path_factory):
 BASE = {"start": "R1", "seed": 4, "threads": 1, "progress": False, "window": {"detect_steps": False}}
 
 
-def test_closed_loop_runs_the_network_from_the_fused_estimate(sim_root, tmp_path):
+def test_closed_loop_runs_the_network_from_the_fused_estimate(sim_root, tmp_path, monkeypatch):
+    import hybrid_calib.hybrid.corrections as corrections
     from hybrid_calib.calib.result import CalibrationRun
     from hybrid_calib.hybrid import run_calibration
     from hybrid_calib.hybrid.network import OutputCache
+
+    asked = []  # the LiDAR's forward offset is judged against the loop's own forward std (probe 53)
+    real_refusal = corrections.forward_refusal
+    monkeypatch.setattr(corrections, "forward_refusal", lambda a, conf, loop_std_x=None: asked.append(
+        loop_std_x) or real_refusal(a, conf, loop_std_x))
 
     run = run_calibration(sim_root, "v1.0-sim", tmp_path / "h", {**BASE, "method": "hybrid",
                                                                   "vehicles": ("sim-veh-000",),
@@ -144,6 +150,7 @@ def test_closed_loop_runs_the_network_from_the_fused_estimate(sim_root, tmp_path
     assert back.method == "hybrid" and back.frame_rows == v.frame_rows and back.start == v.start
     # the LiDAR's lateral offset was measured on the loop's frames and folded into the last estimate only
     assert v.lidar["applied"] and v.lidar["frames"] == 3 and back.lidar == v.lidar, v.lidar
+    assert asked and all(s is not None and s > 0 for s in asked), asked
     h = np.r_[-np.asarray(v.lidar["coupling_m_per_rad"]), 0.0, 1.0, 0.0]  # what dy measures (its Kalman row)
     # at most the measurement's noise: its variance and its coupling's spread with the rotation's variance (before
     # the last frame: the window's only shrinks)
