@@ -459,6 +459,13 @@ def alarms_say_moved(status: str, mount: dict | None) -> bool:
     return status_kind(status) != "inconclusive" or bool((mount or {}).get("steps"))
 
 
+def doppler_level_words(drift: dict | None) -> str:
+    """The sentence ``doppler_level_note`` added to a result's drift block ("" when none): the radar's own Doppler
+    puts its yaw off its tables, the one direct evidence on an untrusted estimate (the verdict, the fleet view and
+    its page say it)."""
+    return str(((drift or {}).get("doppler_level") or {}).get("words") or "")
+
+
 def doppler_level_note(drift: dict | None, mount: dict | None) -> dict | None:
     """``drift`` whose verdict is "cannot tell" with a sentence added when the radar mount monitor's one level puts the
     radar's yaw on the vehicle beyond 3 x the yaw tolerance from its tables (by more than 3 of its std, the level's

@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from hybrid_calib.calib.covariance import camera_offset, inconclusive_reason, status_kind
-from hybrid_calib.calib.drift import alarms_say_moved
+from hybrid_calib.calib.drift import alarms_say_moved, doppler_level_words
 from hybrid_calib.config import save_json_atomic, save_text_atomic
 from hybrid_calib.errors import DataError
 from hybrid_calib.fleet.manifest import Manifest, rel_path
@@ -118,8 +118,7 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
                    # reports say; the fleet's text view read "cannot tell" for it: probe 30)
                    verdict=f"cannot tell: the estimate is not trusted (inconclusive: "
                            f"{inconclusive_reason(vr.final.status)})" + (
-                               f"; {d['doppler_level']['words']}" if (d.get("doppler_level") or {}).get("words")
-                               else "")
+                               f"; {doppler_level_words(d)}" if doppler_level_words(d) else "")
                    if status_kind(vr.final.status) == "inconclusive" and not d.get("at_end") else (
                        d.get("verdict") or ("out of tolerance" if d.get("drifted") else "within tolerance")),
                    step_alarms=[f.index for f in vr.trajectory if f.step_alarm], error=vr.error, fleet_test=None,
@@ -133,7 +132,7 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
             row["flags"].append("out_of_tolerance")
         if row["step_alarms"] and alarms_say_moved(vr.final.status, vr.mount):  # as the report's "did it move"
             row["flags"].append("drifted_in_drive")
-        if (d.get("doppler_level") or {}).get("words"):  # the radar's Doppler puts its yaw off its tables: the
+        if doppler_level_words(d):  # the radar's Doppler puts its yaw off its tables: the
             # one direct evidence on an untrusted estimate, dropped by the fleet view (probe 52)
             row["flags"].append("doppler_off_tables")
         if status_kind(vr.final.status) == "degenerate":

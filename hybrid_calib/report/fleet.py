@@ -19,6 +19,7 @@ from urllib.parse import quote
 import numpy as np
 
 from hybrid_calib.calib.covariance import camera_offset
+from hybrid_calib.calib.drift import doppler_level_words
 from hybrid_calib.calib.result import CalibrationRun, VehicleResult
 from hybrid_calib.config import merge
 from hybrid_calib.data.files import file_part
@@ -116,7 +117,7 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
         # the radar's Doppler against its tables, the one direct evidence on an untrusted estimate: in the row, not
         # only on the vehicle's page (probe 52)
         doppler = (" <span class=note>(its radar's Doppler puts its yaw off its tables: check the radar's yaw)</span>"
-                   if ((vr.drift or {}).get("doppler_level") or {}).get("words") else "")
+                   if doppler_level_words(vr.drift) else "")
         rows += (f'<tr data-vehicle="{esc(n)}"><td class=l>{link}</td>'
                  f'<td class="l {verdict_class(v.word)}" data-key="verdict" title="{esc(v.why)}">{esc(v.word)}'
                  f'{doppler}</td>'

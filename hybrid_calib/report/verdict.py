@@ -39,6 +39,7 @@ from hybrid_calib.calib.drift import (
     DriftConfig,
     against_tolerance,
     alarms_say_moved,
+    doppler_level_words,
     mount_steps_beyond,
 )
 from hybrid_calib.calib.mount_monitor import blind_words, finds_words, tested_words, turn_words
@@ -251,7 +252,7 @@ def _verdict_vs_reference(vr: VehicleResult, tol: Tolerance) -> Verdict:
         moved += "; but the solve did not converge, so these alarms may only mark its failures"
     d = vr.drift or {}
     if vr.final.status.startswith(INCONCLUSIVE):  # the radar's own Doppler level, as calibrate says it (probe 36)
-        level = (d.get("doppler_level") or {}).get("words")
+        level = doppler_level_words(d)
         return Verdict("cannot tell", _out_of_domain_why(vr.final.status) + (f"; {level}" if level else ""),
                        tol.describe(), "the result's status (not trusted)", moved, frames)
     source = "the calibrator's reference test (result.json drift block)"
