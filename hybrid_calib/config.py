@@ -48,7 +48,10 @@ def check_fields(conf: Any) -> None:
     config holds hashable values). ``merge`` checks what a user types; this is the same check for a config built
     directly, as the examples and the API do (probe 51: ``SimConfig(frames=2.5)`` was accepted and failed deep inside
     ``simulate`` with a bare TypeError). Called by ``require`` and ``require_ranges``, so every ``__post_init__``
-    that checks a rule checks the types first."""
+    that checks a rule checks the types first; once per instance (a ``__post_init__`` calling both, or calling this
+    before them, does not check twice: the instance keeps a mark outside its fields)."""
+    if conf.__dict__.get("_fields_checked"):
+        return
     for f in dataclasses.fields(conf):
         value, hint = getattr(conf, f.name), _hints(type(conf)).get(f.name)
         if hint is None or check_type(value, hint):
@@ -57,6 +60,7 @@ def check_fields(conf: Any) -> None:
             continue
         raise ValueError(f"option {f.name}={value!r} ({type(value).__name__}) is not a valid {_type_name(hint)} for "
                          f"{type(conf).__name__}.{f.name}")
+    object.__setattr__(conf, "_fields_checked", True)
 
 
 def require(conf: Any, rules: Mapping[str, bool]) -> None:

@@ -26,6 +26,13 @@ def close_to(wanted: str, names: list[str]) -> list[str]:
     return difflib.get_close_matches(str(wanted), [str(n) for n in names], n=3, cutoff=0.6)
 
 
+def did_you_mean(wanted: str, names: list[str]) -> tuple[list[str], str]:
+    """(the names spelled like ``wanted``, ``close_to``; "; did you mean a or b?" or "" when none): what a refusal of
+    an unknown name says, with the close names to lead its list (``some_of``)."""
+    close = close_to(wanted, names)
+    return close, f"; did you mean {join_or(close)}?" if close else ""
+
+
 def join_or(names: list[str]) -> str:
     """"a", "a or b", "a, b or c"."""
     return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " or " + names[-1]

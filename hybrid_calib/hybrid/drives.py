@@ -15,7 +15,7 @@ from hybrid_calib.data.views import ViewConfig, repeated_views
 from hybrid_calib.errors import DataError
 from hybrid_calib.hybrid.network import shipped_checkpoint
 from hybrid_calib.perturbation import vehicle_start
-from hybrid_calib.words import close_to, join_or, n_vehicles, some_of
+from hybrid_calib.words import did_you_mean, n_vehicles, some_of
 
 if TYPE_CHECKING:
     from hybrid_calib.hybrid.loop import HybridConfig
@@ -177,8 +177,7 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
             opts = f" (split options {conf.split_options})" if conf.split_options else ""
             raise DataError(f"vehicle(s) {in_data} have no frame in split {conf.split!r}{opts}; pass --split all or "
                             "other split options", path=str(data))
-        close = close_to(missing[0], present)
-        mean = f"; did you mean {join_or(close)}?" if close else ""
+        close, mean = did_you_mean(missing[0], present)
         raise DataError(f"vehicle(s) {missing} not in the data{mean} (its {n_vehicles(len(present))}: "
                         f"{some_of(present, close)}; hybrid-calib inspect lists them)", path=str(data))
     return frames, drives

@@ -19,7 +19,7 @@ from hybrid_calib.errors import HybridCalibError
 from hybrid_calib.report.evidence import Evidence, gather
 from hybrid_calib.report.html import esc, img_tag, num, verdict_class, write_page
 from hybrid_calib.report.verdict import AXIS_NAMES, Tolerance, Verdict, verdict_of
-from hybrid_calib.words import close_to, join_or, some_of
+from hybrid_calib.words import did_you_mean, some_of
 
 STD_KEYS = ("rot_x_cam_deg", "rot_y_cam_deg", "rot_z_cam_deg", "t_x_cam_cm", "t_y_cam_cm", "t_z_cam_cm")
 
@@ -54,8 +54,7 @@ def pick_vehicle(run: CalibrationRun, vehicle: str | None, source: str) -> str:
         return names[0]
     if vehicle not in run.vehicles:
         also = f"; failed: {', '.join(sorted(failed))}" if failed else ""
-        close = close_to(vehicle, names)
-        mean = f"; did you mean {join_or(close)}?" if close else ""
+        close, mean = did_you_mean(vehicle, names)
         raise HybridCalibError(f"vehicle {vehicle!r} is not in {source}{mean} (vehicles: {some_of(names, close)}"
                                f"{also})")
     return vehicle
