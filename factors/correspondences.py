@@ -10,6 +10,12 @@ SIGMA_PX_RANGE = (1e-12, 1e6)  # pixels: no 1-sigma outside this is a measuremen
 POINT_RANGE_M = (0.0, 1e5)  # |coordinate|, metres: no radar detection lies 100 km away
 PIXEL_RANGE = (0.0, 1e7)  # |coordinate|, pixels: no image is ten million pixels wide
 FOCAL_MIN_PX = 1.0  # pixels: a focal length below one pixel images the whole world into one pixel
+# one measurement, not two: radar points within REPEAT_RADAR_M (each coordinate) and pixels within REPEAT_SIGMA of
+# their 1-sigma (an independent measurement of the same point lands that close to the first
+# with a probability of ~1e-4 per row). Probe 51: a replay nudged by 1e-6 px, or rows doubled inside a frame, passed
+# as new measurements and shrank the std.
+REPEAT_RADAR_M = 1e-3
+REPEAT_SIGMA = 0.01
 
 
 @dataclass(frozen=True)
@@ -100,14 +106,44 @@ class Correspondences:
     def __len__(self) -> int:
         return len(self.points_radar)
 
-    def content_key(self) -> str:
-        """A digest of the rows (radar points and pixels, exactly, in any order): two frames with one key repeat one
-        measurement (a stalled or replayed feed), which fused as two would shrink a covariance as if they were
-        independent."""
-        import hashlib
+    def signature(self) -> np.ndarray:
+        """(5, N): each column of the rows sorted on its own (radar x, y, z in metres; pixel u, v): what ``repeats``
+        compares, in any order of the rows (a row-wise nudge of at most e moves every sorted value by at most e)."""
+        return np.sort(np.hstack([self.points_radar, self.pixels]).T, axis=1)
 
+    def repeats(self, other: Correspondences, signatures: tuple | None = None) -> bool:
+        """True when these rows are ``other``'s again (a stalled or replayed feed): radar points within
+        ``REPEAT_RADAR_M`` and pixels within ``REPEAT_SIGMA`` of the smallest pixel sigma, in any order.
+        Fused as two frames, one measurement would shrink a covariance as if it were two independent ones.
+        A row twice inside a frame counts once. ``signatures``: the two frames' ``signature()`` when the caller keeps
+        them (of rows already kept once)."""
+        if signatures is None:  # a row twice inside a frame counts once (doubled_rows)
+            self, other = self.once(), other.once()
+        if len(self) != len(other) or not len(self):
+            return False
+        a, b = signatures or (self.signature(), other.signature())
+        tol_px = REPEAT_SIGMA * min(self.sigma_px.min(), other.sigma_px.min())
+        d = np.abs(a - b).max(axis=1)
+        return bool(np.all(d[:3] <= REPEAT_RADAR_M) and np.all(d[3:] <= tol_px))
+
+    def doubled_rows(self) -> list[tuple[int, int]]:
+        """(row, earlier row it repeats) pairs inside this frame: radar points within ``REPEAT_RADAR_M`` and pixels
+        within ``REPEAT_SIGMA`` of their sigma. Two such rows are one measurement counted twice."""
+        if len(self) < 2:
+            return []
         rows = np.hstack([self.points_radar, self.pixels])
-        return hashlib.sha1(np.ascontiguousarray(rows[np.lexsort(rows.T[::-1])]).tobytes()).hexdigest()
+        order = np.lexsort(rows.T[::-1])
+        a, b = order[:-1], order[1:]
+        same = (np.all(np.abs(rows[a, :3] - rows[b, :3]) <= REPEAT_RADAR_M, axis=1)
+                & (np.abs(rows[a, 3:] - rows[b, 3:]).max(axis=1)
+                   <= REPEAT_SIGMA * np.minimum(self.sigma_px[a], self.sigma_px[b])))
+        return sorted((int(max(i, j)), int(min(i, j))) for i, j in zip(a[same], b[same]))
+
+    def once(self) -> Correspondences:
+        """These rows with each doubled row (``doubled_rows``) kept once; ``self`` when none is."""
+        if not (pairs := self.doubled_rows()):
+            return self
+        return self.subset(np.setdiff1d(np.arange(len(self)), [i for i, _ in pairs]))
 
     def subset(self, mask: np.ndarray) -> Correspondences:
         """The rows selected by a boolean mask or index array."""
@@ -139,17 +175,33 @@ class Correspondences:
 
 def repeated_frames(frames) -> dict[int, int]:
     """{index: index of the earlier frame it repeats} over ``Correspondences`` ``frames`` with rows
-    (``content_key``); frames without rows repeat nothing."""
-    first: dict[str, int] = {}
+    (``Correspondences.repeats``); frames without rows repeat nothing."""
+    seen: dict[int, list[tuple[int, np.ndarray]]] = {}  # row count -> (index, signature) of the frames kept
     out = {}
-    for i, f in enumerate(frames):
+    once = [f.once() for f in frames]  # a row twice inside a frame counts once
+    for i, f in enumerate(once):
         if len(f):
-            out.update({i: first[k]} if (k := f.content_key()) in first else {})
-            first.setdefault(k, i)
+            sig, earlier = f.signature(), seen.setdefault(len(f), [])
+            if (j := next((j for j, s in earlier if f.repeats(once[j], (sig, s))), None)) is not None:
+                out[i] = j
+            else:
+                earlier.append((i, sig))
     return out
 
 
 def repeat_message(frame_id: str, earlier_id: str) -> str:
     """The words for a frame whose rows repeat an earlier frame's (``repeated_frames``)."""
-    return (f"frame {frame_id or '?'} repeats the rows of frame {earlier_id or '?'} exactly (a stalled or replayed "
-            "feed?): one measurement, not two independent ones, so it is left out")
+    return (f"frame {frame_id or '?'} repeats the rows of frame {earlier_id or '?'} (the same radar points, the "
+            f"pixels within {REPEAT_SIGMA:.0%} of their sigma: a stalled or replayed feed?): one measurement, not two "
+            "independent ones, so it is left out")
+
+
+def doubled_message(c: Correspondences) -> str:
+    """The words for a frame holding rows twice (``Correspondences.doubled_rows``), kept once; "" when it holds
+    none."""
+    if not (pairs := c.doubled_rows()):
+        return ""
+    i, j = pairs[0]
+    return (f"{len(pairs)} of the frame's {len(c)} rows repeat another row of it (first: row {i} = row {j}: the same "
+            "radar point and pixel): kept once (one measurement counted twice shrinks the covariance as if it were "
+            "two)")

@@ -2,6 +2,8 @@
 never a numpy traceback, a confident answer from a broken covariance, a frame counted twice, or a calibrator that a
 rejected frame leaves broken."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -63,7 +65,7 @@ def test_a_repeated_frame_is_not_counted_as_a_second_measurement(tmp_path):
         solve_batch(copies, T0)
     cal = SlidingWindowCalibrator(T0, WINDOW)
     first = cal.update(copies[0])
-    with pytest.raises(ValueError, match="frame copy1 repeats the rows of frame copy0 exactly"):
+    with pytest.raises(ValueError, match="frame copy1 repeats the rows of frame copy0 \\(the same radar points"):
         cal.update(copies[1])
     assert cal.update(frames[1]).n_total == 2  # the refused copy left nothing behind
     assert first.n_total == 1
@@ -77,6 +79,49 @@ def test_a_repeated_frame_is_not_counted_as_a_second_measurement(tmp_path):
     assert res.n_frames == 2 and len(res.trajectory) == 2
     assert [s["token"] for s in res.skipped] == [f"copy{k}" for k in range(1, 5)]
     assert all("repeats the rows of frame copy0" in s["reason"] for s in res.skipped)
+
+
+def test_a_nudged_replay_and_doubled_rows_are_one_measurement():
+    """Probe 51: a replay nudged by 1e-6 px, or every row doubled inside a frame, passed as new measurements and
+    shrank the std; pixels that moved by their own noise are another measurement of the same points."""
+    from hybrid_calib.calib.pipeline import CalibrateConfig, VehicleInput, calibrate_vehicle
+    from hybrid_calib.config import merge
+
+    T, frames, T0 = _drive()
+    c = frames[0]
+    rng = np.random.default_rng(0)
+    order = rng.permutation(len(c))
+    nudged = Correspondences(c.points_radar[order] + 1e-6, c.pixels[order] + 1e-6, c.sigma_px[order],
+                             c.confidence[order], c.K, "nudged", c.timestamp_us + 1)
+    assert nudged.repeats(c) and c.repeats(nudged) and repeated_frames([c, nudged]) == {1: 0}
+    noisy = Correspondences(c.points_radar, c.pixels + rng.normal(0, 1, c.pixels.shape) * c.sigma_px[:, None],
+                            c.sigma_px, c.confidence, c.K, "noisy")
+    assert not noisy.repeats(c) and repeated_frames([c, noisy]) == {}
+    twice = Correspondences(np.vstack([c.points_radar, c.points_radar + 1e-7]), np.vstack([c.pixels, c.pixels]),
+                            np.r_[c.sigma_px, c.sigma_px], np.r_[c.confidence, c.confidence], c.K, "twice")
+    n = len(c)
+    assert twice.doubled_rows() == [(n + i, i) for i in range(n)] and c.doubled_rows() == []
+    assert twice.once().signature().shape == c.signature().shape and twice.repeats(c)
+    cal = SlidingWindowCalibrator(T0, WINDOW)
+    cal.update(c)
+    with pytest.raises(ValueError, match="frame nudged repeats the rows of frame " + c.frame_id):
+        cal.update(nudged)
+    with pytest.raises(ValueError, match="frame twice repeats the rows of frame " + c.frame_id):
+        cal.update(twice)  # its rows kept once: the first frame's again
+    assert cal.update(noisy).n_total == 2  # neither refused frame left anything behind
+    # a frame with every row twice weighs as the frame once: the same estimate and covariance, and it says so
+    a, b = SlidingWindowCalibrator(T0, WINDOW), SlidingWindowCalibrator(T0, WINDOW)
+    ea, eb = a.update(c), b.update(dataclasses.replace(twice, frame_id=c.frame_id))
+    np.testing.assert_allclose(eb.T, ea.T, atol=1e-9)
+    np.testing.assert_allclose(eb.cov, ea.cov, rtol=1e-6, atol=1e-15)
+    assert any(f"{n} of the frame's {2 * n} rows repeat another row of it (first: row {n} = row 0" in e
+               for e in eb.events) and not ea.events
+    ba, bb = solve_batch([c, frames[1]], T0), solve_batch([twice, frames[1]], T0)
+    np.testing.assert_allclose(bb.estimate.cov, ba.estimate.cov, rtol=1e-6, atol=1e-15)
+    vi = VehicleInput("veh", [c, nudged, twice, frames[1]], truth=[T] * 4, reference=T)
+    res = calibrate_vehicle(vi, merge(CalibrateConfig, {"start": "reference", "window": WINDOW}), progress=False)
+    assert res.n_frames == 2 and [s["token"] for s in res.skipped] == ["nudged", "twice"]
+    assert all("repeats the rows of frame " + c.frame_id in s["reason"] for s in res.skipped)
 
 
 @pytest.mark.parametrize("change, message", [
@@ -245,8 +290,8 @@ def test_a_repeat_is_a_repeat_in_any_row_order_and_paths_may_be_paths(tmp_path):
     shuffled = Correspondences(c.points_radar[order], c.pixels[order], c.sigma_px[order], c.confidence[order], c.K,
                                "shuffled")
     assert repeated_frames([c, shuffled]) == {1: 0}
-    moved = Correspondences(c.points_radar, c.pixels + 1e-3, c.sigma_px, c.confidence, c.K, "moved")
-    assert repeated_frames([c, moved]) == {}  # other pixels: another measurement
+    moved = Correspondences(c.points_radar, c.pixels + 0.5, c.sigma_px, c.confidence, c.K, "moved")
+    assert repeated_frames([c, moved]) == {}  # pixels a quarter of their sigma away: another measurement
     conf = merge(HybridConfig, {"checkpoint": tmp_path / "c.json", "cache_dir": Path("cache")})
     assert conf.checkpoint == str(tmp_path / "c.json") and conf.cache_dir == "cache"
 

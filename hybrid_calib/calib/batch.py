@@ -102,6 +102,7 @@ def solve_batch(frames: list[Correspondences], T_init: np.ndarray, conf: BatchCo
     if conf.backend not in BACKENDS:
         raise ValueError(f"BatchConfig.backend={conf.backend!r}; valid: {BACKENDS}")
     _check_frames(frames)
+    frames = [f.once() for f in frames]  # a row twice inside a frame is one measurement (Correspondences.doubled_rows)
     T_init = check_transform(T_init, "solve_batch T_init")  # both backends (Ceres took a scaled rotation)
     n_rows = sum(len(f) for f in frames)
     T, info, cov, why, iters, secs, t0 = _solve(frames, T_init, conf, priors)

@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from factors.config import RadarPixelFactorConfig
-from factors.correspondences import Correspondences, repeat_message
+from factors.correspondences import Correspondences, doubled_message, repeat_message
 from factors.scene import scene_prior_std
 from hybrid_calib.calib.covariance import (
     CovarianceConfig,
@@ -203,7 +203,8 @@ class SlidingWindowCalibrator:
         # per-drive scene nuisance (factors.scene): its cross information with the marginalised frames
         self._scene = len(scene_prior_std(self.conf.factor)) > 0
         self._marg_scene_cross = np.zeros((6, len(scene_prior_std(self.conf.factor))))
-        self._seen: dict[str, str] = {}  # content_key -> frame_id of the last REPEAT_MEMORY frames with rows
+        # (rows, signature) of the last REPEAT_MEMORY frames with rows; a tuple, replaced, never changed in place
+        self._seen: tuple[tuple[Correspondences, np.ndarray], ...] = ()
 
     # ------------------------------------------------------------------ linearisation
     def _gate(self) -> float:
@@ -444,7 +445,7 @@ class SlidingWindowCalibrator:
     def _snapshot(self) -> dict:
         """The calibrator's state, to restore when an update fails (the frames' rows and priors are shared, not
         copied: nothing changes them)."""
-        memo = {id(self.conf): self.conf}
+        memo = {id(self.conf): self.conf, id(self._seen): self._seen}
         for fr in self.frames:
             memo[id(fr.corr)] = fr.corr
             if fr.prior is not None:
@@ -467,17 +468,19 @@ class SlidingWindowCalibrator:
 
     def _update(self, corr: Correspondences, prior: GaussianPrior | None, timestamp_us: int | None
                 ) -> FrameEstimate:
+        doubled = ""
         if len(corr):  # the same rows again: one measurement, which counted twice shrinks the covariance (probe 31)
-            if (key := corr.content_key()) in self._seen:
-                raise ValueError(repeat_message(corr.frame_id, self._seen[key]))
-            self._seen[key] = corr.frame_id
-            while len(self._seen) > REPEAT_MEMORY:
-                del self._seen[next(iter(self._seen))]
+            if doubled := doubled_message(corr):
+                corr = corr.once()
+            sig = corr.signature()
+            if (earlier := next((c for c, s in self._seen if corr.repeats(c, (sig, s))), None)) is not None:
+                raise ValueError(repeat_message(corr.frame_id, earlier.frame_id))
+            self._seen = (*self._seen[len(self._seen) + 1 - REPEAT_MEMORY:], (corr, sig))
         t0 = time.perf_counter()
         ts = int(corr.timestamp_us if timestamp_us is None else timestamp_us)
         self._advance_clock(ts)
         fr = self._push(corr, prior)
-        events: list[str] = []
+        events: list[str] = [doubled] if doubled else []
         T_prev = self.T.copy()
         solved = self._rescue_if_diverged(fr, self._solve_new_frame(fr), events, T_prev)
         # a frame without rows (e.g. only a network prior) says nothing about convergence
