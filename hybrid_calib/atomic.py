@@ -6,7 +6,8 @@ POSIX; same suffix, so writers that choose the format by extension (OpenCV, ``np
 A crash leaves either the old file or the new one, never a half-written one; a failed writer
 removes its temporary file. The temporary name carries the process id, so concurrent workers
 writing the same path do not share a temporary file. An ``OSError`` of the write (a full disk too) names the
-target, never the temporary file (a target that is a directory is refused before the writer runs).
+target, never the temporary file (a target that is a directory is refused before the writer runs); a writer's own
+error on a full disk (safetensors', torch's) becomes the ``OSError`` of a full disk (ENOSPC), naming the target.
 """
 
 from __future__ import annotations
@@ -21,6 +22,21 @@ from hybrid_calib.errors import HybridCalibError
 
 _IS_A_DIRECTORY = ("{path} is a directory, so the output file cannot be written there; move the directory away or "
                    "write the outputs elsewhere")
+
+
+FULL_BYTES = 1 << 20  # a file system with less than this free (bytes) is full: what failed a write there ran out
+
+
+def disk_full(e: BaseException, folder: Path) -> bool:
+    """Whether writer error ``e`` says the disk is full, or ``folder``'s file system is (a writer that reports it
+    in its own words: torch's "unexpected pos ...")."""
+    if "No space left" in str(e) or "os error 28" in str(e):
+        return True
+    try:
+        st = os.statvfs(folder)
+    except OSError:
+        return False
+    return st.f_bavail * st.f_frsize < FULL_BYTES
 
 
 @contextmanager
@@ -46,6 +62,11 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         what = (_IS_A_DIRECTORY.format(path=path) if path.is_dir() else
                 f"{path} cannot be written ({e.strerror or e})")
         raise OSError(code, what, str(path)) from None  # the errno's subclass
+    except Exception as e:  # a writer's own error type (safetensors, torch) on a full disk: probe 55's "internal error"
+        if disk_full(e, tmp.parent):
+            raise OSError(errno.ENOSPC, f"{path} cannot be written: no space left on the device "
+                                        f"({type(e).__name__}: {e})", str(path)) from None
+        raise
     finally:
         if tmp.exists():
             tmp.unlink()

@@ -143,6 +143,34 @@ def test_a_full_disk_names_the_file_and_is_not_a_bug(failure, tmp_path, capsys):
     assert f"no space left on the device while writing {p}" in err and "what was written before is kept" in err
 
 
+@pytest.mark.parametrize("failure, free", [
+    (RuntimeError("Error while serializing: I/O error: No space left on device (os error 28)"), 1 << 30),  # safetensors
+    (RuntimeError("[enforce fail at inline_container.cc:672] . unexpected pos 4921984 vs 4921872"), 4096),  # torch.save
+])
+def test_a_writer_s_own_error_on_a_full_disk_is_a_full_disk(failure, free, tmp_path, monkeypatch, capsys):
+    """Probe 55: a checkpoint's weights (safetensors) or optimizer state (torch.save) on a full disk was "internal
+    error ... looks like a bug", torch's naming neither the file nor the cause."""
+    import errno
+    import os
+
+    from hybrid_calib.cli import EXIT_ERROR, report_error
+
+    class Stat:
+        f_bavail, f_frsize = free // 4096, 4096
+
+    monkeypatch.setattr(os, "statvfs", lambda folder: Stat())
+    p = tmp_path / "ckpt-0002.optim.pt"
+    with pytest.raises(OSError) as e, atomic_path(p) as tmp:
+        tmp.write_bytes(b"half")
+        raise failure
+    assert e.value.errno == errno.ENOSPC and e.value.filename == str(p) and not list(tmp_path.iterdir())
+    assert report_error("train", e.value) == EXIT_ERROR
+    assert f"no space left on the device while writing {p}" in capsys.readouterr().err
+    Stat.f_bavail = 1 << 20  # the same error with room on the disk: the writer's own error, as it was
+    with pytest.raises(RuntimeError, match="unexpected pos"), atomic_path(p) as tmp:
+        raise RuntimeError("[enforce fail at inline_container.cc:672] . unexpected pos 4921984 vs 4921872")
+
+
 def test_the_runs_log_appends_each_command_and_replaces_an_unreadable_one(tmp_path):
     import json
     import time

@@ -186,3 +186,25 @@ def test_fleet_options_are_bounded():
     with pytest.raises(ValueError, match="workers in"):
         FleetOptions(engine="process", workers=10**9)
     FleetOptions(engine="ray", workers=512, address="head:6379")  # a cluster's CPUs
+
+
+def test_a_learning_rate_halved_every_0_epochs_is_never_halved():
+    """Probe 55: lr_halve_every=0 was accepted and halved the rate every epoch (0 is "off", as for grad_clip)."""
+    import torch
+
+    from hybrid_calib.config import merge
+    from learned.train import lr_schedule
+
+    def rates(every):
+        opt = torch.optim.SGD([torch.nn.Parameter(torch.zeros(1))], lr=1.0)
+        sched = lr_schedule(opt, merge(TrainConfig, {"lr_halve_every": every}))
+        out = []
+        for _ in range(4):
+            out.append(opt.param_groups[0]["lr"])
+            opt.step()
+            sched.step()
+        return out
+
+    assert rates(0) == [1.0] * 4
+    assert rates(1) == [1.0, 0.5, 0.25, 0.125]
+    assert rates(2) == [1.0, 1.0, 0.5, 0.5]
