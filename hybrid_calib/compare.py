@@ -242,6 +242,12 @@ def summarize_method(results: list[VehicleResult], labels: dict[str, str] | None
     )
 
 
+def inconclusive_words(summary: CompareResult) -> str:
+    """"hybrid: 2 of 2; pure-avg: 1 of 2" for the methods with inconclusive trials ("" when none is)."""
+    return "; ".join(f"{m}: {round(s.inconclusive_fraction * s.trials)} of {s.trials}"
+                     for m, s in summary.methods.items() if s.inconclusive_fraction > 0)
+
+
 def _markdown(summary: CompareResult, conf: CompareConfig, command: str) -> str:
     # called from Python, no command line: said so, not an empty "Command: ``" (probe 51)
     said = f"Command: `{command}`" if command else "Called from Python (hybrid_calib.compare.compare), no command line"
@@ -261,14 +267,17 @@ def _markdown(summary: CompareResult, conf: CompareConfig, command: str) -> str:
                          f"{e['y_cm']:.2f} | {e['z_cm']:.2f} | {e['trans_norm_cm']:.2f} |")
         lines.append("")
     lines += ["## covariance and status", "",
-              "| method | trials | mean NEES (6 if honest) | median NEES | coverage of the 95 % ellipsoid | not ok | "
-              "ms/frame | frames |", "|---|---|---|---|---|---|---|---|"]
+              "| method | trials | mean NEES (6 if honest) | median NEES | coverage of the 95 % ellipsoid | not ok "
+              "(weak or inconclusive) | inconclusive | ms/frame | frames |", "|---|---|---|---|---|---|---|---|---|"]
     for m, s in summary.methods.items():
         c = s.consistency
         ms = "-" if s.ms_per_frame is None else f"{s.ms_per_frame:.0f}"
         lines.append(f"| {m} | {s.trials} | {c['nees_mean']:.2f} | {c['nees_median']:.2f} | "
-                     f"{100 * c['coverage_95']:.0f} % | {100 * s.not_ok_fraction:.0f} % | {ms} | "
-                     f"{s.frames_mean:.0f} |")
+                     f"{100 * c['coverage_95']:.0f} % | {100 * s.not_ok_fraction:.0f} % | "
+                     f"{100 * s.inconclusive_fraction:.0f} % | {ms} | {s.frames_mean:.0f} |")
+    if said := inconclusive_words(summary):  # read where the figures are (probe 54: said in compare.json alone)
+        lines += ["", f"**Inconclusive trials** ({said}): their estimates are in the tables above but are not to be "
+                      "trusted, whatever their covariance; why, in each trial's status (trials/)."]
     done = {m: s.trials for m, s in summary.methods.items()}
     short = [f"{m}: {done.get(m, 0)} of {conf.trials}" for m in conf.methods if done.get(m, 0) < conf.trials]
     if short:  # the rows are then not over the same trials: said where they are read

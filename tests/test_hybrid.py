@@ -460,7 +460,12 @@ def test_compare_says_when_a_method_finished_fewer_trials():
     text = _markdown(result({"pure": row(4), "hybrid": row(3)}), conf, "cmd")
     assert "**Not every trial finished** (pure-avg: 0 of 4; hybrid: 3 of 4)" in text
     full = _markdown(result({m: row(4) for m in conf.methods}), conf, "cmd")
-    assert "Not every trial" not in full and "Left out" not in full
+    assert "Not every trial" not in full and "Left out" not in full and "Inconclusive trials" not in full
+    # inconclusive trials are said where their figures are read (probe 54: compare.json alone said so)
+    unsure = dataclasses.replace(row(4), inconclusive_fraction=0.5)
+    text = _markdown(result({"pure": row(4), "hybrid": unsure}), conf, "cmd")
+    assert "| hybrid | 4 | 6.00 | 5.00 | 90 % | 0 % | 50 % |" in text
+    assert "**Inconclusive trials** (hybrid: 2 of 4): their estimates are in the tables above but are not" in text
     assert "**Left out** (none of their frames reads" in _markdown(result({}, {"v": "why"}), conf, "cmd")
     # compare.json is the result's to_dict: the keys its readers use
     d = result({"pure": row(4)}).to_dict()

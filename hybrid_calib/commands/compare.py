@@ -45,7 +45,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from hybrid_calib.compare import compare, trials_not_asked
+    from hybrid_calib.compare import compare, inconclusive_words, trials_not_asked
 
     hybrid = parse_overrides(args.set)
     # compare sets these per trial from its own flags
@@ -74,7 +74,11 @@ def run(args: argparse.Namespace) -> int:
         e, d, c = r.mean, r.median, r.consistency
         print(f"{m:>9}: rot mean {e['rot_mean_deg']:.3f} deg (median {d['rot_mean_deg']:.3f}), trans mean "
               f"{e['trans_mean_cm']:.2f} cm (median {d['trans_mean_cm']:.2f}); NEES {c['nees_mean']:.1f}, "
-              f"coverage {100 * c['coverage_95']:.0f} %, not ok {100 * r.not_ok_fraction:.0f} %")
+              f"coverage {100 * c['coverage_95']:.0f} %, not ok {100 * r.not_ok_fraction:.0f} %, inconclusive "
+              f"{100 * r.inconclusive_fraction:.0f} %")
+    if said := inconclusive_words(s):
+        print(f"note: inconclusive trials ({said}): their estimates are in the tables but are not to be trusted, "
+              f"whatever their covariance; why, in each trial's status ({args.out / 'trials'})")
     if s.run.trials_kept:  # a rerun: say what it reused (calibrate says so too)
         print(f"kept {s.run.trials_kept} trial(s) an earlier run finished in {args.out / 'trials'} (same data, "
               f"network and options); ran {s.run.trials_run}")
