@@ -7,7 +7,7 @@ import shutil
 import numpy as np
 import pytest
 
-from hybrid_calib.calib.covariance import report_basis, report_std
+from hybrid_calib.calib.covariance import camera_offset, report_basis, report_std
 from hybrid_calib.calib.result import CalibrationRun
 from hybrid_calib.errors import DataError, OptionError
 from hybrid_calib.geometry import local, retract
@@ -93,9 +93,13 @@ def test_export_writes_the_estimate_where_measured_and_keeps_the_tables_where_pi
     assert v["std_camera"]["roll"]["std"] is None and v["std_camera"]["yaw"]["std"] > 0
     # read back through the data layer: the estimate along every decided axis, the reference's roll (undecided)
     # and vertical offset (prior-pinned)
+    # and vertical offset (prior-pinned), each as every change is reported (camera_offset: R_ref w, t - t_ref); the
+    # SE(3) tangent masked instead leaked the kept roll times the kept vertical offset into the written translation
     T_back = _read_back(root, tmp_path / "out" / "calibrated_sensor.json", tmp_path, "sim-veh-000")
-    got = B @ local(T_ref, T_back)
-    np.testing.assert_allclose(got, [0, np.radians(1.5), 0, 0.04, 0.0, -0.03], atol=1e-9)
+    want = camera_offset(T_ref, T_est)
+    want[[2, 4]] = 0.0
+    np.testing.assert_allclose(camera_offset(T_ref, T_back), want, atol=1e-9)
+    assert abs(want[5] - 100 * (B @ local(T_ref, T_est))[5]) > 1e-3  # where the tangent's translation differs
     # the other vehicle's records, and every other record, are unchanged
     before = json.loads((root / VERSION / "calibrated_sensor.json").read_text())
     after = json.loads((tmp_path / "out" / "calibrated_sensor.json").read_text())

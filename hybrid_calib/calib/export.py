@@ -136,17 +136,23 @@ def _kept_axes(vr) -> list[int]:
 
 def _keep_axes(T_ref: np.ndarray, T_est: np.ndarray, kept: list[int]) -> np.ndarray:
     """``T_est`` (4, 4, ``T_cam_radar``) with its offset from ``T_ref`` along the camera axes ``kept`` removed: the
-    offset ``local(T_ref, T_est)`` turned to camera axes (``calib.covariance.report_basis``), those components set to
-    zero, turned back and applied to ``T_ref``. ``T_est`` itself when nothing is kept."""
-    from hybrid_calib.calib.covariance import report_basis
-    from hybrid_calib.geometry import local, retract
+    offset as every change is reported (``calib.covariance.camera_offset``: the rotation ``R_ref w`` and the
+    translation ``t - t_ref``, camera axes), those components set to zero, and the rest applied to ``T_ref``, so that
+    the record holds the estimate's own value along every axis it writes. (Masking the SE(3) tangent instead leaked
+    the kept pitch times the kept vertical offset into the written translation through Exp's V(w): probe 54, a
+    longitudinal offset written 0.24 cm from the tables where the estimate's is 0.05 cm.) ``T_est`` itself when
+    nothing is kept."""
+    from hybrid_calib.calib.covariance import camera_offset
+    from hybrid_calib.geometry import so3_exp
 
     if not kept:
         return T_est
-    B = report_basis(T_ref)
-    d = B @ local(T_ref, T_est)
+    d = camera_offset(T_ref, T_est)
     d[kept] = 0.0
-    return retract(T_ref, B.T @ d)
+    T = np.eye(4)
+    T[:3, :3] = so3_exp(np.radians(d[:3])) @ np.asarray(T_ref, np.float64)[:3, :3]
+    T[:3, 3] = np.asarray(T_ref, np.float64)[:3, 3] + d[3:] / 100.0
+    return T
 
 
 def _why_not(vr, which: str) -> str:
