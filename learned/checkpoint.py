@@ -63,8 +63,10 @@ def _umask_mode(path: Path) -> None:
 
 def save_checkpoint(stem: str | Path, model: torch.nn.Module, *, epoch: int, model_config: dict,
                     train_config: dict | None = None, metrics: dict | None = None,
-                    optimizer: torch.optim.Optimizer | None = None, scheduler: Any = None) -> Path:
-    """Write a checkpoint at ``stem`` (see module docstring); returns the JSON path."""
+                    optimizer: torch.optim.Optimizer | None = None, scheduler: Any = None,
+                    data: dict | None = None) -> Path:
+    """Write a checkpoint at ``stem`` (see module docstring); returns the JSON path. ``data``: what the training run
+    read (``trained_data``), kept in the JSON so that it travels with a checkpoint copied out of its run folder."""
     stem = Path(stem)
     stem.parent.mkdir(parents=True, exist_ok=True)
     weights = stem.with_suffix(".safetensors")
@@ -80,7 +82,7 @@ def save_checkpoint(stem: str | Path, model: torch.nn.Module, *, epoch: int, mod
                         "scheduler": scheduler.state_dict() if scheduler is not None else None}, tmp)
         files["optimizer"] = optim.name
     meta = {"epoch": int(epoch), "model_config": model_config, "train_config": train_config or {},
-            "metrics": metrics or {}, "files": files}
+            "metrics": metrics or {}, "files": files, **({"data": data} if data is not None else {})}
     return save_json_atomic(stem.with_suffix(".json"), meta)
 
 
@@ -208,11 +210,14 @@ def _non_finite(value: Any, where: str = "") -> str:
 
 
 def trained_data(checkpoint: str | Path) -> dict[str, Any]:
-    """What the training run of ``checkpoint`` read (its run folder's ``train_config.json`` "data": roots, version,
-    nsweeps), {} when it does not say (a shipped checkpoint records its data in words, in ``provenance``)."""
+    """What the training run of ``checkpoint`` read ("data": roots, version, nsweeps and, since session 34, the roots'
+    data stamps): the checkpoint JSON's own record, else its run folder's ``train_config.json``; {} when neither
+    says (a shipped checkpoint records its data in words, in ``provenance``)."""
     try:
         path = _resolve(checkpoint)
-        data = json.loads((path.resolve().parent.parent / "train_config.json").read_text()).get("data")
+        data = read_checkpoint_meta(path)[1].get("data")
+        if not isinstance(data, dict):
+            data = json.loads((path.resolve().parent.parent / "train_config.json").read_text()).get("data")
     except (OSError, ValueError, AttributeError, TypeError, RecursionError, CheckpointError):
         return {}
     return data if isinstance(data, dict) else {}

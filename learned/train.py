@@ -218,8 +218,16 @@ def check_resume(out: Path, last: Path, conf: dict, source: dict | None) -> None
     old = previous.get("train") if isinstance(previous.get("train"), dict) else {}
     changed = [f"{k}: {json.dumps(old.get(k))} -> {json.dumps(v)}" for k, v in conf.items()
                if k not in RESUME_FREE and old.get(k) != v]
-    if source is not None and previous.get("data") not in (None, source):
-        changed.insert(0, f"data: {json.dumps(previous['data'])} -> {json.dumps(source)}")
+    before = previous.get("data")
+    if source is not None and isinstance(before, dict) and any(before.get(k) != source.get(k) for k in before):
+        # the keys the run recorded (a run from before the data stamps compares its roots, version and sweeps)
+        if before.get("stamps") != source.get("stamps") and before.get("roots") == source.get("roots"):
+            changed.insert(0, "data: the frames at " + ", ".join(source.get("roots") or []) + " are not the ones the "
+                              "run was trained on (another data stamp: re-simulated, re-downloaded or replaced)")
+        else:
+            changed.insert(0, f"data: {json.dumps(before)} -> {json.dumps(source)}")
+    elif source is not None and before is not None and not isinstance(before, dict):
+        changed.insert(0, f"data: {json.dumps(before)} -> {json.dumps(source)}")
     if changed:
         raise HybridCalibError(f"{out} holds a run trained up to {last.name} with other options "
                                f"({'; '.join(changed)}); resume with the same options and data (only "
@@ -417,7 +425,7 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
                     tb.add_scalar(f"val/{k[4:]}", v, epoch)
         last_path = save_checkpoint(checkpoint_stem(ckpt_dir, epoch), model, epoch=epoch,
                                     model_config=model_conf_dict, train_config=to_dict(conf), metrics=metrics,
-                                    optimizer=optimizer, scheduler=scheduler)
+                                    optimizer=optimizer, scheduler=scheduler, data=source)
         if progress:
             print(json.dumps({k: (round(v, 4) if isinstance(v, float) else v) for k, v in metrics.items()}))
     if tb is not None:

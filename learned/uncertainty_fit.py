@@ -25,16 +25,21 @@ def refuse_shipped(path: str | Path) -> None:
                                "its .json and .safetensors into a folder of yours and pass the copy as --checkpoint")
 
 
-def trained_on(checkpoint: str | Path, roots) -> list[str]:
-    """The ``roots`` the training run of ``checkpoint`` read (its run folder's ``train_config.json`` "data"), [] when
-    it does not say (a shipped checkpoint records its data in words, in ``provenance``)."""
+def trained_on(checkpoint: str | Path, roots, version: str | None = None) -> list[str]:
+    """The ``roots`` the training run of ``checkpoint`` read (``learned.checkpoint.trained_data``): at the same path,
+    or (with ``version``) holding the same data at another (its data stamp: a ``cp -r`` of the training root, probe
+    55); [] when the run does not say (a shipped checkpoint records its data in words, in ``provenance``)."""
+    from hybrid_calib.data.files import data_stamp
     from learned.checkpoint import trained_data
 
+    data = trained_data(checkpoint)
     try:
-        seen = {str(Path(r).resolve()) for r in trained_data(checkpoint).get("roots", [])}
+        seen = {str(Path(r).resolve()) for r in data.get("roots", [])}
+        stamps = set(data.get("stamps") or []) if version is not None else set()
     except (TypeError, ValueError):
         return []
-    return [str(r) for r in roots if str(Path(r).resolve()) in seen]
+    return [str(r) for r in roots
+            if str(Path(r).resolve()) in seen or (stamps and data_stamp(r, version)["digest"] in stamps)]
 
 
 def check_fit(checkpoint: str | Path, roots, split: str, version: str, refine: bool) -> None:
@@ -53,7 +58,7 @@ def check_fit(checkpoint: str | Path, roots, split: str, version: str, refine: b
                                "domain, so the fitted scale would be the tables' and the domain gap's; fit on "
                                "simulated validation drives (v1.0-sim), or, for a network fine-tuned on real "
                                "frames, with benchmarks/real_finetune.py (its scale floored at 1)")
-    if split in ("all", "train") and (seen := trained_on(checkpoint, roots)):
+    if split in ("all", "train") and (seen := trained_on(checkpoint, roots, version)):
         raise HybridCalibError(f"--fit-uncertainty with --split {split} on {', '.join(seen)}, a root the "
                                f"checkpoint was trained on ({checkpoint}): its frames would make the covariance "
                                "look honest where it was fitted; use --split val, or a root it never saw")

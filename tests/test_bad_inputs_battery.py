@@ -1715,6 +1715,12 @@ def test_train_resume_with_other_data_or_options_is_refused(tmp_path):
         check_resume(out, last, {**conf, "perturbation": "R2"}, data)
     with pytest.raises(HybridCalibError, match=r'data: .*"/a".* -> .*"/b"'):
         check_resume(out, last, conf, {**data, "roots": ["/b"]})
+    check_resume(out, last, conf, {**data, "stamps": ["s1"]})  # a run recorded before the stamps: its keys compared
+    # other frames at the same path (re-simulated): refused (probe 55: resumed, one urban and one highway epoch)
+    (out / "train_config.json").write_text(json.dumps({"train": conf, "model": {}, "data": {**data, "stamps": ["s1"]}}))
+    check_resume(out, last, conf, {**data, "stamps": ["s1"]})
+    with pytest.raises(HybridCalibError, match="data: the frames at /a are not the ones the run was trained on"):
+        check_resume(out, last, conf, {**data, "stamps": ["s2"]})
     (out / "train_config.json").write_text("{")
     with pytest.raises(HybridCalibError, match="train config of this --out is unreadable"):
         check_resume(out, last, conf, data)

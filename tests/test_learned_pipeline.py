@@ -514,6 +514,19 @@ def test_cli_train_then_evaluate(sim_root, tmp_path, capsys):
     assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--split", "all",
                                      "--fit-uncertainty", "--out", str(tmp_path / "fit1"), "--no-progress"]) == 2
     assert "a root the checkpoint was trained on" in capsys.readouterr().err
+    # the checkpoint copied out of its run folder, or the root copied to another path: the same frames, refused as
+    # well (probe 55: both fitted the scale on the training frames, with no note)
+    import shutil
+
+    flat, copy = tmp_path / "flat", tmp_path / "root-copy"
+    flat.mkdir()
+    for f in (run / "checkpoints").glob("ckpt-0001.*"):
+        shutil.copy(f, flat / f.name)
+    shutil.copytree(sim_root, copy)
+    for data, ck in ((sim_root, flat / "ckpt-0001.json"), (copy, run)):
+        assert _run_command("evaluate", ["--data", str(data), "--checkpoint", str(ck), "--split", "all",
+                                         "--fit-uncertainty", "--out", str(tmp_path / "fitc"), "--no-progress"]) == 2
+        assert "a root the checkpoint was trained on" in capsys.readouterr().err
     assert _run_command("evaluate", ["--data", str(sim_root), "--version", "v1.0-mini", "--checkpoint", str(run),
                                      "--split", "val", "--fit-uncertainty", "--out", str(tmp_path / "fit2")]) == 2
     assert "has no ground truth, only its tables" in capsys.readouterr().err  # a real root: the tables' errors

@@ -116,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
                       network=[checkpoint_digest(p) for p in stage_paths])
     plot_error_cdf(result, Path(args.out) / "errors_cdf.png")
     print(result.table())
-    if args.split in ("all", "train") and (seen := trained_on(last.path, args.data)):
+    if args.split in ("all", "train") and (seen := trained_on(last.path, args.data, args.version)):
         print(f"note: split {args.split} of {', '.join(seen)}, a root the checkpoint's training run read: these "
               "frames include its training frames, so the table is no held-out measure (use --split test, or a root "
               "it never saw)", file=sys.stderr)

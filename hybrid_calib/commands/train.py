@@ -71,6 +71,7 @@ def _real_root_depth(roots, version: str) -> str:
 def run(args: argparse.Namespace) -> int:
     import sys
 
+    from hybrid_calib.data.files import data_stamp
     from hybrid_calib.plots.training import plot_history
     from learned.checkpoint import latest_checkpoint
     from learned.dataset import open_roots
@@ -94,7 +95,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"note: {', '.join(real)} holds no simulator truth ({args.version}): its calibrated_sensor tables "
               "are the training truth (themselves a few tenths of a degree off); label figures on its frames as "
               "training figures and keep some frames out (docs/benchmarks.md: benchmarks/real_finetune.py)")
-    source = {"roots": [str(Path(d).resolve()) for d in args.data], "version": args.version, "nsweeps": args.nsweeps}
+    # the data stamps: the frames themselves, so that other frames at the same path (re-simulated, re-downloaded) are
+    # not resumed as these, and a copy of these at another path is known as trained on (probe 55)
+    source = {"roots": [str(Path(d).resolve()) for d in args.data], "version": args.version, "nsweeps": args.nsweeps,
+              "stamps": [data_stamp(d, args.version)["digest"] for d in args.data]}
     if not args.no_resume and (found := latest_checkpoint(args.out / "checkpoints")) is not None:
         # said as a condition: a run of other options or data is refused next (probe 45: "resumes" then the refusal)
         print(f"note: {args.out} holds {found.name}: the run resumes after it if its options and data are the ones "
