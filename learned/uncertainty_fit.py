@@ -42,6 +42,34 @@ def trained_on(checkpoint: str | Path, roots, version: str | None = None) -> lis
             if str(Path(r).resolve()) in seen or (stamps and data_stamp(r, version)["digest"] in stamps)]
 
 
+def training_overlap(checkpoint: str | Path, frames, roots, version: str, split: str,
+                     split_options: dict | None) -> int | None:
+    """How many of the frames of ``split`` ("test" / "val", under ``split_options``) the training run of
+    ``checkpoint`` trained on (its recorded ``train_config.split`` over the same frames): 0 when none (a root it
+    never read, or the checkpoint's own split), None when it cannot be told (the run read these roots among
+    others: its split was over another list of frames). Probe 55: ``--split-by`` / fraction flags other than the
+    checkpoint's put 8 of its 16 training frames in a "held-out" val split, and a fit went into the checkpoint."""
+    from learned.checkpoint import read_checkpoint_meta, trained_data
+    from learned.dataset import split_indices
+
+    if split not in ("test", "val") or not (seen := trained_on(checkpoint, roots, version)):
+        return 0
+    trained = (read_checkpoint_meta(checkpoint)[1].get("train_config") or {}).get("split")
+    if not isinstance(trained, dict) or trained == (split_options or {}):
+        return 0
+    data = trained_data(checkpoint)
+    if len(seen) != len(roots) or len(data.get("roots") or []) != len(roots) or data.get("version") != version:
+        return None
+    held = set(split_indices(frames, split, split_options or {}))
+    return len(held & set(split_indices(frames, "train", trained)))
+
+
+def overlap_words(n: int | None, split: str) -> str:
+    """The words for ``training_overlap`` (``n`` > 0 or None)."""
+    return (f"{n} of the --split {split} frames" if n is not None else f"--split {split} may hold frames that") + \
+        (" the checkpoint was trained on (the split flags differ from its recorded split, train_config.split)")
+
+
 def check_fit(checkpoint: str | Path, roots, split: str, version: str, refine: bool) -> None:
     """``HybridCalibError`` for a fit that would not be held out: with ``--refine`` (several checkpoints), on the test
     split, on a real root (``version`` other than v1.0-sim), on the frames ``checkpoint`` was trained on, or into a

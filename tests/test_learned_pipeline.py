@@ -560,6 +560,18 @@ def test_cli_train_then_evaluate(sim_root, tmp_path, capsys):
     assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--split", "all",
                                      "--max-frames", "2", "--out", str(tmp_path / "e4"), "--no-progress"]) == 0
     assert "these frames include its training frames, so the table is no held-out measure" in capsys.readouterr().err
+    # split flags other than the checkpoint's: its training frames in the "held-out" split (probe 55)
+    assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--split", "val",
+                                     "--split-by", "time", "--gap-frames", "0", "--val-fraction", "0.34",
+                                     "--test-fraction", "0.34", "--fit-uncertainty", "--set", "fit_min_frames=1",
+                                     "--out", str(tmp_path / "fitt"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "--fit-uncertainty: " in err and "of the --split val frames the checkpoint was trained on" in err
+    assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--split", "val",
+                                     "--split-by", "time", "--gap-frames", "0", "--val-fraction", "0.34",
+                                     "--test-fraction", "0.34", "--max-frames", "2", "--out", str(tmp_path / "e5"),
+                                     "--no-progress"]) == 0
+    assert "the checkpoint was trained on (the split flags differ" in capsys.readouterr().err
     # a two-stage cascade (the same checkpoint twice): every stage's iterations are in the table
     assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--refine", str(run),
                                      "--out", str(tmp_path / "cascade"), "--no-progress"]) == 0

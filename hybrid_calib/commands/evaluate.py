@@ -85,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
     from learned.dataset import open_roots
     from learned.eval_setup import setup_evaluation
     from learned.evaluate import EvalConfig, evaluate
-    from learned.uncertainty_fit import fit_uncertainty, trained_on
+    from learned.uncertainty_fit import fit_uncertainty, overlap_words, trained_on, training_overlap
 
     user = parse_overrides(args.overrides)
     merge(EvalConfig, user)  # a bad --set fails here, before the checkpoint and the data are read
@@ -109,6 +109,13 @@ def run(args: argparse.Namespace) -> int:
                                                "and the fitted scale goes into it: copy the checkpoint to a folder "
                                                "you can write and pass the copy")
     frames = open_roots(args.data, args.version, lidar=setup.lidar, options={"nsweeps": setup.nsweeps})
+    # other split flags than the checkpoint's: its training frames may fall in the "held-out" split (probe 55)
+    overlap = training_overlap(last.path, frames, args.data, args.version, args.split, setup.conf.get("split_options"))
+    if overlap != 0 and args.fit_uncertainty:
+        raise OptionError("--fit-uncertainty", f"{overlap_words(overlap, args.split)}: their errors would make the "
+                                               "covariance look honest where it was fitted; fit with the "
+                                               "checkpoint's own split (no --split-by / fraction flags), or on a "
+                                               "root it never saw")
     data = {"roots": [str(Path(d).resolve()) for d in args.data], "version": args.version, "nsweeps": setup.nsweeps,
             "stamps": [data_stamp(d, args.version)["digest"] for d in args.data]}
     result = evaluate(setup.model, frames, setup.conf, args.out, checkpoint=" -> ".join(map(str, stage_paths)),
@@ -120,6 +127,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"note: split {args.split} of {', '.join(seen)}, a root the checkpoint's training run read: these "
               "frames include its training frames, so the table is no held-out measure (use --split test, or a root "
               "it never saw)", file=sys.stderr)
+    if overlap != 0:
+        print(f"note: {overlap_words(overlap, args.split)}: the table is no held-out measure (drop the split flags, "
+              "or use a root it never saw)", file=sys.stderr)
     skipped_path = Path(args.out) / "skipped.json"  # frames with bad files, skipped by the export
     skipped = json.loads(skipped_path.read_text()) if skipped_path.is_file() else []
     for rec in skipped:
