@@ -32,6 +32,10 @@ def test_reference_test_is_calibrated_and_detects_change():
     tiny = perturb_camera_frame(T, np.radians([0.0, 0.0, 0.3]), [0.0, 0.0, 0.0])
     d = reference_test(tiny, C / 1000, T, DriftConfig(tolerance_rot_deg=0.5))
     assert d.significant and not d.drifted and d.verdict == "within tolerance"
+    # what C_ref holds is said with the test (probe 54: "C_ref" named, never said to be 0)
+    assert "C_ref = 0: the reference taken as exact, so its own error counts as a change" in d.to_dict()["test"]
+    given = reference_test(tiny, C / 1000, T, DriftConfig(ref_rot_std_deg=0.1, ref_trans_std_cm=0.5))
+    assert "C_ref = diag(0.1 deg x3, 0.5 cm x3)" in given.to_dict()["test"] and given.statistic < d.statistic / 10
     # the same change against a tighter tolerance (a documented option) must be recalibrated
     d = reference_test(tiny, C / 1000, T, DriftConfig(tolerance_rot_deg=0.2))
     assert d.verdict_kind == "recalibrate" and "0.30 deg in yaw" in d.verdict

@@ -494,6 +494,8 @@ def test_a_tolerance_asked_of_the_report_redoes_the_calibrators_test():
         verdict_of(vr_loose), vr_loose)
     assert "beyond the tolerance (the change itself, not weighed by its sigma): False" in verdict_html(
         verdict_of(vr_loose, Tolerance(trans_cm=30)), vr_loose)
+    assert "C_ref = 0: the reference taken as exact, so its own error counts as a change" in verdict_html(
+        verdict_of(vr_loose, Tolerance(trans_cm=30)), vr_loose)  # what the p-value beside it means (probe 54)
 
 
 def test_a_real_roots_tables_are_not_called_the_truth():

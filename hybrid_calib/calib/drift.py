@@ -192,10 +192,12 @@ class DriftDecision:
     axes: tuple[AxisCheck, ...] = ()
     z: float = float("nan")
     alpha: float = DriftConfig.alpha  # significance of the test (the per-axis z values follow from it)
+    ref_std: tuple[float, float] = (0.0, 0.0)  # C_ref's 1-sigma per camera axis: (deg, cm)
 
     def to_dict(self) -> dict:
         return {
-            "test": "chi-square on d = local(T_ref, T_est), s = d^T (C_est + C_ref)^-1 d, dof 6",
+            "test": "chi-square on d = local(T_ref, T_est), s = d^T (C_est + C_ref)^-1 d, dof 6, " + ref_words(
+                *self.ref_std),
             "statistic": float(self.statistic), "dof": self.dof, "p_value": float(self.p_value),
             "threshold": float(self.threshold), "significant": bool(self.significant),
             "exceeds_margin": bool(self.exceeds_margin), "drifted": bool(self.drifted),
@@ -293,6 +295,16 @@ def _verdict(axes: list[AxisCheck]) -> tuple[str, str]:
     return "cannot tell", "cannot tell: " + "; ".join(why) + hint + note
 
 
+def ref_words(rot_deg: float, trans_cm: float) -> str:
+    """What C_ref of the reference test holds, in words: with none, the reference's own error (a factory
+    calibration's 0.1 deg) is a significant change beside a tight estimate (probe 54: p 1.5e-63 on an unchanged mount,
+    "C_ref" named and never said to be 0)."""
+    if rot_deg == 0 and trans_cm == 0:
+        return ("C_ref = 0: the reference taken as exact, so its own error counts as a change (give it with "
+                "DriftConfig.ref_rot_std_deg / ref_trans_std_cm); the verdict weighs each axis against the tolerance")
+    return f"C_ref = diag({rot_deg:g} deg x3, {trans_cm:g} cm x3) in camera axes"
+
+
 def reference_test(
     T_est: np.ndarray, cov_est: np.ndarray, T_ref: np.ndarray, conf: DriftConfig | None = None,
     pinned_std: np.ndarray | None = None,
@@ -335,7 +347,7 @@ def reference_test(
     trans = float(np.linalg.norm(delta_report[3:]))
     exceeds = any(abs(a.delta) > a.tolerance for a in axes)
     return DriftDecision(s, 6, p, thr, p < conf.alpha, exceeds, kind == "recalibrate", delta_report, rot, trans,
-                         kind, sentence, tuple(axes), z, conf.alpha)
+                         kind, sentence, tuple(axes), z, conf.alpha, (conf.ref_rot_std_deg, conf.ref_trans_std_cm))
 
 
 def against_tolerance(drift: dict, status: str, mount: dict | None, rot_deg: float | None = None,

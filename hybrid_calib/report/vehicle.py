@@ -76,7 +76,7 @@ def verdict_html(v: Verdict, vr: VehicleResult) -> str:
                 f"significant: {d.get('significant')}; some axis beyond the tolerance (the change itself, not "
                 f"weighed by its sigma): {d.get('exceeds_margin')}. The chi-square flags any significant change, also "
                 "along a direction the data could not pin; the verdict above weighs each axis's change and its "
-                "sigma against the tolerance.</div>")
+                f"sigma against the tolerance. {esc(str(d.get('test', '')).partition('dof 6, ')[2])}</div>")
     return (f'<div class="verdict {verdict_class(v.word)}" id="verdict"><div class="word">{esc(v.word)}</div>'
             f"<p>{esc(v.why)}</p><p><b>Tolerance:</b> {esc(v.tolerance)}. <span class=\"meta\">({esc(v.source)})"
             f"</span></p><p><b>Did the sensor move during the drive?</b> <span id=\"moved\">{esc(v.moved)}</span></p>"
