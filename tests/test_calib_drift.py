@@ -486,7 +486,9 @@ def test_a_radar_that_turns_in_steps_each_within_the_tolerance_is_told_by_their_
                                                                                "change": 27}], "levels": lv}
     said = mount_steps_beyond(mount, 0.5)
     assert said.startswith("The radar turned on the vehicle during the drive by 1.04 +- 0.13 deg (3 sigma) to the "
-                           "left in yaw in 2 steps from about frame 14 to 27")
+                           "left in yaw in 2 steps from about frame 14 to 27 (between the mean mounts before and "
+                           "after them: a gradual turn reads as steps, and its whole size, first frame to last, may "
+                           "be larger)")
     one = {"steps": mount["steps"][:1], "levels": lv[:2]}
     assert mount_steps_beyond(one, 0.5) == ""  # one step within the tolerance: nothing to tell
     # a direction, never a sign: the monitor's yaw is about the vehicle's up axis, the verdict's about camera y

@@ -410,7 +410,11 @@ def mount_steps_beyond(mount: dict | None, rot_tol_deg: float) -> str:
         std = float(np.hypot(levels[-1]["std_deg"], levels[0]["std_deg"]))
         if abs(total) - 3 * std > rot_tol_deg:
             big = [{"step_deg": total, "std_deg": std, "change": steps[0]["change"],
-                    "words": f"in {len(steps)} steps from about frame {steps[0]['change']} to {steps[-1]['change']}"}]
+                    # the mean mounts of the first and last segments: a ramp's whole turn, first frame to last, is
+                    # larger (probe 54: 0.88 +- 0.33 deg said of a 1.5 deg drift, its interval excluding it)
+                    "words": f"in {len(steps)} steps from about frame {steps[0]['change']} to {steps[-1]['change']} "
+                             "(between the mean mounts before and after them: a gradual turn reads as steps, and "
+                             "its whole size, first frame to last, may be larger)"}]
     if not big:
         return ""
     from hybrid_calib.calib.mount_monitor import turn_words
