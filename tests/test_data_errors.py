@@ -227,7 +227,8 @@ def test_empty_sweep_after_filtering(tiny):
 def test_zero_point_pcd_is_empty_sweep(tiny):
     path = tiny.path(tiny.radar_sd[0])
     write_radar_pcd(path, read_radar_pcd(path)[:0])  # nothing to filter: the file itself is empty (probe 9)
-    _iterate_and_check_skip(tiny, 0, "radar file holds no points", "skip_empty_radar")
+    _iterate_and_check_skip(tiny, 0, "radar file holds no points", "skip_empty_radar",
+                            "train and evaluate always skip them")
 
 
 def test_filters_follow_devkit_defaults(tiny):

@@ -536,8 +536,10 @@ class NuScenesRadarCamera:
             rf = self.conf.radar_filter
             empty = [k for k in ("invalid_states", "dynprop_states", "ambig_states")
                      if rf.enabled and getattr(rf, k) is not None and not len(getattr(rf, k))]
+            # train and evaluate take no such option (probe 55: their skip line advised one they refuse)
             how = ("set skip_empty_radar=false to keep empty frames (inspect: --set KEY=VALUE; the network methods "
-                   "of calibrate, fleet and compare: --set data.KEY=VALUE)")
+                   "of calibrate, fleet and compare: --set data.KEY=VALUE; train and evaluate always skip them: a "
+                   "frame without radar points has nothing to match)")
             if not sweeps.n_raw:  # nothing to filter: the file itself holds no point (loosening cannot help)
                 raise DataError(f"radar file holds no points (its header says 0); a sweep of a moving car always has "
                                 f"some: the file was written or copied empty; re-extract it, or {how}",
