@@ -208,6 +208,7 @@ class EvalResult:
     per_frame: dict[str, list[dict[str, float]]]  # row name -> per-frame errors (same order as tokens)
     tokens: list[str]
     uncertainty: dict[str, Any] = field(default_factory=dict)  # consistency of the exported covariance
+    notes: list[str] = field(default_factory=list)  # what qualifies the figures (``annotate``)
 
 
     def table(self) -> str:
@@ -231,6 +232,8 @@ class EvalResult:
                      "| axis | RMSE | mean reported 1-sigma |\n|---|---|---|\n")
             for name, rmse, sd in zip(u["axes"], u["rmse"], u["sigma_mean"]):
                 text += f"| {name} | {rmse:.3f} | {sd:.3f} |\n"
+        if self.notes:
+            text += "\n**Notes**\n\n" + "".join(f"- {n}\n" for n in self.notes)
         return text
 
 
@@ -306,14 +309,23 @@ def write_report(result: EvalResult, out: str | Path, config: dict | None = None
 
     results.json: {"n_frames": int, "metrics": list of metric names, "rows": {row: {metric: mean}},
     "per_frame": {row: [{metric: value}, ...]}, "tokens": [...], "uncertainty": {...}
-    (``uncertainty_consistency``), "config": {...}}."""
+    (``uncertainty_consistency``), "notes": [str] (``annotate``), "config": {...}}."""
     out = Path(out)
     path = save_json_atomic(out / "results.json", {
         "n_frames": result.n_frames, "metrics": list(METRIC_KEYS), "rows": result.rows,
         "per_frame": result.per_frame, "tokens": result.tokens, "uncertainty": result.uncertainty,
-        "config": config or {}})
+        "notes": list(result.notes), "config": config or {}})
     save_text_atomic(out / "results.md", result.markdown())
     return path
+
+
+def annotate(out: str | Path, result: EvalResult, notes: list[str]) -> Path:
+    """``results.json`` and ``results.md`` in ``out`` written again with ``notes`` (what qualifies the figures: no
+    held-out measure, errors against a real root's tables, frames skipped), their config as it was."""
+    out = Path(out)
+    result.notes = list(notes)
+    config = json.loads((out / "results.json").read_text()).get("config") or {}
+    return write_report(result, out, config)
 
 
 def _what_differs(old: dict, new: dict) -> str:

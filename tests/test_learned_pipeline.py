@@ -560,6 +560,8 @@ def test_cli_train_then_evaluate(sim_root, tmp_path, capsys):
     assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--split", "all",
                                      "--max-frames", "2", "--out", str(tmp_path / "e4"), "--no-progress"]) == 0
     assert "these frames include its training frames, so the table is no held-out measure" in capsys.readouterr().err
+    for name in ("results.md", "results.json"):  # beside the figures too, not on the screen alone (probe 55)
+        assert "these frames include its training frames" in (tmp_path / "e4" / name).read_text()
     # split flags other than the checkpoint's: its training frames in the "held-out" split (probe 55)
     assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--split", "val",
                                      "--split-by", "time", "--gap-frames", "0", "--val-fraction", "0.34",

@@ -84,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
     from learned.checkpoint import checkpoint_digest
     from learned.dataset import open_roots
     from learned.eval_setup import setup_evaluation
-    from learned.evaluate import EvalConfig, evaluate
+    from learned.evaluate import EvalConfig, annotate, evaluate
     from learned.uncertainty_fit import fit_uncertainty, overlap_words, trained_on, training_overlap
 
     user = parse_overrides(args.overrides)
@@ -123,15 +123,26 @@ def run(args: argparse.Namespace) -> int:
                       network=[checkpoint_digest(p) for p in stage_paths])
     plot_error_cdf(result, Path(args.out) / "errors_cdf.png")
     print(result.table())
+    notes = []  # kept in results.md / results.json too, beside the figures they qualify (probe 55: screen only)
     if args.split in ("all", "train") and (seen := trained_on(last.path, args.data, args.version)):
-        print(f"note: split {args.split} of {', '.join(seen)}, a root the checkpoint's training run read: these "
-              "frames include its training frames, so the table is no held-out measure (use --split test, or a root "
-              "it never saw)", file=sys.stderr)
+        notes.append(f"split {args.split} of {', '.join(seen)}, a root the checkpoint's training run read: these "
+                     "frames include its training frames, so the table is no held-out measure (use --split test, or "
+                     "a root it never saw)")
     if overlap != 0:
-        print(f"note: {overlap_words(overlap, args.split)}: the table is no held-out measure (drop the split flags, "
-              "or use a root it never saw)", file=sys.stderr)
+        notes.append(f"{overlap_words(overlap, args.split)}: the table is no held-out measure (drop the split "
+                     "flags, or use a root it never saw)")
+    if real := [str(d) for d in args.data if not (Path(d) / args.version / "sim_vehicle.json").is_file()]:
+        notes.append(f"{', '.join(real)} holds no simulator truth: the errors and NEES of its frames are against "
+                     "its calibrated_sensor tables (themselves a few tenths of a degree off), not the truth")
+    for note in notes:
+        print(f"note: {note}", file=sys.stderr)
     skipped_path = Path(args.out) / "skipped.json"  # frames with bad files, skipped by the export
     skipped = json.loads(skipped_path.read_text()) if skipped_path.is_file() else []
+    if skipped:
+        notes.append(f"{len(skipped)} frame(s) skipped (their files could not be used; each, with why, in "
+                     f"{skipped_path.name}): the table is over the {result.n_frames} frames left")
+    if notes:
+        annotate(args.out, result, notes)
     for rec in skipped:
         print(f"skipped frame {rec['index']} ({rec['token']}): {rec['reason']}")
     if skipped:
