@@ -73,7 +73,7 @@ def setup_evaluation(checkpoint: str | Path, refine: list, *, method: str, pertu
             conf["depth_options"] = {}  # the checkpoint's options belong to its own estimator
     conf["export"] = dict(last.export)
     if fit_uncertainty:
-        check_fit(last.path, data, split, version, bool(refine))
+        check_fit(last.path, data, split, version, bool(refine), perturbation)
         conf["export"]["cov_scale"] = 1.0  # fit against the raw covariance
     deep_update(conf, overrides)  # --set export.KEY=... changes that value and keeps the checkpoint's others
     deep_update(conf, {**given, **({"split_options": split_flags} if split_flags else {})})  # a flag wins over --set

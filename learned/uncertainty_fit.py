@@ -70,7 +70,8 @@ def overlap_words(n: int | None, split: str) -> str:
         (" the checkpoint was trained on (the split flags differ from its recorded split, train_config.split)")
 
 
-def check_fit(checkpoint: str | Path, roots, split: str, version: str, refine: bool) -> None:
+def check_fit(checkpoint: str | Path, roots, split: str, version: str, refine: bool,
+              perturbation: str | None = None) -> None:
     """``HybridCalibError`` for a fit that would not be held out: with ``--refine`` (several checkpoints), on the test
     split, on a real root (``version`` other than v1.0-sim), on the frames ``checkpoint`` was trained on, or into a
     shipped checkpoint."""
@@ -90,6 +91,14 @@ def check_fit(checkpoint: str | Path, roots, split: str, version: str, refine: b
         raise HybridCalibError(f"--fit-uncertainty with --split {split} on {', '.join(seen)}, a root the "
                                f"checkpoint was trained on ({checkpoint}): its frames would make the covariance "
                                "look honest where it was fitted; use --split val, or a root it never saw")
+    from learned.checkpoint import read_checkpoint_meta
+
+    trained = (read_checkpoint_meta(checkpoint)[1].get("train_config") or {}).get("perturbation")
+    if perturbation is not None and isinstance(trained, str) and trained != perturbation:
+        # probe 55: R0 starts on an R1 network stored a scale 5-80x too small for the R1 starts it is used on
+        raise HybridCalibError(f"--fit-uncertainty with --range {perturbation} on a checkpoint trained on {trained} "
+                               f"starts ({checkpoint}): the scale would be fitted to errors of starts it is not used "
+                               f"on; fit with --range {trained}")
     refuse_shipped(checkpoint)
 
 

@@ -506,12 +506,17 @@ def test_cli_train_then_evaluate(sim_root, tmp_path, capsys):
     assert veh.network["n_frames"] == 3 and veh.network["std_cam"] is not None and veh.error is not None
 
     # fit the covariance scale on the val scene; it lands in the checkpoint and the next export uses it
+    R2 = ("--range", "R2")  # the starts the run was trained on
     ckpt_json = run / "checkpoints" / "ckpt-0001.json"
     before = ckpt_json.read_bytes()
-    assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--split", "val",
+    assert _run_command("evaluate", [*R2, "--data", str(sim_root), "--checkpoint", str(run), "--split", "val",
                                      "--fit-uncertainty", "--out", str(tmp_path / "fit0"), "--no-progress"]) == 2
     assert "fewer than 30" in capsys.readouterr().err and ckpt_json.read_bytes() == before  # nothing written
-    assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--split", "all",
+    # a scale for the starts it is used on (probe 55: R0 starts on an R1 network stored a scale 5-80x too small)
+    assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--split", "val",
+                                     "--fit-uncertainty", "--out", str(tmp_path / "fitr"), "--no-progress"]) == 2
+    assert "--range R1 on a checkpoint trained on R2 starts" in capsys.readouterr().err
+    assert _run_command("evaluate", [*R2, "--data", str(sim_root), "--checkpoint", str(run), "--split", "all",
                                      "--fit-uncertainty", "--out", str(tmp_path / "fit1"), "--no-progress"]) == 2
     assert "a root the checkpoint was trained on" in capsys.readouterr().err
     # the checkpoint copied out of its run folder, or the root copied to another path: the same frames, refused as
@@ -524,20 +529,20 @@ def test_cli_train_then_evaluate(sim_root, tmp_path, capsys):
         shutil.copy(f, flat / f.name)
     shutil.copytree(sim_root, copy)
     for data, ck in ((sim_root, flat / "ckpt-0001.json"), (copy, run)):
-        assert _run_command("evaluate", ["--data", str(data), "--checkpoint", str(ck), "--split", "all",
+        assert _run_command("evaluate", [*R2, "--data", str(data), "--checkpoint", str(ck), "--split", "all",
                                          "--fit-uncertainty", "--out", str(tmp_path / "fitc"), "--no-progress"]) == 2
         assert "a root the checkpoint was trained on" in capsys.readouterr().err
-    assert _run_command("evaluate", ["--data", str(sim_root), "--version", "v1.0-mini", "--checkpoint", str(run),
+    assert _run_command("evaluate", [*R2, "--data", str(sim_root), "--version", "v1.0-mini", "--checkpoint", str(run),
                                      "--split", "val", "--fit-uncertainty", "--out", str(tmp_path / "fit2")]) == 2
     assert "has no ground truth, only its tables" in capsys.readouterr().err  # a real root: the tables' errors
     from unittest import mock
 
     with mock.patch("hybrid_calib.commands.evaluate.os.access", lambda path, mode: False):  # a read-only checkpoint
-        assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--split", "val",
+        assert _run_command("evaluate", [*R2, "--data", str(sim_root), "--checkpoint", str(run), "--split", "val",
                                          "--fit-uncertainty", "--out", str(tmp_path / "fit3"), "--no-progress",
                                          "--set", "fit_min_frames=1"]) == 2
     assert "cannot be written" in capsys.readouterr().err and not (tmp_path / "fit3" / "results.json").exists()
-    assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--split", "val",
+    assert _run_command("evaluate", [*R2, "--data", str(sim_root), "--checkpoint", str(run), "--split", "val",
                                      "--fit-uncertainty", "--out", str(tmp_path / "fit"), "--no-progress",
                                      "--set", "fit_min_frames=1"]) == 0  # the tiny test drive: accepted when asked
     assert "fitted cov_scale" in capsys.readouterr().out
@@ -553,7 +558,7 @@ def test_cli_train_then_evaluate(sim_root, tmp_path, capsys):
     raw = {p.name: np.load(p)["cov"] for p in (out / "frames").glob("*.npz")}
     for p in (tmp_path / "scaled" / "frames").glob("*.npz"):
         np.testing.assert_allclose(np.diag(np.load(p)["cov"]), np.diag(raw[p.name]) * fitted, rtol=1e-6)
-    assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--fit-uncertainty",
+    assert _run_command("evaluate", [*R2, "--data", str(sim_root), "--checkpoint", str(run), "--fit-uncertainty",
                                      "--out", str(tmp_path / "e3")]) == 2
     assert "nothing held out" in capsys.readouterr().err
     # the frames it was trained on, evaluated: said, since the table then measures no held-out error
@@ -563,7 +568,7 @@ def test_cli_train_then_evaluate(sim_root, tmp_path, capsys):
     for name in ("results.md", "results.json"):  # beside the figures too, not on the screen alone (probe 55)
         assert "these frames include its training frames" in (tmp_path / "e4" / name).read_text()
     # split flags other than the checkpoint's: its training frames in the "held-out" split (probe 55)
-    assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--split", "val",
+    assert _run_command("evaluate", [*R2, "--data", str(sim_root), "--checkpoint", str(run), "--split", "val",
                                      "--split-by", "time", "--gap-frames", "0", "--val-fraction", "0.34",
                                      "--test-fraction", "0.34", "--fit-uncertainty", "--set", "fit_min_frames=1",
                                      "--out", str(tmp_path / "fitt"), "--no-progress"]) == 2
@@ -580,7 +585,7 @@ def test_cli_train_then_evaluate(sim_root, tmp_path, capsys):
     capsys.readouterr()
     rows = json.loads((tmp_path / "cascade" / "results.json").read_text())["rows"]
     assert [r for r in rows if "iter" in r] == [f"pure iter {k}" for k in range(1, 7)]
-    assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--refine", str(run),
+    assert _run_command("evaluate", [*R2, "--data", str(sim_root), "--checkpoint", str(run), "--refine", str(run),
                                      "--split", "val", "--fit-uncertainty", "--out", str(tmp_path / "e4")]) == 2
     assert "without --refine" in capsys.readouterr().err
     assert _run_command("evaluate", ["--data", str(sim_root), "--method", "hybrid-typo", "--checkpoint", str(run),
