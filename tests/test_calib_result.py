@@ -85,6 +85,20 @@ def test_other_schema_or_broken_file_is_named(tmp_path):
         CalibrationRun.load(tmp_path / "part.json")
 
 
+def test_a_truth_path_that_is_not_one_is_named():
+    """The true mount along a drive (``truth.path``: a knocked simulated radar) is read back checked, as every field."""
+    from hybrid_calib.calib.result import VehicleResult
+
+    vr = _run(rng(1)).vehicles["veh-a"]
+    doc = vr.to_dict()
+    assert "path" not in doc["truth"]  # a mount that did not move: no path
+    doc["truth"]["path"] = [{"index": 0, "T_cam_radar": doc["truth"]["T_cam_radar"]}, {"index": "3"}]
+    with pytest.raises(ValueError, match=r"veh-a'\]\.truth\.path\[1\]\.index is not a frame index"):
+        VehicleResult.from_dict(doc, "veh-a")
+    doc["truth"]["path"][1] = {"index": 3, "T_cam_radar": np.eye(4).tolist()}
+    assert [k for k, _ in VehicleResult.from_dict(doc, "veh-a").truth_path] == [0, 3]
+
+
 def test_std_keys_name_their_frame():
     assert STD_KEYS_CAM == ("rot_x_cam_deg", "rot_y_cam_deg", "rot_z_cam_deg", "t_x_cam_cm", "t_y_cam_cm", "t_z_cam_cm")
     assert STD_KEYS_RADAR == std_keys("radar") and not set(STD_KEYS_CAM) & set(STD_KEYS_RADAR)

@@ -238,6 +238,25 @@ def test_a_knocked_sensor_never_pulls_the_window_into_a_basin_only_the_new_frame
     assert vr.error["geodesic_deg"] < 5, vr.error  # was 71.5 deg (the knock itself is ~1.8 deg)
     assert "NOT CONVERGED" in vr.final.status and "cannot tell" in vr.drift["verdict"]
     assert all(json.dumps(list(f.events)).count("not converged") <= 1 for f in vr.trajectory)
+    # the true mount moved at frame 6: each frame is scored against its own (probe 54: the plots scored every frame
+    # against the end's, the knock drawn as an error of the frames before it)
+    from hybrid_calib.calib.result import CalibrationRun, truth_at
+    from hybrid_calib.hybrid.drives import _truth_path
+    from hybrid_calib.metrics import signed_errors
+    from hybrid_calib.plots.calibration import trajectory_errors
+    from learned.dataset import open_frames
+
+    (k0, T0), (k1, T1) = vr.truth_path
+    assert (k0, k1) == (0, 6) and np.allclose(T1, vr.truth_T) and not np.allclose(T0, T1, atol=1e-3)
+    assert truth_at(vr, 5) is T0 and truth_at(vr, 6) is T1 and truth_at(vr, 11) is T1
+    err = trajectory_errors(vr)
+    first = vr.trajectory[0]
+    np.testing.assert_allclose(np.radians(err[0, :3]), signed_errors(first.T, T0)[:3], atol=1e-12)
+    back = next(iter(CalibrationRun.load(tmp_path / "out" / "result.json").vehicles.values()))
+    assert [k for k, _ in back.truth_path] == [0, 6] and np.allclose(back.truth_path[0][1], T0)
+    frames = open_frames(root, "v1.0-sim", lidar=False)
+    (vehicle, idx), = frames.frames_by_vehicle().items()
+    assert [k for k, _ in _truth_path(frames, idx)] == [0, 6]  # the learned methods' drives say the same
 
 
 @pytest.mark.parametrize("key,value,words", [

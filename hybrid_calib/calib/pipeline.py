@@ -31,7 +31,14 @@ from hybrid_calib.calib.batch import BatchConfig, solve_batch
 from hybrid_calib.calib.covariance import NOT_CONVERGED, prior_pinned_std, status_kind
 from hybrid_calib.calib.drift import DriftConfig, reference_test, unconverged
 from hybrid_calib.calib.oracle import OracleConfig, oracle_from_frame
-from hybrid_calib.calib.result import DATA_STAMP, CalibrationRun, VehicleProgress, VehicleResult, reuse_result
+from hybrid_calib.calib.result import (
+    DATA_STAMP,
+    CalibrationRun,
+    VehicleProgress,
+    VehicleResult,
+    path_of,
+    reuse_result,
+)
 from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import merge, save_json_atomic, to_dict
@@ -445,7 +452,7 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, progress: bool = 
     res.network = _network_summary(vi)
     if vi.truth:
         T_true = vi.truth[-1]
-        res.truth_T = T_true
+        res.truth_T, res.truth_path = T_true, path_of(pos, vi.truth)
         e = local(T_true, final.T)
         res.error = {**extrinsic_error(final.T, T_true).as_dict(), "nees": nees(e, final.cov)}
     if vi.oracle_truths:

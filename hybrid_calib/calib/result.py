@@ -14,7 +14,9 @@
                                            # null index: the sample's), whichever file failed: the reason names
                                            # that file and its token
           "final": EXTRINSIC,              # the estimate after the last frame (window) / of the batch
-          "truth": {"T_cam_radar", "report"} | null,  # when the data has ground truth
+          "truth": {"T_cam_radar", "report"} | null,  # when the data has ground truth: the mount at the drive's end
+                                           # (+ "path": [{"index", "T_cam_radar"}] when it moved along the drive:
+                                           # the mount from FRAME index on; truth_at)
           "error": {metrics.ExtrinsicError fields..., "nees": float} | null,
           "crb_std_cam": STD | null,       # Cramer-Rao std, oracle data only (docs: crb.py)
           "drift": DriftDecision.to_dict() | null,    # vs the vehicle's reference extrinsic
@@ -118,6 +120,44 @@ def _transform(x, name: str) -> np.ndarray:
         raise ValueError(f"{name} is not a rigid transform (its rotation block is not a rotation, or its last row is "
                          "not [0, 0, 0, 1])")
     return T
+
+
+def _truth_path(truth, where: str) -> list:
+    """A result's ``truth.path`` ([(index, (4, 4))]; [] when absent), ``ValueError`` naming the entry that is not."""
+    path = (truth or {}).get("path") if isinstance(truth, dict) else None
+    if path is None:
+        return []
+    if not isinstance(path, list):
+        raise ValueError(f"{where}.path is a JSON {_json_kind(path)}, not a list of {{index, T_cam_radar}}")
+    out = []
+    for k, e in enumerate(path):
+        e = _mapping(e, f"{where}.path[{k}]")
+        if not (isinstance(e.get("index"), int) and not isinstance(e.get("index"), bool)):
+            raise ValueError(f"{where}.path[{k}].index is not a frame index")
+        out.append((e["index"], _transform(e.get("T_cam_radar"), f"{where}.path[{k}].T_cam_radar")))
+    return out
+
+
+def truth_at(vr, index: int) -> np.ndarray | None:
+    """The true mount at drive frame ``index`` of ``vr`` (a ``VehicleResult``): where it moved along the drive, the
+    one of ``truth_path`` the frame falls in (a knocked radar's frames before the knock score against the mount
+    before it; probe 54: every frame scored against the end's), else ``truth_T``; None without a truth."""
+    if vr.truth_T is None:
+        return None
+    before = [T for k, T in vr.truth_path if k <= index]
+    return before[-1] if before else (vr.truth_path[0][1] if vr.truth_path else vr.truth_T)
+
+
+def path_of(indices, truths) -> list:
+    """``truth_path`` of per-frame truths ((4, 4) each; None: unknown) at drive frame ``indices``: an entry where the
+    mount changes (``same_calibration``); [] when it never does."""
+    from hybrid_calib.data.nuscenes import same_calibration
+
+    path = []
+    for k, T in zip(indices, truths):
+        if T is not None and (not path or not same_calibration(np.asarray(T, np.float64), path[-1][1])):
+            path.append((int(k), np.asarray(T, np.float64)))
+    return path if len(path) > 1 else []
 
 
 def _covariance(x, name: str) -> np.ndarray:
@@ -363,6 +403,9 @@ class VehicleResult:
     final: Estimate
     trajectory: list[FrameEstimate] = field(default_factory=list)
     truth_T: np.ndarray | None = None
+    # where the true mount moved along the drive (a knocked simulated radar): [(frame index, (4, 4) the mount from
+    # it on)], first frame first; [] when it did not move (truth_T throughout)
+    truth_path: list = field(default_factory=list)
     error: dict | None = None
     crb_std: np.ndarray | None = None
     drift: dict | None = None
@@ -385,7 +428,9 @@ class VehicleResult:
             "vehicle": self.vehicle, "n_frames": self.n_frames, "frames_skipped": self.skipped,
             "final": self.final.to_dict(),
             "truth": None if self.truth_T is None else {
-                "T_cam_radar": np.asarray(self.truth_T).tolist(), "report": extrinsic_report(self.truth_T)},
+                "T_cam_radar": np.asarray(self.truth_T).tolist(), "report": extrinsic_report(self.truth_T),
+                **({"path": [{"index": int(k), "T_cam_radar": np.asarray(T).tolist()} for k, T in self.truth_path]}
+                   if self.truth_path else {})},
             "error": self.error,
             "crb_std_cam": None if self.crb_std is None else std_dict(self.crb_std, STD_FRAME),
             "drift": self.drift, "network": self.network,
@@ -415,6 +460,7 @@ class VehicleResult:
             trajectory=[FrameEstimate.from_dict(f, f"{where}.trajectory[{k}]") for k, f in enumerate(trajectory)],
             truth_T=None if truth is None else _transform(_mapping(truth, f"{where}.truth")["T_cam_radar"],
                                                        f"{where}.truth.T_cam_radar"), error=_error(d, where),
+            truth_path=_truth_path(truth, f"{where}.truth"),
             crb_std=None if crb is None else std_from_dict(crb, STD_FRAME), drift=_drift(d, where),
             skipped=list(_array(d, "frames_skipped", where)), n_frames=n_frames,
             network=_object_or_null(d, "network", where), method=d.get("method", ""), checkpoint=d.get("checkpoint"),

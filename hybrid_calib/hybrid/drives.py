@@ -41,6 +41,9 @@ class Drive:
     # dataset index -> its skip record, for each frame that repeats an earlier view (the ego stood still:
     # ``data.views``); every learned method leaves them out
     repeats: dict = field(default_factory=dict)
+    # simulated roots: [(drive position, (4, 4))] where the true mount moved along the drive (``calib.result.path_of``
+    # over the tables' records, which a simulated root's hold the truth in); [] when it did not
+    truth_path: list = field(default_factory=list)
 
     @property
     def errors_against(self) -> str:
@@ -155,7 +158,7 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
                                 _end_truth(frames, idx, static) if simulated else None,
                                 [{"index": None, "token": s.token, "reason": s.reason}
                                  for s in getattr(frames, "lacking_keyframes", {}).get(vehicle, [])],
-                                view_repeats(frames, idx, conf.views))
+                                view_repeats(frames, idx, conf.views), _truth_path(frames, idx) if simulated else [])
     for vehicle, skips in sorted(getattr(frames, "lacking_keyframes", {}).items()):  # a vehicle of no frame at all
         if vehicle in by_vehicle or vehicle in drives or (conf.vehicles is not None and vehicle not in conf.vehicles):
             continue
@@ -181,6 +184,25 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
         raise DataError(f"vehicle(s) {missing} not in the data{mean} (its {n_vehicles(len(present))}: "
                         f"{some_of(present, close)}; hybrid-calib inspect lists them)", path=str(data))
     return frames, drives
+
+
+def _truth_path(frames, idx: list[int]) -> list:
+    """Where a simulated drive's true mount moved (``calib.result.path_of``), from the tables' records of its frames
+    (no sensor file read); a record that does not resolve is no truth there."""
+    from hybrid_calib.calib.result import path_of
+    from hybrid_calib.geometry import se3_inverse
+
+    refs, tables = getattr(frames, "frames", None), getattr(frames, "tables", None)
+    if refs is None or tables is None:
+        return []
+
+    def mount(ref):
+        try:
+            return se3_inverse(tables.T_ego_sensor(ref.camera_sd)) @ tables.T_ego_sensor(ref.radar_sd)
+        except (DataError, KeyError, TypeError, ValueError):
+            return None
+
+    return path_of(range(len(idx)), [mount(refs[i]) for i in idx])
 
 
 def _end_truth(frames, idx: list[int], static: np.ndarray) -> np.ndarray:

@@ -417,7 +417,7 @@ def _finish(res: VehicleResult, drive: Drive, T0: np.ndarray, conf: HybridConfig
                             final.status)
     truth = drive.base if drive.end is None else drive.end  # the mount at the drive's end (a knock moved it)
     e = local(truth, final.T)
-    res.truth_T = truth
+    res.truth_T, res.truth_path = truth, drive.truth_path
     res.error = {**extrinsic_error(final.T, truth).as_dict(), "nees": nees(e, final.cov)}
     res.method = conf.method
     res.start = {"kind": conf.start, "seed": conf.seed, "T_cam_radar": T0.tolist()}

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from hybrid_calib.calib.drift import drift_verdict
-from hybrid_calib.calib.result import VehicleResult
+from hybrid_calib.calib.result import VehicleResult, truth_at
 from hybrid_calib.data.files import file_part
 from hybrid_calib.metrics import signed_errors
 from hybrid_calib.plots.figure import pyplot, save_figure
@@ -17,6 +17,18 @@ LABELS = ("roll (rot z) [deg]", "pitch (rot x) [deg]", "yaw (rot y) [deg]", "x [
 # camera-axis Euler order of metrics.signed_errors is [roll, pitch, yaw] = rotation about z, x, y;
 # report_std is ordered rotation about x, y, z: map each Euler angle to its std column.
 STD_COLUMN = (2, 0, 1, 3, 4, 5)
+
+
+def trajectory_errors(vr: VehicleResult) -> np.ndarray:
+    """(F, 6) signed error of each trajectory frame (camera axes, deg x3 then cm x3; ``metrics.signed_errors``)
+    against the true mount of that frame (``calib.result.truth_at``: a knocked radar's frames before the knock
+    against the mount before it; probe 54: every frame scored against the end's, a 1.5 deg "error" that was the
+    knock), or against the final estimate when the result has no truth."""
+    err = np.array([signed_errors(f.T, truth_at(vr, f.index) if vr.truth_T is not None else vr.trajectory[-1].T)
+                    for f in vr.trajectory]).reshape(-1, 6)
+    err[:, :3] = np.degrees(err[:, :3])
+    err[:, 3:] *= 100
+    return err
 
 
 def plot_vehicle(vr: VehicleResult, out_dir: Path) -> list[Path]:
@@ -29,10 +41,7 @@ def plot_vehicle(vr: VehicleResult, out_dir: Path) -> list[Path]:
     out_dir = Path(out_dir)
     k = np.array([f.index for f in vr.trajectory])
     std = np.array([f.estimate.std for f in vr.trajectory])
-    ref = vr.truth_T if vr.truth_T is not None else vr.trajectory[-1].T
-    err = np.array([signed_errors(f.T, ref) for f in vr.trajectory])
-    err[:, :3] = np.degrees(err[:, :3])
-    err[:, 3:] *= 100
+    err = trajectory_errors(vr)
     fig, axes = plt.subplots(2, 3, figsize=(13, 6), sharex=True)
     for j, ax in enumerate(axes.ravel()):
         s = std[:, STD_COLUMN[j]]

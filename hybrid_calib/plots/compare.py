@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hybrid_calib.calib.result import VehicleResult
+from hybrid_calib.calib.result import VehicleResult, truth_at
 from hybrid_calib.metrics import signed_errors
 from hybrid_calib.plots.calibration import LABELS, STD_COLUMN
 from hybrid_calib.plots.figure import pyplot, save_figure
@@ -21,7 +21,7 @@ def _series(results: list[VehicleResult]) -> tuple[np.ndarray, np.ndarray]:
         if r.truth_T is None:
             continue
         for k, f in enumerate(r.trajectory):
-            e = signed_errors(f.T, r.truth_T)
+            e = signed_errors(f.T, truth_at(r, f.index))  # the mount of that frame (a knock moved it)
             err[t, k] = np.abs(np.concatenate([np.degrees(e[:3]), 100 * e[3:]]))
             std[t, k] = np.asarray(f.estimate.std)[list(STD_COLUMN)]
     return err, std

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hybrid_calib.calib.result import VehicleResult, extrinsic_report
+from hybrid_calib.calib.result import VehicleResult, extrinsic_report, truth_at
 from hybrid_calib.plots.figure import pyplot, save_figure
 
 # (label, unit, std column in camera axes [rot x, y, z deg, t x, y, z cm])
@@ -36,14 +36,15 @@ def plot_estimate_bands(vr: VehicleResult, path: str | Path) -> Path:
     k = np.array([f.index for f in traj])
     est = np.array([report_values(f.T) for f in traj])
     std = np.array([f.estimate.std for f in traj])
-    truth = None if vr.truth_T is None else report_values(vr.truth_T)
+    # the mount of each frame (a knock moves it: drawn as a step, not the end's mount throughout; probe 54)
+    truth = None if vr.truth_T is None else np.array([report_values(truth_at(vr, f.index)) for f in traj])
     fig, axes = plt.subplots(2, 3, figsize=(11, 5), sharex=True)
     for ax, (label, unit, j) in zip(axes.ravel(), AXES):
         ax.fill_between(k, est[:, j] - 3 * std[:, j], est[:, j] + 3 * std[:, j], color="tab:blue", alpha=0.2,
                         label="+-3 sigma")
         ax.plot(k, est[:, j], color="tab:blue", lw=1.2, label="estimate")
         if truth is not None:
-            ax.axhline(truth[j], color="k", ls="--", lw=0.8, label="truth")
+            ax.step(k, truth[:, j], where="post", color="k", ls="--", lw=0.8, label="truth")
         for f in traj:
             if f.step_alarm:
                 ax.axvline(f.index, color="orange", lw=1.5, alpha=0.8)
@@ -52,7 +53,7 @@ def plot_estimate_bands(vr: VehicleResult, path: str | Path) -> Path:
         lo = np.min(est[tail, j] - 3 * std[tail, j])
         hi = np.max(est[tail, j] + 3 * std[tail, j])
         if truth is not None:
-            lo, hi = min(lo, truth[j]), max(hi, truth[j])
+            lo, hi = min(lo, truth[:, j].min()), max(hi, truth[:, j].max())
         pad = 0.15 * max(hi - lo, 1e-3)
         ax.set_ylim(lo - pad, hi + pad)
         ax.set_title(f"{label} [{unit}]", fontsize=9)

@@ -98,7 +98,8 @@ def extrinsic_html(vr: VehicleResult) -> str:
     # a real root's reference is its calibration tables, not the truth (docs/conventions.md)
     tables = vr.errors_against == "tables"
     head = "<tr><th class=l>axis</th><th>estimate</th><th>+- 1 sigma</th><th>unit</th>" + (
-        f"<th>{'tables (reference)' if tables else 'truth'}</th>" if truth else "") + "</tr>"
+        f"<th>{'tables (reference)' if tables else 'truth at the drive end' if vr.truth_path else 'truth'}</th>"
+        if truth else "") + "</tr>"
     body = ""
     for label, val, key, sd, skey, unit, fmt in rows:
         tv = ""
