@@ -21,3 +21,10 @@ def test_demo_prints_a_verdict_per_fleet_vehicle(tmp_path, capsys):
     assert (out / "fleet" / "fleet.html").is_file() and summary["fleet_page"] == str(out / "fleet" / "fleet.html")
     for v in summary["fleet"].values():
         assert v["report"] and (out / "fleet" / v["report"]).is_file()
+    # the knocked radar's true mount moved inside the drive: its result keeps where (the report's bands and the
+    # per-frame plots score each frame against its own mount; probe 54), the unchanged vehicles' do not
+    result = json.loads((out / "fleet" / "vehicles" / "knocked-sim-veh-000" / "result.json").read_text())
+    (vehicle,) = result["vehicles"].values()
+    assert [p["index"] for p in vehicle["truth"]["path"]][0] == 0 and len(vehicle["truth"]["path"]) == 2
+    urban = json.loads((out / "fleet" / "vehicles" / "urban-sim-veh-000" / "result.json").read_text())
+    assert all("path" not in v["truth"] for v in urban["vehicles"].values())
