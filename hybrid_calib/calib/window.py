@@ -129,6 +129,7 @@ class _Frame:
     lin: Linearisation | None = None  # None until the frame was solved once
 
 
+CONVEX_CHECK_FRACTION = 0.5  # a convex-start update whose new frame fits less: local solves tried beside it
 REPEAT_MEMORY = 1000  # frames whose rows a new frame is compared with (a repeat of one of them is refused)
 _WEAK_INFO = 1e-8  # information added to a Gaussian before inverting it (std 1e4 rad / 1e4 m)
 
@@ -353,17 +354,29 @@ class SlidingWindowCalibrator:
         few frames), and keep whichever fits most rows of the whole window: a new frame that fits no candidate
         (the sensor moved; the step detector's case) does not pull the estimate into a basin only it supports."""
         before = fr.lin.inliers
-        if before >= self.conf.min_inlier_fraction or not len(fr.corr):
+        if not len(fr.corr):
             return solved
+        candidates = ((T_prev, False, "locally from the previous estimate"),
+                      (self.T_init, True, "from the initial extrinsic with a convex start"))
+        if self.since_reset < self.conf.convex_frames and before < CONVEX_CHECK_FRACTION:
+            # a convex start from few frames that fits less than half the rows may have left the start's basin
+            # (probe 54: frame 0 of an oracle drive, R1 start, solved 74 deg away with 29 % of the rows fitting):
+            # a local solve from the start and from the previous estimate, kept when it fits more rows
+            why = f"inlier fraction {before:.2f} after a convex start from {len(self.frames)} frame(s)"
+            candidates = ((T_prev, False, "locally from the previous estimate"),
+                          (self.T_init, False, "locally from the initial extrinsic"))
+        elif before >= self.conf.min_inlier_fraction:
+            return solved
+        else:
+            why = f"inlier fraction {before:.2f}"
         best, score, how = None, self._window_inliers(self.T), ""
-        for T0, convex, words in ((T_prev, False, "locally from the previous estimate"),
-                                  (self.T_init, True, "from the initial extrinsic with a convex start")):
+        for T0, convex, words in candidates:
             res, lins = self._solve_window(np.array(T0, copy=True), convex=convex)
             if (n := self._window_inliers(res.T)) > score:
                 best, score, how = (res, lins), n, words
         if best is None:
             return solved
-        events.append(f"not converged (inlier fraction {before:.2f}): re-solved the window {how} (inlier fraction "
+        events.append(f"not converged ({why}): re-solved the window {how} (inlier fraction "
                       f"{best[1][-1].inliers:.2f}; {score} of the window's rows fit)")
         return self._adopt(*best)
 
