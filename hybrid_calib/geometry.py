@@ -146,6 +146,23 @@ def local(T1: np.ndarray, T2: np.ndarray) -> np.ndarray:
     return se3_log(se3_inverse(T1) @ T2)
 
 
+def local_many(T1: np.ndarray, Ts: np.ndarray) -> np.ndarray:
+    """``local(T1, T)`` for each of ``Ts`` (F, 4, 4) at once -> (F, 6) (the per-transform call was the whole cost of
+    averaging a long drive's estimates; probe 57)."""
+    D = np.einsum("ij,fjk->fik", se3_inverse(np.asarray(T1, np.float64)), np.asarray(Ts, np.float64))
+    omega = Rotation.from_matrix(D[:, :3, :3]).as_rotvec().reshape(-1, 3)
+    theta = np.linalg.norm(omega, axis=1)
+    W = np.zeros((len(D), 3, 3))
+    W[:, 0, 1], W[:, 0, 2], W[:, 1, 2] = -omega[:, 2], omega[:, 1], -omega[:, 0]
+    W -= W.transpose(0, 2, 1)
+    small = theta < 1e-6
+    th = np.where(small, 1.0, theta)
+    # V^-1 = I - W / 2 + (1 / theta^2 - (1 + cos theta) / (2 theta sin theta)) W^2 (1/12 as theta -> 0)
+    c = np.where(small, 1.0 / 12.0, 1.0 / th**2 - (1.0 + np.cos(th)) / (2.0 * th * np.sin(th)))
+    Vinv = np.eye(3) - 0.5 * W + c[:, None, None] * (W @ W)
+    return np.concatenate([omega, np.einsum("fij,fj->fi", Vinv, D[:, :3, 3])], axis=1)
+
+
 def adjoint(T: np.ndarray) -> np.ndarray:
     """(6, 6) adjoint for ``[omega, v]`` ordering: ``T exp(xi) = exp(Ad_T xi) T``.
 

@@ -25,6 +25,20 @@ def test_retract_local_match_gtsam(seed):
     assert_close(G.local(T1, T2), gtsam.Pose3(T1).localCoordinates(gtsam.Pose3(T2)), scale=1000)
 
 
+def test_local_many_is_local_of_each():
+    """The batched right tangent (averaging a long drive's estimates at once; probe 57) is ``local`` of each, at
+    large angles, near zero and near pi, and GTSAM's localCoordinates."""
+    g = rng(11)
+    T1 = random_pose(g)
+    Ts = [T1 @ G.se3_exp(g.normal(size=6) * s) for s in [1.0] * 10 + [1e-9] * 3 + [0.0]]
+    Ts.append(T1 @ G.se3_exp(np.r_[np.pi - 1e-4, 0, 0, 0.3, -0.2, 0.1]))
+    got = G.local_many(T1, np.stack(Ts))
+    assert got.shape == (len(Ts), 6)
+    for T, xi in zip(Ts, got):
+        assert_close(xi, G.local(T1, T), scale=1000)
+        assert_close(xi, gtsam.Pose3(T1).localCoordinates(gtsam.Pose3(T)), scale=1e5)
+
+
 def test_adjoint_matches_gtsam_and_definition():
     g = rng(7)
     T = random_pose(g)

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from factors.robust import weight
-from hybrid_calib.geometry import check_covariance, check_transform, local, retract
+from hybrid_calib.geometry import check_covariance, check_transform, local_many, retract
 
 
 @dataclass(frozen=True)
@@ -32,6 +32,21 @@ class AverageConfig:
         require_ranges(self, {"kernel_scale": "(0, 100]", "iterations": "[1, 10000]", "tol": "[0, 1)"})
 
 
+def _all_valid(Ts: np.ndarray, covs: np.ndarray) -> bool:
+    """Every transform and covariance passes ``check_transform`` / ``check_covariance``, tested at once (per item it
+    was a quadratic cost over a long drive's frames, averaged again at each; probe 57)."""
+    if not (np.all(np.isfinite(Ts)) and np.all(np.isfinite(covs))):
+        return False
+    R = Ts[:, :3, :3]
+    if not (np.allclose(R @ R.transpose(0, 2, 1), np.eye(3), atol=1e-6) and np.all(np.linalg.det(R) >= 0)
+            and np.allclose(Ts[:, 3], [0, 0, 0, 1], atol=1e-9)):
+        return False
+    scale = np.maximum(1.0, np.abs(covs).max(axis=(1, 2)))
+    if not np.all(np.abs(covs - covs.transpose(0, 2, 1)) <= 1e-15 * scale[:, None, None] + 1e-9 * np.abs(covs)):
+        return False
+    return bool(np.all(np.linalg.eigvalsh(covs).min(axis=1) > 0))
+
+
 def robust_average(Ts: np.ndarray, covs: np.ndarray, conf: AverageConfig | None = None, T0: np.ndarray | None = None
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Ts (F, 4, 4), covs (F, 6, 6) right tangent [rad, m] -> (mean (4, 4), covariance (6, 6), weights (F,)).
@@ -40,14 +55,15 @@ def robust_average(Ts: np.ndarray, covs: np.ndarray, conf: AverageConfig | None 
     Ts, covs = np.asarray(Ts, np.float64), np.asarray(covs, np.float64)
     if len(Ts) == 0 or Ts.shape[1:] != (4, 4) or covs.shape != (len(Ts), 6, 6):
         raise ValueError(f"robust_average needs (F, 4, 4) and (F, 6, 6) with F > 0, got {Ts.shape}, {covs.shape}")
-    for f in range(len(Ts)):  # a NaN or singular one was a numpy LinAlgError, a negative one negative variances
-        check_transform(Ts[f], f"robust_average Ts[{f}]")
-        check_covariance(covs[f], f"robust_average covs[{f}]")
+    if not _all_valid(Ts, covs):  # a NaN or singular one was a numpy LinAlgError, a negative one negative variances
+        for f in range(len(Ts)):  # the first one that is not, named
+            check_transform(Ts[f], f"robust_average Ts[{f}]")
+            check_covariance(covs[f], f"robust_average covs[{f}]")
     infos = np.linalg.inv(covs)
     M = np.asarray(Ts[0] if T0 is None else T0, np.float64).copy()
     w = np.ones(len(Ts))
     for _ in range(conf.iterations):
-        xi = np.stack([local(M, T) for T in Ts])
+        xi = local_many(M, Ts)
         d2 = np.einsum("fi,fij,fj->f", xi, infos, xi)
         w = weight("cauchy", np.sqrt(np.maximum(d2, 0.0)), conf.kernel_scale)
         H = np.einsum("f,fij->ij", w, infos)
