@@ -219,6 +219,15 @@ def test_fleet_page_links_vehicle_reports_and_names_the_flagged(run_dir, tmp_pat
         assert f"vehicles/{n}/report.html" in cells.links
         assert (tmp_path / "vehicles" / n / "report.html").is_file()
     assert 'class=sortable' in text and len(cells.imgs) == 1
+    # a rerun keeps the pages whose result did not change, and writes again the one whose result did (probe 57: a
+    # rerun that ran nothing rewrote every page, ~2 s each)
+    pages = {n: tmp_path / "vehicles" / n / "report.html" for n in names}
+    for p in pages.values():
+        p.write_text(p.read_text().replace("</body>", "<p id=marker></p></body>"))
+    paths[0].write_text(paths[0].read_text().replace('"n_frames": ', '"n_frames":  '))  # other bytes, same result
+    write_fleet_page(paths, tmp_path / "fleet.html", design=design, flagged=[names[1]])
+    assert "id=marker" not in pages[names[0]].read_text() and "id=marker" in pages[names[1]].read_text()
+    assert 'meta name="hybrid-calib-source"' in pages[names[0]].read_text()
 
 
 def test_report_command(run_dir, tmp_path, capsys):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from hybrid_calib.commands import (
@@ -158,6 +159,9 @@ def write_fleet_pages(summary: dict, out: Path) -> Path | None:
     done = {jid: r for jid, r in summary["vehicles"].items() if r["state"] == "done"}
     if not done:
         return None
+    # about 2 s a page (probe 57: 48 s of silence after the fleet's bar on 20 vehicles); unchanged ones are kept
+    print(f"writing the fleet page and {len(done)} vehicle report page(s) (a page whose result did not change since "
+          "it was written is kept) ...", file=sys.stderr, flush=True)
     design = (summary.get("design_mount") or {}).get("T_cam_radar")
     others = {jid: (r["state"] if r["state"] != "failed" else f"failed: {r.get('reason') or ''}")
               for jid, r in summary["vehicles"].items() if r["state"] != "done"}

@@ -82,7 +82,7 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
                 pages[name] = Path(reports[name])
             elif reports is None:
                 page = p.parent / ("report.html" if len(run.vehicles) == 1 else f"report-{file_part(name)}.html")
-                pages[name] = write_report(p, page, vname, data, version, conf)
+                pages[name] = write_report(p, page, vname, data, version, conf, keep=True)
     names = list(vehicles)
     verdicts = {n: verdict_of(vr, conf.tolerance) for n, (vr, _) in vehicles.items()}
     flagged = list(flagged) or [n for n in names if verdicts[n].moved_frames]

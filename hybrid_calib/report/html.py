@@ -59,13 +59,26 @@ def verdict_class(word: str) -> str:
     return {"within tolerance": "v-ok", "recalibrate": "v-bad"}.get(word, "v-unk")
 
 
-def page(title: str, body: str) -> str:
-    return (f"<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
-            f"<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">"
+SOURCE_META = "hybrid-calib-source"  # a page's <meta>: what it was written from (report.vehicle.page_key)
+
+
+def page(title: str, body: str, source: str = "") -> str:
+    return ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
+            "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">"
+            + (f"<meta name=\"{SOURCE_META}\" content=\"{esc(source)}\">" if source else "") +
             f"<title>{esc(title)}</title><style>{CSS}</style></head>\n<body>\n{body}\n"
             f"<script>{SORT_JS}</script>\n</body></html>\n")
 
 
-def write_page(path: Path, title: str, body: str) -> Path:
-    """Write the page atomically; returns its path."""
-    return save_text_atomic(Path(path), page(title, body))
+def write_page(path: Path, title: str, body: str, source: str = "") -> Path:
+    """Write the page atomically; returns its path. ``source``: what it was written from (``SOURCE_META``)."""
+    return save_text_atomic(Path(path), page(title, body, source))
+
+
+def written_from(path: Path, source: str) -> bool:
+    """Whether the page at ``path`` was written from ``source`` (its ``SOURCE_META``): a rerun keeps it."""
+    try:
+        head = Path(path).read_text(encoding="utf-8", errors="replace")[:4096]
+    except OSError:
+        return False
+    return f"<meta name=\"{SOURCE_META}\" content=\"{esc(source)}\">" in head
