@@ -464,6 +464,29 @@ def _run_command(name: str, argv: list[str]) -> int:
     return main([name, *argv])
 
 
+def test_fine_tuning_goes_on_with_the_depth_its_weights_learned(sim_root, tmp_path, capsys):
+    """Probe 56: train --init with a shipped (lidar-densified) checkpoint on a simulated root trained on corrupted-truth
+    depth, with no word: the weights met another input than the one they learned."""
+    model_sets = [f"model.{k}={json.dumps(v)}" for k, v in TINY_MODEL.items()]
+    sets = ["batch_size=3", "samples_per_epoch=3", "val_samples=3", "max_lidar_points=256",
+            'split.test_groups=["scene-sim-veh-002"]', 'split.val_groups=["scene-sim-veh-001"]', *model_sets]
+    common = ["--data", str(sim_root), "--preset", "small", "--epochs", "1", "--no-progress",
+              *[a for s in sets for a in ("--set", s)]]
+    assert _run_command("train", [*common, "--out", str(tmp_path / "a"), "--depth", "lidar-densified"]) == 0
+    init = tmp_path / "a" / "checkpoints" / "ckpt-0001.json"
+    capsys.readouterr()
+    assert _run_command("train", [*common, "--out", str(tmp_path / "b"), "--init", str(init)]) == 0
+    assert "was trained on lidar-densified depth: the run goes on with it, not corrupted-truth" in \
+        capsys.readouterr().err
+    meta = json.loads((tmp_path / "b" / "checkpoints" / "ckpt-0001.json").read_text())
+    assert meta["train_config"]["depth"] == "lidar-densified"
+    assert _run_command("train", [*common, "--out", str(tmp_path / "c"), "--init", str(init), "--depth",
+                                  "corrupted-truth"]) == 0  # asked for: kept, no note
+    assert "the run goes on with it" not in capsys.readouterr().err
+    assert json.loads((tmp_path / "c" / "checkpoints" / "ckpt-0001.json").read_text())["train_config"]["depth"] == \
+        "corrupted-truth"
+
+
 def test_cli_train_then_evaluate(sim_root, tmp_path, capsys):
     model_sets = [f"model.{k}={json.dumps(v)}" for k, v in TINY_MODEL.items()]
     sets = ["batch_size=3", "samples_per_epoch=3", "val_samples=3", "max_lidar_points=256",

@@ -83,8 +83,21 @@ def run(args: argparse.Namespace) -> int:
             overrides[key] = getattr(args, key)
     if args.init is not None:
         overrides["init_weights"] = args.init
+    given_depth = "depth" in overrides
     if "depth" not in overrides and (depth := _real_root_depth(args.data, args.version)):
         overrides["depth"] = depth
+    if args.init is not None and not given_depth:  # fine-tuning goes on with the input the weights learned (probe 56:
+        from hybrid_calib.hybrid.drives import trained_depth  # a shipped lidar-densified network fine-tuned on
+        from learned.depth import CorruptedTruthDepth  # corrupted-truth depth, silently)
+
+        learned_on, default = trained_depth(args.init), overrides.get("depth", CorruptedTruthDepth.name)
+        if learned_on != default and "depth" in overrides and learned_on == CorruptedTruthDepth.name:
+            print(f"note: --init {args.init} was trained on {learned_on} depth, which a real root cannot give: the "
+                  f"run trains on {default} (--depth to choose)", file=sys.stderr)
+        elif learned_on != default:
+            overrides["depth"] = learned_on
+            print(f"note: --init {args.init} was trained on {learned_on} depth: the run goes on with it, not "
+                  f"{default} (--depth to choose)", file=sys.stderr)
     conf = train_config(args.preset, overrides)
     resolved = [Path(d).resolve() for d in args.data]
     if twice := sorted({str(d) for d in resolved if resolved.count(d) > 1}):
