@@ -87,6 +87,9 @@ class WindowConfig:
     relinearize_rot_deg: float = 0.1  # relinearise the window when the estimate moved more than this (deg) ...
     relinearize_trans_cm: float = 2.0  # ... or this (cm) from a frame's linearisation point
     min_inlier_fraction: float = 0.25  # below this the solve has not converged: re-solve from T_init (convex)
+    # a convex-start update whose new frame fits less than this fraction of its rows: local solves from the previous
+    # estimate and the start are tried beside it, the one fitting most rows kept (probe 54; 0 = off)
+    convex_check_fraction: float = 0.5
 
     def __post_init__(self):
         if self.window < 1:
@@ -95,7 +98,7 @@ class WindowConfig:
 
         finite = all(np.isfinite(getattr(self, k)) for k in (
             "random_walk_rot_deg_per_sqrt_s", "random_walk_trans_cm_per_sqrt_s", "default_dt_s", "relinearize_rot_deg",
-            "relinearize_trans_cm", "min_inlier_fraction"))
+            "relinearize_trans_cm", "min_inlier_fraction", "convex_check_fraction"))
         require(self, {
             "convex_frames >= 0": self.convex_frames >= 0,
             "random_walk_rot_deg_per_sqrt_s >= 0": self.random_walk_rot_deg_per_sqrt_s >= 0,
@@ -108,7 +111,8 @@ class WindowConfig:
         require_ranges(self, {"window": "[1, 1e9]", "convex_frames": "[0, 1e9]",
                               "random_walk_rot_deg_per_sqrt_s": "[0, 90]",
                               "random_walk_trans_cm_per_sqrt_s": "[0, 10000]", "default_dt_s": "(0, 3600]",
-                              "relinearize_rot_deg": "(0, 180]", "relinearize_trans_cm": "(0, 10000]"})
+                              "relinearize_rot_deg": "(0, 180]", "relinearize_trans_cm": "(0, 10000]",
+                              "convex_check_fraction": "[0, 1]"})
 
 
 @dataclass(frozen=True)
@@ -129,7 +133,6 @@ class _Frame:
     lin: Linearisation | None = None  # None until the frame was solved once
 
 
-CONVEX_CHECK_FRACTION = 0.5  # a convex-start update whose new frame fits less: local solves tried beside it
 REPEAT_MEMORY = 1000  # frames whose rows a new frame is compared with (a repeat of one of them is refused)
 _WEAK_INFO = 1e-8  # information added to a Gaussian before inverting it (std 1e4 rad / 1e4 m)
 
@@ -358,7 +361,7 @@ class SlidingWindowCalibrator:
             return solved
         candidates = ((T_prev, False, "locally from the previous estimate"),
                       (self.T_init, True, "from the initial extrinsic with a convex start"))
-        if self.since_reset < self.conf.convex_frames and before < CONVEX_CHECK_FRACTION:
+        if self.since_reset < self.conf.convex_frames and before < self.conf.convex_check_fraction:
             # a convex start from few frames that fits less than half the rows may have left the start's basin
             # (probe 54: frame 0 of an oracle drive, R1 start, solved 74 deg away with 29 % of the rows fitting):
             # a local solve from the start and from the previous estimate, kept when it fits more rows
