@@ -11,9 +11,9 @@ POINT_RANGE_M = (0.0, 1e5)  # |coordinate|, metres: no radar detection lies 100 
 PIXEL_RANGE = (0.0, 1e7)  # |coordinate|, pixels: no image is ten million pixels wide
 FOCAL_MIN_PX = 1.0  # pixels: a focal length below one pixel images the whole world into one pixel
 # one measurement, not two: radar points within REPEAT_RADAR_M (each coordinate) and pixels within REPEAT_SIGMA of
-# their 1-sigma (an independent measurement of the same point lands that close to the first
-# with a probability of ~1e-4 per row). Probe 51: a replay nudged by 1e-6 px, or rows doubled inside a frame, passed
-# as new measurements and shrank the std.
+# their 1-sigma (an independent measurement of the same point lands that close to the first with a probability of
+# ~1e-4 per row). Probe 51: a replay nudged by 1e-6 px, or rows doubled inside a frame, passed as new measurements
+# and shrank the std.
 REPEAT_RADAR_M = 1e-3
 REPEAT_SIGMA = 0.01
 

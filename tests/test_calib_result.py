@@ -95,8 +95,19 @@ def test_a_truth_path_that_is_not_one_is_named():
     doc["truth"]["path"] = [{"index": 0, "T_cam_radar": doc["truth"]["T_cam_radar"]}, {"index": "3"}]
     with pytest.raises(ValueError, match=r"veh-a'\]\.truth\.path\[1\]\.index is not a frame index"):
         VehicleResult.from_dict(doc, "veh-a")
-    doc["truth"]["path"][1] = {"index": 3, "T_cam_radar": np.eye(4).tolist()}
+    other, end = np.eye(4).tolist(), doc["truth"]["T_cam_radar"]
+    doc["truth"]["path"] = [{"index": 0, "T_cam_radar": other}, {"index": 3, "T_cam_radar": end}]
     assert [k for k, _ in VehicleResult.from_dict(doc, "veh-a").truth_path] == [0, 3]
+    # in drive order, and ending at the drive end's truth (probe 59: edited paths drew the plots against others)
+    for path, words in (([3, 0], "path\\[1\\].index 0 is not after the entry before it"),
+                        ([-5, 3], "path\\[0\\].index -5 is not after"), ([0, 0], "index 0 is not after")):
+        doc["truth"]["path"] = [{"index": path[0], "T_cam_radar": other},
+                                {"index": path[1], "T_cam_radar": end}]
+        with pytest.raises(ValueError, match=words):
+            VehicleResult.from_dict(doc, "veh-a")
+    doc["truth"]["path"] = [{"index": 0, "T_cam_radar": end}, {"index": 3, "T_cam_radar": other}]
+    with pytest.raises(ValueError, match="truth.path ends at another mount than"):
+        VehicleResult.from_dict(doc, "veh-a")
 
 
 def test_std_keys_name_their_frame():

@@ -228,6 +228,18 @@ def test_fleet_page_links_vehicle_reports_and_names_the_flagged(run_dir, tmp_pat
     write_fleet_page(paths, tmp_path / "fleet.html", design=design, flagged=[names[1]])
     assert "id=marker" not in pages[names[0]].read_text() and "id=marker" in pages[names[1]].read_text()
     assert 'meta name="hybrid-calib-source"' in pages[names[0]].read_text()
+    # one page that cannot be written: the others and the fleet page are, listing it, and then the error says so
+    # (probe 59: it stopped the fleet page and every later page)
+    pages[names[0]].unlink()
+    pages[names[0]].mkdir()
+    paths[1].write_text(paths[1].read_text().replace('"n_frames": ', '"n_frames":  '))
+    (tmp_path / "fleet.html").unlink()
+    from hybrid_calib.errors import HybridCalibError
+
+    with pytest.raises(HybridCalibError, match=rf"1 vehicle report page\(s\) could not be written \(first: {names[0]}"):
+        write_fleet_page(paths, tmp_path / "fleet.html", design=design, flagged=[names[1]])
+    assert "Report pages not written (1)" in (tmp_path / "fleet.html").read_text()
+    assert "id=marker" not in pages[names[1]].read_text()  # its result changed: written again
 
 
 def test_report_command(run_dir, tmp_path, capsys):

@@ -134,6 +134,11 @@ def _truth_path(truth, where: str) -> list:
         e = _mapping(e, f"{where}.path[{k}]")
         if not (isinstance(e.get("index"), int) and not isinstance(e.get("index"), bool)):
             raise ValueError(f"{where}.path[{k}].index is not a frame index")
+        # in drive order from frame 0 on, as path_of writes it (probe 59: an edited path scored the plots against
+        # a mount the result's truth is not)
+        if e["index"] < 0 or (out and e["index"] <= out[-1][0]):
+            raise ValueError(f"{where}.path[{k}].index {e['index']} is not after the entry before it (the path "
+                             f"lists where the mount changed, frame indices increasing from 0): {EDITED}")
         out.append((e["index"], _transform(e.get("T_cam_radar"), f"{where}.path[{k}].T_cam_radar")))
     return out
 
@@ -468,7 +473,16 @@ class VehicleResult:
             frame_rows=list(_array(d, "frame_rows", where)), config=_object_or_null(d, "config", where),
             ood=_object_or_null(d, "ood", where), mount=_block(d, "mount", where),
             lidar=_block(d, "lidar", where), doppler=_block(d, "doppler", where),
-        )._errors_measured(where)
+        )._errors_measured(where)._path_ends_at_truth(where)
+
+    def _path_ends_at_truth(self, where: str) -> VehicleResult:
+        """Itself, when its ``truth_path`` (if any) ends at its ``truth_T`` (the mount at the drive's end, which the
+        errors are against); ``ValueError`` otherwise (probe 59: an edited path drew the plots against another)."""
+        if self.truth_path and (self.truth_T is None or not np.allclose(self.truth_path[-1][1], self.truth_T,
+                                                                          atol=1e-9)):
+            raise ValueError(f"{where}.truth.path ends at another mount than {where}.truth.T_cam_radar (the drive's "
+                             f"end): {EDITED}")
+        return self
 
     def _errors_measured(self, where: str) -> VehicleResult:
         """Itself, when its ``error`` block is what its final estimate and truth give (``metrics.extrinsic_error``

@@ -366,8 +366,10 @@ class SlidingWindowCalibrator:
             # (probe 54: frame 0 of an oracle drive, R1 start, solved 74 deg away with 29 % of the rows fitting):
             # a local solve from the start and from the previous estimate, kept when it fits more rows
             why = f"inlier fraction {before:.2f} after a convex start from {len(self.frames)} frame(s)"
-            candidates = ((T_prev, False, "locally from the previous estimate"),
-                          (self.T_init, False, "locally from the initial extrinsic"))
+            local = ((T_prev, False, "locally from the previous estimate"),
+                     (self.T_init, False, "locally from the initial extrinsic"))
+            # not converged by the 25 % rule too: its convex re-solve from the start is tried as well
+            candidates = local + (candidates[1:] if before < self.conf.min_inlier_fraction else ())
         elif before >= self.conf.min_inlier_fraction:
             return solved
         else:

@@ -23,7 +23,7 @@ from hybrid_calib.calib.drift import doppler_level_words
 from hybrid_calib.calib.result import CalibrationRun, VehicleResult
 from hybrid_calib.config import merge
 from hybrid_calib.data.files import file_part
-from hybrid_calib.errors import DataError
+from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.report.html import esc, img_tag, num, verdict_class, write_page
 from hybrid_calib.report.vehicle import ReportConfig, write_report
 from hybrid_calib.report.verdict import DELTA_KEYS, VERDICTS, verdict_of
@@ -68,6 +68,7 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
         raise DataError(f"design mount must be a 4x4 T_cam_radar, got shape {design.shape}")
     vehicles: dict[str, tuple[VehicleResult, Path]] = {}
     pages: dict[str, Path] = {}
+    unwritten: dict[str, str] = {}  # vehicle -> why its page was not written
     if labels is not None and len(labels) != len(results):
         raise DataError(f"{len(labels)} labels for {len(results)} result files")
     for i, p in enumerate(map(Path, results)):
@@ -82,7 +83,10 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
                 pages[name] = Path(reports[name])
             elif reports is None:
                 page = p.parent / ("report.html" if len(run.vehicles) == 1 else f"report-{file_part(name)}.html")
-                pages[name] = write_report(p, page, vname, data, version, conf, keep=True)
+                try:  # one page that cannot be written stopped the fleet page and every later one (probe 59)
+                    pages[name] = write_report(p, page, vname, data, version, conf, keep=True)
+                except (OSError, HybridCalibError) as e:
+                    unwritten[name] = f"{page}: {e.strerror or e}" if isinstance(e, OSError) else f"{page}: {e}"
     names = list(vehicles)
     verdicts = {n: verdict_of(vr, conf.tolerance) for n, (vr, _) in vehicles.items()}
     flagged = list(flagged) or [n for n in names if verdicts[n].moved_frames]
@@ -132,6 +136,9 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
     if not_done:
         items = "".join(f"<li><b>{esc(n)}</b>: {esc(why)}</li>" for n, why in sorted(not_done.items()))
         missing = f"<h2>Vehicles without a result ({len(not_done)})</h2><ul id=\"not-done\">{items}</ul>"
+    if unwritten:
+        items = "".join(f"<li><b>{esc(n)}</b>: {esc(why)}</li>" for n, why in sorted(unwritten.items()))
+        missing += f"<h2>Report pages not written ({len(unwritten)})</h2><ul id=\"unwritten\">{items}</ul>"
     total = len(names) + len(not_done)
     body = (f"<h1>Fleet calibration: {n_vehicles(total)}"
             + (f", {len(names)} with a result" if not_done else "") + "</h1>"
@@ -154,4 +161,10 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
             "<th>offset t (cm)</th><th>max rot sigma (deg)</th><th>max t sigma (cm)</th><th>frames</th></tr></thead>"
             f"<tbody>{rows}</tbody></table>{missing}"
             f"<p class=meta>Results: {esc(', '.join(str(p) for _, p in vehicles.values()))}</p>")
-    return write_page(out, f"fleet: {n_vehicles(total)}", body)
+    page = write_page(out, f"fleet: {n_vehicles(total)}", body)
+    if unwritten:  # everything else written first: said, and the command fails
+        first = next(iter(sorted(unwritten.items())))
+        raise HybridCalibError(f"{len(unwritten)} vehicle report page(s) could not be written (first: {first[0]}: "
+                               f"{first[1]}); the fleet page {page} and the other pages are written and list them; "
+                               "fix the path and rerun")
+    return page
