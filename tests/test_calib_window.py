@@ -281,6 +281,38 @@ def test_a_first_solve_that_left_the_starts_basin_is_solved_again_locally(tmp_pa
         vr.trajectory[0].events[0]
 
 
+def test_a_start_on_rows_alone_that_fits_less_than_half_of_them_is_not_converged():
+    """Probe 58 (oracle rows, R2 starts): frame 0 ended 38-54 deg off with 30-32 % of its rows fitting, a plain "weak"
+    and a degree-level std (the 25 % rule's NOT CONVERGED needs fewer). In the convex start on rows alone, a frame
+    fitting fewer than convex_check_fraction of its rows is not converged; later frames, or a start with a prior,
+    keep the 25 % rule."""
+    from factors.correspondences import Correspondences
+    from hybrid_calib.calib.oracle import synthetic_drive
+    from hybrid_calib.calib.schedule import GaussianPrior
+    from hybrid_calib.geometry import perturb_camera_frame
+    from tests.helpers import nominal_T_cam_radar, rng
+
+    T = nominal_T_cam_radar()
+    frames, _ = synthetic_drive(T, 5, rng(1))
+    g = np.random.default_rng(0)
+
+    def spoil(c):  # 60 % of the rows gross outliers: the right answer fits ~30-40 %
+        px = c.pixels.copy()
+        idx = g.choice(len(c), int(0.6 * len(c)), replace=False)
+        px[idx] = g.uniform([0, 0], [1600, 900], (len(idx), 2))
+        return Correspondences(c.points_radar, px, c.sigma_px, c.confidence, c.K, c.frame_id, c.timestamp_us)
+
+    bad = [spoil(c) for c in frames]
+    T0 = perturb_camera_frame(T, np.radians([1.0, -1.0, 1.5]), [0.05, -0.03, 0.04])
+    cal = SlidingWindowCalibrator(T0, {"detect_steps": False})
+    said = [("NOT CONVERGED" in (e := cal.update(c)).status, e.inlier_fraction) for c in bad]
+    assert [s for s, _ in said] == [True, True, True, False, False], said
+    assert all(0.25 < f < 0.5 for _, f in said)
+    prior = GaussianPrior(T0, np.diag([np.radians(2.0) ** 2] * 3 + [0.1 ** 2] * 3))
+    with_prior = SlidingWindowCalibrator(T0, {"detect_steps": False}).update(bad[0], prior=prior)
+    assert "NOT CONVERGED" not in with_prior.status
+
+
 @pytest.mark.parametrize("key,value,words", [
     ("min_inlier_fraction", 2.0, "0 <= min_inlier_fraction <= 1"),  # made every good solve "NOT CONVERGED"
     ("random_walk_rot_deg_per_sqrt_s", -1.0, "random_walk_rot_deg_per_sqrt_s >= 0"),  # silently read as 0
