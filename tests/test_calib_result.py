@@ -110,6 +110,24 @@ def test_a_truth_path_that_is_not_one_is_named():
         VehicleResult.from_dict(doc, "veh-a")
 
 
+@pytest.mark.parametrize("edit, words", [
+    (lambda v: v["trajectory"][0].update(step_alarm="false"), r"trajectory\[0\]\.step_alarm is a JSON string, not a "
+                                                               "true or false"),
+    (lambda v: v["trajectory"][0].update(events=3), r"trajectory\[0\]\.events is a JSON number, not a list"),
+    (lambda v: v["trajectory"][0].update(timestamp_us=1.5), r"timestamp_us is a JSON number, not a whole number"),
+    (lambda v: v["final"].update(status=7), r"final\.status is a JSON number, not a string"),
+])
+def test_result_fields_are_read_as_the_types_written(edit, words):
+    """Probe 59: a step_alarm "false" read as an alarm (bool("false")), a numeric status was an internal error in
+    report and export, non-list events and a fractional timestamp named neither the field nor the frame."""
+    from hybrid_calib.calib.result import VehicleResult
+
+    doc = _run(rng(1)).vehicles["veh-a"].to_dict()
+    edit(doc)
+    with pytest.raises(TypeError, match=words):
+        VehicleResult.from_dict(doc, "veh-a")
+
+
 def test_std_keys_name_their_frame():
     assert STD_KEYS_CAM == ("rot_x_cam_deg", "rot_y_cam_deg", "rot_z_cam_deg", "t_x_cam_cm", "t_y_cam_cm", "t_z_cam_cm")
     assert STD_KEYS_RADAR == std_keys("radar") and not set(STD_KEYS_CAM) & set(STD_KEYS_RADAR)

@@ -122,6 +122,9 @@ def _transform(x, name: str) -> np.ndarray:
     return T
 
 
+_KIND_WORDS = {str: "string", bool: "true or false", list: "list", int: "whole number"}
+
+
 def _truth_path(truth, where: str) -> list:
     """A result's ``truth.path`` ([(index, (4, 4))]; [] when absent), ``ValueError`` naming the entry that is not."""
     path = (truth or {}).get("path") if isinstance(truth, dict) else None
@@ -336,7 +339,11 @@ class Estimate:
             k = int(np.argmax(np.abs(std - own) - 1e-6 * np.abs(own)))
             raise ValueError(f"{where}.std_cam.{std_keys(STD_FRAME)[k]} is {std[k]:.6g}, but its covariance "
                              f"(cov_right_radar) gives {own[k]:.6g}: {EDITED}")
-        return cls(T, cov, std, d["status"], bool(d.get("regularised", False)), tuple(d.get("weak_directions", ())))
+        # typed as written (probe 59: a numeric status was an internal error in report and export)
+        for key, kind, default in (("status", str, None), ("regularised", bool, False), ("weak_directions", list, [])):
+            if not isinstance(d.get(key, default), kind):
+                raise TypeError(f"{where}.{key} is a JSON {_json_kind(d[key])}, not a {_KIND_WORDS[kind]}: {EDITED}")
+        return cls(T, cov, std, d["status"], d.get("regularised", False), tuple(d.get("weak_directions", ())))
 
 
 @dataclass(frozen=True)
@@ -389,6 +396,10 @@ class FrameEstimate:
                 "step_threshold", "step_alarm", "solve_ms", "cov_ms")
         if missing := [k for k in keys if k not in d]:
             raise KeyError(f"{where} lacks {missing}")  # a bare KeyError 'index' named no frame (probe 27)
+        # typed as written (probe 59: a step_alarm "false" read as an alarm, bool("false"); events a number)
+        for key, kind in (("step_alarm", bool), ("events", list), ("timestamp_us", int), ("index", int)):
+            if key in d and (not isinstance(d[key], kind) or (kind is int and isinstance(d[key], bool))):
+                raise TypeError(f"{where}.{key} is a JSON {_json_kind(d[key])}, not a {_KIND_WORDS[kind]}: {EDITED}")
         return cls(
             index=int(d["index"]), frame_id=d["frame_id"], timestamp_us=int(d["timestamp_us"]),
             estimate=Estimate.from_dict(d, where), n_window=int(d["n_window"]), n_total=int(d["n_total"]),

@@ -78,7 +78,9 @@ def write_page(path: Path, title: str, body: str, source: str = "") -> Path:
 def written_from(path: Path, source: str) -> bool:
     """Whether the page at ``path`` was written from ``source`` (its ``SOURCE_META``): a rerun keeps it."""
     try:
-        head = Path(path).read_text(encoding="utf-8", errors="replace")[:4096]
+        text = Path(path).read_text(encoding="utf-8", errors="replace")
     except OSError:
         return False
-    return f"<meta name=\"{SOURCE_META}\" content=\"{esc(source)}\">" in head
+    # and whole: a page cut short (probe 59: 5000 bytes, ending mid-table) is written again
+    return f"<meta name=\"{SOURCE_META}\" content=\"{esc(source)}\">" in text[:4096] and \
+        text.rstrip().endswith("</html>")
