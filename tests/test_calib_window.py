@@ -313,6 +313,29 @@ def test_a_start_on_rows_alone_that_fits_less_than_half_of_them_is_not_converged
     assert "NOT CONVERGED" not in with_prior.status
 
 
+def test_an_alarm_frame_that_fits_nothing_after_the_restart_is_not_converged(monkeypatch):
+    """Probe 58: after a step alarm, the alarm frame's estimate was 56-68 deg off with 0-5 % of its rows fitting and
+    its status said "recovering after a step change" alone (the restart dropped the 25 % rule's note)."""
+    from factors.correspondences import Correspondences
+    from hybrid_calib.calib.drift import StepOutcome, StepTest
+    from hybrid_calib.calib.oracle import synthetic_drive
+    from tests.helpers import nominal_T_cam_radar, rng
+
+    T = nominal_T_cam_radar()
+    frames, _ = synthetic_drive(T, 6, rng(1))
+    g = np.random.default_rng(0)
+    c = frames[5]
+    junk = Correspondences(c.points_radar, g.uniform([0, 0], [1600, 900], c.pixels.shape), c.sigma_px, c.confidence,
+                           c.K, "junk", c.timestamp_us)  # rows no mount fits
+    cal = SlidingWindowCalibrator(T, {"detect_steps": True})
+    for f in frames[:5]:
+        cal.update(f)
+    monkeypatch.setattr(cal, "_test_step", lambda inl: StepOutcome(StepTest(99.0, 27.9, True, True), T))
+    e = cal.update(junk)
+    assert e.step_alarm and e.inlier_fraction < 0.25
+    assert "recovering after a step change" in e.status and "NOT CONVERGED" in e.status, e.status
+
+
 @pytest.mark.parametrize("key,value,words", [
     ("min_inlier_fraction", 2.0, "0 <= min_inlier_fraction <= 1"),  # made every good solve "NOT CONVERGED"
     ("random_walk_rot_deg_per_sqrt_s", -1.0, "random_walk_rot_deg_per_sqrt_s >= 0"),  # silently read as 0
