@@ -25,25 +25,28 @@ def refuse_shipped(path: str | Path) -> None:
                                "its .json and .safetensors into a folder of yours and pass the copy as --checkpoint")
 
 
-def trained_on(checkpoint: str | Path, roots, version: str | None = None) -> list[str]:
+def trained_on(checkpoint: str | Path, roots, version: str | None = None, stamps: list[str] | None = None
+               ) -> list[str]:
     """The ``roots`` the training run of ``checkpoint`` read (``learned.checkpoint.trained_data``): at the same path,
     or (with ``version``) holding the same data at another (its data stamp: a ``cp -r`` of the training root, probe
-    55); [] when the run does not say (a shipped checkpoint records its data in words, in ``provenance``)."""
+    55); [] when the run does not say (a shipped checkpoint records its data in words, in ``provenance``).
+    ``stamps``: the roots' ``data_stamp`` digests when the caller has them (each hashes the root's tables)."""
     from hybrid_calib.data.files import data_stamp
     from learned.checkpoint import trained_data
 
     data = trained_data(checkpoint)
     try:
         seen = {str(Path(r).resolve()) for r in data.get("roots", [])}
-        stamps = set(data.get("stamps") or []) if version is not None else set()
+        trained = set(data.get("stamps") or []) if version is not None else set()
     except (TypeError, ValueError):
         return []
-    return [str(r) for r in roots
-            if str(Path(r).resolve()) in seen or (stamps and data_stamp(r, version)["digest"] in stamps)]
+    digests = list(stamps) if stamps is not None else [None] * len(roots)
+    return [str(r) for r, digest in zip(roots, digests) if str(Path(r).resolve()) in seen
+            or (trained and (digest if digest is not None else data_stamp(r, version)["digest"]) in trained)]
 
 
 def training_overlap(checkpoint: str | Path, frames, roots, version: str, split: str,
-                     split_options: dict | None) -> int | None:
+                     split_options: dict | None, stamps: list[str] | None = None) -> int | None:
     """How many of the frames of ``split`` ("test" / "val", under ``split_options``) the training run of
     ``checkpoint`` trained on (its recorded ``train_config.split`` over the same frames): 0 when none (a root it
     never read, or the checkpoint's own split), None when it cannot be told (the run read these roots among
@@ -52,7 +55,7 @@ def training_overlap(checkpoint: str | Path, frames, roots, version: str, split:
     from learned.checkpoint import read_checkpoint_meta, trained_data
     from learned.dataset import split_indices
 
-    if split not in ("test", "val") or not (seen := trained_on(checkpoint, roots, version)):
+    if split not in ("test", "val") or not (seen := trained_on(checkpoint, roots, version, stamps)):
         return 0
     trained = (read_checkpoint_meta(checkpoint)[1].get("train_config") or {}).get("split")
     if not isinstance(trained, dict) or trained == (split_options or {}):

@@ -110,21 +110,23 @@ def run(args: argparse.Namespace) -> int:
                                                "you can write and pass the copy")
     frames = open_roots(args.data, args.version, lidar=setup.lidar, options={"nsweeps": setup.nsweeps})
     # other split flags than the checkpoint's: its training frames may fall in the "held-out" split (probe 55)
-    overlap = training_overlap(last.path, frames, args.data, args.version, args.split, setup.conf.get("split_options"))
+    stamps = [data_stamp(d, args.version)["digest"] for d in args.data]  # once: each hashes a root's tables
+    overlap = training_overlap(last.path, frames, args.data, args.version, args.split, setup.conf.get("split_options"),
+                               stamps)
     if overlap != 0 and args.fit_uncertainty:
         raise OptionError("--fit-uncertainty", f"{overlap_words(overlap, args.split)}: their errors would make the "
                                                "covariance look honest where it was fitted; fit with the "
                                                "checkpoint's own split (no --split-by / fraction flags), or on a "
                                                "root it never saw")
     data = {"roots": [str(Path(d).resolve()) for d in args.data], "version": args.version, "nsweeps": setup.nsweeps,
-            "stamps": [data_stamp(d, args.version)["digest"] for d in args.data]}
+            "stamps": stamps}
     result = evaluate(setup.model, frames, setup.conf, args.out, checkpoint=" -> ".join(map(str, stage_paths)),
                       overwrite=args.overwrite, progress=not args.no_progress, data=data,
                       network=[checkpoint_digest(p) for p in stage_paths])
     plot_error_cdf(result, Path(args.out) / "errors_cdf.png")
     print(result.table())
     notes = []  # kept in results.md / results.json too, beside the figures they qualify (probe 55: screen only)
-    if args.split in ("all", "train") and (seen := trained_on(last.path, args.data, args.version)):
+    if args.split in ("all", "train") and (seen := trained_on(last.path, args.data, args.version, stamps)):
         notes.append(f"split {args.split} of {', '.join(seen)}, a root the checkpoint's training run read: these "
                      "frames include its training frames, so the table is no held-out measure (use --split test, or "
                      "a root it never saw)")

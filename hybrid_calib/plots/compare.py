@@ -6,9 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hybrid_calib.calib.result import VehicleResult, truth_at
-from hybrid_calib.metrics import signed_errors
-from hybrid_calib.plots.calibration import LABELS, STD_COLUMN
+from hybrid_calib.calib.result import VehicleResult
+from hybrid_calib.plots.calibration import LABELS, STD_COLUMN, trajectory_errors
 from hybrid_calib.plots.figure import pyplot, save_figure
 
 
@@ -20,9 +19,9 @@ def _series(results: list[VehicleResult]) -> tuple[np.ndarray, np.ndarray]:
     for t, r in enumerate(results):
         if r.truth_T is None:
             continue
+        if r.trajectory:  # each frame against the mount of that frame (a knock moved it)
+            err[t, :len(r.trajectory)] = np.abs(trajectory_errors(r))
         for k, f in enumerate(r.trajectory):
-            e = signed_errors(f.T, truth_at(r, f.index))  # the mount of that frame (a knock moved it)
-            err[t, k] = np.abs(np.concatenate([np.degrees(e[:3]), 100 * e[3:]]))
             std[t, k] = np.asarray(f.estimate.std)[list(STD_COLUMN)]
     return err, std
 
