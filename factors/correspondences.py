@@ -13,7 +13,8 @@ FOCAL_MIN_PX = 1.0  # pixels: a focal length below one pixel images the whole wo
 # one measurement, not two: radar points within REPEAT_RADAR_M (each coordinate) and pixels within REPEAT_SIGMA of
 # their 1-sigma (an independent measurement of the same point lands that close to the first with a probability of
 # ~1e-4 per row). Probe 51: a replay nudged by 1e-6 px, or rows doubled inside a frame, passed as new measurements
-# and shrank the std.
+# and shrank the std; probe 59: so did a replay with one row added or taken away (rows are compared one by one:
+# SeenRows).
 REPEAT_RADAR_M = 1e-3
 REPEAT_SIGMA = 0.01
 
@@ -106,25 +107,15 @@ class Correspondences:
     def __len__(self) -> int:
         return len(self.points_radar)
 
-    def signature(self) -> np.ndarray:
-        """(5, N): each column of the rows sorted on its own (radar x, y, z in metres; pixel u, v): what ``repeats``
-        compares, in any order of the rows (a row-wise nudge of at most e moves every sorted value by at most e)."""
-        return np.sort(np.hstack([self.points_radar, self.pixels]).T, axis=1)
-
-    def repeats(self, other: Correspondences, signatures: tuple | None = None) -> bool:
-        """True when these rows are ``other``'s again (a stalled or replayed feed): radar points within
-        ``REPEAT_RADAR_M`` and pixels within ``REPEAT_SIGMA`` of the smallest pixel sigma, in any order.
-        Fused as two frames, one measurement would shrink a covariance as if it were two independent ones.
-        A row twice inside a frame counts once. ``signatures``: the two frames' ``signature()`` when the caller keeps
-        them (of rows already kept once)."""
-        if signatures is None:  # a row twice inside a frame counts once (doubled_rows)
-            self, other = self.once(), other.once()
-        if len(self) != len(other) or not len(self):
+    def repeats(self, other: Correspondences) -> bool:
+        """True when every row of these is a row of ``other`` again (a stalled or replayed feed, whole, reordered,
+        nudged or cut short: ``SeenRows``). Fused as two frames, one measurement would shrink a covariance as if it
+        were two independent ones."""
+        if not len(self) or not len(other):
             return False
-        a, b = signatures or (self.signature(), other.signature())
-        tol_px = REPEAT_SIGMA * min(self.sigma_px.min(), other.sigma_px.min())
-        d = np.abs(a - b).max(axis=1)
-        return bool(np.all(d[:3] <= REPEAT_RADAR_M) and np.all(d[3:] <= tol_px))
+        seen = SeenRows()
+        seen.add(other)
+        return bool((seen.match(self) >= 0).all())
 
     def doubled_rows(self) -> list[tuple[int, int]]:
         """(row, earlier row it repeats) pairs inside this frame: radar points within ``REPEAT_RADAR_M`` and pixels
@@ -173,20 +164,94 @@ class Correspondences:
         return from_arrays(d).corr
 
 
-def repeated_frames(frames) -> dict[int, int]:
-    """{index: index of the earlier frame it repeats} over ``Correspondences`` ``frames`` with rows
-    (``Correspondences.repeats``); frames without rows repeat nothing."""
-    seen: dict[int, list[tuple[int, np.ndarray]]] = {}  # row count -> (index, signature) of the frames kept
-    out = {}
-    once = [f.once() for f in frames]  # a row twice inside a frame counts once
-    for i, f in enumerate(once):
-        if len(f):
-            sig, earlier = f.signature(), seen.setdefault(len(f), [])
-            if (j := next((j for j, s in earlier if f.repeats(once[j], (sig, s))), None)) is not None:
-                out[i] = j
-            else:
-                earlier.append((i, sig))
+class SeenRows:
+    """The rows of the frames seen so far, to tell a new frame's rows that repeat one of theirs: the same radar point
+    (each coordinate within ``REPEAT_RADAR_M``) and pixel (within ``REPEAT_SIGMA`` of the smaller of the two
+    sigmas). Such a row is one measurement again, not a second one (probe 51: a replay with one row added or taken
+    away passed as a new frame and shrank the std by 30 %). Rows are found through a grid of ``REPEAT_RADAR_M``
+    cells on the radar point (the 27 cells around it), so a frame costs the same however many were seen. Frames are
+    counted from 0 in the order added; the last ``keep`` frames are remembered."""
+
+    def __init__(self, keep: int = 1000):
+        self.keep = int(keep)
+        self._cells: dict[tuple[int, int, int], list[tuple[int, np.ndarray, float]]] = {}
+        self._frames: dict[int, tuple[str, list[tuple[int, int, int]]]] = {}  # counter -> (frame id, its cells)
+        self._next = 0
+
+    def __len__(self) -> int:
+        return len(self._frames)
+
+    def frame_id(self, k: int) -> str:
+        """The frame id of the ``k``-th frame added."""
+        return self._frames[k][0]
+
+    def match(self, corr: Correspondences) -> np.ndarray:
+        """(N,) int: for each row of ``corr``, the counter of a remembered frame holding the same row, -1 for a new
+        row."""
+        out = np.full(len(corr), -1, np.int64)
+        if not self._cells:
+            return out
+        cells = np.floor(corr.points_radar / REPEAT_RADAR_M).astype(np.int64)
+        keys = (cells[:, None, :] + _NEIGHBOURS[None]).reshape(-1, 3).tolist()  # (N * 27) cells
+        get = self._cells.get
+        for i, key in enumerate(keys):
+            if (hits := get(tuple(key))) is None or out[r := i // len(_NEIGHBOURS)] >= 0:
+                continue
+            p, px, s = corr.points_radar[r], corr.pixels[r], corr.sigma_px[r]
+            for k, row, s2 in hits:
+                if (np.abs(row[:3] - p).max() <= REPEAT_RADAR_M
+                        and np.abs(row[3:] - px).max() <= REPEAT_SIGMA * min(s, s2)):
+                    out[r] = k
+                    break
+        return out
+
+    def add(self, corr: Correspondences) -> int:
+        """Remember ``corr``'s rows; returns its counter (the oldest frame is forgotten beyond ``keep``)."""
+        k, self._next = self._next, self._next + 1
+        keys = [tuple(int(v) for v in c) for c in np.floor(corr.points_radar / REPEAT_RADAR_M).astype(np.int64)]
+        for key, p, px, s in zip(keys, corr.points_radar, corr.pixels, corr.sigma_px):
+            self._cells.setdefault(key, []).append((k, np.r_[p, px], float(s)))
+        self._frames[k] = (corr.frame_id, keys)
+        while len(self._frames) > self.keep:
+            old = min(self._frames)
+            for key in set(self._frames.pop(old)[1]):
+                if kept := [e for e in self._cells[key] if e[0] != old]:
+                    self._cells[key] = kept
+                else:
+                    del self._cells[key]
+        return k
+
+
+_NEIGHBOURS = np.array([(a, b, c) for a in (0, -1, 1) for b in (0, -1, 1) for c in (0, -1, 1)], np.int64)
+
+
+def repeated_rows(frames) -> dict[int, tuple[np.ndarray, int]]:
+    """{index: ((N,) bool rows that repeat an earlier frame's rows, index of the frame the first of them repeats)}
+    over ``Correspondences`` ``frames``, each kept once (``Correspondences.once``; the masks index those rows), for
+    the frames with such a row (``SeenRows``)."""
+    seen, index, out = SeenRows(keep=len(frames) + 1), {}, {}
+    for i, f in enumerate(frames):
+        if len(f := f.once()):
+            m = seen.match(f)
+            if (m >= 0).any():
+                out[i] = (m >= 0, index[int(m[m >= 0][0])])
+            if not (m >= 0).all():
+                index[seen.add(f.subset(m < 0))] = i
     return out
+
+
+def repeated_frames(frames) -> dict[int, int]:
+    """{index: index of the earlier frame it repeats} over ``Correspondences`` ``frames`` whose rows all repeat
+    earlier frames' rows (``repeated_rows``: a replay, whole, reordered, nudged or cut short); frames without rows
+    repeat nothing."""
+    return {i: j for i, (m, j) in repeated_rows(frames).items() if m.all()}
+
+
+def fresh_rows(frames, rep: dict | None = None) -> list[Correspondences]:
+    """``frames``, each kept once, without the rows that repeat an earlier frame's rows (``rep``: their
+    ``repeated_rows`` when the caller has it)."""
+    rep = repeated_rows(frames) if rep is None else rep
+    return [f.once().subset(~rep[i][0]) if i in rep else f.once() for i, f in enumerate(frames)]
 
 
 def repeat_message(frame_id: str, earlier_id: str) -> str:
@@ -194,6 +259,13 @@ def repeat_message(frame_id: str, earlier_id: str) -> str:
     return (f"frame {frame_id or '?'} repeats the rows of frame {earlier_id or '?'} (the same radar points, the "
             f"pixels within {REPEAT_SIGMA:.0%} of their sigma: a stalled or replayed feed?): one measurement, not two "
             "independent ones, so it is left out")
+
+
+def replayed_message(c: Correspondences, repeated: np.ndarray, earlier_id: str) -> str:
+    """The words for a frame some of whose rows (``repeated``, (N,) bool) repeat an earlier frame's, left out."""
+    return (f"{int(repeated.sum())} of the frame's {len(c)} rows repeat rows of frame {earlier_id or '?'} (the same "
+            f"radar points, the pixels within {REPEAT_SIGMA:.0%} of their sigma: a replayed feed?): left out (one "
+            "measurement counted twice shrinks the covariance as if it were two)")
 
 
 def doubled_message(c: Correspondences) -> str:

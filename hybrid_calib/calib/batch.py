@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from factors.config import RadarPixelFactorConfig
-from factors.correspondences import Correspondences, repeat_message, repeated_frames
+from factors.correspondences import Correspondences, fresh_rows, repeat_message, repeated_rows
 from factors.scene import scene_prior_std
 from hybrid_calib.calib.covariance import (
     CovarianceConfig,
@@ -78,17 +78,20 @@ class BatchResult:
     inlier_fraction: float
 
 
-def _check_frames(frames: list[Correspondences]) -> None:
+def _check_frames(frames: list[Correspondences]) -> list[Correspondences]:
+    """``frames`` checked, each kept once and without the rows that repeat an earlier frame's (``fresh_rows``)."""
     if not frames:
         raise ValueError("batch calibration needs at least one frame")
     for i, f in enumerate(frames):
         if not isinstance(f, Correspondences):
             raise TypeError(f"frame {i}: expected Correspondences, got {type(f)}")
     # the same rows N times shrank the covariance as N frames' (probe 31: NEES 62 for 20 copies of one frame)
-    if rep := repeated_frames(frames):
+    rows = repeated_rows(frames)  # rows of an earlier frame again (a replay, whole or in part) are one measurement
+    if rep := {i: j for i, (m, j) in rows.items() if m.all()}:
         i, j = next(iter(rep.items()))
         raise ValueError(f"{len(rep)} of the {len(frames)} frames repeat an earlier frame's rows; first: frame {i}: "
                          f"{repeat_message(frames[i].frame_id, frames[j].frame_id)}: pass each frame once")
+    return fresh_rows(frames, rows)
 
 
 def solve_batch(frames: list[Correspondences], T_init: np.ndarray, conf: BatchConfig | dict | None = None,
@@ -101,8 +104,7 @@ def solve_batch(frames: list[Correspondences], T_init: np.ndarray, conf: BatchCo
     conf = merge(BatchConfig, conf)
     if conf.backend not in BACKENDS:
         raise ValueError(f"BatchConfig.backend={conf.backend!r}; valid: {BACKENDS}")
-    _check_frames(frames)
-    frames = [f.once() for f in frames]  # a row twice inside a frame is one measurement (Correspondences.doubled_rows)
+    frames = _check_frames(frames)  # a row twice, in a frame or across frames, is one measurement
     T_init = check_transform(T_init, "solve_batch T_init")  # both backends (Ceres took a scaled rotation)
     n_rows = sum(len(f) for f in frames)
     T, info, cov, why, iters, secs, t0 = _solve(frames, T_init, conf, priors)

@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from factors.config import RadarPixelFactorConfig
-from factors.correspondences import Correspondences, doubled_message, repeat_message
+from factors.correspondences import Correspondences, SeenRows, doubled_message, repeat_message, replayed_message
 from factors.scene import scene_prior_std
 from hybrid_calib.calib.covariance import (
     CovarianceConfig,
@@ -207,8 +207,9 @@ class SlidingWindowCalibrator:
         # per-drive scene nuisance (factors.scene): its cross information with the marginalised frames
         self._scene = len(scene_prior_std(self.conf.factor)) > 0
         self._marg_scene_cross = np.zeros((6, len(scene_prior_std(self.conf.factor))))
-        # (rows, signature) of the last REPEAT_MEMORY frames with rows; a tuple, replaced, never changed in place
-        self._seen: tuple[tuple[Correspondences, np.ndarray], ...] = ()
+        # the rows of the last REPEAT_MEMORY frames with rows; added to only as a frame's update ends (a failed update
+        # leaves it as it was, so the snapshot shares it)
+        self._seen = SeenRows(REPEAT_MEMORY)
 
     # ------------------------------------------------------------------ linearisation
     def _gate(self) -> float:
@@ -492,19 +493,21 @@ class SlidingWindowCalibrator:
 
     def _update(self, corr: Correspondences, prior: GaussianPrior | None, timestamp_us: int | None
                 ) -> FrameEstimate:
-        doubled = ""
+        events: list[str] = []
         if len(corr):  # the same rows again: one measurement, which counted twice shrinks the covariance (probe 31)
             if doubled := doubled_message(corr):
                 corr = corr.once()
-            sig = corr.signature()
-            if (earlier := next((c for c, s in self._seen if corr.repeats(c, (sig, s))), None)) is not None:
-                raise ValueError(repeat_message(corr.frame_id, earlier.frame_id))
-            self._seen = (*self._seen[len(self._seen) + 1 - REPEAT_MEMORY:], (corr, sig))
+                events.append(doubled)
+            seen = self._seen.match(corr)  # rows of earlier frames again (a replay, whole or in part: probe 59)
+            if (seen >= 0).all():
+                raise ValueError(repeat_message(corr.frame_id, self._seen.frame_id(int(seen[0]))))
+            if (seen >= 0).any():
+                events.append(replayed_message(corr, seen >= 0, self._seen.frame_id(int(seen[seen >= 0][0]))))
+                corr = corr.subset(seen < 0)
         t0 = time.perf_counter()
         ts = int(corr.timestamp_us if timestamp_us is None else timestamp_us)
         self._advance_clock(ts)
         fr = self._push(corr, prior)
-        events: list[str] = [doubled] if doubled else []
         T_prev = self.T.copy()
         starting = self.since_reset < self.conf.convex_frames  # a convex start from these few frames
         solved = self._rescue_if_diverged(fr, self._solve_new_frame(fr), events, T_prev)
@@ -531,6 +534,8 @@ class SlidingWindowCalibrator:
         self.since_reset += 1
         self.n_updates += 1
         total_ms = (time.perf_counter() - t0) * 1e3
+        if len(corr):
+            self._seen.add(corr)
         return FrameEstimate(
             index=self.n_updates - 1, frame_id=corr.frame_id, timestamp_us=ts, estimate=est,
             n_window=len(self.frames), n_total=n_total, inlier_fraction=inl,
