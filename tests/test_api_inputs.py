@@ -139,6 +139,10 @@ def test_a_partial_replay_is_one_measurement_too():
                            np.r_[a.sigma_px, b.sigma_px[:1]], np.r_[a.confidence, b.confidence[:1]], a.K, "plus",
                            a.timestamp_us + 2)
     assert cut.repeats(a) and not a.repeats(cut) and not plus.repeats(a)
+    # radar points 0.9 mm away (inside REPEAT_RADAR_M, mostly in the next 1 mm cell) are the same points
+    shifted = dataclasses.replace(a, points_radar=a.points_radar + [9e-4, -9e-4, 0.0])
+    far = dataclasses.replace(a, points_radar=a.points_radar + [2e-3, 0.0, 0.0])
+    assert shifted.repeats(a) and not far.repeats(a)
     assert repeated_frames([a, cut, plus]) == {1: 0}
     cal = SlidingWindowCalibrator(T0, WINDOW)
     cal.update(a)
