@@ -127,7 +127,7 @@ def kill_and_resume(roots, out: Path, kill_after: int, ref: dict) -> dict:
 def gain(before: dict, after: dict, outliers: list) -> dict:
     """Per-axis RMS error (camera axes, deg / cm), median std and NEES over vehicles with truth."""
     from hybrid_calib.calib.result import CalibrationRun
-    from hybrid_calib.metrics import signed_errors
+    from hybrid_calib.metrics import CHI2_6_95, signed_errors
 
     rows = {"before": [], "after": []}
     for tag, s in (("before", before), ("after", after)):
@@ -146,7 +146,7 @@ def gain(before: dict, after: dict, outliers: list) -> dict:
         E, S, N = np.array([r[0] for r in rr]), np.array([r[1] for r in rr]), np.array([r[2] for r in rr])
         out[tag] = {"vehicles": len(rr), "rms_error": np.sqrt((E ** 2).mean(0)).round(3).tolist(),
                     "median_std": np.median(S, 0).round(3).tolist(), "mean_nees": float(N.mean()),
-                    "nees_below_12.59": float((N < 12.59).mean()),
+                    "nees_below_12.59": float((N < CHI2_6_95).mean()),
                     "coverage_2sigma_per_axis": (np.abs(E) < 2 * S).mean(0).round(2).tolist()}
     return out
 

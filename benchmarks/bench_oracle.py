@@ -37,8 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-CHI2_6_95 = 12.591587243743977
-CHI2_4_95 = 9.487729036781154
+CHI2_4_95 = 9.487729036781154  # scipy.stats.chi2.ppf(0.95, 4): the four observable directions' 95 % bound
 MODES = ("window", "batch", "window_noscene", "batch_noscene")  # *_noscene: same solve, no scene nuisance
 OBS = [0, 2, 3, 4]  # right-tangent axes the data observe: rotation about radar x and z, translation along x and y
 AXES = ("rot_x", "rot_y", "rot_z", "t_x", "t_y", "t_z")
@@ -177,7 +176,7 @@ def _run_one(job: dict) -> dict:
 
 
 def summarise(results: list[dict], mode: str) -> dict:
-    from hybrid_calib.metrics import METRIC_KEYS
+    from hybrid_calib.metrics import CHI2_6_95, METRIC_KEYS
 
     E = np.array([r[mode]["err_report"] for r in results])
     V = np.array([r["crb_var_report_noscene" if mode.endswith("_noscene") else "crb_var_report"] for r in results])

@@ -36,10 +36,9 @@ from hybrid_calib.calib.batch import BatchConfig, solve_batch
 from hybrid_calib.calib.schedule import ScheduleConfig
 from hybrid_calib.config import save_json_atomic
 from hybrid_calib.geometry import R_AXES_CAM_FROM_RADAR, local, make_T
-from hybrid_calib.metrics import signed_errors
+from hybrid_calib.metrics import CHI2_6_95, signed_errors
 
 AXES = ("roll_deg", "pitch_deg", "yaw_deg", "x_cm", "y_cm", "z_cm")
-CHI2_6_95 = 12.592
 
 
 def nominal_extrinsic() -> np.ndarray:

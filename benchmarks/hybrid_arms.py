@@ -29,8 +29,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hybrid_calib.config import deep_update, parse_overrides, save_json_atomic  # noqa: E402
+from hybrid_calib.metrics import CHI2_6_95  # noqa: E402
 
-CHI2_6_95 = 12.592
 SHIPPED = "shipped"
 
 

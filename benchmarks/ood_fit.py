@@ -32,8 +32,6 @@ from pathlib import Path
 
 import numpy as np
 
-CHI2_6_95 = 12.591587243743977
-
 
 def auroc(neg: np.ndarray, pos: np.ndarray) -> float:
     """P(score of a positive > score of a negative) (ties count half); NaN when a side is empty."""
@@ -54,6 +52,8 @@ def spearman(a, b) -> float:
 
 
 def _group(recs: list[dict], scores: np.ndarray) -> dict:
+    from hybrid_calib.metrics import CHI2_6_95
+
     nees = np.array([r["nees"] for r in recs])
     rot = np.array([r["rot_deg"] for r in recs])
     flag = scores > 1.0

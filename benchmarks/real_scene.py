@@ -38,7 +38,6 @@ RANGES = ("R1", "R2")
 AXES_ROT = ("roll_deg", "pitch_deg", "yaw_deg")
 AXES_T = ("x_cm", "y_cm", "z_cm")
 TANGENT = ("rot x", "rot y", "rot z", "t x", "t y", "t z")  # right tangent, radar frame [rad, m]
-CHI2_6_95 = 12.591587243743977
 
 
 def _frames_label(split: str, split_options: dict) -> str:
@@ -53,6 +52,7 @@ def _frames_label(split: str, split_options: dict) -> str:
 def pure_per_frame(data: Path, version: str, ckpt: Path, rng: str, seeds: int, split: str, split_options: dict,
                    depth: str, out: Path, threads: int) -> dict:
     """Section 1 for one range: the network alone, one start per frame and seed, pooled."""
+    from hybrid_calib.metrics import CHI2_6_95
     from learned.checkpoint import load_model
     from learned.dataset import open_frames
     from learned.evaluate import evaluate, tangent_errors

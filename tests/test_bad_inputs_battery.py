@@ -803,6 +803,19 @@ DAMAGED_RESULTS = {  # case -> (damage(doc, vehicle), needles beyond the file); 
                      ["final.std_cam.rot_x_cam_deg is -1, but its covariance (cov_right_radar) gives"]),
     "frame-std-edited": (lambda doc, v: doc["vehicles"][v]["trajectory"][0]["std_cam"].__setitem__("t_z_cam_cm", 1e-3),
                          ["trajectory[0].std_cam.t_z_cam_cm is 0.001, but its covariance"]),
+    # probe 61: internal errors in report, export and compare
+    "drift-p-value-null": (lambda doc, v: doc["vehicles"][v]["drift"].__setitem__("p_value", None),
+                           ["drift.p_value is a JSON null, not a number"]),
+    "drift-axis-a-string": (lambda doc, v: doc["vehicles"][v]["drift"]["axes"].__setitem__("yaw", "x"),
+                            ["drift.axes.yaw is a JSON string, not an object"]),
+    "drift-axis-unknown": (lambda doc, v: doc["vehicles"][v]["drift"]["axes"].__setitem__("heave", {}),
+                           ["drift.axes has 'heave', not one of"]),
+    "drift-decision-edited": (lambda doc, v: doc["vehicles"][v]["drift"]["axes"]["yaw"].__setitem__("decision", 1),
+                              ["drift.axes.yaw.decision is 1: not what the reference test writes"]),
+    "error-cut-short": (lambda doc, v: doc["vehicles"][v].__setitem__("error", {"nees": doc["vehicles"][v]["error"][
+        "nees"]}), ["error lacks", "geodesic_deg"]),
+    "weak-directions-numbers": (lambda doc, v: doc["vehicles"][v]["final"].__setitem__("weak_directions", [1]),
+                                ["final.weak_directions holds a JSON number, not only strings"]),
 }
 
 

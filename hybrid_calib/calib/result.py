@@ -240,7 +240,10 @@ def _drift(d: dict, where: str) -> dict | None:
     from hybrid_calib.calib.drift import VERDICT_KINDS
 
     b = _object_or_null(d, "drift", where)
-    if b is None or "verdict_kind" not in b:
+    if b is None:
+        return b
+    _drift_fields(b, f"{where}.drift")
+    if "verdict_kind" not in b:
         return b
     kind, verdict = b["verdict_kind"], b.get("verdict", "")
     if kind not in VERDICT_KINDS:
@@ -249,6 +252,52 @@ def _drift(d: dict, where: str) -> dict | None:
         raise ValueError(f"{where}.drift.verdict_kind {kind!r} is not what its verdict says "
                          f"({str(verdict)[:60]!r}): the file was edited")
     return b
+
+
+_DRIFT_NUMBERS = ("statistic", "p_value", "threshold", "rot_change_deg", "trans_change_cm", "alpha", "dof")
+_DRIFT_FLAGS = ("significant", "exceeds_margin", "drifted")
+_DRIFT_WORDS = ("verdict", "test", "verdict_test")
+_AXIS_DECISIONS = ("within", "differs", "undecided")
+
+
+def _drift_fields(b: dict, where: str) -> None:
+    """The fields of a ``drift`` block (``calib.drift.DriftDecision.to_dict``, ``prior_note``) that report, export and
+    the fleet summary read, of the JSON kind they are written as; ``TypeError`` / ``ValueError`` naming the field
+    otherwise (probe 61: a null p-value and an axis of "x" were internal errors in report and export). Numbers may be
+    infinite (a singular covariance's statistic)."""
+    def number(x) -> bool:
+        return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+    for keys, ok, kind in ((_DRIFT_NUMBERS, number, "number"), (_DRIFT_FLAGS, lambda x: isinstance(x, bool),
+                                                                 "true or false"),
+                           (_DRIFT_WORDS, lambda x: isinstance(x, str), "string")):
+        for key in keys:
+            if key in b and not ok(b[key]):
+                raise TypeError(f"{where}.{key} is a JSON {_json_kind(b[key])}, not a {kind}: {EDITED}")
+    from hybrid_calib.calib.drift import AXIS_KEYS, AXIS_WORDS
+
+    for key, value in _mapping(b.get("delta_camera") or {}, f"{where}.delta_camera").items():
+        if key not in AXIS_KEYS or not number(value):
+            raise ValueError(f"{where}.delta_camera.{key} is {str(value)[:40]}: a number on one of {list(AXIS_KEYS)} "
+                             f"is expected: {EDITED}")
+    for name, a in _mapping(b.get("axes") or {}, f"{where}.axes").items():
+        a = _mapping(a, f"{where}.axes.{name}")
+        if name not in AXIS_WORDS:
+            raise ValueError(f"{where}.axes has {str(name)[:40]!r}, not one of {list(AXIS_WORDS)}: {EDITED}")
+        bad = [k for k in ("delta", "std", "tolerance") if k in a and not number(a[k])]
+        bad += [k for k in ("prior_pinned",) if k in a and not isinstance(a[k], bool)]
+        bad += [k for k in ("decision",) if k in a and a[k] not in _AXIS_DECISIONS]
+        if bad:
+            raise ValueError(f"{where}.axes.{name}.{bad[0]} is {str(a[bad[0]])[:40]}: not what the reference test "
+                             f"writes (numbers, prior_pinned true or false, decision one of {list(_AXIS_DECISIONS)}): "
+                             f"{EDITED}")
+    if (prior := _object_or_null(b, "prior", where)) is not None:
+        for key in ("dominated", "pulled"):
+            if not isinstance(got := prior.get(key, []), list) or any(w not in AXIS_WORDS for w in got):
+                raise ValueError(f"{where}.prior.{key} is {str(got)[:60]}: a list of {list(AXIS_WORDS)} is expected: "
+                                 f"{EDITED}")
+        if not isinstance(prior.get("words", ""), str):
+            raise TypeError(f"{where}.prior.words is a JSON {_json_kind(prior['words'])}, not a string: {EDITED}")
 
 
 def _array(d: dict, key: str, where: str) -> list:
@@ -343,6 +392,8 @@ class Estimate:
         for key, kind, default in (("status", str, None), ("regularised", bool, False), ("weak_directions", list, [])):
             if not isinstance(d.get(key, default), kind):
                 raise TypeError(f"{where}.{key} is a JSON {_json_kind(d[key])}, not a {_KIND_WORDS[kind]}: {EDITED}")
+        if bad := [w for w in d.get("weak_directions", []) if not isinstance(w, str)]:  # probe 61: [1] in report
+            raise TypeError(f"{where}.weak_directions holds a JSON {_json_kind(bad[0])}, not only strings: {EDITED}")
         return cls(T, cov, std, d["status"], d.get("regularised", False), tuple(d.get("weak_directions", ())))
 
 
@@ -508,6 +559,9 @@ class VehicleResult:
             own["nees"] = nees(local(self.truth_T, self.final.T), self.final.cov)
         except (ValueError, np.linalg.LinAlgError):  # a singular covariance: the NEES written was inf
             own["nees"] = float("inf")
+        if missing := [k for k in own if k not in self.error]:  # probe 61: report and compare read every one
+            raise ValueError(f"{where}.error lacks {', '.join(missing)} (the final estimate against {where}.truth "
+                             f"gives them): {EDITED}")
         for key, value in self.error.items():
             if key in own and not (value == own[key] or (is_number(value) and np.isclose(value, own[key],
                                                                                           rtol=1e-6, atol=1e-9))):
