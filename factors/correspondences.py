@@ -131,10 +131,24 @@ class Correspondences:
         return sorted((int(max(i, j)), int(min(i, j))) for i, j in zip(a[same], b[same]))
 
     def once(self) -> Correspondences:
-        """These rows with each doubled row (``doubled_rows``) kept once; ``self`` when none is."""
+        """These rows with each doubled row (``doubled_rows``) kept once; ``self`` when none is. Of a row's copies the
+        one claiming the least information (``confidence / sigma_px^2``) is kept: which claim is right is unknown, and
+        the weaker one cannot make the covariance over-confident."""
         if not (pairs := self.doubled_rows()):
             return self
-        return self.subset(np.setdiff1d(np.arange(len(self)), [i for i, _ in pairs]))
+        parent = list(range(len(self)))  # copies joined through their pairs (union-find)
+
+        def root(r: int) -> int:
+            while parent[r] != r:
+                r = parent[r]
+            return r
+
+        for i, j in pairs:
+            parent[root(i)] = root(j)
+        group = np.array([root(r) for r in range(len(self))])
+        info = np.asarray(self.confidence) / np.asarray(self.sigma_px) ** 2
+        keep = [min(np.flatnonzero(group == g), key=lambda r: (info[r], r)) for g in np.unique(group)]
+        return self.subset(np.sort(keep))
 
     def subset(self, mask: np.ndarray) -> Correspondences:
         """The rows selected by a boolean mask or index array."""

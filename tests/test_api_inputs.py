@@ -165,6 +165,17 @@ def test_a_partial_replay_is_one_measurement_too():
     assert res.n_frames == 3 and [s["token"] for s in res.skipped] == ["cut"]
 
 
+def test_of_a_doubled_row_the_weaker_claim_is_kept():
+    """A row twice with other sigmas kept the first copy (its sigma 2 px beside the copy's 6 px): the covariance
+    stood on the stronger claim of the two."""
+    K = np.array([[800.0, 0, 400], [0, 800, 225], [0, 0, 1]])
+    p = np.array([[5.0, 1, 0], [5, 1, 0], [7, 2, 0], [5, 1, 0], [7, 2, 0]])
+    px = np.array([[10.0, 10], [10, 10], [20, 20], [10, 10], [20, 20]])
+    c = Correspondences(p, px, np.array([2.0, 6, 3, 4, 3]), np.array([1.0, 1, 1, 1, 0.5]), K, "a", 0)
+    once = c.once()
+    assert once.sigma_px.tolist() == [6.0, 3.0] and once.confidence.tolist() == [1.0, 0.5]
+
+
 def test_seen_rows_forget_the_oldest_frames_beyond_their_memory():
     from factors.correspondences import SeenRows
 
