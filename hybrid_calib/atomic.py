@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import errno
 import os
+import re
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -80,22 +81,24 @@ def write_bytes_atomic(path: str | Path, data: bytes) -> Path:
 
 
 LOCK_NAME = ".hybrid-calib.lock"
+_RUN_RECORD = re.compile(r"pid \d+, hybrid-calib \S+, since ")  # what a run writes into its lock file
 
 
 @contextmanager
-def out_dir_lock(out: str | Path, command: str) -> Iterator[None]:
-    """Hold ``out``'s lock (``OUT/.hybrid-calib.lock``, an advisory ``flock``: released when the process ends,
-    however it ends) while a command writes there, so that two runs into one folder do not overwrite each other's
-    results: the second gets ``OutDirBusy`` naming the first (its pid, command and start). ``out`` is created if
-    missing and, when the block leaves nothing in it, removed again; a lock file this run created is removed at the
-    end (while still held)."""
+def out_dir_lock(out: str | Path, command: str, name: str = LOCK_NAME, what: str | None = None) -> Iterator[None]:
+    """Hold ``out``'s lock (``OUT/.hybrid-calib.lock``, or ``OUT/name``: an advisory ``flock``, released when the
+    process ends, however it ends) while a command writes there, so that two runs into one folder (or onto one file,
+    ``what``: report's page) do not overwrite each other's results: the second gets ``OutDirBusy`` naming the first
+    (its pid, command and start). ``out`` is created if missing and, when the block leaves nothing in it, removed
+    again; the lock file is removed at the end (while still held) when this run created it or a killed run left it
+    (it holds a run's record); another file of that name is left as it was."""
     import fcntl
     import time
 
     out = Path(out)
     created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
-    path = out / LOCK_NAME
+    path = out / name
     if path.is_symlink() or (path.exists() and not path.is_file()):  # a link's target would be overwritten
         kind = "a symbolic link" if path.is_symlink() else "a directory" if path.is_dir() else "a special file"
         raise HybridCalibError(f"{path} is {kind}, not the lock file hybrid-calib keeps in its output folder; "
@@ -108,9 +111,12 @@ def out_dir_lock(out: str | Path, command: str) -> Iterator[None]:
         f.seek(0)
         holder = f.read().strip() or "another process"
         f.close()
-        raise OutDirBusy(f"{out} is being written by another hybrid-calib run ({holder}); wait for it to end, or pass "
-                         "another --out") from None
+        raise OutDirBusy(f"{what or out} is being written by another hybrid-calib run ({holder}); wait for it to "
+                         "end, or pass another --out") from None
     try:
+        f.seek(0)
+        stale = _RUN_RECORD.match(f.read(200))  # a killed run's (probe 60: left behind by every later run)
+        existed = existed and not stale
         f.seek(0)
         f.truncate()
         f.write(f"pid {os.getpid()}, hybrid-calib {command}, since {time.strftime('%Y-%m-%d %H:%M:%S')}")

@@ -55,6 +55,7 @@ RESUMES = {
     "fleet": "the vehicles it finished are kept in --out (manifest.json): rerun the same command to go on",
     "train": "its last checkpoint is kept in --out: rerun the same command to resume training",
     "simulate": "the frames it wrote are kept: rerun the same command to go on",
+    "evaluate": "the frames it exported are kept in --out: rerun the same command to go on from there",
 }
 
 
@@ -175,12 +176,22 @@ def main(argv: list[str] | None = None) -> int:
     term = None
     if threading.current_thread() is threading.main_thread():  # signal handlers live in the main thread only
         term = signal.signal(signal.SIGTERM, _on_sigterm)
+    args._process = argv is None and term is not None  # the process's own command line (not a caller's main(argv))
     try:
         return _run(args, debug, sys.argv[1:] if argv is None else [str(a) for a in argv])
     finally:
         warnings.formatwarning = before
-        if term is not None:
+        if term is not None and not args._process:
             signal.signal(signal.SIGTERM, term)
+
+
+def _finished(args: argparse.Namespace) -> None:
+    """The run's work is done and its exit status recorded: Ctrl-C or SIGTERM from here to the process's end must not
+    turn it into "interrupted" (probe 60: export exited 130, with no word, while its runs.json said 0). Only for the
+    process's own command line: a caller of ``main(argv)`` keeps its signals."""
+    if getattr(args, "_process", False):
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
 
 def _run(args: argparse.Namespace, debug: bool, argv: list[str]) -> int:
@@ -196,7 +207,9 @@ def _run(args: argparse.Namespace, debug: bool, argv: list[str]) -> int:
     try:
         if args.command == "report":  # --out is the page (a file), written atomically
             check_out_dir(None if out is None else Path(out).parent)
-            return int(args._run(args) or 0)
+            status = int(args._run(args) or 0)
+            _finished(args)
+            return status
         check_out_dir(out)
         data, version = getattr(args, "data", None), getattr(args, "version", None)
         # simulate's --out is the root it writes
@@ -207,7 +220,9 @@ def _run(args: argparse.Namespace, debug: bool, argv: list[str]) -> int:
         check_out_owner(out, args.command)
         check_out_files(out, args.command, getattr(args, "overwrite", None))
         if out is None:
-            return int(args._run(args) or 0)
+            status = int(args._run(args) or 0)
+            _finished(args)
+            return status
         with out_dir_lock(out, args.command):
             started, status, before = time.time(), None, _listing(Path(out))
             try:
@@ -215,6 +230,8 @@ def _run(args: argparse.Namespace, debug: bool, argv: list[str]) -> int:
                 return status
             finally:  # also a run that failed or was interrupted after writing something (not one refused before
                 # it wrote: its folder is as it was): its line says how it ended
+                if status is not None:
+                    _finished(args)
                 after = _listing(Path(out))
                 if args.command != "simulate" and after and (status is not None or after != before):
                     error = sys.exc_info()[1]

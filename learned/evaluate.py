@@ -166,6 +166,9 @@ def export_pure(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig, out
     for i, fi in enumerate(indices):
         if overwrite or not _frame_file(out, camera_token(frames, fi)).is_file():
             todo.append(i)
+    if progress and len(todo) < len(indices):  # a resumed run says what it kept (probe 60), as calibrate and compare
+        print(f"kept {len(indices) - len(todo)} frame(s) an earlier run into {out} exported (same checkpoint, data and "
+              f"options); exporting the other {len(todo)}")
     loader = torch.utils.data.DataLoader(dataset, batch_size=conf.batch_size, sampler=todo, collate_fn=collate)
     device = torch.device(conf.device)
     model = model.to(device).eval()

@@ -74,6 +74,11 @@ def test_two_runs_into_one_out_folder_the_second_is_refused_naming_the_first(tmp
     with out_dir_lock(out, "calibrate"):
         pass
     assert (out / LOCK_NAME).exists()
+    # but not a killed run's (probe 60: every later run left it behind)
+    (out / LOCK_NAME).write_text("pid 4242, hybrid-calib fleet, since 2026-12-06 04:00:00")
+    with out_dir_lock(out, "fleet"):
+        pass
+    assert not (out / LOCK_NAME).exists()
     empty = tmp_path / "nothing"  # a folder the lock created and nothing else used is removed again
     with pytest.raises(ValueError):
         with out_dir_lock(empty, "train"):

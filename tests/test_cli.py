@@ -2,6 +2,7 @@
 
 import json
 import os
+from pathlib import Path
 
 import pytest
 
@@ -99,6 +100,50 @@ def test_sigterm_stops_a_run_as_ctrl_c_does(tmp_path, monkeypatch, capsys):
     assert [(r["command"].split()[1], r["exit_status"]) for r in runs] == [("calibrate", 143)]
     assert not (tmp_path / "run" / LOCK_NAME).exists()
     assert signal.getsignal(signal.SIGTERM) == before
+
+
+def test_ctrl_c_after_a_run_finished_does_not_make_it_interrupted(tmp_path):
+    """Probe 60: Ctrl-C as export ended (its outputs and runs.json written, exit status 0 recorded) made the process
+    exit 130 without a word. Once the run's status is recorded, the process's own command line ends with it."""
+    import subprocess
+    import sys
+
+    script = f"""
+import os, signal, sys
+import hybrid_calib.cli as cli
+from hybrid_calib.commands import calibrate
+def done(args):
+    (args.out / "result.json").write_text("{{}}")
+    return 0
+real = cli.record_run
+def record_then_interrupted(*a, **k):
+    path = real(*a, **k)
+    os.kill(os.getpid(), signal.SIGINT)
+    return path
+calibrate.run, cli.record_run = done, record_then_interrupted
+sys.argv = ["hybrid-calib", "calibrate", "--data", {str(tmp_path)!r}, "--out", {str(tmp_path / "run")!r}]
+sys.exit(cli.main())
+"""
+    p = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120,
+                       env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])})
+    assert p.returncode == 0 and "interrupted" not in p.stderr, (p.returncode, p.stderr[-2000:])
+    runs = json.loads((tmp_path / "run" / "runs.json").read_text())
+    assert [r["exit_status"] for r in runs] == [0]
+
+
+def test_two_reports_onto_one_page_the_second_is_refused(tmp_path, capsys):
+    """Probe 60: two report runs onto one page both said "wrote" and the page held only one vehicle's."""
+    from hybrid_calib.atomic import out_dir_lock
+    from hybrid_calib.cli import main
+
+    (result := tmp_path / "result.json").write_text("{}")
+    page = tmp_path / "pages" / "r.html"
+    with out_dir_lock(page.parent, "report", name=".r.html.lock", what=f"the page {page}"):
+        assert main(["report", str(result), "--out", str(page)]) == 2
+    err = capsys.readouterr().err
+    assert f"the page {page} is being written by another hybrid-calib run (pid {os.getpid()}, hybrid-calib report" \
+        in err and not page.exists()
+    assert not any((tmp_path / "pages").iterdir()) if (tmp_path / "pages").exists() else True
 
 
 def test_a_train_run_interrupted_before_its_first_checkpoint_does_not_promise_one(tmp_path, monkeypatch, capsys):
