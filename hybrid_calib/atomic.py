@@ -85,14 +85,19 @@ _RUN_RECORD = re.compile(r"pid \d+, hybrid-calib \S+, since ")  # what a run wri
 
 
 @contextmanager
-def out_dir_lock(out: str | Path, command: str, name: str = LOCK_NAME, what: str | None = None) -> Iterator[None]:
+def out_dir_lock(out: str | Path, command: str, name: str = LOCK_NAME, what: str | None = None,
+                 argv: list[str] | None = None) -> Iterator[None]:
     """Hold ``out``'s lock (``OUT/.hybrid-calib.lock``, or ``OUT/name``: an advisory ``flock``, released when the
     process ends, however it ends) while a command writes there, so that two runs into one folder (or onto one file,
     ``what``: report's page) do not overwrite each other's results: the second gets ``OutDirBusy`` naming the first
     (its pid, command and start). ``out`` is created if missing and, when the block leaves nothing in it, removed
     again; the lock file is removed at the end (while still held) when this run created it or a killed run left it
-    (it holds a run's record); another file of that name is left as it was."""
+    (it holds a run's record); another file of that name is left as it was. With ``argv`` (the command line as typed)
+    the lock also holds the run's start, and a run that finds a killed run's lock (SIGKILL, the OOM killer, a machine
+    that went down: nothing of that run could say so) adds that run to ``OUT/runs.json`` with exit status null
+    (``record_run``; probe 60: such runs were missing from it)."""
     import fcntl
+    import json
     import time
 
     out = Path(out)
@@ -109,23 +114,34 @@ def out_dir_lock(out: str | Path, command: str, name: str = LOCK_NAME, what: str
         fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError:
         f.seek(0)
-        holder = f.read().strip() or "another process"
+        holder = f.read(1 << 16).strip().split("\n")[0] or "another process"  # its first line (the second: argv)
         f.close()
         raise OutDirBusy(f"{what or out} is being written by another hybrid-calib run ({holder}); wait for it to "
                          "end, or pass another --out") from None
     try:
         f.seek(0)
-        stale = _RUN_RECORD.match(f.read(200))  # a killed run's (probe 60: left behind by every later run)
+        was = f.read(1 << 16)
+        stale = _RUN_RECORD.match(was)  # a killed run's (probe 60: left behind by every later run)
         existed = existed and not stale
+        if stale and name == LOCK_NAME:
+            _record_killed(out, was)
         f.seek(0)
         f.truncate()
         f.write(f"pid {os.getpid()}, hybrid-calib {command}, since {time.strftime('%Y-%m-%d %H:%M:%S')}")
+        if argv is not None:
+            f.write("\n" + json.dumps({"command": command, "argv": [str(a) for a in argv], "cwd": os.getcwd(),
+                                       "started": time.time()}))
         f.flush()
         yield
     finally:
         try:  # unlinked while still held: a run that opened it meanwhile finds it locked and stops (no two holders)
             if not existed:  # a refused run left it in the user's data root ("refusing to write anything there")
                 path.unlink()
+            else:  # not ours: as it was (with this run's record in it, the next run took this one for killed)
+                f.seek(0)
+                f.truncate()
+                f.write(was)
+                f.flush()
             if created and not any(out.iterdir()):
                 out.rmdir()
         except OSError:
@@ -133,17 +149,33 @@ def out_dir_lock(out: str | Path, command: str, name: str = LOCK_NAME, what: str
         f.close()
 
 
+def _record_killed(out: Path, lock_text: str) -> None:
+    """Add the run whose lock ``lock_text`` a killed run left (its second line: its command, argv, working folder and
+    start, as ``out_dir_lock`` writes them) to ``OUT/runs.json`` with exit status null; nothing when the lock does not
+    say (an older run's) or runs.json cannot be written (it is a log)."""
+    import json
+
+    try:
+        run = json.loads(lock_text.split("\n", 1)[1])
+        record_run(out, str(run["command"]), [str(a) for a in run["argv"]], None, float(run["started"]),
+                   cwd=str(run["cwd"]))
+    except (IndexError, ValueError, KeyError, TypeError, OSError):
+        pass
+
+
 RUNS_NAME = "runs.json"  # OUT/runs.json: every command that finished writing into the folder (``record_run``)
 RUNS_KEPT = 200  # the newest records kept
 
 
-def record_run(out: str | Path, command: str, argv: list[str], status: int, started: float) -> Path | None:
+def record_run(out: str | Path, command: str, argv: list[str], status: int | None, started: float,
+               cwd: str | None = None) -> Path | None:
     """Append what ran into ``out`` to ``OUT/runs.json`` (a JSON list, oldest first, the newest ``RUNS_KEPT``): the
     command line as typed, the working folder it was typed in, the start and end (UTC, ISO 8601), its exit status,
     the hybrid-calib and Python versions and the host. A folder's results then say which command made them, when,
     and which runs resumed them. Not a configuration: nothing compares it (each command's own record does that).
-    A record that cannot be read is replaced (say so nowhere: it is a log); returns its path, None when ``out``
-    is not a folder."""
+    ``status`` None: a run that was killed without a word (``out_dir_lock`` found its lock): its end and exit status
+    are null and ``ended`` says so. A record that cannot be read is replaced (say so nowhere: it is a log); returns
+    its path, None when ``out`` is not a folder."""
     import json
     import platform
     import shlex
@@ -164,8 +196,12 @@ def record_run(out: str | Path, command: str, argv: list[str], status: int, star
     def utc(t: float) -> str:
         return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(t))
 
-    runs.append({"command": " ".join(["hybrid-calib", *map(shlex.quote, argv)]), "cwd": os.getcwd(),
-                 "started_utc": utc(started), "finished_utc": utc(time.time()), "exit_status": int(status),
+    killed = {} if status is not None else {
+        "ended": f"without a word (killed: SIGKILL, out of memory or the machine went down); the run started at "
+                 f"{utc(time.time())} found its lock"}
+    runs.append({"command": " ".join(["hybrid-calib", *map(shlex.quote, argv)]), "cwd": cwd or os.getcwd(),
+                 "started_utc": utc(started), "finished_utc": None if killed else utc(time.time()),
+                 "exit_status": None if killed else int(status), **killed,
                  "hybrid_calib": hybrid_calib.__version__, "python": platform.python_version(),
                  "host": platform.node()})
     return write_bytes_atomic(path, (json.dumps(runs[-RUNS_KEPT:], indent=2) + "\n").encode("utf-8"))

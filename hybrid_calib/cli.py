@@ -223,7 +223,7 @@ def _run(args: argparse.Namespace, debug: bool, argv: list[str]) -> int:
             status = int(args._run(args) or 0)
             _finished(args)
             return status
-        with out_dir_lock(out, args.command):
+        with out_dir_lock(out, args.command, argv=argv):
             started, status, before = time.time(), None, _listing(Path(out))
             try:
                 status = int(args._run(args) or 0)

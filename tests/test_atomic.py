@@ -59,7 +59,7 @@ def test_two_runs_into_one_out_folder_the_second_is_refused_naming_the_first(tmp
     from hybrid_calib.atomic import LOCK_NAME, OutDirBusy, out_dir_lock
 
     out = tmp_path / "run"
-    with out_dir_lock(out, "calibrate"):
+    with out_dir_lock(out, "calibrate", argv=["calibrate", "--out", str(out)]):  # its message: the first line
         with pytest.raises(OutDirBusy, match=r"being written by another hybrid-calib run \(pid \d+, hybrid-calib "
                                              r"calibrate, since .*\); wait for it to end, or pass another --out"):
             with out_dir_lock(out, "calibrate"):

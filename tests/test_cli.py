@@ -131,6 +131,39 @@ sys.exit(cli.main())
     assert [r["exit_status"] for r in runs] == [0]
 
 
+def test_a_killed_run_is_in_runs_json_once_the_next_run_finds_its_lock(tmp_path, monkeypatch):
+    """Probe 60: a run killed by SIGKILL (the OOM killer, a machine that went down) was missing from runs.json and
+    its lock stayed behind; the next run into the folder now adds it, exit status null, and removes the lock."""
+    import subprocess
+    import sys
+
+    from hybrid_calib.atomic import LOCK_NAME
+    from hybrid_calib.cli import main
+    from hybrid_calib.commands import calibrate
+
+    out = tmp_path / "run"
+    script = f"""
+import os, signal, sys
+import hybrid_calib.cli as cli
+from hybrid_calib.commands import calibrate
+def killed(args):
+    (args.out / "vehicles-done").mkdir(parents=True)
+    os.kill(os.getpid(), signal.SIGKILL)
+calibrate.run = killed
+sys.argv = ["hybrid-calib", "calibrate", "--data", {str(tmp_path)!r}, "--out", {str(out)!r}, "--seed", "3"]
+sys.exit(cli.main())
+"""
+    p = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120,
+                       env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])})
+    assert p.returncode == -9 and (out / LOCK_NAME).exists() and not (out / "runs.json").exists()
+    monkeypatch.setattr(calibrate, "run", lambda args: 0)
+    assert main(["calibrate", "--data", str(tmp_path), "--out", str(out)]) == 0
+    runs = json.loads((out / "runs.json").read_text())
+    assert [(r["command"].split()[-1], r["exit_status"], r["finished_utc"] is None) for r in runs] == [
+        ("3", None, True), (str(out), 0, False)]
+    assert runs[0]["ended"].startswith("without a word (killed") and not (out / LOCK_NAME).exists()
+
+
 def test_two_reports_onto_one_page_the_second_is_refused(tmp_path, capsys):
     """Probe 60: two report runs onto one page both said "wrote" and the page held only one vehicle's."""
     from hybrid_calib.atomic import out_dir_lock
