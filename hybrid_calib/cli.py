@@ -223,7 +223,8 @@ def _run(args: argparse.Namespace, debug: bool, argv: list[str]) -> int:
             status = int(args._run(args) or 0)
             _finished(args)
             return status
-        with out_dir_lock(out, args.command, argv=argv):
+        # the lock holds the command line, for runs.json when the run is killed (not simulate's root: no runs.json)
+        with out_dir_lock(out, args.command, argv=None if args.command == "simulate" else argv):
             started, status, before = time.time(), None, _listing(Path(out))
             try:
                 status = int(args._run(args) or 0)
