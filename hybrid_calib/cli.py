@@ -255,12 +255,27 @@ def _run(args: argparse.Namespace, debug: bool, argv: list[str]) -> int:
             kept = ("it stopped before a vehicle finished, so no vehicle's result is kept: rerun the same command to "
                     "start again (an earlier run's result, if any, is as it was; what it cached is reused)")
         how = "terminated (SIGTERM)" if isinstance(e, Terminated) else "interrupted"
+        _close_bars()
         print(f"hybrid-calib {args.command}: {how}" + (f"; {kept}" if kept else ""), file=sys.stderr)
         return _exit_status(None, e)
     except Exception as e:
         if debug:
             raise
         return report_error(args.command, e)
+
+
+def _close_bars() -> None:
+    """Close the progress bars still open, so that the interrupt's line is the last the user sees (probe 60: fleet's
+    and simulate's bars were drawn once more after it, when the interrupted run's objects were collected)."""
+    try:
+        from tqdm import tqdm
+    except ImportError:
+        return
+    for bar in list(getattr(tqdm, "_instances", ())):
+        try:
+            bar.close()
+        except Exception:  # noqa: BLE001 (a bar that cannot draw any more: nothing to close)
+            pass
 
 
 def _listing(out: Path) -> dict[str, int]:

@@ -164,6 +164,28 @@ sys.exit(cli.main())
     assert runs[0]["ended"].startswith("without a word (killed") and not (out / LOCK_NAME).exists()
 
 
+def test_the_interrupt_line_comes_after_the_last_progress_bar(tmp_path, monkeypatch, capsys):
+    """Probe 60: fleet's and simulate's bars were drawn once more after the interrupt's line (closed when the run's
+    objects were collected): the bars still open are closed before it is printed."""
+    from tqdm import tqdm
+
+    from hybrid_calib.cli import RESUMES, main
+    from hybrid_calib.commands import fleet
+
+    held = []
+
+    def interrupted(args):
+        held.append(bar := tqdm(total=4, desc="fleet"))
+        bar.update(2)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(fleet, "run", interrupted)
+    assert main(["fleet", "--data", str(tmp_path), "--out", str(tmp_path / "run")]) == 130
+    assert held[0] not in getattr(tqdm, "_instances", ())  # closed, its last state drawn before the line
+    err = capsys.readouterr().err
+    assert err.rstrip().endswith(f"hybrid-calib fleet: interrupted; {RESUMES['fleet']}") and "fleet:  50%" in err
+
+
 def test_two_reports_onto_one_page_the_second_is_refused(tmp_path, capsys):
     """Probe 60: two report runs onto one page both said "wrote" and the page held only one vehicle's."""
     from hybrid_calib.atomic import out_dir_lock
