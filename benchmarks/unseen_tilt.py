@@ -11,7 +11,8 @@ world, trajectory and mounts but the tilt; reused when present), ``--vehicles`` 
 start on every root). Printed per vehicle: its roll and pitch against its tables (``drift.delta_camera``: rotation
 about camera z and x, deg) on each root, their errors against the truth, and the largest move of the estimate's
 roll and pitch between a tilted root and the untilted one. ``OUT/unseen_tilt.json`` holds it all with the command.
-A method that saw the tilt would move by it (1.5-2 deg); the hybrid moved by at most 0.18 deg (session 22).
+A method that saw the tilt would move by it (1.5-2 deg); the hybrid moved by at most 0.14 deg on urban and 0.29 deg on
+highway (session 35, the defaults; docs/benchmarks.md, "What the hybrid does not measure").
 """
 
 from __future__ import annotations
