@@ -181,7 +181,7 @@ class Correspondences:
 class SeenRows:
     """The rows of the frames seen so far, to tell a new frame's rows that repeat one of theirs: the same radar point
     (each coordinate within ``REPEAT_RADAR_M``) and pixel (within ``REPEAT_SIGMA`` of the smaller of the two
-    sigmas). Such a row is one measurement again, not a second one (probe 51: a replay with one row added or taken
+    sigmas). Such a row is one measurement again, not a second one (probe 59: a replay with one row added or taken
     away passed as a new frame and shrank the std by 30 %). Rows are found through a grid of ``REPEAT_RADAR_M``
     cells on the radar point (the 27 cells around it), so a frame costs the same however many were seen. Frames are
     counted from 0 in the order added; the last ``keep`` frames are remembered."""
@@ -227,7 +227,7 @@ class SeenRows:
             self._cells.setdefault(key, []).append((k, np.r_[p, px], float(s)))
         self._frames[k] = (corr.frame_id, keys)
         while len(self._frames) > self.keep:
-            old = min(self._frames)
+            old = next(iter(self._frames))  # the oldest: counters are added in order
             for key in set(self._frames.pop(old)[1]):
                 if kept := [e for e in self._cells[key] if e[0] != old]:
                     self._cells[key] = kept
