@@ -816,6 +816,26 @@ DAMAGED_RESULTS = {  # case -> (damage(doc, vehicle), needles beyond the file); 
         "nees"]}), ["error lacks", "geodesic_deg"]),
     "weak-directions-numbers": (lambda doc, v: doc["vehicles"][v]["final"].__setitem__("weak_directions", [1]),
                                 ["final.weak_directions holds a JSON number, not only strings"]),
+    # probe 63: numbers beyond a float's range, blocks the words need, a frame id of another kind
+    "frame-count-infinite": (lambda doc, v: doc["vehicles"][v]["trajectory"][0].__setitem__("n_total", float("inf")),
+                             ["trajectory[0].n_total is inf, not a finite count or time"]),
+    "frame-time-nan": (lambda doc, v: doc["vehicles"][v]["trajectory"][0].__setitem__("solve_ms", float("nan")),
+                       ["trajectory[0].solve_ms is nan, not a finite count or time"]),
+    "transform-huge-integer": (lambda doc, v: doc["vehicles"][v]["final"]["T_cam_radar"][0].__setitem__(0, 10**400),
+                               ["final.T_cam_radar is not a 4x4 matrix of numbers"]),
+    "std-huge-integer": (lambda doc, v: doc["vehicles"][v]["trajectory"][0]["std_cam"].__setitem__("t_x_cam_cm",
+                                                                                                   10**400),
+                         ["holds a number beyond a float's range"]),
+    "frame-id-a-list": (lambda doc, v: doc["vehicles"][v]["trajectory"][0].__setitem__("frame_id", [1]),
+                        ["trajectory[0].frame_id is a JSON array, not a string"]),
+    "lidar-without-frames": (lambda doc, v: doc["vehicles"][v].__setitem__("lidar", {
+        "dy_m": 0.01, "dy_std_m": 0.02, "rows": 5, "applied": True}), ["lidar lacks ['frames'] beside its dy_m"]),
+    "lidar-huge-integer": (lambda doc, v: doc["vehicles"][v].__setitem__("lidar", {"dx_std_m": 10**400}),
+                           ["lidar.dx_std_m is '1000", "not a finite number"]),
+    "mount-blind-frames-edited": (lambda doc, v: doc["vehicles"][v].__setitem__("mount", {"blind_frames": [5, {}]}),
+                                  ["mount.blind_frames is [5, {}], not two frame counts"]),
+    "mount-level-null": (lambda doc, v: doc["vehicles"][v].__setitem__("mount", {"levels": [{"level_deg": None}]}),
+                         ["mount.levels[0].level_deg is 'None', not a finite number"]),
 }
 
 

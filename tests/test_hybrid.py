@@ -165,6 +165,25 @@ def test_closed_loop_runs_the_network_from_the_fused_estimate(sim_root, tmp_path
     assert "usable sweep pairs in 2 frames (need 10 of each)" in v.doppler["note"], v.doppler
 
 
+def test_a_damaged_network_cache_entry_is_recomputed_not_a_failure(tmp_path):
+    """Probe 63: an entry whose T_in was a string array was an internal error in compare, and a misshapen one failed
+    the trial: an entry that is not a network output of finite numbers of the right shapes is a miss."""
+    from factors.correspondences import Correspondences
+    from hybrid_calib.hybrid.network import NetworkOutput, OutputCache
+
+    K = np.array([[800.0, 0, 400], [0, 800, 225], [0, 0, 1]])
+    rows = Correspondences(np.array([[5.0, 1, 0]]), np.array([[10.0, 20]]), np.array([6.0]), np.array([1.0]), K, "t")
+    out = NetworkOutput(np.eye(4), np.stack([np.eye(4)] * 2), np.eye(6), rows, rows, 0.1, np.zeros(3), np.zeros(2))
+    cache = OutputCache(tmp_path, "net")
+    cache.put("tok", out)
+    assert cache.get("tok", np.eye(4)) is not None
+    good = dict(np.load(cache.path("tok", np.eye(4))))
+    for key, bad in (("T_in", np.array("x")), ("T_iters", np.eye(4)), ("cov_raw", np.eye(5)),
+                     ("T_in", np.full((4, 4), np.nan)), ("ood_signals", np.array(["a", "b"]))):
+        np.savez(cache.path("tok", np.eye(4)), **{**good, key: bad})
+        assert cache.get("tok", np.eye(4)) is None, key
+
+
 def test_an_interrupted_run_keeps_its_finished_vehicles_and_goes_on_from_there(sim_root, tmp_path, monkeypatch):
     from hybrid_calib.calib.result import CalibrationRun
     from hybrid_calib.hybrid import loop, run_calibration

@@ -101,7 +101,7 @@ def _matrix(x, n: int, name: str) -> np.ndarray:
     """``x`` as a finite (n, n) float64 matrix; ``ValueError`` naming ``name`` otherwise (a result read back)."""
     try:
         a = np.asarray(x, np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise ValueError(f"{name} is not a {n}x{n} matrix of numbers (got {str(x)[:60]})") from None
     if a.shape != (n, n):
         raise ValueError(f"{name} is not a {n}x{n} matrix (shape {a.shape})")
@@ -195,11 +195,15 @@ def _mapping(d, name: str) -> dict:
 
 # the numbers the reports and the terminal read from a hybrid result's blocks: finite where present
 _BLOCK_NUMBERS = {
-    "mount": ("frames_tested", "pairs_tested", "threshold"),
+    "mount": ("frames_tested", "pairs_tested", "threshold", "finds_deg", "finds_within", "scatter_deg"),
     "lidar": ("dy_m", "dy_std_m", "dx_m", "dx_std_m", "rows", "frames", "innovation_sigma"),
     "doppler": ("dx_m", "dx_std_m", "pairs", "frames", "turning"),
 }
+# and those its words need once the block says it ran (its first key present): probe 63, a report's KeyError / None
+_BLOCK_RAN = {"lidar": ("dy_m", "dy_std_m", "rows", "frames", "applied"),
+              "doppler": ("dx_m", "pairs", "turning", "applied")}
 _STEP_NUMBERS = ("step_deg", "std_deg", "change", "at")
+_LEVEL_NUMBERS = ("level_deg", "std_deg", "frames", "pairs")
 
 
 def _block(d: dict, key: str, where: str) -> dict | None:
@@ -214,6 +218,24 @@ def _block(d: dict, key: str, where: str) -> dict | None:
     for k in _BLOCK_NUMBERS[key]:
         if k in b and b[k] is not None and not is_number(b[k]):
             raise ValueError(f"{where}.{key}.{k} is {str(b[k])[:40]!r}, not a finite number")
+    need = _BLOCK_RAN.get(key, ())
+    if need and need[0] in b and (lack := [k for k in need if b.get(k) is None]):
+        raise ValueError(f"{where}.{key} lacks {lack} beside its {need[0]}: {EDITED}")
+    if key == "lidar" and "dx_std_m" in b and b.get("dx_m") is None:
+        raise ValueError(f"{where}.lidar lacks dx_m beside its dx_std_m: {EDITED}")
+    if key == "mount":
+        blind = b.get("blind_frames")
+        if blind is not None and not (isinstance(blind, list) and len(blind) == 2 and all(
+                isinstance(v, int) and not isinstance(v, bool) and 0 <= v < 10**9 for v in blind)):
+            raise ValueError(f"{where}.mount.blind_frames is {str(blind)[:40]}, not two frame counts: {EDITED}")
+        levels = b.get("levels", [])
+        if not isinstance(levels, list):
+            raise TypeError(f"{where}.mount.levels is a JSON {_json_kind(levels)}, not an array")
+        for j, lv in enumerate(levels):
+            lv = _mapping(lv, f"{where}.mount.levels[{j}]")
+            if bad := [k for k in _LEVEL_NUMBERS if k in lv and not is_number(lv[k])]:
+                raise ValueError(f"{where}.mount.levels[{j}].{bad[0]} is {str(lv[bad[0]])[:40]!r}, not a finite "
+                                 f"number: {EDITED}")
     if "applied" in b and not isinstance(b["applied"], bool):
         raise TypeError(f"{where}.{key}.applied is a JSON {_json_kind(b['applied'])}, not a boolean")
     steps = b.get("steps", [])
@@ -448,9 +470,13 @@ class FrameEstimate:
         if missing := [k for k in keys if k not in d]:
             raise KeyError(f"{where} lacks {missing}")  # a bare KeyError 'index' named no frame (probe 27)
         # typed as written (probe 59: a step_alarm "false" read as an alarm, bool("false"); events a number)
-        for key, kind in (("step_alarm", bool), ("events", list), ("timestamp_us", int), ("index", int)):
+        for key, kind in (("step_alarm", bool), ("events", list), ("timestamp_us", int), ("index", int),
+                          ("frame_id", str)):
             if key in d and (not isinstance(d[key], kind) or (kind is int and isinstance(d[key], bool))):
                 raise TypeError(f"{where}.{key} is a JSON {_json_kind(d[key])}, not a {_KIND_WORDS[kind]}: {EDITED}")
+        # counts and times as written (probe 63: n_total Infinity, solve_ms NaN in compare.json's ms per frame)
+        if bad := [k for k in ("n_window", "n_total", "solve_ms", "cov_ms") if not is_number(d[k]) or d[k] < 0]:
+            raise ValueError(f"{where}.{bad[0]} is {str(d[bad[0]])[:40]}, not a finite count or time: {EDITED}")
         return cls(
             index=int(d["index"]), frame_id=d["frame_id"], timestamp_us=int(d["timestamp_us"]),
             estimate=Estimate.from_dict(d, where), n_window=int(d["n_window"]), n_total=int(d["n_total"]),
@@ -511,7 +537,17 @@ class VehicleResult:
     @classmethod
     def from_dict(cls, d: dict, vehicle: str | None = None) -> VehicleResult:
         """``TypeError`` / ``ValueError`` naming the vehicle and the field for an entry that is not an object,
-        or an estimate whose transform / covariance is not a finite 4x4 / 6x6 matrix; ``KeyError``: a missing key."""
+        or an estimate whose transform / covariance is not a finite 4x4 / 6x6 matrix; ``KeyError``: a missing key.
+        A number beyond a float's range (JSON allows a 400-digit integer; Infinity where a count is read) is a
+        ``ValueError`` too (probe 63: an OverflowError was an internal error in export, report and a fleet resume)."""
+        try:
+            return cls._from_dict(d, vehicle)
+        except OverflowError as e:
+            where = f"vehicles[{vehicle!r}]" if vehicle is not None else "vehicle result"
+            raise ValueError(f"{where} holds a number beyond a float's range ({e}): {EDITED}") from None
+
+    @classmethod
+    def _from_dict(cls, d: dict, vehicle: str | None) -> VehicleResult:
         where = f"vehicles[{vehicle!r}]" if vehicle is not None else "vehicle result"
         d = _mapping(d, where)
         truth, crb = d.get("truth"), d.get("crb_std_cam")

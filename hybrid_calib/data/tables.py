@@ -441,7 +441,10 @@ POSE_PAIR_MARGIN_DEG = 2.0
 
 def is_number(x) -> bool:
     """A finite JSON number (int or float; not bool): a record's field, or a result's read back."""
-    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+    try:  # an integer beyond a float's range (JSON allows 400 digits) is not a number here either (probe 63)
+        return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+    except OverflowError:
+        return False
 
 
 def _is_number_list(value) -> bool:

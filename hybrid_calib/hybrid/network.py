@@ -95,8 +95,14 @@ class NetworkOutput:
     def from_arrays(cls, z) -> NetworkOutput:
         rows = [Correspondences.from_npz_dict({k[len(p):]: z[k] for k in z.files if k.startswith(p)})
                 for p in ("first_", "last_")]
-        return cls(z["T_in"], z["T_iters"], z["cov_raw"], rows[0], rows[1], float(z["seconds"]),
-                   z["ood_descriptor"], z["ood_signals"])  # an entry without them (older cache) is a miss
+        T_in, T_iters, cov = (np.asarray(z[k], np.float64) for k in ("T_in", "T_iters", "cov_raw"))
+        if T_in.shape != (4, 4) or T_iters.ndim != 3 or T_iters.shape[1:] != (4, 4) or not len(T_iters) \
+                or cov.shape != (6, 6):  # probe 63: a damaged entry failed the trial instead of being recomputed
+            raise ValueError(f"network output of shapes T_in {T_in.shape}, T_iters {T_iters.shape}, cov_raw "
+                             f"{cov.shape}")
+        # an entry without the ood arrays (an older cache) is a miss (KeyError)
+        return cls(T_in, T_iters, cov, rows[0], rows[1], float(z["seconds"]),
+                   np.asarray(z["ood_descriptor"], np.float64), np.asarray(z["ood_signals"], np.float64))
 
 
 def _start_key(T: np.ndarray) -> str:
@@ -128,9 +134,10 @@ class OutputCache:
             with np.load(p, allow_pickle=False) as z:
                 if self.network and ("network" not in z.files or str(z["network"]) != self.network):
                     return None  # another network's output (or an entry older than the key): recomputed
-                return NetworkOutput.from_arrays(z)
+                out = NetworkOutput.from_arrays(z)
+                return out if out.finite else None
         except NPZ_ERRORS:
-            return None  # a damaged entry (truncated, not a zip, a missing key) is recomputed
+            return None  # a damaged entry (truncated, not a zip, a missing key, misshapen, not numbers) is recomputed
 
     def put(self, token: str, out: NetworkOutput) -> None:
         """Keep one pass (atomically). A cache is recomputable: an entry that cannot be written (a directory in
