@@ -500,8 +500,8 @@ def doppler_level_note(drift: dict | None, mount: dict | None) -> dict | None:
     of its std, the level's bias added): the monitor rests on neither the network nor the window, so a user told
     "cannot tell" is told this too (probe 34: tables turned 8 deg, the Doppler read 8.93 +- 0.10 deg, the verdict only
     "cannot tell: ... says nothing about the mount"; probe 64: radars knocked 1.5 deg read 1.51 +- 0.03 deg and a
-    plain "cannot tell" when the hybrid's yaw std was 0.3-0.46 deg). Not a verdict: the level also holds the ego poses' heading errors. Unchanged
-    otherwise (another verdict, no one level, a step, an implausible level)."""
+    plain "cannot tell" when the hybrid's yaw std was 0.3-0.46 deg). Not a verdict: the level also holds the ego
+    poses' heading errors. Unchanged otherwise (another verdict, no one level, a step, an implausible level)."""
     if not drift or drift.get("verdict_kind") != "cannot tell" or drift.get("doppler_level"):
         return drift
     from hybrid_calib.calib.mount_monitor import LEVEL_BIAS_DEG, level_words, sole_level
