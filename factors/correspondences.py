@@ -122,13 +122,26 @@ class Correspondences:
         within ``REPEAT_SIGMA`` of their sigma. Two such rows are one measurement counted twice."""
         if len(self) < 2:
             return []
-        rows = np.hstack([self.points_radar, self.pixels])
-        order = np.lexsort(rows.T[::-1])
-        a, b = order[:-1], order[1:]
-        same = (np.all(np.abs(rows[a, :3] - rows[b, :3]) <= REPEAT_RADAR_M, axis=1)
-                & (np.abs(rows[a, 3:] - rows[b, 3:]).max(axis=1)
-                   <= REPEAT_SIGMA * np.minimum(self.sigma_px[a], self.sigma_px[b])))
-        return sorted((int(max(i, j)), int(min(i, j))) for i, j in zip(a[same], b[same]))
+        # each row against the earlier rows in its 27 cells of a REPEAT_RADAR_M grid (as SeenRows): copies with
+        # another row sorted between them were missed by comparing neighbours in sorted order (probe 65)
+        x = self.points_radar[:, 0]
+        order = np.argsort(x, kind="stable")
+        near = np.diff(x[order]) <= REPEAT_RADAR_M  # a copy has another row this close in x: the others are not
+        candidate = np.zeros(len(self), bool)
+        candidate[order[:-1][near]] = candidate[order[1:][near]] = True
+        cells: dict[tuple[int, int, int], list[int]] = {}
+        keys = np.floor(self.points_radar / REPEAT_RADAR_M).astype(np.int64)
+        out = []
+        for r in np.flatnonzero(candidate):
+            key = keys[r]
+            p, px, s = self.points_radar[r], self.pixels[r], self.sigma_px[r]
+            j = next((j for off in _NEIGHBOURS for j in cells.get(tuple((key + off).tolist()), ())
+                      if np.abs(self.points_radar[j] - p).max() <= REPEAT_RADAR_M
+                      and np.abs(self.pixels[j] - px).max() <= REPEAT_SIGMA * min(s, self.sigma_px[j])), None)
+            if j is not None:
+                out.append((int(r), int(j)))
+            cells.setdefault(tuple(key.tolist()), []).append(r)
+        return out
 
     def once(self) -> Correspondences:
         """These rows with each doubled row (``doubled_rows``) kept once; ``self`` when none is. Of a row's copies the

@@ -15,7 +15,7 @@ from __future__ import annotations
 import errno
 import os
 import re
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -86,7 +86,7 @@ _RUN_RECORD = re.compile(r"pid \d+, hybrid-calib \S+, since ")  # what a run wri
 
 @contextmanager
 def out_dir_lock(out: str | Path, command: str, name: str = LOCK_NAME, what: str | None = None,
-                 argv: list[str] | None = None) -> Iterator[None]:
+                 argv: list[str] | None = None, started: float | None = None) -> Iterator[Callable[[], None]]:
     """Hold ``out``'s lock (``OUT/.hybrid-calib.lock``, or ``OUT/name``: an advisory ``flock``, released when the
     process ends, however it ends) while a command writes there, so that two runs into one folder (or onto one file,
     ``what``: report's page) do not overwrite each other's results: the second gets ``OutDirBusy`` naming the first
@@ -95,7 +95,9 @@ def out_dir_lock(out: str | Path, command: str, name: str = LOCK_NAME, what: str
     (it holds a run's record); another file of that name is left as it was. With ``argv`` (the command line as typed)
     the lock also holds the run's start, and a run that finds a killed run's lock (SIGKILL, the OOM killer, a machine
     that went down: nothing of that run could say so) adds that run to ``OUT/runs.json`` with exit status null
-    (``record_run``; probe 60: such runs were missing from it)."""
+    (``record_run``; probe 60: such runs were missing from it); ``started``: the run's start as its own line in
+    runs.json will say (a run killed after writing that line is not added twice). Yields a function to call once the
+    run's own line is in runs.json: the lock then no longer holds the command line."""
     import fcntl
     import json
     import time
@@ -109,36 +111,38 @@ def out_dir_lock(out: str | Path, command: str, name: str = LOCK_NAME, what: str
         raise HybridCalibError(f"{path} is {kind}, not the lock file hybrid-calib keeps in its output folder; "
                                "remove it and rerun")
     existed = path.exists()
-    f = os.fdopen(os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o644), "r+")
+    # bytes: a lock file is anyone's (probe 65: one of non-UTF-8 bytes was an internal error)
+    f = os.fdopen(os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o644), "r+b")
     try:
         fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError:
         f.seek(0)
-        holder = f.read(1 << 16).strip().split("\n")[0] or "another process"  # its first line (the second: argv)
-        f.close()
+        holder = f.read(1 << 16).decode("utf-8", "replace").strip().split("\n")[0] or "another process"
+        f.close()  # its first line (the second: the command line)
         raise OutDirBusy(f"{what or out} is being written by another hybrid-calib run ({holder}); wait for it to "
                          "end, or pass another --out") from None
+    first = f"pid {os.getpid()}, hybrid-calib {command}, since {time.strftime('%Y-%m-%d %H:%M:%S')}"
+    was = None  # what the file held before (restored at the end when it is not a run's lock)
     try:
         f.seek(0)
-        was = f.read(1 << 16)
-        stale = _RUN_RECORD.match(was)  # a killed run's (probe 60: left behind by every later run)
+        was = f.read()
+        text = was[: 1 << 16].decode("utf-8", "replace")
+        stale = _RUN_RECORD.match(text)  # a killed run's (probe 60: left behind by every later run)
         existed = existed and not stale
         if stale and name == LOCK_NAME:
-            _record_killed(out, was)
-        f.seek(0)
-        f.truncate()
-        f.write(f"pid {os.getpid()}, hybrid-calib {command}, since {time.strftime('%Y-%m-%d %H:%M:%S')}")
-        if argv is not None:
-            f.write("\n" + json.dumps({"command": command, "argv": [str(a) for a in argv], "cwd": os.getcwd(),
-                                       "started": time.time()}))
-        f.flush()
-        yield
+            _record_killed(out, text)
+        _rewrite(f, first + ("" if argv is None else "\n" + json.dumps(
+            {"command": command, "argv": [str(a) for a in argv], "cwd": os.getcwd(),
+             "started": time.time() if started is None else started})))
+        # the run's own line in runs.json is written: the lock no longer names it as a run to record if killed now
+        # (probe 65: killed between the two, it was listed twice)
+        yield lambda: _rewrite(f, first)
     finally:
         try:  # unlinked while still held: a run that opened it meanwhile finds it locked and stops (no two holders)
             if not existed:  # a refused run left it in the user's data root ("refusing to write anything there")
                 path.unlink()
-            else:  # not ours: as it was (with this run's record in it, the next run took this one for killed)
-                f.seek(0)
+            elif was is not None:  # not ours: as it was (with this run's record in it, the next run took this one
+                f.seek(0)  # for killed)
                 f.truncate()
                 f.write(was)
                 f.flush()
@@ -147,6 +151,14 @@ def out_dir_lock(out: str | Path, command: str, name: str = LOCK_NAME, what: str
         except OSError:
             pass
         f.close()
+
+
+def _rewrite(f, text: str) -> None:
+    """Replace the content of the open lock file ``f`` (binary) with ``text``."""
+    f.seek(0)
+    f.truncate()
+    f.write(text.encode("utf-8"))
+    f.flush()
 
 
 def _record_killed(out: Path, lock_text: str) -> None:
@@ -159,7 +171,7 @@ def _record_killed(out: Path, lock_text: str) -> None:
         run = json.loads(lock_text.split("\n", 1)[1])
         record_run(out, str(run["command"]), [str(a) for a in run["argv"]], None, float(run["started"]),
                    cwd=str(run["cwd"]))
-    except (IndexError, ValueError, KeyError, TypeError, OSError):
+    except (IndexError, ValueError, KeyError, TypeError, OSError, OverflowError):  # a lock edited by hand
         pass
 
 
@@ -199,7 +211,11 @@ def record_run(out: str | Path, command: str, argv: list[str], status: int | Non
     killed = {} if status is not None else {
         "ended": f"without a word (killed: SIGKILL, out of memory or the machine went down); the run started at "
                  f"{utc(time.time())} found its lock"}
-    runs.append({"command": " ".join(["hybrid-calib", *map(shlex.quote, argv)]), "cwd": cwd or os.getcwd(),
+    line = " ".join(["hybrid-calib", *map(shlex.quote, argv)])
+    if killed and any(isinstance(r, dict) and (r.get("command"), r.get("cwd"), r.get("started_utc")) ==
+                      (line, cwd or os.getcwd(), utc(started)) for r in runs):
+        return path  # its own line is there: it was killed after writing it (probe 65: it was listed twice)
+    runs.append({"command": line, "cwd": cwd or os.getcwd(),
                  "started_utc": utc(started), "finished_utc": None if killed else utc(time.time()),
                  "exit_status": None if killed else int(status), **killed,
                  "hybrid_calib": hybrid_calib.__version__, "python": platform.python_version(),

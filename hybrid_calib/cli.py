@@ -224,8 +224,10 @@ def _run(args: argparse.Namespace, debug: bool, argv: list[str]) -> int:
             _finished(args)
             return status
         # the lock holds the command line, for runs.json when the run is killed (not simulate's root: no runs.json)
-        with out_dir_lock(out, args.command, argv=None if args.command == "simulate" else argv):
-            started, status, before = time.time(), None, _listing(Path(out))
+        started = time.time()
+        with out_dir_lock(out, args.command, argv=None if args.command == "simulate" else argv,
+                          started=started) as recorded:
+            status, before = None, _listing(Path(out))
             try:
                 status = int(args._run(args) or 0)
                 return status
@@ -238,6 +240,7 @@ def _run(args: argparse.Namespace, debug: bool, argv: list[str]) -> int:
                     error = sys.exc_info()[1]
                     try:
                         record_run(out, args.command, argv, _exit_status(status, error), started)
+                        recorded()
                     except OSError:
                         if error is None:  # the run's own error is the one to say
                             raise

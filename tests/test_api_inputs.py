@@ -174,6 +174,10 @@ def test_of_a_doubled_row_the_weaker_claim_is_kept():
     c = Correspondences(p, px, np.array([2.0, 6, 3, 4, 3]), np.array([1.0, 1, 1, 1, 0.5]), K, "a", 0)
     once = c.once()
     assert once.sigma_px.tolist() == [6.0, 3.0] and once.confidence.tolist() == [1.0, 0.5]
+    # copies with another row between them in sorted order are copies too (probe 65)
+    between = Correspondences(np.array([[1.0, 5, 0], [1.0002, 1, 0], [1.0005, 5, 0]]),
+                              np.array([[10.0, 10], [50, 50], [10, 10]]), np.full(3, 6.0), np.ones(3), K, "b", 0)
+    assert between.doubled_rows() == [(2, 0)] and len(between.once()) == 2
 
 
 def test_seen_rows_forget_the_oldest_frames_beyond_their_memory():

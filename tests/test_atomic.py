@@ -1,5 +1,7 @@
 """hybrid_calib.atomic: a failed writer leaves the old file and no temporary file behind."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -79,6 +81,15 @@ def test_two_runs_into_one_out_folder_the_second_is_refused_naming_the_first(tmp
     with out_dir_lock(out, "fleet"):
         pass
     assert not (out / LOCK_NAME).exists()
+    # a lock of any bytes is taken (probe 65: non-UTF-8 bytes were an internal error) and given back as it was, however
+    # large; one with a hand-edited start is taken too
+    for junk in (b"\xff\xfe not text", b"x" * 100_000,
+                 b"pid 1, hybrid-calib fleet, since 2026\n" + json.dumps({"command": "fleet", "argv": ["fleet"],
+                                                                         "cwd": "/", "started": 1e300}).encode()):
+        (out / LOCK_NAME).write_bytes(junk)
+        with out_dir_lock(out, "calibrate", argv=["calibrate"]) as recorded:
+            recorded()
+        assert not (out / LOCK_NAME).exists() if junk.startswith(b"pid") else (out / LOCK_NAME).read_bytes() == junk
     empty = tmp_path / "nothing"  # a folder the lock created and nothing else used is removed again
     with pytest.raises(ValueError):
         with out_dir_lock(empty, "train"):

@@ -147,7 +147,7 @@ import os, signal, sys
 import hybrid_calib.cli as cli
 from hybrid_calib.commands import calibrate
 def killed(args):
-    (args.out / "vehicles-done").mkdir(parents=True)
+    (args.out / "vehicles-done").mkdir(parents=True, exist_ok=True)
     os.kill(os.getpid(), signal.SIGKILL)
 calibrate.run = killed
 sys.argv = ["hybrid-calib", "calibrate", "--data", {str(tmp_path)!r}, "--out", {str(out)!r}, "--seed", "3"]
@@ -162,6 +162,21 @@ sys.exit(cli.main())
     assert [(r["command"].split()[-1], r["exit_status"], r["finished_utc"] is None) for r in runs] == [
         ("3", None, True), (str(out), 0, False)]
     assert runs[0]["ended"].startswith("without a word (killed") and not (out / LOCK_NAME).exists()
+    # killed after its own line was written (before its lock was removed): listed once, with its own line (probe 65)
+    late = script.replace("""    os.kill(os.getpid(), signal.SIGKILL)
+calibrate.run = killed""", """    return 0
+real = cli.record_run
+def record_then_killed(*a, **k):
+    real(*a, **k)
+    os.kill(os.getpid(), signal.SIGKILL)
+calibrate.run, cli.record_run = killed, record_then_killed""")
+    assert late != script
+    p = subprocess.run([sys.executable, "-c", late], capture_output=True, text=True, timeout=120,
+                       env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])})
+    assert p.returncode == -9 and (out / LOCK_NAME).exists()
+    assert main(["calibrate", "--data", str(tmp_path), "--out", str(out)]) == 0
+    runs = json.loads((out / "runs.json").read_text())
+    assert [r["exit_status"] for r in runs] == [None, 0, 0, 0], runs
 
 
 def test_the_interrupt_line_comes_after_the_last_progress_bar(tmp_path, monkeypatch, capsys):

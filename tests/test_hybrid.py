@@ -179,7 +179,9 @@ def test_a_damaged_network_cache_entry_is_recomputed_not_a_failure(tmp_path):
     assert cache.get("tok", np.eye(4)) is not None
     good = dict(np.load(cache.path("tok", np.eye(4))))
     for key, bad in (("T_in", np.array("x")), ("T_iters", np.eye(4)), ("cov_raw", np.eye(5)),
-                     ("T_in", np.full((4, 4), np.nan)), ("ood_signals", np.array(["a", "b"]))):
+                     ("T_in", np.full((4, 4), np.nan)), ("ood_signals", np.array(["a", "b"])),
+                     ("ood_signals", np.full(2, np.nan)), ("seconds", np.array(np.nan)),  # probe 65
+                     ("first_K", np.zeros((3, 3)))):
         np.savez(cache.path("tok", np.eye(4)), **{**good, key: bad})
         assert cache.get("tok", np.eye(4)) is None, key
 

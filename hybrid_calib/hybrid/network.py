@@ -135,8 +135,11 @@ class OutputCache:
                 if self.network and ("network" not in z.files or str(z["network"]) != self.network):
                     return None  # another network's output (or an entry older than the key): recomputed
                 out = NetworkOutput.from_arrays(z)
-                return out if out.finite else None
-        except NPZ_ERRORS:
+                # and its out-of-domain features and time (probe 65: NaN features turned the domain test off)
+                ok = out.finite and all(np.isfinite(a).all() for a in (out.ood_descriptor, out.ood_signals)) \
+                    and np.isfinite(out.seconds) and out.seconds >= 0
+                return out if ok else None
+        except (*NPZ_ERRORS, HybridCalibError):  # a row array the measurement format refuses (DataError), too
             return None  # a damaged entry (truncated, not a zip, a missing key, misshapen, not numbers) is recomputed
 
     def put(self, token: str, out: NetworkOutput) -> None:
@@ -241,7 +244,7 @@ class NetworkRunner:
     def run(self, index: int, T_in: np.ndarray) -> NetworkOutput | None:
         """The network on frame ``index`` from ``T_in`` (4, 4); cached; None for a bad frame."""
         token = self.token(index)
-        if self.cache is not None and (hit := self.cache.get(token, T_in)) is not None and hit.finite:
+        if self.cache is not None and (hit := self.cache.get(token, T_in)) is not None and self._fits(hit):
             return hit
         s = self.sample(index)
         if s is None:
@@ -257,6 +260,18 @@ class NetworkRunner:
         if self.cache is not None:
             self.cache.put(token, out)
         return out
+
+    def _fits(self, hit: NetworkOutput) -> bool:
+        """Whether a cached pass is one this runner can use: its out-of-domain features fit the checkpoint's fitted
+        model (probe 63: an entry whose features had another length was a hit, and the run failed blaming the
+        checkpoint); a damaged one is recomputed."""
+        from learned.ood import OODError
+
+        try:
+            self.ood_score(hit)
+        except (OODError, ValueError, IndexError, TypeError):
+            return False
+        return True
 
     def network_cov(self, out: NetworkOutput) -> np.ndarray:
         """(6, 6) the network's own covariance of ``out.T`` with the checkpoint's evaluate-fitted
