@@ -184,6 +184,18 @@ def test_a_damaged_network_cache_entry_is_recomputed_not_a_failure(tmp_path):
                      ("first_K", np.zeros((3, 3)))):
         np.savez(cache.path("tok", np.eye(4)), **{**good, key: bad})
         assert cache.get("tok", np.eye(4)) is None, key
+    # a pass whose out-of-domain features do not fit the checkpoint's fitted model is recomputed, not a run that fails
+    # blaming the checkpoint (probe 65)
+    from types import SimpleNamespace
+
+    from hybrid_calib.hybrid.network import NetworkRunner
+    from learned.ood import OODError
+
+    def unfit(_):
+        raise OODError("features have 2 dimensions, the fitted model 6")
+
+    assert not NetworkRunner._fits(SimpleNamespace(ood_score=unfit), out)
+    assert NetworkRunner._fits(SimpleNamespace(ood_score=lambda _: 0.5), out)
 
 
 def test_an_interrupted_run_keeps_its_finished_vehicles_and_goes_on_from_there(sim_root, tmp_path, monkeypatch):
