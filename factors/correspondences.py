@@ -134,20 +134,19 @@ class Correspondences:
         out = []
         for r in np.flatnonzero(candidate):
             key = keys[r]
-            p, px, s = self.points_radar[r], self.pixels[r], self.sigma_px[r]
+            row = (self.points_radar[r], self.pixels[r], self.sigma_px[r])
             j = next((j for off in _NEIGHBOURS for j in cells.get(tuple((key + off).tolist()), ())
-                      if np.abs(self.points_radar[j] - p).max() <= REPEAT_RADAR_M
-                      and np.abs(self.pixels[j] - px).max() <= REPEAT_SIGMA * min(s, self.sigma_px[j])), None)
+                      if _same_row(*row, self.points_radar[j], self.pixels[j], self.sigma_px[j])), None)
             if j is not None:
                 out.append((int(r), int(j)))
             cells.setdefault(tuple(key.tolist()), []).append(r)
         return out
 
-    def once(self) -> Correspondences:
+    def once(self, pairs: list[tuple[int, int]] | None = None) -> Correspondences:
         """These rows with each doubled row (``doubled_rows``) kept once; ``self`` when none is. Of a row's copies the
         one claiming the least information (``confidence / sigma_px^2``) is kept: which claim is right is unknown, and
-        the weaker one cannot make the covariance over-confident."""
-        if not (pairs := self.doubled_rows()):
+        the weaker one cannot make the covariance over-confident. ``pairs``: the ``doubled_rows()`` a caller has."""
+        if not (pairs := self.doubled_rows() if pairs is None else pairs):
             return self
         parent = list(range(len(self)))  # copies joined through their pairs (union-find)
 
@@ -226,8 +225,7 @@ class SeenRows:
                 continue
             p, px, s = corr.points_radar[r], corr.pixels[r], corr.sigma_px[r]
             for k, row, s2 in hits:
-                if (np.abs(row[:3] - p).max() <= REPEAT_RADAR_M
-                        and np.abs(row[3:] - px).max() <= REPEAT_SIGMA * min(s, s2)):
+                if _same_row(p, px, s, row[:3], row[3:], s2):
                     out[r] = k
                     break
         return out
@@ -247,6 +245,12 @@ class SeenRows:
                 else:
                     del self._cells[key]
         return k
+
+
+def _same_row(p, px, s, p2, px2, s2) -> bool:
+    """Whether two rows (radar point (3,) m, pixel (2,), sigma px) are one measurement: the points within
+    ``REPEAT_RADAR_M`` per coordinate, the pixels within ``REPEAT_SIGMA`` of the smaller sigma."""
+    return bool(np.abs(p2 - p).max() <= REPEAT_RADAR_M and np.abs(px2 - px).max() <= REPEAT_SIGMA * min(s, s2))
 
 
 _NEIGHBOURS = np.array([(a, b, c) for a in (0, -1, 1) for b in (0, -1, 1) for c in (0, -1, 1)], np.int64)
@@ -295,10 +299,10 @@ def replayed_message(c: Correspondences, repeated: np.ndarray, earlier_id: str) 
             "measurement counted twice shrinks the covariance as if it were two)")
 
 
-def doubled_message(c: Correspondences) -> str:
-    """The words for a frame holding rows twice (``Correspondences.doubled_rows``), kept once; "" when it holds
-    none."""
-    if not (pairs := c.doubled_rows()):
+def doubled_message(c: Correspondences, pairs: list[tuple[int, int]] | None = None) -> str:
+    """The words for a frame holding rows twice (``Correspondences.doubled_rows``, or the ``pairs`` a caller has),
+    kept once; "" when it holds none."""
+    if not (pairs := c.doubled_rows() if pairs is None else pairs):
         return ""
     i, j = pairs[0]
     return (f"{len(pairs)} of the frame's {len(c)} rows repeat another row of it (first: row {i} = row {j}: the same "

@@ -495,9 +495,9 @@ class SlidingWindowCalibrator:
                 ) -> FrameEstimate:
         events: list[str] = []
         if len(corr):  # the same rows again: one measurement, which counted twice shrinks the covariance (probe 31)
-            if doubled := doubled_message(corr):
-                corr = corr.once()
-                events.append(doubled)
+            if pairs := corr.doubled_rows():  # found once, said and kept once
+                events.append(doubled_message(corr, pairs))
+                corr = corr.once(pairs)
             seen = self._seen.match(corr)  # rows of earlier frames again (a replay, whole or in part: probe 59)
             if (seen >= 0).all():
                 raise ValueError(repeat_message(corr.frame_id, self._seen.frame_id(int(seen[0]))))
