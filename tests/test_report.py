@@ -245,6 +245,18 @@ def test_fleet_page_links_vehicle_reports_and_names_the_flagged(run_dir, tmp_pat
         write_fleet_page(paths, tmp_path / "fleet.html", design=design, flagged=[names[1]])
     assert "Report pages not written (1)" in (tmp_path / "fleet.html").read_text()
     assert "id=marker" not in pages[names[1]].read_text()  # its result changed: written again
+    # a user's file at a page's path is never replaced (the sessions before 36 wrote the page over it): that page is
+    # listed as not written, and a fleet page over a user's file is refused, naming it
+    pages[names[0]].rmdir()
+    pages[names[0]].write_text("my notes\n")
+    with pytest.raises(HybridCalibError, match="1 vehicle report page"):
+        write_fleet_page(paths, tmp_path / "fleet.html", design=design, flagged=[names[1]])
+    assert pages[names[0]].read_text() == "my notes\n"
+    assert "is not an HTML page, so it is not replaced" in (tmp_path / "fleet.html").read_text()
+    (tmp_path / "fleet.html").write_text("fleet,notes\n")
+    with pytest.raises(HybridCalibError, match="fleet.html exists and is not an HTML page"):
+        write_fleet_page(paths, tmp_path / "fleet.html", design=design, flagged=[names[1]])
+    assert (tmp_path / "fleet.html").read_text() == "fleet,notes\n"
 
 
 def test_report_command(run_dir, tmp_path, capsys):

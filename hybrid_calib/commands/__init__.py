@@ -38,6 +38,15 @@ def retry_count(text: str) -> int:
     return value
 
 
+def seed_int(text: str) -> int:
+    """argparse ``type``: a seed, 0..2**63-1 (numpy's generators take no negative seed; one run's seed reads the same
+    in every tool that loads its JSON)."""
+    value = _int_at_least(text, 0)
+    if value >= 2**63:
+        raise argparse.ArgumentTypeError(f"must be below 2**63, got {value}")
+    return value
+
+
 def nonnegative_int(text: str) -> int:
     """argparse ``type``: an integer >= 0 (a limit where 0 means "all")."""
     return _int_at_least(text, 0)

@@ -15,6 +15,7 @@ from hybrid_calib.commands import (
     reject_learned_keys,
     reject_set_keys,
     reject_unused_batch,
+    seed_int,
     split_overrides,
 )
 from hybrid_calib.config import parse_overrides
@@ -55,7 +56,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--start", default=None, choices=("reference", *RANGES),
                    help="initial extrinsic: the vehicle's tables, or a perturbed truth (default: reference)")
     p.add_argument("--max-frames", type=nonnegative_int, default=None, help="frames per vehicle, 0 = all (default: 0)")
-    p.add_argument("--seed", type=int, default=None, help="oracle noise and start seed (default: 0)")
+    p.add_argument("--seed", type=seed_int, default=None, help="oracle noise and start seed (default: 0)")
     add_split_arguments(p, "all", "learned methods: all, or the train / val / test part of the split flags below "
                                   "(e.g. --split test --split-by time: the held-out end of each scene)")
     p.add_argument("--out", type=Path, default=Path("outputs/calibrate"),

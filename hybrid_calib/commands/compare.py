@@ -13,6 +13,7 @@ from hybrid_calib.commands import (
     nonnegative_int,
     positive_int,
     reject_set_keys,
+    seed_int,
     split_overrides,
 )
 from hybrid_calib.config import parse_overrides
@@ -33,7 +34,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--refine", default="", help="refining network after --checkpoint (a cascade): 'shipped' (the "
                    "shipped R0 checkpoint) or a checkpoint path (default: none)")
     p.add_argument("--max-frames", type=nonnegative_int, default=None, help="frames per drive, 0 = all (default: 0)")
-    p.add_argument("--seed", type=int, default=0, help="first start seed (default: 0)")
+    p.add_argument("--seed", type=seed_int, default=0, help="first start seed (default: 0)")
     add_split_arguments(p, "all", "all, or the train / val / test part of the split flags below (e.g. --split test "
                                   "--split-by time: the held-out end of each scene; learned methods only)")
     p.add_argument("--out", type=Path, required=True, help="output folder (resumable: finished trials are kept)")

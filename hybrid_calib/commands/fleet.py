@@ -16,6 +16,7 @@ from hybrid_calib.commands import (
     reject_set_keys,
     reject_unused_batch,
     retry_count,
+    seed_int,
 )
 from hybrid_calib.config import parse_overrides
 from hybrid_calib.errors import OptionError
@@ -45,7 +46,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="retries of a system failure (default: 2, at most 100)")
     p.add_argument("--prior", type=Path, help="fleet_prior.json of an earlier fleet run: each vehicle's prior "
                                               "(leave-one-out; the fleet's for a new vehicle; none for an outlier)")
-    p.add_argument("--seed", type=int, default=0, help="fleet seed; each job seeds from (seed, vehicle) (default: 0)")
+    p.add_argument("--seed", type=seed_int, default=0,
+                   help="fleet seed; each job seeds from (seed, vehicle) (default: 0)")
     p.add_argument("--max-frames", type=nonnegative_int, default=None, help="frames per vehicle, 0 = all (default: 0)")
     p.add_argument("--out", type=Path, required=True, help="fleet run directory (rerun the same command to resume)")
     p.add_argument("--no-plots", action="store_true", help="skip the fleet plot")

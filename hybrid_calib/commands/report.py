@@ -44,26 +44,18 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _is_html(path: Path) -> bool:
-    """Whether the file at ``path`` is an HTML page (what the report writes), by its first bytes."""
-    try:
-        with open(path, "rb") as f:
-            head = f.read(512).lstrip().lower()
-    except OSError:
-        return False
-    return head.startswith((b"<!doctype html", b"<html"))
-
-
 def check_arguments(args: argparse.Namespace) -> None:
     """``OptionError`` for paths given explicitly that cannot work (the defaults degrade to a note in the
     page instead): ``--out`` a directory or below a file, ``--data`` / ``--checkpoint`` not there."""
+    from hybrid_calib.report.html import is_html
+
     out = args.out_html
     if out.is_dir():
         raise OptionError("--out", f"{out} is a directory; --out is the HTML file to write, e.g. {out / 'report.html'}")
     if out.suffix.lower() not in (".html", ".htm"):  # a slip (--out result.json) replaced the input with the page
         raise OptionError("--out", f"{out} is not an .html file name; --out is the HTML page to write, e.g. "
                                    f"{out.with_suffix('.html')}")
-    if out.exists() and not _is_html(out):
+    if out.exists() and not is_html(out):
         raise OptionError("--out", f"{out} exists and is not an HTML page, so it is not replaced; pass another file "
                                    "name, or move it away")
     check_out_dir(out.parent)

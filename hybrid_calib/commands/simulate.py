@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from hybrid_calib.commands import given_flags, positive_int, process_count
+from hybrid_calib.commands import given_flags, positive_int, process_count, seed_int
 from hybrid_calib.config import merge, parse_overrides
 from hybrid_calib.errors import OptionError
 from hybrid_calib.sim.drive import SimConfig
@@ -20,7 +20,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", default=None, choices=sorted(PRESETS), help="world preset (default: urban)")
     p.add_argument("--vehicles", type=positive_int, default=None, help="vehicles, one log and scene each (default: 1)")
     p.add_argument("--frames", type=positive_int, default=None, help="keyframes per vehicle (default: 200)")
-    p.add_argument("--seed", type=int, default=None, help="master seed (default: 0)")
+    p.add_argument("--seed", type=seed_int, default=None, help="master seed (default: 0)")
     p.add_argument("--out", type=Path, required=True, help="output nuScenes root directory")
     p.add_argument("--extrinsic-change", default=None, choices=EXTRINSIC_CHANGES,
                    help="radar mount movement during each drive (default: none, or --set extrinsic_change.kind=...)")

@@ -158,6 +158,8 @@ class HybridConfig:
             raise ValueError(f"HybridConfig.split={self.split!r}; valid: all, train, val, test")
         if self.max_frames < 0:
             raise ValueError(f"HybridConfig.max_frames must be >= 0 (0 = all frames), got {self.max_frames}")
+        if self.seed < 0:
+            raise ValueError(f"HybridConfig.seed must be >= 0 (--seed), got {self.seed}")
         if not 1 <= self.threads <= 256:
             raise ValueError(f"HybridConfig.threads must be in 1..256 (torch CPU threads), got {self.threads}")
         from hybrid_calib.config import merge

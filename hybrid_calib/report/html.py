@@ -8,6 +8,7 @@ import html
 from pathlib import Path
 
 from hybrid_calib.config import save_text_atomic
+from hybrid_calib.errors import DataError
 
 CSS = """
 body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;max-width:1100px;margin:1.5em auto;
@@ -70,9 +71,24 @@ def page(title: str, body: str, source: str = "") -> str:
             f"<script>{SORT_JS}</script>\n</body></html>\n")
 
 
+def is_html(path: Path) -> bool:
+    """Whether the file at ``path`` is an HTML page (what the reports write), by its first bytes."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(512).lstrip().lower()
+    except OSError:
+        return False
+    return head.startswith((b"<!doctype html", b"<html"))
+
+
 def write_page(path: Path, title: str, body: str, source: str = "") -> Path:
-    """Write the page atomically; returns its path. ``source``: what it was written from (``SOURCE_META``)."""
-    return save_text_atomic(Path(path), page(title, body, source))
+    """Write the page atomically; returns its path. ``source``: what it was written from (``SOURCE_META``).
+    ``DataError`` where ``path`` holds a file that is not an HTML page (a user's file is never replaced)."""
+    path = Path(path)
+    if path.exists() and not path.is_dir() and not is_html(path):
+        raise DataError(f"{path} exists and is not an HTML page, so it is not replaced by the report; move it away, "
+                        "or write the page elsewhere")
+    return save_text_atomic(path, page(title, body, source))
 
 
 def written_from(path: Path, source: str) -> bool:
