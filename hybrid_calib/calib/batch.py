@@ -25,7 +25,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from factors.config import RadarPixelFactorConfig
-from factors.correspondences import Correspondences, fresh_rows, repeat_message, repeated_rows
+from factors.correspondences import (
+    Correspondences,
+    doubled_message,
+    fresh_rows,
+    repeat_message,
+    repeated_rows,
+    replayed_message,
+)
 from factors.scene import scene_prior_std
 from hybrid_calib.calib.covariance import (
     CovarianceConfig,
@@ -78,8 +85,9 @@ class BatchResult:
     inlier_fraction: float
 
 
-def _check_frames(frames: list[Correspondences]) -> list[Correspondences]:
-    """``frames`` checked, each kept once and without the rows that repeat an earlier frame's (``fresh_rows``)."""
+def _check_frames(frames: list[Correspondences]) -> tuple[list[Correspondences], str]:
+    """``frames`` checked, each kept once and without the rows that repeat an earlier frame's (``fresh_rows``), and
+    the words for what was left out ("" when nothing)."""
     if not frames:
         raise ValueError("batch calibration needs at least one frame")
     for i, f in enumerate(frames):
@@ -91,7 +99,16 @@ def _check_frames(frames: list[Correspondences]) -> list[Correspondences]:
         i, j = next(iter(rep.items()))
         raise ValueError(f"{len(rep)} of the {len(frames)} frames repeat an earlier frame's rows; first: frame {i}: "
                          f"{repeat_message(frames[i].frame_id, frames[j].frame_id)}: pass each frame once")
-    return fresh_rows(frames, rows)
+    notes = []
+    if part := {i: (m, j) for i, (m, j) in rows.items() if m.any()}:  # said, as the window's event says it
+        i, (m, j) = next(iter(part.items()))
+        notes.append(f"{sum(int(m.sum()) for m, _ in part.values())} row(s) of {len(part)} frame(s) repeat an earlier "
+                     f"frame's rows; first: frame {frames[i].frame_id or i}: "
+                     + replayed_message(frames[i], m, frames[j].frame_id))
+    if doubled := [(i, msg) for i, f in enumerate(frames) if (msg := doubled_message(f))]:
+        i, msg = doubled[0]
+        notes.append(f"{len(doubled)} frame(s) hold a row twice; first: frame {frames[i].frame_id or i}: {msg}")
+    return fresh_rows(frames, rows), "; ".join(notes)
 
 
 def solve_batch(frames: list[Correspondences], T_init: np.ndarray, conf: BatchConfig | dict | None = None,
@@ -104,7 +121,7 @@ def solve_batch(frames: list[Correspondences], T_init: np.ndarray, conf: BatchCo
     conf = merge(BatchConfig, conf)
     if conf.backend not in BACKENDS:
         raise ValueError(f"BatchConfig.backend={conf.backend!r}; valid: {BACKENDS}")
-    frames = _check_frames(frames)  # a row twice, in a frame or across frames, is one measurement
+    frames, left_out = _check_frames(frames)  # a row twice, in a frame or across frames, is one measurement
     T_init = check_transform(T_init, "solve_batch T_init")  # both backends (Ceres took a scaled rotation)
     n_rows = sum(len(f) for f in frames)
     T, info, cov, why, iters, secs, t0 = _solve(frames, T_init, conf, priors)
@@ -125,7 +142,7 @@ def solve_batch(frames: list[Correspondences], T_init: np.ndarray, conf: BatchCo
             rescue = f"from the start only {100 * inl0:.0f} % of the rows fit: {how}: {100 * inl_s:.0f} % fit"
             T, info, cov, why, it, sec, t0 = again
             iters, secs, inl = iters + it_s + it, secs + secs_s + sec, inl_s
-    notes = [why, rescue, convergence_note(inl, conf.min_inlier_fraction, "the drive's")]
+    notes = [why, rescue, convergence_note(inl, conf.min_inlier_fraction, "the drive's"), left_out]
     cross = sum((frame_scene_cross(T, f, conf.factor, conf.schedule.final_gate) for f in frames),
                 np.zeros((6, len(scene_prior_std(conf.factor)))))
     rep = analyse_drive_information(T, info, conf.covariance, conf.factor, cov_hint=cov,
