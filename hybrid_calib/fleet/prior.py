@@ -21,8 +21,9 @@ correlated across the fleet, not independent (measured, docs/benchmarks.md: 20 t
 all off by +32 cm in camera y, scatter 18 cm; a model without this term "learned" the fleet mean
 there to 7 cm and tightened every vehicle's vertical translation to a confident wrong value, NEES
 45). With ``common_cov`` = P (6, 6) the model is ``x_i = mu + c + b_i + e_i``, ``c ~ N(0, P)`` shared by
-all vehicles: the EM uses each vehicle's own part ``C_i - P``, the outlier test is unaffected by
-``c`` (it cancels in ``x_i - mu``). The prior handed to a vehicle must not pin those directions at
+all vehicles: the EM uses each vehicle's own part ``C_i - common_part(C_i, P)`` (``P`` itself where only the
+elevation prior pins the direction, less where the network or the LiDAR measure it too), the outlier test is
+unaffected by ``c`` (it cancels in ``x_i - mu``). The prior handed to a vehicle must not pin those directions at
 all: the vehicle's own covariance already holds ``c`` (``marginalise_prior_pinned``), and a window
 combines an external prior as independent information, so a prior holding ``P`` once still
 tightened them falsely (measured: camera-y std 31 -> 23 cm at an unchanged 36 cm RMS error).
@@ -97,11 +98,29 @@ def _dersimonian_laird(x: np.ndarray, C: np.ndarray) -> np.ndarray:
     return np.maximum(0.0, (Q - (len(x) - 1)) / (w.sum(0) - (w ** 2).sum(0) / w.sum(0)))
 
 
+def common_part(C: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """(6, 6) the part of a vehicle's covariance ``C`` that the fleet's common-mode error (``P``, diagonal: the
+    prior-pinned directions) puts there: ``L P L^T`` with loading column ``L[:, k] = C[:, k] / max(P_kk, C_kk)``.
+
+    Where the vehicle's information holds the elevation prior ``P^-1`` and nothing else along k (the oracle:
+    ``C e_k = P_kk e_k``) this is ``P`` itself. Where something else measures k too (the hybrid: the network's prior
+    of the mount, the LiDAR), the shared error enters the estimate scaled by ``C P^-1`` (``C_kk < P_kk``), so only
+    ``C_kk^2 / P_kk`` of it is common; subtracting all of ``P`` there left each vehicle a near-exact "own" variance
+    (0.2 cm in radar z) and the fleet mean was extrapolated beyond every vehicle (session 36, probe 67: the demo's
+    3 hybrid vehicles at -0.2..7.1 cm forward, mean -5.8 cm; on 300 synthetic hybrid-like fleets the mean's NEES
+    1569, 4.4 with this). A covariance widened beyond ``P`` (``C_kk > P_kk``) holds all of ``P``."""
+    d = np.diag(P)
+    L = np.zeros((6, 6))
+    for k in np.flatnonzero(d > 0):
+        L[:, k] = C[:, k] / max(d[k], C[k, k])
+    return L @ P @ L.T
+
+
 def _own(C: np.ndarray, P: np.ndarray) -> np.ndarray:
-    """A vehicle's own covariance ``C - P`` (the common part removed), kept positive definite: its
-    eigenvalues are clipped at 1e-4 of C's own along each eigenvector."""
+    """A vehicle's own covariance ``C - common_part(C, P)``, kept positive definite: its eigenvalues are clipped at
+    1e-4 of C's own along each eigenvector."""
     C = _sym(C)
-    w, V = np.linalg.eigh(C - P)
+    w, V = np.linalg.eigh(C - common_part(C, P))
     floor = 1e-4 * np.einsum("ij,ik,kj->j", V, C, V)
     return _sym((V * np.maximum(w, floor)) @ V.T)
 
