@@ -38,7 +38,7 @@ from hybrid_calib.config import (
     to_dict,
 )
 from hybrid_calib.data.files import root_labels, stamps_changed
-from hybrid_calib.errors import CheckpointError, DataError, HybridCalibError
+from hybrid_calib.errors import CheckpointError, DataError, HybridCalibError, check_api_out
 from hybrid_calib.hybrid.loop import METHODS, HybridConfig, _Session, vehicle_learned, vehicle_oracle
 from hybrid_calib.metrics import METRIC_KEYS, consistency
 
@@ -394,6 +394,7 @@ def compare(roots: list | str, version: str, out: str | Path, conf: CompareConfi
     out = Path(out)
     if isinstance(roots, (str, os.PathLike)):  # one root: "sim" was read as the roots "s", "i", "m" (probe 51)
         roots = [roots]
+    check_api_out(out, "compare", roots[0] if len(roots) == 1 else None, version)
     roots, roots_left_out = _check_roots(roots, version, conf.methods)
     cfg_path = out / "compare_config.json"
     record = _record(roots, version, conf)

@@ -92,7 +92,7 @@ def check_out_files(out: str | Path | None, command: str, overwrite: bool | None
                                    f"{how}")
 
 
-def check_out_owner(out: str | Path | None, command: str) -> None:
+def check_out_owner(out: str | Path | None, command: str, option: str = "--out") -> None:
     """``OptionError`` when ``out`` holds another command's outputs (its ``OUT_MARKERS`` file): a run there mixed
     its files with them (a train run beside an evaluate run's results, sharing its depth cache)."""
     if out is None or not Path(out).is_dir():
@@ -103,8 +103,22 @@ def check_out_owner(out: str | Path | None, command: str) -> None:
         # a marker alone (with the lock file) is a run that failed before any output: nothing there to mix with
         if other != command and (Path(out) / marker).is_file() and any(
                 p.name not in (marker, LOCK_NAME, RUNS_NAME) for p in Path(out).iterdir()):
-            raise OptionError("--out", f"{out} holds the outputs of hybrid-calib {other} ({marker}); this {command} "
-                                       "run would mix its files with them: pass another --out")
+            raise OptionError(option, f"{out} holds the outputs of hybrid-calib {other} ({marker}); this {command} "
+                                      f"run would mix its files with them: pass another {option}")
+
+
+def check_api_out(out: str | Path, command: str, data=None, version: str | None = None, page: bool = False) -> None:
+    """The command line's checks of an output folder, for the typed functions a library user calls directly
+    (``run_calibration``, ``compare``, ``run_fleet``, the report pages): ``OptionError`` naming ``out`` when it is
+    a file or cannot be written (``check_out_dir``), lies in any nuScenes root's tables or sensor folders
+    (``check_out_not_in_dataset``) or holds another command's outputs (``check_out_owner``; probe 67: the functions
+    wrote into a root's version folder, its samples/ and a compare run's folder, which the commands refuse).
+    ``page``: ``out`` is a page (a file): its folder is checked."""
+    folder = Path(out).parent if page else Path(out)
+    check_out_dir(folder, "out")
+    check_out_not_in_dataset(folder, "out", data=data, version=version)
+    if not page:
+        check_out_owner(folder, command, "out")
 
 
 TABLE_FILES = ("sample_data.json", "calibrated_sensor.json")  # a folder holding both is a nuScenes version folder

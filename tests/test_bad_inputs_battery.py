@@ -2391,3 +2391,36 @@ def test_ground_truth_depth_on_a_real_root_is_refused_at_the_start(tiny, tmp_pat
         run_calibration(tiny.root, tiny.version, tmp_path / "out", {"method": "pure", "depth": "corrupted-truth",
                                                                      "progress": False})
     assert e.value.option == "--depth" and not (tmp_path / "out" / "result.json").exists()
+
+
+def test_the_typed_functions_refuse_the_outputs_the_commands_refuse(sim, calibrated, tmp_path):
+    """Probe 67: run_calibration, compare, run_fleet and write_report wrote into a root's version folder and its
+    samples/, and run_calibration beside a compare run's files, all of which the command line refuses."""
+    from hybrid_calib.compare import compare
+    from hybrid_calib.errors import OptionError
+    from hybrid_calib.fleet.driver import run_fleet
+    from hybrid_calib.hybrid.loop import run_calibration
+    from hybrid_calib.report import write_fleet_page, write_report
+
+    root, _ = sim
+    tables, samples = root / SIM_VERSION, root / "samples"
+    before = sorted(p.relative_to(root) for p in root.rglob("*"))
+    calls = [
+        lambda: run_calibration(root, SIM_VERSION, tables / "x", {"method": "oracle", "max_frames": 1}),
+        lambda: compare([root], SIM_VERSION, samples / "cmp", {"trials": 1, "methods": ["oracle"]}, progress=False),
+        lambda: run_fleet([root], None, SIM_VERSION, "oracle", tables / "flt"),
+        lambda: write_report(calibrated / "result.json", tables / "page.html"),
+        lambda: write_report(calibrated / "result.json", samples / "page.html"),
+        lambda: write_fleet_page([calibrated / "result.json"], root / "fleet.html"),
+    ]
+    for call in calls:
+        with pytest.raises(OptionError, match=r"^out: .*(nuScenes table folder|v1.0-sim/ folder|samples/ folder|is a nuScenes root)"):
+            call()
+    assert sorted(p.relative_to(root) for p in root.rglob("*")) == before
+    other = tmp_path / "cmp"
+    other.mkdir()
+    (other / "compare_config.json").write_text("{}")
+    (other / "compare.md").write_text("")
+    with pytest.raises(OptionError, match="holds the outputs of hybrid-calib compare .* pass another out"):
+        run_calibration(root, SIM_VERSION, other, {"method": "oracle", "max_frames": 1})
+    assert sorted(p.name for p in other.iterdir()) == ["compare.md", "compare_config.json"]

@@ -13,6 +13,7 @@ import socket
 from dataclasses import dataclass
 from pathlib import Path
 
+from hybrid_calib.errors import check_api_out
 from hybrid_calib.fleet.engines import ENGINES, run_engine
 from hybrid_calib.fleet.jobs import check_fleet_roots, discover_jobs, read_fleet_file
 from hybrid_calib.fleet.manifest import Manifest
@@ -53,6 +54,7 @@ def run_fleet(roots: list[str] | str | None, manifest: str | None, version: str,
     out = Path(out)
     if isinstance(roots, (str, os.PathLike)):  # one root: "sim" was read as the roots "s", "i", "m" (probe 51)
         roots = [roots]
+    check_api_out(out, "fleet", roots[0] if roots and len(roots) == 1 else None, version)
     sources = read_fleet_file(manifest, version) if manifest else [(str(r), version, None) for r in roots or []]
     if manifest:
         check_fleet_roots(sources, manifest)

@@ -67,7 +67,14 @@ from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import merge, save_json_atomic, to_dict
 from hybrid_calib.data.files import data_stamp
 from hybrid_calib.data.views import ViewConfig
-from hybrid_calib.errors import CheckpointError, DataError, HybridCalibError, OptionError, check_out_not_in_dataset
+from hybrid_calib.errors import (
+    CheckpointError,
+    DataError,
+    HybridCalibError,
+    OptionError,
+    check_api_out,
+    check_out_not_in_dataset,
+)
 from hybrid_calib.geometry import local, se3_exp
 from hybrid_calib.hybrid.average import AverageConfig, robust_average
 from hybrid_calib.hybrid.corrections import (
@@ -719,6 +726,7 @@ def run_calibration(data: str | Path, version: str, out: str | Path, conf: Hybri
     folders. With ``overwrite=False`` an existing result is returned untouched."""
     conf = merge(HybridConfig, conf)
     out = Path(out)
+    check_api_out(out, "calibrate", data, version)
     for option, path in (("--set cache_dir", conf.cache_dir), ("--set depth_cache", conf.depth_cache)):
         # the run's own writes would change its data stamp; any root's tables could be replaced
         check_out_not_in_dataset(path or None, option, data=data, version=version)

@@ -23,7 +23,7 @@ from hybrid_calib.calib.drift import doppler_level_words
 from hybrid_calib.calib.result import CalibrationRun, VehicleResult
 from hybrid_calib.config import merge
 from hybrid_calib.data.files import file_part
-from hybrid_calib.errors import DataError, HybridCalibError
+from hybrid_calib.errors import DataError, HybridCalibError, check_api_out
 from hybrid_calib.report.html import esc, img_tag, num, verdict_class, write_page
 from hybrid_calib.report.vehicle import ReportConfig, write_report
 from hybrid_calib.report.verdict import DELTA_KEYS, VERDICTS, verdict_of
@@ -61,6 +61,7 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
 
     conf = merge(ReportConfig, conf)
     out = Path(out)
+    check_api_out(out, "fleet", page=True)
     if not results:
         raise DataError("no result file given for the fleet page")
     design = None if design is None else np.asarray(design, np.float64)

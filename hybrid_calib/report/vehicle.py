@@ -18,7 +18,7 @@ from hybrid_calib.calib.lever_arm import describe as describe_doppler
 from hybrid_calib.calib.lidar_alignment import describe as describe_lidar
 from hybrid_calib.calib.result import CalibrationRun, VehicleResult, extrinsic_report, failed_vehicles_message
 from hybrid_calib.config import merge, to_dict
-from hybrid_calib.errors import HybridCalibError
+from hybrid_calib.errors import HybridCalibError, check_api_out
 from hybrid_calib.report.evidence import Evidence, gather
 from hybrid_calib.report.html import esc, img_tag, num, verdict_class, write_page, written_from
 from hybrid_calib.report.verdict import AXIS_NAMES, Tolerance, Verdict, verdict_of
@@ -251,6 +251,7 @@ def write_report(result: str | Path, out: str | Path, vehicle: str | None = None
 
     conf = merge(ReportConfig, conf)
     t0 = time.perf_counter()
+    check_api_out(out, "report", page=True)
     result = Path(result)
     key = page_key(result, vehicle, data, version, conf) if result.is_file() else ""
     if keep and key and written_from(Path(out), key):
