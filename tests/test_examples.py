@@ -39,6 +39,10 @@ def test_write_report(tmp_path):
     out = _run("write_report.py", ["--out", str(tmp_path), *TINY])
     page = tmp_path / "report-sim-veh-000.html"
     assert str(page) in out and page.stat().st_size > 1000
+    # the method-oracle run of run_calibration: the page rebuilds its rows (probe 67: "run config unreadable", no
+    # residuals or rings)
+    text = page.read_text()
+    assert "unreadable" not in text and "no usable run config" not in text and "Residuals" in text
 
 
 def test_compare_methods(tmp_path):

@@ -612,15 +612,24 @@ def one_pass_verdict(drift: dict | None) -> dict | None:
                        "with --method hybrid (or pure-avg) to decide"}
 
 
+def oracle_config(conf: HybridConfig, vehicles: tuple[str, ...] | None = None):
+    """The ``calib.pipeline.CalibrateConfig`` that method oracle of ``conf`` runs (``vehicles``: default the conf's):
+    one mapping, for the run and for the report that rebuilds its rows from its config.json."""
+    from hybrid_calib.calib.pipeline import CalibrateConfig
+
+    return CalibrateConfig(window=conf.window, oracle=conf.oracle, drift=conf.drift, start=conf.start,
+                           views=conf.views, seed=conf.seed, max_frames=conf.max_frames,
+                           vehicles=conf.vehicles if vehicles is None else vehicles)
+
+
 def vehicle_oracle(data, version: str, drive: Drive, conf: HybridConfig) -> VehicleResult:
     """The factor graph on oracle rows (simulated roots), from the vehicle's start."""
-    from hybrid_calib.calib.pipeline import CalibrateConfig, calibrate_vehicle, load_oracle
+    from hybrid_calib.calib.pipeline import calibrate_vehicle, load_oracle
 
     if not drive.simulated:
         raise HybridCalibError("method oracle needs a simulated root (the true reflectors); use hybrid, pure or "
                                "pure-avg on real data")
-    cconf = CalibrateConfig(window=conf.window, oracle=conf.oracle, drift=conf.drift, start=conf.start,
-                            views=conf.views, seed=conf.seed, max_frames=conf.max_frames, vehicles=(drive.vehicle,))
+    cconf = oracle_config(conf, (drive.vehicle,))
     vi = load_oracle(data, version, cconf, conf.progress)[drive.vehicle]
     T0 = start_of(drive, conf)
     res = calibrate_vehicle(vi, cconf, progress=conf.progress, T_start=T0)

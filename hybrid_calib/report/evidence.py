@@ -90,12 +90,19 @@ LEARNED_METHODS = ("hybrid", "pure", "pure-avg")  # a result's ``correspondences
 
 
 def run_config(result_path: Path) -> CalibrateConfig | None:
-    """The run's effective config (``config.json`` next to ``result.json``), or None when absent."""
+    """The run's effective config (``config.json`` next to ``result.json``), or None when absent: calibrate's, or the
+    ``HybridConfig`` of a method-oracle run of ``hybrid.run_calibration`` (what it ran: ``hybrid.loop.oracle_config``;
+    probe 67: such a run's page showed no rows or residuals, its config "unreadable")."""
     p = Path(result_path).parent / "config.json"
     if not p.is_file():
         return None
     try:
-        return merge(CalibrateConfig, json.loads(p.read_text()))
+        doc = json.loads(p.read_text())
+        if isinstance(doc, dict) and doc.get("method") == "oracle":
+            from hybrid_calib.hybrid.loop import HybridConfig, oracle_config
+
+            return oracle_config(merge(HybridConfig, doc))
+        return merge(CalibrateConfig, doc)
     except (OSError, ValueError, TypeError, RecursionError) as e:
         raise DataError(f"run config unreadable ({e}); without it the report cannot rebuild the run's rows",
                         path=str(p)) from None
