@@ -2413,8 +2413,9 @@ def test_the_typed_functions_refuse_the_outputs_the_commands_refuse(sim, calibra
         lambda: write_report(calibrated / "result.json", samples / "page.html"),
         lambda: write_fleet_page([calibrated / "result.json"], root / "fleet.html"),
     ]
+    refused = r"^out: .*(nuScenes table folder|v1.0-sim/ folder|samples/ folder|is a nuScenes root)"
     for call in calls:
-        with pytest.raises(OptionError, match=r"^out: .*(nuScenes table folder|v1.0-sim/ folder|samples/ folder|is a nuScenes root)"):
+        with pytest.raises(OptionError, match=refused):
             call()
     assert sorted(p.relative_to(root) for p in root.rglob("*")) == before
     other = tmp_path / "cmp"

@@ -633,3 +633,39 @@ def test_a_window_alarm_on_an_untrusted_estimate_is_not_told_as_the_mount_moving
                  "levels": [], "frames_tested": 5, "pairs_tested": 5}
     assert moved_during_drive(bad)[0].startswith("yes: the sensor stepped during the drive; step alarm at frame 3: "
                                                  "the radar mount monitor")
+
+
+def test_the_step_figure_draws_the_test_that_raised_each_alarm(run_dir, tmp_path):
+    """Probe 67: the hybrid's step figure drew only the window's chi-square (below its threshold at the alarm, which
+    the radar mount monitor raised), its axis shrank to the frames that statistic had, and an untested drive drew an
+    empty panel without a word. Now: the monitor's CUSUM against its threshold with its change point and alarm, the
+    window's panel only for alarms it raised, the whole drive on the axis, and a note where nothing was tested."""
+    from hybrid_calib.plots.calibration import plot_vehicle, step_panels
+
+    run = CalibrationRun.load(run_dir / "run" / "result.json")
+    vr = next(iter(run.vehicles.values()))
+    n = len(vr.trajectory)
+    ids = [f.frame_id for f in vr.trajectory]
+    cusum = [None, None, 0.0, 3.0, 9.5, 0.0][:n]
+    traj = [dataclasses.replace(f, step_alarm=(i == 4), step_statistic=None, step_threshold=None)
+            for i, f in enumerate(vr.trajectory)]
+    hyb = dataclasses.replace(vr, trajectory=traj, frame_rows=[
+        {"frame_id": ids[i], "used": 0, "rejected": 0, "mount": {"statistic": cusum[i]}} for i in range(n)],
+        mount={"threshold": 8.0, "steps": [{"at": 4, "change": 3}], "pairs_tested": 20})
+    monitor, *rest = step_panels(hyb)
+    assert monitor.threshold == 8.0 and monitor.alarms == (4,) and monitor.changes == (3,) and not monitor.note
+    np.testing.assert_array_equal(monitor.values, [np.nan if c is None else c for c in cusum])
+    assert rest == []  # the window tested no frame: no empty panel beside the monitor's
+    window = dataclasses.replace(hyb, trajectory=[dataclasses.replace(f, step_statistic=1.0, step_threshold=25.9)
+                                                  for f in traj])
+    assert step_panels(window)[1].alarms == ()  # the monitor's alarm is not the window's
+    untested = dataclasses.replace(hyb, frame_rows=[{"frame_id": i, "mount": {"statistic": None}} for i in ids])
+    assert step_panels(untested)[0].note.startswith("no frame tested (20 sweep pairs read)")
+    oracle = dataclasses.replace(vr, trajectory=[dataclasses.replace(f, step_statistic=None) for f in vr.trajectory])
+    (only,) = step_panels(oracle)
+    assert only.title.startswith("sliding window") and only.note.startswith("no frame tested")
+    import matplotlib.image as mpimg
+
+    for k, r in enumerate((hyb, window, untested, oracle)):
+        _, drift = plot_vehicle(r, tmp_path / str(k))
+        assert mpimg.imread(drift).shape[0] > 300

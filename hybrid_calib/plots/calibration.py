@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import textwrap
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +30,56 @@ def trajectory_errors(vr: VehicleResult) -> np.ndarray:
     err[:, :3] = np.degrees(err[:, :3])
     err[:, 3:] *= 100
     return err
+
+
+@dataclass(frozen=True)
+class StepPanel:
+    """One step test's series over the drive's frames (``values`` (F,), NaN where not tested), as drawn."""
+
+    title: str
+    label: str
+    ylabel: str
+    values: np.ndarray
+    threshold: float | None
+    alarms: tuple[int, ...]  # frames where this test alarmed
+    changes: tuple[int, ...] = ()  # the frames its steps began (the monitor's change points)
+    note: str = ""  # why nothing is drawn, when nothing is
+    log: bool = False
+
+
+def step_panels(vr: VehicleResult) -> list[StepPanel]:
+    """The step tests of ``vr`` as they decided its alarms: the radar mount monitor's CUSUM against its threshold
+    (the hybrid's alarms; ``calib.mount_monitor``), then the window's chi-square of the rows (when it tested any
+    frame). The hybrid's figure drew only the window's statistic, which never raised its alarm, and its axis shrank
+    to the few frames that statistic had (probe 67)."""
+    k = [f.index for f in vr.trajectory]
+    panels = []
+    monitor = vr.mount or {}
+    if monitor.get("threshold") is not None:
+        by_id = {r.get("frame_id"): (r.get("mount") or {}) for r in vr.frame_rows or []}
+        cusum = np.array([np.nan if (v := by_id.get(f.frame_id, {}).get("statistic")) is None else float(v)
+                          for f in vr.trajectory])
+        steps = monitor.get("steps") or []
+        note = "" if np.isfinite(cusum).any() else (
+            f"no frame tested ({monitor.get('pairs_tested') or 0} sweep pairs read): the monitor needs "
+            "pairs of radar sweeps while the vehicle drives on, not too slowly and not turning hard")
+        panels.append(StepPanel(
+            "radar mount monitor (the radar's Doppler heading against the ego poses: yaw steps)",
+            "CUSUM of the heading residual (noise sigmas)", "CUSUM", cusum, float(monitor["threshold"]),
+            tuple(int(s["at"]) for s in steps if s.get("at") is not None),
+            tuple(int(s["change"]) for s in steps if s.get("change") is not None), note))
+    st = np.array([np.nan if f.step_statistic is None else f.step_statistic for f in vr.trajectory])
+    thr = next((f.step_threshold for f in vr.trajectory if f.step_threshold is not None), None)
+    if np.isfinite(st).any() or not panels:
+        by_monitor = set(panels[0].alarms) if panels else set()
+        alarms = tuple(i for i, f in zip(k, vr.trajectory) if f.step_alarm and i not in by_monitor)
+        note = "" if np.isfinite(st).any() else (
+            "no frame tested: the window's step test needs a history of frames first (a drive this short, or rows "
+            "too few, gives it none)")
+        panels.append(StepPanel("sliding window (the rows' windowed chi-square)",
+                                "windowed chi-square / its running scale", "statistic", st, thr, alarms, note=note,
+                                log=True))
+    return panels
 
 
 def plot_vehicle(vr: VehicleResult, out_dir: Path) -> list[Path]:
@@ -59,27 +110,38 @@ def plot_vehicle(vr: VehicleResult, out_dir: Path) -> list[Path]:
     fig.tight_layout()
     p1 = save_figure(fig, out_dir / f"{file_part(vr.vehicle)}_trajectory.png", dpi=90)
 
-    fig, (a1, a2) = plt.subplots(2, 1, figsize=(10, 5), sharex=True)
-    st = np.array([np.nan if f.step_statistic is None else f.step_statistic for f in vr.trajectory])
-    thr = next((f.step_threshold for f in vr.trajectory if f.step_threshold is not None), None)
-    a1.semilogy(k, np.maximum(st, 1e-3), ".-", lw=0.8, label="windowed chi-square / its running scale")
-    if thr is not None:
-        a1.axhline(thr, color="r", ls="--", label=f"alarm threshold {thr:.1f}")
-    for f in vr.trajectory:
-        if f.step_alarm:
-            a1.axvline(f.index, color="orange", lw=2, alpha=0.6)
-    a1.legend(fontsize=7)
-    a1.set_ylabel("statistic")
+    panels = step_panels(vr)
+    fig, axes = plt.subplots(len(panels) + 1, 1, figsize=(10, 2.2 * (len(panels) + 1) + 0.6), sharex=True)
+    for ax, pan in zip(axes, panels):
+        if pan.log:
+            ax.semilogy(k, np.maximum(pan.values, 1e-3), ".-", lw=0.8, label=pan.label)
+        else:
+            ax.plot(k, pan.values, ".-", lw=0.8, label=pan.label)
+        if pan.threshold is not None:
+            ax.axhline(pan.threshold, color="r", ls="--", label=f"alarm threshold {pan.threshold:.1f}")
+        for i, c in enumerate(pan.changes):
+            ax.axvline(c, color="purple", ls=":", lw=1.5,
+                       label="change point (the step's first frame)" if i == 0 else None)
+        for i, a in enumerate(pan.alarms):
+            ax.axvline(a, color="orange", lw=2, alpha=0.6, label="alarm" if i == 0 else None)
+        if pan.note:
+            ax.text(0.5, 0.5, textwrap.fill(pan.note, 90), ha="center", va="center", transform=ax.transAxes, fontsize=8)
+        ax.set_ylabel(pan.ylabel)
+        ax.set_title(pan.title, fontsize=9, loc="left")
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7, loc="upper left")
+    a2 = axes[-1]
     if not vr.frame_rows or any(r.get("used") or r.get("rejected") for r in vr.frame_rows):  # learned: rows fused?
         a2.plot(k, [f.inlier_fraction for f in vr.trajectory], color="tab:green")
     else:  # no correspondence rows (a learned method fusing the network's SE(3) alone): no fraction to draw
         a2.text(0.5, 0.5, "no correspondence rows: the network's SE(3) prior only", ha="center", va="center",
                 transform=a2.transAxes, fontsize=9)
     a2.set_ylabel("inlier fraction")
-    a2.set_xlabel("frame")
+    a2.set_xlabel("frame of the drive")
+    a2.set_xlim(k.min() - 0.5, k.max() + 0.5)  # the whole drive, whatever a panel has to draw (probe 67)
     d = vr.drift or {}
     verdict = textwrap.fill(f"vs reference (tables): {drift_verdict(d) or 'no reference test'}", 120)
-    fig.suptitle(f"{vr.vehicle}: step detector; chi2 vs reference {d.get('statistic', float('nan')):.1f} "
+    fig.suptitle(f"{vr.vehicle}: step detectors; chi2 vs reference {d.get('statistic', float('nan')):.1f} "
                  f"(p {d.get('p_value', float('nan')):.2g})\n{verdict}", fontsize=9)
     fig.tight_layout()
     p2 = save_figure(fig, out_dir / f"{file_part(vr.vehicle)}_drift.png", dpi=90)
