@@ -185,6 +185,33 @@ def main(argv: list[str] | None = None) -> int:
             signal.signal(signal.SIGTERM, term)
 
 
+POSITIONAL = {"out_html": "--out", "result": "RESULT", "results": "RESULT"}  # dest -> the name the user typed
+
+
+def check_text_arguments(args: argparse.Namespace) -> None:
+    """``OptionError`` naming the option whose value (a path made absolute, or any text, ``--set`` items too) is not
+    valid UTF-8: a folder named in another encoding (Latin-1 bytes from an old archive) or any non-ASCII name under a
+    non-UTF-8 locale reaches Python as lone surrogates, which OpenCV's native code crashed on (probe 66: exit 139, no
+    word, a half-written root and a lock left) and which no JSON record or hash can hold."""
+    from hybrid_calib.errors import OptionError
+
+    for dest, value in vars(args).items():
+        if dest.startswith("_") or dest == "argv":
+            continue
+        for v in value if isinstance(value, (list, tuple)) else (value,):
+            if not isinstance(v, (str, Path)):
+                continue
+            text = os.path.abspath(v) if isinstance(v, Path) else v
+            try:
+                text.encode("utf-8")
+            except UnicodeEncodeError:
+                shown = text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+                raise OptionError(POSITIONAL.get(dest, "--" + dest.replace("_", "-")),
+                                  f"{shown} is not valid UTF-8 (a name in another encoding, shown with its bytes as "
+                                  "\\xNN); rename the folder or file to UTF-8, or run in a UTF-8 locale "
+                                  "(PYTHONUTF8=1)") from None
+
+
 def _finished(args: argparse.Namespace) -> None:
     """The run's work is done and its exit status recorded: Ctrl-C or SIGTERM from here to the process's end must not
     turn it into "interrupted" (probe 60: export exited 130, with no word, while its runs.json said 0). Only for the
@@ -205,6 +232,7 @@ def _run(args: argparse.Namespace, debug: bool, argv: list[str]) -> int:
 
     out = getattr(args, "out", None)
     try:
+        check_text_arguments(args)
         if args.command == "report":  # --out is the page (a file), written atomically
             check_out_dir(None if out is None else Path(out).parent)
             status = int(args._run(args) or 0)

@@ -524,3 +524,26 @@ def test_a_jpeg_with_several_fill_bytes_reads(tmp_path):
     b = p.read_bytes()
     p.write_bytes(b[:2] + b"\xff\xff" + b[2:])  # fill bytes before the first marker after SOI
     assert image_header(p) == (32, 24)
+
+
+def test_a_path_not_valid_utf8_is_refused_by_the_commands_and_read_by_the_api(tiny, tmp_path, capsys):
+    """Probe 66: a folder named in Latin-1 bytes reaches Python as lone surrogates; cv2.imread / imwrite crashed the
+    process on them (exit 139, no word, a half-written root and a lock left), the hybrid's data identity was an
+    internal error. The commands refuse such a path naming the option; the readers and writers take it."""
+    from hybrid_calib.data.frame import read_depth_png, write_depth_png
+    from hybrid_calib.data.image_header import decode_image
+    from tests.helpers import expect_cli_error
+
+    latin = tmp_path / os.fsdecode(b"lat\xe4")
+    latin.mkdir()
+    expect_cli_error(["inspect", "--data", latin, "--version", "v1.0-mini", "--no-progress"], capsys,
+                     "--data: ", "lat\\xe4 is not valid UTF-8", "rename the folder or file to UTF-8")
+    expect_cli_error(["simulate", "--out", latin / "sim", "--vehicles", "1", "--frames", "1"], capsys, "--out: ")
+    expect_cli_error(["calibrate", "--data", tiny.root, "--out", tmp_path / "c", "--set", "vehicles=[\"v\udce4\"]"],
+                     capsys, "--set: ", "v\\xe4")
+    assert sorted(p.name for p in latin.iterdir()) == [] and not (tmp_path / "c").exists()
+    depth = write_depth_png(latin / "d.png", np.full((3, 4), 2.5))
+    np.testing.assert_array_equal(read_depth_png(depth), np.full((3, 4), 2.5, np.float32))
+    image = next(tiny.root.glob("samples/CAM_FRONT/*"))
+    (latin / image.name).write_bytes(image.read_bytes())
+    assert decode_image(latin / image.name).ndim == 3

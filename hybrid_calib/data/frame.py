@@ -73,7 +73,11 @@ def read_depth_png(path: str | Path) -> np.ndarray:
     """uint16 PNG (centimetres, 0 = no return) -> (H, W) float32 metres."""
     import cv2
 
-    d = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    try:  # from its bytes (cv2.imread crashed on a path that is not valid UTF-8: probe 66)
+        data = np.fromfile(path, np.uint8)
+        d = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+    except OSError:
+        d = None
     if d is None or d.dtype != np.uint16 or d.ndim != 2:
         raise DataError("depth file missing, corrupt or not a uint16 single-channel PNG", path=str(path))
     return d.astype(np.float32) * DEPTH_UNIT_M
@@ -87,7 +91,9 @@ def write_depth_png(path: str | Path, depth_m: np.ndarray) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     d = np.nan_to_num(np.asarray(depth_m, dtype=np.float64), nan=0.0, posinf=0.0)
     cm = np.clip(np.round(d / DEPTH_UNIT_M), 0, 65535).astype(np.uint16)
+    ok, png = cv2.imencode(".png", cm)
+    if not ok:
+        raise OSError(f"could not encode depth PNG {path}")
     with atomic_path(path) as tmp:
-        if not cv2.imwrite(str(tmp), cm):
-            raise OSError(f"could not write depth PNG {path}")
+        Path(tmp).write_bytes(png.tobytes())  # bytes, not cv2.imwrite: a path OpenCV cannot take crashed it
     return path

@@ -124,16 +124,23 @@ def decode_image(path: str | Path, token: str | None = None):
     anything else it wrote is passed on.
     """
     import cv2
+    import numpy as np
 
     path = Path(path)
     try:
         check_regular_file(path, "camera image", token)
     except OSError:  # missing (or its folder unreadable)
         raise DataError("camera image not found", path=str(path), token=token) from None
+    try:
+        data = np.fromfile(path, np.uint8)
+    except OSError as e:
+        raise DataError(f"camera image cannot be read ({e.strerror or e}); check its permissions", path=str(path),
+                        token=token) from None
     with _captured_stderr() as captured:  # the stored pixel grid, as the intrinsics and the nuScenes devkit (PIL)
         # read it: OpenCV otherwise turns an image with an EXIF orientation tag, and every frame was skipped as
         # "900x1600 but the calibration says 1600x900" while inspect read the header's 1600x900
-        bgr = cv2.imread(str(path), cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
+        # from its bytes: cv2.imread crashed the process (native code) on a path that is not valid UTF-8 (probe 66)
+        bgr = cv2.imdecode(data, cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION) if data.size else None
     report = captured.text.strip()
     if bgr is None:
         raise DataError(f"camera image does not decode (corrupt or not a JPEG/PNG{': ' + report if report else ''}); "

@@ -638,7 +638,8 @@ class NuScenesRadarCamera:
         from hybrid_calib.data.files import data_stamp
 
         stamp = data_stamp(self.root, self.version)["digest"]
-        return hashlib.sha1(f"{self.root.resolve()}/{self.version}/{stamp}".encode()).hexdigest()[:16]
+        return hashlib.sha1(f"{self.root.resolve()}/{self.version}/{stamp}".encode("utf-8", "surrogateescape")
+                            ).hexdigest()[:16]  # a root named in another encoding too (probe 66)
 
     def reference_T_cam_radar(self, ref: FrameRef) -> np.ndarray:
         """(4, 4) the vehicle's calibration tables' T_cam_radar at frame ``ref`` (``_reference``), from the tables

@@ -216,6 +216,9 @@ def write_map_png(root: Path, map_token: str, paths_xy: list[np.ndarray], resolu
         px[:, 1] = img.shape[0] - 1 - px[:, 1]
         cv2.polylines(img, [px.reshape(-1, 1, 2)], False, 255, thickness=max(int(14 / resolution), 1))
     path = Path(root) / "maps" / f"{map_token}.png"
+    ok, png = cv2.imencode(".png", img)
+    if not ok:
+        raise OSError(f"could not encode the map PNG {path}")
     with atomic_path(path) as tmp:
-        cv2.imwrite(str(tmp), img)
+        Path(tmp).write_bytes(png.tobytes())  # bytes, not cv2.imwrite (a path OpenCV cannot take crashed it)
     return path
