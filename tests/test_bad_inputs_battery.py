@@ -1704,6 +1704,9 @@ IGNORED_OPTION_CASES = [
     (["fleet", "--checkpoint", SHIPPED / "small-sim-r1.json"], ["--checkpoint: is for the network methods"]),
     (["fleet", "--address", "127.0.0.1:1"], ["--address: is for --engine ray", "--engine local"]),
     (["fleet", "--engine", "process", "--ray-temp", "/tmp/r"], ["--ray-temp: is for --engine ray"]),
+    # Ray's socket limit counts bytes: 44 characters of 122 bytes (probe 66: an internal error after the manifest)
+    (["fleet", "--engine", "ray", "--ray-temp", "/tmp/" + "\u65e5\u672c\u8a9e" * 13],
+     ["--ray-temp: ", "is 122 bytes", "107-byte limit"]),
     (["fleet", "--workers", "2"], ["--workers: 2 parallel jobs need --engine process or ray"]),
     (["fleet", "--method", "pure", "--set", "mode=batch"], ["--set: mode: --method pure runs the sliding window"]),
     (["fleet", "--method", "pure", "--prior", "fleet_prior.json"], ["--prior: the fleet prior is applied by --method "

@@ -143,6 +143,10 @@ def check_options(args: argparse.Namespace) -> None:
         if value is not None and args.engine != "ray":
             raise OptionError(flag, f"is for --engine ray; --engine {args.engine} starts no Ray: drop {flag}, or pass "
                                     "--engine ray")
+    if args.engine == "ray" and args.address is None:  # before the manifest is written (probe 66)
+        from hybrid_calib.fleet.engines import check_ray_temp
+
+        check_ray_temp(args.ray_temp or args.out / "ray")
     if args.workers > 1 and args.engine == "local":
         raise OptionError("--workers", f"{args.workers} parallel jobs need --engine process or ray; --engine local "
                                        "runs one job at a time: pass --engine process, or drop --workers")

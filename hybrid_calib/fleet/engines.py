@@ -225,12 +225,20 @@ def _stop_workers(pool) -> None:
             pass
 
 
-def ray_temp_dir(temp_dir: str | Path) -> Path:
-    """``temp_dir`` created and checked short enough for Ray's socket paths (``OptionError`` if not)."""
+def check_ray_temp(temp_dir: str | Path) -> Path:
+    """``temp_dir`` resolved, checked short enough for Ray's socket paths (``OptionError`` if not); nothing created.
+    Counted in bytes, as the socket's limit is (probe 66: a 47-character name of 107 bytes passed, and Ray failed
+    with an internal error after the manifest was written)."""
     p = Path(temp_dir).resolve()
-    if len(str(p)) > MAX_SOCKET_DIR:
-        raise OptionError("--ray-temp", f"{p} is {len(str(p))} characters; Ray's socket paths under it would "
-                                        f"pass the 107-character limit: pass a directory of <= {MAX_SOCKET_DIR}")
+    if (n := len(os.fsencode(p))) > MAX_SOCKET_DIR:
+        raise OptionError("--ray-temp", f"{p} is {n} bytes; Ray's socket paths under it would pass the 107-byte "
+                                        f"limit: pass a directory of <= {MAX_SOCKET_DIR} bytes (characters, in ASCII)")
+    return p
+
+
+def ray_temp_dir(temp_dir: str | Path) -> Path:
+    """``temp_dir`` checked (``check_ray_temp``) and created."""
+    p = check_ray_temp(temp_dir)
     p.mkdir(parents=True, exist_ok=True)
     return p
 
