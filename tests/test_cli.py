@@ -131,6 +131,34 @@ sys.exit(cli.main())
     assert [r["exit_status"] for r in runs] == [0]
 
 
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full (Linux)")
+def test_a_stderr_that_cannot_be_written_does_not_stop_the_run(tmp_path):
+    """Probe 66: with stderr on a full disk (``2>/dev/full``) calibrate exited 1 with nothing written (its progress
+    bar's write failed), its runs.json saying 2. The bars and notes are best effort; the results are written."""
+    import subprocess
+    import sys
+
+    script = f"""
+import sys
+import hybrid_calib.cli as cli
+from hybrid_calib.commands import calibrate
+def noisy(args):
+    for k in range(50):
+        print("progress " * 200, file=sys.stderr, flush=True)
+    (args.out / "result.json").write_text("{{}}")
+    print("wrote it")
+    return 0
+calibrate.run = noisy
+sys.argv = ["hybrid-calib", "calibrate", "--data", {str(tmp_path)!r}, "--out", {str(tmp_path / "run")!r}]
+sys.exit(cli.main())
+"""
+    with open("/dev/full", "w") as full:
+        p = subprocess.run([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=full, text=True,
+                           timeout=120, env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])})
+    assert p.returncode == 0 and p.stdout == "wrote it\n", p
+    assert [r["exit_status"] for r in json.loads((tmp_path / "run" / "runs.json").read_text())] == [0]
+
+
 def test_a_killed_run_is_in_runs_json_once_the_next_run_finds_its_lock(tmp_path, monkeypatch):
     """Probe 60: a run killed by SIGKILL (the OOM killer, a machine that went down) was missing from runs.json and
     its lock stayed behind; the next run into the folder now adds it, exit status null, and removes the lock."""
