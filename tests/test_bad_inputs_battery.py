@@ -2428,3 +2428,30 @@ def test_the_typed_functions_refuse_the_outputs_the_commands_refuse(sim, calibra
     with pytest.raises(OptionError, match="holds the outputs of hybrid-calib compare .* pass another out"):
         run_calibration(root, SIM_VERSION, other, {"method": "oracle", "max_frames": 1})
     assert sorted(p.name for p in other.iterdir()) == ["compare.md", "compare_config.json"]
+
+
+def test_a_rerun_draws_the_plots_a_failed_write_left_out(sim, tmp_path, monkeypatch, capsys):
+    """Probe 66: a full disk stopped calibrate at its first plot; the rerun kept the finished vehicle (vehicles-done)
+    and drew no plot for it, without a word. A rerun draws every vehicle's missing plots."""
+    import errno
+
+    import hybrid_calib.plots.calibration as plots
+
+    root, _ = sim
+    out = tmp_path / "run"
+    real = plots.plot_vehicle
+
+    def full(vr, out_dir):
+        raise OSError(errno.ENOSPC, "No space left on device", str(out_dir / "x.png"))
+
+    monkeypatch.setattr(plots, "plot_vehicle", full)
+    argv = ["calibrate", "--data", root, "--version", SIM_VERSION, "--out", out, "--max-frames", "2"]
+    expect_cli_error(argv, capsys, "no space left on the device")
+    assert not (out / "result.json").exists() and not list(out.glob("plots/*.png"))
+    monkeypatch.setattr(plots, "plot_vehicle", real)
+    rc, err = run_cli(argv, capsys)
+    assert rc == 0 and "kept 1 vehicle(s)" in err, err
+    assert sorted(p.name for p in (out / "plots").glob("*.png")) == [
+        f"sim-veh-00{k}_{what}.png" for k in (0, 1) for what in ("drift", "trajectory")]
+    (out / "plots" / "sim-veh-001_drift.png").unlink()  # and a reused result whose plot was removed
+    assert run_cli(argv, capsys)[0] == 0 and (out / "plots" / "sim-veh-001_drift.png").is_file()

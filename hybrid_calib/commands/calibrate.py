@@ -112,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
     on_vehicle = None if args.no_plots else partial(plot_vehicle, out_dir=args.out / "plots")
     reused = (args.out / "result.json").is_file() and not args.overwrite  # calibrate returns it, if of this run
     if args.method != "oracle":
-        return _report(_learned(args, on_vehicle), args.out, reused)
+        return _report(_plotted(_learned(args, on_vehicle), args), args.out, reused)
     if args.split != "all" or split_overrides(args):
         from hybrid_calib.errors import HybridCalibError
 
@@ -136,7 +136,20 @@ def run(args: argparse.Namespace) -> int:
     result = calibrate(args.data, args.version, args.correspondences or "oracle", args.out, conf,
                        overwrite=args.overwrite,
                        on_vehicle=on_vehicle)
-    return _report(result, args.out, reused)
+    return _report(_plotted(result, args), args.out, reused)
+
+
+def _plotted(result, args: argparse.Namespace):
+    """``result`` after drawing the plots of its vehicles that have none: a vehicle an interrupted run kept, whose
+    plots were not written (probe 66: a full disk stopped the run at its first plot; the rerun kept the vehicle and
+    drew none), or a reused result whose plots were removed."""
+    from hybrid_calib.plots.calibration import plot_vehicle, vehicle_plot_paths
+
+    if not args.no_plots:
+        for vr in result.vehicles.values():
+            if not all(p.is_file() for p in vehicle_plot_paths(vr, args.out / "plots")):
+                plot_vehicle(vr, args.out / "plots")
+    return result
 
 
 def _report(result, out: Path, reused: bool = False) -> int:

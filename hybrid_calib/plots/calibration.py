@@ -82,6 +82,13 @@ def step_panels(vr: VehicleResult) -> list[StepPanel]:
     return panels
 
 
+def vehicle_plot_paths(vr: VehicleResult, out_dir: Path) -> list[Path]:
+    """The files ``plot_vehicle`` writes for ``vr`` into ``out_dir`` (none for a batch result)."""
+    if not vr.trajectory:
+        return []
+    return [Path(out_dir) / f"{file_part(vr.vehicle)}_{what}.png" for what in ("trajectory", "drift")]
+
+
 def plot_vehicle(vr: VehicleResult, out_dir: Path) -> list[Path]:
     """Write ``<vehicle>_trajectory.png`` (signed error with the +-2 sigma band, or the estimate
     when there is no truth) and ``<vehicle>_drift.png`` (windowed chi-square vs threshold, inlier
@@ -108,7 +115,8 @@ def plot_vehicle(vr: VehicleResult, out_dir: Path) -> list[Path]:
     fig.suptitle(f"{vr.vehicle}: estimate {f'error vs {against}' if vr.truth_T is not None else 'minus final estimate'}"
                  f" (camera axes) with the reported +-2 sigma")
     fig.tight_layout()
-    p1 = save_figure(fig, out_dir / f"{file_part(vr.vehicle)}_trajectory.png", dpi=90)
+    path_trajectory, path_drift = vehicle_plot_paths(vr, out_dir)
+    p1 = save_figure(fig, path_trajectory, dpi=90)
 
     panels = step_panels(vr)
     fig, axes = plt.subplots(len(panels) + 1, 1, figsize=(10, 2.2 * (len(panels) + 1) + 0.6), sharex=True)
@@ -144,5 +152,5 @@ def plot_vehicle(vr: VehicleResult, out_dir: Path) -> list[Path]:
     fig.suptitle(f"{vr.vehicle}: step detectors; chi2 vs reference {d.get('statistic', float('nan')):.1f} "
                  f"(p {d.get('p_value', float('nan')):.2g})\n{verdict}", fontsize=9)
     fig.tight_layout()
-    p2 = save_figure(fig, out_dir / f"{file_part(vr.vehicle)}_drift.png", dpi=90)
+    p2 = save_figure(fig, path_drift, dpi=90)
     return [p1, p2]
