@@ -28,6 +28,7 @@ from hybrid_calib.errors import (
     check_out_files,
     check_out_not_in_dataset,
     check_out_owner,
+    check_runs_record,
 )
 
 # subcommand name -> module in hybrid_calib.commands (each has HELP, add_arguments, run).
@@ -273,6 +274,8 @@ def _run(args: argparse.Namespace, debug: bool, argv: list[str]) -> int:
             check_out_not_in_dataset(path, option, data=data, version=version)
         check_out_owner(out, args.command)
         check_out_files(out, args.command, getattr(args, "overwrite", None))
+        if args.command != "simulate":  # simulate's root has no runs.json
+            check_runs_record(out)
         if out is None:
             status = int(args._run(args) or 0)
             _finished(args)

@@ -92,6 +92,27 @@ def check_out_files(out: str | Path | None, command: str, overwrite: bool | None
                                    f"{how}")
 
 
+def check_runs_record(out: str | Path | None) -> None:
+    """``OptionError`` when ``OUT/runs.json`` is there but is not a regular file (a FIFO hung the run at its end,
+    ignoring Ctrl-C: probe 66) or cannot be read (permissions: it was replaced, the runs it recorded lost)."""
+    if out is None:
+        return
+    from hybrid_calib.atomic import RUNS_NAME
+
+    path = Path(out) / RUNS_NAME
+    if not os.path.lexists(path):
+        return
+    if not path.is_file():
+        raise OptionError("--out", f"{path} is not a regular file (a folder, a named pipe or a broken link), where the "
+                                   "run's record goes; move it away")
+    try:
+        with open(path, "rb") as f:
+            f.read(1)
+    except OSError as e:
+        raise OptionError("--out", f"{path} cannot be read ({e.strerror or e}): the runs it records would be lost "
+                                   "when this run adds its own; make it readable, or move it away") from None
+
+
 def check_out_owner(out: str | Path | None, command: str, option: str = "--out") -> None:
     """``OptionError`` when ``out`` holds another command's outputs (its ``OUT_MARKERS`` file): a run there mixed
     its files with them (a train run beside an evaluate run's results, sharing its depth cache)."""

@@ -8,6 +8,7 @@ first CLI cases (tables, --set, --out, checkpoints) in test_error_boundary.py; t
 from __future__ import annotations
 
 import json
+import os
 import shutil
 from collections import namedtuple
 from pathlib import Path
@@ -2455,3 +2456,23 @@ def test_a_rerun_draws_the_plots_a_failed_write_left_out(sim, tmp_path, monkeypa
         f"sim-veh-00{k}_{what}.png" for k in (0, 1) for what in ("drift", "trajectory")]
     (out / "plots" / "sim-veh-001_drift.png").unlink()  # and a reused result whose plot was removed
     assert run_cli(argv, capsys)[0] == 0 and (out / "plots" / "sim-veh-001_drift.png").is_file()
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs named pipes")
+def test_a_named_pipe_where_a_record_or_a_page_goes_is_refused_not_waited_on(calibrated, tmp_path, capsys):
+    """Probe 66: a FIFO at OUT/runs.json hung calibrate at its end (ignoring Ctrl-C, its run done), and one at the
+    report's page hung the report (opened to read its first bytes)."""
+    out = tmp_path / "run"
+    out.mkdir()
+    os.mkfifo(out / "runs.json")
+    expect_cli_error(_calibrate(calibrated.parent / "nowhere", out), capsys, "runs.json is not a regular file",
+                     "move it away")
+    assert sorted(p.name for p in out.iterdir()) == ["runs.json"]
+    os.mkfifo(tmp_path / "page.html")
+    expect_cli_error(["report", calibrated / "result.json", "--out", tmp_path / "page.html"], capsys,
+                     "exists and is not an HTML page")
+    from hybrid_calib.errors import HybridCalibError
+    from hybrid_calib.report.html import write_page
+
+    with pytest.raises(HybridCalibError, match="is not an HTML page"):
+        write_page(tmp_path / "page.html", "t", "b")

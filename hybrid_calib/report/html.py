@@ -72,7 +72,10 @@ def page(title: str, body: str, source: str = "") -> str:
 
 
 def is_html(path: Path) -> bool:
-    """Whether the file at ``path`` is an HTML page (what the reports write), by its first bytes."""
+    """Whether the file at ``path`` is an HTML page (what the reports write), by its first bytes; False for what is
+    not a regular file (a named pipe there hung the report, opened to read: probe 66)."""
+    if not Path(path).is_file():
+        return False
     try:
         with open(path, "rb") as f:
             head = f.read(512).lstrip().lower()
