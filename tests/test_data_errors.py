@@ -359,6 +359,24 @@ def test_inspect_command_reports_skips(tiny, tmp_path, capsys):
     assert conf["conf"]["radar_filter"]["ambig_states"] is None
     png = cv2.imread(str(out / "overlay.png"))
     assert png is not None and png.shape[0] > 100
+    # a reader that stops after the first line (`| head -1`): the files are written before the table (probe 66: none
+    # were)
+    import io
+    import sys
+
+    class Gone(io.StringIO):
+        def write(self, text):
+            raise BrokenPipeError(32, "Broken pipe")
+
+    gone = parser.parse_args(["--data", str(tiny.root), "--version", VERSION, "--out", str(tmp_path / "gone"),
+                              "--no-progress", "--set", "radar_filter.ambig_states=null"])
+    real, sys.stdout = sys.stdout, Gone()
+    try:
+        with pytest.raises(BrokenPipeError):
+            inspect_cmd.run(gone)
+    finally:
+        sys.stdout = real
+    assert json.loads((tmp_path / "gone" / "inspect_summary.json").read_text())["n_loaded"] == 3
 
 
 # ---------------------------------------------------------------- accepted silently before (issue 8)

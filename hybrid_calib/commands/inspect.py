@@ -56,13 +56,15 @@ def run(args: argparse.Namespace) -> int:
         valid = f" (0..{len(ds) - 1}); pass one of them, or drop --frame to draw the first loaded" if len(ds) else ""
         raise OptionError("--frame", f"frame {args.frame} does not exist; this root has {len(ds)} frames{valid}")
     summary = summarize_dataset(ds, progress=not args.no_progress)
-    print(summary.format(None if args.out is None else str(Path(args.out) / "inspect_summary.json")))
     if args.out is None:
+        print(summary.format(None))
         return 0 if summary.n_loaded else 1
     out = Path(args.out)
+    # the files first, then the table: a reader that stops early (`| head -1`) or a full stdout lost them (probe 66)
     save_json_atomic(out / "inspect_config.json", dict(data=str(args.data), version=args.version, radar=args.radar,
                                                        camera=args.camera, conf=to_dict(conf)))
     save_json_atomic(out / "inspect_summary.json", summary.to_json())
+    print(summary.format(str(out / "inspect_summary.json")))
     print(f"wrote {out / 'inspect_summary.json'}")
     index = args.frame if args.frame is not None else summary.first_loaded
     bad = next((r for r in summary.skipped if args.frame is not None and r.get("index") == args.frame), None)
