@@ -669,3 +669,19 @@ def test_the_step_figure_draws_the_test_that_raised_each_alarm(run_dir, tmp_path
     for k, r in enumerate((hyb, window, untested, oracle)):
         _, drift = plot_vehicle(r, tmp_path / str(k))
         assert mpimg.imread(drift).shape[0] > 300
+
+
+def test_the_error_curve_ends_at_the_median_of_every_trials_end(run_dir):
+    """Probe 67: trials lined up by frames fused; a trial that left a frame out was shorter, so the curve's last point
+    was the longer trials' median (one trial's, at worst) while compare.md's table was every trial's."""
+    from hybrid_calib.plots.calibration import trajectory_errors
+    from hybrid_calib.plots.compare import _series
+
+    run = CalibrationRun.load(run_dir / "run" / "result.json")
+    full = next(iter(run.vehicles.values()))
+    short = dataclasses.replace(full, trajectory=full.trajectory[:-2])
+    err, std = _series([full, short])
+    assert err.shape == (2, len(full.trajectory), 6) and np.isfinite(err).all() and np.isfinite(std).all()
+    np.testing.assert_allclose(err[1, -1], np.abs(trajectory_errors(short))[-1])
+    np.testing.assert_allclose(np.median(err[:, -1], axis=0),
+                               np.median([np.abs(trajectory_errors(r))[-1] for r in (full, short)], axis=0))

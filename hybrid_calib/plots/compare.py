@@ -12,17 +12,20 @@ from hybrid_calib.plots.figure import pyplot, save_figure
 
 
 def _series(results: list[VehicleResult]) -> tuple[np.ndarray, np.ndarray]:
-    """(T, F, 6) |signed error| and (T, F, 6) reported std (camera axes, deg / cm), NaN-padded."""
+    """(T, F, 6) |signed error| and (T, F, 6) reported std (camera axes, deg / cm) after each number of frames fused;
+    a trial that fused fewer frames than the longest (a frame left out) keeps its last estimate to the end, so the
+    last point is the median of every trial's end, as compare.md's table (probe 67: it was the longer trials' alone,
+    one trial's at worst); NaN for a trial without truth."""
     F = max((len(r.trajectory) for r in results), default=0)
     err = np.full((len(results), F, 6), np.nan)
     std = np.full((len(results), F, 6), np.nan)
     for t, r in enumerate(results):
-        if r.truth_T is None:
+        if r.truth_T is None or not r.trajectory:
             continue
-        if r.trajectory:  # each frame against the mount of that frame (a knock moved it)
-            err[t, :len(r.trajectory)] = np.abs(trajectory_errors(r))
-        for k, f in enumerate(r.trajectory):
-            std[t, k] = np.asarray(f.estimate.std)[list(STD_COLUMN)]
+        n = len(r.trajectory)
+        err[t, :n] = np.abs(trajectory_errors(r))  # each frame against the mount of that frame (a knock moved it)
+        std[t, :n] = [np.asarray(f.estimate.std)[list(STD_COLUMN)] for f in r.trajectory]
+        err[t, n:], std[t, n:] = err[t, n - 1], std[t, n - 1]
     return err, std
 
 
@@ -46,6 +49,7 @@ def plot_error_vs_frames(results: dict[str, list[VehicleResult]], path: Path) ->
     for ax in axes[1]:
         ax.set_xlabel("frames fused")
     axes[0, 0].legend(fontsize=7)
-    fig.suptitle("error against frames fused (median over trials) and the reported 2-sigma (median)")
+    fig.suptitle("error against frames fused (median over trials; a trial that fused fewer frames keeps its last "
+                 "estimate) and the reported 2-sigma (median)")
     fig.tight_layout()
     return save_figure(fig, Path(path), dpi=90)
