@@ -685,3 +685,34 @@ def test_the_error_curve_ends_at_the_median_of_every_trials_end(run_dir):
     np.testing.assert_allclose(err[1, -1], np.abs(trajectory_errors(short))[-1])
     np.testing.assert_allclose(np.median(err[:, -1], axis=0),
                                np.median([np.abs(trajectory_errors(r))[-1] for r in (full, short)], axis=0))
+
+
+def test_the_fleet_figure_shows_whole_bars_one_colour_rule_and_names_its_band(run_dir, tmp_path, monkeypatch):
+    """Probe 67: the axes were fitted to the offsets and cut the +-2 sigma bars; a vehicle out of tolerance that also
+    stepped was orange (purple never drawn); the fleet page coloured every flagged vehicle red while fleet.png used
+    its flags; the grey band was named nowhere."""
+    from hybrid_calib.plots.fleet import axis_limits, vehicle_colour
+
+    assert vehicle_colour(["out_of_tolerance", "drifted_in_drive"]) == "tab:purple"
+    assert vehicle_colour(["drifted_in_drive", "fleet_outlier"]) == "tab:red" and vehicle_colour([]) == "tab:blue"
+    off, std = np.array([[1.0, 0, 0, 7.2, 0, 0], [-0.5, 0, 0, -0.2, 0, 0]]), np.full((2, 6), 1.0)
+    std[0, 3] = 26.7
+    lim = axis_limits(off, std, 2.0, (np.full(6, 0.5), np.full(6, 3.0)))
+    assert lim[3] >= 7.2 + 2 * 26.7 and lim[0] >= 3.0 and lim[1] >= 3.5
+    run = CalibrationRun.load(run_dir / "run" / "result.json")
+    names = sorted(run.vehicles)
+    paths = []
+    for name, vr in run.vehicles.items():
+        d = tmp_path / name
+        CalibrationRun(run.data, run.version, run.correspondences, run.mode, {name: vr}).save(d / "result.json")
+        paths.append(d / "result.json")
+    import hybrid_calib.plots.fleet
+
+    drawn, draw = {}, hybrid_calib.plots.fleet.draw_fleet
+    monkeypatch.setattr(hybrid_calib.plots.fleet, "draw_fleet",
+                        lambda names, off, std, flags, *a, **k: drawn.update(zip(names, flags)) or draw(
+                            names, off, std, flags, *a, **k))
+    page = write_fleet_page(paths, tmp_path / "fleet.html", flagged={names[0]: ("out_of_tolerance",), names[1]: ()},
+                            reports={})
+    assert drawn == {names[0]: ("out_of_tolerance",), names[1]: ()}  # as fleet.png colours them
+    assert "Flagged: " + names[0] in page.read_text() and names[1] not in page.read_text().split("Flagged: ")[1][:60]

@@ -173,5 +173,5 @@ def write_fleet_pages(summary: dict, out: Path) -> Path | None:
               for jid, r in summary["vehicles"].items() if r["state"] != "done"}
     return write_fleet_page([out / r["result"] for r in done.values()], out / "fleet.html",
                             design=None if design is None else np.asarray(design),
-                            flagged=[jid for jid, r in done.items() if r.get("flags")], labels=list(done),
+                            flagged={jid: r.get("flags") or () for jid, r in done.items()}, labels=list(done),
                             not_done=others)

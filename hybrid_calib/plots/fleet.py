@@ -14,9 +14,26 @@ import numpy as np
 from hybrid_calib.plots.figure import pyplot, save_figure
 
 AXES = ("rot x [deg]", "rot y [deg]", "rot z [deg]", "t x [cm]", "t y [cm]", "t z [cm]")
-COLOURS = {"fleet_outlier": "tab:red", "out_of_tolerance": "tab:orange", "drifted_in_drive": "tab:purple",
-           "flagged": "tab:red"}
-LEGEND = "red: fleet outlier / flagged, orange: out of tolerance, purple: drifted in the drive"
+# a vehicle's colour: its first flag in this order (a step inside the drive before a mount off its tables: both
+# vehicles of a knocked fleet were orange, and purple was never drawn, probe 67)
+COLOURS = {"fleet_outlier": "tab:red", "flagged": "tab:red", "drifted_in_drive": "tab:purple",
+           "out_of_tolerance": "tab:orange"}
+LEGEND = "red: fleet outlier / flagged, purple: drifted in the drive, orange: out of tolerance"
+
+
+def vehicle_colour(flags: Sequence[str]) -> str:
+    """The colour of a vehicle with ``flags``: its first flag in ``COLOURS``' order; blue for none."""
+    return next((c for f, c in COLOURS.items() if f in flags), "tab:blue")
+
+
+def axis_limits(offsets: np.ndarray, sigmas: np.ndarray, n_sigma: float = 2.0,
+                band: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """(6,) half-width of each panel's axis: every offset with its +-``n_sigma`` bar, and the band, in view."""
+    reach = np.abs(np.asarray(offsets, np.float64).reshape(-1, 6)) + n_sigma * np.nan_to_num(
+        np.asarray(sigmas, np.float64).reshape(-1, 6))
+    if band is not None:
+        reach = np.vstack([reach, np.abs(band[0]) + band[1]])
+    return reach.max(axis=0) * 1.1 + 1e-6 if len(reach) else np.ones(6)
 
 
 def draw_fleet(names: Sequence[str], offsets: np.ndarray, sigmas: np.ndarray, flags: Sequence[Sequence[str]],
@@ -25,12 +42,14 @@ def draw_fleet(names: Sequence[str], offsets: np.ndarray, sigmas: np.ndarray, fl
     """Write ``path`` (PNG): six panels (camera axes), one row per vehicle.
 
     offsets, sigmas: (V, 6) [rot x, y, z deg, t x, y, z cm], camera axes; bars are +-``n_sigma``.
-    flags: per vehicle its flag names (keys of ``COLOURS``; the first known one colours it, and a
-    flagged vehicle's label says so). band: optional (mean (6,), spread (6,)) drawn as a grey band."""
+    flags: per vehicle its flag names (keys of ``COLOURS``; the first of them in ``COLOURS``' order colours it, and
+    a flagged vehicle's label names its flags). band: optional (mean (6,), spread (6,)) drawn as a grey band. Each
+    axis shows every vehicle's bar whole (probe 67: the axis was fitted to the offsets alone and cut the bars)."""
     plt = pyplot()
     off = np.asarray(offsets, np.float64).reshape(-1, 6)
     std = np.asarray(sigmas, np.float64).reshape(-1, 6)
-    colour = [next((COLOURS[f] for f in fl if f in COLOURS), "tab:blue") for fl in flags]
+    colour = [vehicle_colour(fl) for fl in flags]
+    limits = axis_limits(off, std, n_sigma, band)
     y = np.arange(len(names))
     fig, axes = plt.subplots(1, 6, figsize=(16, 1.5 + 0.28 * max(len(names), 4)), sharey=True)
     for k, ax in enumerate(axes):
@@ -39,13 +58,14 @@ def draw_fleet(names: Sequence[str], offsets: np.ndarray, sigmas: np.ndarray, fl
         ax.axvline(0, color="k", lw=0.6)
         for i in range(len(names)):
             ax.errorbar(off[i, k], y[i], xerr=n_sigma * std[i, k], fmt="o", ms=3, color=colour[i], lw=1, capsize=2)
-        lim = np.max(np.abs(off[:, k])) * 1.2 + 1e-6 if len(names) else 1  # every vehicle (outliers too) in view
-        ax.set_xlim(-lim, lim)
+        ax.set_xlim(-limits[k], limits[k])  # every vehicle (outliers too) and its bar in view
         ax.set_title(AXES[k], fontsize=9)
-    labels = [f"{n} (flagged)" if c != "tab:blue" else n for n, c in zip(names, colour)]
+    labels = [f"{n} ({', '.join(f.replace('_', ' ') for f in fl if f in COLOURS)})" if c != "tab:blue" else n
+              for n, c, fl in zip(names, colour, flags)]
     axes[0].set_yticks(y, labels, fontsize=7)
     axes[0].invert_yaxis()
-    fig.suptitle(f"{title}; +-{n_sigma:g} sigma (camera axes); {LEGEND}", fontsize=9)
+    grey = "; grey: the fleet's mean +- its spread (1 sigma)" if band is not None else ""
+    fig.suptitle(f"{title}; +-{n_sigma:g} sigma (camera axes); {LEGEND}{grey}", fontsize=9)
     fig.tight_layout()
     return save_figure(fig, path, dpi=90)
 

@@ -40,14 +40,16 @@ def _offset(vr: VehicleResult, design: np.ndarray | None) -> np.ndarray | None:
 
 
 def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.ndarray | None = None,
-                     flagged: Sequence[str] = (), reports: Mapping[str, str | Path] | None = None,
+                     flagged: Sequence[str] | Mapping[str, Sequence[str]] = (),
+                     reports: Mapping[str, str | Path] | None = None,
                      data: str | Path | None = None, version: str | None = None,
                      conf: ReportConfig | dict | None = None, labels: Sequence[str] | None = None,
                      not_done: Mapping[str, str] | None = None) -> Path:
     """Write the fleet page ``out`` (HTML) from per-vehicle result files.
 
     results: ``result.json`` paths. design: (4, 4) design-mount ``T_cam_radar`` or None. flagged: names
-    of vehicles the fleet engine flagged (named in the plot and the table; when empty, the vehicles whose
+    of vehicles the fleet engine flagged, or name -> its flags (``fleet.summary``'s: the figure colours them as the
+    fleet command's fleet.png does) (named in the plot and the table; when empty, the vehicles whose
     sensor stepped during the drive are flagged; a mount that only differs from the design shows in its
     verdict, "recalibrate"). reports: vehicle ->
     its report page, already written; when None, each vehicle's page is written next to its result
@@ -90,7 +92,11 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
                     unwritten[name] = f"{page}: {e.strerror or e}" if isinstance(e, OSError) else f"{page}: {e}"
     names = list(vehicles)
     verdicts = {n: verdict_of(vr, conf.tolerance) for n, (vr, _) in vehicles.items()}
-    flagged = list(flagged) or [n for n in names if verdicts[n].moved_frames]
+    flags = ({n: tuple(f) for n, f in flagged.items()} if isinstance(flagged, Mapping) else
+             {n: ("flagged",) for n in flagged})
+    if not any(flags.values()):
+        flags = {n: ("drifted_in_drive",) for n in names if verdicts[n].moved_frames}
+    flagged = [n for n in names if flags.get(n)]
     offsets = {n: _offset(vr, design) for n, (vr, _) in vehicles.items()}
     reference = "design mount" if design is not None else "vehicle's own reference (calibration tables)"
 
@@ -101,7 +107,7 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
         if plotted:
             png = draw_fleet(plotted, np.array([offsets[n] for n in plotted]),
                              np.array([vehicles[n][0].final.std for n in plotted]),
-                             [("flagged",) if n in flagged else () for n in plotted], Path(tmp) / "fleet.png",
+                             [flags.get(n, ()) for n in plotted], Path(tmp) / "fleet.png",
                              f"offset from the {reference} per vehicle")
             fig = img_tag(png, "fleet plot")
 
