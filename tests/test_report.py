@@ -179,6 +179,8 @@ def test_the_lidar_alignment_is_said_in_words():
     vr.lidar = {"applied": True, "dy_m": -0.089, "dy_std_m": 0.034, "rows": 377, "frames": 41}
     assert "-8.9 +- 3.4 cm" in status_html(vr)
     assert "the camera-x translation and its 1-sigma above are the LiDAR" in lidar_html(vr)
+    vr.lidar = {**vr.lidar, "dx_m": -0.19, "dx_std_m": 0.099, "forward_applied": True}  # its forward reading too
+    assert "the camera-x and camera-z translations and their 1-sigma above are the LiDAR" in lidar_html(vr)
     vr.lidar = {"applied": False, "dy_m": 0.2, "dy_std_m": 0.2, "rows": 120, "frames": 9, "note": "std 20.0 cm > 10"}
     assert "not applied: std 20.0 cm &gt; 10" in lidar_html(vr)
     vr.lidar = {"applied": False, "note": "no LiDAR in the frames"}
@@ -716,3 +718,22 @@ def test_the_fleet_figure_shows_whole_bars_one_colour_rule_and_names_its_band(ru
                             reports={})
     assert drawn == {names[0]: ("out_of_tolerance",), names[1]: ()}  # as fleet.png colours them
     assert "Flagged: " + names[0] in page.read_text() and names[1] not in page.read_text().split("Flagged: ")[1][:60]
+
+
+def test_the_page_names_drive_frames_and_draws_rings_only_where_it_says_so(run_dir, tmp_path):
+    """Probe 67: the pictures' alt texts (and the attention's line) named the dataset's frame index beside titles
+    and plots counting the drive's frames; the rings' caption stood on pages that drew no rings."""
+    import re
+    import shutil
+
+    result = run_dir / "run" / "result.json"
+    name = sorted(json.loads(result.read_text())["vehicles"])[1]
+    text = write_report(result, tmp_path / "a.html", vehicle=name).read_text()
+    alts = re.findall(r'alt="([^"]*) start and result"', text)
+    assert alts and all(a.startswith("drive frame ") for a in alts), alts
+    assert "rings: the correspondences' observed pixels" in text
+    bare = tmp_path / "bare"
+    shutil.copytree(run_dir / "run", bare)
+    (bare / "config.json").unlink()  # no config: the rows are not rebuilt, no rings
+    text = write_report(bare / "result.json", tmp_path / "b.html", vehicle=name, data=run_dir / "sim").read_text()
+    assert "rings:" not in text and "no correspondences are drawn (see the notes below)" in text

@@ -44,7 +44,8 @@ def plot_estimate_bands(vr: VehicleResult, path: str | Path) -> Path:
                         label="+-3 sigma")
         ax.plot(k, est[:, j], color="tab:blue", lw=1.2, label="estimate")
         if truth is not None:
-            ax.step(k, truth[:, j], where="post", color="k", ls="--", lw=0.8, label="truth")
+            ax.step(k, truth[:, j], where="post", color="k", ls="--", lw=0.8,  # a real root's: its tables (probe 67)
+                    label="the tables" if vr.errors_against == "tables" else "truth")
         for f in traj:
             if f.step_alarm:
                 ax.axvline(f.index, color="orange", lw=1.5, alpha=0.8)

@@ -63,7 +63,8 @@ def attention_html(vr: VehicleResult, ev: Evidence, data, version: str, checkpoi
     if checkpoint and named and not _same_file(checkpoint, named):
         other = (f" <b>The result was calibrated with {esc(named)}</b>; this figure is of the checkpoint given with "
                  "--checkpoint, which is not that file.")
-    return (head + f"<p class=meta>Checkpoint {esc(ckpt)} on frame {frame.index}, from the fixed R1 evaluation start."
+    where = f"drive frame {frame.drive_index}" if frame.drive_index is not None else f"dataset frame {frame.index}"
+    return (head + f"<p class=meta>Checkpoint {esc(ckpt)} on {where}, from the fixed R1 evaluation start."
             f"{other} "
             "Top: points projected with the start (red) and the network's estimate (green; white: truth, or on a "
             "real root its tables). Middle: "

@@ -147,8 +147,10 @@ def status_html(vr: VehicleResult) -> str:
 
 def lidar_html(vr: VehicleResult) -> str:
     """The hybrid's LiDAR alignment (``vr.lidar``, docs/conventions.md) in words, or "" without one."""
+    both = bool((vr.lidar or {}).get("forward_applied"))  # the forward reading too (probe 67: only x was named)
     return _alignment_html(vr.lidar, describe_lidar, "lidar", "LiDAR alignment (the radar's offset along camera x "
-                           "against the LiDAR's scene)", "camera-x translation", "LiDAR's")
+                           + ("and z " if both else "") + "against the LiDAR's scene)",
+                           "camera-x and camera-z translations" if both else "camera-x translation", "LiDAR's")
 
 
 def doppler_html(vr: VehicleResult) -> str:
@@ -162,7 +164,8 @@ def _alignment_html(block: dict | None, describe, pid: str, title: str, axis: st
         return ""
     words = describe(block)
     if block["applied"]:
-        words += f": the {axis} and its 1-sigma above are the {whose}, not the network's"
+        words += f": the {axis} and {'their' if ' and ' in axis else 'its'} 1-sigma above are the {whose}, not the " \
+                 "network's"
     return f"<p id=\"{pid}\">{esc(title)}: {esc(words)}</p>"
 
 
@@ -171,10 +174,12 @@ def _figures(vr: VehicleResult, ev: Evidence, tmp: Path) -> str:
 
     out = "<h2>Radar on the camera: start and result</h2>"
     if ev.frames:
+        rings = any(sf.pairs_start is not None or sf.pairs_result is not None for sf in ev.frames)
         out += (f"<p class=meta>Radar points (coloured by depth) projected with the start ({esc(ev.start_label)}) and "
-                "with the result (after a step in the drive: the estimate of the frame's part of the drive); rings: "
-                "the correspondences' observed pixels joined to their radar point (green: inlier at that extrinsic, "
-                "red: rejected).</p>")
+                "with the result (after a step in the drive: the estimate of the frame's part of the drive)"
+                + ("; rings: the correspondences' observed pixels joined to their radar point (green: inlier at that "
+                   "extrinsic, red: rejected).</p>" if rings else
+                   "; no correspondences are drawn (see the notes below).</p>"))
         for sf in ev.frames:
             panels = [{"title": "start", "uv": sf.uv_start, "depth": sf.depth_start, "pairs": sf.pairs_start},
                       {"title": sf.result_label, "uv": sf.uv_result, "depth": sf.depth_result,
@@ -182,7 +187,7 @@ def _figures(vr: VehicleResult, ev: Evidence, tmp: Path) -> str:
             where = f"drive frame {sf.drive_index}" if sf.drive_index is not None else f"dataset frame {sf.index}"
             png = draw_before_after(sf.image, panels, tmp / f"frame{sf.index}.png",
                                     title=f"{vr.vehicle} {where} (sample {sf.token[:8]})")
-            out += img_tag(png, f"frame {sf.index} start and result")
+            out += img_tag(png, f"{where} start and result")  # as its title (probe 67: the dataset's index)
     else:
         out += "<p class=note>No camera frames shown (see the notes below).</p>"
     out += "<h2>Estimate and 3-sigma band per axis</h2>"
