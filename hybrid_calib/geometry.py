@@ -8,6 +8,10 @@ Conventions (see docs/conventions.md):
 - Perturbations are on the right: ``retract(T, xi) = T @ exp(xi)`` and
   ``local(T1, T2) = log(T1^-1 @ T2)``, as ``gtsam.Pose3.retract`` / ``localCoordinates``.
 - Quaternions in files follow nuScenes: ``[w, x, y, z]``.
+
+The helpers take checked input and do not check it again (they run in the solvers' inner loops): a value from
+outside (a user's, a file's) goes through ``check_transform`` / ``check_covariance`` first, as every typed entry
+point does; ``se3_log`` of a scaled matrix, say, is not a meaningful number.
 """
 
 from __future__ import annotations

@@ -34,6 +34,12 @@ def nees(xi: np.ndarray, cov: np.ndarray) -> np.ndarray | float:
     (F, 6) errors in the right tangent [rad, m] of ``T_cam_radar`` (``local(T_true, T_est)``); ``cov``: (6, 6) or
     (F, 6, 6) in the same tangent. A float for one error, (F,) for F."""
     xi, cov = np.asarray(xi, np.float64), np.asarray(cov, np.float64)
+    if xi.ndim not in (1, 2) or xi.shape[-1] != 6 or cov.shape != (*xi.shape[:-1], 6, 6):
+        raise ValueError(f"nees: xi (6,) or (F, 6) with cov (6, 6) or (F, 6, 6), got xi {xi.shape} and cov {cov.shape}")
+    if not (np.isfinite(xi).all() and np.isfinite(cov).all()):
+        raise ValueError("nees: xi or cov holds NaN/inf values (probe 67: a NaN error gave NaN, read as no verdict)")
+    if not np.allclose(cov, np.swapaxes(cov, -1, -2), rtol=1e-9, atol=1e-15 * max(1.0, float(np.abs(cov).max()))):
+        raise ValueError("nees: cov is not symmetric (a covariance is; check its order and frame)")
     try:
         if xi.ndim == 1:
             v = np.array([xi @ np.linalg.solve(cov, xi)])
@@ -55,6 +61,9 @@ def consistency(nees_values) -> dict:
     v = np.asarray(nees_values, np.float64).reshape(-1)
     if not len(v):
         return {"n": 0, "nees_mean": None, "nees_median": None, "coverage_95": None}
+    if not (np.isfinite(v).all() and (v >= 0).all()):  # a NEES of -5 was "inside the ellipsoid" (probe 67)
+        raise ValueError(f"consistency: NEES values must be finite and >= 0 (as ``nees`` returns them), got "
+                         f"{v[~(np.isfinite(v) & (v >= 0))][:3].tolist()}")
     return {"n": int(len(v)), "nees_mean": float(v.mean()), "nees_median": float(np.median(v)),
             "coverage_95": float(np.mean(v < CHI2_6_95))}
 
@@ -115,7 +124,11 @@ def std_from_dict(d: dict, frame: str) -> np.ndarray:
 
 
 def signed_errors(T_est: np.ndarray, T_gt: np.ndarray) -> np.ndarray:
-    """Signed ``[roll, pitch, yaw]`` (rad) and ``[dx, dy, dz]`` (m) errors, (6,)."""
+    """Signed ``[roll, pitch, yaw]`` (rad) and ``[dx, dy, dz]`` (m) errors, (6,), of two (4, 4) ``T_cam_radar``
+    (``ValueError`` naming the one that is not a finite rigid transform: a scaled rotation read as 0 error, probe
+    67)."""
+    T_est, T_gt = (check_transform(T, f"signed_errors {name}", atol=RIGID_ATOL)
+                   for name, T in (("T_est", T_est), ("T_gt", T_gt)))
     dR = T_est[:3, :3] @ T_gt[:3, :3].T
     return np.concatenate([camera_euler_from_rotation(dR), T_est[:3, 3] - T_gt[:3, 3]])
 
@@ -127,7 +140,7 @@ def extrinsic_error(T_est: np.ndarray, T_gt: np.ndarray) -> ExtrinsicError:
     measured as it is)."""
     T_est, T_gt = (check_transform(T, f"extrinsic_error {name}", atol=RIGID_ATOL)
                    for name, T in (("T_est", T_est), ("T_gt", T_gt)))
-    s = signed_errors(T_est, T_gt)
+    s = signed_errors(T_est, T_gt)  # (checked again: microseconds)
     rpy = np.degrees(np.abs(s[:3]))
     dt = np.abs(s[3:]) * 100.0
     geo = np.degrees(np.linalg.norm(so3_log(T_est[:3, :3] @ T_gt[:3, :3].T)))

@@ -420,3 +420,49 @@ def test_configs_built_directly_check_their_types_as_merge_does(tmp_path):
         with pytest.raises(DataError) as e:
             run()
         assert "no-such-root" in str(e.value) and "[file n]" not in str(e.value)
+
+
+def test_the_metrics_refuse_what_they_cannot_measure():
+    """Probe 67: signed_errors of a scaled rotation was 0, nees of a non-symmetric covariance a number and of a NaN
+    error NaN, consistency of a negative NEES "inside the ellipsoid"; a (6,) error with a (3, 3) covariance failed
+    inside numpy."""
+    from hybrid_calib.metrics import consistency, nees, signed_errors
+
+    T = np.eye(4)
+    with pytest.raises(ValueError, match="signed_errors T_est: rotation block is not a proper rotation"):
+        signed_errors(np.diag([1.05, 1, 1, 1]), T)
+    with pytest.raises(ValueError, match="signed_errors T_gt"):
+        signed_errors(T, np.eye(3))
+    np.testing.assert_allclose(signed_errors(T, T), np.zeros(6))
+    with pytest.raises(ValueError, match=r"nees: xi \(6,\) or \(F, 6\) with cov .* got xi \(6,\) and cov \(3, 3\)"):
+        nees(np.zeros(6), np.eye(3))
+    with pytest.raises(ValueError, match="nees: xi or cov holds NaN"):
+        nees(np.r_[np.nan, np.zeros(5)], np.eye(6))
+    skew = np.eye(6)
+    skew[0, 1] = 0.5
+    with pytest.raises(ValueError, match="nees: cov is not symmetric"):
+        nees(np.ones(6), skew)
+    assert nees(np.ones(6), np.eye(6)) == pytest.approx(6.0)
+    np.testing.assert_allclose(nees(np.ones((3, 6)), np.stack([np.eye(6)] * 3)), [6.0] * 3)
+    with pytest.raises(ValueError, match=r"consistency: NEES values must be finite and >= 0.*\[-5.0\]"):
+        consistency([-5.0, 1.0])
+    assert consistency([1.0, 20.0])["coverage_95"] == 0.5
+
+
+def test_the_reader_and_the_window_name_a_wrong_kind_of_argument(tiny):
+    """Probe 67: a version None was "unsupported operand type(s) for /", a frame index 'a' a comparison error, and the
+    window's timestamp_us 1.5 was truncated while Correspondences refuses it."""
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+
+    with pytest.raises(TypeError, match="version must be a non-empty str"):
+        NuScenesRadarCamera(tiny.root, None)
+    ds = NuScenesRadarCamera(tiny.root, tiny.version)
+    with pytest.raises(TypeError, match="frame index must be an integer, got str 'a'"):
+        ds["a"]
+    assert ds[np.int64(0)].camera_token == ds[0].camera_token
+    T, frames, T0 = _drive()
+    cal = SlidingWindowCalibrator(T0, WINDOW)
+    for bad in (1.5, float("nan"), "7", True):
+        with pytest.raises(ValueError, match="timestamp_us must be an integer number of microseconds"):
+            cal.update(frames[0], timestamp_us=bad)
+    assert cal.update(frames[0], timestamp_us=np.int64(5)).n_total == 1

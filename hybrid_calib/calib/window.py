@@ -484,6 +484,11 @@ class SlidingWindowCalibrator:
         that frame only: the frame stayed in the window and failed the next 20 good ones, probe 31)."""
         if not isinstance(corr, Correspondences):
             raise TypeError(f"update() needs a Correspondences, got {type(corr)}")
+        if timestamp_us is not None and (isinstance(timestamp_us, bool)
+                                         or not isinstance(timestamp_us, (int, np.integer))):
+            # as Correspondences.timestamp_us (probe 67: 1.5 was truncated, NaN an error from int())
+            raise ValueError(f"update({corr.frame_id}): timestamp_us must be an integer number of microseconds, got "
+                             f"{type(timestamp_us).__name__} {timestamp_us!r}")
         before = self._snapshot()
         try:
             return self._update(corr, prior, timestamp_us)

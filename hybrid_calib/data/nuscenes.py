@@ -161,6 +161,10 @@ class NuScenesRadarCamera:
     def __init__(self, root: str | Path, version: str, radar_channel: str = "RADAR_FRONT",
                  camera_channel: str = "CAM_FRONT", conf: DataConfig | dict | None = None):
         self.conf = merge(DataConfig, conf)
+        for name, value in (("version", version), ("radar_channel", radar_channel), ("camera_channel", camera_channel)):
+            if not isinstance(value, str) or not value:  # probe 67: None was "unsupported operand type(s) for /"
+                raise TypeError(f"NuScenesRadarCamera: {name} must be a non-empty str (e.g. 'v1.0-mini'), got "
+                                f"{value!r}")
         self.root = Path(root)
         self.version = version
         self.radar_channel = radar_channel
@@ -493,6 +497,8 @@ class NuScenesRadarCamera:
 
     def __getitem__(self, i: int) -> RadarCameraFrame:
         """Load frame ``i``; ``DataError`` naming the file / token if anything is wrong."""
+        if isinstance(i, bool) or not isinstance(i, (int, np.integer)):
+            raise TypeError(f"frame index must be an integer, got {type(i).__name__} {i!r}")
         n = len(self)
         if not -n <= i < n:
             raise IndexError(f"frame index {i} out of range for {n} frames")
