@@ -40,6 +40,24 @@ def disk_full(e: BaseException, folder: Path) -> bool:
     return st.f_bavail * st.f_frsize < FULL_BYTES
 
 
+NAME_MAX = 255  # bytes of one file name (Linux, macOS)
+
+
+def fit_name(name: str) -> str:
+    """``name``, or where it is longer than a file name may be (``NAME_MAX`` bytes), its first characters, a hash of
+    the whole and its last 16: for the names derived from a user's (a temporary file, a page's lock), which a legal
+    250-character page name made too long (probe 66: "File name too long", naming the lock, not the page)."""
+    import hashlib
+
+    raw = os.fsencode(name)
+    if len(raw) <= NAME_MAX:
+        return name
+    head = name
+    while len(os.fsencode(head)) > NAME_MAX - 128:  # whole characters (a cut multi-byte one is not a name)
+        head = head[:-1]
+    return f"{head}~{hashlib.sha1(raw).hexdigest()[:12]}~{name[-16:]}"
+
+
 @contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path for ``path`` (parent folder created); rename it over ``path`` when
@@ -48,7 +66,7 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     path.parent.mkdir(parents=True, exist_ok=True)
     if path.is_dir():
         raise IsADirectoryError(errno.EISDIR, _IS_A_DIRECTORY.format(path=path), str(path))
-    tmp = path.with_name(f"{path.stem}.{os.getpid()}.tmp{path.suffix}")
+    tmp = path.with_name(fit_name(f"{path.stem}.{os.getpid()}.tmp{path.suffix}"))
     try:
         yield tmp
         if not tmp.exists():

@@ -45,6 +45,9 @@ def check_out_dir(path: str | Path | None, option: str = "--out") -> None:
     if path is None:
         return
     path = Path(path)
+    if path.is_symlink() and not path.exists():  # was "a file where a folder is needed (File exists)" (probe 66)
+        raise OptionError(option, f"{path} is a broken symbolic link (to {os.readlink(path)}, which is not there); "
+                                  "create its target, remove the link, or pass another path")
     if path.exists() and not path.is_dir():
         raise OptionError(option, f"{path} is an existing file, but the outputs go into a directory; pass a "
                                   "directory path (it is created if missing) or move the file away")

@@ -2476,3 +2476,17 @@ def test_a_named_pipe_where_a_record_or_a_page_goes_is_refused_not_waited_on(cal
 
     with pytest.raises(HybridCalibError, match="is not an HTML page"):
         write_page(tmp_path / "page.html", "t", "b")
+
+
+def test_long_page_names_and_broken_links_are_said_as_what_they_are(calibrated, tmp_path, capsys):
+    """Probe 66: a legal 250-character page name failed with "File name too long" naming the report's lock (its
+    temporary file and lock are longer than the page's name); a broken symbolic link as --out was "a file where a
+    folder is needed (File exists)"."""
+    page = tmp_path / ("r" * 245 + ".html")
+    rc, err = run_cli(["report", calibrated / "result.json", "--vehicle", "sim-veh-000", "--frames", "1", "--out",
+                       page], capsys)
+    assert rc == 0 and page.is_file(), err
+    assert sorted(p.name for p in tmp_path.iterdir()) == [page.name]  # no temporary file or lock left
+    (tmp_path / "link").symlink_to(tmp_path / "nowhere")
+    expect_cli_error(_calibrate(calibrated.parent / "nowhere", tmp_path / "link"), capsys,
+                     "link is a broken symbolic link (to ", "create its target, remove the link")

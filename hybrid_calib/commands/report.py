@@ -30,14 +30,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from hybrid_calib.atomic import out_dir_lock
+    from hybrid_calib.atomic import fit_name, out_dir_lock
     from hybrid_calib.report import write_report
 
     check_arguments(args)
     overrides = parse_overrides(args.set)
     overrides.update(frames=args.frames, checkpoint=args.checkpoint)
     # one run per page (probe 60: two runs onto one page both said "wrote" and one vehicle's page was lost)
-    with out_dir_lock(args.out_html.parent, "report", name=f".{args.out_html.name}.lock",
+    with out_dir_lock(args.out_html.parent, "report", name=fit_name(f".{args.out_html.name}.lock"),
                       what=f"the page {args.out_html}"):
         path = write_report(args.result, args.out_html, args.vehicle, args.data, args.version, overrides)
     print(f"wrote {path}")

@@ -714,7 +714,8 @@ def _load_sim_vehicles(vdir: Path) -> dict[str, dict]:
             "nested too deeply" if isinstance(e, RecursionError) else f"unreadable ({e})"
         warnings.warn(f"{path} is {why}; reading the root as one without it (the drift reference is the "
                       "calibrated_sensor tables' extrinsic and the simulator's factory calibration is not used): "
-                      "re-run hybrid-calib simulate to restore it, or delete the file to silence this",
+                      + ("make it readable, or " if isinstance(e, PermissionError) else "")
+                      + "re-run hybrid-calib simulate to restore it, or delete the file to silence this",
                       SimVehicleWarning, stacklevel=3)
         return {}
     if isinstance(data, dict) and "vehicles" in data:
