@@ -498,7 +498,7 @@ def test_the_attention_section_says_when_the_checkpoint_given_is_not_the_results
     a.write_text("{}"), b.write_text("{}")
     vr = _vr((0.0,) * 6, (0.1,) * 6)
     vr.checkpoint = str(a)
-    ev = Evidence(frames=[SimpleNamespace(index=0)])
+    ev = Evidence(frames=[SimpleNamespace(index=0, drive_index=None)])
     other = attention.attention_html(vr, ev, None, "v1.0-sim", str(b), tmp_path)
     assert f"The result was calibrated with {a}</b>" in other and "not that file" in other
     same = attention.attention_html(vr, ev, None, "v1.0-sim", str(tmp_path / "." / "a.json"), tmp_path)
