@@ -2490,3 +2490,24 @@ def test_long_page_names_and_broken_links_are_said_as_what_they_are(calibrated, 
     (tmp_path / "link").symlink_to(tmp_path / "nowhere")
     expect_cli_error(_calibrate(calibrated.parent / "nowhere", tmp_path / "link"), capsys,
                      "link is a broken symbolic link (to ", "create its target, remove the link")
+
+
+def test_a_simulation_whose_every_write_fails_points_at_the_folder_not_the_options(tmp_path, monkeypatch):
+    """Probe 66: under a file-size limit every frame failed writing its depth PNG and the error said "check the --set
+    values"; a failed write is the folder's (space, size limits, permissions)."""
+    import errno
+
+    import hybrid_calib.sim.simulate as sim
+    from hybrid_calib.config import merge
+    from hybrid_calib.errors import HybridCalibError
+    from hybrid_calib.sim.drive import SimConfig
+
+    def too_large(path, depth):
+        raise OSError(errno.EFBIG, "File too large", str(path))
+
+    monkeypatch.setattr(sim, "write_depth_png", too_large)
+    with pytest.raises(HybridCalibError, match="no frame could be simulated .* check that the --out folder can be "
+                                               "written") as e:
+        sim.simulate(merge(SimConfig, {"vehicles": 1, "frames": 2, "image_scale": 0.125}), tmp_path / "sim",
+                     workers=1)
+    assert "--set" not in str(e.value).split("sim_vehicle.json")[0].split("written")[-1]
