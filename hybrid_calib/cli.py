@@ -216,27 +216,45 @@ POSITIONAL = {"out_html": "--out", "result": "RESULT", "results": "RESULT"}  # d
 
 
 def check_text_arguments(args: argparse.Namespace) -> None:
-    """``OptionError`` naming the option whose value (a path made absolute, or any text, ``--set`` items too) is not
-    valid UTF-8: a folder named in another encoding (Latin-1 bytes from an old archive) or any non-ASCII name under a
-    non-UTF-8 locale reaches Python as lone surrogates, which OpenCV's native code crashed on (probe 66: exit 139, no
-    word, a half-written root and a lock left) and which no JSON record or hash can hold."""
+    """``OptionError`` naming the option whose value (any text, ``--set`` items too) is not valid UTF-8, or, for a
+    relative path, naming the working folder when that is what is not: a folder named in another encoding (Latin-1
+    bytes from an old archive) or any non-ASCII name under a non-UTF-8 locale reaches Python as lone surrogates, which
+    OpenCV's native code crashed on (probe 66: exit 139, no word, a half-written root and a lock left) and which no
+    JSON record can hold as typed. The advice follows the cause: bytes that are UTF-8 read under another locale
+    (``PYTHONUTF8=1`` reads them), or bytes that are not (rename; probe 69: the locale was advised for both)."""
     from hybrid_calib.errors import OptionError
 
+    def bad(text: str) -> bool:
+        try:
+            text.encode("utf-8")
+            return False
+        except UnicodeEncodeError:
+            return True
+
+    def advice(text: str) -> str:
+        raw = text.encode("utf-8", "surrogateescape")
+        try:
+            raw.decode("utf-8")
+            return "run in a UTF-8 locale (PYTHONUTF8=1): the name is UTF-8, read in another encoding"
+        except UnicodeDecodeError:
+            return "rename it to UTF-8 (its name is in another encoding, shown with its bytes as \\xNN)"
+
+    def shown(text: str) -> str:
+        return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+
+    cwd = os.getcwd()
     for dest, value in vars(args).items():
         if dest.startswith("_") or dest == "argv":
             continue
         for v in value if isinstance(value, (list, tuple)) else (value,):
             if not isinstance(v, (str, Path)):
                 continue
-            text = os.path.abspath(v) if isinstance(v, Path) else v
-            try:
-                text.encode("utf-8")
-            except UnicodeEncodeError:
-                shown = text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
-                raise OptionError(POSITIONAL.get(dest, "--" + dest.replace("_", "-")),
-                                  f"{shown} is not valid UTF-8 (a name in another encoding, shown with its bytes as "
-                                  "\\xNN); rename the folder or file to UTF-8, or run in a UTF-8 locale "
-                                  "(PYTHONUTF8=1)") from None
+            option = POSITIONAL.get(dest, "--" + dest.replace("_", "-"))
+            if bad(str(v)):
+                raise OptionError(option, f"{shown(str(v))} is not valid UTF-8: {advice(str(v))}")
+            if isinstance(v, Path) and not v.is_absolute() and bad(cwd):
+                raise OptionError(option, f"{v} is relative to the working folder {shown(cwd)}, which is not valid "
+                                          f"UTF-8: {advice(cwd)}, run from another folder, or pass an absolute path")
 
 
 def _finished(args: argparse.Namespace) -> None:

@@ -526,7 +526,7 @@ def test_a_jpeg_with_several_fill_bytes_reads(tmp_path):
     assert image_header(p) == (32, 24)
 
 
-def test_a_path_not_valid_utf8_is_refused_by_the_commands_and_read_by_the_api(tiny, tmp_path, capsys):
+def test_a_path_not_valid_utf8_is_refused_by_the_commands_and_read_by_the_api(tiny, tmp_path, capsys, monkeypatch):
     """Probe 66: a folder named in Latin-1 bytes reaches Python as lone surrogates; cv2.imread / imwrite crashed the
     process on them (exit 139, no word, a half-written root and a lock left), the hybrid's data identity was an
     internal error. The commands refuse such a path naming the option; the readers and writers take it."""
@@ -537,7 +537,16 @@ def test_a_path_not_valid_utf8_is_refused_by_the_commands_and_read_by_the_api(ti
     latin = tmp_path / os.fsdecode(b"lat\xe4")
     latin.mkdir()
     expect_cli_error(["inspect", "--data", latin, "--version", "v1.0-mini", "--no-progress"], capsys,
-                     "--data: ", "lat\\xe4 is not valid UTF-8", "rename the folder or file to UTF-8")
+                     "--data: ", "lat\\xe4 is not valid UTF-8", "rename it to UTF-8")
+    utf8_in_ascii = tmp_path / os.fsdecode("d\u00e4t\u00e4".encode()).encode("utf-8", "surrogateescape").decode(
+        "ascii", "surrogateescape")  # UTF-8 bytes read under an ASCII locale: the locale is the cure, not a rename
+    expect_cli_error(["inspect", "--data", utf8_in_ascii, "--version", "v", "--no-progress"], capsys,
+                     "run in a UTF-8 locale (PYTHONUTF8=1)")
+    monkeypatch.chdir(latin)  # a relative ASCII path below a working folder that is not UTF-8 (probe 69)
+    expect_cli_error(["inspect", "--data", "sim", "--version", "v", "--no-progress"], capsys,
+                     "--data: sim is relative to the working folder ", "lat\\xe4, which is not valid UTF-8",
+                     "pass an absolute path")
+    monkeypatch.chdir(tmp_path)
     expect_cli_error(["simulate", "--out", latin / "sim", "--vehicles", "1", "--frames", "1"], capsys, "--out: ")
     expect_cli_error(["calibrate", "--data", tiny.root, "--out", tmp_path / "c", "--set", "vehicles=[\"v\udce4\"]"],
                      capsys, "--set: ", "v\\xe4")

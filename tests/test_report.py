@@ -697,6 +697,9 @@ def test_the_fleet_figure_shows_whole_bars_one_colour_rule_and_names_its_band(ru
 
     assert vehicle_colour(["out_of_tolerance", "drifted_in_drive"]) == "tab:purple"
     assert vehicle_colour(["drifted_in_drive", "fleet_outlier"]) == "tab:red" and vehicle_colour([]) == "tab:blue"
+    for flag in ("out_of_tolerance", "drifted_in_drive", "fleet_outlier", "degenerate", "inconclusive",
+                 "doppler_off_tables"):  # every flag of fleet.summary (probe 69: inconclusive ones were blue)
+        assert vehicle_colour([flag]) != "tab:blue", flag
     off, std = np.array([[1.0, 0, 0, 7.2, 0, 0], [-0.5, 0, 0, -0.2, 0, 0]]), np.full((2, 6), 1.0)
     std[0, 3] = 26.7
     lim = axis_limits(off, std, 2.0, (np.full(6, 0.5), np.full(6, 3.0)))
@@ -737,3 +740,40 @@ def test_the_page_names_drive_frames_and_draws_rings_only_where_it_says_so(run_d
     (bare / "config.json").unlink()  # no config: the rows are not rebuilt, no rings
     text = write_report(bare / "result.json", tmp_path / "b.html", vehicle=name, data=run_dir / "sim").read_text()
     assert "rings:" not in text and "no correspondences are drawn (see the notes below)" in text
+
+
+def test_a_page_is_recognised_through_its_bom_and_comments_and_a_linked_page_is_updated(tmp_path):
+    """Probe 69: pages with a byte-order mark, a browser's "saved from" comment before the doctype, or an empty
+    placeholder were refused as "not an HTML page"; a symbolic link to a page was replaced by a file, the page it
+    pointed to kept as it was."""
+    from hybrid_calib.report.html import is_html, write_page
+
+    pages = {"bom.html": b"\xef\xbb\xbf<!DOCTYPE html><html></html>",
+             "saved.html": b"<!-- saved from url=(0014)about:internet -->\n<!DOCTYPE html>\n<html></html>",
+             "empty.html": b"", "upper.html": b"  \n<HTML><body></body></HTML>"}
+    for name, data in pages.items():
+        (tmp_path / name).write_bytes(data)
+        assert is_html(tmp_path / name), name
+        assert "new page" in write_page(tmp_path / name, "new page", "b").read_text()
+    for data in (b"notes", b"<!-- a comment -->\nnotes", b"<!-- unclosed"):
+        (tmp_path / "x.html").write_bytes(data)
+        assert not is_html(tmp_path / "x.html"), data
+    store = tmp_path / "store"
+    store.mkdir()
+    write_page(store / "real.html", "old", "b")
+    (tmp_path / "link.html").symlink_to(store / "real.html")
+    assert write_page(tmp_path / "link.html", "new", "b") == store / "real.html"
+    assert (tmp_path / "link.html").is_symlink() and "<title>new</title>" in (store / "real.html").read_text()
+
+
+def test_a_page_replays_the_rows_of_its_own_vehicle_alone(run_dir, tmp_path, monkeypatch):
+    """Probe 69: a page of one vehicle rebuilt the oracle rows of every vehicle of the result (their progress bars, and
+    time growing with the vehicles of one result)."""
+    import hybrid_calib.report.evidence as evidence
+
+    asked, real = [], evidence.replay_inputs
+    monkeypatch.setattr(evidence, "replay_inputs", lambda *a: asked.append(a[3].vehicles) or real(*a))
+    result = run_dir / "run" / "result.json"
+    name = sorted(json.loads(result.read_text())["vehicles"])[1]
+    assert "Residuals" in write_report(result, tmp_path / "a.html", vehicle=name).read_text()
+    assert asked == [(name,)]

@@ -146,9 +146,13 @@ def _plotted(result, args: argparse.Namespace):
     from hybrid_calib.plots.calibration import plot_vehicle, vehicle_plot_paths
 
     if not args.no_plots:
-        for vr in result.vehicles.values():
-            if not all(p.is_file() for p in vehicle_plot_paths(vr, args.out / "plots")):
-                plot_vehicle(vr, args.out / "plots")
+        drawn = [vr.vehicle for vr in result.vehicles.values()
+                 if not all(p.is_file() for p in vehicle_plot_paths(vr, args.out / "plots"))]
+        for name in drawn:
+            plot_vehicle(result.vehicles[name], args.out / "plots")
+        if drawn:  # said: a reused result's line says nothing was written (probe 69)
+            print(f"drew the missing plots of {len(drawn)} vehicle(s) ({', '.join(drawn[:4])}"
+                  f"{', ...' if len(drawn) > 4 else ''}) into {args.out / 'plots'}")
     return result
 
 

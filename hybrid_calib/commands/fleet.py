@@ -113,7 +113,9 @@ def run(args: argparse.Namespace) -> int:
           f"tolerance, {drifted_words(summary)}, {c['fleet_outliers']} fleet outlier(s)"
           + (f" ({', '.join(summary['fleet_prior']['outliers'])})" if c["fleet_outliers"] else "")
           + (f"; {c['doppler_off_tables']} whose radar's Doppler puts its yaw off its tables (check their yaw)"
-             if c.get("doppler_off_tables") else ""))
+             if c.get("doppler_off_tables") else "")
+          + "".join(f"; {c[k]} {k} (not trusted: see their status)" for k in ("inconclusive", "degenerate")
+                    if c.get(k)))
     for note in summary.get("notes") or []:
         print(f"  note: {note}")
     for root, why in (summary.get("roots_left_out") or {}).items():

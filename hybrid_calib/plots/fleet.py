@@ -16,9 +16,12 @@ from hybrid_calib.plots.figure import pyplot, save_figure
 AXES = ("rot x [deg]", "rot y [deg]", "rot z [deg]", "t x [cm]", "t y [cm]", "t z [cm]")
 # a vehicle's colour: its first flag in this order (a step inside the drive before a mount off its tables: both
 # vehicles of a knocked fleet were orange, and purple was never drawn, probe 67)
+# every flag ``fleet.summary`` sets has one (probe 69: an inconclusive vehicle, "flagged" on the page, was blue)
 COLOURS = {"fleet_outlier": "tab:red", "flagged": "tab:red", "drifted_in_drive": "tab:purple",
-           "out_of_tolerance": "tab:orange"}
-LEGEND = "red: fleet outlier / flagged, purple: drifted in the drive, orange: out of tolerance"
+           "out_of_tolerance": "tab:orange", "doppler_off_tables": "tab:brown", "inconclusive": "tab:gray",
+           "degenerate": "tab:gray"}
+LEGEND = ("red: fleet outlier / flagged, purple: drifted in the drive, orange: out of tolerance, brown: the radar's "
+          "Doppler puts its yaw off its tables, grey: inconclusive / degenerate (not trusted)")
 
 
 def vehicle_colour(flags: Sequence[str]) -> str:

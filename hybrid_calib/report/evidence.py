@@ -17,6 +17,7 @@ when ``|e_i|`` is below the schedule's final gate (as the covariance counts it).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -180,7 +181,9 @@ def gather(run: CalibrationRun, result_path: Path, vehicle: str, data: str | Pat
                         "cannot be rebuilt, so no correspondences or residuals are shown")
     else:
         try:
-            inputs = replay_inputs(root, version, run.correspondences, conf)
+            # this vehicle's rows alone (each vehicle's are drawn from (seed, vehicle): the same; probe 69: every
+            # vehicle of the result was replayed for one page)
+            inputs = replay_inputs(root, version, run.correspondences, dataclasses.replace(conf, vehicles=(vehicle,)))
         except HybridCalibError as e:
             inputs = {}
             ev.notes.append(f"the run's rows could not be rebuilt ({e})")

@@ -72,22 +72,29 @@ def page(title: str, body: str, source: str = "") -> str:
 
 
 def is_html(path: Path) -> bool:
-    """Whether the file at ``path`` is an HTML page (what the reports write), by its first bytes; False for what is
-    not a regular file (a named pipe there hung the report, opened to read: probe 66)."""
+    """Whether the file at ``path`` may be replaced by a page: an HTML page by its first bytes (after a byte-order
+    mark, white space and comments: a browser's "saved from" line; probe 69 refused those), or an empty file;
+    False for what is not a regular file (a named pipe there hung the report, opened to read: probe 66)."""
     if not Path(path).is_file():
         return False
     try:
         with open(path, "rb") as f:
-            head = f.read(512).lstrip().lower()
+            head = f.read(4096)
     except OSError:
         return False
-    return head.startswith((b"<!doctype html", b"<html"))
+    head = head.removeprefix(b"\xef\xbb\xbf").lstrip().lower()
+    while head.startswith(b"<!--") and b"-->" in head:
+        head = head[head.index(b"-->") + 3:].lstrip()
+    return not head or head.startswith((b"<!doctype html", b"<html"))
 
 
 def write_page(path: Path, title: str, body: str, source: str = "") -> Path:
     """Write the page atomically; returns its path. ``source``: what it was written from (``SOURCE_META``).
-    ``DataError`` where ``path`` holds a file that is not an HTML page (a user's file is never replaced)."""
+    ``DataError`` where ``path`` holds a file that is not an HTML page (a user's file is never replaced). A symbolic
+    link is followed: the page it points to is written (probe 69: the link was replaced by a file, its page kept)."""
     path = Path(path)
+    if path.is_symlink():
+        path = path.resolve()
     if path.exists() and not path.is_dir() and not is_html(path):
         raise DataError(f"{path} exists and is not an HTML page, so it is not replaced by the report; move it away, "
                         "or write the page elsewhere")
