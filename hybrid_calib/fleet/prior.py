@@ -23,7 +23,10 @@ there to 7 cm and tightened every vehicle's vertical translation to a confident 
 45). With ``common_cov`` = P (6, 6) the model is ``x_i = mu + c + b_i + e_i``, ``c ~ N(0, P)`` shared by
 all vehicles: the EM uses each vehicle's own part ``C_i - common_part(C_i, P)`` (``P`` itself where only the
 elevation prior pins the direction, less where the network or the LiDAR measure it too), the outlier test is
-unaffected by ``c`` (it cancels in ``x_i - mu``). The prior handed to a vehicle must not pin those directions at
+unaffected by ``c`` (it cancels in ``x_i - mu``). Measured on hybrid fleets (docs/benchmarks.md, "The common-mode
+part"): the mean stays inside the vehicles and is more accurate than with all of P taken out, but the spread in the
+pinned directions is not resolved and a knocked radar is named less often by this test (its own tests name it).
+The prior handed to a vehicle must not pin those directions at
 all: the vehicle's own covariance already holds ``c`` (``marginalise_prior_pinned``), and a window
 combines an external prior as independent information, so a prior holding ``P`` once still
 tightened them falsely (measured: camera-y std 31 -> 23 cm at an unchanged 36 cm RMS error).
