@@ -216,12 +216,14 @@ POSITIONAL = {"out_html": "--out", "result": "RESULT", "results": "RESULT"}  # d
 
 
 def check_text_arguments(args: argparse.Namespace) -> None:
-    """``OptionError`` naming the option whose value (any text, ``--set`` items too) is not valid UTF-8, or, for a
-    relative path, naming the working folder when that is what is not: a folder named in another encoding (Latin-1
-    bytes from an old archive) or any non-ASCII name under a non-UTF-8 locale reaches Python as lone surrogates, which
-    OpenCV's native code crashed on (probe 66: exit 139, no word, a half-written root and a lock left) and which no
-    JSON record can hold as typed. The advice follows the cause: bytes that are UTF-8 read under another locale
-    (``PYTHONUTF8=1`` reads them), or bytes that are not (rename; probe 69: the locale was advised for both)."""
+    """``OptionError`` naming the option whose value (any text, ``--set`` items too) is not valid UTF-8, or
+    ``HybridCalibError`` naming the working folder when that is what is not (a relative path, a checkpoint's name, a
+    cache named by ``--set`` all lie below it; the run's record names it): a folder named in another encoding (Latin-1
+    bytes from an old archive) or any non-ASCII name under an ASCII (C) locale reaches Python as lone surrogates,
+    which OpenCV's native code crashed on (probe 66: exit 139, no word, a half-written root and a lock left) and which
+    no JSON record can hold as typed. The advice follows the cause: bytes that are UTF-8 read under another locale
+    (``PYTHONUTF8=1`` reads them), or bytes that are not (rename; probe 69: the locale was advised for both). A
+    working folder that is gone is not checked (probe 70: an internal error even with absolute paths)."""
     from hybrid_calib.errors import OptionError
 
     def bad(text: str) -> bool:
@@ -242,19 +244,22 @@ def check_text_arguments(args: argparse.Namespace) -> None:
     def shown(text: str) -> str:
         return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
 
-    cwd = os.getcwd()
+    try:
+        cwd = os.getcwd()
+    except OSError:  # deleted under the shell: a relative path then fails on its own, naming itself
+        cwd = ""
+    if bad(cwd):
+        raise HybridCalibError(f"the working folder {shown(cwd)} is not valid UTF-8: {advice(cwd)}, or run from "
+                               "another folder")
     for dest, value in vars(args).items():
         if dest.startswith("_") or dest == "argv":
             continue
         for v in value if isinstance(value, (list, tuple)) else (value,):
             if not isinstance(v, (str, Path)):
                 continue
-            option = POSITIONAL.get(dest, "--" + dest.replace("_", "-"))
             if bad(str(v)):
-                raise OptionError(option, f"{shown(str(v))} is not valid UTF-8: {advice(str(v))}")
-            if isinstance(v, Path) and not v.is_absolute() and bad(cwd):
-                raise OptionError(option, f"{v} is relative to the working folder {shown(cwd)}, which is not valid "
-                                          f"UTF-8: {advice(cwd)}, run from another folder, or pass an absolute path")
+                raise OptionError(POSITIONAL.get(dest, "--" + dest.replace("_", "-")),
+                                  f"{shown(str(v))} is not valid UTF-8: {advice(str(v))}")
 
 
 def _finished(args: argparse.Namespace) -> None:

@@ -39,13 +39,20 @@ class OptionError(HybridCalibError):
         self.option = option
 
 
-def check_out_dir(path: str | Path | None, option: str = "--out") -> None:
+def check_out_dir(path: str | Path | None, option: str = "--out", writable: bool = True) -> None:
     """``OptionError`` when an output directory ``path`` exists and is not a directory, lies below a file, or
-    cannot be written (its nearest existing folder is not writable); None passes. Nothing is created."""
+    (``writable``) cannot be written (its nearest existing folder is not writable); None passes. Nothing is
+    created."""
     if path is None:
         return
     path = Path(path)
     if path.is_symlink() and not path.exists():  # was "a file where a folder is needed (File exists)" (probe 66)
+        try:
+            path.resolve(strict=True)
+        except RuntimeError:  # a loop (probe 70: said to be a link to a file that is not there)
+            raise OptionError(option, f"{path} is a symbolic link loop; remove it, or pass another path") from None
+        except OSError:
+            pass
         raise OptionError(option, f"{path} is a broken symbolic link (to {os.readlink(path)}, which is not there); "
                                   "create its target, remove the link, or pass another path")
     if path.exists() and not path.is_dir():
@@ -55,7 +62,7 @@ def check_out_dir(path: str | Path | None, option: str = "--out") -> None:
         if parent.exists() and not parent.is_dir():
             raise OptionError(option, f"{parent} (a parent of {path}) is a file, not a directory; pass another path")
     existing = next((p for p in (path, *path.parents) if p.exists()), None)
-    if existing is not None and not os.access(existing, os.W_OK | os.X_OK):
+    if writable and existing is not None and not os.access(existing, os.W_OK | os.X_OK):
         what = "is not writable" if existing == path else f"(the nearest existing folder of {path}) is not writable"
         raise OptionError(option, f"{existing} {what}, so the outputs cannot be written there; pass a directory you "
                                   "can write to")
@@ -131,15 +138,30 @@ def check_out_owner(out: str | Path | None, command: str, option: str = "--out")
                                       f"run would mix its files with them: pass another {option}")
 
 
+def page_target(path: str | Path, option: str = "--out") -> Path:
+    """The file a page written at ``path`` lands in: a symbolic link's target (so every check is made on it: probe 70,
+    a link sent the page into a root's version folder past the checks made on the link); ``OptionError`` for a link
+    loop."""
+    path = Path(path)
+    if not path.is_symlink():
+        return path
+    try:
+        return path.resolve()
+    except (RuntimeError, OSError) as e:
+        raise OptionError(option, f"{path} is a symbolic link that does not end in a file ({e}); remove it, or pass "
+                                  "another path") from None
+
+
 def check_api_out(out: str | Path, command: str, data=None, version: str | None = None, page: bool = False) -> None:
     """The command line's checks of an output folder, for the typed functions a library user calls directly
     (``run_calibration``, ``compare``, ``run_fleet``, the report pages): ``OptionError`` naming ``out`` when it is
-    a file or cannot be written (``check_out_dir``), lies in any nuScenes root's tables or sensor folders
-    (``check_out_not_in_dataset``) or holds another command's outputs (``check_out_owner``; probe 67: the functions
-    wrote into a root's version folder, its samples/ and a compare run's folder, which the commands refuse).
-    ``page``: ``out`` is a page (a file): its folder is checked."""
-    folder = Path(out).parent if page else Path(out)
-    check_out_dir(folder, "out")
+    a file (``check_out_dir``; not whether it can be written: a reused result writes nothing, and a write says its
+    own error), lies in any nuScenes root's tables or sensor folders (``check_out_not_in_dataset``) or holds another
+    command's outputs (``check_out_owner``; probe 67: the functions wrote into a root's version folder, its samples/
+    and a compare run's folder, which the commands refuse). ``page``: ``out`` is a page (a file): the folder of the
+    file it lands in (a symbolic link's target) is checked."""
+    folder = page_target(out, "out").parent if page else Path(out)
+    check_out_dir(folder, "out", writable=False)  # reusing an earlier result writes nothing (a read-only archive)
     check_out_not_in_dataset(folder, "out", data=data, version=version)
     if not page:
         check_out_owner(folder, command, "out")

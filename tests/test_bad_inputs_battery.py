@@ -2514,3 +2514,24 @@ def test_a_simulation_whose_every_write_fails_points_at_the_folder_not_the_optio
         sim.simulate(merge(SimConfig, {"vehicles": 1, "frames": 2, "image_scale": 0.125}), tmp_path / "sim",
                      workers=1)
     assert "--set" not in str(e.value).split("sim_vehicle.json")[0].split("written")[-1]
+
+
+def test_a_page_link_into_a_dataset_or_a_loop_is_refused(sim, calibrated, tmp_path, capsys):
+    """Probe 70: a page's symbolic link was followed after every check had been made on the link: the page landed in a
+    root's version folder (changing its data stamp) or in samples/ as notes.txt; a link loop was an internal error."""
+    from hybrid_calib.errors import OptionError
+    from hybrid_calib.report import write_report
+
+    root, _ = sim
+    before = sorted(p.relative_to(root) for p in root.rglob("*"))
+    (tmp_path / "into-tables.html").symlink_to(root / SIM_VERSION / "page.html")
+    (tmp_path / "into-samples.html").symlink_to(root / "samples" / "CAM_FRONT" / "notes.html")
+    (tmp_path / "loop.html").symlink_to(tmp_path / "loop.html")
+    report = ["report", calibrated / "result.json", "--vehicle", "sim-veh-000", "--frames", "1", "--out"]
+    expect_cli_error([*report, tmp_path / "into-tables.html"], capsys, "the nuScenes table folder")
+    expect_cli_error([*report, tmp_path / "into-samples.html"], capsys, "samples/ folder")
+    expect_cli_error([*report, tmp_path / "loop.html"], capsys, "loop.html is a symbolic link that does not end in a")
+    for link in ("into-tables.html", "into-samples.html"):
+        with pytest.raises(OptionError, match="^out: "):
+            write_report(calibrated / "result.json", tmp_path / link, "sim-veh-000")
+    assert sorted(p.relative_to(root) for p in root.rglob("*")) == before

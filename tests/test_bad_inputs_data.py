@@ -542,10 +542,16 @@ def test_a_path_not_valid_utf8_is_refused_by_the_commands_and_read_by_the_api(ti
         "ascii", "surrogateescape")  # UTF-8 bytes read under an ASCII locale: the locale is the cure, not a rename
     expect_cli_error(["inspect", "--data", utf8_in_ascii, "--version", "v", "--no-progress"], capsys,
                      "run in a UTF-8 locale (PYTHONUTF8=1)")
-    monkeypatch.chdir(latin)  # a relative ASCII path below a working folder that is not UTF-8 (probe 69)
-    expect_cli_error(["inspect", "--data", "sim", "--version", "v", "--no-progress"], capsys,
-                     "--data: sim is relative to the working folder ", "lat\\xe4, which is not valid UTF-8",
-                     "pass an absolute path")
+    monkeypatch.chdir(latin)  # a working folder that is not UTF-8 (probe 69: relative ASCII paths refused as theirs)
+    for checkpoint in ("ck.json", str(tiny.root / "ck.json")):  # a relative str option too (probe 70)
+        expect_cli_error(["calibrate", "--data", tiny.root, "--out", tmp_path / "c", "--checkpoint", checkpoint],
+                         capsys, "the working folder ", "lat\\xe4 is not valid UTF-8", "run from another folder")
+    gone = tmp_path / "gone"  # a working folder deleted under the shell is not an internal error (probe 70)
+    gone.mkdir()
+    monkeypatch.chdir(gone)
+    gone.rmdir()
+    expect_cli_error(["inspect", "--data", tmp_path / "nowhere", "--version", "v", "--no-progress"], capsys,
+                     "nowhere")
     monkeypatch.chdir(tmp_path)
     expect_cli_error(["simulate", "--out", latin / "sim", "--vehicles", "1", "--frames", "1"], capsys, "--out: ")
     expect_cli_error(["calibrate", "--data", tiny.root, "--out", tmp_path / "c", "--set", "vehicles=[\"v\udce4\"]"],

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from hybrid_calib.commands import nonnegative_int
 from hybrid_calib.config import parse_overrides
-from hybrid_calib.errors import OptionError, check_out_dir, check_out_not_in_dataset
+from hybrid_calib.errors import OptionError, check_out_dir, check_out_not_in_dataset, page_target
 
 HELP = "write a self-contained HTML report (verdict, extrinsic +- 1 sigma, pictures) of a calibration result"
 
@@ -33,6 +33,7 @@ def run(args: argparse.Namespace) -> int:
     from hybrid_calib.atomic import fit_name, out_dir_lock
     from hybrid_calib.report import write_report
 
+    args.out_html = page_target(args.out_html)  # a link: its target is the page, checked and locked (probe 70)
     check_arguments(args)
     overrides = parse_overrides(args.set)
     overrides.update(frames=args.frames, checkpoint=args.checkpoint)

@@ -8,7 +8,7 @@ import html
 from pathlib import Path
 
 from hybrid_calib.config import save_text_atomic
-from hybrid_calib.errors import DataError
+from hybrid_calib.errors import DataError, check_out_not_in_dataset, page_target
 
 CSS = """
 body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;max-width:1100px;margin:1.5em auto;
@@ -92,9 +92,8 @@ def write_page(path: Path, title: str, body: str, source: str = "") -> Path:
     """Write the page atomically; returns its path. ``source``: what it was written from (``SOURCE_META``).
     ``DataError`` where ``path`` holds a file that is not an HTML page (a user's file is never replaced). A symbolic
     link is followed: the page it points to is written (probe 69: the link was replaced by a file, its page kept)."""
-    path = Path(path)
-    if path.is_symlink():
-        path = path.resolve()
+    path = page_target(path, "out")  # a link's target, checked as the page itself (probe 70)
+    check_out_not_in_dataset(path.parent, "out")
     if path.exists() and not path.is_dir() and not is_html(path):
         raise DataError(f"{path} exists and is not an HTML page, so it is not replaced by the report; move it away, "
                         "or write the page elsewhere")
