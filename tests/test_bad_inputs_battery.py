@@ -2528,10 +2528,14 @@ def test_a_page_link_into_a_dataset_or_a_loop_is_refused(sim, calibrated, tmp_pa
     (tmp_path / "into-samples.html").symlink_to(root / "samples" / "CAM_FRONT" / "notes.html")
     (tmp_path / "loop.html").symlink_to(tmp_path / "loop.html")
     report = ["report", calibrated / "result.json", "--vehicle", "sim-veh-000", "--frames", "1", "--out"]
-    expect_cli_error([*report, tmp_path / "into-tables.html"], capsys, "the nuScenes table folder")
-    expect_cli_error([*report, tmp_path / "into-samples.html"], capsys, "samples/ folder")
+    expect_cli_error([*report, tmp_path / "into-tables.html"], capsys, "error: --out: ", "the nuScenes table folder")
+    expect_cli_error([*report, tmp_path / "into-samples.html"], capsys, "error: --out: ", "samples/ folder")
     expect_cli_error([*report, tmp_path / "loop.html"], capsys, "loop.html is a symbolic link that does not end in a")
+    from hybrid_calib.report.html import write_page
+
     for link in ("into-tables.html", "into-samples.html"):
         with pytest.raises(OptionError, match="^out: "):
             write_report(calibrated / "result.json", tmp_path / link, "sim-veh-000")
+        with pytest.raises(OptionError, match="^out: "):  # the one writer of pages, whoever calls it
+            write_page(tmp_path / link, "t", "b")
     assert sorted(p.relative_to(root) for p in root.rglob("*")) == before
