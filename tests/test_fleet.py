@@ -493,6 +493,14 @@ def test_the_common_mode_is_only_the_part_a_vehicles_covariance_holds():
     np.testing.assert_allclose(common_part(np.diag([1e-4, 2.0, 1e-4, 1e-4, 1e-4, 0.5]), P), P)  # widened beyond P
     C = np.diag([1e-4, np.radians(0.5) ** 2, 1e-4, 1e-4, 1e-4, 0.15 ** 2])  # measured by more than the prior
     np.testing.assert_allclose(np.diag(common_part(C, P))[[1, 5]], np.diag(C)[[1, 5]] / 4)
+    # correlated pinned axes: never more than the vehicle's covariance holds (probe 70: pitch and height correlated 0.9
+    # at 0.8 P each gave an own variance below zero, clipped to a near-exact 0.27 cm)
+    C = np.diag([1e-4, 0.8 * P[1, 1], 1e-4, 1e-4, 1e-4, 0.8 * P[5, 5]])
+    C[1, 5] = C[5, 1] = 0.9 * np.sqrt(C[1, 1] * C[5, 5])
+    assert np.linalg.eigvalsh(C - common_part(C, P)).min() > -1e-15
+    for _ in range(200):
+        B = (R := g.standard_normal((6, 6))) @ R.T * 1e-4 + P * g.uniform(0.1, 2.0)
+        assert np.linalg.eigvalsh(B - common_part(B, P)).min() > -1e-12 * np.abs(B).max()
     # fleets of 3-6 vehicles with correlated hybrid-like covariances (pitch 0.5-1.3 deg, vertical 8-22 cm) around a
     # true mean offset 0: the mean's NEES against its own covariance and P (1569 on average before, on 300 fleets)
     T_ref, nees = nominal_T_cam_radar(), []
