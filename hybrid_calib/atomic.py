@@ -40,6 +40,41 @@ def disk_full(e: BaseException, folder: Path) -> bool:
     return st.f_bavail * st.f_frsize < FULL_BYTES
 
 
+class BestEffortStream:
+    """A process's stderr whose write failures (``2>/dev/full``, a reader gone) are dropped: the progress bars,
+    warnings and notes written there must not stop a run whose results go to files (probe 66: calibrate exited 1
+    with nothing written, its runs.json saying 2). stdout stays strict: its failure is said as an error."""
+
+    def __init__(self, stream):
+        self._stream = stream
+
+    def write(self, text: str) -> int:
+        try:
+            return self._stream.write(text)
+        except (OSError, ValueError):
+            return len(text)
+
+    def flush(self) -> None:
+        try:
+            self._stream.flush()
+        except (OSError, ValueError):
+            pass
+
+    def __getattr__(self, name: str):
+        if name == "_stream":  # not set yet (copy.copy): no recursion (probe 70)
+            raise AttributeError(name)
+        return getattr(self._stream, name)
+
+
+def best_effort_stderr() -> None:
+    """Make this process's ``sys.stderr`` a ``BestEffortStream`` (once): the command line's process, and the fleet's
+    spawned workers, whose notes to stderr failed their jobs under ``2>/dev/full`` (probe 70)."""
+    import sys
+
+    if sys.stderr is not None and not isinstance(sys.stderr, BestEffortStream):
+        sys.stderr = BestEffortStream(sys.stderr)
+
+
 NAME_MAX = 255  # bytes of one file name (Linux, macOS)
 
 

@@ -21,7 +21,7 @@ import threading
 import warnings
 from pathlib import Path
 
-from hybrid_calib.atomic import LOCK_NAME, out_dir_lock, record_run
+from hybrid_calib.atomic import LOCK_NAME, best_effort_stderr, out_dir_lock, record_run
 from hybrid_calib.errors import (
     HybridCalibError,
     check_out_dir,
@@ -162,36 +162,12 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-class BestEffortStream:
-    """The process's stderr, whose write failures (``2>/dev/full``, a reader gone) are dropped: the progress bars,
-    warnings and notes written there must not stop a run whose results go to files (probe 66: calibrate exited 1
-    with nothing written, its runs.json saying 2). stdout stays strict: its failure is said as an error."""
-
-    def __init__(self, stream):
-        self._stream = stream
-
-    def write(self, text: str) -> int:
-        try:
-            return self._stream.write(text)
-        except (OSError, ValueError):
-            return len(text)
-
-    def flush(self) -> None:
-        try:
-            self._stream.flush()
-        except (OSError, ValueError):
-            pass
-
-    def __getattr__(self, name: str):
-        return getattr(self._stream, name)
-
-
 def main(argv: list[str] | None = None) -> int:
     for name in ("stdout", "stderr"):  # a closed stream (`2>&-`): Python sets it to None, every print and bar failed
         if getattr(sys, name) is None:
             setattr(sys, name, open(os.devnull, "w"))  # noqa: SIM115 (the process' stream, open to its end)
-    if argv is None and not isinstance(sys.stderr, BestEffortStream):  # the process's own (a caller keeps its own)
-        sys.stderr = BestEffortStream(sys.stderr)
+    if argv is None:  # the process's own stderr (a caller of main(argv) keeps its own)
+        best_effort_stderr()
     args = build_parser().parse_args(argv)
     if problem := _repeated_or_empty(sys.argv[1:] if argv is None else [str(a) for a in argv]):
         print(f"hybrid-calib {args.command}: error: {problem}", file=sys.stderr)

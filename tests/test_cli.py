@@ -334,3 +334,28 @@ def test_an_option_given_twice_or_an_empty_path_is_refused(tmp_path, capsys):
         assert main(argv) == EXIT_ERROR and said in capsys.readouterr().err, argv
     assert main(["inspect", "--data", str(tmp_path), "--data", str(tmp_path), "--version", "v"]) == EXIT_ERROR
     assert "several roots go after one --data" in capsys.readouterr().err
+
+
+def test_stderr_is_best_effort_in_the_command_and_in_the_fleets_workers(monkeypatch):
+    """Probe 70: the fleet's spawned workers kept their raw stderr (a note there failed the job under 2>/dev/full),
+    and copy.copy of the wrapper recursed."""
+    import copy
+    import sys
+
+    import hybrid_calib.fleet.engines as engines
+    from hybrid_calib.atomic import BestEffortStream
+
+    class Full:
+        def write(self, text):
+            raise OSError(28, "No space left on device")
+
+        def flush(self):
+            raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(sys, "stderr", Full())
+    monkeypatch.setattr(engines, "_init_worker", lambda threads: None)
+    monkeypatch.setattr(engines, "_exit_with_parent", lambda: None)
+    engines._init_pool_worker(1)
+    assert isinstance(sys.stderr, BestEffortStream)
+    print("a note", file=sys.stderr, flush=True)  # dropped, not raised
+    assert isinstance(copy.copy(sys.stderr), BestEffortStream)

@@ -113,8 +113,11 @@ def _exit_with_parent(period_s: float = 2.0) -> None:
 
 
 def _init_pool_worker(threads: int) -> None:
+    from hybrid_calib.atomic import best_effort_stderr
+
     _init_worker(threads)
     _exit_with_parent()
+    best_effort_stderr()  # a spawned worker's own stderr: a note there must not fail the job (probe 70)
 
 
 def _remote_job(job: dict) -> dict:
