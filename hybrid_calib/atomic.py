@@ -87,7 +87,7 @@ def fit_name(name: str) -> str:
     raw = os.fsencode(name)
     if len(raw) <= NAME_MAX:
         return name
-    head = name
+    head = name[:NAME_MAX - 128]  # characters are 1 byte or more: at most these (linear in a long name: probe 70)
     while len(os.fsencode(head)) > NAME_MAX - 128:  # whole characters (a cut multi-byte one is not a name)
         head = head[:-1]
     return f"{head}~{hashlib.sha1(raw).hexdigest()[:12]}~{name[-16:]}"

@@ -108,13 +108,20 @@ def check_transform(T, name: str, atol: float = 1e-6) -> np.ndarray:
     return T
 
 
+def is_symmetric(cov: np.ndarray) -> bool:
+    """Whether ``cov`` ((..., n, n)) is symmetric to the tolerance every covariance check uses (rtol 1e-9, atol
+    1e-15 of its largest entry, at least 1)."""
+    cov = np.asarray(cov, np.float64)
+    return bool(np.allclose(cov, np.swapaxes(cov, -1, -2), rtol=1e-9, atol=1e-15 * max(1.0, float(np.abs(cov).max()))))
+
+
 def check_covariance(cov, name: str, semidefinite: bool = False) -> np.ndarray:
     """``cov`` as a float64 (6, 6) array, or ``ValueError`` naming ``name`` when it is not a finite symmetric
     positive definite matrix (``semidefinite``: a zero eigenvalue allowed, not an all-zero matrix): the one check of a
     covariance a caller passes in (a prior, an estimate's to test or average)."""
     cov = check_finite_array(cov, (6, 6), name, "covariance")
     scale = max(1.0, float(np.abs(cov).max()))
-    if not np.allclose(cov, cov.T, rtol=1e-9, atol=1e-15 * scale):
+    if not is_symmetric(cov):
         raise ValueError(f"{name}: covariance is not symmetric")
     low = float(np.linalg.eigvalsh(cov).min())
     if (low < -1e-12 * scale or not np.any(cov)) if semidefinite else low <= 0:

@@ -15,7 +15,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from hybrid_calib.geometry import camera_euler_from_rotation, check_transform, so3_log
+from hybrid_calib.geometry import camera_euler_from_rotation, check_transform, is_symmetric, so3_log
 
 CHI2_6_95 = 12.591587243743977  # scipy.stats.chi2.ppf(0.95, 6): NEES below it is inside the 95 % ellipsoid
 
@@ -38,7 +38,7 @@ def nees(xi: np.ndarray, cov: np.ndarray) -> np.ndarray | float:
         raise ValueError(f"nees: xi (6,) or (F, 6) with cov (6, 6) or (F, 6, 6), got xi {xi.shape} and cov {cov.shape}")
     if not (np.isfinite(xi).all() and np.isfinite(cov).all()):
         raise ValueError("nees: xi or cov holds NaN/inf values (probe 67: a NaN error gave NaN, read as no verdict)")
-    if not np.allclose(cov, np.swapaxes(cov, -1, -2), rtol=1e-9, atol=1e-15 * max(1.0, float(np.abs(cov).max()))):
+    if not is_symmetric(cov):
         raise ValueError("nees: cov is not symmetric (a covariance is; check its order and frame)")
     try:
         if xi.ndim == 1:
@@ -129,6 +129,11 @@ def signed_errors(T_est: np.ndarray, T_gt: np.ndarray) -> np.ndarray:
     67)."""
     T_est, T_gt = (check_transform(T, f"signed_errors {name}", atol=RIGID_ATOL)
                    for name, T in (("T_est", T_est), ("T_gt", T_gt)))
+    return _signed_errors(T_est, T_gt)
+
+
+def _signed_errors(T_est: np.ndarray, T_gt: np.ndarray) -> np.ndarray:
+    """``signed_errors`` of checked transforms (``extrinsic_error`` checks them once)."""
     dR = T_est[:3, :3] @ T_gt[:3, :3].T
     return np.concatenate([camera_euler_from_rotation(dR), T_est[:3, 3] - T_gt[:3, 3]])
 
@@ -140,7 +145,7 @@ def extrinsic_error(T_est: np.ndarray, T_gt: np.ndarray) -> ExtrinsicError:
     measured as it is)."""
     T_est, T_gt = (check_transform(T, f"extrinsic_error {name}", atol=RIGID_ATOL)
                    for name, T in (("T_est", T_est), ("T_gt", T_gt)))
-    s = signed_errors(T_est, T_gt)  # (checked again: microseconds)
+    s = _signed_errors(T_est, T_gt)
     rpy = np.degrees(np.abs(s[:3]))
     dt = np.abs(s[3:]) * 100.0
     geo = np.degrees(np.linalg.norm(so3_log(T_est[:3, :3] @ T_gt[:3, :3].T)))

@@ -120,6 +120,13 @@ def test_a_nudged_replay_and_doubled_rows_are_one_measurement():
     np.testing.assert_allclose(bb.estimate.cov, ba.estimate.cov, rtol=1e-6, atol=1e-15)
     assert (f"1 frame(s) hold a row twice; first: frame twice: {n} of the frame's {2 * n} rows repeat another row "
             "of it") in bb.estimate.status and "twice" not in ba.estimate.status
+    # a replay whose rows are also doubled counts the frame's rows once, as the window does (probe 70: 2n)
+    b = frames[1]
+    both = Correspondences(np.vstack([twice.points_radar, b.points_radar[:1]]), np.vstack([twice.pixels, b.pixels[:1]]),
+                           np.r_[twice.sigma_px, b.sigma_px[:1]], np.r_[twice.confidence, b.confidence[:1]], c.K,
+                           "both", c.timestamp_us + 5)
+    assert f"{n} of the frame's {n + 1} rows repeat rows of frame {c.frame_id}" in solve_batch([c, both],
+                                                                                             T0).estimate.status
     vi = VehicleInput("veh", [c, nudged, twice, frames[1]], truth=[T] * 4, reference=T)
     res = calibrate_vehicle(vi, merge(CalibrateConfig, {"start": "reference", "window": WINDOW}), progress=False)
     assert res.n_frames == 2 and [s["token"] for s in res.skipped] == ["nudged", "twice"]

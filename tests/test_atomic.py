@@ -206,3 +206,22 @@ def test_the_runs_log_appends_each_command_and_replaces_an_unreadable_one(tmp_pa
     (tmp_path / RUNS_NAME).write_text("{not json")  # a log, not a record: replaced, never an error
     record_run(tmp_path, "fleet", ["fleet"], 0, t0)
     assert [r["command"] for r in json.loads((tmp_path / RUNS_NAME).read_text())] == ["hybrid-calib fleet"]
+
+
+def test_a_name_derived_from_a_long_one_fits_a_file_name_and_stays_its_own():
+    """Probe 66: a legal 250-character page name made its temporary file and lock too long; probe 70: the fitting
+    was quadratic in the name's length."""
+    import os
+    import time
+
+    from hybrid_calib.atomic import NAME_MAX, fit_name
+
+    assert fit_name("report.html") == "report.html"
+    long_a, long_b = "\u00e4" * 200 + "a.html.lock", "\u00e4" * 200 + "b.html.lock"
+    for name in (long_a, long_b, "r" * 300 + ".html"):
+        fitted = fit_name(name)
+        assert len(os.fsencode(fitted)) <= NAME_MAX and fitted.endswith(name[-16:])
+    assert fit_name(long_a) != fit_name(long_b)
+    t = time.perf_counter()
+    assert len(os.fsencode(fit_name("\u6f22" * 100_000))) <= NAME_MAX
+    assert time.perf_counter() - t < 0.5

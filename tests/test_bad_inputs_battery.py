@@ -2505,15 +2505,16 @@ def test_a_simulation_whose_every_write_fails_points_at_the_folder_not_the_optio
     from hybrid_calib.errors import HybridCalibError
     from hybrid_calib.sim.drive import SimConfig
 
-    def too_large(path, depth):
-        raise OSError(errno.EFBIG, "File too large", str(path))
+    for k, error in enumerate((OSError(errno.EFBIG, "File too large"), NotADirectoryError(errno.ENOTDIR, "a file"))):
+        def failing(path, depth, error=error):  # any OSError, by its class (probe 70: NotADirectoryError was "--set")
+            raise error
 
-    monkeypatch.setattr(sim, "write_depth_png", too_large)
-    with pytest.raises(HybridCalibError, match="no frame could be simulated .* check that the --out folder can be "
-                                               "written") as e:
-        sim.simulate(merge(SimConfig, {"vehicles": 1, "frames": 2, "image_scale": 0.125}), tmp_path / "sim",
-                     workers=1)
-    assert "--set" not in str(e.value).split("sim_vehicle.json")[0].split("written")[-1]
+        monkeypatch.setattr(sim, "write_depth_png", failing)
+        with pytest.raises(HybridCalibError, match="no frame could be simulated .* check that the --out folder can "
+                                                   "be written") as e:
+            sim.simulate(merge(SimConfig, {"vehicles": 1, "frames": 2, "image_scale": 0.125}), tmp_path / f"sim{k}",
+                         workers=1)
+        assert "--set" not in str(e.value).split("sim_vehicle.json")[0].split("written")[-1]
 
 
 def test_a_page_link_into_a_dataset_or_a_loop_is_refused(sim, calibrated, tmp_path, capsys):

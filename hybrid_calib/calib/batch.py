@@ -104,7 +104,7 @@ def _check_frames(frames: list[Correspondences]) -> tuple[list[Correspondences],
         i, (m, j) = next(iter(part.items()))
         notes.append(f"{sum(int(m.sum()) for m, _ in part.values())} row(s) of {len(part)} frame(s) repeat an earlier "
                      f"frame's rows; first: frame {frames[i].frame_id or i}: "
-                     + replayed_message(frames[i], m, frames[j].frame_id))
+                     + replayed_message(frames[i].once(), m, frames[j].frame_id))  # m: rows of the frame kept once
     if doubled := [(i, msg) for i, f in enumerate(frames) if (msg := doubled_message(f))]:
         i, msg = doubled[0]
         notes.append(f"{len(doubled)} frame(s) hold a row twice; first: frame {frames[i].frame_id or i}: {msg}")

@@ -214,10 +214,14 @@ def simulate(conf: SimConfig, out: str | Path, overwrite: bool = False, workers:
     if n_bad == conf.vehicles * conf.frames:  # a config every frame fails on (a value the checks let through)
         v0 = next(v for v in failed if failed[v])
         first = failed[v0][0]
-        last = first["error"].strip().splitlines()[-1]
-        # an error writing a file is the disk's, not a config's (probe 66: a file-size limit read "check --set")
+        last = (first["error"].strip().splitlines() or ["unknown error"])[-1]
+        # an error writing a file is the disk's, not a config's (probe 66: a file-size limit read "check --set"); by
+        # the exception's class, every OSError (probe 70: NotADirectoryError, IsADirectoryError were "check --set")
+        import builtins
+
+        kind = getattr(builtins, last.split(":")[0].strip(), None)
         what = ("check that the --out folder can be written (free space, file size limits, permissions)"
-                if last.startswith(("OSError", "PermissionError", "FileNotFoundError")) or "cannot be written" in last
+                if isinstance(kind, type) and issubclass(kind, OSError) or "cannot be written" in last
                 else "check the --set values")
         raise HybridCalibError(f"no frame could be simulated (all {n_bad} failed; first, vehicle {v0} frame "
                                f"{first['frame']}: {last}); {what} "
