@@ -562,3 +562,10 @@ def test_a_path_not_valid_utf8_is_refused_by_the_commands_and_read_by_the_api(ti
     image = next(tiny.root.glob("samples/CAM_FRONT/*"))
     (latin / image.name).write_bytes(image.read_bytes())
     assert decode_image(latin / image.name).ndim == 3
+    import shutil
+
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+
+    root = shutil.copytree(tiny.root, latin / "root")  # the network cache's key hashes the root's path (an internal
+    ds = NuScenesRadarCamera(root, tiny.version)  # error of the hybrid before)
+    assert len(ds.identity) == 16 and ds[0].load_image().ndim == 3
