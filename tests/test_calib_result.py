@@ -251,3 +251,20 @@ def test_an_estimate_whose_drive_ends_unseen_or_whose_pair_shares_no_view_is_not
     away = trust_reason(VehicleResult("v", Estimate(rear, np.eye(6) * 1e-4, np.ones(6), "weak"), traj), rear)
     assert "the vehicle's tables turn the radar 18" in away and "share no view" in away and "astray" not in away
     assert g is not None
+
+
+@pytest.mark.parametrize("status", ["INCONCLUSIVE: edited", "", "garbage status", "okay"])
+def test_a_status_that_opens_with_no_status_word_is_refused(status):
+    """Probe 71: export reads trust from the status; one it did not know ("INCONCLUSIVE: edited", "", "garbage") was
+    exported as a trusted calibration."""
+    from hybrid_calib.calib.result import VehicleResult
+
+    doc = _run(rng(1)).vehicles["veh-a"].to_dict()
+    doc["final"]["status"] = status
+    with pytest.raises(ValueError, match=r"final\.status .* does not open with one of ok, weak, degenerate, "
+                                         "inconclusive: the file was edited"):
+        VehicleResult.from_dict(doc, "veh-a")
+    doc["final"]["status"] = "ok"
+    doc["trajectory"][0]["status"] = status
+    with pytest.raises(ValueError, match=r"trajectory\[0\]"):
+        VehicleResult.from_dict(doc, "veh-a")

@@ -75,7 +75,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hybrid_calib.calib.covariance import CovarianceReport, report_std
+from hybrid_calib.calib.covariance import STATUS_WORDS, CovarianceReport, report_std, status_kind
 from hybrid_calib.config import json_default, read_out_record, save_json_atomic
 from hybrid_calib.data.tables import is_number
 from hybrid_calib.errors import DataError, HybridCalibError
@@ -416,6 +416,9 @@ class Estimate:
                 raise TypeError(f"{where}.{key} is a JSON {_json_kind(d[key])}, not a {_KIND_WORDS[kind]}: {EDITED}")
         if bad := [w for w in d.get("weak_directions", []) if not isinstance(w, str)]:  # probe 61: [1] in report
             raise TypeError(f"{where}.weak_directions holds a JSON {_json_kind(bad[0])}, not only strings: {EDITED}")
+        if not status_kind(d["status"]):  # what trust is read from (probe 71: "INCONCLUSIVE: ..." or "" exported)
+            raise ValueError(f"{where}.status {d['status'][:60]!r} does not open with one of "
+                             f"{', '.join(STATUS_WORDS)}: {EDITED}")
         return cls(T, cov, std, d["status"], d.get("regularised", False), tuple(d.get("weak_directions", ())))
 
 
