@@ -2540,3 +2540,18 @@ def test_a_page_link_into_a_dataset_or_a_loop_is_refused(sim, calibrated, tmp_pa
         with pytest.raises(OptionError, match="^out: "):  # the one writer of pages, whoever calls it
             write_page(tmp_path / link, "t", "b")
     assert sorted(p.relative_to(root) for p in root.rglob("*")) == before
+
+
+def test_a_learned_run_without_the_lidar_its_depth_needs_is_refused_at_the_start(sim_copy, tmp_path, capsys):
+    """Probe 71: the shipped checkpoint densifies the LiDAR; on a root without its LiDAR files (a partial download)
+    every frame was skipped in turn, one line each, before the run failed."""
+    root, _ = sim_copy
+    shutil.rmtree(root / "samples" / "LIDAR_TOP")
+    err = expect_cli_error(["calibrate", "--data", root, "--method", "pure-avg", "--start", "R1", "--out",
+                            tmp_path / "c", "--no-plots"], capsys,
+                           "--depth: lidar-densified (the checkpoint's) densifies each frame's LiDAR sweep",
+                           "LIDAR_TOP is missing or empty", "pass --depth corrupted-truth")
+    assert "skipping frame" not in err and not (tmp_path / "c" / "result.json").exists()
+    rc, err = run_cli(["calibrate", "--data", root, "--method", "pure-avg", "--start", "R1", "--depth",
+                       "corrupted-truth", "--max-frames", "2", "--out", tmp_path / "d", "--no-plots"], capsys)
+    assert rc == 0, err

@@ -665,6 +665,17 @@ class _Session:
                                          "lidar-densified (the LiDAR) or --depth depth-anything:/local/model/dir")
         self.frames, self.drives = open_drives(data, version, conf, lidar=needs_lidar(effective),
                                                unreadable=self.unreadable)
+        if needs_lidar(effective):  # said once at the start, not as a skip of every frame (probe 71)
+            channel = self.frames.conf.lidar_channel
+            folder = Path(data) / "samples" / channel
+            why = ("has no LiDAR (no LIDAR_TOP in its tables)" if not self.frames.conf.load_lidar else
+                   f"has no LiDAR files ({folder} is missing or empty: a partial download?)"
+                   if not (folder.is_dir() and any(folder.iterdir())) else "")
+            if why:
+                whose = "the --depth given" if depth else "the checkpoint's"
+                raise OptionError("--depth", f"{effective} ({whose}) densifies each frame's LiDAR sweep, and {data} "
+                                             f"{why}; pass --depth corrupted-truth (a simulated root) or --depth "
+                                             "depth-anything:/local/model/dir")
         self._check_some_drive()
         self.runner = build_runner(ckpt, refine_checkpoint(conf.refine), self.frames, depth, conf.cache_dir,
                                    conf.depth_cache, conf.threads)
