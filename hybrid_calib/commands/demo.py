@@ -57,7 +57,7 @@ class DemoConfig:
             raise ValueError(f"DemoConfig.engine={self.engine!r}; valid: local, process")
         if self.fleet_frames < 2 or self.workers < 1:
             raise ValueError(f"DemoConfig.fleet_frames={self.fleet_frames} (>= 2) / workers={self.workers} (>= 1)")
-        require_ranges(self, {"frames": "[2, 1e5]", "image_scale": "[0.01, 4]", "window": "[1, 1e9]",
+        require_ranges(self, {"frames": "[2, 1e5]", "image_scale": "[0.01, 2]", "window": "[1, 1e9]",
                               "threads": "[1, 256]", "fleet_frames": "[2, 1e5]", "knock_deg": "[-90, 90]",
                               "workers": "[1, 256]"})
 
