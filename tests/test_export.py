@@ -345,3 +345,20 @@ def test_a_knocked_simulated_radar_is_judged_on_its_reference_not_on_the_truths_
     exp = export_mounts([path], tmp_path / "out")
     assert exp.exported == ["sim-veh-000"], exp.vehicles["sim-veh-000"]["why"]
     assert any("a simulated root: its calibrated_sensor.json holds the simulator's truth" in n for n in exp.notes)
+
+
+def test_a_moved_root_is_not_blamed_on_a_data_option_not_given(calibrated, tmp_path):
+    """Probe 71: export without --data, its results' root moved, said "--data: ... is not a folder"."""
+    import json
+
+    from hybrid_calib.calib.export import export_mounts
+    from hybrid_calib.errors import OptionError
+
+    _, result = calibrated
+    doc = json.loads(result.read_text())
+    moved = tmp_path / "run" / "result.json"
+    moved.parent.mkdir()
+    moved.write_text(json.dumps({**doc, "data": str(tmp_path / "gone")}))
+    with pytest.raises(OptionError, match="the root the results record, .*gone/v1.0-sim, is not there \\(moved or "
+                                          "removed\\?\\): pass where it is now with --data"):
+        export_mounts([moved], tmp_path / "exp")

@@ -729,6 +729,10 @@ def test_a_damaged_fleet_prior_is_named_on_load(damage, needle, tmp_path):
         load_priors(path)
     with pytest.raises(DataError, match="fleet prior does not exist"):
         load_priors(tmp_path / "none.json")
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "summary.json").write_text("{}")  # a fleet run that fitted none: said (probe 71)
+    with pytest.raises(DataError, match="fleet prior does not exist; the fleet run in .* fitted none .*summary.md"):
+        load_priors(tmp_path / "run" / "fleet_prior.json")
 
 
 @pytest.mark.parametrize("name", ["../../victim", "/abs/victim", "a/b", "", "..", ".hidden"])

@@ -226,17 +226,22 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
     paths = [Path(p) for p in results]
     runs = [(p, CalibrationRun.load(p)) for p in paths]
     roots = {(str(Path(r.data).resolve()), r.version) for _, r in runs if r.data}
+    given = data is not None
     if data is None:
         if len(roots) != 1:
             raise OptionError("--data", f"the results record {len(roots)} data roots ({sorted(roots) or 'none'}); "
-                                        "pass the one root whose tables to export with --data (and --version)")
+                                        "export one root's results at a time (one export per root), or pass the "
+                                        "root whose tables to export with --data (and --version)")
         data, recorded_version = next(iter(roots))
         version = version or recorded_version
     root = Path(data)
     version = version or runs[0][1].version
     if not (root / str(version)).is_dir():
+        # a root the results record, moved since, is not a --data the user gave (probe 71)
         raise OptionError("--data", f"{root / str(version)} is not a folder: pass the nuScenes root the results "
-                                    "were computed on, with --version its version folder")
+                                    "were computed on, with --version its version folder" if given else
+                                    f"the root the results record, {root / str(version)}, is not there (moved or "
+                                    "removed?): pass where it is now with --data (and --version)")
     if out is not None:
         from hybrid_calib.errors import check_out_not_in_dataset
 

@@ -349,8 +349,14 @@ def load_priors(path: str | Path) -> dict[str, dict]:
 
     path = Path(path)
     if not path.is_file():
-        raise DataError(f"fleet prior {'is a directory' if path.is_dir() else 'does not exist'}; pass the "
-                        "fleet_prior.json a hybrid-calib fleet run wrote beside its summary.json", path=str(path))
+        # beside a fleet run's summary.json that wrote none: its summary says why (probe 71: the advice to pass
+        # the file that run wrote could not be followed)
+        why = (f"; the fleet run in {path.parent} fitted none (its summary.md says why: fewer than "
+               f"{MIN_VEHICLES} vehicles with a trusted estimate, say)" if (path.parent / "summary.json").is_file()
+               else "")
+        raise DataError(f"fleet prior {'is a directory' if path.is_dir() else 'does not exist'}{why}; pass the "
+                        "fleet_prior.json a hybrid-calib fleet run wrote beside its summary.json, or run without "
+                        "--prior", path=str(path))
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
         if not isinstance(doc, dict) or "priors" not in doc:
