@@ -306,22 +306,32 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
                     "from %s and overwritten; move them away first to keep them", ", ".join(p.name for p in orphans),
                     "those epochs are" if len(orphans) > 1 else "that epoch is",
                     f"after {last.name}" if last is not None else "the start")
-    out.mkdir(parents=True, exist_ok=True)
-    check_writable(ckpt_dir)  # before an epoch's work, not after it (probe 33: a read-only checkpoints/ was exit 3)
-    save_json_atomic(out / "train_config.json", {"train": to_dict(conf), "model": model_conf_dict,
-                                                 **({"data": source} if source is not None else {})})
-
+    # what refuses the run is checked before its folder is written (probe 71: an --init of another model, a --depth
+    # that does not exist and an empty train split left a train_config.json and a runs.json line behind)
+    if conf.init_weights and last is None:
+        init = load_checkpoint(conf.init_weights)
+        diff = sorted(k for k in set(init.model_config) | set(model_conf_dict)
+                      if init.model_config.get(k) != model_conf_dict.get(k) and k not in LOSS_ONLY_KEYS)
+        if diff:
+            raise HybridCalibError(f"init_weights {conf.init_weights} has another model config (differs in "
+                                   f"{', '.join(diff)}); train with its preset and --set model.* options "
+                                   f"(only the loss settings {', '.join(LOSS_ONLY_KEYS)} may change)")
     train_idx = split_indices(frames, "train", conf.split)
     val_idx = split_indices(frames, "val", conf.split)
     if not train_idx:
         raise HybridCalibError(f"the train split is empty ({len(frames)} frames, split by {conf.split.by}); "
                                "give more scenes or set split.test_fraction / split.val_fraction lower")
+    depth = build_depth_estimator(conf.depth, conf.depth_options)
+    out.mkdir(parents=True, exist_ok=True)
+    check_writable(ckpt_dir)  # before an epoch's work, not after it (probe 33: a read-only checkpoints/ was exit 3)
+    save_json_atomic(out / "train_config.json", {"train": to_dict(conf), "model": model_conf_dict,
+                                                 **({"data": source} if source is not None else {})})
+
     if not val_idx:  # epochs.csv's val_* columns stayed empty and history.png had no validation curve, no word
         log.warning("no validation frames: split.by=%s with val_fraction %s leaves none of the %d frames for "
                     "validation (no val_* columns, no validation curve); add roots or scenes, or pass --set %s",
                     conf.split.by, conf.split.val_fraction, len(frames),
                     "split.val_fraction=0.2 (or more frames)" if conf.split.by == "time" else "split.by=time")
-    depth = build_depth_estimator(conf.depth, conf.depth_options)
     cache = DepthCache(Path(conf.depth_cache) if conf.depth_cache else out / "depth-cache")
     dconf = dataset_config(conf, model_conf)
     train_set = CalibDataset(frames, dconf, depth, indices=train_idx, cache=cache, train=True)
@@ -336,13 +346,6 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
         loaded = model.load_context_weights(conf.context_weights)
         log.info("image context network: %d tensors from %s", len(loaded), conf.context_weights)
     if conf.init_weights and last is None:
-        init = load_checkpoint(conf.init_weights)
-        diff = sorted(k for k in set(init.model_config) | set(model_conf_dict)
-                      if init.model_config.get(k) != model_conf_dict.get(k) and k not in LOSS_ONLY_KEYS)
-        if diff:
-            raise HybridCalibError(f"init_weights {conf.init_weights} has another model config (differs in "
-                                   f"{', '.join(diff)}); train with its preset and --set model.* options "
-                                   f"(only the loss settings {', '.join(LOSS_ONLY_KEYS)} may change)")
         load_checkpoint(conf.init_weights, model, map_location=device)
         log.info("weights initialised from %s (epoch %d)", conf.init_weights, init.epoch)
     if last is not None:

@@ -2557,3 +2557,16 @@ def test_a_learned_run_without_the_lidar_its_depth_needs_is_refused_at_the_start
     rc, err = run_cli(["calibrate", "--data", root, "--method", "pure-avg", "--start", "R1", "--depth",
                        "corrupted-truth", "--max-frames", "2", "--out", tmp_path / "d", "--no-plots"], capsys)
     assert rc == 0, err
+
+
+def test_a_train_run_refused_leaves_no_folder_behind(sim, tmp_path, capsys):
+    """Probe 71: a --depth that does not exist and an --init of another model were refused after train_config.json
+    (and runs.json's line) were written: a folder the README says a refused run does not leave."""
+    from hybrid_calib.hybrid.network import shipped_checkpoint
+
+    root, _ = sim
+    train = ["train", "--data", root, "--version", SIM_VERSION, "--no-progress", "--epochs", "1"]
+    expect_cli_error([*train, "--depth", "foo", "--out", tmp_path / "a"], capsys, "unknown depth estimator 'foo'")
+    expect_cli_error([*train, "--preset", "paper", "--init", shipped_checkpoint("R1"), "--out", tmp_path / "b"],
+                     capsys, "has another model config")
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
