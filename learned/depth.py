@@ -432,6 +432,27 @@ def trained_with(train_config: dict | None, source: str | Path | None = None) ->
     return spec
 
 
+# what --depth may be, in words (a message's advice)
+DEPTH_CHOICES = ("corrupted-truth (a simulated root), lidar-densified (a root with its LiDAR) or "
+                 "depth-anything:/local/model/dir (any)")
+
+
+def depth_source_missing(spec: str, root: str | Path) -> str:
+    """Why depth ``spec`` cannot be computed on the nuScenes ``root`` ("" when it can): the simulator's truth for
+    ``corrupted-truth``, the LiDAR's files for ``lidar-densified``. Said once before the frames are read, by every
+    command that runs a network (probe 23, probe 71: every frame was skipped in turn, a line each)."""
+    root = Path(root)
+    name = str(spec).split(":", 1)[0]
+    if name == CorruptedTruthDepth.name and not (root / "sim_truth").is_dir():
+        return (f"{spec} corrupts the simulator's ground-truth depth, and {root} has none (no sim_truth/ folder: a "
+                "real root)")
+    folder = root / "samples" / "LIDAR_TOP"
+    if name == LidarDepth.name and not (folder.is_dir() and any(folder.iterdir())):
+        return (f"{spec} densifies each frame's LiDAR sweep, and {root} has no LiDAR files ({folder} is missing or "
+                "empty: no LiDAR, or a partial download)")
+    return ""
+
+
 def needs_lidar(spec: str) -> bool:
     """Does this depth spec read the frame's LiDAR sweep (so the root must be opened with it)?"""
     return spec == LidarDepth.name

@@ -2393,7 +2393,8 @@ def test_ground_truth_depth_on_a_real_root_is_refused_at_the_start(tiny, tmp_pat
     from hybrid_calib.errors import OptionError
     from hybrid_calib.hybrid import run_calibration
 
-    with pytest.raises(OptionError, match="no sim_truth/ folder: a real root.*--depth lidar-densified") as e:
+    with pytest.raises(OptionError, match="no sim_truth/ folder: a real root.*pass another --depth: "
+                                          ".*lidar-densified") as e:
         run_calibration(tiny.root, tiny.version, tmp_path / "out", {"method": "pure", "depth": "corrupted-truth",
                                                                      "progress": False})
     assert e.value.option == "--depth" and not (tmp_path / "out" / "result.json").exists()
@@ -2551,12 +2552,19 @@ def test_a_learned_run_without_the_lidar_its_depth_needs_is_refused_at_the_start
     shutil.rmtree(root / "samples" / "LIDAR_TOP")
     err = expect_cli_error(["calibrate", "--data", root, "--method", "pure-avg", "--start", "R1", "--out",
                             tmp_path / "c", "--no-plots"], capsys,
-                           "--depth: lidar-densified (the checkpoint's) densifies each frame's LiDAR sweep",
-                           "LIDAR_TOP is missing or empty", "pass --depth corrupted-truth")
+                           "--depth: lidar-densified densifies each frame's LiDAR sweep",
+                           "LIDAR_TOP is missing or empty", "(the checkpoint depth); pass another --depth: "
+                           "corrupted-truth (a simulated root)")
     assert "skipping frame" not in err and not (tmp_path / "c" / "result.json").exists()
     rc, err = run_cli(["calibrate", "--data", root, "--method", "pure-avg", "--start", "R1", "--depth",
                        "corrupted-truth", "--max-frames", "2", "--out", tmp_path / "d", "--no-plots"], capsys)
     assert rc == 0, err
+    from hybrid_calib.hybrid.network import shipped_checkpoint
+
+    expect_cli_error(["evaluate", "--data", root, "--version", SIM_VERSION, "--checkpoint", shipped_checkpoint("R1"),
+                      "--split", "all", "--out", tmp_path / "e", "--no-progress"], capsys,
+                     "--depth: lidar-densified densifies each frame's LiDAR sweep")  # evaluate too
+    assert not (tmp_path / "e" / "skipped.json").exists()
 
 
 def test_a_train_run_refused_leaves_no_folder_behind(sim, tmp_path, capsys):

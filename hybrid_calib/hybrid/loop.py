@@ -644,7 +644,7 @@ class _Session:
     """What run_vehicle / run_calibration share: the frames, the drives and (learned methods) the network."""
 
     def __init__(self, data, version: str, conf: HybridConfig):
-        from learned.depth import needs_lidar
+        from learned.depth import DEPTH_CHOICES, depth_source_missing, needs_lidar
 
         self.data, self.version, self.conf = data, version, conf
         self.runner, self.note, self.motion = None, "", None
@@ -657,25 +657,11 @@ class _Session:
         ckpt = conf.checkpoint or shipped_checkpoint(conf.start)
         conf = self.conf = self._trained_sweeps(conf, ckpt)
         effective = depth or trained_depth(ckpt)  # "" = the checkpoint's own (lidar-densified needs the LiDAR)
-        if effective.split(":", 1)[0] == "corrupted-truth" and not (Path(data) / "sim_truth").is_dir():
-            # said once at the start, not as a skip of every frame in turn (probe 23)
-            whose = "the --depth given" if depth else "the checkpoint's"
-            raise OptionError("--depth", f"{effective} ({whose}) corrupts the simulator's ground-truth depth, and "
-                                         f"{data} has none (no sim_truth/ folder: a real root); pass --depth "
-                                         "lidar-densified (the LiDAR) or --depth depth-anything:/local/model/dir")
+        if why := depth_source_missing(effective, data):  # said once at the start (probes 23 and 71)
+            raise OptionError("--depth", f"{why} ({'the --depth given' if depth else 'the checkpoint depth'}); "
+                                         f"pass another --depth: {DEPTH_CHOICES}")
         self.frames, self.drives = open_drives(data, version, conf, lidar=needs_lidar(effective),
                                                unreadable=self.unreadable)
-        if needs_lidar(effective):  # said once at the start, not as a skip of every frame (probe 71)
-            channel = self.frames.conf.lidar_channel
-            folder = Path(data) / "samples" / channel
-            why = ("has no LiDAR (no LIDAR_TOP in its tables)" if not self.frames.conf.load_lidar else
-                   f"has no LiDAR files ({folder} is missing or empty: a partial download?)"
-                   if not (folder.is_dir() and any(folder.iterdir())) else "")
-            if why:
-                whose = "the --depth given" if depth else "the checkpoint's"
-                raise OptionError("--depth", f"{effective} ({whose}) densifies each frame's LiDAR sweep, and {data} "
-                                             f"{why}; pass --depth corrupted-truth (a simulated root) or --depth "
-                                             "depth-anything:/local/model/dir")
         self._check_some_drive()
         self.runner = build_runner(ckpt, refine_checkpoint(conf.refine), self.frames, depth, conf.cache_dir,
                                    conf.depth_cache, conf.threads)
