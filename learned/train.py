@@ -84,13 +84,13 @@ class TrainConfig:
         for name in ("samples_per_epoch", "val_samples", "num_workers", "lr_halve_every"):
             if getattr(self, name) < 0:
                 raise ValueError(f"TrainConfig.{name} must be >= 0, got {getattr(self, name)}")
-        if not self.lr > 0:  # 0 trained for every epoch without learning (batch norm's statistics moved: probe 71)
-            raise ValueError(f"TrainConfig.lr must be > 0, got {self.lr}")
+        if not self.lr >= 0:  # 0 is allowed: the weights stay where they start (a fine-tuning run's check uses it)
+            raise ValueError(f"TrainConfig.lr must be >= 0, got {self.lr}")
         for name in ("weight_decay", "grad_clip"):  # torch refuses a negative one; NaN disables clipping silently
             if not 0 <= getattr(self, name) < float("inf"):
                 raise ValueError(f"TrainConfig.{name} must be a finite number >= 0, got {getattr(self, name)}")
         check_sizes_and_device(self, "TrainConfig")
-        require_ranges(self, {"epochs": "[1, 1e4]", "batch_size": "[1, 4096]", "lr": "(0, 1]",
+        require_ranges(self, {"epochs": "[1, 1e4]", "batch_size": "[1, 4096]", "lr": "[0, 1]",
                               "lr_halve_every": "[0, 1e4]", "weight_decay": "[0, 1]", "grad_clip": "[0, 1e6]",
                               "samples_per_epoch": "[0, 1e8]", "val_samples": "[0, 1e8]", "num_workers": "[0, 256]",
                               "threads": "[1, 1024]", "max_radar_points": "[1, 1e6]", "max_lidar_points": "[0, 1e6]"})
