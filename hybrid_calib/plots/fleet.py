@@ -18,10 +18,10 @@ AXES = ("rot x [deg]", "rot y [deg]", "rot z [deg]", "t x [cm]", "t y [cm]", "t 
 # vehicles of a knocked fleet were orange, and purple was never drawn, probe 67)
 # every flag ``fleet.summary`` sets has one (probe 69: an inconclusive vehicle, "flagged" on the page, was blue)
 COLOURS = {"fleet_outlier": "tab:red", "flagged": "tab:red", "drifted_in_drive": "tab:purple",
-           "out_of_tolerance": "tab:orange", "doppler_off_tables": "tab:brown", "inconclusive": "tab:gray",
-           "degenerate": "tab:gray"}
+           "out_of_tolerance": "tab:orange", "doppler_off_tables": "tab:brown", "inconclusive": "tab:olive",
+           "degenerate": "tab:olive"}
 LEGEND = ("red: fleet outlier / flagged, purple: drifted in the drive, orange: out of tolerance, brown: the radar's "
-          "Doppler puts its yaw off its tables, grey: inconclusive / degenerate (not trusted)")
+          "Doppler puts its yaw off its tables, olive: inconclusive / degenerate (not trusted)")
 
 
 def vehicle_colour(flags: Sequence[str]) -> str:
