@@ -6,6 +6,7 @@ report's fleet page (``hybrid_calib.report.fleet``, from result files)."""
 
 from __future__ import annotations
 
+import textwrap
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -68,8 +69,9 @@ def draw_fleet(names: Sequence[str], offsets: np.ndarray, sigmas: np.ndarray, fl
     axes[0].set_yticks(y, labels, fontsize=7)
     axes[0].invert_yaxis()
     grey = "; grey: the fleet's mean +- its spread (1 sigma)" if band is not None else ""
-    fig.suptitle(f"{title}; +-{n_sigma:g} sigma (camera axes); {LEGEND}{grey}", fontsize=9)
-    fig.tight_layout()
+    text = textwrap.fill(f"{title}; +-{n_sigma:g} sigma (camera axes); {LEGEND}{grey}", 190)
+    fig.suptitle(text, fontsize=9)  # wrapped: one line ran off both edges
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.17 * (text.count("\n") + 1) / fig.get_figheight()))
     return save_figure(fig, path, dpi=90)
 
 
