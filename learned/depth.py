@@ -437,20 +437,26 @@ DEPTH_CHOICES = ("corrupted-truth (a simulated root), lidar-densified (a root wi
                  "depth-anything:/local/model/dir (any)")
 
 
-def depth_source_missing(spec: str, root: str | Path) -> str:
-    """Why depth ``spec`` cannot be computed on the nuScenes ``root`` ("" when it can): the simulator's truth for
-    ``corrupted-truth``, the LiDAR's files for ``lidar-densified``. Said once before the frames are read, by every
-    command that runs a network (probe 23, probe 71: every frame was skipped in turn, a line each)."""
+def check_depth_source(spec: str, root: str | Path, given: bool) -> None:
+    """``OptionError`` (``--depth``) when depth ``spec`` cannot be computed on the nuScenes ``root``: the simulator's
+    truth for ``corrupted-truth``, the LiDAR's files for ``lidar-densified``. ``given``: ``spec`` is the --depth the
+    user passed (else the checkpoint's). Said once before the frames are read, by every command that runs a network
+    (probe 23, probe 71: every frame was skipped in turn, a line each)."""
+    from hybrid_calib.errors import OptionError
+
     root = Path(root)
     name = str(spec).split(":", 1)[0]
-    if name == CorruptedTruthDepth.name and not (root / "sim_truth").is_dir():
-        return (f"{spec} corrupts the simulator's ground-truth depth, and {root} has none (no sim_truth/ folder: a "
-                "real root)")
     folder = root / "samples" / "LIDAR_TOP"
-    if name == LidarDepth.name and not (folder.is_dir() and any(folder.iterdir())):
-        return (f"{spec} densifies each frame's LiDAR sweep, and {root} has no LiDAR files ({folder} is missing or "
-                "empty: no LiDAR, or a partial download)")
-    return ""
+    if name == CorruptedTruthDepth.name and not (root / "sim_truth").is_dir():
+        why = (f"{spec} corrupts the simulator's ground-truth depth, and {root} has none (no sim_truth/ folder: a "
+               "real root)")
+    elif name == LidarDepth.name and not (folder.is_dir() and any(folder.iterdir())):
+        why = (f"{spec} densifies each frame's LiDAR sweep, and {root} has no LiDAR files ({folder} is missing or "
+               "empty: no LiDAR, or a partial download)")
+    else:
+        return
+    raise OptionError("--depth", f"{why} ({'the --depth given' if given else 'the checkpoint depth'}); pass another "
+                                 f"--depth: {DEPTH_CHOICES}")
 
 
 def needs_lidar(spec: str) -> bool:

@@ -108,12 +108,10 @@ def run(args: argparse.Namespace) -> int:
         raise OptionError("--fit-uncertainty", f"{last.path} cannot be written (it, or its folder, is read-only), "
                                                "and the fitted scale goes into it: copy the checkpoint to a folder "
                                                "you can write and pass the copy")
-    from learned.depth import DEPTH_CHOICES, depth_source_missing
+    from learned.depth import check_depth_source
 
     for root in args.data:  # once, before the frames (probe 71: every frame was skipped in turn, a line each)
-        if why := depth_source_missing(str(setup.conf.get("depth", "")), root):
-            raise OptionError("--depth", f"{why} ({'the --depth given' if args.depth else 'the checkpoint depth'}); "
-                                         f"pass another --depth: {DEPTH_CHOICES}")
+        check_depth_source(str(setup.conf.get("depth", "")), root, given=bool(args.depth))
     frames = open_roots(args.data, args.version, lidar=setup.lidar, options={"nsweeps": setup.nsweeps})
     # other split flags than the checkpoint's: its training frames may fall in the "held-out" split (probe 55)
     stamps = [data_stamp(d, args.version)["digest"] for d in args.data]  # once: each hashes a root's tables

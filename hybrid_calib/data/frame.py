@@ -7,7 +7,6 @@ from pathlib import Path
 
 import numpy as np
 
-from hybrid_calib.atomic import atomic_path
 from hybrid_calib.errors import DataError
 from hybrid_calib.sensors.camera import PinholeCamera
 
@@ -73,9 +72,10 @@ def read_depth_png(path: str | Path) -> np.ndarray:
     """uint16 PNG (centimetres, 0 = no return) -> (H, W) float32 metres."""
     import cv2
 
-    try:  # from its bytes (cv2.imread crashed on a path that is not valid UTF-8: probe 66)
-        data = np.fromfile(path, np.uint8)
-        d = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+    from hybrid_calib.data.image_header import read_image
+
+    try:
+        d = read_image(path, cv2.IMREAD_UNCHANGED)
     except OSError:
         d = None
     if d is None or d.dtype != np.uint16 or d.ndim != 2:
@@ -85,15 +85,7 @@ def read_depth_png(path: str | Path) -> np.ndarray:
 
 def write_depth_png(path: str | Path, depth_m: np.ndarray) -> Path:
     """(H, W) metres (0 or inf/NaN = no return) -> uint16 PNG in centimetres, atomically."""
-    import cv2
+    from hybrid_calib.data.image_header import write_image
 
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     d = np.nan_to_num(np.asarray(depth_m, dtype=np.float64), nan=0.0, posinf=0.0)
-    cm = np.clip(np.round(d / DEPTH_UNIT_M), 0, 65535).astype(np.uint16)
-    ok, png = cv2.imencode(".png", cm)
-    if not ok:
-        raise OSError(f"could not encode depth PNG {path}")
-    with atomic_path(path) as tmp:
-        Path(tmp).write_bytes(png.tobytes())  # bytes, not cv2.imwrite: a path OpenCV cannot take crashed it
-    return path
+    return write_image(path, np.clip(np.round(d / DEPTH_UNIT_M), 0, 65535).astype(np.uint16))

@@ -115,6 +115,30 @@ _DECODER_COMPLAINTS = ("corrupt jpeg data", "premature end", "invalid", "bogus",
                        "huffman", "libpng error", "crc error")
 
 
+def read_image(path: str | Path, flags: int):
+    """The image file at ``path`` decoded by OpenCV with ``flags`` (an array, or None where it does not decode),
+    read through its bytes: ``cv2.imread`` crashed the process (native code) on a path that is not valid UTF-8
+    (probe 66). ``OSError`` when the file cannot be read."""
+    import cv2
+    import numpy as np
+
+    data = np.fromfile(path, np.uint8)
+    return cv2.imdecode(data, flags) if data.size else None
+
+
+def write_image(path: str | Path, image, params: tuple = ()) -> Path:
+    """``image`` encoded by OpenCV as the format of ``path``'s suffix (``params``: its encoder's, e.g. the JPEG
+    quality) and written atomically through its bytes (as ``read_image`` reads: no path reaches OpenCV)."""
+    import cv2
+
+    from hybrid_calib.atomic import write_bytes_atomic
+
+    ok, data = cv2.imencode(Path(path).suffix, image, list(params))
+    if not ok:
+        raise OSError(f"could not encode {path}")
+    return write_bytes_atomic(Path(path), data.tobytes())
+
+
 def decode_image(path: str | Path, token: str | None = None):
     """Decode a JPEG/PNG with OpenCV -> (H, W, 3) uint8 BGR, and check what the decoder reports.
 
@@ -124,7 +148,6 @@ def decode_image(path: str | Path, token: str | None = None):
     anything else it wrote is passed on.
     """
     import cv2
-    import numpy as np
 
     path = Path(path)
     try:
@@ -132,15 +155,13 @@ def decode_image(path: str | Path, token: str | None = None):
     except OSError:  # missing (or its folder unreadable)
         raise DataError("camera image not found", path=str(path), token=token) from None
     try:
-        data = np.fromfile(path, np.uint8)
+        with _captured_stderr() as captured:  # the stored pixel grid, as the intrinsics and the nuScenes devkit (PIL)
+            # read it: OpenCV otherwise turns an image with an EXIF orientation tag, and every frame was skipped as
+            # "900x1600 but the calibration says 1600x900" while inspect read the header's 1600x900
+            bgr = read_image(path, cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
     except OSError as e:
         raise DataError(f"camera image cannot be read ({e.strerror or e}); check its permissions", path=str(path),
                         token=token) from None
-    with _captured_stderr() as captured:  # the stored pixel grid, as the intrinsics and the nuScenes devkit (PIL)
-        # read it: OpenCV otherwise turns an image with an EXIF orientation tag, and every frame was skipped as
-        # "900x1600 but the calibration says 1600x900" while inspect read the header's 1600x900
-        # from its bytes: cv2.imread crashed the process (native code) on a path that is not valid UTF-8 (probe 66)
-        bgr = cv2.imdecode(data, cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION) if data.size else None
     report = captured.text.strip()
     if bgr is None:
         raise DataError(f"camera image does not decode (corrupt or not a JPEG/PNG{': ' + report if report else ''}); "

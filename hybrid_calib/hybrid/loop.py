@@ -71,7 +71,6 @@ from hybrid_calib.errors import (
     CheckpointError,
     DataError,
     HybridCalibError,
-    OptionError,
     check_api_out,
     check_out_not_in_dataset,
 )
@@ -644,7 +643,7 @@ class _Session:
     """What run_vehicle / run_calibration share: the frames, the drives and (learned methods) the network."""
 
     def __init__(self, data, version: str, conf: HybridConfig):
-        from learned.depth import DEPTH_CHOICES, depth_source_missing, needs_lidar
+        from learned.depth import check_depth_source, needs_lidar
 
         self.data, self.version, self.conf = data, version, conf
         self.runner, self.note, self.motion = None, "", None
@@ -657,9 +656,7 @@ class _Session:
         ckpt = conf.checkpoint or shipped_checkpoint(conf.start)
         conf = self.conf = self._trained_sweeps(conf, ckpt)
         effective = depth or trained_depth(ckpt)  # "" = the checkpoint's own (lidar-densified needs the LiDAR)
-        if why := depth_source_missing(effective, data):  # said once at the start (probes 23 and 71)
-            raise OptionError("--depth", f"{why} ({'the --depth given' if depth else 'the checkpoint depth'}); "
-                                         f"pass another --depth: {DEPTH_CHOICES}")
+        check_depth_source(effective, data, given=bool(depth))  # said once at the start (probes 23 and 71)
         self.frames, self.drives = open_drives(data, version, conf, lidar=needs_lidar(effective),
                                                unreadable=self.unreadable)
         self._check_some_drive()

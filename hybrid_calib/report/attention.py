@@ -11,7 +11,7 @@ from pathlib import Path
 
 from hybrid_calib.calib.result import VehicleResult
 from hybrid_calib.errors import HybridCalibError
-from hybrid_calib.report.evidence import Evidence
+from hybrid_calib.report.evidence import Evidence, frame_words
 from hybrid_calib.report.html import esc, img_tag
 
 
@@ -63,7 +63,7 @@ def attention_html(vr: VehicleResult, ev: Evidence, data, version: str, checkpoi
     if checkpoint and named and not _same_file(checkpoint, named):
         other = (f" <b>The result was calibrated with {esc(named)}</b>; this figure is of the checkpoint given with "
                  "--checkpoint, which is not that file.")
-    where = f"drive frame {frame.drive_index}" if frame.drive_index is not None else f"dataset frame {frame.index}"
+    where = frame_words(frame)
     return (head + f"<p class=meta>Checkpoint {esc(ckpt)} on {where}, from the fixed R1 evaluation start."
             f"{other} "
             "Top: points projected with the start (red) and the network's estimate (green; white: truth, or on a "

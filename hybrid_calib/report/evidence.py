@@ -58,6 +58,12 @@ class ShownFrame:
     pairs_result: tuple | None = None
 
 
+def frame_words(frame) -> str:
+    """How a page names a shown frame: by its place in the drive, as the plots count frames ("drive frame 12"), or by
+    its dataset index where it is not in the trajectory."""
+    return f"drive frame {frame.drive_index}" if frame.drive_index is not None else f"dataset frame {frame.index}"
+
+
 @dataclass
 class Evidence:
     """Per vehicle: start (4, 4) or None, start_label (what the start was), residuals or None, the frames

@@ -19,7 +19,7 @@ from hybrid_calib.calib.lidar_alignment import describe as describe_lidar
 from hybrid_calib.calib.result import CalibrationRun, VehicleResult, extrinsic_report, failed_vehicles_message
 from hybrid_calib.config import merge, to_dict
 from hybrid_calib.errors import HybridCalibError, check_api_out
-from hybrid_calib.report.evidence import Evidence, gather
+from hybrid_calib.report.evidence import Evidence, frame_words, gather
 from hybrid_calib.report.html import esc, img_tag, num, verdict_class, write_page, written_from
 from hybrid_calib.report.verdict import AXIS_NAMES, Tolerance, Verdict, verdict_of
 from hybrid_calib.words import did_you_mean, some_of
@@ -184,7 +184,7 @@ def _figures(vr: VehicleResult, ev: Evidence, tmp: Path) -> str:
             panels = [{"title": "start", "uv": sf.uv_start, "depth": sf.depth_start, "pairs": sf.pairs_start},
                       {"title": sf.result_label, "uv": sf.uv_result, "depth": sf.depth_result,
                        "pairs": sf.pairs_result}]
-            where = f"drive frame {sf.drive_index}" if sf.drive_index is not None else f"dataset frame {sf.index}"
+            where = frame_words(sf)
             png = draw_before_after(sf.image, panels, tmp / f"frame{sf.index}.png",
                                     title=f"{vr.vehicle} {where} (sample {sf.token[:8]})")
             out += img_tag(png, f"{where} start and result")  # as its title (probe 67: the dataset's index)

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hybrid_calib.atomic import atomic_path
 from hybrid_calib.config import save_json_atomic
+from hybrid_calib.data.image_header import write_image
 from hybrid_calib.geometry import pose_to_nuscenes
 
 VERSION = "v1.0-sim"
@@ -215,10 +215,4 @@ def write_map_png(root: Path, map_token: str, paths_xy: list[np.ndarray], resolu
         px = ((p - lo) / resolution).astype(np.int32)
         px[:, 1] = img.shape[0] - 1 - px[:, 1]
         cv2.polylines(img, [px.reshape(-1, 1, 2)], False, 255, thickness=max(int(14 / resolution), 1))
-    path = Path(root) / "maps" / f"{map_token}.png"
-    ok, png = cv2.imencode(".png", img)
-    if not ok:
-        raise OSError(f"could not encode the map PNG {path}")
-    with atomic_path(path) as tmp:
-        Path(tmp).write_bytes(png.tobytes())  # bytes, not cv2.imwrite (a path OpenCV cannot take crashed it)
-    return path
+    return write_image(Path(root) / "maps" / f"{map_token}.png", img)

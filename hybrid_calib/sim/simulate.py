@@ -29,9 +29,10 @@ from pathlib import Path
 
 import numpy as np
 
-from hybrid_calib.atomic import LOCK_NAME, atomic_path, write_bytes_atomic
+from hybrid_calib.atomic import LOCK_NAME, atomic_path
 from hybrid_calib.config import save_json_atomic, to_dict
 from hybrid_calib.data.frame import write_depth_png
+from hybrid_calib.data.image_header import write_image
 from hybrid_calib.data.pcd import write_lidar_bin, write_radar_pcd
 from hybrid_calib.errors import HybridCalibError
 from hybrid_calib.geometry import pose_to_nuscenes
@@ -99,10 +100,8 @@ def write_frame(root: Path, drive: VehicleDrive, rec: FrameRecord) -> None:
         write_radar(root, name, sweep)
     write_radar(root, rec.radar_file, f.radar)
     write_lidar_bin(root / rec.lidar_file, f.lidar)
-    ok, jpg = cv2.imencode(".jpg", f.image[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, drive.jpeg_quality(rec.index)])
-    if not ok:
-        raise OSError(f"JPEG encoding failed for frame {rec.index}")
-    write_bytes_atomic(root / rec.camera_file, jpg.tobytes())
+    write_image(root / rec.camera_file, f.image[:, :, ::-1],
+                (cv2.IMWRITE_JPEG_QUALITY, drive.jpeg_quality(rec.index)))
 
 
 def write_radar(root: Path, radar_file: str, sweep) -> None:
