@@ -261,6 +261,27 @@ def test_step_detector_scale_and_hysteresis():
     assert not det.observe(1.0).alarm and not det.armed
     assert not det.observe(1.0).alarm and det.armed  # two tests below the re-arm level
     assert det.observe(1e6).alarm
+    # hysteresis: tests between the re-arm level and the threshold keep it disarmed however many there are (probe 73:
+    # re-arming below the threshold instead survived; a slow step would alarm again and again)
+    for _ in range(det.conf.rearm_tests + 3):
+        t = det.observe(det.scale * (det.rearm_level + det.threshold) / 2)  # the scale as it stands before the test
+        assert det.rearm_level < t.statistic < det.threshold
+        assert not t.above and not t.alarm and not det.armed
+
+
+def test_the_reference_test_p_value_is_the_chi_square_6_tail():
+    """Probe 73: ``chi2.sf(s, 3)`` in place of 6 dof printed p = 0.002 for p = 0.02 and called it significant; every
+    test's statistic was far from the level where the two differ."""
+    T = nominal_T_cam_radar()
+    C = np.diag([np.radians(0.1) ** 2] * 3 + [0.01 ** 2] * 3)
+    conf = DriftConfig(alpha=0.01)
+    # a yaw change whose statistic lies between the 3- and 6-dof levels of alpha: significant only with 3 dof
+    lo, hi = chi2.isf(0.01, 3), chi2.isf(0.01, 6)
+    deg = 0.1 * np.sqrt((lo + hi) / 2)
+    d = reference_test(perturb_camera_frame(T, np.radians([0.0, 0.0, deg]), [0.0, 0.0, 0.0]), C, T, conf)
+    assert lo < d.statistic < hi, d.statistic
+    assert d.p_value == pytest.approx(chi2.sf(d.statistic, 6), rel=1e-9) and d.p_value > 0.01
+    assert not d.significant
 
 
 @pytest.fixture(scope="module")

@@ -76,6 +76,10 @@ def test_prior_input_tightens_the_estimate():
     b = SlidingWindowCalibrator(T, {"detect_steps": False}).update(frames[0], prior=prior)
     assert np.all(b.estimate.std < a.estimate.std)
     assert np.all(b.estimate.std < report_std(T, prior.cov) * 1.001)
+    # the batch adds the prior's information, not its covariance (probe 73: summing covariances left the batch's
+    # std at the rows' alone, and with the height model the status "weak": prior-pinned, while the prior pinned them)
+    c = solve_batch(frames, T, priors=[prior]).estimate
+    assert np.all(c.std < report_std(T, prior.cov) * 1.001), (c.std, report_std(T, prior.cov))
 
 
 def test_consistency_small_monte_carlo():
@@ -141,6 +145,11 @@ def test_random_walk_information_widens_the_covariance():
     np.testing.assert_allclose(np.linalg.inv(out), np.linalg.inv(L) + Q, rtol=1e-6)
     np.testing.assert_allclose(random_walk_information(L, np.zeros((6, 6))), L, rtol=1e-6)
     assert np.allclose(out, out.T)
+    # the window's process noise from its options, in the documented units (deg and cm per sqrt(s); probe 73: the
+    # rotation read as radians survived, the default being 0)
+    cal = SlidingWindowCalibrator(nominal_T_cam_radar(), {"random_walk_rot_deg_per_sqrt_s": 0.01,
+                                                          "random_walk_trans_cm_per_sqrt_s": 2.0})
+    np.testing.assert_allclose(cal._q(4.0), np.diag([np.radians(0.01) ** 2 * 4] * 3 + [0.02 ** 2 * 4] * 3), rtol=1e-12)
 
 
 def test_convergence_note():

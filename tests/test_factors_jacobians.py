@@ -40,6 +40,30 @@ def test_radar_pixel_factor_jacobians(model, kernel):
         check_factor_jacobians(f, _values(k7=T0), eps=1e-6, rtol=1e-6)
 
 
+@pytest.mark.parametrize("model", ELEVATION_MODELS)
+def test_radar_pixel_factor_jacobians_of_points_behind_the_camera(model):
+    """Rows whose point lies behind the camera or nearer than ``min_depth_m`` have their depth clamped: the residual
+    stays large and continuous and its depth derivative is zero, which the Jacobian must say too (probe 73: the mask
+    dropped from the Jacobian survived, every test's points lying in front of the camera)."""
+    T = nominal_T_cam_radar()
+    corr, _ = synthetic_correspondences(T, n=12, rng=rng(4), outlier_frac=0.0)
+    R, t = T[:3, :3], T[:3, 3]
+    behind = (np.array([[1.0, 0.5, -5.0], [-2.0, 0.2, -0.5], [0.5, 0.0, 0.02]]) - t) @ R  # camera z -5, -0.5, 0.02 m
+    behind[:, 2] = 0.0  # a 2D radar's points
+    pts = np.concatenate([corr.points_radar[:9], behind])
+    from factors.correspondences import Correspondences
+
+    corr = Correspondences(pts, corr.pixels[:12], corr.sigma_px[:12], corr.confidence[:12], corr.K)
+    conf = RadarPixelFactorConfig(kernel="none", elevation_model=model)
+    valid = row_model(corr, conf)
+    from factors.projection import whitened_residuals
+
+    assert whitened_residuals(T, valid)[2].tolist() == [True] * 9 + [False] * 3
+    f = radar_pixel_factor(7, corr, conf)
+    for T0 in (T, perturb_camera_frame(T, np.radians([0.3, -0.2, 0.4]), [0.01, 0.0, -0.01])):
+        check_factor_jacobians(f, _values(k7=T0), eps=1e-6, rtol=1e-6)
+
+
 def test_radar_pixel_factor_confidence_and_sigma_scale_rows():
     T = nominal_T_cam_radar()
     corr, _ = synthetic_correspondences(T, n=20, rng=rng(2), outlier_frac=0.0)

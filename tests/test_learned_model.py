@@ -105,6 +105,12 @@ def test_losses_zero_at_truth_positive_away():
     small = calib_loss([perturbed(batch["T_gt"], 0.5, 0.02)] * 3, batch["T_gt"], batch["radar"], batch["radar_mask"])
     large = calib_loss([perturbed(batch["T_gt"], 5.0, 0.2)] * 3, batch["T_gt"], batch["radar"], batch["radar_mask"])
     assert 0 < small < large
+    # the paper's weights gamma^(N-1-n) rise to the last iteration: a wrong last iteration costs more than a wrong
+    # first one (probe 73: gamma^n, the coarse first iteration weighted most, survived every test)
+    gt, bad = batch["T_gt"], perturbed(batch["T_gt"], 5.0, 0.2)
+    args = (batch["T_gt"], batch["radar"], batch["radar_mask"])
+    first_wrong, last_wrong = calib_loss([bad, gt, gt], *args), calib_loss([gt, gt, bad], *args)
+    assert torch.isclose(first_wrong, 0.8 ** 2 * last_wrong) and first_wrong < last_wrong
     # matching loss is minimal for an assignment equal to the ground truth
     from learned.losses import matching_loss
     targets = model.match_targets(out, batch)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 
 def test_the_consistency_summary_of_known_nees():
@@ -11,6 +12,19 @@ def test_the_consistency_summary_of_known_nees():
 
     assert consistency([1.0, 2.0, 3.0, 30.0]) == {"n": 4, "nees_mean": 9.0, "nees_median": 2.5, "coverage_95": 0.75}
     assert consistency([]) == {"n": 0, "nees_mean": None, "nees_median": None, "coverage_95": None}
+
+
+def test_the_95_percent_ellipsoid_is_the_chi_square_6_quantile():
+    """Probe 73: the 5-dof quantile (11.07) in place of 12.59 read honest NEES as 91 % covered, and no test saw it
+    (every NEES above sat far from the bound)."""
+    from scipy.stats import chi2
+
+    from hybrid_calib.metrics import CHI2_6_95, consistency
+
+    assert CHI2_6_95 == pytest.approx(chi2.ppf(0.95, 6), rel=1e-12)
+    assert consistency([11.5, 12.5, 12.7])["coverage_95"] == pytest.approx(2 / 3)
+    honest = chi2.ppf((np.arange(2000) + 0.5) / 2000, 6)  # the quantiles of honest NEES
+    assert consistency(honest)["coverage_95"] == pytest.approx(0.95, abs=1e-3)
 
 
 def test_evaluates_per_axis_sigma_is_a_std_not_a_variance():

@@ -27,6 +27,25 @@ def test_a_half_degree_step_is_found_and_measured():
     assert len(lv) == 2 and abs(lv[1]["level_deg"] - lv[0]["level_deg"] - 0.5) < 0.1
 
 
+def test_a_step_s_std_covers_its_error():
+    """Monte Carlo over noisy readings (0.4 deg: above the floor the test assumes, so the std is the readings' own):
+    the step measured at the alarm (where its change point is found exactly) and the step between the levels either
+    side of it (the result's) err by about their stds (probe 73: the alarm's std without its square root, half the
+    size, survived every test)."""
+    at_alarm, between_levels = [], []
+    for seed in range(60):
+        g = np.random.default_rng(3000 + seed)
+        mon = _feed(np.r_[g.normal(0.2, 0.4, 40), g.normal(1.7, 0.4, 40)])
+        if len(mon.steps) != 1:  # a second (false) step on a few seeds: another test's matter
+            continue
+        s, st = mon.steps[0], mon.summary()["steps"][0]
+        if s.change == 40:
+            at_alarm.append((s.step_deg - 1.5) / s.std_deg)
+        between_levels.append((st["step_deg"] - 1.5) / st["std_deg"])
+    assert len(at_alarm) > 30 and len(between_levels) > 50
+    assert 0.6 < np.sqrt(np.mean(np.square(at_alarm))) < 1.4 and 0.6 < np.sqrt(np.mean(np.square(between_levels))) < 1.4
+
+
 def test_a_large_step_is_a_step_not_a_run_of_outliers():
     g = np.random.default_rng(4)
     mon = _feed(np.r_[g.normal(0.0, 0.15, 30), g.normal(5.0, 0.15, 30)])

@@ -258,6 +258,10 @@ def test_a_frame_off_the_fitted_subspace_is_out_of_domain():
     along = m.mean + m.std * m.components[0] * np.sqrt(m.variances[0])
     s = m.score({"descriptor": np.stack([off, along]), "signals": np.zeros((2, 1))})
     assert s[0] > 1 and s[1] < 1, s
+    # the residual is measured in units of the in-domain frames' own (probe 73: the raw residual, small beside the
+    # principal terms, survived): 30 times their residual's rms off the subspace is out of domain, however small
+    slightly_off = m.mean + m.std * 30 * np.sqrt(m.residual_mean) * u
+    assert m.score({"descriptor": slightly_off[None], "signals": np.zeros((1, 1))})[0] > 1
 
 
 def test_the_in_domain_count_needed_rounds_up():
