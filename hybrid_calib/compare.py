@@ -143,8 +143,8 @@ def run_trials(roots: list, version: str, out: Path, conf: CompareConfig, progre
     from tqdm import tqdm
 
     hconf = dataclasses.replace(conf.hybrid, start=conf.range, progress=False,
-                                cache_dir=conf.hybrid.cache_dir or str(out / "network-cache"),
-                                depth_cache=conf.hybrid.depth_cache or str(out / "depth-cache"))
+                                cache_dir=conf.hybrid.cache_dir or str(out.resolve() / "network-cache"),
+                                depth_cache=conf.hybrid.depth_cache or str(out.resolve() / "depth-cache"))
     learned = any(m != "oracle" for m in conf.methods)
     sessions, left_out = [], {}
     for r in roots:

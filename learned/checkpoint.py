@@ -72,7 +72,9 @@ def save_checkpoint(stem: str | Path, model: torch.nn.Module, *, epoch: int, mod
     weights = stem.with_suffix(".safetensors")
     state = {k: v.detach().to("cpu").contiguous().clone() for k, v in model.state_dict().items()}
     with atomic_path(weights) as tmp:  # a failed write leaves no partial file behind
-        save_file(state, str(tmp), metadata={"model_config": json.dumps(model_config), "epoch": str(epoch)})
+        # one metadata key: safetensors writes its metadata in hash-map order, so two keys made the same weights two
+        # different files, half the time (probe 72: weights_sha256 of a same-seed retrain did not reproduce)
+        save_file(state, str(tmp), metadata={"model_config": json.dumps(model_config, sort_keys=True)})
         _umask_mode(tmp)
     files = {"weights": weights.name, "weights_sha256": weights_sha256(weights)}
     if optimizer is not None:
@@ -223,16 +225,25 @@ def trained_data(checkpoint: str | Path) -> dict[str, Any]:
     return data if isinstance(data, dict) else {}
 
 
+# what a checkpoint JSON records of how long its epoch took, not what the network computes: two same-seed trainings
+# differ there only (probe 72: each retrain was "another network", its caches missed and compare refused its trials)
+TIMING_METRICS = ("seconds",)
+
+
 def checkpoint_digest(checkpoint: str | Path) -> str:
-    """The identity of a checkpoint: SHA-1 of its JSON and weights files (their bytes: a retrained or edited
-    checkpoint at the same path is another network; the same files under another path are the same one)."""
+    """The identity of a checkpoint: SHA-1 of its JSON's content (keys sorted, without ``TIMING_METRICS``) and of its
+    weights file's bytes: a retrained (to other weights) or edited checkpoint at the same path is another network; the
+    same files under another path, or a same-seed retrain to the same weights, are the same one."""
     import hashlib
 
     path, meta = read_checkpoint_meta(checkpoint)
-    h = hashlib.sha1()
-    for f in (path, _weights_path(path, meta)):
-        _hash_file(h, f)
-        h.update(b"/")
+    metrics = meta.get("metrics")
+    if isinstance(metrics, dict):
+        meta = {**meta, "metrics": {k: v for k, v in metrics.items() if k not in TIMING_METRICS}}
+    h = hashlib.sha1(json.dumps(meta, sort_keys=True, allow_nan=True).encode())
+    h.update(b"/")
+    _hash_file(h, _weights_path(path, meta))
+    h.update(b"/")
     return h.hexdigest()
 
 

@@ -246,6 +246,11 @@ def test_a_result_computed_from_a_relative_root_exports_from_anywhere(calibrated
     monkeypatch.chdir(elsewhere)
     exp = export_mounts([tmp_path / "cal" / "result.json"], which="trusted")  # the root from the result
     assert exp.data == str(root.resolve()) and set(exp.vehicles) == {"sim-veh-000", "sim-veh-001"}
+    # the results it read are named wherever it was typed (probe 72: as typed, relative to a folder not recorded)
+    monkeypatch.chdir(tmp_path)
+    exp = export_mounts(["cal/result.json"], tmp_path / "out_rel", which="trusted")
+    named = str((tmp_path / "cal" / "result.json").absolute())
+    assert exp.results == [named] and {v["result"] for v in exp.vehicles.values()} == {named}
 
 
 def test_a_pure_result_is_never_exported(calibrated, tmp_path):

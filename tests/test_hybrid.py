@@ -252,6 +252,17 @@ def test_an_interrupted_run_keeps_its_finished_vehicles_and_goes_on_from_there(s
     ran.clear()
     run_calibration(sim_root, "v1.0-sim", tmp_path / "s2", conf)
     assert ran == ["sim-veh-001"]
+    # a relative folder resumed from another one: every vehicle names the same caches (probe 72: "u/network-cache"
+    # for the first vehicle, "../u/network-cache" for the second, each relative to a folder no file records)
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(KeyboardInterrupt):
+        run_calibration(sim_root, "v1.0-sim", "u", conf, on_vehicle=stop)
+    (tmp_path / "sub").mkdir()
+    monkeypatch.chdir(tmp_path / "sub")
+    run = run_calibration(sim_root, "v1.0-sim", "../u", conf)
+    for vr in run.vehicles.values():
+        assert vr.config["cache_dir"] == str((tmp_path / "u").resolve() / "network-cache"), vr.config["cache_dir"]
+        assert vr.config["depth_cache"] == str((tmp_path / "u").resolve() / "depth-cache")
     # the oracle pipeline keeps them the same way, and the resumed run is the uninterrupted one
     from hybrid_calib.calib import pipeline
 

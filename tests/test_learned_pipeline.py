@@ -342,6 +342,31 @@ def test_checkpoint_round_trip_restores_model_and_optimizer(tmp_path):
         load_checkpoint(tmp_path / "ckpt-0099.json")
 
 
+def test_a_same_seed_retrain_is_the_same_network(tmp_path):
+    """Probe 72: the same weights saved twice were two files half the time (safetensors writes its metadata in
+    hash-map order), and a checkpoint's identity hashed its epoch's wall time, so a same-seed retrain was "another
+    network" (its caches missed, compare refused its trials). What the network computes still tells them apart."""
+    import json
+
+    from learned.checkpoint import checkpoint_digest, save_checkpoint, weights_sha256
+
+    torch.manual_seed(0)
+    model = torch.nn.Linear(3, 2)
+    saved = [save_checkpoint(tmp_path / f"run{i}" / "ckpt-0001", model, epoch=1, model_config={"a": 1, "b": [2]},
+                             metrics={"val_total": 0.5, "seconds": 10.0 + i}) for i in range(8)]
+    assert len({weights_sha256(p.with_suffix(".safetensors")) for p in saved}) == 1
+    assert len({checkpoint_digest(p) for p in saved}) == 1
+    meta = json.loads(saved[0].read_text())
+    saved[1].write_text(json.dumps({**meta, "metrics": {**meta["metrics"], "val_total": 0.6}}))
+    saved[2].write_text(json.dumps({**meta, "export": {"hybrid": {"sigma_scale": 2.0}}}))
+    with torch.no_grad():
+        model.weight[0, 0] += 1e-3
+    other = save_checkpoint(tmp_path / "run9" / "ckpt-0001", model, epoch=1, model_config={"a": 1, "b": [2]},
+                            metrics={"val_total": 0.5, "seconds": 10.0})
+    digests = [checkpoint_digest(p) for p in (saved[0], saved[1], saved[2], other)]
+    assert len(set(digests)) == 4
+
+
 def test_a_refit_keeps_the_value_it_replaces_and_shipped_checkpoints_are_not_rewritten(tmp_path):
     """A four-frame refit silently replaced a cov_scale fitted on 240 frames; pointed at the package's own
     checkpoint, evaluate --fit-uncertainty would have rewritten the installation in place."""

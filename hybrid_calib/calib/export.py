@@ -223,7 +223,7 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
         raise OptionError("--which", f"{which!r} is not a choice; valid: {', '.join(WHICH)}")
     if not results:
         raise OptionError("RESULT", "no result file given; pass the result.json of a calibrate or fleet run")
-    paths = [Path(p) for p in results]
+    paths = [Path(p).absolute() for p in results]  # export.json names them wherever it was typed (probe 72)
     runs = [(p, CalibrationRun.load(p)) for p in paths]
     roots = {(str(Path(r.data).resolve()), r.version) for _, r in runs if r.data}
     given = data is not None

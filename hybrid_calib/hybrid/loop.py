@@ -741,8 +741,10 @@ def run_calibration(data: str | Path, version: str, out: str | Path, conf: Hybri
         return reuse_result(out, data, version, conf.method, stamped)
     if overwrite:
         clear_own_caches(out, conf.cache_dir, conf.depth_cache)
-    conf = dataclasses.replace(conf, cache_dir=conf.cache_dir or str(out / "network-cache"),
-                               depth_cache=conf.depth_cache or str(out / "depth-cache"))
+    # absolute, as the data's path is (probe 72: a run resumed from another folder recorded each vehicle's caches
+    # relative to the folder its part was typed in)
+    conf = dataclasses.replace(conf, cache_dir=conf.cache_dir or str(out.resolve() / "network-cache"),
+                               depth_cache=conf.depth_cache or str(out.resolve() / "depth-cache"))
     stamp = data_stamp(data, version)  # before reading: data that change during the run are not this result's
     session = _Session(data, version, conf)
     if not session.drives:
