@@ -416,8 +416,14 @@ def compare(roots: list | str, version: str, out: str | Path, conf: CompareConfi
                                "report as its own; pass the same options, --overwrite to start over, or another --out")
     if previous is not None and "network" in previous and "network" not in record:  # an oracle-only rerun: the kept
         record["network"] = previous["network"]  # learned trials keep the identity of the network that made them
+    first = previous is None and not cfg_path.exists()
     save_json_atomic(cfg_path, record)
-    problems = run_trials([str(r) for r in roots], version, out, conf, progress)
+    try:
+        problems = run_trials([str(r) for r in roots], version, out, conf, progress)
+    except HybridCalibError:  # refused before a trial ran (a split that holds no vehicle): leave the folder as it was
+        if first and not any((out / "trials").glob("*/*.json")):
+            cfg_path.unlink(missing_ok=True)
+        raise
     if roots_left_out:  # said with the vehicles that do not read (compare.json, compare.md, the terminal)
         problems = dataclasses.replace(problems, vehicles_left_out={**roots_left_out, **problems.vehicles_left_out})
     results = {m: load_trials(out, m, conf.trials) for m in conf.methods}

@@ -2072,6 +2072,10 @@ def test_an_empty_split_is_named_not_blamed_on_the_vehicles(command, sim, tmp_pa
             ["compare", "--data", root, "--version", SIM_VERSION, "--trials", "1", "--methods", "pure",
              "--no-progress", "--out", tmp_path / "out"])
     expect_cli_error([*argv, "--split", "test", "--test-fraction", "0"], capsys, "is in split 'test'", "--split all")
+    # refused before anything ran: nothing of the run is left (compare kept its compare_config.json and a runs.json
+    # line: probe 71)
+    left = sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*")) if (tmp_path / "out").exists() else []
+    assert all(p == "out" or p.startswith("out/") and (tmp_path / p).is_dir() for p in left), left
 
 
 def test_a_flag_given_wins_over_set_in_every_command_and_says_so(sim, tmp_path, capsys, monkeypatch):
