@@ -416,6 +416,14 @@ def test_radar_points_at_an_impossible_range_are_dropped_and_counted():
     rows, dropped = filter_radar(pts, RadarFilterConfig(dynprop_states=None, ambig_states=None,
                                                         invalid_states=None))
     assert list(rows) == [0, 3] and dropped == 2
+    # points the state filters drop are not corrupt ones (probe 74: counting them called a sweep of parked cars,
+    # dyn_prop 7, "NaN/inf coordinates: the file is corrupt")
+    from hybrid_calib.data.pcd import empty_radar_points
+
+    parked = empty_radar_points(5)
+    parked["x"], parked["dyn_prop"] = 12.0, 7
+    rows, dropped = filter_radar(parked, RadarFilterConfig())
+    assert len(rows) == 0 and dropped == 0
 
 
 @pytest.mark.parametrize("damage", ["truncated", "garbage", "directory", "missing key"])

@@ -176,6 +176,18 @@ def test_a_run_that_only_failed_leaves_nothing_that_blocks_the_corrected_command
         VehicleProgress(tmp_path, tmp_path, "v1.0-mini", "pure", {"depth": ""})
 
 
+def test_a_resumed_run_with_another_seed_is_refused(tmp_path):
+    """The seed draws the starts: a rerun with another --seed must not keep vehicles computed from the old starts
+    (probe 74: "seed" among the run-only keys passed every test)."""
+    from hybrid_calib.calib.result import VehicleProgress
+    from hybrid_calib.errors import HybridCalibError
+
+    VehicleProgress(tmp_path, tmp_path, "v1.0-sim", "hybrid", {"seed": 0}).record(
+        "sim-veh-000", VehicleResult("sim-veh-000", _estimate(rng(1)), n_frames=2))
+    with pytest.raises(HybridCalibError, match=r"seed: 0 -> 7"):
+        VehicleProgress(tmp_path, tmp_path, "v1.0-sim", "hybrid", {"seed": 7})
+
+
 def test_an_interrupted_run_of_other_options_names_the_option_that_differs(tmp_path):
     """The refusal cut both nested configs to the same 60 characters ('motion: {"enabled": true, ... ->
     {"enabled": true, ...'), and blamed a retrained checkpoint when --start chose the other shipped one (probe 7)."""

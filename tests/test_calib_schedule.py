@@ -104,3 +104,23 @@ def test_factors_do_not_import_calib():
     import factors.config
 
     assert not hasattr(factors.config, "SolverConfig")  # one schedule: calib.schedule.ScheduleConfig
+
+
+def test_a_row_behind_the_camera_never_fits():
+    """Rows whose point lies behind the camera have no weight at T and must not count as fitting, however small their
+    clamped residual (probe 74: the mask dropped, they counted in the window's fitting fractions and rescues)."""
+    from factors.correspondences import Correspondences
+    from hybrid_calib.calib.schedule import inlier_mask
+    from tests.helpers import nominal_T_cam_radar, rng
+
+    T = nominal_T_cam_radar()
+    corr, _ = synthetic_correspondences(T, n=6, rng=rng(2), outlier_frac=0.0)
+    conf = RadarPixelFactorConfig(elevation_model="zero")
+    pts = corr.points_radar.copy()
+    pts[0] = (np.array([0.0, 0.0, -3.0]) - T[:3, 3]) @ T[:3, :3]  # 3 m behind the camera, on its axis
+    behind = Correspondences(pts, corr.pixels, corr.sigma_px, corr.confidence, corr.K)
+    from factors.gtsam_factors import frame_residuals
+
+    e = frame_residuals(T, behind, conf)[0].reshape(-1, 2)
+    gate = 2.0 * np.linalg.norm(e, axis=1).max() + 1.0  # a gate every row's residual passes
+    assert inlier_mask(T, behind, conf, gate).tolist() == [False] + [True] * 5

@@ -58,6 +58,10 @@ def test_clean_root_loads(tiny):
     assert f.radar_points.shape == (6, 3) and f.radar_points.dtype == np.float64
     assert (f.camera.width, f.camera.height) == (160, 90)
     assert f.image_path.is_file() and f.load_image().shape == (90, 160, 3)
+    # RGB, as the network, the visual odometry and the figures read it (probe 74: BGR passed every test)
+    cv2.imwrite(str(f.image_path), np.dstack([np.zeros((90, 160), np.uint8)] * 2 + [np.full((90, 160), 255, np.uint8)]))
+    r, g, b = f.load_image()[45, 80].tolist()  # OpenCV's BGR red read as RGB red (a JPEG: within its rounding)
+    assert r > 230 and g < 25 and b < 25, (r, g, b)
     assert f.depth_path is None and "radar_truth_path" not in f.extras
     np.testing.assert_array_equal(f.extras["radar_rows"], np.arange(6))
     assert ds.frames_by_vehicle() == {"tiny": [0, 1, 2, 3]}

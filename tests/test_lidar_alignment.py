@@ -323,6 +323,27 @@ def test_a_lateral_offset_many_stds_from_the_loop_is_said_and_refused_only_when_
     why = refusal(a, LidarAlignConfig(max_innovation=4.0), tight)
     assert "+60.0 cm from the loop's estimate is 5.8 stds" in why and "LiDAR-camera extrinsic" in why
     assert refusal(a, LidarAlignConfig(max_innovation=4.0), np.diag([1e-6] * 3 + [0.3 ** 2] * 3)) == ""
+    # either side of the loop is far (probe 74: the gate on z, not |z|, left a LiDAR 12 stds to the right unwidened)
+    conf = LidarAlignConfig()
+    assert conf.far(-12.1) and conf.far(12.1) and not conf.far(-3.9) and not conf.far(3.9)
+    assert "lies 12.1 stds from the loop's estimate" in describe(a.record(True, forward=False, innovation=-12.1))
+
+
+def test_the_innovation_counts_the_loop_s_yaw_lateral_correlation_through_the_coupling():
+    """dy measures ``xi[y] - coupling . xi[rot]``: its variance under the loop's covariance is ``h C h`` with ``h[:3] =
+    -coupling``, so a yaw-lateral correlation of the loop's own sign shrinks it or grows it (probe 74: +coupling
+    read z 1.48 for 4.44 at a 0.9 correlation, not widened)."""
+    from hybrid_calib.calib.lidar_alignment import LidarAlignment, innovation
+
+    coupling = np.array([0.0, 0.0, 6.5])  # m/rad about radar z (yaw), as probe 26 measured
+    a = LidarAlignment(np.array([0.0, 0.12, 0.0]), np.diag([0.05 ** 2, 0.03 ** 2, 0.01]), 300, 20, 0.2, 8,
+                       coupling=coupling)
+    s_yaw, s_y = np.radians(0.29), 0.05
+    for rho in (0.0, 0.5, 0.9):
+        C = np.diag([1e-8, 1e-8, s_yaw ** 2, 1e-4, s_y ** 2, 1e-4])
+        C[2, 4] = C[4, 2] = rho * s_yaw * s_y
+        var = s_y ** 2 + 6.5 ** 2 * s_yaw ** 2 - 2 * 6.5 * rho * s_yaw * s_y + 0.03 ** 2
+        assert innovation(a, C) == pytest.approx(0.12 / np.sqrt(var), rel=1e-9), rho
 
 
 def test_a_lateral_offset_many_stds_from_the_loop_widens_the_lateral_std_to_cover_both():

@@ -221,6 +221,14 @@ def test_fleet_page_links_vehicle_reports_and_names_the_flagged(run_dir, tmp_pat
         assert f"vehicles/{n}/report.html" in cells.links
         assert (tmp_path / "vehicles" / n / "report.html").is_file()
     assert 'class=sortable' in text and len(cells.imgs) == 1
+    # each row's numbers are its result's (probe 74: the largest translation sigma without camera x passed)
+    import re
+
+    for n in names:
+        row = re.search(rf'<tr data-vehicle="{n}">.*?</tr>', text, re.S).group(0)
+        shown = {k: float(v) for k, v in re.findall(r'data-key="(\w+)" data-value="([^"]+)"', row)}
+        std = run.vehicles[n].final.std
+        assert shown["max_t_sigma_cm"] == max(std[3:]) and shown["max_rot_sigma_deg"] == max(std[:3]), (n, shown)
     # a rerun keeps the pages whose result did not change, and writes again the one whose result did (probe 57: a
     # rerun that ran nothing rewrote every page, ~2 s each)
     pages = {n: tmp_path / "vehicles" / n / "report.html" for n in names}

@@ -130,6 +130,11 @@ class LidarAlignConfig:
                               "coupling_deg": "[0, 10]", "max_innovation": "[0, 1000]",
                               "far_innovation": "(0, 1000]"})
 
+    def far(self, z: float) -> bool:
+        """Whether an innovation ``z`` (stds, either sign) lies beyond ``far_innovation``: the LiDAR and the loop
+        disagree, the lateral std is widened to cover both and the line says so."""
+        return abs(z) > self.far_innovation
+
 
 @dataclass(frozen=True)
 class LidarFrame:
@@ -429,7 +434,7 @@ def describe(block: dict) -> str:
     inherits = (" (through the tables' LiDAR-camera extrinsic, the LiDAR's and the camera's calibrated_sensor "
                 "records: an error in either is carried into the result)")
     z = block.get("innovation_sigma")
-    if isinstance(z, (int, float)) and abs(z) > LidarAlignConfig.far_innovation:
+    if isinstance(z, (int, float)) and LidarAlignConfig().far(z):
         inherits += (f"; it lies {abs(z):.1f} stds from the loop's estimate: the radar is far off its tables, or the "
                      f"LiDAR's or the camera's record is ({CHECK_RECORDS} before recalibrating the radar)")
     if block.get("forward_applied"):

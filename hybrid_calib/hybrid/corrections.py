@@ -173,7 +173,7 @@ def with_lidar(traj: list[FrameEstimate], drive: Drive, frames, conf: HybridConf
         return traj, a.record(False, no, innovation=z)
     traj, block = _fold_last(traj, conf, a, why, "", lambda T, cov, a: apply_offsets(T, cov, a, forward=not no_dx),
                              lambda a: a.record(True, forward=not no_dx, forward_why=no_dx, innovation=z))
-    if abs(z) <= conf.lidar.far_innovation:
+    if not conf.lidar.far(z):
         return traj, block
     last, words = lidar_widened(traj[-1], float(a.delta[1]), z)
     return [*traj[:-1], last], {**block, "widened": words}
