@@ -289,6 +289,22 @@ def test_the_fleet_page_shows_each_vehicle_s_largest_sigmas(run_dir, tmp_path):
         assert shown["max_t_sigma_cm"] == max(std[3:]) and shown["max_rot_sigma_deg"] == max(std[:3]), (name, shown)
 
 
+def test_the_fleet_page_says_moved_as_the_vehicle_report_does():
+    """Probe 75: the fleet page read "yes (frames 15)" for alarms the vehicle's report called "not told" (an estimate
+    that is not trusted), and showed the alarm's frame where the monitor had placed the change 4 frames earlier."""
+    from hybrid_calib.report.fleet import moved_cell
+
+    lost = _vr((0,) * 6, (0.05,) * 6, "inconclusive: only 12 % of the rows fit", alarms=(3,), tested=True)
+    v = verdict_of(lost)
+    assert v.moved_answer == "not told" and moved_cell(v, lost) == "not told (alarm at frame 3)"
+    knocked = _vr((0,) * 6, (0.05,) * 6, alarms=(4,), tested=True)
+    knocked.mount = {"steps": [{"at": 4, "change": 1, "step_deg": 1.0, "std_deg": 0.1}], "pairs_tested": 9}
+    v = verdict_of(knocked)
+    assert moved_cell(v, knocked) == "yes (alarm at frame 4; changed from about frame 1)"
+    calm = _vr((0,) * 6, (0.05,) * 6, alarms=(9,), tested=True)  # 5 tested frames, no alarm among them
+    assert moved_cell(verdict_of(calm), calm) == "no"
+
+
 def test_report_command(run_dir, tmp_path, capsys):
     result = run_dir / "run" / "result.json"
     name = sorted(json.loads(result.read_text())["vehicles"])[0]

@@ -26,9 +26,19 @@ from hybrid_calib.data.files import file_part
 from hybrid_calib.errors import DataError, HybridCalibError, check_api_out
 from hybrid_calib.report.html import esc, img_tag, num, verdict_class, write_page
 from hybrid_calib.report.vehicle import ReportConfig, write_report
-from hybrid_calib.report.verdict import DELTA_KEYS, VERDICTS, verdict_of
+from hybrid_calib.report.verdict import DELTA_KEYS, VERDICTS, Verdict, verdict_of
 from hybrid_calib.words import n_vehicles
 
+
+def moved_cell(v: Verdict, vr: VehicleResult) -> str:
+    """The fleet table's "moved in drive" cell: the vehicle report's answer (``Verdict.moved_answer``: alarms on an
+    estimate that is not trusted are "not told", probe 75 read "yes" beside the report's "not told"), the frames of
+    its alarms, and where the radar mount monitor placed the change (an alarm lags its change by a few frames)."""
+    if not v.moved_frames:
+        return v.moved_answer
+    changes = sorted({int(st["change"]) for st in (vr.mount or {}).get("steps") or [] if "change" in st})
+    since = f"; changed from about frame {', '.join(map(str, changes))}" if changes and v.moved_answer == "yes" else ""
+    return f"{v.moved_answer} (alarm at frame {', '.join(map(str, v.moved_frames))}{since})"
 
 def _offset(vr: VehicleResult, design: np.ndarray | None) -> np.ndarray | None:
     """(6,) camera-axis change [deg x3, cm x3] of the final estimate from the design mount (or the
@@ -95,7 +105,7 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
     flags = ({n: tuple(f) for n, f in flagged.items()} if isinstance(flagged, Mapping) else
              {n: ("flagged",) for n in flagged})
     if not any(flags.values()):
-        flags = {n: ("drifted_in_drive",) for n in names if verdicts[n].moved_frames}
+        flags = {n: ("drifted_in_drive",) for n in names if verdicts[n].moved_answer == "yes"}
     flagged = [n for n in names if flags.get(n)]
     offsets = {n: _offset(vr, design) for n, (vr, _) in vehicles.items()}
     reference = "design mount" if design is not None else "vehicle's own reference (calibration tables)"
@@ -124,7 +134,7 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
         o = offsets[n]
         rot = float(np.linalg.norm(o[:3])) if o is not None else float("nan")
         tr = float(np.linalg.norm(o[3:])) if o is not None else float("nan")
-        moved = (f"yes (frames {', '.join(map(str, v.moved_frames))})" if v.moved_frames else v.moved_answer)
+        moved = esc(moved_cell(v, vr))
         # the radar's Doppler against its tables, the one direct evidence on an untrusted estimate: in the row, not
         # only on the vehicle's page (probe 52)
         doppler = (" <span class=note>(its radar's Doppler puts its yaw off its tables: check the radar's yaw)</span>"
