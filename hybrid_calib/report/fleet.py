@@ -40,6 +40,7 @@ def moved_cell(v: Verdict, vr: VehicleResult) -> str:
     since = f"; changed from about frame {', '.join(map(str, changes))}" if changes and v.moved_answer == "yes" else ""
     return f"{v.moved_answer} (alarm at frame {', '.join(map(str, v.moved_frames))}{since})"
 
+
 def _offset(vr: VehicleResult, design: np.ndarray | None) -> np.ndarray | None:
     """(6,) camera-axis change [deg x3, cm x3] of the final estimate from the design mount (or the
     vehicle's reference when ``design`` is None); None when neither is known."""
