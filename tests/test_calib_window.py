@@ -357,3 +357,22 @@ def test_window_options_no_window_can_have_are_refused(key, value, words):
 
     with pytest.raises(ValueError, match=words.replace("(", r"\(")):
         WindowConfig(**{key: value})
+
+
+def test_the_progressive_re_solve_starts_each_stage_at_the_previous_optimum(monkeypatch):
+    """What the status says of it ("each from the previous optimum"); probe 74: every stage from the first start
+    passed every test."""
+    from hybrid_calib.calib import batch
+
+    starts, ends = [], []
+
+    def solve(frames, T, conf, priors, covariance=True):
+        starts.append(T)
+        ends.append(retract(T, np.full(6, 0.01 * len(frames))))
+        return ends[-1], None, None, None, 2, 0.5, None
+
+    monkeypatch.setattr(batch, "_solve", solve)
+    T0 = nominal_T_cam_radar()
+    T, iters, secs = batch._progressive_start([None] * 20, T0, batch.BatchConfig(), None)
+    assert len(starts) == 3 and starts[0] is T0 and starts[1] is ends[0] and starts[2] is ends[1] and T is ends[2]
+    assert (iters, secs) == (6, 1.5)
