@@ -150,22 +150,24 @@ def lidar_html(vr: VehicleResult) -> str:
     both = bool((vr.lidar or {}).get("forward_applied"))  # the forward reading too (probe 67: only x was named)
     return _alignment_html(vr.lidar, describe_lidar, "lidar", "LiDAR alignment (the radar's offset along camera x "
                            + ("and z " if both else "") + "against the LiDAR's scene)",
-                           "camera-x and camera-z translations" if both else "camera-x translation", "LiDAR's")
+                           "camera-x and camera-z translations and their 1-sigma" if both else
+                           "camera-x translation and its 1-sigma", "LiDAR's")
 
 
 def doppler_html(vr: VehicleResult) -> str:
     """The hybrid's Doppler lever arm (``vr.doppler``, docs/conventions.md) in words, or "" without one."""
     return _alignment_html(vr.doppler, describe_doppler, "doppler", "Doppler lever arm (the radar's forward offset "
-                           "from its own motion in turns)", "camera-z translation", "Doppler's")
+                           "from its own motion in turns)", "camera-z translation and its 1-sigma", "Doppler's")
 
 
-def _alignment_html(block: dict | None, describe, pid: str, title: str, axis: str, whose: str) -> str:
+def _alignment_html(block: dict | None, describe, pid: str, title: str, what: str, whose: str) -> str:
+    """``block`` said in words (``describe``); when applied, ``what`` (the axes and their 1-sigma it set) named as
+    ``whose``."""
     if not block:
         return ""
     words = describe(block)
     if block["applied"]:
-        words += f": the {axis} and {'their' if ' and ' in axis else 'its'} 1-sigma above are the {whose}, not the " \
-                 "network's"
+        words += f": the {what} above are the {whose}, not the network's"
     return f"<p id=\"{pid}\">{esc(title)}: {esc(words)}</p>"
 
 
