@@ -11,14 +11,17 @@ Per camera axis (``calib.drift``'s test against the reference, ``AXIS_WORDS``): 
 "within": the estimate is known to better than the tolerance) the estimate's offset is written; where it does not
 ("undecided"; prior-pinned: the vertical offset and the pitch on most drives, which the data do not observe; or
 dominated by a fleet prior) the reference's value is kept, since an estimate that cannot tell the tolerance apart
-would only replace it with a noisier number. The reference is the one the verdict used (``reference_of``): the
-tables, or on a simulated root the factory calibration of ``sim_vehicle.json`` (its ``calibrated_sensor`` holds the
-simulator's truth). Each replaced record in ``export.json``: ``before`` (the record as the root holds it: on a
-simulated root the simulator's truth), ``reference`` (the reference mount, ``T_ego_cam T_ref``), ``after`` and
-``change`` (after against ``reference``, as the verdict). ``std_ego`` is the estimate's 1-sigma in ego axes: along
-the camera axes the record keeps (``tables_kept``) it is not the written value's; ``std_camera`` says per camera axis
-whether the record holds the estimate (with its 1-sigma) or the reference's value (std None: the tables' own,
-unknown here).
+would only replace it with a noisier number. The reference is the one the verdict used
+(``NuScenesRadarCamera.reference_T_cam_radar``): the tables, or on a simulated root the factory calibration of
+``sim_vehicle.json`` (its ``calibrated_sensor`` holds the simulator's truth), or the mount an earlier export wrote
+when the calibration was run against it (``--reference``; read again here, and refused when it has changed since).
+Each replaced record in ``export.json``: ``before`` (the record as the root holds it: on a simulated root the
+simulator's truth), ``reference`` (the reference mount, ``T_ego_cam T_ref``), ``after``, ``change`` (after against
+``reference``, as the verdict) and ``camera`` (the camera record the radar's was written against: a later drive
+checked against this export, ``data.reference``, reads its extrinsic as inv(camera) after). ``std_ego`` is the
+estimate's 1-sigma in ego axes: along the camera axes the record keeps (``tables_kept``) it is not the written
+value's; ``std_camera`` says per camera axis whether the record holds the estimate (with its 1-sigma) or the
+reference's value (std None: the tables' own, unknown here).
 
 Which vehicles (``which``):
 - ``"recalibrate"`` (the default): those whose verdict against the tables is "recalibrate" (``calib.drift``: the
@@ -46,9 +49,9 @@ import numpy as np
 
 from hybrid_calib.calib.covariance import status_kind
 from hybrid_calib.calib.drift import AXIS_WORDS, MAX_MOVE_M
+from hybrid_calib.data.reference import EXPORT_SCHEMA as SCHEMA
 from hybrid_calib.errors import DataError, OptionError
 
-SCHEMA = "hybrid-calib/mount-export/v1"
 WHICH = ("recalibrate", "trusted")
 
 
@@ -153,6 +156,27 @@ def _keep_axes(T_ref: np.ndarray, T_est: np.ndarray, kept: list[int]) -> np.ndar
     T[:3, :3] = so3_exp(np.radians(d[:3])) @ np.asarray(T_ref, np.float64)[:3, :3]
     T[:3, 3] = np.asarray(T_ref, np.float64)[:3, 3] + d[3:] / 100.0
     return T
+
+
+def _export_reference(vr, name: str) -> tuple[np.ndarray | None, str]:
+    """(the (4, 4) reference T_cam_radar of an earlier export the result's verdict compared with, or None for the
+    tables; why the vehicle is not exported, or ""): the export is read again and must be the file the calibration
+    read (its sha256), else the kept axes and the change would be of another reference than the verdict's."""
+    from hybrid_calib.data.reference import load_export_reference
+
+    src = (vr.drift or {}).get("reference")
+    if not isinstance(src, dict) or src.get("kind") != "export":
+        return None, ""
+    try:
+        ref = load_export_reference(str(src.get("path")))
+    except DataError as e:
+        return None, (f"not exported: the export its verdict compared with (--reference {src.get('path')}) does not "
+                      f"read now ({e}); restore it, or calibrate again")
+    T = ref.T_cam_radar(name)
+    if ref.sha256 != src.get("sha256") or T is None:
+        return None, (f"not exported: the export its verdict compared with ({ref.path}) has been replaced since the "
+                      "calibration; calibrate again against the export as it is now")
+    return T, ""
 
 
 def _why_not(vr, which: str) -> str:
@@ -332,9 +356,10 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
                                 "yet (too few frames since the turn); calibrate a drive recorded after it and export "
                                 "that")
             continue
-        new: list[tuple[str, np.ndarray, np.ndarray]] = []
+        new: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]] = []
         refs = []  # the reference T_cam_radar per record: one calibration along the drive
-        for tok in toks:
+        exported_ref, why = _export_reference(vr, name)  # an earlier export the verdict compared with (--reference)
+        for tok in toks if not why else ():
             cams = sorted(pairs[(name, tok)])
             T_cams = [t.T_ego_sensor({"token": f"(frames of {name})", "calibrated_sensor_token": c}) for c in cams]
             if any(not same_calibration(T, T_cams[0]) for T in T_cams[1:]):
@@ -343,11 +368,11 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
                 break
             # kept axes: the reference the verdict compared against (the tables; a simulated root's factory
             # calibration, sim_vehicle.json, since its calibrated_sensor holds the simulator's truth)
-            T_ref = ds.reference_of(next(f for f in ds.frames if f.vehicle == name
-                                         and f.radar_sd["calibrated_sensor_token"] == tok))
+            T_ref = exported_ref if exported_ref is not None else ds.reference_T_cam_radar(
+                next(f for f in ds.frames if f.vehicle == name and f.radar_sd["calibrated_sensor_token"] == tok))
             # the change is measured from the reference too (the tables' own record on a real root; on a simulated
             # one its factory calibration, as the verdict: the record there holds the truth)
-            new.append((tok, T_cams[0] @ T_ref, T_cams[0] @ _keep_axes(T_ref, T_est, kept)))
+            new.append((tok, T_cams[0] @ T_ref, T_cams[0] @ _keep_axes(T_ref, T_est, kept), T_cams[0]))
             refs.append(T_ref)
         # judged on the reference, as the verdict: a simulated root's records hold the simulator's truth, and a
         # knocked radar's (--extrinsic-change step) was refused as "a mount change" the user's tables do not hold,
@@ -355,7 +380,7 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
         if not why and any(not same_calibration(T, refs[0]) for T in refs[1:]):
             why = ("not exported: its tables hold more than one radar-camera calibration along the drive (a mount "
                    "change); the estimate stands for the drive's end only")
-        moves = [_change(T_new, T_base)["trans_cm"] for _, T_base, T_new in new]
+        moves = [_change(T_new, T_base)["trans_cm"] for _, T_base, T_new, _ in new]
         if not why and moves and max(moves) > 100 * MAX_MOVE_M:
             # probe 23: the cascade on the real scene, its domain test loosened, wrote a radar 97.4 cm from its tables
             # with a lateral 1-sigma of 0.96 cm; a radar does not travel that far on its bracket
@@ -365,7 +390,7 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
         if why:
             entry["why"] = why
             continue
-        for tok, T_base, T_new in new:
+        for tok, T_base, T_new, T_cam in new:
             before = {k: exp.table[index[tok]][k] for k in ("translation", "rotation")}
             exp.table[index[tok]] = {**exp.table[index[tok]], **_record(T_new)}
             # "change" is after vs "reference" (what the verdict compared with), not vs "before" (the record as the
@@ -373,8 +398,13 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
             # change of 0.02 cm)
             entry["records"].append({"token": tok, "before": before, "reference": _record(T_base),
                                      "after": _record(T_new), "change": _change(T_new, T_base),
-                                     "change_from": "reference"})
+                                     "change_from": "reference",
+                                     # the camera record the radar's was written against: a later drive's reference
+                                     # extrinsic is inv(camera) after (data.reference, --reference)
+                                     "camera": _record(T_cam)})
         cov = np.asarray(vr.final.cov, np.float64)
+        if exported_ref is not None:
+            entry["reference"] = (vr.drift or {}).get("reference")
         entry.update(exported=True, std_ego=_std_ego(new[0][2], cov), std_camera=_std_camera(T_est, cov, kept),
                      tables_kept=[AXIS_WORDS[i] for i in kept],
                      why=f"exported: {len(new)} radar record(s) replaced" + (

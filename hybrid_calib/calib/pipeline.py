@@ -43,6 +43,7 @@ from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import merge, save_json_atomic, to_dict
 from hybrid_calib.data.files import data_stamp
+from hybrid_calib.data.reference import absolute_reference, reference_identity
 from hybrid_calib.data.summary import table_warnings
 from hybrid_calib.data.views import ViewConfig, repeated_views
 from hybrid_calib.errors import DataError, HybridCalibError, OptionError
@@ -65,6 +66,9 @@ class CalibrateConfig:
     max_frames: int = 0  # frames per vehicle (0 = all)
     vehicles: tuple[str, ...] | None = None  # vehicles to calibrate (None = all)
     views: ViewConfig = ViewConfig()  # oracle: frames that repeat an earlier view (the ego stood still) are left out
+    # an earlier export (hybrid-calib export's --out folder, or its export.json): the reference of the vehicles whose
+    # mounts it wrote (data.reference); "" = every vehicle's tables
+    reference: str = ""
 
     def __post_init__(self):
         if self.mode not in MODES:
@@ -90,6 +94,7 @@ class VehicleInput:
     skipped: list = field(default_factory=list)  # [{"index" (its position in the drive, or None), "token", "reason"}]
     positions: list = field(default_factory=list)  # per frame its position in the drive (default: 0, 1, ...)
     against: str | None = None  # what ``truth`` is: "truth" (simulated; the default when given) or "tables" (real)
+    reference_source: dict = field(default_factory=lambda: {"kind": "tables"})  # what ``reference`` is
 
 
 def _load_oracle(data, version: str, conf: CalibrateConfig, progress: bool = True) -> dict[str, VehicleInput]:
@@ -97,19 +102,19 @@ def _load_oracle(data, version: str, conf: CalibrateConfig, progress: bool = Tru
 
     from hybrid_calib.data.nuscenes import NuScenesRadarCamera
 
-    ds = NuScenesRadarCamera(data, version, conf={"check_images": False})
+    ds = NuScenesRadarCamera(data, version, conf={"check_images": False, "reference": conf.reference or None})
     if not (Path(data) / "sim_truth").is_dir():  # said before any frame is read (it had failed every one in turn)
         raise OptionError("--method", f"oracle (also the default when no --method is given) reads the simulator's "
                                       "true reflectors, and "
                                       f"{data} has none (no sim_truth/ folder: a real root); calibrate it with "
                                       "--method hybrid (or pure, pure-avg)")
-    for line in table_warnings(ds):  # a vehicle missing from the result, poses the motion compensation reads
-        print(line, file=sys.stderr)
+    for line in [*ds.reference_notes(), *table_warnings(ds)]:  # a vehicle missing from the result, poses the motion
+        print(line, file=sys.stderr)  # compensation reads
     out: dict[str, VehicleInput] = {}
     for vehicle, idx in sorted(ds.frames_by_vehicle().items()):
         if conf.vehicles is not None and vehicle not in conf.vehicles:
             continue
-        vi = out[vehicle] = VehicleInput(vehicle)
+        vi = out[vehicle] = VehicleInput(vehicle, reference_source=ds.reference_source(vehicle))
         # its samples that hold no frame (a keyframe missing or put on another channel): listed, as the hybrid's
         vi.skipped.extend({"index": None, "token": s.token, "reason": s.reason}
                           for s in ds.lacking_keyframes.get(vehicle, []))
@@ -157,6 +162,7 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
     if bad and not groups:
         raise DataError(f"none of the {len(bad)} measurement file(s) reads; first: {bad[0][2]}", path=str(directory))
     refs: dict[str, np.ndarray] = {}
+    sources: dict[str, dict] = {}  # vehicle -> what its reference is (the tables, or an earlier export's mount)
     truths: dict[str, np.ndarray] = {}
     tokens: set[str] = set()
     camera_K: dict[str, np.ndarray] = {}  # frame token -> its camera's intrinsics in the root's tables
@@ -164,8 +170,10 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
     if data is not None and version:
         from hybrid_calib.data.nuscenes import NuScenesRadarCamera
 
-        ds = NuScenesRadarCamera(data, version, conf={"check_images": False})
+        ds = NuScenesRadarCamera(data, version, conf={"check_images": False, "reference": conf.reference or None})
         against = "truth" if ds.sim_vehicles else "tables"
+        for line in ds.reference_notes():
+            print(line, file=sys.stderr)
         _check_exported_from(directory, data, version)
         # a file names its frame by the camera sample_data token (evaluate's export) or the sample (the oracle's)
         tokens = {t for ref in ds.frames for t in (ref.camera_sd["token"], ref.sample_token, ref.radar_sd["token"])}
@@ -178,6 +186,7 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
         for vehicle, idx in ds.frames_by_vehicle().items():
             f = ds[idx[0]]
             refs[vehicle] = np.asarray(f.extras["reference_T_cam_radar"], np.float64)
+            sources[vehicle] = ds.reference_source(vehicle)
             truths[vehicle] = np.asarray(f.extras.get("T_cam_radar_static", f.T_cam_radar), np.float64)
         ids = [str(m.frame_id) for ms in groups.values() for m in ms]
         foreign = [i for i in ids if i not in tokens]
@@ -206,7 +215,7 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
         mine = [m for m in ms if (not tokens or str(m.frame_id) in tokens) and str(m.frame_id) not in wrong_K]
         out[vehicle] = VehicleInput(vehicle, [m.corr for m in mine], ref,
                                     [truth] * len(mine) if truth is not None else [], network=[m.network for m in mine],
-                                    against=against)
+                                    against=against, reference_source=sources.get(vehicle, {"kind": "tables"}))
         out[vehicle].skipped.extend({"index": None, "token": str(m.frame_id), "reason": "measurement file of a frame "
                                      "not in this root (another dataset's export): left out"}
                                     for m in ms if tokens and str(m.frame_id) not in tokens)
@@ -457,6 +466,7 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, progress: bool = 
         res.truth_T, res.truth_path = T_true, path_of(pos, vi.truth)
         e = local(T_true, final.T)
         res.error = {**extrinsic_error(final.T, T_true).as_dict(), "nees": nees(e, final.cov)}
+    res.drift = {**res.drift, "reference": vi.reference_source}  # what the verdict compared with
     if vi.oracle_truths:
         from hybrid_calib.calib.crb import oracle_crb
 
@@ -481,10 +491,12 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
     returned untouched (idempotent; ``on_vehicle`` is not called). ``priors``: vehicle -> Gaussian prior
     on its T_cam_radar (``calibrate_vehicle``); ``progress`` False hides the per-vehicle bars."""
     conf = merge(CalibrateConfig, conf)
+    conf = dataclasses.replace(conf, reference=absolute_reference(conf.reference))
     out = Path(out)
     result_path = out / "result.json"
+    cfg = {**to_dict(conf), **reference_identity(conf.reference)}  # the export's content too (--reference)
     if result_path.is_file() and not overwrite:
-        return reuse_result(out, data, version, str(correspondences), to_dict(conf))
+        return reuse_result(out, data, version, str(correspondences), cfg)
     # before reading: data that change during the run are not this result's
     stamp_data = None if data is None else data_stamp(data, version)
     absent: dict[str, str] = {}
@@ -508,7 +520,7 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
     run.vehicles_failed.update(unknown)
     # the vehicles an interrupted run finished (each vehicle's start and oracle rows are seeded by its name:
     # skipping them leaves the others' draws as they were)
-    stamp = {**to_dict(conf), "priors": {k: [np.asarray(p.T).tolist(), np.asarray(p.cov).tolist()]
+    stamp = {**cfg, "priors": {k: [np.asarray(p.T).tolist(), np.asarray(p.cov).tolist()]
                                          for k, p in sorted((priors or {}).items())},
              **({} if stamp_data is None else {"data_stamp": stamp_data["digest"]})}
     done = VehicleProgress(out, data, version, str(correspondences), stamp, fresh=overwrite)
@@ -527,7 +539,7 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
 
     done.fill(run, list(inputs), one, on_vehicle, progress)
     run.raise_if_none_done()
-    save_json_atomic(out / "config.json", to_dict(conf))
+    save_json_atomic(out / "config.json", cfg)
     if stamp_data is not None:  # a rerun on changed data must not reuse it
         save_json_atomic(out / DATA_STAMP, stamp_data)
     run.save(result_path)

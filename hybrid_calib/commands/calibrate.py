@@ -25,7 +25,8 @@ from hybrid_calib.perturbation import RANGES
 HELP = "calibrate T_cam_radar per vehicle: hybrid (network + factor graph), pure, pure-avg or oracle"
 
 METHODS = ("oracle", "hybrid", "pure", "pure-avg")
-FLAGS = {"start": "start", "seed": "seed", "max_frames": "max_frames"}  # config key -> flag (default None: not passed)
+# config key -> flag (default None: not passed)
+FLAGS = {"start": "start", "seed": "seed", "max_frames": "max_frames", "reference": "reference"}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -55,6 +56,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="batch back end (default: gtsam, or --set batch.backend=...)")
     p.add_argument("--start", default=None, choices=("reference", *RANGES),
                    help="initial extrinsic: the vehicle's tables, or a perturbed truth (default: reference)")
+    p.add_argument("--reference", default=None, metavar="EXPORT",
+                   help="check each vehicle against the mount an earlier hybrid-calib export wrote for it (its --out "
+                        "folder, or its export.json), not its tables: a later drive after a recalibration (default: "
+                        "the tables; a vehicle the export did not replace keeps them)")
     p.add_argument("--max-frames", type=nonnegative_int, default=None, help="frames per vehicle, 0 = all (default: 0)")
     p.add_argument("--seed", type=seed_int, default=None, help="oracle noise and start seed (default: 0)")
     add_split_arguments(p, "all", "learned methods: all, or the train / val / test part of the split flags below "
@@ -165,6 +170,7 @@ def _report(result, out: Path, reused: bool = False) -> int:
     from hybrid_calib.calib.lidar_alignment import describe as describe_lidar
     from hybrid_calib.calib.mount_monitor import blind_words, finds_words, tested_words, turn_words
     from hybrid_calib.calib.result import STD_FRAME
+    from hybrid_calib.data.reference import reference_words
     from hybrid_calib.metrics import std_dict
     from hybrid_calib.report.verdict import alarm_words
 
@@ -180,7 +186,8 @@ def _report(result, out: Path, reused: bool = False) -> int:
                      f"{v.error['rot_mean_deg']:.3f} deg (mean of the three angles), {v.error['trans_norm_cm']:.2f} cm "
                      "(norm)")
         if v.drift:
-            line += f"; vs reference (tables): {drift_verdict(v.drift)} (chi2 p {v.drift['p_value']:.2g})"
+            line += (f"; vs reference ({reference_words(v.drift.get('reference'))}): {drift_verdict(v.drift)} (chi2 p "
+                     f"{v.drift['p_value']:.2g})")
         if v.skipped:
             ood = sum("ood_score" in r for r in v.skipped)
             seen = sum("repeats" in r for r in v.skipped)  # the ego stood still: not bad (probe 49)

@@ -49,6 +49,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=seed_int, default=0,
                    help="fleet seed; each job seeds from (seed, vehicle) (default: 0)")
     p.add_argument("--max-frames", type=nonnegative_int, default=None, help="frames per vehicle, 0 = all (default: 0)")
+    p.add_argument("--reference", default=None, metavar="EXPORT",
+                   help="check each vehicle against the mount an earlier hybrid-calib export wrote for it (its --out "
+                        "folder, or its export.json), not its tables: later drives after a recalibration (default: "
+                        "the tables; a vehicle the export did not replace keeps them)")
     p.add_argument("--out", type=Path, required=True, help="fleet run directory (rerun the same command to resume)")
     p.add_argument("--no-plots", action="store_true", help="skip the fleet plot")
     p.add_argument("--no-report", action="store_true",
@@ -71,7 +75,13 @@ def run(args: argparse.Namespace) -> int:
     check_options(args)
     calib = parse_overrides(args.set)
     reject_set_keys(calib, {"seed": "--seed"})  # each job's seed comes from the fleet seed and its vehicle
-    calib.update(given_flags(args, {"max_frames": "max_frames"}, calib))  # --max-frames wins over --set max_frames
+    # --max-frames wins over --set max_frames, --reference over --set reference
+    calib.update(given_flags(args, {"max_frames": "max_frames", "reference": "reference"}, calib))
+    if calib.get("reference"):  # read once here (a DataError naming the file), absolute: every worker reads it
+        from hybrid_calib.data.reference import absolute_reference, load_export_reference
+
+        calib["reference"] = absolute_reference(str(calib["reference"]))
+        load_export_reference(calib["reference"])
     if args.method == "oracle":
         reject_learned_keys(calib)
         reject_unused_batch(calib, batch_flag="--set mode=batch")

@@ -57,6 +57,7 @@ from hybrid_calib.data.filters import RadarFilterConfig
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.data.image_header import decode_image, image_header
 from hybrid_calib.data.pcd import read_lidar_bin
+from hybrid_calib.data.reference import load_export_reference
 from hybrid_calib.data.sweeps import InterSweep, accumulate_radar, sweeps_between_keyframes
 from hybrid_calib.data.tables import (
     MAX_EGO_TURN_DPS,
@@ -90,6 +91,9 @@ class DataConfig:
     # |t_radar - t_camera| (and |t_lidar - t_camera| with load_lidar) above this, seconds, makes the frame a skip:
     # one of the timestamps is corrupt (real nuScenes keyframes are under 0.1 s apart, simulated ones under 0.06 s)
     max_sync_offset_s: float = 0.5
+    # an earlier export (``hybrid-calib export``'s --out folder or its export.json) whose exported mounts are the
+    # reference of the vehicles it names (``data.reference``); None: every vehicle's tables
+    reference: str | None = None
 
     def __post_init__(self):
         if self.on_error not in ("skip", "raise"):
@@ -201,6 +205,7 @@ class NuScenesRadarCamera:
                                 f"{modality}; {modality} channels present: {same}",
                                 path=str(self.tables.path("sensor")))
         self.sim_vehicles: dict[str, dict] = _load_sim_vehicles(self.tables.vdir)
+        self.export_reference = load_export_reference(self.conf.reference) if self.conf.reference else None
         self._index_skips: list[SkipRecord] = [
             SkipRecord(None, tok, str(self.tables.path("sample_data")), reason)
             for tok, reason in self.tables.index_problems]
@@ -628,12 +633,6 @@ class NuScenesRadarCamera:
         T_cam_lidar = T_cam_global @ T_ge_lidar @ t.T_ego_sensor(sd)
         return np.ascontiguousarray(pts[finite], dtype=np.float32), T_cam_lidar
 
-    def reference_of(self, ref: FrameRef) -> np.ndarray:
-        """(4, 4) the reference T_cam_radar of a frame from the tables alone (``_reference``; no sensor file read):
-        what a drift verdict on its vehicle compared against. ``DataError`` when its records do not read."""
-        T_ego_cam = self.tables.T_ego_sensor(ref.camera_sd)
-        return self._reference(ref, T_ego_cam, se3_inverse(T_ego_cam) @ self.tables.T_ego_sensor(ref.radar_sd))
-
     @functools.cached_property
     def identity(self) -> str:
         """The identity of the data this object reads: the root's resolved path, the version and
@@ -646,6 +645,42 @@ class NuScenesRadarCamera:
         stamp = data_stamp(self.root, self.version)["digest"]
         return hashlib.sha1(f"{self.root.resolve()}/{self.version}/{stamp}".encode("utf-8", "surrogateescape")
                             ).hexdigest()[:16]  # a root named in another encoding too (probe 66)
+
+    def reference_source(self, vehicle: str) -> dict:
+        """What ``vehicle``'s drift verdict and radar mount monitor compare against, as a result records it
+        (``data.reference.ExportReference.source``): {"kind": "tables"} without ``DataConfig.reference``."""
+        if self.export_reference is None:
+            return {"kind": "tables"}
+        return self.export_reference.source(vehicle)
+
+    def reference_notes(self) -> list[str]:
+        """What a run on ``DataConfig.reference`` says once, before its frames: which vehicles are checked against
+        the export; an export that names none of this root's vehicles (a wrong export: each is checked against its
+        tables); a vehicle whose camera record in these tables is another than the one the export read (the camera
+        was recalibrated since: the reference stays the exported radar-camera extrinsic). [] without a reference."""
+        ref = self.export_reference
+        if ref is None:
+            return []
+        by_vehicle = self.frames_by_vehicle()
+        named = sorted(v for v in by_vehicle if v in ref.mounts)
+        if not named:
+            return [f"warning: the reference export {ref.path} replaced the mount of none of this root's vehicles "
+                    f"(it exported {', '.join(sorted(ref.mounts)) or 'none'}; this root holds "
+                    f"{', '.join(sorted(by_vehicle)[:6]) or 'none'}): every vehicle is checked against its tables"]
+        out = [f"reference: {', '.join(named)} checked against the mount{'s' if len(named) > 1 else ''} exported in "
+               f"{ref.path} (from {ref.data}, {ref.version}), which the words 'its tables' name for "
+               f"{'them' if len(named) > 1 else 'it'} below; any other vehicle against its tables"]
+        for v in named:
+            try:
+                T_cam = self.tables.T_ego_sensor(self.frames[by_vehicle[v][0]].camera_sd)
+            except (DataError, KeyError, TypeError):
+                continue  # said where its frames are read
+            deg, cm = mount_offset(T_cam, ref.mounts[v][0])
+            if deg > SAME_CALIBRATION[0] or cm > SAME_CALIBRATION[1]:
+                out.append(f"warning: vehicle {v}: its camera record here is {deg:.2f} deg / {cm:.1f} cm from the one "
+                           f"the export read (the camera was recalibrated since, or the export is of another vehicle "
+                           "of that name): it is checked against the exported radar-camera extrinsic")
+        return out
 
     def reference_T_cam_radar(self, ref: FrameRef) -> np.ndarray:
         """(4, 4) the vehicle's calibration tables' T_cam_radar at frame ``ref`` (``_reference``), from the tables
@@ -664,11 +699,14 @@ class NuScenesRadarCamera:
 
     def _reference_mounts(self, ref: FrameRef, T_ego_cam: np.ndarray, T_ego_radar: np.ndarray
                           ) -> tuple[np.ndarray, np.ndarray]:
-        """(T_ego_cam, T_ego_radar), each (4, 4): the camera and radar mounts of the vehicle's calibration tables
-        (``_reference``): a simulated vehicle's factory calibration (its ``calibrated_sensor`` holds the truth), the
+        """(T_ego_cam, T_ego_radar), each (4, 4): the camera and radar mounts of the vehicle's reference
+        (``_reference``): those an earlier export wrote for it (``DataConfig.reference``), else its calibration tables:
+        a simulated vehicle's factory calibration (its ``calibrated_sensor`` holds the truth), the
         nominal radar mount of older simulated roots, else the tables' own. The radar mount monitor measures the
         radar's yaw against this radar mount, as on a real vehicle (against the truth it read 'the radar agrees with
         its tables' on a radar knocked before the drive, and blamed the camera)."""
+        if self.export_reference is not None and (exported := self.export_reference.mounts.get(ref.vehicle)):
+            return exported  # the mounts an earlier export wrote for this vehicle (data.reference)
         rec = self.sim_vehicles.get(ref.log_token)
         factory_radar = _sim_pose(rec, "factory_T_ego_radar")
         factory_cam = _sim_pose(rec, "factory_T_ego_cam")

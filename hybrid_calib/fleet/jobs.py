@@ -119,16 +119,21 @@ def read_fleet_file(path: str | Path, version: str) -> list[tuple[str, str, tupl
     return out
 
 
-def _root_vehicles(root: str, version: str, notes: list[str] | None = None) -> dict[str, dict]:
+def _root_vehicles(root: str, version: str, notes: list[str] | None = None, reference: str | None = None
+                   ) -> dict[str, dict]:
     """vehicle -> {"tables_T", "design_T"} of one root, from its tables only (no sensor file is read,
     so a vehicle with corrupt data files still becomes a job and fails alone). Samples of no vehicle (a scene or
-    log missing from the tables) are said in ``notes``."""
+    log missing from the tables) are said in ``notes``; ``reference``: an earlier export the run checks against
+    (``DataConfig.reference``: ``tables_T`` is then its exported extrinsic where it wrote one)."""
     from hybrid_calib.data.nuscenes import NuScenesRadarCamera
     from hybrid_calib.data.summary import vehicleless_warning
 
-    ds = NuScenesRadarCamera(root, version, conf={"check_images": False})
+    ds = NuScenesRadarCamera(root, version, conf={"check_images": False, "reference": reference or None})
     if notes is not None and (lost := vehicleless_warning(ds)):
         notes.append(f"root {root}: {lost.removeprefix('warning: ')}")
+    if notes is not None:
+        notes.extend(f"root {root}: {line.removeprefix('warning: ')}" for line in ds.reference_notes()
+                     if line.startswith("warning: ") and line not in notes)
     out = {}
     for vehicle, idx in ds.frames_by_vehicle().items():
         tables_T = None
@@ -203,7 +208,7 @@ def discover_jobs(roots: list[tuple[str, str, tuple[str, ...] | None]], method: 
     found = []
     for root, version, wanted in roots:
         try:
-            vs = _root_vehicles(root, version, notes)
+            vs = _root_vehicles(root, version, notes, (calib or {}).get("reference"))
         except DataError as e:  # one root's broken tables: its vehicles cannot become jobs, the others can
             if left_out is None or len(roots) == 1:
                 raise

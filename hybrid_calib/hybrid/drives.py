@@ -44,6 +44,8 @@ class Drive:
     # simulated roots: [(drive position, (4, 4))] where the true mount moved along the drive (``calib.result.path_of``
     # over the tables' records, which a simulated root's hold the truth in); [] when it did not
     truth_path: list = field(default_factory=list)
+    # what ``reference`` is (``NuScenesRadarCamera.reference_source``): the tables, or an earlier export's mount
+    reference_source: dict = field(default_factory=lambda: {"kind": "tables"})
 
     @property
     def errors_against(self) -> str:
@@ -97,7 +99,10 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
     from hybrid_calib.data.summary import ego_lean_warning, keyframe_gap_warning, table_warnings
     from learned.dataset import open_frames, split_indices
 
-    frames = open_frames(data, version, lidar=lidar, options=conf.data)
+    frames = open_frames(data, version, lidar=lidar,
+                         options={**conf.data, **({"reference": conf.reference} if conf.reference else {})})
+    for line in frames.reference_notes() if hasattr(frames, "reference_notes") else ():
+        print(line, file=sys.stderr)
     simulated = bool(getattr(frames, "sim_vehicles", {}))
     for vehicle, names in getattr(frames, "calibration_splits", {}).items():  # said where the names appear
         left = [n for n in names if conf.vehicles is not None and n not in conf.vehicles]
@@ -158,7 +163,9 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
                                 _end_truth(frames, idx, static) if simulated else None,
                                 [{"index": None, "token": s.token, "reason": s.reason}
                                  for s in getattr(frames, "lacking_keyframes", {}).get(vehicle, [])],
-                                view_repeats(frames, idx, conf.views), _truth_path(frames, idx) if simulated else [])
+                                view_repeats(frames, idx, conf.views), _truth_path(frames, idx) if simulated else [],
+                                frames.reference_source(vehicle) if hasattr(frames, "reference_source") else
+                                {"kind": "tables"})
     for vehicle, skips in sorted(getattr(frames, "lacking_keyframes", {}).items()):  # a vehicle of no frame at all
         if vehicle in by_vehicle or vehicle in drives or (conf.vehicles is not None and vehicle not in conf.vehicles):
             continue

@@ -66,6 +66,7 @@ from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import merge, save_json_atomic, to_dict
 from hybrid_calib.data.files import data_stamp
+from hybrid_calib.data.reference import absolute_reference, reference_identity
 from hybrid_calib.data.views import ViewConfig
 from hybrid_calib.errors import (
     CheckpointError,
@@ -141,6 +142,9 @@ class HybridConfig:
     # DataConfig overrides for reading the root (hybrid_calib.data.nuscenes), e.g. {"radar_filter":
     # {"invalid_states": null}} for radar files without that field: --set data.radar_filter.invalid_states=null
     data: dict = field(default_factory=dict)
+    # an earlier export (hybrid-calib export's --out folder, or its export.json): the reference of the vehicles whose
+    # mounts it wrote (their verdict, the radar mount monitor, a reference start); "" = every vehicle's tables
+    reference: str = ""
     motion: MotionConfig = MotionConfig()  # the camera-VO / radar-Doppler motion constraint (hybrid; hybrid.motion)
     mount: MountMonitorConfig = MountMonitorConfig()  # radar mount steps, Doppler vs ego poses (calib.mount_monitor)
     lidar: LidarAlignConfig = LidarAlignConfig()  # the radar's lateral offset from the LiDAR (calib.lidar_alignment)
@@ -177,6 +181,9 @@ class HybridConfig:
         # checked when unused too (split all): an inf / NaN fraction was accepted and written as bare Infinity / NaN
         # into config.json and result.json, which strict JSON readers refuse (probe 40)
         merge(SplitConfig, self.split_options, "split_options.")
+        if "reference" in self.data:  # one option: the run records and stamps conf.reference
+            raise ValueError("data.reference: pass the earlier export with --reference (--set reference=PATH), not "
+                             "data.reference")
         if "vehicles" in self.data:  # two vehicle filters: a wanted vehicle left out read "not in the data"
             raise ValueError("data.vehicles: choose the vehicles with --set vehicles=[...] (the one filter of the "
                              "network methods), not data.vehicles")
@@ -421,8 +428,8 @@ def _finish(res: VehicleResult, drive: Drive, T0: np.ndarray, conf: HybridConfig
     final = res.final
     # the directions the method does not measure are named prior-pinned in the verdict (oracle: the elevation prior's)
     pinned = prior_pinned_std(conf.window.factor) if conf.method == "oracle" else LEARNED_NOT_MEASURED
-    res.drift = unconverged(reference_test(final.T, final.cov, drive.reference, conf.drift, pinned).to_dict(),
-                            final.status)
+    res.drift = {**unconverged(reference_test(final.T, final.cov, drive.reference, conf.drift, pinned).to_dict(),
+                               final.status), "reference": drive.reference_source}
     truth = drive.base if drive.end is None else drive.end  # the mount at the drive's end (a knock moved it)
     e = local(truth, final.T)
     res.truth_T, res.truth_path = truth, drive.truth_path
@@ -617,7 +624,7 @@ def oracle_config(conf: HybridConfig, vehicles: tuple[str, ...] | None = None):
     from hybrid_calib.calib.pipeline import CalibrateConfig
 
     return CalibrateConfig(window=conf.window, oracle=conf.oracle, drift=conf.drift, start=conf.start,
-                           views=conf.views, seed=conf.seed, max_frames=conf.max_frames,
+                           views=conf.views, seed=conf.seed, max_frames=conf.max_frames, reference=conf.reference,
                            vehicles=conf.vehicles if vehicles is None else vehicles)
 
 
@@ -728,6 +735,7 @@ def run_calibration(data: str | Path, version: str, out: str | Path, conf: Hybri
     ``out/config.json``. Network outputs and depth are cached under ``out`` unless the config names
     folders. With ``overwrite=False`` an existing result is returned untouched."""
     conf = merge(HybridConfig, conf)
+    conf = dataclasses.replace(conf, reference=absolute_reference(conf.reference))
     out = Path(out)
     check_api_out(out, "calibrate", data, version)
     for option, path in (("--set cache_dir", conf.cache_dir), ("--set depth_cache", conf.depth_cache)):
@@ -736,7 +744,7 @@ def run_calibration(data: str | Path, version: str, out: str | Path, conf: Hybri
     # what the result depends on: the config with the depth estimator it resolves to (--depth lidar-densified and
     # the real root's default are one run) and the checkpoints' contents
     stamped = {**to_dict(conf), **({"depth": effective_depth(data, version, conf)} if conf.method != "oracle" else {}),
-               **network_identity(conf)}
+               **network_identity(conf), **reference_identity(conf.reference)}
     if (out / "result.json").is_file() and not overwrite:
         return reuse_result(out, data, version, conf.method, stamped)
     if overwrite:

@@ -82,8 +82,20 @@ def verdict_html(v: Verdict, vr: VehicleResult) -> str:
                 f"sigma against the tolerance. {esc(str(d.get('test', '')).partition('dof 6, ')[2])}</div>")
     return (f'<div class="verdict {verdict_class(v.word)}" id="verdict"><div class="word">{esc(v.word)}</div>'
             f"<p>{esc(v.why)}</p><p><b>Tolerance:</b> {esc(v.tolerance)}. <span class=\"meta\">({esc(v.source)})"
-            f"</span></p><p><b>Did the sensor move during the drive?</b> <span id=\"moved\">{esc(v.moved)}</span></p>"
+            f"</span></p><p><b>Checked against:</b> <span id=\"reference\">{esc(_reference_line(vr))}</span></p>"
+            f"<p><b>Did the sensor move during the drive?</b> <span id=\"moved\">{esc(v.moved)}</span></p>"
             f"{test}</div>")
+
+
+def _reference_line(vr: VehicleResult) -> str:
+    """What the verdict compared with, in words: the tables, or the earlier export the run was given
+    (``--reference``: its path and the root it was exported from)."""
+    src = (vr.drift or {}).get("reference")
+    if isinstance(src, dict) and src.get("kind") == "export":
+        return (f"the mount exported in {src.get('path')} (from {src.get('from')}); 'its tables' in the words on this "
+                "page is that mount")
+    return ("its calibration tables" + (" (a simulated vehicle's factory calibration)" if vr.errors_against == "truth"
+                                        else ""))
 
 
 def extrinsic_html(vr: VehicleResult) -> str:

@@ -1,0 +1,158 @@
+"""An earlier export as the reference of a later drive (``DataConfig.reference``; calibrate's and fleet's
+``--reference``).
+
+A drive is checked against a reference: by default the vehicle's calibration tables (a simulated vehicle's factory
+calibration, ``sim_vehicle.json``). Once a knocked radar has been recalibrated and exported (``hybrid-calib export``:
+``OUT/export.json`` beside the new ``calibrated_sensor.json``), a later drive of that vehicle must be checked against
+the exported mount, not against tables that still hold the mount before the knock (every later drive read
+"differs ...: recalibrate"). ``load_export_reference`` reads that export.json: per exported vehicle the camera
+record the export read (``camera``) and the radar record it wrote (``after``), so the reference
+
+    T_cam_radar = inv(camera) @ after      (the exported extrinsic exactly)
+    T_ego_radar = after                     (the radar mount monitor's reference yaw)
+
+Vehicles are matched by name (a log's vehicle; a simulated root's ``sim-veh-NNN``). A vehicle the export did not
+replace (its tables were kept: within tolerance, undecided, not trusted) or does not name keeps its tables as its
+reference, and ``source`` says which for each vehicle. Exports written before the ``camera`` field existed are
+refused by name: export again.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from hybrid_calib.errors import DataError
+from hybrid_calib.geometry import se3_inverse, so3_log
+
+EXPORT_SCHEMA = "hybrid-calib/mount-export/v1"  # export.json's "schema" (``calib.export``)
+# two records of one exported vehicle closer than this (deg, cm) hold one calibration (``data.nuscenes``' own rule)
+_SAME = (0.01, 0.1)
+
+
+@dataclass(frozen=True)
+class ExportReference:
+    """What ``load_export_reference`` read from one export.json."""
+
+    path: Path  # the export.json read (absolute)
+    sha256: str  # of its bytes: a result records it, and export refuses a reference changed since
+    data: str  # the root it was exported from, and its version
+    version: str
+    mounts: dict[str, tuple[np.ndarray, np.ndarray]] = field(repr=False, default_factory=dict)  # vehicle ->
+    # (T_ego_cam, T_ego_radar), each (4, 4): the camera record the export read and the radar record it wrote
+    kept: dict[str, str] = field(default_factory=dict)  # vehicle -> why the export kept its tables (its "why")
+
+    def T_cam_radar(self, vehicle: str) -> np.ndarray | None:
+        """(4, 4) the exported extrinsic of ``vehicle``, or None when the export did not replace its mount."""
+        m = self.mounts.get(vehicle)
+        return None if m is None else se3_inverse(m[0]) @ m[1]
+
+    def source(self, vehicle: str) -> dict:
+        """What ``vehicle`` is checked against, as a result records it (``drift["reference"]``): {"kind": "export",
+        "path", "sha256", "from": "ROOT (VERSION)"} for an exported vehicle, else {"kind": "tables", "why"}."""
+        if vehicle in self.mounts:
+            return {"kind": "export", "path": str(self.path), "sha256": self.sha256,
+                    "from": f"{self.data} ({self.version})"}
+        why = self.kept.get(vehicle)
+        return {"kind": "tables", "why": (f"the export {self.path} kept its tables ({why[:200]})" if why else
+                                          f"the export {self.path} does not name it")}
+
+
+def reference_words(source: dict | None) -> str:
+    """A result's reference (``ExportReference.source``; None: an older result, the tables) in a few words: "tables"
+    or "the export PATH"."""
+    if isinstance(source, dict) and source.get("kind") == "export":
+        return f"the export {source.get('path')}"
+    return "tables"
+
+
+def _path_of(path: str | Path) -> Path:
+    """The export.json a ``--reference`` names: the file itself, or the export's folder holding it."""
+    p = Path(path)
+    if p.is_dir():
+        p = p / "export.json"
+    if not p.is_file():
+        where = "holds no export.json" if Path(path).is_dir() else "does not exist"
+        raise DataError(f"--reference {path} {where}; pass the --out folder of a hybrid-calib export run (or its "
+                        "export.json)", path=str(p))
+    return p.absolute()
+
+
+def _pose(rec, what: str, path: Path, vehicle: str) -> np.ndarray:
+    from hybrid_calib.data.tables import _pose as table_pose
+
+    if not isinstance(rec, dict):
+        raise DataError(f"vehicle {vehicle}: its record's {what!r} is a JSON {type(rec).__name__}, not a "
+                        "{translation, rotation} object; export again", path=str(path))
+    try:
+        return table_pose({**rec, "token": f"{vehicle} {what}"}, path, 100.0, "a sensor mount")
+    except DataError as e:
+        raise DataError(f"vehicle {vehicle}: its {what!r} record does not read ({e.args[0] if e.args else e}); export "
+                        "again", path=str(path)) from None
+
+
+def load_export_reference(path: str | Path) -> ExportReference:
+    """The export.json of ``path`` (a file, or an export's ``--out`` folder) as a reference (module doc);
+    ``DataError`` naming the file (and vehicle) when it is not there, not an export, of another schema, or holds a
+    record that does not read (an export of an older version without ``camera``: export again)."""
+    p = _path_of(path)
+    try:
+        raw = p.read_bytes()
+        doc = json.loads(raw.decode("utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
+        why = "nested too deeply" if isinstance(e, RecursionError) else f"{type(e).__name__}: {str(e)[:200]}"
+        raise DataError(f"--reference: export unreadable ({why}); pass the export.json of a hybrid-calib export run",
+                        path=str(p)) from None
+    if not isinstance(doc, dict) or doc.get("schema") != EXPORT_SCHEMA:
+        found = doc.get("schema") if isinstance(doc, dict) else None
+        raise DataError(f"--reference: not a hybrid-calib export (its schema is {str(found)[:60]!r}, not "
+                        f"{EXPORT_SCHEMA!r}); pass the export.json of a hybrid-calib export run", path=str(p))
+    vehicles = doc.get("vehicles")
+    if not isinstance(vehicles, dict):
+        raise DataError("--reference: the export's 'vehicles' is not an object of vehicle -> entry; export again",
+                        path=str(p))
+    mounts: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    kept: dict[str, str] = {}
+    for name, entry in vehicles.items():
+        if not isinstance(entry, dict):
+            raise DataError(f"--reference: vehicle {name}'s entry is not an object; export again", path=str(p))
+        records = entry.get("records")
+        if entry.get("exported") is not True:
+            kept[name] = str(entry.get("why", ""))
+            continue
+        if not isinstance(records, list) or not records:
+            raise DataError(f"--reference: vehicle {name} is marked exported with no record; export again",
+                            path=str(p))
+        pairs = []
+        for rec in records:
+            if not isinstance(rec, dict) or "camera" not in rec:
+                raise DataError(f"--reference: vehicle {name}'s exported record names no camera mount (an export "
+                                "written before hybrid-calib recorded it): export again with this version",
+                                path=str(p))
+            pairs.append((_pose(rec["camera"], "camera", p, name), _pose(rec.get("after"), "after", p, name)))
+        Ts = [se3_inverse(c) @ r for c, r in pairs]
+        for T in Ts[1:]:
+            deg = float(np.degrees(np.linalg.norm(so3_log(Ts[0][:3, :3].T @ T[:3, :3]))))
+            if deg > _SAME[0] or 100 * float(np.linalg.norm(T[:3, 3] - Ts[0][:3, 3])) > _SAME[1]:
+                raise DataError(f"--reference: vehicle {name}'s exported records hold {len(Ts)} radar-camera "
+                                "extrinsics that differ: one reference per vehicle; export it again", path=str(p))
+        mounts[name] = pairs[0]
+    return ExportReference(p, hashlib.sha256(raw).hexdigest(), str(doc.get("data", "?")),
+                           str(doc.get("version", "?")), mounts, kept)
+
+
+def absolute_reference(path: str) -> str:
+    """A config's ``reference`` as an absolute path ("" stays ""): a run resumed, reused or reported from another
+    folder reads the same export."""
+    return str(Path(path).absolute()) if path else ""
+
+
+def reference_identity(path: str) -> dict:
+    """``{"reference_sha256": digest}`` of the export a config's ``reference`` names (``{}`` for none): what a result
+    depends on beyond its config, so that an export replaced at the same path is not taken for the one an earlier
+    result was checked against (``DataError`` when it does not read)."""
+    return {"reference_sha256": load_export_reference(path).sha256} if path else {}

@@ -1,0 +1,295 @@
+"""An earlier export as a later drive's reference (``data.reference``; calibrate's and fleet's ``--reference``).
+
+The workflow it exists for: a radar knocked 2 deg in yaw before a drive reads "recalibrate" against its tables; its
+calibration is exported; every later drive of that vehicle is then checked against the exported mount (without it,
+each read "recalibrate" again: the tables still hold the mount before the knock)."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from hybrid_calib.errors import DataError
+from hybrid_calib.geometry import se3_inverse
+
+VERSION = "v1.0-sim"
+KNOCK = {"kind": "step", "frame": 0, "rotation_deg": [0.0, 0.0, 2.0], "translation_m": [0.0, 0.0, 0.0]}
+
+
+def _sim(root, frames: int, seed: int = 17):
+    from hybrid_calib.config import merge
+    from hybrid_calib.sim import simulate as sim
+    from hybrid_calib.sim.drive import SimConfig
+
+    sim.simulate(merge(SimConfig, {"frames": frames, "vehicles": 2, "image_scale": 0.125, "seed": seed,
+                                   "extrinsic_change": KNOCK}), root, overwrite=False, workers=1)
+    return root
+
+
+@pytest.fixture(scope="module")
+def knocked(tmp_path_factory):
+    """(root of a drive with both radars knocked before it, its oracle calibration's result.json, the export
+    folder of it, root of a later drive of the same vehicles: the same seed, more frames)."""
+    from hybrid_calib.calib.export import export_mounts
+    from hybrid_calib.calib.pipeline import calibrate
+
+    root = _sim(tmp_path_factory.mktemp("drive1"), 6)
+    out = tmp_path_factory.mktemp("cal1")
+    calibrate(root, VERSION, "oracle", out, {"window": {"window": 3}}, progress=False)
+    exp = tmp_path_factory.mktemp("export")
+    export_mounts([out / "result.json"], exp)
+    return root, out / "result.json", exp, _sim(tmp_path_factory.mktemp("drive2"), 8)
+
+
+def _reader(root, reference=None):
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+
+    return NuScenesRadarCamera(root, VERSION, conf={"check_images": False, "reference": reference})
+
+
+def test_the_knock_reads_recalibrate_against_the_tables_and_is_exported(knocked):
+    from hybrid_calib.calib.result import CalibrationRun
+
+    _, result, exp, _ = knocked
+    run = CalibrationRun.load(result)
+    for vr in run.vehicles.values():  # the premise of every test below
+        assert vr.drift["verdict_kind"] == "recalibrate"
+        assert vr.drift["reference"] == {"kind": "tables"}
+    doc = json.loads((exp / "export.json").read_text())
+    assert doc["exported"] == ["sim-veh-000", "sim-veh-001"]
+    for entry in doc["vehicles"].values():
+        assert {"camera", "after"} <= set(entry["records"][0])
+
+
+def test_the_reference_is_the_exported_extrinsic_and_radar_mount(knocked):
+    from hybrid_calib.data.reference import load_export_reference
+    from hybrid_calib.geometry import pose_from_nuscenes
+
+    _, _, exp, later = knocked
+    plain, ds = _reader(later), _reader(later, str(exp))
+    rec = json.loads((exp / "export.json").read_text())["vehicles"]["sim-veh-000"]["records"][0]
+    cam, after = (pose_from_nuscenes(rec[k]["rotation"], rec[k]["translation"]) for k in ("camera", "after"))
+    i = ds.frames_by_vehicle()["sim-veh-000"][0]
+    f, f0 = ds[i], plain[i]
+    np.testing.assert_allclose(f.extras["reference_T_cam_radar"], se3_inverse(cam) @ after, atol=1e-12)
+    np.testing.assert_allclose(ds.reference_T_cam_radar(ds.frames[i]), se3_inverse(cam) @ after, atol=1e-12)
+    np.testing.assert_allclose(f.extras["reference_T_ego_radar"], after, atol=1e-12)  # the mount monitor's
+    # the later drive's own tables (its factory calibration) are 2 deg from it; the data themselves unchanged
+    assert not np.allclose(f0.extras["reference_T_cam_radar"], f.extras["reference_T_cam_radar"], atol=1e-3)
+    np.testing.assert_array_equal(f0.T_cam_radar, f.T_cam_radar)
+    src = ds.reference_source("sim-veh-000")
+    assert src["kind"] == "export" and src["sha256"] == load_export_reference(exp).sha256
+    assert plain.reference_source("sim-veh-000") == {"kind": "tables"}
+    assert ds.reference_notes()[0].startswith("reference: sim-veh-000, sim-veh-001 checked against")
+    # the export.json itself names the same reference as its folder
+    np.testing.assert_allclose(_reader(later, str(exp / "export.json")).reference_T_cam_radar(ds.frames[i]),
+                               se3_inverse(cam) @ after, atol=1e-12)
+
+
+def test_a_later_drive_checked_against_the_export_does_not_read_recalibrate(knocked, tmp_path):
+    from hybrid_calib.calib.pipeline import calibrate
+
+    _, _, exp, later = knocked
+    tables = calibrate(later, VERSION, "oracle", tmp_path / "t", {"window": {"window": 3}}, progress=False)
+    ref = calibrate(later, VERSION, "oracle", tmp_path / "r", {"window": {"window": 3}, "reference": str(exp)},
+                    progress=False)
+    for name in ("sim-veh-000", "sim-veh-001"):
+        assert tables.vehicles[name].drift["verdict_kind"] == "recalibrate"  # the old tables: the knock again
+        d = ref.vehicles[name].drift
+        assert d["verdict_kind"] != "recalibrate", d["verdict"]
+        assert abs(d["axes"]["yaw"]["delta"]) < 0.3, d["axes"]["yaw"]  # the knock is in the reference
+        assert d["reference"]["kind"] == "export"
+        assert d["reference"]["path"] == str((exp / "export.json").absolute())
+        # start=reference starts each vehicle at its reference: the exported mount
+        assert ref.vehicles[name].start["T_cam_radar"] != tables.vehicles[name].start["T_cam_radar"]
+
+
+def test_the_hybrids_mount_monitor_reads_the_radar_at_its_exported_yaw(knocked, tmp_path):
+    from hybrid_calib.hybrid import run_calibration
+
+    _, _, exp, later = knocked
+    conf = {"method": "hybrid", "vehicles": ["sim-veh-000"], "progress": False, "lidar": {"enabled": False}}
+    plain = run_calibration(later, VERSION, tmp_path / "h", conf).vehicles["sim-veh-000"]
+    ref = run_calibration(later, VERSION, tmp_path / "hr", {**conf, "reference": str(exp)}).vehicles["sim-veh-000"]
+    (lv0,), (lv,) = plain.mount["levels"], ref.mount["levels"]  # no step: one level over the drive
+    assert abs(lv0["level_deg"]) > 1.5  # the knock, against the tables
+    assert abs(lv["level_deg"]) < 0.3, lv  # against the exported mount: where the radar is
+    assert ref.drift["reference"]["kind"] == "export" and plain.drift["reference"] == {"kind": "tables"}
+
+
+def test_a_vehicle_the_export_kept_keeps_its_tables(knocked, tmp_path):
+    from hybrid_calib.calib.export import export_mounts
+
+    root, result, _, later = knocked
+    exp = tmp_path / "one"
+    export_mounts([result], exp, vehicles=["sim-veh-001"])
+    doc = json.loads((exp / "export.json").read_text())
+    doc["vehicles"]["sim-veh-002"] = {"exported": False, "why": "kept the tables: (a test)", "records": []}
+    (exp / "export.json").write_text(json.dumps(doc))
+    ds, plain = _reader(later, str(exp)), _reader(later)
+    i = ds.frames_by_vehicle()["sim-veh-000"][0]
+    np.testing.assert_array_equal(ds.reference_T_cam_radar(ds.frames[i]), plain.reference_T_cam_radar(ds.frames[i]))
+    assert ds.reference_source("sim-veh-000")["kind"] == "tables"
+    assert "does not name it" in ds.reference_source("sim-veh-000")["why"]
+    assert "kept its tables (kept the tables: (a test))" in ds.reference_source("sim-veh-002")["why"]
+    assert ds.reference_source("sim-veh-001")["kind"] == "export"
+
+
+def test_an_export_of_other_vehicles_or_another_camera_is_said(knocked, tmp_path):
+    _, _, exp, later = knocked
+    doc = json.loads((exp / "export.json").read_text())
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "export.json").write_text(json.dumps({**doc, "vehicles": {"n015": doc["vehicles"]["sim-veh-000"]}}))
+    notes = _reader(later, str(other)).reference_notes()
+    assert notes[0].startswith("warning: the reference export") and "none of this root's vehicles" in notes[0]
+    assert "n015" in notes[0] and "every vehicle is checked against its tables" in notes[0]
+    # a camera record 1 deg away from the one the export read: the camera was recalibrated since (or another car)
+    moved = json.loads(json.dumps(doc))
+    q = np.array(moved["vehicles"]["sim-veh-000"]["records"][0]["camera"]["rotation"])
+    dq = np.array([np.cos(np.radians(0.5)), 0.0, 0.0, np.sin(np.radians(0.5))])  # 1 deg about z
+    w1, v1, w2, v2 = dq[0], dq[1:], q[0], q[1:]
+    moved["vehicles"]["sim-veh-000"]["records"][0]["camera"]["rotation"] = [
+        w1 * w2 - v1 @ v2, *(w1 * v2 + w2 * v1 + np.cross(v1, v2))]
+    (other / "export.json").write_text(json.dumps(moved))
+    notes = _reader(later, str(other)).reference_notes()
+    assert any(n.startswith("warning: vehicle sim-veh-000: its camera record here is 1.00 deg") for n in notes), notes
+    assert not any("sim-veh-001: its camera" in n for n in notes)
+
+
+@pytest.mark.parametrize("case, words", [
+    ("missing", "does not exist"),
+    ("empty folder", "holds no export.json"),
+    ("not json", "export unreadable (JSONDecodeError"),
+    ("other schema", "not a hybrid-calib export"),
+    ("no camera", "names no camera mount (an export written before"),
+    ("bad after", "'after' record does not read"),
+    ("two extrinsics", "hold 2 radar-camera extrinsics that differ"),
+    ("vehicles list", "'vehicles' is not an object"),
+])
+def test_a_reference_that_is_not_an_export_is_refused_by_name(knocked, tmp_path, case, words):
+    from hybrid_calib.data.reference import load_export_reference
+
+    _, _, exp, later = knocked
+    doc = json.loads((exp / "export.json").read_text())
+    rec = doc["vehicles"]["sim-veh-000"]["records"][0]
+    path = tmp_path / "x"
+    if case != "missing":
+        path.mkdir()
+    text = json.dumps(doc)
+    if case == "not json":
+        text = text[:-5]
+    elif case == "other schema":
+        text = json.dumps({**doc, "schema": "hybrid-calib/fleet-prior/v1"})
+    elif case == "no camera":
+        rec.pop("camera")
+        text = json.dumps(doc)
+    elif case == "bad after":
+        rec["after"]["rotation"] = [1.0, 0.5, 0.0, 0.0]
+        text = json.dumps(doc)
+    elif case == "two extrinsics":
+        rec2 = json.loads(json.dumps(rec))
+        rec2["after"]["translation"][1] += 0.01
+        doc["vehicles"]["sim-veh-000"]["records"].append(rec2)
+        text = json.dumps(doc)
+    elif case == "vehicles list":
+        text = json.dumps({**doc, "vehicles": []})
+    if case not in ("missing", "empty folder"):
+        (path / "export.json").write_text(text)
+    with pytest.raises(DataError) as e:
+        load_export_reference(path)
+    assert words in str(e.value), str(e.value)
+    assert str(path) in str(e.value)
+    with pytest.raises(DataError):  # the reader refuses it before any frame
+        _reader(later, str(path))
+
+
+def test_a_result_depends_on_the_exports_content_not_only_its_path(knocked, tmp_path):
+    from hybrid_calib.calib.pipeline import calibrate
+    from hybrid_calib.errors import HybridCalibError
+
+    root, result, exp, _ = knocked
+    mine = tmp_path / "exp"
+    shutil.copytree(exp, mine)
+    conf = {"window": {"window": 3}, "reference": str(mine), "vehicles": ["sim-veh-000"]}
+    first = calibrate(root, VERSION, "oracle", tmp_path / "c", conf, progress=False)
+    again = calibrate(root, VERSION, "oracle", tmp_path / "c", conf, progress=False)  # reused: the same export
+    assert again.vehicles["sim-veh-000"].final.T.tolist() == first.vehicles["sim-veh-000"].final.T.tolist()
+    doc = json.loads((mine / "export.json").read_text())
+    doc["vehicles"]["sim-veh-000"]["records"][0]["after"]["translation"][1] += 0.05  # re-exported since
+    (mine / "export.json").write_text(json.dumps(doc))
+    with pytest.raises(HybridCalibError, match="reference_sha256"):
+        calibrate(root, VERSION, "oracle", tmp_path / "c", conf, progress=False)
+
+
+def test_export_of_a_drive_checked_against_an_export_keeps_that_reference(knocked, tmp_path):
+    """A later drive's export: the axes it keeps hold the earlier export's values (the reference its verdict used),
+    not the old tables' (which would put the knock back); an export changed since the calibration is refused."""
+    from hybrid_calib.calib.export import export_mounts
+    from hybrid_calib.calib.pipeline import calibrate
+    from hybrid_calib.geometry import pose_from_nuscenes
+
+    _, _, exp, later = knocked
+    mine = tmp_path / "exp"
+    shutil.copytree(exp, mine)
+    run = calibrate(later, VERSION, "oracle", tmp_path / "c", {"window": {"window": 3}, "reference": str(mine)},
+                    progress=False)
+    new = export_mounts([tmp_path / "c" / "result.json"], tmp_path / "x2", which="trusted")
+    ref = _reader(later, str(mine))
+    for name, entry in new.vehicles.items():
+        if not entry["exported"]:
+            continue
+        rec = entry["records"][0]
+        cam, base = (pose_from_nuscenes(rec[k]["rotation"], rec[k]["translation"]) for k in ("camera", "reference"))
+        i = ref.frames_by_vehicle()[name][0]
+        np.testing.assert_allclose(se3_inverse(cam) @ base, ref.reference_T_cam_radar(ref.frames[i]), atol=1e-9)
+        assert entry["reference"]["kind"] == "export"
+    assert new.exported, {n: e["why"] for n, e in new.vehicles.items()}
+    assert run.vehicles
+    doc = json.loads((mine / "export.json").read_text())
+    doc["notes"] = ["edited"]
+    (mine / "export.json").write_text(json.dumps(doc))
+    again = export_mounts([tmp_path / "c" / "result.json"], tmp_path / "x3", which="trusted")
+    assert not again.exported
+    assert all("has been replaced since the calibration" in e["why"] for e in again.vehicles.values())
+
+
+def test_data_reference_is_one_option(tmp_path):
+    from hybrid_calib.hybrid import HybridConfig
+
+    with pytest.raises(ValueError, match="--reference"):
+        HybridConfig(data={"reference": str(tmp_path)})
+
+
+def test_the_commands_take_reference_and_refuse_a_bad_one_by_name(knocked, tmp_path, capsys):
+    from hybrid_calib.cli import main
+
+    _, _, exp, later = knocked
+    for cmd in (["calibrate", "--data", str(later), "--out", str(tmp_path / "c"), "--no-plots"],
+                ["fleet", "--data", str(later), "--out", str(tmp_path / "f"), "--no-plots", "--no-report"]):
+        assert main([*cmd, "--reference", str(tmp_path / "nowhere")]) != 0
+        err = capsys.readouterr().err
+        assert "--reference" in err and "nowhere" in err and "does not exist" in err and "Traceback" not in err
+        assert not (tmp_path / "c" / "result.json").exists()
+    assert main(["calibrate", "--data", str(later), "--out", str(tmp_path / "c"), "--no-plots", "--max-frames", "4",
+                 "--set", "window.window=3", "--reference", str(exp)]) == 0
+    out = capsys.readouterr()
+    assert "reference: sim-veh-000, sim-veh-001 checked against the mounts exported in" in out.err
+    assert f"vs reference (the export {(exp / 'export.json').absolute()}):" in out.out
+    assert main(["fleet", "--data", str(later), "--out", str(tmp_path / "f"), "--no-plots", "--no-report",
+                 "--max-frames", "4", "--set", "window.window=3", "--reference", str(exp)]) == 0
+    for name in ("sim-veh-000", "sim-veh-001"):
+        doc = json.loads((tmp_path / "f" / "vehicles" / name / "result.json").read_text())
+        assert doc["vehicles"][name]["drift"]["reference"]["kind"] == "export"
+
+
+def test_a_fleets_offsets_are_from_the_reference_it_was_given(knocked):
+    from hybrid_calib.data.reference import load_export_reference
+    from hybrid_calib.fleet.jobs import _root_vehicles
+
+    _, _, exp, later = knocked
+    T = load_export_reference(exp).T_cam_radar("sim-veh-000")
+    with_ref = _root_vehicles(str(later), VERSION, [], str(exp))["sim-veh-000"]["tables_T"]
+    np.testing.assert_allclose(with_ref, T, atol=1e-12)
+    assert not np.allclose(_root_vehicles(str(later), VERSION, [])["sim-veh-000"]["tables_T"], T, atol=1e-3)
