@@ -282,6 +282,9 @@ def test_the_commands_take_reference_and_refuse_a_bad_one_by_name(knocked, tmp_p
     for name in ("sim-veh-000", "sim-veh-001"):
         doc = json.loads((tmp_path / "f" / "vehicles" / name / "result.json").read_text())
         assert doc["vehicles"][name]["drift"]["reference"]["kind"] == "export"
+        # the fleet view's offsets are from the same reference (from the old tables they read the 2 deg knock)
+        off = json.loads((tmp_path / "f" / "summary.json").read_text())["vehicles"][name]["offset_from_tables"]
+        assert abs(off["rot_y_cam_deg"]) < 0.5, off  # yaw: about camera y
 
 
 def test_a_fleets_offsets_are_from_the_reference_it_was_given(knocked):
