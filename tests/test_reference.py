@@ -108,14 +108,23 @@ def test_a_later_drive_checked_against_the_export_does_not_read_recalibrate(knoc
 def test_the_hybrids_mount_monitor_reads_the_radar_at_its_exported_yaw(knocked, tmp_path):
     from hybrid_calib.hybrid import run_calibration
 
+    from hybrid_calib.errors import HybridCalibError
+
     _, _, exp, later = knocked
+    mine = tmp_path / "exp"
+    shutil.copytree(exp, mine)
     conf = {"method": "hybrid", "vehicles": ["sim-veh-000"], "progress": False, "lidar": {"enabled": False}}
     plain = run_calibration(later, VERSION, tmp_path / "h", conf).vehicles["sim-veh-000"]
-    ref = run_calibration(later, VERSION, tmp_path / "hr", {**conf, "reference": str(exp)}).vehicles["sim-veh-000"]
+    ref = run_calibration(later, VERSION, tmp_path / "hr", {**conf, "reference": str(mine)}).vehicles["sim-veh-000"]
     (lv0,), (lv,) = plain.mount["levels"], ref.mount["levels"]  # no step: one level over the drive
     assert abs(lv0["level_deg"]) > 1.5  # the knock, against the tables
     assert abs(lv["level_deg"]) < 0.3, lv  # against the exported mount: where the radar is
     assert ref.drift["reference"]["kind"] == "export" and plain.drift["reference"] == {"kind": "tables"}
+    doc = json.loads((mine / "export.json").read_text())
+    doc["notes"] = ["exported again"]
+    (mine / "export.json").write_text(json.dumps(doc))  # the same path, another file: not the result's reference
+    with pytest.raises(HybridCalibError, match="reference_sha256"):
+        run_calibration(later, VERSION, tmp_path / "hr", {**conf, "reference": str(mine)})
 
 
 def test_a_vehicle_the_export_kept_keeps_its_tables(knocked, tmp_path):
@@ -296,3 +305,21 @@ def test_a_fleets_offsets_are_from_the_reference_it_was_given(knocked):
     with_ref = _root_vehicles(str(later), VERSION, [], str(exp))["sim-veh-000"]["tables_T"]
     np.testing.assert_allclose(with_ref, T, atol=1e-12)
     assert not np.allclose(_root_vehicles(str(later), VERSION, [])["sim-veh-000"]["tables_T"], T, atol=1e-3)
+
+
+def test_the_report_page_says_what_the_verdict_compared_with(knocked, tmp_path):
+    """The page of a drive checked against an export names it (and its replayed rows and start are the run's: the
+    report rebuilds an oracle run's rows from its config.json, which holds the reference and its sha256)."""
+    from hybrid_calib.calib.pipeline import calibrate
+    from hybrid_calib.report.vehicle import write_report
+
+    _, _, exp, later = knocked
+    conf = {"window": {"window": 3}, "vehicles": ["sim-veh-000"], "max_frames": 4}
+    calibrate(later, VERSION, "oracle", tmp_path / "t", conf, progress=False)
+    calibrate(later, VERSION, "oracle", tmp_path / "r", {**conf, "reference": str(exp)}, progress=False)
+    plain = write_report(tmp_path / "t" / "result.json", tmp_path / "t.html", conf={"frames": 1}).read_text()
+    page = write_report(tmp_path / "r" / "result.json", tmp_path / "r.html", conf={"frames": 1}).read_text()
+    assert ('<span id="reference">its calibration tables (a simulated vehicle&#x27;s factory calibration)</span>'
+            in plain)
+    assert f'<span id="reference">the mount exported in {(exp / "export.json").absolute()} (from' in page
+    assert "no usable run config" not in page
