@@ -106,9 +106,8 @@ def test_a_later_drive_checked_against_the_export_does_not_read_recalibrate(knoc
 
 
 def test_the_hybrids_mount_monitor_reads_the_radar_at_its_exported_yaw(knocked, tmp_path):
-    from hybrid_calib.hybrid import run_calibration
-
     from hybrid_calib.errors import HybridCalibError
+    from hybrid_calib.hybrid import run_calibration
 
     _, _, exp, later = knocked
     mine = tmp_path / "exp"
