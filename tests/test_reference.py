@@ -322,3 +322,22 @@ def test_the_report_page_says_what_the_verdict_compared_with(knocked, tmp_path):
             in plain)
     assert f'<span id="reference">the mount exported in {(exp / "export.json").absolute()} (from' in page
     assert "no usable run config" not in page
+
+
+def test_a_fleet_does_not_resume_against_a_reexported_reference(knocked, tmp_path, capsys):
+    from hybrid_calib.cli import main
+
+    _, _, exp, later = knocked
+    mine = tmp_path / "exp"
+    shutil.copytree(exp, mine)
+    cmd = ["fleet", "--data", str(later), "--out", str(tmp_path / "f"), "--no-plots", "--no-report", "--max-frames",
+           "3", "--set", "window.window=3", "--reference", str(mine)]
+    assert main(cmd) == 0
+    assert main(cmd) == 0  # resumed: every job done
+    capsys.readouterr()
+    doc = json.loads((mine / "export.json").read_text())
+    doc["notes"] = ["exported again"]
+    (mine / "export.json").write_text(json.dumps(doc))
+    assert main(cmd) != 0
+    err = capsys.readouterr().err
+    assert "the --reference export's file (exported again at the same path, or another file)" in err, err

@@ -53,6 +53,9 @@ class Job:
     # the network methods: the contents of the checkpoints they run (``hybrid.loop.network_identity``), so that a
     # checkpoint retrained or edited at the same path is not taken for the one a done job ran
     network: dict | None = None
+    # --reference: the sha256 of the export it names (``data.reference``), so that one re-exported at the same path is
+    # not taken for the one a done job was checked against
+    reference_sha256: str | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -205,10 +208,17 @@ def discover_jobs(roots: list[tuple[str, str, tuple[str, ...] | None]], method: 
         keys = {k: v for k, v in (calib or {}).items() if k in ("start", "refine")}
         network = network_identity(merge(HybridConfig, {"method": method, "checkpoint": checkpoint or "", **keys}))
         network = network.get("network")
+    reference = (calib or {}).get("reference")
+    if reference:
+        from hybrid_calib.data.reference import load_export_reference
+
+        reference_sha256 = load_export_reference(reference).sha256
+    else:
+        reference_sha256 = None
     found = []
     for root, version, wanted in roots:
         try:
-            vs = _root_vehicles(root, version, notes, (calib or {}).get("reference"))
+            vs = _root_vehicles(root, version, notes, reference)
         except DataError as e:  # one root's broken tables: its vehicles cannot become jobs, the others can
             if left_out is None or len(roots) == 1:
                 raise
@@ -243,7 +253,7 @@ def discover_jobs(roots: list[tuple[str, str, tuple[str, ...] | None]], method: 
         # manifest held it as typed, and a resume from elsewhere was refused as "other options"; probe 31)
         jobs.append(Job(jid, v, str(Path(root).resolve()), version, method, folder, seed, checkpoint,
                         dict(calib or {}), prior,
-                        info["tables_T"], info["design_T"], threads, network))
+                        info["tables_T"], info["design_T"], threads, network, reference_sha256))
     ids = [j.id for j in jobs]
     dup = sorted({i for i in ids if ids.count(i) > 1})
     if dup:

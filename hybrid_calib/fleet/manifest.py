@@ -251,7 +251,8 @@ def _checked_jobs(jobs, path: Path) -> dict[str, dict]:
 
 
 # the Job fields a result depends on (not: out, threads, tables_T / design_T, which follow from data)
-_RESULT_FIELDS = ("data", "version", "vehicle", "method", "seed", "checkpoint", "calib", "prior", "network")
+_RESULT_FIELDS = ("data", "version", "vehicle", "method", "seed", "checkpoint", "calib", "prior", "network",
+                  "reference_sha256")
 
 
 def _changed_options(old: dict, job: Job) -> list[str]:
@@ -266,6 +267,10 @@ def _changed_options(old: dict, job: Job) -> list[str]:
             if a is not None and a != b:
                 changed.append("the network checkpoint's files (retrained or edited at the same path, or another "
                                "file)")
+            continue
+        if k == "reference_sha256":  # the export --reference names, by content (its path is in calib)
+            if a != b and (a is not None or b is not None):
+                changed.append("the --reference export's file (exported again at the same path, or another file)")
             continue
         if k in ("data", "checkpoint"):
             same = (a or None) == (b or None) or (bool(a) and bool(b) and os.path.realpath(a) == os.path.realpath(b))
