@@ -175,6 +175,7 @@ def test_an_export_of_other_vehicles_or_another_camera_is_said(knocked, tmp_path
     ("bad after", "'after' record does not read"),
     ("two extrinsics", "hold 2 radar-camera extrinsics that differ"),
     ("vehicles list", "'vehicles' is not an object"),
+    ("exported string", "'exported' is 'true', not true or false"),
 ])
 def test_a_reference_that_is_not_an_export_is_refused_by_name(knocked, tmp_path, case, words):
     from hybrid_calib.data.reference import load_export_reference
@@ -203,6 +204,9 @@ def test_a_reference_that_is_not_an_export_is_refused_by_name(knocked, tmp_path,
         text = json.dumps(doc)
     elif case == "vehicles list":
         text = json.dumps({**doc, "vehicles": []})
+    elif case == "exported string":
+        doc["vehicles"]["sim-veh-000"]["exported"] = "true"
+        text = json.dumps(doc)
     if case not in ("missing", "empty folder"):
         (path / "export.json").write_text(text)
     with pytest.raises(DataError) as e:
@@ -258,9 +262,10 @@ def test_export_of_a_drive_checked_against_an_export_keeps_that_reference(knocke
     doc = json.loads((mine / "export.json").read_text())
     doc["notes"] = ["edited"]
     (mine / "export.json").write_text(json.dumps(doc))
-    again = export_mounts([tmp_path / "c" / "result.json"], tmp_path / "x3", which="trusted")
-    assert not again.exported
-    assert all("has been replaced since the calibration" in e["why"] for e in again.vehicles.values())
+    for which in ("trusted", "recalibrate"):  # the default too (probe 76: it said only "kept the tables")
+        again = export_mounts([tmp_path / "c" / "result.json"], tmp_path / f"x3{which}", which=which)
+        assert not again.exported
+        assert all("has been replaced since the calibration" in e["why"] for e in again.vehicles.values())
 
 
 def test_data_reference_is_one_option(tmp_path):
@@ -291,8 +296,13 @@ def test_the_commands_take_reference_and_refuse_a_bad_one_by_name(knocked, tmp_p
         doc = json.loads((tmp_path / "f" / "vehicles" / name / "result.json").read_text())
         assert doc["vehicles"][name]["drift"]["reference"]["kind"] == "export"
         # the fleet view's offsets are from the same reference (from the old tables they read the 2 deg knock)
-        off = json.loads((tmp_path / "f" / "summary.json").read_text())["vehicles"][name]["offset_from_tables"]
+        summary = json.loads((tmp_path / "f" / "summary.json").read_text())
+        off = summary["vehicles"][name]["offset_from_tables"]
         assert abs(off["rot_y_cam_deg"]) < 0.5, off  # yaw: about camera y
+        assert summary["vehicles"][name]["reference"]["kind"] == "export"
+    assert summary["reference"] == str(exp / "export.json")
+    assert (f"Checked against the earlier export {exp / 'export.json'} (--reference): sim-veh-000, sim-veh-001"
+            in (tmp_path / "f" / "summary.md").read_text())
 
 
 def test_a_fleets_offsets_are_from_the_reference_it_was_given(knocked):
@@ -306,7 +316,7 @@ def test_a_fleets_offsets_are_from_the_reference_it_was_given(knocked):
     assert not np.allclose(_root_vehicles(str(later), VERSION, [])["sim-veh-000"]["tables_T"], T, atol=1e-3)
 
 
-def test_the_report_page_says_what_the_verdict_compared_with(knocked, tmp_path):
+def test_the_report_page_says_what_the_verdict_compared_with(knocked, tmp_path, capsys):
     """The page of a drive checked against an export names it (and its replayed rows and start are the run's: the
     report rebuilds an oracle run's rows from its config.json, which holds the reference and its sha256)."""
     from hybrid_calib.calib.pipeline import calibrate
@@ -316,12 +326,20 @@ def test_the_report_page_says_what_the_verdict_compared_with(knocked, tmp_path):
     conf = {"window": {"window": 3}, "vehicles": ["sim-veh-000"], "max_frames": 4}
     calibrate(later, VERSION, "oracle", tmp_path / "t", conf, progress=False)
     calibrate(later, VERSION, "oracle", tmp_path / "r", {**conf, "reference": str(exp)}, progress=False)
+    capsys.readouterr()
     plain = write_report(tmp_path / "t" / "result.json", tmp_path / "t.html", conf={"frames": 1}).read_text()
     page = write_report(tmp_path / "r" / "result.json", tmp_path / "r.html", conf={"frames": 1}).read_text()
+    assert "reference:" not in capsys.readouterr().err  # said by the run; a page per vehicle repeated it
     assert ('<span id="reference">its calibration tables (a simulated vehicle&#x27;s factory calibration)</span>'
             in plain)
     assert f'<span id="reference">the mount exported in {(exp / "export.json").absolute()} (from' in page
     assert "no usable run config" not in page
+    from hybrid_calib.report.fleet import write_fleet_page
+
+    fleet = write_fleet_page([tmp_path / "r" / "result.json", tmp_path / "t" / "result.json"], tmp_path / "f.html",
+                             labels=["later-ref", "later-tables"]).read_text()
+    assert ('<p id="reference">Verdicts checked against an earlier export (--reference), not the tables: later-ref '
+            f"against the mount in {(exp / 'export.json').absolute()}; the others against their tables.</p>") in fleet
 
 
 def test_a_fleet_does_not_resume_against_a_reexported_reference(knocked, tmp_path, capsys):
@@ -341,3 +359,37 @@ def test_a_fleet_does_not_resume_against_a_reexported_reference(knocked, tmp_pat
     assert main(cmd) != 0
     err = capsys.readouterr().err
     assert "the --reference export's file (exported again at the same path, or another file)" in err, err
+
+
+def test_the_folder_and_its_export_json_are_one_reference(knocked, tmp_path):
+    from hybrid_calib.calib.pipeline import calibrate
+
+    _, _, exp, later = knocked
+    conf = {"window": {"window": 3}, "vehicles": ["sim-veh-000"], "max_frames": 3}
+    first = calibrate(later, VERSION, "oracle", tmp_path / "c", {**conf, "reference": str(exp)}, progress=False)
+    dotted = str(exp.parent / "." / exp.name / ".." / exp.name / "export.json")
+    again = calibrate(later, VERSION, "oracle", tmp_path / "c", {**conf, "reference": dotted}, progress=False)
+    assert again.vehicles["sim-veh-000"].drift == first.vehicles["sim-veh-000"].drift  # reused, not "another run"
+    assert first.vehicles["sim-veh-000"].drift["reference"]["path"] == str(exp / "export.json")
+
+
+def test_an_export_chain_carries_the_mount_of_a_drive_that_did_not_move(knocked, tmp_path, capsys):
+    """drive 1 -> export 1 -> a later drive against it, nothing moved -> export 2 -> the next drive against export 2:
+    export 2 holds export 1's mounts (carried), so the chain does not fall back to the tables from before the knock
+    (probe 76: export 2 wrote nothing, and the third drive read "recalibrate")."""
+    from hybrid_calib.cli import main
+    from hybrid_calib.data.reference import load_export_reference
+
+    _, _, exp, later = knocked
+    conf = ["--set", "window.window=3", "--no-plots"]
+    assert main(["calibrate", "--data", str(later), "--out", str(tmp_path / "c2"), "--reference", str(exp), *conf]) == 0
+    assert main(["export", str(tmp_path / "c2" / "result.json"), "--out", str(tmp_path / "e2")]) == 0
+    out = capsys.readouterr().out
+    assert out.count("carried: 1 radar record(s) hold the mount of the export its verdict compared with") == 2, out
+    e1, e2 = load_export_reference(exp), load_export_reference(tmp_path / "e2")
+    for name in ("sim-veh-000", "sim-veh-001"):
+        np.testing.assert_allclose(e2.T_cam_radar(name), e1.T_cam_radar(name), atol=1e-9)
+    assert main(["calibrate", "--data", str(later), "--out", str(tmp_path / "c3"), "--reference",
+                 str(tmp_path / "e2"), *conf]) == 0
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("sim-veh-")]
+    assert len(lines) == 2 and not any(": recalibrate" in line for line in lines), lines

@@ -28,6 +28,9 @@ Which vehicles (``which``):
   estimate differs from them beyond the tolerance, with confidence). A mount within tolerance, or one the data
   cannot decide, keeps its tables: a new record would only replace them with a noisier number.
 - ``"trusted"``: every vehicle whose estimate can be trusted.
+A vehicle calibrated against an earlier export (``--reference``) whose own estimate is not written (its verdict
+kept the reference, or it is not trusted) carries that export's mount into the new table (``carried``, ``own_why``):
+the new export is the whole calibration a later drive is checked against.
 Never exported: an untrusted estimate (``calib.covariance.untrusted_status``: not converged, out of the network's
 domain, degenerate); a vehicle whose radar records hold more than one calibration along its drive (one estimate
 cannot stand for both), or are shared with another vehicle, or are paired with camera mounts that differ; a result
@@ -156,6 +159,38 @@ def _keep_axes(T_ref: np.ndarray, T_est: np.ndarray, kept: list[int]) -> np.ndar
     T[:3, :3] = so3_exp(np.radians(d[:3])) @ np.asarray(T_ref, np.float64)[:3, :3]
     T[:3, 3] = np.asarray(T_ref, np.float64)[:3, 3] + d[3:] / 100.0
     return T
+
+
+def _carry(exp: MountExport, name: str, T_ref: np.ndarray, toks: list[str], pairs: dict, users: dict, index: dict,
+           tables) -> None:
+    """A vehicle checked against an earlier export (``--reference``) and not exported with its own estimate: its
+    records get that export's mount (``T_ego_cam T_ref``), marked ``carried``, so that this export is the whole
+    calibration a later drive is checked against (probe 76: a drive unmoved since export 1 exported nothing, and the
+    drive after it, checked against export 2, fell back to the tables from before the knock: "recalibrate"). Not
+    where its records are shared with another vehicle, or paired with camera mounts that differ."""
+    from hybrid_calib.data.nuscenes import same_calibration
+
+    entry = exp.vehicles[name]
+    if entry["exported"] or not toks or any(users[tok] - {name} for tok in toks):
+        return
+    carried = []
+    for tok in toks:
+        cams = sorted(pairs[(name, tok)])
+        T_cams = [tables.T_ego_sensor({"token": f"(frames of {name})", "calibrated_sensor_token": c}) for c in cams]
+        if any(not same_calibration(T, T_cams[0]) for T in T_cams[1:]):
+            return
+        carried.append((tok, T_cams[0]))
+    src = entry.get("reference") or {}
+    for tok, T_cam in carried:
+        before = {k: exp.table[index[tok]][k] for k in ("translation", "rotation")}
+        T_new = T_cam @ T_ref
+        exp.table[index[tok]] = {**exp.table[index[tok]], **_record(T_new)}
+        entry["records"].append({"token": tok, "before": before, "reference": _record(T_new), "after": _record(T_new),
+                                 "change": _change(T_new, T_new), "change_from": "reference", "camera": _record(T_cam)})
+    entry.update(exported=True, carried=True, own_why=entry["why"],
+                 why=f"carried: {len(carried)} radar record(s) hold the mount of the export its verdict compared "
+                     f"with ({src.get('path', '--reference')}), unchanged; its own estimate was not written "
+                     f"({entry['why']})")
 
 
 def _export_reference(vr, name: str) -> tuple[np.ndarray | None, str]:
@@ -324,11 +359,19 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
     exp = MountExport(str(root), version, which, [str(p) for p in paths],
                       table=[dict(rec) for rec in t.records["calibrated_sensor"]])
     index = {rec["token"]: i for i, rec in enumerate(exp.table)}
+    carry: dict[str, np.ndarray] = {}  # vehicle -> the reference export's T_cam_radar its verdict compared with
     for name, (p, vr) in sorted(found.items()):
         entry = {"result": str(p), "status": vr.final.status, "verdict": (vr.drift or {}).get("verdict"),
                  "exported": False, "why": "", "records": [], "std_ego": None}
         exp.vehicles[name] = entry
-        why = (f"not exported: {stale[p]}" if p in stale else "") or _why_not(vr, which)
+        if ((vr.drift or {}).get("reference") or {}).get("kind") == "export":
+            entry["reference"] = vr.drift["reference"]
+        # an earlier export the verdict compared with (--reference): read again first, a changed one refused whatever
+        # the verdict (probe 76: the default --which said only "kept the tables" for one edited since)
+        exported_ref, ref_why = (None, "") if p in stale else _export_reference(vr, name)
+        why = (f"not exported: {stale[p]}" if p in stale else "") or ref_why or _why_not(vr, which)
+        if exported_ref is not None:
+            carry[name] = exported_ref
         toks = sorted(radar_of.get(name, ()))
         if not why and not toks:
             skips = ds.skipped  # the index's own problems (a record that does not resolve drops its frames)
@@ -358,8 +401,7 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
             continue
         new: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]] = []
         refs = []  # the reference T_cam_radar per record: one calibration along the drive
-        exported_ref, why = _export_reference(vr, name)  # an earlier export the verdict compared with (--reference)
-        for tok in toks if not why else ():
+        for tok in toks:
             cams = sorted(pairs[(name, tok)])
             T_cams = [t.T_ego_sensor({"token": f"(frames of {name})", "calibrated_sensor_token": c}) for c in cams]
             if any(not same_calibration(T, T_cams[0]) for T in T_cams[1:]):
@@ -403,14 +445,14 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
                                      # extrinsic is inv(camera) after (data.reference, --reference)
                                      "camera": _record(T_cam)})
         cov = np.asarray(vr.final.cov, np.float64)
-        if exported_ref is not None:
-            entry["reference"] = (vr.drift or {}).get("reference")
         entry.update(exported=True, std_ego=_std_ego(new[0][2], cov), std_camera=_std_camera(T_est, cov, kept),
                      tables_kept=[AXIS_WORDS[i] for i in kept],
                      why=f"exported: {len(new)} radar record(s) replaced" + (
                          f" (the tables' {', '.join(AXIS_WORDS[i] for i in kept)} kept: the data do not decide "
                          f"{'it' if len(kept) == 1 else 'them'} against the tolerance)"
                          if kept else ""))
+    for name, T_ref in sorted(carry.items()):  # kept: the reference it was checked against, not the old tables
+        _carry(exp, name, T_ref, sorted(radar_of.get(name, ())), pairs, users, index, t)
     for p, run in runs:  # a vehicle whose calibration failed is named, not dropped
         for name, reason in sorted(run.vehicles_failed.items()):
             if (not vehicles or name in vehicles) and name not in exp.vehicles:

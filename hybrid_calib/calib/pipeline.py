@@ -97,7 +97,10 @@ class VehicleInput:
     reference_source: dict = field(default_factory=lambda: {"kind": "tables"})  # what ``reference`` is
 
 
-def _load_oracle(data, version: str, conf: CalibrateConfig, progress: bool = True) -> dict[str, VehicleInput]:
+def _load_oracle(data, version: str, conf: CalibrateConfig, progress: bool = True, say: bool = True
+                 ) -> dict[str, VehicleInput]:
+    """``say``: print the root's warnings and the reference's note (a replay for a report page, one per vehicle,
+    said them again each time: probe 76)."""
     from tqdm import tqdm
 
     from hybrid_calib.data.nuscenes import NuScenesRadarCamera
@@ -108,8 +111,8 @@ def _load_oracle(data, version: str, conf: CalibrateConfig, progress: bool = Tru
                                       "true reflectors, and "
                                       f"{data} has none (no sim_truth/ folder: a real root); calibrate it with "
                                       "--method hybrid (or pure, pure-avg)")
-    for line in [*ds.reference_notes(), *table_warnings(ds)]:  # a vehicle missing from the result, poses the motion
-        print(line, file=sys.stderr)  # compensation reads
+    for line in [*ds.reference_notes(), *table_warnings(ds)] if say else ():  # a vehicle missing from the result,
+        print(line, file=sys.stderr)  # poses the motion compensation reads
     out: dict[str, VehicleInput] = {}
     for vehicle, idx in sorted(ds.frames_by_vehicle().items()):
         if conf.vehicles is not None and vehicle not in conf.vehicles:
@@ -144,15 +147,17 @@ def _load_oracle(data, version: str, conf: CalibrateConfig, progress: bool = Tru
     return out
 
 
-def load_oracle(data, version: str, conf: CalibrateConfig | dict | None, progress: bool = True
+def load_oracle(data, version: str, conf: CalibrateConfig | dict | None, progress: bool = True, say: bool = True
                 ) -> dict[str, VehicleInput]:
     """Oracle inputs (simulated roots) of every vehicle in ``conf.vehicles`` (all when None), each vehicle's rows
-    drawn from ``vehicle_rng(conf.seed, vehicle, "oracle")``; ``progress``: a bar per vehicle."""
-    return _load_oracle(data, version, merge(CalibrateConfig, conf), progress)
+    drawn from ``vehicle_rng(conf.seed, vehicle, "oracle")``; ``progress``: a bar per vehicle; ``say``: print the
+    root's warnings (False where the caller opened the root and said them)."""
+    return _load_oracle(data, version, merge(CalibrateConfig, conf), progress, say)
 
 
 def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
-              absent: dict[str, str] | None = None, unknown: dict[str, str] | None = None) -> dict[str, VehicleInput]:
+              absent: dict[str, str] | None = None, unknown: dict[str, str] | None = None, say: bool = True
+              ) -> dict[str, VehicleInput]:
     """The measurement files of ``directory`` per vehicle; each vehicle of the root (``data``) with none of them is
     put in ``absent`` (``calibrate`` says so: they vanished from result.json without a word), each vehicle of the
     files that the root does not have in ``unknown`` (vehicle -> why), when given and another vehicle's files are
@@ -172,7 +177,7 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
 
         ds = NuScenesRadarCamera(data, version, conf={"check_images": False, "reference": conf.reference or None})
         against = "truth" if ds.sim_vehicles else "tables"
-        for line in ds.reference_notes():
+        for line in ds.reference_notes() if say else ():
             print(line, file=sys.stderr)
         _check_exported_from(directory, data, version)
         # a file names its frame by the camera sample_data token (evaluate's export) or the sample (the oracle's)
@@ -555,7 +560,7 @@ def replay_inputs(data, version: str, correspondences: str, conf: CalibrateConfi
     R1/R2 starts come out identical to the run's. Used by the report (residuals, before/after)."""
     conf = merge(CalibrateConfig, conf)
     if correspondences == "oracle":
-        inputs = _load_oracle(data, version, conf)
+        inputs = _load_oracle(data, version, conf, say=False)
     else:
-        inputs = _load_dir(Path(correspondences), data, version, conf)
+        inputs = _load_dir(Path(correspondences), data, version, conf, say=False)
     return {name: (vi, _start(vi, conf)) for name, vi in inputs.items()}

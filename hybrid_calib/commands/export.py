@@ -31,7 +31,7 @@ def run(args: argparse.Namespace) -> int:
     exp = export_mounts(args.results, args.out, args.data, args.version, args.which, args.vehicle, args.overwrite)
     for name, v in exp.vehicles.items():
         line = f"{name}: {v['why']}"
-        if v["exported"]:
+        if v["exported"] and not v.get("carried"):  # a carried mount is the reference's: its why says so
             ch = v["records"][0]["change"]
             written = [f"{w} {a['std']:.2f} {a['unit']}" for w, a in v["std_camera"].items()
                        if a["written"] == "estimate"]  # the kept axes hold the tables' value: no std of ours
@@ -42,7 +42,8 @@ def run(args: argparse.Namespace) -> int:
         print(line)
     for note in exp.notes:
         print(f"note: {note}")
-    refused = [n for n, v in exp.vehicles.items() if v["why"].startswith("not exported")]
+    # a vehicle that carried its reference export's mount was refused its own estimate all the same
+    refused = [n for n, v in exp.vehicles.items() if v.get("own_why", v["why"]).startswith("not exported")]
     print(f"{len(exp.exported)} of {len(exp.vehicles)} vehicle(s) exported"
           + (f", {len(refused)} refused" if refused else "") + "; the camera records are the tables' (taken as "
           f"exact); wrote {Path(args.out) / 'calibrated_sensor.json'} and export.json")

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -72,14 +73,14 @@ def reference_words(source: dict | None) -> str:
 
 def _path_of(path: str | Path) -> Path:
     """The export.json a ``--reference`` names: the file itself, or the export's folder holding it."""
-    p = Path(path)
+    p = Path(os.path.abspath(path))
     if p.is_dir():
         p = p / "export.json"
     if not p.is_file():
         where = "holds no export.json" if Path(path).is_dir() else "does not exist"
         raise DataError(f"--reference {path} {where}; pass the --out folder of a hybrid-calib export run (or its "
                         "export.json)", path=str(p))
-    return p.absolute()
+    return p
 
 
 def _pose(rec, what: str, path: Path, vehicle: str) -> np.ndarray:
@@ -121,6 +122,9 @@ def load_export_reference(path: str | Path) -> ExportReference:
         if not isinstance(entry, dict):
             raise DataError(f"--reference: vehicle {name}'s entry is not an object; export again", path=str(p))
         records = entry.get("records")
+        if not isinstance(entry.get("exported"), bool):  # probe 76: "true" read as kept, its why saying exported
+            raise DataError(f"--reference: vehicle {name}'s 'exported' is {str(entry.get('exported'))[:40]!r}, not "
+                            "true or false; export again", path=str(p))
         if entry.get("exported") is not True:
             kept[name] = str(entry.get("why", ""))
             continue
@@ -146,9 +150,13 @@ def load_export_reference(path: str | Path) -> ExportReference:
 
 
 def absolute_reference(path: str) -> str:
-    """A config's ``reference`` as an absolute path ("" stays ""): a run resumed, reused or reported from another
-    folder reads the same export."""
-    return str(Path(path).absolute()) if path else ""
+    """A config's ``reference`` as one absolute, normalised path of the export.json ("" stays ""): a run resumed,
+    reused or reported from another folder reads the same export, and the folder and its export.json, or a path
+    through "..", are one reference (probe 76: each was "another run")."""
+    if not path:
+        return ""
+    p = Path(os.path.abspath(path))
+    return str(p / "export.json" if p.is_dir() else p)
 
 
 def reference_identity(path: str) -> dict:

@@ -107,6 +107,7 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
         plots = Path(j["out"]) / "plots"
         row["plots"] = sorted(rel_path(p, base) for p in plots.glob("*.png")) if plots.is_dir() else []
         d = vr.drift or {}
+        row["reference"] = d.get("reference") or {"kind": "tables"}  # what "vs tables" and offset_from_tables are from
         row.update(n_frames=vr.n_frames, status=vr.final.status,
                    offset_from_design=dict(zip(keys, camera_offset(T_ref, vr.final.T).tolist())),
                    offset_from_tables=None if j.get("tables_T") is None else dict(zip(
@@ -170,6 +171,9 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
         "schema": SCHEMA, "out": str(base), "method": m.method, "seed": m.seed, "counts": counts,
         "step_test": m.method in STEP_METHODS,
         "design_mount": {"T_cam_radar": T_ref.tolist(), "source": source},
+        # --reference: the earlier export each vehicle it exported was checked against (rows' "reference" say which)
+        "reference": next((j["job"]["calib"]["reference"] for j in m.jobs.values()
+                           if (j["job"].get("calib") or {}).get("reference")), None),
         "fleet_prior": None if pd is None else {k: pd[k] for k in (
             "T_mean", "spread_std_cam", "mean_std_cam", "inliers", "outliers")},
         "vehicles": rows,
@@ -262,6 +266,11 @@ def summary_markdown(s: dict) -> str:
                   f"{', '.join(fp['outliers']) or 'none'}"
                   + (f" (n.r.: not resolved: the vehicles agree within their own 1-sigma along that axis, the spread "
                      f"fitted there is under {UNRESOLVED:g} of it)" if "n.r." in shown else ""), ""]
+    if s.get("reference"):
+        against = [n for n, r in s["vehicles"].items() if (r.get("reference") or {}).get("kind") == "export"]
+        lines += [f"Checked against the earlier export {s['reference']} (--reference): "
+                  f"{', '.join(against) or 'no vehicle'} (their \"verdict vs tables\" and offsets from the tables are "
+                  "against the exported mount); the others against their tables.", ""]
     lines += ["Offsets from the design mount, camera axes (rot x/y/z deg, t x/y/z cm), +- 1 sigma.", "",
               "| vehicle | state | status | rot offset [deg] | t offset [cm] | verdict vs tables | flags | note |",
               "|---|---|---|---|---|---|---|---|"]

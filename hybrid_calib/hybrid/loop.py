@@ -636,7 +636,7 @@ def vehicle_oracle(data, version: str, drive: Drive, conf: HybridConfig) -> Vehi
         raise HybridCalibError("method oracle needs a simulated root (the true reflectors); use hybrid, pure or "
                                "pure-avg on real data")
     cconf = oracle_config(conf, (drive.vehicle,))
-    vi = load_oracle(data, version, cconf, conf.progress)[drive.vehicle]
+    vi = load_oracle(data, version, cconf, conf.progress, say=False)[drive.vehicle]  # open_drives said them
     T0 = start_of(drive, conf)
     res = calibrate_vehicle(vi, cconf, progress=conf.progress, T_start=T0)
     res.config = to_dict(conf)

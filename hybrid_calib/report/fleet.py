@@ -157,6 +157,13 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
     if unwritten:
         items = "".join(f"<li><b>{esc(n)}</b>: {esc(why)}</li>" for n, why in sorted(unwritten.items()))
         missing += f"<h2>Report pages not written ({len(unwritten)})</h2><ul id=\"unwritten\">{items}</ul>"
+    exported = {n: ((vr.drift or {}).get("reference") or {}) for n, (vr, _) in vehicles.items()}
+    exported = {n: src.get("path") for n, src in exported.items() if src.get("kind") == "export"}
+    against = ("<p id=\"reference\">Verdicts checked against an earlier export (--reference), not the tables: "
+               + "; ".join(f"{esc(', '.join(sorted(n for n in exported if exported[n] == path)))} against the mount "
+                           f"in {esc(str(path))}" for path in sorted(set(exported.values())))
+               + ("; the others against their tables" if len(exported) < len(names) else "") + ".</p>"
+               if exported else "")
     total = len(names) + len(not_done)
     body = (f"<h1>Fleet calibration: {n_vehicles(total)}"
             + (f", {len(names)} with a result" if not_done else "") + "</h1>"
@@ -166,7 +173,7 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
             f"{counts['within tolerance']} within tolerance"
             + (f", {len(not_done)} without a result (failed or not run)" if not_done else "") + ".</b> Flagged: "
             f"{esc(', '.join(flagged)) if flagged else 'none'}. Tolerance: "
-            f"{esc(next(iter(verdicts.values())).tolerance)}.</p>"
+            f"{esc(next(iter(verdicts.values())).tolerance)}.</p>{against}"
             f"<h2>Offsets from the {esc(reference)}</h2>{fig}"
             "<h2>Vehicles</h2><p class=meta>Click a column to sort. Offsets: rotation angle and translation norm "
             f"of each estimate from the {esc(reference)} (as the plot above), camera axes; "
