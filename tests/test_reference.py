@@ -17,20 +17,21 @@ VERSION = "v1.0-sim"
 KNOCK = {"kind": "step", "frame": 0, "rotation_deg": [0.0, 0.0, 2.0], "translation_m": [0.0, 0.0, 0.0]}
 
 
-def _sim(root, frames: int, seed: int = 17):
+def _sim(root, frames: int, seed: int = 17, scenario: str = "urban", knock: dict = KNOCK, vehicles: int = 2):
     from hybrid_calib.config import merge
     from hybrid_calib.sim import simulate as sim
     from hybrid_calib.sim.drive import SimConfig
 
-    sim.simulate(merge(SimConfig, {"frames": frames, "vehicles": 2, "image_scale": 0.125, "seed": seed,
-                                   "extrinsic_change": KNOCK}), root, overwrite=False, workers=1)
+    sim.simulate(merge(SimConfig, {"frames": frames, "vehicles": vehicles, "image_scale": 0.125, "seed": seed,
+                                   "scenario": scenario, "extrinsic_change": knock}), root, overwrite=False, workers=1)
     return root
 
 
 @pytest.fixture(scope="module")
 def knocked(tmp_path_factory):
     """(root of a drive with both radars knocked before it, its oracle calibration's result.json, the export
-    folder of it, root of a later drive of the same vehicles: the same seed, more frames)."""
+    folder of it, root of a later drive of the same vehicles: the same seed (the same mounts) in another scenario,
+    so its frames and rows are not drive 1's again, probe 77)."""
     from hybrid_calib.calib.export import export_mounts
     from hybrid_calib.calib.pipeline import calibrate
 
@@ -39,7 +40,7 @@ def knocked(tmp_path_factory):
     calibrate(root, VERSION, "oracle", out, {"window": {"window": 3}}, progress=False)
     exp = tmp_path_factory.mktemp("export")
     export_mounts([out / "result.json"], exp)
-    return root, out / "result.json", exp, _sim(tmp_path_factory.mktemp("drive2"), 8)
+    return root, out / "result.json", exp, _sim(tmp_path_factory.mktemp("drive2"), 8, scenario="highway")
 
 
 def _reader(root, reference=None):
@@ -122,7 +123,7 @@ def test_the_hybrids_mount_monitor_reads_the_radar_at_its_exported_yaw(knocked, 
     doc = json.loads((mine / "export.json").read_text())
     doc["notes"] = ["exported again"]
     (mine / "export.json").write_text(json.dumps(doc))  # the same path, another file: not the result's reference
-    with pytest.raises(HybridCalibError, match="reference_sha256"):
+    with pytest.raises(HybridCalibError, match="the --reference export.s file .exported again at the same path since."):
         run_calibration(later, VERSION, tmp_path / "hr", {**conf, "reference": str(mine)})
 
 
@@ -231,13 +232,15 @@ def test_a_result_depends_on_the_exports_content_not_only_its_path(knocked, tmp_
     doc = json.loads((mine / "export.json").read_text())
     doc["vehicles"]["sim-veh-000"]["records"][0]["after"]["translation"][1] += 0.05  # re-exported since
     (mine / "export.json").write_text(json.dumps(doc))
-    with pytest.raises(HybridCalibError, match="reference_sha256"):
+    with pytest.raises(HybridCalibError, match="the --reference export.s file .exported again at the same path since."):
         calibrate(root, VERSION, "oracle", tmp_path / "c", conf, progress=False)
 
 
 def test_export_of_a_drive_checked_against_an_export_keeps_that_reference(knocked, tmp_path):
     """A later drive's export: the axes it keeps hold the earlier export's values (the reference its verdict used),
     not the old tables' (which would put the knock back); an export changed since the calibration is refused."""
+    from hybrid_calib.calib.covariance import camera_offset
+    from hybrid_calib.calib.drift import AXIS_WORDS
     from hybrid_calib.calib.export import export_mounts
     from hybrid_calib.calib.pipeline import calibrate
     from hybrid_calib.geometry import pose_from_nuscenes
@@ -257,6 +260,12 @@ def test_export_of_a_drive_checked_against_an_export_keeps_that_reference(knocke
         i = ref.frames_by_vehicle()[name][0]
         np.testing.assert_allclose(se3_inverse(cam) @ base, ref.reference_T_cam_radar(ref.frames[i]), atol=1e-9)
         assert entry["reference"]["kind"] == "export"
+        # the axes it keeps hold the earlier export's values (the old tables' would put the knock back)
+        after = pose_from_nuscenes(rec["after"]["rotation"], rec["after"]["translation"])
+        offset = camera_offset(se3_inverse(cam) @ base, se3_inverse(cam) @ after)
+        kept = [AXIS_WORDS.index(w) for w in entry["tables_kept"]]
+        assert kept, entry["tables_kept"]
+        np.testing.assert_allclose(offset[kept], 0.0, atol=1e-7)
     assert new.exported, {n: e["why"] for n, e in new.vehicles.items()}
     assert run.vehicles
     doc = json.loads((mine / "export.json").read_text())
@@ -284,7 +293,7 @@ def test_the_commands_take_reference_and_refuse_a_bad_one_by_name(knocked, tmp_p
         assert main([*cmd, "--reference", str(tmp_path / "nowhere")]) != 0
         err = capsys.readouterr().err
         assert "--reference" in err and "nowhere" in err and "does not exist" in err and "Traceback" not in err
-        assert not (tmp_path / "c" / "result.json").exists()
+        assert not (tmp_path / "c" / "result.json").exists() and not (tmp_path / "f" / "manifest.json").exists()
     assert main(["calibrate", "--data", str(later), "--out", str(tmp_path / "c"), "--no-plots", "--max-frames", "4",
                  "--set", "window.window=3", "--reference", str(exp)]) == 0
     out = capsys.readouterr()
@@ -393,3 +402,42 @@ def test_an_export_chain_carries_the_mount_of_a_drive_that_did_not_move(knocked,
                  str(tmp_path / "e2"), *conf]) == 0
     lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("sim-veh-")]
     assert len(lines) == 2 and not any(": recalibrate" in line for line in lines), lines
+
+
+def test_an_export_of_some_vehicles_carries_the_others_of_its_reference(knocked, tmp_path):
+    """Results of one vehicle of a later drive (the other not calibrated there) exported: the other vehicle of the
+    reference export keeps its exported mount in the new export (probe 77: it vanished, and the next drive read it
+    against the tables from before the knock)."""
+    from hybrid_calib.calib.export import export_mounts
+    from hybrid_calib.calib.pipeline import calibrate
+    from hybrid_calib.data.reference import load_export_reference
+
+    _, _, exp, later = knocked
+    calibrate(later, VERSION, "oracle", tmp_path / "c", {"window": {"window": 3}, "reference": str(exp),
+                                                        "vehicles": ["sim-veh-000"]}, progress=False)
+    new = export_mounts([tmp_path / "c" / "result.json"], tmp_path / "e2")
+    assert new.vehicles["sim-veh-001"]["carried"] and new.vehicles["sim-veh-001"]["own_why"] == "not among the results"
+    e1, e2 = load_export_reference(exp), load_export_reference(tmp_path / "e2")
+    np.testing.assert_allclose(e2.T_cam_radar("sim-veh-001"), e1.T_cam_radar("sim-veh-001"), atol=1e-9)
+
+
+def test_a_mount_change_in_the_tables_is_refused_with_a_reference_too(knocked, tmp_path):
+    """A root whose tables hold two radar-camera calibrations along the drive (a real-like root: no sim_vehicle.json,
+    the records a step inside the drive): one estimate is not written into both records, and an export's mount is
+    not carried into both, with or without --reference (probe 77: the guard compared the export with itself)."""
+    from hybrid_calib.calib.export import export_mounts
+    from hybrid_calib.calib.pipeline import calibrate
+
+    _, _, exp, _ = knocked
+    step = {"kind": "step", "frame": 4, "rotation_deg": [0.0, 0.0, 0.3], "translation_m": [0.0, 0.0, 0.0]}
+    root = _sim(tmp_path / "d", 6, knock=step, vehicles=1)
+    (root / VERSION / "sim_vehicle.json").rename(tmp_path / "sim_vehicle.json.off")
+    for reference in ("", str(exp)):
+        out = tmp_path / f"c{bool(reference)}"
+        calibrate(root, VERSION, "oracle", out, {"window": {"window": 3}, "reference": reference}, progress=False)
+        for which in ("trusted", "recalibrate"):
+            entry = export_mounts([out / "result.json"], tmp_path / f"x{bool(reference)}{which}",
+                                  which=which).vehicles["sim-veh-000"]
+            assert not entry["exported"], entry["why"]
+            assert "more than one radar-camera calibration along the drive" in entry["why"] or (
+                which == "recalibrate" and not reference), entry["why"]

@@ -162,7 +162,7 @@ def _keep_axes(T_ref: np.ndarray, T_est: np.ndarray, kept: list[int]) -> np.ndar
 
 
 def _carry(exp: MountExport, name: str, T_ref: np.ndarray, toks: list[str], pairs: dict, users: dict, index: dict,
-           tables) -> None:
+           ds) -> None:
     """A vehicle checked against an earlier export (``--reference``) and not exported with its own estimate: its
     records get that export's mount (``T_ego_cam T_ref``), marked ``carried``, so that this export is the whole
     calibration a later drive is checked against (probe 76: a drive unmoved since export 1 exported nothing, and the
@@ -173,13 +173,20 @@ def _carry(exp: MountExport, name: str, T_ref: np.ndarray, toks: list[str], pair
     entry = exp.vehicles[name]
     if entry["exported"] or not toks or any(users[tok] - {name} for tok in toks):
         return
-    carried = []
+    carried, tables = [], []
     for tok in toks:
         cams = sorted(pairs[(name, tok)])
-        T_cams = [tables.T_ego_sensor({"token": f"(frames of {name})", "calibrated_sensor_token": c}) for c in cams]
+        T_cams = [ds.tables.T_ego_sensor({"token": f"(frames of {name})", "calibrated_sensor_token": c})
+                  for c in cams]
         if any(not same_calibration(T, T_cams[0]) for T in T_cams[1:]):
             return
         carried.append((tok, T_cams[0]))
+        tables.append(ds.reference_T_cam_radar(next(f for f in ds.frames if f.vehicle == name
+                                                    and f.radar_sd["calibrated_sensor_token"] == tok)))
+    if any(not same_calibration(T, tables[0]) for T in tables[1:]):  # a mount change in the tables: one mount
+        entry["why"] += ("; the reference export's mount is not carried: its tables hold more than one radar-camera "
+                         "calibration along the drive")  # cannot stand for both (probe 77)
+        return
     src = entry.get("reference") or {}
     for tok, T_cam in carried:
         before = {k: exp.table[index[tok]][k] for k in ("translation", "rotation")}
@@ -191,6 +198,26 @@ def _carry(exp: MountExport, name: str, T_ref: np.ndarray, toks: list[str], pair
                  why=f"carried: {len(carried)} radar record(s) hold the mount of the export its verdict compared "
                      f"with ({src.get('path', '--reference')}), unchanged; its own estimate was not written "
                      f"({entry['why']})")
+
+
+def _used_references(found: dict) -> dict:
+    """path -> ``data.reference.ExportReference`` of each earlier export the results' verdicts compared with
+    (``drift.reference``), read again; one that no longer reads, or has changed since (its sha256), is left out
+    (its vehicles' entries say why)."""
+    from hybrid_calib.data.reference import load_export_reference
+
+    out = {}
+    for _, vr in found.values():
+        src = (vr.drift or {}).get("reference") or {}
+        if src.get("kind") != "export" or src.get("path") in out:
+            continue
+        try:
+            ref = load_export_reference(str(src.get("path")))
+        except DataError:
+            continue
+        if ref.sha256 == src.get("sha256"):
+            out[src["path"]] = ref
+    return out
 
 
 def _export_reference(vr, name: str) -> tuple[np.ndarray | None, str]:
@@ -410,12 +437,14 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
                 break
             # kept axes: the reference the verdict compared against (the tables; a simulated root's factory
             # calibration, sim_vehicle.json, since its calibrated_sensor holds the simulator's truth)
-            T_ref = exported_ref if exported_ref is not None else ds.reference_T_cam_radar(
+            # (or the earlier export the run was given: --reference)
+            T_tables = ds.reference_T_cam_radar(
                 next(f for f in ds.frames if f.vehicle == name and f.radar_sd["calibrated_sensor_token"] == tok))
+            T_ref = T_tables if exported_ref is None else exported_ref
             # the change is measured from the reference too (the tables' own record on a real root; on a simulated
             # one its factory calibration, as the verdict: the record there holds the truth)
             new.append((tok, T_cams[0] @ T_ref, T_cams[0] @ _keep_axes(T_ref, T_est, kept), T_cams[0]))
-            refs.append(T_ref)
+            refs.append(T_tables)  # the tables' own, with --reference too (probe 77: the guard below never fired)
         # judged on the reference, as the verdict: a simulated root's records hold the simulator's truth, and a
         # knocked radar's (--extrinsic-change step) was refused as "a mount change" the user's tables do not hold,
         # where a real fleet's one record is exported (probe 50)
@@ -451,14 +480,32 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
                          f" (the tables' {', '.join(AXIS_WORDS[i] for i in kept)} kept: the data do not decide "
                          f"{'it' if len(kept) == 1 else 'them'} against the tolerance)"
                          if kept else ""))
-    for name, T_ref in sorted(carry.items()):  # kept: the reference it was checked against, not the old tables
-        _carry(exp, name, T_ref, sorted(radar_of.get(name, ())), pairs, users, index, t)
     for p, run in runs:  # a vehicle whose calibration failed is named, not dropped
         for name, reason in sorted(run.vehicles_failed.items()):
             if (not vehicles or name in vehicles) and name not in exp.vehicles:
                 exp.vehicles[name] = {"result": str(p), "status": None, "verdict": None, "exported": False,
                                       "why": f"not exported: its calibration failed ({str(reason)[:300]})",
                                       "records": [], "std_ego": None}
+    # a vehicle of the earlier export(s) these results were checked against (--reference) whose own estimate is not
+    # written here (kept, untrusted, failed, or not among the results: probe 77) carries that export's mount
+    used = _used_references(found)
+    for name in sorted(set(carry) | {n for r in used.values() for n in r.mounts}):
+        if vehicles and name not in vehicles:
+            continue
+        Ts = [carry[name]] if name in carry else [r.T_cam_radar(name) for r in used.values() if name in r.mounts]
+        if any(not same_calibration(T, Ts[0]) for T in Ts[1:]):
+            exp.notes.append(f"vehicle {name}: the reference exports of these results hold different mounts for it: "
+                             "none is carried")
+            continue
+        if name not in exp.vehicles:
+            if name not in radar_of:
+                exp.notes.append(f"vehicle {name} of the reference export ({', '.join(sorted(map(str, used)))}) has no "
+                                 f"frame in {root} ({version}): its mount is not carried into this table")
+                continue
+            exp.vehicles[name] = {"result": None, "status": None, "verdict": None, "exported": False,
+                                  "why": "not among the results", "records": [], "std_ego": None,
+                                  "reference": next(r.source(name) for r in used.values() if name in r.mounts)}
+        _carry(exp, name, Ts[0], sorted(radar_of.get(name, ())), pairs, users, index, ds)
     if unstamped:  # a fleet vehicle's result (its stamp is in the fleet's manifest) or an older run's
         exp.notes.append(f"{', '.join(unstamped)} record{'s' if len(unstamped) == 1 else ''} no data stamp beside "
                          "it (data_stamp.json): not checked against the data as they are now")

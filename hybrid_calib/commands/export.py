@@ -44,7 +44,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"note: {note}")
     # a vehicle that carried its reference export's mount was refused its own estimate all the same
     refused = [n for n, v in exp.vehicles.items() if v.get("own_why", v["why"]).startswith("not exported")]
+    carried = [n for n, v in exp.vehicles.items() if v.get("carried")]
     print(f"{len(exp.exported)} of {len(exp.vehicles)} vehicle(s) exported"
+          + (f" ({len(carried)} carrying the reference export's mount unchanged)" if carried else "")
           + (f", {len(refused)} refused" if refused else "") + "; the camera records are the tables' (taken as "
           f"exact); wrote {Path(args.out) / 'calibrated_sensor.json'} and export.json")
     return 1 if refused else 0  # a script can tell "some could not be written" from "nothing needed writing"

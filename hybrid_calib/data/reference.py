@@ -28,11 +28,9 @@ from pathlib import Path
 import numpy as np
 
 from hybrid_calib.errors import DataError
-from hybrid_calib.geometry import se3_inverse, so3_log
+from hybrid_calib.geometry import se3_inverse
 
 EXPORT_SCHEMA = "hybrid-calib/mount-export/v1"  # export.json's "schema" (``calib.export``)
-# two records of one exported vehicle closer than this (deg, cm) hold one calibration (``data.nuscenes``' own rule)
-_SAME = (0.01, 0.1)
 
 
 @dataclass(frozen=True)
@@ -89,6 +87,10 @@ def _pose(rec, what: str, path: Path, vehicle: str) -> np.ndarray:
     if not isinstance(rec, dict):
         raise DataError(f"vehicle {vehicle}: its record's {what!r} is a JSON {type(rec).__name__}, not a "
                         "{translation, rotation} object; export again", path=str(path))
+    missing = [k for k in ("rotation", "translation") if k not in rec]
+    if missing:  # probe 77: a KeyError was an internal error
+        raise DataError(f"vehicle {vehicle}: its {what!r} record has no {' or '.join(missing)}; export again",
+                        path=str(path))
     try:
         return table_pose({**rec, "token": f"{vehicle} {what}"}, path, 100.0, "a sensor mount")
     except DataError as e:
@@ -100,6 +102,8 @@ def load_export_reference(path: str | Path) -> ExportReference:
     """The export.json of ``path`` (a file, or an export's ``--out`` folder) as a reference (module doc);
     ``DataError`` naming the file (and vehicle) when it is not there, not an export, of another schema, or holds a
     record that does not read (an export of an older version without ``camera``: export again)."""
+    from hybrid_calib.data.nuscenes import same_calibration  # (it imports this module)
+
     p = _path_of(path)
     try:
         raw = p.read_bytes()
@@ -140,8 +144,7 @@ def load_export_reference(path: str | Path) -> ExportReference:
             pairs.append((_pose(rec["camera"], "camera", p, name), _pose(rec.get("after"), "after", p, name)))
         Ts = [se3_inverse(c) @ r for c, r in pairs]
         for T in Ts[1:]:
-            deg = float(np.degrees(np.linalg.norm(so3_log(Ts[0][:3, :3].T @ T[:3, :3]))))
-            if deg > _SAME[0] or 100 * float(np.linalg.norm(T[:3, 3] - Ts[0][:3, 3])) > _SAME[1]:
+            if not same_calibration(T, Ts[0]):
                 raise DataError(f"--reference: vehicle {name}'s exported records hold {len(Ts)} radar-camera "
                                 "extrinsics that differ: one reference per vehicle; export it again", path=str(p))
         mounts[name] = pairs[0]

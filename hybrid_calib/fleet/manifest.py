@@ -269,7 +269,7 @@ def _changed_options(old: dict, job: Job) -> list[str]:
                                "file)")
             continue
         if k == "reference_sha256":  # the export --reference names, by content (its path is in calib)
-            if a != b and (a is not None or b is not None):
+            if a != b and a is not None and b is not None:  # given, or left off: said by calib's reference
                 changed.append("the --reference export's file (exported again at the same path, or another file)")
             continue
         if k in ("data", "checkpoint"):

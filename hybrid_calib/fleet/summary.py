@@ -54,7 +54,8 @@ UNRESOLVED = 0.1  # a fleet spread under this fraction of the vehicles' own medi
 
 def design_mount(jobs: list[dict]) -> tuple[np.ndarray, str]:
     """The fleet's design T_cam_radar (4, 4) and where it came from: the recorded design mounts
-    (their mean, when roots record one) or else the mean of the tables' extrinsics."""
+    (their mean, when roots record one) or else the mean of the tables' extrinsics (the vehicles' references: with
+    --reference, an earlier export's mounts)."""
     from hybrid_calib.geometry import local, retract
 
     recorded = [np.asarray(j["design_T"]) for j in jobs if j.get("design_T") is not None]
@@ -64,7 +65,10 @@ def design_mount(jobs: list[dict]) -> tuple[np.ndarray, str]:
     T = Ts[0]
     for _ in range(3):  # Karcher mean on SE(3) (right tangent)
         T = retract(T, np.mean([local(T, Ti) for Ti in Ts], axis=0))
-    return T, "recorded" if recorded else "mean of the tables"
+    referenced = any((j.get("calib") or {}).get("reference") for j in jobs)  # tables_T: the export's where it wrote
+    return T, "recorded" if recorded else (  # one (probe 77: labelled "the tables" on real roots)
+        "mean of the vehicles' references (an earlier export's mounts where --reference replaced the tables)"
+        if referenced else "mean of the tables")
 
 
 def common_cov(jobs: list[dict]) -> np.ndarray:

@@ -191,13 +191,19 @@ def gather(run: CalibrationRun, result_path: Path, vehicle: str, data: str | Pat
         try:
             # this vehicle's rows alone (each vehicle's are drawn from (seed, vehicle): the same; probe 69: every
             # vehicle of the result was replayed for one page)
-            inputs = replay_inputs(root, version, run.correspondences, dataclasses.replace(conf, vehicles=(vehicle,)))
+            # the rows do not depend on the reference (--reference): replayed without it, so an export changed or
+            # removed since the run neither moves the start nor drops the rows (probe 77); the start is the one the
+            # run recorded
+            inputs = replay_inputs(root, version, run.correspondences,
+                                   dataclasses.replace(conf, vehicles=(vehicle,), reference=""))
         except HybridCalibError as e:
             inputs = {}
             ev.notes.append(f"the run's rows could not be rebuilt ({e})")
         if vehicle in inputs:
             vi, ev.start = inputs[vehicle]
-            ev.start_label = ("the vehicle's reference (its calibration tables)" if conf.start == "reference"
+            recorded, _ = _recorded_start(vr)
+            ev.start = ev.start if recorded is None else recorded
+            ev.start_label = (f"the vehicle's reference ({_reference_name(vr)})" if conf.start == "reference"
                               else f"the run's {conf.start} start (perturbed truth, seed {conf.seed})")
             factor_conf, gate = _factor_and_gate(conf, run.mode)
             seg = segment_estimates(vr)
@@ -246,6 +252,12 @@ def _check_frames_there(root: Path, version: str, vehicle: str, vr, run: Calibra
                                     "the run calibrated, or leave --data out")
 
 
+def _reference_name(vr) -> str:
+    """What a result's reference was, in a few words: its calibration tables, or the earlier export it was given."""
+    src = (getattr(vr, "drift", None) or {}).get("reference") or {}
+    return f"the mount exported in {src.get('path')}" if src.get("kind") == "export" else "its calibration tables"
+
+
 def _recorded_start(vr) -> tuple[np.ndarray | None, str]:
     """(4, 4) the start a vehicle's result recorded (``VehicleResult.start``: learned methods) and what it
     was, or (None, "") when it recorded none or an unusable one."""
@@ -260,7 +272,7 @@ def _recorded_start(vr) -> tuple[np.ndarray | None, str]:
         return None, ""
     kind = str(rec.get("kind", ""))
     if kind == "reference":
-        return T, "the vehicle's reference (its calibration tables)"
+        return T, f"the vehicle's reference ({_reference_name(vr)})"
     return T, f"the run's {kind} start (seed {rec.get('seed')})"
 
 
