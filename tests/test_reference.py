@@ -441,3 +441,26 @@ def test_a_mount_change_in_the_tables_is_refused_with_a_reference_too(knocked, t
             assert not entry["exported"], entry["why"]
             assert "more than one radar-camera calibration along the drive" in entry["why"] or (
                 which == "recalibrate" and not reference), entry["why"]
+
+
+def test_the_report_replays_a_run_whose_reference_changed_since_from_its_recorded_start(knocked, tmp_path):
+    from hybrid_calib.calib.pipeline import calibrate
+    from hybrid_calib.calib.result import CalibrationRun
+    from hybrid_calib.report.evidence import gather
+
+    _, _, exp, later = knocked
+    mine = tmp_path / "exp"
+    shutil.copytree(exp, mine)
+    calibrate(later, VERSION, "oracle", tmp_path / "r", {"window": {"window": 3}, "vehicles": ["sim-veh-000"],
+                                                        "max_frames": 3, "reference": str(mine)}, progress=False)
+    doc = json.loads((mine / "export.json").read_text())
+    doc["vehicles"]["sim-veh-000"]["records"][0]["after"]["translation"][1] += 0.3  # re-exported since
+    (mine / "export.json").write_text(json.dumps(doc))
+    result = tmp_path / "r" / "result.json"
+    run = CalibrationRun.load(result)
+    ev = gather(run, result, "sim-veh-000", None, None, 0)
+    np.testing.assert_array_equal(ev.start, run.vehicles["sim-veh-000"].start["T_cam_radar"])
+    assert ev.residuals is not None  # the rows do not depend on the reference
+    assert ev.start_label == f"the vehicle's reference (the mount exported in {mine / 'export.json'})"
+    (mine / "export.json").unlink()  # removed since: the rows and the start still replay
+    assert gather(run, result, "sim-veh-000", None, None, 0).residuals is not None
