@@ -3,13 +3,15 @@ told, on seeds none of the code was tuned on.
 
 Per seed: drive 1 (``--frames`` keyframes, urban, 2 vehicles, ``image_scale`` 0.25) with both radars knocked
 ``--knock`` deg in yaw before the drive; calibrated (``--method``) and exported (``export --which recalibrate``).
-Then two later drives of the same vehicles (the same seed, ``--frames`` + 6 keyframes): B, nothing moved since the
-export; C, the radar turned by another ``--again`` deg in yaw before it. Each later drive is calibrated against its
-tables and against the export; per vehicle the verdict, the yaw difference and its 1-sigma, and (hybrid) the radar
-mount monitor's level are recorded in ``OUT/later_drives.json``; the printed table counts the verdicts.
+Then two later drives of the same vehicles (the same seed, so the same mounts, in ``--later-scenario``, so other
+frames and rows than drive 1's: the same seed and scenario would re-simulate drive 1; ``--frames`` + 6 keyframes): B,
+nothing moved since the export; C, the radar turned by another ``--again`` deg in yaw before it. Each later drive is
+calibrated against its tables and against the export; per vehicle the verdict, the yaw difference and its 1-sigma,
+and (hybrid) the radar mount monitor's level are recorded in ``OUT/later_drives.json``; the printed table counts the
+verdicts.
 
     PYTHONPATH=. .venv/bin/python benchmarks/later_drives.py --out outputs/bench_later [--method hybrid]
-        [--seeds 9101 9102 9103 9104 9105] [--frames 24] [--knock 2] [--again 1]
+        [--seeds 9101 9102 9103 9104 9105] [--frames 24] [--knock 2] [--again 1] [--later-scenario highway]
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from pathlib import Path
 VERSION = "v1.0-sim"
 
 
-def _sim(root: Path, seed: int, frames: int, yaw_deg: float) -> Path:
+def _sim(root: Path, seed: int, frames: int, yaw_deg: float, scenario: str = "urban") -> Path:
     from hybrid_calib.config import merge
     from hybrid_calib.sim import simulate as sim
     from hybrid_calib.sim.drive import SimConfig
@@ -29,7 +31,8 @@ def _sim(root: Path, seed: int, frames: int, yaw_deg: float) -> Path:
     if not (root / VERSION / "sim_vehicle.json").is_file():
         knock = {"kind": "step", "frame": 0, "rotation_deg": (0.0, 0.0, yaw_deg), "translation_m": (0.0, 0.0, 0.0)}
         sim.simulate(merge(SimConfig, {"frames": frames, "vehicles": 2, "image_scale": 0.25, "seed": seed,
-                                       "extrinsic_change": knock}), root, overwrite=True, workers=1)
+                                       "scenario": scenario, "extrinsic_change": knock}), root, overwrite=True,
+                     workers=1)
     return root
 
 
@@ -62,6 +65,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=24)
     ap.add_argument("--knock", type=float, default=2.0)
     ap.add_argument("--again", type=float, default=1.0)
+    ap.add_argument("--later-scenario", default="highway", choices=("urban", "highway", "rain", "straight"))
     a = ap.parse_args()
     records = []
     for seed in a.seeds:
@@ -69,13 +73,13 @@ def main() -> None:
         d1 = _sim(base / "drive1", seed, a.frames, a.knock)
         first = _calibrate(d1, base / f"cal1-{a.method}", a.method)
         exp = export_mounts([base / f"cal1-{a.method}" / "result.json"], base / f"export-{a.method}", overwrite=True)
-        b = _sim(base / "driveB", seed, a.frames + 6, a.knock)
-        c = _sim(base / "driveC", seed, a.frames + 6, a.knock + a.again)
+        b = _sim(base / f"driveB-{a.later_scenario}", seed, a.frames + 6, a.knock, a.later_scenario)
+        c = _sim(base / f"driveC-{a.later_scenario}", seed, a.frames + 6, a.knock + a.again, a.later_scenario)
         ref = str(base / f"export-{a.method}")
         rec = {"seed": seed, "drive1": _rows(first), "exported": exp.exported,
-               "B_tables": _rows(_calibrate(b, base / f"B-tables-{a.method}", a.method)),
-               "B_export": _rows(_calibrate(b, base / f"B-export-{a.method}", a.method, ref)),
-               "C_export": _rows(_calibrate(c, base / f"C-export-{a.method}", a.method, ref))}
+               "B_tables": _rows(_calibrate(b, base / f"B-tables-{a.method}-{a.later_scenario}", a.method)),
+               "B_export": _rows(_calibrate(b, base / f"B-export-{a.method}-{a.later_scenario}", a.method, ref)),
+               "C_export": _rows(_calibrate(c, base / f"C-export-{a.method}-{a.later_scenario}", a.method, ref))}
         records.append(rec)
         print(f"seed {seed}: exported {rec['exported']}; " + "; ".join(
             f"{k} " + ", ".join(f"{v['verdict']} ({v['yaw_delta_deg']:+.2f} deg)" for v in rec[k].values())
