@@ -512,7 +512,8 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
     if ds.sim_vehicles and exp.exported:  # probe 50: copied into a root as said, it replaced the truth in silence
         exp.notes.append("a simulated root: its calibrated_sensor.json holds the simulator's truth (and the records "
                          "not exported still do), while the verdicts compared with each vehicle's factory calibration "
-                         "(sim_vehicle.json); a copy of the root with this table measures its errors against the "
+                         "(sim_vehicle.json; or the earlier export a run was given with --reference); a copy of "
+                         "the root with this table measures its errors against the "
                          "exported mounts, not the truth, and keeps the same reference for its verdicts")
     if out is not None:
         exp.save(out)

@@ -29,7 +29,8 @@ Bad input policy:
   T_ego_cam, T_ego_radar: calibrated_sensor extrinsics; T_global_ego_cam, T_global_ego_radar: ego
   poses at the two timestamps; T_cam_radar_static: inv(T_ego_cam) T_ego_radar (no ego motion);
   reference_T_cam_radar: the reference a drift detector compares against (the simulated vehicle's
-  factory calibration for v1.0-sim roots with sim_vehicle.json, else T_cam_radar_static);
+  factory calibration for v1.0-sim roots with sim_vehicle.json, else T_cam_radar_static; with
+  ``DataConfig.reference``, an earlier export's mount for the vehicles it wrote: ``data.reference``);
   radar_rows: (N,) int64 rows of the newest PCD kept after NaN removal and filtering (single sweep);
   radar_truth_path: simulator per-point truth (.npz, rows aligned with the unfiltered PCD; single
   sweep); radar_sweep_index (N,) int16 and radar_sweep_dt_s (N,) float32; radar_points_raw,
@@ -683,13 +684,15 @@ class NuScenesRadarCamera:
         return out
 
     def reference_T_cam_radar(self, ref: FrameRef) -> np.ndarray:
-        """(4, 4) the vehicle's calibration tables' T_cam_radar at frame ``ref`` (``_reference``), from the tables
-        alone (no sensor file read); ``DataError`` / ``KeyError`` when its calibrated_sensor records do not read."""
+        """(4, 4) the vehicle's reference T_cam_radar at frame ``ref`` (``_reference``: its calibration tables, or the
+        mount an earlier export wrote, ``DataConfig.reference``), from the tables alone (no sensor file read);
+        ``DataError`` / ``KeyError`` when its calibrated_sensor records do not read."""
         T_ego_cam = self.tables.T_ego_sensor(ref.camera_sd)
         return self._reference(ref, T_ego_cam, se3_inverse(T_ego_cam) @ self.tables.T_ego_sensor(ref.radar_sd))
 
     def _reference(self, ref: FrameRef, T_ego_cam: np.ndarray, T_cam_radar_static: np.ndarray) -> np.ndarray:
-        """The extrinsic a drift detector compares against: the vehicle's calibration tables. In a
+        """The extrinsic a drift detector compares against: the vehicle's calibration tables (or, with
+        ``DataConfig.reference``, the mount an earlier export wrote for it: ``_reference_mounts``). In a
         v1.0-sim root ``calibrated_sensor`` carries the simulator's ground truth, so the tables a
         real vehicle would have are ``sim_vehicle.json``'s factory calibration (truth + calibration
         error); roots simulated before it existed fall back to the nominal (fleet design) mount, real
