@@ -120,6 +120,39 @@ def test_the_hybrids_mount_monitor_reads_the_radar_at_its_exported_yaw(knocked, 
     assert abs(lv0["level_deg"]) > 1.5  # the knock, against the tables
     assert abs(lv["level_deg"]) < 0.3, lv  # against the exported mount: where the radar is
     assert ref.drift["reference"]["kind"] == "export" and plain.drift["reference"] == {"kind": "tables"}
+    # its export records the Doppler level against the mount it writes (a later drive compares its own with it)
+    from scipy.spatial.transform import Rotation
+
+    from hybrid_calib.calib.export import export_mounts
+    from hybrid_calib.data.reference import load_export_reference
+
+    # (an 8-frame drive decides no axis: it carries the earlier export's mount, and records its own Doppler level
+    # against it, the earlier export being an oracle one without)
+    entry = export_mounts([tmp_path / "hr" / "result.json"], tmp_path / "e2", which="trusted").vehicles["sim-veh-000"]
+    assert entry["exported"], entry["why"]
+    M = load_export_reference(mine).mounts["sim-veh-000"][1]  # what the level was measured against
+    after = load_export_reference(tmp_path / "e2").mounts["sim-veh-000"][1]
+    turn = np.degrees(Rotation.from_matrix(after[:3, :3] @ M[:3, :3].T).as_rotvec()[2])
+    assert entry["doppler"]["level_deg"] == pytest.approx(lv["level_deg"] - turn, abs=1e-9)
+    assert entry["doppler"]["std_deg"] == lv["std_deg"]
+    assert load_export_reference(tmp_path / "e2").source("sim-veh-000")["doppler"]["level_deg"] == pytest.approx(
+        lv["level_deg"] - turn, abs=1e-9)
+    # its own estimate written (the per-axis test edited to decide yaw and lateral): the level turned onto it
+    from hybrid_calib.calib.result import CalibrationRun
+
+    run = CalibrationRun.load(tmp_path / "hr" / "result.json")
+    vr = run.vehicles["sim-veh-000"]
+    vr.drift = {**vr.drift, "verdict_kind": "within tolerance", "verdict": "within tolerance: (edited)", "axes": {
+        w: {**a, "decision": "within" if w in ("yaw", "lateral offset") else "undecided"}
+        for w, a in vr.drift["axes"].items()}}
+    run.save(tmp_path / "hr" / "result.json")
+    entry = export_mounts([tmp_path / "hr" / "result.json"], tmp_path / "e3", which="trusted",
+                          overwrite=True).vehicles["sim-veh-000"]
+    assert entry["exported"] and not entry.get("carried"), entry["why"]
+    after = load_export_reference(tmp_path / "e3").mounts["sim-veh-000"][1]
+    turn = np.degrees(Rotation.from_matrix(after[:3, :3] @ M[:3, :3].T).as_rotvec()[2])
+    assert abs(turn) > 1e-4  # the estimate's yaw, not the reference's, is written
+    assert entry["doppler"]["level_deg"] == pytest.approx(lv["level_deg"] - turn, abs=1e-9)
     doc = json.loads((mine / "export.json").read_text())
     doc["notes"] = ["exported again"]
     (mine / "export.json").write_text(json.dumps(doc))  # the same path, another file: not the result's reference
@@ -464,3 +497,41 @@ def test_the_report_replays_a_run_whose_reference_changed_since_from_its_recorde
     assert ev.start_label == f"the vehicle's reference (the mount exported in {mine / 'export.json'})"
     (mine / "export.json").unlink()  # removed since: the rows and the start still replay
     assert gather(run, result, "sim-veh-000", None, None, 0).residuals is not None
+
+
+def _drift(level_then: float | None, kind: str = "cannot tell") -> dict:
+    """A drift block checked against an export whose drive's Doppler level was ``level_then`` (None: not recorded)."""
+    ref = {"kind": "export", "path": "/x/export.json", "sha256": "0"}
+    if level_then is not None:
+        ref["doppler"] = {"level_deg": level_then, "std_deg": 0.03}
+    return {"verdict_kind": kind, "verdict": f"{kind}: (a test)", "drifted": kind == "recalibrate",
+            "axes": {"yaw": {"tolerance": 0.5, "delta": 0.0, "std": 0.3}}, "reference": ref}
+
+
+@pytest.mark.parametrize("then, now, turned", [
+    (0.2, 1.25, True),  # 1.05 deg since the export: beyond 0.5 + 3 x 0.11
+    (0.2, 1.0, False),  # 0.8 deg: not beyond its 3-sigma
+    (-0.3, -1.4, True),  # the other way
+    (None, 1.25, False),  # an export without the Doppler record: nothing to compare
+])
+def test_a_turn_since_the_export_is_told_by_the_doppler_drive_against_drive(then, now, turned):
+    """The radar mount monitor's level on this drive against the level the export recorded on its own drive (both
+    against the exported mount): the same measurement twice, so the Doppler's bias cancels; a 1 deg turn the
+    hybrid's yaw (0.3 deg at 1 sigma) left at "cannot tell" on 9 of 9 radars (docs/benchmarks.md)."""
+    from hybrid_calib.calib.drift import turned_since_export, with_turn_since_export
+    from hybrid_calib.calib.result import Estimate, VehicleResult
+    from hybrid_calib.report.verdict import verdict_of
+
+    mount = {"levels": [{"level_deg": now, "std_deg": 0.03, "pairs": 200}], "steps": []}
+    d = with_turn_since_export(_drift(then), mount)
+    assert (d["verdict_kind"] == "recalibrate") is turned, d["verdict"]
+    if turned:
+        assert d["at_end"]["verdict_kind"] == "cannot tell"
+        assert "since the export it is checked against (/x/export.json)" in d["verdict"]
+        assert ("to the left" if now > then else "to the right") in d["verdict"]
+        vr = VehicleResult("v", Estimate(np.eye(4), np.eye(6) * 1e-4, np.full(6, 0.01), "ok"), drift=d, mount=mount)
+        assert verdict_of(vr).word == "recalibrate"  # the report says it too
+    assert with_turn_since_export(_drift(then, "recalibrate"), mount)["verdict"] == "recalibrate: (a test)"
+    steps = {**mount, "steps": [{"step_deg": 1.0, "std_deg": 0.1, "change": 3, "at": 5}],
+             "levels": mount["levels"] * 2}
+    assert turned_since_export(_drift(then), steps, 0.5) == ""  # a step inside the drive: with_mount_step's case

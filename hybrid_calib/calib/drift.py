@@ -446,6 +446,48 @@ def with_mount_step(drift: dict, mount: dict | None) -> dict:
             "verdict": f"recalibrate: {turned} Against the reference at the drive's end: {drift.get('verdict')}"}
 
 
+def turned_since_export(drift: dict | None, mount: dict | None, rot_tol_deg: float) -> str:
+    """A sentence when the drive was checked against an earlier export that recorded the radar's Doppler level on
+    the drive it came from (``drift["reference"]["doppler"]``: the radar's yaw on the vehicle against the written mount,
+    ``calib.export``), and this drive's one level (``mount_monitor.sole_level``, against the same mount) differs from
+    it beyond ``rot_tol_deg`` with its 3-sigma; else "". The two levels are the same measurement on two drives, so
+    the Doppler's own bias cancels (the level's std, both drives', and ``LEVEL_BIAS_DEG`` for how far that bias varies
+    from drive to drive); the hybrid's yaw alone, 0.3 deg at 1 sigma, missed a 1 deg turn since the export on 9 of 9
+    radars (docs/benchmarks.md "Later drives")."""
+    from hybrid_calib.calib.mount_monitor import LEVEL_BIAS_DEG, sole_level, turn_words
+
+    src = (drift or {}).get("reference") or {}
+    then = src.get("doppler") if src.get("kind") == "export" else None
+    lv = sole_level(mount)
+    if not isinstance(then, dict) or lv is None:
+        return ""
+    try:
+        delta = float(lv["level_deg"]) - float(then["level_deg"])
+        std = float(np.sqrt(float(lv["std_deg"]) ** 2 + float(then["std_deg"]) ** 2 + LEVEL_BIAS_DEG ** 2))
+    except (KeyError, TypeError, ValueError):
+        return ""
+    if not (np.isfinite(delta) and np.isfinite(std)) or abs(delta) - 3 * std <= rot_tol_deg:
+        return ""
+    return (f"The radar turned on the vehicle by {turn_words(delta, std, 3)} since the export it is checked against "
+            f"({src.get('path')}), beyond the {rot_tol_deg:g} deg tolerance (the radar mount monitor: its Doppler "
+            "heading against the ego poses on this drive, against the same on the drive the export came from).")
+
+
+def with_turn_since_export(drift: dict, mount: dict | None) -> dict:
+    """``drift`` with its verdict "recalibrate" when ``turned_since_export`` says so (as ``with_mount_step`` for a
+    step inside the drive; the verdict against the reference at the end kept in ``at_end``); unchanged otherwise or
+    when it already says "recalibrate"."""
+    tol = ((drift.get("axes") or {}).get("yaw") or {}).get("tolerance")
+    if drift.get("verdict_kind") == "recalibrate" or tol is None:
+        return drift
+    turned = turned_since_export(drift, mount, float(tol))
+    if not turned:
+        return drift
+    keys = ("verdict_kind", "verdict", "drifted")
+    return {**drift, "at_end": {k: drift.get(k) for k in keys}, "verdict_kind": "recalibrate", "drifted": True,
+            "verdict": f"recalibrate: {turned} Against the reference at the drive's end: {drift.get('verdict')}"}
+
+
 def camera_side_note(drift: dict, mount: dict | None) -> dict:
     """``drift`` with a sentence added when it says the yaw differs from the tables while the radar mount monitor
     (``calib.mount_monitor``: the radar's yaw on the vehicle from its Doppler against the ego poses) reads the radar

@@ -161,8 +161,8 @@ def _keep_axes(T_ref: np.ndarray, T_est: np.ndarray, kept: list[int]) -> np.ndar
     return T
 
 
-def _carry(exp: MountExport, name: str, T_ref: np.ndarray, toks: list[str], pairs: dict, users: dict, index: dict,
-           ds) -> None:
+def _carry(exp: MountExport, name: str, T_ref: np.ndarray, doppler: dict | None, vr, M_level: np.ndarray | None,
+           toks: list[str], pairs: dict, users: dict, index: dict, ds) -> None:
     """A vehicle checked against an earlier export (``--reference``) and not exported with its own estimate: its
     records get that export's mount (``T_ego_cam T_ref``), marked ``carried``, so that this export is the whole
     calibration a later drive is checked against (probe 76: a drive unmoved since export 1 exported nothing, and the
@@ -194,10 +194,36 @@ def _carry(exp: MountExport, name: str, T_ref: np.ndarray, toks: list[str], pair
         exp.table[index[tok]] = {**exp.table[index[tok]], **_record(T_new)}
         entry["records"].append({"token": tok, "before": before, "reference": _record(T_new), "after": _record(T_new),
                                  "change": _change(T_new, T_new), "change_from": "reference", "camera": _record(T_cam)})
+    # the Doppler level against that mount: as the earlier export recorded it (the mount is the same), else this
+    # drive's (``vr``: a drive that did not read a turn since), turned onto the written record
+    doppler = doppler or (None if vr is None else _doppler_record(vr, carried[0][1] @ T_ref, M_level))
+    if doppler:
+        entry["doppler"] = doppler
     entry.update(exported=True, carried=True, own_why=entry["why"],
                  why=f"carried: {len(carried)} radar record(s) hold the mount of the export its verdict compared "
                      f"with ({src.get('path', '--reference')}), unchanged; its own estimate was not written "
                      f"({entry['why']})")
+
+
+def _doppler_record(vr, T_written: np.ndarray, M_ref: np.ndarray) -> dict | None:
+    """The radar mount monitor's one level of the drive (``sole_level``: no step, plausible), turned from the mount
+    it was measured against (``M_ref`` (4, 4), the run's reference radar mount) to the written one (``T_written``):
+    the radar's yaw on the vehicle minus the written mount's, by its Doppler against the ego poses [deg]. A later
+    drive checked against this export compares its own level with it (``calib.drift.turned_since_export``); None
+    without such a level."""
+    from scipy.spatial.transform import Rotation
+
+    from hybrid_calib.calib.mount_monitor import sole_level
+
+    lv = sole_level(getattr(vr, "mount", None))
+    if lv is None:
+        return None
+    level, std = float(lv.get("level_deg", np.nan)), float(lv.get("std_deg", np.nan))
+    turn = float(np.degrees(Rotation.from_matrix(T_written[:3, :3] @ M_ref[:3, :3].T).as_rotvec()[2]))  # ego z
+    if not (np.isfinite(level) and np.isfinite(std)):
+        return None
+    return {"level_deg": level - turn, "std_deg": std, "pairs": int(lv.get("pairs", 0)),
+            "of": "the radar's yaw on the vehicle minus the written mount's (its Doppler against the ego poses), deg"}
 
 
 def _used_references(found: dict) -> dict:
@@ -220,10 +246,11 @@ def _used_references(found: dict) -> dict:
     return out
 
 
-def _export_reference(vr, name: str) -> tuple[np.ndarray | None, str]:
-    """(the (4, 4) reference T_cam_radar of an earlier export the result's verdict compared with, or None for the
-    tables; why the vehicle is not exported, or ""): the export is read again and must be the file the calibration
-    read (its sha256), else the kept axes and the change would be of another reference than the verdict's."""
+def _export_reference(vr, name: str):
+    """(the earlier export the result's verdict compared with, ``data.reference.ExportReference`` naming ``name``,
+    or None for the tables; why the vehicle is not exported, or ""): the export is read again and must be the file
+    the calibration read (its sha256), else the kept axes and the change would be of another reference than the
+    verdict's."""
     from hybrid_calib.data.reference import load_export_reference
 
     src = (vr.drift or {}).get("reference")
@@ -234,11 +261,10 @@ def _export_reference(vr, name: str) -> tuple[np.ndarray | None, str]:
     except DataError as e:
         return None, (f"not exported: the export its verdict compared with (--reference {src.get('path')}) does not "
                       f"read now ({e}); restore it, or calibrate again")
-    T = ref.T_cam_radar(name)
-    if ref.sha256 != src.get("sha256") or T is None:
+    if ref.sha256 != src.get("sha256") or name not in ref.mounts:
         return None, (f"not exported: the export its verdict compared with ({ref.path}) has been replaced since the "
                       "calibration; calibrate again against the export as it is now")
-    return T, ""
+    return ref, ""
 
 
 def _why_not(vr, which: str) -> str:
@@ -386,7 +412,8 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
     exp = MountExport(str(root), version, which, [str(p) for p in paths],
                       table=[dict(rec) for rec in t.records["calibrated_sensor"]])
     index = {rec["token"]: i for i, rec in enumerate(exp.table)}
-    carry: dict[str, np.ndarray] = {}  # vehicle -> the reference export's T_cam_radar its verdict compared with
+    carry: dict[str, tuple] = {}  # vehicle -> (the reference export's T_cam_radar its verdict compared with, its
+    # Doppler record or None, the result whose level may stand for it or None, the radar mount the level is against)
     for name, (p, vr) in sorted(found.items()):
         entry = {"result": str(p), "status": vr.final.status, "verdict": (vr.drift or {}).get("verdict"),
                  "exported": False, "why": "", "records": [], "std_ego": None}
@@ -395,10 +422,12 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
             entry["reference"] = vr.drift["reference"]
         # an earlier export the verdict compared with (--reference): read again first, a changed one refused whatever
         # the verdict (probe 76: the default --which said only "kept the tables" for one edited since)
-        exported_ref, ref_why = (None, "") if p in stale else _export_reference(vr, name)
+        ref_obj, ref_why = (None, "") if p in stale else _export_reference(vr, name)
+        exported_ref = None if ref_obj is None else ref_obj.T_cam_radar(name)
         why = (f"not exported: {stale[p]}" if p in stale else "") or ref_why or _why_not(vr, which)
-        if exported_ref is not None:
-            carry[name] = exported_ref
+        if ref_obj is not None:  # the earlier export's Doppler record, else this drive's (against the same mount)
+            own = vr if (vr.drift or {}).get("verdict_kind") != "recalibrate" else None  # unless it turned since
+            carry[name] = (exported_ref, ref_obj.doppler.get(name), own, ref_obj.mounts[name][1])
         toks = sorted(radar_of.get(name, ()))
         if not why and not toks:
             skips = ds.skipped  # the index's own problems (a record that does not resolve drops its frames)
@@ -441,6 +470,9 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
             T_tables = ds.reference_T_cam_radar(
                 next(f for f in ds.frames if f.vehicle == name and f.radar_sd["calibrated_sensor_token"] == tok))
             T_ref = T_tables if exported_ref is None else exported_ref
+            if not new:  # the mount the radar mount monitor measured against (the reference's radar record)
+                M_ref = ds.reference_T_ego_radar(next(f for f in ds.frames if f.vehicle == name)) \
+                    if ref_obj is None else ref_obj.mounts[name][1]
             # the change is measured from the reference too (the tables' own record on a real root; on a simulated
             # one its factory calibration, as the verdict: the record there holds the truth)
             new.append((tok, T_cams[0] @ T_ref, T_cams[0] @ _keep_axes(T_ref, T_est, kept), T_cams[0]))
@@ -474,6 +506,8 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
                                      # extrinsic is inv(camera) after (data.reference, --reference)
                                      "camera": _record(T_cam)})
         cov = np.asarray(vr.final.cov, np.float64)
+        if doppler := _doppler_record(vr, new[0][2], M_ref):
+            entry["doppler"] = doppler
         entry.update(exported=True, std_ego=_std_ego(new[0][2], cov), std_camera=_std_camera(T_est, cov, kept),
                      tables_kept=[AXIS_WORDS[i] for i in kept],
                      why=f"exported: {len(new)} radar record(s) replaced" + (
@@ -492,8 +526,9 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
     for name in sorted(set(carry) | {n for r in used.values() for n in r.mounts}):
         if vehicles and name not in vehicles:
             continue
-        Ts = [carry[name]] if name in carry else [r.T_cam_radar(name) for r in used.values() if name in r.mounts]
-        if any(not same_calibration(T, Ts[0]) for T in Ts[1:]):
+        Ts = [carry[name]] if name in carry else [(r.T_cam_radar(name), r.doppler.get(name), None, None)
+                                                  for r in used.values() if name in r.mounts]
+        if any(not same_calibration(T, Ts[0][0]) for T, _ in Ts[1:]):
             exp.notes.append(f"vehicle {name}: the reference exports of these results hold different mounts for it: "
                              "none is carried")
             continue
@@ -505,7 +540,7 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
             exp.vehicles[name] = {"result": None, "status": None, "verdict": None, "exported": False,
                                   "why": "not among the results", "records": [], "std_ego": None,
                                   "reference": next(r.source(name) for r in used.values() if name in r.mounts)}
-        _carry(exp, name, Ts[0], sorted(radar_of.get(name, ())), pairs, users, index, ds)
+        _carry(exp, name, *Ts[0], sorted(radar_of.get(name, ())), pairs, users, index, ds)
     if unstamped:  # a fleet vehicle's result (its stamp is in the fleet's manifest) or an older run's
         exp.notes.append(f"{', '.join(unstamped)} record{'s' if len(unstamped) == 1 else ''} no data stamp beside "
                          "it (data_stamp.json): not checked against the data as they are now")

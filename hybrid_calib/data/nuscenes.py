@@ -683,6 +683,12 @@ class NuScenesRadarCamera:
                            "of that name): it is checked against the exported radar-camera extrinsic")
         return out
 
+    def reference_T_ego_radar(self, ref: FrameRef) -> np.ndarray:
+        """(4, 4) the radar mount of the vehicle's reference at frame ``ref`` (``_reference_mounts``: what the radar
+        mount monitor's level is measured against), from the tables alone."""
+        T_ego_cam = self.tables.T_ego_sensor(ref.camera_sd)
+        return self._reference_mounts(ref, T_ego_cam, self.tables.T_ego_sensor(ref.radar_sd))[1]
+
     def reference_T_cam_radar(self, ref: FrameRef) -> np.ndarray:
         """(4, 4) the vehicle's reference T_cam_radar at frame ``ref`` (``_reference``: its calibration tables, or the
         mount an earlier export wrote, ``DataConfig.reference``), from the tables alone (no sensor file read);

@@ -44,6 +44,9 @@ class ExportReference:
     mounts: dict[str, tuple[np.ndarray, np.ndarray]] = field(repr=False, default_factory=dict)  # vehicle ->
     # (T_ego_cam, T_ego_radar), each (4, 4): the camera record the export read and the radar record it wrote
     kept: dict[str, str] = field(default_factory=dict)  # vehicle -> why the export kept its tables (its "why")
+    # vehicle -> {"level_deg", "std_deg", ...}: the radar's yaw on the vehicle against the written mount, its Doppler
+    # against the ego poses on the drive the export came from (``calib.drift.turned_since_export``), where recorded
+    doppler: dict[str, dict] = field(default_factory=dict)
 
     def T_cam_radar(self, vehicle: str) -> np.ndarray | None:
         """(4, 4) the exported extrinsic of ``vehicle``, or None when the export did not replace its mount."""
@@ -55,7 +58,8 @@ class ExportReference:
         "path", "sha256", "from": "ROOT (VERSION)"} for an exported vehicle, else {"kind": "tables", "why"}."""
         if vehicle in self.mounts:
             return {"kind": "export", "path": str(self.path), "sha256": self.sha256,
-                    "from": f"{self.data} ({self.version})"}
+                    "from": f"{self.data} ({self.version})",
+                    **({"doppler": self.doppler[vehicle]} if vehicle in self.doppler else {})}
         why = self.kept.get(vehicle)
         return {"kind": "tables", "why": (f"the export {self.path} kept its tables ({why[:200]})" if why else
                                           f"the export {self.path} does not name it")}
@@ -122,6 +126,7 @@ def load_export_reference(path: str | Path) -> ExportReference:
                         path=str(p))
     mounts: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     kept: dict[str, str] = {}
+    doppler: dict[str, dict] = {}
     for name, entry in vehicles.items():
         if not isinstance(entry, dict):
             raise DataError(f"--reference: vehicle {name}'s entry is not an object; export again", path=str(p))
@@ -148,8 +153,17 @@ def load_export_reference(path: str | Path) -> ExportReference:
                 raise DataError(f"--reference: vehicle {name}'s exported records hold {len(Ts)} radar-camera "
                                 "extrinsics that differ: one reference per vehicle; export it again", path=str(p))
         mounts[name] = pairs[0]
+        if (dop := entry.get("doppler")) is not None:
+            try:
+                level, std = float(dop["level_deg"]), float(dop["std_deg"])
+                if not (np.isfinite(level) and np.isfinite(std) and std >= 0):
+                    raise ValueError("not finite, or a negative std")
+            except (KeyError, TypeError, ValueError) as e:
+                raise DataError(f"--reference: vehicle {name}'s 'doppler' record does not read ({e}); export again",
+                                path=str(p)) from None
+            doppler[name] = {**dop, "level_deg": level, "std_deg": std}
     return ExportReference(p, hashlib.sha256(raw).hexdigest(), str(doc.get("data", "?")),
-                           str(doc.get("version", "?")), mounts, kept)
+                           str(doc.get("version", "?")), mounts, kept, doppler)
 
 
 def absolute_reference(path: str) -> str:

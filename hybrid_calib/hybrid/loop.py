@@ -45,6 +45,7 @@ from hybrid_calib.calib.drift import (
     reference_test,
     unconverged,
     with_mount_step,
+    with_turn_since_export,
 )
 from hybrid_calib.calib.lever_arm import LeverArmConfig
 from hybrid_calib.calib.lidar_alignment import LidarAlignConfig
@@ -601,7 +602,8 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     if reason:
         untrusted(res, reason)
     if res.drift:  # a step the radar mount monitor measured stands whatever the estimate at the end can tell
-        res.drift = doppler_level_note(with_mount_step(res.drift, res.mount), res.mount)
+        res.drift = doppler_level_note(with_turn_since_export(with_mount_step(res.drift, res.mount), res.mount),
+                                       res.mount)
     return res
 
 

@@ -41,6 +41,7 @@ from hybrid_calib.calib.drift import (
     alarms_say_moved,
     doppler_level_words,
     mount_steps_beyond,
+    turned_since_export,
 )
 from hybrid_calib.calib.mount_monitor import blind_words, finds_words, tested_words, turn_words
 from hybrid_calib.calib.result import VehicleResult
@@ -236,7 +237,7 @@ def verdict_of(vr: VehicleResult, tol: Tolerance | None = None) -> Verdict:
     v = _verdict_vs_reference(vr, tol)
     stored = ((vr.drift or {}).get("axes") or {}).get("yaw") or {}  # the calibration's own, when none is asked for
     rot = tol.rot_deg if tol.rot_deg is not None else float(stored.get("tolerance", tol.resolved().rot_deg))
-    turned = mount_steps_beyond(vr.mount, rot)
+    turned = mount_steps_beyond(vr.mount, rot) or turned_since_export(vr.drift, vr.mount, rot)
     if not turned:
         return v
     # the why often opens with its own verdict words ("cannot tell: ..."): said once, not "inconclusive: cannot tell"
