@@ -137,6 +137,13 @@ def test_the_hybrids_mount_monitor_reads_the_radar_at_its_exported_yaw(knocked, 
     assert entry["doppler"]["std_deg"] == lv["std_deg"]
     assert load_export_reference(tmp_path / "e2").source("sim-veh-000")["doppler"]["level_deg"] == pytest.approx(
         lv["level_deg"] - turn, abs=1e-9)
+    # a drive after it on which the radar turned another 1.5 deg: its Doppler level against export 2's record
+    again = {**KNOCK, "rotation_deg": [0.0, 0.0, 3.5]}
+    turned = _sim(tmp_path / "d3", 8, scenario="highway", knock=again)
+    res = run_calibration(turned, VERSION, tmp_path / "h3", {**conf, "reference": str(tmp_path / "e2")})
+    d = res.vehicles["sim-veh-000"].drift
+    assert d["verdict_kind"] == "recalibrate", d["verdict"]
+    assert "since the export it is checked against" in d["verdict"] and "to the left" in d["verdict"], d["verdict"]
     # its own estimate written (the per-axis test edited to decide yaw and lateral): the level turned onto it
     from hybrid_calib.calib.result import CalibrationRun
 
