@@ -40,7 +40,9 @@ def _calibrate(root: Path, out: Path, method: str, reference: str = ""):
     from hybrid_calib.hybrid import run_calibration
 
     conf = {"method": method, "progress": False, "reference": reference}
-    return run_calibration(root, VERSION, out, conf)
+    # against an export: always recomputed (the export is rewritten each run; a result against an earlier one of the
+    # same path is refused for reuse)
+    return run_calibration(root, VERSION, out, conf, overwrite=bool(reference))
 
 
 def _rows(run) -> dict:
