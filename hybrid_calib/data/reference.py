@@ -14,7 +14,9 @@ record the export read (``camera``) and the radar record it wrote (``after``), s
 Vehicles are matched by name (a log's vehicle; a simulated root's ``sim-veh-NNN``). A vehicle the export did not
 replace (its tables were kept: within tolerance, undecided, not trusted) or does not name keeps its tables as its
 reference, and ``source`` says which for each vehicle. Exports written before the ``camera`` field existed are
-refused by name: export again.
+refused by name: export again. Where the export recorded the radar mount monitor's Doppler level against the mount it
+wrote (``doppler``), ``source`` carries it: a later drive's own level is compared with it, drive against drive
+(``calib.drift.turned_since_export``).
 """
 
 from __future__ import annotations
