@@ -144,6 +144,18 @@ def test_the_hybrids_mount_monitor_reads_the_radar_at_its_exported_yaw(knocked, 
     d = res.vehicles["sim-veh-000"].drift
     assert d["verdict_kind"] == "recalibrate", d["verdict"]
     assert "since the export it is checked against" in d["verdict"] and "to the left" in d["verdict"], d["verdict"]
+    assert d["since_export"]["beyond"] and d["since_export"]["delta_deg"] == pytest.approx(1.5, abs=0.35)
+    # exported: the earlier export's mount turned by the Doppler's turn (the hybrid's yaw cannot decide 1.5 deg on
+    # 8 frames), so the drive after it is checked against where the radar is (probe 78: carried unchanged, and
+    # every later drive read "recalibrate" again)
+    e4 = export_mounts([tmp_path / "h3" / "result.json"], tmp_path / "e4").vehicles["sim-veh-000"]
+    assert e4["exported"] and not e4.get("carried"), e4["why"]
+    assert e4["doppler_turn"]["delta_deg"] == d["since_export"]["delta_deg"]
+    assert e4["std_camera"]["yaw"]["written"] == "doppler" and "yaw" not in e4["tables_kept"]
+    before, now = (load_export_reference(tmp_path / e).mounts["sim-veh-000"][1] for e in ("e2", "e4"))
+    turned = np.degrees(Rotation.from_matrix(now[:3, :3] @ before[:3, :3].T).as_rotvec())
+    assert turned[2] == pytest.approx(d["since_export"]["delta_deg"], abs=0.05), turned  # about the up axis
+    np.testing.assert_allclose(now[:3, 3], before[:3, 3], atol=0.01)  # its position as it was (kept axes), in m
     # its own estimate written (the per-axis test edited to decide yaw and lateral): the level turned onto it
     from hybrid_calib.calib.result import CalibrationRun
 
@@ -542,3 +554,33 @@ def test_a_turn_since_the_export_is_told_by_the_doppler_drive_against_drive(then
     steps = {**mount, "steps": [{"step_deg": 1.0, "std_deg": 0.1, "change": 3, "at": 5}],
              "levels": mount["levels"] * 2}
     assert turned_since_export(_drift(then), steps, 0.5) == ""  # a step inside the drive: with_mount_step's case
+
+
+def test_a_step_inside_the_later_drive_does_not_hide_a_turn_since_the_export():
+    """The level of the mount at the drive's end (after a step the last one) is what is compared with the export's
+    (probe 78: a 0.41 deg step inside the drive turned the test off, and a radar 1.5 deg from the export read a plain
+    "cannot tell"); a turn within the tolerance is recorded, not said."""
+    from hybrid_calib.calib.drift import with_turn_since_export
+
+    mount = {"levels": [{"level_deg": 1.09, "std_deg": 0.04, "frames": 14}, {"level_deg": 1.5, "std_deg": 0.05,
+                                                                             "frames": 15}],
+             "steps": [{"step_deg": 0.41, "std_deg": 0.06, "change": 15, "at": 18}]}
+    d = with_turn_since_export(_drift(0.0), mount)
+    assert d["verdict_kind"] == "recalibrate" and d["since_export"]["delta_deg"] == pytest.approx(1.5)
+    small = with_turn_since_export(_drift(0.0), {"levels": [{"level_deg": 0.7, "std_deg": 0.03}], "steps": []})
+    assert small["verdict_kind"] == "cannot tell" and small["since_export"] == pytest.approx(
+        {"delta_deg": 0.7, "std_deg": float(np.sqrt(0.03 ** 2 * 2 + 0.1 ** 2)), "beyond": False})
+
+
+@pytest.mark.parametrize("doppler", [{"level_deg": 370.0, "std_deg": 0.03}, {"level_deg": 0.1, "std_deg": 1e9},
+                                     {"level_deg": True, "std_deg": 0.03}, {"level_deg": "0.1", "std_deg": 0.03},
+                                     {"level_deg": 0.1, "std_deg": 0.0}, "0.1"])
+def test_an_impossible_doppler_record_is_refused(knocked, tmp_path, doppler):
+    from hybrid_calib.data.reference import load_export_reference
+
+    _, _, exp, _ = knocked
+    doc = json.loads((exp / "export.json").read_text())
+    doc["vehicles"]["sim-veh-000"]["doppler"] = doppler
+    (tmp_path / "export.json").write_text(json.dumps(doc))
+    with pytest.raises(DataError, match="sim-veh-000's 'doppler' record is .*, not .level_deg: a yaw within 90 deg"):
+        load_export_reference(tmp_path)

@@ -446,45 +446,60 @@ def with_mount_step(drift: dict, mount: dict | None) -> dict:
             "verdict": f"recalibrate: {turned} Against the reference at the drive's end: {drift.get('verdict')}"}
 
 
-def turned_since_export(drift: dict | None, mount: dict | None, rot_tol_deg: float) -> str:
-    """A sentence when the drive was checked against an earlier export that recorded the radar's Doppler level on
-    the drive it came from (``drift["reference"]["doppler"]``: the radar's yaw on the vehicle against the written mount,
-    ``calib.export``), and this drive's one level (``mount_monitor.sole_level``, against the same mount) differs from
-    it beyond ``rot_tol_deg`` with its 3-sigma; else "". The two levels are the same measurement on two drives, so
-    the Doppler's own bias cancels (the level's std, both drives', and ``LEVEL_BIAS_DEG`` for how far that bias varies
-    from drive to drive); the hybrid's yaw alone, 0.3 deg at 1 sigma, missed a 1 deg turn since the export on 9 of 9
-    radars (docs/benchmarks.md "Later drives")."""
-    from hybrid_calib.calib.mount_monitor import LEVEL_BIAS_DEG, sole_level, turn_words
+def since_export(drift: dict | None, mount: dict | None) -> dict | None:
+    """The radar's turn in yaw on the vehicle since the earlier export the drive was checked against, by its Doppler:
+    this drive's level of the mount at its end (``mount_monitor.current_level``: the one level, or the last after a
+    step inside the drive, probe 78) minus the level the export recorded on its own drive
+    (``drift["reference"]["doppler"]``; both against the exported mount, ``calib.export``). The same measurement twice,
+    so the Doppler's own bias cancels: std the hypot of both levels' std and ``LEVEL_BIAS_DEG`` (how far that bias
+    varies from drive to drive). {"delta_deg" (left positive, about the vehicle's up axis), "std_deg"}, or None
+    without both levels."""
+    from hybrid_calib.calib.mount_monitor import LEVEL_BIAS_DEG, current_level
 
     src = (drift or {}).get("reference") or {}
     then = src.get("doppler") if src.get("kind") == "export" else None
-    lv = sole_level(mount)
+    lv = current_level(mount)
     if not isinstance(then, dict) or lv is None:
-        return ""
+        return None
     try:
         delta = float(lv["level_deg"]) - float(then["level_deg"])
         std = float(np.sqrt(float(lv["std_deg"]) ** 2 + float(then["std_deg"]) ** 2 + LEVEL_BIAS_DEG ** 2))
     except (KeyError, TypeError, ValueError):
+        return None
+    return {"delta_deg": delta, "std_deg": std} if np.isfinite(delta) and np.isfinite(std) else None
+
+
+def turned_since_export(drift: dict | None, mount: dict | None, rot_tol_deg: float) -> str:
+    """A sentence when the radar turned since the earlier export the drive was checked against (``since_export``)
+    beyond ``rot_tol_deg`` with its 3-sigma, else "". The hybrid's yaw alone, 0.3 deg at 1 sigma, missed a 1 deg
+    turn since the export on 9 of 9 radars (docs/benchmarks.md "Later drives")."""
+    from hybrid_calib.calib.mount_monitor import turn_words
+
+    turn = since_export(drift, mount)
+    if turn is None or abs(turn["delta_deg"]) - 3 * turn["std_deg"] <= rot_tol_deg:
         return ""
-    if not (np.isfinite(delta) and np.isfinite(std)) or abs(delta) - 3 * std <= rot_tol_deg:
-        return ""
-    return (f"The radar turned on the vehicle by {turn_words(delta, std, 3)} since the export it is checked against "
-            f"({src.get('path')}), beyond the {rot_tol_deg:g} deg tolerance (the radar mount monitor: its Doppler "
-            "heading against the ego poses on this drive, against the same on the drive the export came from).")
+    src = (drift or {}).get("reference") or {}
+    return (f"The radar turned on the vehicle by {turn_words(turn['delta_deg'], turn['std_deg'], 3)} since the "
+            f"export it is checked against ({src.get('path')}), beyond the {rot_tol_deg:g} deg tolerance (the radar "
+            "mount monitor: its Doppler heading against the ego poses at this drive's end, against the same on the "
+            "drive the export came from).")
 
 
 def with_turn_since_export(drift: dict, mount: dict | None) -> dict:
-    """``drift`` with its verdict "recalibrate" when ``turned_since_export`` says so (as ``with_mount_step`` for a
-    step inside the drive; the verdict against the reference at the end kept in ``at_end``); unchanged otherwise or
-    when it already says "recalibrate"."""
+    """``drift`` with the radar's turn since the export it was checked against (``since_export``) recorded as
+    ``since_export`` (with ``beyond``: whether it decides a turn beyond the yaw tolerance), and its verdict
+    "recalibrate" when it does (as ``with_mount_step`` for a step inside the drive; the verdict against the reference
+    at the end kept in ``at_end``); unchanged without the two levels."""
+    turn = since_export(drift, mount)
     tol = ((drift.get("axes") or {}).get("yaw") or {}).get("tolerance")
-    if drift.get("verdict_kind") == "recalibrate" or tol is None:
+    if turn is None or tol is None:
         return drift
     turned = turned_since_export(drift, mount, float(tol))
-    if not turned:
-        return drift
+    out = {**drift, "since_export": {**turn, "beyond": bool(turned)}}
+    if not turned or drift.get("verdict_kind") == "recalibrate":
+        return out
     keys = ("verdict_kind", "verdict", "drifted")
-    return {**drift, "at_end": {k: drift.get(k) for k in keys}, "verdict_kind": "recalibrate", "drifted": True,
+    return {**out, "at_end": {k: drift.get(k) for k in keys}, "verdict_kind": "recalibrate", "drifted": True,
             "verdict": f"recalibrate: {turned} Against the reference at the drive's end: {drift.get('verdict')}"}
 
 

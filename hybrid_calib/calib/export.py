@@ -205,17 +205,30 @@ def _carry(exp: MountExport, name: str, T_ref: np.ndarray, doppler: dict | None,
                      f"({entry['why']})")
 
 
+def _turned(T_cam_radar: np.ndarray, T_ego_cam: np.ndarray, delta_deg: float) -> np.ndarray:
+    """(4, 4) ``T_cam_radar`` with its radar turned by ``delta_deg`` (left positive) about the vehicle's up axis at
+    the radar (the radar mount monitor's yaw; its position kept), the camera at ``T_ego_cam``."""
+    from scipy.spatial.transform import Rotation
+
+    from hybrid_calib.geometry import se3_inverse
+
+    T = T_ego_cam @ T_cam_radar
+    T = T.copy()
+    T[:3, :3] = Rotation.from_euler("z", delta_deg, degrees=True).as_matrix() @ T[:3, :3]
+    return se3_inverse(T_ego_cam) @ T
+
+
 def _doppler_record(vr, T_written: np.ndarray, M_ref: np.ndarray) -> dict | None:
-    """The radar mount monitor's one level of the drive (``sole_level``: no step, plausible), turned from the mount
+    """The radar mount monitor's level of the mount at the drive's end (``current_level``), turned from the mount
     it was measured against (``M_ref`` (4, 4), the run's reference radar mount) to the written one (``T_written``):
     the radar's yaw on the vehicle minus the written mount's, by its Doppler against the ego poses [deg]. A later
     drive checked against this export compares its own level with it (``calib.drift.turned_since_export``); None
     without such a level."""
     from scipy.spatial.transform import Rotation
 
-    from hybrid_calib.calib.mount_monitor import sole_level
+    from hybrid_calib.calib.mount_monitor import current_level
 
-    lv = sole_level(getattr(vr, "mount", None))
+    lv = current_level(getattr(vr, "mount", None))  # the mount at the drive's end: what is written
     if lv is None:
         return None
     level, std = float(lv.get("level_deg", np.nan)), float(lv.get("std_deg", np.nan))
@@ -442,11 +455,16 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
             continue
         T_est = np.asarray(vr.final.T, np.float64)
         kept = _kept_axes(vr)
+        # a turn since the earlier export that its Doppler decided (calib.drift.with_turn_since_export) where the
+        # estimate keeps the yaw: the export's mount turned by it about the vehicle's up axis (probe 78: the reference
+        # was carried unchanged, and every later drive read "recalibrate" again)
+        turn = (vr.drift or {}).get("since_export") or {}
+        turn = turn if turn.get("beyond") and ref_obj is not None and AXIS_WORDS.index("yaw") in kept else None
         if not (vr.drift or {}).get("axes"):  # an older result: no per-axis test to say what was measured
             entry["why"] = ("not exported: the result holds no per-axis test against the tables (written by an older "
                             "version): calibrate again to export it")
             continue
-        if len(kept) == len(AXIS_WORDS):  # the record would be the tables' own
+        if len(kept) == len(AXIS_WORDS) and turn is None:  # the record would be the tables' own
             entry["why"] = ("kept the tables: the data decide no axis against the tolerance (each is undecided or "
                             "prior-pinned), so there is nothing measured to write")
             if (vr.drift or {}).get("at_end"):  # "recalibrate" for a step the mount monitor measured in the drive
@@ -470,6 +488,8 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
             T_tables = ds.reference_T_cam_radar(
                 next(f for f in ds.frames if f.vehicle == name and f.radar_sd["calibrated_sensor_token"] == tok))
             T_ref = T_tables if exported_ref is None else exported_ref
+            if turn is not None:  # its Doppler's turn since the export, about the vehicle's up axis at the radar
+                T_ref = _turned(T_ref, T_cams[0], float(turn["delta_deg"]))
             if not new:  # the mount the radar mount monitor measured against (the reference's radar record)
                 M_ref = ds.reference_T_ego_radar(next(f for f in ds.frames if f.vehicle == name)) \
                     if ref_obj is None else ref_obj.mounts[name][1]
@@ -508,12 +528,21 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
         cov = np.asarray(vr.final.cov, np.float64)
         if doppler := _doppler_record(vr, new[0][2], M_ref):
             entry["doppler"] = doppler
-        entry.update(exported=True, std_ego=_std_ego(new[0][2], cov), std_camera=_std_camera(T_est, cov, kept),
+        if turn is not None:
+            entry["doppler_turn"] = {"delta_deg": float(turn["delta_deg"]), "std_deg": float(turn["std_deg"])}
+            kept = [i for i in kept if AXIS_WORDS[i] != "yaw"]  # written: the Doppler's, with its own std
+        std_camera = _std_camera(T_est, cov, kept)
+        if turn is not None:
+            std_camera["yaw"] = {"written": "doppler", "std": float(turn["std_deg"]), "unit": "deg"}
+        entry.update(exported=True, std_ego=_std_ego(new[0][2], cov), std_camera=std_camera,
                      tables_kept=[AXIS_WORDS[i] for i in kept],
                      why=f"exported: {len(new)} radar record(s) replaced" + (
                          f" (the tables' {', '.join(AXIS_WORDS[i] for i in kept)} kept: the data do not decide "
                          f"{'it' if len(kept) == 1 else 'them'} against the tolerance)"
-                         if kept else ""))
+                         if kept else "") + (
+                         f"; its yaw: the earlier export's turned by {float(turn['delta_deg']):+.2f} +- "
+                         f"{float(turn['std_deg']):.2f} deg (1 sigma, left positive) about the vehicle's up axis, "
+                         "the radar's turn since that export by its Doppler" if turn is not None else ""))
     for p, run in runs:  # a vehicle whose calibration failed is named, not dropped
         for name, reason in sorted(run.vehicles_failed.items()):
             if (not vehicles or name in vehicles) and name not in exp.vehicles:

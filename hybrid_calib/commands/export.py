@@ -34,7 +34,7 @@ def run(args: argparse.Namespace) -> int:
         if v["exported"] and not v.get("carried"):  # a carried mount is the reference's: its why says so
             ch = v["records"][0]["change"]
             written = [f"{w} {a['std']:.2f} {a['unit']}" for w, a in v["std_camera"].items()
-                       if a["written"] == "estimate"]  # the kept axes hold the tables' value: no std of ours
+                       if a["written"] in ("estimate", "doppler")]  # the kept axes hold the tables': no std of ours
             # from the reference the verdict used (export.json "reference"): the tables' camera-radar calibration,
             # on a simulated root its factory one in sim_vehicle.json, not the record it replaces (probe 30)
             line += (f"; moved {ch['rot_deg']:.2f} deg, {ch['trans_cm']:.1f} cm from the camera-radar calibration the "

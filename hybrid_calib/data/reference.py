@@ -156,16 +156,21 @@ def load_export_reference(path: str | Path) -> ExportReference:
                                 "extrinsics that differ: one reference per vehicle; export it again", path=str(p))
         mounts[name] = pairs[0]
         if (dop := entry.get("doppler")) is not None:
-            try:
-                level, std = float(dop["level_deg"]), float(dop["std_deg"])
-                if not (np.isfinite(level) and np.isfinite(std) and std >= 0):
-                    raise ValueError("not finite, or a negative std")
-            except (KeyError, TypeError, ValueError) as e:
-                raise DataError(f"--reference: vehicle {name}'s 'doppler' record does not read ({e}); export again",
-                                path=str(p)) from None
-            doppler[name] = {**dop, "level_deg": level, "std_deg": std}
+            level, std = (dop.get("level_deg"), dop.get("std_deg")) if isinstance(dop, dict) else (None, None)
+            # a level is a yaw on the vehicle (a radar does not sit half a turn off its mount), its std of a few
+            # hundredths of a degree: 1e9 silenced the test, 370 read "turned by 369.99 deg" (probe 78)
+            if not (_number(level) and _number(std) and abs(level) <= 90 and 0 < std <= 10):
+                raise DataError(f"--reference: vehicle {name}'s 'doppler' record is {str(dop)[:80]}, not "
+                                "{level_deg: a yaw within 90 deg, std_deg: in (0, 10] deg}; export again",
+                                path=str(p))
+            doppler[name] = {**dop, "level_deg": float(level), "std_deg": float(std)}
     return ExportReference(p, hashlib.sha256(raw).hexdigest(), str(doc.get("data", "?")),
                            str(doc.get("version", "?")), mounts, kept, doppler)
+
+
+def _number(x) -> bool:
+    """A finite JSON number (not a bool, not a string)."""
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and bool(np.isfinite(x))
 
 
 def absolute_reference(path: str) -> str:
