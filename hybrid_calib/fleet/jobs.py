@@ -208,13 +208,10 @@ def discover_jobs(roots: list[tuple[str, str, tuple[str, ...] | None]], method: 
         keys = {k: v for k, v in (calib or {}).items() if k in ("start", "refine")}
         network = network_identity(merge(HybridConfig, {"method": method, "checkpoint": checkpoint or "", **keys}))
         network = network.get("network")
-    reference = (calib or {}).get("reference")
-    if reference:
-        from hybrid_calib.data.reference import load_export_reference
+    from hybrid_calib.data.reference import reference_identity
 
-        reference_sha256 = load_export_reference(reference).sha256
-    else:
-        reference_sha256 = None
+    reference = (calib or {}).get("reference")
+    reference_sha256 = reference_identity(reference).get("reference_sha256")
     found = []
     for root, version, wanted in roots:
         try:
