@@ -473,9 +473,13 @@ def turned_since_export(drift: dict | None, mount: dict | None, rot_tol_deg: flo
     """A sentence when the radar turned since the earlier export the drive was checked against (``since_export``)
     beyond ``rot_tol_deg`` with its 3-sigma, else "". The hybrid's yaw alone, 0.3 deg at 1 sigma, missed a 1 deg
     turn since the export on 9 of 9 radars (docs/benchmarks.md "Later drives")."""
+    return _turned_words(since_export(drift, mount), drift, rot_tol_deg)
+
+
+def _turned_words(turn: dict | None, drift: dict | None, rot_tol_deg: float) -> str:
+    """``turned_since_export``'s sentence for a turn ``since_export`` computed."""
     from hybrid_calib.calib.mount_monitor import turn_words
 
-    turn = since_export(drift, mount)
     if turn is None or abs(turn["delta_deg"]) - 3 * turn["std_deg"] <= rot_tol_deg:
         return ""
     src = (drift or {}).get("reference") or {}
@@ -494,7 +498,7 @@ def with_turn_since_export(drift: dict, mount: dict | None) -> dict:
     tol = ((drift.get("axes") or {}).get("yaw") or {}).get("tolerance")
     if turn is None or tol is None:
         return drift
-    turned = turned_since_export(drift, mount, float(tol))
+    turned = _turned_words(turn, drift, float(tol))  # the turn computed once
     out = {**drift, "since_export": {**turn, "beyond": bool(turned)}}
     if not turned or drift.get("verdict_kind") == "recalibrate":
         return out

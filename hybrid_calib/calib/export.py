@@ -162,7 +162,7 @@ def _keep_axes(T_ref: np.ndarray, T_est: np.ndarray, kept: list[int]) -> np.ndar
 
 
 def _carry(exp: MountExport, name: str, T_ref: np.ndarray, doppler: dict | None, vr, M_level: np.ndarray | None,
-           toks: list[str], pairs: dict, users: dict, index: dict, ds) -> None:
+           toks: list[str], pairs: dict, users: dict, index: dict, ds, frame_of: dict) -> None:
     """A vehicle checked against an earlier export (``--reference``) and not exported with its own estimate: its
     records get that export's mount (``T_ego_cam T_ref``), marked ``carried``, so that this export is the whole
     calibration a later drive is checked against (probe 76: a drive unmoved since export 1 exported nothing, and the
@@ -181,8 +181,7 @@ def _carry(exp: MountExport, name: str, T_ref: np.ndarray, doppler: dict | None,
         if any(not same_calibration(T, T_cams[0]) for T in T_cams[1:]):
             return
         carried.append((tok, T_cams[0]))
-        tables.append(ds.reference_T_cam_radar(next(f for f in ds.frames if f.vehicle == name
-                                                    and f.radar_sd["calibrated_sensor_token"] == tok)))
+        tables.append(ds.reference_T_cam_radar(frame_of[(name, tok)]))
     if any(not same_calibration(T, tables[0]) for T in tables[1:]):  # a mount change in the tables: one mount
         entry["why"] += ("; the reference export's mount is not carried: its tables hold more than one radar-camera "
                          "calibration along the drive")  # cannot stand for both (probe 77)
@@ -212,8 +211,7 @@ def _turned(T_cam_radar: np.ndarray, T_ego_cam: np.ndarray, delta_deg: float) ->
 
     from hybrid_calib.geometry import se3_inverse
 
-    T = T_ego_cam @ T_cam_radar
-    T = T.copy()
+    T = T_ego_cam @ T_cam_radar  # a new array
     T[:3, :3] = Rotation.from_euler("z", delta_deg, degrees=True).as_matrix() @ T[:3, :3]
     return se3_inverse(T_ego_cam) @ T
 
@@ -239,45 +237,49 @@ def _doppler_record(vr, T_written: np.ndarray, M_ref: np.ndarray) -> dict | None
             "of": "the radar's yaw on the vehicle minus the written mount's (its Doppler against the ego poses), deg"}
 
 
-def _used_references(found: dict) -> dict:
-    """path -> ``data.reference.ExportReference`` of each earlier export the results' verdicts compared with
-    (``drift.reference``), read again; one that no longer reads, or has changed since (its sha256), is left out
-    (its vehicles' entries say why)."""
+def _read_reference(src: dict, cache: dict) -> tuple[object, str]:
+    """The earlier export a result's ``drift.reference`` names (``src``), read again once per path (``cache``: path
+    -> (``data.reference.ExportReference`` or None, why)): (it, "") when it is the file the calibration read (its
+    sha256), else (None, why not), for the kept axes and the change must be of the verdict's reference."""
     from hybrid_calib.data.reference import load_export_reference
 
+    path = str(src.get("path"))
+    if path not in cache:
+        try:
+            ref = load_export_reference(path)
+        except DataError as e:
+            cache[path] = (None, f"the export its verdict compared with (--reference {path}) does not read now ({e}); "
+                                 "restore it, or calibrate again")
+        else:
+            cache[path] = (ref, "") if ref.sha256 == src.get("sha256") else (
+                None, f"the export its verdict compared with ({ref.path}) has been replaced since the calibration; "
+                      "calibrate again against the export as it is now")
+    return cache[path]
+
+
+def _used_references(found: dict, cache: dict) -> dict:
+    """path -> ``data.reference.ExportReference`` of each earlier export the results' verdicts compared with
+    (``drift.reference``; ``_read_reference``); one that no longer reads, or has changed since, is left out (its
+    vehicles' entries say why)."""
     out = {}
     for _, vr in found.values():
         src = (vr.drift or {}).get("reference") or {}
-        if src.get("kind") != "export" or src.get("path") in out:
-            continue
-        try:
-            ref = load_export_reference(str(src.get("path")))
-        except DataError:
-            continue
-        if ref.sha256 == src.get("sha256"):
-            out[src["path"]] = ref
+        if src.get("kind") == "export" and (ref := _read_reference(src, cache)[0]) is not None:
+            out[str(src.get("path"))] = ref
     return out
 
 
-def _export_reference(vr, name: str):
+def _export_reference(vr, name: str, cache: dict):
     """(the earlier export the result's verdict compared with, ``data.reference.ExportReference`` naming ``name``,
-    or None for the tables; why the vehicle is not exported, or ""): the export is read again and must be the file
-    the calibration read (its sha256), else the kept axes and the change would be of another reference than the
-    verdict's."""
-    from hybrid_calib.data.reference import load_export_reference
-
+    or None for the tables; why the vehicle is not exported, or ""): ``_read_reference``."""
     src = (vr.drift or {}).get("reference")
     if not isinstance(src, dict) or src.get("kind") != "export":
         return None, ""
-    try:
-        ref = load_export_reference(str(src.get("path")))
-    except DataError as e:
-        return None, (f"not exported: the export its verdict compared with (--reference {src.get('path')}) does not "
-                      f"read now ({e}); restore it, or calibrate again")
-    if ref.sha256 != src.get("sha256") or name not in ref.mounts:
-        return None, (f"not exported: the export its verdict compared with ({ref.path}) has been replaced since the "
-                      "calibration; calibrate again against the export as it is now")
-    return ref, ""
+    ref, why = _read_reference(src, cache)
+    if ref is not None and name not in ref.mounts:
+        ref, why = None, (f"the export its verdict compared with ({ref.path}) has been replaced since the "
+                          "calibration; calibrate again against the export as it is now")
+    return ref, (f"not exported: {why}" if why else "")
 
 
 def _why_not(vr, which: str) -> str:
@@ -414,10 +416,12 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
     # the radar and camera calibrated_sensor records of every vehicle's frames
     radar_of: dict[str, set[str]] = {}
     pairs: dict[tuple[str, str], set[str]] = {}  # (vehicle, radar record) -> camera records
+    frame_of: dict[tuple[str, str], object] = {}  # (vehicle, radar record) -> its first frame
     for ref in ds.frames:
         r, c = ref.radar_sd["calibrated_sensor_token"], ref.camera_sd["calibrated_sensor_token"]
         radar_of.setdefault(ref.vehicle, set()).add(r)
         pairs.setdefault((ref.vehicle, r), set()).add(c)
+        frame_of.setdefault((ref.vehicle, r), ref)
     users: dict[str, set[str]] = {}
     for v, toks in radar_of.items():
         for tok in toks:
@@ -425,6 +429,7 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
     exp = MountExport(str(root), version, which, [str(p) for p in paths],
                       table=[dict(rec) for rec in t.records["calibrated_sensor"]])
     index = {rec["token"]: i for i, rec in enumerate(exp.table)}
+    read: dict[str, tuple] = {}  # each reference export read once (_read_reference)
     carry: dict[str, tuple] = {}  # vehicle -> (the reference export's T_cam_radar its verdict compared with, its
     # Doppler record or None, the result whose level may stand for it or None, the radar mount the level is against)
     for name, (p, vr) in sorted(found.items()):
@@ -435,7 +440,7 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
             entry["reference"] = vr.drift["reference"]
         # an earlier export the verdict compared with (--reference): read again first, a changed one refused whatever
         # the verdict (probe 76: the default --which said only "kept the tables" for one edited since)
-        ref_obj, ref_why = (None, "") if p in stale else _export_reference(vr, name)
+        ref_obj, ref_why = (None, "") if p in stale else _export_reference(vr, name, read)
         exported_ref = None if ref_obj is None else ref_obj.T_cam_radar(name)
         why = (f"not exported: {stale[p]}" if p in stale else "") or ref_why or _why_not(vr, which)
         if ref_obj is not None:  # the earlier export's Doppler record, else this drive's (against the same mount)
@@ -485,14 +490,13 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
             # kept axes: the reference the verdict compared against (the tables; a simulated root's factory
             # calibration, sim_vehicle.json, since its calibrated_sensor holds the simulator's truth)
             # (or the earlier export the run was given: --reference)
-            T_tables = ds.reference_T_cam_radar(
-                next(f for f in ds.frames if f.vehicle == name and f.radar_sd["calibrated_sensor_token"] == tok))
+            T_tables = ds.reference_T_cam_radar(frame_of[(name, tok)])
             T_ref = T_tables if exported_ref is None else exported_ref
             if turn is not None:  # its Doppler's turn since the export, about the vehicle's up axis at the radar
                 T_ref = _turned(T_ref, T_cams[0], float(turn["delta_deg"]))
             if not new:  # the mount the radar mount monitor measured against (the reference's radar record)
-                M_ref = ds.reference_T_ego_radar(next(f for f in ds.frames if f.vehicle == name)) \
-                    if ref_obj is None else ref_obj.mounts[name][1]
+                M_ref = ds.reference_T_ego_radar(frame_of[(name, tok)]) if ref_obj is None else \
+                    ref_obj.mounts[name][1]
             # the change is measured from the reference too (the tables' own record on a real root; on a simulated
             # one its factory calibration, as the verdict: the record there holds the truth)
             new.append((tok, T_cams[0] @ T_ref, T_cams[0] @ _keep_axes(T_ref, T_est, kept), T_cams[0]))
@@ -551,7 +555,7 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
                                       "records": [], "std_ego": None}
     # a vehicle of the earlier export(s) these results were checked against (--reference) whose own estimate is not
     # written here (kept, untrusted, failed, or not among the results: probe 77) carries that export's mount
-    used = _used_references(found)
+    used = _used_references(found, read)
     for name in sorted(set(carry) | {n for r in used.values() for n in r.mounts}):
         if vehicles and name not in vehicles:
             continue
@@ -569,7 +573,7 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
             exp.vehicles[name] = {"result": None, "status": None, "verdict": None, "exported": False,
                                   "why": "not among the results", "records": [], "std_ego": None,
                                   "reference": next(r.source(name) for r in used.values() if name in r.mounts)}
-        _carry(exp, name, *Ts[0], sorted(radar_of.get(name, ())), pairs, users, index, ds)
+        _carry(exp, name, *Ts[0], sorted(radar_of.get(name, ())), pairs, users, index, ds, frame_of)
     if unstamped:  # a fleet vehicle's result (its stamp is in the fleet's manifest) or an older run's
         exp.notes.append(f"{', '.join(unstamped)} record{'s' if len(unstamped) == 1 else ''} no data stamp beside "
                          "it (data_stamp.json): not checked against the data as they are now")

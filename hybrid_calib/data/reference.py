@@ -75,11 +75,15 @@ def reference_words(source: dict | None) -> str:
     return "tables"
 
 
-def _path_of(path: str | Path) -> Path:
-    """The export.json a ``--reference`` names: the file itself, or the export's folder holding it."""
+def _export_json(path: str | Path) -> Path:
+    """The export.json a ``--reference`` names, absolute and normalised: the file itself, or in the export's folder."""
     p = Path(os.path.abspath(path))
-    if p.is_dir():
-        p = p / "export.json"
+    return p / "export.json" if p.is_dir() else p
+
+
+def _path_of(path: str | Path) -> Path:
+    """``_export_json``, which must be a file (``DataError`` naming it otherwise)."""
+    p = _export_json(path)
     if not p.is_file():
         where = "holds no export.json" if Path(path).is_dir() else "does not exist"
         raise DataError(f"--reference {path} {where}; pass the --out folder of a hybrid-calib export run (or its "
@@ -177,10 +181,7 @@ def absolute_reference(path: str) -> str:
     """A config's ``reference`` as one absolute, normalised path of the export.json ("" stays ""): a run resumed,
     reused or reported from another folder reads the same export, and the folder and its export.json, or a path
     through "..", are one reference (probe 76: each was "another run")."""
-    if not path:
-        return ""
-    p = Path(os.path.abspath(path))
-    return str(p / "export.json" if p.is_dir() else p)
+    return str(_export_json(path)) if path else ""
 
 
 def reference_identity(path: str) -> dict:

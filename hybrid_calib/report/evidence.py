@@ -203,7 +203,7 @@ def gather(run: CalibrationRun, result_path: Path, vehicle: str, data: str | Pat
             vi, ev.start = inputs[vehicle]
             recorded, _ = _recorded_start(vr)
             ev.start = ev.start if recorded is None else recorded
-            ev.start_label = (f"the vehicle's reference ({_reference_name(vr)})" if conf.start == "reference"
+            ev.start_label = (f"the vehicle's reference ({reference_name(vr)})" if conf.start == "reference"
                               else f"the run's {conf.start} start (perturbed truth, seed {conf.seed})")
             factor_conf, gate = _factor_and_gate(conf, run.mode)
             seg = segment_estimates(vr)
@@ -252,7 +252,7 @@ def _check_frames_there(root: Path, version: str, vehicle: str, vr, run: Calibra
                                     "the run calibrated, or leave --data out")
 
 
-def _reference_name(vr) -> str:
+def reference_name(vr) -> str:
     """What a result's reference was, in a few words: its calibration tables, or the earlier export it was given."""
     src = (getattr(vr, "drift", None) or {}).get("reference") or {}
     return f"the mount exported in {src.get('path')}" if src.get("kind") == "export" else "its calibration tables"
@@ -272,7 +272,7 @@ def _recorded_start(vr) -> tuple[np.ndarray | None, str]:
         return None, ""
     kind = str(rec.get("kind", ""))
     if kind == "reference":
-        return T, f"the vehicle's reference ({_reference_name(vr)})"
+        return T, f"the vehicle's reference ({reference_name(vr)})"
     return T, f"the run's {kind} start (seed {rec.get('seed')})"
 
 

@@ -19,7 +19,7 @@ from hybrid_calib.calib.lidar_alignment import describe as describe_lidar
 from hybrid_calib.calib.result import CalibrationRun, VehicleResult, extrinsic_report, failed_vehicles_message
 from hybrid_calib.config import merge, to_dict
 from hybrid_calib.errors import HybridCalibError, check_api_out
-from hybrid_calib.report.evidence import Evidence, frame_words, gather
+from hybrid_calib.report.evidence import Evidence, frame_words, gather, reference_name
 from hybrid_calib.report.html import esc, img_tag, num, verdict_class, write_page, written_from
 from hybrid_calib.report.verdict import AXIS_NAMES, Tolerance, Verdict, verdict_of
 from hybrid_calib.words import did_you_mean, some_of
@@ -92,10 +92,8 @@ def _reference_line(vr: VehicleResult) -> str:
     (``--reference``: its path and the root it was exported from)."""
     src = (vr.drift or {}).get("reference")
     if isinstance(src, dict) and src.get("kind") == "export":
-        return (f"the mount exported in {src.get('path')} (from {src.get('from')}); 'its tables' in the words on this "
-                "page is that mount")
-    return ("its calibration tables" + (" (a simulated vehicle's factory calibration)" if vr.errors_against == "truth"
-                                        else ""))
+        return f"{reference_name(vr)} (from {src.get('from')}); 'its tables' in the words on this page is that mount"
+    return reference_name(vr) + (" (a simulated vehicle's factory calibration)" if vr.errors_against == "truth" else "")
 
 
 def extrinsic_html(vr: VehicleResult) -> str:
