@@ -102,6 +102,7 @@ def test_a_later_drive_checked_against_the_export_does_not_read_recalibrate(knoc
         assert abs(d["axes"]["yaw"]["delta"]) < 0.3, d["axes"]["yaw"]  # the knock is in the reference
         assert d["reference"]["kind"] == "export"
         assert d["reference"]["path"] == str((exp / "export.json").absolute())
+        assert d["since_export"]["tested"] is False and "the export recorded no Doppler level" in d["verdict"]
         # start=reference starts each vehicle at its reference: the exported mount
         assert ref.vehicles[name].start["T_cam_radar"] != tables.vehicles[name].start["T_cam_radar"]
 
@@ -120,6 +121,9 @@ def test_the_hybrids_mount_monitor_reads_the_radar_at_its_exported_yaw(knocked, 
     assert abs(lv0["level_deg"]) > 1.5  # the knock, against the tables
     assert abs(lv["level_deg"]) < 0.3, lv  # against the exported mount: where the radar is
     assert ref.drift["reference"]["kind"] == "export" and plain.drift["reference"] == {"kind": "tables"}
+    # the oracle's export recorded no Doppler level: the turn since it went untested, and the verdict says so
+    assert ref.drift["since_export"]["tested"] is False and "the export recorded no Doppler level" in ref.drift[
+        "verdict"] and "since_export" not in plain.drift
     # its export records the Doppler level against the mount it writes (a later drive compares its own with it)
     from scipy.spatial.transform import Rotation
 
@@ -145,6 +149,10 @@ def test_the_hybrids_mount_monitor_reads_the_radar_at_its_exported_yaw(knocked, 
     assert d["verdict_kind"] == "recalibrate", d["verdict"]
     assert "since the export it is checked against" in d["verdict"] and "to the left" in d["verdict"], d["verdict"]
     assert d["since_export"]["beyond"] and d["since_export"]["delta_deg"] == pytest.approx(1.5, abs=0.35)
+    pa = run_calibration(turned, VERSION, tmp_path / "pa", {**conf, "method": "pure-avg", "reference": str(
+        tmp_path / "e2")}).vehicles["sim-veh-000"].drift  # no mount monitor: untested, and said
+    assert "not tested for a turn of the radar since the export by its Doppler: method pure-avg runs no radar " \
+           "mount monitor" in pa["verdict"], pa["verdict"]
     # exported: the earlier export's mount turned by the Doppler's turn (the hybrid's yaw cannot decide 1.5 deg on
     # 8 frames), so the drive after it is checked against where the radar is (probe 78: carried unchanged, and
     # every later drive read "recalibrate" again)
@@ -550,7 +558,8 @@ def test_a_turn_since_the_export_is_told_by_the_doppler_drive_against_drive(then
         assert ("to the left" if now > then else "to the right") in d["verdict"]
         vr = VehicleResult("v", Estimate(np.eye(4), np.eye(6) * 1e-4, np.full(6, 0.01), "ok"), drift=d, mount=mount)
         assert verdict_of(vr).word == "recalibrate"  # the report says it too
-    assert with_turn_since_export(_drift(then, "recalibrate"), mount)["verdict"] == "recalibrate: (a test)"
+    kept = with_turn_since_export(_drift(then, "recalibrate"), mount)  # its own verdict kept, the turn said beside
+    assert kept["verdict"].startswith("recalibrate: (a test)") and "at_end" not in kept
     steps = {**mount, "steps": [{"step_deg": 1.0, "std_deg": 0.1, "change": 3, "at": 5}],
              "levels": mount["levels"] * 2}
     assert turned_since_export(_drift(then), steps, 0.5) == ""  # a step inside the drive: with_mount_step's case
@@ -559,7 +568,7 @@ def test_a_turn_since_the_export_is_told_by_the_doppler_drive_against_drive(then
 def test_a_step_inside_the_later_drive_does_not_hide_a_turn_since_the_export():
     """The level of the mount at the drive's end (after a step the last one) is what is compared with the export's
     (probe 78: a 0.41 deg step inside the drive turned the test off, and a radar 1.5 deg from the export read a plain
-    "cannot tell"); a turn within the tolerance is recorded, not said."""
+    "cannot tell"); a turn within the tolerance is recorded and said beside the verdict, not as "recalibrate"."""
     from hybrid_calib.calib.drift import with_turn_since_export
 
     mount = {"levels": [{"level_deg": 1.09, "std_deg": 0.04, "frames": 14}, {"level_deg": 1.5, "std_deg": 0.05,
@@ -568,8 +577,47 @@ def test_a_step_inside_the_later_drive_does_not_hide_a_turn_since_the_export():
     d = with_turn_since_export(_drift(0.0), mount)
     assert d["verdict_kind"] == "recalibrate" and d["since_export"]["delta_deg"] == pytest.approx(1.5)
     small = with_turn_since_export(_drift(0.0), {"levels": [{"level_deg": 0.7, "std_deg": 0.03}], "steps": []})
-    assert small["verdict_kind"] == "cannot tell" and small["since_export"] == pytest.approx(
+    assert small["verdict_kind"] == "cannot tell" and {k: small["since_export"][k] for k in (
+        "delta_deg", "std_deg", "beyond")} == pytest.approx(
         {"delta_deg": 0.7, "std_deg": float(np.sqrt(0.03 ** 2 * 2 + 0.1 ** 2)), "beyond": False})
+
+
+def test_a_turn_since_the_export_within_the_tolerance_is_said_and_an_untested_one_too():
+    """A turn since the export its Doppler measured but within the tolerance is said beside the verdict (it was only
+    recorded: a radar 0.7 deg off its export read a plain verdict), a turn within the Doppler's own noise is not, and a
+    drive checked against an export that could not be tested for a turn says why (pure and pure-avg run no mount
+    monitor; an export without a Doppler record; no level at the drive's end). Against the tables: unchanged. A
+    report's redo against another tolerance says each again, once."""
+    from hybrid_calib.calib.drift import against_tolerance, reference_test, with_turn_since_export
+    from tests.helpers import nominal_T_cam_radar
+
+    one = {"levels": [{"level_deg": 0.7, "std_deg": 0.03}], "steps": []}
+    small = with_turn_since_export(_drift(0.0), one)
+    assert small["verdict_kind"] == "cannot tell" and small["verdict"].startswith("cannot tell: (a test); the radar")
+    assert "turned on the vehicle by 0.70 +- 0.33 deg (3 sigma) to the left in yaw since the export, not clearly " \
+           "beyond the 0.5 deg tolerance" in small["verdict"]
+    noise = with_turn_since_export(_drift(0.0), {**one, "levels": [{"level_deg": 0.2, "std_deg": 0.03}]})
+    assert noise["verdict"] == "cannot tell: (a test)" and noise["since_export"]["delta_deg"] == pytest.approx(0.2)
+    for mount, method, why in [(None, "pure-avg", "method pure-avg runs no radar mount monitor"),
+                               (None, "hybrid", "no radar mount monitor ran"),
+                               ({"levels": [], "steps": []}, "hybrid", "read no level of the mount at the drive's")]:
+        d = with_turn_since_export(_drift(0.0), mount, method)
+        assert d["since_export"]["tested"] is False and d["verdict"].startswith("cannot tell: (a test); not tested "
+                                                                                 "for a turn of the radar since the "
+                                                                                 "export by its Doppler: ")
+        assert why in d["verdict"], d["verdict"]
+    assert "the export recorded no Doppler level" in with_turn_since_export(_drift(None), one)["verdict"]
+    tables = {**_drift(0.0), "reference": {"kind": "tables"}}
+    assert with_turn_since_export(tables, None, "pure") == tables
+    T = nominal_T_cam_radar()
+    full = {**reference_test(T, np.eye(6) * 1e-8, T).to_dict(), "reference": _drift(0.0)["reference"]}
+    said = with_turn_since_export(full, one)
+    assert said["verdict_kind"] == "within tolerance" and said["verdict"].count("since the export, not clearly") == 1
+    assert against_tolerance(said, "ok", one)["verdict"].count("not clearly beyond the 0.5 deg") == 1
+    assert "not clearly beyond the 1 deg tolerance" in against_tolerance(said, "ok", one, rot_deg=1.0)["verdict"]
+    assert "since the export" not in against_tolerance(said, "ok", one, rot_deg=0.3)["verdict"]  # beyond: the report's
+    untested = with_turn_since_export(full, None, "pure")
+    assert against_tolerance(untested, "ok", None, rot_deg=1.0)["verdict"].count("method pure runs no") == 1
 
 
 @pytest.mark.parametrize("doppler", [{"level_deg": 370.0, "std_deg": 0.03}, {"level_deg": 0.1, "std_deg": 1e9},

@@ -376,7 +376,12 @@ def against_tolerance(drift: dict, status: str, mount: dict | None, rot_deg: flo
     if isinstance(drift.get("prior"), dict) and "words" in drift["prior"]:  # as the calibrator applied it
         out = with_prior(out, drift["prior"])
     out = {k: v for k, v in out.items() if k != "doppler_level"}  # said again against the asked tolerance
-    return doppler_level_note(camera_side_note(out, mount), mount)
+    out = doppler_level_note(camera_side_note(out, mount), mount)
+    turn = out.get("since_export") if isinstance(out.get("since_export"), dict) else {}
+    again = turn.get("words", "") if turn.get("tested") is False else since_export_words(
+        turn if {"delta_deg", "std_deg"} <= set(turn) else None,
+        float(axes["yaw"]["tolerance"]) if rot_deg is None else float(rot_deg))
+    return {**out, "verdict": f"{out['verdict']}; {again}"} if again else out
 
 
 def unconverged(drift: dict, status: str) -> dict:
@@ -489,17 +494,62 @@ def _turned_words(turn: dict | None, drift: dict | None, rot_tol_deg: float) -> 
             "drive the export came from).")
 
 
-def with_turn_since_export(drift: dict, mount: dict | None) -> dict:
+def unchecked_since_export(drift: dict | None, mount: dict | None, method: str = "") -> str:
+    """Why a drive checked against an earlier export could not be tested for a turn since it by its Doppler
+    (``since_export`` is None), or "" (tested, or checked against the tables): the export recorded no Doppler level
+    for the vehicle, the method runs no radar mount monitor (pure, pure-avg, oracle, or the monitor turned off), or
+    the monitor read no level of the mount at the drive's end. Said beside the verdict: a user told "within
+    tolerance" against an export should know that a turn since it went untested (session 38 left pure and pure-avg
+    silent about it)."""
+    src = (drift or {}).get("reference") or {}
+    if src.get("kind") != "export" or since_export(drift, mount) is not None:
+        return ""
+    if not isinstance(src.get("doppler"), dict):
+        why = ("the export recorded no Doppler level of the radar for this vehicle (the drive it came from ran no "
+               "radar mount monitor, or it read no level)")
+    elif mount is None:
+        why = (f"method {method} runs no radar mount monitor" if method in ("pure", "pure-avg", "oracle") else
+               "no radar mount monitor ran (turned off, or no radar mount in the data)") + \
+            ": calibrate with --method hybrid to test it"
+    else:
+        why = "the radar mount monitor read no level of the mount at the drive's end"
+    return f"not tested for a turn of the radar since the export by its Doppler: {why}"
+
+
+def since_export_words(turn: dict | None, rot_tol_deg: float) -> str:
+    """The clause said beside a verdict for a turn since the export (``since_export``) its Doppler measured (beyond 3
+    of its std) but not beyond ``rot_tol_deg`` by its 3-sigma, so not a "recalibrate"; "" otherwise. Recorded only
+    until session 39: a radar 0.7 deg off its export read a plain verdict."""
+    from hybrid_calib.calib.mount_monitor import turn_words
+
+    if turn is None or abs(turn["delta_deg"]) <= 3 * turn["std_deg"] or \
+            abs(turn["delta_deg"]) - 3 * turn["std_deg"] > rot_tol_deg:
+        return ""
+    return (f"the radar's own Doppler puts it turned on the vehicle by "
+            f"{turn_words(turn['delta_deg'], turn['std_deg'], 3)} since the export, not clearly beyond the "
+            f"{rot_tol_deg:g} deg tolerance: watch it on the next drives")
+
+
+def with_turn_since_export(drift: dict, mount: dict | None, method: str = "") -> dict:
     """``drift`` with the radar's turn since the export it was checked against (``since_export``) recorded as
     ``since_export`` (with ``beyond``: whether it decides a turn beyond the yaw tolerance), and its verdict
     "recalibrate" when it does (as ``with_mount_step`` for a step inside the drive; the verdict against the reference
-    at the end kept in ``at_end``); unchanged without the two levels."""
+    at the end kept in ``at_end``). A turn measured but not beyond the tolerance (``since_export_words``), or why none
+    could be tested (``unchecked_since_export``, recorded as ``since_export: {"tested": false, "words"}``), is said
+    beside the verdict. Unchanged against the tables."""
     turn = since_export(drift, mount)
     tol = ((drift.get("axes") or {}).get("yaw") or {}).get("tolerance")
-    if turn is None or tol is None:
+    if tol is None:
         return drift
+    if turn is None:
+        why = unchecked_since_export(drift, mount, method)
+        return {**drift, "since_export": {"tested": False, "words": why},
+                "verdict": f"{drift.get('verdict', '')}; {why}"} if why else drift
     turned = _turned_words(turn, drift, float(tol))  # the turn computed once
     out = {**drift, "since_export": {**turn, "beyond": bool(turned)}}
+    if not turned and (small := since_export_words(turn, float(tol))):
+        out = {**out, "since_export": {**out["since_export"], "words": small},
+               "verdict": f"{drift.get('verdict', '')}; {small}"}
     if not turned or drift.get("verdict_kind") == "recalibrate":
         return out
     keys = ("verdict_kind", "verdict", "drifted")

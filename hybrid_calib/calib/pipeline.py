@@ -29,7 +29,7 @@ from factors.correspondences import repeat_message, repeated_frames
 from factors.io import load_measurement_dir
 from hybrid_calib.calib.batch import BatchConfig, solve_batch
 from hybrid_calib.calib.covariance import NOT_CONVERGED, prior_pinned_std, status_kind
-from hybrid_calib.calib.drift import DriftConfig, reference_test, unconverged
+from hybrid_calib.calib.drift import DriftConfig, reference_test, unconverged, with_turn_since_export
 from hybrid_calib.calib.oracle import OracleConfig, oracle_from_frame
 from hybrid_calib.calib.result import (
     DATA_STAMP,
@@ -471,7 +471,8 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, progress: bool = 
         res.truth_T, res.truth_path = T_true, path_of(pos, vi.truth)
         e = local(T_true, final.T)
         res.error = {**extrinsic_error(final.T, T_true).as_dict(), "nees": nees(e, final.cov)}
-    res.drift = {**res.drift, "reference": vi.reference_source}  # what the verdict compared with
+    # what the verdict compared with; against an export, that the oracle tests no turn since it (no mount monitor)
+    res.drift = with_turn_since_export({**res.drift, "reference": vi.reference_source}, None, "oracle")
     if vi.oracle_truths:
         from hybrid_calib.calib.crb import oracle_crb
 

@@ -602,7 +602,8 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     if reason:
         untrusted(res, reason)
     if res.drift:  # a step the radar mount monitor measured stands whatever the estimate at the end can tell
-        res.drift = doppler_level_note(with_turn_since_export(with_mount_step(res.drift, res.mount), res.mount),
+        res.drift = doppler_level_note(with_turn_since_export(with_mount_step(res.drift, res.mount), res.mount,
+                                                             conf.method),
                                        res.mount)
     return res
 
