@@ -620,6 +620,42 @@ def test_a_turn_since_the_export_within_the_tolerance_is_said_and_an_untested_on
     assert against_tolerance(untested, "ok", None, rot_deg=1.0)["verdict"].count("method pure runs no") == 1
 
 
+def test_the_words_name_the_exported_mount_not_the_tables():
+    """Against an earlier export, the calibrator's sentences that name the reference "its tables" (the Doppler's note,
+    the camera-side note, a radar too far off, the mount monitor's far level in a status) say the exported mount
+    (session 38 left "its tables" there); against the tables they are unchanged; a report's redo says it too."""
+    from hybrid_calib.calib.drift import against_tolerance, doppler_level_note, reference_test, unconverged
+    from hybrid_calib.calib.pipeline import in_reference_nouns
+    from hybrid_calib.calib.result import Estimate, VehicleResult
+    from tests.helpers import nominal_T_cam_radar
+
+    T = nominal_T_cam_radar()
+    told = unconverged(reference_test(T, np.eye(6) * 1e-8, T).to_dict(), "inconclusive: out of domain")
+    far = {"levels": [{"level_deg": -8.93, "std_deg": 0.10, "pairs": 40, "from": 0, "to": 40}], "steps": []}
+    status = ("inconclusive: the radar's own heading on the vehicle lies 8.93 deg to the right of its tables' "
+              "(frames 0-40): the radar is not mounted as its tables say; ok")
+    for src, words in [(_drift(0.0)["reference"], "to the right of the exported mount's"),
+                       ({"kind": "tables"}, "to the right of its tables'")]:
+        d = {**doppler_level_note(told, far), "reference": src}
+        vr = in_reference_nouns(VehicleResult("v", Estimate(T, np.eye(6), np.ones(6), status), drift=d))
+        assert words in vr.drift["verdict"] and words in vr.final.status, (vr.drift["verdict"], vr.final.status)
+        assert ("its tables" in vr.drift["verdict"]) is (src["kind"] == "tables")
+        assert ("as the export says" in vr.final.status) is (src["kind"] == "export")
+        redone = against_tolerance(vr.drift, "inconclusive: out of domain", far, rot_deg=1.0)
+        assert words in redone["verdict"] and redone["verdict"].count("the radar's own Doppler") == 1
+
+
+def test_the_oracle_says_no_doppler_test_ran_against_an_export(knocked, tmp_path):
+    from hybrid_calib.hybrid import run_calibration
+
+    _, _, exp, later = knocked
+    conf = {"method": "oracle", "vehicles": ["sim-veh-000"], "progress": False, "window": {"window": 3},
+            "reference": str(exp)}
+    d = run_calibration(later, VERSION, tmp_path / "o", conf).vehicles["sim-veh-000"].drift
+    assert d["since_export"]["tested"] is False and "not tested for a turn of the radar since the export" in \
+        d["verdict"], d["verdict"]
+
+
 @pytest.mark.parametrize("doppler", [{"level_deg": 370.0, "std_deg": 0.03}, {"level_deg": 0.1, "std_deg": 1e9},
                                      {"level_deg": True, "std_deg": 0.03}, {"level_deg": "0.1", "std_deg": 0.03},
                                      {"level_deg": 0.1, "std_deg": 0.0}, "0.1"])

@@ -381,7 +381,8 @@ def against_tolerance(drift: dict, status: str, mount: dict | None, rot_deg: flo
     again = turn.get("words", "") if turn.get("tested") is False else since_export_words(
         turn if {"delta_deg", "std_deg"} <= set(turn) else None,
         float(axes["yaw"]["tolerance"]) if rot_deg is None else float(rot_deg))
-    return {**out, "verdict": f"{out['verdict']}; {again}"} if again else out
+    out = {**out, "verdict": f"{out['verdict']}; {again}"} if again else out
+    return drift_in_reference_nouns(out)
 
 
 def unconverged(drift: dict, status: str) -> dict:
@@ -492,6 +493,35 @@ def _turned_words(turn: dict | None, drift: dict | None, rot_tol_deg: float) -> 
             f"export it is checked against ({src.get('path')}), beyond the {rot_tol_deg:g} deg tolerance (the radar "
             "mount monitor: its Doppler heading against the ego poses at this drive's end, against the same on the "
             "drive the export came from).")
+
+
+# the calibrator's sentences name the reference "its tables"; against an earlier export (data.reference) the mount
+# compared with is the exported one: the words say so (session 38 left "its tables" there, only the first line, the
+# page's "Checked against" and the fleet summary saying what it meant). Longest phrases first.
+EXPORT_NOUNS = (("as its tables say", "as the export says"), ("its tables'", "the exported mount's"),
+                ("its tables", "the exported mount"), ("of their tables", "of their exported mounts"))
+
+
+def reference_nouns(text: str, source: dict | None) -> str:
+    """``text`` with the reference named as ``source`` (a result's ``drift["reference"]``) is: unchanged against the
+    tables, "its tables" turned into the exported mount (``EXPORT_NOUNS``) against an export."""
+    if not isinstance(source, dict) or source.get("kind") != "export" or not isinstance(text, str):
+        return text
+    for tables, export in EXPORT_NOUNS:
+        text = text.replace(tables, export)
+    return text
+
+
+def drift_in_reference_nouns(drift: dict | None) -> dict | None:
+    """``drift`` whose verdict (and the verdict at the end a step raised, ``at_end``) names its reference as
+    ``reference_nouns``."""
+    if not drift or not isinstance(drift.get("reference"), dict):
+        return drift
+    src = drift["reference"]
+    out = {**drift, "verdict": reference_nouns(drift.get("verdict"), src)}
+    if isinstance(drift.get("at_end"), dict):
+        out["at_end"] = {**drift["at_end"], "verdict": reference_nouns(drift["at_end"].get("verdict"), src)}
+    return out
 
 
 def unchecked_since_export(drift: dict | None, mount: dict | None, method: str = "") -> str:

@@ -392,6 +392,21 @@ def untrusted(res: VehicleResult, reason: str) -> None:
         res.drift = unconverged(res.drift, res.final.status)
 
 
+def in_reference_nouns(res: VehicleResult) -> VehicleResult:
+    """``res`` whose verdict and status name its reference as it is (``drift.reference_nouns``: against an earlier
+    export, "its tables" is the exported mount). The last step of each method's result."""
+    from hybrid_calib.calib.drift import drift_in_reference_nouns, reference_nouns
+
+    src = (res.drift or {}).get("reference")
+    status = reference_nouns(res.final.status, src)
+    if status != res.final.status:
+        res.final = dataclasses.replace(res.final, status=status)
+        if res.trajectory:
+            res.trajectory[-1] = dataclasses.replace(res.trajectory[-1], estimate=res.final)
+    res.drift = drift_in_reference_nouns(res.drift)
+    return res
+
+
 def _start(vi: VehicleInput, conf: CalibrateConfig) -> np.ndarray:
     if conf.start == "reference":
         return vi.reference
@@ -541,7 +556,7 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
             untrusted(res, NETWORK_ROWS)
         elif why := trust_reason(res, inputs[name].reference):
             untrusted(res, why)
-        return res
+        return in_reference_nouns(res)
 
     done.fill(run, list(inputs), one, on_vehicle, progress)
     run.raise_if_none_done()

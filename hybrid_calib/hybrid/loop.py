@@ -51,7 +51,7 @@ from hybrid_calib.calib.lever_arm import LeverArmConfig
 from hybrid_calib.calib.lidar_alignment import LidarAlignConfig
 from hybrid_calib.calib.mount_monitor import MountMonitor, MountMonitorConfig, monitor_trust_reason
 from hybrid_calib.calib.oracle import OracleConfig
-from hybrid_calib.calib.pipeline import trust_reason, untrusted
+from hybrid_calib.calib.pipeline import in_reference_nouns, trust_reason, untrusted
 from hybrid_calib.calib.result import (
     DATA_STAMP,
     RUN_ONLY,
@@ -605,7 +605,7 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
         res.drift = doppler_level_note(with_turn_since_export(with_mount_step(res.drift, res.mount), res.mount,
                                                              conf.method),
                                        res.mount)
-    return res
+    return in_reference_nouns(res)
 
 
 def one_pass_verdict(drift: dict | None) -> dict | None:
@@ -644,9 +644,10 @@ def vehicle_oracle(data, version: str, drive: Drive, conf: HybridConfig) -> Vehi
     res = calibrate_vehicle(vi, cconf, progress=conf.progress, T_start=T0)
     res.config = to_dict(conf)
     res = _finish(res, drive, T0, conf)
+    res.drift = with_turn_since_export(res.drift, None, "oracle")  # against an export: no Doppler test, said
     if why := trust_reason(res, drive.reference):
         untrusted(res, why)
-    return res
+    return in_reference_nouns(res)
 
 
 class _Session:
