@@ -83,6 +83,12 @@ def test_the_reference_is_the_exported_extrinsic_and_radar_mount(knocked):
     assert src["kind"] == "export" and src["sha256"] == load_export_reference(exp).sha256
     assert plain.reference_source("sim-veh-000") == {"kind": "tables"}
     assert ds.reference_notes()[0].startswith("reference: sim-veh-000, sim-veh-001 checked against")
+    # a run of some vehicles names those only (session 38 listed every vehicle of the export)
+    assert ds.reference_notes(("sim-veh-001",))[0].startswith("reference: sim-veh-001 checked against the mount "
+                                                               "exported in")
+    assert ds.reference_notes(("sim-veh-009",)) == [f"reference: none of the vehicles asked for is in "
+                                                    f"{(exp / 'export.json').absolute()}: each is checked against "
+                                                    "its tables"]
     # the export.json itself names the same reference as its folder
     np.testing.assert_allclose(_reader(later, str(exp / "export.json")).reference_T_cam_radar(ds.frames[i]),
                                se3_inverse(cam) @ after, atol=1e-12)
@@ -358,6 +364,11 @@ def test_the_commands_take_reference_and_refuse_a_bad_one_by_name(knocked, tmp_p
                  "--set", "window.window=3", "--reference", str(exp)]) == 0
     out = capsys.readouterr()
     assert "reference: sim-veh-000, sim-veh-001 checked against the mounts exported in" in out.err
+    for method in ("oracle", "pure-avg"):  # a run of one vehicle names it alone
+        assert main(["calibrate", "--data", str(later), "--out", str(tmp_path / method), "--no-plots", "--method",
+                     method, "--max-frames", "3", "--set", "window.window=3", 'vehicles=["sim-veh-001"]',
+                     "--reference", str(exp)]) == 0
+        assert "reference: sim-veh-001 checked against the mount exported in" in capsys.readouterr().err, method
     assert f"vs reference (the export {(exp / 'export.json').absolute()}):" in out.out
     assert main(["fleet", "--data", str(later), "--out", str(tmp_path / "f"), "--no-plots", "--no-report",
                  "--max-frames", "4", "--set", "window.window=3", "--reference", str(exp)]) == 0

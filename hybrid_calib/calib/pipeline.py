@@ -111,8 +111,9 @@ def _load_oracle(data, version: str, conf: CalibrateConfig, progress: bool = Tru
                                       "true reflectors, and "
                                       f"{data} has none (no sim_truth/ folder: a real root); calibrate it with "
                                       "--method hybrid (or pure, pure-avg)")
-    for line in [*ds.reference_notes(), *table_warnings(ds)] if say else ():  # a vehicle missing from the result,
-        print(line, file=sys.stderr)  # poses the motion compensation reads
+    # a vehicle missing from the result, poses the motion compensation reads
+    for line in [*ds.reference_notes(conf.vehicles), *table_warnings(ds)] if say else ():
+        print(line, file=sys.stderr)
     out: dict[str, VehicleInput] = {}
     for vehicle, idx in sorted(ds.frames_by_vehicle().items()):
         if conf.vehicles is not None and vehicle not in conf.vehicles:
@@ -177,7 +178,7 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
 
         ds = NuScenesRadarCamera(data, version, conf={"check_images": False, "reference": conf.reference or None})
         against = "truth" if ds.sim_vehicles else "tables"
-        for line in ds.reference_notes() if say else ():
+        for line in ds.reference_notes(conf.vehicles) if say else ():
             print(line, file=sys.stderr)
         _check_exported_from(directory, data, version)
         # a file names its frame by the camera sample_data token (evaluate's export) or the sample (the oracle's)

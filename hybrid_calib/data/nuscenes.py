@@ -654,11 +654,12 @@ class NuScenesRadarCamera:
             return {"kind": "tables"}
         return self.export_reference.source(vehicle)
 
-    def reference_notes(self) -> list[str]:
+    def reference_notes(self, vehicles=None) -> list[str]:
         """What a run on ``DataConfig.reference`` says once, before its frames: which vehicles are checked against
         the export; an export that names none of this root's vehicles (a wrong export: each is checked against its
         tables); a vehicle whose camera record in these tables is another than the one the export read (the camera
-        was recalibrated since: the reference stays the exported radar-camera extrinsic). [] without a reference."""
+        was recalibrated since: the reference stays the exported radar-camera extrinsic). ``vehicles``: the ones the
+        run calibrates (None: all; the others are not named). [] without a reference."""
         ref = self.export_reference
         if ref is None:
             return []
@@ -668,9 +669,11 @@ class NuScenesRadarCamera:
             return [f"warning: the reference export {ref.path} replaced the mount of none of this root's vehicles "
                     f"(it exported {', '.join(sorted(ref.mounts)) or 'none'}; this root holds "
                     f"{', '.join(sorted(by_vehicle)[:6]) or 'none'}): every vehicle is checked against its tables"]
+        named = [v for v in named if vehicles is None or v in vehicles]
+        if not named:  # the export names vehicles of the root, none of those asked for
+            return [f"reference: none of the vehicles asked for is in {ref.path}: each is checked against its tables"]
         out = [f"reference: {', '.join(named)} checked against the mount{'s' if len(named) > 1 else ''} exported in "
-               f"{ref.path} (from {ref.data}, {ref.version}), which the words 'its tables' name for "
-               f"{'them' if len(named) > 1 else 'it'} below; any other vehicle against its tables"]
+               f"{ref.path} (from {ref.data}, {ref.version}); any other vehicle against its tables"]
         for v in named:
             try:
                 T_cam = self.tables.T_ego_sensor(self.frames[by_vehicle[v][0]].camera_sd)

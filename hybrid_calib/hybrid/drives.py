@@ -101,7 +101,7 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
 
     frames = open_frames(data, version, lidar=lidar,
                          options={**conf.data, **({"reference": conf.reference} if conf.reference else {})})
-    for line in frames.reference_notes() if hasattr(frames, "reference_notes") else ():
+    for line in frames.reference_notes(conf.vehicles) if hasattr(frames, "reference_notes") else ():
         print(line, file=sys.stderr)
     simulated = bool(getattr(frames, "sim_vehicles", {}))
     for vehicle, names in getattr(frames, "calibration_splits", {}).items():  # said where the names appear

@@ -92,7 +92,7 @@ def _reference_line(vr: VehicleResult) -> str:
     (``--reference``: its path and the root it was exported from)."""
     src = (vr.drift or {}).get("reference")
     if isinstance(src, dict) and src.get("kind") == "export":
-        return f"{reference_name(vr)} (from {src.get('from')}); 'its tables' in the words on this page is that mount"
+        return f"{reference_name(vr)} (from {src.get('from')})"
     return reference_name(vr) + (" (a simulated vehicle's factory calibration)" if vr.errors_against == "truth" else "")
 
 
