@@ -169,6 +169,16 @@ def _camera_pose_moved(root: Path, frame, metres: float) -> Path:
     return path
 
 
+def _alone(root: Path, frame, path: Path) -> Path:
+    """The camera keyframe's record without neighbours (``prev`` and ``next`` ""), as a scene's first record or a
+    keyframe-only table has: only the frame's pose pair can tell its pose wrong. ``path``: returned."""
+    sd_path, recs = _table(root, "sample_data")
+    rec = next(r for r in recs if r["token"] == frame.camera_sd["token"])
+    rec["prev"] = rec["next"] = ""
+    sd_path.write_text(json.dumps(recs))
+    return path
+
+
 def _sd_token(root: Path, frame, key: str, value) -> Path:
     path, recs = _table(root, "sample_data")
     rec = next(r for r in recs if r["token"] == frame.radar_sd["token"])
@@ -199,9 +209,13 @@ RADAR_FRAME_CASES = {
     # a pose 2.5 s away (another instant's) moved the radar's Doppler yaw by 3 deg without a word (probe 27)
     "ego-pose-of-another-instant": lambda r, f: ["+2.500 s from the record's own time", f.radar_sd["token"],
                                                  _ego_pose(r, f, "timestamp", f.radar_sd["timestamp"] + 2_500_000)],
-    # the camera's pose 50 m off its radar's, 30 ms apart, moved the frame's points silently (probe 29)
-    "ego-pose-of-the-camera-jumped": lambda r, f: ["no road vehicle moves so far", "camera's record",
+    # the camera's pose 50 m off its radar's, 30 ms apart, moved the frame's points silently (probe 29); off the
+    # path of its channel's neighbouring records too (probe 80), which is what names it first
+    "ego-pose-of-the-camera-jumped": lambda r, f: ["from the path its neighbours' poses trace", "49.99 m",
                                                    f.camera_sd["token"], _camera_pose_moved(r, f, 50.0)],
+    "ego-pose-of-the-camera-jumped-alone": lambda r, f: ["no road vehicle moves so far", "camera's record",
+                                                         f.camera_sd["token"],
+                                                         _alone(r, f, _camera_pose_moved(r, f, 50.0))],
     "ego-pose-token-missing": lambda r, f: ["nosuchpose", "does not resolve", f.radar_sd["token"],
                                             _sd_token(r, f, "ego_pose_token", "nosuchpose").with_name("ego_pose.json")],
 }

@@ -577,3 +577,49 @@ def test_a_path_not_valid_utf8_is_refused_by_the_commands_and_read_by_the_api(ti
     root = shutil.copytree(tiny.root, latin / "root")  # the network cache's key hashes the root's path (an internal
     ds = NuScenesRadarCamera(root, tiny.version)  # error of the hybrid before)
     assert len(ds.identity) == 16 and ds[0].load_image().ndim == 3
+
+
+# ---------------------------------------------------------------- an ego pose off its channel's path
+@pytest.mark.parametrize("corrupt", ["turned-5deg", "moved-1m"])
+def test_an_ego_pose_off_its_neighbours_path_is_a_skip_naming_it(corrupt, sim_copy):
+    """Probe 80: one radar keyframe's ego pose turned by 5 deg (or moved by 1 m) passed the road-vehicle limits of a
+    frame's pose pair, moved that frame's radar points by it, and raised a false "the radar turned" in the mount
+    monitor of the real scene-0916. The pose is compared with the path its channel's neighbouring records' poses
+    trace (its radar sweeps, 77 ms away): the frame is skipped, naming the ego_pose record; the other frames read, and
+    a non-keyframe sweep's bad pose is that sweep's why. The untouched root reads every frame (the real scene's too:
+    test_real_all_keyframes_load)."""
+    from hybrid_calib.geometry import matrix_to_quat_wxyz, pose_from_nuscenes, so3_exp
+
+    vdir = sim_copy / SIM_VERSION
+    assert list(NuScenesRadarCamera(sim_copy, SIM_VERSION)) and not NuScenesRadarCamera(sim_copy, SIM_VERSION).skipped
+    sd = json.loads((vdir / "sample_data.json").read_text())
+    eps = json.loads((vdir / "ego_pose.json").read_text())
+    ds = NuScenesRadarCamera(sim_copy, SIM_VERSION)
+    rad = ds.frames[2].radar_sd
+    by = {r["token"]: r for r in sd}
+    # a non-keyframe sweep three before it, with records on both sides (the two between stay good: a bad neighbour
+    # does not condemn them, nor the keyframe)
+    sweep = by[by[by[rad["prev"]]["prev"]]["prev"]]
+    assert not sweep["is_key_frame"] and by.get(sweep["prev"]) is not None
+
+    def bad(token: str) -> None:
+        ep = next(e for e in eps if e["token"] == token)
+        if corrupt == "turned-5deg":
+            T = pose_from_nuscenes(ep["rotation"], ep["translation"])
+            ep["rotation"] = matrix_to_quat_wxyz(so3_exp(np.radians([0, 0, 5.0])) @ T[:3, :3]).tolist()
+        else:
+            ep["translation"] = (np.asarray(ep["translation"]) + [1.0, 0, 0]).tolist()
+
+    bad(rad["ego_pose_token"])
+    bad(sweep["ego_pose_token"])
+    (vdir / "ego_pose.json").write_text(json.dumps(eps))
+    ds = NuScenesRadarCamera(sim_copy, SIM_VERSION)
+    assert len(list(ds)) == 3
+    (skip,) = ds.skipped
+    assert skip.index == 2 and skip.token == rad["ego_pose_token"], skip
+    assert "from the path its neighbours' poses trace" in skip.reason and skip.path.endswith("ego_pose.json")
+    assert ("5.0 deg" if corrupt == "turned-5deg" else "1.00 m") in skip.reason, skip.reason
+    between = ds.radar_sweeps_between(2)
+    (why,) = [s.why for s in between if s.token == sweep["token"]]
+    assert "from the path its neighbours' poses trace" in why
+    assert all(not s.why for s in between if s.token != sweep["token"])

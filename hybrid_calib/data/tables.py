@@ -338,7 +338,73 @@ class NuScenesTables:
         """(4, 4) ego -> global at a sample_data record's timestamp (its ego_pose). ``DataError`` naming both
         tokens when the ego pose's own timestamp is more than ``MAX_EGO_POSE_OFFSET_US`` from the record's (nuScenes
         writes them equal: a pose seconds away moved the radar's yaw from its Doppler by 3 deg, silently; probe
-        27)."""
+        27), or when it lies off the path its channel's neighbouring records' poses trace (``_check_smooth``)."""
+        T = self._T_global_ego(sd)
+        self._check_smooth(sd, T)
+        return T
+
+    def _check_smooth(self, sd: dict, T: np.ndarray) -> None:
+        """``DataError`` naming the ego_pose record when ``T`` (4, 4), ``sd``'s ego pose, lies farther from the pose
+        interpolated between its channel's neighbouring records (the sample_data ``prev`` and ``next`` name, at most
+        ``POSE_NEIGHBOUR_MAX_GAP_S`` apart; linear in position, along the geodesic in rotation) than the vehicle's
+        motion can explain: ``POSE_SMOOTH_MARGIN_M`` + ``MAX_EGO_ACCEL_MPS2`` h^2 / 2 and ``POSE_SMOOTH_MARGIN_DEG`` +
+        ``MAX_EGO_YAW_ACCEL_DPS2`` h^2 / 2 for h half the gap. A neighbour that is itself off the path must not
+        condemn a good record: the pair one record farther on either side is tried too, and a record any pair
+        explains passes. Without neighbours (a scene's ends, a root whose tables hold keyframes only) nothing is
+        checked. Probe 80: one radar keyframe's pose turned by 5 deg (or moved by 1 m) passed the road-vehicle limits
+        of a frame's pose pair, moved the frame's radar points by it and raised a false "the radar turned" in the
+        mount monitor."""
+        by = self.by_token["sample_data"]
+        p1 = by.get(sd.get("prev") or "")
+        n1 = by.get(sd.get("next") or "")
+        p2 = by.get(p1.get("prev") or "") if p1 is not None else None
+        n2 = by.get(n1.get("next") or "") if n1 is not None else None
+        first = None
+        for a, b in ((p1, n1), (p2, n1), (p1, n2)):
+            off = self._off_path(a, sd, b, T)
+            if off is None:
+                continue
+            if off[0] <= off[2] and off[1] <= off[3]:
+                return
+            first = first or (a, b, off)
+        if first is None:
+            return
+        a, b, (metres, deg, tol_m, tol_deg) = first
+        t = sd["timestamp"]
+        raise DataError(f"the ego pose of sample_data {sd['token']} lies {metres:.2f} m and {deg:.1f} deg from the "
+                        f"path its neighbours' poses trace (sample_data {a['token']} and {b['token']} of the same "
+                        f"channel, {(t - a['timestamp']) / 1e3:.0f} ms before and {(b['timestamp'] - t) / 1e3:.0f} ms "
+                        f"after; the vehicle's motion explains {tol_m:.2f} m and {tol_deg:.1f} deg, and the records "
+                        "one farther on either side do not explain it either): its ego_pose record is wrong: fix it "
+                        "or re-extract the tables (the record is not used)",
+                        path=str(self.path("ego_pose")), token=sd.get("ego_pose_token"))
+
+    def _off_path(self, a: dict | None, sd: dict, b: dict | None, T: np.ndarray):
+        """(metres, deg, allowed metres, allowed deg): ``T`` against the pose interpolated at ``sd``'s time between
+        records ``a`` and ``b`` (``_check_smooth``); None when they cannot be compared (a record missing, times not
+        in order or too far apart, a pose that does not read: said where that record is read)."""
+        from hybrid_calib.geometry import so3_exp, so3_log
+
+        if a is None or b is None:
+            return None
+        t0, t, t1 = a.get("timestamp"), sd.get("timestamp"), b.get("timestamp")
+        if not all(is_number(x) for x in (t0, t, t1)) or not t0 < t < t1 or \
+                (t1 - t0) * 1e-6 > POSE_NEIGHBOUR_MAX_GAP_S:
+            return None
+        try:
+            T0, T1 = self._T_global_ego(a), self._T_global_ego(b)
+        except DataError:
+            return None
+        s = (t - t0) / (t1 - t0)
+        R = T0[:3, :3] @ so3_exp(s * so3_log(T0[:3, :3].T @ T1[:3, :3]))
+        metres = float(np.linalg.norm((1 - s) * T0[:3, 3] + s * T1[:3, 3] - T[:3, 3]))
+        deg = float(np.degrees(np.linalg.norm(so3_log(R.T @ T[:3, :3]))))
+        h = 0.5 * (t1 - t0) * 1e-6
+        return (metres, deg, POSE_SMOOTH_MARGIN_M + 0.5 * MAX_EGO_ACCEL_MPS2 * h ** 2,
+                POSE_SMOOTH_MARGIN_DEG + 0.5 * MAX_EGO_YAW_ACCEL_DPS2 * h ** 2)
+
+    def _T_global_ego(self, sd: dict) -> np.ndarray:
+        """``T_global_ego`` without the neighbours' check."""
         ep = self.get("ego_pose", sd["ego_pose_token"], f"sample_data {sd['token']}")
         T = _pose(ep, self.path("ego_pose"), MAX_EGO_TRANSLATION_M, "an ego pose")
         a, b = ep.get("timestamp"), sd.get("timestamp")
@@ -437,6 +503,16 @@ MAX_EGO_TURN_DPS = 120.0  # a road vehicle's yaw rate stays well below this (a t
 # in that time plus this much of localisation noise (nuScenes: centimetres, a tenth of a degree)
 POSE_PAIR_MARGIN_M = 0.5
 POSE_PAIR_MARGIN_DEG = 2.0
+# an ego pose against the path its channel's neighbouring records' poses trace (NuScenesTables._check_smooth):
+# measured on the real scene-0916, every channel's poses (2802 records, neighbours 100-250 ms apart) lie within
+# 1.6 cm and 0.30 deg of it; the simulator's keyframe-only camera (neighbours 1 s apart) within 0.13 m and 0.14 deg.
+# Allowed: a margin plus what hard braking (MAX_EGO_ACCEL_MPS2) or a yaw rate changing fast (MAX_EGO_YAW_ACCEL_DPS2)
+# moves the vehicle off a constant-rate path over half the gap; neighbours farther apart are not compared
+POSE_SMOOTH_MARGIN_M = 0.2
+POSE_SMOOTH_MARGIN_DEG = 1.0
+MAX_EGO_ACCEL_MPS2 = 10.0
+MAX_EGO_YAW_ACCEL_DPS2 = 90.0
+POSE_NEIGHBOUR_MAX_GAP_S = 1.5
 
 
 def is_number(x) -> bool:
