@@ -88,7 +88,7 @@ class RadarPixelFactorConfig:
         from hybrid_calib.config import require_ranges
 
         require_ranges(self, {"kernel_scale": "(0, 100]", "elevation_mean_deg": "[-45, 45]",
-                              "reflector_height_mean_m": "[-10, 10]", "reflector_height_std_m": "(0, 20]",
+                              "reflector_height_mean_m": "[-10, 10]", "reflector_height_std_m": "[0.05, 20]",
                               "reflector_height_mean_std_m": "[0, 10]", "reflector_tilt_std_deg": "[0, 45]",
                               "scene_knots_m": "[0, 1000]", "scene_height_std_m": "[0, 10]",
                               "scene_height_sq_std_m2": "[0, 100]", "scene_lateral_slope_std": "[0, 1]",

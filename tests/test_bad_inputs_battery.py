@@ -1709,6 +1709,12 @@ IGNORED_OPTION_CASES = [
     (["calibrate", "--backend", "ceres"], ["--backend: sets the batch solve (--mode batch)", "add --mode batch"]),
     (["calibrate", "--set", "batch.backend=ceres"], ["--set batch.*: sets the batch solve"]),
     (["fleet", "--set", "batch.backend=ceres"], ["--set batch.*: sets the batch solve (--set mode=batch)"]),
+    # the oracle's elevation draw without oracle.elevation=model: the world's heights ran (probe 79)
+    (["calibrate", "--set", "oracle.elevation_beam_deg=3"],
+     ["oracle.elevation_beam_deg acts only with oracle.elevation=model", "add --set oracle.elevation=model"]),
+    (["fleet", "--set", "oracle.elevation=model", "oracle.reflector_height_std_m=0.5"],
+     ["oracle.reflector_height_std_m acts only with oracle.elevation=model and oracle.elevation_model=height",
+      "add --set oracle.elevation_model=height, or drop"]),
 
     (["calibrate", "--checkpoint", "x.json", "--refine", "shipped"],
      ["--checkpoint:", "drop --checkpoint and --refine"]),

@@ -138,6 +138,35 @@ def reject_unused_batch(overrides: dict, mode: str | None = None, backend: str |
                                 f"use it: add {batch_flag}, or drop {flag}")
 
 
+# the oracle's elevation draw: what each setting needs (calib.oracle.OracleConfig); with the default world heights
+# they were accepted and changed nothing (probe 79)
+ORACLE_MODEL_KEYS = {"elevation_beam_deg": "elevation=model", "elevation_mean_deg": "elevation=model",
+                     "elevation_model": "elevation=model", "whole_arc_in_image": "elevation=model",
+                     "reflector_height_mean_m": "elevation=model and elevation_model=height",
+                     "reflector_height_std_m": "elevation=model and elevation_model=height"}
+
+
+def reject_unused_oracle(overrides: dict) -> None:
+    """``OptionError`` when ``--set oracle.KEY`` names a setting of the oracle's elevation draw that its
+    ``oracle.elevation`` (default world: the simulator's true heights) or ``oracle.elevation_model`` does not use
+    (``ORACLE_MODEL_KEYS``), as ``reject_unused_batch`` for the batch settings."""
+    from hybrid_calib.calib.oracle import OracleConfig
+    from hybrid_calib.errors import OptionError
+
+    oracle = overrides.get("oracle")
+    if not isinstance(oracle, dict):
+        return
+    model = oracle.get("elevation", OracleConfig.elevation) == "model"
+    height = oracle.get("elevation_model", OracleConfig.elevation_model) == "height"
+    for key, needs in ORACLE_MODEL_KEYS.items():
+        if key in oracle and not (model and (height or "height" not in needs)):
+            add = [f"oracle.{n}" for n, have in (("elevation=model", model), ("elevation_model=height", height))
+                   if n in needs and not have]
+            raise OptionError("--set", f"oracle.{key} acts only with oracle.{needs.replace(' and ', ' and oracle.')} "
+                                       f"(the oracle draws reflector heights so; the default elevation=world uses the "
+                                       f"simulator's own): add --set {' '.join(add)}, or drop oracle.{key}")
+
+
 def reject_set_keys(overrides: dict, keys: dict[str, str]) -> None:
     """``OptionError`` when ``--set`` names a key that only its own flag sets (``keys``: config key -> flag),
     instead of ignoring it silently."""

@@ -15,6 +15,7 @@ from hybrid_calib.commands import (
     reject_learned_keys,
     reject_set_keys,
     reject_unused_batch,
+    reject_unused_oracle,
     seed_int,
     split_overrides,
 )
@@ -131,6 +132,7 @@ def run(args: argparse.Namespace) -> int:
     overrides = parse_overrides(args.set)
     reject_learned_keys(overrides)
     reject_unused_batch(overrides, args.mode, args.backend)
+    reject_unused_oracle(overrides)
     # an explicit flag wins over --set; an absent one leaves --set (or the default) in charge
     overrides.update(given_flags(args, {**FLAGS, "mode": "mode"}, overrides))
     if args.window is not None:

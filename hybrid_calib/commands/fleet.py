@@ -15,6 +15,7 @@ from hybrid_calib.commands import (
     reject_learned_keys,
     reject_set_keys,
     reject_unused_batch,
+    reject_unused_oracle,
     retry_count,
     seed_int,
 )
@@ -85,6 +86,7 @@ def run(args: argparse.Namespace) -> int:
     if args.method == "oracle":
         reject_learned_keys(calib)
         reject_unused_batch(calib, batch_flag="--set mode=batch")
+        reject_unused_oracle(calib)
         merge(CalibrateConfig, {**calib, "seed": args.seed})  # ConfigError names a bad option before any job runs
     else:  # the network methods' jobs merge --set into HybridConfig (fleet.jobs.calibrate_job): checked alike
         from hybrid_calib.hybrid import HybridConfig
