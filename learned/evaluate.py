@@ -138,12 +138,14 @@ def export_pure(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig, out
     from tqdm import tqdm
 
     from factors.io import save_measurements
-    from learned.export import ExportConfig, not_finite_reason
+    from learned.export import ExportConfig, check_iteration, not_finite_reason
     from learned.train import model_inputs, to_device
 
     if exporter is None:
         from learned.export import export_correspondences as exporter
     export_conf = merge(ExportConfig, conf.export)
+    if hasattr(model, "cfg"):
+        check_iteration(export_conf, int(model.cfg.iterations))
 
     torch.set_num_threads(max(1, conf.threads))
     H, W = (int(v) for v in model.cfg.input_hw) if hasattr(model, "cfg") else (192, 400)

@@ -71,8 +71,21 @@ class ExportConfig:
     def __post_init__(self):
         if problem := scale_problem(self.cov_scale, self.sigma_scale):
             raise ValueError(f"ExportConfig: {problem}")
+        if self.uncertainty not in ("", "learned", "spread"):  # an internal error at the first frame (probe 79)
+            raise ValueError(f"ExportConfig.uncertainty={self.uncertainty!r}; valid: learned, spread, or \"\" (the "
+                             "model config's choice)")
         require_ranges(self, {"iteration": "[-1, 99]", "window": "[0, 100]", "min_confidence": "[0, 10]",
                               "sigma_scale": "(0, 1000]", "cov_scale": "(0, 1e6]", "cov_floor": "(0, 10]"})
+
+
+def check_iteration(conf: ExportConfig, iterations: int) -> None:
+    """``HybridCalibError`` naming ``export.iteration`` when it is not one of a network's ``iterations`` (0 ..
+    iterations - 1, or -1 for the last): it was an IndexError at the first frame (probe 79)."""
+    if not -1 <= conf.iteration < iterations:
+        from hybrid_calib.errors import HybridCalibError
+
+        raise HybridCalibError(f"export.iteration={conf.iteration}: the network runs {iterations} iteration(s); pass "
+                               f"0..{iterations - 1}, or -1 for the last")
 
 
 def not_finite_reason(token: str, inputs: Mapping, b: int = 0, checkpoint: str = "") -> str:

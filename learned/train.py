@@ -308,6 +308,10 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
                     f"after {last.name}" if last is not None else "the start")
     # what refuses the run is checked before its folder is written (probe 71: an --init of another model, a --depth
     # that does not exist and an empty train split left a train_config.json and a runs.json line behind)
+    if conf.context_weights and last is None and not Path(conf.context_weights).is_file():  # probe 79: internal
+        raise HybridCalibError(f"context_weights {conf.context_weights}: no such file; pass a local ResNet-18 "
+                               "ImageNet weights file (.safetensors or a torch state dict), or drop it to train the "
+                               "image context network from scratch")
     if conf.init_weights and last is None:
         init = load_checkpoint(conf.init_weights)
         diff = sorted(k for k in set(init.model_config) | set(model_conf_dict)
@@ -343,7 +347,13 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
     scheduler = lr_schedule(optimizer, conf)
     start = 1
     if conf.context_weights and last is None:
-        loaded = model.load_context_weights(conf.context_weights)
+        try:
+            loaded = model.load_context_weights(conf.context_weights)
+        except (ValueError, KeyError, RuntimeError, OSError) as e:  # not ResNet-18 weights, or not readable
+            from hybrid_calib.errors import DataError
+
+            raise DataError(f"context_weights: {e}; pass ResNet-18 ImageNet weights (torchvision key names)",
+                            path=str(conf.context_weights)) from e
         log.info("image context network: %d tensors from %s", len(loaded), conf.context_weights)
     if conf.init_weights and last is None:
         load_checkpoint(conf.init_weights, model, map_location=device)

@@ -117,6 +117,8 @@ BAD = [
     (EvalConfig, "threads", 0),
     (EvalConfig, "threads", -1),
     (ExportConfig, "window", -1),
+    (ExportConfig, "uncertainty", "abc"),  # probe 79: an internal error at the first frame
+    (SimConfig, "radar_offset_ms", (50.0, 30.0)),  # probe 79: an internal error in the draw
     (ExportConfig, "min_confidence", 1e300),
     (TrainConfig, "lr", 1e300),
     (TrainConfig, "epochs", 10**12),

@@ -297,6 +297,33 @@ def test_init_weights_starts_a_new_run_from_a_checkpoint(frames, tmp_path):
     assert train(train_config("small", heavier), frames, tmp_path / "heavier", progress=False).is_file()
 
 
+def test_bad_context_weights_and_export_iteration_are_named(frames, tmp_path):
+    """Probe 79: context_weights naming no file, or a file of no ResNet-18 weights, and an export.iteration the network
+    does not run were internal errors (FileNotFoundError, IndexError at the first frame)."""
+    from learned.export import ExportConfig, check_iteration
+    from learned.train import train, train_config
+
+    with pytest.raises(HybridCalibError, match="context_weights nope.safetensors: no such file"):
+        train(train_config("small", _train_conf(tmp_path, 1) | {"context_weights": "nope.safetensors"}), frames,
+              tmp_path / "a", progress=False)
+    junk = tmp_path / "junk.pt"
+    torch.save({"x": torch.zeros(2)}, junk)
+    with pytest.raises(HybridCalibError, match="context_weights: .*pass ResNet-18 ImageNet weights"):
+        train(train_config("small", _train_conf(tmp_path, 1) | {"context_weights": str(junk)}), frames,
+              tmp_path / "b", progress=False)
+    check_iteration(ExportConfig(iteration=2), 3)
+    check_iteration(ExportConfig(iteration=-1), 3)
+    with pytest.raises(HybridCalibError, match=r"export.iteration=3: the network runs 3 iteration\(s\); pass 0..2"):
+        check_iteration(ExportConfig(iteration=3), 3)
+    from learned.config import model_config
+    from learned.evaluate import EvalConfig, export_pure
+    from learned.model import RCAutoCalib
+
+    model = RCAutoCalib(model_config("small", TINY_MODEL))
+    with pytest.raises(HybridCalibError, match="export.iteration=50"):  # evaluate checks it before any frame
+        export_pure(model, frames, EvalConfig(split="all", export={"iteration": 50}), tmp_path / "e", progress=False)
+
+
 def test_concat_frames_keeps_scene_groups(frames):
     from learned.dataset import ConcatFrames
 

@@ -94,6 +94,8 @@ class SimConfig:
                               "radar_sweep_period_ms": "[2, 1000]", "lidar_offset_ms": "[0, 1000]",
                               "image_scale": "[0.01, 2]", "jpeg_quality": "[1, 100]",
                               "camera_max_range_m": "(0, 655]"})
+        if not self.radar_offset_ms[0] <= self.radar_offset_ms[1]:  # an internal error in the draw (probe 79)
+            raise ValueError(f"radar_offset_ms={list(self.radar_offset_ms)}: a range [low, high] with low <= high, ms")
         span_ms = self.radar_sweeps_per_frame * (self.radar_sweep_period_ms + 1.0) + 2 * self.radar_offset_ms[1]
         if self.radar_sweeps_per_frame < 0 or span_ms >= 1000 * self.frame_interval_s:
             raise ValueError(f"radar_sweeps_per_frame={self.radar_sweeps_per_frame} sweeps of "
