@@ -1750,6 +1750,17 @@ def test_an_option_the_method_or_engine_would_ignore_is_refused(argv, needles, s
     assert _one_paragraph(err) and not out.exists()
 
 
+@pytest.mark.parametrize("key,value,flag", [("frames", "0", "--frames"), ("checkpoint", "abc", "--checkpoint")])
+def test_report_refuses_set_keys_its_flags_choose(key, value, flag, tmp_path, capsys):
+    """`report --set frames=0` / `--set checkpoint=PATH` were overwritten by the flags' defaults in silence (probe
+    79): refused, naming the flag (before the result is read)."""
+    result = tmp_path / "result.json"
+    result.write_text("{}")
+    err = expect_cli_error(["report", result, "--out", tmp_path / "r.html", "--set", f"{key}={value}"], capsys,
+                           f"--set: {key}=", f"is chosen with {flag} for this command; pass {flag} instead")
+    assert _one_paragraph(err) and not (tmp_path / "r.html").exists()
+
+
 def test_compare_refuses_a_network_for_the_oracle_alone(sim, tmp_path, capsys):
     """`compare --methods oracle --checkpoint C` ran and ignored the checkpoint (probe 37)."""
     root, _ = sim

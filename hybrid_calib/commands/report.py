@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from hybrid_calib.commands import nonnegative_int
+from hybrid_calib.commands import nonnegative_int, reject_set_keys
 from hybrid_calib.config import parse_overrides
 from hybrid_calib.errors import OptionError, check_out_dir, check_out_not_in_dataset, page_target
 
@@ -36,6 +36,8 @@ def run(args: argparse.Namespace) -> int:
     args.out_html = page_target(args.out_html)  # a link: its target is the page, checked and locked (probe 70)
     check_arguments(args)
     overrides = parse_overrides(args.set)
+    # the flags set them (probe 79: --set frames / checkpoint were overwritten by the flags' defaults in silence)
+    reject_set_keys(overrides, {"frames": "--frames", "checkpoint": "--checkpoint"})
     overrides.update(frames=args.frames, checkpoint=args.checkpoint)
     # one run per page (probe 60: two runs onto one page both said "wrote" and one vehicle's page was lost)
     with out_dir_lock(args.out_html.parent, "report", name=fit_name(f".{args.out_html.name}.lock"),
