@@ -144,7 +144,20 @@ def split_indices(frames: Sequence[RadarCameraFrame], split: str,
     items = refs if refs is not None and len(refs) == len(frames) else frames
     if conf.by == "time":
         return [i for i, s in enumerate(time_split(items, conf)) if s == split]
-    return [i for i in range(len(frames)) if assign_split(group_key(items[i], conf.by), conf) == split]
+    keys = [group_key(items[i], conf.by) for i in range(len(frames))]
+    _check_groups(set(keys), conf)
+    return [i for i in range(len(frames)) if assign_split(keys[i], conf) == split]
+
+
+def _check_groups(present: set[str], conf: SplitConfig) -> None:
+    """``HybridCalibError`` when ``split.test_groups`` (or ``val_groups``) names none of the data's groups: every
+    group not listed trains, so a misspelt held-out scene was trained on in silence (probe 79)."""
+    for name, listed in (("test_groups", conf.test_groups), ("val_groups", conf.val_groups)):
+        if listed and not present.intersection(listed):
+            some = ", ".join(sorted(present)[:8]) + (", ..." if len(present) > 8 else "")
+            raise HybridCalibError(f"split.{name} {list(listed)} names no {conf.by} of the data (its {conf.by}s: "
+                                   f"{some}); every {conf.by} not listed trains, so nothing would be held out: fix "
+                                   "the names")
 
 
 def _timestamp_us(item) -> int:

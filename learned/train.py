@@ -331,7 +331,10 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
     save_json_atomic(out / "train_config.json", {"train": to_dict(conf), "model": model_conf_dict,
                                                  **({"data": source} if source is not None else {})})
 
-    if not val_idx:  # epochs.csv's val_* columns stayed empty and history.png had no validation curve, no word
+    if not val_idx and (conf.split.test_groups or conf.split.val_groups):  # the fractions are not used then
+        log.warning("no validation frames: split.val_groups names none (the groups listed decide the split, not "
+                    "val_fraction); add --set split.val_groups=[...] to validate")
+    elif not val_idx:  # epochs.csv's val_* columns stayed empty and history.png had no validation curve, no word
         log.warning("no validation frames: split.by=%s with val_fraction %s leaves none of the %d frames for "
                     "validation (no val_* columns, no validation curve); add roots or scenes, or pass --set %s",
                     conf.split.by, conf.split.val_fraction, len(frames),

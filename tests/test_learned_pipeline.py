@@ -685,10 +685,17 @@ def test_an_empty_split_says_how_to_split_in_time(frames, tmp_path):
     train; the error offered only --split all, which on a trained root evaluates training frames (probe 32)."""
     from learned.evaluate import EvalConfig, evaluate
 
-    conf = EvalConfig(split="test", split_options=SplitConfig(test_groups=("no-such-scene",)))
+    conf = EvalConfig(split="test", split_options=SplitConfig(test_fraction=0.0))
     with pytest.raises(HybridCalibError, match="no frames in split 'test'.*split.by=scene puts whole scenes .*"
                                                "--split-by time .*--set split.by=time"):
         evaluate(OracleModel(), frames, conf, tmp_path / "e", exporter=oracle_exporter, progress=False)
+    # a held-out scene misspelt: every scene not listed trains, so nothing would be held out (probe 79)
+    typo = EvalConfig(split="test", split_options=SplitConfig(test_groups=("no-such-scene",)))
+    with pytest.raises(HybridCalibError, match=r"split.test_groups \['no-such-scene'\] names no scene of the data "
+                                               r"\(its scenes: scene-0, scene-1, scene-2, scene-3\)"):
+        evaluate(OracleModel(), frames, typo, tmp_path / "e", exporter=oracle_exporter, progress=False)
+    with pytest.raises(HybridCalibError, match="names no scene"):  # train's split alike
+        split_indices(frames, "train", SplitConfig(val_groups=("scene-9",)))
     with pytest.raises(HybridCalibError, match="no frames in split 'val'") as e:  # by time: nothing to add
         evaluate(OracleModel(), frames, EvalConfig(split="val", split_options=SplitConfig(by="time", val_fraction=0,
                                                                                          gap_frames=0)),
