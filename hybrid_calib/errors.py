@@ -23,6 +23,7 @@ class DataError(HybridCalibError):
         if token:
             where.append(f"token {token}")
         super().__init__(f"{message}" + (f" [{', '.join(where)}]" if where else ""))
+        self.message = message  # without the file and token
         self.path = path
         self.token = token
 

@@ -623,3 +623,34 @@ def test_an_ego_pose_off_its_neighbours_path_is_a_skip_naming_it(corrupt, sim_co
     (why,) = [s.why for s in between if s.token == sweep["token"]]
     assert "from the path its neighbours' poses trace" in why
     assert all(not s.why for s in between if s.token != sweep["token"])
+
+
+def test_one_record_off_the_schema_is_left_out_not_a_refusal_of_the_root(sim_copy):
+    """Probe 80: a null timestamp on one sweep record of a channel the run never reads (CAM_BACK_LEFT of the real
+    scene) refused the whole root (on v1.0-trainval one bad record of millions stopped every vehicle). A record of
+    sample_data or ego_pose that does not follow the schema is left out and said once; a frame that needs it is
+    skipped naming the field; a table none of whose records does is still refused by its first."""
+    vdir = sim_copy / SIM_VERSION
+    sd = json.loads((vdir / "sample_data.json").read_text())
+    eps = json.loads((vdir / "ego_pose.json").read_text())
+    ds = NuScenesRadarCamera(sim_copy, SIM_VERSION)
+    sweep = next(r for r in sd if not r["is_key_frame"])
+    sweep["timestamp"] = None
+    rad = ds.frames[1].radar_sd
+    ep = next(e for e in eps if e["token"] == rad["ego_pose_token"])
+    del ep["rotation"]
+    (vdir / "sample_data.json").write_text(json.dumps(sd))
+    (vdir / "ego_pose.json").write_text(json.dumps(eps))
+    ds = NuScenesRadarCamera(sim_copy, SIM_VERSION)
+    problems = {s.token: s.reason for s in ds.skipped}
+    assert "1 record(s) of sample_data.json left out, first: table 'sample_data' record" in problems[sweep["token"]]
+    assert "field 'timestamp' is None" in problems[sweep["token"]]
+    assert "1 record(s) of ego_pose.json left out" in problems[ep["token"]]
+    assert len(list(ds)) == 3
+    (skip,) = [s for s in ds.skipped if s.index is not None]
+    assert skip.index == 1 and "lacks field(s) ['rotation']" in skip.reason and skip.token == ep["token"], skip
+    for e in eps:
+        e.pop("rotation", None)
+    (vdir / "ego_pose.json").write_text(json.dumps(eps))
+    with pytest.raises(DataError, match=r"table 'ego_pose' record 0 lacks field\(s\) \['rotation'\]"):
+        NuScenesRadarCamera(sim_copy, SIM_VERSION)

@@ -227,8 +227,8 @@ class NuScenesRadarCamera:
         self.frames: list[FrameRef] = self._build_index()
         if not self.frames and self._index_skips:  # nothing to read, and the reason is known: say it now
             first = self._index_skips[0]
-            raise DataError(f"no frame in this version folder: {len(self._index_skips)} scene(s)/sample(s) could not "
-                            f"be indexed; first: {first.reason}; fix the tables or re-extract the metadata",
+            raise DataError(f"no frame in this version folder: {len(self._index_skips)} problem(s) found while "
+                            f"indexing its tables; first: {first.reason}; fix the tables or re-extract the metadata",
                             path=first.path, token=first.token)
 
     # ---------------------------------------------------------------- index

@@ -33,6 +33,11 @@ import numpy as np
 from hybrid_calib.errors import DataError
 from hybrid_calib.geometry import pose_from_nuscenes
 
+# the per-sensor tables (millions of records on v1.0-trainval, most of channels never read): a record of them that
+# does not follow the schema is left out and said, not a refusal of the root (probe 80: a null timestamp on one
+# CAM_BACK_LEFT sweep record refused the whole root); the small tables stay strict
+LENIENT_TABLES = ("sample_data", "ego_pose")
+
 # The tables the data layer needs, with the fields it reads from each record.
 REQUIRED_TABLES: dict[str, tuple[str, ...]] = {
     "scene": ("token", "log_token", "first_sample_token", "name"),
@@ -92,11 +97,14 @@ def version_dir(root: str | Path, version: str, fix: str = "pass one of them wit
     return vdir
 
 
-def load_table(vdir: Path, name: str, required_fields: Iterable[str] = ("token",)) -> list[dict]:
+def load_table(vdir: Path, name: str, required_fields: Iterable[str] = ("token",),
+               bad: list | None = None) -> list[dict]:
     """``vdir/<name>.json`` -> list of records, checked for the fields the data layer reads.
 
     Raises ``DataError`` naming the file when it is missing, not JSON, not a list of objects, or a
-    record lacks a required field.
+    record lacks a required field. With ``bad`` (a list), a record that fails the field checks is left out and
+    recorded there as ``(token or None, reason)`` instead, unless every record fails (the table is then not a
+    nuScenes table): one bad record of a channel never read must not stop a whole root (probe 80).
     """
     path = Path(vdir) / f"{name}.json"
     if path.exists() and not path.is_file():  # a FIFO, a device, a folder: said as what it is (probe 27)
@@ -121,21 +129,44 @@ def load_table(vdir: Path, name: str, required_fields: Iterable[str] = ("token",
         raise DataError(f"table {name!r} must be a JSON list of records, found {type(records).__name__}",
                         path=str(path))
     required = tuple(required_fields)
+    kept, errors = [], []
     for i, rec in enumerate(records):
-        if not isinstance(rec, dict):
-            raise DataError(f"table {name!r} record {i} is {type(rec).__name__}, expected an object",
-                            path=str(path))
-        missing = [k for k in required if k not in rec]
-        if missing:
-            raise DataError(f"table {name!r} record {i} lacks field(s) {missing}; the table does not follow "
-                            "the nuScenes schema", path=str(path), token=rec.get("token"))
-        for k in required:
-            kind = _field_kind(k)
-            if kind is not None and not _is_kind(rec[k], kind):
-                raise DataError(f"table {name!r} record {i} field {k!r} is {rec[k]!r} ({type(rec[k]).__name__}), "
-                                f"expected {kind.__name__}; the table does not follow the nuScenes schema: fix or "
-                                "re-extract it", path=str(path), token=rec.get("token") if k != "token" else None)
-    return records
+        try:
+            _check_record(name, i, rec, required, path)
+        except DataError as e:
+            if bad is None:
+                raise
+            errors.append(e)
+            continue
+        kept.append(rec)
+    if errors and not kept:  # every record: not a nuScenes table (or another schema), said by its first
+        raise errors[0]
+    for e in errors:
+        bad.append((e.token, f"{e.message}; the record is not used"))
+    return kept
+
+
+def _check_record(name: str, i: int, rec, required: tuple[str, ...], path: Path) -> None:
+    """``DataError`` naming the table, the record's index and token and the field when record ``i`` is not an
+    object holding each ``required`` field with its JSON type (``_field_kind``)."""
+    if not isinstance(rec, dict):
+        raise DataError(f"table {name!r} record {i} is {type(rec).__name__}, expected an object", path=str(path))
+    missing = [k for k in required if k not in rec]
+    if missing:
+        raise DataError(f"table {name!r} record {i} lacks field(s) {missing}; the table does not follow "
+                        "the nuScenes schema", path=str(path), token=_token(rec))
+    for k in required:
+        kind = _field_kind(k)
+        if kind is not None and not _is_kind(rec[k], kind):
+            raise DataError(f"table {name!r} record {i} field {k!r} is {rec[k]!r} ({type(rec[k]).__name__}), "
+                            f"expected {kind.__name__}; the table does not follow the nuScenes schema: fix or "
+                            "re-extract it", path=str(path), token=_token(rec) if k != "token" else None)
+
+
+def _token(rec: dict) -> str | None:
+    """A record's token when it is a string (a bad one is the field the message names)."""
+    tok = rec.get("token")
+    return tok if isinstance(tok, str) else None
 
 
 _STR_FIELDS = ("prev", "next", "filename", "channel", "modality", "vehicle", "name")
@@ -166,10 +197,21 @@ class NuScenesTables:
         self.vdir = version_dir(self.root, version)
         self.records: dict[str, list[dict]] = {}
         self.by_token: dict[str, dict[str, dict]] = {}
+        # table -> token -> why its record was left out (LENIENT_TABLES): ``get`` says it for a reference to it
+        self.bad_records: dict[str, dict[str, str]] = {}
+        self.index_problems: list[tuple[str, str]] = []  # (token, reason)
         for name, fields in REQUIRED_TABLES.items():
-            recs = load_table(self.vdir, name, fields)
+            bad: list | None = [] if name in LENIENT_TABLES else None
+            recs = load_table(self.vdir, name, fields, bad)
             self.records[name] = recs
             self.by_token[name] = _index_by_token(recs, self.vdir / f"{name}.json")
+            for tok, why in bad or ():
+                if tok is not None:
+                    self.bad_records.setdefault(name, {})[tok] = why
+            if bad:  # said once per table (a trainval table holds millions of records)
+                tok, why = bad[0]
+                self.index_problems.append((tok or "", f"{len(bad)} record(s) of {name}.json left out, first: {why}"
+                                            + ("" if len(bad) == 1 else " (the others likewise)")))
         if not self.records["sample"]:
             raise DataError("table 'sample' holds no samples, so this version folder has no frames to read; "
                             "point --data/--version at a dataset with samples (e.g. v1.0-mini)",
@@ -189,7 +231,6 @@ class NuScenesTables:
             self._samples_by_scene.setdefault(s["scene_token"], []).append(s)
         # (sample_token, channel) -> keyframe sample_data record; problems found on the way.
         self.keyframes: dict[tuple[str, str], dict] = {}
-        self.index_problems: list[tuple[str, str]] = []  # (token, reason)
         for lg in self.records["log"]:  # probe 40: a blank name keyed the result "" and a fleet job "vehicles/%"
             if isinstance(lg["vehicle"], str) and not lg["vehicle"].strip():
                 lg["vehicle"] = f"log-{str(lg.get('logfile') or '').strip() or lg['token']}"
@@ -281,6 +322,9 @@ class NuScenesTables:
     def get(self, table: str, token: str, referenced_by: str = "") -> dict:
         """The record of ``table`` with ``token``; ``DataError`` if it does not resolve."""
         rec = self.by_token[table].get(token)
+        if rec is None and (why := self.bad_records.get(table, {}).get(token)):
+            raise DataError(why + (f" (referenced by {referenced_by})" if referenced_by else ""),
+                            path=str(self.path(table)), token=token)
         if rec is None:
             by = f" (referenced by {referenced_by})" if referenced_by else ""
             raise DataError(f"token does not resolve in table {table!r}{by}; the tables are inconsistent or "
