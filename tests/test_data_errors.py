@@ -198,17 +198,24 @@ def test_missing_pcd_is_skipped(tiny):
 
 
 def test_nan_points_dropped_and_counted(tiny):
+    """A few NaN/inf points are dropped and counted; more than 10 % of a sweep is a corrupt file (probe 80: half of a
+    real sweep NaN was read as a good frame and moved pure's answer by 2.8 deg)."""
     path = tiny.path(tiny.radar_sd[1])
-    pts = read_radar_pcd(path)
+    pts = np.tile(read_radar_pcd(path), 5)  # 30 points
     pts["x"][[0, 4]] = np.nan
     pts["y"][2] = np.inf
     write_radar_pcd(path, pts)
     f = _open(tiny)[1]
-    assert f.extras["radar_nonfinite_dropped"] == 3 and f.extras["radar_points_raw"] == 6
-    np.testing.assert_array_equal(f.extras["radar_rows"], [1, 3, 5])
-    assert len(f.radar_points) == 3 and np.all(np.isfinite(f.radar_points))
+    keep = [i for i in range(30) if i not in (0, 2, 4)]
+    assert f.extras["radar_nonfinite_dropped"] == 3 and f.extras["radar_points_raw"] == 30
+    np.testing.assert_array_equal(f.extras["radar_rows"], keep)
+    assert len(f.radar_points) == 27 and np.all(np.isfinite(f.radar_points))
     for name, values in f.radar_fields.items():
-        np.testing.assert_array_equal(values, pts[name][[1, 3, 5]], err_msg=name)
+        np.testing.assert_array_equal(values, pts[name][keep], err_msg=name)
+    pts["x"][::2] = np.nan  # half of them
+    write_radar_pcd(path, pts)
+    _iterate_and_check_skip(tiny, 1, "15 of the 30 radar points have NaN/inf coordinates", "more than 10 %",
+                            "the file is corrupt", str(path))
 
 
 def test_all_nan_sweep_is_skipped(tiny):
