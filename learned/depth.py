@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -450,13 +451,25 @@ def check_depth_source(spec: str, root: str | Path, given: bool) -> None:
     if name == CorruptedTruthDepth.name and not (root / "sim_truth").is_dir():
         why = (f"{spec} corrupts the simulator's ground-truth depth, and {root} has none (no sim_truth/ folder: a "
                "real root)")
-    elif name == LidarDepth.name and not (folder.is_dir() and any(folder.iterdir())):
+    elif name == LidarDepth.name and not _has_files(folder):
         why = (f"{spec} densifies each frame's LiDAR sweep, and {root} has no LiDAR files ({folder} is missing or "
                "empty: no LiDAR, or a partial download)")
+    elif name == LidarDepth.name and not os.access(folder, os.R_OK | os.X_OK):
+        why = (f"{spec} densifies each frame's LiDAR sweep, and {folder} cannot be read (its permissions): make it "
+               "readable")  # probe 80: a bare 'Permission denied' with no --depth advice
     else:
         return
     raise OptionError("--depth", f"{why} ({'the --depth given' if given else 'the checkpoint depth'}); pass another "
                                  f"--depth: {DEPTH_CHOICES}")
+
+
+def _has_files(folder: Path) -> bool:
+    """Whether ``folder`` is a directory with an entry; a directory that cannot be listed counts as having files
+    (``check_depth_source`` says its permissions)."""
+    try:
+        return folder.is_dir() and any(folder.iterdir())
+    except OSError:
+        return folder.is_dir()
 
 
 def needs_lidar(spec: str) -> bool:

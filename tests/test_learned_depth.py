@@ -255,3 +255,29 @@ def test_lidar_depth_on_simulated_frames_matches_the_rendered_truth(tmp_path):
     bare = next(iter(NuScenesRadarCamera(root, "v1.0-sim", conf={"load_lidar": False})))
     with pytest.raises(DataError, match="LIDAR_TOP"):
         LidarDepth().estimate(bare, size, None)
+
+
+def test_a_lidar_folder_that_cannot_be_read_is_said_with_the_depth_advice(tmp_path, monkeypatch):
+    """Probe 80: an unreadable samples/LIDAR_TOP stopped calibrate with a bare 'Permission denied' (from listing it);
+    an empty or missing one names the --depth choices. (Run as root, the test stands the permissions in.)"""
+    import os
+    from pathlib import Path
+
+    from hybrid_calib.errors import OptionError
+    from learned.depth import check_depth_source
+
+    folder = tmp_path / "samples" / "LIDAR_TOP"
+    folder.mkdir(parents=True)
+    with pytest.raises(OptionError, match="LIDAR_TOP is missing or empty"):
+        check_depth_source("lidar-densified", tmp_path, given=True)
+    (folder / "x.pcd.bin").write_bytes(b"")
+    check_depth_source("lidar-densified", tmp_path, given=True)
+
+    def denied(self):
+        raise PermissionError(13, "Permission denied", str(self))
+
+    monkeypatch.setattr(Path, "iterdir", denied)
+    monkeypatch.setattr(os, "access", lambda path, mode: Path(path) != folder)
+    with pytest.raises(OptionError, match=r"--depth: lidar-densified densifies .*LIDAR_TOP cannot be read \(its "
+                                          r"permissions\): make it readable"):
+        check_depth_source("lidar-densified", tmp_path, given=True)
