@@ -80,6 +80,13 @@ def require(conf: Any, rules: Mapping[str, bool]) -> None:
     raise ValueError(f"{type(conf).__name__}: need {'; '.join(failing)} (got {got})")
 
 
+def finite(*values: Any) -> bool:
+    """Whether every value is a finite real number (an int of any size is; a bool is not): numpy's ``isfinite`` on an
+    int beyond 2**64 was an error that named no option (probe 79)."""
+    return all(isinstance(v, numbers.Real) and not isinstance(v, bool) and (isinstance(v, int) or math.isfinite(v))
+               for v in values)
+
+
 _INTERVAL = re.compile(r"^([\[(])\s*([^,\s]+)\s*,\s*([^\])\s]+)\s*([\])])$")
 
 

@@ -70,6 +70,8 @@ BAD = [
     (DriftConfig, "ref_rot_std_deg", 1e300),  # internal error
     (DriftConfig, "ref_trans_std_cm", 1e300),  # internal error
     (StepConfig, "p_alarm", 0),
+    (DriftConfig, "alpha", 2**70),  # probe 79: numpy's isfinite on an int beyond 2**64 named no option
+    (WindowConfig, "default_dt_s", 2**70),
     (StepConfig, "consecutive", -1),
     (StepConfig, "long_frames", (10, -20)),
     (WindowConfig, "window", 10**12),

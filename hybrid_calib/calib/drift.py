@@ -86,15 +86,15 @@ class DriftConfig:
     ref_trans_std_cm: float = 0.0  # uncertainty of the reference itself, per axis (cm), added to C_est
 
     def __post_init__(self):
-        from hybrid_calib.config import require, require_ranges
+        from hybrid_calib.config import finite, require, require_ranges
 
         require(self, {"0 < alpha < 1": 0 < self.alpha < 1,
                        "tolerance_rot_deg > 0": self.tolerance_rot_deg > 0,
                        "tolerance_trans_cm > 0": self.tolerance_trans_cm > 0,
                        "ref_rot_std_deg >= 0": self.ref_rot_std_deg >= 0,
                        "ref_trans_std_cm >= 0": self.ref_trans_std_cm >= 0,
-                       "finite numbers": all(np.isfinite([self.alpha, self.tolerance_rot_deg, self.tolerance_trans_cm,
-                                                          self.ref_rot_std_deg, self.ref_trans_std_cm]))})
+                       "finite numbers": finite(self.alpha, self.tolerance_rot_deg, self.tolerance_trans_cm,
+                                                self.ref_rot_std_deg, self.ref_trans_std_cm)})
         require_ranges(self, {"tolerance_rot_deg": f"(0, {TOLERANCE_MAX['rot_deg']:g}]",
                               "tolerance_trans_cm": f"(0, {TOLERANCE_MAX['trans_cm']:g}]",
                               "ref_rot_std_deg": "[0, 90]", "ref_trans_std_cm": "[0, 10000]"})

@@ -94,11 +94,11 @@ class WindowConfig:
     def __post_init__(self):
         if self.window < 1:
             raise ValueError(f"WindowConfig.window must be >= 1, got {self.window}")
-        from hybrid_calib.config import require, require_ranges
+        from hybrid_calib.config import finite, require, require_ranges
 
-        finite = all(np.isfinite(getattr(self, k)) for k in (
+        numbers_ok = finite(*(getattr(self, k) for k in (
             "random_walk_rot_deg_per_sqrt_s", "random_walk_trans_cm_per_sqrt_s", "default_dt_s", "relinearize_rot_deg",
-            "relinearize_trans_cm", "min_inlier_fraction", "convex_check_fraction"))
+            "relinearize_trans_cm", "min_inlier_fraction", "convex_check_fraction")))
         require(self, {
             "convex_frames >= 0": self.convex_frames >= 0,
             "random_walk_rot_deg_per_sqrt_s >= 0": self.random_walk_rot_deg_per_sqrt_s >= 0,
@@ -107,7 +107,7 @@ class WindowConfig:
             "relinearize_rot_deg > 0": self.relinearize_rot_deg > 0,
             "relinearize_trans_cm > 0": self.relinearize_trans_cm > 0,
             "0 <= min_inlier_fraction <= 1": 0 <= self.min_inlier_fraction <= 1,
-            "finite numbers": finite})
+            "finite numbers": numbers_ok})
         require_ranges(self, {"window": "[1, 1e9]", "convex_frames": "[0, 1e9]",
                               "random_walk_rot_deg_per_sqrt_s": "[0, 90]",
                               "random_walk_trans_cm_per_sqrt_s": "[0, 10000]", "default_dt_s": "(0, 3600]",
