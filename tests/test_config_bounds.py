@@ -99,6 +99,7 @@ BAD = [
     (LidarConfig, "n_beams", 10**12),
     (RadarConfig, "range_noise_m", 1e300),
     (RadarConfig, "max_points", 10**12),
+    (RadarConfig, "clutter_rcs_db", (2**70, 1.0)),
     (RadarConfig, "near_fov_deg", 1e300),
     (RadarConfig, "position_quantisation_m", 0),  # divides: NaN points
     (ShadingConfig, "gamma", -1),

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hybrid_calib.config import require, require_ranges
+from hybrid_calib.config import finite, require, require_ranges
 from hybrid_calib.data.pcd import empty_radar_points
 from hybrid_calib.sim.raycast import Primitives, cast_angular, check_pose
 
@@ -84,7 +84,7 @@ class RadarConfig:
                           for n in ("max_detection_probability", "ghost_probability")}})
         if not self.min_range_m < min(self.near_range_m, self.far_range_m):
             raise ValueError(f"min_range_m={self.min_range_m} must be below near_range_m and far_range_m")
-        if len(self.clutter_rcs_db) != 2 or not np.isfinite(self.clutter_rcs_db).all() or self.clutter_rcs_db[1] < 0:
+        if len(self.clutter_rcs_db) != 2 or not finite(*self.clutter_rcs_db) or self.clutter_rcs_db[1] < 0:
             raise ValueError(f"clutter_rcs_db={list(self.clutter_rcs_db)}: need [mean, std >= 0] in dBsm")
         # range_cell_m / azimuth_cell_deg: a resolution cell's key holds 4096 range and 512 azimuth cells (finer ones
         # merged the returns of other cells and objects)
