@@ -16,6 +16,7 @@ from hybrid_calib.calib.pipeline import CalibrateConfig
 from hybrid_calib.calib.schedule import ScheduleConfig
 from hybrid_calib.calib.window import WindowConfig
 from hybrid_calib.config import ConfigError, merge, require_ranges
+from hybrid_calib.data.filters import RadarFilterConfig
 from hybrid_calib.data.nuscenes import DataConfig
 from hybrid_calib.hybrid.average import AverageConfig
 from hybrid_calib.hybrid.loop import HybridConfig
@@ -77,6 +78,7 @@ BAD = [
     (WindowConfig, "window", 10**12),
     (BatchConfig, "backend", "zzz"),
     (OracleConfig, "sigma_px", 1e300),
+    (OracleConfig, "kinds", (5, 3, 1)),  # probe 79: accepted, said as "no real reflector"
     (LeverArmConfig, "noise_scale", 1e300),
     (LidarAlignConfig, "beam_deg", 1e300),
     (MountMonitorConfig, "threshold", 1e300),
@@ -88,6 +90,8 @@ BAD = [
     (VisualOdometryConfig, "ransac_px", 20),  # probe 79: 5.9 deg off in yaw at 0.49 deg 1-sigma, "recalibrate"
     (RadarPixelFactorConfig, "reflector_height_std_m", 1e-9),  # probe 79: the oracle 111 cm off at NEES 26
     (DataConfig, "nsweeps", 0),
+    (RadarFilterConfig, "invalid_states", (-5,)),  # probe 79: a code the radar never writes kept nothing, in silence
+    (RadarFilterConfig, "dynprop_states", (8,)),
     (HybridConfig, "threads", 10**12),
     # the simulator and the network
     (SimConfig, "radar_sweep_period_ms", 0),

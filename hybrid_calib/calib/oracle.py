@@ -69,6 +69,9 @@ class OracleConfig:
         for name, valid in choices.items():
             if getattr(self, name) not in valid:
                 raise ValueError(f"OracleConfig.{name}={getattr(self, name)!r}; valid: {', '.join(valid)}")
+        if not set(self.kinds) <= {0, 1, 2}:  # accepted, and said as "no real reflector" (probe 79)
+            raise ValueError(f"OracleConfig.kinds={list(self.kinds)}; the simulator's kinds are 0 (real), 1 "
+                             "(clutter), 2 (ghost)")
         from hybrid_calib.config import require_ranges
 
         require_ranges(self, {"n_per_frame": "[1, 1e6]", "sigma_px": "(0, 1000]", "outlier_frac": "[0, 1]",

@@ -23,6 +23,17 @@ class RadarFilterConfig:
     dynprop_states: tuple[int, ...] | None = (0, 1, 2, 3, 4, 5, 6)  # kept dyn_prop values; None = any
     ambig_states: tuple[int, ...] | None = (3,)  # kept ambig_state values; None = any
 
+    def __post_init__(self):  # a code the ARS 408 never writes kept nothing, said only as "0 points" (probe 79)
+        from hybrid_calib.config import require
+
+        require(self, {f"{name} within {lo}..{hi} (the ARS 408's codes), or null": all(
+            isinstance(v, int) and lo <= v <= hi for v in (getattr(self, name) or ()))
+            for name, (lo, hi) in STATE_CODES.items()})
+
+
+# the ARS 408's state codes (nuScenes devkit, RadarPointCloud): invalid_state 0..17, dyn_prop 0..7, ambig_state 0..4
+STATE_CODES = {"invalid_states": (0, 17), "dynprop_states": (0, 7), "ambig_states": (0, 4)}
+
 
 MAX_RANGE_M = 1000.0  # beyond any automotive radar's reach (the ARS 408's: 250 m): a corrupt coordinate
 
