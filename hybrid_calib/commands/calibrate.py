@@ -195,7 +195,8 @@ def _report(result, out: Path, reused: bool = False) -> int:
             seen = sum("repeats" in r for r in v.skipped)  # the ego stood still: not bad (probe 49)
             bad = len(v.skipped) - ood - seen
             said = (f"{bad} frame(s) skipped (bad files or no rows)" if bad else "",
-                    f"{seen} frame(s) left out as repeats of a view (the ego stood still)" if seen else "",
+                    f"{seen} frame(s) left out as repeats of a view (the ego moved under views.min_travel_m and "
+                    "turned under views.min_turn_deg since the view before: it stood still or crept)" if seen else "",
                     f"{ood} frame(s) dropped as out of the network's domain" if ood else "")
             line += "; " + " and ".join(w for w in said if w) + " (listed in result.json)"
         print(line)
