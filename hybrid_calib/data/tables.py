@@ -548,8 +548,9 @@ MAX_EGO_TURN_DPS = 120.0  # a road vehicle's yaw rate stays well below this (a t
 POSE_PAIR_MARGIN_M = 0.5
 POSE_PAIR_MARGIN_DEG = 2.0
 # an ego pose against the path its channel's neighbouring records' poses trace (NuScenesTables._check_smooth):
-# measured on the real scene-0916, every channel's poses (3173 records with both neighbours, 100-250 ms apart) lie within
-# 1.6 cm and 0.30 deg of it; the simulator's keyframe-only camera (neighbours 1 s apart) within 0.13 m and 0.14 deg.
+# measured on the real scene-0916, every channel's poses (3173 records with both neighbours, 100-250 ms apart) lie
+# within 1.6 cm and 0.30 deg of it; the simulator's keyframe-only camera (neighbours 1 s apart) within 0.13 m and
+# 0.14 deg.
 # Allowed: a margin plus what hard braking (MAX_EGO_ACCEL_MPS2) or a yaw rate changing fast (MAX_EGO_YAW_ACCEL_DPS2)
 # moves the vehicle off a constant-rate path over half the gap; neighbours farther apart are not compared. The
 # rotation's margin leaves room for the pitch a road's bumps put in the poses (scene-0916's pitch spans -4.6..+3.0 deg)
