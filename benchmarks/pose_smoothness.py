@@ -46,7 +46,8 @@ def measure(data: str, version: str) -> dict[str, dict]:
         out[ch] = {"n": len(x), "gap_ms": (float(np.median(x[:, 4])), float(x[:, 4].max())),
                    "m": (float(np.median(x[:, 0])), float(np.percentile(x[:, 0], 99)), float(x[:, 0].max())),
                    "deg": (float(np.median(x[:, 1])), float(np.percentile(x[:, 1], 99)), float(x[:, 1].max())),
-                   "allowed_m": float(x[:, 2].min()), "allowed_deg": float(x[:, 3].min()), "refused": int(x[:, 5].sum())}
+                   "allowed_m": float(x[:, 2].min()), "allowed_deg": float(x[:, 3].min()),
+                   "refused": int(x[:, 5].sum())}
     return out
 
 
