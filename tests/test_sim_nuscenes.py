@@ -287,3 +287,17 @@ def test_overwrite_never_deletes_another_versions_files(tmp_path):
     with pytest.raises(HybridCalibError, match="also holds v1.0-mini .* refusing"):
         simulate(conf, root, overwrite=True, workers=1)
     assert real.read_bytes() == b"a real image"
+
+
+def test_simulate_says_when_every_radar_sweep_is_empty(tmp_path, capsys):
+    """Probe 79: radar.max_detection_probability=0 with no clutter or ghosts wrote a root of empty sweeps without a
+    word; every command after it called each file 'written or copied empty'. A root with points says nothing."""
+    from hybrid_calib.cli import main
+
+    args = ["simulate", "--frames", "2", "--set", "image_scale=0.05", "radar.clutter_per_sweep=0",
+            "radar.ghost_probability=0"]
+    assert main([*args, "radar.max_detection_probability=0", "--out", str(tmp_path / "none")]) == 0
+    out = capsys.readouterr().out
+    assert "warning: every one of the 2 radar keyframe sweeps is empty (0 points)" in out, out
+    assert main([*args, "--out", str(tmp_path / "some")]) == 0
+    assert "warning" not in capsys.readouterr().out

@@ -78,4 +78,24 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {name}: {n} of {conf.frames} frames failed and were left out "
                   f"({'every frame: it has no samples' if n == conf.frames else 'see failed_frames'} in "
                   f"{Path(root) / 'v1.0-sim' / 'sim_vehicle.json'})")
+    if empty := empty_radar_words(Path(root)):
+        print(f"  warning: {empty}")
     return 0 if not n_bad else 1
+
+
+def empty_radar_words(root: Path) -> str:
+    """A sentence when every radar keyframe file the simulation wrote holds no point, else "": the radar settings
+    detect nothing, and every command after would call each file "written or copied empty" (probe 79:
+    radar.max_detection_probability=0 with no clutter or ghosts wrote a root of empty sweeps without a word)."""
+    from hybrid_calib.data.pcd import read_radar_pcd
+    from hybrid_calib.errors import DataError
+
+    files = sorted((root / "samples" / "RADAR_FRONT").glob("*.pcd"))
+    try:
+        if not files or any(len(read_radar_pcd(f)) for f in files):
+            return ""
+    except DataError:
+        return ""
+    return (f"every one of the {len(files)} radar keyframe sweeps is empty (0 points): the radar settings "
+            "(radar.max_detection_probability, radar.clutter_per_sweep, radar.ghost_probability, detection "
+            "thresholds) detect nothing, and calibration needs radar points")
