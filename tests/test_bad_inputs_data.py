@@ -416,6 +416,9 @@ def test_radar_points_at_an_impossible_range_are_dropped_and_counted():
     rows, dropped = filter_radar(pts, RadarFilterConfig(dynprop_states=None, ambig_states=None,
                                                         invalid_states=None))
     assert list(rows) == [0, 3] and dropped == 2
+    pts["x"] = [249.0, 900.0, 10.0, 10.0]  # probe 80: a sweep at 900 m, beyond any radar's reach, was read
+    assert list(filter_radar(pts, RadarFilterConfig(dynprop_states=None, ambig_states=None,
+                                                    invalid_states=None))[0]) == [0, 2, 3]
     # points the state filters drop are not corrupt ones (probe 74: counting them called a sweep of parked cars,
     # dyn_prop 7, "NaN/inf coordinates: the file is corrupt")
     from hybrid_calib.data.pcd import empty_radar_points

@@ -35,7 +35,9 @@ class RadarFilterConfig:
 STATE_CODES = {"invalid_states": (0, 17), "dynprop_states": (0, 7), "ambig_states": (0, 4)}
 
 
-MAX_RANGE_M = 1000.0  # beyond any automotive radar's reach (the ARS 408's: 250 m): a corrupt coordinate
+# beyond any automotive radar's reach (the ARS 408's: 250 m; long-range radars' ~300 m): a corrupt coordinate. 1 km
+# until session 39 (probe 80: a sweep of points all at 900 m was read as a frame)
+MAX_RANGE_M = 400.0
 
 
 def finite_mask(points: np.ndarray) -> np.ndarray:

@@ -15,7 +15,7 @@ Bad input policy:
   than ``DataConfig.max_sync_offset_s`` from the camera's) raise ``DataError`` from ``dataset[i]``;
   iteration records a ``SkipRecord`` in ``dataset.skipped`` and goes on
   (``on_error="skip"``) or re-raises (``on_error="raise"``).
-- Points with NaN/inf coordinates (or beyond 1 km: ``filters.MAX_RANGE_M``) are dropped and counted
+- Points with NaN/inf coordinates (or beyond ``filters.MAX_RANGE_M``, 400 m) are dropped and counted
   (``extras["radar_nonfinite_dropped"]``);
   a sweep in which every point is NaN is rejected.
 - Images are checked eagerly but cheaply (signature, size and end marker, no decode; see
@@ -54,7 +54,7 @@ from typing import Any
 import numpy as np
 
 from hybrid_calib.config import merge
-from hybrid_calib.data.filters import RadarFilterConfig
+from hybrid_calib.data.filters import MAX_RANGE_M, RadarFilterConfig
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.data.image_header import decode_image, image_header
 from hybrid_calib.data.pcd import read_lidar_bin
@@ -557,7 +557,7 @@ class NuScenesRadarCamera:
                                 f"some: the file was written or copied empty; re-extract it, or {how}",
                                 path=str(self.root / rad["filename"]), token=rad["token"])
             raise DataError(f"radar sweep has 0 points after filtering ({sweeps.n_raw} read, "
-                            f"{sweeps.n_nonfinite} NaN or beyond 1 km)"
+                            f"{sweeps.n_nonfinite} NaN or beyond {MAX_RANGE_M:g} m)"
                             + (f"; radar_filter.{' and '.join(empty)}=[] keeps no value (the lists hold the values "
                                "kept; null keeps any)" if empty else "") + f"; loosen radar_filter or {how}",
                             path=str(self.root / rad["filename"]),

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from hybrid_calib.data.files import check_regular_file
-from hybrid_calib.data.filters import RadarFilterConfig, filter_radar, finite_mask
+from hybrid_calib.data.filters import MAX_RANGE_M, RadarFilterConfig, filter_radar, finite_mask
 from hybrid_calib.data.pcd import read_radar_pcd
 from hybrid_calib.data.tables import NuScenesTables
 from hybrid_calib.errors import DataError
@@ -47,9 +47,9 @@ class RadarSweeps:
     missing_paths: list[str] = field(default_factory=list)  # earlier sweep files absent on disk
 
 
-# a radar file with more than this fraction of its points NaN/inf (or beyond 1 km) is corrupt, not a sweep with a few
-# bad points dropped: nuScenes' and the simulator's files hold none (probe 80: half of a real sweep NaN was read as a
-# good frame, and moved pure's answer by 2.8 deg, with no word in calibrate)
+# a radar file with more than this fraction of its points NaN/inf (or beyond MAX_RANGE_M) is corrupt, not a sweep
+# with a few bad points dropped: nuScenes' and the simulator's files hold none (probe 80: half of a real sweep NaN was
+# read as a good frame, and moved pure's answer by 2.8 deg, with no word in calibrate)
 NONFINITE_CORRUPT_FRACTION = 0.1
 
 
@@ -84,18 +84,19 @@ def load_filtered_sweep(path: Path, conf: RadarFilterConfig, token: str) -> tupl
                         f"({sets}: --set {sets} in inspect, --set {data_sets} with the network methods of calibrate, "
                         "fleet and compare)", path=str(path), token=token) from None
     if len(raw) and n_nonfinite == len(raw):
-        raise DataError(f"all {len(raw)} radar points have NaN/inf coordinates (or lie beyond 1 km); the file is "
-                        "corrupt, re-export it",
+        raise DataError(f"all {len(raw)} radar points have NaN/inf coordinates (or lie beyond {MAX_RANGE_M:g} m); "
+                        "the file is corrupt, re-export it",
                         path=str(path), token=token)
-    # a byte-swapped body reads as points beyond 1 km (dropped above) and points at the sensor itself (~1e-8 m):
+    # a byte-swapped body reads as points beyond MAX_RANGE_M (dropped above) and points at the sensor itself (1e-8 m):
     # nearly every point implausible, with a few left to be "the sweep"
     at_sensor = np.hypot(raw["x"].astype(np.float64), raw["y"].astype(np.float64)) < AT_SENSOR_M
     if len(raw) >= 3 and np.mean(at_sensor | ~finite_mask(raw)) > 0.9 and at_sensor.any():
         raise DataError(f"{int(at_sensor.sum())} of the {len(raw)} radar points lie at the sensor itself (within "
-                        f"{100 * AT_SENSOR_M:g} cm) and {n_nonfinite} are NaN or beyond 1 km: the file is byte-swapped "
-                        "or corrupt, re-export it", path=str(path), token=token)
+                        f"{100 * AT_SENSOR_M:g} cm) and {n_nonfinite} are NaN or beyond {MAX_RANGE_M:g} m: the file is "
+                        "byte-swapped or corrupt, re-export it", path=str(path), token=token)
     if len(raw) and n_nonfinite > NONFINITE_CORRUPT_FRACTION * len(raw):
-        raise DataError(f"{n_nonfinite} of the {len(raw)} radar points have NaN/inf coordinates (or lie beyond 1 km), "
+        raise DataError(f"{n_nonfinite} of the {len(raw)} radar points have NaN/inf coordinates (or lie beyond "
+                        f"{MAX_RANGE_M:g} m), "
                         f"more than {100 * NONFINITE_CORRUPT_FRACTION:g} %: the file is corrupt (a radar writes none), "
                         "re-export it", path=str(path), token=token)
     return raw[rows], rows, len(raw), n_nonfinite
