@@ -91,7 +91,7 @@ class EvalConfig:
         check_sizes_and_device(self, "EvalConfig")
         require_ranges(self, {"max_frames": "[0, 1e7]", "batch_size": "[1, 4096]", "threads": "[1, 1024]",
                               "max_radar_points": "[1, 1e6]", "max_lidar_points": "[0, 1e6]",
-                              "fit_min_frames": "[1, 1e6]"})
+                              "fit_min_frames": "[1, 1e6]", "seed": "[0, 9.2e18]"})  # as --seed (probe 79)
         merge(ExportConfig, self.export, "export.")  # a bad --set export.KEY fails before the data are read
 
 

@@ -93,7 +93,8 @@ class TrainConfig:
         require_ranges(self, {"epochs": "[1, 1e4]", "batch_size": "[1, 4096]", "lr": "[0, 1]",
                               "lr_halve_every": "[0, 1e4]", "weight_decay": "[0, 1]", "grad_clip": "[0, 1e6]",
                               "samples_per_epoch": "[0, 1e8]", "val_samples": "[0, 1e8]", "num_workers": "[0, 256]",
-                              "threads": "[1, 1024]", "max_radar_points": "[1, 1e6]", "max_lidar_points": "[0, 1e6]"})
+                              "threads": "[1, 1024]", "max_radar_points": "[1, 1e6]", "max_lidar_points": "[0, 1e6]",
+                              "seed": "[0, 9.2e18]"})  # as --seed (probe 79: -1 was accepted through --set)
 
 
 def check_sizes_and_device(conf, owner: str) -> None:

@@ -128,6 +128,8 @@ BAD = [
     (SimConfig, "radar_offset_ms", (50.0, 30.0)),  # probe 79: an internal error in the draw
     (ExportConfig, "min_confidence", 1e300),
     (TrainConfig, "lr", 1e300),
+    (TrainConfig, "seed", -1),  # probe 79: the --seed flags refuse it, --set took it
+    (EvalConfig, "seed", -1),
     (TrainConfig, "epochs", 10**12),
     (TrainConfig, "threads", 10**12),
 ]
