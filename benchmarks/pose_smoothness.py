@@ -18,8 +18,8 @@ import numpy as np
 
 
 def measure(data: str, version: str) -> dict[str, dict]:
-    """channel -> {"n", "gap_ms" (median, max), "m" / "deg" (median, p99, max), "allowed_m" / "allowed_deg" (min),
-    "refused"}."""
+    """channel -> {"n", "gap_ms" (median, max), "m" / "yaw" / "tilt" (median, p99, max; m, deg, deg), "allowed"
+    (the smallest allowance of each), "refused"}, over the records with both neighbours, interpolated between them."""
     from hybrid_calib.data.tables import NuScenesTables
     from hybrid_calib.errors import DataError
 
@@ -43,11 +43,10 @@ def measure(data: str, version: str) -> dict[str, dict]:
     out = {}
     for ch, v in sorted(rows.items()):
         x = np.asarray(v, float)
-        out[ch] = {"n": len(x), "gap_ms": (float(np.median(x[:, 4])), float(x[:, 4].max())),
-                   "m": (float(np.median(x[:, 0])), float(np.percentile(x[:, 0], 99)), float(x[:, 0].max())),
-                   "deg": (float(np.median(x[:, 1])), float(np.percentile(x[:, 1], 99)), float(x[:, 1].max())),
-                   "allowed_m": float(x[:, 2].min()), "allowed_deg": float(x[:, 3].min()),
-                   "refused": int(x[:, 5].sum())}
+        out[ch] = {"n": len(x), "gap_ms": (float(np.median(x[:, 6])), float(x[:, 6].max())),
+                   **{k: (float(np.median(x[:, j])), float(np.percentile(x[:, j], 99)), float(x[:, j].max()))
+                      for j, k in enumerate(("m", "yaw", "tilt"))},
+                   "allowed": tuple(float(x[:, j].min()) for j in (3, 4, 5)), "refused": int(x[:, 7].sum())}
     return out
 
 
@@ -57,17 +56,18 @@ def main() -> None:
     p.add_argument("--version", default="v1.0-mini")
     args = p.parse_args()
     res = measure(args.data, args.version)
-    print("| channel | records | gap median / max (ms) | off path, m: median / p99 / max | deg: median / p99 / max | "
-          "allowed at least (m, deg) | refused |")
-    print("|---|---|---|---|---|---|---|")
+    print("| channel | records | gap median / max (ms) | off the path, m: median / p99 / max | yaw deg | roll / pitch "
+          "deg | allowed at least (m, yaw, roll / pitch) | refused |")
+    print("|---|---|---|---|---|---|---|---|")
     for ch, r in res.items():
         print(f"| {ch} | {r['n']} | {r['gap_ms'][0]:.0f} / {r['gap_ms'][1]:.0f} | "
-              f"{' / '.join(f'{v:.4f}' for v in r['m'])} | {' / '.join(f'{v:.3f}' for v in r['deg'])} | "
-              f"{r['allowed_m']:.2f}, {r['allowed_deg']:.2f} | {r['refused']} |")
+              f"{' / '.join(f'{v:.4f}' for v in r['m'])} | {' / '.join(f'{v:.3f}' for v in r['yaw'])} | "
+              f"{' / '.join(f'{v:.3f}' for v in r['tilt'])} | {', '.join(f'{v:.2f}' for v in r['allowed'])} | "
+              f"{r['refused']} |")
     n = sum(r["n"] for r in res.values())
     print(f"{n} records; largest off the path: {max(r['m'][2] for r in res.values()):.4f} m, "
-          f"{max(r['deg'][2] for r in res.values()):.3f} deg; refused: {sum(r['refused'] for r in res.values())}")
-
+          f"{max(r['yaw'][2] for r in res.values()):.3f} deg in yaw, {max(r['tilt'][2] for r in res.values()):.3f} "
+          f"deg in roll / pitch; refused: {sum(r['refused'] for r in res.values())}")
 
 if __name__ == "__main__":
     main()

@@ -583,7 +583,42 @@ def test_a_path_not_valid_utf8_is_refused_by_the_commands_and_read_by_the_api(ti
 
 
 # ---------------------------------------------------------------- an ego pose off its channel's path
-@pytest.mark.parametrize("corrupt", ["turned-5deg", "moved-1m"])
+def _turn_pose(eps: list, token: str, deg: float = 0.0, metres: float = 0.0) -> None:
+    """The ego_pose record ``token`` of ``eps`` turned by ``deg`` about the vertical and moved ``metres`` along x."""
+    from hybrid_calib.geometry import matrix_to_quat_wxyz, pose_from_nuscenes, so3_exp
+
+    ep = next(e for e in eps if e["token"] == token)
+    T = pose_from_nuscenes(ep["rotation"], ep["translation"])
+    ep["rotation"] = matrix_to_quat_wxyz(so3_exp(np.radians([0, 0, deg])) @ T[:3, :3]).tolist()
+    ep["translation"] = (np.asarray(ep["translation"]) + [metres, 0, 0]).tolist()
+
+
+@pytest.mark.parametrize("where", ["last", "next-to-last"])
+def test_a_bad_pose_at_a_channels_end_is_refused_and_does_not_condemn_its_neighbour(where, sim_copy):
+    """Probe 81: a channel's first and last records (on nuScenes its first and last keyframes) had no neighbour on one
+    side and were never checked: a last radar keyframe turned 5 deg went into the oracle's calibration in silence. The
+    end is checked from the records on its one side; a good record next to a bad end is not refused for it."""
+    vdir = sim_copy / SIM_VERSION
+    eps = json.loads((vdir / "ego_pose.json").read_text())
+    ds = NuScenesRadarCamera(sim_copy, SIM_VERSION)
+    last = ds.frames[-1].radar_sd
+    by = {r["token"]: r for r in json.loads((vdir / "sample_data.json").read_text())}
+    assert not last["next"], "the premise: the last keyframe ends its channel"
+    bad = last if where == "last" else by[last["prev"]]
+    _turn_pose(eps, bad["ego_pose_token"], deg=5.0)
+    (vdir / "ego_pose.json").write_text(json.dumps(eps))
+    ds = NuScenesRadarCamera(sim_copy, SIM_VERSION)
+    frames = list(ds)
+    if where == "last":
+        (skip,) = ds.skipped
+        assert skip.index == 3 and skip.token == last["ego_pose_token"] and "5.0 deg in yaw" in skip.reason
+    else:  # the sweep before the last keyframe is bad; the keyframe itself, its end neighbour, reads
+        assert len(frames) == 4 and not ds.skipped
+        (why,) = [w.why for w in ds.radar_sweeps_between(3) if w.token == bad["token"]]
+        assert "5.0 deg in yaw" in why
+
+
+@pytest.mark.parametrize("corrupt", ["turned-5deg", "moved-1m", "turned-2.5deg"])
 def test_an_ego_pose_off_its_neighbours_path_is_a_skip_naming_it(corrupt, sim_copy):
     """Probe 80: one radar keyframe's ego pose turned by 5 deg (or moved by 1 m) passed the road-vehicle limits of a
     frame's pose pair, moved that frame's radar points by it, and raised a false "the radar turned" in the mount
@@ -591,8 +626,6 @@ def test_an_ego_pose_off_its_neighbours_path_is_a_skip_naming_it(corrupt, sim_co
     trace (its radar sweeps, 77 ms away): the frame is skipped, naming the ego_pose record; the other frames read, and
     a non-keyframe sweep's bad pose is that sweep's why. The untouched root reads every frame (the real scene's too:
     test_real_all_keyframes_load)."""
-    from hybrid_calib.geometry import matrix_to_quat_wxyz, pose_from_nuscenes, so3_exp
-
     vdir = sim_copy / SIM_VERSION
     assert list(NuScenesRadarCamera(sim_copy, SIM_VERSION)) and not NuScenesRadarCamera(sim_copy, SIM_VERSION).skipped
     sd = json.loads((vdir / "sample_data.json").read_text())
@@ -605,13 +638,9 @@ def test_an_ego_pose_off_its_neighbours_path_is_a_skip_naming_it(corrupt, sim_co
     sweep = by[by[by[rad["prev"]]["prev"]]["prev"]]
     assert not sweep["is_key_frame"] and by.get(sweep["prev"]) is not None
 
-    def bad(token: str) -> None:
-        ep = next(e for e in eps if e["token"] == token)
-        if corrupt == "turned-5deg":
-            T = pose_from_nuscenes(ep["rotation"], ep["translation"])
-            ep["rotation"] = matrix_to_quat_wxyz(so3_exp(np.radians([0, 0, 5.0])) @ T[:3, :3]).tolist()
-        else:
-            ep["translation"] = (np.asarray(ep["translation"]) + [1.0, 0, 0]).tolist()
+    def bad(token: str) -> None:  # probe 81: 2 deg in yaw passed the first version's 2.2 deg allowance (now 1.4-2.2)
+        _turn_pose(eps, token, deg={"turned-5deg": 5.0, "turned-2.5deg": 2.5}.get(corrupt, 0.0),
+                   metres=1.0 if corrupt == "moved-1m" else 0.0)
 
     bad(rad["ego_pose_token"])
     bad(sweep["ego_pose_token"])
@@ -621,7 +650,8 @@ def test_an_ego_pose_off_its_neighbours_path_is_a_skip_naming_it(corrupt, sim_co
     (skip,) = ds.skipped
     assert skip.index == 2 and skip.token == rad["ego_pose_token"], skip
     assert "from the path its neighbours' poses trace" in skip.reason and skip.path.endswith("ego_pose.json")
-    assert ("5.0 deg" if corrupt == "turned-5deg" else "1.00 m") in skip.reason, skip.reason
+    assert {"turned-5deg": "5.0 deg in yaw", "turned-2.5deg": "2.5 deg in yaw"}.get(corrupt, "1.00 m") in skip.reason, \
+        skip.reason
     between = ds.radar_sweeps_between(2)
     (why,) = [s.why for s in between if s.token == sweep["token"]]
     assert "from the path its neighbours' poses trace" in why
