@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import threading
 import warnings
@@ -682,6 +683,15 @@ def test_one_record_off_the_schema_is_left_out_not_a_refusal_of_the_root(sim_cop
     assert len(list(ds)) == 3
     (skip,) = [s for s in ds.skipped if s.index is not None]
     assert skip.index == 1 and "lacks field(s) ['rotation']" in skip.reason and skip.token == ep["token"], skip
+    # a keyframe record left out: its sample says why it has no keyframe (probe 81: "has no keyframe" alone)
+    sd = json.loads((vdir / "sample_data.json").read_text())
+    kf = next(r for r in sd if r["token"] == ds.frames[0].camera_sd["token"])
+    kf["timestamp"] = None
+    (vdir / "sample_data.json").write_text(json.dumps(sd))
+    ds = NuScenesRadarCamera(sim_copy, SIM_VERSION)
+    (lost,) = [s for s in ds.skipped if s.token == kf["sample_token"]]
+    assert re.search(rf"has no keyframe for \['CAM_FRONT'\] \(its sample_data record {kf['token']} was left out: table "
+                     r"'sample_data' record \d+ field 'timestamp' is None", lost.reason), lost.reason
     for e in eps:
         e.pop("rotation", None)
     (vdir / "ego_pose.json").write_text(json.dumps(eps))

@@ -288,7 +288,9 @@ class NuScenesRadarCamera:
                 if cam is None or rad is None:
                     lacking = [ch for ch, sd in ((self.camera_channel, cam), (self.radar_channel, rad)) if sd is None]
                     own, lost = t.unplaced_keyframes.get(sample["token"]), t.unplaced_keyframes.get("")
-                    hint = (f" (its keyframe sample_data {', '.join(own)} names no sensor: its calibrated_sensor does "
+                    left = t.left_out_of_sample.get(sample["token"])
+                    hint = (f" (its sample_data record {left[0][0]} was left out: {left[0][1]})" if left else
+                            f" (its keyframe sample_data {', '.join(own)} names no sensor: its calibrated_sensor does "
                             "not resolve)" if own else f" ({len(lost)} keyframe sample_data record(s) name a sample "
                             f"not in sample.json, e.g. {lost[0]}: one may be its keyframe)" if lost else "")
                     two = [t.ambiguous_keyframes[(sample["token"], ch)] for ch in lacking

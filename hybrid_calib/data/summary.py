@@ -221,13 +221,15 @@ class DatasetSummary:
         broken = sum(g.sweeps_broken for g in self.groups)
         unread = sum(g.sweeps_unreadable for g in self.groups)
         bad_file = next((g.sweep_unreadable for g in self.groups if g.sweep_unreadable), "")
-        tail = (f"; {broken} broken record(s) (a prev pointer that does not resolve or does not go back in time, a "
-                "file name outside the root): the sweeps behind them are not paired" if broken else "")
+        tail = (f"; {broken} broken record(s) (a prev pointer that does not resolve, names a record left out for the "
+                "schema (said above) or does not go back in time, a file name outside the root): the sweeps behind "
+                "them are not paired" if broken else "")
         tail += (f"; {unread} of the files on disk do not read (first: {bad_file[:400]}): those are not paired"
                  if unread else "")
         head = f"{self.radar_channel} sweeps between keyframes: "
         if not n:
-            return [head + "none in the tables; the mount monitor and the Doppler lever arm pair keyframes only" + tail]
+            return [head + f"none {'reached' if broken else 'in the tables'}; the mount monitor and the Doppler lever "
+                    "arm pair keyframes only" + tail]
         per = n / max(self.n_frames, 1)
         if on == n:
             return [head + f"{n} ({per:.1f} per frame), all on disk; the mount monitor and the Doppler lever arm pair "

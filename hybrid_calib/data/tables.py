@@ -103,8 +103,8 @@ def load_table(vdir: Path, name: str, required_fields: Iterable[str] = ("token",
 
     Raises ``DataError`` naming the file when it is missing, not JSON, not a list of objects, or a
     record lacks a required field. With ``bad`` (a list), a record that fails the field checks is left out and
-    recorded there as ``(token or None, reason)`` instead, unless every record fails (the table is then not a
-    nuScenes table): one bad record of a channel never read must not stop a whole root (probe 80).
+    recorded there as ``(token or None, reason, the record)`` instead, unless every record fails (the table is then
+    not a nuScenes table): one bad record of a channel never read must not stop a whole root (probe 80).
     """
     path = Path(vdir) / f"{name}.json"
     if path.exists() and not path.is_file():  # a FIFO, a device, a folder: said as what it is (probe 27)
@@ -136,13 +136,13 @@ def load_table(vdir: Path, name: str, required_fields: Iterable[str] = ("token",
         except DataError as e:
             if bad is None:
                 raise
-            errors.append(e)
+            errors.append((e, rec))
             continue
         kept.append(rec)
     if errors and not kept:  # every record: not a nuScenes table (or another schema), said by its first
-        raise errors[0]
-    for e in errors:
-        bad.append((e.token, f"{e.message}; the record is not used"))
+        raise errors[0][0]
+    for e, rec in errors:
+        bad.append((e.token, f"{e.message}; the record is not used", rec))
     return kept
 
 
@@ -199,17 +199,22 @@ class NuScenesTables:
         self.by_token: dict[str, dict[str, dict]] = {}
         # table -> token -> why its record was left out (LENIENT_TABLES): ``get`` says it for a reference to it
         self.bad_records: dict[str, dict[str, str]] = {}
+        self.left_out_of_sample: dict[str, list[tuple[str, str]]] = {}  # sample -> its sample_data left out, why
         self.index_problems: list[tuple[str, str]] = []  # (token, reason)
         for name, fields in REQUIRED_TABLES.items():
             bad: list | None = [] if name in LENIENT_TABLES else None
             recs = load_table(self.vdir, name, fields, bad)
             self.records[name] = recs
             self.by_token[name] = _index_by_token(recs, self.vdir / f"{name}.json")
-            for tok, why in bad or ():
+            for tok, why, rec in bad or ():
                 if tok is not None:
                     self.bad_records.setdefault(name, {})[tok] = why
+                sample = rec.get("sample_token") if isinstance(rec, dict) and name == "sample_data" and \
+                    rec.get("is_key_frame") is not False else None
+                if isinstance(sample, str):  # a keyframe (or maybe one): its sample then lacks it, said with why
+                    self.left_out_of_sample.setdefault(sample, []).append((tok or "?", why))
             if bad:  # said once per table (a trainval table holds millions of records)
-                tok, why = bad[0]
+                tok, why, _ = bad[0]
                 self.index_problems.append((tok or "", f"{len(bad)} record(s) of {name}.json left out, first: {why}"
                                             + ("" if len(bad) == 1 else " (the others likewise)")))
         if not self.records["sample"]:
