@@ -395,17 +395,16 @@ class NuScenesTables:
     def _check_smooth(self, sd: dict, T: np.ndarray) -> None:
         """``DataError`` naming the ego_pose record when ``T`` (4, 4), ``sd``'s ego pose, lies farther from the path
         its channel's neighbouring records' poses trace (the sample_data ``prev`` and ``next`` name; ``_off_path``:
-        linear in position and along the geodesic in rotation, between two records or beyond them) than the vehicle's
-        motion can explain. Pairs of the records up to two away on either side are tried, interpolating between
-        the sides or extrapolating from one (and at a chain's end, where one side is all there is, the pair two and
-        three away: a scene's first and last records, which on nuScenes are its first and last keyframes: probe 81);
-        a record any pair explains passes, so a neighbour that is itself off the path does
-        not condemn a good record, and one refused needs two pairs that do not explain it (one alone cannot tell its
-        error from the record's). Without them nothing is checked (records farther than
-        ``POSE_NEIGHBOUR_MAX_GAP_S``; a short chain; a root whose tables hold keyframes only is checked with a wide
-        allowance). Probe 80: one radar
-        keyframe's pose turned by 5 deg (or moved by 1 m) passed the road-vehicle limits of a frame's pose pair, moved
-        the frame's radar points by it and raised a false "the radar turned" in the mount monitor."""
+        linear in position and along the geodesic in rotation, between two records or beyond them) than the
+        vehicle's motion can explain. Pairs of the records up to two away on either side are tried, interpolating
+        between the sides or extrapolating from one, and at a chain's end, where one side is all there is, the pair
+        two and three away (a scene's first and last records, on nuScenes its first and last keyframes: probe 81).
+        A record any pair explains passes, so a neighbour that is itself off the path does not condemn a good
+        record; one refused needs two pairs that do not explain it (one alone cannot tell its error from the
+        record's). Nothing is checked without them (records farther than ``POSE_NEIGHBOUR_MAX_GAP_S``, a short
+        chain); a root whose tables hold keyframes only is checked with a wide allowance. Probe 80: one radar
+        keyframe's pose turned by 5 deg (or moved by 1 m) passed the road-vehicle limits of a frame's pose pair,
+        moved the frame's radar points by it and raised a false "the radar turned" in the mount monitor."""
         by = self.by_token["sample_data"]
 
         def walk(key: str) -> list:
