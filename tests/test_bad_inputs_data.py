@@ -697,3 +697,26 @@ def test_one_record_off_the_schema_is_left_out_not_a_refusal_of_the_root(sim_cop
     (vdir / "ego_pose.json").write_text(json.dumps(eps))
     with pytest.raises(DataError, match=r"table 'ego_pose' record 0 lacks field\(s\) \['rotation'\]"):
         NuScenesRadarCamera(sim_copy, SIM_VERSION)
+
+
+@pytest.mark.parametrize("deg,metres", [(0.0, 0.8), (4.0, 0.0)])
+def test_two_adjacent_bad_poses_do_not_explain_each_other(deg, metres, sim_copy):
+    """Probe 83: a radar keyframe's pose and the sweep's before it, wrong by the same amount, each lay on the path
+    through the other and a good record, and both passed (up to 0.9 m, 4 deg of yaw). A pair's path must be borne out
+    by a third record: both are refused; the good records around them read."""
+    vdir = sim_copy / SIM_VERSION
+    eps = json.loads((vdir / "ego_pose.json").read_text())
+    by = {r["token"]: r for r in json.loads((vdir / "sample_data.json").read_text())}
+    ds = NuScenesRadarCamera(sim_copy, SIM_VERSION)
+    key = ds.frames[2].radar_sd
+    before = by[key["prev"]]
+    for rec in (key, before):
+        _turn_pose(eps, rec["ego_pose_token"], deg=deg, metres=metres)
+    (vdir / "ego_pose.json").write_text(json.dumps(eps))
+    ds = NuScenesRadarCamera(sim_copy, SIM_VERSION)
+    assert len(list(ds)) == 3
+    (skip,) = ds.skipped
+    assert skip.index == 2 and skip.token == key["ego_pose_token"], skip
+    between = ds.radar_sweeps_between(2)
+    assert [s.token for s in between if s.why] == [before["token"]]  # the good sweeps around it read
+    assert not [s for s in ds.radar_sweeps_between(3) if s.why]
