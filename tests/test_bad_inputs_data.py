@@ -594,7 +594,7 @@ def _turn_pose(eps: list, token: str, deg: float = 0.0, metres: float = 0.0) -> 
     ep["translation"] = (np.asarray(ep["translation"]) + [metres, 0, 0]).tolist()
 
 
-@pytest.mark.parametrize("where", ["last", "next-to-last"])
+@pytest.mark.parametrize("where", ["last", "next-to-last", "last-2.5deg", "last-0.6m"])
 def test_a_bad_pose_at_a_channels_end_is_refused_and_does_not_condemn_its_neighbour(where, sim_copy):
     """Probe 81: a channel's first and last records (on nuScenes its first and last keyframes) had no neighbour on one
     side and were never checked: a last radar keyframe turned 5 deg went into the oracle's calibration in silence. The
@@ -605,14 +605,17 @@ def test_a_bad_pose_at_a_channels_end_is_refused_and_does_not_condemn_its_neighb
     last = ds.frames[-1].radar_sd
     by = {r["token"]: r for r in json.loads((vdir / "sample_data.json").read_text())}
     assert not last["next"], "the premise: the last keyframe ends its channel"
-    bad = last if where == "last" else by[last["prev"]]
-    _turn_pose(eps, bad["ego_pose_token"], deg=5.0)
+    bad = by[last["prev"]] if where == "next-to-last" else last
+    # probe 83: from one side 2.5 deg of yaw and 0.5 m passed (the pair beyond the nearest record allowed 2.6 deg)
+    _turn_pose(eps, bad["ego_pose_token"], deg={"last-2.5deg": 2.5, "last-0.6m": 0.0}.get(where, 5.0),
+               metres=0.6 if where == "last-0.6m" else 0.0)
     (vdir / "ego_pose.json").write_text(json.dumps(eps))
     ds = NuScenesRadarCamera(sim_copy, SIM_VERSION)
     frames = list(ds)
-    if where == "last":
+    if where != "next-to-last":
         (skip,) = ds.skipped
-        assert skip.index == 3 and skip.token == last["ego_pose_token"] and "5.0 deg in yaw" in skip.reason
+        said = {"last": "5.0 deg in yaw", "last-2.5deg": "2.5 deg in yaw"}.get(where, "0.60 m")
+        assert skip.index == 3 and skip.token == last["ego_pose_token"] and said in skip.reason, skip.reason
     else:  # the sweep before the last keyframe is bad; the keyframe itself, its end neighbour, reads
         assert len(frames) == 4 and not ds.skipped
         (why,) = [w.why for w in ds.radar_sweeps_between(3) if w.token == bad["token"]]
