@@ -206,6 +206,8 @@ class NuScenesTables:
         self.bad_records: dict[str, dict[str, str]] = {}
         self.left_out_of_sample: dict[str, list[tuple[str, str]]] = {}  # sample -> its sample_data left out, why
         self.index_problems: list[tuple[str, str]] = []  # (token, reason)
+        self._poses: dict[str, np.ndarray] = {}  # ego_pose token -> its (4, 4) pose, read
+        self._smooth: dict[str, DataError | None] = {}  # sample_data token -> its pose check's refusal, or None
         for name, fields in REQUIRED_TABLES.items():
             bad: list | None = [] if name in LENIENT_TABLES else None
             recs = load_table(self.vdir, name, fields, bad)
@@ -394,7 +396,15 @@ class NuScenesTables:
         writes them equal: a pose seconds away moved the radar's yaw from its Doppler by 3 deg, silently; probe
         27), or when it lies off the path its channel's neighbouring records' poses trace (``_check_smooth``)."""
         T = self._T_global_ego(sd)
-        self._check_smooth(sd, T)
+        key = sd["token"]
+        if key not in self._smooth:  # the tables do not change: each record's pose is checked once (~1 ms)
+            try:
+                self._check_smooth(sd, T)
+                self._smooth[key] = None
+            except DataError as e:
+                self._smooth[key] = e
+        if (e := self._smooth[key]) is not None:
+            raise DataError(e.message, path=e.path, token=e.token)
         return T
 
     def _check_smooth(self, sd: dict, T: np.ndarray) -> None:
@@ -520,7 +530,9 @@ class NuScenesTables:
     def _T_global_ego(self, sd: dict) -> np.ndarray:
         """``T_global_ego`` without the neighbours' check."""
         ep = self.get("ego_pose", sd["ego_pose_token"], f"sample_data {sd['token']}")
-        T = _pose(ep, self.path("ego_pose"), MAX_EGO_TRANSLATION_M, "an ego pose")
+        if (T := self._poses.get(ep["token"])) is None:  # read once (the pose check reads each neighbour's too)
+            T = self._poses[ep["token"]] = _pose(ep, self.path("ego_pose"), MAX_EGO_TRANSLATION_M, "an ego pose")
+        T = T.copy()
         a, b = ep.get("timestamp"), sd.get("timestamp")
         if is_number(a) and is_number(b) and abs(a - b) > MAX_EGO_POSE_OFFSET_US:
             raise DataError(f"the ego pose of sample_data {sd['token']} is at {a} us, {(a - b) / 1e6:+.3f} s from the "
