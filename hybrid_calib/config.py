@@ -80,11 +80,18 @@ def require(conf: Any, rules: Mapping[str, bool]) -> None:
     raise ValueError(f"{type(conf).__name__}: need {'; '.join(failing)} (got {got})")
 
 
+def is_number(x) -> bool:
+    """A finite JSON number (int or float; not bool): a record's field, a result's read back, an option's value."""
+    try:  # an integer beyond a float's range (JSON allows 400 digits) is not a number here either (probe 63)
+        return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+    except OverflowError:
+        return False
+
+
 def finite(*values: Any) -> bool:
-    """Whether every value is a finite real number (an int of any size is; a bool is not): numpy's ``isfinite`` on an
-    int beyond 2**64 was an error that named no option (probe 79)."""
-    return all(isinstance(v, numbers.Real) and not isinstance(v, bool) and (isinstance(v, int) or math.isfinite(v))
-               for v in values)
+    """Whether every value ``is_number``: numpy's ``isfinite`` on an int beyond 2**64 was an error that named no
+    option (probe 79)."""
+    return all(is_number(v) for v in values)
 
 
 _INTERVAL = re.compile(r"^([\[(])\s*([^,\s]+)\s*,\s*([^\])\s]+)\s*([\])])$")

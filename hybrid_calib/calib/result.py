@@ -76,8 +76,7 @@ from pathlib import Path
 import numpy as np
 
 from hybrid_calib.calib.covariance import STATUS_WORDS, CovarianceReport, report_std, status_kind
-from hybrid_calib.config import json_default, read_out_record, save_json_atomic
-from hybrid_calib.data.tables import is_number
+from hybrid_calib.config import is_number, json_default, read_out_record, save_json_atomic
 from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.geometry import R_AXES_CAM_FROM_RADAR, camera_euler_from_rotation, local
 from hybrid_calib.metrics import extrinsic_error, nees, std_dict, std_from_dict, std_keys

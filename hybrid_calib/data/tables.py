@@ -30,6 +30,7 @@ from pathlib import Path, PurePosixPath
 
 import numpy as np
 
+from hybrid_calib.config import is_number
 from hybrid_calib.errors import DataError
 from hybrid_calib.geometry import pose_from_nuscenes
 
@@ -644,14 +645,6 @@ POSE_SMOOTH_MARGIN_TILT_DEG = 2.0
 MAX_EGO_ACCEL_MPS2 = 20.0
 MAX_EGO_ROT_ACCEL_DPS2 = 90.0
 POSE_NEIGHBOUR_MAX_GAP_S = 1.5
-
-
-def is_number(x) -> bool:
-    """A finite JSON number (int or float; not bool): a record's field, or a result's read back."""
-    try:  # an integer beyond a float's range (JSON allows 400 digits) is not a number here either (probe 63)
-        return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
-    except OverflowError:
-        return False
 
 
 def _is_number_list(value) -> bool:
