@@ -422,16 +422,7 @@ class NuScenesTables:
         chain); a root whose tables hold keyframes only is checked with a wide allowance. Probe 80: one radar
         keyframe's pose turned by 5 deg (or moved by 1 m) passed the road-vehicle limits of a frame's pose pair,
         moved the frame's radar points by it and raised a false "the radar turned" in the mount monitor."""
-        by = self.by_token["sample_data"]
-
-        def walk(key: str) -> list:
-            out, rec = [], sd
-            for _ in range(3):
-                rec = by.get(rec.get(key) or "") if rec is not None else None
-                out.append(rec)
-            return out
-
-        (p1, p2, p3), (n1, n2, n3) = walk("prev"), walk("next")
+        (p1, p2, p3), (n1, n2, n3) = self._along(sd, "prev", 3), self._along(sd, "next", 3)
         failed = []
         pairs = [(p1, n1), (p2, n1), (p1, n2), (p2, p1), (n1, n2)]
         # a chain's end: one side only; the pair beyond the nearest record speaks only where that record is itself off
@@ -469,21 +460,22 @@ class NuScenesTables:
                         "tables (the record is not used)", path=str(self.path("ego_pose")),
                         token=sd.get("ego_pose_token"))
 
+    def _along(self, rec: dict, key: str, n: int, skip: dict | None = None) -> list[dict | None]:
+        """The ``n`` records of ``rec``'s channel the sample_data ``key`` ("prev" or "next") leads to in turn, nearest
+        first, ``skip`` passed over; None for each beyond the chain's end."""
+        by, out, seen = self.by_token["sample_data"], [], {id(rec)}
+        while len(out) < n and (rec := by.get(rec.get(key) or "")) is not None and id(rec) not in seen:
+            seen.add(id(rec))  # a pointer back into the chain (a corrupt table) ends it
+            if rec is not skip:
+                out.append(rec)
+        return out + [None] * (n - len(out))
+
     def _borne_out(self, r: dict, skip: dict) -> bool:
         """Whether record ``r``'s own pose lies on the path of its channel's records around it (up to two on either
         side, ``skip`` left out), or none can be compared. A pair through which a record passes must hold no pose
         that is itself off the path: two adjacent poses wrong by the same amount each lay on the path through the
         other and a good record, and both passed (probe 83: up to 0.9 m, 4 deg of yaw, 7 deg of pitch)."""
-        by = self.by_token["sample_data"]
-
-        def side(key: str) -> list[dict]:
-            out, rec = [], r
-            while len(out) < 2 and (rec := by.get(rec.get(key) or "")) is not None:
-                if rec is not skip:
-                    out.append(rec)
-            return out
-
-        near = side("prev") + side("next")
+        near = [x for x in self._along(r, "prev", 2, skip) + self._along(r, "next", 2, skip) if x is not None]
         try:
             T = self._T_global_ego(r)
         except DataError:
