@@ -723,3 +723,26 @@ def test_two_adjacent_bad_poses_do_not_explain_each_other(deg, metres, sim_copy)
     between = ds.radar_sweeps_between(2)
     assert [s.token for s in between if s.why] == [before["token"]]  # the good sweeps around it read
     assert not [s for s in ds.radar_sweeps_between(3) if s.why]
+
+
+def test_a_record_whose_prev_names_itself_does_not_hang_the_pose_check(sim_copy):
+    """A sample_data record whose prev names itself (a corrupt table): the walk along the channel ends there (the
+    pose check's walk past a skipped record looped for ever on it); every frame reads."""
+    import threading
+
+    vdir = sim_copy / SIM_VERSION
+    sd = json.loads((vdir / "sample_data.json").read_text())
+    key = NuScenesRadarCamera(sim_copy, SIM_VERSION).frames[2].radar_sd
+    rec = next(r for r in sd if r["token"] == key["token"])
+    rec["prev"] = rec["token"]
+    (vdir / "sample_data.json").write_text(json.dumps(sd))
+    ds = NuScenesRadarCamera(sim_copy, SIM_VERSION)
+    t = ds.tables
+    me = t.by_token["sample_data"][key["token"]]
+    box: dict = {}
+    th = threading.Thread(target=lambda: box.update(walk=t._along(t.by_token["sample_data"][me["next"]], "prev", 2,
+                                                                  skip=me), frames=len(list(ds))), daemon=True)
+    th.start()
+    th.join(30)
+    assert not th.is_alive(), "the walk along the channel did not end"
+    assert box["walk"] == [None, None] and box["frames"] == 4
