@@ -525,14 +525,14 @@ def drift_in_reference_nouns(drift: dict | None) -> dict | None:
 
 
 def unchecked_since_export(drift: dict | None, mount: dict | None, method: str = "") -> str:
-    """Why a drive checked against an earlier export could not be tested for a turn since it by its Doppler
-    (``since_export`` is None), or "" (tested, or checked against the tables): the export recorded no Doppler level
+    """Why a drive checked against an earlier export could not be tested for a turn since it by its Doppler (for
+    a ``since_export`` that is None), or "" (checked against the tables): the export recorded no Doppler level
     for the vehicle, the method runs no radar mount monitor (pure, pure-avg, oracle, or the monitor turned off), or
     the monitor read no level of the mount at the drive's end. Said beside the verdict: a user told "within
     tolerance" against an export should know that a turn since it went untested (session 38 left pure and pure-avg
     silent about it)."""
     src = (drift or {}).get("reference") or {}
-    if src.get("kind") != "export" or since_export(drift, mount) is not None:
+    if src.get("kind") != "export":
         return ""
     if not isinstance(src.get("doppler"), dict):
         why = ("the export recorded no Doppler level of the radar for this vehicle (the drive it came from ran no "
