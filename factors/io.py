@@ -10,7 +10,8 @@ Keys of schema version 1 (``SCHEMA_VERSION``); arrays are float64 unless said ot
 key                 shape       meaning
 =================== =========== ==========================================================================
 schema_version      () int64    1
-points_radar        (N, 3)      metres, radar frame, as recorded (z = 0 for a 2D radar)
+points_radar        (N, 3)      metres, radar frame, as recorded at ``timestamp_radar_us`` (z = 0 for a 2D
+                                radar); the reader moves them to the camera's timestamp (below)
 pixels              (N, 2)      pixels (u = column, v = row) of the image described by ``K``
 sigma_px            (N,)        pixels, isotropic 1-sigma noise of each row (> 0)
 confidence          (N,)        [0, 1], multiplies each row's information
@@ -21,16 +22,24 @@ timestamp_radar_us  () int64    radar timestamp, microseconds (0 = unknown)
 vehicle             () str      vehicle (log) the frame belongs to ("" = unknown); groups frames
 =================== =========== ==========================================================================
 
+Optional: ``ego_motion_compensated`` () bool, default false. Radar and camera are not simultaneous (nuScenes:
+0-70 ms apart, up to 0.5 m of travel), so ``calibrate --correspondences`` moves each frame's points through the
+ego motion between its two timestamps, ``N`` of docs/conventions.md ("Transforms"), from the root's ego poses,
+and the network block's transforms by ``N^-1``, so one mount explains every frame. True: the producer did that
+itself (``points_radar`` are ``N p`` and ``T_cam_radar`` estimates the mount): read as they are. Probe 85:
+points as recorded, read as if moved, put a mount 18 cm off at a 2.3 cm std (4 m/s; 31-41 cm at 9 m/s).
+
 Optional network block (a learned producer's own per-frame estimate); present when ``T_cam_radar`` is:
 
 =================== =========== ==========================================================================
-T_cam_radar         (4, 4)      the network's estimate of the extrinsic (radar -> camera)
+T_cam_radar         (4, 4)      the network's estimate of the frame's radar -> camera transform: of the
+                                points as given (``X N`` for points as recorded, ``X`` when compensated)
 cov                 (6, 6)      its covariance: right perturbation ``T Exp(xi)``, ``xi = [omega, v]``
                                 (radar frame; rad^2, m^2), symmetric
 iteration           () int64    0-based iteration whose assignment produced the rows (-1 = unknown); the
                                 rows of iteration k > 0 were measured against the estimate of k - 1,
                                 so they are correlated with ``T_cam_radar``
-T_start             (4, 4)      the start extrinsic the network was given
+T_start             (4, 4)      the start the network was given (the same frame as ``T_cam_radar``)
 =================== =========== ==========================================================================
 
 Other keys are allowed (a producer's extras, e.g. ``learned.evaluate``'s ``T_gt``, ``T_iters``) and
@@ -54,7 +63,8 @@ SCHEMA_VERSION = 1
 ROW_KEYS = ("points_radar", "pixels", "sigma_px", "confidence")
 FRAME_KEYS = ("schema_version", *ROW_KEYS, "K", "frame_id", "timestamp_us", "timestamp_radar_us", "vehicle")
 NETWORK_KEYS = ("T_cam_radar", "cov", "iteration", "T_start")
-KEYS = FRAME_KEYS + NETWORK_KEYS
+COMPENSATED_KEY = "ego_motion_compensated"  # optional (module doc)
+KEYS = FRAME_KEYS + NETWORK_KEYS + (COMPENSATED_KEY,)
 FRAMES_SUBDIR = "frames"  # ``hybrid-calib evaluate --out E`` writes E/frames/*.npz
 
 
@@ -81,6 +91,7 @@ class FrameMeasurements:
     vehicle: str = ""
     timestamp_radar_us: int = 0
     network: NetworkEstimate | None = None
+    compensated: bool = False  # points already moved to the camera's timestamp (module doc)
 
     @property
     def frame_id(self) -> str:
@@ -100,6 +111,7 @@ def to_arrays(m: FrameMeasurements) -> dict[str, np.ndarray]:
         "K": np.array(c.K, np.float64), "frame_id": np.array(str(c.frame_id)),
         "timestamp_us": np.array(int(c.timestamp_us), np.int64),
         "timestamp_radar_us": np.array(int(m.timestamp_radar_us), np.int64), "vehicle": np.array(str(m.vehicle)),
+        COMPENSATED_KEY: np.array(bool(m.compensated)),
     }
     n = m.network
     if n is not None:
@@ -208,7 +220,38 @@ def from_arrays(d: Mapping, source: str = "") -> FrameMeasurements:
         network = NetworkEstimate(_transform(d, "T_cam_radar", source), cov,
                                   _integer(d, "iteration", source) if "iteration" in keys else -1,
                                   _transform(d, "T_start", source) if "T_start" in keys else None)
-    return FrameMeasurements(corr, str(d["vehicle"]), _integer(d, "timestamp_radar_us", source), network)
+    return FrameMeasurements(corr, str(d["vehicle"]), _integer(d, "timestamp_radar_us", source), network,
+                             _flag(d, COMPENSATED_KEY, source) if COMPENSATED_KEY in keys else False)
+
+
+def _flag(d: Mapping, key: str, source: str) -> bool:
+    """``d[key]`` as a bool: a scalar bool, or the integer 0 / 1."""
+    a = np.asarray(d[key])
+    v = a.item() if a.shape == () else None
+    if isinstance(v, (bool, np.bool_)) or (isinstance(v, (int, float)) and v in (0, 1)):
+        return bool(v)
+    raise _bad(source, f"key {key!r} is {a!r}, expected true or false")
+
+
+def at_camera_time(m: FrameMeasurements, N: np.ndarray) -> FrameMeasurements:
+    """``m`` with its points moved to the camera's timestamp (``N p``; ``N`` (4, 4) the radar's motion between the
+    two timestamps, docs/conventions.md) and its network block of the mount (``T N^-1``; the right-perturbation
+    covariance by ``Ad_N``: ``T Exp(xi) N^-1 = T N^-1 Exp(Ad_N xi)``); ``m`` itself when already compensated."""
+    import dataclasses
+
+    from hybrid_calib.geometry import adjoint, se3_inverse, transform_points
+
+    if m.compensated:
+        return m
+    N = np.asarray(N, np.float64)
+    Ni = se3_inverse(N)
+    corr = dataclasses.replace(m.corr, points_radar=transform_points(N, np.asarray(m.corr.points_radar)))
+    net = m.network
+    if net is not None:
+        A = adjoint(N)
+        net = NetworkEstimate(np.asarray(net.T_cam_radar) @ Ni, None if net.cov is None else A @ net.cov @ A.T,
+                              net.iteration, None if net.T_start is None else np.asarray(net.T_start) @ Ni)
+    return dataclasses.replace(m, corr=corr, network=net, compensated=True)
 
 
 def save_measurements(path: str | Path, m: FrameMeasurements, extra: Mapping[str, np.ndarray] | None = None) -> Path:

@@ -8,6 +8,7 @@ from factors.io import (
     SCHEMA_VERSION,
     FrameMeasurements,
     NetworkEstimate,
+    at_camera_time,
     load_correspondence_dir,
     load_measurement_dir,
     load_measurements,
@@ -55,6 +56,35 @@ def test_round_trip_with_and_without_the_network_block(tmp_path):
     np.testing.assert_array_equal(Correspondences.from_npz_dict(c.to_npz_dict()).pixels, c.pixels)
     with pytest.raises(ValueError, match="format keys"):
         save_measurements(tmp_path / "x.npz", m, extra={"cov": np.eye(6)})
+
+
+def test_points_as_recorded_move_to_the_camera_time_with_their_network_block(tmp_path):
+    """``at_camera_time``: points by ``N``, the network's transforms by ``N^-1`` and its right-perturbation covariance
+    by ``Ad_N`` (``T Exp(xi) N^-1 = T N^-1 Exp(Ad_N xi)``); a compensated file is kept; the flag round-trips."""
+    from hybrid_calib.geometry import adjoint, se3_exp, se3_inverse, transform_points
+
+    m = _frame(5)
+    assert not m.compensated and not load_measurements(save_measurements(tmp_path / "a.npz", m)).compensated
+    N = se3_exp(np.array([0.002, -0.001, 0.01, 0.4, 0.03, 0.0]))  # 0.4 m of travel and a small turn
+    moved = at_camera_time(m, N)
+    assert moved.compensated and at_camera_time(moved, N) is moved
+    np.testing.assert_allclose(moved.corr.points_radar, transform_points(N, m.corr.points_radar))
+    np.testing.assert_allclose(moved.network.T_cam_radar, m.network.T_cam_radar @ se3_inverse(N))
+    np.testing.assert_allclose(moved.network.T_start, m.network.T_start @ se3_inverse(N))
+    xi = np.array([0.01, -0.02, 0.015, 0.05, -0.1, 0.2])
+    lhs = m.network.T_cam_radar @ se3_exp(xi) @ se3_inverse(N)
+    np.testing.assert_allclose(moved.network.T_cam_radar @ se3_exp(adjoint(N) @ xi), lhs, atol=1e-12)
+    A = adjoint(N)
+    np.testing.assert_allclose(moved.network.cov, A @ m.network.cov @ A.T)
+    back = load_measurements(save_measurements(tmp_path / "b.npz", moved))
+    assert back.compensated
+    _assert_same(moved, back)
+    d = to_arrays(m)
+    for bad in (np.array(2), np.array("yes"), np.array([True, False])):
+        d["ego_motion_compensated"] = bad
+        np.savez(tmp_path / "c.npz", **d)
+        with pytest.raises(DataError, match="ego_motion_compensated.*expected true or false"):
+            load_measurements(tmp_path / "c.npz")
 
 
 @pytest.mark.parametrize("change, message", [

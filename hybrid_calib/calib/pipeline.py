@@ -182,7 +182,9 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
             print(line, file=sys.stderr)
         _check_exported_from(directory, data, version)
         # a file names its frame by the camera sample_data token (evaluate's export) or the sample (the oracle's)
-        tokens = {t for ref in ds.frames for t in (ref.camera_sd["token"], ref.sample_token, ref.radar_sd["token"])}
+        frame_of = {t: ref for ref in ds.frames for t in (ref.camera_sd["token"], ref.sample_token,
+                                                          ref.radar_sd["token"])}
+        tokens = set(frame_of)
         for ref in ds.frames:  # each frame's camera intrinsics: a file's K must be of that camera (at some size)
             try:
                 K = ds.tables.camera_intrinsic(ref.camera_sd)
@@ -219,6 +221,9 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
         wrong_K = {str(m.frame_id): why for m in ms if str(m.frame_id) in camera_K and
                    (why := other_camera(m.corr.K, camera_K[str(m.frame_id)]))}
         mine = [m for m in ms if (not tokens or str(m.frame_id) in tokens) and str(m.frame_id) not in wrong_K]
+        timing: dict[str, str] = {}  # frame token -> why its rows cannot be moved to the camera's timestamp
+        if frame_of:
+            mine, timing = _at_camera_time(mine, frame_of, ds)
         out[vehicle] = VehicleInput(vehicle, [m.corr for m in mine], ref,
                                     [truth] * len(mine) if truth is not None else [], network=[m.network for m in mine],
                                     against=against, reference_source=sources.get(vehicle, {"kind": "tables"}))
@@ -228,6 +233,8 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
         out[vehicle].skipped.extend({"index": None, "token": token, "reason": (
             f"measurement file of frame {token}: {why} in the root's tables (exported from another camera or another "
             "root, or edited): left out")} for token, why in wrong_K.items())
+        out[vehicle].skipped.extend({"index": None, "token": token, "reason": f"measurement file of frame {token}: "
+                                     f"{why}: left out"} for token, why in timing.items())
     if absent is not None:
         for vehicle in sorted(refs):
             if vehicle not in out and (conf.vehicles is None or vehicle in conf.vehicles):
@@ -237,6 +244,31 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
             out[vehicle].skipped.append({"index": None, "token": Path(path).stem,
                                          "reason": f"measurement file skipped: {e}"})
     return out
+
+
+def _at_camera_time(ms: list, frame_of: dict, ds) -> tuple[list, dict[str, str]]:
+    """The measurement files ``ms`` (``factors.io.FrameMeasurements`` of frames of the root ``ds``; ``frame_of``: token
+    -> its ``FrameRef``) with their points moved to their camera's timestamp through the ego motion between the two
+    (``factors.io.at_camera_time``; a file that says it did so itself is kept as it is), and {token: why} of those
+    left out: a timestamp that is not its frame's keyframe's (rows of another image or sweep, which the motion of
+    the keyframes would misplace), or poses the frame's reading refuses."""
+    from factors.io import at_camera_time
+
+    kept, why = [], {}
+    for m in ms:
+        token, ref = str(m.frame_id), frame_of[str(m.frame_id)]
+        stamps = [(what, int(got), int(sd["timestamp"])) for what, got, sd in (
+            ("camera", m.timestamp_us, ref.camera_sd), ("radar", m.timestamp_radar_us, ref.radar_sd))]
+        if off := [f"its {what} timestamp {got} us is not the frame's {what} keyframe's ({want} us)"
+                   for what, got, want in stamps if got and got != want]:
+            why[token] = (" and ".join(off) + ": its rows are of another image or radar sweep, which this reader "
+                          "cannot place; write the keyframes' rows (timestamp 0 = the keyframes')")
+            continue
+        try:
+            kept.append(at_camera_time(m, ds.radar_motion(ref)))
+        except DataError as e:
+            why[token] = f"the ego motion between its radar and camera timestamps does not read ({e})"
+    return kept, why
 
 
 def _network_summary(vi: VehicleInput) -> dict | None:

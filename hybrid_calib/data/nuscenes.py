@@ -694,6 +694,17 @@ class NuScenesRadarCamera:
         T_ego_cam = self.tables.T_ego_sensor(ref.camera_sd)
         return self._reference_mounts(ref, T_ego_cam, self.tables.T_ego_sensor(ref.radar_sd))[1]
 
+    def radar_motion(self, ref: FrameRef) -> np.ndarray:
+        """(4, 4) ``N`` of frame ``ref``: the radar's motion between its keyframe's and the camera's timestamps, in
+        the radar frame (docs/conventions.md "Transforms"; ``frame.T_cam_radar = T_cam_radar_static N``), from the
+        tables alone (no sensor file read); ``DataError`` where reading the frame would refuse its poses or timing."""
+        t = self.tables
+        cam, rad = ref.camera_sd, ref.radar_sd
+        _check_sync(cam, rad, "radar", self.conf.max_sync_offset_s, t.path("sample_data"))
+        T_ego_radar, T_ge_cam, T_ge_radar = t.T_ego_sensor(rad), t.T_global_ego(cam), t.T_global_ego(rad)
+        _check_pose_pair(cam, T_ge_cam, rad, T_ge_radar, "radar", t.path("ego_pose"))
+        return se3_inverse(T_ego_radar) @ se3_inverse(T_ge_cam) @ T_ge_radar @ T_ego_radar
+
     def reference_T_cam_radar(self, ref: FrameRef) -> np.ndarray:
         """(4, 4) the vehicle's reference T_cam_radar at frame ``ref`` (``_reference``: its calibration tables, or the
         mount an earlier export wrote, ``DataConfig.reference``), from the tables alone (no sensor file read);
