@@ -405,6 +405,40 @@ def test_network_method_job_matches_the_hybrid_entry_point(fleet_root, tmp_path)
         calibrate_job(dataclasses.replace(job, calib={"mode": "batch"}, out=str(tmp_path / "b")))
 
 
+def test_a_retried_job_resumes_its_finished_vehicle_and_caches(fleet_root, tmp_path, capsys, monkeypatch):
+    """Probe 84 (HIGH, lost work): a job retried after an interrupt (its vehicle finished, its result.json not yet
+    written) deleted its network and depth caches and its finished vehicle, and recomputed them; it resumes them on
+    the same data, and one of other options (which the manifest runs again) recomputes the vehicle without a
+    refusal."""
+    from hybrid_calib.calib.result import CalibrationRun
+
+    calib = {"start": "R1", "max_frames": 3, "window": {"detect_steps": False}}
+    job = Job("sim-veh-000", "sim-veh-000", str(fleet_root), "v1.0-sim", "pure-avg", str(tmp_path / "job"), seed=3,
+              calib=calib)
+    save = CalibrationRun.save
+
+    def interrupted(self, path):
+        raise KeyboardInterrupt  # killed after its vehicle finished, before result.json
+
+    starts = {}
+    for seed in (3, 4):  # the second: an interrupted attempt of other options
+        monkeypatch.setattr(CalibrationRun, "save", interrupted)
+        with pytest.raises(KeyboardInterrupt):
+            calibrate_job(dataclasses.replace(job, seed=seed))
+        monkeypatch.setattr(CalibrationRun, "save", save)
+        out = Path(job.out)
+        cached = sorted((out / "network-cache").rglob("*.npz"))
+        assert cached and list((out / "vehicles-done").glob("sim-veh-000*.json"))
+        inodes = [f.stat().st_ino for f in cached]
+        capsys.readouterr()
+        again = CalibrationRun.load(calibrate_job(job)).vehicles["sim-veh-000"]
+        err = capsys.readouterr().err
+        assert ("kept 1 vehicle(s) an interrupted run" in err) == (seed == 3), err
+        assert [f.stat().st_ino for f in cached] == inodes  # the caches kept, whichever the options
+        starts[seed] = again.start
+    assert starts[3] == starts[4]  # the seed-4 attempt's vehicle recomputed with this run's options
+
+
 def test_oracle_rows_and_start_depend_on_the_seed_and_the_vehicle_alone(fleet_root, tmp_path):
     """A vehicle's oracle rows and R1 start are drawn by (seed, vehicle) alone: calibrate of the whole root,
     calibrate of that vehicle alone and a fleet job of it give the same estimate (the rows had been drawn from

@@ -770,6 +770,11 @@ def data_differ(out: str | Path, root: str | Path, version: str) -> bool:
 RUN_ONLY = ("progress", "threads", "cache_dir", "depth_cache")  # config keys of how a run ran, not of what it gave
 
 
+class OtherConfiguration(HybridCalibError):
+    """``VehicleProgress`` refused an ``--out`` whose finished vehicles are of another configuration (the message
+    says what differs and what to do)."""
+
+
 class VehicleProgress:
     """The vehicles a ``calibrate`` run into ``out`` has finished, kept so that an interrupted run resumes where it
     stopped: ``out/vehicles-done/`` holds one JSON per finished vehicle (``VehicleResult``) or failed one
@@ -815,7 +820,7 @@ class VehicleProgress:
                 how = ("the data changed since, so that run cannot be finished: pass --overwrite to discard them and "
                        "calibrate the data as it is now" if all(c.startswith("the data in --data") for c in changed)
                        else "rerun that run's command to finish it, pass --overwrite to discard them")
-                raise HybridCalibError(
+                raise OtherConfiguration(
                     f"{self.dir} holds {len(finished)} vehicle(s) finished by an interrupted run of another "
                     f"configuration ({'; '.join(changed[:4])}{more}); {how}, or pass another --out")
             if changed:

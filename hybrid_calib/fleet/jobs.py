@@ -20,6 +20,7 @@ import json
 import os
 import socket
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -295,8 +296,8 @@ def calibrate_job(job: Job) -> Path:
         prior = None if job.prior is None else {job.vehicle: GaussianPrior(
             np.asarray(job.prior["T_cam_radar"], np.float64), np.asarray(job.prior["cov_right_radar"], np.float64))}
         conf = {**job.calib, "vehicles": (job.vehicle,), "seed": job.seed}
-        calibrate(job.data, job.version, "oracle", out, conf, overwrite=True, priors=prior, progress=False,
-                  on_vehicle=plots)
+        _resuming(job, lambda overwrite: calibrate(job.data, job.version, "oracle", out, conf, overwrite=overwrite,
+                                                   priors=prior, progress=False, on_vehicle=plots))
         return job.result_path
     from hybrid_calib.hybrid import run_calibration
 
@@ -308,8 +309,37 @@ def calibrate_job(job: Job) -> Path:
         raise HybridCalibError(f"--set {', '.join(unsupported)}: method {job.method} runs the sliding window only")
     conf = {**job.calib, "method": job.method, "checkpoint": job.checkpoint or "", "seed": job.seed,
             "vehicles": (job.vehicle,), "threads": job.threads, "progress": False}
-    run_calibration(job.data, job.version, out, conf, overwrite=True, on_vehicle=plots)
+    _resuming(job, lambda overwrite: run_calibration(job.data, job.version, out, conf, overwrite=overwrite,
+                                                     on_vehicle=plots))
     return job.result_path
+
+
+def _resuming(job: Job, run: Callable[[bool], object]) -> None:
+    """``run(overwrite)``, the job's calibration, resuming an interrupted attempt in its folder where the data are as
+    they were (its ``vehicles-done`` stamp records the data's stamp of today): the vehicle it finished and its network
+    and depth caches are kept (a vehicle finished with other options, which the manifest runs again with this run's,
+    is recomputed; the caches are keyed by checkpoint, frame and start); otherwise afresh, discarding them (they are
+    keyed by frame token, which a root re-made at the same path keeps). Probe 84: every retried job (after a Ctrl-C, a
+    kill, a full disk) started afresh, its finished vehicle and caches deleted and recomputed."""
+    import shutil
+
+    from hybrid_calib.calib.result import OtherConfiguration
+    from hybrid_calib.data.files import data_stamp
+
+    done = Path(job.out) / "vehicles-done"
+    try:
+        old = json.loads((done / "stamp.json").read_text())
+        same_data = old["config"]["data_stamp"] == data_stamp(job.data, job.version)["digest"]
+    except (OSError, ValueError, KeyError, TypeError, HybridCalibError):  # none, damaged, another layout: afresh
+        same_data = False
+    if not same_data:
+        run(True)
+        return
+    try:
+        run(False)
+    except OtherConfiguration:
+        shutil.rmtree(done, ignore_errors=True)
+        run(False)
 
 
 def _where(e: BaseException) -> str:
