@@ -3,6 +3,7 @@
 import dataclasses
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -128,6 +129,35 @@ def test_export_says_what_its_change_is_measured_from(calibrated, tmp_path, caps
     assert main(["export", str(path), "--out", str(tmp_path / "out")]) == 0
     out = capsys.readouterr().out
     assert "sim-veh-000: exported" in out and "cm from the camera-radar calibration the verdict compared with" in out
+
+
+def test_an_export_that_fails_writing_its_record_leaves_no_table_and_reruns(calibrated, tmp_path, capsys,
+                                                                              monkeypatch):
+    """Probe 84: a disk full between the two files left the new calibrated_sensor.json alone, and the rerun the error
+    promised was refused ("no export wrote it: a copy of a root's table")."""
+    import errno
+
+    from hybrid_calib import config
+    from hybrid_calib.cli import main
+
+    root, result = calibrated
+    T_ref = _tables_T(root, "sim-veh-000", "reference_T_cam_radar")
+    T_est = retract(T_ref, report_basis(T_ref).T @ np.r_[0.0, np.radians(1.5), 0.0, 0.0, 0.0, 0.0])
+    path = _edited(result, tmp_path / "r" / "result.json", "sim-veh-000", T=T_est)
+    save = config.save_json_atomic
+
+    def full(p, *a, **k):
+        if Path(p).name == "export.json":
+            raise OSError(errno.ENOSPC, "No space left on device", str(p))
+        return save(p, *a, **k)
+
+    monkeypatch.setattr(config, "save_json_atomic", full)
+    assert main(["export", str(path), "--out", str(tmp_path / "out")]) == 2
+    assert "no space left on the device" in capsys.readouterr().err
+    assert not (tmp_path / "out" / "calibrated_sensor.json").exists()
+    monkeypatch.setattr(config, "save_json_atomic", save)
+    assert main(["export", str(path), "--out", str(tmp_path / "out")]) == 0, capsys.readouterr().err
+    assert (tmp_path / "out" / "export.json").is_file() and (tmp_path / "out" / "calibrated_sensor.json").is_file()
 
 
 def test_untrusted_stale_and_misdirected_exports_are_refused(calibrated, tmp_path):

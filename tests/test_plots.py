@@ -83,3 +83,19 @@ def test_a_name_in_another_script_is_drawn_without_a_warning_per_glyph(tmp_path)
         warnings.simplefilter("always")
         out = save_figure(fig, tmp_path / "v.png")
     assert out.is_file() and not [w for w in caught if "Glyph" in str(w.message)]
+
+
+@pytest.mark.parametrize("backend", ["module://matplotlib_inline.backend_inline", "inline", "Qt5"])
+def test_figures_are_drawn_whatever_mplbackend_says(tmp_path, backend):
+    """Probe 84: a notebook kernel's ``MPLBACKEND`` (a value matplotlib refuses while importing) made every command
+    with plots end in "internal error"; the figures are drawn headless whatever it says."""
+    import os
+    import subprocess
+    import sys
+
+    png = str(tmp_path / "p.png")
+    code = ("import numpy as np; from hybrid_calib.plots.projection import draw_projection; "
+            f"draw_projection(np.zeros((9, 16, 3), np.uint8), np.zeros((0, 2)), np.zeros(0), {png!r})")
+    p = subprocess.run([sys.executable, "-c", code], env={**os.environ, "MPLBACKEND": backend}, capture_output=True,
+                       text=True, timeout=120)
+    assert p.returncode == 0 and (tmp_path / "p.png").is_file(), p.stderr[-2000:]

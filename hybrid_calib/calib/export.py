@@ -81,14 +81,20 @@ class MountExport:
 
     def save(self, out: str | Path) -> tuple[Path, Path]:
         """Write ``out/calibrated_sensor.json`` and ``out/export.json`` (each atomically); their paths. An earlier
-        export.json goes first: a run stopped between the two leaves a table without its export.json (said by its
-        absence), never a new table beside the old run's export.json."""
+        export.json goes first: a run killed between the two leaves a table without its export.json (said by its
+        absence), never a new table beside the old run's export.json; one that fails writing export.json (a full
+        disk) removes the table it wrote, so that its rerun starts clean (probe 84: the next run took the table
+        left alone for a copy of a root's and refused)."""
         from hybrid_calib.config import save_json_atomic
 
         out = Path(out)
         (out / "export.json").unlink(missing_ok=True)
-        return (save_json_atomic(out / "calibrated_sensor.json", self.table),
-                save_json_atomic(out / "export.json", self.to_dict()))
+        table = save_json_atomic(out / "calibrated_sensor.json", self.table)
+        try:
+            return table, save_json_atomic(out / "export.json", self.to_dict())
+        except BaseException:
+            table.unlink(missing_ok=True)
+            raise
 
 
 def _std_ego(T_ego_radar: np.ndarray, cov: np.ndarray) -> dict:

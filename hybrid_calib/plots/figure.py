@@ -9,7 +9,15 @@ from hybrid_calib.atomic import atomic_path
 
 
 def pyplot():
-    """``matplotlib.pyplot`` on the non-interactive Agg back end (no display needed)."""
+    """``matplotlib.pyplot`` on the non-interactive Agg back end (no display needed). ``MPLBACKEND`` is set to Agg
+    before matplotlib's first import: matplotlib refuses, while importing, a value it does not know, and a
+    notebook's kernel sets one (``module://matplotlib_inline.backend_inline``; probe 84: every command with plots
+    ended in "internal error" run from a notebook cell)."""
+    import os
+    import sys
+
+    if "matplotlib" not in sys.modules:
+        os.environ["MPLBACKEND"] = "Agg"
     import matplotlib
 
     matplotlib.use("Agg")
