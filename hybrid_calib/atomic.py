@@ -184,12 +184,12 @@ def out_dir_lock(out: str | Path, command: str, name: str = LOCK_NAME, what: str
         existed = existed and not stale
         if stale and name == LOCK_NAME:
             _record_killed(out, text)
-        _rewrite(f, first + ("" if argv is None else "\n" + json.dumps(
+        _rewrite(f, path, first + ("" if argv is None else "\n" + json.dumps(
             {"command": command, "argv": [str(a) for a in argv], "cwd": os.getcwd(),
              "started": time.time() if started is None else started})))
         # the run's own line in runs.json is written: the lock no longer names it as a run to record if killed now
         # (probe 65: killed between the two, it was listed twice)
-        yield lambda: _rewrite(f, first)
+        yield lambda: _rewrite(f, path, first)
     finally:
         try:  # unlinked while still held: a run that opened it meanwhile finds it locked and stops (no two holders)
             if not existed:  # a refused run left it in the user's data root ("refusing to write anything there")
@@ -203,15 +203,22 @@ def out_dir_lock(out: str | Path, command: str, name: str = LOCK_NAME, what: str
                 out.rmdir()
         except OSError:
             pass
-        f.close()
+        try:
+            f.close()
+        except OSError:  # the record it could not write (a full disk) was said where it was written (_rewrite)
+            pass
 
 
-def _rewrite(f, text: str) -> None:
-    """Replace the content of the open lock file ``f`` (binary) with ``text``."""
-    f.seek(0)
-    f.truncate()
-    f.write(text.encode("utf-8"))
-    f.flush()
+def _rewrite(f, path: Path, text: str) -> None:
+    """Replace the content of the open lock file ``f`` (binary) at ``path`` with ``text``; an ``OSError`` names
+    ``path`` (probe 84: on a full disk every command said "cannot write to its output", naming no file)."""
+    try:
+        f.seek(0)
+        f.truncate()
+        f.write(text.encode("utf-8"))
+        f.flush()
+    except OSError as e:
+        raise OSError(e.errno, e.strerror, str(path)) from None
 
 
 def _record_killed(out: Path, lock_text: str) -> None:

@@ -187,6 +187,39 @@ def test_a_writer_s_own_error_on_a_full_disk_is_a_full_disk(failure, free, tmp_p
         raise RuntimeError("[enforce fail at inline_container.cc:672] . unexpected pos 4921984 vs 4921872")
 
 
+def test_a_lock_file_on_a_full_disk_is_named(tmp_path, monkeypatch, capsys):
+    """Probe 84: on a full disk every command said "cannot write to its output" naming no file: the lock file's record
+    (flushed on its write, and again on its close) raised without a file name."""
+    import errno
+    import os
+
+    from hybrid_calib import atomic
+    from hybrid_calib.cli import EXIT_ERROR, report_error
+
+    real = os.fdopen
+
+    class Full:  # the lock file's handle, on a disk with no room for its record
+        def __init__(self, f):
+            self.f = f
+
+        def __getattr__(self, name):
+            return getattr(self.f, name)
+
+        def flush(self):
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+        def close(self):
+            self.f.close()
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(atomic.os, "fdopen", lambda fd, mode: Full(real(fd, mode)))
+    with pytest.raises(OSError) as e, atomic.out_dir_lock(tmp_path / "out", "calibrate", argv=["calibrate"]):
+        pass
+    assert e.value.errno == errno.ENOSPC and e.value.filename == str(tmp_path / "out" / atomic.LOCK_NAME)
+    assert report_error("calibrate", e.value) == EXIT_ERROR
+    assert f"no space left on the device while writing {tmp_path / 'out' / atomic.LOCK_NAME}" in capsys.readouterr().err
+
+
 def test_the_runs_log_appends_each_command_and_replaces_an_unreadable_one(tmp_path):
     import json
     import time
