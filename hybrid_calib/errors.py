@@ -47,14 +47,18 @@ def check_out_dir(path: str | Path | None, option: str = "--out", writable: bool
     if path is None:
         return
     path = Path(path)
-    if path.is_symlink() and not path.exists():  # was "a file where a folder is needed (File exists)" (probe 66)
+    # was "a file where a folder is needed (File exists)" (probe 66); the same for a folder above it (probe 84)
+    for link in (path, *path.parents):
+        if not (link.is_symlink() and not link.exists()):
+            continue
+        what = str(link) if link == path else f"{link} (a folder above {path})"
         try:
-            path.resolve(strict=True)
+            link.resolve(strict=True)
         except RuntimeError:  # a loop (probe 70: said to be a link to a file that is not there)
-            raise OptionError(option, f"{path} is a symbolic link loop; remove it, or pass another path") from None
+            raise OptionError(option, f"{what} is a symbolic link loop; remove it, or pass another path") from None
         except OSError:
             pass
-        raise OptionError(option, f"{path} is a broken symbolic link (to {os.readlink(path)}, which is not there); "
+        raise OptionError(option, f"{what} is a broken symbolic link (to {os.readlink(link)}, which is not there); "
                                   "create its target, remove the link, or pass another path")
     if path.exists() and not path.is_dir():
         raise OptionError(option, f"{path} is an existing file, but the outputs go into a directory; pass a "

@@ -2534,6 +2534,9 @@ def test_long_page_names_and_broken_links_are_said_as_what_they_are(calibrated, 
     (tmp_path / "link").symlink_to(tmp_path / "nowhere")
     expect_cli_error(_calibrate(calibrated.parent / "nowhere", tmp_path / "link"), capsys,
                      "link is a broken symbolic link (to ", "create its target, remove the link")
+    # and below one (probe 84: "link (or a folder above it) is a file where a folder is needed")
+    expect_cli_error(_calibrate(calibrated.parent / "nowhere", tmp_path / "link" / "x"), capsys,
+                     f"link (a folder above {tmp_path / 'link' / 'x'}) is a broken symbolic link (to ")
 
 
 def test_a_simulation_whose_every_write_fails_points_at_the_folder_not_the_options(tmp_path, monkeypatch):

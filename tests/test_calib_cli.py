@@ -238,3 +238,17 @@ def test_files_of_a_vehicle_the_root_does_not_have_are_left_out_and_the_others_c
     doc = json.loads((out / "result.json").read_text())
     assert list(doc["vehicles"]) == [vehicle]
     assert "no reference extrinsic for vehicle 'ghost-veh'" in doc["vehicles_failed"]["ghost-veh"]
+
+
+def test_no_progress_hides_the_bars_of_every_method(sim_root, tmp_path, capsys):
+    """Probe 85: calibrate refused --no-progress, which compare, evaluate, inspect and train take."""
+    from tests.helpers import run_cli
+
+    for method in ("oracle", "pure"):
+        argv = ["calibrate", "--data", str(sim_root), "--method", method, "--max-frames", "2", "--out",
+                str(tmp_path / method), "--no-plots"]
+        rc, err = run_cli([*argv, "--no-progress"], capsys)
+        bar = f"{'oracle' if method == 'oracle' else 'network'} sim-veh"
+        assert rc == 0 and "it/s" not in err and bar not in err, err
+        rc, err = run_cli([*argv, "--overwrite"], capsys)  # the bars by default
+        assert rc == 0 and ("it/s" in err or "s/it" in err), err

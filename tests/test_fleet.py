@@ -1180,3 +1180,20 @@ def test_a_method_without_a_step_test_says_so_instead_of_counting_no_drift(local
     words = drifted_words(pure)
     assert "not looked for (method pure-avg has no step test" in words and "drifted inside" not in words
     assert words in summary_markdown(pure)
+
+
+def test_an_interrupted_fleet_leaves_no_job_running_in_its_manifest(fleet_root, tmp_path, monkeypatch):
+    """Probe 84: after a Ctrl-C the manifest said every job of the dead run "running", queued ones too: they are
+    pending (the next run runs them), the finished ones done."""
+    from hybrid_calib.fleet import driver
+
+    def engine(name, todo, mark_running, record, *a, **k):
+        mark_running([j.id for j in todo])  # queued on the workers, none finished
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(driver, "run_engine", engine)
+    with pytest.raises(KeyboardInterrupt):
+        run_fleet([str(fleet_root)], None, "v1.0-sim", "oracle", tmp_path / "f", seed=2,
+                  options=FleetOptions(plots=False))
+    states = {e["state"] for e in json.loads((tmp_path / "f" / "manifest.json").read_text())["jobs"].values()}
+    assert states == {"pending"}, states

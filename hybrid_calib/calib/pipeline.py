@@ -556,7 +556,7 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
     absent: dict[str, str] = {}
     unknown: dict[str, str] = {}  # files of a vehicle the root does not have: failed, the others calibrated
     if correspondences == "oracle":
-        inputs = _load_oracle(data, version, conf)
+        inputs = _load_oracle(data, version, conf, progress)
     else:
         inputs = _load_dir(Path(correspondences), data, version, conf, absent, unknown)
     if not inputs:

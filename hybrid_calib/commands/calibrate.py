@@ -70,6 +70,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--overwrite", action="store_true",
                    help="recompute even if RUN/result.json exists (its network and depth caches too)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    p.add_argument("--no-progress", action="store_true", help="hide the progress bars (as --set progress=false)")
     p.add_argument("--set", action="extend", nargs="+", metavar="KEY=VALUE", default=[],
                    help="CalibrateConfig overrides (oracle), e.g. window.factor.kernel=tukey oracle.outlier_frac=0.3; "
                         "HybridConfig overrides (learned methods), e.g. measurement.rows=last threads=1")
@@ -106,6 +107,8 @@ def _learned(args: argparse.Namespace, on_vehicle):
         overrides["split_options"] = {**overrides.get("split_options", {}), **flags}
     if args.window is not None:  # an absent flag leaves --set (or the default) in charge
         overrides.setdefault("window", {})["window"] = args.window
+    if args.no_progress:
+        overrides["progress"] = False
     conf = merge(HybridConfig, overrides)
     return run_calibration(args.data, args.version, args.out, conf, overwrite=args.overwrite, on_vehicle=on_vehicle)
 
@@ -141,8 +144,7 @@ def run(args: argparse.Namespace) -> int:
         overrides.setdefault("batch", {})["backend"] = args.backend
     conf = merge(CalibrateConfig, overrides)  # ConfigError (unknown key, wrong type, bad value) names the option
     result = calibrate(args.data, args.version, args.correspondences or "oracle", args.out, conf,
-                       overwrite=args.overwrite,
-                       on_vehicle=on_vehicle)
+                       overwrite=args.overwrite, on_vehicle=on_vehicle, progress=not args.no_progress)
     return _report(_plotted(result, args), args.out, reused)
 
 

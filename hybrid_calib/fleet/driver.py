@@ -96,7 +96,8 @@ def run_fleet(roots: list[str] | str | None, manifest: str | None, version: str,
     try:
         run_engine(options.engine, todo, lambda ids: m.mark_running(ids, host), record, options.workers,
                    options.address, options.ray_temp or out / "ray", options.retries, None, options.object_store_mb)
-    finally:  # also when interrupted: the bookkeeping of every finished job reaches the file
+    finally:  # also when interrupted: the bookkeeping of every finished job reaches the file, the others are pending
+        m.release_running()
         m.flush()
     summary = write_summary(m, plot=options.plots, alpha=options.alpha, notes=notes, roots_left_out=left_out)
     return summary

@@ -155,6 +155,14 @@ class Manifest:
             e.update(state="running", attempts=int(e["attempts"]) + 1, host=host)
         self._changed()
 
+    def release_running(self) -> None:
+        """Jobs marked running back to pending: the run that marked them stops (interrupted: probe 84, its manifest said
+        every job of a dead run "running", queued ones too); the next run runs them."""
+        for e in self.jobs.values():
+            if e["state"] == "running":
+                e["state"] = "pending"
+                self._dirty = True
+
     def record(self, outcome: dict) -> dict:
         """Store one job's outcome (``jobs.run_job`` or an engine's failure record); returns its entry."""
         e = self.jobs[outcome["id"]]
