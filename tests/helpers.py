@@ -69,3 +69,13 @@ def skips_of(tiny) -> list:
     ds = NuScenesRadarCamera(tiny.root, tiny.version)
     list(ds)
     return ds.skipped
+
+
+def network_start(root, version: str, camera_token: str, T: np.ndarray) -> np.ndarray:
+    """(4, 4) the start the network is given for the mount estimate ``T`` on the frame of ``camera_token``: ``T N``
+    (``hybrid.network.mount_pass``), the key of its pass in an ``OutputCache``."""
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+
+    ds = NuScenesRadarCamera(root, version)
+    ref = next(r for r in ds.frames if r.camera_sd["token"] == camera_token)
+    return np.asarray(T, np.float64) @ ds.radar_motion(ref)

@@ -15,6 +15,7 @@ from factors.correspondences import Correspondences
 from hybrid_calib.geometry import project_points, retract, se3_exp
 from hybrid_calib.hybrid.measurement import MeasurementConfig, frame_inputs, prior_trusted, shared_deflation
 from hybrid_calib.hybrid.network import NetworkOutput
+from tests.helpers import network_start
 
 K = np.array([[100.0, 0, 48], [0, 100.0, 24], [0, 0, 1]])
 T_TRUE = np.array([[0.0, -1, 0, 0.1], [0, 0, -1, -0.3], [1, 0, 0, -0.5], [0, 0, 0, 1]])  # radar x fwd -> cam z
@@ -129,6 +130,37 @@ def sim_root(tmp_path_factory):
 BASE = {"start": "R1", "seed": 4, "threads": 1, "progress": False, "window": {"detect_steps": False}}
 
 
+def test_the_network_estimates_the_frame_transform_and_is_read_back_on_the_mount(sim_root):
+    """Session 40: the network follows the radar points it is given (turned by 1 deg of yaw, its output turned by
+    about -1 deg), so it estimates the frame's ``X N``, not the mount; ``on_mount`` reads a pass on the mount:
+    transforms by ``N^-1``, covariance by ``Ad_N``, rows' points by ``N``."""
+    import torch
+
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+    from hybrid_calib.geometry import adjoint, se3_inverse, se3_log, transform_points
+    from hybrid_calib.hybrid.network import build_runner, on_mount, shipped_checkpoint
+
+    ds = NuScenesRadarCamera(sim_root, "v1.0-sim", conf={"load_lidar": True})
+    runner = build_runner(shipped_checkpoint("R1"), None, ds, threads=1)
+    turn = se3_exp(np.r_[0.0, 0.0, np.radians(1.0), 0.0, 0.0, 0.0])
+    moved = []
+    for i in range(len(ds)):
+        s, XN = runner.sample(i), ds[i].T_cam_radar
+        base = runner.forward(s, XN)
+        pts, mask = s["radar"].numpy().astype(np.float64), s["radar_mask"].numpy()
+        pts[mask] = transform_points(turn, pts[mask])
+        out = runner.forward({**s, "radar": torch.from_numpy(pts.astype(np.float32))}, XN)
+        moved.append(np.degrees(se3_log(se3_inverse(base.T) @ out.T)[2]))
+    assert -1.4 < np.median(moved) < -0.6, moved
+    N = runner.radar_motion(0)
+    assert np.abs(N - np.eye(4)).max() > 1e-3  # the simulated drive moves between the two timestamps
+    m = on_mount(base, N)
+    np.testing.assert_allclose(m.T_iters, base.T_iters @ se3_inverse(N))
+    np.testing.assert_allclose(m.T_in, base.T_in @ se3_inverse(N))
+    np.testing.assert_allclose(m.cov_raw, adjoint(N) @ base.cov_raw @ adjoint(N).T)
+    np.testing.assert_allclose(m.rows_last.points_radar, transform_points(N, base.rows_last.points_radar))
+
+
 def test_closed_loop_runs_the_network_from_the_fused_estimate(sim_root, tmp_path, monkeypatch):
     import hybrid_calib.hybrid.corrections as corrections
     from hybrid_calib.calib.result import CalibrationRun
@@ -149,8 +181,9 @@ def test_closed_loop_runs_the_network_from_the_fused_estimate(sim_root, tmp_path
     assert len(v.trajectory) == len(v.frame_rows) == 3 and v.error["nees"] > 0
     cache = OutputCache(tmp_path / "h" / "network-cache")
     starts = [np.asarray(v.start["T_cam_radar"])] + [f.T for f in v.trajectory[:-1]]
-    for f, T_in in zip(v.trajectory, starts):  # frame k ran from the window's estimate after frame k-1
-        assert cache.get(f.frame_id, T_in) is not None
+    for f, T_in in zip(v.trajectory, starts):  # frame k ran from the window's estimate after frame k-1 (as T N)
+        assert cache.get(f.frame_id, network_start(sim_root, "v1.0-sim", f.frame_id, T_in)) is not None
+        assert cache.get(f.frame_id, T_in) is None  # not from the mount itself: the network estimates X N
     assert not np.allclose(starts[1], starts[0])
     back = CalibrationRun.load(tmp_path / "h" / "result.json").vehicles["sim-veh-000"]
     assert back.method == "hybrid" and back.frame_rows == v.frame_rows and back.start == v.start

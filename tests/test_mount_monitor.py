@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from hybrid_calib.calib.mount_monitor import MountMonitor, MountMonitorConfig, monitor_drive, reading_std
+from tests.helpers import network_start
 
 
 def _feed(ys) -> MountMonitor:
@@ -288,7 +289,8 @@ def test_the_hybrid_restarts_its_window_turned_by_the_measured_step(knocked_and_
     k = alarms[0]
     turned = vr.trajectory[k].T @ se3_exp(np.array([0, 0, np.radians(step["step_deg_at_alarm"]), 0, 0, 0]))
     cache = OutputCache(tmp_path / "cache")  # the next frame's network ran from the turned estimate
-    assert cache.get(vr.trajectory[k + 1].frame_id, turned) is not None
+    token = vr.trajectory[k + 1].frame_id
+    assert cache.get(token, network_start(knocked_and_not[1], "v1.0-sim", token, turned)) is not None
     frames, idx = _drive(knocked_and_not[1])  # errors are against the mount at the drive's end, the knocked one
     end, start = (frames[i].extras["T_cam_radar_static"] for i in (idx[-1], idx[0]))
     assert np.allclose(vr.truth_T, end) and not np.allclose(end, start)

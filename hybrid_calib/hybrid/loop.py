@@ -115,6 +115,7 @@ from hybrid_calib.hybrid.network import (
     NetworkRunner,
     build_runner,
     clear_own_caches,
+    mount_pass,
     refine_checkpoint,
     shipped_checkpoint,
 )
@@ -267,7 +268,7 @@ def _passes(runner: NetworkRunner, drive: Drive, T0: np.ndarray, conf: HybridCon
                                leave=False)):
         if tr.repeated(drive, i):
             continue
-        out = runner.run(i, T0)
+        out = mount_pass(runner, i, T0)
         if out is None:
             tr.unreadable(runner, i, k)
         elif tr.keep(runner, i, k, out, conf):
@@ -349,7 +350,7 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
             pending = reading.step
         if tr.repeated(drive, i):
             continue
-        out = runner.run(i, T)
+        out = mount_pass(runner, i, T)
         if out is None:
             tr.unreadable(runner, i, k)
             continue

@@ -128,6 +128,7 @@ def ood_passes(runner, indices: list[int], base: np.ndarray, start_range: str, s
     signals), score (NaN without ``export.ood``), rotation / translation error of the final estimate
     against ``base`` (deg, cm) and its NEES with the checkpoint's ``cov_scale``."""
     from hybrid_calib.geometry import local
+    from hybrid_calib.hybrid.network import mount_pass, on_mount
     from hybrid_calib.metrics import extrinsic_error, nees
     from hybrid_calib.perturbation import perturbed_start, vehicle_rng
 
@@ -147,9 +148,10 @@ def ood_passes(runner, indices: list[int], base: np.ndarray, start_range: str, s
                 s = runner.sample(i)  # sample() keeps one frame
                 if other is None or s is None:
                     continue
-            out = runner.forward(corrupt(s, corruption, gc, other), T0)
+            N = runner.radar_motion(i)
+            out = on_mount(runner.forward(corrupt(s, corruption, gc, other), T0 @ N), N)
         else:
-            out = runner.run(i, T0)
+            out = mount_pass(runner, i, T0)
         if out is None:
             continue
         e = local(base, out.T)
