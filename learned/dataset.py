@@ -226,6 +226,11 @@ class ConcatFrames(Sequence):
         k = int(np.searchsorted(self.offsets, i, side="right")) - 1
         return self.parts[k][i - int(self.offsets[k])]
 
+    def radar_motion_at(self, i: int) -> np.ndarray:
+        """(4, 4) ``N`` of frame ``i`` from the root that holds it (``NuScenesRadarCamera.radar_motion_at``)."""
+        k = int(np.searchsorted(self.offsets, i % len(self), side="right")) - 1
+        return self.parts[k].radar_motion_at(i % len(self) - int(self.offsets[k]))
+
     @property
     def frames(self) -> list:
         refs = []

@@ -154,6 +154,12 @@ def test_the_network_estimates_the_frame_transform_and_is_read_back_on_the_mount
     assert -1.4 < np.median(moved) < -0.6, moved
     N = runner.radar_motion(0)
     assert np.abs(N - np.eye(4)).max() > 1e-3  # the simulated drive moves between the two timestamps
+    from hybrid_calib.hybrid.network import frames_motion
+    from learned.dataset import ConcatFrames
+
+    both = ConcatFrames([ds, ds])  # several roots read as one: each frame's own root says
+    np.testing.assert_array_equal(frames_motion(both, len(ds) + 1), frames_motion(ds, 1))
+    assert np.abs(frames_motion(both, 1) - frames_motion(ds, 0)).max() > 0
     m = on_mount(base, N)
     np.testing.assert_allclose(m.T_iters, base.T_iters @ se3_inverse(N))
     np.testing.assert_allclose(m.T_in, base.T_in @ se3_inverse(N))

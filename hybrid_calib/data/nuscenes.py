@@ -705,6 +705,10 @@ class NuScenesRadarCamera:
         _check_pose_pair(cam, T_ge_cam, rad, T_ge_radar, "radar", t.path("ego_pose"))
         return se3_inverse(T_ego_radar) @ se3_inverse(T_ge_cam) @ T_ge_radar @ T_ego_radar
 
+    def radar_motion_at(self, i: int) -> np.ndarray:
+        """``radar_motion`` of frame ``i``."""
+        return self.radar_motion(self.frames[i])
+
     def reference_T_cam_radar(self, ref: FrameRef) -> np.ndarray:
         """(4, 4) the vehicle's reference T_cam_radar at frame ``ref`` (``_reference``: its calibration tables, or the
         mount an earlier export wrote, ``DataConfig.reference``), from the tables alone (no sensor file read);

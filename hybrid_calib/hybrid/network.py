@@ -217,17 +217,17 @@ def mount_pass(runner, index: int, T: np.ndarray) -> NetworkOutput | None:
 
 
 def frames_motion(frames, index: int) -> np.ndarray:
-    """(4, 4) ``N`` of frame ``index`` of ``frames`` from its tables (``NuScenesRadarCamera.radar_motion``); the
-    identity for frames that do not say (in-memory test frames) or whose poses do not read (the frame's own reading
-    then refuses it, naming why)."""
+    """(4, 4) ``N`` of frame ``index`` of ``frames`` from its tables (``radar_motion_at`` of ``NuScenesRadarCamera``
+    and ``learned.dataset.ConcatFrames``); the identity for frames that do not say (in-memory test frames) or whose
+    poses do not read (the frame's own reading then refuses it, naming why)."""
     from hybrid_calib.errors import DataError
 
-    motion, refs = getattr(frames, "radar_motion", None), getattr(frames, "frames", None)
-    if motion is None or refs is None:
+    motion = getattr(frames, "radar_motion_at", None)
+    if motion is None:
         return np.eye(4)
     try:
-        return np.asarray(motion(refs[index]), np.float64)
-    except (DataError, KeyError, IndexError):
+        return np.asarray(motion(index), np.float64)
+    except (DataError, KeyError, IndexError, AttributeError):
         return np.eye(4)
 
 
