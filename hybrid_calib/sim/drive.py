@@ -38,6 +38,9 @@ BASE_TIMESTAMP_US = 1_600_000_000_000_000  # first camera timestamp of vehicle 0
 MAX_FRAME_INTERVAL_S = 10.0  # keyframes further apart: a drive of a few frames spans kilometres of world
 
 
+RADAR_LAGS = ("either", "after", "before")
+
+
 @dataclass(frozen=True)
 class SimConfig:
     """A simulated fleet: ``vehicles`` drives of ``frames`` keyframes each in one scenario."""
@@ -47,7 +50,10 @@ class SimConfig:
     frames: int = 200  # keyframes per vehicle
     seed: int = 0  # master seed; every vehicle / frame derives its own
     frame_interval_s: float = 0.5  # time between keyframes (nuScenes keyframes: 2 Hz)
-    radar_offset_ms: tuple[float, float] = (30.0, 50.0)  # |t_radar - t_cam| range, ms (random sign)
+    radar_offset_ms: tuple[float, float] = (30.0, 50.0)  # |t_radar - t_cam| range, ms (sign: radar_lag)
+    # which side of the camera's the radar keyframe lies: "either" (a random sign per frame), "after" (as on
+    # nuScenes' scene-0916: the radar 34 ms after the camera on average), "before"
+    radar_lag: str = "either"
     # non-keyframe radar sweeps before each keyframe sweep (0..5): nuScenes' RADAR_FRONT runs at ~13 Hz, 6-7 sweeps
     # per 0.5 s keyframe interval; the mount monitor and the lever arm pair them (calib.ego_doppler)
     radar_sweeps_per_frame: int = 5
@@ -94,6 +100,8 @@ class SimConfig:
                               "radar_sweep_period_ms": "[2, 1000]", "lidar_offset_ms": "[0, 1000]",
                               "image_scale": "[0.01, 2]", "jpeg_quality": "[1, 100]",
                               "camera_max_range_m": "(0, 655]"})
+        if self.radar_lag not in RADAR_LAGS:
+            raise ValueError(f"radar_lag={self.radar_lag!r}; valid: {', '.join(RADAR_LAGS)}")
         if not self.radar_offset_ms[0] <= self.radar_offset_ms[1]:  # an internal error in the draw (probe 79)
             raise ValueError(f"radar_offset_ms={list(self.radar_offset_ms)}: a range [low, high] with low <= high, ms")
         span_ms = self.radar_sweeps_per_frame * (self.radar_sweep_period_ms + 1.0) + 2 * self.radar_offset_ms[1]
@@ -258,7 +266,9 @@ class VehicleDrive:
         c = self.conf
         g = _rng(c.seed, self.vehicle, 3, k)
         cam = self.base_us + int(round(k * c.frame_interval_s * 1e6))
-        radar = cam + int(round(g.choice([-1, 1]) * g.uniform(*c.radar_offset_ms) * 1e3))
+        drawn = g.choice([-1, 1])  # whatever the lag: the later draws stay those of "either"
+        sign = {"either": drawn, "after": 1, "before": -1}[c.radar_lag]
+        radar = cam + int(round(sign * g.uniform(*c.radar_offset_ms) * 1e3))
         lidar = cam + int(round(g.uniform(-c.lidar_offset_ms, c.lidar_offset_ms) * 1e3))
         n = c.radar_sweeps_per_frame
         period_us = c.radar_sweep_period_ms * 1e3
