@@ -500,6 +500,15 @@ def test_fit_calibrates_the_drive_term_on_the_loop_as_it_ships(sim_root, tmp_pat
     round3 = json.loads((tmp_path / "round3-none-0" / "config.json").read_text())
     assert round2["motion"]["enabled"] is False and round3["motion"]["enabled"] is True
     assert CalibrationRun.load(tmp_path / "round3-none-0" / "result.json").vehicles
+    # the fit reads the cached passes on the mount, as the loop does (probe 86: as the frame's X N, it took 7 of 24
+    # passes for inside the range): each vehicle's first pass started from that vehicle's start, a mount
+    from hybrid_calib.hybrid.fit import drive_truths, load_passes
+
+    passes = load_passes(tmp_path / "network-cache-round1-none", drive_truths([sim_root], "v1.0-sim"))
+    round1 = CalibrationRun.load(tmp_path / "round1-none-0" / "result.json")
+    for v in round1.vehicles.values():
+        T0 = np.asarray(v.start["T_cam_radar"])
+        assert any(np.allclose(out.T_in, T0, atol=1e-9) for out, _ in passes), v.vehicle
 
 
 def test_a_non_finite_network_pass_is_a_skipped_frame_not_the_end_of_the_run(sim_root, tmp_path, monkeypatch):

@@ -186,29 +186,33 @@ def fit_from_statistics(st: dict, rows: str, sigma_scale: float) -> dict:
     }
 
 
-def load_passes(cache_dir: Path, truths: dict[str, np.ndarray]) -> list:
-    """Every cached network pass of ``cache_dir`` whose frame token is in ``truths`` (token -> T_true)."""
+def load_passes(cache_dir: Path, truths: dict[str, tuple[np.ndarray, np.ndarray]]) -> list:
+    """Every cached network pass of ``cache_dir`` whose frame token is in ``truths`` (token -> (T_true, N)), read on
+    the mount as the loop reads it (``network.on_mount``: a cache holds the passes on the frame's ``X N``; probe 86:
+    read as they were, the fit took 7 of 24 passes for inside the R1 range where the loop had 23)."""
     from hybrid_calib.data.files import file_part
-    from hybrid_calib.hybrid.network import NetworkOutput
+    from hybrid_calib.hybrid.network import NetworkOutput, on_mount
 
-    by_part = {file_part(t): T for t, T in truths.items()}  # the cache names a pass by its token's file part
+    by_part = {file_part(t): v for t, v in truths.items()}  # the cache names a pass by its token's file part
     out = []
     for p in sorted(Path(cache_dir).glob("*.npz")):
-        T_true = by_part.get(p.stem.rsplit("-", 1)[0])
-        if T_true is None:
+        known = by_part.get(p.stem.rsplit("-", 1)[0])
+        if known is None:
             continue
+        T_true, N = known
         try:
             with np.load(p, allow_pickle=False) as z:
-                out.append((NetworkOutput.from_arrays(z), T_true))
+                out.append((on_mount(NetworkOutput.from_arrays(z), N), T_true))
         except NPZ_ERRORS:
             continue  # a damaged cache entry: that pass is left out of the fit (the loop recomputes it)
     return out
 
 
-def drive_truths(roots, version: str) -> dict[str, np.ndarray]:
-    """camera token -> the drive's true static extrinsic (4, 4), over simulated roots."""
+def drive_truths(roots, version: str) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """camera token -> (the drive's true static extrinsic, the frame's ``N``), each (4, 4), over simulated roots."""
     from hybrid_calib.hybrid.drives import open_drives
     from hybrid_calib.hybrid.loop import HybridConfig
+    from hybrid_calib.hybrid.network import frames_motion
     from learned.dataset import camera_token
 
     truths = {}
@@ -217,7 +221,7 @@ def drive_truths(roots, version: str) -> dict[str, np.ndarray]:
         if drives and not next(iter(drives.values())).simulated:
             raise ValueError(f"{r} is not a simulated root: the fit needs the truth")
         for d in drives.values():
-            truths.update({camera_token(frames, i): d.base for i in d.indices})
+            truths.update({camera_token(frames, i): (d.base, frames_motion(frames, i)) for i in d.indices})
     return truths
 
 
