@@ -297,9 +297,16 @@ def _run(args: argparse.Namespace, debug: bool, argv: list[str]) -> int:
                     try:
                         record_run(out, args.command, argv, _exit_status(status, error), started)
                         recorded()
-                    except OSError:
-                        if error is None:  # the run's own error is the one to say
-                            raise
+                    except OSError as e:
+                        if error is None:  # what the run wrote is complete: said, not failed (probe 86: export's
+                            # "a rerun resumes", and the rerun refused the complete export it found)
+                            print(f"hybrid-calib {args.command}: warning: it finished (exit status {status}) and what "
+                                  f"it wrote is complete, but its line in {Path(out) / 'runs.json'} could not be "
+                                  f"written ({e.strerror or e})", file=sys.stderr)
+                            try:
+                                recorded()  # the lock no longer names it as a run killed before its line
+                            except OSError:
+                                pass
     except BrokenPipeError:  # `| head -1`: the reader has gone; nothing more to say, and nowhere to say it
         _stdout_to_devnull()
         return 141  # 128 + SIGPIPE, as a shell reports a command a pipe ended

@@ -252,3 +252,8 @@ def test_no_progress_hides_the_bars_of_every_method(sim_root, tmp_path, capsys):
         assert rc == 0 and "it/s" not in err and bar not in err, err
         rc, err = run_cli([*argv, "--overwrite"], capsys)  # the bars by default
         assert rc == 0 and ("it/s" in err or "s/it" in err), err
+    # the oracle refuses the learned methods' --set progress, naming the flag that hides its bars (probe 86)
+    from tests.helpers import expect_cli_error
+
+    expect_cli_error(["calibrate", "--data", str(sim_root), "--out", str(tmp_path / "x"), "--set", "progress=false"],
+                     capsys, "progress is an option of the learned methods", "hidden by --no-progress")

@@ -160,6 +160,30 @@ def test_an_export_that_fails_writing_its_record_leaves_no_table_and_reruns(cali
     assert (tmp_path / "out" / "export.json").is_file() and (tmp_path / "out" / "calibrated_sensor.json").is_file()
 
 
+def test_an_export_whose_runs_log_cannot_be_written_is_complete_and_says_so(calibrated, tmp_path, capsys,
+                                                                              monkeypatch):
+    """Probe 86: with room for both tables but not for runs.json, export said "wrote ..." then exited 2 with "a rerun
+    resumes", and the rerun refused the complete export it found."""
+    import errno
+
+    from hybrid_calib import cli
+
+    root, result = calibrated
+    T_ref = _tables_T(root, "sim-veh-000", "reference_T_cam_radar")
+    T_est = retract(T_ref, report_basis(T_ref).T @ np.r_[0.0, np.radians(1.5), 0.0, 0.0, 0.0, 0.0])
+    path = _edited(result, tmp_path / "r" / "result.json", "sim-veh-000", T=T_est)
+
+    def full(*a, **k):
+        raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "out" / "runs.json"))
+
+    monkeypatch.setattr(cli, "record_run", full)
+    assert cli.main(["export", str(path), "--out", str(tmp_path / "out")]) == 0
+    err = capsys.readouterr().err
+    assert "warning: it finished (exit status 0) and what it wrote is complete" in err and "runs.json" in err, err
+    assert (tmp_path / "out" / "export.json").is_file() and (tmp_path / "out" / "calibrated_sensor.json").is_file()
+    assert not (tmp_path / "out" / ".hybrid-calib.lock").exists()
+
+
 def test_untrusted_stale_and_misdirected_exports_are_refused(calibrated, tmp_path):
     from hybrid_calib.calib.export import export_mounts
     from hybrid_calib.cli import main

@@ -120,6 +120,28 @@ def test_report_rebuilds_the_runs_rows_and_start(run_dir):
     assert not np.allclose(T0, run.vehicles[name].final.T, atol=1e-3)  # an R1 start, far from the result
 
 
+def test_the_radar_points_on_a_page_are_drawn_through_the_frame_s_transform(run_dir):
+    """Probe 86: the page drew the radar points as recorded through the mount, beside rows moved to the camera's
+    timestamp; they reach the image through the mount times the frame's N (docs/conventions.md "Transforms")."""
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+    from hybrid_calib.geometry import se3_inverse, transform_points
+    from hybrid_calib.report.evidence import gather
+
+    result = run_dir / "run" / "result.json"
+    run = CalibrationRun.load(result)
+    name = sorted(run.vehicles)[0]
+    ev = gather(run, result, name, None, None, n_frames=3)
+    ds = NuScenesRadarCamera(run.data, run.version)
+    assert ev.frames
+    for sf in ev.frames:
+        f = ds[sf.index]
+        N = se3_inverse(f.extras["T_cam_radar_static"]) @ f.T_cam_radar
+        uv, _ = f.camera.project(transform_points(ev.start @ N, f.radar_points))
+        np.testing.assert_allclose(sf.uv_start, uv, atol=1e-6)
+        off, _ = f.camera.project(transform_points(ev.start, f.radar_points))
+        assert np.nanmax(np.abs(off - sf.uv_start)) > 1.0  # N is not the identity on this drive: the test can tell
+
+
 def _vr(delta, std, status="ok", drift_extra=None, alarms=(), tested=False):
     """A vehicle result; ``alarms`` (frame indices) gives it a 5-frame trajectory, whose window step test computed a
     statistic at every frame when ``tested``."""

@@ -122,7 +122,8 @@ def reject_learned_keys(overrides: dict) -> None:
         one = len(keys) == 1
         raise OptionError("--set", f"{', '.join(keys)} {'is an option' if one else 'are options'} of the learned "
                                    f"methods (--method hybrid, pure or pure-avg); --method oracle runs no network: "
-                                   f"drop {'it' if one else 'them'}")
+                                   f"drop {'it' if one else 'them'}"
+                                   + ("; its progress bars are hidden by --no-progress" if "progress" in keys else ""))
 
 
 def reject_unused_batch(overrides: dict, mode: str | None = None, backend: str | None = None,
