@@ -70,7 +70,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--overwrite", action="store_true",
                    help="recompute even if RUN/result.json exists (its network and depth caches too)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
-    p.add_argument("--no-progress", action="store_true", help="hide the progress bars (any method; the learned ones: as --set progress=false)")
+    p.add_argument("--no-progress", action="store_true",
+                   help="hide the progress bars (any method; the learned ones: as --set progress=false)")
     p.add_argument("--set", action="extend", nargs="+", metavar="KEY=VALUE", default=[],
                    help="CalibrateConfig overrides (oracle), e.g. window.factor.kernel=tukey oracle.outlier_frac=0.3; "
                         "HybridConfig overrides (learned methods), e.g. measurement.rows=last threads=1")
