@@ -271,7 +271,7 @@ def test_calibrate_skips_a_truncated_measurement_file_and_names_it(small_sim, tm
     for f in files:  # every file bad: one clear error naming the first
         f.write_bytes(b"PK\x03\x04 truncated")
     expect_cli_error(_calibrate(small_sim, tmp_path / "out2", "--correspondences", tmp_path / "EV"), capsys,
-                     f"none of the {len(files)} measurement file(s) reads", files[0])
+                     f"none of the {len(files)} measurement file(s) reads", sorted(files)[0])
 
 
 def test_measurement_files_of_another_root_are_not_calibrated_against_this_ones_truth(small_sim, tmp_path, capsys):

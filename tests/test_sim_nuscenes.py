@@ -319,3 +319,8 @@ def test_the_radar_keyframe_lies_on_the_side_of_the_camera_s_that_radar_lag_says
     np.testing.assert_allclose(before, -abs(either), atol=1e-3)
     with pytest.raises(ValueError, match="radar_lag='late'; valid: either, after, before"):
         merge(SimConfig, {"radar_lag": "late"})
+    # the default leaves the tokens of a documented `simulate --seed N` as they were before the option existed
+    from hybrid_calib.sim.simulate import _salted
+
+    assert _salted({"seed": 3, "radar_lag": "either"}) == {"seed": 3}
+    assert _salted({"seed": 3, "radar_lag": "after"}) == {"seed": 3, "radar_lag": "after"}
