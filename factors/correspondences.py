@@ -170,6 +170,16 @@ class Correspondences:
             self.K, self.frame_id, self.timestamp_us,
         )
 
+    def moved(self, T: np.ndarray) -> Correspondences:
+        """The rows with their radar points moved by ``T`` (4, 4), e.g. to the camera's timestamp by the frame's
+        ``N`` (docs/conventions.md "Transforms"); pixels, noise and metadata kept."""
+        import dataclasses
+
+        from hybrid_calib.geometry import transform_points
+
+        return dataclasses.replace(self, points_radar=transform_points(np.asarray(T, np.float64),
+                                                                       np.asarray(self.points_radar, np.float64)))
+
     def to_npz_dict(self) -> dict[str, np.ndarray]:
         """The arrays of a measurement file (``factors.io``) holding only these rows."""
         from factors.io import FrameMeasurements, to_arrays

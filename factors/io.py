@@ -239,13 +239,13 @@ def at_camera_time(m: FrameMeasurements, N: np.ndarray) -> FrameMeasurements:
     covariance by ``Ad_N``: ``T Exp(xi) N^-1 = T N^-1 Exp(Ad_N xi)``); ``m`` itself when already compensated."""
     import dataclasses
 
-    from hybrid_calib.geometry import adjoint, se3_inverse, transform_points
+    from hybrid_calib.geometry import adjoint, se3_inverse
 
     if m.compensated:
         return m
     N = np.asarray(N, np.float64)
     Ni = se3_inverse(N)
-    corr = dataclasses.replace(m.corr, points_radar=transform_points(N, np.asarray(m.corr.points_radar)))
+    corr = m.corr.moved(N)
     net = m.network
     if net is not None:
         A = adjoint(N)

@@ -42,7 +42,7 @@ import numpy as np
 from factors.correspondences import Correspondences
 from hybrid_calib.data.files import read_npz
 from hybrid_calib.errors import DataError
-from hybrid_calib.geometry import project_points, se3_inverse, transform_points
+from hybrid_calib.geometry import project_points, transform_points
 
 
 @dataclass(frozen=True)
@@ -122,7 +122,7 @@ def oracle_from_frame(frame, conf: OracleConfig, rng: np.random.Generator) -> tu
     check_truth_matches_points(true_xyz[rows], kind[rows], frame.radar_points, where, str(path), frame.radar_token)
     X = np.asarray(ex.get("T_cam_radar_static", frame.T_cam_radar), np.float64)
     T_frame = np.asarray(frame.T_cam_radar, np.float64)
-    N = se3_inverse(X) @ T_frame  # radar motion between radar and camera timestamps
+    N = frame.radar_motion  # radar motion between radar and camera timestamps
     true_pts = true_xyz[rows]
     if conf.elevation == "model":
         rho = np.linalg.norm(true_pts, axis=1)

@@ -51,6 +51,18 @@ class RadarCameraFrame:
     def K(self) -> np.ndarray:
         return self.camera.K
 
+    @property
+    def radar_motion(self) -> np.ndarray:
+        """(4, 4) ``N``: the radar's motion between its timestamp and the camera's, in the radar frame, with
+        ``T_cam_radar = T_cam_radar_static N`` (docs/conventions.md "Transforms"); the identity for a frame without
+        ``extras["T_cam_radar_static"]``."""
+        from hybrid_calib.geometry import se3_inverse
+
+        static = self.extras.get("T_cam_radar_static")
+        if static is None:
+            return np.eye(4)
+        return se3_inverse(np.asarray(static, np.float64)) @ np.asarray(self.T_cam_radar, np.float64)
+
     def load_image(self) -> np.ndarray:
         """The camera image as (H, W, 3) uint8 RGB. ``DataError`` if it is missing, undecodable or
         decodes with corrupt pixel data (``image_header.decode_image``)."""

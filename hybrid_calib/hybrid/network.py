@@ -194,17 +194,13 @@ def on_mount(out: NetworkOutput, N: np.ndarray) -> NetworkOutput:
     covariance by ``Ad_N`` (``T Exp(xi) N^-1 = T N^-1 Exp(Ad_N xi)``), its rows' points moved by ``N``."""
     import dataclasses
 
-    from hybrid_calib.geometry import adjoint, se3_inverse, transform_points
+    from hybrid_calib.geometry import adjoint, se3_inverse
 
     N = np.asarray(N, np.float64)
     Ni, A = se3_inverse(N), adjoint(N)
-
-    def moved(c: Correspondences) -> Correspondences:
-        return dataclasses.replace(c, points_radar=transform_points(N, np.asarray(c.points_radar, np.float64)))
-
     return dataclasses.replace(out, T_in=np.asarray(out.T_in) @ Ni, T_iters=np.asarray(out.T_iters) @ Ni,
-                               cov_raw=A @ np.asarray(out.cov_raw) @ A.T, rows_first=moved(out.rows_first),
-                               rows_last=moved(out.rows_last))
+                               cov_raw=A @ np.asarray(out.cov_raw) @ A.T, rows_first=out.rows_first.moved(N),
+                               rows_last=out.rows_last.moved(N))
 
 
 def mount_pass(runner, index: int, T: np.ndarray) -> NetworkOutput | None:

@@ -279,7 +279,7 @@ def _recorded_start(vr) -> tuple[np.ndarray | None, str]:
 def _frames(ev: Evidence, root: Path, version: str, vehicle: str, vr, n: int, by_token: dict, fg,
             explicit: bool = False) -> None:
     from hybrid_calib.data.nuscenes import NuScenesRadarCamera
-    from hybrid_calib.geometry import se3_inverse, transform_points
+    from hybrid_calib.geometry import transform_points
 
     if n <= 0:
         ev.notes.append("no camera frames requested (--frames 0)")
@@ -317,8 +317,7 @@ def _frames(ev: Evidence, root: Path, version: str, vehicle: str, vr, n: int, by
         T_res, label, k = seg.get(f.sample_token) or seg.get(f.camera_token) or (vr.final.T, "result", None)
         # the points as recorded reach the image through the frame's transform, the mount times N (docs/conventions.md
         # "Transforms"; probe 86: drawn through the mount, beside rows moved by N)
-        static = f.extras.get("T_cam_radar_static")
-        N = np.eye(4) if static is None else se3_inverse(np.asarray(static, np.float64)) @ np.asarray(f.T_cam_radar)
+        N = f.radar_motion
         pts = np.asarray(f.radar_points)
         uv0, z0 = f.camera.project(transform_points(start @ N, pts))
         uv1, z1 = f.camera.project(transform_points(T_res @ N, pts))
