@@ -24,7 +24,9 @@ remaining squared norm ``r`` as one more term:
 
 ``threshold`` is the ``quantile`` (default 0.99) of ``d2`` over calibration frames that were NOT used to
 fit the mean, std and directions (the fit frames are split in two), so ``score > 1`` marks a frame less
-typical than 99 % of held-out in-domain frames. The model lives in the checkpoint's export block
+typical than 99 % of held-out in-domain frames. A frame whose camera image shows no scene
+(``image_structure`` below ``MIN_IMAGE_STRUCTURE``: noise, a blank frame) scores at least ``image_score`` whatever
+the network made of it (``hybrid.network.NetworkRunner.ood_score``). The model lives in the checkpoint's export block
 (``export["ood"]``, ``OODModel.to_dict``) with the command and frames that fitted it.
 """
 
@@ -82,6 +84,44 @@ def frame_features(out: dict) -> dict[str, np.ndarray]:
                        out["log_var"][-1].double().mean(1), fusion], 1)
     sig = torch.nan_to_num(sig, nan=0.0)  # no FV matching head (ablations): constant signals
     return {"descriptor": desc.cpu().numpy(), "signals": sig.cpu().numpy()}
+
+
+# The camera image's own test, before any network feature: a view of a scene has neighbouring pixels that correlate
+# (lag-1 correlation of grey levels at the network's input, 96 x 200: min 0.95 on 80 images of randomised simulated
+# drives of the four presets, min 0.86 / median 0.94 on scene-0916's 41 CAM_FRONT keyframes), uniform noise does not
+# (0.00-0.01 saved as a 1600 x 900 JPEG, ~0.1 as a 200 x 112 one), a constant image has none (0);
+# benchmarks/image_structure.py. Probe 87: on the shipped network's pure-avg pass 2 of 16 pure-noise images scored
+# 0.77 and 0.87 by the density model alone (in domain) and were fused into a trusted result.
+MIN_IMAGE_STRUCTURE = 0.5
+
+
+def image_structure(image) -> float:
+    """Lag-1 correlation (mean of horizontal and vertical neighbours) of the grey levels of ``image``, (3, H, W)
+    (or (H, W, 3) uint8) in any scale: ~1 on a camera's view of a scene, ~0 on noise; 0 for a constant image."""
+    g = np.asarray(image.cpu().numpy() if hasattr(image, "cpu") else image, np.float64)
+    g = g.mean(0) if g.ndim == 3 and g.shape[0] in (1, 3) else g.mean(-1) if g.ndim == 3 else g
+    cs = []
+    for a, b in ((g[:, 1:], g[:, :-1]), (g[1:, :], g[:-1, :])):
+        a, b = a - a.mean(), b - b.mean()
+        d = float(np.sqrt((a * a).sum() * (b * b).sum()))
+        cs.append(float((a * b).sum()) / d if d > 1e-12 * a.size else 0.0)
+    return float(np.mean(cs)) if np.isfinite(cs).all() else 0.0
+
+
+def image_score(structure: float) -> float:
+    """The out-of-domain score the image test alone gives (``MIN_IMAGE_STRUCTURE / structure``, > 1 below the
+    minimum; 0 at or above it, where the density model decides alone; 0 when not measured: NaN)."""
+    if not np.isfinite(structure) or structure >= MIN_IMAGE_STRUCTURE:
+        return 0.0
+    return MIN_IMAGE_STRUCTURE / max(float(structure), 1e-3)
+
+
+def image_words(structure: float) -> str:
+    """Why a frame is out of domain by its image alone ("" when the image passes)."""
+    if not image_score(structure):
+        return ""
+    return (f"the camera image shows no scene: its neighbouring pixels correlate {max(structure, 0.0):.2f}, under "
+            f"{MIN_IMAGE_STRUCTURE:g}; noise, a blank frame or a broken camera")
 
 
 def select(feats: Mapping[str, np.ndarray], features: str) -> np.ndarray:

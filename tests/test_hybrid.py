@@ -218,7 +218,7 @@ def test_a_damaged_network_cache_entry_is_recomputed_not_a_failure(tmp_path):
 
     K = np.array([[800.0, 0, 400], [0, 800, 225], [0, 0, 1]])
     rows = Correspondences(np.array([[5.0, 1, 0]]), np.array([[10.0, 20]]), np.array([6.0]), np.array([1.0]), K, "t")
-    out = NetworkOutput(np.eye(4), np.stack([np.eye(4)] * 2), np.eye(6), rows, rows, 0.1, np.zeros(3), np.zeros(2))
+    out = NetworkOutput(np.eye(4), np.stack([np.eye(4)] * 2), np.eye(6), rows, rows, 0.1, np.zeros(3), np.zeros(2), 0.9)
     cache = OutputCache(tmp_path, "net")
     cache.put("tok", out)
     assert cache.get("tok", np.eye(4)) is not None
@@ -226,7 +226,7 @@ def test_a_damaged_network_cache_entry_is_recomputed_not_a_failure(tmp_path):
     for key, bad in (("T_in", np.array("x")), ("T_iters", np.eye(4)), ("cov_raw", np.eye(5)),
                      ("T_in", np.full((4, 4), np.nan)), ("ood_signals", np.array(["a", "b"])),
                      ("ood_signals", np.full(2, np.nan)), ("seconds", np.array(np.nan)),  # probe 65
-                     ("first_K", np.zeros((3, 3)))):
+                     ("first_K", np.zeros((3, 3))), ("image_structure", np.array(np.nan))):
         np.savez(cache.path("tok", np.eye(4)), **{**good, key: bad})
         assert cache.get("tok", np.eye(4)) is None, key
     # a pass whose out-of-domain features do not fit the checkpoint's fitted model is recomputed, not a run that fails

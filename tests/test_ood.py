@@ -213,6 +213,56 @@ def test_out_of_domain_frames_are_dropped_with_the_reason(fitted, sim_root, tmp_
     assert [f.index for f in v.trajectory] == kept
 
 
+def test_the_image_test_measures_a_scene_and_not_noise(sim_root):
+    import cv2
+
+    from learned.ood import MIN_IMAGE_STRUCTURE, image_score, image_structure, image_words
+
+    frames = sorted((sim_root / "samples" / "CAM_FRONT").glob("*.jpg"))
+    scene = [image_structure(cv2.resize(cv2.imread(str(f)), (200, 96), interpolation=cv2.INTER_AREA)) for f in frames]
+    g = np.random.default_rng(0)
+    noise = [image_structure(g.uniform(0, 1, (3, 96, 200))), image_structure(g.integers(0, 256, (96, 200, 3)))]
+    assert min(scene) > 0.8 and max(np.abs(noise)) < 0.1
+    assert image_structure(np.zeros((3, 96, 200))) == image_structure(np.full((96, 200, 3), 7)) == 0.0
+    assert image_score(min(scene)) == 0.0 and image_words(min(scene)) == ""
+    assert image_score(0.02) == MIN_IMAGE_STRUCTURE / 0.02 and image_score(0.0) > 100 and image_score(np.nan) == 0.0
+    assert "shows no scene" in image_words(0.02) and "0.02" in image_words(0.02)
+
+
+def test_a_noise_image_is_out_of_domain_whatever_the_density_model_says(fitted):
+    """Probe 87: on the shipped network's pure-avg pass 2 of 16 pure-noise images scored 0.77 and 0.87 by the density
+    model alone and were fused into a trusted result: the camera image's own test raises the score."""
+    import dataclasses
+
+    _, runner, drives = fitted
+    v = drives["sim-veh-000"]
+    clean = runner.run(v.indices[0], v.base)
+    assert runner.ood_score(clean) < 1.0 and clean.image_structure > 0.8 and runner.ood_why(clean) == ""
+    noise = dataclasses.replace(clean, image_structure=0.02)  # the same features, a noise image's structure
+    assert runner.ood_score(noise) > 1.0 and "shows no scene" in runner.ood_why(noise)
+
+
+def test_a_frame_whose_image_is_noise_is_dropped_naming_the_image(fitted, sim_root, tmp_path):
+    import shutil
+
+    import cv2
+
+    from hybrid_calib.hybrid import run_vehicle
+
+    root = tmp_path / "root"
+    shutil.copytree(sim_root, root)
+    images = sorted((root / "samples" / "CAM_FRONT").glob("*sim-veh-001*.jpg")) or \
+        sorted((root / "samples" / "CAM_FRONT").glob("*.jpg"))
+    im = cv2.imread(str(images[0]))
+    cv2.imwrite(str(images[0]), np.random.default_rng(1).integers(0, 256, im.shape, dtype=np.uint8))
+    conf = {**BASE, "method": "pure-avg", "checkpoint": str(fitted[0]), "ood": {"min_in_domain_frames": 1,
+                                                                                "min_in_domain_fraction": 0.5}}
+    runs = [run_vehicle(root, "v1.0-sim", name, conf) for name in ("sim-veh-000", "sim-veh-001")]
+    dropped = [s for v in runs for s in v.skipped if "ood_score" in s]
+    assert len(dropped) == 1 and "the camera image shows no scene" in dropped[0]["reason"], dropped
+    assert dropped[0]["ood_score"] > 2  # 0.5 / structure: a JPEG of noise at 200 x 112 keeps ~0.1
+
+
 def test_checkpoint_without_ood_block_keeps_working_and_says_so(sim_root, tmp_path):
     from hybrid_calib.config import to_dict
     from hybrid_calib.hybrid import run_vehicle

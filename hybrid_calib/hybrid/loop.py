@@ -252,7 +252,7 @@ class _Trace:
         score = runner.ood_score(out) if conf.ood.enabled else float("nan")
         self.scores.append(score)
         if self.drop and out_of_domain(score, conf.ood):
-            self.skipped.append(skip_record(k, runner.token(i), score, conf.ood))
+            self.skipped.append(skip_record(k, runner.token(i), score, conf.ood, runner.ood_why(out)))
             return False
         self.geometry.add(out.rows_first.points_radar)
         return True

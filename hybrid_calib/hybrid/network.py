@@ -69,6 +69,8 @@ class NetworkOutput:
     seconds: wall time of the pass (forward + export), CPU.
     ood_descriptor / ood_signals: the out-of-domain features of the pass (``learned.ood.frame_features``;
     empty for outputs made without them); ``NetworkRunner.ood_score`` reads them.
+    image_structure: the camera image's own test (``learned.ood.image_structure`` of the model-input image; NaN
+    for outputs made without it).
     """
 
     T_in: np.ndarray
@@ -79,6 +81,7 @@ class NetworkOutput:
     seconds: float
     ood_descriptor: np.ndarray = field(default_factory=lambda: np.zeros(0))
     ood_signals: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    image_structure: float = float("nan")
 
     @property
     def T(self) -> np.ndarray:
@@ -93,7 +96,8 @@ class NetworkOutput:
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         d = {"T_in": self.T_in, "T_iters": self.T_iters, "cov_raw": self.cov_raw,
-             "seconds": np.array(self.seconds), "ood_descriptor": self.ood_descriptor, "ood_signals": self.ood_signals}
+             "seconds": np.array(self.seconds), "ood_descriptor": self.ood_descriptor, "ood_signals": self.ood_signals,
+             "image_structure": np.array(self.image_structure)}
         for prefix, c in (("first_", self.rows_first), ("last_", self.rows_last)):
             d.update({prefix + k: v for k, v in c.to_npz_dict().items()})
         return d
@@ -107,9 +111,10 @@ class NetworkOutput:
                 or cov.shape != (6, 6):  # probe 63: a damaged entry failed the trial instead of being recomputed
             raise ValueError(f"network output of shapes T_in {T_in.shape}, T_iters {T_iters.shape}, cov_raw "
                              f"{cov.shape}")
-        # an entry without the ood arrays (an older cache) is a miss (KeyError)
+        # an entry without the ood arrays or the image's test (an older cache) is a miss (KeyError)
         return cls(T_in, T_iters, cov, rows[0], rows[1], float(z["seconds"]),
-                   np.asarray(z["ood_descriptor"], np.float64), np.asarray(z["ood_signals"], np.float64))
+                   np.asarray(z["ood_descriptor"], np.float64), np.asarray(z["ood_signals"], np.float64),
+                   float(z["image_structure"]))
 
 
 def _start_key(T: np.ndarray) -> str:
@@ -144,7 +149,7 @@ class OutputCache:
                 out = NetworkOutput.from_arrays(z)
                 # and its out-of-domain features and time (probe 65: NaN features turned the domain test off)
                 ok = out.finite and all(np.isfinite(a).all() for a in (out.ood_descriptor, out.ood_signals)) \
-                    and np.isfinite(out.seconds) and out.seconds >= 0
+                    and np.isfinite(out.seconds) and out.seconds >= 0 and np.isfinite(out.image_structure)
                 return out if ok else None
         except (*NPZ_ERRORS, HybridCalibError):  # a row array the measurement format refuses (DataError), too
             return None  # a damaged entry (truncated, not a zip, a missing key, misshapen, not numbers) is recomputed
@@ -330,16 +335,24 @@ class NetworkRunner:
         return (np.sqrt(s)[:, None] * out.cov_raw) * np.sqrt(s)[None, :]
 
     def ood_score(self, out: NetworkOutput) -> float:
-        """The pass's out-of-domain score (``learned.ood``: > 1 out of domain); NaN when the checkpoint
-        has no ``export.ood`` (``ood_note`` says so) or the output carries no features."""
+        """The pass's out-of-domain score (``learned.ood``: > 1 out of domain): the density model's, raised to the
+        camera image's own test where the image shows no scene (``learned.ood.image_score``); NaN when the
+        checkpoint has no ``export.ood`` (``ood_note`` says so) or the output carries no features."""
         if self.ood is None or not out.ood_descriptor.size:
             return float("nan")
-        from learned.ood import OODError
+        from learned.ood import OODError, image_score
 
         try:
-            return float(self.ood.score({"descriptor": out.ood_descriptor, "signals": out.ood_signals})[0])
+            score = float(self.ood.score({"descriptor": out.ood_descriptor, "signals": out.ood_signals})[0])
         except OODError as e:  # fitted on another network's features
             raise OODError(f"checkpoint {self.checkpoint}: {e}") from None
+        return max(score, image_score(out.image_structure))
+
+    def ood_why(self, out: NetworkOutput) -> str:
+        """Words for a pass out of domain by its camera image alone (``learned.ood.image_words``; "" otherwise)."""
+        from learned.ood import image_words
+
+        return image_words(out.image_structure) if self.ood is not None else ""
 
     def forward(self, s: dict, T_in: np.ndarray) -> NetworkOutput:
         """The network on a prepared sample ``s`` (``sample``, possibly altered) from ``T_in``; not cached."""
@@ -349,7 +362,7 @@ class NetworkRunner:
 
         from learned.dataset import collate
         from learned.export import ExportConfig, export_correspondences
-        from learned.ood import frame_features
+        from learned.ood import frame_features, image_structure
         from learned.train import model_inputs, to_device
 
         t0 = time.perf_counter()
@@ -370,7 +383,8 @@ class NetworkRunner:
         raw = [T[0].double().cpu().numpy() for T in out["T_iters"]]
         T_iters = np.stack([nearest_rigid(T) if np.all(np.isfinite(T)) else T for T in raw])
         return NetworkOutput(np.asarray(T_in, np.float64), T_iters, np.asarray(cov[0], np.float64), rows[0], rows[1],
-                             time.perf_counter() - t0, feats["descriptor"][0], feats["signals"][0])
+                             time.perf_counter() - t0, feats["descriptor"][0], feats["signals"][0],
+                             image_structure(s["image"]))
 
 
 class CascadeRunner:
@@ -393,6 +407,9 @@ class CascadeRunner:
 
     def ood_score(self, out: NetworkOutput) -> float:
         return self.refine.ood_score(out)
+
+    def ood_why(self, out: NetworkOutput) -> str:
+        return self.refine.ood_why(out)
 
     @property
     def checkpoint(self) -> str:
@@ -423,7 +440,7 @@ class CascadeRunner:
             return None
         out = NetworkOutput(np.asarray(T_in, np.float64), np.concatenate([first.T_iters, second.T_iters]),
                             second.cov_raw, first.rows_first, second.rows_last, first.seconds + second.seconds,
-                            second.ood_descriptor, second.ood_signals)
+                            second.ood_descriptor, second.ood_signals, second.image_structure)
         if self.cache is not None:
             self.cache.put(token, out)
         return out

@@ -61,11 +61,12 @@ def out_of_domain(score: float, policy: OODPolicy) -> bool:
     return bool(policy.enabled and np.isfinite(score) and score > policy.threshold)
 
 
-def skip_record(index: int, token: str, score: float, policy: OODPolicy) -> dict:
-    """The ``frames_skipped`` entry of a dropped frame (``index``: its position in the drive)."""
+def skip_record(index: int, token: str, score: float, policy: OODPolicy, why: str = "") -> dict:
+    """The ``frames_skipped`` entry of a dropped frame (``index``: its position in the drive; ``why``: words that
+    replace the general reason, e.g. ``NetworkRunner.ood_why``'s)."""
     return {"index": int(index), "token": token, "ood_score": float(score),
-            "reason": f"out of domain: score {score:.2f} > {policy.threshold:g} (the input is unlike the frames the "
-                      "network was fitted on; frame dropped)"}
+            "reason": f"out of domain: score {score:.2f} > {policy.threshold:g} "
+                      f"({why or 'the input is unlike the frames the network was fitted on'}; frame dropped)"}
 
 
 def decide(scores: list[float], policy: OODPolicy, note: str = "", unread: int = 0) -> dict:
