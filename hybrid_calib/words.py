@@ -3,6 +3,12 @@
 from __future__ import annotations
 
 
+def md_cell(text) -> str:
+    """``text`` as one cell of a Markdown table: its pipes escaped and its line breaks spaces (probe 88: a vehicle
+    named "a|b" shifted its row's values one column, one with a newline split its row in two)."""
+    return " ".join(str(text).replace("|", "\\|").splitlines())
+
+
 def join_and(names: list[str]) -> str:
     """"a", "a and b", "a, b and c"."""
     return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
@@ -41,6 +47,11 @@ def join_or(names: list[str]) -> str:
 def n_vehicles(n: int) -> str:
     """"1 vehicle", "3 vehicles": the count of a fleet's vehicles in words."""
     return f"{n} vehicle{'' if n == 1 else 's'}"
+
+
+def n_frames(n: int) -> str:
+    """"1 frame", "16 frames"."""
+    return f"{n} frame{'' if n == 1 else 's'}"
 
 
 def above(value_m: float, limit_m: float) -> str:

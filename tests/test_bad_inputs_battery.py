@@ -856,6 +856,17 @@ DAMAGED_RESULTS = {  # case -> (damage(doc, vehicle), needles beyond the file); 
                                   ["mount.blind_frames is [5, {}], not two frame counts"]),
     "mount-level-null": (lambda doc, v: doc["vehicles"][v].__setitem__("mount", {"levels": [{"level_deg": None}]}),
                          ["mount.levels[0].level_deg is 'None', not a finite number"]),
+    # probe 88: printed "statistic nan, p-value 0", "change inf deg"; a NaN change turned "recalibrate" into "cannot
+    # tell"; a missing frame count read "0 frames"
+    "drift-statistic-nan": (lambda doc, v: doc["vehicles"][v]["drift"].__setitem__("statistic", float("nan")),
+                            ["drift.statistic is nan, not a number the reference test writes"]),
+    "drift-change-infinite": (lambda doc, v: doc["vehicles"][v]["drift"].__setitem__("rot_change_deg", float("inf")),
+                              ["drift.rot_change_deg is inf, not a number the reference test writes"]),
+    "drift-delta-nan": (lambda doc, v: doc["vehicles"][v]["drift"]["delta_camera"].__setitem__(
+        next(iter(doc["vehicles"][v]["drift"]["delta_camera"])), float("nan")), ["drift.delta_camera.", "is nan"]),
+    "drift-axis-delta-nan": (lambda doc, v: doc["vehicles"][v]["drift"]["axes"]["yaw"].__setitem__("delta", float(
+        "nan")), ["drift.axes.yaw.delta is nan"]),
+    "n-frames-missing": (lambda doc, v: doc["vehicles"][v].pop("n_frames"), [".n_frames is missing"]),
 }
 
 

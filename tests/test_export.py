@@ -72,6 +72,22 @@ def _read_back(root, table, tmp_path, vehicle: str) -> np.ndarray:
     return _tables_T(copy, vehicle)
 
 
+def test_a_result_without_a_stored_verdict_is_kept_and_says_why(calibrated, tmp_path):
+    """Probe 88: export read "the verdict against them is 'none'" where the report derived "recalibrate" from the
+    same drift block's numbers."""
+    from hybrid_calib.calib.export import export_mounts
+
+    root, result = calibrated
+    run = CalibrationRun.load(result)
+    for vr in run.vehicles.values():
+        vr.drift = {k: v for k, v in vr.drift.items() if k not in ("verdict_kind", "verdict", "axes")}
+    run.save(tmp_path / "r" / "result.json")
+    exp = export_mounts([tmp_path / "r" / "result.json"], tmp_path / "out")
+    why = exp.vehicles["sim-veh-000"]["why"]
+    assert not exp.exported and "stores no verdict against them" in why and "'none'" not in why
+    assert "calibrate --overwrite" in why and "hybrid-calib report` derives one" in why
+
+
 def test_export_writes_the_estimate_where_measured_and_keeps_the_tables_where_pinned(calibrated, tmp_path):
     from hybrid_calib.calib.export import export_mounts
 

@@ -99,3 +99,23 @@ def test_figures_are_drawn_whatever_mplbackend_says(tmp_path, backend):
     p = subprocess.run([sys.executable, "-c", code], env={**os.environ, "MPLBACKEND": backend}, capture_output=True,
                        text=True, timeout=120)
     assert p.returncode == 0 and (tmp_path / "p.png").is_file(), p.stderr[-2000:]
+
+
+def test_a_long_vehicle_name_is_shortened_where_a_figure_draws_it(monkeypatch, tmp_path):
+    """Probe 88: one 226-character vehicle name as a tick label squeezed the fleet figure's six panels into a 15 px
+    strip."""
+    from hybrid_calib.plots import fleet
+    from hybrid_calib.plots.figure import NAME_CHARS, short_name
+
+    long = "L" + "ong-name-" * 25 + "007"
+    assert short_name("sim-veh-000") == "sim-veh-000" and short_name("a\nb") == "a b"
+    s = short_name(long)
+    assert len(s) == NAME_CHARS and s.startswith("Long-name-") and s.endswith("-007") and "\u2026" in s
+    figs = []
+    monkeypatch.setattr(fleet, "save_figure", lambda fig, path, **kw: figs.append(fig) or path)
+    fleet.draw_fleet([long, "sim-veh-001"], np.zeros((2, 6)), np.ones((2, 6)), [[], []], tmp_path / "f.png", "t")
+    labels = [t.get_text() for t in figs[0].axes[0].get_yticklabels()]
+    assert labels == [s, "sim-veh-001"]
+    figs[0].canvas.draw()
+    widths = [ax.get_position().width for ax in figs[0].axes]
+    assert min(widths) > 0.08  # six panels share the width (with the whole name: ~0.01)

@@ -451,7 +451,14 @@ def test_missing_browser_fails_under_ci_and_skips_otherwise(monkeypatch):
         browser.chromium_or_skip()
 
 
-def test_a_step_splits_the_drive_into_two_estimates():
+@pytest.mark.parametrize("n_total, first", [
+    ((1, 2, 3, 4, 2, 3), 3),  # the window's own alarm at frame 4, restarted with frames 3-4
+    ((1, 2, 3, 4, 5, 3), 3),  # the mount monitor's alarm at frame 4, its change at frame 3: frame 5 fuses 3-5
+    ((1, 2, 3, 4, 1, 2), 4),  # restarted at the alarm frame alone
+])
+def test_a_restarted_window_splits_the_drive_into_two_estimates(n_total, first):
+    """Probe 88: the pictures cut at the alarm frame drew a knock's frames between the change and the alarm with the
+    pre-knock estimate ("result of frames 0-12" on frame 8 of a window restarted from frame 8)."""
     from hybrid_calib.calib.result import FrameEstimate
     from hybrid_calib.report.evidence import segment_estimates
 
@@ -459,12 +466,17 @@ def test_a_step_splits_the_drive_into_two_estimates():
     Ts = [nominal_T_cam_radar() + np.diag([0, 0, 0, 0]) for _ in range(6)]
     for k, T in enumerate(Ts):
         T[0, 3] = k  # each frame's estimate distinguishable
-    vr.trajectory = [FrameEstimate(k, f"f{k}", 0, Estimate(Ts[k], np.eye(6), np.ones(6), "ok"), 1, 1, 1.0,
-                                   None, None, k == 4, 0.0, 0.0) for k in range(6)]
+    vr.trajectory = [FrameEstimate(k, f"f{k}", 0, Estimate(Ts[k], np.eye(6), np.ones(6), "ok"), n_total[k],
+                                   n_total[k], 1.0, None, None, k == 4, 0.0, 0.0) for k in range(6)]
     seg = segment_estimates(vr)
-    assert [seg[f"f{k}"][0][0, 3] for k in range(6)] == [3, 3, 3, 3, vr.final.T[0, 3], vr.final.T[0, 3]]
-    assert seg["f0"][1] == "result of frames 0-3" and seg["f5"][1] == "result of frames 4-5"
+    final = vr.final.T[0, 3]
+    assert [seg[f"f{k}"][0][0, 3] for k in range(6)] == [first - 1] * first + [final] * (6 - first)
+    assert seg["f0"][1] == f"result of frames 0-{first - 1}" and seg["f5"][1] == f"result of frames {first}-5"
     assert [seg[f"f{k}"][2] for k in range(6)] == list(range(6))
+    # one estimate per frame (pure) or a window that never restarted: one segment, the result
+    for n in ((1,) * 6, (1, 2, 3, 4, 5, 6)):
+        vr.trajectory = [dataclasses.replace(f, n_window=n[k], n_total=n[k]) for k, f in enumerate(vr.trajectory)]
+        assert {seg[1] for seg in segment_estimates(vr).values()} == {"result"}
 
 
 def test_a_bad_run_config_leaves_a_note_not_a_crash(run_dir, tmp_path):
@@ -843,3 +855,18 @@ def test_a_page_replays_the_rows_of_its_own_vehicle_alone(run_dir, tmp_path, mon
     name = sorted(json.loads(result.read_text())["vehicles"])[1]
     assert "Residuals" in write_report(result, tmp_path / "a.html", vehicle=name).read_text()
     assert asked == [(name,)]
+
+
+def test_a_one_frame_trajectory_draws_its_estimate_and_band(monkeypatch, tmp_path):
+    """Probe 88: a vehicle that stood still (one frame kept) drew six empty panels: a line and a fill of one point."""
+    from hybrid_calib.calib.result import FrameEstimate
+    from hybrid_calib.plots import report as plots
+
+    vr = _vr((0,) * 6, (0.01,) * 6)
+    vr.trajectory = [FrameEstimate(0, "f0", 0, vr.final, 1, 1, 1.0, None, None, False, 0.0, 0.0)]
+    figs = []
+    monkeypatch.setattr(plots, "save_figure", lambda fig, path, **kw: figs.append(fig) or Path(path))
+    plots.plot_estimate_bands(vr, tmp_path / "bands.png")
+    for ax in figs[0].axes:
+        assert any(line.get_marker() == "o" and len(line.get_xdata()) == 1 for line in ax.get_lines())
+        assert any(len(c.get_segments()) == 1 for c in ax.collections if hasattr(c, "get_segments"))  # 3-sigma bar

@@ -28,3 +28,19 @@ def test_a_value_just_over_a_round_limit_shows_the_digits_that_put_it_over():
     """Probe 37's "std 10.0 cm > max_std_m 10 cm", back under a >= (probe 74): every default limit is round."""
     assert above(0.1004, 0.1) == "10.04" and above(0.10004, 0.1) == "10.004" and above(0.131, 0.1) == "13.1"
     assert above(0.05, 0.1) == "5.0"
+
+
+def test_a_markdown_cell_keeps_its_row_whole():
+    """Probe 88: a vehicle named "pipe|veh" shifted its summary.md row one column, "new\\nline" split it in two."""
+    from hybrid_calib.fleet.summary import summary_markdown
+    from hybrid_calib.words import md_cell
+
+    assert md_cell("pipe|veh") == "pipe\\|veh" and md_cell("new\nline") == "new line" and md_cell(3) == "3"
+    counts = {k: 0 for k in ("done", "pending", "running", "out_of_tolerance", "fleet_outliers", "degenerate",
+                             "weak", "drifted_in_drive")}
+    s = {"out": "o", "method": "oracle", "seed": 0, "design_mount": {"source": "recorded"},
+         "counts": {**counts, "vehicles": 2, "failed": 2},
+         "vehicles": {"pipe|veh": {"state": "failed", "reason": "a|b"}, "new\nline": {"state": "failed",
+                                                                                      "reason": "x\ny"}}}
+    rows = [line for line in summary_markdown(s).splitlines() if line.startswith("| ") and "failed" in line]
+    assert rows == ["| pipe\\|veh | failed | | | | | | a\\|b |", "| new line | failed | | | | | | x y |"]

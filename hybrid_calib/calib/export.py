@@ -315,6 +315,12 @@ def _why_not(vr, which: str) -> str:
                 "mount.enabled=false, or too few sweep pairs): a learned method's yaw alone is not written; "
                 "calibrate with the mount monitor on")
     kind = (vr.drift or {}).get("verdict_kind")
+    if which == "recalibrate" and not kind and vr.drift:  # probe 88: read "the verdict ... is 'none'" while the
+        # report derived "recalibrate" from the same block's numbers
+        return ("kept the tables: result.json stores no verdict against them (its drift block has no verdict_kind: "
+                "written by an older hybrid-calib, or edited; `hybrid-calib report` derives one from its numbers, "
+                "export writes only a verdict the calibrator stored): recompute it (calibrate --overwrite), or "
+                "--which trusted writes every trusted estimate")
     if which == "recalibrate" and kind != "recalibrate":
         return (f"kept the tables: the verdict against them is '{kind or 'none'}', not 'recalibrate' (result.json "
                 "says why); --which trusted writes every trusted estimate")

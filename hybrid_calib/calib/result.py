@@ -69,6 +69,7 @@ NETWORK = {"n_frames": frames with a network estimate, "frame_id": the last such
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -278,22 +279,28 @@ def _drift(d: dict, where: str) -> dict | None:
 _DRIFT_NUMBERS = ("statistic", "p_value", "threshold", "rot_change_deg", "trans_change_cm", "alpha", "dof")
 _DRIFT_FLAGS = ("significant", "exceeds_margin", "drifted")
 _DRIFT_WORDS = ("verdict", "test", "verdict_test")
+_DRIFT_MAY_BE_INFINITE = ("statistic", "threshold", "axes.std", "axes.tolerance")
 _AXIS_DECISIONS = ("within", "differs", "undecided")
 
 
 def _drift_fields(b: dict, where: str) -> None:
     """The fields of a ``drift`` block (``calib.drift.DriftDecision.to_dict``, ``prior_note``) that report, export and
     the fleet summary read, of the JSON kind they are written as; ``TypeError`` / ``ValueError`` naming the field
-    otherwise (probe 61: a null p-value and an axis of "x" were internal errors in report and export). Numbers may be
-    infinite (a singular covariance's statistic)."""
-    def number(x) -> bool:
-        return isinstance(x, (int, float)) and not isinstance(x, bool)
+    otherwise (probe 61: a null p-value and an axis of "x" were internal errors in report and export). No number may
+    be NaN, and only ``_DRIFT_MAY_BE_INFINITE`` infinite (a singular covariance's statistic; probe 88: a NaN statistic
+    was printed beside p = 0, an infinite change as "inf deg", a NaN change turned "recalibrate" into "cannot
+    tell")."""
+    def number(x, key: str = "") -> bool:
+        return isinstance(x, (int, float)) and not isinstance(x, bool) and not math.isnan(x) and \
+            (math.isfinite(x) or key in _DRIFT_MAY_BE_INFINITE)
 
     for keys, ok, kind in ((_DRIFT_NUMBERS, number, "number"), (_DRIFT_FLAGS, lambda x: isinstance(x, bool),
                                                                  "true or false"),
                            (_DRIFT_WORDS, lambda x: isinstance(x, str), "string")):
         for key in keys:
-            if key in b and not ok(b[key]):
+            if key in b and not (ok(b[key], key) if kind == "number" else ok(b[key])):
+                if kind == "number" and isinstance(b[key], float):
+                    raise ValueError(f"{where}.{key} is {b[key]}, not a number the reference test writes: {EDITED}")
                 raise TypeError(f"{where}.{key} is a JSON {_json_kind(b[key])}, not a {kind}: {EDITED}")
     from hybrid_calib.calib.drift import AXIS_KEYS, AXIS_WORDS
 
@@ -305,7 +312,7 @@ def _drift_fields(b: dict, where: str) -> None:
         a = _mapping(a, f"{where}.axes.{name}")
         if name not in AXIS_WORDS:
             raise ValueError(f"{where}.axes has {str(name)[:40]!r}, not one of {list(AXIS_WORDS)}: {EDITED}")
-        bad = [k for k in ("delta", "std", "tolerance") if k in a and not number(a[k])]
+        bad = [k for k in ("delta", "std", "tolerance") if k in a and not number(a[k], f"axes.{k}")]
         bad += [k for k in ("prior_pinned",) if k in a and not isinstance(a[k], bool)]
         bad += [k for k in ("decision",) if k in a and a[k] not in _AXIS_DECISIONS]
         if bad:
@@ -554,7 +561,9 @@ class VehicleResult:
         d = _mapping(d, where)
         truth, crb = d.get("truth"), d.get("crb_std_cam")
         trajectory = _array(d, "trajectory", where)
-        n_frames = d.get("n_frames", 0)
+        if "n_frames" not in d:  # probe 88: read as 0, the page said "0 frames" of a 16-frame result
+            raise ValueError(f"{where}.n_frames is missing: {EDITED}")
+        n_frames = d["n_frames"]
         if not (isinstance(n_frames, int) and not isinstance(n_frames, bool) and n_frames >= 0):
             raise ValueError(f"{where}.n_frames is {str(n_frames)[:40]!r}, not a count of frames")
         for key in ("method", "vehicle"):

@@ -44,7 +44,7 @@ from hybrid_calib.config import save_json_atomic, save_text_atomic
 from hybrid_calib.errors import DataError
 from hybrid_calib.fleet.manifest import Manifest, rel_path
 from hybrid_calib.hybrid.loop import STEP_METHODS
-from hybrid_calib.words import n_vehicles
+from hybrid_calib.words import md_cell, n_vehicles
 
 SCHEMA = "hybrid-calib/fleet-summary/v1"
 
@@ -285,9 +285,8 @@ def summary_markdown(s: dict) -> str:
             tr = " / ".join(f"{o[i]:+.1f}±{sd[i]:.1f}" for i in range(3, 6))
             status = r["status"].split(":")[0]
             note = f"p {r['drift']['p_value']:.2g}" if r["drift"].get("p_value") is not None else ""
-            lines.append(f"| {jid} | done | {status} | {rot} | {tr} | {r['verdict']} | {', '.join(r['flags'])} "
-                         f"| {note} |")
+            lines.append(f"| {md_cell(jid)} | done | {status} | {rot} | {tr} | {r['verdict']} | "
+                         f"{', '.join(r['flags'])} | {note} |")
         else:
-            reason = (r.get("reason") or "").replace("|", "/").replace("\n", " ")
-            lines.append(f"| {jid} | {r['state']} | | | | | | {reason[:300]} |")
+            lines.append(f"| {md_cell(jid)} | {r['state']} | | | | | | {md_cell((r.get('reason') or '')[:300])} |")
     return "\n".join(lines) + "\n"

@@ -12,7 +12,7 @@ from hybrid_calib.calib.drift import drift_verdict
 from hybrid_calib.calib.result import VehicleResult, truth_at
 from hybrid_calib.data.files import file_part
 from hybrid_calib.metrics import signed_errors
-from hybrid_calib.plots.figure import pyplot, save_figure
+from hybrid_calib.plots.figure import pyplot, save_figure, short_name
 
 LABELS = ("roll (rot z) [deg]", "pitch (rot x) [deg]", "yaw (rot y) [deg]", "x [cm]", "y [cm]", "z [cm]")
 # camera-axis Euler order of metrics.signed_errors is [roll, pitch, yaw] = rotation about z, x, y;
@@ -112,8 +112,8 @@ def plot_vehicle(vr: VehicleResult, out_dir: Path) -> list[Path]:
     axes[1, 0].set_xlabel("frame")
     axes[0, 0].legend(fontsize=7)
     against = "the tables" if vr.errors_against == "tables" else "truth"  # a real root's errors: vs its tables
-    fig.suptitle(f"{vr.vehicle}: estimate {f'error vs {against}' if vr.truth_T is not None else 'minus final estimate'}"
-                 f" (camera axes) with the reported +-2 sigma")
+    shown = f"error vs {against}" if vr.truth_T is not None else "minus final estimate"
+    fig.suptitle(f"{short_name(vr.vehicle)}: estimate {shown} (camera axes) with the reported +-2 sigma")
     fig.tight_layout()
     path_trajectory, path_drift = vehicle_plot_paths(vr, out_dir)
     p1 = save_figure(fig, path_trajectory, dpi=90)
@@ -149,7 +149,7 @@ def plot_vehicle(vr: VehicleResult, out_dir: Path) -> list[Path]:
     a2.set_xlim(k.min() - 0.5, k.max() + 0.5)  # the whole drive, whatever a panel has to draw (probe 67)
     d = vr.drift or {}
     verdict = textwrap.fill(f"vs reference (tables): {drift_verdict(d) or 'no reference test'}", 120)
-    fig.suptitle(f"{vr.vehicle}: step detectors; chi2 vs reference {d.get('statistic', float('nan')):.1f} "
+    fig.suptitle(f"{short_name(vr.vehicle)}: step detectors; chi2 vs reference {d.get('statistic', float('nan')):.1f} "
                  f"(p {d.get('p_value', float('nan')):.2g})\n{verdict}", fontsize=9)
     fig.tight_layout()
     p2 = save_figure(fig, path_drift, dpi=90)

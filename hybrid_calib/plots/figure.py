@@ -1,4 +1,4 @@
-"""What every figure shares: a headless matplotlib and an atomic PNG write."""
+"""What every figure shares: a headless matplotlib, names short enough to draw, and an atomic PNG write."""
 
 from __future__ import annotations
 
@@ -24,6 +24,20 @@ def pyplot():
     import matplotlib.pyplot as plt
 
     return plt
+
+
+NAME_CHARS = 40  # a vehicle's name drawn on a figure: at most this many characters (``short_name``)
+
+
+def short_name(name, most: int = NAME_CHARS) -> str:
+    """``name`` as a figure draws it: itself when it has at most ``most`` characters (one line), else its first and
+    last characters around an ellipsis (a vehicle's number is at its end). Probe 88: one 226-character vehicle name as
+    a tick label squeezed the fleet figure's six panels into a 15 px strip, and cut a report picture's title."""
+    name = " ".join(str(name).split())
+    if len(name) <= most:
+        return name
+    head = (most - 1) * 2 // 3
+    return name[:head] + "\u2026" + name[len(name) - (most - 1 - head):]
 
 
 def save_figure(fig, path: str | Path, dpi: float | None = None) -> Path:

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hybrid_calib.plots.figure import pyplot, save_figure
+from hybrid_calib.plots.figure import pyplot, save_figure, short_name
 
 AXES = ("rot x [deg]", "rot y [deg]", "rot z [deg]", "t x [cm]", "t y [cm]", "t z [cm]")
 # a vehicle's colour: its first flag in this order (a step inside the drive before a mount off its tables: both
@@ -64,8 +64,8 @@ def draw_fleet(names: Sequence[str], offsets: np.ndarray, sigmas: np.ndarray, fl
             ax.errorbar(off[i, k], y[i], xerr=n_sigma * std[i, k], fmt="o", ms=3, color=colour[i], lw=1, capsize=2)
         ax.set_xlim(-limits[k], limits[k])  # every vehicle (outliers too) and its bar in view
         ax.set_title(AXES[k], fontsize=9)
-    labels = [f"{n} ({', '.join(f.replace('_', ' ') for f in fl if f in COLOURS)})" if c != "tab:blue" else n
-              for n, c, fl in zip(names, colour, flags)]
+    labels = [f"{short_name(n)} ({', '.join(f.replace('_', ' ') for f in fl if f in COLOURS)})" if c != "tab:blue"
+              else short_name(n) for n, c, fl in zip(names, colour, flags)]
     axes[0].set_yticks(y, labels, fontsize=7)
     axes[0].invert_yaxis()
     grey = "; grey: the fleet's mean +- its spread (1 sigma)" if band is not None else ""

@@ -40,9 +40,14 @@ def plot_estimate_bands(vr: VehicleResult, path: str | Path) -> Path:
     truth = None if vr.truth_T is None else np.array([report_values(truth_at(vr, f.index)) for f in traj])
     fig, axes = plt.subplots(2, 3, figsize=(11, 5), sharex=True)
     for ax, (label, unit, j) in zip(axes.ravel(), AXES):
+        # a drive of a few frames (one kept: a vehicle that stood still) draws its points and bands as markers and
+        # error bars: a line and a fill of one point are empty (probe 88)
+        few = len(k) < 3
         ax.fill_between(k, est[:, j] - 3 * std[:, j], est[:, j] + 3 * std[:, j], color="tab:blue", alpha=0.2,
                         label="+-3 sigma")
-        ax.plot(k, est[:, j], color="tab:blue", lw=1.2, label="estimate")
+        if few:
+            ax.errorbar(k, est[:, j], yerr=3 * std[:, j], color="tab:blue", alpha=0.5, fmt="none", capsize=4)
+        ax.plot(k, est[:, j], color="tab:blue", lw=1.2, label="estimate", marker="o" if few else None, ms=4)
         if truth is not None:
             ax.step(k, truth[:, j], where="post", color="k", ls="--", lw=0.8,  # a real root's: its tables (probe 67)
                     label="the tables" if vr.errors_against == "tables" else "truth")

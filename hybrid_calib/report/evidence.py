@@ -6,8 +6,9 @@ effective config (``RUN/config.json``, next to ``result.json``) with the run's o
 rows and R1/R2 starts are identical to the run's; measurement files are read again.
 
 The result a frame is drawn and scored with is its segment's estimate (``segment_estimates``): the
-final one, or, when the step detector restarted the window during the drive, the window's estimate
-just before the restart for the frames before it (a knocked sensor has two extrinsics).
+final one, or, when the window restarted during the drive (a step alarm, the radar mount monitor's change), the
+window's estimate just before the restart's first frame for the frames before it (a knocked sensor has two
+extrinsics).
 
 Residuals: per row, the whitened residual norm ``|e_i|`` of the factor at that extrinsic
 (``factors.gtsam_factors.frame_residuals``, no kernel) times the row's pixel sigma: the distance in
@@ -78,18 +79,26 @@ class Evidence:
 
 def segment_estimates(vr) -> dict[str, tuple[np.ndarray, str, int]]:
     """frame_id -> ((4, 4) the estimate of the frame's segment, a label, the frame's trajectory index).
-    Segments end at the frame before each step alarm and at the last frame; empty for batch results."""
+    A segment starts at the first frame of a restarted window: where a frame's ``n_total`` (the frames its estimate
+    fuses) falls below its predecessor's, the window restarted from the ``n_total`` frames ending there (the
+    window's own step alarm restarts at the alarm frame; the radar mount monitor's from the change it measured, a
+    few frames before its alarm). Each segment is drawn with the estimate of its last frame (the final one for the
+    last segment). Probe 88: cut at the alarm frames, a knock's frames between the change and the alarm were drawn
+    with the pre-knock estimate, labelled "result of frames 0-12" where the window had restarted from frame 8.
+    Empty for batch results."""
     traj = vr.trajectory
     out: dict[str, tuple[np.ndarray, str, int]] = {}
-    ends = [k - 1 for k, f in enumerate(traj) if f.step_alarm and k > 0] + [len(traj) - 1]
-    start = 0
-    for end in ends:
+    starts = [0]
+    for k in range(1, len(traj)):
+        if traj[k].n_total < traj[k - 1].n_total:
+            starts.append(min(max(k - traj[k].n_total + 1, starts[-1] + 1), k))
+    ends = [s - 1 for s in starts[1:]] + [len(traj) - 1]
+    for start, end in zip(starts, ends):
         T = vr.final.T if end == len(traj) - 1 else traj[end].T
         label = ("result" if end == len(traj) - 1 and start == 0 else
                  f"result of frames {traj[start].index}-{traj[end].index}")
         for k in range(start, end + 1):
             out[traj[k].frame_id] = (T, label, traj[k].index)
-        start = end + 1
     return out
 
 

@@ -22,7 +22,7 @@ from hybrid_calib.errors import HybridCalibError, check_api_out
 from hybrid_calib.report.evidence import Evidence, frame_words, gather, reference_name
 from hybrid_calib.report.html import esc, img_tag, num, verdict_class, write_page, written_from
 from hybrid_calib.report.verdict import AXIS_NAMES, Tolerance, Verdict, verdict_of
-from hybrid_calib.words import did_you_mean, some_of
+from hybrid_calib.words import did_you_mean, n_frames, some_of
 
 STD_KEYS = ("rot_x_cam_deg", "rot_y_cam_deg", "rot_z_cam_deg", "t_x_cam_cm", "t_y_cam_cm", "t_z_cam_cm")
 
@@ -182,6 +182,7 @@ def _alignment_html(block: dict | None, describe, pid: str, title: str, what: st
 
 
 def _figures(vr: VehicleResult, ev: Evidence, tmp: Path) -> str:
+    from hybrid_calib.plots.figure import short_name
     from hybrid_calib.plots.report import draw_before_after, plot_estimate_bands, plot_residual_histograms
 
     out = "<h2>Radar on the camera: start and result</h2>"
@@ -198,7 +199,7 @@ def _figures(vr: VehicleResult, ev: Evidence, tmp: Path) -> str:
                        "pairs": sf.pairs_result}]
             where = frame_words(sf)
             png = draw_before_after(sf.image, panels, tmp / f"frame{sf.index}.png",
-                                    title=f"{vr.vehicle} {where} (sample {sf.token[:8]})")
+                                    title=f"{short_name(vr.vehicle)} {where} (sample {sf.token[:8]})")
             out += img_tag(png, f"{where} start and result")  # as its title (probe 67: the dataset's index)
     else:
         out += "<p class=note>No camera frames shown (see the notes below).</p>"
@@ -210,7 +211,7 @@ def _figures(vr: VehicleResult, ev: Evidence, tmp: Path) -> str:
     out += "<h2>Residuals</h2>"
     if ev.residuals is not None:
         r = ev.residuals
-        out += (f"<p class=meta>{len(r.residual_px)} rows of {r.n_frames} frames at the result: whitened residual "
+        out += (f"<p class=meta>{len(r.residual_px)} rows of {n_frames(r.n_frames)} at the result: whitened residual "
                 f"times the row's pixel sigma; {100 * r.inlier.mean():.0f} % inliers. Rows are gated on their whitened "
                 f"residual: the dashed gate ({r.gate_px:.1f} px) holds for a row of the median pixel sigma.</p>")
         out += img_tag(plot_residual_histograms(r.residual_px, r.inlier, r.gate_px, tmp / "residuals.png"),
@@ -283,8 +284,8 @@ def write_report(result: str | Path, out: str | Path, vehicle: str | None = None
         att = attention_html(vr, ev, data or run.data, version or run.version, conf.checkpoint, Path(tmp))
     notes = "".join(f"<li>{esc(x)}</li>" for x in ev.notes)
     body = (f"<h1>Radar-camera calibration: {esc(name)}</h1>"
-            f"<p class=meta>{vr.n_frames} frames, {esc(run.mode)} mode, correspondences: {esc(run.correspondences)}; "
-            f"data: {esc(run.data)} ({esc(run.version)})"
+            f"<p class=meta>{n_frames(vr.n_frames)}, {esc(run.mode)} mode, correspondences: "
+            f"{esc(run.correspondences)}; data: {esc(run.data)} ({esc(run.version)})"
             # the frames shown come from --data when given: the run's own root may have moved since (probe 30)
             + (f"; frames shown from {esc(str(data))} ({esc(version or run.version)})"
                if data is not None and Path(data).resolve() != Path(run.data).resolve() else "")
