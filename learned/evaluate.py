@@ -129,12 +129,14 @@ def _measurements(corr, batch: dict, b: int, T_iters: np.ndarray, unc: np.ndarra
 
 
 def export_pure(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig, out: Path, *,
-                overwrite: bool = False, progress: bool = True, exporter: Callable | None = None) -> list[Path]:
+                overwrite: bool = False, progress: bool = True, exporter: Callable | None = None,
+                ood=None) -> list[Path]:
     """Run the network over the fixed evaluation list; write one ``frames/<token>.npz`` per frame.
 
     ``exporter(model, out, batch, export_conf) -> (list of Correspondences, (B, ...) uncertainty)``,
     default ``learned.export.export_correspondences``; ``export_conf`` is ``ExportConfig`` merged
-    with ``conf.export``."""
+    with ``conf.export``. ``ood``: the checkpoint's out-of-domain model (``learned.ood.OODModel``; one network, not a
+    cascade): each frame's score (``frame_score``) is written beside its prediction (``ood_score``)."""
     from tqdm import tqdm
 
     from factors.io import save_measurements
@@ -183,6 +185,7 @@ def export_pure(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig, out
             inputs = model_inputs(batch)
             out_m = model(inputs)
             corr, unc = exporter(model, out_m, inputs, export_conf)
+            scores = frame_scores(ood, out_m, batch["image"]) if ood is not None else None
             T_iters = torch.stack([T.double() for T in out_m["T_iters"]], dim=1).cpu().numpy()  # (B, N, 4, 4)
             unc_np = unc.detach().double().cpu().numpy() if isinstance(unc, torch.Tensor) else np.asarray(unc)
             for b, token in enumerate(batch["token"]):
@@ -191,6 +194,8 @@ def export_pure(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig, out
                     dataset.bad.setdefault(int(batch["index"][b]), not_finite_reason(token, inputs, b))
                     continue
                 m, extra = _measurements(corr[b], batch, b, T_iters[b], unc_np[b], export_conf.iteration)
+                if scores is not None:
+                    extra["ood_score"] = np.array(scores[b])
                 written.append(save_measurements(_frame_file(out, token), m, extra))
     skipped = dataset.skip_records()  # every frame whose files were bad; the rest of the run went on
     save_json_atomic(out / "skipped.json", skipped)
@@ -198,6 +203,15 @@ def export_pure(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig, out
         raise HybridCalibError(f"every frame to export failed ({len(todo)}; reasons in {out / 'skipped.json'}); "
                                f"first: {skipped[0]['reason']}")
     return written
+
+
+def frame_scores(ood, out_m: dict, images: torch.Tensor) -> np.ndarray:
+    """(B,) out-of-domain scores of a forward output (``learned.ood``: the density model's, raised by the camera
+    image's own test; the rule ``hybrid.network.NetworkRunner.ood_score`` applies). images: (B, 3, H, W)."""
+    from learned.ood import frame_features, image_score, image_structure
+
+    density = np.asarray(ood.score(frame_features(out_m)), np.float64)
+    return np.array([max(float(d), image_score(image_structure(im))) for d, im in zip(density, images)])
 
 
 # method name -> exporter(model, frames, conf, out, overwrite=, progress=) -> list of per-frame files
@@ -214,10 +228,23 @@ class EvalResult:
     tokens: list[str]
     uncertainty: dict[str, Any] = field(default_factory=dict)  # consistency of the exported covariance
     notes: list[str] = field(default_factory=list)  # what qualifies the figures (``annotate``)
+    # the frames' out-of-domain scores ({} when none was scored): scores (same order as tokens), in_domain, threshold
+    ood: dict[str, Any] = field(default_factory=dict)
 
 
     def table(self) -> str:
         return format_table(self.rows)
+
+    def ood_words(self) -> str:
+        """What the out-of-domain score says of these frames ("" when they were not scored)."""
+        o = self.ood
+        if not o:
+            return ""
+        row = (f"; the row '{o['method']} (in domain)' keeps to them" if 0 < o["in_domain"] < len(o["scores"])
+               else "")
+        return (f"{o['in_domain']} of {len(o['scores'])} frames inside the network's training domain (out-of-domain "
+                f"score <= {o['threshold']:g}, the checkpoint's export.ood; median score "
+                f"{np.median(o['scores']):.2f}){row}; calibrate's learned methods drop the others")
 
     def markdown(self) -> str:
         head = ("| method | R.Mean (deg) | Roll | Pitch | Yaw | Geodesic | T.Mean (cm) | X | Y | Z | Norm |\n"
@@ -229,6 +256,8 @@ class EvalResult:
                 f"{m['yaw_deg']:.3f} | {m['geodesic_deg']:.3f} | {m['trans_mean_cm']:.2f} | {m['x_cm']:.2f} | "
                 f"{m['y_cm']:.2f} | {m['z_cm']:.2f} | {m['trans_norm_cm']:.2f} |")
         text = "\n".join(lines) + f"\n\n{self.n_frames} frames; rotation in degrees, translation in cm.\n"
+        if words := self.ood_words():
+            text += f"\n{words}\n"
         u = self.uncertainty
         if u:
             text += (f"\nExported 6x6 covariance of the final estimate over {u['n']} frames: mean NEES "
@@ -249,11 +278,12 @@ def evaluate_predictions(out: str | Path, method: str = "pure") -> EvalResult:
     if not files:
         raise HybridCalibError(f"no exported predictions in {Path(out) / 'frames'}; run the export first")
     per: dict[str, list] = {}
-    tokens, unc = [], []
+    tokens, unc, scores = [], [], []
     for path in files:
         with read_npz(path, "exported prediction", _REEXPORT) as z:
             T_gt, T_init, T_iters = z["T_gt"], z["T_start"], z["T_iters"]
             tokens.append(str(z["frame_id"]))
+            scores.append(float(z["ood_score"]) if "ood_score" in z.files else float("nan"))
             if (pair := _tangent_error(z)) is not None:
                 unc.append(pair)
         per.setdefault("initial", []).append(extrinsic_error(T_init, T_gt))
@@ -261,9 +291,15 @@ def evaluate_predictions(out: str | Path, method: str = "pure") -> EvalResult:
             for k, T in enumerate(T_iters, start=1):
                 per.setdefault(f"{method} iter {k}", []).append(extrinsic_error(T, T_gt))
         per.setdefault(method, []).append(extrinsic_error(T_iters[-1], T_gt))
+    ood = {}
+    if np.isfinite(scores).all():  # every frame scored (an earlier run's frames without a score: none is said)
+        keep = [k for k, x in enumerate(scores) if x <= 1.0]
+        ood = {"method": method, "threshold": 1.0, "scores": scores, "in_domain": len(keep)}
+        if 0 < len(keep) < len(files):
+            per[f"{method} (in domain)"] = [per[method][k] for k in keep]
     rows = {name: summarize(errs) for name, errs in per.items()}
     return EvalResult(rows, len(files), {n: [e.as_dict() for e in errs] for n, errs in per.items()}, tokens,
-                      uncertainty_consistency(*_stack(unc)))
+                      uncertainty_consistency(*_stack(unc)), ood=ood)
 
 
 _REEXPORT = "remove it and re-run the same hybrid-calib evaluate command (finished frames are kept)"
@@ -314,12 +350,13 @@ def write_report(result: EvalResult, out: str | Path, config: dict | None = None
 
     results.json: {"n_frames": int, "metrics": list of metric names, "rows": {row: {metric: mean}},
     "per_frame": {row: [{metric: value}, ...]}, "tokens": [...], "uncertainty": {...}
-    (``uncertainty_consistency``), "notes": [str] (``annotate``), "config": {...}}."""
+    (``uncertainty_consistency``), "ood": {"scores": [per token], "in_domain", "threshold", "method"} or {} (frames
+    not scored), "notes": [str] (``annotate``), "config": {...}}."""
     out = Path(out)
     path = save_json_atomic(out / "results.json", {
         "n_frames": result.n_frames, "metrics": list(METRIC_KEYS), "rows": result.rows,
         "per_frame": result.per_frame, "tokens": result.tokens, "uncertainty": result.uncertainty,
-        "notes": list(result.notes), "config": config or {}})
+        "ood": result.ood, "notes": list(result.notes), "config": config or {}})
     save_text_atomic(out / "results.md", result.markdown())
     return path
 

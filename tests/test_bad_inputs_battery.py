@@ -704,6 +704,34 @@ def test_evaluate_with_the_shipped_checkpoint_records_a_bad_frame_and_goes_on(si
     assert json.loads((out / "results.json").read_text())["n_frames"] == 2
 
 
+def test_evaluate_scores_each_frame_out_of_domain_as_calibrate_does(sim_copy, tmp_path, capsys):
+    """Probe 87: the checkpoint carries its out-of-domain model, but evaluate's table and files said nothing of the
+    real scene's out-of-domain frames. A frame whose image is noise is scored out of domain and said."""
+    import cv2
+
+    root, frames = sim_copy
+    (_, vehicle_frames), _ = frames.items()
+    image = _image_file(root, vehicle_frames[0])
+    shape = cv2.imread(str(image)).shape
+    cv2.imwrite(str(image), np.random.default_rng(3).integers(0, 256, shape, dtype=np.uint8))
+    out = tmp_path / "eval"
+    rc, err = run_cli(["evaluate", "--data", root, "--version", SIM_VERSION, "--checkpoint",
+                       SHIPPED / "small-sim-r1.json", "--out", out, "--split", "all", "--max-frames", "3",
+                       "--no-progress", "--set", "batch_size=3"], capsys)
+    assert rc == 0, err
+    doc = json.loads((out / "results.json").read_text())
+    ood = doc["ood"]
+    assert len(ood["scores"]) == len(doc["tokens"]) == 3 and ood["in_domain"] == sum(x <= 1 for x in ood["scores"])
+    noise = doc["tokens"].index(vehicle_frames[0].camera_sd["token"])
+    assert ood["scores"][noise] > 1.0
+    md = (out / "results.md").read_text()
+    assert f"{ood['in_domain']} of 3 frames inside the network's training domain" in md
+    if ood["in_domain"]:
+        assert "pure (in domain)" in doc["rows"] and len(doc["per_frame"]["pure (in domain)"]) == ood["in_domain"]
+    with np.load(sorted((out / "frames").glob("*.npz"))[0]) as z:
+        assert "ood_score" in z.files
+
+
 @pytest.mark.parametrize("case", ["out-is-a-dir", "data-nowhere", "checkpoint-nowhere"])
 def test_report_options_that_cannot_work(case, sim, tmp_path, capsys):
     root, frames = sim

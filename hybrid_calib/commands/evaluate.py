@@ -5,7 +5,9 @@ skips frames already there; measurement files, ``factors.io``, so ``hybrid-calib
 --correspondences OUT`` reads them), then the table (rotation Mean/Roll/Pitch/Yaw in degrees, translation
 Mean/X/Y/Z in cm, geodesic angle and translation norm; the initial error, every iteration and the
 final estimate) is printed and written to ``OUT/results.json`` (schema in
-``learned.evaluate.write_report``), ``OUT/results.md`` and ``OUT/errors_cdf.png``. The split and the
+``learned.evaluate.write_report``), ``OUT/results.md`` and ``OUT/errors_cdf.png``. With the checkpoint's
+out-of-domain model (``export.ood``) each frame is scored as calibrate's learned methods score it: the count in
+domain is said and a row "<method> (in domain)" keeps to those frames. The split and the
 depth estimator default to the checkpoint's training config, so ``--split test`` holds out the same
 scenes training did.
 
@@ -124,11 +126,19 @@ def run(args: argparse.Namespace) -> int:
                                                "root it never saw")
     data = {"roots": [str(Path(d).resolve()) for d in args.data], "version": args.version, "nsweeps": setup.nsweeps,
             "stamps": stamps}
+    # each frame scored as calibrate's learned methods score it (probe 87: the table said nothing of the real scene's
+    # out-of-domain frames); a cascade's features are its refining pass's alone there, not scored here
+    from learned.ood import ood_model_of
+
+    ood, ood_note = ood_model_of(last.export, str(last.path)) if len(stage_paths) == 1 else (
+        None, "out-of-domain score not computed for a cascade (calibrate scores its refining pass)")
     result = evaluate(setup.model, frames, setup.conf, args.out, checkpoint=" -> ".join(map(str, stage_paths)),
                       overwrite=args.overwrite, progress=not args.no_progress, data=data,
-                      network=[checkpoint_digest(p) for p in stage_paths])
+                      network=[checkpoint_digest(p) for p in stage_paths], ood=ood)
     plot_error_cdf(result, Path(args.out) / "errors_cdf.png")
     print(result.table())
+    print(result.ood_words() or (ood_note if ood is None else "out-of-domain score: the frames kept from an earlier "
+                                 "run into this folder were not scored (--overwrite scores every frame)"))
     notes = []  # kept in results.md / results.json too, beside the figures they qualify (probe 55: screen only)
     if args.split in ("all", "train") and (seen := trained_on(last.path, args.data, args.version, stamps)):
         notes.append(f"split {args.split} of {', '.join(seen)}, a root the checkpoint's training run read: these "
