@@ -311,6 +311,9 @@ def _weights_path(path: Path, meta: dict[str, Any]) -> Path:
         raise CheckpointError(f"checkpoint names weights {name!r}, which is not a .safetensors file; hybrid-calib "
                               "never loads pickled weights (.pt/.pth/.ckpt can run code when loaded): convert "
                               "them to safetensors", path=str(path))
+    if weights.is_dir():  # probe 87: read "missing"
+        raise CheckpointError(f"the weights file {weights.name} of this checkpoint is a folder, not the weights "
+                              "file (which must sit next to the JSON); put the file there", path=str(path))
     if not weights.is_file():
         raise CheckpointError(f"the weights file {weights.name} of this checkpoint is missing (it must sit next "
                               "to the JSON); copy it along", path=str(path))

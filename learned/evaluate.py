@@ -100,6 +100,20 @@ def eval_indices(frames: Sequence[RadarCameraFrame], conf: EvalConfig) -> list[i
     return idx[: conf.max_frames] if conf.max_frames else idx
 
 
+def checked_indices(frames: Sequence[RadarCameraFrame], conf: EvalConfig) -> list[int]:
+    """``eval_indices``, or a ``HybridCalibError`` saying what to do when the split holds no frame."""
+    indices = eval_indices(frames, conf)
+    if not indices:
+        by = merge(SplitConfig, conf.split_options).by
+        how = (f"split.by={by} puts whole {by}s in one split (a hash of the name; a simulated root's scenes are "
+               "named by vehicle, scene-sim-veh-NNN, so with the default salt and fractions a root of fewer than 10 "
+               "vehicles has no test scene and of fewer than 8 no val scene): split each scene in time instead "
+               "with --split-by time (and train with --set split.by=time), or, " if by != "time" else "")
+        raise HybridCalibError(f"no frames in split {conf.split!r} ({len(frames)} frames in the data); {how}for a "
+                               "separately simulated test drive the network never trained on, use --split all")
+    return indices
+
+
 def _frame_file(out: Path, token: str) -> Path:
     from hybrid_calib.data.files import file_part
 
@@ -156,15 +170,7 @@ def export_pure(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig, out
                           variant=getattr(getattr(model, "cfg", None), "variant", "radar"))
     depth = build_depth_estimator(conf.depth, conf.depth_options)
     cache = DepthCache(Path(conf.depth_cache) if conf.depth_cache else out / "depth-cache")
-    indices = eval_indices(frames, conf)
-    if not indices:
-        by = merge(SplitConfig, conf.split_options).by
-        how = (f"split.by={by} puts whole {by}s in one split (a hash of the name; a simulated root's scenes are "
-               "named by vehicle, scene-sim-veh-NNN, so with the default salt and fractions a root of fewer than 10 "
-               "vehicles has no test scene and of fewer than 8 no val scene): split each scene in time instead "
-               "with --split-by time (and train with --set split.by=time), or, " if by != "time" else "")
-        raise HybridCalibError(f"no frames in split {conf.split!r} ({len(frames)} frames in the data); {how}for a "
-                               "separately simulated test drive the network never trained on, use --split all")
+    indices = checked_indices(frames, conf)
     dataset = CalibDataset(frames, dconf, depth, indices=indices, cache=cache, train=False)
     todo = []
     for i, fi in enumerate(indices):
@@ -410,6 +416,8 @@ def evaluate(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig | dict,
         record["data"] = data
     if network is not None:
         record["network"] = network
+    checked_indices(frames, conf)  # an empty split is refused before anything is written (probe 87: it left
+    # export_config.json and a runs.json line behind)
     cfg_path = out / "export_config.json"
     old = None if overwrite else read_out_record(cfg_path, "export config", "what its predictions were made "
                                                  "with: use --overwrite or another --out")

@@ -340,6 +340,9 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
                     "validation (no val_* columns, no validation curve); add roots or scenes, or pass --set %s",
                     conf.split.by, conf.split.val_fraction, len(frames),
                     "split.val_fraction=0.2 (or more frames)" if conf.split.by == "time" else "split.by=time")
+    if conf.samples_per_epoch > len(train_idx):  # probe 87: cut to the split without a word
+        log.warning("samples_per_epoch %d is more than the %d frames of the train split: each epoch draws each of "
+                    "them once (%d samples)", conf.samples_per_epoch, len(train_idx), len(train_idx))
     cache = DepthCache(Path(conf.depth_cache) if conf.depth_cache else out / "depth-cache")
     dconf = dataset_config(conf, model_conf)
     train_set = CalibDataset(frames, dconf, depth, indices=train_idx, cache=cache, train=True)

@@ -1008,6 +1008,19 @@ def test_train_says_when_no_frame_is_left_for_validation(sim, tmp_path, capsys, 
     assert rc == 0 and "holds ckpt-0001.json: the run resumes after it" in err, err  # a resume says what it keeps
 
 
+def test_train_says_when_samples_per_epoch_is_more_than_the_split(sim, tmp_path, capsys, caplog):
+    """Probe 87: 24 samples asked of a 12-frame train split trained on the 12 without a word."""
+    import logging
+
+    root, _ = sim
+    with caplog.at_level(logging.WARNING, logger="learned.train"):
+        rc, err = run_cli(["train", "--data", root, "--version", SIM_VERSION, "--out", tmp_path / "t", "--no-progress",
+                           "--epochs", "1", "--set", "samples_per_epoch=500", "val_samples=1", "batch_size=2"], capsys)
+    assert rc == 0, err
+    assert "samples_per_epoch 500 is more than the" in caplog.text and "each epoch draws each of them once" in \
+        caplog.text
+
+
 def test_fleet_checkpoint_checked_before_any_job(sim, tmp_path, capsys):
     root, _ = sim
     expect_cli_error(["fleet", "--data", root, "--out", tmp_path / "f", "--method", "pure", "--checkpoint",

@@ -176,8 +176,8 @@ def small_ckpt(tmp_path):
 
 
 @pytest.mark.parametrize("case", ["missing-json", "truncated-json", "not-a-checkpoint", "missing-weights",
-                                  "truncated-weights", "garbage-weights", "json-names-a-pickle", "pickle-path",
-                                  "corrupt-optimizer"])
+                                  "weights-a-folder", "truncated-weights", "garbage-weights", "json-names-a-pickle",
+                                  "pickle-path", "corrupt-optimizer"])
 def test_bad_checkpoint_names_the_file(case, small_ckpt, tmp_path):
     path, model = small_ckpt
     weights = path.with_suffix(".safetensors")
@@ -191,6 +191,9 @@ def test_bad_checkpoint_names_the_file(case, small_ckpt, tmp_path):
         path.write_text(json.dumps({"epoch": 1}))
     elif case == "missing-weights":
         weights.unlink()
+    elif case == "weights-a-folder":  # probe 87: read "missing"
+        weights.unlink()
+        weights.mkdir()
     elif case in ("truncated-weights", "garbage-weights"):
         weights.write_bytes(weights.read_bytes()[:30] if case == "truncated-weights" else bytes(range(256)) * 4)
         named = weights
@@ -211,6 +214,8 @@ def test_bad_checkpoint_names_the_file(case, small_ckpt, tmp_path):
     assert str(named) in str(e.value)
     if "pickle" in case:
         assert "never loads pickle" in str(e.value)
+    if case == "weights-a-folder":
+        assert "is a folder, not the weights file" in str(e.value)
 
 
 def test_weights_of_another_network_beside_a_json_are_refused(small_ckpt, tmp_path):

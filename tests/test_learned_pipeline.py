@@ -689,6 +689,7 @@ def test_an_empty_split_says_how_to_split_in_time(frames, tmp_path):
     with pytest.raises(HybridCalibError, match="no frames in split 'test'.*split.by=scene puts whole scenes .*"
                                                "--split-by time .*--set split.by=time"):
         evaluate(OracleModel(), frames, conf, tmp_path / "e", exporter=oracle_exporter, progress=False)
+    assert not (tmp_path / "e").exists()  # refused before anything is written (probe 87: export_config.json stayed)
     # a held-out scene misspelt: every scene not listed trains, so nothing would be held out (probe 79)
     typo = EvalConfig(split="test", split_options=SplitConfig(test_groups=("no-such-scene",)))
     with pytest.raises(HybridCalibError, match=r"split.test_groups \['no-such-scene'\] names no scene of the data "
