@@ -993,32 +993,32 @@ def test_train_root_given_twice_is_refused(sim, tmp_path, capsys):
     assert not (tmp_path / "t").exists()
 
 
-def test_train_says_when_no_frame_is_left_for_validation(sim, tmp_path, capsys, caplog):
-    """Two scenes split by scene leave no validation frame: the val_* columns stayed empty, no word."""
+def _train_warnings(root, out, epochs: int, samples: int, capsys, caplog) -> tuple[int, str, str]:
+    """``hybrid-calib train`` of ``epochs`` x ``samples`` samples (batch 1) -> (exit status, stderr, warnings)."""
     import logging
 
-    root, _ = sim
+    caplog.clear()
     with caplog.at_level(logging.WARNING, logger="learned.train"):
-        rc, err = run_cli(["train", "--data", root, "--version", SIM_VERSION, "--out", tmp_path / "t", "--no-progress",
-                           "--epochs", "1", "--set", "samples_per_epoch=1", "val_samples=1", "batch_size=1"], capsys)
+        rc, err = run_cli(["train", "--data", root, "--version", SIM_VERSION, "--out", out, "--no-progress",
+                           "--epochs", epochs, "--set", f"samples_per_epoch={samples}", "val_samples=1",
+                           "batch_size=1"], capsys)
+    return rc, err, caplog.text
+
+
+def test_train_says_when_no_frame_is_left_for_validation(sim, tmp_path, capsys, caplog):
+    """Two scenes split by scene leave no validation frame: the val_* columns stayed empty, no word."""
+    rc, err, log = _train_warnings(sim[0], tmp_path / "t", 1, 1, capsys, caplog)
     assert rc == 0, err
-    assert "no validation frames: split.by=scene" in caplog.text and "split.by=time" in caplog.text
-    rc, err = run_cli(["train", "--data", root, "--version", SIM_VERSION, "--out", tmp_path / "t", "--no-progress",
-                       "--epochs", "2", "--set", "samples_per_epoch=1", "val_samples=1", "batch_size=1"], capsys)
+    assert "no validation frames: split.by=scene" in log and "split.by=time" in log
+    rc, err, _ = _train_warnings(sim[0], tmp_path / "t", 2, 1, capsys, caplog)
     assert rc == 0 and "holds ckpt-0001.json: the run resumes after it" in err, err  # a resume says what it keeps
 
 
 def test_train_says_when_samples_per_epoch_is_more_than_the_split(sim, tmp_path, capsys, caplog):
     """Probe 87: 24 samples asked of a 12-frame train split trained on the 12 without a word."""
-    import logging
-
-    root, _ = sim
-    with caplog.at_level(logging.WARNING, logger="learned.train"):
-        rc, err = run_cli(["train", "--data", root, "--version", SIM_VERSION, "--out", tmp_path / "t", "--no-progress",
-                           "--epochs", "1", "--set", "samples_per_epoch=500", "val_samples=1", "batch_size=2"], capsys)
+    rc, err, log = _train_warnings(sim[0], tmp_path / "t", 1, 500, capsys, caplog)
     assert rc == 0, err
-    assert "samples_per_epoch 500 is more than the" in caplog.text and "each epoch draws each of them once" in \
-        caplog.text
+    assert "samples_per_epoch 500 is more than the" in log and "each epoch draws each of them once" in log
 
 
 def test_fleet_checkpoint_checked_before_any_job(sim, tmp_path, capsys):
