@@ -14,6 +14,14 @@ def join_and(names: list[str]) -> str:
     return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
 
 
+def shown(name) -> str:
+    """A name as a sentence lists it: itself, or quoted (``repr``) where the quotes show what the eye would miss: an
+    empty name, spaces at its ends, a character that does not print (probe 88: "did you mean vé hicle ?" of a name
+    ending in a space)."""
+    name = str(name)
+    return repr(name) if not name or name != name.strip() or not name.isprintable() else name
+
+
 def some_of(names: list[str], first: list[str] = (), most: int = 8) -> str:
     """At most ``most`` of ``names``, comma-separated, ``first`` (those of them to say first) leading, then "and N
     more": a list a user reads in one line (a root of 200 vehicles put all their names into one error)."""
@@ -21,8 +29,9 @@ def some_of(names: list[str], first: list[str] = (), most: int = 8) -> str:
     if not names:
         return "none"
     lead = [n for n in first if n in names]
-    shown = lead + [n for n in names if n not in lead][:max(most - len(lead), 0)]
-    return ", ".join(shown) + (f" and {len(names) - len(shown)} more" if len(names) > len(shown) else "")
+    listed = lead + [n for n in names if n not in lead][:max(most - len(lead), 0)]
+    return ", ".join(shown(n) for n in listed) + (f" and {len(names) - len(listed)} more"
+                                                  if len(names) > len(listed) else "")
 
 
 def close_to(wanted: str, names: list[str]) -> list[str]:
@@ -36,7 +45,7 @@ def did_you_mean(wanted: str, names: list[str]) -> tuple[list[str], str]:
     """(the names spelled like ``wanted``, ``close_to``; "; did you mean a or b?" or "" when none): what a refusal of
     an unknown name says, with the close names to lead its list (``some_of``)."""
     close = close_to(wanted, names)
-    return close, f"; did you mean {join_or(close)}?" if close else ""
+    return close, f"; did you mean {join_or([shown(n) for n in close])}?" if close else ""
 
 
 def join_or(names: list[str]) -> str:

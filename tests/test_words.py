@@ -44,3 +44,13 @@ def test_a_markdown_cell_keeps_its_row_whole():
                                                                                       "reason": "x\ny"}}}
     rows = [line for line in summary_markdown(s).splitlines() if line.startswith("| ") and "failed" in line]
     assert rows == ["| pipe\\|veh | failed | | | | | | a\\|b |", "| new line | failed | | | | | | x y |"]
+
+
+def test_a_name_that_hides_its_spaces_is_quoted():
+    """Probe 88: "did you mean vé hicle ? (vehicles: vé hicle , ...)" of a name ending in a space."""
+    from hybrid_calib.words import did_you_mean, shown
+
+    assert shown("sim-veh-000") == "sim-veh-000" and shown("vé hicle ") == "'vé hicle '" and shown("") == "''"
+    assert shown("a\tb") == "'a\\tb'"
+    assert some_of(["vé hicle ", "b"]) == "'vé hicle ', b"
+    assert did_you_mean("vé hicle", ["vé hicle ", "x"])[1] == "; did you mean 'vé hicle '?"

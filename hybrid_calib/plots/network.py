@@ -48,8 +48,9 @@ def plot_frame(out: dict, batch: Mapping, index: int, path: str | Path, iteratio
     ax.scatter(uv[:, 0], uv[:, 1], s=6, c="lime", label="estimate")
     if "T_gt" in batch:
         uv = _project(batch["T_gt"][index], pts, K, (H, W))
-        ax.scatter(uv[:, 0], uv[:, 1], s=3, c="white", label="truth")
-    ax.legend(loc="upper right", fontsize=6)
+        ax.scatter(uv[:, 0], uv[:, 1], s=3, c="white", edgecolors="k", linewidths=0.3, label="truth")
+    # the legend on a grey box: its white "truth" marker was white on white (probe 88)
+    ax.legend(loc="upper right", fontsize=6, facecolor="0.6", framealpha=0.8)
     ax.set_title(f"after {len(out['T_iters'])} iterations")
     attn = out["attention"][iteration].get("fv") if out["attention"] else None
     render = out["render"][iteration]

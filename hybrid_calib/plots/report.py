@@ -66,8 +66,10 @@ def plot_estimate_bands(vr: VehicleResult, path: str | Path) -> Path:
         ax.tick_params(labelsize=7)
     for ax in axes[1]:
         ax.set_xlabel("frame", fontsize=8)
-    axes[0, 0].legend(fontsize=7, loc="best")
-    fig.tight_layout()
+    # one legend below the panels: inside the first one it sat on its band (probe 88)
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, fontsize=7, loc="lower center", ncol=len(labels), frameon=False)
+    fig.tight_layout(rect=(0, 0.05, 1, 1))
     return save_figure(fig, path, dpi=80)
 
 

@@ -95,8 +95,8 @@ def segment_estimates(vr) -> dict[str, tuple[np.ndarray, str, int]]:
     ends = [s - 1 for s in starts[1:]] + [len(traj) - 1]
     for start, end in zip(starts, ends):
         T = vr.final.T if end == len(traj) - 1 else traj[end].T
-        label = ("result" if end == len(traj) - 1 and start == 0 else
-                 f"result of frames {traj[start].index}-{traj[end].index}")
+        label = ("result" if end == len(traj) - 1 and start == 0 else f"result of frame {traj[end].index}"
+                 if start == end else f"result of frames {traj[start].index}-{traj[end].index}")
         for k in range(start, end + 1):
             out[traj[k].frame_id] = (T, label, traj[k].index)
     return out
