@@ -264,5 +264,5 @@ def standstill_reason(frames, drive: Drive) -> str:
     if travel is None or travel >= STANDSTILL_M:
         return ""
     return (f"the vehicle did not move (its ego poses travel {travel:.2f} m over {len(drive.indices)} frames): the "
-            "frames repeat one view, so they are not independent measurements and the covariance is too small; "
-            "calibrate on a drive")
+            "frames show one view (its repeats are left out), and one view cannot tell the network's error on it "
+            "from the extrinsic, however many frames show it; calibrate on a drive")
