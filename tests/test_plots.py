@@ -83,6 +83,13 @@ def test_a_name_in_another_script_is_drawn_without_a_warning_per_glyph(tmp_path)
         warnings.simplefilter("always")
         out = save_figure(fig, tmp_path / "v.png")
     assert out.is_file() and not [w for w in caught if "Glyph" in str(w.message)]
+    fig, ax = pyplot().subplots()  # and while it is laid out, before any save (probe 88)
+    ax.set_title("车辆-2")
+    with warnings.catch_warnings(record=True) as caught:
+        fig.tight_layout()
+        fig.canvas.draw()
+    pyplot().close(fig)
+    assert not [w for w in caught if "Glyph" in str(w.message)]
 
 
 @pytest.mark.parametrize("backend", ["module://matplotlib_inline.backend_inline", "inline", "Qt5"])

@@ -23,6 +23,9 @@ def pyplot():
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    # and while a figure is laid out (tight_layout, text extents), before any save (probe 88: every run with a
+    # vehicle named in another script printed the warning)
+    warnings.filterwarnings("ignore", message=r"Glyph \d+ .*missing from", category=UserWarning)
     return plt
 
 
