@@ -120,7 +120,7 @@ def image_words(structure: float) -> str:
     """Why a frame is out of domain by its image alone ("" when the image passes)."""
     if not image_score(structure):
         return ""
-    return (f"the camera image shows no scene: its neighbouring pixels correlate {max(structure, 0.0):.2f}, under "
+    return (f"the camera image shows no scene: its neighbouring pixels correlate {structure:.3f}, under "
             f"{MIN_IMAGE_STRUCTURE:g}; noise, a blank frame or a broken camera")
 
 

@@ -227,6 +227,8 @@ def test_the_image_test_measures_a_scene_and_not_noise(sim_root):
     assert image_score(min(scene)) == 0.0 and image_words(min(scene)) == ""
     assert image_score(0.02) == MIN_IMAGE_STRUCTURE / 0.02 and image_score(0.0) > 100 and image_score(np.nan) == 0.0
     assert "shows no scene" in image_words(0.02) and "0.02" in image_words(0.02)
+    # probe 89: 0.4952 read "0.50, under 0.5"; a checkerboard's -0.925 read "0.00"
+    assert "correlate 0.495, under 0.5" in image_words(0.4952) and "correlate -0.925" in image_words(-0.925)
 
 
 def test_a_noise_image_is_out_of_domain_whatever_the_density_model_says(fitted):
@@ -240,6 +242,10 @@ def test_a_noise_image_is_out_of_domain_whatever_the_density_model_says(fitted):
     assert runner.ood_score(clean) < 1.0 and clean.image_structure > 0.8 and runner.ood_why(clean) == ""
     noise = dataclasses.replace(clean, image_structure=0.02)  # the same features, a noise image's structure
     assert runner.ood_score(noise) > 1.0 and "shows no scene" in runner.ood_why(noise)
+    # a pass the density model scores out of domain by more than its image test: the general reason, not the image's
+    # (probe 89: a dark view of a road, 4.15 by the density, 1.11 by its image, was said to show no scene)
+    far = dataclasses.replace(clean, ood_descriptor=clean.ood_descriptor + 50.0, image_structure=0.45)
+    assert runner.ood_score(far) > 1.2 and runner.ood_why(far) == ""
 
 
 def test_a_frame_whose_image_is_noise_is_dropped_naming_the_image(fitted, sim_root, tmp_path):
@@ -340,3 +346,33 @@ def test_an_unreadable_frame_is_counted_and_recorded_by_its_drive_position():
     tr = _Trace()
     tr.unreadable(SimpleNamespace(token=lambda i: "t", bad_reason=lambda i: "bad"), 7, 1)
     assert tr.unread == 1 and tr.skipped == [{"index": 1, "token": "t", "reason": "bad"}]
+
+
+def test_a_frozen_camera_frame_is_left_out_and_counted_against_the_domain(fitted, sim_root, tmp_path):
+    """Probe 89: a frame whose image was the previous frame's, byte for byte, scored in domain and was fused as a view
+    of its own moment."""
+    import shutil
+
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+    from hybrid_calib.hybrid import run_vehicle
+    from hybrid_calib.hybrid.drives import frozen_images
+
+    root = tmp_path / "root"
+    shutil.copytree(sim_root, root)
+    ds = NuScenesRadarCamera(root, "v1.0-sim", conf={"check_images": False, "vehicles": ("sim-veh-000",)})
+    idx = ds.frames_by_vehicle()["sim-veh-000"]
+    files = ds.camera_files(idx)
+    assert frozen_images(ds, idx, {}) == {}  # a drive's own images all differ
+    shutil.copy(files[0], files[2])  # frame 2's camera repeats frame 0's image
+    frozen = frozen_images(ds, idx, {})
+    assert list(frozen) == [idx[2]] and frozen[idx[2]]["frozen"] == 0 and frozen[idx[2]]["index"] == 2
+    assert "byte for byte frame 0's" in frozen[idx[2]]["reason"]
+    assert frozen_images(ds, idx, {idx[2]: {}}) == {}  # a repeated view (the ego stood still) is not compared
+    conf = {**BASE, "method": "pure-avg", "checkpoint": str(fitted[0]), "ood": {"min_in_domain_frames": 1,
+                                                                                "min_in_domain_fraction": 0.5}}
+    v = run_vehicle(root, "v1.0-sim", "sim-veh-000", conf)
+    assert [s["index"] for s in v.skipped if "frozen" in s] == [2] and v.ood["frozen"] == 1
+    assert [f.index for f in v.trajectory] == [0, 1]
+    strict = run_vehicle(root, "v1.0-sim", "sim-veh-000", {**conf, "ood": {"min_in_domain_fraction": 1.0,
+                                                                          "min_in_domain_frames": 1}})
+    assert "1 of them repeat an earlier frame's camera image (a frozen camera)" in strict.final.status

@@ -196,10 +196,13 @@ def _report(result, out: Path, reused: bool = False) -> int:
         if v.skipped:
             ood = sum("ood_score" in r for r in v.skipped)
             seen = sum("repeats" in r for r in v.skipped)  # the ego stood still: not bad (probe 49)
-            bad = len(v.skipped) - ood - seen
+            frozen = sum("frozen" in r for r in v.skipped)
+            bad = len(v.skipped) - ood - seen - frozen
             said = (f"{bad} frame(s) skipped (bad files or no rows)" if bad else "",
                     f"{seen} frame(s) left out as repeats of a view (the ego moved under views.min_travel_m and "
                     "turned under views.min_turn_deg since the view before: it stood still or crept)" if seen else "",
+                    f"{frozen} frame(s) left out whose camera image is an earlier frame's, byte for byte (a frozen "
+                    "camera?)" if frozen else "",
                     f"{ood} frame(s) dropped as out of the network's domain" if ood else "")
             line += "; " + " and ".join(w for w in said if w) + " (listed in result.json)"
         print(line)

@@ -453,6 +453,17 @@ class NuScenesRadarCamera:
                 out.append(None)
         return out
 
+    def camera_files(self, indices: list[int]) -> list[Path | None]:
+        """The camera image file of each frame of ``indices`` (tables only), None where its record does not name one
+        under the root (the frame says why when it is read)."""
+        out = []
+        for i in indices:
+            try:
+                out.append(self.tables.file(self.frames[i].camera_sd))
+            except (DataError, KeyError, TypeError, ValueError):
+                out.append(None)
+        return out
+
     def ego_travel_m(self, indices: list[int]) -> float | None:
         """How far the ego vehicle moved over the frames ``indices`` (time order), metres: the sum of the distances
         between consecutive camera keyframes' ego poses (tables only). None when a pose does not read (the frame

@@ -41,6 +41,9 @@ class Drive:
     # dataset index -> its skip record, for each frame that repeats an earlier view (the ego stood still:
     # ``data.views``); every learned method leaves them out
     repeats: dict = field(default_factory=dict)
+    # dataset index -> its skip record, for each frame whose camera image is byte for byte an earlier frame's (a frozen
+    # camera: ``frozen_images``); every learned method leaves them out, counted against the network's domain
+    frozen: dict = field(default_factory=dict)
     # simulated roots: [(drive position, (4, 4))] where the true mount moved along the drive (``calib.result.path_of``
     # over the tables' records, which a simulated root's hold the truth in); [] when it did not
     truth_path: list = field(default_factory=list)
@@ -163,7 +166,8 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
                                 _end_truth(frames, idx, static) if simulated else None,
                                 [{"index": None, "token": s.token, "reason": s.reason}
                                  for s in getattr(frames, "lacking_keyframes", {}).get(vehicle, [])],
-                                view_repeats(frames, idx, conf.views), _truth_path(frames, idx) if simulated else [],
+                                (repeats := view_repeats(frames, idx, conf.views)),
+                                frozen_images(frames, idx, repeats), _truth_path(frames, idx) if simulated else [],
                                 frames.reference_source(vehicle) if hasattr(frames, "reference_source") else
                                 {"kind": "tables"})
     for vehicle, skips in sorted(getattr(frames, "lacking_keyframes", {}).items()):  # a vehicle of no frame at all
@@ -254,6 +258,34 @@ def view_repeats(frames, idx: list[int], conf: ViewConfig) -> dict:
     poses = frames.ego_poses(idx) if conf.enabled and hasattr(frames, "ego_poses") else []
     return {idx[k]: r.record(k, frames.frames[idx[k]].camera_sd.get("token"), conf)
             for k, r in repeated_views(poses, conf).items()}
+
+
+def frozen_images(frames, idx: list[int], repeats: dict) -> dict:
+    """Dataset index -> skip record (``index``: its position in the drive; ``frozen``: the position of the frame it
+    copies) of each frame of ``idx`` whose camera image file is byte for byte an earlier frame's. A camera's views of
+    two moments differ at least by their sensor noise; the same bytes are a frozen camera or a file copied over
+    another (probe 89: a repeated frame scored in domain and was fused as a view of its own). Frames that repeat a
+    view (``repeats``: the ego stood still, a simulated stop renders the same image) are not compared; frames whose
+    file does not read are left to the run, which says why."""
+    import hashlib
+
+    files = frames.camera_files(idx) if hasattr(frames, "camera_files") else []
+    seen: dict[str, int] = {}
+    out = {}
+    for k, path in enumerate(files):
+        if path is None or idx[k] in repeats:
+            continue
+        try:
+            digest = hashlib.sha1(path.read_bytes()).hexdigest()
+        except OSError:
+            continue
+        if digest in seen:
+            out[idx[k]] = {"index": k, "token": frames.frames[idx[k]].camera_sd.get("token"), "frozen": seen[digest],
+                           "reason": f"the camera image is byte for byte frame {seen[digest]}'s ({path.name}): a "
+                                     "frozen camera, or a file copied over another; not a view of its own moment"}
+        else:
+            seen[digest] = k
+    return out
 
 
 def standstill_reason(frames, drive: Drive) -> str:

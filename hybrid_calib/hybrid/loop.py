@@ -229,13 +229,17 @@ class _Trace:
     scores: list = field(default_factory=list)
     priors: int = 0  # network priors the hybrid inflated by its drive-common error (``_hybrid``)
     unread: int = 0  # frames whose inputs did not read (the network never ran): they count against the domain test
+    frozen: int = 0  # frames whose camera image is an earlier frame's (``Drive.frozen``): against the domain test too
     # where the reflectors the network matched lie (its iteration-0 rows, kept frames): the status names a straight
     # road as the oracle's does (``corrections.with_road_words``)
     geometry: RowGeometry = field(default_factory=RowGeometry)
 
     def repeated(self, drive: Drive, i: int) -> bool:
-        """True (and recorded) when frame ``i`` repeats an earlier view of the drive (``Drive.repeats``)."""
+        """True (and recorded) when frame ``i`` repeats an earlier view of the drive (``Drive.repeats``) or its camera
+        image is an earlier frame's (``Drive.frozen``: counted against the network's domain)."""
         rec = drive.repeats.get(i)
+        if rec is None and (rec := drive.frozen.get(i)) is not None:
+            self.frozen += 1
         if rec is not None:
             self.skipped.append(dict(rec))
         return rec is not None
@@ -527,9 +531,10 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     T0 = start_of(drive, conf)
     tr = _Trace(drop=True)
     traj, mon = _run_learned(runner, drive, T0, conf, tr, motion, frames)
-    ood = decide(tr.scores, conf.ood, runner.ood_note, unread=tr.unread)
+    ood = decide(tr.scores, conf.ood, runner.ood_note, unread=tr.unread, frozen=tr.frozen)
     ood["dropped"] = sum("ood_score" in s for s in tr.skipped)
-    total = ood["frames"] + ood.get("unread", 0)  # the frames that did not read count too (hybrid.ood.decide)
+    # the frames that did not read, and the frozen ones, count too (hybrid.ood.decide)
+    total = ood["frames"] + ood.get("unread", 0) + ood.get("frozen", 0)
     if ood["inconclusive"] and not ood["dropped"]:  # nothing was dropped: the pass already used every frame
         ood.update(rerun_in_domain=ood["in_domain"], note=(
             f"too few frames in domain ({ood['in_domain']} of {total}, the scores above; none was dropped): the "

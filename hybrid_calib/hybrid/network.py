@@ -349,10 +349,15 @@ class NetworkRunner:
         return max(score, image_score(out.image_structure))
 
     def ood_why(self, out: NetworkOutput) -> str:
-        """Words for a pass out of domain by its camera image alone (``learned.ood.image_words``; "" otherwise)."""
-        from learned.ood import image_words
+        """Words for a pass whose score its camera image decides (``learned.ood.image_words``: the image test scores it
+        above the density model); "" otherwise, where the general reason holds (probe 89: a dark view of a road the
+        density model scored 4.15 was said to show no scene, its image test giving 1.11)."""
+        from learned.ood import image_score, image_words
 
-        return image_words(out.image_structure) if self.ood is not None else ""
+        if self.ood is None or not out.ood_descriptor.size:
+            return ""
+        density = float(self.ood.score({"descriptor": out.ood_descriptor, "signals": out.ood_signals})[0])
+        return image_words(out.image_structure) if image_score(out.image_structure) >= density else ""
 
     def forward(self, s: dict, T_in: np.ndarray) -> NetworkOutput:
         """The network on a prepared sample ``s`` (``sample``, possibly altered) from ``T_in``; not cached."""

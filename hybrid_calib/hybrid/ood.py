@@ -69,15 +69,17 @@ def skip_record(index: int, token: str, score: float, policy: OODPolicy, why: st
                       f"({why or 'the input is unlike the frames the network was fitted on'}; frame dropped)"}
 
 
-def decide(scores: list[float], policy: OODPolicy, note: str = "", unread: int = 0) -> dict:
+def decide(scores: list[float], policy: OODPolicy, note: str = "", unread: int = 0, frozen: int = 0) -> dict:
     """The result's ``ood`` block: per-frame scores, counts, and ``inconclusive`` (reason, or ""). ``unread``:
     frames of the drive whose files did not read (no score): they count as not in domain, so a damaged copy of a
     root cannot earn more trust than the intact one by losing its doubtful frames (probe 15: 4 of 10 in domain on
-    the intact root was inconclusive, the same 4 of 5 readable ones on a damaged copy was not)."""
+    the intact root was inconclusive, the same 4 of 5 readable ones on a damaged copy was not); ``frozen``: frames
+    whose camera image is an earlier frame's (``hybrid.drives.frozen_images``), counted alike."""
     s = np.asarray(scores, np.float64)
     available = bool(policy.enabled and len(s) and np.all(np.isfinite(s)))
     block = {"available": available, "threshold": policy.threshold, "scores": [json_score(x) for x in s],
-             "frames": int(len(s)), "in_domain": None, "inconclusive": "", "unread": int(unread)}
+             "frames": int(len(s)), "in_domain": None, "inconclusive": "", "unread": int(unread),
+             "frozen": int(frozen)}
     if not policy.enabled:
         block["note"] = "out-of-domain score disabled (--set ood.enabled=false)"
         return block
@@ -86,7 +88,7 @@ def decide(scores: list[float], policy: OODPolicy, note: str = "", unread: int =
         return block
     n_in = int(np.sum(s <= policy.threshold))
     block["in_domain"] = n_in
-    total = len(s) + int(unread)
+    total = len(s) + int(unread) + int(frozen)
     need = max(policy.min_in_domain_frames, int(np.ceil(policy.min_in_domain_fraction * total)))
     if n_in < need and total < policy.min_in_domain_frames and n_in == total:  # the drive, not the domain
         block["inconclusive"] = (
@@ -94,7 +96,8 @@ def decide(scores: list[float], policy: OODPolicy, note: str = "", unread: int =
             f"fewer than the {need} in-domain frames the out-of-domain test needs before it trusts the network's "
             "answer: calibrate on more frames (--max-frames, or a wider --split)")
     elif n_in < need:
-        unread_words = f"; {unread} of them did not read" if unread else ""
+        unread_words = (f"; {unread} of them did not read" if unread else "") + (
+            f"; {frozen} of them repeat an earlier frame's camera image (a frozen camera)" if frozen else "")
         block["inconclusive"] = (
             f"only {n_in} of {total} frames are inside the network's training domain (out-of-domain score <= "
             f"{policy.threshold:g}; median score {np.median(s):.1f}{unread_words}), fewer than the {need} required: "
