@@ -445,21 +445,19 @@ class NuScenesRadarCamera:
     def ego_poses(self, indices: list[int]) -> list[np.ndarray | None]:
         """(4, 4) ego -> global of each frame of ``indices`` at its camera keyframe (tables only), None where it does
         not read (the frame says why when it is read)."""
-        out = []
-        for i in indices:
-            try:
-                out.append(self.tables.T_global_ego(self.frames[i].camera_sd))
-            except (DataError, KeyError, TypeError, ValueError):
-                out.append(None)
-        return out
+        return self._each(indices, lambda f: self.tables.T_global_ego(f.camera_sd))
 
     def camera_files(self, indices: list[int]) -> list[Path | None]:
         """The camera image file of each frame of ``indices`` (tables only), None where its record does not name one
         under the root (the frame says why when it is read)."""
+        return self._each(indices, lambda f: self.tables.file(f.camera_sd))
+
+    def _each(self, indices: list[int], read) -> list:
+        """``read(frame record)`` of each frame of ``indices``, None where its tables do not read."""
         out = []
         for i in indices:
             try:
-                out.append(self.tables.file(self.frames[i].camera_sd))
+                out.append(read(self.frames[i]))
             except (DataError, KeyError, TypeError, ValueError):
                 out.append(None)
         return out
