@@ -31,7 +31,8 @@ def _output(g: np.random.Generator) -> NetworkOutput:
     T_net = retract(T_TRUE, np.r_[0.004, -0.003, 0.002, 0.03, -0.02, 0.01])
     cov = np.diag([1e-4, 1e-4, 1e-4, 4e-3, 4e-3, 4e-3])
     # iteration 0: measured against the truth with noise; last: a restatement of the network's own SE(3)
-    return NetworkOutput(T_TRUE, np.stack([T_net] * 3), cov, _rows(T_TRUE, g), _rows(T_net, g, noise=0.0), 0.01)
+    return NetworkOutput(T_TRUE, np.stack([T_net] * 3), cov, _rows(T_TRUE, g), _rows(T_net, g, noise=0.0), 0.01,
+                         image_structure=0.95)  # a camera's view of a scene (learned.ood.image_structure)
 
 
 FACTOR = RadarPixelFactorConfig(elevation_model="zero")
