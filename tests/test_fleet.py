@@ -3,6 +3,7 @@
 import dataclasses
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -430,10 +431,13 @@ def test_a_retried_job_resumes_its_finished_vehicle_and_caches(fleet_root, tmp_p
         cached = sorted((out / "network-cache").rglob("*.npz"))
         assert cached and list((out / "vehicles-done").glob("sim-veh-000*.json"))
         inodes = [f.stat().st_ino for f in cached]
+        shutil.rmtree(out / "plots", ignore_errors=True)  # killed before its plots were drawn (probe 90)
         capsys.readouterr()
         again = CalibrationRun.load(calibrate_job(job)).vehicles["sim-veh-000"]
         err = capsys.readouterr().err
         assert ("kept 1 vehicle(s) an interrupted run" in err) == (seed == 3), err
+        assert sorted(p.name for p in (out / "plots").glob("*.png")) == ["sim-veh-000_drift.png",
+                                                                        "sim-veh-000_trajectory.png"]
         assert [f.stat().st_ino for f in cached] == inodes  # the caches kept, whichever the options
         starts[seed] = again.start
     assert starts[3] == starts[4]  # the seed-4 attempt's vehicle recomputed with this run's options

@@ -153,13 +153,10 @@ def _plotted(result, args: argparse.Namespace):
     """``result`` after drawing the plots of its vehicles that have none: a vehicle an interrupted run kept, whose
     plots were not written (probe 66: a full disk stopped the run at its first plot; the rerun kept the vehicle and
     drew none), or a reused result whose plots were removed."""
-    from hybrid_calib.plots.calibration import plot_vehicle, vehicle_plot_paths
+    from hybrid_calib.plots.calibration import draw_missing
 
     if not args.no_plots:
-        drawn = [vr.vehicle for vr in result.vehicles.values()
-                 if not all(p.is_file() for p in vehicle_plot_paths(vr, args.out / "plots"))]
-        for name in drawn:
-            plot_vehicle(result.vehicles[name], args.out / "plots")
+        drawn = draw_missing(result, args.out / "plots")
         if drawn:  # said: a reused result's line says nothing was written (probe 69)
             print(f"drew the missing plots of {len(drawn)} vehicle(s) ({', '.join(drawn[:4])}"
                   f"{', ...' if len(drawn) > 4 else ''}) into {args.out / 'plots'}")

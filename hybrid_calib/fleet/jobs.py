@@ -298,7 +298,7 @@ def calibrate_job(job: Job) -> Path:
         conf = {**job.calib, "vehicles": (job.vehicle,), "seed": job.seed}
         _resuming(job, lambda overwrite: calibrate(job.data, job.version, "oracle", out, conf, overwrite=overwrite,
                                                    priors=prior, progress=False, on_vehicle=plots))
-        return job.result_path
+        return _plotted(job)
     from hybrid_calib.hybrid import run_calibration
 
     if job.prior is not None:
@@ -311,6 +311,16 @@ def calibrate_job(job: Job) -> Path:
             "vehicles": (job.vehicle,), "threads": job.threads, "progress": False}
     _resuming(job, lambda overwrite: run_calibration(job.data, job.version, out, conf, overwrite=overwrite,
                                                      on_vehicle=plots))
+    return _plotted(job)
+
+
+def _plotted(job: Job) -> Path:
+    """The job's result path, after drawing its vehicle's plots when they are missing: a vehicle a resumed attempt
+    kept (probe 90: its result came back without the plots, and summary.json listed none, without a word)."""
+    from hybrid_calib.calib.result import CalibrationRun
+    from hybrid_calib.plots.calibration import draw_missing
+
+    draw_missing(CalibrationRun.load(job.result_path), Path(job.out) / "plots")
     return job.result_path
 
 

@@ -89,6 +89,16 @@ def vehicle_plot_paths(vr: VehicleResult, out_dir: Path) -> list[Path]:
     return [Path(out_dir) / f"{file_part(vr.vehicle)}_{what}.png" for what in ("trajectory", "drift")]
 
 
+def draw_missing(run, out_dir: Path) -> list[str]:
+    """Draw the plots of each vehicle of ``run`` (a ``CalibrationRun``) that lacks some in ``out_dir``: a vehicle an
+    interrupted run kept, whose plots were not written, or a reused result whose plots were removed. Returns their
+    names."""
+    drawn = [name for name, vr in run.vehicles.items() if not all(p.is_file() for p in vehicle_plot_paths(vr, out_dir))]
+    for name in drawn:
+        plot_vehicle(run.vehicles[name], out_dir)
+    return drawn
+
+
 def plot_vehicle(vr: VehicleResult, out_dir: Path) -> list[Path]:
     """Write ``<vehicle>_trajectory.png`` (signed error with the +-2 sigma band, or the estimate
     when there is no truth) and ``<vehicle>_drift.png`` (windowed chi-square vs threshold, inlier
