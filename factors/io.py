@@ -55,7 +55,7 @@ from pathlib import Path
 import numpy as np
 
 from factors.correspondences import Correspondences
-from hybrid_calib.atomic import atomic_path
+from hybrid_calib.atomic import atomic_path, finished
 from hybrid_calib.data.files import read_npz
 from hybrid_calib.errors import DataError
 
@@ -282,11 +282,12 @@ def measurement_files(directory: str | Path) -> dict[str, list[Path]]:
     if not d.is_dir():
         raise DataError("measurement directory not found (expected *.npz frame files, an evaluate output with "
                         "frames/, or one sub-directory of *.npz per vehicle)", path=str(d))
-    if files := sorted((d / FRAMES_SUBDIR).glob("*.npz")):
+    # a killed writer's temporary files are no frames (probe 90: one was read as a frame of its own)
+    if files := finished(sorted((d / FRAMES_SUBDIR).glob("*.npz"))):
         return {"": files}
-    if files := sorted(d.glob("*.npz")):
+    if files := finished(sorted(d.glob("*.npz"))):
         return {"": files}
-    groups = {s.name: sorted(s.glob("*.npz")) for s in sorted(d.iterdir()) if s.is_dir()}
+    groups = {s.name: finished(sorted(s.glob("*.npz"))) for s in sorted(d.iterdir()) if s.is_dir()}
     groups = {k: v for k, v in groups.items() if v}
     if not groups:
         raise DataError("no *.npz measurement files (factors.io) in the directory, its frames/ or its "

@@ -93,6 +93,31 @@ def fit_name(name: str) -> str:
     return f"{head}~{hashlib.sha1(raw).hexdigest()[:12]}~{name[-16:]}"
 
 
+_TEMPORARY = re.compile(r"\.\d+\.tmp(\.[^.]*)?$")  # ``atomic_path``'s "<stem>.<pid>.tmp<suffix>"
+
+
+def is_temporary(path: str | Path) -> bool:
+    """Whether ``path`` names an ``atomic_path`` temporary file (a write in progress, or one a SIGKILL left, which no
+    ``finally`` removed): never a finished file of ours (probe 90: a left ``frames/<token>.<pid>.tmp.npz`` was read
+    as one more frame)."""
+    return bool(_TEMPORARY.search(Path(path).name))
+
+
+def finished(paths) -> list[Path]:
+    """``paths`` without ``atomic_path``'s temporary files (``is_temporary``), in their order."""
+    return [Path(p) for p in paths if not is_temporary(p)]
+
+
+def remove_temporaries(folder: str | Path) -> list[Path]:
+    """Delete the ``atomic_path`` temporary files in ``folder`` (not below it) and return them: for a run that holds
+    the folder's lock (``out_dir_lock``), any there is a killed run's, never a writer's at work."""
+    folder = Path(folder)
+    gone = [p for p in (sorted(folder.iterdir()) if folder.is_dir() else []) if p.is_file() and is_temporary(p)]
+    for p in gone:
+        p.unlink(missing_ok=True)
+    return gone
+
+
 @contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path for ``path`` (parent folder created); rename it over ``path`` when

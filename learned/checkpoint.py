@@ -79,9 +79,11 @@ def save_checkpoint(stem: str | Path, model: torch.nn.Module, *, epoch: int, mod
     files = {"weights": weights.name, "weights_sha256": weights_sha256(weights)}
     if optimizer is not None:
         optim = stem.with_suffix(".optim.pt")
-        with atomic_path(optim) as tmp:
+        # through an open file: given a path, torch.save names the zip's folder after it, the temporary name with
+        # the writer's pid, so one state gave other bytes each run (probe 90)
+        with atomic_path(optim) as tmp, open(tmp, "wb") as fh:
             torch.save({"optimizer": optimizer.state_dict(),
-                        "scheduler": scheduler.state_dict() if scheduler is not None else None}, tmp)
+                        "scheduler": scheduler.state_dict() if scheduler is not None else None}, fh)
         files["optimizer"] = optim.name
     meta = {"epoch": int(epoch), "model_config": model_config, "train_config": train_config or {},
             "metrics": metrics or {}, "files": files, **({"data": data} if data is not None else {})}

@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from hybrid_calib.atomic import finished, remove_temporaries
 from hybrid_calib.config import (
     changed_options,
     merge,
@@ -280,7 +281,7 @@ class EvalResult:
 def evaluate_predictions(out: str | Path, method: str = "pure") -> EvalResult:
     """The paper's table from the per-frame files under ``out/frames``: rows ``initial``,
     ``<method> iter k`` for every iteration k, and ``<method>`` (the final estimate)."""
-    files = sorted((Path(out) / "frames").glob("*.npz"))
+    files = finished(sorted((Path(out) / "frames").glob("*.npz")))  # a killed run's temporary files: no frames
     if not files:
         raise HybridCalibError(f"no exported predictions in {Path(out) / 'frames'}; run the export first")
     per: dict[str, list] = {}
@@ -328,7 +329,7 @@ def tangent_errors(out: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """(F, 6) right-tangent errors Log(T_gt^-1 T_final) and (F, 6, 6) exported covariances of the
     frames under ``out/frames`` that have one (``calibrate_cov_scale`` takes both)."""
     pairs = []
-    for path in sorted((Path(out) / "frames").glob("*.npz")):
+    for path in finished(sorted((Path(out) / "frames").glob("*.npz"))):
         with read_npz(path, "exported prediction", _REEXPORT) as z:
             pairs.append(_tangent_error(z))
     return _stack([p for p in pairs if p is not None])
@@ -430,6 +431,7 @@ def evaluate(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig | dict,
         if old != json.loads(json.dumps(record)):
             raise HybridCalibError(f"{out} holds predictions made with {_what_differs(old, record)} ({cfg_path}), "
                                    "which this run would table with its own; use --overwrite or another --out")
+    remove_temporaries(out / "frames")  # a killed run's (probe 90): this run holds the folder's lock
     if overwrite:
         for old_file in (out / "frames").glob("*.npz"):
             old_file.unlink()

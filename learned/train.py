@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from hybrid_calib.atomic import remove_temporaries
 from hybrid_calib.config import ConfigError, merge, read_out_record, require_ranges, save_json_atomic, to_dict
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.errors import HybridCalibError
@@ -304,7 +305,8 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
         check_resume(out, last, to_dict(conf), source)
     if orphans := orphaned_weights(ckpt_dir, last):  # trained again and overwritten: said (probe 33), not refused
         log.warning("%s hold(s) no checkpoint JSON beside (a save cut short, or the JSON deleted): %s trained again "
-                    "from %s and overwritten; move them away first to keep them", ", ".join(p.name for p in orphans),
+                    "from %s and overwritten when it ends; to keep them, stop this run (Ctrl-C) and move them away",
+                    ", ".join(p.name for p in orphans),
                     "those epochs are" if len(orphans) > 1 else "that epoch is",
                     f"after {last.name}" if last is not None else "the start")
     # what refuses the run is checked before its folder is written (probe 71: an --init of another model, a --depth
@@ -329,6 +331,7 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
     depth = build_depth_estimator(conf.depth, conf.depth_options)
     out.mkdir(parents=True, exist_ok=True)
     check_writable(ckpt_dir)  # before an epoch's work, not after it (probe 33: a read-only checkpoints/ was exit 3)
+    remove_temporaries(ckpt_dir)  # a killed save's (probe 90: a 12 MB partial optim file stayed for good)
     save_json_atomic(out / "train_config.json", {"train": to_dict(conf), "model": model_conf_dict,
                                                  **({"data": source} if source is not None else {})})
 

@@ -258,3 +258,20 @@ def test_a_name_derived_from_a_long_one_fits_a_file_name_and_stays_its_own():
     t = time.perf_counter()
     assert len(os.fsencode(fit_name("\u6f22" * 100_000))) <= NAME_MAX
     assert time.perf_counter() - t < 0.5
+
+
+def test_a_killed_writer_s_temporary_file_is_known_and_removed(tmp_path):
+    """Probe 90: a SIGKILL between a write and its rename left ``<stem>.<pid>.tmp<suffix>``, read as a frame."""
+    from hybrid_calib.atomic import finished, is_temporary, remove_temporaries
+
+    with atomic_path(tmp_path / "a.npz") as tmp:
+        assert is_temporary(tmp)
+        tmp.write_bytes(b"x")
+    names = ["tok.npz", "tok.123.tmp.npz", "ckpt-0002.optim.8772.tmp.pt", "x.99.tmp", "a.tmp.npz", "v2.1.npz"]
+    for n in names:
+        (tmp_path / n).write_bytes(b"x")
+    assert [p.name for p in finished(sorted(tmp_path.glob("*")))] == ["a.npz", "a.tmp.npz", "tok.npz", "v2.1.npz"]
+    assert sorted(p.name for p in remove_temporaries(tmp_path)) == ["ckpt-0002.optim.8772.tmp.pt", "tok.123.tmp.npz",
+                                                                    "x.99.tmp"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.npz", "a.tmp.npz", "tok.npz", "v2.1.npz"]
+    assert remove_temporaries(tmp_path / "none") == []

@@ -476,6 +476,14 @@ def test_evaluate_table_columns_and_zero_error_for_an_oracle(frames, tmp_path):
     again = evaluate(OracleModel(), frames, conf, out, exporter=oracle_exporter, progress=False)
     assert {p: p.stat().st_mtime_ns for p in (out / "frames").glob("*.npz")} == mtimes
     assert again.rows == evaluate_predictions(out).rows
+    # a killed run's temporary file (SIGKILL between its write and its rename) is no frame: the resume removes it
+    # (probe 90: a complete one was tabled as a 4th frame, a truncated one stopped the run)
+    first = sorted((out / "frames").glob("*.npz"))[0]
+    (out / "frames" / f"{first.stem}.4242.tmp.npz").write_bytes(first.read_bytes())
+    (out / "frames" / f"{first.stem}.4243.tmp.npz").write_bytes(first.read_bytes()[:100])
+    assert evaluate_predictions(out).n_frames == 3
+    assert evaluate(OracleModel(), frames, conf, out, exporter=oracle_exporter, progress=False).n_frames == 3
+    assert not list((out / "frames").glob("*.tmp.npz"))
     with pytest.raises(HybridCalibError, match=r"another config \(eval.perturbation: \"R2\" -> \"R1\""):
         evaluate(OracleModel(), frames, EvalConfig(perturbation="R1", split_options=conf.split_options), out,
                  exporter=oracle_exporter, progress=False)
@@ -722,3 +730,20 @@ def test_a_checkpoints_folder_that_cannot_be_written_is_said_before_any_epoch(fr
                                                "checkpoints go there"):
         train(train_config("small", _train_conf(tmp_path, 1)), frames, tmp_path / "run", progress=False)
     assert not (tmp_path / "run" / "epochs.csv").exists()
+
+
+def test_a_checkpoint_s_optimizer_file_is_the_same_bytes_for_the_same_state(tmp_path, monkeypatch):
+    """Probe 90: torch.save named the zip's folder after the temporary file, whose name holds the writer's pid."""
+    import hybrid_calib.atomic
+    from learned.checkpoint import save_checkpoint
+
+    torch.manual_seed(0)
+    model = torch.nn.Linear(3, 2)
+    optimizer = torch.optim.Adam(model.parameters())
+    paths = []
+    for pid, d in ((101, "a"), (202, "b")):  # two runs: two writers' pids
+        monkeypatch.setattr(hybrid_calib.atomic.os, "getpid", lambda pid=pid: pid)
+        paths.append(save_checkpoint(tmp_path / d / "ckpt-0001", model, epoch=1, model_config={"k": 1},
+                                     optimizer=optimizer))
+    a, b = (p.with_suffix(".optim.pt").read_bytes() for p in paths)
+    assert a == b
