@@ -21,7 +21,7 @@ import threading
 import warnings
 from pathlib import Path
 
-from hybrid_calib.atomic import LOCK_NAME, best_effort_stderr, out_dir_lock, record_run
+from hybrid_calib.atomic import LOCK_NAME, best_effort_stderr, finished, out_dir_lock, record_run
 from hybrid_calib.errors import (
     HybridCalibError,
     check_out_dir,
@@ -79,7 +79,7 @@ def _has_vehicles_done(out: Path) -> bool:
     """Whether a calibrate run's ``out`` keeps a vehicle an interrupted run finished (``calib.result.VehicleProgress``:
     ``out/vehicles-done/<vehicle>.json`` beside its ``stamp.json``)."""
     try:
-        return any(p.name != "stamp.json" for p in (out / "vehicles-done").glob("*.json"))
+        return any(p.name != "stamp.json" for p in finished((out / "vehicles-done").glob("*.json")))
     except OSError:
         return False
 

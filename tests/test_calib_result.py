@@ -280,3 +280,15 @@ def test_a_status_that_opens_with_no_status_word_is_refused(status):
     doc["trajectory"][0]["status"] = status
     with pytest.raises(ValueError, match=r"trajectory\[0\]"):
         VehicleResult.from_dict(doc, "veh-a")
+
+
+def test_a_killed_write_s_temporary_record_is_not_a_kept_vehicle(tmp_path, capsys):
+    """Probe 90: ``vehicles-done/*.json`` matched a SIGKILLed write's ``<vehicle>.<pid>.tmp.json``, read as a record."""
+    from hybrid_calib.calib.result import VehicleProgress
+
+    first = VehicleProgress(tmp_path, tmp_path, "v1.0-sim", "hybrid", {"seed": 0})
+    first.record("sim-veh-000", "its radar file is truncated")
+    (tmp_path / "vehicles-done" / "sim-veh-001.4242.tmp.json").write_text('{"vehic')
+    again = VehicleProgress(tmp_path, tmp_path, "v1.0-sim", "hybrid", {"seed": 0})
+    assert again.done == {"sim-veh-000": "its radar file is truncated"}
+    assert "tmp" not in capsys.readouterr().err

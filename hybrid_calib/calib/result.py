@@ -815,7 +815,9 @@ class VehicleProgress:
         if self.dir.is_dir() and fresh:
             shutil.rmtree(self.dir, ignore_errors=True)
         if self.dir.is_dir():
-            kept = sorted(f for f in self.dir.glob("*.json") if f.name != "stamp.json")
+            from hybrid_calib.atomic import finished as written  # a killed write's temporary file is no record
+
+            kept = sorted(f for f in written(self.dir.glob("*.json")) if f.name != "stamp.json")
             try:
                 old = json.loads((self.dir / "stamp.json").read_text())
                 changed = _changes(old, self.stamp) if isinstance(old, dict) else []

@@ -38,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hybrid_calib.atomic import finished
 from hybrid_calib.calib.covariance import camera_offset, inconclusive_reason, status_kind
 from hybrid_calib.calib.drift import alarms_say_moved, doppler_level_words
 from hybrid_calib.config import save_json_atomic, save_text_atomic
@@ -109,7 +110,7 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
         vr = next(iter(CalibrationRun.load(base / e["result"]).vehicles.values()))
         results[jid] = vr
         plots = Path(j["out"]) / "plots"
-        row["plots"] = sorted(rel_path(p, base) for p in plots.glob("*.png")) if plots.is_dir() else []
+        row["plots"] = sorted(rel_path(p, base) for p in finished(plots.glob("*.png"))) if plots.is_dir() else []
         d = vr.drift or {}
         row["reference"] = d.get("reference") or {"kind": "tables"}  # what "vs tables" and offset_from_tables are from
         row.update(n_frames=vr.n_frames, status=vr.final.status,

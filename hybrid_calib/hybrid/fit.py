@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hybrid_calib.atomic import finished
 from hybrid_calib.calib.schedule import frame_information, robust_solve
 from hybrid_calib.data.files import NPZ_ERRORS
 from hybrid_calib.geometry import local
@@ -195,7 +196,7 @@ def load_passes(cache_dir: Path, truths: dict[str, tuple[np.ndarray, np.ndarray]
 
     by_part = {file_part(t): v for t, v in truths.items()}  # the cache names a pass by its token's file part
     out = []
-    for p in sorted(Path(cache_dir).glob("*.npz")):
+    for p in finished(sorted(Path(cache_dir).glob("*.npz"))):
         known = by_part.get(p.stem.rsplit("-", 1)[0])
         if known is None:
             continue
