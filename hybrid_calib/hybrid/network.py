@@ -338,15 +338,10 @@ class NetworkRunner:
         """The pass's out-of-domain score (``learned.ood``: > 1 out of domain): the density model's, raised to the
         camera image's own test where the image shows no scene (``learned.ood.image_score``); NaN when the
         checkpoint has no ``export.ood`` (``ood_note`` says so) or the output carries no features."""
-        if self.ood is None or not out.ood_descriptor.size:
-            return float("nan")
-        from learned.ood import OODError, image_score
+        from learned.ood import image_score
 
-        try:
-            score = float(self.ood.score({"descriptor": out.ood_descriptor, "signals": out.ood_signals})[0])
-        except OODError as e:  # fitted on another network's features
-            raise OODError(f"checkpoint {self.checkpoint}: {e}") from None
-        return max(score, image_score(out.image_structure))
+        density = self._density(out)
+        return float("nan") if density is None else max(density, image_score(out.image_structure))
 
     def ood_why(self, out: NetworkOutput) -> str:
         """Words for a pass whose score its camera image decides (``learned.ood.image_words``: the image test scores it
@@ -354,10 +349,21 @@ class NetworkRunner:
         density model scored 4.15 was said to show no scene, its image test giving 1.11)."""
         from learned.ood import image_score, image_words
 
-        if self.ood is None or not out.ood_descriptor.size:
+        density = self._density(out)
+        if density is None or image_score(out.image_structure) < density:
             return ""
-        density = float(self.ood.score({"descriptor": out.ood_descriptor, "signals": out.ood_signals})[0])
-        return image_words(out.image_structure) if image_score(out.image_structure) >= density else ""
+        return image_words(out.image_structure)
+
+    def _density(self, out: NetworkOutput) -> float | None:
+        """The density model's score of the pass's features; None without a model or features."""
+        if self.ood is None or not out.ood_descriptor.size:
+            return None
+        from learned.ood import OODError
+
+        try:
+            return float(self.ood.score({"descriptor": out.ood_descriptor, "signals": out.ood_signals})[0])
+        except OODError as e:  # fitted on another network's features
+            raise OODError(f"checkpoint {self.checkpoint}: {e}") from None
 
     def forward(self, s: dict, T_in: np.ndarray) -> NetworkOutput:
         """The network on a prepared sample ``s`` (``sample``, possibly altered) from ``T_in``; not cached."""
