@@ -376,3 +376,16 @@ def test_a_frozen_camera_frame_is_left_out_and_counted_against_the_domain(fitted
     strict = run_vehicle(root, "v1.0-sim", "sim-veh-000", {**conf, "ood": {"min_in_domain_fraction": 1.0,
                                                                           "min_in_domain_frames": 1}})
     assert "1 of them repeat an earlier frame's camera image (a frozen camera)" in strict.final.status
+
+
+def test_the_dropped_count_names_its_pass_where_the_status_counts_another():
+    """Probe 92: "only 21 of 41 frames are inside" beside "21 frame(s) dropped" (21 + 21 of 41): the estimate's last
+    pass, from other starts, dropped 21."""
+    from types import SimpleNamespace
+
+    from hybrid_calib.commands.calibrate import _pass_words
+
+    assert _pass_words(SimpleNamespace(ood={"in_domain": 21, "frames": 41, "unread": 0}), 20) == ""
+    assert "by the pass the estimate used" in _pass_words(SimpleNamespace(ood={"in_domain": 21, "frames": 41}), 21)
+    assert _pass_words(SimpleNamespace(ood={"in_domain": 3, "frames": 4, "unread": 2}), 1) == ""
+    assert _pass_words(SimpleNamespace(ood=None), 2) == ""

@@ -149,6 +149,16 @@ def run(args: argparse.Namespace) -> int:
     return _report(_plotted(result, args), args.out, reused)
 
 
+def _pass_words(v, dropped: int) -> str:
+    """Which pass ``dropped`` counts, where it is not the pass whose in-domain count the status gives (probe 92: "only
+    21 of 41 frames are inside" beside "21 frame(s) dropped": the estimate's last pass started elsewhere)."""
+    o = v.ood or {}
+    first = o.get("in_domain")
+    if first is None or first + dropped == int(o.get("frames") or 0):  # the scored frames of the first pass
+        return ""
+    return " by the pass the estimate used (its starts differ from the first pass's; result.json's ood.note)"
+
+
 def _plotted(result, args: argparse.Namespace):
     """``result`` after drawing the plots of its vehicles that have none: a vehicle an interrupted run kept, whose
     plots were not written (probe 66: a full disk stopped the run at its first plot; the rerun kept the vehicle and
@@ -200,7 +210,7 @@ def _report(result, out: Path, reused: bool = False) -> int:
                     "turned under views.min_turn_deg since the view before: it stood still or crept)" if seen else "",
                     f"{frozen} frame(s) left out whose camera image is an earlier frame's, byte for byte (a frozen "
                     "camera?)" if frozen else "",
-                    f"{ood} frame(s) dropped as out of the network's domain" if ood else "")
+                    f"{ood} frame(s) dropped as out of the network's domain{_pass_words(v, ood)}" if ood else "")
             line += "; " + " and ".join(w for w in said if w) + " (listed in result.json)"
         print(line)
         if alarms := alarm_words(v):  # each named with the test that raised it, as the report says it
