@@ -143,7 +143,7 @@ def test_kill_the_driver_then_rerun_gives_the_uninterrupted_results(local_run, f
 
 
 @pytest.mark.parametrize("retries", [2, 0])
-def test_a_killed_pool_worker_is_replaced_and_its_jobs_rerun(local_run, fleet_root, tmp_path, retries):
+def test_a_killed_pool_worker_is_replaced_and_its_jobs_rerun(local_run, fleet_root, tmp_path, retries, capsys):
     """``process``: one pool worker SIGKILLed at the first outcome (the other jobs are still in
     flight): the pool is rebuilt, the lost jobs are handed out again (``attempts`` 2), same results. No lost job
     is charged a try for a death that was not its own (with --retries 0 every one of them failed)."""
@@ -166,6 +166,39 @@ def test_a_killed_pool_worker_is_replaced_and_its_jobs_rerun(local_run, fleet_ro
     assert sorted(attempts.values())[0] == 1 and max(attempts.values()) == 2, attempts  # the lost jobs: 2
     assert s["vehicles"][BAD]["reason"].startswith("DataError")  # still its own failure, not a system one
     assert _results(tmp_path) == _results(local_run[0])
+    said = [line for line in capsys.readouterr().err.splitlines() if "a worker process died" in line]
+    assert len(said) == 1 and "handed out again" in said[0] and "sim-veh-" in said[0], said  # probe 91: no word
+
+
+def test_ray_init_leaves_the_commands_signal_handlers(monkeypatch, tmp_path):
+    """Probe 91: ``ray.init`` replaced the command's SIGTERM handler (``sys.exit(15)``): a fleet on Ray that got
+    SIGTERM ended with no word, exit 1 or an internal-error status, or its lock left behind."""
+    import sys
+    import types
+
+    from hybrid_calib.fleet import engines
+
+    def init(**kwargs):  # what ray.init does to the driver's handlers
+        signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(signum))
+
+    import importlib.machinery
+
+    fake = types.ModuleType("ray")
+    fake.__spec__ = importlib.machinery.ModuleSpec("ray", None)
+    fake.is_initialized, fake.init = (lambda: False), init
+    monkeypatch.setitem(sys.modules, "ray", fake)
+    monkeypatch.setattr(engines, "_local_ray_env", lambda tmp, token=True: None)
+
+    def ours(signum, frame):
+        raise KeyboardInterrupt
+
+    before = signal.signal(signal.SIGTERM, ours)
+    try:
+        monkeypatch.setattr(engines, "ray_temp_dir", lambda temp_dir: Path(temp_dir))  # a test's long tmp_path
+        assert engines.start_ray(1, None, tmp_path / "ray", 100) is True
+        assert signal.getsignal(signal.SIGTERM) is ours
+    finally:
+        signal.signal(signal.SIGTERM, before)
 
 
 def _ray_workers(psutil, title: str) -> list:
@@ -250,7 +283,7 @@ def test_manifest_resume_rules(local_run, tmp_path):
     jobs = [Job.from_dict(e["job"]) for e in doc["jobs"].values()]
     doc["jobs"]["sim-veh-000"]["state"] = "running"  # the driver died after the job wrote its result
     doc["jobs"]["sim-veh-001"]["state"] = "done"  # ... but its result file is gone
-    doc["jobs"]["sim-veh-002"]["state"] = "pending"  # the manifest was not saved after the result
+    doc["jobs"]["sim-veh-002"].update(state="pending", attempts=0)  # the manifest was not saved after the result
     moved = tmp_path / "m"
     moved.mkdir()
     (moved / "manifest.json").write_text(json.dumps(doc))
@@ -261,6 +294,7 @@ def test_manifest_resume_rules(local_run, tmp_path):
     m = Manifest.open(moved / "manifest.json", jobs, "oracle", 2)
     states = {k: e["state"] for k, e in m.jobs.items()}
     assert states == {"sim-veh-000": "done", "sim-veh-001": "pending", "sim-veh-002": "done", BAD: "failed"}
+    assert m.jobs["sim-veh-002"]["attempts"] == 1  # the attempt that wrote it (probe 91: "done" after 0 attempts)
     assert [j.id for j in m.todo()] == ["sim-veh-001", BAD]
     assert json.loads((moved / "manifest.json").read_text())["jobs"] == m.jobs  # one job per line, valid JSON
     # bookkeeping is saved at most every save_every_s; flush writes the rest

@@ -608,8 +608,8 @@ def replay_inputs(data, version: str, correspondences: str, conf: CalibrateConfi
     ``calibrate``'s own (each vehicle's rows and start drawn by (seed, vehicle) alone), so oracle rows and
     R1/R2 starts come out identical to the run's. Used by the report (residuals, before/after)."""
     conf = merge(CalibrateConfig, conf)
-    if correspondences == "oracle":
-        inputs = _load_oracle(data, version, conf, say=False)
+    if correspondences == "oracle":  # no bar: a page's replay is not a calibration (probe 91: its bars read as one)
+        inputs = _load_oracle(data, version, conf, progress=False, say=False)
     else:
         inputs = _load_dir(Path(correspondences), data, version, conf, say=False)
     return {name: (vi, _start(vi, conf)) for name, vi in inputs.items()}

@@ -55,9 +55,22 @@ LOCAL_RAY_CONFIG = {"worker_niceness": 0}
 MAX_SOCKET_DIR = 60  # Ray's unix sockets live under the temp dir; their paths must stay < 108 chars
 
 
-def _failure(job: Job, e: BaseException, wall_s: float | None = None) -> dict:
-    return {"id": job.id, "state": "failed", "reason": f"system failure after retries: {type(e).__name__}: {e}",
+def _failure(job: Job, e: BaseException, wall_s: float | None = None, retries: int = 0, logs: str = "") -> dict:
+    """A job's outcome after a system failure (a worker that died, an OSError) its ``retries`` did not cure; ``logs``:
+    where the engine's worker logs are (Ray's), said in the reason."""
+    tried = f"after {retries} retr{'y' if retries == 1 else 'ies'}" if retries else "(no retry allowed: --retries 0)"
+    where = f"; the workers' logs: {logs}" if logs else ""
+    return {"id": job.id, "state": "failed", "reason": f"system failure {tried}: {type(e).__name__}: {e}{where}",
             "file": getattr(e, "filename", None), "wall_s": wall_s, "host": socket.gethostname(), "result": None}
+
+
+def _say_worker_died(ids: list[str]) -> None:
+    """One line on stderr per dead worker, naming the jobs it took with it (probe 91: a worker killed by the OOM
+    killer was retried without a word; only the attempt counts rose)."""
+    import sys
+
+    print(f"fleet: a worker process died (killed, or out of memory) while running {', '.join(ids)}: handed out again "
+          "(each alone until one finishes, so the one that killed it is known)", file=sys.stderr)
 
 
 def run_engine(engine: str, jobs: list[Job], on_start: Callable[[list[str]], object],
@@ -86,7 +99,7 @@ def _run_local(jobs, on_start, on_outcome, retries):
                 out = run_job(job.to_dict())
                 break
             except OSError as e:  # transient I/O: retried; anything else is a bug and propagates
-                out = _failure(job, e, time.perf_counter() - t0)
+                out = _failure(job, e, time.perf_counter() - t0, retries)
         on_outcome(out)
 
 
@@ -181,13 +194,14 @@ def _process_loop(jobs, on_start, on_outcome, workers, retries, in_flight, threa
                 on_start([job.id])
             alone = len(running) == 1
             done, _ = wait(list(running), return_when=FIRST_COMPLETED)
-            broken = False
+            broken, lost = False, []
             for fut in done:
                 job, t0 = running.pop(fut)
                 try:
                     out = fut.result()
                 except BrokenProcessPool as e:  # a worker died (killed, out of memory): retry elsewhere
                     broken, err = True, e
+                    lost.append(job.id)
                     if not alone:  # not known to be this job's doing: run it alone, uncharged
                         suspects.add(job.id)
                         queue.insert(0, job)
@@ -200,10 +214,11 @@ def _process_loop(jobs, on_start, on_outcome, workers, retries, in_flight, threa
                     continue
                 tries[job.id] = tries.get(job.id, 0) + 1
                 if tries[job.id] > retries:
-                    on_outcome(_failure(job, err, time.perf_counter() - t0))
+                    on_outcome(_failure(job, err, time.perf_counter() - t0, retries))
                 else:
                     queue.insert(0, job)
             if broken:  # every job still on the dead pool is lost with it: requeue them too, as suspects
+                _say_worker_died(lost + [j.id for j, _ in running.values()])
                 for fut, (job, _) in running.items():
                     fut.cancel()
                     suspects.add(job.id)
@@ -302,17 +317,37 @@ def start_ray(workers: int, address: str | None, temp_dir: str | Path | None, ob
     root = str(Path(__file__).resolve().parents[2])
     os.environ["PYTHONPATH"] = os.pathsep.join([root, *filter(None, [os.environ.get("PYTHONPATH")])])
     if address:
-        ray.init(address=address, log_to_driver=False)
+        with _own_signal_handlers():
+            ray.init(address=address, log_to_driver=False)
         return True
     if temp_dir is None:
         raise OptionError("--ray-temp", "a local Ray cluster needs a temp directory")
     # Ray's settings: as variables (``RAY_<name>``, read by the raylet at its start; ``_system_config``
     # alone left workers it started on demand at +15, measured) unless the user set them
     config = {k: v for k, v in LOCAL_RAY_CONFIG.items() if f"RAY_{k}" not in os.environ}
-    with _worker_env(threads, {f"RAY_{k}": str(v) for k, v in config.items()}):
+    with _worker_env(threads, {f"RAY_{k}": str(v) for k, v in config.items()}), _own_signal_handlers():
         ray.init(num_cpus=workers, object_store_memory=int(object_store_mb) * 1024 * 1024, _temp_dir=str(tmp),
                  include_dashboard=False, log_to_driver=False, _system_config=config)
     return True
+
+
+@contextmanager
+def _own_signal_handlers() -> Iterator[None]:
+    """The process's SIGTERM and SIGINT handlers as they were before the block: ``ray.init`` replaces SIGTERM's with
+    ``sys.exit(15)`` (and its core a handler that prints a stack), so a fleet on Ray that got SIGTERM ended with no
+    word, an internal-error status or its lock left behind (probe 91); the command's own handler says what it kept and
+    exits 143, as on the other engines. Only the main thread can set handlers: elsewhere the block runs as it is."""
+    import signal
+    import threading
+
+    main = threading.current_thread() is threading.main_thread()
+    saved = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)} if main else {}
+    try:
+        yield
+    finally:
+        for sig, handler in saved.items():
+            if handler is not None:
+                signal.signal(sig, handler)
 
 
 def _run_ray(jobs, on_start, on_outcome, workers, address, temp_dir, retries, in_flight, object_store_mb):
@@ -335,7 +370,8 @@ def _run_ray(jobs, on_start, on_outcome, workers, address, temp_dir, retries, in
                 try:
                     on_outcome(ray.get(ref))
                 except (ray.exceptions.RayError, OSError) as e:  # retries spent
-                    on_outcome(_failure(job, e, time.perf_counter() - t0))
+                    logs = "" if address else str(ray_temp_dir(temp_dir) / "session_latest" / "logs")
+                    on_outcome(_failure(job, e, time.perf_counter() - t0, retries, logs))
     finally:
         if started:
             ray.shutdown()

@@ -113,8 +113,10 @@ class Manifest:
                                 f"same options, or another --out (or move {job.out} away to calibrate it again)",
                                 path=str(path))
             e["job"] = job.to_dict()  # a job not done yet runs with this run's options
-            if done:
-                e.update(state="done", reason=None, file=None, result=rel_path(job.result_path, path.parent))
+            if done:  # at least the attempt that wrote it, which a driver killed before its save had not counted
+                # (probe 91: "done" after 0 attempts)
+                e.update(state="done", reason=None, file=None, result=rel_path(job.result_path, path.parent),
+                         attempts=max(int(e.get("attempts") or 0), 1))
             elif e["state"] != "failed":
                 e.update(state="pending", result=None)
         ids = {job.id for job in jobs}

@@ -286,7 +286,8 @@ def summary_markdown(s: dict) -> str:
             rot = " / ".join(f"{o[i]:+.2f}±{sd[i]:.2f}" for i in range(3))
             tr = " / ".join(f"{o[i]:+.1f}±{sd[i]:.1f}" for i in range(3, 6))
             status = r["status"].split(":")[0]
-            note = f"p {r['drift']['p_value']:.2g}" if r["drift"].get("p_value") is not None else ""
+            # what the p-value is of (probe 91: a bare "p 0" in the column)
+            note = f"chi2 vs reference p {r['drift']['p_value']:.2g}" if r["drift"].get("p_value") is not None else ""
             lines.append(f"| {md_cell(jid)} | done | {status} | {rot} | {tr} | {r['verdict']} | "
                          f"{', '.join(r['flags'])} | {note} |")
         else:
