@@ -66,8 +66,18 @@ class Terminated(KeyboardInterrupt):
     had died at once, without a word, a line in runs.json or its lock released (probe 47)."""
 
 
+_SIGTERM_SEEN: list[bool] = [False]  # whether this run got SIGTERM (``terminated``)
+
+
 def _on_sigterm(signum, frame):
+    _SIGTERM_SEEN[0] = True
     raise Terminated
+
+
+def terminated(error: BaseException | None) -> bool:
+    """Whether ``error`` ends a run that got SIGTERM: ``Terminated``, or the ``KeyboardInterrupt`` a library turned it
+    into (Ray's wait raises its own when a signal handler raised; probe 91: a fleet on Ray read "interrupted", 130)."""
+    return isinstance(error, Terminated) or (isinstance(error, KeyboardInterrupt) and _SIGTERM_SEEN[0])
 
 
 def _one_line(message, category, filename, lineno, line=None) -> str:
@@ -176,7 +186,7 @@ def main(argv: list[str] | None = None) -> int:
     before = warnings.formatwarning
     if not debug:  # a warning is one line, as every other message: not our source file and line after it
         warnings.formatwarning = _one_line
-    term = None
+    term, _SIGTERM_SEEN[0] = None, False
     if threading.current_thread() is threading.main_thread():  # signal handlers live in the main thread only
         term = signal.signal(signal.SIGTERM, _on_sigterm)
     args._process = argv is None and term is not None  # the process's own command line (not a caller's main(argv))
@@ -320,7 +330,7 @@ def _run(args: argparse.Namespace, debug: bool, argv: list[str]) -> int:
             # the network's and the depth's caches in --out are kept and a rerun reads them (probe 47)
             kept = ("it stopped before a vehicle finished, so no vehicle's result is kept: rerun the same command to "
                     "start again (an earlier run's result, if any, is as it was; what it cached is reused)")
-        how = "terminated (SIGTERM)" if isinstance(e, Terminated) else "interrupted"
+        how = "terminated (SIGTERM)" if terminated(e) else "interrupted"
         _close_bars()
         print(f"hybrid-calib {args.command}: {how}" + (f"; {kept}" if kept else ""), file=sys.stderr)
         return _exit_status(None, e)
@@ -356,7 +366,7 @@ def _exit_status(status: int | None, error: BaseException | None) -> int:
     """The exit status a run ends with: ``status`` when it returned, else the one its exception gets below."""
     if status is not None or error is None:
         return int(status or 0)
-    if isinstance(error, Terminated):
+    if terminated(error):
         return 143  # 128 + SIGTERM, as a shell reports a command the signal ended
     if isinstance(error, KeyboardInterrupt):
         return 130

@@ -101,6 +101,20 @@ def test_sigterm_stops_a_run_as_ctrl_c_does(tmp_path, monkeypatch, capsys):
     assert not (tmp_path / "run" / LOCK_NAME).exists()
     assert signal.getsignal(signal.SIGTERM) == before
 
+    def terminated_inside_a_library(args):  # Ray's wait turns the handler's exception into its own KeyboardInterrupt
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(5)
+        except KeyboardInterrupt:
+            raise KeyboardInterrupt from None
+        raise AssertionError("SIGTERM did not stop the run")
+
+    monkeypatch.setattr(calibrate, "run", terminated_inside_a_library)  # probe 91: "interrupted", 130
+    assert main(["calibrate", "--data", str(tmp_path), "--out", str(tmp_path / "run2")]) == 143
+    assert "hybrid-calib calibrate: terminated (SIGTERM)" in capsys.readouterr().err
+    monkeypatch.setattr(calibrate, "run", lambda args: (_ for _ in ()).throw(KeyboardInterrupt))
+    assert main(["calibrate", "--data", str(tmp_path), "--out", str(tmp_path / "run3")]) == 130  # a later Ctrl-C
+
 
 def test_ctrl_c_after_a_run_finished_does_not_make_it_interrupted(tmp_path):
     """Probe 60: Ctrl-C as export ended (its outputs and runs.json written, exit status 0 recorded) made the process
