@@ -78,28 +78,31 @@ def best_effort_stderr() -> None:
 NAME_MAX = 255  # bytes of one file name (Linux, macOS)
 
 
-def fit_name(name: str) -> str:
-    """``name``, or where it is longer than a file name may be (``NAME_MAX`` bytes), its first characters, a hash of
-    the whole and its last 16: for the names derived from a user's (a temporary file, a page's lock), which a legal
-    250-character page name made too long (probe 66: "File name too long", naming the lock, not the page)."""
+def fit_name(name: str, most: int = NAME_MAX) -> str:
+    """``name``, or where it is longer than ``most`` bytes (a file name may have ``NAME_MAX``), its first characters, a
+    hash of the whole and its last 16: for the names derived from a user's (a temporary file, a page's lock), which a
+    legal 250-character page name made too long (probe 66: "File name too long", naming the lock, not the page)."""
     import hashlib
 
     raw = os.fsencode(name)
-    if len(raw) <= NAME_MAX:
+    if len(raw) <= most:
         return name
-    head = name[:NAME_MAX - 128]  # characters are 1 byte or more: at most these (linear in a long name: probe 70)
-    while len(os.fsencode(head)) > NAME_MAX - 128:  # whole characters (a cut multi-byte one is not a name)
+    head = name[:most - 128]  # characters are 1 byte or more: at most these (linear in a long name: probe 70)
+    while len(os.fsencode(head)) > most - 128:  # whole characters (a cut multi-byte one is not a name)
         head = head[:-1]
     return f"{head}~{hashlib.sha1(raw).hexdigest()[:12]}~{name[-16:]}"
 
 
-_TEMPORARY = re.compile(r"\.\d+\.tmp(\.[^.]*)?$")  # ``atomic_path``'s "<stem>.<pid>.tmp<suffix>"
+TEMP_MARK = "hybrid-calib-tmp"  # in every ``atomic_path`` temporary name: "<stem>.<pid>.hybrid-calib-tmp<suffix>"
+# what no file of a user's or a frame token of a dataset ends in (probe 93: ".<digits>.tmp" matched a user's
+# scene-0001.2.tmp.npz, which evaluate deleted, and a frame whose token ended so, which it left out)
+_TEMPORARY = re.compile(r"\.\d+\." + re.escape(TEMP_MARK) + r"(\.[^.]*)?$")
 
 
 def is_temporary(path: str | Path) -> bool:
     """Whether ``path`` names an ``atomic_path`` temporary file (a write in progress, or one a SIGKILL left, which no
-    ``finally`` removed): never a finished file of ours (probe 90: a left ``frames/<token>.<pid>.tmp.npz`` was read
-    as one more frame)."""
+    ``finally`` removed): never a finished file of ours nor a user's (probe 90: a left temporary in ``frames/`` was
+    read as one more frame; ``TEMP_MARK``)."""
     return bool(_TEMPORARY.search(Path(path).name))
 
 
@@ -126,7 +129,8 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     path.parent.mkdir(parents=True, exist_ok=True)
     if path.is_dir():
         raise IsADirectoryError(errno.EISDIR, _IS_A_DIRECTORY.format(path=path), str(path))
-    tmp = path.with_name(fit_name(f"{path.stem}.{os.getpid()}.tmp{path.suffix}"))
+    tail = f".{os.getpid()}.{TEMP_MARK}{path.suffix}"  # kept whole, however long the name: ``is_temporary``
+    tmp = path.with_name(fit_name(path.stem, NAME_MAX - len(os.fsencode(tail))) + tail)
     try:
         yield tmp
         if not tmp.exists():

@@ -261,17 +261,22 @@ def test_a_name_derived_from_a_long_one_fits_a_file_name_and_stays_its_own():
 
 
 def test_a_killed_writer_s_temporary_file_is_known_and_removed(tmp_path):
-    """Probe 90: a SIGKILL between a write and its rename left ``<stem>.<pid>.tmp<suffix>``, read as a frame."""
+    """Probe 90: a SIGKILL between a write and its rename left ``<stem>.<pid>.hybrid-calib-tmp<suffix>``, read as a
+    frame; probe 93: a user's ``scene-0001.2.tmp.npz`` (and a frame whose token ended in ".12.tmp") is no temporary of
+    ours: it is neither skipped nor deleted."""
     from hybrid_calib.atomic import finished, is_temporary, remove_temporaries
 
     with atomic_path(tmp_path / "a.npz") as tmp:
         assert is_temporary(tmp)
         tmp.write_bytes(b"x")
-    names = ["tok.npz", "tok.123.tmp.npz", "ckpt-0002.optim.8772.tmp.pt", "x.99.tmp", "a.tmp.npz", "v2.1.npz"]
-    for n in names:
+    ours = ["tok.123.hybrid-calib-tmp.npz", "ckpt-0002.optim.8772.hybrid-calib-tmp.pt", "x.99.hybrid-calib-tmp"]
+    users = ["a.npz", "a.tmp.npz", "cam-0001.12.tmp.npz", "notes.17.tmp", "scene-0001.2.tmp.npz", "tok.npz", "v2.1.npz"]
+    for n in ours + users:
         (tmp_path / n).write_bytes(b"x")
-    assert [p.name for p in finished(sorted(tmp_path.glob("*")))] == ["a.npz", "a.tmp.npz", "tok.npz", "v2.1.npz"]
-    assert sorted(p.name for p in remove_temporaries(tmp_path)) == ["ckpt-0002.optim.8772.tmp.pt", "tok.123.tmp.npz",
-                                                                    "x.99.tmp"]
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.npz", "a.tmp.npz", "tok.npz", "v2.1.npz"]
+    assert [p.name for p in finished(sorted(tmp_path.glob("*")))] == users
+    assert sorted(p.name for p in remove_temporaries(tmp_path)) == sorted(ours)
+    assert sorted(p.name for p in tmp_path.iterdir()) == users
+    with atomic_path(tmp_path / ("v" * 250 + ".npz")) as tmp:  # a long name keeps the mark whole
+        assert is_temporary(tmp) and len(tmp.name.encode()) <= 255
+        tmp.write_bytes(b"x")
     assert remove_temporaries(tmp_path / "none") == []

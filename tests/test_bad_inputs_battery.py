@@ -966,7 +966,7 @@ def test_calibrate_when_result_json_is_a_directory(sim, tmp_path, capsys):
     err = expect_cli_error(_calibrate(root, out, "--max-frames", "1"), capsys,
                            f"{out / 'result.json'} is a directory", f"[file {out / 'result.json'}]")
     assert ".tmp" not in err and _one_paragraph(err)
-    assert (out / "result.json").is_dir() and not list(out.glob("*.tmp*"))
+    assert (out / "result.json").is_dir() and not list(out.glob("*tmp*"))
 
 
 @pytest.mark.parametrize("override,needle", [("epochs=0", "epochs must be >= 1"), ("lr=-0.1", "lr must be >= 0"),

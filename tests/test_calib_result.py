@@ -283,12 +283,23 @@ def test_a_status_that_opens_with_no_status_word_is_refused(status):
 
 
 def test_a_killed_write_s_temporary_record_is_not_a_kept_vehicle(tmp_path, capsys):
-    """Probe 90: ``vehicles-done/*.json`` matched a SIGKILLed write's ``<vehicle>.<pid>.tmp.json``, read as a record."""
+    """Probe 90: ``vehicles-done/*.json`` matched a SIGKILLed write's temporary file, read as a record."""
     from hybrid_calib.calib.result import VehicleProgress
 
     first = VehicleProgress(tmp_path, tmp_path, "v1.0-sim", "hybrid", {"seed": 0})
     first.record("sim-veh-000", "its radar file is truncated")
-    (tmp_path / "vehicles-done" / "sim-veh-001.4242.tmp.json").write_text('{"vehic')
+    (tmp_path / "vehicles-done" / "sim-veh-001.4242.hybrid-calib-tmp.json").write_text('{"vehic')
     again = VehicleProgress(tmp_path, tmp_path, "v1.0-sim", "hybrid", {"seed": 0})
     assert again.done == {"sim-veh-000": "its radar file is truncated"}
     assert "tmp" not in capsys.readouterr().err
+
+
+def test_a_run_folder_reads_as_its_result(tmp_path):
+    """Probe 93: ``report RUN`` failed with "[Errno 21] Is a directory" where RUN held result.json."""
+    from hybrid_calib.calib.result import CalibrationRun
+
+    (tmp_path / "run").mkdir()
+    CalibrationRun("root", "v1.0-sim", "oracle", "window").save(tmp_path / "run" / "result.json")
+    assert CalibrationRun.load(tmp_path / "run").mode == "window"
+    with pytest.raises(DataError, match="pass the result.json"):
+        CalibrationRun.load(tmp_path)  # a folder without one: still refused, named

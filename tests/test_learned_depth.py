@@ -111,7 +111,7 @@ def test_cache_hit_is_identical_and_changed_config_misses(tmp_path):
     assert (cache.hits, cache.misses) == (1, 1)
     path = cache.path(est, frame.camera_token, (30, 60), depth_inputs(frame))
     assert path.is_file() and (path.parent / "estimator.json").is_file()
-    assert not list(path.parent.glob("*.tmp*"))  # atomic: no temp files left
+    assert not list(path.parent.glob("*tmp*"))  # atomic: no temp files left
     changed = CorruptedTruthDepth({"seed": 3})
     third = cache.get(changed, frame, (30, 60))
     assert cache.misses == 2 and cache.path(changed, frame.camera_token, (30, 60), depth_inputs(frame)) != path

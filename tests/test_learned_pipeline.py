@@ -479,11 +479,11 @@ def test_evaluate_table_columns_and_zero_error_for_an_oracle(frames, tmp_path):
     # a killed run's temporary file (SIGKILL between its write and its rename) is no frame: the resume removes it
     # (probe 90: a complete one was tabled as a 4th frame, a truncated one stopped the run)
     first = sorted((out / "frames").glob("*.npz"))[0]
-    (out / "frames" / f"{first.stem}.4242.tmp.npz").write_bytes(first.read_bytes())
-    (out / "frames" / f"{first.stem}.4243.tmp.npz").write_bytes(first.read_bytes()[:100])
+    (out / "frames" / f"{first.stem}.4242.hybrid-calib-tmp.npz").write_bytes(first.read_bytes())
+    (out / "frames" / f"{first.stem}.4243.hybrid-calib-tmp.npz").write_bytes(first.read_bytes()[:100])
     assert evaluate_predictions(out).n_frames == 3
     assert evaluate(OracleModel(), frames, conf, out, exporter=oracle_exporter, progress=False).n_frames == 3
-    assert not list((out / "frames").glob("*.tmp.npz"))
+    assert not list((out / "frames").glob("*tmp*"))
     with pytest.raises(HybridCalibError, match=r"another config \(eval.perturbation: \"R2\" -> \"R1\""):
         evaluate(OracleModel(), frames, EvalConfig(perturbation="R1", split_options=conf.split_options), out,
                  exporter=oracle_exporter, progress=False)

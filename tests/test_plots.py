@@ -15,7 +15,7 @@ def test_draw_projection_writes_a_png_with_the_points(tmp_path):
     depth = np.array([5.0, 40.0, 10.0, 10.0])
     out = draw_projection(img, uv, depth, tmp_path / "a" / "proj.png", title="t",
                           extra={"uv": uv + 3, "label": "estimate", "color": "r", "lines_to_first": True})
-    assert out.is_file() and not list(out.parent.glob("*.tmp.png"))
+    assert out.is_file() and not list(out.parent.glob("*tmp*"))
     pic = cv2.imread(str(out))
     assert pic.shape[1] == 160 and pic.shape[0] >= 90
     plain = draw_projection(img, uv[:0], depth[:0], tmp_path / "plain.png")
@@ -69,7 +69,7 @@ def test_draw_radar_truth_and_overlay(tmp_path):
     a, b = cv2.imread(str(with_truth)), cv2.imread(str(without))
     assert a.shape == b.shape and np.abs(a.astype(int) - b.astype(int)).max() > 50  # the cyan rings
     assert cv2.imread(str(render_overlay(frame, tmp_path / "sub" / "overlay.png"))) is not None
-    assert not list(tmp_path.rglob("*.tmp.png"))
+    assert not list(tmp_path.rglob("*tmp*"))
 
 
 def test_a_name_in_another_script_is_drawn_without_a_warning_per_glyph(tmp_path):

@@ -694,9 +694,12 @@ class CalibrationRun:
 
     @classmethod
     def load(cls, path: str | Path) -> CalibrationRun:
-        """Read a ``result.json``; ``DataError`` naming it when it is missing, not JSON, another schema, or
-        incomplete / invalid (a missing key, an entry that is not an object, a non-finite or misshapen matrix)."""
+        """Read a ``result.json`` (or the run folder holding one); ``DataError`` naming it when it is missing, not JSON,
+        another schema, or incomplete / invalid (a missing key, an entry that is not an object, a non-finite or
+        misshapen matrix)."""
         path = Path(path)
+        if path.is_dir() and (path / "result.json").is_file():  # the run's folder (probe 93: "Is a directory")
+            path = path / "result.json"
         try:
             text = path.read_text()
             return cls.from_json(text, str(path))
