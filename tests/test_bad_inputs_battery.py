@@ -688,6 +688,13 @@ def test_out_unwritable(sim, tmp_path, capsys):
 
 
 # ---------------------------------------------------------------- evaluate (a long job) and the rest
+def _evaluate_shipped(root, out, capsys, batch_size: int) -> tuple[int, str]:
+    """``hybrid-calib evaluate`` of the shipped R1 checkpoint on the first 3 frames of ``root`` into ``out``."""
+    return run_cli(["evaluate", "--data", root, "--version", SIM_VERSION, "--checkpoint", SHIPPED / "small-sim-r1.json",
+                    "--out", out, "--split", "all", "--max-frames", "3", "--no-progress", "--set",
+                    f"batch_size={batch_size}"], capsys)
+
+
 def test_evaluate_with_the_shipped_checkpoint_records_a_bad_frame_and_goes_on(sim_copy, tmp_path, capsys):
     """Also the regression of the shipped checkpoints' export.ood block, which ExportConfig refused."""
     root, frames = sim_copy
@@ -695,9 +702,7 @@ def test_evaluate_with_the_shipped_checkpoint_records_a_bad_frame_and_goes_on(si
     pcd = _radar_file(root, bad_frames[0])
     pcd.write_bytes(pcd.read_bytes()[:200])
     out = tmp_path / "eval"
-    rc, err = run_cli(["evaluate", "--data", root, "--version", SIM_VERSION, "--checkpoint",
-                       SHIPPED / "small-sim-r1.json", "--out", out, "--split", "all", "--max-frames", "3",
-                       "--no-progress", "--set", "batch_size=2"], capsys)
+    rc, err = _evaluate_shipped(root, out, capsys, batch_size=2)
     assert rc == 0, err
     skipped = json.loads((out / "skipped.json").read_text())
     assert [s["index"] for s in skipped] == [bad_frames[0].index] and str(pcd) in skipped[0]["file"]
@@ -715,9 +720,7 @@ def test_evaluate_scores_each_frame_out_of_domain_as_calibrate_does(sim_copy, tm
     shape = cv2.imread(str(image)).shape
     cv2.imwrite(str(image), np.random.default_rng(3).integers(0, 256, shape, dtype=np.uint8))
     out = tmp_path / "eval"
-    rc, err = run_cli(["evaluate", "--data", root, "--version", SIM_VERSION, "--checkpoint",
-                       SHIPPED / "small-sim-r1.json", "--out", out, "--split", "all", "--max-frames", "3",
-                       "--no-progress", "--set", "batch_size=3"], capsys)
+    rc, err = _evaluate_shipped(root, out, capsys, batch_size=3)
     assert rc == 0, err
     doc = json.loads((out / "results.json").read_text())
     ood = doc["ood"]
