@@ -239,19 +239,15 @@ def at_camera_time(m: FrameMeasurements, N: np.ndarray) -> FrameMeasurements:
     covariance by ``Ad_N``: ``T Exp(xi) N^-1 = T N^-1 Exp(Ad_N xi)``); ``m`` itself when already compensated."""
     import dataclasses
 
-    from hybrid_calib.geometry import adjoint, se3_inverse
+    from hybrid_calib.geometry import without_motion
 
     if m.compensated:
         return m
-    N = np.asarray(N, np.float64)
-    Ni = se3_inverse(N)
-    corr = m.corr.moved(N)
     net = m.network
     if net is not None:
-        A = adjoint(N)
-        net = NetworkEstimate(np.asarray(net.T_cam_radar) @ Ni, None if net.cov is None else A @ net.cov @ A.T,
-                              net.iteration, None if net.T_start is None else np.asarray(net.T_start) @ Ni)
-    return dataclasses.replace(m, corr=corr, network=net, compensated=True)
+        T, cov = without_motion(net.T_cam_radar, N, net.cov)
+        net = NetworkEstimate(T, cov, net.iteration, None if net.T_start is None else without_motion(net.T_start, N)[0])
+    return dataclasses.replace(m, corr=m.corr.moved(N), network=net, compensated=True)
 
 
 def save_measurements(path: str | Path, m: FrameMeasurements, extra: Mapping[str, np.ndarray] | None = None) -> Path:

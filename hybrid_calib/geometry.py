@@ -188,6 +188,17 @@ def adjoint(T: np.ndarray) -> np.ndarray:
     return Ad
 
 
+def without_motion(T: np.ndarray, N: np.ndarray, cov: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray | None]:
+    """(``T N^-1``, ``Ad_N cov Ad_N^T``): an estimate ``T`` ((4, 4), or a stack (K, 4, 4)) of a frame's transform
+    ``X N`` read as one of ``X``, with its right-perturbation covariance (6, 6) (None: none), since
+    ``T Exp(xi) N^-1 = T N^-1 Exp(Ad_N xi)``; ``N`` (4, 4) the radar's motion between its and the camera's timestamps
+    (docs/conventions.md "Transforms")."""
+    N = np.asarray(N, np.float64)
+    A = adjoint(N)
+    return np.asarray(T) @ se3_inverse(N), None if cov is None else A @ np.asarray(cov) @ A.T
+
+
 def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Apply (4, 4) ``T_a_b`` to points (N, 3) in frame b -> (N, 3) in frame a."""
     points = np.asarray(points, dtype=np.float64)

@@ -199,13 +199,11 @@ def on_mount(out: NetworkOutput, N: np.ndarray) -> NetworkOutput:
     covariance by ``Ad_N`` (``T Exp(xi) N^-1 = T N^-1 Exp(Ad_N xi)``), its rows' points moved by ``N``."""
     import dataclasses
 
-    from hybrid_calib.geometry import adjoint, se3_inverse
+    from hybrid_calib.geometry import without_motion
 
-    N = np.asarray(N, np.float64)
-    Ni, A = se3_inverse(N), adjoint(N)
-    return dataclasses.replace(out, T_in=np.asarray(out.T_in) @ Ni, T_iters=np.asarray(out.T_iters) @ Ni,
-                               cov_raw=A @ np.asarray(out.cov_raw) @ A.T, rows_first=out.rows_first.moved(N),
-                               rows_last=out.rows_last.moved(N))
+    T_iters, cov = without_motion(out.T_iters, N, out.cov_raw)
+    return dataclasses.replace(out, T_in=without_motion(out.T_in, N)[0], T_iters=T_iters, cov_raw=cov,
+                               rows_first=out.rows_first.moved(N), rows_last=out.rows_last.moved(N))
 
 
 def mount_pass(runner, index: int, T: np.ndarray) -> NetworkOutput | None:
