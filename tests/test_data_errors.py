@@ -552,3 +552,93 @@ def test_a_channel_written_in_another_case_is_said_so_where_no_such_file_is(tiny
     (tiny.root / sd["filename"]).parent.mkdir(parents=True)
     shutil.copy(tiny.root / good, tiny.root / sd["filename"])  # the file is there under that name: read
     assert NuScenesRadarCamera(tiny.root, tiny.version)[index].radar_token == sd["token"]
+
+
+def _copy_scene(tiny, vehicle: str | None = None, own_files: bool = True) -> None:
+    """The tiny root's scene listed a second time with fresh tokens (scene, samples, sample_data, and a log when
+    ``vehicle`` names another vehicle), at the same instants; ``own_files``: each copied record reads a copy of its
+    file under a new name (another recording, as far as the tables say), else the same file."""
+    import shutil
+
+    t = tiny.tables
+    (scene,) = t["scene"]
+    log = scene["log_token"]
+    if vehicle is not None:
+        t["log"].append({**t["log"][0], "token": "log-copy", "vehicle": vehicle})
+        log = "log-copy"
+    new = {s["token"]: s["token"] + "-copy" for s in t["sample"]}
+    t["scene"].append({**scene, "token": "scene-copy", "name": scene["name"] + "-copy", "log_token": log,
+                       "first_sample_token": new[scene["first_sample_token"]],
+                       "last_sample_token": new[scene["last_sample_token"]]})
+    t["sample"] += [{**s, "token": new[s["token"]], "scene_token": "scene-copy",
+                     "prev": new.get(s["prev"], ""), "next": new.get(s["next"], "")} for s in list(t["sample"])]
+    sds = {sd["token"]: sd["token"] + "-copy" for sd in t["sample_data"]}
+    for sd in list(t["sample_data"]):
+        fn = sd["filename"]
+        if own_files:
+            fn = fn.replace(".", "-copy.", 1) if "." in fn else fn + "-copy"
+            shutil.copy(tiny.root / sd["filename"], tiny.root / fn)
+        t["sample_data"].append({**sd, "token": sds[sd["token"]], "filename": fn,
+                                 "sample_token": new.get(sd["sample_token"], sd["sample_token"]),
+                                 "prev": sds.get(sd["prev"], ""), "next": sds.get(sd["next"], "")})
+    for name in ("log", "scene", "sample", "sample_data"):
+        tiny.rewrite_table(name)
+
+
+def test_a_scene_recorded_during_another_of_its_vehicle_is_left_out(tiny):
+    """Probe 94: a scene copied with its own files under one vehicle was fused with the original as one drive; the
+    copies were left out as repeated views, but the hybrid paired each kept frame with the copy of the instant before,
+    refused every such pair as crossing scenes, and ran without motion (the yaw 1.4 deg apart). One vehicle records
+    one scene at a time: the later one is left out, each of its samples said, listed with its vehicle."""
+    _copy_scene(tiny)
+    ds = _open(tiny)
+    assert len(ds) == 4 and {f.scene_token for f in ds.frames} == {tiny.tables["scene"][0]["token"]}
+    left = [r for r in ds.skipped if "was recorded while scene" in r.reason]
+    assert len(left) == 4 and "one vehicle records one scene at a time" in left[0].reason
+    assert "-copy" in left[0].reason and "of the same vehicle tiny" in left[0].reason
+    assert len(ds.lacking_keyframes["tiny"]) == 4  # listed in the vehicle's result
+    assert ds.frameless_vehicles() == {}
+
+
+def test_a_copy_under_another_vehicle_name_is_calibrated_as_that_vehicle(tiny):
+    """Overlapping scenes of two vehicles are no conflict (the check is per vehicle)."""
+    _copy_scene(tiny, vehicle="tiny-2")
+    ds = _open(tiny)
+    assert len(ds) == 8 and set(ds.frames_by_vehicle()) == {"tiny", "tiny-2"}
+
+
+def test_a_vehicle_whose_samples_are_all_another_ones_copies_is_named(tiny):
+    """Probe 94: a scene listed a second time on the same files under a second vehicle: the index read each file
+    once, and calibrate dropped that vehicle without a word (rc 0, not in result.json). It is named with why."""
+    _copy_scene(tiny, vehicle="tiny-2", own_files=False)
+    ds = _open(tiny)
+    assert set(ds.frames_by_vehicle()) == {"tiny"} and len(ds.duplicates) == 4
+    (why,) = ds.frameless_vehicles().values()
+    assert why.startswith("vehicle tiny-2: no frame: none of its 4 sample(s) holds a frame the run reads")
+    assert "the tables list one recording twice" in why
+    assert ds.frameless_vehicles(vehicles=["tiny"]) == {}
+
+
+def test_keyframes_of_a_missing_sample_are_said_by_a_calibration(tiny):
+    """Probe 94: a sample record missing from sample.json: its frame vanished from calibrate's output without a word
+    (inspect said it). Its keyframes belong to no scene, so to no vehicle: the calibration's warning says them."""
+    from hybrid_calib.data.summary import table_warnings
+
+    gone = tiny.tables["sample"].pop(1)
+    tiny.rewrite_table("sample")
+    ds = _open(tiny)
+    assert len(ds) == 3
+    (line,) = [w for w in table_warnings(ds) if "samples of no vehicle" in w]
+    assert "2 CAM_FRONT / RADAR_FRONT keyframe sample_data record(s) reference samples not in sample.json" in line
+    assert gone["token"] in line and "sample.json" in line
+
+
+def test_a_fleet_names_a_vehicle_of_no_frame(tiny):
+    """The fleet's jobs are the vehicles with frames: one whose samples are all another's copies is said in its
+    notes (probe 94)."""
+    from hybrid_calib.fleet.jobs import _root_vehicles
+
+    _copy_scene(tiny, vehicle="tiny-2", own_files=False)
+    notes: list[str] = []
+    assert set(_root_vehicles(str(tiny.root), VERSION, notes)) == {"tiny"}
+    assert any("vehicle tiny-2: no frame" in n for n in notes)

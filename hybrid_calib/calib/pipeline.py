@@ -44,7 +44,7 @@ from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import merge, save_json_atomic, to_dict
 from hybrid_calib.data.files import data_stamp
 from hybrid_calib.data.reference import absolute_reference, reference_identity
-from hybrid_calib.data.summary import table_warnings
+from hybrid_calib.data.summary import calibration_notes
 from hybrid_calib.data.views import ViewConfig, repeated_views
 from hybrid_calib.errors import DataError, HybridCalibError, OptionError
 from hybrid_calib.perturbation import RANGES, vehicle_rng, vehicle_start
@@ -97,10 +97,11 @@ class VehicleInput:
     reference_source: dict = field(default_factory=lambda: {"kind": "tables"})  # what ``reference`` is
 
 
-def _load_oracle(data, version: str, conf: CalibrateConfig, progress: bool = True, say: bool = True
-                 ) -> dict[str, VehicleInput]:
+def _load_oracle(data, version: str, conf: CalibrateConfig, progress: bool = True, say: bool = True,
+                 frameless: dict[str, str] | None = None) -> dict[str, VehicleInput]:
     """``say``: print the root's warnings and the reference's note (a replay for a report page, one per vehicle,
-    said them again each time: probe 76)."""
+    said them again each time: probe 76). ``frameless``, when given, gets each vehicle of the tables the index left
+    with no frame (vehicle -> why: ``NuScenesRadarCamera.frameless_vehicles``; probe 94: it vanished, rc 0)."""
     from tqdm import tqdm
 
     from hybrid_calib.data.nuscenes import NuScenesRadarCamera
@@ -112,8 +113,10 @@ def _load_oracle(data, version: str, conf: CalibrateConfig, progress: bool = Tru
                                       f"{data} has none (no sim_truth/ folder: a real root); calibrate it with "
                                       "--method hybrid (or pure, pure-avg)")
     # a vehicle missing from the result, poses the motion compensation reads
-    for line in [*ds.reference_notes(conf.vehicles), *table_warnings(ds)] if say else ():
+    for line in calibration_notes(ds, conf.vehicles) if say else ():
         print(line, file=sys.stderr)
+    if frameless is not None:
+        frameless.update(ds.frameless_vehicles(conf.vehicles))
     out: dict[str, VehicleInput] = {}
     for vehicle, idx in sorted(ds.frames_by_vehicle().items()):
         if conf.vehicles is not None and vehicle not in conf.vehicles:
@@ -554,9 +557,9 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
     # before reading: data that change during the run are not this result's
     stamp_data = None if data is None else data_stamp(data, version)
     absent: dict[str, str] = {}
-    unknown: dict[str, str] = {}  # files of a vehicle the root does not have: failed, the others calibrated
+    unknown: dict[str, str] = {}  # files of a vehicle the root lacks, a vehicle of no frame: failed, the others run
     if correspondences == "oracle":
-        inputs = _load_oracle(data, version, conf, progress)
+        inputs = _load_oracle(data, version, conf, progress, frameless=unknown)
     else:
         inputs = _load_dir(Path(correspondences), data, version, conf, absent, unknown)
     if not inputs:

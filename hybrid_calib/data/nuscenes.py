@@ -262,6 +262,8 @@ class NuScenesRadarCamera:
                 f"{samples[0]}{f' and {len(samples) - 1} more' if len(samples) > 1 else ''}); they are skipped (the "
                 "tables are inconsistent: re-extract the metadata, or fix those samples' scene_token)"))
             self.vehicleless.append(self._index_skips[-1])
+        if lost := self._keyframes_of_no_sample():  # no scene, so no vehicle (probe 94: calibrate said nothing)
+            self.vehicleless.append(lost)
         empty = [sc for sc in scenes if not t.scene_samples(sc)]
         if empty:  # a partial metadata copy, or scene.json of a larger release: said once, not silently dropped
             names = [sc["name"] for sc in empty]
@@ -307,6 +309,7 @@ class NuScenesRadarCamera:
                                        log["vehicle"], cam, rad))
         frames = self._once_per_file(frames)
         frames = self._one_mount_per_vehicle(frames)
+        frames = self._one_scene_at_a_time(frames)
         if self.conf.vehicles is not None:
             names = sorted({f.vehicle for f in frames})
             if unknown := sorted(set(self.conf.vehicles) - set(names)):
@@ -326,16 +329,77 @@ class NuScenesRadarCamera:
         for ref in frames:
             files = [sd.get("filename") for sd in (ref.camera_sd, ref.radar_sd)]
             dup = next((first[f] for f in files if f and f in first), None)
-            if dup is not None:
-                self._index_skips.append(SkipRecord(
-                    None, ref.sample_token, str(self.tables.path("sample_data")),
-                    f"sample {ref.sample_token} (scene {ref.scene_name}) reads the same sensor file as sample "
-                    f"{dup.sample_token} (scene {dup.scene_name}): the tables list one recording twice; its frame is "
-                    "read once"))
+            if dup is not None:  # a vehicle all of whose samples are another's is named (probe 94: it vanished)
+                self._left_out(ref, f"sample {ref.sample_token} (scene {ref.scene_name}) reads the same sensor file "
+                                    f"as sample {dup.sample_token} (scene {dup.scene_name}): the tables list one "
+                                    "recording twice; its frame is read once")
                 self.duplicates[ref.sample_token] = dup.sample_token
                 continue
             first.update({f: ref for f in files if f})
             out.append(ref)
+        return out
+
+    def _keyframes_of_no_sample(self) -> SkipRecord | None:
+        """The run's camera and radar keyframes whose sample is not in sample.json, as one record (None if none)."""
+        t = self.tables
+
+        def channel(sd: dict) -> str:
+            try:
+                return t.channel_of(sd)
+            except DataError:
+                return ""  # no sensor: the index's problems say it
+
+        lost = [sd for tok in t.unplaced_keyframes.get("", []) if channel(sd := t.by_token["sample_data"][tok])
+                in (self.camera_channel, self.radar_channel)]
+        return None if not lost else SkipRecord(None, lost[0]["token"], str(t.path("sample")), (
+            f"{len(lost)} {self.camera_channel} / {self.radar_channel} keyframe sample_data record(s) reference "
+            f"samples not in sample.json (first: {lost[0]['token']}, {lost[0].get('filename')}, sample "
+            f"{lost[0]['sample_token']}): no scene names their vehicle; the tables are inconsistent or a partial copy: "
+            "re-extract the metadata, or restore those samples"))
+
+    def _left_out(self, ref: FrameRef, reason: str) -> None:
+        """Say that the index leaves ``ref``'s sample out, once among the index's skips and once among its
+        vehicle's samples that hold no frame (``lacking_keyframes``: listed in the vehicle's result, and a vehicle
+        left with no frame at all is named, not silently absent; probe 94)."""
+        skip = SkipRecord(None, ref.sample_token, str(self.tables.path("sample_data")), reason)
+        self._index_skips.append(skip)
+        self.lacking_keyframes.setdefault(ref.vehicle, []).append(skip)
+
+    def _one_scene_at_a_time(self, frames: list[FrameRef]) -> list[FrameRef]:
+        """``frames`` without the scenes recorded while an earlier-starting scene of the same vehicle was (their
+        camera keyframes' time spans overlap), each of their samples said (``_left_out``). One vehicle records one
+        scene at a time, so such tables list one recording twice under new files, or give two vehicles one name:
+        fused as one drive, the hybrid paired each frame with the other scene's copy of the instant before, refused
+        every such pair as crossing scenes, and ran without its motion and lever arm (probe 94: the same 12 frames
+        kept, the yaw 1.4 deg apart)."""
+        spans: dict[tuple[str, str], list[int]] = {}  # (vehicle, scene token) -> its camera keyframes' times (us)
+        for ref in frames:
+            if isinstance(ts := ref.camera_sd.get("timestamp"), int) and not isinstance(ts, bool):
+                spans.setdefault((ref.vehicle, ref.scene_token), []).append(ts)
+        names = {ref.scene_token: ref.scene_name for ref in frames}
+        kept: dict[str, list[tuple[str, int, int]]] = {}  # vehicle -> [(scene token, first, last)] kept
+        dropped: dict[str, tuple[str, int, int, str, int, int]] = {}  # scene token -> the overlap, for the words
+        for (vehicle, scene), ts in sorted(spans.items(), key=lambda kv: (kv[0][0], min(kv[1]), max(kv[1]))):
+            lo, hi = min(ts), max(ts)
+            other = next((o for o in kept.get(vehicle, []) if lo <= o[2] and o[1] <= hi), None)
+            if other is None:
+                kept.setdefault(vehicle, []).append((scene, lo, hi))
+            else:
+                dropped[scene] = (vehicle, lo, hi, *other)
+        if not dropped:
+            return frames
+        out = []
+        for ref in frames:
+            if ref.scene_token not in dropped:
+                out.append(ref)
+                continue
+            vehicle, lo, hi, other, o_lo, o_hi = dropped[ref.scene_token]
+            self._left_out(ref, (
+                f"sample {ref.sample_token}: its scene {ref.scene_name} (camera keyframes {lo}-{hi} us) was recorded "
+                f"while scene {names.get(other, other)} of the same vehicle {vehicle} was ({o_lo}-{o_hi} us): "
+                "one vehicle records one scene at a time, so the tables list one recording twice (a copy with its own "
+                f"files) or give two vehicles one name; scene {ref.scene_name} is left out (fix the log's vehicle "
+                "name, or remove the copy)"))
         return out
 
     def _one_mount_per_vehicle(self, frames: list[FrameRef]) -> list[FrameRef]:
@@ -471,6 +535,16 @@ class NuScenesRadarCamera:
             return None
         p = [T[:3, 3] for T in poses]
         return float(sum(np.linalg.norm(b - a) for a, b in zip(p, p[1:])))
+
+    def frameless_vehicles(self, vehicles=None) -> dict[str, str]:
+        """Vehicle -> why it has no frame, for each vehicle of the tables the index left with none (every sample of it
+        in ``lacking_keyframes``: no camera or radar keyframe, another sample's copy, a scene overlapping another),
+        among ``vehicles`` (None: all): a calibration names them, not silently absent from its result."""
+        have = {f.vehicle for f in self.frames}
+        return {v: (f"vehicle {v}: no frame: none of its {len(skips)} sample(s) holds a frame the run reads (first: "
+                    f"{skips[0].reason}); hybrid-calib inspect lists them")
+                for v, skips in sorted(self.lacking_keyframes.items())
+                if v not in have and (vehicles is None or v in vehicles)}
 
     def frames_by_vehicle(self) -> dict[str, list[int]]:
         """Vehicle name -> dataset indices of its frames, in time order (the camera keyframes' timestamps: a

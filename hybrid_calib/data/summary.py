@@ -363,7 +363,7 @@ def vehicleless_warning(ds) -> str:
         return ""
     more = f" (and {len(skips) - 1} more: hybrid-calib inspect lists them)" if len(skips) > 1 else ""
     return (f"warning: samples of no vehicle are not calibrated: {skips[0].reason}{more}; fix the tables (scene.json, "
-            "log.json) to calibrate them")
+            "log.json, sample.json) to calibrate them")
 
 
 def late_line(scene: str, late: list[tuple[str, float]], radar_channel: str, camera_channel: str) -> str:
@@ -483,3 +483,36 @@ def summarize_dataset(ds: NuScenesRadarCamera, progress: bool = True) -> Dataset
     return DatasetSummary(str(ds.root), ds.version, ds.radar_channel, ds.camera_channel, list(groups.values()),
                           [dataclasses.asdict(s) for s in ds.skipped], first, dict(ds.calibration_splits),
                           dict(ds.calibration_offsets), ds.intrinsic_changes())
+
+
+def calibration_notes(ds, vehicles=None) -> list[str]:
+    """What a calibration says of ``ds``'s root before it reads a frame, the learned methods' and the oracle's alike
+    (probe 94: the oracle had said only the reference and ``table_warnings``): the reference's notes, a vehicle whose
+    tables hold several calibrations, a camera intrinsic that changes within a log, samples read once as another's
+    copy, keyframes far apart in time, ``table_warnings`` and ego poses that lean the vehicle over. ``vehicles``: the
+    ones the run calibrates (None: all)."""
+    out = list(ds.reference_notes(vehicles)) if hasattr(ds, "reference_notes") else []
+    for vehicle, names in getattr(ds, "calibration_splits", {}).items():  # said where the names appear
+        left = [n for n in names if vehicles is not None and n not in vehicles]
+        out.append(f"vehicle {vehicle}: its frames hold {len(names)} camera-radar calibrations in the tables, "
+                   f"calibrated as {', '.join(names)}" + (f" ({', '.join(left)} not among the vehicles asked for)"
+                                                          if left else ""))
+    out += [f"log {log}: {words}"
+            for log, words in (ds.intrinsic_changes() if hasattr(ds, "intrinsic_changes") else {}).items()]
+    if dup := getattr(ds, "duplicates", None):  # the index read them once (data.nuscenes._once_per_file)
+        first = next(iter(dup.items()))
+        out.append(f"note: {len(dup)} sample(s) read the same sensor files as earlier samples (first: {first[0]}, as "
+                   f"{first[1]}): the tables list one recording twice; each frame is read once (hybrid-calib inspect "
+                   "lists them)")
+    by_scene: dict[str, list[int]] = {}
+    for ref in getattr(ds, "frames", []):
+        if isinstance(ref.camera_sd.get("timestamp"), int):
+            by_scene.setdefault(ref.scene_token, []).append(ref.camera_sd["timestamp"])
+    if gap := keyframe_gap_warning(by_scene.values()):  # inspect said it; a calibration read time from them silently
+        out.append(f"{gap}: the radar mount monitor, its Doppler pairs and the motion constraint read time from them; "
+                   "fix the tables before trusting this calibration")
+    out += table_warnings(ds)  # inspect said them; the monitor, the Doppler and the motion read the poses
+    if lean := ego_lean_warning(ds):  # inspect said it; a calibration read the poses silently (probe 40)
+        out.append(f"{lean}: the radar mount monitor, its Doppler pairs and the motion compensation read the poses; "
+                   "fix the tables before trusting this calibration")
+    return out

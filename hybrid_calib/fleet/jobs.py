@@ -138,6 +138,8 @@ def _root_vehicles(root: str, version: str, notes: list[str] | None = None, refe
     if notes is not None:
         notes.extend(f"root {root}: {line.removeprefix('warning: ')}" for line in ds.reference_notes()
                      if line.startswith("warning: ") and line not in notes)
+        # a vehicle of the tables with no frame is no job: said (probe 94: calibrate dropped it without a word)
+        notes.extend(f"root {root}: {why}" for why in ds.frameless_vehicles().values())
     out = {}
     for vehicle, idx in ds.frames_by_vehicle().items():
         tables_T = None

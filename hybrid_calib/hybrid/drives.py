@@ -99,38 +99,14 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
     ``conf.split`` (``learned.dataset.split_indices`` with ``conf.split_options``) and ``conf.max_frames``.
     A vehicle none of whose frames reads is a ``DataError`` (naming the first bad file), or, when
     ``unreadable`` is a dict, recorded there (vehicle -> reason) and left out."""
-    from hybrid_calib.data.summary import ego_lean_warning, keyframe_gap_warning, table_warnings
+    from hybrid_calib.data.summary import calibration_notes
     from learned.dataset import open_frames, split_indices
 
     frames = open_frames(data, version, lidar=lidar,
                          options={**conf.data, **({"reference": conf.reference} if conf.reference else {})})
-    for line in frames.reference_notes(conf.vehicles) if hasattr(frames, "reference_notes") else ():
+    for line in calibration_notes(frames, conf.vehicles):
         print(line, file=sys.stderr)
     simulated = bool(getattr(frames, "sim_vehicles", {}))
-    for vehicle, names in getattr(frames, "calibration_splits", {}).items():  # said where the names appear
-        left = [n for n in names if conf.vehicles is not None and n not in conf.vehicles]
-        print(f"vehicle {vehicle}: its frames hold {len(names)} camera-radar calibrations in the tables, calibrated "
-              f"as {', '.join(names)}" + (f" ({', '.join(left)} not among the vehicles asked for)" if left else ""),
-              file=sys.stderr)
-    for log, words in (frames.intrinsic_changes() if hasattr(frames, "intrinsic_changes") else {}).items():
-        print(f"log {log}: {words}", file=sys.stderr)
-    if dup := getattr(frames, "duplicates", None):  # the index read them once (data.nuscenes._once_per_file)
-        first = next(iter(dup.items()))
-        print(f"note: {len(dup)} sample(s) read the same sensor files as earlier samples (first: {first[0]}, as "
-              f"{first[1]}): the tables list one recording twice; each frame is read once (hybrid-calib inspect lists "
-              "them)", file=sys.stderr)
-    by_scene: dict[str, list[int]] = {}
-    for ref in getattr(frames, "frames", []):
-        if isinstance(ref.camera_sd.get("timestamp"), int):
-            by_scene.setdefault(ref.scene_token, []).append(ref.camera_sd["timestamp"])
-    if gap := keyframe_gap_warning(by_scene.values()):  # inspect said it; a calibration read time from them silently
-        print(f"{gap}: the radar mount monitor, its Doppler pairs and the motion constraint read time from them; fix "
-              "the tables before trusting this calibration", file=sys.stderr)
-    for line in table_warnings(frames):  # inspect said them; the monitor, the Doppler and the motion read the poses
-        print(line, file=sys.stderr)
-    if lean := ego_lean_warning(frames):  # inspect said it; a calibration read the poses silently (probe 40)
-        print(f"{lean}: the radar mount monitor, its Doppler pairs and the motion compensation read the poses; fix "
-              "the tables before trusting this calibration", file=sys.stderr)
     keep = None if conf.split == "all" else set(split_indices(frames, conf.split, conf.split_options))
     drives, outside_split = {}, []
     by_vehicle = frames.frames_by_vehicle()
@@ -170,11 +146,10 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
                                 frozen_images(frames, idx, repeats), _truth_path(frames, idx) if simulated else [],
                                 frames.reference_source(vehicle) if hasattr(frames, "reference_source") else
                                 {"kind": "tables"})
-    for vehicle, skips in sorted(getattr(frames, "lacking_keyframes", {}).items()):  # a vehicle of no frame at all
-        if vehicle in by_vehicle or vehicle in drives or (conf.vehicles is not None and vehicle not in conf.vehicles):
+    frameless = frames.frameless_vehicles(conf.vehicles) if hasattr(frames, "frameless_vehicles") else {}
+    for vehicle, reason in frameless.items():  # a vehicle of no frame at all
+        if vehicle in by_vehicle or vehicle in drives:
             continue
-        reason = (f"vehicle {vehicle}: no frame: none of its {len(skips)} sample(s) has both keyframes the run reads "
-                  f"(first: {skips[0].reason}); hybrid-calib inspect lists its channels")
         if unreadable is None:
             raise DataError(reason, path=str(data))
         unreadable[vehicle] = reason
