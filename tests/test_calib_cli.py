@@ -287,3 +287,24 @@ def test_a_vehicle_whose_samples_are_all_another_ones_copies_is_named_by_the_ora
     assert doc["vehicles_failed"]["sim-veh-009"].startswith("vehicle sim-veh-009: no frame: none of its 5 sample(s)")
     err = capsys.readouterr().err
     assert "sim-veh-009" in err and "read the same sensor files as earlier samples" in err  # the note, as the hybrid's
+
+
+def test_a_sim_vehicle_record_of_no_log_of_the_root_is_said(sim_root, tmp_path, capsys):
+    """Probe 94: a simulated root whose sim_vehicle.json names no log of it (its tokens renamed) had its verdicts
+    compare with calibrated_sensor, the simulator's truth, instead of the factory calibration, in silence."""
+    import shutil
+
+    root = tmp_path / "root"
+    shutil.copytree(sim_root, root, symlinks=True)
+    path = root / "v1.0-sim" / "sim_vehicle.json"
+    doc = json.loads(path.read_text())
+    recs = doc["vehicles"] if isinstance(doc, dict) and "vehicles" in doc else doc
+    for rec in (recs.values() if isinstance(recs, dict) else recs):
+        rec["log_token"] = "renamed"
+    path.write_text(json.dumps({"renamed": next(iter(recs.values()))} if isinstance(recs, dict) else doc))
+    assert calibrate.run(_args("--data", str(root), "--out", str(tmp_path / "run"), "--no-plots")) == 0
+    err = capsys.readouterr().err
+    assert "sim_vehicle.json holds no record of log" in err and "the truth, not the vehicle's factory calibration" \
+        in err
+    assert calibrate.run(_args("--data", str(sim_root), "--out", str(tmp_path / "run0"), "--no-plots")) == 0
+    assert "holds no record of log" not in capsys.readouterr().err

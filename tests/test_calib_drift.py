@@ -823,3 +823,24 @@ def test_a_cannot_tell_verdict_says_when_the_radars_own_doppler_puts_its_yaw_far
     assert doppler_level_note(fine, far) == fine
     redone = against_tolerance(noted, "inconclusive: out of domain", far, rot_deg=1.0)
     assert redone["verdict"].count("the radar's own Doppler") == 1
+
+
+def test_a_recalibrate_verdict_still_says_a_pinned_axis_far_from_the_tables():
+    """Probe 95: tables tilted 20 deg in pitch and off 0.67 deg in yaw read only "differs by 0.67 deg in yaw:
+    recalibrate"; the 20 deg (20 sigma) pitch difference the run measured on a prior-pinned axis was in the axes only.
+    It is said beside the differing axis; a pinned difference within 3 sigma of the tolerance is not."""
+    from hybrid_calib.calib.drift import pinned_conflicts
+
+    T = nominal_T_cam_radar()
+    C, pinned = _pinned_cov()
+    bent = perturb_camera_frame(T, np.radians([0.0, 0.0, 0.0]), [0.05, 0.0, 0.0])
+    bent = perturb_camera_frame(bent, np.radians([0.0, 6.0, 0.0]), [0.0, 0.0, 0.0])
+    d = reference_test(bent, C, T, pinned_std=pinned)
+    assert d.verdict_kind == "recalibrate" and d.verdict.startswith("differs by 5.00 cm in lateral offset"), d.verdict
+    assert "; and the tables differ from the estimate along axes the data do not observe (prior-pinned: pitch by 6.00" \
+           in d.verdict and "check the radar's record in calibrated_sensor.json" in d.verdict, d.verdict
+    assert [n for n, _ in pinned_conflicts(d.to_dict()["axes"])] == ["pitch"]  # the stored block reads the same
+    near = perturb_camera_frame(perturb_camera_frame(T, np.zeros(3), [0.05, 0.0, 0.0]), np.radians([0.0, 0.9, 0.0]),
+                                [0.0, 0.0, 0.0])
+    d = reference_test(near, C, T, pinned_std=pinned)
+    assert d.verdict_kind == "recalibrate" and "prior-pinned" not in d.verdict and not pinned_conflicts(d.axes)

@@ -376,3 +376,22 @@ def test_the_progressive_re_solve_starts_each_stage_at_the_previous_optimum(monk
     T, iters, secs = batch._progressive_start([None] * 20, T0, batch.BatchConfig(), None)
     assert len(starts) == 3 and starts[0] is T0 and starts[1] is ends[0] and starts[2] is ends[1] and T is ends[2]
     assert (iters, secs) == (6, 1.5)
+
+
+def test_an_ill_conditioned_history_still_gives_a_prior():
+    """Probe 95: tables 180 deg off on a highway drive: the history's information spanned ~1e13 with a free
+    direction, np.linalg.inv of it gave an indefinite covariance, and the run ended on "covariance is not positive
+    definite" (no result for either vehicle). Inverted in its eigenbasis, every such history is a prior; a
+    well-conditioned one is inverted as before."""
+    g = rng(7)
+    for _ in range(300):
+        Q, _ = np.linalg.qr(g.normal(size=(6, 6)))
+        w = 10.0 ** g.uniform(-2, 13, 6)
+        w[g.integers(6)] = 0.0
+        prior = SlidingWindowCalibrator._as_prior((g.normal(size=6), (Q * w) @ Q.T), np.eye(4))
+        assert np.linalg.eigvalsh(prior.cov).min() > 0
+    A = g.normal(size=(6, 6))
+    H, G = 100.0 * A @ A.T, g.normal(size=6)
+    prior = SlidingWindowCalibrator._as_prior((G, H), np.eye(4))
+    np.testing.assert_allclose(prior.cov, np.linalg.inv(H + 1e-8 * np.eye(6)), rtol=1e-8, atol=1e-14)
+    np.testing.assert_allclose(local(np.eye(4), prior.T), -np.linalg.solve(H + 1e-8 * np.eye(6), G), atol=1e-9)

@@ -437,3 +437,21 @@ def test_a_moved_root_is_not_blamed_on_a_data_option_not_given(calibrated, tmp_p
     with pytest.raises(OptionError, match="the root the results record, .*gone/v1.0-sim, is not there \\(moved or "
                                           "removed\\?\\): pass where it is now with --data"):
         export_mounts([moved], tmp_path / "exp")
+
+
+def test_a_record_that_would_keep_a_pinned_axis_far_from_the_estimate_is_not_written():
+    """Probe 95: a 0.67 deg yaw "recalibrate" was exported with the tables' pitch kept, 20 deg from the truth; the
+    run had measured that pitch 20 sigma from the tables on a prior-pinned axis."""
+    from types import SimpleNamespace
+
+    from hybrid_calib.calib.export import _why_not
+
+    axes = {"yaw": {"decision": "differs", "delta": 0.67, "std": 0.03, "tolerance": 0.5, "prior_pinned": False},
+            "pitch": {"decision": "undecided", "delta": 20.3, "std": 1.02, "tolerance": 0.5, "prior_pinned": True}}
+    vr = SimpleNamespace(final=SimpleNamespace(status="weak: x"), method="oracle", mount=None,
+                         drift={"verdict_kind": "recalibrate", "axes": axes})
+    why = _why_not(vr, "recalibrate")
+    assert why.startswith("not exported: the tables differ from the estimate along axes the data do not observe "
+                          "(prior-pinned: pitch by 20 deg +- 1.02 deg at 1 sigma)"), why
+    axes["pitch"]["delta"] = 3.0  # within 3 sigma of the tolerance: the tables' pitch is kept, the yaw written
+    assert _why_not(vr, "recalibrate") == ""

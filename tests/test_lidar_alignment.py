@@ -361,3 +361,27 @@ def test_a_lateral_offset_many_stds_from_the_loop_widens_the_lateral_std_to_cove
     assert wide.cov[RADAR_Y, RADAR_Y] == pytest.approx(f.cov[RADAR_Y, RADAR_Y] + 0.28 ** 2)
     assert max(wide.estimate.std[3:]) >= 28.0 > max(before[3:])  # camera cm: the 28 cm difference is inside 1 sigma
     assert "-28.0 cm from the loop's estimate, 12.1 stds apart" in words and words in wide.estimate.status
+
+
+def test_a_forward_offset_many_stds_from_the_loop_is_said_and_widens_the_forward_std():
+    """Probe 95: tables putting the radar 1 m forward of the truth: the LiDAR's forward offset (-109 cm at a few cm)
+    was folded 4.9 stds from the loop's estimate with no word, its forward std left at the fit's; the lateral
+    offset's innovation alone was said. The forward one is computed, said, and widens the forward std."""
+    from hybrid_calib.calib.covariance import report_std
+    from hybrid_calib.calib.lidar_alignment import RADAR_X, LidarAlignment, describe, innovation
+    from hybrid_calib.hybrid.corrections import lidar_widened
+    from tests.test_report import _vr
+
+    a = LidarAlignment(np.array([-1.09, 0.01, 0.05]), np.diag([0.05 ** 2, 0.025 ** 2, 0.01]), 300, 20, 0.2, 8)
+    loop = np.diag([1e-6] * 3 + [0.1 ** 2] * 3)
+    z_x = innovation(a, loop, RADAR_X)
+    assert z_x == pytest.approx(-1.09 / np.hypot(0.1, 0.05), rel=1e-6)  # ~ -9.7
+    assert innovation(a, loop) == pytest.approx(0.01 / np.hypot(0.1, 0.025), rel=1e-6)  # dy's as before
+    said = describe(a.record(True, forward=True, innovation=0.1, innovation_x=z_x))
+    assert "its forward offset lies 9.7 stds from the loop's estimate" in said and "it lies" not in said
+    assert "forward offset lies" not in describe(a.record(True, forward=False, innovation=0.1, innovation_x=z_x))
+    f = _vr((0,) * 6, (0.05,) * 6, alarms=(0,)).trajectory[-1]
+    wide, words = lidar_widened(f, -1.09, z_x, RADAR_X)
+    assert wide.cov[RADAR_X, RADAR_X] == pytest.approx(f.cov[RADAR_X, RADAR_X] + 1.09 ** 2)
+    assert max(wide.estimate.std[3:]) >= 109.0 > max(report_std(f.T, f.cov)[3:])
+    assert words.startswith("the LiDAR puts the radar's forward offset -109.0 cm from the loop's estimate, 9.7 stds")

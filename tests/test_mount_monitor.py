@@ -582,3 +582,48 @@ def test_the_hybrid_does_not_trust_an_estimate_whose_radar_heading_scatters(knoc
     vr = run_vehicle(knocked_and_not[0], "v1.0-sim", "sim-veh-000", {**conf, "ood": {"min_in_domain_frames": 1000}})
     assert vr.drift["verdict_kind"] == "cannot tell" and "puts its yaw on the vehicle 9.00 +- 0.14 deg" in \
         vr.drift["verdict"]
+
+
+def test_a_step_between_levels_already_far_at_the_start_is_not_told():
+    """Probe 95: tables with the radar's x and y swapped: the monitor's level read +84.9 deg from the first frame (the
+    tables are wrong, as it said), and where the vehicle stopped turning it alarmed a 4.4 deg "turn" that the verdict
+    told as "recalibrate: the radar turned ..." on an inconclusive result. A step into a far level from a plausible one
+    (a radar knocked round) is still told."""
+    from hybrid_calib.calib.drift import mount_steps_beyond
+    from hybrid_calib.calib.mount_monitor import told_steps
+
+    g = np.random.default_rng(5)
+    swapped = _feed(np.r_[84.9 + g.normal(0, 0.1, 12), 89.3 + g.normal(0, 0.1, 12)]).summary()
+    assert swapped["steps"] and swapped["steps_told"] is False and told_steps(swapped) == []
+    assert swapped["implausible"].endswith("so its steps are not told") and mount_steps_beyond(swapped, 0.5) == ""
+    knocked = _feed(np.r_[0.1 + g.normal(0, 0.1, 12), 179.8 + g.normal(0, 0.1, 12)]).summary()
+    assert knocked["steps"] and "steps_told" not in knocked and told_steps(knocked) == knocked["steps"]
+    assert mount_steps_beyond(knocked, 0.5).startswith("The radar turned on the vehicle during the drive by")
+
+
+def test_a_step_where_the_turn_ends_is_told_with_the_lever_arm_that_reads_the_same():
+    """Probe 95: tables putting the radar 3 m forward of where it is: the monitor's readings followed the vehicle's
+    turn (1.9 deg while it turned, 0.1 after), and the end of the turn read as "the radar turned 1.89 deg". The step
+    stands, told with its other reading: the lever arm (3.0 m) that explains the readings as well. A knock on a
+    straight drive, or one the turn does not follow, gets no such words."""
+    from hybrid_calib.calib.drift import mount_steps_beyond
+    from hybrid_calib.calib.mount_monitor import lever_reading
+
+    g = np.random.default_rng(2)
+    turning = np.r_[np.full(11, -0.62), np.zeros(12)] + g.normal(0, 0.01, 23)  # deg/m, the turn then straight
+    mon = MountMonitor(frames=None, T_ego_radar=np.eye(4))
+    for k, (gk, e) in enumerate(zip(turning, g.normal(0, 0.08, 23))):
+        mon.add_residual(k, 0.07 + 3.0 * -gk + e, lever=float(-gk))  # reading = truth's + lever error x sensitivity
+    (st,) = mon.summary()["steps"]
+    assert st["lever_m"] == pytest.approx(3.0, abs=0.2)
+    words = mount_steps_beyond(mon.summary(), 0.5)
+    assert "Or its lever arm is wrong in the tables" in words and "as a radar 3.0 m behind where its tables put it" in \
+        words, words
+    # a knock while driving straight: the sensitivities do not change where the readings do
+    y = np.r_[np.full(12, 0.1), np.full(12, 1.1)] + g.normal(0, 0.08, 24)
+    assert lever_reading(y, g.normal(0, 0.01, 24), 12) is None
+    # a knock in a drive of varying turns: the lever model does not follow the readings
+    sens = g.uniform(-0.6, 0.6, 24)
+    assert lever_reading(y, sens, 12) is None
+    # and a reading with no sensitivity known (the readings of older callers) tells nothing
+    assert lever_reading(y, np.full(24, np.nan), 12) is None

@@ -252,6 +252,40 @@ def _check_axes(delta: np.ndarray, std: np.ndarray, pinned: np.ndarray, toleranc
 MAX_MOVE_M = 0.30  # farther than this from its tables a radar has not moved on its bracket: the estimate is wrong
 
 
+def pinned_conflicts(axes) -> list[tuple[str, dict]]:
+    """(axis name, its check as a dict) of each prior-pinned axis of ``axes`` (``AxisCheck``s, or a stored drift
+    block's ``axes`` dict) whose difference from the tables is beyond the tolerance by more than 3 of its stds: the
+    data do not observe the axis, so the estimate there is a prior's (the network's learned mount, the elevation
+    model's), and it contradicts the tables; one of them is wrong (probe 95: tables tilted 20 deg in pitch read only
+    "differs by 0.67 deg in yaw: recalibrate", and export wrote the yaw with the tables' pitch kept, 20 deg off)."""
+    items = axes.items() if isinstance(axes, dict) else ((a.name, a.to_dict()) for a in axes)
+    out = []
+    for name, a in items:
+        try:
+            far = bool(a.get("prior_pinned")) and abs(float(a["delta"])) - 3 * float(a["std"]) > float(a["tolerance"])
+        except (KeyError, TypeError, ValueError):
+            continue
+        if far:
+            out.append((name, a))
+    return out
+
+
+def pinned_conflict_words(axes) -> str:
+    """``pinned_conflicts`` of ``axes`` in one clause ("" when none)."""
+    found = pinned_conflicts(axes)
+    if not found:
+        return ""
+    def unit(n: str) -> str:
+        return "deg" if n in AXIS_WORDS[:3] else "cm"
+
+    diffs = "; ".join(f"{n} by {_fmt(abs(float(a['delta'])), unit(n))} +- {_fmt(float(a['std']), unit(n))} at 1 sigma"
+                      for n, a in found)
+    names = join_and([n for n, _ in found])
+    return (f"the tables differ from the estimate along axes the data do not observe (prior-pinned: {diffs}), beyond "
+            f"the tolerance by more than 3 sigma: the estimate's {names} is a prior's, so the tables' {names} or that "
+            "prior is wrong; check the radar's record in calibrated_sensor.json")
+
+
 def _verdict(axes: list[AxisCheck]) -> tuple[str, str]:
     """(kind, sentence) from the per-axis checks (module docstring). A "recalibrate" whose differing translation axes
     put the radar more than ``MAX_MOVE_M`` from its tables is "cannot tell": a radar does not travel that far on its
@@ -263,6 +297,8 @@ def _verdict(axes: list[AxisCheck]) -> tuple[str, str]:
         parts = [f"{_fmt(abs(a.delta), a.unit)} in {a.name} (+- {_fmt(a.std, a.unit)} at 1 sigma, tolerance "
                  f"{_fmt(a.tolerance, a.unit)})" for a in differs]
         said = "differs by " + "; ".join(parts) + ": recalibrate"
+        if conflict := pinned_conflict_words(axes):  # said beside the axes that differ, not dropped (probe 95)
+            said += f"; and {conflict}"
         moved = float(np.linalg.norm([a.delta for a in differs if a.unit == "cm"]))  # what the data decide
         if moved > 100 * MAX_MOVE_M:
             return "cannot tell", (f"cannot tell: it puts the radar {moved:.0f} cm from its tables, farther than a "
@@ -413,7 +449,9 @@ def unconverged(drift: dict, status: str) -> dict:
 def mount_steps_beyond(mount: dict | None, rot_tol_deg: float) -> str:
     """A sentence when the radar mount monitor (a result's ``mount`` block, hybrid) measured a step of the radar's
     yaw during the drive beyond ``rot_tol_deg`` with its 3-sigma (``|step| - 3 std > tol``), else ""."""
-    steps = (mount or {}).get("steps", [])
+    from hybrid_calib.calib.mount_monitor import told_steps
+
+    steps = told_steps(mount)
     big = [st for st in steps if abs(st["step_deg"]) - 3 * st["std_deg"] > rot_tol_deg]
     levels = (mount or {}).get("levels") or []
     if not big and len(steps) > 1 and len(levels) == len(steps) + 1:  # a turn in steps each within the tolerance
@@ -432,8 +470,13 @@ def mount_steps_beyond(mount: dict | None, rot_tol_deg: float) -> str:
 
     turns = "; ".join(f"by {turn_words(st['step_deg'], st['std_deg'], 3)} "
                       + st.get("words", f"from about frame {st['change']}") for st in big)
+    lever = [float(st["lever_m"]) for st in big if isinstance(st.get("lever_m"), (int, float))]
+    other = (f" Or its lever arm is wrong in the tables: its readings follow the vehicle's turn per metre as well as "
+             f"a step, as a radar {abs(lever[0]):.1f} m {'behind' if lever[0] > 0 else 'forward of'} where its tables "
+             "put it reads (the monitor takes the radar's position from the tables): check the radar's translation "
+             "in calibrated_sensor.json." if lever else "")
     return (f"The radar turned on the vehicle during the drive {turns}, beyond the {rot_tol_deg:g} deg tolerance "
-            "(the radar mount monitor: its Doppler heading against the vehicle's ego poses).")
+            "(the radar mount monitor: its Doppler heading against the vehicle's ego poses)." + other)
 
 
 def with_mount_step(drift: dict, mount: dict | None) -> dict:
@@ -617,8 +660,9 @@ def alarms_say_moved(status: str, mount: dict | None) -> bool:
     while a step the radar mount monitor measured (``mount["steps"]``) stands either way. The report's "did the
     sensor move" and the fleet's "drifted inside the drive" read this."""
     from hybrid_calib.calib.covariance import status_kind
+    from hybrid_calib.calib.mount_monitor import told_steps
 
-    return status_kind(status) != "inconclusive" or bool((mount or {}).get("steps"))
+    return status_kind(status) != "inconclusive" or bool(told_steps(mount))
 
 
 def doppler_level_words(drift: dict | None) -> str:

@@ -51,7 +51,8 @@ from pathlib import Path
 import numpy as np
 
 from hybrid_calib.calib.covariance import status_kind
-from hybrid_calib.calib.drift import AXIS_WORDS, MAX_MOVE_M
+from hybrid_calib.calib.drift import AXIS_WORDS, MAX_MOVE_M, pinned_conflict_words
+from hybrid_calib.calib.mount_monitor import told_steps
 from hybrid_calib.data.reference import EXPORT_SCHEMA as SCHEMA
 from hybrid_calib.errors import DataError, OptionError
 
@@ -307,13 +308,16 @@ def _why_not(vr, which: str) -> str:
     yaw = ((vr.drift or {}).get("axes") or {}).get("yaw") or {}
     mount = getattr(vr, "mount", None) or {}
     if getattr(vr, "method", None) in ("hybrid", "pure-avg") and yaw.get("decision") == "differs" and \
-            not (mount.get("yaw_check") or mount.get("steps")):  # the Doppler's level, or a turn it measured
+            not (mount.get("yaw_check") or told_steps(mount)):  # the Doppler's level, or a turn it measured
         # a learned yaw alone carries the network's bias on the input (probe 23: the real scene with the mount
         # monitor off and the domain test loosened exported a 1.97 +- 0.16 deg yaw; its Doppler read 0.93)
         return (f"not exported: the yaw differs from the tables by {abs(float(yaw.get('delta', 0.0))):.2f} deg, and "
                 "the radar's own Doppler did not check it (no radar mount monitor level to compare with: "
                 "mount.enabled=false, or too few sweep pairs): a learned method's yaw alone is not written; "
                 "calibrate with the mount monitor on")
+    if conflict := pinned_conflict_words((vr.drift or {}).get("axes") or {}):  # the kept axes would keep it
+        return (f"not exported: {conflict} (writing only the axes the data decide would keep the tables' value "
+                "along those)")
     kind = (vr.drift or {}).get("verdict_kind")
     if which == "recalibrate" and not kind and vr.drift:  # probe 88: read "the verdict ... is 'none'" while the
         # report derived "recalibrate" from the same block's numbers

@@ -185,11 +185,13 @@ class LidarAlignment:
         return float(np.sqrt(self.cov[0, 0]))
 
     def record(self, applied: bool, why: str = "", forward: bool = False, forward_why: str = "",
-               innovation: float | None = None) -> dict:
+               innovation: float | None = None, innovation_x: float | None = None) -> dict:
         """The result's ``lidar`` block (plain JSON): ``applied`` (dy folded in), ``forward_applied`` (dx too),
-        and the reasons when not; ``innovation_sigma``: dy against the loop's estimate in stds (``innovation``)."""
+        and the reasons when not; ``innovation_sigma`` / ``innovation_x_sigma``: dy / dx against the loop's estimate
+        in stds (``innovation``)."""
         return {"applied": applied, "dy_m": float(self.delta[1]), "dy_std_m": self.dy_std,
                 **({"innovation_sigma": float(innovation)} if innovation is not None else {}),
+                **({"innovation_x_sigma": float(innovation_x)} if innovation_x is not None else {}),
                 "dx_m": float(self.delta[0]), "dx_std_m": self.dx_std, "forward_applied": bool(applied and forward),
                 "range_offset_m": float(self.delta[2]),
                 "coupling_m_per_rad": [float(c) for c in self.coupling],
@@ -367,13 +369,17 @@ def refusal(a: LidarAlignment, conf: LidarAlignConfig = LidarAlignConfig(), cov:
     return ""
 
 
-def innovation(a: LidarAlignment, cov: np.ndarray) -> float:
-    """dy against the loop's estimate in stds of their difference: ``dy / sqrt(h C h + var(dy))`` with ``h`` the
-    Kalman row of dy (``apply_offsets``) and ``C`` (6, 6) the loop's covariance of the estimate."""
+def innovation(a: LidarAlignment, cov: np.ndarray, axis: int = RADAR_Y) -> float:
+    """dy (``axis`` ``RADAR_Y``) or dx (``RADAR_X``) against the loop's estimate in stds of their difference:
+    ``d / sqrt(h C h + var(d))`` with ``h`` the Kalman row of the offset (``apply_offsets``) and ``C`` (6, 6) the
+    loop's covariance of the estimate."""
+    forward = axis == RADAR_X
     h = np.zeros(6)
-    h[RADAR_Y], h[:3] = 1.0, -np.asarray(a.coupling, np.float64)
+    h[axis], h[:3] = 1.0, -np.asarray(a.coupling_x if forward else a.coupling, np.float64)
     cov = np.asarray(cov, np.float64)
-    return float(a.delta[1] / np.sqrt(h @ cov @ h + a.cov[1, 1] + spread_var(a.spread, cov)))
+    k = 0 if forward else 1
+    return float(a.delta[k] / np.sqrt(h @ cov @ h + a.cov[k, k] + spread_var(a.spread_x if forward else a.spread,
+                                                                          cov)))
 
 
 def spread_var(spread: np.ndarray, cov: np.ndarray) -> float:
@@ -433,10 +439,14 @@ def describe(block: dict) -> str:
         return words + f"; not applied: {block.get('note', '')}"
     inherits = (" (through the tables' LiDAR-camera extrinsic, the LiDAR's and the camera's calibrated_sensor "
                 "records: an error in either is carried into the result)")
-    z = block.get("innovation_sigma")
+    z, z_x = block.get("innovation_sigma"), block.get("innovation_x_sigma") if block.get("forward_applied") else None
     if isinstance(z, (int, float)) and LidarAlignConfig().far(z):
         inherits += (f"; it lies {abs(z):.1f} stds from the loop's estimate: the radar is far off its tables, or the "
                      f"LiDAR's or the camera's record is ({CHECK_RECORDS} before recalibrating the radar)")
+    if isinstance(z_x, (int, float)) and LidarAlignConfig().far(z_x):
+        inherits += (f"; its forward offset lies {abs(z_x):.1f} stds from the loop's estimate: the radar is far off "
+                     f"its tables, or the LiDAR's or the camera's record is ({CHECK_RECORDS} before recalibrating the "
+                     "radar)")
     if block.get("forward_applied"):
         return words + "; both applied" + inherits
     note = block.get("forward_note")

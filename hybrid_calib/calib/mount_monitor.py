@@ -184,6 +184,9 @@ class MountMonitor:
     series: list[tuple[int, float]] = field(default_factory=list)  # (position, reading deg) of the tested frames
     pairs: list[int] = field(default_factory=list)  # sweep pairs behind each reading of ``series``
     own: list[float] = field(default_factory=list)  # each reading's own noise std (``reading_std``; nan: < 3 pairs)
+    # each reading's sensitivity to the radar's forward lever arm (deg of reading per metre the tables' radar sits
+    # forward of the truth; ``lever_sensitivity``; nan: not known): a wrong lever arm reads as a turn-dependent level
+    lever: list[float] = field(default_factory=list)
     steps: list[MountStep] = field(default_factory=list)
     skipped: int = 0  # frames after the first with no reading
     skip_example: str = ""  # the first one's reason
@@ -196,29 +199,37 @@ class MountMonitor:
 
     def residual(self, a: EgoSweep, b: EgoSweep) -> tuple[float | None, str]:
         """(y deg, "") of the pair a -> b, or (None, why it was skipped)."""
+        y, _, why = self._residual(a, b)
+        return y, why
+
+    def _residual(self, a: EgoSweep, b: EgoSweep) -> tuple[float | None, float, str]:
+        """(y deg, its ``lever_sensitivity`` deg/m, "") of the pair a -> b, or (None, nan, why it was skipped)."""
         c = self.conf
         why = pair_skip(a, b)
         if why:
-            return None, why
+            return None, float("nan"), why
         m, why = ego_measurement(a, a.velocity, b, b.velocity, self.T_ego_radar[:3, :3], c.min_speed_mps,
                                  c.max_gap_s, c.max_turn_dps)
         if m is None:
-            return None, why
+            return None, float("nan"), why
         y = float(np.degrees(heading_residual(self.T_ego_radar, m)[0]))
-        return (y, "") if np.isfinite(y) else (None, "the residual is not finite (a Doppler fit without a direction)")
+        if not np.isfinite(y):
+            return None, float("nan"), "the residual is not finite (a Doppler fit without a direction)"
+        return y, lever_sensitivity(self.T_ego_radar, m, y), ""
 
     def update(self, position: int, index: int) -> MountReading:
         """Feed the frame at drive ``position`` (dataset ``index``): the pairs ending at the sweeps of its keyframe
         interval (``calib.ego_doppler``: each sweep and its partner ``pair_dt_s`` or more before it), their
         median as the reading. Skipped, with the keyframe pair's reason, when none of them gives a residual."""
         sweeps, _ = frame_sweeps(self.frames, index, position, self.velocity, self.conf.sweeps, self.sweep_cache)
-        ys, why = [], ""
+        ys, gs, why = [], [], ""
         for b in sweeps:
             a = partner(self._history, b, self.conf.pair_dt_s)
             self._history.append(b)
-            y, why = (None, "first frame of a pair") if a is None else self.residual(a, b)
+            y, g, why = (None, float("nan"), "first frame of a pair") if a is None else self._residual(a, b)
             if y is not None:
                 ys.append(y)
+                gs.append(g)
         known = [s for s in self._history if s.timestamp_radar_us is not None]
         if known:  # keep what a partner can still be: max_gap_s back from the newest sweep (and one barrier)
             t_last = known[-1].timestamp_radar_us
@@ -230,7 +241,8 @@ class MountMonitor:
                 self.skipped += 1
                 self.skip_example = self.skip_example or why
             return MountReading(position, skipped=why)
-        return self.add_residual(position, float(np.median(ys)), len(ys), reading_std(ys))
+        return self.add_residual(position, float(np.median(ys)), len(ys), reading_std(ys),
+                                 float(np.median(gs)) if np.all(np.isfinite(gs)) else float("nan"))
 
     def scale(self, level: np.ndarray, pairs: float = 1.0, own: float = 0.0) -> float:
         """The level's noise std, deg (module doc): the larger of its spread and its successive
@@ -247,10 +259,13 @@ class MountMonitor:
         own = [x for x in self.own[a:b] if np.isfinite(x)]
         return self.scale(v, float(np.median(self.pairs[a:b])), float(np.median(own)) if own else 0.0)
 
-    def add_residual(self, position: int, y: float, pairs: int = 1, own: float = float("nan")) -> MountReading:
+    def add_residual(self, position: int, y: float, pairs: int = 1, own: float = float("nan"),
+                     lever: float = float("nan")) -> MountReading:
         """Test one reading ``y`` (deg; the median of ``pairs`` pairs' residuals, whose own noise std is ``own``,
-        ``reading_std``) at drive ``position`` (``update`` computes it from the frames)."""
+        ``reading_std``, and whose sensitivity to the forward lever arm is ``lever`` deg/m) at drive ``position``
+        (``update`` computes it from the frames)."""
         c = self.conf
+        self.lever.append(lever)
         if len(self.series) - self._start < c.min_frames:
             self.series.append((position, y))
             self.pairs.append(pairs)
@@ -359,20 +374,31 @@ class MountMonitor:
         ``step_deg`` / ``std_deg`` are re-measured from the whole levels on either side of it (the
         figures at the alarm, from the few pairs after the change, are kept as ``*_at_alarm``)."""
         levels, steps = self.levels(), []
+        cuts = [0] + [next(k for k, (p, _) in enumerate(self.series) if p >= s.change) for s in self.steps] + [
+            len(self.series)]
         for j, st in enumerate(self.steps):
             d = {**vars(st), "step_deg_at_alarm": st.step_deg, "std_deg_at_alarm": st.std_deg}
             if j + 1 < len(levels):
                 a, b = levels[j], levels[j + 1]
                 d.update(step_deg=b["level_deg"] - a["level_deg"], std_deg=float(np.hypot(a["std_deg"], b["std_deg"])))
+            lo, cut, hi = cuts[j], cuts[j + 1], cuts[j + 2]
+            lever = lever_reading(np.array([v for _, v in self.series[lo:hi]]), np.array(self.lever[lo:hi]), cut - lo)
+            if lever is not None:
+                d["lever_m"] = lever
             steps.append(d)
         far = [lv for lv in levels if abs(lv["level_deg"]) - 3 * lv["std_deg"] > self.conf.max_level_deg]
+        # a step measured into a far level is told (probe 36: a radar knocked 180 deg read "... so its steps are not
+        # told"); one from a level already far at the drive's start is not: the tables, poses or velocities are wrong
+        # from the start, and no change can be read against them (probe 95: tables with x and y swapped read
+        # "recalibrate: the radar turned 4.39 deg" where the vehicle stopped turning, status inconclusive)
+        untold = bool(far) and far[0] is levels[0]
         implausible = {"far": {k: far[-1][k] for k in ("level_deg", "std_deg", "from", "to")}, "implausible": (
             f"the radar's Doppler heading and the ego poses' disagree by {far[0]['level_deg']:+.1f} +- "
             f"{far[0]['std_deg']:.1f} deg (frames {far[0]['from']}-{far[0]['to']}; a radar's mount is within "
             f"{self.conf.max_level_deg:g} deg of its tables): the ego poses' headings (ego_pose.json), the radar's "
             "velocity fields or its mount in the tables are wrong"
-            # a step measured into a far level was told (probe 36: "... so its steps are not told): the radar turned")
-            + ("" if steps else ", so its steps are not told"))} if far else {}
+            + ("" if steps and not untold else ", so its steps are not told")),
+            **({"steps_told": False} if steps and untold else {})} if far else {}
         # readings of one level that scatter beyond any mount (probe 34: a radar turned 180 deg mid-drive read 0.08 +-
         # 89.7 deg, "no step", and the result stayed "weak" 180 deg off): no one heading to tell steps from
         scattered = [lv for lv in levels if lv["frames"] >= 3 and lv["scatter_deg"] > self.conf.max_level_deg]
@@ -397,6 +423,47 @@ class MountMonitor:
                 "pairs_tested": int(sum(self.pairs)), "threshold": self.conf.threshold, **implausible,
                 "blind_frames": [self.conf.min_frames, self.conf.blind_end()],
                 **({"frames_skipped": self.skipped, "skip_example": self.skip_example} if self.skipped else {})}
+
+
+LEVER_MAX_M = 5.0  # a lever arm wrong by more than this in the tables is not offered as a step's other reading, m
+
+
+def lever_sensitivity(T_ego_radar: np.ndarray, m, y_deg: float, h: float = 0.1) -> float:
+    """How a pair's reading (``y_deg``, of measurement ``m`` at the mount ``T_ego_radar`` (4, 4)) moves per metre the
+    mount's radar is moved forward along the vehicle's x axis, deg/m (a forward difference of ``h`` m): the radar's
+    velocity in a turn is the vehicle's plus the turn rate times the lever arm, so a lever arm wrong in the tables
+    reads as a level that follows the turn per metre (probe 95: tables 3 m forward, 1.9 deg while the vehicle turned,
+    0.1 deg after it)."""
+    T = np.array(T_ego_radar, np.float64)
+    T[0, 3] += h
+    return float((np.degrees(heading_residual(T, m)[0]) - y_deg) / h)
+
+
+def lever_reading(y: np.ndarray, g: np.ndarray, cut: int, ratio: float = 1.5, floor_deg: float = 0.05
+                  ) -> float | None:
+    """The forward lever-arm error (m: how far forward of the radar its tables put it) that explains the
+    readings ``y`` (deg) of two levels, split at ``cut``, as well as their step does, or None: ``y = k + L g`` (``g``
+    each reading's ``lever_sensitivity``, deg/m) fitted by least squares, its residual sum of squares within
+    ``ratio`` of the two levels' (each about its median) plus ``floor_deg`` squared a reading, and ``|L|`` at most
+    ``LEVER_MAX_M``. A step where the vehicle's turn per metre changes is then told with that other reading: one
+    turn of the radar, or its lever arm wrong in the tables, read the same there."""
+    y, g = np.asarray(y, np.float64), np.asarray(g, np.float64)
+    if min(cut, len(y) - cut) < 3 or not np.all(np.isfinite(g)) or np.ptp(g) <= 0:
+        return None
+    rss_step = float(np.sum((y[:cut] - np.median(y[:cut])) ** 2) + np.sum((y[cut:] - np.median(y[cut:])) ** 2))
+    A = np.c_[np.ones(len(y)), g]
+    coef = np.linalg.lstsq(A, y, rcond=None)[0]
+    rss_lever = float(np.sum((y - A @ coef) ** 2))
+    if abs(coef[1]) > LEVER_MAX_M or rss_lever > ratio * rss_step + len(y) * floor_deg ** 2:
+        return None
+    return float(coef[1])
+
+
+def told_steps(summary: dict | None) -> list[dict]:
+    """The steps of a ``mount`` block (``MountMonitor.summary``) that are told: none where the monitor's first level
+    was already beyond any mount (``steps_told`` false: the tables, poses or velocities are wrong from the start)."""
+    s = summary or {}
+    return list(s.get("steps") or []) if s.get("steps_told", True) else []
 
 
 def reading_std(ys) -> float:

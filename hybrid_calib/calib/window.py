@@ -249,9 +249,16 @@ class SlidingWindowCalibrator:
         if gh is None:
             return None
         G, H = gh
-        Hr = H + _WEAK_INFO * np.eye(6)
-        cov = np.linalg.inv(Hr)
-        return GaussianPrior(retract(T, -np.linalg.solve(Hr, G)), 0.5 * (cov + cov.T))
+        # inverted in its eigenbasis: an ill-conditioned history (probe 95: tables 180 deg off, a highway's rows; an
+        # information spanning 1e13) made np.linalg.inv's covariance indefinite, and the run ended on "covariance is
+        # not positive definite"; a rounding-level eigenvalue left at or below 0 is lifted to 1e-14 of the largest
+        w, V = np.linalg.eigh(0.5 * (H + H.T))
+        w = np.maximum(w, 0.0) + _WEAK_INFO
+        cov = (V / w) @ V.T
+        cov = 0.5 * (cov + cov.T)
+        if (low := float(np.linalg.eigvalsh(cov).min())) <= 0:
+            cov = cov + (1e-14 * float(np.abs(cov).max()) - low) * np.eye(6)
+        return GaussianPrior(retract(T, -((V / w) @ (V.T @ G))), cov)
 
     def _marginalise(self, fr: _Frame) -> None:
         """Fold a leaving frame into the marginal prior at the current estimate."""

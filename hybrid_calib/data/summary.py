@@ -485,6 +485,26 @@ def summarize_dataset(ds: NuScenesRadarCamera, progress: bool = True) -> Dataset
                           dict(ds.calibration_offsets), ds.intrinsic_changes())
 
 
+def sim_vehicle_gap_warning(ds, vehicles=None) -> str:
+    """A warning ("" if none) when a simulated root's ``sim_vehicle.json`` holds records, but none for the log of some
+    vehicle's frames (its tokens renamed, a merged log.json): that vehicle's verdicts then compare with its
+    calibrated_sensor records, which in a simulated root are the truth, not its factory calibration (probe 94: a
+    drift test flipped from significant to not, in silence). ``vehicles``: the ones the run calibrates."""
+    sims = getattr(ds, "sim_vehicles", None)
+    if not sims:
+        return ""
+    lost = {ref.log_token: ref.vehicle for ref in getattr(ds, "frames", []) if ref.log_token not in sims
+            and (vehicles is None or ref.vehicle in vehicles)}
+    if not lost:
+        return ""
+    log, vehicle = next(iter(lost.items()))
+    more = f" and {len(lost) - 1} more" if len(lost) > 1 else ""
+    return (f"warning: {ds.tables.vdir / 'sim_vehicle.json'} holds no record of log {log} (vehicle {vehicle}){more}: "
+            "its verdicts compare with its calibrated_sensor records, which in a simulated root are the truth, not "
+            "the vehicle's factory calibration; fix the log tokens in sim_vehicle.json, or re-run hybrid-calib "
+            "simulate")
+
+
 def calibration_notes(ds, vehicles=None) -> list[str]:
     """What a calibration says of ``ds``'s root before it reads a frame, the learned methods' and the oracle's alike
     (probe 94: the oracle had said only the reference and ``table_warnings``): the reference's notes, a vehicle whose
@@ -492,6 +512,8 @@ def calibration_notes(ds, vehicles=None) -> list[str]:
     copy, keyframes far apart in time, ``table_warnings`` and ego poses that lean the vehicle over. ``vehicles``: the
     ones the run calibrates (None: all)."""
     out = list(ds.reference_notes(vehicles)) if hasattr(ds, "reference_notes") else []
+    if line := sim_vehicle_gap_warning(ds, vehicles):
+        out.append(line)
     for vehicle, names in getattr(ds, "calibration_splits", {}).items():  # said where the names appear
         left = [n for n in names if vehicles is not None and n not in vehicles]
         out.append(f"vehicle {vehicle}: its frames hold {len(names)} camera-radar calibrations in the tables, "

@@ -18,7 +18,7 @@ from hybrid_calib.calib.degeneracy import RowGeometry
 from hybrid_calib.calib.ego_doppler import drive_sweeps
 from hybrid_calib.calib.lever_arm import apply_forward, refusal
 from hybrid_calib.calib.lever_arm import fit as fit_lever_arm
-from hybrid_calib.calib.lidar_alignment import RADAR_X, align, apply_offsets, drive_frames, forward_refusal
+from hybrid_calib.calib.lidar_alignment import RADAR_X, RADAR_Y, align, apply_offsets, drive_frames, forward_refusal
 from hybrid_calib.calib.lidar_alignment import innovation as lidar_innovation
 from hybrid_calib.calib.lidar_alignment import refusal as lidar_refusal
 from hybrid_calib.calib.mount_monitor import MountMonitor
@@ -169,28 +169,33 @@ def with_lidar(traj: list[FrameEstimate], drive: Drive, frames, conf: HybridConf
         return traj, {"applied": False, "note": why}
     loop_std_x = float(np.sqrt(max(traj[-1].cov[RADAR_X, RADAR_X], 0.0)))  # the loop's forward std, m
     no_dx, z = forward_refusal(a, conf.lidar, loop_std_x), lidar_innovation(a, traj[-1].cov)
+    z_x = None if no_dx else lidar_innovation(a, traj[-1].cov, RADAR_X)
     if no := lidar_refusal(a, conf.lidar, traj[-1].cov):
         return traj, a.record(False, no, innovation=z)
     traj, block = _fold_last(traj, conf, a, why, "", lambda T, cov, a: apply_offsets(T, cov, a, forward=not no_dx),
-                             lambda a: a.record(True, forward=not no_dx, forward_why=no_dx, innovation=z))
-    if not conf.lidar.far(z):
-        return traj, block
-    last, words = lidar_widened(traj[-1], float(a.delta[1]), z)
-    return [*traj[:-1], last], {**block, "widened": words}
+                             lambda a: a.record(True, forward=not no_dx, forward_why=no_dx, innovation=z,
+                                                innovation_x=z_x))
+    said = []
+    for axis, d, zz in ((RADAR_Y, float(a.delta[1]), z), (RADAR_X, float(a.delta[0]), z_x)):
+        if zz is not None and conf.lidar.far(zz):
+            last, words = lidar_widened(traj[-1], d, zz, axis)
+            traj, said = [*traj[:-1], last], [*said, words]
+    return traj, ({**block, "widened": "; ".join(said)} if said else block)
 
 
-def lidar_widened(f: FrameEstimate, dy_m: float, z: float) -> tuple[FrameEstimate, str]:
-    """Frame ``f`` (the LiDAR's offset folded in) with the radar-y variance grown by ``dy_m^2``, and the words its
-    status gets: the LiDAR's lateral offset lay ``z`` stds (beyond ``far_innovation``) from the loop's estimate, and
-    which is wrong (the loop over-confident, or the tables' LiDAR-camera extrinsic) cannot be told; the fold took the
-    tighter one's word for both, the widened 1-sigma covers both, as the yaw check's (probe 23: the cascade on the
-    real scene read a lateral offset 23-35 cm off its tables at +- 0.9 cm, the LiDAR 12 stds from the loop)."""
-    from hybrid_calib.calib.lidar_alignment import RADAR_Y
-
-    words = (f"the LiDAR puts the radar's lateral offset {dy_m * 100:+.1f} cm from the loop's estimate, {abs(z):.1f} "
-             "stds apart: the loop's estimate, or the tables' LiDAR-camera extrinsic (the LiDAR's or the camera's "
-             "record), is wrong; the lateral 1-sigma is widened to cover both")
-    return _noted(f, words, np.eye(6)[RADAR_Y], dy_m), words
+def lidar_widened(f: FrameEstimate, d_m: float, z: float, axis: int = RADAR_Y) -> tuple[FrameEstimate, str]:
+    """Frame ``f`` (the LiDAR's offset folded in) with the variance of the radar's lateral (``axis`` ``RADAR_Y``) or
+    forward (``RADAR_X``) offset grown by ``d_m^2``, and the words its status gets: the LiDAR's offset lay ``z`` stds
+    (beyond ``far_innovation``) from the loop's estimate, and which is wrong (the loop over-confident, the radar far
+    off its tables, or the tables' LiDAR-camera extrinsic) cannot be told; the fold took the tighter one's word for
+    both, the widened 1-sigma covers both, as the yaw check's (probe 23: the cascade on the real scene read a lateral
+    offset 23-35 cm off its tables at +- 0.9 cm, the LiDAR 12 stds from the loop; probe 95: tables 3 m forward of
+    the radar, the LiDAR's forward offset folded 4-6 stds from the loop, the result 3.5 m off at +- 12 cm, no word)."""
+    side = "forward" if axis == RADAR_X else "lateral"
+    words = (f"the LiDAR puts the radar's {side} offset {d_m * 100:+.1f} cm from the loop's estimate, {abs(z):.1f} "
+             "stds apart: the loop's estimate (a radar far off its tables), or the tables' LiDAR-camera extrinsic (the "
+             f"LiDAR's or the camera's record), is wrong; the {side} 1-sigma is widened to cover both")
+    return _noted(f, words, np.eye(6)[axis], d_m), words
 
 
 def _noted(f: FrameEstimate, words: str, u: np.ndarray | None = None, d: float = 0.0) -> FrameEstimate:

@@ -20,6 +20,7 @@ import numpy as np
 
 from hybrid_calib.calib.covariance import camera_offset
 from hybrid_calib.calib.drift import doppler_level_words
+from hybrid_calib.calib.mount_monitor import told_steps
 from hybrid_calib.calib.result import CalibrationRun, VehicleResult
 from hybrid_calib.config import merge
 from hybrid_calib.data.files import file_part
@@ -36,7 +37,7 @@ def moved_cell(v: Verdict, vr: VehicleResult) -> str:
     its alarms, and where the radar mount monitor placed the change (an alarm lags its change by a few frames)."""
     if not v.moved_frames:
         return v.moved_answer
-    changes = sorted({int(st["change"]) for st in (vr.mount or {}).get("steps") or [] if "change" in st})
+    changes = sorted({int(st["change"]) for st in told_steps(vr.mount) if "change" in st})
     since = f"; changed from about frame {', '.join(map(str, changes))}" if changes and v.moved_answer == "yes" else ""
     return f"{v.moved_answer} (alarm at frame {', '.join(map(str, v.moved_frames))}{since})"
 

@@ -43,7 +43,7 @@ from hybrid_calib.calib.drift import (
     mount_steps_beyond,
     turned_since_export,
 )
-from hybrid_calib.calib.mount_monitor import blind_words, finds_words, tested_words, turn_words
+from hybrid_calib.calib.mount_monitor import blind_words, finds_words, tested_words, told_steps, turn_words
 from hybrid_calib.calib.result import VehicleResult
 
 DELTA_KEYS = ("rot_x_deg", "rot_y_deg", "rot_z_deg", "t_x_cm", "t_y_cm", "t_z_cm")
@@ -163,7 +163,7 @@ def alarm_words(vr: VehicleResult) -> list[str]:
     there", where the window had kept the frames from the change at frame 8 (probe 30)."""
     alarms = [f.index for f in vr.trajectory if f.step_alarm]
     credited: dict[int, dict] = {}
-    for st in sorted((vr.mount or {}).get("steps") or [], key=lambda st: int(st.get("at", 0))):
+    for st in sorted(told_steps(vr.mount), key=lambda st: int(st.get("at", 0))):
         a = next((a for a in alarms if a >= int(st.get("at", 0)) and a not in credited), None)
         if a is not None:
             credited[a] = st
