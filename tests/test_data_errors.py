@@ -642,3 +642,14 @@ def test_a_fleet_names_a_vehicle_of_no_frame(tiny):
     notes: list[str] = []
     assert set(_root_vehicles(str(tiny.root), VERSION, notes)) == {"tiny"}
     assert any("vehicle tiny-2: no frame" in n for n in notes)
+
+
+def test_a_scene_none_of_whose_frames_loads_reads_a_dash_for_its_timing(tiny):
+    """Probe 94: inspect's table read "dt ms nan" for a scene whose every frame was skipped."""
+    from hybrid_calib.data.summary import summarize_dataset
+
+    for sd in tiny.cam_sd:
+        tiny.path(sd).unlink()
+    table = summarize_dataset(_open(tiny), progress=False).format()
+    row = next(line for line in table.splitlines() if line.startswith("tiny-scene"))
+    assert row.rstrip().endswith("-") and "nan" not in row, row

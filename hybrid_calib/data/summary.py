@@ -126,10 +126,10 @@ class DatasetSummary:
                  f"{'raw':>6s} {'NaN':>5s} {'dt ms':>7s}"]
         for g in self.groups:
             j = g.to_json()
-            p = j["radar_points_per_sweep"]
+            p, dt = j["radar_points_per_sweep"], j["dt_radar_minus_camera_ms"]["mean"]
             lines.append(f"{g.scene[:24]:24s} {g.vehicle[:12]:12s} {g.frames:6d} {g.loaded:6d} "
                          f"{p['mean']:7.1f} [{p['min']:3d},{p['max']:4d}] {j['radar_points_raw_mean']:6.1f} "
-                         f"{g.nonfinite:5d} {j['dt_radar_minus_camera_ms']['mean']:7.1f}")
+                         f"{g.nonfinite:5d} " + (f"{dt:7.1f}" if np.isfinite(dt) else f"{'-':>7s}"))  # none loaded
         lines += self._sweep_lines() + self._sanity_lines()
         for vehicle, names in self.calibration_splits.items():
             far = [f"{n}: {d:.2f} deg, {cm:.1f} cm from {vehicle}'s" for n in names[1:]
