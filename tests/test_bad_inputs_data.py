@@ -76,6 +76,9 @@ SIM_VEHICLE_CASES = {  # case -> (key, value, needle); each was "internal error:
     "rotation-missing": ("factory_T_ego_cam", {"rotation": KeyError}, "lacks ['rotation']"),
     "ragged-matrix": ("nominal_T_ego_radar", [[1, 0, 0], [0, 1]], "neither a {rotation, translation} object"),
     "matrix-not-rigid": ("nominal_T_ego_cam", np.diag([2.0, 1, 1, 1]).tolist(), "not rigid"),
+    # probe 95: x and y swapped read "not rigid (rotation not orthonormal ...)" of an orthonormal matrix
+    "matrix-mirrored": ("factory_T_ego_radar", [[0, 1, 0, 3.4], [1, 0, 0, 0], [0, 0, 1, 0.5], [0, 0, 0, 1]],
+                        "is a reflection, not a rotation (determinant -1"),
     "mount-1e30-m": ("true_T_ego_cam", {"rotation": [1, 0, 0, 0], "translation": [1e30, 0, 0]}, "more than 50 m"),
 }
 

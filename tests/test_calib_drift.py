@@ -477,6 +477,17 @@ def test_an_estimate_far_from_any_mount_or_not_converged_is_not_trusted():
     why = trust_reason(vr, ref)
     assert why.startswith("the estimate lies 64.0 deg and") and "the solve went astray" in why
     assert "or the tables' mount itself is wrong" in why  # a quaternion in the wrong order reads the same (probe 29)
+    # a converged solve whose rows fit it: the tables are the first suspect (probe 95: the oracle found the truth from
+    # tables 45-180 deg off, and the words led with "the solve went astray ... calibrate a longer drive")
+    from types import SimpleNamespace
+
+    def fitting(share):
+        return dataclasses.replace(vr, trajectory=[SimpleNamespace(inlier_fraction=share, index=0, n_total=1)])
+
+    said = trust_reason(fitting(0.81), ref)
+    assert said.startswith("the estimate lies 64.0 deg and") and "(25 deg, 2 m): the tables' mount itself is wrong" \
+        in said and "the solve converged with 81% of its rows fitting the estimate; or the solve went astray" in said
+    assert "(25 deg, 2 m): the solve went astray" in trust_reason(fitting(0.27), ref)  # probe 10's 27 %
     untrusted(vr, why)
     assert vr.final.status.startswith("inconclusive: the estimate lies 64.0 deg")
     assert vr.drift["verdict_kind"] == "cannot tell" and vr.drift["drifted"] is False

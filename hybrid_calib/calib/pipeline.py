@@ -324,16 +324,24 @@ def trust_reason(res: VehicleResult, T_reference: np.ndarray) -> str:
         reasons.append(away)
     elif not (np.isfinite(rot_deg) and np.isfinite(trans_cm)) or rot_deg > ASTRAY_ROT_DEG or \
             trans_cm > 100 * ASTRAY_TRANS_M:
+        astray = "the solve went astray (too few frames or rows for its start: calibrate a longer drive)"
+        tables = ("the tables' mount itself is wrong (a rotation or translation in calibrated_sensor.json: "
+                  "hybrid-calib inspect warns when the radar's points miss the image with it, or a sensor is upside "
+                  "down in it)")
+        last = res.trajectory[-1] if res.trajectory else None
+        fit = getattr(last, "inlier_fraction", float("nan")) if NOT_CONVERGED not in status else float("nan")
+        # a converged solve whose rows fit puts the doubt on the tables first (probe 95: the oracle found the truth
+        # from tables 45-180 deg off and read "the solve went astray ... calibrate a longer drive" first)
+        which = (f"{tables}: the solve converged with {fit:.0%} of its rows fitting the estimate; or {astray}"
+                 if np.isfinite(fit) and fit >= FITS_FRACTION else f"{astray}, or {tables}")
         reasons.append(f"the estimate lies {rot_deg:.1f} deg and {trans_cm / 100:.2f} m from the vehicle's tables, "
                        f"farther than any radar mount sits from them ({ASTRAY_ROT_DEG:g} deg, {ASTRAY_TRANS_M:g} m): "
-                       "the solve went astray (too few frames or rows for its start: calibrate a longer drive), or "
-                       "the tables' mount itself is wrong (a rotation or translation in calibrated_sensor.json: "
-                       "hybrid-calib inspect warns when the radar's points miss the image with it, or a sensor is "
-                       "upside down in it)")
+                       f"{which}")
     reasons.append(unseen_end_reason(res))
     return "; and ".join(r for r in reasons if r)
 
 
+FITS_FRACTION = 0.5  # a converged solve with at least this share of its last frame's rows inside: its rows fit it
 NO_VIEW_DEG = 90.0  # the radar's boresight this far from the camera's optical axis: no field of view is that wide
 
 

@@ -944,7 +944,11 @@ def _sim_pose_or_reason(node) -> tuple[np.ndarray | None, str]:
         if not np.all(np.isfinite(T)):
             return None, f"non-finite values in {short_repr(node)}"
         if not is_rigid(T, _ROTATION_TOL):
-            return None, f"{short_repr(node)} is not rigid (rotation not orthonormal or last row not [0, 0, 0, 1])"
+            R = T[:3, :3]
+            mirrored = np.allclose(R @ R.T, np.eye(3), atol=_ROTATION_TOL) and np.linalg.det(R) < 0
+            return None, (f"{short_repr(node)} is a reflection, not a rotation (determinant -1: a left-handed frame, "
+                          "e.g. two axes swapped; a mount is a proper rotation)" if mirrored else  # probe 95
+                          f"{short_repr(node)} is not rigid (rotation not orthonormal or last row not [0, 0, 0, 1])")
     else:
         return None, f"{short_repr(node)} is neither a {{rotation, translation}} object nor a 4x4 list of numbers"
     dist = math.hypot(*T[:3, 3])
