@@ -308,3 +308,8 @@ def test_a_sim_vehicle_record_of_no_log_of_the_root_is_said(sim_root, tmp_path, 
         in err
     assert calibrate.run(_args("--data", str(sim_root), "--out", str(tmp_path / "run0"), "--no-plots")) == 0
     assert "holds no record of log" not in capsys.readouterr().err
+    from hybrid_calib.fleet.jobs import _root_vehicles
+
+    notes: list[str] = []  # a fleet says it among its notes (probe 96: in a job's progress stream only)
+    _root_vehicles(str(root), "v1.0-sim", notes)
+    assert any("sim_vehicle.json holds no record of log" in n for n in notes)

@@ -855,3 +855,8 @@ def test_a_recalibrate_verdict_still_says_a_pinned_axis_far_from_the_tables():
                                 [0.0, 0.0, 0.0])
     d = reference_test(near, C, T, pinned_std=pinned)
     assert d.verdict_kind == "recalibrate" and "prior-pinned" not in d.verdict and not pinned_conflicts(d.axes)
+    # a "cannot tell" says it too (probe 96: export refused on a conflict the verdict never stated)
+    far = reference_test(perturb_camera_frame(T, np.radians([0.0, 6.0, 0.0]), [0.0, 0.0, 0.0]), C, T,
+                         pinned_std=pinned)
+    assert far.verdict_kind == "cannot tell" and far.verdict.startswith("cannot tell: pitch is prior-pinned")
+    assert far.verdict.endswith("check the radar's record in calibrated_sensor.json"), far.verdict

@@ -598,6 +598,14 @@ def test_a_scene_recorded_during_another_of_its_vehicle_is_left_out(tiny):
     assert "-copy" in left[0].reason and "of the same vehicle tiny" in left[0].reason
     assert len(ds.lacking_keyframes["tiny"]) == 4  # listed in the vehicle's result
     assert ds.frameless_vehicles() == {}
+    from hybrid_calib.data.summary import calibration_notes
+    from hybrid_calib.fleet.jobs import _root_vehicles
+
+    (note,) = [n for n in calibration_notes(ds) if "left out" in n]  # said by calibrate and fleet (probe 96)
+    assert note.startswith("note: scene tiny-scene-copy left out: recorded while scene tiny-scene of the same vehicle")
+    notes: list[str] = []
+    _root_vehicles(str(tiny.root), VERSION, notes)
+    assert any("scene tiny-scene-copy left out" in n for n in notes)
 
 
 def test_a_copy_under_another_vehicle_name_is_calibrated_as_that_vehicle(tiny):

@@ -455,3 +455,10 @@ def test_a_record_that_would_keep_a_pinned_axis_far_from_the_estimate_is_not_wri
                           "(prior-pinned: pitch by 20 deg +- 1.02 deg at 1 sigma)"), why
     axes["pitch"]["delta"] = 3.0  # within 3 sigma of the tolerance: the tables' pitch is kept, the yaw written
     assert _why_not(vr, "recalibrate") == ""
+    # probe 96: a vehicle nothing would be written for keeps its tables as before (rc 0), the conflict said by its
+    # verdict; a "cannot tell" under --which recalibrate is "kept the tables", not a refusal
+    axes["pitch"]["delta"] = 20.3
+    axes["yaw"]["decision"] = "undecided"
+    assert _why_not(vr, "trusted") == ""  # every axis kept: export_mounts says "the data decide no axis"
+    vr.drift["verdict_kind"] = "cannot tell"
+    assert _why_not(vr, "recalibrate").startswith("kept the tables: the verdict against them is 'cannot tell'")

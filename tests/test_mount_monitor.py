@@ -625,5 +625,10 @@ def test_a_step_where_the_turn_ends_is_told_with_the_lever_arm_that_reads_the_sa
     # a knock in a drive of varying turns: the lever model does not follow the readings
     sens = g.uniform(-0.6, 0.6, 24)
     assert lever_reading(y, sens, 12) is None
+    # a knock where the turn ends (probe 96): the lever model fits only with a yaw 1.4 deg off the tables as well
+    # (two table errors where a step is one): no lever reading
+    knock = np.r_[np.full(6, 0.03), np.full(14, 1.44)] + g.normal(0, 0.05, 20)
+    sens_end = np.r_[np.full(6, 0.72), np.zeros(14)] + g.normal(0, 0.01, 20)
+    assert lever_reading(knock, sens_end, 6) is None
     # and a reading with no sensitivity known (the readings of older callers) tells nothing
     assert lever_reading(y, np.full(24, np.nan), 12) is None

@@ -328,7 +328,8 @@ def _verdict(axes: list[AxisCheck]) -> tuple[str, str]:
     imprecise = sum(not a.prior_pinned for a in blocking)
     hint = (f" (frames of other scenes and turns narrow {'it' if imprecise == 1 else 'them'}; more frames like "
             "these may not)") if imprecise else ""
-    return "cannot tell", "cannot tell: " + "; ".join(why) + hint + note
+    conflict = pinned_conflict_words(axes)  # said whatever the verdict (probe 96: export refused on it unsaid)
+    return "cannot tell", "cannot tell: " + "; ".join(why) + hint + note + (f"; {conflict}" if conflict else "")
 
 
 def ref_words(rot_deg: float, trans_cm: float) -> str:

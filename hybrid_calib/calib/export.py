@@ -315,9 +315,6 @@ def _why_not(vr, which: str) -> str:
                 "the radar's own Doppler did not check it (no radar mount monitor level to compare with: "
                 "mount.enabled=false, or too few sweep pairs): a learned method's yaw alone is not written; "
                 "calibrate with the mount monitor on")
-    if conflict := pinned_conflict_words((vr.drift or {}).get("axes") or {}):  # the kept axes would keep it
-        return (f"not exported: {conflict} (writing only the axes the data decide would keep the tables' value "
-                "along those)")
     kind = (vr.drift or {}).get("verdict_kind")
     if which == "recalibrate" and not kind and vr.drift:  # probe 88: read "the verdict ... is 'none'" while the
         # report derived "recalibrate" from the same block's numbers
@@ -328,6 +325,11 @@ def _why_not(vr, which: str) -> str:
     if which == "recalibrate" and kind != "recalibrate":
         return (f"kept the tables: the verdict against them is '{kind or 'none'}', not 'recalibrate' (result.json "
                 "says why); --which trusted writes every trusted estimate")
+    conflict = pinned_conflict_words((vr.drift or {}).get("axes") or {})
+    if conflict and len(_kept_axes(vr)) < len(AXIS_WORDS):  # a record it writes would keep the tables along the
+        # pinned axis the data put far from them (probe 95); where it writes nothing, the tables are kept as they were
+        return (f"not exported: {conflict} (writing only the axes the data decide would keep the tables' value "
+                "along those)")
     return ""
 
 

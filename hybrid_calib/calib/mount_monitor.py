@@ -439,14 +439,20 @@ def lever_sensitivity(T_ego_radar: np.ndarray, m, y_deg: float, h: float = 0.1) 
     return float((np.degrees(heading_residual(T, m)[0]) - y_deg) / h)
 
 
+LEVER_LEVEL_DEG = 0.5  # a lever arm alone leaves the level where the vehicle drives straight within this of 0, deg
+
+
 def lever_reading(y: np.ndarray, g: np.ndarray, cut: int, ratio: float = 1.5, floor_deg: float = 0.05
                   ) -> float | None:
     """The forward lever-arm error (m: how far forward of the radar its tables put it) that explains the
     readings ``y`` (deg) of two levels, split at ``cut``, as well as their step does, or None: ``y = k + L g`` (``g``
     each reading's ``lever_sensitivity``, deg/m) fitted by least squares, its residual sum of squares within
-    ``ratio`` of the two levels' (each about its median) plus ``floor_deg`` squared a reading, and ``|L|`` at most
-    ``LEVER_MAX_M``. A step where the vehicle's turn per metre changes is then told with that other reading: one
-    turn of the radar, or its lever arm wrong in the tables, read the same there."""
+    ``ratio`` of the two levels' (each about its median) plus ``floor_deg`` squared a reading, ``|L|`` at most
+    ``LEVER_MAX_M``, and ``|k|`` (the level where the vehicle drives straight) at most ``LEVER_LEVEL_DEG``: a lever arm
+    alone leaves the straight-driving level at the tables' yaw, so a fit that needs a yaw far from it as well is two
+    table errors, not the one a step is (probe 96: a knock where a turn ended read "2.0 m forward" with k 1.44 deg).
+    A step where the vehicle's turn per metre changes is then told with that other reading: one turn of the radar, or
+    its lever arm wrong in the tables, read the same there."""
     y, g = np.asarray(y, np.float64), np.asarray(g, np.float64)
     if min(cut, len(y) - cut) < 3 or not np.all(np.isfinite(g)) or np.ptp(g) <= 0:
         return None
@@ -454,7 +460,8 @@ def lever_reading(y: np.ndarray, g: np.ndarray, cut: int, ratio: float = 1.5, fl
     A = np.c_[np.ones(len(y)), g]
     coef = np.linalg.lstsq(A, y, rcond=None)[0]
     rss_lever = float(np.sum((y - A @ coef) ** 2))
-    if abs(coef[1]) > LEVER_MAX_M or rss_lever > ratio * rss_step + len(y) * floor_deg ** 2:
+    if abs(coef[1]) > LEVER_MAX_M or abs(coef[0]) > LEVER_LEVEL_DEG or \
+            rss_lever > ratio * rss_step + len(y) * floor_deg ** 2:
         return None
     return float(coef[1])
 

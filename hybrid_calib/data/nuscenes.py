@@ -224,6 +224,7 @@ class NuScenesRadarCamera:
         self.calibration_splits: dict[str, list[str]] = {}  # vehicle -> its calibrations' names, when more than 1
         self.calibration_offsets: dict[str, tuple[float, float]] = {}  # NAME-calN -> (deg, cm) from NAME's
         self.duplicates: dict[str, str] = {}  # sample read once: a sensor file of it is the named earlier sample's
+        self.overlapping: dict[str, str] = {}  # scene left out -> the scene of its vehicle recorded at the same time
         self.frames: list[FrameRef] = self._build_index()
         if not self.frames and self._index_skips:  # nothing to read, and the reason is known: say it now
             first = self._index_skips[0]
@@ -388,6 +389,7 @@ class NuScenesRadarCamera:
                 dropped[scene] = (vehicle, lo, hi, *other)
         if not dropped:
             return frames
+        self.overlapping = {names.get(s, s): names.get(d[3], d[3]) for s, d in dropped.items()}
         out = []
         for ref in frames:
             if ref.scene_token not in dropped:

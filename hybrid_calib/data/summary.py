@@ -485,6 +485,12 @@ def summarize_dataset(ds: NuScenesRadarCamera, progress: bool = True) -> Dataset
                           dict(ds.calibration_offsets), ds.intrinsic_changes())
 
 
+def _first_and_more(items: dict) -> tuple:
+    """(first key, its value, " and N more" or "") of a non-empty dict, for a note that names one of several."""
+    key, value = next(iter(items.items()))
+    return key, value, f" and {len(items) - 1} more" if len(items) > 1 else ""
+
+
 def sim_vehicle_gap_warning(ds, vehicles=None) -> str:
     """A warning ("" if none) when a simulated root's ``sim_vehicle.json`` holds records, but none for the log of some
     vehicle's frames (its tokens renamed, a merged log.json): that vehicle's verdicts then compare with its
@@ -497,12 +503,23 @@ def sim_vehicle_gap_warning(ds, vehicles=None) -> str:
             and (vehicles is None or ref.vehicle in vehicles)}
     if not lost:
         return ""
-    log, vehicle = next(iter(lost.items()))
-    more = f" and {len(lost) - 1} more" if len(lost) > 1 else ""
+    log, vehicle, more = _first_and_more(lost)
     return (f"warning: {ds.tables.vdir / 'sim_vehicle.json'} holds no record of log {log} (vehicle {vehicle}){more}: "
             "its verdicts compare with its calibrated_sensor records, which in a simulated root are the truth, not "
             "the vehicle's factory calibration; fix the log tokens in sim_vehicle.json, or re-run hybrid-calib "
             "simulate")
+
+
+def overlap_note(ds) -> str:
+    """The scenes ``ds``'s index left out for being recorded while another scene of the same vehicle was
+    (``NuScenesRadarCamera.overlapping``), in one note, or "" (probe 96: only inspect and result.json said them)."""
+    left = getattr(ds, "overlapping", None) or {}
+    if not left:
+        return ""
+    scene, other, more = _first_and_more(left)
+    return (f"note: scene {scene}{more} left out: recorded while scene {other} of the same vehicle was (one vehicle "
+            "records one scene at a time: the tables list one recording twice, or give two vehicles one name; "
+            "hybrid-calib inspect lists its samples)")
 
 
 def calibration_notes(ds, vehicles=None) -> list[str]:
@@ -521,6 +538,8 @@ def calibration_notes(ds, vehicles=None) -> list[str]:
                                                           if left else ""))
     out += [f"log {log}: {words}"
             for log, words in (ds.intrinsic_changes() if hasattr(ds, "intrinsic_changes") else {}).items()]
+    if line := overlap_note(ds):
+        out.append(line)
     if dup := getattr(ds, "duplicates", None):  # the index read them once (data.nuscenes._once_per_file)
         first = next(iter(dup.items()))
         out.append(f"note: {len(dup)} sample(s) read the same sensor files as earlier samples (first: {first[0]}, as "
