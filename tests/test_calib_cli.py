@@ -313,3 +313,35 @@ def test_a_sim_vehicle_record_of_no_log_of_the_root_is_said(sim_root, tmp_path, 
     notes: list[str] = []  # a fleet says it among its notes (probe 96: in a job's progress stream only)
     _root_vehicles(str(root), "v1.0-sim", notes)
     assert any("sim_vehicle.json holds no record of log" in n for n in notes)
+
+
+def test_a_scene_recorded_during_another_is_said_not_counted_as_bad_files(sim_root, tmp_path, capsys):
+    """Probe 96: a scene copied with its own files under the same vehicle was left out, but calibrate's line counted
+    its samples as "frame(s) skipped (bad files or no rows)" and no note said which scene was left out."""
+    import shutil
+
+    root = tmp_path / "root"
+    shutil.copytree(sim_root, root, symlinks=True)
+    vdir = root / "v1.0-sim"
+    t = {n: json.loads((vdir / f"{n}.json").read_text()) for n in ("scene", "sample", "sample_data")}
+    t["scene"] += [{**s, "token": s["token"] + "-copy", "name": s["name"] + "-copy",
+                    "first_sample_token": s["first_sample_token"] + "-copy",
+                    "last_sample_token": s["last_sample_token"] + "-copy"} for s in list(t["scene"])]
+    t["sample"] += [{**s, "token": s["token"] + "-copy", "scene_token": s["scene_token"] + "-copy",
+                     "prev": s["prev"] and s["prev"] + "-copy", "next": s["next"] and s["next"] + "-copy"}
+                    for s in list(t["sample"])]
+    for sd in list(t["sample_data"]):
+        name = sd["filename"].replace("/", "/copy-", 1) if "/" in sd["filename"] else "copy-" + sd["filename"]
+        if (root / sd["filename"]).is_file():
+            (root / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy(root / sd["filename"], root / name)
+        t["sample_data"].append({**sd, "token": sd["token"] + "-copy", "filename": name,
+                                 "sample_token": sd["sample_token"] + "-copy",
+                                 "prev": sd["prev"] and sd["prev"] + "-copy", "next": sd["next"] and sd["next"] + "-copy"})
+    for n, recs in t.items():
+        (vdir / f"{n}.json").write_text(json.dumps(recs))
+    assert calibrate.run(_args("--data", str(root), "--out", str(tmp_path / "run"), "--no-plots")) == 0
+    out = capsys.readouterr()
+    said = out.out + out.err
+    assert "left out: recorded while scene" in said and "-copy" in said
+    assert "5 sample(s) of the tables hold no frame the run reads" in said and "bad files" not in said, said

@@ -632,3 +632,16 @@ def test_a_step_where_the_turn_ends_is_told_with_the_lever_arm_that_reads_the_sa
     assert lever_reading(knock, sens_end, 6) is None
     # and a reading with no sensitivity known (the readings of older callers) tells nothing
     assert lever_reading(y, np.full(24, np.nan), 12) is None
+
+
+def test_an_untold_step_is_not_the_reason_a_result_is_not_trusted():
+    """Probe 96: a step between levels already beyond any mount (not told) was still read by the trust reason and the
+    fleet's summary as a measured turn; the reason is the far level itself."""
+    from hybrid_calib.calib.mount_monitor import monitor_trust_reason, told_steps
+
+    g = np.random.default_rng(6)
+    s = _feed(np.r_[85.0 + g.normal(0, 0.1, 12), 100.0 + g.normal(0, 0.1, 12)]).summary()
+    assert s["steps"] and not told_steps(s)
+    why = monitor_trust_reason(s)
+    assert why.startswith("the radar's own heading on the vehicle (its Doppler against the ego poses) lies"), why
+    assert "measured the radar turn" not in why

@@ -108,7 +108,7 @@ class LidarAlignConfig:
     # and a radar far off its tables with an over-confident loop (the LiDAR right: a probe's 80 cm table error
     # read 6.2 stds, the real scene up to 3.5); the innovation is recorded and said instead (``describe``)
     max_innovation: float = 0.0
-    far_innovation: float = 4.0  # beyond this many stds the LiDAR line says the two disagree and widens the lateral std
+    far_innovation: float = 4.0  # beyond this many stds (dy, or a folded dx) the two disagree: said, that std widened
 
     def __post_init__(self):
         require(self, {

@@ -628,7 +628,7 @@ def monitor_trust_reason(summary: dict | None,
                 f"{_spread(sc['scatter_deg'])} from frame to frame (frames {sc['from']}-{sc['to']}), far more than "
                 "a mount allows: the radar turned during the drive (no one extrinsic holds for it), or its velocities "
                 "or the ego poses are wrong; check the radar's mount, and calibrate the frames after any change")
-    big = [st for st in (summary or {}).get("steps") or []
+    big = [st for st in told_steps(summary)
            if abs(float(st.get("step_deg", 0.0))) - 3 * float(st.get("std_deg", 0.0)) > max_level_deg]
     tail = (summary or {}).get("tail")
     if not big and isinstance(tail, dict):

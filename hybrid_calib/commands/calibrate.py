@@ -204,8 +204,13 @@ def _report(result, out: Path, reused: bool = False) -> int:
             ood = sum("ood_score" in r for r in v.skipped)
             seen = sum("repeats" in r for r in v.skipped)  # the ego stood still: not bad (probe 49)
             frozen = sum("frozen" in r for r in v.skipped)
-            bad = len(v.skipped) - ood - seen - frozen
+            # the index's: a sample without one of the keyframes, another's copy, a scene recorded during another
+            # (probe 96: they read "skipped (bad files or no rows)")
+            unindexed = sum(isinstance(r, dict) and r.get("index") is None for r in v.skipped)
+            bad = len(v.skipped) - ood - seen - frozen - unindexed
             said = (f"{bad} frame(s) skipped (bad files or no rows)" if bad else "",
+                    f"{unindexed} sample(s) of the tables hold no frame the run reads (a keyframe missing, another "
+                    "sample's copy, or a scene recorded during another of the vehicle)" if unindexed else "",
                     f"{seen} frame(s) left out as repeats of a view (the ego moved under views.min_travel_m and "
                     "turned under views.min_turn_deg since the view before: it stood still or crept)" if seen else "",
                     f"{frozen} frame(s) left out whose camera image is an earlier frame's, byte for byte (a frozen "

@@ -41,6 +41,7 @@ import numpy as np
 from hybrid_calib.atomic import finished
 from hybrid_calib.calib.covariance import camera_offset, inconclusive_reason, status_kind
 from hybrid_calib.calib.drift import alarms_say_moved, doppler_level_words
+from hybrid_calib.calib.mount_monitor import told_steps
 from hybrid_calib.config import save_json_atomic, save_text_atomic
 from hybrid_calib.errors import DataError
 from hybrid_calib.fleet.manifest import Manifest, rel_path
@@ -128,7 +129,7 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
                    if status_kind(vr.final.status) == "inconclusive" and not d.get("at_end") else (
                        d.get("verdict") or ("out of tolerance" if d.get("drifted") else "within tolerance")),
                    step_alarms=[f.index for f in vr.trajectory if f.step_alarm], error=vr.error, fleet_test=None,
-                   mount_steps=(vr.mount or {}).get("steps", []))
+                   mount_steps=told_steps(vr.mount))
         if row["prior"] is not None and (d.get("prior") or {}).get("refused"):  # calib.drift.refused_prior
             row["prior"]["refused"] = d["prior"]["words"]
         elif row["prior"] is not None and d.get("prior"):  # calib.drift.prior_note: the axes it decided or moved
