@@ -335,9 +335,8 @@ def test_a_scene_recorded_during_another_is_said_not_counted_as_bad_files(sim_ro
         if (root / sd["filename"]).is_file():
             (root / name).parent.mkdir(parents=True, exist_ok=True)
             shutil.copy(root / sd["filename"], root / name)
-        t["sample_data"].append({**sd, "token": sd["token"] + "-copy", "filename": name,
-                                 "sample_token": sd["sample_token"] + "-copy", "prev": sd["prev"] and sd["prev"] + "-copy",
-                                 "next": sd["next"] and sd["next"] + "-copy"})
+        copied = {k: sd[k] and sd[k] + "-copy" for k in ("token", "sample_token", "prev", "next")}
+        t["sample_data"].append({**sd, **copied, "filename": name})
     for n, recs in t.items():
         (vdir / f"{n}.json").write_text(json.dumps(recs))
     assert calibrate.run(_args("--data", str(root), "--out", str(tmp_path / "run"), "--no-plots")) == 0
