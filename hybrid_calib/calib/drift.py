@@ -265,8 +265,8 @@ def pinned_conflicts(axes) -> list[tuple[str, dict]]:
             far = bool(a.get("prior_pinned")) and abs(float(a["delta"])) - 3 * float(a["std"]) > float(a["tolerance"])
         except (KeyError, TypeError, ValueError):
             continue
-        if far:
-            out.append((name, a))
+        if far:  # its unit as stored, or as the axis has it (a block written without one)
+            out.append((name, {**a, "unit": a.get("unit") or ("deg" if name in AXIS_WORDS[:3] else "cm")}))
     return out
 
 
@@ -275,11 +275,8 @@ def pinned_conflict_words(axes) -> str:
     found = pinned_conflicts(axes)
     if not found:
         return ""
-    def unit(n: str) -> str:
-        return "deg" if n in AXIS_WORDS[:3] else "cm"
-
-    diffs = "; ".join(f"{n} by {_fmt(abs(float(a['delta'])), unit(n))} +- {_fmt(float(a['std']), unit(n))} at 1 sigma"
-                      for n, a in found)
+    diffs = "; ".join(f"{n} by {_fmt(abs(float(a['delta'])), a['unit'])} +- {_fmt(float(a['std']), a['unit'])} at 1 "
+                      "sigma" for n, a in found)
     names = join_and([n for n, _ in found])
     return (f"the tables differ from the estimate along axes the data do not observe (prior-pinned: {diffs}), beyond "
             f"the tolerance by more than 3 sigma: the estimate's {names} is a prior's, so the tables' {names} or that "

@@ -197,12 +197,7 @@ class MountMonitor:
     _pos_from: int | None = None  # where each CUSUM last left zero (None: at the level's first tested pair)
     _neg_from: int | None = None
 
-    def residual(self, a: EgoSweep, b: EgoSweep) -> tuple[float | None, str]:
-        """(y deg, "") of the pair a -> b, or (None, why it was skipped)."""
-        y, _, why = self._residual(a, b)
-        return y, why
-
-    def _residual(self, a: EgoSweep, b: EgoSweep) -> tuple[float | None, float, str]:
+    def residual(self, a: EgoSweep, b: EgoSweep) -> tuple[float | None, float, str]:
         """(y deg, its ``lever_sensitivity`` deg/m, "") of the pair a -> b, or (None, nan, why it was skipped)."""
         c = self.conf
         why = pair_skip(a, b)
@@ -226,7 +221,7 @@ class MountMonitor:
         for b in sweeps:
             a = partner(self._history, b, self.conf.pair_dt_s)
             self._history.append(b)
-            y, g, why = (None, float("nan"), "first frame of a pair") if a is None else self._residual(a, b)
+            y, g, why = (None, float("nan"), "first frame of a pair") if a is None else self.residual(a, b)
             if y is not None:
                 ys.append(y)
                 gs.append(g)
@@ -352,13 +347,18 @@ class MountMonitor:
                         "level_from": part[0][0], "level_to": part[-r - 1][0]}
         return None
 
+    def _cuts(self) -> list[int]:
+        """The indices into ``series`` where its pieces start (0, each step's change), and its length last."""
+        return [0] + [next(k for k, (p, _) in enumerate(self.series) if p >= s.change) for s in self.steps] + [
+            len(self.series)]
+
     def levels(self) -> list[dict]:
         """The drive cut at its alarms: per piece the positions it spans, its level of ``y`` (deg:
         the radar's yaw on the vehicle minus the reference mount's, plus the Doppler's bias), the
         level's std, and the frames and sweep pairs behind it."""
-        cuts = [0] + [next(k for k, (p, _) in enumerate(self.series) if p >= s.change) for s in self.steps]
+        cuts = self._cuts()
         out = []
-        for a, b in zip(cuts, cuts[1:] + [len(self.series)]):
+        for a, b in zip(cuts, cuts[1:]):
             v = np.array([y for _, y in self.series[a:b]])
             if not len(v):
                 continue
@@ -373,9 +373,7 @@ class MountMonitor:
         """The result's ``mount`` block: steps, levels and the test's threshold. Each step's
         ``step_deg`` / ``std_deg`` are re-measured from the whole levels on either side of it (the
         figures at the alarm, from the few pairs after the change, are kept as ``*_at_alarm``)."""
-        levels, steps = self.levels(), []
-        cuts = [0] + [next(k for k, (p, _) in enumerate(self.series) if p >= s.change) for s in self.steps] + [
-            len(self.series)]
+        levels, steps, cuts = self.levels(), [], self._cuts()
         for j, st in enumerate(self.steps):
             d = {**vars(st), "step_deg_at_alarm": st.step_deg, "std_deg_at_alarm": st.std_deg}
             if j + 1 < len(levels):

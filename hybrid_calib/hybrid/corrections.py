@@ -189,8 +189,8 @@ def lidar_widened(f: FrameEstimate, d_m: float, z: float, axis: int = RADAR_Y) -
     (beyond ``far_innovation``) from the loop's estimate, and which is wrong (the loop over-confident, the radar far
     off its tables, or the tables' LiDAR-camera extrinsic) cannot be told; the fold took the tighter one's word for
     both, the widened 1-sigma covers both, as the yaw check's (probe 23: the cascade on the real scene read a lateral
-    offset 23-35 cm off its tables at +- 0.9 cm, the LiDAR 12 stds from the loop; probe 95: tables 3 m forward of
-    the radar, the LiDAR's forward offset folded 4-6 stds from the loop, the result 3.5 m off at +- 12 cm, no word)."""
+    offset 23-35 cm off its tables at +- 0.9 cm, the LiDAR 12 stds from the loop; probe 95: tables 1 m forward of
+    the radar, the LiDAR's forward offset folded 4.9 stds from the loop with no word, NEES 6.9)."""
     side = "forward" if axis == RADAR_X else "lateral"
     words = (f"the LiDAR puts the radar's {side} offset {d_m * 100:+.1f} cm from the loop's estimate, {abs(z):.1f} "
              "stds apart: the loop's estimate (a radar far off its tables), or the tables' LiDAR-camera extrinsic (the "
@@ -270,8 +270,6 @@ def yaw_widening(u: np.ndarray, d: float, lidar: dict | None) -> tuple[np.ndarra
     rad, and, where the LiDAR's offsets were folded in (``lidar["applied"]``, ``forward_applied``), the lateral
     (forward) offset they then imply, ``coupling @ u[:3]`` per radian (``calib.lidar_alignment``: the fold measured
     ``xi[4] - coupling @ xi[:3]``, so a yaw that is off by ``d`` leaves the folded offset off by that much)."""
-    from hybrid_calib.calib.lidar_alignment import RADAR_Y
-
     v = np.asarray(u, np.float64).copy()
     for axis, key, on in ((RADAR_Y, "coupling_m_per_rad", "applied"), (RADAR_X, "coupling_x_m_per_rad",
                                                                       "forward_applied")):
