@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from hybrid_calib.geometry import make_T, so3_exp
@@ -79,3 +81,23 @@ def network_start(root, version: str, camera_token: str, T: np.ndarray) -> np.nd
     ds = NuScenesRadarCamera(root, version)
     ref = next(r for r in ds.frames if r.camera_sd["token"] == camera_token)
     return np.asarray(T, np.float64) @ ds.radar_motion(ref)
+
+
+def list_again_as_vehicle(tables: Path, vehicle: str) -> None:
+    """Rewrite a root's tables (its version folder ``tables``) so that its first log's drive is listed again under
+    ``vehicle``: a copied log, scenes, samples and sample_data ("-copy" tokens) on the same sensor files."""
+    import json
+
+    t = {n: json.loads((tables / f"{n}.json").read_text()) for n in ("log", "scene", "sample", "sample_data")}
+    t["log"].append({**t["log"][0], "token": "log-copy", "vehicle": vehicle})
+    t["scene"] += [{**s, "token": s["token"] + "-copy", "name": s["name"] + "-copy", "log_token": "log-copy",
+                    "first_sample_token": s["first_sample_token"] + "-copy",
+                    "last_sample_token": s["last_sample_token"] + "-copy"} for s in list(t["scene"])]
+    t["sample"] += [{**s, "token": s["token"] + "-copy", "scene_token": s["scene_token"] + "-copy",
+                     "prev": s["prev"] and s["prev"] + "-copy", "next": s["next"] and s["next"] + "-copy"}
+                    for s in list(t["sample"])]
+    t["sample_data"] += [{**sd, "token": sd["token"] + "-copy", "sample_token": sd["sample_token"] + "-copy",
+                          "prev": sd["prev"] and sd["prev"] + "-copy", "next": sd["next"] and sd["next"] + "-copy"}
+                         for sd in list(t["sample_data"])]
+    for n, recs in t.items():
+        (tables / f"{n}.json").write_text(json.dumps(recs))

@@ -264,22 +264,11 @@ def test_a_vehicle_whose_samples_are_all_another_ones_copies_is_named_by_the_ora
     calibrate (oracle) printed the first vehicle only, rc 0, the second nowhere in result.json. It fails, named."""
     import shutil
 
+    from tests.helpers import list_again_as_vehicle
+
     root = tmp_path / "root"
     shutil.copytree(sim_root, root, symlinks=True)
-    vdir = root / "v1.0-sim"
-    t = {n: json.loads((vdir / f"{n}.json").read_text()) for n in ("log", "scene", "sample", "sample_data")}
-    t["log"].append({**t["log"][0], "token": "log-copy", "vehicle": "sim-veh-009"})
-    t["scene"] += [{**s, "token": s["token"] + "-copy", "name": s["name"] + "-copy", "log_token": "log-copy",
-                    "first_sample_token": s["first_sample_token"] + "-copy",
-                    "last_sample_token": s["last_sample_token"] + "-copy"} for s in list(t["scene"])]
-    t["sample"] += [{**s, "token": s["token"] + "-copy", "scene_token": s["scene_token"] + "-copy",
-                     "prev": s["prev"] and s["prev"] + "-copy", "next": s["next"] and s["next"] + "-copy"}
-                    for s in list(t["sample"])]
-    t["sample_data"] += [{**sd, "token": sd["token"] + "-copy", "sample_token": sd["sample_token"] + "-copy",
-                          "prev": sd["prev"] and sd["prev"] + "-copy", "next": sd["next"] and sd["next"] + "-copy"}
-                         for sd in list(t["sample_data"])]
-    for n, recs in t.items():
-        (vdir / f"{n}.json").write_text(json.dumps(recs))
+    list_again_as_vehicle(root / "v1.0-sim", "sim-veh-009")
     out = tmp_path / "run"
     assert calibrate.run(_args("--data", str(root), "--out", str(out), "--no-plots")) == 1
     doc = json.loads((out / "result.json").read_text())

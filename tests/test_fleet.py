@@ -1235,3 +1235,25 @@ def test_an_interrupted_fleet_leaves_no_job_running_in_its_manifest(fleet_root, 
                   options=FleetOptions(plots=False))
     states = {e["state"] for e in json.loads((tmp_path / "f" / "manifest.json").read_text())["jobs"].values()}
     assert states == {"pending"}, states
+
+
+def test_a_vehicle_of_no_frame_is_a_failed_job_with_why(fleet_root, tmp_path):
+    """Probe 94 / session 42: a vehicle all of whose samples are another's copies failed calibrate (rc 1, named in
+    vehicles_failed) but was only a note of a fleet that reported every job done. It is a job that fails, saying why,
+    so the fleet's counts and exit code are calibrate's."""
+    import shutil
+
+    from tests.helpers import list_again_as_vehicle
+
+    root = tmp_path / "root"
+    shutil.copytree(fleet_root, root, symlinks=True)
+    list_again_as_vehicle(root / "v1.0-sim", "sim-veh-009")
+    manifest = tmp_path / "FLEET.json"
+    manifest.write_text(json.dumps({"version": "v1.0-sim",
+                                    "roots": [{"data": str(root), "vehicles": ["sim-veh-001", "sim-veh-009"]}]}))
+    s = run_fleet(None, str(manifest), "v1.0-sim", "oracle", tmp_path / "out", seed=2,
+                  calib={"window": {"window": 3}}, options=FleetOptions(plots=False))
+    assert s["counts"]["done"] == 1 and s["counts"]["failed"] == 1
+    bad = s["vehicles"]["sim-veh-009"]
+    assert bad["state"] == "failed" and "vehicle sim-veh-009: no frame: none of its" in bad["reason"]
+    assert not any("sim-veh-009" in n and "no frame" in n for n in s.get("notes", []))  # said once, as the failure

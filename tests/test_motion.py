@@ -422,3 +422,43 @@ def test_a_frame_is_paired_with_the_latest_frame_a_chord_back():
     assert pair_partner(crawl[:5], *crawl[5][1:], conf) == 4  # nothing 4 m back within 1.5 s: the one before
     assert pair_partner(slow[:5], None, None, conf) == 14  # no pose: the one before
     assert pair_partner(slow[:5], *slow[5][1:], replace(conf, min_chord_m=0.0)) == 14
+
+
+def test_frames_are_paired_by_the_cameras_path_whatever_origin_the_root_gives_its_ego_frame(drive, tmp_path):
+    """Probe 94: scene-0916 with its ego origin moved (the rear axle of nuScenes; another fleet's anywhere: the sensors'
+    poses in the world unchanged) paired other frames in its turns and ended 1.15 deg / 54 cm apart. The chord a
+    pair is chosen by, and the travel that makes a new view, are the camera's: the same on both roots."""
+    import json
+    import shutil
+
+    from hybrid_calib.data.views import ViewConfig, repeated_views
+    from hybrid_calib.hybrid.motion import MotionSource
+    from learned.dataset import open_frames
+
+    root = tmp_path / "moved"
+    shutil.copytree(drive.root, root)
+    d = np.array([1.6, 0.3, 0.5])  # the new ego origin in the old ego frame, metres
+    tables = root / "v1.0-sim"
+    poses = json.loads((tables / "ego_pose.json").read_text())
+    for p in poses:
+        q = np.asarray(p["rotation"], float)  # w, x, y, z
+        w, x, y, z = q / np.linalg.norm(q)
+        R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                      [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                      [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+        p["translation"] = (np.asarray(p["translation"], float) + R @ d).tolist()
+    (tables / "ego_pose.json").write_text(json.dumps(poses))
+    mounts = json.loads((tables / "calibrated_sensor.json").read_text())
+    for c in mounts:
+        c["translation"] = (np.asarray(c["translation"], float) - d).tolist()
+    (tables / "calibrated_sensor.json").write_text(json.dumps(mounts))
+    moved = open_frames(root, "v1.0-sim", lidar=False)
+    idx = list(range(len(drive)))
+    a, b = MotionSource(drive, MotionConfig()), MotionSource(moved, MotionConfig())
+    for i in idx:
+        (pa, ta), (pb, tb) = a.where(i), b.where(i)
+        assert ta == tb and np.allclose(pa, pb, atol=1e-6)  # the camera's position: the same point in the world
+        ego_a, ego_b = drive.ego_poses([i])[0][:3, 3], moved.ego_poses([i])[0][:3, 3]
+        assert np.linalg.norm(ego_a - ego_b) > 1.0  # while the ego origins are 1.7 m apart
+    near = ViewConfig(min_travel_m=3.0, min_turn_deg=3.0)  # keyframes ~2-5 m apart: some repeat at 3 m
+    assert repeated_views(drive.camera_poses(idx), near) == repeated_views(moved.camera_poses(idx), near)

@@ -23,7 +23,8 @@ def test_a_frame_is_a_new_view_once_the_ego_moved_or_turned_enough_since_the_las
     # 1.2 m on; 6 turned 4 deg; an unreadable pose is taken; 8 turned 0.5 deg from 6
     assert sorted(rep) == [2, 3, 4, 8] and {r.of for r in rep.values()} == {1, 6}
     assert np.isclose(rep[4].travel_m, 0.7) and np.isclose(rep[8].turn_deg, 0.5, atol=1e-6)
-    assert rep[3].reason(ViewConfig()).startswith("the same view as frame 1: the ego moved 0.10 m and turned 0.0 deg")
+    assert rep[3].reason(ViewConfig()).startswith(
+        "the same view as frame 1: the camera moved 0.10 m and turned 0.0 deg")
     assert repeated_views(poses, ViewConfig(min_travel_m=0.0, min_turn_deg=0.0)) == {}  # off: every frame
     assert repeated_views([_pose(0.0)] * 3, ViewConfig()).keys() == {1, 2}  # a stand-still drive: one view
     with pytest.raises(ValueError, match="min_travel_m"):
@@ -110,6 +111,6 @@ def test_a_drive_that_ends_at_a_red_light_is_not_blamed_on_the_radar(stop_root, 
     assert main(["calibrate", "--data", str(stop_root), "--method", "oracle", "--start", "R1", "--max-frames", "7",
                  "--out", str(tmp_path / "o"), "--no-plots"]) == 0
     out = capsys.readouterr().out
-    assert "4 frame(s) left out as repeats of a view (the ego moved under views.min_travel_m" in out and \
+    assert "4 frame(s) left out as repeats of a view (the camera moved under views.min_travel_m" in out and \
         "bad files" not in out, out
     assert "gave nothing to fuse" not in out and "inconclusive" not in out, out

@@ -36,6 +36,7 @@ from hybrid_calib.calib.result import (
     CalibrationRun,
     VehicleProgress,
     VehicleResult,
+    failed_vehicles_message,
     path_of,
     reuse_result,
 )
@@ -126,7 +127,7 @@ def _load_oracle(data, version: str, conf: CalibrateConfig, progress: bool = Tru
         vi.skipped.extend({"index": None, "token": s.token, "reason": s.reason}
                           for s in ds.lacking_keyframes.get(vehicle, []))
         idx = idx[: conf.max_frames] if conf.max_frames > 0 else idx
-        repeats = repeated_views(ds.ego_poses(idx) if conf.views.enabled else [], conf.views)
+        repeats = repeated_views(ds.camera_poses(idx) if conf.views.enabled else [], conf.views)
         # drawn by (seed, vehicle) alone: the same rows whichever other vehicles the run holds, and in every
         # command (calibrate, fleet, compare, the report's replay)
         rng = vehicle_rng(conf.seed, vehicle, "oracle")
@@ -570,6 +571,8 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
         inputs = _load_oracle(data, version, conf, progress, frameless=unknown)
     else:
         inputs = _load_dir(Path(correspondences), data, version, conf, absent, unknown)
+    if not inputs and unknown:  # each vehicle asked for has no frame, or no file: why, as a run that fails them
+        raise DataError(failed_vehicles_message(unknown), path=str(data))
     if not inputs:
         asked = "" if conf.vehicles is None else f" among the vehicles asked for (--set vehicles={list(conf.vehicles)})"
         raise DataError(f"no vehicle to calibrate{asked}: check the vehicle names (hybrid-calib inspect lists them) "

@@ -211,7 +211,7 @@ def _report(result, out: Path, reused: bool = False) -> int:
             said = (f"{bad} frame(s) skipped (bad files or no rows)" if bad else "",
                     f"{unindexed} sample(s) of the tables hold no frame the run reads (a keyframe missing, another "
                     "sample's copy, or a scene recorded during another of the vehicle)" if unindexed else "",
-                    f"{seen} frame(s) left out as repeats of a view (the ego moved under views.min_travel_m and "
+                    f"{seen} frame(s) left out as repeats of a view (the camera moved under views.min_travel_m and "
                     "turned under views.min_turn_deg since the view before: it stood still or crept)" if seen else "",
                     f"{frozen} frame(s) left out whose camera image is an earlier frame's, byte for byte (a frozen "
                     "camera?)" if frozen else "",

@@ -513,6 +513,14 @@ class NuScenesRadarCamera:
         not read (the frame says why when it is read)."""
         return self._each(indices, lambda f: self.tables.T_global_ego(f.camera_sd))
 
+    def camera_poses(self, indices: list[int]) -> list[np.ndarray | None]:
+        """(4, 4) camera -> global of each frame of ``indices`` at its camera keyframe (tables only: the ego pose and
+        the camera's mount), None where it does not read. Unlike the ego pose it does not depend on where a root puts
+        its ego frame's origin (nuScenes: the rear axle; another fleet's: anywhere), so what the camera's views are
+        judged by (how far apart, whether one repeats the last) is the same on any root of the same drive."""
+        return self._each(indices, lambda f: self.tables.T_global_ego(f.camera_sd) @ self.tables.T_ego_sensor(
+            f.camera_sd))
+
     def camera_files(self, indices: list[int]) -> list[Path | None]:
         """The camera image file of each frame of ``indices`` (tables only), None where its record does not name one
         under the root (the frame says why when it is read)."""

@@ -6,7 +6,8 @@ same place: the network's pass, its rows, the LiDAR's and the radar's detections
 all. Fused as independent frames they shrink the covariance as 1/N while the error stays (measured on simulated
 drives with one 10 s stop: docs/benchmarks.md "Drives that stop"). So a frame is a new view only when the ego has
 moved at least ``min_travel_m`` or turned at least ``min_turn_deg`` since the last view taken; the others are left out
-with a reason naming the view they repeat. Distances and turns are between the camera keyframes' ego poses (tables).
+with a reason naming the view they repeat. Distances and turns are between the camera's poses at its keyframes (tables:
+the ego pose times the camera's mount; not the ego origin's, which a root may put anywhere).
 """
 
 from __future__ import annotations
@@ -23,8 +24,8 @@ from hybrid_calib.geometry import so3_log
 class ViewConfig:
     """When a keyframe is a new view (module doc); ``min_travel_m=0`` and ``min_turn_deg=0`` take every frame."""
 
-    min_travel_m: float = 1.0  # ego travel since the last view taken that makes a new view, metres
-    min_turn_deg: float = 3.0  # or ego heading change since the last view taken, degrees
+    min_travel_m: float = 1.0  # the camera's travel since the last view taken that makes a new view, metres
+    min_turn_deg: float = 3.0  # or its heading change since the last view taken, degrees
 
     def __post_init__(self):
         require_ranges(self, {"min_travel_m": "[0, 1000]", "min_turn_deg": "[0, 180]"})
@@ -36,7 +37,7 @@ class ViewConfig:
 
 @dataclass(frozen=True)
 class Repeat:
-    """A keyframe that repeats an earlier view: ``of`` (its position in the drive), how far the ego moved and turned
+    """A keyframe that repeats an earlier view: ``of`` (its position in the drive), how far the camera moved and turned
     since that view."""
 
     of: int
@@ -44,7 +45,7 @@ class Repeat:
     turn_deg: float
 
     def reason(self, conf: ViewConfig) -> str:
-        return (f"the same view as frame {self.of}: the ego moved {self.travel_m:.2f} m and turned "
+        return (f"the same view as frame {self.of}: the camera moved {self.travel_m:.2f} m and turned "
                 f"{self.turn_deg:.1f} deg since (a new view needs {conf.min_travel_m:g} m or {conf.min_turn_deg:g} "
                 "deg, views.min_travel_m / views.min_turn_deg): its errors would repeat that frame's")
 
@@ -54,7 +55,7 @@ class Repeat:
 
 
 def repeated_views(poses: list, conf: ViewConfig) -> dict[int, Repeat]:
-    """Position in the drive -> ``Repeat`` for each frame of ``poses`` (time order; (4, 4) ego -> global, or None
+    """Position in the drive -> ``Repeat`` for each frame of ``poses`` (time order; (4, 4) camera -> global, or None
     where a pose does not read: such a frame is taken, as before) that repeats the last view taken."""
     if not conf.enabled:
         return {}

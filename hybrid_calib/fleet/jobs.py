@@ -138,9 +138,7 @@ def _root_vehicles(root: str, version: str, notes: list[str] | None = None, refe
     if notes is not None:
         notes.extend(f"root {root}: {line.removeprefix('warning: ')}" for line in ds.reference_notes()
                      if line.startswith("warning: ") and line not in notes)
-        # a vehicle of the tables with no frame is no job: said (probe 94: calibrate dropped it without a word); a
-        # scene left out, a simulated vehicle with no factory record (probe 96: said in a job's stream only)
-        notes.extend(f"root {root}: {why}" for why in ds.frameless_vehicles().values())
+        # a scene left out, a simulated vehicle with no factory record (probe 96: said in a job's stream only)
         notes.extend(f"root {root}: {line.removeprefix('warning: ').removeprefix('note: ')}"
                      for line in (overlap_note(ds), sim_vehicle_gap_warning(ds)) if line)
     out = {}
@@ -160,6 +158,10 @@ def _root_vehicles(root: str, version: str, notes: list[str] | None = None, refe
         out[vehicle] = {"tables_T": None if tables_T is None else tables_T.tolist(),
                         "design_T": None if design is None else design.tolist(),
                         "logs": sorted({ds.frames[i].log_token for i in idx})}
+    # a vehicle of the tables with no frame (every sample another's copy, a scene left out): a job that fails with
+    # why, as calibrate's ``vehicles_failed`` and rc 1 (it had been a note of a fleet that exited 0)
+    for vehicle in ds.frameless_vehicles():
+        out.setdefault(vehicle, {"tables_T": None, "design_T": None, "logs": []})
     return out
 
 

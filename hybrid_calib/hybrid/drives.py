@@ -230,7 +230,7 @@ STANDSTILL_M = 1.0  # a drive whose ego poses travel less than this, metres: its
 def view_repeats(frames, idx: list[int], conf: ViewConfig) -> dict:
     """Dataset index -> skip record (``index``: its position in the drive) of each frame of ``idx`` that repeats an
     earlier view (``data.views``; none where the frames have no ego poses)."""
-    poses = frames.ego_poses(idx) if conf.enabled and hasattr(frames, "ego_poses") else []
+    poses = frames.camera_poses(idx) if conf.enabled and hasattr(frames, "camera_poses") else []
     return {idx[k]: r.record(k, frames.frames[idx[k]].camera_sd.get("token"), conf)
             for k, r in repeated_views(poses, conf).items()}
 

@@ -96,7 +96,7 @@ class MotionConfig:
     translation: bool = False
     min_speed_mps: float = 2.0  # slower: the Doppler heading is too noisy, the pair is skipped
     max_gap_s: float = 1.5  # frames further apart are not a pair
-    # a frame is paired with the latest earlier frame at least this far back along the ego's path (ego poses), within
+    # a frame is paired with the latest earlier frame at least this far back along the camera's path (its poses), within
     # max_gap_s, else with the one before it (0: always the one before). A slow drive's VO carried biases of 1.3-1.7
     # deg at 1.5 m chords (probe 48's 3 m/s drive), beyond what the chord's std (above) covers there; paired further
     # back on the real scene-0916 (keyframes 1.8-3.1 m apart, 4 m: two back) its yaw moved 0.6-1.3 deg further from
@@ -184,10 +184,12 @@ class MotionSource:
         return self.frames[i]
 
     def where(self, i: int) -> tuple[np.ndarray | None, float | None]:
-        """(the ego's position (3,) m, the camera keyframe's time s) of frame ``i`` from the tables (no file read),
-        or (None, None) where the frames do not say (``pair_partner`` then takes the frame before)."""
+        """(the camera's position (3,) m, the camera keyframe's time s) of frame ``i`` from the tables (no file read),
+        or (None, None) where the frames do not say (``pair_partner`` then takes the frame before). The camera's, not
+        the ego origin's: the chord the images see, whatever origin a root gives its ego frame (probe 94: scene-0916
+        with its ego origin moved to the camera paired other frames in its turns and ended 1.15 deg / 54 cm apart)."""
         try:
-            (T,) = self.frames.ego_poses([i])
+            (T,) = self.frames.camera_poses([i])
             t = self.frames.frames[i].camera_sd["timestamp"] * 1e-6
         except (AttributeError, KeyError, TypeError, ValueError, IndexError):
             return None, None
