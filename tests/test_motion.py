@@ -167,7 +167,7 @@ def test_frames_of_two_scenes_are_no_motion_pair(drive):
     assert same is not None and m is None and "two scenes" in why and "another-scene" in why, why
     sweeps, _ = drive_sweeps(drive, [0, 1], between=False)
     a, b = sweeps
-    R = np.asarray(frames[0].extras["T_ego_radar"])[:3, :3]
+    R = np.asarray(frames[0].extras["T_ego_radar"])  # the mount (4, 4)
     assert ego_measurement(a, a.velocity, b, b.velocity, R, 0.5, 1.5, 30.0)[0] is not None
     b2 = dataclasses.replace(b, extras={**b.extras, "scene_token": "another-scene"})
     m, why = ego_measurement(a, a.velocity, b2, b2.velocity, R, 0.5, 1.5, 30.0)

@@ -52,12 +52,13 @@ class EgoSweep:
 MAX_PLAUSIBLE_TURN_DPS = 120.0  # a yaw rate no road vehicle reaches (a tight U-turn: ~40 deg/s), deg/s
 
 
-def ego_measurement(fa, va, fb, vb, R_ego_radar: np.ndarray, min_speed_mps: float, max_gap_s: float,
+def ego_measurement(fa, va, fb, vb, T_ego_radar: np.ndarray, min_speed_mps: float, max_gap_s: float,
                     max_turn_dps: float) -> tuple[MotionMeasurement | None, str]:
     """The pair a -> b as a ``factors.motion`` measurement with the ego in the camera's place, or (None, why it
     was skipped). fa / fb: sweeps or frames (``timestamp_radar_us``, ``extras["T_global_ego_radar"]``,
-    ``radar_token``); va / vb: their ``RadarVelocity`` (or None); R_ego_radar: (3, 3) the mount's rotation
-    (carries the radar's velocity at b into frame a)."""
+    ``radar_token``); va / vb: their ``RadarVelocity`` (or None); T_ego_radar: (4, 4) the mount (its rotation
+    carries the radar's velocity at b into frame a; its position gives the radar's travel the Doppler speed is
+    checked against)."""
     if fa.timestamp_radar_us is None or fb.timestamp_radar_us is None:
         return None, "a sweep without a timestamp (its frame is unreadable)"
     if why := scene_break(fa, fb):
@@ -76,8 +77,9 @@ def ego_measurement(fa, va, fb, vb, R_ego_radar: np.ndarray, min_speed_mps: floa
     R_A = Ta[:3, :3].T @ Tb[:3, :3]
     D = Ta[:3, :3].T @ (Tb[:3, 3] - Ta[:3, 3])
     s = float(np.linalg.norm(D))
-    if why := pose_doppler_conflict(s, dt, 0.5 * (va.speed + vb.speed)):  # before the speed: a radar saying 0 m/s
-        return None, why                                                   # while the poses move is not a parked car
+    # before the speed: a radar saying 0 m/s while the poses move is not a parked car
+    if why := pose_doppler_conflict(sensor_travel(Ta, Tb, T_ego_radar), dt, 0.5 * (va.speed + vb.speed)):
+        return None, why
     if min(va.speed, vb.speed) < min_speed_mps:
         return None, f"radar speed {min(va.speed, vb.speed):.1f} m/s (need {min_speed_mps:g})"
     turn = float(np.degrees(np.linalg.norm(so3_log(R_A)))) / dt
@@ -86,7 +88,7 @@ def ego_measurement(fa, va, fb, vb, R_ego_radar: np.ndarray, min_speed_mps: floa
                       "does: the ego poses (ego_pose.json) are wrong here")
     if turn > max_turn_dps:
         return None, f"turning at {turn:.0f} deg/s (at most {max_turn_dps:g})"
-    psi, sig, speed = chord_heading(va.v, va.cov, vb.v, vb.cov, radar_yaw_change(R_A, R_ego_radar))
+    psi, sig, speed = chord_heading(va.v, va.cov, vb.v, vb.cov, radar_yaw_change(R_A, T_ego_radar[:3, :3]))
     return MotionMeasurement(D / s, R_A, s, psi, sig, speed, fa.radar_token, fb.radar_token, 0,
                              min(va.n_inliers, vb.n_inliers)), ""
 
@@ -108,11 +110,20 @@ def scene_break(fa, fb) -> str:
 POSE_SPEED_TOL_MPS, POSE_SPEED_TOL_REL = 1.0, 0.25
 
 
+def sensor_travel(Ta: np.ndarray, Tb: np.ndarray, T_ego_sensor: np.ndarray | None) -> float:
+    """How far a sensor mounted at ``T_ego_sensor`` (4, 4; None: at the ego origin) moved between the ego poses
+    ``Ta`` and ``Tb`` (4, 4, ego -> global), metres. The radar's, not the ego origin's: in a turn at w rad/s an origin
+    d metres beside the radar moves up to w d m/s faster or slower than it (scene-0916 with its origin put 3 m aside:
+    1.1 m/s at 21 deg/s, 11 of its pairs refused), and where a root puts its ego origin is its own choice."""
+    Ta, Tb = np.asarray(Ta, np.float64), np.asarray(Tb, np.float64)
+    t = np.zeros(3) if T_ego_sensor is None else np.asarray(T_ego_sensor, np.float64)[:3, 3]
+    return float(np.linalg.norm((Tb[:3, :3] @ t + Tb[:3, 3]) - (Ta[:3, :3] @ t + Ta[:3, 3])))
+
+
 def pose_doppler_conflict(travel_m: float, dt_s: float, speed_mps: float) -> str:
-    """Why the ego poses cannot be trusted over an interval ("" when they can): their travel ``travel_m`` over
-    ``dt_s`` against the radar's Doppler speed ``speed_mps`` (the radar's, within a few per cent of the ego
-    origin's in the turns of a car). The motion constraint then does without the poses' rotation, and the Doppler
-    steps (mount monitor, lever arm) skip the pair."""
+    """Why the ego poses cannot be trusted over an interval ("" when they can): the radar's travel by them
+    ``travel_m`` (``sensor_travel``) over ``dt_s`` against its Doppler speed ``speed_mps``. The motion constraint
+    then does without the poses' rotation, and the Doppler steps (mount monitor, lever arm) skip the pair."""
     v = travel_m / dt_s
     if not np.isfinite(speed_mps) or abs(v - speed_mps) <= max(POSE_SPEED_TOL_MPS, POSE_SPEED_TOL_REL * speed_mps):
         return ""  # a Doppler fit without a speed is refused by its own checks, not blamed on the poses

@@ -151,16 +151,16 @@ class LeverArm:
                 "skipped": dict(self.skipped), **({"note": why} if why else {})}
 
 
-def _measurements(sweeps: list[EgoSweep], R: np.ndarray, conf: LeverArmConfig) -> tuple[list, list, dict]:
-    """(the pairs' ``MotionMeasurement`` at the mount rotation ``R`` (3, 3), their (time span s, drive position of
-    the later sweep), {reason: [count, first example]} of those skipped; the reason is the example's words before
+def _measurements(sweeps: list[EgoSweep], M: np.ndarray, conf: LeverArmConfig) -> tuple[list, list, dict]:
+    """(the pairs' ``MotionMeasurement`` at the mount ``M`` (4, 4; T_ego_radar), their (time span s, drive position
+    of the later sweep), {reason: [count, first example]} of those skipped; the reason is the example's words before
     its first number)."""
     ms, dts, skipped = [], [], {}
     for a, b in sweep_pairs(sweeps, conf.pair_dt_s):
         why = pair_skip(a, b)
         m = None
         if not why:
-            m, why = ego_measurement(a, a.velocity, b, b.velocity, R, conf.min_speed_mps, conf.max_gap_s,
+            m, why = ego_measurement(a, a.velocity, b, b.velocity, M, conf.min_speed_mps, conf.max_gap_s,
                                      conf.max_turn_dps)
         if m is None:
             key = re.split(r"[\d:(]", why)[0].strip()
@@ -207,7 +207,7 @@ def fit(sweeps: list[EgoSweep], X: np.ndarray, T_ego_cam: np.ndarray, conf: Leve
     M = np.asarray(T_ego_cam, np.float64) @ np.asarray(X, np.float64)
     if M.shape != (4, 4) or not np.isfinite(M).all():
         return None, "the estimate or the tables' camera mount (T_ego_cam) is not a finite 4x4 transform"
-    ms, dts, skipped = _measurements(sweeps, M[:3, :3], conf)
+    ms, dts, skipped = _measurements(sweeps, M, conf)
     dt, where = np.array([x[0] for x in dts]), np.array([x[1] for x in dts], int)
     # a sweep without a drive position (-1: built by hand) is a frame of its own
     frames = len(set(where.tolist())) if min(where, default=0) >= 0 else len(ms)
@@ -240,7 +240,9 @@ def fit(sweeps: list[EgoSweep], X: np.ndarray, T_ego_cam: np.ndarray, conf: Leve
             e = np.zeros(6)
             e[j] = sgn * steps[j]
             Mj = M @ se3_exp(e)
-            msj, _, _ = _measurements(sweeps, Mj[:3, :3], conf)
+            # the pairs rebuilt at the turned mount; which are refused (the radar's travel against its Doppler,
+            # ``ego_doppler.pose_doppler_conflict``) at the estimate's position, so a difference never moves a pair
+            msj, _, _ = _measurements(sweeps, np.vstack([np.hstack([Mj[:3, :3], M[:3, 3:]]), M[3:]]), conf)
             sj = _solve(msj, Mj, conf) if len(msj) >= conf.min_pairs else None
             side.append(np.nan if sj is None else sj[0][1])
         if np.isfinite(side).all():

@@ -203,7 +203,7 @@ class MountMonitor:
         why = pair_skip(a, b)
         if why:
             return None, float("nan"), why
-        m, why = ego_measurement(a, a.velocity, b, b.velocity, self.T_ego_radar[:3, :3], c.min_speed_mps,
+        m, why = ego_measurement(a, a.velocity, b, b.velocity, self.T_ego_radar, c.min_speed_mps,
                                  c.max_gap_s, c.max_turn_dps)
         if m is None:
             return None, float("nan"), why

@@ -39,7 +39,7 @@ import numpy as np
 from factors.motion import MotionMeasurement, chord_heading, chord_length, heading_residual, radar_yaw_change
 from factors.robust import weight
 from hybrid_calib.atomic import write_bytes_atomic
-from hybrid_calib.calib.ego_doppler import pose_doppler_conflict, scene_break
+from hybrid_calib.calib.ego_doppler import pose_doppler_conflict, scene_break, sensor_travel
 from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.data.files import NPZ_ERRORS, file_part
 from hybrid_calib.errors import DataError
@@ -307,13 +307,13 @@ class MotionSource:
 
 
 def ego_conflict(fa, fb, speed_mps: float) -> str:
-    """Why the frames' ego poses (at the camera's timestamps) contradict the radar's Doppler speed, or ""."""
+    """Why the frames' ego poses (at the camera's timestamps) contradict the radar's Doppler speed, or "": the
+    radar's travel by them (its mount ``extras["T_ego_radar"]``), whatever origin the root gives its ego frame."""
     Ta, Tb = fa.extras.get("T_global_ego_cam"), fb.extras.get("T_global_ego_cam")
     dt = (fb.timestamp_camera_us - fa.timestamp_camera_us) * 1e-6
     if Ta is None or Tb is None or dt <= 0:
         return ""
-    travel = float(np.linalg.norm(np.asarray(Tb, np.float64)[:3, 3] - np.asarray(Ta, np.float64)[:3, 3]))
-    return pose_doppler_conflict(travel, dt, speed_mps)
+    return pose_doppler_conflict(sensor_travel(Ta, Tb, fa.extras.get("T_ego_radar")), dt, speed_mps)
 
 
 def ego_rotation(fa, fb) -> np.ndarray | None:
