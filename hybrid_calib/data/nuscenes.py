@@ -521,6 +521,13 @@ class NuScenesRadarCamera:
         return self._each(indices, lambda f: self.tables.T_global_ego(f.camera_sd) @ self.tables.T_ego_sensor(
             f.camera_sd))
 
+    def heading_jitter(self, indices: list[int]):
+        """``data.pose_jitter.HeadingJitter`` of the radar channel's pose records over the frames ``indices`` (time
+        order; keyframes and the records between them, tables only), or None where too few or too sparse."""
+        from hybrid_calib.data.pose_jitter import drive_heading_jitter
+
+        return drive_heading_jitter(self.tables, [self.frames[i].radar_sd for i in indices])
+
     def camera_files(self, indices: list[int]) -> list[Path | None]:
         """The camera image file of each frame of ``indices`` (tables only), None where its record does not name one
         under the root (the frame says why when it is read)."""

@@ -193,6 +193,13 @@ def _walk_between(tables: NuScenesTables, sd: dict, limit: int):
         token, newer = rec.get("prev", ""), rec
 
 
+def records_between(tables: NuScenesTables, sd: dict, limit: int = 20) -> list[dict]:
+    """The ``sample_data`` records of ``sd``'s channel between its previous keyframe and ``sd`` (neither included),
+    oldest first, whether or not their files are on disk (a mini copy lists them without ``sweeps/``); the walk ends
+    at a broken ``prev`` pointer (``sweeps_between_keyframes`` says it)."""
+    return [rec for _, rec, err in _walk_between(tables, sd, limit) if err is None][::-1]
+
+
 def _older(rec: dict, newer: dict) -> bool:
     """Whether ``rec``'s timestamp is before ``newer``'s (True when either is not a number: said elsewhere)."""
     a, b = rec.get("timestamp"), newer.get("timestamp")

@@ -520,6 +520,11 @@ class NuScenesTables:
                 POSE_SMOOTH_MARGIN_YAW_DEG + MAX_EGO_ROT_ACCEL_DPS2 * k,
                 POSE_SMOOTH_MARGIN_TILT_DEG + MAX_EGO_ROT_ACCEL_DPS2 * k)
 
+    def T_global_ego_unchecked(self, sd: dict) -> np.ndarray:
+        """``T_global_ego`` without the check against the path its neighbours' poses trace: for what measures how
+        the poses scatter (``data.pose_jitter``), which that check would refuse the noisiest of."""
+        return self._T_global_ego(sd)
+
     def _T_global_ego(self, sd: dict) -> np.ndarray:
         """``T_global_ego`` without the neighbours' check."""
         ep = self.get("ego_pose", sd["ego_pose_token"], f"sample_data {sd['token']}")

@@ -79,12 +79,12 @@ def with_road_words(traj: list[FrameEstimate], geometry: RowGeometry, conf: Hybr
     frac = along_road(geometry, conf.window.covariance.degeneracy)
     if frac is None:
         return traj
-    return _with_words(traj, f"all the reflectors the network matched lie along the road ({100 * frac:.0f} % on two "
+    return with_words(traj, f"all the reflectors the network matched lie along the road ({100 * frac:.0f} % on two "
                              "lines parallel to the travel direction): every frame shows it one kind of scene, so its "
                              "error there does not average out over the drive")
 
 
-def _with_words(traj: list[FrameEstimate], words: str) -> list[FrameEstimate]:
+def with_words(traj: list[FrameEstimate], words: str) -> list[FrameEstimate]:
     """The trajectory with ``words`` added to its last status: an "ok" becomes "weak: words", a "weak" gets "; words";
     an untrusted status (and an empty trajectory) is left as it is."""
     from hybrid_calib.calib.covariance import status_kind
@@ -104,7 +104,7 @@ def with_ood_off_words(traj: list[FrameEstimate], ood_enabled: bool) -> list[Fra
     sigmas off the tables; with the test on, the same runs are "inconclusive")."""
     if ood_enabled:
         return traj
-    return _with_words(traj, "the out-of-domain test is off (ood.enabled=false): the covariance holds only where the "
+    return with_words(traj, "the out-of-domain test is off (ood.enabled=false): the covariance holds only where the "
                              "input is like the network's training drives, which nothing checked here")
 
 
@@ -126,7 +126,7 @@ def with_prior_words(traj: list[FrameEstimate]) -> list[FrameEstimate]:
     what = [*(["the network's learned prior of the radar's mount, seen through the camera"]
               if {"roll", "pitch"} & set(named) else []),
             *(["the vertical offset is the start's"] if "vertical offset" in named else [])]
-    return _with_words(traj, f"{join_and(named)} {'is' if len(named) == 1 else 'are'} prior-pinned, not measured "
+    return with_words(traj, f"{join_and(named)} {'is' if len(named) == 1 else 'are'} prior-pinned, not measured "
                              f"by this drive ({'; '.join(what)}; std {stds}): a 2D radar has no elevation, so a radar "
                              "tilted or raised off the fleet's mounts is not seen")
 

@@ -49,6 +49,9 @@ class Drive:
     truth_path: list = field(default_factory=list)
     # what ``reference`` is (``NuScenesRadarCamera.reference_source``): the tables, or an earlier export's mount
     reference_source: dict = field(default_factory=lambda: {"kind": "tables"})
+    # how much the ego poses' heading jitters from record to record (``data.pose_jitter.HeadingJitter``; None: not
+    # measured): too noisy, the hybrid's motion constraint takes the camera's turn from the images
+    heading_jitter: object = None
 
     @property
     def errors_against(self) -> str:
@@ -145,7 +148,8 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
                                 (repeats := view_repeats(frames, idx, conf.views)),
                                 frozen_images(frames, idx, repeats), _truth_path(frames, idx) if simulated else [],
                                 frames.reference_source(vehicle) if hasattr(frames, "reference_source") else
-                                {"kind": "tables"})
+                                {"kind": "tables"},
+                                frames.heading_jitter(idx) if hasattr(frames, "heading_jitter") else None)
     frameless = frames.frameless_vehicles(conf.vehicles) if hasattr(frames, "frameless_vehicles") else {}
     for vehicle, reason in frameless.items():  # a vehicle of no frame at all
         if vehicle in by_vehicle or vehicle in drives:

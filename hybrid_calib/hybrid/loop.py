@@ -89,6 +89,7 @@ from hybrid_calib.hybrid.corrections import (
     with_ood_off_words,
     with_prior_words,
     with_road_words,
+    with_words,
     with_yaw_check,
 )
 from hybrid_calib.hybrid.drives import (
@@ -344,6 +345,7 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
     s_mot = drive_std_rad(conf.motion, drive.simulated)
     motion_gate = MotionGate(conf.motion)
     recent: list = []  # (index, ego position, time) of the frames so far: the motion pair's partner (pair_partner)
+    jittery = bool(getattr(drive.heading_jitter, "too_noisy", False))  # data.pose_jitter
     for k, i in enumerate(tqdm(drive.indices, desc=f"hybrid {drive.vehicle}", disable=not conf.progress,
                                leave=False)):
         here = motion.where(i) if motion is not None else (None, None)
@@ -369,11 +371,13 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
         if motion is not None and fi.prior is not None:
             prior = GaussianPrior(fi.prior.T, fi.prior.cov + inflate)
             tr.priors += 1
-            # headings the radar's Doppler already contradicts (mirrored ego poses): rotation from the images
-            ego = mount is None or not mount.headings_implausible()
+            # headings the radar's Doppler already contradicts (mirrored ego poses), or that jitter from record to
+            # record (``data.pose_jitter``): rotation from the images
+            ego = (mount is None or not mount.headings_implausible()) and not jittery
             m, why = motion.measurement(pair, i, T[:3, :3], ego) if pair is not None else (None, "first frame")
             if not ego:
-                mrec["motion_rotation"] = "images (the ego poses' headings contradict the radar's Doppler)"
+                mrec["motion_rotation"] = ("images (the ego poses' heading jitters from record to record)" if jittery
+                                           else "images (the ego poses' headings contradict the radar's Doppler)")
             # gated by the tighter of the estimate's covariance and this frame's pass with its drive error
             inn = None if m is None else gated_innovation(T, m, conf.motion, (fi.prior.cov + D, reported_cov),
                                                           drive.simulated)
@@ -582,6 +586,8 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     if conf.method == "hybrid":
         traj, yaw_check = with_yaw_check(traj, drive, conf, mon, lidar)
         traj = with_road_words(traj, tr.geometry, conf)
+        if motion is not None and getattr(drive.heading_jitter, "too_noisy", False):  # data.pose_jitter
+            traj = with_words(traj, drive.heading_jitter.words())
     traj = with_ood_off_words(with_prior_words(traj), conf.ood.enabled)
     res = VehicleResult(drive.vehicle, traj[-1].estimate, traj, skipped=drive.index_skips + tr.skipped,
                         n_frames=len(traj))
@@ -591,7 +597,9 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     res.frame_rows = tr.rows
     res.ood = ood
     res.mount = None if mon is None else {**mon.summary(), **sweep_files_record(frames, drive.indices),
-                                          **({"yaw_check": yaw_check} if yaw_check else {})}
+                                          **({"yaw_check": yaw_check} if yaw_check else {}),
+                                          **({"heading_jitter": drive.heading_jitter.to_dict()}
+                                             if drive.heading_jitter is not None else {})}
     res.config = {**to_dict(conf), "measurement_effective": to_dict(measurement_config(runner, conf)),
                   "depth_effective": runner.depth_name, **({"depth_note": note} if note else {}),
                   **({"drive_error_priors": n_priors} if n_priors else {})}
