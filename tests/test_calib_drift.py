@@ -397,6 +397,10 @@ def test_a_yaw_difference_the_radar_mount_monitor_does_not_see_points_at_the_cam
     assert camera_side_note(drift, {**agrees, "steps": [{"step_deg": 1.0}]}) == drift
     within = {**drift, "axes": {"yaw": {**drift["axes"]["yaw"], "decision": "within"}}}
     assert camera_side_note(within, agrees) == within
+    # a level too wide to pin the radar within the tolerance (noisy ego poses: 0.11 +- 0.41 deg, probe 98) says
+    # nothing about which side moved
+    vague = {"steps": [], "levels": [{"level_deg": 0.11, "std_deg": 0.41, "pairs": 168}]}
+    assert camera_side_note(drift, vague) == drift
 
 
 def test_an_untrusted_estimate_is_never_a_reason_to_recalibrate():
