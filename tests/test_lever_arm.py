@@ -207,3 +207,35 @@ def test_the_drive_common_term_is_added_to_the_forward_offsets_variance():
     a5, _ = fit(sweeps, start, T_EGO_CAM, LeverArmConfig(systematic_m=0.05))
     assert a5.dx_std ** 2 - a0.dx_std ** 2 == pytest.approx(0.05 ** 2, rel=1e-6)
     np.testing.assert_allclose(a5.delta, a0.delta, atol=1e-12)
+
+
+def test_a_fit_not_applied_that_disagrees_with_the_loop_widens_the_forward_std_and_names_a_clock_offset():
+    """Probe 98: a radar clock 30-100 ms off the ego poses moved the loop's forward offset 25-82 cm at a 1-sigma of
+    ~10 cm while the Doppler in turns, too few to be applied, read it 5-15 stds the other way, unsaid. A fit not
+    applied is still checked against the loop: beyond ``far_innovation`` stds the two are said and the forward std
+    covers both; within, nothing changes."""
+    from dataclasses import replace
+
+    from hybrid_calib.hybrid.corrections import reported_estimate, with_doppler
+    from hybrid_calib.hybrid.drives import Drive
+    from hybrid_calib.hybrid.loop import HybridConfig, _frame
+
+    conf = HybridConfig()
+    conf = replace(conf, doppler=replace(conf.doppler, min_turning=1000))  # never applied: reported only
+    sweeps = _drive(np.random.default_rng(5), n=80, turn_dps=9.0)
+    drive = Drive("v", list(range(80)), X_TRUE, X_TRUE, True)
+    motion = SimpleNamespace(velocity=lambda i, s=sweeps: (s[i].velocity, ""), sweeps={})
+    start = X_TRUE @ se3_exp(np.array([0.0, 0.0, 0.0, 0.3, 0.0, 0.0]))  # the loop 30 cm forward of the truth
+    for loop_std, widened in ((0.05, True), (0.4, False)):
+        cov = np.diag([1e-4, 1e-4, 1e-4, loop_std ** 2, 0.05 ** 2, 0.4 ** 2])
+        traj = [_frame(k, f"s{k}", 0, reported_estimate(start, cov, conf), 1, 1.0) for k in range(3)]
+        out, block = with_doppler(traj, drive, _Frames(sweeps), conf, None, motion)
+        assert not block["applied"] and "frames in turns" in block["note"]
+        assert abs(block["dx_m"] + 0.3) < 3 * block["dx_std_m"]  # the Doppler reads the loop 30 cm forward
+        assert (abs(block["innovation_x_sigma"]) > conf.doppler.far_innovation) is widened
+        if widened:
+            assert "widened" in block and "clock offset" in out[-1].estimate.status and "ms)" in block["widened"]
+            assert np.sqrt(out[-1].cov[RADAR_X, RADAR_X]) > abs(block["dx_m"])
+            np.testing.assert_array_equal(out[-1].T, traj[-1].T)  # not moved: which of the two is right is unknown
+        else:
+            assert out[-1] is traj[-1] and "widened" not in block

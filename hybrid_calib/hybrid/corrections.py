@@ -192,9 +192,11 @@ def lidar_widened(f: FrameEstimate, d_m: float, z: float, axis: int = RADAR_Y) -
     offset 23-35 cm off its tables at +- 0.9 cm, the LiDAR 12 stds from the loop; probe 95: tables 1 m forward of
     the radar, the LiDAR's forward offset folded 4.9 stds from the loop with no word, NEES 6.9)."""
     side = "forward" if axis == RADAR_X else "lateral"
+    clock = (", or the radar's timestamps against the ego poses (a clock offset dt moves its points v dt along the "
+             "travel)") if axis == RADAR_X else ""
     words = (f"the LiDAR puts the radar's {side} offset {d_m * 100:+.1f} cm from the loop's estimate, {abs(z):.1f} "
              "stds apart: the loop's estimate (a radar far off its tables), or the tables' LiDAR-camera extrinsic (the "
-             f"LiDAR's or the camera's record), is wrong; the {side} 1-sigma is widened to cover both")
+             f"LiDAR's or the camera's record){clock}, is wrong; the {side} 1-sigma is widened to cover both")
     return _noted(f, words, np.eye(6)[axis], d_m), words
 
 
@@ -225,7 +227,27 @@ def with_doppler(traj: list[FrameEstimate], drive: Drive, frames, conf: HybridCo
                                                 "be carried to the camera"}
     a, why = fit_lever_arm(sweeps, traj[-1].T, T_ego_cam, conf.doppler)
     wrong = (mon.summary().get("implausible") or "") if mon is not None else ""  # the same pairs: not trusted
-    return _fold_last(traj, conf, a, why, (wrong or refusal(a, conf.doppler)) if a else "", apply_forward)
+    refused = (wrong or refusal(a, conf.doppler)) if a else ""
+    traj, block = _fold_last(traj, conf, a, why, refused, apply_forward)
+    if a is None or wrong or not refused:
+        return traj, block
+    # not applied (too few turns, too uncertain): still a measurement of the forward offset, checked against the loop's
+    loop_std = float(np.sqrt(max(traj[-1].cov[RADAR_X, RADAR_X], 0.0)))
+    dx = float(a.delta[1])
+    z = dx / max(float(np.hypot(a.dx_std, loop_std)), 1e-12)
+    if abs(z) <= conf.doppler.far_innovation:
+        return traj, {**block, "innovation_x_sigma": z}
+    speeds = [s.velocity.speed for s in sweeps if s.velocity is not None and np.isfinite(s.velocity.speed)]
+    v = float(np.median(speeds)) if speeds else float("nan")
+    clock = (f" (at this drive's {v:.1f} m/s, {abs(dx) * 100:.0f} cm is a clock offset of {1e3 * abs(dx) / v:.0f} ms)"
+             if np.isfinite(v) and v > 0.5 else "")
+    words = (f"the radar's Doppler in turns puts its forward offset {dx * 100:+.1f} +- {a.dx_std * 100:.1f} cm from "
+             f"the estimate's ({abs(z):.1f} stds with the estimate's own {loop_std * 100:.1f} cm): the estimate's "
+             "forward offset is off, or the radar's timestamps are off the ego poses' (a clock offset dt moves the "
+             f"radar's points v dt along the travel{clock}: check the radar's clock); the forward 1-sigma is widened "
+             "to cover both")
+    last = _noted(traj[-1], words, np.eye(6)[RADAR_X], dx)
+    return [*traj[:-1], last], {**block, "innovation_x_sigma": z, "widened": words}
 
 
 def with_yaw_check(traj: list[FrameEstimate], drive: Drive, conf: HybridConfig, mon: MountMonitor | None,
