@@ -80,8 +80,8 @@ def with_road_words(traj: list[FrameEstimate], geometry: RowGeometry, conf: Hybr
     if frac is None:
         return traj
     return with_words(traj, f"all the reflectors the network matched lie along the road ({100 * frac:.0f} % on two "
-                             "lines parallel to the travel direction): every frame shows it one kind of scene, so its "
-                             "error there does not average out over the drive")
+                            "lines parallel to the travel direction): every frame shows it one kind of scene, so its "
+                            "error there does not average out over the drive")
 
 
 def with_words(traj: list[FrameEstimate], words: str) -> list[FrameEstimate]:
@@ -105,7 +105,7 @@ def with_ood_off_words(traj: list[FrameEstimate], ood_enabled: bool) -> list[Fra
     if ood_enabled:
         return traj
     return with_words(traj, "the out-of-domain test is off (ood.enabled=false): the covariance holds only where the "
-                             "input is like the network's training drives, which nothing checked here")
+                            "input is like the network's training drives, which nothing checked here")
 
 
 def with_prior_words(traj: list[FrameEstimate]) -> list[FrameEstimate]:
@@ -127,8 +127,8 @@ def with_prior_words(traj: list[FrameEstimate]) -> list[FrameEstimate]:
               if {"roll", "pitch"} & set(named) else []),
             *(["the vertical offset is the start's"] if "vertical offset" in named else [])]
     return with_words(traj, f"{join_and(named)} {'is' if len(named) == 1 else 'are'} prior-pinned, not measured "
-                             f"by this drive ({'; '.join(what)}; std {stds}): a 2D radar has no elevation, so a radar "
-                             "tilted or raised off the fleet's mounts is not seen")
+                            f"by this drive ({'; '.join(what)}; std {stds}): a 2D radar has no elevation, so a radar "
+                            "tilted or raised off the fleet's mounts is not seen")
 
 
 def _since_last_step(mon: MountMonitor | None) -> int:
