@@ -29,6 +29,31 @@ def test_the_heading_jitter_of_a_smooth_turn_is_nil_and_of_noise_its_std():
     assert heading_jitter(np.arange(40) * 0.5, yaw[:40]) is None  # keyframes only: the vehicle's own turn dominates
     rev = heading_jitter(t[::-1], yaw[::-1])  # any order
     assert np.isclose(rev.sigma_deg, smooth.sigma_deg)
+    # probe 99: a stamp written twice (a record given its predecessor's time, its pose the later one's) read as 0.23
+    # deg of jitter; both records of a shared instant are left out, and triples around the gap too
+    dup_t, dup_yaw = t.copy(), yaw.copy()
+    dup_t[2::3] = dup_t[1::3][: len(dup_t[2::3])]
+    dup = heading_jitter(dup_t, dup_yaw)
+    assert dup is None or dup.sigma_deg < 0.03, dup
+
+
+def test_camera_keyframes_are_checked_against_the_path_the_radar_records_trace():
+    """Probe 99: 0.5 deg of noise on the camera's pose records alone (the radar's clean) put the yaw 1.70 deg off at
+    NEES 17.9, unmeasured: the radar's records were smooth, and the camera's keyframes (the poses the motion turns
+    by) are 0.5 s apart, too sparse for a second difference of their own."""
+    from hybrid_calib.data.pose_jitter import against_path
+
+    g = np.random.default_rng(1)
+    t = np.cumsum(g.uniform(0.07, 0.08, 400))
+    yaw = np.radians(20.0) * np.sin(0.3 * t) / 0.3
+    tk = np.arange(t[0] + 0.2, t[-1] - 0.2, 0.5)  # keyframes
+    yk = np.radians(20.0) * np.sin(0.3 * tk) / 0.3
+    clean = against_path(tk, yk, t, yaw)
+    assert clean.source == "camera" and clean.sigma_deg < 0.01 and clean.records == len(tk)
+    noisy = against_path(tk, yk + np.radians(0.5) * g.standard_normal(len(tk)), t, yaw)
+    assert noisy.too_noisy and 0.3 < noisy.sigma_deg < 0.8 and "camera's keyframes" in noisy.words()
+    assert against_path(tk[:5], yk[:5], t, yaw) is None  # too few keyframes
+    assert against_path(tk, yk, t[::8], yaw[::8]) is None  # a path too sparse to interpolate
 
 
 @pytest.fixture(scope="module")
@@ -70,7 +95,7 @@ def test_a_drive_whose_poses_jitter_takes_the_motions_turn_from_the_images_and_s
         out[name] = v
     clean, noisy = out["clean"], out["noisy"]
     assert clean.mount["heading_jitter"]["sigma_deg"] < 0.01 and not clean.mount["heading_jitter"]["too_noisy"]
-    assert noisy.mount["heading_jitter"]["too_noisy"] and noisy.mount["heading_jitter"]["sigma_deg"] > 0.3
+    assert noisy.mount["heading_jitter"]["too_noisy"] and noisy.mount["heading_jitter"]["sigma_deg"] > 0.2
     turns = [r.get("motion_rotation", "") for r in noisy.frame_rows if "motion" in r or "motion_z" in r]
     assert turns and all(t.startswith("images (the ego poses' heading jitters") for t in turns), noisy.frame_rows
     assert not any("motion_rotation" in r for r in clean.frame_rows)

@@ -523,10 +523,12 @@ class NuScenesRadarCamera:
 
     def heading_jitter(self, indices: list[int]):
         """``data.pose_jitter.HeadingJitter`` of the radar channel's pose records over the frames ``indices`` (time
-        order; keyframes and the records between them, tables only), or None where too few or too sparse."""
+        order; keyframes and the records between them, tables only) and of the camera's keyframes against their
+        path, the larger; None where neither is measured (too few or too sparse records)."""
         from hybrid_calib.data.pose_jitter import drive_heading_jitter
 
-        return drive_heading_jitter(self.tables, [self.frames[i].radar_sd for i in indices])
+        return drive_heading_jitter(self.tables, [self.frames[i].radar_sd for i in indices],
+                                    [self.frames[i].camera_sd for i in indices])
 
     def camera_files(self, indices: list[int]) -> list[Path | None]:
         """The camera image file of each frame of ``indices`` (tables only), None where its record does not name one

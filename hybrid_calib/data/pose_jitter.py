@@ -6,9 +6,13 @@ changes by the yaw acceleration times the interval squared, hundredths of a degr
 carry independent noise of ``sigma`` per record makes the second difference of the heading scatter by
 ``sqrt(6) sigma``. So the robust spread (1.4826 MAD) of the second differences, divided by sqrt(6), estimates the
 per-record heading noise; the vehicle's own yaw acceleration, the turn a real car makes in ~75 ms, enters as well,
-so it is an upper bound. Measured (``NuScenesRadarCamera.heading_jitter``): scene-0916's radar records (265, 75 ms
-apart) 0.020 deg; simulated drives (exact poses, 13 Hz sweeps) under 1e-4 deg; the same drives with noise of 0.05 /
-0.25 / 0.5 deg per pose record and axis (probe 98's roots) 0.06 / 0.23-0.24 / 0.49-0.58 deg.
+so it is an upper bound; only evenly spaced triples under ``MAX_SPACING_S`` count (around a gap the yaw acceleration
+over the longer interval enters). The camera's keyframes (0.5 s apart) are too sparse for that; their headings are
+checked against the path the radar's records trace (``against_path``): the poses the motion constraint turns by.
+Measured (``NuScenesRadarCamera.heading_jitter``, the larger of the two): scene-0916 0.020 deg (265 radar records,
+75 ms apart); simulated drives (exact poses, 13 Hz sweeps) under 1e-4 deg; probe 98's copies with noise of 0.05 /
+0.25 / 0.5 deg per pose record and axis 0.06 / 0.30-0.33 / 0.55-0.81 deg; probe 99's with 0.5 deg on the camera's
+records alone 0.39-0.40 deg (by the camera keyframes) and on the radar's alone 0.10 / 0.15 deg: 0.08-0.10 / 0.11-0.15.
 
 Why it matters: the hybrid's motion constraint takes the camera's turn between two frames from the ego poses (the
 visual odometry then finds only the direction of travel, ``hybrid.motion``). Poses with 0.5 deg of heading noise per
@@ -28,7 +32,9 @@ from hybrid_calib.errors import DataError
 
 # per-record heading noise (deg) beyond which the ego poses' turn between frames is not used: 5x scene-0916's
 MAX_HEADING_JITTER_DEG = 0.1
-MAX_SPACING_S = 0.2  # records further apart (a keyframe-only table): the vehicle's own yaw acceleration dominates
+# records further apart (a keyframe-only table; the radar's sweeps at 13 Hz are 75 ms apart, the simulator's 77 ms):
+# the vehicle's own yaw acceleration over the interval squared enters (a sharp turn's 50 deg/s^2 over 150 ms: 1.1 deg)
+MAX_SPACING_S = 0.11
 MIN_RECORDS = 12  # fewer: not measured
 
 
@@ -40,21 +46,57 @@ class HeadingJitter:
     sigma_deg: float
     records: int
     spacing_s: float
+    # whose records: "radar" (their own second difference) | "camera" (the camera keyframes' headings against the
+    # path the radar's records trace, ``against_path``: the poses the motion constraint turns by)
+    source: str = "radar"
 
     @property
     def too_noisy(self) -> bool:
         return self.sigma_deg > MAX_HEADING_JITTER_DEG
 
     def words(self) -> str:
-        return (f"the ego poses' heading jitters by {self.sigma_deg:.2f} deg from one record to the next (robust "
-                f"spread over {self.records} radar records, {1e3 * self.spacing_s:.0f} ms apart; a vehicle's heading "
-                f"is smooth: scene-0916's 0.02 deg; more than {MAX_HEADING_JITTER_DEG:g} deg is noise in "
-                "ego_pose.json), so the motion constraint takes the camera's turn between frames from the images, "
-                "not from the ego poses")
+        where = (f"from one record to the next (robust spread over {self.records} radar records, "
+                 f"{1e3 * self.spacing_s:.0f} ms apart" if self.source == "radar" else
+                 f"at the camera's keyframes against the path the radar's records trace (robust spread over "
+                 f"{self.records} keyframes")
+        return (f"the ego poses' heading jitters by {self.sigma_deg:.2f} deg {where}; a vehicle's heading is smooth: "
+                f"scene-0916's 0.02 deg; more than {MAX_HEADING_JITTER_DEG:g} deg is noise in ego_pose.json), so the "
+                "motion constraint takes the camera's turn between frames from the images, not from the ego poses")
 
     def to_dict(self) -> dict:
         return {"sigma_deg": self.sigma_deg, "records": self.records, "spacing_s": self.spacing_s,
-                "max_deg": MAX_HEADING_JITTER_DEG, "too_noisy": self.too_noisy}
+                "source": self.source, "max_deg": MAX_HEADING_JITTER_DEG, "too_noisy": self.too_noisy}
+
+
+def _clean(times_s, headings_rad) -> tuple[np.ndarray, np.ndarray]:
+    """The finite records in time order, without any that share a timestamp with another (which of two poses at one
+    instant is the vehicle's is not known: a duplicated stamp read as 0.23 deg of jitter, probe 99)."""
+    t = np.asarray(times_s, np.float64)
+    h = np.asarray(headings_rad, np.float64)
+    ok = np.isfinite(t) & np.isfinite(h)
+    order = np.argsort(t[ok], kind="stable")
+    t, h = t[ok][order], h[ok][order]
+    near = np.diff(t) <= 1e-4
+    alone = ~(np.r_[False, near] | np.r_[near, False])
+    return t[alone], h[alone]
+
+
+def against_path(times_s, headings_rad, path_times_s, path_headings_rad) -> HeadingJitter | None:
+    """The heading noise of records at ``times_s`` (N,) with ``headings_rad`` against a smooth path of other records
+    (the radar channel's, ``MAX_SPACING_S`` apart at most): the robust spread of their heading minus the path's,
+    interpolated at their time (records outside the path's span left out); None when fewer than ``MIN_RECORDS``
+    or the path is too sparse. The path's own noise enters too (an upper bound, as ``heading_jitter``)."""
+    tc, hc = _clean(times_s, headings_rad)
+    tp, hp = _clean(path_times_s, path_headings_rad)
+    if len(tp) < MIN_RECORDS or float(np.median(np.diff(tp))) > MAX_SPACING_S:
+        return None
+    inside = (tc >= tp[0]) & (tc <= tp[-1])
+    if inside.sum() < MIN_RECORDS:
+        return None
+    r = np.angle(np.exp(1j * (hc[inside] - np.interp(tc[inside], tp, np.unwrap(hp)))))
+    mad = 1.4826 * float(np.median(np.abs(r - np.median(r))))
+    spacing = float(np.median(np.diff(tc[inside])))
+    return HeadingJitter(float(np.degrees(mad)), int(inside.sum()), spacing, "camera")
 
 
 def heading_of(T: np.ndarray) -> float:
@@ -67,13 +109,7 @@ def heading_jitter(times_s: np.ndarray, headings_rad: np.ndarray) -> HeadingJitt
     order; None when fewer than ``MIN_RECORDS`` or their median spacing is above ``MAX_SPACING_S``. The second
     difference is taken of the turn per record, each scaled to the next record's interval (uneven spacing at a
     steady turn leaves no residue)."""
-    t = np.asarray(times_s, np.float64)
-    h = np.asarray(headings_rad, np.float64)
-    ok = np.isfinite(t) & np.isfinite(h)
-    order = np.argsort(t[ok], kind="stable")
-    t, h = t[ok][order], h[ok][order]
-    keep = np.r_[True, np.diff(t) > 1e-4]  # a record repeated at one instant
-    t, h = t[keep], h[keep]
+    t, h = _clean(times_s, headings_rad)
     if len(t) < MIN_RECORDS:
         return None
     dt = np.diff(t)
@@ -82,26 +118,48 @@ def heading_jitter(times_s: np.ndarray, headings_rad: np.ndarray) -> HeadingJitt
         return None
     step = np.angle(np.exp(1j * np.diff(h)))  # wrapped turn per record
     d2 = step[1:] - step[:-1] * (dt[1:] / dt[:-1])
+    # triples around a gap (a record missing or left out: probe 99's duplicated stamps read 0.40 deg) carry the
+    # vehicle's own yaw acceleration over the gap: only evenly spaced ones, both intervals within 1.5x of each other
+    # and under MAX_SPACING_S
+    even = (np.maximum(dt[1:], dt[:-1]) <= 1.5 * np.minimum(dt[1:], dt[:-1])) & \
+        (np.maximum(dt[1:], dt[:-1]) <= MAX_SPACING_S)
+    if even.sum() < MIN_RECORDS - 2:
+        return None
+    d2 = d2[even]
     mad = 1.4826 * float(np.median(np.abs(d2 - np.median(d2))))
     return HeadingJitter(float(np.degrees(mad / np.sqrt(6.0))), len(t), spacing)
 
 
-def drive_heading_jitter(tables, keyframes: list[dict]) -> HeadingJitter | None:
-    """``heading_jitter`` of the pose records of one channel over a drive: each keyframe ``sample_data`` record of
-    ``keyframes`` (time order) and the records between it and the keyframe before (``data.sweeps.records_between``);
-    a record whose ego pose does not read is left out (the frame that needs it says why)."""
+def _headings(tables, records) -> tuple[np.ndarray, np.ndarray]:
+    """(times s, headings rad) of ``sample_data`` records whose ego pose reads (the others left out: the frame that
+    needs one says why)."""
+    seen, times, heads = set(), [], []
+    for rec in records:
+        if rec.get("token") in seen:
+            continue
+        seen.add(rec.get("token"))
+        try:
+            T = tables.T_global_ego_unchecked(rec)
+            t = float(rec["timestamp"]) * 1e-6
+        except (DataError, KeyError, TypeError, ValueError):
+            continue
+        times.append(t)
+        heads.append(heading_of(T))
+    return np.array(times), np.array(heads)
+
+
+def drive_heading_jitter(tables, keyframes: list[dict], camera_keyframes: list[dict] | None = None
+                         ) -> HeadingJitter | None:
+    """The larger of: ``heading_jitter`` of one channel's pose records over a drive (each keyframe ``sample_data``
+    record of ``keyframes``, time order, and the records between it and the keyframe before:
+    ``data.sweeps.records_between``), and, with ``camera_keyframes``, those keyframes' headings ``against_path`` of
+    the first channel's records (a camera whose keyframes alone carry the noise: probe 99, 0.5 deg on the camera's
+    records, a yaw 1.70 deg off at NEES 17.9, unmeasured). None where neither is measured."""
     from hybrid_calib.data.sweeps import records_between
 
-    seen, times, heads = set(), [], []
-    for sd in keyframes:
-        for rec in [*records_between(tables, sd), sd]:
-            if rec.get("token") in seen:
-                continue
-            seen.add(rec.get("token"))
-            try:
-                T = tables.T_global_ego_unchecked(rec)
-                times.append(float(rec["timestamp"]) * 1e-6)
-            except (DataError, KeyError, TypeError, ValueError):
-                continue
-            heads.append(heading_of(T))
-    return heading_jitter(np.array(times), np.array(heads))
+    t, h = _headings(tables, [rec for sd in keyframes for rec in [*records_between(tables, sd), sd]])
+    found = [heading_jitter(t, h)]
+    if camera_keyframes:
+        found.append(against_path(*_headings(tables, camera_keyframes), t, h))
+    found = [j for j in found if j is not None]
+    return max(found, key=lambda j: j.sigma_deg) if found else None
