@@ -239,3 +239,10 @@ def test_a_fit_not_applied_that_disagrees_with_the_loop_widens_the_forward_std_a
             np.testing.assert_array_equal(out[-1].T, traj[-1].T)  # not moved: which of the two is right is unknown
         else:
             assert out[-1] is traj[-1] and "widened" not in block
+    # metres off (probe 99: another vehicle's ego poses read "345 cm ... a clock offset of 365 ms"): the ego poses first
+    far = X_TRUE @ se3_exp(np.array([0.0, 0.0, 0.0, 2.0, 0.0, 0.0]))
+    cov = np.diag([1e-4, 1e-4, 1e-4, 0.05 ** 2, 0.05 ** 2, 0.4 ** 2])
+    traj = [_frame(k, f"s{k}", 0, reported_estimate(far, cov, conf), 1, 1.0) for k in range(3)]
+    out, block = with_doppler(traj, drive, _Frames(sweeps), conf, None, motion)
+    assert abs(block["dx_m"]) > conf.doppler.max_clock_m
+    assert "ego poses are likelier not this drive's" in block["widened"]

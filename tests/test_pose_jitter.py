@@ -58,8 +58,8 @@ def test_camera_keyframes_are_checked_against_the_path_the_radar_records_trace()
 
 @pytest.fixture(scope="module")
 def roots(tmp_path_factory):
-    """One vehicle x 4 keyframes (5 radar sweeps between keyframes) and a copy whose every ego pose record's heading
-    carries 0.5 deg of noise."""
+    """One vehicle x 4 keyframes (5 radar sweeps between keyframes), a copy whose every ego pose record's heading
+    carries 0.5 deg of noise, and the same drive without the sweeps (keyframes only: not measured)."""
     import shutil
 
     from scipy.spatial.transform import Rotation
@@ -80,7 +80,9 @@ def roots(tmp_path_factory):
         x, y, z, w = R.as_quat()
         p["rotation"] = [w, x, y, z]
     path.write_text(json.dumps(poses))
-    return clean, noisy
+    sparse = simulate(SimConfig(vehicles=1, frames=4, image_scale=0.125, seed=5, radar_sweeps_per_frame=0),
+                      tmp_path_factory.mktemp("sparse"), progress=False)
+    return clean, noisy, sparse
 
 
 def test_a_drive_whose_poses_jitter_takes_the_motions_turn_from_the_images_and_says_so(roots, tmp_path):
@@ -89,7 +91,7 @@ def test_a_drive_whose_poses_jitter_takes_the_motions_turn_from_the_images_and_s
 
     conf = {"start": "R1", "seed": 4, "threads": 1, "progress": False, "window": {"detect_steps": False}}
     out = {}
-    for name, root in zip(("clean", "noisy"), roots):
+    for name, root in zip(("clean", "noisy", "sparse"), roots):
         run_calibration(root, "v1.0-sim", tmp_path / name, conf)
         (v,) = CalibrationRun.load(tmp_path / name / "result.json").vehicles.values()
         out[name] = v
@@ -103,3 +105,6 @@ def test_a_drive_whose_poses_jitter_takes_the_motions_turn_from_the_images_and_s
     assert "the ego poses' heading jitters by" in status and "from the images" in status or \
         status.startswith(("inconclusive", "not converged")), status
     assert "heading jitters" not in clean.final.status
+    # a keyframe-only table: not measured, and the result says so (probe 99: the key was absent)
+    assert out["sparse"].mount["heading_jitter"]["measured"] is False and "not measured" in \
+        out["sparse"].mount["heading_jitter"]["note"]

@@ -100,6 +100,9 @@ class LeverArmConfig:
     # clock 30-100 ms off the ego poses read as 25-82 cm of forward offset at 1-sigma ~10 cm, the Doppler 5-15 stds
     # the other way, unsaid; unchanged drives: under 1.4 stds)
     far_innovation: float = 3.0
+    # beyond this (m), such a disagreement is said as the ego poses' (not this drive's, or wrong) before a clock: 1 m is
+    # a 100 ms offset at 10 m/s (probe 98's clocks of 30-100 ms read 0.26-0.84 m; probe 99's foreign poses 3.45 m)
+    max_clock_m: float = 1.0
 
     def __post_init__(self):
         require(self, {
@@ -111,13 +114,13 @@ class LeverArmConfig:
             "sweep_noise_scale > 0": self.sweep_noise_scale > 0, "systematic_m >= 0": self.systematic_m >= 0,
             "sweep_systematic_m >= 0": self.sweep_systematic_m >= 0, "max_std_m > 0": self.max_std_m > 0,
             "coupling_deg >= 0": self.coupling_deg >= 0, "coupling_m >= 0": self.coupling_m >= 0,
-            "far_innovation > 0": self.far_innovation > 0})
+            "far_innovation > 0": self.far_innovation > 0, "max_clock_m > 0": self.max_clock_m > 0})
         require_ranges(self, {"min_speed_mps": "[0, 100]", "max_gap_s": "(0, 3600]", "max_turn_dps": "(0, 360]",
                               "turn_dps": "[0, 360]", "huber": "(0, 100]", "iterations": "[1, 1000]",
                               "min_pairs": "[3, 1e9]", "min_turning": "[0, 1e9]", "noise_scale": "(0, 1000]",
                               "systematic_m": "[0, 10]", "sweep_noise_scale": "(0, 1000]",
                               "sweep_systematic_m": "[0, 10]", "max_std_m": "(0, 100]", "coupling_deg": "[0, 10]",
-                              "coupling_m": "[0, 1]", "far_innovation": "(0, 1000]"})
+                              "coupling_m": "[0, 1]", "far_innovation": "(0, 1000]", "max_clock_m": "(0, 1000]"})
 
     def terms(self, pairs_per_frame: float) -> tuple[float, float]:
         """(noise_scale, systematic_m) of a fit with ``pairs_per_frame`` pairs per keyframe interval: the keyframes'

@@ -64,8 +64,15 @@ class HeadingJitter:
                 "motion constraint takes the camera's turn between frames from the images, not from the ego poses")
 
     def to_dict(self) -> dict:
-        return {"sigma_deg": self.sigma_deg, "records": self.records, "spacing_s": self.spacing_s,
+        return {"measured": True, "sigma_deg": self.sigma_deg, "records": self.records, "spacing_s": self.spacing_s,
                 "source": self.source, "max_deg": MAX_HEADING_JITTER_DEG, "too_noisy": self.too_noisy}
+
+
+# a drive whose pose records cannot say (the result's record, so that "not measured" is not silent: probe 99)
+NOT_MEASURED = {"measured": False, "too_noisy": False,
+                "note": f"not measured: fewer than {MIN_RECORDS} radar pose records under {MAX_SPACING_S:g} s apart "
+                        "(a keyframe-only table) and fewer camera keyframes within their span; noise in the ego "
+                        "poses' heading would not be seen"}
 
 
 def _clean(times_s, headings_rad) -> tuple[np.ndarray, np.ndarray]:

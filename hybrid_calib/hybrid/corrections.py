@@ -241,11 +241,15 @@ def with_doppler(traj: list[FrameEstimate], drive: Drive, frames, conf: HybridCo
     v = float(np.median(speeds)) if speeds else float("nan")
     clock = (f" (at this drive's {v:.1f} m/s, {abs(dx) * 100:.0f} cm is a clock offset of {1e3 * abs(dx) / v:.0f} ms)"
              if np.isfinite(v) and v > 0.5 else "")
+    why = ("the estimate's forward offset is off, or the radar's timestamps are off the ego poses' (a clock offset dt "
+           f"moves the radar's points v dt along the travel{clock}: check the radar's clock)")
+    if abs(dx) > conf.doppler.max_clock_m:  # metres: no mount is that far off, and no clock that late (probe 99:
+        # another vehicle's ego poses read "345 cm ... a clock offset of 365 ms")
+        why = (f"that far ({abs(dx):.1f} m) the ego poses are likelier not this drive's or wrong (ego_pose.json), or "
+               f"the radar's timestamps are far off them{clock}")
     words = (f"the radar's Doppler in turns puts its forward offset {dx * 100:+.1f} +- {a.dx_std * 100:.1f} cm from "
-             f"the estimate's ({abs(z):.1f} stds with the estimate's own {loop_std * 100:.1f} cm): the estimate's "
-             "forward offset is off, or the radar's timestamps are off the ego poses' (a clock offset dt moves the "
-             f"radar's points v dt along the travel{clock}: check the radar's clock); the forward 1-sigma is widened "
-             "to cover both")
+             f"the estimate's ({abs(z):.1f} stds with the estimate's own {loop_std * 100:.1f} cm): {why}; the forward "
+             "1-sigma is widened to cover both")
     last = _noted(traj[-1], words, np.eye(6)[RADAR_X], dx)
     return [*traj[:-1], last], {**block, "innovation_x_sigma": z, "widened": words}
 

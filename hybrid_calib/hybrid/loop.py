@@ -67,6 +67,7 @@ from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import merge, save_json_atomic, to_dict
 from hybrid_calib.data.files import data_stamp
+from hybrid_calib.data.pose_jitter import NOT_MEASURED
 from hybrid_calib.data.reference import absolute_reference, reference_identity
 from hybrid_calib.data.views import ViewConfig
 from hybrid_calib.errors import (
@@ -598,8 +599,8 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     res.ood = ood
     res.mount = None if mon is None else {**mon.summary(), **sweep_files_record(frames, drive.indices),
                                           **({"yaw_check": yaw_check} if yaw_check else {}),
-                                          **({"heading_jitter": drive.heading_jitter.to_dict()}
-                                             if drive.heading_jitter is not None else {})}
+                                          "heading_jitter": (drive.heading_jitter.to_dict()
+                                                             if drive.heading_jitter is not None else NOT_MEASURED)}
     res.config = {**to_dict(conf), "measurement_effective": to_dict(measurement_config(runner, conf)),
                   "depth_effective": runner.depth_name, **({"depth_note": note} if note else {}),
                   **({"drive_error_priors": n_priors} if n_priors else {})}
