@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hybrid_calib.errors import DataError
+from hybrid_calib.metrics import mad_scale
 
 # per-record heading noise (deg) beyond which the ego poses' turn between frames is not used: 5x scene-0916's
 MAX_HEADING_JITTER_DEG = 0.1
@@ -101,9 +102,8 @@ def against_path(times_s, headings_rad, path_times_s, path_headings_rad) -> Head
     if inside.sum() < MIN_RECORDS:
         return None
     r = np.angle(np.exp(1j * (hc[inside] - np.interp(tc[inside], tp, np.unwrap(hp)))))
-    mad = 1.4826 * float(np.median(np.abs(r - np.median(r))))
     spacing = float(np.median(np.diff(tc[inside])))
-    return HeadingJitter(float(np.degrees(mad)), int(inside.sum()), spacing, "camera")
+    return HeadingJitter(float(np.degrees(mad_scale(r))), int(inside.sum()), spacing, "camera")
 
 
 def heading_of(T: np.ndarray) -> float:
@@ -132,9 +132,7 @@ def heading_jitter(times_s: np.ndarray, headings_rad: np.ndarray) -> HeadingJitt
         (np.maximum(dt[1:], dt[:-1]) <= MAX_SPACING_S)
     if even.sum() < MIN_RECORDS - 2:
         return None
-    d2 = d2[even]
-    mad = 1.4826 * float(np.median(np.abs(d2 - np.median(d2))))
-    return HeadingJitter(float(np.degrees(mad / np.sqrt(6.0))), len(t), spacing)
+    return HeadingJitter(float(np.degrees(mad_scale(d2[even]) / np.sqrt(6.0))), len(t), spacing)
 
 
 def _headings(tables, records) -> tuple[np.ndarray, np.ndarray]:

@@ -58,6 +58,12 @@ class Drive:
         return "truth" if self.simulated else "tables"
 
     @property
+    def poses_jitter(self) -> bool:
+        """Whether its ego poses' heading jitters beyond ``data.pose_jitter.MAX_HEADING_JITTER_DEG`` (not measured:
+        False)."""
+        return bool(getattr(self.heading_jitter, "too_noisy", False))
+
+    @property
     def n_views(self) -> int:
         """The drive's frames that are new views (``repeats`` left out)."""
         return len(self.indices) - len(self.repeats)

@@ -346,7 +346,6 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
     s_mot = drive_std_rad(conf.motion, drive.simulated)
     motion_gate = MotionGate(conf.motion)
     recent: list = []  # (index, ego position, time) of the frames so far: the motion pair's partner (pair_partner)
-    jittery = bool(getattr(drive.heading_jitter, "too_noisy", False))  # data.pose_jitter
     for k, i in enumerate(tqdm(drive.indices, desc=f"hybrid {drive.vehicle}", disable=not conf.progress,
                                leave=False)):
         here = motion.where(i) if motion is not None else (None, None)
@@ -374,10 +373,11 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
             tr.priors += 1
             # headings the radar's Doppler already contradicts (mirrored ego poses), or that jitter from record to
             # record (``data.pose_jitter``): rotation from the images
-            ego = (mount is None or not mount.headings_implausible()) and not jittery
+            ego = (mount is None or not mount.headings_implausible()) and not drive.poses_jitter
             m, why = motion.measurement(pair, i, T[:3, :3], ego) if pair is not None else (None, "first frame")
             if not ego:
-                mrec["motion_rotation"] = ("images (the ego poses' heading jitters from record to record)" if jittery
+                mrec["motion_rotation"] = ("images (the ego poses' heading jitters from record to record)"
+                                           if drive.poses_jitter
                                            else "images (the ego poses' headings contradict the radar's Doppler)")
             # gated by the tighter of the estimate's covariance and this frame's pass with its drive error
             inn = None if m is None else gated_innovation(T, m, conf.motion, (fi.prior.cov + D, reported_cov),
@@ -587,7 +587,7 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     if conf.method == "hybrid":
         traj, yaw_check = with_yaw_check(traj, drive, conf, mon, lidar)
         traj = with_road_words(traj, tr.geometry, conf)
-        if motion is not None and getattr(drive.heading_jitter, "too_noisy", False):  # data.pose_jitter
+        if motion is not None and drive.poses_jitter:  # data.pose_jitter
             traj = with_words(traj, drive.heading_jitter.words())
     traj = with_ood_off_words(with_prior_words(traj), conf.ood.enabled)
     res = VehicleResult(drive.vehicle, traj[-1].estimate, traj, skipped=drive.index_skips + tr.skipped,
