@@ -249,6 +249,9 @@ def test_an_estimate_whose_drive_ends_unseen_or_whose_pair_shares_no_view_is_not
     assert why.startswith("the drive's last 4 of 8 frames (from frame 4 on) gave nothing to fuse") and \
         "(its errors are against frame 3's truth)" in why
     assert why in trust_reason(vr, T)
+    absent = [{**s, "reason": "camera image not found; check the dataset root"} for s in gap]  # probe 101
+    why = unseen_end_reason(VehicleResult("v", est, traj, skipped=absent))
+    assert "have no sensor file on disk" in why and "a partial download" in why and "knocked" not in why
     batch = VehicleResult("v", est, [], skipped=gap)  # a batch result: the frames used are the ones not skipped
     assert unseen_end_reason(batch).startswith("the drive's last 4 of 8 frames") and "truth" not in \
         unseen_end_reason(batch)

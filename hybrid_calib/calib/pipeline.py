@@ -384,6 +384,13 @@ def unseen_end_reason(res: VehicleResult) -> str:
     n_after = end - last
     if n_after < max(UNSEEN_END_FRAMES, 0.25 * (end + 1)) or not all(k in skipped for k in range(last + 1, end + 1)):
         return ""
+    why = {int(s["index"]): str(s.get("reason", "")) for s in res.skipped
+           if isinstance(s, dict) and isinstance(s.get("index"), int)}
+    if all("not found" in why.get(k, "") for k in range(last + 1, end + 1)):  # probe 101: a partial download
+        return (f"the drive's last {n_after} of {end + 1} frames (from frame {last + 1} on) have no sensor file on "
+                "disk (listed in frames_skipped): a partial download or a moved folder, so this estimate is the mount "
+                f"up to frame {last}, not at the drive's end"
+                + (f" (its errors are against frame {last}'s truth)" if res.errors_against == "truth" else ""))
     return (f"the drive's last {n_after} of {end + 1} frames (from frame {last + 1} on) gave nothing to fuse (listed "
             "in frames_skipped): a radar knocked, blocked or failed there sees nothing the camera sees, so this "
             f"estimate is the mount up to frame {last}, not at the drive's end"

@@ -522,6 +522,21 @@ def overlap_note(ds) -> str:
             "hybrid-calib inspect lists its samples)")
 
 
+def not_on_disk_note(ds) -> str:
+    """The scenes ``ds``'s index left out because none of their sensor files is on disk
+    (``NuScenesRadarCamera.not_on_disk``: a partial download), in one note, or ""."""
+    left = getattr(ds, "not_on_disk", None) or {}
+    if not left:
+        return ""
+    scene, path, more = _first_and_more(left)
+    gone = ds.not_on_disk_vehicles() if hasattr(ds, "not_on_disk_vehicles") else []
+    return (f"note: scene {scene}{more} left out: their sensor files are not on disk ({path} is absent: a partial "
+            "download); the scenes whose files are there are calibrated (--set 'data.scenes=[...]' names them; "
+            "hybrid-calib inspect lists the scenes left out)" +
+            (f"; vehicle(s) {', '.join(gone[:5])}{' and more' if len(gone) > 5 else ''} have no scene on disk and are "
+             "not calibrated" if gone else ""))
+
+
 def calibration_notes(ds, vehicles=None) -> list[str]:
     """What a calibration says of ``ds``'s root before it reads a frame, the learned methods' and the oracle's alike
     (probe 94: the oracle had said only the reference and ``table_warnings``): the reference's notes, a vehicle whose
@@ -538,8 +553,7 @@ def calibration_notes(ds, vehicles=None) -> list[str]:
                                                           if left else ""))
     out += [f"log {log}: {words}"
             for log, words in (ds.intrinsic_changes() if hasattr(ds, "intrinsic_changes") else {}).items()]
-    if line := overlap_note(ds):
-        out.append(line)
+    out += [line for line in (overlap_note(ds), not_on_disk_note(ds)) if line]
     if dup := getattr(ds, "duplicates", None):  # the index read them once (data.nuscenes._once_per_file)
         first = next(iter(dup.items()))
         out.append(f"note: {len(dup)} sample(s) read the same sensor files as earlier samples (first: {first[0]}, as "

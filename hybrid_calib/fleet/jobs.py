@@ -130,7 +130,7 @@ def _root_vehicles(root: str, version: str, notes: list[str] | None = None, refe
     log missing from the tables) are said in ``notes``; ``reference``: an earlier export the run checks against
     (``DataConfig.reference``: ``tables_T`` is then its exported extrinsic where it wrote one)."""
     from hybrid_calib.data.nuscenes import NuScenesRadarCamera
-    from hybrid_calib.data.summary import overlap_note, sim_vehicle_gap_warning, vehicleless_warning
+    from hybrid_calib.data.summary import not_on_disk_note, overlap_note, sim_vehicle_gap_warning, vehicleless_warning
 
     ds = NuScenesRadarCamera(root, version, conf={"check_images": False, "reference": reference or None})
     if notes is not None and (lost := vehicleless_warning(ds)):
@@ -140,7 +140,7 @@ def _root_vehicles(root: str, version: str, notes: list[str] | None = None, refe
                      if line.startswith("warning: ") and line not in notes)
         # a scene left out, a simulated vehicle with no factory record (probe 96: said in a job's stream only)
         notes.extend(f"root {root}: {line.removeprefix('warning: ').removeprefix('note: ')}"
-                     for line in (overlap_note(ds), sim_vehicle_gap_warning(ds)) if line)
+                     for line in (overlap_note(ds), not_on_disk_note(ds), sim_vehicle_gap_warning(ds)) if line)
     out = {}
     for vehicle, idx in ds.frames_by_vehicle().items():
         tables_T = None
