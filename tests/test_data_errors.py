@@ -653,6 +653,21 @@ def test_a_vehicle_with_no_scene_on_disk_is_a_note_not_a_failed_job(tiny):
     assert any("tiny-2 have no scene on disk" in n for n in notes)
 
 
+def test_frames_with_no_file_on_disk_are_no_views_of_the_drive(tiny):
+    """Probe 101: the network priors carry the drive-common error once over the drive's views; frames whose files are
+    absent (part of a scene downloaded) are no views, and counting them loosened every prior."""
+    from hybrid_calib.hybrid.drives import open_drives
+    from hybrid_calib.hybrid.loop import HybridConfig
+
+    _, drives = open_drives(tiny.root, VERSION, HybridConfig(method="pure"), lidar=False)
+    assert drives["tiny"].n_views == 4 and drives["tiny"].absent == []
+    (tiny.root / tiny.tables["sample_data"][0]["filename"]).unlink()  # one keyframe's file
+    ds = _open(tiny)
+    assert len(ds) == 4 and not ds.not_on_disk  # the scene holds files: the frame says why when read
+    _, drives = open_drives(tiny.root, VERSION, HybridConfig(method="pure"), lidar=False)
+    assert drives["tiny"].n_views == 3 and len(drives["tiny"].absent) == 1
+
+
 def test_a_root_with_no_sensor_file_keeps_its_per_frame_words(tiny):
     """Nothing on disk at all (samples/ elsewhere) is not a partial download: no scene is left out at the index, and
     reading a frame says where the files should be."""

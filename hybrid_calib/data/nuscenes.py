@@ -587,6 +587,14 @@ class NuScenesRadarCamera:
         under the root (the frame says why when it is read)."""
         return self._each(indices, lambda f: self.tables.file(f.camera_sd))
 
+    def absent_files(self, indices: list[int]) -> list[int]:
+        """The frames of ``indices`` whose camera or radar keyframe file the tables name is not on disk (tables only:
+        a partial download; a record that names no file is the frame's to say when it is read)."""
+        def absent(f: FrameRef) -> bool:
+            return any(not p.is_file() for p in (self.tables.file(f.camera_sd), self.tables.file(f.radar_sd)))
+
+        return [i for i, gone in zip(indices, self._each(indices, absent)) if gone]
+
     def _each(self, indices: list[int], read) -> list:
         """``read(frame record)`` of each frame of ``indices``, None where its tables do not read."""
         out = []
