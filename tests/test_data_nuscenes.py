@@ -527,7 +527,13 @@ def test_inspect_warns_about_tables_that_load_but_cannot_be_right():
     g = GroupSummary("s", "v", "log", frames=40, loaded=40, radar_points=[50] * 40, radar_in_image=0,
                      camera_us=[k * 500_000 for k in range(40)], boresight_deg=150.0)
     rear = DatasetSummary("root", "v1.0-mini", "RADAR_BACK_LEFT", "CAM_FRONT", [g], [], 0).format()
-    assert "turn the RADAR_BACK_LEFT 150 deg away" in rear and "either a side or rear radar" in rear
+    assert "turn the RADAR_BACK_LEFT 150 deg away" in rear and "either a side or corner radar" in rear
+    assert "--camera CAM_BACK_LEFT" in rear
+    # a corner radar shares one word with the camera (probe 101: nuScenes' own tables read "both channels are FRONT
+    # sensors, so a mount rotation ... is wrong" for RADAR_FRONT_LEFT -> CAM_FRONT, 88 deg apart by design)
+    corner = DatasetSummary("root", "v1.0-mini", "RADAR_FRONT_LEFT", "CAM_FRONT", [g], [], 0).format()
+    assert "either a side or corner radar sees little of this camera's view" in corner and "both channels are" not in \
+        corner and "--camera CAM_FRONT_LEFT" in corner
     # one scene of two: named (the root's total hid it)
     ok = GroupSummary("t", "w", "log2", frames=40, loaded=40, radar_points=[50] * 40, radar_in_image=1800,
                       camera_us=[k * 500_000 for k in range(40)], boresight_deg=1.0)

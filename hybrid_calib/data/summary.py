@@ -200,20 +200,27 @@ class DatasetSummary:
         return out
 
     def _away_words(self) -> str:
-        """Why a radar would look away from the camera: another direction (a side or rear radar), or a mount rotation
-        written wrong in calibrated_sensor.json; the second first when both channels name the same side (probe 29: a
-        radar quaternion in x, y, z, w order read "RADAR_FRONT looks 180 deg away ... pair it with a camera facing its
-        way")."""
+        """Why a radar would look away from the camera: another direction (a side or corner radar), or a mount
+        rotation written wrong in calibrated_sensor.json; the second first when both channels name the same direction
+        (probe 29: a radar quaternion in x, y, z, w order read "RADAR_FRONT looks 180 deg away ... pair it with a
+        camera facing its way"). One shared word is no same direction: nuScenes' RADAR_FRONT_LEFT looks 88 deg left
+        of CAM_FRONT by its true tables (probe 101 read "both channels are FRONT sensors, so a mount rotation ... is
+        wrong")."""
         sides = ("FRONT", "BACK", "LEFT", "RIGHT")
-        same = [w for w in sides if w in self.radar_channel.upper().split("_")
-                and w in self.camera_channel.upper().split("_")]
+
+        def direction(channel: str) -> tuple[str, ...]:
+            return tuple(w for w in channel.upper().split("_") if w in sides)
+
+        radar, camera = direction(self.radar_channel), direction(self.camera_channel)
         wrong = ("a mount rotation in calibrated_sensor.json is wrong (a quaternion written x, y, z, w instead of "
                  "w, x, y, z, or the inverse rotation: check both channels' records)")
-        other = ("a side or rear radar sees little of this camera's view: pair it with a camera facing its way, "
-                 "--radar/--camera")
-        if same:
-            return f"both channels are {same[0]} sensors, so {wrong}; or the channels' names are not their directions"
-        return f"either {other}, or {wrong}"
+        if radar and radar == camera:
+            return (f"both channels are {'_'.join(radar)} sensors, so {wrong}; or the channels' names are not their "
+                    "directions")
+        mate = "CAM_" + "_".join(radar)
+        pair = (f"pair it with the camera facing its way (--camera {mate} if the root has it)" if radar else
+                "pair it with a camera facing its way (--radar / --camera)")
+        return f"either a side or corner radar sees little of this camera's view: {pair}; or {wrong}"
 
     def _sweep_lines(self) -> list[str]:
         """What the radar's non-keyframe sweeps give the Doppler steps (mount monitor, lever arm), in words."""
