@@ -246,7 +246,26 @@ def open_roots(roots: Sequence[str | Path], version: str = "v1.0-sim", *, lidar:
     parts = [open_frames(r, version, lidar=lidar, options=options) for r in roots]
     if not parts:
         raise HybridCalibError("no data root given")
+    _shared_frames(roots, parts)
     return parts[0] if len(parts) == 1 else ConcatFrames(parts)
+
+
+def _shared_frames(roots: Sequence[str | Path], parts: Sequence) -> None:
+    """``DataError`` when two roots hold frames of one camera keyframe token: the same recording listed twice (a
+    copy of a root, a root and its exported copy, v1.0-mini's scenes inside v1.0-trainval). Frames are named by that
+    token (evaluate's frames/, the depth and network caches): probe 101 read 82 frames as 41, the later root's
+    predictions over the earlier's, with no word."""
+    seen: dict[str, str] = {}  # token -> the root that holds it first
+    for root, part in zip(roots, parts):
+        refs = getattr(part, "frames", None) or []
+        tokens = {ref.camera_sd["token"] for ref in refs if hasattr(ref, "camera_sd")}
+        shared = sorted(t for t in tokens if t in seen)
+        if shared:
+            raise DataError(f"{len(shared)} of its {len(tokens)} frames are also frames of {seen[shared[0]]} (camera "
+                            f"keyframe {shared[0]}, the same sample_data token): the same recording listed twice (a "
+                            "copy of a root, or a scene in two releases); frames are named by that token, so pass "
+                            "each root on its own (its own --out), or only one of them", path=str(root))
+        seen.update({t: str(root) for t in tokens})
 
 
 def camera_token(frames: Sequence[RadarCameraFrame], fi: int) -> str:

@@ -733,3 +733,19 @@ def test_a_scene_none_of_whose_frames_loads_reads_a_dash_for_its_timing(tiny):
     table = summarize_dataset(_open(tiny), progress=False).format()
     row = next(line for line in table.splitlines() if line.startswith("tiny-scene"))
     assert row.rstrip().endswith("-") and "nan" not in row, row
+
+
+def test_two_roots_holding_one_recording_are_refused_by_the_learned_commands(tiny, tmp_path):
+    """Probe 101: evaluate of a root and its copy (an exported calibrated_sensor.json, or v1.0-mini's scenes inside
+    trainval) named both roots' frames by their shared tokens: 82 frames became 41, the later root's predictions over
+    the earlier's, with no word."""
+    import shutil
+
+    from learned.dataset import open_roots
+
+    copy = tmp_path / "copy"
+    shutil.copytree(tiny.root, copy)
+    with pytest.raises(DataError, match="the same recording listed twice") as e:
+        open_roots([tiny.root, copy], VERSION, lidar=False)
+    assert e.value.path == str(copy) and str(tiny.root) in e.value.message and "4 of its 4 frames" in e.value.message
+    assert len(open_roots([tiny.root], VERSION, lidar=False)) == 4
