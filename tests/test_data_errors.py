@@ -749,3 +749,25 @@ def test_two_roots_holding_one_recording_are_refused_by_the_learned_commands(tin
         open_roots([tiny.root, copy], VERSION, lidar=False)
     assert e.value.path == str(copy) and str(tiny.root) in e.value.message and "4 of its 4 frames" in e.value.message
     assert len(open_roots([tiny.root], VERSION, lidar=False)) == 4
+
+
+@pytest.mark.parametrize("version", ["/abs/v1.0-mini", "../other/v1.0-mini", "v1.0-mini/", ".."])
+def test_a_version_that_is_a_path_is_refused(tiny, version):
+    """Probe 101: --version with the version folder's full path read that root's tables with --data's files, in
+    silence (an absolute path replaces the root it is joined to)."""
+    from hybrid_calib.data.tables import version_dir
+
+    with pytest.raises(DataError, match="is not a folder name: --version names the version folder under the root"):
+        version_dir(tiny.root, version)
+
+
+def test_the_archive_layout_is_named_with_the_root_to_pass(tiny, tmp_path):
+    """Probe 101: the official v1.0-mini archive unpacks to v1.0-mini/{samples, v1.0-mini/*.json}; --data its parent
+    read "extract the metadata archive there"."""
+    from hybrid_calib.data.tables import version_dir
+
+    outer = tmp_path / "unpacked"
+    (outer / VERSION).mkdir(parents=True)
+    (outer / VERSION / VERSION).symlink_to(tiny.root / VERSION)
+    with pytest.raises(DataError, match=f"holds the version folder {VERSION} itself .*: pass --data "):
+        version_dir(outer, VERSION)

@@ -68,6 +68,13 @@ def version_dir(root: str | Path, version: str, fix: str = "pass one of them wit
         what = "is not a directory" if root.exists() else "does not exist"
         raise DataError(f"nuScenes root {what}; pass the folder that holds the version folder "
                         "(e.g. v1.0-mini) and samples/", path=str(root))
+    if not isinstance(version, str) or not version or version in (".", "..") or version != Path(version).name \
+            or "\\" in version:  # probe 101: an absolute --version read another root's tables with this root's files
+        raise DataError(f"version {version!r} is not a folder name: --version names the version folder under the "
+                        f"root (e.g. v1.0-mini), not a path" + (f"; pass --version {Path(version).name}"
+                                                                 if isinstance(version, str) and Path(version).name
+                                                                 and Path(version).name not in (".", "..") else "")
+                        + " (and the folder that holds it as --data)", path=str(root))
     vdir = root / version
     if not vdir.is_dir() and (root / "sim_config.json").is_file() and not available_versions(root):
         raise DataError(f"version folder {version!r} does not exist under the nuScenes root; no version folder found "
@@ -91,6 +98,10 @@ def version_dir(root: str | Path, version: str, fix: str = "pass one of them wit
     if not any((vdir / f"{name}.json").is_file() for name in REQUIRED_TABLES):
         found = [v for v in available_versions(root) if (root / v).resolve() != vdir.resolve()]
         hint = f"versions found there: {found}" if found else "no version folder (with sample.json) found there"
+        if inner := available_versions(vdir):  # the archive's layout: ROOT/v1.0-mini/{samples, v1.0-mini/*.json}
+            raise DataError(f"{vdir} holds the version folder {inner[0]} itself (the nuScenes archive unpacks so: the "
+                            f"folder holding samples/ and {inner[0]}/ is the root): pass --data {vdir}",
+                            path=str(vdir))
         raise DataError(f"{vdir} holds none of the nuScenes tables {sorted(REQUIRED_TABLES)}, so it is not a version "
                         f"folder (an empty or unfinished extraction, or the version names another folder); {hint}; "
                         + (f"{fix}, or extract" if found else "extract") + " the metadata archive there",
