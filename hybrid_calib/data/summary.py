@@ -8,7 +8,7 @@
      "groups": [{"scene": str, "vehicle": str, "log_token": str, "frames": int, "loaded": int,
                  "radar_points_per_sweep": {"mean": float, "min": int, "max": int},
                  "radar_points_raw_mean": float, "radar_nonfinite_dropped": int, "lidar_nonfinite_dropped": int,
-                 "dt_radar_minus_camera_ms": {"mean": float, "min": float, "max": float},
+                 "dt_radar_minus_camera_ms": {"mean": float, "min": float, "max": float},  # null: none loaded
                  "radar_sweeps_between": {"records": int, "on_disk": int, "broken": int}}],
                  # radar_sweeps_between: the non-keyframe radar sweeps between the group's keyframes (the
                  # mount monitor and the Doppler lever arm pair them too where their files are on disk)
@@ -76,14 +76,14 @@ class GroupSummary:
 
     def to_json(self) -> dict[str, Any]:
         pts = np.asarray(self.radar_points or [0])
-        dt = np.asarray(self.dt_ms or [np.nan])
+        dt = self.dt_ms or [None]  # no frame loaded: null (strict JSON; probe 101 read NaN)
         return dict(scene=self.scene, vehicle=self.vehicle, log_token=self.log_token, frames=self.frames,
                     loaded=self.loaded,
                     radar_points_per_sweep=dict(mean=float(pts.mean()), min=int(pts.min()), max=int(pts.max())),
                     radar_points_raw_mean=float(np.mean(self.radar_raw)) if self.radar_raw else 0.0,
                     radar_nonfinite_dropped=self.nonfinite, lidar_nonfinite_dropped=self.lidar_nonfinite,
-                    dt_radar_minus_camera_ms=dict(mean=float(np.mean(dt)), min=float(np.min(dt)),
-                                                  max=float(np.max(dt))),
+                    dt_radar_minus_camera_ms=dict(mean=None, min=None, max=None) if dt == [None] else dict(
+                        mean=float(np.mean(dt)), min=float(np.min(dt)), max=float(np.max(dt))),
                     radar_sweeps_between=dict(records=self.sweeps_between, on_disk=self.sweeps_on_disk,
                                               broken=self.sweeps_broken, unreadable=self.sweeps_unreadable))
 
@@ -129,7 +129,7 @@ class DatasetSummary:
             p, dt = j["radar_points_per_sweep"], j["dt_radar_minus_camera_ms"]["mean"]
             lines.append(f"{g.scene[:24]:24s} {g.vehicle[:12]:12s} {g.frames:6d} {g.loaded:6d} "
                          f"{p['mean']:7.1f} [{p['min']:3d},{p['max']:4d}] {j['radar_points_raw_mean']:6.1f} "
-                         f"{g.nonfinite:5d} " + (f"{dt:7.1f}" if np.isfinite(dt) else f"{'-':>7s}"))  # none loaded
+                         f"{g.nonfinite:5d} " + (f"{dt:7.1f}" if dt is not None else f"{'-':>7s}"))  # none loaded
         lines += self._sweep_lines() + self._sanity_lines()
         for vehicle, names in self.calibration_splits.items():
             far = [f"{n}: {d:.2f} deg, {cm:.1f} cm from {vehicle}'s" for n in names[1:]
