@@ -438,11 +438,12 @@ DEPTH_CHOICES = ("corrupted-truth (a simulated root), lidar-densified (a root wi
                  "depth-anything:/local/model/dir (any)")
 
 
-def check_depth_source(spec: str, root: str | Path, given: bool) -> None:
+def check_depth_source(spec: str, root: str | Path, given: bool | str) -> None:
     """``OptionError`` (``--depth``) when depth ``spec`` cannot be computed on the nuScenes ``root``: the simulator's
     truth for ``corrupted-truth``, the LiDAR's files for ``lidar-densified``. ``given``: ``spec`` is the --depth the
-    user passed (else the checkpoint's). Said once before the frames are read, by every command that runs a network
-    (probe 23, probe 71: every frame was skipped in turn, a line each)."""
+    user passed (else the checkpoint's; a string: the words for where the run chose it). Said once before the frames
+    are read, by every command that runs a network (probe 23, probe 71: every frame was skipped in turn, a line
+    each)."""
     from hybrid_calib.errors import OptionError
 
     root = Path(root)
@@ -459,7 +460,8 @@ def check_depth_source(spec: str, root: str | Path, given: bool) -> None:
                "readable")  # probe 80: a bare 'Permission denied' with no --depth advice
     else:
         return
-    raise OptionError("--depth", f"{why} ({'the --depth given' if given else 'the checkpoint depth'}); pass another "
+    source = given if isinstance(given, str) else "the --depth given" if given else "the checkpoint depth"
+    raise OptionError("--depth", f"{why} ({source}); pass another "
                                  f"--depth: {DEPTH_CHOICES}")
 
 

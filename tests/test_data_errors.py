@@ -774,3 +774,18 @@ def test_the_archive_layout_is_named_with_the_root_to_pass(tiny, tmp_path):
     (outer / VERSION / VERSION).symlink_to(tiny.root / VERSION)
     with pytest.raises(DataError, match=f"holds the version folder {VERSION} itself .*: pass --data "):
         version_dir(outer, VERSION)
+
+
+def test_a_real_root_without_lidar_files_names_the_depth_the_run_chose(tiny, tmp_path, capsys):
+    """Probe 101: a real root whose tables list a LIDAR_TOP but whose LiDAR files are absent read "(the --depth
+    given)" although no --depth was given: the run had chosen lidar-densified for a real root."""
+    import shutil
+
+    from tests.helpers import expect_cli_error
+
+    shutil.rmtree(tiny.root / "samples" / "LIDAR_TOP")
+    err = expect_cli_error(["calibrate", "--data", tiny.root, "--version", VERSION, "--method", "pure-avg", "--start",
+                            "R1", "--out", tmp_path / "c", "--no-plots"], capsys,
+                           "--depth: lidar-densified densifies each frame's LiDAR sweep",
+                           "(chosen for a real root whose tables list a LIDAR_TOP, when no --depth is given)")
+    assert "the --depth given" not in err

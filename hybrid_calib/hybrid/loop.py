@@ -682,7 +682,9 @@ class _Session:
         ckpt = conf.checkpoint or shipped_checkpoint(conf.start)
         conf = self.conf = self._trained_sweeps(conf, ckpt)
         effective = depth or trained_depth(ckpt)  # "" = the checkpoint's own (lidar-densified needs the LiDAR)
-        check_depth_source(effective, data, given=bool(depth))  # said once at the start (probes 23 and 71)
+        # said once at the start (probes 23 and 71); probe 101: the real root's default read "the --depth given"
+        check_depth_source(effective, data, given=bool(conf.depth) or (
+            "chosen for a real root whose tables list a LIDAR_TOP, when no --depth is given" if depth else False))
         self.frames, self.drives = open_drives(data, version, conf, lidar=needs_lidar(effective),
                                                unreadable=self.unreadable)
         self._check_some_drive()
