@@ -531,6 +531,14 @@ def test_a_channel_folder_missing_from_the_copy_is_named_not_the_root(tmp_path):
         read_radar_pcd(samples / "RADAR_BACK_LEFT" / "a.pcd")
     with pytest.raises(DataError, match=r"camera image not found; check the dataset root"):  # the folder is there
         image_header(samples / "CAM_FRONT" / "a.jpg")
+    # the folder holds other files: this one was not downloaded (probe 101: "check the dataset root" for 5 of 41)
+    (samples / "CAM_FRONT" / "b.jpg").write_bytes(b"")
+    with pytest.raises(DataError, match=r"camera image not found; its folder samples/CAM_FRONT is there, with other "
+                                        r"files: this one was not downloaded or was deleted \(a partial download\)"):
+        image_header(samples / "CAM_FRONT" / "a.jpg")
+    (samples / "RADAR_FRONT" / "b.pcd").write_bytes(b"")
+    with pytest.raises(DataError, match=r"radar file not found; its folder samples/RADAR_FRONT is there, with other"):
+        read_radar_pcd(samples / "RADAR_FRONT" / "a.pcd")
 
 
 def test_a_channel_written_in_another_case_is_said_so_where_no_such_file_is(tiny):
@@ -636,7 +644,7 @@ def test_a_scene_whose_files_are_not_on_disk_is_left_out_once(tiny):
     assert "vehicle(s)" not in note
 
 
-def test_a_vehicle_with_no_scene_on_disk_is_a_note_not_a_failed_job(tiny):
+def test_a_vehicle_with_no_scene_on_disk_is_named_with_why(tiny):
     from hybrid_calib.data.summary import calibration_notes
     from hybrid_calib.fleet.jobs import _root_vehicles
 
@@ -644,12 +652,14 @@ def test_a_vehicle_with_no_scene_on_disk_is_a_note_not_a_failed_job(tiny):
     _remove_copies(tiny)
     ds = _open(tiny)
     assert set(ds.frames_by_vehicle()) == {"tiny"} and ds.not_on_disk_vehicles() == ["tiny-2"]
-    assert ds.frameless_vehicles() == {}  # the whole root: the download holds the vehicles it holds
-    assert "tiny-2" in ds.frameless_vehicles(vehicles=["tiny-2"])  # asked for by name: named, with why
+    (why,) = ds.frameless_vehicles().values()  # a failed calibration (rc 1), as any vehicle with no frame
+    assert why.startswith("vehicle tiny-2: no frame: none of its 1 scene(s) has its sensor files on disk (first: "
+                          "scene tiny-scene-copy: none of its 4 frame(s)")
     (note,) = [n for n in calibration_notes(ds) if "not on disk" in n]
-    assert note.endswith("vehicle(s) tiny-2 have no scene on disk and are not calibrated")
+    assert note.endswith("vehicle(s) tiny-2 have no scene on disk: they cannot be calibrated")
     notes: list[str] = []
-    assert set(_root_vehicles(str(tiny.root), VERSION, notes)) == {"tiny"}
+    vs = _root_vehicles(str(tiny.root), VERSION, notes)
+    assert set(vs) == {"tiny", "tiny-2"} and vs["tiny-2"]["tables_T"] is None  # a fleet job that fails with why
     assert any("tiny-2 have no scene on disk" in n for n in notes)
 
 

@@ -98,10 +98,19 @@ def data_stamp(root: str | Path, version: str) -> dict:
 
 def missing_folder_words(path: str | Path) -> str:
     """Why a dataset file is missing when its channel's whole folder is (``samples/CAM_BACK`` absent beside other
-    channels: a copy that ships some channels only), or "" when the folder is there (probe 34: "check the dataset
-    root" sent a user to a root that was right)."""
+    channels: a copy that ships some channels only), or when that folder holds other files (this one not downloaded),
+    or "" when the folder is there and empty (probe 34: "check the dataset root" sent a user to a root that was
+    right)."""
     folder = Path(path).parent
-    if folder.is_dir() or not folder.parent.is_dir():
+    if folder.is_dir():  # the channel is there, not this file (probe 101: "check the dataset root" for 5 of 41)
+        try:
+            others = next(folder.iterdir(), None) is not None
+        except OSError:
+            others = False
+        return (f"; its folder {folder.parent.name}/{folder.name} is there, with other files: this one was not "
+                "downloaded or was deleted (a partial download); re-download it, or leave its scene out with --set "
+                "'data.scenes=[...]'") if others else ""
+    if not folder.parent.is_dir():
         return ""
     there = sorted(p.name for p in folder.parent.iterdir() if p.is_dir())
     return (f"; the folder {folder.parent.name}/{folder.name} does not exist under the root (channel folders there: "

@@ -411,8 +411,8 @@ class NuScenesRadarCamera:
         return out
 
     def not_on_disk_vehicles(self) -> list[str]:
-        """The vehicles of the tables none of whose scenes is on disk (``_on_disk``): said in the root's note, not
-        failed calibrations when the run takes the whole root (a partial download holds the vehicles it holds)."""
+        """The vehicles of the tables none of whose scenes is on disk (``_on_disk``): named in the root's note, and
+        failed calibrations (``frameless_vehicles``) like any vehicle with no frame."""
         have = {f.vehicle for f in self.frames}
         gone = {id(s) for s in self._not_on_disk_skips}
         return sorted(v for v, skips in self.lacking_keyframes.items()
@@ -617,14 +617,21 @@ class NuScenesRadarCamera:
 
     def frameless_vehicles(self, vehicles=None) -> dict[str, str]:
         """Vehicle -> why it has no frame, for each vehicle of the tables the index left with none (every sample of it
-        in ``lacking_keyframes``: no camera or radar keyframe, another sample's copy, a scene overlapping another),
-        among ``vehicles`` (None: all): a calibration names them, not silently absent from its result."""
+        in ``lacking_keyframes``: no camera or radar keyframe, another sample's copy, a scene overlapping another, a
+        scene with no file on disk), among ``vehicles`` (None: all): a calibration names them, not silently absent
+        from its result."""
         have = {f.vehicle for f in self.frames}
-        absent = set(self.not_on_disk_vehicles()) if vehicles is None else set()
-        return {v: (f"vehicle {v}: no frame: none of its {len(skips)} sample(s) holds a frame the run reads (first: "
+        absent = set(self.not_on_disk_vehicles())
+
+        def why(v: str, skips: list[SkipRecord]) -> str:
+            if v in absent:  # one record per scene (``_on_disk``)
+                return (f"vehicle {v}: no frame: none of its {len(skips)} scene(s) has its sensor files on disk "
+                        f"(first: {skips[0].reason})")
+            return (f"vehicle {v}: no frame: none of its {len(skips)} sample(s) holds a frame the run reads (first: "
                     f"{skips[0].reason}); hybrid-calib inspect lists them")
-                for v, skips in sorted(self.lacking_keyframes.items())
-                if v not in have and v not in absent and (vehicles is None or v in vehicles)}
+
+        return {v: why(v, skips) for v, skips in sorted(self.lacking_keyframes.items())
+                if v not in have and (vehicles is None or v in vehicles)}
 
     def frames_by_vehicle(self) -> dict[str, list[int]]:
         """Vehicle name -> dataset indices of its frames, in time order (the camera keyframes' timestamps: a

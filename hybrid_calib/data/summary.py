@@ -540,8 +540,8 @@ def not_on_disk_note(ds) -> str:
     return (f"note: scene {scene}{more} left out: their sensor files are not on disk ({path} is absent: a partial "
             "download); the scenes whose files are there are calibrated (--set 'data.scenes=[...]' names them; "
             "hybrid-calib inspect lists the scenes left out)" +
-            (f"; vehicle(s) {', '.join(gone[:5])}{' and more' if len(gone) > 5 else ''} have no scene on disk and are "
-             "not calibrated" if gone else ""))
+            (f"; vehicle(s) {', '.join(gone[:5])}{' and more' if len(gone) > 5 else ''} have no scene on disk: they "
+             "cannot be calibrated" if gone else ""))
 
 
 def calibration_notes(ds, vehicles=None) -> list[str]:
