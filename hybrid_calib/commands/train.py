@@ -53,12 +53,12 @@ def _real_root_depth(roots, version: str) -> str:
     every frame of a real root, after loading them all. ``OptionError`` for a real root without LiDAR."""
     import sys
 
-    from hybrid_calib.data.tables import NuScenesTables
+    from hybrid_calib.data.tables import sensor_channels
 
     real = [r for r in roots if not (Path(r) / version / "sim_vehicle.json").is_file()]
     if not real:
         return ""
-    blind = [str(r) for r in real if "LIDAR_TOP" not in NuScenesTables(r, version).channels()]
+    blind = [str(r) for r in real if "LIDAR_TOP" not in sensor_channels(r, version)]
     if blind:
         raise OptionError("--depth", f"{', '.join(blind)} is a real root without LIDAR_TOP, and the default depth "
                                      "(corrupted-truth) needs the simulator's: pass --depth "

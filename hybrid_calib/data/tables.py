@@ -200,6 +200,12 @@ def _is_kind(value, kind: type) -> bool:
     return isinstance(value, kind) and not (kind is int and isinstance(value, bool))
 
 
+def sensor_channels(root: str | Path, version: str) -> list[str]:
+    """Every sensor channel in ``ROOT/VERSION/sensor.json``, read alone: the whole tables of a trainval root are
+    millions of records, which a question of which sensors it has need not load (``NuScenesTables.channels``)."""
+    return sorted({s["channel"] for s in load_table(version_dir(root, version), "sensor", REQUIRED_TABLES["sensor"])})
+
+
 class NuScenesTables:
     """The seven tables of one nuScenes version, indexed by token.
 
@@ -357,7 +363,7 @@ class NuScenesTables:
         return rec
 
     def channels(self) -> list[str]:
-        """Every sensor channel present in sensor.json."""
+        """Every sensor channel present in sensor.json (``sensor_channels``, without loading the other tables)."""
         return sorted({s["channel"] for s in self.records["sensor"]})
 
     def modality(self, channel: str) -> str:

@@ -80,14 +80,14 @@ class Drive:
 def resolve_depth(data, version: str, conf: HybridConfig) -> tuple[str, str]:
     """(depth spec, note): ``conf.depth``, or lidar-densified on a real root with LiDAR, or "" (the
     checkpoint's)."""
-    from hybrid_calib.data.tables import NuScenesTables
+    from hybrid_calib.data.tables import sensor_channels, version_dir
     from learned.depth import LidarDepth
 
     if conf.depth:
         return conf.depth, ""
-    tables = NuScenesTables(data, version)
-    simulated = (tables.vdir / "sim_vehicle.json").is_file()
-    if not simulated and "LIDAR_TOP" in tables.channels():
+    simulated = (version_dir(data, version) / "sim_vehicle.json").is_file()
+    if not simulated and "LIDAR_TOP" in sensor_channels(data, version):  # sensor.json alone (a trainval root's
+        # tables were loaded twice per run: probe 101)
         return LidarDepth.name, "real root without --depth: using lidar-densified depth (the LiDAR through the tables)"
     return "", ""
 
