@@ -2663,6 +2663,15 @@ def test_a_learned_run_without_the_lidar_its_depth_needs_is_refused_at_the_start
                       "--split", "all", "--out", tmp_path / "e", "--no-progress"], capsys,
                      "--depth: lidar-densified densifies each frame's LiDAR sweep")  # evaluate too
     assert not (tmp_path / "e" / "skipped.json").exists()
+    # a root that is none is said as such, not as a --depth to change (probe 100)
+    (tmp_path / "afile").write_text("x")
+    for bad, needle in ((tmp_path / "nosuchroot", "nuScenes root does not exist"),
+                        (tmp_path / "afile", "nuScenes root is not a directory"),
+                        (root / SIM_VERSION, "is itself a version folder")):
+        err = expect_cli_error(["evaluate", "--data", bad, "--version", SIM_VERSION, "--checkpoint",
+                                shipped_checkpoint("R1"), "--split", "all", "--out", tmp_path / "f", "--no-progress"],
+                               capsys, needle)
+        assert "--depth" not in err
 
 
 def test_a_train_run_refused_leaves_no_folder_behind(sim, tmp_path, capsys):

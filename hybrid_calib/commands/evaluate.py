@@ -110,9 +110,11 @@ def run(args: argparse.Namespace) -> int:
         raise OptionError("--fit-uncertainty", f"{last.path} cannot be written (it, or its folder, is read-only), "
                                                "and the fitted scale goes into it: copy the checkpoint to a folder "
                                                "you can write and pass the copy")
+    from hybrid_calib.data.tables import version_dir
     from learned.depth import check_depth_source
 
     for root in args.data:  # once, before the frames (probe 71: every frame was skipped in turn, a line each)
+        version_dir(root, args.version)  # a root that is not one is said as such, not as a --depth (probe 100)
         check_depth_source(str(setup.conf.get("depth", "")), root, given=bool(args.depth))
     frames = open_roots(args.data, args.version, lidar=setup.lidar, options={"nsweeps": setup.nsweeps})
     # other split flags than the checkpoint's: its training frames may fall in the "held-out" split (probe 55)
