@@ -505,6 +505,16 @@ SET_CASES = [
     # a key of another method: accepted without effect (probe 7), as --method oracle refuses the hybrid's
     (["calibrate", "--method", "hybrid"], "oracle.outlier_frac=0.3", ["oracle.* is not used by --method hybrid"]),
     (["calibrate", "--method", "pure"], "motion.enabled=false", ["motion.* is not used by --method pure"]),
+    # probe 100: accepted, bit-identical (no window for pure / pure-avg; no average for hybrid; batch has no window)
+    (["calibrate", "--method", "pure"], "window.window=3", ["window.window is not used by --method pure"]),
+    (["calibrate", "--method", "pure-avg"], "window.schedule.final_gate=3", ["window.schedule is not used"]),
+    (["calibrate", "--method", "hybrid"], "average.tol=0.5", ["average.* is not used by --method hybrid"]),
+    (["calibrate", "--method", "oracle", "--mode", "batch"], "window.window=3", ["--set window.*: sets the sliding "
+                                                                                "window; the batch solve"]),
+    (["fleet", "--method", "pure"], "window.window=3", ["window.window is not used by --method pure"]),
+    (["fleet", "--method", "oracle", "--set", "mode=batch"], "window.window=3",
+     ["--set window.*: sets the sliding window; the batch solve (--set mode=batch) does not use it"]),
+    (["calibrate", "--method", "oracle", "--mode", "batch", "--window", "3"], "seed=1", ["--window: sets the sliding"]),
     (["calibrate", "--method", "hybrid"], "lidar.gates_m=[]", ["need gates_m positive", "gates_m=()"]),
     (["calibrate", "--method", "pure"], "start=R9", ["start='R9'", "reference"]),
     (["calibrate", "--method", "pure"], "max_frames=-2", ["max_frames must be >= 0"]),

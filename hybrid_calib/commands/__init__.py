@@ -139,6 +139,19 @@ def reject_unused_batch(overrides: dict, mode: str | None = None, backend: str |
                                 f"use it: add {batch_flag}, or drop {flag}")
 
 
+def reject_unused_window(overrides: dict, mode: str | None = None, window: int | None = None,
+                         batch_flag: str = "--mode batch") -> None:
+    """``OptionError`` when the sliding window's settings (``--window``, ``--set window.*``) come with the batch mode
+    (``mode``: the command's --mode, or ``--set mode=batch``): the batch solve ran and they were ignored (probe 100),
+    as ``reject_unused_batch`` for the other way round."""
+    from hybrid_calib.errors import OptionError
+
+    if (window is not None or "window" in overrides) and (mode or overrides.get("mode", "window")) == "batch":
+        flag = "--window" if window is not None else "--set window.*"
+        raise OptionError(flag, f"sets the sliding window; the batch solve ({batch_flag}) does not use it: drop "
+                                f"{flag}, or drop {batch_flag}")
+
+
 # the oracle's elevation draw: what each setting needs (calib.oracle.OracleConfig); with the default world heights
 # they were accepted and changed nothing (probe 79)
 ORACLE_MODEL_KEYS = {"elevation_beam_deg": "elevation=model", "elevation_mean_deg": "elevation=model",

@@ -16,6 +16,7 @@ from hybrid_calib.commands import (
     reject_set_keys,
     reject_unused_batch,
     reject_unused_oracle,
+    reject_unused_window,
     seed_int,
     split_overrides,
 )
@@ -97,7 +98,7 @@ def _learned(args: argparse.Namespace, on_vehicle):
     reject_set_keys(overrides, {"method": "--method", "split": "--split"})
     # accepted and without effect (--method oracle refuses the hybrid's keys the same way)
     if unused := unused_blocks(args.method, overrides):
-        raise OptionError("--set", f"{', '.join(k + '.*' for k in unused)} {'is' if len(unused) == 1 else 'are'} not "
+        raise OptionError("--set", f"{', '.join(unused)} {'is' if len(unused) == 1 else 'are'} not "
                                    f"used by --method {args.method}: drop {'it' if len(unused) == 1 else 'them'}")
     # a flag that was passed wins over --set; an absent one leaves --set (or the default) in charge
     overrides.update(method=args.method, split=args.split, **given_flags(args, FLAGS, overrides))
@@ -136,6 +137,7 @@ def run(args: argparse.Namespace) -> int:
     overrides = parse_overrides(args.set)
     reject_learned_keys(overrides)
     reject_unused_batch(overrides, args.mode, args.backend)
+    reject_unused_window(overrides, args.mode, args.window)
     reject_unused_oracle(overrides)
     # an explicit flag wins over --set; an absent one leaves --set (or the default) in charge
     overrides.update(given_flags(args, {**FLAGS, "mode": "mode"}, overrides))

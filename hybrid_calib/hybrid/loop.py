@@ -470,7 +470,11 @@ def unfitted_reason(runner, method: str) -> str:
 # the HybridConfig blocks only some methods read (``window``, ``average``, ``drift``, ... are read by more): a
 # ``--set`` of one for another method was accepted and had no effect
 BLOCK_METHODS = {"oracle": ("oracle",), "measurement": ("hybrid", "pure-avg"), "motion": ("hybrid",),
-                 "mount": ("hybrid",), "lidar": ("hybrid",), "doppler": ("hybrid",)}
+                 "mount": ("hybrid",), "lidar": ("hybrid",), "doppler": ("hybrid",), "average": ("pure-avg",)}
+# the keys of ``window`` every learned method reads (how an estimate's std is reported: ``reported_estimate``); the
+# others (its length, schedule, factor noise) only the window's methods, hybrid and oracle (probe 100: --method pure
+# with --set window.window=3 ran, bit-identical)
+WINDOW_KEYS_OF_ALL = ("covariance",)
 # the methods that look for a step inside the drive (the window's step test; the hybrid's radar mount monitor too):
 # pure and pure-avg look for none, and a fleet of them counted "0 drifted inside the drive" for radars knocked
 # 1.5 deg mid-drive (probe 50)
@@ -478,8 +482,12 @@ STEP_METHODS = ("hybrid", "oracle")
 
 
 def unused_blocks(method: str, overrides: dict) -> list[str]:
-    """The config blocks of ``overrides`` (``--set``) that ``method`` does not read (``BLOCK_METHODS``)."""
-    return [k for k, methods in BLOCK_METHODS.items() if k in overrides and method not in methods]
+    """The settings of ``overrides`` (``--set``) that ``method`` does not read, as ``"block.*"`` for a block
+    (``BLOCK_METHODS``) and ``"window.KEY"`` for a window key of a method with no window (``WINDOW_KEYS_OF_ALL``)."""
+    out = [f"{k}.*" for k, methods in BLOCK_METHODS.items() if k in overrides and method not in methods]
+    if method in ("pure", "pure-avg") and isinstance(window := overrides.get("window"), dict):
+        out += [f"window.{k}" for k in window if k not in WINDOW_KEYS_OF_ALL]
+    return out
 
 
 def range_note(start: str, trained: str, checkpoint: str) -> str:
