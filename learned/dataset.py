@@ -268,6 +268,18 @@ def _shared_frames(roots: Sequence[str | Path], parts: Sequence) -> None:
         seen.update({t: str(root) for t in tokens})
 
 
+def index_skip_records(frames: Sequence[RadarCameraFrame]) -> list[dict]:
+    """What the index of ``frames``' roots left out (a sample with no camera or radar keyframe, a record left out for
+    its schema, a scene with no file on disk: ``NuScenesRadarCamera.skipped`` with index None), as skipped.json
+    entries with ``index`` None: evaluate read "15 of 15 frames" and train said nothing where calibrate listed the
+    sample with why (probe 100)."""
+    out = []
+    for part in getattr(frames, "parts", None) or [frames]:
+        out += [{"index": None, "token": s.token, "file": s.path, "reason": s.reason}
+                for s in getattr(part, "skipped", None) or () if getattr(s, "index", 0) is None]
+    return out
+
+
 def camera_token(frames: Sequence[RadarCameraFrame], fi: int) -> str:
     """The camera sample_data token of frame ``fi``, from the index when there is one (``.frames`` of
     ``NuScenesRadarCamera`` / ``ConcatFrames``), so that a frame with a corrupt file is not loaded for it."""
@@ -311,11 +323,13 @@ class CalibDataset(torch.utils.data.Dataset):
     def __len__(self) -> int:
         return len(self.indices)
 
-    def skip_records(self) -> list[dict]:
+    def skip_records(self, index: bool = False) -> list[dict]:
         """The frames that could not be loaded so far: ``[{"index", "token", "file", "reason"}]`` sorted by
-        frame index (``token``: the camera sample_data token; ``file``: the bad file, or None)."""
-        return [{"index": int(fi), "token": camera_token(self.frames, fi), "file": self.bad_files.get(fi),
-                 "reason": reason} for fi, reason in sorted(self.bad.items())]
+        frame index (``token``: the camera sample_data token; ``file``: the bad file, or None); with ``index``, first
+        the samples the roots' index left out (``index_skip_records``)."""
+        return (index_skip_records(self.frames) if index else []) + [
+            {"index": int(fi), "token": camera_token(self.frames, fi), "file": self.bad_files.get(fi), "reason": reason}
+            for fi, reason in sorted(self.bad.items())]
 
     def set_epoch(self, epoch: int) -> None:
         """Training draws new perturbations per epoch; evaluation ignores this."""

@@ -204,11 +204,13 @@ def export_pure(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig, out
                 if scores is not None:
                     extra["ood_score"] = np.array(scores[b])
                 written.append(save_measurements(_frame_file(out, token), m, extra))
-    skipped = dataset.skip_records()  # every frame whose files were bad; the rest of the run went on
+    # every frame whose files were bad (the rest of the run went on), after the samples the index left out
+    skipped = dataset.skip_records(index=True)
     save_json_atomic(out / "skipped.json", skipped)
-    if skipped and len(skipped) == len(todo):
+    failed = [rec for rec in skipped if rec["index"] is not None]
+    if failed and len(failed) == len(todo):
         raise HybridCalibError(f"every frame to export failed ({len(todo)}; reasons in {out / 'skipped.json'}); "
-                               f"first: {skipped[0]['reason']}")
+                               f"first: {failed[0]['reason']}")
     return written
 
 

@@ -37,7 +37,7 @@ from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.errors import HybridCalibError
 from hybrid_calib.metrics import extrinsic_error
 from learned.checkpoint import checkpoint_stem, latest_checkpoint, load_checkpoint, orphaned_weights, save_checkpoint
-from learned.dataset import CalibDataset, DatasetConfig, SplitConfig, collate, split_indices
+from learned.dataset import CalibDataset, DatasetConfig, SplitConfig, collate, index_skip_records, split_indices
 from learned.depth import DepthCache, build_depth_estimator
 
 log = logging.getLogger(__name__)
@@ -350,6 +350,10 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
     dconf = dataset_config(conf, model_conf)
     train_set = CalibDataset(frames, dconf, depth, indices=train_idx, cache=cache, train=True)
     val_set = CalibDataset(frames, dconf, depth, indices=val_idx, cache=cache, train=False)
+    if unindexed := index_skip_records(frames):  # listed before the first epoch (probe 100: train said nothing)
+        save_json_atomic(out / "skipped.json", train_set.skip_records(index=True) + val_set.skip_records())
+        log.warning("%d sample(s) or record(s) of the tables hold no frame (listed in %s); first: %s", len(unindexed),
+                    out / "skipped.json", unindexed[0]["reason"])
 
     torch.manual_seed(_seed("init", conf.seed))
     model = model_factory(model_conf).to(device)
@@ -429,7 +433,7 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
                 for k, v in vals.items():
                     tb.add_scalar(f"train/{k}", v, (epoch - 1) * len(loader) + step)
         if n_steps == 0 and not nonfinite and train_set.bad:
-            save_json_atomic(out / "skipped.json", train_set.skip_records() + val_set.skip_records())
+            save_json_atomic(out / "skipped.json", train_set.skip_records(index=True) + val_set.skip_records())
             raise HybridCalibError(f"epoch {epoch}: no training step ran, every frame drawn failed to load "
                                    f"({len(train_set.bad)} bad; listed in {out / 'skipped.json'}); first: "
                                    f"{next(iter(train_set.bad.values()))}")
@@ -441,7 +445,7 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
                    "seconds": round(time.time() - t0, 1)}
         epochs_log.write(metrics)
         if train_set.bad or val_set.bad:  # which frames were skipped, and why (the count is in epochs.csv)
-            save_json_atomic(out / "skipped.json", train_set.skip_records() + val_set.skip_records())
+            save_json_atomic(out / "skipped.json", train_set.skip_records(index=True) + val_set.skip_records())
         if tb is not None:
             for k, v in metrics.items():
                 if k.startswith("val_"):

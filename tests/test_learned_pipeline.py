@@ -547,6 +547,37 @@ def test_fine_tuning_goes_on_with_the_depth_its_weights_learned(sim_root, tmp_pa
         "corrupted-truth"
 
 
+def test_train_and_evaluate_list_the_samples_the_index_left_out(sim_root, tmp_path, capsys):
+    """Probe 100: a sample whose radar keyframe record is broken (no frame) vanished from evaluate ("15 of 15 frames",
+    skipped.json []) and train (no skipped.json), where calibrate and inspect list it with why."""
+    import shutil
+
+    root = tmp_path / "root"
+    shutil.copytree(sim_root, root)
+    sd_path = root / "v1.0-sim" / "sample_data.json"
+    sds = json.loads(sd_path.read_text())
+    radar = next(sd for sd in sds if sd["is_key_frame"] and "RADAR_FRONT" in sd["filename"])
+    radar.pop("filename")  # the record is left out for its schema: its sample has no RADAR_FRONT keyframe
+    sd_path.write_text(json.dumps(sds))
+    model_sets = [f"model.{k}={json.dumps(v)}" for k, v in TINY_MODEL.items()]
+    sets = ["batch_size=3", "samples_per_epoch=3", "val_samples=3", "max_lidar_points=256", *model_sets]
+    run = tmp_path / "run"
+    assert _run_command("train", ["--data", str(root), "--preset", "small", "--out", str(run), "--epochs", "1",
+                                  "--no-progress"] + [a for s in sets for a in ("--set", s)]) == 0
+    left = [r for r in json.loads((run / "skipped.json").read_text()) if r["index"] is None]
+    assert len(left) == 2 and "lacks field(s) ['filename']" in left[0]["reason"]  # the record, then its sample
+    assert radar["sample_token"] in left[1]["reason"] and "has no keyframe for ['RADAR_FRONT']" in left[1]["reason"]
+    capsys.readouterr()
+    out = tmp_path / "eval"
+    assert _run_command("evaluate", ["--data", str(root), "--split", "all", "--checkpoint", str(run), "--out",
+                                     str(out), "--no-progress"]) == 0
+    said = capsys.readouterr().out
+    left = json.loads((out / "skipped.json").read_text())
+    assert [r["index"] for r in left] == [None, None] and radar["sample_token"] in left[1]["reason"]
+    assert "0 frame(s) skipped, 2 sample(s) or record(s) of the tables hold no frame" in said
+    assert json.loads((out / "results.json").read_text())["n_frames"] == 8
+
+
 def test_cli_train_then_evaluate(sim_root, tmp_path, capsys):
     model_sets = [f"model.{k}={json.dumps(v)}" for k, v in TINY_MODEL.items()]
     sets = ["batch_size=3", "samples_per_epoch=3", "val_samples=3", "max_lidar_points=256",

@@ -156,15 +156,21 @@ def run(args: argparse.Namespace) -> int:
         print(f"note: {note}", file=sys.stderr)
     skipped_path = Path(args.out) / "skipped.json"  # frames with bad files, skipped by the export
     skipped = json.loads(skipped_path.read_text()) if skipped_path.is_file() else []
-    if skipped:
-        notes.append(f"{len(skipped)} frame(s) skipped (their files could not be used; each, with why, in "
+    unindexed = [rec for rec in skipped if rec.get("index") is None]  # samples the index left out (probe 100)
+    failed = [rec for rec in skipped if rec.get("index") is not None]
+    if failed:
+        notes.append(f"{len(failed)} frame(s) skipped (their files could not be used; each, with why, in "
                      f"{skipped_path.name}): the table is over the {result.n_frames} frames left")
+    if unindexed:
+        notes.append(f"{len(unindexed)} sample(s) or record(s) of the tables hold no frame (each, with why, in "
+                     f"{skipped_path.name}; first: {unindexed[0]['reason']})")
     if notes:
         annotate(args.out, result, notes)
-    for rec in skipped:
+    for rec in failed:
         print(f"skipped frame {rec['index']} ({rec['token']}): {rec['reason']}")
     if skipped:
-        print(f"{len(skipped)} frame(s) skipped; listed in {skipped_path}")
+        print(f"{len(failed)} frame(s) skipped, {len(unindexed)} sample(s) or record(s) of the tables hold no "
+              f"frame; listed in {skipped_path}")
     u = result.uncertainty
     if u:
         print(f"exported covariance: mean NEES {u['nees_mean']:.2f} (6 if honest), coverage "
