@@ -12,7 +12,8 @@
    ``OUT/export_config.json`` holds the evaluation config, the checkpoint and its model config.
    Frames already exported are skipped (``overwrite=False``); a frame whose files are bad (a corrupt
    radar PCD or image, ...) is listed in ``OUT/skipped.json`` (``[{"index", "token", "file",
-   "reason"}]``, written on every run) and the run goes on.
+   "reason"}]``, written on every run; first, with ``index`` null, the samples the roots' index left out) and the
+   run goes on.
 2. ``evaluate_predictions``: read those files and compute the paper's table with
    ``hybrid_calib.metrics`` (rotation Mean/Roll/Pitch/Yaw in degrees, translation Mean/X/Y/Z in cm,
    geodesic angle and translation norm) for the initial error, every iteration and the final

@@ -10,6 +10,7 @@ per split, ``learned.dataset.split_indices``), validates on ``val`` after every 
                                when training ends: ``hybrid_calib.plots.training.plot_history``)
   out/depth-cache/             estimated depth per frame (``learned.depth.DepthCache``)
   out/skipped.json             frames whose files are bad, skipped so far: [{"index", "token", "file", "reason"}]
+                               (index null: a sample the roots' index left out)
 Re-running with ``resume=True`` continues after the last complete checkpoint; the result is the
 same as an uninterrupted run (shuffling, perturbations and torch's RNG are seeded per epoch).
 """
