@@ -247,6 +247,12 @@ def open_roots(roots: Sequence[str | Path], version: str = "v1.0-sim", *, lidar:
     if not parts:
         raise HybridCalibError("no data root given")
     _shared_frames(roots, parts)
+    from hybrid_calib.data.summary import timestamp_unit_warning
+
+    for root, part in zip(roots, parts):  # calibrate and inspect said it; train and evaluate did not (probe 100)
+        if line := timestamp_unit_warning(part):
+            log.warning("%s: %s: the poses' checks and the radar's motion compensation read time from them; fix the "
+                        "tables", root, line.removeprefix("warning: "))
     return parts[0] if len(parts) == 1 else ConcatFrames(parts)
 
 

@@ -811,3 +811,18 @@ def test_which_sensors_a_root_has_is_read_from_sensor_json_alone(tiny):
     (tiny.root / VERSION / "sample_data.json").write_text("[{")  # not read by either
     assert sensor_channels(tiny.root, VERSION) == ["CAM_FRONT", "LIDAR_TOP", "RADAR_FRONT"]
     assert resolve_depth(tiny.root, VERSION, HybridConfig())[0] == "lidar-densified"
+
+
+def test_train_and_evaluate_say_timestamps_that_are_not_microseconds(tiny, caplog):
+    """Probe 100: calibrate and inspect warned of millisecond timestamps; train and evaluate, which read the frames
+    through ``open_roots``, said nothing and blamed the ego poses frame by frame."""
+    import logging
+
+    from learned.dataset import open_roots
+
+    for sd in tiny.tables["sample_data"]:
+        sd["timestamp"] //= 1000
+    tiny.rewrite_table("sample_data")
+    with caplog.at_level(logging.WARNING, logger="learned.dataset"):
+        open_roots([tiny.root], VERSION, lidar=False)
+    assert "the timestamps look like milliseconds or seconds" in caplog.text and str(tiny.root) in caplog.text

@@ -541,6 +541,13 @@ def test_inspect_warns_about_tables_that_load_but_cannot_be_right():
     assert "warning: only 0 of 2000 radar points (0.0 %) project into the CAM_FRONT image with the tables' " \
            "extrinsic and intrinsics in 1 of 2 scenes (s of v)" in one
     assert "warning: keyframes are 0.500 ms apart" in summary(900, 500)
+    # whole seconds: most gaps 0, the median too (probe 100: no warning, only "do not advance in time")
+    from hybrid_calib.data.summary import keyframe_gap_warning
+
+    seconds = [1_600_000_000 + k // 2 for k in range(40)]
+    assert keyframe_gap_warning([seconds]).startswith("warning: keyframes are 0.000 ms apart (mean): the timestamps")
+    assert keyframe_gap_warning([[k * 500_000 for k in range(40)]]) == ""
+    assert keyframe_gap_warning([[7] * 40]) == ""  # not advancing at all: said by its own warning
     # a radar record 0.3 s from its camera's, and a mount 34 m from the vehicle's origin (decimetres): silent (probe 29)
     g = GroupSummary("s", "v", "log", frames=40, loaded=40, radar_points=[50] * 40, radar_in_image=900,
                      camera_us=[k * 500_000 for k in range(40)], late=[("tok7", 329.0)],

@@ -253,10 +253,23 @@ def keyframe_gap_warning(camera_us: Iterable[Iterable[int]]) -> str:
     scene) lie milliseconds apart at the median: the unit is not microseconds (inspect, and calibrate: the mount
     monitor, the Doppler pairs and the motion constraint read time from them)."""
     gaps = [d for us in camera_us for d in np.diff(sorted(us))]
-    if gaps and 0 < float(np.median(gaps)) < MIN_KEYFRAME_GAP_US:
-        return (f"warning: keyframes are {float(np.median(gaps)) / 1000:.3f} ms apart (median): the timestamps look "
-                "like milliseconds or seconds; nuScenes uses microseconds (keyframes ~500 ms apart)")
+    if not gaps:
+        return ""
+    # whole seconds: most gaps 0 (probe 100: a median of 0 was no warning, its frames "do not advance in time")
+    gap, how = (float(np.median(gaps)), "median") if float(np.median(gaps)) > 0 else (float(np.mean(gaps)), "mean")
+    if 0 < gap < MIN_KEYFRAME_GAP_US:
+        return (f"warning: keyframes are {gap / 1000:.3f} ms apart ({how}): the timestamps look like milliseconds or "
+                "seconds; nuScenes uses microseconds (keyframes ~500 ms apart)")
     return ""
+
+
+def timestamp_unit_warning(ds) -> str:
+    """``keyframe_gap_warning`` of ``ds``'s camera keyframes, scene by scene ("" if none, or no frame)."""
+    by_scene: dict[str, list[int]] = {}
+    for ref in getattr(ds, "frames", []):
+        if isinstance(ts := ref.camera_sd.get("timestamp"), int) and not isinstance(ts, bool):
+            by_scene.setdefault(ref.scene_token, []).append(ts)
+    return keyframe_gap_warning(by_scene.values())
 
 
 EXAMPLES_PER_REASON = 3  # further frames (index and token) shown per kind of skip reason in the terminal
@@ -566,11 +579,7 @@ def calibration_notes(ds, vehicles=None) -> list[str]:
         out.append(f"note: {len(dup)} sample(s) read the same sensor files as earlier samples (first: {first[0]}, as "
                    f"{first[1]}): the tables list one recording twice; each frame is read once (hybrid-calib inspect "
                    "lists them)")
-    by_scene: dict[str, list[int]] = {}
-    for ref in getattr(ds, "frames", []):
-        if isinstance(ref.camera_sd.get("timestamp"), int):
-            by_scene.setdefault(ref.scene_token, []).append(ref.camera_sd["timestamp"])
-    if gap := keyframe_gap_warning(by_scene.values()):  # inspect said it; a calibration read time from them silently
+    if gap := timestamp_unit_warning(ds):  # inspect said it; a calibration read time from them silently
         out.append(f"{gap}: the radar mount monitor, its Doppler pairs and the motion constraint read time from them; "
                    "fix the tables before trusting this calibration")
     out += table_warnings(ds)  # inspect said them; the monitor, the Doppler and the motion read the poses
