@@ -497,7 +497,9 @@ SET_CASES = [
     (["calibrate"], "oracle.outlier_frac=2", ["need outlier_frac in [0, 1]", "outlier_frac=2"]),
     (["calibrate"], "oracle.sigma_px=0", ["need sigma_px in (0, 1000]"]),
     (["calibrate"], "oracle.radar_points=bogus", ["radar_points='bogus'", "truth, recorded"]),
-    (["simulate"], "seed=-1", ["seed=-1; must be >= 0"]),
+    (["simulate"], "seed=-1", ["seed=-1; must be in 0..2**63-1"]),
+    (["simulate"], "seed=100000000000000000000000000", ["must be in 0..2**63-1"]),
+    (["calibrate"], "seed=9223372036854775808", ["must be in 0..2**63-1"]),
     (["calibrate", "--method", "hybrid"], "doppler.sweep_noise_scale=0", ["need sweep_noise_scale > 0",
                                                                          "got sweep_noise_scale=0"]),
     (["calibrate", "--method", "hybrid"], "mount.wander_deg=-0.1", ["need wander_deg >= 0", "wander_deg=-0.1"]),
@@ -1433,8 +1435,11 @@ def test_a_negative_seed_in_a_config_is_refused():
     from hybrid_calib.hybrid.loop import HybridConfig
 
     for cls in (CalibrateConfig, CompareConfig, HybridConfig):
-        with pytest.raises(ValueError, match=rf"{cls.__name__}.seed must be >= 0 \(--seed\), got -1"):
-            cls(seed=-1)
+        for seed in (-1, 2**63, 10**26):  # probe 100: --set seed=1e26 was accepted where --seed refuses it
+            with pytest.raises(ValueError, match=rf"{cls.__name__}.seed must be in 0..2\*\*63-1 \(--seed\), "
+                                                 rf"got {seed}"):
+                cls(seed=seed)
+        cls(seed=2**63 - 1)
 
 
 @pytest.mark.parametrize("case,needles", [

@@ -401,6 +401,14 @@ def test_a_yaw_difference_the_radar_mount_monitor_does_not_see_points_at_the_cam
     # nothing about which side moved
     vague = {"steps": [], "levels": [{"level_deg": 0.11, "std_deg": 0.41, "pairs": 168}]}
     assert camera_side_note(drift, vague) == drift
+    # a level off the tables by a few tenths, within the tolerance, 3.8 sigma from an estimate 1.98 deg off (probe 100:
+    # radar files of other instants; "recalibrate", and export wrote the radar's record)
+    near = {"steps": [], "levels": [{"level_deg": -0.25, "std_deg": 0.04, "pairs": 60}]}
+    far = {"verdict": "differs by 1.98 deg in yaw: recalibrate",
+           "axes": {"yaw": {"delta": 1.98, "std": 0.44, "tolerance": 0.5, "decision": "differs"}}}
+    noted = camera_side_note(far, near)
+    assert noted["camera_side"].startswith("the radar's own yaw on the vehicle lies within the yaw tolerance of its "
+                                           "tables (radar mount monitor: 0.25 +- 0.04 deg")
 
 
 def test_an_untrusted_estimate_is_never_a_reason_to_recalibrate():

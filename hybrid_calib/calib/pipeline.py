@@ -78,8 +78,8 @@ class CalibrateConfig:
             raise ValueError(f"CalibrateConfig.start={self.start!r}; valid: {STARTS}")
         if self.max_frames < 0:
             raise ValueError(f"CalibrateConfig.max_frames must be >= 0 (0 = all frames), got {self.max_frames}")
-        if self.seed < 0:  # as the simulator's: numpy's generators take no negative seed
-            raise ValueError(f"CalibrateConfig.seed must be >= 0 (--seed), got {self.seed}")
+        if not 0 <= self.seed < 2**63:  # as the simulator's: numpy's generators take no negative seed; --seed's bound
+            raise ValueError(f"CalibrateConfig.seed must be in 0..2**63-1 (--seed), got {self.seed}")
 
 
 @dataclass

@@ -172,8 +172,8 @@ class HybridConfig:
             raise ValueError(f"HybridConfig.split={self.split!r}; valid: all, train, val, test")
         if self.max_frames < 0:
             raise ValueError(f"HybridConfig.max_frames must be >= 0 (0 = all frames), got {self.max_frames}")
-        if self.seed < 0:
-            raise ValueError(f"HybridConfig.seed must be >= 0 (--seed), got {self.seed}")
+        if not 0 <= self.seed < 2**63:  # as --seed (probe 100: --set seed=1e26 was accepted)
+            raise ValueError(f"HybridConfig.seed must be in 0..2**63-1 (--seed), got {self.seed}")
         if not 1 <= self.threads <= 256:
             raise ValueError(f"HybridConfig.threads must be in 1..256 (torch CPU threads), got {self.threads}")
         from hybrid_calib.config import merge

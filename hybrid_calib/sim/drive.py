@@ -90,8 +90,8 @@ class SimConfig:
                              "1600x900, scaled by it; e.g. 0.125 for a quick test)")
         if not 1 <= self.jpeg_quality <= 100:
             raise ValueError(f"jpeg_quality={self.jpeg_quality}; valid: 1..100")
-        if self.seed < 0:  # numpy's generators take non-negative seeds only
-            raise ValueError(f"seed={self.seed}; must be >= 0 (--seed / --set seed)")
+        if not 0 <= self.seed < 2**63:  # numpy's generators take non-negative seeds only; the bound is --seed's
+            raise ValueError(f"seed={self.seed}; must be in 0..2**63-1 (--seed / --set seed)")
         # frames: the world is built for the whole drive (~1.5 s and ~2 MB per km of urban road); radar_sweep_period_ms:
         # sweeps are jittered by +-1 ms, so shorter periods reorder them; camera_max_range_m: the depth PNGs hold
         # uint16 centimetres (farther depths were clipped to 655.35 m without a word)
