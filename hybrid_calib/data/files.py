@@ -144,6 +144,11 @@ def read_npz(path: str | Path, what: str, fix: str, token: str | None = None) ->
         with np.load(path, allow_pickle=False) as z:
             yield z
     except NPZ_ERRORS as e:
+        if isinstance(e, ValueError) and "pickle" in str(e):  # not a zip: numpy took it for a pickle (probe 100 read
+            # its advice to "load it unsafely")
+            raise DataError(f"{what} unreadable: it is not a .npz archive (neither a zip of arrays nor an array); the "
+                            f"file is corrupt or another file under its name: {fix}", path=str(path),
+                            token=token) from None
         raise DataError(f"{what} unreadable ({type(e).__name__}: {e}); the file is corrupt or truncated: {fix}",
                         path=str(path), token=token) from None
 
