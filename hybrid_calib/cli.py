@@ -168,8 +168,17 @@ def build_parser() -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=mod.HELP, description=mod.HELP)
         mod.add_arguments(p)
         p.add_argument("--debug", action="store_true", help="show the full traceback of any error")
-        p.set_defaults(_run=mod.run)
+        p.set_defaults(_run=mod.run, _parser=p)
     return parser
+
+
+def _parse(argv: list[str] | None) -> argparse.Namespace:
+    """The command line, an option the command does not have said by that command's parser (its usage, "hybrid-calib
+    evaluate: error: unrecognized arguments: --no-plots"), not the top level's (probe 100)."""
+    args, extra = build_parser().parse_known_args(argv)
+    if extra:
+        args._parser.error(f"unrecognized arguments: {' '.join(extra)}")
+    return args
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -178,7 +187,7 @@ def main(argv: list[str] | None = None) -> int:
             setattr(sys, name, open(os.devnull, "w"))  # noqa: SIM115 (the process' stream, open to its end)
     if argv is None:  # the process's own stderr (a caller of main(argv) keeps its own)
         best_effort_stderr()
-    args = build_parser().parse_args(argv)
+    args = _parse(argv)
     if problem := _repeated_or_empty(sys.argv[1:] if argv is None else [str(a) for a in argv]):
         print(f"hybrid-calib {args.command}: error: {problem}", file=sys.stderr)
         return EXIT_ERROR

@@ -373,3 +373,16 @@ def test_stderr_is_best_effort_in_the_command_and_in_the_fleets_workers(monkeypa
     assert isinstance(sys.stderr, BestEffortStream)
     print("a note", file=sys.stderr, flush=True)  # dropped, not raised
     assert isinstance(copy.copy(sys.stderr), BestEffortStream)
+
+
+def test_an_option_the_command_does_not_have_is_said_by_that_command(capsys):
+    """Probe 100: `evaluate ... --no-plots` printed the top level's usage ("usage: hybrid-calib [-h] COMMAND ...",
+    "hybrid-calib: error: unrecognized arguments"), unlike every other error of the command."""
+    from hybrid_calib.cli import main
+
+    with pytest.raises(SystemExit) as e:
+        main(["evaluate", "--data", "x", "--checkpoint", "y", "--out", "z", "--no-plots"])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert "usage: hybrid-calib evaluate" in err
+    assert "hybrid-calib evaluate: error: unrecognized arguments: --no-plots" in err
