@@ -78,6 +78,40 @@ def test_calibrate_batch_from_exported_correspondence_dir(sim_root, tmp_path):
     assert v["method"] == "measurements" and v["start"]["kind"] == "reference" and v["errors_against"] == "truth"
 
 
+def test_a_measurement_file_that_does_not_read_is_its_frames_vehicles_skip(tmp_path):
+    """Probe 100: a file that does not read (no vehicle field to read) was listed as skipped under every vehicle; its
+    name is its frame's token, so it is its frame's vehicle's."""
+    from hybrid_calib.config import merge
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+    from hybrid_calib.sim import simulate as sim
+    from hybrid_calib.sim.drive import SimConfig
+
+    sim_root = tmp_path / "sim"
+    sim.simulate(merge(SimConfig, {"vehicles": 2, "frames": 3, "image_scale": 0.05, "seed": 3}), sim_root,
+                 overwrite=False, workers=1)
+    ds = NuScenesRadarCamera(sim_root, "v1.0-sim", conf={"check_images": False})
+    T = ds[0].extras["T_cam_radar_static"]
+    frames, _ = synthetic_drive(T, len(ds.frames), rng(0))
+    d = tmp_path / "corr"
+    d.mkdir()
+    for ref, c in zip(ds.frames, frames):
+        token = ref.camera_sd["token"]
+        from factors.io import FrameMeasurements, to_arrays
+
+        c = dataclasses.replace(c, frame_id=token, timestamp_us=0)
+        np.savez(d / f"{token}.npz", **to_arrays(FrameMeasurements(c, ref.vehicle)))
+    bad = ds.frames[0]
+    (d / f"{bad.camera_sd['token']}.npz").write_bytes(b"not an archive")
+    out = tmp_path / "run"
+    assert calibrate.run(_args("--data", str(sim_root), "--correspondences", str(d), "--mode", "batch",
+                               "--out", str(out), "--no-plots")) == 0
+    vehicles = json.loads((out / "result.json").read_text())["vehicles"]
+    assert len(vehicles) >= 2
+    said = {name: [s for s in v["frames_skipped"] if "measurement file skipped" in s["reason"]]
+            for name, v in vehicles.items()}
+    assert len(said.pop(bad.vehicle)) == 1 and not any(said.values())
+
+
 def test_exported_rows_on_a_real_root_are_measured_against_its_tables(tiny, tmp_path, capsys):
     """Probe 23: on a real root calibrate --correspondences printed 'error 1.142 deg' as if against a truth; the
     other methods say 'vs the tables' there."""

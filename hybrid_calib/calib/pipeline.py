@@ -175,6 +175,7 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
     sources: dict[str, dict] = {}  # vehicle -> what its reference is (the tables, or an earlier export's mount)
     truths: dict[str, np.ndarray] = {}
     tokens: set[str] = set()
+    frame_of: dict = {}  # token -> its frame (FrameRef) of the root, when there is one
     camera_K: dict[str, np.ndarray] = {}  # frame token -> its camera's intrinsics in the root's tables
     against = None  # what the errors are measured against: a simulated root's truth, a real root's tables
     if data is not None and version:
@@ -243,8 +244,10 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
         for vehicle in sorted(refs):
             if vehicle not in out and (conf.vehicles is None or vehicle in conf.vehicles):
                 absent[vehicle] = f"no measurement file in {directory}"
-    for sub, path, e in bad:  # a file that does not read has no vehicle field: its folder's, else every vehicle's
-        for vehicle in [sub] if sub in out else list(out):
+    for sub, path, e in bad:  # a file that does not read has no vehicle field: its folder's, else its frame's (the
+        # file is named by its frame's token: probe 100 listed it under every vehicle), else every vehicle's
+        owner = getattr(frame_of.get(Path(path).stem), "vehicle", None)
+        for vehicle in [sub] if sub in out else [owner] if owner in out else list(out):
             out[vehicle].skipped.append({"index": None, "token": Path(path).stem,
                                          "reason": f"measurement file skipped: {e}"})
     return out
