@@ -139,6 +139,17 @@ def reject_unused_batch(overrides: dict, mode: str | None = None, backend: str |
                                 f"use it: add {batch_flag}, or drop {flag}")
 
 
+def reject_unused_blocks(method: str, overrides: dict) -> None:
+    """``OptionError`` (``--set``) naming the settings of ``overrides`` that ``method`` does not read
+    (``hybrid.loop.unused_blocks``): accepted, they had no effect (probes 7 and 100). calibrate and fleet alike."""
+    from hybrid_calib.errors import OptionError
+    from hybrid_calib.hybrid.loop import unused_blocks
+
+    if unused := unused_blocks(method, overrides):
+        raise OptionError("--set", f"{', '.join(unused)} {'is' if len(unused) == 1 else 'are'} not used by --method "
+                                   f"{method}: drop {'it' if len(unused) == 1 else 'them'}")
+
+
 def reject_unused_window(overrides: dict, mode: str | None = None, window: int | None = None,
                          batch_flag: str = "--mode batch") -> None:
     """``OptionError`` when the sliding window's settings (``--window``, ``--set window.*``) come with the batch mode

@@ -15,6 +15,7 @@ from hybrid_calib.commands import (
     reject_learned_keys,
     reject_set_keys,
     reject_unused_batch,
+    reject_unused_blocks,
     reject_unused_oracle,
     reject_unused_window,
     seed_int,
@@ -82,7 +83,6 @@ def _learned(args: argparse.Namespace, on_vehicle):
     from hybrid_calib.config import merge
     from hybrid_calib.errors import HybridCalibError
     from hybrid_calib.hybrid import HybridConfig, run_calibration
-    from hybrid_calib.hybrid.loop import unused_blocks
 
     if args.correspondences is not None:  # 'oracle' too: it was accepted and had no effect
         raise HybridCalibError(f"--correspondences is for --method oracle (the true reflectors or measurement "
@@ -97,9 +97,7 @@ def _learned(args: argparse.Namespace, on_vehicle):
     overrides = parse_overrides(args.set)
     reject_set_keys(overrides, {"method": "--method", "split": "--split"})
     # accepted and without effect (--method oracle refuses the hybrid's keys the same way)
-    if unused := unused_blocks(args.method, overrides):
-        raise OptionError("--set", f"{', '.join(unused)} {'is' if len(unused) == 1 else 'are'} not "
-                                   f"used by --method {args.method}: drop {'it' if len(unused) == 1 else 'them'}")
+    reject_unused_blocks(args.method, overrides)
     # a flag that was passed wins over --set; an absent one leaves --set (or the default) in charge
     overrides.update(method=args.method, split=args.split, **given_flags(args, FLAGS, overrides))
     for key in ("checkpoint", "depth", "refine"):

@@ -15,6 +15,7 @@ from hybrid_calib.commands import (
     reject_learned_keys,
     reject_set_keys,
     reject_unused_batch,
+    reject_unused_blocks,
     reject_unused_oracle,
     reject_unused_window,
     retry_count,
@@ -92,15 +93,12 @@ def run(args: argparse.Namespace) -> int:
         merge(CalibrateConfig, {**calib, "seed": args.seed})  # ConfigError names a bad option before any job runs
     else:  # the network methods' jobs merge --set into HybridConfig (fleet.jobs.calibrate_job): checked alike
         from hybrid_calib.hybrid import HybridConfig
-        from hybrid_calib.hybrid.loop import unused_blocks
 
         reject_set_keys(calib, {"method": "--method", "checkpoint": "--checkpoint", "threads": "--threads"})
         if unsupported := sorted(set(calib) & {"mode", "batch"}):  # every job would fail alike
             raise OptionError("--set", f"{', '.join(unsupported)}: --method {args.method} runs the sliding window "
                                        "(or the network alone), not a batch solve; drop it, or use --method oracle")
-        if unused := unused_blocks(args.method, calib):  # accepted, and without effect (probe 100), as calibrate
-            raise OptionError("--set", f"{', '.join(unused)} {'is' if len(unused) == 1 else 'are'} not used by "
-                                       f"--method {args.method}: drop {'it' if len(unused) == 1 else 'them'}")
+        reject_unused_blocks(args.method, calib)  # accepted, and without effect (probe 100), as calibrate
         merge(HybridConfig, {**calib, "method": args.method, "seed": args.seed})
     if args.checkpoint is not None and args.method != "oracle":  # one bad checkpoint would fail every job alike
         from learned.checkpoint import load_model
