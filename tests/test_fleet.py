@@ -1257,3 +1257,11 @@ def test_a_vehicle_of_no_frame_is_a_failed_job_with_why(fleet_root, tmp_path):
     bad = s["vehicles"]["sim-veh-009"]
     assert bad["state"] == "failed" and "vehicle sim-veh-009: no frame: none of its" in bad["reason"]
     assert not any("sim-veh-009" in n and "no frame" in n for n in s.get("notes", []))  # said once, as the failure
+    # a fleet of that vehicle alone: its job fails, the summary is written (probe 102: "no vehicle has a tables
+    # extrinsic", rc 2, no summary: the design mount had nothing to average)
+    alone = {"version": "v1.0-sim", "roots": [{"data": str(root), "vehicles": ["sim-veh-009"]}]}
+    manifest.write_text(json.dumps(alone))
+    s = run_fleet(None, str(manifest), "v1.0-sim", "oracle", tmp_path / "alone", seed=2,
+                  calib={"window": {"window": 3}}, options=FleetOptions(plots=False))
+    assert s["counts"]["failed"] == 1 and s["design_mount"]["T_cam_radar"] is None
+    assert (tmp_path / "alone" / "summary.md").is_file() and "no frame" in s["vehicles"]["sim-veh-009"]["reason"]

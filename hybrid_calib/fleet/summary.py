@@ -43,7 +43,6 @@ from hybrid_calib.calib.covariance import camera_offset, inconclusive_reason, st
 from hybrid_calib.calib.drift import alarms_say_moved, doppler_level_words
 from hybrid_calib.calib.mount_monitor import told_steps
 from hybrid_calib.config import save_json_atomic, save_text_atomic
-from hybrid_calib.errors import DataError
 from hybrid_calib.fleet.manifest import Manifest, rel_path
 from hybrid_calib.hybrid.loop import STEP_METHODS
 from hybrid_calib.words import md_cell, n_vehicles
@@ -54,16 +53,17 @@ SCHEMA = "hybrid-calib/fleet-summary/v1"
 UNRESOLVED = 0.1  # a fleet spread under this fraction of the vehicles' own median std: not resolved (summary.md)
 
 
-def design_mount(jobs: list[dict]) -> tuple[np.ndarray, str]:
+def design_mount(jobs: list[dict]) -> tuple[np.ndarray | None, str]:
     """The fleet's design T_cam_radar (4, 4) and where it came from: the recorded design mounts
     (their mean, when roots record one) or else the mean of the tables' extrinsics (the vehicles' references: with
-    --reference, an earlier export's mounts)."""
+    --reference, an earlier export's mounts); None when no job has either (every vehicle without a frame: each job
+    failed, and the summary says why; probe 102 read "no vehicle has a tables extrinsic", rc 2, no summary)."""
     from hybrid_calib.geometry import local, retract
 
     recorded = [np.asarray(j["design_T"]) for j in jobs if j.get("design_T") is not None]
     Ts = recorded or [np.asarray(j["tables_T"]) for j in jobs if j.get("tables_T") is not None]
     if not Ts:
-        raise DataError("no vehicle has a tables extrinsic: cannot define the fleet's design mount")
+        return None, "none: no vehicle of the fleet has a tables extrinsic (none has a frame)"
     T = Ts[0]
     for _ in range(3):  # Karcher mean on SE(3) (right tangent)
         T = retract(T, np.mean([local(T, Ti) for Ti in Ts], axis=0))
@@ -115,7 +115,8 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
         d = vr.drift or {}
         row["reference"] = d.get("reference") or {"kind": "tables"}  # what "vs tables" and offset_from_tables are from
         row.update(n_frames=vr.n_frames, status=vr.final.status,
-                   offset_from_design=dict(zip(keys, camera_offset(T_ref, vr.final.T).tolist())),
+                   offset_from_design=None if T_ref is None else dict(zip(
+                       keys, camera_offset(T_ref, vr.final.T).tolist())),
                    offset_from_tables=None if j.get("tables_T") is None else dict(zip(
                        keys, camera_offset(np.asarray(j["tables_T"]), vr.final.T).tolist())),
                    std_cam=std_dict(vr.final.std, STD_FRAME),
@@ -154,7 +155,7 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
     trusted = {n: vr for n, vr in results.items() if not untrusted_status(vr.final.status)}
     for n in sorted(set(results) - set(trusted)):
         rows[n]["fleet_test"] = {"left_out": f"not in the fleet prior: {untrusted_status(results[n].final.status)}"}
-    if fit_prior and len(trusted) >= MIN_VEHICLES:
+    if fit_prior and len(trusted) >= MIN_VEHICLES and T_ref is not None:
         names = sorted(trusted)
         own = {n: _own_estimate(results[n]) for n in names}
         prior = fit_fleet_prior(names, [own[n][0] for n in names], [own[n][1] for n in names], T_ref, alpha,
@@ -176,7 +177,7 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
     summary = {
         "schema": SCHEMA, "out": str(base), "method": m.method, "seed": m.seed, "counts": counts,
         "step_test": m.method in STEP_METHODS,
-        "design_mount": {"T_cam_radar": T_ref.tolist(), "source": source},
+        "design_mount": {"T_cam_radar": None if T_ref is None else T_ref.tolist(), "source": source},
         # --reference: the earlier export each vehicle it exported was checked against (rows' "reference" say which)
         "reference": next((j["job"]["calib"]["reference"] for j in m.jobs.values()
                            if (j["job"].get("calib") or {}).get("reference")), None),
