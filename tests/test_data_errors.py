@@ -764,14 +764,17 @@ def test_two_roots_holding_one_recording_are_refused_by_the_learned_commands(tin
     assert len(open_roots([tiny.root], VERSION, lidar=False)) == 4
 
 
-@pytest.mark.parametrize("version", ["/abs/v1.0-mini", "../other/v1.0-mini", "v1.0-mini/", ".."])
+@pytest.mark.parametrize("version", ["/abs/v1.0-mini", "../other/v1.0-mini", "..", "x\\v1.0-mini"])
 def test_a_version_that_is_a_path_is_refused(tiny, version):
     """Probe 101: --version with the version folder's full path read that root's tables with --data's files, in
-    silence (an absolute path replaces the root it is joined to)."""
+    silence (an absolute path replaces the root it is joined to). What tab completion types is the folder itself
+    (probe 102: "v1.0-mini/" had been refused)."""
     from hybrid_calib.data.tables import version_dir
 
     with pytest.raises(DataError, match="is not a folder name: --version names the version folder under the root"):
         version_dir(tiny.root, version)
+    for same in (f"{VERSION}/", f"./{VERSION}"):
+        assert version_dir(tiny.root, same) == version_dir(tiny.root, VERSION)
 
 
 def test_the_archive_layout_is_named_with_the_root_to_pass(tiny, tmp_path):
@@ -826,3 +829,21 @@ def test_train_and_evaluate_say_timestamps_that_are_not_microseconds(tiny, caplo
     with caplog.at_level(logging.WARNING, logger="learned.dataset"):
         open_roots([tiny.root], VERSION, lidar=False)
     assert "the timestamps look like milliseconds or seconds" in caplog.text and str(tiny.root) in caplog.text
+
+
+def test_a_dangling_link_or_a_folder_is_named_not_taken_for_a_partial_download(tiny, tmp_path):
+    """Probe 102: a scene whose files were links into a store that is not mounted (or folders) was left out as "a
+    partial download ... download its sensor files"; the frame's read says what each is."""
+    from hybrid_calib.data.image_header import image_header
+
+    _copy_scene(tiny)
+    copies = [sd for sd in tiny.tables["sample_data"] if "-copy" in sd["filename"]]
+    for sd in copies:
+        path = tiny.root / sd["filename"]
+        path.unlink()
+        path.symlink_to(tmp_path / "unmounted" / path.name)
+    ds = _open(tiny)
+    assert not ds.not_on_disk and len(ds) == 4  # the copy is still a scene recorded during the other: left out so
+    cam = next(sd for sd in copies if sd["filename"].endswith(".jpg"))
+    with pytest.raises(DataError, match=r"it is a symbolic link to .*unmounted.*, which does not exist \(the store"):
+        image_header(tiny.root / cam["filename"])

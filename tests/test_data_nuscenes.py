@@ -405,6 +405,17 @@ def test_calibrate_repeats_the_warning_on_ego_poses_that_lean_the_vehicle_over(t
         "tables before trusting this calibration" in capsys.readouterr().err
 
 
+def test_a_calibrations_name_does_not_depend_on_what_is_downloaded(tmp_path):
+    """Probe 102: the scenes with no file on disk were left out before a vehicle's calibrations were named, so with
+    the first calibration's scene absent the second was called NAME (another start, vehicles=["NAME-cal2"] refused)."""
+    tiny = _recalibrated_radar(tmp_path)
+    for sd in tiny.cam_sd[:3] + tiny.radar_sd[:3]:  # the first calibration's scene: not downloaded
+        tiny.path(sd).unlink()
+    ds = NuScenesRadarCamera(tiny.root, VERSION)
+    assert ds.frames_by_vehicle() == {"tiny-cal2": [0, 1, 2]} and ds.not_on_disk_vehicles() == ["tiny"]
+    assert "tiny: no frame: none of its 1 scene(s) has its sensor files on disk" in ds.frameless_vehicles()["tiny"]
+
+
 def test_a_vehicle_with_two_calibrations_is_two_vehicles(tmp_path):
     """nuScenes calibrates each log: n015's radar is yawed -0.85 deg in 34 scenes and +0.20 deg in 349. Frames of
     two calibrations fused as one drive would be one extrinsic for two mounts, so each is its own vehicle."""

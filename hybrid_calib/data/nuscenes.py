@@ -44,6 +44,7 @@ import dataclasses
 import functools
 import json
 import math
+import os
 import re
 import warnings
 from collections.abc import Iterator
@@ -311,8 +312,8 @@ class NuScenesRadarCamera:
                 frames.append(FrameRef(sample["token"], scene["name"], scene["token"], log["token"],
                                        log["vehicle"], cam, rad))
         frames = self._once_per_file(frames)
+        frames = self._one_mount_per_vehicle(frames)  # before: a calibration's name must not depend on the download
         frames = self._on_disk(frames)
-        frames = self._one_mount_per_vehicle(frames)
         frames = self._one_scene_at_a_time(frames)
         if self.conf.vehicles is not None:
             names = sorted({f.vehicle for f in frames})
@@ -377,9 +378,9 @@ class NuScenesRadarCamera:
         each in their vehicle's drive: a drive of 41 readable frames in 861 inflated its network priors by the 861
         and ended "a radar knocked, blocked or failed there" (probe 101), with a line per absent file. A root with
         no file at all keeps its per-frame words (samples/ not beside the version folder, and so on)."""
-        def present(sd: dict) -> bool:
+        def present(sd: dict) -> bool:  # anything there (a folder, a dangling link) is the frame's read to name
             name = sd.get("filename")  # (not a path: the frame's read names the record)
-            return not isinstance(name, str) or not name or (self.root / name).is_file()
+            return not isinstance(name, str) or not name or os.path.lexists(self.root / name)
 
         scenes: dict[str, list[FrameRef]] = {}
         for ref in frames:

@@ -68,12 +68,14 @@ def version_dir(root: str | Path, version: str, fix: str = "pass one of them wit
         what = "is not a directory" if root.exists() else "does not exist"
         raise DataError(f"nuScenes root {what}; pass the folder that holds the version folder "
                         "(e.g. v1.0-mini) and samples/", path=str(root))
-    if not isinstance(version, str) or not version or version in (".", "..") or version != Path(version).name \
-            or "\\" in version:  # probe 101: an absolute --version read another root's tables with this root's files
+    # probe 101: an absolute --version read another root's tables with this root's files; "v1.0-mini/" (what tab
+    # completion types) and "./v1.0-mini" name the folder itself (probe 102)
+    parts = PurePosixPath(version).parts if isinstance(version, str) else ()
+    if len(parts) != 1 or parts[0] in ("/", "..") or "\\" in version:
+        name = PurePosixPath(version.replace("\\", "/")).name if isinstance(version, str) else ""
         raise DataError(f"version {version!r} is not a folder name: --version names the version folder under the "
-                        f"root (e.g. v1.0-mini), not a path" + (f"; pass --version {Path(version).name}"
-                                                                 if isinstance(version, str) and Path(version).name
-                                                                 and Path(version).name not in (".", "..") else "")
+                        f"root (e.g. v1.0-mini), not a path" + (f"; pass --version {name}" if name and name not in
+                                                                 (".", "..", version) else "")
                         + " (and the folder that holds it as --data)", path=str(root))
     vdir = root / version
     if not vdir.is_dir() and (root / "sim_config.json").is_file() and not available_versions(root):
