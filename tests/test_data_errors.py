@@ -657,6 +657,7 @@ def test_a_vehicle_with_no_scene_on_disk_is_named_with_why(tiny):
                           "scene tiny-scene-copy: none of its 4 frame(s)")
     (note,) = [n for n in calibration_notes(ds) if "not on disk" in n]
     assert note.endswith("vehicle(s) tiny-2 have no scene on disk: they cannot be calibrated")
+    assert not [n for n in calibration_notes(ds, ["tiny"]) if "not on disk" in n]  # not asked for (probe 102)
     notes: list[str] = []
     vs = _root_vehicles(str(tiny.root), VERSION, notes)
     assert set(vs) == {"tiny", "tiny-2"} and vs["tiny-2"]["tables_T"] is None  # a fleet job that fails with why

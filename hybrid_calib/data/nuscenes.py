@@ -227,6 +227,7 @@ class NuScenesRadarCamera:
         self.duplicates: dict[str, str] = {}  # sample read once: a sensor file of it is the named earlier sample's
         self.overlapping: dict[str, str] = {}  # scene left out -> the scene of its vehicle recorded at the same time
         self.not_on_disk: dict[str, str] = {}  # scene left out -> a sensor file of it that is absent (partial download)
+        self.not_on_disk_vehicle: dict[str, str] = {}  # the same scenes -> their vehicle
         self._not_on_disk_skips: list[SkipRecord] = []
         self.frames: list[FrameRef] = self._build_index()
         if not self.frames and self._index_skips:  # nothing to read, and the reason is known: say it now
@@ -404,6 +405,7 @@ class NuScenesRadarCamera:
             elif ref.scene_name not in self.not_on_disk:
                 n = len(scenes[ref.scene_token])
                 self.not_on_disk[ref.scene_name] = absent[ref.scene_token]
+                self.not_on_disk_vehicle[ref.scene_name] = ref.vehicle
                 self._not_on_disk_skips.append(self._left_out(ref, (
                     f"scene {ref.scene_name}: none of its {n} frame(s) has its camera and radar keyframe files on disk "
                     f"(e.g. {absent[ref.scene_token]} is absent under {self.root}): a partial download; the scene is "

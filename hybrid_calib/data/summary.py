@@ -542,14 +542,17 @@ def overlap_note(ds) -> str:
             "hybrid-calib inspect lists its samples)")
 
 
-def not_on_disk_note(ds) -> str:
+def not_on_disk_note(ds, vehicles=None) -> str:
     """The scenes ``ds``'s index left out because none of their sensor files is on disk
-    (``NuScenesRadarCamera.not_on_disk``: a partial download), in one note, or ""."""
-    left = getattr(ds, "not_on_disk", None) or {}
+    (``NuScenesRadarCamera.not_on_disk``: a partial download), of ``vehicles`` (None: all), in one note, or ""."""
+    owner = getattr(ds, "not_on_disk_vehicle", {})
+    left = {scene: path for scene, path in (getattr(ds, "not_on_disk", None) or {}).items()
+            if vehicles is None or owner.get(scene) in vehicles}
     if not left:
         return ""
     scene, path, more = _first_and_more(left)
-    gone = ds.not_on_disk_vehicles() if hasattr(ds, "not_on_disk_vehicles") else []
+    gone = [v for v in (ds.not_on_disk_vehicles() if hasattr(ds, "not_on_disk_vehicles") else [])
+            if vehicles is None or v in vehicles]
     return (f"note: scene {scene}{more} left out: their sensor files are not on disk ({path} is absent: a partial "
             "download); the scenes whose files are there are calibrated (--set 'data.scenes=[...]' names them; "
             "hybrid-calib inspect lists the scenes left out)" +
@@ -573,7 +576,7 @@ def calibration_notes(ds, vehicles=None) -> list[str]:
                                                           if left else ""))
     out += [f"log {log}: {words}"
             for log, words in (ds.intrinsic_changes() if hasattr(ds, "intrinsic_changes") else {}).items()]
-    out += [line for line in (overlap_note(ds), not_on_disk_note(ds)) if line]
+    out += [line for line in (overlap_note(ds), not_on_disk_note(ds, vehicles)) if line]
     if dup := getattr(ds, "duplicates", None):  # the index read them once (data.nuscenes._once_per_file)
         first = next(iter(dup.items()))
         out.append(f"note: {len(dup)} sample(s) read the same sensor files as earlier samples (first: {first[0]}, as "
