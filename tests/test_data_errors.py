@@ -747,6 +747,7 @@ def test_a_scene_none_of_whose_frames_loads_reads_a_dash_for_its_timing(tiny):
     # and inspect_summary.json is strict JSON (probe 101: bare NaN, which jq and browsers refuse)
     text = json.dumps(summary.to_json(), allow_nan=False)
     assert '"dt_radar_minus_camera_ms": {"mean": null, "min": null, "max": null}' in text
+    assert '"radar_points_per_sweep": {"mean": null, "min": null, "max": null}' in text  # not 0 points (probe 102)
 
 
 def test_two_roots_holding_one_recording_are_refused_by_the_learned_commands(tiny, tmp_path):

@@ -6,7 +6,7 @@
     {"root": str, "version": str, "radar_channel": str, "camera_channel": str,
      "n_frames": int, "n_loaded": int, "n_skipped": int,
      "groups": [{"scene": str, "vehicle": str, "log_token": str, "frames": int, "loaded": int,
-                 "radar_points_per_sweep": {"mean": float, "min": int, "max": int},
+                 "radar_points_per_sweep": {"mean": float, "min": int, "max": int},  # null: none loaded
                  "radar_points_raw_mean": float, "radar_nonfinite_dropped": int, "lidar_nonfinite_dropped": int,
                  "dt_radar_minus_camera_ms": {"mean": float, "min": float, "max": float},  # null: none loaded
                  "radar_sweeps_between": {"records": int, "on_disk": int, "broken": int}}],
@@ -75,11 +75,12 @@ class GroupSummary:
     image_sizes: dict[tuple[int, int], list] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
-        pts = np.asarray(self.radar_points or [0])
+        pts = np.asarray(self.radar_points, np.int64)  # none loaded: null counts, not a sweep of 0 points (probe 102)
         dt = self.dt_ms or [None]  # no frame loaded: null (strict JSON; probe 101 read NaN)
         return dict(scene=self.scene, vehicle=self.vehicle, log_token=self.log_token, frames=self.frames,
                     loaded=self.loaded,
-                    radar_points_per_sweep=dict(mean=float(pts.mean()), min=int(pts.min()), max=int(pts.max())),
+                    radar_points_per_sweep=dict(mean=None, min=None, max=None) if not pts.size else dict(
+                        mean=float(pts.mean()), min=int(pts.min()), max=int(pts.max())),
                     radar_points_raw_mean=float(np.mean(self.radar_raw)) if self.radar_raw else 0.0,
                     radar_nonfinite_dropped=self.nonfinite, lidar_nonfinite_dropped=self.lidar_nonfinite,
                     dt_radar_minus_camera_ms=dict(mean=None, min=None, max=None) if dt == [None] else dict(
@@ -128,7 +129,8 @@ class DatasetSummary:
             j = g.to_json()
             p, dt = j["radar_points_per_sweep"], j["dt_radar_minus_camera_ms"]["mean"]
             lines.append(f"{g.scene[:24]:24s} {g.vehicle[:12]:12s} {g.frames:6d} {g.loaded:6d} "
-                         f"{p['mean']:7.1f} [{p['min']:3d},{p['max']:4d}] {j['radar_points_raw_mean']:6.1f} "
+                         + (f"{p['mean']:7.1f} [{p['min']:3d},{p['max']:4d}]" if p["mean"] is not None else
+                            f"{'-':>18s}") + f" {j['radar_points_raw_mean']:6.1f} "
                          f"{g.nonfinite:5d} " + (f"{dt:7.1f}" if dt is not None else f"{'-':>7s}"))  # none loaded
         lines += self._sweep_lines() + self._sanity_lines()
         for vehicle, names in self.calibration_splits.items():
