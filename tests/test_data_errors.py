@@ -766,7 +766,7 @@ def test_two_roots_holding_one_recording_are_refused_by_the_learned_commands(tin
     assert len(open_roots([tiny.root], VERSION, lidar=False)) == 4
 
 
-@pytest.mark.parametrize("version", ["/abs/v1.0-mini", "../other/v1.0-mini", "..", "x\\v1.0-mini"])
+@pytest.mark.parametrize("version", ["/abs/v1.0-mini", "../other/v1.0-mini", "..", "x\\v1.0-mini", "/", "//"])
 def test_a_version_that_is_a_path_is_refused(tiny, version):
     """Probe 101: --version with the version folder's full path read that root's tables with --data's files, in
     silence (an absolute path replaces the root it is joined to). What tab completion types is the folder itself

@@ -71,7 +71,7 @@ def version_dir(root: str | Path, version: str, fix: str = "pass one of them wit
     # probe 101: an absolute --version read another root's tables with this root's files; "v1.0-mini/" (what tab
     # completion types) and "./v1.0-mini" name the folder itself (probe 102)
     parts = PurePosixPath(version).parts if isinstance(version, str) else ()
-    if len(parts) != 1 or parts[0] in ("/", "..") or "\\" in version:
+    if len(parts) != 1 or parts[0] == ".." or PurePosixPath(version).is_absolute() or "\\" in version:
         name = PurePosixPath(version.replace("\\", "/")).name if isinstance(version, str) else ""
         raise DataError(f"version {version!r} is not a folder name: --version names the version folder under the "
                         f"root (e.g. v1.0-mini), not a path" + (f"; pass --version {name}" if name and name not in
