@@ -1811,8 +1811,9 @@ IGNORED_OPTION_CASES = [
                                                                    "oracle only"]),
     (["fleet", "--method", "pure", "--set", "threads=2"], ["threads=2 is chosen with --threads"]),
     # a HybridConfig key is valid for a network method (it was refused as not a CalibrateConfig option)
-    (["fleet", "--method", "pure", "--set", "measurement.rows=last", "--checkpoint", "none.json"],
+    (["fleet", "--method", "pure-avg", "--set", "measurement.rows=last", "--checkpoint", "none.json"],
      ["checkpoint not found"]),
+    (["fleet", "--method", "pure", "--set", "measurement.rows=last"], ["measurement.* is not used by --method pure"]),
 ]
 
 
