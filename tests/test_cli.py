@@ -386,3 +386,17 @@ def test_an_option_the_command_does_not_have_is_said_by_that_command(capsys):
     err = capsys.readouterr().err
     assert "usage: hybrid-calib evaluate" in err
     assert "hybrid-calib evaluate: error: unrecognized arguments: --no-plots" in err
+
+
+def test_a_version_typed_with_a_slash_is_recorded_as_the_folder_name():
+    """Probe 103: `--version v1.0-sim/` (tab completion's) was recorded raw, and a rerun with `--version v1.0-sim`
+    was refused as another run."""
+    from hybrid_calib.cli import build_parser
+
+    for typed in ("v1.0-sim/", "./v1.0-sim", "v1.0-sim"):
+        for command in ("calibrate", "fleet", "compare", "evaluate", "train", "inspect"):
+            argv = [command, "--data", "r", "--version", typed]
+            argv += {"evaluate": ["--checkpoint", "c", "--out", "o"], "train": ["--out", "o"],
+                     "compare": ["--out", "o"], "calibrate": ["--out", "o"], "fleet": ["--out", "o"]}.get(command, [])
+            assert build_parser().parse_known_args(argv)[0].version == "v1.0-sim", (command, typed)
+    assert build_parser().parse_known_args(["inspect", "--data", "r", "--version", "/abs/v"])[0].version == "/abs/v"

@@ -849,3 +849,12 @@ def test_a_dangling_link_or_a_folder_is_named_not_taken_for_a_partial_download(t
     cam = next(sd for sd in copies if sd["filename"].endswith(".jpg"))
     with pytest.raises(DataError, match=r"it is a symbolic link to .*unmounted.*, which does not exist \(the store"):
         image_header(tiny.root / cam["filename"])
+    # the channel folder itself a dangling link (probe 103: "this copy has no RADAR_FRONT files")
+    from hybrid_calib.data.pcd import read_radar_pcd
+
+    folder = tiny.root / "samples" / "RADAR_FRONT"
+    folder.rename(tmp_path / "moved")
+    folder.symlink_to(tmp_path / "unmounted-store")
+    with pytest.raises(DataError, match=r"its folder samples/RADAR_FRONT is a symbolic link to .*unmounted-store.*, "
+                                        r"which does not exist"):
+        read_radar_pcd(folder / "x.pcd")

@@ -556,7 +556,7 @@ def test_inspect_warns_about_tables_that_load_but_cannot_be_right():
     from hybrid_calib.data.summary import keyframe_gap_warning
 
     seconds = [1_600_000_000 + k // 2 for k in range(40)]
-    assert keyframe_gap_warning([seconds]).startswith("warning: keyframes are 0.000 ms apart (mean): the timestamps")
+    assert keyframe_gap_warning([seconds]).startswith("warning: keyframes are 0.49 us apart (mean): the timestamps")
     assert keyframe_gap_warning([[k * 500_000 for k in range(40)]]) == ""
     assert keyframe_gap_warning([[7] * 40]) == ""  # not advancing at all: said by its own warning
     # a radar record 0.3 s from its camera's, and a mount 34 m from the vehicle's origin (decimetres): silent (probe 29)

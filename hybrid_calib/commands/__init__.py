@@ -38,6 +38,16 @@ def retry_count(text: str) -> int:
     return value
 
 
+def version_name(value: str) -> str:
+    """argparse ``type`` of --version: the version folder's name, "v1.0-mini/" (what tab completion types) and
+    "./v1.0-mini" read as "v1.0-mini", so that runs record one name (probe 103: a rerun was refused as "another run
+    (--version 'v1.0-sim' -> 'v1.0-sim/')"); anything else is left for ``data.tables.version_dir`` to refuse."""
+    from pathlib import PurePosixPath
+
+    parts = PurePosixPath(value).parts
+    return parts[0] if len(parts) == 1 and not PurePosixPath(value).is_absolute() and parts[0] != ".." else value
+
+
 def seed_int(text: str) -> int:
     """argparse ``type``: a seed, 0..2**63-1 (numpy's generators take no negative seed; one run's seed reads the same
     in every tool that loads its JSON)."""

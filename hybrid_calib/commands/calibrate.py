@@ -20,6 +20,7 @@ from hybrid_calib.commands import (
     reject_unused_window,
     seed_int,
     split_overrides,
+    version_name,
 )
 from hybrid_calib.config import parse_overrides
 from hybrid_calib.errors import OptionError
@@ -34,7 +35,8 @@ FLAGS = {"start": "start", "seed": "seed", "max_frames": "max_frames", "referenc
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--data", type=Path, required=True, help="nuScenes root (e.g. written by hybrid-calib simulate)")
-    p.add_argument("--version", default="v1.0-sim", help="version folder under --data (default: v1.0-sim)")
+    p.add_argument("--version", type=version_name,
+                   default="v1.0-sim", help="version folder under --data (default: v1.0-sim)")
     p.add_argument("--method", default="oracle", choices=METHODS,
                    help="oracle (default: the simulator's true reflectors, or --correspondences DIR), hybrid (the "
                         "network in a closed loop with the sliding window), pure (the network alone, last frame), "

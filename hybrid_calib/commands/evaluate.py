@@ -37,6 +37,7 @@ from hybrid_calib.commands import (
     positive_int,
     reject_set_keys,
     split_overrides,
+    version_name,
 )
 from hybrid_calib.config import parse_overrides
 from hybrid_calib.errors import OptionError
@@ -48,7 +49,8 @@ HELP = "evaluate a trained network on held-out frames (paper table: rotation deg
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", required=True, type=Path, nargs="+",
                         help="nuScenes root(s) (each holds VERSION/ and samples/); several are read as one")
-    parser.add_argument("--version", default="v1.0-sim", help="version folder (default v1.0-sim)")
+    parser.add_argument("--version", type=version_name,
+                        default="v1.0-sim", help="version folder (default v1.0-sim)")
     parser.add_argument("--range", dest="perturbation", default="R1", choices=tuple(RANGES),
                         help="perturbation range of the starts (fixed per frame; default R1)")
     parser.add_argument("--method", default="pure", help="pure = the network alone")

@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from hybrid_calib.commands import version_name
+
 HELP = "write the calibrated radar mounts of result.json files as the root's nuScenes calibrated_sensor table"
 
 
@@ -15,7 +17,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, required=True,
                    help="folder for calibrated_sensor.json and export.json (never the root's own version folder)")
     p.add_argument("--data", type=Path, default=None, help="the nuScenes root (default: the one the results record)")
-    p.add_argument("--version", default=None, help="its version folder (default: the results')")
+    p.add_argument("--version", type=version_name,
+                   default=None, help="its version folder (default: the results')")
     p.add_argument("--which", default="recalibrate", choices=("recalibrate", "trusted"),
                    help="recalibrate (default): only vehicles whose verdict against the tables is 'recalibrate'; "
                         "trusted: every trusted estimate. An untrusted one (not converged, out of the network's "

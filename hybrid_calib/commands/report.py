@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from hybrid_calib.commands import nonnegative_int, reject_set_keys
+from hybrid_calib.commands import nonnegative_int, reject_set_keys, version_name
 from hybrid_calib.config import parse_overrides
 from hybrid_calib.errors import OptionError, check_out_dir, check_out_not_in_dataset, page_target
 
@@ -17,7 +17,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--vehicle", default=None, help="vehicle to report (needed when the result holds several)")
     p.add_argument("--data", type=Path, default=None,
                    help="nuScenes root for the camera frames (default: the run's own data root, when it is there)")
-    p.add_argument("--version", default=None, help="version folder under --data (default: the run's)")
+    p.add_argument("--version", type=version_name,
+                   default=None, help="version folder under --data (default: the run's)")
     p.add_argument("--checkpoint", default="", help="network checkpoint for the attention figure (default: the "
                                                     "one the result names, if any)")
     p.add_argument("--frames", type=nonnegative_int, default=3, help="camera frames shown before / after (default: 3)")

@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from hybrid_calib.commands import positive_int
+from hybrid_calib.commands import positive_int, version_name
 from hybrid_calib.config import parse_overrides
 from hybrid_calib.errors import OptionError
 from hybrid_calib.perturbation import RANGES
@@ -27,7 +27,8 @@ HELP = "train the RC-AutoCalib network (resumable; presets small / paper)"
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", required=True, type=Path, nargs="+",
                         help="nuScenes root(s) (each holds VERSION/ and samples/); several are trained on together")
-    parser.add_argument("--version", default="v1.0-sim", help="version folder (default v1.0-sim)")
+    parser.add_argument("--version", type=version_name,
+                        default="v1.0-sim", help="version folder (default v1.0-sim)")
     parser.add_argument("--preset", default="small", choices=("small", "paper"),
                         help="small: 2 CPU cores, well under two hours; paper: 400x192, 50 epochs, Adam 1e-4")
     parser.add_argument("--out", required=True, type=Path, help="run folder (checkpoints, logs, configs)")

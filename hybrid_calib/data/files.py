@@ -101,13 +101,17 @@ def missing_folder_words(path: str | Path) -> str:
     channels: a copy that ships some channels only), or when that folder holds other files (this one not downloaded),
     or "" when the folder is there and empty (probe 34: "check the dataset root" sent a user to a root that was
     right)."""
-    if Path(path).is_symlink():  # a link into a store that is not mounted (probe 102 read "not downloaded")
-        try:
-            target = os.readlink(path)
-        except OSError:
-            target = "?"
-        return (f"; it is a symbolic link to {target}, which does not exist (the store it points into is not "
-                "mounted, or was moved): mount it or fix the links")
+    # a link into a store that is not mounted, the file's or its channel folder's (probes 102 and 103 read "not
+    # downloaded" and "this copy has no RADAR_FRONT files")
+    for link in (Path(path), Path(path).parent, Path(path).parent.parent):
+        if link.is_symlink() and not link.exists():
+            try:
+                target = os.readlink(link)
+            except OSError:
+                target = "?"
+            what = "it is" if link == Path(path) else f"its folder {link.parent.name}/{link.name} is"
+            return (f"; {what} a symbolic link to {target}, which does not exist (the store it points into is not "
+                    "mounted, or was moved): mount it or fix the links")
     folder = Path(path).parent
     if folder.is_dir():  # the channel is there, not this file (probe 101: "check the dataset root" for 5 of 41)
         try:

@@ -260,7 +260,8 @@ def keyframe_gap_warning(camera_us: Iterable[Iterable[int]]) -> str:
     # whole seconds: most gaps 0 (probe 100: a median of 0 was no warning, its frames "do not advance in time")
     gap, how = (float(np.median(gaps)), "median") if float(np.median(gaps)) > 0 else (float(np.mean(gaps)), "mean")
     if 0 < gap < MIN_KEYFRAME_GAP_US:
-        return (f"warning: keyframes are {gap / 1000:.3f} ms apart ({how}): the timestamps look like milliseconds or "
+        shown = f"{gap / 1000:.3f} ms" if gap >= 1 else f"{gap:.2g} us"  # whole seconds: under a microsecond
+        return (f"warning: keyframes are {shown} apart ({how}): the timestamps look like milliseconds or "
                 "seconds; nuScenes uses microseconds (keyframes ~500 ms apart)")
     return ""
 
