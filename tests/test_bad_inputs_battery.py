@@ -524,6 +524,7 @@ SET_CASES = [
     (["calibrate", "--method", "pure"], "method=nosuch", ["--set", "--method"]),
     (["calibrate", "--method", "pure"], "split=nosuch", ["--set", "--split"]),
     (["fleet"], "seed=3", ["--set", "--seed"]),
+    (["fleet"], 'vehicles=["sim-veh-000"]', ["--set", "is chosen with a --manifest whose roots name their"]),
     (["fleet"], "max_frames=-1", ["max_frames must be >= 0"]),
     (["fleet"], "engine=ray", ["engine", "valid options"]),
     (["compare"], "start=R9", ["--set", "--range"]),

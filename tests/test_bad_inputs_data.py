@@ -475,7 +475,7 @@ def test_radar_points_at_an_impossible_range_are_dropped_and_counted():
     assert len(rows) == 0 and dropped == 0
 
 
-@pytest.mark.parametrize("damage", ["truncated", "garbage", "directory", "missing key"])
+@pytest.mark.parametrize("damage", ["truncated", "garbage", "directory", "missing key", "npy"])
 def test_read_npz_names_every_kind_of_damaged_archive(damage, tmp_path):
     from hybrid_calib.data.files import read_npz
 
@@ -485,6 +485,9 @@ def test_read_npz_names_every_kind_of_damaged_archive(damage, tmp_path):
         path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
     elif damage == "garbage":
         path.write_bytes(b"not an archive")
+    elif damage == "npy":  # a bare array under the name (probe 103: numpy's TypeError)
+        with open(path, "wb") as f:
+            np.save(f, np.arange(3.0))
     elif damage == "directory":
         path.unlink()
         path.mkdir()
@@ -494,7 +497,7 @@ def test_read_npz_names_every_kind_of_damaged_archive(damage, tmp_path):
     assert str(path) in str(e.value) and "tok-9" in str(e.value)
     assert damage == "directory" or "re-run it" in str(e.value)
     assert "pickle" not in str(e.value)  # probe 100: a text file read numpy's "load it unsafely ... pickle.load()"
-    assert damage != "garbage" or "it is not a .npz archive" in str(e.value)
+    assert damage not in ("garbage", "npy") or "it is not a .npz archive" in str(e.value)
 
 
 def test_damaged_cache_entries_are_recomputed_not_fatal(tmp_path):

@@ -409,6 +409,8 @@ def test_a_yaw_difference_the_radar_mount_monitor_does_not_see_points_at_the_cam
     noted = camera_side_note(far, near)
     assert noted["camera_side"].startswith("the radar's own yaw on the vehicle lies within the yaw tolerance of its "
                                            "tables (radar mount monitor: 0.25 +- 0.04 deg")
+    # how far the Doppler's own bias can put the level counts too (probe 103): 0.45 +- 0.02 deg pins nothing
+    assert camera_side_note(far, {"steps": [], "levels": [{"level_deg": -0.45, "std_deg": 0.02, "pairs": 60}]}) == far
 
 
 def test_an_untrusted_estimate_is_never_a_reason_to_recalibrate():

@@ -1264,4 +1264,5 @@ def test_a_vehicle_of_no_frame_is_a_failed_job_with_why(fleet_root, tmp_path):
     s = run_fleet(None, str(manifest), "v1.0-sim", "oracle", tmp_path / "alone", seed=2,
                   calib={"window": {"window": 3}}, options=FleetOptions(plots=False))
     assert s["counts"]["failed"] == 1 and s["design_mount"]["T_cam_radar"] is None
-    assert (tmp_path / "alone" / "summary.md").is_file() and "no frame" in s["vehicles"]["sim-veh-009"]["reason"]
+    assert "no frame" in s["vehicles"]["sim-veh-009"]["reason"]
+    assert "No design mount (no vehicle has a frame)" in (tmp_path / "alone" / "summary.md").read_text()

@@ -79,7 +79,9 @@ def run(args: argparse.Namespace) -> int:
 
     check_options(args)
     calib = parse_overrides(args.set)
-    reject_set_keys(calib, {"seed": "--seed"})  # each job's seed comes from the fleet seed and its vehicle
+    # each job's seed comes from the fleet seed and its vehicle; each job is one vehicle (probe 103: --set vehicles
+    # was accepted, and every vehicle ran)
+    reject_set_keys(calib, {"seed": "--seed", "vehicles": "a --manifest whose roots name their \"vehicles\""})
     # --max-frames wins over --set max_frames, --reference over --set reference
     calib.update(given_flags(args, {"max_frames": "max_frames", "reference": "reference"}, calib))
     if calib.get("reference"):  # read once here (a DataError naming the file), absolute: every worker reads it

@@ -152,7 +152,11 @@ def read_npz(path: str | Path, what: str, fix: str, token: str | None = None) ->
     ``token``; a path that is not a regular file is named as such first (a FIFO would block ``np.load``)."""
     try:
         check_regular_file(path, what, token)
-        with np.load(path, allow_pickle=False) as z:
+        z = np.load(path, allow_pickle=False)
+        if not isinstance(z, np.lib.npyio.NpzFile):  # a bare array (.npy) under the name (probe 103: a TypeError)
+            raise DataError(f"{what} unreadable: it is not a .npz archive (a single array, .npy, under its name); the "
+                            f"file is another file under its name: {fix}", path=str(path), token=token)
+        with z:
             yield z
     except NPZ_ERRORS as e:
         if isinstance(e, ValueError) and "pickle" in str(e):  # not a zip: numpy took it for a pickle (probe 100 read

@@ -279,7 +279,9 @@ def summary_markdown(s: dict) -> str:
         lines += [f"Checked against the earlier export {s['reference']} (--reference): "
                   f"{', '.join(against) or 'no vehicle'} (their \"verdict vs tables\" and offsets from the tables are "
                   "against the exported mount); the others against their tables.", ""]
-    lines += ["Offsets from the design mount, camera axes (rot x/y/z deg, t x/y/z cm), +- 1 sigma.", "",
+    lines += ["No design mount (no vehicle has a frame): each vehicle's failure below." if  # probe 103
+              str(s["design_mount"].get("source", "")).startswith("none") else
+              "Offsets from the design mount, camera axes (rot x/y/z deg, t x/y/z cm), +- 1 sigma.", "",
               "| vehicle | state | status | rot offset [deg] | t offset [cm] | verdict vs tables | flags | note |",
               "|---|---|---|---|---|---|---|---|"]
     for jid, r in s["vehicles"].items():
