@@ -78,7 +78,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="hide the progress bars (any method; the learned ones: as --set progress=false)")
     p.add_argument("--set", action="extend", nargs="+", metavar="KEY=VALUE", default=[],
                    help="CalibrateConfig overrides (oracle), e.g. window.factor.kernel=tukey oracle.outlier_frac=0.3; "
-                        "HybridConfig overrides (learned methods), e.g. measurement.rows=last threads=1")
+                        "HybridConfig overrides (learned methods), e.g. measurement.rows=last threads=1; some of a "
+                        "root: 'vehicles=[\"n015\"]', and for the learned methods 'data.scenes=[\"scene-0916\"]'")
 
 
 def _learned(args: argparse.Namespace, on_vehicle):
