@@ -42,10 +42,9 @@ def version_name(value: str) -> str:
     """argparse ``type`` of --version: the version folder's name, "v1.0-mini/" (what tab completion types) and
     "./v1.0-mini" read as "v1.0-mini", so that runs record one name (probe 103: a rerun was refused as "another run
     (--version 'v1.0-sim' -> 'v1.0-sim/')"); anything else is left for ``data.tables.version_dir`` to refuse."""
-    from pathlib import PurePosixPath
+    from hybrid_calib.data.tables import version_name as folder_name
 
-    parts = PurePosixPath(value).parts
-    return parts[0] if len(parts) == 1 and not PurePosixPath(value).is_absolute() and parts[0] != ".." else value
+    return folder_name(value) or value
 
 
 def seed_int(text: str) -> int:

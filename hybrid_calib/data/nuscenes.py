@@ -228,7 +228,6 @@ class NuScenesRadarCamera:
         self.overlapping: dict[str, str] = {}  # scene left out -> the scene of its vehicle recorded at the same time
         self.not_on_disk: dict[str, str] = {}  # scene left out -> a sensor file of it that is absent (partial download)
         self.not_on_disk_vehicle: dict[str, str] = {}  # the same scenes -> their vehicle
-        self._not_on_disk_skips: list[SkipRecord] = []
         self.frames: list[FrameRef] = self._build_index()
         if not self.frames and self._index_skips:  # nothing to read, and the reason is known: say it now
             first = self._index_skips[0]
@@ -363,14 +362,13 @@ class NuScenesRadarCamera:
             f"{lost[0]['sample_token']}): no scene names their vehicle; the tables are inconsistent or a partial copy: "
             "re-extract the metadata, or restore those samples"))
 
-    def _left_out(self, ref: FrameRef, reason: str) -> SkipRecord:
+    def _left_out(self, ref: FrameRef, reason: str) -> None:
         """Say that the index leaves ``ref``'s sample out, once among the index's skips and once among its
         vehicle's samples that hold no frame (``lacking_keyframes``: listed in the vehicle's result, and a vehicle
         left with no frame at all is named, not silently absent; probe 94)."""
         skip = SkipRecord(None, ref.sample_token, str(self.tables.path("sample_data")), reason)
         self._index_skips.append(skip)
         self.lacking_keyframes.setdefault(ref.vehicle, []).append(skip)
-        return skip
 
     def _on_disk(self, frames: list[FrameRef]) -> list[FrameRef]:
         """``frames`` without the scenes none of whose frames has both its camera and its radar keyframe file on disk,
@@ -406,20 +404,19 @@ class NuScenesRadarCamera:
                 n = len(scenes[ref.scene_token])
                 self.not_on_disk[ref.scene_name] = absent[ref.scene_token]
                 self.not_on_disk_vehicle[ref.scene_name] = ref.vehicle
-                self._not_on_disk_skips.append(self._left_out(ref, (
+                self._left_out(ref, (
                     f"scene {ref.scene_name}: none of its {n} frame(s) has its camera and radar keyframe files on disk "
                     f"(e.g. {absent[ref.scene_token]} is absent under {self.root}): a partial download; the scene is "
                     "left out (download its sensor files, or name the scenes you have with --set "
-                    "'data.scenes=[\"scene-...\"]')")))
+                    "'data.scenes=[\"scene-...\"]')"))
         return out
 
     def not_on_disk_vehicles(self) -> list[str]:
         """The vehicles of the tables none of whose scenes is on disk (``_on_disk``): named in the root's note, and
         failed calibrations (``frameless_vehicles``) like any vehicle with no frame."""
         have = {f.vehicle for f in self.frames}
-        gone = {id(s) for s in self._not_on_disk_skips}
-        return sorted(v for v, skips in self.lacking_keyframes.items()
-                      if v not in have and all(id(s) in gone for s in skips))
+        scenes = list(self.not_on_disk_vehicle.values())  # one record each among its vehicle's lacking_keyframes
+        return sorted(v for v in set(scenes) - have if len(self.lacking_keyframes.get(v, ())) == scenes.count(v))
 
     def _one_scene_at_a_time(self, frames: list[FrameRef]) -> list[FrameRef]:
         """``frames`` without the scenes recorded while an earlier-starting scene of the same vehicle was (their

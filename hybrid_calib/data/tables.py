@@ -60,6 +60,15 @@ def available_versions(root: str | Path) -> list[str]:
     return sorted(p.name for p in root.iterdir() if p.is_dir() and (p / "sample.json").is_file())
 
 
+def version_name(version) -> str | None:
+    """The version folder's name ``version`` gives ("v1.0-mini", and what tab completion types: "v1.0-mini/",
+    "./v1.0-mini"), or None when it is a path (absolute, "..", a backslash) or no name at all."""
+    if not isinstance(version, str) or "\\" in version or PurePosixPath(version).is_absolute():
+        return None
+    parts = PurePosixPath(version).parts
+    return parts[0] if len(parts) == 1 and parts[0] != ".." else None
+
+
 def version_dir(root: str | Path, version: str, fix: str = "pass one of them with --version") -> Path:
     """``ROOT/VERSION`` after checking that it exists. ``DataError`` lists the versions that do and says
     ``fix`` (where the caller's version came from)."""
@@ -70,8 +79,7 @@ def version_dir(root: str | Path, version: str, fix: str = "pass one of them wit
                         "(e.g. v1.0-mini) and samples/", path=str(root))
     # probe 101: an absolute --version read another root's tables with this root's files; "v1.0-mini/" (what tab
     # completion types) and "./v1.0-mini" name the folder itself (probe 102)
-    parts = PurePosixPath(version).parts if isinstance(version, str) else ()
-    if len(parts) != 1 or parts[0] == ".." or PurePosixPath(version).is_absolute() or "\\" in version:
+    if version_name(version) is None:
         name = PurePosixPath(version.replace("\\", "/")).name if isinstance(version, str) else ""
         raise DataError(f"version {version!r} is not a folder name: --version names the version folder under the "
                         f"root (e.g. v1.0-mini), not a path" + (f"; pass --version {name}" if name and name not in
