@@ -400,3 +400,22 @@ def test_a_version_typed_with_a_slash_is_recorded_as_the_folder_name():
                      "compare": ["--out", "o"], "calibrate": ["--out", "o"], "fleet": ["--out", "o"]}.get(command, [])
             assert build_parser().parse_known_args(argv)[0].version == "v1.0-sim", (command, typed)
     assert build_parser().parse_known_args(["inspect", "--data", "r", "--version", "/abs/v"])[0].version == "/abs/v"
+
+
+def test_compare_says_a_method_named_twice_is_compared_once(tmp_path, monkeypatch, capsys):
+    """``--methods pure,pure-avg,pure`` compared pure once in silence (session 44's known list)."""
+    from hybrid_calib import compare as compare_module
+    from hybrid_calib.cli import main
+
+    seen = {}
+
+    def stop(data, version, out, conf, **kw):
+        seen.update(conf)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(compare_module, "compare", stop)
+    main(["compare", "--data", str(tmp_path), "--out", str(tmp_path / "c"), "--methods", "pure,pure-avg, pure"])
+    assert seen["methods"] == ("pure", "pure-avg")
+    assert "note: --methods names pure more than once; each method is compared once" in capsys.readouterr().err
+    main(["compare", "--data", str(tmp_path), "--out", str(tmp_path / "c"), "--methods", "pure,pure-avg"])
+    assert "more than once" not in capsys.readouterr().err

@@ -59,7 +59,11 @@ def run(args: argparse.Namespace) -> int:
             hybrid[key] = getattr(args, key)
     if flags := split_overrides(args):
         hybrid["split_options"] = {**hybrid.get("split_options", {}), **flags}
-    methods = tuple(dict.fromkeys(m.strip() for m in args.methods.split(",") if m.strip()))  # once each, in order
+    named = [m.strip() for m in args.methods.split(",") if m.strip()]
+    methods = tuple(dict.fromkeys(named))  # once each, in order
+    if twice := [m for m in methods if named.count(m) > 1]:  # it had compared them once in silence
+        print(f"note: --methods names {', '.join(twice)} more than once; each method is compared once",
+              file=sys.stderr)
     if not methods:
         raise OptionError("--methods", f"{args.methods!r} names no method; pass a comma-separated list of pure, "
                                        "pure-avg, hybrid, oracle")
