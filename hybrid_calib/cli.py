@@ -129,15 +129,23 @@ def set_paths(args: argparse.Namespace) -> list[tuple[str, str]]:
     return found
 
 
-REPEATABLE = {"--set", "--refine", "--vehicle"}  # options that gather every value given (argparse extend / append)
 PATH_OPTIONS = {"--out", "--data", "--prior", "--manifest", "--checkpoint", "--depth", "--refine", "--correspondences",
                 "--ray-temp", "--depth-cache"}  # an empty one read as the current folder, or as "not given"
 
 
-def _repeated_or_empty(argv: list[str]) -> str:
+def gathering_options(parser: argparse.ArgumentParser) -> set[str]:
+    """The options of a command's ``parser`` that gather every value given (argparse ``append`` / ``extend``:
+    ``--set``, evaluate's ``--refine``, export's ``--vehicle``); any other option keeps its last value only."""
+    return {name for a in parser._actions if isinstance(a, (argparse._AppendAction, argparse._ExtendAction))
+            for name in a.option_strings}
+
+
+def _repeated_or_empty(argv: list[str], repeatable: set[str] = frozenset({"--set"})) -> str:
     """Why the command line cannot mean what it says ("" when it can): an option given twice keeps only its last
-    value in argparse (``simulate --out a --out b`` wrote b alone; ``--data A --data B`` read B), and an empty path
-    reads as the current folder ("--out '': . is not empty"; probe 27)."""
+    value in argparse (``simulate --out a --out b`` wrote b alone; ``--data A --data B`` read B; probe 105:
+    ``calibrate --refine A --refine B`` ran B alone, ``report --vehicle A --vehicle B`` reported B) unless the
+    command's option gathers them (``repeatable``: ``gathering_options``), and an empty path reads as the current
+    folder ("--out '': . is not empty"; probe 27)."""
     seen: set[str] = set()
     for k, token in enumerate(argv):
         if token == "--":
@@ -150,7 +158,7 @@ def _repeated_or_empty(argv: list[str]) -> str:
         if not token.startswith("--") or len(token) < 3:
             continue
         name, eq, value = token.partition("=")
-        if name in seen and name not in REPEATABLE:
+        if name in seen and name not in repeatable:
             return (f"{name} is given twice; give it once (argparse would keep only the last value"
                     + ("; several roots go after one --data" if name == "--data" else "") + ")")
         seen.add(name)
@@ -188,7 +196,8 @@ def main(argv: list[str] | None = None) -> int:
     if argv is None:  # the process's own stderr (a caller of main(argv) keeps its own)
         best_effort_stderr()
     args = _parse(argv)
-    if problem := _repeated_or_empty(sys.argv[1:] if argv is None else [str(a) for a in argv]):
+    if problem := _repeated_or_empty(sys.argv[1:] if argv is None else [str(a) for a in argv],
+                                     gathering_options(args._parser)):
         print(f"hybrid-calib {args.command}: error: {problem}", file=sys.stderr)
         return EXIT_ERROR
     debug = args.debug or os.environ.get("HYBRID_CALIB_DEBUG", "") not in ("", "0")

@@ -419,3 +419,24 @@ def test_compare_says_a_method_named_twice_is_compared_once(tmp_path, monkeypatc
     assert "note: --methods names pure more than once; each method is compared once" in capsys.readouterr().err
     main(["compare", "--data", str(tmp_path), "--out", str(tmp_path / "c"), "--methods", "pure,pure-avg"])
     assert "more than once" not in capsys.readouterr().err
+
+
+def test_a_repeated_option_is_refused_unless_that_command_gathers_it(tmp_path, capsys):
+    """calibrate / compare --refine and report --vehicle keep one value (argparse): `--refine A --refine B` ran B
+    alone, `report --vehicle A --vehicle B` reported B (probe 105); evaluate's --refine, export's --vehicle and every
+    --set gather every value and stay accepted."""
+    from hybrid_calib.cli import EXIT_ERROR, build_parser, gathering_options, main
+
+    for argv, name in ((["calibrate", "--data", str(tmp_path), "--refine", "a", "--refine", "shipped"], "--refine"),
+                       (["compare", "--data", str(tmp_path), "--out", str(tmp_path / "c"), "--refine", "a", "--refine",
+                         "b"], "--refine"),
+                       (["report", str(tmp_path / "r.json"), "--vehicle", "A", "--vehicle", "B", "--out",
+                         str(tmp_path / "p.html")], "--vehicle")):
+        assert main(argv) == EXIT_ERROR, argv
+        assert f"{name} is given twice; give it once" in capsys.readouterr().err
+    parser = build_parser()
+    commands = {a.dest: a for a in parser._actions if isinstance(a.choices, dict)}
+    sub = next(iter(commands.values())).choices
+    assert {"--set", "--refine"} <= gathering_options(sub["evaluate"])
+    assert "--vehicle" in gathering_options(sub["export"])
+    assert "--refine" not in gathering_options(sub["calibrate"]) and "--vehicle" not in gathering_options(sub["report"])
