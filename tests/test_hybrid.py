@@ -445,6 +445,17 @@ def test_a_checkpoint_without_its_fitted_models_is_never_trusted(sim_root, tmp_p
     assert v.final.status.startswith("inconclusive:") and "export.hybrid" in v.final.status
     v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", {**conf, "method": "pure"})  # needs cov_scale only
     assert not v.final.status.startswith("inconclusive"), v.final.status
+    # without its out-of-domain model no input is checked: inconclusive as the README says (probe 105: read 'weak' with
+    # no word of the test), unless the test is switched off, which the status then names
+    meta = json.loads(src.read_text())
+    meta["export"].pop("ood")
+    (tmp_path / src.name).write_text(json.dumps(meta))
+    v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", {**conf, "method": "pure"})
+    assert v.final.status.startswith("inconclusive:") and "export.ood" in v.final.status, v.final.status
+    assert "no frame was checked to be like the network's training drives" in v.final.status
+    assert "--set ood.enabled=false" in v.final.status and v.ood["available"] is False
+    v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", {**conf, "method": "pure", "ood": {"enabled": False}})
+    assert not v.final.status.startswith("inconclusive") and "the out-of-domain test is off" in v.final.status
 
 
 def test_drive_scale_brings_the_validation_nees_to_six_and_never_shrinks():
