@@ -467,6 +467,10 @@ def test_an_export_chain_carries_the_mount_of_a_drive_that_did_not_move(knocked,
     assert main(["export", str(tmp_path / "c2" / "result.json"), "--out", str(tmp_path / "e2")]) == 0
     out = capsys.readouterr().out
     assert out.count("carried: 1 radar record(s) hold the mount of the export its verdict compared with") == 2, out
+    # and why its own estimate was not written names that export, not the tables (probe 105: "kept the tables: the
+    # verdict against them ..." beside a record holding the export's mount)
+    assert "kept the tables" not in out and "its tables" not in out, out
+    assert "kept the exported mount: the verdict against them is 'cannot tell'" in out, out
     e1, e2 = load_export_reference(exp), load_export_reference(tmp_path / "e2")
     for name in ("sim-veh-000", "sim-veh-001"):
         np.testing.assert_allclose(e2.T_cam_radar(name), e1.T_cam_radar(name), atol=1e-9)

@@ -289,6 +289,18 @@ def _export_reference(vr, name: str, cache: dict):
     return ref, (f"not exported: {why}" if why else "")
 
 
+def _reference_words(why: str, vr) -> str:
+    """``why`` naming the reference ``vr``'s verdict compared with: against an earlier export (``--reference``) the
+    record kept is that export's mount, not the tables (probe 105: a chained vehicle read "kept the tables: the verdict
+    against them ..." while its record held the export's mount); ``drift.reference_nouns`` for the rest."""
+    from hybrid_calib.calib.drift import reference_nouns
+
+    src = (vr.drift or {}).get("reference")
+    if not isinstance(src, dict) or src.get("kind") != "export":
+        return why
+    return reference_nouns(why.replace("kept the tables:", "kept the exported mount:"), src)
+
+
 def _why_not(vr, which: str) -> str:
     """Why a vehicle's estimate is not exported under ``which`` ("" when it is)."""
     from hybrid_calib.calib.covariance import untrusted_status
@@ -474,7 +486,7 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
             why = (f"not exported: its radar records are shared with vehicle(s) {', '.join(shared)} of the root; one "
                    "record cannot hold two vehicles' mounts")
         if why:
-            entry["why"] = why
+            entry["why"] = _reference_words(why, vr)
             continue
         T_est = np.asarray(vr.final.T, np.float64)
         kept = _kept_axes(vr)
@@ -488,8 +500,8 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
                             "version): calibrate again to export it")
             continue
         if len(kept) == len(AXIS_WORDS) and turn is None:  # the record would be the tables' own
-            entry["why"] = ("kept the tables: the data decide no axis against the tolerance (each is undecided or "
-                            "prior-pinned), so there is nothing measured to write")
+            entry["why"] = _reference_words("kept the tables: the data decide no axis against the tolerance (each is "
+                                            "undecided or prior-pinned), so there is nothing measured to write", vr)
             if (vr.drift or {}).get("at_end"):  # "recalibrate" for a step the mount monitor measured in the drive
                 entry["why"] = ("not exported: the radar turned on the vehicle during the drive (its verdict: "
                                 "recalibrate), but the estimate after the turn decides no axis against the tolerance "
@@ -533,7 +545,7 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
                    f"moves on its bracket ({100 * MAX_MOVE_M:g} cm): the estimate or the tables are wrong; check both "
                    "(a drive of other scenes, the LiDAR's and the Doppler's offsets in result.json) before writing one")
         if why:
-            entry["why"] = why
+            entry["why"] = _reference_words(why, vr)
             continue
         for tok, T_base, T_new, T_cam in new:
             before = {k: exp.table[index[tok]][k] for k in ("translation", "rotation")}

@@ -527,7 +527,7 @@ def blind_words(summary: dict) -> str:
 
 def finds_words(summary: dict) -> str:
     """The smallest turn the step test would have found on this drive, in words ("" for a result without it): "a turn
-    of 0.26 deg or more in yaw is found within 20 frames (9 drives in 10; its readings scatter by 0.15 deg)". "no step"
+    of 0.32 deg or more in yaw is found within 20 frames (9 drives in 10; its readings scatter by 0.15 deg)". "no step"
     on a radar whose Doppler scatters by 0.6 deg a reading is no statement on a 0.5 deg knock (a simulated one went
     unseen there)."""
     if not isinstance(summary.get("finds_deg"), (int, float)):

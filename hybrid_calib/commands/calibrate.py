@@ -60,7 +60,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--backend", default=None, choices=("gtsam", "ceres"),
                    help="batch back end (default: gtsam, or --set batch.backend=...)")
     p.add_argument("--start", default=None, choices=("reference", *RANGES),
-                   help="initial extrinsic: the vehicle's tables, or a perturbed truth (default: reference)")
+                   help="initial extrinsic: the vehicle's tables, or a perturbation of the truth (of the tables on a "
+                        "real root) drawn in R0 / R1 / R2 with --seed (default: reference)")
     p.add_argument("--reference", default=None, metavar="EXPORT",
                    help="check each vehicle against the mount an earlier hybrid-calib export wrote for it (its --out "
                         "folder, or its export.json), not its tables: a later drive after a recalibration (default: "
