@@ -246,3 +246,31 @@ def test_a_fit_not_applied_that_disagrees_with_the_loop_widens_the_forward_std_a
     out, block = with_doppler(traj, drive, _Frames(sweeps), conf, None, motion)
     assert abs(block["dx_m"]) > conf.doppler.max_clock_m
     assert "ego poses are likelier not this drive's" in block["widened"]
+
+
+def test_a_fit_from_too_few_turns_is_not_compared_with_the_loop():
+    """Probe 104: a clean 20-frame drive with 1 frame in turns read its forward offset +241 +- 44.5 cm from the loop
+    (5.3 stds) and the status blamed the ego poses, widening the forward std by 2.4 m: with fewer frames in turns than
+    ``min_turning_check`` the fit's std is not honest, so the disagreement is recorded, not said or widened."""
+    from dataclasses import replace
+
+    from hybrid_calib.hybrid.corrections import reported_estimate, with_doppler
+    from hybrid_calib.hybrid.drives import Drive
+    from hybrid_calib.hybrid.loop import HybridConfig, _frame
+
+    conf = HybridConfig()
+    sweeps = _drive(np.random.default_rng(5), n=80, turn_dps=9.0)
+    drive = Drive("v", list(range(80)), X_TRUE, X_TRUE, True)
+    motion = SimpleNamespace(velocity=lambda i, s=sweeps: (s[i].velocity, ""), sweeps={})
+    start = X_TRUE @ se3_exp(np.array([0.0, 0.0, 0.0, 0.3, 0.0, 0.0]))
+    cov = np.diag([1e-4, 1e-4, 1e-4, 0.05 ** 2, 0.05 ** 2, 0.4 ** 2])
+    traj = [_frame(k, f"s{k}", 0, reported_estimate(start, cov, conf), 1, 1.0) for k in range(3)]
+    said = replace(conf, doppler=replace(conf.doppler, min_turning=1000))
+    out, block = with_doppler(traj, drive, _Frames(sweeps), said, None, motion)
+    assert "widened" in block and block["turning"] >= said.doppler.min_turning_check  # the case above: said
+    few = replace(said, doppler=replace(said.doppler, min_turning_check=block["turning"] + 1))
+    out, block = with_doppler(traj, drive, _Frames(sweeps), few, None, motion)
+    assert abs(block["innovation_x_sigma"]) > conf.doppler.far_innovation and "widened" not in block
+    assert out[-1] is traj[-1]
+    assert block["innovation_not_checked"] == (f"{block['turning']} frames in turns (the comparison with the estimate "
+                                               f"needs {block['turning'] + 1})")
