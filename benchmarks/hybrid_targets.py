@@ -105,6 +105,9 @@ def main(argv=None) -> int:
     p.add_argument("--methods", default="pure,pure-avg,hybrid")
     p.add_argument("--ranges", nargs="+", default=["R1", "R2"])
     p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--seed", type=int, default=0, help="start seed: trial k starts from seed + k // (vehicles in all) "
+                                                    "(compare's --seed; probe 104: fresh starts needed a wrapper)")
+    p.add_argument("--overwrite", action="store_true", help="start a compare folder of other options over")
     p.add_argument("--scenarios", nargs="+", default=[f"{k}:{v}" for k, v in SCENARIOS.items()],
                    help="test drives as PRESET:SEED (default: the issue's urban:9201 highway:9202 rain:9203)")
     a = p.parse_args(argv)
@@ -115,13 +118,18 @@ def main(argv=None) -> int:
 
     from hybrid_calib.compare import compare
     from hybrid_calib.config import save_json_atomic
+    from hybrid_calib.errors import HybridCalibError
 
     roots = simulate_test_drives(a.out / "data", a.vehicles, a.frames, scenarios)
     command = "PYTHONPATH=. python benchmarks/hybrid_targets.py " + " ".join(sys.argv[1:])
     for r in a.ranges:
-        conf = {"range": r, "trials": a.trials, "methods": tuple(a.methods.split(",")),
+        conf = {"range": r, "trials": a.trials, "seed": a.seed, "methods": tuple(a.methods.split(",")),
                 "hybrid": {"threads": a.threads, "max_frames": a.max_frames or a.frames}}
-        s = compare(roots, "v1.0-sim", a.out / f"compare-{r}", conf, command=command)
+        try:
+            s = compare(roots, "v1.0-sim", a.out / f"compare-{r}", conf, command=command, overwrite=a.overwrite)
+        except HybridCalibError as e:  # another run's options in the folder: said, not a traceback (probe 104)
+            print(f"hybrid_targets.py: {e}", file=sys.stderr)
+            return 2
         rec = {"command": command, "targets": check(s), "compare_md": str(a.out / f"compare-{r}" / "compare.md"),
                "hybrid_by_scenario": by_scenario(a.out / f"compare-{r}")}
         save_json_atomic(a.out / f"compare-{r}" / "targets.json", rec)
