@@ -44,7 +44,7 @@ from learned.transform import cell_index
 
 SIGNALS = ("match_mass", "match_entropy", "last_step_rot", "last_step_trans", "log_var_mean", "fusion_fv")
 FEATURE_SETS = ("descriptor", "signals", "all")
-FIT_HINT = ("fit it with: PYTHONPATH=. python benchmarks/ood_fit.py --checkpoint CKPT --data SIM_ROOT ... "
+FIT_HINT = ("fit it with: PYTHONPATH=. python benchmarks/ood_fit.py --checkpoint CKPT --data SIM_ROOT ... --fit-into "
             "(docs/benchmarks.md, 'Out-of-domain score')")
 
 

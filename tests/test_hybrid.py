@@ -454,6 +454,11 @@ def test_a_checkpoint_without_its_fitted_models_is_never_trusted(sim_root, tmp_p
     assert v.final.status.startswith("inconclusive:") and "export.ood" in v.final.status, v.final.status
     assert "no frame was checked to be like the network's training drives" in v.final.status
     assert "--set ood.enabled=false" in v.final.status and v.ood["available"] is False
+    assert "benchmarks/ood_fit.py --fit-into" in v.final.status  # the script stores nothing without it (probe 106)
+    meta["export"].pop("hybrid")  # and its measurement model: the opt-out alone would not make it trusted
+    (tmp_path / src.name).write_text(json.dumps(meta))
+    v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", {**conf, "method": "pure-avg"})
+    assert "export.hybrid / export.ood" in v.final.status and "ood.enabled=false" not in v.final.status
     v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", {**conf, "method": "pure", "ood": {"enabled": False}})
     assert not v.final.status.startswith("inconclusive") and "the out-of-domain test is off" in v.final.status
 

@@ -332,6 +332,8 @@ def test_export_of_a_drive_checked_against_an_export_keeps_that_reference(knocke
         kept = [AXIS_WORDS.index(w) for w in entry["tables_kept"]]
         assert kept, entry["tables_kept"]
         np.testing.assert_allclose(offset[kept], 0.0, atol=1e-7)
+        # and its words say so (probe 106: "the tables' pitch, roll, ... kept" beside the export's values)
+        assert "(the exported mount's " in entry["why"] and "the tables'" not in entry["why"], entry["why"]
     assert new.exported, {n: e["why"] for n, e in new.vehicles.items()}
     assert run.vehicles
     doc = json.loads((mine / "export.json").read_text())
@@ -470,7 +472,7 @@ def test_an_export_chain_carries_the_mount_of_a_drive_that_did_not_move(knocked,
     # and why its own estimate was not written names that export, not the tables (probe 105: "kept the tables: the
     # verdict against them ..." beside a record holding the export's mount)
     assert "kept the tables" not in out and "its tables" not in out, out
-    assert "kept the exported mount: the verdict against them is 'cannot tell'" in out, out
+    assert "kept the exported mount: the verdict against it is 'cannot tell'" in out, out
     e1, e2 = load_export_reference(exp), load_export_reference(tmp_path / "e2")
     for name in ("sim-veh-000", "sim-veh-001"):
         np.testing.assert_allclose(e2.T_cam_radar(name), e1.T_cam_radar(name), atol=1e-9)

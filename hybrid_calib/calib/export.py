@@ -289,16 +289,21 @@ def _export_reference(vr, name: str, cache: dict):
     return ref, (f"not exported: {why}" if why else "")
 
 
-def _reference_words(why: str, vr) -> str:
-    """``why`` naming the reference ``vr``'s verdict compared with: against an earlier export (``--reference``) the
-    record kept is that export's mount, not the tables (probe 105: a chained vehicle read "kept the tables: the verdict
-    against them ..." while its record held the export's mount); ``drift.reference_nouns`` for the rest."""
-    from hybrid_calib.calib.drift import reference_nouns
-
+def _against_export(vr) -> bool:
+    """Whether ``vr``'s verdict compared with an earlier export (``--reference``), not the tables."""
     src = (vr.drift or {}).get("reference")
-    if not isinstance(src, dict) or src.get("kind") != "export":
+    return isinstance(src, dict) and src.get("kind") == "export"
+
+
+def _reference_words(why: str, vr) -> str:
+    """``why`` naming what ``vr``'s record keeps: against an earlier export (``--reference``) that export's mount, not
+    the tables (probe 105: a chained vehicle read "kept the tables: the verdict against them ..." while its record held
+    the export's mount). Only the words of what is kept: a check made on the root's own tables keeps naming them
+    (probe 106)."""
+    if not _against_export(vr):
         return why
-    return reference_nouns(why.replace("kept the tables:", "kept the exported mount:"), src)
+    return why.replace("kept the tables: the verdict against them", "kept the exported mount: the verdict against it"
+                       ).replace("kept the tables:", "kept the exported mount:")
 
 
 def _why_not(vr, which: str) -> str:
@@ -568,10 +573,11 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
         std_camera = _std_camera(T_est, cov, kept)
         if turn is not None:
             std_camera["yaw"] = {"written": "doppler", "std": float(turn["std_deg"]), "unit": "deg"}
+        owner = "the exported mount's" if _against_export(vr) else "the tables'"  # what a kept axis holds (probe 106)
         entry.update(exported=True, std_ego=_std_ego(new[0][2], cov), std_camera=std_camera,
                      tables_kept=[AXIS_WORDS[i] for i in kept],
                      why=f"exported: {len(new)} radar record(s) replaced" + (
-                         f" (the tables' {', '.join(AXIS_WORDS[i] for i in kept)} kept: the data do not decide "
+                         f" ({owner} {', '.join(AXIS_WORDS[i] for i in kept)} kept: the data do not decide "
                          f"{'it' if len(kept) == 1 else 'them'} against the tolerance)"
                          if kept else "") + (
                          f"; its yaw: the earlier export's turned by {float(turn['delta_deg']):+.2f} +- "

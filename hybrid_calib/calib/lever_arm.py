@@ -103,9 +103,10 @@ class LeverArmConfig:
     # ... compared with the loop only from this many frames in turns: with fewer the fit's std is not honest (probe
     # 104: a clean 20-frame drive with 1 frame in turns read +241 +- 44.5 cm, 5.3 stds, said as the ego poses' fault;
     # benchmarks/lever_arm.py on 432 windows of 10-40 frames of fresh drives 45101-45103, mean z^2 by frames in
-    # turns: 0: 1.85 with 4 % beyond 3 stds, 3-5: 1.81, 6-9: 1.08, 10-19: 1.29, 20+: 1.02; the clocks probe 98 saw
-    # were on drives of 12-17)
-    min_turning_check: int = 6
+    # turns: 0: 1.85 with 4 % beyond 3 stds, 1-2: 0.74 (9 windows), 3-5: 1.81 with none beyond 3, 6-9: 1.08, 10-19:
+    # 1.29, 20+: 1.02; probe 106: clocks 50 ms off on drives of 5 frames in turns read 3.8-3.9 stds, and probe 98's on
+    # drives of 12-17)
+    min_turning_check: int = 3
     # beyond this (m), such a disagreement is said as the ego poses' (not this drive's, or wrong) before a clock: 1 m is
     # a 100 ms offset at 10 m/s (probe 98's clocks of 30-100 ms read 0.26-0.84 m; probe 99's foreign poses 3.45 m)
     max_clock_m: float = 1.0
@@ -298,4 +299,6 @@ def describe(block: dict) -> str:
     words = (f"radar forward offset {block['dx_m'] * 100:+.1f} +- {block['dx_std_m'] * 100:.1f} cm from the loop's "
              f"estimate (Doppler in turns against the ego poses: {block['pairs']} sweep pairs, {block['turning']} "
              f"frames turning)")
-    return words + ("; applied" if block["applied"] else f"; not applied: {block.get('note', '')}")
+    return words + ("; applied" if block["applied"] else f"; not applied: {block.get('note', '')}") + (
+        f"; not compared with the estimate: {block['innovation_not_checked']}, too few for its std to be trusted"
+        if block.get("innovation_not_checked") else "")

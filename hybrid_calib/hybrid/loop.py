@@ -467,13 +467,13 @@ def unfitted_reason(runner, method: str, ood_enabled: bool = True) -> str:
     if not missing:
         return ""
     how = {"cov_scale": "hybrid-calib evaluate --fit-uncertainty", "hybrid": "benchmarks/hybrid_fit.py --fit-into",
-           "ood": "benchmarks/ood_fit.py"}
+           "ood": "benchmarks/ood_fit.py --fit-into"}
     words = (f"checkpoint {runner.ckpt.path} has no fitted {' / '.join('export.' + k for k in missing)}, so "
              + ("its covariance is not calibrated" if missing != ["ood"] else
                 "no frame was checked to be like the network's training drives")
              + f"; fit {' and '.join(how[k] for k in missing)} on validation drives")
     return words + (" (or run without the out-of-domain test, --set ood.enabled=false, which the status then names)"
-                    if "ood" in missing else "")
+                    if missing == ["ood"] else "")
 
 
 # the HybridConfig blocks only some methods read (``window``, ``average``, ``drift``, ... are read by more): a
