@@ -140,12 +140,25 @@ def gathering_options(parser: argparse.ArgumentParser) -> set[str]:
             for name in a.option_strings}
 
 
-def _repeated_or_empty(argv: list[str], repeatable: set[str] = frozenset({"--set"})) -> str:
+def _option_name(name: str, parser: argparse.ArgumentParser | None) -> str:
+    """The option ``name`` stands for in ``parser`` (argparse takes an unambiguous prefix: ``--vehic`` is
+    ``--vehicle``), its longest spelling; ``name`` itself where the parser has no one option it begins."""
+    if parser is None:
+        return name
+    actions = parser._option_string_actions
+    found = {id(a): a for o, a in actions.items() if o == name} or \
+        {id(a): a for o, a in actions.items() if o.startswith(name) and o.startswith("--")}
+    return max(next(iter(found.values())).option_strings, key=len) if len(found) == 1 else name
+
+
+def _repeated_or_empty(argv: list[str], repeatable: set[str] = frozenset({"--set"}),
+                       parser: argparse.ArgumentParser | None = None) -> str:
     """Why the command line cannot mean what it says ("" when it can): an option given twice keeps only its last
     value in argparse (``simulate --out a --out b`` wrote b alone; ``--data A --data B`` read B; probe 105:
     ``calibrate --refine A --refine B`` ran B alone, ``report --vehicle A --vehicle B`` reported B) unless the
     command's option gathers them (``repeatable``: ``gathering_options``), and an empty path reads as the current
-    folder ("--out '': . is not empty"; probe 27)."""
+    folder ("--out '': . is not empty"; probe 27). With the command's ``parser`` an abbreviation counts as the option
+    it stands for (probe 106: ``--vehicle A --vehic B`` reported B, ``--veh A --veh B`` of export was refused)."""
     seen: set[str] = set()
     for k, token in enumerate(argv):
         if token == "--":
@@ -157,10 +170,12 @@ def _repeated_or_empty(argv: list[str], repeatable: set[str] = frozenset({"--set
             return "an argument is empty (''); pass the path or value it stands for"
         if not token.startswith("--") or len(token) < 3:
             continue
-        name, eq, value = token.partition("=")
+        typed, eq, value = token.partition("=")
+        name = _option_name(typed, parser)
         if name in seen and name not in repeatable:
-            return (f"{name} is given twice; give it once (argparse would keep only the last value"
-                    + ("; several roots go after one --data" if name == "--data" else "") + ")")
+            return (f"{name} is given twice{'' if typed == name else f' (as {typed})'}; give it once (argparse would "
+                    "keep only the last value" + ("; several roots go after one --data" if name == "--data" else "")
+                    + ")")
         seen.add(name)
         if name in PATH_OPTIONS and eq and value == "":  # --out='' (the spaced form is the empty token's above)
             return f"{name} is empty; pass a path"
@@ -197,7 +212,7 @@ def main(argv: list[str] | None = None) -> int:
         best_effort_stderr()
     args = _parse(argv)
     if problem := _repeated_or_empty(sys.argv[1:] if argv is None else [str(a) for a in argv],
-                                     gathering_options(args._parser)):
+                                     gathering_options(args._parser), args._parser):
         print(f"hybrid-calib {args.command}: error: {problem}", file=sys.stderr)
         return EXIT_ERROR
     debug = args.debug or os.environ.get("HYBRID_CALIB_DEBUG", "") not in ("", "0")

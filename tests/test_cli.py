@@ -434,6 +434,16 @@ def test_a_repeated_option_is_refused_unless_that_command_gathers_it(tmp_path, c
                          str(tmp_path / "p.html")], "--vehicle")):
         assert main(argv) == EXIT_ERROR, argv
         assert f"{name} is given twice; give it once" in capsys.readouterr().err
+    # an abbreviation is the option it stands for (probe 106: --vehicle A --vehic B reported B, --out a --ou b wrote b)
+    for argv, said in ((["report", str(tmp_path / "r.json"), "--vehicle", "A", "--vehic", "B", "--out",
+                         str(tmp_path / "p.html")], "--vehicle is given twice (as --vehic)"),
+                       (["calibrate", "--data", str(tmp_path), "--out", str(tmp_path / "a"), "--ou",
+                         str(tmp_path / "b")], "--out is given twice (as --ou)")):
+        assert main(argv) == EXIT_ERROR and said in capsys.readouterr().err, argv
+    assert not (tmp_path / "b").exists()
+    # and an abbreviated gathering option gathers (it was refused as given twice)
+    main(["export", str(tmp_path / "r.json"), "--out", str(tmp_path / "e"), "--veh", "A", "--veh", "B"])
+    assert "given twice" not in capsys.readouterr().err
     parser = build_parser()
     commands = {a.dest: a for a in parser._actions if isinstance(a.choices, dict)}
     sub = next(iter(commands.values())).choices
