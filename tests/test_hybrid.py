@@ -443,6 +443,11 @@ def test_a_checkpoint_without_its_fitted_models_is_never_trusted(sim_root, tmp_p
     conf = {**BASE, "checkpoint": str(tmp_path / src.name)}  # all 3 frames: enough for the OOD rule
     v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", {**conf, "method": "pure-avg"})
     assert v.final.status.startswith("inconclusive:") and "export.hybrid" in v.final.status
+    # the first stage of a cascade too (probe 106: read 'weak' with the refining stage's drive error alone)
+    v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", {**conf, "method": "pure-avg", "refine": "shipped",
+                                                          "max_frames": 2})
+    assert v.final.status.startswith("inconclusive:") and "(the cascade's first stage) has no fitted export.hybrid" \
+        in v.final.status, v.final.status
     v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", {**conf, "method": "pure"})  # needs cov_scale only
     assert not v.final.status.startswith("inconclusive"), v.final.status
     # without its out-of-domain model no input is checked: inconclusive as the README says (probe 105: read 'weak' with

@@ -461,6 +461,12 @@ def unfitted_reason(runner, method: str, ood_enabled: bool = True) -> str:
     test is switched off (``ood_enabled`` False: its own words say so): without it no frame's input was checked to be
     like the network's training drives, which is where its covariance was fitted (probe 105: a checkpoint without it
     read `weak` with no word of the test, while the README promised `inconclusive`)."""
+    coarse = getattr(runner, "coarse", None)  # a cascade: its first stage's drive-common error enters too
+    if coarse is not None and method != "pure" and "hybrid" not in (coarse.ckpt.export or {}):
+        # (measurement_config; probe 106: without it the refining stage's smaller one stood alone, the lateral std
+        # 3.24 -> 1.20 cm, NEES 13.4, with no word)
+        return (f"checkpoint {coarse.ckpt.path} (the cascade's first stage) has no fitted export.hybrid, so the "
+                "cascade's covariance is not calibrated; fit benchmarks/hybrid_fit.py --fit-into on validation drives")
     export = runner.ckpt.export or {}
     wanted = ("cov_scale", *(("hybrid",) if method != "pure" else ()), *(("ood",) if ood_enabled else ()))
     missing = [k for k in wanted if k not in export]
