@@ -56,6 +56,9 @@ class CompareConfig:
             raise ValueError(f"CompareConfig.methods is empty; valid: {METHODS}")
         if bad := [m for m in self.methods if m not in METHODS]:
             raise ValueError(f"CompareConfig.methods: unknown {bad}; valid: {METHODS}")
+        if twice := sorted({m for m in self.methods if list(self.methods).count(m) > 1}):
+            # probe 106: recorded twice in compare_config.json and run as two to-do lists (the command says it once)
+            raise ValueError(f"CompareConfig.methods names {', '.join(twice)} more than once; name each method once")
         if self.range not in ("R1", "R2"):
             raise ValueError(f"CompareConfig.range={self.range!r}; valid: R1, R2")
         if self.trials < 1:

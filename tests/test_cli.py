@@ -450,3 +450,14 @@ def test_a_repeated_option_is_refused_unless_that_command_gathers_it(tmp_path, c
     assert {"--set", "--refine"} <= gathering_options(sub["evaluate"])
     assert "--vehicle" in gathering_options(sub["export"])
     assert "--refine" not in gathering_options(sub["calibrate"]) and "--vehicle" not in gathering_options(sub["report"])
+
+
+def test_the_compare_api_refuses_a_method_named_twice():
+    """``compare(..., {"methods": ["pure", "pure"]})`` recorded the duplicate and listed its trials twice (probe 106);
+    the command dedupes and says so (above), the config refuses it."""
+    from hybrid_calib.compare import CompareConfig
+    from hybrid_calib.config import merge
+
+    with pytest.raises(ValueError, match="names pure more than once"):
+        merge(CompareConfig, {"methods": ["pure", "hybrid", "pure"]})
+    assert merge(CompareConfig, {"methods": ["pure", "hybrid"]}).methods == ("pure", "hybrid")
