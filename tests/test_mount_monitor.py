@@ -674,3 +674,16 @@ def test_an_untold_step_is_not_the_reason_a_result_is_not_trusted():
     why = monitor_trust_reason(s)
     assert why.startswith("the radar's own heading on the vehicle (its Doppler against the ego poses) lies"), why
     assert "measured the radar turn" not in why
+
+
+def test_the_level_is_named_against_the_reference_it_was_read_against():
+    """With --reference the monitor's level is against the exported mount: calibrate's line and the report page said
+    "1.83 deg ... to the left of its tables'" where the tables put the radar 3.85 deg off (probe 106)."""
+    from hybrid_calib.calib.mount_monitor import tested_words
+
+    summary = {"pairs_tested": 90, "frames_tested": 15, "levels": [{"level_deg": 1.83, "std_deg": 0.05}]}
+    tables = tested_words(summary)
+    assert "to the left of its tables' (its Doppler against the ego poses)" in tables
+    assert tested_words(summary, {"kind": "tables"}) == tables
+    export = tested_words(summary, {"kind": "export", "path": "x/export.json"})
+    assert "to the left of the exported mount's (its Doppler" in export and "its tables" not in export

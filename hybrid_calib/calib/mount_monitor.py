@@ -537,10 +537,19 @@ def finds_words(summary: dict) -> str:
             f"its readings scatter by {scatter:.2f} deg)")
 
 
-def tested_words(summary: dict) -> str:
+def tested_words(summary: dict, reference: dict | None = None) -> str:
     """How much a ``summary()`` block tested, in words: frames and the sweep pairs behind them (a result written
     before the sweeps were paired holds ``pairs_tested`` alone, one pair per frame), and, when the hybrid recorded
-    ``sweeps_absent``, that the root's sweeps between keyframes were listed but not on disk."""
+    ``sweeps_absent``, that the root's sweeps between keyframes were listed but not on disk. ``reference``: the
+    result's ``drift["reference"]``: against an earlier export the level is the exported mount's, and named so
+    (``drift.reference_nouns``; probe 106: "1.83 deg ... of its tables'" where the tables put the radar 3.85 deg
+    off)."""
+    from hybrid_calib.calib.drift import reference_nouns
+
+    return reference_nouns(_tested_words(summary), reference)
+
+
+def _tested_words(summary: dict) -> str:
     pairs = int(summary.get("pairs_tested", 0))
     frames = int(summary.get("frames_tested", pairs))
     if not pairs:

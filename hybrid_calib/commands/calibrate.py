@@ -244,7 +244,7 @@ def _report(result, out: Path, reused: bool = False) -> int:
                               "no step" if v.mount.get("pairs_tested") else "not tested")
             if found == "no step" and (why := "; ".join(w for w in (blind_words(v.mount), finds_words(v.mount)) if w)):
                 found += f" ({why})"
-            print(f"  radar mount monitor ({tested_words(v.mount)}): {found}")
+            print(f"  radar mount monitor ({tested_words(v.mount, (v.drift or {}).get('reference'))}): {found}")
         if v.lidar is not None:
             print(f"  LiDAR alignment: {describe_lidar(v.lidar)}")
         if v.doppler is not None:

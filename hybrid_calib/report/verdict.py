@@ -205,7 +205,7 @@ def moved_during_drive(vr: VehicleResult) -> tuple[str, tuple[int, ...]]:
     blind = blind_words(mount) if mount else ""
     mount_ran = bool(mount) and int(mount.get("pairs_tested", 0)) > 0 and not blind.startswith("it could not")
     monitor = (f"the radar mount monitor (the radar's Doppler heading against the vehicle's ego poses) over "
-               f"{tested_words(mount)}") if mount else ""
+               f"{tested_words(mount, (vr.drift or {}).get('reference'))}") if mount else ""
     if alarms and not alarms_say_moved(vr.final.status, mount):
         return "not told: step alarm at " + "; ".join(alarm_words(vr)), alarms
     if alarms:
@@ -217,7 +217,8 @@ def moved_during_drive(vr: VehicleResult) -> tuple[str, tuple[int, ...]]:
         why = (f"the window's step test computed no statistic over these {n} frames (a drive too short for its "
                "history, or a method that runs no window: pure, pure-avg)")
         return f"not tested: no step test could run on this result ({why}" + (
-            f"; the radar mount monitor: {blind or tested_words(mount)}" if mount else "") + ")", ()
+            f"; the radar mount monitor: {blind or tested_words(mount, (vr.drift or {}).get('reference'))}"
+            if mount else "") + ")", ()
     if mount and not mount_ran:  # the window's test ran; the monitor tested nothing, or too little to alarm
         return (f"not told for the radar's yaw: {monitor}" + (f"; {blind}" if blind.startswith("it could not") else "")
                 + f"; no step alarm from {window}"), ()
