@@ -661,6 +661,19 @@ def test_the_words_name_the_exported_mount_not_the_tables():
         assert ("as the export says" in vr.final.status) is (src["kind"] == "export")
         redone = against_tolerance(vr.drift, "inconclusive: out of domain", far, rot_deg=1.0)
         assert words in redone["verdict"] and redone["verdict"].count("the radar's own Doppler") == 1
+        # the Doppler level's note (the fleet page, summary.md), the monitor's implausible level and the lever arm's
+        # note that repeats it (probe 107: "its tables' yaw is off", "within 10 deg of its tables" against an export)
+        level = {**d, "doppler_level": {"level_deg": 1.97, "std_deg": 0.1, "words": "right of its tables': check the "
+                                        "radar's yaw (if the ego poses are right, its tables' yaw is off)"}}
+        said = "velocity fields or its mount in the tables are wrong (within 10 deg of its tables)"
+        vr = VehicleResult("v", Estimate(T, np.eye(6), np.ones(6), status), drift=level)
+        vr.mount, vr.doppler = {"implausible": said}, {"applied": False, "note": said}
+        vr = in_reference_nouns(vr)
+        export = src["kind"] == "export"
+        assert ("the exported mount's yaw is off" in vr.drift["doppler_level"]["words"]) is export
+        for text in (vr.mount["implausible"], vr.doppler["note"]):
+            assert ("its tables" in text or "in the tables" in text) is not export, text
+            assert ("its exported mount are wrong (within 10 deg of the exported mount)" in text) is export, text
 
 
 def test_the_oracle_says_no_doppler_test_ran_against_an_export(knocked, tmp_path):

@@ -539,7 +539,8 @@ def _turned_words(turn: dict | None, drift: dict | None, rot_tol_deg: float) -> 
 # the calibrator's sentences name the reference "its tables"; against an earlier export (data.reference) the mount
 # compared with is the exported one: the words say so (session 38 left "its tables" there, only the first line, the
 # page's "Checked against" and the fleet summary saying what it meant). Longest phrases first.
-EXPORT_NOUNS = (("as its tables say", "as the export says"), ("its tables'", "the exported mount's"),
+EXPORT_NOUNS = (("its mount in the tables", "its exported mount"), ("as its tables say", "as the export says"),
+                ("its tables'", "the exported mount's"),
                 ("its tables", "the exported mount"), ("of their tables", "of their exported mounts"))
 
 
@@ -554,14 +555,16 @@ def reference_nouns(text: str, source: dict | None) -> str:
 
 
 def drift_in_reference_nouns(drift: dict | None) -> dict | None:
-    """``drift`` whose verdict (and the verdict at the end a step raised, ``at_end``) names its reference as
-    ``reference_nouns``."""
+    """``drift`` whose verdict (and the verdict at the end a step raised, ``at_end``, and the radar's Doppler level
+    note, ``doppler_level``: probe 107 read "its tables' yaw is off" on the fleet page against an export) names its
+    reference as ``reference_nouns``."""
     if not drift or not isinstance(drift.get("reference"), dict):
         return drift
     src = drift["reference"]
     out = {**drift, "verdict": reference_nouns(drift.get("verdict"), src)}
-    if isinstance(drift.get("at_end"), dict):
-        out["at_end"] = {**drift["at_end"], "verdict": reference_nouns(drift["at_end"].get("verdict"), src)}
+    for key, field in (("at_end", "verdict"), ("doppler_level", "words")):
+        if isinstance(drift.get(key), dict) and field in drift[key]:
+            out[key] = {**drift[key], field: reference_nouns(drift[key][field], src)}
     return out
 
 

@@ -546,8 +546,10 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
         if not why and moves and max(moves) > 100 * MAX_MOVE_M:
             # probe 23: the cascade on the real scene, its domain test loosened, wrote a radar 97.4 cm from its tables
             # with a lateral 1-sigma of 0.96 cm; a radar does not travel that far on its bracket
-            why = (f"not exported: it would move the radar {max(moves):.1f} cm from its tables, farther than a radar "
-                   f"moves on its bracket ({100 * MAX_MOVE_M:g} cm): the estimate or the tables are wrong; check both "
+            base, wrong = (("the exported mount", "the export is") if _against_export(vr) else  # moves from it (p107)
+                           ("its tables", "the tables are"))
+            why = (f"not exported: it would move the radar {max(moves):.1f} cm from {base}, farther than a radar "
+                   f"moves on its bracket ({100 * MAX_MOVE_M:g} cm): the estimate or {wrong} wrong; check both "
                    "(a drive of other scenes, the LiDAR's and the Doppler's offsets in result.json) before writing one")
         if why:
             entry["why"] = _reference_words(why, vr)

@@ -459,6 +459,11 @@ def in_reference_nouns(res: VehicleResult) -> VehicleResult:
         if res.trajectory:
             res.trajectory[-1] = dataclasses.replace(res.trajectory[-1], estimate=res.final)
     res.drift = drift_in_reference_nouns(res.drift)
+    # what the radar mount monitor found implausible, and the Doppler lever arm's note that repeats it (probe 107:
+    # "a radar's mount is within 10 deg of its tables" beside a level read against the exported mount)
+    for block, key in ((res.mount, "implausible"), (getattr(res, "doppler", None), "note")):
+        if isinstance(block, dict) and isinstance(block.get(key), str):
+            block[key] = reference_nouns(block[key], src)
     return res
 
 
