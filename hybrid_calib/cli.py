@@ -134,9 +134,11 @@ PATH_OPTIONS = {"--out", "--data", "--prior", "--manifest", "--checkpoint", "--d
 
 
 def gathering_options(parser: argparse.ArgumentParser) -> set[str]:
-    """The options of a command's ``parser`` that gather every value given (argparse ``append`` / ``extend``:
-    ``--set``, evaluate's ``--refine``, export's ``--vehicle``); any other option keeps its last value only."""
-    return {name for a in parser._actions if isinstance(a, (argparse._AppendAction, argparse._ExtendAction))
+    """The options of a command's ``parser`` that may be given twice and lose nothing: those that gather every value
+    (argparse ``append`` / ``extend``: ``--set``, evaluate's ``--refine``, export's ``--vehicle``) and the flags that
+    take none (``--no-plots`` twice is ``--no-plots``; probe 107); any other option keeps its last value only."""
+    return {name for a in parser._actions
+            if isinstance(a, (argparse._AppendAction, argparse._ExtendAction, argparse._StoreConstAction))
             for name in a.option_strings}
 
 

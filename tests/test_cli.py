@@ -449,6 +449,7 @@ def test_a_repeated_option_is_refused_unless_that_command_gathers_it(tmp_path, c
     sub = next(iter(commands.values())).choices
     assert {"--set", "--refine"} <= gathering_options(sub["evaluate"])
     assert "--vehicle" in gathering_options(sub["export"])
+    assert "--no-plots" in gathering_options(sub["calibrate"])  # a flag twice loses nothing (probe 107)
     assert "--refine" not in gathering_options(sub["calibrate"]) and "--vehicle" not in gathering_options(sub["report"])
 
 

@@ -272,8 +272,8 @@ def test_a_fit_from_too_few_turns_is_not_compared_with_the_loop():
     out, block = with_doppler(traj, drive, _Frames(sweeps), few, None, motion)
     assert abs(block["innovation_x_sigma"]) > conf.doppler.far_innovation and "widened" not in block
     assert out[-1] is traj[-1]
-    assert block["innovation_not_checked"] == (f"{block['turning']} frames in turns (the comparison with the estimate "
-                                               f"needs {block['turning'] + 1})")
-    assert describe(block).endswith(f"; not compared with the estimate: {block['innovation_not_checked']}, too few for "
-                                    "its std to be trusted")  # the printed line (probe 106: it read as a measurement)
+    assert block["innovation_not_checked"] == (f"{block['turning']} of the {block['turning'] + 1} frames in turns the "
+                                               "comparison with the estimate needs")
+    assert describe(block).endswith(f"; not compared with the estimate: {block['innovation_not_checked']} (with fewer "
+                                    "its std is not trusted)")  # the printed line (probe 106: it read as a measurement)
     assert LeverArmConfig().min_turning_check == 3  # probe 106: clocks 50 ms off on drives of 5 frames in turns

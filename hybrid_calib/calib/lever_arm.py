@@ -300,5 +300,5 @@ def describe(block: dict) -> str:
              f"estimate (Doppler in turns against the ego poses: {block['pairs']} sweep pairs, {block['turning']} "
              f"frames turning)")
     return words + ("; applied" if block["applied"] else f"; not applied: {block.get('note', '')}") + (
-        f"; not compared with the estimate: {block['innovation_not_checked']}, too few for its std to be trusted"
+        f"; not compared with the estimate: {block['innovation_not_checked']} (with fewer its std is not trusted)"
         if block.get("innovation_not_checked") else "")

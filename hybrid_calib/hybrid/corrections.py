@@ -238,8 +238,8 @@ def with_doppler(traj: list[FrameEstimate], drive: Drive, frames, conf: HybridCo
     z = dx / max(float(np.hypot(a.dx_std, loop_std)), 1e-12)
     if a.turning < conf.doppler.min_turning_check:  # its std not honest with so few turns (LeverArmConfig)
         return traj, {**block, "innovation_x_sigma": z,
-                      "innovation_not_checked": f"{a.turning} frames in turns (the comparison with the estimate needs "
-                                                f"{conf.doppler.min_turning_check})"}
+                      "innovation_not_checked": f"{a.turning} of the {conf.doppler.min_turning_check} frames in turns "
+                                                "the comparison with the estimate needs"}
     if abs(z) <= conf.doppler.far_innovation:
         return traj, {**block, "innovation_x_sigma": z}
     speeds = [s.velocity.speed for s in sweeps if s.velocity is not None and np.isfinite(s.velocity.speed)]
