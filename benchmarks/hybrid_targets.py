@@ -120,10 +120,16 @@ def main(argv=None) -> int:
     from hybrid_calib.config import save_json_atomic
     from hybrid_calib.errors import HybridCalibError
 
+    named = [m.strip() for m in a.methods.split(",") if m.strip()]
+    methods = tuple(dict.fromkeys(named))  # once each, said before the drives are simulated (probe 107)
+    if len(methods) < len(named):
+        print(f"note: --methods names a method more than once; each is compared once ({','.join(methods)})",
+              file=sys.stderr)
+
     roots = simulate_test_drives(a.out / "data", a.vehicles, a.frames, scenarios)
     command = "PYTHONPATH=. python benchmarks/hybrid_targets.py " + " ".join(sys.argv[1:])
     for r in a.ranges:
-        conf = {"range": r, "trials": a.trials, "seed": a.seed, "methods": tuple(a.methods.split(",")),
+        conf = {"range": r, "trials": a.trials, "seed": a.seed, "methods": methods,
                 "hybrid": {"threads": a.threads, "max_frames": a.max_frames or a.frames}}
         try:
             s = compare(roots, "v1.0-sim", a.out / f"compare-{r}", conf, command=command, overwrite=a.overwrite)
