@@ -699,3 +699,16 @@ def test_an_impossible_doppler_record_is_refused(knocked, tmp_path, doppler):
     (tmp_path / "export.json").write_text(json.dumps(doc))
     with pytest.raises(DataError, match="sim-veh-000's 'doppler' record is .*, not .level_deg: a yaw within 90 deg"):
         load_export_reference(tmp_path)
+
+
+def test_what_the_network_knows_is_not_renamed_against_an_export():
+    """"the network knows radars within a few degrees of their tables" read "... of their exported mounts" against an
+    export (probe 107): what the network learned does not depend on the reference; the sentence names neither."""
+    from hybrid_calib.calib.drift import reference_nouns
+    from hybrid_calib.calib.mount_monitor import monitor_trust_reason
+
+    far = {"levels": [{"level_deg": -15.0, "std_deg": 0.1, "pairs": 40, "from": 0, "to": 40}], "steps": [],
+           "far": {"level_deg": -15.0, "std_deg": 0.1, "from": 0, "to": 40}}
+    why = monitor_trust_reason(far, 10.0)
+    assert "knows radars within a few degrees of a fleet's mounts" in why, why
+    assert "a fleet's mounts" in reference_nouns(why, {"kind": "export"})

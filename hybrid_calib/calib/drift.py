@@ -541,7 +541,7 @@ def _turned_words(turn: dict | None, drift: dict | None, rot_tol_deg: float) -> 
 # page's "Checked against" and the fleet summary saying what it meant). Longest phrases first.
 EXPORT_NOUNS = (("its mount in the tables", "its exported mount"), ("as its tables say", "as the export says"),
                 ("its tables'", "the exported mount's"),
-                ("its tables", "the exported mount"), ("of their tables", "of their exported mounts"))
+                ("its tables", "the exported mount"))
 
 
 def reference_nouns(text: str, source: dict | None) -> str:

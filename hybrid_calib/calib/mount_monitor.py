@@ -651,7 +651,7 @@ def monitor_trust_reason(summary: dict | None,
                 f"{level_words(far['level_deg'], far['std_deg'])} its tables' (frames {far['from']}-{far['to']}), "
                 f"beyond any mount ({max_level_deg:g} deg): the radar is not mounted as its tables say (a knock, or a "
                 "rotation wrong in calibrated_sensor.json), or the ego poses or its velocities are wrong; the network "
-                "knows radars within a few degrees of their tables, so the estimate is not trusted")
+                "knows radars within a few degrees of a fleet's mounts, so the estimate is not trusted")
     if not big:
         return ""
     st = big[-1]
