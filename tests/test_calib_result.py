@@ -306,3 +306,8 @@ def test_a_run_folder_reads_as_its_result(tmp_path):
     assert CalibrationRun.load(tmp_path / "run").mode == "window"
     with pytest.raises(DataError, match="pass the result.json"):
         CalibrationRun.load(tmp_path)  # a folder without one: still refused, named
+    (tmp_path / "cmp").mkdir()
+    (tmp_path / "cmp" / "compare.json").write_text("{}")
+    with pytest.raises(DataError, match="is a compare run's folder") as e:  # probe 107: "[Errno 21] Is a directory"
+        CalibrationRun.load(tmp_path / "cmp")
+    assert "Errno" not in str(e.value)

@@ -700,6 +700,13 @@ class CalibrationRun:
         path = Path(path)
         if path.is_dir() and (path / "result.json").is_file():  # the run's folder (probe 93: "Is a directory")
             path = path / "result.json"
+        elif path.is_dir():  # another command's folder (probe 107: a compare run's read "[Errno 21] Is a directory")
+            held = ("a compare run's folder (its tables are compare.md and compare.json)"
+                    if (path / "compare.json").is_file() else
+                    "a fleet run's folder: each vehicle's result is vehicles/<job>/result.json"
+                    if (path / "manifest.json").is_file() else "a folder with no result.json")
+            raise DataError(f"is {held}; pass the result.json of a hybrid-calib calibrate run (or its folder)",
+                            path=str(path))
         try:
             text = path.read_text()
             return cls.from_json(text, str(path))
