@@ -153,14 +153,15 @@ def _option_name(name: str, parser: argparse.ArgumentParser | None) -> str:
     return max(next(iter(found.values())).option_strings, key=len) if len(found) == 1 else name
 
 
-def _repeated_or_empty(argv: list[str], repeatable: set[str] = frozenset({"--set"}),
-                       parser: argparse.ArgumentParser | None = None) -> str:
+def _repeated_or_empty(argv: list[str], parser: argparse.ArgumentParser | None = None) -> str:
     """Why the command line cannot mean what it says ("" when it can): an option given twice keeps only its last
     value in argparse (``simulate --out a --out b`` wrote b alone; ``--data A --data B`` read B; probe 105:
     ``calibrate --refine A --refine B`` ran B alone, ``report --vehicle A --vehicle B`` reported B) unless the
-    command's option gathers them (``repeatable``: ``gathering_options``), and an empty path reads as the current
-    folder ("--out '': . is not empty"; probe 27). With the command's ``parser`` an abbreviation counts as the option
-    it stands for (probe 106: ``--vehicle A --vehic B`` reported B, ``--veh A --veh B`` of export was refused)."""
+    command's option gathers them (``gathering_options`` of its ``parser``; without one, ``--set`` alone), and an
+    empty path reads as the current folder ("--out '': . is not empty"; probe 27). With the command's ``parser`` an
+    abbreviation counts as the option it stands for (probe 106: ``--vehicle A --vehic B`` reported B, ``--veh A --veh
+    B`` of export was refused)."""
+    repeatable = gathering_options(parser) if parser is not None else {"--set"}
     seen: set[str] = set()
     for k, token in enumerate(argv):
         if token == "--":
@@ -213,8 +214,7 @@ def main(argv: list[str] | None = None) -> int:
     if argv is None:  # the process's own stderr (a caller of main(argv) keeps its own)
         best_effort_stderr()
     args = _parse(argv)
-    if problem := _repeated_or_empty(sys.argv[1:] if argv is None else [str(a) for a in argv],
-                                     gathering_options(args._parser), args._parser):
+    if problem := _repeated_or_empty(sys.argv[1:] if argv is None else [str(a) for a in argv], args._parser):
         print(f"hybrid-calib {args.command}: error: {problem}", file=sys.stderr)
         return EXIT_ERROR
     debug = args.debug or os.environ.get("HYBRID_CALIB_DEBUG", "") not in ("", "0")

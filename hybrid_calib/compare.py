@@ -31,6 +31,7 @@ from hybrid_calib.calib.covariance import status_kind
 from hybrid_calib.calib.result import VehicleResult, failed_vehicles_message
 from hybrid_calib.config import (
     changed_options,
+    check_seed,
     merge,
     read_out_record,
     save_json_atomic,
@@ -63,8 +64,7 @@ class CompareConfig:
             raise ValueError(f"CompareConfig.range={self.range!r}; valid: R1, R2")
         if self.trials < 1:
             raise ValueError("CompareConfig.trials must be >= 1")
-        if not 0 <= self.seed < 2**63:  # as --seed (probe 100: --set seed=1e26 was accepted)
-            raise ValueError(f"CompareConfig.seed must be in 0..2**63-1 (--seed), got {self.seed}")
+        check_seed(self)
         if self.trials > MAX_TRIALS:  # each trial is a calibration of seconds to minutes; the list was built first
             raise ValueError(f"CompareConfig.trials={self.trials} (--trials): more than {MAX_TRIALS} trials, each a "
                              "calibration of seconds to minutes, would not finish; pass at most "

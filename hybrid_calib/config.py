@@ -80,6 +80,16 @@ def require(conf: Any, rules: Mapping[str, bool]) -> None:
     raise ValueError(f"{type(conf).__name__}: need {'; '.join(failing)} (got {got})")
 
 
+MAX_SEED = 2**63  # a seed is 0..MAX_SEED-1: numpy's generators take no negative one; --seed's bound (probe 100)
+
+
+def check_seed(conf: Any) -> None:
+    """``ValueError`` unless ``conf.seed`` is in 0..2**63-1, naming ``conf``'s class and --seed (one rule for every
+    config with a seed: --set seed=1e26 had been accepted, probe 100)."""
+    if not 0 <= conf.seed < MAX_SEED:
+        raise ValueError(f"{type(conf).__name__}.seed must be in 0..2**63-1 (--seed), got {conf.seed}")
+
+
 def is_number(x) -> bool:
     """A finite JSON number (int or float; not bool): a record's field, a result's read back, an option's value."""
     try:  # an integer beyond a float's range (JSON allows 400 digits) is not a number here either (probe 63)

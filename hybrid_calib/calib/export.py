@@ -295,15 +295,11 @@ def _against_export(vr) -> bool:
     return isinstance(src, dict) and src.get("kind") == "export"
 
 
-def _reference_words(why: str, vr) -> str:
-    """``why`` naming what ``vr``'s record keeps: against an earlier export (``--reference``) that export's mount, not
-    the tables (probe 105: a chained vehicle read "kept the tables: the verdict against them ..." while its record held
-    the export's mount). Only the words of what is kept: a check made on the root's own tables keeps naming them
-    (probe 106)."""
-    if not _against_export(vr):
-        return why
-    return why.replace("kept the tables: the verdict against them", "kept the exported mount: the verdict against it"
-                       ).replace("kept the tables:", "kept the exported mount:")
+def _kept(vr) -> str:
+    """What ``vr``'s record keeps when its estimate is not written: the tables, or against an earlier export
+    (``--reference``) that export's mount (probe 105: a chained vehicle read "kept the tables: the verdict against
+    them ..." while its record held the export's mount)."""
+    return "the exported mount" if _against_export(vr) else "the tables"
 
 
 def _why_not(vr, which: str) -> str:
@@ -335,12 +331,13 @@ def _why_not(vr, which: str) -> str:
     kind = (vr.drift or {}).get("verdict_kind")
     if which == "recalibrate" and not kind and vr.drift:  # probe 88: read "the verdict ... is 'none'" while the
         # report derived "recalibrate" from the same block's numbers
-        return ("kept the tables: result.json stores no verdict against them (its drift block has no verdict_kind: "
+        return (f"kept {_kept(vr)}: result.json stores no verdict against them (its drift block has no verdict_kind: "
                 "written by an older hybrid-calib, or edited; `hybrid-calib report` derives one from its numbers, "
                 "export writes only a verdict the calibrator stored): recompute it (calibrate --overwrite), or "
                 "--which trusted writes every trusted estimate")
     if which == "recalibrate" and kind != "recalibrate":
-        return (f"kept the tables: the verdict against them is '{kind or 'none'}', not 'recalibrate' (result.json "
+        return (f"kept {_kept(vr)}: the verdict against {'it' if _against_export(vr) else 'them'} is "
+                f"'{kind or 'none'}', not 'recalibrate' (result.json "
                 "says why); --which trusted writes every trusted estimate")
     conflict = pinned_conflict_words((vr.drift or {}).get("axes") or {})
     if conflict and len(_kept_axes(vr)) < len(AXIS_WORDS):  # a record it writes would keep the tables along the
@@ -491,7 +488,7 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
             why = (f"not exported: its radar records are shared with vehicle(s) {', '.join(shared)} of the root; one "
                    "record cannot hold two vehicles' mounts")
         if why:
-            entry["why"] = _reference_words(why, vr)
+            entry["why"] = why
             continue
         T_est = np.asarray(vr.final.T, np.float64)
         kept = _kept_axes(vr)
@@ -505,8 +502,8 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
                             "version): calibrate again to export it")
             continue
         if len(kept) == len(AXIS_WORDS) and turn is None:  # the record would be the tables' own
-            entry["why"] = _reference_words("kept the tables: the data decide no axis against the tolerance (each is "
-                                            "undecided or prior-pinned), so there is nothing measured to write", vr)
+            entry["why"] = (f"kept {_kept(vr)}: the data decide no axis against the tolerance (each is undecided "
+                            "or prior-pinned), so there is nothing measured to write")
             if (vr.drift or {}).get("at_end"):  # "recalibrate" for a step the mount monitor measured in the drive
                 entry["why"] = ("not exported: the radar turned on the vehicle during the drive (its verdict: "
                                 "recalibrate), but the estimate after the turn decides no axis against the tolerance "
@@ -552,7 +549,7 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
                    f"moves on its bracket ({100 * MAX_MOVE_M:g} cm): the estimate or {wrong} wrong; check both "
                    "(a drive of other scenes, the LiDAR's and the Doppler's offsets in result.json) before writing one")
         if why:
-            entry["why"] = _reference_words(why, vr)
+            entry["why"] = why
             continue
         for tok, T_base, T_new, T_cam in new:
             before = {k: exp.table[index[tok]][k] for k in ("translation", "rotation")}

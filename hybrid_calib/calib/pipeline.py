@@ -42,7 +42,7 @@ from hybrid_calib.calib.result import (
 )
 from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
-from hybrid_calib.config import merge, save_json_atomic, to_dict
+from hybrid_calib.config import check_seed, merge, save_json_atomic, to_dict
 from hybrid_calib.data.files import data_stamp
 from hybrid_calib.data.reference import absolute_reference, reference_identity
 from hybrid_calib.data.summary import calibration_notes
@@ -78,8 +78,7 @@ class CalibrateConfig:
             raise ValueError(f"CalibrateConfig.start={self.start!r}; valid: {STARTS}")
         if self.max_frames < 0:
             raise ValueError(f"CalibrateConfig.max_frames must be >= 0 (0 = all frames), got {self.max_frames}")
-        if not 0 <= self.seed < 2**63:  # as the simulator's: numpy's generators take no negative seed; --seed's bound
-            raise ValueError(f"CalibrateConfig.seed must be in 0..2**63-1 (--seed), got {self.seed}")
+        check_seed(self)
 
 
 @dataclass

@@ -51,7 +51,9 @@ def seed_int(text: str) -> int:
     """argparse ``type``: a seed, 0..2**63-1 (numpy's generators take no negative seed; one run's seed reads the same
     in every tool that loads its JSON)."""
     value = _int_at_least(text, 0)
-    if value >= 2**63:
+    from hybrid_calib.config import MAX_SEED
+
+    if value >= MAX_SEED:
         raise argparse.ArgumentTypeError(f"must be below 2**63, got {value}")
     return value
 

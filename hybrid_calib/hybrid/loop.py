@@ -65,7 +65,7 @@ from hybrid_calib.calib.result import (
 )
 from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
-from hybrid_calib.config import merge, save_json_atomic, to_dict
+from hybrid_calib.config import check_seed, merge, save_json_atomic, to_dict
 from hybrid_calib.data.files import data_stamp
 from hybrid_calib.data.pose_jitter import NOT_MEASURED
 from hybrid_calib.data.reference import absolute_reference, reference_identity
@@ -172,8 +172,7 @@ class HybridConfig:
             raise ValueError(f"HybridConfig.split={self.split!r}; valid: all, train, val, test")
         if self.max_frames < 0:
             raise ValueError(f"HybridConfig.max_frames must be >= 0 (0 = all frames), got {self.max_frames}")
-        if not 0 <= self.seed < 2**63:  # as --seed (probe 100: --set seed=1e26 was accepted)
-            raise ValueError(f"HybridConfig.seed must be in 0..2**63-1 (--seed), got {self.seed}")
+        check_seed(self)
         if not 1 <= self.threads <= 256:
             raise ValueError(f"HybridConfig.threads must be in 1..256 (torch CPU threads), got {self.threads}")
         from hybrid_calib.config import merge

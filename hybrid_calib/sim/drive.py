@@ -9,7 +9,7 @@ from functools import cached_property
 
 import numpy as np
 
-from hybrid_calib.config import check_fields, merge, require_ranges, to_dict
+from hybrid_calib.config import MAX_SEED, check_fields, merge, require_ranges, to_dict
 from hybrid_calib.data.summary import MIN_MOUNT_HEIGHT_M
 from hybrid_calib.sensors.camera import PinholeCamera
 from hybrid_calib.sim.extrinsics import ExtrinsicChange, MountPerturbation, VehicleMounts, sample_mounts
@@ -90,7 +90,7 @@ class SimConfig:
                              "1600x900, scaled by it; e.g. 0.125 for a quick test)")
         if not 1 <= self.jpeg_quality <= 100:
             raise ValueError(f"jpeg_quality={self.jpeg_quality}; valid: 1..100")
-        if not 0 <= self.seed < 2**63:  # numpy's generators take non-negative seeds only; the bound is --seed's
+        if not 0 <= self.seed < MAX_SEED:  # numpy's generators take non-negative seeds only; the bound is --seed's
             raise ValueError(f"seed={self.seed}; must be in 0..2**63-1 (--seed / --set seed)")
         # frames: the world is built for the whole drive (~1.5 s and ~2 MB per km of urban road); radar_sweep_period_ms:
         # sweeps are jittered by +-1 ms, so shorter periods reorder them; camera_max_range_m: the depth PNGs hold
