@@ -1108,3 +1108,25 @@ def test_compare_on_a_broken_checkpoint_names_it_and_runs_once_it_is_repaired(si
     assert "not a valid safetensors file" in err and "no vehicle in" not in err
     weights.write_bytes(good)  # copied again, as the message says
     assert main(argv) == 0, capsys.readouterr().err
+
+
+def test_a_cascade_missing_fits_in_both_stages_names_both():
+    from types import SimpleNamespace
+
+    from hybrid_calib.hybrid.loop import unfitted_reason
+
+    def stage(path, export):
+        return SimpleNamespace(ckpt=SimpleNamespace(path=path, export=export))
+
+    fitted = {"cov_scale": 1.0, "hybrid": {}, "ood": {}}
+    cascade = SimpleNamespace(**vars(stage("fine.json", {"cov_scale": 1.0})), coarse=stage("coarse.json", {}))
+    why = unfitted_reason(cascade, "hybrid")
+    assert "coarse.json (the cascade's first stage) has no fitted export.hybrid" in why, why
+    assert "fine.json has no fitted export.hybrid / export.ood" in why, why  # the second stage too, in one status
+    assert "ood.enabled=false" not in why  # that alone would not make the run trusted
+    cascade = SimpleNamespace(**vars(stage("fine.json", fitted)), coarse=stage("coarse.json", {}))
+    assert unfitted_reason(cascade, "hybrid").startswith("checkpoint coarse.json (the cascade's first stage)")
+    cascade = SimpleNamespace(**vars(stage("fine.json", {"cov_scale": 1.0, "hybrid": {}})),
+                              coarse=stage("coarse.json", fitted))
+    assert unfitted_reason(cascade, "pure-avg").endswith("--set ood.enabled=false, which the status then names)")
+    assert unfitted_reason(cascade, "pure-avg", ood_enabled=False) == ""

@@ -461,24 +461,28 @@ def unfitted_reason(runner, method: str, ood_enabled: bool = True) -> str:
     like the network's training drives, which is where its covariance was fitted (probe 105: a checkpoint without it
     read `weak` with no word of the test, while the README promised `inconclusive`)."""
     coarse = getattr(runner, "coarse", None)  # a cascade: its first stage's drive-common error enters too
+    first = ""
     if coarse is not None and method != "pure" and "hybrid" not in (coarse.ckpt.export or {}):
         # (measurement_config; probe 106: without it the refining stage's smaller one stood alone, the lateral std
         # 3.24 -> 1.20 cm, NEES 13.4, with no word)
-        return (f"checkpoint {coarse.ckpt.path} (the cascade's first stage) has no fitted export.hybrid, so the "
-                "cascade's covariance is not calibrated; fit benchmarks/hybrid_fit.py --fit-into on validation drives")
+        first = (f"checkpoint {coarse.ckpt.path} (the cascade's first stage) has no fitted export.hybrid, so the "
+                 "cascade's covariance is not calibrated; fit benchmarks/hybrid_fit.py --fit-into on validation drives")
     export = runner.ckpt.export or {}
     wanted = ("cov_scale", *(("hybrid",) if method != "pure" else ()), *(("ood",) if ood_enabled else ()))
     missing = [k for k in wanted if k not in export]
     if not missing:
-        return ""
+        return first
     how = {"cov_scale": "hybrid-calib evaluate --fit-uncertainty", "hybrid": "benchmarks/hybrid_fit.py --fit-into",
            "ood": "benchmarks/ood_fit.py --fit-into"}
     words = (f"checkpoint {runner.ckpt.path} has no fitted {' / '.join('export.' + k for k in missing)}, so "
              + ("its covariance is not calibrated" if missing != ["ood"] else
                 "no frame was checked to be like the network's training drives")
              + f"; fit {' and '.join(how[k] for k in missing)} on validation drives")
-    return words + (" (or run without the out-of-domain test, --set ood.enabled=false, which the status then names)"
-                    if missing == ["ood"] else "")
+    words += (" (or run without the out-of-domain test, --set ood.enabled=false, which the status then names)"
+              if missing == ["ood"] and not first else "")
+    # both stages of a cascade unfitted: both named (session 45 named only the first, and a user who fitted it met
+    # the second on the next run)
+    return f"{first}; and {words}" if first else words
 
 
 # the HybridConfig blocks only some methods read (``window``, ``average``, ``drift``, ... are read by more): a
