@@ -2050,8 +2050,9 @@ def test_an_intrinsic_of_booleans_is_named(tiny):
 @pytest.mark.parametrize("key,value,needle", [
     ("width", 0, "field 'width' is 0 but 'height' is 90"), ("height", 0, "field 'height' is 0 but 'width' is 160"),
     ("width", -5, "field 'width' is -5, expected a positive whole number"),
-    ("height", 89.5, "field 'height' is 89.5, expected a positive whole number")],
-    ids=["width-0", "height-0", "width-negative", "height-fractional"])
+    ("height", 89.5, "field 'height' is 89.5, expected a positive whole number"),
+    ("width", 10**30, "expected a positive whole number of pixels up to 100000")],  # probe 108: an internal error
+    ids=["width-0", "height-0", "width-negative", "height-fractional", "width-1e30"])
 @pytest.mark.parametrize("check_images", [True, False])
 def test_an_image_size_of_0_or_below_is_a_skip_naming_it(key, value, needle, check_images, tiny):
     """A camera width (or height) of 0 turned the image-size check off silently, and -5 passed with
@@ -2702,3 +2703,21 @@ def test_a_train_run_refused_leaves_no_folder_behind(sim, tmp_path, capsys):
     expect_cli_error([*train, "--preset", "paper", "--init", shipped_checkpoint("R1"), "--out", tmp_path / "b"],
                      capsys, "has another model config")
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+@pytest.mark.parametrize("which", ["camera", "radar"])
+def test_a_file_name_with_a_nul_is_a_skip_naming_it(which, tiny):
+    """A sample_data filename holding a NUL character ended the whole root in an internal error ("embedded null byte",
+    probe 108). The record is left out naming it, and the other frames load."""
+    from hybrid_calib.data.files import check_regular_file
+    from hybrid_calib.errors import DataError
+
+    sd = (tiny.cam_sd if which == "camera" else tiny.radar_sd)[1]
+    sd["filename"] += "\x00.jpg"
+    tiny.rewrite_table("sample_data")
+    loaded, skipped = _loaded(tiny)
+    assert len(loaded) == 2 and skipped, skipped  # left out at indexing (the frames renumber), its sample named
+    assert "holds a NUL character" in skipped[0].reason and skipped[0].token == sd["token"], skipped[0]
+    assert skipped[0].path.endswith("sample_data.json"), skipped[0]
+    with pytest.raises(DataError, match="has a path no file can have"):  # any other reader of such a path
+        check_regular_file(str(tiny.root) + "/a\x00b", "radar file", "tok")

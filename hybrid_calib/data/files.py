@@ -133,7 +133,11 @@ def check_regular_file(path: str | Path, what: str, token: str | None = None) ->
     """``DataError`` naming ``path`` when it exists but is not a regular file (after following links): reading a
     named pipe (FIFO) blocked the job for ever, a directory or a device is not a data file either. A missing
     path raises ``FileNotFoundError`` (each reader says what to do about it)."""
-    mode = os.stat(path).st_mode
+    try:
+        mode = os.stat(path).st_mode
+    except ValueError as e:  # "embedded null byte": a name no file has (probe 108: an internal error)
+        raise DataError(f"{what} has a path no file can have ({e}): {str(path)!r}; fix the record that names it",
+                        path=repr(str(path)), token=token) from None
     if stat.S_ISREG(mode):
         return
     kind = ("a named pipe (FIFO)" if stat.S_ISFIFO(mode) else "a directory" if stat.S_ISDIR(mode)

@@ -1045,6 +1045,9 @@ def _sim_pose_or_reason(node) -> tuple[np.ndarray | None, str]:
     return T, ""
 
 
+MAX_IMAGE_PX = 100_000  # an image side beyond this is not a camera's (nuScenes: 1600 x 900)
+
+
 def _image_size_field(cam: dict, table: Path) -> tuple[int, int]:
     """A camera sample_data record's ``width`` / ``height``, pixels: positive whole numbers, 0 where unknown (absent
     or null, or both 0 as in the devkit's radar records; the size is then read from the image file). ``DataError``
@@ -1054,14 +1057,16 @@ def _image_size_field(cam: dict, table: Path) -> tuple[int, int]:
     for key in ("width", "height"):
         value = cam.get(key)
         value = 0 if value is None else value
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+        # (a float's finiteness; an int beyond int64 made np.isfinite a TypeError: probe 108, an internal error)
+        if (isinstance(value, bool) or not isinstance(value, (int, float))
+                or (isinstance(value, float) and not math.isfinite(value))):
             raise DataError(f"sample_data field {key!r} is {value!r}, expected an integer number of pixels (or 0 / "
                             "null when unknown); the table does not follow the nuScenes schema: fix or re-extract it",
                             path=str(table), token=cam["token"])
-        if value < 0 or value != int(value):
-            raise DataError(f"sample_data field {key!r} is {value!r}, expected a positive whole number of pixels (or "
-                            "0 / null when unknown); fix the record or re-extract the tables", path=str(table),
-                            token=cam["token"])
+        if value < 0 or value > MAX_IMAGE_PX or value != int(value):
+            raise DataError(f"sample_data field {key!r} is {value!r}, expected a positive whole number of pixels up to "
+                            f"{MAX_IMAGE_PX} (or 0 / null when unknown); fix the record or re-extract the tables",
+                            path=str(table), token=cam["token"])
         size.append(int(value))
     for zero, given, (a, b) in (("width", "height", size), ("height", "width", size[::-1])):
         if a == 0 and b > 0 and cam.get(zero) is not None:

@@ -156,9 +156,11 @@ def load_table(vdir: Path, name: str, required_fields: Iterable[str] = ("token",
     need = frozenset(required)
     typed = tuple(k for k in required if _field_kind(k) is not None)
     types = tuple(_field_kind(k) for k in typed)
+    named = "filename" in need  # a NUL in a file name stopped the whole root at the first frame (probe 108)
     kept, errors = [], []
     for i, rec in enumerate(records):
-        if type(rec) is dict and rec.keys() >= need and tuple(map(type, map(rec.__getitem__, typed))) == types:
+        if (type(rec) is dict and rec.keys() >= need and tuple(map(type, map(rec.__getitem__, typed))) == types
+                and not (named and "\x00" in rec["filename"])):
             kept.append(rec)
             continue
         try:
@@ -191,6 +193,9 @@ def _check_record(name: str, i: int, rec, required: tuple[str, ...], path: Path)
             raise DataError(f"table {name!r} record {i} field {k!r} is {rec[k]!r} ({type(rec[k]).__name__}), "
                             f"expected {kind.__name__}; the table does not follow the nuScenes schema: fix or "
                             "re-extract it", path=str(path), token=_token(rec) if k != "token" else None)
+    if "filename" in required and "\x00" in rec["filename"]:
+        raise DataError(f"table {name!r} record {i} field 'filename' is {rec['filename']!r}: it holds a NUL character, "
+                        "which no file name has; fix or re-extract the table", path=str(path), token=_token(rec))
 
 
 def _within(off: tuple) -> bool:
