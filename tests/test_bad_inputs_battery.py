@@ -2721,3 +2721,19 @@ def test_a_file_name_with_a_nul_is_a_skip_naming_it(which, tiny):
     assert skipped[0].path.endswith("sample_data.json"), skipped[0]
     with pytest.raises(DataError, match="has a path no file can have"):  # any other reader of such a path
         check_regular_file(str(tiny.root) + "/a\x00b", "radar file", "tok")
+
+
+def test_a_record_pointed_at_the_next_frames_file_is_the_one_left_out(tiny):
+    """Frame 1's camera record naming frame 2's image had kept frame 1 (its camera 500 ms after its radar) and left
+    frame 2, the right pairing, out as "reads the same sensor file" (probe 108). The file's name carries its
+    record's timestamp: the record it does not belong to is left out, naming the fix."""
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+
+    tiny.cam_sd[1]["filename"] = tiny.cam_sd[2]["filename"]
+    tiny.rewrite_table("sample_data")
+    ds = NuScenesRadarCamera(tiny.root, tiny.version)
+    kept = [ds.frames[i].camera_sd["token"] for i in range(len(ds.frames))]
+    assert kept == [tiny.cam_sd[0]["token"], tiny.cam_sd[2]["token"]], kept
+    (skip,) = [s for s in ds.skipped if "names the file" in s.reason]
+    for text in (tiny.cam_sd[1]["token"], tiny.cam_sd[2]["filename"], "fix that record's filename in sample_data.json"):
+        assert text in skip.reason, (text, skip.reason)

@@ -328,21 +328,34 @@ class NuScenesRadarCamera:
         """``frames`` without those whose camera or radar keyframe is a file an earlier frame reads already (each
         said in the index's skips): tables that list one recording twice (a scene copied under new scene and log
         tokens, pointing at the same files) were fused as one drive of twice the frames, the duplicates counted as
-        independent measurements (probe 9: a smaller 1-sigma, a lever arm over its turning-frames gate)."""
+        independent measurements (probe 9: a smaller 1-sigma, a lever arm over its turning-frames gate). Of two
+        frames reading one file, the one whose record's timestamp the file's name carries (nuScenes names a file
+        ``..__CHANNEL__<timestamp>.ext``) is kept: a record pointed at the next frame's image had kept the wrong
+        pairing (the camera 400 ms after its radar) and left the right one out (probe 108)."""
         first: dict[str, FrameRef] = {}
-        out = []
+        out: dict[str, FrameRef] = {}  # sample token -> frame, in the tables' order
         for ref in frames:
             files = [sd.get("filename") for sd in (ref.camera_sd, ref.radar_sd)]
             dup = next((first[f] for f in files if f and f in first), None)
-            if dup is not None:  # a vehicle all of whose samples are another's is named (probe 94: it vanished)
+            shared = {f for f in files if f and f in first}
+            if dup is not None and _names_its_file(ref, shared) and not _names_its_file(dup, shared):
+                del out[dup.sample_token]  # the earlier frame points at this one's file: it is the one left out
+                first = {f: r for f, r in first.items() if r is not dup}
+                wrong = next(sd for sd in (dup.camera_sd, dup.radar_sd) if sd.get("filename") in files)
+                self._left_out(dup, f"sample {dup.sample_token} (scene {dup.scene_name}): its sample_data record "
+                                    f"{wrong.get('token')} names the file {wrong.get('filename')}, whose name "
+                                    f"carries the timestamp of sample {ref.sample_token}'s record, not its own "
+                                    f"({wrong.get('timestamp')}): fix that record's filename in sample_data.json")
+                self.duplicates[dup.sample_token] = ref.sample_token
+            elif dup is not None:  # a vehicle all of whose samples are another's is named (probe 94: it vanished)
                 self._left_out(ref, f"sample {ref.sample_token} (scene {ref.scene_name}) reads the same sensor file "
                                     f"as sample {dup.sample_token} (scene {dup.scene_name}): the tables list one "
                                     "recording twice; its frame is read once")
                 self.duplicates[ref.sample_token] = dup.sample_token
                 continue
-            first.update({f: ref for f in files if f})
-            out.append(ref)
-        return out
+            first.update({f: ref for f in [sd.get("filename") for sd in (ref.camera_sd, ref.radar_sd)] if f})
+            out[ref.sample_token] = ref
+        return list(out.values())
 
     def _keyframes_of_no_sample(self) -> SkipRecord | None:
         """The run's camera and radar keyframes whose sample is not in sample.json, as one record (None if none)."""
@@ -913,6 +926,21 @@ class NuScenesRadarCamera:
             return factory_cam, factory_radar
         T_ego_radar_nom = _sim_nominal_T_ego_radar(rec, self.radar_channel)
         return T_ego_cam, (T_ego_radar if T_ego_radar_nom is None else T_ego_radar_nom)
+
+
+_NAMED_STAMP = re.compile(r"__(\d+)\.[A-Za-z0-9.]+$")  # nuScenes: samples/CHANNEL/<log>__CHANNEL__<timestamp>.ext
+
+
+def _names_its_file(ref: FrameRef, shared: set) -> bool:
+    """Whether each of ``ref``'s keyframe files among ``shared`` (names another frame reads too) carries ``ref``'s own
+    record timestamp in its name; False where a name carries none (then neither frame is preferred)."""
+    for sd in (ref.camera_sd, ref.radar_sd):
+        name = sd.get("filename")
+        if name in shared:
+            m = _NAMED_STAMP.search(str(name))
+            if m is None or int(m.group(1)) != sd.get("timestamp"):
+                return False
+    return True
 
 
 def _check_channel_file(sd: dict, channel: str, table: Path, root: Path | None = None) -> None:
