@@ -2737,3 +2737,54 @@ def test_a_record_pointed_at_the_next_frames_file_is_the_one_left_out(tiny):
     (skip,) = [s for s in ds.skipped if "names the file" in s.reason]
     for text in (tiny.cam_sd[1]["token"], tiny.cam_sd[2]["filename"], "fix that record's filename in sample_data.json"):
         assert text in skip.reason, (text, skip.reason)
+
+
+def test_a_lone_surrogate_in_a_table_string_is_a_skip_naming_it(tiny, capsys):
+    """JSON allows a lone "\\ud800" escape; it decodes to a str nothing can print or open: a file name and a log's
+    vehicle holding one ended inspect and calibrate in an internal error (probe 108). The record is left out naming
+    its table, field and token; a pair of surrogates (an emoji) is text and reads."""
+    tiny.cam_sd[1]["filename"] += "\ud800"
+    tiny.rewrite_table("sample_data")
+    loaded, skipped = _loaded(tiny)
+    assert len(loaded) == 2 and skipped, skipped
+    assert "field 'filename' holds a lone UTF-16 surrogate" in skipped[0].reason, skipped[0]
+    assert skipped[0].token == tiny.cam_sd[1]["token"] and skipped[0].path.endswith("sample_data.json")
+    tiny.tables["log"][0]["vehicle"] = "car\ud800"  # every sample's vehicle: nothing left to calibrate, said
+    tiny.rewrite_table("log")
+    rc, err = run_cli(["inspect", "--data", tiny.root, "--version", tiny.version], capsys)
+    assert rc in (0, 2) and "field 'vehicle' holds a lone UTF-16 surrogate" in capsys.readouterr().out + err, err
+    tiny.cam_sd[1]["filename"] = tiny.cam_sd[1]["filename"][:-1]
+    tiny.rewrite_table("sample_data")
+    tiny.tables["log"][0]["vehicle"] = "car \U0001F697"  # written as the escapes \ud83d\ude97: not lone
+    tiny.rewrite_table("log")
+    assert "\\ud83d\\ude97" in (tiny.vdir / "log.json").read_text()
+    loaded, skipped = _loaded(tiny)
+    assert len(loaded) == 3 and not skipped, skipped
+
+
+def test_max_frames_is_named_when_the_frames_it_keeps_do_not_read(tiny):
+    """With max_frames=2 and frames 0-1 unreadable the error read as if the root had no readable frame (probe 108)."""
+    from hybrid_calib.errors import DataError
+    from hybrid_calib.hybrid import HybridConfig
+    from hybrid_calib.hybrid.drives import open_drives
+
+    for sd in tiny.cam_sd[:2]:
+        tiny.path(sd).write_bytes(b"")
+    with pytest.raises(DataError, match=r"only the first 2 of its 3 frames were tried \(max_frames=2\)"):
+        open_drives(tiny.root, tiny.version, HybridConfig(method="pure", max_frames=2), lidar=False)
+    _, drives = open_drives(tiny.root, tiny.version, HybridConfig(method="pure"), lidar=False)
+    assert len(drives) == 1
+
+
+def test_a_sample_left_out_at_indexing_is_said_by_a_calibration(tiny):
+    """A keyframe record the index leaves out (here: no filename) was only in result.json; a calibration took the
+    next frames in its place and said nothing on the console (probe 108)."""
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+    from hybrid_calib.data.summary import calibration_notes
+
+    del tiny.cam_sd[1]["filename"]
+    tiny.rewrite_table("sample_data")
+    ds = NuScenesRadarCamera(tiny.root, tiny.version)
+    (line,) = [n for n in calibration_notes(ds) if "left out, with no usable keyframe record" in n]
+    assert "1 sample(s)" in line and "lacks field(s) ['filename']" in line and "frames_skipped" in line, line
+    assert not [n for n in calibration_notes(ds, ["another-car"]) if "no usable keyframe" in n]

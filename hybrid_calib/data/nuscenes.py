@@ -215,6 +215,8 @@ class NuScenesRadarCamera:
         # log vehicle -> its samples the index left out for lacking a camera or radar keyframe: a vehicle of the
         # root with no frame at all (its car has no RADAR_FRONT) is said, not silently absent from the result
         self.lacking_keyframes: dict[str, list[SkipRecord]] = {}
+        # those of them with no usable camera or radar keyframe record (a calibration says them: probe 108)
+        self.no_keyframe: dict[str, list[SkipRecord]] = {}
         # samples the index left out that belong to no vehicle (their scene is not in scene.json, or its log is not
         # in log.json): a calibration lists no vehicle for them, so it says them (probe 42: a vehicle vanished, rc 0)
         self.vehicleless: list[SkipRecord] = []
@@ -308,6 +310,7 @@ class NuScenesRadarCamera:
                     if not two:  # (two keyframes are among the index's problems already: said once)
                         self._index_skips.append(skip)
                     self.lacking_keyframes.setdefault(log["vehicle"], []).append(skip)
+                    self.no_keyframe.setdefault(log["vehicle"], []).append(skip)
                     continue
                 frames.append(FrameRef(sample["token"], scene["name"], scene["token"], log["token"],
                                        log["vehicle"], cam, rad))

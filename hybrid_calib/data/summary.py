@@ -585,6 +585,12 @@ def calibration_notes(ds, vehicles=None) -> list[str]:
         out.append(f"note: {len(dup)} sample(s) read the same sensor files as earlier samples (first: {first[0]}, as "
                    f"{first[1]}): the tables list one recording twice; each frame is read once (hybrid-calib inspect "
                    "lists them)")
+    for vehicle, skips in sorted(getattr(ds, "no_keyframe", {}).items()):  # inspect listed them; a calibration had
+        # taken the next frames in their place in silence (probe 108)
+        if vehicles is None or vehicle in vehicles:
+            more = f" and {len(skips) - 1} more" if len(skips) > 1 else ""
+            out.append(f"vehicle {vehicle}: {len(skips)} sample(s) left out, with no usable keyframe record ("
+                       f"{skips[0].reason}{more}); the result's frames_skipped lists them")
     if gap := timestamp_unit_warning(ds):  # inspect said it; a calibration read time from them silently
         out.append(f"{gap}: the radar mount monitor, its Doppler pairs and the motion constraint read time from them; "
                    "fix the tables before trusting this calibration")

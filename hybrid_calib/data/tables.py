@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from collections.abc import Iterable
 from pathlib import Path, PurePosixPath
 
@@ -138,7 +139,12 @@ def load_table(vdir: Path, name: str, required_fields: Iterable[str] = ("token",
                         f"{sorted(REQUIRED_TABLES)}; re-extract the dataset's metadata archive", path=str(path))
     try:
         with open(path, encoding="utf-8-sig") as f:  # a UTF-8 byte order mark (some editors write one) is read past
-            records = json.load(f)
+            text = f.read()
+        records = json.loads(text)
+        # a lone UTF-16 surrogate escape ("\ud800") decodes to a str no file name or output can encode: an internal
+        # error where it was printed or used as a path (probe 108); its records are checked one by one below
+        lone = ("\\ud" in text or "\\uD" in text) and _LONE_SURROGATE.search(text) is not None
+        del text
     except json.JSONDecodeError as e:
         raise DataError(f"table {name!r} is not valid JSON ({e.msg} at line {e.lineno} column {e.colno}); "
                         "the file is corrupt or truncated, re-extract it", path=str(path)) from None
@@ -160,7 +166,7 @@ def load_table(vdir: Path, name: str, required_fields: Iterable[str] = ("token",
     kept, errors = [], []
     for i, rec in enumerate(records):
         if (type(rec) is dict and rec.keys() >= need and tuple(map(type, map(rec.__getitem__, typed))) == types
-                and not (named and "\x00" in rec["filename"])):
+                and not (named and "\x00" in rec["filename"]) and not (lone and _unencodable(rec))):
             kept.append(rec)
             continue
         try:
@@ -193,9 +199,30 @@ def _check_record(name: str, i: int, rec, required: tuple[str, ...], path: Path)
             raise DataError(f"table {name!r} record {i} field {k!r} is {rec[k]!r} ({type(rec[k]).__name__}), "
                             f"expected {kind.__name__}; the table does not follow the nuScenes schema: fix or "
                             "re-extract it", path=str(path), token=_token(rec) if k != "token" else None)
+    if (key := _unencodable(rec)) is not None:
+        raise DataError(f"table {name!r} record {i} field {key!r} holds a lone UTF-16 surrogate escape (\\ud800 .. "
+                        "\\udfff), which is not Unicode text; fix or re-extract the table", path=str(path),
+                        token=_token(rec) if key != "token" else None)
     if "filename" in required and "\x00" in rec["filename"]:
         raise DataError(f"table {name!r} record {i} field 'filename' is {rec['filename']!r}: it holds a NUL character, "
                         "which no file name has; fix or re-extract the table", path=str(path), token=_token(rec))
+
+
+# a high surrogate escape not followed by a low one, or a low one not preceded by a high one
+_LONE_SURROGATE = re.compile(r"\\u[dD][89abAB][0-9a-fA-F]{2}(?!\\u[dD][c-fC-F][0-9a-fA-F]{2})"
+                             r"|(?<!\\u[dD][89abAB][0-9a-fA-F]{2})\\u[dD][c-fC-F][0-9a-fA-F]{2}")
+
+
+def _unencodable(rec) -> str | None:
+    """The first field of a record (its key) whose value, or the key itself, holds a lone surrogate; None if none."""
+    if not isinstance(rec, dict):
+        return None
+    for k, v in rec.items():
+        try:
+            json.dumps([k, v], ensure_ascii=False).encode("utf-8")
+        except UnicodeEncodeError:
+            return k
+    return None
 
 
 def _within(off: tuple) -> bool:

@@ -130,7 +130,7 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
             if not idx:
                 outside_split.append(vehicle)
                 continue
-        idx = idx[: conf.max_frames] if conf.max_frames > 0 else idx
+        n_all, idx = len(idx), (idx[: conf.max_frames] if conf.max_frames > 0 else idx)
         f, first_error = None, None
         for i in idx:  # the first readable frame gives the extrinsics
             try:
@@ -140,8 +140,10 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
                 first_error = first_error or e
                 continue
         if f is None:
+            cut = (f"; only the first {len(idx)} of its {n_all} frames were tried (max_frames={conf.max_frames}): "
+                   "raise max_frames, or fix these files" if len(idx) < n_all else "")  # probe 108: read as none at all
             reason = (f"vehicle {vehicle}: no readable frame ({len(idx)} frame(s) tried; first: "
-                      f"{first_error if first_error is not None else '-'})")
+                      f"{first_error if first_error is not None else '-'}){cut}")
             if unreadable is None:
                 raise DataError(reason, path=str(data))
             unreadable[vehicle] = reason
