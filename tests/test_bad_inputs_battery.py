@@ -1155,8 +1155,10 @@ def _inspect(tiny, *extra) -> list:
 
 
 @pytest.mark.parametrize("argv,needles", [
-    (["--radar", "CAM_FRONT"], ["'CAM_FRONT' (--radar) is a camera", "radar channels present: ['RADAR_FRONT']"]),
-    (["--camera", "RADAR_FRONT"], ["'RADAR_FRONT' (--camera) is a radar", "camera channels present: ['CAM_FRONT']"]),
+    (["--radar", "CAM_FRONT"], ["'CAM_FRONT' (the radar channel: inspect's --radar) is a camera",
+                                "radar channels present: ['RADAR_FRONT']"]),
+    (["--camera", "RADAR_FRONT"], ["'RADAR_FRONT' (the camera channel: inspect's --camera) is a radar",
+                                   "camera channels present: ['CAM_FRONT']"]),
     (["--set", "load_lidar=true", "lidar_channel=RADAR_FRONT"], ["'RADAR_FRONT' (lidar_channel) is a radar"]),
     # a root without the channel: the message says which ones there are and that the other commands take the front
     # pair only (it told to rename channels in sensor.json, which left every frame refused: probe 34)
@@ -1180,7 +1182,8 @@ def test_a_channel_named_twice_in_sensor_json_is_said_and_modalities_read_in_any
     assert rc == 0, err  # "Radar" is a radar
     tiny.tables["sensor"].insert(0, dict(token="sensor_dup", channel="RADAR_FRONT", modality="camera"))
     tiny.rewrite_table("sensor")
-    err = expect_cli_error(_inspect(tiny), capsys, "'RADAR_FRONT' (--radar) is named by several sensor records",
+    err = expect_cli_error(_inspect(tiny), capsys,
+                           "'RADAR_FRONT' (the radar channel: inspect's --radar) is named by several",
                            "modalities camera and radar", tiny.vdir / "sensor.json")
     assert _one_paragraph(err)
 
@@ -2788,3 +2791,25 @@ def test_a_sample_left_out_at_indexing_is_said_by_a_calibration(tiny):
     (line,) = [n for n in calibration_notes(ds) if "left out, with no usable keyframe record" in n]
     assert "1 sample(s)" in line and "lacks field(s) ['filename']" in line and "frames_skipped" in line, line
     assert not [n for n in calibration_notes(ds, ["another-car"]) if "no usable keyframe" in n]
+
+
+def test_a_name_with_a_control_character_is_refused_naming_it(tiny, capsys):
+    """A log's vehicle "car\\nFAKE LINE: inconclusive" forged a line in every command's output (probe 108). The small
+    tables' names (vehicle, scene name, sensor channel) with a control character are refused, naming the record."""
+    tiny.tables["log"][0]["vehicle"] = "car\nFAKE LINE: inconclusive"
+    tiny.rewrite_table("log")
+    err = expect_cli_error(["inspect", "--data", tiny.root, "--version", tiny.version], capsys,
+                           "field 'vehicle' is 'car\\nFAKE LINE: inconclusive': it holds a control character",
+                           "log.json")
+    assert "\nFAKE LINE" not in err
+
+
+def test_a_file_name_with_backslashes_is_said_as_such(tiny):
+    """A sample_data filename written with Windows separators read "not downloaded or deleted (a partial download)"
+    (probe 108)."""
+    sd = tiny.cam_sd[1]
+    sd["filename"] = sd["filename"].replace("/", "\\")
+    tiny.rewrite_table("sample_data")
+    (skip,) = skips_of(tiny)
+    assert "written with backslashes (Windows separators)" in skip.reason and "partial download" not in skip.reason, \
+        skip.reason

@@ -112,6 +112,10 @@ def missing_folder_words(path: str | Path) -> str:
             what = "it is" if link == Path(path) else f"its folder {link.parent.name}/{link.name} is"
             return (f"; {what} a symbolic link to {target}, which does not exist (the store it points into is not "
                     "mounted, or was moved): mount it or fix the links")
+    if "\\" in Path(path).name and (fixed := Path(str(path).replace("\\", "/"))).exists():  # probe 108: read as a
+        # partial download
+        return (f"; its name is written with backslashes (Windows separators), and {fixed.parent.name}/{fixed.name} "
+                "is there: nuScenes' file names use '/'; fix the filename in sample_data.json")
     folder = Path(path).parent
     if folder.is_dir():  # the channel is there, not this file (probe 101: "check the dataset root" for 5 of 41)
         try:

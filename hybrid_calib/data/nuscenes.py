@@ -193,7 +193,9 @@ class NuScenesRadarCamera:
                        "--depth, or --set lidar.enabled=false")
                 raise DataError(f"channel {ch!r} is not in sensor.json; {kind} channels present: {same or 'none'}"
                                 f"{how}", path=str(self.tables.path("sensor")))
-        for ch, modality, option in ((radar_channel, "radar", "--radar"), (camera_channel, "camera", "--camera"),
+        # (inspect's options: the other commands read RADAR_FRONT and CAM_FRONT; probe 108 met "(--radar)" in calibrate)
+        for ch, modality, option in ((radar_channel, "radar", "the radar channel: inspect's --radar"),
+                                     (camera_channel, "camera", "the camera channel: inspect's --camera"),
                                      (self.conf.lidar_channel, "lidar", "lidar_channel")):
             found = self.tables.modality(ch)
             if ch in wanted and "/" in found:  # a second record of the channel read as "a camera, not a radar"

@@ -163,10 +163,12 @@ def load_table(vdir: Path, name: str, required_fields: Iterable[str] = ("token",
     typed = tuple(k for k in required if _field_kind(k) is not None)
     types = tuple(_field_kind(k) for k in typed)
     named = "filename" in need  # a NUL in a file name stopped the whole root at the first frame (probe 108)
+    names = tuple(k for k in _NAME_FIELDS if k in need)  # the small tables' names (printed in every line of a run)
     kept, errors = [], []
     for i, rec in enumerate(records):
         if (type(rec) is dict and rec.keys() >= need and tuple(map(type, map(rec.__getitem__, typed))) == types
-                and not (named and "\x00" in rec["filename"]) and not (lone and _unencodable(rec))):
+                and not (named and "\x00" in rec["filename"]) and not (lone and _unencodable(rec))
+                and not (names and any(_CONTROL.search(rec[k]) for k in names))):
             kept.append(rec)
             continue
         try:
@@ -203,11 +205,19 @@ def _check_record(name: str, i: int, rec, required: tuple[str, ...], path: Path)
         raise DataError(f"table {name!r} record {i} field {key!r} holds a lone UTF-16 surrogate escape (\\ud800 .. "
                         "\\udfff), which is not Unicode text; fix or re-extract the table", path=str(path),
                         token=_token(rec) if key != "token" else None)
+    for k in (k for k in _NAME_FIELDS if k in required):
+        if _CONTROL.search(rec[k]):
+            raise DataError(f"table {name!r} record {i} field {k!r} is {rec[k]!r}: it holds a control character (a "
+                            "newline, a tab, ...), which no name in the tables has; fix or re-extract the table",
+                            path=str(path), token=_token(rec))
     if "filename" in required and "\x00" in rec["filename"]:
         raise DataError(f"table {name!r} record {i} field 'filename' is {rec['filename']!r}: it holds a NUL character, "
                         "which no file name has; fix or re-extract the table", path=str(path), token=_token(rec))
 
 
+# the names a run prints in its lines (a vehicle named "car\nFAKE LINE" forged a line of output: probe 108)
+_NAME_FIELDS = ("vehicle", "name", "channel")
+_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
 # a high surrogate escape not followed by a low one, or a low one not preceded by a high one
 _LONE_SURROGATE = re.compile(r"\\u[dD][89abAB][0-9a-fA-F]{2}(?!\\u[dD][c-fC-F][0-9a-fA-F]{2})"
                              r"|(?<!\\u[dD][89abAB][0-9a-fA-F]{2})\\u[dD][c-fC-F][0-9a-fA-F]{2}")
