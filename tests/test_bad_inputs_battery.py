@@ -2813,3 +2813,21 @@ def test_a_file_name_with_backslashes_is_said_as_such(tiny):
     (skip,) = skips_of(tiny)
     assert "written with backslashes (Windows separators)" in skip.reason and "partial download" not in skip.reason, \
         skip.reason
+
+
+def test_a_calibration_keeps_what_it_said_of_the_tables_in_its_result(sim_copy, tmp_path, capsys):
+    """A sample whose scene_token names no scene was said on the console only; result.json named it nowhere (probe
+    108). The run's notes on the tables are kept in result.json's ``notes`` (both the oracle's and the learned
+    methods' runs), and load back."""
+    from hybrid_calib.calib.result import CalibrationRun
+
+    root, _ = sim_copy
+    path, samples = _table(root, "sample")
+    samples[-1]["scene_token"] = "0" * 32
+    path.write_text(json.dumps(samples))
+    for extra in ([], ["--method", "pure", "--start", "R1"]):
+        out = tmp_path / f"out{len(extra)}"
+        rc, err = run_cli(_calibrate(root, out, "--max-frames", "2", *extra), capsys)
+        assert rc == 0 and "samples of no vehicle are not calibrated" in err, err
+        notes = CalibrationRun.load(out).notes
+        assert any("samples of no vehicle are not calibrated" in n and samples[-1]["token"] in n for n in notes), notes

@@ -98,7 +98,7 @@ class VehicleInput:
 
 
 def _load_oracle(data, version: str, conf: CalibrateConfig, progress: bool = True, say: bool = True,
-                 frameless: dict[str, str] | None = None) -> dict[str, VehicleInput]:
+                 frameless: dict[str, str] | None = None, said: list | None = None) -> dict[str, VehicleInput]:
     """``say``: print the root's warnings and the reference's note (a replay for a report page, one per vehicle,
     said them again each time: probe 76). ``frameless``, when given, gets each vehicle of the tables the index left
     with no frame (vehicle -> why: ``NuScenesRadarCamera.frameless_vehicles``; probe 94: it vanished, rc 0)."""
@@ -115,6 +115,8 @@ def _load_oracle(data, version: str, conf: CalibrateConfig, progress: bool = Tru
     # a vehicle missing from the result, poses the motion compensation reads
     for line in calibration_notes(ds, conf.vehicles) if say else ():
         print(line, file=sys.stderr)
+        if said is not None:  # the result keeps them (CalibrationRun.notes)
+            said.append(line)
     if frameless is not None:
         frameless.update(ds.frameless_vehicles(conf.vehicles))
     out: dict[str, VehicleInput] = {}
@@ -581,8 +583,9 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
     stamp_data = None if data is None else data_stamp(data, version)
     absent: dict[str, str] = {}
     unknown: dict[str, str] = {}  # files of a vehicle the root lacks, a vehicle of no frame: failed, the others run
+    said: list[str] = []
     if correspondences == "oracle":
-        inputs = _load_oracle(data, version, conf, progress, frameless=unknown)
+        inputs = _load_oracle(data, version, conf, progress, frameless=unknown, said=said)
     else:
         inputs = _load_dir(Path(correspondences), data, version, conf, absent, unknown)
     if not inputs and unknown:  # each vehicle asked for has no frame, or no file: why, as a run that fails them
@@ -598,7 +601,8 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
               f"calibrated ({', '.join(sorted(absent)[:5])}{', ...' if len(absent) > 5 else ''}): the export covered "
               "other vehicles or frames; export them too (hybrid-calib evaluate --split all) to calibrate them",
               file=sys.stderr)
-    run = CalibrationRun(str(Path(data).resolve()), version, str(correspondences), conf.mode)  # read from anywhere
+    run = CalibrationRun(str(Path(data).resolve()), version, str(correspondences), conf.mode,  # read from anywhere
+                         notes=said)
     run.vehicles_failed.update(unknown)
     # the vehicles an interrupted run finished (each vehicle's start and oracle rows are seeded by its name:
     # skipping them leaves the others' draws as they were)

@@ -647,12 +647,15 @@ class CalibrationRun:
     mode: str  # "window" | "batch"
     vehicles: dict[str, VehicleResult] = field(default_factory=dict)
     vehicles_failed: dict[str, str] = field(default_factory=dict)  # vehicle -> why it has no result (bad data)
+    # what the run said of the data before reading a frame (``data.summary.calibration_notes``: samples of no vehicle,
+    # ego poses that jump, ...): kept with the result, where the console's lines are lost (probe 108)
+    notes: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict:
         return {"schema": SCHEMA, "schema_version": SCHEMA_VERSION, "data": self.data, "version": self.version,
                 "correspondences": self.correspondences, "mode": self.mode,
                 "vehicles": {name: v.to_dict() for name, v in self.vehicles.items()},
-                "vehicles_failed": dict(self.vehicles_failed)}
+                "vehicles_failed": dict(self.vehicles_failed), "notes": list(self.notes)}
 
     def raise_if_none_done(self) -> None:
         """``DataError`` when every vehicle failed (the reasons, joined): nothing to write."""
@@ -671,9 +674,12 @@ class CalibrationRun:
         for key in ("data", "version", "correspondences", "mode"):  # paths and names: "data": 5 was an internal error
             if not isinstance(d[key], str):
                 raise TypeError(f'"{key}" is a JSON {type(d[key]).__name__}, not a string')
+        notes = d.get("notes") or []  # (absent in results written before it)
+        if not isinstance(notes, list) or not all(isinstance(n, str) for n in notes):
+            raise TypeError('"notes" is not a list of strings')
         return cls(d["data"], d["version"], d["correspondences"], d["mode"],
                    {name: VehicleResult.from_dict(v, name) for name, v in vehicles.items()},
-                   {str(k): str(v) for k, v in failed.items()})
+                   {str(k): str(v) for k, v in failed.items()}, list(notes))
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=2)

@@ -106,7 +106,8 @@ def trained_depth(checkpoint) -> str:
     return trained_with(meta.get("train_config"), path)
 
 
-def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable: dict | None = None):
+def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable: dict | None = None,
+                said: list | None = None):
     """(frames, {vehicle: Drive}) of a root, restricted to ``conf.vehicles``, the frames of
     ``conf.split`` (``learned.dataset.split_indices`` with ``conf.split_options``) and ``conf.max_frames``.
     A vehicle none of whose frames reads is a ``DataError`` (naming the first bad file), or, when
@@ -118,6 +119,8 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
                          options={**conf.data, **({"reference": conf.reference} if conf.reference else {})})
     for line in calibration_notes(frames, conf.vehicles):
         print(line, file=sys.stderr)
+        if said is not None:  # the result keeps them (CalibrationRun.notes)
+            said.append(line)
     simulated = bool(getattr(frames, "sim_vehicles", {}))
     keep = None if conf.split == "all" else set(split_indices(frames, conf.split, conf.split_options))
     drives, outside_split = {}, []

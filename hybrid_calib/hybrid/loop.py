@@ -700,8 +700,10 @@ class _Session:
         self.data, self.version, self.conf = data, version, conf
         self.runner, self.note, self.motion = None, "", None
         self.unreadable: dict[str, str] = {}  # vehicle -> why none of its frames reads
+        self.said: list[str] = []  # what opening the root said of its data (CalibrationRun.notes)
         if conf.method == "oracle":
-            self.frames, self.drives = open_drives(data, version, conf, lidar=False, unreadable=self.unreadable)
+            self.frames, self.drives = open_drives(data, version, conf, lidar=False, unreadable=self.unreadable,
+                                                   said=self.said)
             self._check_some_drive()
             return
         depth, self.note = resolve_depth(data, version, conf)
@@ -712,7 +714,7 @@ class _Session:
         check_depth_source(effective, data, given=bool(conf.depth) or (
             "chosen for a real root whose tables list a LIDAR_TOP, when no --depth is given" if depth else False))
         self.frames, self.drives = open_drives(data, version, conf, lidar=needs_lidar(effective),
-                                               unreadable=self.unreadable)
+                                               unreadable=self.unreadable, said=self.said)
         self._check_some_drive()
         self.runner = build_runner(ckpt, refine_checkpoint(conf.refine), self.frames, depth, conf.cache_dir,
                                    conf.depth_cache, conf.threads)
@@ -806,7 +808,7 @@ def run_calibration(data: str | Path, version: str, out: str | Path, conf: Hybri
         raise DataError("no vehicle to calibrate (check --set vehicles=... and the dataset)", path=str(data))
     mode = {"hybrid": "window", "oracle": "window", "pure": "network", "pure-avg": "average"}[conf.method]
     run = CalibrationRun(str(Path(data).resolve()), version, conf.method, mode,
-                         vehicles_failed=dict(session.unreadable))
+                         vehicles_failed=dict(session.unreadable), notes=list(session.said))
     done = VehicleProgress(out, data, version, conf.method, {**stamped, "data_stamp": stamp["digest"]},
                            fresh=overwrite)
     done.fill(run, list(session.drives), session.vehicle, on_vehicle, conf.progress)
