@@ -1114,11 +1114,13 @@ def test_a_cascade_missing_fits_in_both_stages_names_both():
     from types import SimpleNamespace
 
     from hybrid_calib.hybrid.loop import unfitted_reason
+    from hybrid_calib.hybrid.measurement import FITTED_KEYS
 
     def stage(path, export):
         return SimpleNamespace(ckpt=SimpleNamespace(path=path, export=export))
 
-    fitted = {"cov_scale": 1.0, "hybrid": {}, "ood": {}}
+    block = {k: 1.0 for k in FITTED_KEYS}
+    fitted = {"cov_scale": 1.0, "hybrid": block, "ood": {}}
     cascade = SimpleNamespace(**vars(stage("fine.json", {"cov_scale": 1.0})), coarse=stage("coarse.json", {}))
     why = unfitted_reason(cascade, "hybrid")
     assert "coarse.json (the cascade's first stage) has no fitted export.hybrid" in why, why
@@ -1126,7 +1128,31 @@ def test_a_cascade_missing_fits_in_both_stages_names_both():
     assert "ood.enabled=false" not in why  # that alone would not make the run trusted
     cascade = SimpleNamespace(**vars(stage("fine.json", fitted)), coarse=stage("coarse.json", {}))
     assert unfitted_reason(cascade, "hybrid").startswith("checkpoint coarse.json (the cascade's first stage)")
-    cascade = SimpleNamespace(**vars(stage("fine.json", {"cov_scale": 1.0, "hybrid": {}})),
+    cascade = SimpleNamespace(**vars(stage("fine.json", {"cov_scale": 1.0, "hybrid": block})),
                               coarse=stage("coarse.json", fitted))
     assert unfitted_reason(cascade, "pure-avg").endswith("--set ood.enabled=false, which the status then names)")
     assert unfitted_reason(cascade, "pure-avg", ood_enabled=False) == ""
+
+
+@pytest.mark.parametrize("block", [{}, "drive_std", "rows"], ids=["empty", "no-drive_std", "no-rows"])
+def test_an_export_hybrid_block_that_is_not_a_whole_fit_is_unfitted(block):
+    """An empty export.hybrid, or one lacking drive_std or rows, counted as fitted: its defaults (a drive error of 0)
+    read "recalibrate" by 3.1 deg on an unchanged radar at NEES 223 (probe 109). It is unfitted, naming what it lacks,
+    in a cascade's first stage too."""
+    from types import SimpleNamespace
+
+    from hybrid_calib.hybrid.loop import unfitted_reason
+    from hybrid_calib.hybrid.measurement import FITTED_KEYS
+
+    whole = {k: 1.0 for k in FITTED_KEYS}
+    part = {} if block == {} else {k: v for k, v in whole.items() if k != block}
+    ck = SimpleNamespace(ckpt=SimpleNamespace(path="c.json", export={"cov_scale": 1.0, "hybrid": part, "ood": {}}))
+    why = unfitted_reason(ck, "hybrid")
+    lacks = ", ".join(FITTED_KEYS) if block == {} else block
+    assert why.startswith(f"checkpoint c.json has no fitted export.hybrid (its block lacks {lacks})"), why
+    assert unfitted_reason(ck, "pure") == ""  # pure reads cov_scale only
+    whole_ck = SimpleNamespace(ckpt=SimpleNamespace(path="f.json", export={"cov_scale": 1.0, "hybrid": whole,
+                                                                             "ood": {}}))
+    assert unfitted_reason(whole_ck, "hybrid") == ""
+    cascade = SimpleNamespace(**vars(whole_ck), coarse=ck)
+    assert "c.json (the cascade's first stage) has no fitted export.hybrid" in unfitted_reason(cascade, "pure-avg")

@@ -115,7 +115,9 @@ def fitted(sim_root, tmp_path_factory):
     set_export_overrides(ck, {"ood": fit_ood(feats, "all", k=8, quantile=1.0).to_dict(),
                               # stand-ins for the fitted covariance and measurement models (without them a
                               # learned result is inconclusive for that reason: test_hybrid)
-                              "cov_scale": [1.0] * 6, "hybrid": {"rows": "none"}}, "fitted by the test")
+                              "cov_scale": [1.0] * 6, "hybrid": {
+                                  "rows": "none", "sigma_scale": 1.0, "shared_std": [0.0] * 6,
+                                  "prior_cov_scale": [1.0] * 6, "drive_std": [0.0] * 6}}, "fitted by the test")
     return ck, NetworkRunner(ck, frames, cache_dir=d / "cache", threads=1), drives
 
 

@@ -103,7 +103,7 @@ from hybrid_calib.hybrid.drives import (
     sweep_files_record,
     trained_depth,
 )
-from hybrid_calib.hybrid.measurement import MeasurementConfig, frame_inputs, prior_trusted
+from hybrid_calib.hybrid.measurement import MeasurementConfig, frame_inputs, prior_trusted, unfitted_keys
 from hybrid_calib.hybrid.motion import (
     MotionConfig,
     MotionGate,
@@ -462,7 +462,7 @@ def unfitted_reason(runner, method: str, ood_enabled: bool = True) -> str:
     read `weak` with no word of the test, while the README promised `inconclusive`)."""
     coarse = getattr(runner, "coarse", None)  # a cascade: its first stage's drive-common error enters too
     first = ""
-    if coarse is not None and method != "pure" and "hybrid" not in (coarse.ckpt.export or {}):
+    if coarse is not None and method != "pure" and unfitted_keys((coarse.ckpt.export or {}).get("hybrid")):
         # (measurement_config; probe 106: without it the refining stage's smaller one stood alone, the lateral std
         # 3.24 -> 1.20 cm, NEES 13.4, with no word)
         first = (f"checkpoint {coarse.ckpt.path} (the cascade's first stage) has no fitted export.hybrid, so the "
@@ -470,11 +470,15 @@ def unfitted_reason(runner, method: str, ood_enabled: bool = True) -> str:
     export = runner.ckpt.export or {}
     wanted = ("cov_scale", *(("hybrid",) if method != "pure" else ()), *(("ood",) if ood_enabled else ()))
     missing = [k for k in wanted if k not in export]
+    partial = unfitted_keys(export["hybrid"]) if "hybrid" in wanted and "hybrid" in export else []
+    if partial:  # a block, but not a fit: said with what it lacks
+        missing = [*missing[:1], "hybrid", *missing[1:]] if "cov_scale" in missing else ["hybrid", *missing]
     if not missing:
         return first
     how = {"cov_scale": "hybrid-calib evaluate --fit-uncertainty", "hybrid": "benchmarks/hybrid_fit.py --fit-into",
            "ood": "benchmarks/ood_fit.py --fit-into"}
-    words = (f"checkpoint {runner.ckpt.path} has no fitted {' / '.join('export.' + k for k in missing)}, so "
+    lacks = f" (its block lacks {', '.join(partial)})" if partial else ""
+    words = (f"checkpoint {runner.ckpt.path} has no fitted {' / '.join('export.' + k for k in missing)}{lacks}, so "
              + ("its covariance is not calibrated" if missing != ["ood"] else
                 "no frame was checked to be like the network's training drives")
              + f"; fit {' and '.join(how[k] for k in missing)} on validation drives")

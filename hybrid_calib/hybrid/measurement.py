@@ -76,6 +76,17 @@ class MeasurementConfig:
                               "drive_std": "[0, 100]", "trust_sigma_frac": "(0, 10]", "min_rows": "[1, 1e6]"})
 
 
+# what benchmarks/hybrid_fit.py writes into a checkpoint's export.hybrid: a block without one of them is not a fit (an
+# empty block read as fitted, its defaults a drive error of 0: "recalibrate" by 3.1 deg on an unchanged radar,
+# NEES 223; probe 109)
+FITTED_KEYS = ("rows", "sigma_scale", "shared_std", "prior_cov_scale", "drive_std")
+
+
+def unfitted_keys(block) -> list[str]:
+    """The ``FITTED_KEYS`` an ``export.hybrid`` block lacks (all of them when it is not an object)."""
+    return [k for k in FITTED_KEYS if not isinstance(block, dict) or k not in block]
+
+
 @dataclass(frozen=True)
 class FrameInput:
     """What one frame adds to the window: rows, an optional prior, and how they were weighted."""
