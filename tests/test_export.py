@@ -216,6 +216,9 @@ def test_untrusted_stale_and_misdirected_exports_are_refused(calibrated, tmp_pat
     (stale.parent / "data_stamp.json").write_text(json.dumps({"digest": "0" * 40}))
     exp = export_mounts([stale], tmp_path / "o2", which="trusted")
     assert exp.exported == [] and "computed from other data" in exp.vehicles["sim-veh-000"]["why"]
+    (stale.parent / "data_stamp.json").write_text('{"dig')  # damaged: read as no stamp, it exported (probe 109)
+    exp = export_mounts([stale], tmp_path / "o2b", which="trusted")
+    assert exp.exported == [] and "data_stamp.json is damaged" in exp.vehicles["sim-veh-000"]["why"], exp.vehicles
     # an estimate that decides no axis against the tolerance writes nothing: the record would be the tables'
     from hybrid_calib.calib.drift import AXIS_WORDS
 

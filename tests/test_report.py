@@ -400,6 +400,10 @@ def test_report_on_data_changed_since_the_result_shows_none_of_them(run_dir, tmp
         out = write_report(run / "result.json", tmp_path / "b.html", vehicle=name)
     assert "are not those" in _parse(out).ids["notes"]
     assert out.read_text().count("data:image/png") == 1  # only the 3-sigma bands (from result.json)
+    (run / "data_stamp.json").write_text('{"dig')  # damaged: it drew the other drive's pictures in silence (probe 109)
+    with pytest.warns(UserWarning, match="data_stamp.json is damaged"):
+        out = write_report(run / "result.json", tmp_path / "c.html", vehicle=name)
+    assert out.read_text().count("data:image/png") == 1
 
 
 def _variance(png: bytes) -> float:

@@ -784,12 +784,21 @@ def stored_digest(out: str | Path) -> str | None:
 
 def data_differ(out: str | Path, root: str | Path, version: str) -> bool:
     """Whether the data digest recorded beside a result (``out/DATA_STAMP``) differs from the data at ``root`` /
-    ``version`` now (``data.files.data_stamp``); False when it records none (export and report refuse, or leave out,
-    what such a result would draw from other data)."""
+    ``version`` now (``data.files.data_stamp``), or is damaged (it vouches for nothing: probe 109, export wrote a
+    mount computed from other data); False when it records none (export and report refuse, or leave out, what such a
+    result would draw from other data)."""
     from hybrid_calib.data.files import data_stamp
 
     stored = stored_digest(out)
-    return bool(stored) and stored != data_stamp(root, version)["digest"]
+    return stored is None or (bool(stored) and stored != data_stamp(root, version)["digest"])
+
+
+def stamp_words(out: str | Path) -> str:
+    """How the data stamp beside a result (``out/DATA_STAMP``) that ``data_differ`` refused reads, in words."""
+    if stored_digest(out) is None:
+        return (f"its {DATA_STAMP} is damaged, so it cannot show the data now to be those it was computed from; "
+                "restore the file, or")
+    return f"its {DATA_STAMP} differs from the data now:"
 
 
 RUN_ONLY = ("progress", "threads", "cache_dir", "depth_cache")  # config keys of how a run ran, not of what it gave

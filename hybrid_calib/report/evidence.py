@@ -234,10 +234,15 @@ def _data_changed(result_path: Path, root: Path, version: str) -> str:
     """Why the data at ``root`` / ``version`` are not those the result beside its ``data_stamp.json`` was computed
     from ("" when they are, or when it records no stamp): its pictures, rows and residuals would be drawn from
     other data next to its numbers (export refuses such a result for the same reason)."""
-    from hybrid_calib.calib.result import data_differ
+    from hybrid_calib.calib.result import data_differ, stored_digest
 
     if not data_differ(Path(result_path).parent, root, version):
         return ""
+    if stored_digest(Path(result_path).parent) is None:  # probe 109: read as "no stamp", the other drive drawn
+        return (f"{Path(result_path).parent / 'data_stamp.json'} is damaged, so whether the data at "
+                f"{root / version} are those {result_path} was computed from cannot be told, and no camera frames, "
+                "correspondences, residuals or attention are shown: they could come from other data; restore the "
+                "file, or rerun the calibration on the data as they are")
     return (f"the data at {root / version} are not those {result_path} was computed from (its data_stamp.json "
             "differs from the data now: re-simulated, re-downloaded, tables edited, or frame files added, removed or "
             "renamed), so no camera frames, correspondences, residuals or attention are shown: they could come "
