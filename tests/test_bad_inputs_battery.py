@@ -1685,14 +1685,48 @@ MANIFEST_HEAD = {"schema": "hybrid-calib/fleet-manifest/v1", "method": "oracle",
     ([], ['"jobs" is a JSON list']),
 ], ids=["entry-an-int", "entry-without-job", "job-record-incomplete", "jobs-a-list"])
 def test_fleet_out_manifest_with_malformed_entries(jobs, needles, sim, tmp_path, capsys):
-    """OUT/manifest.json entries edited by hand were an internal error (KeyError / TypeError), or accepted."""
-    root, _ = sim
+    """OUT/manifest.json entries edited by hand were an internal error (KeyError / TypeError), or accepted; then they
+    stopped the whole run ("move it away to start over", probe 109). Each is left out and said, the run goes on."""
+    root, frames = sim
     out = tmp_path / "fleet"
     out.mkdir()
     (out / "manifest.json").write_text(json.dumps({**MANIFEST_HEAD, "jobs": jobs}))
-    err = expect_cli_error(["fleet", "--data", root, "--out", out, "--no-plots", "--no-report"], capsys, *needles,
-                           "move it away to start over", out / "manifest.json")
-    assert _one_paragraph(err) and not (out / "vehicles").exists()
+    rc, err = run_cli(["fleet", "--data", root, "--out", out, "--no-plots", "--no-report", "--max-frames", "1"], capsys)
+    said = " ".join(json.loads((out / "summary.json").read_text())["notes"])  # printed as "note: ..." too
+    assert rc == 0, err
+    for needle in needles:
+        assert needle in said, (needle, said)
+    assert json.loads((out / "summary.json").read_text())["counts"]["done"] == len(frames)
+
+
+def test_a_damaged_fleet_manifest_costs_no_finished_vehicle(sim, tmp_path, capsys):
+    """A damaged OUT/manifest.json stopped the resumed run, and moving it away as advised recomputed every finished
+    vehicle although each vehicles/<id>/result.json was complete (probe 109: hours on a real fleet). The file is kept
+    aside, the finished vehicles are adopted from their folders (their result and job record), and said."""
+    import hashlib
+
+    root, frames = sim
+    out = tmp_path / "fleet"
+    argv = ["fleet", "--data", root, "--out", out, "--max-frames", "1", "--no-plots", "--no-report"]
+    rc, err = run_cli(argv, capsys)
+    assert rc == 0, err
+
+    def digests():
+        return {v: hashlib.sha256((out / "vehicles" / v / "result.json").read_bytes()).hexdigest() for v in frames}
+
+    before = digests()
+    text = (out / "manifest.json").read_text()
+    (out / "manifest.json").write_text(text[: len(text) // 2])
+    rc, err = run_cli(argv, capsys)
+    said = " ".join(json.loads((out / "summary.json").read_text())["notes"])
+    assert rc == 0 and digests() == before, said
+    assert (out / "manifest.damaged.json").read_text() == text[: len(text) // 2]
+    assert f"{len(frames)} vehicle(s) the manifest did not list are kept" in said, said
+    assert json.loads((out / "summary.json").read_text())["counts"]["done"] == len(frames)
+    # other options: not adopted, calibrated again
+    (out / "manifest.json").unlink()
+    rc, err = run_cli([*argv[:-4], "--max-frames", "2", "--no-plots", "--no-report"], capsys)
+    assert rc == 0 and digests() != before, err
 
 
 def test_fleet_reruns_a_damaged_result_of_an_earlier_runs_vehicle(sim, tmp_path, capsys):

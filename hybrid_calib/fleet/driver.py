@@ -71,6 +71,7 @@ def run_fleet(roots: list[str] | str | None, manifest: str | None, version: str,
         notes.append(f"the fleet prior holds no prior for any of the {len(jobs)} vehicle(s) (its vehicles: "
                      f"{named[:6]}{', ...' if len(named) > 6 else ''}; {why}): none is applied")
     m = Manifest.open(out / "manifest.json", jobs, method, seed)
+    notes += m.recovered
     if m.stale:
         notes.append(f"{len(m.stale)} vehicle(s) done by an earlier run are calibrated again: their root's data "
                      f"changed since ({', '.join(m.stale[:4])}{', ...' if len(m.stale) > 4 else ''})")

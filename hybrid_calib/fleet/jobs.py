@@ -321,13 +321,19 @@ def calibrate_job(job: Job) -> Path:
     return _plotted(job)
 
 
+JOB_RECORD = "job.json"  # beside a finished job's result: the job it is the result of (``Manifest.open`` adopts it)
+
+
 def _plotted(job: Job) -> Path:
     """The job's result path, after drawing its vehicle's plots when they are missing: a vehicle a resumed attempt
-    kept (probe 90: its result came back without the plots, and summary.json listed none, without a word)."""
+    kept (probe 90: its result came back without the plots, and summary.json listed none, without a word). Writes
+    ``JOB_RECORD``, so that a manifest lost or damaged since still knows the result for this job's."""
     from hybrid_calib.calib.result import CalibrationRun
+    from hybrid_calib.config import save_json_atomic
     from hybrid_calib.plots.calibration import draw_missing
 
     draw_missing(CalibrationRun.load(job.result_path), Path(job.out) / "plots")
+    save_json_atomic(Path(job.out) / JOB_RECORD, job.to_dict())
     return job.result_path
 
 

@@ -15,7 +15,11 @@ after the job wrote its result, before the manifest was saved); a job without on
 or stays ``failed`` (with its reason) until it is retried. Nothing done is recomputed, and a job id
 is never listed twice. A done job recorded with other result-defining options (another root, version,
 ``--set``/``--max-frames``, checkpoint or prior) is refused (``DataError`` naming the job and the
-options), not reported as this run's result.
+options), not reported as this run's result. A manifest that does not read is kept aside
+(``manifest.damaged.json``) and one entry that does not read is dropped, each said (``recovered``); a job the
+manifest does not list whose folder holds a complete result and the job record it was computed for
+(``jobs.JOB_RECORD``), of the same vehicle, data and options, is adopted as done: a damaged manifest had stopped
+the run ("move it away to start over"), and moving it away recomputed every finished vehicle (probe 109).
 
 Saving: one job per line (``json.dumps`` per entry, the C encoder: a 1000-job manifest, 1.9 MB,
 took 0.67 s against 1.09 s indented, on the shared 2-core box at load 8), at most every
@@ -61,6 +65,7 @@ class Manifest:
     jobs: dict[str, dict] = field(default_factory=dict)  # id -> entry (module doc)
     renamed: dict[str, str] = field(default_factory=dict)  # old id -> new id of a vehicle (``_follow_renames``)
     stale: list[str] = field(default_factory=list)  # done jobs whose root's data changed since (``_data_changed``)
+    recovered: list[str] = field(default_factory=list)  # what a damaged manifest cost, in words (module doc)
     save_every_s: float = 1.0  # the most often mark_running / record rewrite the file
     _next_save: float = field(default=float("-inf"), repr=False)  # and at most 1/5 of the driver's time
     _dirty: bool = field(default=False, repr=False)
@@ -72,28 +77,33 @@ class Manifest:
         another method or seed (its results would be mixed)."""
         path = Path(path)
         m = cls(path, method, seed)
+        doc = None
         if path.is_file():
             try:
                 doc = json.loads(path.read_text())
-                old = doc["jobs"]
-                if doc.get("schema") != SCHEMA:
-                    raise ValueError(f"schema {doc.get('schema')!r}")
+                if not isinstance(doc, dict) or doc.get("schema") != SCHEMA or "jobs" not in doc:
+                    raise ValueError(f"schema {doc.get('schema') if isinstance(doc, dict) else None!r}")
             except (OSError, ValueError, KeyError, TypeError, RecursionError) as e:
                 why = "nested too deeply" if isinstance(e, RecursionError) else f"{type(e).__name__}: {str(e)[:200]}"
-                raise DataError(f"fleet manifest unreadable ({why}); move it away to "
-                                "start over",
-                                path=str(path)) from None
+                doc, aside = None, _aside(path)
+                m.recovered.append(f"the fleet manifest {path} did not read ({why}): kept as {aside.name}, and the "
+                                   "jobs' folders read instead (a vehicle with its result and job record is kept)")
+        if doc is not None:
             if (doc.get("method"), doc.get("seed")) != (method, seed):
                 raise DataError(f"this OUT holds a fleet run of method {doc.get('method')!r}, seed {doc.get('seed')}; "
                                 f"pass the same --method/--seed or another --out", path=str(path))
-            m.jobs = _checked_jobs(old, path)
+            m.jobs = _checked_jobs(doc["jobs"], path, m.recovered)
         m.renamed = _follow_renames(m.jobs, jobs, path)
         stamps: dict = {}  # (root, version) -> data_stamp, computed once per root
+        adopted = 0
         for job in jobs:
             e = m.jobs.get(job.id)
             if e is None:
-                m.jobs[job.id] = {"job": job.to_dict(), "state": "pending", "reason": None, "file": None,
-                                  "attempts": 0, "wall_s": None, "cpu_s": None, "host": None, "result": None}
+                done = _adoptable(job, stamps)
+                m.jobs[job.id] = {"job": job.to_dict(), "state": "done" if done else "pending", "reason": None,
+                                  "file": None, "attempts": int(done), "wall_s": None, "cpu_s": None, "host": None,
+                                  "result": rel_path(job.result_path, path.parent) if done else None}
+                adopted += done
                 continue
             done = result_complete(job.result_path)
             if done and not _same_vehicle(e["job"], job):  # before the data stamp: another root's vehicle of the same
@@ -119,6 +129,9 @@ class Manifest:
                          attempts=max(int(e.get("attempts") or 0), 1))
             elif e["state"] != "failed":
                 e.update(state="pending", result=None)
+        if adopted and (m.recovered or doc is None):
+            m.recovered.append(f"{adopted} vehicle(s) the manifest did not list are kept: their folders hold a "
+                               "complete result of the same vehicle, data and options (and their job record)")
         ids = {job.id for job in jobs}
         for jid, e in m.jobs.items():  # jobs of earlier runs only (e.g. another root): the same resume rules
             if jid not in ids and e["state"] in ("done", "running"):
@@ -237,12 +250,38 @@ def _follow_renames(entries: dict[str, dict], jobs: list[Job], path: Path) -> di
     return renamed
 
 
-def _checked_jobs(jobs, path: Path) -> dict[str, dict]:
-    """The ``jobs`` of a manifest read back, each entry checked to be what ``Manifest`` writes (module doc);
-    ``DataError`` naming the file and the first bad entry (an edited or foreign file)."""
+def _aside(path: Path) -> Path:
+    """Move an unreadable manifest out of the way, kept (``manifest.damaged.json``, numbered when taken); returns
+    where it went."""
+    aside, n = path.with_name("manifest.damaged.json"), 1
+    while aside.exists():
+        n += 1
+        aside = path.with_name(f"manifest.damaged-{n}.json")
+    os.replace(path, aside)
+    return aside
+
+
+def _adoptable(job: Job, stamps: dict) -> bool:
+    """Whether ``job``'s folder holds a complete result computed for this very job: its ``jobs.JOB_RECORD`` names the
+    same vehicle of the same root with the same result-defining options, and the root's data are unchanged."""
+    from hybrid_calib.fleet.jobs import JOB_RECORD
+
+    try:
+        rec = json.loads((Path(job.out) / JOB_RECORD).read_text())
+    except (OSError, ValueError, RecursionError):
+        return False
+    return (isinstance(rec, dict) and _same_vehicle(rec, job) and not _changed_options(rec, job)
+            and result_complete(job.result_path) and not _data_changed(job, stamps))
+
+
+def _checked_jobs(jobs, path: Path, dropped: list[str]) -> dict[str, dict]:
+    """The ``jobs`` of a manifest read back, each entry checked to be what ``Manifest`` writes (module doc); an entry
+    that is not is left out and said in ``dropped`` (its job is then read from its folder, ``_adoptable``)."""
     if not isinstance(jobs, dict):
-        raise DataError(f"fleet manifest \"jobs\" is a JSON {type(jobs).__name__}, not an object of job entries; "
-                        "move it away to start over", path=str(path))
+        dropped.append(f"the fleet manifest's \"jobs\" is a JSON {type(jobs).__name__}, not an object of job entries: "
+                       "the jobs' folders read instead")
+        return {}
+    kept = {}
     for jid, e in jobs.items():
         try:
             if not isinstance(e, dict):
@@ -255,9 +294,11 @@ def _checked_jobs(jobs, path: Path) -> dict[str, dict]:
             if isinstance(e.get("attempts"), bool) or not isinstance(e.get("attempts"), int):
                 raise ValueError(f"attempts {e.get('attempts')!r}, not an integer")
         except (KeyError, TypeError, ValueError) as err:
-            raise DataError(f"fleet manifest entry {jid!r} is malformed ({err}); the file was edited or is not a "
-                            "hybrid-calib fleet manifest: move it away to start over", path=str(path)) from None
-    return dict(jobs)
+            dropped.append(f"fleet manifest entry {jid!r} is malformed ({err}; {path}): left out, its job read from "
+                           "its folder")
+            continue
+        kept[jid] = e
+    return kept
 
 
 # the Job fields a result depends on (not: out, threads, tables_T / design_T, which follow from data)
