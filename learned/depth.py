@@ -294,11 +294,16 @@ class DepthAnythingEstimator:
 
         transformers.logging.set_verbosity_error()
         transformers.logging.disable_progress_bar()
-        try:
-            self.model = AutoModelForDepthEstimation.from_pretrained(self.local_dir, local_files_only=True)
+        try:  # safetensors only: a pickled pytorch_model.bin is never loaded (it can run code)
+            self.model = AutoModelForDepthEstimation.from_pretrained(self.local_dir, local_files_only=True,
+                                                                     use_safetensors=True)
             self.processor = AutoImageProcessor.from_pretrained(self.local_dir, local_files_only=True)
-        except (OSError, ValueError) as e:
-            raise HybridCalibError(f"could not load a depth model from {self.local_dir}: {e}") from e
+        except Exception as e:  # noqa: BLE001 - the user's files, read by transformers: a damaged weights file was
+            # an internal error (SafetensorError "header too large", an UnpicklingError: probe 109)
+            files = sorted(p.name for p in self.local_dir.iterdir() if p.suffix in (".safetensors", ".bin"))
+            raise HybridCalibError(f"could not load a depth model from {self.local_dir} (weights files there: "
+                                   f"{files or 'none'}): {type(e).__name__}: {str(e)[:300]}; save it again with "
+                                   "save_pretrained(..., safe_serialization=True)") from None
         kind = getattr(self.model.config, "depth_estimation_type", "relative")
         if kind != "metric":
             raise HybridCalibError(

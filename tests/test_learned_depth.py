@@ -281,3 +281,22 @@ def test_a_lidar_folder_that_cannot_be_read_is_said_with_the_depth_advice(tmp_pa
     with pytest.raises(OptionError, match=r"--depth: lidar-densified densifies .*LIDAR_TOP cannot be read \(its "
                                           r"permissions\): make it readable"):
         check_depth_source("lidar-densified", tmp_path, given=True)
+
+
+@pytest.mark.parametrize("damage", ["garbage", "empty", "pickle-only"])
+def test_a_damaged_depth_model_is_an_error_naming_its_directory(damage, tmp_path):
+    """A depth model whose weights file was damaged ended in an internal error (SafetensorError "header too large"),
+    and one with only a pickled pytorch_model.bin was unpickled (probe 109). Each is one error naming the folder and
+    the weights files there; only safetensors load."""
+    from learned.depth import DepthAnythingEstimator
+
+    _tiny_depth_anything(tmp_path / "da")
+    weights = tmp_path / "da" / "model.safetensors"
+    if damage == "garbage":
+        weights.write_bytes(np.random.default_rng(0).bytes(1000))
+    elif damage == "empty":
+        weights.write_bytes(b"")
+    else:
+        weights.rename(weights.with_name("pytorch_model.bin"))
+    with pytest.raises(HybridCalibError, match=r"could not load a depth model from .*da \(weights files there: "):
+        DepthAnythingEstimator(tmp_path / "da")
