@@ -508,11 +508,11 @@ def test_damaged_cache_entries_are_recomputed_not_fatal(tmp_path):
 
     cache = OutputCache(tmp_path / "c", "net")
     out = _output(np.random.default_rng(0))
-    cache.put("tok", out)
-    assert cache.get("tok", out.T_in) is not None
-    p = cache.path("tok", out.T_in)
+    cache.put("f0", out)
+    assert cache.get("f0", out.T_in) is not None
+    p = cache.path("f0", out.T_in)
     p.write_bytes(p.read_bytes()[: p.stat().st_size // 3])
-    assert cache.get("tok", out.T_in) is None
+    assert cache.get("f0", out.T_in) is None
     assert np.allclose(out.T_in, T_TRUE)
 
 

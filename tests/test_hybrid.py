@@ -218,11 +218,21 @@ def test_a_damaged_network_cache_entry_is_recomputed_not_a_failure(tmp_path):
     from hybrid_calib.hybrid.network import NetworkOutput, OutputCache
 
     K = np.array([[800.0, 0, 400], [0, 800, 225], [0, 0, 1]])
-    rows = Correspondences(np.array([[5.0, 1, 0]]), np.array([[10.0, 20]]), np.array([6.0]), np.array([1.0]), K, "t")
+    rows = Correspondences(np.array([[5.0, 1, 0]]), np.array([[10.0, 20]]), np.array([6.0]), np.array([1.0]), K,
+                           "tok")
     out = NetworkOutput(np.eye(4), np.stack([np.eye(4)] * 2), np.eye(6), rows, rows, 0.1, np.zeros(3), np.zeros(2), 0.9)
     cache = OutputCache(tmp_path, "net")
     cache.put("tok", out)
     assert cache.get("tok", np.eye(4)) is not None
+    # another frame's pass (or another start's) under this one's name: a miss (probe 109: used in silence)
+    import shutil
+
+    shutil.copy(cache.path("tok", np.eye(4)), cache.path("other", np.eye(4)))
+    assert cache.get("other", np.eye(4)) is None
+    moved = np.eye(4)
+    moved[0, 3] = 0.5
+    shutil.copy(cache.path("tok", np.eye(4)), cache.path("tok", moved))
+    assert cache.get("tok", moved) is None
     good = dict(np.load(cache.path("tok", np.eye(4))))
     for key, bad in (("T_in", np.array("x")), ("T_iters", np.eye(4)), ("cov_raw", np.eye(5)),
                      ("T_in", np.full((4, 4), np.nan)), ("ood_signals", np.array(["a", "b"])),

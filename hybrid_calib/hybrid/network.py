@@ -150,7 +150,10 @@ class OutputCache:
                 # and its out-of-domain features and time (probe 65: NaN features turned the domain test off)
                 ok = out.finite and all(np.isfinite(a).all() for a in (out.ood_descriptor, out.ood_signals)) \
                     and np.isfinite(out.seconds) and out.seconds >= 0 and np.isfinite(out.image_structure)
-                return out if ok else None
+                # and it is this frame's pass from this start (probe 109: another frame's entry under this one's name
+                # was used in silence, its out-of-domain score too)
+                mine = out.rows_first.frame_id == str(token) and np.allclose(out.T_in, T_in, rtol=0.0, atol=1e-8)
+                return out if ok and mine else None
         except (*NPZ_ERRORS, HybridCalibError):  # a row array the measurement format refuses (DataError), too
             return None  # a damaged entry (truncated, not a zip, a missing key, misshapen, not numbers) is recomputed
 
