@@ -172,7 +172,28 @@ def read_checkpoint_meta(path: str | Path) -> tuple[Path, dict[str, Any]]:
         if not isinstance(meta.get(key, {}), dict):
             raise CheckpointError(f"checkpoint field {key!r} is a JSON {type(meta[key]).__name__}, not an object; the "
                                   "file is corrupt: fix it, copy it again or pick another checkpoint", path=str(path))
+    if problem := _train_config_problem(meta):
+        raise CheckpointError(f"checkpoint {problem}: the file is damaged; fix the field, copy it again or pick "
+                              "another checkpoint", path=str(path))
     return path, meta
+
+
+def _train_config_problem(meta: dict) -> str:
+    """What is wrong with the ``train_config`` a checkpoint's use reads (its start range, its split, its depth's
+    options), or "": a file without one read as trained on the simulator's true depth (probe 109: a simulated root's
+    figures flattered, no word), "R9" read as a wrong --start and a bad split as a wrong --set."""
+    from hybrid_calib.perturbation import RANGES
+
+    if "train_config" not in meta:  # save_checkpoint always writes it ({} at least)
+        return ("records no train_config (how its network was trained: start range, depth): a run would guess "
+                "them")
+    tc = meta["train_config"]
+    if "perturbation" in tc and tc["perturbation"] not in RANGES:
+        return f"train_config.perturbation is {tc['perturbation']!r}, not one of {sorted(RANGES)}"
+    for key in ("split", "depth_options"):
+        if key in tc and not isinstance(tc[key], dict):
+            return f"train_config.{key} is {tc[key]!r}, not an object of options"
+    return ""
 
 
 def check_export(export: dict[str, Any], path: Path) -> None:
@@ -269,6 +290,13 @@ def check_weights_file(path: Path, meta: dict[str, Any], weights: Path) -> None:
     (a network copied over it: the JSON's fitted models would be applied to weights they were not fitted on)."""
     want = meta["files"].get("weights_sha256")
     if want is None:
+        fitted = sorted(k for k in ("cov_scale", "hybrid", "ood") if k in (meta.get("export") or {}))
+        if fitted:  # said (probe 109: another network's weights under its name showed only as "out of domain")
+            import warnings
+
+            warnings.warn(f"checkpoint {path} records no files.weights_sha256, so its weights {weights.name} are not "
+                          f"checked to be those its fitted export.{' / export.'.join(fitted)} were fitted on",
+                          stacklevel=2)
         return
     if not isinstance(want, str) or (got := weights_sha256(weights)) != want.lower():
         raise CheckpointError(f"the weights file {weights.name} is not the one this checkpoint was saved with (its "

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import warnings
 
 import numpy as np
 import pytest
@@ -358,3 +359,42 @@ def test_a_file_where_a_folder_is_needed_is_said_so(tmp_path, capsys, monkeypatc
     monkeypatch.setattr(simulate, "run", mkdir)
     _expect_error(["simulate", "--out", tmp_path / "s"], capsys, f"{blocker / 'x'} (or a folder above it) is a file "
                   "where a folder is needed", "move the file away")
+
+
+@pytest.mark.parametrize("edit,needle", [
+    (lambda m: m.pop("train_config"), "records no train_config"),
+    (lambda m: m["train_config"].update(perturbation="R9"), "train_config.perturbation is 'R9', not one of"),
+    (lambda m: m["train_config"].update(split="x"), "train_config.split is 'x', not an object of options"),
+], ids=["no-train_config", "perturbation-R9", "split-a-string"])
+def test_a_damaged_train_config_is_named_with_its_checkpoint(edit, needle, tmp_path):
+    """A checkpoint without train_config ran on the simulator's true depth in silence; "R9" read as a wrong --start
+    and a string split as a wrong --set (probe 109). Each is an error naming the file and the field."""
+    from hybrid_calib.errors import CheckpointError
+    from hybrid_calib.hybrid.network import shipped_checkpoint
+    from learned.checkpoint import read_checkpoint_meta
+
+    src = shipped_checkpoint("R1")
+    meta = json.loads(src.read_text())
+    edit(meta)
+    path = tmp_path / src.name
+    path.write_text(json.dumps(meta))
+    with pytest.raises(CheckpointError, match=needle) as e:
+        read_checkpoint_meta(path)
+    assert str(path) in str(e.value)
+
+
+def test_fitted_models_without_the_weights_hash_are_said(tmp_path):
+    """Without files.weights_sha256 another network's weights under the name ran with these fitted models; the only
+    symptom was "out of domain" (probe 109). It still loads (weights converted on purpose), and says so."""
+    from learned.checkpoint import load_checkpoint, save_checkpoint, set_export_overrides
+
+    path = save_checkpoint(tmp_path / "c" / "ckpt-0001", torch.nn.Linear(3, 2), epoch=1, model_config={"k": 1})
+    meta = json.loads(path.read_text())
+    del meta["files"]["weights_sha256"]
+    path.write_text(json.dumps(meta))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_checkpoint(path, torch.nn.Linear(3, 2))  # nothing fitted: nothing to say
+    set_export_overrides(path, {"cov_scale": [2.0] * 6}, "fitted by the test")
+    with pytest.warns(UserWarning, match="records no files.weights_sha256.*export.cov_scale"):
+        load_checkpoint(path, torch.nn.Linear(3, 2))
