@@ -1166,3 +1166,21 @@ def test_an_export_hybrid_block_that_is_not_a_whole_fit_is_unfitted(block):
     assert unfitted_reason(whole_ck, "hybrid") == ""
     cascade = SimpleNamespace(**vars(whole_ck), coarse=ck)
     assert "c.json (the cascade's first stage) has no fitted export.hybrid" in unfitted_reason(cascade, "pure-avg")
+
+
+def test_a_result_names_its_checkpoint_by_its_absolute_path(sim_root, tmp_path, monkeypatch):
+    """A relative --checkpoint was recorded as typed, and report run from another folder drew another network's
+    attention under that name (probe 109)."""
+    import shutil
+
+    from hybrid_calib.hybrid import run_vehicle
+    from hybrid_calib.hybrid.network import shipped_checkpoint
+
+    src = shipped_checkpoint("R1")
+    (tmp_path / "ck").mkdir()
+    for p in (src, src.with_suffix(".safetensors")):
+        shutil.copy(p, tmp_path / "ck" / p.name)
+    monkeypatch.chdir(tmp_path)
+    v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", {**BASE, "method": "pure", "max_frames": 1,
+                                                          "checkpoint": f"ck/{src.name}"})
+    assert v.checkpoint == str(tmp_path / "ck" / src.name), v.checkpoint

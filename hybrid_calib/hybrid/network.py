@@ -276,7 +276,9 @@ class NetworkRunner:
 
     @property
     def checkpoint(self) -> str:
-        return str(self.ckpt.path)
+        """The checkpoint's path, absolute: a result records it, and a relative one was read from another folder by
+        report, which drew another network's attention under this name (probe 109)."""
+        return str(Path(self.ckpt.path).resolve())
 
     def sample(self, index: int) -> dict | None:
         """The prepared inputs of frame ``index`` (None when its files are bad: ``bad_reason``)."""
