@@ -243,6 +243,8 @@ def test_an_export_of_other_vehicles_or_another_camera_is_said(knocked, tmp_path
     ("two extrinsics", "hold 2 radar-camera extrinsics that differ"),
     ("vehicles list", "'vehicles' is not an object"),
     ("exported string", "'exported' is 'true', not true or false"),
+    ("after 3 m off", "farther than any radar mount sits from its tables"),  # probe 109: read, the tables blamed
+    ("after turned 180 deg", "is 180.0 deg / 0 cm from the record it replaced"),
 ])
 def test_a_reference_that_is_not_an_export_is_refused_by_name(knocked, tmp_path, case, words):
     from hybrid_calib.data.reference import load_export_reference
@@ -273,6 +275,13 @@ def test_a_reference_that_is_not_an_export_is_refused_by_name(knocked, tmp_path,
         text = json.dumps({**doc, "vehicles": []})
     elif case == "exported string":
         doc["vehicles"]["sim-veh-000"]["exported"] = "true"
+        text = json.dumps(doc)
+    elif case.startswith("after"):
+        rec["after"] = {**rec["before"], **({"translation": [rec["before"]["translation"][0] + 3.0,
+                                                             *rec["before"]["translation"][1:]]}
+                                            if "3 m" in case else {"rotation": [0.0, 0.0, 0.0, 1.0]})}
+        rec["after"]["rotation"] = rec["after"]["rotation"] if "3 m" in case else \
+            _turned_180(rec["before"]["rotation"])
         text = json.dumps(doc)
     if case not in ("missing", "empty folder"):
         (path / "export.json").write_text(text)
@@ -712,3 +721,9 @@ def test_what_the_network_knows_is_not_renamed_against_an_export():
     why = monitor_trust_reason(far, 10.0)
     assert "knows radars within a few degrees of a fleet's mounts" in why, why
     assert "a fleet's mounts" in reference_nouns(why, {"kind": "export"})
+
+
+def _turned_180(q_wxyz: list) -> list:
+    """The rotation ``q_wxyz`` (w, x, y, z) turned half a turn about its own z axis."""
+    w, x, y, z = q_wxyz
+    return [-z, y, -x, w]  # q * (0, 0, 0, 1)

@@ -44,7 +44,7 @@ from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import check_seed, merge, save_json_atomic, to_dict
 from hybrid_calib.data.files import data_stamp
-from hybrid_calib.data.reference import absolute_reference, reference_identity
+from hybrid_calib.data.reference import ASTRAY_ROT_DEG, ASTRAY_TRANS_M, absolute_reference, reference_identity
 from hybrid_calib.data.summary import calibration_notes
 from hybrid_calib.data.views import ViewConfig, repeated_views
 from hybrid_calib.errors import DataError, HybridCalibError, OptionError
@@ -305,13 +305,7 @@ NETWORK_ROWS = ("its rows are a network's (exported by hybrid-calib evaluate), f
                 "is far too small; calibrate with --method hybrid for an estimate with a covariance to trust")
 
 
-# an estimate farther than this from the vehicle's tables (reference) is no radar mount: the solve went astray.
-# R2 starts lie up to 20 deg / 1.5 m per axis from the truth, but the truth lies near the tables (a knock: a few
-# degrees; the nuScenes fleet's radar mounts differ by under 2 deg); measured (probe 10): a 3-frame highway drive's
-# oracle solve from an R1 start ended 64 deg / 6.8 m off with 27 % of its rows fitting, status "weak", verdict
-# "recalibrate", and export wrote the radar 5.3 m under the ground
-ASTRAY_ROT_DEG = 25.0
-ASTRAY_TRANS_M = 2.0
+# (ASTRAY_ROT_DEG / ASTRAY_TRANS_M: farther than any radar mount sits from its tables; data.reference)
 
 
 def trust_reason(res: VehicleResult, T_reference: np.ndarray) -> str:

@@ -34,6 +34,15 @@ from hybrid_calib.geometry import se3_inverse
 
 EXPORT_SCHEMA = "hybrid-calib/mount-export/v1"  # export.json's "schema" (``calib.export``)
 
+# a mount farther than this from the vehicle's tables is no radar mount: an estimate there went astray
+# (``calib.pipeline.trust_reason``), an export record there was edited. R2 starts lie up to 20 deg / 1.5 m per axis
+# from the truth, but the truth lies near the tables (a knock: a few degrees; the nuScenes fleet's radar mounts differ
+# by under 2 deg); measured (probe 10): a 3-frame highway drive's oracle solve from an R1 start ended 64 deg / 6.8 m
+# off with 27 % of its rows fitting, status "weak", verdict "recalibrate", and export wrote the radar 5.3 m under the
+# ground
+ASTRAY_ROT_DEG = 25.0
+ASTRAY_TRANS_M = 2.0
+
 
 @dataclass(frozen=True)
 class ExportReference:
@@ -112,7 +121,7 @@ def load_export_reference(path: str | Path) -> ExportReference:
     """The export.json of ``path`` (a file, or an export's ``--out`` folder) as a reference (module doc);
     ``DataError`` naming the file (and vehicle) when it is not there, not an export, of another schema, or holds a
     record that does not read (an export of an older version without ``camera``: export again)."""
-    from hybrid_calib.data.nuscenes import same_calibration  # (it imports this module)
+    from hybrid_calib.data.nuscenes import mount_offset, same_calibration  # (it imports this module)
 
     p = _path_of(path)
     try:
@@ -153,6 +162,14 @@ def load_export_reference(path: str | Path) -> ExportReference:
                                 "written before hybrid-calib recorded it): export again with this version",
                                 path=str(p))
             pairs.append((_pose(rec["camera"], "camera", p, name), _pose(rec.get("after"), "after", p, name)))
+            if isinstance(rec.get("before"), dict):  # probe 109: a mount 3 m or 180 deg off read, and the words
+                # blamed the vehicle's tables
+                deg, cm = mount_offset(pairs[-1][1], _pose(rec["before"], "before", p, name))
+                if not (deg <= ASTRAY_ROT_DEG and cm <= 100 * ASTRAY_TRANS_M):
+                    raise DataError(f"--reference: vehicle {name}'s exported radar mount ('after') is {deg:.1f} deg / "
+                                    f"{cm:.0f} cm from the record it replaced ('before'), farther than any radar "
+                                    f"mount sits from its tables ({ASTRAY_ROT_DEG:g} deg, {ASTRAY_TRANS_M:g} m): the "
+                                    "file was edited or damaged; export again", path=str(p))
         Ts = [se3_inverse(c) @ r for c, r in pairs]
         for T in Ts[1:]:
             if not same_calibration(T, Ts[0]):
