@@ -231,6 +231,15 @@ def test_an_export_of_other_vehicles_or_another_camera_is_said(knocked, tmp_path
     notes = _reader(later, str(other)).reference_notes()
     assert any(n.startswith("warning: vehicle sim-veh-000: its camera record here is 1.00 deg") for n in notes), notes
     assert not any("sim-veh-001: its camera" in n for n in notes)
+    # kept with the result and shown on its page: it had been said on the console only (probe 109)
+    from hybrid_calib.calib.pipeline import calibrate
+    from hybrid_calib.report.vehicle import write_report
+
+    conf = {"window": {"window": 3}, "vehicles": ["sim-veh-000"], "max_frames": 2, "reference": str(other)}
+    run = calibrate(later, VERSION, "oracle", tmp_path / "r", conf, progress=False)
+    assert any("its camera record here is 1.00 deg" in n for n in run.notes), run.notes
+    page = write_report(tmp_path / "r" / "result.json", tmp_path / "r.html", conf={"frames": 1}).read_text()
+    assert "the run said: warning: vehicle sim-veh-000: its camera record here is 1.00 deg" in page
 
 
 @pytest.mark.parametrize("case, words", [

@@ -282,7 +282,9 @@ def write_report(result: str | Path, out: str | Path, vehicle: str | None = None
     with tempfile.TemporaryDirectory(prefix="hc-report-") as tmp:
         figs = _figures(vr, ev, Path(tmp))
         att = attention_html(vr, ev, data or run.data, version or run.version, conf.checkpoint, Path(tmp))
-    notes = "".join(f"<li>{esc(x)}</li>" for x in ev.notes)
+    # and what the run said of its data before reading a frame (CalibrationRun.notes: another vehicle's export of
+    # the same name, samples left out, poses that jump; probe 109 found the first on the console only)
+    notes = "".join(f"<li>{esc(x)}</li>" for x in [*ev.notes, *(f"the run said: {n}" for n in run.notes)])
     body = (f"<h1>Radar-camera calibration: {esc(name)}</h1>"
             f"<p class=meta>{n_frames(vr.n_frames)}, {esc(run.mode)} mode, correspondences: "
             f"{esc(run.correspondences)}; data: {esc(run.data)} ({esc(run.version)})"
