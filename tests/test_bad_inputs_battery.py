@@ -1746,6 +1746,8 @@ def test_fleet_reruns_a_damaged_result_of_an_earlier_runs_vehicle(sim, tmp_path,
     assert rc == 0, err
     summary = json.loads((out / "summary.json").read_text())
     assert summary["counts"]["done"] == 2
+    assert any(n.startswith(f"{first}: its result") and "does not read (damaged): calibrated again" in n
+               for n in summary["notes"]), summary["notes"]  # probe 109: recomputed without a word
     again = json.loads((out / "vehicles" / first / "result.json").read_text())["vehicles"][first]
     assert again["final"] == good["vehicles"][first]["final"]  # calibrated again, the same
 
@@ -2865,3 +2867,17 @@ def test_a_calibration_keeps_what_it_said_of_the_tables_in_its_result(sim_copy, 
         assert rc == 0 and "samples of no vehicle are not calibrated" in err, err
         notes = CalibrationRun.load(out).notes
         assert any("samples of no vehicle are not calibrated" in n and samples[-1]["token"] in n for n in notes), notes
+
+
+def test_a_damaged_result_of_a_resumed_run_advises_overwrite(sim, tmp_path, capsys):
+    """calibrate into an --out whose result.json was damaged said "pass the result.json of a hybrid-calib calibrate
+    run": the user passed none; the advice is --overwrite (probe 109)."""
+    root, _ = sim
+    out = tmp_path / "run"
+    rc, err = run_cli(_calibrate(root, out, "--max-frames", "1"), capsys)
+    assert rc == 0, err
+    (out / "result.json").write_text((out / "result.json").read_text()[:400])
+    expect_cli_error(_calibrate(root, out, "--max-frames", "1"), capsys, "left by an earlier run into this --out, "
+                     "does not read", "pass --overwrite to recompute it")
+    rc, err = run_cli([*_calibrate(root, out, "--max-frames", "1"), "--overwrite"], capsys)
+    assert rc == 0, err

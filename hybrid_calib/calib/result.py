@@ -943,7 +943,12 @@ def reuse_result(out: str | Path, data, version: str, source: str, conf: dict) -
     (``to_dict``; its ``config.json``, the ``RUN_ONLY`` keys aside). ``HybridCalibError`` naming what differs
     otherwise: the earlier result would be reported as this run's."""
     out = Path(out)
-    run = CalibrationRun.load(out / "result.json")
+    try:
+        run = CalibrationRun.load(out / "result.json")
+    except DataError as e:  # the run's own output, not a result the user passed (probe 109: "pass the result.json
+        # of a hybrid-calib calibrate run")
+        raise HybridCalibError(f"{out / 'result.json'}, left by an earlier run into this --out, does not read "
+                               f"({e.message}): pass --overwrite to recompute it, or another --out") from None
     old = read_out_record(out / "config.json", "calibrate config", "the configuration its result.json was computed "
                           "with: pass --overwrite to recompute, or another --out")
 

@@ -106,6 +106,8 @@ class Manifest:
                 adopted += done
                 continue
             done = result_complete(job.result_path)
+            if not done and e["state"] == "done" and Path(job.result_path).exists():  # probe 109: recomputed unsaid
+                m.recovered.append(f"{job.id}: its result {job.result_path} does not read (damaged): calibrated again")
             if done and not _same_vehicle(e["job"], job):  # before the data stamp: another root's vehicle of the same
                 # name (every simulated root names its vehicles sim-veh-000, ...) read as "its data changed" and was
                 # overwritten, the two roots mixed in one fleet view and prior (probe 50)
@@ -136,6 +138,9 @@ class Manifest:
         for jid, e in m.jobs.items():  # jobs of earlier runs only (e.g. another root): the same resume rules
             if jid not in ids and e["state"] in ("done", "running"):
                 done = bool(e.get("result")) and result_complete(path.parent / str(e["result"]))
+                if not done and e["state"] == "done" and e.get("result") and (path.parent / str(e["result"])).exists():
+                    m.recovered.append(f"{jid}: its result {path.parent / str(e['result'])} does not read (damaged): "
+                                       "calibrated again")
                 e.update(state="done" if done else "pending", result=e.get("result") if done else None)
         m.save()
         return m
