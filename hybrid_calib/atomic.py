@@ -275,8 +275,9 @@ def record_run(out: str | Path, command: str, argv: list[str], status: int | Non
     the hybrid-calib and Python versions and the host. A folder's results then say which command made them, when,
     and which runs resumed them. Not a configuration: nothing compares it (each command's own record does that).
     ``status`` None: a run that was killed without a word (``out_dir_lock`` found its lock): its end and exit status
-    are null and ``ended`` says so. A record that cannot be read is replaced (say so nowhere: it is a log); returns
-    its path, None when ``out`` is not a folder."""
+    are null and ``ended`` says so. A record that cannot be read is kept aside as ``runs.damaged.json`` and a new one
+    started (said nowhere: it is a log; probe 109 found the history lost); returns its path, None when ``out`` is
+    not a folder."""
     import json
     import platform
     import shlex
@@ -290,9 +291,15 @@ def record_run(out: str | Path, command: str, argv: list[str], status: int | Non
     path = out / RUNS_NAME
     try:
         runs = json.loads(path.read_text())
-        runs = runs if isinstance(runs, list) else []
-    except (OSError, ValueError):
+        if not isinstance(runs, list):
+            raise ValueError("not a list")
+    except (OSError, ValueError, RecursionError):
         runs = []
+        if path.is_file():  # the history kept, not overwritten
+            try:
+                os.replace(path, path.with_name("runs.damaged.json"))
+            except OSError:
+                pass
 
     def utc(t: float) -> str:
         return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(t))

@@ -280,3 +280,16 @@ def test_a_killed_writer_s_temporary_file_is_known_and_removed(tmp_path):
         assert is_temporary(tmp) and len(tmp.name.encode()) <= 255
         tmp.write_bytes(b"x")
     assert remove_temporaries(tmp_path / "none") == []
+
+
+def test_a_damaged_run_log_is_kept_aside_not_lost(tmp_path):
+    """A truncated OUT/runs.json was replaced by a new one: the history of the folder's runs was lost (probe 109)."""
+    import json
+    import time
+
+    from hybrid_calib.atomic import record_run
+
+    (tmp_path / "runs.json").write_text('[{"command": "hybrid-calib calibrate ..."')
+    record_run(tmp_path, "calibrate", ["calibrate"], 0, time.time())
+    assert (tmp_path / "runs.damaged.json").read_text() == '[{"command": "hybrid-calib calibrate ..."'
+    assert len(json.loads((tmp_path / "runs.json").read_text())) == 1

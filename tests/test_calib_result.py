@@ -311,3 +311,18 @@ def test_a_run_folder_reads_as_its_result(tmp_path):
     with pytest.raises(DataError, match="is a compare run's folder") as e:  # probe 107: "[Errno 21] Is a directory"
         CalibrationRun.load(tmp_path / "cmp")
     assert "Errno" not in str(e.value)
+
+
+def test_a_result_of_another_schema_name_is_refused():
+    """A result.json whose "schema" was removed or names another schema was read when its schema_version matched
+    (probe 109)."""
+    import json
+
+    from hybrid_calib.calib.result import SCHEMA, CalibrationRun
+    from hybrid_calib.errors import DataError
+
+    d = CalibrationRun("root", "v1.0-sim", "oracle", "window").to_dict()
+    assert d["schema"] == SCHEMA and CalibrationRun.from_dict(d).data == "root"
+    for bad in ({**d, "schema": "hybrid-calib/calibrate-result/v9"}, {k: v for k, v in d.items() if k != "schema"}):
+        with pytest.raises(DataError, match="not a calibrate result: its \"schema\" is"):
+            CalibrationRun.from_json(json.dumps(bad), "r.json")

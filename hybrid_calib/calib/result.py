@@ -666,6 +666,9 @@ class CalibrationRun:
     def from_dict(cls, d: dict, source: str = "") -> CalibrationRun:
         """Raises ``DataError`` (naming ``source``) for another schema version."""
         version = d.get("schema_version") if isinstance(d, dict) else None
+        if version == SCHEMA_VERSION and d.get("schema") != SCHEMA:  # probe 109: another schema's name was read
+            raise DataError(f"not a calibrate result: its \"schema\" is {str(d.get('schema'))[:60]!r}, not {SCHEMA!r}; "
+                            "pass the result.json of a hybrid-calib calibrate run", path=source or None)
         if version != SCHEMA_VERSION:
             raise DataError(f"not a calibrate result of schema_version {SCHEMA_VERSION} (found {_found(d)}); "
                             + _what_it_is(d), path=source or None)
