@@ -1723,10 +1723,20 @@ def test_a_damaged_fleet_manifest_costs_no_finished_vehicle(sim, tmp_path, capsy
     assert (out / "manifest.damaged.json").read_text() == text[: len(text) // 2]
     assert f"{len(frames)} vehicle(s) the manifest did not list are kept" in said, said
     assert json.loads((out / "summary.json").read_text())["counts"]["done"] == len(frames)
-    # other options: not adopted, calibrated again
-    (out / "manifest.json").unlink()
-    rc, err = run_cli([*argv[:-4], "--max-frames", "2", "--no-plots", "--no-report"], capsys)
-    assert rc == 0 and digests() != before, err
+    # other options: refused as with the manifest intact (probe 110: they were recomputed over the results in silence)
+    (out / "manifest.json").write_text("{")
+    expect_cli_error([*argv[:-4], "--max-frames", "2", "--no-plots", "--no-report"], capsys,
+                     "calibrated with other options", "max_frames")
+    assert digests() == before
+    # a result of another root copied into a vehicle's folder is not this vehicle's: calibrated again, said
+    first = sorted(frames)[0]
+    doc = json.loads((out / "vehicles" / first / "result.json").read_text())
+    (out / "vehicles" / first / "result.json").write_text(json.dumps({**doc, "data": str(tmp_path / "elsewhere")}))
+    (out / "manifest.json").unlink(missing_ok=True)  # (the damaged one went aside before the refusal)
+    rc, err = run_cli(argv, capsys)
+    said = " ".join(json.loads((out / "summary.json").read_text())["notes"])
+    assert rc == 0 and f"was computed on {tmp_path / 'elsewhere'}, not on" in said, said
+    assert json.loads((out / "vehicles" / first / "result.json").read_text())["data"] != str(tmp_path / "elsewhere")
 
 
 def test_fleet_reruns_a_damaged_result_of_an_earlier_runs_vehicle(sim, tmp_path, capsys):

@@ -97,17 +97,18 @@ class Manifest:
         stamps: dict = {}  # (root, version) -> data_stamp, computed once per root
         adopted = 0
         for job in jobs:
-            e = m.jobs.get(job.id)
-            if e is None:
-                done = _adoptable(job, stamps)
-                m.jobs[job.id] = {"job": job.to_dict(), "state": "done" if done else "pending", "reason": None,
-                                  "file": None, "attempts": int(done), "wall_s": None, "cpu_s": None, "host": None,
-                                  "result": rel_path(job.result_path, path.parent) if done else None}
-                adopted += done
-                continue
-            done = result_complete(job.result_path)
-            if not done and e["state"] == "done" and Path(job.result_path).exists():  # probe 109: recomputed unsaid
-                m.recovered.append(f"{job.id}: its result {job.result_path} does not read (damaged): calibrated again")
+            e, found = m.jobs.get(job.id), False
+            if e is None:  # not listed (a new vehicle, or a manifest lost): its folder's job record stands for it,
+                # checked as a listed job is (probe 110: a damaged manifest and other options recomputed in silence)
+                rec = _job_record(job)
+                e = m.jobs[job.id] = {"job": rec or job.to_dict(), "state": "pending", "reason": None, "file": None,
+                                      "attempts": 0, "wall_s": None, "cpu_s": None, "host": None, "result": None}
+                if rec is None:
+                    continue
+                found = True
+            done, why = _result_of(job)
+            if why and (e["state"] == "done" or found):  # probe 109: recomputed unsaid
+                m.recovered.append(f"{job.id}: its result {job.result_path} {why}: calibrated again")
             if done and not _same_vehicle(e["job"], job):  # before the data stamp: another root's vehicle of the same
                 # name (every simulated root names its vehicles sim-veh-000, ...) read as "its data changed" and was
                 # overwritten, the two roots mixed in one fleet view and prior (probe 50)
@@ -129,6 +130,7 @@ class Manifest:
                 # (probe 91: "done" after 0 attempts)
                 e.update(state="done", reason=None, file=None, result=rel_path(job.result_path, path.parent),
                          attempts=max(int(e.get("attempts") or 0), 1))
+                adopted += found
             elif e["state"] != "failed":
                 e.update(state="pending", result=None)
         if adopted and (m.recovered or doc is None):
@@ -266,22 +268,42 @@ def _aside(path: Path) -> Path:
     return aside
 
 
-def _adoptable(job: Job, stamps: dict) -> bool:
-    """Whether ``job``'s folder holds a complete result computed for this very job: its ``jobs.JOB_RECORD`` names the
-    same vehicle of the same root with the same result-defining options, and the root's data are unchanged."""
+def _job_record(job: Job) -> dict | None:
+    """The job record (``jobs.JOB_RECORD``, a ``Job.to_dict``) a finished job left in ``job``'s folder, or None (none,
+    or one that does not read: its result is then not adopted)."""
     from hybrid_calib.fleet.jobs import JOB_RECORD
 
     try:
         rec = json.loads((Path(job.out) / JOB_RECORD).read_text())
-    except (OSError, ValueError, RecursionError):
-        return False
-    return (isinstance(rec, dict) and _same_vehicle(rec, job) and not _changed_options(rec, job)
-            and result_complete(job.result_path) and not _data_changed(job, stamps))
+        Job.from_dict(rec)
+    except (OSError, ValueError, TypeError, KeyError, RecursionError, AttributeError):
+        return None
+    return rec
+
+
+def _result_of(job: Job) -> tuple[bool, str]:
+    """(whether ``job``'s folder holds its complete result, why not when a result file is there): a ``result.json``
+    that reads, holds ``job.vehicle`` and was computed on ``job.data`` (probe 110: another root's result copied into
+    the folder was kept as this vehicle's)."""
+    from hybrid_calib.calib.result import CalibrationRun
+
+    p = Path(job.result_path)
+    if not p.exists():
+        return False, ""
+    try:
+        run = CalibrationRun.load(p)
+    except DataError:
+        return False, "does not read (damaged)"
+    if job.vehicle not in run.vehicles:
+        return False, f"holds no result of {job.vehicle} ({', '.join(sorted(run.vehicles)) or 'none'})"
+    if os.path.realpath(run.data) != os.path.realpath(job.data):
+        return False, f"was computed on {run.data}, not on {job.data}"
+    return True, ""
 
 
 def _checked_jobs(jobs, path: Path, dropped: list[str]) -> dict[str, dict]:
     """The ``jobs`` of a manifest read back, each entry checked to be what ``Manifest`` writes (module doc); an entry
-    that is not is left out and said in ``dropped`` (its job is then read from its folder, ``_adoptable``)."""
+    that is not is left out and said in ``dropped`` (its job is then read from its folder, ``_job_record``)."""
     if not isinstance(jobs, dict):
         dropped.append(f"the fleet manifest's \"jobs\" is a JSON {type(jobs).__name__}, not an object of job entries: "
                        "the jobs' folders read instead")
