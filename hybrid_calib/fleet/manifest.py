@@ -106,10 +106,8 @@ class Manifest:
                 if rec is None:
                     continue
                 found = True
-            done, why = _result_of(job)
-            if why and (e["state"] == "done" or found):  # probe 109: recomputed unsaid
-                m.recovered.append(f"{job.id}: its result {job.result_path} {why}: calibrated again")
-            if done and not _same_vehicle(e["job"], job):  # before the data stamp: another root's vehicle of the same
+            if result_complete(job.result_path) and not _same_vehicle(e["job"], job):  # before the data stamp and
+                # the result's own root: another root's vehicle of the same
                 # name (every simulated root names its vehicles sim-veh-000, ...) read as "its data changed" and was
                 # overwritten, the two roots mixed in one fleet view and prior (probe 50)
                 a = e["job"]
@@ -117,6 +115,9 @@ class Manifest:
                                 f"{a.get('data')}, {a.get('version')}); this run's {job.id} is {job.vehicle!r} of "
                                 f"{job.data}, {job.version}: pass another --out, or list both roots in one command "
                                 "(their vehicles are then named by root)", path=str(path))
+            done, why = _result_of(job)
+            if why and (e["state"] == "done" or found):  # probe 109: recomputed unsaid
+                m.recovered.append(f"{job.id}: its result {job.result_path} {why}: calibrated again")
             if done and _data_changed(job, stamps):  # re-downloaded, re-simulated: computed again, and said
                 done = False
                 m.stale.append(job.id)
