@@ -2786,6 +2786,11 @@ def test_a_record_pointed_at_the_next_frames_file_is_the_one_left_out(tiny):
     (skip,) = [s for s in ds.skipped if "names the file" in s.reason]
     for text in (tiny.cam_sd[1]["token"], tiny.cam_sd[2]["filename"], "fix that record's filename in sample_data.json"):
         assert text in skip.reason, (text, skip.reason)
+    from hybrid_calib.data.summary import calibration_notes
+
+    notes = calibration_notes(ds)  # said as what it is, not as a recording listed twice (probe 110)
+    assert any("naming another sample's file" in n and tiny.cam_sd[1]["token"] in n for n in notes), notes
+    assert not any("the tables list one recording twice" in n for n in notes), notes
 
 
 def test_a_lone_surrogate_in_a_table_string_is_a_skip_naming_it(tiny, capsys):
@@ -2891,3 +2896,16 @@ def test_a_damaged_result_of_a_resumed_run_advises_overwrite(sim, tmp_path, caps
                      "does not read", "pass --overwrite to recompute it")
     rc, err = run_cli([*_calibrate(root, out, "--max-frames", "1"), "--overwrite"], capsys)
     assert rc == 0, err
+
+
+def test_the_lone_surrogate_scan_reads_escapes_as_json_does():
+    """Escaped backslashes before "ud800" are text (probe 110: such a text sent every record through the slow check);
+    pairs in either case are text; a lone high or low escape is not."""
+    from hybrid_calib.data.tables import _has_lone_surrogate
+
+    for text, lone in ((json.dumps({"a": "car \U0001F697"}), False), ('{"a": "\\uD83D\\uDE97"}', False),
+                       (json.dumps({"a": "C:\\ud800\\dir"}), False), (json.dumps({"a": "\ud7ff"}), False),
+                       (json.dumps({"a": "x\ud800"}), True), (json.dumps({"a": "x\udc00y"}), True),
+                       ('{"a": "\\uD83Dx"}', True), ('"\\udc00"', True)):
+        assert _has_lone_surrogate(text) is lone, text
+        assert json.loads(text) is not None

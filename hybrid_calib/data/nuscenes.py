@@ -228,6 +228,7 @@ class NuScenesRadarCamera:
         self.sweep_files: dict[int, tuple[int, list[str], list[str]]] = {}
         self.calibration_splits: dict[str, list[str]] = {}  # vehicle -> its calibrations' names, when more than 1
         self.calibration_offsets: dict[str, tuple[float, float]] = {}  # NAME-calN -> (deg, cm) from NAME's
+        self.misnamed: list[SkipRecord] = []  # samples left out: a record of theirs names another sample's file
         self.duplicates: dict[str, str] = {}  # sample read once: a sensor file of it is the named earlier sample's
         self.overlapping: dict[str, str] = {}  # scene left out -> the scene of its vehicle recorded at the same time
         self.not_on_disk: dict[str, str] = {}  # scene left out -> a sensor file of it that is absent (partial download)
@@ -351,7 +352,7 @@ class NuScenesRadarCamera:
                                     f"{wrong.get('token')} names the file {wrong.get('filename')}, whose name "
                                     f"carries the timestamp of sample {ref.sample_token}'s record, not its own "
                                     f"({wrong.get('timestamp')}): fix that record's filename in sample_data.json")
-                self.duplicates[dup.sample_token] = ref.sample_token
+                self.misnamed.append(self._index_skips[-1])  # not a recording listed twice (probe 110)
             elif dup is not None:  # a vehicle all of whose samples are another's is named (probe 94: it vanished)
                 self._left_out(ref, f"sample {ref.sample_token} (scene {ref.scene_name}) reads the same sensor file "
                                     f"as sample {dup.sample_token} (scene {dup.scene_name}): the tables list one "

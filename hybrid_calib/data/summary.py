@@ -591,6 +591,10 @@ def calibration_notes(ds, vehicles=None) -> list[str]:
             more = f" and {len(skips) - 1} more" if len(skips) > 1 else ""
             out.append(f"vehicle {vehicle}: {len(skips)} sample(s) left out, with no usable keyframe record ("
                        f"{skips[0].reason}{more}); the result's frames_skipped lists them")
+    if wrong := getattr(ds, "misnamed", None):  # the index kept the frame its file belongs to (_once_per_file)
+        more = f" and {len(wrong) - 1} more" if len(wrong) > 1 else ""
+        out.append(f"warning: {len(wrong)} sample(s) left out, a sample_data record naming another sample's file "
+                   f"({wrong[0].reason}{more})")
     if gap := timestamp_unit_warning(ds):  # inspect said it; a calibration read time from them silently
         out.append(f"{gap}: the radar mount monitor, its Doppler pairs and the motion constraint read time from them; "
                    "fix the tables before trusting this calibration")

@@ -143,7 +143,7 @@ def load_table(vdir: Path, name: str, required_fields: Iterable[str] = ("token",
         records = json.loads(text)
         # a lone UTF-16 surrogate escape ("\ud800") decodes to a str no file name or output can encode: an internal
         # error where it was printed or used as a path (probe 108); its records are checked one by one below
-        lone = ("\\ud" in text or "\\uD" in text) and _LONE_SURROGATE.search(text) is not None
+        lone = _has_lone_surrogate(text)
         del text
     except json.JSONDecodeError as e:
         raise DataError(f"table {name!r} is not valid JSON ({e.msg} at line {e.lineno} column {e.colno}); "
@@ -218,9 +218,27 @@ def _check_record(name: str, i: int, rec, required: tuple[str, ...], path: Path)
 # the names a run prints in its lines (a vehicle named "car\nFAKE LINE" forged a line of output: probe 108)
 _NAME_FIELDS = ("vehicle", "name", "channel")
 _CONTROL = re.compile(r"[\x00-\x1f\x7f]")
-# a high surrogate escape not followed by a low one, or a low one not preceded by a high one
-_LONE_SURROGATE = re.compile(r"\\u[dD][89abAB][0-9a-fA-F]{2}(?!\\u[dD][c-fC-F][0-9a-fA-F]{2})"
-                             r"|(?<!\\u[dD][89abAB][0-9a-fA-F]{2})\\u[dD][c-fC-F][0-9a-fA-F]{2}")
+_SURROGATE_ESCAPE = re.compile(r"\\u[dD][89a-fA-F]")  # a literal prefix: one fast scan of the text (probe 110)
+_ESCAPES = re.compile(r"(\\+)u[dD]([89a-fA-F])[0-9a-fA-F]{2}")
+_HIGH, _LOW = re.compile(r"\\u[dD][89abAB][0-9a-fA-F]{2}"), re.compile(r"\\u[dD][c-fC-F][0-9a-fA-F]{2}")
+
+
+def _has_lone_surrogate(text: str) -> bool:
+    """Whether JSON ``text`` holds a lone UTF-16 surrogate escape: a high one (``\\ud800`` .. ``\\udbff``) not followed
+    by a low one, or a low one not preceded by a high one; an escaped backslash before "ud800" is text, not an
+    escape (one such text had sent every record of a table through the slow check: 8x slower, probe 110)."""
+    if _SURROGATE_ESCAPE.search(text) is None:
+        return False
+    for m in _ESCAPES.finditer(text):
+        if len(m.group(1)) % 2 == 0:  # "\\\\ud800": a backslash, then the letters
+            continue
+        at = m.end(1) - 1  # the escape's backslash
+        if m.group(2) in "89abAB":
+            if not _HIGH.fullmatch(text, at, m.end()) or not _LOW.match(text, m.end()):
+                return True
+        elif not _HIGH.match(text, max(at - 6, 0)) or at < 6:
+            return True
+    return False
 
 
 def _unencodable(rec) -> str | None:
