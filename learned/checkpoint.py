@@ -141,6 +141,10 @@ def _resolve(path: str | Path) -> Path:
         raise CheckpointError(f"not a checkpoint: a checkpoint is a JSON (ckpt-NNNN.json or a named one) with its "
                               f".safetensors beside it, and {path.name} is not there; pass the checkpoint's JSON, or "
                               "its run folder", path=str(given))
+    if not path.is_file() and path.exists():  # a FIFO, a device, a socket (probe 109: read "not found")
+        from hybrid_calib.data.files import check_regular_file
+
+        check_regular_file(path, "the checkpoint's JSON")
     if not path.is_file():
         raise CheckpointError("checkpoint not found (expected ckpt-NNNN.json with its .safetensors beside it, or "
                               "a run folder)", path=str(path))

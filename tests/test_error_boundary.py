@@ -398,3 +398,15 @@ def test_fitted_models_without_the_weights_hash_are_said(tmp_path):
     set_export_overrides(path, {"cov_scale": [2.0] * 6}, "fitted by the test")
     with pytest.warns(UserWarning, match="records no files.weights_sha256.*export.cov_scale"):
         load_checkpoint(path, torch.nn.Linear(3, 2))
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "mkfifo"), reason="needs named pipes")
+def test_a_named_pipe_as_the_checkpoint_is_said_as_one(tmp_path):
+    """A FIFO in the checkpoint JSON's place read "checkpoint not found" (probe 109)."""
+    import os
+
+    from learned.checkpoint import read_checkpoint_meta
+
+    os.mkfifo(tmp_path / "ckpt-0001.json")
+    with pytest.raises(HybridCalibError, match="is a named pipe"):
+        read_checkpoint_meta(tmp_path / "ckpt-0001.json")

@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -1137,7 +1138,8 @@ def test_a_cascade_missing_fits_in_both_stages_names_both():
     assert "fine.json has no fitted export.hybrid / export.ood" in why, why  # the second stage too, in one status
     assert "ood.enabled=false" not in why  # that alone would not make the run trusted
     cascade = SimpleNamespace(**vars(stage("fine.json", fitted)), coarse=stage("coarse.json", {}))
-    assert unfitted_reason(cascade, "hybrid").startswith("checkpoint coarse.json (the cascade's first stage)")
+    assert unfitted_reason(cascade, "hybrid").startswith(f"checkpoint {Path('coarse.json').resolve()} (the cascade's "
+                                                         "first stage)")
     cascade = SimpleNamespace(**vars(stage("fine.json", {"cov_scale": 1.0, "hybrid": block})),
                               coarse=stage("coarse.json", fitted))
     assert unfitted_reason(cascade, "pure-avg").endswith("--set ood.enabled=false, which the status then names)")
@@ -1159,7 +1161,8 @@ def test_an_export_hybrid_block_that_is_not_a_whole_fit_is_unfitted(block):
     ck = SimpleNamespace(ckpt=SimpleNamespace(path="c.json", export={"cov_scale": 1.0, "hybrid": part, "ood": {}}))
     why = unfitted_reason(ck, "hybrid")
     lacks = ", ".join(FITTED_KEYS) if block == {} else block
-    assert why.startswith(f"checkpoint c.json has no fitted export.hybrid (its block lacks {lacks})"), why
+    assert why.startswith(f"checkpoint {Path('c.json').resolve()} has no fitted export.hybrid (its block lacks "
+                          f"{lacks})"), why
     assert unfitted_reason(ck, "pure") == ""  # pure reads cov_scale only
     whole_ck = SimpleNamespace(ckpt=SimpleNamespace(path="f.json", export={"cov_scale": 1.0, "hybrid": whole,
                                                                              "ood": {}}))

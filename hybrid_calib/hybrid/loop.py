@@ -465,7 +465,8 @@ def unfitted_reason(runner, method: str, ood_enabled: bool = True) -> str:
     if coarse is not None and method != "pure" and unfitted_keys((coarse.ckpt.export or {}).get("hybrid")):
         # (measurement_config; probe 106: without it the refining stage's smaller one stood alone, the lateral std
         # 3.24 -> 1.20 cm, NEES 13.4, with no word)
-        first = (f"checkpoint {coarse.ckpt.path} (the cascade's first stage) has no fitted export.hybrid, so the "
+        first = (f"checkpoint {Path(coarse.ckpt.path).resolve()} (the cascade's first stage) has no fitted "
+                 "export.hybrid, so the "
                  "cascade's covariance is not calibrated; fit benchmarks/hybrid_fit.py --fit-into on validation drives")
     export = runner.ckpt.export or {}
     wanted = ("cov_scale", *(("hybrid",) if method != "pure" else ()), *(("ood",) if ood_enabled else ()))
@@ -478,7 +479,9 @@ def unfitted_reason(runner, method: str, ood_enabled: bool = True) -> str:
     how = {"cov_scale": "hybrid-calib evaluate --fit-uncertainty", "hybrid": "benchmarks/hybrid_fit.py --fit-into",
            "ood": "benchmarks/ood_fit.py --fit-into"}
     lacks = f" (its block lacks {', '.join(partial)})" if partial else ""
-    words = (f"checkpoint {runner.ckpt.path} has no fitted {' / '.join('export.' + k for k in missing)}{lacks}, so "
+    # the path absolute, as the result's own checkpoint field (probe 110: the words named it as typed)
+    words = (f"checkpoint {Path(runner.ckpt.path).resolve()} has no fitted "
+             f"{' / '.join('export.' + k for k in missing)}{lacks}, so "
              + ("its covariance is not calibrated" if missing != ["ood"] else
                 "no frame was checked to be like the network's training drives")
              + f"; fit {' and '.join(how[k] for k in missing)} on validation drives")
