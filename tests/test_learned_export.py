@@ -146,3 +146,16 @@ def test_plot_frame_writes_png(tmp_path):
     assert plot_frame(out2, batch, 0, tmp_path / "f2.png").is_file()
     with pytest.raises(ValueError, match="no attention"):
         attention_numpy(out2)
+
+
+def test_an_export_scale_written_as_text_is_refused():
+    """A checkpoint's export.sigma_scale "1" (text) was read as the number (probe 109); numbers of any numpy type
+    still are."""
+    import numpy as np
+
+    from learned.export import scale_problem
+
+    assert scale_problem(1.0, "1").startswith("sigma_scale='1'")
+    assert scale_problem(["2"] * 6, 1.0).startswith("cov_scale=")
+    assert scale_problem([np.float32(2.0)] * 6, np.float64(1.1)) == ""
+    assert scale_problem(np.full(6, 2.0), 1) == ""
