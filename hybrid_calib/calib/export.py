@@ -352,16 +352,17 @@ def _check_stamp(path: Path, run, root: Path, version: str) -> str:
     it is refused. Its data stamp decides (a root moved or copied elsewhere is the same data); without one, the
     root and version it records must be these (vehicle names repeat across roots: every simulated root has a
     sim-veh-000, nuScenes' n015 drives in several releases)."""
-    from hybrid_calib.calib.result import data_differ, stamp_words, stored_digest
+    from hybrid_calib.calib.result import DATA_STAMP, data_differ, stored_digest
 
     stored = stored_digest(path.parent)
     same_place = (not run.data or Path(run.data).resolve() == root.resolve()) and run.version in (None, "", version)
     if data_differ(path.parent, root, version):
         where = "" if same_place else f", on {run.data} ({run.version}), not on {root} ({version})"
         if stored is None:  # damaged (probe 109: read as no stamp, and a mount of other data was written)
-            return f"{path}: {stamp_words(path.parent)} re-run the calibration on this root"
-        return (f"{path} was computed from other data{where} ({stamp_words(path.parent)} re-run the calibration on "
-                "this root, or pass the root it was computed on)")
+            return (f"{path}: its {DATA_STAMP} is damaged, so it cannot show the data now to be those it was computed "
+                    "from; restore the file, or re-run the calibration on this root")
+        return (f"{path} was computed from other data{where} (its {DATA_STAMP} differs from the data now: re-run the "
+                "calibration on this root, or pass the root it was computed on)")
     if not stored and not same_place:
         return (f"{path} was computed on {run.data} ({run.version}), not on {root} ({version}), and records no data "
                 "stamp that would show them to be the same data: pass the root it was computed on")

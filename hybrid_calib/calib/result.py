@@ -796,14 +796,6 @@ def data_differ(out: str | Path, root: str | Path, version: str) -> bool:
     return stored is None or (bool(stored) and stored != data_stamp(root, version)["digest"])
 
 
-def stamp_words(out: str | Path) -> str:
-    """How the data stamp beside a result (``out/DATA_STAMP``) that ``data_differ`` refused reads, in words."""
-    if stored_digest(out) is None:
-        return (f"its {DATA_STAMP} is damaged, so it cannot show the data now to be those it was computed from; "
-                "restore the file, or")
-    return f"its {DATA_STAMP} differs from the data now:"
-
-
 RUN_ONLY = ("progress", "threads", "cache_dir", "depth_cache")  # config keys of how a run ran, not of what it gave
 
 

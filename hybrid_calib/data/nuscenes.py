@@ -341,9 +341,9 @@ class NuScenesRadarCamera:
         first: dict[str, FrameRef] = {}
         out: dict[str, FrameRef] = {}  # sample token -> frame, in the tables' order
         for ref in frames:
-            files = [sd.get("filename") for sd in (ref.camera_sd, ref.radar_sd)]
-            dup = next((first[f] for f in files if f and f in first), None)
-            shared = {f for f in files if f and f in first}
+            files = [f for f in (sd.get("filename") for sd in (ref.camera_sd, ref.radar_sd)) if f]
+            shared = {f for f in files if f in first}
+            dup = next((first[f] for f in files if f in first), None)
             if dup is not None and _names_its_file(ref, shared) and not _names_its_file(dup, shared):
                 del out[dup.sample_token]  # the earlier frame points at this one's file: it is the one left out
                 first = {f: r for f, r in first.items() if r is not dup}
@@ -359,7 +359,7 @@ class NuScenesRadarCamera:
                                     "recording twice; its frame is read once")
                 self.duplicates[ref.sample_token] = dup.sample_token
                 continue
-            first.update({f: ref for f in [sd.get("filename") for sd in (ref.camera_sd, ref.radar_sd)] if f})
+            first.update({f: ref for f in files})
             out[ref.sample_token] = ref
         return list(out.values())
 

@@ -234,9 +234,9 @@ def _has_lone_surrogate(text: str) -> bool:
             continue
         at = m.end(1) - 1  # the escape's backslash
         if m.group(2) in "89abAB":
-            if not _HIGH.fullmatch(text, at, m.end()) or not _LOW.match(text, m.end()):
+            if not _LOW.match(text, m.end()):
                 return True
-        elif not _HIGH.match(text, max(at - 6, 0)) or at < 6:
+        elif at < 6 or not _HIGH.match(text, at - 6):
             return True
     return False
 

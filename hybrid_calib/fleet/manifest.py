@@ -106,8 +106,9 @@ class Manifest:
                 if rec is None:
                     continue
                 found = True
-            if result_complete(job.result_path) and not _same_vehicle(e["job"], job):  # before the data stamp and
-                # the result's own root: another root's vehicle of the same
+            complete, why = _result_of(job)
+            if complete and not _same_vehicle(e["job"], job):  # before the data stamp and the result's own root:
+                # another root's vehicle of the same
                 # name (every simulated root names its vehicles sim-veh-000, ...) read as "its data changed" and was
                 # overwritten, the two roots mixed in one fleet view and prior (probe 50)
                 a = e["job"]
@@ -115,7 +116,7 @@ class Manifest:
                                 f"{a.get('data')}, {a.get('version')}); this run's {job.id} is {job.vehicle!r} of "
                                 f"{job.data}, {job.version}: pass another --out, or list both roots in one command "
                                 "(their vehicles are then named by root)", path=str(path))
-            done, why = _result_of(job)
+            done = complete and not why
             if why and (e["state"] == "done" or found):  # probe 109: recomputed unsaid
                 m.recovered.append(f"{job.id}: its result {job.result_path} {why}: calibrated again")
             if done and _data_changed(job, stamps):  # re-downloaded, re-simulated: computed again, and said
@@ -283,9 +284,9 @@ def _job_record(job: Job) -> dict | None:
 
 
 def _result_of(job: Job) -> tuple[bool, str]:
-    """(whether ``job``'s folder holds its complete result, why not when a result file is there): a ``result.json``
-    that reads, holds ``job.vehicle`` and was computed on ``job.data`` (probe 110: another root's result copied into
-    the folder was kept as this vehicle's)."""
+    """(whether ``job``'s folder holds a complete result, ``result_complete``; why it is not this job's when a result
+    file is there, "" when it is): this job's holds ``job.vehicle`` and was computed on ``job.data`` (probe 110:
+    another root's result copied into the folder was kept as this vehicle's). One read of the file."""
     from hybrid_calib.calib.result import CalibrationRun
 
     p = Path(job.result_path)
@@ -296,9 +297,9 @@ def _result_of(job: Job) -> tuple[bool, str]:
     except DataError:
         return False, "does not read (damaged)"
     if job.vehicle not in run.vehicles:
-        return False, f"holds no result of {job.vehicle} ({', '.join(sorted(run.vehicles)) or 'none'})"
+        return bool(run.vehicles), f"holds no result of {job.vehicle} ({', '.join(sorted(run.vehicles)) or 'none'})"
     if os.path.realpath(run.data) != os.path.realpath(job.data):
-        return False, f"was computed on {run.data}, not on {job.data}"
+        return True, f"was computed on {run.data}, not on {job.data}"
     return True, ""
 
 

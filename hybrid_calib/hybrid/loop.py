@@ -466,14 +466,12 @@ def unfitted_reason(runner, method: str, ood_enabled: bool = True) -> str:
         # (measurement_config; probe 106: without it the refining stage's smaller one stood alone, the lateral std
         # 3.24 -> 1.20 cm, NEES 13.4, with no word)
         first = (f"checkpoint {Path(coarse.ckpt.path).resolve()} (the cascade's first stage) has no fitted "
-                 "export.hybrid, so the "
-                 "cascade's covariance is not calibrated; fit benchmarks/hybrid_fit.py --fit-into on validation drives")
+                 "export.hybrid, so the cascade's covariance is not calibrated; fit benchmarks/hybrid_fit.py "
+                 "--fit-into on validation drives")
     export = runner.ckpt.export or {}
     wanted = ("cov_scale", *(("hybrid",) if method != "pure" else ()), *(("ood",) if ood_enabled else ()))
-    missing = [k for k in wanted if k not in export]
     partial = unfitted_keys(export["hybrid"]) if "hybrid" in wanted and "hybrid" in export else []
-    if partial:  # a block, but not a fit: said with what it lacks
-        missing = [*missing[:1], "hybrid", *missing[1:]] if "cov_scale" in missing else ["hybrid", *missing]
+    missing = [k for k in wanted if k not in export or (k == "hybrid" and partial)]  # a block, but not a fit
     if not missing:
         return first
     how = {"cov_scale": "hybrid-calib evaluate --fit-uncertainty", "hybrid": "benchmarks/hybrid_fit.py --fit-into",
