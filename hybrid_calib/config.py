@@ -98,6 +98,20 @@ def is_number(x) -> bool:
         return False
 
 
+def json_numbers(x) -> bool:
+    """Whether ``x`` holds numbers only, as JSON writes them: an int or float (not bool), a numpy number or
+    numeric array, or a (nested) list / tuple of such. Text that reads as a number ("1", "1e3") is not one:
+    numpy's ``asarray(..., float64)`` converts it silently (probes 109 and 110: a checkpoint's scales and its
+    out-of-domain threshold written as text were taken)."""
+    if isinstance(x, bool):
+        return False
+    if isinstance(x, (int, float, np.number)):
+        return True
+    if isinstance(x, np.ndarray):
+        return x.dtype.kind in "iuf"
+    return isinstance(x, (list, tuple)) and all(json_numbers(v) for v in x)
+
+
 def finite(*values: Any) -> bool:
     """Whether every value ``is_number``: numpy's ``isfinite`` on an int beyond 2**64 was an error that named no
     option (probe 79)."""

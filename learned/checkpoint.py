@@ -337,10 +337,22 @@ def check_config_of_weights(path: Path, meta: dict[str, Any], weights: Path) -> 
                               "the checkpoint again)", path=str(path))
 
 
+def _beside(path: Path, name: str, field: str) -> Path:
+    """The file ``name`` of ``files.<field>`` next to the checkpoint JSON ``path``. A name with folders is refused:
+    a checkpoint's files sit beside its JSON, and ``../x`` or an absolute path had read the same-named file beside
+    it while the JSON named another (probe 109, LOW)."""
+    if not name or Path(name).name != name or "\\" in name:
+        raise CheckpointError(f"checkpoint's files.{field} {name!r} is not a plain file name: a checkpoint's files sit "
+                              f"next to its JSON and files.{field} names one of them (e.g. "
+                              f"{Path(name.replace(chr(92), '/')).name or 'ckpt-0001.safetensors'!r}); copy the file "
+                              "there and write its name alone", path=str(path))
+    return path.parent / name
+
+
 def _weights_path(path: Path, meta: dict[str, Any]) -> Path:
     """The ``.safetensors`` file a checkpoint JSON names, checked to be one (never a pickle) and present."""
     name = str(meta["files"]["weights"])
-    weights = path.parent / Path(name).name
+    weights = _beside(path, name, "weights")
     if weights.suffix != ".safetensors":
         raise CheckpointError(f"checkpoint names weights {name!r}, which is not a .safetensors file; hybrid-calib "
                               "never loads pickled weights (.pt/.pth/.ckpt can run code when loaded): convert "
@@ -437,7 +449,7 @@ def load_checkpoint(path: str | Path, model: torch.nn.Module | None = None,
         name = meta["files"].get("optimizer")
         if name is None:
             raise HybridCalibError(f"checkpoint {path} has no optimizer state; cannot resume training from it")
-        optim = path.parent / Path(str(name)).name
+        optim = _beside(path, str(name), "optimizer")
         try:
             state = torch.load(optim, map_location=map_location, weights_only=True)
             if not isinstance(state, dict) or not isinstance(state.get("optimizer"), dict):

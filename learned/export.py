@@ -50,7 +50,7 @@ import numpy as np
 import torch
 
 from factors.correspondences import Correspondences
-from hybrid_calib.config import require_ranges
+from hybrid_calib.config import json_numbers, require_ranges
 from hybrid_calib.metrics import nees
 from learned import lie
 from learned.transform import STRIDE, cell_centres, cell_index
@@ -106,18 +106,14 @@ def scale_problem(cov_scale, sigma_scale) -> str:
     """What is wrong with an export block's ``cov_scale`` (a number in (0, 1e6], or 6 of them) and
     ``sigma_scale`` (a number in (0, 1000]); "" when both can work (the intervals of ``ExportConfig``: a checkpoint's
     block is refused at load naming its file, not later as if an option were wrong; probe 27)."""
-    def numbers(x) -> bool:  # JSON numbers, not text that reads as one (probe 109: "1" was taken)
-        return (isinstance(x, (int, float, np.number)) and not isinstance(x, bool)) or (
-            isinstance(x, (list, tuple)) and all(numbers(v) for v in x)) or isinstance(x, np.ndarray)
-
-    try:
-        cov = np.asarray(cov_scale, np.float64) if numbers(cov_scale) else np.full(1, np.nan)
+    try:  # JSON numbers, not text that reads as one (probe 109: "1" was taken)
+        cov = np.asarray(cov_scale, np.float64) if json_numbers(cov_scale) else np.full(1, np.nan)
     except (TypeError, ValueError):
         cov = np.full(1, np.nan)
     if cov.shape not in ((), (6,)) or not np.all(np.isfinite(cov)) or not np.all((cov > 0) & (cov <= 1e6)):
         return f"cov_scale={cov_scale!r}: need one factor in (0, 1e6] or 6 of them (per axis: rot x3, trans x3)"
     try:
-        sigma = float(sigma_scale) if numbers(sigma_scale) else float("nan")
+        sigma = float(sigma_scale) if json_numbers(sigma_scale) else float("nan")
     except (TypeError, ValueError):
         sigma = float("nan")
     if not (np.isfinite(sigma) and 0 < sigma <= 1000):

@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from hybrid_calib.config import json_numbers
 from hybrid_calib.errors import HybridCalibError
 from learned import lie
 from learned.transform import cell_index
@@ -182,6 +183,11 @@ class OODModel:
                    if k not in d]
         if missing:
             raise OODError(f"export.ood lacks {missing}; {FIT_HINT}")
+        text = [k for k in ("mean", "std", "components", "variances", "residual_mean", "threshold", "quantile")
+                if k in d and not json_numbers(d[k])]
+        if text:  # "12.2" read as the number before (probe 110): a block hand-edited or written by another tool
+            raise OODError(f"export.ood holds a non-numeric value in {', '.join(text)} (JSON numbers are needed, not "
+                           f"text); {FIT_HINT}")
         try:
             mean, std = np.asarray(d["mean"], np.float64), np.asarray(d["std"], np.float64)
             comp, var = np.atleast_2d(np.asarray(d["components"], np.float64)), np.asarray(d["variances"], np.float64)

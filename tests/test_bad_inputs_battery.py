@@ -1112,6 +1112,17 @@ def _pcd_header_of(tiny, old: bytes, new: bytes):
     path.write_bytes(path.read_bytes() + bytes(path.stat().st_size))
 
 
+def _pcd_points_raised(tiny, more: int = 3):
+    """Frame 1's PCD with POINTS and WIDTH raised by ``more`` over its padded body (probe 108)."""
+    import re
+
+    head = tiny.path(tiny.radar_sd[1]).read_bytes()[:400]
+    n = int(re.search(rb"\nPOINTS (\d+)", head)[1])
+    _pcd_header_of(tiny, f"\nPOINTS {n}".encode(), f"\nPOINTS {n + more}".encode())
+    _pcd_header(tiny.path(tiny.radar_sd[1]), f"WIDTH {n}".encode(), f"WIDTH {n + more}".encode())
+    return n
+
+
 TABLE_VALUE_CASES = {  # case -> (corrupt(tiny), the frames skipped, needles of the reason); each was a ValueError
     "intrinsic-ragged-rows": (lambda t: _set_intrinsic(t, [[500, 0, 32], [0, 500], [0, 0, 1]]), [0, 1, 2],
                               ["camera_intrinsic", "[[500, 0, 32], [0, 500], [0, 0, 1]]", "calibrated_sensor.json"]),
@@ -1124,6 +1135,8 @@ TABLE_VALUE_CASES = {  # case -> (corrupt(tiny), the frames skipped, needles of 
     "pcd-x-count-2": (lambda t: _pcd_header_of(t, b"COUNT 1", b"COUNT 2"), [1],
                       ["field 'x' holds float32[2]", "COUNT 1", ".pcd"]),
     "pcd-x-integer": (lambda t: _pcd_header_of(t, b"TYPE F", b"TYPE I"), [1], ["field 'x' holds int32", "TYPE F"]),
+    # the padding was read as 3 detections at the sensor itself (the filters dropped them; unfiltered they stayed)
+    "pcd-points-raised": (_pcd_points_raised, [1], ["3 of them", "zero bytes", "POINTS / WIDTH were raised"]),
 }
 
 
@@ -1332,6 +1345,11 @@ CKPT_JSON_CASES = {  # case -> (edit(meta), needles); each was an internal error
                                                                               "feat_dim='abc'"]),
     "model-config-zero-resolution": (_set_in("model_config", "bev_res_m", 0), ["bev_res_m=0", "finite number > 0"]),
     "model-config-negative-norm": (_set_in("model_config", "depth_norm_m", -1), ["depth_norm_m=-1"]),
+    # a name with folders read the same-named file beside the JSON while the JSON named another (probe 109)
+    "weights-in-another-folder": (_set_in("files", "weights", "../other/small-sim-r1.safetensors"),
+                                  ["files.weights '../other/small-sim-r1.safetensors' is not a plain file name"]),
+    "weights-absolute": (_set_in("files", "weights", "/elsewhere/small-sim-r1.safetensors"),
+                         ["files.weights '/elsewhere/small-sim-r1.safetensors'"]),
 }
 
 
@@ -1392,10 +1410,12 @@ def test_checkpoint_bad_hybrid_block_names_the_checkpoint(key, value, needle, tm
     ({"quantile": "x"}, "non-numeric"), ({"quantile": 0.0}, "quantile outside (0, 1]"),
     ({"residual_mean": NAN}, "non-finite"), ({"fitted": [1, 2]}, "fitted is a list"),
     ({"mean": [], "std": [], "components": [[]], "variances": [1.0]}, "disagree in shape"),
-], ids=["quantile-string", "quantile-zero", "residual-nan", "fitted-a-list", "no-features"])
+    ({"threshold": "13.1"}, "non-numeric value in threshold"), ({"variances": "1"}, "non-numeric value in variances"),
+], ids=["quantile-string", "quantile-zero", "residual-nan", "fitted-a-list", "no-features", "threshold-text",
+        "variances-text"])
 def test_checkpoint_bad_ood_block(change, needle):
     """Each was an internal error (a string quantile, a list 'fitted') or accepted until the first frame (NaN
-    residual_mean, a model of 0 features)."""
+    residual_mean, a model of 0 features); a threshold written as text was read as the number (probe 110)."""
     from learned.ood import OODError, OODModel
 
     block = json.loads((SHIPPED / "small-sim-r1.json").read_text())["export"]["ood"]

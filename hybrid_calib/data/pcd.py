@@ -126,6 +126,13 @@ def read_radar_pcd(path: str | Path) -> np.ndarray:
         raise DataError(
             f"truncated PCD: header says {n_points} points ({need} bytes) but the body has {len(body)} bytes; "
             "the file is corrupt or partially copied", path=str(path))
+    blank = ~np.frombuffer(body[:need], np.uint8).reshape(n_points, dtype.itemsize).any(axis=1)
+    if blank.any():  # every field 0, a return at the sensor itself: the zero padding real radar files end with,
+        # read as points because POINTS / WIDTH were raised above the data (probe 108, LOW)
+        first = int(np.argmax(blank))
+        raise DataError(f"PCD header says {n_points} points but {int(blank.sum())} of them (the first at index "
+                        f"{first}) are zero bytes, the file's padding rather than detections: POINTS / WIDTH were "
+                        f"raised above the data; the file is corrupt, re-download it", path=str(path))
     return np.frombuffer(body[:need], dtype=dtype).copy()
 
 
