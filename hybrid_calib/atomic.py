@@ -66,6 +66,24 @@ class BestEffortStream:
         return getattr(self._stream, name)
 
 
+def exit_with_parent(period_s: float = 2.0) -> None:
+    """In a process-pool worker (a pool's ``initializer``): exit when the process that started it is gone. A driver
+    killed with -9 left its workers asleep on the pool's queue for ever (a fleet's ~460 MB each, the output log held
+    open; simulate's held its output folder's lock, probe 111); what they had finished is in the result files, and
+    the next run redoes the job they were on."""
+    import threading
+    import time
+
+    parent = os.getppid()
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(period_s)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
+
+
 def best_effort_stderr() -> None:
     """Make this process's ``sys.stderr`` a ``BestEffortStream`` (once): the command line's process, and the fleet's
     spawned workers, whose notes to stderr failed their jobs under ``2>/dev/full`` (probe 70)."""
@@ -163,6 +181,27 @@ def write_bytes_atomic(path: str | Path, data: bytes) -> Path:
 
 
 LOCK_NAME = ".hybrid-calib.lock"
+_HELD_LOCKS: set[int] = set()  # the descriptors of the output-folder locks this process holds
+
+
+def _drop_held_locks_in_child() -> None:
+    """After a fork, in the child: its copies of the parent's lock descriptors point at /dev/null. A ``flock`` lives
+    as long as any copy of its descriptor, so a forked worker left alive by a killed run held that run's folder
+    locked for ever ("being written by another hybrid-calib run (pid <the dead one>)", probe 111); the number stays
+    valid, so nothing else is closed if the child's copy of the file object is ever closed."""
+    if not _HELD_LOCKS:
+        return
+    null = os.open(os.devnull, os.O_RDONLY)
+    for fd in _HELD_LOCKS:
+        try:
+            os.dup2(null, fd)
+        except OSError:
+            pass
+    os.close(null)
+    _HELD_LOCKS.clear()
+
+
+os.register_at_fork(after_in_child=_drop_held_locks_in_child)
 _RUN_RECORD = re.compile(r"pid \d+, hybrid-calib \S+, since ")  # what a run writes into its lock file
 
 
@@ -203,6 +242,7 @@ def out_dir_lock(out: str | Path, command: str, name: str = LOCK_NAME, what: str
         f.close()  # its first line (the second: the command line)
         raise OutDirBusy(f"{what or out} is being written by another hybrid-calib run ({holder}); wait for it to "
                          "end, or pass another --out") from None
+    _HELD_LOCKS.add(f.fileno())
     first = f"pid {os.getpid()}, hybrid-calib {command}, since {time.strftime('%Y-%m-%d %H:%M:%S')}"
     was = None  # what the file held before (restored at the end when it is not a run's lock)
     try:
@@ -232,6 +272,7 @@ def out_dir_lock(out: str | Path, command: str, name: str = LOCK_NAME, what: str
                 out.rmdir()
         except OSError:
             pass
+        _HELD_LOCKS.discard(f.fileno())
         try:
             f.close()
         except OSError:  # the record it could not write (a full disk) was said where it was written (_rewrite)

@@ -117,6 +117,40 @@ def test_the_lock_holds_across_processes(tmp_path, capsys):
         other.wait()
 
 
+def test_a_forked_child_of_a_killed_run_does_not_hold_its_lock(tmp_path):
+    """Probe 111: `simulate --workers 2` killed with -9 left its forked workers alive, and their copies of the lock's
+    descriptor kept the folder locked for ever, naming the dead run. The lock's holder forks a child that outlives
+    it here; the next run takes the folder; the lock of a live holder still holds (the test above)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from hybrid_calib.atomic import OutDirBusy, out_dir_lock
+
+    out = tmp_path / "run"
+    code = ("import os, signal, sys, time; from hybrid_calib.atomic import out_dir_lock\n"
+            f"with out_dir_lock({str(out)!r}, 'simulate'):\n"
+            "    pid = os.fork()\n"
+            "    if pid == 0:\n        time.sleep(60); os._exit(0)\n"
+            "    print(pid, flush=True); os.kill(os.getpid(), signal.SIGKILL)")
+    holder = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    child = int(holder.stdout.readline())
+    try:
+        holder.wait(timeout=30)
+        deadline = time.time() + 10
+        while True:
+            try:
+                with out_dir_lock(out, "simulate"):
+                    break
+            except OutDirBusy:
+                assert time.time() < deadline, "the killed run's child holds the lock"
+                time.sleep(0.2)
+    finally:
+        os.kill(child, signal.SIGKILL)
+
+
 @pytest.mark.parametrize("kind", ["symlink", "directory"])
 def test_a_lock_path_that_is_not_a_file_is_named_and_never_followed(kind, tmp_path):
     """A symbolic link in the lock's place had its target overwritten with the lock's text; a directory there gave

@@ -356,6 +356,7 @@ def test_stderr_is_best_effort_in_the_command_and_in_the_fleets_workers(monkeypa
     import copy
     import sys
 
+    import hybrid_calib.atomic as atomic
     import hybrid_calib.fleet.engines as engines
     from hybrid_calib.atomic import BestEffortStream
 
@@ -368,7 +369,7 @@ def test_stderr_is_best_effort_in_the_command_and_in_the_fleets_workers(monkeypa
 
     monkeypatch.setattr(sys, "stderr", Full())
     monkeypatch.setattr(engines, "_init_worker", lambda threads: None)
-    monkeypatch.setattr(engines, "_exit_with_parent", lambda: None)
+    monkeypatch.setattr(atomic, "exit_with_parent", lambda: None)
     engines._init_pool_worker(1)
     assert isinstance(sys.stderr, BestEffortStream)
     print("a note", file=sys.stderr, flush=True)  # dropped, not raised

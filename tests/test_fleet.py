@@ -842,9 +842,9 @@ def test_a_pool_worker_exits_when_its_driver_is_killed(tmp_path):
     script = tmp_path / "driver.py"
     script.write_text(
         "import multiprocessing as mp, sys, time\n"
-        "from hybrid_calib.fleet.engines import _exit_with_parent\n"
+        "from hybrid_calib.atomic import exit_with_parent\n"
         "def worker():\n"
-        "    _exit_with_parent(0.1)\n"
+        "    exit_with_parent(0.1)\n"
         "    time.sleep(120)\n"
         "if __name__ == '__main__':\n"
         "    p = mp.get_context('spawn').Process(target=worker)\n"

@@ -108,28 +108,11 @@ def _init_worker(threads: int) -> None:
     set_threads(threads)
 
 
-def _exit_with_parent(period_s: float = 2.0) -> None:
-    """In a process-pool worker: exit when the driver that started it is gone. A driver killed with -9 left its
-    workers asleep on the pool's queue for ever (~460 MB each, the output log held open); what they had finished
-    is in the result files, and the next run redoes the job they were on."""
-    import threading
-    import time
-
-    parent = os.getppid()
-
-    def watch() -> None:
-        while os.getppid() == parent:
-            time.sleep(period_s)
-        os._exit(1)
-
-    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
-
-
 def _init_pool_worker(threads: int) -> None:
-    from hybrid_calib.atomic import best_effort_stderr
+    from hybrid_calib.atomic import best_effort_stderr, exit_with_parent
 
     _init_worker(threads)
-    _exit_with_parent()
+    exit_with_parent()
     best_effort_stderr()  # a spawned worker's own stderr: a note there must not fail the job (probe 70)
 
 

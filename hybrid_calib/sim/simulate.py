@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hybrid_calib.atomic import LOCK_NAME, atomic_path
+from hybrid_calib.atomic import LOCK_NAME, atomic_path, exit_with_parent
 from hybrid_calib.config import save_json_atomic, to_dict
 from hybrid_calib.data.frame import write_depth_png
 from hybrid_calib.data.image_header import write_image
@@ -193,7 +193,8 @@ def simulate(conf: SimConfig, out: str | Path, overwrite: bool = False, workers:
     failed: dict[int, list[dict]] = {v: [] for v in range(conf.vehicles)}
     bar = tqdm(total=len(jobs), desc=f"simulate {conf.scenario}", unit="frame", disable=not progress)
     if workers > 1 and len(jobs) > 1:
-        with ProcessPoolExecutor(max_workers=min(workers, len(jobs))) as pool:  # no idle process forked
+        # no idle process forked; a worker exits when this process is killed (probe 111: they slept for ever)
+        with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), initializer=exit_with_parent) as pool:
             results = pool.map(_work, jobs, chunksize=4)
             for v, k, err in results:
                 _record(failed, v, k, err)
