@@ -25,6 +25,7 @@ _IS_A_DIRECTORY = ("{path} is a directory, so the output file cannot be written 
                    "write the outputs elsewhere")
 
 
+_OS_ERROR = re.compile(r"os error (\d+)|\[Errno (\d+)\]")  # how Rust (safetensors) and C++ (torch) writers say one
 FULL_BYTES = 1 << 20  # a file system with less than this free (bytes) is full: what failed a write there ran out
 
 
@@ -159,7 +160,8 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
             raise  # about another path (a file the writer read, a parent folder): it names that one
         # no filename: a write into the open temporary file (a full disk: ENOSPC, or numpy's "N requested and M
         # written", which has no errno): about this file too (probe 27: "internal error", naming no file)
-        code = e.errno or (errno.ENOSPC if "requested and" in str(e) else errno.EIO)
+        code = e.errno or (errno.EIO if "requested and" not in str(e) else  # cut short: a full disk, or a file-size
+                           errno.ENOSPC if disk_full(e, tmp.parent) else errno.EFBIG)  # limit (probe 111: said full)
         what = (_IS_A_DIRECTORY.format(path=path) if path.is_dir() else
                 f"{path} cannot be written ({e.strerror or e})")
         raise OSError(code, what, str(path)) from None  # the errno's subclass
@@ -167,6 +169,11 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         if disk_full(e, tmp.parent):
             raise OSError(errno.ENOSPC, f"{path} cannot be written: no space left on the device "
                                         f"({type(e).__name__}: {e})", str(path)) from None
+        # another system error in the writer's own words: a file-size limit (EFBIG: "os error 27"), a quota, an I/O
+        # error (probe 111: internal errors naming no file)
+        if (m := _OS_ERROR.search(str(e))) and (code := int(m[1] or m[2])) > 0:
+            raise OSError(code, f"{path} cannot be written ({os.strerror(code)}; {type(e).__name__}: "
+                                f"{str(e)[:160]})", str(path)) from None
         raise
     finally:
         if tmp.exists():

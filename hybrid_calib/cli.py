@@ -29,6 +29,7 @@ from hybrid_calib.errors import (
     check_out_not_in_dataset,
     check_out_owner,
     check_runs_record,
+    stop_signal_of,
 )
 
 # subcommand name -> module in hybrid_calib.commands (each has HELP, add_arguments, run).
@@ -78,6 +79,14 @@ def terminated(error: BaseException | None) -> bool:
     """Whether ``error`` ends a run that got SIGTERM: ``Terminated``, or the ``KeyboardInterrupt`` a library turned it
     into (Ray's wait raises its own when a signal handler raised; probe 91: a fleet on Ray read "interrupted", 130)."""
     return isinstance(error, Terminated) or (isinstance(error, KeyboardInterrupt) and _SIGTERM_SEEN[0])
+
+
+def _quiet_stopped_workers(unraisable) -> None:
+    """``sys.unraisablehook`` of a command: a DataLoader worker that the group's signal ended is not said again, as an
+    18-line traceback from the loader's ``__del__`` before the run's "terminated" line (probe 111); anything else as
+    Python says it."""
+    if stop_signal_of(unraisable.exc_value) is None:
+        sys.__unraisablehook__(unraisable)
 
 
 def _one_line(message, category, filename, lineno, line=None) -> str:
@@ -218,9 +227,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"hybrid-calib {args.command}: error: {problem}", file=sys.stderr)
         return EXIT_ERROR
     debug = args.debug or os.environ.get("HYBRID_CALIB_DEBUG", "") not in ("", "0")
-    before = warnings.formatwarning
+    before, unraisable = warnings.formatwarning, sys.unraisablehook
     if not debug:  # a warning is one line, as every other message: not our source file and line after it
         warnings.formatwarning = _one_line
+        sys.unraisablehook = _quiet_stopped_workers
     term, _SIGTERM_SEEN[0] = None, False
     if threading.current_thread() is threading.main_thread():  # signal handlers live in the main thread only
         term = signal.signal(signal.SIGTERM, _on_sigterm)
@@ -228,7 +238,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return _run(args, debug, sys.argv[1:] if argv is None else [str(a) for a in argv])
     finally:
-        warnings.formatwarning = before
+        warnings.formatwarning, sys.unraisablehook = before, unraisable
         if term is not None and not args._process:
             signal.signal(signal.SIGTERM, term)
 
@@ -267,8 +277,10 @@ def check_text_arguments(args: argparse.Namespace) -> None:
 
     try:
         cwd = os.getcwd()
-    except OSError:  # deleted under the shell: a relative path then fails on its own, naming itself
-        cwd = ""
+    except OSError:  # deleted under the shell: every command records where it ran (the lock, runs.json), and torch
+        # cannot load from there (probe 111: internal errors, an MKL fatal error and no word of ours)
+        raise HybridCalibError("the working folder no longer exists (it was deleted after this shell entered it): cd "
+                               "to an existing folder and rerun") from None
     if bad(cwd):
         raise HybridCalibError(f"the working folder {shown(cwd)} is not valid UTF-8: {advice(cwd)}, or run from "
                                "another folder")
@@ -433,6 +445,11 @@ def report_error(command: str, e: Exception) -> int:
         print(f"hybrid-calib {command}: error: no space left on the device while writing {e.filename}; free space "
               "there or pass another output path (what was written before is kept: every file is replaced whole or "
               "not at all, and a rerun resumes)", file=sys.stderr)
+        return EXIT_ERROR
+    if isinstance(e, OSError) and e.filename and e.errno == errno.EFBIG:  # probe 111: "check ... permissions"
+        print(f"hybrid-calib {command}: error: {e.strerror or e} [file {e.filename}]; a file-size limit was hit "
+              "(`ulimit -f`, or the file system's largest file): raise it or pass another output path (what was "
+              "written before is kept, and a rerun resumes)", file=sys.stderr)
         return EXIT_ERROR
     if isinstance(e, OSError) and e.filename:
         print(f"hybrid-calib {command}: error: {e.strerror or e} [file {e.filename}]; check the path and its "

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 
@@ -30,6 +31,21 @@ class DataError(HybridCalibError):
 
 class CheckpointError(DataError):
     """A checkpoint file that is missing, truncated, garbage, or not in the safe format (names the file)."""
+
+
+# torch's words for a DataLoader worker that a signal ended (a SIGTERM or Ctrl-C sent to the whole process group)
+_WORKER_KILLED = re.compile(r"DataLoader worker \(pids?\(?s?\)? [\d, ]+\) (?:is|are) killed by signal: "
+                            r"(Terminated|Interrupt)")
+
+
+def stop_signal_of(error: BaseException) -> int | None:
+    """``signal.SIGTERM`` / ``SIGINT`` when ``error`` is torch's RuntimeError for a DataLoader worker that the signal
+    ended, else None: the group's signal reached the worker first (``docker stop``, systemd, a scheduler's
+    pre-emption), and the run is stopped by it, not failed (probe 111: an internal error, exit 3)."""
+    import signal
+
+    m = _WORKER_KILLED.search(str(error)) if isinstance(error, RuntimeError) else None
+    return None if m is None else (signal.SIGTERM if m[1] == "Terminated" else signal.SIGINT)
 
 
 class OptionError(HybridCalibError):

@@ -38,8 +38,14 @@ def nees(xi: np.ndarray, cov: np.ndarray) -> np.ndarray | float:
         raise ValueError(f"nees: xi (6,) or (F, 6) with cov (6, 6) or (F, 6, 6), got xi {xi.shape} and cov {cov.shape}")
     if not (np.isfinite(xi).all() and np.isfinite(cov).all()):
         raise ValueError("nees: xi or cov holds NaN/inf values (probe 67: a NaN error gave NaN, read as no verdict)")
+    if not xi.size:
+        raise ValueError("nees: no errors given (xi of shape (0, 6))")
     if not is_symmetric(cov):
         raise ValueError("nees: cov is not symmetric (a covariance is; check its order and frame)")
+    low = np.linalg.eigvalsh(cov).min(axis=-1) / np.maximum(np.abs(cov).max(axis=(-2, -1)), 1e-300)
+    if len(bad := np.flatnonzero(np.atleast_1d(low) < -1e-9)):  # probe 112: a negative variance the error avoided
+        which = "" if xi.ndim == 1 else f" (estimate {int(bad[0])} of {len(xi)})"  # gave a plausible NEES of 1
+        raise ValueError(f"nees: cov is not positive definite{which} (a negative eigenvalue): not a covariance")
     try:
         if xi.ndim == 1:
             v = np.array([xi @ np.linalg.solve(cov, xi)])

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from hybrid_calib.errors import HybridCalibError
-from hybrid_calib.geometry import perturb_camera_frame
+from hybrid_calib.geometry import check_transform, perturb_camera_frame
 
 # name -> (max |angle| degrees, max |offset| metres) per axis
 RANGES: dict[str, tuple[float, float]] = {"R0": (2.0, 0.10), "R1": (10.0, 0.25), "R2": (20.0, 1.5)}
@@ -37,7 +37,8 @@ def sample_perturbation(g: np.random.Generator, name: str) -> np.ndarray:
 
 def perturbed_start(T_cam_radar: np.ndarray, g: np.random.Generator, name: str) -> np.ndarray:
     """(4, 4) a start drawn in the named range around ``T_cam_radar`` (``sample_perturbation``)."""
-    xi = sample_perturbation(g, name)
+    T_cam_radar = check_transform(T_cam_radar, "perturbed_start T_cam_radar", 1e-4)  # probe 112: NaN / scaled bases
+    xi = sample_perturbation(g, name)  # were perturbed into NaN / non-rigid starts
     return perturb_camera_frame(T_cam_radar, xi[:3], xi[3:])
 
 
@@ -46,6 +47,9 @@ def vehicle_rng(seed: int, vehicle: str, purpose: str = "start") -> np.random.Ge
     other vehicles a run holds, their order, or the method (every method sees the same start)."""
     import hashlib
 
+    if not (isinstance(seed, (int, np.integer)) and not isinstance(seed, bool) and 0 <= seed < 2**63):
+        raise HybridCalibError(f"vehicle_rng: seed {seed!r} is not a whole number in 0..2**63-1 (1.7 was truncated, "
+                               "'3' taken as text)")
     digest = hashlib.sha1(f"{purpose}:{int(seed)}:{vehicle}".encode()).digest()
     return np.random.default_rng(int.from_bytes(digest[:8], "little"))
 

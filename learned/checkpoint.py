@@ -363,6 +363,9 @@ def _weights_path(path: Path, meta: dict[str, Any]) -> Path:
     if not weights.is_file():
         raise CheckpointError(f"the weights file {weights.name} of this checkpoint is missing (it must sit next "
                               "to the JSON); copy it along", path=str(path))
+    if not os.access(weights, os.R_OK):  # safetensors says "No such file or directory" (probe 111)
+        raise CheckpointError("the weights file cannot be read (permission denied): give this user read access to "
+                              "it (chmod +r)", path=str(weights))
     return weights
 
 
@@ -371,6 +374,10 @@ def _load_weights(weights: Path, device: str) -> dict[str, torch.Tensor]:
 
     try:
         return load_file(str(weights), device=device)
+    except OSError as e:  # safetensors' own words for any file it cannot open ("No such file or directory" for a
+        # file without read permission: probe 111's internal error)
+        raise CheckpointError(f"the weights file cannot be read ({e.strerror or e}): check that it is there and this "
+                              "user may read it", path=str(weights)) from None
     except SafetensorError as e:  # a bad header or body; also safetensors' word for a device name it does not know
         if str(e).startswith(f"device {device} "):
             raise CheckpointError(f"device {device!r} is not a torch device ({e}); use cpu, cuda or cuda:N",

@@ -22,9 +22,11 @@ import hashlib
 import io
 import json
 import logging
+import signal
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -35,7 +37,7 @@ import torch
 from hybrid_calib.atomic import remove_temporaries
 from hybrid_calib.config import ConfigError, merge, read_out_record, require_ranges, save_json_atomic, to_dict
 from hybrid_calib.data.frame import RadarCameraFrame
-from hybrid_calib.errors import HybridCalibError
+from hybrid_calib.errors import HybridCalibError, stop_signal_of
 from hybrid_calib.metrics import extrinsic_error
 from learned.checkpoint import checkpoint_stem, latest_checkpoint, load_checkpoint, orphaned_weights, save_checkpoint
 from learned.dataset import CalibDataset, DatasetConfig, SplitConfig, collate, index_skip_records, split_indices
@@ -392,75 +394,89 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
                                               "skipped_frames", "nonfinite_steps", "seconds"], start - 1)
     tb = _tensorboard(out)
     last_path = last
-    for epoch in range(start, conf.epochs + 1):
-        t0 = time.time()
-        torch.manual_seed(_seed("epoch", conf.seed, epoch))
-        train_set.set_epoch(epoch)
-        g = np.random.default_rng(_seed("shuffle", conf.seed, epoch))
-        order = g.permutation(len(train_set))
-        if conf.samples_per_epoch:
-            order = order[: conf.samples_per_epoch]
-        loader = torch.utils.data.DataLoader(train_set, batch_size=conf.batch_size, sampler=order.tolist(),
-                                             num_workers=conf.num_workers, collate_fn=collate)
-        model.train()
-        lr = optimizer.param_groups[0]["lr"]
-        sums: dict[str, float] = {}
-        n_steps = nonfinite = 0
-        bar = tqdm(loader, desc=f"epoch {epoch}/{conf.epochs}", disable=not progress, leave=False)
-        for step, batch in enumerate(bar):
-            if batch is None:
-                continue
-            ts = time.time()
-            batch = to_device(batch, device)
-            out_m = model(model_inputs(batch))
-            losses = model.loss(out_m, model_inputs(batch))
-            if not torch.isfinite(losses["total"]):  # a degenerate batch must not poison the weights
-                nonfinite += 1
-                log.warning("epoch %d step %d: non-finite loss %s; step skipped", epoch, step,
-                            {k: float(v.detach()) for k, v in losses.items()})
-                continue
-            optimizer.zero_grad(set_to_none=True)
-            losses["total"].backward()
-            if conf.grad_clip > 0:
-                torch.nn.utils.clip_grad_norm_(model.parameters(), conf.grad_clip)
-            optimizer.step()
-            vals = {k: float(v.detach()) for k, v in losses.items() if k in LOSS_KEYS}
-            for k, v in vals.items():
-                sums[k] = sums.get(k, 0.0) + v
-            n_steps += 1
-            steps_log.write({"epoch": epoch, "step": step, "lr": lr, **vals, "seconds": round(time.time() - ts, 3)})
-            bar.set_postfix(loss=f"{vals['total']:.4f}")
-            if tb is not None:
+    with _stopped_workers_stop_the_run():  # a worker the group's signal ended: that signal (probe 111)
+        for epoch in range(start, conf.epochs + 1):
+            t0 = time.time()
+            torch.manual_seed(_seed("epoch", conf.seed, epoch))
+            train_set.set_epoch(epoch)
+            g = np.random.default_rng(_seed("shuffle", conf.seed, epoch))
+            order = g.permutation(len(train_set))
+            if conf.samples_per_epoch:
+                order = order[: conf.samples_per_epoch]
+            loader = torch.utils.data.DataLoader(train_set, batch_size=conf.batch_size, sampler=order.tolist(),
+                                                 num_workers=conf.num_workers, collate_fn=collate)
+            model.train()
+            lr = optimizer.param_groups[0]["lr"]
+            sums: dict[str, float] = {}
+            n_steps = nonfinite = 0
+            bar = tqdm(loader, desc=f"epoch {epoch}/{conf.epochs}", disable=not progress, leave=False)
+            for step, batch in enumerate(bar):
+                if batch is None:
+                    continue
+                ts = time.time()
+                batch = to_device(batch, device)
+                out_m = model(model_inputs(batch))
+                losses = model.loss(out_m, model_inputs(batch))
+                if not torch.isfinite(losses["total"]):  # a degenerate batch must not poison the weights
+                    nonfinite += 1
+                    log.warning("epoch %d step %d: non-finite loss %s; step skipped", epoch, step,
+                                {k: float(v.detach()) for k, v in losses.items()})
+                    continue
+                optimizer.zero_grad(set_to_none=True)
+                losses["total"].backward()
+                if conf.grad_clip > 0:
+                    torch.nn.utils.clip_grad_norm_(model.parameters(), conf.grad_clip)
+                optimizer.step()
+                vals = {k: float(v.detach()) for k, v in losses.items() if k in LOSS_KEYS}
                 for k, v in vals.items():
-                    tb.add_scalar(f"train/{k}", v, (epoch - 1) * len(loader) + step)
-        if n_steps == 0 and not nonfinite and train_set.bad:
-            save_json_atomic(out / "skipped.json", train_set.skip_records(index=True) + val_set.skip_records())
-            raise HybridCalibError(f"epoch {epoch}: no training step ran, every frame drawn failed to load "
-                                   f"({len(train_set.bad)} bad; listed in {out / 'skipped.json'}); first: "
-                                   f"{next(iter(train_set.bad.values()))}")
-        scheduler.step()
-        train_means = {f"train_{k}": v / max(n_steps, 1) for k, v in sums.items()}
-        val = validate(model, val_set, conf, device) if len(val_set) else {}
-        metrics = {"epoch": epoch, "lr": lr, **train_means, **val,
-                   "skipped_frames": len(train_set.bad) + len(val_set.bad), "nonfinite_steps": nonfinite,
-                   "seconds": round(time.time() - t0, 1)}
-        epochs_log.write(metrics)
-        if train_set.bad or val_set.bad:  # which frames were skipped, and why (the count is in epochs.csv)
-            save_json_atomic(out / "skipped.json", train_set.skip_records(index=True) + val_set.skip_records())
-        if tb is not None:
-            for k, v in metrics.items():
-                if k.startswith("val_"):
-                    tb.add_scalar(f"val/{k[4:]}", v, epoch)
-        last_path = save_checkpoint(checkpoint_stem(ckpt_dir, epoch), model, epoch=epoch,
-                                    model_config=model_conf_dict, train_config=to_dict(conf), metrics=metrics,
-                                    optimizer=optimizer, scheduler=scheduler, data=source)
-        if progress:
-            print(json.dumps({k: (round(v, 4) if isinstance(v, float) else v) for k, v in metrics.items()}))
+                    sums[k] = sums.get(k, 0.0) + v
+                n_steps += 1
+                steps_log.write({"epoch": epoch, "step": step, "lr": lr, **vals, "seconds": round(time.time() - ts, 3)})
+                bar.set_postfix(loss=f"{vals['total']:.4f}")
+                if tb is not None:
+                    for k, v in vals.items():
+                        tb.add_scalar(f"train/{k}", v, (epoch - 1) * len(loader) + step)
+            if n_steps == 0 and not nonfinite and train_set.bad:
+                save_json_atomic(out / "skipped.json", train_set.skip_records(index=True) + val_set.skip_records())
+                raise HybridCalibError(f"epoch {epoch}: no training step ran, every frame drawn failed to load "
+                                       f"({len(train_set.bad)} bad; listed in {out / 'skipped.json'}); first: "
+                                       f"{next(iter(train_set.bad.values()))}")
+            scheduler.step()
+            train_means = {f"train_{k}": v / max(n_steps, 1) for k, v in sums.items()}
+            val = validate(model, val_set, conf, device) if len(val_set) else {}
+            metrics = {"epoch": epoch, "lr": lr, **train_means, **val,
+                       "skipped_frames": len(train_set.bad) + len(val_set.bad), "nonfinite_steps": nonfinite,
+                       "seconds": round(time.time() - t0, 1)}
+            epochs_log.write(metrics)
+            if train_set.bad or val_set.bad:  # which frames were skipped, and why (the count is in epochs.csv)
+                save_json_atomic(out / "skipped.json", train_set.skip_records(index=True) + val_set.skip_records())
+            if tb is not None:
+                for k, v in metrics.items():
+                    if k.startswith("val_"):
+                        tb.add_scalar(f"val/{k[4:]}", v, epoch)
+            last_path = save_checkpoint(checkpoint_stem(ckpt_dir, epoch), model, epoch=epoch,
+                                        model_config=model_conf_dict, train_config=to_dict(conf), metrics=metrics,
+                                        optimizer=optimizer, scheduler=scheduler, data=source)
+            if progress:
+                print(json.dumps({k: (round(v, 4) if isinstance(v, float) else v) for k, v in metrics.items()}))
     if tb is not None:
         tb.close()
     if last_path is None:
         raise HybridCalibError(f"no epoch was trained (epochs={conf.epochs})")
     return last_path
+
+
+@contextmanager
+def _stopped_workers_stop_the_run() -> Iterator[None]:
+    """A DataLoader worker ended by a signal sent to the process group (SIGTERM, Ctrl-C) stops the run as the signal
+    does: it is raised in this process (the command's handler says what is kept, exit 143 / 130), not torch's
+    RuntimeError (probe 111: "internal error", exit 3, when a worker got the group's SIGTERM first)."""
+    try:
+        yield
+    except RuntimeError as e:
+        if (sig := stop_signal_of(e)) is not None:
+            signal.raise_signal(sig)
+        raise
 
 
 @torch.no_grad()

@@ -174,13 +174,18 @@ def test_a_lock_path_that_is_not_a_file_is_named_and_never_followed(kind, tmp_pa
 
 @pytest.mark.parametrize("failure", [OSError(28, "No space left on device"),
                                      OSError("19200 requested and 13280 written")])
-def test_a_full_disk_names_the_file_and_is_not_a_bug(failure, tmp_path, capsys):
+def test_a_full_disk_names_the_file_and_is_not_a_bug(failure, tmp_path, monkeypatch, capsys):
     """A write into the open temporary file on a full disk (no file name on the error; numpy's short write has no
     errno either) was "internal error ... looks like a bug" in every writing command (probe 27)."""
     import errno
+    import os
 
     from hybrid_calib.cli import EXIT_ERROR, report_error
 
+    class Full:
+        f_bavail, f_frsize = 0, 4096
+
+    monkeypatch.setattr(os, "statvfs", lambda folder: Full())
     p = tmp_path / "depth.npy"
     write_bytes_atomic(p, b"old")
     with pytest.raises(OSError) as e, atomic_path(p) as tmp:
@@ -219,6 +224,42 @@ def test_a_writer_s_own_error_on_a_full_disk_is_a_full_disk(failure, free, tmp_p
     Stat.f_bavail = 1 << 20  # the same error with room on the disk: the writer's own error, as it was
     with pytest.raises(RuntimeError, match="unexpected pos"), atomic_path(p) as tmp:
         raise RuntimeError("[enforce fail at inline_container.cc:672] . unexpected pos 4921984 vs 4921872")
+
+
+def test_a_short_write_with_room_on_the_disk_is_a_file_size_limit(tmp_path, capsys):
+    """Probe 111: numpy's short write under `ulimit -f` (no errno) read "no space left on the device" with 74 GB
+    free."""
+    import errno
+
+    from hybrid_calib.cli import report_error
+
+    p = tmp_path / "depth.npy"
+    with pytest.raises(OSError) as e, atomic_path(p) as tmp:
+        tmp.write_bytes(b"half")
+        raise OSError("19200 requested and 13280 written")
+    assert e.value.errno == errno.EFBIG and e.value.filename == str(p)
+    report_error("calibrate", e.value)
+    err = capsys.readouterr().err
+    assert str(p) in err and "no space left" not in err and "a file-size limit was hit" in err, err
+
+
+@pytest.mark.parametrize("failure, code", [
+    (RuntimeError("Error while serializing: I/O error: File too large (os error 27)"), 27),  # safetensors, ulimit -f
+    (RuntimeError("[Errno 122] Disk quota exceeded"), 122),
+])
+def test_a_writer_s_own_system_error_names_the_file(failure, code, tmp_path, capsys):
+    """Probe 111: a checkpoint under `ulimit -f` (EFBIG, in safetensors' words) was "internal error: SafetensorError"
+    naming no file; every other writer says the file and the cause."""
+    from hybrid_calib.cli import EXIT_ERROR, report_error
+
+    p = tmp_path / "ckpt-0001.safetensors"
+    with pytest.raises(OSError) as e, atomic_path(p) as tmp:
+        tmp.write_bytes(b"half")
+        raise failure
+    assert e.value.errno == code and e.value.filename == str(p) and not list(tmp_path.iterdir())
+    assert report_error("train", e.value) == EXIT_ERROR
+    err = capsys.readouterr().err
+    assert str(p) in err and "internal error" not in err, err
 
 
 def test_a_lock_file_on_a_full_disk_is_named(tmp_path, monkeypatch, capsys):

@@ -911,6 +911,44 @@ DAMAGED_RESULTS = {  # case -> (damage(doc, vehicle), needles beyond the file); 
     "drift-axis-delta-nan": (lambda doc, v: doc["vehicles"][v]["drift"]["axes"]["yaw"].__setitem__("delta", float(
         "nan")), ["drift.axes.yaw.delta is nan"]),
     "n-frames-missing": (lambda doc, v: doc["vehicles"][v].pop("n_frames"), [".n_frames is missing"]),
+    # probe 112: markup in the network block reached the page as HTML, a string error was an internal error; impossible
+    # numbers and an edited trajectory were printed and drawn as they were
+    "network-markup": (lambda doc, v: doc["vehicles"][v].__setitem__("network", {
+        "n_frames": "<script>alert(9)</script>", "frame_id": "f", "iteration": 1}),
+        ["network.n_frames is '<script>alert(9)</script>', not a count"]),
+    "network-error-a-string": (lambda doc, v: doc["vehicles"][v].__setitem__("network", {
+        "n_frames": 3, "frame_id": "f", "iteration": 1,
+        "error": {**doc["vehicles"][v]["error"], "geodesic_deg": "NaN"}}),
+        ["network.error.geodesic_deg is 'NaN', not a finite number"]),
+    "crb-std-text": (lambda doc, v: doc["vehicles"][v]["crb_std_cam"].__setitem__("rot_x_cam_deg", "NaN"),
+                     ["crb_std_cam.rot_x_cam_deg is 'NaN', not a std (a finite number >= 0)"]),
+    "crb-std-negative": (lambda doc, v: doc["vehicles"][v]["crb_std_cam"].__setitem__("t_x_cam_cm", -1),
+                         ["crb_std_cam.t_x_cam_cm is '-1', not a std"]),
+    "doppler-negative": (lambda doc, v: doc["vehicles"][v].__setitem__("doppler", {
+        "applied": True, "dx_m": 0.1, "dx_std_m": -0.02, "pairs": 3, "frames": 2, "turning": 2}),
+        ["doppler.dx_std_m is '-0.02': a std that is not positive"]),
+    "doppler-pairs-negative": (lambda doc, v: doc["vehicles"][v].__setitem__("doppler", {
+        "applied": True, "dx_m": 0.1, "dx_std_m": 0.02, "pairs": -3, "frames": 2, "turning": 2}),
+        ["doppler.pairs is '-3': not a count"]),
+    "lidar-rows-a-fraction": (lambda doc, v: doc["vehicles"][v].__setitem__("lidar", {
+        "applied": True, "dy_m": 0.01, "dy_std_m": 0.02, "rows": 2.5, "frames": 2}),
+        ["lidar.rows is '2.5': not a count"]),
+    "drift-p-value-7": (lambda doc, v: doc["vehicles"][v]["drift"].__setitem__("p_value", 7),
+                        ["drift.p_value is 7, outside [0, 1]"]),
+    "drift-statistic-negative": (lambda doc, v: doc["vehicles"][v]["drift"].__setitem__("statistic", -5.0),
+                                 ["drift.statistic is -5.0, outside [0, inf]"]),
+    "drift-dof-0": (lambda doc, v: doc["vehicles"][v]["drift"].__setitem__("dof", 0),
+                    ["drift.dof is 0, outside [1, 6]"]),
+    "trajectory-longer": (lambda doc, v: doc["vehicles"][v]["trajectory"].extend(
+        [{**doc["vehicles"][v]["trajectory"][-1], "index": 10**5 + k} for k in range(3)]),
+        ["trajectory holds", "frames but", "n_frames is"]),
+    "trajectory-index-beyond": (lambda doc, v: doc["vehicles"][v]["trajectory"][-1].__setitem__("index", 10**6),
+                                ["trajectory's frame indices", "are not increasing drive positions below the"]),
+    "trajectory-index-repeated": (lambda doc, v: (doc["vehicles"][v]["trajectory"].append(
+        doc["vehicles"][v]["trajectory"][0]), doc["vehicles"][v].__setitem__("n_frames", 2)),
+        ["trajectory's frame indices"]),
+    "step-alarms-edited": (lambda doc, v: doc["vehicles"][v].__setitem__("step_alarms", [3, 99]),
+                           ["step_alarms ([3, 99]) are not the trajectory's alarms"]),
 }
 
 
@@ -2864,14 +2902,17 @@ def test_a_sample_left_out_at_indexing_is_said_by_a_calibration(tiny):
     assert not [n for n in calibration_notes(ds, ["another-car"]) if "no usable keyframe" in n]
 
 
-def test_a_name_with_a_control_character_is_refused_naming_it(tiny, capsys):
-    """A log's vehicle "car\\nFAKE LINE: inconclusive" forged a line in every command's output (probe 108). The small
-    tables' names (vehicle, scene name, sensor channel) with a control character are refused, naming the record."""
-    tiny.tables["log"][0]["vehicle"] = "car\nFAKE LINE: inconclusive"
+@pytest.mark.parametrize("name,shown", [("car\nFAKE LINE: inconclusive", "'car\\nFAKE LINE: inconclusive'"),
+                                        ("car\u202e:evitca", "'car\\u202e:evitca'")], ids=["newline", "rtl-override"])
+def test_a_name_with_a_control_character_is_refused_naming_it(name, shown, tiny, capsys):
+    """A log's vehicle "car\\nFAKE LINE: inconclusive" forged a line in every command's output (probe 108); one with
+    the right-to-left override U+202E reversed the verdict words after it in calibrate's line and the page's title
+    (probe 112). The small tables' names (vehicle, scene name, sensor channel) with a control character are refused,
+    naming the record."""
+    tiny.tables["log"][0]["vehicle"] = name
     tiny.rewrite_table("log")
     err = expect_cli_error(["inspect", "--data", tiny.root, "--version", tiny.version], capsys,
-                           "field 'vehicle' is 'car\\nFAKE LINE: inconclusive': it holds a control character",
-                           "log.json")
+                           f"field 'vehicle' is {shown}: it holds a control character", "log.json")
     assert "\nFAKE LINE" not in err
 
 
@@ -2929,3 +2970,43 @@ def test_the_lone_surrogate_scan_reads_escapes_as_json_does():
                        ('{"a": "\\uD83Dx"}', True), ('"\\udc00"', True)):
         assert _has_lone_surrogate(text) is lone, text
         assert json.loads(text) is not None
+
+
+API_REFUSALS = {  # case -> (call(modules), needle)
+    "nees-indefinite": (lambda m: m.nees(np.array([1.0, 0, 0, 0, 0, 0]), np.diag([1.0, 1, 1, 1, 1, -1])),
+                        "cov is not positive definite"),
+    "nees-empty": (lambda m: m.nees(np.zeros((0, 6)), np.zeros((0, 6, 6))), "no errors given"),
+    "fold-negative-variance": (lambda m: m.fold_scalar(np.eye(4), 1e-3 * np.eye(6), np.eye(6)[0], 0.1, -1e-4),
+                               "R must be a finite positive definite"),
+    "fold-nan-measurement": (lambda m: m.fold_scalar(np.eye(4), 1e-3 * np.eye(6), np.eye(6)[0], np.nan, 1e-4),
+                             "need finite H (k, 6) and z"),
+    "fold-indefinite-cov": (lambda m: m.fold_scalar(np.eye(4), np.diag([1.0, 1, 1, 1, 1, -1]), np.eye(6)[0], 0.1,
+                                                    1e-4), "fold_linear cov: covariance is not positive"),
+    "information-nan-transform": (lambda m: m.analyse_information(np.full((4, 4), np.nan), np.eye(6)),
+                                  "analyse_information T_cam_radar"),
+    "information-asymmetric": (lambda m: m.analyse_information(np.eye(4), np.eye(6) + np.triu(np.ones((6, 6)), 1)),
+                               "information must be symmetric"),
+    "start-of-a-scaled-base": (lambda m: m.perturbed_start(2 * np.eye(4), np.random.default_rng(0), "R1"),
+                               "perturbed_start T_cam_radar"),
+    "seed-a-fraction": (lambda m: m.vehicle_start(np.eye(4), "R1", 1.7, "v"), "seed 1.7 is not a whole number"),
+    "seed-text": (lambda m: m.vehicle_start(np.eye(4), "R1", "3", "v"), "seed '3' is not a whole number"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(API_REFUSALS))
+def test_the_api_refuses_what_is_not_a_covariance_a_transform_or_a_seed(case):
+    """Probe 112: each returned a plausible or NaN answer (a NEES of 1 from a negative variance, a NaN extrinsic from a
+    fold of variance -1e-4, a non-rigid start, a truncated seed) or a bare numpy error."""
+    from types import SimpleNamespace
+
+    from hybrid_calib.calib.covariance import analyse_information, fold_scalar
+    from hybrid_calib.errors import HybridCalibError
+    from hybrid_calib.metrics import nees
+    from hybrid_calib.perturbation import perturbed_start, vehicle_start
+
+    call, needle = API_REFUSALS[case]
+    modules = SimpleNamespace(nees=nees, fold_scalar=fold_scalar, analyse_information=analyse_information,
+                              perturbed_start=perturbed_start, vehicle_start=vehicle_start)
+    with pytest.raises((ValueError, HybridCalibError)) as e:
+        call(modules)
+    assert needle in str(e.value), str(e.value)

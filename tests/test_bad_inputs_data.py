@@ -608,12 +608,12 @@ def test_a_path_not_valid_utf8_is_refused_by_the_commands_and_read_by_the_api(ti
     for checkpoint in ("ck.json", str(tiny.root / "ck.json")):  # a relative str option too (probe 70)
         expect_cli_error(["calibrate", "--data", tiny.root, "--out", tmp_path / "c", "--checkpoint", checkpoint],
                          capsys, "the working folder ", "lat\\xe4 is not valid UTF-8", "run from another folder")
-    gone = tmp_path / "gone"  # a working folder deleted under the shell is not an internal error (probe 70)
-    gone.mkdir()
+    gone = tmp_path / "gone"  # a working folder deleted under the shell is not an internal error (probe 70); it is
+    gone.mkdir()  # said first (probe 111: the lock's record of it, and torch's loading from it, were internal errors)
     monkeypatch.chdir(gone)
     gone.rmdir()
     expect_cli_error(["inspect", "--data", tmp_path / "nowhere", "--version", "v", "--no-progress"], capsys,
-                     "nowhere")
+                     "the working folder no longer exists")
     monkeypatch.chdir(tmp_path)
     expect_cli_error(["simulate", "--out", latin / "sim", "--vehicles", "1", "--frames", "1"], capsys, "--out: ")
     expect_cli_error(["calibrate", "--data", tiny.root, "--out", tmp_path / "c", "--set", "vehicles=[\"v\udce4\"]"],

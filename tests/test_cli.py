@@ -463,3 +463,48 @@ def test_the_compare_api_refuses_a_method_named_twice():
     with pytest.raises(ValueError, match="names pure more than once"):
         merge(CompareConfig, {"methods": ["pure", "hybrid", "pure"]})
     assert merge(CompareConfig, {"methods": ["pure", "hybrid"]}).methods == ("pure", "hybrid")
+
+
+def test_a_deleted_working_folder_is_said_in_one_line(tmp_path):
+    """Probe 111: run from a folder deleted under the shell, every command taking --out ended in "internal error:
+    FileNotFoundError" (the lock records the working folder) and report in an MKL fatal error (torch loads from it)."""
+    import subprocess
+    import sys
+
+    repo = Path(__file__).resolve().parents[1]
+    code = "from hybrid_calib.cli import main; raise SystemExit(main(['inspect', '--data', '/nonexistent', " \
+           f"'--version', 'v1.0-mini', '--out', {str(tmp_path / 'out')!r}]))"
+    gone = tmp_path / "gone"
+    script = f"mkdir {gone} && cd {gone} && rmdir {gone} && exec {sys.executable} -c \"{code}\""
+    run = subprocess.run(["bash", "-c", script], capture_output=True, text=True, env={**os.environ,
+                         "PYTHONPATH": str(repo)}, timeout=120)
+    assert run.returncode == 2, run.stderr
+    assert "the working folder no longer exists" in run.stderr and "internal error" not in run.stderr, run.stderr
+
+
+def test_a_dataloader_worker_ended_by_the_groups_signal_stops_the_run_as_that_signal(capsys):
+    """Probe 111: `train` with DataLoader workers, SIGTERM sent to the process group (docker stop, systemd): the worker
+    died first and torch's RuntimeError read "internal error" (exit 3), or an 18-line traceback from the loader's
+    __del__ came before the "terminated" line."""
+    import signal
+    from types import SimpleNamespace
+
+    from hybrid_calib.cli import Terminated, _on_sigterm, _quiet_stopped_workers
+    from hybrid_calib.errors import stop_signal_of
+    from learned.train import _stopped_workers_stop_the_run
+
+    killed = RuntimeError("DataLoader worker (pid 19026) is killed by signal: Terminated. ")
+    assert stop_signal_of(killed) == signal.SIGTERM
+    assert stop_signal_of(RuntimeError("DataLoader worker (pid 5) is killed by signal: Interrupt. ")) == signal.SIGINT
+    assert stop_signal_of(RuntimeError("DataLoader worker (pid 5) is killed by signal: Segmentation fault. ")) is None
+    before = signal.signal(signal.SIGTERM, _on_sigterm)
+    try:
+        with pytest.raises(Terminated), _stopped_workers_stop_the_run():
+            raise killed
+        with pytest.raises(RuntimeError, match="Segmentation"), _stopped_workers_stop_the_run():
+            raise RuntimeError("DataLoader worker (pid 5) is killed by signal: Segmentation fault. ")
+    finally:
+        signal.signal(signal.SIGTERM, before)
+    _quiet_stopped_workers(SimpleNamespace(exc_value=killed, exc_type=RuntimeError, exc_traceback=None,
+                                           err_msg=None, object=None))
+    assert capsys.readouterr().err == ""

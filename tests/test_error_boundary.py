@@ -219,6 +219,27 @@ def test_bad_checkpoint_names_the_file(case, small_ckpt, tmp_path):
         assert "is a folder, not the weights file" in str(e.value)
 
 
+@pytest.mark.parametrize("way", ["no-read-permission", "safetensors-cannot-open"])
+def test_unreadable_weights_are_said_as_such(way, small_ckpt, monkeypatch):
+    """Probe 111: weights without read permission were "internal error: FileNotFoundError: No such file or
+    directory" (safetensors' words for any file it cannot open) in evaluate, train --init and fleet."""
+    import os
+
+    import learned.checkpoint as checkpoint
+
+    path, _ = small_ckpt
+    weights = path.with_suffix(".safetensors")
+    if way == "no-read-permission":  # (as root the permission bits are not enforced: the check is what says it)
+        monkeypatch.setattr(os, "access", lambda p, mode: str(p) != str(weights))
+    else:
+        def refuse(*a, **k):
+            raise FileNotFoundError(f"No such file or directory: {weights}")
+        monkeypatch.setattr(checkpoint, "load_file", refuse)
+    with pytest.raises(CheckpointError) as e:
+        load_checkpoint(path, model=torch.nn.Linear(3, 2))
+    assert str(weights) in str(e.value) and "cannot be read" in str(e.value), str(e.value)
+
+
 def test_weights_of_another_network_beside_a_json_are_refused(small_ckpt, tmp_path):
     """Another network's weights of the same shapes copied over a checkpoint's loaded silently: the JSON's fitted
     models (covariance scale, the hybrid's measurement model, the out-of-domain score) were applied to them."""

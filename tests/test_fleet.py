@@ -361,6 +361,7 @@ def test_an_inconclusive_vehicle_is_flagged_counted_and_never_within_tolerance(l
     doc["vehicles"]["sim-veh-001"]["final"]["status"] = ("inconclusive: only 2 of 10 frames are inside the network's "
                                                          "training domain [the estimate's own status: weak: yaw]")
     doc["vehicles"]["sim-veh-001"]["trajectory"][1]["step_alarm"] = True  # the window's test on untrusted inputs
+    doc["vehicles"]["sim-veh-001"]["step_alarms"] = [doc["vehicles"]["sim-veh-001"]["trajectory"][1]["index"]]
     f.write_text(json.dumps(doc))
     s = run_fleet([str(fleet_root)], None, "v1.0-sim", "oracle", tmp_path, seed=2, calib={"window": {"window": 3}},
                   options=FleetOptions(plots=False))

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hybrid_calib.calib.degeneracy import DegeneracyConfig, RowGeometry, explain
-from hybrid_calib.geometry import se3_exp
+from hybrid_calib.geometry import check_covariance, check_transform, se3_exp
 
 AXES = ("x", "y", "z")
 # fleet words of the camera axes (docs/conventions.md): rotation about x, y, z; translation along x, y, z
@@ -175,8 +175,17 @@ def fold_linear(T: np.ndarray, cov: np.ndarray, H: np.ndarray, z: np.ndarray, R:
     """(T', cov'): measurements ``z = H xi + n`` (H (k, 6), z (k,), ``n`` of covariance R (k, k)) of the right
     perturbation ``xi`` at ``T`` (4, 4), ``cov`` (6, 6) [rotation, translation], folded in by one Kalman update
     (Joseph form: the covariance stays symmetric and positive); correlated directions move with them."""
-    H = np.asarray(H, np.float64)
-    S = H @ cov @ H.T + np.asarray(R, np.float64)
+    H, z, R = (np.atleast_1d(np.asarray(a, np.float64)) for a in (H, z, R))
+    cov = check_covariance(cov, "fold_linear cov", semidefinite=True)
+    k = len(z)  # probe 112: a variance of 0, -1e-4 or NaN, or a NaN measurement, gave a NaN extrinsic or a covariance
+    # with a negative variance
+    if H.shape != (k, 6) or R.shape != (k, k) or not (np.isfinite(H).all() and np.isfinite(z).all()):
+        raise ValueError(f"fold_linear: need finite H (k, 6) and z (k,) with R (k, k); got H {H.shape}, z {z.shape}, "
+                         f"R {R.shape}")
+    if not np.isfinite(R).all() or not np.allclose(R, R.T) or np.linalg.eigvalsh(R).min() <= 0:
+        raise ValueError(f"fold_linear: the measurement noise R must be a finite positive definite matrix, got "
+                         f"{str(R.tolist())[:60]}")
+    S = H @ cov @ H.T + R
     K = np.linalg.solve(0.5 * (S + S.T), H @ cov).T  # (6, k) = cov H^T S^-1
     IKH = np.eye(6) - K @ H
     cov2 = IKH @ cov @ IKH.T + K @ R @ K.T
@@ -425,6 +434,10 @@ def analyse_information(
     if info.shape != (6, 6) or not np.all(np.isfinite(info)):
         raise ValueError(f"information must be a finite (6, 6) matrix, got "
                          f"{'shape ' + str(info.shape) if info.shape != (6, 6) else 'non-finite entries'}")
+    check_transform(T_cam_radar, "analyse_information T_cam_radar", atol=1e-4)  # probe 112: a NaN one was a bare
+    # LinAlgError, a scaled one accepted; an information that is not symmetric (beyond rounding) is not one
+    if not np.allclose(info, info.T, rtol=1e-6, atol=1e-9 * max(float(np.abs(info).max()), 1e-300)):
+        raise ValueError("information must be symmetric (J^T W J is): check its order and frame")
     info = 0.5 * (info + info.T)
     pinned = pinned_std is not None and np.any(np.asarray(pinned_std) > 0)
     if pinned and not pinned_marginalised:

@@ -80,7 +80,7 @@ from hybrid_calib.calib.covariance import STATUS_WORDS, CovarianceReport, report
 from hybrid_calib.config import is_number, json_default, read_out_record, save_json_atomic
 from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.geometry import R_AXES_CAM_FROM_RADAR, camera_euler_from_rotation, local
-from hybrid_calib.metrics import extrinsic_error, nees, std_dict, std_from_dict, std_keys
+from hybrid_calib.metrics import METRIC_KEYS, extrinsic_error, nees, std_dict, std_from_dict, std_keys
 
 SCHEMA_VERSION = 2
 SCHEMA = f"hybrid-calib/calibrate-result/v{SCHEMA_VERSION}"
@@ -202,6 +202,21 @@ _BLOCK_NUMBERS = {
 # and those its words need once the block says it ran (its first key present): probe 63, a report's KeyError / None
 _BLOCK_RAN = {"lidar": ("dy_m", "dy_std_m", "rows", "frames", "applied"),
               "doppler": ("dx_m", "pairs", "turning", "applied")}
+# what each of them can be (probe 112: "+10.0 +- -2.0 cm" and "-3 sweep pairs" on the page); no upper bound: an offset
+# the data hardly see has a std of ~1 km and more (the demo's Doppler: 1204 m), and its estimate may be as far off
+
+
+def _count(x) -> bool:
+    return float(x).is_integer() and 0 <= x < 10**9
+
+
+_BLOCK_RANGES = {**dict.fromkeys(("dy_std_m", "dx_std_m"), lambda x: x > 0),
+                 **dict.fromkeys(("rows", "frames", "pairs", "turning", "frames_tested", "pairs_tested"), _count),
+                 **dict.fromkeys(("threshold", "scatter_deg"), lambda x: x >= 0)}  # innovation_sigma: either sign
+_BLOCK_RANGE_WORDS = {**dict.fromkeys(("dy_std_m", "dx_std_m"), "a std that is not positive"),
+                      **dict.fromkeys(("rows", "frames", "pairs", "turning", "frames_tested", "pairs_tested"),
+                                      "not a count"),
+                      **dict.fromkeys(("threshold", "scatter_deg"), "negative")}
 _STEP_NUMBERS = ("step_deg", "std_deg", "change", "at")
 _LEVEL_NUMBERS = ("level_deg", "std_deg", "frames", "pairs")
 
@@ -218,6 +233,8 @@ def _block(d: dict, key: str, where: str) -> dict | None:
     for k in _BLOCK_NUMBERS[key]:
         if k in b and b[k] is not None and not is_number(b[k]):
             raise ValueError(f"{where}.{key}.{k} is {str(b[k])[:40]!r}, not a finite number")
+        if k in b and b[k] is not None and not _BLOCK_RANGES.get(k, lambda x: True)(b[k]):
+            raise ValueError(f"{where}.{key}.{k} is {str(b[k])[:40]!r}: {_BLOCK_RANGE_WORDS[k]}: {EDITED}")
     need = _BLOCK_RAN.get(key, ())
     if need and need[0] in b and (lack := [k for k in need if b.get(k) is None]):
         raise ValueError(f"{where}.{key} lacks {lack} beside its {need[0]}: {EDITED}")
@@ -247,6 +264,62 @@ def _block(d: dict, key: str, where: str) -> dict | None:
         if bad:
             raise ValueError(f"{where}.mount.steps[{j}] lacks finite {bad}")
     return b
+
+
+def _std_block(x, name: str) -> np.ndarray:
+    """(6,) a ``std_dict`` (``STD_FRAME``) read back: every value a finite JSON number >= 0 (a singular bound's clipped
+    variance reads 0: ``calib.covariance.report_std``); ``ValueError`` naming the key otherwise (probe 112: a
+    Cramer-Rao std written as "NaN" or -1 was printed as nan / -1.000)."""
+    x = _mapping(x, name)
+    for k in std_keys(STD_FRAME):
+        if k not in x:
+            raise ValueError(f"{name} lacks {k}: {EDITED}")
+        if not (is_number(x[k]) and x[k] >= 0):
+            raise ValueError(f"{name}.{k} is {str(x[k])[:40]!r}, not a std (a finite number >= 0): {EDITED}")
+    return np.array([float(x[k]) for k in std_keys(STD_FRAME)])
+
+
+def _network(d: dict, where: str) -> dict | None:
+    """A vehicle result's ``network`` block (NETWORK of the module docstring) read back: None, or the block with
+    its counts whole numbers, its frame a string, its transform rigid, its covariance one and its error finite;
+    ``ValueError`` / ``TypeError`` naming the field otherwise (probe 112: text there reached the page as HTML, a
+    string error was an internal error in report)."""
+    n = _object_or_null(d, "network", where)
+    if n is None:
+        return None
+    where = f"{where}.network"
+    for k in ("n_frames", "iteration"):
+        if not (isinstance(n.get(k), int) and not isinstance(n.get(k), bool) and 0 <= n[k] < 10**9):
+            raise ValueError(f"{where}.{k} is {str(n.get(k))[:40]!r}, not a count: {EDITED}")
+    if not isinstance(n.get("frame_id"), str):
+        raise TypeError(f"{where}.frame_id is a JSON {_json_kind(n.get('frame_id'))}, not a string: {EDITED}")
+    if "T_cam_radar" in n:
+        _transform(n["T_cam_radar"], f"{where}.T_cam_radar")
+    if n.get("cov_right_radar") is not None:
+        _covariance(n["cov_right_radar"], f"{where}.cov_right_radar")
+    if n.get("std_cam") is not None:
+        _std_block(n["std_cam"], f"{where}.std_cam")
+    e = _object_or_null(n, "error", where)
+    if e is not None and (bad := [k for k in METRIC_KEYS if not is_number(e.get(k))]):  # metrics.ExtrinsicError's
+        raise ValueError(f"{where}.error.{bad[0]} is {str(e.get(bad[0]))[:40]!r}, not a finite number: {EDITED}")
+    return n
+
+
+def _trajectory_fits(traj: list, n_frames: int, skipped: list, step_alarms, where: str) -> None:
+    """``ValueError`` naming the field unless a read-back trajectory is one the calibrators write: none (a batch
+    solve) or one entry per frame used (``n_frames``), in drive order, each frame's index below the frames read (used
+    and skipped), and ``step_alarms`` (when present) its alarms' indices (probe 112: 100 000 entries of an 8-frame
+    result, or an index of 10**6, were drawn as they were)."""
+    if not traj:
+        return
+    if len(traj) != n_frames:
+        raise ValueError(f"{where}.trajectory holds {len(traj)} frames but {where}.n_frames is {n_frames}: {EDITED}")
+    idx = [f.index for f in traj]
+    if idx[0] < 0 or any(b <= a for a, b in zip(idx, idx[1:])) or idx[-1] >= n_frames + len(skipped):
+        raise ValueError(f"{where}.trajectory's frame indices ({str(idx)[:60]}) are not increasing drive positions "
+                         f"below the {n_frames + len(skipped)} frames read (used and skipped): {EDITED}")
+    if step_alarms is not None and step_alarms != [f.index for f in traj if f.step_alarm]:
+        raise ValueError(f"{where}.step_alarms ({str(step_alarms)[:60]}) are not the trajectory's alarms: {EDITED}")
 
 
 def _object_or_null(d: dict, key: str, where: str) -> dict | None:
@@ -302,6 +375,12 @@ def _drift_fields(b: dict, where: str) -> None:
                 if kind == "number" and isinstance(b[key], float):
                     raise ValueError(f"{where}.{key} is {b[key]}, not a number the reference test writes: {EDITED}")
                 raise TypeError(f"{where}.{key} is a JSON {_json_kind(b[key])}, not a {kind}: {EDITED}")
+    ranges = {"p_value": (0, 1), "statistic": (0, math.inf), "threshold": (0, math.inf), "alpha": (0, 1),
+              "dof": (1, 6)}  # probe 112: "p-value 7", "statistic -5.0", "dof 0" were printed as they were
+    for key, (lo, hi) in ranges.items():
+        if key in b and not (lo <= b[key] <= hi and (key != "dof" or float(b[key]).is_integer())):
+            raise ValueError(f"{where}.{key} is {b[key]}, outside [{lo}, {hi}]: not what the reference test writes: "
+                             f"{EDITED}")
     from hybrid_calib.calib.drift import AXIS_KEYS, AXIS_WORDS
 
     for key, value in _mapping(b.get("delta_camera") or {}, f"{where}.delta_camera").items():
@@ -569,15 +648,18 @@ class VehicleResult:
         for key in ("method", "vehicle"):
             if not isinstance(d.get(key, ""), str):
                 raise TypeError(f"{where}.{key} is a JSON {_json_kind(d[key])}, not a string")
+        frames = [FrameEstimate.from_dict(f, f"{where}.trajectory[{k}]") for k, f in enumerate(trajectory)]
+        skipped = list(_array(d, "frames_skipped", where))
+        _trajectory_fits(frames, n_frames, skipped, d.get("step_alarms"), where)
         return cls(
             vehicle=d.get("vehicle", vehicle or ""), final=Estimate.from_dict(d["final"], f"{where}.final"),
-            trajectory=[FrameEstimate.from_dict(f, f"{where}.trajectory[{k}]") for k, f in enumerate(trajectory)],
+            trajectory=frames,
             truth_T=None if truth is None else _transform(_mapping(truth, f"{where}.truth")["T_cam_radar"],
                                                        f"{where}.truth.T_cam_radar"), error=_error(d, where),
             truth_path=_truth_path(truth, f"{where}.truth"),
-            crb_std=None if crb is None else std_from_dict(crb, STD_FRAME), drift=_drift(d, where),
-            skipped=list(_array(d, "frames_skipped", where)), n_frames=n_frames,
-            network=_object_or_null(d, "network", where), method=d.get("method", ""), checkpoint=d.get("checkpoint"),
+            crb_std=None if crb is None else _std_block(crb, f"{where}.crb_std_cam"), drift=_drift(d, where),
+            skipped=skipped, n_frames=n_frames, network=_network(d, where), method=d.get("method", ""),
+            checkpoint=d.get("checkpoint"),
             start=_object_or_null(d, "start", where), errors_against=d.get("errors_against"),
             frame_rows=list(_array(d, "frame_rows", where)), config=_object_or_null(d, "config", where),
             ood=_object_or_null(d, "ood", where), mount=_block(d, "mount", where),

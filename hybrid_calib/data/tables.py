@@ -208,7 +208,8 @@ def _check_record(name: str, i: int, rec, required: tuple[str, ...], path: Path)
     for k in (k for k in _NAME_FIELDS if k in required):
         if _CONTROL.search(rec[k]):
             raise DataError(f"table {name!r} record {i} field {k!r} is {rec[k]!r}: it holds a control character (a "
-                            "newline, a tab, ...), which no name in the tables has; fix or re-extract the table",
+                            "newline, a tab, a text-direction override, ...), which no name in the tables has; fix or "
+                            "re-extract the table",
                             path=str(path), token=_token(rec))
     if "filename" in required and "\x00" in rec["filename"]:
         raise DataError(f"table {name!r} record {i} field 'filename' is {rec['filename']!r}: it holds a NUL character, "
@@ -217,7 +218,9 @@ def _check_record(name: str, i: int, rec, required: tuple[str, ...], path: Path)
 
 # the names a run prints in its lines (a vehicle named "car\nFAKE LINE" forged a line of output: probe 108)
 _NAME_FIELDS = ("vehicle", "name", "channel")
-_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
+# control characters, C0 and C1, and the text-direction marks and overrides: a name printed with U+202E reversed the
+# words after it on the terminal and in the page's title (probe 112)
+_CONTROL = re.compile("[\x00-\x1f\x7f-\x9f\u061c\u200e\u200f\u202a-\u202e\u2066-\u2069]")
 _SURROGATE_ESCAPE = re.compile(r"\\u[dD][89a-fA-F]")  # a literal prefix: one fast scan of the text (probe 110)
 _ESCAPES = re.compile(r"(\\+)u[dD]([89a-fA-F])[0-9a-fA-F]{2}")
 _HIGH, _LOW = re.compile(r"\\u[dD][89abAB][0-9a-fA-F]{2}"), re.compile(r"\\u[dD][c-fC-F][0-9a-fA-F]{2}")

@@ -356,5 +356,6 @@ def _run_ray(jobs, on_start, on_outcome, workers, address, temp_dir, retries, in
                     logs = "" if address else str(ray_temp_dir(temp_dir) / "session_latest" / "logs")
                     on_outcome(_failure(job, e, time.perf_counter() - t0, retries, logs))
     finally:
-        if started:
-            ray.shutdown()
+        if started:  # Ray's shutdown leaves SIGTERM at its default: a SIGTERM then ended the run without a word, its
+            with _own_signal_handlers():  # line in runs.json, its summary or its lock released (probe 111)
+                ray.shutdown()

@@ -12,7 +12,7 @@ from hybrid_calib.errors import DataError, check_out_not_in_dataset, page_target
 
 CSS = """
 body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;max-width:1100px;margin:1.5em auto;
-padding:0 1em;color:#222;line-height:1.4}
+padding:0 1em;color:#222;line-height:1.4;overflow-wrap:anywhere}
 h1{font-size:1.5em;margin-bottom:.2em}
 h2{font-size:1.15em;border-bottom:1px solid #ddd;padding-bottom:.2em;margin-top:1.6em}
 .meta{color:#666;font-size:.85em}
@@ -53,7 +53,8 @@ def img_tag(png: Path, alt: str) -> str:
 def num(value: float, fmt: str, key: str = "") -> str:
     """A table cell with the shown number and the exact value in ``data-value`` (tests compare it)."""
     k = f' data-key="{esc(key)}"' if key else ""
-    return f'<td{k} data-value="{float(value)!r}">{format(float(value), fmt)}</td>'
+    v = float(value)  # beyond 1e9 in scientific notation (probe 112: a 300-digit figure widened the table)
+    return f'<td{k} data-value="{v!r}">{format(v, fmt if abs(v) < 1e9 else ".3g")}</td>'
 
 
 def verdict_class(word: str) -> str:

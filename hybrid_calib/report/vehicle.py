@@ -207,7 +207,8 @@ def _figures(vr: VehicleResult, ev: Evidence, tmp: Path) -> str:
     if vr.trajectory:
         out += img_tag(plot_estimate_bands(vr, tmp / "bands.png"), "estimate with 3-sigma band per axis")
     else:
-        out += "<p class=note>A batch result has no per-frame trajectory: nothing to plot.</p>"
+        out += ("<p class=note>This result holds no per-frame trajectory (a batch solve keeps none): nothing to "
+                "plot.</p>")
     out += "<h2>Residuals</h2>"
     if ev.residuals is not None:
         r = ev.residuals
@@ -225,8 +226,8 @@ def network_html(vr: VehicleResult, ev: Evidence, attention: str) -> str:
     n = vr.network
     out = "<h2>The network</h2>"
     if n:
-        out += (f"<p>The measurement files carried the network's own estimate on {n['n_frames']} frames (last: "
-                f"{esc(n['frame_id'])}, iteration {n['iteration']})")
+        out += (f"<p>The measurement files carried the network's own estimate on {esc(n['n_frames'])} frames (last: "
+                f"{esc(n['frame_id'])}, iteration {esc(n['iteration'])})")
         if n.get("error"):
             e = n["error"]
             against = "the tables" if vr.errors_against == "tables" else "the truth"
