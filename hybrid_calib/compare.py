@@ -175,7 +175,7 @@ def run_trials(roots: list, version: str, out: Path, conf: CompareConfig, progre
         except DataError as e:  # this drive's data: recorded, the other trials go on
             failed.append({"trial": k, "method": method, "vehicle": name, "reason": str(e)})
             continue
-        vr.config = {**(vr.config or {}), "trial": k, "root": str(s.data)}
+        vr.config = {**(vr.config or {}), "trial": k, "root": str(Path(s.data).resolve())}  # one spelling per root
         path = _trial_file(out, method, k)
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
@@ -225,9 +225,12 @@ def summarize_method(results: list[VehicleResult], labels: dict[str, str] | None
     errs = [r.error for r in results]
     nees = np.array([e["nees"] for e in errs])
     per_root: dict[str, list[float]] = {}
+    # by the root itself, not its spelling: a run resumed with the roots typed otherwise put one root's kept trials
+    # under another of the same folder name (probe 113); a trial recorded before holds the spelling of its run
+    named = {str(Path(k).resolve()): v for k, v in (labels or {}).items()}
     for r in results:
         root = str((r.config or {}).get("root", ""))
-        per_root.setdefault((labels or {}).get(root, Path(root).name), []).append(r.error["nees"])
+        per_root.setdefault(named.get(str(Path(root).resolve()), Path(root).name), []).append(r.error["nees"])
     ms = []
     for r in results:
         net = {row["frame_id"]: row.get("network_ms", 0.0) for row in r.frame_rows}

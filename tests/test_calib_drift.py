@@ -516,7 +516,7 @@ def test_an_estimate_far_from_any_mount_or_not_converged_is_not_trusted():
 def test_one_pass_of_the_network_alone_decides_nothing():
     """Probe 10: every "recalibrate" of --method pure on simulated drives was false (8 of 8; "differs by 7.92 deg in
     yaw (+- 2.20)" on a mount 0.02 deg from its tables): pure's verdict is "cannot tell", quoting what it read."""
-    from hybrid_calib.hybrid.loop import one_pass_verdict
+    from hybrid_calib.calib.drift import one_pass_verdict
 
     drift = {"verdict_kind": "recalibrate", "drifted": True, "verdict": "differs by 7.92 deg in yaw: recalibrate"}
     said = one_pass_verdict(drift)

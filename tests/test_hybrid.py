@@ -1187,3 +1187,27 @@ def test_a_result_names_its_checkpoint_by_its_absolute_path(sim_root, tmp_path, 
     v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", {**BASE, "method": "pure", "max_frames": 1,
                                                           "checkpoint": f"ck/{src.name}"})
     assert v.checkpoint == str(tmp_path / "ck" / src.name), v.checkpoint
+
+
+def test_compare_counts_each_trial_under_its_own_root_however_it_was_typed(tmp_path, monkeypatch):
+    """Probe 113: a compare resumed with its roots typed otherwise (absolute, then relative) put a root's kept trials
+    under another root of the same folder name (a/sim, b/sim), silently: the per-root NEES rows were wrong."""
+    from hybrid_calib.calib.result import Estimate, VehicleResult
+    from hybrid_calib.compare import summarize_method
+    from hybrid_calib.data.files import root_labels
+    from hybrid_calib.metrics import METRIC_KEYS
+
+    monkeypatch.chdir(tmp_path)
+    for r in ("a/sim", "b/sim"):
+        (tmp_path / r).mkdir(parents=True)
+
+    def trial(root: str, nees: float) -> VehicleResult:
+        return VehicleResult("v", Estimate(np.eye(4), np.eye(6), np.ones(6), "ok"), config={"root": root},
+                             error={**dict.fromkeys(METRIC_KEYS, 0.1), "nees": nees})
+
+    trials = [trial(str(tmp_path / "a/sim"), 1.0), trial(str(tmp_path / "a/sim"), 3.0),
+              trial(str(tmp_path / "b/sim"), 20.0), trial("b/sim", 4.0), trial("./b/sim", 6.0)]
+    rows = summarize_method(trials, root_labels(["a/sim", "b/sim"], "/")).consistency_per_root
+    assert sorted(rows) == ["a/sim", "b/sim"], rows
+    assert rows["a/sim"]["n"] == 2 and rows["a/sim"]["nees_mean"] == 2.0
+    assert rows["b/sim"]["n"] == 3 and rows["b/sim"]["nees_mean"] == 10.0

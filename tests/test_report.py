@@ -588,6 +588,25 @@ def test_the_attention_section_says_when_the_checkpoint_given_is_not_the_results
     assert "calibrated with" not in same and "calibrated with" not in own
 
 
+def test_a_pure_result_cannot_tell_against_any_tolerance_asked():
+    """Probe 113: `report --set tolerance.rot_deg=0.5` (the calibration's own tolerance) turned a pure result's
+    "cannot tell: one pass of the network alone ... decides nothing" into "recalibrate"."""
+    from hybrid_calib.calib.drift import one_pass_verdict, reference_test
+    from hybrid_calib.geometry import retract
+
+    ref = nominal_T_cam_radar()
+    est = retract(ref, np.array([0.0, 0.0, np.radians(9.4), 0.0, 0.0, 0.0]))
+    cov = np.diag([np.radians(0.5) ** 2] * 3 + [0.01 ** 2] * 3)
+    vr = VehicleResult("v", Estimate(est, cov, np.full(6, 0.01), "ok"), method="pure",
+                       drift=one_pass_verdict(reference_test(est, cov, ref).to_dict()))
+    assert verdict_of(vr).word == "cannot tell"
+    for tol in (Tolerance(rot_deg=0.5, trans_cm=2), Tolerance(rot_deg=0.05), Tolerance(trans_cm=30)):
+        v = verdict_of(vr, tol)
+        assert v.word == "cannot tell" and "one pass of the network alone" in v.why and "it read: " in v.why, v
+    vr.method = "hybrid"  # the same block of another method is redone as it reads
+    assert verdict_of(vr, Tolerance(rot_deg=0.5)).word == "recalibrate"
+
+
 def test_a_tolerance_asked_of_the_report_redoes_the_calibrators_test():
     """``report --set tolerance.rot_deg=0.01`` kept the calibrator's verdict against its own 0.5 deg: the asked
     tolerance was ignored whenever the result stored a verdict (every current one does)."""

@@ -419,6 +419,19 @@ def against_tolerance(drift: dict, status: str, mount: dict | None, rot_deg: flo
     return drift_in_reference_nouns(out)
 
 
+def one_pass_verdict(drift: dict | None) -> dict | None:
+    """``drift`` of a ``pure`` result (the network's last pass alone) with its verdict turned into "cannot tell": one
+    pass decides nothing about the mount. Its errors are heavy-tailed (probe 10: 1.8 % of 627 single-pass yaw
+    estimates beyond 3 sigma, 0.27 % for a Gaussian), and every "recalibrate" it gave on simulated drives was
+    false (8 of 8, e.g. "differs by 7.92 deg in yaw (+- 2.20)" on a mount 0.02 deg from its tables)."""
+    if not drift or drift.get("verdict_kind") == "cannot tell":
+        return drift
+    return {**drift, "drifted": False, "verdict_kind": "cannot tell", "one_pass": drift.get("verdict"),
+            "verdict": "cannot tell: one pass of the network alone (method pure) decides nothing about the mount "
+                       f"(it read: {drift.get('verdict')}); its single-frame errors are heavy-tailed: calibrate "
+                       "with --method hybrid (or pure-avg) to decide"}
+
+
 def unconverged(drift: dict, status: str) -> dict:
     """``drift`` (``DriftDecision.to_dict``) with its verdict turned into "cannot tell" when the estimate's
     ``status`` says it cannot be trusted: the last solve did not converge (``schedule.convergence_note``'s "NOT

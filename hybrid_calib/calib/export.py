@@ -309,7 +309,7 @@ def _why_not(vr, which: str) -> str:
     if why := untrusted_status(vr.final.status):
         quoted = "" if status_kind(vr.final.status) == "inconclusive" else f" ({vr.final.status.split(';')[0][:160]})"
         return f"not exported: {why}, so the estimate is no calibration{quoted}"  # inconclusive: its reason is quoted
-    if getattr(vr, "method", None) == "pure":  # the network's last pass alone (hybrid.loop.one_pass_verdict)
+    if getattr(vr, "method", None) == "pure":  # the network's last pass alone (calib.drift.one_pass_verdict)
         return ("not exported: one pass of the network alone (method pure) is no calibration; calibrate with --method "
                 "hybrid")
     prior = (vr.drift or {}).get("prior") or {}

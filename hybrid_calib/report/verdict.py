@@ -41,6 +41,7 @@ from hybrid_calib.calib.drift import (
     alarms_say_moved,
     doppler_level_words,
     mount_steps_beyond,
+    one_pass_verdict,
     turned_since_export,
 )
 from hybrid_calib.calib.mount_monitor import blind_words, finds_words, tested_words, told_steps, turn_words
@@ -260,6 +261,8 @@ def _verdict_vs_reference(vr: VehicleResult, tol: Tolerance) -> Verdict:
     source = "the calibrator's reference test (result.json drift block)"
     if d.get("verdict_kind") and tol.given:  # the tolerance asked for: the calibrator's per-axis test redone with it
         redone = against_tolerance(d, vr.final.status, vr.mount, tol.rot_deg, tol.trans_cm)
+        if vr.method == "pure":  # one pass decides nothing, against any tolerance (probe 113: it read "recalibrate")
+            redone = one_pass_verdict(redone)
         if redone is not d:
             d, source = redone, f"{source}, redone against the tolerance asked for"
     given = d.get("verdict")
