@@ -342,11 +342,13 @@ class CalibDataset(torch.utils.data.Dataset):
         self.epoch = int(epoch)
 
     def perturbation(self, i: int) -> np.ndarray:
-        """The (6,) perturbation of sample ``i``: deterministic given the seed, the epoch (training
-        only) and the frame's index in ``frames`` (so a frame keeps its start whatever the split)."""
+        """The (6,) perturbation of sample ``i``: deterministic given the seed and, in training, the epoch and the
+        frame's index in ``frames``; in evaluation the frame's camera token (so a frame keeps its start whatever the
+        split, and whatever the order or company of the roots it was read with: by its index, ``evaluate --data A B``
+        and ``--data B A`` gave every frame another start, and the table other figures: probe 114)."""
         c = self.conf
         fi = self.indices[i]
-        g = _rng("train", c.seed, self.epoch, fi) if self.train else _rng("eval", c.seed, fi)
+        g = _rng("train", c.seed, self.epoch, fi) if self.train else _rng("eval", c.seed, camera_token(self.frames, fi))
         return sample_perturbation(g, c.perturbation)
 
     def __getitem__(self, i: int) -> dict | None:

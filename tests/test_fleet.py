@@ -659,6 +659,18 @@ def test_a_fleet_prior_is_applied_only_to_the_vehicle_it_was_fitted_on(local_run
     # several roots gave it): its own leave-one-out prior, not the full fit's that holds its estimate (probe 21)
     p, note = match_prior(priors, "root-" + name, src["data"], "v1.0-sim", src["vehicle"])
     assert p is priors[name] and "its leave-one-out prior is applied" in note
+    # the root copied or moved to another path (the same data: its digest): its own leave-one-out prior too (probe
+    # 114: the full fit, which holds its estimate, was applied without a word); other data at that path is not
+    from hybrid_calib.data.files import data_stamp
+
+    assert src["digest"] == data_stamp(src["data"], "v1.0-sim")["digest"]
+    copy = tmp_path / "moved"
+    shutil.copytree(src["data"], copy)
+    p, note = match_prior(priors, "moved-" + name, str(copy), "v1.0-sim", src["vehicle"],
+                          lambda: data_stamp(copy, "v1.0-sim")["digest"])
+    assert p is priors[name] and "its leave-one-out prior is applied" in note
+    p, note = match_prior(priors, "moved-" + name, str(copy), "v1.0-sim", src["vehicle"], lambda: "other data")
+    assert p is priors["*"] and note is None
     kept, doc["priors"][name] = doc["priors"][name], None  # a named outlier of that fleet: not a verdict on a stranger
     (tmp_path / "outlier.json").write_text(json.dumps(doc))
     out_priors = load_priors(tmp_path / "outlier.json")

@@ -140,6 +140,9 @@ def test_perturbations_in_range_reproducible_and_read_back_by_the_metrics(frames
     subset = CalibDataset(frames, DatasetConfig(height=48, width=96), CorruptedTruthDepth(), train=False,
                           indices=[5, 2])
     np.testing.assert_array_equal(first, subset.perturbation(1))  # ... whatever the split around it
+    rev = CalibDataset(frames[::-1], DatasetConfig(height=48, width=96), CorruptedTruthDepth(), train=False)
+    np.testing.assert_array_equal(first, rev.perturbation(len(frames) - 3))  # ... and the order of the roots read
+    # (probe 114: `evaluate --data A B` and `--data B A` drew every frame another start)
     s = ev[2]
     e = extrinsic_error(s["T_init"].double().numpy(), s["T_gt"].double().numpy())
     np.testing.assert_allclose([e.roll_deg, e.pitch_deg, e.yaw_deg], np.abs(np.degrees(first[:3])), atol=1e-3)

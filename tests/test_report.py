@@ -893,3 +893,27 @@ def test_a_one_frame_trajectory_draws_its_estimate_and_band(monkeypatch, tmp_pat
     for ax in figs[0].axes:
         assert any(line.get_marker() == "o" and len(line.get_xdata()) == 1 for line in ax.get_lines())
         assert any(len(c.get_segments()) == 1 for c in ax.collections if hasattr(c, "get_segments"))  # 3-sigma bar
+
+
+def test_a_killed_reports_figures_are_removed_by_the_next_and_never_left_in_tmp(tmp_path, monkeypatch):
+    """Probe 111: a report killed with -9 left its figures in /tmp/hc-report-* for ever, and a figure that could not
+    be written was named by that temporary path. The figures are drawn beside the page, in a folder the next report
+    of that page removes; an error writing one names the page."""
+    import errno
+
+    import hybrid_calib.report.vehicle as vehicle
+
+    page = tmp_path / "r.html"
+    stale = tmp_path / ".r.html.figures-dead1234"
+    stale.mkdir()
+    (stale / "frame0.png").write_bytes(b"x")
+    with vehicle._figures_folder(page) as tmp:
+        assert tmp.parent == tmp_path and tmp.name.startswith(".r.html.figures-") and not stale.exists()
+        (tmp / "a.png").write_bytes(b"y")
+    assert not tmp.exists() and sorted(p.name for p in tmp_path.iterdir()) == []
+    with pytest.raises(OSError) as e, vehicle._figures_folder(page) as tmp:
+        raise OSError(errno.EFBIG, "File too large", str(tmp / "frame0.png"))
+    assert e.value.filename == str(page) and "the figures of" in str(e.value) and not list(tmp_path.iterdir())
+    with pytest.raises(OSError) as e, vehicle._figures_folder(page):  # another file's error: as it was
+        raise OSError(errno.ENOENT, "No such file", "/data/x.jpg")
+    assert e.value.filename == "/data/x.jpg"

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hybrid_calib.data.files import file_part, root_labels
+from hybrid_calib.data.files import data_stamp, file_part, root_labels
 from hybrid_calib.data.tables import version_dir
 from hybrid_calib.errors import DataError, HybridCalibError
 
@@ -245,9 +245,14 @@ def discover_jobs(roots: list[tuple[str, str, tuple[str, ...] | None]], method: 
         notes.append(f"roots {' and '.join(shared[0])} hold the same log(s) (a copy of one root?): those drives are "
                      "calibrated and counted in the fleet view and prior once per root; pass one of them")
     jobs = []
+    stamps: dict[tuple[str, str], str] = {}  # (root, version) -> its data's digest, read only when a prior asks
+
+    def digest_of(root: str, version: str) -> Callable[[], str]:
+        return lambda: stamps.setdefault((root, version), data_stamp(root, version)["digest"])
+
     for root, version, v, info in found:
         jid = v if names.count(v) == 1 else f"{labels[root]}-{v}"
-        prior, note = match_prior(priors or {}, jid, str(root), version, v)
+        prior, note = match_prior(priors or {}, jid, str(root), version, v, digest_of(str(root), version))
         if note is not None and notes is not None and note not in notes:
             notes.append(note)
         # the folder is named after the vehicle of the tables, encoded (a name "../../x" escaped --out)

@@ -53,6 +53,7 @@ is refused on load. A vehicle's verdict names the axes where its estimate still 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -383,22 +384,31 @@ def load_priors(path: str | Path) -> dict[str, dict]:
         p = {"outlier": True, "file": str(path)} if p is None else \
             {"T_cam_radar": p["T_cam_radar"], "cov_right_radar": p["cov_right_radar"], "file": str(path)}
         if isinstance(sources.get(k), dict):
-            p["source"] = {f: sources[k].get(f) for f in ("data", "version", "vehicle")}
+            p["source"] = {f: sources[k].get(f) for f in ("data", "version", "vehicle", "digest")}
         out[k] = p
     return out
 
 
-def same_source(source: dict, data: str, version: str, vehicle: str) -> bool:
-    """Whether a prior's recorded ``source`` ({"data", "version", "vehicle"}) is vehicle ``vehicle`` of root
-    ``data`` (compared resolved) and ``version``."""
+def same_source(source: dict, data: str, version: str, vehicle: str,
+                digest: Callable[[], str | None] | None = None) -> bool:
+    """Whether a prior's recorded ``source`` ({"data", "version", "vehicle", "digest"}) is vehicle ``vehicle`` of
+    root ``data`` and ``version``: the root at the recorded path (compared resolved), or a root whose data are the
+    recorded ones (``data.files.data_stamp``'s digest; ``digest()`` gives this root's, asked only when the paths
+    differ): a root copied or moved to another path is the same data (probe 114: its vehicles were given the full
+    fit, which holds their own estimates, without a word)."""
+    if source.get("version") != version or source.get("vehicle") != vehicle:
+        return False
     try:
-        same_root = Path(str(source.get("data"))).resolve() == Path(data).resolve()
+        if Path(str(source.get("data"))).resolve() == Path(data).resolve():
+            return True
     except (OSError, RuntimeError):
-        same_root = False
-    return same_root and source.get("version") == version and source.get("vehicle") == vehicle
+        pass
+    want = source.get("digest")
+    return bool(isinstance(want, str) and want and digest is not None and digest() == want)
 
 
-def match_prior(priors: dict, job_id: str, data: str, version: str, vehicle: str) -> tuple[dict | None, str | None]:
+def match_prior(priors: dict, job_id: str, data: str, version: str, vehicle: str,
+                digest: Callable[[], str | None] | None = None) -> tuple[dict | None, str | None]:
     """The prior for a job (``load_priors``' dict): the one named ``job_id`` when it was fitted on this very
     vehicle of this root, else the one fitted on this vehicle of this root under another job id (a root run alone
     names its vehicles without the root's prefix a fleet of several roots gave them), else the new-vehicle prior "*";
@@ -407,7 +417,7 @@ def match_prior(priors: dict, job_id: str, data: str, version: str, vehicle: str
     if job_id not in priors:
         for name, p in priors.items():  # the vehicle was in the fit under another id: its own leave-one-out prior
             if name != "*" and isinstance(p, dict) and isinstance(p.get("source"), dict) and \
-                    same_source(p["source"], data, version, vehicle):
+                    same_source(p["source"], data, version, vehicle, digest):
                 return _usable(p), (f"{job_id}: the fleet prior's entry {name!r} was fitted on this vehicle of this "
                                     "root: its leave-one-out prior is applied (the full fit's would hold its own "
                                     "estimate)")
@@ -420,7 +430,7 @@ def match_prior(priors: dict, job_id: str, data: str, version: str, vehicle: str
         return _usable(p), ("the fleet prior's file records no source for its vehicles (written by an older "
                             "version): its named priors are applied by vehicle name only; refit it to have them "
                             "checked")
-    if same_source(src, data, version, vehicle):
+    if same_source(src, data, version, vehicle, digest):
         return _usable(p), None
     return _usable(priors.get("*")), (f"{job_id}: the fleet prior's entry {job_id!r} was fitted on vehicle "
                                       f"{src.get('vehicle')!r} of {src.get('data')!r} ({src.get('version')!r}), not "

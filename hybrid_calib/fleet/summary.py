@@ -42,6 +42,7 @@ from hybrid_calib.atomic import finished
 from hybrid_calib.calib.covariance import camera_offset, inconclusive_reason, status_kind
 from hybrid_calib.calib.drift import alarms_say_moved, doppler_level_words
 from hybrid_calib.calib.mount_monitor import told_steps
+from hybrid_calib.calib.result import stored_digest
 from hybrid_calib.config import save_json_atomic, save_text_atomic
 from hybrid_calib.fleet.manifest import Manifest, rel_path
 from hybrid_calib.hybrid.loop import STEP_METHODS
@@ -162,7 +163,9 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
                                 common_cov=common_cov([m.jobs[n]["job"] for n in names]),
                                 sources={n: {"data": str(Path(m.jobs[n]["job"]["data"]).resolve()),
                                              "version": m.jobs[n]["job"]["version"],
-                                             "vehicle": m.jobs[n]["job"]["vehicle"], "frames": results[n].n_frames}
+                                             "vehicle": m.jobs[n]["job"]["vehicle"], "frames": results[n].n_frames,
+                                             # the data, wherever the root is later (a copy, another mount)
+                                             "digest": stored_digest(m.jobs[n]["job"]["out"]) or None}
                                          for n in names})
         for n in names:
             rows[n]["fleet_test"] = prior.tests[n]

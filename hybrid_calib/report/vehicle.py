@@ -5,15 +5,19 @@ data could not pin, the pictures (before / after on frames across the drive, est
 from __future__ import annotations
 
 import functools
+import glob
 import hashlib
 import json
 import tempfile
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from hybrid_calib.atomic import fit_name
 from hybrid_calib.calib.lever_arm import describe as describe_doppler
 from hybrid_calib.calib.lidar_alignment import describe as describe_lidar
 from hybrid_calib.calib.result import CalibrationRun, VehicleResult, extrinsic_report, failed_vehicles_message
@@ -236,6 +240,28 @@ def network_html(vr: VehicleResult, ev: Evidence, attention: str) -> str:
     return out + attention
 
 
+@contextmanager
+def _figures_folder(page: Path) -> Iterator[Path]:
+    """A temporary folder beside ``page`` for its figures (they are embedded in it), removed at the end, and the ones
+    a killed run left for this page removed first. In the system's temporary folder a killed report left its figures
+    for ever, and a figure that could not be written was named by a path the user never chose (probe 111)."""
+    import shutil
+
+    stem = fit_name(f".{page.name}.figures-", 200)
+    for old in page.parent.glob(f"{glob.escape(stem)}*"):
+        shutil.rmtree(old, ignore_errors=True)
+    page.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=stem, dir=page.parent))
+    try:
+        yield tmp
+    except OSError as e:
+        if e.filename is None or not Path(e.filename).resolve().is_relative_to(tmp.resolve()):
+            raise
+        raise OSError(e.errno, f"the figures of {page} cannot be written ({e.strerror or e})", str(page)) from None
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
 @functools.lru_cache(maxsize=1)
 def _code_digest() -> str:
     """SHA-1 of the source files of hybrid_calib, factors and learned (the page draws on all three: probe 59 N4): a
@@ -280,9 +306,9 @@ def write_report(result: str | Path, out: str | Path, vehicle: str | None = None
     vr = run.vehicles[name]
     v = verdict_of(vr, conf.tolerance)
     ev = gather(run, result, name, data, version, conf.frames)
-    with tempfile.TemporaryDirectory(prefix="hc-report-") as tmp:
-        figs = _figures(vr, ev, Path(tmp))
-        att = attention_html(vr, ev, data or run.data, version or run.version, conf.checkpoint, Path(tmp))
+    with _figures_folder(Path(out)) as tmp:
+        figs = _figures(vr, ev, tmp)
+        att = attention_html(vr, ev, data or run.data, version or run.version, conf.checkpoint, tmp)
     # and what the run said of its data before reading a frame (CalibrationRun.notes: another vehicle's export of
     # the same name, samples left out, poses that jump; probe 109 found the first on the console only)
     notes = "".join(f"<li>{esc(x)}</li>" for x in [*ev.notes, *(f"the run said: {n}" for n in run.notes)])
