@@ -901,19 +901,19 @@ def test_a_killed_reports_figures_are_removed_by_the_next_and_never_left_in_tmp(
     of that page removes; an error writing one names the page."""
     import errno
 
-    import hybrid_calib.report.vehicle as vehicle
+    from hybrid_calib.report.html import figures_folder
 
     page = tmp_path / "r.html"
     stale = tmp_path / ".r.html.figures-dead1234"
     stale.mkdir()
     (stale / "frame0.png").write_bytes(b"x")
-    with vehicle._figures_folder(page) as tmp:
+    with figures_folder(page) as tmp:
         assert tmp.parent == tmp_path and tmp.name.startswith(".r.html.figures-") and not stale.exists()
         (tmp / "a.png").write_bytes(b"y")
     assert not tmp.exists() and sorted(p.name for p in tmp_path.iterdir()) == []
-    with pytest.raises(OSError) as e, vehicle._figures_folder(page) as tmp:
+    with pytest.raises(OSError) as e, figures_folder(page) as tmp:
         raise OSError(errno.EFBIG, "File too large", str(tmp / "frame0.png"))
     assert e.value.filename == str(page) and "the figures of" in str(e.value) and not list(tmp_path.iterdir())
-    with pytest.raises(OSError) as e, vehicle._figures_folder(page):  # another file's error: as it was
+    with pytest.raises(OSError) as e, figures_folder(page):  # another file's error: as it was
         raise OSError(errno.ENOENT, "No such file", "/data/x.jpg")
     assert e.value.filename == "/data/x.jpg"

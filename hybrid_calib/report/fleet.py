@@ -11,7 +11,6 @@ block).
 from __future__ import annotations
 
 import os
-import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from urllib.parse import quote
@@ -25,7 +24,7 @@ from hybrid_calib.calib.result import CalibrationRun, VehicleResult
 from hybrid_calib.config import merge
 from hybrid_calib.data.files import file_part
 from hybrid_calib.errors import DataError, HybridCalibError, check_api_out
-from hybrid_calib.report.html import esc, img_tag, num, verdict_class, write_page
+from hybrid_calib.report.html import esc, figures_folder, img_tag, num, verdict_class, write_page
 from hybrid_calib.report.vehicle import ReportConfig, write_report
 from hybrid_calib.report.verdict import DELTA_KEYS, VERDICTS, Verdict, verdict_of
 from hybrid_calib.words import n_vehicles
@@ -113,7 +112,7 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
     reference = "design mount" if design is not None else "vehicle's own reference (calibration tables)"
 
     plotted = [n for n in names if offsets[n] is not None]
-    with tempfile.TemporaryDirectory(prefix="hc-fleet-") as tmp:
+    with figures_folder(Path(out)) as tmp:  # beside the page (probe 111: a killed run left /tmp/hc-fleet-*)
         fig = ("<p class=note>No offsets to plot: no design mount given and no result holds a reference "
                "comparison.</p>")
         if plotted:

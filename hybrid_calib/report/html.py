@@ -4,9 +4,15 @@ lines of vanilla JavaScript to sort tables; nothing fetched from anywhere)."""
 from __future__ import annotations
 
 import base64
+import glob
 import html
+import shutil
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
+from hybrid_calib.atomic import fit_name
 from hybrid_calib.config import save_text_atomic
 from hybrid_calib.errors import DataError, check_out_not_in_dataset, page_target
 
@@ -110,3 +116,24 @@ def written_from(path: Path, source: str) -> bool:
     # and whole: a page cut short (probe 59: 5000 bytes, ending mid-table) is written again
     return f"<meta name=\"{SOURCE_META}\" content=\"{esc(source)}\">" in text[:4096] and \
         text.rstrip().endswith("</html>")
+
+
+@contextmanager
+def figures_folder(page: Path) -> Iterator[Path]:
+    """A temporary folder beside ``page`` for its figures (they are embedded in it), removed at the end, and the ones
+    a killed run left for this page removed first (the page's lock keeps two runs of it apart). In the system's
+    temporary folder a killed report left its figures for ever, and a figure that could not be written was named by a
+    path the user never chose (probe 111)."""
+    stem = fit_name(f".{page.name}.figures-", 200)
+    for old in page.parent.glob(f"{glob.escape(stem)}*"):
+        shutil.rmtree(old, ignore_errors=True)
+    page.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=stem, dir=page.parent))
+    try:
+        yield tmp
+    except OSError as e:
+        if e.filename is None or not Path(e.filename).resolve().is_relative_to(tmp.resolve()):
+            raise
+        raise OSError(e.errno, f"the figures of {page} cannot be written ({e.strerror or e})", str(page)) from None
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)

@@ -5,26 +5,21 @@ data could not pin, the pictures (before / after on frames across the drive, est
 from __future__ import annotations
 
 import functools
-import glob
 import hashlib
 import json
-import tempfile
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from hybrid_calib.atomic import fit_name
 from hybrid_calib.calib.lever_arm import describe as describe_doppler
 from hybrid_calib.calib.lidar_alignment import describe as describe_lidar
 from hybrid_calib.calib.result import CalibrationRun, VehicleResult, extrinsic_report, failed_vehicles_message
 from hybrid_calib.config import merge, to_dict
 from hybrid_calib.errors import HybridCalibError, check_api_out
 from hybrid_calib.report.evidence import Evidence, frame_words, gather, reference_name
-from hybrid_calib.report.html import esc, img_tag, num, verdict_class, write_page, written_from
+from hybrid_calib.report.html import esc, figures_folder, img_tag, num, verdict_class, write_page, written_from
 from hybrid_calib.report.verdict import AXIS_NAMES, Tolerance, Verdict, verdict_of
 from hybrid_calib.words import did_you_mean, n_frames, some_of
 
@@ -240,28 +235,6 @@ def network_html(vr: VehicleResult, ev: Evidence, attention: str) -> str:
     return out + attention
 
 
-@contextmanager
-def _figures_folder(page: Path) -> Iterator[Path]:
-    """A temporary folder beside ``page`` for its figures (they are embedded in it), removed at the end, and the ones
-    a killed run left for this page removed first. In the system's temporary folder a killed report left its figures
-    for ever, and a figure that could not be written was named by a path the user never chose (probe 111)."""
-    import shutil
-
-    stem = fit_name(f".{page.name}.figures-", 200)
-    for old in page.parent.glob(f"{glob.escape(stem)}*"):
-        shutil.rmtree(old, ignore_errors=True)
-    page.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=stem, dir=page.parent))
-    try:
-        yield tmp
-    except OSError as e:
-        if e.filename is None or not Path(e.filename).resolve().is_relative_to(tmp.resolve()):
-            raise
-        raise OSError(e.errno, f"the figures of {page} cannot be written ({e.strerror or e})", str(page)) from None
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-
-
 @functools.lru_cache(maxsize=1)
 def _code_digest() -> str:
     """SHA-1 of the source files of hybrid_calib, factors and learned (the page draws on all three: probe 59 N4): a
@@ -306,7 +279,7 @@ def write_report(result: str | Path, out: str | Path, vehicle: str | None = None
     vr = run.vehicles[name]
     v = verdict_of(vr, conf.tolerance)
     ev = gather(run, result, name, data, version, conf.frames)
-    with _figures_folder(Path(out)) as tmp:
+    with figures_folder(Path(out)) as tmp:
         figs = _figures(vr, ev, tmp)
         att = attention_html(vr, ev, data or run.data, version or run.version, conf.checkpoint, tmp)
     # and what the run said of its data before reading a frame (CalibrationRun.notes: another vehicle's export of
