@@ -36,6 +36,7 @@ import torch
 
 from hybrid_calib.config import ConfigError, merge, require_ranges
 from hybrid_calib.data.frame import RadarCameraFrame
+from hybrid_calib.data.image_header import jpeg_quality
 from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.geometry import perturb_camera_frame, transform_points
 from hybrid_calib.perturbation import perturbation_bounds, sample_perturbation
@@ -427,6 +428,8 @@ class CalibDataset(torch.utils.data.Dataset):
             "vehicle": frame.vehicle,
             "timestamp_us": int(frame.timestamp_camera_us),
             "timestamp_radar_us": int(frame.timestamp_radar_us),
+            # the file's compression (``learned.ood.jpeg_score``: the out-of-domain test); NaN when not a JPEG
+            "jpeg_quality": float(q) if (q := jpeg_quality(frame.image_path)) is not None else float("nan"),
         }
 
 

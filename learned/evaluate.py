@@ -193,7 +193,7 @@ def export_pure(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig, out
             inputs = model_inputs(batch)
             out_m = model(inputs)
             corr, unc = exporter(model, out_m, inputs, export_conf)
-            scores = frame_scores(ood, out_m, batch["image"]) if ood is not None else None
+            scores = frame_scores(ood, out_m, batch["image"], batch.get("jpeg_quality")) if ood is not None else None
             T_iters = torch.stack([T.double() for T in out_m["T_iters"]], dim=1).cpu().numpy()  # (B, N, 4, 4)
             unc_np = unc.detach().double().cpu().numpy() if isinstance(unc, torch.Tensor) else np.asarray(unc)
             for b, token in enumerate(batch["token"]):
@@ -215,13 +215,16 @@ def export_pure(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig, out
     return written
 
 
-def frame_scores(ood, out_m: dict, images: torch.Tensor) -> np.ndarray:
+def frame_scores(ood, out_m: dict, images: torch.Tensor, jpeg: list[float] | None = None) -> np.ndarray:
     """(B,) out-of-domain scores of a forward output (``learned.ood``: the density model's, raised by the camera
-    image's own test; the rule ``hybrid.network.NetworkRunner.ood_score`` applies). images: (B, 3, H, W)."""
-    from learned.ood import frame_features, image_score, image_structure
+    image's own tests; the rule ``hybrid.network.NetworkRunner.ood_score`` applies). images: (B, 3, H, W); jpeg: (B,)
+    the files' JPEG qualities (NaN: not a JPEG; None: not measured)."""
+    from learned.ood import frame_features, image_score, image_structure, jpeg_score
 
     density = np.asarray(ood.score(frame_features(out_m)), np.float64)
-    return np.array([max(float(d), image_score(image_structure(im))) for d, im in zip(density, images)])
+    quality = [float("nan")] * len(density) if jpeg is None else [float(q) for q in jpeg]
+    return np.array([max(float(d), image_score(image_structure(im)), jpeg_score(q))
+                     for d, im, q in zip(density, images, quality)])
 
 
 # method name -> exporter(model, frames, conf, out, overwrite=, progress=) -> list of per-frame files

@@ -125,6 +125,28 @@ def image_words(structure: float) -> str:
             f"{MIN_IMAGE_STRUCTURE:g}; noise, a blank frame or a broken camera")
 
 
+# The camera file's compression: the simulator's randomised training images are saved at JPEG quality 55-95, nuScenes'
+# cameras at ~80 (``data.image_header.jpeg_quality``); under this the image has lost the detail the network matches on
+# (probe 116: quality 2 passed every other test, and the hybrid read 4.4-5.7 deg of yaw that was not there).
+MIN_JPEG_QUALITY = 30.0
+
+
+def jpeg_score(quality: float) -> float:
+    """The out-of-domain score the file's JPEG quality alone gives (``MIN_JPEG_QUALITY / quality``, > 1 below the
+    minimum; 0 at or above it, and when not measured: NaN, a file that is not a JPEG)."""
+    if not np.isfinite(quality) or quality >= MIN_JPEG_QUALITY:
+        return 0.0
+    return MIN_JPEG_QUALITY / max(float(quality), 1.0)
+
+
+def jpeg_words(quality: float) -> str:
+    """Why a frame is out of domain by its file's compression ("" when it passes)."""
+    if not jpeg_score(quality):
+        return ""
+    return (f"the camera image is saved at JPEG quality ~{quality:.0f}, under {MIN_JPEG_QUALITY:g}: its detail is lost "
+            "to compression (the networks were trained on 55-95; nuScenes' cameras save at ~80)")
+
+
 def select(feats: Mapping[str, np.ndarray], features: str) -> np.ndarray:
     """(F, D) rows of one feature set from ``{"descriptor": (F, Dd), "signals": (F, Ds)}``."""
     if features == "all":

@@ -250,6 +250,34 @@ def test_a_noise_image_is_out_of_domain_whatever_the_density_model_says(fitted):
     assert runner.ood_score(far) > 1.2 and runner.ood_why(far) == ""
 
 
+def test_a_camera_file_compressed_beyond_the_training_range_is_out_of_domain(fitted, sim_root, tmp_path):
+    """Probe 116: camera images saved at JPEG quality 2 passed the density model and the image test on every frame,
+    and the hybrid read 4.4-5.7 deg of yaw that was not there under a `weak` status. The file's quality (its
+    quantisation table) is the third test: under 30 (trained on 55-95; nuScenes' cameras ~80) a frame is out of
+    domain, said so."""
+    import dataclasses
+
+    import cv2
+
+    from hybrid_calib.data.image_header import jpeg_quality
+    from learned.ood import MIN_JPEG_QUALITY, jpeg_score, jpeg_words
+
+    image = cv2.imread(str(sorted((sim_root / "samples" / "CAM_FRONT").glob("*.jpg"))[0]))
+    for q, lo, hi in ((92, 91, 93), (55, 54, 56), (30, 29, 31), (2, 1, 15)):
+        cv2.imwrite(str(tmp_path / f"q{q}.jpg"), image, [cv2.IMWRITE_JPEG_QUALITY, q])
+        assert lo <= jpeg_quality(tmp_path / f"q{q}.jpg") <= hi, q
+    cv2.imwrite(str(tmp_path / "p.png"), image)
+    assert jpeg_quality(tmp_path / "p.png") is None and jpeg_quality(tmp_path / "none.jpg") is None
+    assert jpeg_score(80.0) == jpeg_score(np.nan) == 0.0 and jpeg_words(80.0) == ""
+    assert jpeg_score(11.3) == MIN_JPEG_QUALITY / 11.3 and "JPEG quality ~11, under 30" in jpeg_words(11.3)
+    _, runner, drives = fitted
+    v = drives["sim-veh-000"]
+    clean = runner.run(v.indices[0], v.base)
+    assert 85 < clean.jpeg_quality < 95 and runner.ood_score(clean) < 1.0 and runner.ood_why(clean) == ""
+    squeezed = dataclasses.replace(clean, jpeg_quality=11.3)  # the same features, a quality-2 file
+    assert runner.ood_score(squeezed) > 1.0 and "lost to compression" in runner.ood_why(squeezed)
+
+
 def test_a_frame_whose_image_is_noise_is_dropped_naming_the_image(fitted, sim_root, tmp_path):
     import shutil
 

@@ -109,6 +109,50 @@ def _jpeg_size(f) -> tuple[tuple[int, int], int] | None:
         f.seek(-1, 1)
 
 
+# the JPEG standard's luminance quantisation table (Annex K.1), which libjpeg scales by its quality setting
+_STD_LUMINANCE_SUM = sum((16, 11, 10, 16, 24, 40, 51, 61, 12, 12, 14, 19, 26, 58, 60, 55, 14, 13, 16, 24, 40, 57, 69,
+                          56, 14, 17, 22, 29, 51, 87, 80, 62, 18, 22, 37, 56, 68, 109, 103, 77, 24, 35, 55, 64, 81,
+                          104, 113, 92, 49, 64, 78, 87, 103, 121, 120, 101, 72, 92, 95, 98, 112, 100, 103, 99))
+
+
+def jpeg_quality(path: str | Path) -> float | None:
+    """The quality (1-100, libjpeg's scale) a JPEG file was saved at, estimated from its luminance quantisation table
+    (the mean step against the standard table's: ~95 for nuScenes' cameras, 55-95 for the simulator's randomised
+    ones; a table clipped at 255 reads about 11 for any quality under ~10); None for a file that is not a JPEG or
+    holds no such table. Reads the header only."""
+    try:
+        with open(path, "rb") as f:
+            if f.read(2) != b"\xff\xd8":
+                return None
+            while True:
+                b = f.read(1)
+                while b == b"\xff":
+                    b = f.read(1)
+                if not b or b[0] in (0xD9, 0xDA):  # the tables come before the scan
+                    return None
+                if b[0] in (0xD8, 0x01) or 0xD0 <= b[0] <= 0xD7:
+                    continue
+                raw = f.read(2)
+                if len(raw) < 2 or (length := struct.unpack(">H", raw)[0]) < 2:
+                    return None
+                seg = f.read(length - 2)
+                if b[0] == 0xDB:  # DQT: (precision << 4 | id, 64 steps of 1 or 2 bytes) ...
+                    pos = 0
+                    while pos < len(seg):
+                        wide, table = seg[pos] >> 4, seg[pos] & 15
+                        n = 128 if wide else 64
+                        steps = seg[pos + 1:pos + 1 + n]
+                        if len(steps) < n:
+                            return None
+                        if table == 0:
+                            total = sum(struct.unpack(">64H", steps)) if wide else sum(steps)
+                            scale = 100.0 * total / _STD_LUMINANCE_SUM
+                            return float(min(100.0, max(1.0, 5000.0 / scale if scale > 100 else (200.0 - scale) / 2)))
+                        pos += 1 + n
+    except OSError:
+        return None
+
+
 # What libjpeg (inside OpenCV) prints when it decodes a JPEG whose scan data is damaged: OpenCV
 # still returns an image (grey-filled or garbled), so this text is the only sign.
 _DECODER_COMPLAINTS = ("corrupt jpeg data", "premature end", "invalid", "bogus", "unsupported marker",

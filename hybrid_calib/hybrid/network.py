@@ -70,7 +70,8 @@ class NetworkOutput:
     ood_descriptor / ood_signals: the out-of-domain features of the pass (``learned.ood.frame_features``;
     empty for outputs made without them); ``NetworkRunner.ood_score`` reads them.
     image_structure: the camera image's own test (``learned.ood.image_structure`` of the model-input image; NaN
-    for outputs made without it).
+    for outputs made without it). jpeg_quality: the camera file's (``data.image_header.jpeg_quality``; NaN when it
+    is not a JPEG), the other test of the image before any feature (``learned.ood.jpeg_score``).
     """
 
     T_in: np.ndarray
@@ -82,6 +83,7 @@ class NetworkOutput:
     ood_descriptor: np.ndarray = field(default_factory=lambda: np.zeros(0))
     ood_signals: np.ndarray = field(default_factory=lambda: np.zeros(0))
     image_structure: float = float("nan")
+    jpeg_quality: float = float("nan")
 
     @property
     def T(self) -> np.ndarray:
@@ -97,7 +99,7 @@ class NetworkOutput:
     def to_arrays(self) -> dict[str, np.ndarray]:
         d = {"T_in": self.T_in, "T_iters": self.T_iters, "cov_raw": self.cov_raw,
              "seconds": np.array(self.seconds), "ood_descriptor": self.ood_descriptor, "ood_signals": self.ood_signals,
-             "image_structure": np.array(self.image_structure)}
+             "image_structure": np.array(self.image_structure), "jpeg_quality": np.array(self.jpeg_quality)}
         for prefix, c in (("first_", self.rows_first), ("last_", self.rows_last)):
             d.update({prefix + k: v for k, v in c.to_npz_dict().items()})
         return d
@@ -114,7 +116,7 @@ class NetworkOutput:
         # an entry without the ood arrays or the image's test (an older cache) is a miss (KeyError)
         return cls(T_in, T_iters, cov, rows[0], rows[1], float(z["seconds"]),
                    np.asarray(z["ood_descriptor"], np.float64), np.asarray(z["ood_signals"], np.float64),
-                   float(z["image_structure"]))
+                   float(z["image_structure"]), float(z["jpeg_quality"]))
 
 
 def _start_key(T: np.ndarray) -> str:
@@ -341,21 +343,25 @@ class NetworkRunner:
         """The pass's out-of-domain score (``learned.ood``: > 1 out of domain): the density model's, raised to the
         camera image's own test where the image shows no scene (``learned.ood.image_score``); NaN when the
         checkpoint has no ``export.ood`` (``ood_note`` says so) or the output carries no features."""
-        from learned.ood import image_score
+        from learned.ood import image_score, jpeg_score
 
         density = self._density(out)
-        return float("nan") if density is None else max(density, image_score(out.image_structure))
+        return float("nan") if density is None else max(density, image_score(out.image_structure),
+                                                        jpeg_score(out.jpeg_quality))
 
     def ood_why(self, out: NetworkOutput) -> str:
         """Words for a pass whose score its camera image decides (``learned.ood.image_words``: the image test scores it
         above the density model); "" otherwise, where the general reason holds (probe 89: a dark view of a road the
         density model scored 4.15 was said to show no scene, its image test giving 1.11)."""
-        from learned.ood import image_score, image_words
+        from learned.ood import image_score, image_words, jpeg_score, jpeg_words
 
         density = self._density(out)
-        if density is None or image_score(out.image_structure) < density:
+        if density is None:
             return ""
-        return image_words(out.image_structure)
+        image, jpeg = image_score(out.image_structure), jpeg_score(out.jpeg_quality)
+        if max(image, jpeg) < density:
+            return ""
+        return image_words(out.image_structure) if image >= jpeg else jpeg_words(out.jpeg_quality)
 
     def _density(self, out: NetworkOutput) -> float | None:
         """The density model's score of the pass's features; None without a model or features."""
@@ -398,7 +404,7 @@ class NetworkRunner:
         T_iters = np.stack([nearest_rigid(T) if np.all(np.isfinite(T)) else T for T in raw])
         return NetworkOutput(np.asarray(T_in, np.float64), T_iters, np.asarray(cov[0], np.float64), rows[0], rows[1],
                              time.perf_counter() - t0, feats["descriptor"][0], feats["signals"][0],
-                             image_structure(s["image"]))
+                             image_structure(s["image"]), float(s.get("jpeg_quality", float("nan"))))
 
 
 class CascadeRunner:
@@ -454,7 +460,8 @@ class CascadeRunner:
             return None
         out = NetworkOutput(np.asarray(T_in, np.float64), np.concatenate([first.T_iters, second.T_iters]),
                             second.cov_raw, first.rows_first, second.rows_last, first.seconds + second.seconds,
-                            second.ood_descriptor, second.ood_signals, second.image_structure)
+                            second.ood_descriptor, second.ood_signals, second.image_structure,
+                            second.jpeg_quality)
         if self.cache is not None:
             self.cache.put(token, out)
         return out
