@@ -297,6 +297,11 @@ def camera_token(frames: Sequence[RadarCameraFrame], fi: int) -> str:
     return frames[fi].camera_token
 
 
+# How evaluation draws a frame's start (``CalibDataset.perturbation``), recorded with evaluate's predictions: an --out
+# whose predictions another rule drew is not tabled with this one's
+EVAL_STARTS = "seed and camera token"
+
+
 # ---------------------------------------------------------------------------------------------
 # Dataset
 

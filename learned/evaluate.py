@@ -57,7 +57,7 @@ from hybrid_calib.metrics import (
     summarize,
 )
 from hybrid_calib.metrics import nees as nees_of
-from learned.dataset import CalibDataset, DatasetConfig, SplitConfig, camera_token, collate, split_indices
+from learned.dataset import EVAL_STARTS, CalibDataset, DatasetConfig, SplitConfig, camera_token, collate, split_indices
 from learned.depth import DepthCache, build_depth_estimator
 
 
@@ -393,10 +393,13 @@ def _what_differs(old: dict, new: dict) -> str:
         words.append("frames of other roots, --version or --nsweeps")
     elif changed := stamps_changed(was, now):
         words.append(changed)
+    if old.get("starts") != new.get("starts"):
+        words.append(f"starts drawn by another rule (this version: {new.get('starts')}; the predictions kept: "
+                     f"{old.get('starts') or 'by the frame position among the roots read, before 2026-12-07'})")
     if old.get("network") != new.get("network"):
         words.append("another checkpoint's files (retrained or edited at the same path, e.g. by the fit an "
                      "--fit-uncertainty run writes into it, or another file)")
-    options = changed_options(old, new, skip=("data", "network"), whole=("data", "network"))
+    options = changed_options(old, new, skip=("data", "network", "starts"), whole=("data", "network"))
     if options:
         words.append(f"another config ({'; '.join(options[:4])}{'; ...' if len(options) > 4 else ''})")
     return "; ".join(words) or "another config"
@@ -423,6 +426,7 @@ def evaluate(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig | dict,
         record["data"] = data
     if network is not None:
         record["network"] = network
+    record["starts"] = EVAL_STARTS  # an --out of the rule before is not mixed with this one's (probe 115)
     checked_indices(frames, conf)  # an empty split is refused before anything is written (probe 87: it left
     # export_config.json and a runs.json line behind)
     cfg_path = out / "export_config.json"

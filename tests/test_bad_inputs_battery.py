@@ -1835,6 +1835,11 @@ def test_evaluate_out_of_other_roots_or_a_damaged_export_config(sim, tmp_path, c
                            "--overwrite", out / "export_config.json")
     assert _one_paragraph(err)
     assert json.loads((out / "results.json").read_text())["n_frames"] == 1
+    # predictions of the version before, whose starts another rule drew (probe 115: tabled with this one's, in silence)
+    record = json.loads((out / "export_config.json").read_text())
+    (out / "export_config.json").write_text(json.dumps({k: v for k, v in record.items() if k != "starts"}))
+    expect_cli_error([*argv, "--data", root], capsys, "starts drawn by another rule", "before 2026-12-07",
+                     "--overwrite")
     (out / "export_config.json").write_text("{")
     expect_cli_error([*argv, "--data", root], capsys, "export config of this --out is unreadable",
                      out / "export_config.json")
