@@ -675,6 +675,8 @@ def test_a_fleet_prior_is_applied_only_to_the_vehicle_it_was_fitted_on(local_run
     (tmp_path / "outlier.json").write_text(json.dumps(doc))
     out_priors = load_priors(tmp_path / "outlier.json")
     assert match_prior(out_priors, name, src["data"], "v1.0-sim", src["vehicle"]) == (None, None)
+    p, note = match_prior(out_priors, "root-" + name, src["data"], "v1.0-sim", src["vehicle"])  # under another id
+    assert p is None and "it holds no prior for it" in note and "prior is applied" not in note, note  # probe 115
     p, note = match_prior(out_priors, name, str(tmp_path), "v1.0-sim", src["vehicle"])
     assert p == out_priors["*"] and "new-vehicle prior" in note
     doc["priors"][name] = kept

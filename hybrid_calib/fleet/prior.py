@@ -418,9 +418,12 @@ def match_prior(priors: dict, job_id: str, data: str, version: str, vehicle: str
         for name, p in priors.items():  # the vehicle was in the fit under another id: its own leave-one-out prior
             if name != "*" and isinstance(p, dict) and isinstance(p.get("source"), dict) and \
                     same_source(p["source"], data, version, vehicle, digest):
-                return _usable(p), (f"{job_id}: the fleet prior's entry {name!r} was fitted on this vehicle of this "
-                                    "root: its leave-one-out prior is applied (the full fit's would hold its own "
-                                    "estimate)")
+                own = _usable(p)  # a named outlier, or a fit of too few others, holds none (probe 115: "applied")
+                return own, (f"{job_id}: the fleet prior's entry {name!r} was fitted on this vehicle of this root: "
+                             + ("its leave-one-out prior is applied (the full fit's would hold its own estimate)"
+                                if own is not None else "it holds no prior for it (an outlier of that fleet, or too "
+                                "few other vehicles), so none is applied (the full fit's would hold its own "
+                                "estimate)"))
         return _usable(priors.get("*")), None
     p = priors[job_id]
     if p is None:
