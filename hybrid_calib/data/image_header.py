@@ -15,6 +15,7 @@ import os
 import struct
 import sys
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 from hybrid_calib.data.files import check_regular_file, missing_folder_words
@@ -75,38 +76,45 @@ def image_header(path: str | Path, token: str | None = None) -> tuple[int, int]:
     return int(wh[0]), int(wh[1])
 
 
-def _jpeg_size(f) -> tuple[tuple[int, int], int] | None:
-    """Walk JPEG marker segments from just after SOI to the first SOF; ``((width, height), components)`` or None."""
+def _jpeg_segments(f) -> Iterator[tuple[int, int]]:
+    """(marker, payload length) of each JPEG marker segment from just after SOI to the first SOS / EOI, the file
+    positioned at the segment's payload; it ends early at anything that is not a marker segment."""
     f.seek(2)
     while True:
         b = f.read(1)
         while b == b"\xff":  # fill bytes before a marker
             b = f.read(1)
         if not b:
-            return None
+            return
         marker = b[0]
         if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:  # stand-alone markers
             continue
-        if marker in (0xD9, 0xDA):  # end of image / start of scan before any SOF
-            return None
+        if marker in (0xD9, 0xDA):  # end of image / start of scan
+            return
         raw = f.read(2)
         if len(raw) < 2:
-            return None
+            return
         length = struct.unpack(">H", raw)[0]
         if length < 2:
-            return None
+            return
+        start = f.tell()
+        yield marker, length - 2
+        f.seek(start + length - 2)
+        if f.read(1) != b"\xff":  # the next byte must start a marker
+            return
+        f.seek(-1, 1)
+
+
+def _jpeg_size(f) -> tuple[tuple[int, int], int] | None:
+    """``((width, height), components)`` of the first SOF segment, or None."""
+    for marker, _ in _jpeg_segments(f):
         if marker in _JPEG_SOF:
             seg = f.read(6)
             if len(seg) < 6:
                 return None
             h, w = struct.unpack(">HH", seg[1:5])
             return (w, h), seg[5]
-        f.seek(length - 2, 1)
-        # the next byte must start a marker
-        b = f.read(1)
-        if b != b"\xff":
-            return None
-        f.seek(-1, 1)
+    return None
 
 
 # the JPEG standard's luminance quantisation table (Annex K.1), which libjpeg scales by its quality setting
@@ -124,31 +132,22 @@ def jpeg_quality(path: str | Path) -> float | None:
         with open(path, "rb") as f:
             if f.read(2) != b"\xff\xd8":
                 return None
-            while True:
-                b = f.read(1)
-                while b == b"\xff":
-                    b = f.read(1)
-                if not b or b[0] in (0xD9, 0xDA):  # the tables come before the scan
-                    return None
-                if b[0] in (0xD8, 0x01) or 0xD0 <= b[0] <= 0xD7:
+            for marker, length in _jpeg_segments(f):
+                if marker != 0xDB:
                     continue
-                raw = f.read(2)
-                if len(raw) < 2 or (length := struct.unpack(">H", raw)[0]) < 2:
-                    return None
-                seg = f.read(length - 2)
-                if b[0] == 0xDB:  # DQT: (precision << 4 | id, 64 steps of 1 or 2 bytes) ...
-                    pos = 0
-                    while pos < len(seg):
-                        wide, table = seg[pos] >> 4, seg[pos] & 15
-                        n = 128 if wide else 64
-                        steps = seg[pos + 1:pos + 1 + n]
-                        if len(steps) < n:
-                            return None
-                        if table == 0:
-                            total = sum(struct.unpack(">64H", steps)) if wide else sum(steps)
-                            scale = 100.0 * total / _STD_LUMINANCE_SUM
-                            return float(min(100.0, max(1.0, 5000.0 / scale if scale > 100 else (200.0 - scale) / 2)))
-                        pos += 1 + n
+                seg, pos = f.read(length), 0  # DQT: (precision << 4 | id, 64 steps of 1 or 2 bytes) ...
+                while pos < len(seg):
+                    wide, table = seg[pos] >> 4, seg[pos] & 15
+                    n = 128 if wide else 64
+                    steps = seg[pos + 1:pos + 1 + n]
+                    if len(steps) < n:
+                        return None
+                    if table == 0:
+                        total = sum(struct.unpack(">64H", steps)) if wide else sum(steps)
+                        scale = 100.0 * total / _STD_LUMINANCE_SUM
+                        return float(min(100.0, max(1.0, 5000.0 / scale if scale > 100 else (200.0 - scale) / 2)))
+                    pos += 1 + n
+            return None
     except OSError:
         return None
 
