@@ -1294,6 +1294,19 @@ def test_simulate_names_contradicting_change_options(argv, needles, captured_sim
     assert captured_sim == []
 
 
+def test_simulate_hides_its_progress_bar_as_the_other_commands_do(monkeypatch, tmp_path, capsys):
+    """``simulate --no-progress`` was refused as an unknown argument (calibrate, evaluate, train, inspect and compare
+    take it): a script that hid every command's bar stopped at its first simulate."""
+    import hybrid_calib.sim.simulate as sim_module
+
+    seen = []
+    monkeypatch.setattr(sim_module, "simulate", lambda conf, out, **kw: (seen.append(kw["progress"]), Path(out))[1])
+    for extra, shown in (([], True), (["--no-progress"], False)):
+        rc, err = run_cli(["simulate", "--out", tmp_path / "s", "--frames", "6", *extra], capsys)
+        assert rc == 0, err
+        assert seen.pop() is shown
+
+
 def test_simulate_set_extrinsic_change_not_a_group(captured_sim, tmp_path, capsys):
     for extra in ([], ["--extrinsic-change", "step"]):  # was: internal error (ValueError from dict())
         expect_cli_error(["simulate", "--out", tmp_path / "s", "--set", "extrinsic_change={bad", *extra], capsys,

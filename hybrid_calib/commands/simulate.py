@@ -28,6 +28,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="frame of a step change (default: -1, the middle; or --set extrinsic_change.frame=N)")
     p.add_argument("--workers", type=process_count, default=1, help="rendering processes (default: 1)")
     p.add_argument("--overwrite", action="store_true", help="re-render everything instead of resuming")
+    p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     p.add_argument("--set", action="extend", nargs="+", metavar="KEY=VALUE", default=[],
                    help="SimConfig overrides, e.g. image_scale=0.25 radar.clutter_per_sweep=8 lidar.azimuth_steps=540; "
                         "world.KEY=VALUE sets the scenario preset's fields (world.ego_speed=5 "
@@ -64,7 +65,8 @@ def run(args: argparse.Namespace) -> int:
     if step.kind == "step" and not -1 <= step.frame < conf.frames:
         raise OptionError("--change-frame", f"frame {step.frame} is outside the drive's {conf.frames} frames; pass "
                                             f"0..{conf.frames - 1} (or -1 for the middle)")
-    root = simulate(conf, args.out, overwrite=args.overwrite, workers=args.workers)
+    root = simulate(conf, args.out, overwrite=args.overwrite, workers=args.workers,
+                    progress=not args.no_progress)
     truth = Path(root) / "v1.0-sim" / "sim_vehicle.json"
     failed = {v["vehicle"]: len(v.get("failed_frames") or []) for v in
               (json.loads(truth.read_text()) if truth.is_file() else [])}
