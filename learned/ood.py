@@ -147,6 +147,53 @@ def jpeg_words(quality: float) -> str:
             "to compression (the networks were trained on 55-95; nuScenes' cameras save at ~80)")
 
 
+# The camera image's brightness (mean grey level of the model-input image, 0..1): the randomised training images span
+# ~0.28-0.62 (simulated with randomise.enabled=true, urban and rain, and the plain presets), scene-0916's 0.37-0.44.
+# Outside these bounds a frame the density model scores out of domain is said to be dark or washed out: words only,
+# the score stays the density model's (probe 89 and session 47: night-like images were "inconclusive" without a cause).
+DARK_LUMINANCE = 0.2
+BRIGHT_LUMINANCE = 0.8
+TRAINED_LUMINANCE = "~0.28-0.62"
+
+# A short phrase per cause, for a drive's count of its out-of-domain frames (``hybrid.ood.decide``)
+CAUSES = {"no scene": "show no scene (noise, a blank frame or a broken camera)",
+          "compression": f"are compressed beyond the training range (JPEG quality under {MIN_JPEG_QUALITY:g})",
+          "dark": "are dark (night, a tunnel or an under-exposed camera)",
+          "bright": "are washed out (glare, or an over-exposed camera)"}
+
+
+def image_luminance(image) -> float:
+    """Mean grey level, 0..1, of ``image``: (3, H, W) float in [0, 1] (the model input) or (H, W, 3) uint8."""
+    a = np.asarray(image.cpu().numpy() if hasattr(image, "cpu") else image)
+    g = a.astype(np.float64) / (255.0 if a.dtype == np.uint8 else 1.0)
+    m = float(g.mean()) if g.size else float("nan")
+    return m if np.isfinite(m) else float("nan")
+
+
+def luminance_words(luminance: float) -> tuple[str, str]:
+    """(cause, words) of an image darker or brighter than the training images' (``CAUSES``' key); ("", "") within
+    them, and when not measured (NaN)."""
+    if not np.isfinite(luminance) or DARK_LUMINANCE <= luminance <= BRIGHT_LUMINANCE:
+        return "", ""
+    dark = luminance < DARK_LUMINANCE
+    cause = "night, a tunnel or an under-exposed camera" if dark else "glare, or an over-exposed camera"
+    return ("dark" if dark else "bright",
+            f"the camera image is {'dark' if dark else 'washed out'}: its mean grey level {luminance:.2f} is "
+            f"{'under' if dark else 'over'} {DARK_LUMINANCE if dark else BRIGHT_LUMINANCE:g} (the networks were "
+            f"trained on {TRAINED_LUMINANCE}): {cause}")
+
+
+def image_cause(density: float, structure: float, quality: float, luminance: float) -> tuple[str, str]:
+    """(cause, words): why a pass whose density-model score is ``density`` is out of domain, by its camera image: the
+    image test's or the file's own test where one scores at or above the density model (``image_words``,
+    ``jpeg_words``), else its brightness where it lies outside the training images' (``luminance_words``);
+    ("", "") where the image shows no cause (the general reason holds)."""
+    image, jpeg = image_score(structure), jpeg_score(quality)
+    if max(image, jpeg) and max(image, jpeg) >= density:
+        return ("no scene", image_words(structure)) if image >= jpeg else ("compression", jpeg_words(quality))
+    return luminance_words(luminance)
+
+
 def select(feats: Mapping[str, np.ndarray], features: str) -> np.ndarray:
     """(F, D) rows of one feature set from ``{"descriptor": (F, Dd), "signals": (F, Ds)}``."""
     if features == "all":

@@ -299,6 +299,60 @@ def test_a_frame_whose_image_is_noise_is_dropped_naming_the_image(fitted, sim_ro
     assert dropped[0]["ood_score"] > 2  # 0.5 / structure: a JPEG of noise at 200 x 112 keeps ~0.1
 
 
+def test_an_image_darker_or_brighter_than_the_training_images_is_named_as_the_cause():
+    """Words only: the density model's score decides; the image test's and the file's own test keep their words where
+    they score at or above it, and an image outside the training images' brightness names itself otherwise."""
+    from learned.ood import BRIGHT_LUMINANCE, DARK_LUMINANCE, image_cause, image_luminance, luminance_words
+
+    assert image_luminance(np.full((96, 200, 3), 51, np.uint8)) == pytest.approx(0.2)
+    assert image_luminance(np.full((3, 96, 200), 0.5)) == 0.5 and np.isnan(image_luminance(np.zeros((3, 0, 0))))
+    assert luminance_words(0.45) == luminance_words(np.nan) == ("", "")
+    assert luminance_words(DARK_LUMINANCE) == luminance_words(BRIGHT_LUMINANCE) == ("", "")
+    cause, words = luminance_words(0.06)
+    assert cause == "dark" and "mean grey level 0.06 is under 0.2" in words and "night" in words
+    cause, words = luminance_words(0.93)
+    assert cause == "bright" and "washed out" in words and "over 0.8" in words
+    # the density model decides (score 3): the dark image's words; the image test above it (0.5 / 0.1 = 5): its own
+    assert image_cause(3.0, 0.9, 80.0, 0.06)[0] == "dark" and image_cause(3.0, 0.9, 80.0, 0.45) == ("", "")
+    assert image_cause(3.0, 0.1, 80.0, 0.06)[0] == "no scene" and image_cause(3.0, 0.9, 5.0, 0.06)[0] == "compression"
+
+
+def test_a_drive_of_dark_images_is_inconclusive_and_says_they_are_dark(fitted, sim_root, tmp_path):
+    """Session 47's known item (and probe 89): a drive whose camera saw night was `inconclusive` naming only its
+    scores ("only 0 of 4 frames are inside the network's training domain"), with no word of its darkness; each dropped
+    frame read "the input is unlike the frames the network was fitted on"."""
+    import shutil
+
+    import cv2
+
+    from hybrid_calib.hybrid import run_vehicle
+    from hybrid_calib.hybrid.ood import OODPolicy, decide
+
+    root = tmp_path / "root"
+    shutil.copytree(sim_root, root)
+    images = sorted((root / "samples" / "CAM_FRONT").glob("*sim-veh-001*.jpg"))
+    assert images
+    for f in images:
+        cv2.imwrite(str(f), (cv2.imread(str(f)) * 0.08).astype(np.uint8))
+    conf = {**BASE, "method": "pure-avg", "checkpoint": str(fitted[0])}
+    v = run_vehicle(root, "v1.0-sim", "sim-veh-001", conf)
+    dark = v.ood["causes"].get("dark", 0)
+    assert dark >= 0.75 * len(images) and v.ood["in_domain"] < len(images) / 2, v.ood
+    assert v.final.status.startswith("inconclusive:") and f"{dark} are dark (night" in v.final.status, v.final.status
+    # one dark frame among clean ones: dropped, naming its darkness
+    for f in images[1:]:
+        shutil.copy(sim_root / "samples" / "CAM_FRONT" / f.name, f)
+    v = run_vehicle(root, "v1.0-sim", "sim-veh-001", {**conf, "ood": {"min_in_domain_frames": 1,
+                                                                      "min_in_domain_fraction": 0.5}})
+    said = [s["reason"] for s in v.skipped if "ood_score" in s]
+    assert len(said) == 1 and "the camera image is dark: its mean grey level 0.0" in said[0], said
+    # the words name the causes they count, most frequent first; none named where none is seen
+    block = decide([3.0, 4.0, 0.5, 2.0], OODPolicy(min_in_domain_frames=3), causes={"bright": 1, "dark": 2})
+    assert "of the 3 frames out of domain, 2 are dark" in block["inconclusive"]
+    assert block["inconclusive"].endswith("1 are washed out (glare, or an over-exposed camera)")
+    assert "frames out of domain," not in decide([3.0, 4.0], OODPolicy(min_in_domain_frames=3))["inconclusive"]
+
+
 def test_checkpoint_without_ood_block_keeps_working_and_says_so(sim_root, tmp_path):
     from hybrid_calib.config import to_dict
     from hybrid_calib.hybrid import run_vehicle

@@ -232,6 +232,7 @@ class _Trace:
     priors: int = 0  # network priors the hybrid inflated by its drive-common error (``_hybrid``)
     unread: int = 0  # frames whose inputs did not read (the network never ran): they count against the domain test
     frozen: int = 0  # frames whose camera image is an earlier frame's (``Drive.frozen``): against the domain test too
+    causes: dict = field(default_factory=dict)  # out-of-domain passes by their camera image's cause (``ood_cause``)
     # where the reflectors the network matched lie (its iteration-0 rows, kept frames): the status names a straight
     # road as the oracle's does (``corrections.with_road_words``)
     geometry: RowGeometry = field(default_factory=RowGeometry)
@@ -257,9 +258,13 @@ class _Trace:
         dropped."""
         score = runner.ood_score(out) if conf.ood.enabled else float("nan")
         self.scores.append(score)
-        if self.drop and out_of_domain(score, conf.ood):
-            self.skipped.append(skip_record(k, runner.token(i), score, conf.ood, runner.ood_why(out)))
-            return False
+        if out_of_domain(score, conf.ood):
+            cause, why = runner.ood_cause(out)
+            if cause:
+                self.causes[cause] = self.causes.get(cause, 0) + 1
+            if self.drop:
+                self.skipped.append(skip_record(k, runner.token(i), score, conf.ood, why))
+                return False
         self.geometry.add(out.rows_first.points_radar)
         return True
 
@@ -568,7 +573,7 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     T0 = start_of(drive, conf)
     tr = _Trace(drop=True)
     traj, mon = _run_learned(runner, drive, T0, conf, tr, motion, frames)
-    ood = decide(tr.scores, conf.ood, runner.ood_note, unread=tr.unread, frozen=tr.frozen)
+    ood = decide(tr.scores, conf.ood, runner.ood_note, unread=tr.unread, frozen=tr.frozen, causes=tr.causes)
     ood["dropped"] = sum("ood_score" in s for s in tr.skipped)
     # the frames that did not read, and the frozen ones, count too (hybrid.ood.decide)
     total = ood["frames"] + ood.get("unread", 0) + ood.get("frozen", 0)

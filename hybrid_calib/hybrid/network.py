@@ -71,7 +71,8 @@ class NetworkOutput:
     empty for outputs made without them); ``NetworkRunner.ood_score`` reads them.
     image_structure: the camera image's own test (``learned.ood.image_structure`` of the model-input image; NaN
     for outputs made without it). jpeg_quality: the camera file's (``data.image_header.jpeg_quality``; NaN when it
-    is not a JPEG), the other test of the image before any feature (``learned.ood.jpeg_score``).
+    is not a JPEG), the other test of the image before any feature (``learned.ood.jpeg_score``). image_luminance: the
+    model-input image's mean grey level, 0..1 (``learned.ood.image_luminance``; words only: ``NetworkRunner.ood_why``).
     """
 
     T_in: np.ndarray
@@ -84,6 +85,7 @@ class NetworkOutput:
     ood_signals: np.ndarray = field(default_factory=lambda: np.zeros(0))
     image_structure: float = float("nan")
     jpeg_quality: float = float("nan")
+    image_luminance: float = float("nan")
 
     @property
     def T(self) -> np.ndarray:
@@ -99,7 +101,8 @@ class NetworkOutput:
     def to_arrays(self) -> dict[str, np.ndarray]:
         d = {"T_in": self.T_in, "T_iters": self.T_iters, "cov_raw": self.cov_raw,
              "seconds": np.array(self.seconds), "ood_descriptor": self.ood_descriptor, "ood_signals": self.ood_signals,
-             "image_structure": np.array(self.image_structure), "jpeg_quality": np.array(self.jpeg_quality)}
+             "image_structure": np.array(self.image_structure), "jpeg_quality": np.array(self.jpeg_quality),
+             "image_luminance": np.array(self.image_luminance)}
         for prefix, c in (("first_", self.rows_first), ("last_", self.rows_last)):
             d.update({prefix + k: v for k, v in c.to_npz_dict().items()})
         return d
@@ -116,7 +119,7 @@ class NetworkOutput:
         # an entry without the ood arrays or the image's test (an older cache) is a miss (KeyError)
         return cls(T_in, T_iters, cov, rows[0], rows[1], float(z["seconds"]),
                    np.asarray(z["ood_descriptor"], np.float64), np.asarray(z["ood_signals"], np.float64),
-                   float(z["image_structure"]), float(z["jpeg_quality"]))
+                   float(z["image_structure"]), float(z["jpeg_quality"]), float(z["image_luminance"]))
 
 
 def _start_key(T: np.ndarray) -> str:
@@ -350,18 +353,20 @@ class NetworkRunner:
                                                         jpeg_score(out.jpeg_quality))
 
     def ood_why(self, out: NetworkOutput) -> str:
-        """Words for a pass whose score its camera image decides (``learned.ood.image_words``: the image test scores it
-        above the density model); "" otherwise, where the general reason holds (probe 89: a dark view of a road the
-        density model scored 4.15 was said to show no scene, its image test giving 1.11)."""
-        from learned.ood import image_score, image_words, jpeg_score, jpeg_words
+        """Words for an out-of-domain pass whose camera image shows a cause (``learned.ood.image_cause``: the image's
+        or the file's test scoring it at or above the density model, else an image darker or brighter than the
+        training images'); "" otherwise, where the general reason holds (probe 89: a dark view of a road the density
+        model scored 4.15 was said to show no scene, its image test giving 1.11)."""
+        return self.ood_cause(out)[1]
+
+    def ood_cause(self, out: NetworkOutput) -> tuple[str, str]:
+        """(cause, words) of ``ood_why``: the cause a key of ``learned.ood.CAUSES`` ("" with the words)."""
+        from learned.ood import image_cause
 
         density = self._density(out)
         if density is None:
-            return ""
-        image, jpeg = image_score(out.image_structure), jpeg_score(out.jpeg_quality)
-        if max(image, jpeg) < density:
-            return ""
-        return image_words(out.image_structure) if image >= jpeg else jpeg_words(out.jpeg_quality)
+            return "", ""
+        return image_cause(density, out.image_structure, out.jpeg_quality, out.image_luminance)
 
     def _density(self, out: NetworkOutput) -> float | None:
         """The density model's score of the pass's features; None without a model or features."""
@@ -382,7 +387,7 @@ class NetworkRunner:
 
         from learned.dataset import collate
         from learned.export import ExportConfig, export_correspondences
-        from learned.ood import frame_features, image_structure
+        from learned.ood import frame_features, image_luminance, image_structure
         from learned.train import model_inputs, to_device
 
         t0 = time.perf_counter()
@@ -404,7 +409,8 @@ class NetworkRunner:
         T_iters = np.stack([nearest_rigid(T) if np.all(np.isfinite(T)) else T for T in raw])
         return NetworkOutput(np.asarray(T_in, np.float64), T_iters, np.asarray(cov[0], np.float64), rows[0], rows[1],
                              time.perf_counter() - t0, feats["descriptor"][0], feats["signals"][0],
-                             image_structure(s["image"]), float(s.get("jpeg_quality", float("nan"))))
+                             image_structure(s["image"]), float(s.get("jpeg_quality", float("nan"))),
+                             image_luminance(s["image"]))
 
 
 class CascadeRunner:
@@ -430,6 +436,9 @@ class CascadeRunner:
 
     def ood_why(self, out: NetworkOutput) -> str:
         return self.refine.ood_why(out)
+
+    def ood_cause(self, out: NetworkOutput) -> tuple[str, str]:
+        return self.refine.ood_cause(out)
 
     @property
     def checkpoint(self) -> str:
@@ -461,7 +470,7 @@ class CascadeRunner:
         out = NetworkOutput(np.asarray(T_in, np.float64), np.concatenate([first.T_iters, second.T_iters]),
                             second.cov_raw, first.rows_first, second.rows_last, first.seconds + second.seconds,
                             second.ood_descriptor, second.ood_signals, second.image_structure,
-                            second.jpeg_quality)
+                            second.jpeg_quality, second.image_luminance)
         if self.cache is not None:
             self.cache.put(token, out)
         return out

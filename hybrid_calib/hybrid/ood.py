@@ -24,6 +24,7 @@ with it.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -69,17 +70,20 @@ def skip_record(index: int, token: str, score: float, policy: OODPolicy, why: st
                       f"({why or 'the input is unlike the frames the network was fitted on'}; frame dropped)"}
 
 
-def decide(scores: list[float], policy: OODPolicy, note: str = "", unread: int = 0, frozen: int = 0) -> dict:
+def decide(scores: list[float], policy: OODPolicy, note: str = "", unread: int = 0, frozen: int = 0,
+           causes: Mapping[str, int] | None = None) -> dict:
     """The result's ``ood`` block: per-frame scores, counts, and ``inconclusive`` (reason, or ""). ``unread``:
     frames of the drive whose files did not read (no score): they count as not in domain, so a damaged copy of a
     root cannot earn more trust than the intact one by losing its doubtful frames (probe 15: 4 of 10 in domain on
     the intact root was inconclusive, the same 4 of 5 readable ones on a damaged copy was not); ``frozen``: frames
-    whose camera image is an earlier frame's (``hybrid.drives.frozen_images``), counted alike."""
+    whose camera image is an earlier frame's (``hybrid.drives.frozen_images``), counted alike; ``causes``: the
+    out-of-domain frames counted by their camera image's cause (``learned.ood.CAUSES``' keys; ``NetworkRunner.
+    ood_cause``), named in the words (a night drive was "inconclusive" without a word of its darkness)."""
     s = np.asarray(scores, np.float64)
     available = bool(policy.enabled and len(s) and np.all(np.isfinite(s)))
     block = {"available": available, "threshold": policy.threshold, "scores": [json_score(x) for x in s],
              "frames": int(len(s)), "in_domain": None, "inconclusive": "", "unread": int(unread),
-             "frozen": int(frozen)}
+             "frozen": int(frozen), "causes": {k: int(n) for k, n in (causes or {}).items() if n}}
     if not policy.enabled:
         block["note"] = "out-of-domain score disabled (--set ood.enabled=false)"
         return block
@@ -101,8 +105,17 @@ def decide(scores: list[float], policy: OODPolicy, note: str = "", unread: int =
         block["inconclusive"] = (
             f"only {n_in} of {total} frames are inside the network's training domain (out-of-domain score <= "
             f"{policy.threshold:g}; median score {np.median(s):.1f}{unread_words}), fewer than the {need} required: "
-            "the network's answer cannot be trusted on this input")
+            f"the network's answer cannot be trusted on this input{cause_words(block['causes'], len(s) - n_in)}")
     return block
+
+
+def cause_words(causes: Mapping[str, int], n_out: int) -> str:
+    """"; of the N frames out of domain, K are dark (...)": the causes their camera images show, most frequent first
+    (``learned.ood.CAUSES``); "" when none is seen."""
+    from learned.ood import CAUSES
+
+    named = [f"{n} {CAUSES[k]}" for k, n in sorted(causes.items(), key=lambda kv: -kv[1]) if n and k in CAUSES]
+    return f"; of the {n_out} frames out of domain, {', '.join(named)}" if named and n_out else ""
 
 
 def corrupt(sample: dict, kind: str, g: np.random.Generator, other: dict | None = None) -> dict:
