@@ -37,7 +37,9 @@ class RadarPixelFactorConfig:
     reflectors, centimetres at 10 m: it looks like a forward translation).
     """
 
-    kernel: str = "cauchy"  # none | huber | cauchy | tukey | geman_mcclure (per correspondence row)
+    # none | huber | cauchy | tukey | geman_mcclure (per correspondence row); none and huber only for rows without gross
+    # outliers (their cost can be lowest at a collapsed pose: calib.schedule's module doc)
+    kernel: str = "cauchy"
     kernel_scale: float = 2.5  # kernel threshold in whitened units (multiples of the row's sigma)
     elevation_model: str = "height"  # zero | mean_arc | anisotropic | height (chosen by the elevation study)
     elevation_beam_deg: float = 7.0  # half-width of the vertical beam (ARS 408-like far range: +-7 deg)

@@ -12,9 +12,11 @@ from the same starts did not, since it adds the frames one at a time). When fewe
 ``min_inlier_fraction`` of the rows fit the estimate, the batch re-solves progressively as the window
 does (the first frame, then 4, 16, 64, ... frames, each from the previous optimum, then all) and,
 when that is still short of the fraction (the first frames alone settle wrong too: a 5-frame urban
-drive ended 66 deg off), once more from the sliding window's own estimate over the frames; it keeps
-whichever estimate more rows fit; the status says so, and says ``NOT CONVERGED`` when none reaches
-the fraction.
+drive ended 66 deg off), once more from the sliding window's own estimate over the frames, and then from the
+start without the schedule's convex stage (the Huber cost of rows with gross outliers can be lowest at a collapsed
+pose that puts every reflector far ahead, and the convex stage walked there even from the truth: probe 118); it
+keeps whichever estimate more rows fit; the status says so, and says ``NOT CONVERGED`` when none reaches the
+fraction.
 """
 
 from __future__ import annotations
@@ -128,15 +130,18 @@ def solve_batch(frames: list[Correspondences], T_init: np.ndarray, conf: BatchCo
     inl, rescue = _inlier_fraction(T, frames, conf), ""
     rowed = [f for f in frames if len(f)]
     inl0 = inl
-    # the first frames alone from the start, then the window's way in (module doc); each only while too few fit
-    for how, start_from in (("re-solved progressively (frames 1, 4, 16, ... then all, each from the previous "
-                             "optimum)", _progressive_start),
-                            ("re-solved from the sliding window's estimate (frames added one at a time)",
-                             _window_start)):
+    # the first frames alone from the start, then the window's way in, then the start without the convex stage
+    # (module doc); each only while too few fit
+    for how, start_from, convex in (("re-solved progressively (frames 1, 4, 16, ... then all, each from the "
+                                     "previous optimum)", _progressive_start, True),
+                                    ("re-solved from the sliding window's estimate (frames added one at a time)",
+                                     _window_start, True),
+                                    ("re-solved from the start without the convex (Huber) stage, which had left "
+                                     "the start's basin", _given_start, False)):
         if inl >= conf.min_inlier_fraction or len(rowed) < 2:
             break
         T_s, it_s, secs_s = start_from(rowed, T_init, conf, priors)
-        again = _solve(frames, T_s, conf, priors)
+        again = _solve(frames, T_s, conf, priors, convex_start=convex)
         inl_s = _inlier_fraction(again[0], frames, conf)
         if inl_s > inl:
             rescue = f"from the start only {100 * inl0:.0f} % of the rows fit: {how}: {100 * inl_s:.0f} % fit"
@@ -153,12 +158,12 @@ def solve_batch(frames: list[Correspondences], T_init: np.ndarray, conf: BatchCo
                        secs, cov_s, len(frames), n_rows, inl)
 
 
-def _solve(frames, T0, conf: BatchConfig, priors, covariance: bool = True):
-    """The schedule on ``conf.backend`` from T0: (T, information, covariance or None, why it is None,
-    iterations, solve seconds, perf_counter at the start of the covariance)."""
+def _solve(frames, T0, conf: BatchConfig, priors, covariance: bool = True, convex_start: bool = True):
+    """The schedule on ``conf.backend`` from T0 (``convex_start``: with its convex first stage): (T, information,
+    covariance or None, why it is None, iterations, solve seconds, perf_counter at the start of the covariance)."""
     if conf.backend == "ceres":
-        return _solve_ceres(frames, T0, conf, priors)
-    res = robust_solve(frames, T0, conf.factor, priors, conf.schedule, convex_start=True)
+        return _solve_ceres(frames, T0, conf, priors, convex_start)
+    res = robust_solve(frames, T0, conf.factor, priors, conf.schedule, convex_start=convex_start)
     t0 = time.perf_counter()
     info, cov, why = graph_covariance(res.graph, res.values, X) if covariance else (None, None, "")
     return res.T, info, cov, why, res.iterations, res.seconds, t0
@@ -198,6 +203,15 @@ def _window_start(frames: list[Correspondences], T0: np.ndarray, conf: BatchConf
     return out.T, 0, time.perf_counter() - t0
 
 
+def _given_start(frames: list[Correspondences], T0: np.ndarray, conf: BatchConfig, priors
+                 ) -> tuple[np.ndarray, int, float]:
+    """(``T0`` itself, 0, 0.0): the start, solved again without the schedule's convex stage. Probe 118: on the
+    simulator's oracle rows (20 % gross outliers) the Huber stage's lowest cost is a collapsed pose that puts every
+    reflector 35-80 m ahead, 50-72 deg from the truth, and it walked there even from the truth; the default Cauchy
+    stage came back, Tukey and Geman-McClure did not (2-4 of 8 R1 drives NOT CONVERGED)."""
+    return np.asarray(T0, np.float64), 0, 0.0
+
+
 def _prefixes(n: int) -> list[int]:
     """Frame counts of the progressive re-solve: 1, 4, 16, ... below ``n``."""
     out, k = [], 1
@@ -212,7 +226,7 @@ def _prior_info(priors: list[GaussianPrior] | None) -> np.ndarray:
     return sum((np.linalg.inv(p.cov) for p in priors or []), np.zeros((6, 6)))
 
 
-def _solve_ceres(frames, T_init, conf: BatchConfig, priors):
+def _solve_ceres(frames, T_init, conf: BatchConfig, priors, convex_start: bool = True):
     """The schedule (``run_schedule``, the same ``ScheduleConfig`` as GTSAM) with Ceres solving each
     stage; the covariance from Ceres at the last stage, the information for the status from the
     same residuals (``frame_information``, gated least squares). Returns (T, info, cov or None, why
@@ -230,7 +244,7 @@ def _solve_ceres(frames, T_init, conf: BatchConfig, priors):
         failure = "" if r.usable else f"ceres failed: {r.message}"
         return Stage(r.T, r.iterations, r.final_cost, r, failure)
 
-    last, iters = run_schedule(frames, T_init, conf.factor, sched, solve_stage, convex_start=True)
+    last, iters = run_schedule(frames, T_init, conf.factor, sched, solve_stage, convex_start=convex_start)
     secs = time.perf_counter() - t0
     t1 = time.perf_counter()
     cov = None if last.failure else ceres_covariance(last.state)
