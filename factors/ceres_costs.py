@@ -28,7 +28,7 @@ from factors.config import RadarPixelFactorConfig
 from factors.correspondences import Correspondences
 from factors.projection import RowModel, row_model, whitened_rows
 from factors.robust import weight
-from hybrid_calib.geometry import make_T
+from hybrid_calib.geometry import check_transform, make_T
 
 
 @dataclass
@@ -262,7 +262,7 @@ def solve_ceres_stage(frames: list[Correspondences], T_init: np.ndarray, conf: R
     function / gradient / parameter tolerances 1e-12 (it stops on ``max_iterations`` or there).
     Never raises for a singular problem: ``usable`` is False and ``message`` says why.
     """
-    T_init = np.asarray(T_init, np.float64)
+    T_init = check_transform(T_init, "solve_ceres_stage T_init")  # NaN ended in numpy's "SVD did not converge"
     q = quat_xyzw_from_R(T_init[:3, :3]).copy()
     t = T_init[:3, 3].copy()
     if prior is None and sum(len(f) for f in frames) == 0:

@@ -53,6 +53,21 @@ class MotionMeasurement:
     n_vo_inliers: int = 0
     n_radar_inliers: int = 0
 
+    def __post_init__(self):
+        """Probe 118: NaN or inf in any field gave a NaN residual and Jacobian without a word (``heading_residual``)."""
+        for name, shape in (("c", (3,)), ("R_A", (3, 3))):
+            v = np.asarray(getattr(self, name), np.float64)
+            if v.shape != shape or not np.all(np.isfinite(v)):
+                raise ValueError(f"MotionMeasurement[{self.frame_a} -> {self.frame_b}].{name} must be a finite "
+                                 f"{shape} array, got shape {v.shape}" + ("" if v.shape != shape else " with NaN/inf"))
+        for name in ("s", "psi", "sigma", "speed"):
+            if not np.isfinite(float(getattr(self, name))):
+                raise ValueError(f"MotionMeasurement[{self.frame_a} -> {self.frame_b}].{name} is "
+                                 f"{getattr(self, name)}: it must be finite")
+        if not (self.sigma > 0 and self.s >= 0):
+            raise ValueError(f"MotionMeasurement[{self.frame_a} -> {self.frame_b}]: sigma must be > 0 and the chord s "
+                             f">= 0, got sigma {self.sigma:g}, s {self.s:g}")
+
     def to_dict(self) -> dict:
         return {"c": [float(x) for x in self.c], "R_A": np.asarray(self.R_A).tolist(), "s": float(self.s),
                 "psi": float(self.psi), "sigma": float(self.sigma), "speed": float(self.speed),

@@ -264,9 +264,15 @@ def camera_euler_from_rotation(R_delta: np.ndarray) -> np.ndarray:
     """Rotation (3, 3) expressed in camera axes -> ``[roll, pitch, yaw]`` radians.
 
     ``R_delta = Ry(yaw) @ Rx(pitch) @ Rz(roll)`` (intrinsic Y-X-Z): roll turns about the optical
-    axis (camera z), pitch about camera x (right), yaw about camera y (down).
+    axis (camera z), pitch about camera x (right), yaw about camera y (down). At a pitch of +-90 deg only
+    yaw -+ roll is defined: roll reads 0 there (docs/conventions.md; scipy's "Gimbal lock" warning, which leaked
+    onto the terminal with its source line, probe 118, is not passed on).
     """
-    yaw, pitch, roll = Rotation.from_matrix(np.asarray(R_delta, dtype=np.float64)).as_euler("YXZ")
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Gimbal lock detected")
+        yaw, pitch, roll = Rotation.from_matrix(np.asarray(R_delta, dtype=np.float64)).as_euler("YXZ")
     return np.array([roll, pitch, yaw])
 
 

@@ -473,3 +473,42 @@ def test_the_reader_and_the_window_name_a_wrong_kind_of_argument(tiny):
         with pytest.raises(ValueError, match="timestamp_us must be an integer number of microseconds"):
             cal.update(frames[0], timestamp_us=bad)
     assert cal.update(frames[0], timestamp_us=np.int64(5)).n_total == 1
+
+
+def test_the_factor_layer_refuses_what_it_would_read_as_something_else():
+    """Probe 118: a camera matrix with K[1, 0] = 300 px was accepted and projected as if it were 0; a motion
+    measurement of NaN gave a NaN residual and Jacobian without a word; a Ceres stage from a NaN start ended in numpy's
+    "SVD did not converge"; a rotation error of 90 deg in pitch printed scipy's gimbal-lock warning with its source."""
+    import warnings
+
+    from factors.ceres_costs import solve_ceres_stage
+    from factors.config import RadarPixelFactorConfig
+    from factors.motion import MotionMeasurement
+    from hybrid_calib.geometry import camera_euler_from_rotation, rotation_from_camera_euler
+
+    K = np.array([[800.0, 0, 400], [0, 800, 225], [0, 0, 1]])
+    rows = dict(points_radar=np.array([[10.0, 1, 0], [20, -2, 0], [15, 3, 0]]), pixels=np.full((3, 2), 300.0),
+                sigma_px=np.ones(3), confidence=np.ones(3))
+    Correspondences(K=K, frame_id="f", **rows)
+    sheared = K.copy()
+    sheared[1, 0] = 300.0
+    with pytest.raises(ValueError, match=r"Correspondences\[f\].K is not a pinhole .*second row \[0, fy, cy\]"):
+        Correspondences(K=sheared, frame_id="f", **rows)
+    c, R = np.array([0.0, 0, 1]), np.eye(3)
+    MotionMeasurement(c, R, 1.0, 0.1, 0.01, 5.0)
+    for bad, needle in (((np.r_[np.nan, 0, 1], R, 1.0, 0.1, 0.01, 5.0), r"\.c must be a finite \(3,\) array"),
+                        ((c, R, np.inf, 0.1, 0.01, 5.0), r"\.s is inf"),
+                        ((c, R, 1.0, np.nan, 0.01, 5.0), r"\.psi is nan"),
+                        ((c, R, 1.0, 0.1, 0.0, 5.0), "sigma must be > 0")):
+        with pytest.raises(ValueError, match=needle):
+            MotionMeasurement(*bad, frame_a="a", frame_b="b")
+    with pytest.raises(ValueError, match="MotionMeasurement"):
+        MotionMeasurement.from_dict({**MotionMeasurement(c, R, 1.0, 0.1, 0.01, 5.0).to_dict(), "speed": float("nan")})
+    start = np.eye(4)
+    start[0, 0] = np.nan
+    with pytest.raises(ValueError, match="solve_ceres_stage T_init"):
+        solve_ceres_stage([Correspondences(K=K, frame_id="f", **rows)], start, RadarPixelFactorConfig())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        rpy = camera_euler_from_rotation(rotation_from_camera_euler(np.radians([10.0, 90.0, 20.0])))
+    assert rpy[0] == 0.0 and np.degrees(rpy[1]) == pytest.approx(90.0)

@@ -301,8 +301,10 @@ class MotionSource:
         lag = 0.5 * (fa.timestamp_radar_us + fb.timestamp_radar_us - fa.timestamp_camera_us - fb.timestamp_camera_us)
         if dt_cam > 0:
             psi -= yaw_ab * lag * 1e-6 / dt_cam
-        return MotionMeasurement(c, R_A, chord_length(speed, dt, yaw_ab), psi, sig, speed,
-                                 fa.camera_token, fb.camera_token, cm.n_inliers,
+        s = chord_length(speed, dt, yaw_ab)
+        if not np.all(np.isfinite([s, psi, sig, speed])) or not sig > 0:
+            return None, "the radar's Doppler chord is not finite"
+        return MotionMeasurement(c, R_A, s, psi, sig, speed, fa.camera_token, fb.camera_token, cm.n_inliers,
                                  min(va.n_inliers, vb.n_inliers)), ""
 
 
