@@ -144,7 +144,8 @@ def split_indices(frames: Sequence[RadarCameraFrame], split: str,
     refs = getattr(frames, "frames", None)
     items = refs if refs is not None and len(refs) == len(frames) else frames
     if conf.by == "time":
-        return [i for i, s in enumerate(time_split(items, conf)) if s == split]
+        roots = frames.root_of_each() if isinstance(frames, ConcatFrames) else None
+        return [i for i, s in enumerate(time_split(items, conf, roots)) if s == split]
     keys = [group_key(items[i], conf.by) for i in range(len(frames))]
     _check_groups(set(keys), conf)
     return [i for i in range(len(frames)) if assign_split(keys[i], conf) == split]
@@ -167,16 +168,19 @@ def _timestamp_us(item) -> int:
     return int(sd["timestamp"]) if sd is not None else int(item.timestamp_camera_us)
 
 
-def time_split(items: Sequence, conf: SplitConfig) -> list[str]:
+def time_split(items: Sequence, conf: SplitConfig, roots: Sequence[str] | None = None) -> list[str]:
     """Per frame (``FrameRef`` or frame) "train" | "val" | "test" | "gap" for ``conf.by == "time"``
-    (``SplitConfig`` docstring): within each scene, in camera-time order. A scene too short to hold
-    every part with its gaps is an error naming it."""
-    scenes: dict[str, list[int]] = {}
+    (``SplitConfig`` docstring): within each scene of each root (``roots``: the root of each item, when several
+    are read as one), in camera-time order, so a drive's parts do not depend on which other roots are listed (probe
+    117: simulated roots all name their scenes scene-sim-veh-NNN, and two roots' were cut as one time line: a
+    shorter root's frames all trained, and evaluate on that root alone called two of them test). A scene too short
+    to hold every part with its gaps is an error naming it."""
+    scenes: dict[tuple[str, str], list[int]] = {}
     for i, it in enumerate(items):
-        scenes.setdefault(it.scene_name, []).append(i)
+        scenes.setdefault((roots[i] if roots is not None else "", it.scene_name), []).append(i)
     out = ["gap"] * len(items)
     g = conf.gap_frames
-    for name, idx in scenes.items():
+    for (root, name), idx in scenes.items():
         idx = sorted(idx, key=lambda i: (_timestamp_us(items[i]), i))
         n = len(idx)
         n_test = int(round(conf.test_fraction * n))
@@ -184,7 +188,8 @@ def time_split(items: Sequence, conf: SplitConfig) -> list[str]:
         n_train = n - n_test - n_val - g * ((n_test > 0) + (n_val > 0))
         if n_train < 1 or (conf.test_fraction > 0 and n_test < 1):
             raise HybridCalibError(
-                f"split.by=time: scene {name} has {n} frames, too few for test {conf.test_fraction}, val "
+                f"split.by=time: scene {name}{f' of {root}' if root else ''} has {n} frames, too few for test "
+                f"{conf.test_fraction}, val "
                 f"{conf.val_fraction} and gaps of {g} frames; lower split.gap_frames or the fractions")
         parts = ["train"] * n_train
         if n_val:
@@ -226,6 +231,12 @@ class ConcatFrames(Sequence):
         i %= len(self)
         k = int(np.searchsorted(self.offsets, i, side="right")) - 1
         return self.parts[k][i - int(self.offsets[k])]
+
+    def root_of_each(self) -> list[str]:
+        """Per frame, the root that holds it (its ``root`` path, else its position among the parts)."""
+        names = [str(getattr(p, "root", "")) or f"part {k}" for k, p in enumerate(self.parts)]
+        names = [n if names.count(n) == 1 else f"{n} (part {k})" for k, n in enumerate(names)]
+        return [n for n, p in zip(names, self.parts) for _ in range(len(p))]
 
     def radar_motion_at(self, i: int) -> np.ndarray:
         """(4, 4) ``N`` of frame ``i`` from the root that holds it (``NuScenesRadarCamera.radar_motion_at``)."""

@@ -40,6 +40,38 @@ def test_time_split_holds_out_the_end_of_each_scene_behind_a_gap():
     assert no_val["val"] == [] and len(no_val["train"]) == 2 * 14 and len(no_val["test"]) == 2 * 4
 
 
+class _Root(list):
+    """A root's frames as ``ConcatFrames`` reads them: items, their ``frames`` references and the root's path."""
+
+    def __init__(self, items, root):
+        super().__init__(items)
+        self.frames, self.root = list(items), root
+
+
+def test_the_time_split_of_several_roots_cuts_each_roots_scene_as_it_cuts_it_alone():
+    """Probe 117 (HIGH): simulated roots all name their scenes scene-sim-veh-NNN; train --data A B with split.by=time
+    cut the two roots' same-named scenes as one time line: every frame of the shorter root trained, and evaluate
+    --data B (the checkpoint's split, B alone) called two of them test."""
+    from learned.dataset import ConcatFrames
+
+    a = _Root([SimpleNamespace(scene_name="scene-sim-veh-000", timestamp_camera_us=500_000 * k) for k in range(30)],
+              "runs/A")
+    b = _Root([SimpleNamespace(scene_name="scene-sim-veh-000", timestamp_camera_us=500_000 * k) for k in range(20)],
+              "runs/B")
+    conf = SplitConfig(by="time")
+    both = ConcatFrames([a, b])
+    for part in ("train", "val", "test"):
+        joined = split_indices(both, part, conf)
+        assert [i for i in joined if i < 30] == split_indices(a, part, conf)
+        assert [i - 30 for i in joined if i >= 30] == split_indices(b, part, conf), part
+    assert split_indices(b, "test", conf) == [16, 17, 18, 19]
+    # a root too short alone is refused when listed with another, naming it
+    short = _Root([SimpleNamespace(scene_name="scene-sim-veh-000", timestamp_camera_us=500_000 * k) for k in range(8)],
+                  "runs/sim2")
+    with pytest.raises(HybridCalibError, match="scene scene-sim-veh-000 of runs/sim2 has 8 frames"):
+        split_indices(ConcatFrames([a, short]), "train", conf)
+
+
 def test_time_split_errors_name_the_scene_and_the_option():
     with pytest.raises(HybridCalibError, match="scene-0 has 6 frames"):
         split_indices(_frames(per_scene=6, scenes=1), "test", SplitConfig(by="time"))
