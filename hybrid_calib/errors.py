@@ -96,8 +96,11 @@ OUT_MARKERS = {"train": "train_config.json", "evaluate": "export_config.json", "
 
 
 # the other files each command writes at the top of its --out (a user's file of that name there was replaced)
-OUT_FILES = {"train": ("epochs.csv", "history.png"), "evaluate": ("errors_cdf.png", "skipped.json"),
-             "calibrate": ("config.json",), "compare": ("compare.json", "compare.md", "error_vs_frames.png"),
+# (probe 117: evaluate's results.json / results.md, calibrate's data_stamp.json, train's steps.csv were missing)
+OUT_FILES = {"train": ("epochs.csv", "steps.csv", "history.png", "skipped.json"),
+             "evaluate": ("results.json", "results.md", "errors_cdf.png", "skipped.json"),
+             "calibrate": ("config.json", "data_stamp.json"),
+             "compare": ("compare.json", "compare.md", "error_vs_frames.png"),
              "fleet": ("summary.json", "summary.md", "fleet.png", "fleet_prior.json", "fleet.html"),
              "demo": ("summary.json", "projection.png"), "inspect": ("inspect_summary.json", "overlay.png")}
 

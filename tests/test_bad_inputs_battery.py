@@ -2453,6 +2453,32 @@ def test_a_users_file_of_a_name_the_command_writes_is_not_replaced(command, name
     check_out_files(out, command)
 
 
+@pytest.mark.parametrize("argv,name", [
+    (["evaluate", "--checkpoint", "ck.json"], "results.json"), (["evaluate", "--checkpoint", "ck.json"], "results.md"),
+    (["calibrate", "--no-plots"], "data_stamp.json"), (["train", "--range", "R1"], "steps.csv"),
+], ids=["evaluate-results.json", "evaluate-results.md", "calibrate-data_stamp", "train-steps.csv"])
+def test_every_file_a_command_writes_is_guarded(argv, name, sim, tmp_path, capsys):
+    """Probe 117: evaluate replaced a user's results.json / results.md, calibrate a data_stamp.json, train a
+    steps.csv, though README says a folder of the user's holding a file the command writes is refused."""
+    root, _ = sim
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / name).write_text("the user's own")
+    expect_cli_error([argv[0], "--data", root, *argv[1:], "--out", out], capsys, f"holds {name}",
+                     f"hybrid-calib {argv[0]} writes there")
+    assert (out / name).read_text() == "the user's own"
+
+
+def test_the_guarded_files_are_every_file_calibrate_writes_at_the_top_of_its_out(sim, tmp_path, capsys):
+    from hybrid_calib.errors import OUT_FILES, OUT_MARKERS
+
+    root, _ = sim
+    rc, err = run_cli(["calibrate", "--data", root, "--out", tmp_path / "o", "--no-progress"], capsys)
+    assert rc == 0, err
+    written = {p.name for p in (tmp_path / "o").iterdir() if p.is_file() and not p.name.startswith(".")}
+    assert written - {"runs.json", OUT_MARKERS["calibrate"], *OUT_FILES["calibrate"]} == set()
+
+
 def test_a_fleet_root_whose_tables_do_not_read_is_left_out_and_the_others_go_on(sim, tmp_path, capsys):
     """One root of several with a truncated table stopped the whole fleet before any vehicle (compare left it out)."""
     root, _ = sim
