@@ -474,3 +474,23 @@ def test_the_dropped_count_names_its_pass_where_the_status_counts_another():
     assert "by the pass the estimate used" in _pass_words(SimpleNamespace(ood={"in_domain": 21, "frames": 41}), 21)
     assert _pass_words(SimpleNamespace(ood={"in_domain": 3, "frames": 4, "unread": 2}), 1) == ""
     assert _pass_words(SimpleNamespace(ood=None), 2) == ""
+
+
+def test_hybrid_rows_other_than_the_fitted_ones_are_not_trusted(fitted, sim_root):
+    """Probe 117: --set measurement.rows=last (calibrate's --help example) put the forward offset 6-27 m off with a
+    0.2-0.6 m std, and only the 2 m guard said a word, blaming the tables first. The checkpoint's measurement model is
+    fitted for its rows; other rows are named and the result is not trusted."""
+    from hybrid_calib.hybrid import run_vehicle
+
+    conf = {**BASE, "method": "hybrid", "checkpoint": str(fitted[0]), "max_frames": 3, "motion": {"enabled": False},
+            "ood": {"min_in_domain_frames": 1}}
+    from hybrid_calib.hybrid.loop import HybridConfig, other_rows_reason
+
+    v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", {**conf, "measurement": {"rows": "first"}})
+    assert v.final.status.startswith("inconclusive:") and "--set measurement.rows=first overrides the rows the " \
+        "checkpoint's export.hybrid was fitted with (none)" in v.final.status, v.final.status
+    runner = fitted[1]
+    assert "measurement.rows=last overrides" in other_rows_reason(runner, HybridConfig(measurement={"rows": "last"}))
+    assert other_rows_reason(runner, HybridConfig(method="pure-avg", measurement={"rows": "last"})) == ""
+    same = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", {**conf, "measurement": {"rows": "none"}})
+    assert "overrides the rows" not in same.final.status

@@ -79,7 +79,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="hide the progress bars (any method; the learned ones: as --set progress=false)")
     p.add_argument("--set", action="extend", nargs="+", metavar="KEY=VALUE", default=[],
                    help="CalibrateConfig overrides (oracle), e.g. window.factor.kernel=tukey oracle.outlier_frac=0.3; "
-                        "HybridConfig overrides (learned methods), e.g. measurement.rows=last threads=1; some of a "
+                        "HybridConfig overrides (learned methods), e.g. threads=1 window.window=30; some of a "
                         "root: 'vehicles=[\"n015\"]', and for the learned methods 'data.scenes=[\"scene-0916\"]'")
 
 

@@ -41,7 +41,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                                   "--split-by time: the held-out end of each scene; learned methods only)")
     p.add_argument("--out", type=Path, required=True, help="output folder (resumable: finished trials are kept)")
     p.add_argument("--set", action="extend", nargs="+", metavar="KEY=VALUE", default=[],
-                   help="HybridConfig overrides for every method, e.g. threads=1 measurement.rows=last")
+                   help="HybridConfig overrides for every method, e.g. threads=1 window.window=30")
     p.add_argument("--overwrite", action="store_true", help="remove the trials, tables and network / depth caches "
                    "an earlier run left in --out and run every trial again from the data as they are now")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")

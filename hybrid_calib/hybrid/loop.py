@@ -496,6 +496,21 @@ def unfitted_reason(runner, method: str, ood_enabled: bool = True) -> str:
     return f"{first}; and {words}" if first else words
 
 
+def other_rows_reason(runner, conf: HybridConfig) -> str:
+    """Why a hybrid result's covariance is not the fitted one, or "": ``--set measurement.rows`` chose rows other than
+    those the checkpoint's ``export.hybrid`` was fitted with (its pixel noise, shared and drive-common errors belong to
+    them). Probe 117: rows=last (the last iteration's rows restate the network's SE(3) and do not pin the forward
+    offset) put it 6-27 m off with a 0.2-0.6 m std (NEES 1070-2467), and only the 2 m guard said a word, blaming the
+    tables first; calibrate's and compare's --help gave it as their example."""
+    fitted = (runner.ckpt.export or {}).get("hybrid") or {}
+    rows = conf.measurement.get("rows")
+    if conf.method != "hybrid" or rows is None or "rows" not in fitted or rows == fitted["rows"]:
+        return ""
+    return (f"--set measurement.rows={rows} overrides the rows the checkpoint's export.hybrid was fitted with "
+            f"({fitted['rows']}), so its covariance is not calibrated for them; drop the override, or fit "
+            "benchmarks/hybrid_fit.py --fit-into with these rows on validation drives")
+
+
 # the HybridConfig blocks only some methods read (``window``, ``average``, ``drift``, ... are read by more): a
 # ``--set`` of one for another method was accepted and had no effect
 BLOCK_METHODS = {"oracle": ("oracle",), "measurement": ("hybrid", "pure-avg"), "motion": ("hybrid",),
@@ -648,7 +663,7 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     if conf.method == "pure":
         res.drift = one_pass_verdict(res.drift)
     reason = "; and ".join(r for r in (ood["inconclusive"], unfitted_reason(runner, conf.method, conf.ood.enabled),
-                                       standstill_reason(frames, drive),
+                                       other_rows_reason(runner, conf), standstill_reason(frames, drive),
                                        monitor_trust_reason(res.mount, conf.mount.max_level_deg),
                                        trust_reason(res, drive.reference)) if r)
     if reason:

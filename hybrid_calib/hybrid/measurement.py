@@ -48,7 +48,9 @@ ROWS = ("first", "last", "none")
 
 @dataclass(frozen=True)
 class MeasurementConfig:
-    rows: str = "first"  # first (iteration 0) | last (restates the SE(3): never with the prior) | none (prior only)
+    # first (iteration 0) | last (restates the SE(3): never with the prior; a study setting, it does not pin the
+    # forward offset) | none (prior only); a value other than the checkpoint's fitted one makes a result inconclusive
+    rows: str = "first"
     prior: bool = True  # the network's SE(3) as a prior (only with rows=first; never with rows=last)
     sigma_scale: float = 1.0  # multiplies the exported sigma_px (fitted in the loop's regime)
     shared_std: tuple = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # per-frame shared error std [rad x3, m x3], radar tangent
