@@ -265,6 +265,7 @@ def main() -> None:
                     help="what to run (default: all; without 'reference' the reference run is resumed)")
     a = ap.parse_args()
     a.parts = tuple(p for p in PARTS if p in a.parts)
+    a.out = a.out.resolve()  # its subprocesses run in the checkout (probe 117: a relative --out went there)
     a.out.mkdir(parents=True, exist_ok=True)
     rec = {"machine": f"{platform.node()} {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs",
            "command": " ".join(sys.argv)}

@@ -190,7 +190,9 @@ def summarise(results: list[dict], mode: str) -> dict:
         # signed mean error over the runs (deg / cm, camera axes) and that mean over the runs' std:
         # |bias/std| >> 2 / sqrt(runs) means a systematic error
         "mean_err": {a: float(np.mean(E[:, i]) * (np.degrees(1) if i < 3 else 100.0)) for i, a in enumerate(AXES)},
-        "bias_over_std": {a: float(np.mean(E[:, i]) / max(np.std(E[:, i]), 1e-300)) for i, a in enumerate(AXES)},
+        # undefined for one run (probe 117: a 300-digit number): NaN, printed as such
+        "bias_over_std": {a: float(np.mean(E[:, i]) / np.std(E[:, i])) if len(E) > 1 and np.std(E[:, i]) > 0
+                          else float("nan") for i, a in enumerate(AXES)},
         "crb_efficiency_ratio": float(np.sqrt(np.mean(crbn) / 6.0)),
         "inside_95": float(np.mean(nees < CHI2_6_95)),
         "nees_mean": float(np.mean(nees)),

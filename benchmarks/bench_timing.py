@@ -68,6 +68,8 @@ def main(argv=None) -> int:
     p.add_argument("--ceres-frames", type=int, default=20, help="Ceres (per-row Python costs) is slow: fewer frames")
     p.add_argument("--out", type=Path, default=Path("outputs/bench_timing"))
     a = p.parse_args(argv)
+    if a.frames <= 20:  # the steady state starts after a 20-frame window (probe 117: an IndexError traceback)
+        p.error(f"--frames {a.frames}: the window's steady state starts after its 20 frames; pass more than 20")
     from hybrid_calib.config import save_json_atomic
     from hybrid_calib.geometry import local
 

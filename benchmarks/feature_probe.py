@@ -36,7 +36,9 @@ def probe(checkpoint: str, roots: list[str], split: str, frames: int, rng: str, 
 
     model, ckpt = load_model(checkpoint)
     H, W = (int(v) for v in model.cfg.input_hw)
-    data = open_roots(roots, lidar=False)
+    # with the LiDAR where a root has it: the release-2 checkpoints' depth is lidar-densified (probe 117: every frame
+    # was skipped, then a traceback)
+    data = open_roots(roots, lidar=True)
     idx = split_indices(data, split, ckpt.train_config.get("split"))
     idx = idx[:: max(1, len(idx) // frames)][:frames]
     depth = build_depth_estimator(ckpt.train_config.get("depth", "corrupted-truth"))
@@ -63,6 +65,9 @@ def probe(checkpoint: str, roots: list[str], split: str, frames: int, rng: str, 
                 occ = (m > 0).float()
                 bev[n].append(((m * occ).sum((1, 2, 3)) / occ.sum((1, 2, 3)).clamp_min(1)).numpy())
     hook.remove()
+    if not feats[0]:
+        raise SystemExit(f"feature_probe: no usable frame of {len(idx)} in {roots} (split {split}); the skips "
+                         "above say why")
     result = {"frames": len(ds) - len(ds.bad), "checkpoint": str(checkpoint), "split": split, "range": rng,
               "axes": list(AXES), "iterations": []}
     for n in range(n_it):

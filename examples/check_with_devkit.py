@@ -114,7 +114,13 @@ def main(argv: list[str] | None = None) -> int:
                         help="also compare hybrid-calib's reader with the devkit (needs the repo on PYTHONPATH)")
     args = parser.parse_args(argv)
 
-    from nuscenes.nuscenes import NuScenes
+    try:
+        from nuscenes.nuscenes import NuScenes
+    except ImportError:  # probe 117: a ModuleNotFoundError traceback in the project's own environment
+        print("check_with_devkit.py needs the nuscenes-devkit, which hybrid-calib does not install (it pins its own "
+              "numpy and OpenCV): run it in a throwaway environment, as this file's docstring says: python3 -m venv "
+              "/tmp/devkit-venv && /tmp/devkit-venv/bin/pip install nuscenes-devkit", file=sys.stderr)
+        return 2
 
     dataroot = args.dataroot if args.no_map_stub else overlay_with_map_stubs(args.dataroot, args.version)
     nusc = NuScenes(version=args.version, dataroot=dataroot, verbose=True)

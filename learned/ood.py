@@ -45,8 +45,8 @@ from learned.transform import cell_index
 
 SIGNALS = ("match_mass", "match_entropy", "last_step_rot", "last_step_trans", "log_var_mean", "fusion_fv")
 FEATURE_SETS = ("descriptor", "signals", "all")
-FIT_HINT = ("fit it with: PYTHONPATH=. python benchmarks/ood_fit.py --checkpoint CKPT --data SIM_ROOT ... --fit-into "
-            "(docs/benchmarks.md, 'Out-of-domain score')")
+FIT_HINT = ("fit it with: PYTHONPATH=. python benchmarks/ood_fit.py --checkpoint CKPT --data VALIDATION_ROOT ... "
+            "--heldout OTHER_ROOT ... --out OUT --fit-into (docs/benchmarks.md, 'Out-of-domain score')")
 
 
 class OODError(HybridCalibError):

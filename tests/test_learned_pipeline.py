@@ -629,6 +629,7 @@ def test_cli_train_then_evaluate(sim_root, tmp_path, capsys):
     assert _run_command("evaluate", [*R2, "--data", str(sim_root), "--checkpoint", str(run), "--split", "val",
                                      "--fit-uncertainty", "--out", str(tmp_path / "fit0"), "--no-progress"]) == 2
     assert "fewer than 30" in capsys.readouterr().err and ckpt_json.read_bytes() == before  # nothing written
+    assert not (tmp_path / "fit0" / "results.json").exists()  # said before the frames ran (probe 117: after 74 s)
     # a scale for the starts it is used on (probe 55: R0 starts on an R1 network stored a scale 5-80x too small)
     assert _run_command("evaluate", ["--data", str(sim_root), "--checkpoint", str(run), "--split", "val",
                                      "--fit-uncertainty", "--out", str(tmp_path / "fitr"), "--no-progress"]) == 2

@@ -128,6 +128,16 @@ def run(args: argparse.Namespace) -> int:
                                                "covariance look honest where it was fitted; fit with the "
                                                "checkpoint's own split (no --split-by / fraction flags), or on a "
                                                "root it never saw")
+    if args.fit_uncertainty:  # before the frames are read: the fit's minimum (probe 117: refused after 74 s)
+        from learned.evaluate import EvalConfig, eval_indices
+
+        conf = merge(EvalConfig, setup.conf)
+        n, need = len(eval_indices(frames, conf)), conf.fit_min_frames
+        if 0 < n < need:
+            raise OptionError("--fit-uncertainty", f"the {args.split} split holds {n} frame(s), fewer than {need}, "
+                                                   "the fit's minimum (a variance from n frames is good to "
+                                                   "sqrt(2/n)): fit on more validation frames (drop --max-frames, "
+                                                   "add roots), or pass --set fit_min_frames=N to accept fewer")
     data = {"roots": [str(Path(d).resolve()) for d in args.data], "version": args.version, "nsweeps": setup.nsweeps,
             "stamps": stamps}
     # each frame scored as calibrate's learned methods score it (probe 87: the table said nothing of the real scene's
