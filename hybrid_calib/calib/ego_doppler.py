@@ -89,8 +89,10 @@ def ego_measurement(fa, va, fb, vb, T_ego_radar: np.ndarray, min_speed_mps: floa
     if turn > max_turn_dps:
         return None, f"turning at {turn:.0f} deg/s (at most {max_turn_dps:g})"
     psi, sig, speed = chord_heading(va.v, va.cov, vb.v, vb.cov, radar_yaw_change(R_A, T_ego_radar[:3, :3]))
-    if not np.all(np.isfinite([psi, sig, speed])) or not (sig > 0 and s > 0):
-        return None, "the radar's Doppler chord or the ego poses' is not finite"
+    if not np.all(np.isfinite([psi, sig, speed])) or not sig > 0:  # (probe 118: a NaN measurement was made)
+        return None, "the radar's Doppler chord is not finite (a sweep's velocity or its covariance holds NaN/inf)"
+    if not s > 0:
+        return None, "the ego poses do not move between these sweeps"
     return MotionMeasurement(D / s, R_A, s, psi, sig, speed, fa.radar_token, fb.radar_token, 0,
                              min(va.n_inliers, vb.n_inliers)), ""
 
