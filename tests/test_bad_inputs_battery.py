@@ -2444,8 +2444,8 @@ def test_a_users_file_of_a_name_the_command_writes_is_not_replaced(command, name
     out.mkdir()
     (out / name).write_text("the user's own")
     offer = "--overwrite to replace them" if command == "calibrate" else "pass another --out"
-    version = ["--version", "v1.0-sim"] if command == "inspect" else []
-    expect_cli_error([command, "--data", root, *version, "--out", out], capsys, f"holds {name}",
+    # inspect defaults --version to v1.0-sim as the other commands do (probe 120: it alone required it)
+    expect_cli_error([command, "--data", root, "--out", out], capsys, f"holds {name}",
                      f"hybrid-calib {command} writes there", "not its outputs", offer)
     assert [p.name for p in out.iterdir()] == [name] and (out / name).read_text() == "the user's own"
     check_out_files(out, command, overwrite=True)

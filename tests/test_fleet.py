@@ -1283,3 +1283,18 @@ def test_a_vehicle_of_no_frame_is_a_failed_job_with_why(fleet_root, tmp_path):
     assert s["counts"]["failed"] == 1 and s["design_mount"]["T_cam_radar"] is None
     assert "no frame" in s["vehicles"]["sim-veh-009"]["reason"]
     assert "No design mount (no vehicle has a frame)" in (tmp_path / "alone" / "summary.md").read_text()
+
+
+def test_drives_no_step_test_could_run_on_are_not_counted_as_not_drifted(local_run):
+    """Probe 120: three 12-frame drives whose radars all stepped read "0 drifted inside the drive" on the terminal and
+    in summary.md / summary.json, where no step test could run (the report's "not tested"). These 4-frame drives are
+    as short: each is counted as not tested, and the words say so."""
+    from hybrid_calib.fleet.summary import drifted_words, summary_markdown
+
+    out, s = local_run
+    done = [n for n, r in s["vehicles"].items() if r["state"] == "done"]
+    assert done and all("step_not_tested" in s["vehicles"][n]["flags"] for n in done)
+    assert s["counts"]["step_not_tested"] == len(done)
+    words = drifted_words(s)
+    assert words.startswith(f"0 drifted inside the drive ({len(done)} not tested: no step test could run on their "
+                            "drives") and words in summary_markdown(s)

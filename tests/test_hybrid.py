@@ -831,8 +831,9 @@ def test_what_a_learned_method_does_not_measure_is_named_in_its_status():
     from hybrid_calib.calib.result import Estimate, FrameEstimate
     from hybrid_calib.hybrid.corrections import with_prior_words
 
-    def traj(status):
-        est = Estimate(np.eye(4), np.eye(6) * 1e-4, np.array([0.8, 0.3, 0.7, 2.0, 14.0, 9.0]), status)
+    def traj(status, weak=()):
+        est = Estimate(np.eye(4), np.eye(6) * 1e-4, np.array([0.8, 0.3, 0.7, 2.0, 14.0, 9.0]), status,
+                       weak_directions=weak)
         return [FrameEstimate(0, "f", 0, est, 1, 1, float("nan"), None, None, False, 0.0, 0.0)]
 
     ok = with_prior_words(traj("ok"))[-1].estimate.status
@@ -841,6 +842,14 @@ def test_what_a_learned_method_does_not_measure_is_named_in_its_status():
     named = "weak: vertical offset (translation along camera y) is prior-pinned, not measured (std 14 cm)"
     weak = with_prior_words(traj(named))[-1].estimate.status
     assert weak.startswith(named + "; roll and pitch are prior-pinned") and weak.count("vertical offset") == 1
+    # the directions the data could not pin list them too (probe 120: the report's "could not pin" left them out)
+    assert with_prior_words(traj("ok"))[-1].estimate.weak_directions == (
+        "roll (rotation about camera z)", "pitch (rotation about camera x)",
+        "vertical offset (translation along camera y)")
+    vertical = ("vertical offset (translation along camera y)",)
+    assert with_prior_words(traj(named, vertical))[-1].estimate.weak_directions == (
+        *vertical, "roll (rotation about camera z)", "pitch (rotation about camera x)")
+    assert with_prior_words(traj("inconclusive: why", vertical))[-1].estimate.weak_directions == vertical
     assert "the vertical offset is the start's" not in weak
     assert with_prior_words(traj("inconclusive: why"))[-1].estimate.status == "inconclusive: why"
     assert with_prior_words([]) == []

@@ -203,6 +203,14 @@ def test_the_lidar_alignment_is_said_in_words():
     assert "the camera-x translation and its 1-sigma above are the LiDAR" in lidar_html(vr)
     vr.lidar = {**vr.lidar, "dx_m": -0.19, "dx_std_m": 0.099, "forward_applied": True}  # its forward reading too
     assert "the camera-x and camera-z translations and their 1-sigma above are the LiDAR" in lidar_html(vr)
+    assert "widened" not in lidar_html(vr)
+    # the Doppler's disagreement widened the forward 1-sigma afterwards (probe 120: 199 cm said to be the LiDAR's)
+    vr.doppler = {"applied": False, "widened": "the radar's Doppler in turns puts its forward offset ..."}
+    assert "are the LiDAR&#x27;s, not the network&#x27;s; the 1-sigma is then widened to cover the Doppler lever " \
+        "arm&#x27;s (below)" in lidar_html(vr)
+    vr.lidar = {**vr.lidar, "widened": "the LiDAR's offset lay 4 stds ..."}
+    assert "widened to cover its own disagreement with the estimate and the Doppler lever arm&#x27;s" in lidar_html(vr)
+    vr.doppler = None
     vr.lidar = {"applied": False, "dy_m": 0.2, "dy_std_m": 0.2, "rows": 120, "frames": 9, "note": "std 20.0 cm > 10"}
     assert "not applied: std 20.0 cm &gt; 10" in lidar_html(vr)
     vr.lidar = {"applied": False, "note": "no LiDAR in the frames"}

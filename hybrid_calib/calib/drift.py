@@ -689,6 +689,19 @@ def alarms_say_moved(status: str, mount: dict | None) -> bool:
     return status_kind(status) != "inconclusive" or bool(told_steps(mount))
 
 
+def step_tests_ran(trajectory, mount: dict | None) -> tuple[bool, bool]:
+    """(the window's step test computed a statistic on some frame of ``trajectory``, the radar mount monitor tested
+    sweep pairs and could see a step): "no step" is only an answer where one of them ran. The report's "did the sensor
+    move" and the fleet's "drifted inside the drive" read this (probe 120: the fleet said "0 drifted" for three
+    12-frame drives whose radars all stepped, where no test ran)."""
+    from hybrid_calib.calib.mount_monitor import blind_words
+
+    window = any(f.step_statistic is not None for f in trajectory)
+    monitor = bool(mount) and int(mount.get("pairs_tested", 0)) > 0 and not blind_words(mount).startswith(
+        "it could not")
+    return window, monitor
+
+
 def doppler_level_words(drift: dict | None) -> str:
     """The sentence ``doppler_level_note`` added to a result's drift block ("" when none): the radar's own Doppler
     puts its yaw off its tables, the one direct evidence on an untrusted estimate (the verdict, the fleet view and

@@ -24,8 +24,8 @@ HELP = "summarise a nuScenes-format root (real or simulated): frames, radar poin
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", required=True, type=Path, help="nuScenes root (holds VERSION/ and samples/)")
-    parser.add_argument("--version", type=version_name,
-                        required=True, help="version folder, e.g. v1.0-mini, v1.0-trainval, v1.0-sim")
+    parser.add_argument("--version", type=version_name, default="v1.0-sim",  # as every other command (probe 120)
+                        help="version folder, e.g. v1.0-mini, v1.0-trainval (default: v1.0-sim)")
     parser.add_argument("--radar", default="RADAR_FRONT", help="radar channel (default RADAR_FRONT)")
     parser.add_argument("--camera", default="CAM_FRONT", help="camera channel (default CAM_FRONT)")
     parser.add_argument("--nsweeps", type=positive_int, default=None,

@@ -40,7 +40,7 @@ import numpy as np
 
 from hybrid_calib.atomic import finished
 from hybrid_calib.calib.covariance import camera_offset, inconclusive_reason, status_kind
-from hybrid_calib.calib.drift import alarms_say_moved, doppler_level_words
+from hybrid_calib.calib.drift import alarms_say_moved, doppler_level_words, step_tests_ran
 from hybrid_calib.calib.mount_monitor import told_steps
 from hybrid_calib.calib.result import stored_digest
 from hybrid_calib.config import save_json_atomic, save_text_atomic
@@ -141,6 +141,8 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
             row["flags"].append("out_of_tolerance")
         if row["step_alarms"] and alarms_say_moved(vr.final.status, vr.mount):  # as the report's "did it move"
             row["flags"].append("drifted_in_drive")
+        elif m.method in STEP_METHODS and not any(step_tests_ran(vr.trajectory, vr.mount)):
+            row["flags"].append("step_not_tested")  # its "no step" is not an answer (as the report's "not tested")
         if doppler_level_words(d):  # the radar's Doppler puts its yaw off its tables: the
             # one direct evidence on an untrusted estimate, dropped by the fleet view (probe 52)
             row["flags"].append("doppler_off_tables")
@@ -172,8 +174,8 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
             if n in prior.outliers:
                 rows[n]["flags"].append("fleet_outlier")
     counts = {**m.counts(), "vehicles": len(rows)}
-    for flag in ("out_of_tolerance", "drifted_in_drive", "fleet_outlier", "degenerate", "inconclusive",
-                 "doppler_off_tables"):
+    for flag in ("out_of_tolerance", "drifted_in_drive", "step_not_tested", "fleet_outlier", "degenerate",
+                 "inconclusive", "doppler_off_tables"):
         counts[flag + ("s" if flag == "fleet_outlier" else "")] = sum(flag in r["flags"] for r in rows.values())
     counts["weak"] = sum(status_kind(r.get("status", "")) == "weak" for r in rows.values())
     pd = None if prior is None else prior.to_dict()
@@ -236,7 +238,10 @@ def drifted_words(s: dict) -> str:
     """"N drifted inside the drive", or, for a method that looks for no step (``summary["step_test"]`` false),
     that it was not looked for: a count of 0 read as "no radar moved"."""
     if s.get("step_test", True):
-        return f"{s['counts']['drifted_in_drive']} drifted inside the drive"
+        blind = s["counts"].get("step_not_tested", 0)
+        return f"{s['counts']['drifted_in_drive']} drifted inside the drive" + (
+            f" ({blind} not tested: no step test could run on {'its drive' if blind == 1 else 'their drives'}, too "
+            "short for the window's test and the radar mount monitor)" if blind else "")
     return f"a step inside the drive not looked for (method {s['method']} has no step test: use hybrid or oracle)"
 
 

@@ -127,9 +127,20 @@ def with_prior_words(traj: list[FrameEstimate]) -> list[FrameEstimate]:
     what = [*(["the network's learned prior of the radar's mount, seen through the camera"]
               if {"roll", "pitch"} & set(named) else []),
             *(["the vertical offset is the start's"] if "vertical offset" in named else [])]
-    return with_words(traj, f"{join_and(named)} {'is' if len(named) == 1 else 'are'} prior-pinned, not measured "
-                            f"by this drive ({'; '.join(what)}; std {stds}): a 2D radar has no elevation, so a radar "
-                            "tilted or raised off the fleet's mounts is not seen")
+    out = with_words(traj, f"{join_and(named)} {'is' if len(named) == 1 else 'are'} prior-pinned, not measured "
+                           f"by this drive ({'; '.join(what)}; std {stds}): a 2D radar has no elevation, so a radar "
+                           "tilted or raised off the fleet's mounts is not seen")
+    # the directions the data could not pin, as the covariance's reading names them (probe 120: the report's "could
+    # not pin" list and result.json's weak_directions left out the roll and pitch the status calls prior-pinned)
+    last = out[-1].estimate
+    if out is traj:  # an untrusted status: left as it is
+        return out
+    names = {"roll": "roll (rotation about camera z)", "pitch": "pitch (rotation about camera x)",
+             "vertical offset": "vertical offset (translation along camera y)"}
+    have = " ".join(last.weak_directions)
+    extra = tuple(names[w] for w in named if names[w].split(" (")[1] not in have)
+    return [*out[:-1], dataclasses.replace(out[-1], estimate=dataclasses.replace(
+        last, weak_directions=tuple(last.weak_directions) + extra))]
 
 
 def _since_last_step(mon: MountMonitor | None) -> int:

@@ -157,10 +157,16 @@ def status_html(vr: VehicleResult) -> str:
 def lidar_html(vr: VehicleResult) -> str:
     """The hybrid's LiDAR alignment (``vr.lidar``, docs/conventions.md) in words, or "" without one."""
     both = bool((vr.lidar or {}).get("forward_applied"))  # the forward reading too (probe 67: only x was named)
+    # a 1-sigma widened afterwards is no longer the LiDAR's alone (probe 120: "the camera-z ... 1-sigma above are the
+    # LiDAR's" beside a z 1-sigma of 199 cm the Doppler's disagreement had widened from the LiDAR's 14 cm)
+    wide = [w for w, block in (("its own disagreement with the estimate", vr.lidar),
+                               ("the Doppler lever arm's (below)", vr.doppler if both else None))
+            if (block or {}).get("widened")]
     return _alignment_html(vr.lidar, describe_lidar, "lidar", "LiDAR alignment (the radar's offset along camera x "
                            + ("and z " if both else "") + "against the LiDAR's scene)",
                            "camera-x and camera-z translations and their 1-sigma" if both else
-                           "camera-x translation and its 1-sigma", "LiDAR's")
+                           "camera-x translation and its 1-sigma", "LiDAR's",
+                           f"; the 1-sigma is then widened to cover {' and '.join(wide)}" if wide else "")
 
 
 def doppler_html(vr: VehicleResult) -> str:
@@ -169,14 +175,14 @@ def doppler_html(vr: VehicleResult) -> str:
                            "from its own motion in turns)", "camera-z translation and its 1-sigma", "Doppler's")
 
 
-def _alignment_html(block: dict | None, describe, pid: str, title: str, what: str, whose: str) -> str:
+def _alignment_html(block: dict | None, describe, pid: str, title: str, what: str, whose: str, then: str = "") -> str:
     """``block`` said in words (``describe``); when applied, ``what`` (the axes and their 1-sigma it set) named as
-    ``whose``."""
+    ``whose``, and ``then`` what changed them afterwards."""
     if not block:
         return ""
     words = describe(block)
     if block["applied"]:
-        words += f": the {what} above are the {whose}, not the network's"
+        words += f": the {what} above are the {whose}, not the network's{then}"
     return f"<p id=\"{pid}\">{esc(title)}: {esc(words)}</p>"
 
 

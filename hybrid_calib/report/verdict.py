@@ -42,6 +42,7 @@ from hybrid_calib.calib.drift import (
     doppler_level_words,
     mount_steps_beyond,
     one_pass_verdict,
+    step_tests_ran,
     turned_since_export,
 )
 from hybrid_calib.calib.mount_monitor import blind_words, finds_words, tested_words, told_steps, turn_words
@@ -200,11 +201,10 @@ def moved_during_drive(vr: VehicleResult) -> tuple[str, tuple[int, ...]]:
     alarms = tuple(f.index for f in vr.trajectory if f.step_alarm)
     mount = vr.mount or {}
     n = len(vr.trajectory)
-    window_ran = any(f.step_statistic is not None for f in vr.trajectory)
+    window_ran, mount_ran = step_tests_ran(vr.trajectory, mount)
     window = (f"the window's windowed chi-square of the recent frames against the long-run estimate, over the {n} "
               "frames the estimate used") if window_ran else ""
     blind = blind_words(mount) if mount else ""
-    mount_ran = bool(mount) and int(mount.get("pairs_tested", 0)) > 0 and not blind.startswith("it could not")
     monitor = (f"the radar mount monitor (the radar's Doppler heading against the vehicle's ego poses) over "
                f"{tested_words(mount, (vr.drift or {}).get('reference'))}") if mount else ""
     if alarms and not alarms_say_moved(vr.final.status, mount):
