@@ -291,6 +291,28 @@ def measurement_files(directory: str | Path) -> dict[str, list[Path]]:
     return groups
 
 
+def measurement_stamp(directory: str | Path) -> str:
+    """A digest of the frame files a calibration reads from ``directory`` (``measurement_files``: their paths relative
+    to it and their contents): the rows re-exported in place, or another folder typed under the same relative name,
+    are other rows (probe 119: a result of the earlier rows was reused as this run's). Contents, not modification
+    times: a copied folder holds the same rows. "" when the directory holds none (its reader says why)."""
+    import hashlib
+
+    try:
+        groups = measurement_files(directory)
+    except DataError:
+        return ""
+    h = hashlib.sha1()
+    for files in groups.values():
+        for f in files:
+            h.update(str(Path(f).relative_to(directory)).encode() + b"\0")
+            try:
+                h.update(Path(f).read_bytes())
+            except OSError:
+                h.update(b"unreadable")
+    return h.hexdigest()
+
+
 def load_measurement_dir(directory: str | Path, skipped: list | None = None) -> dict[str, list[FrameMeasurements]]:
     """Every frame under ``directory`` (``measurement_files``), grouped by the file's ``vehicle``
     (a file without one takes its sub-directory's name, "" when flat); each group sorted by camera

@@ -27,7 +27,7 @@ import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -287,6 +287,9 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
         from learned.model import RCAutoCalib as model_factory
 
     conf = merge(TrainConfig, conf)
+    if conf.init_weights and Path(conf.init_weights).exists():  # absolute: the same run resumed from another folder
+        # is this run (probe 119: "other options (init_weights: 'ck.json' -> '../ck.json')")
+        conf = replace(conf, init_weights=str(Path(conf.init_weights).resolve()))
     out = Path(out)
     ckpt_dir = out / "checkpoints"
     model_conf = resolve_model_config(conf)

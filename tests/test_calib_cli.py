@@ -387,3 +387,42 @@ def test_the_batch_solve_of_oracle_rows_converges_with_every_redescending_kernel
         r = solve_batch(vi.frames, _start(vi, conf), {"factor": {"kernel": kernel}})
         off = np.degrees(np.linalg.norm(g.local(vi.truth[0], r.estimate.T)[:3]))
         assert off < 2.0 and "NOT CONVERGED" not in r.estimate.status, (seed, off, r.estimate.status)
+
+
+def test_a_result_of_other_measurement_rows_is_not_reused_and_the_same_run_from_another_folder_is(sim_root, tmp_path,
+                                                                                                   monkeypatch):
+    """Probe 119 (HIGH): --correspondences DIR re-exported in place, or another folder typed under the same relative
+    name from another working folder, reused the earlier rows' result ("computed with the same options ... and
+    data"); and the same run typed from another folder (DIR absolute, or ../DIR) was refused as another run."""
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+    from hybrid_calib.errors import HybridCalibError
+
+    ds = NuScenesRadarCamera(sim_root, "v1.0-sim", conf={"check_images": False})
+    T = ds[0].extras["T_cam_radar_static"]
+
+    def export(d, seed):
+        d.mkdir(parents=True, exist_ok=True)
+        for k, c in enumerate(synthetic_drive(T, 3, rng(seed))[0]):
+            c = dataclasses.replace(c, frame_id=ds.frames[k % len(ds.frames)].camera_sd["token"])
+            np.savez(d / f"{k:03d}.npz", **c.to_npz_dict())
+
+    work = tmp_path / "work"
+    export(work / "corr", 0)
+    monkeypatch.chdir(work)
+    argv = ["--data", str(sim_root), "--mode", "batch", "--out", str(tmp_path / "run"), "--no-plots"]
+    assert calibrate.run(_args(*argv, "--correspondences", "corr")) == 0
+    first = json.loads((tmp_path / "run" / "result.json").read_text())
+    # the same rows typed from another folder, relative or absolute: this run, reused
+    (work / "sub").mkdir()
+    monkeypatch.chdir(work / "sub")
+    for typed in ("../corr", str(work / "corr")):
+        assert calibrate.run(_args(*argv, "--correspondences", typed)) == 0
+        assert json.loads((tmp_path / "run" / "result.json").read_text()) == first
+    # another folder of that name from there, and the rows exported again in place: not this result
+    export(work / "sub" / "corr", 1)
+    with pytest.raises(HybridCalibError, match="holds the result of another run"):
+        calibrate.run(_args(*argv, "--correspondences", "corr"))
+    monkeypatch.chdir(work)
+    export(work / "corr", 2)
+    with pytest.raises(HybridCalibError, match="the measurement files in --correspondences"):
+        calibrate.run(_args(*argv, "--correspondences", "corr"))

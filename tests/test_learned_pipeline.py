@@ -298,6 +298,22 @@ def test_init_weights_starts_a_new_run_from_a_checkpoint(frames, tmp_path):
     # loss-only settings may change when fine-tuning (e.g. a heavier translation term)
     heavier = _train_conf(tmp_path, 1) | {"init_weights": str(base), "model": {**TINY_MODEL, "calib_trans_weight": 5.0}}
     assert train(train_config("small", heavier), frames, tmp_path / "heavier", progress=False).is_file()
+    # the run resumed from another folder, its --init typed relative to it: the same run (probe 119: refused as one
+    # of "other options (init_weights: 'ck.json' -> '../ck.json')")
+    import os
+
+    here = os.getcwd()
+    try:
+        os.chdir(base.parent)
+        rel = _train_conf(tmp_path, 1) | {"init_weights": base.name, "lr": 0.0}
+        train(train_config("small", rel), frames, tmp_path / "resumed", progress=False)
+        (tmp_path / "elsewhere").mkdir()
+        os.chdir(tmp_path / "elsewhere")
+        again = _train_conf(tmp_path, 2) | {"init_weights": os.path.relpath(base, tmp_path / "elsewhere"), "lr": 0.0}
+        assert train(train_config("small", again), frames, tmp_path / "resumed", progress=False).name == \
+            "ckpt-0002.json"
+    finally:
+        os.chdir(here)
 
 
 def test_bad_context_weights_and_export_iteration_are_named(frames, tmp_path):

@@ -494,3 +494,25 @@ def test_hybrid_rows_other_than_the_fitted_ones_are_not_trusted(fitted, sim_root
     assert other_rows_reason(runner, HybridConfig(method="pure-avg", measurement={"rows": "last"})) == ""
     same = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", {**conf, "measurement": {"rows": "none"}})
     assert "overrides the rows" not in same.final.status
+
+
+def test_the_same_learned_run_typed_from_another_folder_is_this_run(fitted, sim_root, tmp_path, monkeypatch):
+    """Probe 119: --checkpoint ck.json, then ../ck.json from a sub-folder (the same file), was refused as "another
+    run", and an interrupted run could not be resumed from there without --overwrite."""
+    import shutil
+    from pathlib import Path
+
+    from hybrid_calib.hybrid import run_calibration
+
+    work = tmp_path / "work"
+    (work / "sub").mkdir(parents=True)
+    for f in Path(fitted[0]).parent.glob(Path(fitted[0]).stem + ".*"):
+        shutil.copy(f, work / f.name)
+    name = Path(fitted[0]).name
+    conf = {**BASE, "method": "pure", "max_frames": 2, "vehicles": ["sim-veh-000"]}
+    monkeypatch.chdir(work)
+    first = run_calibration(sim_root, "v1.0-sim", tmp_path / "run", {**conf, "checkpoint": name})
+    assert first.vehicles["sim-veh-000"].checkpoint == str(work / name)
+    monkeypatch.chdir(work / "sub")
+    again = run_calibration(sim_root, "v1.0-sim", tmp_path / "run", {**conf, "checkpoint": f"../{name}"})
+    assert again.to_dict() == first.to_dict()

@@ -571,6 +571,11 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
     out = Path(out)
     result_path = out / "result.json"
     cfg = {**to_dict(conf), **reference_identity(conf.reference)}  # the export's content too (--reference)
+    if correspondences != "oracle":  # the rows themselves, and where they are from any folder (probe 119)
+        from factors.io import measurement_stamp
+
+        correspondences = str(Path(correspondences).resolve())
+        cfg["correspondences_stamp"] = measurement_stamp(correspondences)
     if result_path.is_file() and not overwrite:
         return reuse_result(out, data, version, str(correspondences), cfg)
     # before reading: data that change during the run are not this result's

@@ -1072,12 +1072,16 @@ def _changes(old: dict, new: dict) -> list[str]:
     if isinstance(old_conf, dict) and not changed:
         from hybrid_calib.config import changed_options
 
-        new_conf, special = new["config"], ("data_stamp", "network", "reference_sha256")
+        new_conf, special = new["config"], ("data_stamp", "network", "reference_sha256", "correspondences_stamp")
         changed = changed_options(  # the leaf keys (motion.vo.features: 4000 -> 3000), not two cut JSON objects
             {k: v for k, v in old_conf.items() if k not in RUN_ONLY + special},
             {k: v for k, v in new_conf.items() if k not in RUN_ONLY + special})
         if old_conf.get("data_stamp") != new_conf.get("data_stamp") and "data_stamp" in new_conf:
             changed.append("the data in --data (its tables or sensor folders changed since)")
+        if old_conf.get("correspondences_stamp") != new_conf.get("correspondences_stamp") and \
+                "correspondences_stamp" in new_conf:
+            changed.append("the measurement files in --correspondences (other rows: exported again since, or "
+                           "another folder of that name)")
         if old_conf.get("reference_sha256") != new_conf.get("reference_sha256") and old_conf.get(
                 "reference") == new_conf.get("reference") and "reference_sha256" in new_conf:
             changed.append("the --reference export's file (exported again at the same path since)")

@@ -790,6 +790,13 @@ def run_vehicle(data: str | Path, version: str, vehicle: str, conf: HybridConfig
     return _Session(data, version, conf).vehicle(vehicle)
 
 
+def absolute_path(option: str) -> str:
+    """A path option (``checkpoint``, ``refine``) made absolute where it names an existing file or folder; a keyword
+    ("", "none", "shipped") or a path that is not there (its reader says so, as typed) is kept."""
+    return str(Path(option).resolve()) if option and option not in ("none", "shipped") and Path(option).exists() \
+        else option
+
+
 def run_calibration(data: str | Path, version: str, out: str | Path, conf: HybridConfig | dict | None = None,
                     overwrite: bool = False, on_vehicle: Callable[[VehicleResult], object] | None = None
                     ) -> CalibrationRun:
@@ -797,7 +804,10 @@ def run_calibration(data: str | Path, version: str, out: str | Path, conf: Hybri
     ``out/config.json``. Network outputs and depth are cached under ``out`` unless the config names
     folders. With ``overwrite=False`` an existing result is returned untouched."""
     conf = merge(HybridConfig, conf)
-    conf = dataclasses.replace(conf, reference=absolute_reference(conf.reference))
+    # paths absolute, as the data's is: the same run typed from another folder is this run (probe 119: refused as
+    # "another run", and an interrupted one could not be resumed from there)
+    conf = dataclasses.replace(conf, reference=absolute_reference(conf.reference),
+                               checkpoint=absolute_path(conf.checkpoint), refine=absolute_path(conf.refine))
     out = Path(out)
     check_api_out(out, "calibrate", data, version)
     for option, path in (("--set cache_dir", conf.cache_dir), ("--set depth_cache", conf.depth_cache)):
