@@ -44,7 +44,7 @@ def disk_full(e: BaseException, folder: Path) -> bool:
 class BestEffortStream:
     """A process's stderr whose write failures (``2>/dev/full``, a reader gone) are dropped: the progress bars,
     warnings and notes written there must not stop a run whose results go to files (probe 66: calibrate exited 1
-    with nothing written, its runs.json saying 2). stdout stays strict: its failure is said as an error."""
+    with nothing written, its runs.json saying 2). stdout: ``GuardedStdout``, whose failure the exit status says."""
 
     def __init__(self, stream):
         self._stream = stream
@@ -65,6 +65,56 @@ class BestEffortStream:
         if name == "_stream":  # not set yet (copy.copy): no recursion (probe 70)
             raise AttributeError(name)
         return getattr(self._stream, name)
+
+
+class GuardedStdout(BestEffortStream):
+    """A process's stdout whose first write failure (a reader gone: ``| head -1``; ``> /dev/full``; a full log disk)
+    is said once on stderr and recorded (``error``), its output then dropped: the run goes on to write its files, and
+    its exit status says the terminal output was lost (``cli``). Probe 119: a failing stdout stopped a fleet after its
+    first vehicle and train after its first epoch, a reader gone without a word on stderr; at exit Python printed
+    "Exception ignored ... BrokenPipeError" and exit 120 while runs.json said 0."""
+
+    def __init__(self, stream, command: str = "hybrid-calib"):
+        super().__init__(stream)
+        self.error: OSError | None = None
+        self.command = command
+
+    def write(self, text: str) -> int:
+        try:
+            return self._stream.write(text)
+        except (OSError, ValueError) as e:
+            self._failed(e)
+            return len(text)
+
+    def flush(self) -> None:
+        try:
+            self._stream.flush()
+        except (OSError, ValueError) as e:
+            self._failed(e)
+
+    def _failed(self, e: Exception) -> None:
+        import sys
+
+        if self.error is not None:
+            return
+        self.error = e if isinstance(e, OSError) else OSError(errno.EBADF, str(e))
+        try:  # what is still buffered for it must not fail again when the interpreter flushes at exit
+            os.dup2(os.open(os.devnull, os.O_WRONLY), self._stream.fileno())
+        except (OSError, ValueError, AttributeError):
+            pass
+        self._stream = open(os.devnull, "w")  # noqa: SIM115 (the process' stream, open to its end)
+        gone = isinstance(e, BrokenPipeError)
+        print(f"{self.command}: warning: its standard output "
+              + ("was closed by its reader" if gone else f"cannot be written ({getattr(e, 'strerror', None) or e})")
+              + ": the run goes on, its results are in its files; what it would have printed is lost", file=sys.stderr)
+
+
+def guard_stdout(command: str) -> None:
+    """Make this process's ``sys.stdout`` a ``GuardedStdout`` (once)."""
+    import sys
+
+    if sys.stdout is not None and not isinstance(sys.stdout, GuardedStdout):
+        sys.stdout = GuardedStdout(sys.stdout, f"hybrid-calib {command}")
 
 
 def exit_with_parent(period_s: float = 2.0) -> None:

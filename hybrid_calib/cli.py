@@ -21,7 +21,15 @@ import threading
 import warnings
 from pathlib import Path
 
-from hybrid_calib.atomic import LOCK_NAME, best_effort_stderr, finished, out_dir_lock, record_run
+from hybrid_calib.atomic import (
+    LOCK_NAME,
+    GuardedStdout,
+    best_effort_stderr,
+    finished,
+    guard_stdout,
+    out_dir_lock,
+    record_run,
+)
 from hybrid_calib.errors import (
     HybridCalibError,
     check_out_dir,
@@ -223,6 +231,8 @@ def main(argv: list[str] | None = None) -> int:
     if argv is None:  # the process's own stderr (a caller of main(argv) keeps its own)
         best_effort_stderr()
     args = _parse(argv)
+    if argv is None:  # its stdout failing loses only what it prints (atomic.GuardedStdout)
+        guard_stdout(args.command)
     if problem := _repeated_or_empty(sys.argv[1:] if argv is None else [str(a) for a in argv], args._parser):
         print(f"hybrid-calib {args.command}: error: {problem}", file=sys.stderr)
         return EXIT_ERROR
@@ -295,6 +305,19 @@ def check_text_arguments(args: argparse.Namespace) -> None:
                                   f"{shown(str(v))} is not valid UTF-8: {advice(str(v))}")
 
 
+def _ran(args: argparse.Namespace) -> int:
+    """The command's exit status, after its output is flushed: 141 (a reader gone, as a shell reports a command a pipe
+    ended) or ``EXIT_ERROR`` (a full or failing device) where its standard output failed and it would have returned 0
+    (``atomic.GuardedStdout``: the run went on, its files are complete; runs.json records this status too)."""
+    status = int(args._run(args) or 0)
+    out = sys.stdout
+    if isinstance(out, GuardedStdout):
+        out.flush()
+        if out.error is not None and status == 0:
+            return 141 if isinstance(out.error, BrokenPipeError) else EXIT_ERROR
+    return status
+
+
 def _finished(args: argparse.Namespace) -> None:
     """The run's work is done and its exit status recorded: Ctrl-C or SIGTERM from here to the process's end must not
     turn it into "interrupted" (probe 60: export exited 130, with no word, while its runs.json said 0). Only for the
@@ -318,7 +341,7 @@ def _run(args: argparse.Namespace, debug: bool, argv: list[str]) -> int:
         check_text_arguments(args)
         if args.command == "report":  # --out is the page (a file), written atomically
             check_out_dir(None if out is None else Path(out).parent)
-            status = int(args._run(args) or 0)
+            status = _ran(args)
             _finished(args)
             return status
         check_out_dir(out)
@@ -333,7 +356,7 @@ def _run(args: argparse.Namespace, debug: bool, argv: list[str]) -> int:
         if args.command != "simulate":  # simulate's root has no runs.json
             check_runs_record(out)
         if out is None:
-            status = int(args._run(args) or 0)
+            status = _ran(args)
             _finished(args)
             return status
         # the lock holds the command line, for runs.json when the run is killed (not simulate's root: no runs.json)
@@ -342,7 +365,7 @@ def _run(args: argparse.Namespace, debug: bool, argv: list[str]) -> int:
                           started=started) as recorded:
             status, before = None, _listing(Path(out))
             try:
-                status = int(args._run(args) or 0)
+                status = _ran(args)
                 return status
             finally:  # also a run that failed or was interrupted after writing something (not one refused before
                 # it wrote: its folder is as it was): its line says how it ended

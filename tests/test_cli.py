@@ -173,6 +173,52 @@ sys.exit(cli.main())
     assert [r["exit_status"] for r in json.loads((tmp_path / "run" / "runs.json").read_text())] == [0]
 
 
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full (Linux)")
+@pytest.mark.parametrize("where", ["a reader gone", "/dev/full"])
+def test_a_stdout_that_fails_loses_only_what_it_prints(where, tmp_path):
+    """Probe 119: a stdout that failed mid-run (a reader gone: `| head -1`; a full disk) stopped the run at its first
+    line (fleet after one vehicle, train after one epoch), a reader gone without a word on stderr; one that failed at
+    exit printed Python's "Exception ignored ... BrokenPipeError", exit 120, while runs.json said 0. The run goes on
+    and writes its files; the exit status (141, or 2 for a full device) and runs.json say the output was lost."""
+    import subprocess
+    import sys
+
+    script = f"""
+import sys
+import hybrid_calib.cli as cli
+from hybrid_calib.commands import calibrate
+def chatty(args):
+    for k in range(3):
+        print(f"vehicle {{k}} done", flush=True)
+    (args.out / "result.json").write_text("{{}}")
+    print("wrote it")
+    return 0
+calibrate.run = chatty
+sys.argv = ["hybrid-calib", "calibrate", "--data", {str(tmp_path)!r}, "--out", {str(tmp_path / "run")!r}]
+sys.exit(cli.main())
+"""
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    env.pop("PYTHONUNBUFFERED", None)
+    if where == "/dev/full":
+        with open("/dev/full", "w") as out:
+            p = subprocess.run([sys.executable, "-c", script], stdout=out, stderr=subprocess.PIPE, text=True,
+                               timeout=120, env=env)
+        expect, words = 2, "its standard output cannot be written (No space left on device)"
+    else:
+        r, w = os.pipe()
+        os.close(r)  # the reader has gone before the first line
+        try:
+            p = subprocess.run([sys.executable, "-c", script], stdout=w, stderr=subprocess.PIPE, text=True,
+                               timeout=120, env=env)
+        finally:
+            os.close(w)
+        expect, words = 141, "its standard output was closed by its reader"
+    assert p.returncode == expect and words in p.stderr and "the run goes on" in p.stderr, (p.returncode, p.stderr)
+    assert "Exception ignored" not in p.stderr and "Traceback" not in p.stderr and p.stderr.count("warning") == 1
+    assert (tmp_path / "run" / "result.json").read_text() == "{}"
+    assert [r["exit_status"] for r in json.loads((tmp_path / "run" / "runs.json").read_text())] == [expect]
+
+
 def test_a_killed_run_is_in_runs_json_once_the_next_run_finds_its_lock(tmp_path, monkeypatch):
     """Probe 60: a run killed by SIGKILL (the OOM killer, a machine that went down) was missing from runs.json and
     its lock stayed behind; the next run into the folder now adds it, exit status null, and removes the lock."""
