@@ -145,6 +145,25 @@ sys.exit(cli.main())
     assert [r["exit_status"] for r in runs] == [0]
 
 
+def _talking_calibrate(tmp_path, line: str, times: int) -> str:
+    """A Python script running ``hybrid-calib calibrate`` whose command prints ``line`` ``times`` times (``k`` the
+    count), writes its result.json and prints "wrote it"."""
+    return f"""
+import sys
+import hybrid_calib.cli as cli
+from hybrid_calib.commands import calibrate
+def talking(args):
+    for k in range({times}):
+        {line}
+    (args.out / "result.json").write_text("{{}}")
+    print("wrote it")
+    return 0
+calibrate.run = talking
+sys.argv = ["hybrid-calib", "calibrate", "--data", {str(tmp_path)!r}, "--out", {str(tmp_path / "run")!r}]
+sys.exit(cli.main())
+"""
+
+
 @pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full (Linux)")
 def test_a_stderr_that_cannot_be_written_does_not_stop_the_run(tmp_path):
     """Probe 66: with stderr on a full disk (``2>/dev/full``) calibrate exited 1 with nothing written (its progress
@@ -152,20 +171,7 @@ def test_a_stderr_that_cannot_be_written_does_not_stop_the_run(tmp_path):
     import subprocess
     import sys
 
-    script = f"""
-import sys
-import hybrid_calib.cli as cli
-from hybrid_calib.commands import calibrate
-def noisy(args):
-    for k in range(50):
-        print("progress " * 200, file=sys.stderr, flush=True)
-    (args.out / "result.json").write_text("{{}}")
-    print("wrote it")
-    return 0
-calibrate.run = noisy
-sys.argv = ["hybrid-calib", "calibrate", "--data", {str(tmp_path)!r}, "--out", {str(tmp_path / "run")!r}]
-sys.exit(cli.main())
-"""
+    script = _talking_calibrate(tmp_path, 'print("progress " * 200, file=sys.stderr, flush=True)', 50)
     with open("/dev/full", "w") as full:
         p = subprocess.run([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=full, text=True,
                            timeout=120, env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])})
@@ -183,20 +189,7 @@ def test_a_stdout_that_fails_loses_only_what_it_prints(where, tmp_path):
     import subprocess
     import sys
 
-    script = f"""
-import sys
-import hybrid_calib.cli as cli
-from hybrid_calib.commands import calibrate
-def chatty(args):
-    for k in range(3):
-        print(f"vehicle {{k}} done", flush=True)
-    (args.out / "result.json").write_text("{{}}")
-    print("wrote it")
-    return 0
-calibrate.run = chatty
-sys.argv = ["hybrid-calib", "calibrate", "--data", {str(tmp_path)!r}, "--out", {str(tmp_path / "run")!r}]
-sys.exit(cli.main())
-"""
+    script = _talking_calibrate(tmp_path, 'print(f"vehicle {k} done", flush=True)', 3)
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
     env.pop("PYTHONUNBUFFERED", None)
     if where == "/dev/full":
