@@ -232,6 +232,11 @@ def main(argv: list[str] | None = None) -> int:
         best_effort_stderr()
     args = _parse(argv)
     if argv is None:  # its stdout failing loses only what it prints (atomic.GuardedStdout)
+        for stream in (sys.stdout, sys.stderr):  # a name the terminal's encoding cannot show is shown escaped
+            try:  # (probe 119: PYTHONIOENCODING=ascii made "wrote 数据/result.json" an internal error)
+                stream.reconfigure(errors="backslashreplace")
+            except (AttributeError, ValueError, OSError):
+                pass
         guard_stdout(args.command)
     if problem := _repeated_or_empty(sys.argv[1:] if argv is None else [str(a) for a in argv], args._parser):
         print(f"hybrid-calib {args.command}: error: {problem}", file=sys.stderr)
@@ -300,9 +305,16 @@ def check_text_arguments(args: argparse.Namespace) -> None:
         for v in value if isinstance(value, (list, tuple)) else (value,):
             if not isinstance(v, (str, Path)):
                 continue
+            option = POSITIONAL.get(dest, "--" + dest.replace("_", "-"))
             if bad(str(v)):
-                raise OptionError(POSITIONAL.get(dest, "--" + dest.replace("_", "-")),
-                                  f"{shown(str(v))} is not valid UTF-8: {advice(str(v))}")
+                raise OptionError(option, f"{shown(str(v))} is not valid UTF-8: {advice(str(v))}")
+            if dest != "set" and re.match(r"~[\w.-]*(/|$)", str(v)) and not Path(str(v).split("/")[0]).exists():
+                # the shell expands ~ only at a word's start (not in --out=~/x) and unquoted: a folder named "~" was
+                # made in the working folder, and "wrote ~/x/result.json" read as the home folder (probe 119)
+                raise OptionError(option, f"{v} starts with '~', which the shell did not expand (it does not in "
+                                          f"{option}=~/... nor in quotes): pass {option} {v} with a space, or the "
+                                          f"full path ({os.path.expanduser(str(v))}); a folder named '~' here is "
+                                          "./~")
 
 
 def _ran(args: argparse.Namespace) -> int:
@@ -483,6 +495,11 @@ def report_error(command: str, e: Exception) -> int:
         print(f"hybrid-calib {command}: error: cannot write to its output ({e.strerror or e}): the disk or device "
               "its files or its standard output go to is full or failing; free space there, or write elsewhere",
               file=sys.stderr)
+        return EXIT_ERROR
+    if isinstance(e, UnicodeEncodeError) and sys.getfilesystemencoding().lower() not in ("utf-8", "utf8"):
+        print(f"hybrid-calib {command}: error: a name holds characters this process's file-system encoding "
+              f"({sys.getfilesystemencoding()}) cannot hold ({e.object[e.start:e.end]!r}, in a path read from a "
+              "file or a table): run in a UTF-8 locale (PYTHONUTF8=1)", file=sys.stderr)
         return EXIT_ERROR
     print(f"hybrid-calib {command}: internal error: {type(e).__name__}: {e}\n"
           f"  this looks like a bug (or an input not checked yet); rerun with --debug for the traceback and "

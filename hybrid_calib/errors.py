@@ -38,6 +38,21 @@ _WORKER_KILLED = re.compile(r"DataLoader worker \(pids?\(?s?\)? [\d, ]+\) (?:is|
                             r"(Terminated|Interrupt)")
 
 
+def unencodable_words(path: str | Path) -> str:
+    """"" when ``path`` is a name this process's file-system encoding can hold, else why it cannot be opened: under an
+    ASCII (or Latin-1) encoding a non-ASCII name read from a file (a result's data root, a fleet manifest) is no name
+    at all (probe 119: "does not exist" and "is not there" for folders that exist, an internal error in export)."""
+    import sys
+
+    enc = sys.getfilesystemencoding()
+    try:
+        str(path).encode(enc, "surrogateescape")
+        return ""
+    except UnicodeEncodeError:
+        return (f"; its name holds characters this process's file-system encoding ({enc}) cannot hold: run in a "
+                "UTF-8 locale (PYTHONUTF8=1)")
+
+
 def stop_signal_of(error: BaseException) -> int | None:
     """``signal.SIGTERM`` / ``SIGINT`` when ``error`` is torch's RuntimeError for a DataLoader worker that the signal
     ended, else None: the group's signal reached the worker first (``docker stop``, systemd, a scheduler's

@@ -547,3 +547,15 @@ def test_a_dataloader_worker_ended_by_the_groups_signal_stops_the_run_as_that_si
     _quiet_stopped_workers(SimpleNamespace(exc_value=killed, exc_type=RuntimeError, exc_traceback=None,
                                            err_msg=None, object=None))
     assert capsys.readouterr().err == ""
+
+
+def test_a_name_the_terminal_cannot_show_is_shown_escaped(tmp_path):
+    """Probe 119: PYTHONIOENCODING=ascii (legacy job runners) made "wrote 数据/result.json" an internal error (exit
+    3), the files complete."""
+    import subprocess
+    import sys
+
+    script = _talking_calibrate(tmp_path, 'print("wrote 数据/result.json", flush=True)', 1)
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1]), "PYTHONIOENCODING": "ascii"}
+    p = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120, env=env)
+    assert p.returncode == 0 and "wrote \\u6570\\u636e/result.json" in p.stdout, (p.returncode, p.stderr)

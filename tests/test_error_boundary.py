@@ -433,3 +433,39 @@ def test_a_named_pipe_as_the_checkpoint_is_said_as_one(tmp_path):
     os.mkfifo(tmp_path / "ckpt-0001.json")
     with pytest.raises(HybridCalibError, match="is a named pipe"):
         read_checkpoint_meta(tmp_path / "ckpt-0001.json")
+
+
+def test_a_tilde_the_shell_did_not_expand_is_said_not_made_a_folder(tiny, tmp_path, capsys, monkeypatch):
+    """Probe 119: --out=~/calib (bash expands ~ only at a word's start) made a folder named "~" in the working folder
+    and said "wrote ~/calib/result.json", which reads as the home folder; --data '~/sim' read "does not exist"."""
+    monkeypatch.chdir(tmp_path)
+    expect_cli_error(["calibrate", "--data", str(tiny.root), "--version", VERSION, "--out=~/calib"], capsys,
+                     "--out: ~/calib starts with '~', which the shell did not expand",
+                     "pass --out ~/calib with a space")
+    expect_cli_error(["inspect", "--data", "~/sim", "--version", VERSION], capsys, "--data: ~/sim starts with '~'")
+    assert not (tmp_path / "~").exists()
+    (tmp_path / "~").mkdir()  # a folder that is named so: taken as named
+    assert main(["inspect", "--data", str(tiny.root), "--version", VERSION, "--out", "~/insp", "--no-progress"]) == 0
+    assert (tmp_path / "~" / "insp" / "inspect_summary.json").is_file()
+
+
+def test_a_name_the_file_system_encoding_cannot_hold_is_said(tmp_path, capsys, monkeypatch):
+    """Probe 119: under an ASCII file-system encoding (PYTHONUTF8=0 in the C locale) a non-ASCII root named in a result
+    or a fleet manifest read "does not exist" / "is not there" (it exists), and export ended in an internal error
+    (UnicodeEncodeError); argv's names were already said."""
+    import sys
+
+    from hybrid_calib.cli import report_error
+    from hybrid_calib.data.tables import version_dir
+    from hybrid_calib.errors import DataError, unencodable_words
+
+    assert unencodable_words(tmp_path / "données") == ""  # this process: UTF-8
+    monkeypatch.setattr(sys, "getfilesystemencoding", lambda: "ascii")
+    assert "file-system encoding (ascii) cannot hold: run in a UTF-8 locale (PYTHONUTF8=1)" in \
+        unencodable_words(tmp_path / "données")
+    assert unencodable_words(tmp_path / "plain") == ""
+    with pytest.raises(DataError, match=r"nuScenes root cannot be opened; its name holds characters"):
+        version_dir(tmp_path / "données", "v1.0-mini")
+    assert report_error("export", UnicodeEncodeError("ascii", "/x/données", 7, 8, "ordinal not in range")) == EXIT_ERROR
+    err = capsys.readouterr().err
+    assert "hybrid-calib export: error: a name holds characters" in err and "internal error" not in err

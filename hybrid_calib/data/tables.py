@@ -32,7 +32,7 @@ from pathlib import Path, PurePosixPath
 import numpy as np
 
 from hybrid_calib.config import is_number
-from hybrid_calib.errors import DataError
+from hybrid_calib.errors import DataError, unencodable_words
 from hybrid_calib.geometry import pose_from_nuscenes
 
 # the per-sensor tables (millions of records on v1.0-trainval, most of channels never read): a record of them that
@@ -75,6 +75,8 @@ def version_dir(root: str | Path, version: str, fix: str = "pass one of them wit
     ``fix`` (where the caller's version came from)."""
     root = Path(root)
     if not root.is_dir():
+        if words := unencodable_words(root):
+            raise DataError(f"nuScenes root cannot be opened{words}", path=str(root))
         what = "is not a directory" if root.exists() else "does not exist"
         raise DataError(f"nuScenes root {what}; pass the folder that holds the version folder "
                         "(e.g. v1.0-mini) and samples/", path=str(root))

@@ -28,7 +28,7 @@ import numpy as np
 from hybrid_calib.calib.pipeline import CalibrateConfig, replay_inputs
 from hybrid_calib.calib.result import CalibrationRun
 from hybrid_calib.config import merge
-from hybrid_calib.errors import DataError, HybridCalibError, OptionError
+from hybrid_calib.errors import DataError, HybridCalibError, OptionError, unencodable_words
 
 
 @dataclass
@@ -170,6 +170,8 @@ def gather(run: CalibrationRun, result_path: Path, vehicle: str, data: str | Pat
                               f"(it calibrated {run.data}, {run.version}), or leave --data / --version out")
         gone = (f"no data root: {root / version} is not there (pass --data ROOT --version V), so no camera frames, "
                 "correspondences or residuals are shown")
+        if words := unencodable_words(root):
+            gone = f"no data root: {root / version} cannot be opened{words}; no camera frames are shown"
         import warnings
 
         warnings.warn(gone, stacklevel=2)  # said on the terminal too, as a data stamp that differs is
