@@ -75,18 +75,21 @@ class Terminated(KeyboardInterrupt):
     had died at once, without a word, a line in runs.json or its lock released (probe 47)."""
 
 
-_SIGTERM_SEEN: list[bool] = [False]  # whether this run got SIGTERM (``terminated``)
+_SIGTERM_SEEN: list[int] = [0]  # the stopping signal this run got (SIGTERM, SIGHUP: ``terminated``), or 0
+# SIGHUP: the terminal or ssh session closed; it stops the run as SIGTERM does (probe 119: it died without its line, the
+# lock left, runs.json later saying "killed: SIGKILL, out of memory or the machine went down")
+_STOPPING = tuple(s for s in (signal.SIGTERM, getattr(signal, "SIGHUP", None)) if s is not None)
 
 
 def _on_sigterm(signum, frame):
-    _SIGTERM_SEEN[0] = True
+    _SIGTERM_SEEN[0] = signum
     raise Terminated
 
 
 def terminated(error: BaseException | None) -> bool:
     """Whether ``error`` ends a run that got SIGTERM: ``Terminated``, or the ``KeyboardInterrupt`` a library turned it
     into (Ray's wait raises its own when a signal handler raised; probe 91: a fleet on Ray read "interrupted", 130)."""
-    return isinstance(error, Terminated) or (isinstance(error, KeyboardInterrupt) and _SIGTERM_SEEN[0])
+    return isinstance(error, Terminated) or (isinstance(error, KeyboardInterrupt) and bool(_SIGTERM_SEEN[0]))
 
 
 def _quiet_stopped_workers(unraisable) -> None:
@@ -246,16 +249,17 @@ def main(argv: list[str] | None = None) -> int:
     if not debug:  # a warning is one line, as every other message: not our source file and line after it
         warnings.formatwarning = _one_line
         sys.unraisablehook = _quiet_stopped_workers
-    term, _SIGTERM_SEEN[0] = None, False
+    term, _SIGTERM_SEEN[0] = None, 0
     if threading.current_thread() is threading.main_thread():  # signal handlers live in the main thread only
-        term = signal.signal(signal.SIGTERM, _on_sigterm)
+        term = {s: signal.signal(s, _on_sigterm) for s in _STOPPING}
     args._process = argv is None and term is not None  # the process's own command line (not a caller's main(argv))
     try:
         return _run(args, debug, sys.argv[1:] if argv is None else [str(a) for a in argv])
     finally:
         warnings.formatwarning, sys.unraisablehook = before, unraisable
         if term is not None and not args._process:
-            signal.signal(signal.SIGTERM, term)
+            for s, handler in term.items():
+                signal.signal(s, handler)
 
 
 POSITIONAL = {"out_html": "--out", "result": "RESULT", "results": "RESULT"}  # dest -> the name the user typed
@@ -335,8 +339,8 @@ def _finished(args: argparse.Namespace) -> None:
     turn it into "interrupted" (probe 60: export exited 130, with no word, while its runs.json said 0). Only for the
     process's own command line: a caller of ``main(argv)`` keeps its signals."""
     if getattr(args, "_process", False):
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        for s in (signal.SIGINT, *_STOPPING):
+            signal.signal(s, signal.SIG_IGN)
 
 
 def _run(args: argparse.Namespace, debug: bool, argv: list[str]) -> int:
@@ -412,7 +416,9 @@ def _run(args: argparse.Namespace, debug: bool, argv: list[str]) -> int:
             # the network's and the depth's caches in --out are kept and a rerun reads them (probe 47)
             kept = ("it stopped before a vehicle finished, so no vehicle's result is kept: rerun the same command to "
                     "start again (an earlier run's result, if any, is as it was; what it cached is reused)")
-        how = "terminated (SIGTERM)" if terminated(e) else "interrupted"
+        how = ("interrupted" if not terminated(e) else "terminated (SIGHUP: its terminal closed; run it under nohup, "
+               "tmux or screen to outlive the session)" if _SIGTERM_SEEN[0] == getattr(signal, "SIGHUP", -1) else
+               "terminated (SIGTERM)")
         _close_bars()
         print(f"hybrid-calib {args.command}: {how}" + (f"; {kept}" if kept else ""), file=sys.stderr)
         return _exit_status(None, e)
@@ -448,8 +454,8 @@ def _exit_status(status: int | None, error: BaseException | None) -> int:
     """The exit status a run ends with: ``status`` when it returned, else the one its exception gets below."""
     if status is not None or error is None:
         return int(status or 0)
-    if terminated(error):
-        return 143  # 128 + SIGTERM, as a shell reports a command the signal ended
+    if terminated(error):  # 128 + the signal, as a shell reports a command it ended (143 SIGTERM, 129 SIGHUP)
+        return 128 + int(_SIGTERM_SEEN[0] or signal.SIGTERM)
     if isinstance(error, KeyboardInterrupt):
         return 130
     if isinstance(error, BrokenPipeError):

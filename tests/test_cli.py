@@ -115,6 +115,20 @@ def test_sigterm_stops_a_run_as_ctrl_c_does(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(calibrate, "run", lambda args: (_ for _ in ()).throw(KeyboardInterrupt))
     assert main(["calibrate", "--data", str(tmp_path), "--out", str(tmp_path / "run3")]) == 130  # a later Ctrl-C
 
+    def hung_up(args):  # probe 119: the terminal or ssh session closed; the run died without its line, the lock left
+        (args.out / "vehicles-done").mkdir(parents=True)
+        os.kill(os.getpid(), signal.SIGHUP)
+        time.sleep(5)
+        raise AssertionError("SIGHUP did not stop the run")
+
+    before = signal.getsignal(signal.SIGHUP)
+    monkeypatch.setattr(calibrate, "run", hung_up)
+    assert main(["calibrate", "--data", str(tmp_path), "--out", str(tmp_path / "run4")]) == 129
+    assert "hybrid-calib calibrate: terminated (SIGHUP: its terminal closed; run it under nohup" in \
+        capsys.readouterr().err
+    assert [r["exit_status"] for r in json.loads((tmp_path / "run4" / "runs.json").read_text())] == [129]
+    assert not (tmp_path / "run4" / LOCK_NAME).exists() and signal.getsignal(signal.SIGHUP) == before
+
 
 def test_ctrl_c_after_a_run_finished_does_not_make_it_interrupted(tmp_path):
     """Probe 60: Ctrl-C as export ended (its outputs and runs.json written, exit status 0 recorded) made the process
