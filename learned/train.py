@@ -22,6 +22,7 @@ import hashlib
 import io
 import json
 import logging
+import os
 import signal
 import sys
 import time
@@ -270,6 +271,27 @@ def lr_schedule(optimizer, conf: TrainConfig):
                                            gamma=0.5 if conf.lr_halve_every else 1.0)
 
 
+# a DataLoader worker hands its batches over a Unix socket in TMPDIR/pymp-XXXXXXXX/listener-XXXXXXXX (multiprocessing's
+# resource sharer); a socket's path holds at most 107 bytes
+SOCKET_PATH_MAX = 107
+SOCKET_NAME_BYTES = len("/pymp-12345678/listener-12345678")
+
+
+def check_worker_socket_path(num_workers: int) -> None:
+    """``HybridCalibError`` when DataLoader workers could not open their socket under this process's temporary folder
+    (probe 119: with a 130-character TMPDIR each worker printed "OSError: AF_UNIX path too long" and the run waited
+    for batches for ever)."""
+    import tempfile
+
+    tmp = tempfile.gettempdir()
+    if len(os.fsencode(tmp)) + SOCKET_NAME_BYTES > SOCKET_PATH_MAX:
+        n = len(os.fsencode(tmp))
+        raise HybridCalibError(f"--set num_workers={num_workers}: the DataLoader workers' socket would lie under the "
+                               f"temporary folder {tmp} ({n} bytes), and a socket's path holds at most "
+                               f"{SOCKET_PATH_MAX}: set TMPDIR to a folder of at most "
+                               f"{SOCKET_PATH_MAX - SOCKET_NAME_BYTES} bytes, or --set num_workers=0")
+
+
 def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str | Path, *, resume: bool = True,
           progress: bool = True, model_factory: Callable[[Any], torch.nn.Module] | None = None,
           source: dict | None = None) -> Path:
@@ -297,6 +319,8 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
     torch.set_num_threads(max(1, conf.threads))
     device = torch.device(conf.device)
 
+    if conf.num_workers:
+        check_worker_socket_path(conf.num_workers)
     last = latest_checkpoint(ckpt_dir)
     if last is not None and not resume:
         raise HybridCalibError(f"{out} already holds checkpoints ({last.name}); resume, or choose another --out")

@@ -798,3 +798,20 @@ def test_a_checkpoint_s_optimizer_file_is_the_same_bytes_for_the_same_state(tmp_
                                      optimizer=optimizer))
     a, b = (p.with_suffix(".optim.pt").read_bytes() for p in paths)
     assert a == b
+
+
+def test_a_temporary_folder_too_long_for_the_workers_socket_is_said(frames, tmp_path, monkeypatch):
+    """Probe 119: train --set num_workers=2 under a 130-character TMPDIR hung for ever, each worker printing "OSError:
+    AF_UNIX path too long"; said before the run now, with what to do."""
+    import tempfile
+
+    from learned.train import train, train_config
+
+    long = tmp_path / ("t" * 120)
+    long.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(long))
+    conf = _train_conf(tmp_path, 1) | {"num_workers": 2}
+    with pytest.raises(HybridCalibError, match=r"num_workers=2: the DataLoader workers' socket .* set TMPDIR to a "
+                                               r"folder of at most 75 bytes, or --set num_workers=0"):
+        train(train_config("small", conf), frames, tmp_path / "run", progress=False)
+    assert not (tmp_path / "run" / "checkpoints").exists()
