@@ -109,6 +109,18 @@ class GuardedStdout(BestEffortStream):
               + ": the run goes on, its results are in its files; what it would have printed is lost", file=sys.stderr)
 
 
+def leave_bars() -> bool:
+    """Whether an inner progress bar (an epoch's, a vehicle's frames) is left when done: off a terminal, so that each
+    ends its line in a log (probe 119: train's log was one line, its bars ended by carriage returns only); on one, it
+    is cleared."""
+    import sys
+
+    try:
+        return not sys.stderr.isatty()
+    except (AttributeError, ValueError, OSError):
+        return True
+
+
 def guard_stdout(command: str) -> None:
     """Make this process's ``sys.stdout`` a ``GuardedStdout`` (once)."""
     import sys

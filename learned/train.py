@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from hybrid_calib.atomic import remove_temporaries
+from hybrid_calib.atomic import leave_bars, remove_temporaries
 from hybrid_calib.config import ConfigError, merge, read_out_record, require_ranges, save_json_atomic, to_dict
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.errors import HybridCalibError, stop_signal_of
@@ -436,7 +436,7 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
             lr = optimizer.param_groups[0]["lr"]
             sums: dict[str, float] = {}
             n_steps = nonfinite = 0
-            bar = tqdm(loader, desc=f"epoch {epoch}/{conf.epochs}", disable=not progress, leave=False)
+            bar = tqdm(loader, desc=f"epoch {epoch}/{conf.epochs}", disable=not progress, leave=leave_bars())
             for step, batch in enumerate(bar):
                 if batch is None:
                     continue

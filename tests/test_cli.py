@@ -573,3 +573,23 @@ def test_a_name_the_terminal_cannot_show_is_shown_escaped(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1]), "PYTHONIOENCODING": "ascii"}
     p = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120, env=env)
     assert p.returncode == 0 and "wrote \\u6570\\u636e/result.json" in p.stdout, (p.returncode, p.stderr)
+
+
+def test_inner_progress_bars_end_their_line_in_a_log(monkeypatch):
+    """Probe 119: off a terminal, train's per-epoch bars (leave=False) ended only in carriage returns: a night's log
+    was one line. They are left (a line each) off a terminal and cleared on one."""
+    import sys
+
+    from hybrid_calib.atomic import leave_bars
+
+    class Stream:
+        def __init__(self, tty):
+            self.tty = tty
+
+        def isatty(self):
+            return self.tty
+
+    monkeypatch.setattr(sys, "stderr", Stream(False))
+    assert leave_bars() is True
+    monkeypatch.setattr(sys, "stderr", Stream(True))
+    assert leave_bars() is False

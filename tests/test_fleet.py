@@ -272,6 +272,7 @@ def test_ray_engine_joins_a_running_cluster(local_run, fleet_root, tmp_path, ray
     assert r.returncode == 1, r.stderr[-2000:]  # 1: the corrupt vehicle failed
     assert "3 done, 1 failed" in r.stdout and f"failed {BAD}: DataError" in r.stdout
     assert "sim-veh-000: done in" in r.stdout and f"{BAD}: failed in" in r.stdout  # a line per finished vehicle
+    assert "fleet: 100%" in r.stderr and "vehicle/s" not in r.stderr  # no rate of a count set by hand (probe 119)
     assert not (out / "ray").exists()  # no local cluster was started
     assert _results(out) == _results(local_run[0])
     assert ray_session.is_initialized()  # the driver that left did not stop the cluster

@@ -27,6 +27,7 @@ import numpy as np
 
 from factors.correspondences import repeat_message, repeated_frames
 from factors.io import load_measurement_dir
+from hybrid_calib.atomic import leave_bars
 from hybrid_calib.calib.batch import BatchConfig, solve_batch
 from hybrid_calib.calib.covariance import NOT_CONVERGED, prior_pinned_std, status_kind
 from hybrid_calib.calib.drift import DriftConfig, reference_test, unconverged, with_turn_since_export
@@ -132,7 +133,7 @@ def _load_oracle(data, version: str, conf: CalibrateConfig, progress: bool = Tru
         # drawn by (seed, vehicle) alone: the same rows whichever other vehicles the run holds, and in every
         # command (calibrate, fleet, compare, the report's replay)
         rng = vehicle_rng(conf.seed, vehicle, "oracle")
-        for k, i in enumerate(tqdm(idx, desc=f"oracle {vehicle}", leave=False, disable=not progress)):
+        for k, i in enumerate(tqdm(idx, desc=f"oracle {vehicle}", leave=leave_bars(), disable=not progress)):
             if k in repeats:  # the ego stood still: the true reflectors and their heights of the view it repeats
                 vi.skipped.append(repeats[k].record(k, ds.frames[i].camera_sd["token"], conf.views))
                 continue

@@ -114,7 +114,9 @@ def run(args: argparse.Namespace) -> int:
 
     def progress(e: dict, counts: dict) -> None:
         nonlocal bar
-        bar = bar or tqdm(desc="fleet", unit="vehicle")
+        # no rate: its count is set by hand, as vehicles end (probe 119: "36792.14vehicle/s" in a log)
+        bar = bar or tqdm(desc="fleet", unit="vehicle", bar_format="{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/"
+                          "{total_fmt} [{elapsed}{postfix}]")
         bar.total = sum(counts.values())
         bar.n = counts["done"] + counts["failed"]
         bar.set_postfix(done=counts["done"], failed=counts["failed"])

@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from factors.motion import heading_residual
+from hybrid_calib.atomic import leave_bars
 from hybrid_calib.calib.covariance import prior_pinned_std
 from hybrid_calib.calib.degeneracy import RowGeometry
 from hybrid_calib.calib.drift import (
@@ -276,7 +277,7 @@ def _passes(runner: NetworkRunner, drive: Drive, T0: np.ndarray, conf: HybridCon
 
     outs = []
     for k, i in enumerate(tqdm(drive.indices, desc=f"network {drive.vehicle}", disable=not conf.progress,
-                               leave=False)):
+                               leave=leave_bars())):
         if tr.repeated(drive, i):
             continue
         out = mount_pass(runner, i, T0)
@@ -352,7 +353,7 @@ def _hybrid(runner, drive, T0, conf, tr, motion: MotionSource | None = None, mou
     motion_gate = MotionGate(conf.motion)
     recent: list = []  # (index, ego position, time) of the frames so far: the motion pair's partner (pair_partner)
     for k, i in enumerate(tqdm(drive.indices, desc=f"hybrid {drive.vehicle}", disable=not conf.progress,
-                               leave=False)):
+                               leave=leave_bars())):
         here = motion.where(i) if motion is not None else (None, None)
         pair = pair_partner(recent, *here, conf.motion)
         recent = [*recent[-63:], (i, *here)]  # max_gap_s back at the least keyframe interval (sim: 0.05 s)
