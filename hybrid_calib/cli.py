@@ -205,8 +205,22 @@ def _repeated_or_empty(argv: list[str], parser: argparse.ArgumentParser | None =
     return ""
 
 
+_DASHED: list[str] = []  # the command line's values that read as options: a path starting with "-" (``_Parser``)
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser, whose errors name a path that starts with "-" where there is one (probe 119: `export
+    -x/result.json` read "the following arguments are required: RESULT", one being given)."""
+
+    def error(self, message: str):
+        if _DASHED:
+            message += (f" ({_DASHED[0]} starts with '-', so it was read as an option: write ./{_DASHED[0]}, or give "
+                        "it after --)")
+        super().error(message)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="hybrid-calib", description="Target-free radar-camera extrinsic calibration.")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, module in COMMANDS.items():
@@ -221,6 +235,9 @@ def build_parser() -> argparse.ArgumentParser:
 def _parse(argv: list[str] | None) -> argparse.Namespace:
     """The command line, an option the command does not have said by that command's parser (its usage, "hybrid-calib
     evaluate: error: unrecognized arguments: --no-plots"), not the top level's (probe 100)."""
+    words = sys.argv[1:] if argv is None else [str(a) for a in argv]
+    _DASHED[:] = [w for w in words if w.startswith("-") and not w.startswith("--") and ("/" in w or re.search(
+        r"\.(json|html?|npz)$", w))]
     args, extra = build_parser().parse_known_args(argv)
     if extra:
         args._parser.error(f"unrecognized arguments: {' '.join(extra)}")
@@ -312,6 +329,9 @@ def check_text_arguments(args: argparse.Namespace) -> None:
             option = POSITIONAL.get(dest, "--" + dest.replace("_", "-"))
             if bad(str(v)):
                 raise OptionError(option, f"{shown(str(v))} is not valid UTF-8: {advice(str(v))}")
+            if dest != "set" and str(v) == "-":  # the usual "standard output": a folder or file named "-" was made
+                raise OptionError(option, "'-' (standard output or input) is not a path this command takes: pass a "
+                                          "file or folder name (./- for one named '-')")
             if dest != "set" and re.match(r"~[\w.-]*(/|$)", str(v)) and not Path(str(v).split("/")[0]).exists():
                 # the shell expands ~ only at a word's start (not in --out=~/x) and unquoted: a folder named "~" was
                 # made in the working folder, and "wrote ~/x/result.json" read as the home folder (probe 119)

@@ -469,3 +469,19 @@ def test_a_name_the_file_system_encoding_cannot_hold_is_said(tmp_path, capsys, m
     assert report_error("export", UnicodeEncodeError("ascii", "/x/données", 7, 8, "ordinal not in range")) == EXIT_ERROR
     err = capsys.readouterr().err
     assert "hybrid-calib export: error: a name holds characters" in err and "internal error" not in err
+
+
+def test_a_path_starting_with_a_dash_is_named(tiny, tmp_path, capsys, monkeypatch):
+    """Probe 119: `export -x/result.json` read "the following arguments are required: RESULT" (one was given), `--out
+    -x/y` "expected one argument", and `--out -` made a folder named "-"."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit):
+        main(["export", "-x/result.json", "--out", "e"])
+    assert "(-x/result.json starts with '-', so it was read as an option: write ./-x/result.json" in \
+        capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["inspect", "--data", str(tiny.root), "--version", VERSION, "--out", "-x/y"])
+    assert "expected one argument (-x/y starts with '-'" in capsys.readouterr().err
+    expect_cli_error(["inspect", "--data", str(tiny.root), "--version", VERSION, "--out", "-"], capsys,
+                     "--out: '-' (standard output or input) is not a path this command takes")
+    assert not (tmp_path / "-").exists()
