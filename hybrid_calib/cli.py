@@ -268,7 +268,9 @@ def main(argv: list[str] | None = None) -> int:
         sys.unraisablehook = _quiet_stopped_workers
     term, _SIGTERM_SEEN[0] = None, 0
     if threading.current_thread() is threading.main_thread():  # signal handlers live in the main thread only
-        term = {s: signal.signal(s, _on_sigterm) for s in _STOPPING}
+        # a SIGHUP that is ignored stays so: nohup's run outlives its terminal
+        term = {s: signal.signal(s, _on_sigterm) for s in _STOPPING
+                if s == signal.SIGTERM or signal.getsignal(s) != signal.SIG_IGN}
     args._process = argv is None and term is not None  # the process's own command line (not a caller's main(argv))
     try:
         return _run(args, debug, sys.argv[1:] if argv is None else [str(a) for a in argv])
@@ -360,7 +362,7 @@ def _finished(args: argparse.Namespace) -> None:
     process's own command line: a caller of ``main(argv)`` keeps its signals."""
     if getattr(args, "_process", False):
         for s in (signal.SIGINT, *_STOPPING):
-            signal.signal(s, signal.SIG_IGN)
+            signal.signal(s, signal.SIG_IGN)  # (SIGHUP's end is nohup's, where it was ignored already)
 
 
 def _run(args: argparse.Namespace, debug: bool, argv: list[str]) -> int:

@@ -593,3 +593,16 @@ def test_inner_progress_bars_end_their_line_in_a_log(monkeypatch):
     assert leave_bars() is True
     monkeypatch.setattr(sys, "stderr", Stream(True))
     assert leave_bars() is False
+
+
+def test_a_run_under_nohup_outlives_its_terminal(tmp_path):
+    """The SIGHUP handler (probe 119) is not installed where SIGHUP is ignored (nohup): the run goes on."""
+    import subprocess
+    import sys
+
+    hang_up = "import os, signal, time; os.kill(os.getpid(), signal.SIGHUP); time.sleep(0.2)"
+    script = _talking_calibrate(tmp_path, hang_up, 1)
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    p = subprocess.run(["nohup", sys.executable, "-c", script], capture_output=True, text=True, timeout=120, env=env,
+                       cwd=tmp_path)
+    assert p.returncode == 0 and (tmp_path / "run" / "result.json").is_file(), (p.returncode, p.stderr)
