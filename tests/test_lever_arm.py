@@ -245,7 +245,12 @@ def test_a_fit_not_applied_that_disagrees_with_the_loop_widens_the_forward_std_a
     traj = [_frame(k, f"s{k}", 0, reported_estimate(far, cov, conf), 1, 1.0) for k in range(3)]
     out, block = with_doppler(traj, drive, _Frames(sweeps), conf, None, motion)
     assert abs(block["dx_m"]) > conf.doppler.max_clock_m
-    assert "ego poses are likelier not this drive's" in block["widened"]
+    assert "ego poses are likelier not this drive's" in block["widened"] and "radar turned" not in block["widened"]
+    # a mount monitor that could not test this drive: a knock is a cause too (probe 120: a radar knocked mid-drive
+    # read -199 cm, blamed on the ego poses and a clock 218 ms off)
+    blind = SimpleNamespace(steps=[], summary=lambda: {"blind_frames": [8, 4], "frames_tested": 11})
+    out, block = with_doppler(traj, drive, _Frames(sweeps), conf, blind, motion)
+    assert "or the radar turned during the drive, which its mount monitor could not test" in block["widened"]
 
 
 def test_a_fit_from_too_few_turns_is_not_compared_with_the_loop():

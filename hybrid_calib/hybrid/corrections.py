@@ -21,7 +21,7 @@ from hybrid_calib.calib.lever_arm import fit as fit_lever_arm
 from hybrid_calib.calib.lidar_alignment import RADAR_X, RADAR_Y, align, apply_offsets, drive_frames, forward_refusal
 from hybrid_calib.calib.lidar_alignment import innovation as lidar_innovation
 from hybrid_calib.calib.lidar_alignment import refusal as lidar_refusal
-from hybrid_calib.calib.mount_monitor import MountMonitor
+from hybrid_calib.calib.mount_monitor import MountMonitor, blind_words
 from hybrid_calib.calib.result import Estimate, FrameEstimate
 from hybrid_calib.hybrid.motion import MotionSource
 from hybrid_calib.words import join_and
@@ -263,6 +263,9 @@ def with_doppler(traj: list[FrameEstimate], drive: Drive, frames, conf: HybridCo
         # another vehicle's ego poses read "345 cm ... a clock offset of 365 ms")
         why = (f"that far ({abs(dx):.1f} m) the ego poses are likelier not this drive's or wrong (ego_pose.json), or "
                f"the radar's timestamps are far off them{clock}")
+    if mon is not None and blind_words(mon.summary()).startswith("it could not"):  # a knock mixes two mounts
+        # in the fit (probe 120: a radar knocked mid-drive read -199 cm, blamed on the ego poses and a 218 ms clock)
+        why += "; or the radar turned during the drive, which its mount monitor could not test on a drive this short"
     words = (f"the radar's Doppler in turns puts its forward offset {dx * 100:+.1f} +- {a.dx_std * 100:.1f} cm from "
              f"the estimate's ({abs(z):.1f} stds with the estimate's own {loop_std * 100:.1f} cm): {why}; the forward "
              "1-sigma is widened to cover both")
