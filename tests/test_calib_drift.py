@@ -863,7 +863,8 @@ def test_a_recalibrate_verdict_still_says_a_pinned_axis_far_from_the_tables():
     d = reference_test(bent, C, T, pinned_std=pinned)
     assert d.verdict_kind == "recalibrate" and d.verdict.startswith("differs by 5.00 cm in lateral offset"), d.verdict
     assert "; and the tables differ from the estimate along axes the data do not observe (prior-pinned: pitch by 6.00" \
-           in d.verdict and "check the radar's record in calibrated_sensor.json" in d.verdict, d.verdict
+           in d.verdict and "check the camera's and the radar's records in calibrated_sensor.json" in d.verdict, \
+        d.verdict
     assert [n for n, _ in pinned_conflicts(d.to_dict()["axes"])] == ["pitch"]  # the stored block reads the same
     near = perturb_camera_frame(perturb_camera_frame(T, np.zeros(3), [0.05, 0.0, 0.0]), np.radians([0.0, 0.9, 0.0]),
                                 [0.0, 0.0, 0.0])
@@ -873,4 +874,4 @@ def test_a_recalibrate_verdict_still_says_a_pinned_axis_far_from_the_tables():
     far = reference_test(perturb_camera_frame(T, np.radians([0.0, 6.0, 0.0]), [0.0, 0.0, 0.0]), C, T,
                          pinned_std=pinned)
     assert far.verdict_kind == "cannot tell" and far.verdict.startswith("cannot tell: pitch is prior-pinned")
-    assert far.verdict.endswith("check the radar's record in calibrated_sensor.json"), far.verdict
+    assert far.verdict.endswith("moves the radar's roll and pitch as the camera sees them)"), far.verdict

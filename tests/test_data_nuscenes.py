@@ -700,3 +700,29 @@ def test_a_calibration_repeats_inspects_warning_on_a_late_radar_clock():
                     "fix or re-extract sample_data.json"], said
     ds.frames = [ref(k, 30) for k in range(8)]
     assert table_warnings(ds) == []
+
+
+def test_a_radar_that_records_elevation_is_read_as_a_2d_radar_and_said(tmp_path):
+    """Probe 122: a 4D radar's z went to the network (trained on z = 0) and the hybrid read the roll 3.7 deg off, 4.7
+    sigma, under a `weak` status saying "a 2D radar has no elevation". Its points are read in the radar's plane now,
+    said once; a 2D radar's (z = 0) are as they were."""
+    from hybrid_calib.data.nuscenes import RadarElevationWarning
+    from hybrid_calib.data.pcd import read_radar_pcd, write_radar_pcd
+
+    tiny = make_tiny_root(tmp_path / "root")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RadarElevationWarning)
+        flat = NuScenesRadarCamera(tiny.root, VERSION)[0]
+    assert flat.extras["radar_elevation_m"] == 0.0 and np.abs(flat.radar_points[:, 2]).max() < 0.05
+    for sd in tiny.radar_sd:
+        pts = read_radar_pcd(tiny.path(sd))
+        pts["z"] = np.linspace(-1.5, 2.0, len(pts))
+        write_radar_pcd(tiny.path(sd), pts)
+    ds = NuScenesRadarCamera(tiny.root, VERSION)
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        frames = [ds[i] for i in range(len(ds))]
+    told = [w for w in said if issubclass(w.category, RadarElevationWarning)]
+    assert len(told) == 1 and "points carry elevation (z up to 2.00 m" in str(told[0].message)
+    assert all(f.extras["radar_elevation_m"] == pytest.approx(2.0) and not f.radar_points[:, 2].any() for f in frames)
+    np.testing.assert_allclose(frames[0].radar_points[:, :2], flat.radar_points[:, :2])

@@ -1220,3 +1220,25 @@ def test_compare_counts_each_trial_under_its_own_root_however_it_was_typed(tmp_p
     assert sorted(rows) == ["a/sim", "b/sim"], rows
     assert rows["a/sim"]["n"] == 2 and rows["a/sim"]["nees_mean"] == 2.0
     assert rows["b/sim"]["n"] == 3 and rows["b/sim"]["nees_mean"] == 10.0
+
+
+def test_a_learned_roll_or_pitch_far_from_the_tables_is_not_trusted():
+    """Probe 122: a camera mounted with an 8 deg roll (tables right) and a cropped image read the hybrid's roll or
+    pitch 5.6-6.1 deg off, 6.6-8 sigma, under a `weak` status: the network's learned prior, which this drive does not
+    measure, left the tables by more than 3 stds beyond the tolerance; said, and the result is not trusted."""
+    from types import SimpleNamespace
+
+    from hybrid_calib.hybrid.loop import learned_prior_reason
+
+    def axes(roll, pitch=0.1, yaw=4.0):
+        return {"roll": {"delta": roll, "std": 0.77, "tolerance": 0.5, "prior_pinned": True},
+                "pitch": {"delta": pitch, "std": 0.8, "tolerance": 0.5, "prior_pinned": True},
+                "yaw": {"delta": yaw, "std": 0.1, "tolerance": 0.5, "prior_pinned": False}}
+
+    far = learned_prior_reason(SimpleNamespace(drift={"axes": axes(-6.07)}))
+    assert far.startswith("the network's roll (its learned prior of the radar's mount, seen through the camera: this "
+                          "drive does not measure it) differs from the tables' roll by 6.07 deg (7.9 stds)")
+    assert "a rolled or tilted camera, a cropped image" in far
+    assert learned_prior_reason(SimpleNamespace(drift={"axes": axes(2.0)})) == ""  # within 3 stds of the tolerance
+    assert learned_prior_reason(SimpleNamespace(drift={"axes": axes(0.1, yaw=40.0)})) == ""  # a measured axis: not it
+    assert learned_prior_reason(SimpleNamespace(drift=None)) == ""

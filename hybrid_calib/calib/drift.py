@@ -280,7 +280,8 @@ def pinned_conflict_words(axes) -> str:
     names = join_and([n for n, _ in found])
     return (f"the tables differ from the estimate along axes the data do not observe (prior-pinned: {diffs}), beyond "
             f"the tolerance by more than 3 sigma: the estimate's {names} is a prior's, so the tables' {names} or that "
-            "prior is wrong; check the radar's record in calibrated_sensor.json")
+            "prior is wrong; check the camera's and the radar's records in calibrated_sensor.json (a camera mounted "
+            "off the fleet's, rolled or tilted, moves the radar's roll and pitch as the camera sees them)")
 
 
 def _verdict(axes: list[AxisCheck]) -> tuple[str, str]:

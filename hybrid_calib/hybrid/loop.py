@@ -126,6 +126,7 @@ from hybrid_calib.hybrid.network import (
 from hybrid_calib.hybrid.ood import OODPolicy, decide, json_score, out_of_domain, skip_record
 from hybrid_calib.metrics import extrinsic_error, nees
 from hybrid_calib.perturbation import RANGES
+from hybrid_calib.words import join_and
 
 METHODS = ("hybrid", "pure", "pure-avg", "oracle")
 STARTS = ("reference", *RANGES)
@@ -497,6 +498,27 @@ def unfitted_reason(runner, method: str, ood_enabled: bool = True) -> str:
     return f"{first}; and {words}" if first else words
 
 
+def learned_prior_reason(res: VehicleResult) -> str:
+    """Why a learned result's roll or pitch cannot be trusted, or "": the drive does not measure them (a 2D radar has no
+    elevation), so they are the network's learned prior of the radar's mount seen through the camera, and where that
+    prior lies more than 3 of its stds beyond the tolerance from the tables, the camera or the radar sits outside the
+    fleet the network learned (or the tables are wrong), and the prior's std is no measure of the error. Probe 122: a
+    camera mounted with an 8 deg roll (tables right), a cropped image (principal point off centre) and a radar
+    recording elevation read 3.7-6.1 deg off in roll or pitch, 4.7-8 sigma, under a `weak` status."""
+    from hybrid_calib.calib.drift import pinned_conflicts
+
+    found = [(n, a) for n, a in pinned_conflicts((res.drift or {}).get("axes") or {}) if n in ("roll", "pitch")]
+    if not found:
+        return ""
+    diffs = "; ".join(f"{n} by {abs(float(a['delta'])):.2f} deg "
+                      f"({abs(float(a['delta'])) / max(float(a['std']), 1e-12):.1f} stds)" for n, a in found)
+    names = join_and([n for n, _ in found])
+    return (f"the network's {names} (its learned prior of the radar's mount, seen through the camera: this drive does "
+            f"not measure {'it' if len(found) == 1 else 'them'}) differs from the tables' {diffs}: the camera or the "
+            "radar sits outside the mounts the network learned (a rolled or tilted camera, a cropped image, a radar "
+            "that records elevation), or the tables are wrong; that prior's std is no measure of this error")
+
+
 def other_rows_reason(runner, conf: HybridConfig) -> str:
     """Why a hybrid result's covariance is not the fitted one, or "": ``--set measurement.rows`` chose rows other than
     those the checkpoint's ``export.hybrid`` was fitted with (its pixel noise, shared and drive-common errors belong to
@@ -664,7 +686,8 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     if conf.method == "pure":
         res.drift = one_pass_verdict(res.drift)
     reason = "; and ".join(r for r in (ood["inconclusive"], unfitted_reason(runner, conf.method, conf.ood.enabled),
-                                       other_rows_reason(runner, conf), standstill_reason(frames, drive),
+                                       other_rows_reason(runner, conf), learned_prior_reason(res),
+                                       standstill_reason(frames, drive),
                                        monitor_trust_reason(res.mount, conf.mount.max_level_deg),
                                        trust_reason(res, drive.reference)) if r)
     if reason:
