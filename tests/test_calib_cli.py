@@ -412,6 +412,9 @@ def test_a_result_of_other_measurement_rows_is_not_reused_and_the_same_run_from_
     argv = ["--data", str(sim_root), "--mode", "batch", "--out", str(tmp_path / "run"), "--no-plots"]
     assert calibrate.run(_args(*argv, "--correspondences", "corr")) == 0
     first = json.loads((tmp_path / "run" / "result.json").read_text())
+    from hybrid_calib.report.evidence import run_config
+
+    assert run_config(tmp_path / "run" / "result.json") is not None  # probe 121: "unknown option(s) [...stamp]"
     # the same rows typed from another folder, relative or absolute: this run, reused
     (work / "sub").mkdir()
     monkeypatch.chdir(work / "sub")
@@ -424,5 +427,10 @@ def test_a_result_of_other_measurement_rows_is_not_reused_and_the_same_run_from_
         calibrate.run(_args(*argv, "--correspondences", "corr"))
     monkeypatch.chdir(work)
     export(work / "corr", 2)
-    with pytest.raises(HybridCalibError, match="the measurement files in --correspondences"):
+    with pytest.raises(HybridCalibError, match="the measurement files in --correspondences: other rows"):
+        calibrate.run(_args(*argv, "--correspondences", "corr"))
+    config = tmp_path / "run" / "config.json"  # a result of an older hybrid-calib, which stamped no rows
+    config.write_text(json.dumps({k: v for k, v in json.loads(config.read_text()).items()
+                                  if k != "correspondences_stamp"}))
+    with pytest.raises(HybridCalibError, match="the earlier run recorded no stamp of its rows"):
         calibrate.run(_args(*argv, "--correspondences", "corr"))

@@ -1299,3 +1299,22 @@ def test_drives_no_step_test_could_run_on_are_not_counted_as_not_drifted(local_r
     words = drifted_words(s)
     assert words.startswith(f"0 drifted inside the drive ({len(done)} not tested: no step test could run on their "
                             "drives") and words in summary_markdown(s)
+
+
+def test_the_process_engines_resource_tracker_outlives_a_closed_terminal():
+    """Probe 121: SIGHUP to the process group (a closed terminal) during `fleet --engine process` killed
+    multiprocessing's resource tracker (it ignores SIGINT and SIGTERM only): 'process died unexpectedly, relaunching'
+    and five KeyError tracebacks, while the driver stopped the run as SIGTERM does."""
+    script = """
+import os, signal, time
+from multiprocessing import resource_tracker
+from hybrid_calib.fleet.engines import tracker_ignoring_hangup
+tracker_ignoring_hangup()
+pid = resource_tracker._resource_tracker._pid
+os.kill(pid, signal.SIGHUP)
+time.sleep(0.5)
+done, status = os.waitpid(pid, os.WNOHANG)
+print("alive" if done == 0 else f"died {status}")
+"""
+    r = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert r.stdout.strip() == "alive", (r.stdout, r.stderr)

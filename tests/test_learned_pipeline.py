@@ -815,3 +815,23 @@ def test_a_temporary_folder_too_long_for_the_workers_socket_is_said(frames, tmp_
                                                r"folder of at most 75 bytes, or --set num_workers=0"):
         train(train_config("small", conf), frames, tmp_path / "run", progress=False)
     assert not (tmp_path / "run" / "checkpoints").exists()
+
+
+def test_an_evaluation_resumed_from_another_folder_is_the_same_run(sim_root, tmp_path, monkeypatch, capsys):
+    """Probe 121: evaluate recorded --checkpoint as typed, so `--checkpoint ck.json`, then `../ck.json` from a
+    sub-folder (the same file), was refused as "predictions made with another config"."""
+    import shutil
+    from pathlib import Path
+
+    import learned
+
+    work = tmp_path / "work"
+    (work / "sub").mkdir(parents=True)
+    for f in (Path(learned.__file__).parent / "checkpoints").glob("small-sim-r1.*"):
+        shutil.copy(f, work / f.name)
+    argv = ["--data", str(sim_root), "--split", "all", "--range", "R1", "--max-frames", "1", "--out",
+            str(tmp_path / "ev"), "--no-progress"]
+    monkeypatch.chdir(work)
+    assert _run_command("evaluate", [*argv, "--checkpoint", "small-sim-r1.json"]) == 0
+    monkeypatch.chdir(work / "sub")
+    assert _run_command("evaluate", [*argv, "--checkpoint", "../small-sim-r1.json"]) == 0, capsys.readouterr().err

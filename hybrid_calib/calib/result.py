@@ -879,6 +879,10 @@ def data_differ(out: str | Path, root: str | Path, version: str) -> bool:
 
 
 RUN_ONLY = ("progress", "threads", "cache_dir", "depth_cache")  # config keys of how a run ran, not of what it gave
+# what a run's config.json records beside its options: the identity of what it read (the data, the network's files, the
+# --reference export, the measurement rows); no option of a config (probe 121: report read "unknown option(s)
+# ['correspondences_stamp']" and drew no rows)
+IDENTITY_KEYS = ("data_stamp", "network", "reference_sha256", "correspondences_stamp")
 
 
 class OtherConfiguration(HybridCalibError):
@@ -1072,7 +1076,7 @@ def _changes(old: dict, new: dict) -> list[str]:
     if isinstance(old_conf, dict) and not changed:
         from hybrid_calib.config import changed_options
 
-        new_conf, special = new["config"], ("data_stamp", "network", "reference_sha256", "correspondences_stamp")
+        new_conf, special = new["config"], IDENTITY_KEYS
         changed = changed_options(  # the leaf keys (motion.vo.features: 4000 -> 3000), not two cut JSON objects
             {k: v for k, v in old_conf.items() if k not in RUN_ONLY + special},
             {k: v for k, v in new_conf.items() if k not in RUN_ONLY + special})
@@ -1080,8 +1084,12 @@ def _changes(old: dict, new: dict) -> list[str]:
             changed.append("the data in --data (its tables or sensor folders changed since)")
         if old_conf.get("correspondences_stamp") != new_conf.get("correspondences_stamp") and \
                 "correspondences_stamp" in new_conf:
-            changed.append("the measurement files in --correspondences (other rows: exported again since, or "
-                           "another folder of that name)")
+            changed.append(
+                "the measurement files in --correspondences: " + (
+                    "none is there now" if not new_conf["correspondences_stamp"] else
+                    "the earlier run recorded no stamp of its rows (written by an older hybrid-calib)"
+                    if "correspondences_stamp" not in old_conf else
+                    "other rows (exported again since, or another folder of that name)"))
         if old_conf.get("reference_sha256") != new_conf.get("reference_sha256") and old_conf.get(
                 "reference") == new_conf.get("reference") and "reference_sha256" in new_conf:
             changed.append("the --reference export's file (exported again at the same path since)")

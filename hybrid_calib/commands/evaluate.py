@@ -100,6 +100,12 @@ def run(args: argparse.Namespace) -> int:
     flags = split_overrides(args)  # the split flags change the checkpoint's split (or the default)
     given_flags(args, {f"split_options.{k}": a for k, a in SPLIT_FLAGS.items()},  # says a --set value it overrules
                 {f"split_options.{k}": v for k, v in (user.get("split_options") or {}).items()})
+    from hybrid_calib.hybrid.loop import absolute_path
+
+    # absolute, as calibrate's: the same run resumed from another folder is this run (probe 121: "predictions made
+    # with another config" for --checkpoint ck.json, then ../ck.json)
+    args.checkpoint = absolute_path(str(args.checkpoint)) if args.checkpoint is not None else None
+    args.refine = [absolute_path(str(r)) for r in args.refine] if args.refine else args.refine
     setup = setup_evaluation(args.checkpoint, args.refine, method=args.method, perturbation=args.perturbation,
                              split=args.split, max_frames=args.max_frames, depth=args.depth, nsweeps=args.nsweeps,
                              split_flags=flags, overrides=user, given=given, fit_uncertainty=args.fit_uncertainty,

@@ -154,6 +154,26 @@ def _run_process(jobs, on_start, on_outcome, workers, retries, in_flight):
         _process_loop(jobs, on_start, on_outcome, workers, retries, in_flight, threads)
 
 
+def tracker_ignoring_hangup() -> None:
+    """Start multiprocessing's resource tracker (once) with SIGHUP ignored, which it keeps across its exec: it ignores
+    SIGINT and SIGTERM itself, and a closed terminal's SIGHUP to the process group killed it mid-fleet, its relaunch
+    printing "process died unexpectedly" and five KeyError tracebacks (probe 121), while the driver stops the run as
+    SIGTERM does."""
+    import signal
+    import threading
+    from multiprocessing import resource_tracker
+
+    hup = getattr(signal, "SIGHUP", None)
+    if hup is None or threading.current_thread() is not threading.main_thread():
+        resource_tracker.ensure_running()
+        return
+    before = signal.signal(hup, signal.SIG_IGN)
+    try:
+        resource_tracker.ensure_running()
+    finally:
+        signal.signal(hup, before)
+
+
 def _process_loop(jobs, on_start, on_outcome, workers, retries, in_flight, threads):
     import multiprocessing
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -166,6 +186,7 @@ def _process_loop(jobs, on_start, on_outcome, workers, retries, in_flight, threa
     suspects: set[str] = set()
     ctx = multiprocessing.get_context("spawn")
     workers = max(1, min(workers, len(queue)))  # no idle process started
+    tracker_ignoring_hangup()
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_pool_worker, initargs=(threads,))
     running: dict = {}
     try:

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from hybrid_calib.calib.pipeline import CalibrateConfig, replay_inputs
-from hybrid_calib.calib.result import CalibrationRun
+from hybrid_calib.calib.result import IDENTITY_KEYS, CalibrationRun
 from hybrid_calib.config import merge
 from hybrid_calib.errors import DataError, HybridCalibError, OptionError, unencodable_words
 
@@ -115,7 +115,7 @@ def run_config(result_path: Path) -> CalibrateConfig | None:
     try:
         doc = json.loads(p.read_text())
         if isinstance(doc, dict):  # what the result depends on beyond the config: no config key
-            doc = {k: v for k, v in doc.items() if k != "reference_sha256"}
+            doc = {k: v for k, v in doc.items() if k not in IDENTITY_KEYS}
         if isinstance(doc, dict) and doc.get("method") == "oracle":
             from hybrid_calib.hybrid.loop import HybridConfig, oracle_config
 
