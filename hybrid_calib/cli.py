@@ -282,6 +282,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 POSITIONAL = {"out_html": "--out", "result": "RESULT", "results": "RESULT"}  # dest -> the name the user typed
+# the options that name files or folders (those typed as ``Path`` too): where '~' and '-' are said as paths
+PATH_DESTS = ("out", "out_html", "data", "checkpoint", "refine", "correspondences", "reference", "manifest", "prior",
+              "result", "results", "init", "ray_temp")
 
 
 def check_text_arguments(args: argparse.Namespace) -> None:
@@ -331,16 +334,21 @@ def check_text_arguments(args: argparse.Namespace) -> None:
             option = POSITIONAL.get(dest, "--" + dest.replace("_", "-"))
             if bad(str(v)):
                 raise OptionError(option, f"{shown(str(v))} is not valid UTF-8: {advice(str(v))}")
-            if dest != "set" and str(v) == "-":  # the usual "standard output": a folder or file named "-" was made
+            if not (isinstance(v, Path) or dest in PATH_DESTS):  # a name (a vehicle, a channel) may hold them
+                continue
+            if str(v) == "-":  # the usual "standard output": a folder or file named "-" was made
                 raise OptionError(option, "'-' (standard output or input) is not a path this command takes: pass a "
                                           "file or folder name (./- for one named '-')")
-            if dest != "set" and re.match(r"~[\w.-]*(/|$)", str(v)) and not Path(str(v).split("/")[0]).exists():
+            first = str(v).split("/")[0]
+            if re.match(r"~[\w.-]*$", first) and not Path(first).exists():
                 # the shell expands ~ only at a word's start (not in --out=~/x) and unquoted: a folder named "~" was
                 # made in the working folder, and "wrote ~/x/result.json" read as the home folder (probe 119)
+                home = os.path.expanduser(str(v))
                 raise OptionError(option, f"{v} starts with '~', which the shell did not expand (it does not in "
-                                          f"{option}=~/... nor in quotes): pass {option} {v} with a space, or the "
-                                          f"full path ({os.path.expanduser(str(v))}); a folder named '~' here is "
-                                          "./~")
+                                          f"{option}=~/... nor in quotes): pass {option} {v} with a space"
+                                          + (f", or the full path ({home})" if home != str(v) else
+                                             f" ({first} names no user here)")
+                                          + f"; a folder named {first!r} here is ./{v}")
 
 
 def _ran(args: argparse.Namespace) -> int:

@@ -444,6 +444,11 @@ def test_a_tilde_the_shell_did_not_expand_is_said_not_made_a_folder(tiny, tmp_pa
                      "pass --out ~/calib with a space")
     expect_cli_error(["inspect", "--data", "~/sim", "--version", VERSION], capsys, "--data: ~/sim starts with '~'")
     assert not (tmp_path / "~").exists()
+    # a name is no path (probe 121: --radar '~a' got the path's words); a user that is not there is said so
+    expect_cli_error(["inspect", "--data", str(tiny.root), "--version", VERSION, "--radar", "~a"], capsys,
+                     "channel '~a' is not in sensor.json")
+    expect_cli_error(["inspect", "--data", "~nosuchuser/x", "--version", VERSION], capsys,
+                     "(~nosuchuser names no user here)")
     (tmp_path / "~").mkdir()  # a folder that is named so: taken as named
     assert main(["inspect", "--data", str(tiny.root), "--version", VERSION, "--out", "~/insp", "--no-progress"]) == 0
     assert (tmp_path / "~" / "insp" / "inspect_summary.json").is_file()
