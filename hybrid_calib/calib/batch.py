@@ -208,7 +208,7 @@ def _given_start(frames: list[Correspondences], T0: np.ndarray, conf: BatchConfi
     """(``T0`` itself, 0, 0.0): the start, solved again without the schedule's convex stage. Probe 118: on the
     simulator's oracle rows (20 % gross outliers) the Huber stage's lowest cost is a collapsed pose that puts every
     reflector 35-80 m ahead, 50-72 deg from the truth, and it walked there even from the truth; the default Cauchy
-    stage came back, Tukey and Geman-McClure did not (2-4 of 8 R1 drives NOT CONVERGED)."""
+    stage came back, Tukey and Geman-McClure did not (2-5 of 8 R1 solves NOT CONVERGED)."""
     return np.asarray(T0, np.float64), 0, 0.0
 
 
