@@ -52,14 +52,18 @@ class BestEffortStream:
     def write(self, text: str) -> int:
         try:
             return self._stream.write(text)
-        except (OSError, ValueError):
+        except (OSError, ValueError) as e:
+            self._failed(e)
             return len(text)
 
     def flush(self) -> None:
         try:
             self._stream.flush()
-        except (OSError, ValueError):
-            pass
+        except (OSError, ValueError) as e:
+            self._failed(e)
+
+    def _failed(self, e: Exception) -> None:
+        """A write or flush failed with ``e``: dropped (``GuardedStdout`` says it and records it)."""
 
     def __getattr__(self, name: str):
         if name == "_stream":  # not set yet (copy.copy): no recursion (probe 70)
@@ -78,19 +82,6 @@ class GuardedStdout(BestEffortStream):
         super().__init__(stream)
         self.error: OSError | None = None
         self.command = command
-
-    def write(self, text: str) -> int:
-        try:
-            return self._stream.write(text)
-        except (OSError, ValueError) as e:
-            self._failed(e)
-            return len(text)
-
-    def flush(self) -> None:
-        try:
-            self._stream.flush()
-        except (OSError, ValueError) as e:
-            self._failed(e)
 
     def _failed(self, e: Exception) -> None:
         import sys

@@ -219,12 +219,11 @@ def frame_scores(ood, out_m: dict, images: torch.Tensor, jpeg: list[float] | Non
     """(B,) out-of-domain scores of a forward output (``learned.ood``: the density model's, raised by the camera
     image's own tests; the rule ``hybrid.network.NetworkRunner.ood_score`` applies). images: (B, 3, H, W); jpeg: (B,)
     the files' JPEG qualities (NaN: not a JPEG; None: not measured)."""
-    from learned.ood import frame_features, image_score, image_structure, jpeg_score
+    from learned.ood import frame_features, image_structure, raised_score
 
     density = np.asarray(ood.score(frame_features(out_m)), np.float64)
     quality = [float("nan")] * len(density) if jpeg is None else [float(q) for q in jpeg]
-    return np.array([max(float(d), image_score(image_structure(im)), jpeg_score(q))
-                     for d, im, q in zip(density, images, quality)])
+    return np.array([raised_score(d, image_structure(im), q) for d, im, q in zip(density, images, quality)])
 
 
 # method name -> exporter(model, frames, conf, out, overwrite=, progress=) -> list of per-frame files

@@ -183,6 +183,12 @@ def luminance_words(luminance: float) -> tuple[str, str]:
             f"trained on {TRAINED_LUMINANCE}): {cause}")
 
 
+def raised_score(density: float, structure: float, quality: float) -> float:
+    """A frame's out-of-domain score: the density model's ``density``, raised by the camera image's own tests (its
+    structure, ``image_score``; its file's JPEG quality, ``jpeg_score``). Calibrate's and evaluate's one rule."""
+    return max(float(density), image_score(structure), jpeg_score(quality))
+
+
 def image_cause(density: float, structure: float, quality: float, luminance: float) -> tuple[str, str]:
     """(cause, words): why a pass whose density-model score is ``density`` is out of domain, by its camera image: the
     image test's or the file's own test where one scores at or above the density model (``image_words``,

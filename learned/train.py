@@ -37,6 +37,7 @@ import torch
 
 from hybrid_calib.atomic import leave_bars, remove_temporaries
 from hybrid_calib.config import ConfigError, merge, read_out_record, require_ranges, save_json_atomic, to_dict
+from hybrid_calib.data.files import absolute_path
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.errors import HybridCalibError, stop_signal_of
 from hybrid_calib.metrics import extrinsic_error
@@ -309,9 +310,9 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
         from learned.model import RCAutoCalib as model_factory
 
     conf = merge(TrainConfig, conf)
-    if conf.init_weights and Path(conf.init_weights).exists():  # absolute: the same run resumed from another folder
-        # is this run (probe 119: "other options (init_weights: 'ck.json' -> '../ck.json')")
-        conf = replace(conf, init_weights=str(Path(conf.init_weights).resolve()))
+    # absolute: the same run resumed from another folder is this run (probe 119: "other options (init_weights:
+    # 'ck.json' -> '../ck.json')")
+    conf = replace(conf, init_weights=absolute_path(conf.init_weights))
     out = Path(out)
     ckpt_dir = out / "checkpoints"
     model_conf = resolve_model_config(conf)

@@ -241,13 +241,13 @@ def test_a_noise_image_is_out_of_domain_whatever_the_density_model_says(fitted):
     _, runner, drives = fitted
     v = drives["sim-veh-000"]
     clean = runner.run(v.indices[0], v.base)
-    assert runner.ood_score(clean) < 1.0 and clean.image_structure > 0.8 and runner.ood_why(clean) == ""
+    assert runner.ood_score(clean) < 1.0 and clean.image_structure > 0.8 and runner.ood_cause(clean)[1] == ""
     noise = dataclasses.replace(clean, image_structure=0.02)  # the same features, a noise image's structure
-    assert runner.ood_score(noise) > 1.0 and "shows no scene" in runner.ood_why(noise)
+    assert runner.ood_score(noise) > 1.0 and "shows no scene" in runner.ood_cause(noise)[1]
     # a pass the density model scores out of domain by more than its image test: the general reason, not the image's
     # (probe 89: a dark view of a road, 4.15 by the density, 1.11 by its image, was said to show no scene)
     far = dataclasses.replace(clean, ood_descriptor=clean.ood_descriptor + 50.0, image_structure=0.45)
-    assert runner.ood_score(far) > 1.2 and runner.ood_why(far) == ""
+    assert runner.ood_score(far) > 1.2 and runner.ood_cause(far)[1] == ""
 
 
 def test_a_camera_file_compressed_beyond_the_training_range_is_out_of_domain(fitted, sim_root, tmp_path):
@@ -273,9 +273,9 @@ def test_a_camera_file_compressed_beyond_the_training_range_is_out_of_domain(fit
     _, runner, drives = fitted
     v = drives["sim-veh-000"]
     clean = runner.run(v.indices[0], v.base)
-    assert 85 < clean.jpeg_quality < 95 and runner.ood_score(clean) < 1.0 and runner.ood_why(clean) == ""
+    assert 85 < clean.jpeg_quality < 95 and runner.ood_score(clean) < 1.0 and runner.ood_cause(clean)[1] == ""
     squeezed = dataclasses.replace(clean, jpeg_quality=11.3)  # the same features, a quality-2 file
-    assert runner.ood_score(squeezed) > 1.0 and "lost to compression" in runner.ood_why(squeezed)
+    assert runner.ood_score(squeezed) > 1.0 and "lost to compression" in runner.ood_cause(squeezed)[1]
 
 
 def test_a_frame_whose_image_is_noise_is_dropped_naming_the_image(fitted, sim_root, tmp_path):

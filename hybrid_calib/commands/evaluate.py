@@ -100,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
     flags = split_overrides(args)  # the split flags change the checkpoint's split (or the default)
     given_flags(args, {f"split_options.{k}": a for k, a in SPLIT_FLAGS.items()},  # says a --set value it overrules
                 {f"split_options.{k}": v for k, v in (user.get("split_options") or {}).items()})
-    from hybrid_calib.hybrid.loop import absolute_path
+    from hybrid_calib.data.files import absolute_path
 
     # absolute, as calibrate's: the same run resumed from another folder is this run (probe 121: "predictions made
     # with another config" for --checkpoint ck.json, then ../ck.json)

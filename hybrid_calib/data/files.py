@@ -96,6 +96,14 @@ def data_stamp(root: str | Path, version: str) -> dict:
                 timespec="seconds") if newest else None}
 
 
+def absolute_path(option: str) -> str:
+    """A path option (a checkpoint, a refining one, ``--init``) made absolute where it names an existing file or folder,
+    so the same run typed from another folder is that run (probes 119, 121); a keyword ("", "none", "shipped") or a
+    path that is not there (its reader says so, as typed) is kept."""
+    return str(Path(option).resolve()) if option and option not in ("none", "shipped") and Path(option).exists() \
+        else option
+
+
 def missing_folder_words(path: str | Path) -> str:
     """Why a dataset file is missing when its channel's whole folder is (``samples/CAM_BACK`` absent beside other
     channels: a copy that ships some channels only), or when that folder holds other files (this one not downloaded),

@@ -68,7 +68,7 @@ from hybrid_calib.calib.result import (
 from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import check_seed, merge, save_json_atomic, to_dict
-from hybrid_calib.data.files import data_stamp
+from hybrid_calib.data.files import absolute_path, data_stamp
 from hybrid_calib.data.pose_jitter import NOT_MEASURED
 from hybrid_calib.data.reference import absolute_reference, reference_identity
 from hybrid_calib.data.views import ViewConfig
@@ -812,13 +812,6 @@ def run_vehicle(data: str | Path, version: str, vehicle: str, conf: HybridConfig
     conf = merge(HybridConfig, conf)
     conf = dataclasses.replace(conf, vehicles=(vehicle,))
     return _Session(data, version, conf).vehicle(vehicle)
-
-
-def absolute_path(option: str) -> str:
-    """A path option (``checkpoint``, ``refine``) made absolute where it names an existing file or folder; a keyword
-    ("", "none", "shipped") or a path that is not there (its reader says so, as typed) is kept."""
-    return str(Path(option).resolve()) if option and option not in ("none", "shipped") and Path(option).exists() \
-        else option
 
 
 def run_calibration(data: str | Path, version: str, out: str | Path, conf: HybridConfig | dict | None = None,

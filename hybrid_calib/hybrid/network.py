@@ -72,7 +72,8 @@ class NetworkOutput:
     image_structure: the camera image's own test (``learned.ood.image_structure`` of the model-input image; NaN
     for outputs made without it). jpeg_quality: the camera file's (``data.image_header.jpeg_quality``; NaN when it
     is not a JPEG), the other test of the image before any feature (``learned.ood.jpeg_score``). image_luminance: the
-    model-input image's mean grey level, 0..1 (``learned.ood.image_luminance``; words only: ``NetworkRunner.ood_why``).
+    model-input image's mean grey level, 0..1 (``learned.ood.image_luminance``; words only:
+    ``NetworkRunner.ood_cause``).
     """
 
     T_in: np.ndarray
@@ -346,21 +347,17 @@ class NetworkRunner:
         """The pass's out-of-domain score (``learned.ood``: > 1 out of domain): the density model's, raised to the
         camera image's own test where the image shows no scene (``learned.ood.image_score``); NaN when the
         checkpoint has no ``export.ood`` (``ood_note`` says so) or the output carries no features."""
-        from learned.ood import image_score, jpeg_score
+        from learned.ood import raised_score
 
         density = self._density(out)
-        return float("nan") if density is None else max(density, image_score(out.image_structure),
-                                                        jpeg_score(out.jpeg_quality))
-
-    def ood_why(self, out: NetworkOutput) -> str:
-        """Words for an out-of-domain pass whose camera image shows a cause (``learned.ood.image_cause``: the image's
-        or the file's test scoring it at or above the density model, else an image darker or brighter than the
-        training images'); "" otherwise, where the general reason holds (probe 89: a dark view of a road the density
-        model scored 4.15 was said to show no scene, its image test giving 1.11)."""
-        return self.ood_cause(out)[1]
+        return float("nan") if density is None else raised_score(density, out.image_structure, out.jpeg_quality)
 
     def ood_cause(self, out: NetworkOutput) -> tuple[str, str]:
-        """(cause, words) of ``ood_why``: the cause a key of ``learned.ood.CAUSES`` ("" with the words)."""
+        """(cause, words) for an out-of-domain pass whose camera image shows a cause (``learned.ood.image_cause``: the
+        image's or the file's test scoring it at or above the density model, else an image darker or brighter than
+        the training images'; the cause a key of ``learned.ood.CAUSES``); ("", "") otherwise, where the general reason
+        holds (probe 89: a dark view of a road the density model scored 4.15 was said to show no scene, its image
+        test giving 1.11)."""
         from learned.ood import image_cause
 
         density = self._density(out)
@@ -433,9 +430,6 @@ class CascadeRunner:
 
     def ood_score(self, out: NetworkOutput) -> float:
         return self.refine.ood_score(out)
-
-    def ood_why(self, out: NetworkOutput) -> str:
-        return self.refine.ood_why(out)
 
     def ood_cause(self, out: NetworkOutput) -> tuple[str, str]:
         return self.refine.ood_cause(out)

@@ -64,7 +64,7 @@ def out_of_domain(score: float, policy: OODPolicy) -> bool:
 
 def skip_record(index: int, token: str, score: float, policy: OODPolicy, why: str = "") -> dict:
     """The ``frames_skipped`` entry of a dropped frame (``index``: its position in the drive; ``why``: words that
-    replace the general reason, e.g. ``NetworkRunner.ood_why``'s)."""
+    replace the general reason, e.g. ``NetworkRunner.ood_cause``'s)."""
     return {"index": int(index), "token": token, "ood_score": float(score),
             "reason": f"out of domain: score {score:.2f} > {policy.threshold:g} "
                       f"({why or 'the input is unlike the frames the network was fitted on'}; frame dropped)"}
