@@ -94,10 +94,28 @@ def terminated(error: BaseException | None) -> bool:
 
 def _quiet_stopped_workers(unraisable) -> None:
     """``sys.unraisablehook`` of a command: a DataLoader worker that the group's signal ended is not said again, as an
-    18-line traceback from the loader's ``__del__`` before the run's "terminated" line (probe 111); anything else as
-    Python says it."""
-    if stop_signal_of(unraisable.exc_value) is None:
+    18-line traceback from the loader's ``__del__`` before the run's "terminated" line (probe 111); a Ctrl-C, SIGTERM or
+    SIGHUP whose handler raised inside a ``__del__`` or weakref callback, where Python drops what is raised, is
+    delivered again to the main thread, so it stops the run (probe 124: "Exception ignored in: <function WeakSet...>
+    KeyboardInterrupt", and the fleet went on to write every page and exit 0); anything else as Python says it."""
+    error = unraisable.exc_value
+    if isinstance(error, KeyboardInterrupt):  # Terminated included: the signal its handler saw
+        signum = _SIGTERM_SEEN[0] if isinstance(error, Terminated) and _SIGTERM_SEEN[0] else signal.SIGINT
+        # from another thread, a moment later: delivered from this one, the handler raises inside this hook at once
+        # and is dropped again; one that lands in another callback comes back here and is delivered again
+        timer = threading.Timer(0.01, _interrupt_main, (signum,))
+        timer.daemon = True
+        timer.start()
+        return
+    if stop_signal_of(error) is None:
         sys.__unraisablehook__(unraisable)
+
+
+def _interrupt_main(signum: int) -> None:
+    """``signum``'s Python handler run in the main thread at its next instruction (``_thread.interrupt_main``)."""
+    import _thread
+
+    _thread.interrupt_main(signum)
 
 
 def _one_line(message, category, filename, lineno, line=None) -> str:

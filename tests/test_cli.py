@@ -563,6 +563,41 @@ def test_a_dataloader_worker_ended_by_the_groups_signal_stops_the_run_as_that_si
     assert capsys.readouterr().err == ""
 
 
+def test_an_interrupt_raised_inside_a_del_still_stops_the_run(capsys):
+    """Probe 124: a Ctrl-C whose KeyboardInterrupt was raised inside a weakref callback was printed as "Exception
+    ignored in: ... KeyboardInterrupt" and dropped: the fleet wrote every page and exited 0. SIGTERM's Terminated the
+    same. The command's unraisable hook delivers it again, and says nothing."""
+    import signal
+    import sys
+
+    from hybrid_calib import cli
+
+    class Dies:
+        def __init__(self, error):
+            self.error = error
+
+        def __del__(self):
+            raise self.error
+
+    before, handler = sys.unraisablehook, signal.signal(signal.SIGTERM, cli._on_sigterm)
+    sys.unraisablehook = cli._quiet_stopped_workers
+    try:
+        with pytest.raises(KeyboardInterrupt) as got:
+            Dies(KeyboardInterrupt())
+            for _ in range(10 ** 7):  # the signal delivered again lands at a bytecode boundary
+                pass
+        assert type(got.value) is KeyboardInterrupt
+        cli._SIGTERM_SEEN[0] = signal.SIGTERM
+        with pytest.raises(cli.Terminated):
+            Dies(cli.Terminated())
+            for _ in range(10 ** 7):
+                pass
+    finally:
+        sys.unraisablehook, cli._SIGTERM_SEEN[0] = before, 0
+        signal.signal(signal.SIGTERM, handler)
+    assert "Exception ignored" not in capsys.readouterr().err
+
+
 def test_a_name_the_terminal_cannot_show_is_shown_escaped(tmp_path):
     """Probe 119: PYTHONIOENCODING=ascii (legacy job runners) made "wrote 数据/result.json" an internal error (exit
     3), the files complete."""
