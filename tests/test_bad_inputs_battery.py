@@ -2664,6 +2664,30 @@ def test_ground_truth_depth_on_a_real_root_is_refused_at_the_start(tiny, tmp_pat
     assert e.value.option == "--depth" and not (tmp_path / "out" / "result.json").exists()
 
 
+def test_a_root_the_method_cannot_run_on_is_refused_once_by_fleet_and_calibrate(tiny, tmp_path, capsys):
+    """Probe 124: fleet's default oracle on a real root failed every vehicle in turn (each job indexing the whole
+    root; two lines per vehicle, rc 1), where calibrate refused at once; a learned method whose depth the root lacks
+    the same. And the trainval metadata without its sample tables read "--depth: ... pass another --depth", every
+    --depth another --depth error: the missing table is said first."""
+    import shutil
+
+    out = tmp_path / "fleet"
+    err = expect_cli_error(["fleet", "--data", tiny.root, "--version", tiny.version, "--out", out], capsys,
+                           "--method: oracle", "no sim_truth/ folder", "--method hybrid")
+    assert err.count("no sim_truth/ folder") == 1 and not (out / "vehicles").exists(), err
+    err = expect_cli_error(["fleet", "--data", tiny.root, "--version", tiny.version, "--method", "pure", "--set",
+                            "depth=corrupted-truth", "--out", out], capsys,
+                           "--depth: corrupted-truth", "pass another --depth")
+    assert err.count("pass another --depth") == 1, err
+    bare = tmp_path / "bare"
+    shutil.copytree(tiny.root, bare)
+    (bare / tiny.version / "sample.json").unlink()
+    for method in ("pure", "hybrid"):
+        for extra in ([], ["--set", "depth=corrupted-truth"]):
+            expect_cli_error(["calibrate", "--data", bare, "--version", tiny.version, "--method", method, *extra,
+                              "--out", tmp_path / "c"], capsys, "table 'sample' is missing")
+
+
 def test_the_typed_functions_refuse_the_outputs_the_commands_refuse(sim, calibrated, tmp_path):
     """Probe 67: run_calibration, compare, run_fleet and write_report wrote into a root's version folder and its
     samples/, and run_calibration beside a compare run's files, all of which the command line refuses."""

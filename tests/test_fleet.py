@@ -779,6 +779,7 @@ def test_roots_of_one_folder_name_get_job_ids_that_tell_them_apart(fleet_root, t
     a, b = tmp_path / "2024-05" / "sim", tmp_path / "2024-06" / "sim"
     for r in (a, b):
         shutil.copytree(fleet_root / "v1.0-sim", r / "v1.0-sim")  # the tables are what job discovery reads
+        (r / "sim_truth").mkdir()  # and that the oracle has its truth (a root it cannot run on is refused)
     jobs = discover_jobs([(str(a), "v1.0-sim", None), (str(b), "v1.0-sim", None)], "oracle", tmp_path / "out")
     ids = [j.id for j in jobs]
     assert len(set(ids)) == len(ids) == 8 and "2024-05-sim-sim-veh-000" in ids and "2024-06-sim-sim-veh-000" in ids
@@ -833,6 +834,7 @@ def test_a_vehicle_name_from_the_tables_never_leaves_the_run_folder(name, fleet_
 
     root = tmp_path / "root"
     shutil.copytree(fleet_root / "v1.0-sim", root / "v1.0-sim")
+    (root / "sim_truth").mkdir()  # the oracle's truth (a root it cannot run on is refused)
     for table in ("log.json", "sim_vehicle.json"):
         doc = json.loads((root / "v1.0-sim" / table).read_text())
         doc[0]["vehicle"] = name

@@ -28,7 +28,7 @@ import numpy as np
 from factors.correspondences import repeat_message, repeated_frames
 from factors.io import load_measurement_dir
 from hybrid_calib.atomic import leave_bars
-from hybrid_calib.calib.batch import BatchConfig, solve_batch
+from hybrid_calib.calib.batch import BatchConfig, fit_change, fit_change_words, solve_batch
 from hybrid_calib.calib.covariance import NOT_CONVERGED, prior_pinned_std, status_kind
 from hybrid_calib.calib.drift import DriftConfig, reference_test, unconverged, with_turn_since_export
 from hybrid_calib.calib.oracle import OracleConfig, oracle_from_frame
@@ -98,6 +98,14 @@ class VehicleInput:
     reference_source: dict = field(default_factory=lambda: {"kind": "tables"})  # what ``reference`` is
 
 
+def require_oracle_truth(data) -> None:
+    """``OptionError`` (``--method``) when the root ``data`` has no simulator truth for the oracle (a real root)."""
+    if not (Path(data) / "sim_truth").is_dir():
+        raise OptionError("--method", f"oracle (also the default when no --method is given) reads the simulator's "
+                                      f"true reflectors, and {data} has none (no sim_truth/ folder: a real root); "
+                                      "calibrate it with --method hybrid (or pure, pure-avg)")
+
+
 def _load_oracle(data, version: str, conf: CalibrateConfig, progress: bool = True, say: bool = True,
                  frameless: dict[str, str] | None = None, said: list | None = None) -> dict[str, VehicleInput]:
     """``say``: print the root's warnings and the reference's note (a replay for a report page, one per vehicle,
@@ -108,11 +116,7 @@ def _load_oracle(data, version: str, conf: CalibrateConfig, progress: bool = Tru
     from hybrid_calib.data.nuscenes import NuScenesRadarCamera
 
     ds = NuScenesRadarCamera(data, version, conf={"check_images": False, "reference": conf.reference or None})
-    if not (Path(data) / "sim_truth").is_dir():  # said before any frame is read (it had failed every one in turn)
-        raise OptionError("--method", f"oracle (also the default when no --method is given) reads the simulator's "
-                                      "true reflectors, and "
-                                      f"{data} has none (no sim_truth/ folder: a real root); calibrate it with "
-                                      "--method hybrid (or pure, pure-avg)")
+    require_oracle_truth(data)  # said before any frame is read (it had failed every one in turn)
     # a vehicle missing from the result, poses the motion compensation reads
     for line in calibration_notes(ds, conf.vehicles) if say else ():
         print(line, file=sys.stderr)
@@ -544,6 +548,9 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, progress: bool = 
         res.error = {**extrinsic_error(final.T, T_true).as_dict(), "nees": nees(e, final.cov)}
     # what the verdict compared with; against an export, that the oracle tests no turn since it (no mount monitor)
     res.drift = with_turn_since_export({**res.drift, "reference": vi.reference_source}, None, "oracle")
+    if conf.mode == "batch" and (change := fit_change(final.T, frames, kept, conf.batch)):  # no window, no step test
+        res.drift["fit_change"] = change
+        untrusted(res, fit_change_words(change))
     if vi.oracle_truths:
         from hybrid_calib.calib.crb import oracle_crb
 

@@ -122,6 +122,23 @@ def version_dir(root: str | Path, version: str, fix: str = "pass one of them wit
     return vdir
 
 
+def _missing_table(name: str, path: Path) -> DataError:
+    return DataError(f"table {name!r} is missing; a nuScenes version folder needs the tables "
+                     f"{sorted(REQUIRED_TABLES)}; re-extract the dataset's metadata archive", path=str(path))
+
+
+def require_tables(root: str | Path, version: str) -> Path:
+    """``ROOT/VERSION`` (``version_dir``) after checking that each of ``REQUIRED_TABLES`` is there, without reading
+    one: ``DataError`` naming the first missing table, as loading it would. A run says this before anything it checks
+    against the root's files (probe 124: the trainval metadata without its sample tables read "--depth: ... has no
+    LiDAR files; pass another --depth", and every --depth another --depth error)."""
+    vdir = version_dir(root, version)
+    for name in REQUIRED_TABLES:
+        if not (path := vdir / f"{name}.json").exists():
+            raise _missing_table(name, path)
+    return vdir
+
+
 def load_table(vdir: Path, name: str, required_fields: Iterable[str] = ("token",),
                bad: list | None = None) -> list[dict]:
     """``vdir/<name>.json`` -> list of records, checked for the fields the data layer reads.
@@ -137,8 +154,7 @@ def load_table(vdir: Path, name: str, required_fields: Iterable[str] = ("token",
 
         check_regular_file(path, f"table {name!r}")
     if not path.is_file():
-        raise DataError(f"table {name!r} is missing; a nuScenes version folder needs the tables "
-                        f"{sorted(REQUIRED_TABLES)}; re-extract the dataset's metadata archive", path=str(path))
+        raise _missing_table(name, path)
     try:
         with open(path, encoding="utf-8-sig") as f:  # a UTF-8 byte order mark (some editors write one) is read past
             text = f.read()

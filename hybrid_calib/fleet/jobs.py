@@ -28,7 +28,7 @@ import numpy as np
 
 from hybrid_calib.data.files import data_stamp, file_part, root_labels
 from hybrid_calib.data.tables import version_dir
-from hybrid_calib.errors import DataError, HybridCalibError
+from hybrid_calib.errors import DataError, HybridCalibError, OptionError
 
 METHODS = ("hybrid", "pure", "pure-avg", "oracle")  # issue 9's methods; "oracle" runs today
 RESULT = "result.json"
@@ -195,6 +195,23 @@ def check_fleet_roots(sources: list[tuple[str, str, tuple[str, ...] | None]], ma
                             "manifest's folder); fix the path", path=str(manifest))
 
 
+def _check_root(root: str, version: str, method: str, calib: dict, checkpoint: str | None) -> None:
+    """``OptionError`` when ``method`` cannot run on any vehicle of the root, as calibrate says before reading a frame:
+    the oracle on a root without the simulator's truth, a learned method whose depth the root cannot give (its LiDAR
+    files absent). Checked once per root: each job had indexed the whole root and failed alike, a line per vehicle
+    (probe 124: 5 vehicles, 10 lines of "use --method hybrid", rc 1)."""
+    if method == "oracle":
+        from hybrid_calib.calib.pipeline import require_oracle_truth
+
+        require_oracle_truth(root)
+        return
+    from hybrid_calib.config import merge
+    from hybrid_calib.hybrid.drives import checked_depth
+    from hybrid_calib.hybrid.loop import HybridConfig
+
+    checked_depth(root, version, merge(HybridConfig, {**calib, "method": method, "checkpoint": checkpoint or ""}))
+
+
 def discover_jobs(roots: list[tuple[str, str, tuple[str, ...] | None]], method: str, out: str | Path,
                   seed: int = 0, checkpoint: str | None = None, calib: dict | None = None,
                   priors: dict | None = None, threads: int = 1, notes: list[str] | None = None,
@@ -224,7 +241,8 @@ def discover_jobs(roots: list[tuple[str, str, tuple[str, ...] | None]], method: 
     for root, version, wanted in roots:
         try:
             vs = _root_vehicles(root, version, notes, reference)
-        except DataError as e:  # one root's broken tables: its vehicles cannot become jobs, the others can
+            _check_root(root, version, method, calib or {}, checkpoint)
+        except (DataError, OptionError) as e:  # one root that cannot run: its vehicles are no jobs, the others can
             if left_out is None or len(roots) == 1:
                 raise
             left_out[str(root)] = str(e)

@@ -92,6 +92,24 @@ def resolve_depth(data, version: str, conf: HybridConfig) -> tuple[str, str]:
     return "", ""
 
 
+def checked_depth(data, version: str, conf: HybridConfig) -> tuple[str, str, str]:
+    """(``resolve_depth``'s spec and note, the spec the run computes: that or the checkpoint's) of a learned run on the
+    root, after checking that the root has the tables and what that depth reads: ``DataError`` naming a missing table,
+    ``OptionError`` (``--depth``: ``learned.depth.check_depth_source``). Said once before any frame is read (probes 23
+    and 71), by calibrate once per run and by fleet once per root (probe 124: once per vehicle, each job indexing the
+    whole root first)."""
+    from hybrid_calib.data.tables import require_tables
+    from learned.depth import check_depth_source
+
+    require_tables(data, version)
+    depth, note = resolve_depth(data, version, conf)
+    effective = depth or trained_depth(conf.checkpoint or shipped_checkpoint(conf.start))
+    # probe 101: the real root's default read "the --depth given"
+    check_depth_source(effective, data, given=bool(conf.depth) or (
+        "chosen for a real root whose tables list a LIDAR_TOP, when no --depth is given" if depth else False))
+    return depth, note, effective
+
+
 def effective_depth(data, version: str, conf: HybridConfig) -> str:
     """The depth estimator a learned run uses: ``--depth``, the real root's lidar-densified, or the checkpoint's."""
     return resolve_depth(data, version, conf)[0] or trained_depth(conf.checkpoint or shipped_checkpoint(conf.start))

@@ -97,13 +97,12 @@ from hybrid_calib.hybrid.corrections import (
 )
 from hybrid_calib.hybrid.drives import (
     Drive,
+    checked_depth,
     effective_depth,
     open_drives,
-    resolve_depth,
     standstill_reason,
     start_of,
     sweep_files_record,
-    trained_depth,
 )
 from hybrid_calib.hybrid.measurement import MeasurementConfig, frame_inputs, prior_trusted, unfitted_keys
 from hybrid_calib.hybrid.motion import (
@@ -732,7 +731,7 @@ class _Session:
     """What run_vehicle / run_calibration share: the frames, the drives and (learned methods) the network."""
 
     def __init__(self, data, version: str, conf: HybridConfig):
-        from learned.depth import check_depth_source, needs_lidar
+        from learned.depth import needs_lidar
 
         self.data, self.version, self.conf = data, version, conf
         self.runner, self.note, self.motion = None, "", None
@@ -743,13 +742,9 @@ class _Session:
                                                    said=self.said)
             self._check_some_drive()
             return
-        depth, self.note = resolve_depth(data, version, conf)
+        depth, self.note, effective = checked_depth(data, version, conf)  # "": the checkpoint's own
         ckpt = conf.checkpoint or shipped_checkpoint(conf.start)
         conf = self.conf = self._trained_sweeps(conf, ckpt)
-        effective = depth or trained_depth(ckpt)  # "" = the checkpoint's own (lidar-densified needs the LiDAR)
-        # said once at the start (probes 23 and 71); probe 101: the real root's default read "the --depth given"
-        check_depth_source(effective, data, given=bool(conf.depth) or (
-            "chosen for a real root whose tables list a LIDAR_TOP, when no --depth is given" if depth else False))
         self.frames, self.drives = open_drives(data, version, conf, lidar=needs_lidar(effective),
                                                unreadable=self.unreadable, said=self.said)
         self._check_some_drive()

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hybrid_calib.calib.batch import fit_change_words
 from hybrid_calib.calib.covariance import NOT_CONVERGED, status_kind
 from hybrid_calib.calib.drift import (
     TOLERANCE_MAX,
@@ -197,6 +198,10 @@ def moved_during_drive(vr: VehicleResult) -> tuple[str, tuple[int, ...]]:
     one of ``MOVED_ANSWERS``, and the frames where it did. "no" only when a test ran: the pure methods run no
     window and a short drive gives its test no statistic, which read "no: no step alarm" (probe 30)."""
     if not vr.trajectory:
+        change = (vr.drift or {}).get("fit_change")
+        if isinstance(change, dict) and {"frame", "before", "after", "z"} <= set(change):  # calib.batch.fit_change
+            return ("not told: a batch result runs no step test (the step detector runs in the sliding window only), "
+                    f"but {fit_change_words(change)}"), ()
         return "not tested (batch result: the step detector runs in the sliding window only)", ()
     alarms = tuple(f.index for f in vr.trajectory if f.step_alarm)
     mount = vr.mount or {}
