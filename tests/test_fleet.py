@@ -350,6 +350,32 @@ def test_a_degenerate_drive_is_a_result_not_a_failure(local_run, fleet_root, tmp
     assert "| sim-veh-000 | done | degenerate |" in (tmp_path / "summary.md").read_text()
 
 
+def test_a_radar_to_recalibrate_is_left_out_of_the_fleet_prior_and_said(local_run, fleet_root, tmp_path):
+    """Probe 125: a radar its own verdict put 5 deg off its tables was an inlier of a 6-vehicle fleet's prior (the
+    outlier test cannot name it with so few vehicles): the prior's mean yaw moved 0.83 deg and its spread 0.39 ->
+    1.94 deg, unsaid. Such a vehicle is left out of the fit, and said."""
+    import shutil
+
+    from hybrid_calib.fleet.summary import summary_markdown
+
+    shutil.copytree(local_run[0] / "vehicles", tmp_path / "vehicles")
+    shutil.copy(local_run[0] / "manifest.json", tmp_path / "manifest.json")
+    f = tmp_path / "vehicles" / "sim-veh-001" / "result.json"
+    doc = json.loads(f.read_text())
+    doc["vehicles"]["sim-veh-001"]["drift"].update(verdict_kind="recalibrate", drifted=True, verdict=(
+        "differs by 5.02 deg in yaw (+- 0.016 deg at 1 sigma, tolerance 0.50 deg): recalibrate"))
+    f.write_text(json.dumps(doc))
+    s = run_fleet([str(fleet_root)], None, "v1.0-sim", "oracle", tmp_path, seed=2, calib={"window": {"window": 3}},
+                  options=FleetOptions(plots=False))
+    r = s["vehicles"]["sim-veh-001"]
+    assert r["fleet_test"]["left_out"].startswith("not in the fleet prior: its verdict is recalibrate"), r
+    assert "sim-veh-001" not in ((s["fleet_prior"] or {}).get("inliers") or [])
+    assert "nor does a radar to recalibrate" in s["notes"][-1], s["notes"]
+    s["fleet_prior"] = {"spread_std_cam": {k: 1.0 for k in r["std_cam"]}, "mean_std_cam": r["std_cam"],
+                        "inliers": ["sim-veh-000", "sim-veh-002"], "outliers": []}  # as a fleet of more would have
+    assert "(left out of the fit, to recalibrate: sim-veh-001)" in summary_markdown(s)
+
+
 def test_an_inconclusive_vehicle_is_flagged_counted_and_never_within_tolerance(local_run, fleet_root, tmp_path):
     """A result whose status is ``inconclusive: ...`` (the network's input out of its domain, hybrid.ood,
     or an unfitted checkpoint) is ``done`` with an ``inconclusive`` flag and verdict, and counted."""

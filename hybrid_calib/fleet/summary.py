@@ -152,12 +152,15 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
             row["flags"].append("inconclusive")
     prior = None
     # an estimate its own status calls untrusted (out of the network's domain, degenerate, not converged) says
-    # nothing about where the fleet's mounts are: it is left out of the fit (and said)
-    from hybrid_calib.calib.covariance import untrusted_status
-
-    trusted = {n: vr for n, vr in results.items() if not untrusted_status(vr.final.status)}
-    for n in sorted(set(results) - set(trusted)):
-        rows[n]["fleet_test"] = {"left_out": f"not in the fleet prior: {untrusted_status(results[n].final.status)}"}
+    # nothing about where the fleet's mounts are: it is left out of the fit (and said);
+    # and a radar its own verdict says is off its tables beyond the tolerance (moved, or its tables wrong): a knocked
+    # radar is no sample of the fleet's build, and a fleet too small for the outlier test to name it took it in
+    # unsaid (probe 125: one radar 5 deg off in a fleet of 6, d2 122 at p 0.0026 against alpha 1e-3, moved the prior's
+    # mean yaw 0.83 deg and its spread 0.39 -> 1.94 deg); one whose tables alone were wrong is one sample fewer
+    left = {n: why for n, vr in results.items() if (why := prior_left_out(vr))}
+    trusted = {n: vr for n, vr in results.items() if n not in left}
+    for n, why in sorted(left.items()):
+        rows[n]["fleet_test"] = {"left_out": f"not in the fleet prior: {why}"}
     if fit_prior and len(trusted) >= MIN_VEHICLES and T_ref is not None:
         names = sorted(trusted)
         own = {n: _own_estimate(results[n]) for n in names}
@@ -193,10 +196,23 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
     if fit_prior and prior is None and results:  # fleet_prior.json was missing without a word (probe 52)
         summary["fleet_prior_note"] = (
             f"no fleet prior (fleet_prior.json): {len(trusted)} of the {len(results)} done vehicle(s) have a trusted "
-            f"estimate, fewer than the {MIN_VEHICLES} a fit needs" + (
+            f"estimate of a mount on its tables, fewer than the {MIN_VEHICLES} a fit needs" + (
                 " (an inconclusive, degenerate or unconverged estimate says nothing about where the fleet's mounts "
-                "are)" if len(trusted) < len(results) else ""))
+                "are, nor does a radar to recalibrate)" if len(trusted) < len(results) else ""))
     return summary, prior
+
+
+def prior_left_out(vr) -> str:
+    """Why vehicle result ``vr`` is left out of the fleet prior's fit ("" when it is not): its status is untrusted
+    (inconclusive, degenerate, not converged), or its verdict against its tables is "recalibrate"."""
+    from hybrid_calib.calib.covariance import untrusted_status
+
+    if why := untrusted_status(vr.final.status):
+        return why
+    if (vr.drift or {}).get("verdict_kind") == "recalibrate":
+        return ("its verdict is recalibrate (its mount is off its tables beyond the tolerance: a radar that moved is "
+                "no sample of the fleet's build)")
+    return ""
 
 
 def _own_estimate(vr) -> tuple[np.ndarray, np.ndarray]:
@@ -277,7 +293,11 @@ def summary_markdown(s: dict) -> str:
                if n in fp["inliers"] and r.get("std_cam")]
         floor = UNRESOLVED * np.median(own, axis=0) if own else np.zeros(6)
         shown = [f"{v:.{3 if i < 3 else 2}f}" if v >= floor[i] else "n.r." for i, v in enumerate(sp)]
-        lines += [f"Fleet prior: {len(fp['inliers'])} inliers; spread (1 sigma, camera axes) rot "
+        out = [n for n, r in s["vehicles"].items() if str((r.get("fleet_test") or {}).get("left_out", "")).startswith(
+            "not in the fleet prior: its verdict is recalibrate")]
+        lines += [f"Fleet prior: {len(fp['inliers'])} inliers"
+                  + (f" (left out of the fit, to recalibrate: {', '.join(sorted(out))})" if out else "")
+                  + "; spread (1 sigma, camera axes) rot "
                   f"{'/'.join(shown[:3])} deg, t {'/'.join(shown[3:])} cm; outliers (named): "
                   f"{', '.join(fp['outliers']) or 'none'}"
                   + (f" (n.r.: not resolved: the vehicles agree within their own 1-sigma along that axis, the spread "
