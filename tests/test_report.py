@@ -830,6 +830,13 @@ def test_the_fleet_figure_shows_whole_bars_one_colour_rule_and_names_its_band(ru
                             reports={})
     assert drawn == {names[0]: ("out_of_tolerance",), names[1]: ()}  # as fleet.png colours them
     assert "Flagged: " + names[0] in page.read_text() and names[1] not in page.read_text().split("Flagged: ")[1][:60]
+    # a drive too short for a step test is no finding: not "Flagged" beside a figure that draws it blue (probe 125)
+    drawn.clear()
+    page = write_fleet_page(paths, tmp_path / "fleet2.html", flagged={names[0]: ("step_not_tested",),
+                                                                      names[1]: ("step_not_tested", "inconclusive")},
+                            reports={})
+    assert drawn == {names[0]: (), names[1]: ("inconclusive",)}
+    assert "Flagged: " + names[1] + "." in page.read_text(), page.read_text().split("Flagged: ")[1][:60]
 
 
 def test_the_page_names_drive_frames_and_draws_rings_only_where_it_says_so(run_dir, tmp_path):

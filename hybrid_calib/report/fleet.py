@@ -70,7 +70,7 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
     ``reports`` then use the labels. not_done: vehicle -> why it has no result ("failed: <reason>", "pending"):
     listed on the page and counted, so a fleet with failures does not read as a smaller, clean one. Returns the
     path written."""
-    from hybrid_calib.plots.fleet import draw_fleet
+    from hybrid_calib.plots.fleet import COLOURS, draw_fleet
 
     conf = merge(ReportConfig, conf)
     out = Path(out)
@@ -103,7 +103,9 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
                     unwritten[name] = f"{page}: {e.strerror or e}" if isinstance(e, OSError) else f"{page}: {e}"
     names = list(vehicles)
     verdicts = {n: verdict_of(vr, conf.tolerance) for n, (vr, _) in vehicles.items()}
-    flags = ({n: tuple(f) for n, f in flagged.items()} if isinstance(flagged, Mapping) else
+    # the flags the figure colours: "step_not_tested" is no finding (the table's "moved in drive" says "not tested";
+    # probe 125: a fleet of short drives read "Flagged:" every vehicle, the figure drawing them all unflagged)
+    flags = ({n: tuple(x for x in f if x in COLOURS) for n, f in flagged.items()} if isinstance(flagged, Mapping) else
              {n: ("flagged",) for n in flagged})
     if not any(flags.values()):
         flags = {n: ("drifted_in_drive",) for n in names if verdicts[n].moved_answer == "yes"}
