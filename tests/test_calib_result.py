@@ -326,3 +326,26 @@ def test_a_result_of_another_schema_name_is_refused():
     for bad in ({**d, "schema": "hybrid-calib/calibrate-result/v9"}, {k: v for k, v in d.items() if k != "schema"}):
         with pytest.raises(DataError, match="not a calibrate result: its \"schema\" is"):
             CalibrationRun.from_json(json.dumps(bad), "r.json")
+
+
+@pytest.mark.parametrize("frames,per_frame_deg", [(300, 0.005), (60, 0.008), (40, 0.03)])
+def test_a_slowly_drifting_mount_ends_its_truth_path_at_the_drives_end(frames, per_frame_deg):
+    """Probe 124: a simulated drift of more than ~184 frames (the README's 200-frame example), or slower than 0.01 deg
+    per frame, ran to the end and wrote no result: "result.json would not load back (... truth.path ends at another
+    mount than ... truth.T_cam_radar)" (the path kept an entry only where the mount had moved past the tables'
+    tolerance since the last, so its last entry was a few frames before the end)."""
+    import dataclasses
+
+    from hybrid_calib.calib.result import VehicleResult, path_of
+    from hybrid_calib.geometry import se3_exp
+
+    vr = _run(rng(1)).vehicles["veh-a"]
+    step = se3_exp(np.array([0.0, 0.0, np.radians(per_frame_deg), 1e-5, 0.0, 0.0]))
+    truths = [vr.truth_T]
+    for _ in range(frames - 1):
+        truths.append(truths[-1] @ step)
+    path = path_of(range(frames), truths)
+    assert len(path) > 1 and path[-1][0] == frames - 1 and np.array_equal(path[-1][1], truths[-1])
+    moved = dataclasses.replace(vr, truth_T=truths[-1], truth_path=path, error=None)
+    back = VehicleResult.from_dict(moved.to_dict(), "veh-a")  # it raised
+    assert [k for k, _ in back.truth_path] == [k for k, _ in path]

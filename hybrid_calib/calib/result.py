@@ -161,11 +161,15 @@ def path_of(indices, truths) -> list:
     mount changes (``same_calibration``); [] when it never does."""
     from hybrid_calib.data.nuscenes import same_calibration
 
-    path = []
+    path, last = [], None
     for k, T in zip(indices, truths):
-        if T is not None and (not path or not same_calibration(np.asarray(T, np.float64), path[-1][1])):
-            path.append((int(k), np.asarray(T, np.float64)))
-    return path if len(path) > 1 else []
+        if T is not None:
+            last = (int(k), np.asarray(T, np.float64))
+            if not path or not same_calibration(last[1], path[-1][1]):
+                path.append(last)
+    if len(path) > 1 and not np.array_equal(path[-1][1], last[1]):  # a drift's end, within the tolerance of the last
+        path.append(last)  # entry: the path ends at the drive's end, where the errors are (probe 124: every drift of
+    return path if len(path) > 1 else []  # more than ~184 frames, or slower than 0.01 deg per frame, wrote no result)
 
 
 def _covariance(x, name: str) -> np.ndarray:
@@ -669,8 +673,10 @@ class VehicleResult:
     def _path_ends_at_truth(self, where: str) -> VehicleResult:
         """Itself, when its ``truth_path`` (if any) ends at its ``truth_T`` (the mount at the drive's end, which the
         errors are against); ``ValueError`` otherwise (probe 59: an edited path drew the plots against another)."""
-        if self.truth_path and (self.truth_T is None or not np.allclose(self.truth_path[-1][1], self.truth_T,
-                                                                          atol=1e-9)):
+        from hybrid_calib.data.nuscenes import same_calibration
+
+        # within the tables' tolerance: the path and the end's truth may be read from two records of one mount
+        if self.truth_path and (self.truth_T is None or not same_calibration(self.truth_path[-1][1], self.truth_T)):
             raise ValueError(f"{where}.truth.path ends at another mount than {where}.truth.T_cam_radar (the drive's "
                              f"end): {EDITED}")
         return self
