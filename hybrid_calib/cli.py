@@ -462,8 +462,11 @@ def _run(args: argparse.Namespace, debug: bool, argv: list[str]) -> int:
             kept = "it stopped before its first checkpoint, so nothing is kept: rerun the same command to start again"
         if args.command == "calibrate" and out is not None and not _has_vehicles_done(Path(out)):
             # the network's and the depth's caches in --out are kept and a rerun reads them (probe 47)
+            # only the network's methods cache (probe 124: "what it cached is reused" after an oracle run)
+            learned = getattr(args, "method", None) in ("hybrid", "pure", "pure-avg")
             kept = ("it stopped before a vehicle finished, so no vehicle's result is kept: rerun the same command to "
-                    "start again (an earlier run's result, if any, is as it was; what it cached is reused)")
+                    "start again (an earlier run's result, if any, is as it was"
+                    + ("; the network passes and depth it cached in --out are reused)" if learned else ")"))
         how = ("interrupted" if not terminated(e) else "terminated (SIGHUP: its terminal closed; run it under nohup, "
                "tmux or screen to outlive the session)" if _SIGTERM_SEEN[0] == getattr(signal, "SIGHUP", -1) else
                "terminated (SIGTERM)")

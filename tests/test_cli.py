@@ -51,6 +51,9 @@ def test_an_interrupt_says_what_was_kept_and_how_to_go_on(tmp_path, monkeypatch,
     err = capsys.readouterr().err  # nothing finished: nothing promised (it named a folder that was not there)
     assert err.strip().startswith("hybrid-calib calibrate: interrupted; it stopped before a vehicle finished, so "
                                   "no vehicle's result is kept")
+    assert "cached" not in err, err  # the oracle caches nothing (probe 124: "what it cached is reused")
+    assert main(["calibrate", "--data", str(tmp_path), "--method", "hybrid", "--out", str(tmp_path / "run")]) == 130
+    assert "the network passes and depth it cached in --out are reused" in capsys.readouterr().err
     assert not (tmp_path / "run").exists()  # the lock's folder, created for the run, held nothing else
     (tmp_path / "run2" / "vehicles-done").mkdir(parents=True)
     (tmp_path / "run2" / "vehicles-done" / "sim-veh-000.json").write_text("{}")
