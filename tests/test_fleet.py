@@ -1264,6 +1264,9 @@ def test_a_method_without_a_step_test_says_so_instead_of_counting_no_drift(local
     words = drifted_words(pure)
     assert "not looked for (method pure-avg has no step test" in words and "drifted inside" not in words
     assert words in summary_markdown(pure)
+    # the hybrid's count is of turns in yaw: said (probe 123: a radar moved 20 cm sideways counted "0 drifted")
+    words = drifted_words({**summary, "method": "hybrid"})
+    assert "a shift without a turn is not looked for" in words and "shift" not in drifted_words(summary), words
 
 
 def test_an_interrupted_fleet_leaves_no_job_running_in_its_manifest(fleet_root, tmp_path, monkeypatch):

@@ -531,6 +531,13 @@ def test_a_mount_monitor_that_tested_nothing_does_not_say_no():
     vr = _vr((0.0,) * 6, (0.05,) * 6, alarms=(99,))
     assert moved_during_drive(vr)[0].startswith("not tested: no step test could run on this result (the window's "
                                                 "step test computed no statistic over these 5 frames")
+    # the monitor alone (the hybrid's window on no rows): its "no" is of turns in yaw, and says so (probe 123: a radar
+    # moved 20 cm sideways read "Did the sensor move? no")
+    vr.mount = {"steps": [], "levels": [], "frames_tested": 40, "pairs_tested": 40, "blind_frames": [10, 5]}
+    said = moved_during_drive(vr)[0]
+    assert said.startswith("no: no step alarm from the radar mount monitor") and said.endswith(
+        "; a shift of the radar without a turn in yaw, or a turn in roll or pitch alone, is looked for by no test here "
+        "(the window's step test ran on no rows)"), said
     vr.mount = {"steps": [], "levels": [], "frames_tested": 4, "pairs_tested": 4, "blind_frames": [10, 5]}
     said = moved_during_drive(vr)[0]
     assert said.startswith("not tested:") and "the radar mount monitor: it could not see a step on a drive this " \

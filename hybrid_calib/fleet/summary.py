@@ -256,6 +256,8 @@ def drifted_words(s: dict) -> str:
     if s.get("step_test", True):
         blind = s["counts"].get("step_not_tested", 0)
         return f"{s['counts']['drifted_in_drive']} drifted inside the drive" + (
+            " (the hybrid looks for a turn in yaw, with the radar mount monitor; a shift without a turn is not "
+            "looked for)" if s.get("method") == "hybrid" else "") + (
             f" ({blind} not tested: no step test could run on {'its drive' if blind == 1 else 'their drives'}, too "
             "short for the window's test and the radar mount monitor)" if blind else "")
     return f"a step inside the drive not looked for (method {s['method']} has no step test: use hybrid or oracle)"

@@ -230,8 +230,12 @@ def moved_during_drive(vr: VehicleResult) -> tuple[str, tuple[int, ...]]:
                 + f"; no step alarm from {window}"), ()
     tests = " and from ".join(t for t in (monitor, window) if t)  # a monitor here ran (the branch above)
     finds = finds_words(mount) if mount_ran else ""
+    # the monitor sees turns in yaw alone: with no window test beside it, a shift of the radar without a turn is looked
+    # for by nothing (probe 123: a radar moved 20 cm sideways mid-drive read "Did the sensor move? no")
+    unseen = ("; a shift of the radar without a turn in yaw, or a turn in roll or pitch alone, is looked for by no "
+              "test here (the window's step test ran on no rows)") if mount_ran and not window_ran else ""
     return (f"no: no step alarm from {tests}" + (f"; the radar mount monitor is {blind}" if blind.startswith("blind")
-                                                else "") + (f"; by the monitor {finds}" if finds else "")), ()
+                                                else "") + (f"; by the monitor {finds}" if finds else "") + unseen), ()
 
 
 def verdict_of(vr: VehicleResult, tol: Tolerance | None = None) -> Verdict:
