@@ -903,3 +903,21 @@ def test_a_batch_solve_over_a_mount_that_moved_inside_the_drive_is_not_trusted(t
     from hybrid_calib.report.verdict import moved_during_drive  # the report's "did the sensor move"
 
     assert moved_during_drive(res)[0].startswith("not told: a batch result runs no step test"), moved_during_drive(res)
+
+
+def test_directions_a_fleet_prior_pins_are_not_said_measured():
+    """Probe 125: a fleet prior 0.05 deg / 3 mm tight on every axis (a hand-edited file passes the 0.01 deg / 1 mm
+    floor) turned a drive whose own calibration calls pitch and the vertical offset prior-pinned into "ok", its
+    vertical offset 38.7 cm off at a 0.3 cm std. The status names them as the prior's."""
+    from hybrid_calib.calib.pipeline import CalibrateConfig, VehicleInput, calibrate_vehicle
+    from hybrid_calib.calib.schedule import GaussianPrior
+
+    T = nominal_T_cam_radar()
+    frames, _ = synthetic_drive(T, 12, rng(5), {"n_per_frame": 60})
+    conf = CalibrateConfig(mode="batch")
+    own = calibrate_vehicle(VehicleInput("v", frames, reference=T), conf, progress=False, T_start=T)
+    assert "pitch (rotation about camera x) is prior-pinned" in own.final.status, own.final.status
+    tight = GaussianPrior(T, np.diag(np.r_[np.full(3, np.radians(0.05)), np.full(3, 0.003)] ** 2))
+    res = calibrate_vehicle(VehicleInput("v", frames, reference=T), conf, progress=False, prior=tight, T_start=T)
+    assert res.final.status.startswith("weak") and "pitch (rotation about camera x)" in res.final.status and \
+        "pinned by the fleet prior, not measured by this drive" in res.final.status, res.final.status

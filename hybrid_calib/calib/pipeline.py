@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -435,6 +436,27 @@ def _exporting_checkpoint(folder: Path) -> str | None:
     return ckpt if isinstance(ckpt, str) else None
 
 
+_PINNED = re.compile(r"(?:^|: |; )([a-z][a-z ]*?) \(((?:rotation|translation) [^)]*)\) is prior-pinned")
+
+
+def pinned_by_prior(res: VehicleResult, own_status: str) -> None:
+    """``res`` (a calibration with a fleet prior) saying each direction that the drive's own calibration (its status
+    ``own_status``) calls prior-pinned and whose status no longer does: the prior pins it, the drive does not measure
+    it; an "ok" becomes "weak". Probe 125: a prior 0.05 deg / 3 mm tight on pitch and the vertical offset (hand-edited:
+    a fleet's own carries their common error) read "ok", its vertical offset 38.7 cm off at a 0.3 cm std."""
+    names = [f"{w} ({axis})" for w, axis in _PINNED.findall(own_status) if f"{w} ({axis}) is prior-pinned" not in
+             res.final.status]
+    kind = status_kind(res.final.status)
+    if not names or kind not in ("ok", "weak"):
+        return
+    words = (f"{' and '.join(names)} {'is' if len(names) == 1 else 'are'} pinned by the fleet prior, not measured by "
+             "this drive (its own calibration calls them prior-pinned): their stds are the prior's")
+    status = f"weak: {words}" if kind == "ok" else f"{res.final.status}; {words}"
+    res.final = dataclasses.replace(res.final, status=status)
+    if res.trajectory:
+        res.trajectory[-1] = dataclasses.replace(res.trajectory[-1], estimate=res.final)
+
+
 def untrusted(res: VehicleResult, reason: str) -> None:
     """``res`` marked ``inconclusive: reason`` (its own status kept after it), its last frame and its drift verdict
     with it ("cannot tell": an untrusted estimate's difference from the tables is no reason to recalibrate)."""
@@ -540,6 +562,7 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, progress: bool = 
                      # what a fleet prior is fitted on next (fleet.summary): a prior fitted on estimates that hold a
                      # prior counts that prior's information again (probe 21 MED-4)
                      "own_estimate": {"T_cam_radar": own.final.T.tolist(), "cov_right_radar": own.final.cov.tolist()}}
+        pinned_by_prior(res, own.final.status)
     res.network = _network_summary(vi)
     if vi.truth:
         T_true = vi.truth[-1]
