@@ -109,6 +109,19 @@ def with_ood_off_words(traj: list[FrameEstimate], ood_enabled: bool) -> list[Fra
                             "input is like the network's training drives, which nothing checked here")
 
 
+def with_end_reading_words(traj: list[FrameEstimate], mon: MountMonitor | None) -> list[FrameEstimate]:
+    """The trajectory with its last status saying the radar mount monitor's last reading lies far from its level
+    (``MountMonitor.end_reading``): a turn at the drive's end that the step test cannot confirm, so the estimate may be
+    of the mount before it (probe 123: a radar turned 3 deg at the last frame read "weak", 2.9 deg off)."""
+    end = mon.summary().get("end_reading") if mon is not None else None
+    if not isinstance(end, dict):
+        return traj
+    return with_words(traj, f"the radar's Doppler heading in the drive's last frame ({end['frame']}) lies "
+                            f"{end['offset_deg']:+.2f} deg ({abs(end['z']):.1f} times its noise) from the drive's "
+                            "level: the radar may have turned there, too near the end for its step test, and the "
+                            "estimate is of the mount before; check the radar on a later drive")
+
+
 def with_prior_words(traj: list[FrameEstimate]) -> list[FrameEstimate]:
     """The trajectory with its last status naming what a learned method does not measure (``LEARNED_NOT_MEASURED``):
     roll and pitch (the network's learned prior of the radar's mount) and the vertical offset (the start's), each

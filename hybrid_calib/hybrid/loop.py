@@ -87,6 +87,7 @@ from hybrid_calib.hybrid.corrections import (
     reported_estimate,
     with_doppler,
     with_drive_error,
+    with_end_reading_words,
     with_lidar,
     with_motion_bias,
     with_ood_off_words,
@@ -660,6 +661,7 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
     yaw_check = None
     if conf.method == "hybrid":
         traj, yaw_check = with_yaw_check(traj, drive, conf, mon, lidar)
+        traj = with_end_reading_words(traj, mon)
         traj = with_road_words(traj, tr.geometry, conf)
         if motion is not None and drive.poses_jitter:  # data.pose_jitter
             traj = with_words(traj, drive.heading_jitter.words())
