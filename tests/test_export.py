@@ -353,6 +353,8 @@ def test_a_knock_the_estimate_after_it_cannot_decide_is_said_not_kept_in_silence
     run.save(path)
     v = export_mounts([path], tmp_path / "out").vehicles["sim-veh-000"]
     assert not v["exported"] and v["why"].startswith("not exported: the radar turned on the vehicle during the drive")
+    # what the advised later drive can and cannot decide (probe 123: it read "cannot tell" and kept the tables)
+    assert "stays 'cannot tell' and keeps the tables; then measure the radar's mount" in v["why"], v["why"]
 
 
 def test_a_learned_yaw_the_radars_doppler_did_not_check_is_not_written():

@@ -508,10 +508,15 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
             entry["why"] = (f"kept {_kept(vr)}: the data decide no axis against the tolerance (each is undecided "
                             "or prior-pinned), so there is nothing measured to write")
             if (vr.drift or {}).get("at_end"):  # "recalibrate" for a step the mount monitor measured in the drive
+                # probe 123: that later drive read "cannot tell" too (a 1 deg turn, the hybrid's yaw std 0.3 deg) and
+                # export "kept the tables": the advice led nowhere without saying what decides
                 entry["why"] = ("not exported: the radar turned on the vehicle during the drive (its verdict: "
                                 "recalibrate), but the estimate after the turn decides no axis against the tolerance "
                                 "yet (too few frames since the turn); calibrate a drive recorded after it and export "
-                                "that")
+                                "that: a turn the estimate's yaw cannot decide there (the hybrid's: from ~1.5 deg) "
+                                "stays 'cannot tell' and keeps the tables; then measure the radar's mount (its Doppler "
+                                "level on that drive, in result.json's mount block, says how far it turned) or "
+                                "recalibrate it with a target")
             continue
         new: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]] = []
         refs = []  # the reference T_cam_radar per record: one calibration along the drive
