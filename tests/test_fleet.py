@@ -1095,6 +1095,45 @@ def test_a_renamed_vehicle_whose_folder_cannot_move_is_said_and_calibrated_again
     assert (vehicles / "root-v1" / "result.json").is_file() and not (vehicles / "v1").exists()
 
 
+def test_a_learned_fleets_priors_carry_nothing_where_the_network_measures_nothing():
+    """Probe 126: a hybrid fleet's prior fitted a roll spread of 0.13 deg where the true one was 1.06 (every vehicle's
+    roll is the network's learned prior of the fleet's mount), handed out roll priors of 0.25-0.30 deg, 7 of 12 of
+    them 3.4-7.7 sigma off, and an oracle pass with them read NEES 12.3 against 7.7. A learned fleet's priors are
+    inflated along roll, pitch and height as along the oracle's prior-pinned axes, and summary.md says so."""
+    from hybrid_calib.fleet.prior import PINNED_INFLATION, fit_fleet_prior
+    from hybrid_calib.fleet.summary import summary_markdown, unmeasured_cov
+    from hybrid_calib.geometry import retract
+    from tests.helpers import nominal_T_cam_radar
+
+    g = np.random.default_rng(4)
+    T = nominal_T_cam_radar()
+    names = [f"v{i}" for i in range(8)]
+    own = np.array([np.radians(0.7), np.radians(0.8), np.radians(0.3), 0.03, 0.03, 0.14])
+    Ts = [retract(T, g.normal(0, own / 5)) for _ in names]  # the network's roll: the same prior for each
+    covs = [np.diag(own ** 2)] * len(names)
+    assert not np.any(unmeasured_cov(covs, "oracle"))
+    U = unmeasured_cov(covs, "hybrid")
+    assert np.allclose(np.diag(U), [own[0] ** 2, own[1] ** 2, 0, 0, 0, own[5] ** 2])
+    plain, learned = fit_fleet_prior(names, Ts, covs, T), fit_fleet_prior(names, Ts, covs, T, unmeasured_cov=U)
+    for axis in (0, 1, 5):
+        assert np.asarray(learned.prior("v0")["cov_right_radar"])[axis, axis] >= PINNED_INFLATION * U[axis, axis]
+        assert np.asarray(plain.prior("v0")["cov_right_radar"])[axis, axis] < own[axis] ** 2
+    assert np.allclose(np.asarray(learned.prior("v0")["cov_right_radar"])[2, 2],
+                       np.asarray(plain.prior("v0")["cov_right_radar"])[2, 2])  # yaw: measured, as it was
+    d = learned.to_dict()
+    assert "unmeasured_cov_right_radar" in d and "unmeasured_cov_right_radar" not in plain.to_dict()
+    std = dict(zip(("rot_x_cam_deg", "rot_y_cam_deg", "rot_z_cam_deg", "t_x_cam_cm", "t_y_cam_cm", "t_z_cam_cm"),
+                   (0.1,) * 6))
+    s = {"out": "o", "method": "hybrid", "seed": 0, "design_mount": {"source": "tables"},
+         "counts": {"vehicles": 8, "done": 8, "failed": 0, "pending": 0, "running": 0, "out_of_tolerance": 0,
+                    "drifted_in_drive": 0, "fleet_outliers": 0, "degenerate": 0, "inconclusive": 0, "weak": 0},
+         "fleet_prior": {"spread_std_cam": dict(zip(std, (0.5,) * 6)), "mean_std_cam": std, "inliers": names,
+                         "outliers": [], "unmeasured": True},
+         "vehicles": {n: {"state": "failed", "reason": "x", "std_cam": std} for n in names}}
+    line = next(x for x in summary_markdown(s).splitlines() if x.startswith("Fleet prior:"))
+    assert "rot n.m./0.500/n.m. deg, t 0.50/n.m./0.50 cm" in line and "n.m.: not measured by a learned method" in line
+
+
 def test_the_fleet_outlier_test_knows_the_spread_is_estimated_from_few_vehicles():
     """Two of five healthy simulated vehicles were named fleet outliers at alpha 1e-3 (d2 47 and 37 against
     chi-square(6)): the spread estimated from four vehicles was used as if known. A knocked one is still named."""

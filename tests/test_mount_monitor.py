@@ -714,3 +714,19 @@ def test_a_last_reading_far_from_the_level_is_said_not_dropped():
         for k, y in enumerate(g.normal(0.0, 0.15, 30)):
             mon.add_residual(k, float(y), pairs=6)
         assert "end_reading" not in mon.summary()
+
+
+def test_a_step_after_untested_frames_is_dated_by_the_interval():
+    """Probe 123: a radar knocked at frame 20 of a 10 s stop (frames 9-32 untested: no usable sweep pair) read "from
+    about frame 33", the first tested frame after the stop, without a word of the gap."""
+    from hybrid_calib.calib.mount_monitor import change_words
+
+    g = np.random.default_rng(4)
+    mon = MountMonitor(frames=None, T_ego_radar=np.eye(4))
+    for k, y in zip([*range(9), *range(33, 60)], np.r_[g.normal(0.0, 0.15, 9), g.normal(1.0, 0.15, 27)]):
+        mon.add_residual(k, float(y), pairs=6)
+    (st,) = mon.summary()["steps"]
+    assert st["change"] == 33 and st["tested_before"] == 8, st
+    assert change_words(st) == ("between frames 8 and 33 (frames 9-32 were not tested: no usable sweep pair there, "
+                                "as at a stop)")
+    assert change_words({"change": 12}) == "from about frame 12"

@@ -478,10 +478,10 @@ def mount_steps_beyond(mount: dict | None, rot_tol_deg: float) -> str:
                              "its whole size, first frame to last, may be larger)"}]
     if not big:
         return ""
-    from hybrid_calib.calib.mount_monitor import turn_words
+    from hybrid_calib.calib.mount_monitor import change_words, turn_words
 
-    turns = "; ".join(f"by {turn_words(st['step_deg'], st['std_deg'], 3)} "
-                      + st.get("words", f"from about frame {st['change']}") for st in big)
+    turns = "; ".join(f"by {turn_words(st['step_deg'], st['std_deg'], 3)} " + st.get("words", change_words(st))
+                      for st in big)
     lever = [float(st["lever_m"]) for st in big if isinstance(st.get("lever_m"), (int, float))]
     other = (f" Or its lever arm is wrong in the tables: its readings follow the vehicle's turn per metre as well as "
              f"a step, as a radar {abs(lever[0]):.1f} m {'behind' if lever[0] > 0 else 'forward of'} where its tables "

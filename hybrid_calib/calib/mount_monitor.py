@@ -399,6 +399,8 @@ class MountMonitor:
                 a, b = levels[j], levels[j + 1]
                 d.update(step_deg=b["level_deg"] - a["level_deg"], std_deg=float(np.hypot(a["std_deg"], b["std_deg"])))
             lo, cut, hi = cuts[j], cuts[j + 1], cuts[j + 2]
+            if cut > 0 and self.series[cut][0] - self.series[cut - 1][0] > 1:  # untested frames before its change
+                d["tested_before"] = int(self.series[cut - 1][0])
             lever = lever_reading(np.array([v for _, v in self.series[lo:hi]]), np.array(self.lever[lo:hi]), cut - lo)
             if lever is not None:
                 d["lever_m"] = lever
@@ -529,6 +531,17 @@ def level_words(level_deg: float, std_deg: float) -> str:
     (1 sigma) to the right of" (the level turns about the vehicle's up axis, left positive; a signed "-0.36" beside the
     reference test's camera yaw "+1.63" read as two different turns: probe 30)."""
     return f"{abs(level_deg):.2f} +- {std_deg:.2f} deg (1 sigma) {_side(level_deg) + ' of' if level_deg else 'at'}"
+
+
+def change_words(step: dict) -> str:
+    """Where a ``summary()`` step changed, in words: "from about frame N", or, where no reading was tested between it
+    and the reading before (``tested_before``: a stop, sweeps without a usable Doppler velocity), the interval (probe
+    123: a radar knocked at frame 20 of a 10 s stop read "from about frame 33", the first tested after it)."""
+    before = step.get("tested_before")
+    if isinstance(before, int) and step["change"] - before > 1:
+        return (f"between frames {before} and {step['change']} (frames {before + 1}-{step['change'] - 1} were not "
+                "tested: no usable sweep pair there, as at a stop)")
+    return f"from about frame {step['change']}"
 
 
 def blind_words(summary: dict) -> str:

@@ -184,7 +184,14 @@ def _report(result, out: Path, reused: bool = False) -> int:
     from hybrid_calib.calib.drift import drift_verdict
     from hybrid_calib.calib.lever_arm import describe as describe_doppler
     from hybrid_calib.calib.lidar_alignment import describe as describe_lidar
-    from hybrid_calib.calib.mount_monitor import blind_words, finds_words, tested_words, told_steps, turn_words
+    from hybrid_calib.calib.mount_monitor import (
+        blind_words,
+        change_words,
+        finds_words,
+        tested_words,
+        told_steps,
+        turn_words,
+    )
     from hybrid_calib.calib.result import STD_FRAME
     from hybrid_calib.data.reference import reference_words
     from hybrid_calib.metrics import std_dict
@@ -238,8 +245,9 @@ def _report(result, out: Path, reused: bool = False) -> int:
             print(f"  {v.method}: {len(v.frame_rows)} frames, {what}; network {ms:.0f} ms/frame; checkpoint "
                   f"{v.checkpoint}")
         if v.mount is not None:
-            steps = "; ".join(f"the radar turned by {turn_words(st['step_deg'], st['std_deg'])} from frame "
-                              f"{st['change']} (alarm at frame {st['at']})" for st in told_steps(v.mount))
+            steps = "; ".join(f"the radar turned by {turn_words(st['step_deg'], st['std_deg'])} "
+                              f"{change_words(st).replace('from about frame', 'from frame')} (alarm at frame "
+                              f"{st['at']})" for st in told_steps(v.mount))
             found = steps or ("not told" if v.mount.get("implausible") else
                               "no step" if v.mount.get("pairs_tested") else "not tested")
             if found == "no step" and (why := "; ".join(w for w in (blind_words(v.mount), finds_words(v.mount)) if w)):

@@ -216,6 +216,9 @@ class FleetPrior:
     # name -> {"data": root (resolved), "version", "vehicle", "frames"}: where each vehicle came from, so that a
     # later fleet applies a named prior only to the same vehicle of the same root (``match_prior``)
     sources: dict[str, dict] = field(default_factory=dict)
+    # (6, 6) the variances along directions the fleet's method does not measure (a learned method's roll, pitch and
+    # height: ``fleet.summary.unmeasured_cov``): its priors carry ``PINNED_INFLATION`` x them, no information there
+    unmeasured_cov: np.ndarray = field(default_factory=lambda: np.zeros((6, 6)))
 
     @property
     def T_mean(self) -> np.ndarray:
@@ -232,7 +235,7 @@ class FleetPrior:
             return None  # an outlier; or too few other vehicles to know the spread
         f = self.loo.get(name, self.fit) if name is not None else self.fit
         T = retract(self.T_ref, f.mu)
-        cov = predictive_factor(rests_on) * f.S + f.cov_mu + PINNED_INFLATION * self.common_cov
+        cov = predictive_factor(rests_on) * f.S + f.cov_mu + PINNED_INFLATION * (self.common_cov + self.unmeasured_cov)
         return {"T_cam_radar": T.tolist(), "cov_right_radar": _sym(cov).tolist()}
 
     def priors(self) -> dict[str, dict]:
@@ -262,6 +265,7 @@ class FleetPrior:
             "spread_std_cam": std_dict(self.spread_std_cam(), STD_FRAME),
             "mean_std_cam": std_dict(report_std(self.T_mean, self.fit.cov_mu + self.common_cov), STD_FRAME),
             "common_cov_right_radar": self.common_cov.tolist(),
+            **({"unmeasured_cov_right_radar": self.unmeasured_cov.tolist()} if np.any(self.unmeasured_cov) else {}),
             "fitted_on": "each vehicle's drive alone (a vehicle given a fleet prior enters with its calibration "
                          "without it: fleet.summary._own_estimate)",
             "alpha": self.alpha, "iterations": self.fit.iterations,
@@ -277,11 +281,12 @@ class FleetPrior:
 
 def fit_fleet_prior(names: list[str], Ts: list[np.ndarray], covs: list[np.ndarray], T_ref: np.ndarray,
                     alpha: float = 1e-3, rounds: int = 10, common_cov: np.ndarray | None = None,
-                    sources: dict[str, dict] | None = None) -> FleetPrior:
+                    sources: dict[str, dict] | None = None, unmeasured_cov: np.ndarray | None = None) -> FleetPrior:
     """Fit the fleet model (module doc) to vehicles ``names`` with estimates ``Ts`` (each (4, 4)) and
     covariances ``covs`` (each (6, 6), right tangent, radar frame, [rad, m]) around ``T_ref`` (4, 4).
     ``common_cov`` (6, 6): the part of every ``covs[i]`` shared by all vehicles (P; default none).
-    ``sources``: name -> {"data", "version", "vehicle", "frames"} (``FleetPrior.sources``).
+    ``sources``: name -> {"data", "version", "vehicle", "frames"} (``FleetPrior.sources``). ``unmeasured_cov`` (6, 6):
+    ``FleetPrior.unmeasured_cov`` (default none).
     ``DataError`` with fewer than ``MIN_VEHICLES`` vehicles."""
     if not len(names) == len(Ts) == len(covs):  # zip-like truncation dropped vehicles without a word
         raise ValueError(f"fit_fleet_prior: {len(names)} names, {len(Ts)} transforms and {len(covs)} covariances; "
@@ -316,7 +321,8 @@ def fit_fleet_prior(names: list[str], Ts: list[np.ndarray], covs: list[np.ndarra
         np.asarray(T_ref, np.float64), list(names), fit, [names[i] for i in inl],
         {names[i]: {"d2": tests[i][0], "p_value": tests[i][1]} for i in range(len(names)) if i not in inl},
         {names[i]: {"d2": tests[i][0], "p_value": tests[i][1]} for i in range(len(names))},
-        {names[i]: f for i, f in loo.items()}, alpha, P, dict(sources or {}))
+        {names[i]: f for i, f in loo.items()}, alpha, P, dict(sources or {}),
+        _sym(unmeasured_cov) if unmeasured_cov is not None and np.any(unmeasured_cov) else np.zeros((6, 6)))
 
 
 def _check_prior(k: str, p: dict) -> None:

@@ -89,6 +89,22 @@ def common_cov(jobs: list[dict]) -> np.ndarray:
     return np.diag(std ** 2)
 
 
+def unmeasured_cov(covs: list[np.ndarray], method: str) -> np.ndarray:
+    """(6, 6) radar right tangent [rad^2, m^2]: for a learned ``method``, the median of the vehicles' own variances
+    (``covs``, (6, 6) each) along the directions it does not measure (``hybrid.corrections.LEARNED_NOT_MEASURED``: roll
+    and pitch are the network's learned prior of the fleet's mount, the height the start's), else zeros. The fleet's
+    spread there is not the mounts' (every vehicle reads the same prior), so the priors it hands out carry no
+    information there (``fleet.prior.FleetPrior.unmeasured_cov``). Probe 126: a hybrid fleet fitted a roll spread of
+    0.13 deg where the true one was 1.06, handed out roll priors of 0.25-0.30 deg (7 of 12 3.4-7.7 sigma off the
+    truth), and an oracle pass with them read NEES 12.3 (7.7 without)."""
+    if method == "oracle" or not covs:
+        return np.zeros((6, 6))
+    from hybrid_calib.hybrid.corrections import LEARNED_NOT_MEASURED
+
+    var = np.median([np.clip(np.diag(c), 0.0, None) for c in covs], axis=0)
+    return np.diag(np.where(LEARNED_NOT_MEASURED > 0, var, 0.0))
+
+
 def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
     """(summary dict of the module doc, FleetPrior or None) from the manifest and the result files."""
     from hybrid_calib.calib.result import STD_FRAME, CalibrationRun
@@ -166,6 +182,7 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
         own = {n: _own_estimate(results[n]) for n in names}
         prior = fit_fleet_prior(names, [own[n][0] for n in names], [own[n][1] for n in names], T_ref, alpha,
                                 common_cov=common_cov([m.jobs[n]["job"] for n in names]),
+                                unmeasured_cov=unmeasured_cov([own[n][1] for n in names], m.method),
                                 sources={n: {"data": str(Path(m.jobs[n]["job"]["data"]).resolve()),
                                              "version": m.jobs[n]["job"]["version"],
                                              "vehicle": m.jobs[n]["job"]["vehicle"], "frames": results[n].n_frames,
@@ -189,8 +206,9 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
         # --reference: the earlier export each vehicle it exported was checked against (rows' "reference" say which)
         "reference": next((j["job"]["calib"]["reference"] for j in m.jobs.values()
                            if (j["job"].get("calib") or {}).get("reference")), None),
-        "fleet_prior": None if pd is None else {k: pd[k] for k in (
+        "fleet_prior": None if pd is None else {**{k: pd[k] for k in (
             "T_mean", "spread_std_cam", "mean_std_cam", "inliers", "outliers")},
+            **({"unmeasured": True} if "unmeasured_cov_right_radar" in pd else {})},
         "vehicles": rows,
     }
     if fit_prior and prior is None and results:  # fleet_prior.json was missing without a word (probe 52)
@@ -295,6 +313,8 @@ def summary_markdown(s: dict) -> str:
                if n in fp["inliers"] and r.get("std_cam")]
         floor = UNRESOLVED * np.median(own, axis=0) if own else np.zeros(6)
         shown = [f"{v:.{3 if i < 3 else 2}f}" if v >= floor[i] else "n.r." for i, v in enumerate(sp)]
+        if fp.get("unmeasured"):  # pitch, roll, vertical (camera axes): a learned method's prior, not measured
+            shown = ["n.m." if i in (0, 2, 4) else v for i, v in enumerate(shown)]
         out = [n for n, r in s["vehicles"].items() if str((r.get("fleet_test") or {}).get("left_out", "")).startswith(
             "not in the fleet prior: its verdict is recalibrate")]
         lines += [f"Fleet prior: {len(fp['inliers'])} inliers"
@@ -303,7 +323,10 @@ def summary_markdown(s: dict) -> str:
                   f"{'/'.join(shown[:3])} deg, t {'/'.join(shown[3:])} cm; outliers (named): "
                   f"{', '.join(fp['outliers']) or 'none'}"
                   + (f" (n.r.: not resolved: the vehicles agree within their own 1-sigma along that axis, the spread "
-                     f"fitted there is under {UNRESOLVED:g} of it)" if "n.r." in shown else ""), ""]
+                     f"fitted there is under {UNRESOLVED:g} of it)" if "n.r." in shown else "")
+                  + (" (n.m.: not measured by a learned method: its pitch and roll are the network's prior of the "
+                     "fleet's mount and its vertical offset the start's, alike for every vehicle; the priors it hands "
+                     "out carry no information there)" if "n.m." in shown else ""), ""]
     if s.get("reference"):
         against = [n for n, r in s["vehicles"].items() if (r.get("reference") or {}).get("kind") == "export"]
         lines += [f"Checked against the earlier export {s['reference']} (--reference): "

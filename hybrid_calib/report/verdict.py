@@ -46,7 +46,14 @@ from hybrid_calib.calib.drift import (
     step_tests_ran,
     turned_since_export,
 )
-from hybrid_calib.calib.mount_monitor import blind_words, finds_words, tested_words, told_steps, turn_words
+from hybrid_calib.calib.mount_monitor import (
+    blind_words,
+    change_words,
+    finds_words,
+    tested_words,
+    told_steps,
+    turn_words,
+)
 from hybrid_calib.calib.result import VehicleResult
 
 DELTA_KEYS = ("rot_x_deg", "rot_y_deg", "rot_z_deg", "t_x_cm", "t_y_cm", "t_z_cm")
@@ -184,7 +191,7 @@ def alarm_words(vr: VehicleResult) -> list[str]:
                    f"frame {a}: the window's step test (the mount changed inside the drive; the window restarted "
                    "there, the estimate is the mount after it)" if st is None else
                    f"frame {a}: the radar mount monitor (its Doppler against the ego poses): the radar turned by "
-                   f"{turn_words(st['step_deg'], st['std_deg'])} from about frame {st['change']}; the window kept "
+                   f"{turn_words(st['step_deg'], st['std_deg'])} {change_words(st)}; the window kept "
                    "only the frames since then"
                    # raised on a frame that was not fused (probe 39: "step alarm at frame 14" beside the monitor's
                    # "(alarm at frame 13)" for one alarm: frame 13 was dropped out of the network's domain)
