@@ -62,7 +62,9 @@ def main() -> int:
                 change = (res.drift or {}).get("fit_change")
                 row = {"root": root.name, "vehicle": v, "rot_deg": rot, "true_frame": args.frames // 2 if rot else None,
                        "found_frame": None if change is None else change["frame"],
-                       "z": None if change is None else change["z"], "status": res.final.status.split(":")[0],
+                       "z": None if change is None else change["z"],
+                       "status": "NOT CONVERGED" if "NOT CONVERGED" in res.final.status else
+                       res.final.status.split(":")[0],
                        "nees": (res.error or {}).get("nees")}
                 rows.append(row)
                 found = f"found at frame {change['frame']} (z {change['z']:.1f})" if change else "no change"
