@@ -409,6 +409,15 @@ def test_a_yaw_difference_the_radar_mount_monitor_does_not_see_points_at_the_cam
     noted = camera_side_note(far, near)
     assert noted["camera_side"].startswith("the radar's own yaw on the vehicle lies within the yaw tolerance of its "
                                            "tables (radar mount monitor: 0.25 +- 0.04 deg")
+    # pinned within the tolerance at 1 sigma, not 2 (probe 126: 0.22 +- 0.105 deg against an estimate 2.19 deg off read
+    # "recalibrate" without the note, and export wrote a mount 2.2 deg wrong)
+    edge = {"steps": [], "levels": [{"level_deg": -0.22, "std_deg": 0.105, "pairs": 30}]}
+    short = {"verdict": "differs by 2.19 deg in yaw: recalibrate",
+             "axes": {"yaw": {"delta": 2.19, "std": 0.56, "tolerance": 0.5, "decision": "differs"}}}
+    assert "the camera side (its mount or intrinsics" in camera_side_note(short, edge)["camera_side"]
+    wide = {"steps": [], "levels": [{"level_deg": -0.30, "std_deg": 0.07, "pairs": 30}]}  # 0.30 + 2 x 0.122 > 0.5
+    assert camera_side_note(short, wide)["camera_side"].startswith(
+        "the radar's own yaw on the vehicle lies within the yaw tolerance (at 1 sigma) of its tables")
     # how far the Doppler's own bias can put the level counts too (probe 103): 0.45 +- 0.02 deg pins nothing
     assert camera_side_note(far, {"steps": [], "levels": [{"level_deg": -0.45, "std_deg": 0.02, "pairs": 60}]}) == far
 
