@@ -939,3 +939,17 @@ def test_a_killed_reports_figures_are_removed_by_the_next_and_never_left_in_tmp(
     with pytest.raises(OSError) as e, figures_folder(page):  # another file's error: as it was
         raise OSError(errno.ENOENT, "No such file", "/data/x.jpg")
     assert e.value.filename == "/data/x.jpg"
+
+
+def test_the_tolerance_reads_alike_whichever_branch_gave_the_verdict():
+    """Probe 126: fleet.html's "Tolerance:" read "0.5 deg per camera axis, 2 cm per camera axis" or "0.5 deg per
+    rotation axis, 2 cm per translation axis (camera axes)" by which vehicle sorted first (a stored verdict, or an
+    inconclusive one)."""
+    axes = {"yaw": {"unit": "deg", "tolerance": 0.5, "decision": "undecided"},
+            "lateral offset": {"unit": "cm", "tolerance": 2.0, "decision": "undecided"}}
+    stored = _vr((0,) * 6, (0.05,) * 6, "weak: x", {"verdict_kind": "cannot tell", "verdict": "cannot tell: x",
+                                                    "axes": axes})
+    untrusted = _vr((0,) * 6, (0.05,) * 6, "inconclusive: y [the estimate's own status: weak: x]",
+                    {"verdict_kind": "cannot tell", "verdict": "cannot tell: x", "axes": axes})
+    a, b = verdict_of(stored), verdict_of(untrusted, Tolerance(rot_deg=0.5, trans_cm=2.0))
+    assert a.tolerance == b.tolerance == "0.5 deg per rotation axis, 2 cm per translation axis (camera axes)", (a, b)

@@ -286,7 +286,11 @@ def _verdict_vs_reference(vr: VehicleResult, tol: Tolerance) -> Verdict:
     if kind:  # the calibrator's reference test (calib.drift): kind, sentence and per-axis tolerances
         word = kind
         tols = {a.get("unit"): a.get("tolerance") for a in (d.get("axes") or {}).values()}
-        tol_text = ", ".join(f"{v:g} {u} per camera axis" for u, v in tols.items() if v is not None)
+        # in Tolerance.describe's words (probe 126: a fleet page said the one or the other by its first vehicle)
+        kinds = {"deg": "rotation", "cm": "translation"}
+        tol_text = ", ".join(f"{v:g} {u} per {kinds.get(str(u), 'camera')} axis" for u, v in tols.items()
+                             if v is not None)
+        tol_text = f"{tol_text} (camera axes)" if tol_text else ""
         return Verdict(word, str(given or kind), tol_text or "not stated by the result", source, moved, frames, d)
     if given:
         word = given.get("verdict", given.get("word", "")) if isinstance(given, dict) else str(given)
