@@ -349,3 +349,25 @@ def test_a_slowly_drifting_mount_ends_its_truth_path_at_the_drives_end(frames, p
     moved = dataclasses.replace(vr, truth_T=truths[-1], truth_path=path, error=None)
     back = VehicleResult.from_dict(moved.to_dict(), "veh-a")  # it raised
     assert [k for k, _ in back.truth_path] == [k for k, _ in path]
+
+
+def test_a_run_of_several_vehicles_says_which_of_how_many_it_computes(tmp_path, capsys):
+    """Probe 124: calibrate over several vehicles showed one bar per vehicle and nothing of the whole (no "k of N")."""
+    from hybrid_calib.calib.result import CalibrationRun, VehicleProgress
+    from hybrid_calib.errors import DataError
+
+    vr = _run(rng(1)).vehicles["veh-a"]
+    done = VehicleProgress(tmp_path, tmp_path, "v1.0-sim", "hybrid", {"seed": 0})
+
+    def compute(name):
+        if name == "c":
+            raise DataError("no usable frame")
+        return vr
+
+    run = CalibrationRun(str(tmp_path), "v1.0-sim", "hybrid", "window")
+    done.fill(run, ["a", "b", "c"], compute)
+    err = capsys.readouterr().err
+    assert "vehicle 1 of 3: a" in err and "vehicle 3 of 3: c" in err and set(run.vehicles) == {"a", "b"}
+    VehicleProgress(tmp_path / "q", tmp_path, "v1.0-sim", "hybrid", {"seed": 0}).fill(
+        CalibrationRun(str(tmp_path), "v1.0-sim", "hybrid", "window"), ["a", "b"], compute, announce=False)
+    assert "vehicle" not in capsys.readouterr().err  # --no-progress: quiet

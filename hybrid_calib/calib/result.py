@@ -998,13 +998,15 @@ class VehicleProgress:
              on_vehicle: Callable[[VehicleResult], object] | None = None, announce: bool = True) -> None:
         """Each vehicle of ``names`` into ``run``: what an interrupted run kept, as it is, else ``compute(name)``,
         kept as soon as it ends; a ``DataError`` is that vehicle's failure (recorded, the others go on).
-        ``on_vehicle`` is called with each newly computed result."""
+        ``on_vehicle`` is called with each newly computed result; with ``announce`` (progress shown), each vehicle
+        computed of several is said first ("vehicle k of N: name")."""
         import sys
 
         if self.done and announce and not self._said:
             print(f"resuming: {len(self.done)} vehicle(s) finished by an interrupted run ({self.dir})",
                   file=sys.stderr)
-        for name in names:
+        names = list(names)
+        for k, name in enumerate(names, 1):
             if name in self.done:
                 kept = self.done[name]
                 if isinstance(kept, str):
@@ -1012,6 +1014,8 @@ class VehicleProgress:
                 else:
                     run.vehicles[name] = kept
                 continue
+            if announce and len(names) > 1:  # the vehicles' own bars say nothing of the whole (probe 124)
+                print(f"vehicle {k} of {len(names)}: {name}", file=sys.stderr, flush=True)
             try:
                 vr = compute(name)
             except DataError as e:  # this vehicle's data: recorded, the other vehicles go on
