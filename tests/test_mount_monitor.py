@@ -459,10 +459,11 @@ def test_the_estimate_s_yaw_is_checked_against_the_radar_s_own_and_widened_where
     assert np.isclose(np.degrees(np.sqrt(u @ out2[-1].cov @ u)), std_after)  # the yaw as without the LiDAR
 
 
-def test_an_estimate_whose_yaw_the_doppler_puts_at_the_tables_is_said_not_widened(knocked_and_not):
+def test_an_estimate_whose_yaw_the_doppler_puts_at_the_tables_is_said_and_widened(knocked_and_not):
     """Probe 98: a principal point 30 px off put the estimate's yaw 1.38 deg off while the radar's Doppler read it at
     its tables' yaw, 4.1 stds apart, under a "cannot tell" that said nothing. Beyond 3 stds it is said (the camera's
-    mount or intrinsics, or the estimate); not widened: a camera that moved is the estimate's to report."""
+    mount or intrinsics, or the estimate) and, since which cannot be told, widened to cover both (probes 126 and 128:
+    the estimate was the one off, 2.2 and 5-8 deg, and read "recalibrate" blamed on the camera)."""
     from hybrid_calib.geometry import se3_inverse
     from hybrid_calib.hybrid.corrections import reported_estimate, with_yaw_check
     from hybrid_calib.hybrid.drives import Drive
@@ -479,10 +480,11 @@ def test_an_estimate_whose_yaw_the_doppler_puts_at_the_tables_is_said_not_widene
     traj = [_frame(0, "f", 0, reported_estimate(T_est, cov, conf), 1, 1.0)]
     drive = Drive("v", list(idx), T_cr, T_cr, False, T_er)
     out, rec = with_yaw_check(traj, drive, conf, mon)
-    assert not rec["disagree"] and rec["sigmas"] > 3 and "widened" not in rec
+    assert not rec["disagree"] and rec["sigmas"] > 3 and rec["widened"]
     assert "stds from the radar's own" in out[-1].estimate.status and "intrinsics in calibrated_sensor.json" in \
-        out[-1].estimate.status
-    np.testing.assert_array_equal(out[-1].cov, traj[-1].cov)
+        out[-1].estimate.status and "widened to cover both" in out[-1].estimate.status
+    u = np.asarray(rec["direction"])
+    assert np.degrees(np.sqrt(u @ out[-1].cov @ u)) >= abs(rec["difference_deg"])  # covers the Doppler's
     near = [_frame(0, "f", 0, reported_estimate(se3_inverse(T_ec) @ _turned(T_er, 0.1), cov * 1e3, conf), 1, 1.0)]
     kept, rec = with_yaw_check(near, drive, conf, mon)
     assert kept == near and rec["sigmas"] <= 3 and "words" not in rec
