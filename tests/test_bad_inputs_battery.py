@@ -61,8 +61,9 @@ def _table(root: Path, name: str) -> tuple[Path, list]:
 
 
 def _one_paragraph(err: str) -> bool:
-    """The error is one line (progress bars of the work before it aside)."""
-    lines = [ln for ln in err.splitlines() if "it/s]" not in ln and "s/it]" not in ln and ln.strip()]  # tqdm bars
+    """The error is one line (progress of the work before it aside: tqdm bars, "vehicle k of N: name")."""
+    lines = [ln for ln in err.splitlines() if "it/s]" not in ln and "s/it]" not in ln and ln.strip()
+             and not re.match(r"vehicle \d+ of \d+: ", ln)]
     return len(lines) == 1 and lines[0].startswith("hybrid-calib ")
 
 
