@@ -228,9 +228,13 @@ def prior_left_out(vr) -> str:
     if why := untrusted_status(vr.final.status):
         return why
     if (vr.drift or {}).get("verdict_kind") == "recalibrate":
-        return ("its verdict is recalibrate (its mount is off its tables beyond the tolerance: a radar that moved is "
-                "no sample of the fleet's build)")
+        return TO_RECALIBRATE
     return ""
+
+
+# why a radar to recalibrate is not in the fleet prior (``prior_left_out``; summary.md's prior line names them by it)
+TO_RECALIBRATE = ("its verdict is recalibrate (its mount is off its tables beyond the tolerance: a radar that moved is "
+                  "no sample of the fleet's build)")
 
 
 def _own_estimate(vr) -> tuple[np.ndarray, np.ndarray]:
@@ -315,8 +319,8 @@ def summary_markdown(s: dict) -> str:
         shown = [f"{v:.{3 if i < 3 else 2}f}" if v >= floor[i] else "n.r." for i, v in enumerate(sp)]
         if fp.get("unmeasured"):  # pitch, roll, vertical (camera axes): a learned method's prior, not measured
             shown = ["n.m." if i in (0, 2, 4) else v for i, v in enumerate(shown)]
-        out = [n for n, r in s["vehicles"].items() if str((r.get("fleet_test") or {}).get("left_out", "")).startswith(
-            "not in the fleet prior: its verdict is recalibrate")]
+        out = [n for n, r in s["vehicles"].items() if str((r.get("fleet_test") or {}).get("left_out", "")).endswith(
+            TO_RECALIBRATE)]
         lines += [f"Fleet prior: {len(fp['inliers'])} inliers"
                   + (f" (left out of the fit, to recalibrate: {', '.join(sorted(out))})" if out else "")
                   + "; spread (1 sigma, camera axes) rot "
