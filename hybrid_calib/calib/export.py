@@ -386,6 +386,10 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
     if not results:
         raise OptionError("RESULT", "no result file given; pass the result.json of a calibrate or fleet run")
     paths = [Path(p).absolute() for p in results]  # export.json names them wherever it was typed (probe 72)
+    # a run's folder is its result.json (CalibrationRun.load reads either): its data stamp lies beside that file
+    # (probe 127: a folder's stamp was looked for in its parent, "records no data stamp", and a mount computed from
+    # tables edited since was written)
+    paths = [p / "result.json" if p.is_dir() and (p / "result.json").is_file() else p for p in paths]
     runs = [(p, CalibrationRun.load(p)) for p in paths]
     roots = {(str(Path(r.data).resolve()), r.version) for _, r in runs if r.data}
     given = data is not None
