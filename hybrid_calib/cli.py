@@ -111,6 +111,15 @@ def _quiet_stopped_workers(unraisable) -> None:
         sys.__unraisablehook__(unraisable)
 
 
+def _interrupts_stop_the_run(unraisable) -> None:
+    """``sys.unraisablehook`` under ``--debug``: a Ctrl-C, SIGTERM or SIGHUP raised inside a ``__del__`` delivered
+    again (``_quiet_stopped_workers``), everything else as Python says it."""
+    if isinstance(unraisable.exc_value, KeyboardInterrupt):
+        _quiet_stopped_workers(unraisable)
+    else:
+        sys.__unraisablehook__(unraisable)
+
+
 def _interrupt_main(signum: int) -> None:
     """``signum``'s Python handler run in the main thread at its next instruction (``_thread.interrupt_main``)."""
     import _thread
@@ -283,7 +292,8 @@ def main(argv: list[str] | None = None) -> int:
     before, unraisable = warnings.formatwarning, sys.unraisablehook
     if not debug:  # a warning is one line, as every other message: not our source file and line after it
         warnings.formatwarning = _one_line
-        sys.unraisablehook = _quiet_stopped_workers
+    # --debug too: an interrupt raised inside a __del__ stops the run (probe 127); the rest as Python says it there
+    sys.unraisablehook = _quiet_stopped_workers if not debug else _interrupts_stop_the_run
     term, _SIGTERM_SEEN[0] = None, 0
     if threading.current_thread() is threading.main_thread():  # signal handlers live in the main thread only
         # a SIGHUP that is ignored stays so: nohup's run outlives its terminal

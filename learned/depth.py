@@ -443,10 +443,11 @@ DEPTH_CHOICES = ("corrupted-truth (a simulated root), lidar-densified (a root wi
                  "depth-anything:/local/model/dir (any)")
 
 
-def check_depth_source(spec: str, root: str | Path, given: bool | str) -> None:
+def check_depth_source(spec: str, root: str | Path, given: bool | str, option: str = "--depth") -> None:
     """``OptionError`` (``--depth``) when depth ``spec`` cannot be computed on the nuScenes ``root``: the simulator's
     truth for ``corrupted-truth``, the LiDAR's files for ``lidar-densified``. ``given``: ``spec`` is the --depth the
-    user passed (else the checkpoint's; a string: the words for where the run chose it). Said once before the frames
+    user passed (else the checkpoint's; a string: the words for where the run chose it); ``option``: how the command
+    takes it (``--depth``; fleet's ``--set depth``). Said once before the frames
     are read, by every command that runs a network (probe 23, probe 71: every frame was skipped in turn, a line
     each)."""
     from hybrid_calib.errors import OptionError
@@ -465,9 +466,10 @@ def check_depth_source(spec: str, root: str | Path, given: bool | str) -> None:
                "readable")  # probe 80: a bare 'Permission denied' with no --depth advice
     else:
         return
-    source = given if isinstance(given, str) else "the --depth given" if given else "the checkpoint depth"
-    raise OptionError("--depth", f"{why} ({source}); pass another "
-                                 f"--depth: {DEPTH_CHOICES}")
+    source = given if isinstance(given, str) else f"the {option} given" if given else "the checkpoint depth"
+    # ``option``: how the command takes a depth (fleet: --set depth=...; probe 127: "pass another --depth" to a
+    # command that has none)
+    raise OptionError(option, f"{why} ({source}); pass another {option}: {DEPTH_CHOICES}")
 
 
 def _has_files(folder: Path) -> bool:

@@ -930,3 +930,13 @@ def test_directions_a_fleet_prior_pins_are_not_said_measured():
     res = calibrate_vehicle(VehicleInput("v", frames, reference=T), conf, progress=False, prior=tight, T_start=T)
     assert res.final.status.startswith("weak") and "pitch (rotation about camera x)" in res.final.status and \
         "pinned by the fleet prior, not measured by this drive" in res.final.status, res.final.status
+
+
+def test_the_fit_change_advice_names_a_command_that_runs():
+    """Probe 127: the fit-change words advised "the frames of each side apart", which no command can take (calibrate
+    takes the first N frames alone: --max-frames)."""
+    from hybrid_calib.calib.batch import fit_change_words
+
+    words = fit_change_words({"frame": 15, "before": 0.78, "after": 0.0, "z": 68.0})
+    assert "--mode window" in words and "--max-frames 15 calibrates the frames before it alone" in words
+    assert "each side apart" not in words

@@ -595,6 +595,11 @@ def test_an_interrupt_raised_inside_a_del_still_stops_the_run(capsys):
             Dies(cli.Terminated())
             for _ in range(10 ** 7):
                 pass
+        sys.unraisablehook, cli._SIGTERM_SEEN[0] = cli._interrupts_stop_the_run, 0  # --debug's (probe 127)
+        with pytest.raises(KeyboardInterrupt):
+            Dies(KeyboardInterrupt())
+            for _ in range(10 ** 7):
+                pass
     finally:
         sys.unraisablehook, cli._SIGTERM_SEEN[0] = before, 0
         signal.signal(signal.SIGTERM, handler)

@@ -371,6 +371,7 @@ def test_a_radar_to_recalibrate_is_left_out_of_the_fleet_prior_and_said(local_ru
     assert r["fleet_test"]["left_out"].startswith("not in the fleet prior: its verdict is recalibrate"), r
     assert "sim-veh-001" not in ((s["fleet_prior"] or {}).get("inliers") or [])
     assert "nor does a radar to recalibrate" in s["notes"][-1], s["notes"]
+    assert "have a trusted estimate and a verdict other than recalibrate" in s["notes"][-1]  # probe 127's words
     s["fleet_prior"] = {"spread_std_cam": {k: 1.0 for k in r["std_cam"]}, "mean_std_cam": r["std_cam"],
                         "inliers": ["sim-veh-000", "sim-veh-002"], "outliers": []}  # as a fleet of more would have
     assert "(left out of the fit, to recalibrate: sim-veh-001)" in summary_markdown(s)

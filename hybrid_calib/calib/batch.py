@@ -213,8 +213,8 @@ def fit_change_words(change: dict) -> str:
     return (f"{change['before']:.0%} of the rows of the frames before frame {change['frame']} fit the estimate and "
             f"{change['after']:.0%} of those from it on ({change['z']:.0f} stds of their frame-to-frame spread): the "
             "mount likely moved inside the drive at about that frame (or what the rows see changed there), and a batch "
-            "solve pools both sides; calibrate with --mode window, whose step test restarts from a step, or the "
-            "frames of each side apart")
+            "solve pools both sides; calibrate with --mode window, whose step test restarts from a step (--max-frames "
+            f"{change['frame']} calibrates the frames before it alone)")
 
 
 def _inlier_fraction(T: np.ndarray, frames: list[Correspondences], conf: BatchConfig) -> float:

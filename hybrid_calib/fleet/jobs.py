@@ -209,7 +209,8 @@ def _check_root(root: str, version: str, method: str, calib: dict, checkpoint: s
     from hybrid_calib.hybrid.drives import checked_depth
     from hybrid_calib.hybrid.loop import HybridConfig
 
-    checked_depth(root, version, merge(HybridConfig, {**calib, "method": method, "checkpoint": checkpoint or ""}))
+    checked_depth(root, version, merge(HybridConfig, {**calib, "method": method, "checkpoint": checkpoint or ""}),
+                  option="--set depth")  # fleet has no --depth
 
 
 def discover_jobs(roots: list[tuple[str, str, tuple[str, ...] | None]], method: str, out: str | Path,

@@ -214,7 +214,7 @@ def build_summary(m: Manifest, fit_prior: bool = True, alpha: float = 1e-3):
     if fit_prior and prior is None and results:  # fleet_prior.json was missing without a word (probe 52)
         summary["fleet_prior_note"] = (
             f"no fleet prior (fleet_prior.json): {len(trusted)} of the {len(results)} done vehicle(s) have a trusted "
-            f"estimate of a mount on its tables, fewer than the {MIN_VEHICLES} a fit needs" + (
+            f"estimate and a verdict other than recalibrate, fewer than the {MIN_VEHICLES} a fit needs" + (
                 " (an inconclusive, degenerate or unconverged estimate says nothing about where the fleet's mounts "
                 "are, nor does a radar to recalibrate)" if len(trusted) < len(results) else ""))
     return summary, prior

@@ -92,12 +92,12 @@ def resolve_depth(data, version: str, conf: HybridConfig) -> tuple[str, str]:
     return "", ""
 
 
-def checked_depth(data, version: str, conf: HybridConfig) -> tuple[str, str, str]:
+def checked_depth(data, version: str, conf: HybridConfig, option: str = "--depth") -> tuple[str, str, str]:
     """(``resolve_depth``'s spec and note, the spec the run computes: that or the checkpoint's) of a learned run on the
     root, after checking that the root has the tables and what that depth reads: ``DataError`` naming a missing table,
     ``OptionError`` (``--depth``: ``learned.depth.check_depth_source``). Said once before any frame is read (probes 23
     and 71), by calibrate once per run and by fleet once per root (probe 124: once per vehicle, each job indexing the
-    whole root first)."""
+    whole root first). ``option``: how the command takes a depth (``--depth``; fleet's ``--set depth``)."""
     from hybrid_calib.data.tables import require_tables
     from learned.depth import check_depth_source
 
@@ -106,7 +106,8 @@ def checked_depth(data, version: str, conf: HybridConfig) -> tuple[str, str, str
     effective = depth or trained_depth(conf.checkpoint or shipped_checkpoint(conf.start))
     # probe 101: the real root's default read "the --depth given"
     check_depth_source(effective, data, given=bool(conf.depth) or (
-        "chosen for a real root whose tables list a LIDAR_TOP, when no --depth is given" if depth else False))
+        f"chosen for a real root whose tables list a LIDAR_TOP, when no {option} is given" if depth else False),
+        option=option)
     return depth, note, effective
 
 
