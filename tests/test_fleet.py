@@ -1307,6 +1307,9 @@ def test_a_method_without_a_step_test_says_so_instead_of_counting_no_drift(local
     # the hybrid's count is of turns in yaw: said (probe 123: a radar moved 20 cm sideways counted "0 drifted")
     words = drifted_words({**summary, "method": "hybrid"})
     assert "a shift without a turn is not looked for" in words and "shift" not in drifted_words(summary), words
+    tested = {**summary, "counts": {**summary["counts"], "step_not_tested": 0}}  # oracle's window (probe 129)
+    assert "sees no step in a drive's first frames" in drifted_words(tested)
+    assert "first frames" not in drifted_words(summary)  # every drive untested: said so, not this
 
 
 def test_an_interrupted_fleet_leaves_no_job_running_in_its_manifest(fleet_root, tmp_path, monkeypatch):

@@ -531,6 +531,14 @@ def test_a_mount_monitor_that_tested_nothing_does_not_say_no():
     vr = _vr((0.0,) * 6, (0.05,) * 6, alarms=(99,))
     assert moved_during_drive(vr)[0].startswith("not tested: no step test could run on this result (the window's "
                                                 "step test computed no statistic over these 5 frames")
+    # the window's first frames build its long-run estimate: blind there, said (probe 129: knocked at frame 6, "no")
+    import dataclasses
+
+    late = _vr((0.0,) * 6, (0.05,) * 6, alarms=(99,), tested=True)
+    late.trajectory = [dataclasses.replace(f, step_statistic=None) if f.index < 3 else f for f in late.trajectory]
+    assert moved_during_drive(late)[0].startswith("no: no step alarm from the window's") and \
+        "blind to a step before frame 3 (the frames its long-run estimate is first built from)" in \
+        moved_during_drive(late)[0]
     # the monitor alone (the hybrid's window on no rows): its "no" is of turns in yaw, and says so (probe 123: a radar
     # moved 20 cm sideways read "Did the sensor move? no")
     vr.mount = {"steps": [], "levels": [], "frames_tested": 40, "pairs_tested": 40, "blind_frames": [10, 5]}

@@ -274,15 +274,20 @@ def write_summary(m: Manifest, plot: bool = True, alpha: float = 1e-3, notes: li
 
 def drifted_words(s: dict) -> str:
     """"N drifted inside the drive", or, for a method that looks for no step (``summary["step_test"]`` false),
-    that it was not looked for: a count of 0 read as "no radar moved"."""
-    if s.get("step_test", True):
-        blind = s["counts"].get("step_not_tested", 0)
-        return f"{s['counts']['drifted_in_drive']} drifted inside the drive" + (
-            " (the hybrid looks for a turn in yaw, with the radar mount monitor; a shift without a turn is not "
-            "looked for)" if s.get("method") == "hybrid" else "") + (
-            f" ({blind} not tested: no step test could run on {'its drive' if blind == 1 else 'their drives'}, too "
-            "short for the window's test and the radar mount monitor)" if blind else "")
-    return f"a step inside the drive not looked for (method {s['method']} has no step test: use hybrid or oracle)"
+    that it was not looked for: a count of 0 read as "no radar moved". With what its test cannot see (probes 123,
+    129): the hybrid's, a shift without a turn; the window's, a step in a drive's first frames."""
+    if not s.get("step_test", True):
+        return f"a step inside the drive not looked for (method {s['method']} has no step test: use hybrid or oracle)"
+    blind = s["counts"].get("step_not_tested", 0)
+    said = [f"{blind} not tested: no step test could run on {'its drive' if blind == 1 else 'their drives'}, too short "
+            "for the window's test and the radar mount monitor"] if blind else []
+    if s.get("method") == "hybrid":
+        said.append("the hybrid looks for a turn in yaw, with the radar mount monitor; a shift without a turn is not "
+                    "looked for")
+    elif s.get("method") == "oracle" and blind < s["counts"].get("done", 0):
+        said.append("the window's step test sees no step in a drive's first frames, from which its long-run estimate "
+                    "is first built: 15 by default")
+    return f"{s['counts']['drifted_in_drive']} drifted inside the drive" + (f" ({'; '.join(said)})" if said else "")
 
 
 def summary_markdown(s: dict) -> str:

@@ -214,8 +214,13 @@ def moved_during_drive(vr: VehicleResult) -> tuple[str, tuple[int, ...]]:
     mount = vr.mount or {}
     n = len(vr.trajectory)
     window_ran, mount_ran = step_tests_ran(vr.trajectory, mount)
+    first = next((f.index for f in vr.trajectory if f.step_statistic is not None), None)
+    # the frames before its first statistic build the long-run estimate it tests against: a step there is in it
+    # (probe 129: radars knocked at frame 6 read "Did the sensor move? no", nothing said of the first frames)
     window = (f"the window's windowed chi-square of the recent frames against the long-run estimate, over the {n} "
-              "frames the estimate used") if window_ran else ""
+              "frames the estimate used" + (f", blind to a step before frame {first} (the frames its long-run "
+                                            "estimate is first built from)" if first and first > vr.trajectory[0].index
+                                            else "")) if window_ran else ""
     blind = blind_words(mount) if mount else ""
     monitor = (f"the radar mount monitor (the radar's Doppler heading against the vehicle's ego poses) over "
                f"{tested_words(mount, (vr.drift or {}).get('reference'))}") if mount else ""
