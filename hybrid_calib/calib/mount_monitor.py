@@ -602,8 +602,12 @@ def _tested_words(summary: dict) -> str:
     if summary.get("implausible"):
         words += f"; {summary['implausible']}"
     elif len(levels) == 1 and pairs and not summary.get("steps"):  # the radar's yaw on the vehicle, as it reads
-        words += (f"; the radar's yaw on the vehicle {level_words(levels[0]['level_deg'], levels[0]['std_deg'])} its "
-                  "tables' (its Doppler against the ego poses)")
+        # the level's std, and with the Doppler's own bias as every comparison takes it (probe 129: "1.43 +- 0.04 deg
+        # (1 sigma)" here beside "1.43 +- 0.11 deg (1 sigma)" in the verdict, one quantity)
+        sd = levels[0]["std_deg"]
+        words += (f"; the radar's yaw on the vehicle {level_words(levels[0]['level_deg'], sd)} its tables' (its "
+                  f"Doppler against the ego poses; +- {float(np.hypot(sd, LEVEL_BIAS_DEG)):.2f} deg with the "
+                  "Doppler's own bias, as the checks against it take it)")
     if summary.get("sweeps_absent"):  # the hybrid's record: the tables list sweeps between keyframes, no files
         words += "; keyframes only: the root's radar sweeps between keyframes have no files (add sweeps/)"
     elif isinstance(gone := summary.get("sweeps_missing"), dict):
