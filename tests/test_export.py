@@ -470,3 +470,19 @@ def test_a_record_that_would_keep_a_pinned_axis_far_from_the_estimate_is_not_wri
     assert _why_not(vr, "trusted") == ""  # every axis kept: export_mounts says "the data decide no axis"
     vr.drift["verdict_kind"] = "cannot tell"
     assert _why_not(vr, "recalibrate").startswith("kept the tables: the verdict against them is 'cannot tell'")
+
+
+def test_a_written_yaw_its_radars_doppler_puts_far_off_is_said():
+    """Probe 129: a mount 1.39 deg off in yaw was written (its 1-sigma 0.55 deg) beside a Doppler record of the radar
+    1.37 +- 0.06 deg from it, and nothing said."""
+    from hybrid_calib.calib.drift import AXIS_WORDS
+    from hybrid_calib.calib.export import _doppler_doubt
+
+    std = {"yaw": {"written": "estimate", "std": 0.55, "unit": "deg"}}
+    far = {"level_deg": -1.37, "std_deg": 0.06, "pairs": 60}
+    words = _doppler_doubt(far, std, [], None)
+    assert words.startswith("; but the radar's own Doppler against the ego poses puts its yaw -1.37 +- 0.12 deg") and \
+        "2.4 of their combined 1-sigma" in words, words
+    assert _doppler_doubt({**far, "level_deg": -0.5}, std, [], None) == ""  # within 2 of it
+    assert _doppler_doubt(far, std, [AXIS_WORDS.index("yaw")], None) == ""  # the tables' yaw kept
+    assert _doppler_doubt(None, std, [], None) == ""

@@ -244,6 +244,26 @@ def _doppler_record(vr, T_written: np.ndarray, M_ref: np.ndarray) -> dict | None
             "of": "the radar's yaw on the vehicle minus the written mount's (its Doppler against the ego poses), deg"}
 
 
+def _doppler_doubt(doppler: dict | None, std_camera: dict, kept: list[int], turn) -> str:
+    """Words for an exported entry whose written yaw (its 1-sigma ``std_camera["yaw"]``) its radar's Doppler level
+    (``_doppler_record``, with ``LEVEL_BIAS_DEG``) puts more than 2 of their combined 1-sigma away, "" otherwise (a yaw
+    kept from the tables, or the Doppler's own turn written). Probe 129: a mount 1.39 deg off in yaw was written
+    beside a Doppler record 1.37 +- 0.06 deg from it, and nothing said."""
+    from hybrid_calib.calib.mount_monitor import LEVEL_BIAS_DEG
+
+    yaw = std_camera.get("yaw") or {}
+    if not doppler or turn is not None or AXIS_WORDS.index("yaw") in kept or not isinstance(yaw.get("std"),
+                                                                                          (int, float)):
+        return ""
+    level, sd = float(doppler["level_deg"]), float(np.hypot(doppler["std_deg"], LEVEL_BIAS_DEG))
+    z = abs(level) / max(float(np.hypot(sd, float(yaw["std"]))), 1e-12)
+    if z <= 2.0:
+        return ""
+    return (f"; but the radar's own Doppler against the ego poses puts its yaw {level:+.2f} +- {sd:.2f} deg (1 sigma, "
+            f"with its bias) from the written yaw, {z:.1f} of their combined 1-sigma: check the radar's yaw before "
+            "using this record")
+
+
 def _read_reference(src: dict, cache: dict) -> tuple[object, str]:
     """The earlier export a result's ``drift.reference`` names (``src``), read again once per path (``cache``: path
     -> (``data.reference.ExportReference`` or None, why)): (it, "") when it is the file the calibration read (its
@@ -585,6 +605,7 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
         if turn is not None:
             std_camera["yaw"] = {"written": "doppler", "std": float(turn["std_deg"]), "unit": "deg"}
         owner = "the exported mount's" if _against_export(vr) else "the tables'"  # what a kept axis holds (probe 106)
+        doubt = _doppler_doubt(entry.get("doppler"), std_camera, kept, turn)
         entry.update(exported=True, std_ego=_std_ego(new[0][2], cov), std_camera=std_camera,
                      tables_kept=[AXIS_WORDS[i] for i in kept],
                      why=f"exported: {len(new)} radar record(s) replaced" + (
@@ -593,7 +614,7 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
                          if kept else "") + (
                          f"; its yaw: the earlier export's turned by {float(turn['delta_deg']):+.2f} +- "
                          f"{float(turn['std_deg']):.2f} deg (1 sigma, left positive) about the vehicle's up axis, "
-                         "the radar's turn since that export by its Doppler" if turn is not None else ""))
+                         "the radar's turn since that export by its Doppler" if turn is not None else "") + doubt)
     for p, run in runs:  # a vehicle whose calibration failed is named, not dropped
         for name, reason in sorted(run.vehicles_failed.items()):
             if (not vehicles or name in vehicles) and name not in exp.vehicles:
