@@ -152,7 +152,8 @@ def run_trials(roots: list, version: str, out: Path, conf: CompareConfig, progre
     sessions, left_out = [], {}
     for r in roots:
         try:
-            sessions.append(_Session(r, version, dataclasses.replace(hconf, method="hybrid" if learned else "oracle")))
+            sessions.append(_Session(r, version, dataclasses.replace(hconf, method="hybrid" if learned else "oracle"),
+                                     depth_option="--set depth"))  # compare has no --depth (probe 130)
         except CheckpointError:  # the network's file, not this root: no root can be compared (it read "no vehicle")
             raise
         except DataError as e:  # no vehicle of this root reads: the other roots are compared

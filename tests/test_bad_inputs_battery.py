@@ -2680,6 +2680,9 @@ def test_a_root_the_method_cannot_run_on_is_refused_once_by_fleet_and_calibrate(
                             "depth=corrupted-truth", "--out", out], capsys,
                            "--set depth: corrupted-truth", "pass another --set depth")
     assert err.count("pass another --set depth") == 1, err  # fleet has no --depth (probe 127)
+    err = expect_cli_error(["compare", "--data", tiny.root, "--version", tiny.version, "--set",
+                            "depth=corrupted-truth", "--out", tmp_path / "cmp"], capsys,
+                           "--set depth: corrupted-truth", "pass another --set depth")  # nor compare (probe 130)
     bare = tmp_path / "bare"
     shutil.copytree(tiny.root, bare)
     (bare / tiny.version / "sample.json").unlink()

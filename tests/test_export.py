@@ -219,6 +219,8 @@ def test_untrusted_stale_and_misdirected_exports_are_refused(calibrated, tmp_pat
     # the run's folder, as the result file (probe 127: its stamp was looked for in the folder's parent, and written)
     exp = export_mounts([stale.parent], tmp_path / "o2f", which="trusted")
     assert exp.exported == [] and "computed from other data" in exp.vehicles["sim-veh-000"]["why"]
+    with pytest.raises(OptionError, match="is given twice .as a run's folder and its result.json"):  # probe 130
+        export_mounts([stale.parent, stale], tmp_path / "o2g")
     (stale.parent / "data_stamp.json").write_text('{"dig')  # damaged: read as no stamp, it exported (probe 109)
     exp = export_mounts([stale], tmp_path / "o2b", which="trusted")
     assert exp.exported == [] and "data_stamp.json is damaged" in exp.vehicles["sim-veh-000"]["why"], exp.vehicles

@@ -410,6 +410,9 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
     # (probe 127: a folder's stamp was looked for in its parent, "records no data stamp", and a mount computed from
     # tables edited since was written)
     paths = [p / "result.json" if p.is_dir() and (p / "result.json").is_file() else p for p in paths]
+    if twice := sorted({str(p) for p in paths if paths.count(p) > 1}):  # a folder and its result.json (probe 130)
+        raise OptionError("RESULT", f"{twice[0]} is given twice (as a run's folder and its result.json, or twice as "
+                                    "typed): pass each result once")
     runs = [(p, CalibrationRun.load(p)) for p in paths]
     roots = {(str(Path(r.data).resolve()), r.version) for _, r in runs if r.data}
     given = data is not None

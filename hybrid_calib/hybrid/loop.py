@@ -732,7 +732,8 @@ def vehicle_oracle(data, version: str, drive: Drive, conf: HybridConfig) -> Vehi
 class _Session:
     """What run_vehicle / run_calibration share: the frames, the drives and (learned methods) the network."""
 
-    def __init__(self, data, version: str, conf: HybridConfig):
+    def __init__(self, data, version: str, conf: HybridConfig, depth_option: str = "--depth"):
+        """``depth_option``: how the command takes a depth, for its refusal (compare's ``--set depth``)."""
         from learned.depth import needs_lidar
 
         self.data, self.version, self.conf = data, version, conf
@@ -744,7 +745,7 @@ class _Session:
                                                    said=self.said)
             self._check_some_drive()
             return
-        depth, self.note, effective = checked_depth(data, version, conf)  # "": the checkpoint's own
+        depth, self.note, effective = checked_depth(data, version, conf, depth_option)  # "": the checkpoint's own
         ckpt = conf.checkpoint or shipped_checkpoint(conf.start)
         conf = self.conf = self._trained_sweeps(conf, ckpt)
         self.frames, self.drives = open_drives(data, version, conf, lidar=needs_lidar(effective),
