@@ -164,8 +164,12 @@ def run_trials(roots: list, version: str, out: Path, conf: CompareConfig, progre
         raise HybridCalibError(f"no vehicle in {roots}" + (f": {failed_vehicles_message(left_out)}" if left_out
                                                           else ""))
     failed = []
+    # a kept trial must be this trial's: its vehicle, root and start seed (probe 131: a trial file of another seed or
+    # of a root left out since was kept, one (vehicle, start) counted twice and a left-out root's trials in the tables)
     todo = [(k, m) for k in range(conf.trials) for m in conf.methods
-            if _read_trial(_trial_file(out, m, k), m, k, vehicles[k % len(vehicles)][1]) is None]
+            if _read_trial(_trial_file(out, m, k), m, k, vehicles[k % len(vehicles)][1],
+                           str(Path(vehicles[k % len(vehicles)][0].data).resolve()),
+                           conf.seed + k // len(vehicles)) is None]
     for k, method in tqdm(todo, desc="compare trials", disable=not progress):
         s, name = vehicles[k % len(vehicles)]
         c = dataclasses.replace(hconf, method=method, seed=conf.seed + k // len(vehicles))
@@ -193,11 +197,12 @@ def load_trials(out: Path, method: str, trials: int) -> list[VehicleResult]:
     return [r for k in range(trials) if (r := _read_trial(_trial_file(out, method, k), method, k)) is not None]
 
 
-def _read_trial(path: Path, method: str, k: int, vehicle: str | None = None) -> VehicleResult | None:
-    """Trial ``k`` of ``method`` (on ``vehicle``, when given) from ``path``, or None when there is none yet. A
-    file that does not read back as that trial (cut short by a crash, edited, another schema, or another
-    method's, trial's or vehicle's result copied there) is reported on stderr and counts as not done, so it is
-    rerun."""
+def _read_trial(path: Path, method: str, k: int, vehicle: str | None = None, root: str | None = None,
+                seed: int | None = None) -> VehicleResult | None:
+    """Trial ``k`` of ``method`` (on ``vehicle`` of ``root`` from start seed ``seed``, when given) from ``path``, or
+    None when there is none yet. A file that does not read back as that trial (cut short by a crash, edited, another
+    schema, or another method's, trial's, vehicle's, root's or seed's result there) is reported on stderr and counts
+    as not done, so it is rerun."""
     if not path.exists():
         return None
     try:
@@ -207,8 +212,10 @@ def _read_trial(path: Path, method: str, k: int, vehicle: str | None = None) -> 
         vr = VehicleResult.from_dict(doc)
         if vr.error is None:  # every trial is scored (probe 45: an internal error); the loader checks the block whole
             raise ValueError("it holds no error against the truth or the tables (its 'error' block is missing)")
-        holds = {"method": vr.method, "trial": (vr.config or {}).get("trial"), "vehicle": vr.vehicle}
-        wanted = {"method": method, "trial": k, **({"vehicle": vehicle} if vehicle is not None else {})}
+        holds = {"method": vr.method, "trial": (vr.config or {}).get("trial"), "vehicle": vr.vehicle,
+                 "root": (vr.config or {}).get("root"), "seed": (vr.start or {}).get("seed")}
+        wanted = {"method": method, "trial": k, **({"vehicle": vehicle} if vehicle is not None else {}),
+                  **({"root": root} if root is not None else {}), **({"seed": seed} if seed is not None else {})}
         if wrong := [f"{key} {holds[key]!r}" for key, want in wanted.items() if holds[key] != want]:
             raise ValueError(f"it holds the result of {', '.join(wrong)}, not trial {k} of {method}"
                              + (f" on {vehicle}" if vehicle else ""))

@@ -1351,6 +1351,17 @@ def test_compare_reruns_a_damaged_trial_and_names_a_damaged_config(sim, tmp_path
         assert rc == 0 and f"trial file {trial} is unreadable" in err and "running that trial again" in err, err
         assert json.loads(trial.read_text())["final"] == good["final"]
         assert json.loads((out / "compare.json").read_text())["methods"]["oracle"]["trials"] == 1
+    # a trial of another start seed or root is not this trial (probe 131: kept, one start counted twice, a root left
+    # out since still in the tables)
+    for key, edit in (("seed 99", lambda d: d["start"].update(seed=99)),
+                      ("root '/elsewhere'", lambda d: d["config"].update(root="/elsewhere"))):
+        other = json.loads(json.dumps(good))
+        edit(other)
+        trial.write_text(json.dumps(other))
+        rc, err = run_cli(argv, capsys)
+        assert rc == 0 and f"it holds the result of {key}, not trial 0 of oracle" in err, err
+        assert json.loads(trial.read_text())["start"]["seed"] == good["start"]["seed"]
+        assert json.loads(trial.read_text())["config"]["root"] == good["config"]["root"]
     config = out / "compare_config.json"
     config.write_text(config.read_text()[:30])
     err = expect_cli_error(argv, capsys, "compare config of this --out is unreadable", config, "another --out")
