@@ -462,3 +462,24 @@ def test_frames_are_paired_by_the_cameras_path_whatever_origin_the_root_gives_it
         assert np.linalg.norm(ego_a - ego_b) > 1.0  # while the ego origins are 1.7 m apart
     near = ViewConfig(min_travel_m=3.0, min_turn_deg=3.0)  # keyframes ~2-5 m apart: some repeat at 3 m
     assert repeated_views(drive.camera_poses(idx), near) == repeated_views(moved.camera_poses(idx), near)
+
+
+def test_a_motion_cache_that_cannot_be_written_is_said_once_and_the_run_goes_on(tmp_path, monkeypatch, capsys):
+    """Probe 131: a --set cache_dir that cannot be created: the network cache said "going on without caching", then
+    the image matches' cache write stopped the whole compare ("No such file or directory [file /proc/x]")."""
+    from types import SimpleNamespace
+
+    import hybrid_calib.hybrid.motion as motion
+
+    monkeypatch.setattr(motion, "match_features", lambda a, b, camera, conf: (None, "no texture"))
+    blocker = tmp_path / "a-file"
+    blocker.write_text("x")
+    src = motion.MotionSource([], cache_dir=str(blocker / "cache"))  # under a file: cannot be created
+
+    def frame(token):
+        return SimpleNamespace(camera_token=token, load_image=lambda: None, camera=None)
+
+    assert src._matches(frame("a"), frame("b")) == (None, "no texture")
+    assert src._matches(frame("c"), frame("d")) == (None, "no texture")
+    err = capsys.readouterr().err
+    assert err.count("motion cache:") == 1 and "going on without caching image matches" in err, err

@@ -31,6 +31,7 @@ measurements are cached per frame pair as JSON under the network cache (``motion
 from __future__ import annotations
 
 import json
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -42,7 +43,7 @@ from hybrid_calib.atomic import write_bytes_atomic
 from hybrid_calib.calib.ego_doppler import pose_doppler_conflict, scene_break, sensor_travel
 from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.data.files import NPZ_ERRORS, file_part
-from hybrid_calib.errors import DataError
+from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.geometry import retract, so3_exp, so3_log
 from hybrid_calib.sensors.radar_velocity import RadarVelocityConfig, estimate_velocity
 from hybrid_calib.sensors.visual_odometry import (
@@ -179,6 +180,7 @@ class MotionSource:
     # the frames' radar sweeps (``calib.ego_doppler.frame_sweeps``' cache): the mount monitor and the lever arm
     # read and fit each sweep once
     sweeps: dict = field(default_factory=dict)
+    _cache_warned: bool = False  # an image-match cache entry that could not be written: said once
 
     def _frame(self, i: int):
         return self.frames[i]
@@ -233,7 +235,14 @@ class MotionSource:
                 np.savez(buf, reason=np.array(why))
             else:
                 np.savez(buf, pa=m[0], pb=m[1], K=m[2])
-            write_bytes_atomic(path, buf.getvalue())
+            try:
+                write_bytes_atomic(path, buf.getvalue())
+            except (OSError, HybridCalibError) as e:  # as the network cache: said once, the run goes on (probe 131: a
+                # cache_dir that cannot be created stopped a whole compare, "No such file or directory")
+                if not self._cache_warned:
+                    self._cache_warned = True
+                    print(f"motion cache: {path} could not be written ({e}); going on without caching image matches "
+                          "(and saying so once)", file=sys.stderr)
         return m, why
 
     def camera(self, fa, fb, R_cam_radar: np.ndarray, speed_mps: float | None = None, ego: bool = True
