@@ -22,7 +22,7 @@ import dataclasses
 import json
 import os
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -113,6 +113,8 @@ class MethodSummary:
     inconclusive_fraction: float
     ms_per_frame: float | None  # CPU wall time per frame (hybrid: network + window)
     frames_mean: float
+    # the errors' std over the trials (ddof 1; 0 for one trial): how far a mean of so few trials can move
+    std: dict[str, float] = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -254,6 +256,7 @@ def summarize_method(results: list[VehicleResult], labels: dict[str, str] | None
         inconclusive_fraction=float(np.mean([status_kind(r.final.status) == "inconclusive" for r in results])),
         ms_per_frame=float(np.mean(ms)) if ms else None,
         frames_mean=float(np.mean([r.n_frames for r in results])),
+        std={k: float(np.std([e[k] for e in errs], ddof=1)) if len(errs) > 1 else 0.0 for k in METRIC_KEYS},
     )
 
 
@@ -289,7 +292,21 @@ def _markdown(summary: CompareResult, conf: CompareConfig, command: str) -> str:
         ms = "-" if s.ms_per_frame is None else f"{s.ms_per_frame:.0f}"
         lines.append(f"| {m} | {s.trials} | {c['nees_mean']:.2f} | {c['nees_median']:.2f} | "
                      f"{100 * c['coverage_95']:.0f} % | {100 * s.not_ok_fraction:.0f} % | "
-                     f"{100 * s.inconclusive_fraction:.0f} % | {ms} | {s.frames_mean:.0f} |")
+                     f"{100 * s.inconclusive_fraction:.0f} % | {ms} | {s.frames_mean:.1f} |")
+    # how far a mean of so few trials moves, and which methods look for a step (probe 131: 0.545 against 0.544 deg
+    # over 4 trials read as a table of winners, with no spread beside it)
+    spread = "; ".join(f"{m} {s.std['rot_mean_deg']:.3f} deg, {s.std['trans_mean_cm']:.2f} cm"
+                       for m, s in summary.methods.items() if s.std)
+    if spread:
+        lines += ["", f"Spread over the trials (std of R.Mean, T.Mean): {spread}. Two methods' means closer than about "
+                      "twice that over the square root of the trials are within the trials' noise (the same starts: "
+                      "compare them trial by trial in trials/)."]
+    steps = [m for m in summary.methods if m in ("hybrid", "oracle")]
+    lines += ["", "Step tests: " + (f"{' and '.join(steps)} look{'s' if len(steps) == 1 else ''} for a step inside the "
+                                    "drive (hybrid: the radar mount monitor, turns in yaw; oracle: the window's test)"
+                                    if steps else "none of these methods looks for a step inside the drive")
+              + ("; pure and pure-avg look for none" if any(m in ("pure", "pure-avg") for m in summary.methods)
+                 else "") + "."]
     if said := inconclusive_words(summary):  # read where the figures are (probe 54: said in compare.json alone)
         lines += ["", f"**Inconclusive trials** ({said}): their estimates are in the tables above but are not to be "
                       "trusted, whatever their covariance; why, in each trial's status (trials/)."]

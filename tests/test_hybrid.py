@@ -378,6 +378,10 @@ def test_compare_smoke_resumes_and_writes_the_table(sim_root, tmp_path, capsys):
     md = (out / "compare.md").read_text()
     assert "| hybrid |" in md and "coverage" in md and (out / "error_vs_frames.png").stat().st_size > 1000
     assert "Command: `hybrid-calib compare --data" in md
+    # how far a mean of 2 trials moves, and which methods look for a step (probe 131)
+    assert "Spread over the trials (std of R.Mean, T.Mean): pure " in md and "within the trials' noise" in md
+    assert "Step tests: hybrid looks for a step inside the drive" in md and "pure and pure-avg look for none" in md
+    assert all(set(m["std"]) == set(m["mean"]) for m in s["methods"].values())
     trials = {m: [json.loads((out / "trials" / m / f"{k:04d}.json").read_text()) for k in range(2)]
               for m in ("pure", "pure-avg", "hybrid")}
     for k in range(2):
