@@ -583,6 +583,9 @@ def test_an_interrupt_raised_inside_a_del_still_stops_the_run(capsys):
             raise self.error
 
     before, handler = sys.unraisablehook, signal.signal(signal.SIGTERM, cli._on_sigterm)
+    # Python's own Ctrl-C handler (a shell's background job starts with SIGINT ignored, which keeps a process from
+    # having one: then no Ctrl-C reaches it at all, and there is nothing to deliver again)
+    sigint = signal.signal(signal.SIGINT, signal.default_int_handler)
     sys.unraisablehook = cli._quiet_stopped_workers
     try:
         with pytest.raises(KeyboardInterrupt) as got:
@@ -603,6 +606,7 @@ def test_an_interrupt_raised_inside_a_del_still_stops_the_run(capsys):
     finally:
         sys.unraisablehook, cli._SIGTERM_SEEN[0] = before, 0
         signal.signal(signal.SIGTERM, handler)
+        signal.signal(signal.SIGINT, sigint)
     assert "Exception ignored" not in capsys.readouterr().err
 
 
