@@ -652,7 +652,7 @@ def camera_side_note(drift: dict, mount: dict | None) -> dict:
     yaw) is then the likelier cause, not the radar. "At its tables": the level pins the radar's yaw within the
     tolerance of its tables' and lies 3 sigma from the estimate's. Unchanged otherwise (no monitor, a step, a level
     off the tables, or no yaw difference)."""
-    from hybrid_calib.calib.mount_monitor import LEVEL_BIAS_DEG, level_words, sole_level
+    from hybrid_calib.calib.mount_monitor import doppler_std, level_words, sole_level
 
     yaw = (drift.get("axes") or {}).get("yaw") or {}
     lv = sole_level(mount, plausible=False)
@@ -661,7 +661,7 @@ def camera_side_note(drift: dict, mount: dict | None) -> dict:
     level, std = float(lv.get("level_deg", np.nan)), float(lv.get("std_deg", np.nan))
     # where the radar is, the level's std and how far its Doppler's own bias can put it (probe 103: the std alone
     # read 0.45 +- 0.02 deg as pinned within a 0.5 deg tolerance)
-    pinned = float(np.hypot(std, LEVEL_BIAS_DEG))
+    pinned = doppler_std(std)
     # "agrees" only where the level pins the radar's yaw within the tolerance: a level of 0.11 +- 0.41 deg (ego poses
     # with 0.5 deg of noise per record, probe 98) "agreed" with anything and sent a fleet to a camera that was fine
     # probe 100: a level 0.25 +- 0.04 deg off the tables (within the tolerance, not "at" them) and an estimate 1.98 deg
@@ -733,13 +733,13 @@ def doppler_level_note(drift: dict | None, mount: dict | None) -> dict | None:
     poses' heading errors. Unchanged otherwise (another verdict, no one level, a step, an implausible level)."""
     if not drift or drift.get("verdict_kind") != "cannot tell" or drift.get("doppler_level"):
         return drift
-    from hybrid_calib.calib.mount_monitor import LEVEL_BIAS_DEG, level_words, sole_level
+    from hybrid_calib.calib.mount_monitor import doppler_std, level_words, sole_level
 
     yaw = (drift.get("axes") or {}).get("yaw") or {}
     if (lv := sole_level(mount)) is None or "tolerance" not in yaw:
         return drift
     level, std = float(lv.get("level_deg", np.nan)), float(lv.get("std_deg", np.nan))
-    sd = float(np.hypot(std, LEVEL_BIAS_DEG))
+    sd = doppler_std(std)
     if not (np.isfinite(level) and np.isfinite(sd)) or abs(level) - 3 * sd <= DOPPLER_NOTE_TOLERANCES * float(
             yaw["tolerance"]):
         return drift

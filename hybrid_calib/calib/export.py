@@ -249,13 +249,13 @@ def _doppler_doubt(doppler: dict | None, std_camera: dict, kept: list[int], turn
     (``_doppler_record``, with ``LEVEL_BIAS_DEG``) puts more than 2 of their combined 1-sigma away, "" otherwise (a yaw
     kept from the tables, or the Doppler's own turn written). Probe 129: a mount 1.39 deg off in yaw was written
     beside a Doppler record 1.37 +- 0.06 deg from it, and nothing said."""
-    from hybrid_calib.calib.mount_monitor import LEVEL_BIAS_DEG
+    from hybrid_calib.calib.mount_monitor import doppler_std
 
     yaw = std_camera.get("yaw") or {}
     if not doppler or turn is not None or AXIS_WORDS.index("yaw") in kept or not isinstance(yaw.get("std"),
                                                                                           (int, float)):
         return ""
-    level, sd = float(doppler["level_deg"]), float(np.hypot(doppler["std_deg"], LEVEL_BIAS_DEG))
+    level, sd = float(doppler["level_deg"]), doppler_std(doppler["std_deg"])
     z = abs(level) / max(float(np.hypot(sd, float(yaw["std"]))), 1e-12)
     if z <= 2.0:
         return ""

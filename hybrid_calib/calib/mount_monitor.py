@@ -533,15 +533,22 @@ def level_words(level_deg: float, std_deg: float) -> str:
     return f"{abs(level_deg):.2f} +- {std_deg:.2f} deg (1 sigma) {_side(level_deg) + ' of' if level_deg else 'at'}"
 
 
-def change_words(step: dict) -> str:
-    """Where a ``summary()`` step changed, in words: "from about frame N", or, where no reading was tested between it
-    and the reading before (``tested_before``: a stop, sweeps without a usable Doppler velocity), the interval (probe
-    123: a radar knocked at frame 20 of a 10 s stop read "from about frame 33", the first tested after it)."""
+def change_words(step: dict, about: bool = True) -> str:
+    """Where a ``summary()`` step changed, in words: "from about frame N" ("from frame N" without ``about``), or, where
+    no reading was tested between it and the reading before (``tested_before``: a stop, sweeps without a usable Doppler
+    velocity), the interval (probe 123: a radar knocked at frame 20 of a 10 s stop read "from about frame 33", the
+    first tested after it)."""
     before = step.get("tested_before")
     if isinstance(before, int) and step["change"] - before > 1:
         return (f"between frames {before} and {step['change']} (frames {before + 1}-{step['change'] - 1} were not "
                 "tested: no usable sweep pair there, as at a stop)")
-    return f"from about frame {step['change']}"
+    return f"from {'about ' if about else ''}frame {step['change']}"
+
+
+def doppler_std(std_deg: float, bias_deg: float | None = None) -> float:
+    """A level's 1-sigma with the Doppler's own bias (``LEVEL_BIAS_DEG`` unless given), deg: as every comparison with
+    the level takes it."""
+    return float(np.hypot(std_deg, LEVEL_BIAS_DEG if bias_deg is None else bias_deg))
 
 
 def blind_words(summary: dict) -> str:
@@ -606,7 +613,7 @@ def _tested_words(summary: dict) -> str:
         # (1 sigma)" here beside "1.43 +- 0.11 deg (1 sigma)" in the verdict, one quantity)
         sd = levels[0]["std_deg"]
         words += (f"; the radar's yaw on the vehicle {level_words(levels[0]['level_deg'], sd)} its tables' (its "
-                  f"Doppler against the ego poses; +- {float(np.hypot(sd, LEVEL_BIAS_DEG)):.2f} deg with the "
+                  f"Doppler against the ego poses; +- {doppler_std(sd):.2f} deg with the "
                   "Doppler's own bias, as the checks against it take it)")
     if summary.get("sweeps_absent"):  # the hybrid's record: the tables list sweeps between keyframes, no files
         words += "; keyframes only: the root's radar sweeps between keyframes have no files (add sweeps/)"
@@ -738,7 +745,7 @@ def yaw_agreement(T_cam_radar: np.ndarray, cov: np.ndarray, T_ego_cam: np.ndarra
     u = np.zeros(6)
     u[:3] = R_est.T @ np.array([0.0, 0.0, 1.0])  # a right rotation w of the radar turns the ego frame by R_est w
     std_est = float(np.degrees(np.sqrt(max(u @ np.asarray(cov, np.float64) @ u, 0.0))))
-    std_dop = float(np.hypot(std_lvl, bias_deg))
+    std_dop = doppler_std(std_lvl, bias_deg)
     d = yaw - level
     sig = abs(d) / max(np.hypot(std_est, std_dop), 1e-12)
     return {"estimate_deg": yaw, "estimate_std_deg": std_est, "doppler_deg": level, "doppler_std_deg": std_dop,

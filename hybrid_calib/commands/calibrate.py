@@ -246,7 +246,7 @@ def _report(result, out: Path, reused: bool = False) -> int:
                   f"{v.checkpoint}")
         if v.mount is not None:
             steps = "; ".join(f"the radar turned by {turn_words(st['step_deg'], st['std_deg'])} "
-                              f"{change_words(st).replace('from about frame', 'from frame')} (alarm at frame "
+                              f"{change_words(st, about=False)} (alarm at frame "
                               f"{st['at']})" for st in told_steps(v.mount))
             found = steps or ("not told" if v.mount.get("implausible") else
                               "no step" if v.mount.get("pairs_tested") else "not tested")
