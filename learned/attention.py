@@ -8,7 +8,7 @@ With f_I, f_R (B, m, c) the flattened feature maps, K_* = Linear(f_*), V_* = Lin
     F_hat_I = F_I + O_{I<-R},   F_hat_R = F_R + O_{R<-I}
 
 Optional multi-head split and 1/sqrt(d) scaling (config). The visualisation maps of the supplement
-(eqs. 10-11) are ``I_{I<-R} = max_j Softmax(a_IR)_ij`` and ``I_{R<-I} = max_j Softmax(a_IR^T)_ij``.
+(its eqs. 3-4) are ``I_{I<-R} = max_j Softmax(a_IR)_ij`` and ``I_{R<-I} = max_j Softmax(a_IR^T)_ij``.
 """
 
 from __future__ import annotations

@@ -34,7 +34,7 @@ class ModelConfig:
     bev_z_min_m: float = 0.0  # nearest Z of the BEV map (camera plane)
     pseudo_bev_max_depth_m: float = 80.0  # estimated depth beyond this is unreliable and is not splatted to BEV
     # --- feature extraction -----------------------------------------------------------------
-    feat_dim: int = 128  # C of F_R, F_I (paper: ResNet-18 layer2 width, so ImageNet weights load unchanged)
+    feat_dim: int = 128  # C of F_R, F_I (not given by the paper; ResNet-18's layer2 width, so ImageNet weights load)
     radar_widths: tuple = (64, 64, 128)  # radar ResNet stem/layer1/layer2 widths (ResNet-18's, trained from scratch)
     context_widths: tuple = (64, 64, 128)  # image ResNet-18 stem/layer1/layer2 widths (pretrained loads only at these)
     depth_branch_mid: int = 64  # channels after the first of the two depth/pseudo-BEV convolutions
@@ -63,12 +63,12 @@ class ModelConfig:
     sk_min_dim: int = 32  # lower bound of that size (SKNet's L)
     # --- regression head ---------------------------------------------------------------------
     iterations: int = 3  # paper N = 3
-    lstm_hidden: int = 256  # LSTM hidden size (not given; CalibDepth-like)
+    lstm_hidden: int = 256  # hidden size of the one-layer LSTM cell (CalibDepth's decoder: 2 layers, dropout 0.5)
     uncertainty: str = "learned"  # per-frame SE(3) covariance: "learned" log-variance head, or iteration "spread"
     # --- losses (paper values where marked) --------------------------------------------------
     beta: float = 0.1  # paper: L_total = L_calib + beta L_matching
     lam: float = 0.75  # paper lambda: positive/negative balance of L_M
-    iter_gamma: float = 0.8  # weight gamma^(N-n) of iteration n in L_calib (RAFT/CalibDepth-style sequence loss)
+    iter_gamma: float = 0.8  # weight gamma^(N-n) of iteration n in L_calib (RAFT-style sequence loss; not CalibDepth's)
     calib_rot_weight: float = 1.0  # weight of the rotation term (radians, sin-vector of the residual)
     calib_trans_weight: float = 1.0  # weight of the translation term (metres, smooth-L1)
     calib_point_weight: float = 0.5  # weight of the point-cloud distance term (metres; LCCNet/CalibDepth)
@@ -158,7 +158,7 @@ def model_config(preset: str | ModelConfig | Mapping = "small", overrides: Mappi
     return merge(ModelConfig, base, "model.")  # errors name the option as --set model.KEY
 
 
-# The ablation rows of the paper's Table 3 / Table 4 as overrides (FV/BEV/SF/MCA/EMS/NR columns).
+# The ablation rows of the paper's Table 2 (modules) and Table 3 (fusion) as overrides (FV/BEV/SF/MCA/EMS/NR columns).
 ABLATIONS: dict[str, dict[str, Any]] = {
     "fv_only": dict(views="fv", use_mca=False, use_ems=False, use_nr=False),
     "bev_only": dict(views="bev", use_mca=False, use_ems=False, use_nr=False),

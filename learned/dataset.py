@@ -11,7 +11,8 @@ One sample (``CalibDataset[i]``), tensors float32 unless said otherwise:
   (variant "lidar", the supplement's LiDAR-camera network: radar = LiDAR points in the LiDAR frame
   that lie in front of the camera under T_init, and T_init / T_gt are T_cam_lidar.)
   lidar_cam: (Mmax, 3) metres, LiDAR points moved into the CAMERA frame (in front of the camera and
-    inside the image); lidar_mask: (Mmax,) bool.
+    inside the image); lidar_mask: (Mmax,) bool; lidar_fraction: () float, the share of the sweep's
+    in-image points kept (1 unless subsampled to Mmax; the NR matcher scales its tau by it).
   perturbation: (6,) float64, the sampled [roll, pitch, yaw] (rad, camera axes) and [dx, dy, dz] (m).
   index: int (position in the dataset), token: str (camera sample_data token).
 ``collate`` stacks a list of samples into the batch dict the model takes (dropping ``None``s, which
@@ -427,6 +428,8 @@ class CalibDataset(torch.utils.data.Dataset):
             keep = (z > 0.1) & (z < c.lidar_max_depth_m) & camera.in_image(uv)
             lidar_cam = pts[keep]
         lidar_pad, lidar_mask = _pad(lidar_cam, c.max_lidar_points, g)
+        # the share of the sweep's in-image points kept (the NR matcher's tau is the whole sweep's)
+        lidar_fraction = min(1.0, c.max_lidar_points / len(lidar_cam)) if len(lidar_cam) else 1.0
 
         return {
             "image": torch.from_numpy(np.ascontiguousarray(resized.transpose(2, 0, 1))).float() / 255.0,
@@ -438,6 +441,7 @@ class CalibDataset(torch.utils.data.Dataset):
             "T_gt": torch.from_numpy(T_gt.astype(np.float32)),
             "lidar_cam": torch.from_numpy(lidar_pad.astype(np.float32)),
             "lidar_mask": torch.from_numpy(lidar_mask),
+            "lidar_fraction": torch.tensor(lidar_fraction, dtype=torch.float32),
             "perturbation": torch.from_numpy(xi),
             "index": self.indices[i],
             "token": frame.camera_token,

@@ -1,12 +1,14 @@
 """Losses (paper Sec. 3.6): L_total = L_calib + beta L_matching (+ a small NLL for the variance head).
 
-- ``calib_loss``: CalibDepth-style sequence loss over the N iterations, weight gamma^(N-1-n) for
-  iteration n (the last weighs 1), each a sum of
+- ``calib_loss``: the paper's L_calib is CalibDepth's (per-step supervision of each iteration's correction,
+  plus terms on the final pose); ours is a RAFT-style sequence loss over the N iterations instead (a
+  deviation, README "Where the network differs from the paper"), weight gamma^(N-1-n) for iteration n
+  (the last weighs 1), each a sum of
   rotation  SmoothL1(sin-vector of R_gt^T R_n) (radians),
   translation  SmoothL1(t_n - t_gt) (metres, camera frame),
   point distance  SmoothL1(T_n p - T_gt p) averaged over the valid input points (metres).
   It is exactly 0 when every T_n equals T_gt.
-- ``matching_loss``: paper eqs. 15-17 for one view and one iteration,
+- ``matching_loss``: paper eqs. 16-19 for one view and one iteration,
   L_M = -(lambda / sum M * sum_ij log P_ij M_ij + (1 - lambda) / (sum N_I + sum N_R) *
   (sum_i log(1 - sigma_I,i) N_I,i + sum_j log(1 - sigma_R,j) N_R,j)), per sample, then batch mean.
 - ``variance_nll``: Gaussian NLL of the right-tangent error Log(T_n^-1 T_gt) (detached) under the

@@ -10,7 +10,8 @@ Batch (all float32 unless said; B samples; the model input size H x W must be mu
     T_init:      (B, 4, 4) initial T_cam_radar (T_cam_lidar for the lidar variant)
     training / evaluation only:
     T_gt:        (B, 4, 4)
-    lidar_cam:   (B, M, 3) LiDAR points in the camera frame (for the NR matcher), lidar_mask (B, M) bool
+    lidar_cam:   (B, M, 3) LiDAR points in the camera frame (for the NR matcher), lidar_mask (B, M) bool,
+                 optional lidar_fraction (B,) the share of each sweep's in-image points kept (default 1)
 
 Output of ``forward`` (lists have one entry per iteration n = 0..N-1):
 
@@ -176,7 +177,8 @@ class RCAutoCalib(nn.Module):
             T_gt = batch["T_gt"]
             p_gt = transform.lie.transform_points(T_gt, points)
             keep, _ = nr_reliable(p_gt, mask, T_gt[:, :3, 3], batch["lidar_cam"], batch["lidar_mask"].bool(),
-                                  cfg.nr_tau, cfg.nr_delta_m, cfg.nr_delta_s_m, cfg.nr_chunk)
+                                  cfg.nr_tau, cfg.nr_delta_m, cfg.nr_delta_s_m, cfg.nr_chunk,
+                                  lidar_fraction=batch.get("lidar_fraction"))
         targets = []
         for n, T_in in enumerate(out["T_inputs"]):
             t = {}

@@ -4,7 +4,7 @@ Ground truth ``M`` (B, m_I, m_R) in {0, 1}: a radar point p links the radar-map 
 *current* estimate T_init puts it (that is where its feature lives) to the image-map cell i where the
 *true* T_gt puts it (where the image shows it). ``M`` is made one-to-one (each radar cell keeps its most
 supported image cell, then each image cell its most supported radar cell), so that
-``N_I = 1 - sum_j M`` and ``N_R = 1 - sum_i M`` (paper eq. 17) are in {0, 1}.
+``N_I = 1 - sum_j M`` and ``N_R = 1 - sum_i M`` (paper eq. 19) are in {0, 1}.
 
 Noise-resistant matcher (FV only, radar only): with the radar point in the camera frame by T_gt,
 ``d = P_r^c - o`` its offset from the radar origin ``o = t_gt`` (camera frame), the range
@@ -18,7 +18,10 @@ Noise-resistant matcher (FV only, radar only): with the radar point in the camer
 (the paper writes w_B = dx + 2 Delta_s; we take |dx| so boxes left of the radar have a positive width,
 and keep the signed shift so the centre moves toward the radar, where a raised reflector at the same
 range lies). A radar point is reliable when at least ``tau`` LiDAR points (camera frame) fall inside its
-axis-aligned box; unreliable points are removed from ``M``.
+axis-aligned box; unreliable points are removed from ``M``. The paper's ``tau`` counts the points of the
+whole sweep: where a sample keeps a random fraction ``f`` of the sweep's in-image points (training's
+``max_lidar_points``), a box needs ``tau * f`` of the kept ones (the same expected density), so subsampling
+does not tighten the matcher.
 """
 
 from __future__ import annotations
@@ -49,12 +52,14 @@ def nr_boxes(points_cam: torch.Tensor, radar_origin_cam: torch.Tensor, delta: fl
 @torch.no_grad()
 def nr_reliable(points_cam: torch.Tensor, radar_mask: torch.Tensor, radar_origin_cam: torch.Tensor,
                 lidar_cam: torch.Tensor, lidar_mask: torch.Tensor, tau: int = 3, delta: float = 1.0,
-                delta_s: float = 0.5, chunk: int = 256) -> tuple[torch.Tensor, torch.Tensor]:
+                delta_s: float = 0.5, chunk: int = 256, lidar_fraction: torch.Tensor | None = None
+                ) -> tuple[torch.Tensor, torch.Tensor]:
     """Which radar points the NR matcher keeps.
 
     points_cam: (B, N, 3) radar points in the camera frame by T_gt; radar_mask: (B, N) bool;
-    radar_origin_cam: (B, 3); lidar_cam: (B, M, 3) LiDAR points, camera frame; lidar_mask: (B, M) bool.
-    Returns keep (B, N) bool (valid and >= tau LiDAR points in the box) and counts (B, N) long.
+    radar_origin_cam: (B, 3); lidar_cam: (B, M, 3) LiDAR points, camera frame; lidar_mask: (B, M) bool;
+    lidar_fraction: optional (B,) fraction in (0, 1] of the sweep's points ``lidar_cam`` keeps (default 1).
+    Returns keep (B, N) bool (valid and >= tau x lidar_fraction LiDAR points in the box) and counts (B, N) long.
     """
     centre, size = nr_boxes(points_cam, radar_origin_cam, delta, delta_s)
     half = size / 2
@@ -63,7 +68,10 @@ def nr_reliable(points_cam: torch.Tensor, radar_mask: torch.Tensor, radar_origin
         c, h = centre[:, s:s + chunk, None, :], half[:, s:s + chunk, None, :]
         inside = ((lidar_cam[:, None, :, :] - c).abs() <= h).all(-1) & lidar_mask[:, None, :]
         counts[:, s:s + chunk] = inside.sum(-1)
-    return radar_mask & (counts >= tau), counts
+    if lidar_fraction is None:
+        return radar_mask & (counts >= tau), counts
+    f = torch.as_tensor(lidar_fraction, dtype=torch.float64, device=counts.device).reshape(-1, 1).clamp(1e-9, 1.0)
+    return radar_mask & (counts.double() >= tau * f), counts
 
 
 def match_matrix(cell_I: torch.Tensor, cell_R: torch.Tensor, m_I: int, m_R: int
@@ -71,7 +79,7 @@ def match_matrix(cell_I: torch.Tensor, cell_R: torch.Tensor, m_I: int, m_R: int
     """One-to-one ground-truth matches from per-point cell pairs.
 
     cell_I, cell_R: (B, N) long flat cell indices, -1 where the point gives no pair.
-    Returns M (B, m_I, m_R) float {0, 1}, N_I (B, m_I), N_R (B, m_R) (paper eq. 17).
+    Returns M (B, m_I, m_R) float {0, 1}, N_I (B, m_I), N_R (B, m_R) (paper eq. 19).
     """
     B = cell_I.shape[0]
     ok = (cell_I >= 0) & (cell_R >= 0)

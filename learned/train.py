@@ -52,7 +52,8 @@ LOSS_ONLY_KEYS = ("beta", "lam", "iter_gamma", "calib_rot_weight", "calib_trans_
                   "unc_weight", "use_nr", "nr_tau", "nr_delta_s_m", "nr_delta_m", "nr_chunk")
 
 # Batch keys the model reads (the dataset adds bookkeeping keys: perturbation, index, token).
-MODEL_KEYS = ("image", "depth", "K", "radar", "radar_mask", "T_init", "T_gt", "lidar_cam", "lidar_mask")
+MODEL_KEYS = ("image", "depth", "K", "radar", "radar_mask", "T_init", "T_gt", "lidar_cam", "lidar_mask",
+              "lidar_fraction")
 # Loss terms logged when the model returns them.
 LOSS_KEYS = ("total", "calib", "matching", "uncertainty")
 

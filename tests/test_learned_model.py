@@ -134,6 +134,14 @@ def test_nr_matcher_removes_unsupported_points_from_targets():
     with_nr = model.match_targets(out, batch)[0]["fv"][0].sum()
     no_nr = tiny_model(use_nr=False).match_targets(out, batch)[0]["fv"][0].sum()
     assert 0 < with_nr < no_nr  # LiDAR supports only half the radar points
+    # one of the 6 LiDAR points by each supported radar point kept: below the paper's tau = 3 as a whole
+    # sweep, but a sixth of one (lidar_fraction, which the model passes to the matcher) stands for 6 (probe 132)
+    one = batch["lidar_mask"].clone()
+    one[:, torch.arange(one.shape[1]) % 6 != 0] = False
+    thin = {**batch, "lidar_mask": one}
+    thin_nr = model.match_targets(out, thin)[0]["fv"][0].sum()
+    sixth = model.match_targets(out, {**thin, "lidar_fraction": torch.full((len(one),), 1 / 6)})[0]["fv"][0].sum()
+    assert thin_nr < with_nr <= sixth <= no_nr, (thin_nr, with_nr, sixth, no_nr)
 
 
 def test_overfit_one_batch():

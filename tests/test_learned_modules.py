@@ -204,3 +204,11 @@ def test_nr_reliable_keeps_supported_points():
     assert keep[0].tolist() == [True, False, False, False]
     keep2, _ = nr_reliable(radar, mask, origin, lidar, torch.ones(1, 9, dtype=torch.bool), tau=3, chunk=1)
     assert torch.equal(keep, keep2)
+    # a sample that kept half of its sweep's points needs half the paper's tau in a box (the same density):
+    # point 1's 2 kept points stand for ~4 of the sweep's (probe 132: subsampling tightened the matcher)
+    half, _ = nr_reliable(radar, mask, origin, lidar, torch.ones(1, 9, dtype=torch.bool), tau=3,
+                          lidar_fraction=torch.tensor([0.5]))
+    assert half[0].tolist() == [True, True, False, False]
+    whole, _ = nr_reliable(radar, mask, origin, lidar, torch.ones(1, 9, dtype=torch.bool), tau=3,
+                           lidar_fraction=torch.tensor([1.0]))
+    assert torch.equal(whole, keep)

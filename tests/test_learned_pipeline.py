@@ -81,7 +81,7 @@ def frames(tmp_path_factory):
 
 
 def _dataset(frames, tmp_path, **kw) -> CalibDataset:
-    conf = DatasetConfig(height=48, width=96, max_radar_points=64, max_lidar_points=256, **kw)
+    conf = DatasetConfig(**{"height": 48, "width": 96, "max_radar_points": 64, "max_lidar_points": 256, **kw})
     return CalibDataset(frames, conf, CorruptedTruthDepth(), cache=DepthCache(tmp_path / "cache"))
 
 
@@ -94,10 +94,14 @@ def test_sample_shapes_and_collate(frames, tmp_path):
     shapes = {k: tuple(v.shape) for k, v in s.items() if isinstance(v, torch.Tensor)}
     assert shapes == {"image": (3, 48, 96), "depth": (1, 48, 96), "K": (3, 3), "radar": (64, 3), "radar_mask": (64,),
                       "T_init": (4, 4), "T_gt": (4, 4), "lidar_cam": (256, 3), "lidar_mask": (256,),
-                      "perturbation": (6,)}
+                      "lidar_fraction": (), "perturbation": (6,)}
     assert s["image"].dtype == torch.float32 and 0.0 <= s["image"].min() and s["image"].max() <= 1.0
     assert s["radar_mask"].sum() == 40 and s["lidar_mask"].sum() == 256  # 40 radar points padded, LiDAR subsampled
     assert torch.all(s["radar"][~s["radar_mask"]] == 0)
+    # the share of the sweep's in-image points kept: the NR matcher's tau is the whole sweep's (probe 132)
+    n_in_image = 256 / float(s["lidar_fraction"])
+    assert 256 < n_in_image <= 3000 and float(_dataset(frames, tmp_path / "all", max_lidar_points=3000)[0][
+        "lidar_fraction"]) == 1.0
     # LiDAR is in the camera frame: in front of the camera and inside the image
     lid = s["lidar_cam"][s["lidar_mask"]].double().numpy()
     uv, z = PinholeCamera.from_K(s["K"].double().numpy(), 96, 48).project(lid)

@@ -30,7 +30,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--version", type=version_name,
                         default="v1.0-sim", help="version folder (default v1.0-sim)")
     parser.add_argument("--preset", default="small", choices=("small", "paper"),
-                        help="small: 2 CPU cores, well under two hours; paper: 400x192, 50 epochs, Adam 1e-4")
+                        help="small: 2 CPU cores, well under two hours; paper: 400x192, 50 epochs, Adam 1e-4 "
+                             "(its image context net starts from ImageNet weights only with --set "
+                             "context_weights=FILE, a local ResNet-18 state dict: README)")
     parser.add_argument("--out", required=True, type=Path, help="run folder (checkpoints, logs, configs)")
     parser.add_argument("--range", dest="perturbation", default=None, choices=tuple(RANGES),
                         help="perturbation range of the training starts (default R1)")
