@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 ELEVATION_MODELS = ("zero", "mean_arc", "anisotropic", "height")
 KERNELS = ("none", "huber", "cauchy", "tukey", "geman_mcclure")
 
@@ -48,6 +50,10 @@ class RadarPixelFactorConfig:
     reflector_height_std_m: float = 2.0  # "height": reflector height std before truncation to the beam, m (sim ML fit)
     reflector_height_mean_std_m: float = 0.3  # "height": uncertainty of the mean height = radar-z translation std, m
     reflector_tilt_std_deg: float = 1.0  # "height": tilt of the height reference plane ~ radar pitch std, degrees
+    # "height": the unit normal of the plane the heights are measured from (the road's), in the radar frame;
+    # None: the radar's own plane (0, 0, 1). calibrate sets it per vehicle from its reference radar mount
+    # (the tables' or an export's), so a radar mounted off level is not taken for level
+    height_plane_normal: tuple[float, float, float] | None = None
     scene_knots_m: tuple[float, ...] = (0.0, 10.0, 20.0, 35.0, 60.0, 100.0)  # range knots of the scene profiles, m
     scene_height_std_m: float = 0.25  # per-knot std of the drive's mean-height offset, m (0 = off)
     scene_height_sq_std_m2: float = 0.35  # per-knot std of the drive's mean-squared-height offset, m^2 (0 = off)
@@ -74,6 +80,11 @@ class RadarPixelFactorConfig:
             raise ValueError(f"RadarPixelFactorConfig: reflector_height_std_m must be > 0, reflector_height_mean_std_m "
                              f"and reflector_tilt_std_deg >= 0; got {self.reflector_height_std_m}, "
                              f"{self.reflector_height_mean_std_m}, {self.reflector_tilt_std_deg}")
+        n = self.height_plane_normal
+        if n is not None and not (len(n) == 3 and all(np.isfinite(n)) and abs(np.linalg.norm(n) - 1) < 1e-6
+                                  and n[2] >= 0.5):
+            raise ValueError(f"RadarPixelFactorConfig.height_plane_normal must be a unit vector within 60 deg of the "
+                             f"radar's z axis (the road's normal in the radar frame), got {n}")
         knots = self.scene_knots_m
         if len(knots) < 2 or any(not b > a for a, b in zip(knots, knots[1:])) or knots[0] < 0:
             raise ValueError(f"RadarPixelFactorConfig.scene_knots_m must be >= 2 increasing ranges >= 0 (m), "

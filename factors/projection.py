@@ -64,8 +64,9 @@ def elevation_moments(beam_deg: float, mean_deg: float) -> tuple[float, float, f
     return float(np.cos(m) * sinc), float(np.sin(m) * sinc), float(b / np.sqrt(3.0))
 
 
-def truncated_normal_moments(mu: float, sd: float, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Mean and std of ``N(mu, sd^2)`` truncated to ``[lo, hi]`` (arrays of the same shape, lo < hi).
+def truncated_normal_moments(mu, sd, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and std of ``N(mu, sd^2)`` truncated to ``[lo, hi]`` (arrays of the same shape, lo < hi; ``mu``,
+    ``sd``: numbers or arrays of that shape).
 
     Where the window holds (numerically) none of the mass, the mean is ``mu`` clipped to the window
     and the std that of a uniform over the window (at most ``sd``).
@@ -86,15 +87,19 @@ def truncated_normal_moments(mu: float, sd: float, lo: np.ndarray, hi: np.ndarra
     return mean, std
 
 
-def height_elevation_prior(r: np.ndarray, conf: RadarPixelFactorConfig, with_cos: bool = False):
+def height_elevation_prior(r: np.ndarray, conf: RadarPixelFactorConfig, with_cos: bool = False,
+                           xy: np.ndarray | None = None):
     """Per-row elevation prior of the ``height`` model, from the slant range.
 
-    r: (N,) float64, metres, recorded slant range of each row. The reflector's height above the
-    radar plane is ``h ~ N(reflector_height_mean_m, reflector_height_std_m^2)`` truncated to the
-    beam ``[r sin(mean - beam), r sin(mean + beam)]`` (``elevation_mean_deg``, ``elevation_beam_deg``):
-    the radar only sees what is inside its beam, so near reflectors are confined to a few
-    decimetres and far ones are not. Returns ``phi`` (N,) = ``asin(E[h] / r)`` (radians, the
-    point the arc is linearised at) and ``sigma`` (N,) = ``min(std(h) / (r cos phi), beam / sqrt(3))``;
+    r: (N,) float64, metres, recorded slant range of each row; xy: (N, 2) the recorded points (metres,
+    radar frame), needed when ``conf.height_plane_normal`` is given. The reflector's height ``H`` above
+    the plane through the radar with normal ``n = height_plane_normal`` (default the radar plane, n = e_z)
+    is ``N(reflector_height_mean_m, reflector_height_std_m^2)``, so its radar z is
+    ``h = (H - n_x x - n_y y) / n_z``, truncated to the beam ``[r sin(mean - beam), r sin(mean + beam)]``
+    (``elevation_mean_deg``, ``elevation_beam_deg``): the radar only sees what is inside its beam, so near
+    reflectors are confined to a few decimetres and far ones are not. Returns ``phi`` (N,) =
+    ``asin(E[h] / r)`` (radians, the point the arc is linearised at) and ``sigma`` (N,) =
+    ``min(std(h) / (r cos phi), beam / sqrt(3))``;
     with ``with_cos`` also ``E[cos phi]`` (N,) = ``E[sqrt(1 - h^2/r^2)] ~ 1 - E[h^2] / (2 r^2)`` (error
     O((h/r)^4)), the radial foreshortening of the expected point (``r sigma^2 / 2``: centimetres at
     tens of metres, a measured forward bias if ignored).
@@ -102,10 +107,18 @@ def height_elevation_prior(r: np.ndarray, conf: RadarPixelFactorConfig, with_cos
     r = np.maximum(np.asarray(r, np.float64), 1e-6)
     beam, centre = np.deg2rad(conf.elevation_beam_deg), np.deg2rad(conf.elevation_mean_deg)
     lo, hi = r * np.sin(centre - beam), r * np.sin(centre + beam)
+    mu, sd = conf.reflector_height_mean_m, conf.reflector_height_std_m
+    n = conf.height_plane_normal
+    if n is not None:
+        if xy is None:
+            raise ValueError("height_elevation_prior: a height_plane_normal needs the rows' recorded points (xy)")
+        xy = np.asarray(xy, np.float64).reshape(-1, 2)
+        mu = (mu - n[0] * xy[:, 0] - n[1] * xy[:, 1]) / n[2]
+        sd = sd / n[2]
     if beam <= 0:
         mean_h, std_h = r * np.sin(centre), np.zeros(r.shape)
     else:
-        mean_h, std_h = truncated_normal_moments(conf.reflector_height_mean_m, conf.reflector_height_std_m, lo, hi)
+        mean_h, std_h = truncated_normal_moments(mu, sd, lo, hi)
     phi = np.arcsin(np.clip(mean_h / r, -1.0, 1.0))
     sigma = np.minimum(std_h / (r * np.cos(phi)), beam / np.sqrt(3.0))
     if not with_cos:
@@ -128,7 +141,7 @@ def row_model(corr: Correspondences, conf: RadarPixelFactorConfig) -> RowModel:
         p_bar, dp, kappa = p.copy(), np.zeros((n, 3)), np.zeros(n)
     elif conf.elevation_model == "height":
         r = np.linalg.norm(p[:, :2], axis=1)
-        phi, sigma_elev, c_mean = height_elevation_prior(r, conf, with_cos=True)
+        phi, sigma_elev, c_mean = height_elevation_prior(r, conf, with_cos=True, xy=p[:, :2])
         c, s = np.cos(phi), np.sin(phi)
         p_bar = np.stack([p[:, 0] * c_mean, p[:, 1] * c_mean, r * s], axis=1)  # E[p]: E[h] = r sin(phi)
         dp = np.stack([-p[:, 0] * s, -p[:, 1] * s, r * c], axis=1)

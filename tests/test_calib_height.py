@@ -4,6 +4,8 @@ draws from the height model when asked."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -201,3 +203,69 @@ def test_scene_nuisance_removes_the_leak_into_the_observable_directions():
         off.append(e @ np.linalg.solve(C_off[np.ix_(obs, obs)], e))
     assert 1.5 < np.mean(on) < 8.0, (np.mean(on), on)
     assert np.mean(off) > 1.5 * np.mean(on), (np.mean(off), off)
+
+
+def _tilted_radar_drive(T_cam_level, Q, g, frames=6):
+    """Oracle rows of a radar tilted by ``Q`` (4, 4: T_level_radar) against the road: reflector heights above the
+    road (N(0.5, 0.8)), each recorded in the tilted radar's plane (range, azimuth; z = 0)."""
+    from factors.synthetic import synthetic_correspondences
+
+    out = []
+    for k in range(frames):
+        c, tr = synthetic_correspondences(T_cam_level, n=80, rng=g, outlier_frac=0.0, height_m=(0.5, 0.8),
+                                          elevation_beam_deg=14.0)
+        p = tr["points_true"] @ Q[:3, :3]  # the true points in the tilted radar's frame
+        r, az = np.linalg.norm(p, axis=1), np.arctan2(p[:, 1], p[:, 0])
+        out.append(dataclasses.replace(c, points_radar=np.stack([r * np.cos(az), r * np.sin(az), 0 * r], 1),
+                                       frame_id=f"tilted-{k}"))
+    return out
+
+
+@pytest.mark.parametrize("roll_pitch_deg", [(0.0, 3.0), (3.0, 0.0)])
+def test_heights_are_measured_from_the_road_as_the_tables_mount_the_radar(roll_pitch_deg):
+    """Probe 133: a radar mounted 2-3 deg off level was taken for level (its heights measured from its own plane):
+    pitch 2.5 deg off at a 1 deg std, the bias leaking into roll, NEES ~60-90. With the road's normal in the radar
+    frame (``height_plane_normal``, which calibrate sets from the tables' mount: ``pipeline.road_normal``) the
+    estimate is unbiased and its NEES ~6."""
+    from hybrid_calib.calib.pipeline import road_normal
+    from hybrid_calib.geometry import make_T, so3_exp
+
+    Q = make_T(so3_exp(np.radians([*roll_pitch_deg, 0.0])), np.zeros(3))
+    T_cam_level = nominal_T_cam_radar()
+    T = T_cam_level @ Q
+    n = road_normal(Q)
+    np.testing.assert_allclose(n, Q[:3, :3].T @ [0, 0, 1])
+    fac = dict(HEIGHT, elevation_beam_deg=14.0, kernel="none")
+    nees, err = {}, {}
+    for plane in ("radar", "road"):
+        conf = RadarPixelFactorConfig(**fac, height_plane_normal=None if plane == "radar" else tuple(n))
+        e_all = []
+        for s in range(4):
+            g = rng(700 + s)
+            est = solve_batch(_tilted_radar_drive(T_cam_level, Q, g), T @ se3_exp(g.normal(size=6) * 0.01),
+                              {"factor": conf}).estimate
+            e = local(T, est.T)
+            e_all.append((np.degrees(np.abs(e[:3])).max(), float(e @ np.linalg.solve(est.cov, e))))
+        err[plane], nees[plane] = np.mean([a for a, _ in e_all]), np.mean([b for _, b in e_all])
+    assert err["road"] < 0.3 and 1.0 < nees["road"] < 12.0, (err, nees)
+    assert err["radar"] > 0.6 and nees["radar"] > 3 * nees["road"], (err, nees)
+
+
+def test_the_road_plane_is_set_where_the_options_leave_it_and_checked():
+    from hybrid_calib.calib.pipeline import CalibrateConfig, on_road_plane, road_normal
+    from hybrid_calib.config import merge
+    from hybrid_calib.geometry import make_T, so3_exp
+
+    n = road_normal(make_T(so3_exp(np.radians([0.0, 2.0, 0.0])), np.zeros(3)))
+    conf = on_road_plane(CalibrateConfig(), n)
+    assert conf.window.factor.height_plane_normal == tuple(n) == conf.batch.factor.height_plane_normal
+    mine = merge(CalibrateConfig, {"window": {"factor": {"height_plane_normal": [0.0, 0.0, 1.0]}}})
+    assert on_road_plane(mine, n).window.factor.height_plane_normal == (0.0, 0.0, 1.0)  # the user's kept
+    arc = merge(CalibrateConfig, {"window": {"factor": {"elevation_model": "anisotropic"}}})
+    assert on_road_plane(arc, n).window.factor.height_plane_normal is None  # no heights, no plane
+    assert on_road_plane(conf, None) is conf
+    # a radar mounted on its side (more than 60 deg off level): its own plane
+    assert road_normal(make_T(so3_exp(np.radians([90.0, 0.0, 0.0])), np.zeros(3))) is None
+    for bad in ([0.0, 0.0, 2.0], [1.0, 0.0, 0.0], [0.0, float("nan"), 1.0], [0.0, 1.0]):
+        with pytest.raises(ValueError, match="height_plane_normal"):
+            RadarPixelFactorConfig(height_plane_normal=tuple(bad))

@@ -97,7 +97,7 @@ def elevation_sigma(points_true_radar: np.ndarray, factor_conf) -> np.ndarray:
     if factor_conf.elevation_model == "zero":
         return np.zeros(len(P))
     if factor_conf.elevation_model == "height":
-        return height_elevation_prior(np.linalg.norm(P, axis=1), factor_conf)[1]
+        return height_elevation_prior(np.linalg.norm(P, axis=1), factor_conf, xy=P[:, :2])[1]
     return np.full(len(P), elevation_moments(factor_conf.elevation_beam_deg, factor_conf.elevation_mean_deg)[2])
 
 

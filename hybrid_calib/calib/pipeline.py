@@ -97,6 +97,33 @@ class VehicleInput:
     positions: list = field(default_factory=list)  # per frame its position in the drive (default: 0, 1, ...)
     against: str | None = None  # what ``truth`` is: "truth" (simulated; the default when given) or "tables" (real)
     reference_source: dict = field(default_factory=lambda: {"kind": "tables"})  # what ``reference`` is
+    # (3,) the road's normal in the radar frame by the reference radar mount (the elevation model's height plane)
+    road_normal: np.ndarray | None = None
+
+
+def road_normal(T_ego_radar) -> np.ndarray | None:
+    """(3,) the ego frame's z axis (the road's normal) in the frame of a radar mounted at ``T_ego_radar`` (4, 4),
+    or None for a mount more than 60 deg off level (the height model's plane is then the radar's own)."""
+    n = np.asarray(T_ego_radar, np.float64)[:3, :3].T @ np.array([0.0, 0.0, 1.0])
+    n = n / np.linalg.norm(n)
+    return n if n[2] >= 0.5 and np.all(np.isfinite(n)) else None
+
+
+def on_road_plane(conf: CalibrateConfig, normal) -> CalibrateConfig:
+    """``conf`` with the ``height`` elevation model's reference plane (``height_plane_normal``) set to the road's
+    ``normal`` (3,) where the options leave it unset: the reflectors' heights are the road's, not the radar's
+    plane's, so a radar mounted off level by its tables is not taken for level (probe 133: a radar pitched 2-3 deg
+    put its yaw and roll 3-5 sigma off)."""
+    if normal is None:
+        return conf
+
+    def put(fc):
+        if fc.elevation_model != "height" or fc.height_plane_normal is not None:
+            return fc
+        return dataclasses.replace(fc, height_plane_normal=tuple(float(v) for v in normal))
+
+    return dataclasses.replace(conf, window=dataclasses.replace(conf.window, factor=put(conf.window.factor)),
+                               batch=dataclasses.replace(conf.batch, factor=put(conf.batch.factor)))
 
 
 def require_oracle_truth(data) -> None:
@@ -156,6 +183,7 @@ def _load_oracle(data, version: str, conf: CalibrateConfig, progress: bool = Tru
             vi.oracle_truths.append(t)
             if vi.reference is None:
                 vi.reference = np.asarray(f.extras["reference_T_cam_radar"], np.float64)
+                vi.road_normal = road_normal(f.extras["reference_T_ego_radar"])
     return out
 
 
@@ -181,6 +209,7 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
     refs: dict[str, np.ndarray] = {}
     sources: dict[str, dict] = {}  # vehicle -> what its reference is (the tables, or an earlier export's mount)
     truths: dict[str, np.ndarray] = {}
+    normals: dict[str, np.ndarray | None] = {}
     tokens: set[str] = set()
     frame_of: dict = {}  # token -> its frame (FrameRef) of the root, when there is one
     camera_K: dict[str, np.ndarray] = {}  # frame token -> its camera's intrinsics in the root's tables
@@ -206,6 +235,7 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
         for vehicle, idx in ds.frames_by_vehicle().items():
             f = ds[idx[0]]
             refs[vehicle] = np.asarray(f.extras["reference_T_cam_radar"], np.float64)
+            normals[vehicle] = road_normal(f.extras["reference_T_ego_radar"])
             sources[vehicle] = ds.reference_source(vehicle)
             truths[vehicle] = np.asarray(f.extras.get("T_cam_radar_static", f.T_cam_radar), np.float64)
         ids = [str(m.frame_id) for ms in groups.values() for m in ms]
@@ -238,7 +268,8 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
             mine, timing = _at_camera_time(mine, frame_of, ds)
         out[vehicle] = VehicleInput(vehicle, [m.corr for m in mine], ref,
                                     [truth] * len(mine) if truth is not None else [], network=[m.network for m in mine],
-                                    against=against, reference_source=sources.get(vehicle, {"kind": "tables"}))
+                                    against=against, reference_source=sources.get(vehicle, {"kind": "tables"}),
+                                    road_normal=normals.get(vehicle))
         out[vehicle].skipped.extend({"index": None, "token": str(m.frame_id), "reason": "measurement file of a frame "
                                      "not in this root (another dataset's export): left out"}
                                     for m in ms if tokens and str(m.frame_id) not in tokens)
@@ -512,6 +543,8 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, progress: bool = 
     from hybrid_calib.calib.covariance import camera_offset, report_std
     from hybrid_calib.geometry import local
     from hybrid_calib.metrics import extrinsic_error, nees
+
+    conf = on_road_plane(conf, vi.road_normal)
 
     # a frame without rows (a network that matched nothing confidently) carries no information
     pos = list(vi.positions) if len(vi.positions) == len(vi.frames) else list(range(len(vi.frames)))
