@@ -101,6 +101,7 @@ def _run_one(job: dict) -> dict:
     from hybrid_calib.calib.crb import oracle_crb
     from hybrid_calib.calib.degeneracy import RowGeometry
     from hybrid_calib.calib.oracle import OracleConfig, oracle_from_frame
+    from hybrid_calib.calib.pipeline import road_normal
     from hybrid_calib.calib.window import SlidingWindowCalibrator
     from hybrid_calib.config import merge
     from hybrid_calib.errors import DataError
@@ -111,7 +112,14 @@ def _run_one(job: dict) -> dict:
     _load(job["root"], job["vehicle_frames"])
     frames_in = _DATA[job["vehicle"]][: job["frames"]]
     g = np.random.default_rng(job["seed"])
-    fconf = merge(RadarPixelFactorConfig, job["factor"])
+    factor = dict(job["factor"])
+    # as calibrate does (pipeline.on_road_plane): the world's heights measured from the road as the tables mount the
+    # radar (the "model" draw is from the radar's own plane)
+    normal = road_normal(frames_in[0].extras["reference_T_ego_radar"]) if frames_in else None
+    if job["elevation"] == "world" and factor.get("elevation_model") == "height" and normal is not None \
+            and factor.get("height_plane_normal") is None:
+        factor["height_plane_normal"] = [float(v) for v in normal]
+    fconf = merge(RadarPixelFactorConfig, factor)
     oconf = OracleConfig(n_per_frame=job["per_frame"], sigma_px=job["sigma_px"], outlier_frac=job["outliers"],
                          elevation=job["elevation"], elevation_model=fconf.elevation_model,
                          elevation_beam_deg=fconf.elevation_beam_deg, elevation_mean_deg=fconf.elevation_mean_deg,
@@ -142,7 +150,7 @@ def _run_one(job: dict) -> dict:
            "crb_var_report": np.diag(B @ crb @ B.T).tolist(),
            "crb_var_report_noscene": np.diag(B @ crb_base @ B.T).tolist()}
     scene_on = len(scene_prior_std(fconf)) > 0
-    wconf = {"window": job["window"], "schedule": {"final_gate": job["gate"]}, "factor": job["factor"]}
+    wconf = {"window": job["window"], "schedule": {"final_gate": job["gate"]}, "factor": factor}
     cal = SlidingWindowCalibrator(T0, wconf)
     ms, alarms = [], 0
     for c in frames:
@@ -151,7 +159,7 @@ def _run_one(job: dict) -> dict:
         alarms += int(o.step_alarm)
     modes = {"window": (o.T, o.cov, o.status, F_crb)}
     t0 = time.perf_counter()
-    b = solve_batch(frames, T0, {"schedule": {"final_gate": job["gate"]}, "factor": job["factor"]})
+    b = solve_batch(frames, T0, {"schedule": {"final_gate": job["gate"]}, "factor": factor})
     batch_s = time.perf_counter() - t0
     modes["batch"] = (b.estimate.T, b.estimate.cov, b.estimate.status, F_crb)
     if scene_on:  # paired: the same estimates read without the scene nuisance (today's covariance)
