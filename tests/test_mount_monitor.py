@@ -719,6 +719,22 @@ def test_a_last_reading_far_from_the_level_is_said_not_dropped():
         assert "end_reading" not in mon.summary()
 
 
+def test_a_drive_that_ends_on_its_alarm_reading_is_summarised():
+    """Probe 134 (HIGH): a drive whose last reading raised the alarm stopped the hybrid with 'internal error:
+    AttributeError' (end_reading read a MountStep field that does not exist), and mount_steps.py with it."""
+    g = np.random.default_rng(5)
+    mon = MountMonitor(frames=None, T_ego_radar=np.eye(4))
+    for k, y in enumerate(g.normal(0.05, 0.15, 25)):
+        mon.add_residual(k, float(y), pairs=6)
+    k = 25
+    while not mon.steps and k < 40:  # a 2 deg turn: the drive ends on the reading that raised the alarm
+        mon.add_residual(k, 2.0 + float(g.normal(0, 0.15)), pairs=6)
+        k += 1
+    assert mon.steps and mon.steps[-1].at == k - 1
+    summary = mon.summary()
+    assert "end_reading" not in summary and summary["steps"], summary  # the alarm says it: no end words
+
+
 def test_a_step_after_untested_frames_is_dated_by_the_interval():
     """Probe 123: a radar knocked at frame 20 of a 10 s stop (frames 9-32 untested: no usable sweep pair) read "from
     about frame 33", the first tested frame after the stop, without a word of the gap."""

@@ -315,7 +315,7 @@ class MountMonitor:
         if self._last is None or not self.series or self._last[0] != self.series[-1][0]:
             return None
         position, offset, z, pairs = self._last
-        if abs(z) < END_Z or pairs < END_PAIRS or (self.steps and self.steps[-1].position == position):
+        if abs(z) < END_Z or pairs < END_PAIRS or (self.steps and self.steps[-1].at == position):
             return None
         return {"frame": position, "offset_deg": offset, "z": z}
 
