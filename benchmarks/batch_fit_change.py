@@ -55,7 +55,9 @@ def main() -> int:
     for scenario in args.scenarios:
         for j, rot in enumerate(args.rot):
             seed = args.seed + 10 * SCENARIOS.index(scenario) + j
-            root = args.out / f"{scenario}-{rot:g}deg-{seed}"
+            # the drive's own options in its name: a rerun with other --frames / --vehicles simulates its own drives
+            # (probe 134: it reused the earlier ones and dated them against the new --frames)
+            root = args.out / f"{scenario}-{rot:g}deg-{seed}-{args.frames}f{args.vehicles}v"
             simulate(root, scenario, seed, args.frames, args.vehicles, rot)
             for v, vi in load_oracle(root, "v1.0-sim", conf, progress=False, say=False).items():
                 res = calibrate_vehicle(vi, conf, progress=False)
@@ -67,7 +69,9 @@ def main() -> int:
                        res.final.status.split(":")[0],
                        "nees": (res.error or {}).get("nees")}
                 rows.append(row)
-                found = f"found at frame {change['frame']} (z {change['z']:.1f})" if change else "no change"
+                found = ("no change" if not change else f"found at frame {change['frame']} (z {change['z']:.1f})"
+                         if change["z"] is not None else f"found: a compromise of the two sides of frame "
+                         f"{change['frame']} (each side alone fits {change['gain']:.0%} more of its rows)")
                 print(f"{root.name} {v}: {found}, {row['status']}, NEES {row['nees']:.1f}", flush=True)
     clean = [r for r in rows if not r["rot_deg"]]
     turned = [r for r in rows if r["rot_deg"]]

@@ -30,6 +30,7 @@ Elevation models on the simulator's real reflector heights, paired runs (same se
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import multiprocessing as mp
 import time
@@ -240,6 +241,9 @@ def main(argv=None) -> int:
     p.add_argument("--scene-sq-std", type=float, default=None, help="scene_height_sq_std_m2 (default: the config's)")
     p.add_argument("--ranges", nargs="+", default=["R1", "R2"])
     p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--seed", type=int, default=10_000,
+                   help="run k of start range i draws its noise, outliers and start from seed * (1 + i) + k "
+                        "(default 10000: the published tables' draws)")
     p.add_argument("--summary-only", action="store_true", help="summarise the runs already in the .jsonl, run nothing")
     p.add_argument("--out", type=Path, default=Path("outputs/bench_oracle"))
     a = p.parse_args(argv)
@@ -263,7 +267,7 @@ def main(argv=None) -> int:
         fc = factor_config(model, a.elevation, a.height_mean, a.height_std,
                            dict(zip(SCENE_KEYS, (a.scene_height_std, a.scene_lateral_std, a.scene_sq_std))))
         jobs = [dict(root=str(a.data), vehicle_frames=vf, vehicle=vehicles[k % len(vehicles)], range=rg,
-                     seed=10_000 * (1 + i) + k, frames=a.frames, per_frame=a.per_frame, sigma_px=a.sigma_px,
+                     seed=a.seed * (1 + i) + k, frames=a.frames, per_frame=a.per_frame, sigma_px=a.sigma_px,
                      outliers=a.outliers, window=a.window, gate=a.gate, elevation=a.elevation, factor=fc)
                 for k in range(a.runs) for i, rg in enumerate(a.ranges)]  # R1 and R2 interleaved
         # "anisotropic" keeps the tag of the runs measured before the height model existed
@@ -272,7 +276,12 @@ def main(argv=None) -> int:
             f"_m{fc['reflector_height_mean_std_m']:g}_t{fc['reflector_tilt_std_deg']:g}" + \
             ("" if not any(fc[k] for k in SCENE_KEYS) else
              f"_scene{fc['scene_height_std_m']:g}_{fc['scene_lateral_slope_std']:g}_{fc['scene_height_sq_std_m2']:g}")
-        tag = f"{a.elevation}{htag}_gate{a.gate:g}_w{a.window}_f{a.frames}"
+        # what else decides a run: kept runs of other data, noise, outliers or draws are not this table's (probe 134:
+        # a new --data or --sigma-px printed the old runs' table under the new arguments); heights from the road
+        opts = {"data": str(a.data.resolve()), "per_frame": a.per_frame, "sigma_px": a.sigma_px,
+                "outliers": a.outliers, "seed": a.seed, "plane": "road"}
+        digest = hashlib.sha256(json.dumps(opts, sort_keys=True).encode()).hexdigest()[:10]
+        tag = f"{a.elevation}{htag}_gate{a.gate:g}_w{a.window}_f{a.frames}_{digest}"
         summaries[model] = summary = _run_variant(a, jobs, tag, tqdm, save_json_atomic)
         summary["factor"] = fc
         save_json_atomic(a.out / f"summary_{tag}.json", summary)

@@ -129,8 +129,9 @@ def summarise(results: list[dict], within: int) -> dict:
         "per_1000_frames_upper95": 1000 * POISSON_95_UPPER.get(n_alarms, n_alarms + 2 * np.sqrt(n_alarms) + 2)
         / max(n_frames, 1)}}
     steps = {}
-    for kind, sizes in (("rot", ROT_SIZES_DEG), ("trans", TRANS_SIZES_CM)):
-        for size in sizes:
+    for kind in ("rot", "trans"):
+        for size in sorted({r["size"] for r in results if r["kind"] == kind}):  # every size run (probe 134: only
+            # the default sizes were summarised, --rot 1.5 or --trans 10 ran and vanished from the table)
             rs = [r for r in results if r["kind"] == kind and r["size"] == size]
             if not rs:
                 continue

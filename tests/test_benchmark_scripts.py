@@ -54,3 +54,17 @@ def test_the_ood_fit_hint_names_the_scripts_required_options():
     from learned.ood import FIT_HINT
 
     assert all(o in FIT_HINT for o in ("--checkpoint", "--data", "--heldout", "--out", "--fit-into"))
+
+
+def test_the_step_benchmarks_summarise_every_size_they_ran(monkeypatch):
+    """Probe 134 (LOW): only the default sizes (0.25 / 0.5 / 1 / 2 deg, 1 / 2 / 5 cm) were summarised: --rot 1.5 or
+    --trans 10 were simulated and run, then left out of the table and summary.json without a word."""
+    monkeypatch.syspath_prepend(str(ROOT / "benchmarks"))
+    from bench_steps import summarise
+
+    rows = [{"kind": "none", "false_alarms": 0, "tested": 50},
+            {"kind": "rot", "size": 1.5, "delay": 3, "false_alarms": 0},
+            {"kind": "rot", "size": 0.5, "delay": 4, "false_alarms": 0},
+            {"kind": "trans", "size": 10.0, "delay": None, "false_alarms": 0}]
+    steps = summarise(rows, 20)["steps"]
+    assert list(steps) == ["rot_0.5", "rot_1.5", "trans_10"] and steps["trans_10"]["detected"] == 0.0
