@@ -961,3 +961,17 @@ def test_the_tolerance_reads_alike_whichever_branch_gave_the_verdict():
                     {"verdict_kind": "cannot tell", "verdict": "cannot tell: x", "axes": axes})
     a, b = verdict_of(stored), verdict_of(untrusted, Tolerance(rot_deg=0.5, trans_cm=2.0))
     assert a.tolerance == b.tolerance == "0.5 deg per rotation axis, 2 cm per translation axis (camera axes)", (a, b)
+
+
+def test_the_page_s_residuals_measure_heights_from_the_road_as_calibrate_did(run_dir, monkeypatch):
+    """Session 50: calibrate measures the height model's reflector heights from the road as the vehicle's reference
+    mount puts the radar on it; the page rebuilt the rows' residuals and inliers with the radar's own plane."""
+    from hybrid_calib.report import evidence
+
+    seen = []
+    real = evidence._rows_residuals
+    monkeypatch.setattr(evidence, "_rows_residuals", lambda T, c, fc, gate: seen.append(fc) or real(T, c, fc, gate))
+    result = run_dir / "run" / "result.json"
+    run = CalibrationRun.load(result)
+    evidence.gather(run, result, sorted(run.vehicles)[0], None, None, n_frames=1)
+    assert seen and all(fc.height_plane_normal is not None and fc.height_plane_normal[2] > 0.99 for fc in seen)
