@@ -81,10 +81,14 @@ class RadarPixelFactorConfig:
                              f"and reflector_tilt_std_deg >= 0; got {self.reflector_height_std_m}, "
                              f"{self.reflector_height_mean_std_m}, {self.reflector_tilt_std_deg}")
         n = self.height_plane_normal
-        if n is not None and not (len(n) == 3 and all(np.isfinite(n)) and abs(np.linalg.norm(n) - 1) < 1e-6
-                                  and n[2] >= 0.5):
-            raise ValueError(f"RadarPixelFactorConfig.height_plane_normal must be a unit vector within 60 deg of the "
-                             f"radar's z axis (the road's normal in the radar frame), got {n}")
+        if n is not None:
+            v = np.asarray(n, np.float64)
+            norm = float(np.linalg.norm(v)) if v.shape == (3,) and np.all(np.isfinite(v)) else 0.0
+            if not (norm > 0 and v[2] >= 0.5 * norm):
+                raise ValueError(f"RadarPixelFactorConfig.height_plane_normal must be 3 finite numbers, a direction "
+                                 f"within 60 deg of the radar's z axis (the road's normal in the radar frame, e.g. "
+                                 f"[0, 0, 1]; it is normalised), got {n}")
+            object.__setattr__(self, "height_plane_normal", tuple(float(x) for x in v / norm))
         knots = self.scene_knots_m
         if len(knots) < 2 or any(not b > a for a, b in zip(knots, knots[1:])) or knots[0] < 0:
             raise ValueError(f"RadarPixelFactorConfig.scene_knots_m must be >= 2 increasing ranges >= 0 (m), "

@@ -266,6 +266,36 @@ def test_the_road_plane_is_set_where_the_options_leave_it_and_checked():
     assert on_road_plane(conf, None) is conf
     # a radar mounted on its side (more than 60 deg off level): its own plane
     assert road_normal(make_T(so3_exp(np.radians([90.0, 0.0, 0.0])), np.zeros(3))) is None
-    for bad in ([0.0, 0.0, 2.0], [1.0, 0.0, 0.0], [0.0, float("nan"), 1.0], [0.0, 1.0]):
+    for bad in ([1.0, 0.0, 0.0], [0.0, float("nan"), 1.0], [0.0, 1.0], [0.0, 0.0, 0.0], [0.0, 0.0, -1.0]):
         with pytest.raises(ValueError, match="height_plane_normal"):
             RadarPixelFactorConfig(height_plane_normal=tuple(bad))
+    # typed by hand (probe 135: a normal typed to 5 decimals was refused): normalised
+    np.testing.assert_allclose(RadarPixelFactorConfig(height_plane_normal=(0.0, 0.0, 2.0)).height_plane_normal,
+                               (0.0, 0.0, 1.0))
+    typed = RadarPixelFactorConfig(height_plane_normal=(-0.04213, 0.00904, 0.99907)).height_plane_normal
+    assert abs(np.linalg.norm(typed) - 1) < 1e-12
+
+
+def test_the_oracle_s_model_draw_keeps_the_radar_s_own_plane():
+    """Probe 135 (HIGH): oracle.elevation=model draws heights above the radar's own plane, but calibrate fitted them
+    from the road plane (a tilted mount: pitch 2.3 deg off, NEES 29.6)."""
+    import unittest.mock as mock
+
+    from hybrid_calib.calib import pipeline
+    from hybrid_calib.calib.oracle import synthetic_drive as drive
+    from hybrid_calib.calib.pipeline import CalibrateConfig, VehicleInput, calibrate_vehicle
+    from hybrid_calib.config import merge
+    from hybrid_calib.geometry import make_T, so3_exp
+
+    T = nominal_T_cam_radar()
+    frames, truths = drive(T, 4, rng(11), {"n_per_frame": 40})
+    seen = []
+    real = pipeline.on_road_plane
+    n = pipeline.road_normal(make_T(so3_exp(np.radians([0.0, 3.0, 0.0])), np.zeros(3)))
+    for elevation, planed in (("model", False), ("world", True)):
+        seen.clear()
+        conf = merge(CalibrateConfig, {"mode": "batch", "oracle": {"elevation": elevation}})
+        vi = VehicleInput("v", frames, reference=T, truth=[T] * 4, oracle_truths=truths, road_normal=n)
+        with mock.patch.object(pipeline, "on_road_plane", lambda c, nn: seen.append(nn) or real(c, nn)):
+            calibrate_vehicle(vi, conf, progress=False, T_start=T)
+        assert bool(seen) is planed, (elevation, seen)
