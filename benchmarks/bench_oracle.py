@@ -92,6 +92,19 @@ def factor_config(model: str, elevation: str, height_mean_m: float | None = None
     return out
 
 
+def on_road(factor: dict, frames: list, elevation: str) -> dict:
+    """``factor`` (overrides) with the heights measured from the road as calibrate does (``pipeline.on_road_plane``:
+    the vehicle's reference radar mount, from its first frame), for the world's heights; the oracle's model draw is
+    from the radar's own plane."""
+    from hybrid_calib.calib.pipeline import road_normal
+
+    normal = road_normal(frames[0].extras["reference_T_ego_radar"]) if frames else None
+    if elevation != "world" or factor.get("elevation_model") != "height" or normal is None \
+            or factor.get("height_plane_normal") is not None:
+        return dict(factor)
+    return {**factor, "height_plane_normal": [float(v) for v in normal]}
+
+
 def _run_one(job: dict) -> dict:
     import dataclasses
 
@@ -102,7 +115,6 @@ def _run_one(job: dict) -> dict:
     from hybrid_calib.calib.crb import oracle_crb
     from hybrid_calib.calib.degeneracy import RowGeometry
     from hybrid_calib.calib.oracle import OracleConfig, oracle_from_frame
-    from hybrid_calib.calib.pipeline import road_normal
     from hybrid_calib.calib.window import SlidingWindowCalibrator
     from hybrid_calib.config import merge
     from hybrid_calib.errors import DataError
@@ -113,13 +125,7 @@ def _run_one(job: dict) -> dict:
     _load(job["root"], job["vehicle_frames"])
     frames_in = _DATA[job["vehicle"]][: job["frames"]]
     g = np.random.default_rng(job["seed"])
-    factor = dict(job["factor"])
-    # as calibrate does (pipeline.on_road_plane): the world's heights measured from the road as the tables mount the
-    # radar (the "model" draw is from the radar's own plane)
-    normal = road_normal(frames_in[0].extras["reference_T_ego_radar"]) if frames_in else None
-    if job["elevation"] == "world" and factor.get("elevation_model") == "height" and normal is not None \
-            and factor.get("height_plane_normal") is None:
-        factor["height_plane_normal"] = [float(v) for v in normal]
+    factor = on_road(job["factor"], frames_in, job["elevation"])
     fconf = merge(RadarPixelFactorConfig, factor)
     oconf = OracleConfig(n_per_frame=job["per_frame"], sigma_px=job["sigma_px"], outlier_frac=job["outliers"],
                          elevation=job["elevation"], elevation_model=fconf.elevation_model,
@@ -278,8 +284,8 @@ def main(argv=None) -> int:
              f"_scene{fc['scene_height_std_m']:g}_{fc['scene_lateral_slope_std']:g}_{fc['scene_height_sq_std_m2']:g}")
         # what else decides a run: kept runs of other data, noise, outliers or draws are not this table's (probe 134:
         # a new --data or --sigma-px printed the old runs' table under the new arguments); heights from the road
-        opts = {"data": str(a.data.resolve()), "per_frame": a.per_frame, "sigma_px": a.sigma_px,
-                "outliers": a.outliers, "seed": a.seed, "plane": "road"}
+        opts = {"data": str(a.data.resolve()), "tables": _tables_digest(a.data), "per_frame": a.per_frame,
+                "sigma_px": a.sigma_px, "outliers": a.outliers, "seed": a.seed, "plane": "road"}
         digest = hashlib.sha256(json.dumps(opts, sort_keys=True).encode()).hexdigest()[:10]
         tag = f"{a.elevation}{htag}_gate{a.gate:g}_w{a.window}_f{a.frames}_{digest}"
         summaries[model] = summary = _run_variant(a, jobs, tag, tqdm, save_json_atomic)
@@ -288,6 +294,14 @@ def main(argv=None) -> int:
         print(json.dumps(summary, indent=1))
     print(comparison_table(summaries, a.ranges))
     return 0
+
+
+def _tables_digest(root: Path) -> str:
+    """SHA-256 of the root's tables (a root simulated again at the same path is other data: probe 135)."""
+    h = hashlib.sha256()
+    for p in sorted((root / "v1.0-sim").glob("*.json")):
+        h.update(p.name.encode() + p.read_bytes())
+    return h.hexdigest()[:16]
 
 
 def _run_variant(a, jobs: list[dict], tag: str, tqdm, save_json_atomic) -> dict:

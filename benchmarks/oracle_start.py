@@ -19,7 +19,7 @@ import numpy as np
 
 
 def main(argv=None) -> int:
-    from bench_oracle import factor_config
+    from bench_oracle import factor_config, on_road
 
     from factors.config import RadarPixelFactorConfig
     from hybrid_calib.calib.batch import solve_batch
@@ -46,6 +46,7 @@ def main(argv=None) -> int:
                          reflector_height_std_m=fconf.reflector_height_std_m)
     for vehicle, idx in sorted(ds.frames_by_vehicle().items()):
         data = [ds[i] for i in idx[: a.frames]]
+        fcv = on_road(fc, data, "world")  # the heights from the road, as calibrate measures them
         for seed in a.seeds:
             g = np.random.default_rng(seed)
             frames, truths = [], []
@@ -62,7 +63,7 @@ def main(argv=None) -> int:
             starts = {"truth": T, "R1": perturbed_start(T, np.random.default_rng([seed, 1]), "R1"),
                       "R2": perturbed_start(T, np.random.default_rng([seed, 2]), "R2")}
             for name, T0 in starts.items():
-                est = solve_batch(frames, T0, {"schedule": {"final_gate": 3.0}, "factor": fc}).estimate
+                est = solve_batch(frames, T0, {"schedule": {"final_gate": 3.0}, "factor": fcv}).estimate
                 e = B @ local(T, est.T)
                 C = B @ np.asarray(est.cov) @ B.T
                 row[name] = {"err_deg_cm": [round(float(np.degrees(x)), 4) for x in e[:3]]
