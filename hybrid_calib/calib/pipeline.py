@@ -132,6 +132,16 @@ def on_road_plane(conf: CalibrateConfig, normal) -> CalibrateConfig:
                                batch=dataclasses.replace(conf.batch, factor=put(conf.batch.factor)))
 
 
+def heights_plane(conf: CalibrateConfig, vi: VehicleInput) -> CalibrateConfig:
+    """``conf`` as ``calibrate_vehicle`` fits ``vi``'s rows: the height model's plane the road's (``on_road_plane``),
+    except for the oracle's model draw (``oracle.elevation=model``), whose heights are drawn above the radar's own
+    plane as the factor of that model reads them (probe 135: the road plane put a tilted mount's pitch 2.3 deg off,
+    NEES 29.6)."""
+    if vi.oracle_truths and conf.oracle.elevation == "model":
+        return conf
+    return on_road_plane(conf, vi.road_normal)
+
+
 def require_oracle_truth(data) -> None:
     """``OptionError`` (``--method``) when the root ``data`` has no simulator truth for the oracle (a real root)."""
     if not (Path(data) / "sim_truth").is_dir():
@@ -550,10 +560,7 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, progress: bool = 
     from hybrid_calib.geometry import local
     from hybrid_calib.metrics import extrinsic_error, nees
 
-    # the oracle's model draw (oracle.elevation=model) puts its heights above the radar's own plane, as the factor
-    # of the same model reads them: no road plane there (probe 135: pitch 2.3 deg off, NEES 29.6)
-    if not (vi.oracle_truths and conf.oracle.elevation == "model"):
-        conf = on_road_plane(conf, vi.road_normal)
+    conf = heights_plane(conf, vi)
 
     # a frame without rows (a network that matched nothing confidently) carries no information
     pos = list(vi.positions) if len(vi.positions) == len(vi.frames) else list(range(len(vi.frames)))

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hybrid_calib.calib.pipeline import CalibrateConfig, on_road_plane, replay_inputs
+from hybrid_calib.calib.pipeline import CalibrateConfig, heights_plane, replay_inputs
 from hybrid_calib.calib.result import IDENTITY_KEYS, CalibrationRun
 from hybrid_calib.config import merge
 from hybrid_calib.errors import DataError, HybridCalibError, OptionError, unencodable_words
@@ -216,8 +216,8 @@ def gather(run: CalibrationRun, result_path: Path, vehicle: str, data: str | Pat
             ev.start = ev.start if recorded is None else recorded
             ev.start_label = (f"the vehicle's reference ({reference_name(vr)})" if conf.start == "reference"
                               else f"the run's {conf.start} start (perturbed truth, seed {conf.seed})")
-            # the heights measured from the road as calibrate measured them (its reference mount's; the tables' here)
-            conf = on_road_plane(conf, vi.road_normal)
+            # the heights' plane calibrate fitted with (its reference mount's road; the tables' here)
+            conf = heights_plane(conf, vi)
             factor_conf, gate = _factor_and_gate(conf, run.mode)
             seg = segment_estimates(vr)
             rows = [_rows_residuals(seg.get(c.frame_id, (vr.final.T,))[0], c, factor_conf, gate)
