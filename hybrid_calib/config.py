@@ -184,7 +184,9 @@ def merge(cls: type[C], overrides: Mapping[str, Any] | C | None = None, _path: s
             raise ConfigError(f"option {_path}{key}={value!r} ({type(value).__name__}) is not a valid "
                               f"{_type_name(hint)} for {cls.__name__}.{key}; e.g. --set {_path}{key}="
                               f"{json.dumps(getattr(cls(), key), default=str)} (the default)"
-                              + (f"; a list is JSON with quoted strings: --set '{_path}{key}=[\"a\", \"b\"]'"
+                              + ((f"; a list is JSON with quoted strings: --set '{_path}{key}=[\"a\", \"b\"]'"
+                                  if "str" in _type_name(hint) else f"; a list is JSON: --set '{_path}{key}="
+                                  f"{_number_list_example(_type_name(hint))}'")
                                  if listy else ""))
         kwargs[key] = tuple(value) if isinstance(value, list) else value
     try:
@@ -193,6 +195,13 @@ def merge(cls: type[C], overrides: Mapping[str, Any] | C | None = None, _path: s
         raise
     except (ValueError, TypeError) as e:  # the dataclass's own checks (__post_init__)
         raise ConfigError(f"invalid {cls.__name__}{' at ' + _path.rstrip('.') if _path else ''}: {e}") from None
+
+
+def _number_list_example(type_name: str) -> str:
+    """A JSON list of numbers for a tuple of numbers (``[0, 0, 1]``): as many as a fixed-length tuple holds (two for
+    ``...``)."""
+    n = type_name.count("float") + type_name.count("int")
+    return "[" + ", ".join(["0"] * ((n if n and "..." not in type_name else 2) - 1) + ["1"]) + "]"
 
 
 def check_type(value: Any, hint: Any) -> bool:

@@ -299,3 +299,14 @@ def test_the_oracle_s_model_draw_keeps_the_radar_s_own_plane():
         with mock.patch.object(pipeline, "on_road_plane", lambda c, nn: seen.append(nn) or real(c, nn)):
             calibrate_vehicle(vi, conf, progress=False, T_start=T)
         assert bool(seen) is planed, (elevation, seen)
+
+
+def test_a_plane_normal_typed_as_text_is_shown_as_numbers():
+    """Probe 135 (LOW): the hint for a float triple typed as text showed a list of quoted strings."""
+    from hybrid_calib.calib.pipeline import CalibrateConfig
+    from hybrid_calib.config import ConfigError, merge
+
+    with pytest.raises(ConfigError, match=r"a list is JSON: --set 'window.factor.height_plane_normal=\[0, 0, 1\]'"):
+        merge(CalibrateConfig, {"window": {"factor": {"height_plane_normal": "0,0,1"}}})
+    with pytest.raises(ConfigError, match="a list is JSON with quoted strings"):
+        merge(CalibrateConfig, {"vehicles": "a,b"})
