@@ -50,9 +50,9 @@ class RadarPixelFactorConfig:
     reflector_height_std_m: float = 2.0  # "height": reflector height std before truncation to the beam, m (sim ML fit)
     reflector_height_mean_std_m: float = 0.3  # "height": uncertainty of the mean height = radar-z translation std, m
     reflector_tilt_std_deg: float = 1.0  # "height": tilt of the height reference plane ~ radar pitch std, degrees
-    # "height": the unit normal of the plane the heights are measured from (the road's), in the radar frame;
-    # None: the radar's own plane (0, 0, 1). calibrate sets it per vehicle from its reference radar mount
-    # (the tables' or an export's), so a radar mounted off level is not taken for level
+    # "height": the normal of the plane the heights are measured from (the road's), in the radar frame (normalised);
+    # None: the radar's own plane (0, 0, 1). calibrate sets it per vehicle from its reference radar mount (the
+    # tables' or an export's; not for the oracle's model draw), so a radar mounted off level is not taken for level
     height_plane_normal: tuple[float, float, float] | None = None
     scene_knots_m: tuple[float, ...] = (0.0, 10.0, 20.0, 35.0, 60.0, 100.0)  # range knots of the scene profiles, m
     scene_height_std_m: float = 0.25  # per-knot std of the drive's mean-height offset, m (0 = off)

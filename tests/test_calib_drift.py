@@ -949,7 +949,6 @@ def test_a_batch_estimate_between_two_mounts_is_found_by_solving_each_side():
     rows than such a compromise does; on a drive of one mount it fits no more."""
     from hybrid_calib.calib.batch import BatchConfig, fit_change, fit_change_words, split_fit
     from hybrid_calib.config import merge
-    from hybrid_calib.report.verdict import moved_during_drive  # noqa: F401 - the words' reader, below
 
     T = nominal_T_cam_radar()
     T2 = perturb_camera_frame(T, np.radians([0.0, 0.0, 1.0]), [0.0, 0.0, 0.0])
