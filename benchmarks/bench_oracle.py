@@ -96,13 +96,14 @@ def on_road(factor: dict, frames: list, elevation: str) -> dict:
     """``factor`` (overrides) with the heights measured from the road as calibrate does (``pipeline.on_road_plane``:
     the vehicle's reference radar mount, from its first frame), for the world's heights; the oracle's model draw is
     from the radar's own plane."""
-    from hybrid_calib.calib.pipeline import road_normal
+    from factors.config import RadarPixelFactorConfig
+    from hybrid_calib.calib.pipeline import road_factor, road_normal
+    from hybrid_calib.config import merge
 
-    normal = road_normal(frames[0].extras["reference_T_ego_radar"]) if frames else None
-    if elevation != "world" or factor.get("elevation_model") != "height" or normal is None \
-            or factor.get("height_plane_normal") is not None:
+    if elevation != "world" or not frames:
         return dict(factor)
-    return {**factor, "height_plane_normal": [float(v) for v in normal]}
+    fc = road_factor(merge(RadarPixelFactorConfig, factor), road_normal(frames[0].extras["reference_T_ego_radar"]))
+    return {**factor, "height_plane_normal": fc.height_plane_normal}
 
 
 def _run_one(job: dict) -> dict:

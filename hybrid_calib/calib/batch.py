@@ -217,15 +217,18 @@ def split_fit(T: np.ndarray, frames: list[Correspondences], positions: list[int]
     rows, drives of one mount 0-1 %). {"frame", "before", "after" (fractions at ``T``), "own_before", "own_after"
     (at each side's own estimate), "z": None}."""
     n, m = len(frames), conf.fit_change_frames
+    rows = np.array([len(f) for f in frames], np.float64)
+    # rows fitting ``T`` per frame, once for every cut (as ``_inlier_fraction`` counts them)
+    fits = rows * np.array([frame_information(T, f, conf.factor, conf.schedule.final_gate)[2] if len(f) else 0.0
+                            for f in frames])
     best = None
     for k in sorted({n // 3, n // 2, 2 * n // 3}):
         if k < m or n - k < m:
             continue
-        at_T, own = [], []
-        for part in (frames[:k], frames[k:]):
-            T_own = _solve(part, T, conf, None, covariance=False, convex_start=False)[0]
-            at_T.append(_inlier_fraction(T, part, conf))
-            own.append(_inlier_fraction(T_own, part, conf))
+        at_T = [float(fits[sl].sum() / rows[sl].sum()) if rows[sl].sum() else 0.0
+                for sl in (slice(0, k), slice(k, None))]
+        own = [_inlier_fraction(_solve(part, T, conf, None, covariance=False, convex_start=False)[0], part, conf)
+               for part in (frames[:k], frames[k:])]
         gains = sorted(o - t for o, t in zip(own, at_T))
         # found where a side gains; the cut named is the one where both gain most (each side nearest one mount)
         if gains[1] >= conf.fit_change_drop and (best is None or gains > best["gains"]):

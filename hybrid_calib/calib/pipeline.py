@@ -122,14 +122,17 @@ def on_road_plane(conf: CalibrateConfig, normal) -> CalibrateConfig:
     put its yaw and roll 3-5 sigma off)."""
     if normal is None:
         return conf
+    return dataclasses.replace(conf, window=dataclasses.replace(conf.window, factor=road_factor(conf.window.factor,
+                                                                                                normal)),
+                               batch=dataclasses.replace(conf.batch, factor=road_factor(conf.batch.factor, normal)))
 
-    def put(fc):
-        if fc.elevation_model != "height" or fc.height_plane_normal is not None:
-            return fc
-        return dataclasses.replace(fc, height_plane_normal=tuple(float(v) for v in normal))
 
-    return dataclasses.replace(conf, window=dataclasses.replace(conf.window, factor=put(conf.window.factor)),
-                               batch=dataclasses.replace(conf.batch, factor=put(conf.batch.factor)))
+def road_factor(fc, normal):
+    """The factor config ``fc`` (``RadarPixelFactorConfig``) with the ``height`` model's plane the road's ``normal``
+    (3,) where the options leave it unset (``on_road_plane``; the oracle benchmarks take it too)."""
+    if normal is None or fc.elevation_model != "height" or fc.height_plane_normal is not None:
+        return fc
+    return dataclasses.replace(fc, height_plane_normal=tuple(float(v) for v in normal))
 
 
 def heights_plane(conf: CalibrateConfig, vi: VehicleInput) -> CalibrateConfig:
