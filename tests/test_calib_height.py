@@ -5,6 +5,7 @@ draws from the height model when asked."""
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -284,6 +285,7 @@ def test_the_oracle_s_model_draw_keeps_the_radar_s_own_plane():
     from hybrid_calib.calib import pipeline
     from hybrid_calib.calib.oracle import synthetic_drive as drive
     from hybrid_calib.calib.pipeline import CalibrateConfig, VehicleInput, calibrate_vehicle
+    from hybrid_calib.calib.result import VehicleResult
     from hybrid_calib.config import merge
     from hybrid_calib.geometry import make_T, so3_exp
 
@@ -297,8 +299,31 @@ def test_the_oracle_s_model_draw_keeps_the_radar_s_own_plane():
         conf = merge(CalibrateConfig, {"mode": "batch", "oracle": {"elevation": elevation}})
         vi = VehicleInput("v", frames, reference=T, truth=[T] * 4, oracle_truths=truths, road_normal=n)
         with mock.patch.object(pipeline, "on_road_plane", lambda c, nn: seen.append(nn) or real(c, nn)):
-            calibrate_vehicle(vi, conf, progress=False, T_start=T)
+            res = calibrate_vehicle(vi, conf, progress=False, T_start=T)
         assert bool(seen) is planed, (elevation, seen)
+        # the result says which plane it fitted with (it did not: session 50's known item)
+        said = VehicleResult.from_dict(json.loads(json.dumps(res.to_dict()))).height_plane
+        assert said["plane"] == ("road" if planed else "radar"), said
+        if planed:
+            np.testing.assert_allclose(said["normal_radar"], n, atol=1e-8)
+        else:
+            assert said["normal_radar"] is None and "model draw" in said["words"], said
+    old = {k: v for k, v in res.to_dict().items() if k != "height_plane"}  # a result written before it
+    assert VehicleResult.from_dict(old).height_plane is None
+    with pytest.raises(TypeError, match="height_plane"):
+        VehicleResult.from_dict({**old, "height_plane": [1, 2]})
+
+
+def test_the_result_names_the_height_plane_the_options_set_or_none_for_other_models():
+    from hybrid_calib.calib.pipeline import height_plane_record
+
+    road = RadarPixelFactorConfig(height_plane_normal=(0.0, 0.05, 1.0))
+    mine = height_plane_record(road, road)
+    assert mine["plane"] == "option" and "options" in mine["words"]
+    np.testing.assert_allclose(mine["normal_radar"], np.array([0.0, 0.05, 1.0]) / np.hypot(0.05, 1.0), atol=1e-8)
+    assert height_plane_record(RadarPixelFactorConfig(), RadarPixelFactorConfig(), "why")["words"].endswith("(why)")
+    arc = RadarPixelFactorConfig(elevation_model="mean_arc")
+    assert height_plane_record(arc, arc) is None
 
 
 def test_a_plane_normal_typed_as_text_is_shown_as_numbers():

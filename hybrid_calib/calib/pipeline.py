@@ -145,6 +145,30 @@ def heights_plane(conf: CalibrateConfig, vi: VehicleInput) -> CalibrateConfig:
     return on_road_plane(conf, vi.road_normal)
 
 
+def height_plane_record(given, used, radar_why: str = "") -> dict | None:
+    """What the ``height`` elevation model measured the reflectors' heights from, for a result (``height_plane`` of
+    ``calib.result``): ``{"plane": "road" | "option" | "radar", "normal_radar": [3] | None, "words"}``, where
+    ``given`` / ``used`` are the factor configs (``RadarPixelFactorConfig``) before and after ``heights_plane`` and
+    ``radar_why`` says why the radar's own plane was kept; None for the other elevation models."""
+    if used.elevation_model != "height":
+        return None
+    n = used.height_plane_normal
+    if n is None:
+        return {"plane": "radar", "normal_radar": None,
+                "words": "heights measured from the radar's own plane" + (f" ({radar_why})" if radar_why else "")}
+    plane = "option" if given.height_plane_normal is not None else "road"
+    words = ("heights measured from the plane the options set (height_plane_normal)" if plane == "option" else
+             "heights measured from the road, as the reference mount puts the radar on it")
+    return {"plane": plane, "normal_radar": [round(float(v), 9) for v in n], "words": words}
+
+
+def radar_plane_why(vi: VehicleInput, conf: CalibrateConfig) -> str:
+    """Why ``heights_plane`` keeps the radar's own plane for ``vi`` (the words of ``height_plane_record``)."""
+    if vi.oracle_truths and conf.oracle.elevation == "model":
+        return "the oracle's model draw puts its heights above the radar's plane"
+    return "no reference mount within 60 deg of level puts the radar on the road"
+
+
 def require_oracle_truth(data) -> None:
     """``OptionError`` (``--method``) when the root ``data`` has no simulator truth for the oracle (a real root)."""
     if not (Path(data) / "sim_truth").is_dir():
@@ -563,6 +587,7 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, progress: bool = 
     from hybrid_calib.geometry import local
     from hybrid_calib.metrics import extrinsic_error, nees
 
+    given = conf.window.factor if conf.mode == "window" else conf.batch.factor
     conf = heights_plane(conf, vi)
 
     # a frame without rows (a network that matched nothing confidently) carries no information
@@ -592,6 +617,7 @@ def calibrate_vehicle(vi: VehicleInput, conf: CalibrateConfig, progress: bool = 
     res.start = {"kind": conf.start, "seed": conf.seed, "T_cam_radar": T0.tolist()}
     res.errors_against = (vi.against or "truth") if vi.truth else None
     fc = conf.window.factor if conf.mode == "window" else conf.batch.factor
+    res.height_plane = height_plane_record(given, fc, radar_plane_why(vi, conf))
     if prior is None:
         drift = reference_test(final.T, final.cov, vi.reference, conf.drift, prior_pinned_std(fc))
         res.drift = unconverged(drift.to_dict(), final.status)

@@ -45,6 +45,9 @@
           "doppler": {"applied", "dx_m", "dx_std_m", "heading_bias_deg", "h", "pairs", "turning", "scale_deg",
                       "skipped", "note"} | null
                                           # hybrid: the radar's forward offset from its Doppler (calib.lever_arm)
+          "height_plane": {"plane", "normal_radar", "words"} | null
+                                          # the `height` elevation model's plane (pipeline.height_plane_record);
+                                          # null for the other models and in results before 2026-12-07
         }
       },
       "vehicles_failed": {VEHICLE: reason}  # vehicles whose data could not be calibrated (e.g. no usable
@@ -607,6 +610,7 @@ class VehicleResult:
     mount: dict | None = None  # the radar mount monitor: steps and levels (hybrid; calib.mount_monitor.summary)
     lidar: dict | None = None  # the LiDAR's lateral offset of the radar (hybrid; calib.lidar_alignment record)
     doppler: dict | None = None  # the radar's forward offset from its Doppler in turns (hybrid; calib.lever_arm record)
+    height_plane: dict | None = None  # the height model's reference plane the rows were fitted with (module docstring)
 
     def to_dict(self) -> dict:
         return {
@@ -624,6 +628,7 @@ class VehicleResult:
             "method": self.method, "checkpoint": self.checkpoint, "start": self.start,
             "errors_against": self.errors_against, "frame_rows": self.frame_rows, "config": self.config,
             "ood": self.ood, "mount": self.mount, "lidar": self.lidar, "doppler": self.doppler,
+            "height_plane": self.height_plane,
         }
 
     @classmethod
@@ -668,6 +673,7 @@ class VehicleResult:
             frame_rows=list(_array(d, "frame_rows", where)), config=_object_or_null(d, "config", where),
             ood=_object_or_null(d, "ood", where), mount=_block(d, "mount", where),
             lidar=_block(d, "lidar", where), doppler=_block(d, "doppler", where),
+            height_plane=_object_or_null(d, "height_plane", where),
         )._errors_measured(where)._path_ends_at_truth(where)
 
     def _path_ends_at_truth(self, where: str) -> VehicleResult:

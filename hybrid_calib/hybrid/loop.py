@@ -53,7 +53,7 @@ from hybrid_calib.calib.lever_arm import LeverArmConfig
 from hybrid_calib.calib.lidar_alignment import LidarAlignConfig
 from hybrid_calib.calib.mount_monitor import MountMonitor, MountMonitorConfig, monitor_trust_reason
 from hybrid_calib.calib.oracle import OracleConfig
-from hybrid_calib.calib.pipeline import in_reference_nouns, trust_reason, untrusted
+from hybrid_calib.calib.pipeline import height_plane_record, in_reference_nouns, trust_reason, untrusted
 from hybrid_calib.calib.result import (
     DATA_STAMP,
     RUN_ONLY,
@@ -677,6 +677,10 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
                                           **({"yaw_check": yaw_check} if yaw_check else {}),
                                           "heading_jitter": (drive.heading_jitter.to_dict()
                                                              if drive.heading_jitter is not None else NOT_MEASURED)}
+    if conf.method == "hybrid":  # its rows enter the window's factor (pure, pure-avg: the network's SE(3) only)
+        res.height_plane = height_plane_record(conf.window.factor, conf.window.factor,
+                                               "the hybrid's rows, as the checkpoint's fitted measurement model reads "
+                                               "them")
     res.config = {**to_dict(conf), "measurement_effective": to_dict(measurement_config(runner, conf)),
                   "depth_effective": runner.depth_name, **({"depth_note": note} if note else {}),
                   **({"drive_error_priors": n_priors} if n_priors else {})}
