@@ -796,3 +796,29 @@ def test_a_record_whose_prev_names_itself_does_not_hang_the_pose_check(sim_copy)
     th.join(30)
     assert not th.is_alive(), "the walk along the channel did not end"
     assert box["walk"] == [None, None] and box["frames"] == 4
+
+
+def test_measurement_files_need_no_sensor_file_and_score_against_the_truth_where_the_drive_ends(tmp_path, capsys):
+    """Probe 137: ``--correspondences DIR`` read the first frame's sensor files for the reference and the truth, so one
+    corrupt radar file there stopped every vehicle (the rows are in the files), and it scored a drive whose mount was
+    knocked against the first frame's truth (4.1 deg reported, 1.1 deg against the mount at the drive's end)."""
+    from hybrid_calib.config import merge
+    from hybrid_calib.sim.drive import SimConfig
+    from hybrid_calib.sim.simulate import simulate
+
+    root = tmp_path / "knocked"
+    simulate(merge(SimConfig, {"vehicles": 1, "frames": 4, "image_scale": 0.05, "seed": 3, "extrinsic_change": {
+        "kind": "step", "frame": 2, "rotation_deg": [0.0, 0.0, 3.0], "translation_m": [0.0, 0.0, 0.0]}}), root,
+             workers=1, progress=False)
+    files = _write_measurements(root, tmp_path / "EV")
+    ds = NuScenesRadarCamera(root, SIM_VERSION)
+    first = ds.frames[0]
+    end = ds[len(ds.frames) - 1].extras["T_cam_radar_static"]
+    ds.tables.file(first.radar_sd).write_bytes(b"garbage")  # the first frame's radar file
+    out = tmp_path / "out"
+    rc, err = run_cli(_calibrate(root, out, "--correspondences", tmp_path / "EV"), capsys)
+    assert rc == 0, err
+    (v,) = json.loads((out / "result.json").read_text())["vehicles"].values()
+    assert v["n_frames"] == len(files) and not v["frames_skipped"]
+    np.testing.assert_allclose(v["truth"]["T_cam_radar"], end, atol=1e-9)
+    assert [p["index"] for p in v["truth"]["path"]] == [0, 2], v["truth"]

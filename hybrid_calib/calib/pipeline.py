@@ -251,7 +251,7 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
         raise DataError(f"none of the {len(bad)} measurement file(s) reads; first: {bad[0][2]}", path=str(directory))
     refs: dict[str, np.ndarray] = {}
     sources: dict[str, dict] = {}  # vehicle -> what its reference is (the tables, or an earlier export's mount)
-    truths: dict[str, np.ndarray] = {}
+    truth_of: dict[str, np.ndarray] = {}  # frame token -> its static extrinsic in the root's tables
     normals: dict[str, np.ndarray | None] = {}
     tokens: set[str] = set()
     frame_of: dict = {}  # token -> its frame (FrameRef) of the root, when there is one
@@ -276,12 +276,20 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
                 continue  # said where the frame is read
             camera_K.update(dict.fromkeys((ref.camera_sd["token"], ref.sample_token, ref.radar_sd["token"]), K))
         for vehicle, idx in ds.frames_by_vehicle().items():
-            f = ds[idx[0]]
-            refs[vehicle] = np.asarray(f.extras["reference_T_cam_radar"], np.float64)
-            normals[vehicle] = road_normal(f.extras["reference_T_ego_radar"])
+            # from the tables alone (the rows are in the files: probe 137, one unreadable sensor file of a first frame
+            # stopped every vehicle), the first frame whose records read
+            for i in idx:
+                try:
+                    refs[vehicle] = np.asarray(ds.reference_T_cam_radar(ds.frames[i]), np.float64)
+                    normals[vehicle] = road_normal(ds.reference_T_ego_radar(ds.frames[i]))
+                    break
+                except (DataError, KeyError, TypeError, ValueError):
+                    continue
             sources[vehicle] = ds.reference_source(vehicle)
-            truths[vehicle] = np.asarray(f.extras.get("T_cam_radar_static", f.T_cam_radar), np.float64)
         ids = [str(m.frame_id) for ms in groups.values() for m in ms]
+        # each file's frame's own static extrinsic in the tables (a simulated root's truth, which moves where a mount
+        # was knocked: probe 137, the first frame's for the whole drive put a 1.1 deg error at 4.1)
+        truth_of = {t: T for t in set(ids) if t in frame_of and (T := _tables_static(ds, frame_of[t])) is not None}
         foreign = [i for i in ids if i not in tokens]
         if ids and len(foreign) == len(ids):  # another root's files: errors against this root's truth would be wrong
             raise DataError(f"none of the {len(ids)} measurement files' frames (sample or sample_data tokens, e.g. "
@@ -301,7 +309,6 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
                 raise DataError(why, path=str(directory))
             unknown[vehicle] = f"{why}; its {len(ms)} file(s) in {directory} left out"
             continue
-        truth = truths.get(vehicle)
         # probe 45: a file whose K was not the root camera's (fx, fy doubled) was fused in silence, 0.3 deg further off
         wrong_K = {str(m.frame_id): why for m in ms if str(m.frame_id) in camera_K and
                    (why := other_camera(m.corr.K, camera_K[str(m.frame_id)]))}
@@ -309,8 +316,10 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
         timing: dict[str, str] = {}  # frame token -> why its rows cannot be moved to the camera's timestamp
         if frame_of:
             mine, timing = _at_camera_time(mine, frame_of, ds)
+        truth = [truth_of.get(str(m.frame_id)) for m in mine]
         out[vehicle] = VehicleInput(vehicle, [m.corr for m in mine], ref,
-                                    [truth] * len(mine) if truth is not None else [], network=[m.network for m in mine],
+                                    truth if truth and all(T is not None for T in truth) else [],
+                                    network=[m.network for m in mine],
                                     against=against, reference_source=sources.get(vehicle, {"kind": "tables"}),
                                     road_normal=normals.get(vehicle))
         out[vehicle].skipped.extend({"index": None, "token": str(m.frame_id), "reason": "measurement file of a frame "
@@ -332,6 +341,17 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
             out[vehicle].skipped.append({"index": None, "token": Path(path).stem,
                                          "reason": f"measurement file skipped: {e}"})
     return out
+
+
+def _tables_static(ds, ref) -> np.ndarray | None:
+    """(4, 4) frame ``ref``'s static T_cam_radar in the tables of ``ds`` (no sensor file read), None where its
+    records do not read."""
+    from hybrid_calib.geometry import se3_inverse
+
+    try:
+        return se3_inverse(ds.tables.T_ego_sensor(ref.camera_sd)) @ ds.tables.T_ego_sensor(ref.radar_sd)
+    except (DataError, KeyError, TypeError, ValueError):
+        return None
 
 
 def _at_camera_time(ms: list, frame_of: dict, ds) -> tuple[list, dict[str, str]]:
