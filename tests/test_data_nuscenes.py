@@ -416,6 +416,23 @@ def test_a_calibrations_name_does_not_depend_on_what_is_downloaded(tmp_path):
     assert "tiny: no frame: none of its 1 scene(s) has its sensor files on disk" in ds.frameless_vehicles()["tiny"]
 
 
+def test_a_calibrations_name_does_not_depend_on_the_scenes_asked_for_nor_on_the_version_folder_s_name(tmp_path):
+    """Probe 137: with ``data.scenes`` naming only the second calibration's scene it was called NAME (export then
+    wrote its estimate into the first calibration's radar record); a real root in a folder named v1.0-sim (the
+    commands' default --version) was never split."""
+    from hybrid_calib.data.nuscenes import DataConfig
+
+    tiny = _recalibrated_radar(tmp_path)
+    second = NuScenesRadarCamera(tiny.root, VERSION, conf=DataConfig(scenes=("tiny-scene-b",)))
+    assert second.frames_by_vehicle() == {"tiny-cal2": [0, 1, 2]}
+    assert second.calibration_splits == {"tiny": ["tiny", "tiny-cal2"]}
+    first = NuScenesRadarCamera(tiny.root, VERSION, conf=DataConfig(scenes=("tiny-scene",)))
+    assert first.frames_by_vehicle() == {"tiny": [0, 1, 2]}
+    (tiny.root / VERSION).rename(tiny.root / "v1.0-sim")
+    named = NuScenesRadarCamera(tiny.root, "v1.0-sim")
+    assert not named.simulated and named.frames_by_vehicle() == {"tiny": [0, 1, 2], "tiny-cal2": [3, 4, 5]}
+
+
 def test_a_vehicle_with_two_calibrations_is_two_vehicles(tmp_path):
     """nuScenes calibrates each log: n015's radar is yawed -0.85 deg in 34 scenes and +0.20 deg in 349. Frames of
     two calibrations fused as one drive would be one extrinsic for two mounts, so each is its own vehicle."""

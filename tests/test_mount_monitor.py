@@ -749,3 +749,40 @@ def test_a_step_after_untested_frames_is_dated_by_the_interval():
     assert change_words(st) == ("between frames 8 and 33 (frames 9-32 were not tested: no usable sweep pair there, "
                                 "as at a stop)")
     assert change_words({"change": 12}) == "from about frame 12"
+
+
+def test_a_vehicle_frame_the_tables_redefine_between_logs_is_not_a_turn(knocked_and_not):
+    """Probe 137: the monitor measured every frame against the first frame's radar mount, so a later log whose tables
+    re-define the vehicle's frame (its ego poses and sensor mounts turned together, the camera-radar unchanged) read
+    "the radar turned by 3.07 deg": each frame is measured against its own tables' mount."""
+    from hybrid_calib.calib.mount_monitor import reference_mounts
+    from hybrid_calib.geometry import make_T, so3_exp
+
+    frames, idx = _drive(knocked_and_not[0])
+    Rz = make_T(so3_exp(np.radians([0.0, 0.0, 3.0])), np.zeros(3))
+    later = set(idx[12:])
+
+    class Redefined:  # from frame 12 on: T_global_ego' = T_global_ego Rz, T_ego'_radar = Rz^-1 T_ego_radar
+        def __init__(self):
+            self.frames = frames.frames
+
+        def __getitem__(self, i):
+            f = frames[i]
+            if i not in later:
+                return f
+            return dataclasses.replace(f, extras={**f.extras, "T_global_ego_radar": f.extras["T_global_ego_radar"] @ Rz})
+
+        def reference_T_ego_radar(self, ref):
+            T = frames.reference_T_ego_radar(ref)
+            return np.linalg.inv(Rz) @ T if frames.frames.index(ref) in later else T
+
+    conf = MountMonitorConfig(sweeps=False)
+    T0 = frames.reference_T_ego_radar(frames.frames[idx[0]])
+    first_only = MountMonitor(Redefined(), T0, conf)  # the first frame's mount throughout: a false turn
+    for k, i in enumerate(idx):
+        first_only.update(k, i)
+    assert len(first_only.steps) == 1 and abs(abs(first_only.steps[0].step_deg) - 3.0) < 0.3
+    mon = MountMonitor(Redefined(), T0, conf, mount_at=reference_mounts(Redefined()))
+    readings = [mon.update(k, i) for k, i in enumerate(idx)]
+    assert not mon.steps, mon.steps
+    assert "another log" in readings[idx.index(min(later))].skipped  # the pair across the change is not measured

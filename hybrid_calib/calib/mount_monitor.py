@@ -62,7 +62,10 @@ import numpy as np
 from factors.motion import heading_residual
 from hybrid_calib.calib.ego_doppler import EgoSweep, ego_measurement, frame_sweeps, pair_skip, partner
 from hybrid_calib.config import require, require_ranges
+from hybrid_calib.errors import DataError
 from hybrid_calib.metrics import mad_scale
+
+MOUNT_KEY = "monitor_T_ego_radar"  # a sweep's extras: the reference radar mount of its frame (MountMonitor.mount_at)
 
 MEDIAN_VAR = np.pi / 2  # variance of a Gaussian sample's median, in units of sigma^2 / n
 # the drive's last reading this far from the level, in its noise, of this many sweep pairs: said (``end_reading``)
@@ -183,6 +186,10 @@ class MountMonitor:
     conf: MountMonitorConfig = MountMonitorConfig()
     velocity: Callable[[int], tuple] | None = None
     sweep_cache: dict | None = None  # ``calib.ego_doppler.frame_sweeps``' cache (the hybrid's motion source's)
+    # dataset index -> the reference radar mount (4, 4) at that frame, or None for ``T_ego_radar``: a vehicle whose
+    # tables re-define its frame between logs (camera-radar unchanged) is measured against each log's mount (probe
+    # 137: against the first frame's, a 3 deg re-definition read "the radar turned by 3.07 deg")
+    mount_at: Callable[[int], np.ndarray | None] | None = None
     series: list[tuple[int, float]] = field(default_factory=list)  # (position, reading deg) of the tested frames
     pairs: list[int] = field(default_factory=list)  # sweep pairs behind each reading of ``series``
     own: list[float] = field(default_factory=list)  # each reading's own noise std (``reading_std``; nan: < 3 pairs)
@@ -207,20 +214,25 @@ class MountMonitor:
         why = pair_skip(a, b)
         if why:
             return None, float("nan"), why
-        m, why = ego_measurement(a, a.velocity, b, b.velocity, self.T_ego_radar, c.min_speed_mps,
-                                 c.max_gap_s, c.max_turn_dps)
+        T, Ta = b.extras.get(MOUNT_KEY, self.T_ego_radar), a.extras.get(MOUNT_KEY, self.T_ego_radar)
+        if T is not Ta and not np.allclose(T, Ta, atol=1e-9):  # ego poses of two frames of reference
+            return None, float("nan"), "the tables' radar mount changes between the two sweeps (another log)"
+        m, why = ego_measurement(a, a.velocity, b, b.velocity, T, c.min_speed_mps, c.max_gap_s, c.max_turn_dps)
         if m is None:
             return None, float("nan"), why
-        y = float(np.degrees(heading_residual(self.T_ego_radar, m)[0]))
+        y = float(np.degrees(heading_residual(T, m)[0]))
         if not np.isfinite(y):
             return None, float("nan"), "the residual is not finite (a Doppler fit without a direction)"
-        return y, lever_sensitivity(self.T_ego_radar, m, y), ""
+        return y, lever_sensitivity(T, m, y), ""
 
     def update(self, position: int, index: int) -> MountReading:
         """Feed the frame at drive ``position`` (dataset ``index``): the pairs ending at the sweeps of its keyframe
         interval (``calib.ego_doppler``: each sweep and its partner ``pair_dt_s`` or more before it), their
         median as the reading. Skipped, with the keyframe pair's reason, when none of them gives a residual."""
         sweeps, _ = frame_sweeps(self.frames, index, position, self.velocity, self.conf.sweeps, self.sweep_cache)
+        if self.mount_at is not None and (T := self.mount_at(index)) is not None:
+            for b in sweeps:  # the frame's own mount (the sweeps of a frame share its tables' record)
+                b.extras[MOUNT_KEY] = np.asarray(T, np.float64)
         ys, gs, why = [], [], ""
         for b in sweeps:
             a = partner(self._history, b, self.conf.pair_dt_s)
@@ -504,9 +516,25 @@ def reading_std(ys) -> float:
     return mad_scale(np.asarray(ys, np.float64)) * n / (n - 0.8) * float(np.sqrt(MEDIAN_VAR / n))
 
 
+def reference_mounts(frames) -> Callable[[int], np.ndarray | None] | None:
+    """``MountMonitor.mount_at`` of a dataset (``data.nuscenes.NuScenesRadarCamera``: each frame's reference radar
+    mount from its tables), or None for frames without tables."""
+    if not hasattr(frames, "reference_T_ego_radar") or not hasattr(frames, "frames"):
+        return None
+
+    def mount_at(index: int) -> np.ndarray | None:
+        try:
+            return frames.reference_T_ego_radar(frames.frames[index])
+        except (DataError, KeyError, TypeError, ValueError, IndexError):
+            return None  # the frame's reading says what is wrong with its records
+
+    return mount_at
+
+
 def monitor_drive(frames, indices: list[int], T_ego_radar: np.ndarray, conf: MountMonitorConfig = MountMonitorConfig()
                   ) -> tuple[MountMonitor, list[MountReading]]:
-    """The monitor over a whole drive (dataset ``indices`` in time order): (monitor, readings)."""
+    """The monitor over a whole drive (dataset ``indices`` in time order) against the one mount ``T_ego_radar``:
+    (monitor, readings)."""
     mon = MountMonitor(frames, np.asarray(T_ego_radar, np.float64), conf)
     return mon, [mon.update(k, i) for k, i in enumerate(indices)]
 

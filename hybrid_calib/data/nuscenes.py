@@ -218,6 +218,9 @@ class NuScenesRadarCamera:
                                 f"{modality}; {modality} channels present: {same}",
                                 path=str(self.tables.path("sensor")))
         self.sim_vehicles: dict[str, dict] = _load_sim_vehicles(self.tables.vdir)
+        # written by the simulator (its vehicles' factory calibrations, or the true reflectors of older roots), not
+        # named v1.0-sim (probe 137: a real root in a folder of that name, calibrate's default, was never split)
+        self.simulated = bool(self.sim_vehicles) or (self.tables.root / "sim_truth").is_dir()
         self.export_reference = load_export_reference(self.conf.reference) if self.conf.reference else None
         self._index_skips: list[SkipRecord] = [
             SkipRecord(None, tok, str(self.tables.path("sample_data")), reason)
@@ -493,28 +496,48 @@ class NuScenesRadarCamera:
         +0.20 deg in 349), and a table can re-mount a sensor within a log; fused as one drive they would be one
         extrinsic for two mounts, reported against the first one's tables. A calibration is a frame's camera-radar
         extrinsic from its calibrated_sensor records (not the tokens: every log has its own records, most of them
-        equal), the same within ``SAME_CALIBRATION`` (float noise of tables rewritten by other tools). A simulated
-        root is never split: its tables hold the true mount, which moves where the simulation says so (one log per
-        vehicle; the step detectors are what finds such a change). The split is noted in ``calibration_splits``
-        (vehicle -> its names) and ``calibration_offsets`` (name -> how far, deg and cm, from the vehicle's first)."""
-        if self.version == "v1.0-sim" or self.sim_vehicles:
+        equal), the same within ``SAME_CALIBRATION`` (float noise of tables rewritten by other tools), named over
+        every scene of the vehicle (whatever ``scenes`` asks for) in the order the tables list them. A simulated
+        root (``simulated``) is never split: its tables hold the true mount, which moves where the simulation says
+        so (one log per vehicle; the step detectors are what finds such a change). The split is noted in
+        ``calibration_splits`` (vehicle -> its names) and ``calibration_offsets`` (name -> how far, deg and cm, from
+        the vehicle's first)."""
+        if self.simulated:
             return frames
         t = self.tables
 
-        def extrinsic(ref: FrameRef) -> np.ndarray | None:
+        def extrinsic(cam: dict, rad: dict) -> np.ndarray | None:
             try:
-                return se3_inverse(t.T_ego_sensor(ref.camera_sd)) @ t.T_ego_sensor(ref.radar_sd)
+                return se3_inverse(t.T_ego_sensor(cam)) @ t.T_ego_sensor(rad)
             except (DataError, KeyError, TypeError):
                 return None  # a broken record: the frame says so when it is read
 
         seen: dict[str, list[tuple[str, np.ndarray]]] = {}  # vehicle -> [(name, extrinsic)]
-        out = []
-        for ref in frames:
-            known, T = seen.setdefault(ref.vehicle, []), extrinsic(ref)
+
+        def name_of(vehicle: str, T: np.ndarray | None) -> str:
+            known = seen.setdefault(vehicle, [])
             name = next((n for n, T0 in known if T is None or T0 is None or same_calibration(T, T0)), None)
             if name is None:
-                name = ref.vehicle if not known else f"{ref.vehicle}-cal{len(known) + 1}"
+                name = vehicle if not known else f"{vehicle}-cal{len(known) + 1}"
                 known.append((name, T))
+            return name
+
+        if self.conf.scenes is not None:  # named over every scene of the vehicle, not only those asked for (probe
+            # 137: with data.scenes a log's calibration was NAME in one run and NAME-cal2 in another, and export wrote
+            # its estimate into the other calibration's radar record)
+            vehicles = {ref.vehicle for ref in frames}
+            for scene in t.records["scene"]:
+                log = t.by_token["log"].get(scene["log_token"])
+                if log is None or log["vehicle"] not in vehicles:
+                    continue
+                for sample in t.scene_samples(scene):
+                    cam, rad = t.keyframe(sample["token"], self.camera_channel), t.keyframe(sample["token"],
+                                                                                            self.radar_channel)
+                    if cam is not None and rad is not None and (T := extrinsic(cam, rad)) is not None:
+                        name_of(log["vehicle"], T)
+        out = []
+        for ref in frames:
+            name = name_of(ref.vehicle, extrinsic(ref.camera_sd, ref.radar_sd))
             out.append(ref if name == ref.vehicle else dataclasses.replace(ref, vehicle=name))
         self.calibration_splits = {v: [n for n, _ in k] for v, k in seen.items() if len(k) > 1}
         self.calibration_offsets = {n: mount_offset(T, k[0][1]) for k in seen.values() if len(k) > 1 for n, T in k[1:]

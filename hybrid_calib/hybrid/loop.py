@@ -51,7 +51,7 @@ from hybrid_calib.calib.drift import (
 )
 from hybrid_calib.calib.lever_arm import LeverArmConfig
 from hybrid_calib.calib.lidar_alignment import LidarAlignConfig
-from hybrid_calib.calib.mount_monitor import MountMonitor, MountMonitorConfig, monitor_trust_reason
+from hybrid_calib.calib.mount_monitor import MountMonitor, MountMonitorConfig, monitor_trust_reason, reference_mounts
 from hybrid_calib.calib.oracle import OracleConfig
 from hybrid_calib.calib.pipeline import height_plane_record, in_reference_nouns, trust_reason, untrusted
 from hybrid_calib.calib.result import (
@@ -586,7 +586,8 @@ def mount_monitor(frames, drive: Drive, conf: HybridConfig, motion: MotionSource
     if conf.method != "hybrid" or not conf.mount.enabled or frames is None or drive.ego_radar is None:
         return None
     src = motion or MotionSource(frames, conf.motion)
-    return MountMonitor(frames, drive.ego_radar, conf.mount, src.velocity, src.sweeps)
+    return MountMonitor(frames, drive.ego_radar, conf.mount, src.velocity, src.sweeps,
+                        mount_at=reference_mounts(frames))
 
 
 # the hybrid reruns a drive whose network priors (frames read, in domain, with a prior) are fewer than this fraction
