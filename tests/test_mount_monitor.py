@@ -770,7 +770,8 @@ def test_a_vehicle_frame_the_tables_redefine_between_logs_is_not_a_turn(knocked_
             f = frames[i]
             if i not in later:
                 return f
-            return dataclasses.replace(f, extras={**f.extras, "T_global_ego_radar": f.extras["T_global_ego_radar"] @ Rz})
+            turned = f.extras["T_global_ego_radar"] @ Rz
+            return dataclasses.replace(f, extras={**f.extras, "T_global_ego_radar": turned})
 
         def reference_T_ego_radar(self, ref):
             T = frames.reference_T_ego_radar(ref)
