@@ -822,3 +822,18 @@ def test_measurement_files_need_no_sensor_file_and_score_against_the_truth_where
     assert v["n_frames"] == len(files) and not v["frames_skipped"]
     np.testing.assert_allclose(v["truth"]["T_cam_radar"], end, atol=1e-9)
     assert [p["index"] for p in v["truth"]["path"]] == [0, 2], v["truth"]
+
+
+def test_measurement_files_of_a_vehicle_whose_tables_do_not_read_name_the_record(sim_copy, tmp_path, capsys):
+    """Probe 138: with none of a vehicle's calibrated_sensor records readable, --correspondences DIR said "pass
+    --data/--version of the dataset they come from", the wrong cause, and named no record."""
+    _write_measurements(sim_copy, tmp_path / "EV")
+    path = sim_copy / SIM_VERSION / "calibrated_sensor.json"
+    table = json.loads(path.read_text())
+    ds = NuScenesRadarCamera(sim_copy, SIM_VERSION)
+    radar = ds.frames[0].radar_sd["calibrated_sensor_token"]
+    next(r for r in table if r["token"] == radar)["rotation"] = "abc"
+    path.write_text(json.dumps(table))
+    err = expect_cli_error(_calibrate(sim_copy, tmp_path / "out", "--correspondences", tmp_path / "EV"), capsys,
+                           "none of its frames' calibrated_sensor records read", "'rotation'")
+    assert "the dataset they come from" not in err

@@ -187,6 +187,8 @@ def test_closed_loop_runs_the_network_from_the_fused_estimate(sim_root, tmp_path
     (v,) = run.vehicles.values()
     assert v.method == "hybrid" and v.errors_against == "truth" and v.checkpoint.endswith("small-sim-r1.json")
     assert len(v.trajectory) == len(v.frame_rows) == 3 and v.error["nees"] > 0
+    # the shipped checkpoint's fitted model uses no rows: no height plane (probe 138: "the hybrid's rows" were named)
+    assert v.config["measurement_effective"]["rows"] == "none" and v.height_plane is None
     cache = OutputCache(tmp_path / "h" / "network-cache")
     starts = [np.asarray(v.start["T_cam_radar"])] + [f.T for f in v.trajectory[:-1]]
     for f, T_in in zip(v.trajectory, starts):  # frame k ran from the window's estimate after frame k-1 (as T N)
@@ -874,6 +876,16 @@ def test_the_drive_common_network_error_reaches_the_reported_covariance(sim_root
         "ood": {"enabled": False}, "cache_dir": str(tmp_path / "cache")})
     assert v.n_frames == 3
     assert np.all(np.diag(v.final.cov)[3:] >= 0.99 * D[3:] ** 2), np.sqrt(np.diag(v.final.cov))
+
+
+def test_the_hybrid_s_rows_name_the_plane_their_heights_are_measured_from(sim_root, tmp_path):
+    from hybrid_calib.hybrid import run_vehicle
+
+    v = run_vehicle(sim_root, "v1.0-sim", "sim-veh-000", {
+        **BASE, "method": "hybrid", "lidar": {"enabled": False}, "doppler": {"enabled": False},
+        "measurement": {"rows": "first"}, "ood": {"enabled": False}, "cache_dir": str(tmp_path / "cache")})
+    assert sum(r["used"] for r in v.frame_rows) > 0
+    assert v.height_plane["plane"] == "radar" and "the hybrid's rows" in v.height_plane["words"], v.height_plane
 
 
 @pytest.mark.parametrize("case", ["network stayed", "network moved", "window restarted"])

@@ -62,6 +62,7 @@ import numpy as np
 from factors.motion import heading_residual
 from hybrid_calib.calib.ego_doppler import EgoSweep, ego_measurement, frame_sweeps, pair_skip, partner
 from hybrid_calib.config import require, require_ranges
+from hybrid_calib.data.nuscenes import same_calibration
 from hybrid_calib.errors import DataError
 from hybrid_calib.metrics import mad_scale
 
@@ -215,8 +216,10 @@ class MountMonitor:
         if why:
             return None, float("nan"), why
         T, Ta = b.extras.get(MOUNT_KEY, self.T_ego_radar), a.extras.get(MOUNT_KEY, self.T_ego_radar)
-        if T is not Ta and not np.allclose(T, Ta, atol=1e-9):  # ego poses of two frames of reference
-            return None, float("nan"), "the tables' radar mount changes between the two sweeps (another log)"
+        if T is not Ta and not same_calibration(T, Ta):  # ego poses of two frames of reference (float noise of
+            # tables written by other tools is one mount: probe 138 lost every pair to 1e-7)
+            return None, float("nan"), ("the tables' radar mount changes between the two sweeps (their records "
+                                        "differ: a vehicle frame the tables re-define)")
         m, why = ego_measurement(a, a.velocity, b, b.velocity, T, c.min_speed_mps, c.max_gap_s, c.max_turn_dps)
         if m is None:
             return None, float("nan"), why
@@ -517,16 +520,28 @@ def reading_std(ys) -> float:
 
 
 def reference_mounts(frames) -> Callable[[int], np.ndarray | None] | None:
-    """``MountMonitor.mount_at`` of a dataset (``data.nuscenes.NuScenesRadarCamera``: each frame's reference radar
-    mount from its tables), or None for frames without tables."""
-    if not hasattr(frames, "reference_T_ego_radar") or not hasattr(frames, "frames"):
+    """``MountMonitor.mount_at`` of a drive of a dataset (``data.nuscenes.NuScenesRadarCamera``): the reference radar
+    mount of the drive's first frame moved as the tables' own radar mount moves from it, ``T_tab(i) T_tab(0)^-1
+    T_ref(0)``. One calibration's frames hold one camera-radar extrinsic, so a tables' radar mount that moves moves
+    the camera with it: a vehicle frame the tables re-define between logs, measured against each log's own (probe
+    137), also against an export's mount (probe 138). None (one mount for the drive) for frames without tables and
+    for a simulated root, whose tables hold the true mount: it moves where the radar was knocked (probe 138: measured
+    against it, a 1.5 deg knock read "no step")."""
+    if not hasattr(frames, "reference_T_ego_radar") or not hasattr(frames, "frames") or getattr(frames, "simulated",
+                                                                                                 False):
         return None
+    first: list = []  # (the tables' radar mount, the reference mount) of the drive's first frame that reads
 
     def mount_at(index: int) -> np.ndarray | None:
         try:
-            return frames.reference_T_ego_radar(frames.frames[index])
-        except (DataError, KeyError, TypeError, ValueError, IndexError):
+            ref = frames.frames[index]
+            T_tab = np.asarray(frames.tables.T_ego_sensor(ref.radar_sd), np.float64)
+            if not first:
+                first.append((T_tab, np.asarray(frames.reference_T_ego_radar(ref), np.float64)))
+        except (DataError, KeyError, TypeError, ValueError, IndexError, AttributeError):
             return None  # the frame's reading says what is wrong with its records
+        T0_tab, T0_ref = first[0]
+        return T_tab @ np.linalg.inv(T0_tab) @ T0_ref
 
     return mount_at
 

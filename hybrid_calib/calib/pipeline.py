@@ -252,6 +252,7 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
     refs: dict[str, np.ndarray] = {}
     sources: dict[str, dict] = {}  # vehicle -> what its reference is (the tables, or an earlier export's mount)
     truth_of: dict[str, np.ndarray] = {}  # frame token -> its static extrinsic in the root's tables
+    unread: dict[str, Exception] = {}  # vehicle -> why the first of its frames' records did not read
     normals: dict[str, np.ndarray | None] = {}
     tokens: set[str] = set()
     frame_of: dict = {}  # token -> its frame (FrameRef) of the root, when there is one
@@ -283,8 +284,8 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
                     refs[vehicle] = np.asarray(ds.reference_T_cam_radar(ds.frames[i]), np.float64)
                     normals[vehicle] = road_normal(ds.reference_T_ego_radar(ds.frames[i]))
                     break
-                except (DataError, KeyError, TypeError, ValueError):
-                    continue
+                except (DataError, KeyError, TypeError, ValueError) as e:
+                    unread.setdefault(vehicle, e)  # none reads: the vehicle fails with the first one's reason
             sources[vehicle] = ds.reference_source(vehicle)
         ids = [str(m.frame_id) for ms in groups.values() for m in ms]
         # each file's frame's own static extrinsic in the tables (a simulated root's truth, which moves where a mount
@@ -303,8 +304,10 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
         ms = ms[: conf.max_frames] if conf.max_frames > 0 else ms
         ref = refs.get(vehicle)
         if ref is None:
-            why = (f"no reference extrinsic for vehicle {vehicle!r} of the measurement files: pass --data/--version "
-                   f"of the dataset they come from (vehicles there: {sorted(refs)})")
+            why = (f"vehicle {vehicle}: none of its frames' calibrated_sensor records read, so it has no reference "
+                   f"extrinsic; first: {unread[vehicle]}" if vehicle in unread else
+                   f"no reference extrinsic for vehicle {vehicle!r} of the measurement files: pass --data/--version "
+                   f"of the dataset they come from (vehicles there: {sorted(set(refs) | set(unread))})")
             if unknown is None or not refs or len(groups) == 1:
                 raise DataError(why, path=str(directory))
             unknown[vehicle] = f"{why}; its {len(ms)} file(s) in {directory} left out"

@@ -218,11 +218,10 @@ class NuScenesRadarCamera:
                                 f"{modality}; {modality} channels present: {same}",
                                 path=str(self.tables.path("sensor")))
         self.sim_vehicles: dict[str, dict] = _load_sim_vehicles(self.tables.vdir)
-        # written by the simulator: its vehicles' factory calibrations, or (roots simulated before them) its version
-        # folder with the true reflectors beside it; not a folder's name alone (probe 137: a real root in a folder
-        # named v1.0-sim, the commands' default, was never split)
-        self.simulated = bool(self.sim_vehicles) or (self.version == "v1.0-sim"
-                                                     and (self.tables.root / "sim_truth").is_dir())
+        # written by the simulator: its vehicles' factory calibrations (sim_vehicle.json), not a folder's name (probe
+        # 137: a real root in a folder named v1.0-sim, the commands' default, was never split); a root simulated
+        # before the file, or whose file does not read (said), is read as a real one
+        self.simulated = bool(self.sim_vehicles)
         self.export_reference = load_export_reference(self.conf.reference) if self.conf.reference else None
         self._index_skips: list[SkipRecord] = [
             SkipRecord(None, tok, str(self.tables.path("sample_data")), reason)
