@@ -67,6 +67,42 @@ def drive_rows(frames, conf, lidar_radius: float = 0.0) -> tuple[np.ndarray, np.
             None if lidar_radius <= 0 else np.concatenate(lidar) if lidar else empty)
 
 
+def frame_rows_on_road(frames) -> list[np.ndarray]:
+    """Per frame (N, 3): slant range, lateral y, height above the road plane through the radar (m; the plane the
+    vehicle's reference mount puts the radar on, as the factor measures heights since 2026-12-07:
+    ``calib.pipeline.road_normal``) of the real reflectors in view (step 1 of the module doc)."""
+    from hybrid_calib.calib.oracle import OracleConfig, oracle_from_frame
+    from hybrid_calib.calib.pipeline import road_normal
+    from hybrid_calib.errors import DataError
+
+    oconf = OracleConfig(n_per_frame=100000, sigma_px=1e-6, outlier_frac=0.0, elevation="world")
+    g = np.random.default_rng(0)
+    out = []
+    for f in frames:
+        try:
+            _, truth = oracle_from_frame(f, oconf, g)
+        except DataError as e:
+            if "no real radar reflector" not in str(e):
+                raise
+            out.append(np.zeros((0, 3)))
+            continue
+        p = truth.points_true[truth.inlier]
+        n = road_normal(f.extras["reference_T_ego_radar"])
+        h = p @ n if n is not None else p[:, 2]
+        out.append(np.stack([np.linalg.norm(p, axis=1), p[:, 1], h], 1))
+    return out
+
+
+def window_slopes(per_frame: list[np.ndarray], conf, lengths) -> dict[int, list[float]]:
+    """``c_y`` (m/m) of each run of L consecutive frames (non-overlapping) of one drive, for each L of ``lengths``
+    (runs of fewer than 20 reflectors left out)."""
+    out = {}
+    for L in lengths:
+        out[L] = [fit_drive(rows, conf)["c_y"] for s in range(0, len(per_frame) - L + 1, L)
+                  if len(rows := np.concatenate(per_frame[s:s + L])) >= 20]
+    return out
+
+
 def _lidar_heights(f, rows: np.ndarray, p: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
     """(mask of the reflectors with >= 2 LiDAR points near them, the mean LiDAR height at each kept one, m)."""
     from hybrid_calib.geometry import se3_inverse
@@ -121,7 +157,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", required=True, type=Path)
     p.add_argument("--lidar-radius", type=float, default=0.0,
                    help="also fit c_y on the LiDAR's heights at the reflectors (this radius, m; module doc)")
+    p.add_argument("--windows", type=int, nargs="+", default=None, metavar="L",
+                   help="instead: c_y of runs of L consecutive keyframes, heights from the road (how the slope of a "
+                        "short stretch of road exceeds a drive's: scene_lateral_slope_frame_std)")
     a = p.parse_args(argv)
+    if a.windows:
+        return _windows(a)
 
     from factors.config import RadarPixelFactorConfig
     from hybrid_calib.config import save_json_atomic
@@ -180,6 +221,39 @@ def main(argv: list[str] | None = None) -> int:
     pr = result["priors"]
     print(f"(priors: a {pr['scene_height_std_m']} m, c_y {pr['scene_lateral_slope_std']} m/m, "
           f"q {pr['scene_height_sq_std_m2']} m^2; wrote {a.out / 'scene_profiles.json'})")
+    return 0
+
+
+def _windows(a) -> int:
+    """``--windows``: per root and L, the RMS of c_y over runs of L frames, its mean, and the excess variance over the
+    drive-level prior times L, ``(var - s^2) L`` (var about the mean: a preset's own mean slope is not a short
+    stretch's), which ``scene_lateral_slope_frame_std^2`` stands for."""
+    from factors.config import RadarPixelFactorConfig
+    from hybrid_calib.config import save_json_atomic
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+
+    conf = RadarPixelFactorConfig()
+    s2 = conf.scene_lateral_slope_std ** 2
+    a.out.mkdir(parents=True, exist_ok=True)
+    result, rows = {"command": "PYTHONPATH=. python benchmarks/scene_profiles.py " + " ".join(sys.argv[1:]),
+                    "roots": {}}, []
+    for root in a.data:
+        ds = NuScenesRadarCamera(root, "v1.0-sim", conf={"check_images": False, "skip_empty_radar": False,
+                                                          "load_lidar": False})
+        per = {L: [] for L in a.windows}
+        for idx in ds.frames_by_vehicle().values():
+            for L, c in window_slopes(frame_rows_on_road([ds[i] for i in idx[: a.frames]]), conf, a.windows).items():
+                per[L] += c
+        result["roots"][str(root)] = {str(L): v for L, v in per.items()}
+        for L, v in per.items():
+            v = np.asarray(v)
+            excess = (float(np.var(v)) - s2) * L if len(v) else float("nan")
+            rows.append(f"| {Path(root).name} | {L} | {len(v)} | {rms(v):.4f} | {np.mean(v):+.4f} | "
+                        f"{np.sqrt(max(excess, 0.0)):.3f} |")
+            print(rows[-1], flush=True)
+    save_json_atomic(a.out / "window_slopes.json", result)
+    print("\n| root | L frames | runs | c_y RMS m/m | mean | sqrt((var - s^2) L) |\n|---|---|---|---|---|---|")
+    print("\n".join(rows))
     return 0
 
 

@@ -58,6 +58,10 @@ class RadarPixelFactorConfig:
     scene_height_std_m: float = 0.25  # per-knot std of the drive's mean-height offset, m (0 = off)
     scene_height_sq_std_m2: float = 0.35  # per-knot std of the drive's mean-squared-height offset, m^2 (0 = off)
     scene_lateral_slope_std: float = 0.005  # std of the drive's left/right height slope dh/dy, m per m (0 = off)
+    # a short stretch of road sees one roadside: the slope of n keyframes' rows has the variance
+    # scene_lateral_slope_std^2 + scene_lateral_slope_frame_std^2 / n (calib.covariance.scene_config_for; fitted on
+    # validation drives: docs/benchmarks.md); widens a slope that is on (scene_lateral_slope_std > 0), 0 = not
+    scene_lateral_slope_frame_std: float = 0.0
     # the three scene stds x this when the rows lie along the road (calib.degeneracy.along_road): a
     # straight road shows the same roadside all drive long, its height profile does not average out
     # (chosen on 5 straight drives, validated on 5 others: docs/benchmarks.md)
@@ -96,9 +100,10 @@ class RadarPixelFactorConfig:
         if not self.scene_along_road_factor >= 1:
             raise ValueError(f"RadarPixelFactorConfig.scene_along_road_factor must be >= 1, got "
                              f"{self.scene_along_road_factor}")
-        if min(self.scene_height_std_m, self.scene_height_sq_std_m2, self.scene_lateral_slope_std) < 0:
-            raise ValueError("RadarPixelFactorConfig: scene_height_std_m, scene_height_sq_std_m2 and "
-                             "scene_lateral_slope_std must be >= 0 (0 = off)")
+        if min(self.scene_height_std_m, self.scene_height_sq_std_m2, self.scene_lateral_slope_std,
+               self.scene_lateral_slope_frame_std) < 0:
+            raise ValueError("RadarPixelFactorConfig: scene_height_std_m, scene_height_sq_std_m2, "
+                             "scene_lateral_slope_std and scene_lateral_slope_frame_std must be >= 0 (0 = off)")
         if not 0 <= self.elevation_beam_deg < 45:
             raise ValueError(
                 f"RadarPixelFactorConfig.elevation_beam_deg must be in [0, 45), got {self.elevation_beam_deg}")
@@ -109,5 +114,6 @@ class RadarPixelFactorConfig:
                               "reflector_height_mean_std_m": "[0, 10]", "reflector_tilt_std_deg": "[0, 45]",
                               "scene_knots_m": "[0, 1000]", "scene_height_std_m": "[0, 10]",
                               "scene_height_sq_std_m2": "[0, 100]", "scene_lateral_slope_std": "[0, 1]",
+                              "scene_lateral_slope_frame_std": "[0, 1]",
                               "scene_along_road_factor": "[1, 100]", "min_depth_m": "(0, 100]"})
 

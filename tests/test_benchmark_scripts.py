@@ -68,3 +68,24 @@ def test_the_step_benchmarks_summarise_every_size_they_ran(monkeypatch):
             {"kind": "trans", "size": 10.0, "delay": None, "false_alarms": 0}]
     steps = summarise(rows, 20)["steps"]
     assert list(steps) == ["rot_0.5", "rot_1.5", "trans_10"] and steps["trans_10"]["detected"] == 0.0
+
+
+def test_window_slopes_reads_each_run_of_frames_own_height_slope():
+    """scene_profiles --windows: the lateral slope of each run of L frames (non-overlapping), the drive's tail that
+    does not fill a run left out."""
+    from benchmarks.scene_profiles import window_slopes
+    from factors.config import RadarPixelFactorConfig
+    from factors.projection import truncated_normal_moments
+
+    conf = RadarPixelFactorConfig()
+    g = np.random.default_rng(0)
+    frames = []
+    for k in range(7):
+        r, y = g.uniform(5.0, 80.0, 40), g.uniform(-15.0, 15.0, 40)
+        beam = np.deg2rad(conf.elevation_beam_deg)
+        mean_h, _ = truncated_normal_moments(conf.reflector_height_mean_m, conf.reflector_height_std_m,
+                                             r * np.sin(-beam), r * np.sin(beam))
+        frames.append(np.stack([r, y, mean_h + (0.02 if k < 3 else -0.01) * y], 1))
+    got = window_slopes(frames, conf, [1, 3])
+    assert len(got[1]) == 7 and len(got[3]) == 2
+    assert got[3][0] == pytest.approx(0.02, abs=1e-6) and got[3][1] == pytest.approx(-0.01, abs=1e-6)

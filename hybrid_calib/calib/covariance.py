@@ -357,22 +357,33 @@ def marginalise_scene_nuisance(info: np.ndarray, cross: np.ndarray | None = None
 
 
 def scene_config_for(factor_conf, geometry: RowGeometry | None, conf=None):
-    """The factor configuration whose scene nuisance (``factors.scene``) holds for these rows: the
-    three scene stds times ``scene_along_road_factor`` when the rows lie along the road
-    (``degeneracy.along_road`` with ``conf.degeneracy``; a straight road), else ``factor_conf``
-    itself. The covariance (``analyse_drive_information``) and the Cramer-Rao bound of the model
-    used (``crb.oracle_crb``) take the same one."""
+    """The factor configuration whose scene nuisance (``factors.scene``) holds for these rows: the lateral slope's
+    std widened for the few keyframes the rows come from, ``sqrt(s^2 + s_f^2 / n)`` (``scene_lateral_slope_std``,
+    ``scene_lateral_slope_frame_std``, ``n = geometry.n_frames``: a short stretch of road sees one roadside, its
+    slope has not averaged over a drive), then the three scene stds times ``scene_along_road_factor`` when the rows
+    lie along the road (``degeneracy.along_road`` with ``conf.degeneracy``; a straight road); ``factor_conf``
+    itself when neither applies (a config it returned stays as it is). The covariance
+    (``analyse_drive_information``) and the Cramer-Rao bound of the model used (``crb.oracle_crb``) take the same
+    one."""
     import dataclasses
 
     from hybrid_calib.calib.degeneracy import along_road
     from hybrid_calib.config import merge
 
+    s = float(getattr(factor_conf, "scene_lateral_slope_std", 0.0))
+    per_frame = float(getattr(factor_conf, "scene_lateral_slope_frame_std", 0.0))
+    n = geometry.n_frames if geometry is not None else 0
+    slope = float(np.hypot(s, per_frame / np.sqrt(n))) if s > 0 and per_frame > 0 and n > 0 else s
     k = float(getattr(factor_conf, "scene_along_road_factor", 1.0))
-    if k == 1.0 or along_road(geometry, merge(CovarianceConfig, conf).degeneracy) is None:
+    if k != 1.0 and along_road(geometry, merge(CovarianceConfig, conf).degeneracy) is None:
+        k = 1.0
+    if k == 1.0 and slope == s:
         return factor_conf
+    # both applied: a second call leaves it as it is
     return dataclasses.replace(factor_conf, scene_height_std_m=k * factor_conf.scene_height_std_m,
                                scene_height_sq_std_m2=k * factor_conf.scene_height_sq_std_m2,
-                               scene_lateral_slope_std=k * factor_conf.scene_lateral_slope_std)
+                               scene_lateral_slope_std=k * slope, scene_lateral_slope_frame_std=0.0,
+                               scene_along_road_factor=1.0)
 
 
 def analyse_drive_information(

@@ -138,12 +138,14 @@ def oracle_crb(T_cam_radar: np.ndarray, frames, truths, sigma_px, factor_conf) -
     points and inlier masks); frames whose truth has no inlier or another ``T_cam_radar`` are skipped.
     Fisher information of the true points with the model's per-row elevation prior
     (``elevation_sigma``), plus the prior-pinned directions (``covariance.prior_pinned_std``) and the
-    per-drive scene nuisance at the truth (``calib.schedule.frame_scene_cross`` of the inlier rows).
+    per-drive scene nuisance at the truth (``calib.schedule.frame_scene_cross`` of the inlier rows), with the
+    stds that hold for these frames' rows (``covariance.scene_config_for``, as the covariance takes them).
     """
     import dataclasses
 
     from factors.scene import scene_prior_std
-    from hybrid_calib.calib.covariance import prior_pinned_std
+    from hybrid_calib.calib.covariance import prior_pinned_std, scene_config_for
+    from hybrid_calib.calib.degeneracy import RowGeometry
     from hybrid_calib.calib.schedule import frame_scene_cross
 
     T = np.asarray(T_cam_radar, np.float64)
@@ -151,6 +153,7 @@ def oracle_crb(T_cam_radar: np.ndarray, frames, truths, sigma_px, factor_conf) -
     F = sum((fisher_information(T, t.points_true[t.inlier], c.K, sigma_px,
                                 elevation_sigma(t.points_true[t.inlier], factor_conf)) for c, t in used),
             np.zeros((6, 6)))
+    factor_conf = scene_config_for(factor_conf, RowGeometry.from_frames(frames))  # as the covariance's
     std = scene_prior_std(factor_conf)
     plain = dataclasses.replace(factor_conf, kernel="none")
     cross = sum((frame_scene_cross(T, c.subset(t.inlier), plain) for c, t in used), np.zeros((6, len(std))))
