@@ -259,7 +259,7 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
     camera_K: dict[str, np.ndarray] = {}  # frame token -> its camera's intrinsics in the root's tables
     against = None  # what the errors are measured against: a simulated root's truth, a real root's tables
     if data is not None and version:
-        from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+        from hybrid_calib.data.nuscenes import NuScenesRadarCamera, tables_extrinsic
 
         ds = NuScenesRadarCamera(data, version, conf={"check_images": False, "reference": conf.reference or None})
         against = "truth" if ds.sim_vehicles else "tables"
@@ -290,7 +290,8 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
         ids = [str(m.frame_id) for ms in groups.values() for m in ms]
         # each file's frame's own static extrinsic in the tables (a simulated root's truth, which moves where a mount
         # was knocked: probe 137, the first frame's for the whole drive put a 1.1 deg error at 4.1)
-        truth_of = {t: T for t in set(ids) if t in frame_of and (T := _tables_static(ds, frame_of[t])) is not None}
+        truth_of = {t: T for t in set(ids) if t in frame_of
+                    and (T := tables_extrinsic(ds.tables, frame_of[t].camera_sd, frame_of[t].radar_sd)) is not None}
         foreign = [i for i in ids if i not in tokens]
         if ids and len(foreign) == len(ids):  # another root's files: errors against this root's truth would be wrong
             raise DataError(f"none of the {len(ids)} measurement files' frames (sample or sample_data tokens, e.g. "
@@ -344,17 +345,6 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
             out[vehicle].skipped.append({"index": None, "token": Path(path).stem,
                                          "reason": f"measurement file skipped: {e}"})
     return out
-
-
-def _tables_static(ds, ref) -> np.ndarray | None:
-    """(4, 4) frame ``ref``'s static T_cam_radar in the tables of ``ds`` (no sensor file read), None where its
-    records do not read."""
-    from hybrid_calib.geometry import se3_inverse
-
-    try:
-        return se3_inverse(ds.tables.T_ego_sensor(ref.camera_sd)) @ ds.tables.T_ego_sensor(ref.radar_sd)
-    except (DataError, KeyError, TypeError, ValueError):
-        return None
 
 
 def _at_camera_time(ms: list, frame_of: dict, ds) -> tuple[list, dict[str, str]]:

@@ -126,6 +126,15 @@ def mount_offset(T: np.ndarray, T0: np.ndarray) -> tuple[float, float]:
     return angle, float(100 * np.linalg.norm(T[:3, 3] - T0[:3, 3]))
 
 
+def tables_extrinsic(tables, camera_sd: dict, radar_sd: dict) -> np.ndarray | None:
+    """(4, 4) the static T_cam_radar the calibrated_sensor records of two keyframes give (no sensor file read), None
+    where a record does not read (the frame says why when it is read)."""
+    try:
+        return se3_inverse(tables.T_ego_sensor(camera_sd)) @ tables.T_ego_sensor(radar_sd)
+    except (DataError, KeyError, TypeError, ValueError):
+        return None
+
+
 def same_calibration(T: np.ndarray, T0: np.ndarray) -> bool:
     """Two mounts the tables hold as one calibration (within ``SAME_CALIBRATION``)."""
     return all(d <= tol for d, tol in zip(mount_offset(T, T0), SAME_CALIBRATION))
@@ -507,12 +516,6 @@ class NuScenesRadarCamera:
             return frames
         t = self.tables
 
-        def extrinsic(cam: dict, rad: dict) -> np.ndarray | None:
-            try:
-                return se3_inverse(t.T_ego_sensor(cam)) @ t.T_ego_sensor(rad)
-            except (DataError, KeyError, TypeError):
-                return None  # a broken record: the frame says so when it is read
-
         seen: dict[str, list[tuple[str, np.ndarray]]] = {}  # vehicle -> [(name, extrinsic)]
 
         def name_of(vehicle: str, T: np.ndarray | None) -> str:
@@ -534,11 +537,11 @@ class NuScenesRadarCamera:
                 for sample in t.scene_samples(scene):
                     cam, rad = t.keyframe(sample["token"], self.camera_channel), t.keyframe(sample["token"],
                                                                                             self.radar_channel)
-                    if cam is not None and rad is not None and (T := extrinsic(cam, rad)) is not None:
+                    if cam is not None and rad is not None and (T := tables_extrinsic(t, cam, rad)) is not None:
                         name_of(log["vehicle"], T)
         out = []
         for ref in frames:
-            name = name_of(ref.vehicle, extrinsic(ref.camera_sd, ref.radar_sd))
+            name = name_of(ref.vehicle, tables_extrinsic(t, ref.camera_sd, ref.radar_sd))
             out.append(ref if name == ref.vehicle else dataclasses.replace(ref, vehicle=name))
         self.calibration_splits = {v: [n for n, _ in k] for v, k in seen.items() if len(k) > 1}
         self.calibration_offsets = {n: mount_offset(T, k[0][1]) for k in seen.values() if len(k) > 1 for n, T in k[1:]

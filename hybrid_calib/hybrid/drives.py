@@ -214,19 +214,12 @@ def _truth_path(frames, idx: list[int]) -> list:
     """Where a simulated drive's true mount moved (``calib.result.path_of``), from the tables' records of its frames
     (no sensor file read); a record that does not resolve is no truth there."""
     from hybrid_calib.calib.result import path_of
-    from hybrid_calib.geometry import se3_inverse
+    from hybrid_calib.data.nuscenes import tables_extrinsic
 
     refs, tables = getattr(frames, "frames", None), getattr(frames, "tables", None)
     if refs is None or tables is None:
         return []
-
-    def mount(ref):
-        try:
-            return se3_inverse(tables.T_ego_sensor(ref.camera_sd)) @ tables.T_ego_sensor(ref.radar_sd)
-        except (DataError, KeyError, TypeError, ValueError):
-            return None
-
-    return path_of(range(len(idx)), [mount(refs[i]) for i in idx])
+    return path_of(range(len(idx)), [tables_extrinsic(tables, refs[i].camera_sd, refs[i].radar_sd) for i in idx])
 
 
 def _end_truth(frames, idx: list[int], static: np.ndarray) -> np.ndarray:
