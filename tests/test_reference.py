@@ -732,3 +732,33 @@ def _turned_180(q_wxyz: list) -> list:
     """The rotation ``q_wxyz`` (w, x, y, z) turned half a turn about its own z axis."""
     w, x, y, z = q_wxyz
     return [-z, y, -x, w]  # q * (0, 0, 0, 1)
+
+
+def test_an_export_of_a_vehicle_whose_logs_define_its_frame_differently_gives_each_log_its_own_mount(knocked,
+                                                                                                      tmp_path):
+    """Probe 139: the reference was the export's first record for every frame, so a drive in a log whose tables turn
+    the vehicle frame (both records exported, one calibration) read the radar 3 deg off the exported mount's."""
+    from hybrid_calib.data.reference import load_export_reference
+    from hybrid_calib.geometry import make_T, pose_from_nuscenes, pose_to_nuscenes, so3_exp
+
+    _, _, exp, _ = knocked
+    mine = tmp_path / "exp"
+    shutil.copytree(exp, mine)
+    doc = json.loads((mine / "export.json").read_text())
+    records = doc["vehicles"]["sim-veh-000"]["records"]
+    Rz_inv = make_T(so3_exp(np.radians([0.0, 0.0, -3.0])), np.zeros(3))
+    other = json.loads(json.dumps(records[0]))
+    other["token"] = "radar-record-of-log-b"
+    for key in ("camera", "after", "before", "reference"):
+        if isinstance(other.get(key), dict):
+            T = pose_from_nuscenes(other[key]["rotation"], other[key]["translation"])
+            rot, trans = pose_to_nuscenes(Rz_inv @ T)
+            other[key] = {"rotation": list(rot), "translation": list(trans)}
+    records.append(other)
+    (mine / "export.json").write_text(json.dumps(doc))
+    ref = load_export_reference(mine)
+    first, b = ref.mounts_at("sim-veh-000", records[0]["token"]), ref.mounts_at("sim-veh-000", other["token"])
+    np.testing.assert_allclose(b[1], Rz_inv @ first[1], atol=1e-9)
+    np.testing.assert_allclose(np.linalg.inv(b[0]) @ b[1], np.linalg.inv(first[0]) @ first[1], atol=1e-9)
+    assert ref.mounts_at("sim-veh-000", "a-record-of-a-later-log") is ref.mounts["sim-veh-000"]
+    assert ref.mounts_at("no-such-vehicle", other["token"]) is None

@@ -919,11 +919,13 @@ class NuScenesRadarCamera:
         out = [f"reference: {', '.join(named)} checked against the mount{'s' if len(named) > 1 else ''} exported in "
                f"{ref.path} (from {ref.data}, {ref.version}); any other vehicle against its tables"]
         for v in named:
+            first = self.frames[by_vehicle[v][0]]
             try:
-                T_cam = self.tables.T_ego_sensor(self.frames[by_vehicle[v][0]].camera_sd)
+                T_cam = self.tables.T_ego_sensor(first.camera_sd)
             except (DataError, KeyError, TypeError):
                 continue  # said where its frames are read
-            deg, cm = mount_offset(T_cam, ref.mounts[v][0])
+            # the record the export wrote for this frame's radar record (one per log: probe 139), else its first
+            deg, cm = mount_offset(T_cam, ref.mounts_at(v, first.radar_sd.get("calibrated_sensor_token"))[0])
             if deg > SAME_CALIBRATION[0] or cm > SAME_CALIBRATION[1]:
                 out.append(f"warning: vehicle {v}: its camera record here is {deg:.2f} deg / {cm:.1f} cm from the one "
                            f"the export read (the camera was recalibrated since, or the export is of another vehicle "
@@ -976,8 +978,9 @@ class NuScenesRadarCamera:
         nominal radar mount of older simulated roots, else the tables' own. The radar mount monitor measures the
         radar's yaw against this radar mount, as on a real vehicle (against the truth it read 'the radar agrees with
         its tables' on a radar knocked before the drive, and blamed the camera)."""
-        if self.export_reference is not None and (exported := self.export_reference.mounts.get(ref.vehicle)):
-            return exported  # the mounts an earlier export wrote for this vehicle (data.reference)
+        if self.export_reference is not None and (exported := self.export_reference.mounts_at(
+                ref.vehicle, ref.radar_sd.get("calibrated_sensor_token"))):
+            return exported  # the mounts an earlier export wrote for this vehicle (data.reference), for this record
         rec = self.sim_vehicles.get(ref.log_token)
         factory_radar = _sim_pose(rec, "factory_T_ego_radar")
         factory_cam = _sim_pose(rec, "factory_T_ego_cam")

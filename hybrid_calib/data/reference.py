@@ -58,6 +58,17 @@ class ExportReference:
     # vehicle -> {"level_deg", "std_deg", ...}: the radar's yaw on the vehicle against the written mount, its Doppler
     # against the ego poses on the drive the export came from (``calib.drift.turned_since_export``), where recorded
     doppler: dict[str, dict] = field(default_factory=dict)
+    # radar record token -> (T_ego_cam, T_ego_radar) of each record the export wrote: a vehicle whose logs' tables
+    # define its frame differently has one exported mount per log (probe 139)
+    records: dict[str, tuple[np.ndarray, np.ndarray]] = field(repr=False, default_factory=dict)
+
+    def mounts_at(self, vehicle: str, radar_record: str | None) -> tuple[np.ndarray, np.ndarray] | None:
+        """(T_ego_cam, T_ego_radar) the export wrote for ``vehicle`` at a frame whose radar calibrated_sensor record
+        is ``radar_record``: that record's own when the export wrote it, else the vehicle's first; None when the
+        export did not replace the vehicle's mount."""
+        if vehicle not in self.mounts:
+            return None
+        return self.records.get(str(radar_record), self.mounts[vehicle])
 
     def T_cam_radar(self, vehicle: str) -> np.ndarray | None:
         """(4, 4) the exported extrinsic of ``vehicle``, or None when the export did not replace its mount."""
@@ -142,6 +153,7 @@ def load_export_reference(path: str | Path) -> ExportReference:
     mounts: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     kept: dict[str, str] = {}
     doppler: dict[str, dict] = {}
+    by_record: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     for name, entry in vehicles.items():
         if not isinstance(entry, dict):
             raise DataError(f"--reference: vehicle {name}'s entry is not an object; export again", path=str(p))
@@ -162,6 +174,8 @@ def load_export_reference(path: str | Path) -> ExportReference:
                                 "written before hybrid-calib recorded it): export again with this version",
                                 path=str(p))
             pairs.append((_pose(rec["camera"], "camera", p, name), _pose(rec.get("after"), "after", p, name)))
+            if isinstance(rec.get("token"), str):
+                by_record[rec["token"]] = pairs[-1]
             if isinstance(rec.get("before"), dict):  # probe 109: a mount 3 m or 180 deg off read, and the words
                 # blamed the vehicle's tables
                 deg, cm = mount_offset(pairs[-1][1], _pose(rec["before"], "before", p, name))
@@ -186,7 +200,7 @@ def load_export_reference(path: str | Path) -> ExportReference:
                                 path=str(p))
             doppler[name] = {**dop, "level_deg": float(level), "std_deg": float(std)}
     return ExportReference(p, hashlib.sha256(raw).hexdigest(), str(doc.get("data", "?")),
-                           str(doc.get("version", "?")), mounts, kept, doppler)
+                           str(doc.get("version", "?")), mounts, kept, doppler, by_record)
 
 
 def _number(x) -> bool:
