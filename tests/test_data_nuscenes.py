@@ -743,3 +743,16 @@ def test_a_radar_that_records_elevation_is_read_as_a_2d_radar_and_said(tmp_path)
     assert len(told) == 1 and "points carry elevation (z up to 2.00 m" in str(told[0].message)
     assert all(f.extras["radar_elevation_m"] == pytest.approx(2.0) and not f.radar_points[:, 2].any() for f in frames)
     np.testing.assert_allclose(frames[0].radar_points[:, :2], flat.radar_points[:, :2])
+
+
+def test_inspect_s_table_shows_a_calibration_s_whole_name(tmp_path):
+    """Probe 139: the table cut the vehicle column at 12 characters (sim-veh-000-cal2 read sim-veh-000-)."""
+    from hybrid_calib.data.summary import summarize_dataset
+
+    tiny = _recalibrated_radar(tmp_path)
+    for log in tiny.tables["log"]:
+        log["vehicle"] = "tiny-vehicle-x"
+    tiny.rewrite_table("log")
+    text = summarize_dataset(NuScenesRadarCamera(tiny.root, VERSION), progress=False).format()
+    rows = [line for line in text.splitlines() if line.startswith("tiny-scene")]
+    assert len(rows) == 2 and " tiny-vehicle-x-cal2 " in rows[1] and " tiny-vehicle-x " in rows[0], rows

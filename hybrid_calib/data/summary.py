@@ -121,14 +121,15 @@ class DatasetSummary:
         """A human-readable table: one line per scene/vehicle, then the skipped items grouped by reason (count,
         the first one's reason, a few more of its frames and tokens: a drive with hundreds of bad frames does not
         flood the terminal). ``listed_in``: the file that lists every skipped item, named when some are left out."""
+        wv = min(max([12] + [len(g.vehicle) for g in self.groups]), 24)  # a calibration's name (NAME-cal2) whole
         lines = [f"{self.root} [{self.version}] {self.radar_channel} -> {self.camera_channel}: "
                  f"{self.n_loaded}/{self.n_frames} frames loaded, {len(self.skipped)} skipped",
-                 f"{'scene':24s} {'vehicle':12s} {'frames':>6s} {'loaded':>6s} {'radar pts/sweep':>18s} "
+                 f"{'scene':24s} {'vehicle':{wv}s} {'frames':>6s} {'loaded':>6s} {'radar pts/sweep':>18s} "
                  f"{'raw':>6s} {'NaN':>5s} {'dt ms':>7s}"]
         for g in self.groups:
             j = g.to_json()
             p, dt = j["radar_points_per_sweep"], j["dt_radar_minus_camera_ms"]["mean"]
-            lines.append(f"{g.scene[:24]:24s} {g.vehicle[:12]:12s} {g.frames:6d} {g.loaded:6d} "
+            lines.append(f"{g.scene[:24]:24s} {g.vehicle[:wv]:{wv}s} {g.frames:6d} {g.loaded:6d} "
                          + (f"{p['mean']:7.1f} [{p['min']:3d},{p['max']:4d}]" if p["mean"] is not None else
                             f"{'-':>18s}") + f" {j['radar_points_raw_mean']:6.1f} "
                          f"{g.nonfinite:5d} " + (f"{dt:7.1f}" if dt is not None else f"{'-':>7s}"))  # none loaded
