@@ -89,3 +89,11 @@ def test_window_slopes_reads_each_run_of_frames_own_height_slope():
     got = window_slopes(frames, conf, [1, 3])
     assert len(got[1]) == 7 and len(got[3]) == 2
     assert got[3][0] == pytest.approx(0.02, abs=1e-6) and got[3][1] == pytest.approx(-0.01, abs=1e-6)
+
+
+def test_bench_oracle_summary_only_refuses_a_root_that_is_not_there(tmp_path):
+    """Probe 136: --summary-only on a deleted --data simulated a new root there and printed an empty table, rc 0."""
+    r = _script("benchmarks/bench_oracle.py", "--data", str(tmp_path / "gone"), "--summary-only", "--out",
+                str(tmp_path / "out"))
+    assert r.returncode == 2 and "--summary-only summarises the runs on --data" in r.stderr, r.stderr
+    assert not (tmp_path / "gone").exists() and "Traceback" not in r.stderr
