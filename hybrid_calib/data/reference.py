@@ -58,9 +58,9 @@ class ExportReference:
     # vehicle -> {"level_deg", "std_deg", ...}: the radar's yaw on the vehicle against the written mount, its Doppler
     # against the ego poses on the drive the export came from (``calib.drift.turned_since_export``), where recorded
     doppler: dict[str, dict] = field(default_factory=dict)
-    # radar record token -> (T_ego_cam, T_ego_radar) of each record the export wrote: a vehicle whose logs' tables
-    # define its frame differently has one exported mount per log (probe 139)
-    records: dict[str, tuple[np.ndarray, np.ndarray]] = field(repr=False, default_factory=dict)
+    # (vehicle, radar record token) -> (T_ego_cam, T_ego_radar) of each record the export wrote: a vehicle whose
+    # logs' tables define its frame differently has one exported mount per log (probe 139)
+    records: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]] = field(repr=False, default_factory=dict)
 
     def mounts_at(self, vehicle: str, radar_record: str | None) -> tuple[np.ndarray, np.ndarray] | None:
         """(T_ego_cam, T_ego_radar) the export wrote for ``vehicle`` at a frame whose radar calibrated_sensor record
@@ -68,7 +68,7 @@ class ExportReference:
         export did not replace the vehicle's mount."""
         if vehicle not in self.mounts:
             return None
-        return self.records.get(str(radar_record), self.mounts[vehicle])
+        return self.records.get((vehicle, str(radar_record)), self.mounts[vehicle])
 
     def T_cam_radar(self, vehicle: str) -> np.ndarray | None:
         """(4, 4) the exported extrinsic of ``vehicle``, or None when the export did not replace its mount."""
@@ -153,7 +153,7 @@ def load_export_reference(path: str | Path) -> ExportReference:
     mounts: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     kept: dict[str, str] = {}
     doppler: dict[str, dict] = {}
-    by_record: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    by_record: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]] = {}
     for name, entry in vehicles.items():
         if not isinstance(entry, dict):
             raise DataError(f"--reference: vehicle {name}'s entry is not an object; export again", path=str(p))
@@ -175,7 +175,7 @@ def load_export_reference(path: str | Path) -> ExportReference:
                                 path=str(p))
             pairs.append((_pose(rec["camera"], "camera", p, name), _pose(rec.get("after"), "after", p, name)))
             if isinstance(rec.get("token"), str):
-                by_record[rec["token"]] = pairs[-1]
+                by_record[(name, rec["token"])] = pairs[-1]
             if isinstance(rec.get("before"), dict):  # probe 109: a mount 3 m or 180 deg off read, and the words
                 # blamed the vehicle's tables
                 deg, cm = mount_offset(pairs[-1][1], _pose(rec["before"], "before", p, name))
