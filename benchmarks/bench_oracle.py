@@ -263,12 +263,11 @@ def main(argv=None) -> int:
     from hybrid_calib.config import merge, save_json_atomic
     from hybrid_calib.data.nuscenes import NuScenesRadarCamera
 
-    if not (a.data / "v1.0-sim").is_dir() and a.summary_only:  # probe 136: it simulated a new root there and
-        # printed an empty table
-        print(f"bench_oracle.py: --summary-only summarises the runs on --data {a.data}, which holds no v1.0-sim root "
-              "(moved or deleted?): pass the root the runs were measured on", file=sys.stderr)
-        return 2
     if not (a.data / "v1.0-sim").is_dir():
+        if a.summary_only:  # probe 136: it simulated a new root there and printed an empty table
+            print(f"bench_oracle.py: --summary-only summarises the runs on --data {a.data}, which holds no v1.0-sim "
+                  "root (moved or deleted?): pass the root the runs were measured on", file=sys.stderr)
+            return 2
         from hybrid_calib.sim.drive import SimConfig
         from hybrid_calib.sim.simulate import simulate
 

@@ -530,18 +530,17 @@ def reference_mounts(frames) -> Callable[[int], np.ndarray | None] | None:
     if not hasattr(frames, "reference_T_ego_radar") or not hasattr(frames, "frames") or getattr(frames, "simulated",
                                                                                                  False):
         return None
-    first: list = []  # (the tables' radar mount, the reference mount) of the drive's first frame that reads
+    anchor: list = []  # T_tab(0)^-1 T_ref(0) of the drive's first frame that reads
 
     def mount_at(index: int) -> np.ndarray | None:
         try:
             ref = frames.frames[index]
             T_tab = np.asarray(frames.tables.T_ego_sensor(ref.radar_sd), np.float64)
-            if not first:
-                first.append((T_tab, np.asarray(frames.reference_T_ego_radar(ref), np.float64)))
+            if not anchor:
+                anchor.append(np.linalg.inv(T_tab) @ np.asarray(frames.reference_T_ego_radar(ref), np.float64))
         except (DataError, KeyError, TypeError, ValueError, IndexError, AttributeError):
             return None  # the frame's reading says what is wrong with its records
-        T0_tab, T0_ref = first[0]
-        return T_tab @ np.linalg.inv(T0_tab) @ T0_ref
+        return T_tab @ anchor[0]
 
     return mount_at
 

@@ -140,9 +140,12 @@ def heights_plane(conf: CalibrateConfig, vi: VehicleInput) -> CalibrateConfig:
     except for the oracle's model draw (``oracle.elevation=model``), whose heights are drawn above the radar's own
     plane as the factor of that model reads them (probe 135: the road plane put a tilted mount's pitch 2.3 deg off,
     NEES 29.6)."""
-    if vi.oracle_truths and conf.oracle.elevation == "model":
-        return conf
-    return on_road_plane(conf, vi.road_normal)
+    return conf if _drawn_above_radar(vi, conf) else on_road_plane(conf, vi.road_normal)
+
+
+def _drawn_above_radar(vi: VehicleInput, conf: CalibrateConfig) -> bool:
+    """Whether ``vi``'s rows are the oracle's model draw, whose heights lie above the radar's own plane."""
+    return bool(vi.oracle_truths) and conf.oracle.elevation == "model"
 
 
 def height_plane_record(given, used, radar_why: str = "") -> dict | None:
@@ -164,7 +167,7 @@ def height_plane_record(given, used, radar_why: str = "") -> dict | None:
 
 def radar_plane_why(vi: VehicleInput, conf: CalibrateConfig) -> str:
     """Why ``heights_plane`` keeps the radar's own plane for ``vi`` (the words of ``height_plane_record``)."""
-    if vi.oracle_truths and conf.oracle.elevation == "model":
+    if _drawn_above_radar(vi, conf):
         return "the oracle's model draw puts its heights above the radar's plane"
     return "no reference mount within 60 deg of level puts the radar on the road"
 
@@ -262,7 +265,7 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
         from hybrid_calib.data.nuscenes import NuScenesRadarCamera, tables_extrinsic
 
         ds = NuScenesRadarCamera(data, version, conf={"check_images": False, "reference": conf.reference or None})
-        against = "truth" if ds.sim_vehicles else "tables"
+        against = "truth" if ds.simulated else "tables"
         for line in ds.reference_notes(conf.vehicles) if say else ():
             print(line, file=sys.stderr)
         _check_exported_from(directory, data, version)

@@ -140,7 +140,7 @@ def open_drives(data, version: str, conf: HybridConfig, lidar: bool, unreadable:
         print(line, file=sys.stderr)
         if said is not None:  # the result keeps them (CalibrationRun.notes)
             said.append(line)
-    simulated = bool(getattr(frames, "sim_vehicles", {}))
+    simulated = bool(getattr(frames, "simulated", False))
     keep = None if conf.split == "all" else set(split_indices(frames, conf.split, conf.split_options))
     drives, outside_split = {}, []
     by_vehicle = frames.frames_by_vehicle()

@@ -678,12 +678,13 @@ def vehicle_learned(runner: NetworkRunner, drive: Drive, conf: HybridConfig, not
                                           **({"yaw_check": yaw_check} if yaw_check else {}),
                                           "heading_jitter": (drive.heading_jitter.to_dict()
                                                              if drive.heading_jitter is not None else NOT_MEASURED)}
-    if conf.method == "hybrid" and measurement_config(runner, conf).rows != "none":  # rows in the window's factor
-        # (pure, pure-avg and measurement.rows=none: the network's SE(3) only, no plane: probe 138)
+    mconf = measurement_config(runner, conf)
+    if conf.method == "hybrid" and mconf.rows != "none":  # rows in the window's factor (pure, pure-avg and
+        # measurement.rows=none: the network's SE(3) only, no plane: probe 138)
         res.height_plane = height_plane_record(conf.window.factor, conf.window.factor,
                                                "the hybrid's rows, as the checkpoint's fitted measurement model reads "
                                                "them")
-    res.config = {**to_dict(conf), "measurement_effective": to_dict(measurement_config(runner, conf)),
+    res.config = {**to_dict(conf), "measurement_effective": to_dict(mconf),
                   "depth_effective": runner.depth_name, **({"depth_note": note} if note else {}),
                   **({"drive_error_priors": n_priors} if n_priors else {})}
     if wider := range_note(conf.start, runner.range, runner.checkpoint):
