@@ -404,8 +404,9 @@ def _check_roots(roots: list, version: str, methods) -> tuple[list, dict[str, st
         raise first
     if "oracle" not in methods:
         return kept, left_out
-    real = [str(r) for r in roots if (Path(r) / version).is_dir() and not (Path(r) / version / "sim_vehicle.json"
-                                                                            ).is_file()]
+    from hybrid_calib.data.nuscenes import simulated_root
+
+    real = [str(r) for r in roots if (Path(r) / version).is_dir() and not simulated_root(r, version)]
     if real:
         raise HybridCalibError(f"method oracle needs simulated roots (the true reflectors); {', '.join(real)} "
                                f"{'is a real root' if len(real) == 1 else 'are real roots'}: drop oracle from "

@@ -378,8 +378,34 @@ def test_train_on_a_real_root_defaults_to_the_depth_calibrate_uses(tmp_path, cap
     tiny = make_tiny_root(tmp_path / "real", n_samples=2)
     assert _real_root_depth([tiny.root], VERSION) == "lidar-densified"
     assert "is a real root: training on lidar-densified depth" in capsys.readouterr().err
-    (tiny.root / VERSION / "sim_vehicle.json").write_text("[]")  # the simulator's mark: its own depth truth
-    assert _real_root_depth([tiny.root], VERSION) == ""
+    (tiny.root / VERSION / "sim_vehicle.json").write_text("[]")  # a mark with no vehicle record: the dataset reads
+    assert _real_root_depth([tiny.root], VERSION) == "lidar-densified"  # a real root (session 52: was "")
+    log = tiny.tables["log"][0]["token"]
+    (tiny.root / VERSION / "sim_vehicle.json").write_text(json.dumps({log: {"vehicle": "sim"}}))  # the simulator's
+    assert _real_root_depth([tiny.root], VERSION) == ""  # mark: its own depth truth
+
+
+def test_the_commands_early_choices_read_simulated_as_the_dataset_does(tmp_path):
+    """Session 52: the hybrid's depth, compare's oracle check and evaluate's and train's notes tested whether
+    sim_vehicle.json exists, the dataset whether it holds vehicle records: an empty or unreadable file was a simulated
+    root to the first and a real one to the run."""
+    import warnings
+
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera, simulated_root
+    from hybrid_calib.hybrid.drives import resolve_depth
+    from hybrid_calib.hybrid.loop import HybridConfig
+    from tests.tiny_nuscenes import VERSION, make_tiny_root
+
+    tiny = make_tiny_root(tmp_path / "real", n_samples=2)
+    log = tiny.tables["log"][0]["token"]
+    for text, simulated in (("[]", False), ("{", False), ("{}", False), (json.dumps({log: {}}), True)):
+        (tiny.root / VERSION / "sim_vehicle.json").write_text(text)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            assert NuScenesRadarCamera(tiny.root, VERSION).simulated is simulated, text
+        assert simulated_root(tiny.root, VERSION) is simulated, text
+        assert resolve_depth(tiny.root, VERSION, HybridConfig())[0] == ("" if simulated else "lidar-densified"), text
+    assert simulated_root(tmp_path / "nowhere", VERSION) is False
 
 
 def test_an_option_given_twice_or_an_empty_path_is_refused(tmp_path, capsys):

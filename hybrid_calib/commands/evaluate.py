@@ -84,6 +84,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from hybrid_calib.config import merge
     from hybrid_calib.data.files import data_stamp
+    from hybrid_calib.data.nuscenes import simulated_root
     from hybrid_calib.plots.evaluation import plot_error_cdf
     from learned.checkpoint import checkpoint_digest
     from learned.dataset import open_roots
@@ -167,7 +168,7 @@ def run(args: argparse.Namespace) -> int:
     if overlap != 0:
         notes.append(f"{overlap_words(overlap, args.split)}: the table is no held-out measure (drop the split "
                      "flags, or use a root it never saw)")
-    if real := [str(d) for d in args.data if not (Path(d) / args.version / "sim_vehicle.json").is_file()]:
+    if real := [str(d) for d in args.data if not simulated_root(d, args.version)]:
         notes.append(f"{', '.join(real)} holds no simulator truth: the errors and NEES of its frames are against "
                      "its calibrated_sensor tables (themselves a few tenths of a degree off), not the truth")
     for note in notes:

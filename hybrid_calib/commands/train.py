@@ -56,9 +56,10 @@ def _real_root_depth(roots, version: str) -> str:
     every frame of a real root, after loading them all. ``OptionError`` for a real root without LiDAR."""
     import sys
 
+    from hybrid_calib.data.nuscenes import simulated_root
     from hybrid_calib.data.tables import sensor_channels
 
-    real = [r for r in roots if not (Path(r) / version / "sim_vehicle.json").is_file()]
+    real = [r for r in roots if not simulated_root(r, version)]
     if not real:
         return ""
     blind = [str(r) for r in real if "LIDAR_TOP" not in sensor_channels(r, version)]

@@ -1060,6 +1060,23 @@ def _load_sim_vehicles(vdir: Path) -> dict[str, dict]:
     return data
 
 
+def simulated_root(data, version: str) -> bool:
+    """Whether ``data``/``version`` is a simulated root, by the rule ``NuScenesRadarCamera.simulated`` reads it (its
+    ``sim_vehicle.json`` holds vehicle records), without indexing the root: for the commands' early choices (the
+    hybrid's depth, compare's oracle check, evaluate's and train's notes), which had tested the file's existence (an
+    empty or unreadable file read as simulated there and as real in the run). Warnings are left to the dataset that
+    loads the root; a file whose records do not read is left to it too (``DataError`` there, False here)."""
+    vdir = Path(data) / version
+    if not vdir.is_dir():
+        return False
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SimVehicleWarning)
+        try:
+            return bool(_load_sim_vehicles(vdir))
+        except DataError:
+            return False
+
+
 class SimVehicleWarning(UserWarning):
     """``sim_vehicle.json`` exists but cannot be read; the root is read as one without it."""
 

@@ -80,12 +80,14 @@ class Drive:
 def resolve_depth(data, version: str, conf: HybridConfig) -> tuple[str, str]:
     """(depth spec, note): ``conf.depth``, or lidar-densified on a real root with LiDAR, or "" (the
     checkpoint's)."""
+    from hybrid_calib.data.nuscenes import simulated_root
     from hybrid_calib.data.tables import sensor_channels, version_dir
     from learned.depth import LidarDepth
 
     if conf.depth:
         return conf.depth, ""
-    simulated = (version_dir(data, version) / "sim_vehicle.json").is_file()
+    version_dir(data, version)  # DataError naming a missing version folder
+    simulated = simulated_root(data, version)
     if not simulated and "LIDAR_TOP" in sensor_channels(data, version):  # sensor.json alone (a trainval root's
         # tables were loaded twice per run: probe 101)
         return LidarDepth.name, "real root without --depth: using lidar-densified depth (the LiDAR through the tables)"
