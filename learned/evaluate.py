@@ -1,7 +1,7 @@
 """Evaluation, export-then-evaluate (as in glue-factory).
 
 1. ``export_pure`` (method ``pure``; any method in ``METHODS``): run it over a FIXED list of
-   (frame, T_init) — the test split with one perturbation per sample fixed by (seed, index) — and
+   (frame, T_init) — the test split with one perturbation per sample fixed by (seed, the frame's camera token) — and
    store, per frame, ``OUT/frames/<token>.npz``: a measurement file (``factors.io``, the format
    ``hybrid-calib calibrate --correspondences OUT`` reads) with the exported correspondence rows, the
    frame's token, vehicle and timestamps, and the network block: ``T_cam_radar`` = the final estimate,

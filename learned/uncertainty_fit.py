@@ -76,16 +76,21 @@ def overlap_words(n: int | None, split: str) -> str:
 def check_fit(checkpoint: str | Path, roots, split: str, version: str, refine: bool,
               perturbation: str | None = None) -> None:
     """``HybridCalibError`` for a fit that would not be held out: with ``--refine`` (several checkpoints), on the test
-    split, on a real root (``version`` other than v1.0-sim), on the frames ``checkpoint`` was trained on, or into a
-    shipped checkpoint."""
+    split, on a real root (``data.nuscenes.simulated_root``: whatever the folder's name), on the frames ``checkpoint``
+    was trained on, or into a shipped checkpoint."""
+    from hybrid_calib.data.nuscenes import simulated_root
+
     if refine:
         raise HybridCalibError("--fit-uncertainty fits one checkpoint's covariance; run it on each checkpoint "
                                "alone, without --refine")
     if split == "test":
         raise HybridCalibError("--fit-uncertainty on the test split would leave nothing held out to check it; "
                                "fit with --split val (or --split all on a separate root)")
-    if version != "v1.0-sim":  # errors against the tables, out-of-domain frames among them
-        raise HybridCalibError(f"--fit-uncertainty on a {version} root: it has no ground truth, only its "
+    # errors against the tables, out-of-domain frames among them (probe 141: the folder's name was the test, and a
+    # real root in a folder named v1.0-sim had its tables fitted as the truth)
+    if real := [str(r) for r in roots if not simulated_root(r, version)]:
+        raise HybridCalibError(f"--fit-uncertainty on {', '.join(real)}, a real root (no simulator truth: "
+                               f"sim_vehicle.json with vehicle records): it has no ground truth, only its "
                                "tables (themselves a few tenths of a degree off) and frames outside the network's "
                                "domain, so the fitted scale would be the tables' and the domain gap's; fit on "
                                "simulated validation drives (v1.0-sim), or, for a network fine-tuned on real "

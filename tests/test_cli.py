@@ -679,3 +679,25 @@ def test_a_run_under_nohup_outlives_its_terminal(tmp_path):
     p = subprocess.run(["nohup", sys.executable, "-c", script], capture_output=True, text=True, timeout=120, env=env,
                        cwd=tmp_path)
     assert p.returncode == 0 and (tmp_path / "run" / "result.json").is_file(), (p.returncode, p.stderr)
+
+
+def test_the_uncertainty_fit_refuses_a_real_root_whatever_its_folder_is_named(tmp_path):
+    """Probe 141: ``--fit-uncertainty`` tested the version folder's name: real tables in a folder named v1.0-sim were
+    fitted as the truth (yaw scale x11.5 written into the checkpoint) while the same run said the root "holds no
+    simulator truth"; a simulated root in a folder of another name was refused as real."""
+    import shutil
+
+    from hybrid_calib.errors import HybridCalibError
+    from learned.uncertainty_fit import check_fit
+    from tests.tiny_nuscenes import VERSION, make_tiny_root
+
+    tiny = make_tiny_root(tmp_path / "real", n_samples=2)
+    shutil.move(tiny.root / VERSION, tiny.root / "v1.0-sim")
+    with pytest.raises(HybridCalibError, match=r"real root \(no simulator truth"):
+        check_fit(tmp_path / "no-checkpoint.safetensors", [tiny.root], "val", "v1.0-sim", refine=False)
+    log = tiny.tables["log"][0]["token"]
+    (tiny.root / "v1.0-sim" / "sim_vehicle.json").write_text(json.dumps({log: {}}))  # simulated, any folder name
+    shutil.move(tiny.root / "v1.0-sim", tiny.root / "drives")
+    with pytest.raises(Exception) as refused:  # past the real-root test: the (absent) checkpoint is read next
+        check_fit(tmp_path / "no-checkpoint.safetensors", [tiny.root], "val", "drives", refine=False)
+    assert "real root" not in str(refused.value)

@@ -76,6 +76,7 @@ def run(args: argparse.Namespace) -> int:
     import sys
 
     from hybrid_calib.data.files import data_stamp
+    from hybrid_calib.data.nuscenes import simulated_root
     from hybrid_calib.plots.training import plot_history
     from learned.checkpoint import latest_checkpoint
     from learned.dataset import open_roots
@@ -108,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
         raise OptionError("--data", f"{', '.join(twice)} is given twice (every frame would count twice); pass each "
                                     "root once")
     frames = open_roots(args.data, args.version, options={"nsweeps": args.nsweeps})
-    if real := [str(d) for d in args.data if not (Path(d) / args.version / "sim_vehicle.json").is_file()]:
+    if real := [str(d) for d in args.data if not simulated_root(d, args.version)]:
         print(f"note: {', '.join(real)} holds no simulator truth ({args.version}): its calibrated_sensor tables "
               "are the training truth (themselves a few tenths of a degree off); label figures on its frames as "
               "training figures and keep some frames out (docs/benchmarks.md: benchmarks/real_finetune.py)")
