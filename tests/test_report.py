@@ -598,17 +598,24 @@ def test_the_attention_section_says_when_the_checkpoint_given_is_not_the_results
 
     png = tmp_path / "a.png"
     png.write_bytes(b"\x89PNG")
-    monkeypatch.setattr(attention, "attention_figure", lambda *a, **k: png)
+    asked = []
+    monkeypatch.setattr(attention, "attention_figure",
+                        lambda *a, **k: asked.append(a[5]) or (png, a[5] or "corrupted-truth"))
     a, b = tmp_path / "a.json", tmp_path / "b.json"
     a.write_text("{}"), b.write_text("{}")
     vr = _vr((0.0,) * 6, (0.1,) * 6)
     vr.checkpoint = str(a)
+    vr.config = {"depth_effective": "lidar-densified"}  # the depth the run's network read
     ev = Evidence(frames=[SimpleNamespace(index=0, drive_index=None)])
     other = attention.attention_html(vr, ev, None, "v1.0-sim", str(b), tmp_path)
     assert f"The result was calibrated with {a}</b>" in other and "not that file" in other
     same = attention.attention_html(vr, ev, None, "v1.0-sim", str(tmp_path / "." / "a.json"), tmp_path)
     own = attention.attention_html(vr, ev, None, "v1.0-sim", "", tmp_path)
     assert "calibrated with" not in same and "calibrated with" not in own
+    # probe 141: the figure chose its own depth (corrupted truth where the root has depth maps), not the run's
+    assert asked == ["", "lidar-densified", "lidar-densified"]
+    assert "with depth lidar-densified (as the run read it)" in own
+    assert "with depth corrupted-truth (as calibrate would choose it)" in other
 
 
 def test_a_pure_result_cannot_tell_against_any_tolerance_asked():

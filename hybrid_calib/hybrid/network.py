@@ -239,6 +239,18 @@ def frames_motion(frames, index: int) -> np.ndarray:
         return np.eye(4)
 
 
+def network_depth(train_config: dict | None, checkpoint_path, depth: str = ""):
+    """(spec, ``learned.depth`` estimator) the network of a checkpoint reads: ``depth`` ("" = the checkpoint's training
+    depth, ``learned.depth.trained_with``), with the training run's depth options when it is that same spec. The one
+    rule of ``NetworkRunner`` and of the report's attention figure (probe 141: the figure chose its own)."""
+    from learned.depth import build_depth_estimator, trained_with
+
+    trained = train_config or {}
+    name = depth or trained_with(trained, checkpoint_path)
+    opts = trained.get("depth_options", {}) if name == trained.get("depth") else {}
+    return name, build_depth_estimator(name, opts)
+
+
 class NetworkRunner:
     """The network of a checkpoint over the frames of one dataset (see the module doc).
 
@@ -254,7 +266,7 @@ class NetworkRunner:
 
         from learned.checkpoint import load_model
         from learned.dataset import CalibDataset, DatasetConfig
-        from learned.depth import DepthCache, build_depth_estimator, trained_with
+        from learned.depth import DepthCache
         from learned.ood import ood_model_of
 
         torch.set_num_threads(max(1, threads))
@@ -262,13 +274,12 @@ class NetworkRunner:
         self.model, self.ckpt = load_model(checkpoint, device=self.device, model_factory=model_factory)
         self.ood, self.ood_note = ood_model_of(self.ckpt.export, str(self.ckpt.path))
         trained = self.ckpt.train_config or {}
-        self.depth_name = depth or trained_with(trained, self.ckpt.path)
-        depth_opts = trained.get("depth_options", {}) if self.depth_name == trained.get("depth") else {}
+        self.depth_name, estimator = network_depth(trained, self.ckpt.path, depth)
         H, W = (int(v) for v in self.model.cfg.input_hw)
         self.range = str(trained.get("perturbation", "R1"))
         dconf = DatasetConfig(height=H, width=W, max_radar_points=512, max_lidar_points=0,
                               perturbation=self.range, seed=0, variant=self.model.cfg.variant)
-        self.dataset = CalibDataset(frames, dconf, build_depth_estimator(self.depth_name, depth_opts),
+        self.dataset = CalibDataset(frames, dconf, estimator,
                                     cache=DepthCache(depth_cache) if depth_cache else None, train=False)
         # the outputs are of this network on these data: a cache shared by roots whose tokens coincide (a copy of a
         # scene, edited; compare's one cache for all its roots) returned one root's passes for the other's frames,

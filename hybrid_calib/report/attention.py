@@ -15,31 +15,36 @@ from hybrid_calib.report.evidence import Evidence, frame_words
 from hybrid_calib.report.html import esc, img_tag
 
 
-def attention_figure(checkpoint: str | Path, data: str | Path, version: str, frame_index: int, path: Path) -> Path:
+def attention_figure(checkpoint: str | Path, data: str | Path, version: str, frame_index: int, path: Path,
+                     depth: str = "") -> tuple[Path, str]:
     """Run the network of ``checkpoint`` on dataset frame ``frame_index`` and draw its attention maps
-    (``plots.network.plot_frame``) to ``path``. The depth input: the simulator's corrupted truth when the
-    root has depth maps, else the LiDAR."""
+    (``plots.network.plot_frame``) to ``path``; returns (path, the depth spec it read). ``depth``: the run's
+    (its result's ``config.depth_effective``), or "" for the rule calibrate applies (``hybrid.drives.effective_depth``:
+    lidar-densified on a real root with LiDAR, else the checkpoint's training depth), with the training run's
+    depth options as the hybrid reads them (``hybrid.network.network_depth``)."""
     import torch
 
+    from hybrid_calib.hybrid.drives import effective_depth
+    from hybrid_calib.hybrid.loop import HybridConfig
+    from hybrid_calib.hybrid.network import network_depth
     from hybrid_calib.plots.network import plot_frame
     from learned.checkpoint import load_model
     from learned.dataset import CalibDataset, DatasetConfig, collate, open_frames
-    from learned.depth import CorruptedTruthDepth, LidarDepth, build_depth_estimator
     from learned.train import model_inputs
 
-    model, _ = load_model(checkpoint)
+    model, ckpt = load_model(checkpoint)
+    depth = depth or effective_depth(data, version, HybridConfig(checkpoint=str(checkpoint)))
+    name, estimator = network_depth(ckpt.train_config, ckpt.path, depth)
     frames = open_frames(data, version)
     H, W = (int(v) for v in model.cfg.input_hw)
     dconf = DatasetConfig(height=H, width=W, max_lidar_points=0, seed=1000, variant=model.cfg.variant)
-    has_depth = frames[frame_index].depth_path is not None
-    depth = build_depth_estimator(CorruptedTruthDepth.name if has_depth else LidarDepth.name)
-    sample = CalibDataset(frames, dconf, depth, indices=[frame_index], train=False)[0]
+    sample = CalibDataset(frames, dconf, estimator, indices=[frame_index], train=False)[0]
     if sample is None:
         raise HybridCalibError(f"frame {frame_index} of {data} could not be loaded for the network")
     batch = collate([sample])
     with torch.no_grad():
         out = model(model_inputs(batch))
-    return plot_frame(out, batch, 0, path)
+    return plot_frame(out, batch, 0, path), name
 
 
 def attention_html(vr: VehicleResult, ev: Evidence, data, version: str, checkpoint: str, tmp: Path) -> str:
@@ -56,7 +61,9 @@ def attention_html(vr: VehicleResult, ev: Evidence, data, version: str, checkpoi
         return head + f"<p class=note>Absent: checkpoint {esc(ckpt)} is named but no camera frame is available.</p>"
     frame = ev.frames[len(ev.frames) // 2]
     try:
-        png = attention_figure(ckpt, data, version, frame.index, tmp / "attention.png")
+        own = ckpt == named or _same_file(ckpt, named)  # the run's own network: the depth it read
+        ran = str((vr.config or {}).get("depth_effective") or "") if own else ""
+        png, depth = attention_figure(ckpt, data, version, frame.index, tmp / "attention.png", ran)
     except (HybridCalibError, OSError) as e:
         return head + f"<p class=note>Absent: the network could not run ({esc(e)}).</p>"
     other = ""  # --checkpoint given, another than the result's: the figure is not of the network that calibrated
@@ -64,7 +71,9 @@ def attention_html(vr: VehicleResult, ev: Evidence, data, version: str, checkpoi
         other = (f" <b>The result was calibrated with {esc(named)}</b>; this figure is of the checkpoint given with "
                  "--checkpoint, which is not that file.")
     where = frame_words(frame)
-    return (head + f"<p class=meta>Checkpoint {esc(ckpt)} on {where}, from the fixed R1 evaluation start."
+    read = "as the run read it" if ran else "as calibrate would choose it"
+    return (head + f"<p class=meta>Checkpoint {esc(ckpt)} on {where}, from the fixed R1 evaluation start, with "
+            f"depth {esc(depth)} ({read})."
             f"{other} "
             "Top: points projected with the start (red) and the network's estimate (green; white: truth, or on a "
             "real root its tables). Middle: "
