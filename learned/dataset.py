@@ -38,6 +38,7 @@ import torch
 from hybrid_calib.config import ConfigError, merge, require_ranges
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.data.image_header import jpeg_quality
+from hybrid_calib.data.tables import SIM_VERSION
 from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.geometry import perturb_camera_frame, transform_points
 from hybrid_calib.perturbation import perturbation_bounds, sample_perturbation
@@ -202,7 +203,7 @@ def time_split(items: Sequence, conf: SplitConfig, roots: Sequence[str] | None =
     return out
 
 
-def open_frames(data: str | Path, version: str = "v1.0-sim", *, lidar: bool = True,
+def open_frames(data: str | Path, version: str = SIM_VERSION, *, lidar: bool = True,
                 options: dict | None = None) -> Sequence[RadarCameraFrame]:
     """The radar-camera frames of a nuScenes root (``hybrid_calib.data.nuscenes``), with the LiDAR
     keyframe when ``lidar`` and the root has one (the noise-resistant matcher needs it in training).
@@ -253,7 +254,7 @@ class ConcatFrames(Sequence):
         return refs
 
 
-def open_roots(roots: Sequence[str | Path], version: str = "v1.0-sim", *, lidar: bool = True,
+def open_roots(roots: Sequence[str | Path], version: str = SIM_VERSION, *, lidar: bool = True,
                options: dict | None = None) -> Sequence[RadarCameraFrame]:
     """``open_frames`` over one or several roots (same version folder), concatenated in order."""
     parts = [open_frames(r, version, lidar=lidar, options=options) for r in roots]

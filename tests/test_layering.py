@@ -163,3 +163,23 @@ def test_the_plots_import_nothing_else_of_their_layer(tmp_path):
     bad.write_text("def f():\n    from hybrid_calib.fleet import summary\n")
     (line,) = layering_violations(tmp_path)
     assert line.startswith("hybrid_calib/plots/bad.py:2:") and "nothing else of layer 7" in line
+
+
+def literal_homes(value: str, root: Path = ROOT) -> list[str]:
+    """``file:line`` of every string constant equal to ``value`` in the packages (docstrings hold it inside longer
+    text, and are not equal to it)."""
+    found = []
+    for path in _modules(root):
+        for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+            if isinstance(node, ast.Constant) and node.value == value:
+                found.append(f"{path.relative_to(root)}:{node.lineno}")
+    return found
+
+
+def test_the_simulators_version_folder_is_named_once():
+    """Probe 141: "v1.0-sim" was written out in 16 places (the commands' defaults, the demo, the uncertainty fit's
+    real-root test) beside the simulator's own constant; one home, ``data.tables.SIM_VERSION``."""
+    from hybrid_calib.data.tables import SIM_VERSION
+
+    (home,) = literal_homes(SIM_VERSION)
+    assert home.startswith("hybrid_calib/data/tables.py:"), home

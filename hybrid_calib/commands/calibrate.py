@@ -23,6 +23,7 @@ from hybrid_calib.commands import (
     version_name,
 )
 from hybrid_calib.config import parse_overrides
+from hybrid_calib.data.tables import SIM_VERSION
 from hybrid_calib.errors import OptionError
 from hybrid_calib.perturbation import RANGES
 
@@ -36,7 +37,7 @@ FLAGS = {"start": "start", "seed": "seed", "max_frames": "max_frames", "referenc
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--data", type=Path, required=True, help="nuScenes root (e.g. written by hybrid-calib simulate)")
     p.add_argument("--version", type=version_name,
-                   default="v1.0-sim", help="version folder under --data (default: v1.0-sim)")
+                   default=SIM_VERSION, help=f"version folder under --data (default: {SIM_VERSION})")
     p.add_argument("--method", default="oracle", choices=METHODS,
                    help="oracle (default: the simulator's true reflectors, or --correspondences DIR), hybrid (the "
                         "network in a closed loop with the sliding window), pure (the network alone, last frame), "

@@ -18,6 +18,7 @@ from hybrid_calib.commands import (
     version_name,
 )
 from hybrid_calib.config import parse_overrides
+from hybrid_calib.data.tables import SIM_VERSION
 from hybrid_calib.errors import OptionError
 
 HELP = "compare calibration methods on the same starts (tables, NEES, coverage, time per frame)"
@@ -27,7 +28,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--data", type=Path, nargs="+", required=True,
                    help="nuScenes root(s); their vehicles are the trials' drives (e.g. one root per scenario)")
     p.add_argument("--version", type=version_name,
-                   default="v1.0-sim", help="version folder (default: v1.0-sim)")
+                   default=SIM_VERSION, help=f"version folder (default: {SIM_VERSION})")
     p.add_argument("--range", default="R1", choices=("R1", "R2"), help="start range of every trial (default: R1)")
     p.add_argument("--trials", type=positive_int, default=20, help="trials (vehicle, start seed) (default: 20)")
     p.add_argument("--methods", default="pure,pure-avg,hybrid",

@@ -31,6 +31,7 @@ import numpy as np
 from hybrid_calib.calib.covariance import status_kind
 from hybrid_calib.calib.mount_monitor import turn_words
 from hybrid_calib.config import merge, parse_overrides, require_ranges, save_json_atomic, to_dict
+from hybrid_calib.data.tables import SIM_VERSION
 
 HELP = ("simulate a small drive, draw radar points on the image, calibrate radar->camera; then calibrate a 3-vehicle "
         "simulated fleet (one radar knocked) and print one verdict per vehicle")
@@ -115,7 +116,7 @@ def _overlay(root: Path, out_png: Path) -> Path:
     from hybrid_calib.geometry import transform_points
     from hybrid_calib.plots.projection import draw_radar_truth
 
-    ds = NuScenesRadarCamera(root, "v1.0-sim")
+    ds = NuScenesRadarCamera(root, SIM_VERSION)
     best, best_n = None, -1
     for i in range(0, len(ds), max(1, len(ds) // 8)):
         f = ds[i]
@@ -200,12 +201,12 @@ def run_demo(out: str | Path, conf: DemoConfig | dict | None = None, overwrite: 
     root = simulate(sim_conf, out / "sim", overwrite=overwrite)
     png = _overlay(root, out / "projection.png")
 
-    run = run_calibration(root, "v1.0-sim", out / "calibration", cal_conf, overwrite=overwrite,
+    run = run_calibration(root, SIM_VERSION, out / "calibration", cal_conf, overwrite=overwrite,
                           on_vehicle=partial(plot_vehicle, out_dir=out / "calibration" / "plots"))
     roots = [str(simulate(c, out / "fleet-sim" / name, overwrite=overwrite)) for name, c in fleet_confs.items()]
     if overwrite and (out / "fleet").exists():
         shutil.rmtree(out / "fleet")
-    fleet = run_fleet(roots, None, "v1.0-sim", conf.fleet_method, out / "fleet", conf.seed,
+    fleet = run_fleet(roots, None, SIM_VERSION, conf.fleet_method, out / "fleet", conf.seed,
                       options=FleetOptions(conf.engine, conf.workers, threads=conf.threads))
     page = write_fleet_pages(fleet, out / "fleet")
     summary = DemoResult(

@@ -40,6 +40,7 @@ from hybrid_calib.commands import (
     version_name,
 )
 from hybrid_calib.config import parse_overrides
+from hybrid_calib.data.tables import SIM_VERSION
 from hybrid_calib.errors import OptionError
 from hybrid_calib.perturbation import RANGES
 
@@ -50,7 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", required=True, type=Path, nargs="+",
                         help="nuScenes root(s) (each holds VERSION/ and samples/); several are read as one")
     parser.add_argument("--version", type=version_name,
-                        default="v1.0-sim", help="version folder (default v1.0-sim)")
+                        default=SIM_VERSION, help=f"version folder (default {SIM_VERSION})")
     parser.add_argument("--range", dest="perturbation", default="R1", choices=tuple(RANGES),
                         help="perturbation range of the starts (fixed per frame; default R1)")
     parser.add_argument("--method", default="pure", help="pure = the network alone")

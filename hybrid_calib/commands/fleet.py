@@ -23,6 +23,7 @@ from hybrid_calib.commands import (
     version_name,
 )
 from hybrid_calib.config import parse_overrides
+from hybrid_calib.data.tables import SIM_VERSION
 from hybrid_calib.errors import OptionError
 from hybrid_calib.words import n_vehicles
 
@@ -35,7 +36,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     src.add_argument("--manifest", type=Path, help='FLEET.json: {"roots": [ROOT | {"data", "version", "vehicles"}]}; '
                      "a relative ROOT or data path is read from the manifest's folder (not the current one)")
     p.add_argument("--version", type=version_name,
-                   default="v1.0-sim", help="version folder under each root (default: v1.0-sim)")
+                   default=SIM_VERSION, help=f"version folder under each root (default: {SIM_VERSION})")
     p.add_argument("--method", default="oracle", choices=("hybrid", "pure", "pure-avg", "oracle"),
                    help="per-vehicle method (default: oracle; the network methods come with the hybrid package)")
     p.add_argument("--checkpoint", type=Path, help="network checkpoint (network methods)")

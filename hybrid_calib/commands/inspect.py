@@ -17,6 +17,7 @@ from pathlib import Path
 
 from hybrid_calib.commands import given_flags, nonnegative_int, positive_int, version_name
 from hybrid_calib.config import merge, parse_overrides, save_json_atomic, to_dict
+from hybrid_calib.data.tables import SIM_VERSION
 from hybrid_calib.errors import OptionError
 
 HELP = "summarise a nuScenes-format root (real or simulated): frames, radar points, skipped items, overlay"
@@ -24,7 +25,7 @@ HELP = "summarise a nuScenes-format root (real or simulated): frames, radar poin
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", required=True, type=Path, help="nuScenes root (holds VERSION/ and samples/)")
-    parser.add_argument("--version", type=version_name, default="v1.0-sim",  # as every other command (probe 120)
+    parser.add_argument("--version", type=version_name, default=SIM_VERSION,  # as every other command (probe 120)
                         help="version folder, e.g. v1.0-mini, v1.0-trainval (default: v1.0-sim)")
     parser.add_argument("--radar", default="RADAR_FRONT", help="radar channel (default RADAR_FRONT)")
     parser.add_argument("--camera", default="CAM_FRONT", help="camera channel (default CAM_FRONT)")

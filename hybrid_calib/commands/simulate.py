@@ -8,6 +8,7 @@ from pathlib import Path
 
 from hybrid_calib.commands import given_flags, positive_int, process_count, seed_int
 from hybrid_calib.config import merge, parse_overrides
+from hybrid_calib.data.tables import SIM_VERSION
 from hybrid_calib.errors import OptionError
 from hybrid_calib.sim.drive import SimConfig
 from hybrid_calib.sim.extrinsics import EXTRINSIC_CHANGES
@@ -67,19 +68,19 @@ def run(args: argparse.Namespace) -> int:
                                             f"0..{conf.frames - 1} (or -1 for the middle)")
     root = simulate(conf, args.out, overwrite=args.overwrite, workers=args.workers,
                     progress=not args.no_progress)
-    truth = Path(root) / "v1.0-sim" / "sim_vehicle.json"
+    truth = Path(root) / SIM_VERSION / "sim_vehicle.json"
     failed = {v["vehicle"]: len(v.get("failed_frames") or []) for v in
               (json.loads(truth.read_text()) if truth.is_file() else [])}
     n_bad = sum(failed.values())
     frames = f"{conf.frames} frames" if not n_bad else \
         f"{conf.frames} frames, {conf.vehicles * conf.frames - n_bad} of {conf.vehicles * conf.frames} written"
-    print(f"wrote nuScenes root {root} (version v1.0-sim): {conf.vehicles} vehicle(s) x {frames}, "
+    print(f"wrote nuScenes root {root} (version {SIM_VERSION}): {conf.vehicles} vehicle(s) x {frames}, "
           f"scenario {conf.scenario}")
     for name, n in failed.items():
         if n:
             print(f"  {name}: {n} of {conf.frames} frames failed and were left out "
                   f"({'every frame: it has no samples' if n == conf.frames else 'see failed_frames'} in "
-                  f"{Path(root) / 'v1.0-sim' / 'sim_vehicle.json'})")
+                  f"{truth})")
     if empty := empty_radar_words(Path(root)):
         print(f"  warning: {empty}")
     return 0 if not n_bad else 1

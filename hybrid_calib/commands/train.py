@@ -18,6 +18,7 @@ from pathlib import Path
 
 from hybrid_calib.commands import positive_int, version_name
 from hybrid_calib.config import parse_overrides
+from hybrid_calib.data.tables import SIM_VERSION
 from hybrid_calib.errors import OptionError
 from hybrid_calib.perturbation import RANGES
 
@@ -28,7 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", required=True, type=Path, nargs="+",
                         help="nuScenes root(s) (each holds VERSION/ and samples/); several are trained on together")
     parser.add_argument("--version", type=version_name,
-                        default="v1.0-sim", help="version folder (default v1.0-sim)")
+                        default=SIM_VERSION, help=f"version folder (default {SIM_VERSION})")
     parser.add_argument("--preset", default="small", choices=("small", "paper"),
                         help="small: 2 CPU cores, well under two hours; paper: 400x192, 50 epochs, Adam 1e-4 "
                              "(its image context net starts from ImageNet weights only with --set "

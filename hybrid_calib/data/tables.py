@@ -38,6 +38,7 @@ from hybrid_calib.geometry import pose_from_nuscenes
 # the per-sensor tables (millions of records on v1.0-trainval, most of channels never read): a record of them that
 # does not follow the schema is left out and said, not a refusal of the root (probe 80: a null timestamp on one
 # CAM_BACK_LEFT sweep record refused the whole root); the small tables stay strict
+SIM_VERSION = "v1.0-sim"  # the version folder the simulator writes and the commands' default --version
 LENIENT_TABLES = ("sample_data", "ego_pose")
 
 # The tables the data layer needs, with the fields it reads from each record.

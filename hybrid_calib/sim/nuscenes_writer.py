@@ -18,9 +18,10 @@ import numpy as np
 
 from hybrid_calib.config import save_json_atomic
 from hybrid_calib.data.image_header import write_image
+from hybrid_calib.data.tables import SIM_VERSION
 from hybrid_calib.geometry import pose_to_nuscenes
 
-VERSION = "v1.0-sim"
+VERSION = SIM_VERSION
 CHANNELS = {"CAM_FRONT": "camera", "RADAR_FRONT": "radar", "LIDAR_TOP": "lidar"}
 TABLES = ("attribute", "calibrated_sensor", "category", "ego_pose", "instance", "log", "map", "sample",
           "sample_annotation", "sample_data", "scene", "sensor", "visibility")
