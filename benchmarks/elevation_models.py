@@ -36,7 +36,8 @@ from hybrid_calib.calib.batch import BatchConfig, solve_batch
 from hybrid_calib.calib.schedule import ScheduleConfig
 from hybrid_calib.config import save_json_atomic
 from hybrid_calib.geometry import R_AXES_CAM_FROM_RADAR, local, make_T
-from hybrid_calib.metrics import CHI2_6_95, signed_errors
+from hybrid_calib.metrics import consistency, signed_errors
+from hybrid_calib.metrics import nees as nees_of
 
 AXES = ("roll_deg", "pitch_deg", "yaw_deg", "x_cm", "y_cm", "z_cm")
 
@@ -87,15 +88,15 @@ def run_scenario(name: str, true_mean_deg: float, model_mean_deg: float, args, k
             errs[variant].append(np.concatenate([np.rad2deg(s[:3]), 100 * s[3:]]))
             if not res.regularised:
                 xi = local(res.T, T)
-                nees[variant].append(float(xi @ np.linalg.solve(res.cov, xi)))
+                nees[variant].append(nees_of(xi, res.cov))
     out = {}
     for model in variants:
         E = np.array(errs[model])
         mean, std = E.mean(0), E.std(0, ddof=1)
         sem = std / np.sqrt(len(E))
-        nn = np.array(nees[model]) if nees[model] else np.array([np.nan])
+        summary = consistency(nees[model])  # None where every solve was regularised
         out[model] = dict(mean=mean.tolist(), sem=sem.tolist(), std=std.tolist(), t=(mean / sem).tolist(),
-                          nees_mean=float(np.mean(nn)), inside95=float(np.mean(nn < CHI2_6_95)), n=len(E),
+                          nees_mean=summary["nees_mean"], inside95=summary["coverage_95"], n=len(E),
                           errors=E.tolist())
     return out
 
@@ -107,7 +108,8 @@ def format_scenario(name: str, res: dict) -> str:
     for model, r in res.items():
         stats = zip(r["mean"], r["sem"], r["std"], r["t"], strict=True)
         cells = [f"{m:+.3f} +- {s:.3f} ({sd:.3f}) [{t:+.1f}]" for m, s, sd, t in stats]
-        lines.append(f"| {model} | " + " | ".join(cells) + f" | {r['nees_mean']:.1f} | {r['inside95']:.2f} |")
+        lines.append(f"| {model} | " + " | ".join(cells) + " | " + " | ".join(
+            "-" if v is None else f"{v:{f}}" for v, f in ((r["nees_mean"], ".1f"), (r["inside95"], ".2f"))) + " |")
     return "\n".join(lines)
 
 

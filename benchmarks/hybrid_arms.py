@@ -29,7 +29,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hybrid_calib.config import deep_update, parse_overrides, save_json_atomic  # noqa: E402
-from hybrid_calib.metrics import CHI2_6_95  # noqa: E402
+from hybrid_calib.metrics import CHI2_6_95, consistency  # noqa: E402
 
 SHIPPED = "shipped"
 
@@ -38,7 +38,7 @@ def _arm(res) -> dict:
     rows = res.frame_rows
     e = res.error or {}
     return {"yaw_deg": e.get("yaw_deg"), "rot_mean_deg": e.get("rot_mean_deg"), "trans_norm_cm": e.get("trans_norm_cm"),
-            "nees": e.get("nees"), "inside95": None if e.get("nees") is None else bool(e["nees"] <= CHI2_6_95),
+            "nees": e.get("nees"), "inside95": None if e.get("nees") is None else bool(e["nees"] < CHI2_6_95),
             "alarms": [f.index for f in res.trajectory if f.step_alarm],
             "consensus": sum(r.get("motion", {}).get("admitted") == "consensus" for r in rows),
             "refused": sum("agreeing residuals beyond the gate" in r.get("motion_skipped", "") for r in rows),
@@ -47,11 +47,11 @@ def _arm(res) -> dict:
 
 def _stats(rows: list[dict], arm: str) -> dict:
     yaw = np.abs(np.array([r[arm]["yaw_deg"] for r in rows], float))
-    nees = np.array([r[arm]["nees"] for r in rows], float)
+    nees = consistency([r[arm]["nees"] for r in rows])
     return {"yaw_abs_mean_deg": float(np.mean(yaw)), "yaw_abs_median_deg": float(np.median(yaw)),
             "yaw_abs_max_deg": float(np.max(yaw)),
             "rot_mean_mean_deg": float(np.mean([r[arm]["rot_mean_deg"] for r in rows])),
-            "nees_mean": float(np.mean(nees)), "inside95": float(np.mean(nees <= CHI2_6_95)),
+            "nees_mean": nees["nees_mean"], "inside95": nees["coverage_95"],
             "alarms": int(sum(len(r[arm]["alarms"]) for r in rows)),
             "consensus_frames": int(sum(r[arm]["consensus"] for r in rows)),
             "motion_frames": int(sum(r[arm].get("motion_frames", 0) for r in rows))}

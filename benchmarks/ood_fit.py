@@ -52,7 +52,7 @@ def spearman(a, b) -> float:
 
 
 def _group(recs: list[dict], scores: np.ndarray) -> dict:
-    from hybrid_calib.metrics import CHI2_6_95
+    from hybrid_calib.metrics import consistency
 
     nees = np.array([r["nees"] for r in recs])
     rot = np.array([r["rot_deg"] for r in recs])
@@ -62,9 +62,9 @@ def _group(recs: list[dict], scores: np.ndarray) -> dict:
            "score_median": float(np.median(scores)) if len(recs) else float("nan"),
            "spearman_score_rot": spearman(scores, rot), "spearman_score_nees": spearman(scores, nees)}
     for name, m in (("all", np.ones_like(flag)), ("kept", ~flag), ("flagged", flag)):
+        c = consistency(nees[m])  # None figures for a group without frames
         out[name] = {"frames": int(m.sum()), "rot_mean_deg": float(rot[m].mean()) if m.any() else None,
-                     "nees_mean": float(nees[m].mean()) if m.any() else None,
-                     "inside_95": float(np.mean(nees[m] <= CHI2_6_95)) if m.any() else None}
+                     "nees_mean": c["nees_mean"], "inside_95": c["coverage_95"]}
     return out
 
 

@@ -58,11 +58,10 @@ def fit_cov_scale(ckpt: Path, data: Path, version: str, rng: str, split_options:
     # a few frames only: the fit may inflate an axis, never shrink one below the network's own covariance
     scale = [max(1.0, v) for v in calibrate_cov_scale(xi, covs, per_axis=True)]
 
-    def nees(C):
-        return float(np.mean(np.einsum("fi,fij,fj->f", xi, np.linalg.inv(C), xi)))
+    from hybrid_calib.metrics import nees
 
     s = np.sqrt(np.asarray(scale))
-    return scale, len(xi), nees(covs), nees(s[:, None] * covs * s[None, :])
+    return scale, len(xi), float(np.mean(nees(xi, covs))), float(np.mean(nees(xi, s[:, None] * covs * s[None, :])))
 
 
 def main(argv=None) -> int:

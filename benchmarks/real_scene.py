@@ -53,6 +53,7 @@ def pure_per_frame(data: Path, version: str, ckpt: Path, rng: str, seeds: int, s
                    depth: str, out: Path, threads: int) -> dict:
     """Section 1 for one range: the network alone, one start per frame and seed, pooled."""
     from hybrid_calib.metrics import CHI2_6_95
+    from hybrid_calib.metrics import nees as nees_of
     from learned.checkpoint import load_model
     from learned.dataset import open_frames
     from learned.evaluate import evaluate, tangent_errors
@@ -73,7 +74,7 @@ def pure_per_frame(data: Path, version: str, ckpt: Path, rng: str, seeds: int, s
         xi.append(e)
         covs.append(c)
     xi, covs = np.concatenate(xi), np.concatenate(covs)
-    nees = np.einsum("fi,fij,fj->f", xi, np.linalg.inv(covs), xi)
+    nees = nees_of(xi, covs)  # the one NEES (metrics.nees: refuses a covariance that is not one)
     keys = ("rot_mean_deg", *AXES_ROT, "trans_mean_cm", *AXES_T)
     mean = {name: {k: float(np.mean([e[k] for e in errs])) for k in keys}
             for name, errs in (("start", start), ("after", after))}
