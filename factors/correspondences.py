@@ -184,24 +184,11 @@ class Correspondences:
         return dataclasses.replace(self, points_radar=transform_points(np.asarray(T, np.float64),
                                                                        np.asarray(self.points_radar, np.float64)))
 
-    def to_npz_dict(self) -> dict[str, np.ndarray]:
-        """The arrays of a measurement file (``factors.io``) holding only these rows."""
-        from factors.io import FrameMeasurements, to_arrays
-
-        return to_arrays(FrameMeasurements(self))
-
     @classmethod
     def empty(cls, K: np.ndarray, frame_id: str = "", timestamp_us: int = 0) -> Correspondences:
         """A frame with no rows (a producer that found nothing to export)."""
         return cls(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.asarray(K, np.float64),
                    frame_id, timestamp_us)
-
-    @classmethod
-    def from_npz_dict(cls, d) -> Correspondences:
-        """The rows of a measurement file's arrays (``factors.io.from_arrays``)."""
-        from factors.io import from_arrays
-
-        return from_arrays(d).corr
 
 
 class SeenRows:

@@ -19,7 +19,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from hybrid_calib.errors import HybridCalibError
+from hybrid_calib.errors import LOCK_NAME, RUNS_NAME, HybridCalibError
 
 _IS_A_DIRECTORY = ("{path} is a directory, so the output file cannot be written there; move the directory away or "
                    "write the outputs elsewhere")
@@ -240,7 +240,6 @@ def write_bytes_atomic(path: str | Path, data: bytes) -> Path:
     return Path(path)
 
 
-LOCK_NAME = ".hybrid-calib.lock"
 _HELD_LOCKS: set[int] = set()  # the descriptors of the output-folder locks this process holds
 
 
@@ -365,7 +364,6 @@ def _record_killed(out: Path, lock_text: str) -> None:
         pass
 
 
-RUNS_NAME = "runs.json"  # OUT/runs.json: every command that finished writing into the folder (``record_run``)
 RUNS_KEPT = 200  # the newest records kept
 
 

@@ -104,6 +104,9 @@ def check_out_dir(path: str | Path | None, option: str = "--out", writable: bool
                                   "can write to")
 
 
+LOCK_NAME = ".hybrid-calib.lock"  # OUT/.hybrid-calib.lock: the output-folder lock of a running command (``atomic``)
+RUNS_NAME = "runs.json"  # OUT/runs.json: every command that finished writing into the folder (``atomic.record_run``)
+
 # the file each command writes at the top of its --out (and no other command does there)
 OUT_MARKERS = {"train": "train_config.json", "evaluate": "export_config.json", "calibrate": "result.json",
                "compare": "compare_config.json", "fleet": "manifest.json", "export": "export.json",
@@ -127,8 +130,6 @@ def check_out_files(out: str | Path | None, command: str, overwrite: bool | None
     None: the command has no --overwrite (the message does not offer it)."""
     if out is None or overwrite or not Path(out).is_dir():
         return
-    from hybrid_calib.atomic import RUNS_NAME
-
     marker = OUT_MARKERS.get(command)
     if (Path(out) / RUNS_NAME).exists() or (marker and (Path(out) / marker).exists()):
         return
@@ -146,8 +147,6 @@ def check_runs_record(out: str | Path | None) -> None:
     ignoring Ctrl-C: probe 66) or cannot be read (permissions: it was replaced, the runs it recorded lost)."""
     if out is None:
         return
-    from hybrid_calib.atomic import RUNS_NAME
-
     path = Path(out) / RUNS_NAME
     if not os.path.lexists(path):
         return
@@ -167,8 +166,6 @@ def check_out_owner(out: str | Path | None, command: str, option: str = "--out")
     its files with them (a train run beside an evaluate run's results, sharing its depth cache)."""
     if out is None or not Path(out).is_dir():
         return
-    from hybrid_calib.atomic import LOCK_NAME, RUNS_NAME
-
     for other, marker in OUT_MARKERS.items():
         # a marker alone (with the lock file) is a run that failed before any output: nothing there to mix with
         if other != command and (Path(out) / marker).is_file() and any(

@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 
+from factors.io import FrameMeasurements, to_arrays
 from hybrid_calib.calib.oracle import synthetic_drive
 from hybrid_calib.commands import calibrate
 from hybrid_calib.errors import DataError, HybridCalibError
@@ -69,7 +70,7 @@ def test_calibrate_batch_from_exported_correspondence_dir(sim_root, tmp_path):
     d.mkdir()
     for k, c in enumerate(frames):  # rows of the root's own frames (files name the frames they were measured on)
         c = dataclasses.replace(c, frame_id=ds.frames[k % len(ds.frames)].camera_sd["token"])
-        np.savez(d / f"{k:03d}.npz", **c.to_npz_dict())
+        np.savez(d / f"{k:03d}.npz", **to_arrays(FrameMeasurements(c)))
     out = tmp_path / "run"
     assert calibrate.run(_args("--data", str(sim_root), "--correspondences", str(d), "--mode", "batch",
                                "--out", str(out), "--no-plots")) == 0
@@ -123,7 +124,8 @@ def test_exported_rows_on_a_real_root_are_measured_against_its_tables(tiny, tmp_
     d = tmp_path / "corr"
     d.mkdir()
     for k, c in enumerate(frames):
-        np.savez(d / f"{k:03d}.npz", **dataclasses.replace(c, frame_id=ds.frames[k].camera_sd["token"]).to_npz_dict())
+        c = dataclasses.replace(c, frame_id=ds.frames[k].camera_sd["token"])
+        np.savez(d / f"{k:03d}.npz", **to_arrays(FrameMeasurements(c)))
     out = tmp_path / "run"
     assert calibrate.run(_args("--data", str(tiny.root), "--version", tiny.version, "--correspondences", str(d),
                                "--mode", "batch", "--out", str(out), "--no-plots")) == 0
@@ -191,8 +193,8 @@ def test_a_networks_exported_rows_never_give_a_trusted_verdict(sim_root, tmp_pat
     d.mkdir()
     for k, c in enumerate(frames):  # with the network's own SE(3) and covariance: an evaluate export
         c = dataclasses.replace(c, frame_id=ds.frames[k % len(ds.frames)].camera_sd["token"])
-        np.savez(d / f"{k:03d}.npz", **c.to_npz_dict(), T_cam_radar=T, cov=np.eye(6) * 1e-4, iteration=0,
-                 T_start=T)
+        np.savez(d / f"{k:03d}.npz", **to_arrays(FrameMeasurements(c)), T_cam_radar=T, cov=np.eye(6) * 1e-4,
+                 iteration=0, T_start=T)
     (d / "export_config.json").write_text(json.dumps({"checkpoint": "learned/checkpoints/small-sim-r1.json"}))
     out = tmp_path / "run"
     assert calibrate.run(_args("--data", str(sim_root), "--correspondences", str(d), "--mode", "batch",
@@ -222,7 +224,7 @@ def test_a_measurement_file_of_another_cameras_intrinsics_is_left_out_and_said(s
             K[0, 0] *= 2.0
             K[1, 1] *= 2.0
         c = dataclasses.replace(c, frame_id=tokens[k], K=K)
-        np.savez(d / f"{k:03d}.npz", **c.to_npz_dict())
+        np.savez(d / f"{k:03d}.npz", **to_arrays(FrameMeasurements(c)))
     out = tmp_path / "run"
     assert calibrate.run(_args("--data", str(sim_root), "--correspondences", str(d), "--mode", "batch",
                                "--out", str(out), "--no-plots")) == 0
@@ -265,7 +267,7 @@ def test_files_of_a_vehicle_the_root_does_not_have_are_left_out_and_the_others_c
         (d / name).mkdir(parents=True)
         for k, c in enumerate(frames):
             c = dataclasses.replace(c, frame_id=ds.frames[idx[k % len(idx)]].camera_sd["token"])
-            np.savez(d / name / f"{k:03d}.npz", **c.to_npz_dict())
+            np.savez(d / name / f"{k:03d}.npz", **to_arrays(FrameMeasurements(c)))
     out = tmp_path / "run"
     assert calibrate.run(_args("--data", str(sim_root), "--correspondences", str(d), "--mode", "batch",
                                "--out", str(out), "--no-plots")) in (0, 1)
@@ -404,7 +406,7 @@ def test_a_result_of_other_measurement_rows_is_not_reused_and_the_same_run_from_
         d.mkdir(parents=True, exist_ok=True)
         for k, c in enumerate(synthetic_drive(T, 3, rng(seed))[0]):
             c = dataclasses.replace(c, frame_id=ds.frames[k % len(ds.frames)].camera_sd["token"])
-            np.savez(d / f"{k:03d}.npz", **c.to_npz_dict())
+            np.savez(d / f"{k:03d}.npz", **to_arrays(FrameMeasurements(c)))
 
     work = tmp_path / "work"
     export(work / "corr", 0)

@@ -9,6 +9,7 @@ from factors.io import (
     FrameMeasurements,
     NetworkEstimate,
     at_camera_time,
+    from_arrays,
     load_correspondence_dir,
     load_measurement_dir,
     load_measurements,
@@ -51,9 +52,9 @@ def test_round_trip_with_and_without_the_network_block(tmp_path):
             assert int(z["schema_version"]) == SCHEMA_VERSION and "T_gt" in z.files  # extras kept, ignored
     assert back.frame_id == "tok-1" and back.timestamp_us == 1_000
     np.testing.assert_array_equal(load_measurements(tmp_path / "f0.npz").network.cov, _frame(0).network.cov)
-    # Correspondences.to_npz_dict / from_npz_dict are the same format (rows only)
+    # rows alone through the same format
     c = _frame(3).corr
-    np.testing.assert_array_equal(Correspondences.from_npz_dict(c.to_npz_dict()).pixels, c.pixels)
+    np.testing.assert_array_equal(from_arrays(to_arrays(FrameMeasurements(c))).corr.pixels, c.pixels)
     with pytest.raises(ValueError, match="format keys"):
         save_measurements(tmp_path / "x.npz", m, extra={"cov": np.eye(6)})
 
@@ -112,7 +113,7 @@ def test_bad_file_names_file_and_key(tmp_path, change, message):
 
 
 def test_old_evaluate_file_is_rejected_with_a_reason(tmp_path):
-    np.savez(tmp_path / "old.npz", **{f"corr_{k}": v for k, v in _frame(0).corr.to_npz_dict().items()})
+    np.savez(tmp_path / "old.npz", **{f"corr_{k}": v for k, v in to_arrays(FrameMeasurements(_frame(0).corr)).items()})
     with pytest.raises(DataError, match="no 'schema_version'") as e:
         load_measurement_dir(tmp_path)
     assert "old.npz" in str(e.value)

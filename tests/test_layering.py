@@ -74,13 +74,26 @@ def _module_name(path: Path, root: Path) -> str:
     return ".".join(parts)
 
 
-def _imports(path: Path, module: str) -> list[tuple[int, str]]:
-    """(line, imported module) for every import statement of the file, relative ones resolved.
-    ``from a import b`` yields ``a.b`` (b may be a submodule), which lands in a's layer either way."""
+def _walk(tree: ast.AST, typing_only: bool):
+    """``ast.walk``, without the bodies of ``if TYPE_CHECKING:`` blocks unless ``typing_only``."""
+    todo = [tree]
+    while todo:
+        node = todo.pop()
+        yield node
+        if not typing_only and isinstance(node, ast.If) and getattr(node.test, "id", "") == "TYPE_CHECKING":
+            todo.extend(node.orelse)
+            continue
+        todo.extend(ast.iter_child_nodes(node))
+
+
+def _imports(path: Path, module: str, typing_only: bool = True) -> list[tuple[int, str]]:
+    """(line, imported module) for every import statement of the file, relative ones resolved (``typing_only``: the
+    imports of ``if TYPE_CHECKING:`` blocks too). ``from a import b`` yields ``a.b`` (b may be a submodule), which
+    lands in a's layer either way."""
     tree = ast.parse(path.read_text(), filename=str(path))
     package = module if path.name == "__init__.py" else module.rpartition(".")[0]
     found = []
-    for node in ast.walk(tree):
+    for node in _walk(tree, typing_only):
         if isinstance(node, ast.Import):
             found += [(node.lineno, a.name) for a in node.names]
         elif isinstance(node, ast.ImportFrom):
@@ -183,3 +196,29 @@ def test_the_simulators_version_folder_is_named_once():
 
     (home,) = literal_homes(SIM_VERSION)
     assert home.startswith("hybrid_calib/data/tables.py:"), home
+
+
+def mutual_imports(root: Path = ROOT) -> list[str]:
+    """``a <-> b`` for every two modules of the packages that import each other at run time, at module level or
+    inside a function (a function-local import hides the cycle from Python, not the two halves of one concept);
+    annotations' ``if TYPE_CHECKING:`` imports aside."""
+    names = {_module_name(p, root): p for p in _modules(root)}
+    edges: dict[str, set[str]] = {}
+    for module, path in names.items():
+        for _, target in _imports(path, module, typing_only=False):
+            while target and target not in names:  # ``from a import name``: module a
+                target = target.rpartition(".")[0]
+            if target and target != module:
+                edges.setdefault(module, set()).add(target)
+    return sorted(f"{a} <-> {b}" for a, outs in edges.items() for b in outs if a < b and a in edges.get(b, ()))
+
+
+def test_no_two_modules_import_each_other(tmp_path):
+    """Probe 141: four pairs did, one side inside a function (calib.drift <-> calib.mount_monitor, data.nuscenes <->
+    data.reference, atomic <-> errors, factors.correspondences <-> factors.io): each a concept cut in two. Its home now:
+    data.reference.reference_nouns, data.mounts, errors.LOCK_NAME / RUNS_NAME, factors.io's arrays."""
+    assert mutual_imports() == []
+    (tmp_path / "factors").mkdir()
+    (tmp_path / "factors" / "a.py").write_text("from factors.b import g\n")
+    (tmp_path / "factors" / "b.py").write_text("def g():\n    from factors import a\n")
+    assert mutual_imports(tmp_path) == ["factors.a <-> factors.b"]

@@ -718,8 +718,8 @@ def test_an_impossible_doppler_record_is_refused(knocked, tmp_path, doppler):
 def test_what_the_network_knows_is_not_renamed_against_an_export():
     """"the network knows radars within a few degrees of their tables" read "... of their exported mounts" against an
     export (probe 107): what the network learned does not depend on the reference; the sentence names neither."""
-    from hybrid_calib.calib.drift import reference_nouns
     from hybrid_calib.calib.mount_monitor import monitor_trust_reason
+    from hybrid_calib.data.reference import reference_nouns
 
     far = {"levels": [{"level_deg": -15.0, "std_deg": 0.1, "pairs": 40, "from": 0, "to": 40}], "steps": [],
            "far": {"level_deg": -15.0, "std_deg": 0.1, "from": 0, "to": 40}}

@@ -71,6 +71,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
+from hybrid_calib.data.reference import reference_nouns
 from hybrid_calib.geometry import check_covariance, check_transform, local, retract
 from hybrid_calib.words import join_and
 
@@ -548,24 +549,6 @@ def _turned_words(turn: dict | None, drift: dict | None, rot_tol_deg: float) -> 
             f"export it is checked against ({src.get('path')}), beyond the {rot_tol_deg:g} deg tolerance (the radar "
             "mount monitor: its Doppler heading against the ego poses at this drive's end, against the same on the "
             "drive the export came from).")
-
-
-# the calibrator's sentences name the reference "its tables"; against an earlier export (data.reference) the mount
-# compared with is the exported one: the words say so (session 38 left "its tables" there, only the first line, the
-# page's "Checked against" and the fleet summary saying what it meant). Longest phrases first.
-EXPORT_NOUNS = (("its mount in the tables", "its exported mount"), ("as its tables say", "as the export says"),
-                ("its tables'", "the exported mount's"),
-                ("its tables", "the exported mount"))
-
-
-def reference_nouns(text: str, source: dict | None) -> str:
-    """``text`` with the reference named as ``source`` (a result's ``drift["reference"]``) is: unchanged against the
-    tables, "its tables" turned into the exported mount (``EXPORT_NOUNS``) against an export."""
-    if not isinstance(source, dict) or source.get("kind") != "export" or not isinstance(text, str):
-        return text
-    for tables, export in EXPORT_NOUNS:
-        text = text.replace(tables, export)
-    return text
 
 
 def drift_in_reference_nouns(drift: dict | None) -> dict | None:

@@ -121,7 +121,7 @@ def _std_camera(T_est: np.ndarray, cov: np.ndarray, kept: list[int]) -> dict:
 
 def _change(T_new: np.ndarray, T_old: np.ndarray) -> dict:
     """How far a new radar record is from the old one: rotation angle [deg], translation [cm], in ego axes."""
-    from hybrid_calib.data.nuscenes import mount_offset
+    from hybrid_calib.data.mounts import mount_offset
 
     rot_deg, trans_cm = mount_offset(T_new, T_old)
     return {"rot_deg": rot_deg, "trans_cm": trans_cm,
@@ -175,7 +175,7 @@ def _carry(exp: MountExport, name: str, T_ref: np.ndarray, doppler: dict | None,
     calibration a later drive is checked against (probe 76: a drive unmoved since export 1 exported nothing, and the
     drive after it, checked against export 2, fell back to the tables from before the knock: "recalibrate"). Not
     where its records are shared with another vehicle, or paired with camera mounts that differ."""
-    from hybrid_calib.data.nuscenes import same_calibration
+    from hybrid_calib.data.mounts import same_calibration
 
     entry = exp.vehicles[name]
     if entry["exported"] or not toks or any(users[tok] - {name} for tok in toks):
@@ -399,7 +399,8 @@ def export_mounts(results: list[str | Path], out: str | Path | None = None, data
     from these inputs at all; a vehicle that cannot be exported is said in its entry. An ``out`` that holds an
     export already is refused unless ``overwrite`` (one command takes every result file of one table)."""
     from hybrid_calib.calib.result import CalibrationRun, stored_digest
-    from hybrid_calib.data.nuscenes import NuScenesRadarCamera, same_calibration
+    from hybrid_calib.data.mounts import same_calibration
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
 
     if which not in WHICH:
         raise OptionError("--which", f"{which!r} is not a choice; valid: {', '.join(WHICH)}")

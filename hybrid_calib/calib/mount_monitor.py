@@ -62,7 +62,8 @@ import numpy as np
 from factors.motion import heading_residual
 from hybrid_calib.calib.ego_doppler import EgoSweep, ego_measurement, frame_sweeps, pair_skip, partner
 from hybrid_calib.config import require, require_ranges
-from hybrid_calib.data.nuscenes import same_calibration
+from hybrid_calib.data.mounts import same_calibration
+from hybrid_calib.data.reference import reference_nouns
 from hybrid_calib.errors import DataError
 from hybrid_calib.metrics import mad_scale
 
@@ -629,10 +630,8 @@ def tested_words(summary: dict, reference: dict | None = None) -> str:
     before the sweeps were paired holds ``pairs_tested`` alone, one pair per frame), and, when the hybrid recorded
     ``sweeps_absent``, that the root's sweeps between keyframes were listed but not on disk. ``reference``: the
     result's ``drift["reference"]``: against an earlier export the level is the exported mount's, and named so
-    (``drift.reference_nouns``; probe 106: "1.83 deg ... of its tables'" where the tables put the radar 3.85 deg
-    off)."""
-    from hybrid_calib.calib.drift import reference_nouns
-
+    (``data.reference.reference_nouns``; probe 106: "1.83 deg ... of its tables'" where the tables put the radar
+    3.85 deg off)."""
     return reference_nouns(_tested_words(summary), reference)
 
 

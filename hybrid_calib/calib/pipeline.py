@@ -409,7 +409,7 @@ def trust_reason(res: VehicleResult, T_reference: np.ndarray) -> str:
     converge (``schedule.convergence_note``'s NOT CONVERGED: a status that still opened with "weak"), or it lies
     farther from the vehicle's tables ``T_reference`` (4, 4) than ``ASTRAY_ROT_DEG`` / ``ASTRAY_TRANS_M``."""
     from hybrid_calib.calib.covariance import untrusted_status
-    from hybrid_calib.data.nuscenes import mount_offset
+    from hybrid_calib.data.mounts import mount_offset
 
     status = res.final.status  # read through the one reading of a status (a degenerate one's stds already say it)
     reasons = [f"{untrusted_status(status)} (NOT CONVERGED: too few of its rows fit the estimate)"
@@ -560,9 +560,10 @@ def untrusted(res: VehicleResult, reason: str) -> None:
 
 
 def in_reference_nouns(res: VehicleResult) -> VehicleResult:
-    """``res`` whose verdict and status name its reference as it is (``drift.reference_nouns``: against an earlier
-    export, "its tables" is the exported mount). The last step of each method's result."""
-    from hybrid_calib.calib.drift import drift_in_reference_nouns, reference_nouns
+    """``res`` whose verdict and status name its reference as it is (``data.reference.reference_nouns``: against an
+    earlier export, "its tables" is the exported mount). The last step of each method's result."""
+    from hybrid_calib.calib.drift import drift_in_reference_nouns
+    from hybrid_calib.data.reference import reference_nouns
 
     src = (res.drift or {}).get("reference")
     status = reference_nouns(res.final.status, src)

@@ -162,7 +162,7 @@ def truth_at(vr, index: int) -> np.ndarray | None:
 def path_of(indices, truths) -> list:
     """``truth_path`` of per-frame truths ((4, 4) each; None: unknown) at drive frame ``indices``: an entry where the
     mount changes (``same_calibration``); [] when it never does."""
-    from hybrid_calib.data.nuscenes import same_calibration
+    from hybrid_calib.data.mounts import same_calibration
 
     path, last = [], None
     for k, T in zip(indices, truths):
@@ -679,7 +679,7 @@ class VehicleResult:
     def _path_ends_at_truth(self, where: str) -> VehicleResult:
         """Itself, when its ``truth_path`` (if any) ends at its ``truth_T`` (the mount at the drive's end, which the
         errors are against); ``ValueError`` otherwise (probe 59: an edited path drew the plots against another)."""
-        from hybrid_calib.data.nuscenes import same_calibration
+        from hybrid_calib.data.mounts import same_calibration
 
         # within the tables' tolerance: the path and the end's truth may be read from two records of one mount
         if self.truth_path and (self.truth_T is None or not same_calibration(self.truth_path[-1][1], self.truth_T)):

@@ -58,6 +58,7 @@ from hybrid_calib.config import merge
 from hybrid_calib.data.filters import MAX_RANGE_M, RadarFilterConfig
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.data.image_header import decode_image, image_header
+from hybrid_calib.data.mounts import SAME_CALIBRATION, mount_offset, same_calibration
 from hybrid_calib.data.pcd import read_lidar_bin
 from hybrid_calib.data.reference import load_export_reference
 from hybrid_calib.data.sweeps import InterSweep, accumulate_radar, sweeps_between_keyframes
@@ -117,15 +118,6 @@ class SkipRecord:
     reason: str  # what is wrong and what to do
 
 
-# two camera-radar extrinsics of a vehicle's tables closer than this (deg, cm) are one calibration: nuScenes' own
-# differ by 0.46 deg and more (radar yaws -0.85, -0.26, 0.00, +0.20 deg) or by centimetres (camera mounts)
-SAME_CALIBRATION = (0.01, 0.1)
-def mount_offset(T: np.ndarray, T0: np.ndarray) -> tuple[float, float]:
-    """How far apart two mounts (4, 4) are: (rotation angle, deg; translation, cm)."""
-    angle = float(np.degrees(np.linalg.norm(so3_log(T0[:3, :3].T @ T[:3, :3]))))
-    return angle, float(100 * np.linalg.norm(T[:3, 3] - T0[:3, 3]))
-
-
 def tables_extrinsic(tables, camera_sd: dict, radar_sd: dict) -> np.ndarray | None:
     """(4, 4) the static T_cam_radar the calibrated_sensor records of two keyframes give (no sensor file read), None
     where a record does not read (the frame says why when it is read)."""
@@ -133,11 +125,6 @@ def tables_extrinsic(tables, camera_sd: dict, radar_sd: dict) -> np.ndarray | No
         return se3_inverse(tables.T_ego_sensor(camera_sd)) @ tables.T_ego_sensor(radar_sd)
     except (DataError, KeyError, TypeError, ValueError):
         return None
-
-
-def same_calibration(T: np.ndarray, T0: np.ndarray) -> bool:
-    """Two mounts the tables hold as one calibration (within ``SAME_CALIBRATION``)."""
-    return all(d <= tol for d, tol in zip(mount_offset(T, T0), SAME_CALIBRATION))
 
 
 # a principal point farther than this fraction of the image's width or height from its centre: an intrinsic for

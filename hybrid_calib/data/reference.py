@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hybrid_calib.data.mounts import mount_offset, same_calibration
 from hybrid_calib.errors import DataError
 from hybrid_calib.geometry import se3_inverse
 
@@ -132,8 +133,6 @@ def load_export_reference(path: str | Path) -> ExportReference:
     """The export.json of ``path`` (a file, or an export's ``--out`` folder) as a reference (module doc);
     ``DataError`` naming the file (and vehicle) when it is not there, not an export, of another schema, or holds a
     record that does not read (an export of an older version without ``camera``: export again)."""
-    from hybrid_calib.data.nuscenes import mount_offset, same_calibration  # (it imports this module)
-
     p = _path_of(path)
     try:
         raw = p.read_bytes()
@@ -220,3 +219,21 @@ def reference_identity(path: str) -> dict:
     depends on beyond its config, so that an export replaced at the same path is not taken for the one an earlier
     result was checked against (``DataError`` when it does not read)."""
     return {"reference_sha256": load_export_reference(path).sha256} if path else {}
+
+
+# the calibrator's sentences name the reference "its tables"; against an earlier export (this module) the mount
+# compared with is the exported one: the words say so (session 38 left "its tables" there, only the first line, the
+# page's "Checked against" and the fleet summary saying what it meant). Longest phrases first.
+EXPORT_NOUNS = (("its mount in the tables", "its exported mount"), ("as its tables say", "as the export says"),
+                ("its tables'", "the exported mount's"),
+                ("its tables", "the exported mount"))
+
+
+def reference_nouns(text: str, source: dict | None) -> str:
+    """``text`` with the reference named as ``source`` (a result's ``drift["reference"]``) is: unchanged against the
+    tables, "its tables" turned into the exported mount (``EXPORT_NOUNS``) against an export."""
+    if not isinstance(source, dict) or source.get("kind") != "export" or not isinstance(text, str):
+        return text
+    for tables, export in EXPORT_NOUNS:
+        text = text.replace(tables, export)
+    return text

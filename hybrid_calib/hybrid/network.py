@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from factors.correspondences import Correspondences
+from factors.io import FrameMeasurements, from_arrays, to_arrays
 from hybrid_calib.data.files import NPZ_ERRORS, file_part
 from hybrid_calib.errors import HybridCalibError
 from hybrid_calib.geometry import nearest_rigid
@@ -105,12 +106,12 @@ class NetworkOutput:
              "image_structure": np.array(self.image_structure), "jpeg_quality": np.array(self.jpeg_quality),
              "image_luminance": np.array(self.image_luminance)}
         for prefix, c in (("first_", self.rows_first), ("last_", self.rows_last)):
-            d.update({prefix + k: v for k, v in c.to_npz_dict().items()})
+            d.update({prefix + k: v for k, v in to_arrays(FrameMeasurements(c)).items()})
         return d
 
     @classmethod
     def from_arrays(cls, z) -> NetworkOutput:
-        rows = [Correspondences.from_npz_dict({k[len(p):]: z[k] for k in z.files if k.startswith(p)})
+        rows = [from_arrays({k[len(p):]: z[k] for k in z.files if k.startswith(p)}).corr
                 for p in ("first_", "last_")]
         T_in, T_iters, cov = (np.asarray(z[k], np.float64) for k in ("T_in", "T_iters", "cov_raw"))
         if T_in.shape != (4, 4) or T_iters.ndim != 3 or T_iters.shape[1:] != (4, 4) or not len(T_iters) \
