@@ -241,6 +241,7 @@ def write_bytes_atomic(path: str | Path, data: bytes) -> Path:
 
 
 _HELD_LOCKS: set[int] = set()  # the descriptors of the output-folder locks this process holds
+_HELD_PATHS: set[str] = set()  # and their paths: a typed function called by a command that holds its lock already
 
 
 def _drop_held_locks_in_child() -> None:
@@ -258,6 +259,7 @@ def _drop_held_locks_in_child() -> None:
             pass
     os.close(null)
     _HELD_LOCKS.clear()
+    _HELD_PATHS.clear()
 
 
 os.register_at_fork(after_in_child=_drop_held_locks_in_child)
@@ -266,7 +268,8 @@ _RUN_RECORD = re.compile(r"pid \d+, hybrid-calib \S+, since ")  # what a run wri
 
 @contextmanager
 def out_dir_lock(out: str | Path, command: str, name: str = LOCK_NAME, what: str | None = None,
-                 argv: list[str] | None = None, started: float | None = None) -> Iterator[Callable[[], None]]:
+                 argv: list[str] | None = None, started: float | None = None, reentrant: bool = False
+                 ) -> Iterator[Callable[[], None]]:
     """Hold ``out``'s lock (``OUT/.hybrid-calib.lock``, or ``OUT/name``: an advisory ``flock``, released when the
     process ends, however it ends) while a command writes there, so that two runs into one folder (or onto one file,
     ``what``: report's page) do not overwrite each other's results: the second gets ``OutDirBusy`` naming the first
@@ -277,8 +280,12 @@ def out_dir_lock(out: str | Path, command: str, name: str = LOCK_NAME, what: str
     that went down: nothing of that run could say so) adds that run to ``OUT/runs.json`` with exit status null
     (``record_run``; probe 60: such runs were missing from it); ``started``: the run's start as its own line in
     runs.json will say (a run killed after writing that line is not added twice). Yields a function to call once the
-    run's own line is in runs.json: the lock then no longer holds the command line."""
-    import fcntl
+    run's own line is in runs.json: the lock then no longer holds the command line.
+
+    The typed functions that write a folder (``hybrid.run_calibration``, ``compare.compare``, ``fleet.run_fleet``,
+    ``sim.simulate.simulate``, the report's pages) hold it too (probe 140: a library run and a command wrote one
+    folder, and the command's result was replaced in silence), with ``reentrant``: a lock this process holds already
+    is the command's that called them, and they go on under it."""
     import json
     import time
 
@@ -290,18 +297,14 @@ def out_dir_lock(out: str | Path, command: str, name: str = LOCK_NAME, what: str
         kind = "a symbolic link" if path.is_symlink() else "a directory" if path.is_dir() else "a special file"
         raise HybridCalibError(f"{path} is {kind}, not the lock file hybrid-calib keeps in its output folder; "
                                "remove it and rerun")
+    key = str(out.resolve() / name)
+    if reentrant and key in _HELD_PATHS:  # this process holds it (the command around the typed function)
+        yield lambda: None
+        return
     existed = path.exists()
-    # bytes: a lock file is anyone's (probe 65: one of non-UTF-8 bytes was an internal error)
-    f = os.fdopen(os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o644), "r+b")
-    try:
-        fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
-        f.seek(0)
-        holder = f.read(1 << 16).decode("utf-8", "replace").strip().split("\n")[0] or "another process"
-        f.close()  # its first line (the second: the command line)
-        raise OutDirBusy(f"{what or out} is being written by another hybrid-calib run ({holder}); wait for it to "
-                         "end, or pass another --out") from None
+    f = _locked_file(path, what or out)
     _HELD_LOCKS.add(f.fileno())
+    _HELD_PATHS.add(key)
     first = f"pid {os.getpid()}, hybrid-calib {command}, since {time.strftime('%Y-%m-%d %H:%M:%S')}"
     was = None  # what the file held before (restored at the end when it is not a run's lock)
     try:
@@ -332,10 +335,41 @@ def out_dir_lock(out: str | Path, command: str, name: str = LOCK_NAME, what: str
         except OSError:
             pass
         _HELD_LOCKS.discard(f.fileno())
+        _HELD_PATHS.discard(key)
         try:
             f.close()
         except OSError:  # the record it could not write (a full disk) was said where it was written (_rewrite)
             pass
+
+
+def _locked_file(path: Path, what) -> object:
+    """The lock file at ``path`` opened (binary) and ``flock``ed exclusively, or ``OutDirBusy`` naming its holder.
+    A holder unlinks the file at its end while still holding it: a run that opened it just before and locks it just
+    after would hold a file no longer at the path while the next run locks a new one (probe 140: two holders), so
+    the file locked must be the one at the path (else it is opened again)."""
+    import fcntl
+
+    for _ in range(100):
+        # bytes: a lock file is anyone's (probe 65: one of non-UTF-8 bytes was an internal error)
+        f = os.fdopen(os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o644), "r+b")
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            f.seek(0)
+            holder = f.read(1 << 16).decode("utf-8", "replace").strip().split("\n")[0] or "another process"
+            f.close()  # its first line (the second: the command line)
+            raise OutDirBusy(f"{what} is being written by another hybrid-calib run ({holder}); wait for it to "
+                             "end, or pass another --out") from None
+        held = os.fstat(f.fileno())
+        try:
+            now = os.stat(path, follow_symlinks=False)
+        except FileNotFoundError:
+            now = None
+        if now is not None and (now.st_ino, now.st_dev) == (held.st_ino, held.st_dev):
+            return f
+        f.close()  # the file its last holder unlinked: open the one at the path now
+    raise OutDirBusy(f"{what}: its lock file {path} keeps being replaced; wait for the other hybrid-calib runs "
+                     "there to end, or pass another --out")
 
 
 def _rewrite(f, path: Path, text: str) -> None:

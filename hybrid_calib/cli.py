@@ -32,6 +32,7 @@ from hybrid_calib.atomic import (
 )
 from hybrid_calib.errors import (
     HybridCalibError,
+    check_not_being_written,
     check_out_dir,
     check_out_files,
     check_out_not_in_dataset,
@@ -422,6 +423,9 @@ def _run(args: argparse.Namespace, debug: bool, argv: list[str]) -> int:
         data, version = getattr(args, "data", None), getattr(args, "version", None)
         # simulate's --out is the root it writes
         check_out_not_in_dataset(out, root_ok=args.command == "simulate", data=data, version=version)
+        if args.command != "simulate":  # what it reads: not while another run writes it (probe 140)
+            check_not_being_written(data, "--data")
+            check_not_being_written(getattr(args, "correspondences", None), "--correspondences")
         for option, path in set_paths(args):  # caches named by --set: the same rule as --out, before anything runs
             check_out_dir(path, option)  # an existing file there: no cache was written, without a word (probe 27)
             check_out_not_in_dataset(path, option, data=data, version=version)

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hybrid_calib.atomic import out_dir_lock
 from hybrid_calib.calib.covariance import status_kind
 from hybrid_calib.calib.result import VehicleResult, failed_vehicles_message
 from hybrid_calib.config import (
@@ -418,16 +419,23 @@ def compare(roots: list | str, version: str, out: str | Path, conf: CompareConfi
             command: str = "", progress: bool = True, overwrite: bool = False) -> CompareResult:
     """Run (or resume) every trial, then write compare.json, compare.md and the plot; returns their summary.
     ``overwrite``: the kept trials, tables and own caches of ``out`` are removed first."""
-    import shutil
-
-    from hybrid_calib.plots.compare import plot_error_vs_frames
-
     conf = merge(CompareConfig, conf)
     out = Path(out)
     if isinstance(roots, (str, os.PathLike)):  # one root: "sim" was read as the roots "s", "i", "m" (probe 51)
         roots = [roots]
     check_api_out(out, "compare", roots[0] if len(roots) == 1 else None, version)
     roots, roots_left_out = _check_roots(roots, version, conf.methods)
+    with out_dir_lock(out, "compare", reentrant=True):  # probe 140: a library run and a command in one folder
+        return _compare_into(roots, roots_left_out, version, out, conf, command, progress, overwrite)
+
+
+def _compare_into(roots: list, roots_left_out: dict, version: str, out: Path, conf: CompareConfig, command: str,
+                  progress: bool, overwrite: bool) -> CompareResult:
+    """``compare`` once its folder and roots are checked and its folder locked."""
+    import shutil
+
+    from hybrid_calib.plots.compare import plot_error_vs_frames
+
     cfg_path = out / "compare_config.json"
     record = _record(roots, version, conf)
     if overwrite:

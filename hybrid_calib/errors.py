@@ -198,9 +198,38 @@ def check_api_out(out: str | Path, command: str, data=None, version: str | None 
     file it lands in (a symbolic link's target) is checked."""
     folder = page_target(out, "out").parent if page else Path(out)
     check_out_dir(folder, "out", writable=False)  # reusing an earlier result writes nothing (a read-only archive)
+    if data is not None:
+        check_not_being_written(data, "data")
     check_out_not_in_dataset(folder, "out", data=data, version=version)
     if not page:
         check_out_owner(folder, command, "out")
+
+
+def check_not_being_written(folders, option: str) -> None:
+    """``OptionError`` naming ``option`` and the run when a folder a command reads (``--data`` roots,
+    ``--correspondences``) is being written by a hybrid-calib run now: its ``LOCK_NAME`` is held (probe 140: a
+    calibrate read a root ``simulate --overwrite`` was re-rendering, and blamed each vanished frame on a partial
+    download; one read an evaluate export half written, calibrated 16 of 30 frames and said the export "covered other
+    vehicles"). ``folders``: one path or several; a folder without a lock file, or one that cannot be opened, is not
+    ours to judge."""
+    import fcntl
+
+    for folder in [folders] if isinstance(folders, (str, os.PathLike)) else list(folders or ()):
+        path = Path(folder) / LOCK_NAME
+        try:
+            if path.is_symlink() or not path.is_file():
+                continue
+            f = open(path, "rb")
+        except OSError:
+            continue
+        with f:
+            try:
+                fcntl.flock(f, fcntl.LOCK_SH | fcntl.LOCK_NB)
+            except OSError:
+                holder = f.read(1 << 16).decode("utf-8", "replace").strip().split("\n")[0] or "another process"
+                raise OptionError(option, f"{folder} is being written by a hybrid-calib run now ({holder}); wait for "
+                                          "it to end, then rerun") from None
+            fcntl.flock(f, fcntl.LOCK_UN)
 
 
 TABLE_FILES = ("sample_data.json", "calibrated_sensor.json")  # a folder holding both is a nuScenes version folder

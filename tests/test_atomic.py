@@ -368,3 +368,110 @@ def test_a_damaged_run_log_is_kept_aside_not_lost(tmp_path):
     record_run(tmp_path, "calibrate", ["calibrate"], 0, time.time())
     assert (tmp_path / "runs.damaged.json").read_text() == '[{"command": "hybrid-calib calibrate ..."'
     assert len(json.loads((tmp_path / "runs.json").read_text())) == 1
+
+
+def test_the_typed_functions_hold_their_folders_lock(tmp_path):
+    """Probe 140: ``run_calibration`` (and ``compare``, ``run_fleet``, ``simulate``) took no lock: a library run and a
+    ``hybrid-calib calibrate`` wrote one folder, and the command's result was replaced in silence. Each is refused
+    while another process holds the folder, and goes on under a lock its own process's command holds."""
+    import subprocess
+    import sys
+
+    from hybrid_calib.atomic import OutDirBusy, out_dir_lock
+    from hybrid_calib.compare import compare
+    from hybrid_calib.config import merge
+    from hybrid_calib.fleet.driver import run_fleet
+    from hybrid_calib.hybrid import run_calibration
+    from hybrid_calib.sim.drive import SimConfig
+    from hybrid_calib.sim.simulate import simulate
+    from tests.tiny_nuscenes import VERSION, make_tiny_root
+
+    root = make_tiny_root(tmp_path / "root", n_samples=2).root
+    out = tmp_path / "run"
+    code = ("import sys, time; from hybrid_calib.atomic import out_dir_lock\n"
+            f"with out_dir_lock({str(out)!r}, 'calibrate'):\n    print('held', flush=True); time.sleep(60)")
+    other = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    busy = r"being written by another hybrid-calib run \(pid \d+, hybrid-calib calibrate"
+    try:
+        assert other.stdout.readline().strip() == "held"
+        calls = {"run_calibration": lambda: run_calibration(root, VERSION, out, {"method": "pure"}),
+                 "compare": lambda: compare([root], VERSION, out, {"methods": ["pure"], "trials": 1}),
+                 "run_fleet": lambda: run_fleet([str(root)], None, VERSION, "pure", out),
+                 "simulate": lambda: simulate(merge(SimConfig, {"frames": 2}), out)}
+        for name, call in calls.items():
+            with pytest.raises(OutDirBusy, match=busy):
+                call()
+            assert sorted(p.name for p in out.iterdir()) == [".hybrid-calib.lock"], name  # nothing written
+    finally:
+        other.kill()
+        other.wait()
+    # under this process's own (the command's) lock, the function goes on; another command of this process is refused
+    with out_dir_lock(out, "calibrate"):
+        with out_dir_lock(out, "calibrate", reentrant=True):
+            pass
+        with pytest.raises(OutDirBusy):
+            with out_dir_lock(out, "calibrate"):
+                pass
+    assert not any(out.iterdir())  # the killed holder's lock removed by the first run after it
+
+
+def test_the_lock_taken_is_the_file_at_its_path(tmp_path, monkeypatch):
+    """Probe 140: a holder unlinks its lock file at its end while holding it; a run that opened the file just before
+    and locked it just after held a file no longer at the path, while the next run locked a new one: two holders.
+    The file locked must be the one at the path (else it is opened again)."""
+    import fcntl
+    import os
+
+    from hybrid_calib import atomic
+
+    out = tmp_path / "run"
+    out.mkdir()
+    path = out / atomic.LOCK_NAME
+    path.write_text("pid 1, hybrid-calib calibrate, since 2026-12-07 00:00:00")
+    real, calls = fcntl.flock, []
+
+    def flock_after_the_holder_left(f, op):  # the first open's file is unlinked and replaced before its flock
+        calls.append(os.fstat(f.fileno()).st_ino)
+        if len(calls) == 1:
+            path.unlink()
+            path.write_text("")
+        return real(f, op)
+
+    monkeypatch.setattr(fcntl, "flock", flock_after_the_holder_left)
+    with atomic.out_dir_lock(out, "calibrate"):
+        assert len(calls) == 2 and calls[1] == os.stat(path).st_ino != calls[0]
+
+
+def test_a_folder_another_run_is_writing_is_not_read(tmp_path, capsys):
+    """Probe 140: calibrate read a root that ``simulate --overwrite`` was re-rendering (each vanished frame blamed on a
+    partial download) and a correspondence folder an evaluate was still exporting (16 of 30 frames calibrated, the
+    other vehicle "not exported"). Both are refused while their writer holds them, with the writer named."""
+    import subprocess
+    import sys
+
+    from hybrid_calib.cli import main
+    from hybrid_calib.errors import OptionError
+    from hybrid_calib.hybrid import run_calibration
+    from tests.tiny_nuscenes import VERSION, make_tiny_root
+
+    root = make_tiny_root(tmp_path / "root", n_samples=2).root
+    rows = tmp_path / "rows"
+    code = ("import sys, time; from hybrid_calib.atomic import out_dir_lock\n"
+            f"with out_dir_lock({str(root)!r}, 'simulate'), out_dir_lock({str(rows)!r}, 'evaluate'):\n"
+            "    print('held', flush=True); time.sleep(60)")
+    other = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    try:
+        assert other.stdout.readline().strip() == "held"
+        free = make_tiny_root(tmp_path / "free", n_samples=2).root
+        for data, argv, option, command in ((root, ["--method", "pure"], "--data", "simulate"),
+                                            (free, ["--correspondences", str(rows)], "--correspondences", "evaluate")):
+            assert main(["calibrate", "--data", str(data), "--version", VERSION, *argv, "--out",
+                         str(tmp_path / "out")]) == 2
+            err = capsys.readouterr().err
+            assert f"error: {option}: " in err and "is being written by a hybrid-calib run now (pid" in err, err
+            assert f"hybrid-calib {command}, since" in err and not (tmp_path / "out").exists()
+        with pytest.raises(OptionError, match="is being written by a hybrid-calib run now"):
+            run_calibration(root, VERSION, tmp_path / "out", {"method": "pure"})
+    finally:
+        other.kill()
+        other.wait()

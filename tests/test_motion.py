@@ -483,3 +483,36 @@ def test_a_motion_cache_that_cannot_be_written_is_said_once_and_the_run_goes_on(
     assert src._matches(frame("c"), frame("d")) == (None, "no texture")
     err = capsys.readouterr().err
     assert err.count("motion cache:") == 1 and "going on without caching image matches" in err, err
+
+
+def test_the_image_match_cache_is_of_the_roots_images_not_their_tokens(tmp_path, monkeypatch):
+    """Probe 140: the matches were cached by camera tokens alone: a cache shared by two roots whose tokens coincide
+    (an edited copy of a scene; compare's one cache for all its roots) gave the second root the first one's matches
+    (its yaw 1.72 deg off where its own matches read 12.64), and a root re-made at its path its old images' ones."""
+    from types import SimpleNamespace
+
+    import hybrid_calib.hybrid.motion as motion
+
+    computed = []
+    monkeypatch.setattr(motion, "match_features",
+                        lambda a, b, camera, conf: computed.append((a, b)) or (None, f"images {a} {b}"))
+
+    def root(name: str, identity: str):
+        (tmp_path / name).mkdir(exist_ok=True)
+        frames = []
+        for token in ("a", "b"):
+            (img := tmp_path / name / f"{token}.jpg").write_bytes(b"jpeg of " + name.encode())
+            frames.append(SimpleNamespace(camera_token=token, image_path=img, camera=None,
+                                          load_image=lambda img=img: img.read_bytes()))
+        return SimpleNamespace(identity=identity), frames
+
+    cache = str(tmp_path / "shared")
+    (ids_a, (a0, a1)), (ids_b, (b0, b1)) = root("A", "root-A"), root("B", "root-B")
+    assert motion.MotionSource(ids_a, cache_dir=cache)._matches(a0, a1)[1] == "images b'jpeg of A' b'jpeg of A'"
+    assert motion.MotionSource(ids_a, cache_dir=cache)._matches(a0, a1)[1] == "images b'jpeg of A' b'jpeg of A'"
+    assert len(computed) == 1  # the same root's images: read from the cache
+    assert motion.MotionSource(ids_b, cache_dir=cache)._matches(b0, b1)[1] == "images b'jpeg of B' b'jpeg of B'"
+    (tmp_path / "A" / "b.jpg").write_bytes(b"another image, same token and root")  # re-made in place
+    assert motion.MotionSource(ids_a, cache_dir=cache)._matches(a0, a1)[1].endswith("b'another image, same token "
+                                                                                   "and root'")
+    assert len(computed) == 3

@@ -13,6 +13,7 @@ import socket
 from dataclasses import dataclass
 from pathlib import Path
 
+from hybrid_calib.atomic import out_dir_lock
 from hybrid_calib.errors import check_api_out
 from hybrid_calib.fleet.engines import ENGINES, run_engine
 from hybrid_calib.fleet.jobs import check_fleet_roots, discover_jobs, read_fleet_file
@@ -49,12 +50,21 @@ def run_fleet(roots: list[str] | str | None, manifest: str | None, version: str,
     ``out/vehicles/<id>/`` and write ``out/manifest.json`` and the fleet view (``summary``);
     returns the summary dict. Done vehicles are skipped, failed ones retried. ``on_outcome(entry,
     counts)`` is called in the driver after each job (the command's progress bar)."""
-    from hybrid_calib.fleet.summary import write_summary
 
     out = Path(out)
     if isinstance(roots, (str, os.PathLike)):  # one root: "sim" was read as the roots "s", "i", "m" (probe 51)
         roots = [roots]
     check_api_out(out, "fleet", roots[0] if roots and len(roots) == 1 else None, version)
+    with out_dir_lock(out, "fleet", reentrant=True):  # probe 140: a library run and a command in one folder
+        return _fleet_into(roots, manifest, version, method, out, seed, checkpoint, calib, priors, options,
+                           on_outcome)
+
+
+def _fleet_into(roots, manifest, version: str, method: str, out: Path, seed: int, checkpoint, calib, priors,
+                options: FleetOptions, on_outcome) -> dict:
+    """``run_fleet`` once its folder is checked and locked."""
+    from hybrid_calib.fleet.summary import write_summary
+
     sources = read_fleet_file(manifest, version) if manifest else [(str(r), version, None) for r in roots or []]
     if manifest:
         check_fleet_roots(sources, manifest)

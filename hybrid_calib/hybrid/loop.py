@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from factors.motion import heading_residual
-from hybrid_calib.atomic import leave_bars
+from hybrid_calib.atomic import leave_bars, out_dir_lock
 from hybrid_calib.calib.covariance import prior_pinned_std
 from hybrid_calib.calib.degeneracy import RowGeometry
 from hybrid_calib.calib.drift import (
@@ -835,6 +835,13 @@ def run_calibration(data: str | Path, version: str, out: str | Path, conf: Hybri
     for option, path in (("--set cache_dir", conf.cache_dir), ("--set depth_cache", conf.depth_cache)):
         # the run's own writes would change its data stamp; any root's tables could be replaced
         check_out_not_in_dataset(path or None, option, data=data, version=version)
+    with out_dir_lock(out, "calibrate", reentrant=True):  # probe 140: a library run and a command in one folder
+        return _calibrate_into(data, version, out, conf, overwrite, on_vehicle)
+
+
+def _calibrate_into(data, version: str, out: Path, conf: HybridConfig, overwrite: bool,
+                    on_vehicle: Callable[[VehicleResult], object] | None) -> CalibrationRun:
+    """``run_calibration`` once its folder is checked and locked."""
     # what the result depends on: the config with the depth estimator it resolves to (--depth lidar-densified and
     # the real root's default are one run) and the checkpoints' contents
     stamped = {**to_dict(conf), **({"depth": effective_depth(data, version, conf)} if conf.method != "oracle" else {}),

@@ -168,6 +168,19 @@ def drive_std_rad(conf: MotionConfig, simulated: bool) -> float:
     return float(np.radians(conf.drive_std_deg if simulated else max(conf.drive_std_deg, conf.real_drive_std_deg)))
 
 
+def _image_stamp(frame) -> list:
+    """What a frame's camera image is on disk: [resolved path, size in bytes, modification time in ns] (the depth
+    cache's rule, ``learned.depth.depth_inputs``), or [path] when it cannot be read (the match then fails on it)."""
+    path = getattr(frame, "image_path", None)
+    if path is None:
+        return [None]
+    try:
+        st = Path(path).stat()
+        return [str(Path(path).resolve()), st.st_size, st.st_mtime_ns]
+    except OSError:
+        return [str(path)]
+
+
 @dataclass
 class MotionSource:
     """Motion measurements of one root's frames (``learned.dataset`` frames or any sequence of
@@ -181,6 +194,7 @@ class MotionSource:
     # read and fit each sweep once
     sweeps: dict = field(default_factory=dict)
     _cache_warned: bool = False  # an image-match cache entry that could not be written: said once
+    _identity: str | None = None  # the frames' data identity (``NuScenesRadarCamera.identity``), read once
 
     def _frame(self, i: int):
         return self.frames[i]
@@ -212,7 +226,14 @@ class MotionSource:
         from hybrid_calib.config import to_dict
 
         key = hashlib.sha1(json.dumps(to_dict(self.conf.vo), sort_keys=True).encode()).hexdigest()[:10]
-        pair = f"{file_part(fa.camera_token)}__{file_part(fb.camera_token)}.npz"
+        # of these images of this root: the tokens alone gave a cache shared by two roots whose tokens coincide (an
+        # edited copy of a scene; compare's one cache for all its roots) the other root's matches (probe 140: yaw
+        # 1.72 deg where its own read 12.64), and a root re-made at its path its old images' matches
+        if self._identity is None:
+            self._identity = str(getattr(self.frames, "identity", "") or "")
+        seen = hashlib.sha1(json.dumps([self._identity, _image_stamp(fa), _image_stamp(fb)]).encode(
+            "utf-8", "surrogateescape")).hexdigest()[:12]
+        pair = f"{file_part(fa.camera_token)}__{file_part(fb.camera_token)}-{seen}.npz"
         return Path(self.cache_dir) / "motion" / f"matches-{key}" / pair
 
     def _matches(self, fa, fb) -> tuple[tuple | None, str]:

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hybrid_calib.atomic import LOCK_NAME, atomic_path, exit_with_parent
+from hybrid_calib.atomic import LOCK_NAME, atomic_path, exit_with_parent, out_dir_lock
 from hybrid_calib.config import save_json_atomic, to_dict
 from hybrid_calib.data.frame import write_depth_png
 from hybrid_calib.data.image_header import write_image
@@ -147,8 +147,6 @@ def simulate(conf: SimConfig, out: str | Path, overwrite: bool = False, workers:
     overwrite: re-render everything (and remove the simulator's previous outputs) instead of
     resuming. workers: processes rendering frames in parallel.
     """
-    from tqdm import tqdm
-
     if not isinstance(conf, SimConfig):
         raise TypeError(f"conf must be a SimConfig (build one with hybrid_calib.config.merge), got {type(conf)}")
     check_mounts(conf)  # before anything is written
@@ -162,8 +160,17 @@ def simulate(conf: SimConfig, out: str | Path, overwrite: bool = False, workers:
         raise HybridCalibError(
             f"{root} is not empty and holds no hybrid-calib simulation (no sim_config.json); refusing to write "
             "or delete anything there: choose an empty or new --out")
-    if conf_path.exists() and not overwrite:
+    with out_dir_lock(root, "simulate", reentrant=True):  # probe 140: a library run and a command in one root
+        return _simulate_into(conf, root, conf_dict, overwrite, workers, progress)
 
+
+def _simulate_into(conf: SimConfig, root: Path, conf_dict: dict, overwrite: bool, workers: int, progress: bool
+                   ) -> Path:
+    """``simulate`` once its root is checked and locked."""
+    from tqdm import tqdm
+
+    conf_path = root / "sim_config.json"
+    if conf_path.exists() and not overwrite:
         try:
             old = json.loads(conf_path.read_text())
         except (OSError, ValueError, RecursionError):
