@@ -385,3 +385,28 @@ def test_a_forward_offset_many_stds_from_the_loop_is_said_and_widens_the_forward
     assert wide.cov[RADAR_X, RADAR_X] == pytest.approx(f.cov[RADAR_X, RADAR_X] + 1.09 ** 2)
     assert max(wide.estimate.std[3:]) >= 109.0 > max(report_std(f.T, f.cov)[3:])
     assert words.startswith("the LiDAR puts the radar's forward offset -109.0 cm from the loop's estimate, 9.7 stds")
+
+
+def test_the_band_is_above_the_road_wherever_the_root_puts_its_ego_origin(sim_root):
+    """Probe 143: the LiDAR band (0.3-3.5 m) was measured from the ego frame's z = 0: a root whose ego origin sits
+    0.4 m higher moved the result 0.075 deg / 0.85 cm, and one 0.5 m under the road (scene-0916) left no surface in
+    the band ("0 radar detections match a LiDAR surface"). docs/conventions.md: nothing depends on the ego origin."""
+    import dataclasses
+
+    from hybrid_calib.calib.lidar_alignment import lidar_frame
+    from hybrid_calib.sensors.ground import ground_level
+    from learned.dataset import open_frames
+
+    g = np.random.default_rng(5)
+    xy = g.uniform(-15, 15, (2000, 2))
+    road = np.where(np.arange(2000) < 1200, 0.02 * g.standard_normal(2000), g.uniform(0.2, 6.0, 2000))
+    ring = np.hypot(*xy.T)
+    assert abs(ground_level(road - 1.7, ring) + 1.7) < 0.01 and abs(ground_level(road + 0.5, ring) - 0.5) < 0.01
+    assert ground_level(road[:20], ring[:20]) == 0.0  # too few returns around: the ego frame's ground
+    frame = open_frames(sim_root, "v1.0-sim", lidar=True)[2]
+    for dz in (0.4, -0.5):  # the ego origin moved up (down) by dz: every sensor mount dz lower (higher) in it
+        up = np.eye(4)
+        up[2, 3] = -dz
+        moved = dataclasses.replace(frame, extras={**frame.extras, "T_ego_cam": up @ frame.extras["T_ego_cam"]})
+        a, b = lidar_frame(frame), lidar_frame(moved)
+        assert len(a.lidar) > 100 and np.array_equal(a.lidar, b.lidar), dz

@@ -16,8 +16,10 @@ The model (radar frame of the current estimate ``X = T_cam_radar``; per frame ``
 extrinsic is ``T_f = A_f X`` with ``A_f = T_cam_radar(frame) inv(T_cam_radar_static)`` from the
 tables, which cancels the mount). LiDAR points ``p`` (LiDAR frame) go to the radar frame by
 ``inv(A_f X Exp([0, 0, 0, dx, dy, 0])) T_cam_lidar p``; points near the ground or above the radar's
-view in the *ego* frame (``ground_m``, ``top_m``: from the LiDAR's mount alone, so an error of the
-radar's tilt cannot let the ground into the band) are dropped. Each radar detection is matched to
+view are dropped (``ground_m``, ``top_m`` above the road, whose height in the *ego* frame the frame's own LiDAR
+gives, ``ground_level``: from the LiDAR's mount alone, so an error of the radar's tilt cannot let the ground into the
+band, and wherever a root puts its ego origin; probe 143: 0.5 m under the road, the band held no surface and the
+step read "0 radar detections match"). Each radar detection is matched to
 the nearest-range LiDAR point within ``+-beam_deg`` of its azimuth (the first surface), kept when
 within ``gate`` metres, and gives the residual ``e = r - m - b`` with ``d e / d [dx, dy, b] = [u, -1]``
 (``u``: the matched point's unit direction in the radar plane; ``b``: a common range offset, the
@@ -64,6 +66,7 @@ from hybrid_calib.config import require, require_ranges
 from hybrid_calib.errors import DataError
 from hybrid_calib.geometry import se3_exp, se3_inverse
 from hybrid_calib.metrics import mad_scale
+from hybrid_calib.sensors.ground import ground_level
 from hybrid_calib.sensors.radar_velocity import RadarVelocityConfig, estimate_velocity, stationary
 from hybrid_calib.words import above
 
@@ -80,7 +83,7 @@ class LidarAlignConfig:
     forward: bool = True  # also fold the forward offset dx (when its std is below max_std_x_m); off: dy alone
     stationary: bool = True  # only the detections the frame's Doppler calls stationary (moving traffic is displaced)
     beam_deg: float = 0.5  # half-width of a radar detection's beam in azimuth, deg (the radar's ~0.3 deg noise)
-    ground_m: float = 0.3  # LiDAR points lower than this above the ego frame's ground plane are dropped, m
+    ground_m: float = 0.3  # LiDAR points lower than this above the road (``ground_level``) are dropped, m
     top_m: float = 3.5  # ... and higher than this, m
     min_forward_m: float = 0.5  # LiDAR points less far ahead of the radar are dropped, m
     gates_m: tuple[float, ...] = (1.5, 1.0, 0.7, 0.5, 0.5, 0.5, 0.5, 0.5)  # match gate per iteration, m
@@ -220,6 +223,7 @@ def lidar_frame(frame, conf: LidarAlignConfig = LidarAlignConfig(), velocity: tu
     T_cam_lidar = np.asarray(frame.T_cam_lidar, np.float64)
     T_ego_lidar = np.asarray(T_ego_cam, np.float64) @ T_cam_lidar
     height = L @ T_ego_lidar[2, :3] + T_ego_lidar[2, 3]
+    height = height - ground_level(height, np.hypot(L @ T_ego_lidar[0, :3], L @ T_ego_lidar[1, :3]))
     keep = np.isfinite(L).all(axis=1) & (height > conf.ground_m) & (height < conf.top_m)
     A = np.asarray(frame.T_cam_radar, np.float64) @ se3_inverse(np.asarray(static, np.float64))
     radar = np.asarray(frame.radar_points, np.float64)

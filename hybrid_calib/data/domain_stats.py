@@ -16,6 +16,7 @@ from hybrid_calib.data.files import read_npz
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.errors import DataError
 from hybrid_calib.geometry import R_AXES_CAM_FROM_RADAR, se3_inverse
+from hybrid_calib.sensors.ground import ground_level
 
 IMAGE_SIZE_WH = (400, 225)  # image statistics are taken at this common size (nuScenes 1600 x 900 / 4)
 SUPPORT_MIN_HEIGHT_M = 0.3  # LiDAR points lower than this above the radar's ground are ground, not support
@@ -48,8 +49,8 @@ def radar_stats(frame: RadarCameraFrame) -> dict:
     if frame.lidar_points is not None and frame.T_cam_lidar is not None:
         T_radar_lidar = se3_inverse(frame.T_cam_radar) @ frame.T_cam_lidar
         q = np.asarray(frame.lidar_points[:, :3], float) @ T_radar_lidar[:3, :3].T + T_radar_lidar[:3, 3]
-        radar_height = float(frame.extras["T_ego_radar"][2, 3]) if "T_ego_radar" in frame.extras else 0.5
-        h = q[:, 2] + radar_height  # height above the ground plane under the radar
+        h = q[:, 2]  # above the road the sweep sees around the radar (not the ego origin's, a root's choice:
+        h = h - ground_level(h, np.hypot(q[:, 0], q[:, 1]))  # probe 143)
         q = q[(h > SUPPORT_MIN_HEIGHT_M) & (h < SUPPORT_MAX_HEIGHT_M), :2]
         near = r < SUPPORT_MAX_RANGE_M
         out["unsupported"] = _unsupported(p[near, :2], r[near], q)
