@@ -403,10 +403,12 @@ def test_the_band_is_above_the_road_wherever_the_root_puts_its_ego_origin(sim_ro
     ring = np.hypot(*xy.T)
     assert abs(ground_level(road - 1.7, ring) + 1.7) < 0.01 and abs(ground_level(road + 0.5, ring) - 0.5) < 0.01
     assert ground_level(road[:20], ring[:20]) == 0.0  # too few returns around: the ego frame's ground
+    assert ground_level(road + 0.1, ring) == 0.0  # a road within 15 cm of it: the ego frame's ground (nuScenes')
     frame = open_frames(sim_root, "v1.0-sim", lidar=True)[2]
     for dz in (0.4, -0.5):  # the ego origin moved up (down) by dz: every sensor mount dz lower (higher) in it
         up = np.eye(4)
         up[2, 3] = -dz
         moved = dataclasses.replace(frame, extras={**frame.extras, "T_ego_cam": up @ frame.extras["T_ego_cam"]})
-        a, b = lidar_frame(frame), lidar_frame(moved)
-        assert len(a.lidar) > 100 and np.array_equal(a.lidar, b.lidar), dz
+        a, b = lidar_frame(frame), lidar_frame(moved)  # the sweep's road (~1 cm off z = 0) against z = 0
+        same = (a.lidar[:, None, :] == b.lidar[None, :, :]).all(-1).any(1).sum()
+        assert len(a.lidar) > 100 and same >= 0.98 * max(len(a.lidar), len(b.lidar)), dz
