@@ -15,6 +15,7 @@ from __future__ import annotations
 import errno
 import os
 import re
+import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -241,7 +242,8 @@ def write_bytes_atomic(path: str | Path, data: bytes) -> Path:
 
 
 _HELD_LOCKS: set[int] = set()  # the descriptors of the output-folder locks this process holds
-_HELD_PATHS: set[str] = set()  # and their paths: a typed function called by a command that holds its lock already
+_HELD_PATHS: dict[str, int] = {}  # and their paths -> the holding thread: a typed function called by the command that
+# holds its lock already (in that thread: probe 142, two threads of one process wrote one folder)
 
 
 def _drop_held_locks_in_child() -> None:
@@ -298,13 +300,13 @@ def out_dir_lock(out: str | Path, command: str, name: str = LOCK_NAME, what: str
         raise HybridCalibError(f"{path} is {kind}, not the lock file hybrid-calib keeps in its output folder; "
                                "remove it and rerun")
     key = str(out.resolve() / name)
-    if reentrant and key in _HELD_PATHS:  # this process holds it (the command around the typed function)
+    if reentrant and _HELD_PATHS.get(key) == threading.get_ident():  # the command around the typed function
         yield lambda: None
         return
     existed = path.exists()
     f = _locked_file(path, what or out)
     _HELD_LOCKS.add(f.fileno())
-    _HELD_PATHS.add(key)
+    _HELD_PATHS[key] = threading.get_ident()
     first = f"pid {os.getpid()}, hybrid-calib {command}, since {time.strftime('%Y-%m-%d %H:%M:%S')}"
     was = None  # what the file held before (restored at the end when it is not a run's lock)
     try:
@@ -335,7 +337,7 @@ def out_dir_lock(out: str | Path, command: str, name: str = LOCK_NAME, what: str
         except OSError:
             pass
         _HELD_LOCKS.discard(f.fileno())
-        _HELD_PATHS.discard(key)
+        _HELD_PATHS.pop(key, None)
         try:
             f.close()
         except OSError:  # the record it could not write (a full disk) was said where it was written (_rewrite)
@@ -359,7 +361,7 @@ def _locked_file(path: Path, what) -> object:
             holder = f.read(1 << 16).decode("utf-8", "replace").strip().split("\n")[0] or "another process"
             f.close()  # its first line (the second: the command line)
             raise OutDirBusy(f"{what} is being written by another hybrid-calib run ({holder}); wait for it to "
-                             "end, or pass another --out") from None
+                             "end, or write elsewhere (another --out)") from None
         held = os.fstat(f.fileno())
         try:
             now = os.stat(path, follow_symlinks=False)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import os
 import re
 from pathlib import Path
@@ -225,7 +226,9 @@ def check_not_being_written(folders, option: str) -> None:
         with f:
             try:
                 fcntl.flock(f, fcntl.LOCK_SH | fcntl.LOCK_NB)
-            except OSError:
+            except OSError as e:
+                if e.errno not in (errno.EWOULDBLOCK, errno.EAGAIN):  # no locks there (NFS without lockd): cannot
+                    continue  # tell (probe 142: a killed run's lock read as a live writer)
                 holder = f.read(1 << 16).decode("utf-8", "replace").strip().split("\n")[0] or "another process"
                 raise OptionError(option, f"{folder} is being written by a hybrid-calib run now ({holder}); wait for "
                                           "it to end, then rerun") from None

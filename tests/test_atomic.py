@@ -1,6 +1,7 @@
 """hybrid_calib.atomic: a failed writer leaves the old file and no temporary file behind."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -63,7 +64,8 @@ def test_two_runs_into_one_out_folder_the_second_is_refused_naming_the_first(tmp
     out = tmp_path / "run"
     with out_dir_lock(out, "calibrate", argv=["calibrate", "--out", str(out)]):  # its message: the first line
         with pytest.raises(OutDirBusy, match=r"being written by another hybrid-calib run \(pid \d+, hybrid-calib "
-                                             r"calibrate, since .*\); wait for it to end, or pass another --out"):
+                                             r"calibrate, since .*\); wait for it to end, or write elsewhere "
+                                             r"\(another --out\)"):
             with out_dir_lock(out, "calibrate"):
                 pass
         (out / "result.json").write_text("{}")
@@ -475,3 +477,53 @@ def test_a_folder_another_run_is_writing_is_not_read(tmp_path, capsys):
     finally:
         other.kill()
         other.wait()
+
+
+def test_the_lock_is_reentrant_in_its_own_thread_only_and_a_lockless_filesystem_is_no_writer(tmp_path, monkeypatch):
+    """Probe 142: two threads of one process both went on under one lock (one result replaced in silence); a data
+    root on a filesystem without flock (ENOLCK) holding a killed run's lock read as being written now."""
+    import errno
+    import fcntl
+    import threading
+
+    from hybrid_calib.atomic import LOCK_NAME, OutDirBusy, out_dir_lock
+    from hybrid_calib.errors import check_not_being_written
+
+    out, seen = tmp_path / "run", []
+
+    def other_thread():
+        try:
+            with out_dir_lock(out, "calibrate", reentrant=True):
+                seen.append("went on")
+        except OutDirBusy:
+            seen.append("refused")
+
+    with out_dir_lock(out, "calibrate"):
+        with out_dir_lock(out, "calibrate", reentrant=True):  # this thread: the command around the function
+            t = threading.Thread(target=other_thread)
+            t.start()
+            t.join()
+    assert seen == ["refused"]
+    root = tmp_path / "root"
+    root.mkdir()
+    (root / LOCK_NAME).write_text("pid 99999, hybrid-calib simulate, since 2026-12-07 20:00:00")
+    monkeypatch.setattr(fcntl, "flock", lambda f, op: (_ for _ in ()).throw(OSError(errno.ENOLCK, "No locks")))
+    check_not_being_written(root, "--data")  # cannot tell: read as before
+
+
+def test_a_result_in_a_read_only_folder_is_reused_without_the_lock(tmp_path, monkeypatch):
+    """Probe 142: run_calibration on a finished result in a read-only folder (an archive) failed creating its lock
+    (a raw "Read-only file system"); the reuse writes nothing, so it takes no lock."""
+    import hybrid_calib.hybrid.loop as loop
+    from tests.tiny_nuscenes import VERSION, make_tiny_root
+
+    root = make_tiny_root(tmp_path / "root", n_samples=2).root
+    out = tmp_path / "archive"
+    out.mkdir()
+    (out / "result.json").write_text("{}")
+    monkeypatch.setattr(loop, "_calibrate_into", lambda *a: "reused")
+    monkeypatch.setattr(loop.os, "access", lambda path, mode: Path(path) != out)
+    monkeypatch.setattr(loop, "out_dir_lock", lambda *a, **k: (_ for _ in ()).throw(AssertionError("locked")))
+    assert loop.run_calibration(root, VERSION, out, {"method": "pure"}) == "reused"
+    with pytest.raises(AssertionError, match="locked"):  # asked to overwrite it: the lock (and its error) first
+        loop.run_calibration(root, VERSION, out, {"method": "pure"}, overwrite=True)

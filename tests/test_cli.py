@@ -701,3 +701,19 @@ def test_the_uncertainty_fit_refuses_a_real_root_whatever_its_folder_is_named(tm
     with pytest.raises(Exception) as refused:  # past the real-root test: the (absent) checkpoint is read next
         check_fit(tmp_path / "no-checkpoint.safetensors", [tiny.root], "val", "drives", refine=False)
     assert "real root" not in str(refused.value)
+
+
+@pytest.mark.parametrize("text", ['[{"log_token": ["x"]}]', '{"vehicles": [{"log_token": {"a": 1}}]}',
+                                  '[{"vehicle": "no token"}]'])
+def test_a_sim_vehicle_record_without_a_log_token_string_is_named(tmp_path, capsys, text):
+    """Probe 142: a list-form sim_vehicle.json whose log_token was a list or a dict was an internal error
+    ("unhashable type") in calibrate and compare; records without one all read as the log None."""
+    from hybrid_calib.cli import main
+    from tests.tiny_nuscenes import VERSION, make_tiny_root
+
+    tiny = make_tiny_root(tmp_path / "root", n_samples=2)
+    (tiny.root / VERSION / "sim_vehicle.json").write_text(text)
+    assert main(["calibrate", "--data", str(tiny.root), "--version", VERSION, "--method", "pure", "--out",
+                 str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "sim_vehicle.json record 0 has no log_token string" in err and "internal error" not in err, err

@@ -48,12 +48,14 @@ def test_lie_log_of_a_half_turn_matches_numpy_geometry():
     half-turn (and a rotation 1e-5 deg short of it) as the identity; ``geometry.so3_log`` reads pi."""
     from scipy.spatial.transform import Rotation
 
-    for deg in (180.0, 180.0 - 1e-5, 180.0 - 1e-3, 179.0):
+    for deg in (180.0, 180.0 - 1e-5, 180.0 - 1e-4, 180.0 - 1e-3, 179.0):
         for axis in (np.array([0.0, 0.0, 1.0]), np.array([0.3, -0.8, 0.52]), np.array([-1.0, 0.0, 0.0])):
             R = Rotation.from_rotvec(np.radians(deg) * axis / np.linalg.norm(axis)).as_matrix()
             w = lie.so3_log(torch.from_numpy(R)[None])[0].numpy()
             assert np.linalg.norm(w) == pytest.approx(np.linalg.norm(geometry.so3_log(R)), abs=1e-6), (deg, axis)
             assert np.allclose(geometry.so3_exp(w), R, atol=1e-6), (deg, axis)  # the same rotation, either sign
+            w32 = lie.so3_log(torch.from_numpy(R).float()[None])[0].double().numpy()  # the network's dtype
+            assert np.degrees(np.linalg.norm(geometry.so3_log(geometry.so3_exp(w32).T @ R))) < 0.01, (deg, axis)
 
 
 def test_radar_point_projects_to_fv_and_bev():

@@ -1035,7 +1035,14 @@ def _load_sim_vehicles(vdir: Path) -> dict[str, dict]:
     if isinstance(data, dict) and "vehicles" in data:
         data = data["vehicles"]
     if isinstance(data, list):
-        data = {rec.get("log_token"): rec for rec in data if isinstance(rec, dict)}
+        bad = [i for i, rec in enumerate(data) if isinstance(rec, dict) and not isinstance(rec.get("log_token"), str)]
+        if bad:
+            # probe 142: a list or dict there was an internal error ("unhashable type") in every command
+            raise DataError(f"sim_vehicle.json record {bad[0]} has no log_token string (got "
+                            f"{type(data[bad[0]].get('log_token')).__name__}): each vehicle record names its log by "
+                            "token; re-run hybrid-calib simulate, or delete the file to read the root as a real one",
+                            path=str(path))
+        data = {rec["log_token"]: rec for rec in data if isinstance(rec, dict)}
     if not isinstance(data, dict) or not all(isinstance(v, dict) for v in data.values()):
         raise DataError("sim_vehicle.json must map log tokens to vehicle records", path=str(path))
     for log_token, rec in data.items():
@@ -1052,16 +1059,13 @@ def simulated_root(data, version: str) -> bool:
     ``sim_vehicle.json`` holds vehicle records), without indexing the root: for the commands' early choices (the
     hybrid's depth, compare's oracle check, evaluate's and train's notes), which had tested the file's existence (an
     empty or unreadable file read as simulated there and as real in the run). Warnings are left to the dataset that
-    loads the root; a file whose records do not read is left to it too (``DataError`` there, False here)."""
+    loads the root; a file whose records do not read is the ``DataError`` the dataset would raise, naming it."""
     vdir = Path(data) / version
     if not vdir.is_dir():
         return False
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SimVehicleWarning)
-        try:
-            return bool(_load_sim_vehicles(vdir))
-        except DataError:
-            return False
+        return bool(_load_sim_vehicles(vdir))
 
 
 class SimVehicleWarning(UserWarning):

@@ -28,6 +28,7 @@ final estimate describes.
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -835,6 +836,8 @@ def run_calibration(data: str | Path, version: str, out: str | Path, conf: Hybri
     for option, path in (("--set cache_dir", conf.cache_dir), ("--set depth_cache", conf.depth_cache)):
         # the run's own writes would change its data stamp; any root's tables could be replaced
         check_out_not_in_dataset(path or None, option, data=data, version=version)
+    if (out / "result.json").is_file() and not overwrite and not os.access(out, os.W_OK):  # a read-only archive's
+        return _calibrate_into(data, version, out, conf, overwrite, on_vehicle)  # result: reused, nothing written
     with out_dir_lock(out, "calibrate", reentrant=True):  # probe 140: a library run and a command in one folder
         return _calibrate_into(data, version, out, conf, overwrite, on_vehicle)
 
