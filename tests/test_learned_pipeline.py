@@ -641,6 +641,8 @@ def test_cli_train_then_evaluate(sim_root, tmp_path, capsys):
     (veh,) = CalibrationRun.load(tmp_path / "c1" / "result.json").vehicles.values()
     assert veh.vehicle == "sim-veh-002" and veh.n_frames == 3 and len(veh.trajectory) == 3
     assert veh.network["n_frames"] == 3 and veh.network["std_cam"] is not None and veh.error is not None
+    exported = json.loads((tmp_path / "e0" / "export_config.json").read_text())["eval"]["depth"]  # probe 142: the
+    assert isinstance(exported, str) and veh.network["depth"] == exported  # report's attention figure reads it
 
     # fit the covariance scale on the val scene; it lands in the checkpoint and the next export uses it
     R2 = ("--range", "R2")  # the starts the run was trained on

@@ -616,6 +616,13 @@ def test_the_attention_section_says_when_the_checkpoint_given_is_not_the_results
     assert asked == ["", "lidar-densified", "lidar-densified"]
     assert "with depth lidar-densified (as the run read it)" in own
     assert "with depth corrupted-truth (as calibrate would choose it)" in other
+    # rows of an evaluate export (calibrate --correspondences): the exporting network's depth, in the network block
+    vr.config, vr.network = None, {"depth": "depth-anything:/m"}
+    assert "with depth depth-anything:/m (as the run read it)" in attention.attention_html(vr, ev, None, "v1.0-sim", "",
+                                                                                           tmp_path)
+    vr.network = {}  # a result written before the block named it
+    assert "(the result does not say which depth its network read" in attention.attention_html(
+        vr, ev, None, "v1.0-sim", "", tmp_path)
 
 
 def test_a_pure_result_cannot_tell_against_any_tolerance_asked():

@@ -526,6 +526,14 @@ def _exporting_checkpoint(folder: Path) -> str | None:
     return ckpt if isinstance(ckpt, str) else None
 
 
+def _exporting_depth(folder: Path) -> str | None:
+    """The depth estimator an ``evaluate`` export in ``folder`` ran its network on (its ``export_config.json``'s
+    ``eval.depth``, the checkpoint's training depth filled in), or None."""
+    ev = _export_record(folder).get("eval")
+    depth = ev.get("depth") if isinstance(ev, dict) else None
+    return depth if isinstance(depth, str) and depth else None
+
+
 _PINNED = re.compile(r"(?:^|: |; )([a-z][a-z ]*?) \(((?:rotation|translation) [^)]*)\) is prior-pinned")
 
 
@@ -739,12 +747,16 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
     done = VehicleProgress(out, data, version, str(correspondences), stamp, fresh=overwrite)
     method = "oracle" if correspondences == "oracle" else "measurements"  # rows from a directory (factors.io)
     exporter = None if correspondences == "oracle" else _exporting_checkpoint(Path(correspondences))
+    # the depth its network read (the report's attention figure draws the network on it: probe 142)
+    depth = None if correspondences == "oracle" else _exporting_depth(Path(correspondences))
 
     def one(name: str) -> VehicleResult:
         res = calibrate_vehicle(inputs[name], conf, progress, (priors or {}).get(name))
         res.method = method
         if res.network is not None:  # a network's rows (hybrid-calib evaluate's export): never a trusted verdict
             res.checkpoint = exporter
+            if depth is not None:
+                res.network = {**res.network, "depth": depth}
             untrusted(res, NETWORK_ROWS)
         elif why := trust_reason(res, inputs[name].reference):
             untrusted(res, why)

@@ -66,7 +66,8 @@ EXTRINSIC without "report", "n_window", "n_total",
 "inlier_fraction", "step_statistic", "step_threshold", "step_alarm", "solve_ms", "cov_ms", "events"}.
 
 NETWORK = {"n_frames": frames with a network estimate, "frame_id": the last such frame, "iteration",
-"T_cam_radar", "cov_right_radar" (or null), "std_cam" (or null), "error" (or null, vs the truth)}.
+"T_cam_radar", "cov_right_radar" (or null), "std_cam" (or null), "error" (or null, vs the truth), "depth" (the depth
+estimator the exporting network read, from its export_config.json; absent when it does not say)}.
 """
 
 from __future__ import annotations
@@ -306,6 +307,8 @@ def _network(d: dict, where: str) -> dict | None:
         _covariance(n["cov_right_radar"], f"{where}.cov_right_radar")
     if n.get("std_cam") is not None:
         _std_block(n["std_cam"], f"{where}.std_cam")
+    if "depth" in n and not isinstance(n["depth"], str):
+        raise TypeError(f"{where}.depth is a JSON {_json_kind(n['depth'])}, not a string: {EDITED}")
     e = _object_or_null(n, "error", where)
     if e is not None and (bad := [k for k in METRIC_KEYS if not is_number(e.get(k))]):  # metrics.ExtrinsicError's
         raise ValueError(f"{where}.error.{bad[0]} is {str(e.get(bad[0]))[:40]!r}, not a finite number: {EDITED}")

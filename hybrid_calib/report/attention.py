@@ -61,8 +61,9 @@ def attention_html(vr: VehicleResult, ev: Evidence, data, version: str, checkpoi
         return head + f"<p class=note>Absent: checkpoint {esc(ckpt)} is named but no camera frame is available.</p>"
     frame = ev.frames[len(ev.frames) // 2]
     try:
-        own = ckpt == named or _same_file(ckpt, named)  # the run's own network: the depth it read
-        ran = str((vr.config or {}).get("depth_effective") or "") if own else ""
+        own = ckpt == named or _same_file(ckpt, named)  # the run's own network: the depth it read (a learned
+        # method's config; the exporting run's, for rows an evaluate export gave calibrate --correspondences)
+        ran = str((vr.config or {}).get("depth_effective") or (vr.network or {}).get("depth") or "") if own else ""
         png, depth = attention_figure(ckpt, data, version, frame.index, tmp / "attention.png", ran)
     except (HybridCalibError, OSError) as e:
         return head + f"<p class=note>Absent: the network could not run ({esc(e)}).</p>"
@@ -71,7 +72,8 @@ def attention_html(vr: VehicleResult, ev: Evidence, data, version: str, checkpoi
         other = (f" <b>The result was calibrated with {esc(named)}</b>; this figure is of the checkpoint given with "
                  "--checkpoint, which is not that file.")
     where = frame_words(frame)
-    read = "as the run read it" if ran else "as calibrate would choose it"
+    read = ("as the run read it" if ran else "as calibrate would choose it" if not own else
+            "the result does not say which depth its network read: the one calibrate would choose")
     return (head + f"<p class=meta>Checkpoint {esc(ckpt)} on {where}, from the fixed R1 evaluation start, with "
             f"depth {esc(depth)} ({read})."
             f"{other} "
