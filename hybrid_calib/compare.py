@@ -40,7 +40,7 @@ from hybrid_calib.config import (
     to_dict,
 )
 from hybrid_calib.data.files import root_labels, stamps_changed
-from hybrid_calib.errors import CheckpointError, DataError, HybridCalibError, check_api_out
+from hybrid_calib.errors import CheckpointError, DataError, HybridCalibError, check_api_out, check_not_being_written
 from hybrid_calib.hybrid.loop import METHODS, HybridConfig, _Session, vehicle_learned, vehicle_oracle
 from hybrid_calib.metrics import METRIC_KEYS, consistency
 
@@ -424,6 +424,7 @@ def compare(roots: list | str, version: str, out: str | Path, conf: CompareConfi
     if isinstance(roots, (str, os.PathLike)):  # one root: "sim" was read as the roots "s", "i", "m" (probe 51)
         roots = [roots]
     check_api_out(out, "compare", roots[0] if len(roots) == 1 else None, version)
+    check_not_being_written(roots, "data")  # each root (probe 142: the command checked its --data only)
     roots, roots_left_out = _check_roots(roots, version, conf.methods)
     with out_dir_lock(out, "compare", reentrant=True):  # probe 140: a library run and a command in one folder
         return _compare_into(roots, roots_left_out, version, out, conf, command, progress, overwrite)

@@ -474,6 +474,15 @@ def test_a_folder_another_run_is_writing_is_not_read(tmp_path, capsys):
             assert f"hybrid-calib {command}, since" in err and not (tmp_path / "out").exists()
         with pytest.raises(OptionError, match="is being written by a hybrid-calib run now"):
             run_calibration(root, VERSION, tmp_path / "out", {"method": "pure"})
+        # a fleet manifest's roots (probe 142: only --data was checked) and a library compare of several roots
+        (manifest := tmp_path / "FLEET.json").write_text(json.dumps({"roots": [str(free), str(root)]}))
+        assert main(["fleet", "--manifest", str(manifest), "--version", VERSION, "--method", "pure", "--out",
+                     str(tmp_path / "fleet")]) == 2
+        assert f"fleet manifest {manifest}: {root} is being written" in capsys.readouterr().err
+        from hybrid_calib.compare import compare
+
+        with pytest.raises(OptionError, match=f"{root} is being written by a hybrid-calib run now"):
+            compare([free, root], VERSION, tmp_path / "cmp", {"methods": ["pure"], "trials": 1})
     finally:
         other.kill()
         other.wait()

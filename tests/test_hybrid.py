@@ -1258,3 +1258,24 @@ def test_a_learned_roll_or_pitch_far_from_the_tables_is_not_trusted():
     assert learned_prior_reason(SimpleNamespace(drift={"axes": axes(2.0)})) == ""  # within 3 stds of the tolerance
     assert learned_prior_reason(SimpleNamespace(drift={"axes": axes(0.1, yaw=40.0)})) == ""  # a measured axis: not it
     assert learned_prior_reason(SimpleNamespace(drift=None)) == ""
+
+
+def test_a_root_rewritten_while_a_run_reads_it_gives_no_result(sim_root, tmp_path):
+    """Probe 142: ``simulate --overwrite`` started after a calibrate was refused nothing (a reader holds no lock):
+    calibrate blamed each vanished frame on "a partial download" and wrote a result of old and new frames. The root's
+    tables and sensor folders are looked at again at the end: a root rewritten meanwhile gives no result, said."""
+    from hybrid_calib.errors import DataError
+    from hybrid_calib.hybrid import run_calibration
+
+    table = sim_root / "v1.0-sim" / "sample.json"
+
+    def rewritten(vr):  # another process replaced the file (the same content here, so other tests read it as it was)
+        text = table.read_text()
+        table.unlink()
+        table.write_text(text)
+
+    with pytest.raises(DataError, match="changed while this run read it .* rerun with --overwrite"):
+        run_calibration(sim_root, "v1.0-sim", tmp_path / "out", {**BASE, "method": "oracle"}, on_vehicle=rewritten)
+    assert not (tmp_path / "out" / "result.json").exists()
+    run = run_calibration(sim_root, "v1.0-sim", tmp_path / "out", {**BASE, "method": "oracle"}, overwrite=True)
+    assert len(run.vehicles) == 2

@@ -96,6 +96,26 @@ def data_stamp(root: str | Path, version: str) -> dict:
                 timespec="seconds") if newest else None}
 
 
+def root_fingerprint(root: str | Path, version: str) -> tuple:
+    """What a run sees of a root's files without reading them: (name, inode, size, modification time ns) of the
+    version folder's tables and of each folder of ``samples/`` and ``sweeps/`` (a file added or removed there moves
+    its folder's time; a re-simulation or re-download replaces the folders). Taken at a run's start and end: a root
+    that changed while it read it (probe 142: ``simulate --overwrite`` started after the calibrate) is said, not
+    calibrated on a mix of old and new frames."""
+    root = Path(root)
+    paths = [*sorted((root / version).glob("*.json")),
+             *sorted(d for top in ("samples", "sweeps") if (root / top).is_dir() for d in (root / top).iterdir()
+                     if d.is_dir())]
+    out = []
+    for path in paths:
+        try:
+            st = path.stat()
+        except OSError:
+            continue
+        out.append((str(path.relative_to(root)), st.st_ino, st.st_size, st.st_mtime_ns))
+    return tuple(out)
+
+
 def absolute_path(option: str) -> str:
     """A path option (a checkpoint, a refining one, ``--init``) made absolute where it names an existing file or folder,
     so the same run typed from another folder is that run (probes 119, 121); a keyword ("", "none", "shipped") or a

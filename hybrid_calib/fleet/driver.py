@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from hybrid_calib.atomic import out_dir_lock
-from hybrid_calib.errors import check_api_out
+from hybrid_calib.errors import check_api_out, check_not_being_written
 from hybrid_calib.fleet.engines import ENGINES, run_engine
 from hybrid_calib.fleet.jobs import check_fleet_roots, discover_jobs, read_fleet_file
 from hybrid_calib.fleet.manifest import Manifest
@@ -66,6 +66,8 @@ def _fleet_into(roots, manifest, version: str, method: str, out: Path, seed: int
     from hybrid_calib.fleet.summary import write_summary
 
     sources = read_fleet_file(manifest, version) if manifest else [(str(r), version, None) for r in roots or []]
+    # each root, a manifest's too (probe 142: the command checked its --data only)
+    check_not_being_written([src[0] for src in sources], "data" if not manifest else f"fleet manifest {manifest}")
     if manifest:
         check_fleet_roots(sources, manifest)
     notes: list[str] = []
