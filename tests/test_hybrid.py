@@ -1274,8 +1274,24 @@ def test_a_root_rewritten_while_a_run_reads_it_gives_no_result(sim_root, tmp_pat
         table.unlink()
         table.write_text(text)
 
-    with pytest.raises(DataError, match="changed while this run read it .* rerun with --overwrite"):
-        run_calibration(sim_root, "v1.0-sim", tmp_path / "out", {**BASE, "method": "oracle"}, on_vehicle=rewritten)
-    assert not (tmp_path / "out" / "result.json").exists()
-    run = run_calibration(sim_root, "v1.0-sim", tmp_path / "out", {**BASE, "method": "oracle"}, overwrite=True)
+    def refilled(vr):  # a sensor folder replaced (simulate --overwrite removes them first): frames vanished meanwhile
+        folder = sim_root / "samples" / "CAM_FRONT"
+        folder.rename(folder.with_name("gone"))
+        folder.with_name("gone").rename(folder)  # (the same files here, so other tests read them as they were)
+        (folder / "x").write_text(""), (folder / "x").unlink()
+
+    from hybrid_calib.calib.pipeline import calibrate
+
+    # tables of the same bytes are the same data (probe 144: simulate run again on a complete root rewrites them)
+    run = run_calibration(sim_root, "v1.0-sim", tmp_path / "same", {**BASE, "method": "oracle"}, on_vehicle=rewritten)
     assert len(run.vehicles) == 2
+    for method in ("hybrid", "oracle"):  # the learned methods' loop; calibrate's oracle and --correspondences path
+        with pytest.raises(DataError, match="changed while this run read it .* the vehicles it finished are discarded"):
+            if method == "hybrid":
+                run_calibration(sim_root, "v1.0-sim", tmp_path / method, {**BASE, "method": "pure-avg"},
+                                on_vehicle=refilled)
+            else:
+                calibrate(sim_root, "v1.0-sim", "oracle", tmp_path / method, {"window": {"window": 3}},
+                          on_vehicle=refilled, progress=False)
+        assert not (tmp_path / method / "result.json").exists()
+        assert not (tmp_path / method / "vehicles-done").exists()  # probe 144: a rerun reused them

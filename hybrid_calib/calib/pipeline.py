@@ -45,7 +45,7 @@ from hybrid_calib.calib.result import (
 from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import check_seed, merge, save_json_atomic, to_dict
-from hybrid_calib.data.files import data_stamp
+from hybrid_calib.data.files import data_stamp, root_changed, root_changed_error, root_fingerprint
 from hybrid_calib.data.reference import ASTRAY_ROT_DEG, ASTRAY_TRANS_M, absolute_reference, reference_identity
 from hybrid_calib.data.summary import calibration_notes
 from hybrid_calib.data.views import ViewConfig, repeated_views
@@ -716,6 +716,7 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
         return reuse_result(out, data, version, str(correspondences), cfg)
     # before reading: data that change during the run are not this result's
     stamp_data = None if data is None else data_stamp(data, version)
+    seen = None if data is None else root_fingerprint(data, version)
     absent: dict[str, str] = {}
     unknown: dict[str, str] = {}  # files of a vehicle the root lacks, a vehicle of no frame: failed, the others run
     said: list[str] = []
@@ -764,6 +765,9 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
 
     done.fill(run, list(inputs), one, on_vehicle, progress)
     run.raise_if_none_done()
+    if stamp_data is not None and root_changed(data, version, seen, stamp_data["digest"]):  # rewritten under the run
+        done.finish()  # (probes 142, 144)
+        raise root_changed_error(data)
     save_json_atomic(out / "config.json", cfg)
     if stamp_data is not None:  # a rerun on changed data must not reuse it
         save_json_atomic(out / DATA_STAMP, stamp_data)

@@ -101,7 +101,7 @@ def root_fingerprint(root: str | Path, version: str) -> tuple:
     version folder's tables and of each folder of ``samples/`` and ``sweeps/`` (a file added or removed there moves
     its folder's time; a re-simulation or re-download replaces the folders). Taken at a run's start and end: a root
     that changed while it read it (probe 142: ``simulate --overwrite`` started after the calibrate) is said, not
-    calibrated on a mix of old and new frames."""
+    calibrated on a mix of old and new frames (``root_changed``)."""
     root = Path(root)
     paths = [*sorted((root / version).glob("*.json")),
              *sorted(d for top in ("samples", "sweeps") if (root / top).is_dir() for d in (root / top).iterdir()
@@ -114,6 +114,27 @@ def root_fingerprint(root: str | Path, version: str) -> tuple:
             continue
         out.append((str(path.relative_to(root)), st.st_ino, st.st_size, st.st_mtime_ns))
     return tuple(out)
+
+
+def root_changed(root: str | Path, version: str, seen: tuple, digest: str) -> bool:
+    """Whether the root changed since ``seen`` (its ``root_fingerprint``) and ``digest`` (its ``data_stamp`` then)
+    were taken: a sensor folder replaced, or added or removed files (a re-simulation, a re-download: frames vanished
+    under the reader), or tables of other content. Tables rewritten with the same bytes (``simulate`` run again on a
+    complete root: probe 144) are the same data."""
+    now = root_fingerprint(root, version)
+    if now == seen:
+        return False
+    folders = [[x for x in fp if not x[0].endswith(".json")] for fp in (seen, now)]
+    return folders[0] != folders[1] or data_stamp(root, version)["digest"] != digest
+
+
+def root_changed_error(root: str | Path) -> DataError:
+    """The ``DataError`` of a run whose root changed while it read it (``root_changed``): no result is written and its
+    kept vehicles are discarded (they were read from the changing root)."""
+    return DataError(f"{root} changed while this run read it (its tables or sensor folders were replaced: "
+                     "re-simulated, re-downloaded or edited by another process), so its frames are a mix of the old "
+                     "and the new data: no result is written, and the vehicles it finished are discarded; rerun once "
+                     "the root is complete", path=str(root))
 
 
 def absolute_path(option: str) -> str:

@@ -69,7 +69,7 @@ from hybrid_calib.calib.result import (
 from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
 from hybrid_calib.config import check_seed, merge, save_json_atomic, to_dict
-from hybrid_calib.data.files import absolute_path, data_stamp, root_fingerprint
+from hybrid_calib.data.files import absolute_path, data_stamp, root_changed, root_changed_error, root_fingerprint
 from hybrid_calib.data.pose_jitter import NOT_MEASURED
 from hybrid_calib.data.reference import absolute_reference, reference_identity
 from hybrid_calib.data.views import ViewConfig
@@ -869,11 +869,9 @@ def _calibrate_into(data, version: str, out: Path, conf: HybridConfig, overwrite
                            fresh=overwrite)
     done.fill(run, list(session.drives), session.vehicle, on_vehicle, conf.progress)
     run.raise_if_none_done()
-    if root_fingerprint(data, version) != seen:  # another process rewrote the root under the run (probe 142)
-        raise DataError(f"{data} changed while this run read it (its tables or sensor folders were replaced: "
-                        "re-simulated, re-downloaded or edited by another process), so its frames are a mix of the "
-                        "old and the new data and no result is written; rerun with --overwrite once the root is "
-                        "complete", path=str(data))
+    if root_changed(data, version, seen, stamp["digest"]):  # another process rewrote the root under the run (probe
+        done.finish()  # 142); its kept vehicles too: a rerun would reuse frames that vanished (probe 144)
+        raise root_changed_error(data)
     save_json_atomic(out / "config.json", {**stamped, **{k: v for k, v in to_dict(conf).items() if k in RUN_ONLY}})
     save_json_atomic(out / DATA_STAMP, stamp)  # a rerun on changed data must not reuse it
     run.save(out / "result.json")
