@@ -285,7 +285,7 @@ def out_dir_lock(out: str | Path, command: str, name: str = LOCK_NAME, what: str
     run's own line is in runs.json: the lock then no longer holds the command line.
 
     The typed functions that write a folder (``hybrid.run_calibration``, ``compare.compare``, ``fleet.run_fleet``,
-    ``sim.simulate.simulate``, the report's pages) hold it too (probe 140: a library run and a command wrote one
+    ``sim.simulate.simulate``) hold it too (probe 140: a library run and a command wrote one
     folder, and the command's result was replaced in silence), with ``reentrant``: a lock this process holds already
     is the command's that called them, and they go on under it."""
     import json
@@ -344,7 +344,7 @@ def out_dir_lock(out: str | Path, command: str, name: str = LOCK_NAME, what: str
             pass
 
 
-def _locked_file(path: Path, what) -> object:
+def _locked_file(path: Path, what):
     """The lock file at ``path`` opened (binary) and ``flock``ed exclusively, or ``OutDirBusy`` naming its holder.
     A holder unlinks the file at its end while still holding it: a run that opened it just before and locks it just
     after would hold a file no longer at the path while the next run locks a new one (probe 140: two holders), so
@@ -371,7 +371,7 @@ def _locked_file(path: Path, what) -> object:
             return f
         f.close()  # the file its last holder unlinked: open the one at the path now
     raise OutDirBusy(f"{what}: its lock file {path} keeps being replaced; wait for the other hybrid-calib runs "
-                     "there to end, or pass another --out")
+                     "there to end, or write elsewhere (another --out)")
 
 
 def _rewrite(f, path: Path, text: str) -> None:

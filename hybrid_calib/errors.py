@@ -195,8 +195,9 @@ def check_api_out(out: str | Path, command: str, data=None, version: str | None 
     a file (``check_out_dir``; not whether it can be written: a reused result writes nothing, and a write says its
     own error), lies in any nuScenes root's tables or sensor folders (``check_out_not_in_dataset``) or holds another
     command's outputs (``check_out_owner``; probe 67: the functions wrote into a root's version folder, its samples/
-    and a compare run's folder, which the commands refuse). ``page``: ``out`` is a page (a file): the folder of the
-    file it lands in (a symbolic link's target) is checked."""
+    and a compare run's folder, which the commands refuse); and ``data`` when a run writes it now
+    (``check_not_being_written``). ``page``: ``out`` is a page (a file): the folder of the file it lands in (a
+    symbolic link's target) is checked."""
     folder = page_target(out, "out").parent if page else Path(out)
     check_out_dir(folder, "out", writable=False)  # reusing an earlier result writes nothing (a read-only archive)
     if data is not None:
