@@ -1310,6 +1310,12 @@ def test_a_method_without_a_step_test_says_so_instead_of_counting_no_drift(local
     tested = {**summary, "counts": {**summary["counts"], "step_not_tested": 0}}  # oracle's window (probe 129)
     assert "sees no step in a drive's first frames" in drifted_words(tested)
     assert "first frames" not in drifted_words(summary)  # every drive untested: said so, not this
+    # batch results run no step test: said as such, with those whose fit says the mount moved (probe 145: "2 not
+    # tested: ... too short for the window's test" on 16-frame knocked drives whose results said "likely moved")
+    batch = {**summary, "counts": {**summary["counts"], "batch": 2, "fit_change": 2, "step_not_tested": 0}}
+    words = drifted_words(batch)
+    assert "not looked for on 2 batch result(s) (batch mode runs no step test" in words, words
+    assert "2 of them whose fit says the mount likely moved" in words and "too short" not in words
 
 
 def test_an_interrupted_fleet_leaves_no_job_running_in_its_manifest(fleet_root, tmp_path, monkeypatch):

@@ -592,6 +592,9 @@ def test_a_turn_since_the_export_is_told_by_the_doppler_drive_against_drive(then
         assert verdict_of(vr).word == "recalibrate"  # the report says it too
     kept = with_turn_since_export(_drift(then, "recalibrate"), mount)  # its own verdict kept, the turn said beside
     assert kept["verdict"].startswith("recalibrate: (a test)") and "at_end" not in kept
+    assert with_turn_since_export(d, mount) == d  # said once (probe 145: a fleet prior's calibration said it twice)
+    unsaid = with_turn_since_export(_drift(then), {"levels": [], "steps": []})
+    assert with_turn_since_export(unsaid, {"levels": [], "steps": []}) == unsaid
     steps = {**mount, "steps": [{"step_deg": 1.0, "std_deg": 0.1, "change": 3, "at": 5}],
              "levels": mount["levels"] * 2}
     assert turned_since_export(_drift(then), steps, 0.5) == ""  # a step inside the drive: with_mount_step's case

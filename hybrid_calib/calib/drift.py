@@ -607,7 +607,10 @@ def with_turn_since_export(drift: dict, mount: dict | None, method: str = "") ->
     "recalibrate" when it does (as ``with_mount_step`` for a step inside the drive; the verdict against the reference
     at the end kept in ``at_end``). A turn measured but not beyond the tolerance (``since_export_words``), or why none
     could be tested (``unchecked_since_export``, recorded as ``since_export: {"tested": false, "words"}``), is said
-    beside the verdict. Unchanged against the tables."""
+    beside the verdict. Unchanged against the tables, and when ``drift`` says it already (a calibration with a fleet
+    prior keeps the drive's own verdict: probe 145 read the sentence twice)."""
+    if "since_export" in drift:
+        return drift
     turn = since_export(drift, mount)
     tol = ((drift.get("axes") or {}).get("yaw") or {}).get("tolerance")
     if tol is None:
