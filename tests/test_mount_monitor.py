@@ -803,3 +803,27 @@ def test_a_vehicle_frame_the_tables_redefine_between_logs_is_not_a_turn(knocked_
     else:
         assert not boundary and len(mon.series) == len(first_only.series)
     assert reference_mounts(frames) is None  # a simulated root: its tables hold the truth, which a knock moves
+
+
+def test_a_turn_during_a_stop_on_a_short_drive_is_no_level():
+    """Probe 145: a radar turned 2 deg during a stop at a light, on a 20-frame drive of 8 tested frames (too few for
+    the step test), read one level of 0.35 deg over frames 1-19 (the yaw of no frame); the yaw check took it and the
+    estimate fused frames from both mounts, "weak". The readings either side of the untested stretch are compared."""
+    from hybrid_calib.calib.mount_monitor import current_level, monitor_trust_reason
+
+    g = np.random.default_rng(7)
+    for turn, split in ((2.0, True), (0.0, False)):
+        mon = MountMonitor(frames=None, T_ego_radar=np.eye(4))
+        for pos in (1, 2, 3, 4, 5, 16, 17, 18, 19):  # stood still at frames 6-15
+            mon.add_residual(pos, float(0.07 + (turn if pos >= 10 else 0.0) + g.normal(0, 0.1)), 5)
+        s = mon.summary()
+        assert ("split" in s) is split and not s["steps"], s
+        if split:
+            assert s["split"]["before_to"] == 5 and s["split"]["after_from"] == 16
+            assert abs(s["split"]["offset_deg"] - 2.0) < 0.3 and "no one level is its yaw" in s["implausible"]
+            assert current_level(s) is None and "may have turned between them" in monitor_trust_reason(s)
+        else:
+            assert current_level(s) is not None and monitor_trust_reason(s) == ""
+    # a drive long enough for the step test is the step test's (no split read)
+    long = _feed(np.r_[np.full(12, 0.1), np.full(12, 2.1)] + g.normal(0, 0.1, 24))
+    assert "split" not in long.summary()

@@ -72,6 +72,9 @@ MOUNT_KEY = "monitor_T_ego_radar"  # a sweep's extras: the reference radar mount
 MEDIAN_VAR = np.pi / 2  # variance of a Gaussian sample's median, in units of sigma^2 / n
 # the drive's last reading this far from the level, in its noise, of this many sweep pairs: said (``end_reading``)
 END_Z, END_PAIRS = 6.0, 3
+# on a drive too short for the step test, the readings either side of its longest untested stretch (at least this many
+# frames) this far apart in their noise: the radar may have turned there (``short_split``)
+SPLIT_GAP, SPLIT_Z = 3, 4.0
 
 
 @dataclass(frozen=True)
@@ -382,6 +385,30 @@ class MountMonitor:
                         "level_from": part[0][0], "level_to": part[-r - 1][0]}
         return None
 
+    def short_split(self) -> dict | None:
+        """On a drive too short for the step test (fewer readings than a level and an alarm need, no step), the
+        readings after its longest untested stretch (``SPLIT_GAP`` frames or more: a stop, a slow stretch) when they
+        lie ``SPLIT_Z`` or more of their noise from those before it (two readings a side at least), else None. Probe
+        145: a radar turned 2 deg during a stop at a light, on a 20-frame drive of 8 tested frames, read one level of
+        0.35 deg over frames 1-19 (the yaw of no frame), and the yaw check took it. {"before_to", "after_from"
+        (positions), "offset_deg", "std_deg" (deg)}."""
+        n = len(self.series)
+        if self.steps or n < 4 or n >= self.conf.min_frames + self.conf.blind_end():
+            return None
+        pos = [p for p, _ in self.series]
+        k = int(np.argmax(np.diff(pos)))
+        a = k + 1  # readings [0, a) before the stretch, [a, n) after it
+        if pos[a] - pos[k] < SPLIT_GAP or a < 2 or n - a < 2:
+            return None
+        before = np.array([y for _, y in self.series[:a]])
+        after = np.array([y for _, y in self.series[a:]])
+        s = max(self.level_scale(0, a), self.level_scale(a, n))
+        std = float(s * np.sqrt(MEDIAN_VAR / a + MEDIAN_VAR / (n - a)))
+        d = float(np.median(after) - np.median(before))
+        if abs(d) < SPLIT_Z * std:
+            return None
+        return {"before_to": int(pos[k]), "after_from": int(pos[a]), "offset_deg": d, "std_deg": std}
+
     def _cuts(self) -> list[int]:
         """The indices into ``series`` where its pieces start (0, each step's change), and its length last."""
         return [0] + [next(k for k, (p, _) in enumerate(self.series) if p >= s.change) for s in self.steps] + [
@@ -451,6 +478,13 @@ class MountMonitor:
                 f"{self.conf.max_level_deg:g} deg of its tables): the radar turned too near the drive's end for its "
                 f"step test (an alarm needs {self.conf.blind_end() + 1} frames), or those frames' velocity fields or "
                 "ego poses are wrong")}
+        if not implausible and (split := self.short_split()):
+            implausible = {"split": split, "implausible": (
+                f"on a drive too short for its step test, the radar's Doppler heading on the vehicle from frame "
+                f"{split['after_from']} on lies {split['offset_deg']:+.2f} +- {split['std_deg']:.2f} deg from its "
+                f"heading up to frame {split['before_to']} (the frames between untested: the vehicle stood still or "
+                "moved too slowly): the radar may have turned there, so no one level is its yaw; check its mount on "
+                "a longer drive")}
         end = self.end_reading() if not implausible else None
         last = levels[-1] if levels and levels[-1]["frames"] >= 3 and not implausible else None
         finds = {"finds_deg": self.conf.finds_deg(last["scatter_deg"], last["frames"]), "finds_within": 20,
@@ -714,11 +748,18 @@ def _spread(deg: float) -> str:
 def monitor_trust_reason(summary: dict | None,
                          max_level_deg: float = MountMonitorConfig.max_level_deg) -> str:
     """Why an estimate is not trusted for what the radar mount monitor saw, or "": its readings scatter beyond any
-    mount (``summary``'s "scattered": a radar that turned during the drive has no one extrinsic), its level lies
-    beyond ``max_level_deg`` from the tables (``summary``'s "far"), or it measured a step beyond ``max_level_deg``
-    at 3 sigma (probe 34: a radar turned 180 deg at frame 8 of 16; the verdict said
+    mount (``summary``'s "scattered": a radar that turned during the drive has no one extrinsic), the readings
+    either side of an untested stretch of a drive too short for the step test disagree (``summary``'s "split"), its
+    level lies beyond ``max_level_deg`` from the tables (``summary``'s "far"), or it measured a step beyond
+    ``max_level_deg`` at 3 sigma (probe 34: a radar turned 180 deg at frame 8 of 16; the verdict said
     "recalibrate", the estimate after the turn stayed `weak` with a yaw 1-sigma of 0.35 deg, 180 deg off: the
     network knows radars within a few degrees of their mount)."""
+    sp = (summary or {}).get("split")
+    if isinstance(sp, dict):  # probe 145: a radar turned during a stop, on a drive too short for the step test
+        return (f"the radar's own heading on the vehicle (its Doppler against the ego poses) from frame "
+                f"{sp['after_from']} on lies {sp['offset_deg']:+.2f} +- {sp['std_deg']:.2f} deg from the one up to "
+                f"frame {sp['before_to']}, on a drive too short for its step test: the radar may have turned between "
+                "them, and the estimate is of frames on both sides; calibrate a longer drive")
     sc = (summary or {}).get("scattered")
     if isinstance(sc, dict):
         return (f"the radar's own heading on the vehicle (its Doppler against the ego poses) scatters by "
