@@ -61,8 +61,39 @@ def monitor_root(root: Path, conf, step_at: int | None, kind: str, size: float, 
                      delay=(after[0] - step_at) if after else None, extra_alarms=max(len(after) - 1, 0))
         r["tested_all"] = sum(x.statistic is not None for x in readings)
         r["tail_prefixes"], r["tail_fired"] = tail_fired(mon, conf)
+        r["split_cuts"], r["split_fired"] = split_fired(mon, conf, step_at)
         rows.append(r)
     return rows
+
+
+SPLIT_PARTS = ((5, 4), (3, 3), (2, 6))  # readings before and after the untested stretch: a short drive with a stop
+
+
+def split_fired(mon, conf, step_at: int | None) -> tuple[int, int]:
+    """(cuts, fired): short drives cut from this drive's readings, each a few readings (``SPLIT_PARTS``), an untested
+    stretch of 3, 6 or 10 frames (a stop at a light) and a few more readings, fed to a fresh monitor, and how many its
+    short-drive split test (``MountMonitor.short_split``) flags. On an unchanged drive every cut is one mount: each
+    flag is false. On a drive with a step every cut whose stretch holds the step (readings on both sides of it) is a
+    turn during the stop: each flag is a detection; cuts on one side of the step are not counted."""
+    from hybrid_calib.calib.mount_monitor import MountMonitor
+
+    cuts = fired = 0
+    n = len(mon.series)
+    for a, b in SPLIT_PARTS:
+        for gap in (3, 6, 10):
+            for s in range(0, n, 3):
+                idx = [*range(s, s + a), *range(s + a + gap, s + a + gap + b)]
+                if idx[-1] >= n:
+                    break
+                pos = [mon.series[k][0] for k in idx]
+                if step_at is not None and not (pos[a - 1] < step_at <= pos[a]):
+                    continue
+                m = MountMonitor(frames=None, T_ego_radar=np.eye(4), conf=conf)
+                for k in idx:
+                    m.add_residual(mon.series[k][0], mon.series[k][1], mon.pairs[k], mon.own[k])
+                cuts += 1
+                fired += "split" in m.summary()
+    return cuts, fired
 
 
 def tail_fired(mon, conf) -> tuple[int, int]:
@@ -150,6 +181,14 @@ def main(argv=None) -> int:
     save_json_atomic(a.out / "summary.json", summary)
     print(f"the end-of-drive test (the last readings turned beyond {conf.max_level_deg:g} deg) on every drive cut "
           f"after each of its readings: flagged {tf} of {tp} cuts (every radar here turns less: each flag is false)")
+    for kind, words in (("none", "false"), ("rot", "detections of a turn inside the stretch")):
+        for size in sorted({r["size"] for r in rows if r["kind"] == kind}):
+            cu = sum(r["split_cuts"] for r in rows if r["kind"] == kind and r["size"] == size)
+            fi = sum(r["split_fired"] for r in rows if r["kind"] == kind and r["size"] == size)
+            summary.setdefault("split", {})[f"{kind}{size:g}"] = {"cuts": cu, "fired": fi}
+            print(f"the short-drive split test (a few readings, 3-10 untested frames, a few more) on cuts of the "
+                  f"{'unchanged drives' if kind == 'none' else f'{size:g} deg steps'}: flagged {fi} of {cu} ({words})")
+    save_json_atomic(a.out / "summary.json", summary)
     if len(z):
         print(f"reported step size against the knock: {100 * step_std['inside_1.96']:.0f} % of {len(z)} steps inside "
               f"+-1.96 std, mean z^2 {step_std['mean_z2']:.2f} (1 if the std is honest)")
