@@ -31,7 +31,7 @@ import numpy as np
 
 from hybrid_calib.atomic import atomic_path
 from hybrid_calib.config import merge, require_ranges, save_json_atomic, to_dict
-from hybrid_calib.data.files import NPZ_ERRORS
+from hybrid_calib.data.files import NPZ_ERRORS, file_stamp
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.errors import DataError, HybridCalibError
 
@@ -409,11 +409,7 @@ def depth_inputs(frame: RadarCameraFrame) -> str:
     h = hashlib.sha1()
     for p in (frame.image_path, frame.depth_path):
         if p is not None:
-            try:
-                st = Path(p).stat()
-                h.update(f"{Path(p).resolve()}/{st.st_size}/{st.st_mtime_ns}".encode())
-            except OSError:
-                h.update(f"{p}/absent".encode())
+            h.update(file_stamp(p).encode())
     for a in (frame.K, frame.T_cam_lidar, frame.lidar_points):
         if a is not None:
             h.update(np.ascontiguousarray(a).tobytes())

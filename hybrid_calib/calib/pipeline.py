@@ -520,18 +520,13 @@ def _export_record(folder: Path) -> dict:
     return rec if isinstance(rec, dict) else {}
 
 
-def _exporting_checkpoint(folder: Path) -> str | None:
-    """The checkpoint an ``evaluate`` export in ``folder`` ran (its ``export_config.json``), or None."""
-    ckpt = _export_record(folder).get("checkpoint")
-    return ckpt if isinstance(ckpt, str) else None
-
-
-def _exporting_depth(folder: Path) -> str | None:
-    """The depth estimator an ``evaluate`` export in ``folder`` ran its network on (its ``export_config.json``'s
-    ``eval.depth``, the checkpoint's training depth filled in), or None."""
-    ev = _export_record(folder).get("eval")
+def _exporter(folder: Path) -> tuple[str | None, str | None]:
+    """(checkpoint, depth) an ``evaluate`` export in ``folder`` ran its network with (its ``export_config.json``: the
+    checkpoint, and ``eval.depth``, the checkpoint's training depth filled in), each None where it does not say."""
+    rec = _export_record(folder)
+    ckpt, ev = rec.get("checkpoint"), rec.get("eval")
     depth = ev.get("depth") if isinstance(ev, dict) else None
-    return depth if isinstance(depth, str) and depth else None
+    return (ckpt if isinstance(ckpt, str) else None), (depth if isinstance(depth, str) and depth else None)
 
 
 _PINNED = re.compile(r"(?:^|: |; )([a-z][a-z ]*?) \(((?:rotation|translation) [^)]*)\) is prior-pinned")
@@ -747,9 +742,8 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
              **({} if stamp_data is None else {"data_stamp": stamp_data["digest"]})}
     done = VehicleProgress(out, data, version, str(correspondences), stamp, fresh=overwrite)
     method = "oracle" if correspondences == "oracle" else "measurements"  # rows from a directory (factors.io)
-    exporter = None if correspondences == "oracle" else _exporting_checkpoint(Path(correspondences))
-    # the depth its network read (the report's attention figure draws the network on it: probe 142)
-    depth = None if correspondences == "oracle" else _exporting_depth(Path(correspondences))
+    # the exporting network and the depth it read (the report's attention figure draws it on that: probe 142)
+    exporter, depth = (None, None) if correspondences == "oracle" else _exporter(Path(correspondences))
 
     def one(name: str) -> VehicleResult:
         res = calibrate_vehicle(inputs[name], conf, progress, (priors or {}).get(name))

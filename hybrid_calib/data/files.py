@@ -83,8 +83,7 @@ def data_stamp(root: str | Path, version: str) -> dict:
             newest = max(newest, path.stat().st_mtime_ns)
         except OSError:
             continue
-    for path in sorted(d for top in ("samples", "sweeps") if (root / top).is_dir()
-                       for d in (root / top).iterdir() if d.is_dir()):
+    for path in _sensor_folders(root):
         try:
             names = sorted(e.name for e in os.scandir(path))
             newest = max(newest, path.stat().st_mtime_ns)
@@ -96,6 +95,23 @@ def data_stamp(root: str | Path, version: str) -> dict:
                 timespec="seconds") if newest else None}
 
 
+def file_stamp(path: str | Path) -> str:
+    """What a file is on disk without reading it: "resolved path/size/modification time ns", or "path/absent" when it
+    cannot be stat'ed. The key of the caches of what is computed from a frame's files (``learned.depth.depth_inputs``,
+    the hybrid's image matches): a file replaced at its path is another file."""
+    try:
+        st = Path(path).stat()
+        return f"{Path(path).resolve()}/{st.st_size}/{st.st_mtime_ns}"
+    except OSError:
+        return f"{path}/absent"
+
+
+def _sensor_folders(root: Path) -> list[Path]:
+    """The folders of ``root``'s ``samples/`` and ``sweeps/`` (one per channel), sorted."""
+    return sorted(d for top in ("samples", "sweeps") if (root / top).is_dir() for d in (root / top).iterdir()
+                  if d.is_dir())
+
+
 def root_fingerprint(root: str | Path, version: str) -> tuple:
     """What a run sees of a root's files without reading them: (name, inode, size, modification time ns) of the
     version folder's tables and of each folder of ``samples/`` and ``sweeps/`` (a file added or removed there moves
@@ -103,9 +119,7 @@ def root_fingerprint(root: str | Path, version: str) -> tuple:
     that changed while it read it (probe 142: ``simulate --overwrite`` started after the calibrate) is said, not
     calibrated on a mix of old and new frames (``root_changed``)."""
     root = Path(root)
-    paths = [*sorted((root / version).glob("*.json")),
-             *sorted(d for top in ("samples", "sweeps") if (root / top).is_dir() for d in (root / top).iterdir()
-                     if d.is_dir())]
+    paths = [*sorted((root / version).glob("*.json")), *_sensor_folders(root)]
     out = []
     for path in paths:
         try:

@@ -42,7 +42,7 @@ from factors.robust import weight
 from hybrid_calib.atomic import write_bytes_atomic
 from hybrid_calib.calib.ego_doppler import pose_doppler_conflict, scene_break, sensor_travel
 from hybrid_calib.calib.schedule import GaussianPrior
-from hybrid_calib.data.files import NPZ_ERRORS, file_part
+from hybrid_calib.data.files import NPZ_ERRORS, file_part, file_stamp
 from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.geometry import retract, so3_exp, so3_log
 from hybrid_calib.sensors.radar_velocity import RadarVelocityConfig, estimate_velocity
@@ -168,19 +168,6 @@ def drive_std_rad(conf: MotionConfig, simulated: bool) -> float:
     return float(np.radians(conf.drive_std_deg if simulated else max(conf.drive_std_deg, conf.real_drive_std_deg)))
 
 
-def _image_stamp(frame) -> list:
-    """What a frame's camera image is on disk: [resolved path, size in bytes, modification time in ns] (the depth
-    cache's rule, ``learned.depth.depth_inputs``), or [path] when it cannot be read (the match then fails on it)."""
-    path = getattr(frame, "image_path", None)
-    if path is None:
-        return [None]
-    try:
-        st = Path(path).stat()
-        return [str(Path(path).resolve()), st.st_size, st.st_mtime_ns]
-    except OSError:
-        return [str(path)]
-
-
 @dataclass
 class MotionSource:
     """Motion measurements of one root's frames (``learned.dataset`` frames or any sequence of
@@ -231,8 +218,8 @@ class MotionSource:
         # 1.72 deg where its own read 12.64), and a root re-made at its path its old images' matches
         if self._identity is None:
             self._identity = str(getattr(self.frames, "identity", "") or "")
-        seen = hashlib.sha1(json.dumps([self._identity, _image_stamp(fa), _image_stamp(fb)]).encode(
-            "utf-8", "surrogateescape")).hexdigest()[:12]
+        stamps = [file_stamp(f.image_path) if getattr(f, "image_path", None) is not None else "" for f in (fa, fb)]
+        seen = hashlib.sha1(json.dumps([self._identity, *stamps]).encode()).hexdigest()[:12]
         pair = f"{file_part(fa.camera_token)}__{file_part(fb.camera_token)}-{seen}.npz"
         return Path(self.cache_dir) / "motion" / f"matches-{key}" / pair
 
