@@ -989,3 +989,37 @@ def test_the_page_s_residuals_measure_heights_from_the_road_as_calibrate_did(run
     run = CalibrationRun.load(result)
     evidence.gather(run, result, sorted(run.vehicles)[0], None, None, n_frames=1)
     assert seen and all(fc.height_plane_normal is not None and fc.height_plane_normal[2] > 0.99 for fc in seen)
+
+
+def test_a_library_report_keeps_out_of_a_page_another_run_writes(run_dir, tmp_path):
+    """The report command locked its page, the library's write_report and write_fleet_page did not: a library call
+    onto a page a command was writing removed that run's figures folder and replaced its page. Both take the page's
+    lock now (re-entrant under the command's own); another writer gets OutDirBusy naming the holder."""
+    import threading
+
+    from hybrid_calib.atomic import OutDirBusy
+    from hybrid_calib.report.html import page_lock
+
+    result = run_dir / "run" / "result.json"
+    page = tmp_path / "r.html"
+    held, done = threading.Event(), threading.Event()
+
+    def hold():
+        with page_lock(page, "report"):
+            held.set()
+            done.wait(60)
+
+    t = threading.Thread(target=hold)
+    t.start()
+    try:
+        assert held.wait(60)
+        for write in (lambda: write_report(result, page), lambda: write_fleet_page([result], page)):
+            with pytest.raises(OutDirBusy) as e:
+                write()
+            assert "hybrid-calib report" in str(e.value) and str(page) in str(e.value)
+        assert not page.exists()
+    finally:
+        done.set()
+        t.join()
+    with page_lock(page, "report"):  # the command's lock around the library call: re-entrant, the page is written
+        assert write_report(result, page, "sim-veh-000") == page and page.is_file()

@@ -31,8 +31,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from hybrid_calib.atomic import fit_name, out_dir_lock
     from hybrid_calib.report import write_report
+    from hybrid_calib.report.html import page_lock
 
     args.out_html = page_target(args.out_html)  # a link: its target is the page, checked and locked (probe 70)
     check_arguments(args)
@@ -41,8 +41,7 @@ def run(args: argparse.Namespace) -> int:
     reject_set_keys(overrides, {"frames": "--frames", "checkpoint": "--checkpoint"})
     overrides.update(frames=args.frames, checkpoint=args.checkpoint)
     # one run per page (probe 60: two runs onto one page both said "wrote" and one vehicle's page was lost)
-    with out_dir_lock(args.out_html.parent, "report", name=fit_name(f".{args.out_html.name}.lock"),
-                      what=f"the page {args.out_html}"):
+    with page_lock(args.out_html, "report"):
         path = write_report(args.result, args.out_html, args.vehicle, args.data, args.version, overrides)
     print(f"wrote {path}")
     return 0

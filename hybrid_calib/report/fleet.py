@@ -24,7 +24,7 @@ from hybrid_calib.calib.result import CalibrationRun, VehicleResult
 from hybrid_calib.config import merge
 from hybrid_calib.data.files import file_part
 from hybrid_calib.errors import DataError, HybridCalibError, check_api_out
-from hybrid_calib.report.html import esc, figures_folder, img_tag, num, verdict_class, write_page
+from hybrid_calib.report.html import esc, figures_folder, img_tag, num, page_lock, verdict_class, write_page
 from hybrid_calib.report.vehicle import ReportConfig, write_report
 from hybrid_calib.report.verdict import DELTA_KEYS, VERDICTS, Verdict, verdict_of
 from hybrid_calib.words import n_vehicles
@@ -69,12 +69,21 @@ def write_fleet_page(results: Sequence[str | Path], out: str | Path, design: np.
     vehicle name of a single-vehicle result (two roots may both hold ``sim-veh-000``); ``flagged`` and
     ``reports`` then use the labels. not_done: vehicle -> why it has no result ("failed: <reason>", "pending"):
     listed on the page and counted, so a fleet with failures does not read as a smaller, clean one. Returns the
-    path written."""
-    from hybrid_calib.plots.fleet import COLOURS, draw_fleet
-
+    path written; ``OutDirBusy`` when another run writes that page (``html.page_lock``)."""
     conf = merge(ReportConfig, conf)
     out = Path(out)
     check_api_out(out, "fleet", page=True)
+    with page_lock(out, "fleet"):  # a library call is kept apart from another writer of the page as report's is
+        return _write_fleet_page(results, out, design, flagged, reports, data, version, conf, labels, not_done)
+
+
+def _write_fleet_page(results: Sequence[str | Path], out: Path, design: np.ndarray | None,
+                      flagged: Sequence[str] | Mapping[str, Sequence[str]], reports: Mapping[str, str | Path] | None,
+                      data: str | Path | None, version: str | None, conf: ReportConfig, labels: Sequence[str] | None,
+                      not_done: Mapping[str, str] | None) -> Path:
+    """``write_fleet_page`` under the page's lock."""
+    from hybrid_calib.plots.fleet import COLOURS, draw_fleet
+
     if not results:
         raise DataError("no result file given for the fleet page")
     design = None if design is None else np.asarray(design, np.float64)

@@ -12,7 +12,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from hybrid_calib.atomic import fit_name
+from hybrid_calib.atomic import fit_name, out_dir_lock
 from hybrid_calib.config import save_text_atomic
 from hybrid_calib.errors import DataError, check_out_not_in_dataset, page_target
 
@@ -116,6 +116,18 @@ def written_from(path: Path, source: str) -> bool:
     # and whole: a page cut short (probe 59: 5000 bytes, ending mid-table) is written again
     return f"<meta name=\"{SOURCE_META}\" content=\"{esc(source)}\">" in text[:4096] and \
         text.rstrip().endswith("</html>")
+
+
+@contextmanager
+def page_lock(page: Path, command: str) -> Iterator[None]:
+    """Hold the lock of one page (``.<page name>.lock`` beside it) while ``command`` writes it: a second writer of
+    that page gets ``OutDirBusy`` naming the first (probe 60: two report runs both said "wrote" and one page was
+    lost). Re-entrant in one thread: the report command holds it around ``write_report``, which takes it too, so a
+    library call is kept apart as the command is (it removed the other writer's figures folder)."""
+    page = Path(page)
+    with out_dir_lock(page.parent, command, name=fit_name(f".{page.name}.lock"), what=f"the page {page}",
+                      reentrant=True):
+        yield
 
 
 @contextmanager

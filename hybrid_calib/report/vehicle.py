@@ -19,7 +19,16 @@ from hybrid_calib.calib.result import CalibrationRun, VehicleResult, extrinsic_r
 from hybrid_calib.config import merge, to_dict
 from hybrid_calib.errors import HybridCalibError, check_api_out
 from hybrid_calib.report.evidence import Evidence, frame_words, gather, reference_name
-from hybrid_calib.report.html import esc, figures_folder, img_tag, num, verdict_class, write_page, written_from
+from hybrid_calib.report.html import (
+    esc,
+    figures_folder,
+    img_tag,
+    num,
+    page_lock,
+    verdict_class,
+    write_page,
+    written_from,
+)
 from hybrid_calib.report.verdict import AXIS_NAMES, Tolerance, Verdict, verdict_of
 from hybrid_calib.words import did_you_mean, n_frames, some_of
 
@@ -270,13 +279,20 @@ def write_report(result: str | Path, out: str | Path, vehicle: str | None = None
 
     data / version: the nuScenes root for the camera frames (default: the run's own, when it is there). ``keep``: a
     page at ``out`` written from the same result, options and code (``page_key``) is kept as it is.
-    Returns the path written. ``HybridCalibError`` / ``DataError`` for a bad result or vehicle."""
-    from hybrid_calib.report.attention import attention_html
-
+    Returns the path written. ``HybridCalibError`` / ``DataError`` for a bad result or vehicle; ``OutDirBusy`` when
+    another run writes that page (``html.page_lock``)."""
     conf = merge(ReportConfig, conf)
     t0 = time.perf_counter()
     check_api_out(out, "report", page=True)
-    result = Path(result)
+    with page_lock(Path(out), "report"):
+        return _write_report(Path(result), Path(out), vehicle, data, version, conf, keep, t0)
+
+
+def _write_report(result: Path, out: Path, vehicle: str | None, data: str | Path | None, version: str | None,
+                  conf: ReportConfig, keep: bool, t0: float) -> Path:
+    """``write_report`` under the page's lock."""
+    from hybrid_calib.report.attention import attention_html
+
     key = page_key(result, vehicle, data, version, conf) if result.is_file() else ""
     if keep and key and written_from(Path(out), key):
         return Path(out)
