@@ -45,9 +45,9 @@ from hybrid_calib.config import (
     save_text_atomic,
     to_dict,
 )
-from hybrid_calib.data.files import read_npz
+from hybrid_calib.data.files import read_npz, watch_roots
 from hybrid_calib.data.frame import RadarCameraFrame
-from hybrid_calib.errors import HybridCalibError
+from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.metrics import (
     METRIC_KEYS,
     STD_KEYS_RADAR,
@@ -447,7 +447,14 @@ def evaluate(model, frames: Sequence[RadarCameraFrame], conf: EvalConfig | dict,
         if not conf.depth_cache:  # its own: recomputed from the data as they are now
             shutil.rmtree(out / "depth-cache", ignore_errors=True)
     save_json_atomic(cfg_path, record)
+    changed = watch_roots(data)  # a root rewritten under the run (as calibrate's: probe 142)
     METHODS[conf.method](model, frames, conf, out, overwrite=overwrite, progress=progress, **method_options)
+    if (root := changed()) is not None:  # as calibrate (probe 142): the frames exported are of the old and the new
+        raise DataError(f"{root} changed while this run read it (its tables or sensor folders were replaced: "
+                        "re-simulated, re-downloaded or edited by another process), so the frames exported are a "
+                        f"mix of the old and the new data: no table is written; rerun with --overwrite once the "
+                        f"root is complete (the frames in {out} were read from data the root no longer holds)",
+                        path=str(root))
     result = evaluate_predictions(out, conf.method)
     write_report(result, out, record)
     return result

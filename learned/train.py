@@ -37,9 +37,9 @@ import torch
 
 from hybrid_calib.atomic import leave_bars, remove_temporaries
 from hybrid_calib.config import ConfigError, merge, read_out_record, require_ranges, save_json_atomic, to_dict
-from hybrid_calib.data.files import absolute_path
+from hybrid_calib.data.files import absolute_path, watch_roots
 from hybrid_calib.data.frame import RadarCameraFrame
-from hybrid_calib.errors import HybridCalibError, stop_signal_of
+from hybrid_calib.errors import DataError, HybridCalibError, stop_signal_of
 from hybrid_calib.metrics import extrinsic_error
 from learned.checkpoint import checkpoint_stem, latest_checkpoint, load_checkpoint, orphaned_weights, save_checkpoint
 from learned.dataset import CalibDataset, DatasetConfig, SplitConfig, collate, index_skip_records, split_indices
@@ -396,8 +396,6 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
         try:
             loaded = model.load_context_weights(conf.context_weights)
         except (ValueError, KeyError, RuntimeError, OSError) as e:  # not ResNet-18 weights, or not readable
-            from hybrid_calib.errors import DataError
-
             raise DataError(f"context_weights: {e}; pass ResNet-18 ImageNet weights (torchvision key names)",
                             path=str(conf.context_weights)) from e
         log.info("image context network: %d tensors from %s", len(loaded), conf.context_weights)
@@ -423,6 +421,7 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
                                               "skipped_frames", "nonfinite_steps", "seconds"], start - 1)
     tb = _tensorboard(out)
     last_path = last
+    changed = watch_roots(source)  # a root rewritten under the run (as calibrate's: probe 142)
     with _stopped_workers_stop_the_run():  # a worker the group's signal ended: that signal (probe 111)
         for epoch in range(start, conf.epochs + 1):
             t0 = time.time()
@@ -483,6 +482,13 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
                 for k, v in metrics.items():
                     if k.startswith("val_"):
                         tb.add_scalar(f"val/{k[4:]}", v, epoch)
+            if (root := changed()) is not None:  # the epoch read old and new frames: not saved as one of these
+                raise DataError(f"{root} changed while epoch {epoch} read it (its tables or sensor folders were "
+                                "replaced: re-simulated, re-downloaded or edited by another process), so the epoch "
+                                "trained on a mix of the old and the new data and its checkpoint is not written"
+                                + (f"; {last_path.name}, of the data the run began with, is kept" if last_path else "")
+                                + ": train again into another --out once the root is complete"
+                                + (" (--init that checkpoint to go on from it)" if last_path else ""), path=str(root))
             last_path = save_checkpoint(checkpoint_stem(ckpt_dir, epoch), model, epoch=epoch,
                                         model_config=model_conf_dict, train_config=to_dict(conf), metrics=metrics,
                                         optimizer=optimizer, scheduler=scheduler, data=source)

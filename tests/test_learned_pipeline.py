@@ -841,3 +841,48 @@ def test_an_evaluation_resumed_from_another_folder_is_the_same_run(sim_root, tmp
     assert _run_command("evaluate", [*argv, "--checkpoint", "small-sim-r1.json"]) == 0
     monkeypatch.chdir(work / "sub")
     assert _run_command("evaluate", [*argv, "--checkpoint", "../small-sim-r1.json"]) == 0, capsys.readouterr().err
+
+
+def test_a_root_rewritten_during_an_evaluation_or_a_training_epoch_is_said(frames, tmp_path, monkeypatch):
+    """Calibrate refused a root another process rewrote under it (probe 142); evaluate tabled frames exported from the
+    old and the new data, and train saved a checkpoint of an epoch that read both. Now the evaluation writes no
+    table and the epoch no checkpoint (the earlier epochs' are kept), each naming the root."""
+    import learned.train as train_mod
+    from hybrid_calib.errors import DataError
+    from learned.checkpoint import latest_checkpoint
+    from learned.evaluate import EvalConfig, evaluate
+    from learned.train import train, train_config
+
+    root = tmp_path / "root"
+    (root / "v1.0-sim").mkdir(parents=True)
+    table = root / "v1.0-sim" / "sample_data.json"
+    table.write_text("[]")
+    data = {"roots": [str(root)], "version": "v1.0-sim"}
+
+    def rewritten(*args, **kwargs):  # another process re-simulates the root while the frames are read
+        table.write_text(table.read_text() + "\n")
+        return oracle_exporter(*args, **kwargs)
+
+    conf = EvalConfig(perturbation="R1", split="test", split_options=SplitConfig(test_groups=("scene-3",)),
+                      max_radar_points=64, max_lidar_points=64, batch_size=2)
+    assert evaluate(OracleModel(), frames, conf, tmp_path / "e0", exporter=oracle_exporter, progress=False,
+                    data=data).n_frames == 3  # unchanged: as before
+    with pytest.raises(DataError, match="changed while this run read it") as e:
+        evaluate(OracleModel(), frames, conf, tmp_path / "e1", exporter=rewritten, progress=False, data=data)
+    assert str(root) in str(e.value) and "--overwrite" in str(e.value)
+    assert not (tmp_path / "e1" / "results.json").exists()
+
+    validate, calls = train_mod.validate, []
+
+    def validate_then_rewrite(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:  # during epoch 2
+            table.write_text(table.read_text() + "\n")
+        return validate(*args, **kwargs)
+
+    monkeypatch.setattr(train_mod, "validate", validate_then_rewrite)
+    run = tmp_path / "run"
+    with pytest.raises(DataError, match="changed while epoch 2 read it") as e:
+        train(train_config("small", _train_conf(tmp_path, 2)), frames, run, progress=False, source=data)
+    assert "ckpt-0001.json, of the data the run began with, is kept" in str(e.value) and str(root) in str(e.value)
+    assert latest_checkpoint(run / "checkpoints").name == "ckpt-0001.json"

@@ -17,7 +17,7 @@ import os
 import stat
 import zipfile
 import zlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -149,6 +149,25 @@ def root_changed_error(root: str | Path) -> DataError:
                      "re-simulated, re-downloaded or edited by another process), so its frames are a mix of the old "
                      "and the new data: no result is written, and the vehicles it finished are discarded; rerun once "
                      "the root is complete", path=str(root))
+
+
+def watch_roots(record: dict | None) -> Callable[[], str | None]:
+    """A function giving the first root of ``record`` that changed (``root_changed``) since this call, or None: for the
+    runs that read roots for long (``evaluate``'s export, ``train``'s epochs), as ``run_calibration`` checks its one
+    root. ``record``: what a run records of its data, {"roots", "version", "stamps" (their ``data_stamp`` digests,
+    optional)}; without roots, a watch of nothing."""
+    if not record or not record.get("roots") or not record.get("version"):
+        return lambda: None
+    roots, version = [str(r) for r in record["roots"]], record["version"]
+    digests = record.get("stamps")
+    if digests is None or len(digests) != len(roots):
+        digests = [data_stamp(r, version)["digest"] for r in roots]
+    seen = [root_fingerprint(r, version) for r in roots]
+
+    def first_changed() -> str | None:
+        return next((r for r, fp, d in zip(roots, seen, digests) if root_changed(r, version, fp, d)), None)
+
+    return first_changed
 
 
 def absolute_path(option: str) -> str:
