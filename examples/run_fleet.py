@@ -3,15 +3,15 @@
 Shows ``hybrid_calib.fleet.driver.run_fleet`` (engine local or process): one job per vehicle, a
 manifest that makes a rerun resume, and the fleet view (``summary.json`` / ``summary.md``: verdict
 against the vehicle's tables, step alarms inside the drive, fleet outliers), then the HTML pages
-(``fleet.html`` and a ``report.html`` per vehicle) with ``commands.fleet.write_fleet_pages``.
+(``fleet.html`` and a ``report.html`` per vehicle) with ``report.write_fleet_pages``.
 
     .venv/bin/python examples/run_fleet.py --out outputs/examples/fleet --frames 20 --vehicles 3
 """
 
 from _common import example_args
 
-from hybrid_calib.commands.fleet import write_fleet_pages
 from hybrid_calib.fleet.driver import FleetOptions, run_fleet
+from hybrid_calib.report import write_fleet_pages
 from hybrid_calib.sim.drive import SimConfig
 from hybrid_calib.sim.simulate import simulate
 

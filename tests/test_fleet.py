@@ -756,7 +756,7 @@ def test_fleet_file_lists_roots_and_bad_files_name_themselves(tmp_path):
 
 
 def test_fleet_command_pages_link_every_done_vehicle(local_run):
-    from hybrid_calib.commands.fleet import write_fleet_pages
+    from hybrid_calib.report import write_fleet_pages
 
     out, _ = local_run
     summary = json.loads((out / "summary.json").read_text())

@@ -177,10 +177,10 @@ def run_demo(out: str | Path, conf: DemoConfig | dict | None = None, overwrite: 
     import shutil
     from functools import partial
 
-    from hybrid_calib.commands.fleet import write_fleet_pages
     from hybrid_calib.fleet.driver import FleetOptions, run_fleet
     from hybrid_calib.hybrid import HybridConfig, run_calibration
     from hybrid_calib.plots.calibration import plot_vehicle
+    from hybrid_calib.report import write_fleet_pages
     from hybrid_calib.sim.drive import SimConfig
     from hybrid_calib.sim.simulate import simulate
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 from hybrid_calib.commands import (
@@ -77,6 +76,7 @@ def run(args: argparse.Namespace) -> int:
     from hybrid_calib.fleet.driver import FleetOptions, run_fleet
     from hybrid_calib.fleet.prior import load_priors
     from hybrid_calib.fleet.summary import drifted_words
+    from hybrid_calib.report import write_fleet_pages
 
     check_options(args)
     calib = parse_overrides(args.set)
@@ -178,25 +178,3 @@ def check_options(args: argparse.Namespace) -> None:
     if args.workers > MAX_PROCESSES and args.address is None:  # a cluster's CPUs may be more than one machine's
         raise OptionError("--workers", f"{args.workers} processes on this machine: at most {MAX_PROCESSES} (pass the "
                                        "cores to use); more only with --engine ray --address (a cluster)")
-
-
-def write_fleet_pages(summary: dict, out: Path) -> Path | None:
-    """The fleet page ``out/fleet.html`` and one report per done vehicle (beside its result.json),
-    with the fleet's design mount and the vehicles it flagged; None when no vehicle is done."""
-    import numpy as np
-
-    from hybrid_calib.report import write_fleet_page
-
-    done = {jid: r for jid, r in summary["vehicles"].items() if r["state"] == "done"}
-    if not done:
-        return None
-    # about 2 s a page (probe 57: 48 s of silence after the fleet's bar on 20 vehicles); unchanged ones are kept
-    print(f"writing the fleet page and {len(done)} vehicle report page(s) (a page whose result did not change since "
-          "it was written is kept) ...", file=sys.stderr, flush=True)
-    design = (summary.get("design_mount") or {}).get("T_cam_radar")
-    others = {jid: (r["state"] if r["state"] != "failed" else f"failed: {r.get('reason') or ''}")
-              for jid, r in summary["vehicles"].items() if r["state"] != "done"}
-    return write_fleet_page([out / r["result"] for r in done.values()], out / "fleet.html",
-                            design=None if design is None else np.asarray(design),
-                            flagged={jid: r.get("flags") or () for jid, r in done.items()}, labels=list(done),
-                            not_done=others)

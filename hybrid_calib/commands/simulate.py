@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from hybrid_calib.commands import given_flags, positive_int, process_count, seed_int
@@ -40,6 +39,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from hybrid_calib.data.nuscenes import load_sim_vehicles
     from hybrid_calib.sim.simulate import simulate
 
     overrides = parse_overrides(args.set)
@@ -69,8 +69,7 @@ def run(args: argparse.Namespace) -> int:
     root = simulate(conf, args.out, overwrite=args.overwrite, workers=args.workers,
                     progress=not args.no_progress)
     truth = Path(root) / SIM_VERSION / "sim_vehicle.json"
-    failed = {v["vehicle"]: len(v.get("failed_frames") or []) for v in
-              (json.loads(truth.read_text()) if truth.is_file() else [])}
+    failed = {v["vehicle"]: len(v.get("failed_frames") or []) for v in load_sim_vehicles(truth.parent).values()}
     n_bad = sum(failed.values())
     frames = f"{conf.frames} frames" if not n_bad else \
         f"{conf.frames} frames, {conf.vehicles * conf.frames - n_bad} of {conf.vehicles * conf.frames} written"

@@ -213,7 +213,7 @@ class NuScenesRadarCamera:
                 raise DataError(f"channel {ch!r} ({option}) is a {found or 'unknown'} sensor in sensor.json, not a "
                                 f"{modality}; {modality} channels present: {same}",
                                 path=str(self.tables.path("sensor")))
-        self.sim_vehicles: dict[str, dict] = _load_sim_vehicles(self.tables.vdir)
+        self.sim_vehicles: dict[str, dict] = load_sim_vehicles(self.tables.vdir)
         # written by the simulator: its vehicles' factory calibrations (sim_vehicle.json), not a folder's name (probe
         # 137: a real root in a folder named v1.0-sim, the commands' default, was never split); a root simulated
         # before the file, or whose file does not read (said), is read as a real one
@@ -1011,7 +1011,7 @@ def _check_channel_file(sd: dict, channel: str, table: Path, root: Path | None =
                         f"calibrated_sensor_token in sample_data.json", path=str(table), token=sd.get("token"))
 
 
-def _load_sim_vehicles(vdir: Path) -> dict[str, dict]:
+def load_sim_vehicles(vdir: Path) -> dict[str, dict]:
     """``VERSION/sim_vehicle.json`` (written by the simulator) -> log_token -> vehicle record; {} if absent.
 
     A file that cannot be read or parsed is read as absent (a ``SimVehicleWarning`` says so): the root is then
@@ -1065,7 +1065,7 @@ def simulated_root(data, version: str) -> bool:
         return False
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SimVehicleWarning)
-        return bool(_load_sim_vehicles(vdir))
+        return bool(load_sim_vehicles(vdir))
 
 
 class SimVehicleWarning(UserWarning):

@@ -7,13 +7,16 @@ read from result files only (``calib.result``) and the data root for the images.
 - ``write_fleet_page(results, out, design=None, flagged=(), reports=None, conf=None) -> Path``: the fleet
   page (fleet plot of offsets from the design mount, sortable table of vehicles with status and verdict,
   links to the per-vehicle pages).
+- ``write_fleet_pages(summary, out) -> Path | None``: a fleet run's pages from its ``summary.json`` (the fleet
+  page and a page per done vehicle).
 - ``verdict_of(vehicle_result, tolerance) -> Verdict``: the verdict in words (``verdict``).
 
 Figures come from ``hybrid_calib.plots`` (``plots.report``, ``plots.network``).
 """
 
-from hybrid_calib.report.fleet import write_fleet_page
+from hybrid_calib.report.fleet import write_fleet_page, write_fleet_pages
 from hybrid_calib.report.vehicle import ReportConfig, write_report
 from hybrid_calib.report.verdict import Tolerance, Verdict, verdict_of
 
-__all__ = ["ReportConfig", "Tolerance", "Verdict", "verdict_of", "write_fleet_page", "write_report"]
+__all__ = ["ReportConfig", "Tolerance", "Verdict", "verdict_of", "write_fleet_page", "write_fleet_pages",
+           "write_report"]
