@@ -14,6 +14,7 @@ import numpy as np
 
 from hybrid_calib.errors import HybridCalibError
 from hybrid_calib.geometry import check_transform, perturb_camera_frame
+from hybrid_calib.seeds import keyed_rng
 
 # name -> (max |angle| degrees, max |offset| metres) per axis
 RANGES: dict[str, tuple[float, float]] = {"R0": (2.0, 0.10), "R1": (10.0, 0.25), "R2": (20.0, 1.5)}
@@ -45,13 +46,11 @@ def perturbed_start(T_cam_radar: np.ndarray, g: np.random.Generator, name: str) 
 def vehicle_rng(seed: int, vehicle: str, purpose: str = "start") -> np.random.Generator:
     """A generator fixed by (seed, vehicle, purpose) alone: a vehicle's start does not depend on which
     other vehicles a run holds, their order, or the method (every method sees the same start)."""
-    import hashlib
 
     if not (isinstance(seed, (int, np.integer)) and not isinstance(seed, bool) and 0 <= seed < 2**63):
         raise HybridCalibError(f"vehicle_rng: seed {seed!r} is not a whole number in 0..2**63-1 (1.7 was truncated, "
                                "'3' taken as text)")
-    digest = hashlib.sha1(f"{purpose}:{int(seed)}:{vehicle}".encode()).digest()
-    return np.random.default_rng(int.from_bytes(digest[:8], "little"))
+    return keyed_rng(purpose, int(seed), vehicle)
 
 
 def vehicle_start(base: np.ndarray, kind: str, seed: int, vehicle: str) -> np.ndarray:

@@ -26,7 +26,6 @@ evaluation fixes one per (seed, frame index), whatever the epoch.
 
 from __future__ import annotations
 
-import hashlib
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -42,6 +41,7 @@ from hybrid_calib.data.tables import SIM_VERSION
 from hybrid_calib.errors import DataError, HybridCalibError
 from hybrid_calib.geometry import perturb_camera_frame, transform_points
 from hybrid_calib.perturbation import perturbation_bounds, sample_perturbation
+from hybrid_calib.seeds import keyed_rng, keyed_seed
 from learned.depth import DepthCache, DepthEstimator
 
 log = logging.getLogger(__name__)
@@ -97,11 +97,6 @@ class SplitConfig:
         require_ranges(self, {"val_fraction": "[0, 1)", "test_fraction": "[0, 1)", "gap_frames": "[0, 1e6]"})
 
 
-def _rng(*keys: int | str) -> np.random.Generator:
-    digest = hashlib.sha1(":".join(str(k) for k in keys).encode()).digest()
-    return np.random.default_rng(int.from_bytes(digest[:8], "little"))
-
-
 # ---------------------------------------------------------------------------------------------
 # Splits
 
@@ -125,7 +120,7 @@ def assign_split(group: str, conf: SplitConfig) -> str:
         return "val"
     if conf.test_groups or conf.val_groups:
         return "train"
-    u = int.from_bytes(hashlib.sha1(f"{conf.salt}:{group}".encode()).digest()[:8], "little") / 2.0**64
+    u = keyed_seed(conf.salt, group) / 2.0**64
     if u < conf.test_fraction:
         return "test"
     if u < conf.test_fraction + conf.val_fraction:
@@ -367,7 +362,8 @@ class CalibDataset(torch.utils.data.Dataset):
         and ``--data B A`` gave every frame another start, and the table other figures: probe 114)."""
         c = self.conf
         fi = self.indices[i]
-        g = _rng("train", c.seed, self.epoch, fi) if self.train else _rng("eval", c.seed, camera_token(self.frames, fi))
+        g = (keyed_rng("train", c.seed, self.epoch, fi) if self.train else
+             keyed_rng("eval", c.seed, camera_token(self.frames, fi)))
         return sample_perturbation(g, c.perturbation)
 
     def __getitem__(self, i: int) -> dict | None:
@@ -418,7 +414,7 @@ class CalibDataset(torch.utils.data.Dataset):
             T_init = perturb_camera_frame(T_gt, xi[:3], xi[3:])
             radar = np.asarray(frame.radar_points, np.float64).reshape(-1, 3)
             radar = radar[np.all(np.isfinite(radar), axis=1)]
-        g = _rng("subsample", c.seed, frame.camera_token)
+        g = keyed_rng("subsample", c.seed, frame.camera_token)
         radar_pad, radar_mask = _pad(radar, c.max_radar_points, g)
 
         lidar_cam = np.zeros((0, 3))

@@ -34,6 +34,7 @@ from hybrid_calib.config import merge, require_ranges, save_json_atomic, to_dict
 from hybrid_calib.data.files import NPZ_ERRORS, file_stamp
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.errors import DataError, HybridCalibError
+from hybrid_calib.seeds import keyed_rng
 
 
 class DepthEstimator(Protocol):
@@ -50,12 +51,6 @@ class DepthEstimator(Protocol):
 def _hash_config(name: str, conf) -> str:
     blob = json.dumps({"name": name, "conf": to_dict(conf)}, sort_keys=True).encode()
     return hashlib.sha1(blob).hexdigest()[:12]
-
-
-def _frame_seed(seed: int, token: str) -> np.random.Generator:
-    """A generator fixed by (seed, frame token): the same frame always gets the same corruption."""
-    digest = hashlib.sha1(f"{seed}:{token}".encode()).digest()
-    return np.random.default_rng(int.from_bytes(digest[:8], "little"))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -126,7 +121,7 @@ class CorruptedTruthDepth:
         H, W = int(size_hw[0]), int(size_hw[1])
         d = cv2.resize(np.asarray(truth, np.float32), (W, H), interpolation=cv2.INTER_NEAREST)
         valid = d > 0
-        g = _frame_seed(c.seed, token)
+        g = keyed_rng(c.seed, token)  # the same frame always gets the same corruption
         # 1. smoothing across edges (normalised convolution keeps unknown pixels out of the average)
         if c.edge_blur_px > 0:
             num = cv2.GaussianBlur(d * valid, (0, 0), c.edge_blur_px, borderType=cv2.BORDER_REFLECT)

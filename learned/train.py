@@ -18,7 +18,6 @@ same as an uninterrupted run (shuffling, perturbations and torch's RNG are seede
 from __future__ import annotations
 
 import csv
-import hashlib
 import io
 import json
 import logging
@@ -41,6 +40,7 @@ from hybrid_calib.data.files import absolute_path, watch_roots
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.errors import DataError, HybridCalibError, stop_signal_of
 from hybrid_calib.metrics import extrinsic_error
+from hybrid_calib.seeds import keyed_seed
 from learned.checkpoint import checkpoint_stem, latest_checkpoint, load_checkpoint, orphaned_weights, save_checkpoint
 from learned.dataset import CalibDataset, DatasetConfig, SplitConfig, collate, index_skip_records, split_indices
 from learned.depth import DepthCache, build_depth_estimator
@@ -155,10 +155,6 @@ def dataset_config(conf: TrainConfig, model_conf) -> DatasetConfig:
     return DatasetConfig(height=H, width=W, max_radar_points=conf.max_radar_points,
                          max_lidar_points=conf.max_lidar_points, perturbation=conf.perturbation, seed=conf.seed,
                          variant=model_conf.variant)
-
-
-def _seed(*keys) -> int:
-    return int.from_bytes(hashlib.sha1(":".join(map(str, keys)).encode()).digest()[:4], "little")
 
 
 def to_device(batch: dict, device: str | torch.device) -> dict:
@@ -387,7 +383,7 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
         log.warning("%d sample(s) or record(s) of the tables hold no frame (listed in %s); first: %s", len(unindexed),
                     out / "skipped.json", unindexed[0]["reason"])
 
-    torch.manual_seed(_seed("init", conf.seed))
+    torch.manual_seed(keyed_seed("init", conf.seed, nbytes=4))
     model = model_factory(model_conf).to(device)
     optimizer = torch.optim.Adam(model.parameters(), lr=conf.lr, weight_decay=conf.weight_decay)
     scheduler = lr_schedule(optimizer, conf)
@@ -425,9 +421,9 @@ def train(conf: TrainConfig | dict, frames: Sequence[RadarCameraFrame], out: str
     with _stopped_workers_stop_the_run():  # a worker the group's signal ended: that signal (probe 111)
         for epoch in range(start, conf.epochs + 1):
             t0 = time.time()
-            torch.manual_seed(_seed("epoch", conf.seed, epoch))
+            torch.manual_seed(keyed_seed("epoch", conf.seed, epoch, nbytes=4))
             train_set.set_epoch(epoch)
-            g = np.random.default_rng(_seed("shuffle", conf.seed, epoch))
+            g = np.random.default_rng(keyed_seed("shuffle", conf.seed, epoch, nbytes=4))
             order = g.permutation(len(train_set))
             if conf.samples_per_epoch:
                 order = order[: conf.samples_per_epoch]

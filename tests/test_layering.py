@@ -3,7 +3,7 @@
 Every module under ``hybrid_calib/``, ``factors/`` and ``learned/`` is parsed with ``ast`` (imports at module
 level and inside functions alike) and mapped to its layer:
 
- 1 hybrid_calib.{geometry, config, errors, metrics, perturbation, atomic, words}
+ 1 hybrid_calib.{geometry, config, errors, metrics, perturbation, atomic, words, seeds}
  2 hybrid_calib.data, hybrid_calib.sensors (what real data needs: pinhole camera)
  3 hybrid_calib.sim (the synthetic world and its ray-cast radar / LiDAR)
  4 factors
@@ -37,6 +37,7 @@ LAYERS: dict[str, int] = {
     "hybrid_calib.perturbation": 1,
     "hybrid_calib.atomic": 1,
     "hybrid_calib.words": 1,
+    "hybrid_calib.seeds": 1,
     "hybrid_calib.data": 2,
     "hybrid_calib.sensors": 2,
     "hybrid_calib.sim": 3,

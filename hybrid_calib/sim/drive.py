@@ -11,6 +11,7 @@ import numpy as np
 
 from hybrid_calib.config import MAX_SEED, check_fields, merge, require_ranges, to_dict
 from hybrid_calib.data.summary import MIN_MOUNT_HEIGHT_M
+from hybrid_calib.seeds import sequence_rng
 from hybrid_calib.sensors.camera import PinholeCamera
 from hybrid_calib.sim.extrinsics import ExtrinsicChange, MountPerturbation, VehicleMounts, sample_mounts
 from hybrid_calib.sim.lidar import LidarConfig, simulate_lidar_sweep
@@ -148,10 +149,6 @@ class SimConfig:
         return PinholeCamera.from_K(NUSCENES_CAM_FRONT_K, 1600, 900).scaled(self.image_scale)
 
 
-def _rng(*keys: int) -> np.random.Generator:
-    return np.random.default_rng(np.random.SeedSequence([int(k) for k in keys]))
-
-
 def vehicle_mounts(conf: SimConfig, vehicle: int) -> tuple[VehicleDraw | None, tuple | None, VehicleMounts]:
     """Vehicle ``vehicle``'s randomisation draws (None when off), base mounts (T_ego_cam, T_ego_radar,
     T_ego_lidar) drawn from the real fleet (None: the nominal ones) and true + factory mounts; cheap
@@ -160,10 +157,11 @@ def vehicle_mounts(conf: SimConfig, vehicle: int) -> tuple[VehicleDraw | None, t
     The randomisation has its own streams (7: per vehicle, 8: per frame), so turning it off leaves every
     other draw as it was."""
     c = conf
-    draw = draw_vehicle(c.randomise, c.effective_radar, _rng(c.seed, vehicle, 7)) if c.randomise.enabled else None
+    draw = (draw_vehicle(c.randomise, c.effective_radar, sequence_rng(c.seed, vehicle, 7)) if c.randomise.enabled
+            else None)
     base = (draw.base_T_ego_cam, draw.base_T_ego_radar, draw.base_T_ego_lidar) if (
         draw is not None and draw.base_T_ego_cam is not None) else None
-    return draw, base, sample_mounts(_rng(c.seed, vehicle, 2), c.mounts, _rng(c.seed, vehicle, 5), base)
+    return draw, base, sample_mounts(sequence_rng(c.seed, vehicle, 2), c.mounts, sequence_rng(c.seed, vehicle, 5), base)
 
 
 # where a sensor can sit on a car, ego axes (x forward from the rear axle, y left, z up from the ground), metres: the
@@ -251,7 +249,8 @@ class VehicleDrive:
         c, s = self.conf, self.conf.scenario_config
         duration = c.frames * c.frame_interval_s + 1.0
         drive_len = s.ego_speed * (1 + s.ego_speed_variation) * duration
-        self.world = build_world(s, int(_rng(c.seed, self.vehicle, 1).integers(2**31)), EGO_START_S + drive_len + 400.0)
+        self.world = build_world(s, int(sequence_rng(c.seed, self.vehicle, 1).integers(2**31)),
+                                 EGO_START_S + drive_len + 400.0)
         lane = self.world.layout.lane_centre(self.world.layout.lanes_per_direction - 1)
         self.ego = EgoMotion(self.world.path, lane, s.ego_speed, s.ego_speed_variation,
                              stops=c.stops.windows(c.frames * c.frame_interval_s))
@@ -264,7 +263,7 @@ class VehicleDrive:
 
     def times(self, k: int) -> FrameTimes:
         c = self.conf
-        g = _rng(c.seed, self.vehicle, 3, k)
+        g = sequence_rng(c.seed, self.vehicle, 3, k)
         cam = self.base_us + int(round(k * c.frame_interval_s * 1e6))
         drawn = g.choice([-1, 1])  # whatever the lag: the later draws stay those of "either"
         sign = {"either": drawn, "after": 1, "before": -1}[c.radar_lag]
@@ -293,7 +292,7 @@ class VehicleDrive:
         """Frame k's randomised appearance (``randomise.APPEARANCE_KEYS``), None when randomisation is off."""
         if self.draw is None:
             return None
-        return frame_appearance(self.conf.randomise, self.draw, _rng(self.conf.seed, self.vehicle, 8, k))
+        return frame_appearance(self.conf.randomise, self.draw, sequence_rng(self.conf.seed, self.vehicle, 8, k))
 
     def jpeg_quality(self, k: int) -> int:
         a = self.appearance(k)
@@ -308,7 +307,7 @@ class VehicleDrive:
     def simulate_frame(self, k: int, radar: RadarConfig | None = None) -> FrameSim:
         """Render and simulate keyframe k (all sensors)."""
         c = self.conf
-        g = _rng(c.seed, self.vehicle, 4, k)
+        g = sequence_rng(c.seed, self.vehicle, 4, k)
         times = self.times(k)
         t_cam, t_radar, t_lidar = times.seconds(self.base_us)
         Tge_cam, Tge_radar, Tge_lidar = (self.ego.T_global_ego(t) for t in (t_cam, t_radar, t_lidar))
