@@ -41,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
     reject_set_keys(overrides, {"frames": "--frames", "checkpoint": "--checkpoint"})
     overrides.update(frames=args.frames, checkpoint=args.checkpoint)
     # one run per page (probe 60: two runs onto one page both said "wrote" and one vehicle's page was lost)
-    with page_lock(args.out_html, "report"):
+    with page_lock(args.out_html, "report", reentrant=False):
         path = write_report(args.result, args.out_html, args.vehicle, args.data, args.version, overrides)
     print(f"wrote {path}")
     return 0

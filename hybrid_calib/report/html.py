@@ -119,14 +119,15 @@ def written_from(path: Path, source: str) -> bool:
 
 
 @contextmanager
-def page_lock(page: Path, command: str) -> Iterator[None]:
+def page_lock(page: Path, command: str, reentrant: bool = True) -> Iterator[None]:
     """Hold the lock of one page (``.<page name>.lock`` beside it) while ``command`` writes it: a second writer of
     that page gets ``OutDirBusy`` naming the first (probe 60: two report runs both said "wrote" and one page was
-    lost). Re-entrant in one thread: the report command holds it around ``write_report``, which takes it too, so a
-    library call is kept apart as the command is (it removed the other writer's figures folder)."""
+    lost). ``reentrant`` (the library's ``write_report`` / ``write_fleet_page``): a lock this thread holds already is
+    the report command's around them, and they go on under it, so a library call is kept apart from another writer
+    as the command is (it removed the other writer's figures folder); the command itself takes it as the outermost."""
     page = Path(page)
     with out_dir_lock(page.parent, command, name=fit_name(f".{page.name}.lock"), what=f"the page {page}",
-                      reentrant=True):
+                      reentrant=reentrant):
         yield
 
 
