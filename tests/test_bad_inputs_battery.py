@@ -3093,3 +3093,69 @@ def test_the_api_refuses_what_is_not_a_covariance_a_transform_or_a_seed(case):
     with pytest.raises((ValueError, HybridCalibError)) as e:
         call(modules)
     assert needle in str(e.value), str(e.value)
+
+
+def test_a_filename_outside_the_channel_layout_names_the_record_not_a_partial_download(tiny):
+    """Probe 146: a sample_data filename "x" read "its folder <the root> is there, with other files: ... a partial
+    download; re-download it": the record is wrong, not the download."""
+    tiny.radar_sd[1]["filename"] = "x"
+    tiny.rewrite_table("sample_data")
+    (skip,) = skips_of(tiny)
+    assert "not a samples/<CHANNEL>/... or sweeps/<CHANNEL>/... path" in skip.reason and \
+        "partial download" not in skip.reason, skip.reason
+
+
+@pytest.mark.parametrize("key", ["height", "width"])
+def test_an_image_size_beyond_any_float_is_read_as_unknown(tiny, key):
+    """Probe 146: a camera record's height of 1e308 was an internal error ("int too large to convert to float") in
+    every calibrate, from the principal point's check against the image size (the calibration notes); the check
+    reads it as an unknown size, and the frame is skipped with the reason, as the frame's reader said it."""
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+    from hybrid_calib.data.summary import calibration_notes
+
+    n = len(list(NuScenesRadarCamera(tiny.root, tiny.version)))
+    tiny.cam_sd[1][key] = 1e308
+    tiny.rewrite_table("sample_data")
+    ds = NuScenesRadarCamera(tiny.root, tiny.version)
+    calibration_notes(ds, None)
+    assert len(list(ds)) == n - 1 and f"sample_data field '{key}' is 1e+308" in ds.skipped[0].reason
+
+
+@pytest.mark.parametrize("key", ["factory_T_ego_radar", "factory_T_ego_cam"])
+@pytest.mark.parametrize("how", ["absent", "null"])
+def test_half_a_factory_calibration_is_refused_not_read_against_the_nominal_mount(sim_copy, key, how):
+    """Probe 146: a sim_vehicle.json record without one of its two factory poses (or with it null) read the vehicle
+    against its nominal radar mount in silence: a 0.98 deg turn of the radar that did not happen, and an oracle's
+    "recalibrate". The pair is checked when the file is read."""
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+    from hybrid_calib.errors import DataError
+
+    root, _ = sim_copy
+    path = root / "v1.0-sim" / "sim_vehicle.json"
+    records = json.loads(path.read_text())
+    if how == "absent":
+        del records[0][key]
+    else:
+        records[0][key] = None
+    path.write_text(json.dumps(records))
+    with pytest.raises(DataError, match=rf"of log {records[0]['log_token']} holds factory_T_ego_\w+ but not {key} "
+                                        r"\(absent or null\)") as e:
+        NuScenesRadarCamera(root, "v1.0-sim")
+    assert e.value.path == str(path)
+    for rec in records:  # both removed: a root simulated before the factory calibration existed, read as it was
+        rec.pop("factory_T_ego_radar", None), rec.pop("factory_T_ego_cam", None)
+    path.write_text(json.dumps(records))
+    assert NuScenesRadarCamera(root, "v1.0-sim").sim_vehicles
+
+
+def test_the_oracle_says_why_it_skips_a_frame_as_the_learned_methods_do(sim_copy, tmp_path, capsys):
+    """Probe 146: the oracle's reason for a skipped frame was in result.json only; the hybrid says it on stderr."""
+    from hybrid_calib.cli import main
+
+    root, _ = sim_copy
+    radar = sorted((root / "samples" / "RADAR_FRONT").iterdir())[1]
+    radar.write_bytes(b"")
+    assert main(["calibrate", "--data", str(root), "--method", "oracle", "--out", str(tmp_path / "o"),
+                 "--no-progress", "--no-plots"]) == 0
+    err = capsys.readouterr().err
+    assert "skipping frame" in err and "radar file is empty (0 bytes)" in err and radar.name in err, err

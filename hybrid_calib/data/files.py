@@ -199,6 +199,10 @@ def missing_folder_words(path: str | Path) -> str:
         return (f"; its name is written with backslashes (Windows separators), and {fixed.parent.name}/{fixed.name} "
                 "is there: nuScenes' file names use '/'; fix the filename in sample_data.json")
     folder = Path(path).parent
+    if folder.parent.name not in ("samples", "sweeps"):  # probe 146: a filename "x" read as a partial download of
+        # the root's own folder
+        return ("; the record's filename is not a samples/<CHANNEL>/... or sweeps/<CHANNEL>/... path (the nuScenes "
+                "layout every file of a root follows): fix the filename in sample_data.json")
     if folder.is_dir():  # the channel is there, not this file (probe 101: "check the dataset root" for 5 of 41)
         try:
             others = next(folder.iterdir(), None) is not None

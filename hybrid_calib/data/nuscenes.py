@@ -1048,6 +1048,15 @@ def load_sim_vehicles(vdir: Path) -> dict[str, dict]:
     for log_token, rec in data.items():
         for key in SIM_POSE_KEYS:
             _sim_pose(rec, key, path, log_token)
+        # the factory calibration is a pair: one without the other read the vehicle against its nominal radar mount
+        # in silence (probe 146: a 0.98 deg turn that did not happen, and an oracle's "recalibrate")
+        factory = {k: rec.get(k) is not None for k in ("factory_T_ego_radar", "factory_T_ego_cam")}
+        if len(set(factory.values())) > 1:
+            has, lacks = (k for want in (True, False) for k, v in factory.items() if v is want)
+            raise DataError(f"sim_vehicle.json record of log {log_token} holds {has} but not {lacks} (absent or "
+                            "null): the factory calibration the vehicle is compared with is the pair; re-run "
+                            "hybrid-calib simulate, or remove both to read the vehicle against its nominal mount",
+                            path=str(path))
         nominal = rec.get("nominal") or rec.get("nominal_extrinsics") or {}
         for channel, node in (nominal.items() if isinstance(nominal, dict) else ()):
             _sim_pose({"node": node}, "node", path, log_token, f"nominal.{channel}")

@@ -713,8 +713,9 @@ MAX_SKEW_PX = 0.5  # |K[0][1]| beyond this is refused (probe 34: a 500 px skew w
 
 
 def _positive_int(value) -> int:
-    """A record's width / height when it is a positive whole number, else 0 (unknown)."""
-    ok = is_number(value) and value > 0
+    """A record's width / height when it is a positive whole number of at most ``MAX_PRINCIPAL_POINT_PX``, else 0
+    (unknown; probe 146: a height of 1e308 was an internal error comparing it with a float)."""
+    ok = is_number(value) and 0 < value <= MAX_PRINCIPAL_POINT_PX
     return int(value) if ok and value == int(value) else 0
 
 
