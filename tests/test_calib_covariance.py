@@ -217,3 +217,17 @@ def test_an_indefinite_information_is_read_as_unobservable_not_inverted():
     bad_hint = np.linalg.inv(good) - 1e-3 * np.outer(V[:, 0], V[:, 0])  # a negative variance along V[:, 0]
     rep = analyse_information(T, good, cov_hint=bad_hint)
     np.testing.assert_allclose(rep.cov, np.linalg.inv(good), rtol=1e-9, atol=1e-15)
+
+
+def test_a_covariance_below_what_any_calibration_measures_is_not_ok():
+    """An information of 1e300 * I (rows of sigma_px 1e-12 px, a producer's covariance of 1e-30) read "ok" with stds of
+    1e-148 deg: a covariance that promises what no radar-camera pair can measure is "weak", and says why."""
+    from hybrid_calib.calib.covariance import MIN_PLAUSIBLE_STD, analyse_information
+
+    T = nominal_T_cam_radar()
+    for scale in (1e300, 1e12):
+        rep = analyse_information(T, np.eye(6) * scale)
+        assert rep.status.startswith("weak: the covariance claims a pitch std of") and "check their units" in \
+            rep.status, rep.status
+    rep = analyse_information(T, np.eye(6) * 1e8)  # stds 0.006 deg, 0.01 cm: a long drive's, plausible
+    assert rep.status == "ok" and np.all(rep.std_report[:3] > MIN_PLAUSIBLE_STD[0])

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hybrid_calib.calib.degeneracy import DegeneracyConfig, RowGeometry, explain
+from hybrid_calib.calib.degeneracy import AXIS_WORDS, DegeneracyConfig, RowGeometry, explain
 from hybrid_calib.geometry import check_covariance, check_transform, se3_exp
 
 AXES = ("x", "y", "z")
@@ -509,6 +509,9 @@ def analyse_information(
         details.append(f"{name} is {how} ({_fmt_std(std_scaled, vec, conf, Cz)})")
     cov_t, observed = _without_pinned(cov, B, pinned_std if pinned else None)
     why, weak = explain(B @ cov_t @ B.T, geometry, conf.degeneracy, regularised or bool(details), observed)
+    std = report_std(T_cam_radar, cov)
+    if not regularised and (tiny := implausibly_precise(std)):
+        why, weak = [*why, tiny], True
     if regularised:
         status = "degenerate: " + "; ".join(why + (details or ["information matrix is singular"]))
         status += " [covariance regularised with a weak prior: those directions are not calibrated]"
@@ -516,7 +519,26 @@ def analyse_information(
         status = "weak: " + "; ".join(why + details)
     else:
         status = "ok"
-    return CovarianceReport(cov, report_std(T_cam_radar, cov), status, regularised, tuple(names), condition)
+    return CovarianceReport(cov, std, status, regularised, tuple(names), condition)
+
+
+# the smallest 1-sigma any radar-camera calibration can measure (the bounds of CovarianceConfig's tolerances): a
+# covariance below it comes from inputs that claim too much (sigma_px in other units, a producer's covariance 1e-30)
+MIN_PLAUSIBLE_STD = (1e-4, 1e-3)  # deg, cm
+
+
+def implausibly_precise(std_report: np.ndarray) -> str:
+    """Words when a (6,) ``report_std`` (deg, cm) claims a std below ``MIN_PLAUSIBLE_STD`` on some axis, else "": an
+    information matrix of 1e300 * I read "ok" with stds of 1e-148 deg."""
+    rot, trans = MIN_PLAUSIBLE_STD
+    low = [(AXIS_WORDS[k], float(v), unit) for k, (v, unit) in enumerate(zip(std_report, ["deg"] * 3 + ["cm"] * 3))
+           if v < (rot if k < 3 else trans)]
+    if not low:
+        return ""
+    axis, v, unit = low[0]
+    return (f"the covariance claims a {axis} std of {v:.2g} {unit}, below what any radar-camera calibration measures "
+            f"({rot:g} deg, {trans:g} cm): the inputs claim too much (rows' sigma_px or a network covariance too "
+            "small: check their units)")
 
 
 def _without_pinned(cov: np.ndarray, B: np.ndarray, pinned_std) -> tuple[np.ndarray, np.ndarray]:
