@@ -63,6 +63,52 @@ def check_fields(conf: Any) -> None:
     object.__setattr__(conf, "_fields_checked", True)
 
 
+class FrozenDict(dict):
+    """A dict that refuses changes: the dict-valued options of a frozen config (``HybridConfig.data``,
+    ``SimConfig.world``, ...), which a frozen dataclass alone leaves open to ``conf.data["x"] = ...`` (a run's
+    recorded config would then not be the one it ran with). Reads, ``{**d}``, JSON and pickling (worker processes,
+    Ray) are a dict's."""
+
+    def _refuse(self, *args, **kwargs):
+        raise TypeError("a config's options are frozen: build another config (merge or dataclasses.replace) instead "
+                        "of changing this one")
+
+    __setitem__ = __delitem__ = __ior__ = clear = pop = popitem = setdefault = update = _refuse
+
+    def __reduce__(self):
+        return FrozenDict, (dict(self),)
+
+    def __deepcopy__(self, memo):
+        import copy
+
+        return FrozenDict({k: copy.deepcopy(v, memo) for k, v in self.items()})
+
+
+def frozen(value: Any) -> Any:
+    """``value`` with every mapping in it (nested, in lists too) a ``FrozenDict``."""
+    if isinstance(value, Mapping):
+        return value if type(value) is FrozenDict and all(map(_is_frozen, value.values())) else \
+            FrozenDict({k: frozen(v) for k, v in value.items()})
+    if isinstance(value, list):
+        return [frozen(v) for v in value]
+    if isinstance(value, tuple):
+        return tuple(frozen(v) for v in value)
+    return value
+
+
+def _is_frozen(value: Any) -> bool:
+    return not isinstance(value, (Mapping, list, tuple)) or frozen(value) is value
+
+
+def freeze_dict_fields(conf: Any) -> None:
+    """Make every dict-valued field of the frozen dataclass ``conf`` a ``FrozenDict`` (its ``__post_init__`` calls
+    this first)."""
+    for f in dataclasses.fields(conf):
+        value = getattr(conf, f.name)
+        if isinstance(value, Mapping) and type(value) is not FrozenDict:
+            object.__setattr__(conf, f.name, frozen(value))
+
+
 def require(conf: Any, rules: Mapping[str, bool]) -> None:
     """Raise ``ValueError`` naming each rule of ``rules`` (its text, e.g. ``"0 < pair_dt_s < max_gap_s"``) that is
     False, with the values of the fields it names: "LeverArmConfig: need sweep_noise_scale > 0 (got

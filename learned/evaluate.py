@@ -38,6 +38,7 @@ import torch
 from hybrid_calib.atomic import finished, remove_temporaries
 from hybrid_calib.config import (
     changed_options,
+    freeze_dict_fields,
     merge,
     read_out_record,
     require_ranges,
@@ -85,6 +86,7 @@ class EvalConfig:
         from learned.export import ExportConfig
         from learned.train import check_sizes_and_device
 
+        freeze_dict_fields(self)  # depth_options, export: read-only as the rest
         if self.batch_size < 1 or self.max_frames < 0:
             raise ValueError(f"EvalConfig: batch_size must be >= 1 and max_frames >= 0, got {self.batch_size} and "
                              f"{self.max_frames}")

@@ -50,7 +50,7 @@ import numpy as np
 import torch
 
 from factors.correspondences import Correspondences
-from hybrid_calib.config import json_numbers, require_ranges
+from hybrid_calib.config import freeze_dict_fields, json_numbers, require_ranges
 from hybrid_calib.metrics import nees
 from learned import lie
 from learned.transform import STRIDE, cell_centres, cell_index
@@ -69,6 +69,7 @@ class ExportConfig:
     ood: dict = field(default_factory=dict)  # the out-of-domain density model (learned.ood), not used here
 
     def __post_init__(self):
+        freeze_dict_fields(self)  # hybrid, ood: read-only as the rest
         if problem := scale_problem(self.cov_scale, self.sigma_scale):
             raise ValueError(f"ExportConfig: {problem}")
         if self.uncertainty not in ("", "learned", "spread"):  # an internal error at the first frame (probe 79)

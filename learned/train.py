@@ -35,7 +35,15 @@ import numpy as np
 import torch
 
 from hybrid_calib.atomic import leave_bars, remove_temporaries
-from hybrid_calib.config import ConfigError, merge, read_out_record, require_ranges, save_json_atomic, to_dict
+from hybrid_calib.config import (
+    ConfigError,
+    freeze_dict_fields,
+    merge,
+    read_out_record,
+    require_ranges,
+    save_json_atomic,
+    to_dict,
+)
 from hybrid_calib.data.files import absolute_path, watch_roots
 from hybrid_calib.data.frame import RadarCameraFrame
 from hybrid_calib.errors import DataError, HybridCalibError, stop_signal_of
@@ -85,6 +93,7 @@ class TrainConfig:
     init_weights: str = ""  # checkpoint (.json) whose weights start a new run (fine-tuning, e.g. R2 from R1)
 
     def __post_init__(self):
+        freeze_dict_fields(self)  # model, depth_options: read-only as the rest
         for name in ("epochs", "batch_size", "threads"):
             if getattr(self, name) < 1:
                 raise ValueError(f"TrainConfig.{name} must be >= 1, got {getattr(self, name)}")

@@ -221,3 +221,32 @@ def test_a_learning_rate_halved_every_0_epochs_is_never_halved():
     assert rates(0) == [1.0] * 4
     assert rates(1) == [1.0, 0.5, 0.25, 0.125]
     assert rates(2) == [1.0, 1.0, 0.5, 0.5]
+
+
+def test_a_frozen_configs_dict_options_are_frozen_too():
+    """A frozen dataclass left its dict-valued options open (``conf.data["nsweeps"] = 5`` changed a run's config after
+    it was recorded). Every config with such a field holds a ``FrozenDict``, nested ones too, that reads, serialises
+    and pickles (worker processes, Ray) as a dict."""
+    import dataclasses
+    import json
+    import pickle
+
+    from hybrid_calib.config import FrozenDict, to_dict
+
+    cases = [(HybridConfig, {"data": {"nsweeps": 2}, "measurement": {}, "split_options": {"by": "time"}}),
+             (SimConfig, {"world": {"pole_spacing": 30.0}}), (ExportConfig, {"hybrid": {}, "ood": {"a": {"b": 1}}}),
+             (EvalConfig, {"depth_options": {}, "export": {}}), (TrainConfig, {"model": {"feat_dim": 16}})]
+    for cls, options in cases:
+        conf = merge(cls, options)
+        dict_fields = [f.name for f in dataclasses.fields(conf) if isinstance(getattr(conf, f.name), dict)]
+        assert dict_fields and all(type(getattr(conf, n)) is FrozenDict for n in dict_fields), (cls, dict_fields)
+        for name in dict_fields:
+            d = getattr(conf, name)
+            for method, args in (("__setitem__", ("x", 1)), ("update", ({"x": 1},)), ("pop", ("x", None)),
+                                 ("setdefault", ("x", 1)), ("clear", ())):
+                with pytest.raises(TypeError, match="frozen"):
+                    getattr(d, method)(*args)
+        assert pickle.loads(pickle.dumps(conf)) == conf and json.loads(json.dumps(to_dict(conf))) == to_dict(conf)
+    nested = merge(ExportConfig, {"ood": {"a": {"b": 1}}}).ood["a"]
+    with pytest.raises(TypeError, match="frozen"):
+        nested["b"] = 2

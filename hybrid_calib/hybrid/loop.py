@@ -68,7 +68,7 @@ from hybrid_calib.calib.result import (
 )
 from hybrid_calib.calib.schedule import GaussianPrior
 from hybrid_calib.calib.window import SlidingWindowCalibrator, WindowConfig
-from hybrid_calib.config import check_seed, merge, save_json_atomic, to_dict
+from hybrid_calib.config import check_seed, freeze_dict_fields, merge, save_json_atomic, to_dict
 from hybrid_calib.data.files import absolute_path, data_stamp, root_changed, root_changed_error, root_fingerprint
 from hybrid_calib.data.pose_jitter import NOT_MEASURED
 from hybrid_calib.data.reference import absolute_reference, reference_identity
@@ -168,6 +168,7 @@ class HybridConfig:
     progress: bool = True  # tqdm per vehicle
 
     def __post_init__(self):
+        freeze_dict_fields(self)  # data, measurement, split_options: read-only as the rest
         if self.method not in METHODS:
             raise ValueError(f"HybridConfig.method={self.method!r}; valid: {METHODS}")
         if self.start not in STARTS:

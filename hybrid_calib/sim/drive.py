@@ -9,7 +9,7 @@ from functools import cached_property
 
 import numpy as np
 
-from hybrid_calib.config import MAX_SEED, check_fields, merge, require_ranges, to_dict
+from hybrid_calib.config import MAX_SEED, check_fields, freeze_dict_fields, merge, require_ranges, to_dict
 from hybrid_calib.data.summary import MIN_MOUNT_HEIGHT_M
 from hybrid_calib.seeds import sequence_rng
 from hybrid_calib.sensors.camera import PinholeCamera
@@ -74,6 +74,7 @@ class SimConfig:
 
     def __post_init__(self):
         check_fields(self)  # the types first: SimConfig(frames="20") was a bare TypeError below (probe 51)
+        freeze_dict_fields(self)  # world: read-only as the rest
         scenario(self.scenario)  # validates the name
         _ = self.scenario_config  # ConfigError naming a bad world.KEY
         # first (the sweeps' message below blamed them for a 0 s interval); 1e6 s built a world growing ~110 MB/s
