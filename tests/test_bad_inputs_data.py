@@ -837,3 +837,24 @@ def test_measurement_files_of_a_vehicle_whose_tables_do_not_read_name_the_record
     err = expect_cli_error(_calibrate(sim_copy, tmp_path / "out", "--correspondences", tmp_path / "EV"), capsys,
                            "none of its frames' calibrated_sensor records read", "'rotation'")
     assert "the dataset they come from" not in err
+
+
+def test_one_bad_pose_on_a_chain_of_keyframes_condemns_only_itself(sim_copy):
+    """Probe 148: one CAM_FRONT keyframe's ego pose 150 m off (the simulator's camera chain holds keyframes only,
+    500 ms apart) condemned its two good neighbours too, each skipped with "its ego_pose record is wrong": every pair
+    of records around them held the bad one. A pair holding a pose that is itself off the path speaks for neither
+    side."""
+    vdir = sim_copy / SIM_VERSION
+    eps = json.loads((vdir / "ego_pose.json").read_text())
+    ds = NuScenesRadarCamera(sim_copy, SIM_VERSION)
+    n = len(list(ds))
+    cam = ds.frames[2].camera_sd
+    records = json.loads((vdir / "sample_data.json").read_text())
+    assert all(r["is_key_frame"] for r in records if r["calibrated_sensor_token"] == cam["calibrated_sensor_token"]), \
+        "the premise: the camera's chain holds keyframes only"
+    _turn_pose(eps, cam["ego_pose_token"], metres=-150.0)
+    (vdir / "ego_pose.json").write_text(json.dumps(eps))
+    ds = NuScenesRadarCamera(sim_copy, SIM_VERSION)
+    assert len(list(ds)) == n - 1
+    (skip,) = ds.skipped
+    assert skip.index == 2 and skip.token == cam["ego_pose_token"] and "lies 149.9" in skip.reason, skip.reason

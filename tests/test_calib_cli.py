@@ -79,7 +79,7 @@ def test_calibrate_batch_from_exported_correspondence_dir(sim_root, tmp_path):
     assert v["method"] == "measurements" and v["start"]["kind"] == "reference" and v["errors_against"] == "truth"
 
 
-def test_a_measurement_file_that_does_not_read_is_its_frames_vehicles_skip(tmp_path):
+def test_a_measurement_file_that_does_not_read_is_its_frames_vehicles_skip(tmp_path, capsys):
     """Probe 100: a file that does not read (no vehicle field to read) was listed as skipped under every vehicle; its
     name is its frame's token, so it is its frame's vehicle's."""
     from hybrid_calib.config import merge
@@ -111,6 +111,8 @@ def test_a_measurement_file_that_does_not_read_is_its_frames_vehicles_skip(tmp_p
     said = {name: [s for s in v["frames_skipped"] if "measurement file skipped" in s["reason"]]
             for name, v in vehicles.items()}
     assert len(said.pop(bad.vehicle)) == 1 and not any(said.values())
+    # and said on the console, as a frame's reader says its (probe 148: in result.json only)
+    assert f"skipping measurement file {d / bad.camera_sd['token']}.npz: " in capsys.readouterr().err
 
 
 def test_exported_rows_on_a_real_root_are_measured_against_its_tables(tiny, tmp_path, capsys):

@@ -371,3 +371,23 @@ def test_a_run_of_several_vehicles_says_which_of_how_many_it_computes(tmp_path, 
     VehicleProgress(tmp_path / "q", tmp_path, "v1.0-sim", "hybrid", {"seed": 0}).fill(
         CalibrationRun(str(tmp_path), "v1.0-sim", "hybrid", "window"), ["a", "b"], compute, announce=False)
     assert "vehicle" not in capsys.readouterr().err  # --no-progress: quiet
+
+
+@pytest.mark.parametrize("edit, words", [
+    (lambda v: v.update(final={}), r"final lacks T_cam_radar, cov_right_radar, std_cam, status: the file was edited"),
+    (lambda v: v["final"].pop("cov_right_radar"), r"final lacks cov_right_radar: "),
+    (lambda v: v["final"].update(std_cam=None), r"final\.std_cam is a JSON null, not an object"),
+    (lambda v: v["final"]["std_cam"].pop("t_x_cam_cm"), r"final\.std_cam lacks t_x_cam_cm: "),
+])
+def test_a_missing_estimate_key_is_named_with_its_path(tmp_path, edit, words):
+    """Probe 148: an edited result.json read "(KeyError: 'std_cam')" or "('NoneType' object is not subscriptable)"
+    where its siblings name the key's path."""
+    from hybrid_calib.errors import DataError
+
+    run = _run(rng(1))
+    doc = json.loads(run.to_json())
+    edit(doc["vehicles"]["veh-a"])
+    (path := tmp_path / "result.json").write_text(json.dumps(doc))
+    with pytest.raises(DataError, match=words) as e:
+        CalibrationRun.load(path)
+    assert "object is not subscriptable" not in str(e.value) and "(KeyError: '" not in str(e.value)

@@ -349,6 +349,8 @@ def _load_dir(directory: Path, data, version: str | None, conf: CalibrateConfig,
         for vehicle in [sub] if sub in out else [owner] if owner in out else list(out):
             out[vehicle].skipped.append({"index": None, "token": Path(path).stem,
                                          "reason": f"measurement file skipped: {e}"})
+        if say:  # said as the frames' readers say theirs (probe 148: in result.json only)
+            print(f"skipping measurement file {path}: {e}", file=sys.stderr)
     return out
 
 

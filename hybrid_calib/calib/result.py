@@ -495,7 +495,13 @@ class Estimate:
         """EXTRINSIC (or FRAME) back; ``TypeError`` / ``ValueError`` naming ``where`` when it is not an
         object or its transform / covariance is not a finite 4x4 / 6x6 matrix (``KeyError``: a missing key)."""
         d = _mapping(d, where)
-        std = np.asarray(std_from_dict(d["std_cam"], STD_FRAME), np.float64)
+        # each key named with its path (probe 148: "(KeyError: 'std_cam')", "'NoneType' object is not subscriptable")
+        if missing := [k for k in ("T_cam_radar", "cov_right_radar", "std_cam", "status") if k not in d]:
+            raise KeyError(f"{where} lacks {', '.join(missing)}: {EDITED}")
+        std_cam = _mapping(d["std_cam"], f"{where}.std_cam")
+        if missing := [k for k in std_keys(STD_FRAME) if k not in std_cam]:
+            raise KeyError(f"{where}.std_cam lacks {', '.join(missing)}: {EDITED}")
+        std = np.asarray(std_from_dict(std_cam, STD_FRAME), np.float64)
         if not np.all(np.isfinite(std)):  # a page showed "pitch 0.892 +- nan deg" under a verdict with a std
             raise ValueError(f"{where}.std_cam holds a non-finite value")
         T = _transform(d["T_cam_radar"], f"{where}.T_cam_radar")
@@ -821,7 +827,8 @@ class CalibrationRun:
             raise DataError(f"calibrate result unreadable ({why}); pass the result.json of a hybrid-calib calibrate "
                             "run", path=str(path)) from None
         except (KeyError, TypeError, ValueError) as e:
-            raise DataError(f"calibrate result incomplete or invalid ({type(e).__name__}: {e}); re-run hybrid-calib "
+            said = e.args[0] if isinstance(e, KeyError) and e.args else e  # a KeyError's str() quotes its words
+            raise DataError(f"calibrate result incomplete or invalid ({type(e).__name__}: {said}); re-run hybrid-calib "
                             "calibrate with --overwrite", path=str(path)) from None
 
 
