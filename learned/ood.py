@@ -209,6 +209,9 @@ def select(feats: Mapping[str, np.ndarray], features: str) -> np.ndarray:
     return np.atleast_2d(np.asarray(feats[features], np.float64))
 
 
+QUANTILE = 0.99  # the calibration half's d2 quantile a fit sets the threshold at (and a model that records none)
+
+
 @dataclass(frozen=True)
 class OODModel:
     """Gaussian (PCA + residual) density of in-domain features; see the module docstring.
@@ -225,7 +228,7 @@ class OODModel:
     variances: np.ndarray
     residual_mean: float
     threshold: float
-    quantile: float = 0.99
+    quantile: float = QUANTILE
     fitted: dict = field(default_factory=dict)
 
     def distance(self, X: np.ndarray) -> np.ndarray:
@@ -266,7 +269,7 @@ class OODModel:
         try:
             mean, std = np.asarray(d["mean"], np.float64), np.asarray(d["std"], np.float64)
             comp, var = np.atleast_2d(np.asarray(d["components"], np.float64)), np.asarray(d["variances"], np.float64)
-            res, thr, quantile = float(d["residual_mean"]), float(d["threshold"]), float(d.get("quantile", 0.99))
+            res, thr, quantile = float(d["residual_mean"]), float(d["threshold"]), float(d.get("quantile", QUANTILE))
         except (TypeError, ValueError) as e:
             raise OODError(f"export.ood holds a non-numeric value ({e}); {FIT_HINT}") from None
         D = len(mean)
@@ -291,7 +294,7 @@ class OODModel:
         return cls(features, mean, std, comp, var, res, thr, quantile, dict(d.get("fitted", {})))
 
 
-def fit_ood(feats: Mapping[str, np.ndarray], features: str = "all", k: int = 16, quantile: float = 0.99,
+def fit_ood(feats: Mapping[str, np.ndarray], features: str = "all", k: int = 16, quantile: float = QUANTILE,
             seed: int = 0, fitted: dict | None = None) -> OODModel:
     """Fit on in-domain rows (``{"descriptor": (F, .), "signals": (F, .)}``, F >= 4): a random half fits
     the mean, std and directions, the other half the threshold (module docstring)."""

@@ -173,3 +173,21 @@ def test_the_slope_prior_of_few_frames_and_the_bound_take_the_same_widening():
     given = oracle_crb(T, frames, truths, 2.0, fc)
     assert np.allclose(given, oracle_crb(T, frames, truths, 2.0, scene_config_for(fc, RowGeometry.from_frames(frames))))
     assert not np.allclose(given, oracle_crb(T, frames, truths, 2.0, RadarPixelFactorConfig()))
+
+
+@pytest.mark.parametrize("frames, far_m, words", [
+    (1, 20.0, ["a single frame"]), (2, 20.0, []),  # min_frames 2: two frames are a drive
+    (2, 14.0, ["all points at one range (10-14 m)"]), (2, 16.0, []),  # min_range_ratio 1.5: 10 and 14 m, 10 and 16 m
+])
+def test_the_geometry_words_start_at_their_documented_thresholds(frames, far_m, words):
+    """Probe 149 (mutation testing): "a single frame" on two frames, or the range ratio doubled to 3, passed every
+    test; the words are pinned at the documented thresholds (docs/conventions.md: min_frames 2, min_range_ratio 1.5)."""
+    conf = DegeneracyConfig()
+    assert (conf.min_frames, conf.min_range_ratio) == (2, 1.5)
+    az = np.radians(np.tile([-20.0, -8.0, 8.0, 20.0], 15))  # 60 rows a frame, azimuth spread 40 deg
+    ranges = np.repeat([10.25, far_m + 0.25], 30)  # bin centres (0.5 m bins)
+    geo = RowGeometry()
+    for _ in range(frames):
+        geo.add(np.stack([ranges * np.cos(az), ranges * np.sin(az), np.zeros(60)], 1))
+    causes = [c.split(" (")[0] if "one range" not in c else c.split(":")[0] for c in geometry_causes(geo, conf)]
+    assert causes == words, causes

@@ -858,3 +858,38 @@ def test_a_dangling_link_or_a_folder_is_named_not_taken_for_a_partial_download(t
     with pytest.raises(DataError, match=r"its folder samples/RADAR_FRONT is a symbolic link to .*unmounted-store.*, "
                                         r"which does not exist"):
         read_radar_pcd(folder / "x.pcd")
+
+
+@pytest.mark.parametrize("norm, ok", [(1.0009, True), (0.9991, True), (1.002, False), (1.05, False), (0.95, False)])
+def test_a_quaternion_norm_is_rounding_within_1e_3_and_corrupt_beyond(norm, ok, tmp_path):
+    """Probe 149 (mutation testing): the tolerance could be raised to 0.1 with every test passing (they tried norms 0,
+    0.5, 1.5 and 2): a quaternion of norm 1.05 would be renormalised into another rotation in silence."""
+    from hybrid_calib.data.tables import QUAT_NORM_TOL, _pose
+
+    assert QUAT_NORM_TOL == 1e-3
+    q = np.array([0.9, 0.1, -0.3, 0.2])
+    rec = {"token": "t", "rotation": (q / np.linalg.norm(q) * norm).tolist(), "translation": [1.0, 0.0, 0.5]}
+    if ok:
+        assert np.allclose(np.linalg.det(_pose(rec, tmp_path / "ego_pose.json")[:3, :3]), 1.0)
+    else:
+        with pytest.raises(DataError, match=rf"rotation quaternion has norm {norm:g}, not 1 \(tolerance 0.001\)"):
+            _pose(rec, tmp_path / "ego_pose.json")
+
+
+@pytest.mark.parametrize("offset_ms, ok", [(0, True), (24, True), (26, False), (40, False)])
+def test_an_ego_pose_more_than_25_ms_from_its_record_is_another_instants(tiny, offset_ms, ok):
+    """Probe 149 (mutation testing): the limit (25 ms: 0.75 m at 30 m/s) could be doubled unnoticed; the one test used
+    a pose 2.5 s off. Pinned at both sides of it."""
+    from hybrid_calib.data.nuscenes import NuScenesRadarCamera
+    from hybrid_calib.data.tables import MAX_EGO_POSE_OFFSET_US
+
+    assert MAX_EGO_POSE_OFFSET_US == 25_000
+    rad = tiny.radar_sd[1]
+    ep = next(e for e in tiny.tables["ego_pose"] if e["token"] == rad["ego_pose_token"])
+    ep["timestamp"] = rad["timestamp"] + offset_ms * 1000
+    tiny.rewrite_table("ego_pose")
+    ds = NuScenesRadarCamera(tiny.root, tiny.version)
+    frames = list(ds)
+    reasons = " ".join(s.reason for s in ds.skipped)
+    assert (f"+{offset_ms / 1e3:.3f} s from the record's own time" in reasons) is not ok, (offset_ms, reasons)
+    assert len(frames) == len(ds.frames) - (0 if ok else 1)

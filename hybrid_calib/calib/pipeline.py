@@ -211,6 +211,7 @@ def _load_oracle(data, version: str, conf: CalibrateConfig, progress: bool = Tru
         # drawn by (seed, vehicle) alone: the same rows whichever other vehicles the run holds, and in every
         # command (calibrate, fleet, compare, the report's replay)
         rng = vehicle_rng(conf.seed, vehicle, "oracle")
+        unread: list[str] = []  # the frames that did not read, said after the bar
         for k, i in enumerate(tqdm(idx, desc=f"oracle {vehicle}", leave=leave_bars(), disable=not progress)):
             if k in repeats:  # the ego stood still: the true reflectors and their heights of the view it repeats
                 vi.skipped.append(repeats[k].record(k, ds.frames[i].camera_sd["token"], conf.views))
@@ -222,8 +223,7 @@ def _load_oracle(data, version: str, conf: CalibrateConfig, progress: bool = Tru
                 # the frame's own token (its camera sample_data's, as the hybrid's and every frame_id); the reason
                 # names the file that failed and its token
                 vi.skipped.append({"index": k, "token": ds.frames[i].camera_sd["token"], "reason": str(e)})
-                if say:  # as the learned methods say it (probe 146: the oracle's reason was in result.json only)
-                    print(f"skipping frame {k} of {vehicle}: {e}", file=sys.stderr)
+                unread.append(f"skipping frame {k} of {vehicle}: {e}")
                 continue
             vi.positions.append(k)
             vi.frames.append(c)
@@ -232,6 +232,10 @@ def _load_oracle(data, version: str, conf: CalibrateConfig, progress: bool = Tru
             if vi.reference is None:
                 vi.reference = np.asarray(f.extras["reference_T_cam_radar"], np.float64)
                 vi.road_normal = road_normal(f.extras["reference_T_ego_radar"])
+        # the frames skipped, said as the learned methods say them (probe 146: in result.json only), after the
+        # vehicle's bar; a vehicle none of whose frames read is one error naming its first (the run's own paragraph)
+        for line in unread if say and vi.frames else ():
+            print(line, file=sys.stderr)
     return out
 
 
