@@ -3159,3 +3159,23 @@ def test_the_oracle_says_why_it_skips_a_frame_as_the_learned_methods_do(sim_copy
                  "--no-progress", "--no-plots"]) == 0
     err = capsys.readouterr().err
     assert "skipping frame" in err and "radar file is empty (0 bytes)" in err and radar.name in err, err
+
+
+def test_a_config_json_edited_to_the_next_runs_options_does_not_vouch_for_the_old_result(sim, calibrated, tmp_path,
+                                                                                         capsys):
+    """Probe 150: config.json edited to window.window=3 and a rerun with --set window.window=3 reused the window-20
+    result, "computed with the same options". The data stamp beside the result records the config's digest."""
+    from hybrid_calib.cli import main
+
+    root, _ = sim
+    run = tmp_path / "run"
+    shutil.copytree(calibrated, run)
+    cfg = json.loads((run / "config.json").read_text())
+    cfg["window"]["window"] = 3
+    (run / "config.json").write_text(json.dumps(cfg))
+    argv = [str(a) for a in _calibrate(root, run, "--max-frames", "1", "--set", "window.window=3")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert f"{run / 'config.json'} is not the configuration {run / 'result.json'} was computed with" in err, err
+    assert main([*argv, "--overwrite"]) == 0 and main(argv) == 0  # recomputed, then reused as its own
+    assert "reused the earlier result" in capsys.readouterr().out

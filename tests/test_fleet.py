@@ -285,6 +285,7 @@ def test_manifest_resume_rules(local_run, tmp_path):
     doc["jobs"]["sim-veh-000"]["state"] = "running"  # the driver died after the job wrote its result
     doc["jobs"]["sim-veh-001"]["state"] = "done"  # ... but its result file is gone
     doc["jobs"]["sim-veh-002"].update(state="pending", attempts=0)  # the manifest was not saved after the result
+    doc["jobs"][BAD].update(wall_s=float("nan"), cpu_s=-1.0)  # probe 150: reached summary.json as a bare NaN, and -1
     moved = tmp_path / "m"
     moved.mkdir()
     (moved / "manifest.json").write_text(json.dumps(doc))
@@ -298,6 +299,8 @@ def test_manifest_resume_rules(local_run, tmp_path):
     assert m.jobs["sim-veh-002"]["attempts"] == 1  # the attempt that wrote it (probe 91: "done" after 0 attempts)
     assert [j.id for j in m.todo()] == ["sim-veh-001", BAD]
     assert json.loads((moved / "manifest.json").read_text())["jobs"] == m.jobs  # one job per line, valid JSON
+    assert m.jobs[BAD]["wall_s"] is None and m.jobs[BAD]["cpu_s"] is None  # not a time: an unknown one
+    assert "NaN" not in (moved / "manifest.json").read_text()
     # bookkeeping is saved at most every save_every_s; flush writes the rest
     m.save_every_s = 3600.0
     m.mark_running(["sim-veh-001"], "h")

@@ -254,6 +254,8 @@ def test_an_export_of_other_vehicles_or_another_camera_is_said(knocked, tmp_path
     ("exported string", "'exported' is 'true', not true or false"),
     ("after 3 m off", "farther than any radar mount sits from its tables"),  # probe 109: read, the tables blamed
     ("after turned 180 deg", "is 180.0 deg / 0 cm from the record it replaced"),
+    ("no before", "holds no 'before' (the record it replaced"),  # probe 150: the check above was skipped
+    ("before null", "holds no 'before' (the record it replaced"),
 ])
 def test_a_reference_that_is_not_an_export_is_refused_by_name(knocked, tmp_path, case, words):
     from hybrid_calib.data.reference import load_export_reference
@@ -279,6 +281,13 @@ def test_a_reference_that_is_not_an_export_is_refused_by_name(knocked, tmp_path,
         rec2 = json.loads(json.dumps(rec))
         rec2["after"]["translation"][1] += 0.01
         doc["vehicles"]["sim-veh-000"]["records"].append(rec2)
+        text = json.dumps(doc)
+    elif case in ("no before", "before null"):
+        rec["after"] = {**rec["after"], "rotation": [0.0, 0.0, 0.0, 1.0]}  # and its 'after' turned 180 deg
+        if case == "no before":
+            rec.pop("before")
+        else:
+            rec["before"] = None
         text = json.dumps(doc)
     elif case == "vehicles list":
         text = json.dumps({**doc, "vehicles": []})
@@ -765,3 +774,17 @@ def test_an_export_of_a_vehicle_whose_logs_define_its_frame_differently_gives_ea
     np.testing.assert_allclose(np.linalg.inv(b[0]) @ b[1], np.linalg.inv(first[0]) @ first[1], atol=1e-9)
     assert ref.mounts_at("sim-veh-000", "a-record-of-a-later-log") is ref.mounts["sim-veh-000"]
     assert ref.mounts_at("no-such-vehicle", other["token"]) is None
+
+
+@pytest.mark.parametrize("value", [None, "", 7])
+def test_an_export_whose_root_is_not_named_says_so_not_none(knocked, tmp_path, value):
+    """Probe 150: an export whose 'data' was edited to null or "" was named "(from None, v1.0-sim)"."""
+    from hybrid_calib.data.reference import load_export_reference
+
+    _, _, exp, _ = knocked
+    doc = json.loads((exp / "export.json").read_text())
+    doc["data"] = value
+    (path := tmp_path / "x").mkdir()
+    (path / "export.json").write_text(json.dumps(doc))
+    ref = load_export_reference(path)
+    assert ref.data == "an unnamed root" and ref.version == doc["version"]

@@ -38,6 +38,7 @@ from hybrid_calib.calib.result import (
     CalibrationRun,
     VehicleProgress,
     VehicleResult,
+    config_digest,
     failed_vehicles_message,
     path_of,
     reuse_result,
@@ -771,8 +772,8 @@ def calibrate(data, version: str, correspondences: str, out: Path, conf: Calibra
         done.finish()  # (probes 142, 144)
         raise root_changed_error(data)
     save_json_atomic(out / "config.json", cfg)
-    if stamp_data is not None:  # a rerun on changed data must not reuse it
-        save_json_atomic(out / DATA_STAMP, stamp_data)
+    if stamp_data is not None:  # a rerun on changed data must not reuse it, nor an edited config.json (probe 150)
+        save_json_atomic(out / DATA_STAMP, {**stamp_data, "config": config_digest(cfg)})
     run.save(result_path)
     done.finish()
     return run

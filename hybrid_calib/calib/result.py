@@ -889,6 +889,23 @@ def stored_digest(out: str | Path) -> str | None:
     return digest if isinstance(digest, str) and digest else None
 
 
+def config_digest(cfg: dict) -> str:
+    """SHA-1 of a run's ``config.json`` content (canonical JSON), recorded in ``DATA_STAMP`` beside its result: a
+    config.json edited afterwards (to the options of the next run) vouched for a result of other options (probe 150)."""
+    import hashlib
+
+    return hashlib.sha1(json.dumps(cfg, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def _stored_config_digest(out: Path) -> str | None:
+    """The config digest ``DATA_STAMP`` records (``config_digest``), or None (none recorded: an older result)."""
+    try:
+        digest = json.loads((out / DATA_STAMP).read_text()).get("config")
+    except (OSError, ValueError, AttributeError, RecursionError):
+        return None
+    return digest if isinstance(digest, str) else None
+
+
 def data_differ(out: str | Path, root: str | Path, version: str) -> bool:
     """Whether the data digest recorded beside a result (``out/DATA_STAMP``) differs from the data at ``root`` /
     ``version`` now (``data.files.data_stamp``), or is damaged (it vouches for nothing: probe 109, export wrote a
@@ -1058,6 +1075,10 @@ def reuse_result(out: str | Path, data, version: str, source: str, conf: dict) -
                                f"({e.message}): pass --overwrite to recompute it, or another --out") from None
     old = read_out_record(out / "config.json", "calibrate config", "the configuration its result.json was computed "
                           "with: pass --overwrite to recompute, or another --out")
+    if (recorded := _stored_config_digest(out)) is not None and recorded != config_digest(old):
+        raise HybridCalibError(f"{out / 'config.json'} is not the configuration {out / 'result.json'} was computed "
+                               "with (it was edited since), so the result cannot be told to be this run's: pass "
+                               "--overwrite to recompute, or another --out")
 
     def where(d):  # an older result's relative path, or a new one's absolute path: the same root either way
         return str(Path(str(d)).resolve()) if d else d

@@ -175,14 +175,18 @@ def load_export_reference(path: str | Path) -> ExportReference:
             pairs.append((_pose(rec["camera"], "camera", p, name), _pose(rec.get("after"), "after", p, name)))
             if isinstance(rec.get("token"), str):
                 by_record[(name, rec["token"])] = pairs[-1]
-            if isinstance(rec.get("before"), dict):  # probe 109: a mount 3 m or 180 deg off read, and the words
-                # blamed the vehicle's tables
-                deg, cm = mount_offset(pairs[-1][1], _pose(rec["before"], "before", p, name))
-                if not (deg <= ASTRAY_ROT_DEG and cm <= 100 * ASTRAY_TRANS_M):
-                    raise DataError(f"--reference: vehicle {name}'s exported radar mount ('after') is {deg:.1f} deg / "
-                                    f"{cm:.0f} cm from the record it replaced ('before'), farther than any radar "
-                                    f"mount sits from its tables ({ASTRAY_ROT_DEG:g} deg, {ASTRAY_TRANS_M:g} m): the "
-                                    "file was edited or damaged; export again", path=str(p))
+            if not isinstance(rec.get("before"), dict):  # probe 150: without it the check below was skipped, and
+                # an 'after' turned 40 or 180 deg was the reference, the words blaming the vehicle's tables
+                raise DataError(f"--reference: vehicle {name}'s exported record holds no 'before' (the record it "
+                                "replaced, which its 'after' is checked against): the file was edited or damaged; "
+                                "export again", path=str(p))
+            # probe 109: a mount 3 m or 180 deg off read, and the words blamed the vehicle's tables
+            deg, cm = mount_offset(pairs[-1][1], _pose(rec["before"], "before", p, name))
+            if not (deg <= ASTRAY_ROT_DEG and cm <= 100 * ASTRAY_TRANS_M):
+                raise DataError(f"--reference: vehicle {name}'s exported radar mount ('after') is {deg:.1f} deg / "
+                                f"{cm:.0f} cm from the record it replaced ('before'), farther than any radar "
+                                f"mount sits from its tables ({ASTRAY_ROT_DEG:g} deg, {ASTRAY_TRANS_M:g} m): the "
+                                "file was edited or damaged; export again", path=str(p))
         Ts = [se3_inverse(c) @ r for c, r in pairs]
         for T in Ts[1:]:
             if not same_calibration(T, Ts[0]):
@@ -198,8 +202,10 @@ def load_export_reference(path: str | Path) -> ExportReference:
                                 "{level_deg: a yaw within 90 deg, std_deg: in (0, 10] deg}; export again",
                                 path=str(p))
             doppler[name] = {**dop, "level_deg": float(level), "std_deg": float(std)}
-    return ExportReference(p, hashlib.sha256(raw).hexdigest(), str(doc.get("data", "?")),
-                           str(doc.get("version", "?")), mounts, kept, doppler, by_record)
+    # what the export was computed from, as it says it (probe 150: an edited null read "from None")
+    data, version = (doc.get(k) if isinstance(doc.get(k), str) and doc.get(k) else "an unnamed root" if k == "data"
+                     else "an unnamed version" for k in ("data", "version"))
+    return ExportReference(p, hashlib.sha256(raw).hexdigest(), data, version, mounts, kept, doppler, by_record)
 
 
 def _number(x) -> bool:

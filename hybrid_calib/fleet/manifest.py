@@ -33,6 +33,7 @@ result: the resume rules read the result files.
 from __future__ import annotations
 
 import json
+import math
 import os
 import time
 from dataclasses import dataclass, field
@@ -326,8 +327,15 @@ def _checked_jobs(jobs, path: Path, dropped: list[str]) -> dict[str, dict]:
             dropped.append(f"fleet manifest entry {jid!r} is malformed ({err}; {path}): left out, its job read from "
                            "its folder")
             continue
-        kept[jid] = e
+        # bookkeeping that is not a time is an unknown one (probe 150: a NaN reached summary.json as a bare NaN)
+        kept[jid] = {**e, **{k: None for k in ("wall_s", "cpu_s") if not _seconds(e.get(k))},
+                     **({"host": None} if not isinstance(e.get("host"), (str, type(None))) else {})}
     return kept
+
+
+def _seconds(value) -> bool:
+    """Whether ``value`` reads as a time a job took: a finite number >= 0 (bool aside)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value >= 0
 
 
 # the Job fields a result depends on (not: out, threads, tables_T / design_T, which follow from data)

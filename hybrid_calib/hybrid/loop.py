@@ -63,6 +63,7 @@ from hybrid_calib.calib.result import (
     FrameEstimate,
     VehicleProgress,
     VehicleResult,
+    config_digest,
     failed_vehicles_message,
     reuse_result,
 )
@@ -873,8 +874,10 @@ def _calibrate_into(data, version: str, out: Path, conf: HybridConfig, overwrite
     if root_changed(data, version, seen, stamp["digest"]):  # another process rewrote the root under the run (probe
         done.finish()  # 142); its kept vehicles too: a rerun would reuse frames that vanished (probe 144)
         raise root_changed_error(data)
-    save_json_atomic(out / "config.json", {**stamped, **{k: v for k, v in to_dict(conf).items() if k in RUN_ONLY}})
-    save_json_atomic(out / DATA_STAMP, stamp)  # a rerun on changed data must not reuse it
+    cfg = {**stamped, **{k: v for k, v in to_dict(conf).items() if k in RUN_ONLY}}
+    save_json_atomic(out / "config.json", cfg)
+    # a rerun on changed data must not reuse it, nor one whose config.json was edited since (probe 150)
+    save_json_atomic(out / DATA_STAMP, {**stamp, "config": config_digest(cfg)})
     run.save(out / "result.json")
     done.finish()
     return run
