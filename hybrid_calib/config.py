@@ -85,19 +85,14 @@ class FrozenDict(dict):
 
 
 def frozen(value: Any) -> Any:
-    """``value`` with every mapping in it (nested, in lists too) a ``FrozenDict``."""
+    """``value`` with every mapping in it (nested, in lists and tuples too) a ``FrozenDict``."""
     if isinstance(value, Mapping):
-        return value if type(value) is FrozenDict and all(map(_is_frozen, value.values())) else \
-            FrozenDict({k: frozen(v) for k, v in value.items()})
+        return FrozenDict({k: frozen(v) for k, v in value.items()})
     if isinstance(value, list):
         return [frozen(v) for v in value]
     if isinstance(value, tuple):
         return tuple(frozen(v) for v in value)
     return value
-
-
-def _is_frozen(value: Any) -> bool:
-    return not isinstance(value, (Mapping, list, tuple)) or frozen(value) is value
 
 
 def freeze_dict_fields(conf: Any) -> None:
