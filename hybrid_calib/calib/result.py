@@ -894,7 +894,8 @@ def config_digest(cfg: dict) -> str:
     config.json edited afterwards (to the options of the next run) vouched for a result of other options (probe 150)."""
     import hashlib
 
-    return hashlib.sha1(json.dumps(cfg, sort_keys=True, default=str).encode()).hexdigest()
+    as_read = json.loads(json.dumps(cfg, default=json_default))  # what the file holds: numpy scalars, tuples, paths
+    return hashlib.sha1(json.dumps(as_read, sort_keys=True).encode()).hexdigest()
 
 
 def _stored_config_digest(out: Path) -> str | None:
