@@ -552,10 +552,10 @@ class NuScenesTables:
                 continue
             rescue = end is not None and (a, b) == end[:2]
             if not _within(off) or (rescue and end[2] is not None and self._borne_out(end[2], sd)):
-                # a pair holding a pose that is itself off the path speaks for neither side (probe 148: one keyframe
-                # 150 m off condemned its two good neighbours on a chain of keyframes only, each of whose pairs held it)
-                if self._borne_out(a, sd) and self._borne_out(b, sd):
-                    failed.append((a, b, off))
+                # a pair holding a pose that is itself off the path still counts (probe 152: discounting it let two
+                # adjacent bad poses at a chain's end, and every other pose of a chain 100 m off, pass); on a chain of
+                # keyframes only a good record beside a bad one is then refused too, and the words say so
+                failed.append((a, b, off))
             elif self._borne_out(a, sd) and self._borne_out(b, sd):
                 return
         if len(failed) < 2:  # one pair alone cannot tell the record's error from its own (a short chain's end)
@@ -576,7 +576,9 @@ class NuScenesTables:
                         f"{a['token']} and {b['token']} of the same channel, {when(a)} and {when(b)}; a road "
                         f"vehicle's motion explains {tol_m:.2f} m, {tol_yaw:.1f} deg and {tol_tilt:.1f} deg, and the "
                         "records around it do not explain it either): its ego_pose record is "
-                        "wrong, or the vehicle braked or turned beyond any car: fix the record or re-extract the "
+                        "wrong, or one of those neighbours' is (on a chain of keyframes alone, 500 ms apart, a record "
+                        "beside a wrong one is refused with it: the one refused with the largest offset is the likely "
+                        "culprit), or the vehicle braked or turned beyond any car: fix the record or re-extract the "
                         "tables (the record is not used)", path=str(self.path("ego_pose")),
                         token=sd.get("ego_pose_token"))
 
