@@ -3179,3 +3179,10 @@ def test_a_config_json_edited_to_the_next_runs_options_does_not_vouch_for_the_ol
     assert f"{run / 'config.json'} is not the configuration {run / 'result.json'} was computed with" in err, err
     assert main([*argv, "--overwrite"]) == 0 and main(argv) == 0  # recomputed, then reused as its own
     assert "reused the earlier result" in capsys.readouterr().out
+    stamp = json.loads((run / "data_stamp.json").read_text())
+    for damaged in (123, None, [], ""):  # probe 152: read as an older result's (no digest), and the result reused
+        (run / "data_stamp.json").write_text(json.dumps({**stamp, "config": damaged}))
+        assert main(argv) == 2
+        assert "data_stamp.json is damaged (its config digest is not one)" in capsys.readouterr().err
+    (run / "data_stamp.json").write_text(json.dumps({k: v for k, v in stamp.items() if k != "config"}))
+    assert main(argv) == 0  # an older result's stamp, without a config digest: reused

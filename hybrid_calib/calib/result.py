@@ -899,12 +899,16 @@ def config_digest(cfg: dict) -> str:
 
 
 def _stored_config_digest(out: Path) -> str | None:
-    """The config digest ``DATA_STAMP`` records (``config_digest``), or None (none recorded: an older result)."""
+    """The config digest ``DATA_STAMP`` records (``config_digest``): "" when none is (an older result, or no stamp),
+    None when it is not a digest (damaged: it vouches for nothing)."""
     try:
-        digest = json.loads((out / DATA_STAMP).read_text()).get("config")
-    except (OSError, ValueError, AttributeError, RecursionError):
-        return None
-    return digest if isinstance(digest, str) else None
+        stamp = json.loads((out / DATA_STAMP).read_text())
+    except (OSError, ValueError, RecursionError):
+        return ""  # a stamp that does not read is the data digest's to refuse (``stored_digest``)
+    if not isinstance(stamp, dict) or "config" not in stamp:
+        return ""
+    digest = stamp["config"]
+    return digest if isinstance(digest, str) and digest else None
 
 
 def data_differ(out: str | Path, root: str | Path, version: str) -> bool:
@@ -1076,7 +1080,11 @@ def reuse_result(out: str | Path, data, version: str, source: str, conf: dict) -
                                f"({e.message}): pass --overwrite to recompute it, or another --out") from None
     old = read_out_record(out / "config.json", "calibrate config", "the configuration its result.json was computed "
                           "with: pass --overwrite to recompute, or another --out")
-    if (recorded := _stored_config_digest(out)) is not None and recorded != config_digest(old):
+    if (recorded := _stored_config_digest(out)) is None:
+        raise HybridCalibError(f"{out / DATA_STAMP} is damaged (its config digest is not one), so whether "
+                               f"{out / 'config.json'} is the configuration {out / 'result.json'} was computed with "
+                               "cannot be told: pass --overwrite to recompute, or another --out")
+    if recorded and recorded != config_digest(old):
         raise HybridCalibError(f"{out / 'config.json'} is not the configuration {out / 'result.json'} was computed "
                                "with (it was edited since), so the result cannot be told to be this run's: pass "
                                "--overwrite to recompute, or another --out")
