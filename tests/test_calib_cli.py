@@ -436,6 +436,8 @@ def test_a_result_of_other_measurement_rows_is_not_reused_and_the_same_run_from_
     config = tmp_path / "run" / "config.json"  # a result of an older hybrid-calib, which stamped no rows
     config.write_text(json.dumps({k: v for k, v in json.loads(config.read_text()).items()
                                   if k != "correspondences_stamp"}))
+    stamp = tmp_path / "run" / "data_stamp.json"  # which recorded no digest of its config either
+    stamp.write_text(json.dumps({k: v for k, v in json.loads(stamp.read_text()).items() if k != "config"}))
     with pytest.raises(HybridCalibError, match="the earlier run recorded no stamp of its rows"):
         calibrate.run(_args(*argv, "--correspondences", "corr"))
 
