@@ -1295,3 +1295,20 @@ def test_a_root_rewritten_while_a_run_reads_it_gives_no_result(sim_root, tmp_pat
                           on_vehicle=refilled, progress=False)
         assert not (tmp_path / method / "result.json").exists()
         assert not (tmp_path / method / "vehicles-done").exists()  # probe 144: a rerun reused them
+
+
+def test_a_compare_row_takes_the_median_and_counts_every_status_that_is_not_ok():
+    """Probe 151 (mutation testing): the median row computed as the mean, and "not ok" counting only `weak`, passed
+    every compare test (two trials, where median and mean agree; no status but ok)."""
+    from hybrid_calib.calib.result import Estimate, VehicleResult
+    from hybrid_calib.compare import summarize_method
+    from hybrid_calib.metrics import METRIC_KEYS
+
+    def trial(err: float, status: str) -> VehicleResult:
+        return VehicleResult("v", Estimate(np.eye(4), np.eye(6), np.ones(6), status), config={"root": "r"},
+                             error={**dict.fromkeys(METRIC_KEYS, err), "nees": 6.0})
+
+    row = summarize_method([trial(0.1, "ok"), trial(0.2, "weak: yaw"), trial(0.3, "inconclusive: few frames"),
+                            trial(0.4, "degenerate: roll"), trial(9.0, "ok")])
+    assert row.median["rot_mean_deg"] == pytest.approx(0.3) and row.mean["rot_mean_deg"] == pytest.approx(2.0)
+    assert row.not_ok_fraction == pytest.approx(3 / 5) and row.inconclusive_fraction == pytest.approx(1 / 5)

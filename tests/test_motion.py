@@ -235,6 +235,11 @@ def test_consistent_residuals_beyond_the_gate_are_admitted_by_consensus():
     assert g.admit(inn(0.5)) and not g.admitted_by_consensus and g.recent == []  # back inside: reset
     scattered = MotionGate(conf)
     assert not any(scattered.admit(inn(r)) for r in (21.0, -9.0, 15.0, -30.0, 6.0))  # both sides / far apart
+    # each half of the rule alone (probe 151: "one side or agree" passed the case above, which fails both): one side
+    # but far apart (three failed VO pairs), and close together but on both sides
+    for seq in ((6.0, 14.0, 25.0), (5.0, -5.0, 5.5)):
+        gate = MotionGate(conf)
+        assert not any(gate.admit(inn(r)) for r in seq), seq
     assert not MotionGate(MotionConfig(consensus=0)).admit(inn(8.0))
     with pytest.raises(ValueError, match="consensus"):
         MotionConfig(consensus=-1)

@@ -167,6 +167,9 @@ def _vr(delta, std, status="ok", drift_extra=None, alarms=(), tested=False):
      ("degenerate",)),
     ((0, 9, 0, 0, 0, 0), (0.05,) * 6, "ok (NOT CONVERGED: only 3 % of the frame's correspondences fit the estimate)",
      "cannot tell", ("did not converge",)),
+    # probe 151: 0.45 deg inside a 0.5 deg tolerance, but its 3-sigma interval (0.15 deg) straddles it
+    ((0, 0.45, 0, 0, 0, 0), (0.05,) * 3 + (0.5,) * 3, "ok", "cannot tell", ("3-sigma interval straddles",)),
+    ((0, 0.6, 0, 0, 0, 0), (0.05,) * 3 + (0.5,) * 3, "ok", "cannot tell", ("0.60 deg +- 0.15",)),  # nor beyond
 ])
 def test_verdict_rules(delta, std, status, word, names):
     v = verdict_of(_vr(delta, std, status), Tolerance(rot_deg=0.5, trans_cm=5.0))
